@@ -1,0 +1,6 @@
+#include "common.hpp"
+
+PYBIND11_MODULE(_core, m) {
+    m.doc() = "iwr's compiled core. Private: use the public API of the iwr package.";
+    iwr::python::bind_model(m);
+}

@@ -1,0 +1,28 @@
+"""iwr: kinematic calibration of hybrid serial-parallel robots.
+
+The IWR (Intersector Welding Robot) is a 4-DOF serial carriage carrying a 6-DOF Stewart hexapod.
+iwr identifies its geometric error parameters from leg sensor readings at measured poses, by
+differential evolution (Wang, Wu & Handroos) and by baselines on the same objective.
+"""
+
+from __future__ import annotations
+
+from .measurements import MeasurementFileError, Measurements
+from .problem import Problem, predict_legs
+from .robot import Robot, RobotFileError
+from .simulate import Noise, UnreachableError, simulate
+
+__version__ = "0.1.0"
+
+__all__ = [
+    "MeasurementFileError",
+    "Measurements",
+    "Noise",
+    "Problem",
+    "Robot",
+    "RobotFileError",
+    "UnreachableError",
+    "__version__",
+    "predict_legs",
+    "simulate",
+]

@@ -1,0 +1,152 @@
+"""The calibration problem: a robot, its measurements, the objective of eq. (10) and its bounds."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from .measurements import Measurements, as_matrix
+from .robot import Robot
+
+__all__ = ["Problem", "predict_legs"]
+
+
+def _check_joint_types(robot: Robot, measurements: Measurements) -> None:
+    if measurements.n_joints != robot.n_joints:
+        raise ValueError(
+            f"measurements: {measurements.n_joints} joint readings per pose, but robot "
+            f"{robot.name!r} has {robot.n_joints} joints ({robot.joint_types!r})"
+        )
+    jt = measurements.joint_types
+    if jt is not None and jt != robot.joint_types:
+        raise ValueError(
+            f"measurements: joint types {jt!r} (from the units of the q columns) do not match "
+            f"robot {robot.name!r}, {robot.joint_types!r}"
+        )
+
+
+def predict_legs(robot: Robot, errors: Any, q: Any, poses: Any) -> np.ndarray:
+    """Predicted leg sensor readings, ``||0P5 + 0R5 b_j - 0P4 - 0R4 a_j|| - l0_j``.
+
+    Parameters
+    ----------
+    robot : Robot
+    errors : array_like, shape (n_params,)
+        Error parameters added to the robot's nominal geometry (zeros for the nominal robot).
+    q : array_like, shape (N, n_joints)
+        Carriage joint readings (mm, rad).
+    poses : array_like, shape (N, 6)
+        Platform poses in the world frame, rows ``(x, y, z, alpha, beta, gamma)`` (mm, rad).
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
+    """
+    poses = as_matrix(poses, 6, "poses")
+    q = as_matrix(q, robot.n_joints, "q", rows=poses.shape[0])
+    x = np.ascontiguousarray(errors, dtype=float)
+    if x.shape != (robot.n_params,):
+        raise ValueError(f"errors: shape {x.shape}; expected ({robot.n_params},)")
+    return _core.predict_legs(robot._geometry, x, q, poses)
+
+
+class Problem:
+    """The identification problem of eq. (10) for a robot and a data set.
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot; the unknowns are its error parameters.
+    measurements : Measurements
+    bounds : None, "default", "paper" or (lower, upper)
+        Search bounds of the error parameters. ``None``/``"default"``: +-0.5 mm for lengths and
+        +-0.5 degree for angles; ``"paper"``: Table 2 literally, +-0.5 everywhere.
+
+    Notes
+    -----
+    The cost is ``sum_k sum_j w_kj (s_pred_kj - s_meas_kj)^2`` (weights default to 1), in mm^2, so
+    it compares directly with the paper's final value of about 1e-4.
+    """
+
+    def __init__(self, robot: Robot, measurements: Measurements, bounds: Any = None) -> None:
+        if not isinstance(robot, Robot):
+            raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+        if not isinstance(measurements, Measurements):
+            raise TypeError(
+                f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
+            )
+        _check_joint_types(robot, measurements)
+        self.robot = robot
+        self.measurements = measurements
+        if bounds is None or isinstance(bounds, str):
+            lower, upper = robot.default_bounds(bounds or "default")
+        else:
+            try:
+                lower, upper = (np.array(b, dtype=float) for b in bounds)
+            except (TypeError, ValueError):
+                raise ValueError(
+                    "bounds: expected None, 'default', 'paper' or a pair (lower, upper)"
+                ) from None
+            lower = np.broadcast_to(lower, (robot.n_params,)).copy()
+            upper = np.broadcast_to(upper, (robot.n_params,)).copy()
+        for i, (lo, hi) in enumerate(zip(lower, upper)):
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ValueError(
+                    f"bounds: parameter {i} ({robot.parameter_names[i]}) has lower {lo}, "
+                    f"upper {hi}; bounds must be finite with lower < upper"
+                )
+        self.lower = lower
+        self.upper = upper
+        weights = measurements.weights if measurements.weights is not None else np.zeros((0, 0))
+        self._objective = _core.Objective(
+            robot._geometry, measurements.q, measurements.poses, measurements.legs, weights
+        )
+
+    @property
+    def n_params(self) -> int:
+        return self.robot.n_params
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.measurements)
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return self.robot.parameter_names
+
+    def _x(self, x: Any) -> np.ndarray:
+        arr = np.ascontiguousarray(x, dtype=float)
+        if arr.shape != (self.n_params,):
+            raise ValueError(f"x: shape {arr.shape}; expected ({self.n_params},)")
+        return arr
+
+    def cost(self, x: Any) -> float:
+        """The cost of eq. (10) at error vector ``x`` (mm^2)."""
+        return self._objective.cost(self._x(x))
+
+    def residuals(self, x: Any) -> np.ndarray:
+        """Residuals ``sqrt(w) (predicted - measured)``, shape (6 N,), pose-major."""
+        return self._objective.residuals(self._x(x))
+
+    def jacobian(self, x: Any) -> np.ndarray:
+        """Exact (analytic) Jacobian of :meth:`residuals`, shape (6 N, n_params)."""
+        return self._objective.jacobian(self._x(x))[1]
+
+    def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Both at once (one pass)."""
+        return self._objective.jacobian(self._x(x))
+
+    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
+        """Costs of the rows of ``X`` (M, n_params), evaluated across ``workers`` threads
+        (``None``: all cores). The result does not depend on the number of threads."""
+        arr = np.ascontiguousarray(X, dtype=float)
+        if arr.ndim != 2 or arr.shape[1] != self.n_params:
+            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
+        if workers is not None and workers < 1:
+            raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
+        return self._objective.cost_batch(arr, 0 if workers is None else int(workers))
+
+    def __repr__(self) -> str:
+        return f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, n_params={self.n_params})"

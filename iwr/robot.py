@@ -1,0 +1,415 @@
+"""Robot descriptions: a DH carriage carrying a six-legged Stewart hexapod."""
+
+from __future__ import annotations
+
+import math
+import os
+import sys
+from collections.abc import Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from ._io import atomic_write_text
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+__all__ = ["Robot", "RobotFileError"]
+
+_DH_COLUMNS = ("alpha", "a", "d", "theta")
+_DH_ANGLE = {"alpha": True, "a": False, "d": False, "theta": True}
+
+
+class RobotFileError(ValueError):
+    """A robot TOML file is missing, malformed, or has a missing, unknown or ill-typed key."""
+
+
+def _as_array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be read as numbers ({exc})") from None
+    if arr.shape != shape:
+        raise ValueError(f"{name}: shape {arr.shape}; expected {shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = np.argwhere(~np.isfinite(arr))[0]
+        raise ValueError(f"{name}: entry {tuple(int(i) for i in bad)} is not finite")
+    return arr
+
+
+class Robot:
+    """A hybrid robot: a serial carriage (DH chain) carrying a Stewart hexapod.
+
+    Parameters
+    ----------
+    joint_types : str
+        One letter per carriage joint, ``"P"`` (prismatic) or ``"R"`` (revolute), base first.
+        An empty string describes a standalone hexapod.
+    dh : array_like, shape (n_joints, 4)
+        Nominal standard DH parameters, columns ``alpha, a, d, theta`` (rad, mm). A joint reading
+        adds to ``d`` (prismatic) or ``theta`` (revolute), so the nominal value is the joint's zero.
+    joint_limits : array_like, shape (n_joints, 2)
+        Lower and upper limit of each joint reading (mm or rad).
+    base_joints : array_like, shape (6, 3)
+        U-joint centres ``a_i`` in the hexapod base frame {4} (mm).
+    platform_joints : array_like, shape (6, 3)
+        S-joint centres ``b_i`` in the platform frame {5} (mm).
+    leg_offsets : array_like, shape (6,)
+        Nominal leg length at a sensor reading of zero, ``l0_i`` (mm): ``length = reading + l0``.
+    leg_stroke : array_like, shape (2,) or (6, 2)
+        Lower and upper limit of the leg sensor readings (mm).
+    home_pose : array_like, shape (6,)
+        A representative platform pose in frame {4}, ``(x, y, z, alpha, beta, gamma)``: the centre
+        of the sampled workspace.
+    workspace : array_like, shape (6,)
+        Half-widths of the sampled hexapod workspace around ``home_pose`` (mm, rad).
+    name : str
+        A label.
+    """
+
+    def __init__(
+        self,
+        joint_types: str,
+        dh: Any,
+        joint_limits: Any,
+        base_joints: Any,
+        platform_joints: Any,
+        leg_offsets: Any,
+        leg_stroke: Any,
+        home_pose: Any = (0.0, 0.0, 600.0, 0.0, 0.0, 0.0),
+        workspace: Any = (100.0, 100.0, 60.0, 0.15, 0.15, 0.15),
+        name: str = "robot",
+    ) -> None:
+        if not isinstance(joint_types, str) or any(c not in "PR" for c in joint_types):
+            raise ValueError(
+                f"joint_types: {joint_types!r}; expected a string of 'P' and 'R', one per joint"
+            )
+        n = len(joint_types)
+        self.name = str(name)
+        self.joint_types = joint_types
+        self.dh = _as_array(dh, (n, 4), "dh") if n else np.zeros((0, 4))
+        self.joint_limits = (
+            _as_array(joint_limits, (n, 2), "joint_limits") if n else np.zeros((0, 2))
+        )
+        for i, (lo, hi) in enumerate(self.joint_limits):
+            if not lo < hi:
+                raise ValueError(f"joint_limits: joint {i + 1} has lower {lo} >= upper {hi}")
+        self.base_joints = _as_array(base_joints, (6, 3), "base_joints")
+        self.platform_joints = _as_array(platform_joints, (6, 3), "platform_joints")
+        self.leg_offsets = _as_array(leg_offsets, (6,), "leg_offsets")
+        stroke = np.array(leg_stroke, dtype=float)
+        if stroke.shape == (2,):
+            stroke = np.tile(stroke, (6, 1))
+        self.leg_stroke = _as_array(stroke, (6, 2), "leg_stroke")
+        for i, (lo, hi) in enumerate(self.leg_stroke):
+            if not lo < hi:
+                raise ValueError(f"leg_stroke: leg {i + 1} has lower {lo} >= upper {hi}")
+        self.home_pose = _as_array(home_pose, (6,), "home_pose")
+        self.workspace = _as_array(workspace, (6,), "workspace")
+        if np.any(self.workspace < 0):
+            raise ValueError(f"workspace: half-widths must be >= 0, got {self.workspace}")
+        self._geometry = _core.Geometry(
+            self.joint_types,
+            np.ascontiguousarray(self.dh),
+            self.base_joints,
+            self.platform_joints,
+            self.leg_offsets,
+        )
+
+    # -- derived ---------------------------------------------------------------------------
+    @property
+    def n_joints(self) -> int:
+        """Number of carriage joints."""
+        return len(self.joint_types)
+
+    @property
+    def n_params(self) -> int:
+        """Number of error parameters, ``4 * n_joints + 42``."""
+        return 4 * self.n_joints + 42
+
+    @property
+    def parameter_names(self) -> list[str]:
+        """Names of the error parameters, in the public order of ``docs/model.md``."""
+        names = [f"joint{i + 1}.d{col}" for i in range(self.n_joints) for col in _DH_COLUMNS]
+        names += [f"leg{j + 1}.da_{c}" for j in range(6) for c in "xyz"]
+        names += [f"leg{j + 1}.db_{c}" for j in range(6) for c in "xyz"]
+        names += [f"leg{j + 1}.dl0" for j in range(6)]
+        return names
+
+    @property
+    def angle_parameters(self) -> np.ndarray:
+        """Boolean mask, True where an error parameter is an angle (rad), False for lengths (mm)."""
+        mask = [_DH_ANGLE[col] for _ in range(self.n_joints) for col in _DH_COLUMNS]
+        return np.array(mask + [False] * 42, dtype=bool)
+
+    @property
+    def joint_units(self) -> list[str]:
+        """Unit of each joint reading: ``"mm"`` for prismatic, ``"rad"`` for revolute joints."""
+        return ["mm" if c == "P" else "rad" for c in self.joint_types]
+
+    def default_bounds(self, kind: str = "default") -> tuple[np.ndarray, np.ndarray]:
+        """Bounds of the error parameters.
+
+        ``"default"``: +-0.5 mm for lengths and +-0.5 degree for angles. ``"paper"``: Table 2 read
+        literally, +-0.5 for every parameter (so +-0.5 rad for angles).
+        """
+        if kind == "paper":
+            half = np.full(self.n_params, 0.5)
+        elif kind == "default":
+            half = np.where(self.angle_parameters, math.radians(0.5), 0.5)
+        else:
+            raise ValueError(f"bounds: unknown preset {kind!r}; expected 'default' or 'paper'")
+        return -half, half
+
+    def with_errors(self, errors: Any) -> Robot:
+        """The robot whose nominal geometry is this one's plus ``errors`` (a calibrated robot)."""
+        x = _as_array(errors, (self.n_params,), "errors")
+        n = self.n_joints
+        dh = self.dh + x[: 4 * n].reshape(n, 4)
+        return Robot(
+            self.joint_types,
+            dh,
+            self.joint_limits,
+            self.base_joints + x[4 * n : 4 * n + 18].reshape(6, 3),
+            self.platform_joints + x[4 * n + 18 : 4 * n + 36].reshape(6, 3),
+            self.leg_offsets + x[4 * n + 36 :],
+            self.leg_stroke,
+            self.home_pose,
+            self.workspace,
+            name=self.name,
+        )
+
+    def carriage_transform(self, q: Any, errors: Any = None) -> np.ndarray:
+        """The 4x4 transform 0T4 of the carriage at joint readings ``q`` (eq. 2)."""
+        x = np.zeros(self.n_params) if errors is None else np.asarray(errors, dtype=float)
+        return _core.carriage_transform(self._geometry, x, np.asarray(q, dtype=float))
+
+    # -- presets ------------------------------------------------------------------------------
+    @classmethod
+    def default(cls) -> Robot:
+        """The IWR of the paper's Table 1, with representative dimensions.
+
+        The paper gives the DH structure but not the lengths. These are IWR-scale values:
+
+        - joint 1, prismatic ``d1`` (travel along the rail), 0..2000 mm, alpha = pi/2, zero offset
+          500 mm;
+        - joint 2, prismatic ``d2``, 0..1000 mm, alpha = theta = pi/2, zero offset 300 mm;
+        - joint 3, revolute ``theta3``, +-90 degrees, alpha = pi/2, a3 = 400 mm, d3 = 250 mm;
+        - joint 4, revolute ``theta4``, +-60 degrees, alpha = -pi/2, a4 = 300 mm;
+        - hexapod: U-joints on a 400 mm radius in frame {4}, in pairs 20 degrees apart about
+          0, 120 and 240 degrees; S-joints on a 250 mm radius in frame {5}, pairs about 60, 180
+          and 300 degrees; leg length = reading + 600 mm, readings 0..400 mm; home platform height
+          750 mm above the base plate.
+        """
+        h = math.pi / 2
+        dh = [
+            [h, 0.0, 500.0, 0.0],
+            [h, 0.0, 300.0, h],
+            [h, 400.0, 250.0, 0.0],
+            [-h, 300.0, 0.0, 0.0],
+        ]
+        limits = [
+            [0.0, 2000.0],
+            [0.0, 1000.0],
+            [-math.radians(90), math.radians(90)],
+            [-math.radians(60), math.radians(60)],
+        ]
+        return cls(
+            "PPRR",
+            dh,
+            limits,
+            _ring(400.0, 0.0, 20.0),
+            _ring(250.0, 60.0, 20.0),
+            np.full(6, 600.0),
+            [0.0, 400.0],
+            home_pose=(0.0, 0.0, 750.0, 0.0, 0.0, 0.0),
+            workspace=(120.0, 120.0, 80.0, math.radians(10), math.radians(10), math.radians(10)),
+            name="IWR",
+        )
+
+    @classmethod
+    def hexapod(cls) -> Robot:
+        """The IWR's hexapod alone (no carriage, 42 error parameters): frame {4} is the world."""
+        iwr = cls.default()
+        return cls(
+            "",
+            np.zeros((0, 4)),
+            np.zeros((0, 2)),
+            iwr.base_joints,
+            iwr.platform_joints,
+            iwr.leg_offsets,
+            iwr.leg_stroke,
+            iwr.home_pose,
+            iwr.workspace,
+            name="hexapod",
+        )
+
+    # -- files ----------------------------------------------------------------------------------
+    def to_dict(self) -> dict[str, Any]:
+        """A plain dictionary, the content of the TOML file."""
+        return {
+            "name": self.name,
+            "units": {"length": "mm", "angle": "rad"},
+            "carriage": {
+                "joints": [
+                    {
+                        "type": "prismatic" if t == "P" else "revolute",
+                        "alpha": float(row[0]),
+                        "a": float(row[1]),
+                        "d": float(row[2]),
+                        "theta": float(row[3]),
+                        "limits": [float(v) for v in lim],
+                    }
+                    for t, row, lim in zip(self.joint_types, self.dh, self.joint_limits)
+                ]
+            },
+            "hexapod": {
+                "base_joints": self.base_joints.tolist(),
+                "platform_joints": self.platform_joints.tolist(),
+                "leg_offsets": self.leg_offsets.tolist(),
+                "leg_stroke": self.leg_stroke.tolist(),
+                "home_pose": self.home_pose.tolist(),
+                "workspace": self.workspace.tolist(),
+            },
+        }
+
+    def to_toml(self, path: str | os.PathLike[str]) -> None:
+        """Write the robot as TOML (atomically: a temporary file, then a rename)."""
+        import tomli_w
+
+        header = (
+            "# iwr robot description. Lengths in mm, angles in rad.\n"
+            "# Carriage: standard DH, A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha); a joint reading adds\n"
+            "# to d (prismatic) or theta (revolute). Hexapod: base_joints a_i in frame {4},\n"
+            "# platform_joints b_i in frame {5}, leg length = reading + leg_offset.\n"
+        )
+        atomic_write_text(path, header + tomli_w.dumps(self.to_dict()))
+
+    @classmethod
+    def from_toml(cls, path: str | os.PathLike[str]) -> Robot:
+        """Read a robot written by :meth:`to_toml` (or by hand); errors name the file and key."""
+        path = Path(path)
+        try:
+            with open(path, "rb") as fh:
+                data = tomllib.load(fh)
+        except FileNotFoundError:
+            raise RobotFileError(f"{path}: no such file") from None
+        except tomllib.TOMLDecodeError as exc:
+            raise RobotFileError(f"{path}: not valid TOML: {exc}") from None
+        try:
+            return cls.from_dict(data)
+        except (KeyError, ValueError, TypeError) as exc:
+            msg = exc.args[0] if exc.args else str(exc)
+            raise RobotFileError(f"{path}: {msg}") from None
+
+    @classmethod
+    def from_dict(cls, data: Mapping[str, Any]) -> Robot:
+        """Build a robot from the dictionary form of :meth:`to_dict`; strict about keys."""
+        _check_keys(data, {"name", "units", "carriage", "hexapod"}, {"hexapod"}, "")
+        units = data.get("units", {"length": "mm", "angle": "rad"})
+        _check_keys(units, {"length", "angle"}, set(), "units")
+        if units.get("length", "mm") != "mm" or units.get("angle", "rad") != "rad":
+            raise ValueError(f"units: {dict(units)}; only length = 'mm', angle = 'rad' are supported")
+        name = data.get("name", "robot")
+        if not isinstance(name, str):
+            raise ValueError(f"name: expected a string, got {type(name).__name__}")
+        carriage = data.get("carriage", {"joints": []})
+        _check_keys(carriage, {"joints"}, set(), "carriage")
+        joints = carriage.get("joints", [])
+        if not isinstance(joints, list):
+            raise ValueError("carriage.joints: expected an array of tables")
+        types, dh, limits = "", [], []
+        for i, joint in enumerate(joints):
+            where = f"carriage.joints[{i}]"
+            _check_keys(joint, {"type", "alpha", "a", "d", "theta", "limits"},
+                        {"type", "alpha", "a", "d", "theta", "limits"}, where)
+            kind = joint["type"]
+            if kind not in ("prismatic", "revolute"):
+                raise ValueError(f"{where}.type: {kind!r}; expected 'prismatic' or 'revolute'")
+            types += "P" if kind == "prismatic" else "R"
+            dh.append([_number(joint[c], f"{where}.{c}") for c in _DH_COLUMNS])
+            limits.append(_numbers(joint["limits"], 2, f"{where}.limits"))
+        hexa = data["hexapod"]
+        required = {"base_joints", "platform_joints", "leg_offsets", "leg_stroke"}
+        _check_keys(hexa, required | {"home_pose", "workspace"}, required, "hexapod")
+        kwargs = {}
+        for key in ("home_pose", "workspace"):
+            if key in hexa:
+                kwargs[key] = _numbers(hexa[key], 6, f"hexapod.{key}")
+        return cls(
+            types,
+            np.array(dh, dtype=float).reshape(len(types), 4),
+            np.array(limits, dtype=float).reshape(len(types), 2),
+            _matrix(hexa["base_joints"], 6, 3, "hexapod.base_joints"),
+            _matrix(hexa["platform_joints"], 6, 3, "hexapod.platform_joints"),
+            _numbers(hexa["leg_offsets"], 6, "hexapod.leg_offsets"),
+            _stroke(hexa["leg_stroke"]),
+            name=name,
+            **kwargs,
+        )
+
+    def __repr__(self) -> str:
+        return (
+            f"Robot(name={self.name!r}, joint_types={self.joint_types!r}, "
+            f"n_params={self.n_params})"
+        )
+
+    def __eq__(self, other: object) -> bool:
+        if not isinstance(other, Robot):
+            return NotImplemented
+        a, b = self.to_dict(), other.to_dict()
+        return a == b
+
+
+def _ring(radius: float, centre_deg: float, spread_deg: float) -> np.ndarray:
+    """Six points on a circle in z = 0, in pairs +-spread/2 about centre, centre + 120, + 240."""
+    pts = []
+    for k in range(3):
+        c = centre_deg + 120.0 * k
+        for sign in (-1.0, 1.0):
+            ang = math.radians(c + sign * spread_deg / 2.0)
+            pts.append([radius * math.cos(ang), radius * math.sin(ang), 0.0])
+    return np.array(pts)
+
+
+def _check_keys(table: Any, allowed: set[str], required: set[str], where: str) -> None:
+    if not isinstance(table, Mapping):
+        raise ValueError(f"{where or 'file'}: expected a table, got {type(table).__name__}")
+    prefix = f"{where}." if where else ""
+    for key in table:
+        if key not in allowed:
+            raise ValueError(f"{prefix}{key}: unknown key; allowed: {', '.join(sorted(allowed))}")
+    for key in sorted(required):
+        if key not in table:
+            raise ValueError(f"{prefix}{key}: missing key")
+
+
+def _number(value: Any, where: str) -> float:
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        raise ValueError(f"{where}: expected a number, got {type(value).__name__} {value!r}")
+    if not math.isfinite(value):
+        raise ValueError(f"{where}: {value} is not finite")
+    return float(value)
+
+
+def _numbers(value: Any, n: int, where: str) -> list[float]:
+    if not isinstance(value, list) or len(value) != n:
+        raise ValueError(f"{where}: expected an array of {n} numbers, got {value!r}")
+    return [_number(v, f"{where}[{i}]") for i, v in enumerate(value)]
+
+
+def _matrix(value: Any, rows: int, cols: int, where: str) -> list[list[float]]:
+    if not isinstance(value, list) or len(value) != rows:
+        raise ValueError(f"{where}: expected {rows} rows of {cols} numbers")
+    return [_numbers(row, cols, f"{where}[{i}]") for i, row in enumerate(value)]
+
+
+def _stroke(value: Any) -> list[Any]:
+    if isinstance(value, list) and len(value) == 2 and not isinstance(value[0], list):
+        return _numbers(value, 2, "hexapod.leg_stroke")
+    return _matrix(value, 6, 2, "hexapod.leg_stroke")

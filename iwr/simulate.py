@@ -1,0 +1,165 @@
+"""Simulated calibration data: an 'actual' robot (nominal + errors), reachable poses, noise."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .measurements import Measurements
+from .problem import predict_legs
+from .robot import Robot
+from .transforms import euler_zyx, pose_from_matrix, pose_matrix, rotvec_matrix
+
+__all__ = ["Noise", "simulate", "sample_poses", "UnreachableError"]
+
+
+class UnreachableError(RuntimeError):
+    """Too few reachable poses were found in the robot's workspace."""
+
+
+@dataclass(frozen=True)
+class Noise:
+    """Standard deviations of Gaussian measurement noise (mm and rad).
+
+    Attributes
+    ----------
+    legs : float
+        On each leg sensor reading (mm). Leg encoders: micrometres, e.g. 0.002.
+    joint_lengths : float
+        On each prismatic joint reading (mm).
+    joint_angles : float
+        On each revolute joint reading (rad).
+    position : float
+        On each coordinate of the measured platform position (mm). A laser tracker: tens of
+        micrometres, e.g. 0.02.
+    orientation : float
+        On each axis of a small random rotation applied to the measured orientation (rad).
+    """
+
+    legs: float = 0.0
+    joint_lengths: float = 0.0
+    joint_angles: float = 0.0
+    position: float = 0.0
+    orientation: float = 0.0
+
+    def __post_init__(self) -> None:
+        for name in ("legs", "joint_lengths", "joint_angles", "position", "orientation"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
+                raise ValueError(f"Noise.{name}: {v!r}; expected a finite number >= 0")
+
+    @classmethod
+    def realistic(cls) -> Noise:
+        """A laser tracker and good encoders: legs 2 um, joints 5 um and 5 urad, tracker 20 um
+        and 20 urad."""
+        return cls(legs=0.002, joint_lengths=0.005, joint_angles=5e-6, position=0.02,
+                   orientation=2e-5)
+
+    @property
+    def is_zero(self) -> bool:
+        return not any((self.legs, self.joint_lengths, self.joint_angles, self.position,
+                        self.orientation))
+
+
+def sample_poses(
+    robot: Robot,
+    n_poses: int,
+    rng: np.random.Generator,
+    errors: Any = None,
+    max_tries: int = 200,
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Random reachable measurement poses of the robot with ``errors`` (default: nominal).
+
+    Joint readings are uniform within the joint limits; the platform pose relative to frame {4}
+    is uniform within ``robot.workspace`` around ``robot.home_pose``. A pose is kept only when
+    every leg reading is within the stroke.
+
+    Returns ``(q, poses, legs)``: joint readings (N, n_joints), world poses (N, 6), exact leg
+    readings (N, 6).
+    """
+    x = np.zeros(robot.n_params) if errors is None else np.asarray(errors, dtype=float)
+    qs, ps, ls = [], [], []
+    have, tries = 0, 0
+    batch = max(16, 2 * n_poses)
+    while have < n_poses:
+        tries += 1
+        if tries > max_tries:
+            raise UnreachableError(
+                f"only {have} of {n_poses} random poses were reachable after {tries - 1} batches "
+                f"of {batch}: check joint_limits, leg_stroke, home_pose and workspace"
+            )
+        lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
+        q = lo + (hi - lo) * rng.random((batch, robot.n_joints))
+        local = robot.home_pose + robot.workspace * (2.0 * rng.random((batch, 6)) - 1.0)
+        t4 = np.array([robot.carriage_transform(qk, x) for qk in q])
+        poses = pose_from_matrix(t4 @ pose_matrix(local))
+        legs = predict_legs(robot, x, q, poses)
+        ok = np.all((legs >= robot.leg_stroke[:, 0]) & (legs <= robot.leg_stroke[:, 1]), axis=1)
+        take = np.flatnonzero(ok)[: n_poses - have]
+        qs.append(q[take])
+        ps.append(poses[take])
+        ls.append(legs[take])
+        have += take.size
+    return np.vstack(qs), np.vstack(ps), np.vstack(ls)
+
+
+def simulate(
+    robot: Robot,
+    n_poses: int = 100,
+    seed: int | None = 0,
+    errors: Any = None,
+    noise: Noise | None = None,
+) -> tuple[Measurements, np.ndarray]:
+    """Simulate a calibration experiment (the paper's section 4, with optional noise).
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot.
+    n_poses : int
+        Number of measurement poses N.
+    seed : int
+        Seed of the random generator; the same seed gives the same data.
+    errors : array_like, optional
+        The 'actual' robot's error vector. Default: uniform within the default bounds
+        (+-0.5 mm, +-0.5 degree).
+    noise : Noise, optional
+        Measurement noise; default none (the paper's simulation).
+
+    Returns
+    -------
+    measurements : Measurements
+        Joint readings, measured poses and leg readings of the actual robot, with noise.
+    true_errors : ndarray, shape (n_params,)
+    """
+    if not isinstance(robot, Robot):
+        raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+    if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
+        raise ValueError(f"n_poses: {n_poses!r}; expected a positive integer")
+    noise = noise if noise is not None else Noise()
+    if not isinstance(noise, Noise):
+        raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
+    rng = np.random.default_rng(seed)
+    lower, upper = robot.default_bounds()
+    if errors is None:
+        x = lower + (upper - lower) * rng.random(robot.n_params)
+    else:
+        x = np.array(errors, dtype=float)
+        if x.shape != (robot.n_params,) or not np.all(np.isfinite(x)):
+            raise ValueError(f"errors: expected {robot.n_params} finite values, got shape {x.shape}")
+    q, poses, legs = sample_poses(robot, int(n_poses), rng, x)
+    n = len(poses)
+    if not noise.is_zero:
+        sigma_q = np.where(np.array([c == "P" for c in robot.joint_types]),
+                           noise.joint_lengths, noise.joint_angles)
+        q = q + sigma_q * rng.standard_normal(q.shape)
+        legs = legs + noise.legs * rng.standard_normal(legs.shape)
+        r = euler_zyx(poses[:, 3], poses[:, 4], poses[:, 5])
+        r = r @ rotvec_matrix(noise.orientation * rng.standard_normal((n, 3)))
+        t = pose_matrix(poses)
+        t[:, :3, :3] = r
+        t[:, :3, 3] += noise.position * rng.standard_normal((n, 3))
+        poses = pose_from_matrix(t)
+    return Measurements(q, poses, legs, joint_types=robot.joint_types), x
