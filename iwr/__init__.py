@@ -7,22 +7,29 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
+from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "IdentificationResult",
     "MeasurementFileError",
     "Measurements",
     "Noise",
     "Problem",
+    "ReducedProblem",
+    "ResultFileError",
     "Robot",
     "RobotFileError",
     "UnreachableError",
     "__version__",
+    "identify",
+    "load_result",
     "predict_legs",
     "simulate",
 ]
