@@ -1,0 +1,151 @@
+// C++ tests of the core, run by ctest (and under AddressSanitizer/UBSan with -DIWR_SANITIZE=ON).
+// Deliberately framework-free: the core has no dependency beyond Eigen and the standard library.
+#include <cmath>
+#include <cstdio>
+#include <random>
+#include <stdexcept>
+#include <string>
+
+#include "iwr/model.hpp"
+#include "iwr/objective.hpp"
+#include "iwr/parallel.hpp"
+
+namespace {
+
+int failures = 0;
+
+#define CHECK(cond)                                                                    \
+    do {                                                                               \
+        if (!(cond)) {                                                                 \
+            std::fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
+            ++failures;                                                                \
+        }                                                                              \
+    } while (0)
+
+iwr::Geometry iwr_geometry(bool with_carriage) {
+    const double h = M_PI / 2;
+    iwr::RowMatrixXd dh(4, 4);
+    dh << h, 0, 500, 0, h, 0, 300, h, h, 400, 250, 0, -h, 300, 0, 0;
+    iwr::LegMatrix base, platform;
+    for (int j = 0; j < 6; ++j) {
+        const double ab = (120.0 * (j / 2) + (j % 2 ? 10.0 : -10.0)) * M_PI / 180;
+        const double ap = ab + M_PI / 3;
+        base.row(j) << 400 * std::cos(ab), 400 * std::sin(ab), 0;
+        platform.row(j) << 250 * std::cos(ap), 250 * std::sin(ap), 0;
+    }
+    iwr::LegVector l0 = iwr::LegVector::Constant(600);
+    if (!with_carriage) return iwr::Geometry("", iwr::RowMatrixXd(0, 4), base, platform, l0);
+    return iwr::Geometry("PPRR", dh, base, platform, l0);
+}
+
+iwr::Objective make_objective(const iwr::Geometry& g, int n, std::mt19937_64& rng, bool weighted) {
+    std::uniform_real_distribution<double> u(-1, 1);
+    iwr::RowMatrixXd q(n, g.n_joints()), poses(n, 6), legs(n, 6), w;
+    for (int k = 0; k < n; ++k) {
+        for (int i = 0; i < g.n_joints(); ++i) q(k, i) = g.is_prismatic(i) ? 500 * (1 + u(rng)) : u(rng);
+        poses.row(k) << 1000 * u(rng), 1000 * u(rng), 1000 + 500 * u(rng), u(rng), u(rng), u(rng);
+        for (int j = 0; j < 6; ++j) legs(k, j) = 200 + 100 * u(rng);
+    }
+    if (weighted) w = iwr::RowMatrixXd::Constant(n, 6, 1.0) + 0.5 * iwr::RowMatrixXd::Random(n, 6);
+    return iwr::Objective(g, q, poses, legs, w);
+}
+
+void test_cost_residuals_jacobian() {
+    std::mt19937_64 rng(42);
+    std::uniform_real_distribution<double> u(-0.5, 0.5);
+    for (bool carriage : {true, false}) {
+        for (bool weighted : {false, true}) {
+            for (int n : {1, 7, 64}) {
+                const iwr::Geometry g = iwr_geometry(carriage);
+                const iwr::Objective obj = make_objective(g, n, rng, weighted);
+                iwr::VectorXd x(g.n_params());
+                for (int i = 0; i < x.size(); ++i) x(i) = u(rng);
+                iwr::VectorXd r;
+                iwr::RowMatrixXd jac;
+                obj.jacobian(x, &r, &jac);
+                const double c = obj.cost(x);
+                CHECK(std::abs(c - r.squaredNorm()) <= 1e-10 * r.squaredNorm());
+                // central differences
+                const double h = 1e-6;
+                double worst = 0;
+                for (int i = 0; i < x.size(); ++i) {
+                    iwr::VectorXd xp = x, xm = x;
+                    xp(i) += h;
+                    xm(i) -= h;
+                    const iwr::VectorXd fd = (obj.residuals(xp) - obj.residuals(xm)) / (2 * h);
+                    worst = std::max(worst, (fd - jac.col(i)).cwiseAbs().maxCoeff() /
+                                                (1 + fd.cwiseAbs().maxCoeff()));
+                }
+                CHECK(worst < 1e-6);
+            }
+        }
+    }
+}
+
+void test_batch_is_thread_independent() {
+    std::mt19937_64 rng(7);
+    const iwr::Geometry g = iwr_geometry(true);
+    const iwr::Objective obj = make_objective(g, 33, rng, false);
+    const int m = 101;
+    iwr::RowMatrixXd X = 0.5 * iwr::RowMatrixXd::Random(m, g.n_params());
+    iwr::VectorXd one(m), two(m), three(m);
+    iwr::ThreadPool p1(1), p2(2), p3(3);
+    obj.cost_batch(X.data(), m, one.data(), p1);
+    obj.cost_batch(X.data(), m, two.data(), p2);
+    obj.cost_batch(X.data(), m, three.data(), p3);
+    CHECK(one == two);
+    CHECK(one == three);
+    auto ws = obj.make_workspace();
+    for (int i = 0; i < m; ++i) CHECK(one(i) == obj.cost(X.row(i).data(), ws));
+}
+
+void test_pool_propagates_exceptions() {
+    iwr::ThreadPool pool(2);
+    bool thrown = false;
+    try {
+        pool.parallel_for(10, [](std::size_t b, std::size_t, int) {
+            if (b > 0) throw std::runtime_error("boom");
+        });
+    } catch (const std::runtime_error&) {
+        thrown = true;
+    }
+    CHECK(thrown);
+    int sum = 0;  // the pool still works afterwards
+    pool.parallel_for(1, [&](std::size_t b, std::size_t e, int) { sum += static_cast<int>(e - b); });
+    CHECK(sum == 1);
+}
+
+void test_validation() {
+    bool thrown = false;
+    try {
+        iwr::Geometry("PX", iwr::RowMatrixXd::Zero(2, 4), iwr::LegMatrix::Zero(),
+                      iwr::LegMatrix::Zero(), iwr::LegVector::Zero());
+    } catch (const std::invalid_argument& e) {
+        thrown = std::string(e.what()).find("letter 1") != std::string::npos;
+    }
+    CHECK(thrown);
+    thrown = false;
+    try {
+        const iwr::Geometry g = iwr_geometry(true);
+        iwr::Objective(g, iwr::RowMatrixXd::Zero(3, 4), iwr::RowMatrixXd::Zero(3, 6),
+                       iwr::RowMatrixXd::Zero(2, 6));
+    } catch (const std::invalid_argument& e) {
+        thrown = std::string(e.what()).find("legs: shape (2, 6)") != std::string::npos;
+    }
+    CHECK(thrown);
+}
+
+}  // namespace
+
+int main() {
+    test_cost_residuals_jacobian();
+    test_batch_is_thread_independent();
+    test_pool_propagates_exceptions();
+    test_validation();
+    if (failures) {
+        std::fprintf(stderr, "%d check(s) failed\n", failures);
+        return 1;
+    }
+    std::printf("all C++ checks passed\n");
+    return 0;
+}
