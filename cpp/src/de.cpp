@@ -796,6 +796,9 @@ void step(State& st, BatchFunction& f, ThreadPool& pool) {
     gen.pnum = std::min(np, std::max(2, static_cast<int>(std::lround(p * np))));
 
     // Trials: slot i uses stream 1 + i only, so any partition of the slots gives the same trials.
+    // The streams are the only part of the state touched before the evaluation, which may throw
+    // (a Python objective interrupted by Ctrl-C): they are restored then.
+    std::vector<Rng> saved = st.streams;
     RowMatrixXd trials(np, d);
     std::vector<double> tF(static_cast<std::size_t>(np)), tCR(static_cast<std::size_t>(np));
     pool.parallel_for(static_cast<std::size_t>(np), [&](std::size_t b, std::size_t e, int) {
@@ -804,7 +807,12 @@ void step(State& st, BatchFunction& f, ThreadPool& pool) {
                        tF[i], tCR[i]);
     });
     VectorXd tcost(np);
-    f.evaluate(trials.data(), static_cast<std::size_t>(np), tcost.data(), pool);
+    try {
+        f.evaluate(trials.data(), static_cast<std::size_t>(np), tcost.data(), pool);
+    } catch (...) {
+        st.streams = std::move(saved);  // the state is left as it was before this step
+        throw;
+    }
     sanitize(tcost.data(), static_cast<std::size_t>(np));
     st.nfev += np;
 
