@@ -254,6 +254,7 @@ def identifiability(
     x: Any = None,
     *,
     rtol: float | None = None,
+    selection: str = "ordered",
 ) -> IdentifiabilityReport:
     """Which error parameters the leg readings at these poses can identify.
 
@@ -271,6 +272,17 @@ def identifiability(
         ``max(6 N, n_params) * machine epsilon`` (as ``numpy.linalg.matrix_rank``). The structural
         null directions of the IWR give singular values ~1e-16 while the weakest identifiable
         ones are ~1e-3, so the choice is not delicate.
+    selection : {"ordered", "pivoted"}
+        How to choose the base parameters among equivalent ones. ``"pivoted"``: the first
+        ``rank`` pivots of QR with column pivoting of the scaled Jacobian
+        (``scipy.linalg.qr(pivoting=True)``), the best-conditioned subset; but where columns are
+        exactly dependent (joint1.da and joint3.dd are opposite) the choice among them falls to
+        round-off or to a 1e-3 difference of the geometry, so it can change from one data set or
+        one ``x`` to the next. ``"ordered"`` (default): go through the parameters in a fixed order
+        of preference (the hexapod's a_i, b_i, l0_i, then the carriage's joints 1, 2, ...) and keep
+        each one that is independent of those kept so far, so the same structural dependencies
+        always leave out the same parameters (for the IWR: joint2.da, joint3.dd and joint 4's
+        four). Falls back to ``"pivoted"`` if the ordered pass does not find ``rank`` columns.
 
     Returns
     -------
@@ -286,11 +298,7 @@ def identifiability(
     names = robot.parameter_names
     n = robot.n_params
 
-    # Base parameters: QR with column pivoting of the scaled Jacobian; the first `rank` pivots are
-    # the best-conditioned independent subset, the remaining columns depend on them.
-    _, _, piv = scipy.linalg.qr(jac / d, mode="economic", pivoting=True)
-    base = np.sort(piv[:rank])
-    out = np.sort(piv[rank:])
+    base, out = _base_parameters(jac / d, s, thr, rank, robot, selection)
 
     # Null space in scaled coordinates, then back to physical units; then the "echelon" basis:
     # one direction per left-out parameter, coefficient 1 there and 0 on the other left-out ones.
@@ -323,6 +331,50 @@ def identifiability(
         angle_parameters=robot.angle_parameters,
         **ind,
     )
+
+
+def _preference(robot: Robot) -> np.ndarray:
+    """Order of preference for keeping a parameter: hexapod (a_i, b_i, l0_i), then joints 1..n."""
+    nc = 4 * robot.n_joints
+    return np.concatenate([np.arange(nc, robot.n_params), np.arange(nc)])
+
+
+def _base_parameters(
+    js: np.ndarray, s: np.ndarray, thr: float, rank: int, robot: Robot, selection: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the base parameters and of those left out (both sorted)."""
+    n = js.shape[1]
+    if selection not in ("ordered", "pivoted"):
+        raise ValueError(f"selection: {selection!r}; expected 'ordered' or 'pivoted'")
+    if selection == "ordered" and 0 < rank < n:
+        # Distance of each column (unit norm) from the span of the kept ones, by Gram-Schmidt
+        # applied twice (one pass loses orthogonality at round-off level). Two passes over the
+        # parameters in order of preference: the first keeps only columns at distance >= 0.1 from
+        # the span (well away from it), so that a column that is *nearly* dependent (joint2.da is
+        # parallel to joint1.dd up to the angle errors, ~1e-3) cannot take the place of a clearly
+        # independent one; the second keeps whatever else is independent at all: dependent columns
+        # are at round-off distance (~1e-13), independent ones at least ~s_r, and the cut is
+        # their geometric midpoint.
+        cut = np.sqrt(max(thr, 1e-300) * s[rank - 1])
+        basis: list[np.ndarray] = []
+        kept: list[int] = []
+        for limit in (0.1, cut):
+            for j in _preference(robot):
+                if j in kept:
+                    continue
+                v = js[:, j] / np.linalg.norm(js[:, j])
+                for _ in range(2):
+                    for b in basis:
+                        v = v - (b @ v) * b
+                dist = np.linalg.norm(v)
+                if dist > limit:
+                    basis.append(v / dist)
+                    kept.append(j)
+        if len(kept) == rank:
+            base = np.sort(np.array(kept, dtype=int))
+            return base, np.setdiff1d(np.arange(n), base)
+    _, _, piv = scipy.linalg.qr(js, mode="economic", pivoting=True)
+    return np.sort(piv[:rank]), np.sort(piv[rank:])
 
 
 def _line_invariance(
