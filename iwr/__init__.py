@@ -16,10 +16,12 @@ from .identifiability import (
 )
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
+from .planning import PosePlan, plan_poses
 from .problem import Problem, predict_legs
 from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
+from .uncertainty import Uncertainty, uncertainty
 
 __version__ = "0.1.0"
 
@@ -31,17 +33,21 @@ __all__ = [
     "Noise",
     "NullDirection",
     "ParameterError",
+    "PosePlan",
     "Problem",
     "ReducedProblem",
     "ResultFileError",
     "Robot",
     "RobotFileError",
+    "Uncertainty",
     "UnreachableError",
     "__version__",
     "identifiability",
     "identify",
     "load_result",
     "parameter_error",
+    "plan_poses",
     "predict_legs",
     "simulate",
+    "uncertainty",
 ]
