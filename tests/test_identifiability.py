@@ -8,6 +8,10 @@ import numpy as np
 import pytest
 
 import iwr
+from iwr import transforms
+from iwr.planning import measure
+from iwr.simulate import sample_poses
+from iwr.uncertainty import measurement_jacobians
 
 N_POSES = 30
 
@@ -212,3 +216,137 @@ def test_base_parameter_identification_is_unique(robot, data, report) -> None:
     for x in base + full:
         pe = iwr.parameter_error(robot, m, x, truth)
         assert pe.max_abs_length < 1e-7 and pe.max_abs_angle < 1e-9
+
+
+# -- 3. uncertainty: predicted spread against Monte-Carlo noise draws ---------------------------
+
+
+def _monte_carlo(robot, noise, n_draws=200, n_poses=20):
+    """Spread of LM estimates of the base parameters over noise draws at fixed true poses."""
+    m0, truth = iwr.simulate(robot, n_poses, seed=2)
+    rep = iwr.identifiability(robot, m0, truth)
+    x_star = iwr.identify(robot, m0, "lm", active=rep.active).x  # the base-parameter truth
+    rng = np.random.default_rng(7)
+    xs = []
+    for _ in range(n_draws):
+        m = measure(robot, truth, m0.q, m0.poses, noise, rng)
+        xs.append(iwr.identify(robot, m, "lm", active=rep.active, x0=x_star).x)
+    xs = np.array(xs)
+    return m0, x_star, rep, xs, m
+
+
+def test_predicted_std_matches_monte_carlo_leg_noise(robot) -> None:
+    """Leg noise only (the model is then exactly right): the predicted standard deviations match
+    the spread over 200 draws within 20 % for every base parameter (the sampling error of a
+    standard deviation from 200 draws is 5 %)."""
+    sigma = 0.005
+    m0, x_star, rep, xs, m_last = _monte_carlo(robot, iwr.Noise(legs=sigma))
+    pred = iwr.uncertainty(robot, m0, x_star, noise=sigma, active=rep.active)
+    ratio = xs.std(axis=0, ddof=1)[rep.active] / pred.std[rep.active]
+    assert ratio.min() > 0.8 and ratio.max() < 1.2, (ratio.min(), ratio.max())
+    assert np.all(np.isnan(pred.std[~rep.active]))
+    # the noise estimated from one draw's residuals is close to the truth (68 dof: +-9 %)
+    x_last = xs[-1]
+    est = iwr.uncertainty(robot, m_last, x_last, active=rep.active)
+    assert est.source == "residuals" and est.sigma == pytest.approx(sigma, rel=0.3)
+
+
+def test_predicted_std_matches_monte_carlo_realistic_noise(robot) -> None:
+    """Laser-tracker and joint noise too: propagated through the measurement Jacobians, the
+    prediction still matches within 20 %; leg noise alone would under-predict several-fold."""
+    noise = iwr.Noise.realistic()
+    m0, x_star, rep, xs, _ = _monte_carlo(robot, noise)
+    pred = iwr.uncertainty(robot, m0, x_star, noise=noise, active=rep.active)
+    emp = xs.std(axis=0, ddof=1)[rep.active]
+    ratio = emp / pred.std[rep.active]
+    assert ratio.min() > 0.8 and ratio.max() < 1.2, (ratio.min(), ratio.max())
+    legs_only = iwr.uncertainty(robot, m0, x_star, noise=noise.legs, active=rep.active)
+    assert np.median(emp / legs_only.std[rep.active]) > 3
+
+
+def test_measurement_jacobians_match_the_noise_model(robot) -> None:
+    """d(readings)/d(rotation) against the rotation applied exactly as simulate() applies it."""
+    m, _ = iwr.simulate(robot, 5, seed=4)
+    x = np.zeros(robot.n_params)
+    _, dp, dr = measurement_jacobians(robot, x, m.q, m.poses)
+    w = np.array([2e-5, -1e-5, 3e-5])
+
+    def rotated(v):
+        t = transforms.pose_matrix(m.poses)
+        t[:, :3, :3] = t[:, :3, :3] @ transforms.rotvec_matrix(v)
+        return iwr.predict_legs(robot, x, m.q, transforms.pose_from_matrix(t))
+
+    # a symmetric difference cancels the second-order term (~250 mm * |w|^2 ~ 2e-7 mm)
+    np.testing.assert_allclose((rotated(w) - rotated(-w)) / 2, dr @ w, atol=1e-10)
+    # position: the leg reading moves by the leg's unit vector (length 1)
+    np.testing.assert_allclose(np.linalg.norm(dp, axis=2), 1.0, atol=1e-8)
+
+
+def test_uncertainty_refuses_rank_deficient_active_set(robot, data) -> None:
+    m, truth = data
+    with pytest.raises(ValueError, match="rank deficient"):
+        iwr.uncertainty(robot, m, truth, noise=0.01, active=np.ones(robot.n_params, dtype=bool))
+
+
+# -- 4. pose planning --------------------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def candidates(robot):
+    q, poses, _ = sample_poses(robot, 200, np.random.default_rng(0))
+    return q, poses
+
+
+def test_plan_is_optimal_on_a_small_case(robot, candidates) -> None:
+    """Against exhaustive search: 11 candidates, 9 poses (55 subsets)."""
+    from itertools import combinations
+
+    q, poses = candidates[0][:11], candidates[1][:11]
+    for crit in ("O1", "O3"):
+        plan = iwr.plan_poses(robot, (q, poses), 9, crit)
+        m = iwr.Measurements(q, poses, np.zeros((11, 6)), joint_types=robot.joint_types)
+        jac = iwr.Problem(robot, m).jacobian(np.zeros(robot.n_params))[:, plan.base_indices]
+        js = (jac / np.linalg.norm(jac, axis=0)).reshape(11, 6, -1)
+        best = 0.0
+        for sub in combinations(range(11), 9):
+            s = np.linalg.svd(js[list(sub)].reshape(54, -1), compute_uv=False)
+            val = np.exp(np.mean(np.log(s))) / 3 if crit == "O1" else s[-1]
+            best = max(best, val)
+        assert plan.value == pytest.approx(best, rel=1e-9)
+
+
+def test_planned_poses_beat_random_ones(robot, candidates) -> None:
+    """With realistic noise, K = 15 planned poses (O1) predict fresh poses' readings better than
+    15 random candidates, on average over 6 seeds (true errors, noise and random subsets)."""
+    q, poses = candidates
+    k = 15
+    plan = iwr.plan_poses(robot, (q, poses), k, "O1")
+    assert plan.value >= plan.greedy_value > 0
+    mask = np.zeros(robot.n_params, dtype=bool)
+    mask[plan.base_indices] = True
+    qv, pv, _ = sample_poses(robot, 100, np.random.default_rng(99))
+    noise = iwr.Noise.realistic()
+
+    def validation_rms(idx, truth, seed):
+        m = measure(robot, truth, q[idx], poses[idx], noise, seed)
+        x = iwr.identify(robot, m, "lm", active=mask).x
+        d = iwr.predict_legs(robot, x, qv, pv) - iwr.predict_legs(robot, truth, qv, pv)
+        return np.sqrt(np.mean(d**2))
+
+    planned, random = [], []
+    for s in range(6):
+        truth = iwr.simulate(robot, 1, seed=100 + s)[1]
+        planned.append(validation_rms(plan.indices, truth, s))
+        ridx = np.random.default_rng(1000 + s).choice(len(q), k, replace=False)
+        random.append(validation_rms(ridx, truth, s))
+    assert np.mean(planned) < 0.8 * np.mean(random), (np.mean(planned), np.mean(random))
+
+
+def test_plan_arguments(robot, candidates) -> None:
+    with pytest.raises(ValueError, match="criterion"):
+        iwr.plan_poses(robot, candidates, 15, "O5")
+    with pytest.raises(ValueError, match="k: 3"):
+        iwr.plan_poses(robot, candidates, 3)
+    a = iwr.plan_poses(robot, candidates, 12, "O1", seed=1)
+    b = iwr.plan_poses(robot, candidates, 12, "O1", seed=1)
+    np.testing.assert_array_equal(a.indices, b.indices)
