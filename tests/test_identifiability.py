@@ -211,6 +211,9 @@ def test_base_parameter_identification_is_unique(robot, data, report) -> None:
     starts[1][~report.active] = 0.0  # the held parameters are held at x0: same value for both
     base = [iwr.identify(robot, m, "lm", x0=x0, active=report.active).x for x0 in starts]
     np.testing.assert_allclose(base[0], base[1], atol=1e-8)
+    by_name = iwr.identify(robot, m, "lm", active="base")
+    np.testing.assert_array_equal(by_name.active, report.active)
+    np.testing.assert_allclose(by_name.x, base[0], atol=1e-8)
     full = [iwr.identify(robot, m, "lm", x0=x0).x for x0 in starts]
     assert np.max(np.abs(full[0] - full[1])) > 1e-3
     for x in base + full:
