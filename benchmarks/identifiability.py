@@ -1,4 +1,5 @@
-"""Identifiability, uncertainty and pose planning for the IWR: the figures of docs/identifiability.md.
+"""Identifiability, uncertainty and pose planning for the IWR: the figures of
+docs/identifiability.md.
 
     python benchmarks/identifiability.py [--quick]
 
@@ -56,7 +57,8 @@ def table_monte_carlo(n_draws: int) -> None:
     m0, truth = iwr.simulate(robot, 20, seed=2)
     rep = iwr.identifiability(robot, m0, truth)
     x_star = iwr.identify(robot, m0, "lm", active=rep.active).x
-    for label, noise in (("legs 5 um", iwr.Noise(legs=0.005)), ("realistic", iwr.Noise.realistic())):
+    noises = (("legs 5 um", iwr.Noise(legs=0.005)), ("realistic", iwr.Noise.realistic()))
+    for label, noise in noises:
         rng = np.random.default_rng(7)
         xs = np.array([
             iwr.identify(robot, measure(robot, truth, m0.q, m0.poses, noise, rng), "lm",

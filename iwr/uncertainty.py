@@ -1,7 +1,7 @@
 """Uncertainty of identified parameters: their covariance from the Jacobian at the solution.
 
-Linearising the residuals of eq. (10) at the solution, ``r(x + dx) ~ r(x) + J dx``, the least-squares
-estimate of the identified (base) parameters responds to reading noise ``e`` by
+Linearising the residuals of eq. (10) at the solution, ``r(x + dx) ~ r(x) + J dx``, the
+least-squares estimate of the identified (base) parameters responds to reading noise ``e`` by
 ``dx = -(J^T J)^-1 J^T e``, so its covariance is ``A Cov(e) A^T`` with ``A = (J^T J)^-1 J^T``. With
 independent leg noise of standard deviation sigma this is the familiar ``sigma^2 (J^T J)^-1``.
 Only the base parameters have a finite covariance: along the unidentifiable directions ``J^T J`` is

@@ -27,7 +27,7 @@ def data(robot: iwr.Robot) -> tuple[iwr.Measurements, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
-def report(robot: iwr.Robot, data: tuple[iwr.Measurements, np.ndarray]) -> iwr.IdentifiabilityReport:
+def report(robot: iwr.Robot, data: tuple) -> iwr.IdentifiabilityReport:
     return iwr.identifiability(robot, data[0])
 
 
@@ -56,7 +56,7 @@ def fd_rank(jac: np.ndarray) -> int:
     return rank
 
 
-# -- 1. identifiability -----------------------------------------------------------------------------
+# -- 1. identifiability ------------------------------------------------------------------------
 
 
 def test_iwr_rank_matches_finite_differences(robot, data, report) -> None:
@@ -119,7 +119,8 @@ def test_null_directions_leave_readings_unchanged(robot, data, report) -> None:
     straight line, for small and large steps. First-order directions (a rotation of frame {4}
     absorbed by the base joints a_i, which a straight line moves along the tangent of a circle):
     the change is quadratic in the step (checked: ten times smaller step, a hundred times smaller
-    change) and below 1e-9 mm once the rotation is below ~1e-6 rad (lever ~700 mm: 700 * t^2 / 2)."""
+    change) and below 1e-9 mm once the rotation is below ~1e-6 rad (lever ~700 mm:
+    700 * t^2 / 2)."""
     m, truth = data
     # A null direction belongs to the point where it was computed: the axes it combines (e.g.
     # joint 3's z axis and joint 1's x axis) tilt with the angle errors, so take each report at x.
@@ -141,8 +142,8 @@ def test_null_directions_leave_readings_unchanged(robot, data, report) -> None:
 
 
 def _rigid_base_motion(robot, x, which: int, angle: float) -> np.ndarray:
-    """Change joint-4 parameter ``which`` (0 alpha, 1 a, 2 d, 3 theta) by ``angle`` and move the base joints
-    a_i by the exact inverse of the resulting constant displacement of frame {4}."""
+    """Change joint-4 parameter ``which`` (0 alpha, 1 a, 2 d, 3 theta) by ``angle`` and move the
+    base joints a_i by the exact inverse of the resulting constant displacement of frame {4}."""
     y = x.copy()
     y[12 + which] += angle
     q = np.array([100.0, 200.0, 0.3, -0.2])  # any q: the displacement does not depend on it
@@ -166,7 +167,8 @@ def test_rotation_null_directions_are_exact_along_the_rigid_motion(robot, data, 
             y = _rigid_base_motion(robot, truth, which, angle)
             assert _max_change(robot, m, truth, y) < 1e-9
         y = _rigid_base_motion(robot, np.zeros(robot.n_params), which, 1e-7)
-        np.testing.assert_allclose(y / 1e-7, by[name].vector, atol=1e-4 * np.abs(by[name].vector).max())
+        v = by[name].vector
+        np.testing.assert_allclose(y / 1e-7, v, atol=1e-4 * np.abs(v).max())
 
 
 # -- 2. parameter error and identification on the base parameters ---------------------------------
