@@ -425,6 +425,9 @@ class ParameterError:
         leg readings that the error causes at these poses.
     rank : int
         Rank of the Jacobian used.
+    converged : bool
+        ``method="nonlinear"``: whether the search for the nearest equivalent of the truth reached
+        the truth's readings to 1e-9 mm (always True for ``"linear"``).
     """
 
     projected: np.ndarray
@@ -439,6 +442,7 @@ class ParameterError:
     reading_rms: float
     rank: int
     parameter_names: list[str]
+    converged: bool = True
 
     def named(self) -> dict[str, float]:
         """The projected error by parameter name."""
@@ -529,6 +533,7 @@ def parameter_error(
         raise ValueError(f"method: {method!r}; expected 'nonlinear' or 'linear'")
     problem = _readings_problem(robot, measurements, truth)
     raw = x - truth
+    converged = True
     if method == "linear":
         jac = problem.jacobian(truth)
         d, _, vt, rank = _row_space(jac, rtol)
@@ -536,6 +541,7 @@ def parameter_error(
         projected = (vr @ (vr.T @ (d * raw))) / d
     else:
         y = _nearest_equivalent(problem, x, rtol)
+        converged = bool(np.max(np.abs(problem.residuals(y)), initial=0.0) < 1e-9)
         jac = problem.jacobian(y)
         d, _, vt, rank = _row_space(jac, rtol)
         vr = vt[:rank].T
@@ -555,6 +561,7 @@ def parameter_error(
         reading_rms=_rms(problem.residuals(x)),
         rank=rank,
         parameter_names=robot.parameter_names,
+        converged=converged,
     )
 
 

@@ -186,6 +186,7 @@ def test_parameter_error_ignores_exact_null_motions(robot, data, report) -> None
     y = y + 0.5 * by["joint3.dd"].vector - 0.2 * by["joint2.da"].vector
     assert _max_change(robot, m, truth, y) < 1e-9
     pe = iwr.parameter_error(robot, m, y, truth)
+    assert pe.converged
     assert pe.raw_rms_length > 0.05
     assert pe.max_abs_length < 1e-9 and pe.max_abs_angle < 1e-12
     # the first-order projection leaves a second-order residue (why "nonlinear" is the default)
@@ -201,6 +202,19 @@ def test_parameter_error_ignores_exact_null_motions(robot, data, report) -> None
     assert np.abs(pe.projected).max() > 1e-4
     assert pe.reading_rms == pytest.approx(
         np.sqrt(np.mean((iwr.Problem(robot, m).jacobian(y) @ e) ** 2)), rel=1e-3)
+
+
+def test_pivoted_base_selection(robot, data, report) -> None:
+    """QR with column pivoting gives a base set of the same size whose columns are independent."""
+    m, _ = data
+    rep = iwr.identifiability(robot, m, selection="pivoted")
+    assert rep.rank == report.rank
+    jac = iwr.Problem(robot, m).jacobian(np.zeros(robot.n_params))[:, rep.active]
+    assert np.linalg.matrix_rank(jac / np.linalg.norm(jac, axis=0)) == rep.rank
+    # the left-out set is one parameter from each dependent group of the ordered choice
+    assert {p for p in rep.left_out if p.startswith("joint4")} == {
+        "joint4.dalpha", "joint4.da", "joint4.dd", "joint4.dtheta"
+    }
 
 
 def test_base_parameter_identification_is_unique(robot, data, report) -> None:
