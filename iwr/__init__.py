@@ -8,30 +8,48 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 from __future__ import annotations
 
 from .de import differential_evolution
+from .identifiability import (
+    IdentifiabilityReport,
+    NullDirection,
+    ParameterError,
+    identifiability,
+    parameter_error,
+)
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
+from .planning import PosePlan, plan_poses
 from .problem import Problem, predict_legs
 from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
+from .uncertainty import Uncertainty, uncertainty
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "IdentifiabilityReport",
     "IdentificationResult",
     "MeasurementFileError",
     "Measurements",
     "Noise",
+    "NullDirection",
+    "ParameterError",
+    "PosePlan",
     "Problem",
     "ReducedProblem",
     "ResultFileError",
     "Robot",
     "RobotFileError",
+    "Uncertainty",
     "UnreachableError",
     "__version__",
     "differential_evolution",
+    "identifiability",
     "identify",
     "load_result",
+    "parameter_error",
+    "plan_poses",
     "predict_legs",
     "simulate",
+    "uncertainty",
 ]
