@@ -7,6 +7,8 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
+from .forward import ForwardKinematicsError, forward_kinematics
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
@@ -17,10 +19,13 @@ from .simulate import Noise, UnreachableError, simulate
 __version__ = "0.1.0"
 
 __all__ = [
+    "Accuracy",
+    "ForwardKinematicsError",
     "IdentificationResult",
     "MeasurementFileError",
     "Measurements",
     "Noise",
+    "PoseErrors",
     "Problem",
     "ReducedProblem",
     "ResultFileError",
@@ -28,8 +33,11 @@ __all__ = [
     "RobotFileError",
     "UnreachableError",
     "__version__",
+    "accuracy",
+    "forward_kinematics",
     "identify",
     "load_result",
+    "pose_errors",
     "predict_legs",
     "simulate",
 ]
