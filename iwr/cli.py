@@ -49,7 +49,10 @@ _METHOD_OPTIONS: dict[str, tuple[str, ...]] = {
 
 
 class UsageError(Exception):
-    """Bad command-line usage: exit code 2."""
+    """Bad command-line usage: exit code 2. The message ends with where to find help."""
+
+    def __init__(self, message: str, prog: str = "iwr calibrate") -> None:
+        super().__init__(f"{message} (see '{prog} --help')")
 
 
 class CommandError(Exception):
@@ -60,7 +63,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse, with one-line errors raised to :func:`main` instead of a usage dump."""
 
     def error(self, message: str) -> Any:  # type: ignore[override]
-        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+        raise UsageError(message, self.prog)
 
 
 def default_method() -> str:
@@ -350,7 +353,7 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
 
     if method not in METHODS:
         raise UsageError(
-            f"iwr calibrate: --method {method!r}: available methods: {', '.join(sorted(METHODS))}"
+            f"--method {method!r}: available methods: {', '.join(sorted(METHODS))}"
         )
     params = dict(inspect.signature(METHODS[method]).parameters)
     params.update(inspect.signature(identify).parameters)
@@ -363,9 +366,7 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
             continue
         name = next((n for n in names if n in params), None)
         if name is None:
-            raise UsageError(
-                f"iwr calibrate: --{option} is not an option of method {method!r}"
-            )
+            raise UsageError(f"--{option} is not an option of method {method!r}")
         kwargs[name] = value
     return kwargs
 
@@ -416,14 +417,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.robot is not None and args.data is None:
-        raise UsageError("iwr calibrate: give both ROBOT.toml and DATA.csv, or neither (the "
-                         "built-in example) (see 'iwr calibrate --help')")
+        raise UsageError("give both ROBOT.toml and DATA.csv, or neither (the built-in example)")
     method = args.method or default_method()
     kwargs = _method_kwargs(method, args)
     if args.robot is None:
         return _run_example(args, method, kwargs)
     if args.poses is not None:
-        raise UsageError("iwr calibrate: --poses applies to the built-in example only")
+        raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     robot = _load_robot(args.robot)
     data = _load_data(args.data, robot)
     validation = _load_data(args.validation, robot) if args.validation else None
@@ -438,7 +438,7 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     from .simulate import Noise, simulate
 
     if args.validation:
-        raise UsageError("iwr calibrate: --validation needs ROBOT.toml and DATA.csv")
+        raise UsageError("--validation needs ROBOT.toml and DATA.csv")
     quick = os.environ.get(QUICK_ENV, "").strip() not in ("", "0")
     n = args.poses or (EXAMPLE_POSES_QUICK if quick else EXAMPLE_POSES)
     out = Path(args.out_dir or EXAMPLE_DIR)
