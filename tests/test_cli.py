@@ -248,7 +248,17 @@ def test_analyze(sim):
     assert re.search(r"rank \d+ of 58", proc.stdout)
 
 
-def test_plan_without_pose_planning_is_a_clear_error(sim):
-    if hasattr(iwr, "plan_poses"):
-        pytest.skip("this build has iwr.plan_poses")
-    assert_fails(run("plan", str(sim / "robot.toml")), 1, r"needs iwr\.plan_poses")
+def test_plan(sim, tmp_path):
+    out = tmp_path / "plan.csv"
+    proc = run("plan", str(sim / "robot.toml"), "--candidates", str(sim / "measurements.csv"),
+               "--poses", "12", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "12 poses chosen for O1" in proc.stdout
+    chosen = iwr.Measurements.from_csv(out)
+    cand = iwr.Measurements.from_csv(sim / "measurements.csv")
+    assert len(chosen) == 12
+    rows = {tuple(r) for r in np.hstack([cand.q, cand.poses])}
+    assert all(tuple(r) in rows for r in np.hstack([chosen.q, chosen.poses]))
+    proc = run("plan", str(sim / "robot.toml"), "--n-candidates", "100", "--poses", "2",
+               "--out", str(out))
+    assert_fails(proc, 1, r"--poses: 2; expected an integer from \d+")
