@@ -169,7 +169,7 @@ class Calibration:
             + (f"{n_val} held out for validation" if self.held_out else
                "none held out (accuracy below is on the identification poses: optimistic)"),
             f"method {r.get('method', '?')}: {int(r.nfev)} evaluations, "
-            f"{float(r.get('wall_time', math.nan)):.2f} s, {'success' if r.success else 'FAILED'}"
+            f"{float(r.get('wall_time', math.nan)):.2f} s, {'converged' if r.success else 'not converged'}"
             f" ({str(r.message).strip()})",
         ]
         c = self.costs()

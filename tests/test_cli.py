@@ -137,12 +137,12 @@ def test_calibrate_files(sim, tmp_path):
 
 def test_calibrate_with_a_validation_file_and_without_hold_out(sim, tmp_path):
     robot, data = sim / "robot.toml", sim / "measurements.csv"
-    proc = run("calibrate", str(robot), str(data), "--validation", str(data),
+    proc = run("calibrate", str(robot), str(data), "--validation", str(data), "--method", "lm",
                "--out-dir", str(tmp_path / "a"), "--no-plots")
     assert proc.returncode == 0, proc.stderr
     assert "poses: 60 for identification, 60 held out" in proc.stdout
-    proc = run("calibrate", str(robot), str(data), "--validation-fraction", "0",
-               "--out-dir", str(tmp_path / "b"), "--no-plots")
+    proc = run("calibrate", str(robot), str(data), "--validation-fraction", "0", "--method",
+               "lm", "--out-dir", str(tmp_path / "b"), "--no-plots")
     assert proc.returncode == 0, proc.stderr
     assert "identification poses (optimistic)" in proc.stdout
 
@@ -170,7 +170,7 @@ def test_calibrate_without_arguments_runs_the_example(tmp_path):
 def test_shipped_example_files(tmp_path):
     proc = run("calibrate", str(REPO / "examples" / "iwr.toml"),
                str(REPO / "examples" / "iwr_example.csv"), "--out-dir", str(tmp_path),
-               "--no-plots")
+               "--method", "lm", "--no-plots")
     assert proc.returncode == 0, proc.stderr
     acc = json.loads((tmp_path / "summary.json").read_text())["accuracy"]
     assert acc["calibrated"]["position_mm"]["rms"] < acc["nominal"]["position_mm"]["rms"] / 20
