@@ -170,7 +170,8 @@ def build_parser() -> argparse.ArgumentParser:
         "1 bad data or failed computation, 2 bad usage, 130 interrupted.",
     )
     parser.add_argument("--version", action="version", version=f"iwr {__version__}")
-    parser.add_argument("--debug", action="store_true", help="show the Python traceback of an error")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
@@ -229,7 +230,8 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a method preset, e.g. 'paper' for the DE settings of Table 2")
     p.add_argument("--strategy", default=None, help="DE strategy, e.g. rand1bin, lshade")
     p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
-                   help="refine a global method's result by Levenberg-Marquardt (default: on for de)")
+                   help="refine a global method's result by Levenberg-Marquardt "
+                   "(default: on for de)")
     p.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                    help="threads of a parallel method (default: all cores)")
     p.add_argument("--seed", type=_nonneg_int, default=0,

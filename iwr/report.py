@@ -77,7 +77,8 @@ class Calibration:
     def costs(self) -> dict[str, float]:
         """Cost of eq. (10) on the identification poses, nominal and calibrated (mm^2)."""
         p = Problem(self.robot, self.identification)
-        return {"nominal": p.cost(np.zeros(self.robot.n_params)), "calibrated": float(self.result.fun)}
+        nominal = p.cost(np.zeros(self.robot.n_params))
+        return {"nominal": nominal, "calibrated": float(self.result.fun)}
 
     def residuals(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
         """Per-leg residual statistics, ``[set][nominal|calibrated]``."""
@@ -169,7 +170,8 @@ class Calibration:
             + (f"{n_val} held out for validation" if self.held_out else
                "none held out (accuracy below is on the identification poses: optimistic)"),
             f"method {r.get('method', '?')}: {int(r.nfev)} evaluations, "
-            f"{float(r.get('wall_time', math.nan)):.2f} s, {'converged' if r.success else 'not converged'}"
+            f"{float(r.get('wall_time', math.nan)):.2f} s, "
+            f"{'converged' if r.success else 'not converged'}"
             f" ({str(r.message).strip()})",
         ]
         c = self.costs()
@@ -356,9 +358,10 @@ class Calibration:
             )
             md += ["", "```", str(rep).rstrip(), "```", ""]
         if self.uncertainty is not None:
-            md += [f"Standard deviations: first-order, from the Jacobian at the solution, with "
-                   f"leg noise sigma {self.uncertainty.sigma:.3g} mm "
-                   f"({'estimated from the residuals' if self.uncertainty.source == 'residuals' else self.uncertainty.source}).", ""]
+            unc = self.uncertainty
+            how = "estimated from the residuals" if unc.source == "residuals" else unc.source
+            md += ["Standard deviations: first-order, from the Jacobian at the solution, with "
+                   f"leg noise sigma {unc.sigma:.3g} mm ({how}).", ""]
         if self.parameter_error is not None:
             pe = self.parameter_error
             md += [f"Against the simulation's truth, modulo the unidentifiable directions: RMS "
@@ -370,7 +373,7 @@ class Calibration:
             md.append(f"| {row['name']} | {row['value']:.6g} | {sd} | {row['unit']} | "
                       f"{row['status']} |")
         md += ["", "## Files", "",
-               "- `calibrated.toml`: the calibrated robot (nominal geometry plus identified errors)",
+               "- `calibrated.toml`: the calibrated robot (nominal plus identified errors)",
                "- `result.json`: the identification result (`iwr.load_result`)",
                "- `summary.json`: the figures of this report"]
         md += [f"- `{f}`" for f in figures]
@@ -416,7 +419,8 @@ class Calibration:
              "calibrated robot"),
         ]
         for ax, v, unit, what, title in panels:
-            ax.hist(v, bins=min(30, max(5, v.size // 3)), color="C0" if "nominal" in title else "C2")
+            colour = "C0" if "nominal" in title else "C2"
+            ax.hist(v, bins=min(30, max(5, v.size // 3)), color=colour)
             ax.set_xlabel(f"{what} ({unit})")
             ax.set_ylabel("poses")
             ax.set_title(f"{title}: RMS {math.sqrt(np.mean(v**2)):.3g} {unit}")
