@@ -6,18 +6,19 @@ Everything here works on the exact Jacobian ``J`` of the leg residuals of eq. (1
 
 Column scaling
 --------------
-Lengths (mm) and angles (rad) share one Jacobian, so its singular values depend on the units unless
-the columns are scaled. We divide every column by its Euclidean norm (equilibration, as in
+Lengths (mm) and angles (rad) share one Jacobian, so its singular values depend on the units
+unless the columns are scaled. We divide every column by its Euclidean norm (equilibration, as in
 Hollerbach & Wampler's "calibration index"): the scaled Jacobian ``Js = J D^-1`` with
-``D = diag(||J[:, j]||)`` is *identical* under any change of units of any parameter (a change of unit
-multiplies a column and its norm by the same factor), so the rank, the threshold, the null space and
-the choice of base parameters do not depend on units, and the columns enter the QR pivoting on an
-equal footing. A parameter with a zero column (no influence at all) keeps scale 1.
+``D = diag(||J[:, j]||)`` is *identical* under any change of units of any parameter (a change of
+unit multiplies a column and its norm by the same factor), so the rank, the threshold, the null
+space and the choice of base parameters do not depend on units, and every column enters the
+selection of base parameters on an equal footing. A parameter with a zero column (no influence at
+all) keeps scale 1.
 
-The observability indices are computed from the nonzero singular values of ``Js`` (the identifiable
-part; the zero ones would make every index zero). With column-norm scaling they are unit-free, but
-they do depend on the data set through ``D``; to compare pose sets, :func:`iwr.plan_poses` holds ``D``
-fixed (computed once over all candidate poses).
+The observability indices are computed from the nonzero singular values of ``Js`` (the
+identifiable part; the zero ones would make every index zero). With column-norm scaling they are
+unit-free, but they depend on the data set through ``D``; to compare pose sets,
+:func:`iwr.plan_poses` holds ``D`` fixed (computed once over all candidate poses).
 """
 
 from __future__ import annotations
@@ -57,8 +58,10 @@ def _x_or_zeros(robot: Robot, x: Any, name: str = "x") -> np.ndarray:
     return arr
 
 
-def _rank_threshold(s: np.ndarray, shape: tuple[int, int], rtol: float | None) -> tuple[float, float]:
-    """Absolute and relative thresholds: numpy.linalg.matrix_rank's default unless ``rtol`` given."""
+def _rank_threshold(
+    s: np.ndarray, shape: tuple[int, int], rtol: float | None
+) -> tuple[float, float]:
+    """Absolute and relative thresholds: numpy.linalg.matrix_rank's default unless ``rtol``."""
     if rtol is None:
         rtol = max(shape) * np.finfo(float).eps
     if not (np.isfinite(rtol) and 0 < rtol < 1):
@@ -296,7 +299,6 @@ def identifiability(
     thr, rtol = _rank_threshold(s, jac.shape, rtol)
     rank = int(np.sum(s > thr))
     names = robot.parameter_names
-    n = robot.n_params
 
     base, out = _base_parameters(jac / d, s, thr, rank, robot, selection)
 
@@ -394,7 +396,7 @@ def _line_invariance(
     return bool(change < 1e-9), float(change / t**2)
 
 
-# -- parameter error modulo the unidentifiable directions -------------------------------------------
+# -- parameter error modulo the unidentifiable directions ----------------------------------------
 
 
 @dataclass
@@ -423,6 +425,9 @@ class ParameterError:
         leg readings that the error causes at these poses.
     rank : int
         Rank of the Jacobian used.
+    converged : bool
+        ``method="nonlinear"``: whether the search for the nearest equivalent of the truth reached
+        the truth's readings to 1e-9 mm (always True for ``"linear"``).
     """
 
     projected: np.ndarray
@@ -437,10 +442,11 @@ class ParameterError:
     reading_rms: float
     rank: int
     parameter_names: list[str]
+    converged: bool = True
 
     def named(self) -> dict[str, float]:
         """The projected error by parameter name."""
-        return dict(zip(self.parameter_names, map(float, self.projected)))
+        return dict(zip(self.parameter_names, map(float, self.projected), strict=True))
 
     def __str__(self) -> str:
         return (
@@ -467,7 +473,9 @@ def _readings_problem(robot: Robot, measurements: Measurements, truth: np.ndarra
     return Problem(robot, Measurements(m.q, m.poses, legs, joint_types=robot.joint_types))
 
 
-def _row_space(jac: np.ndarray, rtol: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def _row_space(
+    jac: np.ndarray, rtol: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     d, s, vt = _scaled_svd(jac)
     thr, _ = _rank_threshold(s, jac.shape, rtol)
     rank = int(np.sum(s > thr))
@@ -525,6 +533,7 @@ def parameter_error(
         raise ValueError(f"method: {method!r}; expected 'nonlinear' or 'linear'")
     problem = _readings_problem(robot, measurements, truth)
     raw = x - truth
+    converged = True
     if method == "linear":
         jac = problem.jacobian(truth)
         d, _, vt, rank = _row_space(jac, rtol)
@@ -532,6 +541,7 @@ def parameter_error(
         projected = (vr @ (vr.T @ (d * raw))) / d
     else:
         y = _nearest_equivalent(problem, x, rtol)
+        converged = bool(np.max(np.abs(problem.residuals(y)), initial=0.0) < 1e-9)
         jac = problem.jacobian(y)
         d, _, vt, rank = _row_space(jac, rtol)
         vr = vt[:rank].T
@@ -551,6 +561,7 @@ def parameter_error(
         reading_rms=_rms(problem.residuals(x)),
         rank=rank,
         parameter_names=robot.parameter_names,
+        converged=converged,
     )
 
 
