@@ -391,7 +391,7 @@ class _EvalBar:
     """A tqdm counter of evaluations with the best cost so far, fed by a method's callback."""
 
     def __init__(self, desc: str, enabled: bool) -> None:
-        from tqdm.auto import tqdm
+        from tqdm import tqdm
 
         self.best = math.inf
         self.bar = tqdm(desc=desc, unit=" eval", disable=not enabled, leave=False,
