@@ -175,9 +175,12 @@ class Calibration:
             f" ({str(r.message).strip()})",
         ]
         c = self.costs()
+        polish = dict(r.get("settings", {})).get("polish_result")
+        before_polish = (f" (before the Levenberg-Marquardt polish: {polish['fun_before']:.4g})"
+                         if isinstance(polish, dict) and "fun_before" in polish else "")
         lines.append(
             f"cost (eq. 10, sum of squared leg residuals, mm^2, {n_id} poses): "
-            f"nominal {c['nominal']:.4g} -> calibrated {c['calibrated']:.4g}"
+            f"nominal {c['nominal']:.4g} -> calibrated {c['calibrated']:.4g}{before_polish}"
         )
         lines.append("")
         lines.append("leg residuals, predicted - measured reading (mm):")
