@@ -175,12 +175,10 @@ class Calibration:
             f" ({str(r.message).strip()})",
         ]
         c = self.costs()
-        polish = dict(r.get("settings", {})).get("polish_result")
-        before_polish = (f" (before the Levenberg-Marquardt polish: {polish['fun_before']:.4g})"
-                         if isinstance(polish, dict) and "fun_before" in polish else "")
         lines.append(
             f"cost (eq. 10, sum of squared leg residuals, mm^2, {n_id} poses): "
-            f"nominal {c['nominal']:.4g} -> calibrated {c['calibrated']:.4g}{before_polish}"
+            f"nominal {c['nominal']:.4g} -> calibrated {c['calibrated']:.4g}"
+            + self._before_polish()
         )
         lines.append("")
         lines.append("leg residuals, predicted - measured reading (mm):")
@@ -210,6 +208,12 @@ class Calibration:
                          f"({before / after:.1f} times smaller)")
         lines.extend(self.notes)
         return "\n".join(lines)
+
+    def _before_polish(self) -> str:
+        polish = dict(self.result.get("settings", {})).get("polish_result")
+        if isinstance(polish, dict) and "fun_before" in polish:
+            return f" (before the Levenberg-Marquardt polish: {polish['fun_before']:.4g})"
+        return ""
 
     def _identifiability_lines(self) -> list[str]:
         rep = self.identifiability
@@ -311,9 +315,10 @@ class Calibration:
             + (f"{len(self.validation)} held out for validation" if self.held_out
                else "none held out (accuracy is on the identification poses: optimistic)"),
             f"- Method: `{r.get('method', '?')}`, {int(r.nfev)} evaluations, "
-            f"{float(r.get('wall_time', math.nan)):.2f} s, {'success' if r.success else 'failed'}: "
-            f"{str(r.message).strip()}",
-            f"- Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated {c['calibrated']:.6g}",
+            f"{float(r.get('wall_time', math.nan)):.2f} s, "
+            f"{'converged' if r.success else 'not converged'}: {str(r.message).strip()}",
+            f"- Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated {c['calibrated']:.6g}"
+            + self._before_polish(),
             "",
             "## Accuracy",
             "",
