@@ -19,9 +19,6 @@ def atomic_write(
         raise FileNotFoundError(f"{path}: folder {directory} does not exist")
     fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
     try:
-        # mkstemp creates the file readable by its owner only; give the result the permissions
-        # of the file it replaces, or of any new file (0666 less the umask).
-        os.chmod(tmp, _target_mode(path))
         if binary:
             fh = os.fdopen(fd, "wb")
         else:
@@ -37,15 +34,6 @@ def atomic_write(
         except FileNotFoundError:
             pass
         raise
-
-
-def _target_mode(path: Path) -> int:
-    try:
-        return path.stat().st_mode & 0o7777
-    except OSError:
-        umask = os.umask(0)
-        os.umask(umask)
-        return 0o666 & ~umask
 
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
