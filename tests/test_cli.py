@@ -62,6 +62,18 @@ def test_help_everywhere(command):
     assert "--debug" in proc.stdout
 
 
+def test_compare_hook():
+    # `iwr compare` comes from iwr/compare.py (issue 4) when this build has it.
+    try:
+        import iwr.compare  # noqa: F401
+    except ModuleNotFoundError:
+        proc = run("compare", "--help")
+        assert_fails(proc, 2, r"invalid choice: 'compare'")
+    else:
+        proc = run("compare", "--help")
+        assert proc.returncode == 0 and proc.stdout.startswith("usage: iwr compare")
+
+
 def test_version():
     proc = run("--version")
     assert proc.returncode == 0 and proc.stdout.strip() == f"iwr {iwr.__version__}"
