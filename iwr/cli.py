@@ -42,10 +42,9 @@ EXAMPLE_DIR = "iwr-example"
 # through **options), then the first of the names below found in the method's signature.
 _KNOWN_OPTIONS: dict[str, dict[str, str]] = {
     "de": {"budget": "max_evaluations"},
-    "lm": {"budget": "max_nfev"},
 }
 _METHOD_OPTIONS: dict[str, tuple[str, ...]] = {
-    "budget": ("max_nfev", "max_evaluations", "max_evals", "maxeval", "budget"),
+    "budget": ("max_evaluations", "max_nfev", "max_evals", "maxeval", "budget"),
     "generations": ("generations",),
     "preset": ("preset",),
     "polish": ("polish",),
