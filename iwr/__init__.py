@@ -7,7 +7,9 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
 from .de import differential_evolution
+from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
     IdentifiabilityReport,
     NullDirection,
@@ -27,6 +29,8 @@ from .uncertainty import Uncertainty, uncertainty
 __version__ = "0.1.0"
 
 __all__ = [
+    "Accuracy",
+    "ForwardKinematicsError",
     "IdentifiabilityReport",
     "IdentificationResult",
     "MeasurementFileError",
@@ -34,6 +38,7 @@ __all__ = [
     "Noise",
     "NullDirection",
     "ParameterError",
+    "PoseErrors",
     "PosePlan",
     "Problem",
     "ReducedProblem",
@@ -43,12 +48,15 @@ __all__ = [
     "Uncertainty",
     "UnreachableError",
     "__version__",
+    "accuracy",
     "differential_evolution",
+    "forward_kinematics",
     "identifiability",
     "identify",
     "load_result",
     "parameter_error",
     "plan_poses",
+    "pose_errors",
     "predict_legs",
     "simulate",
     "uncertainty",
