@@ -7,6 +7,7 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
