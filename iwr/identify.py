@@ -167,6 +167,10 @@ def identify(
     return result
 
 
+#: Tikhonov weights of the first Levenberg-Marquardt solves, before the final ``regularization``.
+_LM_CONTINUATION = (1e-4, 1e-8)
+
+
 class _StopLM(Exception):
     """Raised from inside the residual function to end a Levenberg-Marquardt run early."""
 
@@ -211,7 +215,8 @@ def levenberg_marquardt(
     regularization : float
         Weight ``lambda`` of a Tikhonov term ``lambda sum_i (d_i (z_i - z0_i))^2`` added to the
         sum of squares, with ``d_i`` the norm of column i of the Jacobian at ``x0``: 0 disables
-        it. See the notes.
+        it. Solved by continuation: weights 1e-4, 1e-8, then ``regularization``, each solve
+        started from the previous answer. See the notes.
 
     Notes
     -----
@@ -224,8 +229,8 @@ def levenberg_marquardt(
     iterates slide along it: from the nominal start, noise-free, the unregularised solver ends up
     to 10 mm away from the truth in unidentifiable combinations (at the same, zero, cost). The tiny
     Tikhonov term makes the problem full rank and picks, among the equally good solutions, the one
-    nearest ``x0`` in the column-scaled metric. Its bias on the identifiable part is of order
-    ``lambda / s_min^2`` relative, with ``s_min`` ~ 1e-3 the smallest identifiable singular value
+    nearest ``x0`` in the column-scaled metric (about 1 mm from the truth instead of 10 in the
+    same test). Its bias on the identifiable part is of order ``lambda / s_min^2`` relative, with ``s_min`` ~ 1e-3 the smallest identifiable singular value
     of the column-scaled Jacobian: 1e-6 relative at the default, far below any noise. (It also
     lets MINPACK run with fewer readings than parameters.) Hold the unidentifiable parameters
     fixed with ``active`` (the base parameters) for the unregularised answer.
@@ -254,7 +259,7 @@ def levenberg_marquardt(
 
     z0 = reduced.reduce(x0)
     start = time.perf_counter()
-    state: dict[str, Any] = {"n": 0, "best_f": np.inf, "best_z": z0.copy(), "stop": ""}
+    state: dict[str, Any] = {"n": 0, "nit": 0, "best_f": np.inf, "best_z": z0.copy(), "stop": ""}
     history_nfev: list[int] = []
     history_best: list[float] = []
 
@@ -299,24 +304,35 @@ def levenberg_marquardt(
         return j
 
     sol = None
+    # Continuation on the Tikhonov weight: a strongly regularised first solve finds the region
+    # quickly; the later ones, each started from the previous answer, remove its bias. A single
+    # solve at the final, tiny weight crawls along the curved valley of equally good solutions when
+    # the start is far from it (thousands of evaluations from a bad start, instead of ~100).
+    stages = [float(regularization)]
+    if regularization > 0:
+        stages = [s for s in _LM_CONTINUATION if s > regularization] + stages
     try:
         count()
         r_first, j_full = problem.residuals_and_jacobian(reduced.full(z0))
         first["r"], first["J"] = r_first, j_full[:, reduced.index]
         norms = np.linalg.norm(first["J"], axis=0)
         floor = 1e-12 * (norms.max() if norms.size and norms.max() > 0 else 1.0)
-        weights = math.sqrt(regularization) * np.maximum(norms, floor)
-        sol = least_squares(
-            fun,
-            z0,
-            jac=jac,
-            method="lm",
-            xtol=xtol,
-            ftol=ftol,
-            gtol=gtol,
-            max_nfev=max_nfev if max_nfev is not None else 100 * (reduced.n + 1),
-            x_scale="jac",
-        )
+        z = z0
+        for lam in stages:
+            weights = math.sqrt(lam) * np.maximum(norms, floor)
+            sol = least_squares(
+                fun,
+                z,
+                jac=jac,
+                method="lm",
+                xtol=xtol,
+                ftol=ftol,
+                gtol=gtol,
+                max_nfev=max_nfev if max_nfev is not None else 100 * (reduced.n + 1),
+                x_scale="jac",
+            )
+            z = sol.x
+            state["nit"] += int(sol.nfev)
     except _StopLM:
         pass
     except KeyboardInterrupt:
@@ -336,7 +352,7 @@ def levenberg_marquardt(
         x=x,
         fun=problem.cost(x),
         nfev=int(state["n"]),
-        nit=int(sol.nfev) if sol is not None else len(history_nfev),
+        nit=int(state["nit"]),
         success=success,
         message=message,
         history={"nfev": np.array(history_nfev, dtype=np.int64), "best": np.array(history_best)},
