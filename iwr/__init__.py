@@ -8,6 +8,7 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 from __future__ import annotations
 
 from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
+from .compare import compare_methods
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
@@ -29,6 +30,7 @@ __all__ = [
     "RobotFileError",
     "UnreachableError",
     "__version__",
+    "compare_methods",
     "identify",
     "load_result",
     "predict_legs",
