@@ -76,34 +76,65 @@ ParamErrorFn = Callable[[Robot, Measurements, np.ndarray, np.ndarray], Any]
 
 
 def _scaled_null_space(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Column scale ``d``, right singular vectors of ``J / d`` (rows) and the rank."""
+    """Column scale ``d``, right singular vectors of ``J / d`` (rows, all n of them) and the rank."""
     jac = problem.jacobian(x)
     d = np.linalg.norm(jac, axis=0)
     d = np.where(d > 0, d, 1.0)
-    _, s, vt = np.linalg.svd(jac / d, full_matrices=True)
+    # Only V is needed: the economic SVD gives all of it unless there are fewer readings than
+    # parameters.
+    _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
     tol = s[0] * max(jac.shape) * np.finfo(float).eps if s.size else 0.0
     rank = int(np.sum(s > tol))
     return d, vt, rank
 
 
-def _projected_parameter_error(
-    robot: Robot, measurements: Measurements, x: np.ndarray, truth: np.ndarray
-) -> dict[str, float]:
+class _ProjectedParameterError:
     """Fallback for :func:`iwr.parameter_error`: ``x - truth`` projected, in the column-scaled
     metric, onto the row space of the Jacobian at the truth (its identifiable part), as RMS over
-    lengths and angles; and the raw RMS."""
-    problem = Problem(robot, measurements)
-    d, vt, rank = _scaled_null_space(problem, truth)
-    raw = np.asarray(x, dtype=float) - truth
-    vr = vt[:rank].T
-    projected = (vr @ (vr.T @ (d * raw))) / d
-    ang = robot.angle_parameters
-    return {
-        "rms_length": _rms(projected[~ang]),
-        "rms_angle": _rms(projected[ang]),
-        "raw_rms_length": _rms(raw[~ang]),
-        "raw_rms_angle": _rms(raw[ang]),
-    }
+    lengths and angles; and the raw RMS. The decomposition is kept for the last data set, since
+    every method of a comparison is judged on the same one."""
+
+    def __init__(self) -> None:
+        self._key: Any = None
+        self._svd: Any = None
+
+    def __call__(self, robot: Robot, measurements: Measurements, x: Any,
+                 truth: Any) -> dict[str, float]:
+        truth = np.asarray(truth, dtype=float)
+        key = (id(robot), id(measurements), truth.tobytes())
+        if key != self._key:
+            self._svd = _scaled_null_space(Problem(robot, measurements), truth)
+            self._key = key
+        d, vt, rank = self._svd
+        raw = np.asarray(x, dtype=float) - truth
+        vr = vt[:rank].T
+        projected = (vr @ (vr.T @ (d * raw))) / d
+        ang = robot.angle_parameters
+        return {
+            "rms_length": _rms(projected[~ang]),
+            "rms_angle": _rms(projected[ang]),
+            "raw_rms_length": _rms(raw[~ang]),
+            "raw_rms_angle": _rms(raw[ang]),
+        }
+
+
+def _projected_parameter_error(
+    robot: Robot, measurements: Measurements, x: Any, truth: Any
+) -> dict[str, float]:
+    """See :class:`_ProjectedParameterError` (no caching)."""
+    return _ProjectedParameterError()(robot, measurements, x, truth)
+
+
+def _blas_single_thread() -> Any:
+    """Limit BLAS to one thread: the matrices here are tiny, and OpenBLAS's spinning threads make
+    an SVD of a 600 x 58 matrix a hundred times slower on a loaded machine."""
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # pragma: no cover
+        import contextlib
+
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _default_parameter_error() -> ParamErrorFn:
@@ -111,7 +142,7 @@ def _default_parameter_error() -> ParamErrorFn:
     import iwr
 
     fn = getattr(iwr, "parameter_error", None)
-    return fn if callable(fn) else _projected_parameter_error
+    return fn if callable(fn) else _ProjectedParameterError()
 
 
 def _error_fields(value: Any) -> dict[str, float]:
@@ -374,10 +405,19 @@ def compare_methods(
         "success_rtol": success_rtol,
         "success_atol": success_atol,
         "parameter_error": getattr(param_err, "__module__", "") + "."
-        + getattr(param_err, "__qualname__", repr(param_err)),
+        + getattr(param_err, "__qualname__", type(param_err).__qualname__),
         "method_options": {m: _method_options(m, budget, extra) for m in names},
     }
 
+    with _blas_single_thread():
+        return _compare(robot, n_poses, noise, seeds, names, budget, starts, out_path,
+                        n_validation, success_rtol, success_atol, param_err, extra, show, settings)
+
+
+def _compare(robot: Robot, n_poses: int, noise: Noise, seeds: list[int], names: list[str],
+             budget: int, starts: list[str], out_path: Path | None, n_validation: int,
+             success_rtol: float, success_atol: float, param_err: ParamErrorFn,
+             extra: dict[str, dict[str, Any]], show: bool, settings: dict[str, Any]) -> Comparison:
     from tqdm.auto import tqdm
 
     runs: list[dict[str, Any]] = []
