@@ -76,7 +76,7 @@ ParamErrorFn = Callable[[Robot, Measurements, np.ndarray, np.ndarray], Any]
 
 
 def _scaled_null_space(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Column scale ``d``, right singular vectors of ``J / d`` (rows, all n of them) and the rank."""
+    """Column scale ``d``, the right singular vectors of ``J / d`` (rows, all n) and the rank."""
     jac = problem.jacobian(x)
     d = np.linalg.norm(jac, axis=0)
     d = np.where(d > 0, d, 1.0)
@@ -247,7 +247,9 @@ def _check_seeds(seeds: Any) -> list[int]:
     try:
         out = list(seeds)
     except TypeError:
-        raise ValueError(f"seeds: {seeds!r}; expected a sequence of non-negative integers") from None
+        raise ValueError(
+            f"seeds: {seeds!r}; expected a sequence of non-negative integers"
+        ) from None
     if not out:
         raise ValueError("seeds: empty; expected one or more non-negative integers")
     for s in out:
@@ -383,7 +385,9 @@ def compare_methods(
     extra = dict(method_options or {})
     for k, v in extra.items():
         if k not in names or not isinstance(v, dict):
-            raise ValueError(f"method_options: {k!r}; expected a dict of options per compared method")
+            raise ValueError(
+                f"method_options: {k!r}; expected a dict of options per compared method"
+            )
     out_path = None if out_dir is None else Path(out_dir)
     if out_path is not None and out_path.exists() and not out_path.is_dir():
         raise ValueError(f"out_dir: {str(out_path)!r} exists and is not a folder")
@@ -697,7 +701,7 @@ def _plot_metrics(comp: Comparison) -> bytes:
                         if r["scenario"] == scenario and r["method"] == method]
                 ok = [r["success"] for r in comp.runs
                       if r["scenario"] == scenario and r["method"] == method]
-                for v, s in zip(vals, ok):
+                for v, s in zip(vals, ok, strict=True):
                     ax.plot(k, max(v, 1e-30), "o" if s else "x", color=colors[method], ms=6)
             if key == "cost":
                 fl = [r["noise_floor"] for r in comp.runs if r["scenario"] == scenario]

@@ -230,10 +230,15 @@ def levenberg_marquardt(
     to 10 mm away from the truth in unidentifiable combinations (at the same, zero, cost). The tiny
     Tikhonov term makes the problem full rank and picks, among the equally good solutions, the one
     nearest ``x0`` in the column-scaled metric (about 1 mm from the truth instead of 10 in the
-    same test). Its bias on the identifiable part is of order ``lambda / s_min^2`` relative, with ``s_min`` ~ 1e-3 the smallest identifiable singular value
-    of the column-scaled Jacobian: 1e-6 relative at the default, far below any noise. (It also
-    lets MINPACK run with fewer readings than parameters.) Hold the unidentifiable parameters
-    fixed with ``active`` (the base parameters) for the unregularised answer.
+    same test). Its bias on the identifiable part is of order ``lambda / s_min^2`` relative,
+    with ``s_min`` ~ 1e-3 the smallest identifiable singular value of the column-scaled
+    Jacobian: 1e-6 relative at the default, far below any noise. (It also lets MINPACK run with
+    fewer readings than parameters.) Hold the unidentifiable parameters fixed with ``active``
+    (the base parameters) for the unregularised answer.
+
+    Starting far from the valley of equal-cost solutions, a single solve at a tiny weight crawls
+    along it (thousands of evaluations from the bad start of ``iwr compare``); the continuation
+    (weights 1e-4, 1e-8, then ``regularization``) gets there in about a hundred.
     """
     from scipy.optimize import least_squares
 
@@ -244,9 +249,9 @@ def levenberg_marquardt(
     n_res = 6 * problem.n_poses
     if regularization == 0 and n_res < reduced.n:
         raise ValueError(
-            f"method 'lm': {n_res} residuals for {reduced.n} parameters; MINPACK's LM needs at least "
-            "as many residuals as parameters: measure more poses, fix parameters with 'active', or "
-            "use regularization > 0"
+            f"method 'lm': {n_res} residuals for {reduced.n} parameters; MINPACK's LM needs at "
+            "least as many residuals as parameters: measure more poses, fix parameters with "
+            "'active', or use regularization > 0"
         )
     if max_evaluations is None:
         max_evaluations = 100 * (reduced.n + 1)

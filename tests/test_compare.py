@@ -86,7 +86,7 @@ def test_csv_and_json_hold_every_run(report):
     assert len(rows) == n == len(comp.runs)
     assert {"cost", "validation_rms_mm", "param_err_length_mm", "raw_err_length_mm", "nfev",
             "wall_time_s", "success"} <= set(rows[0])
-    for row, run in zip(rows, comp.runs):
+    for row, run in zip(rows, comp.runs, strict=True):
         assert float(row["cost"]) == run["cost"]
         assert int(row["nfev"]) == run["nfev"]
     with open(out / "summary.csv", newline="") as fh:
@@ -127,7 +127,7 @@ def test_numbers_are_consistent(report):
 def test_same_seeds_same_numbers(report, tmp_path):
     comp, out = report
     again = small_run(tmp_path)
-    for a, b in zip(comp.runs, again.runs):
+    for a, b in zip(comp.runs, again.runs, strict=True):
         a = {k: v for k, v in a.items() if k != "wall_time_s"}
         b = {k: v for k, v in b.items() if k != "wall_time_s"}
         assert a == b
