@@ -8,7 +8,6 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 from __future__ import annotations
 
 from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
-from .compare import compare_methods
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
@@ -17,6 +16,15 @@ from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> object:
+    # iwr.compare is imported on first use only, so that `python -m iwr.compare` runs it fresh.
+    if name == "compare_methods":
+        from .compare import compare_methods
+
+        return compare_methods
+    raise AttributeError(f"module 'iwr' has no attribute {name!r}")
 
 __all__ = [
     "IdentificationResult",

@@ -758,7 +758,10 @@ def _definitions(settings: dict[str, Any]) -> list[str]:
         "unidentifiable component removed (projection onto the row space of the column-scaled "
         "Jacobian at the truth; " + settings["parameter_error"] + "), RMS over lengths and over "
         "angles. Raw: the same without the projection. Unidentifiable combinations cost nothing, "
-        "so a method may land anywhere along them: raw errors there say nothing about the method.",
+        "so a method may land anywhere along them: raw errors there say nothing about the method. "
+        "The projection is first order: where a method ends far along a curved unidentifiable "
+        "combination (large errors, the bad start), part of that remains and the identifiable-part "
+        "error overstates the real one; the validation RMS has no such limit.",
         "Medians over seeds. Wall times depend on the machine and its load; everything else is "
         "the same for the same seeds.",
     ]

@@ -254,3 +254,4 @@ def test_python_dash_m_help():
     proc = subprocess.run([sys.executable, "-m", "iwr.compare", "--help"], capture_output=True,
                           text=True, timeout=60)
     assert proc.returncode == 0 and "--budget" in proc.stdout
+    assert "Warning" not in proc.stderr
