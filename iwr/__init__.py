@@ -8,12 +8,22 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 from __future__ import annotations
 
 from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
+from .de import differential_evolution
+from .identifiability import (
+    IdentifiabilityReport,
+    NullDirection,
+    ParameterError,
+    identifiability,
+    parameter_error,
+)
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
+from .planning import PosePlan, plan_poses
 from .problem import Problem, predict_legs
 from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
+from .uncertainty import Uncertainty, uncertainty
 
 __version__ = "0.1.0"
 
@@ -26,21 +36,32 @@ def __getattr__(name: str) -> object:
         return compare_methods
     raise AttributeError(f"module 'iwr' has no attribute {name!r}")
 
+
 __all__ = [
+    "IdentifiabilityReport",
     "IdentificationResult",
     "MeasurementFileError",
     "Measurements",
     "Noise",
+    "NullDirection",
+    "ParameterError",
+    "PosePlan",
     "Problem",
     "ReducedProblem",
     "ResultFileError",
     "Robot",
     "RobotFileError",
+    "Uncertainty",
     "UnreachableError",
     "__version__",
     "compare_methods",
+    "differential_evolution",
+    "identifiability",
     "identify",
     "load_result",
+    "parameter_error",
+    "plan_poses",
     "predict_legs",
     "simulate",
+    "uncertainty",
 ]

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from ._blas import single_thread
 from ._io import atomic_write_bytes, atomic_write_text
 from .identify import METHODS, identify
 from .measurements import Measurements
@@ -123,18 +124,6 @@ def _projected_parameter_error(
 ) -> dict[str, float]:
     """See :class:`_ProjectedParameterError` (no caching)."""
     return _ProjectedParameterError()(robot, measurements, x, truth)
-
-
-def _blas_single_thread() -> Any:
-    """Limit BLAS to one thread: the matrices here are tiny, and OpenBLAS's spinning threads make
-    an SVD of a 600 x 58 matrix a hundred times slower on a loaded machine."""
-    try:
-        from threadpoolctl import threadpool_limits
-    except ImportError:  # pragma: no cover
-        import contextlib
-
-        return contextlib.nullcontext()
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 def _default_parameter_error() -> ParamErrorFn:
@@ -413,7 +402,7 @@ def compare_methods(
         "method_options": {m: _method_options(m, budget, extra) for m in names},
     }
 
-    with _blas_single_thread():
+    with single_thread():
         return _compare(robot, n_poses, noise, seeds, names, budget, starts, out_path,
                         n_validation, success_rtol, success_atol, param_err, extra, show, settings)
 

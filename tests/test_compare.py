@@ -29,8 +29,11 @@ def small_methods() -> list[str]:
 
 
 def small_run(out_dir, **kw):
+    # DE runs whole generations (its initial population alone is 10 D = 580 evaluations by
+    # default): a population of 20 makes a budget of 300 exactly 15 generations.
+    options = {"de": {"population_size": 20}} if "de" in METHODS else {}
     args = dict(n_poses=20, seeds=SEEDS, methods=small_methods(), budget=300, start="both",
-                out_dir=out_dir, n_validation=20, progress=False)
+                out_dir=out_dir, n_validation=20, progress=False, method_options=options)
     args.update(kw)
     return iwr.compare_methods(**args)
 
