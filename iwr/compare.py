@@ -743,17 +743,34 @@ def _definitions(settings: dict[str, Any]) -> list[str]:
         f"Validation RMS: leg readings predicted with the recovered parameters at "
         f"{settings['n_validation']} fresh poses of the actual robot, against their exact "
         "(noise-free) values; the nominal robot's is given for scale.",
-        "Parameter error, identifiable part: the recovered minus true parameters with their "
-        "unidentifiable component removed (projection onto the row space of the column-scaled "
-        "Jacobian at the truth; " + settings["parameter_error"] + "), RMS over lengths and over "
-        "angles. Raw: the same without the projection. Unidentifiable combinations cost nothing, "
-        "so a method may land anywhere along them: raw errors there say nothing about the method. "
-        "The projection is first order: where a method ends far along a curved unidentifiable "
-        "combination (large errors, the bad start), part of that remains and the identifiable-part "
-        "error overstates the real one; the validation RMS has no such limit.",
+        _parameter_error_text(settings["parameter_error"]),
         "Medians over seeds. Wall times depend on the machine and its load; everything else is "
         "the same for the same seeds.",
     ]
+
+
+def _parameter_error_text(name: str) -> str:
+    common = (
+        "RMS over lengths (mm) and over angles (mrad in the tables). Raw: x - truth as it is. "
+        "Unidentifiable combinations cost nothing, so a method may land anywhere along them: raw "
+        "errors there say nothing about the method."
+    )
+    if name.endswith("identifiability.parameter_error"):
+        return (
+            "Parameter error, identifiable part (iwr.parameter_error): x minus the parameter "
+            "vector nearest to x that predicts exactly the truth's readings at the identification "
+            "poses, projected onto the identifiable directions; the part of the error that the "
+            "readings can see. " + common
+        )
+    if name.endswith("_ProjectedParameterError"):
+        return (
+            "Parameter error, identifiable part: x - truth projected onto the row space of the "
+            "column-scaled Jacobian at the truth. First order: where a method ends far along a "
+            "curved unidentifiable combination (large errors, the bad start), part of that remains "
+            "and the number overstates the real error; the validation RMS has no such limit. "
+            + common
+        )
+    return f"Parameter error, identifiable part: as computed by {name}. " + common
 
 
 def write_report(comp: Comparison, out_dir: str | Path, robot: Robot) -> dict[str, Path]:

@@ -258,3 +258,19 @@ def test_python_dash_m_help():
                           text=True, timeout=60)
     assert proc.returncode == 0 and "--budget" in proc.stdout
     assert "Warning" not in proc.stderr
+
+
+def test_default_parameter_error_is_iwr_parameter_error(report):
+    comp, out = report
+    if not hasattr(iwr, "parameter_error"):
+        pytest.skip("this build has no iwr.parameter_error")
+    assert comp.settings["parameter_error"].endswith("parameter_error")
+    robot = iwr.Robot.default()
+    r = comp.runs[0]
+    # the data set is rebuilt from the same seed stream the comparison used
+    sp = cmp._scenario_problem(robot, r["scenario"], r["seed"], 20, iwr.Noise.realistic(), 20)
+    np.testing.assert_array_equal(sp["truth"], r["truth"])
+    pe = iwr.parameter_error(robot, sp["data"], np.array(r["x"]), sp["truth"])
+    assert r["param_err_length_mm"] == pe.rms_length
+    assert r["param_err_angle_rad"] == pe.rms_angle
+    assert "iwr.parameter_error" in (out / "report.md").read_text(encoding="utf-8")
