@@ -592,8 +592,20 @@ def _png(fig: Any) -> bytes:
     return buf.getvalue()
 
 
+_FIXED_COLORS = {"lm": "#1f77b4", "de": "#d62728", "crs2": "#2ca02c", "bobyqa": "#ff7f0e"}
+
+
 def _colors(names: list[str]) -> dict[str, str]:
-    return {m: _COLORS[i % len(_COLORS)] for i, m in enumerate(names)}
+    """One color per method, the same in every report for the usual methods."""
+    others = [c for c in _COLORS if c not in _FIXED_COLORS.values()]
+    out, k = {}, 0
+    for m in names:
+        if m in _FIXED_COLORS:
+            out[m] = _FIXED_COLORS[m]
+        else:
+            out[m] = others[k % len(others)]
+            k += 1
+    return out
 
 
 def _plot_convergence(comp: Comparison, scenario: str) -> bytes:
