@@ -8,6 +8,7 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 from __future__ import annotations
 
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
+from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
 from .de import differential_evolution
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
@@ -27,6 +28,16 @@ from .simulate import Noise, UnreachableError, simulate
 from .uncertainty import Uncertainty, uncertainty
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> object:
+    # iwr.compare is imported on first use only, so that `python -m iwr.compare` runs it fresh.
+    if name == "compare_methods":
+        from .compare import compare_methods
+
+        return compare_methods
+    raise AttributeError(f"module 'iwr' has no attribute {name!r}")
+
 
 __all__ = [
     "Accuracy",
@@ -49,6 +60,7 @@ __all__ = [
     "UnreachableError",
     "__version__",
     "accuracy",
+    "compare_methods",
     "differential_evolution",
     "forward_kinematics",
     "identifiability",
