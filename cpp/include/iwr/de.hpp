@@ -20,6 +20,10 @@
 //   // step(st2, f, pool) continues exactly as step(st, f, pool) would: bit-identical populations,
 //   // costs and log (except the `elapsed` column, which is wall-clock time).
 //
+// To stop on a signal (SIGINT, SIGTERM), set a std::atomic<bool> in the handler and return its value
+// from the callback: run() returns after the current generation with StopReason::callback, and the
+// state is complete and serializable.
+//
 // Everything a run needs to continue lives in `State`: the resolved Settings, the population and its
 // costs, every random stream, the strategy's memories (jDE's per-individual F and CR, JADE's means,
 // the SHADE family's success-history memories), the archive, the counters, the current population
