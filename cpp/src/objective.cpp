@@ -20,6 +20,26 @@ void require_shape(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, c
     }
 }
 
+// cos and sin of (nominal + delta) from those of the nominal angle: for the small deltas of a
+// calibration (|delta| <= 0.1 rad) by the angle-sum identity and Taylor series of cos delta and
+// sin delta (truncation error < 1e-18), else by the C library. Cheaper than a libm call, and more
+// accurate than cos(fl(nominal + delta)), which rounds the angle first.
+void sincos_offset(double nominal, double cn, double sn, double delta, double& c, double& s) {
+    if (std::abs(delta) <= 0.1) {
+        const double d2 = delta * delta;
+        const double cd =
+            1.0 - d2 * (1.0 / 2 - d2 * (1.0 / 24 - d2 * (1.0 / 720 - d2 * (1.0 / 40320 - d2 / 3628800))));
+        const double sd =
+            delta - delta * d2 * (1.0 / 6 - d2 * (1.0 / 120 - d2 * (1.0 / 5040 - d2 / 362880)));
+        c = cn * cd - sn * sd;
+        s = sn * cd + cn * sd;
+    } else {
+        const double angle = nominal + delta;
+        c = std::cos(angle);
+        s = std::sin(angle);
+    }
+}
+
 }  // namespace
 
 Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd& poses,
@@ -57,6 +77,12 @@ Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd&
         nq += geometry_.is_prismatic(i) ? 1 : 2;
     }
     while (n_prefix_ < nj && geometry_.is_prismatic(n_prefix_)) ++n_prefix_;
+    for (int i = 0; i < nj; ++i) {
+        nominal_cs_.push_back(std::cos(geometry_.dh()(i, 0)));
+        nominal_cs_.push_back(std::sin(geometry_.dh()(i, 0)));
+        nominal_cs_.push_back(std::cos(geometry_.dh()(i, 3)));
+        nominal_cs_.push_back(std::sin(geometry_.dh()(i, 3)));
+    }
     n_blocks_ = (n_ + kBlock - 1) / kBlock;
     stride_ = nq * kBlock;
     blocks_.assign(static_cast<size_t>(n_blocks_) * static_cast<size_t>(stride_), 0.0);
@@ -92,35 +118,43 @@ void Objective::prepare(const double* x, detail::EvalConsts& ec, double* jbuf) c
     const Geometry& g = geometry_;
     const int nj = g.n_joints();
     double* z = jbuf;               // 3 per prefix joint
-    double* joint = jbuf + 3 * nj;  // 6 per joint
-    // The prismatic prefix: with rotations independent of the readings, 0T_m has the same rotation
-    // at every pose and a position affine in the readings, p = pc + sum_i q_i z_i.
-    Mat3 r = Mat3::Identity();
-    Vec3 p = Vec3::Zero();
-    for (int i = 0; i < n_prefix_; ++i) {
-        const Mat4 a = dh_transform(g.dh()(i, 0) + x[4 * i + 0], g.dh()(i, 1) + x[4 * i + 1],
-                                    g.dh()(i, 2) + x[4 * i + 2], g.dh()(i, 3) + x[4 * i + 3]);
-        for (int c = 0; c < 3; ++c) z[3 * i + c] = r(c, 2);  // d grows along z_{i-1}
-        p += r * a.topRightCorner<3, 1>();
-        r = r * a.topLeftCorner<3, 3>();
-    }
-    for (int e = 0; e < 9; ++e) ec.rc[e] = r(e / 3, e % 3);
-    for (int c = 0; c < 3; ++c) ec.pc[c] = p(c);
-    for (int i = n_prefix_; i < nj; ++i) {
-        const double alpha = g.dh()(i, 0) + x[4 * i + 0];
-        const double theta = g.dh()(i, 3) + x[4 * i + 3];
+    double* joint = jbuf + 3 * nj;  // 6 per joint: cos/sin alpha, cos/sin theta, a, d
+    for (int i = 0; i < nj; ++i) {
+        const double* cs = nominal_cs_.data() + 4 * i;
         double* jc = joint + 6 * i;
-        jc[0] = std::cos(alpha), jc[1] = std::sin(alpha);
-        jc[2] = std::cos(theta), jc[3] = std::sin(theta);
+        sincos_offset(g.dh()(i, 0), cs[0], cs[1], x[4 * i + 0], jc[0], jc[1]);
+        sincos_offset(g.dh()(i, 3), cs[2], cs[3], x[4 * i + 3], jc[2], jc[3]);
         jc[4] = g.dh()(i, 1) + x[4 * i + 1];
         jc[5] = g.dh()(i, 2) + x[4 * i + 2];
     }
+    // The prismatic prefix: with rotations independent of the readings, 0T_m has the same rotation
+    // at every pose and a position affine in the readings, p = pc + sum_i q_i z_i. Each joint
+    // multiplies by Rz(theta) Trans_z(d + q) Trans_x(a) Rx(alpha) (eq. 1).
+    double r[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1}, p[3] = {0, 0, 0};
+    for (int i = 0; i < n_prefix_; ++i) {
+        const double* jc = joint + 6 * i;
+        const double ca = jc[0], sa = jc[1], ct = jc[2], st = jc[3], a = jc[4], d = jc[5];
+        for (int row = 0; row < 3; ++row) {
+            double* t = r + 3 * row;
+            z[3 * i + row] = t[2];  // d grows along z_{i-1}
+            const double u = t[0] * ct + t[1] * st;
+            const double v = t[1] * ct - t[0] * st;
+            const double w = t[2];
+            p[row] += a * u + d * w;
+            t[0] = u;
+            t[1] = ca * v + sa * w;
+            t[2] = ca * w - sa * v;
+        }
+    }
+    for (int e = 0; e < 9; ++e) ec.rc[e] = r[e];
+    for (int c = 0; c < 3; ++c) ec.pc[c] = p[c];
+    const int base = 4 * nj;
     for (int j = 0; j < kLegs; ++j) {
         for (int c = 0; c < 3; ++c) {
-            ec.a[j][c] = g.base()(j, c) + x[g.idx_base(j, c)];
-            ec.b[j][c] = g.platform()(j, c) + x[g.idx_platform(j, c)];
+            ec.a[j][c] = g.base()(j, c) + x[base + 3 * j + c];
+            ec.b[j][c] = g.platform()(j, c) + x[base + 18 + 3 * j + c];
         }
-        ec.l0[j] = g.leg_offsets()(j) + x[g.idx_offset(j)];
+        ec.l0[j] = g.leg_offsets()(j) + x[base + 36 + j];
     }
     ec.z = z;
     ec.joint = joint;

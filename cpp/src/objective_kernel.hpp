@@ -13,7 +13,7 @@
 
 namespace iwr::detail {
 
-constexpr int kBlock = 8;  // poses per block: one AVX-512 vector, two AVX2, four SSE2
+constexpr int kBlock = 8;  // poses per block: one AVX-512 register, two AVX2, four SSE2
 
 /// Per-data-set, parameter-independent layout of the pose data (built once by Objective).
 struct PoseData {

@@ -101,6 +101,7 @@ private:
     int n_blocks_ = 0, stride_ = 0, off_w_ = -1, n_prefix_ = 0;
     std::vector<int> q_off_;
     std::vector<char> prismatic_;
+    std::vector<double> nominal_cs_;  // per joint: cos, sin of the nominal alpha and theta
 };
 
 }  // namespace iwr
