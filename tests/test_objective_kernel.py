@@ -104,11 +104,15 @@ def make_data(robot: iwr.Robot, n: int, weighted: bool, seed: int) -> iwr.Measur
     return iwr.Measurements(q, poses, legs, weights=w)
 
 
-def random_x(problem: iwr.Problem, rng: np.random.Generator, large_angles: bool) -> np.ndarray:
-    """Within the default bounds, or with angle errors up to 0.5 rad (the paper's literal bounds,
-    which take the kernel's other branch for the sine and cosine of the DH angles)."""
-    lower, upper = problem.robot.default_bounds("paper" if large_angles else "default")
-    return rng.uniform(lower, upper)
+def random_x(problem: iwr.Problem, rng: np.random.Generator, angles: str) -> np.ndarray:
+    """Within the default bounds (angle errors up to 0.5 degree), the paper's literal bounds (0.5 rad)
+    or with angle errors up to 1.5 rad (the kernel takes sin and cos of those from the C library
+    rather than from its angle-sum series)."""
+    lower, upper = problem.robot.default_bounds("default" if angles == "default" else "paper")
+    x = rng.uniform(lower, upper)
+    if angles == "huge":
+        x[problem.robot.angle_parameters] *= 3
+    return x
 
 
 CASES = [
@@ -132,8 +136,8 @@ def test_cost_matches_numpy_and_residuals(joint_types, n, weighted):
     data = make_data(robot, n, weighted, seed=n + 3 * len(joint_types))
     p = iwr.Problem(robot, data)
     rng = np.random.default_rng(n)
-    for large in (False, True):
-        x = random_x(p, rng, large)
+    for angles in ("default", "paper", "huge"):
+        x = random_x(p, rng, angles)
         ref_cost, ref_res = np_cost(robot, x, data)
         res = p.residuals(x)
         np.testing.assert_allclose(res, ref_res.ravel(), rtol=0, atol=1e-9)
@@ -153,7 +157,7 @@ def test_every_instruction_set_gives_the_same_bits(joint_types, n, weighted, res
     data = make_data(robot, n, weighted, seed=1)
     p = iwr.Problem(robot, data)
     rng = np.random.default_rng(2)
-    X = np.array([random_x(p, rng, large) for large in [False, True] * 9])
+    X = np.array([random_x(p, rng, a) for a in ["default", "paper", "huge"] * 6])
     results = {}
     for v in variants:
         _core._select_kernel(v)

@@ -1,11 +1,11 @@
 #include "iwr/objective.hpp"
 
-#include "objective_kernel.hpp"
-
 #include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
+
+#include "objective_kernel.hpp"
 
 namespace iwr {
 
@@ -20,17 +20,38 @@ void require_shape(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, c
     }
 }
 
-// cos and sin of (nominal + delta) from those of the nominal angle: for the small deltas of a
-// calibration (|delta| <= 0.1 rad) by the angle-sum identity and Taylor series of cos delta and
-// sin delta (truncation error < 1e-18), else by the C library. Cheaper than a libm call, and more
-// accurate than cos(fl(nominal + delta)), which rounds the angle first.
+// Taylor coefficients (-1)^k / (2k)! of cos and (-1)^k / (2k+1)! of sin, k = 0..9 and 0..8.
+struct SinCosSeries {
+    double cos[10], sin[9];
+};
+constexpr SinCosSeries sincos_series() {
+    SinCosSeries t{};
+    double f = 1;  // 1/n!
+    for (int n = 0; n <= 18; ++n) {
+        if (n > 0) f /= n;
+        const double term = (n / 2) % 2 ? -f : f;
+        if (n % 2 == 0) {
+            t.cos[n / 2] = term;
+        } else {
+            t.sin[n / 2] = term;
+        }
+    }
+    return t;
+}
+constexpr SinCosSeries kSeries = sincos_series();
+
+// cos and sin of (nominal + delta) from those of the nominal angle: for the deltas of a calibration
+// (|delta| <= 0.8 rad, beyond the +-0.5 rad of the paper's Table 2) by the angle-sum identity and
+// the Taylor series of cos delta and sin delta to degree 18 and 17 (truncation error < 2e-19), else
+// by the C library. Several times cheaper than libm's sin and cos, and no less accurate than
+// cos(fl(nominal + delta)), which rounds the angle first.
 void sincos_offset(double nominal, double cn, double sn, double delta, double& c, double& s) {
-    if (std::abs(delta) <= 0.1) {
+    if (std::abs(delta) <= 0.8) {
         const double d2 = delta * delta;
-        const double cd =
-            1.0 - d2 * (1.0 / 2 - d2 * (1.0 / 24 - d2 * (1.0 / 720 - d2 * (1.0 / 40320 - d2 / 3628800))));
-        const double sd =
-            delta - delta * d2 * (1.0 / 6 - d2 * (1.0 / 120 - d2 * (1.0 / 5040 - d2 / 362880)));
+        double cd = kSeries.cos[9], sd = kSeries.sin[8];
+        for (int k = 8; k >= 0; --k) cd = cd * d2 + kSeries.cos[k];
+        for (int k = 7; k >= 0; --k) sd = sd * d2 + kSeries.sin[k];
+        sd *= delta;
         c = cn * cd - sn * sd;
         s = sn * cd + cn * sd;
     } else {
