@@ -40,24 +40,28 @@ constexpr SinCosSeries sincos_series() {
 }
 constexpr SinCosSeries kSeries = sincos_series();
 
-// cos and sin of (nominal + delta) from those of the nominal angle: for the deltas of a calibration
-// (|delta| <= 0.8 rad, beyond the +-0.5 rad of the paper's Table 2) by the angle-sum identity and
-// the Taylor series of cos delta and sin delta to degree 18 and 17 (truncation error < 2e-19), else
-// by the C library. Several times cheaper than libm's sin and cos, and no less accurate than
-// cos(fl(nominal + delta)), which rounds the angle first.
-void sincos_offset(double nominal, double cn, double sn, double delta, double& c, double& s) {
-    if (std::abs(delta) <= 0.8) {
-        const double d2 = delta * delta;
+// cos and sin of nominal_e + delta_e for e < n, from cos and sin of the nominal angles: for the
+// deltas of a calibration (|delta| <= 0.8 rad, beyond the +-0.5 rad of the paper's Table 2) by the
+// angle-sum identity and the Taylor series of cos delta and sin delta to degree 18 and 17
+// (truncation error < 2e-19), else by the C library. Several times cheaper than libm's sin and cos
+// (the loops over e vectorise), and no less accurate than cos(fl(nominal + delta)), which rounds the
+// angle first.
+void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
+                   const double* delta, double* c, double* s) {
+    for (int e = 0; e < n; ++e) {
+        const double d = delta[e], d2 = d * d;
         double cd = kSeries.cos[9], sd = kSeries.sin[8];
         for (int k = 8; k >= 0; --k) cd = cd * d2 + kSeries.cos[k];
         for (int k = 7; k >= 0; --k) sd = sd * d2 + kSeries.sin[k];
-        sd *= delta;
-        c = cn * cd - sn * sd;
-        s = sn * cd + cn * sd;
-    } else {
-        const double angle = nominal + delta;
-        c = std::cos(angle);
-        s = std::sin(angle);
+        sd *= d;
+        c[e] = cn[e] * cd - sn[e] * sd;
+        s[e] = sn[e] * cd + cn[e] * sd;
+    }
+    for (int e = 0; e < n; ++e) {
+        if (!(std::abs(delta[e]) <= 0.8)) {
+            c[e] = std::cos(nominal[e] + delta[e]);
+            s[e] = std::sin(nominal[e] + delta[e]);
+        }
     }
 }
 
@@ -98,11 +102,12 @@ Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd&
         nq += geometry_.is_prismatic(i) ? 1 : 2;
     }
     while (n_prefix_ < nj && geometry_.is_prismatic(n_prefix_)) ++n_prefix_;
-    for (int i = 0; i < nj; ++i) {
-        nominal_cs_.push_back(std::cos(geometry_.dh()(i, 0)));
-        nominal_cs_.push_back(std::sin(geometry_.dh()(i, 0)));
-        nominal_cs_.push_back(std::cos(geometry_.dh()(i, 3)));
-        nominal_cs_.push_back(std::sin(geometry_.dh()(i, 3)));
+    nominal_.resize(static_cast<size_t>(6 * nj));  // angles, their cosines, their sines
+    for (int e = 0; e < 2 * nj; ++e) {
+        const double angle = geometry_.dh()(e / 2, e % 2 ? 3 : 0);
+        nominal_[static_cast<size_t>(e)] = angle;
+        nominal_[static_cast<size_t>(2 * nj + e)] = std::cos(angle);
+        nominal_[static_cast<size_t>(4 * nj + e)] = std::sin(angle);
     }
     n_blocks_ = (n_ + kBlock - 1) / kBlock;
     stride_ = nq * kBlock;
@@ -131,7 +136,7 @@ Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd&
 
 Objective::Workspace Objective::make_workspace() const {
     Workspace ws;
-    ws.buf.assign(static_cast<size_t>(9) * static_cast<size_t>(geometry_.n_joints()) + 1, 0.0);
+    ws.buf.assign(static_cast<size_t>(15) * static_cast<size_t>(geometry_.n_joints()) + 1, 0.0);
     return ws;
 }
 
@@ -140,11 +145,15 @@ void Objective::prepare(const double* x, detail::EvalConsts& ec, double* jbuf) c
     const int nj = g.n_joints();
     double* z = jbuf;               // 3 per prefix joint
     double* joint = jbuf + 3 * nj;  // 6 per joint: cos/sin alpha, cos/sin theta, a, d
+    double* delta = jbuf + 9 * nj;  // 2 per joint: the errors of alpha and theta, then c, s
+    double* c = delta + 2 * nj;
+    double* s = c + 2 * nj;
+    for (int i = 0; i < nj; ++i) delta[2 * i] = x[4 * i], delta[2 * i + 1] = x[4 * i + 3];
+    sincos_offset(2 * nj, nominal_.data(), nominal_.data() + 2 * nj, nominal_.data() + 4 * nj,
+                  delta, c, s);
     for (int i = 0; i < nj; ++i) {
-        const double* cs = nominal_cs_.data() + 4 * i;
         double* jc = joint + 6 * i;
-        sincos_offset(g.dh()(i, 0), cs[0], cs[1], x[4 * i + 0], jc[0], jc[1]);
-        sincos_offset(g.dh()(i, 3), cs[2], cs[3], x[4 * i + 3], jc[2], jc[3]);
+        jc[0] = c[2 * i], jc[1] = s[2 * i], jc[2] = c[2 * i + 1], jc[3] = s[2 * i + 1];
         jc[4] = g.dh()(i, 1) + x[4 * i + 1];
         jc[5] = g.dh()(i, 2) + x[4 * i + 2];
     }

@@ -91,14 +91,11 @@ IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const doub
         const double* p5 = blk + pd.off_p5 * B;
         const double* r5 = blk + pd.off_r5 * B;
         const Pack d0 = load(p5) - t[9], d1 = load(p5 + B) - t[10], d2 = load(p5 + 2 * B) - t[11];
-        Pack f[9];
-        for (int e = 0; e < 9; ++e) f[e] = load(r5 + e * B);
-        for (int r = 0; r < 3; ++r) {
-            const Pack c0 = t[r], c1 = t[3 + r], c2 = t[6 + r];  // column r of R4
-            m[3 * r + 0] = c0 * f[0] + c1 * f[3] + c2 * f[6];
-            m[3 * r + 1] = c0 * f[1] + c1 * f[4] + c2 * f[7];
-            m[3 * r + 2] = c0 * f[2] + c1 * f[5] + c2 * f[8];
-            m[9 + r] = c0 * d0 + c1 * d1 + c2 * d2;
+        for (int r = 0; r < 3; ++r)  // w = R4^T (p5 - p4): column r of R4 . d
+            m[9 + r] = t[r] * d0 + t[3 + r] * d1 + t[6 + r] * d2;
+        for (int c = 0; c < 3; ++c) {  // column c of R5 (fewer live registers than all nine)
+            const Pack f0 = load(r5 + c * B), f1 = load(r5 + (3 + c) * B), f2 = load(r5 + (6 + c) * B);
+            for (int r = 0; r < 3; ++r) m[3 * r + c] = t[r] * f0 + t[3 + r] * f1 + t[6 + r] * f2;
         }
     }
 

@@ -79,7 +79,7 @@ public:
 
 private:
     // Per-evaluation constants (rotation of the prismatic prefix, cos/sin of alpha and theta, ...)
-    // into ec, using jbuf (9 n_joints doubles) for the per-joint parts.
+    // into ec, using jbuf (15 n_joints doubles) for the per-joint parts.
     void prepare(const double* x, detail::EvalConsts& ec, double* jbuf) const;
     // Runs the SIMD kernel; writes the residuals too when res != nullptr.
     double evaluate(const double* x, double* jbuf, double* res) const;
@@ -101,7 +101,7 @@ private:
     int n_blocks_ = 0, stride_ = 0, off_w_ = -1, n_prefix_ = 0;
     std::vector<int> q_off_;
     std::vector<char> prismatic_;
-    std::vector<double> nominal_cs_;  // per joint: cos, sin of the nominal alpha and theta
+    std::vector<double> nominal_;  // nominal alpha_i, theta_i (interleaved), their cos, their sin
 };
 
 }  // namespace iwr
