@@ -1,12 +1,12 @@
-"""Cost of one evaluation of the objective of eq. (10): iwr's kernel against the floating-point floor,
-a straightforward Eigen implementation and vectorised NumPy; population batches on 1 and 2 threads;
-scaling with the number of poses N, the population size NP and the number of threads.
+"""Cost of one evaluation of the objective of eq. (10): iwr's kernel against the floating-point
+floor, a straightforward Eigen implementation and vectorised NumPy; population batches on 1 and 2
+threads; scaling with the number of poses N, the population size NP and the number of threads.
 
 What is timed
 -------------
-- iwr: ``Problem.cost_batch(X, workers=1)`` on NP = 600 random parameter vectors (the default bounds,
-  as DE draws them), once per compiled instruction-set variant of the kernel ("baseline" = x86-64
-  SSE2, "avx2", "avx512"; the fastest this CPU runs is the one iwr uses). Divided by 600.
+- iwr: ``Problem.cost_batch(X, workers=1)`` on NP = 600 random parameter vectors (within the
+  default bounds, as DE draws them), once per compiled instruction-set variant of the kernel
+  ("baseline" = x86-64 SSE2, "avx2", "avx512"; iwr uses the fastest this CPU runs). Divided by 600.
 - Eigen: ``iwr._core._bench.EigenBaseline``, the formula as one would first write it in C++ with
   Eigen (per pose: the 4x4 DH product with a sine and cosine per joint, the six leg vectors of
   eq. (8) with fixed-size types), compiled with the same flags as the kernel (-O3, no -march).
@@ -24,11 +24,12 @@ the IWR's PPRR carriage (every + - * / sqrt counts 1):
   prismatic prefix: 6 per joint (position += q z)                                   2 x 6  =  12
   revolute joint: 6 (angle-sum cos/sin) + 3 rows x 16 (T <- T A_i)                   2 x 54 = 108
   platform pose in {4}: p5 - p4 (3), M = R4^T R5 (45), w = R4^T (p5 - p4) (15)               63
-  each leg: v = M b + (w - a) (21), |v|^2 (5), sqrt (1), - l0 - s (2), r^2 and sum (2)   6 x 31 = 186
+  each leg: v = M b + (w - a) (21), |v|^2 (5), sqrt (1), - l0 - s (2), r^2, sum (2)  6 x 31 = 186
   lane sum                                                                                    1
   total                                                                                     370
-(+1 per leg when weighted; a generic prismatic joint after a revolute one costs 49). The per-evaluation
-set-up (sin/cos of the 8 DH angles by a series, the prefix rotation, ~300 flops) is not counted.
+(+1 per leg when weighted; a generic prismatic joint after a revolute one costs 49). The
+per-evaluation set-up (sin/cos of the 8 DH angles by a series, the prefix rotation, ~300 flops) is
+not counted.
 The floor is N x 370 flops at the measured peak of one core with the same instruction set and the
 same operations (separate multiplies and adds: the kernel does not fuse them, so that every
 instruction set gives the same bits); the FMA peak is shown too.
@@ -53,10 +54,10 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
+from iwr._core import _bench  # noqa: E402
 
 import iwr  # noqa: E402
 from iwr import _core  # noqa: E402
-from iwr._core import _bench  # noqa: E402
 
 NP = 600
 N = 100
@@ -117,7 +118,7 @@ def flops_per_pose(joint_types: str, weighted: bool) -> int:
     return f + 63 + 6 * (31 + (1 if weighted else 0)) + 1
 
 
-# -- the independent NumPy implementation -------------------------------------------------------------
+# -- the independent NumPy implementation ----------------------------------------------------------
 
 
 class NumpyCost:
@@ -159,7 +160,10 @@ class NumpyCost:
                 theta = theta + self.q[None, :, i]
                 d = np.broadcast_to(d, (nm, n))
             ct, st = np.cos(theta), np.sin(theta)
-            ca, sa = np.broadcast_to(np.cos(alpha), (nm, n)), np.broadcast_to(np.sin(alpha), (nm, n))
+            ca, sa = (
+                np.broadcast_to(np.cos(alpha), (nm, n)),
+                np.broadcast_to(np.sin(alpha), (nm, n)),
+            )
             A = np.zeros((nm, n, 4, 4))
             A[..., 0, 0], A[..., 0, 1], A[..., 0, 2], A[..., 0, 3] = ct, -ca * st, sa * st, aa * ct
             A[..., 1, 0], A[..., 1, 1], A[..., 1, 2], A[..., 1, 3] = st, ca * ct, -sa * ct, aa * st
@@ -181,7 +185,7 @@ class NumpyCost:
         return np.einsum("mnl,mnl->m", r, r)
 
 
-# -- timing ------------------------------------------------------------------------------------------
+# -- timing ----------------------------------------------------------------------------------------
 
 
 def timed(fn, repeats: int) -> dict:
@@ -223,7 +227,7 @@ def table(rows: list[list[str]], header: list[str]) -> str:
     return "\n".join([line, sep, *body])
 
 
-# -- the measurements ----------------------------------------------------------------------------------
+# -- the measurements ------------------------------------------------------------------------------
 
 
 def per_evaluation(repeats: int, machine: dict) -> tuple[list[dict], str]:
@@ -245,15 +249,32 @@ def per_evaluation(repeats: int, machine: dict) -> tuple[list[dict], str]:
             rows.append({"name": f"iwr kernel, {v}", "isa": v, **t})
     finally:
         _core._select_kernel(active)
-    rows.append({"name": "Eigen, straightforward", "isa": "baseline",
-                 **timed(lambda: eigen.cost_batch(X), repeats)})
+    rows.append(
+        {
+            "name": "Eigen, straightforward",
+            "isa": "baseline",
+            **timed(lambda: eigen.cost_batch(X), repeats),
+        }
+    )
     few = X[:60]
     t = timed(lambda: [npc(x) for x in few], max(3, repeats // 3))
-    rows.append({"name": "NumPy, one vector at a time", "isa": None,
-                 **{k: (v / len(few) * NP if k in ("wall", "cpu", "wall_min") else v)
-                    for k, v in t.items()}})
-    rows.append({"name": "NumPy, whole population", "isa": None,
-                 **timed(lambda: npc(X), max(3, repeats // 3))})
+    rows.append(
+        {
+            "name": "NumPy, one vector at a time",
+            "isa": None,
+            **{
+                k: (v / len(few) * NP if k in ("wall", "cpu", "wall_min") else v)
+                for k, v in t.items()
+            },
+        }
+    )
+    rows.append(
+        {
+            "name": "NumPy, whole population",
+            "isa": None,
+            **timed(lambda: npc(X), max(3, repeats // 3)),
+        }
+    )
     peaks = machine["peak_gflops_per_core"]
     best = peaks[machine["kernel_in_use"]]["mul_add"]
     eigen_us = next(r for r in rows if r["name"].startswith("Eigen"))["cpu"] / NP * 1e6
@@ -263,24 +284,45 @@ def per_evaluation(repeats: int, machine: dict) -> tuple[list[dict], str]:
         gflops = flops / (us_cpu * 1e3)
         floor_us = flops / (best * 1e3)
         own = peaks[r["isa"]]["mul_add"] if r["isa"] else None
-        out.append({
-            **r, "us_wall": us_wall, "us_cpu": us_cpu, "gflops": gflops,
-            "floor_fraction": floor_us / us_cpu,
-            "own_isa_fraction": None if own is None else flops / (own * 1e3) / us_cpu,
-            "speedup_vs_eigen": eigen_us / us_cpu,
-        })
+        out.append(
+            {
+                **r,
+                "us_wall": us_wall,
+                "us_cpu": us_cpu,
+                "gflops": gflops,
+                "floor_fraction": floor_us / us_cpu,
+                "own_isa_fraction": None if own is None else flops / (own * 1e3) / us_cpu,
+                "speedup_vs_eigen": eigen_us / us_cpu,
+            }
+        )
     text = table(
-        [[r["name"], f"{r['us_wall']:.3f}", f"{r['us_cpu']:.3f}", f"{r['gflops']:.1f}",
-          f"{100 * r['floor_fraction']:.1f}%",
-          "" if r["own_isa_fraction"] is None else f"{100 * r['own_isa_fraction']:.0f}%",
-          f"{r['speedup_vs_eigen']:.1f}x"] for r in out],
-        ["N = 100, 1 thread", "us/eval (wall)", "us/eval (CPU)", "GFLOP/s",
-         "of the floor", "of its ISA's peak", "vs Eigen"],
+        [
+            [
+                r["name"],
+                f"{r['us_wall']:.3f}",
+                f"{r['us_cpu']:.3f}",
+                f"{r['gflops']:.1f}",
+                f"{100 * r['floor_fraction']:.1f}%",
+                "" if r["own_isa_fraction"] is None else f"{100 * r['own_isa_fraction']:.0f}%",
+                f"{r['speedup_vs_eigen']:.1f}x",
+            ]
+            for r in out
+        ],
+        [
+            "N = 100, 1 thread",
+            "us/eval (wall)",
+            "us/eval (CPU)",
+            "GFLOP/s",
+            "of the floor",
+            "of its ISA's peak",
+            "vs Eigen",
+        ],
     )
     floor = flops / (best * 1e3)
     text += (
         f"\nfloor: {flops} flops / {best:.1f} GFLOP/s ({machine['kernel_in_use']}, mul+add, one "
-        f"core) = {floor:.3f} us; with FMA {peaks[machine['kernel_in_use']]['fma'] or 0:.1f} GFLOP/s"
+        f"core) = {floor:.3f} us; with FMA "
+        f"{peaks[machine['kernel_in_use']]['fma'] or 0:.1f} GFLOP/s"
     )
     return out, text
 
@@ -294,8 +336,16 @@ def batches(repeats: int) -> tuple[list[dict], str]:
         out.append({"workers": w, **t, "us_per_eval": t["wall"] / NP * 1e6})
     s = out[0]["wall"] / out[1]["wall"]
     text = table(
-        [[str(r["workers"]), f"{r['wall'] * 1e3:.3f}", f"{r['us_per_eval']:.3f}",
-          f"{out[0]['wall'] / r['wall']:.2f}x", f"{r['cores']:.2f}"] for r in out],
+        [
+            [
+                str(r["workers"]),
+                f"{r['wall'] * 1e3:.3f}",
+                f"{r['us_per_eval']:.3f}",
+                f"{out[0]['wall'] / r['wall']:.2f}x",
+                f"{r['cores']:.2f}",
+            ]
+            for r in out
+        ],
         ["NP = 600, N = 100: threads", "ms/batch (wall)", "us/eval", "speed-up", "cores obtained"],
     )
     return out + [{"speedup_2_threads": s}], text
@@ -310,9 +360,12 @@ def scaling_n(repeats: int, quick: bool) -> dict:
         eigen = _bench.EigenBaseline(p.robot._geometry, m.q, m.poses, m.legs)
         npc = NumpyCost(p.robot, m)
         out["N"].append(n)
-        out["iwr"].append(timed(lambda: p.cost_batch(X, workers=1), repeats)["cpu"] / 120 * 1e6)
-        out["eigen"].append(timed(lambda: eigen.cost_batch(X[:30]), repeats)["cpu"] / 30 * 1e6)
-        out["numpy"].append(timed(lambda: npc(X[:30]), 3)["cpu"] / 30 * 1e6)
+        t_iwr = timed(lambda p=p, X=X: p.cost_batch(X, workers=1), repeats)
+        t_eigen = timed(lambda e=eigen, X=X: e.cost_batch(X[:30]), repeats)
+        t_numpy = timed(lambda f=npc, X=X: f(X[:30]), 3)
+        out["iwr"].append(t_iwr["cpu"] / 120 * 1e6)
+        out["eigen"].append(t_eigen["cpu"] / 30 * 1e6)
+        out["numpy"].append(t_numpy["cpu"] / 30 * 1e6)
     return out
 
 
@@ -346,8 +399,11 @@ def plots(sn: dict, snp: dict, sth: dict, out: Path, floor_ns_per_pose: float) -
 
     files = []
     fig, ax = plt.subplots(figsize=(6, 4))
-    for key, label in [("iwr", "iwr kernel"), ("eigen", "Eigen, straightforward"),
-                       ("numpy", "NumPy, population-vectorised")]:
+    for key, label in [
+        ("iwr", "iwr kernel"),
+        ("eigen", "Eigen, straightforward"),
+        ("numpy", "NumPy, population-vectorised"),
+    ]:
         ax.loglog(sn["N"], sn[key], "o-", label=label)
     ax.loglog(sn["N"], [n * floor_ns_per_pose * 1e-3 for n in sn["N"]], "k--", label="floor")
     ax.set_xlabel("poses N")
@@ -362,8 +418,12 @@ def plots(sn: dict, snp: dict, sth: dict, out: Path, floor_ns_per_pose: float) -
 
     fig, ax = plt.subplots(figsize=(6, 4))
     for w in ("1", "2"):
-        ax.loglog(snp["NP"], [t / n * 1e6 for t, n in zip(snp[w], snp["NP"], strict=True)], "o-",
-                  label=f"{w} thread{'s' if w != '1' else ''}")
+        ax.loglog(
+            snp["NP"],
+            [t / n * 1e6 for t, n in zip(snp[w], snp["NP"], strict=True)],
+            "o-",
+            label=f"{w} thread{'s' if w != '1' else ''}",
+        )
     ax.set_xlabel("population size NP (rows of one cost_batch call)")
     ax.set_ylabel("wall time per evaluation (us)")
     ax.set_title(f"Problem.cost_batch, N = {N}")
@@ -377,8 +437,12 @@ def plots(sn: dict, snp: dict, sth: dict, out: Path, floor_ns_per_pose: float) -
     fig, ax = plt.subplots(figsize=(6, 4))
     rate = [NP / t for t in sth["wall"]]
     ax.plot(sth["threads"], [r / 1e6 for r in rate], "o-", label="measured")
-    ax.plot(sth["threads"], [rate[0] / 1e6 * min(t, 2) for t in sth["threads"]], "k--",
-            label="linear up to 2 cores")
+    ax.plot(
+        sth["threads"],
+        [rate[0] / 1e6 * min(t, 2) for t in sth["threads"]],
+        "k--",
+        label="linear up to 2 cores",
+    )
     ax.set_xlabel("threads (the machine has 2 cores)")
     ax.set_ylabel("million evaluations per second")
     ax.set_title(f"Problem.cost_batch, NP = {NP}, N = {N}")
@@ -394,21 +458,34 @@ def plots(sn: dict, snp: dict, sth: dict, out: Path, floor_ns_per_pose: float) -
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
-    ap.add_argument("--quick", action="store_true", help="fewer sizes and repetitions (a smoke test)")
+    ap.add_argument(
+        "--quick", action="store_true", help="fewer sizes and repetitions (a smoke test)"
+    )
     ap.add_argument("--repeats", type=int, default=None, help="repetitions per figure (median)")
-    ap.add_argument("--out", type=Path, default=Path(__file__).parent / "results",
-                    help="directory of the plots and objective.json")
+    ap.add_argument(
+        "--out",
+        type=Path,
+        default=Path(__file__).parent / "results",
+        help="directory of the plots and objective.json",
+    )
     args = ap.parse_args()
     repeats = args.repeats or (3 if args.quick else 21)
     args.out.mkdir(parents=True, exist_ok=True)
 
     machine = machine_info()
     peaks = machine["peak_gflops_per_core"]
-    print(f"machine: {machine['cpu']}, {machine['cores']} cores, /proc/cpuinfo {machine['cpuinfo_mhz']}"
-          f" MHz, measured clock {machine['clock_ghz']:.2f} GHz, load average "
-          f"{machine['load_average_at_start']}")
-    print("measured peak of one core, GFLOP/s (mul+add / FMA): " + ", ".join(
-        f"{k} {v['mul_add']:.1f} / {v['fma'] or float('nan'):.1f}" for k, v in peaks.items()))
+    print(
+        f"machine: {machine['cpu']}, {machine['cores']} cores, "
+        f"/proc/cpuinfo {machine['cpuinfo_mhz']}"
+        f" MHz, measured clock {machine['clock_ghz']:.2f} GHz, load average "
+        f"{machine['load_average_at_start']}"
+    )
+    print(
+        "measured peak of one core, GFLOP/s (mul+add / FMA): "
+        + ", ".join(
+            f"{k} {v['mul_add']:.1f} / {v['fma'] or float('nan'):.1f}" for k, v in peaks.items()
+        )
+    )
     print(f"kernel variants: {machine['kernel_variants']}, in use: {machine['kernel_in_use']}\n")
 
     per_eval, text = per_evaluation(repeats, machine)
@@ -416,23 +493,54 @@ def main() -> None:
     batch, text = batches(repeats)
     print(text, "\n")
     sn = scaling_n(max(3, repeats // 3), args.quick)
-    print(table([[str(n), f"{a:.3f}", f"{b:.3f}", f"{c:.1f}", f"{a / n * 1e3:.2f}"]
-                 for n, a, b, c in zip(sn["N"], sn["iwr"], sn["eigen"], sn["numpy"], strict=True)],
-                ["N", "iwr us/eval", "Eigen us/eval", "NumPy us/eval", "iwr ns/pose"]), "\n")
+    print(
+        table(
+            [
+                [str(n), f"{a:.3f}", f"{b:.3f}", f"{c:.1f}", f"{a / n * 1e3:.2f}"]
+                for n, a, b, c in zip(sn["N"], sn["iwr"], sn["eigen"], sn["numpy"], strict=True)
+            ],
+            ["N", "iwr us/eval", "Eigen us/eval", "NumPy us/eval", "iwr ns/pose"],
+        ),
+        "\n",
+    )
     snp = scaling_np(max(3, repeats // 3), args.quick)
-    print(table([[str(n), f"{a / n * 1e6:.3f}", f"{b / n * 1e6:.3f}"]
-                 for n, a, b in zip(snp["NP"], snp["1"], snp["2"], strict=True)],
-                ["NP", "us/eval, 1 thread", "us/eval, 2 threads"]), "\n")
+    print(
+        table(
+            [
+                [str(n), f"{a / n * 1e6:.3f}", f"{b / n * 1e6:.3f}"]
+                for n, a, b in zip(snp["NP"], snp["1"], snp["2"], strict=True)
+            ],
+            ["NP", "us/eval, 1 thread", "us/eval, 2 threads"],
+        ),
+        "\n",
+    )
     sth = scaling_threads(repeats)
-    print(table([[str(t), f"{NP / w / 1e6:.2f}", f"{sth['wall'][0] / w:.2f}x", f"{c:.2f}"]
-                 for t, w, c in zip(sth["threads"], sth["wall"], sth["cores"], strict=True)],
-                ["threads", "M evals/s", "speed-up", "cores obtained"]), "\n")
+    print(
+        table(
+            [
+                [str(t), f"{NP / w / 1e6:.2f}", f"{sth['wall'][0] / w:.2f}x", f"{c:.2f}"]
+                for t, w, c in zip(sth["threads"], sth["wall"], sth["cores"], strict=True)
+            ],
+            ["threads", "M evals/s", "speed-up", "cores obtained"],
+        ),
+        "\n",
+    )
     best = peaks[machine["kernel_in_use"]]["mul_add"]
     files = plots(sn, snp, sth, args.out, flops_per_pose("PPRR", False) / best)
     machine["load_average_at_end"] = load_average()
-    (args.out / "objective.json").write_text(json.dumps(
-        {"machine": machine, "per_evaluation": per_eval, "batches": batch, "scaling_N": sn,
-         "scaling_NP": snp, "scaling_threads": sth}, indent=1))
+    (args.out / "objective.json").write_text(
+        json.dumps(
+            {
+                "machine": machine,
+                "per_evaluation": per_eval,
+                "batches": batch,
+                "scaling_N": sn,
+                "scaling_NP": snp,
+                "scaling_threads": sth,
+            },
+            indent=1,
+        )
+    )
     print(f"load average at end: {machine['load_average_at_end']}")
     print("wrote " + ", ".join(str(f) for f in [*files, args.out / "objective.json"]))
 

@@ -51,7 +51,9 @@ def np_cost(robot: iwr.Robot, x: np.ndarray, m: iwr.Measurements) -> tuple[float
             d = d + m.q[:, i]
         else:
             theta = theta + m.q[:, i]
-        tz = np_homogeneous(np_rot("z", theta), zero) @ np_homogeneous(eye, np.stack([0 * d, 0 * d, d], 1))
+        tz = np_homogeneous(np_rot("z", theta), zero) @ np_homogeneous(
+            eye, np.stack([0 * d, 0 * d, d], 1)
+        )
         tx = np_homogeneous(eye, np.stack([np.full(n, aa), 0 * d, 0 * d], 1)) @ np_homogeneous(
             np_rot("x", alpha), zero
         )
@@ -81,13 +83,23 @@ def make_robot(joint_types: str) -> iwr.Robot:
     rng = np.random.default_rng(len(joint_types) + 10 * joint_types.count("R"))
     n = len(joint_types)
     dh = np.column_stack(
-        [rng.uniform(-math.pi, math.pi, n), rng.uniform(0, 400, n), rng.uniform(0, 400, n),
-         rng.uniform(-math.pi, math.pi, n)]
+        [
+            rng.uniform(-math.pi, math.pi, n),
+            rng.uniform(0, 400, n),
+            rng.uniform(0, 400, n),
+            rng.uniform(-math.pi, math.pi, n),
+        ]
     )
     limits = [[0.0, 500.0] if c == "P" else [-1.0, 1.0] for c in joint_types]
     return iwr.Robot(
-        joint_types, dh, limits, hexapod.base_joints, hexapod.platform_joints,
-        hexapod.leg_offsets, hexapod.leg_stroke, name=f"mixed {joint_types}",
+        joint_types,
+        dh,
+        limits,
+        hexapod.base_joints,
+        hexapod.platform_joints,
+        hexapod.leg_offsets,
+        hexapod.leg_stroke,
+        name=f"mixed {joint_types}",
     )
 
 
@@ -105,9 +117,9 @@ def make_data(robot: iwr.Robot, n: int, weighted: bool, seed: int) -> iwr.Measur
 
 
 def random_x(problem: iwr.Problem, rng: np.random.Generator, angles: str) -> np.ndarray:
-    """Within the default bounds (angle errors up to 0.5 degree), the paper's literal bounds (0.5 rad)
-    or with angle errors up to 1.5 rad (the kernel takes sin and cos of those from the C library
-    rather than from its angle-sum series)."""
+    """Within the default bounds (angle errors up to 0.5 degree), the paper's literal bounds
+    (0.5 rad) or with angle errors up to 1.5 rad (the kernel takes sin and cos of those from the C
+    library rather than from its angle-sum series)."""
     lower, upper = problem.robot.default_bounds("default" if angles == "default" else "paper")
     x = rng.uniform(lower, upper)
     if angles == "huge":
@@ -170,7 +182,7 @@ def test_every_instruction_set_gives_the_same_bits(joint_types, n, weighted, res
         )
     base = results["baseline"]
     for v, got in results.items():
-        for a, b in zip(got, base):
+        for a, b in zip(got, base, strict=True):
             np.testing.assert_array_equal(a, b, err_msg=f"variant {v}")
         np.testing.assert_array_equal(got[0], got[1])  # thread count
         np.testing.assert_array_equal(got[0], got[2])  # batch == single
