@@ -5,4 +5,5 @@ PYBIND11_MODULE(_core, m) {
     iwr::python::bind_model(m);
     iwr::python::bind_forward(m);
     iwr::python::bind_de(m);
+    iwr::python::bind_bench(m);
 }

@@ -1,8 +1,11 @@
 #include "iwr/objective.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
+
+#include "objective_kernel.hpp"
 
 namespace iwr {
 
@@ -17,9 +20,50 @@ void require_shape(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, c
     }
 }
 
-// Number of doubles of scratch per pose: 12 for the carriage transform 0T4 (rotation row-major,
-// then position), 1 for the per-pose sum of squared residuals.
-constexpr int kScratchPerPose = 13;
+// Taylor coefficients (-1)^k / (2k)! of cos and (-1)^k / (2k+1)! of sin, k = 0..9 and 0..8.
+struct SinCosSeries {
+    double cos[10], sin[9];
+};
+constexpr SinCosSeries sincos_series() {
+    SinCosSeries t{};
+    double f = 1;  // 1/n!
+    for (int n = 0; n <= 18; ++n) {
+        if (n > 0) f /= n;
+        const double term = (n / 2) % 2 ? -f : f;
+        if (n % 2 == 0) {
+            t.cos[n / 2] = term;
+        } else {
+            t.sin[n / 2] = term;
+        }
+    }
+    return t;
+}
+constexpr SinCosSeries kSeries = sincos_series();
+
+// cos and sin of nominal_e + delta_e for e < n, from cos and sin of the nominal angles: for the
+// deltas of a calibration (|delta| <= 0.8 rad, beyond the +-0.5 rad of the paper's Table 2) by the
+// angle-sum identity and the Taylor series of cos delta and sin delta to degree 18 and 17
+// (truncation error < 2e-19), else by the C library. Several times cheaper than libm's sin and cos
+// (the loops over e vectorise), and no less accurate than cos(fl(nominal + delta)), which rounds the
+// angle first.
+void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
+                   const double* delta, double* c, double* s) {
+    for (int e = 0; e < n; ++e) {
+        const double d = delta[e], d2 = d * d;
+        double cd = kSeries.cos[9], sd = kSeries.sin[8];
+        for (int k = 8; k >= 0; --k) cd = cd * d2 + kSeries.cos[k];
+        for (int k = 7; k >= 0; --k) sd = sd * d2 + kSeries.sin[k];
+        sd *= d;
+        c[e] = cn[e] * cd - sn[e] * sd;
+        s[e] = sn[e] * cd + cn[e] * sd;
+    }
+    for (int e = 0; e < n; ++e) {
+        if (!(std::abs(delta[e]) <= 0.8)) {
+            c[e] = std::cos(nominal[e] + delta[e]);
+            s[e] = std::sin(nominal[e] + delta[e]);
+        }
+    }
+}
 
 }  // namespace
 
@@ -46,152 +90,127 @@ Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd&
             }
         }
     }
-    const size_t n = static_cast<size_t>(n_);
-    for (auto& v : r5_) v.resize(n);
-    for (auto& v : p5_) v.resize(n);
-    for (auto& v : legs_) v.resize(n);
-    for (int k = 0; k < n_; ++k) {
-        const Mat3 r = euler_zyx(poses(k, 3), poses(k, 4), poses(k, 5));
-        for (int e = 0; e < 9; ++e) r5_[e][k] = r(e / 3, e % 3);
-        for (int e = 0; e < 3; ++e) p5_[e][k] = poses(k, e);
-        for (int j = 0; j < kLegs; ++j) legs_[j][k] = legs(k, j);
-    }
-    if (weights.size() != 0) {
-        for (int j = 0; j < kLegs; ++j) {
-            sqrtw_[j].resize(n);
-            for (int k = 0; k < n_; ++k) sqrtw_[j][k] = std::sqrt(weights(k, j));
-        }
-    }
-    // Joint readings: the sines and cosines of revolute readings are computed once per data set;
-    // each evaluation then needs only the angle-sum identity.
+    // Blocked layout (see objective_kernel.hpp). Joint readings: the sines and cosines of revolute
+    // readings are computed once per data set; each evaluation then needs only the angle-sum
+    // identity.
+    static_assert(kBlock == detail::kBlock, "one block size");
+    int nq = 18;
+    if (weights.size() != 0) off_w_ = nq, nq += kLegs;
     for (int i = 0; i < nj; ++i) {
-        qoff_.push_back(static_cast<int>(qv_.size()));
-        if (geometry_.is_prismatic(i)) {
-            for (int k = 0; k < n_; ++k) qv_.push_back(q(k, i));
-        } else {
-            for (int k = 0; k < n_; ++k) qv_.push_back(std::cos(q(k, i)));
-            for (int k = 0; k < n_; ++k) qv_.push_back(std::sin(q(k, i)));
+        q_off_.push_back(nq);
+        prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
+        nq += geometry_.is_prismatic(i) ? 1 : 2;
+    }
+    while (n_prefix_ < nj && geometry_.is_prismatic(n_prefix_)) ++n_prefix_;
+    nominal_.resize(static_cast<size_t>(6 * nj));  // angles, their cosines, their sines
+    for (int e = 0; e < 2 * nj; ++e) {
+        const double angle = geometry_.dh()(e / 2, e % 2 ? 3 : 0);
+        nominal_[static_cast<size_t>(e)] = angle;
+        nominal_[static_cast<size_t>(2 * nj + e)] = std::cos(angle);
+        nominal_[static_cast<size_t>(4 * nj + e)] = std::sin(angle);
+    }
+    n_blocks_ = (n_ + kBlock - 1) / kBlock;
+    stride_ = nq * kBlock;
+    blocks_.assign(static_cast<size_t>(n_blocks_) * static_cast<size_t>(stride_), 0.0);
+    for (int kk = 0; kk < n_blocks_ * kBlock; ++kk) {
+        const int k = std::min(kk, n_ - 1);  // padding: copies of the last pose (finite values)
+        double* blk = blocks_.data() + static_cast<size_t>(kk / kBlock) * static_cast<size_t>(stride_);
+        auto put = [&](int e, double v) { blk[e * kBlock + kk % kBlock] = v; };
+        const Mat3 r = euler_zyx(poses(k, 3), poses(k, 4), poses(k, 5));
+        for (int e = 0; e < 9; ++e) put(e, r(e / 3, e % 3));
+        for (int e = 0; e < 3; ++e) put(9 + e, poses(k, e));
+        for (int j = 0; j < kLegs; ++j) put(12 + j, legs(k, j));
+        if (off_w_ >= 0)
+            for (int j = 0; j < kLegs; ++j) put(off_w_ + j, std::sqrt(weights(k, j)));
+        for (int i = 0; i < nj; ++i) {
+            const int o = q_off_[static_cast<size_t>(i)];
+            if (prismatic_[static_cast<size_t>(i)]) {
+                put(o, q(k, i));
+            } else {
+                put(o, std::cos(q(k, i)));
+                put(o + 1, std::sin(q(k, i)));
+            }
         }
     }
 }
 
 Objective::Workspace Objective::make_workspace() const {
     Workspace ws;
-    ws.buf.assign(static_cast<size_t>(kScratchPerPose) * static_cast<size_t>(n_), 0.0);
+    ws.buf.assign(static_cast<size_t>(15) * static_cast<size_t>(geometry_.n_joints()) + 1, 0.0);
     return ws;
 }
 
-namespace {
-
-// One pass over the poses for one leg; adds each pose's squared residual to acc.
-template <bool Weighted>
-void leg_pass(int n, const double* const* t, const std::vector<double>* r5,
-              const std::vector<double>* p5, const double* s, const double* sw, const double a[3],
-              const double b[3], double l0, double* acc) {
-    const double *r00 = r5[0].data(), *r01 = r5[1].data(), *r02 = r5[2].data();
-    const double *r10 = r5[3].data(), *r11 = r5[4].data(), *r12 = r5[5].data();
-    const double *r20 = r5[6].data(), *r21 = r5[7].data(), *r22 = r5[8].data();
-    const double *px = p5[0].data(), *py = p5[1].data(), *pz = p5[2].data();
-    const double *t00 = t[0], *t01 = t[1], *t02 = t[2], *t10 = t[3], *t11 = t[4], *t12 = t[5];
-    const double *t20 = t[6], *t21 = t[7], *t22 = t[8], *tx = t[9], *ty = t[10], *tz = t[11];
-    for (int k = 0; k < n; ++k) {
-        const double vx = px[k] + r00[k] * b[0] + r01[k] * b[1] + r02[k] * b[2] - tx[k] -
-                          (t00[k] * a[0] + t01[k] * a[1] + t02[k] * a[2]);
-        const double vy = py[k] + r10[k] * b[0] + r11[k] * b[1] + r12[k] * b[2] - ty[k] -
-                          (t10[k] * a[0] + t11[k] * a[1] + t12[k] * a[2]);
-        const double vz = pz[k] + r20[k] * b[0] + r21[k] * b[1] + r22[k] * b[2] - tz[k] -
-                          (t20[k] * a[0] + t21[k] * a[1] + t22[k] * a[2]);
-        double r = std::sqrt(vx * vx + vy * vy + vz * vz) - l0 - s[k];
-        if (Weighted) r *= sw[k];
-        acc[k] += r * r;
+void Objective::prepare(const double* x, detail::EvalConsts& ec, double* jbuf) const {
+    const Geometry& g = geometry_;
+    const int nj = g.n_joints();
+    double* z = jbuf;               // 3 per prefix joint
+    double* joint = jbuf + 3 * nj;  // 6 per joint: cos/sin alpha, cos/sin theta, a, d
+    double* delta = jbuf + 9 * nj;  // 2 per joint: the errors of alpha and theta, then c, s
+    double* c = delta + 2 * nj;
+    double* s = c + 2 * nj;
+    for (int i = 0; i < nj; ++i) delta[2 * i] = x[4 * i], delta[2 * i + 1] = x[4 * i + 3];
+    sincos_offset(2 * nj, nominal_.data(), nominal_.data() + 2 * nj, nominal_.data() + 4 * nj,
+                  delta, c, s);
+    for (int i = 0; i < nj; ++i) {
+        double* jc = joint + 6 * i;
+        jc[0] = c[2 * i], jc[1] = s[2 * i], jc[2] = c[2 * i + 1], jc[3] = s[2 * i + 1];
+        jc[4] = g.dh()(i, 1) + x[4 * i + 1];
+        jc[5] = g.dh()(i, 2) + x[4 * i + 2];
     }
+    // The prismatic prefix: with rotations independent of the readings, 0T_m has the same rotation
+    // at every pose and a position affine in the readings, p = pc + sum_i q_i z_i. Each joint
+    // multiplies by Rz(theta) Trans_z(d + q) Trans_x(a) Rx(alpha) (eq. 1).
+    double r[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1}, p[3] = {0, 0, 0};
+    for (int i = 0; i < n_prefix_; ++i) {
+        const double* jc = joint + 6 * i;
+        const double ca = jc[0], sa = jc[1], ct = jc[2], st = jc[3], a = jc[4], d = jc[5];
+        for (int row = 0; row < 3; ++row) {
+            double* t = r + 3 * row;
+            z[3 * i + row] = t[2];  // d grows along z_{i-1}
+            const double u = t[0] * ct + t[1] * st;
+            const double v = t[1] * ct - t[0] * st;
+            const double w = t[2];
+            p[row] += a * u + d * w;
+            t[0] = u;
+            t[1] = ca * v + sa * w;
+            t[2] = ca * w - sa * v;
+        }
+    }
+    for (int e = 0; e < 9; ++e) ec.rc[e] = r[e];
+    for (int c = 0; c < 3; ++c) ec.pc[c] = p[c];
+    const int base = 4 * nj;
+    for (int j = 0; j < kLegs; ++j) {
+        for (int c = 0; c < 3; ++c) {
+            ec.a[j][c] = g.base()(j, c) + x[base + 3 * j + c];
+            ec.b[j][c] = g.platform()(j, c) + x[base + 18 + 3 * j + c];
+        }
+        ec.l0[j] = g.leg_offsets()(j) + x[base + 36 + j];
+    }
+    ec.z = z;
+    ec.joint = joint;
 }
 
-}  // namespace
+double Objective::evaluate(const double* x, double* jbuf, double* res) const {
+    detail::EvalConsts ec;
+    prepare(x, ec, jbuf);
+    detail::PoseData pd;
+    pd.data = blocks_.data();
+    pd.n = n_;
+    pd.n_blocks = n_blocks_;
+    pd.stride = stride_;
+    pd.off_r5 = 0;
+    pd.off_p5 = 9;
+    pd.off_s = 12;
+    pd.off_w = off_w_;
+    pd.n_joints = geometry_.n_joints();
+    pd.n_prefix = n_prefix_;
+    pd.q_off = q_off_.data();
+    pd.prismatic = prismatic_.data();
+    return detail::active_kernel()(pd, ec, res);
+}
 
 double Objective::cost(const double* x, Workspace& ws) const {
-    const int n = n_;
-    double* buf = ws.buf.data();
-    double* t[12];
-    for (int e = 0; e < 12; ++e) t[e] = buf + static_cast<size_t>(e) * static_cast<size_t>(n);
-    double* acc = buf + static_cast<size_t>(12) * static_cast<size_t>(n);
-
-    // Carriage chain 0T4, all poses at once, one joint at a time (eq. 1-2).
-    const int nj = geometry_.n_joints();
-    if (nj == 0) {
-        for (int e = 0; e < 12; ++e) {
-            const double v = (e == 0 || e == 4 || e == 8) ? 1.0 : 0.0;
-            for (int k = 0; k < n; ++k) t[e][k] = v;
-        }
-    }
-    for (int i = 0; i < nj; ++i) {
-        const double alpha = geometry_.dh()(i, 0) + x[4 * i + 0];
-        const double a = geometry_.dh()(i, 1) + x[4 * i + 1];
-        const double d = geometry_.dh()(i, 2) + x[4 * i + 2];
-        const double theta = geometry_.dh()(i, 3) + x[4 * i + 3];
-        const double ca = std::cos(alpha), sa = std::sin(alpha);
-        const double ct = std::cos(theta), st = std::sin(theta);
-        const bool prismatic = geometry_.is_prismatic(i);
-        const double* q0 = qv_.data() + qoff_[static_cast<size_t>(i)];  // q, or cos q
-        const double* q1 = q0 + n;                                         // sin q (revolute)
-        if (i == 0) {
-            // 0T1 = A_1 itself.
-            for (int k = 0; k < n; ++k) {
-                const double c = prismatic ? ct : ct * q0[k] - st * q1[k];
-                const double s = prismatic ? st : st * q0[k] + ct * q1[k];
-                const double dk = prismatic ? d + q0[k] : d;
-                t[0][k] = c, t[1][k] = -s * ca, t[2][k] = s * sa;
-                t[3][k] = s, t[4][k] = c * ca, t[5][k] = -c * sa;
-                t[6][k] = 0, t[7][k] = sa, t[8][k] = ca;
-                t[9][k] = a * c, t[10][k] = a * s, t[11][k] = dk;
-            }
-            continue;
-        }
-        // T <- T A_i, row by row: with u = T0 c + T1 s and v = T1 c - T0 s the new rotation row is
-        // (u, ca v + sa T2, -sa v + ca T2) and the position gains a u + d_k T2.
-        for (int k = 0; k < n; ++k) {
-            const double c = prismatic ? ct : ct * q0[k] - st * q1[k];
-            const double s = prismatic ? st : st * q0[k] + ct * q1[k];
-            const double dk = prismatic ? d + q0[k] : d;
-            for (int r = 0; r < 3; ++r) {
-                double* row0 = t[3 * r];
-                double* row1 = t[3 * r + 1];
-                double* row2 = t[3 * r + 2];
-                const double u = row0[k] * c + row1[k] * s;
-                const double v = row1[k] * c - row0[k] * s;
-                const double w = row2[k];
-                row0[k] = u;
-                row1[k] = ca * v + sa * w;
-                row2[k] = ca * w - sa * v;
-                t[9 + r][k] += a * u + dk * w;
-            }
-        }
-    }
-
-    // Legs (eq. 8): sum over legs per pose, then over poses in a fixed order.
-    for (int k = 0; k < n; ++k) acc[k] = 0.0;
-    const double* tc[12];
-    for (int e = 0; e < 12; ++e) tc[e] = t[e];
-    for (int j = 0; j < kLegs; ++j) {
-        double a[3], b[3];
-        for (int c = 0; c < 3; ++c) {
-            a[c] = geometry_.base()(j, c) + x[geometry_.idx_base(j, c)];
-            b[c] = geometry_.platform()(j, c) + x[geometry_.idx_platform(j, c)];
-        }
-        const double l0 = geometry_.leg_offsets()(j) + x[geometry_.idx_offset(j)];
-        if (sqrtw_[0].empty()) {
-            leg_pass<false>(n, tc, r5_, p5_, legs_[j].data(), nullptr, a, b, l0, acc);
-        } else {
-            leg_pass<true>(n, tc, r5_, p5_, legs_[j].data(), sqrtw_[j].data(), a, b, l0, acc);
-        }
-    }
-    // Eight fixed lanes: vectorisable, and the summation order never depends on the machine.
-    double lane[8] = {0, 0, 0, 0, 0, 0, 0, 0};
-    int k = 0;
-    for (; k + 8 <= n; k += 8)
-        for (int l = 0; l < 8; ++l) lane[l] += acc[k + l];
-    for (int l = 0; k < n; ++k, ++l) lane[l] += acc[k];
-    return ((lane[0] + lane[4]) + (lane[1] + lane[5])) + ((lane[2] + lane[6]) + (lane[3] + lane[7]));
+    return evaluate(x, ws.buf.data(), nullptr);
 }
 
 double Objective::cost(const Eigen::Ref<const VectorXd>& x) const {
@@ -201,8 +220,10 @@ double Objective::cost(const Eigen::Ref<const VectorXd>& x) const {
 }
 
 VectorXd Objective::residuals(const Eigen::Ref<const VectorXd>& x) const {
-    VectorXd r;
-    jacobian(x, &r, nullptr);
+    geometry_.check_errors(x.data(), x.size(), "x");
+    VectorXd r(n_residuals());
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws.buf.data(), r.data());
     return r;
 }
 
@@ -211,33 +232,36 @@ void Objective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residual
     geometry_.check_errors(x.data(), x.size(), "x");
     const Geometry& g = geometry_;
     const int nj = g.n_joints(), np = g.n_params();
-    if (residuals) residuals->resize(n_residuals());
-    if (jac) jac->setZero(n_residuals(), np);
+    if (residuals) {
+        // The residuals come from the same kernel as cost(), so that cost == sum of their squares
+        // (up to the order of summation) even where the residuals are at rounding level.
+        residuals->resize(n_residuals());
+        Workspace ws = make_workspace();
+        evaluate(x.data(), ws.buf.data(), residuals->data());
+    }
+    if (!jac) return;
+    jac->setZero(n_residuals(), np);
     std::vector<Mat4> frames(static_cast<size_t>(nj) + 1);
     LegMatrix a, b;
-    LegVector l0;
     for (int j = 0; j < kLegs; ++j) {
         for (int c = 0; c < 3; ++c) {
             a(j, c) = g.base()(j, c) + x[g.idx_base(j, c)];
             b(j, c) = g.platform()(j, c) + x[g.idx_platform(j, c)];
         }
-        l0(j) = g.leg_offsets()(j) + x[g.idx_offset(j)];
     }
     for (int k = 0; k < n_; ++k) {
         const Mat4 t4 = carriage_transform(g, x.data(), q_.row(k).data(), frames.data());
         const Mat3 r4 = t4.topLeftCorner<3, 3>();
         const Vec3 p4 = t4.topRightCorner<3, 1>();
         Mat3 r5;
-        for (int e = 0; e < 9; ++e) r5(e / 3, e % 3) = r5_[e][k];
-        const Vec3 p5(p5_[0][k], p5_[1][k], p5_[2][k]);
+        for (int e = 0; e < 9; ++e) r5(e / 3, e % 3) = pose_value(e, k);
+        const Vec3 p5(pose_value(9, k), pose_value(10, k), pose_value(11, k));
         for (int j = 0; j < kLegs; ++j) {
             const Vec3 pa = p4 + r4 * a.row(j).transpose();  // U-joint centre in {0}
             const Vec3 v = p5 + r5 * b.row(j).transpose() - pa;
             const double len = v.norm();
-            const double sw = sqrtw_[0].empty() ? 1.0 : sqrtw_[j][k];
+            const double sw = off_w_ < 0 ? 1.0 : pose_value(off_w_ + j, k);
             const int row = kLegs * k + j;
-            if (residuals) (*residuals)(row) = sw * (len - l0(j) - legs_[j][k]);
-            if (!jac) continue;
             const Vec3 u = v / len;  // d len = u . (dB - dA)
             auto jr = jac->row(row);
             // Carriage joint i moves everything beyond frame i-1: theta and d act about/along
@@ -262,6 +286,10 @@ void Objective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residual
         }
     }
 }
+
+std::vector<std::string> supported_kernels() { return detail::supported_kernels(); }
+std::string active_kernel() { return detail::active_kernel_name(); }
+void select_kernel(const std::string& name) { detail::select_kernel(name); }
 
 void Objective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {
     std::vector<Workspace> ws(static_cast<size_t>(pool.size()));

@@ -1,5 +1,6 @@
 // C++ tests of the core, run by ctest (and under AddressSanitizer/UBSan with -DIWR_SANITIZE=ON).
 // Deliberately framework-free: the core has no dependency beyond Eigen and the standard library.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
@@ -100,6 +101,64 @@ void test_batch_is_thread_independent() {
     for (int i = 0; i < m; ++i) CHECK(one(i) == obj.cost(X.row(i).data(), ws));
 }
 
+// Every compiled instruction-set variant of the kernel gives the same bits, and agrees with the
+// per-pose Eigen model (predict_legs) for carriages of mixed joint types and N not a multiple of 8.
+void test_kernel_variants() {
+    std::mt19937_64 rng(3);
+    std::uniform_real_distribution<double> u(-1, 1);
+    const std::string before = iwr::active_kernel();
+    for (const std::string types : {"", "PPRR", "RPRP", "PRRRP"}) {
+        const int nj = static_cast<int>(types.size());
+        iwr::RowMatrixXd dh(nj, 4);
+        for (int i = 0; i < nj; ++i) dh.row(i) << 3 * u(rng), 300 * u(rng), 300 * u(rng), 3 * u(rng);
+        const iwr::Geometry h = iwr_geometry(false);
+        const iwr::Geometry g(types, dh, h.base(), h.platform(), h.leg_offsets());
+        for (int n : {1, 9, 13}) {
+            iwr::RowMatrixXd q(n, nj), poses(n, 6), legs(n, 6), w(n, 6);
+            for (int k = 0; k < n; ++k) {
+                for (int i = 0; i < nj; ++i) q(k, i) = types[i] == 'P' ? 500 * (1 + u(rng)) : u(rng);
+                poses.row(k) << 300 * u(rng), 300 * u(rng), 800 + 100 * u(rng), u(rng), u(rng), u(rng);
+                for (int j = 0; j < 6; ++j) legs(k, j) = 200 + 100 * u(rng), w(k, j) = 1 + u(rng);
+            }
+            iwr::VectorXd x(g.n_params());
+            for (int i = 0; i < x.size(); ++i) x(i) = 0.4 * u(rng);
+            const iwr::RowMatrixXd pred = iwr::predict_legs(g, x, q, poses);
+            for (bool weighted : {false, true}) {
+                const iwr::Objective obj(g, q, poses, legs, weighted ? w : iwr::RowMatrixXd());
+                double first = 0;
+                iwr::VectorXd r0;
+                for (const std::string& k : iwr::supported_kernels()) {
+                    iwr::select_kernel(k);
+                    const double c = obj.cost(x);
+                    const iwr::VectorXd r = obj.residuals(x);
+                    if (k == "baseline") {
+                        first = c, r0 = r;
+                    } else {
+                        CHECK(c == first);
+                        CHECK(r == r0);
+                    }
+                }
+                CHECK(std::abs(first - r0.squaredNorm()) <= 1e-13 * first);
+                double worst = 0;
+                for (int k = 0; k < n; ++k)
+                    for (int j = 0; j < 6; ++j) {
+                        const double sw = weighted ? std::sqrt(w(k, j)) : 1.0;
+                        worst = std::max(worst, std::abs(r0(6 * k + j) - sw * (pred(k, j) - legs(k, j))));
+                    }
+                CHECK(worst < 1e-9);
+            }
+        }
+    }
+    iwr::select_kernel(before);
+    bool thrown = false;
+    try {
+        iwr::select_kernel("nope");
+    } catch (const std::invalid_argument& e) {
+        thrown = std::string(e.what()).find("'nope' is unknown") != std::string::npos;
+    }
+    CHECK(thrown);
+}
+
 void test_pool_propagates_exceptions() {
     iwr::ThreadPool pool(2);
     bool thrown = false;
@@ -188,6 +247,7 @@ void test_forward_kinematics() {
 int main() {
     test_cost_residuals_jacobian();
     test_batch_is_thread_independent();
+    test_kernel_variants();
     test_pool_propagates_exceptions();
     test_validation();
     test_forward_kinematics();

@@ -2,13 +2,47 @@
 // (predicted - measured)^2 leg sensor readings, its residual vector and its exact Jacobian.
 #pragma once
 
+#include <cstddef>
 #include <memory>
+#include <new>
+#include <string>
 #include <vector>
 
 #include "iwr/model.hpp"
 #include "iwr/parallel.hpp"
 
 namespace iwr {
+
+namespace detail {
+struct EvalConsts;  // objective_kernel.hpp (internal)
+
+/// Allocator for SIMD data: 64-byte (cache line, AVX-512 vector) alignment.
+template <class T>
+struct AlignedAllocator {
+    using value_type = T;
+    AlignedAllocator() = default;
+    template <class U>
+    AlignedAllocator(const AlignedAllocator<U>&) noexcept {}
+    T* allocate(std::size_t n) {
+        return static_cast<T*>(::operator new(n * sizeof(T), std::align_val_t(64)));
+    }
+    void deallocate(T* p, std::size_t) noexcept { ::operator delete(p, std::align_val_t(64)); }
+    template <class U>
+    bool operator==(const AlignedAllocator<U>&) const noexcept { return true; }
+    template <class U>
+    bool operator!=(const AlignedAllocator<U>&) const noexcept { return false; }
+};
+}  // namespace detail
+
+/// SIMD variants of the cost kernel that this CPU can run, baseline first: "baseline" (x86-64
+/// SSE2, or the compiler's default elsewhere), "avx2", "avx512". All variants give bit-identical
+/// results (no FMA contraction, the same operation order on every lane).
+std::vector<std::string> supported_kernels();
+/// The variant in use: the widest one the CPU supports, unless select_kernel chose another.
+std::string active_kernel();
+/// Uses the named variant from now on, process-wide (for tests and benchmarks). Throws
+/// std::invalid_argument if the name is unknown or the CPU cannot run it.
+void select_kernel(const std::string& name);
 
 class Objective {
 public:
@@ -44,16 +78,30 @@ public:
     void cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const;
 
 private:
+    // Per-evaluation constants (rotation of the prismatic prefix, cos/sin of alpha and theta, ...)
+    // into ec, using jbuf (15 n_joints doubles) for the per-joint parts.
+    void prepare(const double* x, detail::EvalConsts& ec, double* jbuf) const;
+    // Runs the SIMD kernel; writes the residuals too when res != nullptr.
+    double evaluate(const double* x, double* jbuf, double* res) const;
+    // Quantity e of pose k in the blocked layout.
+    double pose_value(int e, int k) const {
+        return blocks_[static_cast<size_t>(k / kBlock) * static_cast<size_t>(stride_) +
+                       static_cast<size_t>(e * kBlock + k % kBlock)];
+    }
+
+    static constexpr int kBlock = 8;  // = detail::kBlock (checked in objective.cpp)
     Geometry geometry_;
     int n_ = 0;
-    // Pose data, structure of arrays (one contiguous array of N per quantity) for SIMD loops.
-    std::vector<double> r5_[9];        // 0R5 row-major entries
-    std::vector<double> p5_[3];        // 0P5
-    std::vector<double> legs_[kLegs];  // measured readings
-    std::vector<double> sqrtw_[kLegs]; // empty when unweighted
-    RowMatrixXd q_;                    // joint readings as given (for the Jacobian)
-    std::vector<double> qv_;           // per joint: q (prismatic) or cos q, sin q (revolute)
-    std::vector<int> qoff_;            // offset of joint i's arrays in qv_
+    RowMatrixXd q_;  // joint readings as given (for the Jacobian)
+    // Pose data in blocks of kBlock poses, structure of arrays inside a block (see
+    // objective_kernel.hpp): quantities 0R5 (9, row-major), 0P5 (3), readings (6), sqrt weights
+    // (6, when weighted), then per joint q (prismatic) or cos q, sin q (revolute). The last block is
+    // padded with copies of the last pose.
+    std::vector<double, detail::AlignedAllocator<double>> blocks_;
+    int n_blocks_ = 0, stride_ = 0, off_w_ = -1, n_prefix_ = 0;
+    std::vector<int> q_off_;
+    std::vector<char> prismatic_;
+    std::vector<double> nominal_;  // nominal alpha_i, theta_i (interleaved), their cos, their sin
 };
 
 }  // namespace iwr

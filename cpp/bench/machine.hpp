@@ -1,0 +1,21 @@
+// Benchmark-only probes of the machine: the core clock and the floating-point peak of one core,
+// measured rather than taken from a data sheet (a virtual machine's nominal clock can be wrong).
+// Both are timed in CPU time of the calling thread, so that other processes on a shared machine
+// do not distort them (as long as they leave the caches alone).
+#pragma once
+
+#include <string>
+
+namespace iwr::bench {
+
+/// Core clock in GHz from a chain of dependent integer additions (one cycle each), timed for about
+/// `seconds`. 0 where not implemented (only x86-64 with GCC or Clang).
+double measure_clock_ghz(double seconds);
+
+/// Throughput of one core in GFLOP/s for independent double-precision operations with registers of
+/// `isa` ("sse2", "avx2" or "avx512"): separate multiplies and adds when fma is false (what the
+/// kernel uses), fused multiply-adds (2 flops each) when true. Throws std::invalid_argument if the
+/// CPU lacks the instruction set. Timed for about `seconds`.
+double measure_peak_gflops(const std::string& isa, bool fma, double seconds);
+
+}  // namespace iwr::bench

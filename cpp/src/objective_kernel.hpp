@@ -1,0 +1,55 @@
+// Internal: the SIMD kernel behind Objective::cost and Objective::residuals (not installed, not API).
+//
+// Poses are stored in blocks of kBlock poses, structure of arrays inside each block ("AoSoA"): all
+// quantities of one block are contiguous, so one block's data is a few cache lines and the
+// per-pose arithmetic maps one-to-one onto SIMD lanes. The kernel is compiled several times for
+// different instruction sets (baseline x86-64 SSE2, AVX2, AVX-512) and picked at run time. Every
+// variant performs the same IEEE operations in the same order on each lane (no FMA contraction, no
+// reassociation), so all variants give bit-identical results.
+#pragma once
+
+#include <string>
+#include <vector>
+
+namespace iwr::detail {
+
+constexpr int kBlock = 8;  // poses per block: one AVX-512 register, two AVX2, four SSE2
+
+/// Per-data-set, parameter-independent layout of the pose data (built once by Objective).
+struct PoseData {
+    const double* data = nullptr;  // n_blocks * stride doubles, 64-byte aligned
+    int n = 0;                     // number of poses
+    int n_blocks = 0;
+    int stride = 0;                // doubles per block = n_quantities * kBlock
+    // Offsets (in units of kBlock doubles) of each quantity inside a block.
+    int off_r5 = 0;   // 9: 0R5 row-major
+    int off_p5 = 0;   // 3: 0P5
+    int off_s = 0;    // 6: measured leg readings
+    int off_w = -1;   // 6: sqrt of weights, or -1 when unweighted
+    int n_joints = 0;
+    int n_prefix = 0;            // leading prismatic joints: their rotation is the same at every pose
+    const int* q_off = nullptr;  // per joint: q (prismatic) or cos q, sin q (revolute, 2 quantities)
+    const char* prismatic = nullptr;  // per joint: 1 prismatic, 0 revolute
+};
+
+/// Per-evaluation constants that depend on the parameters only (computed once per cost call).
+struct EvalConsts {
+    double rc[9];              // rotation after the prismatic prefix (row-major)
+    double pc[3];              // its position for zero prefix readings
+    double a[6][3], b[6][3], l0[6];
+    const double* z = nullptr;      // per prefix joint: 3, position += q * z
+    const double* joint = nullptr;  // per joint (index >= n_prefix): 6: cos/sin alpha, cos/sin theta, a, d
+};
+
+/// Sum of squared (weighted) residuals; when residuals != nullptr also writes them (N*6, pose-major).
+using KernelFn = double (*)(const PoseData&, const EvalConsts&, double* residuals);
+
+/// The variant chosen for this CPU at start-up, or the one forced by select_kernel.
+KernelFn active_kernel();
+const char* active_kernel_name();
+/// Names of the variants compiled in that this CPU can run, baseline first.
+std::vector<std::string> supported_kernels();
+/// Forces a variant (tests and benchmarks); throws std::invalid_argument when unknown/unsupported.
+void select_kernel(const std::string& name);
+
+}  // namespace iwr::detail

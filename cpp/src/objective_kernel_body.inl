@@ -1,0 +1,151 @@
+// The body of the SIMD kernel, written once for a block of 8 lanes. objective_kernel.cpp includes it
+// once per instruction set, inside that set's namespace and target region, after defining the
+// register type R, the number K of registers per block (K * lanes of R == 8) and the register
+// operations r_splat, r_load, r_store, r_add, r_sub, r_mul, r_sqrt. Each Pack operation is applied
+// register by register, so every lane sees exactly the same IEEE operations in the same order for
+// any R: the variants are bit-identical.
+// (No include guard: included several times on purpose.)
+
+struct Pack {
+    R v[K];
+};
+
+IWR_FORCE_INLINE Pack splat(double x) {
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = r_splat(x);
+    return p;
+}
+IWR_FORCE_INLINE Pack load(const double* ptr) {  // 64-byte aligned
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = r_load(ptr + k * (kBlock / K));
+    return p;
+}
+IWR_FORCE_INLINE void store(double* ptr, const Pack& a) {  // 64-byte aligned
+    for (int k = 0; k < K; ++k) r_store(ptr + k * (kBlock / K), a.v[k]);
+}
+IWR_FORCE_INLINE Pack operator+(const Pack& a, const Pack& b) {
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = r_add(a.v[k], b.v[k]);
+    return p;
+}
+IWR_FORCE_INLINE Pack operator-(const Pack& a, const Pack& b) {
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = r_sub(a.v[k], b.v[k]);
+    return p;
+}
+IWR_FORCE_INLINE Pack operator*(const Pack& a, const Pack& b) {
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = r_mul(a.v[k], b.v[k]);
+    return p;
+}
+IWR_FORCE_INLINE Pack sqrt(const Pack& a) {
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = r_sqrt(a.v[k]);
+    return p;
+}
+
+// One block of 8 poses: 0T4 by the DH chain (eq. 1-2), then M = 4R0 0R5 and w = 4R0 (0P5 - 0P4),
+// the platform pose in frame {4}; leg j is v = M b_j + w - a_j (eq. 8 expressed in {4}), its length
+// |v| and its residual sqrt(w_kj) (|v| - l0_j - s_kj). Returns the per-lane sums of squares.
+template <bool Weighted, bool Residuals>
+IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                            Pack (&res)[6]) {
+    constexpr int B = kBlock;
+    // --- carriage: the prismatic prefix (same rotation at every pose), then joint by joint ---------
+    Pack t[12];  // 0T4: rotation row-major (0..8), position (9..11)
+    for (int e = 0; e < 9; ++e) t[e] = splat(ec.rc[e]);
+    for (int r = 0; r < 3; ++r) t[9 + r] = splat(ec.pc[r]);
+    for (int i = 0; i < pd.n_prefix; ++i) {
+        const Pack q = load(blk + pd.q_off[i] * B);
+        const double* z = ec.z + 3 * i;
+        for (int r = 0; r < 3; ++r) t[9 + r] = t[9 + r] + q * splat(z[r]);
+    }
+    for (int i = pd.n_prefix; i < pd.n_joints; ++i) {
+        const double* jc = ec.joint + 6 * i;
+        const Pack ca = splat(jc[0]), sa = splat(jc[1]), ct = splat(jc[2]), st = splat(jc[3]);
+        const Pack a = splat(jc[4]), d = splat(jc[5]);
+        const double* q = blk + pd.q_off[i] * B;
+        Pack c, s, dk;
+        if (pd.prismatic[i]) {
+            c = ct, s = st, dk = d + load(q);
+        } else {  // angle-sum identity on the per-data-set cos q, sin q
+            const Pack cq = load(q), sq = load(q + B);
+            c = ct * cq - st * sq, s = st * cq + ct * sq, dk = d;
+        }
+        // T <- T A_i row by row: u = T0 c + T1 s, v = T1 c - T0 s; the new row is
+        // (u, ca v + sa T2, ca T2 - sa v) and the position gains a u + d_k T2.
+        for (int r = 0; r < 3; ++r) {
+            const Pack t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
+            const Pack u = t0 * c + t1 * s;
+            const Pack v = t1 * c - t0 * s;
+            t[3 * r] = u;
+            t[3 * r + 1] = ca * v + sa * w;
+            t[3 * r + 2] = ca * w - sa * v;
+            t[9 + r] = t[9 + r] + (a * u + dk * w);
+        }
+    }
+
+    // --- platform pose in {4}: M = R4^T R5, w = R4^T (p5 - p4) -------------------------------------
+    Pack m[12];
+    {
+        const double* p5 = blk + pd.off_p5 * B;
+        const double* r5 = blk + pd.off_r5 * B;
+        const Pack d0 = load(p5) - t[9], d1 = load(p5 + B) - t[10], d2 = load(p5 + 2 * B) - t[11];
+        for (int r = 0; r < 3; ++r)  // w = R4^T (p5 - p4): column r of R4 . d
+            m[9 + r] = t[r] * d0 + t[3 + r] * d1 + t[6 + r] * d2;
+        for (int c = 0; c < 3; ++c) {  // column c of R5 (fewer live registers than all nine)
+            const Pack f0 = load(r5 + c * B), f1 = load(r5 + (3 + c) * B), f2 = load(r5 + (6 + c) * B);
+            for (int r = 0; r < 3; ++r) m[3 * r + c] = t[r] * f0 + t[3 + r] * f1 + t[6 + r] * f2;
+        }
+    }
+
+    // --- the six legs --------------------------------------------------------------------------------
+    Pack acc = splat(0.0);
+    for (int j = 0; j < 6; ++j) {
+        const Pack b0 = splat(ec.b[j][0]), b1 = splat(ec.b[j][1]), b2 = splat(ec.b[j][2]);
+        const Pack vx = (m[0] * b0 + m[1] * b1 + m[2] * b2) + (m[9] - splat(ec.a[j][0]));
+        const Pack vy = (m[3] * b0 + m[4] * b1 + m[5] * b2) + (m[10] - splat(ec.a[j][1]));
+        const Pack vz = (m[6] * b0 + m[7] * b1 + m[8] * b2) + (m[11] - splat(ec.a[j][2]));
+        Pack r = (sqrt(vx * vx + vy * vy + vz * vz) - splat(ec.l0[j])) -
+                 load(blk + (pd.off_s + j) * B);
+        if (Weighted) r = r * load(blk + (pd.off_w + j) * B);
+        if (Residuals) res[j] = r;
+        acc = acc + r * r;
+    }
+    return acc;
+}
+
+template <bool Weighted, bool Residuals>
+IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* out) {
+    constexpr int B = kBlock;
+    // Per-lane partial sums: pose k goes to lane k mod 8 whatever the register width, so the order
+    // of summation (and the result) is the same for every variant.
+    Pack lanes = splat(0.0), res[6];
+    alignas(64) double tmp[B];
+    const int full = pd.n / B;
+    for (int b = 0; b < pd.n_blocks; ++b) {
+        const double* blk = pd.data + static_cast<long>(b) * pd.stride;
+        const Pack acc = block<Weighted, Residuals>(pd, ec, blk, res);
+        const int valid = b < full ? B : pd.n - b * B;  // the last block may be padded
+        if (valid == B) {
+            lanes = lanes + acc;
+        } else {
+            store(tmp, acc);
+            for (int l = valid; l < B; ++l) tmp[l] = 0.0;
+            lanes = lanes + load(tmp);
+        }
+        if (Residuals) {
+            for (int j = 0; j < 6; ++j) {
+                store(tmp, res[j]);
+                for (int l = 0; l < valid; ++l) out[(static_cast<long>(b) * B + l) * 6 + j] = tmp[l];
+            }
+        }
+    }
+    store(tmp, lanes);
+    return ((tmp[0] + tmp[4]) + (tmp[1] + tmp[5])) + ((tmp[2] + tmp[6]) + (tmp[3] + tmp[7]));
+}
+
+double kernel(const PoseData& pd, const EvalConsts& ec, double* out) {
+    if (pd.off_w >= 0) return out ? run<true, true>(pd, ec, out) : run<true, false>(pd, ec, out);
+    return out ? run<false, true>(pd, ec, out) : run<false, false>(pd, ec, out);
+}
