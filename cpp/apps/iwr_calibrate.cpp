@@ -355,10 +355,11 @@ public:
         : enabled_(enabled), tty_(enabled && ::isatty(STDERR_FILENO)),
           interval_(tty_ ? 0.5 : 10.0), max_gen_(max_generations) {}
 
-    void start(const de::State& st) {
+    /// The session starts now, at this generation and evaluation count.
+    void start(std::int64_t generation, std::int64_t nfev) {
         start_ = last_ = Clock::now();
-        gen0_ = st.generation;
-        nfev0_ = st.nfev;
+        gen0_ = generation;
+        nfev0_ = nfev;
     }
 
     void update(const de::State& st, bool force = false) {
@@ -574,6 +575,18 @@ bool has_option(const std::vector<std::pair<std::string, std::string>>& kv, cons
     return false;
 }
 
+// iwr::de::resolve names the Settings field ("population_size: 2; ..."); say the option instead.
+std::string as_option_message(const std::string& msg) {
+    static const std::map<std::string, std::string> names = {
+        {"population_size", "--population-size"}, {"F", "--F"}, {"CR", "--CR"}, {"seed", "--seed"},
+        {"bound_rule", "--bound-rule"}, {"strategy", "--strategy"}, {"lower", "--bounds"},
+        {"upper", "--bounds"}};
+    const size_t colon = msg.find(':');
+    if (colon == std::string::npos) return msg;
+    const auto it = names.find(msg.substr(0, colon));
+    return it == names.end() ? msg : it->second + msg.substr(colon);
+}
+
 // Applies the settings given on the command line to `s` (a fresh default, or a checkpoint's).
 void apply_settings(const Options& o, const iwr::app::RobotFile& robot, de::Settings& s) {
     const bool paper = o.preset.has_value();
@@ -650,11 +663,11 @@ int run(const Options& o) {
                              robot_path + " has " + std::to_string(robot.geometry().n_params()));
         saved = c.options;
         de::Settings wanted = state->settings;
-        apply_settings(o, robot, wanted);
         try {
+            apply_settings(o, robot, wanted);
             wanted = de::resolve(wanted);
         } catch (const std::invalid_argument& e) {
-            throw UsageError(e.what());
+            throw UsageError(as_option_message(e.what()));
         }
         if (wanted != state->settings) {
             std::string diff;
@@ -674,11 +687,11 @@ int run(const Options& o) {
         iwr::app::default_bounds(robot, "default", lo, hi);
         s.lower.assign(lo.data(), lo.data() + lo.size());
         s.upper.assign(hi.data(), hi.data() + hi.size());
-        apply_settings(o, robot, s);
         try {
+            apply_settings(o, robot, s);
             s = de::resolve(s);
         } catch (const std::invalid_argument& e) {
-            throw UsageError(e.what());
+            throw UsageError(as_option_message(e.what()));
         }
         info.bounds_kind = o.bounds ? *o.bounds : (o.preset ? "paper" : "default");
         info.preset = o.preset.value_or("");
@@ -723,9 +736,10 @@ int run(const Options& o) {
                          ", NP " + std::to_string(state->settings.population_size) + ", seed " +
                          std::to_string(state->settings.seed) + ", " + std::to_string(info.threads) +
                          " thread(s)");
+        progress.start(0, 0);
         *state = de::init(state->settings, f, pool);
     }
-    progress.start(*state);
+    if (o.resume) progress.start(state->generation, state->nfev);
 
     auto callback = [&](const de::State& st) {
         progress.update(st);
