@@ -101,8 +101,9 @@ positional arguments:
 DE settings (they shape the run; a checkpoint remembers them):
   --strategy S             rand1bin (the paper's DE/rand/1/bin, default), best1bin, jade, jde,
                            shade, lshade, jso
-  --population-size NP     population size (default: the strategy's published default;
-                           rand1bin/best1bin 10 D)
+  --population-size NP     population size (default: the strategy's published one: rand1bin,
+                           best1bin 10 D; jade 30/100/400; jde, shade 100; lshade 18 D;
+                           jso 25 ln(D) sqrt(D); D = 58 for the IWR)
   --F F                    scale factor (rand1bin/best1bin) or its initial value/mean (others)
   --CR CR                  crossover rate, in [0, 1] (same remark)
   --bounds B               search bounds: default (+-0.5 mm for lengths, +-0.5 degree for
@@ -110,12 +111,19 @@ DE settings (they shape the run; a checkpoint remembers them):
   --bound-rule R           out-of-bounds trial components: midpoint (default), reinit, reflect,
                            clip
   --seed N                 seed of the random streams (default 0)
-  --preset paper           the paper's Table 2: rand1bin, NP 600, F 0.9, CR 1.0, 60000
-                           generations, bounds paper; options given explicitly take precedence
+  --preset paper           the paper's Table 2 for rand1bin: NP 600, F 0.9, CR 1.0, 60000
+                           generations; options given explicitly take precedence. As in
+                           iwr.identify, the bounds stay as they are (add --bounds paper for
+                           Table 2's literal +-0.5 everywhere)
 
-when to stop (not part of the trajectory: may be changed when resuming, to extend a run):
-  --generations G          stop after G generations (default 1000, or 60000 with --preset paper)
-  --target-cost C          stop as soon as the best cost is <= C (mm^2)
+when to stop (not part of the trajectory, lshade/jso's budget aside: may be changed when
+resuming, to extend a run):
+  --generations G          stop after G generations (default 1000; 60000 with --preset paper;
+                           none for lshade and jso, which stop at their evaluation budget)
+  --max-evaluations N      stop after N evaluations. For lshade and jso also the budget that
+                           their population-size and parameter schedules run to (default
+                           10000 D), hence part of their trajectory
+  --target-cost C          stop as soon as the best cost is <= C (mm^2; the paper reached 1e-4)
 
 running:
   --threads T              threads evaluating the population (default 0: all cores); the result
@@ -163,7 +171,7 @@ struct Options {
     std::optional<double> F, CR;
     std::optional<std::uint64_t> seed;
     // Stopping criteria.
-    std::optional<std::int64_t> generations;
+    std::optional<std::int64_t> generations, max_evaluations;
     std::optional<double> target_cost;
     // Running.
     std::optional<int> threads;
@@ -228,7 +236,8 @@ Options parse_args(int argc, char** argv) {
         }
         static const char* const kValued[] = {
             "--strategy", "--population-size", "--F", "--CR", "--bounds", "--bound-rule",
-            "--seed", "--preset", "--generations", "--target-cost", "--threads", "--output",
+            "--seed", "--preset", "--generations", "--max-evaluations", "--target-cost",
+            "--threads", "--output",
             "--log", "--checkpoint", "--checkpoint-every", "--resume"};
         bool known = false;
         for (const char* k : kValued) known = known || name == k;
@@ -261,6 +270,7 @@ Options parse_args(int argc, char** argv) {
             if (value != "paper") throw UsageError("--preset: '" + value + "'; the only preset is paper");
             o.preset = value;
         } else if (name == "--generations") o.generations = parse_int(name, value, 0, INT64_MAX);
+        else if (name == "--max-evaluations") o.max_evaluations = parse_int(name, value, 1, INT64_MAX);
         else if (name == "--target-cost") o.target_cost = parse_real(name, value);
         else if (name == "--threads") o.threads = static_cast<int>(parse_int(name, value, 0, 4096));
         else if (name == "--output") o.output = value;
@@ -422,7 +432,7 @@ struct RunInfo {
     std::string preset;
     int n_poses = 0;
     int threads = 0;
-    std::optional<std::int64_t> generations;
+    std::optional<std::int64_t> generations, max_evaluations;
     std::optional<double> target_cost;
     std::string output, log, checkpoint, resumed_from;
     std::int64_t checkpoint_every = 0;
@@ -484,8 +494,8 @@ std::string result_json(const de::State& st, const iwr::VectorXd& x, double fun,
         {"F_lower", num_or_null(s.F_lower)},
         {"F_upper", num_or_null(s.F_upper)},
         {"min_population_size", std::to_string(s.min_population_size)},
-        {"max_evaluations", std::to_string(s.max_evaluations)},
         {"generations", info.generations ? std::to_string(*info.generations) : "null"},
+        {"max_evaluations", info.max_evaluations ? std::to_string(*info.max_evaluations) : "null"},
         {"target_cost", info.target_cost ? json_number(*info.target_cost) : "null"},
         {"preset", info.preset.empty() ? "null" : json_string(info.preset)},
         {"workers", std::to_string(info.threads)},
@@ -537,6 +547,7 @@ std::string serialize_state(const de::State& st) {
 std::vector<std::pair<std::string, std::string>> run_options(const RunInfo& info) {
     std::vector<std::pair<std::string, std::string>> o;
     if (info.generations) o.emplace_back("generations", std::to_string(*info.generations));
+    if (info.max_evaluations) o.emplace_back("max_evaluations", std::to_string(*info.max_evaluations));
     if (info.target_cost) o.emplace_back("target_cost", real_text(*info.target_cost));
     o.emplace_back("output", info.output);
     if (!info.log.empty()) o.emplace_back("log", info.log);
@@ -575,6 +586,8 @@ bool has_option(const std::vector<std::pair<std::string, std::string>>& kv, cons
     return false;
 }
 
+bool budgeted(de::Strategy s) { return s == de::Strategy::lshade || s == de::Strategy::jso; }
+
 // iwr::de::resolve names the Settings field ("population_size: 2; ..."); say the option instead.
 std::string as_option_message(const std::string& msg) {
     static const std::map<std::string, std::string> names = {
@@ -591,7 +604,9 @@ std::string as_option_message(const std::string& msg) {
 void apply_settings(const Options& o, const iwr::app::RobotFile& robot, de::Settings& s) {
     const bool paper = o.preset.has_value();
     if (o.strategy) s.strategy = de::parse_strategy(*o.strategy, "--strategy");
-    else if (paper) s.strategy = de::Strategy::rand1bin;
+    if (paper && s.strategy != de::Strategy::rand1bin)
+        throw UsageError("--preset: 'paper' is the paper's DE/rand/1/bin; got strategy '" +
+                         de::to_string(s.strategy) + "'");
     if (o.population_size) s.population_size = *o.population_size;
     else if (paper) s.population_size = 600;
     if (o.F) s.F = *o.F;
@@ -600,9 +615,11 @@ void apply_settings(const Options& o, const iwr::app::RobotFile& robot, de::Sett
     else if (paper) s.CR = 1.0;
     if (o.bound_rule) s.bound_rule = de::parse_bound_rule(*o.bound_rule, "--bound-rule");
     if (o.seed) s.seed = *o.seed;
-    if (o.bounds || paper) {
+    // lshade and jso plan their schedules over an evaluation budget: part of the trajectory.
+    if (o.max_evaluations && budgeted(s.strategy)) s.max_evaluations = *o.max_evaluations;
+    if (o.bounds) {
         iwr::VectorXd lo, hi;
-        iwr::app::default_bounds(robot, o.bounds ? *o.bounds : "paper", lo, hi);
+        iwr::app::default_bounds(robot, *o.bounds, lo, hi);
         s.lower.assign(lo.data(), lo.data() + lo.size());
         s.upper.assign(hi.data(), hi.data() + hi.size());
     }
@@ -693,7 +710,7 @@ int run(const Options& o) {
         } catch (const std::invalid_argument& e) {
             throw UsageError(as_option_message(e.what()));
         }
-        info.bounds_kind = o.bounds ? *o.bounds : (o.preset ? "paper" : "default");
+        info.bounds_kind = o.bounds.value_or("default");
         info.preset = o.preset.value_or("");
         state.emplace();
         state->settings = s;  // init() below replaces the whole state
@@ -702,10 +719,19 @@ int run(const Options& o) {
     // Stopping criteria and outputs: the command line, else the checkpoint's, else the defaults.
     if (o.generations) info.generations = *o.generations;
     else if (has_option(saved, "generations")) info.generations = std::stoll(option_or(saved, "generations", "0"));
+    if (o.max_evaluations) info.max_evaluations = *o.max_evaluations;
+    else if (has_option(saved, "max_evaluations"))
+        info.max_evaluations = std::stoll(option_or(saved, "max_evaluations", "0"));
     if (o.target_cost) info.target_cost = *o.target_cost;
     else if (has_option(saved, "target_cost")) info.target_cost = std::stod(option_or(saved, "target_cost", "0"));
-    if (!o.resume && !info.generations && !o.generations)
-        info.generations = o.preset ? 60000 : kDefaultGenerations;
+    // The defaults of iwr.identify(method="de"): the paper's 60000 generations with its preset;
+    // lshade and jso run to their evaluation budget (10000 D unless given); others 1000 generations.
+    const bool budget = budgeted(state->settings.strategy);
+    if (!o.resume) {
+        if (!info.generations && o.preset) info.generations = 60000;
+        if (budget && !info.max_evaluations) info.max_evaluations = state->settings.max_evaluations;
+        if (!info.generations && !info.max_evaluations) info.generations = kDefaultGenerations;
+    }
     info.output = o.output ? *o.output : option_or(saved, "output", "iwr-result.json");
     info.log = o.log ? *o.log : option_or(saved, "log", "");
     info.checkpoint = o.checkpoint ? *o.checkpoint : (o.resume ? *o.resume : info.output + ".ckpt");
@@ -716,6 +742,7 @@ int run(const Options& o) {
 
     de::Stop stop;
     if (info.generations) stop.max_generations = *info.generations;
+    if (info.max_evaluations) stop.max_evaluations = *info.max_evaluations;
     if (info.target_cost) stop.target_cost = *info.target_cost;
 
     de::ObjectiveFunction f(*objective);
