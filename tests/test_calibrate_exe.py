@@ -81,48 +81,91 @@ def _same_run(a: iwr.IdentificationResult, b: iwr.IdentificationResult) -> None:
 # --- interruption and resume ---------------------------------------------------------------------
 
 
-def test_sigterm_then_resume_equals_uninterrupted_run(files: dict[str, Path]) -> None:
-    d = files["dir"]
-    # Long enough (a few seconds) to be stopped part way; 'left' in progress needs generations.
-    common = [files["robot"], files["data"], "--population-size", NP, "--generations", 6000,
-              "--seed", 11, "--F", 0.7, "--CR", 0.9]
-    full = run_exe(*common, "--threads", 2, "--output", d / "full.json", "--quiet")
-    assert full.returncode == 0, full.stderr
-    reference = iwr.load_result(d / "full.json")
-    assert reference.nit == 6000
+COMMON = ["--population-size", NP, "--seed", 11, "--F", 0.7, "--CR", 0.9]
+G = 12000  # about a second or two: long enough to be stopped part way
 
-    ckpt = d / "part.ckpt"
+
+@pytest.fixture(scope="module")
+def reference(files: dict[str, Path]) -> iwr.IdentificationResult:
+    """The uninterrupted run."""
+    out = files["dir"] / "full.json"
+    proc = run_exe(files["robot"], files["data"], *COMMON, "--generations", G, "--threads", 2,
+                   "--output", out, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    result = iwr.load_result(out)
+    assert result.nit == G
+    return result
+
+
+def _start_and_stop(files: dict[str, Path], name: str, sig: int) -> Path:
+    """Starts the run, waits for its first checkpoint, sends `sig`; returns the checkpoint."""
+    d = files["dir"]
+    ckpt = d / f"{name}.ckpt"
     proc = subprocess.Popen(
-        [EXE, *map(str, common), "--threads", "1", "--output", str(d / "part.json"),
-         "--checkpoint", str(ckpt), "--checkpoint-every", "100", "--log", str(d / "part.csv")],
+        [EXE, str(files["robot"]), str(files["data"]), *map(str, COMMON), "--generations", str(G),
+         "--threads", "1", "--output", str(d / f"{name}.json"), "--checkpoint", str(ckpt),
+         "--checkpoint-every", "100", "--log", str(d / f"{name}.csv")],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
     deadline = time.monotonic() + 60
     while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
         time.sleep(0.005)
     assert ckpt.exists(), "no checkpoint appeared"
-    proc.send_signal(signal.SIGTERM)
+    proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
-    assert proc.returncode == 128 + signal.SIGTERM, err
+    assert proc.returncode == (128 + sig if sig != signal.SIGKILL else -sig), err
+    return ckpt
 
-    partial = iwr.load_result(d / "part.json")
-    assert 0 < partial.nit < 6000, "the run was not stopped part way"
+
+def test_sigterm_then_resume_equals_uninterrupted_run(
+    files: dict[str, Path], reference: iwr.IdentificationResult
+) -> None:
+    d = files["dir"]
+    ckpt = _start_and_stop(files, "term", signal.SIGTERM)
+    partial = iwr.load_result(d / "term.json")
+    assert 0 < partial.nit < G, "the run was not stopped part way"
     assert not partial.success
-    assert "SIGTERM" in partial.message
+    assert "SIGTERM" in partial.message and "--resume" in partial.message
     # The best result so far is consistent with the log written at the same moment.
-    log = np.genfromtxt(d / "part.csv", delimiter=",", names=True)
+    log = np.genfromtxt(d / "term.csv", delimiter=",", names=True)
     assert log["generation"][-1] == partial.nit
-    assert log["best"][-1] == partial.history["best"][-1]
+    assert log["best"][-1] == partial.history["best"][-1] == partial.fun
 
+    # Resumed on another number of threads; the output file, like the other run options, comes
+    # from the checkpoint.
     resumed = run_exe(files["robot"], files["data"], "--resume", ckpt, "--threads", 2, "--quiet")
     assert resumed.returncode == 0, resumed.stderr
-    # The output file, like the other run options, comes from the checkpoint.
-    result = iwr.load_result(d / "part.json")
+    result = iwr.load_result(d / "term.json")
     _same_run(result, reference)
+    assert result.success == reference.success and result.message == reference.message
     assert result.settings["resumed_from"] == str(ckpt)
-    log = np.genfromtxt(d / "part.csv", delimiter=",", names=True)
-    np.testing.assert_array_equal(log["best"], reference.history["best"])
-    np.testing.assert_array_equal(log["nfev"], reference.history["nfev"])
+    log = np.genfromtxt(d / "term.csv", delimiter=",", names=True)
+    for key in ("generation", "nfev", "best", "mean", "spread"):
+        np.testing.assert_array_equal(log[key], reference.history[key], err_msg=key)
+
+
+def test_kill_9_loses_only_the_work_since_the_last_checkpoint(
+    files: dict[str, Path], reference: iwr.IdentificationResult
+) -> None:
+    ckpt = _start_and_stop(files, "kill", signal.SIGKILL)
+    assert not (files["dir"] / "kill.json").exists()  # no result: the process had no chance
+    resumed = run_exe(files["robot"], files["data"], "--resume", ckpt, "--quiet")
+    assert resumed.returncode == 0, resumed.stderr
+    _same_run(iwr.load_result(files["dir"] / "kill.json"), reference)
+
+
+def test_a_finished_run_extended_equals_the_longer_run(
+    files: dict[str, Path], reference: iwr.IdentificationResult
+) -> None:
+    d = files["dir"]
+    short = run_exe(files["robot"], files["data"], *COMMON, "--generations", G // 3,
+                    "--output", d / "ext.json", "--quiet")
+    assert short.returncode == 0, short.stderr
+    assert iwr.load_result(d / "ext.json").nit == G // 3
+    longer = run_exe(files["robot"], files["data"], "--resume", d / "ext.json.ckpt",
+                     "--generations", G, "--quiet")
+    assert longer.returncode == 0, longer.stderr
+    _same_run(iwr.load_result(d / "ext.json"), reference)
 
 
 def test_sigint_and_checkpoint_on_request(files: dict[str, Path]) -> None:
