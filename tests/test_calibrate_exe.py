@@ -133,7 +133,8 @@ def test_sigterm_then_resume_equals_uninterrupted_run(
 
     # Resumed on another number of threads; the output file, like the other run options, comes
     # from the checkpoint.
-    resumed = run_exe(files["robot"], files["data"], "--resume", ckpt, "--threads", 2, "--quiet")
+    resumed = run_exe(files["robot"], files["data"], "--resume", ckpt, "--threads", 2, "--quiet",
+                      "--checkpoint-every", 5000)
     assert resumed.returncode == 0, resumed.stderr
     result = iwr.load_result(d / "term.json")
     _same_run(result, reference)
@@ -149,7 +150,8 @@ def test_kill_9_loses_only_the_work_since_the_last_checkpoint(
 ) -> None:
     ckpt = _start_and_stop(files, "kill", signal.SIGKILL)
     assert not (files["dir"] / "kill.json").exists()  # no result: the process had no chance
-    resumed = run_exe(files["robot"], files["data"], "--resume", ckpt, "--quiet")
+    resumed = run_exe(files["robot"], files["data"], "--resume", ckpt, "--quiet",
+                      "--checkpoint-every", 5000)
     assert resumed.returncode == 0, resumed.stderr
     _same_run(iwr.load_result(files["dir"] / "kill.json"), reference)
 

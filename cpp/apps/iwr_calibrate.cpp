@@ -155,7 +155,9 @@ exit status:
   2    a usage error: unknown option, bad value, missing argument
   129, 130, 143
        stopped by SIGHUP, SIGINT (Ctrl-C) or SIGTERM at the end of a generation, after writing a
-       final checkpoint and the best result so far (128 + the signal number)
+       final checkpoint and the best result so far (128 + the signal number). A signal ignored
+       when the program starts stays ignored: nohup ignores SIGHUP, and a shell script's
+       background job (cmd &) ignores SIGINT, so stop such a job with SIGTERM (kill PID).
 
 example:
   iwr-calibrate robot.toml data.csv --preset paper --seed 1 --output run.json --log run.csv
@@ -797,13 +799,15 @@ int run(const Options& o) {
     iwr::app::atomic_write(info.output, result_json(*state, x, fun, robot.parameter_names(), success,
                                                     message, info));
     const double secs = progress.session_seconds();
+    const long long ev = static_cast<long long>(progress.session_nfev(*state));
     char summary[512];
     std::snprintf(summary, sizeof summary,
-                  "%s: generation %lld, best cost %.6e, %lld evaluations in %.1f s (%.0f/s); result in %s, checkpoint in %s",
-                  message.c_str(), static_cast<long long>(state->generation), fun,
-                  static_cast<long long>(progress.session_nfev(*state)), secs,
-                  secs > 0 ? static_cast<double>(progress.session_nfev(*state)) / secs : 0.0,
-                  info.output.c_str(), info.checkpoint.c_str());
+                  "best cost %.6e at generation %lld, %lld evaluations (%lld in this session: %.1f s, "
+                  "%.0f/s); result in %s, checkpoint in %s",
+                  fun, static_cast<long long>(state->generation), static_cast<long long>(state->nfev),
+                  ev, secs, secs > 0 ? static_cast<double>(ev) / secs : 0.0, info.output.c_str(),
+                  info.checkpoint.c_str());
+    progress.message(message);
     progress.message(summary);
     return interrupted ? 128 + sig : kExitOk;
 }
