@@ -7,6 +7,7 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from .de import differential_evolution
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
@@ -28,6 +29,7 @@ __all__ = [
     "RobotFileError",
     "UnreachableError",
     "__version__",
+    "differential_evolution",
     "identify",
     "load_result",
     "predict_legs",

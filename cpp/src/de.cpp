@@ -428,19 +428,15 @@ void append_log(State& st) {
     double sum = 0;
     for (int i = 0; i < np; ++i) sum += st.costs(i);
     e.mean = sum / np;
+    // Column means and variances, row by row (the population is row-major).
+    VectorXd m = st.population.colwise().mean().transpose();
+    VectorXd v = VectorXd::Zero(d);
+    for (int i = 0; i < np; ++i) v += (st.population.row(i).transpose() - m).cwiseAbs2();
     double acc = 0;
     for (int j = 0; j < d; ++j) {
-        double m = 0;
-        for (int i = 0; i < np; ++i) m += st.population(i, j);
-        m /= np;
-        double v = 0;
-        for (int i = 0; i < np; ++i) {
-            const double t = st.population(i, j) - m;
-            v += t * t;
-        }
         const double w = st.settings.upper[static_cast<std::size_t>(j)] -
                          st.settings.lower[static_cast<std::size_t>(j)];
-        acc += v / np / (w * w);
+        acc += v(j) / np / (w * w);
     }
     e.spread = std::sqrt(acc / d);
     e.elapsed = st.elapsed;
@@ -573,31 +569,39 @@ void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi
             break;
         }
     }
-    // Binomial crossover, eq. (13), with the forced index j_r.
+    // The mutant (eq. 12 or the strategy's rule) for every component: a branch-free loop.
+    if (pbest) {
+        for (int j = 0; j < d; ++j) u[j] = base[j] + Fw * (pbest[j] - xi[j]) + Fi * (d1[j] - d2[j]);
+    } else {
+        for (int j = 0; j < d; ++j) u[j] = base[j] + Fi * (d1[j] - d2[j]);
+    }
+    // Binomial crossover, eq. (13), with the forced index j_r. With CR = 1 every component comes
+    // from the mutant whatever the draws, so none are made (the paper's setting).
     const int jr = static_cast<int>(g.below(static_cast<std::uint64_t>(d)));
-    for (int j = 0; j < d; ++j) {
-        const bool take = g.uniform() < CRi || j == jr;
-        if (!take) {
-            u[j] = xi[j];
-            continue;
+    if (CRi < 1) {
+        for (int j = 0; j < d; ++j) {
+            const bool take = g.uniform() < CRi || j == jr;
+            u[j] = take ? u[j] : xi[j];
         }
-        double v = pbest ? base[j] + Fw * (pbest[j] - xi[j]) + Fi * (d1[j] - d2[j])
-                         : base[j] + Fi * (d1[j] - d2[j]);
+    }
+    // Out-of-bounds components (only mutated ones can be) are repaired by the bound rule, in
+    // index order.
+    for (int j = 0; j < d; ++j) {
         const double lo = s.lower[static_cast<std::size_t>(j)];
         const double hi = s.upper[static_cast<std::size_t>(j)];
-        if (v < lo || v > hi || std::isnan(v)) {
-            const double bound = v < lo ? lo : hi;
-            switch (s.bound_rule) {
-                case BoundRule::midpoint: v = 0.5 * (xi[j] + bound); break;
-                case BoundRule::reinit: v = g.uniform(lo, hi); break;
-                case BoundRule::reflect:
-                    v = 2 * bound - v;
-                    v = std::clamp(v, lo, hi);
-                    break;
-                case BoundRule::clip: v = bound; break;
-            }
-            if (!(v >= lo && v <= hi)) v = std::clamp(std::isnan(v) ? xi[j] : v, lo, hi);
+        double v = u[j];
+        if (v >= lo && v <= hi) continue;
+        const double bound = v < lo ? lo : hi;
+        switch (s.bound_rule) {
+            case BoundRule::midpoint: v = 0.5 * (xi[j] + bound); break;
+            case BoundRule::reinit: v = g.uniform(lo, hi); break;
+            case BoundRule::reflect:
+                v = 2 * bound - v;
+                v = std::clamp(v, lo, hi);
+                break;
+            case BoundRule::clip: v = bound; break;
         }
+        if (!(v >= lo && v <= hi)) v = std::clamp(std::isnan(v) ? xi[j] : v, lo, hi);
         u[j] = v;
     }
 }
@@ -782,20 +786,27 @@ void step(State& st, BatchFunction& f, ThreadPool& pool) {
 
     Generation gen;
     gen.st = &st;
-    if (s.strategy != Strategy::rand1bin && s.strategy != Strategy::jde) {
-        gen.order.resize(static_cast<std::size_t>(np));
-        std::iota(gen.order.begin(), gen.order.end(), 0);
-        std::sort(gen.order.begin(), gen.order.end(), [&](int a, int b) {
-            return st.costs(a) < st.costs(b) || (st.costs(a) == st.costs(b) && a < b);
-        });
-    }
     if (reduces_population(s.strategy))
         gen.progress = static_cast<double>(st.nfev) / static_cast<double>(s.max_evaluations);
     double p = s.p_best;
     if (s.strategy == Strategy::jso) p = s.p_best * (1.0 - 0.5 * std::min(gen.progress, 1.0));
     gen.pnum = std::min(np, std::max(2, static_cast<int>(std::lround(p * np))));
+    if (s.strategy != Strategy::rand1bin && s.strategy != Strategy::jde) {
+        // The best `top` individuals in order (all the p-best sets and best1bin's base need).
+        const int top = s.strategy == Strategy::best1bin ? 1 : gen.pnum;
+        gen.order.resize(static_cast<std::size_t>(np));
+        std::iota(gen.order.begin(), gen.order.end(), 0);
+        std::partial_sort(gen.order.begin(), gen.order.begin() + top, gen.order.end(),
+                          [&](int a, int b) {
+                              return st.costs(a) < st.costs(b) ||
+                                     (st.costs(a) == st.costs(b) && a < b);
+                          });
+    }
 
     // Trials: slot i uses stream 1 + i only, so any partition of the slots gives the same trials.
+    // The streams are the only part of the state touched before the evaluation, which may throw
+    // (a Python objective interrupted by Ctrl-C): they are restored then.
+    std::vector<Rng> saved = st.streams;
     RowMatrixXd trials(np, d);
     std::vector<double> tF(static_cast<std::size_t>(np)), tCR(static_cast<std::size_t>(np));
     pool.parallel_for(static_cast<std::size_t>(np), [&](std::size_t b, std::size_t e, int) {
@@ -804,7 +815,12 @@ void step(State& st, BatchFunction& f, ThreadPool& pool) {
                        tF[i], tCR[i]);
     });
     VectorXd tcost(np);
-    f.evaluate(trials.data(), static_cast<std::size_t>(np), tcost.data(), pool);
+    try {
+        f.evaluate(trials.data(), static_cast<std::size_t>(np), tcost.data(), pool);
+    } catch (...) {
+        st.streams = std::move(saved);  // the state is left as it was before this step
+        throw;
+    }
     sanitize(tcost.data(), static_cast<std::size_t>(np));
     st.nfev += np;
 
