@@ -86,7 +86,10 @@ std::string json_number(double v) {
     if (!std::isfinite(v)) return "null";
     char buf[32];
     std::snprintf(buf, sizeof buf, "%.17g", v);
-    return buf;
+    std::string out = buf;
+    // Keep it a float for JSON readers that tell 1 from 1.0 (Python's json does).
+    if (out.find_first_of(".e") == std::string::npos) out += ".0";
+    return out;
 }
 
 std::string csv_number(double v) {

@@ -266,6 +266,7 @@ void test_json_and_hash() {
     CHECK(iwr::app::json_number(0.1) == "0.10000000000000001");
     CHECK(std::stod(iwr::app::json_number(1.0 / 3.0)) == 1.0 / 3.0);
     CHECK(iwr::app::json_number(std::nan("")) == "null");
+    CHECK(iwr::app::json_number(1.0) == "1.0" && iwr::app::json_number(-2e300) == "-2.0000000000000001e+300");
     CHECK(iwr::app::json_string("a\"b\\c\n\x01") == "\"a\\\"b\\\\c\\n\\u0001\"");
     CHECK(iwr::app::hash64("") == 0xcbf29ce484222325ULL);
     CHECK(iwr::app::hash64("a") == 0xaf63dc4c8601ec8cULL);  // the published FNV-1a 64 test vector
