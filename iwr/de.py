@@ -9,17 +9,17 @@ Two entry points share one engine (``cpp/src/de.cpp``, documented in ``cpp/inclu
 
 Strategies (``strategy=``), each with its published defaults (``None`` arguments take them):
 
-============ ================================================================= ===================
-name         rule                                                              reference
-============ ================================================================= ===================
-rand1bin     eq. (11)-(14): m = x_r1 + F (x_r2 - x_r3), binomial crossover     Storn & Price 1997
-best1bin     m = x_best + F (x_r1 - x_r2)                                      Storn & Price 1997
-jade         current-to-pbest/1 with archive, adaptive mu_F, mu_CR             Zhang & Sanderson 2009
-jde          rand/1/bin with self-adapted F_i, CR_i                            Brest et al. 2006
-shade        current-to-pbest/1, success-history memories of F and CR          Tanabe & Fukunaga 2013
-lshade       SHADE with linear population size reduction                       Tanabe & Fukunaga 2014
-jso          L-SHADE with weighted mutation and parameter schedules           Brest et al. 2017
-============ ================================================================= ===================
+========  ============================================================  ======================
+name      rule                                                          reference
+========  ============================================================  ======================
+rand1bin  eq. (11)-(14): m = x_r1 + F (x_r2 - x_r3), binomial crossover  Storn & Price 1997
+best1bin  m = x_best + F (x_r1 - x_r2)                                  Storn & Price 1997
+jade      current-to-pbest/1 with archive, adaptive mu_F, mu_CR         Zhang & Sanderson 2009
+jde       rand/1/bin with self-adapted F_i, CR_i                        Brest et al. 2006
+shade     current-to-pbest/1, success-history memories of F and CR      Tanabe & Fukunaga 2013
+lshade    SHADE with linear population size reduction                   Tanabe & Fukunaga 2014
+jso       L-SHADE with weighted mutation and parameter schedules        Brest et al. 2017
+========  ============================================================  ======================
 
 Full references: R. Storn, K. Price, J. Global Optim. 11:341-359 (1997); J. Zhang, A. C. Sanderson,
 IEEE TEC 13(5):945-958 (2009); J. Brest et al., IEEE TEC 10(6):646-657 (2006); R. Tanabe,
@@ -110,7 +110,7 @@ def _bounds_arg(bounds: Any) -> tuple[np.ndarray, np.ndarray]:
         if arr.ndim != 2 or arr.shape[1] != 2 or arr.shape[0] < 1:
             raise ValueError(f"bounds: shape {arr.shape}; expected (D, 2) pairs (min, max)")
         lower, upper = arr[:, 0], arr[:, 1]
-    for j, (lo, hi) in enumerate(zip(lower, upper)):
+    for j, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
         if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
             raise ValueError(
                 f"bounds: parameter {j} has (min, max) = ({lo}, {hi}); expected finite min < max"
@@ -193,7 +193,9 @@ class _Run:
         )
         self.stagnation_tol = _float_arg("stagnation_tol", options.pop("stagnation_tol", 0.0))
         max_seconds = options.pop("max_seconds", None)
-        self.max_seconds = math.inf if max_seconds is None else _float_arg("max_seconds", max_seconds)
+        self.max_seconds = (
+            math.inf if max_seconds is None else _float_arg("max_seconds", max_seconds)
+        )
         self.resume = options.pop("resume", None)
         self.return_state = bool(options.pop("return_state", False))
         if options:
@@ -451,10 +453,12 @@ def de_method(
             raise ValueError(
                 f"preset: 'paper' is the paper's DE/rand/1/bin; got strategy {strategy!r}"
             )
-        population_size = PAPER_PRESET["population_size"] if population_size is None else population_size
+        if population_size is None:
+            population_size = PAPER_PRESET["population_size"]
         F = PAPER_PRESET["F"] if F is None else F
         CR = PAPER_PRESET["CR"] if CR is None else CR
-        generations = PAPER_PRESET["generations"] if generations is None else generations
+        if generations is None:
+            generations = PAPER_PRESET["generations"]
     reduced = ReducedProblem(problem, active, x0)
     if polish and 6 * problem.n_poses < reduced.n:
         raise ValueError(
