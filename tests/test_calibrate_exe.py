@@ -393,6 +393,17 @@ def test_bad_input_files(files: dict[str, Path], tmp_path: Path, name: str,
     assert not (tmp_path / "r.json").exists()
 
 
+def test_missing_output_folder_is_refused_before_the_run(files: dict[str, Path],
+                                                         tmp_path: Path) -> None:
+    proc = run_exe(files["robot"], files["data"], "--output", tmp_path / "no" / "r.json")
+    assert proc.returncode == 1
+    assert "folder" in one_line_error(proc) and "does not exist" in proc.stderr
+    proc = run_exe(files["robot"], files["data"], "--output", tmp_path / "r.json",
+                   "--log", tmp_path / "no" / "log.csv")
+    assert proc.returncode == 1
+    assert "log.csv: cannot write the log here" in one_line_error(proc)
+
+
 def test_data_that_does_not_fit_the_robot(files: dict[str, Path], tmp_path: Path) -> None:
     m, _ = iwr.simulate(iwr.Robot.hexapod(), 5, seed=1)
     m.to_csv(tmp_path / "hexa.csv")

@@ -428,6 +428,27 @@ private:
 
 // --- outputs --------------------------------------------------------------------------------------
 
+// The log as CSV text, formatted incrementally: rows never change once logged, and formatting
+// the whole log at every checkpoint would make a long run's checkpoints ever slower.
+class LogText {
+public:
+    const std::string& update(const de::State& st) {
+        if (rows_ > st.log.size()) rows_ = 0, text_.clear();
+        if (text_.empty()) text_ = "generation,nfev,best,mean,spread,elapsed\n";
+        for (; rows_ < st.log.size(); ++rows_) {
+            const de::LogEntry& e = st.log[rows_];
+            text_ += std::to_string(e.generation) + "," + std::to_string(e.nfev) + "," +
+                     iwr::app::csv_number(e.best) + "," + iwr::app::csv_number(e.mean) + "," +
+                     iwr::app::csv_number(e.spread) + "," + iwr::app::csv_number(e.elapsed) + "\n";
+        }
+        return text_;
+    }
+
+private:
+    std::string text_;
+    std::size_t rows_ = 0;
+};
+
 struct RunInfo {
     std::string robot_file, data_file;
     std::string bounds_kind;  // "default", "paper" or "checkpoint"
@@ -439,17 +460,8 @@ struct RunInfo {
     std::string output, log, checkpoint, resumed_from;
     std::int64_t checkpoint_every = 0;
     std::uint64_t robot_fp = 0, data_fp = 0;
+    LogText log_text;
 };
-
-std::string log_csv(const de::State& st) {
-    std::string out = "generation,nfev,best,mean,spread,elapsed\n";
-    for (const de::LogEntry& e : st.log) {
-        out += std::to_string(e.generation) + "," + std::to_string(e.nfev) + "," +
-               iwr::app::csv_number(e.best) + "," + iwr::app::csv_number(e.mean) + "," +
-               iwr::app::csv_number(e.spread) + "," + iwr::app::csv_number(e.elapsed) + "\n";
-    }
-    return out;
-}
 
 std::string json_doubles(const std::vector<double>& v) {
     std::string out = "[";
@@ -559,7 +571,7 @@ std::vector<std::pair<std::string, std::string>> run_options(const RunInfo& info
     return o;
 }
 
-void write_checkpoint(const de::State& st, const RunInfo& info) {
+void write_checkpoint_file(const de::State& st, const RunInfo& info) {
     iwr::app::Checkpoint c;
     c.program = std::string(kProgram) + " " + IWR_VERSION;
     c.robot_fingerprint = info.robot_fp;
@@ -570,7 +582,12 @@ void write_checkpoint(const de::State& st, const RunInfo& info) {
     c.options = run_options(info);
     c.engine_state = serialize_state(st);
     iwr::app::atomic_write(info.checkpoint, iwr::app::encode_checkpoint(c));
-    if (!info.log.empty()) iwr::app::atomic_write(info.log, log_csv(st));
+}
+
+// A checkpoint and the log as far as it goes.
+void write_checkpoint(const de::State& st, RunInfo& info) {
+    write_checkpoint_file(st, info);
+    if (!info.log.empty()) iwr::app::atomic_write(info.log, info.log_text.update(st));
 }
 
 // --- the run --------------------------------------------------------------------------------------
@@ -586,6 +603,30 @@ bool has_option(const std::vector<std::pair<std::string, std::string>>& kv, cons
     for (const auto& p : kv)
         if (p.first == key) return true;
     return false;
+}
+
+// A number among a checkpoint's saved options (its checksum matched, so a bad one means a file
+// written by another program).
+template <class T>
+T saved_number(const std::vector<std::pair<std::string, std::string>>& kv, const std::string& key,
+               const std::string& path) {
+    const std::string text = option_or(kv, key, "");
+    std::istringstream in(text);
+    T v{};
+    in >> v;
+    if (text.empty() || in.fail() || !in.eof())
+        throw InputError(path + ": corrupt: option " + key + " is '" + text + "'");
+    return v;
+}
+
+// Fails now, not at the end of a long run, if an output file's folder is missing or read-only.
+void check_writable(const std::string& path, const char* what) {
+    const size_t slash = path.find_last_of('/');
+    const std::string dir = slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
+    if (::access(dir.c_str(), F_OK) != 0)
+        throw InputError(path + ": cannot write the " + what + " here: folder " + dir + " does not exist");
+    if (::access(dir.c_str(), W_OK) != 0)
+        throw InputError(path + ": cannot write the " + what + " here: folder " + dir + " is not writable");
 }
 
 bool budgeted(de::Strategy s) { return s == de::Strategy::lshade || s == de::Strategy::jso; }
@@ -720,12 +761,14 @@ int run(const Options& o) {
 
     // Stopping criteria and outputs: the command line, else the checkpoint's, else the defaults.
     if (o.generations) info.generations = *o.generations;
-    else if (has_option(saved, "generations")) info.generations = std::stoll(option_or(saved, "generations", "0"));
+    else if (has_option(saved, "generations"))
+        info.generations = saved_number<std::int64_t>(saved, "generations", *o.resume);
     if (o.max_evaluations) info.max_evaluations = *o.max_evaluations;
     else if (has_option(saved, "max_evaluations"))
-        info.max_evaluations = std::stoll(option_or(saved, "max_evaluations", "0"));
+        info.max_evaluations = saved_number<std::int64_t>(saved, "max_evaluations", *o.resume);
     if (o.target_cost) info.target_cost = *o.target_cost;
-    else if (has_option(saved, "target_cost")) info.target_cost = std::stod(option_or(saved, "target_cost", "0"));
+    else if (has_option(saved, "target_cost"))
+        info.target_cost = saved_number<double>(saved, "target_cost", *o.resume);
     // The defaults of iwr.identify(method="de"): the paper's 60000 generations with its preset;
     // lshade and jso run to their evaluation budget (10000 D unless given); others 1000 generations.
     const bool budget = budgeted(state->settings.strategy);
@@ -737,10 +780,13 @@ int run(const Options& o) {
     info.output = o.output ? *o.output : option_or(saved, "output", "iwr-result.json");
     info.log = o.log ? *o.log : option_or(saved, "log", "");
     info.checkpoint = o.checkpoint ? *o.checkpoint : (o.resume ? *o.resume : info.output + ".ckpt");
-    info.checkpoint_every = o.checkpoint_every
-                                ? *o.checkpoint_every
-                                : std::stoll(option_or(saved, "checkpoint_every",
-                                                       std::to_string(kDefaultCheckpointEvery)));
+    info.checkpoint_every = kDefaultCheckpointEvery;
+    if (o.checkpoint_every) info.checkpoint_every = *o.checkpoint_every;
+    else if (has_option(saved, "checkpoint_every"))
+        info.checkpoint_every = saved_number<std::int64_t>(saved, "checkpoint_every", *o.resume);
+    check_writable(info.output, "result");
+    check_writable(info.checkpoint, "checkpoint");
+    if (!info.log.empty()) check_writable(info.log, "log");
 
     de::Stop stop;
     if (info.generations) stop.max_generations = *info.generations;
@@ -793,11 +839,13 @@ int run(const Options& o) {
                   std::to_string(state->generation) + "; continue with --resume " + info.checkpoint;
         success = false;
     }
-    write_checkpoint(*state, info);
+    // The checkpoint first (what a resume needs), then the result, then the log.
+    write_checkpoint_file(*state, info);
     const iwr::VectorXd x = f.full(state->best_x().data());
     const double fun = objective->cost(x);
     iwr::app::atomic_write(info.output, result_json(*state, x, fun, robot.parameter_names(), success,
                                                     message, info));
+    if (!info.log.empty()) iwr::app::atomic_write(info.log, info.log_text.update(*state));
     const double secs = progress.session_seconds();
     const long long ev = static_cast<long long>(progress.session_nfev(*state));
     char summary[512];
