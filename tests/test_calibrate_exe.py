@@ -342,6 +342,7 @@ def test_help_documents_options_and_exit_codes() -> None:
     for word in ("--strategy", "--population-size", "--F", "--CR", "--generations",
                  "--target-cost", "--seed", "--threads", "--preset", "--output", "--log",
                  "--checkpoint", "--checkpoint-every", "--resume", "--quiet", "exit status",
+                 "--max-evaluations", "--bounds", "--bound-rule",
                  "130", "143", "USR1", "atomic"):
         assert word in proc.stdout, word
 
