@@ -4,6 +4,7 @@
 // iwr/de.hpp on the objective of eq. (10), and writes a result that iwr.load_result reads. The run's
 // whole state (iwr::de::State) goes into checkpoints, so that --resume ends with exactly the result
 // of a run that was never interrupted. See `iwr-calibrate --help` and docs/iwr-calibrate.md.
+#include <pthread.h>
 #include <unistd.h>
 
 #include <algorithm>
@@ -794,13 +795,19 @@ int run(const Options& o) {
     if (info.target_cost) stop.target_cost = *info.target_cost;
 
     de::ObjectiveFunction f(*objective);
+    // The pool's threads start with our signals blocked, so the handlers always run on this thread,
+    // the one that reads the flags (a sig_atomic_t is only safe within one thread).
+    sigset_t ours, previous;
+    sigemptyset(&ours);
+    for (int sig : {SIGINT, SIGTERM, SIGHUP, SIGUSR1}) sigaddset(&ours, sig);
+    pthread_sigmask(SIG_BLOCK, &ours, &previous);
     iwr::ThreadPool pool(info.threads);
-    Progress progress(!o.quiet, stop.max_generations);
-
     install(SIGINT, on_stop_signal);
     install(SIGTERM, on_stop_signal);
     install(SIGHUP, on_stop_signal);
     install(SIGUSR1, on_checkpoint_signal);
+    pthread_sigmask(SIG_SETMASK, &previous, nullptr);
+    Progress progress(!o.quiet, stop.max_generations);
 
     if (o.resume) {
         progress.message("resuming " + info.resumed_from + " at generation " +
