@@ -7,31 +7,57 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
 from .de import differential_evolution
+from .forward import ForwardKinematicsError, forward_kinematics
+from .identifiability import (
+    IdentifiabilityReport,
+    NullDirection,
+    ParameterError,
+    identifiability,
+    parameter_error,
+)
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
+from .planning import PosePlan, plan_poses
 from .problem import Problem, predict_legs
 from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
+from .uncertainty import Uncertainty, uncertainty
 
 __version__ = "0.1.0"
 
 __all__ = [
+    "Accuracy",
+    "ForwardKinematicsError",
+    "IdentifiabilityReport",
     "IdentificationResult",
     "MeasurementFileError",
     "Measurements",
     "Noise",
+    "NullDirection",
+    "ParameterError",
+    "PoseErrors",
+    "PosePlan",
     "Problem",
     "ReducedProblem",
     "ResultFileError",
     "Robot",
     "RobotFileError",
+    "Uncertainty",
     "UnreachableError",
     "__version__",
+    "accuracy",
     "differential_evolution",
+    "forward_kinematics",
+    "identifiability",
     "identify",
     "load_result",
+    "parameter_error",
+    "plan_poses",
+    "pose_errors",
     "predict_legs",
     "simulate",
+    "uncertainty",
 ]

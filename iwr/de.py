@@ -230,12 +230,13 @@ class _Run:
         return {
             "generations": self.generations,
             "max_evaluations": self.max_evaluations,
-            "target_cost": self.target_cost,
+            # None for "not set", so that the settings are plain JSON (no infinities).
+            "target_cost": None if math.isinf(self.target_cost) else self.target_cost,
             "tol": self.tol,
             "atol": self.atol,
-            "stagnation_generations": self.stagnation_generations,
+            "stagnation_generations": self.stagnation_generations or None,
             "stagnation_tol": self.stagnation_tol,
-            "max_seconds": self.max_seconds,
+            "max_seconds": None if math.isinf(self.max_seconds) else self.max_seconds,
             "workers": self.threads or None,
         }
 

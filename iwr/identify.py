@@ -134,9 +134,10 @@ def identify(
     x0 : array_like, optional
         Starting point (local methods) and the value of parameters that are not ``active``.
         Default: zeros, the nominal robot.
-    active : array_like of bool, names or indices, optional
+    active : array_like of bool, names or indices, or "base", optional
         The parameters to identify; the rest are held at ``x0``. For example the base parameters
-        of :func:`iwr.identifiability`, so that the answer is unique.
+        of :func:`iwr.identifiability` (``active=report.active``, or ``active="base"`` to compute
+        them at ``x0``), so that the answer is unique.
     seed : int, optional
         Seed of the random generator of stochastic methods.
     callback : callable, optional
@@ -152,6 +153,11 @@ def identify(
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
     if x0_arr.shape != (problem.n_params,) or not np.all(np.isfinite(x0_arr)):
         raise ValueError(f"x0: expected {problem.n_params} finite values, got shape {x0_arr.shape}")
+    if isinstance(active, str) and active == "base":
+        # The base parameters of the identifiability analysis at x0: a unique answer.
+        from .identifiability import identifiability
+
+        active = identifiability(robot, measurements, x0_arr).active
     mask = _active_mask(problem, active)
     start = time.perf_counter()
     result = METHODS[method](

@@ -663,7 +663,9 @@ void update_memories(State& st, const Success& succ) {
                 st.mem_CR[k] = Success::arithmetic(succ.CR, wt);
                 st.mem_F[k] = mF;
             } else {
-                const bool terminal = st.mem_CR[k] < 0 || maxCR == 0;
+                // The terminal value when every successful CR is 0 (Tanabe & Fukunaga's code:
+                // the slot leaves it at its next update).
+                const bool terminal = maxCR == 0;
                 const double mCR = Success::lehmer(succ.CR, wt);
                 if (s.strategy == Strategy::lshade) {
                     st.mem_CR[k] = terminal ? -1.0 : mCR;

@@ -20,6 +20,10 @@
 //   // step(st2, f, pool) continues exactly as step(st, f, pool) would: bit-identical populations,
 //   // costs and log (except the `elapsed` column, which is wall-clock time).
 //
+// To stop on a signal (SIGINT, SIGTERM), set a std::atomic<bool> in the handler and return its value
+// from the callback: run() returns after the current generation with StopReason::callback, and the
+// state is complete and serializable.
+//
 // Everything a run needs to continue lives in `State`: the resolved Settings, the population and its
 // costs, every random stream, the strategy's memories (jDE's per-individual F and CR, JADE's means,
 // the SHADE family's success-history memories), the archive, the counters, the current population
@@ -135,8 +139,10 @@ enum class Strategy : std::uint8_t {
     /// 2013, pp. 71-78. Defaults (ibid.): NP = 100, H = 100, memory 0.5, archive size NP.
     shade = 4,
     /// L-SHADE: SHADE with linear population size reduction, NP_{G+1} = round((NP_min - NP_init)
-    /// NFE / NFE_max + NP_init), the worst individuals removed; weighted Lehmer mean for M_CR too,
-    /// with the terminal value (M_CR = ⊥, then CR = 0) when every successful CR is 0. Tanabe &
+    /// NFE / NFE_max + NP_init), the worst individuals removed, the archive cut to its new size by
+    /// random removals; weighted Lehmer mean for M_CR too, with the terminal value (M_CR = ⊥, then
+    /// CR = 0) when every successful CR is 0 (until the slot's next update, as in the authors'
+    /// code; the paper's text keeps ⊥ for good). Tanabe &
     /// Fukunaga, "Improving the search performance of SHADE using linear population size
     /// reduction", IEEE CEC 2014, pp. 1658-1665. Defaults (ibid.): NP_init = round(18 D), NP_min = 4,
     /// H = 6, p = 0.11, archive rate 2.6, memory 0.5, NFE_max = 10000 D.
@@ -145,7 +151,8 @@ enum class Strategy : std::uint8_t {
     /// F_w = 0.7 F, 0.8 F, 1.2 F for NFE < 0.2, < 0.4, >= 0.4 NFE_max; F <= 0.7 while NFE < 0.6
     /// NFE_max; CR >= 0.7 while NFE < 0.25 NFE_max and >= 0.6 while < 0.5 NFE_max; p falls linearly
     /// from 0.25 to 0.125; x_pbest != x_i in the first half; memory M <- (mean_WL(S) + M) / 2, its
-    /// last slot fixed at 0.9. Brest, Maucec & Boskovic, "Single objective real-parameter
+    /// last slot fixed at 0.9; the terminal value of M_CR as in lshade (stored as is, where the
+    /// authors' code averages it with the old value). Brest, Maucec & Boskovic, "Single objective real-parameter
     /// optimization: algorithm jSO", IEEE CEC 2017, pp. 1311-1318 (p schedule as in the authors'
     /// code). Defaults (ibid.): NP_init = round(25 ln(D) sqrt(D)), NP_min = 4, H = 5, M_F = 0.3,
     /// M_CR = 0.8, archive rate 1, NFE_max = 10000 D.

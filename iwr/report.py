@@ -1,0 +1,461 @@
+"""The calibration report: what ``iwr calibrate`` prints and writes (Markdown, PNG, JSON)."""
+
+from __future__ import annotations
+
+import io
+import itertools
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ._io import atomic_write_bytes, atomic_write_text
+from .accuracy import Accuracy
+from .measurements import Measurements
+from .problem import Problem, predict_legs
+from .result import IdentificationResult
+from .robot import Robot
+
+__all__ = ["Calibration", "leg_residual_stats"]
+
+
+def leg_residual_stats(robot: Robot, errors: Any, data: Measurements) -> dict[str, np.ndarray]:
+    """Per-leg statistics of the unweighted residuals ``predicted - measured`` (mm).
+
+    Returns ``{"rms": (6,), "max": (6,), "mean": (6,)}`` (``max`` of the absolute value).
+    """
+    r = predict_legs(robot, errors, data.q, data.poses) - data.legs
+    return {
+        "mean": r.mean(axis=0),
+        "rms": np.sqrt(np.mean(r**2, axis=0)),
+        "max": np.abs(r).max(axis=0),
+    }
+
+
+@dataclass
+class Calibration:
+    """Everything a calibration run produced, for the summary and the report.
+
+    Attributes
+    ----------
+    robot : Robot
+        The nominal robot.
+    identification, validation : Measurements
+        The poses used for identification, and the held-out ones (``validation`` may be the
+        identification set itself when nothing was held out: ``held_out`` is then False).
+    result : IdentificationResult
+    accuracy : Accuracy
+        On the validation poses.
+    identifiability : IdentifiabilityReport
+        At the solution, on the identification poses.
+    uncertainty : Uncertainty or None
+        Standard deviations of the identified parameters (None if they could not be computed).
+    parameter_error : ParameterError or None
+        Against the truth, modulo the unidentifiable directions (simulations only).
+    truth_accuracy : Accuracy or None
+        The accuracy of the true errors (simulations only): the noise floor.
+    """
+
+    robot: Robot
+    identification: Measurements
+    validation: Measurements
+    held_out: bool
+    result: IdentificationResult
+    accuracy: Accuracy
+    data_name: str = ""
+    robot_name: str = ""
+    identifiability: Any = None
+    uncertainty: Any = None
+    parameter_error: Any = None
+    truth_accuracy: Accuracy | None = None
+    notes: list[str] = field(default_factory=list)
+
+    # -- numbers --------------------------------------------------------------------------------
+    def costs(self) -> dict[str, float]:
+        """Cost of eq. (10) on the identification poses, nominal and calibrated (mm^2)."""
+        p = Problem(self.robot, self.identification)
+        nominal = p.cost(np.zeros(self.robot.n_params))
+        return {"nominal": nominal, "calibrated": float(self.result.fun)}
+
+    def residuals(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
+        """Per-leg residual statistics, ``[set][nominal|calibrated]``."""
+        sets = {"identification": self.identification}
+        if self.held_out:
+            sets["validation"] = self.validation
+        zero = np.zeros(self.robot.n_params)
+        return {
+            name: {
+                "nominal": leg_residual_stats(self.robot, zero, data),
+                "calibrated": leg_residual_stats(self.robot, self.result.x, data),
+            }
+            for name, data in sets.items()
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able summary (``summary.json``)."""
+        res = {
+            s: {m: {k: v.tolist() for k, v in st.items()} for m, st in d.items()}
+            for s, d in self.residuals().items()
+        }
+        out: dict[str, Any] = {
+            "format": "iwr-calibration-summary",
+            "version": 1,
+            "robot": self.robot_name or self.robot.name,
+            "data": self.data_name,
+            "n_identification": len(self.identification),
+            "n_validation": len(self.validation) if self.held_out else 0,
+            "method": self.result.get("method", ""),
+            "nfev": int(self.result.nfev),
+            "wall_time": float(self.result.get("wall_time", math.nan)),
+            "cost": self.costs(),
+            "leg_residuals_mm": res,
+            "accuracy": self.accuracy.to_dict(),
+            "accuracy_on": "validation poses" if self.held_out else "identification poses",
+        }
+        if self.truth_accuracy is not None:
+            out["accuracy_with_true_errors"] = self.truth_accuracy.calibrated.summary()
+        rep = self.identifiability
+        if rep is not None:
+            out["identifiability"] = {
+                "rank": int(rep.rank), "n_params": self.robot.n_params,
+                "condition_number": float(rep.condition_number),
+                "left_out": list(rep.left_out),
+            }
+        out["parameters"] = self.parameter_rows()
+        if self.uncertainty is not None:
+            out["noise_sigma_mm"] = float(self.uncertainty.sigma)
+            out["noise_sigma_source"] = self.uncertainty.source
+        if self.parameter_error is not None:
+            pe = self.parameter_error
+            out["parameter_error_vs_truth"] = {
+                "rms_length_mm": float(pe.rms_length), "rms_angle_rad": float(pe.rms_angle),
+                "max_abs_length_mm": float(pe.max_abs_length),
+                "max_abs_angle_rad": float(pe.max_abs_angle),
+            }
+        return _finite(out)
+
+    def parameter_rows(self) -> list[dict[str, Any]]:
+        """One row per error parameter: name, value, std (None if not identified), unit, status."""
+        active = np.asarray(self.result.get("active", np.ones(self.robot.n_params, bool)))
+        left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
+        std = self.uncertainty.std if self.uncertainty is not None else None
+        rows = []
+        for i, (name, value, angle) in enumerate(zip(
+                self.robot.parameter_names, self.result.x, self.robot.angle_parameters,
+                strict=True)):
+            if not active[i]:
+                status = "held at nominal (not identifiable)" if name in left_out else "held fixed"
+            elif name in left_out:
+                status = "identified, but not identifiable: arbitrary"
+            else:
+                status = "identified"
+            sd = None if std is None or not np.isfinite(std[i]) else float(std[i])
+            rows.append({"name": name, "value": float(value), "std": sd,
+                         "unit": "rad" if angle else "mm", "status": status})
+        return rows
+
+    # -- text -----------------------------------------------------------------------------------
+    def summary(self) -> str:
+        """The summary printed by ``iwr calibrate``."""
+        r = self.result
+        n_id, n_val = len(self.identification), len(self.validation)
+        lines = [
+            f"robot {self.robot.name!r} ({self.robot.joint_types or 'hexapod alone'}, "
+            f"{self.robot.n_params} error parameters){_src(self.robot_name)}; "
+            f"data{_src(self.data_name)}",
+            f"poses: {n_id} for identification, "
+            + (f"{n_val} held out for validation" if self.held_out else
+               "none held out (accuracy below is on the identification poses: optimistic)"),
+            f"method {r.get('method', '?')}: {int(r.nfev)} evaluations, "
+            f"{float(r.get('wall_time', math.nan)):.2f} s, "
+            f"{'converged' if r.success else 'not converged'}"
+            f" ({str(r.message).strip()})",
+        ]
+        c = self.costs()
+        lines.append(
+            f"cost (eq. 10, sum of squared leg residuals, mm^2, {n_id} poses): "
+            f"nominal {c['nominal']:.4g} -> calibrated {c['calibrated']:.4g}"
+            + self._before_polish()
+        )
+        lines.append("")
+        lines.append("leg residuals, predicted - measured reading (mm):")
+        lines.extend(self._residual_table())
+        lines.append("")
+        lines.extend(self._identifiability_lines())
+        lines.append("")
+        on = "validation poses" if self.held_out else "identification poses (optimistic)"
+        lines.append(
+            f"accuracy on {self.accuracy.n_poses} {on}: tool pose from joint and leg readings "
+            "(forward kinematics) against the measured pose"
+        )
+        lines.append(self.accuracy.table())
+        if self.truth_accuracy is not None:
+            t = self.truth_accuracy.calibrated.summary()
+            lines.append(
+                f"{'true errors':18}" + "".join(f"{t['position_mm'][k]:10.4f}"
+                                                for k in ("mean", "rms", "max"))
+                + "  " + "".join(f"{t['orientation_deg'][k]:10.5f}"
+                                 for k in ("mean", "rms", "max"))
+                + "   (the simulation's truth: the noise floor)"
+            )
+        before = self.accuracy.nominal.summary()["position_mm"]["rms"]
+        after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
+        if after > 0:
+            lines.append(f"position RMS error {before:.4g} mm -> {after:.4g} mm "
+                         f"({before / after:.1f} times smaller)")
+        lines.extend(self.notes)
+        return "\n".join(lines)
+
+    def _before_polish(self) -> str:
+        polish = dict(self.result.get("settings", {})).get("polish_result")
+        if isinstance(polish, dict) and "fun_before" in polish:
+            return f" (before the Levenberg-Marquardt polish: {polish['fun_before']:.4g})"
+        return ""
+
+    def _identifiability_lines(self) -> list[str]:
+        rep = self.identifiability
+        if rep is None:
+            return []
+        n = self.robot.n_params
+        lines = [
+            f"identifiability (iwr.identifiability at the solution, {rep.n_poses} poses): rank "
+            f"{rep.rank} of {n}, condition number {rep.condition_number:.4g} (column-scaled "
+            "Jacobian)"
+        ]
+        rows = self.parameter_rows()
+        held = [r["name"] for r in rows if r["status"].startswith("held at nominal")]
+        arbitrary = [r["name"] for r in rows if r["status"].startswith("identified, but")]
+        if held:
+            lines.append(f"  not identifiable from leg readings, held at nominal ({len(held)}): "
+                         + ", ".join(held))
+        if arbitrary:
+            lines.append(f"  identified but not identifiable, values arbitrary ({len(arbitrary)}): "
+                         + ", ".join(arbitrary))
+        if rep.left_out:
+            lines.append("  (their errors are absorbed by the others, with no effect on accuracy; "
+                         "'iwr analyze' prints the combinations)")
+        shown = [r for r in rows if r["status"] == "identified"]
+        unc = self.uncertainty
+        if unc is not None:
+            how = ("estimated from the residuals" if unc.source == "residuals" else unc.source)
+            lines.append(f"identified parameters, value +- standard deviation (leg noise sigma "
+                         f"{unc.sigma:.3g} mm, {how}):")
+        else:
+            lines.append("identified parameters (no standard deviations: see the notes):")
+        cells = []
+        for r in shown:
+            sd = f" +- {r['std']:8.2e}" if r["std"] is not None else " " * 12
+            cells.append(f"{r['name']:15s} {r['value']:+10.3e}{sd} {r['unit']:3s}")
+        half = (len(cells) + 1) // 2
+        for left, right in itertools.zip_longest(cells[:half], cells[half:], fillvalue=""):
+            lines.append(f"  {left}   {right}".rstrip())
+        if self.parameter_error is not None:
+            pe = self.parameter_error
+            lines.append(
+                "error of the identified parameters against the truth, modulo the unidentifiable "
+                f"directions: RMS {pe.rms_length:.3g} mm (lengths), {pe.rms_angle:.3g} rad (angles)"
+            )
+        return lines
+
+    def _residual_table(self) -> list[str]:
+        res = self.residuals()
+        head = f"{'':8}"
+        sub = f"{'':8}"
+        for name in res:
+            head += f"{name + ' poses':^34}"
+            sub += f"{'RMS before':>12}{'RMS after':>11}{'max after':>11}"
+        rows = [head.rstrip(), sub]
+        for j in range(6):
+            row = f"leg {j + 1:<4}"
+            for d in res.values():
+                row += (f"{d['nominal']['rms'][j]:12.4f}{d['calibrated']['rms'][j]:11.5f}"
+                        f"{d['calibrated']['max'][j]:11.5f}")
+            rows.append(row)
+        return rows
+
+    # -- files ----------------------------------------------------------------------------------
+    def write(self, out_dir: str | Path, *, plots: bool = True) -> list[Path]:
+        """Write the calibrated robot (TOML), the result (JSON), ``summary.json``, the report
+        (Markdown) and its figures (PNG) into ``out_dir``; returns the paths written."""
+        out = Path(out_dir)
+        out.mkdir(parents=True, exist_ok=True)
+        written = []
+        calibrated = out / "calibrated.toml"
+        self.robot.with_errors(self.result.x).to_toml(calibrated)
+        written.append(calibrated)
+        result = out / "result.json"
+        self.result.save(result)
+        written.append(result)
+        summary = out / "summary.json"
+        atomic_write_text(summary, json.dumps(self.to_dict(), indent=1) + "\n")
+        written.append(summary)
+        figures = []
+        if plots:
+            figures = [self._plot_residuals(out / "residuals.png"),
+                       self._plot_accuracy(out / "accuracy.png")]
+            written.extend(figures)
+        report = out / "report.md"
+        atomic_write_text(report, self.markdown([f.name for f in figures]))
+        written.append(report)
+        return written
+
+    def markdown(self, figures: list[str]) -> str:
+        """The report as Markdown (figures referenced by file name)."""
+        r = self.result
+        c = self.costs()
+        md = [
+            "# Calibration report",
+            "",
+            f"- Robot: `{self.robot.name}`{_src(self.robot_name)}, joints "
+            f"`{self.robot.joint_types or '-'}`, {self.robot.n_params} error parameters",
+            f"- Data{_src(self.data_name)}: {len(self.identification)} poses for identification, "
+            + (f"{len(self.validation)} held out for validation" if self.held_out
+               else "none held out (accuracy is on the identification poses: optimistic)"),
+            f"- Method: `{r.get('method', '?')}`, {int(r.nfev)} evaluations, "
+            f"{float(r.get('wall_time', math.nan)):.2f} s, "
+            f"{'converged' if r.success else 'not converged'}: {str(r.message).strip()}",
+            f"- Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated {c['calibrated']:.6g}"
+            + self._before_polish(),
+            "",
+            "## Accuracy",
+            "",
+            "Tool pose computed by forward kinematics from the joint and leg readings, against the "
+            "measured pose, on the "
+            + ("validation poses (not used for identification)." if self.held_out
+               else "identification poses (nothing was held out: an optimistic figure)."),
+            "",
+            "| robot | position mean (mm) | position RMS (mm) | position max (mm) "
+            "| orientation mean (deg) | orientation RMS (deg) | orientation max (deg) |",
+            "|---|---|---|---|---|---|---|",
+        ]
+        rows = [("nominal", self.accuracy.nominal.summary()),
+                ("calibrated", self.accuracy.calibrated.summary())]
+        if self.truth_accuracy is not None:
+            rows.append(("true errors (simulation)", self.truth_accuracy.calibrated.summary()))
+        for label, s in rows:
+            p, o = s["position_mm"], s["orientation_deg"]
+            md.append(f"| {label} | {p['mean']:.4f} | {p['rms']:.4f} | {p['max']:.4f} | "
+                      f"{o['mean']:.5f} | {o['rms']:.5f} | {o['max']:.5f} |")
+        if "accuracy.png" in figures:
+            md += ["", "![Tool pose errors before and after calibration](accuracy.png)"]
+        md += ["", "## Leg residuals", "",
+               "Predicted minus measured leg reading (mm), per leg.", ""]
+        res = self.residuals()
+        header = "| leg |" + "".join(
+            f" {s} RMS before | {s} RMS after | {s} max after |" for s in res)
+        md += [header, "|---|" + "---|---|---|" * len(res)]
+        for j in range(6):
+            md.append(f"| {j + 1} |" + "".join(
+                f" {d['nominal']['rms'][j]:.4f} | {d['calibrated']['rms'][j]:.5f} | "
+                f"{d['calibrated']['max'][j]:.5f} |" for d in res.values()))
+        if "residuals.png" in figures:
+            md += ["", "![Leg residuals before and after calibration](residuals.png)"]
+        md += ["", "## Identified parameters", ""]
+        rep = self.identifiability
+        if rep is not None:
+            md.append(
+                f"The leg readings at these poses determine {rep.rank} of the "
+                f"{self.robot.n_params} parameters (rank of the column-scaled Jacobian; condition "
+                f"number {rep.condition_number:.4g}). "
+                + ("Parameters left out are held at their nominal value: their errors are "
+                   "absorbed by the others, without effect on the accuracy." if rep.left_out
+                   else "")
+            )
+            md += ["", "```", str(rep).rstrip(), "```", ""]
+        if self.uncertainty is not None:
+            unc = self.uncertainty
+            how = "estimated from the residuals" if unc.source == "residuals" else unc.source
+            md += ["Standard deviations: first-order, from the Jacobian at the solution, with "
+                   f"leg noise sigma {unc.sigma:.3g} mm ({how}).", ""]
+        if self.parameter_error is not None:
+            pe = self.parameter_error
+            md += [f"Against the simulation's truth, modulo the unidentifiable directions: RMS "
+                   f"error {pe.rms_length:.4g} mm over lengths, {pe.rms_angle:.4g} rad over "
+                   "angles.", ""]
+        md += ["| parameter | value | std | unit | status |", "|---|---|---|---|---|"]
+        for row in self.parameter_rows():
+            sd = "" if row["std"] is None else f"{row['std']:.3g}"
+            md.append(f"| {row['name']} | {row['value']:.6g} | {sd} | {row['unit']} | "
+                      f"{row['status']} |")
+        md += ["", "## Files", "",
+               "- `calibrated.toml`: the calibrated robot (nominal plus identified errors)",
+               "- `result.json`: the identification result (`iwr.load_result`)",
+               "- `summary.json`: the figures of this report"]
+        md += [f"- `{f}`" for f in figures]
+        if self.notes:
+            md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
+        return "\n".join(md) + "\n"
+
+    def _plot_residuals(self, path: Path) -> Path:
+        data = self.validation if self.held_out else self.identification
+        which = "validation" if self.held_out else "identification"
+        zero = np.zeros(self.robot.n_params)
+        before = predict_legs(self.robot, zero, data.q, data.poses) - data.legs
+        after = predict_legs(self.robot, self.result.x, data.q, data.poses) - data.legs
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(10, 4))
+        axes = fig.subplots(1, 2)
+        for ax, r, title in ((axes[0], before, "nominal robot"),
+                             (axes[1], after * 1000.0, "calibrated robot")):
+            ax.boxplot([r[:, j] for j in range(6)])
+            ax.set_xticks(range(1, 7), [str(j) for j in range(1, 7)])
+            ax.axhline(0.0, color="0.6", lw=0.8)
+            ax.set_xlabel("leg")
+            ax.set_title(title)
+        axes[0].set_ylabel("residual (mm)")
+        axes[1].set_ylabel("residual (um)")
+        fig.suptitle(f"Leg residuals, predicted - measured, on {len(data)} {which} poses")
+        fig.tight_layout()
+        return _save(fig, path)
+
+    def _plot_accuracy(self, path: Path) -> Path:
+        from matplotlib.figure import Figure
+
+        fig = Figure(figsize=(10, 6.5))
+        axes = fig.subplots(2, 2)
+        a = self.accuracy
+        panels = [
+            (axes[0, 0], a.nominal.position, "mm", "position error", "nominal robot"),
+            (axes[0, 1], a.calibrated.position * 1000.0, "um", "position error",
+             "calibrated robot"),
+            (axes[1, 0], a.nominal.orientation, "deg", "orientation error", "nominal robot"),
+            (axes[1, 1], a.calibrated.orientation * 3600.0, "arcsec", "orientation error",
+             "calibrated robot"),
+        ]
+        for ax, v, unit, what, title in panels:
+            colour = "C0" if "nominal" in title else "C2"
+            ax.hist(v, bins=min(30, max(5, v.size // 3)), color=colour)
+            ax.set_xlabel(f"{what} ({unit})")
+            ax.set_ylabel("poses")
+            ax.set_title(f"{title}: RMS {math.sqrt(np.mean(v**2)):.3g} {unit}")
+        fig.suptitle(f"Tool pose errors on {a.n_poses} "
+                     f"{'validation' if self.held_out else 'identification'} poses")
+        fig.tight_layout()
+        return _save(fig, path)
+
+
+def _finite(value: Any) -> Any:
+    """JSON has no nan/inf: None instead."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
+def _src(name: str) -> str:
+    return f" ({name})" if name else ""
+
+
+def _save(fig: Any, path: Path) -> Path:
+    # A bare Figure (no pyplot): no GUI backend, no global state, nothing to close.
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=110)
+    atomic_write_bytes(path, buf.getvalue())
+    return path
