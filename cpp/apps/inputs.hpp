@@ -1,0 +1,51 @@
+// The two input files of iwr-calibrate, read with the same rules as the Python package:
+// a robot TOML (iwr.Robot.to_toml / from_toml) and a measurement CSV (iwr.Measurements.to_csv /
+// from_csv). Every problem is an InputError naming the file (and the line, key or column).
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "iwr/model.hpp"
+#include "toml.hpp"
+
+namespace iwr::app {
+
+struct RobotFile {
+    std::string name;
+    std::string joint_types;  // "PPRR"
+    RowMatrixXd dh;           // n x 4: alpha, a, d, theta
+    RowMatrixXd joint_limits; // n x 2
+    LegMatrix base, platform;
+    LegVector leg_offsets;
+    Eigen::Matrix<double, kLegs, 2, Eigen::RowMajor> leg_stroke;
+    Eigen::Matrix<double, 6, 1> home_pose, workspace;
+
+    Geometry geometry() const;
+    /// 4 n + 42 names in the public order of docs/model.md (as iwr.Robot.parameter_names).
+    std::vector<std::string> parameter_names() const;
+    /// True where a parameter is an angle (rad), as iwr.Robot.angle_parameters.
+    std::vector<bool> angle_parameters() const;
+};
+
+/// Reads and validates a robot TOML file (the checks of iwr.Robot.from_dict).
+RobotFile read_robot(const std::string& path);
+RobotFile robot_from_toml(const TomlValue& root, const std::string& file);
+
+struct MeasurementFile {
+    std::string joint_types;  // from the units of the q columns
+    RowMatrixXd q, poses, legs;
+    RowMatrixXd weights;      // empty when the file has no w columns
+    int n_poses() const { return static_cast<int>(poses.rows()); }
+};
+
+/// Reads a measurement CSV (the rules of iwr.Measurements.from_csv).
+MeasurementFile read_measurements(const std::string& path);
+MeasurementFile parse_measurements(const std::string& text, const std::string& file);
+
+/// Search bounds as iwr.Robot.default_bounds: "default" (+-0.5 mm, +-0.5 degree) or "paper"
+/// (Table 2: +-0.5 for every parameter).
+void default_bounds(const RobotFile& robot, const std::string& kind, VectorXd& lower,
+                    VectorXd& upper);
+
+}  // namespace iwr::app

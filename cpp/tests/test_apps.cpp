@@ -1,0 +1,289 @@
+// C++ tests of iwr-calibrate's file handling, run by ctest (and under AddressSanitizer/UBSan):
+// the strict TOML subset reader, the measurement CSV reader, and the checkpoint format, which must
+// refuse every truncation and every single-byte change without reading out of bounds.
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+#include "checkpoint.hpp"
+#include "files.hpp"
+#include "inputs.hpp"
+#include "iwr/de.hpp"
+#include "toml.hpp"
+
+namespace {
+
+int failures = 0;
+
+#define CHECK(cond)                                                                    \
+    do {                                                                               \
+        if (!(cond)) {                                                                 \
+            std::fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
+            ++failures;                                                                \
+        }                                                                              \
+    } while (0)
+
+using iwr::app::InputError;
+
+// What iwr.Robot.hexapod().to_toml() writes (tomli-w layout: multi-line arrays, trailing commas),
+// with a few of the other forms TOML allows in the subset.
+const char* const kRobot = R"(# comment line
+name = "hexa\u0070od"  # a \u escape
+
+[units]
+length = 'mm'
+angle = "rad"
+
+[carriage]
+joints = []
+
+[hexapod]
+base_joints = [
+    [
+        393.9231012048832,
+        -69.45927106677213,
+        0.0,
+    ],
+    [393.9231012048832, 69.45927106677213, 0.0],
+    [-136.80805733026747, 375.8770483143634, 0],
+    [-257.11504387461576, 306.41777724759123, 0.0],
+    [-257.11504387461576, -306.4177772475912, 0.0],
+    [-136.80805733026742, -375.8770483143634, 0.0],  # comment inside an array
+]
+platform_joints = [[160.69690242163483, 191.5111107797445, 0.0], [85.5050358314172, 234.92315519647707, 0.0], [-246.201938253052, 43.41204441673257, 0.0], [-246.201938253052, -43.41204441673262, 0.0], [85.50503583141725, -234.92315519647707, 0.0], [160.6969024216348, -191.51111077974454, 0.0]]
+leg_offsets = [600.0, 600.0, 6e2, 6_00.0, +600.0, 600]
+leg_stroke = [0.0, 400.0]
+home_pose = [0.0, 0.0, 750.0, 0.0, 0.0, 0.0]
+)";
+
+std::string error_of(const std::string& toml) {
+    try {
+        iwr::app::robot_from_toml(iwr::app::parse_toml(toml, "r.toml"), "r.toml");
+    } catch (const InputError& e) {
+        return e.what();
+    }
+    return "";
+}
+
+bool contains(const std::string& s, const std::string& part) {
+    const bool ok = s.find(part) != std::string::npos;
+    if (!ok) std::fprintf(stderr, "  '%s' does not contain '%s'\n", s.c_str(), part.c_str());
+    return ok;
+}
+
+void test_toml_robot() {
+    const auto r = iwr::app::robot_from_toml(iwr::app::parse_toml(kRobot, "r.toml"), "r.toml");
+    CHECK(r.name == "hexapod");
+    CHECK(r.joint_types.empty());
+    CHECK(r.base(0, 0) == 393.9231012048832 && r.base(0, 1) == -69.45927106677213);
+    CHECK(r.base(2, 2) == 0.0);
+    CHECK(r.platform(5, 1) == -191.51111077974454);
+    for (int j = 0; j < 6; ++j) CHECK(r.leg_offsets(j) == 600.0);
+    CHECK(r.leg_stroke(3, 0) == 0.0 && r.leg_stroke(3, 1) == 400.0);
+    CHECK(r.home_pose(2) == 750.0);
+    CHECK(r.workspace(0) == 100.0);  // the default, as iwr.Robot's
+    CHECK(r.parameter_names().size() == 42 && r.parameter_names().front() == "leg1.da_x");
+
+    const std::string carriage = std::string(kRobot).replace(
+        std::string(kRobot).find("[carriage]\njoints = []\n"), 22,
+        "[[carriage.joints]]\ntype = \"prismatic\"\nalpha = 1.5707963267948966\na = 0.0\nd = 500.0\n"
+        "theta = 0.0\nlimits = [0.0, 2000.0]\n\n[[carriage.joints]]\ntype = \"revolute\"\nalpha = -1.0\n"
+        "a = 300.0\nd = 0.0\ntheta = 0.5\nlimits = [-1.0, 1.0]\n");
+    const auto c = iwr::app::robot_from_toml(iwr::app::parse_toml(carriage, "c.toml"), "c.toml");
+    CHECK(c.joint_types == "PR");
+    CHECK(c.dh(0, 0) == 1.5707963267948966 && c.dh(1, 3) == 0.5 && c.joint_limits(1, 0) == -1.0);
+    CHECK(c.parameter_names().size() == 50 && c.parameter_names()[7] == "joint2.dtheta");
+    CHECK(c.angle_parameters()[0] && !c.angle_parameters()[1] && c.angle_parameters()[7]);
+
+    // Refusals, each naming the line.
+    CHECK(contains(error_of("flag = true\n"), "r.toml: line 1: booleans are not supported"));
+    CHECK(contains(error_of("\n\nt = 1979-05-27T07:32:00Z\n"), "line 3: '1979-05-27T07:32:00Z': dates"));
+    CHECK(contains(error_of("x = {a = 1}\n"), "line 1: inline tables"));
+    CHECK(contains(error_of("a.b = 1\n"), "line 1: dotted key 'a.b'"));
+    CHECK(contains(error_of("s = \"\"\"x\"\"\"\n"), "multi-line strings"));
+    CHECK(contains(error_of("x = [1, 2\ny = 3\n"), "line 2: unexpected 'y' in an array"));
+    CHECK(contains(error_of("x = [1, 2,\n"), "line 1: unterminated array"));
+    CHECK(contains(error_of("x = 1\nx = 2\n"), "line 2: key 'x' is defined twice (first on line 1)"));
+    CHECK(contains(error_of("[hexapod]\n[hexapod]\n"), "line 2: [hexapod]: already defined on line 1"));
+    CHECK(contains(error_of("x = 1 2\n"), "line 1: unexpected '2' after the value"));
+    CHECK(contains(error_of("x = 007\n"), "leading zeros"));
+    CHECK(contains(error_of("x = 1__0\n"), "'1__0' is not a number"));
+    CHECK(contains(error_of("x = .5\n"), "'.5' is not a number"));
+    CHECK(contains(error_of("x = \"abc\n"), "line 1: unterminated string"));
+    CHECK(contains(error_of("x = \"a\\qb\"\n"), "unknown escape"));
+    CHECK(contains(error_of("x =\n"), "line 1: missing value"));
+    CHECK(contains(error_of("= 1\n"), "line 1: unexpected '='; expected a key"));
+    CHECK(contains(error_of("[a\n"), "line 1: expected ']'"));
+    // Robot-level checks (the rules of iwr.Robot.from_dict).
+    CHECK(contains(error_of("name = \"x\"\n"), "r.toml: line 1: hexapod: missing key"));
+    std::string bad = kRobot;
+    bad.replace(bad.find("leg_stroke = [0.0, 400.0]"), 25, "leg_stroke = [400.0, 0.0]");
+    CHECK(contains(error_of(bad), "hexapod.leg_stroke: leg 1 has lower 400 >= upper 0"));
+    bad = kRobot;
+    bad.replace(bad.find("6_00.0"), 6, "inf");
+    CHECK(contains(error_of(bad), "line 25: hexapod.leg_offsets[3]: inf is not finite"));
+    bad = kRobot;
+    bad.replace(bad.find("length = 'mm'"), 13, "length = 'm'");
+    CHECK(contains(error_of(bad), "units: only length = 'mm'"));
+    bad = kRobot;
+    bad.replace(bad.find("home_pose"), 9, "home_posE");
+    CHECK(contains(error_of(bad), "hexapod.home_posE: unknown key"));
+    bad = kRobot;
+    bad.replace(bad.find("    [393.9231012048832, 69.45927106677213, 0.0],\n"), 48, "");
+    CHECK(contains(error_of(bad), "line 12: hexapod.base_joints: expected 6 rows of 3 numbers"));
+
+    try {
+        iwr::app::read_toml("/nonexistent/robot.toml");
+        CHECK(false);
+    } catch (const InputError& e) {
+        CHECK(contains(e.what(), "/nonexistent/robot.toml: no such file"));
+    }
+}
+
+std::string csv_error(const std::string& text) {
+    try {
+        iwr::app::parse_measurements(text, "d.csv");
+    } catch (const InputError& e) {
+        return e.what();
+    }
+    return "";
+}
+
+void test_csv() {
+    const std::string header =
+        "q1_mm,q2_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad,s1_mm,s2_mm,s3_mm,s4_mm,s5_mm,s6_mm";
+    const std::string row = "1.5,-0.25,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1e-3";
+    const auto m = iwr::app::parse_measurements("# comment\n\n" + header + "\r\n" + row + "\n" + row + "\n", "d.csv");
+    CHECK(m.joint_types == "PR" && m.n_poses() == 2 && m.weights.size() == 0);
+    CHECK(m.q(1, 0) == 1.5 && m.q(1, 1) == -0.25 && m.poses(0, 5) == 0.3 && m.legs(0, 5) == 1e-3);
+    const auto w = iwr::app::parse_measurements(header + ",w1,w2,w3,w4,w5,w6\n" + row + ",1,2,3,4,5,\"6\"\n", "w.csv");
+    CHECK(w.weights.rows() == 1 && w.weights(0, 5) == 6.0);
+
+    CHECK(contains(csv_error(""), "d.csv: empty file"));
+    CHECK(contains(csv_error(header + "\n"), "d.csv: no data rows"));
+    CHECK(contains(csv_error("q1_m," + header.substr(6) + "\n"), "line 1: column 1 is 'q1_m'"));
+    CHECK(contains(csv_error(header + ",extra\n"), "line 1: unknown column 'extra'"));
+    CHECK(contains(csv_error(header + "\n" + row + ",7\n"), "line 2: 15 fields; the header has 14"));
+    CHECK(contains(csv_error(header + "\n#\n1.5,x,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n"),
+                   "line 3, column q2_rad: 'x' is not a number"));
+    CHECK(contains(csv_error(header + "\n1.5,nan,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n"), "'nan' is not finite"));
+    CHECK(contains(csv_error(header + "\n1.5,0x10,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n"), "is not a number"));
+    CHECK(contains(csv_error(header + ",w1,w2,w3,w4,w5,w6\n" + row + ",1,2,3,4,5,-6\n"), "column w6: '-6' is negative"));
+}
+
+// A small but complete DE state, as the executable checkpoints it.
+class Sphere : public iwr::de::BatchFunction {
+public:
+    int dim() const override { return 5; }
+    void evaluate(const double* X, std::size_t m, double* out, iwr::ThreadPool&) override {
+        for (std::size_t i = 0; i < m; ++i) {
+            double s = 0;
+            for (int j = 0; j < 5; ++j) s += X[i * 5 + static_cast<std::size_t>(j)] * X[i * 5 + static_cast<std::size_t>(j)];
+            out[i] = s;
+        }
+    }
+};
+
+void test_checkpoint_refuses_damage() {
+    iwr::de::Settings s;
+    s.strategy = iwr::de::Strategy::shade;
+    s.lower.assign(5, -1.0);
+    s.upper.assign(5, 1.0);
+    s.population_size = 8;
+    s.memory_size = 3;
+    Sphere f;
+    iwr::ThreadPool pool(1);
+    iwr::de::State st = iwr::de::init(s, f, pool);
+    for (int g = 0; g < 3; ++g) iwr::de::step(st, f, pool);
+    std::ostringstream blob(std::ios::binary);
+    st.serialize(blob);
+
+    iwr::app::Checkpoint c;
+    c.program = "test";
+    c.robot_fingerprint = 1;
+    c.data_fingerprint = 2;
+    c.settings_fingerprint = 3;
+    c.robot_file = "r.toml";
+    c.data_file = "d.csv";
+    c.options = {{"generations", "10"}, {"output", "x.json"}};
+    c.engine_state = blob.str();
+    const std::string bytes = iwr::app::encode_checkpoint(c);
+
+    const iwr::app::Checkpoint back = iwr::app::decode_checkpoint(bytes);
+    CHECK(back.robot_fingerprint == 1 && back.data_fingerprint == 2 && back.settings_fingerprint == 3);
+    CHECK(back.options == c.options && back.engine_state == c.engine_state && back.data_file == "d.csv");
+    std::istringstream in(back.engine_state, std::ios::binary);
+    const iwr::de::State st2 = iwr::de::State::deserialize(in);
+    CHECK(st2.generation == 3 && st2.population == st.population && st2.costs == st.costs);
+
+    // Every truncation, and a change of every bit of every byte, is refused with an exception.
+    int refused = 0, total = 0;
+    for (std::size_t n = 0; n < bytes.size(); ++n) {
+        ++total;
+        try {
+            iwr::app::decode_checkpoint(bytes.substr(0, n));
+        } catch (const std::runtime_error& e) {
+            const std::string what = e.what();
+            refused += what.find("truncated") != std::string::npos || what.find("empty") != std::string::npos;
+        }
+    }
+    CHECK(refused == total);
+    refused = total = 0;
+    for (std::size_t i = 0; i < bytes.size(); ++i) {
+        for (int bit = 0; bit < 8; ++bit) {
+            std::string edited = bytes;
+            edited[i] = static_cast<char>(edited[i] ^ (1 << bit));
+            ++total;
+            try {
+                iwr::app::decode_checkpoint(edited);
+            } catch (const std::runtime_error&) {
+                ++refused;
+            }
+        }
+    }
+    CHECK(refused == total);
+    // Trailing bytes, and a payload whose checksum matches but whose contents are garbage.
+    try {
+        iwr::app::decode_checkpoint(bytes + "x");
+        CHECK(false);
+    } catch (const std::runtime_error& e) {
+        CHECK(contains(e.what(), "corrupt"));
+    }
+    std::string garbage = bytes.substr(0, 32) + std::string(bytes.size() - 32, '\xff');
+    const std::uint64_t h = iwr::app::hash64(garbage.substr(32));
+    for (int k = 0; k < 8; ++k) garbage[24 + static_cast<std::size_t>(k)] = static_cast<char>((h >> (8 * k)) & 0xff);
+    try {
+        iwr::app::decode_checkpoint(garbage);
+        CHECK(false);
+    } catch (const std::runtime_error& e) {
+        CHECK(contains(e.what(), "corrupt: malformed payload"));
+    }
+}
+
+void test_json_and_hash() {
+    CHECK(iwr::app::json_number(0.1) == "0.10000000000000001");
+    CHECK(std::stod(iwr::app::json_number(1.0 / 3.0)) == 1.0 / 3.0);
+    CHECK(iwr::app::json_number(std::nan("")) == "null");
+    CHECK(iwr::app::json_number(1.0) == "1.0" && iwr::app::json_number(-2e300) == "-2.0000000000000001e+300");
+    CHECK(iwr::app::json_string("a\"b\\c\n\x01") == "\"a\\\"b\\\\c\\n\\u0001\"");
+    CHECK(iwr::app::hash64("") == 0xcbf29ce484222325ULL);
+    CHECK(iwr::app::hash64("a") == 0xaf63dc4c8601ec8cULL);  // the published FNV-1a 64 test vector
+    CHECK(iwr::app::hex64(255) == "00000000000000ff");
+}
+
+}  // namespace
+
+int main() {
+    test_toml_robot();
+    test_csv();
+    test_checkpoint_refuses_damage();
+    test_json_and_hash();
+    if (failures) {
+        std::fprintf(stderr, "%d check(s) failed\n", failures);
+        return 1;
+    }
+    std::printf("all iwr-calibrate file checks passed\n");
+    return 0;
+}
