@@ -13,6 +13,7 @@ from .problem import Problem, predict_legs
 from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
+from .study import StudyError, StudyResult, study
 
 __version__ = "0.1.0"
 
@@ -26,10 +27,13 @@ __all__ = [
     "ResultFileError",
     "Robot",
     "RobotFileError",
+    "StudyError",
+    "StudyResult",
     "UnreachableError",
     "__version__",
     "identify",
     "load_result",
     "predict_legs",
     "simulate",
+    "study",
 ]
