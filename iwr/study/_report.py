@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_write_text
+from .._io import atomic_write_text
 
 __all__ = ["report", "LEVEL_OFF", "FLOOR"]
 
@@ -49,7 +49,7 @@ def _stats(values: Sequence[float]) -> tuple[float, float, float, int]:
 def _budget_label(method: str, budget: int | None) -> str:
     if budget is None:
         return method
-    from .study import BUDGET_OPTIONS
+    from . import BUDGET_OPTIONS
 
     return f"{method} {BUDGET_OPTIONS.get(method, 'budget')}={budget}"
 
@@ -193,7 +193,7 @@ def _trend(xs: Sequence[int], meds: Sequence[float], what: str) -> str:
 
 def report(out: str | os.PathLike[str]) -> list[Path]:
     """Write the figures and ``summary.md`` of the study in folder ``out``; their paths."""
-    from .study import STUDY_FILE, read_table
+    from . import STUDY_FILE, read_table
 
     out = Path(out)
     rows_all = read_table(out)
@@ -223,7 +223,7 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
         rows_m = [r for r in ok if r["method"] == m and r["budget"] is not None]
         if len({r["budget"] for r in rows_m}) < 2:
             continue
-        from .study import BUDGET_OPTIONS
+        from . import BUDGET_OPTIONS
 
         f = _plot_vs(rows_m, "val_rms", "budget", "noise",
                      out / f"val_vs_budget_{m}.png", noise_title,
@@ -240,7 +240,7 @@ def _summary(
     rows_all: list[dict[str, Any]], ok: list[dict[str, Any]], head: list[dict[str, Any]],
     meta: dict[str, Any], files: list[Path],
 ) -> str:
-    from .study import BUDGET_OPTIONS
+    from . import BUDGET_OPTIONS
 
     n_val = meta.get("validation_poses", "?")
     lines = ["# Study summary", ""]

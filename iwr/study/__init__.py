@@ -52,12 +52,12 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_write_text
-from .identify import METHODS, identify
-from .measurements import Measurements
-from .problem import predict_legs
-from .robot import Robot
-from .simulate import Noise, sample_poses, simulate
+from .._io import atomic_write_text
+from ..identify import METHODS, identify
+from ..measurements import Measurements
+from ..problem import predict_legs
+from ..robot import Robot
+from ..simulate import Noise, sample_poses, simulate
 
 __all__ = [
     "study",
@@ -65,6 +65,7 @@ __all__ = [
     "StudyError",
     "noise_at",
     "read_table",
+    "report",
     "add_study_parser",
     "run_study",
     "main",
@@ -166,8 +167,7 @@ def _budget_option(method: str) -> str:
 
 
 def _accepts(method: str, option: str) -> bool:
-    params = inspect.signature(METHODS[method]).parameters.values()
-    return any(p.name == option or p.kind is inspect.Parameter.VAR_KEYWORD for p in params)
+    return option in inspect.signature(METHODS[method]).parameters
 
 
 def _json_value(value: Any, where: str) -> Any:
@@ -618,7 +618,7 @@ def study(
     retries : int
         Extra attempts of a cell whose worker died or that raised an unexpected error.
     report : bool
-        Write the plots and ``summary.md`` (:func:`iwr._study_report.report`) at the end.
+        Write the plots and ``summary.md`` (:func:`iwr.study.report`) at the end.
     progress : bool, optional
         A progress bar (default: when standard error is a terminal).
 
@@ -736,7 +736,7 @@ def study(
             "retry the missing ones"
         )
     if report:
-        from ._study_report import report as make_report
+        from ._report import report as make_report
 
         result.plots = make_report(out)
     return result
@@ -905,7 +905,7 @@ def run_study(args: argparse.Namespace) -> int:
     """
     out = Path(args.out)
     if args.report_only:
-        from ._study_report import report as make_report
+        from ._report import report as make_report
 
         files = make_report(out)
         print(f"wrote {', '.join(str(f) for f in files)}")
@@ -924,6 +924,13 @@ def run_study(args: argparse.Namespace) -> int:
     for path in result.plots:
         print(f"wrote {path}")
     return 0
+
+
+def report(out: str | os.PathLike[str]) -> list[Path]:
+    """Write the figures and ``summary.md`` of the study in folder ``out``; their paths."""
+    from ._report import report as make_report
+
+    return make_report(out)
 
 
 class _OneLineParser(argparse.ArgumentParser):
@@ -957,6 +964,3 @@ def main(argv: Sequence[str] | None = None) -> int:
         print(f"iwr study: error: {msg}", file=sys.stderr)
         return 1
 
-
-if __name__ == "__main__":
-    sys.exit(main())
