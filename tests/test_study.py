@@ -85,8 +85,9 @@ def assert_same_table(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> None:
     for ra, rb in zip(a, b):
         for c in SETTING_COLUMNS + ("status", "success"):
             assert ra[c] == rb[c], (c, ra, rb)
-        for c in ("cost", "rms_fit", "val_rms", "val_max", "val_rms_nominal", "param_error",
-                  "tool_position_rms", "tool_orientation_rms"):
+        for c in ("cost", "rms_fit", "val_rms", "val_max", "val_rms_nominal",
+                  "param_error_length", "param_error_angle", "tool_position_rms",
+                  "tool_orientation_rms", "tool_position_rms_nominal"):
             if c in TIMING_COLUMNS:
                 continue
             x, y = ra[c], rb[c]

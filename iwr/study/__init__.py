@@ -86,8 +86,8 @@ SETTING_COLUMNS = (
 )
 FIGURE_COLUMNS = (
     "status", "message", "cost", "rms_fit", "val_rms", "val_max", "val_rms_nominal",
-    "param_error", "tool_position_rms", "tool_orientation_rms", "nfev", "nit", "success",
-    "wall_time",
+    "param_error_length", "param_error_angle", "tool_position_rms", "tool_orientation_rms",
+    "tool_position_rms_nominal", "nfev", "nit", "success", "wall_time", "notes",
 )
 # Figures that depend on the machine, not on the settings: left out when tables are compared.
 TIMING_COLUMNS = ("wall_time",)
@@ -95,8 +95,9 @@ COLUMNS = SETTING_COLUMNS + FIGURE_COLUMNS
 
 _INT_COLUMNS = {"budget", "n_poses", "draw", "seed", "base_seed", "validation_poses", "nfev", "nit"}
 _FLOAT_COLUMNS = {
-    "noise", "cost", "rms_fit", "val_rms", "val_max", "val_rms_nominal", "param_error",
-    "tool_position_rms", "tool_orientation_rms", "wall_time",
+    "noise", "cost", "rms_fit", "val_rms", "val_max", "val_rms_nominal", "param_error_length",
+    "param_error_angle", "tool_position_rms", "tool_orientation_rms", "tool_position_rms_nominal",
+    "wall_time",
 }
 _BOOL_COLUMNS = {"success"}
 
@@ -286,24 +287,23 @@ def true_errors(robot: Robot, base_seed: int, draw: int) -> np.ndarray:
     return lower + (upper - lower) * rng.random(robot.n_params)
 
 
-def _figure(value: Any) -> float:
-    """A scalar figure from what an optional function returned (a number, or a report)."""
-    if isinstance(value, Mapping):
-        for name in ("rms", "error", "norm", "value"):
-            if name in value:
-                return float(value[name])
-    for name in ("rms", "error", "norm", "value"):
-        if hasattr(value, name):
-            return float(getattr(value, name))
-    return float(value)
+# Exceptions that a cell's computation raises deterministically: recorded in its row as a failure
+# (running it again would fail again). Anything else (a lost connection, memory) propagates, so
+# that Dask retries the cell.
+_RECORDED_ERRORS = (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError)
 
 
 def _validate(
     robot: Robot, x: np.ndarray, truth: np.ndarray, base_seed: int, draw: int, seed: int,
     n_val: int,
 ) -> dict[str, Any]:
-    """Figures of an identified vector ``x`` on fresh, noise-free poses of the actual robot."""
-    import iwr  # the package, for optional functions added by other modules
+    """Figures of an identified vector ``x`` on fresh, noise-free poses of the actual robot.
+
+    The validation poses also serve as the yardstick of ``iwr.parameter_error`` (what is
+    identifiable): the same generic set for every pose count, so that small calibration sets do
+    not hide errors in directions that they happen not to see.
+    """
+    import iwr  # the package, for the optional functions of other modules
 
     rng = np.random.default_rng(_seed(base_seed, _VALIDATION, draw, seed))
     q, poses, legs = sample_poses(robot, n_val, rng, truth)
@@ -315,25 +315,31 @@ def _validate(
         "val_rms_nominal": float(np.sqrt(np.mean(err0**2))),
     }
     data = Measurements(q, poses, legs, joint_types=robot.joint_types)
+    notes = []
     parameter_error = getattr(iwr, "parameter_error", None)
     if parameter_error is not None:
-        out["param_error"] = _figure(parameter_error(robot, data, x, truth))
+        try:
+            pe = parameter_error(robot, data, x, truth)
+            out["param_error_length"] = float(pe.rms_length)
+            out["param_error_angle"] = float(pe.rms_angle)
+        except _RECORDED_ERRORS as exc:
+            notes.append(f"parameter_error: {type(exc).__name__}: {exc}")
     accuracy = getattr(iwr, "accuracy", None)
     if accuracy is not None:
-        acc = accuracy(robot, data, x, truth)
-        out["tool_position_rms"] = _figure(_get(acc, "position_rms"))
-        out["tool_orientation_rms"] = _figure(_get(acc, "orientation_rms"))
+        try:
+            acc = accuracy(robot, x, data)
+            out["tool_position_rms"] = _rms(acc.calibrated.position)
+            out["tool_orientation_rms"] = _rms(acc.calibrated.orientation)
+            out["tool_position_rms_nominal"] = _rms(acc.nominal.position)
+        except _RECORDED_ERRORS as exc:  # e.g. forward kinematics of a poor model diverges
+            notes.append(f"accuracy: {type(exc).__name__}: {exc}")
+    if notes:
+        out["notes"] = "; ".join(notes)
     return out
 
 
-def _get(obj: Any, name: str) -> Any:
-    return obj[name] if isinstance(obj, Mapping) else getattr(obj, name)
-
-
-# Exceptions that a cell's computation raises deterministically: recorded in its row as a failure
-# (running it again would fail again). Anything else (a lost connection, memory) propagates, so
-# that Dask retries the cell.
-_RECORDED_ERRORS = (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError)
+def _rms(v: Any) -> float:
+    return float(np.sqrt(np.mean(np.asarray(v, dtype=float) ** 2)))
 
 
 def run_cell(cell: Cell, robot_json: str, runtime_options: Mapping[str, Any]) -> dict[str, Any]:

@@ -32,9 +32,10 @@ FLOOR = 1e-9
 
 _FIGURES = {
     "val_rms": "validation leg RMS error (mm)",
-    "param_error": "parameter error, identifiable part",
     "tool_position_rms": "tool position RMS error (mm)",
-    "tool_orientation_rms": "tool orientation RMS error",
+    "tool_orientation_rms": "tool orientation RMS error (degrees)",
+    "param_error_length": "parameter error, identifiable part: RMS of lengths (mm)",
+    "param_error_angle": "parameter error, identifiable part: RMS of angles (rad)",
 }
 
 
@@ -206,8 +207,8 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
     head = _headline(ok)
     noise_title = lambda v: f"noise {v:g} mm"  # noqa: E731
     poses_title = lambda v: f"N = {v} poses"  # noqa: E731
-    for value, stem in (("val_rms", "val"), ("param_error", "param"),
-                        ("tool_position_rms", "tool_position")):
+    for value, stem in (("val_rms", "val"), ("tool_position_rms", "tool_position"),
+                        ("param_error_length", "param_length")):
         for xcol, pcol, title, xlabel in (
             ("n_poses", "noise", noise_title, "number of poses N"),
             ("noise", "n_poses", poses_title, "noise level: tracker sd (mm)"),
