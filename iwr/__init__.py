@@ -7,6 +7,13 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from .identifiability import (
+    IdentifiabilityReport,
+    NullDirection,
+    ParameterError,
+    identifiability,
+    parameter_error,
+)
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
@@ -18,10 +25,13 @@ from .study import StudyError, StudyResult, study
 __version__ = "0.1.0"
 
 __all__ = [
+    "IdentifiabilityReport",
     "IdentificationResult",
     "MeasurementFileError",
     "Measurements",
     "Noise",
+    "NullDirection",
+    "ParameterError",
     "Problem",
     "ReducedProblem",
     "ResultFileError",
@@ -31,8 +41,10 @@ __all__ = [
     "StudyResult",
     "UnreachableError",
     "__version__",
+    "identifiability",
     "identify",
     "load_result",
+    "parameter_error",
     "predict_legs",
     "simulate",
     "study",

@@ -1,4 +1,5 @@
 #include <memory>
+#include <mutex>
 
 #include "common.hpp"
 #include "iwr/objective.hpp"
@@ -21,6 +22,7 @@ public:
     }
     std::shared_ptr<Objective> obj_;
     std::unique_ptr<ThreadPool> pool_;
+    std::mutex mutex_;  // one batch at a time per pool: Python threads may share a Problem
 };
 
 }  // namespace
@@ -89,10 +91,10 @@ void bind_model(py::module_& m) {
                         "); expected (M, " + std::to_string(o.obj_->n_params()) + ")");
                 require_finite(X.data(), X.size(), "X");
                 VectorXd out(X.rows());
-                ThreadPool& pool = o.pool(threads);
                 {
                     py::gil_scoped_release release;
-                    o.obj_->cost_batch(X.data(), X.rows(), out.data(), pool);
+                    std::lock_guard<std::mutex> lock(o.mutex_);
+                    o.obj_->cost_batch(X.data(), X.rows(), out.data(), o.pool(threads));
                 }
                 return out;
             },
