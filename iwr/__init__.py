@@ -7,6 +7,8 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
+from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
     IdentifiabilityReport,
     NullDirection,
@@ -25,6 +27,8 @@ from .study import StudyError, StudyResult, study
 __version__ = "0.1.0"
 
 __all__ = [
+    "Accuracy",
+    "ForwardKinematicsError",
     "IdentifiabilityReport",
     "IdentificationResult",
     "MeasurementFileError",
@@ -32,6 +36,7 @@ __all__ = [
     "Noise",
     "NullDirection",
     "ParameterError",
+    "PoseErrors",
     "Problem",
     "ReducedProblem",
     "ResultFileError",
@@ -41,10 +46,13 @@ __all__ = [
     "StudyResult",
     "UnreachableError",
     "__version__",
+    "accuracy",
+    "forward_kinematics",
     "identifiability",
     "identify",
     "load_result",
     "parameter_error",
+    "pose_errors",
     "predict_legs",
     "simulate",
     "study",

@@ -20,6 +20,8 @@ _POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
 _LEG_COLUMNS = tuple(f"s{j}_mm" for j in range(1, 7))
 _WEIGHT_COLUMNS = tuple(f"w{j}" for j in range(1, 7))
 _JOINT_RE = re.compile(r"^q(\d+)_(mm|rad)$")
+# Lengths all below this (in what should be millimetres) look like metres.
+METRE_SUSPICION = 5.0
 
 CSV_HEADER_COMMENT = """\
 # iwr measurements: one row per measurement pose. Lengths in mm, angles in rad.
@@ -70,6 +72,11 @@ class Measurements:
         robot when both are known.
     weights : array_like, shape (N, 6), optional
         Non-negative weights of the leg residuals (for example inverse variances).
+    lines : array_like of int, shape (N,), optional
+        The line of each measurement in its source file (set by :meth:`from_csv`), so that
+        messages about a measurement can name its line.
+    source : str, optional
+        The file the measurements come from.
     """
 
     def __init__(
@@ -80,6 +87,8 @@ class Measurements:
         *,
         joint_types: str | None = None,
         weights: Any = None,
+        lines: Any = None,
+        source: str | None = None,
     ) -> None:
         self.poses = as_matrix(poses, 6, "poses")
         n = self.poses.shape[0]
@@ -99,6 +108,29 @@ class Measurements:
         if self.weights is not None and np.any(self.weights < 0):
             r, c = (int(i) for i in np.argwhere(self.weights < 0)[0])
             raise ValueError(f"weights: row {r}, column {c} is negative")
+        self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
+        self.source = None if source is None else str(source)
+
+    def where(self, k: int) -> str:
+        """Where measurement ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
+        loc = self._loc(k)
+        return f"{self.source}, {loc}" if self.source and self.lines is not None else loc
+
+    def _loc(self, k: int) -> str:
+        return f"pose {k}" if self.lines is None else f"line {int(self.lines[k])}"
+
+    def _lines_of(self, rows: Any) -> str:
+        rows = [int(k) for k in rows]
+        if self.lines is None:
+            what = "poses " if len(rows) > 1 else "pose "
+            return what + _enumerate([str(k) for k in rows])
+        what = "lines " if len(rows) > 1 else "line "
+        return what + _enumerate([str(int(self.lines[k])) for k in rows])
+
+    def _error(self, message: str) -> ValueError:
+        if self.source:
+            return MeasurementFileError(f"{self.source}: {message}")
+        return ValueError(message)
 
     def __len__(self) -> int:
         return self.poses.shape[0]
@@ -116,6 +148,8 @@ class Measurements:
             self.legs[idx],
             joint_types=self.joint_types,
             weights=None if self.weights is None else self.weights[idx],
+            lines=None if self.lines is None else self.lines[idx],
+            source=self.source,
         )
 
     def columns(self) -> list[str]:
@@ -147,63 +181,210 @@ class Measurements:
         atomic_write_text(path, buf.getvalue())
 
     @classmethod
-    def from_csv(cls, path: str | os.PathLike[str]) -> Measurements:
-        """Read a CSV written by :meth:`to_csv`. Errors name the file, line and column."""
+    def from_csv(cls, path: str | os.PathLike[str], robot: Any = None) -> Measurements:
+        """Read a measurement CSV file (format: ``docs/data.md``) and check it.
+
+        Nothing is silently dropped: a file with any bad row is refused, and the error names
+        the file and every bad line. Checked without a robot: the header (columns and their
+        units), that every value is a finite number, exactly repeated poses, and lengths that
+        look like metres. With ``robot`` (an :class:`iwr.Robot`), also :meth:`check`: joint
+        types, the scale of the lengths against the robot, and joint and leg readings outside
+        the robot's limits.
+
+        Raises
+        ------
+        MeasurementFileError
+            With the file, line and column of the problem.
+        """
         path = Path(path)
         try:
             text = path.read_text(encoding="utf-8")
         except FileNotFoundError:
             raise MeasurementFileError(f"{path}: no such file") from None
+        except IsADirectoryError:
+            raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
         except (OSError, UnicodeDecodeError) as exc:
             raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
-        rows = []
+        rows: list[list[float]] = []
+        lines: list[int] = []
+        problems: list[tuple[int, str]] = []  # (line, message), every bad row
         header: list[str] | None = None
         for lineno, line in enumerate(text.splitlines(), start=1):
             stripped = line.strip()
             if not stripped or stripped.startswith("#"):
                 continue
-            fields = [f.strip() for f in next(csv.reader([line]))]
+            try:
+                fields = [f.strip() for f in next(csv.reader([line]))]
+            except csv.Error as exc:
+                problems.append((lineno, f"line {lineno}: not valid CSV ({exc})"))
+                continue
             if header is None:
                 header = fields
                 joint_types, weights = _parse_header(header, path, lineno)
                 continue
             if len(fields) != len(header):
-                raise MeasurementFileError(
-                    f"{path}, line {lineno}: {len(fields)} fields; the header has {len(header)}"
+                problems.append(
+                    (lineno, f"line {lineno}: {len(fields)} fields; the header has {len(header)}")
                 )
+                continue
             values = []
             for name, field in zip(header, fields):
                 try:
                     v = float(field)
                 except ValueError:
-                    raise MeasurementFileError(
-                        f"{path}, line {lineno}, column {name}: {field!r} is not a number"
-                    ) from None
+                    what = "is empty" if not field else "is not a number"
+                    problems.append((lineno, f"line {lineno}, column {name}: {field!r} {what}"))
+                    break
                 if not math.isfinite(v):
-                    raise MeasurementFileError(
-                        f"{path}, line {lineno}, column {name}: {field!r} is not finite"
-                    )
+                    problems.append((lineno, f"line {lineno}, column {name}: {field!r} is not finite"))
+                    break
                 values.append(v)
-            rows.append(values)
+            else:
+                rows.append(values)
+                lines.append(lineno)
         if header is None:
             raise MeasurementFileError(f"{path}: empty file (no header line)")
+        if problems:
+            raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad row')}")
         if not rows:
             raise MeasurementFileError(f"{path}: no data rows after the header")
         data = np.array(rows)
         nj = len(joint_types)
         try:
-            return cls(
+            out = cls(
                 data[:, :nj],
                 data[:, nj : nj + 6],
                 data[:, nj + 6 : nj + 12],
                 joint_types=joint_types,
                 weights=data[:, nj + 12 : nj + 18] if weights else None,
+                lines=lines,
+                source=str(path),
             )
         except ValueError as exc:
             raise MeasurementFileError(f"{path}: {exc}") from None
+        out._check_alone()
+        if robot is not None:
+            out.check(robot)
+        return out
+
+    def _check_alone(self) -> None:
+        """The checks that need no robot: repeated poses, metres, degrees."""
+        # Two real measurements never repeat every joint reading and pose coordinate exactly:
+        # such a row is a copy, which would count one pose twice.
+        key = np.hstack([self.q, self.poses])
+        _, first, inverse, counts = np.unique(
+            key, axis=0, return_index=True, return_inverse=True, return_counts=True
+        )
+        if np.any(counts > 1):
+            groups = [np.flatnonzero(inverse.ravel() == g) for g in np.flatnonzero(counts > 1)]
+            groups.sort(key=lambda rows: rows[0])
+            desc = "; ".join(self._lines_of(rows) for rows in groups[:5])
+            more = f" (and {len(groups) - 5} more groups)" if len(groups) > 5 else ""
+            raise self._error(
+                f"{len(groups)} repeated pose(s): {desc}{more} have exactly the same joint "
+                "readings and measured pose; remove the copies (or average repeated measurements)"
+            )
+        ang = np.abs(self.poses[:, 3:])
+        if np.any(ang > 2 * math.pi):
+            rows = np.flatnonzero(np.any(ang > 2 * math.pi, axis=1))
+            raise self._error(
+                f"pose angles larger than 2 pi at {self._lines_of(rows)}: angles must be in "
+                "radians, not degrees"
+            )
+        pos = np.linalg.norm(self.poses[:, :3], axis=1)
+        if pos.max() < METRE_SUSPICION and np.abs(self.legs).max() < METRE_SUSPICION:
+            raise self._error(
+                f"every position and leg reading is below {METRE_SUSPICION} (largest position "
+                f"{pos.max():.4g}, largest leg reading {np.abs(self.legs).max():.4g}): these look "
+                "like metres; iwr expects millimetres (multiply the lengths by 1000)"
+            )
+
+    def check(self, robot: Any, tolerance: float = 0.01) -> None:
+        """Check the measurements against a robot; raise naming every offending line.
+
+        Checked: the joint types (from the units of the q columns); lengths that look like
+        metres for a robot whose dimensions are in millimetres (every position, leg reading or
+        prismatic joint reading below 5 while the robot's are in the hundreds); joint readings
+        outside ``robot.joint_limits`` and leg readings outside ``robot.leg_stroke`` (an
+        unreachable pose), each widened by ``tolerance`` times the range, for noise.
+
+        Raises
+        ------
+        MeasurementFileError or ValueError
+            ``MeasurementFileError`` (a ``ValueError``) when the data come from a file.
+        """
+        if self.n_joints != robot.n_joints or (
+            self.joint_types is not None and self.joint_types != robot.joint_types
+        ):
+            have = self.joint_types if self.joint_types is not None else f"{self.n_joints} joints"
+            raise self._error(
+                f"joint types {have!r} (from the units of the q columns: _mm prismatic, _rad "
+                f"revolute) do not match robot {robot.name!r}, {robot.joint_types!r}"
+            )
+        # -- scale: metres where millimetres are expected --------------------------------------
+        t4 = robot.carriage_transform(robot.joint_limits.mean(axis=1))
+        p_home = t4[:3, 3] + t4[:3, :3] @ robot.home_pose[:3]
+        scale_checks = [
+            ("positions", np.linalg.norm(self.poses[:, :3], axis=1), np.linalg.norm(p_home)),
+            ("leg readings", np.abs(self.legs).max(axis=1), float(np.ptp(robot.leg_stroke))),
+        ]
+        prismatic = np.array([c == "P" for c in robot.joint_types], dtype=bool)
+        if prismatic.any():
+            scale_checks.append((
+                "prismatic joint readings",
+                np.abs(self.q[:, prismatic]).max(axis=1),
+                float(np.ptp(robot.joint_limits[prismatic], axis=1).max()),
+            ))
+        for what, values, robot_scale in scale_checks:
+            if robot_scale > 10 * METRE_SUSPICION and values.max() < METRE_SUSPICION:
+                raise self._error(
+                    f"every one of the {what} is below {METRE_SUSPICION} (largest "
+                    f"{values.max():.4g}) while robot {robot.name!r} is {robot_scale:.4g} mm in "
+                    "size: these look like metres; iwr expects millimetres"
+                )
+        # -- reachability --------------------------------------------------------------------
+        problems: list[tuple[int, str]] = []
+        for i in range(robot.n_joints):
+            lo, hi = robot.joint_limits[i]
+            slack = tolerance * (hi - lo)
+            unit = robot.joint_units[i]
+            for k in np.flatnonzero((self.q[:, i] < lo - slack) | (self.q[:, i] > hi + slack)):
+                problems.append((k, f"{self._loc(k)}: joint {i + 1} reading {self.q[k, i]:.6g} "
+                                    f"{unit} is outside the joint limits [{lo:.6g}, {hi:.6g}]"))
+        for j in range(6):
+            lo, hi = robot.leg_stroke[j]
+            slack = tolerance * (hi - lo)
+            for k in np.flatnonzero((self.legs[:, j] < lo - slack) | (self.legs[:, j] > hi + slack)):
+                problems.append((k, f"{self._loc(k)}: leg {j + 1} reading {self.legs[k, j]:.6g} mm "
+                                    f"is outside the stroke [{lo:.6g}, {hi:.6g}]"))
+        if problems:
+            problems.sort(key=lambda p: p[0])
+            rows = sorted({k for k, _ in problems})
+            raise self._error(
+                f"{len(rows)} unreachable pose(s) for robot {robot.name!r} "
+                f"({self._lines_of(rows)}; nothing dropped); first: {problems[0][1]}"
+            )
 
     def __repr__(self) -> str:
         return f"Measurements(n_poses={len(self)}, joint_types={self.joint_types!r})"
+
+
+def _enumerate(items: list[str], limit: int = 10) -> str:
+    if len(items) > limit:
+        items = items[:limit] + [f"... ({len(items) - limit} more)"]
+    if len(items) == 1:
+        return items[0]
+    return ", ".join(items[:-1]) + " and " + items[-1]
+
+
+def _summarise(problems: list[tuple[int, str]], what: str) -> str:
+    """One line: the first problem in full, then the lines of all of them."""
+    lines = sorted({line for line, _ in problems})
+    first = problems[0][1]
+    if len(lines) == 1:
+        return first
+    return (f"{first} ({len(lines)} {what}s in all, none dropped: lines "
+            f"{_enumerate([str(n) for n in lines])})")
 
 
 def _parse_header(header: list[str], path: Path, lineno: int) -> tuple[str, bool]:

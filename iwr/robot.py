@@ -203,7 +203,9 @@ class Robot:
         - joint 4, revolute ``theta4``, +-60 degrees, alpha = -pi/2, a4 = 300 mm;
         - hexapod: U-joints on a 400 mm radius in frame {4}, in pairs 20 degrees apart about
           0, 120 and 240 degrees; S-joints on a 250 mm radius in frame {5}, pairs about 60, 180
-          and 300 degrees; leg length = reading + 600 mm, readings 0..400 mm; home platform height
+          and 300 degrees; leg j joins the U-joint at angle phi_j to the S-joint at phi_j -+ 40
+          degrees (legs 1..6: -10 -> -50, 10 -> 50, 110 -> 70, 130 -> 170, 230 -> 190,
+          250 -> 290 degrees); leg length = reading + 600 mm, readings 0..400 mm; home platform height
           750 mm above the base plate.
         """
         h = math.pi / 2
@@ -224,7 +226,12 @@ class Robot:
             dh,
             limits,
             _ring(400.0, 0.0, 20.0),
-            _ring(250.0, 60.0, 20.0),
+            # Leg j joins base point j to the platform point 40 degrees away, alternately ahead and
+            # behind (the usual Gough-Stewart triangulation). Joining each base pair to the platform
+            # pair 60 degrees ahead would put all six legs on one regulus (each leg the image of one
+            # line under a rotation about z): an architecturally singular hexapod whose leg lengths
+            # leave three platform motions free at every pose.
+            np.roll(_ring(250.0, 60.0, 20.0), 1, axis=0),
             np.full(6, 600.0),
             [0.0, 400.0],
             home_pose=(0.0, 0.0, 750.0, 0.0, 0.0, 0.0),

@@ -144,18 +144,19 @@ def test_euler_matrix_is_eq6():
 
 def test_symmetric_home_pose_has_equal_legs_of_known_length():
     hexa = iwr.Robot.hexapod()
-    # Base joints on radius 400 at -10, 10, 110, ...; platform on 250 at 50, 70, 170, ...: every leg
-    # spans 60 degrees, so all six have length sqrt(400^2 + 250^2 - 2 400 250 cos 60 + h^2).
+    # Base joints on radius 400 at -10, 10, 110, ...; platform on 250 at -50, 50, 70, ...: every leg
+    # spans 40 degrees, so all six have length sqrt(400^2 + 250^2 - 2 400 250 cos 40 + h^2).
     for h in (650.0, 750.0, 850.0):
         legs = iwr.predict_legs(hexa, np.zeros(42), np.zeros((1, 0)), [[0, 0, h, 0, 0, 0]])
-        expected = math.sqrt(400**2 + 250**2 - 2 * 400 * 250 * 0.5 + h**2) - 600.0
-        np.testing.assert_allclose(legs, np.full((1, 6), expected), atol=1e-10)
-    # A yaw phi of the platform turns every S-joint by phi: each leg then spans 60 + phi degrees.
+        expected = math.sqrt(400**2 + 250**2 - 2 * 400 * 250 * math.cos(math.radians(40)) + h**2)
+        np.testing.assert_allclose(legs, np.full((1, 6), expected - 600.0), atol=1e-10)
+    # A yaw phi of the platform turns every S-joint by phi: legs 1, 3, 5 (S-joint 40 degrees behind)
+    # then span 40 - phi degrees, legs 2, 4, 6 (40 degrees ahead) span 40 + phi.
     phi = math.radians(20)
     legs = iwr.predict_legs(hexa, np.zeros(42), np.zeros((1, 0)), [[0, 0, 700, phi, 0, 0]])
-    span = math.radians(60) + phi
-    expected = math.sqrt(400**2 + 250**2 - 2 * 400 * 250 * math.cos(span) + 700**2) - 600.0
-    np.testing.assert_allclose(legs, np.full((1, 6), expected), atol=1e-10)
+    spans = math.radians(40) + np.array([-phi, phi, -phi, phi, -phi, phi])
+    expected = np.sqrt(400**2 + 250**2 - 2 * 400 * 250 * np.cos(spans) + 700**2) - 600.0
+    np.testing.assert_allclose(legs, expected[None, :], atol=1e-10)
 
 
 def test_predict_legs_matches_independent_numpy(robot):

@@ -17,4 +17,5 @@ using RowRef = Eigen::Ref<const RowMatrixXd>;
 using VecRef = Eigen::Ref<const VectorXd>;
 
 void bind_model(py::module_& m);
+void bind_forward(py::module_& m);
 }  // namespace iwr::python

@@ -6,6 +6,7 @@
 #include <stdexcept>
 #include <string>
 
+#include "iwr/forward.hpp"
 #include "iwr/model.hpp"
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
@@ -135,6 +136,52 @@ void test_validation() {
     CHECK(thrown);
 }
 
+// Forward kinematics: a round trip through the inverse model, and a clean error when the legs
+// cannot close. The platform joints are rolled by one so that leg j spans 40 degrees, alternately
+// behind and ahead (iwr_geometry's pairing is architecturally singular: see docs/model.md).
+void test_forward_kinematics() {
+    const iwr::Geometry g0 = iwr_geometry(true);
+    iwr::LegMatrix platform;
+    for (int j = 0; j < 6; ++j) platform.row(j) = g0.platform().row((j + 5) % 6);
+    const iwr::Geometry g("PPRR", g0.dh(), g0.base(), platform, g0.leg_offsets());
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> u(-1, 1);
+    const int n = 20;
+    iwr::VectorXd x(g.n_params());
+    for (int i = 0; i < x.size(); ++i) x(i) = 0.3 * u(rng);
+    iwr::RowMatrixXd q(n, 4), poses(n, 6), none(0, 6);
+    iwr::Vector6d home;
+    home << 0, 0, 750, 0, 0, 0;
+    for (int k = 0; k < n; ++k) {
+        q.row(k) << 1000 * (1 + u(rng)), 500 * (1 + u(rng)), u(rng), 0.8 * u(rng);
+        iwr::Vector6d local = home;
+        local.head<3>() += iwr::Vec3(100 * u(rng), 100 * u(rng), 60 * u(rng));
+        local.tail<3>() += iwr::Vec3(0.15 * u(rng), 0.15 * u(rng), 0.15 * u(rng));
+        const iwr::Mat4 t4 = iwr::carriage_transform(g, x.data(), q.row(k).data());
+        const iwr::Mat3 r5 = t4.topLeftCorner<3, 3>() * iwr::euler_zyx(local(3), local(4), local(5));
+        poses.block<1, 3>(k, 0) =
+            (t4.topRightCorner<3, 1>() + t4.topLeftCorner<3, 3>() * local.head<3>()).transpose();
+        poses.block<1, 3>(k, 3) = iwr::euler_from_matrix(r5).transpose();
+    }
+    const iwr::RowMatrixXd legs = iwr::predict_legs(g, x, q, poses);
+    const iwr::RowMatrixXd back = iwr::forward_kinematics(g, x, q, legs, none, home);
+    for (int k = 0; k < n; ++k) {
+        const iwr::Mat3 ra = iwr::euler_zyx(poses(k, 3), poses(k, 4), poses(k, 5));
+        const iwr::Mat3 rb = iwr::euler_zyx(back(k, 3), back(k, 4), back(k, 5));
+        CHECK((poses.row(k).head<3>() - back.row(k).head<3>()).norm() < 1e-7);
+        CHECK((ra - rb).cwiseAbs().maxCoeff() < 1e-10);
+    }
+    iwr::RowMatrixXd bad = legs;
+    bad(3, 0) = -590;  // leg 1 of pose 3 is 10 mm long: the legs cannot close
+    bool thrown = false;
+    try {
+        iwr::forward_kinematics(g, x, q, bad, none, home);
+    } catch (const iwr::ForwardKinematicsError& e) {
+        thrown = e.pose() == 3 && std::string(e.what()).find("pose 3") != std::string::npos;
+    }
+    CHECK(thrown);
+}
+
 }  // namespace
 
 int main() {
@@ -142,6 +189,7 @@ int main() {
     test_batch_is_thread_independent();
     test_pool_propagates_exceptions();
     test_validation();
+    test_forward_kinematics();
     if (failures) {
         std::fprintf(stderr, "%d check(s) failed\n", failures);
         return 1;

@@ -1,0 +1,197 @@
+"""Accuracy before and after calibration: the tool's pose error, in millimetres and degrees."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .forward import ForwardKinematicsError, forward_kinematics
+from .measurements import Measurements
+from .robot import Robot
+from .transforms import pose_matrix
+
+__all__ = ["accuracy", "Accuracy", "PoseErrors", "pose_errors"]
+
+
+def pose_errors(poses: Any, reference: Any, tool: Any = None) -> tuple[np.ndarray, np.ndarray]:
+    """Position (mm) and orientation (degrees) errors of ``poses`` against ``reference``.
+
+    Parameters
+    ----------
+    poses, reference : array_like, shape (N, 6)
+        World poses ``(x, y, z, alpha, beta, gamma)`` (mm, rad).
+    tool : array_like, shape (3,), optional
+        The tool point in the platform frame {5} (mm); default its origin.
+
+    Returns
+    -------
+    position : ndarray, shape (N,)
+        Distance between the two tool points (mm).
+    orientation : ndarray, shape (N,)
+        Angle of the rotation between the two orientations (degrees), computed from the matrices,
+        so independent of the Euler angles' gimbal lock.
+    """
+    a, b = pose_matrix(np.atleast_2d(poses)), pose_matrix(np.atleast_2d(reference))
+    t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+    pa = a[:, :3, 3] + a[:, :3, :3] @ t
+    pb = b[:, :3, 3] + b[:, :3, :3] @ t
+    position = np.linalg.norm(pa - pb, axis=1)
+    r = np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]
+    # angle = atan2(|axis * sin|, cos): accurate near 0 and pi, unlike arccos((tr - 1) / 2).
+    sin_axis = 0.5 * np.stack(
+        [r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], axis=1
+    )
+    cos = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
+    orientation = np.degrees(np.arctan2(np.linalg.norm(sin_axis, axis=1), cos))
+    return position, orientation
+
+
+def _stats(v: np.ndarray) -> dict[str, float]:
+    return {
+        "mean": float(np.mean(v)),
+        "rms": float(math.sqrt(np.mean(v**2))),
+        "max": float(np.max(v)),
+    }
+
+
+@dataclass(frozen=True)
+class PoseErrors:
+    """Per-pose errors of one robot model against the measured poses.
+
+    Attributes
+    ----------
+    position : ndarray, shape (N,)
+        Tool position error (mm).
+    orientation : ndarray, shape (N,)
+        Tool orientation error (degrees).
+    poses : ndarray, shape (N, 6)
+        The poses given by forward kinematics.
+    """
+
+    position: np.ndarray
+    orientation: np.ndarray
+    poses: np.ndarray
+
+    def summary(self) -> dict[str, dict[str, float]]:
+        """``{"position_mm": {"mean", "rms", "max"}, "orientation_deg": {...}}``."""
+        return {"position_mm": _stats(self.position), "orientation_deg": _stats(self.orientation)}
+
+
+@dataclass(frozen=True)
+class Accuracy:
+    """The accuracy of the nominal and of the calibrated robot on the same poses.
+
+    Attributes
+    ----------
+    nominal : PoseErrors
+        Errors of the nominal robot (errors = 0).
+    calibrated : PoseErrors
+        Errors of the calibrated robot (the identified errors).
+    """
+
+    nominal: PoseErrors
+    calibrated: PoseErrors
+
+    @property
+    def n_poses(self) -> int:
+        return int(self.nominal.position.size)
+
+    def to_dict(self) -> dict[str, Any]:
+        """A JSON-able summary (mean, RMS and max of each error, both robots)."""
+        return {
+            "n_poses": self.n_poses,
+            "nominal": self.nominal.summary(),
+            "calibrated": self.calibrated.summary(),
+        }
+
+    def table(self) -> str:
+        """A plain-text table of mean, RMS and max errors, before and after."""
+        rows = [
+            f"{'':18}{'position error (mm)':^30}  {'orientation error (deg)':^30}",
+            f"{'':18}" + "".join(f"{h:>10}" for h in ("mean", "RMS", "max")) + "  "
+            + "".join(f"{h:>10}" for h in ("mean", "RMS", "max")),
+        ]
+        for label, e in (("nominal robot", self.nominal), ("calibrated robot", self.calibrated)):
+            s = e.summary()
+            p, o = s["position_mm"], s["orientation_deg"]
+            rows.append(
+                f"{label:18}"
+                + "".join(f"{p[k]:10.4f}" for k in ("mean", "rms", "max"))
+                + "  "
+                + "".join(f"{o[k]:10.5f}" for k in ("mean", "rms", "max"))
+            )
+        return "\n".join(rows)
+
+    def __str__(self) -> str:
+        return f"accuracy on {self.n_poses} poses\n{self.table()}"
+
+
+def accuracy(
+    robot: Robot,
+    errors: Any,
+    measurements: Measurements,
+    *,
+    tool: Any = None,
+    tolerance: float = 1e-9,
+    max_iterations: int = 50,
+) -> Accuracy:
+    """How accurately the nominal and the calibrated robot know where their tool is.
+
+    For each measurement, the platform pose is computed by forward kinematics
+    (:func:`iwr.forward_kinematics`) from the joint and leg readings, once with the nominal robot
+    and once with the calibrated one (nominal plus ``errors``), and compared with the measured
+    pose. Use measurements that were **not** used for identification (validation poses): on the
+    identification poses the figure is optimistic.
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot.
+    errors : array_like, shape (n_params,)
+        The identified error parameters (for example ``result.x``).
+    measurements : Measurements
+        Validation measurements: joint readings, leg readings and the measured poses.
+    tool : array_like, shape (3,), optional
+        The tool point in the platform frame {5} (mm); default its origin.
+    tolerance, max_iterations
+        Of the forward kinematics.
+
+    Returns
+    -------
+    Accuracy
+        ``nominal`` and ``calibrated`` per-pose errors; ``table()``, ``to_dict()`` summarise them
+        (mean, RMS, max).
+
+    Notes
+    -----
+    The figure does not depend on the unidentifiable combinations of parameters: by definition
+    they do not change the leg readings predicted at any pose, hence not the pose that forward
+    kinematics finds from the readings either.
+    """
+    if not isinstance(measurements, Measurements):
+        raise TypeError(
+            f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
+        )
+    x = np.zeros(robot.n_params) if errors is None else np.asarray(errors, dtype=float)
+    out = {}
+    for label, xe in (("nominal", np.zeros(robot.n_params)), ("calibrated", x)):
+        try:
+            poses = forward_kinematics(
+                robot, measurements.q, measurements.legs, xe,
+                tolerance=tolerance, max_iterations=max_iterations,
+            )
+        except ForwardKinematicsError as exc:
+            k = getattr(exc, "pose", None)
+            where = measurements.where(k) if k is not None else "a pose"
+            msg = str(exc).split(": ", 2)[-1] if k is not None else str(exc)
+            err = ForwardKinematicsError(
+                f"forward kinematics of the {label} robot at {where}: {msg}"
+            )
+            err.pose = k
+            raise err from None
+        pos, ori = pose_errors(poses, measurements.poses, tool)
+        out[label] = PoseErrors(position=pos, orientation=ori, poses=poses)
+    return Accuracy(nominal=out["nominal"], calibrated=out["calibrated"])

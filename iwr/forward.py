@@ -1,0 +1,97 @@
+"""Forward kinematics: the platform pose from the carriage joint and leg sensor readings."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from .measurements import as_matrix
+from .robot import Robot
+
+__all__ = ["forward_kinematics", "ForwardKinematicsError"]
+
+#: Raised when Newton-Raphson does not converge or meets a singular Jacobian; a ``RuntimeError``
+#: whose ``pose`` attribute is the index of the offending pose.
+ForwardKinematicsError = _core.ForwardKinematicsError
+
+
+def forward_kinematics(
+    robot: Robot,
+    q: Any,
+    legs: Any,
+    errors: Any = None,
+    guess: Any = None,
+    *,
+    tolerance: float = 1e-9,
+    max_iterations: int = 50,
+) -> np.ndarray:
+    """World poses of the platform from joint and leg readings (the forward kinematics).
+
+    The inverse model (eq. 5-8) gives the six leg lengths from a pose; this inverts it by
+    Newton-Raphson on the six leg-length equations, with their exact Jacobian with respect to the
+    pose of frame {5} in frame {4} and a backtracking line search, in C++. The world pose is then
+    ``0T5 = 0T4(q) 4T5`` (eq. 7).
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot.
+    q : array_like, shape (N, n_joints)
+        Carriage joint readings (mm, rad).
+    legs : array_like, shape (N, 6)
+        Leg sensor readings (mm); a leg's whole length is its reading plus ``l0 + dl0``.
+    errors : array_like, shape (n_params,), optional
+        Error parameters added to the nominal geometry (default zeros: the nominal robot; an
+        identified vector: the calibrated robot).
+    guess : array_like, shape (6,) or (N, 6), optional
+        World poses to start from. Default: ``robot.home_pose`` carried through the carriage at
+        each ``q``. Newton-Raphson converges to the assembly mode nearest the guess.
+    tolerance : float
+        Convergence: the largest leg-length residual (mm).
+    max_iterations : int
+        Newton iterations per pose before giving up.
+
+    Returns
+    -------
+    ndarray, shape (N, 6)
+        Rows ``(x, y, z, alpha, beta, gamma)`` in the world frame (mm, rad; Z-Y-X Euler angles of
+        eq. 6, beta in [-pi/2, pi/2]).
+
+    Raises
+    ------
+    ForwardKinematicsError
+        (a ``RuntimeError``) when a pose does not converge within ``max_iterations`` (leg readings
+        that no pose of this robot produces, or a guess too far away) or the Jacobian is singular;
+        its ``pose`` attribute is the index of the pose.
+    ValueError
+        On bad shapes or non-finite values.
+
+    Notes
+    -----
+    Newton-Raphson iterates on the local coordinates of frame {5} in {4}, not on the world Euler
+    angles: the IWR's world Euler angles sit at their gimbal lock (beta = -pi/2) at the home pose,
+    where a Jacobian with respect to them is singular.
+    """
+    if not isinstance(robot, Robot):
+        raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+    legs = as_matrix(legs, 6, "legs")
+    n = legs.shape[0]
+    q = as_matrix(q, robot.n_joints, "q", rows=n)
+    x = np.zeros(robot.n_params) if errors is None else np.ascontiguousarray(errors, dtype=float)
+    if x.shape != (robot.n_params,):
+        raise ValueError(f"errors: shape {x.shape}; expected ({robot.n_params},)")
+    if guess is None:
+        g = np.zeros((0, 6))
+    else:
+        g = np.asarray(guess, dtype=float)
+        if g.shape == (6,):
+            g = np.tile(g, (n, 1))
+        g = as_matrix(g, 6, "guess", rows=n)
+    if isinstance(max_iterations, bool) or not isinstance(max_iterations, (int, np.integer)):
+        raise ValueError(f"max_iterations: {max_iterations!r}; expected a positive integer")
+    poses, _ = _core.forward_kinematics(
+        robot._geometry, x, q, legs, g, robot.home_pose, float(tolerance), int(max_iterations)
+    )
+    return poses
