@@ -73,26 +73,29 @@ def executions(log: Path) -> int:
 
 
 def assert_same_table(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> None:
-    """Same cells, settings and status; figures equal to within rounding.
+    """Same cells, settings and status; figures equal to within what LM reproduces.
 
-    Not bit for bit: SciPy's MINPACK does not give bit-identical steps in two processes from
-    identical residuals and Jacobians, and LM on a rank-deficient problem (58 parameters, fewer
-    identifiable) carries such last-bit differences along the unidentifiable directions. The
-    figures compared here are insensitive to those directions; counts of iterations are not, and
-    are left out.
+    Not bit for bit: SciPy's MINPACK (``least_squares(method="lm")``, SciPy 1.17) does not always
+    take the same step from bit-identical residuals and Jacobian in two runs (seen within one
+    process too). LM iterates down to round-off (xtol 1e-15), so such a difference moves the end
+    point along the weakly identifiable directions: the validation and tool figures change by
+    < 1e-6 (relative; or below 1e-9 mm on the noise-free floor), the parameter error by up to 1 %,
+    the numbers of iterations arbitrarily (not compared).
     """
     assert [r["key"] for r in a] == [r["key"] for r in b]
     for ra, rb in zip(a, b):
         for c in SETTING_COLUMNS + ("status", "success"):
             assert ra[c] == rb[c], (c, ra, rb)
-        for c in ("cost", "rms_fit", "val_rms", "val_max", "val_rms_nominal",
-                  "param_error_length", "param_error_angle", "tool_position_rms",
-                  "tool_orientation_rms", "tool_position_rms_nominal"):
-            if c in TIMING_COLUMNS:
-                continue
+        for c, rel, floor in (
+            ("cost", 1e-5, 1e-18), ("rms_fit", 1e-5, 1e-9), ("val_rms", 1e-5, 1e-9),
+            ("val_max", 1e-5, 1e-9), ("val_rms_nominal", 0.0, 0.0),
+            ("tool_position_rms", 1e-5, 1e-9), ("tool_orientation_rms", 1e-5, 1e-9),
+            ("tool_position_rms_nominal", 0.0, 0.0),
+            ("param_error_length", 0.05, 1e-9), ("param_error_angle", 0.05, 1e-9),
+        ):
             x, y = ra[c], rb[c]
             assert (math.isnan(x) and math.isnan(y)) or math.isclose(
-                x, y, rel_tol=1e-6, abs_tol=1e-18 if c == "cost" else 1e-9
+                x, y, rel_tol=rel, abs_tol=floor
             ), (c, x, y, ra)
 
 
@@ -110,7 +113,7 @@ def test_worker_dies_mid_study_and_table_matches_one_process(
     marker, log = tmp_path / "crashed", tmp_path / "log"
     log.mkdir()
     grid = dict(
-        methods=["lm", CRASH], poses=[12, 20], noise=[0.0, 0.02], draws=1, seeds=[0, 1],
+        methods=["lm", CRASH], poses=[16, 24], noise=[0.0, 0.02], draws=1, seeds=[0, 1],
         options={CRASH: {"marker": str(marker), "log": str(log)}}, validation_poses=20,
         report=False,
     )
