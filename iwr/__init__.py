@@ -8,6 +8,7 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 from __future__ import annotations
 
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
+from .de import differential_evolution
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
     IdentifiabilityReport,
@@ -47,6 +48,7 @@ __all__ = [
     "UnreachableError",
     "__version__",
     "accuracy",
+    "differential_evolution",
     "forward_kinematics",
     "identifiability",
     "identify",

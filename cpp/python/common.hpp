@@ -18,4 +18,5 @@ using VecRef = Eigen::Ref<const VectorXd>;
 
 void bind_model(py::module_& m);
 void bind_forward(py::module_& m);
+void bind_de(py::module_& m);
 }  // namespace iwr::python

@@ -1,0 +1,337 @@
+// Bindings of the differential evolution engine (iwr/de.hpp). Private: iwr.de is the public API.
+//
+// The engine runs with the GIL released. The GIL is taken back only (a) to call a Python objective,
+// once per generation with the whole population, (b) to call the Python monitor, every generation
+// when asked or at most every `interval` seconds otherwise, and (c) at that same point to run
+// PyErr_CheckSignals(), so that Ctrl-C stops the run within `interval` seconds (plus one
+// generation) and the best result so far is returned, marked as interrupted.
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <memory>
+#include <sstream>
+
+#include "common.hpp"
+#include "iwr/de.hpp"
+
+namespace iwr::python {
+
+namespace {
+
+namespace de = iwr::de;
+using Clock = std::chrono::steady_clock;
+
+// Thrown through the engine when a Python error is pending in `Session::pending`.
+struct PythonError {};
+
+// What one run shares between the engine's callbacks and the binding.
+struct Session {
+    std::unique_ptr<py::error_already_set> pending;  // a Python exception to re-raise, or Ctrl-C
+    bool interrupted = false;                        // KeyboardInterrupt seen
+};
+
+// A Python callable f(X: (M, D) float64) -> M costs, as a BatchFunction.
+class PyFunction final : public de::BatchFunction {
+public:
+    PyFunction(py::function f, int dim, Session& session)
+        : f_(std::move(f)), dim_(dim), session_(session) {}
+    int dim() const override { return dim_; }
+    void evaluate(const double* X, std::size_t m, double* out, ThreadPool&) override {
+        py::gil_scoped_acquire gil;
+        try {
+            py::array_t<double> arr({static_cast<py::ssize_t>(m), static_cast<py::ssize_t>(dim_)});
+            std::memcpy(arr.mutable_data(), X, m * static_cast<std::size_t>(dim_) * sizeof(double));
+            py::object res = f_(arr);
+            auto costs = py::array_t<double, py::array::c_style | py::array::forcecast>::ensure(res);
+            if (!costs) {
+                throw std::invalid_argument("func: returned " +
+                                            std::string(py::str(py::type::of(res).attr("__name__"))) +
+                                            "; expected an array of " + std::to_string(m) + " costs");
+            }
+            const bool ok = (costs.ndim() == 1 && costs.shape(0) == static_cast<py::ssize_t>(m)) ||
+                            (costs.ndim() == 2 && costs.shape(0) == static_cast<py::ssize_t>(m) &&
+                             costs.shape(1) == 1);
+            if (!ok) {
+                std::ostringstream msg;
+                msg << "func: returned an array of shape (";
+                for (py::ssize_t k = 0; k < costs.ndim(); ++k) msg << (k ? ", " : "") << costs.shape(k);
+                msg << (costs.ndim() == 1 ? ",)" : ")") << " for a population of " << m
+                    << "; expected (" << m << ",)";
+                throw std::invalid_argument(msg.str());
+            }
+            std::memcpy(out, costs.data(), m * sizeof(double));
+        } catch (py::error_already_set& e) {
+            session_.pending = std::make_unique<py::error_already_set>(std::move(e));
+            throw PythonError{};
+        }
+    }
+
+private:
+    py::function f_;
+    int dim_;
+    Session& session_;
+};
+
+py::dict settings_dict(const de::Settings& s) {
+    py::dict d;
+    d["strategy"] = de::to_string(s.strategy);
+    d["population_size"] = s.population_size;
+    d["F"] = s.F;
+    d["CR"] = s.CR;
+    d["seed"] = s.seed;
+    d["bound_rule"] = de::to_string(s.bound_rule);
+    d["p_best"] = s.p_best;
+    d["c"] = s.c;
+    d["archive_rate"] = s.archive_rate;
+    d["memory_size"] = s.memory_size;
+    d["tau1"] = s.tau1;
+    d["tau2"] = s.tau2;
+    d["F_lower"] = s.F_lower;
+    d["F_upper"] = s.F_upper;
+    d["min_population_size"] = s.min_population_size;
+    d["max_evaluations"] = s.max_evaluations;
+    return d;
+}
+
+py::dict state_summary(const de::State& st) {
+    const int b = st.best_index();
+    py::dict d;
+    d["generation"] = st.generation;
+    d["nfev"] = st.nfev;
+    d["best"] = st.costs(b);
+    d["x"] = VectorXd(st.population.row(b).transpose());
+    const de::LogEntry& e = st.log.back();
+    d["mean"] = e.mean;
+    d["spread"] = e.spread;
+    d["elapsed"] = e.elapsed;
+    d["population_size"] = st.np;
+    return d;
+}
+
+py::dict result_dict(const de::State& st, const de::RunResult& r, const Session& session,
+                     bool with_state) {
+    py::dict d = state_summary(st);
+    d["fun"] = d["best"];
+    d["nit"] = st.generation;
+    d["reason"] = session.interrupted ? "interrupted" : de::to_string(r.reason);
+    d["success"] = session.interrupted ? false : r.success;
+    d["message"] = session.interrupted ? std::string("interrupted by KeyboardInterrupt (Ctrl-C)")
+                                       : r.message;
+    d["interrupted"] = session.interrupted;
+    const std::size_t n = st.log.size();
+    py::array_t<std::int64_t> gen(static_cast<py::ssize_t>(n)), nfev(static_cast<py::ssize_t>(n));
+    py::array_t<double> best(static_cast<py::ssize_t>(n)), mean(static_cast<py::ssize_t>(n)),
+        spread(static_cast<py::ssize_t>(n)), elapsed(static_cast<py::ssize_t>(n));
+    for (std::size_t k = 0; k < n; ++k) {
+        const de::LogEntry& e = st.log[k];
+        gen.mutable_at(k) = e.generation;
+        nfev.mutable_at(k) = e.nfev;
+        best.mutable_at(k) = e.best;
+        mean.mutable_at(k) = e.mean;
+        spread.mutable_at(k) = e.spread;
+        elapsed.mutable_at(k) = e.elapsed;
+    }
+    py::dict h;
+    h["generation"] = gen;
+    h["nfev"] = nfev;
+    h["best"] = best;
+    h["mean"] = mean;
+    h["spread"] = spread;
+    h["elapsed"] = elapsed;
+    d["history"] = h;
+    d["population"] = st.population;
+    d["population_costs"] = st.costs;
+    d["settings"] = settings_dict(st.settings);
+    if (with_state) {
+        std::ostringstream out;
+        st.serialize(out);
+        d["state"] = py::bytes(out.str());
+    }
+    return d;
+}
+
+// Runs (or resumes) a DE on f. Called with the GIL held; releases it around the engine.
+py::dict run_de(de::BatchFunction& f, Session& session, const de::Settings& settings,
+                const de::Stop& stop, int threads, const py::object& monitor, bool every_generation,
+                double interval, const py::object& resume, bool return_state) {
+    if (!(interval > 0 && interval <= 1))
+        throw std::invalid_argument("interval: " + std::to_string(interval) + "; expected (0, 1] s");
+    ThreadPool pool(threads);
+    de::State st;
+    if (!resume.is_none()) {
+        std::istringstream in(std::string(resume.cast<py::bytes>()));
+        st = de::State::deserialize(in);
+        if (st.settings != de::resolve(settings))
+            throw std::invalid_argument("state: made with other settings than the ones given");
+    }
+    auto last = Clock::now();
+    const bool has_monitor = !monitor.is_none();
+    de::Callback cb = [&](const de::State& s) -> bool {
+        const auto now = Clock::now();
+        const bool due = std::chrono::duration<double>(now - last).count() >= interval;
+        if (!(due || (has_monitor && every_generation))) return false;
+        last = now;
+        py::gil_scoped_acquire gil;
+        if (PyErr_CheckSignals() != 0) {
+            session.pending = std::make_unique<py::error_already_set>();
+            return true;
+        }
+        if (!has_monitor) return false;
+        try {
+            return py::cast<bool>(monitor(state_summary(s)));
+        } catch (py::error_already_set& e) {
+            session.pending = std::make_unique<py::error_already_set>(std::move(e));
+            return true;
+        }
+    };
+    de::RunResult r;
+    try {
+        py::gil_scoped_release release;
+        if (resume.is_none()) st = de::init(settings, f, pool);
+        r = de::run(st, f, pool, stop, cb);
+    } catch (const PythonError&) {
+        // the Python objective raised; handled below
+    }
+    if (session.pending) {
+        if (session.pending->matches(PyExc_KeyboardInterrupt) && st.np > 0) {
+            session.interrupted = true;
+        } else {
+            py::error_already_set e = *session.pending;
+            session.pending.reset();
+            throw e;
+        }
+    }
+    return result_dict(st, r, session, return_state);
+}
+
+de::Settings make_settings(const std::string& strategy, const VectorXd& lower, const VectorXd& upper,
+                           std::uint64_t seed, int population_size, double F, double CR,
+                           const std::string& bound_rule, const py::dict& extra) {
+    de::Settings s;
+    s.strategy = de::parse_strategy(strategy);
+    s.lower.assign(lower.data(), lower.data() + lower.size());
+    s.upper.assign(upper.data(), upper.data() + upper.size());
+    s.seed = seed;
+    s.population_size = population_size;
+    s.F = F;
+    s.CR = CR;
+    s.bound_rule = de::parse_bound_rule(bound_rule);
+    for (auto item : extra) {
+        const std::string key = py::cast<std::string>(item.first);
+        py::handle v = item.second;
+        if (v.is_none()) continue;
+        if (key == "p_best") s.p_best = v.cast<double>();
+        else if (key == "c") s.c = v.cast<double>();
+        else if (key == "archive_rate") s.archive_rate = v.cast<double>();
+        else if (key == "memory_size") s.memory_size = v.cast<int>();
+        else if (key == "tau1") s.tau1 = v.cast<double>();
+        else if (key == "tau2") s.tau2 = v.cast<double>();
+        else if (key == "F_lower") s.F_lower = v.cast<double>();
+        else if (key == "F_upper") s.F_upper = v.cast<double>();
+        else if (key == "min_population_size") s.min_population_size = v.cast<int>();
+        else if (key == "max_evaluations") s.max_evaluations = v.cast<std::int64_t>();
+        else throw std::invalid_argument("options: unknown strategy parameter '" + key + "'");
+    }
+    return s;
+}
+
+de::Stop make_stop(std::int64_t max_generations, std::int64_t max_evaluations, double target_cost,
+                   double tol, double atol, std::int64_t stagnation_generations,
+                   double stagnation_tol, double max_seconds) {
+    de::Stop s;
+    s.max_generations = max_generations;
+    s.max_evaluations = max_evaluations;
+    s.target_cost = target_cost;
+    s.tol = tol;
+    s.atol = atol;
+    s.stagnation_generations = stagnation_generations;
+    s.stagnation_tol = stagnation_tol;
+    s.max_seconds = max_seconds;
+    if (std::isnan(target_cost)) throw std::invalid_argument("target_cost: nan");
+    if (!(tol >= 0)) throw std::invalid_argument("tol: " + std::to_string(tol) + "; expected >= 0");
+    if (!(atol >= 0)) throw std::invalid_argument("atol: " + std::to_string(atol) + "; expected >= 0");
+    if (!(stagnation_tol >= 0))
+        throw std::invalid_argument("stagnation_tol: " + std::to_string(stagnation_tol) +
+                                    "; expected >= 0");
+    if (!(max_seconds > 0))
+        throw std::invalid_argument("max_seconds: " + std::to_string(max_seconds) + "; expected > 0");
+    return s;
+}
+
+}  // namespace
+
+void bind_de(py::module_& m) {
+    m.def(
+        "de_resolve",
+        [](const std::string& strategy, const VectorXd& lower, const VectorXd& upper,
+           std::uint64_t seed, int population_size, double F, double CR,
+           const std::string& bound_rule, const py::dict& extra) {
+            return settings_dict(de::resolve(make_settings(strategy, lower, upper, seed,
+                                                           population_size, F, CR, bound_rule,
+                                                           extra)));
+        },
+        py::arg("strategy"), py::arg("lower"), py::arg("upper"), py::arg("seed"),
+        py::arg("population_size"), py::arg("F"), py::arg("CR"), py::arg("bound_rule"),
+        py::arg("extra"), "The settings with the strategy's defaults filled in, validated.");
+
+    m.def(
+        "de_function",
+        [](py::function func, const std::string& strategy, const VectorXd& lower,
+           const VectorXd& upper, std::uint64_t seed, int population_size, double F, double CR,
+           const std::string& bound_rule, const py::dict& extra, std::int64_t max_generations,
+           std::int64_t max_evaluations, double target_cost, double tol, double atol,
+           std::int64_t stagnation_generations, double stagnation_tol, double max_seconds,
+           int threads, py::object monitor, bool every_generation, double interval,
+           py::object resume, bool return_state) {
+            const de::Settings s = make_settings(strategy, lower, upper, seed, population_size, F,
+                                                 CR, bound_rule, extra);
+            const de::Stop stop = make_stop(max_generations, max_evaluations, target_cost, tol,
+                                            atol, stagnation_generations, stagnation_tol,
+                                            max_seconds);
+            Session session;
+            PyFunction f(std::move(func), static_cast<int>(lower.size()), session);
+            return run_de(f, session, s, stop, threads, monitor, every_generation, interval,
+                          resume, return_state);
+        },
+        py::arg("func"), py::arg("strategy"), py::arg("lower"), py::arg("upper"), py::arg("seed"),
+        py::arg("population_size"), py::arg("F"), py::arg("CR"), py::arg("bound_rule"),
+        py::arg("extra"), py::arg("max_generations"), py::arg("max_evaluations"),
+        py::arg("target_cost"), py::arg("tol"), py::arg("atol"), py::arg("stagnation_generations"),
+        py::arg("stagnation_tol"), py::arg("max_seconds"), py::arg("threads"), py::arg("monitor"),
+        py::arg("every_generation"), py::arg("interval"), py::arg("resume"),
+        py::arg("return_state"));
+
+    m.def(
+        "de_objective",
+        [](const Geometry& g, const RowMatrixXd& q, const RowMatrixXd& poses,
+           const RowMatrixXd& legs, const RowMatrixXd& weights, const std::vector<bool>& active,
+           const VectorXd& x0, const std::string& strategy, const VectorXd& lower,
+           const VectorXd& upper, std::uint64_t seed, int population_size, double F, double CR,
+           const std::string& bound_rule, const py::dict& extra, std::int64_t max_generations,
+           std::int64_t max_evaluations, double target_cost, double tol, double atol,
+           std::int64_t stagnation_generations, double stagnation_tol, double max_seconds,
+           int threads, py::object monitor, bool every_generation, double interval,
+           py::object resume, bool return_state) {
+            const de::Settings s = make_settings(strategy, lower, upper, seed, population_size, F,
+                                                 CR, bound_rule, extra);
+            const de::Stop stop = make_stop(max_generations, max_evaluations, target_cost, tol,
+                                            atol, stagnation_generations, stagnation_tol,
+                                            max_seconds);
+            // The C++ objective is built from the same data as iwr.Problem's.
+            const Objective obj(g, q, poses, legs, weights);
+            de::ObjectiveFunction f(obj, active, x0);
+            Session session;
+            return run_de(f, session, s, stop, threads, monitor, every_generation, interval,
+                          resume, return_state);
+        },
+        py::arg("geometry"), py::arg("q"), py::arg("poses"), py::arg("legs"), py::arg("weights"),
+        py::arg("active"), py::arg("x0"), py::arg("strategy"), py::arg("lower"), py::arg("upper"),
+        py::arg("seed"), py::arg("population_size"), py::arg("F"), py::arg("CR"),
+        py::arg("bound_rule"), py::arg("extra"), py::arg("max_generations"),
+        py::arg("max_evaluations"), py::arg("target_cost"), py::arg("tol"), py::arg("atol"),
+        py::arg("stagnation_generations"), py::arg("stagnation_tol"), py::arg("max_seconds"),
+        py::arg("threads"), py::arg("monitor"), py::arg("every_generation"), py::arg("interval"),
+        py::arg("resume"), py::arg("return_state"));
+}
+
+}  // namespace iwr::python

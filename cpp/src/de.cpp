@@ -1,0 +1,1218 @@
+// Differential evolution engine; see iwr/de.hpp for the API, the strategies and their references.
+#include "iwr/de.hpp"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <cstring>
+#include <istream>
+#include <iterator>
+#include <numeric>
+#include <ostream>
+#include <sstream>
+#include <stdexcept>
+
+namespace iwr::de {
+
+// ===== random streams ==================================================================================
+
+namespace {
+
+std::uint64_t splitmix64(std::uint64_t& x) {
+    std::uint64_t z = (x += 0x9e3779b97f4a7c15ULL);
+    z = (z ^ (z >> 30)) * 0xbf58476d1ce4e5b9ULL;
+    z = (z ^ (z >> 27)) * 0x94d049bb133111ebULL;
+    return z ^ (z >> 31);
+}
+
+inline std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+
+constexpr double kPi = 3.14159265358979323846;
+
+}  // namespace
+
+Rng Rng::seeded(std::uint64_t seed) {
+    Rng r;
+    std::uint64_t x = seed;
+    for (auto& w : r.s) w = splitmix64(x);
+    if ((r.s[0] | r.s[1] | r.s[2] | r.s[3]) == 0) r.s[0] = 1;  // the one forbidden state
+    return r;
+}
+
+std::uint64_t Rng::next() {
+    const std::uint64_t result = rotl(s[1] * 5, 7) * 9;
+    const std::uint64_t t = s[1] << 17;
+    s[2] ^= s[0];
+    s[3] ^= s[1];
+    s[1] ^= s[2];
+    s[0] ^= s[3];
+    s[2] ^= t;
+    s[3] = rotl(s[3], 45);
+    return result;
+}
+
+void Rng::jump() {
+    static const std::uint64_t kJump[] = {0x180ec6d33cfd0abaULL, 0xd5a61266f0c9392cULL,
+                                          0xa9582618e03fc9aaULL, 0x39abdc4529b1661cULL};
+    std::uint64_t t[4] = {0, 0, 0, 0};
+    for (std::uint64_t word : kJump) {
+        for (int b = 0; b < 64; ++b) {
+            if (word & (std::uint64_t{1} << b)) {
+                for (int k = 0; k < 4; ++k) t[k] ^= s[k];
+            }
+            next();
+        }
+    }
+    for (int k = 0; k < 4; ++k) s[k] = t[k];
+}
+
+double Rng::uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
+
+double Rng::uniform(double a, double b) { return a + (b - a) * uniform(); }
+
+std::uint64_t Rng::below(std::uint64_t n) {
+    // Rejection of the lowest (2^64 mod n) values makes r % n exactly uniform.
+    const std::uint64_t threshold = (0 - n) % n;
+    for (;;) {
+        const std::uint64_t r = next();
+        if (r >= threshold) return r % n;
+    }
+}
+
+double Rng::normal(double mean, double sd) {
+    const double u1 = 1.0 - uniform();  // (0, 1]: log is finite
+    const double u2 = uniform();
+    return mean + sd * std::sqrt(-2.0 * std::log(u1)) * std::cos(2.0 * kPi * u2);
+}
+
+double Rng::cauchy(double loc, double scale) { return loc + scale * std::tan(kPi * (uniform() - 0.5)); }
+
+// ===== names =========================================================================================
+
+namespace {
+const char* const kStrategyNames[kStrategyCount] = {"rand1bin", "best1bin", "jade", "jde",
+                                                    "shade",    "lshade",   "jso"};
+const char* const kBoundRuleNames[kBoundRuleCount] = {"midpoint", "reinit", "reflect", "clip"};
+
+template <typename T>
+std::string str(const T& v) {
+    std::ostringstream o;
+    o.precision(17);
+    o << v;
+    return o.str();
+}
+
+[[noreturn]] void bad(const std::string& msg) { throw std::invalid_argument(msg); }
+}  // namespace
+
+std::string to_string(Strategy s) {
+    const int i = static_cast<int>(s);
+    return i >= 0 && i < kStrategyCount ? kStrategyNames[i] : "unknown";
+}
+
+std::string to_string(BoundRule b) {
+    const int i = static_cast<int>(b);
+    return i >= 0 && i < kBoundRuleCount ? kBoundRuleNames[i] : "unknown";
+}
+
+Strategy parse_strategy(const std::string& name, const char* what) {
+    for (int i = 0; i < kStrategyCount; ++i)
+        if (name == kStrategyNames[i]) return static_cast<Strategy>(i);
+    std::string all;
+    for (int i = 0; i < kStrategyCount; ++i) all += std::string(i ? ", " : "") + kStrategyNames[i];
+    bad(std::string(what) + ": unknown strategy '" + name + "'; expected one of " + all);
+}
+
+BoundRule parse_bound_rule(const std::string& name, const char* what) {
+    for (int i = 0; i < kBoundRuleCount; ++i)
+        if (name == kBoundRuleNames[i]) return static_cast<BoundRule>(i);
+    bad(std::string(what) + ": unknown rule '" + name +
+        "'; expected one of midpoint, reinit, reflect, clip");
+}
+
+std::string to_string(StopReason r) {
+    switch (r) {
+        case StopReason::none: return "none";
+        case StopReason::target: return "target";
+        case StopReason::converged: return "converged";
+        case StopReason::stagnation: return "stagnation";
+        case StopReason::generations: return "generations";
+        case StopReason::evaluations: return "evaluations";
+        case StopReason::time: return "time";
+        case StopReason::callback: return "callback";
+    }
+    return "unknown";
+}
+
+// ===== settings ======================================================================================
+
+int min_population_size(Strategy s) { return s == Strategy::best1bin ? 3 : 4; }
+
+namespace {
+
+bool uses_archive(Strategy s) {
+    return s == Strategy::jade || s == Strategy::shade || s == Strategy::lshade ||
+           s == Strategy::jso;
+}
+bool uses_memory(Strategy s) {
+    return s == Strategy::shade || s == Strategy::lshade || s == Strategy::jso;
+}
+bool reduces_population(Strategy s) { return s == Strategy::lshade || s == Strategy::jso; }
+bool adapts_F(Strategy s) { return s != Strategy::rand1bin && s != Strategy::best1bin; }
+
+// The published default when `value` is NaN (double) or 0 (int); otherwise the value itself.
+double pick(double value, double fallback) { return std::isnan(value) ? fallback : value; }
+int pick(int value, int fallback) { return value == 0 ? fallback : value; }
+
+void require_range(double v, double lo, double hi, bool lo_open, const std::string& name,
+                   const std::string& strategy) {
+    const bool ok = std::isfinite(v) && (lo_open ? v > lo : v >= lo) && v <= hi;
+    if (!ok) {
+        bad(name + ": " + str(v) + "; strategy '" + strategy + "' needs " +
+            (lo_open ? "0 < " : str(lo) + " <= ") + name + " <= " + str(hi));
+    }
+}
+
+constexpr int kMaxPopulation = 10'000'000;
+
+}  // namespace
+
+Settings resolve(Settings s) {
+    const int si = static_cast<int>(s.strategy);
+    if (si < 0 || si >= kStrategyCount) bad("strategy: invalid value " + str(si));
+    const int bi = static_cast<int>(s.bound_rule);
+    if (bi < 0 || bi >= kBoundRuleCount) bad("bound_rule: invalid value " + str(bi));
+    const std::string name = to_string(s.strategy);
+    const std::size_t d = s.lower.size();
+    if (d == 0) bad("bounds: no parameter (lower is empty)");
+    if (s.upper.size() != d)
+        bad("bounds: upper has " + str(s.upper.size()) + " entries, lower " + str(d));
+    for (std::size_t j = 0; j < d; ++j) {
+        const double lo = s.lower[j], hi = s.upper[j];
+        if (!(std::isfinite(lo) && std::isfinite(hi) && lo < hi)) {
+            bad("bounds: parameter " + str(j) + " has lower " + str(lo) + ", upper " + str(hi) +
+                "; expected finite bounds with lower < upper");
+        }
+        if (!std::isfinite(hi - lo)) bad("bounds: parameter " + str(j) + " has an infinite width");
+    }
+    const double D = static_cast<double>(d);
+    const Strategy st = s.strategy;
+
+    // Population size.
+    int np_default = 0;
+    switch (st) {
+        case Strategy::rand1bin:
+        case Strategy::best1bin: np_default = static_cast<int>(std::min(10.0 * D, 1e6)); break;
+        case Strategy::jade: np_default = d <= 10 ? 30 : (d <= 30 ? 100 : 400); break;
+        case Strategy::jde:
+        case Strategy::shade: np_default = 100; break;
+        case Strategy::lshade: np_default = static_cast<int>(std::lround(std::min(18.0 * D, 1e6))); break;
+        case Strategy::jso:
+            np_default = static_cast<int>(std::lround(std::min(25.0 * std::log(D) * std::sqrt(D), 1e6)));
+            break;
+    }
+    np_default = std::max(np_default, min_population_size(st));
+    if (s.population_size < 0)
+        bad("population_size: " + str(s.population_size) + "; expected a positive integer");
+    s.population_size = pick(s.population_size, np_default);
+    if (s.population_size < min_population_size(st)) {
+        bad("population_size: " + str(s.population_size) + "; strategy '" + name +
+            "' needs at least " + str(min_population_size(st)) + " individuals");
+    }
+    if (s.population_size > kMaxPopulation)
+        bad("population_size: " + str(s.population_size) + "; at most " + str(kMaxPopulation));
+
+    // F and CR: the fixed values, or the initial values of what the strategy adapts.
+    const double F_default = st == Strategy::jso ? 0.3 : 0.5;
+    const double CR_default = st == Strategy::jso        ? 0.8
+                              : (st == Strategy::jade || st == Strategy::shade ||
+                                 st == Strategy::lshade) ? 0.5
+                                                         : 0.9;
+    s.F = pick(s.F, F_default);
+    s.CR = pick(s.CR, CR_default);
+    if (!(std::isfinite(s.F) && s.F > 0))
+        bad("F: " + str(s.F) + "; expected a finite F > 0");
+    if (adapts_F(st) && s.F > 1)
+        bad("F: " + str(s.F) + "; strategy '" + name + "' adapts F within (0, 1]");
+    if (!(s.CR >= 0 && s.CR <= 1)) bad("CR: " + str(s.CR) + "; expected 0 <= CR <= 1");
+
+    // Strategy parameters: defaults, checks, and zero for those the strategy does not have, so
+    // that resolved settings compare equal exactly when their trajectories are the same.
+    if (st == Strategy::jade || st == Strategy::shade || st == Strategy::lshade ||
+        st == Strategy::jso) {
+        const double p_default = st == Strategy::jade    ? 0.05
+                                 : st == Strategy::shade ? 0.2
+                                 : st == Strategy::lshade ? 0.11
+                                                          : 0.25;
+        s.p_best = pick(s.p_best, p_default);
+        require_range(s.p_best, 0, 1, true, "p_best", name);
+        s.archive_rate = pick(s.archive_rate, st == Strategy::lshade ? 2.6 : 1.0);
+        require_range(s.archive_rate, 0, 1e3, false, "archive_rate", name);
+    } else {
+        s.p_best = 0;
+        s.archive_rate = 0;
+    }
+    if (st == Strategy::jade) {
+        s.c = pick(s.c, 0.1);
+        require_range(s.c, 0, 1, false, "c", name);
+    } else {
+        s.c = 0;
+    }
+    if (uses_memory(st)) {
+        const int h_default = st == Strategy::shade ? 100 : (st == Strategy::lshade ? 6 : 5);
+        if (s.memory_size < 0) bad("memory_size: " + str(s.memory_size) + "; expected >= 1");
+        s.memory_size = pick(s.memory_size, h_default);
+        const int h_min = st == Strategy::jso ? 2 : 1;
+        if (s.memory_size < h_min || s.memory_size > 1'000'000) {
+            bad("memory_size: " + str(s.memory_size) + "; strategy '" + name + "' needs " +
+                str(h_min) + " <= memory_size <= 1000000");
+        }
+    } else {
+        s.memory_size = 0;
+    }
+    if (st == Strategy::jde) {
+        s.tau1 = pick(s.tau1, 0.1);
+        s.tau2 = pick(s.tau2, 0.1);
+        s.F_lower = pick(s.F_lower, 0.1);
+        s.F_upper = pick(s.F_upper, 0.9);
+        require_range(s.tau1, 0, 1, false, "tau1", name);
+        require_range(s.tau2, 0, 1, false, "tau2", name);
+        require_range(s.F_lower, 0, 2, true, "F_lower", name);
+        require_range(s.F_upper, 0, 2, true, "F_upper", name);
+    } else {
+        s.tau1 = s.tau2 = s.F_lower = s.F_upper = 0;
+    }
+    if (reduces_population(st)) {
+        if (s.min_population_size < 0)
+            bad("min_population_size: " + str(s.min_population_size) + "; expected >= 4");
+        s.min_population_size = pick(s.min_population_size, 4);
+        if (s.min_population_size < 4 || s.min_population_size > s.population_size) {
+            bad("min_population_size: " + str(s.min_population_size) + "; strategy '" + name +
+                "' needs 4 <= min_population_size <= population_size (" +
+                str(s.population_size) + ")");
+        }
+        if (s.max_evaluations < 0)
+            bad("max_evaluations: " + str(s.max_evaluations) + "; expected a positive budget");
+        if (s.max_evaluations == 0)
+            s.max_evaluations = static_cast<std::int64_t>(std::min(10000.0 * D, 1e15));
+        if (s.max_evaluations < s.population_size) {
+            bad("max_evaluations: " + str(s.max_evaluations) + "; strategy '" + name +
+                "' needs a budget of at least population_size (" + str(s.population_size) +
+                ") evaluations");
+        }
+    } else {
+        s.min_population_size = 0;
+        s.max_evaluations = 0;
+    }
+    return s;
+}
+
+bool operator==(const Settings& a, const Settings& b) {
+    return a.strategy == b.strategy && a.lower == b.lower && a.upper == b.upper &&
+           a.seed == b.seed && a.population_size == b.population_size && a.F == b.F &&
+           a.CR == b.CR && a.bound_rule == b.bound_rule && a.p_best == b.p_best && a.c == b.c &&
+           a.archive_rate == b.archive_rate && a.memory_size == b.memory_size &&
+           a.tau1 == b.tau1 && a.tau2 == b.tau2 && a.F_lower == b.F_lower &&
+           a.F_upper == b.F_upper && a.min_population_size == b.min_population_size &&
+           a.max_evaluations == b.max_evaluations;
+}
+
+// ===== objective adapter =============================================================================
+
+ObjectiveFunction::ObjectiveFunction(const Objective& objective, std::vector<bool> active,
+                                     VectorXd x0)
+    : objective_(objective) {
+    const int n = objective.n_params();
+    if (active.empty()) active.assign(static_cast<std::size_t>(n), true);
+    if (static_cast<int>(active.size()) != n)
+        bad("active: " + str(active.size()) + " flags; expected " + str(n));
+    if (x0.size() == 0) x0 = VectorXd::Zero(n);
+    if (x0.size() != n) bad("x0: " + str(x0.size()) + " values; expected " + str(n));
+    require_finite(x0.data(), x0.size(), "x0");
+    for (int i = 0; i < n; ++i)
+        if (active[static_cast<std::size_t>(i)]) index_.push_back(i);
+    if (index_.empty()) bad("active: no parameter is active");
+    x0_ = std::move(x0);
+}
+
+VectorXd ObjectiveFunction::full(const double* z) const {
+    VectorXd x = x0_;
+    for (std::size_t k = 0; k < index_.size(); ++k) x(index_[k]) = z[k];
+    return x;
+}
+
+void ObjectiveFunction::evaluate(const double* X, std::size_t m, double* out, ThreadPool& pool) {
+    const std::size_t threads = static_cast<std::size_t>(pool.size());
+    while (workspaces_.size() < threads) {
+        workspaces_.push_back(objective_.make_workspace());
+        buffers_.push_back(x0_);
+    }
+    const std::size_t d = index_.size();
+    const bool all = static_cast<int>(d) == objective_.n_params();
+    pool.parallel_for(m, [&](std::size_t b, std::size_t e, int id) {
+        Objective::Workspace& ws = workspaces_[static_cast<std::size_t>(id)];
+        double* x = buffers_[static_cast<std::size_t>(id)].data();
+        for (std::size_t i = b; i < e; ++i) {
+            const double* z = X + i * d;
+            if (all) {
+                out[i] = objective_.cost(z, ws);
+            } else {
+                for (std::size_t k = 0; k < d; ++k) x[index_[k]] = z[k];
+                out[i] = objective_.cost(x, ws);
+            }
+        }
+    });
+}
+
+// ===== the engine ====================================================================================
+
+namespace {
+
+using Clock = std::chrono::steady_clock;
+
+double seconds_since(Clock::time_point t0) {
+    return std::chrono::duration<double>(Clock::now() - t0).count();
+}
+
+void sanitize(double* c, std::size_t n) {
+    for (std::size_t i = 0; i < n; ++i)
+        if (std::isnan(c[i])) c[i] = std::numeric_limits<double>::infinity();
+}
+
+int initial_np(const State& st) { return static_cast<int>(st.streams.size()) - 1; }
+
+int archive_capacity(const State& st) {
+    return static_cast<int>(std::lround(st.settings.archive_rate * st.np));
+}
+
+// Adds a parent to the archive; a full archive replaces a random member (serial stream), as JADE
+// ("randomly remove solutions") and Tanabe & Fukunaga's code.
+void archive_push(State& st, const double* x) {
+    const int cap = archive_capacity(st);
+    const std::size_t d = static_cast<std::size_t>(st.dim());
+    if (cap <= 0) return;
+    std::size_t slot;
+    if (st.archive_count < cap) {
+        slot = static_cast<std::size_t>(st.archive_count++);
+        st.archive.resize(static_cast<std::size_t>(st.archive_count) * d);
+    } else {
+        slot = static_cast<std::size_t>(st.streams[0].below(static_cast<std::uint64_t>(st.archive_count)));
+    }
+    std::copy(x, x + d, st.archive.begin() + static_cast<std::ptrdiff_t>(slot * d));
+}
+
+// Shrinks the archive to its capacity by removing random members.
+void archive_trim(State& st) {
+    const int cap = std::max(archive_capacity(st), 0);
+    const std::size_t d = static_cast<std::size_t>(st.dim());
+    while (st.archive_count > cap) {
+        const std::size_t r =
+            static_cast<std::size_t>(st.streams[0].below(static_cast<std::uint64_t>(st.archive_count)));
+        const std::size_t last = static_cast<std::size_t>(st.archive_count - 1);
+        if (r != last)
+            std::copy(st.archive.begin() + static_cast<std::ptrdiff_t>(last * d),
+                      st.archive.begin() + static_cast<std::ptrdiff_t>((last + 1) * d),
+                      st.archive.begin() + static_cast<std::ptrdiff_t>(r * d));
+        --st.archive_count;
+        st.archive.resize(static_cast<std::size_t>(st.archive_count) * d);
+    }
+}
+
+void append_log(State& st) {
+    LogEntry e;
+    e.generation = st.generation;
+    e.nfev = st.nfev;
+    const int np = st.np;
+    const int d = st.dim();
+    e.best = st.costs.minCoeff();
+    double sum = 0;
+    for (int i = 0; i < np; ++i) sum += st.costs(i);
+    e.mean = sum / np;
+    // Column means and variances, row by row (the population is row-major).
+    VectorXd m = st.population.colwise().mean().transpose();
+    VectorXd v = VectorXd::Zero(d);
+    for (int i = 0; i < np; ++i) v += (st.population.row(i).transpose() - m).cwiseAbs2();
+    double acc = 0;
+    for (int j = 0; j < d; ++j) {
+        const double w = st.settings.upper[static_cast<std::size_t>(j)] -
+                         st.settings.lower[static_cast<std::size_t>(j)];
+        acc += v(j) / np / (w * w);
+    }
+    e.spread = std::sqrt(acc / d);
+    e.elapsed = st.elapsed;
+    st.log.push_back(e);
+}
+
+// Truncated Cauchy of JADE/SHADE: regenerated while <= 0, cut at 1.
+double sample_F(Rng& g, double loc) {
+    double F;
+    do {
+        F = g.cauchy(loc, 0.1);
+    } while (!(F > 0));
+    return std::min(F, 1.0);
+}
+
+double sample_CR(Rng& g, double loc) {
+    if (loc < 0) return 0.0;  // the terminal value of L-SHADE's memory
+    return std::clamp(g.normal(loc, 0.1), 0.0, 1.0);
+}
+
+// Everything a slot's trial needs that is computed once per generation.
+struct Generation {
+    State* st;  // read-only but for streams[1 + i], which only slot i touches
+    std::vector<int> order;  // population indices by cost, ties by index
+    int pnum = 2;            // size of the p-best set (fixed-p strategies)
+    double progress = 0;     // NFE / NFE_max (lshade, jso)
+};
+
+// Builds the trial of slot i into u; returns its F and CR in Fi, CRi.
+void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi) {
+    const State& st = *gen.st;
+    const Settings& s = st.settings;
+    Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];
+    const int np = st.np;
+    const int d = st.dim();
+    const auto NP = static_cast<std::uint64_t>(np);
+    const double* xi = st.population.row(i).data();
+    auto row = [&](int k) { return st.population.row(k).data(); };
+    auto draw_other = [&](int a, int b, int c) {  // uniform in [0, np) \ {a, b, c}
+        int r;
+        do {
+            r = static_cast<int>(g.below(NP));
+        } while (r == a || r == b || r == c);
+        return r;
+    };
+    // Mutant components are computed into u; crossover then keeps some of xi.
+    const double* base = nullptr;
+    const double *d1 = nullptr, *d2 = nullptr;  // difference vector d1 - d2
+    const double* pbest = nullptr;
+    double Fw = 0;  // weight of (pbest - xi)
+    switch (s.strategy) {
+        case Strategy::rand1bin:
+        case Strategy::jde: {
+            Fi = s.F;
+            CRi = s.CR;
+            if (s.strategy == Strategy::jde) {
+                // Brest et al. 2006, eq. (10)-(11): rand1..rand4 in this order.
+                const double r1 = g.uniform(), r2 = g.uniform();
+                Fi = r2 < s.tau1 ? s.F_lower + r1 * s.F_upper : st.ind_F[static_cast<std::size_t>(i)];
+                const double r3 = g.uniform(), r4 = g.uniform();
+                CRi = r4 < s.tau2 ? r3 : st.ind_CR[static_cast<std::size_t>(i)];
+            }
+            // eq. (12): r1, r2, r3, i all distinct.
+            const int r1 = draw_other(i, i, i);
+            const int r2 = draw_other(i, r1, r1);
+            const int r3 = draw_other(i, r1, r2);
+            base = row(r1);
+            d1 = row(r2);
+            d2 = row(r3);
+            break;
+        }
+        case Strategy::best1bin: {
+            Fi = s.F;
+            CRi = s.CR;
+            const int r1 = draw_other(i, i, i);
+            const int r2 = draw_other(i, r1, r1);
+            base = row(gen.order[0]);
+            d1 = row(r1);
+            d2 = row(r2);
+            break;
+        }
+        case Strategy::jade:
+        case Strategy::shade:
+        case Strategy::lshade:
+        case Strategy::jso: {
+            int pnum = gen.pnum;
+            if (s.strategy == Strategy::jade) {
+                CRi = sample_CR(g, st.mu_CR);
+                Fi = sample_F(g, st.mu_F);
+            } else {
+                const int h = s.memory_size;
+                const int r = static_cast<int>(g.below(static_cast<std::uint64_t>(h)));
+                double mF = st.mem_F[static_cast<std::size_t>(r)];
+                double mCR = st.mem_CR[static_cast<std::size_t>(r)];
+                if (s.strategy == Strategy::jso && r == h - 1) mF = mCR = 0.9;  // fixed slot
+                CRi = sample_CR(g, mCR);
+                Fi = sample_F(g, mF);
+                if (s.strategy == Strategy::jso) {
+                    if (gen.progress < 0.25) CRi = std::max(CRi, 0.7);
+                    else if (gen.progress < 0.5) CRi = std::max(CRi, 0.6);
+                    if (gen.progress < 0.6) Fi = std::min(Fi, 0.7);
+                }
+                if (s.strategy == Strategy::shade) {
+                    // p_i ~ U[2/NP, p_max] (Tanabe & Fukunaga 2013).
+                    const double p = g.uniform(2.0 / np, std::max(s.p_best, 2.0 / np));
+                    pnum = std::max(2, static_cast<int>(std::lround(p * np)));
+                    pnum = std::min(pnum, np);
+                }
+            }
+            int pb = gen.order[static_cast<std::size_t>(g.below(static_cast<std::uint64_t>(pnum)))];
+            if (s.strategy == Strategy::jso) {
+                while (gen.progress < 0.5 && pb == i)
+                    pb = gen.order[static_cast<std::size_t>(g.below(static_cast<std::uint64_t>(pnum)))];
+            }
+            Fw = Fi;
+            if (s.strategy == Strategy::jso)
+                Fw = Fi * (gen.progress < 0.2 ? 0.7 : (gen.progress < 0.4 ? 0.8 : 1.2));
+            const int r1 = draw_other(i, i, i);
+            // r2 from population + archive, distinct from i and r1.
+            const auto total = NP + static_cast<std::uint64_t>(st.archive_count);
+            int r2;
+            do {
+                r2 = static_cast<int>(g.below(total));
+            } while (r2 == i || r2 == r1);
+            base = xi;
+            pbest = row(pb);
+            d1 = row(r1);
+            d2 = r2 < np ? row(r2)
+                         : st.archive.data() + static_cast<std::size_t>(r2 - np) * static_cast<std::size_t>(d);
+            break;
+        }
+    }
+    // The mutant (eq. 12 or the strategy's rule) for every component: a branch-free loop.
+    if (pbest) {
+        for (int j = 0; j < d; ++j) u[j] = base[j] + Fw * (pbest[j] - xi[j]) + Fi * (d1[j] - d2[j]);
+    } else {
+        for (int j = 0; j < d; ++j) u[j] = base[j] + Fi * (d1[j] - d2[j]);
+    }
+    // Binomial crossover, eq. (13), with the forced index j_r. With CR = 1 every component comes
+    // from the mutant whatever the draws, so none are made (the paper's setting).
+    const int jr = static_cast<int>(g.below(static_cast<std::uint64_t>(d)));
+    if (CRi < 1) {
+        for (int j = 0; j < d; ++j) {
+            const bool take = g.uniform() < CRi || j == jr;
+            u[j] = take ? u[j] : xi[j];
+        }
+    }
+    // Out-of-bounds components (only mutated ones can be) are repaired by the bound rule, in
+    // index order.
+    for (int j = 0; j < d; ++j) {
+        const double lo = s.lower[static_cast<std::size_t>(j)];
+        const double hi = s.upper[static_cast<std::size_t>(j)];
+        double v = u[j];
+        if (v >= lo && v <= hi) continue;
+        const double bound = v < lo ? lo : hi;
+        switch (s.bound_rule) {
+            case BoundRule::midpoint: v = 0.5 * (xi[j] + bound); break;
+            case BoundRule::reinit: v = g.uniform(lo, hi); break;
+            case BoundRule::reflect:
+                v = 2 * bound - v;
+                v = std::clamp(v, lo, hi);
+                break;
+            case BoundRule::clip: v = bound; break;
+        }
+        if (!(v >= lo && v <= hi)) v = std::clamp(std::isnan(v) ? xi[j] : v, lo, hi);
+        u[j] = v;
+    }
+}
+
+// Weighted (Lehmer) means of SHADE: weights |f(u) - f(x)| normalised.
+struct Success {
+    std::vector<double> F, CR, w;
+    void clear() { F.clear(), CR.clear(), w.clear(); }
+    std::vector<double> weights() const {
+        double sum = 0;
+        for (double v : w) sum += v;
+        std::vector<double> out(w.size());
+        if (std::isfinite(sum) && sum > 0) {
+            for (std::size_t k = 0; k < w.size(); ++k) out[k] = w[k] / sum;
+        } else {  // infinite improvements (from an infinite cost), or none: equal weights
+            std::size_t n = 0;
+            for (double v : w) n += std::isinf(v) || !(sum > 0) ? 1 : 0;
+            for (std::size_t k = 0; k < w.size(); ++k)
+                out[k] = (std::isinf(w[k]) || !(sum > 0)) ? 1.0 / static_cast<double>(n) : 0.0;
+        }
+        return out;
+    }
+    static double lehmer(const std::vector<double>& v, const std::vector<double>& wt) {
+        double num = 0, den = 0;
+        for (std::size_t k = 0; k < v.size(); ++k) num += wt[k] * v[k] * v[k], den += wt[k] * v[k];
+        return den > 0 ? num / den : 0.0;
+    }
+    static double arithmetic(const std::vector<double>& v, const std::vector<double>& wt) {
+        double s = 0;
+        for (std::size_t k = 0; k < v.size(); ++k) s += wt[k] * v[k];
+        return s;
+    }
+};
+
+void update_memories(State& st, const Success& succ) {
+    const Settings& s = st.settings;
+    if (succ.F.empty()) return;
+    switch (s.strategy) {
+        case Strategy::jade: {
+            // Zhang & Sanderson 2009, eq. (16)-(18).
+            double sum = 0, num = 0, den = 0;
+            for (std::size_t k = 0; k < succ.F.size(); ++k) {
+                sum += succ.CR[k];
+                num += succ.F[k] * succ.F[k];
+                den += succ.F[k];
+            }
+            st.mu_CR = (1 - s.c) * st.mu_CR + s.c * sum / static_cast<double>(succ.CR.size());
+            st.mu_F = (1 - s.c) * st.mu_F + s.c * (num / den);
+            break;
+        }
+        case Strategy::shade:
+        case Strategy::lshade:
+        case Strategy::jso: {
+            const std::vector<double> wt = succ.weights();
+            const auto k = static_cast<std::size_t>(st.mem_pos);
+            const double mF = Success::lehmer(succ.F, wt);
+            const double maxCR = *std::max_element(succ.CR.begin(), succ.CR.end());
+            if (s.strategy == Strategy::shade) {
+                st.mem_CR[k] = Success::arithmetic(succ.CR, wt);
+                st.mem_F[k] = mF;
+            } else {
+                const bool terminal = st.mem_CR[k] < 0 || maxCR == 0;
+                const double mCR = Success::lehmer(succ.CR, wt);
+                if (s.strategy == Strategy::lshade) {
+                    st.mem_CR[k] = terminal ? -1.0 : mCR;
+                    st.mem_F[k] = mF;
+                } else {  // jSO (iL-SHADE): the mean of the new and the old value
+                    st.mem_CR[k] = terminal ? -1.0 : 0.5 * (mCR + st.mem_CR[k]);
+                    st.mem_F[k] = 0.5 * (mF + st.mem_F[k]);
+                }
+            }
+            st.mem_pos = (st.mem_pos + 1) % s.memory_size;
+            break;
+        }
+        default: break;
+    }
+}
+
+// L-SHADE's linear population size reduction: the worst individuals go (ties: the later slot).
+void reduce_population(State& st) {
+    const Settings& s = st.settings;
+    const double n0 = initial_np(st), nmin = s.min_population_size;
+    const double frac = std::min(1.0, static_cast<double>(st.nfev) / static_cast<double>(s.max_evaluations));
+    const int plan = std::max(s.min_population_size,
+                              static_cast<int>(std::lround((nmin - n0) * frac + n0)));
+    if (st.np <= plan) return;
+    std::vector<int> idx(static_cast<std::size_t>(st.np));
+    std::iota(idx.begin(), idx.end(), 0);
+    std::sort(idx.begin(), idx.end(), [&](int a, int b) {
+        return st.costs(a) < st.costs(b) || (st.costs(a) == st.costs(b) && a < b);
+    });
+    std::vector<char> keep(static_cast<std::size_t>(st.np), 0);
+    for (int k = 0; k < plan; ++k) keep[static_cast<std::size_t>(idx[static_cast<std::size_t>(k)])] = 1;
+    int w = 0;
+    for (int i = 0; i < st.np; ++i) {
+        if (!keep[static_cast<std::size_t>(i)]) continue;
+        if (w != i) {
+            st.population.row(w) = st.population.row(i);
+            st.costs(w) = st.costs(i);
+        }
+        ++w;
+    }
+    st.np = plan;
+    st.population.conservativeResize(plan, Eigen::NoChange);
+    st.costs.conservativeResize(plan);
+    archive_trim(st);
+}
+
+void check_dim(const State& st, const BatchFunction& f) {
+    if (f.dim() != st.dim()) {
+        bad("function: dimension " + str(f.dim()) + "; the settings' bounds have " +
+            str(st.dim()) + " parameters");
+    }
+}
+
+}  // namespace
+
+int State::best_index() const {
+    int b = 0;
+    for (int i = 1; i < np; ++i)
+        if (costs(i) < costs(b)) b = i;
+    return b;
+}
+
+State init(const Settings& settings, BatchFunction& f, ThreadPool& pool) {
+    const auto t0 = Clock::now();
+    State st;
+    st.settings = resolve(settings);
+    check_dim(st, f);
+    const Settings& s = st.settings;
+    const int np = s.population_size;
+    const int d = s.dim();
+    st.np = np;
+    // Streams 2^128 steps apart: 0 serial, 1 + i slot i.
+    Rng base = Rng::seeded(s.seed);
+    st.streams.resize(static_cast<std::size_t>(np) + 1);
+    for (auto& r : st.streams) {
+        r = base;
+        base.jump();
+    }
+    // eq. (11): uniform within the bounds.
+    st.population.resize(np, d);
+    pool.parallel_for(static_cast<std::size_t>(np), [&](std::size_t b, std::size_t e, int) {
+        for (std::size_t i = b; i < e; ++i) {
+            Rng& g = st.streams[i + 1];
+            for (int j = 0; j < d; ++j) {
+                const double lo = s.lower[static_cast<std::size_t>(j)];
+                const double hi = s.upper[static_cast<std::size_t>(j)];
+                st.population(static_cast<Eigen::Index>(i), j) = std::min(lo + g.uniform() * (hi - lo), hi);
+            }
+        }
+    });
+    st.costs.resize(np);
+    f.evaluate(st.population.data(), static_cast<std::size_t>(np), st.costs.data(), pool);
+    sanitize(st.costs.data(), static_cast<std::size_t>(np));
+    st.nfev = np;
+    st.generation = 0;
+    if (s.strategy == Strategy::jde) {
+        st.ind_F.assign(static_cast<std::size_t>(np), s.F);
+        st.ind_CR.assign(static_cast<std::size_t>(np), s.CR);
+    }
+    if (s.strategy == Strategy::jade) {
+        st.mu_F = s.F;
+        st.mu_CR = s.CR;
+    }
+    if (uses_memory(s.strategy)) {
+        st.mem_F.assign(static_cast<std::size_t>(s.memory_size), s.F);
+        st.mem_CR.assign(static_cast<std::size_t>(s.memory_size), s.CR);
+        if (s.strategy == Strategy::jso) st.mem_F.back() = st.mem_CR.back() = 0.9;
+    }
+    st.elapsed = seconds_since(t0);
+    append_log(st);
+    return st;
+}
+
+void step(State& st, BatchFunction& f, ThreadPool& pool) {
+    const auto t0 = Clock::now();
+    check_dim(st, f);
+    const Settings& s = st.settings;
+    const int np = st.np;
+    const int d = st.dim();
+
+    Generation gen;
+    gen.st = &st;
+    if (reduces_population(s.strategy))
+        gen.progress = static_cast<double>(st.nfev) / static_cast<double>(s.max_evaluations);
+    double p = s.p_best;
+    if (s.strategy == Strategy::jso) p = s.p_best * (1.0 - 0.5 * std::min(gen.progress, 1.0));
+    gen.pnum = std::min(np, std::max(2, static_cast<int>(std::lround(p * np))));
+    if (s.strategy != Strategy::rand1bin && s.strategy != Strategy::jde) {
+        // The best `top` individuals in order (all the p-best sets and best1bin's base need).
+        const int top = s.strategy == Strategy::best1bin ? 1 : gen.pnum;
+        gen.order.resize(static_cast<std::size_t>(np));
+        std::iota(gen.order.begin(), gen.order.end(), 0);
+        std::partial_sort(gen.order.begin(), gen.order.begin() + top, gen.order.end(),
+                          [&](int a, int b) {
+                              return st.costs(a) < st.costs(b) ||
+                                     (st.costs(a) == st.costs(b) && a < b);
+                          });
+    }
+
+    // Trials: slot i uses stream 1 + i only, so any partition of the slots gives the same trials.
+    // The streams are the only part of the state touched before the evaluation, which may throw
+    // (a Python objective interrupted by Ctrl-C): they are restored then.
+    std::vector<Rng> saved = st.streams;
+    RowMatrixXd trials(np, d);
+    std::vector<double> tF(static_cast<std::size_t>(np)), tCR(static_cast<std::size_t>(np));
+    pool.parallel_for(static_cast<std::size_t>(np), [&](std::size_t b, std::size_t e, int) {
+        for (std::size_t i = b; i < e; ++i)
+            make_trial(gen, static_cast<int>(i), trials.row(static_cast<Eigen::Index>(i)).data(),
+                       tF[i], tCR[i]);
+    });
+    VectorXd tcost(np);
+    try {
+        f.evaluate(trials.data(), static_cast<std::size_t>(np), tcost.data(), pool);
+    } catch (...) {
+        st.streams = std::move(saved);  // the state is left as it was before this step
+        throw;
+    }
+    sanitize(tcost.data(), static_cast<std::size_t>(np));
+    st.nfev += np;
+
+    // Selection, eq. (14), serially in slot order (the archive and the memories depend on order).
+    Success succ;
+    const bool archive = uses_archive(s.strategy);
+    for (int i = 0; i < np; ++i) {
+        if (!(tcost(i) <= st.costs(i))) continue;
+        if (tcost(i) < st.costs(i)) {
+            succ.F.push_back(tF[static_cast<std::size_t>(i)]);
+            succ.CR.push_back(tCR[static_cast<std::size_t>(i)]);
+            succ.w.push_back(st.costs(i) - tcost(i));
+            if (archive) archive_push(st, st.population.row(i).data());
+        }
+        st.population.row(i) = trials.row(i);
+        st.costs(i) = tcost(i);
+        if (s.strategy == Strategy::jde) {
+            st.ind_F[static_cast<std::size_t>(i)] = tF[static_cast<std::size_t>(i)];
+            st.ind_CR[static_cast<std::size_t>(i)] = tCR[static_cast<std::size_t>(i)];
+        }
+    }
+    update_memories(st, succ);
+    if (reduces_population(s.strategy)) reduce_population(st);
+    ++st.generation;
+    st.elapsed += seconds_since(t0);
+    append_log(st);
+}
+
+StopReason check_stop(const State& st, const Stop& stop, double seconds) {
+    const double best = st.best_cost();
+    if (best <= stop.target_cost) return StopReason::target;
+    if (stop.tol > 0 || stop.atol > 0) {
+        const double mean = st.costs.mean();
+        if (std::isfinite(mean)) {
+            const double sd = std::sqrt((st.costs.array() - mean).square().mean());
+            if (sd <= stop.atol + stop.tol * std::abs(mean)) return StopReason::converged;
+        }
+    }
+    if (stop.stagnation_generations > 0 &&
+        static_cast<std::int64_t>(st.log.size()) > stop.stagnation_generations) {
+        const double then =
+            st.log[st.log.size() - 1 - static_cast<std::size_t>(stop.stagnation_generations)].best;
+        if (std::isfinite(then) && then - best <= stop.stagnation_tol * std::abs(best))
+            return StopReason::stagnation;
+    }
+    if (stop.max_generations >= 0 && st.generation >= stop.max_generations)
+        return StopReason::generations;
+    if (stop.max_evaluations >= 0 && st.nfev >= stop.max_evaluations)
+        return StopReason::evaluations;
+    if (seconds >= stop.max_seconds) return StopReason::time;
+    return StopReason::none;
+}
+
+namespace {
+std::string stop_message(StopReason r, const State& st, const Stop& stop) {
+    switch (r) {
+        case StopReason::target:
+            return "the best cost " + str(st.best_cost()) + " reached the target " +
+                   str(stop.target_cost);
+        case StopReason::converged:
+            return "the population's costs converged (std <= atol + tol * |mean|)";
+        case StopReason::stagnation:
+            return "the best cost improved by no more than stagnation_tol in the last " +
+                   str(stop.stagnation_generations) + " generations";
+        case StopReason::generations:
+            return "the maximum number of generations (" + str(stop.max_generations) +
+                   ") was reached";
+        case StopReason::evaluations:
+            return "the maximum number of evaluations (" + str(stop.max_evaluations) +
+                   ") was reached";
+        case StopReason::time:
+            return "the time limit (" + str(stop.max_seconds) + " s) was reached";
+        case StopReason::callback: return "stopped by the callback";
+        case StopReason::none: break;
+    }
+    return "not stopped";
+}
+}  // namespace
+
+RunResult run(State& st, BatchFunction& f, ThreadPool& pool, const Stop& stop,
+              const Callback& callback) {
+    if (stop.max_generations < 0 && stop.max_evaluations < 0 && !std::isfinite(stop.max_seconds) &&
+        !callback) {
+        bad("stop: no stopping criterion (max_generations, max_evaluations, max_seconds or a "
+            "callback)");
+    }
+    if (std::isnan(stop.max_seconds)) bad("max_seconds: nan");
+    check_dim(st, f);
+    const auto t0 = Clock::now();
+    StopReason reason = check_stop(st, stop, 0.0);
+    while (reason == StopReason::none) {
+        step(st, f, pool);
+        const bool asked = callback && callback(st);
+        reason = check_stop(st, stop, seconds_since(t0));
+        if (reason == StopReason::none && asked) reason = StopReason::callback;
+    }
+    RunResult r;
+    r.reason = reason;
+    r.success = reason == StopReason::target || reason == StopReason::converged ||
+                reason == StopReason::stagnation;
+    r.message = stop_message(reason, st, stop);
+    return r;
+}
+
+// ===== serialization =================================================================================
+
+namespace {
+
+constexpr char kMagic[8] = {'I', 'W', 'R', 'D', 'E', 'S', 'T', '\n'};
+
+std::uint64_t fnv1a(const char* p, std::size_t n) {
+    std::uint64_t h = 0xcbf29ce484222325ULL;
+    for (std::size_t i = 0; i < n; ++i) {
+        h ^= static_cast<unsigned char>(p[i]);
+        h *= 0x100000001b3ULL;
+    }
+    return h;
+}
+
+class Writer {
+public:
+    std::string buf;
+    void u8(std::uint8_t v) { buf.push_back(static_cast<char>(v)); }
+    void u64(std::uint64_t v) {
+        for (int b = 0; b < 8; ++b) buf.push_back(static_cast<char>((v >> (8 * b)) & 0xff));
+    }
+    void u32(std::uint32_t v) {
+        for (int b = 0; b < 4; ++b) buf.push_back(static_cast<char>((v >> (8 * b)) & 0xff));
+    }
+    void i64(std::int64_t v) { u64(static_cast<std::uint64_t>(v)); }
+    void f64(double v) {
+        std::uint64_t bits;
+        std::memcpy(&bits, &v, sizeof bits);
+        u64(bits);
+    }
+    void f64s(const double* p, std::size_t n) {
+        u64(n);
+        for (std::size_t i = 0; i < n; ++i) f64(p[i]);
+    }
+    void f64s(const std::vector<double>& v) { f64s(v.data(), v.size()); }
+};
+
+[[noreturn]] void corrupt(const std::string& what) {
+    throw std::runtime_error("DE state: " + what);
+}
+
+class Reader {
+public:
+    Reader(const std::string& b, std::size_t end) : buf_(b), end_(end) {}
+    std::size_t pos() const { return pos_; }
+    void need(std::size_t n, const char* what) {
+        if (n > end_ - pos_) corrupt(std::string("truncated while reading ") + what);
+    }
+    std::uint8_t u8(const char* what) {
+        need(1, what);
+        return static_cast<std::uint8_t>(buf_[pos_++]);
+    }
+    std::uint64_t u64(const char* what) {
+        need(8, what);
+        std::uint64_t v = 0;
+        for (int b = 0; b < 8; ++b)
+            v |= static_cast<std::uint64_t>(static_cast<unsigned char>(buf_[pos_ + static_cast<std::size_t>(b)])) << (8 * b);
+        pos_ += 8;
+        return v;
+    }
+    std::uint32_t u32(const char* what) {
+        need(4, what);
+        std::uint32_t v = 0;
+        for (int b = 0; b < 4; ++b)
+            v |= static_cast<std::uint32_t>(static_cast<unsigned char>(buf_[pos_ + static_cast<std::size_t>(b)])) << (8 * b);
+        pos_ += 4;
+        return v;
+    }
+    std::int64_t i64(const char* what) { return static_cast<std::int64_t>(u64(what)); }
+    int i32(const char* what) {
+        const std::int64_t v = i64(what);
+        if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max())
+            corrupt(std::string(what) + " out of range");
+        return static_cast<int>(v);
+    }
+    double f64(const char* what) {
+        const std::uint64_t bits = u64(what);
+        double v;
+        std::memcpy(&v, &bits, sizeof v);
+        return v;
+    }
+    std::vector<double> f64s(const char* what) {
+        const std::uint64_t n = u64(what);
+        if (n > (end_ - pos_) / 8) corrupt(std::string("truncated or corrupt length of ") + what);
+        std::vector<double> v(static_cast<std::size_t>(n));
+        for (auto& x : v) x = f64(what);
+        return v;
+    }
+
+private:
+    const std::string& buf_;
+    std::size_t end_;
+    std::size_t pos_ = 0;
+};
+
+void write_settings(Writer& w, const Settings& s) {
+    w.u8(static_cast<std::uint8_t>(s.strategy));
+    w.f64s(s.lower);
+    w.f64s(s.upper);
+    w.u64(s.seed);
+    w.i64(s.population_size);
+    w.f64(s.F);
+    w.f64(s.CR);
+    w.u8(static_cast<std::uint8_t>(s.bound_rule));
+    w.f64(s.p_best);
+    w.f64(s.c);
+    w.f64(s.archive_rate);
+    w.i64(s.memory_size);
+    w.f64(s.tau1);
+    w.f64(s.tau2);
+    w.f64(s.F_lower);
+    w.f64(s.F_upper);
+    w.i64(s.min_population_size);
+    w.i64(s.max_evaluations);
+}
+
+Settings read_settings(Reader& r) {
+    Settings s;
+    const std::uint8_t st = r.u8("strategy");
+    if (st >= kStrategyCount) corrupt("unknown strategy code " + str(int(st)));
+    s.strategy = static_cast<Strategy>(st);
+    s.lower = r.f64s("lower bounds");
+    s.upper = r.f64s("upper bounds");
+    s.seed = r.u64("seed");
+    s.population_size = r.i32("population size");
+    s.F = r.f64("F");
+    s.CR = r.f64("CR");
+    const std::uint8_t br = r.u8("bound rule");
+    if (br >= kBoundRuleCount) corrupt("unknown bound rule code " + str(int(br)));
+    s.bound_rule = static_cast<BoundRule>(br);
+    s.p_best = r.f64("p_best");
+    s.c = r.f64("c");
+    s.archive_rate = r.f64("archive_rate");
+    s.memory_size = r.i32("memory_size");
+    s.tau1 = r.f64("tau1");
+    s.tau2 = r.f64("tau2");
+    s.F_lower = r.f64("F_lower");
+    s.F_upper = r.f64("F_upper");
+    s.min_population_size = r.i32("min_population_size");
+    s.max_evaluations = r.i64("max_evaluations");
+    return s;
+}
+
+}  // namespace
+
+void State::serialize(std::ostream& out) const {
+    Writer w;
+    w.buf.append(kMagic, sizeof kMagic);
+    w.u32(kFormatVersion);
+    write_settings(w, settings);
+    w.i64(np);
+    w.f64s(population.data(), static_cast<std::size_t>(population.size()));
+    w.f64s(costs.data(), static_cast<std::size_t>(costs.size()));
+    w.u64(streams.size());
+    for (const Rng& r : streams)
+        for (std::uint64_t v : r.s) w.u64(v);
+    w.f64s(ind_F);
+    w.f64s(ind_CR);
+    w.f64(mu_F);
+    w.f64(mu_CR);
+    w.f64s(mem_F);
+    w.f64s(mem_CR);
+    w.i64(mem_pos);
+    w.i64(archive_count);
+    w.f64s(archive);
+    w.i64(generation);
+    w.i64(nfev);
+    w.f64(elapsed);
+    w.u64(log.size());
+    for (const LogEntry& e : log) {
+        w.i64(e.generation);
+        w.i64(e.nfev);
+        w.f64(e.best);
+        w.f64(e.mean);
+        w.f64(e.spread);
+        w.f64(e.elapsed);
+    }
+    w.u64(fnv1a(w.buf.data(), w.buf.size()));
+    out.write(w.buf.data(), static_cast<std::streamsize>(w.buf.size()));
+    if (!out) throw std::runtime_error("DE state: write failed");
+}
+
+State State::deserialize(std::istream& in) {
+    std::string buf((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
+    if (in.bad()) corrupt("read failed");
+    if (buf.size() < sizeof kMagic + 4 + 8) corrupt("truncated (" + str(buf.size()) + " bytes)");
+    if (std::memcmp(buf.data(), kMagic, sizeof kMagic) != 0) corrupt("not a DE state (bad magic)");
+    const std::size_t body = buf.size() - 8;
+    auto le = [&](std::size_t at, int bytes) {
+        std::uint64_t v = 0;
+        for (int b = 0; b < bytes; ++b)
+            v |= static_cast<std::uint64_t>(static_cast<unsigned char>(buf[at + static_cast<std::size_t>(b)]))
+                 << (8 * b);
+        return v;
+    };
+    // The version is checked before the checksum, so that another format gets a clear message.
+    const std::uint64_t version = le(sizeof kMagic, 4);
+    if (version != kFormatVersion)
+        corrupt("format version " + str(version) + "; this build reads version " + str(kFormatVersion));
+    if (fnv1a(buf.data(), body) != le(body, 8)) corrupt("checksum mismatch (truncated or corrupted)");
+    Reader r(buf, body);
+    r.need(sizeof kMagic, "magic");
+    for (std::size_t i = 0; i < sizeof kMagic; ++i) r.u8("magic");
+    r.u32("version");
+    State st;
+    const Settings raw = read_settings(r);
+    try {
+        st.settings = resolve(raw);
+    } catch (const std::invalid_argument& e) {
+        corrupt(std::string("invalid settings: ") + e.what());
+    }
+    if (st.settings != raw) corrupt("settings are not in resolved form");
+    const Settings& s = st.settings;
+    const std::size_t d = static_cast<std::size_t>(s.dim());
+    st.np = r.i32("population size");
+    if (st.np < min_population_size(s.strategy) || st.np > s.population_size)
+        corrupt("current population size " + str(st.np) + " out of range");
+    const std::size_t np = static_cast<std::size_t>(st.np);
+    const std::vector<double> pop = r.f64s("population");
+    if (pop.size() != np * d) corrupt("population has the wrong size");
+    st.population = Eigen::Map<const RowMatrixXd>(pop.data(), st.np, static_cast<Eigen::Index>(d));
+    for (std::size_t i = 0; i < np; ++i)
+        for (std::size_t j = 0; j < d; ++j) {
+            const double v = pop[i * d + j];
+            if (!(v >= s.lower[j] && v <= s.upper[j])) corrupt("population outside the bounds");
+        }
+    const std::vector<double> c = r.f64s("costs");
+    if (c.size() != np) corrupt("costs have the wrong size");
+    for (double v : c)
+        if (std::isnan(v)) corrupt("NaN cost");
+    st.costs = Eigen::Map<const VectorXd>(c.data(), st.np);
+    const std::uint64_t ns = r.u64("stream count");
+    if (ns != static_cast<std::uint64_t>(s.population_size) + 1) corrupt("wrong number of random streams");
+    r.need(static_cast<std::size_t>(ns) * 32, "random streams");
+    st.streams.resize(static_cast<std::size_t>(ns));
+    for (Rng& g : st.streams) {
+        for (std::uint64_t& v : g.s) v = r.u64("random stream");
+        if ((g.s[0] | g.s[1] | g.s[2] | g.s[3]) == 0) corrupt("zero random stream state");
+    }
+    st.ind_F = r.f64s("jDE F");
+    st.ind_CR = r.f64s("jDE CR");
+    const std::size_t n_ind = s.strategy == Strategy::jde ? np : 0;
+    if (st.ind_F.size() != n_ind || st.ind_CR.size() != n_ind) corrupt("jDE parameters have the wrong size");
+    for (std::size_t i = 0; i < n_ind; ++i)
+        if (!(st.ind_F[i] > 0 && std::isfinite(st.ind_F[i]) && st.ind_CR[i] >= 0 && st.ind_CR[i] <= 1))
+            corrupt("jDE parameters out of range");
+    st.mu_F = r.f64("mu_F");
+    st.mu_CR = r.f64("mu_CR");
+    if (s.strategy == Strategy::jade && !(st.mu_F > 0 && st.mu_F <= 1 && st.mu_CR >= 0 && st.mu_CR <= 1))
+        corrupt("JADE means out of range");
+    st.mem_F = r.f64s("memory F");
+    st.mem_CR = r.f64s("memory CR");
+    const std::size_t h = static_cast<std::size_t>(s.memory_size);
+    if (st.mem_F.size() != h || st.mem_CR.size() != h) corrupt("memories have the wrong size");
+    for (std::size_t k = 0; k < h; ++k)
+        if (!(st.mem_F[k] >= 0 && st.mem_F[k] <= 1 && st.mem_CR[k] <= 1 && (st.mem_CR[k] >= 0 || st.mem_CR[k] == -1)))
+            corrupt("memory values out of range");
+    st.mem_pos = r.i32("memory position");
+    if (st.mem_pos < 0 || (h > 0 ? st.mem_pos >= s.memory_size : st.mem_pos != 0))
+        corrupt("memory position out of range");
+    st.archive_count = r.i32("archive count");
+    st.archive = r.f64s("archive");
+    if (st.archive_count < 0 || st.archive.size() != static_cast<std::size_t>(st.archive_count) * d ||
+        st.archive_count > archive_capacity(st))
+        corrupt("archive has the wrong size");
+    for (double v : st.archive)
+        if (!std::isfinite(v)) corrupt("non-finite archive entry");
+    st.generation = r.i64("generation");
+    st.nfev = r.i64("evaluation count");
+    st.elapsed = r.f64("elapsed");
+    if (st.generation < 0 || st.nfev < static_cast<std::int64_t>(np) || !(st.elapsed >= 0))
+        corrupt("counters out of range");
+    const std::uint64_t nlog = r.u64("log length");
+    if (nlog != static_cast<std::uint64_t>(st.generation) + 1)
+        corrupt("log length does not match the generation");
+    if (nlog > (body - r.pos()) / 48) corrupt("truncated while reading the log");
+    st.log.resize(static_cast<std::size_t>(nlog));
+    for (LogEntry& e : st.log) {
+        e.generation = r.i64("log");
+        e.nfev = r.i64("log");
+        e.best = r.f64("log");
+        e.mean = r.f64("log");
+        e.spread = r.f64("log");
+        e.elapsed = r.f64("log");
+    }
+    if (r.pos() != body) corrupt("unexpected bytes after the log");
+    return st;
+}
+
+}  // namespace iwr::de

@@ -1,0 +1,268 @@
+// C++ tests of the differential evolution engine: determinism across thread counts, bit-identical
+// resume through serialize/deserialize, rejection of damaged states, argument validation.
+#include <cmath>
+#include <cstdio>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+#include <string>
+
+#include "iwr/de.hpp"
+
+namespace {
+
+int failures = 0;
+
+#define CHECK(cond)                                                                    \
+    do {                                                                               \
+        if (!(cond)) {                                                                 \
+            std::fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
+            ++failures;                                                                \
+        }                                                                              \
+    } while (0)
+
+using iwr::de::Strategy;
+
+// Shifted Rosenbrock-like sum with a cost that depends only on its row.
+class TestFunction : public iwr::de::BatchFunction {
+public:
+    explicit TestFunction(int d, bool flat = false) : d_(d), flat_(flat) {}
+    int dim() const override { return d_; }
+    void evaluate(const double* X, std::size_t m, double* out, iwr::ThreadPool& pool) override {
+        pool.parallel_for(m, [&](std::size_t b, std::size_t e, int) {
+            for (std::size_t i = b; i < e; ++i) {
+                const double* x = X + i * static_cast<std::size_t>(d_);
+                double s = 0;
+                for (int j = 0; j < d_; ++j) s += (x[j] - 0.3) * (x[j] - 0.3) * (1 + j);
+                out[i] = flat_ ? 1.0 : s;
+            }
+        });
+        calls += 1;
+    }
+    int calls = 0;
+
+private:
+    int d_;
+    bool flat_;
+};
+
+iwr::de::Settings settings_for(Strategy s, int d, std::uint64_t seed) {
+    iwr::de::Settings st;
+    st.strategy = s;
+    st.lower.assign(static_cast<std::size_t>(d), -2.0);
+    st.upper.assign(static_cast<std::size_t>(d), 3.0);
+    st.seed = seed;
+    st.population_size = s == Strategy::lshade || s == Strategy::jso ? 40 : 20;
+    st.max_evaluations = 40 * 30;  // lshade/jso: the population shrinks within the test's budget
+    return st;
+}
+
+bool same_state(const iwr::de::State& a, const iwr::de::State& b) {
+    if (a.np != b.np || a.generation != b.generation || a.nfev != b.nfev) return false;
+    if (a.population != b.population || a.costs != b.costs) return false;
+    if (a.archive != b.archive || a.mem_F != b.mem_F || a.mem_CR != b.mem_CR) return false;
+    if (a.ind_F != b.ind_F || a.ind_CR != b.ind_CR || a.mu_F != b.mu_F || a.mu_CR != b.mu_CR)
+        return false;
+    if (a.log.size() != b.log.size()) return false;
+    for (std::size_t k = 0; k < a.log.size(); ++k) {
+        const auto &x = a.log[k], &y = b.log[k];
+        if (x.generation != y.generation || x.nfev != y.nfev || x.best != y.best ||
+            x.mean != y.mean || x.spread != y.spread)
+            return false;
+    }
+    for (std::size_t k = 0; k < a.streams.size(); ++k)
+        for (int w = 0; w < 4; ++w)
+            if (a.streams[k].s[w] != b.streams[k].s[w]) return false;
+    return true;
+}
+
+constexpr Strategy kAll[] = {Strategy::rand1bin, Strategy::best1bin, Strategy::jade,
+                             Strategy::jde,      Strategy::shade,    Strategy::lshade,
+                             Strategy::jso};
+
+void test_threads_and_resume() {
+    for (Strategy s : kAll) {
+        TestFunction f(7);
+        const auto set = settings_for(s, 7, 123);
+        iwr::ThreadPool p1(1), p2(2), p3(3);
+        auto a = iwr::de::init(set, f, p1);
+        auto b = iwr::de::init(set, f, p2);
+        for (int g = 0; g < 25; ++g) {
+            iwr::de::step(a, f, p1);
+            iwr::de::step(b, f, g % 2 ? p2 : p3);
+        }
+        CHECK(same_state(a, b));
+        // Resume: 12 generations, a checkpoint, 13 more == 25 generations in one go.
+        auto c = iwr::de::init(set, f, p2);
+        for (int g = 0; g < 12; ++g) iwr::de::step(c, f, p2);
+        std::stringstream buf;
+        c.serialize(buf);
+        auto d = iwr::de::State::deserialize(buf);
+        CHECK(same_state(c, d));
+        for (int g = 0; g < 13; ++g) iwr::de::step(d, f, p1);
+        CHECK(same_state(a, d));
+        if (s == Strategy::lshade || s == Strategy::jso) CHECK(a.np < 40);  // reduction happened
+        // The best cost never rises (eq. 14 is elitist) and the population stays in bounds.
+        for (std::size_t k = 1; k < a.log.size(); ++k) CHECK(a.log[k].best <= a.log[k - 1].best);
+        for (int i = 0; i < a.np; ++i)
+            for (int j = 0; j < 7; ++j) CHECK(a.population(i, j) >= -2 && a.population(i, j) <= 3);
+        // Another seed gives another run.
+        auto e = iwr::de::init(settings_for(s, 7, 124), f, p1);
+        CHECK(e.population != iwr::de::init(set, f, p1).population);
+    }
+}
+
+void test_selection_is_less_or_equal() {
+    // A flat function: with `<=` every trial replaces its target, so every row changes.
+    TestFunction f(5, true);
+    iwr::ThreadPool pool(2);
+    auto set = settings_for(Strategy::rand1bin, 5, 1);
+    set.CR = 0.5;
+    auto st = iwr::de::init(set, f, pool);
+    const iwr::RowMatrixXd before = st.population;
+    iwr::de::step(st, f, pool);
+    for (int i = 0; i < st.np; ++i) CHECK(st.population.row(i) != before.row(i));
+}
+
+void test_solves_sphere() {
+    for (Strategy s : kAll) {
+        TestFunction f(5);
+        iwr::ThreadPool pool(2);
+        auto set = settings_for(s, 5, 7);
+        set.population_size = 0;  // the published default
+        set.max_evaluations = 20000;
+        auto st = iwr::de::init(set, f, pool);
+        iwr::de::Stop stop;
+        stop.max_evaluations = 20000;
+        stop.target_cost = 1e-8;
+        int calls = 0;
+        const auto r = iwr::de::run(st, f, pool, stop, [&](const iwr::de::State&) {
+            ++calls;
+            return false;
+        });
+        CHECK(r.reason == iwr::de::StopReason::target);
+        CHECK(r.success);
+        CHECK(calls == st.generation);
+        if (r.reason != iwr::de::StopReason::target)
+            std::fprintf(stderr, "%s: %s, best %g\n", iwr::de::to_string(s).c_str(),
+                         r.message.c_str(), st.best_cost());
+    }
+    // The callback can stop a run.
+    TestFunction f(5);
+    iwr::ThreadPool pool(1);
+    auto st = iwr::de::init(settings_for(Strategy::jade, 5, 3), f, pool);
+    iwr::de::Stop stop;
+    stop.max_generations = 1000;
+    const auto r = iwr::de::run(st, f, pool, stop,
+                                [](const iwr::de::State& s) { return s.generation >= 4; });
+    CHECK(r.reason == iwr::de::StopReason::callback && !r.success && st.generation == 4);
+}
+
+template <typename Fn>
+bool throws_runtime(Fn fn) {
+    try {
+        fn();
+    } catch (const std::runtime_error&) {
+        return true;
+    }
+    return false;
+}
+
+void test_damaged_states() {
+    TestFunction f(3);
+    iwr::ThreadPool pool(1);
+    auto set = settings_for(Strategy::lshade, 3, 9);
+    set.population_size = 8;
+    set.max_evaluations = 200;
+    auto st = iwr::de::init(set, f, pool);
+    for (int g = 0; g < 6; ++g) iwr::de::step(st, f, pool);
+    std::stringstream buf;
+    st.serialize(buf);
+    const std::string good = buf.str();
+    {
+        std::istringstream in(good);
+        CHECK(same_state(st, iwr::de::State::deserialize(in)));
+    }
+    // Every truncation is refused.
+    int refused = 0;
+    for (std::size_t n = 0; n < good.size(); ++n) {
+        std::istringstream in(good.substr(0, n));
+        refused += throws_runtime([&] { iwr::de::State::deserialize(in); });
+    }
+    CHECK(refused == static_cast<int>(good.size()));
+    // Every single flipped bit is refused (the checksum, or the magic/version test).
+    std::mt19937 rng(5);
+    refused = 0;
+    const int trials = 400;
+    for (int t = 0; t < trials; ++t) {
+        std::string bad = good;
+        const std::size_t at = rng() % bad.size();
+        bad[at] = static_cast<char>(bad[at] ^ (1 << (rng() % 8)));
+        std::istringstream in(bad);
+        refused += throws_runtime([&] { iwr::de::State::deserialize(in); });
+    }
+    CHECK(refused == trials);
+    // Random garbage and an appended byte are refused.
+    std::string junk(good.size(), '\0');
+    for (auto& ch : junk) ch = static_cast<char>(rng());
+    std::istringstream in1(junk);
+    CHECK(throws_runtime([&] { iwr::de::State::deserialize(in1); }));
+    std::istringstream in2(good + "x");
+    CHECK(throws_runtime([&] { iwr::de::State::deserialize(in2); }));
+}
+
+template <typename Fn>
+bool throws_naming(Fn fn, const std::string& needle) {
+    try {
+        fn();
+    } catch (const std::invalid_argument& e) {
+        if (std::string(e.what()).find(needle) != std::string::npos) return true;
+        std::fprintf(stderr, "message without '%s': %s\n", needle.c_str(), e.what());
+    }
+    return false;
+}
+
+void test_validation() {
+    auto base = settings_for(Strategy::rand1bin, 3, 0);
+    auto with = [&](auto edit) {
+        auto s = base;
+        edit(s);
+        return [s] { iwr::de::resolve(s); };
+    };
+    CHECK(throws_naming(with([](auto& s) { s.F = 0; }), "F: 0"));
+    CHECK(throws_naming(with([](auto& s) { s.F = -1; }), "F: -1"));
+    CHECK(throws_naming(with([](auto& s) { s.CR = 1.5; }), "CR: 1.5"));
+    CHECK(throws_naming(with([](auto& s) { s.CR = -0.1; }), "CR: -0.1"));
+    CHECK(throws_naming(with([](auto& s) { s.population_size = 3; }), "population_size: 3"));
+    CHECK(throws_naming(with([](auto& s) { s.lower[1] = 5; }), "parameter 1 has lower 5"));
+    CHECK(throws_naming(with([](auto& s) { s.upper[2] = INFINITY; }), "upper inf"));
+    CHECK(throws_naming(with([](auto& s) { s.upper.pop_back(); }), "bounds: upper has 2"));
+    CHECK(throws_naming(with([](auto& s) { s.strategy = Strategy::jade, s.F = 1.5; }), "F: 1.5"));
+    CHECK(throws_naming([] { iwr::de::parse_strategy("rand2bin"); }, "'rand2bin'"));
+    auto ok = base;
+    ok.strategy = Strategy::best1bin;
+    ok.population_size = 3;
+    iwr::de::resolve(ok);  // best1bin needs only 3
+    TestFunction f(4);
+    iwr::ThreadPool pool(1);
+    CHECK(throws_naming([&] { iwr::de::init(base, f, pool); }, "dimension 4"));
+    TestFunction g(3);
+    auto st = iwr::de::init(base, g, pool);
+    CHECK(throws_naming([&] { iwr::de::run(st, g, pool, iwr::de::Stop()); }, "stopping"));
+}
+
+}  // namespace
+
+int main() {
+    test_threads_and_resume();
+    test_selection_is_less_or_equal();
+    test_solves_sphere();
+    test_damaged_states();
+    test_validation();
+    if (failures) {
+        std::fprintf(stderr, "%d check(s) failed\n", failures);
+        return 1;
+    }
+    std::printf("all DE checks passed\n");
+    return 0;
+}

@@ -1,0 +1,464 @@
+"""Differential evolution: faithfulness to SciPy's DE/rand/1/bin, the modern strategies,
+determinism, control, argument checking, and the IWR problem."""
+
+from __future__ import annotations
+
+import functools
+import os
+import signal
+import threading
+
+import numpy as np
+import pytest
+from scipy import stats
+from scipy.optimize import differential_evolution as scipy_de
+
+import iwr
+from iwr.de import STRATEGIES
+
+# --- test functions (vectorised over the rows of X) -----------------------------------------------
+
+
+def sphere(X):
+    return (X**2).sum(-1)
+
+
+def rosenbrock(X):
+    return (100 * (X[..., 1:] - X[..., :-1] ** 2) ** 2 + (1 - X[..., :-1]) ** 2).sum(-1)
+
+
+def rastrigin(X):
+    return 10 * X.shape[-1] + (X**2 - 10 * np.cos(2 * np.pi * X)).sum(-1)
+
+
+# name: (function, half-width of the box, CR, generations); D = 10, NP = 50, F = 0.5 throughout.
+# CR = 0 makes each trial differ from its target in exactly the forced component j_r (eq. 13).
+CASES = {
+    "sphere": (sphere, 5.12, 0.9, 150),
+    "sphere-CR0": (sphere, 5.12, 0.0, 150),
+    "rosenbrock": (rosenbrock, 5.0, 0.9, 300),
+    "rastrigin": (rastrigin, 5.12, 0.9, 150),
+}
+D, NP, F = 10, 50, 0.5
+SEEDS = range(10)
+
+
+@functools.cache
+def scipy_finals(case: str) -> np.ndarray:
+    """log10 of SciPy's final best costs over SEEDS. SciPy's popsize multiplies D: NP = 5 * 10."""
+    f, b, cr, gens = CASES[case]
+    out = []
+    for seed in SEEDS:
+        res = scipy_de(
+            lambda x: f(x.T), [(-b, b)] * D, strategy="rand1bin", popsize=NP // D, mutation=F,
+            recombination=cr, maxiter=gens, updating="deferred", polish=False, init="random",
+            tol=0, atol=0, rng=1000 + seed, vectorized=True,
+        )
+        out.append(res.fun)
+    return np.log10(np.maximum(out, 1e-300))
+
+
+def our_finals(case: str) -> np.ndarray:
+    f, b, cr, gens = CASES[case]
+    out = []
+    for seed in SEEDS:
+        res = iwr.differential_evolution(
+            f, [(-b, b)] * D, population_size=NP, F=F, CR=cr, generations=gens, seed=seed,
+            bound_rule="reinit",  # SciPy's rule, so that only the algorithm differs
+        )
+        assert res.nit == gens and res.nfev == NP * (gens + 1)
+        out.append(res.fun)
+    return np.log10(np.maximum(out, 1e-300))
+
+
+def same_distribution(a: np.ndarray, b: np.ndarray) -> bool:
+    """The criterion: Welch's t of the mean log10 final costs below 4 (two-sided p ~ 1e-3 under the
+    null). The cases are chosen so that each broken variant below moves the mean by many standard
+    errors (see test_criterion_catches_broken_variants)."""
+    t = stats.ttest_ind(a, b, equal_var=False).statistic
+    return bool(abs(t) < 4)
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_rand1bin_matches_scipy(case):
+    ours, theirs = our_finals(case), scipy_finals(case)
+    assert same_distribution(ours, theirs), (case, ours.mean(), theirs.mean())
+
+
+# --- the criterion's power: an independent NumPy DE/rand/1/bin, correct and deliberately broken ---
+
+
+def numpy_de(f, b, cr, gens, seed, broken=None):
+    """DE/rand/1/bin, deferred update, SciPy's bound rule; `broken` injects one bug."""
+    rng = np.random.default_rng(seed)
+    lo, hi = -b, b
+    pop = lo + (hi - lo) * rng.random((NP, D))
+    cost = f(pop)
+    rows = np.arange(NP)
+    for _ in range(gens):
+        # r1, r2, r3 distinct and != i: draw from the remaining values in increasing order.
+        excl = rows[:, None]
+        picks = []
+        for k in range(3):
+            r = rng.integers(0, NP - 1 - k, NP)
+            for e in np.sort(excl, axis=1).T:
+                r = r + (r >= e)
+            picks.append(r)
+            excl = np.column_stack([excl, r])
+        r1, r2, r3 = picks
+        if broken == "r1=i":
+            r1 = rows
+        mutant = pop[r1] + F * (pop[r2] - pop[r3])
+        cross = rng.random((NP, D)) < cr
+        if broken != "no forced index":
+            cross[rows, rng.integers(0, D, NP)] = True
+        if broken == "CR inverted":
+            cross = ~cross
+        trial = np.where(cross, mutant, pop)
+        out = (trial < lo) | (trial > hi)
+        trial[out] = lo + (hi - lo) * rng.random(out.sum())
+        tcost = f(trial)
+        better = tcost > cost if broken == "selection >" else tcost <= cost
+        pop[better], cost[better] = trial[better], tcost[better]
+    return np.log10(max(cost.min(), 1e-300))
+
+
+@pytest.mark.parametrize(
+    "broken, case",
+    [
+        (None, "sphere"),
+        (None, "rosenbrock"),
+        ("selection >", "sphere"),
+        ("r1=i", "sphere"),
+        ("r1=i", "rosenbrock"),
+        ("no forced index", "sphere-CR0"),
+        ("CR inverted", "sphere"),
+        ("CR inverted", "rastrigin"),
+    ],
+)
+def test_criterion_catches_broken_variants(broken, case):
+    """The same criterion accepts a correct independent implementation and rejects each bug."""
+    f, b, cr, gens = CASES[case]
+    finals = np.array([numpy_de(f, b, cr, gens, 5000 + s, broken) for s in SEEDS])
+    assert same_distribution(finals, scipy_finals(case)) == (broken is None)
+
+
+def test_selection_accepts_equal_costs():
+    """eq. (14) selects by <=: on a flat function every trial replaces its target."""
+    kw = dict(population_size=8, F=0.5, CR=0.5, seed=3)
+    start = iwr.differential_evolution(lambda X: np.ones(len(X)), [(0, 1)] * 4, generations=0, **kw)
+    one = iwr.differential_evolution(lambda X: np.ones(len(X)), [(0, 1)] * 4, generations=1, **kw)
+    assert np.all(np.any(one.population != start.population, axis=1))
+
+
+def test_midpoint_bound_rule_keeps_the_box():
+    """The optimum of sum(x) over [1, 2]^5 is the lower corner; the midpoint rule approaches it
+    from inside and never leaves the box."""
+    res = iwr.differential_evolution(
+        lambda X: X.sum(1), [(1, 2)] * 5, strategy="jade", generations=300, seed=1
+    )
+    assert np.all(res.population >= 1) and np.all(res.population <= 2)
+    assert res.fun == pytest.approx(5, abs=1e-8)
+
+
+# --- the modern strategies ------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("strategy", [s for s in STRATEGIES if s != "rand1bin"])
+@pytest.mark.parametrize("func, half", [(sphere, 5.12), (rosenbrock, 5.0)])
+def test_strategy_solves(strategy, func, half):
+    if strategy == "best1bin" and func is rosenbrock:
+        pytest.skip("best1bin converges prematurely on Rosenbrock, as is well known")
+    budget = 200_000 if strategy == "jde" else 100_000
+    res = iwr.differential_evolution(
+        func, [(-half, half)] * 10, strategy=strategy, seed=2, max_evaluations=budget,
+        target_cost=1e-8,
+    )
+    assert res.success and res.reason == "target", (res.fun, res.nfev, res.message)
+    assert res.nfev <= budget + res.settings["population_size"]
+    assert np.allclose(res.x, 0 if func is sphere else 1, atol=1e-3)
+
+
+def test_lshade_reduces_population():
+    res = iwr.differential_evolution(
+        sphere, [(-5, 5)] * 4, strategy="lshade", seed=0, max_evaluations=3000
+    )
+    assert res.settings["population_size"] == 72  # round(18 D)
+    assert len(res.population) == 4  # NP_min at the end of the budget
+    assert res.nfev >= 3000 and res.reason == "evaluations"
+
+
+# --- the history, determinism, resume -------------------------------------------------------------
+
+
+@pytest.fixture(scope="module")
+def iwr_data():
+    robot = iwr.Robot.default()
+    measurements, truth = iwr.simulate(robot, 100, seed=1)
+    return robot, measurements, truth
+
+
+def _without_elapsed(history):
+    return {k: v for k, v in history.items() if k != "elapsed"}
+
+
+@pytest.mark.parametrize("strategy", ["rand1bin", "jade", "jde", "lshade"])
+def test_same_seed_same_result_with_1_or_2_threads(iwr_data, strategy):
+    robot, measurements, _ = iwr_data
+    kw = dict(strategy=strategy, population_size=40, seed=11, progress=False)
+    if strategy == "lshade":
+        kw["max_evaluations"] = 1200
+    else:
+        kw["generations"] = 30
+    one = iwr.identify(robot, measurements, "de", workers=1, **kw)
+    two = iwr.identify(robot, measurements, "de", workers=2, **kw)
+    assert np.array_equal(one.x, two.x) and one.fun == two.fun
+    h1, h2 = _without_elapsed(one.history), _without_elapsed(two.history)
+    assert h1.keys() == h2.keys() == {"generation", "nfev", "best", "mean", "spread"}
+    for k in h1:
+        assert np.array_equal(h1[k], h2[k]), k
+    other = iwr.identify(robot, measurements, "de", workers=2, **{**kw, "seed": 12})
+    assert not np.array_equal(one.x, other.x)
+
+
+def test_history(iwr_data):
+    robot, measurements, _ = iwr_data
+    res = iwr.identify(robot, measurements, "de", population_size=30, generations=20, seed=1,
+                       progress=False)
+    h = res.history
+    assert set(h) == {"generation", "nfev", "best", "mean", "spread", "elapsed"}
+    assert np.array_equal(h["generation"], np.arange(21))
+    assert np.array_equal(h["nfev"], 30 * np.arange(1, 22))
+    assert np.all(np.diff(h["best"]) <= 0) and np.all(h["mean"] >= h["best"])
+    assert np.all(h["spread"] > 0) and np.all(np.diff(h["elapsed"]) >= 0)
+    assert res.nit == 20 and res.nfev == 630 and h["best"][-1] == pytest.approx(res.fun)
+    assert res.settings["seed"] == 1 and res.settings["strategy"] == "rand1bin"
+
+
+def test_resume_is_bit_identical():
+    kw = dict(strategy="jso", seed=4, max_evaluations=4000, return_state=True)
+    whole = iwr.differential_evolution(rosenbrock, [(-5, 5)] * 6, generations=40, **kw)
+    half = iwr.differential_evolution(rosenbrock, [(-5, 5)] * 6, generations=15, **kw)
+    rest = iwr.differential_evolution(
+        rosenbrock, [(-5, 5)] * 6, generations=40, resume=half.state, **kw
+    )
+    assert np.array_equal(whole.x, rest.x) and whole.nfev == rest.nfev
+    for k in ("generation", "nfev", "best", "mean", "spread"):
+        assert np.array_equal(whole.history[k], rest.history[k])
+    damaged = bytearray(half.state)
+    damaged[len(damaged) // 2] ^= 1
+    with pytest.raises(RuntimeError, match="checksum"):
+        iwr.differential_evolution(rosenbrock, [(-5, 5)] * 6, resume=bytes(damaged), **kw)
+    with pytest.raises(RuntimeError, match="truncated"):
+        iwr.differential_evolution(rosenbrock, [(-5, 5)] * 6, resume=half.state[:10], **kw)
+    with pytest.raises(ValueError, match="other settings"):
+        iwr.differential_evolution(
+            rosenbrock, [(-5, 5)] * 6, resume=half.state, **{**kw, "seed": 5}
+        )
+
+
+# --- control: callback, Ctrl-C, stopping criteria -------------------------------------------------
+
+
+def test_callback_stops_the_run():
+    seen = []
+
+    def cb(info):
+        seen.append((info.nit, info.fun, info.x.copy()))
+        return info.nit >= 3
+
+    res = iwr.differential_evolution(sphere, [(-5, 5)] * 3, generations=100, seed=0, callback=cb)
+    assert res.nit == 3 and not res.success and "callback" in res.message
+    assert [s[0] for s in seen] == [1, 2, 3] and seen[-1][1] == res.fun
+
+    def stop_iteration(info):
+        raise StopIteration
+
+    res = iwr.differential_evolution(sphere, [(-5, 5)] * 3, generations=100, seed=0,
+                                     callback=stop_iteration)
+    assert res.nit == 1
+
+
+def test_callback_errors_propagate():
+    def cb(info):
+        raise ZeroDivisionError("from the callback")
+
+    with pytest.raises(ZeroDivisionError, match="from the callback"):
+        iwr.differential_evolution(sphere, [(-5, 5)] * 3, generations=100, seed=0, callback=cb)
+
+    def func(X):
+        raise ZeroDivisionError("from the objective")
+
+    with pytest.raises(ZeroDivisionError, match="from the objective"):
+        iwr.differential_evolution(func, [(-5, 5)] * 3, generations=100, seed=0)
+
+
+def test_ctrl_c_returns_the_best_so_far(iwr_data):
+    """SIGINT while the C++ engine runs on the IWR objective: the run stops and returns."""
+    robot, measurements, _ = iwr_data
+    timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        res = iwr.identify(robot, measurements, "de", population_size=20, generations=10**8,
+                           seed=0, progress=False)
+    finally:
+        timer.cancel()
+    assert res.reason == "interrupted" and not res.success and "Ctrl-C" in res.message
+    assert 0 < res.nit < 10**8 and res.fun == pytest.approx(res.history["best"][-1])
+
+
+def test_keyboard_interrupt_in_python_objective():
+    calls = []
+
+    def func(X):
+        calls.append(1)
+        if len(calls) == 5:
+            raise KeyboardInterrupt
+        return sphere(X)
+
+    res = iwr.differential_evolution(func, [(-5, 5)] * 3, generations=100, seed=0)
+    assert res.reason == "interrupted" and res.nit == 3  # generation 4 never completed
+
+
+@pytest.mark.parametrize(
+    "options, reason",
+    [
+        ({"generations": 7}, "generations"),
+        ({"generations": None, "max_evaluations": 95}, "evaluations"),
+        ({"target_cost": 1e-2}, "target"),
+        ({"tol": 1e-2}, "converged"),
+        ({"stagnation_generations": 5, "stagnation_tol": 1.0}, "stagnation"),
+        ({"max_seconds": 1e-9}, "time"),
+    ],
+)
+def test_stopping_criteria(options, reason):
+    res = iwr.differential_evolution(sphere, [(-5, 5)] * 2, population_size=10, seed=0,
+                                     **{"generations": 10_000, **options})
+    assert res.reason == reason, res.message
+    assert res.success == (reason in ("target", "converged", "stagnation"))
+    if reason == "generations":
+        assert res.nit == 7
+    if reason == "evaluations":
+        assert res.nfev == 100  # the generation that crossed the limit completes
+    if reason == "target":
+        assert res.fun <= 1e-2
+
+
+def test_nan_costs_are_never_selected():
+    def func(X):
+        c = sphere(X)
+        c[X[:, 0] > 0] = np.nan
+        return c
+
+    res = iwr.differential_evolution(func, [(-5, 5)] * 2, generations=200, seed=0)
+    assert np.isfinite(res.fun) and res.x[0] <= 0 and res.fun < 1e-6
+
+
+# --- bad arguments --------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"population_size": 3}, r"population_size: 3; strategy 'rand1bin' needs at least 4"),
+        ({"population_size": 3, "strategy": "jade"}, r"population_size: 3"),
+        ({"population_size": 2, "strategy": "best1bin"}, r"population_size: 2"),
+        ({"population_size": 10.5}, r"population_size: 10.5"),
+        ({"F": 0}, r"F: 0"),
+        ({"F": -0.5}, r"F: -0.5"),
+        ({"F": 1.5, "strategy": "shade"}, r"F: 1.5"),
+        ({"CR": 1.5}, r"CR: 1.5"),
+        ({"CR": -0.1}, r"CR: -0.1"),
+        ({"strategy": "rand2bin"}, r"strategy: 'rand2bin'"),
+        ({"generations": -1}, r"generations: -1"),
+        ({"workers": 0}, r"workers: 0"),
+        ({"seed": -1}, r"seed: -1"),
+        ({"bound_rule": "bounce"}, r"bound_rule: 'bounce'"),
+        ({"memory_size": 0, "strategy": "shade"}, r"memory_size: 0"),
+        ({"p_best": 1.5, "strategy": "jade"}, r"p_best: 1.5"),
+        ({"max_evaluations": 10, "strategy": "lshade"}, r"max_evaluations: 10"),
+    ],
+)
+def test_bad_arguments(kwargs, match):
+    with pytest.raises(ValueError, match=match):
+        iwr.differential_evolution(sphere, [(-1, 1)] * 3, **{"generations": 2, **kwargs})
+
+
+@pytest.mark.parametrize(
+    "bounds, match",
+    [
+        ([(1, -1), (0, 1)], r"bounds: parameter 0 has \(min, max\) = \(1.0, -1.0\)"),
+        ([(0, 1), (0, np.inf)], r"bounds: parameter 1 has \(min, max\) = \(0.0, inf\)"),
+        ([(0, 1, 2)], r"bounds: shape \(1, 3\)"),
+        ([], r"bounds: shape \(0,\)"),
+    ],
+)
+def test_bad_bounds(bounds, match):
+    with pytest.raises(ValueError, match=match):
+        iwr.differential_evolution(sphere, bounds, generations=2)
+
+
+def test_bad_function_output():
+    with pytest.raises(ValueError, match=r"func: returned an array of shape \(3,\) for a "
+                                         r"population of 40; expected \(40,\)"):
+        iwr.differential_evolution(lambda X: np.zeros(3), [(-1, 1)] * 4, generations=2)
+    with pytest.raises(TypeError, match="unexpected option"):
+        iwr.differential_evolution(sphere, [(-1, 1)] * 4, generations=2, mutation=0.5)
+
+
+def test_bad_identify_arguments(iwr_data):
+    robot, measurements, _ = iwr_data
+    with pytest.raises(ValueError, match="preset: 'table2'"):
+        iwr.identify(robot, measurements, "de", preset="table2")
+    with pytest.raises(ValueError, match="preset: 'paper' is the paper's DE/rand/1/bin"):
+        iwr.identify(robot, measurements, "de", preset="paper", strategy="jade")
+    with pytest.raises(ValueError, match="population_size: 3"):
+        iwr.identify(robot, measurements, "de", strategy="jso", population_size=3)
+    with pytest.raises(ValueError, match="polish: 6 residuals for 58 parameters"):
+        iwr.identify(robot, measurements.subset([0]), "de", polish=True, generations=1)
+
+
+# --- the IWR problem ------------------------------------------------------------------------------
+
+
+def test_paper_preset(iwr_data):
+    robot, measurements, _ = iwr_data
+    res = iwr.identify(robot, measurements, "de", preset="paper", generations=2, seed=0,
+                       progress=False)
+    s = res.settings
+    assert (s["population_size"], s["F"], s["CR"], s["strategy"]) == (600, 0.9, 1.0, "rand1bin")
+    assert res.nfev == 600 * 3 and res.nit == 2 and s["preset"] == "paper"
+    full = iwr.identify(robot, measurements, "de", preset="paper", generations=None, seed=0,
+                        max_evaluations=1, progress=False)
+    assert full.settings["generations"] == 60000
+
+
+def test_active_subset_keeps_the_others_at_x0(iwr_data):
+    robot, measurements, truth = iwr_data
+    active = np.zeros(robot.n_params, dtype=bool)
+    active[52:] = True  # the six leg offsets
+    x0 = truth.copy()
+    x0[52:] = 0
+    res = iwr.identify(robot, measurements, "de", x0=x0, active=active, strategy="jade",
+                       population_size=30, generations=300, seed=0, progress=False)
+    assert np.array_equal(res.x[:52], truth[:52])
+    assert np.allclose(res.x[52:], truth[52:], atol=1e-6) and res.fun < 1e-9
+
+
+def test_iwr_noise_free_reaches_paper_cost(iwr_data):
+    """jSO reaches the paper's final cost, 1e-4, in a fraction of the paper's 36 million
+    evaluations."""
+    robot, measurements, _ = iwr_data
+    res = iwr.identify(robot, measurements, "de", strategy="jso", max_evaluations=400_000,
+                       target_cost=1e-4, seed=1, progress=False)
+    assert res.fun < 1e-4 and res.success and res.nfev < 400_000
+    assert res.fun == pytest.approx(iwr.Problem(robot, measurements).cost(res.x))
+
+
+def test_iwr_polish(iwr_data):
+    robot, measurements, _ = iwr_data
+    res = iwr.identify(robot, measurements, "de", strategy="jade", population_size=60,
+                       generations=50, seed=1, polish=True, progress=False)
+    before = res.settings["polish_result"]["fun_before"]
+    assert before > 1e-6 and res.fun < 1e-15 and res.success
+    assert res.nfev == 60 * 51 + res.settings["polish_result"]["nfev"]
