@@ -7,7 +7,9 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
+from .compare import compare_methods
 from .de import differential_evolution
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
@@ -48,6 +50,7 @@ __all__ = [
     "UnreachableError",
     "__version__",
     "accuracy",
+    "compare_methods",
     "differential_evolution",
     "forward_kinematics",
     "identifiability",

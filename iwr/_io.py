@@ -9,6 +9,17 @@ from pathlib import Path
 from typing import IO, Any
 
 
+def _default_mode() -> int:
+    # mkstemp creates files readable by their owner only; give new files the mode that open()
+    # would (0o666 less the umask). The umask can only be read by setting it: done once, at import.
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return 0o666 & ~mask
+
+
+_NEW_FILE_MODE = _default_mode()
+
+
 def atomic_write(
     path: str | os.PathLike[str], write: Callable[[IO[Any]], Any], binary: bool = False
 ) -> None:
@@ -26,6 +37,12 @@ def atomic_write(
         with fh:
             write(fh)
             fh.flush()
+            if hasattr(os, "fchmod"):
+                try:  # keep the mode of the file replaced, else the usual mode of a new file
+                    mode = path.stat().st_mode & 0o7777
+                except OSError:
+                    mode = _NEW_FILE_MODE
+                os.fchmod(fh.fileno(), mode)
             os.fsync(fh.fileno())
         os.replace(tmp, path)
     except BaseException:
