@@ -191,16 +191,21 @@ def test_lost_result_file_is_recomputed_and_figures_make_sense(tmp_path: Path) -
 
 
 def test_deterministic_failure_is_recorded_not_retried(tmp_path: Path) -> None:
-    # 6 residuals per pose: LM needs more than 5 poses for 58 parameters.
-    res = iwr.study(methods="lm", poses=[5, 12], noise=0.0, draws=1, seeds=1, out=tmp_path,
-                    scheduler="synchronous", report=False, validation_poses=10)
-    status = {r["n_poses"]: r for r in res.rows}
-    assert status[5]["status"] == "failed" and "ValueError" in status[5]["message"]
-    assert status[12]["status"] == "ok"
-    assert res.failed == 1
-    again = iwr.study(methods="lm", poses=[5, 12], noise=0.0, draws=1, seeds=1, out=tmp_path,
-                      scheduler="synchronous", report=False, validation_poses=10)
-    assert again.executed == 0
+    # DE/rand/1/bin needs 4 individuals: every DE cell fails the same way, LM's cells do not.
+    grid = dict(methods=["lm", "de"], poses=[12], noise=0.0, draws=1, seeds=[0, 1],
+                options={"de": {"population_size": 3}}, out=tmp_path, scheduler="synchronous",
+                report=False, validation_poses=10)
+    res = iwr.study(**grid)
+    status = {(r["method"], r["seed"]): r for r in res.rows}
+    for seed in (0, 1):
+        assert status[("de", seed)]["status"] == "failed"
+        assert "ValueError: population_size: 3" in status[("de", seed)]["message"]
+        assert status[("lm", seed)]["status"] == "ok"
+    assert res.failed == 2
+    again = iwr.study(**grid)
+    assert again.executed == 0 and again.failed == 2
+    with pytest.raises(ValueError, match="options.lm.nope: not an option of method 'lm'"):
+        iwr.study(**{**grid, "options": {"lm": {"nope": 1}}})
 
 
 def test_keys_and_seeds() -> None:
@@ -254,19 +259,29 @@ def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
                           capture_output=True, text=True, timeout=120)
 
 
-def test_command_line(tmp_path: Path) -> None:
+def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     p = run_cli("--help", cwd=tmp_path)
     assert p.returncode == 0 and "--scheduler" in p.stdout and "--budget" in p.stdout
-    for args, code, text in (
-        (["--poses", "ten"], 2, "--poses"),
-        (["--methods", "nope", "--scheduler", "synchronous"], 1, "methods: 'nope'"),
-        (["--option", "lm", "--scheduler", "synchronous"], 1, "METHOD.NAME=VALUE"),
-        (["--report-only", "--out", "missing"], 1, "no such file"),
+    assert p.stderr == ""
+    p = run_cli("--poses", "ten", cwd=tmp_path)
+    assert p.returncode == 2 and p.stdout == ""
+    assert p.stderr.strip().splitlines() == [
+        "iwr study: error: argument --poses: 'ten': expected a comma-separated list of integers "
+        "(see --help)"
+    ]
+    for args, text in (
+        (["--methods", "nope"], "methods: 'nope'"),
+        (["--option", "lm"], "METHOD.NAME=VALUE"),
+        (["--budget", "lm=5,x"], "--budget"),
+        (["--budget", "nope=5"], "budgets: method 'nope'"),
+        (["--poses", "0"], "poses: 0"),
+        (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "workers: only for the local"),
+        (["--report-only", "--out", str(tmp_path / "missing")], "no such file"),
     ):
-        p = run_cli(*args, cwd=tmp_path)
-        assert p.returncode == code, (args, p.stderr)
-        lines = p.stderr.strip().splitlines()
-        assert len(lines) == 1 and text in lines[0] and "Traceback" not in p.stderr, p.stderr
+        assert main([*args, "--scheduler", "synchronous"] if "--scheduler" not in args
+                    else args) == 1, args
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and text in err[0] and err[0].startswith("iwr study: error:"), err
     p = run_cli("--methods", "lm", "--poses", "12,16", "--noise", "0.01", "--draws", "1",
                 "--seeds", "2", "--out", "s", "--scheduler", "synchronous",
                 "--validation-poses", "10", cwd=tmp_path)

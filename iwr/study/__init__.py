@@ -64,6 +64,7 @@ __all__ = [
     "StudyResult",
     "StudyError",
     "noise_at",
+    "budget_option",
     "read_table",
     "report",
     "add_study_parser",
@@ -101,10 +102,11 @@ _FLOAT_COLUMNS = {
 }
 _BOOL_COLUMNS = {"success"}
 
-# The option of each method that a cell's budget sets. Methods not listed here: the first of
-# _BUDGET_CANDIDATES that the method's signature accepts.
-BUDGET_OPTIONS = {"lm": "max_nfev", "de": "generations", "crs2": "max_evals", "bobyqa": "max_evals"}
-_BUDGET_CANDIDATES = ("generations", "max_evals", "maxeval", "max_nfev", "budget")
+# The option that a cell's budget sets: generations for DE, else the first evaluation limit that
+# the method's signature accepts (``max_evaluations`` for lm, crs2 and bobyqa).
+BUDGET_OPTIONS = {"de": "generations"}
+_BUDGET_CANDIDATES = ("generations", "max_evaluations", "max_nfev", "maxeval", "max_evals",
+                      "budget")
 # Options that change how fast a cell runs, never its result: not part of the key.
 _RUNTIME_OPTIONS = {"workers", "progress"}
 
@@ -155,9 +157,12 @@ def robot_hash(robot: Robot) -> str:
     return hashlib.sha256(_canonical(robot.to_dict()).encode()).hexdigest()[:12]
 
 
-def _budget_option(method: str) -> str:
+def budget_option(method: str) -> str:
+    """The option of ``method`` that a study's budget sets (``generations`` for DE)."""
     if method in BUDGET_OPTIONS:
         return BUDGET_OPTIONS[method]
+    if method not in METHODS:
+        raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
     params = inspect.signature(METHODS[method]).parameters
     for name in _BUDGET_CANDIDATES:
         if name in params:
@@ -359,7 +364,7 @@ def run_cell(cell: Cell, robot_json: str, runtime_options: Mapping[str, Any]) ->
         )
         options = dict(json.loads(cell.options))
         if cell.budget is not None:
-            options[_budget_option(cell.method)] = cell.budget
+            options[budget_option(cell.method)] = cell.budget
         for name, value in runtime_options.items():
             if _accepts(cell.method, name):
                 options.setdefault(name, value)
@@ -601,7 +606,7 @@ def study(
         Seeds of the poses, the noise and the method: a count or the indices.
     budgets : list of int, or {method: list of int}, optional
         Budget axis: generations for ``"de"``, evaluations for ``"lm"``, ``"crs2"``, ``"bobyqa"``
-        (:data:`BUDGET_OPTIONS`). A list applies to every method; ``None`` in a list (or a method
+        (:func:`budget_option`). A list applies to every method; ``None`` in a list (or a method
         left out of the mapping) means the method's default.
     out : path
         The study folder: ``runs/`` (one JSON file per cell), ``results.csv``, ``study.json``, and
@@ -667,8 +672,18 @@ def study(
             raise ValueError(f"options: method {m!r} is not one of the study's methods {methods}")
         options_d[m] = _json_value(dict(opts), f"options.{m}")
     for m, opts in options_d.items():
-        if budgets_d.get(m, [None]) != [None] and _budget_option(m) in opts:
-            raise ValueError(f"options.{m}.{_budget_option(m)}: set by the budget axis too")
+        params = inspect.signature(METHODS[m]).parameters
+        if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
+            known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
+                     and n not in ("x0", "active", "seed", "callback", "progress")]
+            for name in opts:
+                if name not in known:
+                    raise ValueError(
+                        f"options.{m}.{name}: not an option of method {m!r} "
+                        f"(options: {', '.join(known)})"
+                    )
+        if budgets_d.get(m, [None]) != [None] and budget_option(m) in opts:
+            raise ValueError(f"options.{m}.{budget_option(m)}: set by the budget axis too")
     if isinstance(validation_poses, bool) or not isinstance(validation_poses, int) or \
             validation_poses < 1:
         raise ValueError(f"validation_poses: {validation_poses!r}; expected an integer >= 1")
@@ -772,7 +787,7 @@ def _budgets(budgets: Any, methods: list[str]) -> dict[str, list[int | None]]:
         if not vals:
             raise ValueError(f"budgets: empty for method {m!r}")
         if vals != [None]:
-            _budget_option(m)
+            budget_option(m)
         out[m] = list(dict.fromkeys(vals))
     return out
 

@@ -50,9 +50,16 @@ def _stats(values: Sequence[float]) -> tuple[float, float, float, int]:
 def _budget_label(method: str, budget: int | None) -> str:
     if budget is None:
         return method
-    from . import BUDGET_OPTIONS
+    return f"{method} {_budget_name(method)}={budget}"
 
-    return f"{method} {BUDGET_OPTIONS.get(method, 'budget')}={budget}"
+
+def _budget_name(method: str) -> str:
+    from . import budget_option
+
+    try:
+        return budget_option(method)
+    except ValueError:  # a method of the table that this process does not have
+        return "budget"
 
 
 def _headline(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -224,11 +231,9 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
         rows_m = [r for r in ok if r["method"] == m and r["budget"] is not None]
         if len({r["budget"] for r in rows_m}) < 2:
             continue
-        from . import BUDGET_OPTIONS
-
         f = _plot_vs(rows_m, "val_rms", "budget", "noise",
                      out / f"val_vs_budget_{m}.png", noise_title,
-                     f"{m}: {BUDGET_OPTIONS.get(m, 'budget')}", line_cols=("n_poses",))
+                     f"{m}: {_budget_name(m)}", line_cols=("n_poses",))
         if f is not None:
             files.append(f)
     summary = out / "summary.md"
@@ -241,8 +246,6 @@ def _summary(
     rows_all: list[dict[str, Any]], ok: list[dict[str, Any]], head: list[dict[str, Any]],
     meta: dict[str, Any], files: list[Path],
 ) -> str:
-    from . import BUDGET_OPTIONS
-
     n_val = meta.get("validation_poses", "?")
     lines = ["# Study summary", ""]
     lines.append(
@@ -256,7 +259,7 @@ def _summary(
                for m in sorted({r["method"] for r in rows_all})}
     if any(b != [None] for b in budgets.values()):
         lines.append("Budgets: " + "; ".join(
-            f"{m}: {BUDGET_OPTIONS.get(m, 'budget')} = {', '.join(map(str, b))}"
+            f"{m}: {_budget_name(m)} = {', '.join(map(str, b))}"
             for m, b in budgets.items() if b != [None]) + ".")
     lines += [
         "",
@@ -300,7 +303,7 @@ def _summary(
         bs = _sorted_unique(r["budget"] for r in rows_m)
         if len(bs) < 2:
             continue
-        name = BUDGET_OPTIONS.get(m, "budget")
+        name = _budget_name(m)
         st = _group(rows_m, ("noise", "n_poses", "budget"), "val_rms")
         lines += [f"More {name} ({m}, validation leg RMS):", ""]
         for (lv, n) in sorted({k[:2] for k in st}):
