@@ -26,9 +26,9 @@ __all__ = ["report", "LEVEL_OFF", "FLOOR"]
 # by less than this fraction. For reference, an error that falls as 1/sqrt(N), as a least-squares
 # estimate from noisy data does, improves by 1 - 1/sqrt(2) = 29 % per doubling.
 LEVEL_OFF = 0.10
-# Below this validation error (mm) a calibration is exact to the precision of double arithmetic on
-# IWR-scale lengths (1e3 mm x 1e-16 x conditioning): nothing can improve it further.
-FLOOR = 1e-9
+# Below this validation error (mm), a nanometre, a calibration is exact for any practical purpose
+# (noise-free data: LM stops at about 1e-9 mm, where its Tikhonov term, not the data, decides).
+FLOOR = 1e-6
 
 _FIGURES = {
     "val_rms": "validation leg RMS error (mm)",
@@ -96,19 +96,15 @@ def _band_plot(ax: Any, x: Sequence[float], stats: Sequence[tuple], label: str, 
     ax.fill_between(x, lo, hi, color=color, alpha=0.2, lw=0)
 
 
-def _panels(n: int) -> tuple[Any, np.ndarray]:
+def _figure(n_rows: int, n_cols: int) -> tuple[Any, np.ndarray]:
     import matplotlib
 
     matplotlib.use("Agg", force=False)
     import matplotlib.pyplot as plt
 
-    cols = min(n, 3)
-    rows = math.ceil(n / cols)
-    fig, axes = plt.subplots(rows, cols, figsize=(4.6 * cols, 3.6 * rows), squeeze=False,
-                             sharey=True)
-    for ax in axes.flat[n:]:
-        ax.set_visible(False)
-    return fig, axes.flat
+    fig, axes = plt.subplots(n_rows, n_cols, figsize=(4.2 * n_cols, 3.3 * n_rows),
+                             squeeze=False, sharex=True)
+    return fig, axes
 
 
 def _save(fig: Any, path: Path) -> Path:
@@ -130,41 +126,60 @@ def _colors(labels: Sequence[str]) -> dict[str, Any]:
 
 
 def _plot_vs(
-    rows: list[dict[str, Any]], value: str, xcol: str, panel_col: str, path: Path,
+    rows: list[dict[str, Any]], values: Sequence[str], xcol: str, panel_col: str, path: Path,
     panel_title: Any, xlabel: str, line_cols: Sequence[str] = ("method", "budget"),
 ) -> Path | None:
-    rows = [r for r in rows if np.isfinite(r[value])]
-    if not rows:
+    """One row of panels per figure in ``values`` (those with finite data), one column per value
+    of ``panel_col``; x = ``xcol``; one line (median) and band (interquartile) per ``line_cols``."""
+    values = [v for v in values if any(np.isfinite(r[v]) for r in rows)]
+    if not values or len({r[xcol] for r in rows}) < 2:
         return None
     panels = _sorted_unique(r[panel_col] for r in rows)
     lines = _sorted_unique(tuple(r[c] for c in line_cols) for r in rows)
     labels = {ln: _line_label(line_cols, ln) for ln in lines}
     colors = _colors(list(labels.values()))
-    stats = _group(rows, (*line_cols, panel_col, xcol), value)
-    fig, axes = _panels(len(panels))
     xs_all = _sorted_unique(r[xcol] for r in rows)
-    for ax, p in zip(axes, panels):
-        for ln in lines:
-            xs = [x for x in xs_all if (*ln, p, x) in stats]
-            if xs:
-                _band_plot(ax, xs, [stats[(*ln, p, x)] for x in xs], labels[ln], colors[labels[ln]])
-        if xcol == "noise" and any(x == 0 for x in xs_all) and len(xs_all) > 1:
-            ax.set_xscale("symlog", linthresh=min(x for x in xs_all if x > 0))
-        else:
-            ax.set_xscale("log")
-        ax.set_yscale("log")
-        ax.set_title(panel_title(p))
-        ax.set_xlabel(xlabel)
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0].set_ylabel(_FIGURES.get(value, value))
-    axes[0].legend(fontsize=8)
+    fig, axes = _figure(len(values), len(panels))
+    for i, value in enumerate(values):
+        stats = _group([r for r in rows if np.isfinite(r[value])],
+                       (*line_cols, panel_col, xcol), value)
+        for j, p in enumerate(panels):
+            ax = axes[i, j]
+            for ln in lines:
+                xs = [x for x in xs_all if (*ln, p, x) in stats]
+                if xs:
+                    _band_plot(ax, xs, [stats[(*ln, p, x)] for x in xs], labels[ln],
+                               colors[labels[ln]])
+            if xcol == "noise" and any(x == 0 for x in xs_all):
+                ax.set_xscale("symlog", linthresh=min(x for x in xs_all if x > 0))
+            else:
+                ax.set_xscale("log")
+            ax.set_yscale("log")
+            ax.set_xticks(xs_all)
+            ax.set_xticklabels([f"{x:g}" for x in xs_all], fontsize=7)
+            ax.xaxis.set_minor_locator(_null_locator())
+            ax.grid(True, which="major", alpha=0.3)
+            if i == 0:
+                ax.set_title(panel_title(p), fontsize=10)
+            if i == len(values) - 1:
+                ax.set_xlabel(xlabel)
+        axes[i, 0].set_ylabel(_FIGURES.get(value, value), fontsize=8)
+    axes[0, 0].legend(fontsize=7)
     return _save(fig, path)
+
+
+def _null_locator() -> Any:
+    from matplotlib.ticker import NullLocator
+
+    return NullLocator()
 
 
 def _line_label(cols: Sequence[str], values: tuple) -> str:
     d = dict(zip(cols, values))
     if "method" in d:
         return _budget_label(d["method"], d.get("budget"))
+    if list(d) == ["n_poses"]:
+        return f"N = {d['n_poses']}"
     return ", ".join(f"{c}={v}" for c, v in d.items())
 
 
@@ -181,7 +196,7 @@ def _trend(xs: Sequence[int], meds: Sequence[float], what: str) -> str:
     """A sentence on whether the medians keep improving along ``xs`` and where they level off."""
     for x, m in zip(xs, meds):
         if np.isfinite(m) and m < FLOOR:
-            return (f"at the numerical floor (< {FLOOR:g} mm) already at {what} = {x}: more cannot "
+            return (f"at the floor (< {FLOOR:g} mm) already at {what} = {x}: more cannot "
                     "improve it")
     gains = []
     for (x0, m0), (x1, m1) in zip(zip(xs, meds), zip(xs[1:], meds[1:])):
@@ -214,25 +229,18 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
     head = _headline(ok)
     noise_title = lambda v: f"noise {v:g} mm"  # noqa: E731
     poses_title = lambda v: f"N = {v} poses"  # noqa: E731
-    for value, stem in (("val_rms", "val"), ("tool_position_rms", "tool_position"),
-                        ("param_error_length", "param_length")):
-        for xcol, pcol, title, xlabel in (
-            ("n_poses", "noise", noise_title, "number of poses N"),
-            ("noise", "n_poses", poses_title, "noise level: tracker sd (mm)"),
-        ):
-            if len({r[xcol] for r in head}) < 2:
-                continue
-            f = _plot_vs(head, value, xcol, pcol, out / f"{stem}_vs_{'poses' if xcol == 'n_poses' else 'noise'}.png",
-                         title, xlabel)
-            if f is not None:
-                files.append(f)
-    budget_methods = sorted({r["method"] for r in ok if r["budget"] is not None})
-    for m in budget_methods:
+    figures = ("val_rms", "tool_position_rms", "tool_orientation_rms", "param_error_length")
+    for xcol, pcol, title, xlabel, name in (
+        ("n_poses", "noise", noise_title, "number of poses N", "accuracy_vs_poses.png"),
+        ("noise", "n_poses", poses_title, "noise level: tracker sd (mm)", "accuracy_vs_noise.png"),
+    ):
+        f = _plot_vs(head, figures, xcol, pcol, out / name, title, xlabel)
+        if f is not None:
+            files.append(f)
+    for m in sorted({r["method"] for r in ok if r["budget"] is not None}):
         rows_m = [r for r in ok if r["method"] == m and r["budget"] is not None]
-        if len({r["budget"] for r in rows_m}) < 2:
-            continue
-        f = _plot_vs(rows_m, "val_rms", "budget", "noise",
-                     out / f"val_vs_budget_{m}.png", noise_title,
+        f = _plot_vs(rows_m, ("val_rms", "param_error_length"), "budget", "noise",
+                     out / f"accuracy_vs_budget_{m}.png", noise_title,
                      f"{m}: {_budget_name(m)}", line_cols=("n_poses",))
         if f is not None:
             files.append(f)
