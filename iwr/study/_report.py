@@ -306,6 +306,21 @@ def _summary(
             meds = [stats[(m, b, lv, n)][0] for n in xs]
             lines.append(f"- {_budget_label(m, b)}, noise {lv:g} mm: {_trend(xs, meds, 'N')}.")
         lines.append("")
+    levels = [lv for lv in _sorted_unique(r["noise"] for r in head) if lv > 0]
+    if len(levels) > 1:
+        lines += ["More noise (validation leg RMS against the noise level, over the levels > 0; a "
+                  "log-log slope of 1 means proportional to the noise):", ""]
+        for (m, b) in sorted({k[:2] for k in stats}):
+            parts = []
+            for n in poses:
+                meds = [stats[(m, b, lv, n)][0] for lv in levels if (m, b, lv, n) in stats]
+                lvs = [lv for lv in levels if (m, b, lv, n) in stats]
+                if len(lvs) > 1 and all(np.isfinite(meds)) and min(meds) > 0:
+                    slope = math.log(meds[-1] / meds[0]) / math.log(lvs[-1] / lvs[0])
+                    parts.append(f"N = {n}: slope {slope:.2f}, {meds[-1] / lvs[-1]:.3g} mm per mm")
+            if parts:
+                lines.append(f"- {_budget_label(m, b)}: " + "; ".join(parts) + ".")
+        lines.append("")
     for m in sorted({r["method"] for r in ok if r["budget"] is not None}):
         rows_m = [r for r in ok if r["method"] == m and r["budget"] is not None]
         bs = _sorted_unique(r["budget"] for r in rows_m)
