@@ -143,9 +143,9 @@ def test_worker_dies_mid_study_and_table_matches_one_process(
     assert (again.executed, again.reused) == (0, n_cells)
     assert executions(log) == 2 * (n_cells // 2) + 1
     assert_same_table(rows, again.rows)
-    # A larger grid (one more seed) computes only its new cells.
+    # A larger grid (one more seed), sent to the cluster by address, computes only its new cells.
     bigger = iwr.study(**{**grid, "seeds": [0, 1, 2]}, out=tmp_path / "dask",
-                       scheduler="synchronous")
+                       scheduler=cluster.scheduler_address)
     assert (bigger.executed, bigger.reused) == (n_cells // 2, n_cells)
     assert executions(log) == 2 * (n_cells // 2) + 1 + n_cells // 4
     assert len(bigger.rows) == 3 * n_cells // 2
