@@ -236,6 +236,16 @@ def test_bad_arguments() -> None:
         read_table("/nonexistent/results.csv")
 
 
+def test_bad_table(tmp_path: Path) -> None:
+    path = tmp_path / "results.csv"
+    path.write_text("key,method,n_poses,noise\na,lm,12,0.0\nb,lm,x,0.0\n")
+    with pytest.raises(StudyError, match=r"line 3: column 'n_poses': 'x' is not a valid value"):
+        read_table(path)
+    path.write_text("a,b\n1,2\n")
+    with pytest.raises(StudyError, match="not a study table"):
+        read_table(tmp_path)
+
+
 def test_trend_rule() -> None:
     from iwr.study._report import _trend
 

@@ -413,6 +413,14 @@ def _parse(column: str, text: str) -> Any:
     return text
 
 
+def _parses(column: str, text: Any) -> bool:
+    try:
+        _parse(column, text)
+    except (ValueError, AttributeError, TypeError):
+        return False
+    return isinstance(text, str)
+
+
 def write_table(path: str | os.PathLike[str], rows: Iterable[Mapping[str, Any]]) -> None:
     """Write rows as the tidy CSV table (atomically); floats at full precision."""
     buf = io.StringIO()
@@ -435,7 +443,17 @@ def read_table(path: str | os.PathLike[str]) -> list[dict[str, Any]]:
                        (reader.fieldnames or [])]
             if missing:
                 raise StudyError(f"{path}: not a study table (no column {missing[0]!r})")
-            return [{c: _parse(c, v) for c, v in r.items()} for r in reader]
+            rows = []
+            for r in reader:
+                try:
+                    rows.append({c: _parse(c, v) for c, v in r.items()})
+                except (ValueError, AttributeError):
+                    bad = next((c, v) for c, v in r.items() if not _parses(c, v))
+                    raise StudyError(
+                        f"{path}, line {reader.line_num}: column {bad[0]!r}: {bad[1]!r} is not a "
+                        "valid value"
+                    ) from None
+            return rows
     except FileNotFoundError:
         raise StudyError(f"{path}: no such file") from None
 
