@@ -1,4 +1,4 @@
-"""iwr.study: a real Dask cluster loses a worker mid-study; the table still matches a one-process run.
+"""iwr.study: a real Dask cluster loses a worker mid-study; the table matches a one-process run.
 
 The crash is deterministic: a test method, registered in every worker by a plugin, creates a marker
 file on its first execution anywhere and kills its worker process with ``os._exit`` (no Python
@@ -25,7 +25,6 @@ import pytest
 
 import iwr
 from iwr.study import (
-    SETTING_COLUMNS,
     TIMING_COLUMNS,
     Cell,
     StudyError,
@@ -79,7 +78,7 @@ def assert_same_table(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> None:
     threads: Dask's workers run with one, this process with all (they agree to ~1e-15).
     """
     assert [r["key"] for r in a] == [r["key"] for r in b]
-    for ra, rb in zip(a, b):
+    for ra, rb in zip(a, b, strict=True):
         for c in ra:
             if c in TIMING_COLUMNS:
                 continue
@@ -161,7 +160,7 @@ def test_lost_result_file_is_recomputed_and_figures_make_sense(tmp_path: Path) -
                       out=tmp_path, scheduler="synchronous", validation_poses=20, report=False)
     assert (again.executed, again.reused) == (1, 11)
     by = {(r["noise"], r["n_poses"], r["draw"]): r for r in res.rows}
-    for (level, n, draw), r in by.items():
+    for (level, _n, _draw), r in by.items():
         # Before calibration: the errors (+-0.5 mm, +-0.5 degree) move the legs by millimetres.
         assert r["val_rms_nominal"] > 1.0
         if level == 0:

@@ -852,7 +852,9 @@ def _parse_options(items: list[str]) -> dict[str, dict[str, Any]]:
         name, sep, value = item.partition("=")
         method, dot, option = name.partition(".")
         if not sep or not dot or not method or not option:
-            raise ValueError(f"--option: {item!r}; expected METHOD.NAME=VALUE, e.g. de.strategy=jde")
+            raise ValueError(
+                f"--option: {item!r}; expected METHOD.NAME=VALUE, e.g. de.strategy=jde"
+            )
         out.setdefault(method, {})[option] = _option_value(value)
     return out
 
@@ -910,7 +912,8 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--draws", type=_count_or_list, default=3,
                         help="error draws (actual robots): a count, or comma-separated indices")
     parser.add_argument("--seeds", type=_count_or_list, default=3,
-                        help="seeds of poses, noise and method: a count, or comma-separated indices")
+                        help="seeds of poses, noise and method: a count, or comma-separated "
+                             "indices")
     parser.add_argument("--budget", action="append", default=[], metavar="[METHOD=]LIST",
                         help="budget axis: generations (de) or evaluations (lm, crs2, bobyqa), "
                              "e.g. --budget de=100,300,1000; repeat for several methods")

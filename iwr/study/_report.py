@@ -8,6 +8,7 @@ an explicit rule for "levels off" (:data:`LEVEL_OFF`).
 
 from __future__ import annotations
 
+import itertools
 import json
 import math
 import os
@@ -175,7 +176,7 @@ def _null_locator() -> Any:
 
 
 def _line_label(cols: Sequence[str], values: tuple) -> str:
-    d = dict(zip(cols, values))
+    d = dict(zip(cols, values, strict=True))
     if "method" in d:
         return _budget_label(d["method"], d.get("budget"))
     if list(d) == ["n_poses"]:
@@ -194,12 +195,12 @@ def _cell(s: tuple) -> str:
 
 def _trend(xs: Sequence[int], meds: Sequence[float], what: str) -> str:
     """A sentence on whether the medians keep improving along ``xs`` and where they level off."""
-    for x, m in zip(xs, meds):
+    for x, m in zip(xs, meds, strict=True):
         if np.isfinite(m) and m < FLOOR:
             return (f"at the floor (< {FLOOR:g} mm) already at {what} = {x}: more cannot "
                     "improve it")
     gains = []
-    for (x0, m0), (x1, m1) in zip(zip(xs, meds), zip(xs[1:], meds[1:])):
+    for (x0, m0), (x1, m1) in itertools.pairwise(zip(xs, meds, strict=True)):
         if not (np.isfinite(m0) and np.isfinite(m1) and m0 > 0):
             return "not enough finite results"
         doublings = math.log2(x1 / x0)
