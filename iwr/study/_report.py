@@ -113,7 +113,7 @@ def _save(fig: Any, path: Path) -> Path:
 
     fig.tight_layout()
     tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=110)
+    fig.savefig(tmp, dpi=80)
     plt.close(fig)
     os.replace(tmp, path)
     return path
