@@ -222,6 +222,28 @@ def test_keys_and_seeds() -> None:
     assert noise_at(0.01).legs == pytest.approx(iwr.Noise.realistic().legs / 2)
 
 
+def test_budget_axes(tmp_path: Path) -> None:
+    robot = iwr.Robot.default()
+    rh = robot_hash(robot)
+    default = make_grid(["lm"], [10], [0.0], [0], [0], {"lm": (None, [5])}, {}, 0, 30, rh)[0]
+    other = make_grid(["lm"], [10], [0.0], [0], [0], {"lm": ("max_nfev", [5])}, {}, 0, 30, rh)[0]
+    plain = make_grid(["lm"], [10], [0.0], [0], [0], {}, {}, 0, 30, rh)[0]
+    assert len({default.key, other.key, plain.key}) == 3
+    # The default option is not part of the settings: keys stay those of earlier studies.
+    assert "budget_option" not in default.settings and other.settings["budget_option"] == "max_nfev"
+    res = iwr.study(methods=["lm"], poses=[12], noise=0.01, draws=1, seeds=1,
+                    budgets={"lm.max_evaluations": [3, 1000]}, out=tmp_path,
+                    scheduler="synchronous", report=False, validation_poses=10)
+    a, b = res.rows
+    assert (a["budget"], a["budget_option"], b["budget"]) == (3, "max_evaluations", 1000)
+    assert a["nfev"] <= 3 < b["nfev"] and a["val_rms"] > b["val_rms"]
+    with pytest.raises(ValueError, match="'nope' is not an option of method 'lm'"):
+        iwr.study(methods="lm", budgets={"lm.nope": [3]}, scheduler="synchronous")
+    with pytest.raises(ValueError, match="set by the budget axis too"):
+        iwr.study(methods="lm", budgets={"lm": [3]}, options={"lm": {"max_evaluations": 9}},
+                  scheduler="synchronous")
+
+
 def test_bad_arguments() -> None:
     with pytest.raises(ValueError, match="methods: 'nope'"):
         iwr.study(methods="nope", scheduler="synchronous")

@@ -82,8 +82,8 @@ STUDY_FILE = "study.json"
 
 # The tidy table: one row per cell. Settings first, then figures; missing figures are empty.
 SETTING_COLUMNS = (
-    "key", "method", "options", "budget", "n_poses", "noise", "draw", "seed", "base_seed",
-    "validation_poses", "robot",
+    "key", "method", "options", "budget", "budget_option", "n_poses", "noise", "draw", "seed",
+    "base_seed", "validation_poses", "robot",
 )
 FIGURE_COLUMNS = (
     "status", "message", "cost", "rms_fit", "val_rms", "val_max", "val_rms_nominal",
@@ -228,10 +228,14 @@ class Cell:
     base_seed: int
     validation_poses: int
     robot: str  # robot_hash
+    # The option that the budget sets, when not the method's default (budget_option(method)).
+    budget_option: str | None = None
 
     @property
     def settings(self) -> dict[str, Any]:
+        extra = {} if self.budget_option is None else {"budget_option": self.budget_option}
         return {
+            **extra,
             "format": STUDY_FORMAT,
             "method": self.method,
             "options": json.loads(self.options),
@@ -246,6 +250,14 @@ class Cell:
             "robot": self.robot,
         }
 
+    def columns(self) -> dict[str, Any]:
+        """The setting columns of the cell's row in the table."""
+        row: dict[str, Any] = {c: getattr(self, c) for c in SETTING_COLUMNS if c != "key"}
+        row["key"] = self.key
+        if self.budget is not None and self.budget_option is None:
+            row["budget_option"] = budget_option(self.method)
+        return row
+
     @property
     def key(self) -> str:
         return hashlib.sha256(_canonical(self.settings).encode()).hexdigest()[:20]
@@ -257,7 +269,7 @@ def make_grid(
     noise: Sequence[float],
     draws: Sequence[int],
     seeds: Sequence[int],
-    budgets: Mapping[str, Sequence[int | None]],
+    budgets: Mapping[str, tuple[str | None, Sequence[int | None]]],
     options: Mapping[str, Mapping[str, Any]],
     base_seed: int,
     validation_poses: int,
@@ -267,12 +279,11 @@ def make_grid(
     cells = []
     for method in methods:
         opts = {k: v for k, v in options.get(method, {}).items() if k not in _RUNTIME_OPTIONS}
-        for budget, n, level, draw, seed in itertools.product(
-            budgets.get(method, [None]), poses, noise, draws, seeds
-        ):
+        option, values = budgets.get(method, (None, [None]))
+        for budget, n, level, draw, seed in itertools.product(values, poses, noise, draws, seeds):
             cells.append(
                 Cell(method, _canonical(opts), budget, n, level, draw, seed, base_seed,
-                     validation_poses, robot)
+                     validation_poses, robot, option if budget is not None else None)
             )
     return cells
 
@@ -353,8 +364,7 @@ def run_cell(cell: Cell, robot_json: str, runtime_options: Mapping[str, Any]) ->
     Runs on a worker. Deterministic: the same cell gives the same row (``wall_time`` aside).
     """
     robot = _robot_from_json(robot_json)
-    row: dict[str, Any] = {c: getattr(cell, c) for c in SETTING_COLUMNS if c != "key"}
-    row["key"] = cell.key
+    row = cell.columns()
     start = time.perf_counter()
     try:
         truth = true_errors(robot, cell.base_seed, cell.draw)
@@ -364,7 +374,7 @@ def run_cell(cell: Cell, robot_json: str, runtime_options: Mapping[str, Any]) ->
         )
         options = dict(json.loads(cell.options))
         if cell.budget is not None:
-            options[budget_option(cell.method)] = cell.budget
+            options[row["budget_option"]] = cell.budget
         for name, value in runtime_options.items():
             if _accepts(cell.method, name):
                 options.setdefault(name, value)
@@ -625,7 +635,9 @@ def study(
     budgets : list of int, or {method: list of int}, optional
         Budget axis: generations for ``"de"``, evaluations for ``"lm"``, ``"crs2"``, ``"bobyqa"``
         (:func:`budget_option`). A list applies to every method; ``None`` in a list (or a method
-        left out of the mapping) means the method's default.
+        left out of the mapping) means the method's default. A key ``"METHOD.OPTION"`` makes the
+        budget set that option instead, e.g. ``{"de.max_evaluations": [...]}`` for jSO and
+        L-SHADE, whose schedules run over an evaluation budget.
     out : path
         The study folder: ``runs/`` (one JSON file per cell), ``results.csv``, ``study.json``, and
         the report (``summary.md`` and PNG figures).
@@ -700,8 +712,10 @@ def study(
                         f"options.{m}.{name}: not an option of method {m!r} "
                         f"(options: {', '.join(known)})"
                     )
-        if budgets_d.get(m, [None]) != [None] and budget_option(m) in opts:
-            raise ValueError(f"options.{m}.{budget_option(m)}: set by the budget axis too")
+        option, values = budgets_d.get(m, (None, [None]))
+        option = option or (budget_option(m) if values != [None] else None)
+        if option is not None and option in opts:
+            raise ValueError(f"options.{m}.{option}: set by the budget axis too")
     if isinstance(validation_poses, bool) or not isinstance(validation_poses, int) or \
             validation_poses < 1:
         raise ValueError(f"validation_poses: {validation_poses!r}; expected an integer >= 1")
@@ -735,6 +749,7 @@ def study(
 
     done = _load_runs(runs)
     todo = [c for c in cells if c.key not in done]
+    by_key = {c.key: c for c in cells}
     reused = len(cells) - len(todo)
     table = out / TABLE_NAME
     keys = [c.key for c in cells]
@@ -746,7 +761,7 @@ def study(
         done[row["key"]] = row
         bar.update(1)
         if time.monotonic() - last_table[0] > 10.0:  # the table in flight, for long studies
-            write_table(table, (done[k] for k in keys if k in done))
+            write_table(table, ({**done[k], **by_key[k].columns()} for k in keys if k in done))
             last_table[0] = time.monotonic()
 
     runtime = {"workers": 1}
@@ -760,7 +775,8 @@ def study(
                                  workers, retries)
     finally:
         bar.close()
-        write_table(table, (done[k] for k in keys if k in done))
+        # Settings from the grid (a row written by an older version may lack a column).
+        write_table(table, ({**done[k], **by_key[k].columns()} for k in keys if k in done))
     rows = read_table(table)
     result = StudyResult(
         out=out, table=table, rows=rows, executed=len(todo) - len(failures), reused=reused,
@@ -781,21 +797,26 @@ def study(
     return result
 
 
-def _budgets(budgets: Any, methods: list[str]) -> dict[str, list[int | None]]:
+def _budgets(budgets: Any, methods: list[str]) -> dict[str, tuple[str | None, list[int | None]]]:
+    """{method: (option or None for the default, values)} from the ``budgets`` argument."""
     if budgets is None:
         return {}
     if isinstance(budgets, Mapping):
         items = dict(budgets)
-        for m in items:
-            if m not in methods:
-                raise ValueError(f"budgets: method {m!r} is not one of the study's methods")
     else:
         listed = list(np.atleast_1d(np.asarray(budgets, dtype=object)).tolist())
         items = {m: listed for m in methods}
-    out = {}
-    for m, values in items.items():
+    out: dict[str, tuple[str | None, list[int | None]]] = {}
+    for name, values in items.items():
+        m, _, option = str(name).partition(".")
+        if m not in methods:
+            raise ValueError(f"budgets: method {m!r} is not one of the study's methods {methods}")
+        if m in out:
+            raise ValueError(f"budgets: two budget axes for method {m!r}")
         vals: list[int | None] = []
         for v in np.atleast_1d(np.asarray(values, dtype=object)).tolist():
+            if isinstance(v, float) and v.is_integer():
+                v = int(v)
             if v is None:
                 vals.append(None)
             elif isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
@@ -804,9 +825,17 @@ def _budgets(budgets: Any, methods: list[str]) -> dict[str, list[int | None]]:
                 vals.append(int(v))
         if not vals:
             raise ValueError(f"budgets: empty for method {m!r}")
-        if vals != [None]:
+        if option:
+            if not _accepts(m, option) and not any(
+                p.kind is inspect.Parameter.VAR_KEYWORD
+                for p in inspect.signature(METHODS[m]).parameters.values()
+            ):
+                raise ValueError(f"budgets: {option!r} is not an option of method {m!r}")
+            if option == budget_option(m):
+                option = ""
+        elif vals != [None]:
             budget_option(m)
-        out[m] = list(dict.fromkeys(vals))
+        out[m] = (option or None, list(dict.fromkeys(vals)))
     return out
 
 
@@ -860,7 +889,8 @@ def _parse_options(items: list[str]) -> dict[str, dict[str, Any]]:
 
 
 def _parse_budgets(items: list[str]) -> Any:
-    """['100,1000'] -> [100, 1000] for every method; ['de=100,1000'] -> {'de': [100, 1000]}."""
+    """['100,1000'] -> [100, 1000] for every method; ['de=100,1000'] -> {'de': [100, 1000]};
+    ['de.max_evaluations=1e5,1e6'] -> {'de.max_evaluations': [100000, 1000000]}."""
     if not items:
         return None
     per_method: dict[str, list[int]] = {}
@@ -868,8 +898,10 @@ def _parse_budgets(items: list[str]) -> Any:
     for item in items:
         method, sep, values = item.rpartition("=")
         try:
-            parsed = _ints(values)
-        except argparse.ArgumentTypeError as exc:
+            parsed = [int(v) for v in _floats(values)]
+            if any(v != f for v, f in zip(parsed, _floats(values), strict=True)):
+                raise argparse.ArgumentTypeError(f"{values!r}: expected whole numbers")
+        except (argparse.ArgumentTypeError, OverflowError, ValueError) as exc:
             raise ValueError(f"--budget: {exc}") from None
         if sep:
             per_method[method] = parsed
@@ -914,9 +946,11 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=_count_or_list, default=3,
                         help="seeds of poses, noise and method: a count, or comma-separated "
                              "indices")
-    parser.add_argument("--budget", action="append", default=[], metavar="[METHOD=]LIST",
+    parser.add_argument("--budget", action="append", default=[],
+                        metavar="[METHOD[.OPTION]=]LIST",
                         help="budget axis: generations (de) or evaluations (lm, crs2, bobyqa), "
-                             "e.g. --budget de=100,300,1000; repeat for several methods")
+                             "e.g. --budget de=100,300,1000; repeat for several methods; "
+                             "de.max_evaluations=1e5,1e6 sets that option instead (jso, lshade)")
     parser.add_argument("--option", action="append", default=[], metavar="METHOD.NAME=VALUE",
                         help="a method option, e.g. --option de.strategy=lshade (repeatable)")
     parser.add_argument("--robot", default=None, help="robot TOML file (default: the built-in IWR)")

@@ -48,19 +48,15 @@ def _stats(values: Sequence[float]) -> tuple[float, float, float, int]:
     return float(med), float(q25), float(q75), int(v.size)
 
 
-def _budget_label(method: str, budget: int | None) -> str:
+def _budget_label(method: str, budget: int | None, names: dict[str, str]) -> str:
     if budget is None:
         return method
-    return f"{method} {_budget_name(method)}={budget}"
+    return f"{method} {names.get(method, 'budget')}={budget}"
 
 
-def _budget_name(method: str) -> str:
-    from . import budget_option
-
-    try:
-        return budget_option(method)
-    except ValueError:  # a method of the table that this process does not have
-        return "budget"
+def _budget_names(rows: list[dict[str, Any]]) -> dict[str, str]:
+    """The option that each method's budget sets, from the table."""
+    return {r["method"]: r["budget_option"] for r in rows if r.get("budget_option")}
 
 
 def _headline(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
@@ -129,6 +125,7 @@ def _colors(labels: Sequence[str]) -> dict[str, Any]:
 def _plot_vs(
     rows: list[dict[str, Any]], values: Sequence[str], xcol: str, panel_col: str, path: Path,
     panel_title: Any, xlabel: str, line_cols: Sequence[str] = ("method", "budget"),
+    names: dict[str, str] | None = None,
 ) -> Path | None:
     """One row of panels per figure in ``values`` (those with finite data), one column per value
     of ``panel_col``; x = ``xcol``; one line (median) and band (interquartile) per ``line_cols``."""
@@ -137,7 +134,7 @@ def _plot_vs(
         return None
     panels = _sorted_unique(r[panel_col] for r in rows)
     lines = _sorted_unique(tuple(r[c] for c in line_cols) for r in rows)
-    labels = {ln: _line_label(line_cols, ln) for ln in lines}
+    labels = {ln: _line_label(line_cols, ln, names or {}) for ln in lines}
     colors = _colors(list(labels.values()))
     xs_all = _sorted_unique(r[xcol] for r in rows)
     fig, axes = _figure(len(values), len(panels))
@@ -175,10 +172,10 @@ def _null_locator() -> Any:
     return NullLocator()
 
 
-def _line_label(cols: Sequence[str], values: tuple) -> str:
+def _line_label(cols: Sequence[str], values: tuple, names: dict[str, str]) -> str:
     d = dict(zip(cols, values, strict=True))
     if "method" in d:
-        return _budget_label(d["method"], d.get("budget"))
+        return _budget_label(d["method"], d.get("budget"), names)
     if list(d) == ["n_poses"]:
         return f"N = {d['n_poses']}"
     return ", ".join(f"{c}={v}" for c, v in d.items())
@@ -228,6 +225,7 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
         meta = {}
     files: list[Path] = []
     head = _headline(ok)
+    names = _budget_names(rows_all)
     noise_title = lambda v: f"noise {v:g} mm"  # noqa: E731
     poses_title = lambda v: f"N = {v} poses"  # noqa: E731
     figures = ("val_rms", "tool_position_rms", "tool_orientation_rms", "param_error_length")
@@ -235,25 +233,25 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
         ("n_poses", "noise", noise_title, "number of poses N", "accuracy_vs_poses.png"),
         ("noise", "n_poses", poses_title, "noise level: tracker sd (mm)", "accuracy_vs_noise.png"),
     ):
-        f = _plot_vs(head, figures, xcol, pcol, out / name, title, xlabel)
+        f = _plot_vs(head, figures, xcol, pcol, out / name, title, xlabel, names=names)
         if f is not None:
             files.append(f)
     for m in sorted({r["method"] for r in ok if r["budget"] is not None}):
         rows_m = [r for r in ok if r["method"] == m and r["budget"] is not None]
         f = _plot_vs(rows_m, ("val_rms", "param_error_length"), "budget", "noise",
                      out / f"accuracy_vs_budget_{m}.png", noise_title,
-                     f"{m}: {_budget_name(m)}", line_cols=("n_poses",))
+                     f"{m}: {names.get(m, 'budget')}", line_cols=("n_poses",))
         if f is not None:
             files.append(f)
     summary = out / "summary.md"
-    atomic_write_text(summary, _summary(rows_all, ok, head, meta, files))
+    atomic_write_text(summary, _summary(rows_all, ok, head, meta, files, names))
     files.append(summary)
     return files
 
 
 def _summary(
     rows_all: list[dict[str, Any]], ok: list[dict[str, Any]], head: list[dict[str, Any]],
-    meta: dict[str, Any], files: list[Path],
+    meta: dict[str, Any], files: list[Path], names: dict[str, str],
 ) -> str:
     n_val = meta.get("validation_poses", "?")
     lines = ["# Study summary", ""]
@@ -268,7 +266,7 @@ def _summary(
                for m in sorted({r["method"] for r in rows_all})}
     if any(b != [None] for b in budgets.values()):
         lines.append("Budgets: " + "; ".join(
-            f"{m}: {_budget_name(m)} = {', '.join(map(str, b))}"
+            f"{m}: {names.get(m, 'budget')} = {', '.join(map(str, b))}"
             for m, b in budgets.items() if b != [None]) + ".")
     lines += [
         "",
@@ -292,7 +290,7 @@ def _summary(
         for (m, b, lv) in sorted({k[:3] for k in stats}, key=lambda k: (k[0], k[2])):
             cells = [_cell(stats.get((m, b, lv, n), (math.nan, math.nan, math.nan, 0)))
                      for n in poses]
-            lines.append(f"| {_budget_label(m, b)} | {lv:g} | " + " | ".join(cells) + " |")
+            lines.append(f"| {_budget_label(m, b, names)} | {lv:g} | " + " | ".join(cells) + " |")
         lines.append("")
     lines += ["## The paper's claim: more poses and more generations improve the accuracy", "",
               f"Rule: a median that improves by less than {100 * LEVEL_OFF:.0f} % per doubling "
@@ -305,7 +303,8 @@ def _summary(
         for (m, b, lv) in sorted({k[:3] for k in stats}, key=lambda k: (k[0], k[2])):
             xs = [n for n in poses if (m, b, lv, n) in stats]
             meds = [stats[(m, b, lv, n)][0] for n in xs]
-            lines.append(f"- {_budget_label(m, b)}, noise {lv:g} mm: {_trend(xs, meds, 'N')}.")
+            label = _budget_label(m, b, names)
+            lines.append(f"- {label}, noise {lv:g} mm: {_trend(xs, meds, 'N')}.")
         lines.append("")
     levels = [lv for lv in _sorted_unique(r["noise"] for r in head) if lv > 0]
     if len(levels) > 1:
@@ -320,14 +319,14 @@ def _summary(
                     slope = math.log(meds[-1] / meds[0]) / math.log(lvs[-1] / lvs[0])
                     parts.append(f"N = {n}: slope {slope:.2f}, {meds[-1] / lvs[-1]:.3g} mm per mm")
             if parts:
-                lines.append(f"- {_budget_label(m, b)}: " + "; ".join(parts) + ".")
+                lines.append(f"- {_budget_label(m, b, names)}: " + "; ".join(parts) + ".")
         lines.append("")
     for m in sorted({r["method"] for r in ok if r["budget"] is not None}):
         rows_m = [r for r in ok if r["method"] == m and r["budget"] is not None]
         bs = _sorted_unique(r["budget"] for r in rows_m)
         if len(bs) < 2:
             continue
-        name = _budget_name(m)
+        name = names.get(m, "budget")
         st = _group(rows_m, ("noise", "n_poses", "budget"), "val_rms")
         lines += [f"More {name} ({m}, validation leg RMS):", ""]
         for (lv, n) in sorted({k[:2] for k in st}):
