@@ -125,10 +125,11 @@ def _colors(labels: Sequence[str]) -> dict[str, Any]:
 def _plot_vs(
     rows: list[dict[str, Any]], values: Sequence[str], xcol: str, panel_col: str, path: Path,
     panel_title: Any, xlabel: str, line_cols: Sequence[str] = ("method", "budget"),
-    names: dict[str, str] | None = None,
+    names: dict[str, str] | None = None, refs: list[dict[str, Any]] | None = None,
 ) -> Path | None:
     """One row of panels per figure in ``values`` (those with finite data), one column per value
-    of ``panel_col``; x = ``xcol``; one line (median) and band (interquartile) per ``line_cols``."""
+    of ``panel_col``; x = ``xcol``; one line (median) and band (interquartile) per ``line_cols``.
+    ``refs``: rows of methods without this axis, drawn as dashed levels (their medians)."""
     values = [v for v in values if any(np.isfinite(r[v]) for r in rows)]
     if not values or len({r[xcol] for r in rows}) < 2:
         return None
@@ -148,6 +149,13 @@ def _plot_vs(
                 if xs:
                     _band_plot(ax, xs, [stats[(*ln, p, x)] for x in xs], labels[ln],
                                colors[labels[ln]])
+                for method in sorted({r["method"] for r in refs or []}):
+                    med = _stats([r[value] for r in refs or [] if r["method"] == method
+                                  and r[panel_col] == p
+                                  and tuple(r[c] for c in line_cols) == ln])[0]
+                    if np.isfinite(med):
+                        ax.axhline(max(med, 1e-16), color=colors[labels[ln]], ls="--", lw=1,
+                                   label=f"{method}, {labels[ln]}")
             if xcol == "noise" and any(x == 0 for x in xs_all):
                 ax.set_xscale("symlog", linthresh=min(x for x in xs_all if x > 0))
             else:
@@ -238,9 +246,13 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
             files.append(f)
     for m in sorted({r["method"] for r in ok if r["budget"] is not None}):
         rows_m = [r for r in ok if r["method"] == m and r["budget"] is not None]
+        refs = [r for r in ok if r["budget"] is None and r["method"] != m]
         f = _plot_vs(rows_m, ("val_rms", "param_error_length"), "budget", "noise",
                      out / f"accuracy_vs_budget_{m}.png", noise_title,
-                     f"{m}: {names.get(m, 'budget')}", line_cols=("n_poses",))
+                     f"{m}: {names.get(m, 'budget')}"
+                     + (f" (dashed: {', '.join(sorted({r['method'] for r in refs}))})"
+                        if refs else ""),
+                     line_cols=("n_poses",), refs=refs)
         if f is not None:
             files.append(f)
     summary = out / "summary.md"
