@@ -162,7 +162,7 @@ def _plot_vs(
                 ax.set_xscale("log")
             ax.set_yscale("log")
             ax.set_xticks(xs_all)
-            ax.set_xticklabels([f"{x:g}" for x in xs_all], fontsize=7)
+            ax.set_xticklabels([_tick(x) for x in xs_all], fontsize=7)
             ax.xaxis.set_minor_locator(_null_locator())
             ax.grid(True, which="major", alpha=0.3)
             if i == 0:
@@ -172,6 +172,14 @@ def _plot_vs(
         axes[i, 0].set_ylabel(_FIGURES.get(value, value), fontsize=8)
     axes[0, 0].legend(fontsize=7)
     return _save(fig, path)
+
+
+def _tick(x: float) -> str:
+    """30000 -> '30000', 300000 -> '3e5', 1000000 -> '1e6', 0.02 -> '0.02'."""
+    if float(x).is_integer() and abs(x) >= 1e5:
+        m, e = f"{x:.6e}".split("e")
+        return f"{float(m):g}e{int(e)}"
+    return f"{x:g}"
 
 
 def _null_locator() -> Any:
