@@ -7,9 +7,8 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
-from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
-from .compare import compare_methods
+from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
 from .de import differential_evolution
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
@@ -21,13 +20,25 @@ from .identifiability import (
 )
 from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
+from .planning import PosePlan, plan_poses
 from .problem import Problem, predict_legs
 from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
 from .study import StudyError, StudyResult, study
+from .uncertainty import Uncertainty, uncertainty
 
 __version__ = "0.1.0"
+
+
+def __getattr__(name: str) -> object:
+    # iwr.compare is imported on first use only, so that `python -m iwr.compare` runs it fresh.
+    if name == "compare_methods":
+        from .compare import compare_methods
+
+        return compare_methods
+    raise AttributeError(f"module 'iwr' has no attribute {name!r}")
+
 
 __all__ = [
     "Accuracy",
@@ -40,6 +51,7 @@ __all__ = [
     "NullDirection",
     "ParameterError",
     "PoseErrors",
+    "PosePlan",
     "Problem",
     "ReducedProblem",
     "ResultFileError",
@@ -47,6 +59,7 @@ __all__ = [
     "RobotFileError",
     "StudyError",
     "StudyResult",
+    "Uncertainty",
     "UnreachableError",
     "__version__",
     "accuracy",
@@ -57,8 +70,10 @@ __all__ = [
     "identify",
     "load_result",
     "parameter_error",
+    "plan_poses",
     "pose_errors",
     "predict_legs",
     "simulate",
     "study",
+    "uncertainty",
 ]

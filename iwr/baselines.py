@@ -112,7 +112,9 @@ class _Objective:
         if self.nfev >= self.max_evaluations:
             # NLopt's own maxeval is also set; this guard makes the budget exact whatever the
             # algorithm does in its initialisation.
-            self._force_stop(f"evaluation budget exhausted (max_evaluations={self.max_evaluations})")
+            self._force_stop(
+                f"evaluation budget exhausted (max_evaluations={self.max_evaluations})"
+            )
             return self.best_f
         f = self.reduced.cost(z)
         self.nfev += 1

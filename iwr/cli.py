@@ -35,11 +35,16 @@ QUICK_ENV = "IWR_EXAMPLE_QUICK"
 EXAMPLE_SEED = 2024
 EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 0.2)
 EXAMPLE_POSES_QUICK = 50
+EXAMPLE_GENERATIONS_QUICK = 30  # of DE in the quick example (then polished by LM)
 EXAMPLE_DIR = "iwr-example"
 
-# CLI option -> keyword names a method may accept for it, first match wins.
+# CLI option -> keyword a method takes for it: first the known ones per method (for options taken
+# through **options), then the first of the names below found in the method's signature.
+_KNOWN_OPTIONS: dict[str, dict[str, str]] = {
+    "de": {"budget": "max_evaluations"},
+}
 _METHOD_OPTIONS: dict[str, tuple[str, ...]] = {
-    "budget": ("max_nfev", "max_evaluations", "max_evals", "maxeval", "budget"),
+    "budget": ("max_evaluations", "max_nfev", "max_evals", "maxeval", "budget"),
     "generations": ("generations",),
     "preset": ("preset",),
     "polish": ("polish",),
@@ -49,7 +54,10 @@ _METHOD_OPTIONS: dict[str, tuple[str, ...]] = {
 
 
 class UsageError(Exception):
-    """Bad command-line usage: exit code 2."""
+    """Bad command-line usage: exit code 2. The message ends with where to find help."""
+
+    def __init__(self, message: str, prog: str = "iwr calibrate") -> None:
+        super().__init__(f"{message} (see '{prog} --help')")
 
 
 class CommandError(Exception):
@@ -60,7 +68,7 @@ class _Parser(argparse.ArgumentParser):
     """argparse, with one-line errors raised to :func:`main` instead of a usage dump."""
 
     def error(self, message: str) -> Any:  # type: ignore[override]
-        raise UsageError(f"{self.prog}: {message} (see '{self.prog} --help')")
+        raise UsageError(message, self.prog)
 
 
 def default_method() -> str:
@@ -161,7 +169,8 @@ def build_parser() -> argparse.ArgumentParser:
         "1 bad data or failed computation, 2 bad usage, 130 interrupted.",
     )
     parser.add_argument("--version", action="version", version=f"iwr {__version__}")
-    parser.add_argument("--debug", action="store_true", help="show the Python traceback of an error")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
     sub.required = True
 
@@ -220,12 +229,16 @@ def build_parser() -> argparse.ArgumentParser:
                    help="a method preset, e.g. 'paper' for the DE settings of Table 2")
     p.add_argument("--strategy", default=None, help="DE strategy, e.g. rand1bin, lshade")
     p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
-                   help="refine a global method's result by Levenberg-Marquardt (default: on for de)")
+                   help="refine a global method's result by Levenberg-Marquardt "
+                   "(default: on for de)")
     p.add_argument("--workers", type=_positive_int, default=None, metavar="N",
                    help="threads of a parallel method (default: all cores)")
     p.add_argument("--seed", type=_nonneg_int, default=0,
                    help="seed of the validation split and of stochastic methods (default: "
                    "%(default)s; the example's data use seed 2024)")
+    p.add_argument("--parameters", choices=("base", "all"), default="base",
+                   help="identify the base parameters only, the unidentifiable ones held at "
+                   "nominal, for a unique answer (base, the default), or all of them (all)")
     p.add_argument("--bounds", choices=("default", "paper"), default="default",
                    help="search bounds: +-0.5 mm and +-0.5 degree (default), or Table 2 literally "
                    "(+-0.5 for every parameter)")
@@ -249,9 +262,10 @@ def build_parser() -> argparse.ArgumentParser:
     # analyze -----------------------------------------------------------------------------------
     p = sub.add_parser(
         "analyze", help="which parameters the measurements can identify",
-        description="Print the identifiability report of ROBOT.toml on the poses of DATA.csv: "
-        "the rank and conditioning of the identification Jacobian and, where iwr.identifiability "
-        "is available, the unidentifiable combinations and a set of base parameters.",
+        description="Print the identifiability report of ROBOT.toml on the poses of DATA.csv "
+        "(iwr.identifiability): the rank and conditioning of the identification Jacobian, "
+        "observability indices, the unidentifiable combinations of parameters and a set of base "
+        "parameters.",
     )
     p.add_argument("robot", metavar="ROBOT.toml", help="the nominal robot")
     p.add_argument("data", metavar="DATA.csv", help="the measurements")
@@ -264,8 +278,8 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser(
         "plan", help="choose the poses to measure",
         description="Choose K poses to measure among candidate poses (from a file, or sampled "
-        "at random in the workspace) so as to maximise the observability of the parameters. "
-        "Needs iwr.plan_poses.",
+        "at random in the workspace) that maximise an observability index of the base "
+        "parameters (iwr.plan_poses: greedy, then exchanges).",
     )
     p.add_argument("robot", metavar="ROBOT.toml", help="the nominal robot")
     p.add_argument("--candidates", metavar="CANDIDATES.csv",
@@ -275,6 +289,8 @@ def build_parser() -> argparse.ArgumentParser:
                    "(default: %(default)s)")
     p.add_argument("--poses", type=_positive_int, default=30, metavar="K",
                    help="number of poses to choose (default: %(default)s)")
+    p.add_argument("--criterion", choices=("O1", "O2", "O3", "O4"), default="O1",
+                   help="observability index to maximise (default: O1, D-optimal)")
     p.add_argument("--seed", type=_nonneg_int, default=0, help="random seed (default: 0)")
     p.add_argument("--out", default="plan.csv", metavar="FILE",
                    help="the chosen poses, as a measurement CSV (default: %(default)s)")
@@ -350,7 +366,7 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
 
     if method not in METHODS:
         raise UsageError(
-            f"iwr calibrate: --method {method!r}: available methods: {', '.join(sorted(METHODS))}"
+            f"--method {method!r}: available methods: {', '.join(sorted(METHODS))}"
         )
     params = dict(inspect.signature(METHODS[method]).parameters)
     params.update(inspect.signature(identify).parameters)
@@ -361,11 +377,11 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
             if option == "polish" and method == "de" and "polish" in params:
                 kwargs["polish"] = True  # the paper's DE, then a local refinement
             continue
-        name = next((n for n in names if n in params), None)
+        name = _KNOWN_OPTIONS.get(method, {}).get(option)
         if name is None:
-            raise UsageError(
-                f"iwr calibrate: --{option} is not an option of method {method!r}"
-            )
+            name = next((n for n in names if n in params), None)
+        if name is None:
+            raise UsageError(f"--{option} is not an option of method {method!r}")
         kwargs[name] = value
     return kwargs
 
@@ -374,7 +390,7 @@ class _EvalBar:
     """A tqdm counter of evaluations with the best cost so far, fed by a method's callback."""
 
     def __init__(self, desc: str, enabled: bool) -> None:
-        from tqdm.auto import tqdm
+        from tqdm import tqdm
 
         self.best = math.inf
         self.bar = tqdm(desc=desc, unit=" eval", disable=not enabled, leave=False,
@@ -416,14 +432,13 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.robot is not None and args.data is None:
-        raise UsageError("iwr calibrate: give both ROBOT.toml and DATA.csv, or neither (the "
-                         "built-in example) (see 'iwr calibrate --help')")
+        raise UsageError("give both ROBOT.toml and DATA.csv, or neither (the built-in example)")
     method = args.method or default_method()
     kwargs = _method_kwargs(method, args)
     if args.robot is None:
         return _run_example(args, method, kwargs)
     if args.poses is not None:
-        raise UsageError("iwr calibrate: --poses applies to the built-in example only")
+        raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     robot = _load_robot(args.robot)
     data = _load_data(args.data, robot)
     validation = _load_data(args.validation, robot) if args.validation else None
@@ -438,9 +453,11 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     from .simulate import Noise, simulate
 
     if args.validation:
-        raise UsageError("iwr calibrate: --validation needs ROBOT.toml and DATA.csv")
+        raise UsageError("--validation needs ROBOT.toml and DATA.csv")
     quick = os.environ.get(QUICK_ENV, "").strip() not in ("", "0")
     n = args.poses or (EXAMPLE_POSES_QUICK if quick else EXAMPLE_POSES)
+    if quick and method == "de" and args.generations is None and args.budget is None:
+        kwargs = {**kwargs, "generations": EXAMPLE_GENERATIONS_QUICK}
     out = Path(args.out_dir or EXAMPLE_DIR)
     out.mkdir(parents=True, exist_ok=True)
     robot = Robot.default()
@@ -483,9 +500,10 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
                kwargs: dict[str, Any], out: Path, *, robot_name: str, data_name: str,
                truth: np.ndarray | None = None) -> Any:
     from .accuracy import accuracy
+    from .identifiability import identifiability, parameter_error
     from .identify import identify
-    from .problem import Problem
-    from .report import Calibration, jacobian_rank
+    from .report import Calibration
+    from .uncertainty import uncertainty
 
     if validation is not None:
         ident, val, held_out = data, validation, True
@@ -494,6 +512,11 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
         held_out = True
     else:
         ident, val, held_out = data, data, False
+    notes: list[str] = []
+    if args.parameters == "base":
+        # Identify the base parameters only, the others held at nominal: a unique answer whose
+        # values and standard deviations mean something.
+        kwargs = {**kwargs, "active": identifiability(robot, ident).active}
     show = _progress_enabled(args)
     bar = None
     if method == "lm":  # LM reports no progress itself: count its evaluations
@@ -505,12 +528,22 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     finally:
         if bar is not None:
             bar.close()
+    report = identifiability(robot, ident, result.x)
+    try:
+        active = result["active"] if args.parameters == "base" else report
+        unc = uncertainty(robot, ident, result.x, active=active)
+    except ValueError as exc:
+        unc = None
+        notes.append(f"note: no standard deviations: {_one_line(exc)}")
     acc = accuracy(robot, result.x, val)
-    truth_acc = accuracy(robot, truth, val) if truth is not None else None
+    truth_acc = perr = None
+    if truth is not None:
+        truth_acc = accuracy(robot, truth, val)
+        perr = parameter_error(robot, ident, result.x, truth)
     cal = Calibration(
         robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
-        accuracy=acc, data_name=data_name, robot_name=robot_name,
-        rank=jacobian_rank(Problem(robot, ident), result.x), truth_accuracy=truth_acc,
+        accuracy=acc, data_name=data_name, robot_name=robot_name, identifiability=report,
+        uncertainty=unc, parameter_error=perr, truth_accuracy=truth_acc, notes=notes,
     )
     print(cal.summary())
     written = cal.write(out, plots=not args.no_plots)
@@ -518,46 +551,49 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     return cal
 
 
-def _api(name: str) -> Any:
-    """``iwr.<name>`` if this build has it (features of other branches), else None."""
-    import importlib
-
-    return getattr(importlib.import_module(__package__ or "iwr"), name, None)
-
-
 def cmd_analyze(args: argparse.Namespace) -> int:
-    from .problem import Problem
-    from .report import jacobian_rank
+    from .identifiability import identifiability
     from .result import load_result
 
     robot = _load_robot(args.robot)
     data = _load_data(args.data, robot)
-    x = np.zeros(robot.n_params)
+    x = None
     if args.result:
         x = np.asarray(load_result(args.result).x, dtype=float)
         if x.shape != (robot.n_params,):
             raise CommandError(f"{args.result}: {x.size} parameters, but robot {robot.name!r} "
                                f"has {robot.n_params}")
-    rank, cond = jacobian_rank(Problem(robot, data), x)
-    print(f"robot {robot.name!r} ({robot.n_params} error parameters), {len(data)} poses from "
-          f"{args.data}")
-    print(f"identification Jacobian (unit-norm columns): rank {rank} of {robot.n_params}, "
-          f"condition number {cond:.4g}; {robot.n_params - rank} combinations of parameters "
-          "leave every leg reading unchanged")
-    identifiability = _api("identifiability")
-    if identifiability is None:
-        print("(the full report, with the unidentifiable combinations and base parameters, needs "
-              "iwr.identifiability, which this build does not have)")
-    else:
-        print(identifiability(robot, data, x=x))
+    print(identifiability(robot, data, x))
     return EXIT_OK
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    if _api("plan_poses") is None:
-        raise CommandError("iwr plan needs iwr.plan_poses (pose planning), which this build "
-                           "does not have")
-    raise CommandError("iwr plan: iwr.plan_poses is present but not wired to the command line yet")
+    from .measurements import Measurements
+    from .planning import plan_poses
+    from .simulate import sample_poses
+
+    robot = _load_robot(args.robot)
+    if args.candidates:
+        cand = Measurements.from_csv(args.candidates, robot=robot)
+        source = str(args.candidates)
+    else:
+        rng = np.random.default_rng(args.seed)
+        q, poses, legs = sample_poses(robot, args.n_candidates, rng)
+        cand = Measurements(q, poses, legs, joint_types=robot.joint_types)
+        source = f"{args.n_candidates} reachable poses sampled at random (seed {args.seed})"
+    if args.poses > len(cand):
+        raise CommandError(f"--poses {args.poses}: more than the {len(cand)} candidates")
+    try:
+        plan = plan_poses(robot, cand, args.poses, criterion=args.criterion, seed=args.seed)
+    except ValueError as exc:
+        msg = str(exc)
+        raise CommandError("--poses" + msg[1:] if msg.startswith("k:") else msg) from None
+    plan.measurements.to_csv(args.out)
+    print(f"candidates: {source}")
+    print(plan)
+    print(f"wrote {args.out}: the chosen poses (joint readings and platform poses; its leg "
+          "readings are the candidates', to be replaced by the readings measured there)")
+    return EXIT_OK
 
 
 # -- entry point ---------------------------------------------------------------------------------

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from ._blas import single_thread
 from ._io import atomic_write_bytes, atomic_write_text
 from .identify import METHODS, identify
 from .measurements import Measurements
@@ -76,34 +77,53 @@ ParamErrorFn = Callable[[Robot, Measurements, np.ndarray, np.ndarray], Any]
 
 
 def _scaled_null_space(problem: Problem, x: np.ndarray) -> tuple[np.ndarray, np.ndarray, int]:
-    """Column scale ``d``, right singular vectors of ``J / d`` (rows) and the rank."""
+    """Column scale ``d``, the right singular vectors of ``J / d`` (rows, all n) and the rank."""
     jac = problem.jacobian(x)
     d = np.linalg.norm(jac, axis=0)
     d = np.where(d > 0, d, 1.0)
-    _, s, vt = np.linalg.svd(jac / d, full_matrices=True)
+    # Only V is needed: the economic SVD gives all of it unless there are fewer readings than
+    # parameters.
+    _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
     tol = s[0] * max(jac.shape) * np.finfo(float).eps if s.size else 0.0
     rank = int(np.sum(s > tol))
     return d, vt, rank
 
 
-def _projected_parameter_error(
-    robot: Robot, measurements: Measurements, x: np.ndarray, truth: np.ndarray
-) -> dict[str, float]:
+class _ProjectedParameterError:
     """Fallback for :func:`iwr.parameter_error`: ``x - truth`` projected, in the column-scaled
     metric, onto the row space of the Jacobian at the truth (its identifiable part), as RMS over
-    lengths and angles; and the raw RMS."""
-    problem = Problem(robot, measurements)
-    d, vt, rank = _scaled_null_space(problem, truth)
-    raw = np.asarray(x, dtype=float) - truth
-    vr = vt[:rank].T
-    projected = (vr @ (vr.T @ (d * raw))) / d
-    ang = robot.angle_parameters
-    return {
-        "rms_length": _rms(projected[~ang]),
-        "rms_angle": _rms(projected[ang]),
-        "raw_rms_length": _rms(raw[~ang]),
-        "raw_rms_angle": _rms(raw[ang]),
-    }
+    lengths and angles; and the raw RMS. The decomposition is kept for the last data set, since
+    every method of a comparison is judged on the same one."""
+
+    def __init__(self) -> None:
+        self._key: Any = None
+        self._svd: Any = None
+
+    def __call__(self, robot: Robot, measurements: Measurements, x: Any,
+                 truth: Any) -> dict[str, float]:
+        truth = np.asarray(truth, dtype=float)
+        key = (id(robot), id(measurements), truth.tobytes())
+        if key != self._key:
+            self._svd = _scaled_null_space(Problem(robot, measurements), truth)
+            self._key = key
+        d, vt, rank = self._svd
+        raw = np.asarray(x, dtype=float) - truth
+        vr = vt[:rank].T
+        projected = (vr @ (vr.T @ (d * raw))) / d
+        ang = robot.angle_parameters
+        return {
+            "rms_length": _rms(projected[~ang]),
+            "rms_angle": _rms(projected[ang]),
+            "raw_rms_length": _rms(raw[~ang]),
+            "raw_rms_angle": _rms(raw[ang]),
+        }
+
+
+def _projected_parameter_error(
+    robot: Robot, measurements: Measurements, x: Any, truth: Any
+) -> dict[str, float]:
+    """See :class:`_ProjectedParameterError` (no caching)."""
+    return _ProjectedParameterError()(robot, measurements, x, truth)
 
 
 def _default_parameter_error() -> ParamErrorFn:
@@ -111,7 +131,7 @@ def _default_parameter_error() -> ParamErrorFn:
     import iwr
 
     fn = getattr(iwr, "parameter_error", None)
-    return fn if callable(fn) else _projected_parameter_error
+    return fn if callable(fn) else _ProjectedParameterError()
 
 
 def _error_fields(value: Any) -> dict[str, float]:
@@ -216,7 +236,9 @@ def _check_seeds(seeds: Any) -> list[int]:
     try:
         out = list(seeds)
     except TypeError:
-        raise ValueError(f"seeds: {seeds!r}; expected a sequence of non-negative integers") from None
+        raise ValueError(
+            f"seeds: {seeds!r}; expected a sequence of non-negative integers"
+        ) from None
     if not out:
         raise ValueError("seeds: empty; expected one or more non-negative integers")
     for s in out:
@@ -352,7 +374,9 @@ def compare_methods(
     extra = dict(method_options or {})
     for k, v in extra.items():
         if k not in names or not isinstance(v, dict):
-            raise ValueError(f"method_options: {k!r}; expected a dict of options per compared method")
+            raise ValueError(
+                f"method_options: {k!r}; expected a dict of options per compared method"
+            )
     out_path = None if out_dir is None else Path(out_dir)
     if out_path is not None and out_path.exists() and not out_path.is_dir():
         raise ValueError(f"out_dir: {str(out_path)!r} exists and is not a folder")
@@ -374,10 +398,19 @@ def compare_methods(
         "success_rtol": success_rtol,
         "success_atol": success_atol,
         "parameter_error": getattr(param_err, "__module__", "") + "."
-        + getattr(param_err, "__qualname__", repr(param_err)),
+        + getattr(param_err, "__qualname__", type(param_err).__qualname__),
         "method_options": {m: _method_options(m, budget, extra) for m in names},
     }
 
+    with single_thread():
+        return _compare(robot, n_poses, noise, seeds, names, budget, starts, out_path,
+                        n_validation, success_rtol, success_atol, param_err, extra, show, settings)
+
+
+def _compare(robot: Robot, n_poses: int, noise: Noise, seeds: list[int], names: list[str],
+             budget: int, starts: list[str], out_path: Path | None, n_validation: int,
+             success_rtol: float, success_atol: float, param_err: ParamErrorFn,
+             extra: dict[str, dict[str, Any]], show: bool, settings: dict[str, Any]) -> Comparison:
     from tqdm.auto import tqdm
 
     runs: list[dict[str, Any]] = []
@@ -559,8 +592,20 @@ def _png(fig: Any) -> bytes:
     return buf.getvalue()
 
 
+_FIXED_COLORS = {"lm": "#1f77b4", "de": "#d62728", "crs2": "#2ca02c", "bobyqa": "#ff7f0e"}
+
+
 def _colors(names: list[str]) -> dict[str, str]:
-    return {m: _COLORS[i % len(_COLORS)] for i, m in enumerate(names)}
+    """One color per method, the same in every report for the usual methods."""
+    others = [c for c in _COLORS if c not in _FIXED_COLORS.values()]
+    out, k = {}, 0
+    for m in names:
+        if m in _FIXED_COLORS:
+            out[m] = _FIXED_COLORS[m]
+        else:
+            out[m] = others[k % len(others)]
+            k += 1
+    return out
 
 
 def _plot_convergence(comp: Comparison, scenario: str) -> bytes:
@@ -657,7 +702,7 @@ def _plot_metrics(comp: Comparison) -> bytes:
                         if r["scenario"] == scenario and r["method"] == method]
                 ok = [r["success"] for r in comp.runs
                       if r["scenario"] == scenario and r["method"] == method]
-                for v, s in zip(vals, ok):
+                for v, s in zip(vals, ok, strict=True):
                     ax.plot(k, max(v, 1e-30), "o" if s else "x", color=colors[method], ms=6)
             if key == "cost":
                 fl = [r["noise_floor"] for r in comp.runs if r["scenario"] == scenario]
@@ -710,14 +755,34 @@ def _definitions(settings: dict[str, Any]) -> list[str]:
         f"Validation RMS: leg readings predicted with the recovered parameters at "
         f"{settings['n_validation']} fresh poses of the actual robot, against their exact "
         "(noise-free) values; the nominal robot's is given for scale.",
-        "Parameter error, identifiable part: the recovered minus true parameters with their "
-        "unidentifiable component removed (projection onto the row space of the column-scaled "
-        "Jacobian at the truth; " + settings["parameter_error"] + "), RMS over lengths and over "
-        "angles. Raw: the same without the projection. Unidentifiable combinations cost nothing, "
-        "so a method may land anywhere along them: raw errors there say nothing about the method.",
+        _parameter_error_text(settings["parameter_error"]),
         "Medians over seeds. Wall times depend on the machine and its load; everything else is "
         "the same for the same seeds.",
     ]
+
+
+def _parameter_error_text(name: str) -> str:
+    common = (
+        "RMS over lengths (mm) and over angles (mrad in the tables). Raw: x - truth as it is. "
+        "Unidentifiable combinations cost nothing, so a method may land anywhere along them: raw "
+        "errors there say nothing about the method."
+    )
+    if name.endswith("identifiability.parameter_error"):
+        return (
+            "Parameter error, identifiable part (iwr.parameter_error): x minus the parameter "
+            "vector nearest to x that predicts exactly the truth's readings at the identification "
+            "poses, projected onto the identifiable directions; the part of the error that the "
+            "readings can see. " + common
+        )
+    if name.endswith("_ProjectedParameterError"):
+        return (
+            "Parameter error, identifiable part: x - truth projected onto the row space of the "
+            "column-scaled Jacobian at the truth. First order: where a method ends far along a "
+            "curved unidentifiable combination (large errors, the bad start), part of that remains "
+            "and the number overstates the real error; the validation RMS has no such limit. "
+            + common
+        )
+    return f"Parameter error, identifiable part: as computed by {name}. " + common
 
 
 def write_report(comp: Comparison, out_dir: str | Path, robot: Robot) -> dict[str, Path]:

@@ -6,18 +6,19 @@ Everything here works on the exact Jacobian ``J`` of the leg residuals of eq. (1
 
 Column scaling
 --------------
-Lengths (mm) and angles (rad) share one Jacobian, so its singular values depend on the units unless
-the columns are scaled. We divide every column by its Euclidean norm (equilibration, as in
+Lengths (mm) and angles (rad) share one Jacobian, so its singular values depend on the units
+unless the columns are scaled. We divide every column by its Euclidean norm (equilibration, as in
 Hollerbach & Wampler's "calibration index"): the scaled Jacobian ``Js = J D^-1`` with
-``D = diag(||J[:, j]||)`` is *identical* under any change of units of any parameter (a change of unit
-multiplies a column and its norm by the same factor), so the rank, the threshold, the null space and
-the choice of base parameters do not depend on units, and the columns enter the QR pivoting on an
-equal footing. A parameter with a zero column (no influence at all) keeps scale 1.
+``D = diag(||J[:, j]||)`` is *identical* under any change of units of any parameter (a change of
+unit multiplies a column and its norm by the same factor), so the rank, the threshold, the null
+space and the choice of base parameters do not depend on units, and every column enters the
+selection of base parameters on an equal footing. A parameter with a zero column (no influence at
+all) keeps scale 1.
 
-The observability indices are computed from the nonzero singular values of ``Js`` (the identifiable
-part; the zero ones would make every index zero). With column-norm scaling they are unit-free, but
-they do depend on the data set through ``D``; to compare pose sets, :func:`iwr.plan_poses` holds ``D``
-fixed (computed once over all candidate poses).
+The observability indices are computed from the nonzero singular values of ``Js`` (the
+identifiable part; the zero ones would make every index zero). With column-norm scaling they are
+unit-free, but they depend on the data set through ``D``; to compare pose sets,
+:func:`iwr.plan_poses` holds ``D`` fixed (computed once over all candidate poses).
 """
 
 from __future__ import annotations
@@ -57,8 +58,10 @@ def _x_or_zeros(robot: Robot, x: Any, name: str = "x") -> np.ndarray:
     return arr
 
 
-def _rank_threshold(s: np.ndarray, shape: tuple[int, int], rtol: float | None) -> tuple[float, float]:
-    """Absolute and relative thresholds: numpy.linalg.matrix_rank's default unless ``rtol`` given."""
+def _rank_threshold(
+    s: np.ndarray, shape: tuple[int, int], rtol: float | None
+) -> tuple[float, float]:
+    """Absolute and relative thresholds: numpy.linalg.matrix_rank's default unless ``rtol``."""
     if rtol is None:
         rtol = max(shape) * np.finfo(float).eps
     if not (np.isfinite(rtol) and 0 < rtol < 1):
@@ -254,6 +257,7 @@ def identifiability(
     x: Any = None,
     *,
     rtol: float | None = None,
+    selection: str = "ordered",
 ) -> IdentifiabilityReport:
     """Which error parameters the leg readings at these poses can identify.
 
@@ -271,6 +275,17 @@ def identifiability(
         ``max(6 N, n_params) * machine epsilon`` (as ``numpy.linalg.matrix_rank``). The structural
         null directions of the IWR give singular values ~1e-16 while the weakest identifiable
         ones are ~1e-3, so the choice is not delicate.
+    selection : {"ordered", "pivoted"}
+        How to choose the base parameters among equivalent ones. ``"pivoted"``: the first
+        ``rank`` pivots of QR with column pivoting of the scaled Jacobian
+        (``scipy.linalg.qr(pivoting=True)``), the best-conditioned subset; but where columns are
+        exactly dependent (joint1.da and joint3.dd are opposite) the choice among them falls to
+        round-off or to a 1e-3 difference of the geometry, so it can change from one data set or
+        one ``x`` to the next. ``"ordered"`` (default): go through the parameters in a fixed order
+        of preference (the hexapod's a_i, b_i, l0_i, then the carriage's joints 1, 2, ...) and keep
+        each one that is independent of those kept so far, so the same structural dependencies
+        always leave out the same parameters (for the IWR: joint2.da, joint3.dd and joint 4's
+        four). Falls back to ``"pivoted"`` if the ordered pass does not find ``rank`` columns.
 
     Returns
     -------
@@ -284,13 +299,8 @@ def identifiability(
     thr, rtol = _rank_threshold(s, jac.shape, rtol)
     rank = int(np.sum(s > thr))
     names = robot.parameter_names
-    n = robot.n_params
 
-    # Base parameters: QR with column pivoting of the scaled Jacobian; the first `rank` pivots are
-    # the best-conditioned independent subset, the remaining columns depend on them.
-    _, _, piv = scipy.linalg.qr(jac / d, mode="economic", pivoting=True)
-    base = np.sort(piv[:rank])
-    out = np.sort(piv[rank:])
+    base, out = _base_parameters(jac / d, s, thr, rank, robot, selection)
 
     # Null space in scaled coordinates, then back to physical units; then the "echelon" basis:
     # one direction per left-out parameter, coefficient 1 there and 0 on the other left-out ones.
@@ -325,6 +335,50 @@ def identifiability(
     )
 
 
+def _preference(robot: Robot) -> np.ndarray:
+    """Order of preference for keeping a parameter: hexapod (a_i, b_i, l0_i), then joints 1..n."""
+    nc = 4 * robot.n_joints
+    return np.concatenate([np.arange(nc, robot.n_params), np.arange(nc)])
+
+
+def _base_parameters(
+    js: np.ndarray, s: np.ndarray, thr: float, rank: int, robot: Robot, selection: str
+) -> tuple[np.ndarray, np.ndarray]:
+    """Indices of the base parameters and of those left out (both sorted)."""
+    n = js.shape[1]
+    if selection not in ("ordered", "pivoted"):
+        raise ValueError(f"selection: {selection!r}; expected 'ordered' or 'pivoted'")
+    if selection == "ordered" and 0 < rank < n:
+        # Distance of each column (unit norm) from the span of the kept ones, by Gram-Schmidt
+        # applied twice (one pass loses orthogonality at round-off level). Two passes over the
+        # parameters in order of preference: the first keeps only columns at distance >= 0.1 from
+        # the span (well away from it), so that a column that is *nearly* dependent (joint2.da is
+        # parallel to joint1.dd up to the angle errors, ~1e-3) cannot take the place of a clearly
+        # independent one; the second keeps whatever else is independent at all: dependent columns
+        # are at round-off distance (~1e-13), independent ones at least ~s_r, and the cut is
+        # their geometric midpoint.
+        cut = np.sqrt(max(thr, 1e-300) * s[rank - 1])
+        basis: list[np.ndarray] = []
+        kept: list[int] = []
+        for limit in (0.1, cut):
+            for j in _preference(robot):
+                if j in kept:
+                    continue
+                v = js[:, j] / np.linalg.norm(js[:, j])
+                for _ in range(2):
+                    for b in basis:
+                        v = v - (b @ v) * b
+                dist = np.linalg.norm(v)
+                if dist > limit:
+                    basis.append(v / dist)
+                    kept.append(j)
+        if len(kept) == rank:
+            base = np.sort(np.array(kept, dtype=int))
+            return base, np.setdiff1d(np.arange(n), base)
+    _, _, piv = scipy.linalg.qr(js, mode="economic", pivoting=True)
+    return np.sort(piv[:rank]), np.sort(piv[rank:])
+
+
 def _line_invariance(
     robot: Robot, m: Measurements, x: np.ndarray, v: np.ndarray, d: np.ndarray
 ) -> tuple[bool, float]:
@@ -342,7 +396,7 @@ def _line_invariance(
     return bool(change < 1e-9), float(change / t**2)
 
 
-# -- parameter error modulo the unidentifiable directions -------------------------------------------
+# -- parameter error modulo the unidentifiable directions ----------------------------------------
 
 
 @dataclass
@@ -371,6 +425,9 @@ class ParameterError:
         leg readings that the error causes at these poses.
     rank : int
         Rank of the Jacobian used.
+    converged : bool
+        ``method="nonlinear"``: whether the search for the nearest equivalent of the truth reached
+        the truth's readings to 1e-9 mm (always True for ``"linear"``).
     """
 
     projected: np.ndarray
@@ -385,10 +442,11 @@ class ParameterError:
     reading_rms: float
     rank: int
     parameter_names: list[str]
+    converged: bool = True
 
     def named(self) -> dict[str, float]:
         """The projected error by parameter name."""
-        return dict(zip(self.parameter_names, map(float, self.projected)))
+        return dict(zip(self.parameter_names, map(float, self.projected), strict=True))
 
     def __str__(self) -> str:
         return (
@@ -415,7 +473,9 @@ def _readings_problem(robot: Robot, measurements: Measurements, truth: np.ndarra
     return Problem(robot, Measurements(m.q, m.poses, legs, joint_types=robot.joint_types))
 
 
-def _row_space(jac: np.ndarray, rtol: float | None) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
+def _row_space(
+    jac: np.ndarray, rtol: float | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, int]:
     d, s, vt = _scaled_svd(jac)
     thr, _ = _rank_threshold(s, jac.shape, rtol)
     rank = int(np.sum(s > thr))
@@ -473,6 +533,7 @@ def parameter_error(
         raise ValueError(f"method: {method!r}; expected 'nonlinear' or 'linear'")
     problem = _readings_problem(robot, measurements, truth)
     raw = x - truth
+    converged = True
     if method == "linear":
         jac = problem.jacobian(truth)
         d, _, vt, rank = _row_space(jac, rtol)
@@ -480,6 +541,7 @@ def parameter_error(
         projected = (vr @ (vr.T @ (d * raw))) / d
     else:
         y = _nearest_equivalent(problem, x, rtol)
+        converged = bool(np.max(np.abs(problem.residuals(y)), initial=0.0) < 1e-9)
         jac = problem.jacobian(y)
         d, _, vt, rank = _row_space(jac, rtol)
         vr = vt[:rank].T
@@ -499,6 +561,7 @@ def parameter_error(
         reading_rms=_rms(problem.residuals(x)),
         rank=rank,
         parameter_names=robot.parameter_names,
+        converged=converged,
     )
 
 

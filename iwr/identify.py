@@ -135,9 +135,10 @@ def identify(
     x0 : array_like, optional
         Starting point (local methods) and the value of parameters that are not ``active``.
         Default: zeros, the nominal robot.
-    active : array_like of bool, names or indices, optional
+    active : array_like of bool, names or indices, or "base", optional
         The parameters to identify; the rest are held at ``x0``. For example the base parameters
-        of :func:`iwr.identifiability`, so that the answer is unique.
+        of :func:`iwr.identifiability` (``active=report.active``, or ``active="base"`` to compute
+        them at ``x0``), so that the answer is unique.
     seed : int, optional
         Seed of the random generator of stochastic methods.
     callback : callable, optional
@@ -153,6 +154,11 @@ def identify(
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
     if x0_arr.shape != (problem.n_params,) or not np.all(np.isfinite(x0_arr)):
         raise ValueError(f"x0: expected {problem.n_params} finite values, got shape {x0_arr.shape}")
+    if isinstance(active, str) and active == "base":
+        # The base parameters of the identifiability analysis at x0: a unique answer.
+        from .identifiability import identifiability
+
+        active = identifiability(robot, measurements, x0_arr).active
     mask = _active_mask(problem, active)
     start = time.perf_counter()
     result = METHODS[method](
@@ -168,7 +174,20 @@ def identify(
 
 
 #: Tikhonov weights of the first Levenberg-Marquardt solves, before the final ``regularization``.
-_LM_CONTINUATION = (1e-4, 1e-8)
+_LM_CONTINUATION = (1e-4, 1e-8, 1e-12)
+#: The final weight of ``regularization="auto"`` on a rank-deficient problem.
+_AUTO_REGULARIZATION = 1e-16
+
+
+def _rank_deficient(jac: np.ndarray, norms: np.ndarray, rtol: float = 1e-9) -> bool:
+    """Is the column-scaled Jacobian numerically rank deficient (or wider than tall)?"""
+    if jac.shape[0] < jac.shape[1]:
+        return True
+    from ._blas import single_thread
+
+    with single_thread():
+        s = np.linalg.svd(jac / np.where(norms > 0, norms, 1.0), compute_uv=False)
+    return bool(s.size == 0 or s[-1] <= rtol * s[0])
 
 
 class _StopLM(Exception):
@@ -189,7 +208,7 @@ def levenberg_marquardt(
     xtol: float = 1e-15,
     ftol: float = 1e-15,
     gtol: float = 1e-15,
-    regularization: float = 1e-12,
+    regularization: float | str = "auto",
 ) -> IdentificationResult:
     """Levenberg-Marquardt (MINPACK, through ``scipy.optimize.least_squares(method="lm")``) on the
     exact Jacobian of :meth:`Problem.jacobian`.
@@ -212,11 +231,14 @@ def levenberg_marquardt(
         MINPACK's own limit on residual evaluations (Jacobians not counted).
     xtol, ftol, gtol : float
         MINPACK's tolerances.
-    regularization : float
+    regularization : float or "auto"
         Weight ``lambda`` of a Tikhonov term ``lambda sum_i (d_i (z_i - z0_i))^2`` added to the
         sum of squares, with ``d_i`` the norm of column i of the Jacobian at ``x0``: 0 disables
-        it. Solved by continuation: weights 1e-4, 1e-8, then ``regularization``, each solve
-        started from the previous answer. See the notes.
+        it. Solved by continuation: weights 1e-4, 1e-8, 1e-12, then ``regularization``, each
+        solve started from the previous answer. ``"auto"`` (default): 1e-16 when the column-scaled
+        Jacobian at ``x0`` is rank deficient (a singular value below 1e-9 of the largest), else
+        0, so that a full-rank problem (``active="base"``) gets the plain, unbiased solution. See
+        the notes.
 
     Notes
     -----
@@ -230,23 +252,32 @@ def levenberg_marquardt(
     to 10 mm away from the truth in unidentifiable combinations (at the same, zero, cost). The tiny
     Tikhonov term makes the problem full rank and picks, among the equally good solutions, the one
     nearest ``x0`` in the column-scaled metric (about 1 mm from the truth instead of 10 in the
-    same test). Its bias on the identifiable part is of order ``lambda / s_min^2`` relative, with ``s_min`` ~ 1e-3 the smallest identifiable singular value
-    of the column-scaled Jacobian: 1e-6 relative at the default, far below any noise. (It also
-    lets MINPACK run with fewer readings than parameters.) Hold the unidentifiable parameters
-    fixed with ``active`` (the base parameters) for the unregularised answer.
+    same test). Its bias on the identifiable part is of order ``lambda / s_min^2`` relative,
+    with ``s_min`` ~ 1e-3 the smallest identifiable singular value of the column-scaled
+    Jacobian: about 1e-10 relative at the default, far below any noise. (It also lets MINPACK
+    run with fewer readings than parameters.) Hold the unidentifiable parameters fixed with
+    ``active`` (the base parameters) for the unregularised answer.
+
+    Starting far from the valley of equal-cost solutions, a single solve at a tiny weight crawls
+    along it (thousands of evaluations from the bad start of ``iwr compare``); the continuation
+    (weights 1e-4, 1e-8, 1e-12, then ``regularization``) gets there in about a hundred.
     """
     from scipy.optimize import least_squares
 
-    if not (isinstance(regularization, (int, float)) and math.isfinite(regularization)
-            and regularization >= 0):
-        raise ValueError(f"regularization: {regularization!r}; expected a finite number >= 0")
+    auto = isinstance(regularization, str) and regularization == "auto"
+    if not auto and not (isinstance(regularization, (int, float))
+                         and not isinstance(regularization, bool)
+                         and math.isfinite(regularization) and regularization >= 0):
+        raise ValueError(
+            f"regularization: {regularization!r}; expected 'auto' or a finite number >= 0"
+        )
     reduced = ReducedProblem(problem, active, x0)
     n_res = 6 * problem.n_poses
-    if regularization == 0 and n_res < reduced.n:
+    if not auto and regularization == 0 and n_res < reduced.n:
         raise ValueError(
-            f"method 'lm': {n_res} residuals for {reduced.n} parameters; MINPACK's LM needs at least "
-            "as many residuals as parameters: measure more poses, fix parameters with 'active', or "
-            "use regularization > 0"
+            f"method 'lm': {n_res} residuals for {reduced.n} parameters; MINPACK's LM needs at "
+            "least as many residuals as parameters: measure more poses, fix parameters with "
+            "'active', or use regularization > 0"
         )
     if max_evaluations is None:
         max_evaluations = 100 * (reduced.n + 1)
@@ -304,19 +335,22 @@ def levenberg_marquardt(
         return j
 
     sol = None
+    stages: list[float] = []
     # Continuation on the Tikhonov weight: a strongly regularised first solve finds the region
     # quickly; the later ones, each started from the previous answer, remove its bias. A single
     # solve at the final, tiny weight crawls along the curved valley of equally good solutions when
     # the start is far from it (thousands of evaluations from a bad start, instead of ~100).
-    stages = [float(regularization)]
-    if regularization > 0:
-        stages = [s for s in _LM_CONTINUATION if s > regularization] + stages
     try:
         count()
         r_first, j_full = problem.residuals_and_jacobian(reduced.full(z0))
         first["r"], first["J"] = r_first, j_full[:, reduced.index]
         norms = np.linalg.norm(first["J"], axis=0)
         floor = 1e-12 * (norms.max() if norms.size and norms.max() > 0 else 1.0)
+        if auto:
+            regularization = _AUTO_REGULARIZATION if _rank_deficient(first["J"], norms) else 0.0
+        stages = [float(regularization)]
+        if regularization > 0:
+            stages = [s for s in _LM_CONTINUATION if s > regularization] + stages
         z = z0
         for lam in stages:
             weights = math.sqrt(lam) * np.maximum(norms, floor)
@@ -358,5 +392,6 @@ def levenberg_marquardt(
         history={"nfev": np.array(history_nfev, dtype=np.int64), "best": np.array(history_best)},
         wall_time=time.perf_counter() - start,
         settings={"max_evaluations": int(max_evaluations), "max_nfev": max_nfev, "xtol": xtol,
-                  "ftol": ftol, "gtol": gtol, "regularization": float(regularization)},
+                  "ftol": ftol, "gtol": gtol, "regularization": stages[-1] if stages else None,
+                  "regularization_option": regularization if not auto else "auto"},
     )

@@ -228,7 +228,7 @@ class Measurements:
                 )
                 continue
             values = []
-            for name, field in zip(header, fields):
+            for name, field in zip(header, fields, strict=True):
                 try:
                     v = float(field)
                 except ValueError:
@@ -236,7 +236,9 @@ class Measurements:
                     problems.append((lineno, f"line {lineno}, column {name}: {field!r} {what}"))
                     break
                 if not math.isfinite(v):
-                    problems.append((lineno, f"line {lineno}, column {name}: {field!r} is not finite"))
+                    problems.append(
+                        (lineno, f"line {lineno}, column {name}: {field!r} is not finite")
+                    )
                     break
                 values.append(v)
             else:
@@ -354,7 +356,8 @@ class Measurements:
         for j in range(6):
             lo, hi = robot.leg_stroke[j]
             slack = tolerance * (hi - lo)
-            for k in np.flatnonzero((self.legs[:, j] < lo - slack) | (self.legs[:, j] > hi + slack)):
+            outside = (self.legs[:, j] < lo - slack) | (self.legs[:, j] > hi + slack)
+            for k in np.flatnonzero(outside):
                 problems.append((k, f"{self._loc(k)}: leg {j + 1} reading {self.legs[k, j]:.6g} mm "
                                     f"is outside the stroke [{lo:.6g}, {hi:.6g}]"))
         if problems:
@@ -404,7 +407,7 @@ def _parse_header(header: list[str], path: Path, lineno: int) -> tuple[str, bool
     weights = len(rest) == len(expected) + 6
     if weights:
         expected += list(_WEIGHT_COLUMNS)
-    for k, (got, want) in enumerate(zip(rest, expected)):
+    for k, (got, want) in enumerate(zip(rest, expected, strict=False)):
         if got != want:
             raise MeasurementFileError(
                 f"{path}, line {lineno}: column {i + k + 1} is {got!r}; expected {want!r}"

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import io
+import itertools
 import json
 import math
 from dataclasses import dataclass, field
@@ -18,7 +19,7 @@ from .problem import Problem, predict_legs
 from .result import IdentificationResult
 from .robot import Robot
 
-__all__ = ["Calibration", "leg_residual_stats", "jacobian_rank"]
+__all__ = ["Calibration", "leg_residual_stats"]
 
 
 def leg_residual_stats(robot: Robot, errors: Any, data: Measurements) -> dict[str, np.ndarray]:
@@ -32,22 +33,6 @@ def leg_residual_stats(robot: Robot, errors: Any, data: Measurements) -> dict[st
         "rms": np.sqrt(np.mean(r**2, axis=0)),
         "max": np.abs(r).max(axis=0),
     }
-
-
-def jacobian_rank(problem: Problem, x: Any, rtol: float = 1e-9) -> tuple[int, float]:
-    """Numerical rank and condition number of the identification Jacobian at ``x``.
-
-    The columns are scaled to unit norm first, so that millimetres and radians compare; singular
-    values below ``rtol`` times the largest count as zero. A basic figure: ``iwr.identifiability``
-    (where installed) says which combinations are not identifiable.
-    """
-    jac = problem.jacobian(x)
-    norms = np.linalg.norm(jac, axis=0)
-    norms[norms == 0] = 1.0
-    s = np.linalg.svd(jac / norms, compute_uv=False)
-    rank = int(np.sum(s > rtol * s[0]))
-    cond = float(s[0] / s[rank - 1]) if rank else math.inf
-    return rank, cond
 
 
 @dataclass
@@ -64,6 +49,14 @@ class Calibration:
     result : IdentificationResult
     accuracy : Accuracy
         On the validation poses.
+    identifiability : IdentifiabilityReport
+        At the solution, on the identification poses.
+    uncertainty : Uncertainty or None
+        Standard deviations of the identified parameters (None if they could not be computed).
+    parameter_error : ParameterError or None
+        Against the truth, modulo the unidentifiable directions (simulations only).
+    truth_accuracy : Accuracy or None
+        The accuracy of the true errors (simulations only): the noise floor.
     """
 
     robot: Robot
@@ -74,9 +67,9 @@ class Calibration:
     accuracy: Accuracy
     data_name: str = ""
     robot_name: str = ""
-    rank: tuple[int, float] | None = None
-    parameter_table: list[dict[str, Any]] | None = None
-    identifiability_text: str | None = None
+    identifiability: Any = None
+    uncertainty: Any = None
+    parameter_error: Any = None
     truth_accuracy: Accuracy | None = None
     notes: list[str] = field(default_factory=list)
 
@@ -84,7 +77,8 @@ class Calibration:
     def costs(self) -> dict[str, float]:
         """Cost of eq. (10) on the identification poses, nominal and calibrated (mm^2)."""
         p = Problem(self.robot, self.identification)
-        return {"nominal": p.cost(np.zeros(self.robot.n_params)), "calibrated": float(self.result.fun)}
+        nominal = p.cost(np.zeros(self.robot.n_params))
+        return {"nominal": nominal, "calibrated": float(self.result.fun)}
 
     def residuals(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
         """Per-leg residual statistics, ``[set][nominal|calibrated]``."""
@@ -123,10 +117,45 @@ class Calibration:
         }
         if self.truth_accuracy is not None:
             out["accuracy_with_true_errors"] = self.truth_accuracy.calibrated.summary()
-        if self.rank is not None:
-            out["jacobian_rank"] = {"rank": self.rank[0], "n_params": self.robot.n_params,
-                                    "condition_number": self.rank[1]}
-        return out
+        rep = self.identifiability
+        if rep is not None:
+            out["identifiability"] = {
+                "rank": int(rep.rank), "n_params": self.robot.n_params,
+                "condition_number": float(rep.condition_number),
+                "left_out": list(rep.left_out),
+            }
+        out["parameters"] = self.parameter_rows()
+        if self.uncertainty is not None:
+            out["noise_sigma_mm"] = float(self.uncertainty.sigma)
+            out["noise_sigma_source"] = self.uncertainty.source
+        if self.parameter_error is not None:
+            pe = self.parameter_error
+            out["parameter_error_vs_truth"] = {
+                "rms_length_mm": float(pe.rms_length), "rms_angle_rad": float(pe.rms_angle),
+                "max_abs_length_mm": float(pe.max_abs_length),
+                "max_abs_angle_rad": float(pe.max_abs_angle),
+            }
+        return _finite(out)
+
+    def parameter_rows(self) -> list[dict[str, Any]]:
+        """One row per error parameter: name, value, std (None if not identified), unit, status."""
+        active = np.asarray(self.result.get("active", np.ones(self.robot.n_params, bool)))
+        left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
+        std = self.uncertainty.std if self.uncertainty is not None else None
+        rows = []
+        for i, (name, value, angle) in enumerate(zip(
+                self.robot.parameter_names, self.result.x, self.robot.angle_parameters,
+                strict=True)):
+            if not active[i]:
+                status = "held at nominal (not identifiable)" if name in left_out else "held fixed"
+            elif name in left_out:
+                status = "identified, but not identifiable: arbitrary"
+            else:
+                status = "identified"
+            sd = None if std is None or not np.isfinite(std[i]) else float(std[i])
+            rows.append({"name": name, "value": float(value), "std": sd,
+                         "unit": "rad" if angle else "mm", "status": status})
+        return rows
 
     # -- text -----------------------------------------------------------------------------------
     def summary(self) -> str:
@@ -141,30 +170,21 @@ class Calibration:
             + (f"{n_val} held out for validation" if self.held_out else
                "none held out (accuracy below is on the identification poses: optimistic)"),
             f"method {r.get('method', '?')}: {int(r.nfev)} evaluations, "
-            f"{float(r.get('wall_time', math.nan)):.2f} s, {'success' if r.success else 'FAILED'}"
+            f"{float(r.get('wall_time', math.nan)):.2f} s, "
+            f"{'converged' if r.success else 'not converged'}"
             f" ({str(r.message).strip()})",
         ]
         c = self.costs()
         lines.append(
             f"cost (eq. 10, sum of squared leg residuals, mm^2, {n_id} poses): "
             f"nominal {c['nominal']:.4g} -> calibrated {c['calibrated']:.4g}"
+            + self._before_polish()
         )
         lines.append("")
         lines.append("leg residuals, predicted - measured reading (mm):")
         lines.extend(self._residual_table())
-        if self.rank is not None:
-            rank, cond = self.rank
-            lines.append("")
-            lines.append(
-                f"identifiability: the Jacobian has rank {rank} of {self.robot.n_params} "
-                f"(unit-norm columns; condition number {cond:.3g}): "
-                + (f"{self.robot.n_params - rank} combinations of parameters do not change any "
-                   "leg reading; their values in the calibrated robot are arbitrary and harmless"
-                   if rank < self.robot.n_params else "every parameter is identifiable")
-            )
-        if self.identifiability_text:
-            lines.append("")
-            lines.append(self.identifiability_text.rstrip())
+        lines.append("")
+        lines.extend(self._identifiability_lines())
         lines.append("")
         on = "validation poses" if self.held_out else "identification poses (optimistic)"
         lines.append(
@@ -188,6 +208,57 @@ class Calibration:
                          f"({before / after:.1f} times smaller)")
         lines.extend(self.notes)
         return "\n".join(lines)
+
+    def _before_polish(self) -> str:
+        polish = dict(self.result.get("settings", {})).get("polish_result")
+        if isinstance(polish, dict) and "fun_before" in polish:
+            return f" (before the Levenberg-Marquardt polish: {polish['fun_before']:.4g})"
+        return ""
+
+    def _identifiability_lines(self) -> list[str]:
+        rep = self.identifiability
+        if rep is None:
+            return []
+        n = self.robot.n_params
+        lines = [
+            f"identifiability (iwr.identifiability at the solution, {rep.n_poses} poses): rank "
+            f"{rep.rank} of {n}, condition number {rep.condition_number:.4g} (column-scaled "
+            "Jacobian)"
+        ]
+        rows = self.parameter_rows()
+        held = [r["name"] for r in rows if r["status"].startswith("held at nominal")]
+        arbitrary = [r["name"] for r in rows if r["status"].startswith("identified, but")]
+        if held:
+            lines.append(f"  not identifiable from leg readings, held at nominal ({len(held)}): "
+                         + ", ".join(held))
+        if arbitrary:
+            lines.append(f"  identified but not identifiable, values arbitrary ({len(arbitrary)}): "
+                         + ", ".join(arbitrary))
+        if rep.left_out:
+            lines.append("  (their errors are absorbed by the others, with no effect on accuracy; "
+                         "'iwr analyze' prints the combinations)")
+        shown = [r for r in rows if r["status"] == "identified"]
+        unc = self.uncertainty
+        if unc is not None:
+            how = ("estimated from the residuals" if unc.source == "residuals" else unc.source)
+            lines.append(f"identified parameters, value +- standard deviation (leg noise sigma "
+                         f"{unc.sigma:.3g} mm, {how}):")
+        else:
+            lines.append("identified parameters (no standard deviations: see the notes):")
+        cells = []
+        for r in shown:
+            sd = f" +- {r['std']:8.2e}" if r["std"] is not None else " " * 12
+            cells.append(f"{r['name']:15s} {r['value']:+10.3e}{sd} {r['unit']:3s}")
+        half = (len(cells) + 1) // 2
+        for left, right in itertools.zip_longest(cells[:half], cells[half:], fillvalue=""):
+            lines.append(f"  {left}   {right}".rstrip())
+        if self.parameter_error is not None:
+            pe = self.parameter_error
+            lines.append(
+                "error of the identified parameters against the truth, modulo the unidentifiable "
+                f"directions: RMS {pe.rms_length:.3g} mm (lengths), {pe.rms_angle:.3g} rad (angles)"
+            )
+        return lines
 
     def _residual_table(self) -> list[str]:
         res = self.residuals()
@@ -244,9 +315,10 @@ class Calibration:
             + (f"{len(self.validation)} held out for validation" if self.held_out
                else "none held out (accuracy is on the identification poses: optimistic)"),
             f"- Method: `{r.get('method', '?')}`, {int(r.nfev)} evaluations, "
-            f"{float(r.get('wall_time', math.nan)):.2f} s, {'success' if r.success else 'failed'}: "
-            f"{str(r.message).strip()}",
-            f"- Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated {c['calibrated']:.6g}",
+            f"{float(r.get('wall_time', math.nan)):.2f} s, "
+            f"{'converged' if r.success else 'not converged'}: {str(r.message).strip()}",
+            f"- Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated {c['calibrated']:.6g}"
+            + self._before_polish(),
             "",
             "## Accuracy",
             "",
@@ -282,30 +354,34 @@ class Calibration:
         if "residuals.png" in figures:
             md += ["", "![Leg residuals before and after calibration](residuals.png)"]
         md += ["", "## Identified parameters", ""]
-        if self.rank is not None:
-            rank, cond = self.rank
+        rep = self.identifiability
+        if rep is not None:
             md.append(
-                f"The identification Jacobian (unit-norm columns) has rank {rank} of "
-                f"{self.robot.n_params}, condition number {cond:.3g}. "
-                + (f"{self.robot.n_params - rank} combinations of parameters leave every leg "
-                   "reading unchanged: individual values along them are arbitrary, and harmless "
-                   "for accuracy." if rank < self.robot.n_params else "")
+                f"The leg readings at these poses determine {rep.rank} of the "
+                f"{self.robot.n_params} parameters (rank of the column-scaled Jacobian; condition "
+                f"number {rep.condition_number:.4g}). "
+                + ("Parameters left out are held at their nominal value: their errors are "
+                   "absorbed by the others, without effect on the accuracy." if rep.left_out
+                   else "")
             )
-            md.append("")
-        if self.identifiability_text:
-            md += ["```", self.identifiability_text.rstrip(), "```", ""]
-        table = self.parameter_table or [
-            {"name": n, "value": float(v), "unit": "rad" if a else "mm"}
-            for n, v, a in zip(self.robot.parameter_names, self.result.x,
-                               self.robot.angle_parameters, strict=True)
-        ]
-        cols = [k for k in table[0] if k != "name"]
-        md.append("| parameter | " + " | ".join(cols) + " |")
-        md.append("|---|" + "---|" * len(cols))
-        for row in table:
-            md.append(f"| {row['name']} | " + " | ".join(_fmt(row[k]) for k in cols) + " |")
+            md += ["", "```", str(rep).rstrip(), "```", ""]
+        if self.uncertainty is not None:
+            unc = self.uncertainty
+            how = "estimated from the residuals" if unc.source == "residuals" else unc.source
+            md += ["Standard deviations: first-order, from the Jacobian at the solution, with "
+                   f"leg noise sigma {unc.sigma:.3g} mm ({how}).", ""]
+        if self.parameter_error is not None:
+            pe = self.parameter_error
+            md += [f"Against the simulation's truth, modulo the unidentifiable directions: RMS "
+                   f"error {pe.rms_length:.4g} mm over lengths, {pe.rms_angle:.4g} rad over "
+                   "angles.", ""]
+        md += ["| parameter | value | std | unit | status |", "|---|---|---|---|---|"]
+        for row in self.parameter_rows():
+            sd = "" if row["std"] is None else f"{row['std']:.3g}"
+            md.append(f"| {row['name']} | {row['value']:.6g} | {sd} | {row['unit']} | "
+                      f"{row['status']} |")
         md += ["", "## Files", "",
-               "- `calibrated.toml`: the calibrated robot (nominal geometry plus identified errors)",
+               "- `calibrated.toml`: the calibrated robot (nominal plus identified errors)",
                "- `result.json`: the identification result (`iwr.load_result`)",
                "- `summary.json`: the figures of this report"]
         md += [f"- `{f}`" for f in figures]
@@ -351,7 +427,8 @@ class Calibration:
              "calibrated robot"),
         ]
         for ax, v, unit, what, title in panels:
-            ax.hist(v, bins=min(30, max(5, v.size // 3)), color="C0" if "nominal" in title else "C2")
+            colour = "C0" if "nominal" in title else "C2"
+            ax.hist(v, bins=min(30, max(5, v.size // 3)), color=colour)
             ax.set_xlabel(f"{what} ({unit})")
             ax.set_ylabel("poses")
             ax.set_title(f"{title}: RMS {math.sqrt(np.mean(v**2)):.3g} {unit}")
@@ -361,14 +438,19 @@ class Calibration:
         return _save(fig, path)
 
 
+def _finite(value: Any) -> Any:
+    """JSON has no nan/inf: None instead."""
+    if isinstance(value, dict):
+        return {k: _finite(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite(v) for v in value]
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    return value
+
+
 def _src(name: str) -> str:
     return f" ({name})" if name else ""
-
-
-def _fmt(v: Any) -> str:
-    if isinstance(v, float):
-        return f"{v:.6g}"
-    return str(v)
 
 
 def _save(fig: Any, path: Path) -> Path:

@@ -237,6 +237,7 @@ def test_callback_true_stops(robot, data):
         ("bobyqa", {"initial_step": 0.8}, "initial_step"),
         ("bobyqa", {"stopval": "low"}, "stopval"),
         ("lm", {"regularization": -1.0}, "regularization"),
+        ("lm", {"regularization": "on"}, "regularization"),
         ("lm", {"max_evaluations": 1}, "max_evaluations"),
         ("lm", {"max_nfev": 0}, "max_nfev"),
     ],

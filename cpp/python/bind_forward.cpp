@@ -9,8 +9,8 @@ void bind_forward(py::module_& m) {
     // iwr.ForwardKinematicsError (a RuntimeError) with the offending pose index in `.pose`.
     PYBIND11_CONSTINIT static py::gil_safe_call_once_and_store<py::object> error_type;
     error_type.call_once_and_store_result([&]() {
-        return py::object(py::exception<ForwardKinematicsError>(m, "ForwardKinematicsError",
-                                                                PyExc_RuntimeError));
+        return py::object(
+            py::exception<ForwardKinematicsError>(m, "ForwardKinematicsError", PyExc_RuntimeError));
     });
     py::register_exception_translator([](std::exception_ptr p) {
         try {

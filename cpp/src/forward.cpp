@@ -19,8 +19,8 @@ constexpr int kMaxHalvings = 40;
 std::string format_pose(const Vector6d& p) {
     std::ostringstream s;
     s.precision(6);
-    s << "(" << p(0) << ", " << p(1) << ", " << p(2) << ", " << p(3) << ", " << p(4) << ", "
-      << p(5) << ")";
+    s << "(" << p(0) << ", " << p(1) << ", " << p(2) << ", " << p(3) << ", " << p(4) << ", " << p(5)
+      << ")";
     return s.str();
 }
 
@@ -126,8 +126,8 @@ HexapodSolution hexapod_forward(const LegMatrix& base, const LegMatrix& platform
         if (!accepted) {
             std::ostringstream msg;
             msg << where(pose_index) << "Newton-Raphson stalled after " << it
-                << " iterations with a largest leg-length residual of " << err
-                << " mm > tolerance " << options.tolerance
+                << " iterations with a largest leg-length residual of " << err << " mm > tolerance "
+                << options.tolerance
                 << " mm (no step decreases it): the leg readings may be unreachable for this "
                    "robot, or the tolerance below what double precision can reach";
             throw ForwardKinematicsError(msg.str(), pose_index);

@@ -158,7 +158,8 @@ void test_forward_kinematics() {
         local.head<3>() += iwr::Vec3(100 * u(rng), 100 * u(rng), 60 * u(rng));
         local.tail<3>() += iwr::Vec3(0.15 * u(rng), 0.15 * u(rng), 0.15 * u(rng));
         const iwr::Mat4 t4 = iwr::carriage_transform(g, x.data(), q.row(k).data());
-        const iwr::Mat3 r5 = t4.topLeftCorner<3, 3>() * iwr::euler_zyx(local(3), local(4), local(5));
+        const iwr::Mat3 r4 = t4.topLeftCorner<3, 3>();
+        const iwr::Mat3 r5 = r4 * iwr::euler_zyx(local(3), local(4), local(5));
         poses.block<1, 3>(k, 0) =
             (t4.topRightCorner<3, 1>() + t4.topLeftCorner<3, 3>() * local.head<3>()).transpose();
         poses.block<1, 3>(k, 3) = iwr::euler_from_matrix(r5).transpose();

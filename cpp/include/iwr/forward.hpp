@@ -31,12 +31,12 @@ struct ForwardOptions {
 /// Raised when Newton-Raphson does not converge or meets a singular Jacobian. `pose()` is the
 /// index of the offending pose (row of the input), or -1 for a single solve.
 class ForwardKinematicsError : public std::runtime_error {
-public:
+  public:
     ForwardKinematicsError(const std::string& message, Eigen::Index pose)
         : std::runtime_error(message), pose_(pose) {}
     Eigen::Index pose() const { return pose_; }
 
-private:
+  private:
     Eigen::Index pose_;
 };
 

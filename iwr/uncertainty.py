@@ -1,0 +1,241 @@
+"""Uncertainty of identified parameters: their covariance from the Jacobian at the solution.
+
+Linearising the residuals of eq. (10) at the solution, ``r(x + dx) ~ r(x) + J dx``, the
+least-squares estimate of the identified (base) parameters responds to reading noise ``e`` by
+``dx = -(J^T J)^-1 J^T e``, so its covariance is ``A Cov(e) A^T`` with ``A = (J^T J)^-1 J^T``. With
+independent leg noise of standard deviation sigma this is the familiar ``sigma^2 (J^T J)^-1``.
+Only the base parameters have a finite covariance: along the unidentifiable directions ``J^T J`` is
+singular, which is why the analysis is done with the other parameters held fixed.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .identifiability import IdentifiabilityReport, identifiability
+from .measurements import Measurements
+from .problem import Problem, predict_legs
+from .robot import Robot
+from .simulate import Noise
+from .transforms import pose_from_matrix, pose_matrix, rotvec_matrix
+
+__all__ = ["Uncertainty", "uncertainty", "measurement_jacobians"]
+
+
+@dataclass
+class Uncertainty:
+    """Covariance of identified parameters; see :func:`uncertainty`.
+
+    Attributes
+    ----------
+    parameter_names : list of str
+        All parameter names.
+    active : ndarray of bool
+        The parameters that were identified (the others were held fixed).
+    covariance : ndarray, shape (n_active, n_active)
+        Covariance of the active parameters (mm^2, mm rad, rad^2), in the order of the mask.
+    std : ndarray, shape (n_params,)
+        Standard deviation of every parameter; nan for parameters held fixed.
+    sigma : float
+        The leg noise standard deviation used (mm): given, or estimated from the residuals.
+    source : str
+        ``"residuals"`` (sigma^2 = cost / (6 N - n_active)), ``"legs"`` (given leg sigma) or
+        ``"noise"`` (an :class:`iwr.Noise` propagated through the joint, position and orientation
+        readings as well).
+    dof : int
+        Residual degrees of freedom, ``6 N - n_active``.
+    """
+
+    parameter_names: list[str]
+    active: np.ndarray
+    covariance: np.ndarray
+    std: np.ndarray
+    sigma: float
+    source: str
+    dof: int
+
+    @property
+    def correlation(self) -> np.ndarray:
+        """Correlation matrix of the active parameters."""
+        sd = np.sqrt(np.diag(self.covariance))
+        return self.covariance / np.outer(sd, sd)
+
+    def named(self) -> dict[str, float]:
+        """Standard deviation of each active parameter, by name."""
+        names = self.parameter_names
+        return {names[i]: float(self.std[i]) for i in np.flatnonzero(self.active)}
+
+    def __str__(self) -> str:
+        how = {
+            "residuals": f"leg noise estimated from the residuals, sigma {self.sigma:.3g} mm",
+            "legs": f"given leg noise sigma {self.sigma:.3g} mm",
+            "noise": "given noise of legs, joints and measured poses, propagated",
+        }[self.source]
+        lines = [
+            f"Standard deviations of {int(self.active.sum())} identified parameters ({how}; "
+            f"{self.dof} residual degrees of freedom):"
+        ]
+        for name, sd in self.named().items():
+            unit = "rad" if name.endswith(("dalpha", "dtheta")) else "mm"
+            lines.append(f"  {name:16s} {sd:.3g} {unit}")
+        return "\n".join(lines)
+
+
+def measurement_jacobians(
+    robot: Robot, x: Any, q: Any, poses: Any, h: float = 1e-4
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Derivatives of the predicted leg readings with respect to the measured quantities.
+
+    Returns ``(d/dq, d/dposition, d/drotation)``, shapes (N, 6, n_joints), (N, 6, 3), (N, 6, 3):
+    the rotation is a small rotation vector applied in the platform frame,
+    ``R -> R exp([w]x)``, as :func:`iwr.simulate` applies orientation noise. Central differences
+    with step ``h`` (mm or rad): round-off ~1e-13 mm / h and truncation ~h^2 (lever ~1e3 mm
+    for rotations) are both ~1e-9 relative, far below what a covariance needs.
+    """
+    x = np.asarray(x, dtype=float)
+    q = np.asarray(q, dtype=float)
+    poses = np.asarray(poses, dtype=float)
+    n = len(poses)
+
+    def legs(qq: np.ndarray, pp: np.ndarray) -> np.ndarray:
+        return predict_legs(robot, x, qq, pp)
+
+    dq = np.empty((n, 6, robot.n_joints))
+    for i in range(robot.n_joints):
+        e = np.zeros_like(q)
+        e[:, i] = h
+        dq[:, :, i] = (legs(q + e, poses) - legs(q - e, poses)) / (2 * h)
+    dp = np.empty((n, 6, 3))
+    for i in range(3):
+        e = np.zeros_like(poses)
+        e[:, i] = h
+        dp[:, :, i] = (legs(q, poses + e) - legs(q, poses - e)) / (2 * h)
+    dr = np.empty((n, 6, 3))
+    t = pose_matrix(poses)
+    for i in range(3):
+        w = np.zeros(3)
+        w[i] = h
+        up, dn = t.copy(), t.copy()
+        up[:, :3, :3] = t[:, :3, :3] @ rotvec_matrix(w)
+        dn[:, :3, :3] = t[:, :3, :3] @ rotvec_matrix(-w)
+        dr[:, :, i] = (legs(q, pose_from_matrix(up)) - legs(q, pose_from_matrix(dn))) / (2 * h)
+    return dq, dp, dr
+
+
+def uncertainty(
+    robot: Robot,
+    measurements: Measurements,
+    x: Any,
+    noise: float | Noise | None = None,
+    *,
+    active: Any = None,
+) -> Uncertainty:
+    """Covariance and standard deviations of identified parameters.
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot.
+    measurements : Measurements
+        The calibration data.
+    x : array_like, shape (n_params,)
+        The identified error vector (the least-squares solution).
+    noise : None, float or Noise
+        ``None``: estimate the leg noise from the residuals at ``x``,
+        ``sigma^2 = cost / (6 N - n_active)``. A float: the leg noise sigma (mm). An
+        :class:`iwr.Noise`: its leg noise plus its joint, position and orientation noise
+        propagated to the readings through :func:`measurement_jacobians` (per pose, the six legs
+        share the pose noise, so their errors are correlated).
+    active : array_like of bool or IdentifiabilityReport, optional
+        The parameters that were identified; default: the base parameters of
+        :func:`iwr.identifiability` at ``x``. The matrix ``J^T J`` of the active parameters must
+        be nonsingular.
+
+    Returns
+    -------
+    Uncertainty
+
+    Notes
+    -----
+    First-order (the Cramer-Rao bound for Gaussian leg noise): valid while the noise moves the
+    solution little compared with the curvature of the model, which holds by orders of magnitude
+    for micrometre noise. Errors in the measured poses make the estimate slightly biased (errors in
+    variables); the covariance does not include that bias.
+    """
+    problem = Problem(robot, measurements)
+    x = np.array(x, dtype=float)
+    if x.shape != (robot.n_params,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"x: expected {robot.n_params} finite values, got shape {x.shape}")
+    if active is None:
+        mask = identifiability(robot, measurements, x).active
+    elif isinstance(active, IdentifiabilityReport):
+        mask = active.active
+    else:
+        mask = np.asarray(active, dtype=bool)
+        if mask.shape != (robot.n_params,):
+            raise ValueError(f"active: boolean mask of shape {mask.shape}; expected "
+                             f"({robot.n_params},)")
+    r, jac = problem.residuals_and_jacobian(x)
+    jb = jac[:, mask]
+    m, p = jb.shape
+    dof = m - p
+    # (J^T J)^-1 J^T through the SVD of the column-scaled Jacobian: the scaling keeps the
+    # conditioning of mm against rad columns out of the way.
+    d = np.linalg.norm(jb, axis=0)
+    d = np.where(d > 0, d, 1.0)
+    u, s, vt = np.linalg.svd(jb / d, full_matrices=False)
+    if s.size < p or s[-1] <= s[0] * max(m, p) * np.finfo(float).eps:
+        raise ValueError(
+            "active: the Jacobian of the active parameters is rank deficient; hold the "
+            "unidentifiable ones fixed (active=iwr.identifiability(...).active)"
+        )
+    a = (vt.T / s) @ u.T / d[:, None]  # (p, m): dx = -a @ e
+    if noise is None:
+        if dof <= 0:
+            raise ValueError(f"measurements: {m} readings for {p} parameters; cannot estimate "
+                             "the noise from the residuals (pass noise=)")
+        sigma = float(np.sqrt(r @ r / dof))
+        cov = sigma**2 * (a @ a.T)
+        source = "residuals"
+    elif isinstance(noise, Noise):
+        sigma = float(noise.legs)
+        cov = _propagated(robot, measurements, x, noise, a)
+        source = "noise"
+    else:
+        sigma = float(noise)
+        if not (np.isfinite(sigma) and sigma >= 0):
+            raise ValueError(f"noise: {noise!r}; expected None, a leg sigma >= 0 (mm) or an "
+                             "iwr.Noise")
+        w = _sqrt_weights(measurements, m)
+        cov = sigma**2 * ((a * w**2) @ a.T)
+        source = "legs"
+    std = np.full(robot.n_params, np.nan)
+    std[mask] = np.sqrt(np.diag(cov))
+    return Uncertainty(robot.parameter_names, mask, cov, std, sigma, source, dof)
+
+
+def _sqrt_weights(measurements: Measurements, m: int) -> np.ndarray:
+    """sqrt of the residual weights, pose-major (residual = sqrt(w) (predicted - measured))."""
+    if measurements.weights is None:
+        return np.ones(m)
+    return np.sqrt(measurements.weights).ravel()
+
+
+def _propagated(
+    robot: Robot, measurements: Measurements, x: np.ndarray, noise: Noise, a: np.ndarray
+) -> np.ndarray:
+    """``A Cov(residuals) A^T`` with the per-pose 6x6 reading covariance
+    ``sigma_legs^2 I + G diag(sigma_q^2, sigma_p^2, sigma_o^2) G^T``."""
+    mm = measurements
+    dq, dp, dr = measurement_jacobians(robot, x, mm.q, mm.poses)
+    sq = np.array([noise.joint_lengths if c == "P" else noise.joint_angles
+                   for c in robot.joint_types])
+    g = np.concatenate([dq * sq, dp * noise.position, dr * noise.orientation], axis=2)
+    c = np.einsum("kij,klj->kil", g, g) + noise.legs**2 * np.eye(6)  # (N, 6, 6)
+    w = _sqrt_weights(mm, a.shape[1]).reshape(-1, 6)
+    c = c * w[:, :, None] * w[:, None, :]
+    ak = a.reshape(a.shape[0], -1, 6)  # (p, N, 6)
+    return np.einsum("pki,kij,qkj->pq", ak, c, ak)

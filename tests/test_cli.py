@@ -1,0 +1,276 @@
+"""The ``iwr`` command line, run as a user runs it: a subprocess, its exit code and its output."""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import iwr
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+def run(*args: str, cwd: Path | None = None, env: dict[str, str] | None = None):
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+    environ.update(env or {})
+    return subprocess.run(
+        [sys.executable, "-m", "iwr", *args], capture_output=True, text=True, cwd=cwd,
+        env=environ, timeout=600,
+    )
+
+
+def assert_fails(proc, code: int, pattern: str) -> None:
+    """Exit code ``code``, exactly one line on stderr, ``iwr: error: ...``, no traceback."""
+    assert proc.returncode == code, (proc.returncode, proc.stderr)
+    assert "Traceback" not in proc.stderr + proc.stdout
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1, proc.stderr
+    assert lines[0].startswith("iwr: error: "), lines[0]
+    assert re.search(pattern, lines[0]), lines[0]
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory) -> Path:
+    """A simulated robot, 60 noisy poses and the truth, written by ``iwr simulate``."""
+    out = tmp_path_factory.mktemp("sim")
+    proc = run("simulate", "--poses", "60", "--seed", "3", "--out-dir", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "wrote" in proc.stdout
+    return out
+
+
+def csv_lines(path: Path) -> tuple[list[str], int]:
+    lines = path.read_text().splitlines()
+    return lines, next(i for i, line in enumerate(lines) if line.startswith("q1"))
+
+
+# -- help and usage ------------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("command", ["", "simulate", "calibrate", "analyze", "plan"])
+def test_help_everywhere(command):
+    proc = run(*([command] if command else []), "--help")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stdout.startswith(f"usage: iwr {command}".rstrip())
+    assert "--debug" in proc.stdout
+
+
+def test_compare_hook():
+    # `iwr compare` comes from iwr/compare.py (issue 4) when this build has it.
+    try:
+        import iwr.compare  # noqa: F401
+    except ModuleNotFoundError:
+        proc = run("compare", "--help")
+        assert_fails(proc, 2, r"invalid choice: 'compare'")
+    else:
+        proc = run("compare", "--help")
+        assert proc.returncode == 0 and proc.stdout.startswith("usage: iwr compare")
+
+
+def test_version():
+    proc = run("--version")
+    assert proc.returncode == 0 and proc.stdout.strip() == f"iwr {iwr.__version__}"
+
+
+@pytest.mark.parametrize(
+    "args, pattern",
+    [
+        ((), r"required: COMMAND \(see 'iwr --help'\)"),
+        (("bogus",), r"invalid choice: 'bogus'"),
+        (("calibrate", "--bogus"), r"unrecognized arguments: --bogus"),
+        (("calibrate", "robot.toml"), r"give both ROBOT.toml and DATA.csv, or neither"),
+        (("calibrate", "--method", "nope"), r"--method 'nope': available methods: .*lm"),
+        (("calibrate", "--method", "lm", "--generations", "5"),
+         r"--generations is not an option of method 'lm'"),
+        (("calibrate", "--validation-fraction", "1.5"), r"--validation-fraction: 1.5 must be"),
+        (("simulate", "--poses", "0"), r"--poses: 0 must be a positive integer"),
+        (("simulate", "--noise", "legs=abc"), r"legs='abc' is not a number"),
+        (("simulate", "--noise", "sensor=1"), r"KEY among legs, joint_lengths"),
+    ],
+)
+def test_bad_usage_exits_2_with_one_line(args, pattern):
+    assert_fails(run(*args), 2, pattern)
+
+
+# -- simulate ------------------------------------------------------------------------------------
+
+
+def test_simulate_writes_consistent_reproducible_files(sim, tmp_path):
+    robot = iwr.Robot.from_toml(sim / "robot.toml")
+    assert robot == iwr.Robot.default()
+    data = iwr.Measurements.from_csv(sim / "measurements.csv", robot=robot)
+    truth = json.loads((sim / "true_errors.json").read_text())
+    assert len(data) == 60 and truth["seed"] == 3 and truth["parameter_names"] == \
+        robot.parameter_names
+    # the same seed writes the same data; noise 'none' gives readings the truth explains exactly
+    proc = run("simulate", "--poses", "60", "--seed", "3", "--out-dir", str(tmp_path))
+    assert proc.returncode == 0
+    assert (tmp_path / "measurements.csv").read_bytes() == (sim / "measurements.csv").read_bytes()
+    proc = run("simulate", "--poses", "10", "--seed", "4", "--noise", "none",
+               "--out-dir", str(tmp_path), "--data-file", "exact.csv", "--truth-file", "t.json")
+    assert proc.returncode == 0, proc.stderr
+    exact = iwr.Measurements.from_csv(tmp_path / "exact.csv")
+    x = np.array(json.loads((tmp_path / "t.json").read_text())["errors"])
+    np.testing.assert_allclose(iwr.predict_legs(robot, x, exact.q, exact.poses), exact.legs,
+                               atol=1e-9)
+
+
+# -- calibrate -----------------------------------------------------------------------------------
+
+
+def test_calibrate_files(sim, tmp_path):
+    out = tmp_path / "out"
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"),
+               "--method", "lm", "--out-dir", str(out), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert proc.stderr == ""  # no progress bar when stderr is not a terminal
+    assert "accuracy on 12 validation poses" in proc.stdout
+    assert re.search(r"poses: 48 for identification, 12 held out", proc.stdout)
+    for leg in range(1, 7):
+        assert f"leg {leg}" in proc.stdout
+    summary = json.loads((out / "summary.json").read_text())
+    acc = summary["accuracy"]
+    assert acc["n_poses"] == 12
+    before, after = (acc[k]["position_mm"]["rms"] for k in ("nominal", "calibrated"))
+    assert after < before / 20
+    result = iwr.load_result(out / "result.json")
+    robot = iwr.Robot.from_toml(sim / "robot.toml")
+    assert iwr.Robot.from_toml(out / "calibrated.toml") == robot.with_errors(result.x)
+    assert "## Accuracy" in (out / "report.md").read_text()
+    assert not (out / "accuracy.png").exists()
+
+
+def test_calibrate_with_a_validation_file_and_without_hold_out(sim, tmp_path):
+    robot, data = sim / "robot.toml", sim / "measurements.csv"
+    proc = run("calibrate", str(robot), str(data), "--validation", str(data), "--method", "lm",
+               "--out-dir", str(tmp_path / "a"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert "poses: 60 for identification, 60 held out" in proc.stdout
+    proc = run("calibrate", str(robot), str(data), "--validation-fraction", "0", "--method",
+               "lm", "--out-dir", str(tmp_path / "b"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert "identification poses (optimistic)" in proc.stdout
+
+
+def test_calibrate_without_arguments_runs_the_example(tmp_path):
+    proc = run("calibrate", cwd=tmp_path, env={"IWR_EXAMPLE_QUICK": "1"})
+    assert proc.returncode == 0, proc.stderr
+    out = tmp_path / "iwr-example"
+    for name in ("robot.toml", "measurements.csv", "true_errors.json", "calibrated.toml",
+                 "result.json", "summary.json", "report.md", "residuals.png", "accuracy.png"):
+        assert (out / name).is_file(), name
+    assert (out / "accuracy.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    assert "built-in example" in proc.stdout and "realistic noise" in proc.stdout
+    assert re.search(r"calibrated robot\s+\d", proc.stdout)
+    summary = json.loads((out / "summary.json").read_text())
+    acc = summary["accuracy"]
+    assert acc["calibrated"]["position_mm"]["rms"] < acc["nominal"]["position_mm"]["rms"] / 20
+    # the calibrated robot is as accurate as the truth allows, within a factor of 2
+    floor = summary["accuracy_with_true_errors"]["position_mm"]["rms"]
+    assert acc["calibrated"]["position_mm"]["rms"] < 2 * floor
+    report = (out / "report.md").read_text()
+    assert "![Tool pose errors" in report and "| calibrated |" in report
+
+
+def test_shipped_example_files(tmp_path):
+    proc = run("calibrate", str(REPO / "examples" / "iwr.toml"),
+               str(REPO / "examples" / "iwr_example.csv"), "--out-dir", str(tmp_path),
+               "--method", "lm", "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    acc = json.loads((tmp_path / "summary.json").read_text())["accuracy"]
+    assert acc["calibrated"]["position_mm"]["rms"] < acc["nominal"]["position_mm"]["rms"] / 20
+
+
+# -- data and runtime errors: exit 1, one line, no traceback -------------------------------------
+
+
+def _bad_files(sim: Path, tmp: Path, case: str) -> tuple[Path, Path]:
+    robot, data = sim / "robot.toml", sim / "measurements.csv"
+    lines, h = csv_lines(data)
+    if case == "missing robot":
+        return tmp / "nope.toml", data
+    if case == "missing data":
+        return robot, tmp / "nope.csv"
+    if case == "malformed toml":
+        bad = tmp / "bad.toml"
+        bad.write_text(robot.read_text().replace('name = "IWR"', 'name = "IWR'))
+        return bad, data
+    if case == "unknown key":
+        bad = tmp / "bad.toml"
+        bad.write_text(robot.read_text().replace('name = "IWR"', 'name = "IWR"\ncolour = "red"'))
+        return bad, data
+    out = tmp / "bad.csv"
+    if case == "nan row":
+        fields = lines[h + 5].split(",")
+        fields[12] = "nan"
+        lines[h + 5] = ",".join(fields)
+    elif case == "metres":
+        m = iwr.Measurements.from_csv(data)
+        iwr.Measurements(m.q, m.poses, m.legs / 1000.0, joint_types=m.joint_types).to_csv(out)
+        return robot, out
+    elif case == "duplicated pose":
+        lines.append(lines[h + 3])
+    elif case == "unreachable pose":
+        fields = lines[h + 7].split(",")
+        fields[11] = "650.0"
+        lines[h + 7] = ",".join(fields)
+    out.write_text("\n".join(lines) + "\n")
+    return robot, out
+
+
+@pytest.mark.parametrize(
+    "case, pattern",
+    [
+        ("missing robot", r"nope\.toml: no such file"),
+        ("missing data", r"nope\.csv: no such file"),
+        ("malformed toml", r"bad\.toml: not valid TOML"),
+        ("unknown key", r"bad\.toml: colour: unknown key"),
+        ("nan row", r"bad\.csv, line 12, column s3_mm: 'nan' is not finite"),
+        ("metres", r"bad\.csv: every one of the leg readings is below 5.*look like metres"),
+        ("duplicated pose", r"bad\.csv: 1 repeated pose\(s\): lines 10 and 68"),
+        ("unreachable pose", r"bad\.csv: 1 unreachable pose\(s\).*line 14: leg 2 reading 650 mm "
+                             r"is outside the stroke"),
+    ],
+)
+def test_data_errors_exit_1_with_one_line(sim, tmp_path, case, pattern):
+    robot, data = _bad_files(sim, tmp_path, case)
+    proc = run("calibrate", str(robot), str(data), "--out-dir", str(tmp_path / "out"))
+    assert_fails(proc, 1, pattern)
+    assert not (tmp_path / "out").exists()  # nothing written from bad input
+
+
+def test_debug_shows_the_traceback(sim, tmp_path):
+    robot, data = _bad_files(sim, tmp_path, "nan row")
+    proc = run("--debug", "calibrate", str(robot), str(data))
+    assert proc.returncode == 1
+    assert "Traceback" in proc.stderr and "MeasurementFileError" in proc.stderr
+    assert proc.stderr.strip().splitlines()[-1].startswith("iwr: error: ")
+
+
+def test_analyze(sim):
+    proc = run("analyze", str(sim / "robot.toml"), str(sim / "measurements.csv"))
+    assert proc.returncode == 0, proc.stderr
+    assert re.search(r"rank \d+ of 58", proc.stdout)
+
+
+def test_plan(sim, tmp_path):
+    out = tmp_path / "plan.csv"
+    proc = run("plan", str(sim / "robot.toml"), "--candidates", str(sim / "measurements.csv"),
+               "--poses", "12", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "12 poses chosen for O1" in proc.stdout
+    chosen = iwr.Measurements.from_csv(out)
+    cand = iwr.Measurements.from_csv(sim / "measurements.csv")
+    assert len(chosen) == 12
+    rows = {tuple(r) for r in np.hstack([cand.q, cand.poses])}
+    assert all(tuple(r) in rows for r in np.hstack([chosen.q, chosen.poses]))
+    proc = run("plan", str(sim / "robot.toml"), "--n-candidates", "100", "--poses", "2",
+               "--out", str(out))
+    assert_fails(proc, 1, r"--poses: 2; expected an integer from \d+")

@@ -1,0 +1,136 @@
+"""Checks of measurement files: every bad row reported with its line, nothing silently dropped."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import iwr
+
+
+@pytest.fixture(scope="module")
+def robot() -> iwr.Robot:
+    return iwr.Robot.default()
+
+
+@pytest.fixture(scope="module")
+def data(robot):
+    m, _ = iwr.simulate(robot, n_poses=30, seed=11, noise=iwr.Noise.realistic())
+    return m
+
+
+def write(tmp_path, m: iwr.Measurements) -> tuple:
+    path = tmp_path / "data.csv"
+    m.to_csv(path)
+    lines = path.read_text().splitlines()
+    header = next(i for i, line in enumerate(lines) if line.startswith("q1"))
+    return path, lines, header  # data row k is on line header + 2 + k (1-based)
+
+
+def test_good_file_keeps_every_row_and_its_line(tmp_path, data, robot):
+    path, _, header = write(tmp_path, data)
+    back = iwr.Measurements.from_csv(path, robot=robot)
+    assert len(back) == len(data)
+    np.testing.assert_array_equal(back.lines, header + 2 + np.arange(len(data)))
+    assert back.where(4) == f"{path}, line {header + 6}"
+    sub = back.subset([4, 7])
+    assert sub.where(1) == f"{path}, line {header + 9}"
+
+
+def test_every_bad_row_is_listed(tmp_path, data):
+    path, lines, h = write(tmp_path, data)
+    bad = lines.copy()
+    for k, col, value in ((2, 10, "nan"), (5, 1, ""), (9, 15, "abc")):
+        fields = bad[h + 1 + k].split(",")
+        fields[col] = value
+        bad[h + 1 + k] = ",".join(fields)
+    bad[h + 1 + 12] = bad[h + 1 + 12].rsplit(",", 1)[0]
+    path.write_text("\n".join(bad) + "\n")
+    with pytest.raises(iwr.MeasurementFileError) as info:
+        iwr.Measurements.from_csv(path)
+    msg = str(info.value)
+    lines_bad = [h + 2 + k for k in (2, 5, 9, 12)]
+    assert f"line {lines_bad[0]}, column s1_mm: 'nan' is not finite" in msg
+    assert "4 bad rows in all, none dropped" in msg
+    assert f"lines {lines_bad[0]}, {lines_bad[1]}, {lines_bad[2]} and {lines_bad[3]}" in msg
+    assert "\n" not in msg
+
+
+def test_missing_column(tmp_path, data):
+    path, lines, h = write(tmp_path, data)
+    bad = [line.rsplit(",", 1)[0] if i >= h else line for i, line in enumerate(lines)]
+    path.write_text("\n".join(bad) + "\n")
+    with pytest.raises(iwr.MeasurementFileError, match=r"missing columns \['s6_mm'\]"):
+        iwr.Measurements.from_csv(path)
+
+
+def test_repeated_pose(tmp_path, data):
+    path, lines, h = write(tmp_path, data)
+    path.write_text("\n".join(lines + [lines[h + 1 + 3], lines[h + 1 + 7]]) + "\n")
+    n = len(lines)
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=rf"2 repeated pose\(s\): lines {h + 5} and {n + 1}; "
+                             rf"lines {h + 9} and {n + 2}"):
+        iwr.Measurements.from_csv(path)
+
+
+def test_metres_are_recognised(tmp_path, data, robot):
+    scale_q = np.array([1000.0, 1000.0, 1.0, 1.0])
+    scale_p = np.array([1000.0, 1000.0, 1000.0, 1.0, 1.0, 1.0])
+    everything = iwr.Measurements(data.q / scale_q, data.poses / scale_p, data.legs / 1000.0,
+                                  joint_types="PPRR")
+    path, _, _ = write(tmp_path, everything)
+    with pytest.raises(iwr.MeasurementFileError, match="look like metres"):
+        iwr.Measurements.from_csv(path)  # even without a robot
+    legs_only = iwr.Measurements(data.q, data.poses, data.legs / 1000.0, joint_types="PPRR")
+    path, _, _ = write(tmp_path, legs_only)
+    iwr.Measurements.from_csv(path)  # plausible without a robot...
+    with pytest.raises(iwr.MeasurementFileError, match="leg readings is below 5.*look like metres"):
+        iwr.Measurements.from_csv(path, robot=robot)  # ...not for a robot with a 400 mm stroke
+    joints = iwr.Measurements(data.q / scale_q, data.poses, data.legs, joint_types="PPRR")
+    path, _, _ = write(tmp_path, joints)
+    with pytest.raises(iwr.MeasurementFileError, match="prismatic joint readings.*metres"):
+        iwr.Measurements.from_csv(path, robot=robot)
+
+
+def test_degrees_are_recognised(tmp_path, data):
+    poses = data.poses.copy()
+    poses[6, 4] = 85.0
+    path, _, h = write(tmp_path, iwr.Measurements(data.q, poses, data.legs, joint_types="PPRR"))
+    with pytest.raises(iwr.MeasurementFileError, match=rf"line {h + 8}: angles must be in radians"):
+        iwr.Measurements.from_csv(path)
+
+
+def test_unreachable_poses(tmp_path, data, robot):
+    legs, q = data.legs.copy(), data.q.copy()
+    legs[4, 2] = 480.0  # stroke 0..400 mm
+    q[8, 3] = 2.0  # joint 4 limits +-60 degrees
+    legs[8, 0] = -50.0
+    path, _, h = write(tmp_path, iwr.Measurements(q, data.poses, legs, joint_types="PPRR"))
+    iwr.Measurements.from_csv(path)  # only the robot knows its limits
+    with pytest.raises(iwr.MeasurementFileError) as info:
+        iwr.Measurements.from_csv(path, robot=robot)
+    msg = str(info.value)
+    assert f"2 unreachable pose(s) for robot 'IWR' (lines {h + 6} and {h + 10}" in msg
+    assert f"line {h + 6}: leg 3 reading 480 mm is outside the stroke [0, 400]" in msg
+
+
+def test_noise_just_outside_the_stroke_is_tolerated(tmp_path, data, robot):
+    legs = data.legs.copy()
+    legs[0, 0] = -0.01
+    path, _, _ = write(tmp_path, iwr.Measurements(data.q, data.poses, legs, joint_types="PPRR"))
+    assert len(iwr.Measurements.from_csv(path, robot=robot)) == len(data)
+
+
+def test_joint_types_must_match_the_robot(tmp_path, data):
+    path, _, _ = write(tmp_path, data)
+    with pytest.raises(iwr.MeasurementFileError, match="joint types 'PPRR'.*'hexapod', ''"):
+        iwr.Measurements.from_csv(path, robot=iwr.Robot.hexapod())
+
+
+def test_weights_are_read(tmp_path, data, robot):
+    w = np.linspace(0.5, 2.0, len(data) * 6).reshape(len(data), 6)
+    m = iwr.Measurements(data.q, data.poses, data.legs, joint_types="PPRR", weights=w)
+    path, lines, h = write(tmp_path, m)
+    assert lines[h].endswith(",w1,w2,w3,w4,w5,w6")
+    np.testing.assert_array_equal(iwr.Measurements.from_csv(path, robot=robot).weights, w)
