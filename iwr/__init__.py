@@ -25,6 +25,7 @@ from .problem import Problem, predict_legs
 from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
+from .study import StudyError, StudyResult, study
 from .uncertainty import Uncertainty, uncertainty
 
 __version__ = "0.1.0"
@@ -56,6 +57,8 @@ __all__ = [
     "ResultFileError",
     "Robot",
     "RobotFileError",
+    "StudyError",
+    "StudyResult",
     "Uncertainty",
     "UnreachableError",
     "__version__",
@@ -71,5 +74,6 @@ __all__ = [
     "pose_errors",
     "predict_legs",
     "simulate",
+    "study",
     "uncertainty",
 ]

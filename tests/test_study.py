@@ -1,0 +1,328 @@
+"""iwr.study: a real Dask cluster loses a worker mid-study; the table matches a one-process run.
+
+The crash is deterministic: a test method, registered in every worker by a plugin, creates a marker
+file on its first execution anywhere and kills its worker process with ``os._exit`` (no Python
+cleanup, as a machine that dies). Every execution of the method also leaves a file, so the tests
+count executions: a finished cell is never computed again.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import importlib
+import json
+import math
+import os
+import subprocess
+import sys
+import uuid
+from pathlib import Path
+from typing import Any
+
+import cloudpickle
+import numpy as np
+import pytest
+
+import iwr
+from iwr.study import (
+    TIMING_COLUMNS,
+    Cell,
+    StudyError,
+    main,
+    make_grid,
+    noise_at,
+    read_table,
+    robot_hash,
+)
+
+distributed = pytest.importorskip("distributed")
+# The modules (the package's attributes iwr.study and iwr.identify are the functions).
+study_module = importlib.import_module("iwr.study")
+identify_module = importlib.import_module("iwr.identify")
+
+CRASH = "test-crash-once"
+
+
+def crash_once(problem: Any, *, marker: str, log: str, **kwargs: Any) -> Any:
+    """Levenberg-Marquardt; but the first execution anywhere kills its process."""
+    Path(log, uuid.uuid4().hex).touch()
+    try:
+        fd = os.open(marker, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
+    except FileExistsError:
+        pass
+    else:
+        os.close(fd)
+        os._exit(17)  # a worker that dies: no exception, no cleanup
+    return identify_module.levenberg_marquardt(problem, **kwargs)
+
+
+class RegisterCrashMethod(distributed.WorkerPlugin):
+    """Registers the test method in each worker process, restarted ones included."""
+
+    def setup(self, worker: Any) -> None:
+        identify_module.METHODS[CRASH] = crash_once
+
+
+# Workers import iwr but not this file: send the method and the plugin by value.
+cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+def executions(log: Path) -> int:
+    return len(list(log.iterdir()))
+
+
+def assert_same_table(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> None:
+    """Equal bit for bit, but for the wall-clock times and the parameter errors.
+
+    The parameter errors come from SVDs (LAPACK), whose last bits depend on the number of BLAS
+    threads: Dask's workers run with one, this process with all (they agree to ~1e-15).
+    """
+    assert [r["key"] for r in a] == [r["key"] for r in b]
+    for ra, rb in zip(a, b, strict=True):
+        for c in ra:
+            if c in TIMING_COLUMNS:
+                continue
+            x, y = ra[c], rb[c]
+            if c.startswith("param_error"):
+                same = math.isclose(x, y, rel_tol=1e-9, abs_tol=1e-9)
+            else:
+                same = (isinstance(x, float) and isinstance(y, float) and math.isnan(x)
+                        and math.isnan(y)) or x == y
+            assert same, (c, x, y, ra)
+
+
+@pytest.fixture(scope="module")
+def cluster():
+    with distributed.LocalCluster(
+        n_workers=2, threads_per_worker=1, processes=True, dashboard_address=":0"
+    ) as c:
+        yield c
+
+
+def test_worker_dies_mid_study_and_table_matches_one_process(
+    cluster: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    marker, log = tmp_path / "crashed", tmp_path / "log"
+    log.mkdir()
+    grid = dict(
+        methods=["lm", CRASH], poses=[16, 24], noise=[0.0, 0.02], draws=1, seeds=[0, 1],
+        options={CRASH: {"marker": str(marker), "log": str(log)}}, validation_poses=20,
+        report=False,
+    )
+    n_cells = 2 * 2 * 2 * 1 * 2
+    with distributed.Client(cluster) as client:
+        client.register_plugin(RegisterCrashMethod())
+        pids_before = set(client.run(os.getpid).values())
+        monkeypatch.setitem(identify_module.METHODS, CRASH, crash_once)
+        res = iwr.study(**grid, out=tmp_path / "dask", scheduler=client)
+        pids_after = set(client.run(os.getpid).values())
+    assert marker.exists(), "the crash never happened"
+    assert pids_before - pids_after, "no worker process died"
+    # Every cell of the crashing method ran once, and one of them twice (the killed attempt).
+    assert executions(log) == n_cells // 2 + 1
+    assert res.executed == n_cells and res.reused == 0 and res.failed == 0
+    rows = read_table(tmp_path / "dask")
+    assert len(rows) == n_cells and all(r["status"] == "ok" for r in rows)
+    assert len(list((tmp_path / "dask" / "runs").glob("*.json"))) == n_cells
+
+    # The same study in this process (the marker exists now: nothing crashes).
+    one = iwr.study(**grid, out=tmp_path / "one", scheduler="synchronous")
+    assert executions(log) == 2 * (n_cells // 2) + 1
+    assert_same_table(rows, one.rows)
+    # Both methods are LM on the same data: the crash lost nothing and changed nothing.
+    lm = [r for r in rows if r["method"] == "lm"]
+    crashed = [r for r in rows if r["method"] == CRASH]
+    assert_same_table(
+        [{**r, "method": "", "options": "", "key": ""} for r in lm],
+        [{**r, "method": "", "options": "", "key": ""} for r in crashed],
+    )
+
+    # Started again: nothing is computed again, on the cluster or in this process.
+    again = iwr.study(**grid, out=tmp_path / "dask", scheduler=cluster.scheduler_address)
+    assert (again.executed, again.reused) == (0, n_cells)
+    assert executions(log) == 2 * (n_cells // 2) + 1
+    assert_same_table(rows, again.rows)
+    # A larger grid (one more seed), sent to the cluster by address, computes only its new cells.
+    bigger = iwr.study(**{**grid, "seeds": [0, 1, 2]}, out=tmp_path / "dask",
+                       scheduler=cluster.scheduler_address)
+    assert (bigger.executed, bigger.reused) == (n_cells // 2, n_cells)
+    assert executions(log) == 2 * (n_cells // 2) + 1 + n_cells // 4
+    assert len(bigger.rows) == 3 * n_cells // 2
+
+
+def test_lost_result_file_is_recomputed_and_figures_make_sense(tmp_path: Path) -> None:
+    res = iwr.study(methods="lm", poses=[12, 24], noise=[0.0, 0.01, 0.02], draws=2, seeds=1,
+                    out=tmp_path, scheduler="synchronous", validation_poses=20)
+    assert len(res.rows) == 12 and res.executed == 12
+    runs = sorted((tmp_path / "runs").glob("*.json"))
+    runs[3].unlink()
+    again = iwr.study(methods="lm", poses=[12, 24], noise=[0.0, 0.01, 0.02], draws=2, seeds=1,
+                      out=tmp_path, scheduler="synchronous", validation_poses=20, report=False)
+    assert (again.executed, again.reused) == (1, 11)
+    by = {(r["noise"], r["n_poses"], r["draw"]): r for r in res.rows}
+    for (level, _n, _draw), r in by.items():
+        # Before calibration: the errors (+-0.5 mm, +-0.5 degree) move the legs by millimetres.
+        assert r["val_rms_nominal"] > 1.0
+        if level == 0:
+            assert r["val_rms"] < 1e-6 and r["cost"] < 1e-12  # the paper's noise-free case
+        else:
+            assert 1e-4 < r["val_rms"] < 0.5
+            assert r["rms_fit"] < 10 * level  # the fit explains the data down to the noise
+    for n in (12, 24):
+        for draw in (0, 1):
+            # Common random numbers: the same poses and noise shape at both levels, so the error
+            # of the identification (first order in the noise) doubles with the noise.
+            ratio = by[(0.02, n, draw)]["val_rms"] / by[(0.01, n, draw)]["val_rms"]
+            assert ratio == pytest.approx(2.0, rel=0.02)
+    # Figures and summary.
+    for name in ("accuracy_vs_poses.png", "accuracy_vs_noise.png", "summary.md"):
+        assert (tmp_path / name).stat().st_size > 0
+    assert (tmp_path / "accuracy_vs_poses.png").read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
+    text = (tmp_path / "summary.md").read_text()
+    assert "lm, noise 0 mm: at the floor" in text
+
+
+def test_deterministic_failure_is_recorded_not_retried(tmp_path: Path) -> None:
+    # DE/rand/1/bin needs 4 individuals: every DE cell fails the same way, LM's cells do not.
+    grid = dict(methods=["lm", "de"], poses=[12], noise=0.0, draws=1, seeds=[0, 1],
+                options={"de": {"population_size": 3}}, out=tmp_path, scheduler="synchronous",
+                report=False, validation_poses=10)
+    res = iwr.study(**grid)
+    status = {(r["method"], r["seed"]): r for r in res.rows}
+    for seed in (0, 1):
+        assert status[("de", seed)]["status"] == "failed"
+        assert "ValueError: population_size: 3" in status[("de", seed)]["message"]
+        assert status[("lm", seed)]["status"] == "ok"
+    assert res.failed == 2
+    again = iwr.study(**grid)
+    assert again.executed == 0 and again.failed == 2
+    with pytest.raises(ValueError, match="options.lm.nope: not an option of method 'lm'"):
+        iwr.study(**{**grid, "options": {"lm": {"nope": 1}}})
+
+
+def test_keys_and_seeds() -> None:
+    robot = iwr.Robot.default()
+    rh = robot_hash(robot)
+    cells = make_grid(["lm"], [10, 20], [0.0, 0.01], [0], [0, 1], {}, {"lm": {"workers": 4}},
+                      7, 30, rh)
+    assert len(cells) == 8 and len({c.key for c in cells}) == 8
+    # The key is the hash of the cell's settings written as canonical JSON (computed here anew).
+    c = cells[0]
+    settings = {
+        "format": 1, "method": "lm", "options": {}, "budget": None, "n_poses": 10, "noise": 0.0,
+        "noise_model": "tracker position sd (mm), realistic proportions", "draw": 0, "seed": 0,
+        "base_seed": 7, "validation_poses": 30, "robot": rh,
+    }
+    text = json.dumps(settings, sort_keys=True, separators=(",", ":"))
+    assert c.key == hashlib.sha256(text.encode()).hexdigest()[:20]
+    # Threads per identification change nothing but the speed: not part of the key.
+    assert c == Cell("lm", "{}", None, 10, 0.0, 0, 0, 7, 30, rh)
+    assert noise_at(0.02) == iwr.Noise.realistic()
+    assert noise_at(0.0).is_zero
+    assert noise_at(0.01).legs == pytest.approx(iwr.Noise.realistic().legs / 2)
+
+
+def test_budget_axes(tmp_path: Path) -> None:
+    robot = iwr.Robot.default()
+    rh = robot_hash(robot)
+    default = make_grid(["lm"], [10], [0.0], [0], [0], {"lm": (None, [5])}, {}, 0, 30, rh)[0]
+    other = make_grid(["lm"], [10], [0.0], [0], [0], {"lm": ("max_nfev", [5])}, {}, 0, 30, rh)[0]
+    plain = make_grid(["lm"], [10], [0.0], [0], [0], {}, {}, 0, 30, rh)[0]
+    assert len({default.key, other.key, plain.key}) == 3
+    # The default option is not part of the settings: keys stay those of earlier studies.
+    assert "budget_option" not in default.settings and other.settings["budget_option"] == "max_nfev"
+    res = iwr.study(methods=["lm"], poses=[12], noise=0.01, draws=1, seeds=1,
+                    budgets={"lm.max_evaluations": [3, 1000]}, out=tmp_path,
+                    scheduler="synchronous", report=False, validation_poses=10)
+    a, b = res.rows
+    assert (a["budget"], a["budget_option"], b["budget"]) == (3, "max_evaluations", 1000)
+    assert a["nfev"] <= 3 < b["nfev"] and a["val_rms"] > b["val_rms"]
+    with pytest.raises(ValueError, match="'nope' is not an option of method 'lm'"):
+        iwr.study(methods="lm", budgets={"lm.nope": [3]}, scheduler="synchronous")
+    with pytest.raises(ValueError, match="set by the budget axis too"):
+        iwr.study(methods="lm", budgets={"lm": [3]}, options={"lm": {"max_evaluations": 9}},
+                  scheduler="synchronous")
+
+
+def test_bad_arguments() -> None:
+    with pytest.raises(ValueError, match="methods: 'nope'"):
+        iwr.study(methods="nope", scheduler="synchronous")
+    with pytest.raises(ValueError, match="poses: 0"):
+        iwr.study(poses=[0], scheduler="synchronous")
+    with pytest.raises(ValueError, match="noise: -1.0"):
+        iwr.study(noise=[-1.0], scheduler="synchronous")
+    with pytest.raises(ValueError, match="workers: only for the local cluster"):
+        iwr.study(workers=2, scheduler="tcp://127.0.0.1:1")
+    with pytest.raises(StudyError, match="no such file"):
+        read_table("/nonexistent/results.csv")
+
+
+def test_bad_table(tmp_path: Path) -> None:
+    path = tmp_path / "results.csv"
+    path.write_text("key,method,n_poses,noise\na,lm,12,0.0\nb,lm,x,0.0\n")
+    with pytest.raises(StudyError, match=r"line 3: column 'n_poses': 'x' is not a valid value"):
+        read_table(path)
+    path.write_text("a,b\n1,2\n")
+    with pytest.raises(StudyError, match="not a study table"):
+        read_table(tmp_path)
+
+
+def test_trend_rule() -> None:
+    from iwr.study._report import _trend
+
+    n = [10, 20, 40, 80]
+    assert _trend(n, [1.0 / math.sqrt(x) for x in n], "N").startswith("keeps improving")
+    assert "slope -0.50" in _trend(n, [1.0 / math.sqrt(x) for x in n], "N")
+    flat = [1.0, 0.5, 0.48, 0.47]
+    assert _trend(n, flat, "N").startswith("levels off from N = 20")
+    assert _trend(n, [1e-12] * 4, "N").startswith("at the floor")
+
+
+def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    return subprocess.run([sys.executable, "-m", "iwr.study", *args], cwd=cwd,
+                          capture_output=True, text=True, timeout=120)
+
+
+def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    p = run_cli("--help", cwd=tmp_path)
+    assert p.returncode == 0 and "--scheduler" in p.stdout and "--budget" in p.stdout
+    assert p.stderr == ""
+    p = run_cli("--poses", "ten", cwd=tmp_path)
+    assert p.returncode == 2 and p.stdout == ""
+    assert p.stderr.strip().splitlines() == [
+        "iwr study: error: argument --poses: 'ten': expected a comma-separated list of integers "
+        "(see --help)"
+    ]
+    for args, text in (
+        (["--methods", "nope"], "methods: 'nope'"),
+        (["--option", "lm"], "METHOD.NAME=VALUE"),
+        (["--budget", "lm=5,x"], "--budget"),
+        (["--budget", "nope=5"], "budgets: method 'nope'"),
+        (["--poses", "0"], "poses: 0"),
+        (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "workers: only for the local"),
+        (["--report-only", "--out", str(tmp_path / "missing")], "no such file"),
+    ):
+        assert main([*args, "--scheduler", "synchronous"] if "--scheduler" not in args
+                    else args) == 1, args
+        err = capsys.readouterr().err.strip().splitlines()
+        assert len(err) == 1 and text in err[0] and err[0].startswith("iwr study: error:"), err
+    p = run_cli("--methods", "lm", "--poses", "12,16", "--noise", "0.01", "--draws", "1",
+                "--seeds", "2", "--out", "s", "--scheduler", "synchronous",
+                "--validation-poses", "10", cwd=tmp_path)
+    assert p.returncode == 0, p.stderr
+    assert "4 cells (4 computed, 0 reused, 0 failed)" in p.stdout
+    rows = read_table(tmp_path / "s")
+    assert [(r["n_poses"], r["seed"]) for r in rows] == [(12, 0), (12, 1), (16, 0), (16, 1)]
+    assert np.all(np.isfinite([r["val_rms"] for r in rows]))
+    assert (tmp_path / "s" / "summary.md").exists()
+
+
+def test_add_study_parser_hook() -> None:
+    import argparse
+
+    parser = argparse.ArgumentParser(prog="iwr")
+    sub = parser.add_subparsers(dest="command")
+    study_module.add_study_parser(sub)
+    args = parser.parse_args(["study", "--poses", "10,20", "--budget", "lm=5,50"])
+    assert args.func is study_module.run_study
+    assert args.poses == [10, 20] and args.budget == ["lm=5,50"]
