@@ -331,6 +331,17 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert (tmp_path / "s" / "summary.md").exists()
 
 
+def test_iwr_cli_has_study(tmp_path: Path) -> None:
+    p = subprocess.run([sys.executable, "-m", "iwr", "study", "--help"], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and p.stdout.startswith("usage: iwr study") and "--debug" in p.stdout
+    p = subprocess.run([sys.executable, "-m", "iwr", "study", "--methods", "nope", "--scheduler",
+                        "synchronous", "--out", "s"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 1 and len(lines) == 1 and "methods: 'nope'" in lines[0], p.stderr
+
+
 def test_add_study_parser_hook() -> None:
     import argparse
 
