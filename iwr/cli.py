@@ -1,4 +1,5 @@
-"""The ``iwr`` command line: ``simulate``, ``calibrate``, ``analyze``, ``plan``, ``study``, ``compare``.
+"""The ``iwr`` command line: ``simulate``, ``calibrate``, ``analyze``, ``plan``, ``study``,
+``compare``.
 
 Every command has ``--help``. Exit codes: 0 success, 1 bad data or a failed computation, 2 bad
 usage, 130 interrupted. Errors are one line, ``iwr: error: ...``, on standard error; ``--debug``
