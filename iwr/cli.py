@@ -1,4 +1,5 @@
-"""The ``iwr`` command line: ``simulate``, ``calibrate``, ``analyze``, ``plan`` (and ``compare``).
+"""The ``iwr`` command line: ``simulate``, ``calibrate``, ``analyze``, ``plan``, ``study``,
+``compare``.
 
 Every command has ``--help``. Exit codes: 0 success, 1 bad data or a failed computation, 2 bad
 usage, 130 interrupted. Errors are one line, ``iwr: error: ...``, on standard error; ``--debug``
@@ -309,6 +310,16 @@ def build_parser() -> argparse.ArgumentParser:
         if "--debug" not in cp._option_string_actions:
             _common(cp)
         cp.set_defaults(func=compare.run_compare)
+
+    # study -------------------------------------------------------------------------------------
+    # `iwr study` (issue 9): Monte-Carlo studies on Dask, from iwr/study (add_study_parser,
+    # run_study); `python -m iwr.study` is the same command on its own.
+    from .study import add_study_parser, run_study
+
+    sp = add_study_parser(sub)
+    if "--debug" not in sp._option_string_actions:
+        _common(sp)
+    sp.set_defaults(func=run_study)
     return parser
 
 

@@ -71,23 +71,37 @@ def executions(log: Path) -> int:
     return len(list(log.iterdir()))
 
 
-def assert_same_table(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> None:
-    """Equal bit for bit, but for the wall-clock times and the parameter errors.
+# Tolerances of the figures (relative, absolute). SciPy's MINPACK Levenberg-Marquardt is not
+# bit-reproducible from run to run: from bit-identical residuals and Jacobians it sometimes takes a
+# different step (seen within one process too), and since LM iterates down to round-off the end
+# point moves, by ~1e-7 relative on noisy data and ~1e-13 mm on noise-free data (measured over six
+# processes x 48 cells: at most 1.3e-6 relative on any figure). Iteration counts change with the
+# path and are not compared; every other column is compared exactly.
+FIGURE_TOLERANCES = {
+    "cost": (1e-9, 1e-12), "rms_fit": (1e-5, 1e-9), "val_rms": (1e-5, 1e-9),
+    "val_max": (1e-5, 1e-9), "val_rms_nominal": (0.0, 0.0),
+    "param_error_length": (1e-5, 1e-9), "param_error_angle": (1e-5, 1e-9),
+    "tool_position_rms": (1e-5, 1e-9), "tool_orientation_rms": (1e-5, 1e-9),
+    "tool_position_rms_nominal": (1e-12, 1e-12),
+}
+PATH_COLUMNS = {"nfev", "nit", "message"}
 
-    The parameter errors come from SVDs (LAPACK), whose last bits depend on the number of BLAS
-    threads: Dask's workers run with one, this process with all (they agree to ~1e-15).
-    """
+
+def assert_same_table(a: list[dict[str, Any]], b: list[dict[str, Any]]) -> None:
+    """Same cells, settings and status; figures within FIGURE_TOLERANCES."""
     assert [r["key"] for r in a] == [r["key"] for r in b]
     for ra, rb in zip(a, b, strict=True):
+        assert ra.keys() == rb.keys()
         for c in ra:
-            if c in TIMING_COLUMNS:
+            if c in TIMING_COLUMNS or c in PATH_COLUMNS:
                 continue
             x, y = ra[c], rb[c]
-            if c.startswith("param_error"):
-                same = math.isclose(x, y, rel_tol=1e-9, abs_tol=1e-9)
+            if c in FIGURE_TOLERANCES:
+                rel, floor = FIGURE_TOLERANCES[c]
+                same = (math.isnan(x) and math.isnan(y)) or math.isclose(
+                    x, y, rel_tol=rel, abs_tol=floor)
             else:
-                same = (isinstance(x, float) and isinstance(y, float) and math.isnan(x)
-                        and math.isnan(y)) or x == y
+                same = x == y
             assert same, (c, x, y, ra)
 
 
@@ -315,6 +329,17 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     assert [(r["n_poses"], r["seed"]) for r in rows] == [(12, 0), (12, 1), (16, 0), (16, 1)]
     assert np.all(np.isfinite([r["val_rms"] for r in rows]))
     assert (tmp_path / "s" / "summary.md").exists()
+
+
+def test_iwr_cli_has_study(tmp_path: Path) -> None:
+    p = subprocess.run([sys.executable, "-m", "iwr", "study", "--help"], cwd=tmp_path,
+                       capture_output=True, text=True, timeout=120)
+    assert p.returncode == 0 and p.stdout.startswith("usage: iwr study") and "--debug" in p.stdout
+    p = subprocess.run([sys.executable, "-m", "iwr", "study", "--methods", "nope", "--scheduler",
+                        "synchronous", "--out", "s"], cwd=tmp_path, capture_output=True,
+                       text=True, timeout=120)
+    lines = p.stderr.strip().splitlines()
+    assert p.returncode == 1 and len(lines) == 1 and "methods: 'nope'" in lines[0], p.stderr
 
 
 def test_add_study_parser_hook() -> None:

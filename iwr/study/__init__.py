@@ -926,7 +926,6 @@ def add_study_parser(subparsers: Any) -> argparse.ArgumentParser:
             "(OUT/results.csv), one JSON file per cell (OUT/runs/), figures and OUT/summary.md. "
             "Started again, it runs only the cells that have no result yet."
         ),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     _add_arguments(parser)
     parser.set_defaults(func=run_study)
@@ -935,17 +934,20 @@ def add_study_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--methods", default="lm",
-                        help=f"comma-separated methods, of: {', '.join(sorted(METHODS))}")
+                        help=f"comma-separated methods, of: {', '.join(sorted(METHODS))} "
+                             "(default: lm)")
     parser.add_argument("--poses", type=_ints, default=[20, 50, 100],
-                        help="comma-separated numbers of measurement poses")
+                        help="comma-separated numbers of measurement poses (default: 20,50,100)")
     parser.add_argument("--noise", type=_floats, default=[0.0, 0.02],
                         help="comma-separated noise levels: tracker position sd in mm, the other "
-                             "channels in proportion (0.02 = iwr.Noise.realistic())")
+                             "channels in proportion (0.02 = iwr.Noise.realistic()) (default: "
+                             "0,0.02)")
     parser.add_argument("--draws", type=_count_or_list, default=3,
-                        help="error draws (actual robots): a count, or comma-separated indices")
+                        help="error draws (actual robots): a count, or comma-separated indices "
+                             "(default: 3)")
     parser.add_argument("--seeds", type=_count_or_list, default=3,
                         help="seeds of poses, noise and method: a count, or comma-separated "
-                             "indices")
+                             "indices (default: 3)")
     parser.add_argument("--budget", action="append", default=[],
                         metavar="[METHOD[.OPTION]=]LIST",
                         help="budget axis: generations (de) or evaluations (lm, crs2, bobyqa), "
@@ -955,9 +957,10 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="a method option, e.g. --option de.strategy=lshade (repeatable)")
     parser.add_argument("--robot", default=None, help="robot TOML file (default: the built-in IWR)")
     parser.add_argument("--validation-poses", type=int, default=50,
-                        help="fresh poses on which each calibration is validated")
-    parser.add_argument("--base-seed", type=int, default=0, help="root of every random stream")
-    parser.add_argument("--out", default="study", help="study folder")
+                        help="fresh poses on which each calibration is validated (default: 50)")
+    parser.add_argument("--base-seed", type=int, default=0,
+                        help="root of every random stream (default: 0)")
+    parser.add_argument("--out", default="study", help="study folder (default: study)")
     parser.add_argument("--scheduler", default=None,
                         help="address of an existing Dask scheduler (tcp://host:8786), or "
                              "'synchronous' for this process without Dask (default: a local "
@@ -965,7 +968,7 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--workers", type=int, default=None,
                         help="worker processes of the local cluster (default: one per core)")
     parser.add_argument("--retries", type=int, default=2,
-                        help="extra attempts of a cell whose worker died")
+                        help="extra attempts of a cell whose worker died (default: 2)")
     parser.add_argument("--report-only", action="store_true",
                         help="only redraw the figures and summary from OUT/results.csv")
     parser.add_argument("--no-report", action="store_true", help="no figures and no summary")
@@ -1022,7 +1025,6 @@ def main(argv: Sequence[str] | None = None) -> int:
             "Monte-Carlo study of identification (methods x poses x noise x error draws x seeds) "
             "on Dask; writes OUT/results.csv, OUT/runs/, figures and OUT/summary.md."
         ),
-        formatter_class=argparse.ArgumentDefaultsHelpFormatter,
     )
     _add_arguments(parser)
     parser.add_argument("--debug", action="store_true", help="show tracebacks")
