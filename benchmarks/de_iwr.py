@@ -78,7 +78,7 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
     ap.add_argument("--seeds", type=int, nargs="+", default=[1, 2, 3])
     ap.add_argument("--budget", type=int, default=2_000_000)
-    ap.add_argument("--schedule", type=int, default=600_000,
+    ap.add_argument("--schedule", type=int, default=1_000_000,
                     help="planned evaluation budget of lshade and jso")
     ap.add_argument("--target", type=float, default=1e-4)
     ap.add_argument("--polish-from", type=float, default=1.0)
