@@ -21,6 +21,12 @@ import pytest
 
 import iwr
 
+
+def _default_sigint() -> None:
+    # A shell without job control starts background commands with SIGINT ignored, and an ignored
+    # signal stays ignored in children: give the executable the default so that it can handle it.
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
 # Small problems: the whole module runs in well under a minute on two cores.
 N_POSES = 12
 NP = 24
@@ -101,11 +107,11 @@ def _start_and_stop(files: dict[str, Path], name: str, sig: int) -> Path:
     """Starts the run, waits for its first checkpoint, sends `sig`; returns the checkpoint."""
     d = files["dir"]
     ckpt = d / f"{name}.ckpt"
-    proc = subprocess.Popen(
+    proc = subprocess.Popen(  # noqa: PLW1509 (SIGINT to default: see _default_sigint)
         [EXE, str(files["robot"]), str(files["data"]), *map(str, COMMON), "--generations", str(G),
          "--threads", "1", "--output", str(d / f"{name}.json"), "--checkpoint", str(ckpt),
          "--checkpoint-every", "100", "--log", str(d / f"{name}.csv")],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint,
     )
     deadline = time.monotonic() + 60
     while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
@@ -173,11 +179,11 @@ def test_a_finished_run_extended_equals_the_longer_run(
 def test_sigint_and_checkpoint_on_request(files: dict[str, Path]) -> None:
     d = files["dir"]
     ckpt = d / "usr1.ckpt"
-    proc = subprocess.Popen(
+    proc = subprocess.Popen(  # noqa: PLW1509 (SIGINT to default: see _default_sigint)
         [EXE, str(files["robot"]), str(files["data"]), "--population-size", str(NP),
          "--generations", "100000000", "--checkpoint-every", "0", "--checkpoint", str(ckpt),
          "--output", str(d / "usr1.json"), "--threads", "1"],
-        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint,
     )
     time.sleep(0.3)
     assert not ckpt.exists()  # no periodic checkpoints
