@@ -7,6 +7,7 @@ import os
 import re
 import subprocess
 import sys
+import tempfile
 from pathlib import Path
 
 import numpy as np
@@ -20,9 +21,11 @@ REPO = Path(__file__).resolve().parents[1]
 def run(*args: str, cwd: Path | None = None, env: dict[str, str] | None = None):
     environ = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
     environ.update(env or {})
+    # Never the repository root: `python -m iwr` there would import the source folder, which has
+    # no compiled module, instead of the installed package.
     return subprocess.run(
-        [sys.executable, "-m", "iwr", *args], capture_output=True, text=True, cwd=cwd,
-        env=environ, timeout=600,
+        [sys.executable, "-m", "iwr", *args], capture_output=True, text=True,
+        cwd=cwd if cwd is not None else tempfile.gettempdir(), env=environ, timeout=600,
     )
 
 

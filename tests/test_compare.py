@@ -265,9 +265,10 @@ def test_subcommand_wiring():
     assert args.func is cmp.run_compare and args.budget == 5 and args.start == "bad"
 
 
-def test_python_dash_m_help():
+def test_python_dash_m_help(tmp_path):
+    # cwd: not the repository root, whose source folder has no compiled module
     proc = subprocess.run([sys.executable, "-m", "iwr.compare", "--help"], capture_output=True,
-                          text=True, timeout=60)
+                          text=True, timeout=60, cwd=tmp_path)
     assert proc.returncode == 0 and "--budget" in proc.stdout
     assert "Warning" not in proc.stderr
 
