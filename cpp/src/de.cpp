@@ -779,11 +779,14 @@ State init(const Settings& settings, BatchFunction& f, ThreadPool& pool) {
     return st;
 }
 
-void step(State& st, BatchFunction& f, ThreadPool& pool) {
+void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials) {
     const auto t0 = Clock::now();
     check_dim(st, f);
     const Settings& s = st.settings;
     const int np = st.np;
+    // The slots whose trials are evaluated: all, or the first max_trials (a budget's last one).
+    const int ne = max_trials < 0 ? np
+                                  : static_cast<int>(std::clamp<std::int64_t>(max_trials, 1, np));
     const int d = st.dim();
 
     Generation gen;
@@ -818,18 +821,18 @@ void step(State& st, BatchFunction& f, ThreadPool& pool) {
     });
     VectorXd tcost(np);
     try {
-        f.evaluate(trials.data(), static_cast<std::size_t>(np), tcost.data(), pool);
+        f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
     } catch (...) {
         st.streams = std::move(saved);  // the state is left as it was before this step
         throw;
     }
-    sanitize(tcost.data(), static_cast<std::size_t>(np));
-    st.nfev += np;
+    sanitize(tcost.data(), static_cast<std::size_t>(ne));
+    st.nfev += ne;
 
     // Selection, eq. (14), serially in slot order (the archive and the memories depend on order).
     Success succ;
     const bool archive = uses_archive(s.strategy);
-    for (int i = 0; i < np; ++i) {
+    for (int i = 0; i < ne; ++i) {
         if (!(tcost(i) <= st.costs(i))) continue;
         if (tcost(i) < st.costs(i)) {
             succ.F.push_back(tF[static_cast<std::size_t>(i)]);
@@ -914,7 +917,9 @@ RunResult run(State& st, BatchFunction& f, ThreadPool& pool, const Stop& stop,
     const auto t0 = Clock::now();
     StopReason reason = check_stop(st, stop, 0.0);
     while (reason == StopReason::none) {
-        step(st, f, pool);
+        // Never past the evaluation budget: the last generation may evaluate only part of the
+        // population.
+        step(st, f, pool, stop.max_evaluations >= 0 ? stop.max_evaluations - st.nfev : -1);
         const bool asked = callback && callback(st);
         reason = check_stop(st, stop, seconds_since(t0));
         if (reason == StopReason::none && asked) reason = StopReason::callback;

@@ -285,7 +285,11 @@ State init(const Settings& settings, BatchFunction& f, ThreadPool& pool);
 
 /// One generation: trials for every slot (in parallel, slot i from stream i), their evaluation,
 /// selection (eq. 14), the strategy's serial bookkeeping, then a log row.
-void step(State& state, BatchFunction& f, ThreadPool& pool);
+/// max_trials >= 0 evaluates only the trials of the first max_trials slots (at least 1), the
+/// others keep their parents: run() uses it so that a generation never takes the evaluation count
+/// past Stop::max_evaluations. Every slot's trial is still drawn, so the random streams advance as
+/// in a full generation. < 0 (the default): the whole population.
+void step(State& state, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials = -1);
 
 /// When to stop. Not stored in the state: a resumed run may use other criteria.
 struct Stop {
