@@ -190,6 +190,23 @@ def _rank_deficient(jac: np.ndarray, norms: np.ndarray, rtol: float = 1e-9) -> b
     return bool(s.size == 0 or s[-1] <= rtol * s[0])
 
 
+def _guard_column(jac: np.ndarray) -> np.ndarray:
+    """The Jacobian with a zero column appended, for SciPy's MINPACK.
+
+    SciPy's C translation of MINPACK (SciPy 1.15 and later; seen with 1.17.1) has an off-by-one in
+    ``qrfac``: when a column's norm is recomputed during column pivoting (which happens when it
+    collapses, as in a rank-deficient or tightly regularised Jacobian), the norm takes one element
+    too many, the first of the next column. For the last stored column that element lies past the
+    end of MINPACK's buffer (valgrind: "Invalid read of size 8 ... 0 bytes after a block", in
+    ``enorm`` from ``qrfac``): heap garbage, which made the same problem give different answers
+    from one call to the next (74 or 80 evaluations, results differing from the 6th digit). A zero
+    column is never recomputed (its norm is 0) and never pivoted away from the end, so the
+    out-of-bounds element is never read; the extra parameter has no effect on the residuals, a zero
+    gradient, and its step is 0.
+    """
+    return np.hstack([jac, np.zeros((jac.shape[0], 1))])
+
+
 class _StopLM(Exception):
     """Raised from inside the residual function to end a Levenberg-Marquardt run early."""
 
@@ -273,11 +290,12 @@ def levenberg_marquardt(
         )
     reduced = ReducedProblem(problem, active, x0)
     n_res = 6 * problem.n_poses
-    if not auto and regularization == 0 and n_res < reduced.n:
+    if not auto and regularization == 0 and n_res <= reduced.n:
         raise ValueError(
-            f"method 'lm': {n_res} residuals for {reduced.n} parameters; MINPACK's LM needs at "
-            "least as many residuals as parameters: measure more poses, fix parameters with "
-            "'active', or use regularization > 0"
+            f"method 'lm': {n_res} residuals for {reduced.n} parameters; MINPACK's LM needs "
+            "more residuals than parameters (one parameter more than the problem's is passed, "
+            "see _guard_column): measure more poses, fix parameters with 'active', or use "
+            "regularization > 0"
         )
     if max_evaluations is None:
         max_evaluations = 100 * (reduced.n + 1)
@@ -305,7 +323,10 @@ def levenberg_marquardt(
     first: dict[str, Any] = {}
     weights = np.zeros(reduced.n)
 
-    def fun(z: np.ndarray) -> np.ndarray:
+    # MINPACK sees one more parameter than the problem has, last, whose Jacobian column is zero
+    # (see _guard_column): z_ext = [z, guard].
+    def fun(z_ext: np.ndarray) -> np.ndarray:
+        z = z_ext[:-1]
         if "r" in first and np.array_equal(z, z0):
             r = first.pop("r")
         else:
@@ -324,15 +345,16 @@ def levenberg_marquardt(
             return np.concatenate([r, weights * (z - z0)])
         return r
 
-    def jac(z: np.ndarray) -> np.ndarray:
+    def jac(z_ext: np.ndarray) -> np.ndarray:
+        z = z_ext[:-1]
         if "J" in first and np.array_equal(z, z0):
             j = first.pop("J")
         else:
             count()
             j = reduced.jacobian(z)
         if regularization:
-            return np.vstack([j, np.diag(weights)])
-        return j
+            j = np.vstack([j, np.diag(weights)])
+        return _guard_column(j)
 
     sol = None
     stages: list[float] = []
@@ -351,7 +373,7 @@ def levenberg_marquardt(
         stages = [float(regularization)]
         if regularization > 0:
             stages = [s for s in _LM_CONTINUATION if s > regularization] + stages
-        z = z0
+        z = np.append(z0, 0.0)
         for lam in stages:
             weights = math.sqrt(lam) * np.maximum(norms, floor)
             sol = least_squares(
@@ -372,7 +394,7 @@ def levenberg_marquardt(
     except KeyboardInterrupt:
         state["stop"] = "interrupted (Ctrl-C)"
     if sol is not None and not state["stop"]:
-        x = reduced.full(sol.x)
+        x = reduced.full(sol.x[:-1])
         success = bool(sol.status > 0)
         message = str(sol.message)
     else:
