@@ -7,8 +7,8 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
-from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
 from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
+from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
 from .de import differential_evolution
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (

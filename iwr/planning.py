@@ -25,8 +25,7 @@ from .identifiability import IdentifiabilityReport, column_scale, identifiabilit
 from .measurements import Measurements
 from .problem import Problem, predict_legs
 from .robot import Robot
-from .simulate import Noise
-from .transforms import euler_zyx, pose_from_matrix, pose_matrix, rotvec_matrix
+from .simulate import Noise, add_noise
 
 __all__ = ["PosePlan", "plan_poses", "measure"]
 
@@ -264,18 +263,4 @@ def measure(
     legs = predict_legs(robot, np.asarray(errors, dtype=float), q, poses)
     noise = noise if noise is not None else Noise()
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    n = len(poses)
-    if not noise.is_zero:
-        # The same noise model as iwr.simulate: Gaussian joints and legs; the measured orientation
-        # is the true one times a small random rotation; Gaussian position.
-        sigma_q = np.where(np.array([c == "P" for c in robot.joint_types], dtype=bool),
-                           noise.joint_lengths, noise.joint_angles)
-        q = q + sigma_q * rng.standard_normal(q.shape)
-        legs = legs + noise.legs * rng.standard_normal(legs.shape)
-        r = euler_zyx(poses[:, 3], poses[:, 4], poses[:, 5])
-        r = r @ rotvec_matrix(noise.orientation * rng.standard_normal((n, 3)))
-        t = pose_matrix(poses)
-        t[:, :3, :3] = r
-        t[:, :3, 3] += noise.position * rng.standard_normal((n, 3))
-        poses = pose_from_matrix(t)
-    return Measurements(q, poses, legs, joint_types=robot.joint_types)
+    return add_noise(robot, q, poses, legs, noise, rng)

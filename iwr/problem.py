@@ -91,7 +91,7 @@ class Problem:
                 ) from None
             lower = np.broadcast_to(lower, (robot.n_params,)).copy()
             upper = np.broadcast_to(upper, (robot.n_params,)).copy()
-        for i, (lo, hi) in enumerate(zip(lower, upper)):
+        for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
             if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
                 raise ValueError(
                     f"bounds: parameter {i} ({robot.parameter_names[i]}) has lower {lo}, "
@@ -149,4 +149,5 @@ class Problem:
         return self._objective.cost_batch(arr, 0 if workers is None else int(workers))
 
     def __repr__(self) -> str:
-        return f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, n_params={self.n_params})"
+        return (f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, "
+                f"n_params={self.n_params})")

@@ -71,7 +71,7 @@ class IdentificationResult(OptimizeResult):
 
     def named(self) -> dict[str, float]:
         """The identified parameters by name."""
-        return dict(zip(self.parameter_names, map(float, self.x)))
+        return dict(zip(self.parameter_names, map(float, self.x), strict=True))
 
 
 def _jsonable(value: Any) -> Any:

@@ -205,8 +205,8 @@ class Robot:
           0, 120 and 240 degrees; S-joints on a 250 mm radius in frame {5}, pairs about 60, 180
           and 300 degrees; leg j joins the U-joint at angle phi_j to the S-joint at phi_j -+ 40
           degrees (legs 1..6: -10 -> -50, 10 -> 50, 110 -> 70, 130 -> 170, 230 -> 190,
-          250 -> 290 degrees); leg length = reading + 600 mm, readings 0..400 mm; home platform height
-          750 mm above the base plate.
+          250 -> 290 degrees); leg length = reading + 600 mm, readings 0..400 mm; home platform
+          height 750 mm above the base plate.
         """
         h = math.pi / 2
         dh = [
@@ -272,7 +272,8 @@ class Robot:
                         "theta": float(row[3]),
                         "limits": [float(v) for v in lim],
                     }
-                    for t, row, lim in zip(self.joint_types, self.dh, self.joint_limits)
+                    for t, row, lim in zip(self.joint_types, self.dh, self.joint_limits,
+                                           strict=True)
                 ]
             },
             "hexapod": {
@@ -321,7 +322,9 @@ class Robot:
         units = data.get("units", {"length": "mm", "angle": "rad"})
         _check_keys(units, {"length", "angle"}, set(), "units")
         if units.get("length", "mm") != "mm" or units.get("angle", "rad") != "rad":
-            raise ValueError(f"units: {dict(units)}; only length = 'mm', angle = 'rad' are supported")
+            raise ValueError(
+                f"units: {dict(units)}; only length = 'mm', angle = 'rad' are supported"
+            )
         name = data.get("name", "robot")
         if not isinstance(name, str):
             raise ValueError(f"name: expected a string, got {type(name).__name__}")

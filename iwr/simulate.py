@@ -148,11 +148,23 @@ def simulate(
     else:
         x = np.array(errors, dtype=float)
         if x.shape != (robot.n_params,) or not np.all(np.isfinite(x)):
-            raise ValueError(f"errors: expected {robot.n_params} finite values, got shape {x.shape}")
+            raise ValueError(
+                f"errors: expected {robot.n_params} finite values, got shape {x.shape}"
+            )
     q, poses, legs = sample_poses(robot, int(n_poses), rng, x)
+    return add_noise(robot, q, poses, legs, noise, rng), x
+
+
+def add_noise(robot: Robot, q: np.ndarray, poses: np.ndarray, legs: np.ndarray, noise: Noise,
+              rng: np.random.Generator) -> Measurements:
+    """Exact readings made noisy, as measured: Gaussian joint readings (``joint_lengths`` for
+    prismatic joints, ``joint_angles`` for revolute ones) and leg readings; the measured
+    orientation is the true one times a small random rotation (rotation vector with Gaussian
+    components of ``orientation``), the measured position the true one plus Gaussian noise of
+    ``position``. Draws from ``rng`` in that order; no draws when the noise is zero."""
     n = len(poses)
     if not noise.is_zero:
-        sigma_q = np.where(np.array([c == "P" for c in robot.joint_types]),
+        sigma_q = np.where(np.array([c == "P" for c in robot.joint_types], dtype=bool),
                            noise.joint_lengths, noise.joint_angles)
         q = q + sigma_q * rng.standard_normal(q.shape)
         legs = legs + noise.legs * rng.standard_normal(legs.shape)
@@ -162,4 +174,4 @@ def simulate(
         t[:, :3, :3] = r
         t[:, :3, 3] += noise.position * rng.standard_normal((n, 3))
         poses = pose_from_matrix(t)
-    return Measurements(q, poses, legs, joint_types=robot.joint_types), x
+    return Measurements(q, poses, legs, joint_types=robot.joint_types)

@@ -17,7 +17,8 @@ def np_dh(alpha: float, a: float, d: float, theta: float) -> np.ndarray:
     """Eq. (1)."""
     ct, st, ca, sa = math.cos(theta), math.sin(theta), math.cos(alpha), math.sin(alpha)
     return np.array(
-        [[ct, -ca * st, sa * st, a * ct], [st, ca * ct, -sa * ct, a * st], [0, sa, ca, d], [0, 0, 0, 1]]
+        [[ct, -ca * st, sa * st, a * ct], [st, ca * ct, -sa * ct, a * st], [0, sa, ca, d],
+         [0, 0, 0, 1]]
     )
 
 
@@ -316,11 +317,13 @@ def test_toml_round_trip(tmp_path, robot):
 @pytest.mark.parametrize(
     ("edit", "message"),
     [
-        (lambda t: t.replace('name = "IWR"', 'name = "IWR"\ncolour = "red"'), "colour: unknown key"),
+        (lambda t: t.replace('name = "IWR"', 'name = "IWR"\ncolour = "red"'),
+         "colour: unknown key"),
         (lambda t: t.replace("leg_offsets = [", "leg_offset = ["), "leg_offset: unknown key"),
         (lambda t: t.replace('type = "prismatic"', 'type = "helical"', 1), r"joints\[0\].type"),
         (lambda t: t.replace('type = "prismatic"\n', "", 1), r"joints\[0\].type: missing key"),
-        (lambda t: t.replace("alpha = 1.5707963267948966", 'alpha = "90deg"', 1), r"joints\[0\].alpha"),
+        (lambda t: t.replace("alpha = 1.5707963267948966", 'alpha = "90deg"', 1),
+         r"joints\[0\].alpha"),
         (lambda t: t.replace("[hexapod]", "[hexapod\n"), "not valid TOML"),
     ],
 )
