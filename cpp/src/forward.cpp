@@ -153,18 +153,8 @@ RowMatrixXd forward_kinematics(const Geometry& g, const Eigen::Ref<const VectorX
                                const Eigen::Ref<const RowMatrixXd>& guess, const Vector6d& home,
                                const ForwardOptions& options, Eigen::VectorXi* iterations) {
     g.check_errors(x.data(), x.size(), "errors");
+    require_pose_shapes(g, q, legs, "legs");
     const Eigen::Index n = legs.rows();
-    if (legs.cols() != kLegs) {
-        std::ostringstream msg;
-        msg << "legs: shape (" << legs.rows() << ", " << legs.cols() << "); expected (N, 6)";
-        throw std::invalid_argument(msg.str());
-    }
-    if (q.rows() != n || q.cols() != g.n_joints()) {
-        std::ostringstream msg;
-        msg << "q: shape (" << q.rows() << ", " << q.cols() << "); expected (" << n << ", "
-            << g.n_joints() << ") for " << n << " poses and " << g.n_joints() << " joints";
-        throw std::invalid_argument(msg.str());
-    }
     if (guess.rows() != 0 && (guess.rows() != n || guess.cols() != 6)) {
         std::ostringstream msg;
         msg << "guess: shape (" << guess.rows() << ", " << guess.cols() << "); expected (" << n

@@ -17,6 +17,23 @@ void require_finite(const double* data, Eigen::Index size, const char* what) {
     }
 }
 
+void require_pose_shapes(const Geometry& g, const Eigen::Ref<const RowMatrixXd>& q,
+                         const Eigen::Ref<const RowMatrixXd>& per_pose, const char* what) {
+    const Eigen::Index n = per_pose.rows();
+    if (per_pose.cols() != 6) {
+        std::ostringstream msg;
+        msg << what << ": shape (" << per_pose.rows() << ", " << per_pose.cols()
+            << "); expected (N, 6)";
+        throw std::invalid_argument(msg.str());
+    }
+    if (q.rows() != n || q.cols() != g.n_joints()) {
+        std::ostringstream msg;
+        msg << "q: shape (" << q.rows() << ", " << q.cols() << "); expected (" << n << ", "
+            << g.n_joints() << ") for " << n << " poses and " << g.n_joints() << " joints";
+        throw std::invalid_argument(msg.str());
+    }
+}
+
 Geometry::Geometry(std::string joint_types, RowMatrixXd dh, LegMatrix base, LegMatrix platform,
                    LegVector leg_offsets)
     : joint_types_(std::move(joint_types)),
@@ -100,18 +117,8 @@ RowMatrixXd predict_legs(const Geometry& g, const Eigen::Ref<const VectorXd>& x,
                          const Eigen::Ref<const RowMatrixXd>& q,
                          const Eigen::Ref<const RowMatrixXd>& poses) {
     g.check_errors(x.data(), x.size(), "errors");
+    require_pose_shapes(g, q, poses, "poses");
     const Eigen::Index n = poses.rows();
-    if (poses.cols() != 6) {
-        std::ostringstream msg;
-        msg << "poses: shape (" << poses.rows() << ", " << poses.cols() << "); expected (N, 6)";
-        throw std::invalid_argument(msg.str());
-    }
-    if (q.rows() != n || q.cols() != g.n_joints()) {
-        std::ostringstream msg;
-        msg << "q: shape (" << q.rows() << ", " << q.cols() << "); expected (" << n << ", "
-            << g.n_joints() << ") for " << n << " poses and " << g.n_joints() << " joints";
-        throw std::invalid_argument(msg.str());
-    }
     require_finite(q.data(), q.size(), "q");
     require_finite(poses.data(), poses.size(), "poses");
     const int nj = g.n_joints();

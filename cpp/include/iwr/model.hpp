@@ -83,4 +83,9 @@ RowMatrixXd predict_legs(const Geometry& g, const Eigen::Ref<const VectorXd>& x,
 /// Throws std::invalid_argument naming `what` unless every entry is finite.
 void require_finite(const double* data, Eigen::Index size, const char* what);
 
+/// Throws std::invalid_argument naming the array unless `per_pose` (called `what`: the measured
+/// poses or the leg readings) is (N, 6) and the joint readings q are (N, n_joints).
+void require_pose_shapes(const Geometry& g, const Eigen::Ref<const RowMatrixXd>& q,
+                         const Eigen::Ref<const RowMatrixXd>& per_pose, const char* what);
+
 }  // namespace iwr
