@@ -77,7 +77,8 @@ DEFAULT_SEEDS = (0, 1, 2)
 DEFAULT_OUT = "iwr-compare"
 _BOUNDS = {"near": "default", "bad": "paper"}
 _BAD_START_FRACTION = 0.9
-_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"]
+_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+           "#bcbd22", "#17becf"]
 
 ParamErrorFn = Callable[[Robot, Measurements, np.ndarray, np.ndarray], Any]
 
@@ -876,7 +877,7 @@ def _de_text(settings: dict[str, Any]) -> list[str]:
                      + (" (initial values, adapted)" if st["strategy"] not in
                         ("rand1bin", "best1bin") else ""))
     return ["Differential evolution, without polish (DE never exceeds the budget: its last "
-            "generation evaluates only part of the population): " + "; ".join(parts) + "."]
+            "generation may evaluate only part of the population): " + "; ".join(parts) + "."]
 
 
 def _parameter_error_text(name: str) -> str:
