@@ -4,11 +4,13 @@ budget, and a report.
 For each scenario (``"near"``: the nominal robot as the start, errors within the default bounds;
 ``"bad"``: large errors and a start near the bounds) and each seed, a robot with random errors is
 simulated at ``n_poses`` poses with measurement noise, and every method identifies it from the same
-start under the same evaluation budget. Per run: the final cost (eq. 10), the validation RMS of the
-leg readings on fresh poses, the error of the recovered parameters (on the identifiable part and
-raw), evaluations, wall time, and success (cost near the noise floor). The report in ``out_dir``:
-``report.html`` (self-contained), ``report.md`` with the PNG figures beside it, ``runs.csv``,
-``summary.csv`` and ``results.json``.
+start under the same evaluation budget. A method is a registered name (``lm``, ``de``, ``crs2``,
+``bobyqa``; ``de`` is the paper's DE/rand/1/bin) or ``de:STRATEGY``, a modern DE variant such as
+``de:jso``; the default list is :data:`DEFAULT_METHODS`. Per run: the final cost (eq. 10), the
+validation RMS of the leg readings on fresh poses, the error of the recovered parameters (on the
+identifiable part and raw), evaluations, wall time, and success (cost near the noise floor). The
+report in ``out_dir``: ``report.html`` (self-contained), ``report.md`` with the PNG figures beside
+it, ``runs.csv``, ``summary.csv`` and ``results.json``.
 
 Run it as ``iwr compare`` or ``python -m iwr.compare``.
 """
@@ -47,6 +49,9 @@ __all__ = [
     "run_compare",
     "main",
     "DEFAULT_BUDGET",
+    "DEFAULT_METHODS",
+    "default_methods",
+    "split_method",
 ]
 
 #: Scenarios: what is simulated and where the methods start.
@@ -64,11 +69,16 @@ SCENARIOS: dict[str, str] = {
 
 #: Evaluation budget of every method, per run, when none is given.
 DEFAULT_BUDGET = 20_000
+#: Methods compared when none are given (then any other registered method): Levenberg-Marquardt,
+#: the paper's DE/rand/1/bin with Storn & Price's defaults, jSO (the DE variant that converges
+#: fastest on IWR, docs/de.md), CRS2 and BOBYQA. ``"de:STRATEGY"`` is DE with that strategy.
+DEFAULT_METHODS = ("lm", "de", "de:jso", "crs2", "bobyqa")
 DEFAULT_SEEDS = (0, 1, 2)
 DEFAULT_OUT = "iwr-compare"
 _BOUNDS = {"near": "default", "bad": "paper"}
 _BAD_START_FRACTION = 0.9
-_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f"]
+_COLORS = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#7f7f7f",
+           "#bcbd22", "#17becf"]
 
 ParamErrorFn = Callable[[Robot, Measurements, np.ndarray, np.ndarray], Any]
 
@@ -215,16 +225,54 @@ def _check_starts(start: Any) -> list[str]:
     return starts
 
 
+def _de_strategies() -> tuple[str, ...]:
+    from .de import STRATEGIES
+
+    return tuple(STRATEGIES)
+
+
+def _available() -> str:
+    text = ", ".join(sorted(METHODS))
+    if "de" in METHODS:
+        text += "; or de:STRATEGY with STRATEGY one of " + ", ".join(_de_strategies())
+    return text
+
+
+def split_method(spec: Any) -> tuple[str, dict[str, Any]]:
+    """The registered method and its fixed options of a method spec: a registered name as it is
+    (``"lm"`` -> ``("lm", {})``), or ``"de:STRATEGY"``, differential evolution with that strategy
+    (``"de:jso"`` -> ``("de", {"strategy": "jso"})``). Raises ValueError naming a bad spec."""
+    if not isinstance(spec, str):
+        raise ValueError(f"methods: {spec!r}; expected a method name; available: {_available()}")
+    if spec in METHODS:
+        return spec, {}
+    base, sep, variant = spec.partition(":")
+    if sep and base == "de" and "de" in METHODS:
+        strategies = _de_strategies()
+        if variant not in strategies:
+            raise ValueError(f"methods: {spec!r}: unknown DE strategy {variant!r}; available: "
+                             + ", ".join(strategies))
+        return "de", {"strategy": variant}
+    if sep and base in METHODS:
+        raise ValueError(f"methods: {spec!r}: only de takes a variant (de:STRATEGY)")
+    raise ValueError(f"methods: {spec!r} is not registered; available: {_available()}")
+
+
+def default_methods() -> list[str]:
+    """The methods compared when none are given: :data:`DEFAULT_METHODS` (those registered), then
+    any other registered method."""
+    names = [m for m in DEFAULT_METHODS if m.partition(":")[0] in METHODS]
+    return names + sorted(m for m in METHODS if m not in names)
+
+
 def _check_methods(methods: Any) -> list[str]:
     if methods is None:
-        return sorted(METHODS)
+        return default_methods()
     names = [methods] if isinstance(methods, str) else list(methods)
     if not names:
-        raise ValueError("methods: empty; expected one or more of " + ", ".join(sorted(METHODS)))
+        raise ValueError(f"methods: empty; expected one or more of: {_available()}")
     for m in names:
-        if m not in METHODS:
-            raise ValueError(f"methods: {m!r} is not registered; available: "
-                             + ", ".join(sorted(METHODS)))
+        split_method(m)
     if len(set(names)) != len(names):
         raise ValueError(f"methods: {names!r} has duplicates")
     return names
@@ -285,17 +333,53 @@ def _scenario_problem(
     }
 
 
-def _method_options(method: str, budget: int, extra: dict[str, dict[str, Any]]) -> dict[str, Any]:
+def _method_options(
+    spec: str, budget: int, extra: dict[str, dict[str, Any]]
+) -> tuple[str, dict[str, Any]]:
+    """The registered method of ``spec`` and the options it runs with. Every method gets the
+    budget as ``max_evaluations``; for ``lshade`` and ``jso`` this is also the budget their
+    population-size and parameter schedules are planned over, so they end with the budget."""
+    method, fixed = split_method(spec)
     opts: dict[str, Any] = {"max_evaluations": budget}
     if method == "de":
         # Pure DE: no Levenberg-Marquardt polish, whose evaluations would not be DE's.
-        import inspect
+        opts["polish"] = False
+    opts.update(fixed)
+    opts.update(extra.get(spec, {}))
+    return method, opts
 
-        params = inspect.signature(METHODS["de"]).parameters
-        if "polish" in params:
-            opts["polish"] = False
-    opts.update(extra.get(method, {}))
-    return opts
+
+def _check_de_budget(robot: Robot, n_poses: int, names: list[str], budget: int,
+                     extra: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The resolved settings of every DE spec (strategy, NP, F, CR, ...), from a run of its
+    initial population alone on a small noise-free problem: bad options fail here, before the
+    comparison, and so does a budget smaller than the initial population (which DE evaluates
+    whole, so it would exceed the budget; lshade and jso refuse such a budget)."""
+    out: dict[str, dict[str, Any]] = {}
+    data = None
+    for spec in names:
+        method, opts = _method_options(spec, budget, extra)
+        if method != "de":
+            continue
+        if data is None:
+            data, _ = simulate(robot, n_poses, seed=0)
+        try:
+            res = identify(robot, data, "de", x0=np.zeros(robot.n_params), seed=0,
+                           progress=False, **{**opts, "generations": 0})
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"method {spec!r}: {exc}") from None
+        st = dict(res.settings)
+        if st["population_size"] > budget:
+            raise ValueError(
+                f"method {spec!r}: budget {budget} is smaller than its initial population "
+                f"({st['population_size']} evaluations); raise the budget or give a smaller "
+                f"population_size in method_options={{{spec!r}: {{...}}}}"
+            )
+        keys = ["strategy", "population_size", "F", "CR"]
+        if st.get("min_population_size"):
+            keys.append("min_population_size")
+        out[spec] = {k: st[k] for k in keys if k in st}
+    return out
 
 
 def compare_methods(
@@ -328,10 +412,16 @@ def compare_methods(
     seeds : sequence of int
         One simulated problem per seed and scenario; the same seeds give the same numbers.
     methods : sequence of str, optional
-        Registered method names (default: every method in ``iwr.identify.METHODS``).
+        Method specs, each also its label in the report: a name registered in
+        ``iwr.identify.METHODS`` (``"de"`` is the paper's DE/rand/1/bin with its defaults), or
+        ``"de:STRATEGY"``, DE with a strategy of ``iwr.de.STRATEGIES`` (``"de:jso"``,
+        ``"de:lshade"``, ...). Default: :data:`DEFAULT_METHODS` (``lm``, ``de``, ``de:jso``,
+        ``crs2``, ``bobyqa``), then any other registered method.
     budget : int
         Evaluation budget of every run, passed as ``max_evaluations`` (a Jacobian counts as one
-        evaluation).
+        evaluation); lshade and jso plan their schedules over it. DE never exceeds it, but it
+        evaluates its initial population whole: a DE spec whose population is larger than the
+        budget is refused.
     start : "near", "bad", "both" or a sequence of them
         The scenarios; see :data:`SCENARIOS`.
     out_dir : path, optional
@@ -348,7 +438,8 @@ def compare_methods(
         Default: :func:`iwr.parameter_error` where available, else a projection onto the row space
         of the column-scaled Jacobian.
     method_options : dict, optional
-        Extra options per method name, e.g. ``{"crs2": {"population": 1000}}``.
+        Extra options per method label, e.g. ``{"crs2": {"population": 1000}}`` or
+        ``{"de:jso": {"population_size": 200}}``.
     progress : bool, optional
         Progress bars (default: when standard error is a terminal).
 
@@ -375,8 +466,16 @@ def compare_methods(
     for k, v in extra.items():
         if k not in names or not isinstance(v, dict):
             raise ValueError(
-                f"method_options: {k!r}; expected a dict of options per compared method"
+                f"method_options: {k!r}; expected a dict of options per compared method (keyed "
+                "by its label, e.g. 'de:jso')"
             )
+        base, fixed = split_method(k)
+        if base == "de" and "strategy" in v:
+            # The label says which strategy ran: 'de' is rand1bin, 'de:jso' is jso.
+            named = fixed.get("strategy", "rand1bin")
+            if v["strategy"] != named:
+                raise ValueError(f"method_options: {k!r} sets strategy {v['strategy']!r}; "
+                                 f"use the label 'de:{v['strategy']}' instead")
     out_path = None if out_dir is None else Path(out_dir)
     if out_path is not None and out_path.exists() and not out_path.is_dir():
         raise ValueError(f"out_dir: {str(out_path)!r} exists and is not a folder")
@@ -399,7 +498,8 @@ def compare_methods(
         "success_atol": success_atol,
         "parameter_error": getattr(param_err, "__module__", "") + "."
         + getattr(param_err, "__qualname__", type(param_err).__qualname__),
-        "method_options": {m: _method_options(m, budget, extra) for m in names},
+        "method_options": {m: _method_options(m, budget, extra)[1] for m in names},
+        "de_settings": _check_de_budget(robot, n_poses, names, budget, extra),
     }
 
     with single_thread():
@@ -424,9 +524,9 @@ def _compare(robot: Robot, n_poses: int, noise: Noise, seeds: list[int], names: 
                 nominal_val = _rms(predict_legs(robot, np.zeros(robot.n_params), q_val, poses_val)
                                    - legs_val)
                 threshold = (1 + success_rtol) * sp["floor"] + 6 * n_poses * success_atol**2
-                for method in names:
-                    bar.set_postfix_str(f"{scenario} seed {seed}: {method}")
-                    opts = _method_options(method, budget, extra)
+                for spec in names:
+                    bar.set_postfix_str(f"{scenario} seed {seed}: {spec}")
+                    method, opts = _method_options(spec, budget, extra)
                     t0 = time.perf_counter()
                     res = identify(robot, sp["data"], method, bounds=sp["bounds"], x0=sp["x0"],
                                    seed=seed, progress=show, **opts)
@@ -438,7 +538,7 @@ def _compare(robot: Robot, n_poses: int, noise: Noise, seeds: list[int], names: 
                     runs.append({
                         "scenario": scenario,
                         "seed": seed,
-                        "method": method,
+                        "method": spec,
                         "cost": float(res.fun),
                         "noise_floor": float(sp["floor"]),
                         "success_threshold": float(threshold),
@@ -592,7 +692,8 @@ def _png(fig: Any) -> bytes:
     return buf.getvalue()
 
 
-_FIXED_COLORS = {"lm": "#1f77b4", "de": "#d62728", "crs2": "#2ca02c", "bobyqa": "#ff7f0e"}
+_FIXED_COLORS = {"lm": "#1f77b4", "de": "#d62728", "crs2": "#2ca02c", "bobyqa": "#ff7f0e",
+                 "de:jso": "#9467bd"}
 
 
 def _colors(names: list[str]) -> dict[str, str]:
@@ -755,10 +856,28 @@ def _definitions(settings: dict[str, Any]) -> list[str]:
         f"Validation RMS: leg readings predicted with the recovered parameters at "
         f"{settings['n_validation']} fresh poses of the actual robot, against their exact "
         "(noise-free) values; the nominal robot's is given for scale.",
+        *_de_text(settings),
         _parameter_error_text(settings["parameter_error"]),
         "Medians over seeds. Wall times depend on the machine and its load; everything else is "
         "the same for the same seeds.",
     ]
+
+
+def _de_text(settings: dict[str, Any]) -> list[str]:
+    """One line on the DE runs' settings, when there are any."""
+    de = settings.get("de_settings") or {}
+    if not de:
+        return []
+    parts = []
+    for spec, st in de.items():
+        np_text = f"NP {st['population_size']}"
+        if st.get("min_population_size"):
+            np_text += f" reduced linearly to {st['min_population_size']} over the budget"
+        parts.append(f"{spec}: {st['strategy']}, {np_text}, F {st['F']:g}, CR {st['CR']:g}"
+                     + (" (initial values, adapted)" if st["strategy"] not in
+                        ("rand1bin", "best1bin") else ""))
+    return ["Differential evolution, without polish (DE never exceeds the budget: its last "
+            "generation may evaluate only part of the population): " + "; ".join(parts) + "."]
 
 
 def _parameter_error_text(name: str) -> str:
@@ -959,8 +1078,10 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)),
                    help="seeds, '0,1,2' or '0..4' (default: %(default)s)")
     p.add_argument("--methods", default=None,
-                   help="comma-separated method names (default: all: "
-                        + ", ".join(sorted(METHODS)) + ")")
+                   help="comma-separated methods: registered names ("
+                        + ", ".join(sorted(METHODS)) + "; de is the paper's DE/rand/1/bin) or "
+                        "de:STRATEGY (e.g. de:jso, de:lshade); default: "
+                        + ",".join(default_methods()))
     p.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="EVALS",
                    help="evaluation budget per run (default: %(default)s)")
     p.add_argument("--start", choices=["near", "bad", "both"], default="both",

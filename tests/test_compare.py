@@ -24,15 +24,19 @@ FIGURES = ["convergence_near.png", "convergence_bad.png", "parameters_near.png",
            "parameters_bad.png", "metrics.png"]
 
 
+BUDGET = 310  # not a whole number of DE generations: DE's last one is partial
+
+
 def small_methods() -> list[str]:
-    return [m for m in ("lm", "crs2", "bobyqa", "de") if m in METHODS]
+    return [m for m in ("lm", "crs2", "bobyqa", "de", "de:jso") if m.partition(":")[0] in METHODS]
 
 
 def small_run(out_dir, **kw):
-    # DE runs whole generations (its initial population alone is 10 D = 580 evaluations by
-    # default): a population of 20 makes a budget of 300 exactly 15 generations.
-    options = {"de": {"population_size": 20}} if "de" in METHODS else {}
-    args = dict(n_poses=20, seeds=SEEDS, methods=small_methods(), budget=300, start="both",
+    # DE evaluates its initial population whole (10 D = 580 by default, 773 for jSO): small
+    # populations keep it within the budget. jSO plans its schedule over the budget.
+    options = ({"de": {"population_size": 20}, "de:jso": {"population_size": 30}}
+               if "de" in METHODS else {})
+    args = dict(n_poses=20, seeds=SEEDS, methods=small_methods(), budget=BUDGET, start="both",
                 out_dir=out_dir, n_validation=20, progress=False, method_options=options)
     args.update(kw)
     return iwr.compare_methods(**args)
@@ -96,7 +100,7 @@ def test_csv_and_json_hold_every_run(report):
         assert len(list(csv.DictReader(fh))) == len(comp.summary)
     data = json.loads((out / "results.json").read_text(encoding="utf-8"))
     assert data["format"] == "iwr-compare" and len(data["runs"]) == n
-    assert data["settings"]["budget"] == 300
+    assert data["settings"]["budget"] == BUDGET
     assert len(data["parameter_names"]) == 58
 
 
@@ -106,7 +110,7 @@ def test_numbers_are_consistent(report):
     ang = robot.angle_parameters
     for r in comp.runs:
         x, truth = np.array(r["x"]), np.array(r["truth"])
-        assert r["nfev"] <= 300 and r["within_budget"]
+        assert r["nfev"] <= BUDGET and r["within_budget"]
         assert r["success"] == (r["cost"] <= r["success_threshold"])
         assert r["raw_err_length_mm"] == pytest.approx(
             math.sqrt(np.mean((x - truth)[~ang] ** 2)), rel=1e-12)
@@ -125,6 +129,70 @@ def test_numbers_are_consistent(report):
         if r["method"] == "lm" and r["scenario"] == "near":
             assert r["success"]
             assert r["validation_rms_mm"] < 0.1 * r["nominal_validation_rms_mm"]
+
+
+needs_de = pytest.mark.skipif("de" not in METHODS, reason="this build has no DE")
+
+
+@needs_de
+def test_de_variants_run_under_their_labels(report):
+    """'de:jso' is identify(method="de", strategy="jso") with the budget as max_evaluations (jSO's
+    schedule runs to it), labelled 'de:jso' everywhere; 'de' is the paper's rand1bin."""
+    comp, out = report
+    assert comp.settings["methods"] == small_methods()
+    opts = comp.settings["method_options"]
+    assert opts["de:jso"] == {"max_evaluations": BUDGET, "polish": False, "strategy": "jso",
+                              "population_size": 30}
+    assert "strategy" not in opts["de"]
+    de = comp.settings["de_settings"]
+    assert de["de"]["strategy"] == "rand1bin" and de["de"]["population_size"] == 20
+    assert de["de:jso"]["strategy"] == "jso" and de["de:jso"]["min_population_size"] == 4
+    # The label in every table and file
+    labels = {r["method"] for r in comp.runs}
+    assert {"de", "de:jso"} <= labels
+    with open(out / "runs.csv", newline="") as fh:
+        assert {row["method"] for row in csv.DictReader(fh)} == labels
+    with open(out / "summary.csv", newline="") as fh:
+        assert {row["method"] for row in csv.DictReader(fh)} == labels
+    data = json.loads((out / "results.json").read_text(encoding="utf-8"))
+    assert data["settings"]["methods"] == small_methods()
+    assert "| near | de:jso |" in (out / "report.md").read_text(encoding="utf-8")
+    page = (out / "report.html").read_text(encoding="utf-8")
+    assert "<td>bad</td><td>de:jso</td>" in page and "de:jso: jso, NP 30 reduced" in page
+    colors = cmp._colors(small_methods())
+    assert len(set(colors.values())) == len(colors)
+    # The same numbers as identify called directly
+    robot = iwr.Robot.default()
+    (r,) = [r for r in comp.runs if r["method"] == "de:jso" and r["scenario"] == "bad"
+            and r["seed"] == SEEDS[1]]
+    sp = cmp._scenario_problem(robot, "bad", SEEDS[1], 20, iwr.Noise.realistic(), 20)
+    res = iwr.identify(robot, sp["data"], "de", strategy="jso", population_size=30,
+                       max_evaluations=BUDGET, bounds="paper", x0=sp["x0"], seed=SEEDS[1],
+                       progress=False)
+    assert res.fun == r["cost"] and res.x.tolist() == r["x"]
+    assert res.settings["max_evaluations"] == BUDGET and res.settings["polish"] is False
+
+
+@needs_de
+def test_de_respects_the_budget(report):
+    """Every DE run spends exactly the budget (no target is set) and never more, although the
+    budget is not a whole number of generations; the report has no over-budget mark."""
+    comp, out = report
+    for r in comp.runs:
+        if r["method"].partition(":")[0] == "de":
+            assert r["nfev"] == BUDGET and r["within_budget"], (r["method"], r["nfev"])
+            assert r["history_nfev"][-1] == BUDGET
+    assert all(s["all_within_budget"] for s in comp.summary)
+    assert "over budget" not in (out / "report.md").read_text(encoding="utf-8")
+
+
+def test_default_methods():
+    names = cmp.default_methods()
+    expected = [m for m in cmp.DEFAULT_METHODS if m.partition(":")[0] in METHODS]
+    assert names[: len(expected)] == expected and set(METHODS) <= set(names)
+    if "de" in METHODS:
+        assert cmp.split_method("de:lshade") == ("de", {"strategy": "lshade"})
+        assert cmp.split_method("de") == ("de", {})
 
 
 def test_same_seeds_same_numbers(report, tmp_path):
@@ -213,6 +281,30 @@ def test_bad_arguments_name_the_argument(kwargs, name):
         iwr.compare_methods(**args)
 
 
+@needs_de
+@pytest.mark.parametrize(
+    "kwargs, match",
+    [
+        ({"methods": ["de:nope"]}, "'de:nope': unknown DE strategy 'nope'"),
+        ({"methods": ["lm:jso"]}, "'lm:jso'"),
+        ({"methods": ["de", "de"]}, "duplicates"),
+        ({"methods": ["de:jso"], "method_options": {"de:jso": {"strategy": "shade"}}},
+         "'de:shade'"),
+        ({"methods": ["de"], "method_options": {"de": {"strategy": "jso"}}}, "'de:jso'"),
+        ({"methods": ["de"], "method_options": {"de:jso": {}}}, "method_options: 'de:jso'"),
+        ({"methods": ["de:jso"], "method_options": {"de:jso": {"nope": 1}}}, "'de:jso'.*nope"),
+        # the initial population alone would exceed the budget
+        ({"methods": ["de:jso"], "budget": 500}, "'de:jso'.*773"),
+        ({"methods": ["de"], "budget": 500}, "'de'.*580"),
+    ],
+)
+def test_bad_de_specs_are_refused(kwargs, match):
+    args = dict(n_poses=10, seeds=[0], budget=5000, out_dir=None, progress=False)
+    args.update(kwargs)
+    with pytest.raises(ValueError, match=match):
+        iwr.compare_methods(**args)
+
+
 def test_out_dir_that_is_a_file_is_refused(tmp_path):
     f = tmp_path / "file"
     f.write_text("x")
@@ -239,6 +331,7 @@ def test_command_line(tmp_path, capsys):
         (["--seeds", "a,b"], "--seeds"),
         (["--noise", "legs=x"], "--noise"),
         (["--methods", "nope"], "methods"),
+        (["--methods", "lm,de:nope"], "'de:nope'"),
         (["--robot", "/nonexistent/robot.toml"], "robot.toml"),
     ],
 )
@@ -246,7 +339,7 @@ def test_command_line_errors(argv, name, capsys):
     assert cmp.main([*argv, "--no-progress", "-o", "/nonexistent-dir-never-written"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("iwr compare: error:") and name in err
-    assert "Traceback" not in err
+    assert "Traceback" not in err and err.count("\n") == 1
 
 
 def test_subcommand_wiring():
