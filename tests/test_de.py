@@ -200,6 +200,12 @@ def test_evaluation_budget_is_never_exceeded(strategy):
     assert np.array_equal(one.x, two.x) and one.fun == two.fun and one.nit == two.nit
     assert one.history["nfev"][-1] == 1001 and np.all(np.diff(one.history["nfev"]) <= 24)
 
+
+def test_budget_below_the_initial_population_is_refused():
+    with pytest.raises(ValueError, match=r"max_evaluations: 300; the initial population alone "
+                                         r"takes population_size \(400\)"):
+        iwr.differential_evolution(sphere, [(-5, 5)] * 40, max_evaluations=300)
+
 # --- the history, determinism, resume -------------------------------------------------------------
 
 
@@ -455,7 +461,7 @@ def test_paper_preset(iwr_data):
     assert (s["population_size"], s["F"], s["CR"], s["strategy"]) == (600, 0.9, 1.0, "rand1bin")
     assert res.nfev == 600 * 3 and res.nit == 2 and s["preset"] == "paper"
     full = iwr.identify(robot, measurements, "de", preset="paper", generations=None, seed=0,
-                        max_evaluations=1, progress=False)
+                        max_evaluations=1200, progress=False)
     assert full.settings["generations"] == 60000
 
 

@@ -163,6 +163,8 @@ py::dict run_de(de::BatchFunction& f, Session& session, const de::Settings& sett
         st = de::State::deserialize(in);
         if (st.settings != de::resolve(settings))
             throw std::invalid_argument("state: made with other settings than the ones given");
+    } else {
+        de::require_budget_for_init(de::resolve(settings), stop);
     }
     auto last = Clock::now();
     const bool has_monitor = !monitor.is_none();

@@ -854,6 +854,13 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     append_log(st);
 }
 
+void require_budget_for_init(const Settings& resolved, const Stop& stop) {
+    if (stop.max_evaluations >= 0 && stop.max_evaluations < resolved.population_size) {
+        bad("max_evaluations: " + str(stop.max_evaluations) + "; the initial population alone "
+            "takes population_size (" + str(resolved.population_size) + ") evaluations");
+    }
+}
+
 StopReason check_stop(const State& st, const Stop& stop, double seconds) {
     const double best = st.best_cost();
     if (best <= stop.target_cost) return StopReason::target;

@@ -317,6 +317,11 @@ enum class StopReason : std::uint8_t {
 };
 std::string to_string(StopReason r);
 
+/// Throws std::invalid_argument (naming max_evaluations) when a fresh run cannot respect the
+/// budget: init() evaluates the whole initial population, population_size evaluations, so
+/// stop.max_evaluations (when set) must be at least that. `resolved`: settings after resolve().
+void require_budget_for_init(const Settings& resolved, const Stop& stop);
+
 /// The reason, if any, to stop now (callback aside). `seconds` is the wall time of the current run.
 StopReason check_stop(const State& state, const Stop& stop, double seconds);
 
