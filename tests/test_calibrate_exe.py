@@ -380,8 +380,8 @@ def test_usage_errors(files: dict[str, Path], args: tuple[str, ...], needle: str
     [
         ("robot", None, "no such file"),
         ("robot", 'name = "x"\n[hexapod]\nbase_joints = [1, 2]\n', "line 2: hexapod.leg_offsets: missing key"),
-        ("robot", 'name = "x"\nflag = true\n', "line 2: booleans are not supported"),
-        ("robot", "[hexapod\n", "line 1: expected ']'"),
+        ("robot", 'name = "x"\nflag = true\n', "line 2, column 8: booleans are not supported"),
+        ("robot", "[hexapod\n", "line 1, column 9: expected ']'"),
         ("data", None, "no such file"),
         ("data", "# only a comment\n", "empty file"),
         ("data", "q1_mm,x_mm\n1,2\n", "line 1: missing columns"),

@@ -100,8 +100,8 @@ public:
         if (const TomlValue* carriage = root.find("carriage")) {
             check_keys(*carriage, {"joints"}, {}, "carriage");
             if (const TomlValue* joints = carriage->find("joints")) {
-                const bool empty_array = joints->kind == TomlValue::Kind::Array && joints->items.empty();
-                if (joints->kind != TomlValue::Kind::TableArray && !empty_array)
+                // [[carriage.joints]] tables, or an array of inline tables (each item checked below).
+                if (joints->kind != TomlValue::Kind::TableArray && joints->kind != TomlValue::Kind::Array)
                     fail(*joints, "carriage.joints: expected an array of tables ([[carriage.joints]])");
                 for (size_t i = 0; i < joints->items.size(); ++i) {
                     const TomlValue& j = joints->items[i];

@@ -699,7 +699,7 @@ int run(const Options& o) {
         const std::string& path = *o.resume;
         iwr::app::Checkpoint c;
         try {
-            c = iwr::app::decode_checkpoint(iwr::app::read_file(path));
+            c = iwr::app::decode_checkpoint(iwr::app::read_file(path, "a checkpoint"));
         } catch (const InputError&) {
             throw;
         } catch (const std::runtime_error& e) {

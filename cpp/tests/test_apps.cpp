@@ -97,25 +97,60 @@ void test_toml_robot() {
     CHECK(c.parameter_names().size() == 50 && c.parameter_names()[7] == "joint2.dtheta");
     CHECK(c.angle_parameters()[0] && !c.angle_parameters()[1] && c.angle_parameters()[7]);
 
-    // Refusals, each naming the line.
-    CHECK(contains(error_of("flag = true\n"), "r.toml: line 1: booleans are not supported"));
-    CHECK(contains(error_of("\n\nt = 1979-05-27T07:32:00Z\n"), "line 3: '1979-05-27T07:32:00Z': dates"));
-    CHECK(contains(error_of("x = {a = 1}\n"), "line 1: inline tables"));
-    CHECK(contains(error_of("a.b = 1\n"), "line 1: dotted key 'a.b'"));
-    CHECK(contains(error_of("s = \"\"\"x\"\"\"\n"), "multi-line strings"));
-    CHECK(contains(error_of("x = [1, 2\ny = 3\n"), "line 2: unexpected 'y' in an array"));
+    // The other forms of TOML 1.0 that Python's tomllib reads (so that iwr and iwr-calibrate take
+    // the same files): inline tables, arrays of them, dotted keys, multi-line strings, integers in
+    // hexadecimal, octal and binary; the same robot as the [[carriage.joints]] form.
+    std::string other = carriage;
+    other.replace(other.find("name = \"hexa\\u0070od\""), 21, "name = \"\"\"\\\n   hexapod\"\"\"");
+    other.replace(other.find("[units]\nlength = 'mm'\nangle = \"rad\"\n"), 35,
+                  "units = {length = '''mm''', angle = \"rad\"}\n");
+    const size_t j0 = other.find("[[carriage.joints]]"), j1 = other.find("[hexapod]");
+    other.replace(j0, j1 - j0,
+                  "carriage.joints = [{type = \"prismatic\", alpha = 1.5707963267948966, a = 0x0, d = 500.0, "
+                  "theta = 0o0, limits = [0b0, 2000.0]},\n  {type = \"revolute\", alpha = -1.0, a = 0x12c, "
+                  "d = 0.0, theta = 0.5, limits = [-1.0, 1.0]},\n]\n");
+    const auto o = iwr::app::robot_from_toml(iwr::app::parse_toml(other, "o.toml"), "o.toml");
+    CHECK(o.name == "hexapod" && o.joint_types == "PR" && o.dh == c.dh && o.joint_limits == c.joint_limits);
+    CHECK(o.base == c.base && o.leg_stroke == c.leg_stroke && o.home_pose == c.home_pose);
+    const auto dotted = iwr::app::parse_toml("a.b.c = 1\na.b.d = 0xff_ff\n[x]\ny.z = '''it's'''\n", "d.toml");
+    CHECK(dotted.find("a")->find("b")->find("d")->number == 65535.0);
+    CHECK(dotted.find("x")->find("y")->find("z")->string == "it's");
+    CHECK(iwr::app::parse_toml("s = \"\"\"\r\na\r\nb\"\"\"\"\n", "s.toml").find("s")->string == "a\nb\"");
+
+    // Refusals, each naming the line, and the column of a syntax error.
+    CHECK(contains(error_of("flag = true\n"), "r.toml: line 1, column 8: booleans are not supported"));
+    CHECK(contains(error_of("\n\nt = 1979-05-27T07:32:00Z\n"), "line 3, column 5: '1979-05-27T07:32:00Z': dates"));
+    CHECK(contains(error_of("x = {a = 1}\n"), "line 1: x: unknown key"));
+    CHECK(contains(error_of("x = {a = 1,}\n"), "line 1, column 12: a trailing comma is not allowed"));
+    CHECK(contains(error_of("x = {a = 1,\nb = 2}\n"), "line 1, column 12: expected a key"));
+    CHECK(contains(error_of("x = {a = 1}\n[x]\n"), "line 2: [x]: already defined on line 1"));
+    CHECK(contains(error_of("x = {a = 1}\n[x.b]\n"), "line 2: x: an inline table (line 1) cannot be extended"));
+    CHECK(contains(error_of("a.b = 1\n[a]\n"), "line 2: [a]: already defined"));
+    CHECK(contains(error_of("[a]\nb.c = 1\n[x]\n[a.b]\n"), "line 4: [a.b]: already defined"));
+    CHECK(contains(error_of("[a.b]\nc = 1\n[a]\nb.d = 1\n"), "line 4: key 'b' is already defined"));
+    CHECK(contains(error_of("s = \"\"\"x\n"), "line 1: unterminated multi-line string"));
+    CHECK(contains(error_of("x = -0x10\n"), "column 5: '-0x10' is not a number"));
+    CHECK(contains(error_of("x = 0x\n"), "'0x' is not a number"));
+    CHECK(contains(error_of("x = 1\ry = 2\n"), "line 1, column 6: unexpected '\\r' after the value"));
+    CHECK(contains(error_of("x = [1, 2\ny = 3\n"), "line 2, column 1: unexpected 'y' in an array"));
     CHECK(contains(error_of("x = [1, 2,\n"), "line 1: unterminated array"));
     CHECK(contains(error_of("x = 1\nx = 2\n"), "line 2: key 'x' is defined twice (first on line 1)"));
     CHECK(contains(error_of("[hexapod]\n[hexapod]\n"), "line 2: [hexapod]: already defined on line 1"));
-    CHECK(contains(error_of("x = 1 2\n"), "line 1: unexpected '2' after the value"));
+    CHECK(contains(error_of("x = 1 2\n"), "line 1, column 7: unexpected '2' after the value"));
     CHECK(contains(error_of("x = 007\n"), "leading zeros"));
     CHECK(contains(error_of("x = 1__0\n"), "'1__0' is not a number"));
     CHECK(contains(error_of("x = .5\n"), "'.5' is not a number"));
-    CHECK(contains(error_of("x = \"abc\n"), "line 1: unterminated string"));
+    CHECK(contains(error_of("x = \"abc\n"), "line 1, column 9: unterminated string"));
     CHECK(contains(error_of("x = \"a\\qb\"\n"), "unknown escape"));
-    CHECK(contains(error_of("x =\n"), "line 1: missing value"));
-    CHECK(contains(error_of("= 1\n"), "line 1: unexpected '='; expected a key"));
-    CHECK(contains(error_of("[a\n"), "line 1: expected ']'"));
+    CHECK(contains(error_of("x = \"a\x01\"\n"), "line 1, column 7: control character '\\x01' in a string"));
+    CHECK(contains(error_of("x =\n"), "line 1, column 4: missing value"));
+    CHECK(contains(error_of("= 1\n"), "line 1, column 1: unexpected '='; expected a key"));
+    CHECK(contains(error_of("[a\n"), "line 1, column 3: expected ']'"));
+    // UTF-8 only (as tomllib), without a byte order mark (tomllib refuses one).
+    CHECK(contains(error_of("# caf\xe9\nname = \"x\"\n"), "r.toml: line 1, column 6: byte 0xe9 is not valid UTF-8"));
+    CHECK(contains(error_of("name = \"\xc3\xa9\xed\xa0\x80\"\n"), "line 1, column 10: byte 0xed is not valid UTF-8"));
+    CHECK(contains(error_of("\xef\xbb\xbfname = \"x\"\n"), "line 1, column 1: the file starts with a byte order mark"));
+    CHECK(contains(error_of("name = \"caf\xc3\xa9\"\nx = \xc3\xa9\n"), "line 2, column 5: '\xc3\xa9' is not a number"));
     // Robot-level checks (the rules of iwr.Robot.from_dict).
     CHECK(contains(error_of("name = \"x\"\n"), "r.toml: line 1: hexapod: missing key"));
     std::string bad = kRobot;
@@ -139,6 +174,12 @@ void test_toml_robot() {
         CHECK(false);
     } catch (const InputError& e) {
         CHECK(contains(e.what(), "/nonexistent/robot.toml: no such file"));
+    }
+    try {
+        iwr::app::read_toml("/");
+        CHECK(false);
+    } catch (const InputError& e) {
+        CHECK(contains(e.what(), "/: is a folder, not a TOML file"));
     }
 }
 
