@@ -674,10 +674,7 @@ int run(const Options& o) {
     const std::string& data_path = o.positional[1];
     const iwr::app::RobotFile robot = iwr::app::read_robot(robot_path);
     const iwr::app::MeasurementFile data = iwr::app::read_measurements(data_path);
-    if (data.joint_types != robot.joint_types)
-        throw InputError(data_path + ": joint types '" + data.joint_types +
-                         "' (from the units of the q columns) do not match robot '" + robot.name +
-                         "' ('" + robot.joint_types + "' in " + robot_path + ")");
+    iwr::app::check_measurements(data, robot, data_path);  // as `iwr calibrate` checks them
     std::optional<iwr::Objective> objective;
     try {
         objective.emplace(robot.geometry(), data.q, data.poses, data.legs, data.weights);

@@ -6,6 +6,7 @@
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "checkpoint.hpp"
 #include "files.hpp"
@@ -195,23 +196,91 @@ std::string csv_error(const std::string& text) {
 void test_csv() {
     const std::string header =
         "q1_mm,q2_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad,s1_mm,s2_mm,s3_mm,s4_mm,s5_mm,s6_mm";
-    const std::string row = "1.5,-0.25,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1e-3";
-    const auto m = iwr::app::parse_measurements("# comment\n\n" + header + "\r\n" + row + "\n" + row + "\n", "d.csv");
+    const std::string row = "1.5,-0.25,100,200,700,0.1,0.2,0.3,10,11,12,13,14,1e-3";
+    const std::string row2 = "2.5,-0.25,100,200,700,0.1,0.2,0.3,10,11,12,13,14,1e-3";
+    const auto m = iwr::app::parse_measurements("# comment\n\n" + header + "\r\n" + row + "\n" + row2 + "\n", "d.csv");
     CHECK(m.joint_types == "PR" && m.n_poses() == 2 && m.weights.size() == 0);
-    CHECK(m.q(1, 0) == 1.5 && m.q(1, 1) == -0.25 && m.poses(0, 5) == 0.3 && m.legs(0, 5) == 1e-3);
+    CHECK(m.q(1, 0) == 2.5 && m.q(1, 1) == -0.25 && m.poses(0, 5) == 0.3 && m.legs(0, 5) == 1e-3);
+    CHECK(m.lines == std::vector<int>({4, 5}));
     const auto w = iwr::app::parse_measurements(header + ",w1,w2,w3,w4,w5,w6\n" + row + ",1,2,3,4,5,\"6\"\n", "w.csv");
     CHECK(w.weights.rows() == 1 && w.weights(0, 5) == 6.0);
+    // Python's str.splitlines() (\r, \v, \f, U+2028, ... end lines), str.strip() and float()
+    // (underscores, any Unicode decimal digits, inf/nan spelt in any case).
+    const auto p = iwr::app::parse_measurements(
+        header + "\r" + row + "\x0b\xe2\x80\xa8 \xc2\xa0 \n1_0.5, -0.25 ,1e2,\xef\xbc\x92\xd9\xa0\xd9\xa0\xc2\xa0,700,0.1,0.2,0.3,10,11,12,13,14,1\n",
+        "p.csv");
+    CHECK(p.lines == std::vector<int>({2, 5}) && p.q(1, 0) == 10.5 && p.poses(1, 1) == 200.0);
 
     CHECK(contains(csv_error(""), "d.csv: empty file"));
     CHECK(contains(csv_error(header + "\n"), "d.csv: no data rows"));
-    CHECK(contains(csv_error("q1_m," + header.substr(6) + "\n"), "line 1: column 1 is 'q1_m'"));
-    CHECK(contains(csv_error(header + ",extra\n"), "line 1: unknown column 'extra'"));
-    CHECK(contains(csv_error(header + "\n" + row + ",7\n"), "line 2: 15 fields; the header has 14"));
+    CHECK(contains(csv_error("q1_m," + header.substr(6) + "\n"), "d.csv, line 1: column 1 is 'q1_m'"));
+    CHECK(contains(csv_error(header + ",extra\n"), "line 1: unknown columns ['extra']"));
+    CHECK(contains(csv_error(header.substr(0, header.size() - 6) + "\n"), "line 1: missing columns ['s6_mm']"));
+    CHECK(contains(csv_error("\xef\xbb\xbf" + header + "\n"), "column 1 is '\\ufeffq1_mm'; expected 'x_mm'"));
+    CHECK(contains(csv_error(header + "\n" + row + ",7\n"), "d.csv, line 2: 15 fields; the header has 14"));
     CHECK(contains(csv_error(header + "\n#\n1.5,x,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n"),
-                   "line 3, column q2_rad: 'x' is not a number"));
+                   "d.csv, line 3, column q2_rad: 'x' is not a number"));
     CHECK(contains(csv_error(header + "\n1.5,nan,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n"), "'nan' is not finite"));
     CHECK(contains(csv_error(header + "\n1.5,0x10,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n"), "is not a number"));
-    CHECK(contains(csv_error(header + ",w1,w2,w3,w4,w5,w6\n" + row + ",1,2,3,4,5,-6\n"), "column w6: '-6' is negative"));
+    CHECK(contains(csv_error(header + "\n1.5,,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n"), "column q2_rad: '' is empty"));
+    CHECK(contains(csv_error(header + "\n1.5,1\x01" "5,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n"), "'1\\x015' is not a number"));
+    CHECK(contains(csv_error(header + ",w1,w2,w3,w4,w5,w6\n" + row + ",1,2,3,4,5,-6\n"),
+                   "line 2, column w6: '-6' is negative"));
+    // Every bad row is named, none dropped (iwr.measurements._summarise).
+    std::string many = header + "\n";
+    for (int k = 0; k < 12; ++k) many += "1.5,nan,1,2,3,0.1,0.2,0.3,10,11,12,13,14,1\n";
+    CHECK(contains(csv_error(many), "d.csv, line 2, column q2_rad: 'nan' is not finite (12 bad rows in all, none "
+                                    "dropped: lines 2, 3, 4, 5, 6, 7, 8, 9, 10, 11 and ... (2 more))"));
+    // Not UTF-8: named by line and column.
+    CHECK(contains(csv_error("# caf\xe9\n" + header + "\n" + row + "\n"), "d.csv, line 1, column 6: byte 0xe9 is not valid UTF-8"));
+    // The checks that need no robot (Measurements._check_alone).
+    CHECK(contains(csv_error(header + "\n" + row + "\n" + row2 + "\n" + row + "\n"),
+                   "d.csv: 1 repeated pose(s): lines 2 and 4 have exactly the same joint readings and measured pose"));
+    CHECK(contains(csv_error(header + "\n1.5,-0.25,100,200,700,0.1,20,0.3,10,11,12,13,14,1\n"),
+                   "d.csv: pose angles larger than 2 pi at line 2: angles must be in radians"));
+    CHECK(contains(csv_error(header + "\n1.5,-0.25,0.1,0.2,0.7,0.1,0.2,0.3,0.01,0.011,0.012,0.013,0.014,0.001\n"),
+                   "d.csv: every position and leg reading is below 5.0 (largest position 0.7348, largest leg "
+                   "reading 0.014): these look like metres"));
+}
+
+std::string robot_check_error(const iwr::app::RobotFile& robot, const std::string& csv) {
+    try {
+        iwr::app::check_measurements(iwr::app::parse_measurements(csv, "d.csv"), robot, "d.csv");
+    } catch (const InputError& e) {
+        return e.what();
+    }
+    return "";
+}
+
+// The checks against the robot (Measurements.check), as `iwr calibrate` and iwr-calibrate make them.
+void test_csv_against_robot() {
+    std::string text = kRobot;
+    text.replace(text.find("[carriage]\njoints = []\n"), 22,
+                 "[[carriage.joints]]\ntype = \"prismatic\"\nalpha = 0.0\na = 0.0\nd = 500.0\n"
+                 "theta = 0.0\nlimits = [0.0, 2000.0]\n\n[[carriage.joints]]\ntype = \"revolute\"\nalpha = 0.0\n"
+                 "a = 0.0\nd = 0.0\ntheta = 0.0\nlimits = [-1.0, 1.0]\n");
+    const auto robot = iwr::app::robot_from_toml(iwr::app::parse_toml(text, "r.toml"), "r.toml");
+    const std::string header =
+        "q1_mm,q2_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad,s1_mm,s2_mm,s3_mm,s4_mm,s5_mm,s6_mm\n";
+    const std::string ok = header + "1000,0.5,10,20,1250,0.1,0.2,0.3,100,110,120,130,140,150\n" +
+                           "1000,0.6,10,20,1250,0.1,0.2,0.3,100,110,120,130,140,404\n";
+    CHECK(robot_check_error(robot, ok).empty());  // 404 is within 1 % of the stroke [0, 400]
+    CHECK(contains(robot_check_error(robot, ok + "1000,0.7,10,20,1250,0.1,0.2,0.3,100,110,120,130,650,150\n"
+                                                 "2100,1.7,10,20,1250,0.1,0.2,0.3,100,110,120,130,140,150\n"),
+                   "d.csv: 2 unreachable pose(s) for robot 'hexapod' (lines 4 and 5; nothing dropped); first: line "
+                   "4: leg 5 reading 650 mm is outside the stroke [0, 400]"));
+    CHECK(contains(robot_check_error(robot, header + "2100,0.5,10,20,1250,0.1,0.2,0.3,100,110,120,130,140,150\n"),
+                   "first: line 2: joint 1 reading 2100 mm is outside the joint limits [0, 2000]"));
+    CHECK(contains(robot_check_error(robot, header + "1000,0.5,10,20,1250,0.1,0.2,0.3,0.1,0.11,0.12,0.13,0.14,0.15\n"),
+                   "d.csv: every one of the leg readings is below 5.0 (largest 0.15) while robot 'hexapod' is 400 mm "
+                   "in size: these look like metres; iwr expects millimetres"));
+    CHECK(contains(robot_check_error(robot, header + "1,0.5,10,20,1250,0.1,0.2,0.3,100,110,120,130,140,150\n"),
+                   "every one of the prismatic joint readings is below 5.0 (largest 1) while robot 'hexapod' is 2000 mm"));
+    CHECK(contains(robot_check_error(robot, header + "1000,0.5,0.01,0.02,1.25,0.1,0.2,0.3,100,110,120,130,140,150\n"),
+                   "every one of the positions is below 5.0 (largest 1.25) while robot 'hexapod' is 2250 mm"));
+    CHECK(contains(robot_check_error(robot, "q1_mm,q2_mm" + header.substr(12) + "1,2,10,20,1250,0.1,0.2,0.3,100,110,120,130,140,150\n"),
+                   "d.csv: joint types 'PP' (from the units of the q columns: _mm prismatic, _rad revolute) do not "
+                   "match robot 'hexapod', 'PR'"));
 }
 
 // A small but complete DE state, as the executable checkpoints it.
@@ -319,6 +388,7 @@ void test_json_and_hash() {
 int main() {
     test_toml_robot();
     test_csv();
+    test_csv_against_robot();
     test_checkpoint_refuses_damage();
     test_json_and_hash();
     if (failures) {
