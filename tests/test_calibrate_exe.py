@@ -382,6 +382,9 @@ def test_usage_errors(files: dict[str, Path], args: tuple[str, ...], needle: str
         ("robot", 'name = "x"\n[hexapod]\nbase_joints = [1, 2]\n', "line 2: hexapod.leg_offsets: missing key"),
         ("robot", 'name = "x"\nflag = true\n', "line 2, column 8: booleans are not supported"),
         ("robot", "[hexapod\n", "line 1, column 9: expected ']'"),
+        # A message stays on one line whatever it quotes (here a key with a newline in it).
+        ("robot", '"colo\\nur" = 1\n[hexapod]\n', "line 1: colo\\nur: unknown key"),
+        ("robot", 'name = "a\\\nb"\n', "line 1, column 10: a backslash before '\\n' in a string"),
         ("data", None, "no such file"),
         ("data", "# only a comment\n", "empty file"),
         ("data", "q1_mm,x_mm\n1,2\n", "line 1: missing columns"),

@@ -84,6 +84,30 @@ struct UsageError : std::runtime_error {
     using std::runtime_error::runtime_error;
 };
 
+// One line on standard error, whatever a message quotes (a key or a file name may hold a newline):
+// control characters and Unicode line separators escaped.
+std::string one_line(const std::string& msg) {
+    std::string out;
+    for (size_t i = 0; i < msg.size(); ++i) {
+        const unsigned char c = static_cast<unsigned char>(msg[i]);
+        const bool separator = (c == 0xE2 && i + 2 < msg.size() && static_cast<unsigned char>(msg[i + 1]) == 0x80 &&
+                                (static_cast<unsigned char>(msg[i + 2]) == 0xA8 ||
+                                 static_cast<unsigned char>(msg[i + 2]) == 0xA9)) ||
+                               (c == 0xC2 && i + 1 < msg.size() && static_cast<unsigned char>(msg[i + 1]) == 0x85);
+        if (c < 0x20 || c == 0x7f) {
+            char buf[8];
+            std::snprintf(buf, sizeof buf, "\\x%02x", c);
+            out += c == '\n' ? "\\n" : c == '\r' ? "\\r" : c == '\t' ? "\\t" : buf;
+        } else if (separator) {
+            out += c == 0xC2 ? "\\x85" : static_cast<unsigned char>(msg[i + 2]) == 0xA8 ? "\\u2028" : "\\u2029";
+            i += c == 0xC2 ? 1 : 2;
+        } else {
+            out += msg[i];
+        }
+    }
+    return out;
+}
+
 // --- command line -------------------------------------------------------------------------------
 
 const char* const kHelp = R"(usage: iwr-calibrate ROBOT.toml DATA.csv [options]
@@ -879,13 +903,13 @@ int main(int argc, char** argv) {
         }
         return run(o);
     } catch (const UsageError& e) {
-        std::fprintf(stderr, "%s: error: %s (see %s --help)\n", kProgram, e.what(), kProgram);
+        std::fprintf(stderr, "%s: error: %s (see %s --help)\n", kProgram, one_line(e.what()).c_str(), kProgram);
         return kExitUsage;
     } catch (const std::bad_alloc&) {
         std::fprintf(stderr, "%s: error: out of memory\n", kProgram);
         return kExitError;
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "%s: error: %s\n", kProgram, e.what());
+        std::fprintf(stderr, "%s: error: %s\n", kProgram, one_line(e.what()).c_str());
         return kExitError;
     } catch (...) {
         std::fprintf(stderr, "%s: error: unexpected internal error\n", kProgram);

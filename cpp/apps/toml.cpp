@@ -516,9 +516,13 @@ private:
                 append_utf8(out, static_cast<char32_t>(cp));
                 break;
             }
-            default:
+            default: {
                 --i_;
-                fail("unknown escape '\\" + (eof() ? std::string() : std::string(1, e)) + "' in a string");
+                const std::string next = here();
+                --i_;  // the column of the backslash
+                if (e > 0x20 && e < 0x7f) fail(std::string("unknown escape '\\") + e + "' in a string");
+                fail("a backslash before " + next + " in a string (an unknown escape)");
+            }
         }
     }
 

@@ -142,7 +142,8 @@ void test_toml_robot() {
     CHECK(contains(error_of("x = 1__0\n"), "'1__0' is not a number"));
     CHECK(contains(error_of("x = .5\n"), "'.5' is not a number"));
     CHECK(contains(error_of("x = \"abc\n"), "line 1, column 9: unterminated string"));
-    CHECK(contains(error_of("x = \"a\\qb\"\n"), "unknown escape"));
+    CHECK(contains(error_of("x = \"a\\qb\"\n"), "unknown escape '\\q'"));
+    CHECK(contains(error_of("x = \"a\\\nb\"\n"), "line 1, column 7: a backslash before '\\n' in a string"));
     CHECK(contains(error_of("x = \"a\x01\"\n"), "line 1, column 7: control character '\\x01' in a string"));
     CHECK(contains(error_of("x =\n"), "line 1, column 4: missing value"));
     CHECK(contains(error_of("= 1\n"), "line 1, column 1: unexpected '='; expected a key"));
