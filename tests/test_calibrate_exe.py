@@ -380,8 +380,11 @@ def test_usage_errors(files: dict[str, Path], args: tuple[str, ...], needle: str
     [
         ("robot", None, "no such file"),
         ("robot", 'name = "x"\n[hexapod]\nbase_joints = [1, 2]\n', "line 2: hexapod.leg_offsets: missing key"),
-        ("robot", 'name = "x"\nflag = true\n', "line 2: booleans are not supported"),
-        ("robot", "[hexapod\n", "line 1: expected ']'"),
+        ("robot", 'name = "x"\nflag = true\n', "line 2, column 8: booleans are not supported"),
+        ("robot", "[hexapod\n", "line 1, column 9: expected ']'"),
+        # A message stays on one line whatever it quotes (here a key with a newline in it).
+        ("robot", '"colo\\nur" = 1\n[hexapod]\n', "line 1: colo\\nur: unknown key"),
+        ("robot", 'name = "a\\\nb"\n', "line 1, column 10: a backslash before '\\n' in a string"),
         ("data", None, "no such file"),
         ("data", "# only a comment\n", "empty file"),
         ("data", "q1_mm,x_mm\n1,2\n", "line 1: missing columns"),
@@ -396,7 +399,7 @@ def test_bad_input_files(files: dict[str, Path], tmp_path: Path, name: str,
     proc = run_exe(*args, "--output", tmp_path / "r.json")
     assert proc.returncode == 1
     msg = one_line_error(proc)
-    assert f"{bad}: " in msg and needle in msg, msg
+    assert (f"{bad}: " in msg or f"{bad}, line" in msg) and needle in msg, msg
     assert not (tmp_path / "r.json").exists()
 
 
@@ -430,3 +433,204 @@ def test_csv_errors_name_line_and_column(files: dict[str, Path], tmp_path: Path)
     assert proc.returncode == 1
     msg = one_line_error(proc)
     assert f"line {header_at + 3}, column y_mm: 'abc' is not a number" in msg, msg
+
+
+# --- the same inputs accepted and refused as by the Python package ------------------------------
+#
+# iwr-calibrate must take exactly the files that `iwr calibrate` takes (iwr.Robot.from_toml, then
+# iwr.Measurements.from_csv(path, robot=robot)), and refuse the others with the same one-line
+# message. Each case edits the module's files the way a user's file goes wrong.
+
+
+def _data_case(files: dict[str, Path], case: str, out: Path) -> None:
+    text = files["data"].read_text()
+    lines = text.splitlines()
+    h = next(i for i, line in enumerate(lines) if line.startswith("q1"))
+
+    def cell(row: int, col: int, value: str) -> str:
+        edited = list(lines)
+        fields = edited[h + row].split(",")
+        fields[col] = value
+        edited[h + row] = ",".join(fields)
+        return "\n".join(edited) + "\n"
+
+    m = iwr.Measurements.from_csv(files["data"])
+    scaled = {"legs in metres": (1, 1, 1e-3), "positions in metres": (1, 1e-3, 1),
+              "everything in metres": (1, 1e-3, 1e-3), "joints in metres": (1e-3, 1, 1)}
+    if case in scaled:
+        fq, fp, fl = scaled[case]
+        q, poses = m.q.copy(), m.poses.copy()
+        q[:, :2] *= fq  # the prismatic joints
+        poses[:, :3] *= fp
+        iwr.Measurements(q, poses, m.legs * fl, joint_types=m.joint_types).to_csv(out)
+        return
+    if case == "angles in degrees":
+        poses = m.poses.copy()
+        poses[4, 3:] = np.degrees(poses[4, 3:]) + 360.0
+        iwr.Measurements(m.q, poses, m.legs, joint_types=m.joint_types).to_csv(out)
+        return
+    if case.startswith("weights"):
+        w = np.ones_like(m.legs)
+        iwr.Measurements(m.q, m.poses, m.legs, joint_types=m.joint_types, weights=w).to_csv(out)
+        wl = out.read_text().splitlines()
+        wh = next(i for i, line in enumerate(wl) if line.startswith("q1"))
+        fields = wl[wh + 3].split(",")
+        fields[-2] = {"weights nan": "nan", "weights text": "heavy", "weights empty": ""}[case]
+        wl[wh + 3] = ",".join(fields)
+        out.write_text("\n".join(wl) + "\n")
+        return
+    content: str | bytes = {
+        "nan cell": lambda: cell(3, 12, "nan"),
+        "nan in three rows": lambda: cell(3, 12, "nan").replace(
+            lines[h + 5], lines[h + 5].replace(",", ";", 1)).replace(
+            lines[h + 9], lines[h + 9] + ",1"),
+        "missing column": lambda: text.replace(",s6_mm", ""),
+        "unknown columns": lambda: text.replace("s6_mm", "s6_mm,w1,w2"),
+        "duplicated pose": lambda: "\n".join([*lines, lines[h + 3]]) + "\n",
+        "unreachable leg": lambda: cell(7, 11, "650.0"),
+        "unreachable joint": lambda: cell(2, 0, "99999.0"),
+        "empty file": lambda: "",
+        "header only": lambda: "# a comment\n" + lines[h] + "\n",
+        "not UTF-8": lambda: ("# café\n" + text).encode("latin-1"),
+        "byte order mark": lambda: b"\xef\xbb\xbf" + text.encode(),
+        "control character": lambda: cell(3, 5, "1\x0b5"),
+        "NUL byte": lambda: cell(3, 5, "1\x005"),
+    }[case]()
+    if isinstance(content, bytes):
+        out.write_bytes(content)
+    else:
+        out.write_text(content)
+
+
+def _python_error(robot: Path, data: Path) -> str | None:
+    """What iwr.Robot.from_toml and iwr.Measurements.from_csv say about the files (None: fine)."""
+    try:
+        iwr.Measurements.from_csv(data, robot=iwr.Robot.from_toml(robot))
+    except ValueError as exc:
+        return str(exc)
+    return None
+
+
+# The message, word for word as the Python package's.
+SAME_MESSAGE = [
+    "nan cell", "nan in three rows", "missing column", "unknown columns", "duplicated pose",
+    "unreachable leg", "unreachable joint", "legs in metres", "positions in metres",
+    "everything in metres", "joints in metres", "angles in degrees", "weights nan",
+    "weights text", "weights empty", "empty file", "header only", "byte order mark",
+    "control character", "NUL byte",
+]
+
+
+@pytest.mark.parametrize("case", SAME_MESSAGE)
+def test_bad_data_refused_with_the_python_message(files: dict[str, Path], tmp_path: Path,
+                                                   case: str) -> None:
+    bad = tmp_path / "bad.csv"
+    _data_case(files, case, bad)
+    expected = _python_error(files["robot"], bad)
+    assert expected is not None, f"the Python package accepts case {case!r}"
+    proc = run_exe(files["robot"], bad, "--output", tmp_path / "r.json")
+    assert proc.returncode == 1, proc.stderr
+    assert one_line_error(proc) == f"iwr-calibrate: error: {expected}"
+    assert not (tmp_path / "r.json").exists()
+
+
+@pytest.mark.parametrize(
+    ("case", "content", "needle"),
+    [
+        # Python: "cannot be read ('utf-8' codec can't decode byte 0xe9 in position 7 ...)".
+        ("data", b"# caf\xe9\n", "bad.csv, line 1, column 6: byte 0xe9 is not valid UTF-8"),
+        # Python: "weights: row 3, column 4 is negative" (no line).
+        ("data", "weights", "bad.csv, line {line}, column w5: '-1' is negative; weights must be >= 0"),
+        ("data", "folder", "bad.csv: is a folder, not a CSV file"),
+        # Python lets UnicodeDecodeError through here.
+        ("robot", b'name = "caf\xe9"\n', "bad.toml: line 1, column 12: byte 0xe9 is not valid UTF-8"),
+        ("robot", b"\xef\xbb\xbf", "bad.toml: line 1, column 1: the file starts with a byte order mark"),
+        ("robot", "folder", "bad.toml: is a folder, not a TOML file"),
+    ],
+)
+def test_bad_files_refused_where_python_refuses_them(files: dict[str, Path], tmp_path: Path,
+                                                      case: str, content: bytes | str,
+                                                      needle: str) -> None:
+    """Refused by both; the executable says more precisely where (line and column)."""
+    bad = tmp_path / ("bad.csv" if case == "data" else "bad.toml")
+    source = files["data"] if case == "data" else files["robot"]
+    if content == "folder":
+        bad.mkdir()
+    elif content == "weights":
+        m = iwr.Measurements.from_csv(files["data"])
+        w = np.ones_like(m.legs)
+        w[3, 4] = -1.0
+        # Python's Measurements refuses negative weights too: write the file by hand.
+        iwr.Measurements(m.q, m.poses, m.legs, joint_types=m.joint_types,
+                         weights=np.abs(w)).to_csv(bad)
+        lines = bad.read_text().splitlines()
+        h = next(i for i, line in enumerate(lines) if line.startswith("q1"))
+        fields = lines[h + 4].split(",")
+        fields[-2] = "-1"
+        lines[h + 4] = ",".join(fields)
+        bad.write_text("\n".join(lines) + "\n")
+        needle = needle.format(line=h + 5)
+    else:
+        assert isinstance(content, bytes)
+        bad.write_bytes(content + source.read_bytes())
+    args = (files["robot"], bad) if case == "data" else (bad, files["data"])
+    try:
+        refused_by_python = _python_error(*args) is not None
+    except (OSError, UnicodeDecodeError):
+        refused_by_python = True
+    assert refused_by_python
+    proc = run_exe(*args, "--output", tmp_path / "r.json")
+    assert proc.returncode == 1, proc.stderr
+    msg = one_line_error(proc)
+    assert needle in msg, msg
+
+
+def _robot_toml_other_forms(robot: iwr.Robot) -> str:
+    """The robot in the TOML forms that tomli-w does not write but tomllib reads."""
+    d = robot.to_dict()
+
+    def arr(v: object) -> str:
+        if isinstance(v, list):
+            return "[" + ", ".join(arr(x) for x in v) + "]"
+        return repr(float(v))  # type: ignore[arg-type]
+
+    joints = ",\n  ".join(
+        f"{{type = '{j['type']}', alpha = {arr(j['alpha'])}, a = {arr(j['a'])}, d = {arr(j['d'])}, "
+        f"theta = {arr(j['theta'])}, limits = {arr(j['limits'])}}}"
+        for j in d["carriage"]["joints"]
+    ).replace("a = 0.0,", "a = 0x0,")
+    hexa = "\n".join(f"hexapod.{k} = {arr(v)}" for k, v in d["hexapod"].items())
+    return (f'name = """\\\n    {d["name"]}"""\nunits = {{length = "mm", angle = \'\'\'rad\'\'\'}}\n'
+            f"carriage.joints = [\n  {joints},\n]\n{hexa}\n")
+
+
+def test_files_python_accepts_are_accepted(files: dict[str, Path], tmp_path: Path) -> None:
+    """Other spellings of the same files: the same robot and data (by their fingerprints)."""
+    def fingerprints(robot: Path, data: Path) -> tuple[str, str]:
+        assert _python_error(robot, data) is None
+        out = tmp_path / "fp.json"
+        proc = run_exe(robot, data, "--population-size", 10, "--generations", 1, "--output", out,
+                       "--quiet")
+        assert proc.returncode == 0, proc.stderr
+        s = iwr.load_result(out).settings
+        return s["robot_fingerprint"], s["data_fingerprint"]
+
+    reference = fingerprints(files["robot"], files["data"])
+    # The robot: inline tables, an array of them, dotted keys, multi-line strings, a hex integer.
+    other = tmp_path / "other.toml"
+    other.write_text(_robot_toml_other_forms(iwr.Robot.default()))
+    assert fingerprints(other, files["data"]) == reference
+    # The data: old Mac line ends, a value with underscores, Unicode digits and a no-break space,
+    # a line of Unicode whitespace.
+    text = files["data"].read_text()
+    lines = text.splitlines()
+    h = next(i for i, line in enumerate(lines) if line.startswith("q1"))
+    fields = lines[h + 2].split(",")
+    digits = f"{float(fields[2])!r}"
+    fields[2] = digits[:2] + "_" + digits[2:] if digits[1].isdigit() and digits[2].isdigit() else digits
+    fields[6] = f"{float(fields[6])!r}".translate(str.maketrans("0123456789", "０１２３４５６７８９")) + "\xa0"
+    lines[h + 2] = ",".join(fields)
+    lines.insert(h + 1, "\u3000\xa0")
+    data = tmp_path / "other.csv"
+    data.write_bytes("\r".join(lines).encode() + b"\r")
+    assert fingerprints(files["robot"], data) == reference

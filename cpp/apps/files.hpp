@@ -143,4 +143,34 @@ std::string json_string(const std::string& s);
 /// A CSV number: 17 significant digits, "inf"/"nan" as Python writes them.
 std::string csv_number(double v);
 
+// --- text as the Python package reads it ---------------------------------------------------------
+
+/// Decodes strict UTF-8, as Python's 'utf-8' codec does (no overlong forms, surrogates or code
+/// points above U+10FFFF). Returns std::string::npos when all is well, else the offset of the first
+/// byte that is not valid UTF-8 (`out` then holds what came before it).
+std::size_t decode_utf8(const std::string& bytes, std::u32string& out);
+void append_utf8(std::string& out, char32_t cp);
+std::string to_utf8(const std::u32string& s);
+/// "line L, column C: byte 0xNN is not valid UTF-8", for the byte at `offset` (line and column
+/// counted from 1, the column in characters).
+std::string utf8_error_at(const std::string& bytes, std::size_t offset);
+/// Python's str.isspace().
+bool py_space(char32_t c);
+/// True where Python's str.splitlines() ends a line (\r\n is one boundary: check it first).
+bool py_line_break(char32_t c);
+/// Python's str.strip().
+std::u32string py_strip(const std::u32string& s);
+/// The value of a Unicode decimal digit (category Nd, as Python's int() and float() read them),
+/// else -1.
+int py_decimal(char32_t c);
+/// Python's float() of a str: decimal notation with optional underscores between digits, any
+/// Unicode decimal digits, inf, infinity and nan in any case; false when it raises ValueError.
+bool py_float(const std::u32string& s, double& out);
+/// Python's repr() of a str: quoted as Python quotes it, with control and invisible characters
+/// escaped, so that a message quoting a file's contents stays on one line.
+std::string py_repr(const std::u32string& s);
+std::string py_repr(const std::string& utf8);
+/// Python's format(v, ".Ng") (the same as C's %.Ng for finite values).
+std::string py_g(double v, int digits);
+
 }  // namespace iwr::app

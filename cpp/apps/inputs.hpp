@@ -36,12 +36,21 @@ struct MeasurementFile {
     std::string joint_types;  // from the units of the q columns
     RowMatrixXd q, poses, legs;
     RowMatrixXd weights;      // empty when the file has no w columns
+    std::vector<int> lines;   // the line of each row in the file
     int n_poses() const { return static_cast<int>(poses.rows()); }
 };
 
-/// Reads a measurement CSV (the rules of iwr.Measurements.from_csv).
+/// Reads a measurement CSV with the rules of iwr.Measurements.from_csv, and the same messages:
+/// UTF-8 text, Python's line breaks, whitespace and float(); the header; every bad row (all of
+/// them named, none dropped); then the checks that need no robot: repeated poses, angles in
+/// degrees, lengths in metres. A negative weight is a bad row here, named by its line.
 MeasurementFile read_measurements(const std::string& path);
 MeasurementFile parse_measurements(const std::string& text, const std::string& file);
+
+/// The checks of iwr.Measurements.check against the robot (as `iwr calibrate` makes them): joint
+/// types, lengths in metres for the robot's size, unreachable poses (joint readings outside the
+/// limits, leg readings outside the stroke, by more than 1 % of the range).
+void check_measurements(const MeasurementFile& m, const RobotFile& robot, const std::string& file);
 
 /// Search bounds as iwr.Robot.default_bounds: "default" (+-0.5 mm, +-0.5 degree) or "paper"
 /// (Table 2: +-0.5 for every parameter).

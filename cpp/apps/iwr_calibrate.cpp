@@ -84,6 +84,30 @@ struct UsageError : std::runtime_error {
     using std::runtime_error::runtime_error;
 };
 
+// One line on standard error, whatever a message quotes (a key or a file name may hold a newline):
+// control characters and Unicode line separators escaped.
+std::string one_line(const std::string& msg) {
+    std::string out;
+    for (size_t i = 0; i < msg.size(); ++i) {
+        const unsigned char c = static_cast<unsigned char>(msg[i]);
+        const bool separator = (c == 0xE2 && i + 2 < msg.size() && static_cast<unsigned char>(msg[i + 1]) == 0x80 &&
+                                (static_cast<unsigned char>(msg[i + 2]) == 0xA8 ||
+                                 static_cast<unsigned char>(msg[i + 2]) == 0xA9)) ||
+                               (c == 0xC2 && i + 1 < msg.size() && static_cast<unsigned char>(msg[i + 1]) == 0x85);
+        if (c < 0x20 || c == 0x7f) {
+            char buf[8];
+            std::snprintf(buf, sizeof buf, "\\x%02x", c);
+            out += c == '\n' ? "\\n" : c == '\r' ? "\\r" : c == '\t' ? "\\t" : buf;
+        } else if (separator) {
+            out += c == 0xC2 ? "\\x85" : static_cast<unsigned char>(msg[i + 2]) == 0xA8 ? "\\u2028" : "\\u2029";
+            i += c == 0xC2 ? 1 : 2;
+        } else {
+            out += msg[i];
+        }
+    }
+    return out;
+}
+
 // --- command line -------------------------------------------------------------------------------
 
 const char* const kHelp = R"(usage: iwr-calibrate ROBOT.toml DATA.csv [options]
@@ -674,10 +698,7 @@ int run(const Options& o) {
     const std::string& data_path = o.positional[1];
     const iwr::app::RobotFile robot = iwr::app::read_robot(robot_path);
     const iwr::app::MeasurementFile data = iwr::app::read_measurements(data_path);
-    if (data.joint_types != robot.joint_types)
-        throw InputError(data_path + ": joint types '" + data.joint_types +
-                         "' (from the units of the q columns) do not match robot '" + robot.name +
-                         "' ('" + robot.joint_types + "' in " + robot_path + ")");
+    iwr::app::check_measurements(data, robot, data_path);  // as `iwr calibrate` checks them
     std::optional<iwr::Objective> objective;
     try {
         objective.emplace(robot.geometry(), data.q, data.poses, data.legs, data.weights);
@@ -699,7 +720,7 @@ int run(const Options& o) {
         const std::string& path = *o.resume;
         iwr::app::Checkpoint c;
         try {
-            c = iwr::app::decode_checkpoint(iwr::app::read_file(path));
+            c = iwr::app::decode_checkpoint(iwr::app::read_file(path, "a checkpoint"));
         } catch (const InputError&) {
             throw;
         } catch (const std::runtime_error& e) {
@@ -882,13 +903,13 @@ int main(int argc, char** argv) {
         }
         return run(o);
     } catch (const UsageError& e) {
-        std::fprintf(stderr, "%s: error: %s (see %s --help)\n", kProgram, e.what(), kProgram);
+        std::fprintf(stderr, "%s: error: %s (see %s --help)\n", kProgram, one_line(e.what()).c_str(), kProgram);
         return kExitUsage;
     } catch (const std::bad_alloc&) {
         std::fprintf(stderr, "%s: error: out of memory\n", kProgram);
         return kExitError;
     } catch (const std::exception& e) {
-        std::fprintf(stderr, "%s: error: %s\n", kProgram, e.what());
+        std::fprintf(stderr, "%s: error: %s\n", kProgram, one_line(e.what()).c_str());
         return kExitError;
     } catch (...) {
         std::fprintf(stderr, "%s: error: unexpected internal error\n", kProgram);

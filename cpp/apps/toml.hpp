@@ -1,8 +1,9 @@
-// A strict reader for the subset of TOML that iwr writes (iwr.Robot.to_toml, through tomli-w):
-// [tables], [[arrays of tables]], key = value with numbers (integers and floats, inf and nan
-// included), basic and literal one-line strings, arrays (nested, multi-line, trailing comma),
-// and comments. Everything else (booleans, dates, inline tables, multi-line strings, dotted keys
-// on the left of '=') is refused with an error naming the file and line, never guessed at.
+// A strict TOML 1.0 reader for the robot files, accepting what Python's tomllib accepts there:
+// [tables], [[arrays of tables]], dotted keys, inline tables, numbers (decimal, hexadecimal,
+// octal and binary integers, floats, inf and nan), the four kinds of strings, arrays (nested,
+// multi-line, trailing comma) and comments, in UTF-8 without a byte order mark. Booleans and
+// dates, which no key of a robot file takes, are refused at once. Every error names the file and
+// line (and column, for a syntax error), never guessed at.
 #pragma once
 
 #include <memory>
@@ -27,7 +28,9 @@ struct TomlValue {
     std::string string;
     std::vector<TomlValue> items;  // Array and TableArray (whose items are Tables)
     std::vector<std::pair<std::string, TomlValue>> entries;  // Table, in file order
-    bool defined = false;        // a Table given its own [header] (or the root)
+    bool defined = false;        // a Table given its own [header] (or the root), or inline
+    bool frozen = false;         // an inline table: nothing may be added to it later
+    int nest_section = -1;       // a Table made by dotted keys: in which [section] (-2: inline)
 
     const TomlValue* find(const std::string& key) const;
     TomlValue* find(const std::string& key);
@@ -40,7 +43,8 @@ TomlValue parse_toml(const std::string& text, const std::string& file);
 /// Reads and parses a file. Throws InputError ("FILE: no such file", ...).
 TomlValue read_toml(const std::string& path);
 
-/// Reads a whole file as bytes. Throws InputError naming the file.
-std::string read_file(const std::string& path);
+/// Reads a whole file as bytes. Throws InputError naming the file ("FILE: no such file", "FILE: is
+/// a folder, not KIND", ...).
+std::string read_file(const std::string& path, const char* kind = "a file");
 
 }  // namespace iwr::app
