@@ -307,11 +307,21 @@ class Robot:
                 data = tomllib.load(fh)
         except FileNotFoundError:
             raise RobotFileError(f"{path}: no such file") from None
+        except IsADirectoryError:
+            raise RobotFileError(f"{path}: is a folder, not a robot TOML file") from None
+        except UnicodeDecodeError as exc:
+            line = exc.object[: exc.start].count(b"\n") + 1
+            raise RobotFileError(
+                f"{path}, line {line}: not UTF-8 (byte {exc.object[exc.start]:#04x}); TOML files "
+                "are UTF-8"
+            ) from None
         except tomllib.TOMLDecodeError as exc:
             raise RobotFileError(f"{path}: not valid TOML: {exc}") from None
+        except OSError as exc:
+            raise RobotFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
         try:
             return cls.from_dict(data)
-        except (KeyError, ValueError, TypeError) as exc:
+        except (KeyError, ValueError, TypeError, OverflowError) as exc:
             msg = exc.args[0] if exc.args else str(exc)
             raise RobotFileError(f"{path}: {msg}") from None
 
@@ -402,8 +412,13 @@ def _check_keys(table: Any, allowed: set[str], required: set[str], where: str) -
 def _number(value: Any, where: str) -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ValueError(f"{where}: expected a number, got {type(value).__name__} {value!r}")
-    if not math.isfinite(value):
-        raise ValueError(f"{where}: {value} is not finite")
+    try:
+        finite = math.isfinite(value)  # an integer beyond a double's range raises
+    except OverflowError:
+        finite = False
+    if not finite:
+        shown = value if isinstance(value, float) else f"an integer of {len(str(value))} digits"
+        raise ValueError(f"{where}: {shown} is not a finite double")
     return float(value)
 
 

@@ -367,6 +367,8 @@ def test_help_documents_options_and_exit_codes() -> None:
         (("{robot}", "{data}", "--generations"), "--generations: expected a value"),
         (("{robot}", "{data}", "--preset", "fast"), "--preset"),
         (("{robot}", "{data}", "--population-size", "2"), "population"),
+        (("{robot}", "{data}", "--population-size", "50", "--max-evaluations", "49"),
+         "--max-evaluations: 49; the initial population alone takes population_size (50)"),
     ],
 )
 def test_usage_errors(files: dict[str, Path], args: tuple[str, ...], needle: str) -> None:

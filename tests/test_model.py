@@ -325,6 +325,10 @@ def test_toml_round_trip(tmp_path, robot):
         (lambda t: t.replace("alpha = 1.5707963267948966", 'alpha = "90deg"', 1),
          r"joints\[0\].alpha"),
         (lambda t: t.replace("[hexapod]", "[hexapod\n"), "not valid TOML"),
+        (lambda t: t.replace("alpha = 1.5707963267948966", "alpha = " + "9" * 400, 1),
+         r"joints\[0\].alpha: an integer of 400 digits is not a finite double"),
+        (lambda t: t.replace("alpha = 1.5707963267948966", "alpha = -inf", 1),
+         r"joints\[0\].alpha: -inf is not a finite double"),
     ],
 )
 def test_bad_toml_names_the_key(tmp_path, robot, edit, message):
@@ -339,6 +343,19 @@ def test_bad_toml_names_the_key(tmp_path, robot, edit, message):
 def test_missing_toml():
     with pytest.raises(iwr.RobotFileError, match="no such file"):
         iwr.Robot.from_toml("/nonexistent/robot.toml")
+
+
+def test_unreadable_toml_names_the_file(tmp_path, robot):
+    with pytest.raises(iwr.RobotFileError, match="is a folder"):
+        iwr.Robot.from_toml(tmp_path)
+    path = tmp_path / "robot.toml"
+    robot.to_toml(path)
+    text = path.read_bytes().replace(b'name = "IWR"', b'name = "IWR\xe9"')  # Latin-1
+    path.write_bytes(text)
+    line = text[: text.index(b"\xe9")].count(b"\n") + 1
+    with pytest.raises(iwr.RobotFileError,
+                       match=rf"robot.toml, line {line}: not UTF-8 \(byte 0xe9\)"):
+        iwr.Robot.from_toml(path)
 
 
 # -- measurements --------------------------------------------------------------------------------

@@ -814,6 +814,14 @@ int run(const Options& o) {
     if (info.generations) stop.max_generations = *info.generations;
     if (info.max_evaluations) stop.max_evaluations = *info.max_evaluations;
     if (info.target_cost) stop.target_cost = *info.target_cost;
+    if (!o.resume) {
+        try {
+            de::require_budget_for_init(state->settings, stop);
+        } catch (const std::invalid_argument& e) {
+            std::string msg = e.what();  // "max_evaluations: ..." -> "--max-evaluations: ..."
+            throw UsageError("--max-evaluations" + msg.substr(msg.find(':')));
+        }
+    }
 
     de::ObjectiveFunction f(*objective);
     // The pool's threads start with our signals blocked, so the handlers always run on this thread,
