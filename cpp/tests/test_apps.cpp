@@ -8,6 +8,7 @@
 #include <string>
 #include <vector>
 
+#include "check.hpp"
 #include "checkpoint.hpp"
 #include "files.hpp"
 #include "inputs.hpp"
@@ -15,16 +16,6 @@
 #include "toml.hpp"
 
 namespace {
-
-int failures = 0;
-
-#define CHECK(cond)                                                                    \
-    do {                                                                               \
-        if (!(cond)) {                                                                 \
-            std::fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
-            ++failures;                                                                \
-        }                                                                              \
-    } while (0)
 
 using iwr::app::InputError;
 
@@ -392,10 +383,5 @@ int main() {
     test_csv_against_robot();
     test_checkpoint_refuses_damage();
     test_json_and_hash();
-    if (failures) {
-        std::fprintf(stderr, "%d check(s) failed\n", failures);
-        return 1;
-    }
-    std::printf("all iwr-calibrate file checks passed\n");
-    return 0;
+    return iwr_test::finish("all iwr-calibrate file checks passed");
 }

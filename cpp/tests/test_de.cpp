@@ -7,19 +7,10 @@
 #include <stdexcept>
 #include <string>
 
+#include "check.hpp"
 #include "iwr/de.hpp"
 
 namespace {
-
-int failures = 0;
-
-#define CHECK(cond)                                                                    \
-    do {                                                                               \
-        if (!(cond)) {                                                                 \
-            std::fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
-            ++failures;                                                                \
-        }                                                                              \
-    } while (0)
 
 using iwr::de::Strategy;
 
@@ -259,10 +250,5 @@ int main() {
     test_solves_sphere();
     test_damaged_states();
     test_validation();
-    if (failures) {
-        std::fprintf(stderr, "%d check(s) failed\n", failures);
-        return 1;
-    }
-    std::printf("all DE checks passed\n");
-    return 0;
+    return iwr_test::finish("all DE checks passed");
 }

@@ -7,22 +7,13 @@
 #include <stdexcept>
 #include <string>
 
+#include "check.hpp"
 #include "iwr/forward.hpp"
 #include "iwr/model.hpp"
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
 
 namespace {
-
-int failures = 0;
-
-#define CHECK(cond)                                                                    \
-    do {                                                                               \
-        if (!(cond)) {                                                                 \
-            std::fprintf(stderr, "%s:%d: CHECK failed: %s\n", __FILE__, __LINE__, #cond); \
-            ++failures;                                                                \
-        }                                                                              \
-    } while (0)
 
 iwr::Geometry iwr_geometry(bool with_carriage) {
     const double h = M_PI / 2;
@@ -251,10 +242,5 @@ int main() {
     test_pool_propagates_exceptions();
     test_validation();
     test_forward_kinematics();
-    if (failures) {
-        std::fprintf(stderr, "%d check(s) failed\n", failures);
-        return 1;
-    }
-    std::printf("all C++ checks passed\n");
-    return 0;
+    return iwr_test::finish("all C++ checks passed");
 }
