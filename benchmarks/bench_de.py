@@ -18,13 +18,17 @@ API:
 Generation rates are measured as (G2 - G1) / (t(G2) - t(G1)) from two runs of G1 and G2 generations,
 which cancels the set-up (problem construction, initial population) out of every library's figure.
 Ratios come from the same invocation of this script, one after the other. Runs are timed in wall
-time; "cores obtained" (process CPU time / wall time) shows contention from other processes.
+time; "cores obtained" (process CPU time / wall time) shows contention from other processes, and
+"other processes" the CPU the rest of the machine used meanwhile (from /proc/stat).
 
 Usage::
 
     python benchmarks/bench_de.py [--quick] [--no-full] [--out benchmarks/results]
 
-``--no-full`` skips the measured full paper run (about 20 s on 2 threads, 40 s on 1 thread here).
+``--no-full`` skips the measured full paper run (about 17 s on 2 threads, 22 s on 1 thread on the
+2-core machine of BENCHMARKS.md). The projection from generations G1..G2 is pessimistic: a run
+speeds up as its population contracts (fewer mutant components leave the bounds and need repair),
+so the measured full run also prints its own rate over windows of generations.
 """
 
 from __future__ import annotations
@@ -41,6 +45,7 @@ from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
 import scipy  # noqa: E402
+from _load import OtherLoad  # noqa: E402
 from scipy.optimize import differential_evolution as scipy_de  # noqa: E402
 
 import iwr  # noqa: E402
@@ -66,12 +71,18 @@ def timed(fn) -> tuple[float, float]:
 def rate(run, g1: int, g2: int, repeats: int) -> dict:
     """Generations per second from runs of g1 and g2 generations (median of `repeats` pairs)."""
     rates, cores = [], []
-    for _ in range(repeats):
-        w1, c1 = timed(lambda: run(g1))
-        w2, c2 = timed(lambda: run(g2))
-        rates.append((g2 - g1) / max(w2 - w1, 1e-9))
-        cores.append((c2 - c1) / max(w2 - w1, 1e-9))
-    return {"gen_per_s": float(np.median(rates)), "cores": float(np.median(cores)), "all": rates}
+    with OtherLoad() as other:
+        for _ in range(repeats):
+            w1, c1 = timed(lambda: run(g1))
+            w2, c2 = timed(lambda: run(g2))
+            rates.append((g2 - g1) / max(w2 - w1, 1e-9))
+            cores.append((c2 - c1) / max(w2 - w1, 1e-9))
+    return {
+        "gen_per_s": float(np.median(rates)),
+        "cores": float(np.median(cores)),
+        "all": rates,
+        "other_processes_cores": other.cores,
+    }
 
 
 def iwr_runner(robot, data, workers: int):
@@ -189,13 +200,13 @@ def main() -> None:
         r = results[key]
         size = np_ or r["NP"]
         us = 1e6 / (r["gen_per_s"] * size)
-        rows.append((label, r["gen_per_s"], size, us, r["cores"], key))
+        rows.append((label, r["gen_per_s"], size, us, r["cores"], r["other_processes_cores"], key))
     print(
         "\n| run | generations/s | NP | us per individual | iwr (same threads) is faster by |"
-        " cores obtained |"
+        " cores obtained | other processes (cores) |"
     )
-    print("|---|---|---|---|---|---|")
-    for label, gps, size, us, cores, key in rows:
+    print("|---|---|---|---|---|---|---|")
+    for label, gps, size, us, cores, others, key in rows:
         threads = key.split("_")[1]
         mine = results[f"iwr_{threads}"]
         ratio = mine["gen_per_s"] / gps
@@ -205,10 +216,21 @@ def main() -> None:
             if key.startswith("iwr")
             else f"{ratio:.1f}x per generation, {per_eval:.1f}x per evaluation"
         )
-        print(f"| {label} | {gps:.1f} | {size} | {us:.2f} | {vs} | {cores:.2f} |")
+        oth = "?" if others is None else f"{others:.2f}"
+        print(f"| {label} | {gps:.1f} | {size} | {us:.2f} | {vs} | {cores:.2f} | {oth} |")
     s2 = results["iwr_2"]["gen_per_s"] / results["iwr_1"]["gen_per_s"]
     results["speedup_2_threads"] = s2
     print(f"\niwr: 2 threads are {s2:.2f}x as fast as 1")
+    # Each library at its best on this machine (pygmo's de has a single serial mode).
+    best_iwr = max(results["iwr_1"]["gen_per_s"], results["iwr_2"]["gen_per_s"])
+    for lib, keys in [("SciPy", ("scipy_1", "scipy_2")), ("pygmo", ("pygmo_1",))]:
+        have = [results[k]["gen_per_s"] for k in keys if k in results]
+        if have:
+            results[f"best_vs_{lib.lower()}"] = best_iwr / max(have)
+            print(
+                f"iwr at its best ({best_iwr:.1f} gen/s) / {lib} at its best ({max(have):.1f} "
+                f"gen/s): {best_iwr / max(have):.1f}x per generation"
+            )
 
     # Where the time goes: the objective alone at NP = 600 (cost_batch) against the DE generation.
     X = np.random.default_rng(0).uniform(p.lower, p.upper, (NP, p.n_params))
@@ -240,16 +262,29 @@ def main() -> None:
                 nonlocal res
                 res = iwr_runner(robot, data, w)(PAPER_GENERATIONS)
 
-            wall, cpu = timed(full)
+            with OtherLoad() as other:
+                wall, cpu = timed(full)
             results[f"paper_measured_{w}"] = {
                 "wall": wall,
                 "cores": cpu / wall,
+                "other_processes_cores": other.cores,
                 "best": res.fun,
                 "nfev": res.nfev,
             }
             print(
-                f"  measured, {w} thread(s): {wall:.1f} s wall ({cpu / wall:.2f} cores obtained),"
+                f"  measured, {w} thread(s): {wall:.1f} s wall ({cpu / wall:.2f} cores obtained, "
+                f"other processes {other}),"
                 f" best cost {res.fun:.3e} after {res.nfev} evaluations"
+            )
+            g, el = np.asarray(res.history["generation"]), np.asarray(res.history["elapsed"])
+            windows = [(0, 3500), (3500, 20000), (20000, 40000), (40000, PAPER_GENERATIONS)]
+            rates = [float((g[b] - g[a]) / (el[b] - el[a])) for a, b in windows if b < len(g)]
+            results[f"paper_measured_{w}"]["gen_per_s_windows"] = dict(
+                zip([f"{a}-{b}" for a, b in windows], rates, strict=False)
+            )
+            print(
+                "    generations/s over generations "
+                + ", ".join(f"{a}-{b}: {r:.0f}" for (a, b), r in zip(windows, rates, strict=False))
             )
     results["load_average_at_end"] = os.getloadavg()[0]
     print(f"\nload average at end: {results['load_average_at_end']:.2f}")

@@ -15,7 +15,10 @@ What is timed
 Each figure is the median of several repetitions. Single-thread figures are given in wall time and
 in CPU time of the calling thread: the machine may be shared, and CPU time excludes time the thread
 spent waiting for a core. Multi-thread figures are wall time; "cores obtained" = process CPU time /
-wall time shows how many cores the run actually had.
+wall time shows how many cores the run actually had. The thread pool's fixed cost per call (waking
+the worker thread and waiting for it) is measured as cost_batch of 2 rows on 2 threads minus on 1.
+After each table, "other processes meanwhile" is the CPU the rest of the machine used (in cores,
+from /proc/stat): a figure measured beside a busy neighbour is not this code's.
 
 The floor
 ---------
@@ -54,10 +57,11 @@ import time  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import numpy as np  # noqa: E402
-from iwr._core import _bench  # noqa: E402
+from _load import OtherLoad  # noqa: E402
 
 import iwr  # noqa: E402
 from iwr import _core  # noqa: E402
+from iwr._core import _bench  # noqa: E402
 
 NP = 600
 N = 100
@@ -381,14 +385,28 @@ def scaling_np(repeats: int, quick: bool) -> dict:
 
 
 def scaling_threads(repeats: int) -> dict:
+    """Wall time of one cost_batch call on 1-4 threads, for the DE's NP = 600 and a large batch
+    (where the pool's fixed cost of waking its threads no longer counts)."""
     p, _ = problem_for(N)
-    X = population(p, NP)
-    out = {"threads": [1, 2, 3, 4], "wall": [], "cores": []}
-    for w in out["threads"]:
-        t = timed(lambda w=w: p.cost_batch(X, workers=w), repeats)
-        out["wall"].append(t["wall"])
-        out["cores"].append(t["cores"])
+    out = {"threads": [1, 2, 3, 4], "NP": [NP, 20000], "wall": {}, "cores": {}}
+    for size in out["NP"]:
+        X = population(p, size)
+        walls, cores = [], []
+        for w in out["threads"]:
+            t = timed(lambda w=w, X=X: p.cost_batch(X, workers=w), repeats)
+            walls.append(t["wall"])
+            cores.append(t["cores"])
+        out["wall"][str(size)], out["cores"][str(size)] = walls, cores
     return out
+
+
+def pool_round_trip(repeats: int) -> dict:
+    """The pool's fixed cost: cost_batch of 2 rows on 2 threads (one row each, waking the worker
+    and waiting for it) against 1 thread (no hand-over)."""
+    p, _ = problem_for(N)
+    X = population(p, 2)
+    t = {w: timed(lambda w=w: p.cost_batch(X, workers=w), repeats * 50)["wall"] for w in (1, 2)}
+    return {"wall_1": t[1], "wall_2": t[2], "round_trip": t[2] - t[1]}
 
 
 def plots(sn: dict, snp: dict, sth: dict, out: Path, floor_ns_per_pose: float) -> list[Path]:
@@ -435,17 +453,14 @@ def plots(sn: dict, snp: dict, sth: dict, out: Path, floor_ns_per_pose: float) -
     plt.close(fig)
 
     fig, ax = plt.subplots(figsize=(6, 4))
-    rate = [NP / t for t in sth["wall"]]
-    ax.plot(sth["threads"], [r / 1e6 for r in rate], "o-", label="measured")
-    ax.plot(
-        sth["threads"],
-        [rate[0] / 1e6 * min(t, 2) for t in sth["threads"]],
-        "k--",
-        label="linear up to 2 cores",
-    )
+    for size in sth["NP"]:
+        walls = sth["wall"][str(size)]
+        ax.plot(sth["threads"], [walls[0] / w for w in walls], "o-", label=f"NP = {size}")
+    ideal = [min(t, 2) for t in sth["threads"]]
+    ax.plot(sth["threads"], ideal, "k--", label="linear up to 2 cores")
     ax.set_xlabel("threads (the machine has 2 cores)")
-    ax.set_ylabel("million evaluations per second")
-    ax.set_title(f"Problem.cost_batch, NP = {NP}, N = {N}")
+    ax.set_ylabel("speed-up over 1 thread (wall time)")
+    ax.set_title(f"Problem.cost_batch, N = {N}")
     ax.set_xticks(sth["threads"])
     ax.grid(True, alpha=0.3)
     ax.legend()
@@ -472,7 +487,10 @@ def main() -> None:
     repeats = args.repeats or (3 if args.quick else 21)
     args.out.mkdir(parents=True, exist_ok=True)
 
-    machine = machine_info()
+    other: dict[str, float | None] = {}
+    with OtherLoad() as o:
+        machine = machine_info()
+    other["machine"] = o.cores
     peaks = machine["peak_gflops_per_core"]
     print(
         f"machine: {machine['cpu']}, {machine['cores']} cores, "
@@ -488,11 +506,17 @@ def main() -> None:
     )
     print(f"kernel variants: {machine['kernel_variants']}, in use: {machine['kernel_in_use']}\n")
 
-    per_eval, text = per_evaluation(repeats, machine)
-    print(text, "\n")
-    batch, text = batches(repeats)
-    print(text, "\n")
-    sn = scaling_n(max(3, repeats // 3), args.quick)
+    with OtherLoad() as o:
+        per_eval, text = per_evaluation(repeats, machine)
+    other["per_evaluation"] = o.cores
+    print(f"{text}\nother processes meanwhile: {o}\n")
+    with OtherLoad() as o:
+        batch, text = batches(repeats)
+    other["batches"] = o.cores
+    print(f"{text}\nother processes meanwhile: {o}\n")
+    with OtherLoad() as o:
+        sn = scaling_n(max(3, repeats // 3), args.quick)
+    other["scaling_N"] = o.cores
     print(
         table(
             [
@@ -501,9 +525,11 @@ def main() -> None:
             ],
             ["N", "iwr us/eval", "Eigen us/eval", "NumPy us/eval", "iwr ns/pose"],
         ),
-        "\n",
+        f"\nother processes meanwhile: {o}\n",
     )
-    snp = scaling_np(max(3, repeats // 3), args.quick)
+    with OtherLoad() as o:
+        snp = scaling_np(max(3, repeats // 3), args.quick)
+    other["scaling_NP"] = o.cores
     print(
         table(
             [
@@ -512,18 +538,34 @@ def main() -> None:
             ],
             ["NP", "us/eval, 1 thread", "us/eval, 2 threads"],
         ),
-        "\n",
+        f"\nother processes meanwhile: {o}\n",
     )
-    sth = scaling_threads(repeats)
+    with OtherLoad() as o:
+        sth = scaling_threads(repeats)
+        rt = pool_round_trip(repeats)
+    other["scaling_threads"] = o.cores
     print(
         table(
             [
-                [str(t), f"{NP / w / 1e6:.2f}", f"{sth['wall'][0] / w:.2f}x", f"{c:.2f}"]
-                for t, w, c in zip(sth["threads"], sth["wall"], sth["cores"], strict=True)
+                [
+                    str(size),
+                    str(t),
+                    f"{size / w / 1e6:.2f}",
+                    f"{sth['wall'][str(size)][0] / w:.2f}x",
+                    f"{c:.2f}",
+                ]
+                for size in sth["NP"]
+                for t, w, c in zip(
+                    sth["threads"], sth["wall"][str(size)], sth["cores"][str(size)], strict=True
+                )
             ],
-            ["threads", "M evals/s", "speed-up", "cores obtained"],
+            ["NP", "threads", "M evals/s", "speed-up", "cores obtained"],
         ),
-        "\n",
+    )
+    print(
+        f"thread pool round trip (cost_batch of 2 rows, 2 threads {rt['wall_2'] * 1e6:.1f} us "
+        f"- 1 thread {rt['wall_1'] * 1e6:.1f} us): {rt['round_trip'] * 1e6:.1f} us per call\n"
+        f"other processes meanwhile: {o}\n"
     )
     best = peaks[machine["kernel_in_use"]]["mul_add"]
     files = plots(sn, snp, sth, args.out, flops_per_pose("PPRR", False) / best)
@@ -537,6 +579,8 @@ def main() -> None:
                 "scaling_N": sn,
                 "scaling_NP": snp,
                 "scaling_threads": sth,
+                "pool_round_trip": rt,
+                "other_processes_cores": other,
             },
             indent=1,
         )
