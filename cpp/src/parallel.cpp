@@ -1,8 +1,42 @@
 #include "iwr/parallel.hpp"
 
 #include <algorithm>
+#include <chrono>
 
 namespace iwr {
+
+namespace {
+
+inline void cpu_relax() {
+#if defined(__x86_64__) || defined(__i386__)
+    __builtin_ia32_pause();
+#else
+    std::this_thread::yield();
+#endif
+}
+
+// Spins until done() or kSpinMicroseconds have passed; true if done() became true.
+template <class Done>
+bool spin_until(Done done) {
+    using Clock = std::chrono::steady_clock;
+    const auto limit = Clock::now() + std::chrono::microseconds(ThreadPool::kSpinMicroseconds);
+    for (;;) {
+        for (int k = 0; k < 64; ++k) {
+            if (done()) return true;
+            cpu_relax();
+        }
+        if (Clock::now() >= limit) return done();
+    }
+}
+
+void chunk(std::size_t n, int parts, int id, std::size_t& begin, std::size_t& end) {
+    const std::size_t p = static_cast<std::size_t>(parts);
+    const std::size_t base = n / p, extra = n % p, i = static_cast<std::size_t>(id);
+    begin = i * base + std::min(i, extra);
+    end = begin + base + (i < extra ? 1 : 0);
+}
+
+}  // namespace
 
 int ThreadPool::resolve(int threads) {
     if (threads > 0) return threads;
@@ -18,32 +52,27 @@ ThreadPool::ThreadPool(int threads) {
 ThreadPool::~ThreadPool() {
     {
         std::lock_guard<std::mutex> lock(mutex_);
-        stop_ = true;
+        stop_.store(true, std::memory_order_release);
     }
     start_cv_.notify_all();
     for (auto& w : workers_) w.join();
 }
 
-static void chunk(std::size_t n, int parts, int id, std::size_t& begin, std::size_t& end) {
-    const std::size_t p = static_cast<std::size_t>(parts);
-    const std::size_t base = n / p, extra = n % p, i = static_cast<std::size_t>(id);
-    begin = i * base + std::min(i, extra);
-    end = begin + base + (i < extra ? 1 : 0);
-}
-
 void ThreadPool::worker_loop(int id) {
     unsigned long seen = 0;
     for (;;) {
-        const std::function<void(std::size_t, std::size_t, int)>* job;
-        std::size_t n;
-        {
+        const auto posted = [&] {
+            return stop_.load(std::memory_order_acquire) ||
+                   generation_.load(std::memory_order_acquire) != seen;
+        };
+        if (!spin_until(posted)) {
             std::unique_lock<std::mutex> lock(mutex_);
-            start_cv_.wait(lock, [&] { return stop_ || generation_ != seen; });
-            if (stop_) return;
-            seen = generation_;
-            job = job_;
-            n = n_;
+            start_cv_.wait(lock, posted);
         }
+        if (stop_.load(std::memory_order_acquire)) return;
+        seen = generation_.load(std::memory_order_acquire);
+        const auto* job = job_;
+        const std::size_t n = n_;
         std::size_t b, e;
         chunk(n, size(), id, b, e);
         try {
@@ -52,9 +81,10 @@ void ThreadPool::worker_loop(int id) {
             std::lock_guard<std::mutex> lock(mutex_);
             if (!error_) error_ = std::current_exception();
         }
-        {
+        if (pending_.fetch_sub(1, std::memory_order_acq_rel) == 1) {
+            // The caller may be asleep on done_cv_: the lock orders this notify after its check.
             std::lock_guard<std::mutex> lock(mutex_);
-            if (--pending_ == 0) done_cv_.notify_one();
+            done_cv_.notify_one();
         }
     }
 }
@@ -69,11 +99,11 @@ void ThreadPool::parallel_for(std::size_t n,
         std::lock_guard<std::mutex> lock(mutex_);
         job_ = &fn;
         n_ = n;
-        pending_ = static_cast<int>(workers_.size());
         error_ = nullptr;
-        ++generation_;
+        pending_.store(static_cast<int>(workers_.size()), std::memory_order_relaxed);
+        generation_.fetch_add(1, std::memory_order_release);  // publishes job_, n_, pending_
     }
-    start_cv_.notify_all();
+    start_cv_.notify_all();  // for workers that stopped spinning
     std::exception_ptr mine;
     std::size_t b, e;
     chunk(n, size(), 0, b, e);
@@ -82,10 +112,14 @@ void ThreadPool::parallel_for(std::size_t n,
     } catch (...) {
         mine = std::current_exception();
     }
+    const auto done = [&] { return pending_.load(std::memory_order_acquire) == 0; };
     std::exception_ptr theirs;
-    {
+    if (!spin_until(done)) {
         std::unique_lock<std::mutex> lock(mutex_);
-        done_cv_.wait(lock, [&] { return pending_ == 0; });
+        done_cv_.wait(lock, done);
+    }
+    {
+        std::lock_guard<std::mutex> lock(mutex_);
         theirs = error_;
         job_ = nullptr;
     }
