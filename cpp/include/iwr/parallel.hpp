@@ -8,6 +8,8 @@
 // variable. Waking a sleeping thread on another core costs tens of microseconds on some virtual
 // machines (32-49 us measured on the development VM, benchmarks/handover.cpp), against 0.1-0.2 us
 // for a spinning one, and DE hands work over twice per generation of a third of a millisecond.
+// The spin yields the processor between polls, and a pool with more threads than the machine has
+// hardware threads does not spin at all (a spinning thread would take a core from a working one).
 #pragma once
 
 #include <atomic>
@@ -39,7 +41,7 @@ public:
     static int resolve(int threads);
 
     /// How long a thread spins waiting for work (or for the workers) before it sleeps.
-    static constexpr int kSpinMicroseconds = 200;
+    static constexpr int kSpinMicroseconds = 100;
 
 private:
     void worker_loop(int id);
@@ -53,6 +55,7 @@ private:
     std::atomic<unsigned long> generation_{0};
     std::atomic<int> pending_{0};
     std::atomic<bool> stop_{false};
+    bool spin_ = true;  // false when oversubscribed
     std::exception_ptr error_;  // guarded by mutex_
 };
 
