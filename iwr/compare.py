@@ -367,7 +367,11 @@ def _check_de_budget(robot: Robot, n_poses: int, names: list[str], budget: int,
             res = identify(robot, data, "de", x0=np.zeros(robot.n_params), seed=0,
                            progress=False, **{**opts, "generations": 0})
         except (ValueError, TypeError) as exc:
-            raise ValueError(f"method {spec!r}: {exc}") from None
+            hint = ""
+            if "initial population" in str(exc):
+                hint = (f"; raise the budget or give a smaller population_size in "
+                        f"method_options={{{spec!r}: {{...}}}}")
+            raise ValueError(f"method {spec!r}: {exc}{hint}") from None
         st = dict(res.settings)
         if st["population_size"] > budget:
             raise ValueError(

@@ -312,7 +312,8 @@ def differential_evolution(
     func : callable
         ``func(X)`` with ``X`` an (M, D) float array, one candidate per row, returns M costs. It is
         called once per generation with the whole population (M = NP; the initial population is
-        the first call). NaN costs count as +infinity.
+        the first call), except that the last generation of an evaluation budget
+        (``max_evaluations``) may pass fewer rows. NaN costs count as +infinity.
     bounds : sequence of (min, max) pairs, or scipy.optimize.Bounds
         The search box; finite, ``min < max``.
     strategy : str
@@ -461,11 +462,6 @@ def de_method(
         if generations is None:
             generations = PAPER_PRESET["generations"]
     reduced = ReducedProblem(problem, active, x0)
-    if polish and 6 * problem.n_poses < reduced.n:
-        raise ValueError(
-            f"polish: {6 * problem.n_poses} residuals for {reduced.n} parameters; "
-            "Levenberg-Marquardt needs at least as many residuals as parameters"
-        )
     run = _Run(
         reduced.n, strategy=strategy, population_size=population_size, F=F, CR=CR,
         generations=generations, seed=seed, workers=workers, options=options,

@@ -180,8 +180,11 @@ _AUTO_REGULARIZATION = 1e-16
 
 
 def _rank_deficient(jac: np.ndarray, norms: np.ndarray, rtol: float = 1e-9) -> bool:
-    """Is the column-scaled Jacobian numerically rank deficient (or wider than tall)?"""
-    if jac.shape[0] < jac.shape[1]:
+    """Is the column-scaled Jacobian numerically rank deficient, or not taller than wide?
+
+    (MINPACK needs more residuals than parameters, and it gets one parameter more than the problem
+    has, see _guard_column: a square Jacobian is regularised too.)"""
+    if jac.shape[0] <= jac.shape[1]:
         return True
     from ._blas import single_thread
 
@@ -193,16 +196,19 @@ def _rank_deficient(jac: np.ndarray, norms: np.ndarray, rtol: float = 1e-9) -> b
 def _guard_column(jac: np.ndarray) -> np.ndarray:
     """The Jacobian with a zero column appended, for SciPy's MINPACK.
 
-    SciPy's C translation of MINPACK (SciPy 1.15 and later; seen with 1.17.1) has an off-by-one in
-    ``qrfac``: when a column's norm is recomputed during column pivoting (which happens when it
-    collapses, as in a rank-deficient or tightly regularised Jacobian), the norm takes one element
-    too many, the first of the next column. For the last stored column that element lies past the
-    end of MINPACK's buffer (valgrind: "Invalid read of size 8 ... 0 bytes after a block", in
-    ``enorm`` from ``qrfac``): heap garbage, which made the same problem give different answers
-    from one call to the next (74 or 80 evaluations, results differing from the 6th digit). A zero
-    column is never recomputed (its norm is 0) and never pivoted away from the end, so the
-    out-of-bounds element is never read; the extra parameter has no effect on the residuals, a zero
-    gradient, and its step is 0.
+    SciPy's C translation of MINPACK (seen with SciPy 1.17.1) has an off-by-one in ``qrfac``: when
+    a column's norm is recomputed during column pivoting (which happens when it collapses, as in a
+    rank-deficient or tightly regularised Jacobian), the norm takes one element too many, the first
+    of the next column. For the last stored column that element lies past the end of MINPACK's
+    buffer (valgrind: "Invalid read of size 8 ... 0 bytes after a block", in ``enorm`` from
+    ``qrfac``): heap garbage, which made the same problem give different answers from one call to
+    the next (74 or 80 evaluations, results differing from the 6th digit). A zero column is never
+    recomputed (its norm is 0) and never pivoted away from the end, so no element past the buffer
+    is read and the results are reproducible. This does not fix the off-by-one for the other
+    columns (it reads a wrong but deterministic element, which only affects pivoting). The extra
+    parameter has no effect on the residuals and a zero gradient, so its step is 0; but MINPACK
+    now always sees a singular R, which changes its path (its Levenberg-Marquardt parameter search
+    skips the Newton lower bound), not the solution it converges to.
     """
     return np.hstack([jac, np.zeros((jac.shape[0], 1))])
 

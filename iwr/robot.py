@@ -317,6 +317,8 @@ class Robot:
             ) from None
         except tomllib.TOMLDecodeError as exc:
             raise RobotFileError(f"{path}: not valid TOML: {exc}") from None
+        except ValueError as exc:  # e.g. an integer literal beyond Python's digit limit
+            raise RobotFileError(f"{path}: not readable as TOML: {exc}") from None
         except OSError as exc:
             raise RobotFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
         try:
@@ -417,7 +419,7 @@ def _number(value: Any, where: str) -> float:
     except OverflowError:
         finite = False
     if not finite:
-        shown = value if isinstance(value, float) else f"an integer of {len(str(value))} digits"
+        shown = value if isinstance(value, float) else f"an integer of {value.bit_length()} bits"
         raise ValueError(f"{where}: {shown} is not a finite double")
     return float(value)
 

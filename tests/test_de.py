@@ -446,8 +446,19 @@ def test_bad_identify_arguments(iwr_data):
         iwr.identify(robot, measurements, "de", preset="paper", strategy="jade")
     with pytest.raises(ValueError, match="population_size: 3"):
         iwr.identify(robot, measurements, "de", strategy="jso", population_size=3)
-    with pytest.raises(ValueError, match="polish: 6 residuals for 58 parameters"):
-        iwr.identify(robot, measurements.subset([0]), "de", polish=True, generations=1)
+
+
+@pytest.mark.parametrize("active", [None, [0, 1, 2, 3, 6, 7]])
+def test_polish_with_no_more_readings_than_parameters(iwr_data, active):
+    """One pose, 6 readings: fewer than the 58 parameters, or exactly as many as 6 active ones
+    (MINPACK alone would refuse both); the regularised Levenberg-Marquardt polishes anyway."""
+    robot, measurements, _ = iwr_data
+    one = measurements.subset([0])
+    res = iwr.identify(robot, one, "de", polish=True, generations=3, seed=0, active=active,
+                       population_size=20, progress=False)
+    assert res.settings["polish_result"]["fun"] <= res.settings["polish_result"]["fun_before"]
+    lm = iwr.identify(robot, one, "lm", active=active)
+    assert np.isfinite(lm.fun) and lm.settings["regularization"] > 0
 
 
 # --- the IWR problem ------------------------------------------------------------------------------

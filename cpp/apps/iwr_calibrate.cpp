@@ -820,8 +820,10 @@ int run(const Options& o) {
         try {
             de::require_budget_for_init(state->settings, stop);
         } catch (const std::invalid_argument& e) {
-            std::string msg = e.what();  // "max_evaluations: ..." -> "--max-evaluations: ..."
-            throw UsageError("--max-evaluations" + msg.substr(msg.find(':')));
+            const std::string msg = e.what();  // "max_evaluations: ..." -> "--max-evaluations: ..."
+            const std::size_t colon = msg.find(':');
+            throw UsageError(colon == std::string::npos ? "--max-evaluations: " + msg
+                                                        : "--max-evaluations" + msg.substr(colon));
         }
     }
 

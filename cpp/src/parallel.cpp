@@ -3,6 +3,10 @@
 #include <algorithm>
 #include <chrono>
 
+#if defined(__linux__)
+#include <sched.h>
+#endif
+
 namespace iwr {
 
 namespace {
@@ -15,15 +19,16 @@ inline void cpu_relax() {
 #endif
 }
 
-// Polls done() for up to kSpinMicroseconds, yielding the processor every 1024 polls (~10 us);
-// true if it became true. `spin` false: a single poll.
+// Polls done() for up to kSpinMicroseconds, reading the clock and yielding the processor every 256
+// polls (a few microseconds, by the CPU's PAUSE latency); true if it became true. `spin` false: a
+// single poll.
 template <class Done>
 bool spin_until(bool spin, Done done) {
     if (!spin) return done();
     using Clock = std::chrono::steady_clock;
     const auto limit = Clock::now() + std::chrono::microseconds(ThreadPool::kSpinMicroseconds);
     for (;;) {
-        for (int k = 0; k < 1024; ++k) {
+        for (int k = 0; k < 256; ++k) {
             if (done()) return true;
             cpu_relax();
         }
@@ -43,6 +48,14 @@ void chunk(std::size_t n, int parts, int id, std::size_t& begin, std::size_t& en
 
 int ThreadPool::resolve(int threads) {
     if (threads > 0) return threads;
+#if defined(__linux__)
+    // The CPUs this process may run on (a container's or taskset's cpuset), not the machine's.
+    cpu_set_t set;
+    if (sched_getaffinity(0, sizeof set, &set) == 0) {
+        const int n = CPU_COUNT(&set);
+        if (n > 0) return n;
+    }
+#endif
     const unsigned hw = std::thread::hardware_concurrency();
     return hw == 0 ? 1 : static_cast<int>(hw);
 }

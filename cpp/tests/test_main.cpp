@@ -1,11 +1,13 @@
 // C++ tests of the core, run by ctest (and under AddressSanitizer/UBSan with -DIWR_SANITIZE=ON).
 // Deliberately framework-free: the core has no dependency beyond Eigen and the standard library.
 #include <algorithm>
+#include <atomic>
 #include <cmath>
 #include <cstdio>
 #include <random>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "check.hpp"
 #include "iwr/forward.hpp"
@@ -161,9 +163,32 @@ void test_pool_propagates_exceptions() {
         thrown = true;
     }
     CHECK(thrown);
-    int sum = 0;  // the pool still works afterwards
-    pool.parallel_for(1, [&](std::size_t b, std::size_t e, int) { sum += static_cast<int>(e - b); });
-    CHECK(sum == 1);
+    // The pool still works afterwards, workers included (n >= 2), again and again.
+    for (int round = 0; round < 5; ++round) {
+        std::atomic<int> sum{0};
+        pool.parallel_for(10, [&](std::size_t b, std::size_t e, int) {
+            sum += static_cast<int>(e - b);
+        });
+        CHECK(sum == 10);
+    }
+}
+
+void test_pool_sizes_and_lifetimes() {
+    // More threads than the machine has (the pool then sleeps instead of spinning), pools
+    // destroyed right after a call, and many short calls in a row: every item once.
+    const int hw = iwr::ThreadPool::resolve(0);
+    for (int threads : {1, 2, hw + 3}) {
+        for (int rep = 0; rep < 20; ++rep) {
+            iwr::ThreadPool pool(threads);
+            std::vector<int> seen(1000, 0);
+            for (int call = 0; call < 10; ++call) {
+                pool.parallel_for(seen.size(), [&](std::size_t b, std::size_t e, int) {
+                    for (std::size_t i = b; i < e; ++i) ++seen[i];
+                });
+            }
+            CHECK(std::all_of(seen.begin(), seen.end(), [](int v) { return v == 10; }));
+        }
+    }
 }
 
 void test_validation() {
@@ -240,6 +265,7 @@ int main() {
     test_batch_is_thread_independent();
     test_kernel_variants();
     test_pool_propagates_exceptions();
+    test_pool_sizes_and_lifetimes();
     test_validation();
     test_forward_kinematics();
     return iwr_test::finish("all C++ checks passed");

@@ -8,8 +8,8 @@
 // variable. Waking a sleeping thread on another core costs tens of microseconds on some virtual
 // machines (32-49 us measured on the development VM, benchmarks/handover.cpp), against 0.1-0.2 us
 // for a spinning one, and DE hands work over twice per generation of a third of a millisecond.
-// The spin yields the processor between polls, and a pool with more threads than the machine has
-// hardware threads does not spin at all (a spinning thread would take a core from a working one).
+// The spin yields the processor between polls, and a pool with more threads than the process may
+// use CPUs does not spin at all (a spinning thread would take a core from a working one).
 #pragma once
 
 #include <atomic>
@@ -37,7 +37,9 @@ public:
     /// thread takes chunk 0. Rethrows the first exception thrown by any chunk.
     void parallel_for(std::size_t n, const std::function<void(std::size_t, std::size_t, int)>& fn);
 
-    /// Resolves a user's thread count: <= 0 means all hardware threads.
+    /// Resolves a user's thread count: <= 0 means all the CPUs this process may run on (its
+    /// affinity mask on Linux, else std::thread::hardware_concurrency). CPU quotas (cgroup
+    /// cpu.max) are not taken into account.
     static int resolve(int threads);
 
     /// How long a thread spins waiting for work (or for the workers) before it sleeps.
