@@ -7,6 +7,18 @@ differential evolution (Wang, Wu & Handroos) and by baselines on the same object
 
 from __future__ import annotations
 
+try:
+    from . import _core  # noqa: F401  (the compiled module; checked first for a clear message)
+except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
+    import os as _os
+
+    raise ImportError(
+        f"iwr: the compiled module iwr._core is missing from {_os.path.dirname(__file__)}. "
+        "This is probably the source folder of a repository checkout, found first because Python "
+        "was started in the checkout: run Python from another folder to use the installed "
+        "package, or install in place with pip install -e . (see README.md)"
+    ) from _exc
+
 from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
 from .de import differential_evolution
