@@ -1,7 +1,9 @@
-"""Atomic file writes: a temporary file in the same folder, flushed and synced, then renamed."""
+"""Atomic file writes: a temporary file in the same folder, flushed and synced, then renamed; and
+the conversion of results to JSON-ready values."""
 
 from __future__ import annotations
 
+import math
 import os
 import tempfile
 from collections.abc import Callable
@@ -61,3 +63,28 @@ def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     """Write ``data`` to ``path`` atomically."""
     atomic_write(path, lambda fh: fh.write(data), binary=True)
+
+
+def jsonable(value: Any, *, finite_only: bool = False) -> Any:
+    """``value`` with NumPy arrays, scalars and tuples turned into JSON-ready Python values
+    (dict keys become strings; anything else unknown becomes its repr). ``finite_only``: NaN and
+    infinities become None (strict JSON); otherwise they stay floats, which :mod:`json` writes as
+    NaN and Infinity and reads back."""
+    import numpy as np
+
+    if isinstance(value, dict):
+        return {str(k): jsonable(v, finite_only=finite_only) for k, v in value.items()}
+    if isinstance(value, (list, tuple)):
+        return [jsonable(v, finite_only=finite_only) for v in value]
+    if isinstance(value, np.ndarray):
+        return jsonable(value.tolist(), finite_only=finite_only)
+    if isinstance(value, (bool, np.bool_)):
+        return bool(value)
+    if isinstance(value, (int, np.integer)):
+        return int(value)
+    if isinstance(value, (float, np.floating)):
+        v = float(value)
+        return None if finite_only and not math.isfinite(v) else v
+    if isinstance(value, str) or value is None:
+        return value
+    return repr(value)

@@ -34,7 +34,7 @@ from typing import Any
 import numpy as np
 
 from ._blas import single_thread
-from ._io import atomic_write_bytes, atomic_write_text
+from ._io import atomic_write_bytes, atomic_write_text, jsonable
 from .identify import METHODS, identify
 from .measurements import Measurements
 from .problem import Problem, predict_legs
@@ -944,7 +944,8 @@ def write_report(comp: Comparison, out_dir: str | Path, robot: Robot) -> dict[st
         "summary": comp.summary,
         "runs": comp.runs,
     }
-    atomic_write_text(out / "results.json", json.dumps(_jsonable(data), indent=1) + "\n")
+    atomic_write_text(out / "results.json",
+                      json.dumps(jsonable(data, finite_only=True), indent=1) + "\n")
     files["results.json"] = out / "results.json"
 
     table = _summary_table(comp.summary)
@@ -1003,23 +1004,6 @@ def _csv_value(v: Any) -> Any:
     return v
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return _jsonable(value.tolist())
-    if isinstance(value, (bool, np.bool_)):
-        return bool(value)
-    if isinstance(value, (int, np.integer)):
-        return int(value)
-    if isinstance(value, (float, np.floating)):
-        v = float(value)
-        return v if math.isfinite(v) else None
-    if isinstance(value, (str,)) or value is None:
-        return value
-    return repr(value)
 
 
 # -- command line ---------------------------------------------------------------------------------

@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import OptimizeResult
 
-from ._io import atomic_write_text
+from ._io import atomic_write_text, jsonable
 
 __all__ = ["IdentificationResult", "load_result", "ResultFileError"]
 
@@ -61,7 +61,7 @@ class IdentificationResult(OptimizeResult):
             "success": bool(self.success),
             "message": str(self.message),
             "wall_time": float(self.get("wall_time", math.nan)),
-            "settings": _jsonable(self.get("settings", {})),
+            "settings": jsonable(self.get("settings", {})),
             "history": hist,
         }
 
@@ -74,20 +74,6 @@ class IdentificationResult(OptimizeResult):
         return dict(zip(self.parameter_names, map(float, self.x), strict=True))
 
 
-def _jsonable(value: Any) -> Any:
-    if isinstance(value, dict):
-        return {str(k): _jsonable(v) for k, v in value.items()}
-    if isinstance(value, (list, tuple)):
-        return [_jsonable(v) for v in value]
-    if isinstance(value, np.ndarray):
-        return value.tolist()
-    if isinstance(value, (np.integer,)):
-        return int(value)
-    if isinstance(value, (np.floating,)):
-        return float(value)
-    if isinstance(value, (str, int, float, bool)) or value is None:
-        return value
-    return repr(value)
 
 
 def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
