@@ -74,8 +74,6 @@ class IdentificationResult(OptimizeResult):
         return dict(zip(self.parameter_names, map(float, self.x), strict=True))
 
 
-
-
 def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     """Read a result written by :meth:`IdentificationResult.save` or by ``iwr-calibrate``."""
     path = Path(path)

@@ -323,7 +323,7 @@ class Robot:
             raise RobotFileError(f"{path}: cannot read: {exc.strerror or exc}") from None
         try:
             return cls.from_dict(data)
-        except (KeyError, ValueError, TypeError, OverflowError) as exc:
+        except (KeyError, ValueError, TypeError) as exc:
             msg = exc.args[0] if exc.args else str(exc)
             raise RobotFileError(f"{path}: {msg}") from None
 
