@@ -19,9 +19,7 @@ except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
         "package, or install in place with pip install -e . (see README.md)"
     ) from _exc
 
-from . import baselines as _baselines  # noqa: F401  (registers the 'crs2' and 'bobyqa' methods)
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
-from .de import differential_evolution
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
     IdentifiabilityReport,
@@ -30,11 +28,11 @@ from .identifiability import (
     identifiability,
     parameter_error,
 )
-from .identify import ReducedProblem, identify
 from .measurements import MeasurementFileError, Measurements
+from .methods import IdentificationResult, ReducedProblem, ResultFileError, identify, load_result
+from .methods.de import differential_evolution
 from .planning import PosePlan, plan_poses
 from .problem import Problem, predict_legs
-from .result import IdentificationResult, ResultFileError, load_result
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
 from .study import StudyError, StudyResult, study

@@ -79,7 +79,7 @@ def default_method() -> str:
     Levenberg-Marquardt) when this build has it, else ``"lm"`` (Levenberg-Marquardt on the exact
     Jacobian).
     """
-    from .identify import METHODS
+    from .methods import METHODS
 
     env = os.environ.get(METHOD_ENV, "").strip()
     if env:
@@ -373,7 +373,7 @@ def _write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: An
 
 def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
     """The method options given on the command line, under the names the method accepts."""
-    from .identify import METHODS, identify
+    from .methods import METHODS, identify
 
     if method not in METHODS:
         raise UsageError(
@@ -395,25 +395,6 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
             raise UsageError(f"--{option} is not an option of method {method!r}")
         kwargs[name] = value
     return kwargs
-
-
-class _EvalBar:
-    """A tqdm counter of evaluations with the best cost so far, fed by a method's callback."""
-
-    def __init__(self, desc: str, enabled: bool) -> None:
-        from tqdm import tqdm
-
-        self.best = math.inf
-        self.bar = tqdm(desc=desc, unit=" eval", disable=not enabled, leave=False,
-                        file=sys.stderr, dynamic_ncols=True)
-
-    def __call__(self, x: Any, cost: float, *rest: Any) -> None:
-        self.best = min(self.best, float(cost))
-        self.bar.update(1)
-        self.bar.set_postfix_str(f"best cost {self.best:.4g} mm^2", refresh=False)
-
-    def close(self) -> None:
-        self.bar.close()
 
 
 # -- commands ------------------------------------------------------------------------------------
@@ -512,7 +493,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
                truth: np.ndarray | None = None) -> Any:
     from .accuracy import accuracy
     from .identifiability import identifiability, parameter_error
-    from .identify import identify
+    from .methods import identify
     from .report import Calibration
     from .uncertainty import uncertainty
 
@@ -529,16 +510,8 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
         # values and standard deviations mean something.
         kwargs = {**kwargs, "active": identifiability(robot, ident).active}
     show = _progress_enabled(args)
-    bar = None
-    if method == "lm":  # LM reports no progress itself: count its evaluations
-        bar = _EvalBar(f"identifying ({method})", show)
-        kwargs = {**kwargs, "callback": bar}
-    try:
-        result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
-                          progress=show, **kwargs)
-    finally:
-        if bar is not None:
-            bar.close()
+    result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
+                      progress=show, **kwargs)
     report = identifiability(robot, ident, result.x)
     try:
         active = result["active"] if args.parameters == "base" else report
@@ -564,7 +537,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
 
 def cmd_analyze(args: argparse.Namespace) -> int:
     from .identifiability import identifiability
-    from .result import load_result
+    from .methods import load_result
 
     robot = _load_robot(args.robot)
     data = _load_data(args.data, robot)

@@ -35,7 +35,7 @@ import numpy as np
 
 from ._blas import single_thread
 from ._io import atomic_write_bytes, atomic_write_text, jsonable
-from .identify import METHODS, identify
+from .methods import METHODS, identify
 from .measurements import Measurements
 from .problem import Problem, predict_legs
 from .robot import Robot
@@ -226,7 +226,7 @@ def _check_starts(start: Any) -> list[str]:
 
 
 def _de_strategies() -> tuple[str, ...]:
-    from .de import STRATEGIES
+    from .methods.de import STRATEGIES
 
     return tuple(STRATEGIES)
 
@@ -411,8 +411,8 @@ def compare_methods(
         One simulated problem per seed and scenario; the same seeds give the same numbers.
     methods : sequence of str, optional
         Method specs, each also its label in the report: a name registered in
-        ``iwr.identify.METHODS`` (``"de"`` is the paper's DE/rand/1/bin with its defaults), or
-        ``"de:STRATEGY"``, DE with a strategy of ``iwr.de.STRATEGIES`` (``"de:jso"``,
+        ``iwr.methods.METHODS`` (``"de"`` is the paper's DE/rand/1/bin with its defaults), or
+        ``"de:STRATEGY"``, DE with a strategy of ``iwr.methods.de.STRATEGIES`` (``"de:jso"``,
         ``"de:lshade"``, ...). Default: :data:`DEFAULT_METHODS` (``lm``, ``de``, ``de:jso``,
         ``crs2``, ``bobyqa``), then any other registered method.
     budget : int

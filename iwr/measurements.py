@@ -14,7 +14,8 @@ import numpy as np
 
 from ._io import atomic_write_text
 
-__all__ = ["Measurements", "MeasurementFileError", "as_matrix"]
+__all__ = ["Measurements", "MeasurementFileError", "as_matrix", "MAX_LENGTH_MM", "MAX_ANGLE_RAD",
+           "PLAN_MARKER"]
 
 _POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
 _LEG_COLUMNS = tuple(f"s{j}_mm" for j in range(1, 7))
@@ -22,6 +23,13 @@ _WEIGHT_COLUMNS = tuple(f"w{j}" for j in range(1, 7))
 _JOINT_RE = re.compile(r"^q(\d+)_(mm|rad)$")
 # Lengths all below this (in what should be millimetres) look like metres.
 METRE_SUSPICION = 5.0
+#: The largest magnitude of a length (mm) and of an angle (rad) that any robot or instrument can
+#: produce: 100 m, and a thousand radians (about 160 turns of a revolute joint). Beyond them a
+#: value is a mistake (a wrong unit, a corrupted file), refused where it is read.
+MAX_LENGTH_MM = 1e5
+MAX_ANGLE_RAD = 1e3
+#: The first line of a file written by ``iwr plan`` (:meth:`iwr.PosePlan.to_csv`).
+PLAN_MARKER = "# iwr plan:"
 
 CSV_HEADER_COMMENT = """\
 # iwr measurements: one row per measurement pose. Lengths in mm, angles in rad.
@@ -31,6 +39,42 @@ CSV_HEADER_COMMENT = """\
 # s1_mm .. s6_mm: leg sensor readings (leg length = reading + leg offset l0).
 # w1 .. w6 (optional): weights of the leg residuals (1 / variance, relative).
 """
+
+
+def _limit_problem(value: float, unit: str) -> str | None:
+    """Why ``value`` (in ``unit``, "mm" or "rad") is beyond any robot or instrument, or None."""
+    limit = MAX_LENGTH_MM if unit == "mm" else MAX_ANGLE_RAD
+    if abs(value) <= limit:
+        return None
+    return f"{value!r} {unit} is beyond any robot or instrument (|value| <= {limit:g} {unit})"
+
+
+def _check_limits(arr: np.ndarray, units: list[str], name: str) -> None:
+    """Every column of ``arr`` within the physical limit of its unit, else a ValueError naming the
+    first row and column beyond it."""
+    limits = np.array([MAX_LENGTH_MM if u == "mm" else MAX_ANGLE_RAD for u in units])
+    bad = np.argwhere(np.abs(arr) > limits)
+    if bad.size:
+        r, c = (int(i) for i in bad[0])
+        raise ValueError(f"{name}: row {r}, column {c}: {_limit_problem(float(arr[r, c]), units[c])}")
+
+
+def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray:
+    """Weights checked (finite, >= 0, not all zero) and divided by the largest.
+
+    Weights are relative (inverse variances up to a common factor), so their scale must not change
+    the answer: every weight equal gives exactly the unweighted problem, whether it is 1e30 or
+    5e-324, and a weight far below the others cannot underflow the cost to zero."""
+    if np.any(weights < 0):
+        r, c = (int(i) for i in np.argwhere(weights < 0)[0])
+        raise ValueError(f"{name}: row {r}, column {c} is negative ({float(weights[r, c])!r}); weights "
+                         "must be >= 0")
+    top = float(weights.max())
+    if not top > 0:
+        raise ValueError(f"{name}: every weight is zero, so no reading counts; weights are "
+                         "relative (1 / variance): give the readings that count a weight > 0")
+    return weights / top
+
 
 
 class MeasurementFileError(ValueError):
@@ -71,7 +115,12 @@ class Measurements:
         ``"P"``/``"R"`` per joint, which fixes the joint units in CSV files. Checked against the
         robot when both are known.
     weights : array_like, shape (N, 6), optional
-        Non-negative weights of the leg residuals (for example inverse variances).
+        Weights of the leg residuals, relative (for example inverse variances): finite, >= 0,
+        not all zero. Stored divided by the largest, so that their scale cannot change the
+        answer.
+
+    Values beyond any robot or instrument (a length above :data:`MAX_LENGTH_MM`, an angle above
+    :data:`MAX_ANGLE_RAD` in magnitude) are refused, naming the row and column.
     lines : array_like of int, shape (N,), optional
         The line of each measurement in its source file (set by :meth:`from_csv`), so that
         messages about a measurement can name its line.
@@ -104,10 +153,14 @@ class Measurements:
                     f"joint_types: {joint_types!r} does not describe {self.q.shape[1]} joints"
                 )
         self.joint_types = joint_types
-        self.weights = None if weights is None else as_matrix(weights, 6, "weights", rows=n)
-        if self.weights is not None and np.any(self.weights < 0):
-            r, c = (int(i) for i in np.argwhere(self.weights < 0)[0])
-            raise ValueError(f"weights: row {r}, column {c} is negative")
+        _check_limits(self.poses, ["mm"] * 3 + ["rad"] * 3, "poses")
+        _check_limits(self.legs, ["mm"] * 6, "legs")
+        # Joint units unknown: the looser limit (lengths) for every joint.
+        _check_limits(self.q, [("mm" if c == "P" else "rad") for c in joint_types]
+                      if joint_types else ["mm"] * self.q.shape[1], "q")
+        self.weights = None
+        if weights is not None:
+            self.weights = normalised_weights(as_matrix(weights, 6, "weights", rows=n))
         self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
         self.source = None if source is None else str(source)
 
@@ -198,29 +251,44 @@ class Measurements:
         """
         path = Path(path)
         try:
-            text = path.read_text(encoding="utf-8")
+            # utf-8-sig: a byte order mark, as spreadsheets write "CSV UTF-8", is not a character
+            # of the first column's name.
+            text = path.read_text(encoding="utf-8-sig")
         except FileNotFoundError:
             raise MeasurementFileError(f"{path}: no such file") from None
         except IsADirectoryError:
             raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
         except (OSError, UnicodeDecodeError) as exc:
             raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
+        if text.lstrip().startswith(PLAN_MARKER):
+            raise MeasurementFileError(
+                f"{path}: a pose plan written by 'iwr plan' (the poses to measure), not "
+                "measurements: drive the robot to each of its poses, record the joint readings, "
+                "the six leg readings and the platform pose measured by the tracker, and "
+                "calibrate with that file (format: docs/data.md)"
+            )
         rows: list[list[float]] = []
         lines: list[int] = []
         problems: list[tuple[int, str]] = []  # (line, message), every bad row
         header: list[str] | None = None
+        units: list[str] = []
+        delimiter = ","
         for lineno, line in enumerate(text.splitlines(), start=1):
             stripped = line.strip()
             if not stripped or stripped.startswith("#"):
                 continue
+            if header is None:
+                delimiter = _delimiter(line)
             try:
-                fields = [f.strip() for f in next(csv.reader([line]))]
+                fields = [f.strip() for f in next(csv.reader([line], delimiter=delimiter))]
             except csv.Error as exc:
                 problems.append((lineno, f"line {lineno}: not valid CSV ({exc})"))
                 continue
             if header is None:
                 header = fields
-                joint_types, weights = _parse_header(header, path, lineno)
+                joint_types, weights = _parse_header(header, path, lineno, delimiter)
+                units = ["mm" if c == "P" else "rad" for c in joint_types]
+                units += ["mm"] * 3 + ["rad"] * 3 + ["mm"] * 6 + ["1"] * (6 if weights else 0)
                 continue
             if len(fields) != len(header):
                 problems.append(
@@ -228,17 +296,23 @@ class Measurements:
                 )
                 continue
             values = []
-            for name, field in zip(header, fields, strict=True):
+            for name, field, unit in zip(header, fields, units, strict=True):
                 try:
                     v = float(field)
                 except ValueError:
                     what = "is empty" if not field else "is not a number"
+                    if delimiter != "," and "," in field:
+                        what += " (a decimal comma? write numbers with a decimal point)"
                     problems.append((lineno, f"line {lineno}, column {name}: {field!r} {what}"))
                     break
                 if not math.isfinite(v):
                     problems.append(
                         (lineno, f"line {lineno}, column {name}: {field!r} is not finite")
                     )
+                    break
+                beyond = _limit_problem(v, unit) if unit != "1" else None
+                if beyond:
+                    problems.append((lineno, f"line {lineno}, column {name}: {beyond}"))
                     break
                 values.append(v)
             else:
@@ -390,31 +464,66 @@ def _summarise(problems: list[tuple[int, str]], what: str) -> str:
             f"{_enumerate([str(n) for n in lines])})")
 
 
-def _parse_header(header: list[str], path: Path, lineno: int) -> tuple[str, bool]:
+def _delimiter(header_line: str) -> str:
+    """The separator of a file, from its header line: a comma, or what ``csv.Sniffer`` finds
+    among semicolon and tab (spreadsheets in many locales write those)."""
+    if "," in header_line:
+        return ","
+    try:
+        return csv.Sniffer().sniff(header_line, delimiters=";\t").delimiter
+    except csv.Error:
+        return ","
+
+
+def _parse_header(header: list[str], path: Path, lineno: int,
+                  delimiter: str = ",") -> tuple[str, bool]:
+    where = f"{path}, line {lineno}"
+    if delimiter != ",":
+        where += f" (separator {'tab' if delimiter == chr(9) else repr(delimiter)})"
     joint_types = ""
     i = 0
-    while i < len(header) and header[i].startswith("q"):
+    while i < len(header) and _JOINT_RE.match(header[i]):
         m = _JOINT_RE.match(header[i])
-        if not m or int(m.group(1)) != i + 1:
+        assert m is not None
+        if int(m.group(1)) != i + 1:
             raise MeasurementFileError(
-                f"{path}, line {lineno}: column {i + 1} is {header[i]!r}; expected "
-                f"'q{i + 1}_mm' or 'q{i + 1}_rad'"
+                f"{where}: column {i + 1} is {header[i]!r}; expected 'q{i + 1}_mm' or "
+                f"'q{i + 1}_rad' (the joints in order, base first). {_expected_order(i)}"
             )
         joint_types += "P" if m.group(2) == "mm" else "R"
         i += 1
     expected = list(_POSE_COLUMNS) + list(_LEG_COLUMNS)
     rest = header[i:]
-    weights = len(rest) == len(expected) + 6
+    weights = len(rest) == len(expected) + 6 or any(c in _WEIGHT_COLUMNS for c in rest)
     if weights:
         expected += list(_WEIGHT_COLUMNS)
+    order = _expected_order(i, weights)
+    if len(header) == 1 and delimiter == ",":
+        raise MeasurementFileError(
+            f"{where}: one column, {header[0][:60]!r}: no separator found; iwr reads "
+            f"comma-separated files (or semicolon- or tab-separated ones). {order}"
+        )
+    if sorted(rest) == sorted(expected) and rest != expected:
+        raise MeasurementFileError(
+            f"{where}: the columns are all there but in another order. {order}"
+        )
     for k, (got, want) in enumerate(zip(rest, expected, strict=False)):
         if got != want:
             raise MeasurementFileError(
-                f"{path}, line {lineno}: column {i + k + 1} is {got!r}; expected {want!r}"
+                f"{where}: column {i + k + 1} is {got!r}; expected {want!r}. {order}"
             )
     if len(rest) != len(expected):
         missing = expected[len(rest) :]
         extra = rest[len(expected) :]
         what = f"missing columns {missing}" if missing else f"unknown columns {extra}"
-        raise MeasurementFileError(f"{path}, line {lineno}: {what}")
+        raise MeasurementFileError(f"{where}: {what}. {order}")
     return joint_types, weights
+
+
+def _expected_order(n_joints: int, weights: bool = False) -> str:
+    joints = ", ".join(f"q{i + 1}_mm|rad" for i in range(n_joints)) if n_joints else "q1_mm|rad, ..."
+    cols = [joints, *_POSE_COLUMNS, *_LEG_COLUMNS]
+    if weights:
+        cols += list(_WEIGHT_COLUMNS)
+    return ("Expected columns, in this order: " + ", ".join(cols)
+            + ("" if weights else " (then w1 .. w6, optional)") + "; see docs/data.md")

@@ -16,7 +16,7 @@ from ._io import atomic_write_bytes, atomic_write_text
 from .accuracy import Accuracy
 from .measurements import Measurements
 from .problem import Problem, predict_legs
-from .result import IdentificationResult
+from .methods import IdentificationResult
 from .robot import Robot
 
 __all__ = ["Calibration", "leg_residual_stats"]

@@ -305,7 +305,7 @@ def test_result_matches_identify(files: dict[str, Path]) -> None:
     assert proc.stderr == ""  # --quiet
     exe = iwr.load_result(d / "cmp.json")
     py = iwr.identify(robot, m, method="de", strategy="rand1bin", workers=1, progress=False,
-                      **settings)
+                      polish=False, **settings)
     # The same engine on the same objective: bit-identical.
     np.testing.assert_array_equal(exe.x, py.x)
     assert exe.fun == py.fun
@@ -514,11 +514,13 @@ def _python_error(robot: Path, data: Path) -> str | None:
 
 
 # The message, word for word as the Python package's.
+# (Not "missing column", "unknown columns" and "byte order mark": Python now names the column
+# order expected and accepts a byte order mark; the C++ copy of the reader does not, and goes.)
 SAME_MESSAGE = [
-    "nan cell", "nan in three rows", "missing column", "unknown columns", "duplicated pose",
+    "nan cell", "nan in three rows", "duplicated pose",
     "unreachable leg", "unreachable joint", "legs in metres", "positions in metres",
     "everything in metres", "joints in metres", "angles in degrees", "weights nan",
-    "weights text", "weights empty", "empty file", "header only", "byte order mark",
+    "weights text", "weights empty", "empty file", "header only",
     "control character", "NUL byte",
 ]
 

@@ -17,7 +17,7 @@ import pytest
 
 import iwr
 from iwr import compare as cmp
-from iwr.identify import METHODS
+from iwr.methods import METHODS
 
 SEEDS = [0, 1]
 FIGURES = ["convergence_near.png", "convergence_bad.png", "parameters_near.png",
@@ -168,7 +168,7 @@ def test_de_variants_run_under_their_labels(report):
     sp = cmp._scenario_problem(robot, "bad", SEEDS[1], 20, iwr.Noise.realistic(), 20)
     res = iwr.identify(robot, sp["data"], "de", strategy="jso", population_size=30,
                        max_evaluations=BUDGET, bounds="paper", x0=sp["x0"], seed=SEEDS[1],
-                       progress=False)
+                       polish=False, progress=False)
     assert res.fun == r["cost"] and res.x.tolist() == r["x"]
     assert res.settings["max_evaluations"] == BUDGET and res.settings["polish"] is False
 
@@ -198,7 +198,7 @@ def test_default_methods():
 def test_same_seeds_same_numbers(report, tmp_path):
     """The same seeds give the same numbers bit for bit, wall times apart: Levenberg-Marquardt
     included (its Jacobian gets a guard column against SciPy's MINPACK reading past its buffer,
-    see iwr.identify._guard_column, which made it differ from run to run)."""
+    see iwr.methods.lm._guard_column, which made it differ from run to run)."""
     comp, out = report
     again = small_run(tmp_path)
     for a, b in zip(comp.runs, again.runs, strict=True):

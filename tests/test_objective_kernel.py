@@ -200,7 +200,9 @@ def test_zero_weights_and_exact_data_give_zero():
     p = iwr.Problem(robot, data)
     assert p.cost(x) < 1e-18
     w = np.zeros((13, 6))
+    w[0, 0] = 1.0  # not all zero: such weights are refused
     pw = iwr.Problem(robot, iwr.Measurements(data.q, data.poses, data.legs, weights=w))
     z = np.random.default_rng(0).uniform(p.lower, p.upper)
-    assert pw.cost(z) == 0.0
-    assert np.all(pw.residuals(z) == 0.0)
+    r = pw.residuals(z)
+    assert np.all(r[1:] == 0.0) and r[0] != 0.0
+    assert pw.cost(z) == pytest.approx(r[0] ** 2, rel=1e-12)

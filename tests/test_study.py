@@ -38,7 +38,7 @@ from iwr.study import (
 distributed = pytest.importorskip("distributed")
 # The modules (the package's attributes iwr.study and iwr.identify are the functions).
 study_module = importlib.import_module("iwr.study")
-identify_module = importlib.import_module("iwr.identify")
+identify_module = importlib.import_module("iwr.methods")
 
 CRASH = "test-crash-once"
 
@@ -53,7 +53,7 @@ def crash_once(problem: Any, *, marker: str, log: str, **kwargs: Any) -> Any:
     else:
         os.close(fd)
         os._exit(17)  # a worker that dies: no exception, no cleanup
-    return identify_module.levenberg_marquardt(problem, **kwargs)
+    return identify_module.METHODS["lm"](problem, **kwargs)
 
 
 class RegisterCrashMethod(distributed.WorkerPlugin):

@@ -53,7 +53,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write_text
-from ..identify import METHODS, identify
+from ..methods import METHODS, identify
 from ..measurements import Measurements
 from ..problem import predict_legs
 from ..robot import Robot
@@ -378,6 +378,8 @@ def run_cell(cell: Cell, robot_json: str, runtime_options: Mapping[str, Any]) ->
         for name, value in runtime_options.items():
             if _accepts(cell.method, name):
                 options.setdefault(name, value)
+        if cell.method == "de":
+            options.setdefault("polish", False)  # DE alone, as before DE was polished by default
         result = identify(
             robot, data, method=cell.method,
             seed=_seed(cell.base_seed, _METHOD, cell.draw, cell.seed), progress=False, **options,
@@ -622,7 +624,7 @@ def study(
     Parameters
     ----------
     methods : str or list of str
-        Identification methods, names of ``iwr.identify.METHODS`` (``"lm"``, ``"de"``, ...).
+        Identification methods, names of ``iwr.methods.METHODS`` (``"lm"``, ``"de"``, ...).
     poses : int or list of int
         Numbers of measurement poses N.
     noise : float or list of float

@@ -44,12 +44,13 @@ from typing import Any
 import numpy as np
 from scipy.optimize import Bounds, OptimizeResult
 
-from . import _core
-from .identify import ReducedProblem, levenberg_marquardt, register_method
-from .problem import Problem
+from .. import _core
+from ._run import call_back, check_budget
+from .lm import levenberg_marquardt
+from .reduced import ReducedProblem
 from .result import IdentificationResult
 
-__all__ = ["differential_evolution", "STRATEGIES", "PAPER_PRESET"]
+__all__ = ["differential_evolution", "de_method", "STRATEGIES", "PAPER_PRESET"]
 
 STRATEGIES = ("rand1bin", "best1bin", "jade", "jde", "shade", "lshade", "jso")
 
@@ -272,10 +273,7 @@ class _Run:
                 mean=s["mean"], spread=s["spread"], population_size=s["population_size"],
                 elapsed=s["elapsed"],
             )
-            try:
-                return bool(callback(info))
-            except StopIteration:
-                return True
+            return call_back(callback, info)
 
         use_monitor = bar is not None or callback is not None
         try:
@@ -399,14 +397,20 @@ def differential_evolution(
     return out
 
 
-@register_method("de")
+# How the engine's stop reasons map to IdentificationResult.status.
+_STATUS = {
+    "target": "converged", "converged": "converged", "stagnation": "converged",
+    "generations": "stopped", "evaluations": "stopped", "time": "stopped",
+    "callback": "callback", "interrupted": "interrupted",
+}
+
+
 def de_method(
-    problem: Problem,
+    problem: ReducedProblem,
     *,
-    x0: np.ndarray,
-    active: np.ndarray,
+    max_evaluations: int | None = None,
     seed: int | None = None,
-    callback: Callable[..., Any] | None = None,
+    callback: Callable[[OptimizeResult], Any] | None = None,
     progress: bool | None = None,
     strategy: str = "rand1bin",
     population_size: int | None = None,
@@ -415,10 +419,11 @@ def de_method(
     generations: int | None = None,
     preset: str | None = None,
     workers: int | None = None,
-    polish: bool = False,
+    polish: bool = True,
     **options: Any,
 ) -> IdentificationResult:
-    """``iwr.identify(..., method="de")``: differential evolution on the objective of eq. (10).
+    """``iwr.identify(..., method="de")``: differential evolution on the objective of eq. (10),
+    polished by Levenberg-Marquardt.
 
     The active parameters are searched within the problem's bounds (``identify(bounds=...)``);
     the others stay at ``x0``. The objective is evaluated in C++ on ``workers`` threads with no
@@ -426,9 +431,23 @@ def de_method(
 
     Parameters
     ----------
-    strategy, population_size, F, CR, generations, seed, workers, **options
+    problem : ReducedProblem
+    max_evaluations : int, optional
+        Evaluation budget of the evolution (the last generation may be partial). Without it (and
+        without ``generations``), 1000 generations; ``lshade`` and ``jso`` plan their schedules
+        over it (default 10000 D). The polish adds its own evaluations, at most ``100 (n + 1)``.
+    seed : int, optional
+        The same seed gives bit-identical results whatever ``workers``; default a fresh one,
+        recorded in ``settings["seed"]``.
+    callback : callable, optional
+        ``callback(intermediate_result)`` every generation, with an ``OptimizeResult`` of the best
+        point so far (``x`` the full vector, ``fun``, ``nit``, ``nfev``, ``mean``, ``spread``); a
+        truthy return or ``StopIteration`` stops the run (and skips the polish).
+    progress : bool, optional
+        A tqdm bar (default: when standard error is a terminal).
+    strategy, population_size, F, CR, generations, workers, **options
         As for :func:`iwr.differential_evolution` (``target_cost=1e-4`` stops at the paper's final
-        cost, for example).
+        cost, for example); ``generations`` stops after that many generations.
     preset : {"paper"}, optional
         The paper's Table 2 for DE/rand/1/bin: NP = 600, F = 0.9, CR = 1.0, 60000 generations
         (36 million evaluations). Explicit arguments override the preset's values. The preset
@@ -436,17 +455,16 @@ def de_method(
         is ``identify(bounds="paper")``; the default bounds are +-0.5 mm and +-0.5 degree.
     polish : bool
         Refine the DE result by Levenberg-Marquardt on the exact Jacobian
-        (:func:`iwr.identify.levenberg_marquardt`, unbounded) and keep the better point.
-        ``success`` is then the polish's.
-    callback : callable, optional
-        ``callback(intermediate_result)`` every generation, ``intermediate_result.x`` being the
-        full parameter vector; return True (or raise ``StopIteration``) to stop.
+        (:func:`iwr.methods.lm.levenberg_marquardt`, unbounded) and keep the better point
+        (default). ``success`` and ``status`` are then the polish's. ``polish=False``: DE alone.
 
     Returns
     -------
     IdentificationResult
         ``history`` is the per-generation log (``generation``, ``nfev``, ``best``, ``mean``,
-        ``spread``, ``elapsed``); ``settings`` holds every resolved setting, the seed included.
+        ``spread``, ``elapsed``); ``settings`` holds every resolved setting, the seed included;
+        ``reason`` the engine's stop reason. Ctrl-C (in the evolution or the polish) returns the
+        best point so far, ``status`` "interrupted".
     """
     if preset is not None:
         if preset != "paper":
@@ -461,24 +479,26 @@ def de_method(
         CR = PAPER_PRESET["CR"] if CR is None else CR
         if generations is None:
             generations = PAPER_PRESET["generations"]
-    reduced = ReducedProblem(problem, active, x0)
+    if max_evaluations is not None:
+        options["max_evaluations"] = check_budget(max_evaluations)
+    reduced = problem
     run = _Run(
         reduced.n, strategy=strategy, population_size=population_size, F=F, CR=CR,
         generations=generations, seed=seed, workers=workers, options=options,
     )
-    m = problem.measurements
+    m = reduced.problem.measurements
     weights = m.weights if m.weights is not None else np.zeros((0, 0))
     start = time.perf_counter()
     raw = run.execute(
         _core.de_objective,
         {
-            "geometry": problem.robot._geometry,
+            "geometry": reduced.problem.robot._geometry,
             "q": m.q,
             "poses": m.poses,
             "legs": m.legs,
             "weights": weights,
-            "active": [bool(a) for a in active],
-            "x0": np.ascontiguousarray(x0, dtype=float),
+            "active": [bool(a) for a in reduced.active],
+            "x0": np.ascontiguousarray(reduced.x0, dtype=float),
             **run.core_args(
                 np.ascontiguousarray(reduced.lower), np.ascontiguousarray(reduced.upper)
             ),
@@ -488,33 +508,38 @@ def de_method(
     x = reduced.full(raw["x"])
     fun = float(raw["fun"])
     nfev = int(raw["nfev"])
+    reason = str(raw["reason"])
+    status = _STATUS.get(reason, "failed")
     success = bool(raw["success"])
     message = str(raw["message"])
     settings: dict[str, Any] = {
         **raw["settings"], **run.stop_settings(), "preset": preset, "polish": bool(polish),
     }
-    if polish:
-        lm = levenberg_marquardt(problem, x0=x, active=active)
+    # No polish after Ctrl-C or a callback's stop: both ask for the run to end now.
+    if polish and status not in ("interrupted", "callback"):
+        lm = levenberg_marquardt(ReducedProblem(reduced.problem, reduced.active, x),
+                                 progress=progress)
         settings["polish_result"] = {
-            "fun_before": fun, "fun": float(lm["fun"]), "nfev": int(lm["nfev"]),
-            "nit": int(lm["nit"]), "success": bool(lm["success"]), "message": str(lm["message"]),
+            "fun_before": fun, "fun": float(lm.fun), "nfev": int(lm.nfev),
+            "nit": int(lm.nit), "success": bool(lm.success), "message": str(lm.message),
         }
-        nfev += int(lm["nfev"])
-        success = bool(lm["success"])
-        message = f"{message}; polished by Levenberg-Marquardt: {lm['message']}"
-        if lm["fun"] <= fun:
-            x, fun = lm["x"], float(lm["fun"])
+        nfev += int(lm.nfev)
+        success, status = bool(lm.success), str(lm.status)
+        message = f"{message}; polished by Levenberg-Marquardt: {lm.message}"
+        if lm.fun <= fun:
+            x, fun = lm.x, float(lm.fun)
     out = IdentificationResult(
         x=x,
         fun=fun,
         nfev=nfev,
         nit=int(raw["nit"]),
         success=success,
+        status=status,
         message=message,
         history={k: np.asarray(v) for k, v in raw["history"].items()},
         wall_time=time.perf_counter() - start,
         settings=settings,
-        reason=raw["reason"],
+        reason=reason,
     )
     if "state" in raw:
         out["state"] = bytes(raw["state"])

@@ -133,4 +133,126 @@ def test_weights_are_read(tmp_path, data, robot):
     m = iwr.Measurements(data.q, data.poses, data.legs, joint_types="PPRR", weights=w)
     path, lines, h = write(tmp_path, m)
     assert lines[h].endswith(",w1,w2,w3,w4,w5,w6")
-    np.testing.assert_array_equal(iwr.Measurements.from_csv(path, robot=robot).weights, w)
+    # Relative weights, stored divided by the largest.
+    np.testing.assert_array_equal(iwr.Measurements.from_csv(path, robot=robot).weights,
+                                  w / 2.0)
+
+
+@pytest.mark.parametrize("weights, match", [
+    (-1.0, r"weights: row 0, column 0 is negative \(-1.0\)"),
+    (np.inf, r"weights: row 0, column 0 is inf; every value must be finite"),
+    (np.nan, r"weights: row 0, column 0 is nan"),
+])
+def test_weights_are_checked(data, weights, match):
+    w = np.ones((len(data), 6))
+    w[0, 0] = weights
+    with pytest.raises(ValueError, match=match):
+        iwr.Measurements(data.q, data.poses, data.legs, joint_types="PPRR", weights=w)
+
+
+def test_all_zero_weights_are_refused(tmp_path, data):
+    with pytest.raises(ValueError, match="every weight is zero"):
+        iwr.Measurements(data.q, data.poses, data.legs, joint_types="PPRR",
+                         weights=np.zeros((len(data), 6)))
+    m = iwr.Measurements(data.q, data.poses, data.legs, joint_types="PPRR",
+                         weights=np.ones((len(data), 6)))
+    path, lines, h = write(tmp_path, m)
+    body = [",".join(line.split(",")[:-6] + ["0"] * 6) for line in lines[h + 1:]]
+    path.write_text("\n".join(lines[: h + 1] + body) + "\n")
+    with pytest.raises(iwr.MeasurementFileError, match=r"data.csv: weights: every weight is zero"):
+        iwr.Measurements.from_csv(path)
+
+
+@pytest.mark.parametrize("scale", [1e30, 5e-324])
+def test_weight_scale_does_not_matter(data, scale):
+    m = iwr.Measurements(data.q, data.poses, data.legs, joint_types="PPRR",
+                         weights=np.full((len(data), 6), scale))
+    assert np.array_equal(m.weights, np.ones((len(data), 6)))
+
+
+@pytest.mark.parametrize("column, value, what", [
+    (4, "1e308", r"column x_mm: 1e\+308 mm is beyond any robot or instrument \(\|value\| <= 100000 mm\)"),
+    (10, "-2e5", r"column s1_mm: -200000.0 mm is beyond"),
+    (0, "1e6", r"column q1_mm: 1000000.0 mm is beyond"),
+    (2, "5000", r"column q3_rad: 5000.0 rad is beyond any robot or instrument \(\|value\| <= 1000 rad\)"),
+])
+def test_values_beyond_any_robot_are_refused_with_line_and_column(tmp_path, data, column, value,
+                                                                   what):
+    path, lines, h = write(tmp_path, data)
+    fields = lines[h + 3].split(",")
+    fields[column] = value
+    lines[h + 3] = ",".join(fields)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(iwr.MeasurementFileError, match=rf"line {h + 4}, {what}"):
+        iwr.Measurements.from_csv(path)
+
+
+def test_values_beyond_any_robot_are_refused_in_python(data):
+    legs = data.legs.copy()
+    legs[3, 2] = 1e308
+    with pytest.raises(ValueError, match=r"legs: row 3, column 2: 1e\+308 mm is beyond"):
+        iwr.Measurements(data.q, data.poses, legs, joint_types="PPRR")
+
+
+# -- files as people have them --------------------------------------------------------------------
+
+
+def test_byte_order_mark_is_accepted(tmp_path, data, robot):
+    path, _, _ = write(tmp_path, data)
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())  # "CSV UTF-8" of a spreadsheet
+    back = iwr.Measurements.from_csv(path, robot=robot)
+    np.testing.assert_array_equal(back.legs, data.legs)
+    # and a BOM right before the header, without the comment lines
+    lines = path.read_text(encoding="utf-8-sig").splitlines()
+    body = [line for line in lines if not line.startswith("#")]
+    path.write_text("\ufeff" + "\n".join(body) + "\n", encoding="utf-8")
+    assert len(iwr.Measurements.from_csv(path, robot=robot)) == len(data)
+
+
+@pytest.mark.parametrize("sep, name", [(";", "';'"), ("\t", "tab")])
+def test_semicolon_and_tab_separated_files_are_read(tmp_path, data, robot, sep, name):
+    path, lines, h = write(tmp_path, data)
+    path.write_text("\n".join(line if line.startswith("#") else line.replace(",", sep)
+                              for line in lines) + "\n")
+    back = iwr.Measurements.from_csv(path, robot=robot)
+    np.testing.assert_array_equal(back.poses, data.poses)
+    # A bad header says which separator was read.
+    lines2 = path.read_text().splitlines()
+    lines2[h] = lines2[h].replace("s6_mm", "s7_mm")
+    path.write_text("\n".join(lines2) + "\n")
+    with pytest.raises(iwr.MeasurementFileError, match=rf"\(separator {name}\)"):
+        iwr.Measurements.from_csv(path)
+
+
+def test_decimal_commas_are_named(tmp_path, data):
+    path, lines, h = write(tmp_path, data)
+    out = []
+    for line in lines:
+        if line.startswith("#"):
+            out.append(line)
+        else:
+            out.append(";".join(f.replace(".", ",") for f in line.split(",")))
+    path.write_text("\n".join(out) + "\n")
+    with pytest.raises(iwr.MeasurementFileError, match="a decimal comma"):
+        iwr.Measurements.from_csv(path)
+
+
+def test_columns_in_another_order_say_the_order_expected(tmp_path, data):
+    path, lines, h = write(tmp_path, data)
+    cols = lines[h].split(",")
+    order = cols[4:] + cols[:4]  # the joints last
+    rows = [",".join(np.array(line.split(","))[[cols.index(c) for c in order]])
+            for line in lines[h:]]
+    path.write_text("\n".join(rows) + "\n")
+    with pytest.raises(iwr.MeasurementFileError) as info:
+        iwr.Measurements.from_csv(path)
+    msg = str(info.value)
+    assert "Expected columns, in this order: " in msg
+    assert "x_mm, y_mm, z_mm, alpha_rad, beta_rad, gamma_rad, s1_mm" in msg
+    # all present, only swapped: said so
+    swapped = cols.copy()
+    swapped[4], swapped[5] = swapped[5], swapped[4]
+    path.write_text("\n".join([",".join(swapped)] + lines[h + 1:]) + "\n")
+    with pytest.raises(iwr.MeasurementFileError, match="all there but in another order"):
+        iwr.Measurements.from_csv(path)
+

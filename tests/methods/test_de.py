@@ -14,7 +14,7 @@ from scipy import stats
 from scipy.optimize import differential_evolution as scipy_de
 
 import iwr
-from iwr.de import STRATEGIES
+from iwr.methods.de import STRATEGIES
 
 # --- test functions (vectorised over the rows of X) -----------------------------------------------
 
@@ -224,7 +224,7 @@ def _without_elapsed(history):
 @pytest.mark.parametrize("strategy", ["rand1bin", "jade", "jde", "lshade"])
 def test_same_seed_same_result_with_1_or_2_threads(iwr_data, strategy):
     robot, measurements, _ = iwr_data
-    kw = dict(strategy=strategy, population_size=40, seed=11, progress=False)
+    kw = dict(strategy=strategy, population_size=40, seed=11, polish=False, progress=False)
     if strategy == "lshade":
         kw["max_evaluations"] = 1200
     else:
@@ -243,7 +243,7 @@ def test_same_seed_same_result_with_1_or_2_threads(iwr_data, strategy):
 def test_history(iwr_data):
     robot, measurements, _ = iwr_data
     res = iwr.identify(robot, measurements, "de", population_size=30, generations=20, seed=1,
-                       progress=False)
+                       polish=False, progress=False)
     h = res.history
     assert set(h) == {"generation", "nfev", "best", "mean", "spread", "elapsed"}
     assert np.array_equal(h["generation"], np.arange(21))
@@ -468,12 +468,12 @@ def test_polish_with_no_more_readings_than_parameters(iwr_data, active):
 def test_paper_preset(iwr_data):
     robot, measurements, _ = iwr_data
     res = iwr.identify(robot, measurements, "de", preset="paper", generations=2, seed=0,
-                       progress=False)
+                       polish=False, progress=False)
     s = res.settings
     assert (s["population_size"], s["F"], s["CR"], s["strategy"]) == (600, 0.9, 1.0, "rand1bin")
     assert res.nfev == 600 * 3 and res.nit == 2 and s["preset"] == "paper"
     full = iwr.identify(robot, measurements, "de", preset="paper", generations=None, seed=0,
-                        max_evaluations=1200, progress=False)
+                        max_evaluations=1200, polish=False, progress=False)
     assert full.settings["generations"] == 60000
 
 
@@ -484,7 +484,8 @@ def test_active_subset_keeps_the_others_at_x0(iwr_data):
     x0 = truth.copy()
     x0[52:] = 0
     res = iwr.identify(robot, measurements, "de", x0=x0, active=active, strategy="jade",
-                       population_size=30, generations=300, seed=0, progress=False)
+                       population_size=30, generations=300, seed=0, polish=False,
+                       progress=False)
     assert np.array_equal(res.x[:52], truth[:52])
     assert np.allclose(res.x[52:], truth[52:], atol=1e-6) and res.fun < 1e-9
 
@@ -494,7 +495,7 @@ def test_iwr_noise_free_reaches_paper_cost(iwr_data):
     evaluations."""
     robot, measurements, _ = iwr_data
     res = iwr.identify(robot, measurements, "de", strategy="jso", max_evaluations=1_000_000,
-                       target_cost=1e-4, seed=1, progress=False)
+                       target_cost=1e-4, seed=1, polish=False, progress=False)
     assert res.fun < 1e-4 and res.success and res.nfev < 1_000_000
     assert res.fun == pytest.approx(iwr.Problem(robot, measurements).cost(res.x))
 
@@ -502,7 +503,12 @@ def test_iwr_noise_free_reaches_paper_cost(iwr_data):
 def test_iwr_polish(iwr_data):
     robot, measurements, _ = iwr_data
     res = iwr.identify(robot, measurements, "de", strategy="jade", population_size=60,
-                       generations=50, seed=1, polish=True, progress=False)
+                       generations=50, seed=1, progress=False)  # polished by default
+    assert res.settings["polish"] is True
     before = res.settings["polish_result"]["fun_before"]
-    assert before > 1e-6 and res.fun < 1e-15 and res.success
+    assert before > 1e-6 and res.fun < 1e-15 and res.success and res.status == "converged"
     assert res.nfev == 60 * 51 + res.settings["polish_result"]["nfev"]
+    alone = iwr.identify(robot, measurements, "de", strategy="jade", population_size=60,
+                         generations=50, seed=1, polish=False, progress=False)
+    assert alone.fun == before and not alone.success and alone.status == "stopped"
+    assert "polish_result" not in alone.settings

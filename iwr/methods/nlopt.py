@@ -1,7 +1,7 @@
 """NLopt baselines on the objective of eq. (10): CRS2 (global) and BOBYQA (local, derivative-free).
 
 Both call the C++ objective through :class:`iwr.ReducedProblem`, so they see exactly the cost that
-DE and Levenberg-Marquardt see. Registered as ``iwr.identify(..., method="crs2" | "bobyqa")``.
+DE and Levenberg-Marquardt see: ``iwr.identify(..., method="crs2" | "bobyqa")``.
 
 NLopt's own stopping rules are always set (an evaluation limit and tolerances), the random generator
 is seeded with ``nlopt.srand``, and the point returned is the best one the objective wrapper has
@@ -11,15 +11,15 @@ seen: NLopt (BOBYQA in particular) has been seen returning a point that was not 
 from __future__ import annotations
 
 import math
-import sys
 import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
+from scipy.optimize import OptimizeResult
 
-from .identify import ReducedProblem, register_method
-from .problem import Problem
+from ._run import Monitor, Stop, check_budget
+from .reduced import ReducedProblem
 from .result import IdentificationResult
 
 __all__ = ["crs2", "bobyqa", "DEFAULT_MAX_EVALUATIONS"]
@@ -72,85 +72,13 @@ def _seed(seed: Any) -> int:
     return int(seed) % (2**32)  # nlopt.srand takes an unsigned long; keep it portable
 
 
-class _Objective:
-    """The function NLopt minimises: counts evaluations, keeps the best point and its history,
-    enforces the budget, calls the user's callback, updates the progress bar, turns Ctrl-C into
-    ``opt.force_stop()``."""
-
-    def __init__(self, reduced: ReducedProblem, max_evaluations: int,
-                 callback: Callable[..., Any] | None, bar: Any) -> None:
-        self.reduced = reduced
-        self.max_evaluations = max_evaluations
-        self.callback = callback
-        self.bar = bar
-        self.opt: Any = None
-        self.nfev = 0
-        self.best_f = math.inf
-        self.best_z: np.ndarray | None = None
-        self.hist_nfev: list[int] = []
-        self.hist_best: list[float] = []
-        self.stop_reason = ""
-        self._bar_pending = 0
-
-    def _force_stop(self, reason: str) -> None:
-        if not self.stop_reason:
-            self.stop_reason = reason
-        if self.opt is not None:
-            self.opt.force_stop()
-
-    def __call__(self, z: np.ndarray, grad: np.ndarray) -> float:
-        try:
-            return self._evaluate(z)
-        except KeyboardInterrupt:
-            # Ctrl-C while the objective runs: stop NLopt cleanly, keep the best point so far.
-            self._force_stop("interrupted (Ctrl-C)")
-            return self.best_f if math.isfinite(self.best_f) else 1e300
-
-    def _evaluate(self, z: np.ndarray) -> float:
-        if self.stop_reason:  # NLopt may call again before it notices the forced stop
-            return self.best_f
-        if self.nfev >= self.max_evaluations:
-            # NLopt's own maxeval is also set; this guard makes the budget exact whatever the
-            # algorithm does in its initialisation.
-            self._force_stop(
-                f"evaluation budget exhausted (max_evaluations={self.max_evaluations})"
-            )
-            return self.best_f
-        f = self.reduced.cost(z)
-        self.nfev += 1
-        if not math.isfinite(f):
-            f = 1e300  # NLopt's algorithms cannot handle nan; a huge cost steers them away
-        if f < self.best_f:
-            self.best_f = f
-            self.best_z = np.array(z, dtype=float)
-            self.hist_nfev.append(self.nfev)
-            self.hist_best.append(f)
-        if self.bar is not None:
-            self._bar_pending += 1
-            if self._bar_pending >= 512:
-                self.bar.update(self._bar_pending)
-                self.bar.set_postfix_str(f"best {self.best_f:.4g}", refresh=False)
-                self._bar_pending = 0
-        if self.callback is not None and self.callback(self.reduced.full(z), f) is True:
-            self._force_stop("stopped by the callback")
-        return f
-
-    def close_bar(self) -> None:
-        if self.bar is not None:
-            self.bar.update(self._bar_pending)
-            self.bar.set_postfix_str(f"best {self.best_f:.4g}", refresh=False)
-            self.bar.close()
-
-
 def _run_nlopt(
-    problem: Problem,
+    reduced: ReducedProblem,
     name: str,
     algorithm_name: str,
     *,
-    x0: np.ndarray,
-    active: np.ndarray,
     seed: Any,
-    callback: Callable[..., Any] | None,
+    callback: Callable[[OptimizeResult], Any] | None,
     progress: bool | None,
     max_evaluations: Any,
     xtol: Any,
@@ -160,16 +88,15 @@ def _run_nlopt(
 ) -> IdentificationResult:
     import nlopt
 
-    max_evaluations = _int_option("max_evaluations", max_evaluations, 1)
+    max_evaluations = check_budget(max_evaluations, 1)
     xtol = _float_option("xtol", xtol, 0.0)
     ftol = _float_option("ftol", ftol, 0.0)
     if stopval is not None:
         stopval = _float_option("stopval", stopval, -math.inf)
     seed = _seed(seed)
 
-    reduced = ReducedProblem(problem, active, x0)
     lower, upper = reduced.lower, reduced.upper
-    z_start = reduced.reduce(x0)
+    z_start = reduced.z0
     # The start must lie within the bounds for NLopt; a point outside them is clipped, and said so.
     z0 = np.clip(z_start, lower, upper)
     clipped = int(np.count_nonzero(z0 != z_start))
@@ -186,14 +113,29 @@ def _run_nlopt(
         opt.set_stopval(stopval)
     extra = configure(opt, reduced, z0)
 
-    show = sys.stderr.isatty() if progress is None else bool(progress)
-    bar = None
-    if show:
-        from tqdm.auto import tqdm
+    mon = Monitor(reduced, name, max_evaluations, callback, progress)
 
-        bar = tqdm(total=max_evaluations, desc=name, unit="eval", unit_scale=True, leave=False)
-    objective = _Objective(reduced, max_evaluations, callback, bar)
-    objective.opt = opt
+    def objective(z: np.ndarray, grad: np.ndarray) -> float:
+        # NLopt cannot end a run from an exception in the objective: force_stop, and return the
+        # best cost so far to its last calls.
+        if mon.status:  # NLopt may call again before it notices the forced stop
+            return mon.best_f
+        try:
+            # NLopt's own maxeval is also set; spend() makes the budget exact whatever the
+            # algorithm does in its initialisation.
+            mon.spend()
+            f = reduced.cost(z)
+            mon.observe(z, f)
+        except Stop:
+            opt.force_stop()
+            return mon.best_f if math.isfinite(mon.best_f) else 1e300
+        except KeyboardInterrupt:
+            # Ctrl-C while the objective runs: stop NLopt cleanly, keep the best point so far.
+            mon.interrupted()
+            opt.force_stop()
+            return mon.best_f if math.isfinite(mon.best_f) else 1e300
+        return f if math.isfinite(f) else 1e300  # NLopt cannot handle nan; steer away from it
+
     opt.set_min_objective(objective)
 
     nlopt.srand(seed)  # CRS2's random population and mutations; BOBYQA is deterministic
@@ -208,48 +150,42 @@ def _run_nlopt(
     except nlopt.RoundoffLimited:
         code = -4
     except KeyboardInterrupt:
-        # Ctrl-C outside the objective's try block (between two evaluations): same outcome.
-        objective.stop_reason = objective.stop_reason or "interrupted (Ctrl-C)"
+        # Ctrl-C outside the objective (between two evaluations): same outcome.
+        mon.interrupted()
         code = -5
     except RuntimeError as exc:  # nlopt's generic failure
         code = -1
-        objective.stop_reason = objective.stop_reason or f"NLopt failure: {exc}"
+        mon.stop("failed", f"NLopt failure: {exc}")
     finally:
-        objective.close_bar()
+        mon.close()
     wall = time.perf_counter() - start
 
     # The answer: the better of NLopt's returned point and the best point the wrapper saw,
     # each cost re-evaluated (not an algorithm evaluation: outside the budget).
     candidates = []
-    if objective.best_z is not None:
-        candidates.append(objective.best_z)
+    if mon.best_z is not None:
+        candidates.append(mon.best_z)
     if z_ret is not None and z_ret.shape == (reduced.n,) and np.all(np.isfinite(z_ret)):
         candidates.append(z_ret)
     if not candidates:
         candidates.append(z0)
-    costs = [problem.cost(reduced.full(z)) for z in candidates]
+    costs = [reduced.problem.cost(reduced.full(z)) for z in candidates]
     k = int(np.argmin(costs))
     x = reduced.full(candidates[k])
     fun = costs[k]
     returned_not_best = len(candidates) == 2 and k == 0 and costs[1] > costs[0]
 
-    if objective.stop_reason:
-        message = objective.stop_reason
-        success = False
+    if mon.status:
+        status, message = mon.status, mon.message
     else:
         message = _RESULT_TEXT.get(code, f"nlopt result {code}") if code is not None else "?"
-        success = code is not None and 1 <= code <= 4
+        ok = code is not None and 1 <= code <= 4
+        status = "converged" if ok else ("stopped" if code in (5, 6) else "failed")
         if code == 5:
             message = f"evaluation budget exhausted (max_evaluations={max_evaluations})"
     if returned_not_best:
         message += f"; NLopt returned a point of cost {costs[1]:.6g}, the best seen was better"
 
-    hist_nfev = list(objective.hist_nfev)
-    hist_best = list(objective.hist_best)
-    if not hist_nfev or hist_nfev[-1] != objective.nfev:
-        # Close the curve at the last evaluation, so a plot shows where the run ended.
-        hist_nfev.append(objective.nfev)
-        hist_best.append(objective.best_f)
     settings = {
         "algorithm": algorithm_name,
         "max_evaluations": max_evaluations,
@@ -264,26 +200,24 @@ def _run_nlopt(
     return IdentificationResult(
         x=x,
         fun=fun,
-        nfev=objective.nfev,
-        nit=objective.nfev,
-        success=bool(success),
+        nfev=mon.nfev,
+        nit=mon.nfev,
+        success=status == "converged",
+        status=status,
         message=message,
-        history={"nfev": np.array(hist_nfev, dtype=np.int64), "best": np.array(hist_best)},
+        history=mon.history(),
         wall_time=wall,
         settings=settings,
     )
 
 
-@register_method("crs2")
 def crs2(
-    problem: Problem,
+    problem: ReducedProblem,
     *,
-    x0: np.ndarray,
-    active: np.ndarray,
-    seed: int | None = None,
-    callback: Callable[..., Any] | None = None,
-    progress: bool | None = None,
     max_evaluations: int = DEFAULT_MAX_EVALUATIONS,
+    seed: int | None = None,
+    callback: Callable[[OptimizeResult], Any] | None = None,
+    progress: bool | None = None,
     population: int | None = None,
     xtol: float = 1e-12,
     ftol: float = 1e-15,
@@ -296,19 +230,20 @@ def crs2(
 
     Parameters
     ----------
-    problem : Problem
-    x0 : ndarray
-        A member of the initial population; the value of inactive parameters.
-    active : ndarray of bool
+    problem : ReducedProblem
+        The active parameters; its start ``x0`` (clipped into the bounds) is a member of the
+        initial population, and the value of the inactive parameters.
+    max_evaluations : int
+        Evaluation budget (NLopt's ``maxeval``), respected exactly.
     seed : int, optional
         Passed to ``nlopt.srand``; the same seed gives the same result.
     callback : callable, optional
-        ``callback(x, cost)`` after every evaluation (``x`` the full parameter vector); returning
-        ``True`` stops the run (the best point so far is returned).
+        ``callback(intermediate_result)`` after every evaluation, with an ``OptimizeResult`` of
+        the best point so far (``x`` the full vector, ``fun``, ``nfev``, ``nit``). A truthy return
+        or ``StopIteration`` stops the run, which returns that point.
     progress : bool, optional
-        A tqdm bar over evaluations (default: when standard error is a terminal).
-    max_evaluations : int
-        Evaluation budget (NLopt's ``maxeval``), respected exactly.
+        A tqdm bar of evaluations against the budget (default: when standard error is a
+        terminal).
     population : int, optional
         Population size; NLopt's default is ``10 (n + 1)``.
     xtol : float
@@ -333,22 +268,19 @@ def crs2(
         return {"population": population if population is not None else 10 * (reduced.n + 1)}
 
     return _run_nlopt(
-        problem, "crs2", "GN_CRS2_LM", x0=x0, active=active, seed=seed, callback=callback,
+        problem, "crs2", "GN_CRS2_LM", seed=seed, callback=callback,
         progress=progress, max_evaluations=max_evaluations, xtol=xtol, ftol=ftol,
         stopval=stopval, configure=configure,
     )
 
 
-@register_method("bobyqa")
 def bobyqa(
-    problem: Problem,
+    problem: ReducedProblem,
     *,
-    x0: np.ndarray,
-    active: np.ndarray,
-    seed: int | None = None,
-    callback: Callable[..., Any] | None = None,
-    progress: bool | None = None,
     max_evaluations: int = DEFAULT_MAX_EVALUATIONS,
+    seed: int | None = None,
+    callback: Callable[[OptimizeResult], Any] | None = None,
+    progress: bool | None = None,
     initial_step: float = 0.1,
     xtol: float = 1e-12,
     ftol: float = 1e-15,
@@ -359,14 +291,10 @@ def bobyqa(
 
     Parameters
     ----------
-    problem : Problem
-    x0 : ndarray
-        The starting point (clipped into the bounds); the value of inactive parameters.
-    active : ndarray of bool
-    seed : int, optional
-        Passed to ``nlopt.srand`` (BOBYQA itself is deterministic).
-    callback, progress, max_evaluations, xtol, ftol, stopval
-        As for :func:`crs2`.
+    problem : ReducedProblem
+        The active parameters; its start ``x0`` is clipped into the bounds.
+    max_evaluations, seed, callback, progress, xtol, ftol, stopval
+        As for :func:`crs2` (BOBYQA itself is deterministic; the seed is still set).
     initial_step : float
         Initial trust-region radius per parameter, as a fraction of the width of its bounds
         (0 < initial_step <= 0.5). NLopt rescales the parameters by these steps, so lengths (mm)
@@ -384,7 +312,7 @@ def bobyqa(
         return {"initial_step": step}
 
     return _run_nlopt(
-        problem, "bobyqa", "LN_BOBYQA", x0=x0, active=active, seed=seed, callback=callback,
+        problem, "bobyqa", "LN_BOBYQA", seed=seed, callback=callback,
         progress=progress, max_evaluations=max_evaluations, xtol=xtol, ftol=ftol,
         stopval=stopval, configure=configure,
     )
