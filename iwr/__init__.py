@@ -31,7 +31,7 @@ from .identifiability import (
 from .measurements import MeasurementFileError, Measurements
 from .methods import IdentificationResult, ReducedProblem, ResultFileError, identify, load_result
 from .methods.de import differential_evolution
-from .planning import PosePlan, plan_poses
+from .planning import PosePlan, plan_poses, read_plan
 from .problem import Problem, predict_legs
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
@@ -83,6 +83,7 @@ __all__ = [
     "plan_poses",
     "pose_errors",
     "predict_legs",
+    "read_plan",
     "simulate",
     "study",
     "uncertainty",

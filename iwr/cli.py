@@ -572,11 +572,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
     except ValueError as exc:
         msg = str(exc)
         raise CommandError("--poses" + msg[7:] if msg.startswith("n_poses:") else msg) from None
-    plan.measurements.to_csv(args.out)
+    plan.to_csv(args.out, source)
     print(f"candidates: {source}")
     print(plan)
-    print(f"wrote {args.out}: the chosen poses (joint readings and platform poses; its leg "
-          "readings are the candidates', to be replaced by the readings measured there)")
+    print(f"wrote {args.out}: the chosen poses to measure (joint readings and platform poses); "
+          "measure them, then calibrate with the measured file")
     return EXIT_OK
 
 

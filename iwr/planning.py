@@ -16,18 +16,24 @@ swap helps. While the chosen poses cannot yet determine every base parameter (fe
 
 from __future__ import annotations
 
+import csv
+import io
+import math
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+from ._io import atomic_write_text
 from .identifiability import IdentifiabilityReport, column_scale, identifiability
-from .measurements import Measurements
+from .measurements import PLAN_MARKER, MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
 from .robot import Robot
 from .simulate import Noise, add_noise
 
-__all__ = ["PosePlan", "plan_poses", "measure"]
+__all__ = ["PosePlan", "plan_poses", "measure", "read_plan"]
 
 CRITERIA = ("O1", "O2", "O3", "O4")
 
@@ -67,6 +73,72 @@ class PosePlan:
             f"{len(self.indices)} poses chosen for {self.criterion}: {self.value:.4g} "
             f"(greedy {self.greedy_value:.4g}, {self.n_exchanges} exchange(s))"
         )
+
+    def to_csv(self, path: str | os.PathLike[str], source: str | None = None) -> None:
+        """Write the chosen poses to measure (atomically): joint readings and platform poses, in
+        the columns of a measurement file but without leg readings, under a first line
+        ``# iwr plan: ...`` that :meth:`iwr.Measurements.from_csv` refuses (a plan is not
+        measurements); :func:`read_plan` reads it back."""
+        m = self.measurements
+        cols = m.columns()[: m.n_joints + 6]
+        buf = io.StringIO()
+        origin = f" from {source}" if source else ""
+        buf.write(
+            f"{PLAN_MARKER} {len(self.indices)} poses chosen for {self.criterion}{origin}.\n"
+            "# Not measurements: drive the robot to each pose below, record the joint readings,\n"
+            "# the six leg readings and the platform pose measured by the tracker, and calibrate\n"
+            "# with that measurement file (docs/data.md). Lengths in mm, angles in rad.\n"
+        )
+        writer = csv.writer(buf, lineterminator="\n")
+        writer.writerow(cols)
+        for row in np.hstack([m.q, m.poses]):
+            writer.writerow([repr(float(v)) for v in row])
+        atomic_write_text(path, buf.getvalue())
+
+
+def read_plan(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
+    """The poses of a plan written by :meth:`PosePlan.to_csv` (``iwr plan``): ``(q, poses)``,
+    joint readings (N, n_joints) and world platform poses (N, 6), a pair that
+    :func:`plan_poses` also takes as candidates.
+
+    Raises
+    ------
+    MeasurementFileError
+        Not a plan file, or a malformed one (naming the line).
+    """
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8-sig")
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
+    if not text.lstrip().startswith(PLAN_MARKER):
+        raise MeasurementFileError(f"{path}: not a pose plan (no first line '{PLAN_MARKER} ...')")
+    header: list[str] | None = None
+    rows = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        fields = [f.strip() for f in next(csv.reader([line]))]
+        if header is None:
+            header = fields
+            n_joints = len(header) - 6
+            if n_joints < 0 or header[n_joints:] != ["x_mm", "y_mm", "z_mm", "alpha_rad",
+                                                     "beta_rad", "gamma_rad"]:
+                raise MeasurementFileError(f"{path}, line {lineno}: not a plan's header")
+            continue
+        try:
+            values = [float(f) for f in fields]
+        except ValueError:
+            raise MeasurementFileError(f"{path}, line {lineno}: not numbers") from None
+        if len(values) != len(header) or not all(math.isfinite(v) for v in values):
+            raise MeasurementFileError(
+                f"{path}, line {lineno}: expected {len(header)} finite numbers"
+            )
+        rows.append(values)
+    if header is None or not rows:
+        raise MeasurementFileError(f"{path}: no poses")
+    data = np.array(rows)
+    return data[:, :n_joints], data[:, n_joints:]
 
 
 def _criterion(eig: np.ndarray, name: str, k: int) -> np.ndarray:

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import datetime
+import json
 import math
 import os
+import re
 import sys
 from collections.abc import Mapping
 from pathlib import Path
@@ -13,6 +16,7 @@ import numpy as np
 
 from . import _core
 from ._io import atomic_write_text
+from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -29,7 +33,10 @@ class RobotFileError(ValueError):
     """A robot TOML file is missing, malformed, or has a missing, unknown or ill-typed key."""
 
 
-def _as_array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
+def _as_array(value: Any, shape: tuple[int, ...], name: str, units: Any = None) -> np.ndarray:
+    """``value`` as finite floats of ``shape``; with ``units`` ("mm"/"rad", broadcast along the
+    last axis), also within the physical limits (:data:`iwr.measurements.MAX_LENGTH_MM`,
+    :data:`~iwr.measurements.MAX_ANGLE_RAD`)."""
     try:
         arr = np.array(value, dtype=float)
     except (TypeError, ValueError) as exc:
@@ -39,7 +46,20 @@ def _as_array(value: Any, shape: tuple[int, ...], name: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         bad = np.argwhere(~np.isfinite(arr))[0]
         raise ValueError(f"{name}: entry {tuple(int(i) for i in bad)} is not finite")
+    if units is not None and arr.size:
+        limit = np.where(np.asarray(units) == "mm", MAX_LENGTH_MM, MAX_ANGLE_RAD)
+        over = np.abs(arr) > np.broadcast_to(limit, arr.shape)
+        if over.any():
+            bad = tuple(int(i) for i in np.argwhere(over)[0])
+            unit = np.broadcast_to(np.asarray(units), arr.shape)[bad]
+            raise ValueError(
+                f"{name}: entry {bad} is {float(arr[bad])!r} {unit}, beyond any robot "
+                f"(|value| <= {MAX_LENGTH_MM if unit == 'mm' else MAX_ANGLE_RAD:g} {unit})"
+            )
     return arr
+
+
+_POSE_UNITS = ["mm"] * 3 + ["rad"] * 3
 
 
 class Robot:
@@ -70,6 +90,12 @@ class Robot:
         Half-widths of the sampled hexapod workspace around ``home_pose`` (mm, rad).
     name : str
         A label.
+    provenance : mapping, optional
+        Where the description comes from (date, iwr version, method, data file, cost...): plain
+        values written by :meth:`to_toml` as a ``[provenance]`` table and kept by
+        :meth:`from_toml`. Not part of the geometry (``==`` ignores it).
+
+    Lengths beyond 1e5 mm (100 m) or angles beyond 1e3 rad are refused: no robot has them.
     """
 
     def __init__(
@@ -84,6 +110,7 @@ class Robot:
         home_pose: Any = (0.0, 0.0, 600.0, 0.0, 0.0, 0.0),
         workspace: Any = (100.0, 100.0, 60.0, 0.15, 0.15, 0.15),
         name: str = "robot",
+        provenance: Mapping[str, Any] | None = None,
     ) -> None:
         if not isinstance(joint_types, str) or any(c not in "PR" for c in joint_types):
             raise ValueError(
@@ -92,25 +119,28 @@ class Robot:
         n = len(joint_types)
         self.name = str(name)
         self.joint_types = joint_types
-        self.dh = _as_array(dh, (n, 4), "dh") if n else np.zeros((0, 4))
+        self.dh = _as_array(dh, (n, 4), "dh", ["rad", "mm", "mm", "rad"]) if n else np.zeros((0, 4))
+        joint_units = np.array([["mm"] if c == "P" else ["rad"] for c in joint_types]).reshape(n, 1)
         self.joint_limits = (
-            _as_array(joint_limits, (n, 2), "joint_limits") if n else np.zeros((0, 2))
+            _as_array(joint_limits, (n, 2), "joint_limits", joint_units) if n
+            else np.zeros((0, 2))
         )
         for i, (lo, hi) in enumerate(self.joint_limits):
             if not lo < hi:
                 raise ValueError(f"joint_limits: joint {i + 1} has lower {lo} >= upper {hi}")
-        self.base_joints = _as_array(base_joints, (6, 3), "base_joints")
-        self.platform_joints = _as_array(platform_joints, (6, 3), "platform_joints")
-        self.leg_offsets = _as_array(leg_offsets, (6,), "leg_offsets")
+        self.base_joints = _as_array(base_joints, (6, 3), "base_joints", "mm")
+        self.platform_joints = _as_array(platform_joints, (6, 3), "platform_joints", "mm")
+        self.leg_offsets = _as_array(leg_offsets, (6,), "leg_offsets", "mm")
         stroke = np.array(leg_stroke, dtype=float)
         if stroke.shape == (2,):
             stroke = np.tile(stroke, (6, 1))
-        self.leg_stroke = _as_array(stroke, (6, 2), "leg_stroke")
+        self.leg_stroke = _as_array(stroke, (6, 2), "leg_stroke", "mm")
         for i, (lo, hi) in enumerate(self.leg_stroke):
             if not lo < hi:
                 raise ValueError(f"leg_stroke: leg {i + 1} has lower {lo} >= upper {hi}")
-        self.home_pose = _as_array(home_pose, (6,), "home_pose")
-        self.workspace = _as_array(workspace, (6,), "workspace")
+        self.home_pose = _as_array(home_pose, (6,), "home_pose", _POSE_UNITS)
+        self.workspace = _as_array(workspace, (6,), "workspace", _POSE_UNITS)
+        self.provenance = _provenance(provenance or {}, "provenance")
         if np.any(self.workspace < 0):
             raise ValueError(f"workspace: half-widths must be >= 0, got {self.workspace}")
         self._geometry = _core.Geometry(
@@ -288,17 +318,48 @@ class Robot:
             },
         }
 
-    def to_toml(self, path: str | os.PathLike[str]) -> None:
-        """Write the robot as TOML (atomically: a temporary file, then a rename)."""
-        import tomli_w
+    def to_toml(self, path: str | os.PathLike[str],
+                provenance: Mapping[str, Any] | None = None) -> None:
+        """Write the robot as TOML (atomically: a temporary file, then a rename).
 
-        header = (
-            "# iwr robot description. Lengths in mm, angles in rad.\n"
-            "# Carriage: standard DH, A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha); a joint reading adds\n"
-            "# to d (prismatic) or theta (revolute). Hexapod: base_joints a_i in frame {4},\n"
-            "# platform_joints b_i in frame {5}, leg length = reading + leg_offset.\n"
-        )
-        atomic_write_text(path, header + tomli_w.dumps(self.to_dict()))
+        Laid out to be read and edited by hand: one key per line, vectors and the rows of
+        matrices on one line each, full double precision. ``provenance`` (default: the robot's
+        own, :attr:`provenance`) is written as a ``[provenance]`` table, for example
+        ``{"date": ..., "iwr_version": ..., "method": "lm", "data": "measurements.csv",
+        "cost_mm2": 1.2e-4}``; values are strings, numbers, booleans or dates.
+        """
+        prov = _provenance(self.provenance if provenance is None else provenance, "provenance")
+        d = self.to_dict()
+        out = [
+            "# iwr robot description. Lengths in mm, angles in rad.",
+            "# Carriage: standard DH, A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha); a joint reading adds",
+            "# to d (prismatic) or theta (revolute). Hexapod: base_joints a_i in frame {4},",
+            "# platform_joints b_i in frame {5}, leg length = reading + leg_offset.",
+            f"name = {_toml_value(d['name'])}",
+            "",
+        ]
+        if prov:
+            out.append("[provenance]  # where this description comes from; not read as geometry")
+            out += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in prov.items()]
+            out.append("")
+        out += ["[units]", 'length = "mm"', 'angle = "rad"', ""]
+        for joint in d["carriage"]["joints"]:
+            out.append("[[carriage.joints]]")
+            out += [f"{k} = {_toml_value(v)}" for k, v in joint.items()]
+            out.append("")
+        out.append("[hexapod]")
+        hexa = dict(d["hexapod"])
+        stroke = hexa["leg_stroke"]
+        if all(row == stroke[0] for row in stroke):
+            hexa["leg_stroke"] = stroke[0]  # [lo, hi] for every leg
+        for k, v in hexa.items():
+            if v and isinstance(v[0], list):
+                out.append(f"{k} = [")
+                out += [f"    {_toml_value(row)}," for row in v]
+                out.append("]")
+            else:
+                out.append(f"{k} = {_toml_value(v)}")
+        atomic_write_text(path, "\n".join(out) + "\n")
 
     @classmethod
     def from_toml(cls, path: str | os.PathLike[str]) -> Robot:
@@ -332,7 +393,7 @@ class Robot:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Robot:
         """Build a robot from the dictionary form of :meth:`to_dict`; strict about keys."""
-        _check_keys(data, {"name", "units", "carriage", "hexapod"}, {"hexapod"}, "")
+        _check_keys(data, {"name", "units", "carriage", "hexapod", "provenance"}, {"hexapod"}, "")
         units = data.get("units", {"length": "mm", "angle": "rad"})
         _check_keys(units, {"length", "angle"}, set(), "units")
         if units.get("length", "mm") != "mm" or units.get("angle", "rad") != "rad":
@@ -356,24 +417,27 @@ class Robot:
             if kind not in ("prismatic", "revolute"):
                 raise ValueError(f"{where}.type: {kind!r}; expected 'prismatic' or 'revolute'")
             types += "P" if kind == "prismatic" else "R"
-            dh.append([_number(joint[c], f"{where}.{c}") for c in _DH_COLUMNS])
-            limits.append(_numbers(joint["limits"], 2, f"{where}.limits"))
+            dh.append([_number(joint[c], f"{where}.{c}", "rad" if _DH_ANGLE[c] else "mm")
+                       for c in _DH_COLUMNS])
+            limits.append(_numbers(joint["limits"], 2, f"{where}.limits",
+                                   ["mm" if kind == "prismatic" else "rad"] * 2))
         hexa = data["hexapod"]
         required = {"base_joints", "platform_joints", "leg_offsets", "leg_stroke"}
         _check_keys(hexa, required | {"home_pose", "workspace"}, required, "hexapod")
         kwargs = {}
         for key in ("home_pose", "workspace"):
             if key in hexa:
-                kwargs[key] = _numbers(hexa[key], 6, f"hexapod.{key}")
+                kwargs[key] = _numbers(hexa[key], 6, f"hexapod.{key}", _POSE_UNITS)
         return cls(
             types,
             np.array(dh, dtype=float).reshape(len(types), 4),
             np.array(limits, dtype=float).reshape(len(types), 2),
             _matrix(hexa["base_joints"], 6, 3, "hexapod.base_joints"),
             _matrix(hexa["platform_joints"], 6, 3, "hexapod.platform_joints"),
-            _numbers(hexa["leg_offsets"], 6, "hexapod.leg_offsets"),
+            _numbers(hexa["leg_offsets"], 6, "hexapod.leg_offsets", ["mm"] * 6),
             _stroke(hexa["leg_stroke"]),
             name=name,
+            provenance=_provenance(data.get("provenance", {}), "provenance"),
             **kwargs,
         )
 
@@ -413,7 +477,7 @@ def _check_keys(table: Any, allowed: set[str], required: set[str], where: str) -
             raise ValueError(f"{prefix}{key}: missing key")
 
 
-def _number(value: Any, where: str) -> float:
+def _number(value: Any, where: str, unit: str = "mm") -> float:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ValueError(f"{where}: expected a number, got {type(value).__name__} {value!r}")
     try:
@@ -423,16 +487,24 @@ def _number(value: Any, where: str) -> float:
     if not finite:
         shown = value if isinstance(value, float) else f"an integer of {value.bit_length()} bits"
         raise ValueError(f"{where}: {shown} is not a finite double")
+    limit = MAX_LENGTH_MM if unit == "mm" else MAX_ANGLE_RAD
+    if abs(value) > limit:
+        raise ValueError(
+            f"{where}: {float(value)!r} {unit} is beyond any robot (|value| <= {limit:g} {unit})"
+        )
     return float(value)
 
 
-def _numbers(value: Any, n: int, where: str) -> list[float]:
+def _numbers(value: Any, n: int, where: str, units: list[str] | None = None) -> list[float]:
     if not isinstance(value, list) or len(value) != n:
         raise ValueError(f"{where}: expected an array of {n} numbers, got {value!r}")
-    return [_number(v, f"{where}[{i}]") for i, v in enumerate(value)]
+    units = units or ["mm"] * n
+    return [_number(v, f"{where}[{i}]", u) for i, (v, u) in enumerate(zip(value, units,
+                                                                          strict=True))]
 
 
 def _matrix(value: Any, rows: int, cols: int, where: str) -> list[list[float]]:
+    """A matrix of lengths (mm)."""
     if not isinstance(value, list) or len(value) != rows:
         raise ValueError(f"{where}: expected {rows} rows of {cols} numbers")
     return [_numbers(row, cols, f"{where}[{i}]") for i, row in enumerate(value)]
@@ -442,3 +514,54 @@ def _stroke(value: Any) -> list[Any]:
     if isinstance(value, list) and len(value) == 2 and not isinstance(value[0], list):
         return _numbers(value, 2, "hexapod.leg_stroke")
     return _matrix(value, 6, 2, "hexapod.leg_stroke")
+
+
+_PROVENANCE_TYPES = (str, bool, int, float, datetime.date, datetime.time)
+
+
+def _provenance(value: Any, where: str) -> dict[str, Any]:
+    """A flat table of plain values (what TOML can write without nesting)."""
+    if not isinstance(value, Mapping):
+        raise ValueError(f"{where}: expected a table of values, got {type(value).__name__}")
+    out = {}
+    for k, v in value.items():
+        if not isinstance(k, str) or not k:
+            raise ValueError(f"{where}: key {k!r} is not a non-empty string")
+        if isinstance(v, np.generic):
+            v = v.item()
+        if isinstance(v, os.PathLike):
+            v = os.fspath(v)
+        if not isinstance(v, _PROVENANCE_TYPES):
+            raise ValueError(
+                f"{where}.{k}: {type(v).__name__} {v!r:.60}; expected a string, number, boolean "
+                "or date"
+            )
+        out[k] = v
+    return out
+
+
+def _toml_key(key: str) -> str:
+    return key if re.fullmatch(r"[A-Za-z0-9_-]+", key) else _toml_value(key)
+
+
+def _toml_value(value: Any) -> str:
+    """One value in TOML: floats in full precision (repr), strings as basic strings, arrays on
+    one line."""
+    if isinstance(value, bool):
+        return "true" if value else "false"
+    if isinstance(value, int):
+        return str(value)
+    if isinstance(value, float):
+        if math.isnan(value):
+            return "nan"
+        if math.isinf(value):
+            return "inf" if value > 0 else "-inf"
+        return repr(value)
+    if isinstance(value, str):
+        # JSON's escapes are also TOML's; DEL must be escaped too in TOML.
+        return json.dumps(value, ensure_ascii=False).replace("\x7f", "\\u007f")
+    if isinstance(value, (datetime.date, datetime.time)):
+        return value.isoformat()
+    if isinstance(value, list):
+        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+    raise TypeError(f"cannot write {type(value).__name__} as TOML")

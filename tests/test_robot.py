@@ -1,0 +1,84 @@
+"""The robot TOML: written to be read by hand, with provenance, read back exactly; values beyond
+any robot refused naming the key."""
+
+from __future__ import annotations
+
+import datetime
+import sys
+
+import numpy as np
+import pytest
+
+import iwr
+
+if sys.version_info >= (3, 11):
+    import tomllib
+else:  # pragma: no cover
+    import tomli as tomllib
+
+
+@pytest.mark.parametrize("robot", [iwr.Robot.default(), iwr.Robot.hexapod()])
+def test_round_trip_is_exact(tmp_path, robot):
+    x = np.random.default_rng(1).uniform(-0.3, 0.3, robot.n_params)
+    calibrated = robot.with_errors(x)
+    calibrated.to_toml(tmp_path / "r.toml")
+    back = iwr.Robot.from_toml(tmp_path / "r.toml")
+    assert back == calibrated and back.provenance == {}
+    for name in ("dh", "joint_limits", "base_joints", "platform_joints", "leg_offsets",
+                 "leg_stroke", "home_pose", "workspace"):
+        np.testing.assert_array_equal(getattr(back, name), getattr(calibrated, name), name)
+
+
+def test_rows_of_numbers_on_one_line(tmp_path):
+    robot = iwr.Robot.default()
+    robot.to_toml(tmp_path / "r.toml")
+    text = (tmp_path / "r.toml").read_text()
+    lines = text.splitlines()
+    assert "limits = [0.0, 2000.0]" in lines
+    assert "leg_offsets = [600.0, 600.0, 600.0, 600.0, 600.0, 600.0]" in lines
+    assert "leg_stroke = [0.0, 400.0]" in lines
+    rows = [line for line in lines if line.startswith("    [")]
+    assert len(rows) == 12 and all(line.count(",") == 3 for line in rows)  # a_i, b_i: 3 numbers
+    assert len(lines) < 70  # one number per line took 150
+    # what tomllib reads is what to_dict says
+    assert iwr.Robot.from_dict(tomllib.loads(text)) == robot
+
+
+def test_provenance_is_written_and_kept(tmp_path):
+    robot = iwr.Robot.default()
+    when = datetime.datetime(2026, 11, 23, 14, 0, tzinfo=datetime.timezone.utc)
+    prov = {"date": when, "iwr_version": iwr.__version__, "method": "lm",
+            "data": tmp_path / "my data.csv", "cost_mm2": np.float64(1.25e-4), "converged": True}
+    robot.to_toml(tmp_path / "r.toml", provenance=prov)
+    text = (tmp_path / "r.toml").read_text()
+    assert "[provenance]" in text and 'method = "lm"' in text
+    back = iwr.Robot.from_toml(tmp_path / "r.toml")
+    assert back == robot  # not geometry
+    assert back.provenance == {**prov, "data": str(tmp_path / "my data.csv"), "cost_mm2": 1.25e-4}
+    # kept when written again
+    back.to_toml(tmp_path / "again.toml")
+    assert iwr.Robot.from_toml(tmp_path / "again.toml").provenance == back.provenance
+    with pytest.raises(ValueError, match=r"provenance.result: list"):
+        robot.to_toml(tmp_path / "bad.toml", provenance={"result": [1, 2]})
+
+
+@pytest.mark.parametrize("old, new, key", [
+    ("leg_offsets = [600.0,", "leg_offsets = [1e26,", r"hexapod.leg_offsets\[0\]: 1e\+26 mm"),
+    ("d = 500.0", "d = 2e5", r"carriage.joints\[0\].d: 200000.0 mm"),
+    ("theta = 0.0", "theta = 1e9", r"carriage.joints\[0\].theta: 1000000000.0 rad"),
+    ("limits = [0.0, 2000.0]", "limits = [0.0, 1e300]", r"carriage.joints\[0\].limits\[1\]"),
+])
+def test_values_beyond_any_robot_are_refused_with_the_key(tmp_path, old, new, key):
+    iwr.Robot.default().to_toml(tmp_path / "r.toml")
+    text = (tmp_path / "r.toml").read_text()
+    assert old in text
+    (tmp_path / "r.toml").write_text(text.replace(old, new, 1))
+    with pytest.raises(iwr.RobotFileError, match=rf"r.toml: {key}.*beyond any robot"):
+        iwr.Robot.from_toml(tmp_path / "r.toml")
+
+
+def test_values_beyond_any_robot_are_refused_in_python():
+    r = iwr.Robot.default()
+    with pytest.raises(ValueError, match=r"leg_offsets: entry \(2,\) is 1e\+26 mm, beyond"):
+        iwr.Robot(r.joint_types, r.dh, r.joint_limits, r.base_joints, r.platform_joints,
+                  [600, 600, 1e26, 600, 600, 600], r.leg_stroke)
