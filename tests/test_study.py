@@ -24,20 +24,13 @@ import numpy as np
 import pytest
 
 import iwr
-from iwr.study import (
-    TIMING_COLUMNS,
-    Cell,
-    StudyError,
-    main,
-    make_grid,
-    noise_at,
-    read_table,
-    robot_hash,
-)
+from iwr.cli import main as cli_main
+from iwr.cli import study as study_cli
+from iwr.experiments.harness import Cell, noise_at, robot_hash
+from iwr.experiments.study import TIMING_COLUMNS, StudyError, make_grid, read_table
 
 distributed = pytest.importorskip("distributed")
-# The modules (the package's attributes iwr.study and iwr.identify are the functions).
-study_module = importlib.import_module("iwr.study")
+# The module (the package's attribute iwr.identify is the function).
 identify_module = importlib.import_module("iwr.identify")
 
 CRASH = "test-crash-once"
@@ -65,6 +58,11 @@ class RegisterCrashMethod(distributed.WorkerPlugin):
 
 # Workers import iwr but not this file: send the method and the plugin by value.
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+def main(argv: list[str]) -> int:
+    """``iwr study ARGS``."""
+    return cli_main(["study", *argv])
 
 
 def executions(log: Path) -> int:
@@ -265,7 +263,7 @@ def test_bad_table(tmp_path: Path) -> None:
 
 
 def test_trend_rule() -> None:
-    from iwr.study._report import _trend
+    from iwr.reporting.study import _trend
 
     n = [10, 20, 40, 80]
     assert _trend(n, [1.0 / math.sqrt(x) for x in n], "N").startswith("keeps improving")
@@ -276,7 +274,7 @@ def test_trend_rule() -> None:
 
 
 def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "iwr.study", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "iwr", "study", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=120)
 
 
@@ -287,8 +285,8 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     p = run_cli("--poses", "ten", cwd=tmp_path)
     assert p.returncode == 2 and p.stdout == ""
     assert p.stderr.strip().splitlines() == [
-        "iwr study: error: argument --poses: 'ten': expected a comma-separated list of integers "
-        "(see --help)"
+        "iwr: error: argument --poses: 'ten': expected a comma-separated list of integers "
+        "(see 'iwr study --help')"
     ]
     for args, text in (
         (["--methods", "nope"], "methods: 'nope'"),
@@ -330,7 +328,7 @@ def test_add_study_parser_hook() -> None:
 
     parser = argparse.ArgumentParser(prog="iwr")
     sub = parser.add_subparsers(dest="command")
-    study_module.add_study_parser(sub)
+    study_cli.add_study_parser(sub)
     args = parser.parse_args(["study", "--poses", "10,20", "--budget", "lm=5,50"])
-    assert args.func is study_module.run_study
+    assert args.func is study_cli.run_study
     assert args.poses == [10, 20] and args.budget == ["lm=5,50"]

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import itertools
 import json
 import math
@@ -12,12 +11,13 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_write_bytes, atomic_write_text
-from .accuracy import Accuracy
-from .measurements import Measurements
-from .problem import Problem, predict_legs
-from .result import IdentificationResult
-from .robot import Robot
+from .._io import atomic_write_text, jsonable
+from ..accuracy import Accuracy
+from ..measurements import Measurements
+from ..problem import Problem, predict_legs
+from ..result import IdentificationResult
+from ..robot import Robot
+from .figures import new_figure, save_png
 
 __all__ = ["Calibration", "leg_residual_stats"]
 
@@ -135,7 +135,7 @@ class Calibration:
                 "max_abs_length_mm": float(pe.max_abs_length),
                 "max_abs_angle_rad": float(pe.max_abs_angle),
             }
-        return _finite(out)
+        return jsonable(out, finite_only=True)
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """One row per error parameter: name, value, std (None if not identified), unit, status."""
@@ -395,9 +395,7 @@ class Calibration:
         zero = np.zeros(self.robot.n_params)
         before = predict_legs(self.robot, zero, data.q, data.poses) - data.legs
         after = predict_legs(self.robot, self.result.x, data.q, data.poses) - data.legs
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(10, 4))
+        fig = new_figure(10, 4)
         axes = fig.subplots(1, 2)
         for ax, r, title in ((axes[0], before, "nominal robot"),
                              (axes[1], after * 1000.0, "calibrated robot")):
@@ -410,12 +408,10 @@ class Calibration:
         axes[1].set_ylabel("residual (um)")
         fig.suptitle(f"Leg residuals, predicted - measured, on {len(data)} {which} poses")
         fig.tight_layout()
-        return _save(fig, path)
+        return save_png(fig, path, dpi=110)
 
     def _plot_accuracy(self, path: Path) -> Path:
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(10, 6.5))
+        fig = new_figure(10, 6.5)
         axes = fig.subplots(2, 2)
         a = self.accuracy
         panels = [
@@ -435,27 +431,8 @@ class Calibration:
         fig.suptitle(f"Tool pose errors on {a.n_poses} "
                      f"{'validation' if self.held_out else 'identification'} poses")
         fig.tight_layout()
-        return _save(fig, path)
-
-
-def _finite(value: Any) -> Any:
-    """JSON has no nan/inf: None instead."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
+        return save_png(fig, path, dpi=110)
 
 
 def _src(name: str) -> str:
     return f" ({name})" if name else ""
-
-
-def _save(fig: Any, path: Path) -> Path:
-    # A bare Figure (no pyplot): no GUI backend, no global state, nothing to close.
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    atomic_write_bytes(path, buf.getvalue())
-    return path

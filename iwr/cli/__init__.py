@@ -22,8 +22,6 @@ from typing import Any
 
 import numpy as np
 
-from . import __version__
-
 __all__ = ["main", "build_parser", "default_method"]
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
@@ -79,7 +77,7 @@ def default_method() -> str:
     Levenberg-Marquardt) when this build has it, else ``"lm"`` (Levenberg-Marquardt on the exact
     Jacobian).
     """
-    from .identify import METHODS
+    from ..identify import METHODS
 
     env = os.environ.get(METHOD_ENV, "").strip()
     if env:
@@ -122,7 +120,7 @@ def _fraction(text: str) -> float:
 
 def _noise(text: str) -> Any:
     """``realistic``, ``none``, or ``key=sigma,...`` over the fields of :class:`iwr.Noise`."""
-    from .simulate import Noise
+    from ..simulate import Noise
 
     spec = text.strip().lower()
     if spec == "realistic":
@@ -169,7 +167,9 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Units: mm and rad everywhere. File formats: docs/data.md. Exit codes: 0 success, "
         "1 bad data or failed computation, 2 bad usage, 130 interrupted.",
     )
-    parser.add_argument("--version", action="version", version=f"iwr {__version__}")
+    from ..reporting.html import iwr_version
+
+    parser.add_argument("--version", action="version", version=f"iwr {iwr_version()}")
     parser.add_argument("--debug", action="store_true",
                         help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=_Parser)
@@ -298,41 +298,15 @@ def build_parser() -> argparse.ArgumentParser:
     _common(p)
     p.set_defaults(func=cmd_plan)
 
-    # compare -----------------------------------------------------------------------------------
-    # HOOK for `iwr compare` (issue 4, branch `baselines`): iwr/compare.py provides
-    # add_compare_parser(subparsers) and run_compare(args). Wired automatically once that module
-    # exists; a broken iwr.compare is an error, only its absence is tolerated.
-    compare = _optional("iwr.compare")
-    if compare is not None:
-        cp = compare.add_compare_parser(sub)
-        if not isinstance(cp, argparse.ArgumentParser):
-            cp = sub.choices["compare"]
+    # compare, study ---------------------------------------------------------------------------
+    from .compare import add_compare_parser
+    from .study import add_study_parser
+
+    for add in (add_compare_parser, add_study_parser):
+        cp = add(sub)
         if "--debug" not in cp._option_string_actions:
             _common(cp)
-        cp.set_defaults(func=compare.run_compare)
-
-    # study -------------------------------------------------------------------------------------
-    # `iwr study` (issue 9): Monte-Carlo studies on Dask, from iwr/study (add_study_parser,
-    # run_study); `python -m iwr.study` is the same command on its own.
-    from .study import add_study_parser, run_study
-
-    sp = add_study_parser(sub)
-    if "--debug" not in sp._option_string_actions:
-        _common(sp)
-    sp.set_defaults(func=run_study)
     return parser
-
-
-def _optional(module: str) -> Any:
-    """``module`` if it exists, else None (an ImportError *inside* it is not swallowed)."""
-    import importlib
-
-    try:
-        return importlib.import_module(module)
-    except ModuleNotFoundError as exc:
-        if exc.name == module:
-            return None
-        raise
 
 
 # -- helpers -------------------------------------------------------------------------------------
@@ -343,20 +317,20 @@ def _progress_enabled(args: argparse.Namespace) -> bool:
 
 
 def _load_robot(path: str) -> Any:
-    from .robot import Robot
+    from ..robot import Robot
 
     return Robot.from_toml(path)
 
 
 def _load_data(path: str, robot: Any) -> Any:
-    from .measurements import Measurements
+    from ..measurements import Measurements
 
     return Measurements.from_csv(path, robot=robot)
 
 
 def _write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: Any,
                  n_poses: int) -> None:
-    from ._io import atomic_write_text
+    from .._io import atomic_write_text
 
     doc = {
         "format": "iwr-true-errors",
@@ -373,7 +347,7 @@ def _write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: An
 
 def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
     """The method options given on the command line, under the names the method accepts."""
-    from .identify import METHODS, identify
+    from ..identify import METHODS, identify
 
     if method not in METHODS:
         raise UsageError(
@@ -420,8 +394,8 @@ class _EvalBar:
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
-    from .robot import Robot
-    from .simulate import simulate
+    from ..robot import Robot
+    from ..simulate import simulate
 
     robot = _load_robot(args.robot) if args.robot else Robot.default()
     data, truth = simulate(robot, n_poses=args.poses, seed=args.seed, noise=args.noise)
@@ -460,8 +434,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
 
 def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) -> int:
-    from .robot import Robot
-    from .simulate import Noise, simulate
+    from ..robot import Robot
+    from ..simulate import Noise, simulate
 
     if args.validation:
         raise UsageError("--validation needs ROBOT.toml and DATA.csv")
@@ -510,11 +484,11 @@ def _split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
 def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace, method: str,
                kwargs: dict[str, Any], out: Path, *, robot_name: str, data_name: str,
                truth: np.ndarray | None = None) -> Any:
-    from .accuracy import accuracy
-    from .identifiability import identifiability, parameter_error
-    from .identify import identify
-    from .report import Calibration
-    from .uncertainty import uncertainty
+    from ..accuracy import accuracy
+    from ..identifiability import identifiability, parameter_error
+    from ..identify import identify
+    from ..reporting.calibration import Calibration
+    from ..uncertainty import uncertainty
 
     if validation is not None:
         ident, val, held_out = data, validation, True
@@ -563,8 +537,8 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
 
 
 def cmd_analyze(args: argparse.Namespace) -> int:
-    from .identifiability import identifiability
-    from .result import load_result
+    from ..identifiability import identifiability
+    from ..result import load_result
 
     robot = _load_robot(args.robot)
     data = _load_data(args.data, robot)
@@ -579,9 +553,9 @@ def cmd_analyze(args: argparse.Namespace) -> int:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
-    from .measurements import Measurements
-    from .planning import plan_poses
-    from .simulate import sample_poses
+    from ..measurements import Measurements
+    from ..planning import plan_poses
+    from ..simulate import sample_poses
 
     robot = _load_robot(args.robot)
     if args.candidates:

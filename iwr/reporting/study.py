@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write_text
+from .figures import PALETTE, new_figure, save_png
 
 __all__ = ["report", "LEVEL_OFF", "FLOOR"]
 
@@ -94,32 +95,18 @@ def _band_plot(ax: Any, x: Sequence[float], stats: Sequence[tuple], label: str, 
 
 
 def _figure(n_rows: int, n_cols: int) -> tuple[Any, np.ndarray]:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(n_rows, n_cols, figsize=(4.2 * n_cols, 3.3 * n_rows),
-                             squeeze=False, sharex=True)
+    fig = new_figure(4.2 * n_cols, 3.3 * n_rows)
+    axes = fig.subplots(n_rows, n_cols, squeeze=False, sharex=True)
     return fig, axes
 
 
 def _save(fig: Any, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_png(fig, path, dpi=80)
 
 
 def _colors(labels: Sequence[str]) -> dict[str, Any]:
-    import matplotlib.pyplot as plt
-
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    return {lab: cycle[i % len(cycle)] for i, lab in enumerate(labels)}
+    return {lab: PALETTE[i % len(PALETTE)] for i, lab in enumerate(labels)}
 
 
 def _plot_vs(
@@ -230,7 +217,7 @@ def _trend(xs: Sequence[int], meds: Sequence[float], what: str) -> str:
 
 def report(out: str | os.PathLike[str]) -> list[Path]:
     """Write the figures and ``summary.md`` of the study in folder ``out``; their paths."""
-    from . import STUDY_FILE, read_table
+    from ..experiments.study import STUDY_FILE, read_table
 
     out = Path(out)
     rows_all = read_table(out)
