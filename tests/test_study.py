@@ -332,3 +332,43 @@ def test_add_study_parser_hook() -> None:
     args = parser.parse_args(["study", "--poses", "10,20", "--budget", "lm=5,50"])
     assert args.func is study_cli.run_study
     assert args.poses == [10, 20] and args.budget == ["lm=5,50"]
+
+
+def test_a_server_that_is_not_a_scheduler_fails_within_60_s(tmp_path: Path) -> None:
+    """A plain HTTP server (silent after the handshake's bytes) and a server that answers with
+    bytes Dask misreads as a frame length: a one-line message and exit 1 within 60 s, never a
+    hang. Loopback only."""
+    import http.server
+    import socketserver
+    import threading
+    import time
+
+    class Quiet(http.server.BaseHTTPRequestHandler):
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    class Banner(socketserver.BaseRequestHandler):
+        def handle(self) -> None:
+            self.request.sendall(b"SSH-2.0-OpenSSH_9.2p1 Debian-2\r\n" * 4)
+            time.sleep(90)
+
+    servers = [socketserver.ThreadingTCPServer(("127.0.0.1", 0), Quiet),
+               socketserver.ThreadingTCPServer(("127.0.0.1", 0), Banner)]
+    try:
+        for srv in servers:
+            srv.daemon_threads = True
+            threading.Thread(target=srv.serve_forever, daemon=True).start()
+            address = f"tcp://127.0.0.1:{srv.server_address[1]}"
+            start = time.monotonic()
+            p = run_cli("--scheduler", address, "--poses", "12", "--draws", "1", "--seeds", "1",
+                        "--out", "s", cwd=tmp_path)
+            elapsed = time.monotonic() - start
+            lines = p.stderr.strip().splitlines()
+            assert p.returncode == 1 and len(lines) == 1, p.stderr
+            assert lines[0].startswith(f"iwr study: error: scheduler: {address!r}"), lines[0]
+            assert "Dask scheduler" in lines[0]
+            assert elapsed < 60, elapsed
+    finally:
+        for srv in servers:
+            srv.shutdown()
+            srv.server_close()

@@ -470,6 +470,12 @@ def _validate(robot: Robot, x: np.ndarray, sc: ScenarioData) -> dict[str, Any]:
         "raw_error_length": rms(raw[~ang]),
         "raw_error_angle": rms(raw[ang]),
         "max_raw_error_length": float(np.max(np.abs(raw[~ang]))),
+        # nan where a figure cannot be computed (the notes say why)
+        "param_error_length": math.nan,
+        "param_error_angle": math.nan,
+        "tool_position_rms": math.nan,
+        "tool_orientation_rms": math.nan,
+        "tool_position_rms_nominal": math.nan,
     }
     notes = []
     try:
@@ -532,7 +538,7 @@ class ExecutorError(RuntimeError):
 
 #: Seconds to wait for a Dask scheduler to answer (connection and handshake), and for the
 #: cluster's shutdown: a study never waits on the network without end.
-CONNECT_TIMEOUT = 30.0
+CONNECT_TIMEOUT = 20.0
 #: Seconds between checks that the scheduler is still there while cells run; a cell itself may
 #: take as long as it needs.
 HEARTBEAT = 10.0
@@ -657,7 +663,8 @@ def _connect(client_class: Any, address: Any, timeout: float) -> Any:
         detail = str(exc).splitlines()[0] if str(exc) else ""
         if isinstance(exc, (OSError, TimeoutError)) or "Timed out" in detail:
             raise ExecutorError(f"scheduler: cannot connect to {address!r}: {detail or what}")
-        raise ExecutorError(f"{what}: {type(exc).__name__}: {detail}")
+        raise ExecutorError(f"scheduler: {address!r} is not a Dask scheduler (its answer made "
+                            f"Dask fail: {type(exc).__name__}: {detail})")
     return box["client"]
 
 

@@ -11,13 +11,14 @@ from typing import Any
 
 import numpy as np
 
-from .._io import atomic_write_text, jsonable
+from .._io import atomic_write_bytes, atomic_write_text, jsonable
 from ..accuracy import Accuracy
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..result import IdentificationResult
 from ..robot import Robot
-from .figures import new_figure, save_png
+from .figures import new_figure, png_bytes
+from .html import Page, write_page
 
 __all__ = ["Calibration", "leg_residual_stats"]
 
@@ -57,6 +58,12 @@ class Calibration:
         Against the truth, modulo the unidentifiable directions (simulations only).
     truth_accuracy : Accuracy or None
         The accuracy of the true errors (simulations only): the noise floor.
+    notes : list of str
+        Printed after the summary and listed in the report.
+    settings : dict
+        How the calibration was run (method, options, bounds, ...), for the report.
+    provenance : dict or None
+        :func:`iwr.reporting.html.provenance`: version, command line, date, inputs' SHA-256.
     """
 
     robot: Robot
@@ -72,6 +79,8 @@ class Calibration:
     parameter_error: Any = None
     truth_accuracy: Accuracy | None = None
     notes: list[str] = field(default_factory=list)
+    settings: dict[str, Any] = field(default_factory=dict)
+    provenance: dict[str, Any] | None = None
 
     # -- numbers --------------------------------------------------------------------------------
     def costs(self) -> dict[str, float]:
@@ -277,10 +286,11 @@ class Calibration:
         return rows
 
     # -- files ----------------------------------------------------------------------------------
-    def write(self, out_dir: str | Path, *, plots: bool = True) -> list[Path]:
+    def write(self, out: str | Path, *, plots: bool = True) -> list[Path]:
         """Write the calibrated robot (TOML), the result (JSON), ``summary.json``, the report
-        (Markdown) and its figures (PNG) into ``out_dir``; returns the paths written."""
-        out = Path(out_dir)
+        (``report.html``, self-contained, and ``report.md``) and its figures (PNG) into ``out``;
+        returns the paths written."""
+        out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         written = []
         calibrated = out / "calibrated.toml"
@@ -292,15 +302,125 @@ class Calibration:
         summary = out / "summary.json"
         atomic_write_text(summary, json.dumps(self.to_dict(), indent=1) + "\n")
         written.append(summary)
-        figures = []
+        figures: dict[str, bytes] = {}
         if plots:
-            figures = [self._plot_residuals(out / "residuals.png"),
-                       self._plot_accuracy(out / "accuracy.png")]
-            written.extend(figures)
+            figures = {"residuals.png": png_bytes(self._plot_residuals(), dpi=110),
+                       "accuracy.png": png_bytes(self._plot_accuracy(), dpi=110)}
+            for name, png in figures.items():
+                atomic_write_bytes(out / name, png)
+                written.append(out / name)
         report = out / "report.md"
-        atomic_write_text(report, self.markdown([f.name for f in figures]))
+        atomic_write_text(report, self.markdown(list(figures)))
         written.append(report)
+        written.append(write_page(self.html(figures), out / "report.html"))
         return written
+
+    def verdict(self) -> tuple[str, str]:
+        """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``)."""
+        r = self.result
+        before = self.accuracy.nominal.summary()["position_mm"]["rms"]
+        after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
+        where = (f"{self.accuracy.n_poses} validation poses" if self.held_out else
+                 f"the {self.accuracy.n_poses} identification poses (nothing held out: "
+                 "optimistic)")
+        change = f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on {where}"
+        if r.get("interrupted"):
+            return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
+                    "bad")
+        if not r.success:
+            return f"Not converged ({str(r.message).strip()}); {change}.", "bad"
+        if not (math.isfinite(after) and math.isfinite(before)) or after >= before:
+            return f"The calibration did not improve the accuracy: {change}.", "bad"
+        ratio = before / after if after > 0 else math.inf
+        if ratio >= 5:
+            return f"Calibrated: {change}, {ratio:.3g} times smaller.", "good"
+        return (f"Improved, but only {ratio:.3g} times: {change}. Check the data and the "
+                "identifiability below.", "fair")
+
+    def html(self, figures: dict[str, bytes] | None = None) -> Page:
+        """The report as one self-contained HTML page (figures embedded)."""
+        figures = figures or {}
+        r = self.result
+        page = Page("Calibration report")
+        page.paragraph(
+            f"Robot {self.robot.name}{_src(self.robot_name)}, data{_src(self.data_name)}: "
+            f"{len(self.identification)} poses for identification, "
+            + (f"{len(self.validation)} held out for validation." if self.held_out else
+               "none held out."), "muted")
+        page.heading("Summary")
+        text, grade = self.verdict()
+        page.verdict(text, grade)
+        rows = [("nominal", self.accuracy.nominal.summary()),
+                ("calibrated", self.accuracy.calibrated.summary())]
+        if self.truth_accuracy is not None:
+            rows.append(("true errors (simulation)", self.truth_accuracy.calibrated.summary()))
+        head = ["robot", "position RMS (mm)", "position max (mm)", "orientation RMS (deg)",
+                "orientation max (deg)"]
+        page.table((head, [[label, f"{s['position_mm']['rms']:.4g}",
+                            f"{s['position_mm']['max']:.4g}",
+                            f"{s['orientation_deg']['rms']:.4g}",
+                            f"{s['orientation_deg']['max']:.4g}"] for label, s in rows]))
+        c = self.costs()
+        page.paragraph(
+            f"Tool pose by forward kinematics from the joint and leg readings against the measured "
+            f"pose. Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated "
+            f"{c['calibrated']:.6g}{self._before_polish()}. Method {r.get('method', '?')}: "
+            f"{int(r.nfev)} evaluations, {float(r.get('wall_time', math.nan)):.2f} s, "
+            f"{'converged' if r.success else 'not converged'}: {str(r.message).strip()}.")
+        if "accuracy.png" in figures:
+            page.figure(figures["accuracy.png"], "Tool pose errors before and after calibration",
+                        "accuracy.png")
+        page.heading("Identified parameters")
+        unc = self.uncertainty
+        if unc is not None:
+            how = "estimated from the residuals" if unc.source == "residuals" else unc.source
+            page.paragraph("Standard deviations: first-order, from the Jacobian at the solution, "
+                           f"with leg noise sigma {unc.sigma:.3g} mm ({how}).")
+        else:
+            page.paragraph("No standard deviations (see the notes).")
+        if self.parameter_error is not None:
+            pe = self.parameter_error
+            page.paragraph("Against the simulation's truth, modulo the unidentifiable "
+                           f"directions: RMS error {pe.rms_length:.4g} mm over lengths, "
+                           f"{pe.rms_angle:.4g} rad over angles.")
+        page.table((["parameter", "value", "std", "unit", "status"],
+                    [[row["name"], f"{row['value']:.6g}",
+                      "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
+                      row["status"]] for row in self.parameter_rows()]))
+        rep = self.identifiability
+        if rep is not None:
+            page.heading("Identifiability")
+            page.paragraph(
+                f"The leg readings at these poses determine {rep.rank} of the "
+                f"{self.robot.n_params} parameters (rank of the column-scaled Jacobian; condition "
+                f"number {rep.condition_number:.4g})."
+                + (" Parameters left out are held at their nominal value: their errors are "
+                   "absorbed by the others, without effect on the accuracy." if rep.left_out
+                   else ""))
+            page.pre(str(rep).rstrip())
+        page.heading("Leg residuals")
+        res = self.residuals()
+        head = ["leg"] + [f"{s} {w}" for s in res
+                          for w in ("RMS before (mm)", "RMS after (mm)", "max after (mm)")]
+        page.table((head, [[str(j + 1)] + [v for d in res.values() for v in (
+            f"{d['nominal']['rms'][j]:.4f}", f"{d['calibrated']['rms'][j]:.5f}",
+            f"{d['calibrated']['max'][j]:.5f}")] for j in range(6)]))
+        if "residuals.png" in figures:
+            page.figure(figures["residuals.png"], "Leg residuals before and after calibration",
+                        "residuals.png")
+        page.heading("Settings")
+        page.table((["setting", "value"], [[k, str(v)] for k, v in self.settings.items()]
+                    + [["result", str(r.message).strip()]]), "left")
+        if self.notes:
+            page.heading("Notes").items([n.strip() for n in self.notes])
+        page.heading("Files")
+        page.items(["calibrated.toml: the calibrated robot (nominal plus identified errors)",
+                    "result.json: the identification result (iwr.load_result)",
+                    "summary.json: the figures of this report", "report.md: this report as "
+                    "Markdown", *figures])
+        if self.provenance is not None:
+            page.provenance(self.provenance)
+        return page
 
     def markdown(self, figures: list[str]) -> str:
         """The report as Markdown (figures referenced by file name)."""
@@ -389,7 +509,7 @@ class Calibration:
             md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
         return "\n".join(md) + "\n"
 
-    def _plot_residuals(self, path: Path) -> Path:
+    def _plot_residuals(self) -> Any:
         data = self.validation if self.held_out else self.identification
         which = "validation" if self.held_out else "identification"
         zero = np.zeros(self.robot.n_params)
@@ -408,9 +528,9 @@ class Calibration:
         axes[1].set_ylabel("residual (um)")
         fig.suptitle(f"Leg residuals, predicted - measured, on {len(data)} {which} poses")
         fig.tight_layout()
-        return save_png(fig, path, dpi=110)
+        return fig
 
-    def _plot_accuracy(self, path: Path) -> Path:
+    def _plot_accuracy(self) -> Any:
         fig = new_figure(10, 6.5)
         axes = fig.subplots(2, 2)
         a = self.accuracy
@@ -431,7 +551,7 @@ class Calibration:
         fig.suptitle(f"Tool pose errors on {a.n_poses} "
                      f"{'validation' if self.held_out else 'identification'} poses")
         fig.tight_layout()
-        return save_png(fig, path, dpi=110)
+        return fig
 
 
 def _src(name: str) -> str:
