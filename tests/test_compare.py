@@ -313,8 +313,8 @@ def test_out_that_is_a_file_is_refused(tmp_path):
 def test_command_line(tmp_path, capsys):
     out = tmp_path / "cli"
     code = cli_main(["compare", "--poses", "12", "--seeds", "0", "--methods", "lm,crs2",
-                     "--budget", "100", "--start", "near", "--validation-poses", "10", "-o", str(out),
-                     "--no-progress"])
+                     "--budget", "100", "--start", "near", "--validation-poses", "10",
+                     "-o", str(out), "--no-progress"])
     text = capsys.readouterr().out
     assert code == 0
     assert "| near | lm |" in text and "| near | crs2 |" in text

@@ -328,7 +328,7 @@ class Calibration:
             return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
                     "bad")
         if not r.success:
-            return f"Not converged ({str(r.message).strip()}); {change}.", "bad"
+            return f"Not converged ({str(r.message).strip().rstrip('.')}); {change}.", "bad"
         if not (math.isfinite(after) and math.isfinite(before)) or after >= before:
             return f"The calibration did not improve the accuracy: {change}.", "bad"
         ratio = before / after if after > 0 else math.inf
@@ -359,14 +359,15 @@ class Calibration:
         page.table((head, [[label, f"{s['position_mm']['rms']:.4g}",
                             f"{s['position_mm']['max']:.4g}",
                             f"{s['orientation_deg']['rms']:.4g}",
-                            f"{s['orientation_deg']['max']:.4g}"] for label, s in rows]))
+                            f"{s['orientation_deg']['max']:.4g}"] for label, s in rows]), "num")
         c = self.costs()
         page.paragraph(
             f"Tool pose by forward kinematics from the joint and leg readings against the measured "
             f"pose. Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated "
             f"{c['calibrated']:.6g}{self._before_polish()}. Method {r.get('method', '?')}: "
             f"{int(r.nfev)} evaluations, {float(r.get('wall_time', math.nan)):.2f} s, "
-            f"{'converged' if r.success else 'not converged'}: {str(r.message).strip()}.")
+            f"{'converged' if r.success else 'not converged'}: "
+            f"{str(r.message).strip().rstrip('.')}.")
         if "accuracy.png" in figures:
             page.figure(figures["accuracy.png"], "Tool pose errors before and after calibration",
                         "accuracy.png")
@@ -386,7 +387,7 @@ class Calibration:
         page.table((["parameter", "value", "std", "unit", "status"],
                     [[row["name"], f"{row['value']:.6g}",
                       "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
-                      row["status"]] for row in self.parameter_rows()]))
+                      row["status"]] for row in self.parameter_rows()]), "params")
         rep = self.identifiability
         if rep is not None:
             page.heading("Identifiability")
@@ -404,7 +405,7 @@ class Calibration:
                           for w in ("RMS before (mm)", "RMS after (mm)", "max after (mm)")]
         page.table((head, [[str(j + 1)] + [v for d in res.values() for v in (
             f"{d['nominal']['rms'][j]:.4f}", f"{d['calibrated']['rms'][j]:.5f}",
-            f"{d['calibrated']['max'][j]:.5f}")] for j in range(6)]))
+            f"{d['calibrated']['max'][j]:.5f}")] for j in range(6)]), "num")
         if "residuals.png" in figures:
             page.figure(figures["residuals.png"], "Leg residuals before and after calibration",
                         "residuals.png")
@@ -428,6 +429,8 @@ class Calibration:
         c = self.costs()
         md = [
             "# Calibration report",
+            "",
+            f"**{self.verdict()[0]}**",
             "",
             f"- Robot: `{self.robot.name}`{_src(self.robot_name)}, joints "
             f"`{self.robot.joint_types or '-'}`, {self.robot.n_params} error parameters",
@@ -507,6 +510,12 @@ class Calibration:
         md += [f"- `{f}`" for f in figures]
         if self.notes:
             md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
+        if self.provenance is not None:
+            p = self.provenance
+            md += ["", "## Provenance", "", f"- iwr {p['iwr_version']}, {p['date']}",
+                   f"- command: `{' '.join(p['command'])}`"]
+            md += [f"- {label}: `{f['path']}`, SHA-256 `{f['sha256']}`"
+                   for label, f in p["inputs"].items()]
         return "\n".join(md) + "\n"
 
     def _plot_residuals(self) -> Any:
