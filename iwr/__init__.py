@@ -20,6 +20,8 @@ except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
     ) from _exc
 
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
+from .experiments.compare import Comparison, compare_methods
+from .experiments.study import StudyError, StudyResult, study
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
     IdentifiabilityReport,
@@ -35,23 +37,14 @@ from .planning import PosePlan, plan_poses, read_plan
 from .problem import Problem, predict_legs
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
-from .study import StudyError, StudyResult, study
 from .uncertainty import Uncertainty, uncertainty
 
 __version__ = "0.1.0"
 
 
-def __getattr__(name: str) -> object:
-    # iwr.compare is imported on first use only, so that `python -m iwr.compare` runs it fresh.
-    if name == "compare_methods":
-        from .compare import compare_methods
-
-        return compare_methods
-    raise AttributeError(f"module 'iwr' has no attribute {name!r}")
-
-
 __all__ = [
     "Accuracy",
+    "Comparison",
     "ForwardKinematicsError",
     "IdentifiabilityReport",
     "IdentificationResult",

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import json
 import os
 import re
@@ -65,16 +66,11 @@ def test_help_everywhere(command):
     assert "--debug" in proc.stdout
 
 
-def test_compare_hook():
-    # `iwr compare` comes from iwr/compare.py (issue 4) when this build has it.
-    try:
-        import iwr.compare  # noqa: F401
-    except ModuleNotFoundError:
-        proc = run("compare", "--help")
-        assert_fails(proc, 2, r"invalid choice: 'compare'")
-    else:
-        proc = run("compare", "--help")
-        assert proc.returncode == 0 and proc.stdout.startswith("usage: iwr compare")
+def test_every_command_has_help():
+    for command in ("simulate", "calibrate", "analyze", "plan", "compare", "study", "report",
+                    "legs"):
+        proc = run(command, "--help")
+        assert proc.returncode == 0 and proc.stdout.startswith(f"usage: iwr {command}"), command
 
 
 def test_version():
@@ -292,3 +288,105 @@ def test_source_folder_without_compiled_module_says_so(tmp_path):
         pytest.skip("an editable install's import hook supplies iwr._core to any iwr folder")
     assert "the compiled module iwr._core is missing" in proc.stderr
     assert "run Python from another folder" in proc.stderr
+
+
+# -- after calibration: iwr report, iwr legs; Ctrl-C ----------------------------------------------
+
+
+def test_report_turns_a_result_into_robot_and_report(sim, tmp_path):
+    """A result saved by the API (as iwr-calibrate's RUN.json is) becomes the calibrated robot
+    and the report, as iwr calibrate writes them."""
+    robot = iwr.Robot.from_toml(sim / "robot.toml")
+    data = iwr.Measurements.from_csv(sim / "measurements.csv", robot=robot)
+    result = iwr.identify(robot, data, method="lm", progress=False)
+    result.save(tmp_path / "run.json")
+    out = tmp_path / "rep"
+    proc = run("report", str(tmp_path / "run.json"), str(sim / "robot.toml"),
+               str(sim / "measurements.csv"), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert iwr.Robot.from_toml(out / "calibrated.toml") == robot.with_errors(result.x)
+    page = (out / "report.html").read_text(encoding="utf-8")
+    assert "Calibration report" in page and "data:image/png;base64," in page
+    for f in ("run.json", "robot.toml", "measurements.csv"):
+        assert f in page
+    digest = hashlib.sha256((sim / "measurements.csv").read_bytes()).hexdigest()
+    assert digest in page
+    # A result for another robot is refused by name.
+    other = tmp_path / "other.json"
+    doc = json.loads((tmp_path / "run.json").read_text())
+    doc["x"] = doc["x"][:-1]
+    doc["parameter_names"] = doc["parameter_names"][:-1]
+    other.write_text(json.dumps(doc))
+    proc = run("report", str(other), str(sim / "robot.toml"), str(sim / "measurements.csv"),
+               "--out", str(out))
+    assert_fails(proc, 1, r"57 parameters, but robot")
+
+
+def test_legs_round_trip(tmp_path):
+    """The legs written for the actual robot and the simulation's poses are the simulated
+    (noise-free) readings."""
+    robot = iwr.Robot.default()
+    data, truth = iwr.simulate(robot, n_poses=30, seed=11, noise=iwr.Noise())
+    robot.with_errors(truth).to_toml(tmp_path / "calibrated.toml")
+    data.to_csv(tmp_path / "targets.csv")  # q, poses (its leg columns are ignored)
+    proc = run("legs", str(tmp_path / "calibrated.toml"), str(tmp_path / "targets.csv"),
+               "-o", str(tmp_path / "legs.csv"))
+    assert proc.returncode == 0, proc.stderr
+    lines = [ln for ln in (tmp_path / "legs.csv").read_text().splitlines()
+             if not ln.startswith("#")]
+    head = lines[0].split(",")
+    values = np.array([[float(v) for v in ln.split(",")] for ln in lines[1:]])
+    legs = values[:, [head.index(f"s{j}_mm") for j in range(1, 7)]]
+    assert legs.shape == (30, 6)
+    np.testing.assert_allclose(legs, data.legs, rtol=0, atol=1e-9)
+    q = values[:, : robot.n_joints]
+    np.testing.assert_array_equal(q, data.q)
+
+
+@pytest.mark.parametrize(
+    "content, pattern",
+    [
+        ("q1_mm,q2_rad\n", r"targets.csv, line 1: missing columns"),
+        ("q1_mm;q2_mm;q3_rad;q4_rad;x_mm;y_mm;z_mm;alpha_rad;beta_rad;gamma_rad\n1;2\n",
+         r"separated by ';'"),
+        ("q1_mm,q2_mm,q3_rad,q4_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad\n"
+         "1,2,3,4,5,6,7,8,9,x\n", r"line 2, column 'gamma_rad': 'x' is not a number"),
+    ],
+)
+def test_legs_bad_targets(tmp_path, content, pattern):
+    iwr.Robot.default().to_toml(tmp_path / "r.toml")
+    (tmp_path / "targets.csv").write_text(content)
+    proc = run("legs", str(tmp_path / "r.toml"), str(tmp_path / "targets.csv"),
+               "-o", str(tmp_path / "legs.csv"))
+    assert_fails(proc, 1, pattern)
+
+
+def test_ctrl_c_writes_the_best_point_so_far_and_exits_130(sim, tmp_path):
+    """SIGINT during the identification: exit 130, the files written, success = false."""
+    import signal
+    import time
+
+    out = tmp_path / "out"
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "iwr", "calibrate", str(sim / "robot.toml"),
+         str(sim / "measurements.csv"), "--method", "de", "--generations", "100000",
+         "--workers", "1", "--out-dir", str(out), "--no-plots"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=environ,
+        cwd=tempfile.gettempdir(),
+    )
+    try:
+        for line in proc.stdout:  # wait until the identification runs
+            if line.startswith("identifying with de"):
+                break
+        time.sleep(2.0)
+        proc.send_signal(signal.SIGINT)
+        stdout, stderr = proc.communicate(timeout=120)
+    finally:
+        proc.kill()
+    assert proc.returncode == 130, stderr
+    assert not re.search(r"(?<!not )converged \(", stdout) and "not converged (" in stdout
+    result = iwr.load_result(out / "result.json")
+    assert result.success is False and "interrupted" in result.message
+    assert np.isfinite(result.fun) and result.nfev > 0
+    assert "Interrupted" in (out / "report.html").read_text(encoding="utf-8")

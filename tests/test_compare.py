@@ -16,8 +16,12 @@ import numpy as np
 import pytest
 
 import iwr
-from iwr import compare as cmp
+from iwr.cli import main as cli_main
+from iwr.cli.compare import add_compare_parser, run_compare
+from iwr.experiments import compare as cmp
+from iwr.experiments.harness import Scenario, unidentifiable_mask
 from iwr.methods import METHODS
+from iwr.reporting.figures import method_colors
 
 SEEDS = [0, 1]
 FIGURES = ["convergence_near.png", "convergence_bad.png", "parameters_near.png",
@@ -37,7 +41,7 @@ def small_run(out_dir, **kw):
     options = ({"de": {"population_size": 20}, "de:jso": {"population_size": 30}}
                if "de" in METHODS else {})
     args = dict(n_poses=20, seeds=SEEDS, methods=small_methods(), budget=BUDGET, start="both",
-                out_dir=out_dir, n_validation=20, progress=False, method_options=options)
+                out=out_dir, n_validation=20, progress=False, method_options=options)
     args.update(kw)
     return iwr.compare_methods(**args)
 
@@ -91,8 +95,8 @@ def test_csv_and_json_hold_every_run(report):
     with open(out / "runs.csv", newline="") as fh:
         rows = list(csv.DictReader(fh))
     assert len(rows) == n == len(comp.runs)
-    assert {"cost", "validation_rms_mm", "param_err_length_mm", "raw_err_length_mm", "nfev",
-            "wall_time_s", "success"} <= set(rows[0])
+    assert {"cost", "val_rms", "param_error_length", "raw_error_length", "nfev",
+            "wall_time", "at_floor", "success"} <= set(rows[0])
     for row, run in zip(rows, comp.runs, strict=True):
         assert float(row["cost"]) == run["cost"]
         assert int(row["nfev"]) == run["nfev"]
@@ -111,12 +115,12 @@ def test_numbers_are_consistent(report):
     for r in comp.runs:
         x, truth = np.array(r["x"]), np.array(r["truth"])
         assert r["nfev"] <= BUDGET and r["within_budget"]
-        assert r["success"] == (r["cost"] <= r["success_threshold"])
-        assert r["raw_err_length_mm"] == pytest.approx(
+        assert r["at_floor"] == (r["cost"] <= r["floor_threshold"])
+        assert r["raw_error_length"] == pytest.approx(
             math.sqrt(np.mean((x - truth)[~ang] ** 2)), rel=1e-12)
-        assert r["raw_err_angle_rad"] == pytest.approx(
+        assert r["raw_error_angle"] == pytest.approx(
             math.sqrt(np.mean((x - truth)[ang] ** 2)), rel=1e-12)
-        assert r["rms_residual_mm"] == pytest.approx(math.sqrt(r["cost"] / (6 * 20)), rel=1e-12)
+        assert r["rms_fit"] == pytest.approx(math.sqrt(r["cost"] / (6 * 20)), rel=1e-12)
         assert np.array(r["history_best"])[-1] >= r["cost"] * (1 - 1e-9) or r["method"] == "lm"
         assert 0 < sum(r["unidentifiable"]) < 58
     # The bad start is near the bounds, on the side opposite to the truth.
@@ -127,8 +131,8 @@ def test_numbers_are_consistent(report):
     # Levenberg-Marquardt reaches the noise floor from the near start, and calibrates the robot.
     for r in comp.runs:
         if r["method"] == "lm" and r["scenario"] == "near":
-            assert r["success"]
-            assert r["validation_rms_mm"] < 0.1 * r["nominal_validation_rms_mm"]
+            assert r["at_floor"]
+            assert r["val_rms"] < 0.1 * r["val_rms_nominal"]
 
 
 needs_de = pytest.mark.skipif("de" not in METHODS, reason="this build has no DE")
@@ -159,15 +163,16 @@ def test_de_variants_run_under_their_labels(report):
     assert "| near | de:jso |" in (out / "report.md").read_text(encoding="utf-8")
     page = (out / "report.html").read_text(encoding="utf-8")
     assert "<td>bad</td><td>de:jso</td>" in page and "de:jso: jso, NP 30 reduced" in page
-    colors = cmp._colors(small_methods())
+    colors = method_colors(small_methods())
     assert len(set(colors.values())) == len(colors)
     # The same numbers as identify called directly
     robot = iwr.Robot.default()
     (r,) = [r for r in comp.runs if r["method"] == "de:jso" and r["scenario"] == "bad"
             and r["seed"] == SEEDS[1]]
-    sp = cmp._scenario_problem(robot, "bad", SEEDS[1], 20, iwr.Noise.realistic(), 20)
-    res = iwr.identify(robot, sp["data"], "de", strategy="jso", population_size=30,
-                       max_evaluations=BUDGET, bounds="paper", x0=sp["x0"], seed=SEEDS[1],
+    sc = Scenario(20, iwr.Noise.realistic(), draw=SEEDS[1], validation_poses=20,
+                  kind="bad").build(robot)
+    res = iwr.identify(robot, sc.data, "de", strategy="jso", population_size=30,
+                       max_evaluations=BUDGET, bounds="paper", x0=sc.x0, seed=sc.method_seed,
                        polish=False, progress=False)
     assert res.fun == r["cost"] and res.x.tolist() == r["x"]
     assert res.settings["max_evaluations"] == BUDGET and res.settings["polish"] is False
@@ -204,31 +209,31 @@ def test_same_seeds_same_numbers(report, tmp_path):
     for a, b in zip(comp.runs, again.runs, strict=True):
         assert a.keys() == b.keys()
         for key in a:
-            if key == "wall_time_s":
+            if key == "wall_time":
                 continue
             assert a[key] == b[key] or (a[key] != a[key] and b[key] != b[key]), (a["method"], key)
     for name in FIGURES:
         assert (tmp_path / name).stat().st_size > 0, name
 
 
-def test_parameter_error_is_pluggable():
-    calls = []
-
-    def fake(robot, measurements, x, truth):
-        calls.append(len(measurements))
-        return {"rms_length": 1.5, "rms_angle": 2.5, "raw_rms_length": 3.5}
-
+def test_a_comparison_run_is_a_study_cell(tmp_path):
+    """Compare and study are two uses of one harness: seed k of a comparison is the study's
+    error draw k, and the same settings give the same row, bit for bit."""
     comp = iwr.compare_methods(n_poses=15, seeds=[3], methods=["lm"], budget=200, start="near",
-                               out_dir=None, n_validation=10, parameter_error=fake,
-                               progress=False)
+                               out=None, n_validation=10, progress=False)
     (r,) = comp.runs
-    assert calls == [15]
-    assert (r["param_err_length_mm"], r["param_err_angle_rad"]) == (1.5, 2.5)
-    assert r["raw_err_length_mm"] == 3.5 and math.isnan(r["raw_err_angle_rad"])
+    res = iwr.study(methods="lm", poses=[15], noise=0.02, draws=[3], seeds=[0],
+                    budgets={"lm": [200]}, out=tmp_path, scheduler="synchronous", report=False,
+                    validation_poses=10)
+    (cell,) = res.rows
+    for c in ("cost", "nfev", "val_rms", "val_max", "val_rms_nominal", "param_error_length",
+              "param_error_angle", "tool_position_rms", "noise_floor", "at_floor", "success"):
+        assert r[c] == cell[c], c
+    assert r["key"] == cell["key"]
     assert comp.files == {}
 
 
-def test_projected_error_ignores_unidentifiable_directions():
+def test_unidentifiable_mask_matches_finite_differences():
     """Against a null direction found by finite differences (not the analytic Jacobian)."""
     robot = iwr.Robot.default()
     m, truth = iwr.simulate(robot, n_poses=25, seed=4)
@@ -240,18 +245,12 @@ def test_projected_error_ignores_unidentifiable_directions():
     ])
     d = np.linalg.norm(jac, axis=0)
     _, s, vt = np.linalg.svd(jac / d)
-    null = vt[-1] / d  # the weakest direction, in physical units
     assert s[-1] < 1e-8 * s[0]
-    step = 1e-3 * null / np.max(np.abs(null))
-    err = cmp._projected_parameter_error(robot, m, truth + step, truth)
-    raw = max(err["raw_rms_length"], err["raw_rms_angle"])
-    assert raw > 1e-5
-    assert max(err["rms_length"], err["rms_angle"]) < 1e-4 * raw  # finite differences: ~1e-6
-    # an identifiable error is kept whole
-    e = np.zeros(58)
-    e[52] = 0.01  # leg 1 offset
-    err = cmp._projected_parameter_error(robot, m, truth + e, truth)
-    assert err["rms_length"] == pytest.approx(err["raw_rms_length"], rel=0.05)
+    rank = int(np.sum(s > 1e-8 * s[0]))
+    fd = np.linalg.norm(vt[rank:].T, axis=1) > 1e-4
+    mask = unidentifiable_mask(robot, m, truth)
+    assert 0 < mask.sum() < 58
+    np.testing.assert_array_equal(mask, fd)
 
 
 @pytest.mark.parametrize(
@@ -269,13 +268,12 @@ def test_projected_error_ignores_unidentifiable_directions():
         ({"noise": "loud"}, "noise"),
         ({"n_validation": 0}, "n_validation"),
         ({"success_rtol": -1}, "success_rtol"),
-        ({"parameter_error": 3}, "parameter_error"),
         ({"method_options": {"nope": {}}}, "method_options"),
         ({"robot": "IWR"}, "robot"),
     ],
 )
 def test_bad_arguments_name_the_argument(kwargs, name):
-    args = dict(n_poses=10, seeds=[0], methods=["lm"], budget=50, out_dir=None, progress=False)
+    args = dict(n_poses=10, seeds=[0], methods=["lm"], budget=50, out=None, progress=False)
     args.update(kwargs)
     with pytest.raises(ValueError, match=name):
         iwr.compare_methods(**args)
@@ -299,24 +297,24 @@ def test_bad_arguments_name_the_argument(kwargs, name):
     ],
 )
 def test_bad_de_specs_are_refused(kwargs, match):
-    args = dict(n_poses=10, seeds=[0], budget=5000, out_dir=None, progress=False)
+    args = dict(n_poses=10, seeds=[0], budget=5000, out=None, progress=False)
     args.update(kwargs)
     with pytest.raises(ValueError, match=match):
         iwr.compare_methods(**args)
 
 
-def test_out_dir_that_is_a_file_is_refused(tmp_path):
+def test_out_that_is_a_file_is_refused(tmp_path):
     f = tmp_path / "file"
     f.write_text("x")
-    with pytest.raises(ValueError, match="out_dir"):
-        iwr.compare_methods(n_poses=10, seeds=[0], methods=["lm"], out_dir=f, progress=False)
+    with pytest.raises(ValueError, match="out"):
+        iwr.compare_methods(n_poses=10, seeds=[0], methods=["lm"], out=f, progress=False)
 
 
 def test_command_line(tmp_path, capsys):
     out = tmp_path / "cli"
-    code = cmp.main(["--poses", "12", "--seeds", "0", "--methods", "lm,crs2", "--budget", "100",
-                     "--start", "near", "--validation-poses", "10", "-o", str(out),
-                     "--no-progress"])
+    code = cli_main(["compare", "--poses", "12", "--seeds", "0", "--methods", "lm,crs2",
+                     "--budget", "100", "--start", "near", "--validation-poses", "10",
+                     "-o", str(out), "--no-progress"])
     text = capsys.readouterr().out
     assert code == 0
     assert "| near | lm |" in text and "| near | crs2 |" in text
@@ -336,7 +334,8 @@ def test_command_line(tmp_path, capsys):
     ],
 )
 def test_command_line_errors(argv, name, capsys):
-    assert cmp.main([*argv, "--no-progress", "-o", "/nonexistent-dir-never-written"]) == 1
+    assert cli_main(["compare", *argv, "--no-progress", "-o",
+                     "/nonexistent-dir-never-written"]) == 1
     err = capsys.readouterr().err
     assert err.startswith("iwr compare: error:") and name in err
     assert "Traceback" not in err and err.count("\n") == 1
@@ -345,30 +344,28 @@ def test_command_line_errors(argv, name, capsys):
 def test_subcommand_wiring():
     parser = argparse.ArgumentParser(prog="iwr")
     sub = parser.add_subparsers(dest="command")
-    cmp.add_compare_parser(sub)
+    add_compare_parser(sub)
     args = parser.parse_args(["compare", "--budget", "5", "--start", "bad"])
-    assert args.func is cmp.run_compare and args.budget == 5 and args.start == "bad"
+    assert args.func is run_compare and args.budget == 5 and args.start == "bad"
 
 
 def test_python_dash_m_help(tmp_path):
     # cwd: not the repository root, whose source folder has no compiled module
-    proc = subprocess.run([sys.executable, "-m", "iwr.compare", "--help"], capture_output=True,
+    proc = subprocess.run([sys.executable, "-m", "iwr", "compare", "--help"], capture_output=True,
                           text=True, timeout=60, cwd=tmp_path)
     assert proc.returncode == 0 and "--budget" in proc.stdout
     assert "Warning" not in proc.stderr
 
 
-def test_default_parameter_error_is_iwr_parameter_error(report):
+def test_parameter_error_is_iwr_parameter_error(report):
     comp, out = report
-    if not hasattr(iwr, "parameter_error"):
-        pytest.skip("this build has no iwr.parameter_error")
-    assert comp.settings["parameter_error"].endswith("parameter_error")
     robot = iwr.Robot.default()
     r = comp.runs[0]
-    # the data set is rebuilt from the same seed stream the comparison used
-    sp = cmp._scenario_problem(robot, r["scenario"], r["seed"], 20, iwr.Noise.realistic(), 20)
-    np.testing.assert_array_equal(sp["truth"], r["truth"])
-    pe = iwr.parameter_error(robot, sp["data"], np.array(r["x"]), sp["truth"])
-    assert r["param_err_length_mm"] == pe.rms_length
-    assert r["param_err_angle_rad"] == pe.rms_angle
+    # the scenario is rebuilt from the same seed streams the comparison used
+    sc = Scenario(20, iwr.Noise.realistic(), draw=r["seed"], validation_poses=20,
+                  kind=r["scenario"]).build(robot)
+    np.testing.assert_array_equal(sc.truth, r["truth"])
+    pe = iwr.parameter_error(robot, sc.validation, np.array(r["x"]), sc.truth)
+    assert r["param_error_length"] == pe.rms_length
+    assert r["param_error_angle"] == pe.rms_angle
     assert "iwr.parameter_error" in (out / "report.md").read_text(encoding="utf-8")

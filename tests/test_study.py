@@ -24,20 +24,13 @@ import numpy as np
 import pytest
 
 import iwr
-from iwr.study import (
-    TIMING_COLUMNS,
-    Cell,
-    StudyError,
-    main,
-    make_grid,
-    noise_at,
-    read_table,
-    robot_hash,
-)
+from iwr.cli import main as cli_main
+from iwr.cli import study as study_cli
+from iwr.experiments.harness import Cell, noise_at, robot_hash
+from iwr.experiments.study import TIMING_COLUMNS, StudyError, make_grid, read_table
 
 distributed = pytest.importorskip("distributed")
-# The modules (the package's attributes iwr.study and iwr.identify are the functions).
-study_module = importlib.import_module("iwr.study")
+# The module (the package's attribute iwr.identify is the function).
 identify_module = importlib.import_module("iwr.methods")
 
 CRASH = "test-crash-once"
@@ -65,6 +58,11 @@ class RegisterCrashMethod(distributed.WorkerPlugin):
 
 # Workers import iwr but not this file: send the method and the plugin by value.
 cloudpickle.register_pickle_by_value(sys.modules[__name__])
+
+
+def main(argv: list[str]) -> int:
+    """``iwr study ARGS``."""
+    return cli_main(["study", *argv])
 
 
 def executions(log: Path) -> int:
@@ -265,7 +263,7 @@ def test_bad_table(tmp_path: Path) -> None:
 
 
 def test_trend_rule() -> None:
-    from iwr.study._report import _trend
+    from iwr.reporting.study import _trend
 
     n = [10, 20, 40, 80]
     assert _trend(n, [1.0 / math.sqrt(x) for x in n], "N").startswith("keeps improving")
@@ -276,7 +274,7 @@ def test_trend_rule() -> None:
 
 
 def run_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
-    return subprocess.run([sys.executable, "-m", "iwr.study", *args], cwd=cwd,
+    return subprocess.run([sys.executable, "-m", "iwr", "study", *args], cwd=cwd,
                           capture_output=True, text=True, timeout=120)
 
 
@@ -287,8 +285,8 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
     p = run_cli("--poses", "ten", cwd=tmp_path)
     assert p.returncode == 2 and p.stdout == ""
     assert p.stderr.strip().splitlines() == [
-        "iwr study: error: argument --poses: 'ten': expected a comma-separated list of integers "
-        "(see --help)"
+        "iwr: error: argument --poses: 'ten': expected a comma-separated list of integers "
+        "(see 'iwr study --help')"
     ]
     for args, text in (
         (["--methods", "nope"], "methods: 'nope'"),
@@ -330,7 +328,47 @@ def test_add_study_parser_hook() -> None:
 
     parser = argparse.ArgumentParser(prog="iwr")
     sub = parser.add_subparsers(dest="command")
-    study_module.add_study_parser(sub)
+    study_cli.add_study_parser(sub)
     args = parser.parse_args(["study", "--poses", "10,20", "--budget", "lm=5,50"])
-    assert args.func is study_module.run_study
+    assert args.func is study_cli.run_study
     assert args.poses == [10, 20] and args.budget == ["lm=5,50"]
+
+
+def test_a_server_that_is_not_a_scheduler_fails_within_60_s(tmp_path: Path) -> None:
+    """A plain HTTP server (silent after the handshake's bytes) and a server that answers with
+    bytes Dask misreads as a frame length: a one-line message and exit 1 within 60 s, never a
+    hang. Loopback only."""
+    import http.server
+    import socketserver
+    import threading
+    import time
+
+    class Quiet(http.server.BaseHTTPRequestHandler):
+        def log_message(self, *args: Any) -> None:
+            pass
+
+    class Banner(socketserver.BaseRequestHandler):
+        def handle(self) -> None:
+            self.request.sendall(b"SSH-2.0-OpenSSH_9.2p1 Debian-2\r\n" * 4)
+            time.sleep(90)
+
+    servers = [socketserver.ThreadingTCPServer(("127.0.0.1", 0), Quiet),
+               socketserver.ThreadingTCPServer(("127.0.0.1", 0), Banner)]
+    try:
+        for srv in servers:
+            srv.daemon_threads = True
+            threading.Thread(target=srv.serve_forever, daemon=True).start()
+            address = f"tcp://127.0.0.1:{srv.server_address[1]}"
+            start = time.monotonic()
+            p = run_cli("--scheduler", address, "--poses", "12", "--draws", "1", "--seeds", "1",
+                        "--out", "s", cwd=tmp_path)
+            elapsed = time.monotonic() - start
+            lines = p.stderr.strip().splitlines()
+            assert p.returncode == 1 and len(lines) == 1, p.stderr
+            assert lines[0].startswith(f"iwr study: error: scheduler: {address!r}"), lines[0]
+            assert "Dask scheduler" in lines[0]
+            assert elapsed < 60, elapsed
+    finally:
+        for srv in servers:
+            srv.shutdown()
+            srv.server_close()

@@ -20,6 +20,8 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write_text
+from .figures import PALETTE, new_figure, save_png
+from .html import Page, provenance, write_page
 
 __all__ = ["report", "LEVEL_OFF", "FLOOR"]
 
@@ -94,32 +96,18 @@ def _band_plot(ax: Any, x: Sequence[float], stats: Sequence[tuple], label: str, 
 
 
 def _figure(n_rows: int, n_cols: int) -> tuple[Any, np.ndarray]:
-    import matplotlib
-
-    matplotlib.use("Agg", force=False)
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(n_rows, n_cols, figsize=(4.2 * n_cols, 3.3 * n_rows),
-                             squeeze=False, sharex=True)
+    fig = new_figure(4.2 * n_cols, 3.3 * n_rows)
+    axes = fig.subplots(n_rows, n_cols, squeeze=False, sharex=True)
     return fig, axes
 
 
 def _save(fig: Any, path: Path) -> Path:
-    import matplotlib.pyplot as plt
-
     fig.tight_layout()
-    tmp = path.with_name(f".{path.name}.tmp.png")
-    fig.savefig(tmp, dpi=80)
-    plt.close(fig)
-    os.replace(tmp, path)
-    return path
+    return save_png(fig, path, dpi=80)
 
 
 def _colors(labels: Sequence[str]) -> dict[str, Any]:
-    import matplotlib.pyplot as plt
-
-    cycle = plt.rcParams["axes.prop_cycle"].by_key()["color"]
-    return {lab: cycle[i % len(cycle)] for i, lab in enumerate(labels)}
+    return {lab: PALETTE[i % len(PALETTE)] for i, lab in enumerate(labels)}
 
 
 def _plot_vs(
@@ -230,7 +218,7 @@ def _trend(xs: Sequence[int], meds: Sequence[float], what: str) -> str:
 
 def report(out: str | os.PathLike[str]) -> list[Path]:
     """Write the figures and ``summary.md`` of the study in folder ``out``; their paths."""
-    from . import STUDY_FILE, read_table
+    from ..experiments.study import STUDY_FILE, read_table
 
     out = Path(out)
     rows_all = read_table(out)
@@ -264,16 +252,59 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
         if f is not None:
             files.append(f)
     summary = out / "summary.md"
-    atomic_write_text(summary, _summary(rows_all, ok, head, meta, files, names))
+    text = _summary(rows_all, ok, head, meta, files, names)
+    atomic_write_text(summary, text)
     files.append(summary)
+    inputs = {"table": out / "results.csv"}
+    if (out / STUDY_FILE).is_file():
+        inputs["settings"] = out / STUDY_FILE
+    files.append(write_page(_page(text, out, provenance(inputs)), out / "report.html"))
     return files
+
+
+def _page(summary_md: str, out: Path, prov: dict[str, Any]) -> Page:
+    """The summary (Markdown of :func:`_summary`: headings, paragraphs, tables, items, figures)
+    as a self-contained HTML page, the figures embedded."""
+    lines = summary_md.splitlines()
+    page = Page("iwr study: summary")
+    i = 0
+    while i < len(lines):
+        line = lines[i]
+        if line.startswith("# "):
+            pass  # the page's title
+        elif line.startswith("## "):
+            page.heading(line[3:])
+        elif line.startswith("|"):
+            block = []
+            while i < len(lines) and lines[i].startswith("|"):
+                block.append([c.strip() for c in lines[i].strip("|").split("|")])
+                i += 1
+            page.table((block[0], block[2:]))
+            continue
+        elif line.startswith("- "):
+            items = []
+            while i < len(lines) and lines[i].startswith("- "):
+                items.append(lines[i][2:])
+                i += 1
+            page.items(items)
+            continue
+        elif line.startswith("!["):
+            name = line[line.index("](") + 2:-1]
+            page.figure((out / name).read_bytes(), name.removesuffix(".png").replace("_", " "),
+                        name)
+        elif line.strip():
+            page.paragraph(line.replace("`", ""))
+        i += 1
+    page.provenance(prov)
+    return page
 
 
 def _summary(
     rows_all: list[dict[str, Any]], ok: list[dict[str, Any]], head: list[dict[str, Any]],
     meta: dict[str, Any], files: list[Path], names: dict[str, str],
 ) -> str:
-    n_val = meta.get("validation_poses", "?")
+    n_vals = _sorted_unique(r.get("validation_poses") for r in rows_all)
+    n_val = meta.get("validation_poses") or ", ".join(str(v) for v in n_vals if v is not None)
     lines = ["# Study summary", ""]
     lines.append(
         f"{len(rows_all)} cells: methods {sorted({r['method'] for r in rows_all})}, "

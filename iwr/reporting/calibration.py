@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import io
 import itertools
 import json
 import math
@@ -12,12 +11,14 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_write_bytes, atomic_write_text
-from .accuracy import Accuracy
-from .measurements import Measurements
-from .problem import Problem, predict_legs
-from .methods import IdentificationResult
-from .robot import Robot
+from .._io import atomic_write_bytes, atomic_write_text, jsonable
+from ..accuracy import Accuracy
+from ..measurements import Measurements
+from ..problem import Problem, predict_legs
+from ..methods import IdentificationResult
+from ..robot import Robot
+from .figures import new_figure, png_bytes
+from .html import Page, write_page
 
 __all__ = ["Calibration", "leg_residual_stats"]
 
@@ -57,6 +58,12 @@ class Calibration:
         Against the truth, modulo the unidentifiable directions (simulations only).
     truth_accuracy : Accuracy or None
         The accuracy of the true errors (simulations only): the noise floor.
+    notes : list of str
+        Printed after the summary and listed in the report.
+    settings : dict
+        How the calibration was run (method, options, bounds, ...), for the report.
+    provenance : dict or None
+        :func:`iwr.reporting.html.provenance`: version, command line, date, inputs' SHA-256.
     """
 
     robot: Robot
@@ -72,6 +79,8 @@ class Calibration:
     parameter_error: Any = None
     truth_accuracy: Accuracy | None = None
     notes: list[str] = field(default_factory=list)
+    settings: dict[str, Any] = field(default_factory=dict)
+    provenance: dict[str, Any] | None = None
 
     # -- numbers --------------------------------------------------------------------------------
     def costs(self) -> dict[str, float]:
@@ -135,7 +144,7 @@ class Calibration:
                 "max_abs_length_mm": float(pe.max_abs_length),
                 "max_abs_angle_rad": float(pe.max_abs_angle),
             }
-        return _finite(out)
+        return jsonable(out, finite_only=True)
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """One row per error parameter: name, value, std (None if not identified), unit, status."""
@@ -277,10 +286,11 @@ class Calibration:
         return rows
 
     # -- files ----------------------------------------------------------------------------------
-    def write(self, out_dir: str | Path, *, plots: bool = True) -> list[Path]:
+    def write(self, out: str | Path, *, plots: bool = True) -> list[Path]:
         """Write the calibrated robot (TOML), the result (JSON), ``summary.json``, the report
-        (Markdown) and its figures (PNG) into ``out_dir``; returns the paths written."""
-        out = Path(out_dir)
+        (``report.html``, self-contained, and ``report.md``) and its figures (PNG) into ``out``;
+        returns the paths written."""
+        out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
         written = []
         calibrated = out / "calibrated.toml"
@@ -292,15 +302,126 @@ class Calibration:
         summary = out / "summary.json"
         atomic_write_text(summary, json.dumps(self.to_dict(), indent=1) + "\n")
         written.append(summary)
-        figures = []
+        figures: dict[str, bytes] = {}
         if plots:
-            figures = [self._plot_residuals(out / "residuals.png"),
-                       self._plot_accuracy(out / "accuracy.png")]
-            written.extend(figures)
+            figures = {"residuals.png": png_bytes(self._plot_residuals(), dpi=110),
+                       "accuracy.png": png_bytes(self._plot_accuracy(), dpi=110)}
+            for name, png in figures.items():
+                atomic_write_bytes(out / name, png)
+                written.append(out / name)
         report = out / "report.md"
-        atomic_write_text(report, self.markdown([f.name for f in figures]))
+        atomic_write_text(report, self.markdown(list(figures)))
         written.append(report)
+        written.append(write_page(self.html(figures), out / "report.html"))
         return written
+
+    def verdict(self) -> tuple[str, str]:
+        """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``)."""
+        r = self.result
+        before = self.accuracy.nominal.summary()["position_mm"]["rms"]
+        after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
+        where = (f"{self.accuracy.n_poses} validation poses" if self.held_out else
+                 f"the {self.accuracy.n_poses} identification poses (nothing held out: "
+                 "optimistic)")
+        change = f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on {where}"
+        if r.get("interrupted"):
+            return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
+                    "bad")
+        if not r.success:
+            return f"Not converged ({str(r.message).strip().rstrip('.')}); {change}.", "bad"
+        if not (math.isfinite(after) and math.isfinite(before)) or after >= before:
+            return f"The calibration did not improve the accuracy: {change}.", "bad"
+        ratio = before / after if after > 0 else math.inf
+        if ratio >= 5:
+            return f"Calibrated: {change}, {ratio:.3g} times smaller.", "good"
+        return (f"Improved, but only {ratio:.3g} times: {change}. Check the data and the "
+                "identifiability below.", "fair")
+
+    def html(self, figures: dict[str, bytes] | None = None) -> Page:
+        """The report as one self-contained HTML page (figures embedded)."""
+        figures = figures or {}
+        r = self.result
+        page = Page("Calibration report")
+        page.paragraph(
+            f"Robot {self.robot.name}{_src(self.robot_name)}, data{_src(self.data_name)}: "
+            f"{len(self.identification)} poses for identification, "
+            + (f"{len(self.validation)} held out for validation." if self.held_out else
+               "none held out."), "muted")
+        page.heading("Summary")
+        text, grade = self.verdict()
+        page.verdict(text, grade)
+        rows = [("nominal", self.accuracy.nominal.summary()),
+                ("calibrated", self.accuracy.calibrated.summary())]
+        if self.truth_accuracy is not None:
+            rows.append(("true errors (simulation)", self.truth_accuracy.calibrated.summary()))
+        head = ["robot", "position RMS (mm)", "position max (mm)", "orientation RMS (deg)",
+                "orientation max (deg)"]
+        page.table((head, [[label, f"{s['position_mm']['rms']:.4g}",
+                            f"{s['position_mm']['max']:.4g}",
+                            f"{s['orientation_deg']['rms']:.4g}",
+                            f"{s['orientation_deg']['max']:.4g}"] for label, s in rows]), "num")
+        c = self.costs()
+        page.paragraph(
+            f"Tool pose by forward kinematics from the joint and leg readings against the measured "
+            f"pose. Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated "
+            f"{c['calibrated']:.6g}{self._before_polish()}. Method {r.get('method', '?')}: "
+            f"{int(r.nfev)} evaluations, {float(r.get('wall_time', math.nan)):.2f} s, "
+            f"{'converged' if r.success else 'not converged'}: "
+            f"{str(r.message).strip().rstrip('.')}.")
+        if "accuracy.png" in figures:
+            page.figure(figures["accuracy.png"], "Tool pose errors before and after calibration",
+                        "accuracy.png")
+        page.heading("Identified parameters")
+        unc = self.uncertainty
+        if unc is not None:
+            how = "estimated from the residuals" if unc.source == "residuals" else unc.source
+            page.paragraph("Standard deviations: first-order, from the Jacobian at the solution, "
+                           f"with leg noise sigma {unc.sigma:.3g} mm ({how}).")
+        else:
+            page.paragraph("No standard deviations (see the notes).")
+        if self.parameter_error is not None:
+            pe = self.parameter_error
+            page.paragraph("Against the simulation's truth, modulo the unidentifiable "
+                           f"directions: RMS error {pe.rms_length:.4g} mm over lengths, "
+                           f"{pe.rms_angle:.4g} rad over angles.")
+        page.table((["parameter", "value", "std", "unit", "status"],
+                    [[row["name"], f"{row['value']:.6g}",
+                      "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
+                      row["status"]] for row in self.parameter_rows()]), "params")
+        rep = self.identifiability
+        if rep is not None:
+            page.heading("Identifiability")
+            page.paragraph(
+                f"The leg readings at these poses determine {rep.rank} of the "
+                f"{self.robot.n_params} parameters (rank of the column-scaled Jacobian; condition "
+                f"number {rep.condition_number:.4g})."
+                + (" Parameters left out are held at their nominal value: their errors are "
+                   "absorbed by the others, without effect on the accuracy." if rep.left_out
+                   else ""))
+            page.pre(str(rep).rstrip())
+        page.heading("Leg residuals")
+        res = self.residuals()
+        head = ["leg"] + [f"{s} {w}" for s in res
+                          for w in ("RMS before (mm)", "RMS after (mm)", "max after (mm)")]
+        page.table((head, [[str(j + 1)] + [v for d in res.values() for v in (
+            f"{d['nominal']['rms'][j]:.4f}", f"{d['calibrated']['rms'][j]:.5f}",
+            f"{d['calibrated']['max'][j]:.5f}")] for j in range(6)]), "num")
+        if "residuals.png" in figures:
+            page.figure(figures["residuals.png"], "Leg residuals before and after calibration",
+                        "residuals.png")
+        page.heading("Settings")
+        page.table((["setting", "value"], [[k, str(v)] for k, v in self.settings.items()]
+                    + [["result", str(r.message).strip()]]), "left")
+        if self.notes:
+            page.heading("Notes").items([n.strip() for n in self.notes])
+        page.heading("Files")
+        page.items(["calibrated.toml: the calibrated robot (nominal plus identified errors)",
+                    "result.json: the identification result (iwr.load_result)",
+                    "summary.json: the figures of this report", "report.md: this report as "
+                    "Markdown", *figures])
+        if self.provenance is not None:
+            page.provenance(self.provenance)
+        return page
 
     def markdown(self, figures: list[str]) -> str:
         """The report as Markdown (figures referenced by file name)."""
@@ -308,6 +429,8 @@ class Calibration:
         c = self.costs()
         md = [
             "# Calibration report",
+            "",
+            f"**{self.verdict()[0]}**",
             "",
             f"- Robot: `{self.robot.name}`{_src(self.robot_name)}, joints "
             f"`{self.robot.joint_types or '-'}`, {self.robot.n_params} error parameters",
@@ -387,17 +510,21 @@ class Calibration:
         md += [f"- `{f}`" for f in figures]
         if self.notes:
             md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
+        if self.provenance is not None:
+            p = self.provenance
+            md += ["", "## Provenance", "", f"- iwr {p['iwr_version']}, {p['date']}",
+                   f"- command: `{' '.join(p['command'])}`"]
+            md += [f"- {label}: `{f['path']}`, SHA-256 `{f['sha256']}`"
+                   for label, f in p["inputs"].items()]
         return "\n".join(md) + "\n"
 
-    def _plot_residuals(self, path: Path) -> Path:
+    def _plot_residuals(self) -> Any:
         data = self.validation if self.held_out else self.identification
         which = "validation" if self.held_out else "identification"
         zero = np.zeros(self.robot.n_params)
         before = predict_legs(self.robot, zero, data.q, data.poses) - data.legs
         after = predict_legs(self.robot, self.result.x, data.q, data.poses) - data.legs
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(10, 4))
+        fig = new_figure(10, 4)
         axes = fig.subplots(1, 2)
         for ax, r, title in ((axes[0], before, "nominal robot"),
                              (axes[1], after * 1000.0, "calibrated robot")):
@@ -410,12 +537,10 @@ class Calibration:
         axes[1].set_ylabel("residual (um)")
         fig.suptitle(f"Leg residuals, predicted - measured, on {len(data)} {which} poses")
         fig.tight_layout()
-        return _save(fig, path)
+        return fig
 
-    def _plot_accuracy(self, path: Path) -> Path:
-        from matplotlib.figure import Figure
-
-        fig = Figure(figsize=(10, 6.5))
+    def _plot_accuracy(self) -> Any:
+        fig = new_figure(10, 6.5)
         axes = fig.subplots(2, 2)
         a = self.accuracy
         panels = [
@@ -435,27 +560,8 @@ class Calibration:
         fig.suptitle(f"Tool pose errors on {a.n_poses} "
                      f"{'validation' if self.held_out else 'identification'} poses")
         fig.tight_layout()
-        return _save(fig, path)
-
-
-def _finite(value: Any) -> Any:
-    """JSON has no nan/inf: None instead."""
-    if isinstance(value, dict):
-        return {k: _finite(v) for k, v in value.items()}
-    if isinstance(value, list):
-        return [_finite(v) for v in value]
-    if isinstance(value, float) and not math.isfinite(value):
-        return None
-    return value
+        return fig
 
 
 def _src(name: str) -> str:
     return f" ({name})" if name else ""
-
-
-def _save(fig: Any, path: Path) -> Path:
-    # A bare Figure (no pyplot): no GUI backend, no global state, nothing to close.
-    buf = io.BytesIO()
-    fig.savefig(buf, format="png", dpi=110)
-    atomic_write_bytes(path, buf.getvalue())
-    return path

@@ -1,0 +1,91 @@
+"""The ``iwr`` command line: ``calibrate``, ``simulate``, ``analyze``, ``plan``, ``compare``,
+``study``, ``report`` and ``legs``, one module per command (each with ``add_parser(subparsers)``;
+every argument parser of the package is here).
+
+Every command has ``--help``. Exit codes: 0 success, 1 bad data or a failed computation, 2 bad
+usage, 130 interrupted. Errors are one line, ``iwr: error: ...``, on standard error; ``--debug``
+adds the Python traceback.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import traceback
+from collections.abc import Callable, Sequence
+
+from ._base import (
+    EXIT_ERROR,
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    EXIT_USAGE,
+    CommandError,
+    Parser,
+    UsageError,
+    add_common,
+    default_method,
+    one_line,
+)
+
+__all__ = ["main", "build_parser", "default_method"]
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The ``iwr`` argument parser, with every command."""
+    from ..reporting.html import iwr_version
+    from . import analyze, calibrate, compare, legs, plan, report, simulate, study
+
+    parser = Parser(
+        prog="iwr",
+        description="Kinematic calibration of the IWR robot (a 4-DOF carriage carrying a Stewart "
+        "hexapod) and similar hybrid robots. Start with 'iwr calibrate', which runs the whole job "
+        "on a built-in simulated example.",
+        epilog="Units: mm and rad everywhere. File formats: docs/data.md. Exit codes: 0 success, "
+        "1 bad data or failed computation, 2 bad usage, 130 interrupted.",
+    )
+    parser.add_argument("--version", action="version", version=f"iwr {iwr_version()}")
+    parser.add_argument("--debug", action="store_true",
+                        help="show the Python traceback of an error")
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)
+    sub.required = True
+    for add in (calibrate.add_parser, simulate.add_parser, analyze.add_parser, plan.add_parser,
+                compare.add_compare_parser, study.add_study_parser, report.add_parser,
+                legs.add_parser):
+        p = add(sub)
+        if "--debug" not in p._option_string_actions:
+            add_common(p)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Run the command line; returns the exit code (``iwr`` script: ``iwr.cli:main``)."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    debug = "--debug" in argv
+    handlers: list[tuple[type[BaseException] | tuple[type[BaseException], ...], int, str]] = [
+        (UsageError, EXIT_USAGE, ""),
+        ((CommandError, ValueError, RuntimeError, OSError, ArithmeticError), EXIT_ERROR, ""),
+    ]
+    try:
+        args = build_parser().parse_args(argv)
+        func: Callable[[argparse.Namespace], int | None] = args.func
+        code = func(args)
+        return EXIT_OK if code is None else int(code)
+    except KeyboardInterrupt:
+        print("\niwr: interrupted", file=sys.stderr)
+        return EXIT_INTERRUPTED
+    except Exception as exc:  # one line, never a traceback unless --debug
+        if debug:
+            traceback.print_exc()
+        code, prefix = EXIT_ERROR, "internal error: " + type(exc).__name__ + ": "
+        for types, c, p in handlers:
+            if isinstance(exc, types):
+                code, prefix = c, p
+                break
+        msg = one_line(exc)
+        if isinstance(exc, UsageError):
+            print(f"iwr: error: {msg}", file=sys.stderr)
+        else:
+            hint = "" if debug or not prefix else " (run with --debug for the traceback)"
+            print(f"iwr: error: {prefix}{msg}{hint}", file=sys.stderr)
+        return code
+

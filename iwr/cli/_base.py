@@ -1,0 +1,141 @@
+"""What every command of the ``iwr`` command line shares: exit codes, errors, the parser class,
+argument types and file loading."""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import os
+import sys
+from typing import Any
+
+__all__ = ["UsageError", "CommandError", "Parser", "EXIT_OK", "EXIT_ERROR", "EXIT_USAGE",
+           "EXIT_INTERRUPTED", "one_line"]
+
+EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
+
+#: Environment variable that sets the default identification method of ``iwr calibrate``.
+METHOD_ENV = "IWR_METHOD"
+#: Environment variable: when set to 1, ``iwr calibrate`` without arguments runs a smaller example.
+QUICK_ENV = "IWR_EXAMPLE_QUICK"
+
+
+class UsageError(Exception):
+    """Bad command-line usage: exit code 2. The message ends with where to find help."""
+
+    def __init__(self, message: str, prog: str = "iwr calibrate") -> None:
+        super().__init__(f"{message} (see '{prog} --help')")
+
+
+class CommandError(Exception):
+    """A command that cannot run (missing feature, inconsistent input): exit code 1."""
+
+
+class Parser(argparse.ArgumentParser):
+    """argparse, with one-line errors raised to :func:`main` instead of a usage dump."""
+
+    def error(self, message: str) -> Any:  # type: ignore[override]
+        raise UsageError(message, self.prog)
+
+
+def default_method() -> str:
+    """The default method of ``iwr calibrate``: ``$IWR_METHOD`` when set, otherwise
+    :data:`iwr.methods.DEFAULT_METHOD`, the default of :func:`iwr.identify` too."""
+    from ..methods import DEFAULT_METHOD
+
+    env = os.environ.get(METHOD_ENV, "").strip()
+    return env or DEFAULT_METHOD
+
+
+# -- argument types ------------------------------------------------------------------------------
+
+
+def positive_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 1:
+        raise argparse.ArgumentTypeError(f"{v} must be a positive integer")
+    return v
+
+
+def nonneg_int(text: str) -> int:
+    try:
+        v = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
+    if v < 0:
+        raise argparse.ArgumentTypeError(f"{v} must be >= 0")
+    return v
+
+
+def fraction(text: str) -> float:
+    try:
+        v = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number") from None
+    if not 0.0 <= v < 1.0:
+        raise argparse.ArgumentTypeError(f"{v} must be in [0, 1)")
+    return v
+
+
+def noise_spec(text: str) -> Any:
+    """``realistic``, ``none``, or ``key=sigma,...`` over the fields of :class:`iwr.Noise`."""
+    from ..simulate import Noise
+
+    spec = text.strip().lower()
+    if spec == "realistic":
+        return Noise.realistic()
+    if spec in ("none", "0", "zero"):
+        return Noise()
+    fields = [f.name for f in dataclasses.fields(Noise)]
+    values: dict[str, float] = {}
+    for item in spec.split(","):
+        key, sep, value = item.partition("=")
+        key = key.strip()
+        if not sep or key not in fields:
+            raise argparse.ArgumentTypeError(
+                f"{text!r}: expected 'realistic', 'none' or KEY=SIGMA,... with KEY among "
+                f"{', '.join(fields)}"
+            )
+        try:
+            values[key] = float(value)
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"{key}={value!r} is not a number") from None
+    try:
+        return Noise(**values)
+    except ValueError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
+def add_common(p: argparse.ArgumentParser) -> None:
+    # SUPPRESS: a subcommand must not reset a --debug given before it.
+    p.add_argument("--debug", action="store_true", default=argparse.SUPPRESS,
+                   help="show the Python traceback of an error")
+
+
+def progress_enabled(args: argparse.Namespace) -> bool:
+    return not getattr(args, "no_progress", False) and sys.stderr.isatty()
+
+
+def load_robot(path: str) -> Any:
+    from ..robot import Robot
+
+    return Robot.from_toml(path)
+
+
+def load_data(path: str, robot: Any) -> Any:
+    from ..measurements import Measurements
+
+    return Measurements.from_csv(path, robot=robot)
+
+
+
+def one_line(exc: BaseException) -> str:
+    msg = str(exc) if str(exc) else type(exc).__name__
+    if isinstance(exc, KeyError):  # str(KeyError) is the quoted key
+        msg = f"missing key {msg}"
+    return " ".join(line.strip() for line in msg.splitlines() if line.strip())
+
+

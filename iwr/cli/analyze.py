@@ -1,0 +1,43 @@
+"""``iwr analyze``: which parameters the measurements can identify."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+
+from ._base import EXIT_OK, CommandError, add_common, load_data, load_robot
+
+
+def add_parser(sub: Any) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "analyze", help="which parameters the measurements can identify",
+        description="Print the identifiability report of ROBOT.toml on the poses of DATA.csv "
+        "(iwr.identifiability): the rank and conditioning of the identification Jacobian, "
+        "observability indices, the unidentifiable combinations of parameters and a set of base "
+        "parameters.",
+    )
+    p.add_argument("robot", metavar="ROBOT.toml", help="the nominal robot")
+    p.add_argument("data", metavar="DATA.csv", help="the measurements")
+    p.add_argument("--result", metavar="RESULT.json",
+                   help="analyse at an identified error vector (default: the nominal robot)")
+    add_common(p)
+    p.set_defaults(func=cmd_analyze)
+    return p
+
+
+def cmd_analyze(args: argparse.Namespace) -> int:
+    from ..identifiability import identifiability
+    from ..methods import load_result
+
+    robot = load_robot(args.robot)
+    data = load_data(args.data, robot)
+    x = None
+    if args.result:
+        x = np.asarray(load_result(args.result).x, dtype=float)
+        if x.shape != (robot.n_params,):
+            raise CommandError(f"{args.result}: {x.size} parameters, but robot {robot.name!r} "
+                               f"has {robot.n_params}")
+    print(identifiability(robot, data, x))
+    return EXIT_OK

@@ -1,0 +1,346 @@
+"""``iwr calibrate``: identify the errors of a robot from measurements, or run the built-in
+example; print a summary and write the calibrated robot, the result and the report (HTML and
+Markdown)."""
+
+from __future__ import annotations
+
+import argparse
+import inspect
+import math
+import os
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..reporting.html import provenance
+from ._base import (
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    METHOD_ENV,
+    QUICK_ENV,
+    CommandError,
+    UsageError,
+    add_common,
+    default_method,
+    fraction,
+    load_data,
+    load_robot,
+    nonneg_int,
+    one_line,
+    positive_int,
+    progress_enabled,
+)
+from .simulate import write_truth
+
+EXAMPLE_SEED = 2024
+EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 0.2)
+EXAMPLE_POSES_QUICK = 50
+EXAMPLE_GENERATIONS_QUICK = 30  # of DE in the quick example (then polished by LM)
+EXAMPLE_DIR = "iwr-example"
+
+# CLI option -> keyword a method takes for it: first the known ones per method (for options taken
+# through **options), then the first of the names below found in the method's signature.
+_KNOWN_OPTIONS: dict[str, dict[str, str]] = {
+    "de": {"budget": "max_evaluations"},
+}
+_METHOD_OPTIONS: dict[str, tuple[str, ...]] = {
+    "budget": ("max_evaluations",),
+    "generations": ("generations",),
+    "preset": ("preset",),
+    "polish": ("polish",),
+    "workers": ("workers",),
+    "strategy": ("strategy",),
+}
+
+
+
+def add_parser(sub: Any) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "calibrate", help="identify the errors of a robot from measurements (or run the example)",
+        description="Identify the error parameters of ROBOT.toml from DATA.csv, print a summary "
+        "(cost, leg residuals, identifiability, accuracy before and after) and write the "
+        "calibrated robot, the result and a report. Without arguments: the whole job on a "
+        "built-in example, a simulated IWR with realistic noise, in ./iwr-example/.",
+        epilog=f"The default method is 'lm' (Levenberg-Marquardt on the exact Jacobian from the "
+        f"nominal robot, the best we have); 'de' is the paper's differential evolution, polished "
+        f"by Levenberg-Marquardt. Set ${METHOD_ENV} to change the default. "
+        f"${QUICK_ENV}=1 makes the built-in example smaller (for tests).",
+    )
+    p.add_argument("robot", nargs="?", metavar="ROBOT.toml", help="the nominal robot")
+    p.add_argument("data", nargs="?", metavar="DATA.csv", help="the measurements (docs/data.md)")
+    p.add_argument("--method", default=None,
+                   help="identification method: lm, de, crs2, bobyqa, ... as available "
+                   "(default: $IWR_METHOD, else de if available, else lm)")
+    p.add_argument("--budget", type=positive_int, default=None, metavar="N",
+                   help="largest number of objective evaluations (method's default if not given)")
+    p.add_argument("--generations", type=positive_int, default=None, metavar="G",
+                   help="generations of an evolutionary method (de)")
+    p.add_argument("--preset", default=None,
+                   help="a method preset, e.g. 'paper' for the DE settings of Table 2")
+    p.add_argument("--strategy", default=None, help="DE strategy, e.g. rand1bin, lshade")
+    p.add_argument("--polish", action=argparse.BooleanOptionalAction, default=None,
+                   help="refine a global method's result by Levenberg-Marquardt "
+                   "(default: on for de)")
+    p.add_argument("--workers", type=positive_int, default=None, metavar="N",
+                   help="threads of a parallel method (default: all cores)")
+    p.add_argument("--seed", type=nonneg_int, default=0,
+                   help="seed of the validation split and of stochastic methods (default: "
+                   "%(default)s; the example's data use seed 2024)")
+    p.add_argument("--parameters", choices=("base", "all"), default="base",
+                   help="identify the base parameters only, the unidentifiable ones held at "
+                   "nominal, for a unique answer (base, the default), or all of them (all)")
+    p.add_argument("--bounds", choices=("default", "paper"), default="default",
+                   help="search bounds: +-0.5 mm and +-0.5 degree (default), or Table 2 literally "
+                   "(+-0.5 for every parameter)")
+    val = p.add_mutually_exclusive_group()
+    val.add_argument("--validation-fraction", type=fraction, default=0.2, metavar="F",
+                     help="fraction of the poses held out (at random, by --seed) for the accuracy "
+                     "figure (default: %(default)s; 0: none, the accuracy is then optimistic)")
+    val.add_argument("--validation", metavar="VALID.csv",
+                     help="validation poses from a separate file; all of DATA.csv identifies")
+    p.add_argument("--out-dir", default=None, metavar="DIR",
+                   help="folder of the calibrated robot, result and report (default: "
+                   "iwr-calibration, or iwr-example for the example)")
+    p.add_argument("--poses", type=positive_int, default=None, metavar="N",
+                   help=f"built-in example only: number of simulated poses (default "
+                   f"{EXAMPLE_POSES}, {EXAMPLE_POSES_QUICK} with ${QUICK_ENV}=1)")
+    p.add_argument("--no-plots", action="store_true", help="write the report without figures")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+    add_common(p)
+    p.set_defaults(func=cmd_calibrate)
+    return p
+
+
+def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
+    """The method options given on the command line, under the names the method accepts."""
+    from ..methods import METHODS, identify
+
+    if method not in METHODS:
+        raise UsageError(
+            f"--method {method!r}: available methods: {', '.join(sorted(METHODS))}"
+        )
+    params = dict(inspect.signature(METHODS[method]).parameters)
+    params.update(inspect.signature(identify).parameters)
+    kwargs: dict[str, Any] = {}
+    for option, names in _METHOD_OPTIONS.items():
+        value = getattr(args, option, None)
+        if value is None:
+            if option == "polish" and method == "de" and "polish" in params:
+                kwargs["polish"] = True  # the paper's DE, then a local refinement
+            continue
+        name = _KNOWN_OPTIONS.get(method, {}).get(option)
+        if name is None:
+            name = next((n for n in names if n in params), None)
+        if name is None:
+            raise UsageError(f"--{option} is not an option of method {method!r}")
+        kwargs[name] = value
+    return kwargs
+
+
+class _Tracker:
+    """A method's callback that keeps the best point seen, and counts evaluations on a progress
+    bar. Takes both callback forms of the methods: ``callback(intermediate_result)`` (SciPy's,
+    with ``x``, ``fun`` and ``nfev``) and ``callback(x, cost)``."""
+
+    def __init__(self, desc: str, enabled: bool) -> None:
+        from tqdm import tqdm
+
+        self.best = math.inf
+        self.x: np.ndarray | None = None
+        self.calls = 0
+        self.bar = tqdm(desc=desc, unit=" eval", disable=not enabled, leave=False,
+                        file=sys.stderr, dynamic_ncols=True)
+
+    def __call__(self, *args: Any) -> None:
+        if len(args) == 1 and hasattr(args[0], "x"):
+            res = args[0]
+            x, cost = res.x, float(res.fun)
+            n = int(getattr(res, "nfev", self.calls + 1))
+            self.bar.update(max(n - self.calls, 0))
+            self.calls = max(n, self.calls)
+        else:
+            x, cost = args[0], float(args[1])
+            self.calls += 1
+            self.bar.update(1)
+        if cost < self.best:
+            self.best, self.x = cost, np.array(x, dtype=float, copy=True)
+        self.bar.set_postfix_str(f"best cost {self.best:.4g} mm^2", refresh=False)
+
+    def close(self) -> None:
+        self.bar.close()
+
+
+def cmd_calibrate(args: argparse.Namespace) -> int:
+    if args.robot is not None and args.data is None:
+        raise UsageError("give both ROBOT.toml and DATA.csv, or neither (the built-in example)")
+    method = args.method or default_method()
+    kwargs = _method_kwargs(method, args)
+    if args.robot is None:
+        return _run_example(args, method, kwargs)
+    if args.poses is not None:
+        raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
+    robot = load_robot(args.robot)
+    data = load_data(args.data, robot)
+    validation = load_data(args.validation, robot) if args.validation else None
+    out = Path(args.out_dir or "iwr-calibration")
+    try:
+        _calibrate(robot, data, validation, args, method, kwargs, out,
+                   robot_name=str(args.robot), data_name=str(args.data))
+    except _Interrupted:
+        return EXIT_INTERRUPTED
+    return EXIT_OK
+
+
+def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) -> int:
+    from ..robot import Robot
+    from ..simulate import Noise, simulate
+
+    if args.validation:
+        raise UsageError("--validation needs ROBOT.toml and DATA.csv")
+    quick = os.environ.get(QUICK_ENV, "").strip() not in ("", "0")
+    n = args.poses or (EXAMPLE_POSES_QUICK if quick else EXAMPLE_POSES)
+    if quick and method == "de" and args.generations is None and args.budget is None:
+        kwargs = {**kwargs, "generations": EXAMPLE_GENERATIONS_QUICK}
+    out = Path(args.out_dir or EXAMPLE_DIR)
+    out.mkdir(parents=True, exist_ok=True)
+    robot = Robot.default()
+    noise = Noise.realistic()
+    data, truth = simulate(robot, n_poses=n, seed=EXAMPLE_SEED, noise=noise)
+    robot_path, data_path = out / "robot.toml", out / "measurements.csv"
+    robot.to_toml(robot_path)
+    data.to_csv(data_path)
+    write_truth(out / "true_errors.json", robot, truth, EXAMPLE_SEED, noise, n)
+    print(
+        f"built-in example: the IWR of docs/model.md with random errors (+-0.5 mm, +-0.5 deg), "
+        f"{n} random poses (seed {EXAMPLE_SEED}) and realistic noise (iwr.Noise.realistic(): "
+        "leg sensors 2 um, carriage joints 5 um and 5 urad, laser tracker 20 um and 20 urad)"
+    )
+    print(f"inputs: {robot_path}, {data_path}, {out / 'true_errors.json'} (the truth)")
+    print()
+    robot = load_robot(str(robot_path))
+    data = load_data(str(data_path), robot)
+    try:
+        _calibrate(robot, data, None, args, method, kwargs, out, robot_name=str(robot_path),
+                   data_name=str(data_path), truth=truth)
+    except _Interrupted:
+        return EXIT_INTERRUPTED
+    print(f"\nthe same on your own files: iwr calibrate ROBOT.toml DATA.csv (docs/data.md); "
+          f"here: iwr calibrate {robot_path} {data_path}")
+    return EXIT_OK
+
+
+def _split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
+    n = len(data)
+    n_val = int(round(fraction * n))
+    if fraction > 0 and n_val == 0:
+        n_val = 1
+    if n - n_val < 1:
+        raise CommandError(f"--validation-fraction {fraction}: leaves no pose for identification "
+                           f"out of {n}")
+    order = np.random.default_rng(seed).permutation(n)
+    val, ident = np.sort(order[:n_val]), np.sort(order[n_val:])
+    return data.subset(ident), data.subset(val)
+
+
+def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace, method: str,
+               kwargs: dict[str, Any], out: Path, *, robot_name: str, data_name: str,
+               truth: np.ndarray | None = None) -> Any:
+    from ..accuracy import accuracy
+    from ..identifiability import identifiability, parameter_error
+    from ..methods import identify
+    from ..reporting.calibration import Calibration
+    from ..uncertainty import uncertainty
+
+    if validation is not None:
+        ident, val, held_out = data, validation, True
+    elif args.validation_fraction > 0:
+        ident, val = _split(data, args.validation_fraction, args.seed)
+        held_out = True
+    else:
+        ident, val, held_out = data, data, False
+    notes: list[str] = []
+    if args.parameters == "base":
+        # Identify the base parameters only, the others held at nominal: a unique answer whose
+        # values and standard deviations mean something.
+        kwargs = {**kwargs, "active": identifiability(robot, ident).active}
+    show = progress_enabled(args)
+    # The tracker keeps the best point so far (what Ctrl-C leaves) and, for the methods without
+    # a progress bar of their own, counts evaluations on one.
+    tracker = _Tracker(f"identifying ({method})", show and method != "de")
+    kwargs = {**kwargs, "callback": tracker}
+    print(f"identifying with {method} ({len(ident)} poses; Ctrl-C stops and keeps the best "
+          "point so far)", flush=True)
+    try:
+        result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
+                          progress=show, **kwargs)
+    except KeyboardInterrupt:
+        result = _best_so_far(robot, ident, method, tracker, kwargs, args)
+    finally:
+        tracker.close()
+    interrupted = bool(result.get("interrupted")) or "interrupted" in str(result.message).lower()
+    if interrupted:
+        # Never "converged" for a run that was cut short.
+        result["interrupted"] = True
+        result["success"] = False
+        result["status"] = -2
+        msg = str(result.message)
+        if not msg.lower().startswith("interrupted"):
+            msg = f"interrupted (Ctrl-C): {msg}"
+        result["message"] = msg + "; the best point so far"
+    report = identifiability(robot, ident, result.x)
+    try:
+        active = result["active"] if args.parameters == "base" else report
+        unc = uncertainty(robot, ident, result.x, active=active)
+    except ValueError as exc:
+        unc = None
+        notes.append(f"note: no standard deviations: {one_line(exc)}")
+    acc = accuracy(robot, val, result.x)
+    truth_acc = perr = None
+    if truth is not None:
+        truth_acc = accuracy(robot, val, truth)
+        perr = parameter_error(robot, ident, result.x, truth)
+    inputs = {"robot": robot_name, "data": data_name}
+    if getattr(args, "validation", None):
+        inputs["validation"] = str(args.validation)
+    settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
+                "seed": args.seed, "validation_fraction": args.validation_fraction,
+                **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
+    cal = Calibration(
+        robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
+        accuracy=acc, data_name=data_name, robot_name=robot_name, identifiability=report,
+        uncertainty=unc, parameter_error=perr, truth_accuracy=truth_acc, notes=notes,
+        settings=settings, provenance=provenance(inputs),
+    )
+    print(cal.summary())
+    written = cal.write(out, plots=not args.no_plots)
+    print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
+    if interrupted:
+        print("iwr calibrate: interrupted; the files hold the best point so far "
+              "(success = false)", file=sys.stderr)
+        raise _Interrupted
+    return cal
+
+
+class _Interrupted(Exception):
+    """The identification was interrupted; its best point so far has been written."""
+
+
+def _best_so_far(robot: Any, data: Any, method: str, tracker: _Tracker, kwargs: dict[str, Any],
+                 args: argparse.Namespace) -> Any:
+    """The result of an identification that Ctrl-C cut short without a result: the best point
+    the callback saw (else the start), its cost evaluated afresh."""
+    from ..problem import Problem
+    from ..methods import IdentificationResult
+
+    x = tracker.x
+    if x is None or x.shape != (robot.n_params,):
+        x = np.zeros(robot.n_params)
+    return IdentificationResult(
+        x=x, fun=Problem(robot, data, args.bounds).cost(x), nfev=tracker.calls, nit=0,
+        success=False, status=-2, message="interrupted (Ctrl-C)", method=method,
+        parameter_names=robot.parameter_names, active=kwargs.get("active"), interrupted=True,
+        settings={}, history={},
+    )
+

@@ -1,0 +1,129 @@
+"""``iwr compare``: the identification methods on simulated problems, one budget, a report
+(:func:`iwr.compare_methods`)."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from typing import Any
+
+from ..experiments.compare import (
+    DEFAULT_BUDGET,
+    DEFAULT_OUT,
+    DEFAULT_SEEDS,
+    _check_noise,
+    compare_methods,
+    default_methods,
+)
+from ..robot import Robot
+from ..simulate import Noise
+
+__all__ = ["add_compare_parser", "run_compare"]
+
+
+def _methods() -> Any:
+    from ..methods import METHODS
+
+    return METHODS
+
+
+def _parse_noise(text: str) -> Noise:
+    if text in ("none", "realistic"):
+        return _check_noise(text)
+    values: dict[str, float] = {}
+    for item in text.split(","):
+        key, sep, val = item.partition("=")
+        key = key.strip()
+        if not sep or key not in Noise.__dataclass_fields__:
+            raise ValueError(
+                f"--noise: {text!r}; expected 'none', 'realistic' or key=value pairs with keys "
+                + ", ".join(Noise.__dataclass_fields__)
+            )
+        try:
+            values[key] = float(val)
+        except ValueError:
+            raise ValueError(f"--noise: {key}={val!r} is not a number") from None
+    return Noise(**values)
+
+
+def _parse_ints(text: str, name: str) -> list[int]:
+    try:
+        if ".." in text:
+            a, b = text.split("..")
+            return list(range(int(a), int(b) + 1))
+        return [int(s) for s in text.split(",") if s.strip()]
+    except ValueError:
+        raise ValueError(f"{name}: {text!r}; expected integers like '0,1,2' or '0..4'") from None
+
+
+def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``compare`` subcommand to an argparse ``subparsers`` object; returns its parser.
+    Its ``func`` default is :func:`run_compare`."""
+    p = subparsers.add_parser(
+        "compare",
+        help="compare the identification methods on simulated problems, one budget; write a report",
+        description=(
+            "Every identification method on the same simulated problems (several seeds; a start "
+            "near the nominal robot and a deliberately bad one) under one evaluation budget. "
+            "Writes report.html (self-contained), report.md with its PNG figures, runs.csv, "
+            "summary.csv and results.json."
+        ),
+    )
+    _add_arguments(p)
+    p.set_defaults(func=run_compare)
+    return p
+
+
+def _add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("--robot", metavar="TOML", help="robot description (default: the built-in IWR)")
+    p.add_argument("--poses", type=int, default=100, metavar="N",
+                   help="measurement poses per identification (default: %(default)s)")
+    p.add_argument("--noise", default="realistic",
+                   help="'none', 'realistic' (default) or key=value pairs, e.g. "
+                        "'legs=0.002,position=0.02' (mm, rad)")
+    p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)),
+                   help="seeds, '0,1,2' or '0..4' (default: %(default)s)")
+    p.add_argument("--methods", default=None,
+                   help="comma-separated methods: registered names ("
+                        + ", ".join(sorted(_methods())) + "; de is the paper's DE/rand/1/bin) or "
+                        "de:STRATEGY (e.g. de:jso, de:lshade); default: "
+                        + ",".join(default_methods()))
+    p.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="EVALS",
+                   help="evaluation budget per run (default: %(default)s)")
+    p.add_argument("--start", choices=["near", "bad", "both"], default="both",
+                   help="scenario(s) (default: %(default)s)")
+    p.add_argument("--validation-poses", type=int, default=200, metavar="N",
+                   help="fresh poses for the validation RMS (default: %(default)s)")
+    p.add_argument("-o", "--out", default=DEFAULT_OUT, metavar="DIR",
+                   help="output folder (default: %(default)s)")
+    p.add_argument("--no-progress", action="store_true", help="no progress bars")
+
+
+def run_compare(args: argparse.Namespace) -> int:
+    """Run ``iwr compare`` with parsed arguments; print the summary table; return the exit code
+    (0 ok, 1 an input or run error, 130 interrupted)."""
+    try:
+        robot = Robot.from_toml(args.robot) if args.robot else None
+        methods = None if args.methods is None else [
+            m.strip() for m in args.methods.split(",") if m.strip()]
+        comp = compare_methods(
+            robot=robot,
+            n_poses=args.poses,
+            noise=_parse_noise(args.noise),
+            seeds=_parse_ints(args.seeds, "--seeds"),
+            methods=methods,
+            budget=args.budget,
+            start=args.start,
+            out=args.out,
+            n_validation=args.validation_poses,
+            progress=False if args.no_progress else None,
+        )
+    except KeyboardInterrupt:
+        print("iwr compare: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, TypeError, OSError, RuntimeError) as exc:
+        print(f"iwr compare: error: {exc}", file=sys.stderr)
+        return 1
+    print(comp.summary_markdown())
+    print(f"wrote {args.out}/: " + ", ".join(sorted(comp.files)))
+    return 0

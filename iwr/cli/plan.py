@@ -1,0 +1,64 @@
+"""``iwr plan``: choose the poses to measure."""
+
+from __future__ import annotations
+
+import argparse
+from typing import Any
+
+import numpy as np
+
+from ._base import EXIT_OK, CommandError, add_common, load_robot, nonneg_int, positive_int
+
+
+def add_parser(sub: Any) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "plan", help="choose the poses to measure",
+        description="Choose K poses to measure among candidate poses (from a file, or sampled "
+        "at random in the workspace) that maximise an observability index of the base "
+        "parameters (iwr.plan_poses: greedy, then exchanges).",
+    )
+    p.add_argument("robot", metavar="ROBOT.toml", help="the nominal robot")
+    p.add_argument("--candidates", metavar="CANDIDATES.csv",
+                   help="candidate poses (a measurement CSV; leg readings may be predicted ones)")
+    p.add_argument("--n-candidates", type=positive_int, default=1000, metavar="M",
+                   help="without --candidates: candidates sampled in the workspace "
+                   "(default: %(default)s)")
+    p.add_argument("--poses", type=positive_int, default=30, metavar="K",
+                   help="number of poses to choose (default: %(default)s)")
+    p.add_argument("--criterion", choices=("O1", "O2", "O3", "O4"), default="O1",
+                   help="observability index to maximise (default: O1, D-optimal)")
+    p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default: 0)")
+    p.add_argument("--out", default="plan.csv", metavar="FILE",
+                   help="the chosen poses, as a measurement CSV (default: %(default)s)")
+    add_common(p)
+    p.set_defaults(func=cmd_plan)
+    return p
+
+
+def cmd_plan(args: argparse.Namespace) -> int:
+    from ..measurements import Measurements
+    from ..planning import plan_poses
+    from ..simulate import sample_poses
+
+    robot = load_robot(args.robot)
+    if args.candidates:
+        cand = Measurements.from_csv(args.candidates, robot=robot)
+        source = str(args.candidates)
+    else:
+        rng = np.random.default_rng(args.seed)
+        q, poses, legs = sample_poses(robot, args.n_candidates, rng)
+        cand = Measurements(q, poses, legs, joint_types=robot.joint_types)
+        source = f"{args.n_candidates} reachable poses sampled at random (seed {args.seed})"
+    if args.poses > len(cand):
+        raise CommandError(f"--poses {args.poses}: more than the {len(cand)} candidates")
+    try:
+        plan = plan_poses(robot, cand, args.poses, criterion=args.criterion, seed=args.seed)
+    except ValueError as exc:
+        msg = str(exc)
+        raise CommandError("--poses" + msg[7:] if msg.startswith("n_poses:") else msg) from None
+    plan.to_csv(args.out, source)
+    print(f"candidates: {source}")
+    print(plan)
+    print(f"wrote {args.out}: the chosen poses to measure (joint readings and platform poses); "
+          "measure them, then calibrate with the measured file")
+    return EXIT_OK

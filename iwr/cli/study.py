@@ -1,0 +1,200 @@
+"""``iwr study``: Monte-Carlo studies of identification on Dask (:func:`iwr.study`)."""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+from ..experiments.study import study
+
+__all__ = ["add_study_parser", "run_study"]
+
+
+def _methods() -> Any:
+    from ..methods import METHODS
+
+    return METHODS
+
+
+def _csv_items(text: str, kind: Callable[[str], Any], what: str) -> list[Any]:
+    items = [t.strip() for t in text.split(",") if t.strip()]
+    if not items:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected a comma-separated list of {what}")
+    try:
+        return [kind(t) for t in items]
+    except ValueError:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: expected a comma-separated list of {what}"
+        ) from None
+
+
+def _ints(text: str) -> list[int]:
+    return _csv_items(text, int, "integers")
+
+
+def _floats(text: str) -> list[float]:
+    return _csv_items(text, float, "numbers")
+
+
+def _count_or_list(text: str) -> Any:
+    """'5' -> 5 (a count: 0..4); '0,3,7' -> [0, 3, 7] (the indices)."""
+    values = _ints(text)
+    return values[0] if len(values) == 1 and "," not in text else values
+
+
+def _option_value(text: str) -> Any:
+    try:
+        return json.loads(text)
+    except ValueError:
+        return text
+
+
+def _parse_options(items: list[str]) -> dict[str, dict[str, Any]]:
+    out: dict[str, dict[str, Any]] = {}
+    for item in items:
+        name, sep, value = item.partition("=")
+        method, dot, option = name.partition(".")
+        if not sep or not dot or not method or not option:
+            raise ValueError(
+                f"--option: {item!r}; expected METHOD.NAME=VALUE, e.g. de.strategy=jde"
+            )
+        out.setdefault(method, {})[option] = _option_value(value)
+    return out
+
+
+def _parse_budgets(items: list[str]) -> Any:
+    """['100,1000'] -> [100, 1000] for every method; ['de=100,1000'] -> {'de': [100, 1000]};
+    ['de.max_evaluations=1e5,1e6'] -> {'de.max_evaluations': [100000, 1000000]}."""
+    if not items:
+        return None
+    per_method: dict[str, list[int]] = {}
+    common: list[int] | None = None
+    for item in items:
+        method, sep, values = item.rpartition("=")
+        try:
+            parsed = [int(v) for v in _floats(values)]
+            if any(v != f for v, f in zip(parsed, _floats(values), strict=True)):
+                raise argparse.ArgumentTypeError(f"{values!r}: expected whole numbers")
+        except (argparse.ArgumentTypeError, OverflowError, ValueError) as exc:
+            raise ValueError(f"--budget: {exc}") from None
+        if sep:
+            per_method[method] = parsed
+        else:
+            common = parsed
+    if common is not None and per_method:
+        raise ValueError("--budget: give either one list for every method or METHOD=LIST items")
+    return common if common is not None else per_method
+
+
+def add_study_parser(subparsers: Any) -> argparse.ArgumentParser:
+    """Add the ``study`` command to an argparse subparsers object (the ``iwr`` CLI's hook).
+
+    The parser's default ``func`` is :func:`run_study`.
+    """
+    parser = subparsers.add_parser(
+        "study",
+        help="Monte-Carlo study of identification over methods, poses, noise, draws and seeds",
+        description=(
+            "Run a grid of simulated calibrations (methods x poses x noise x error draws x seeds, "
+            "and budgets) on Dask, validate each on fresh poses, and write a tidy table "
+            "(OUT/results.csv), one JSON file per cell (OUT/runs/), figures and OUT/summary.md. "
+            "Started again, it runs only the cells that have no result yet."
+        ),
+    )
+    _add_arguments(parser)
+    parser.set_defaults(func=run_study)
+    return parser
+
+
+def _add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--methods", default="lm",
+                        help=f"comma-separated methods, of: {', '.join(sorted(_methods()))} "
+                             "(default: lm)")
+    parser.add_argument("--poses", type=_ints, default=[20, 50, 100],
+                        help="comma-separated numbers of measurement poses (default: 20,50,100)")
+    parser.add_argument("--noise", type=_floats, default=[0.0, 0.02],
+                        help="comma-separated noise levels: tracker position sd in mm, the other "
+                             "channels in proportion (0.02 = iwr.Noise.realistic()) (default: "
+                             "0,0.02)")
+    parser.add_argument("--draws", type=_count_or_list, default=3,
+                        help="error draws (actual robots): a count, or comma-separated indices "
+                             "(default: 3)")
+    parser.add_argument("--seeds", type=_count_or_list, default=3,
+                        help="seeds of poses, noise and method: a count, or comma-separated "
+                             "indices (default: 3)")
+    parser.add_argument("--budget", action="append", default=[],
+                        metavar="[METHOD[.OPTION]=]LIST",
+                        help="budget axis: generations (de) or evaluations (lm, crs2, bobyqa), "
+                             "e.g. --budget de=100,300,1000; repeat for several methods; "
+                             "de.max_evaluations=1e5,1e6 sets that option instead (jso, lshade)")
+    parser.add_argument("--option", action="append", default=[], metavar="METHOD.NAME=VALUE",
+                        help="a method option, e.g. --option de.strategy=lshade (repeatable)")
+    parser.add_argument("--robot", default=None, help="robot TOML file (default: the built-in IWR)")
+    parser.add_argument("--validation-poses", type=int, default=50,
+                        help="fresh poses on which each calibration is validated (default: 50)")
+    parser.add_argument("--base-seed", type=int, default=0,
+                        help="root of every random stream (default: 0)")
+    parser.add_argument("--out", default="study", help="study folder (default: study)")
+    parser.add_argument("--scheduler", default=None,
+                        help="address of an existing Dask scheduler (tcp://host:8786), or "
+                             "'synchronous' for this process without Dask (default: a local "
+                             "cluster)")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="worker processes of the local cluster (default: one per core)")
+    parser.add_argument("--retries", type=int, default=2,
+                        help="extra attempts of a cell whose worker died (default: 2)")
+    parser.add_argument("--report-only", action="store_true",
+                        help="only redraw the figures and summary from OUT/results.csv")
+    parser.add_argument("--no-report", action="store_true", help="no figures and no summary")
+    parser.add_argument("--progress", action=argparse.BooleanOptionalAction, default=None,
+                        help="progress bar (default: when standard error is a terminal)")
+
+
+def run_study(args: argparse.Namespace) -> int:
+    """Run the ``study`` command from parsed arguments; returns the exit code.
+
+    Bad input, a failed study or a scheduler that cannot be reached: a one-line message
+    ``iwr study: error: ...`` on standard error and exit code 1 (``--debug``: the traceback).
+    """
+    try:
+        return _run_study(args)
+    except KeyboardInterrupt:
+        print("iwr study: interrupted; finished cells are kept in the study folder",
+              file=sys.stderr)
+        return 130
+    except (ValueError, OSError, RuntimeError, ImportError) as exc:
+        if getattr(args, "debug", False):
+            raise
+        msg = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+        print(f"iwr study: error: {msg}", file=sys.stderr)
+        return 1
+
+
+def _run_study(args: argparse.Namespace) -> int:
+    out = Path(args.out)
+    if args.report_only:
+        from ..reporting.study import report as make_report
+
+        files = make_report(out)
+        print(f"wrote {', '.join(str(f) for f in files)}")
+        return 0
+    result = study(
+        methods=args.methods, poses=args.poses, noise=args.noise, draws=args.draws,
+        seeds=args.seeds, budgets=_parse_budgets(args.budget), out=out, robot=args.robot,
+        options=_parse_options(args.option), validation_poses=args.validation_poses,
+        base_seed=args.base_seed, scheduler=args.scheduler, workers=args.workers,
+        retries=args.retries, report=not args.no_report, progress=args.progress,
+    )
+    print(
+        f"{len(result.rows)} cells ({result.executed} computed, {result.reused} reused, "
+        f"{result.failed} failed) -> {result.table}"
+    )
+    for path in result.plots:
+        print(f"wrote {path}")
+    return 0
+
+

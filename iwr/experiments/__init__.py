@@ -1,0 +1,22 @@
+"""Simulated calibration experiments: one harness (:mod:`.harness`: scenario, cell, grid,
+executors) and its two uses, :func:`compare_methods` (``iwr compare``, :mod:`.compare`) and
+:func:`study` (``iwr study``, :mod:`.study`)."""
+
+from __future__ import annotations
+
+from .compare import Comparison, compare_methods
+from .harness import Cell, Scenario, evaluate, noise_at
+from .study import StudyError, StudyResult, read_table, study
+
+__all__ = [
+    "Cell",
+    "Comparison",
+    "Scenario",
+    "StudyError",
+    "StudyResult",
+    "compare_methods",
+    "evaluate",
+    "noise_at",
+    "read_table",
+    "study",
+]

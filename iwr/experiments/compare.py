@@ -1,0 +1,422 @@
+"""``iwr compare``: every identification method on the same simulated problems, one evaluation
+budget, and a report. A preset grid of the experiment harness (:mod:`iwr.experiments.harness`).
+
+For each scenario (``"near"``: the nominal robot as the start, errors within the default bounds;
+``"bad"``: large errors and a start near the bounds) and each seed, a robot with random errors is
+simulated at ``n_poses`` poses with measurement noise, and every method identifies it from the same
+start under the same evaluation budget. A method is a registered name (``lm``, ``de``, ``crs2``,
+``bobyqa``; ``de`` is the paper's DE/rand/1/bin) or ``de:STRATEGY``, a modern DE variant such as
+``de:jso``; the default list is :data:`DEFAULT_METHODS`. Seed ``k`` of a comparison is the
+harness's error draw ``k`` (data seed 0, base seed 0): a comparison's run and a study's cell of the
+same draw and settings are the same identification. The report (:mod:`iwr.reporting.compare`) in
+``out``: ``report.html`` (self-contained), ``report.md`` with the PNG figures beside it,
+``runs.csv``, ``summary.csv`` and ``results.json``.
+"""
+
+from __future__ import annotations
+
+import math
+import sys
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from ..robot import Robot
+from ..simulate import Noise
+from .harness import (
+    FLOOR_ATOL,
+    FLOOR_RTOL,
+    SCENARIOS,
+    Cell,
+    ExecutorError,
+    budget_option,
+    canonical,
+    dry_run,
+    robot_hash,
+    run_dask,
+    run_in_process,
+    split_method,
+)
+from .harness import available_methods as _available
+
+__all__ = [
+    "compare_methods",
+    "Comparison",
+    "SCENARIOS",
+    "DEFAULT_BUDGET",
+    "DEFAULT_METHODS",
+    "DEFAULT_SEEDS",
+    "default_methods",
+    "split_method",
+]
+
+#: Evaluation budget of every method, per run, when none is given.
+DEFAULT_BUDGET = 20_000
+#: Methods compared when none are given (then any other registered method): Levenberg-Marquardt,
+#: the paper's DE/rand/1/bin with Storn & Price's defaults, jSO (the DE variant that converges
+#: fastest on IWR, docs/de.md), CRS2 and BOBYQA. ``"de:STRATEGY"`` is DE with that strategy.
+DEFAULT_METHODS = ("lm", "de", "de:jso", "crs2", "bobyqa")
+DEFAULT_SEEDS = (0, 1, 2)
+DEFAULT_OUT = "iwr-compare"
+_BOUNDS = {"near": "default", "bad": "paper"}
+
+
+@dataclass
+class Comparison:
+    """The outcome of :func:`compare_methods`.
+
+    Attributes
+    ----------
+    runs : list of dict
+        One per (scenario, seed, method): the harness's row (``runs.csv``) plus ``x``, ``truth``,
+        ``x0``, ``history_nfev``, ``history_best``, ``unidentifiable``.
+    summary : list of dict
+        One per (scenario, method): medians, ranges and the success rate (``summary.csv``).
+    settings : dict
+        Everything the comparison was run with.
+    files : dict of str to Path
+        The files written (empty without ``out``).
+    """
+
+    runs: list[dict[str, Any]]
+    summary: list[dict[str, Any]]
+    settings: dict[str, Any]
+    files: dict[str, Path] = field(default_factory=dict)
+
+    def summary_markdown(self) -> str:
+        """The summary table as Markdown."""
+        from ..reporting.compare import summary_table
+        from ..reporting.tables import markdown_table
+
+        return markdown_table(summary_table(self.summary))
+
+
+def _check_int(name: str, value: Any, minimum: int) -> int:
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
+        raise ValueError(f"{name}: {value!r}; expected an integer >= {minimum}")
+    return int(value)
+
+
+def _check_noise(noise: Any) -> Noise:
+    if noise is None or noise == "none":
+        return Noise()
+    if isinstance(noise, Noise):
+        return noise
+    if noise == "realistic":
+        return Noise.realistic()
+    raise ValueError(f"noise: {noise!r}; expected an iwr.Noise, 'realistic', 'none' or None")
+
+
+def _check_starts(start: Any) -> list[str]:
+    starts = [start] if isinstance(start, str) else list(start) if start is not None else []
+    if start == "both":
+        starts = list(SCENARIOS)
+    if not starts or any(s not in SCENARIOS for s in starts) or len(set(starts)) != len(starts):
+        raise ValueError(
+            f"start: {start!r}; expected 'near', 'bad', 'both' or a sequence of distinct ones"
+        )
+    return starts
+
+
+def _methods_registered() -> Any:
+    from ..methods import METHODS
+
+    return METHODS
+
+
+def default_methods() -> list[str]:
+    """The methods compared when none are given: :data:`DEFAULT_METHODS` (those registered), then
+    any other registered method."""
+    names = [m for m in DEFAULT_METHODS if m.partition(":")[0] in _methods_registered()]
+    return names + sorted(m for m in _methods_registered() if m not in names)
+
+
+def _check_methods(methods: Any) -> list[str]:
+    if methods is None:
+        return default_methods()
+    names = [methods] if isinstance(methods, str) else list(methods)
+    if not names:
+        raise ValueError(f"methods: empty; expected one or more of: {_available()}")
+    for m in names:
+        split_method(m)
+    if len(set(names)) != len(names):
+        raise ValueError(f"methods: {names!r} has duplicates")
+    return names
+
+
+def _check_seeds(seeds: Any) -> list[int]:
+    if isinstance(seeds, (int, np.integer)) and not isinstance(seeds, bool):
+        seeds = [seeds]
+    try:
+        out = list(seeds)
+    except TypeError:
+        raise ValueError(
+            f"seeds: {seeds!r}; expected a sequence of non-negative integers"
+        ) from None
+    if not out:
+        raise ValueError("seeds: empty; expected one or more non-negative integers")
+    for s in out:
+        if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
+            raise ValueError(f"seeds: {s!r} is not a non-negative integer")
+    if len(set(out)) != len(out):
+        raise ValueError(f"seeds: {out!r} has duplicates")
+    return [int(s) for s in out]
+
+
+def _method_options(
+    spec: str, budget: int, extra: dict[str, dict[str, Any]]
+) -> tuple[str, dict[str, Any]]:
+    """The registered method of ``spec`` and the options it runs with. Every method gets the
+    budget as ``max_evaluations``; for ``lshade`` and ``jso`` this is also the budget their
+    population-size and parameter schedules are planned over, so they end with the budget."""
+    method, fixed = split_method(spec)
+    opts: dict[str, Any] = {"max_evaluations": budget}
+    if method == "de":
+        # Pure DE: no Levenberg-Marquardt polish, whose evaluations would not be DE's.
+        opts["polish"] = False
+    opts.update(fixed)
+    opts.update(extra.get(spec, {}))
+    return method, opts
+
+
+def _check_de_budget(robot: Robot, names: list[str], budget: int,
+                     extra: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
+    """The resolved settings of every DE spec (strategy, NP, F, CR, ...), from a dry run of its
+    initial population: bad options fail here, before the comparison, and so does a budget
+    smaller than the initial population (the DE engine refuses it; the message here adds how to
+    fix it)."""
+    out: dict[str, dict[str, Any]] = {}
+    for spec in names:
+        method, opts = _method_options(spec, budget, extra)
+        if method != "de":
+            continue
+        try:
+            st = dry_run(robot, method, opts)
+        except (ValueError, TypeError) as exc:
+            hint = ""
+            if str(exc).startswith("max_evaluations:"):  # the budget: here, the only source of it
+                hint = (f"; raise the budget or give a smaller population_size in "
+                        f"method_options={{{spec!r}: {{...}}}}")
+            raise ValueError(f"method {spec!r}: {exc}{hint}") from None
+        keys = ["strategy", "population_size", "F", "CR"]
+        if st.get("min_population_size"):
+            keys.append("min_population_size")
+        out[spec] = {k: st[k] for k in keys if k in st}
+    return out
+
+
+def compare_methods(
+    robot: Robot | None = None,
+    n_poses: int = 100,
+    noise: Noise | str | None = "realistic",
+    seeds: Sequence[int] | int = DEFAULT_SEEDS,
+    methods: Sequence[str] | str | None = None,
+    budget: int = DEFAULT_BUDGET,
+    start: str | Sequence[str] = "both",
+    out: str | Path | None = DEFAULT_OUT,
+    *,
+    n_validation: int = 200,
+    success_rtol: float = FLOOR_RTOL,
+    success_atol: float = FLOOR_ATOL,
+    method_options: dict[str, dict[str, Any]] | None = None,
+    scheduler: Any = "synchronous",
+    progress: bool | None = None,
+) -> Comparison:
+    """Compare identification methods on simulated problems under one evaluation budget.
+
+    Parameters
+    ----------
+    robot : Robot, optional
+        The nominal robot (default :meth:`Robot.default`).
+    n_poses : int
+        Measurement poses per identification (the paper: 100).
+    noise : Noise, "realistic", "none" or None
+        Measurement noise of the identification data (default: :meth:`Noise.realistic`).
+    seeds : sequence of int
+        One simulated problem per seed and scenario; the same seeds give the same numbers.
+    methods : sequence of str, optional
+        Method specs, each also its label in the report: a name registered in
+        ``iwr.identify.METHODS`` (``"de"`` is the paper's DE/rand/1/bin with its defaults), or
+        ``"de:STRATEGY"``, DE with a strategy of ``iwr.de.STRATEGIES`` (``"de:jso"``,
+        ``"de:lshade"``, ...). Default: :data:`DEFAULT_METHODS` (``lm``, ``de``, ``de:jso``,
+        ``crs2``, ``bobyqa``), then any other registered method.
+    budget : int
+        Evaluation budget of every run, passed as ``max_evaluations`` (a Jacobian counts as one
+        evaluation); lshade and jso plan their schedules over it. DE never exceeds it, but it
+        evaluates its initial population whole: a DE spec whose population is larger than the
+        budget is refused.
+    start : "near", "bad", "both" or a sequence of them
+        The scenarios; see :data:`SCENARIOS`.
+    out : path, optional
+        Where to write the report (created if needed); None: no files.
+    n_validation : int
+        Fresh, noise-free poses of the actual robot for the validation figures; they are also
+        the yardstick of :func:`iwr.parameter_error` (what is identifiable).
+    success_rtol, success_atol : float
+        A run succeeds when its cost is at most ``(1 + success_rtol) * floor + 6 N success_atol^2``,
+        where ``floor`` is the cost of the true parameters on the same (noisy) data: within
+        ``success_rtol`` of the noise floor, or within ``success_atol`` mm RMS of the readings.
+    method_options : dict, optional
+        Extra options per method label, e.g. ``{"crs2": {"population": 1000}}`` or
+        ``{"de:jso": {"population_size": 200}}``.
+    progress : bool, optional
+        Progress bars (default: when standard error is a terminal).
+
+    Returns
+    -------
+    Comparison
+    """
+    robot = Robot.default() if robot is None else robot
+    if not isinstance(robot, Robot):
+        raise ValueError(f"robot: expected an iwr.Robot or None, got {type(robot).__name__}")
+    n_poses = _check_int("n_poses", n_poses, 1)
+    n_validation = _check_int("n_validation", n_validation, 1)
+    budget = _check_int("budget", budget, 2)
+    noise = _check_noise(noise)
+    seeds = _check_seeds(seeds)
+    names = _check_methods(methods)
+    starts = _check_starts(start)
+    for label, v in (("success_rtol", success_rtol), ("success_atol", success_atol)):
+        if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            raise ValueError(f"{label}: {v!r}; expected a finite number >= 0")
+    extra = dict(method_options or {})
+    for k, v in extra.items():
+        if k not in names or not isinstance(v, dict):
+            raise ValueError(
+                f"method_options: {k!r}; expected a dict of options per compared method (keyed "
+                "by its label, e.g. 'de:jso')"
+            )
+        base, fixed = split_method(k)
+        if base == "de" and "strategy" in v:
+            # The label says which strategy ran: 'de' is rand1bin, 'de:jso' is jso.
+            named = fixed.get("strategy", "rand1bin")
+            if v["strategy"] != named:
+                raise ValueError(f"method_options: {k!r} sets strategy {v['strategy']!r}; "
+                                 f"use the label 'de:{v['strategy']}' instead")
+    out_path = None if out is None else Path(out)
+    if out_path is not None and out_path.exists() and not out_path.is_dir():
+        raise ValueError(f"out: {str(out_path)!r} exists and is not a folder")
+    show = sys.stderr.isatty() if progress is None else bool(progress)
+
+    settings = {
+        "robot": robot.name,
+        "n_params": robot.n_params,
+        "n_poses": n_poses,
+        "n_validation": n_validation,
+        "noise": {k: getattr(noise, k) for k in
+                  ("legs", "joint_lengths", "joint_angles", "position", "orientation")},
+        "seeds": seeds,
+        "methods": names,
+        "budget": budget,
+        "scenarios": {s: SCENARIOS[s] for s in starts},
+        "bounds": {s: _BOUNDS[s] for s in starts},
+        "success_rtol": success_rtol,
+        "success_atol": success_atol,
+        "parameter_error": "iwr.parameter_error on the validation poses",
+        "method_options": {m: _method_options(m, budget, extra)[1] for m in names},
+        "de_settings": _check_de_budget(robot, names, budget, extra),
+    }
+
+    cells = _grid(robot, n_poses, noise, seeds, names, budget, starts, n_validation, extra)
+    rows: dict[str, dict[str, Any]] = {}
+    from tqdm.auto import tqdm
+
+    with tqdm(total=len(cells), desc="compare", unit="run", disable=not show) as bar:
+        def on_done(row: dict[str, Any]) -> None:
+            rows[row["key"]] = row
+            bar.set_postfix_str(f"{row['scenario']} seed {row['draw']}: {row['method']}")
+            bar.update(1)
+
+        floor = {"floor_rtol": success_rtol, "floor_atol": success_atol, "details": True}
+        if scheduler == "synchronous":
+            run_in_process(cells, robot, on_done, **floor)
+            failures: list[tuple[Cell, BaseException]] = []
+        else:
+            try:
+                failures = run_dask(cells, robot, on_done, scheduler=scheduler, **floor)
+            except ExecutorError as exc:
+                raise RuntimeError(str(exc)) from None
+    if failures:
+        cell, exc = failures[0]
+        raise RuntimeError(f"{len(failures)} runs failed on every attempt (first: {cell.method}, "
+                           f"seed {cell.draw}: {type(exc).__name__}: {exc})")
+    runs = [_run_row(rows[c.key]) for c in cells]
+    failed = [r for r in runs if r["status"] != "ok"]
+    if failed:
+        r = failed[0]
+        raise ValueError(f"method {r['method']!r}, scenario {r['scenario']}, seed {r['seed']}: "
+                         f"{r['message']}")
+    comparison = Comparison(runs=runs, summary=_summarise(runs, starts, names), settings=settings)
+    if out_path is not None:
+        from ..reporting.compare import write_report
+
+        comparison.files = write_report(comparison, out_path, robot)
+    return comparison
+
+
+def _grid(robot: Robot, n_poses: int, noise: Noise, seeds: list[int], names: list[str],
+          budget: int, starts: list[str], n_validation: int,
+          extra: dict[str, dict[str, Any]]) -> list[Cell]:
+    """The cells of a comparison, in report order (scenario, seed, method). Seed k is the
+    harness's error draw k, data seed 0."""
+    rh = robot_hash(robot)
+    cells = []
+    for scenario in starts:
+        for seed in seeds:
+            for spec in names:
+                method, opts = _method_options(spec, budget, extra)
+                fixed = split_method(spec)[1]
+                own = {k: v for k, v in opts.items() if k != "max_evaluations" and
+                       fixed.get(k, object()) != v}
+                option = None if budget_option(method) == "max_evaluations" else "max_evaluations"
+                cells.append(Cell(spec, canonical(own), budget, n_poses, noise, seed, 0, 0,
+                                  n_validation, rh, option, scenario))
+    return cells
+
+
+def _run_row(row: dict[str, Any]) -> dict[str, Any]:
+    """A harness row as a run of the comparison: ``seed`` is the comparison's seed (the draw)."""
+    return {**row, "seed": row["draw"]}
+
+
+def _median(values: list[float]) -> float:
+    arr = np.array([v for v in values if not math.isnan(v)], dtype=float)
+    return float(np.median(arr)) if arr.size else math.nan
+
+
+def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) -> list[dict]:
+    out = []
+    for scenario in starts:
+        for method in names:
+            rs = [r for r in runs if r["scenario"] == scenario and r["method"] == method]
+            if not rs:
+                continue
+            costs = [r["cost"] for r in rs]
+            out.append({
+                "scenario": scenario,
+                "method": method,
+                "runs": len(rs),
+                "successes": sum(r["at_floor"] for r in rs),
+                "success_rate": sum(r["at_floor"] for r in rs) / len(rs),
+                "median_cost": _median(costs),
+                "min_cost": float(np.min(costs)),
+                "max_cost": float(np.max(costs)),
+                "median_noise_floor": _median([r["noise_floor"] for r in rs]),
+                "median_val_rms": _median([r["val_rms"] for r in rs]),
+                "median_val_rms_nominal": _median([r["val_rms_nominal"] for r in rs]),
+                "median_param_error_length": _median([r["param_error_length"] for r in rs]),
+                "median_param_error_angle": _median([r["param_error_angle"] for r in rs]),
+                "median_raw_error_length": _median([r["raw_error_length"] for r in rs]),
+                "median_raw_error_angle": _median([r["raw_error_angle"] for r in rs]),
+                "median_tool_position_rms": _median([r["tool_position_rms"] for r in rs]),
+                "median_nfev": _median([float(r["nfev"]) for r in rs]),
+                "max_nfev": int(max(r["nfev"] for r in rs)),
+                "all_within_budget": all(r["within_budget"] for r in rs),
+                "median_wall_time": _median([r["wall_time"] for r in rs]),
+            })
+    return out
+
+

@@ -1,0 +1,670 @@
+"""The experiment harness: a *scenario* (one simulated calibration problem), a *cell* (one
+identification of a scenario and its row of figures), grids of cells and the *executors* that run
+them, in this process or on Dask. ``iwr compare`` and ``iwr study`` are two uses of it.
+
+Seeding, one scheme for every experiment: each random stream is drawn from
+``SeedSequence([base_seed, purpose, draw(, seed)])`` (:func:`stream_seed`), with one purpose per
+stream: the true error vector depends on ``(base_seed, draw)`` only; the poses and noise of the
+identification data, the validation poses and the method's random stream on
+``(base_seed, draw, seed)``. So every method, pose count and noise level of a (draw, seed) pair
+sees the same actual robot and validation poses, and every noise level the same poses with noise
+of the same shape, scaled (common random numbers: differences between cells are not sampling
+noise).
+
+The row of a cell has one schema (:data:`SETTING_COLUMNS` then :data:`FIGURE_COLUMNS`), whatever
+runs it; every call into the identification and analysis API is in :func:`evaluate`.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import math
+import time
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from ..accuracy import accuracy
+from ..identifiability import identifiability, parameter_error
+from ..methods import METHODS, identify
+from ..measurements import Measurements
+from ..problem import Problem, predict_legs
+from ..robot import Robot
+from ..simulate import Noise, sample_poses, simulate
+
+__all__ = [
+    "Cell",
+    "Scenario",
+    "ScenarioData",
+    "SETTING_COLUMNS",
+    "FIGURE_COLUMNS",
+    "TIMING_COLUMNS",
+    "COLUMNS",
+    "SCENARIOS",
+    "evaluate",
+    "noise_at",
+    "rms",
+    "split_method",
+    "stream_seed",
+]
+
+#: Version of the cells' settings: part of every cell's key.
+CELL_FORMAT = 1
+
+#: Scenarios: where the truth is drawn, the bounds searched, and where the methods start.
+SCENARIOS: dict[str, str] = {
+    "near": (
+        "errors uniform within the default bounds (+-0.5 mm, +-0.5 degree); every method starts "
+        "from the nominal robot (all errors zero), the usual calibration situation"
+    ),
+    "bad": (
+        "large errors, uniform within the paper's Table 2 bounds taken literally (+-0.5 mm for "
+        "lengths, +-0.5 rad for angles), searched within those bounds; every parameter starts at "
+        "90% of its bound on the side opposite to its true value"
+    ),
+}
+_BOUNDS = {"near": "default", "bad": "paper"}
+_BAD_START_FRACTION = 0.9
+
+# The table: one row per cell. Settings first, then figures; missing figures are empty.
+SETTING_COLUMNS = (
+    "key", "scenario", "method", "options", "budget", "budget_option", "n_poses", "noise", "draw",
+    "seed", "base_seed", "validation_poses", "robot",
+)
+FIGURE_COLUMNS = (
+    "status", "message", "cost", "noise_floor", "at_floor", "rms_fit", "val_rms", "val_max",
+    "val_rms_nominal", "param_error_length", "param_error_angle", "raw_error_length",
+    "raw_error_angle", "max_raw_error_length", "tool_position_rms", "tool_orientation_rms",
+    "tool_position_rms_nominal", "nfev", "nit", "within_budget", "success", "wall_time", "notes",
+)
+# Figures that depend on the machine, not on the settings: left out when tables are compared.
+TIMING_COLUMNS = ("wall_time",)
+COLUMNS = SETTING_COLUMNS + FIGURE_COLUMNS
+
+#: A cell is *at the floor* when its cost is at most ``(1 + rtol) floor + 6 N atol^2``, the floor
+#: being the cost of the true parameters on the same noisy data.
+FLOOR_RTOL, FLOOR_ATOL = 0.1, 1e-3
+
+# Purposes of the random streams, the second entropy word of stream_seed.
+_ERRORS, _DATA, _VALIDATION, _METHOD = 1, 2, 3, 4
+
+# Exceptions that a cell's computation raises deterministically: recorded in its row as a failure
+# (running it again would fail again). Anything else (a lost connection, memory) propagates, so
+# that an executor may retry the cell.
+RECORDED_ERRORS = (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError)
+
+
+def stream_seed(*entropy: int) -> int:
+    """A 63-bit seed drawn from the given integers: independent streams for independent uses."""
+    return int(np.random.SeedSequence(list(entropy)).generate_state(1, np.uint64)[0] >> 1)
+
+
+def rms(v: Any) -> float:
+    """Root mean square of ``v``; nan for an empty array."""
+    a = np.asarray(v, dtype=float)
+    return float(np.sqrt(np.mean(np.square(a)))) if a.size else math.nan
+
+
+def noise_at(level: float) -> Noise:
+    """The measurement noise of a noise level: ``level`` is the laser tracker's position standard
+    deviation (mm); the other channels keep the proportions of :meth:`Noise.realistic`.
+
+    So ``noise_at(0.02) == Noise.realistic()`` (legs 2 um, joints 5 um and 5 urad, tracker 20 um
+    and 20 urad) and ``noise_at(0)`` is the paper's noise-free simulation.
+    """
+    level = float(level)
+    if not (math.isfinite(level) and level >= 0):
+        raise ValueError(f"noise: {level!r}; expected a finite level >= 0 (mm)")
+    ref = Noise.realistic()
+    scale = level / ref.position
+    return Noise(
+        legs=ref.legs * scale,
+        joint_lengths=ref.joint_lengths * scale,
+        joint_angles=ref.joint_angles * scale,
+        position=ref.position * scale,
+        orientation=ref.orientation * scale,
+    )
+
+
+def _de_strategies() -> tuple[str, ...]:
+    from ..methods.de import STRATEGIES
+
+    return tuple(STRATEGIES)
+
+
+def available_methods() -> str:
+    """The method specs accepted, as text for a message."""
+    return (", ".join(sorted(METHODS)) + "; or de:STRATEGY with STRATEGY one of "
+            + ", ".join(_de_strategies()))
+
+
+def split_method(spec: Any) -> tuple[str, dict[str, Any]]:
+    """The registered method and its fixed options of a method spec: a registered name as it is
+    (``"lm"`` -> ``("lm", {})``), or ``"de:STRATEGY"``, differential evolution with that strategy
+    (``"de:jso"`` -> ``("de", {"strategy": "jso"})``). Raises ValueError naming a bad spec."""
+    if not isinstance(spec, str):
+        raise ValueError(f"methods: {spec!r}; expected a method name; available: "
+                         f"{available_methods()}")
+    if spec in METHODS:
+        return spec, {}
+    base, sep, variant = spec.partition(":")
+    if sep and base == "de":
+        strategies = _de_strategies()
+        if variant not in strategies:
+            raise ValueError(f"methods: {spec!r}: unknown DE strategy {variant!r}; available: "
+                             + ", ".join(strategies))
+        return "de", {"strategy": variant}
+    if sep and base in METHODS:
+        raise ValueError(f"methods: {spec!r}: only de takes a variant (de:STRATEGY)")
+    raise ValueError(f"methods: {spec!r} is not registered; available: {available_methods()}")
+
+
+# -- the scenario ---------------------------------------------------------------------------------
+
+
+@dataclass
+class ScenarioData:
+    """What a scenario simulates: the truth, the identification data, the start, the bounds and
+    the validation poses (exact readings, no noise), and the method's seed."""
+
+    truth: np.ndarray
+    data: Measurements
+    x0: np.ndarray
+    bounds: str
+    validation: Measurements
+    method_seed: int
+
+
+@dataclass(frozen=True)
+class Scenario:
+    """One simulated calibration problem (see the module's doc for the seeding).
+
+    Attributes
+    ----------
+    n_poses : int
+        Measurement poses of the identification data.
+    noise : Noise
+        Their measurement noise.
+    draw, seed, base_seed : int
+        The error draw (the actual robot), the seed of the data, validation poses and method,
+        and the root of every stream.
+    validation_poses : int
+        Fresh, noise-free poses of the actual robot for the validation figures.
+    kind : {"near", "bad"}
+        See :data:`SCENARIOS`.
+    """
+
+    n_poses: int
+    noise: Noise
+    draw: int = 0
+    seed: int = 0
+    base_seed: int = 0
+    validation_poses: int = 50
+    kind: str = "near"
+
+    def truth(self, robot: Robot) -> np.ndarray:
+        """The actual robot's error vector: uniform within the scenario's bounds."""
+        rng = np.random.default_rng(stream_seed(self.base_seed, _ERRORS, self.draw))
+        lower, upper = robot.default_bounds(_BOUNDS[self.kind])
+        return lower + (upper - lower) * rng.random(robot.n_params)
+
+    def build(self, robot: Robot) -> ScenarioData:
+        """Simulate the scenario for ``robot`` (deterministic)."""
+        if self.kind not in SCENARIOS:
+            raise ValueError(f"scenario: {self.kind!r}; expected one of {', '.join(SCENARIOS)}")
+        truth = self.truth(robot)
+        data, _ = simulate(robot, self.n_poses,
+                           seed=stream_seed(self.base_seed, _DATA, self.draw, self.seed),
+                           x=truth, noise=self.noise)
+        bounds = _BOUNDS[self.kind]
+        if self.kind == "near":
+            x0 = np.zeros(robot.n_params)
+        else:
+            # The opposite side of each parameter's range, near its bound.
+            lower, upper = robot.default_bounds(bounds)
+            half, mid = 0.5 * (upper - lower), 0.5 * (upper + lower)
+            x0 = mid + np.where(truth >= mid, -1.0, 1.0) * _BAD_START_FRACTION * half
+        rng = np.random.default_rng(stream_seed(self.base_seed, _VALIDATION, self.draw,
+                                                self.seed))
+        q, poses, legs = sample_poses(robot, self.validation_poses, rng, truth)
+        validation = Measurements(q, poses, legs, joint_types=robot.joint_types)
+        return ScenarioData(truth, data, x0, bounds, validation,
+                            stream_seed(self.base_seed, _METHOD, self.draw, self.seed))
+
+
+# -- the cell -------------------------------------------------------------------------------------
+
+
+def canonical(value: Any) -> str:
+    """``value`` as canonical JSON (sorted keys, no spaces): the text that keys are hashes of."""
+    return json.dumps(value, sort_keys=True, separators=(",", ":"), allow_nan=False)
+
+
+def robot_hash(robot: Robot) -> str:
+    """A short hash of the robot's description, part of every cell's key."""
+    return hashlib.sha256(canonical(robot.to_dict()).encode()).hexdigest()[:12]
+
+
+@dataclass(frozen=True)
+class Cell:
+    """The settings of one identification: a scenario, a method spec, its options and budget;
+    ``key`` identifies its result.
+
+    ``noise`` is a noise level (:func:`noise_at`) or an :class:`iwr.Noise`; ``budget`` sets the
+    method's option ``budget_option`` (``None``: the method's evaluation budget, see
+    :func:`budget_option`); ``robot`` is the :func:`robot_hash` of the nominal robot.
+    """
+
+    method: str
+    options: str  # canonical JSON of the method's options (runtime-only options left out)
+    budget: int | None
+    n_poses: int
+    noise: Any
+    draw: int
+    seed: int
+    base_seed: int
+    validation_poses: int
+    robot: str
+    budget_option: str | None = None
+    scenario: str = "near"
+
+    @property
+    def settings(self) -> dict[str, Any]:
+        """What the result depends on: the text of the key."""
+        extra: dict[str, Any] = {}
+        if self.budget_option is not None:
+            extra["budget_option"] = self.budget_option
+        if self.scenario != "near":  # a near cell keeps the key it had before scenarios
+            extra["scenario"] = self.scenario
+        noise = self.noise
+        if isinstance(noise, Noise):  # a level when it is one, so that equal cells share a key
+            noise = noise.position if noise == noise_at(noise.position) else _noise_dict(noise)
+        return {
+            **extra,
+            "format": CELL_FORMAT,
+            "method": self.method,
+            "options": json.loads(self.options),
+            "budget": self.budget,
+            "n_poses": self.n_poses,
+            "noise": noise,
+            "noise_model": "tracker position sd (mm), realistic proportions",
+            "draw": self.draw,
+            "seed": self.seed,
+            "base_seed": self.base_seed,
+            "validation_poses": self.validation_poses,
+            "robot": self.robot,
+        }
+
+    @property
+    def key(self) -> str:
+        return hashlib.sha256(canonical(self.settings).encode()).hexdigest()[:20]
+
+    def noise_model(self) -> Noise:
+        return self.noise if isinstance(self.noise, Noise) else noise_at(self.noise)
+
+    def scenario_problem(self) -> Scenario:
+        """The cell's scenario."""
+        return Scenario(self.n_poses, self.noise_model(), self.draw, self.seed, self.base_seed,
+                        self.validation_poses, self.scenario)
+
+    def method_options(self) -> tuple[str, dict[str, Any]]:
+        """The registered method and every option it runs with (budget included)."""
+        method, fixed = split_method(self.method)
+        options = {**fixed, **json.loads(self.options)}
+        if method == "de":
+            # DE alone: a Levenberg-Marquardt polish would spend evaluations that are not DE's.
+            options.setdefault("polish", False)
+        if self.budget is not None:
+            options[self.budget_option or budget_option(method)] = self.budget
+        return method, options
+
+    def columns(self) -> dict[str, Any]:
+        """The setting columns of the cell's row in the table."""
+        row: dict[str, Any] = {c: getattr(self, c) for c in SETTING_COLUMNS if c != "key"}
+        row["key"] = self.key
+        if isinstance(self.noise, Noise):
+            row["noise"] = self.noise.position
+        if self.budget is not None and self.budget_option is None:
+            row["budget_option"] = budget_option(split_method(self.method)[0])
+        return row
+
+
+def _noise_dict(noise: Noise) -> dict[str, float]:
+    return {k: float(getattr(noise, k)) for k in
+            ("legs", "joint_lengths", "joint_angles", "position", "orientation")}
+
+
+# The option that a budget sets: every method takes ``max_evaluations``; DE's budget axis in the
+# study and the comparison is counted in generations, as the paper counts it.
+BUDGET_OPTIONS = {"de": "generations"}
+
+
+def budget_option(method: str) -> str:
+    """The option of ``method`` that a budget sets (``generations`` for DE, else
+    ``max_evaluations``, the budget every method takes)."""
+    if method not in METHODS:
+        raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+    return BUDGET_OPTIONS.get(method, "max_evaluations")
+
+
+def accepts(method: str, option: str) -> bool:
+    """Whether the registered ``method`` takes ``option`` by name."""
+    import inspect
+
+    return option in inspect.signature(METHODS[method]).parameters
+
+
+def unidentifiable_mask(robot: Robot, data: Measurements, x: np.ndarray) -> np.ndarray:
+    """The parameters that take part in an unidentifiable combination at ``x`` on ``data``'s poses
+    (a nonzero coefficient in the null space of the column-scaled Jacobian): they cannot be judged
+    one by one."""
+    rep = identifiability(robot, data, x)
+    if rep.null_space.size == 0:
+        return np.zeros(robot.n_params, dtype=bool)
+    # An orthonormal basis of the null space in the scaled metric: its rows measure each
+    # parameter's part in it, whatever basis the report chose.
+    basis, _ = np.linalg.qr(rep.null_space * rep.scale[:, None])
+    return np.linalg.norm(basis, axis=1) > 1e-6
+
+
+def evaluate(
+    cell: Cell,
+    robot: Robot,
+    runtime_options: Mapping[str, Any] | None = None,
+    *,
+    floor_rtol: float = FLOOR_RTOL,
+    floor_atol: float = FLOOR_ATOL,
+    details: bool = False,
+) -> dict[str, Any]:
+    """Simulate, identify and validate one cell; its row (a plain dict, :data:`COLUMNS` and
+    ``x``; with ``details`` also ``truth``, ``x0``, ``unidentifiable`` and the convergence
+    history ``history_nfev``, ``history_best``).
+
+    Deterministic: the same cell gives the same row (``wall_time`` aside), in any process.
+    ``runtime_options`` are options that change the speed only (``workers``): given to the method
+    when it takes them. The figures on the validation poses: ``val_rms``, ``val_max`` (leg
+    readings predicted by the calibrated model against the exact ones, mm) and
+    ``val_rms_nominal`` (the nominal model's); the parameter error modulo the unidentifiable
+    directions (:func:`iwr.parameter_error`, with the validation poses as the yardstick of what is
+    identifiable: the same generic set for every pose count, so that small calibration sets do
+    not hide errors in directions they happen not to see) and raw; the tool pose error by forward
+    kinematics (:func:`iwr.accuracy`).
+    """
+    row = cell.columns()
+    try:
+        sc = cell.scenario_problem().build(robot)
+        method, options = cell.method_options()
+        for name, value in (runtime_options or {}).items():
+            if accepts(method, name):
+                options.setdefault(name, value)
+        start = time.perf_counter()
+        result = identify(robot, sc.data, method, bounds=sc.bounds, x0=sc.x0,
+                          seed=sc.method_seed, progress=False, **options)
+        row["wall_time"] = time.perf_counter() - start
+        x = np.asarray(result.x, dtype=float)
+        cost = float(result.fun)
+        floor = Problem(robot, sc.data, sc.bounds).cost(sc.truth)
+        threshold = (1 + floor_rtol) * floor + 6 * cell.n_poses * floor_atol**2
+        row.update(
+            cost=cost,
+            noise_floor=floor,
+            at_floor=bool(cost <= threshold),
+            rms_fit=math.sqrt(max(cost, 0.0) / (6 * cell.n_poses)),
+            nfev=int(result.nfev),
+            nit=int(result.get("nit", 0)),
+            within_budget=_within_budget(cell, method, int(result.nfev)),
+            success=bool(result.success),
+        )
+        row.update(_validate(robot, x, sc))
+        row.update(status="ok", message=str(result.get("message", "")))
+        row["x"] = x.tolist()
+        if details:
+            hist = dict(result.get("history", {}))
+            row.update(
+                truth=sc.truth.tolist(),
+                x0=sc.x0.tolist(),
+                floor_threshold=threshold,
+                unidentifiable=unidentifiable_mask(robot, sc.data, sc.truth).tolist(),
+                history_nfev=np.asarray(hist.get("nfev", []), dtype=float).tolist(),
+                history_best=np.asarray(hist.get("best", []), dtype=float).tolist(),
+            )
+    except RECORDED_ERRORS as exc:
+        row.update(status="failed", message=f"{type(exc).__name__}: {exc}")
+    row.setdefault("wall_time", math.nan)
+    return row
+
+
+_EVALUATION_OPTIONS = ("max_evaluations",)
+
+
+def _within_budget(cell: Cell, method: str, nfev: int) -> bool | None:
+    """Whether the evaluations stayed within the budget, when it counts evaluations."""
+    if cell.budget is None:
+        return None
+    option = cell.budget_option or budget_option(method)
+    return bool(nfev <= cell.budget) if option in _EVALUATION_OPTIONS else None
+
+
+def _validate(robot: Robot, x: np.ndarray, sc: ScenarioData) -> dict[str, Any]:
+    """Figures of an identified vector ``x`` on the scenario's validation poses."""
+    val = sc.validation
+    err = predict_legs(robot, x, val.q, val.poses) - val.legs
+    err0 = predict_legs(robot, np.zeros_like(x), val.q, val.poses) - val.legs
+    raw = x - sc.truth
+    ang = robot.angle_parameters
+    out: dict[str, Any] = {
+        "val_rms": rms(err),
+        "val_max": float(np.max(np.abs(err))),
+        "val_rms_nominal": rms(err0),
+        "raw_error_length": rms(raw[~ang]),
+        "raw_error_angle": rms(raw[ang]),
+        "max_raw_error_length": float(np.max(np.abs(raw[~ang]))),
+        # nan where a figure cannot be computed (the notes say why)
+        "param_error_length": math.nan,
+        "param_error_angle": math.nan,
+        "tool_position_rms": math.nan,
+        "tool_orientation_rms": math.nan,
+        "tool_position_rms_nominal": math.nan,
+    }
+    notes = []
+    try:
+        pe = parameter_error(robot, val, x, sc.truth)
+        out["param_error_length"] = float(pe.rms_length)
+        out["param_error_angle"] = float(pe.rms_angle)
+    except RECORDED_ERRORS as exc:
+        notes.append(f"parameter_error: {type(exc).__name__}: {exc}")
+    try:
+        acc = accuracy(robot, val, x)
+        out["tool_position_rms"] = rms(acc.calibrated.position)
+        out["tool_orientation_rms"] = rms(acc.calibrated.orientation)
+        out["tool_position_rms_nominal"] = rms(acc.nominal.position)
+    except RECORDED_ERRORS as exc:  # e.g. forward kinematics of a poor model diverges
+        notes.append(f"accuracy: {type(exc).__name__}: {exc}")
+    if notes:
+        out["notes"] = "; ".join(notes)
+    return out
+
+
+# -- grids and executors --------------------------------------------------------------------------
+
+
+def run_in_process(
+    cells: Sequence[Cell], robot: Robot, on_done: Callable[[dict[str, Any]], None],
+    runtime: Mapping[str, Any] | None = None, **evaluate_options: Any,
+) -> list[tuple[Cell, BaseException]]:
+    """Run the cells one after the other in this process (BLAS on one thread: the matrices are
+    small and a busy machine makes its threads spin); ``on_done(row)`` after each. Returns the
+    cells that failed on every attempt (none here: an unexpected error propagates)."""
+    from .._blas import single_thread
+
+    with single_thread():
+        for cell in cells:
+            on_done(evaluate(cell, robot, runtime, **evaluate_options))
+    return []
+
+
+def evaluate_json(cell: Cell, robot_json: str, runtime: Mapping[str, Any],
+                  evaluate_options: Mapping[str, Any]) -> dict[str, Any]:
+    """:func:`evaluate` with the robot as canonical JSON: what a Dask worker runs."""
+    return evaluate(cell, _robot_from_json(robot_json), runtime, **evaluate_options)
+
+
+_ROBOTS: dict[str, Robot] = {}
+
+
+def _robot_from_json(text: str) -> Robot:
+    robot = _ROBOTS.get(text)
+    if robot is None:
+        if len(_ROBOTS) > 4:
+            _ROBOTS.clear()
+        robot = _ROBOTS[text] = Robot.from_dict(json.loads(text))
+    return robot
+
+
+class ExecutorError(RuntimeError):
+    """An executor could not run: no Dask, or no scheduler at the address given."""
+
+
+#: Seconds to wait for a Dask scheduler to answer (connection and handshake), and for the
+#: cluster's shutdown: a study never waits on the network without end.
+CONNECT_TIMEOUT = 20.0
+#: Seconds between checks that the scheduler is still there while cells run; a cell itself may
+#: take as long as it needs.
+HEARTBEAT = 10.0
+
+_DASK_HINT = ("pip install 'iwr[study]' (in a checkout: pip install '.[study]'), or run with "
+              "scheduler='synchronous'")
+
+
+def run_dask(
+    cells: Sequence[Cell], robot: Robot, on_done: Callable[[dict[str, Any]], None],
+    runtime: Mapping[str, Any] | None = None, *, scheduler: Any = None,
+    workers: int | None = None, retries: int = 2, connect_timeout: float = CONNECT_TIMEOUT,
+    **evaluate_options: Any,
+) -> list[tuple[Cell, BaseException]]:
+    """Run the cells on Dask distributed; ``on_done(row)`` in this process as each finishes, in
+    the order they finish. ``scheduler``: None for a local cluster of ``workers`` processes (one
+    thread each), an address (``"tcp://host:8786"``) or a ``distributed.Client``. A worker that
+    dies loses only the cell it was running, which the scheduler runs again elsewhere, up to
+    ``retries`` more times. Returns the cells that failed on every attempt, with their error.
+
+    Raises :class:`ExecutorError` within ``connect_timeout`` seconds when nothing at the address
+    answers as a Dask scheduler (a refused connection, a server of another kind, silence).
+    """
+    import os
+
+    try:
+        from distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ExecutorError(f"scheduler: Dask distributed is not installed; {_DASK_HINT}") from None
+    import dask
+
+    robot_json = canonical(robot.to_dict())
+    runtime = dict(runtime or {})
+    cluster = None
+    # A worker that dies while running a cell makes the cell 'suspicious'; the scheduler runs it
+    # again on another worker up to allowed-failures times (a local cluster's scheduler only: an
+    # existing cluster keeps its own setting). `retries` covers exceptions raised by a cell.
+    # The comm timeouts bound every connection and handshake, also with a server that is not a
+    # scheduler and never answers.
+    config = {
+        "distributed.scheduler.allowed-failures": max(retries, 0) + 1,
+        "distributed.comm.timeouts.connect": f"{connect_timeout}s",
+        "distributed.comm.timeouts.tcp": f"{max(connect_timeout, 3 * HEARTBEAT)}s",
+    }
+    with dask.config.set(config):
+        try:
+            if scheduler is None:
+                n = workers if workers is not None else (os.cpu_count() or 1)
+                cluster = LocalCluster(
+                    n_workers=n, threads_per_worker=1, processes=True, dashboard_address=":0",
+                    timeout=connect_timeout,
+                )
+                client = Client(cluster, timeout=connect_timeout)
+            elif isinstance(scheduler, Client):
+                client = scheduler
+            else:
+                client = _connect(Client, scheduler, connect_timeout)
+        except ExecutorError:
+            raise
+        except Exception as exc:  # noqa: BLE001 - whatever a broken peer makes Dask raise
+            if cluster is not None:
+                cluster.close(timeout=connect_timeout)
+            raise ExecutorError(f"scheduler: cannot start a local Dask cluster: "
+                                f"{type(exc).__name__}: {exc}") from None
+        failures: list[tuple[Cell, BaseException]] = []
+        try:
+            futures = {}
+            for cell in cells:
+                # The robot travels with each cell (a few kB): nothing for a dying worker to lose.
+                fut = client.submit(
+                    evaluate_json, cell, robot_json, runtime, evaluate_options,
+                    key=f"iwr-cell-{cell.key}", retries=retries, pure=False,
+                )
+                futures[fut] = cell
+            try:
+                for fut in as_completed(list(futures)):
+                    try:
+                        row = fut.result(timeout=connect_timeout)
+                    except Exception as exc:  # noqa: BLE001 - any failure of a cell is reported
+                        failures.append((futures[fut], exc))
+                    else:
+                        on_done(row)
+                    fut.release()
+            except BaseException:
+                client.cancel(list(futures))
+                raise
+        finally:
+            if client is not scheduler:
+                client.close(timeout=connect_timeout)
+            if cluster is not None:
+                cluster.close(timeout=connect_timeout)
+    return failures
+
+
+def _connect(client_class: Any, address: Any, timeout: float) -> Any:
+    """A Client of the scheduler at ``address``, or ExecutorError within ``timeout`` seconds (plus
+    a few for the client's own shutdown).
+
+    The connection runs in a helper thread with a deadline: a server of another kind may accept
+    the connection and then never send the handshake, or send bytes that Dask reads as a frame
+    length (an HTTP server made it allocate exabytes).
+    """
+    import threading
+
+    box: dict[str, Any] = {}
+
+    def connect() -> None:
+        try:
+            box["client"] = client_class(address, timeout=timeout)
+        except BaseException as exc:  # noqa: BLE001 - reported to the caller below
+            box["error"] = exc
+
+    thread = threading.Thread(target=connect, name="iwr-dask-connect", daemon=True)
+    thread.start()
+    thread.join(timeout + 5.0)
+    what = (f"scheduler: {address!r} did not answer as a Dask scheduler within {timeout:g} s "
+            "(is it the scheduler's address, tcp://HOST:8786?)")
+    if thread.is_alive():
+        raise ExecutorError(what)
+    if "error" in box:
+        exc = box["error"]
+        detail = str(exc).splitlines()[0] if str(exc) else ""
+        if isinstance(exc, (OSError, TimeoutError)) or "Timed out" in detail:
+            raise ExecutorError(f"scheduler: cannot connect to {address!r}: {detail or what}")
+        raise ExecutorError(f"scheduler: {address!r} is not a Dask scheduler (its answer made "
+                            f"Dask fail: {type(exc).__name__}: {detail})")
+    return box["client"]
+
+
+def dry_run(robot: Robot, method: str, options: Mapping[str, Any]) -> dict[str, Any]:
+    """The settings a method resolves from ``options`` (for DE: strategy, NP, F, CR, ...), from a
+    run of its initial population alone on a small noise-free problem, so that bad options fail
+    before an experiment starts. ValueError or TypeError names a bad option."""
+    data, _ = simulate(robot, 12, seed=0)
+    res = identify(robot, data, method, x0=np.zeros(robot.n_params), seed=0, progress=False,
+                   **{**options, "generations": 0})
+    return dict(res.get("settings", {}))

@@ -1,0 +1,59 @@
+"""The figure convention of every report: a bare :class:`matplotlib.figure.Figure` with its own
+Agg canvas (no pyplot, no global backend switch, nothing to close), saved as PNG with fixed
+metadata so that the same numbers give the same bytes."""
+
+from __future__ import annotations
+
+import io
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+from .._io import atomic_write_bytes
+
+__all__ = ["new_figure", "png_bytes", "save_png", "method_colors", "PALETTE"]
+
+#: Colours of lines and markers, in order (matplotlib's default cycle).
+PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2",
+           "#7f7f7f", "#bcbd22", "#17becf"]
+# The usual methods keep their colour in every report.
+_FIXED_COLORS = {"lm": "#1f77b4", "de": "#d62728", "crs2": "#2ca02c", "bobyqa": "#ff7f0e",
+                 "de:jso": "#9467bd"}
+
+
+def new_figure(width: float, height: float, dpi: float = 100) -> Any:
+    """A :class:`matplotlib.figure.Figure` of ``width`` x ``height`` inches with an Agg canvas."""
+    from matplotlib.backends.backend_agg import FigureCanvasAgg
+    from matplotlib.figure import Figure
+
+    fig = Figure(figsize=(width, height), dpi=dpi)
+    FigureCanvasAgg(fig)
+    return fig
+
+
+def png_bytes(fig: Any, dpi: float | None = None) -> bytes:
+    """The figure as PNG bytes (fixed metadata: the same figure gives the same bytes)."""
+    buf = io.BytesIO()
+    fig.savefig(buf, format="png", dpi=dpi, metadata={"Software": None})
+    return buf.getvalue()
+
+
+def save_png(fig: Any, path: str | Path, dpi: float | None = None) -> Path:
+    """Write the figure as PNG to ``path`` atomically; returns the path."""
+    path = Path(path)
+    atomic_write_bytes(path, png_bytes(fig, dpi))
+    return path
+
+
+def method_colors(names: Sequence[str]) -> dict[str, str]:
+    """One colour per name, the same in every report for the usual methods."""
+    others = [c for c in PALETTE if c not in _FIXED_COLORS.values()]
+    out: dict[str, str] = {}
+    k = 0
+    for m in names:
+        if m in _FIXED_COLORS:
+            out[m] = _FIXED_COLORS[m]
+        else:
+            out[m] = others[k % len(others)]
+            k += 1
+    return out

@@ -1,0 +1,49 @@
+"""Tables as Markdown and HTML, and the number format of the reports."""
+
+from __future__ import annotations
+
+import html
+import math
+from typing import Any
+
+import numpy as np
+
+__all__ = ["fmt", "markdown_table", "html_table", "Table"]
+
+#: A table: the header and the rows, every cell already text.
+Table = tuple[list[str], list[list[str]]]
+
+
+def fmt(v: Any, digits: int = 3) -> str:
+    """A value as short text: ``yes``/``no``, integers as they are, floats to ``digits``
+    significant digits, nan as ``n/a``."""
+    if isinstance(v, (bool, np.bool_)):
+        return "yes" if v else "no"
+    if isinstance(v, (int, np.integer)):
+        return str(int(v))
+    if isinstance(v, (float, np.floating)):
+        if math.isnan(v):
+            return "n/a"
+        return f"{v:.{digits}g}"
+    if v is None:
+        return ""
+    return str(v)
+
+
+def markdown_table(table: Table) -> str:
+    """A GitHub-flavoured Markdown table (ends with a newline)."""
+    head, rows = table
+    lines = ["| " + " | ".join(head) + " |", "|" + "---|" * len(head)]
+    lines += ["| " + " | ".join(r) + " |" for r in rows]
+    return "\n".join(lines) + "\n"
+
+
+def html_table(table: Table, css_class: str = "") -> str:
+    """An HTML table, every cell escaped."""
+    head, rows = table
+    cls = f' class="{html.escape(css_class)}"' if css_class else ""
+    out = [f"<table{cls}>", "<tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in head) + "</tr>"]
+    for r in rows:
+        out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>")
+    out.append("</table>")
+    return "\n".join(out)

@@ -1,0 +1,146 @@
+"""iwr.reporting: every HTML report (calibrate, report, compare, study) is one self-contained file
+that a real browser opens with every image loaded and no console message.
+
+The browser is Debian's chromium, headless (``.ci/run`` installs it). The page is a copy of the
+report with a script added first in its head: it records error events (a resource that fails to
+load, a script error) and, once the page has loaded, writes the number of images, those whose
+``naturalWidth`` is 0 and the errors into the DOM, which ``--dump-dom`` prints. Console messages
+come from chromium's own log on standard error.
+"""
+
+from __future__ import annotations
+
+import html
+import json
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+import iwr
+
+_CHECK = """<script>
+window.__iwrErrors = [];
+window.addEventListener("error", function (e) {
+  var t = e.target || {};
+  window.__iwrErrors.push(String(e.message || t.src || t.href || "error event"));
+}, true);
+window.addEventListener("load", function () {
+  var imgs = Array.prototype.slice.call(document.images);
+  var bad = imgs.filter(function (i) { return !(i.complete && i.naturalWidth > 0); })
+                .map(function (i) { return i.alt || i.src.slice(0, 40); });
+  var out = document.createElement("pre");
+  out.id = "iwr-check";
+  out.textContent = JSON.stringify({images: imgs.length, bad: bad, errors: window.__iwrErrors});
+  document.body.appendChild(out);
+});
+</script>"""
+
+
+def chromium() -> str:
+    path = shutil.which("chromium") or shutil.which("chromium-browser")
+    if path is None:
+        if os.environ.get("CI") == "true":
+            pytest.fail("chromium is not installed; CI must have it (.ci/run installs it)")
+        pytest.skip("chromium is not installed (apt-get install chromium)")
+    return path
+
+
+def open_in_browser(report: Path, tmp: Path) -> dict[str, Any]:
+    """Load ``report`` in headless chromium; the image check and the console messages."""
+    page = report.read_text(encoding="utf-8")
+    assert page.count("<head>") == 1
+    checked = report.with_name(f".checked-{report.name}")
+    checked.write_text(page.replace("<head>", "<head>" + _CHECK, 1), encoding="utf-8")
+    proc = subprocess.run(
+        [chromium(), "--headless", "--no-sandbox", "--disable-gpu", "--no-first-run",
+         f"--user-data-dir={tmp / 'chromium-profile'}", "--enable-logging=stderr", "--v=0",
+         "--virtual-time-budget=10000", "--dump-dom", checked.resolve().as_uri()],
+        capture_output=True, text=True, timeout=120,
+    )
+    checked.unlink()
+    m = re.search(r'<pre id="iwr-check">(.*?)</pre>', proc.stdout, re.S)
+    assert m, (proc.returncode, proc.stderr[-2000:])
+    result = json.loads(html.unescape(m.group(1)))
+    result["console"] = [ln for ln in proc.stderr.splitlines() if ":CONSOLE" in ln]
+    return result
+
+
+def assert_opens_cleanly(report: Path, tmp: Path, min_images: int) -> None:
+    page = report.read_text(encoding="utf-8")
+    # self-contained: nothing loaded from elsewhere
+    assert not re.search(r'\bsrc="(?!data:)', page) and "<link" not in page
+    assert "@import" not in page and "url(" not in page
+    res = open_in_browser(report, tmp)
+    assert res["images"] >= min_images, res
+    assert res["bad"] == [], res
+    assert res["errors"] == [], res
+    assert res["console"] == [], res
+
+
+def run_iwr(*args: str) -> subprocess.CompletedProcess[str]:
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+    return subprocess.run([sys.executable, "-m", "iwr", *args], capture_output=True, text=True,
+                          cwd=tempfile.gettempdir(), env=environ, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    out = tmp_path_factory.mktemp("sim")
+    proc = run_iwr("simulate", "--poses", "40", "--seed", "5", "--out-dir", str(out))
+    assert proc.returncode == 0, proc.stderr
+    return out
+
+
+def test_calibration_and_report_pages_open_cleanly(sim: Path, tmp_path: Path) -> None:
+    chromium()
+    out = tmp_path / "cal"
+    proc = run_iwr("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"),
+                   "--method", "lm", "--out-dir", str(out))
+    assert proc.returncode == 0, proc.stderr
+    page = (out / "report.html").read_text(encoding="utf-8")
+    # summary first, then parameters, identifiability, residuals, settings, provenance
+    order = [page.index(h) for h in ("<h2>Summary</h2>", "<h2>Identified parameters</h2>",
+                                     "<h2>Identifiability</h2>", "<h2>Leg residuals</h2>",
+                                     "<h2>Settings</h2>", "<h2>Provenance</h2>")]
+    assert order == sorted(order)
+    assert 'class="verdict good"' in page
+    assert f"iwr {iwr.__version__}" in page or iwr.__version__ in page
+    assert_opens_cleanly(out / "report.html", tmp_path, 2)
+    rep = tmp_path / "rep"
+    proc = run_iwr("report", str(out / "result.json"), str(sim / "robot.toml"),
+                   str(sim / "measurements.csv"), "--out", str(rep))
+    assert proc.returncode == 0, proc.stderr
+    assert_opens_cleanly(rep / "report.html", tmp_path, 2)
+
+
+def test_compare_page_opens_cleanly(tmp_path: Path) -> None:
+    chromium()
+    iwr.compare_methods(n_poses=15, seeds=[0], methods=["lm", "crs2"], budget=200, start="both",
+                        out=tmp_path / "cmp", n_validation=10, progress=False)
+    assert_opens_cleanly(tmp_path / "cmp" / "report.html", tmp_path, 5)
+
+
+def test_study_page_opens_cleanly(tmp_path: Path) -> None:
+    chromium()
+    iwr.study(methods="lm", poses=[12, 16], noise=[0.0, 0.02], draws=1, seeds=1,
+              out=tmp_path / "st", scheduler="synchronous", validation_poses=10)
+    assert_opens_cleanly(tmp_path / "st" / "report.html", tmp_path, 2)
+
+
+def test_a_broken_image_and_a_console_error_are_seen(tmp_path: Path) -> None:
+    """The check itself: a page with an image that does not load and a script error fails."""
+    chromium()
+    bad = tmp_path / "bad.html"
+    bad.write_text('<!DOCTYPE html><html><head><meta charset="utf-8"></head><body>'
+                   '<img alt="missing" src="data:image/png;base64,AAAA">'
+                   "<script>console.error('boom'); undefinedFunction();</script></body></html>")
+    res = open_in_browser(bad, tmp_path)
+    assert res["bad"] == ["missing"]
+    assert res["errors"] and res["console"]
