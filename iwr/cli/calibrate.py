@@ -140,36 +140,18 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
 
 
 class _Tracker:
-    """A method's callback that keeps the best point seen, and counts evaluations on a progress
-    bar. Takes both callback forms of the methods: ``callback(intermediate_result)`` (SciPy's,
-    with ``x``, ``fun`` and ``nfev``) and ``callback(x, cost)``."""
+    """A method's callback (SciPy's convention, ``callback(intermediate_result)``) that keeps the
+    best point seen: what is left if Ctrl-C escapes a method before it returns its own result."""
 
-    def __init__(self, desc: str, enabled: bool) -> None:
-        from tqdm import tqdm
-
+    def __init__(self) -> None:
         self.best = math.inf
         self.x: np.ndarray | None = None
         self.calls = 0
-        self.bar = tqdm(desc=desc, unit=" eval", disable=not enabled, leave=False,
-                        file=sys.stderr, dynamic_ncols=True)
 
-    def __call__(self, *args: Any) -> None:
-        if len(args) == 1 and hasattr(args[0], "x"):
-            res = args[0]
-            x, cost = res.x, float(res.fun)
-            n = int(getattr(res, "nfev", self.calls + 1))
-            self.bar.update(max(n - self.calls, 0))
-            self.calls = max(n, self.calls)
-        else:
-            x, cost = args[0], float(args[1])
-            self.calls += 1
-            self.bar.update(1)
-        if cost < self.best:
-            self.best, self.x = cost, np.array(x, dtype=float, copy=True)
-        self.bar.set_postfix_str(f"best cost {self.best:.4g} mm^2", refresh=False)
-
-    def close(self) -> None:
-        self.bar.close()
+    def __call__(self, res: Any) -> None:
+        self.calls = max(int(getattr(res, "nfev", self.calls + 1)), self.calls)
+        if float(res.fun) < self.best:
+            self.best, self.x = float(res.fun), np.array(res.x, dtype=float, copy=True)
 
 
 def cmd_calibrate(args: argparse.Namespace) -> int:
@@ -266,9 +248,9 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
         # values and standard deviations mean something.
         kwargs = {**kwargs, "active": identifiability(robot, ident).active}
     show = progress_enabled(args)
-    # The tracker keeps the best point so far (what Ctrl-C leaves) and, for the methods without
-    # a progress bar of their own, counts evaluations on one.
-    tracker = _Tracker(f"identifying ({method})", show and method != "de")
+    # Every method shows its own progress and returns its best point so far on Ctrl-C
+    # (status "interrupted"); the tracker keeps that point should Ctrl-C escape a method anyway.
+    tracker = _Tracker()
     kwargs = {**kwargs, "callback": tracker}
     print(f"identifying with {method} ({len(ident)} poses; Ctrl-C stops and keeps the best "
           "point so far)", flush=True)
@@ -277,18 +259,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
                           progress=show, **kwargs)
     except KeyboardInterrupt:
         result = _best_so_far(robot, ident, method, tracker, kwargs, args)
-    finally:
-        tracker.close()
-    interrupted = bool(result.get("interrupted")) or "interrupted" in str(result.message).lower()
-    if interrupted:
-        # Never "converged" for a run that was cut short.
-        result["interrupted"] = True
-        result["success"] = False
-        result["status"] = -2
-        msg = str(result.message)
-        if not msg.lower().startswith("interrupted"):
-            msg = f"interrupted (Ctrl-C): {msg}"
-        result["message"] = msg + "; the best point so far"
+    interrupted = result.interrupted
     report = identifiability(robot, ident, result.x)
     try:
         active = result["active"] if args.parameters == "base" else report
@@ -339,8 +310,8 @@ def _best_so_far(robot: Any, data: Any, method: str, tracker: _Tracker, kwargs: 
         x = np.zeros(robot.n_params)
     return IdentificationResult(
         x=x, fun=Problem(robot, data, args.bounds).cost(x), nfev=tracker.calls, nit=0,
-        success=False, status=-2, message="interrupted (Ctrl-C)", method=method,
-        parameter_names=robot.parameter_names, active=kwargs.get("active"), interrupted=True,
+        success=False, status="interrupted", message="interrupted (Ctrl-C)", method=method,
+        parameter_names=robot.parameter_names, active=kwargs.get("active"),
         settings={}, history={},
     )
 

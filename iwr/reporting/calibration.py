@@ -148,7 +148,9 @@ class Calibration:
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """One row per error parameter: name, value, std (None if not identified), unit, status."""
-        active = np.asarray(self.result.get("active", np.ones(self.robot.n_params, bool)))
+        active = self.result.get("active")
+        # A result read from a file does not record the active parameters: all of them then.
+        active = np.ones(self.robot.n_params, bool) if active is None else np.asarray(active)
         left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
         std = self.uncertainty.std if self.uncertainty is not None else None
         rows = []
