@@ -12,7 +12,6 @@ import argparse
 import dataclasses
 import inspect
 import json
-import math
 import os
 import sys
 import traceback

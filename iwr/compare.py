@@ -35,8 +35,8 @@ import numpy as np
 
 from ._blas import single_thread
 from ._io import atomic_write_bytes, atomic_write_text, jsonable
-from .methods import METHODS, identify
 from .measurements import Measurements
+from .methods import METHODS, identify
 from .problem import Problem, predict_legs
 from .robot import Robot
 from .simulate import Noise, sample_poses, simulate

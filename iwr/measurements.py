@@ -56,7 +56,8 @@ def _check_limits(arr: np.ndarray, units: list[str], name: str) -> None:
     bad = np.argwhere(np.abs(arr) > limits)
     if bad.size:
         r, c = (int(i) for i in bad[0])
-        raise ValueError(f"{name}: row {r}, column {c}: {_limit_problem(float(arr[r, c]), units[c])}")
+        why = _limit_problem(float(arr[r, c]), units[c])
+        raise ValueError(f"{name}: row {r}, column {c}: {why}")
 
 
 def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray:
@@ -67,8 +68,8 @@ def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray
     5e-324, and a weight far below the others cannot underflow the cost to zero."""
     if np.any(weights < 0):
         r, c = (int(i) for i in np.argwhere(weights < 0)[0])
-        raise ValueError(f"{name}: row {r}, column {c} is negative ({float(weights[r, c])!r}); weights "
-                         "must be >= 0")
+        raise ValueError(f"{name}: row {r}, column {c} is negative ({float(weights[r, c])!r}); "
+                         "weights must be >= 0")
     top = float(weights.max())
     if not top > 0:
         raise ValueError(f"{name}: every weight is zero, so no reading counts; weights are "
@@ -521,7 +522,8 @@ def _parse_header(header: list[str], path: Path, lineno: int,
 
 
 def _expected_order(n_joints: int, weights: bool = False) -> str:
-    joints = ", ".join(f"q{i + 1}_mm|rad" for i in range(n_joints)) if n_joints else "q1_mm|rad, ..."
+    joints = (", ".join(f"q{i + 1}_mm|rad" for i in range(n_joints)) if n_joints
+              else "q1_mm|rad, ...")
     cols = [joints, *_POSE_COLUMNS, *_LEG_COLUMNS]
     if weights:
         cols += list(_WEIGHT_COLUMNS)

@@ -15,8 +15,8 @@ import numpy as np
 from ._io import atomic_write_bytes, atomic_write_text
 from .accuracy import Accuracy
 from .measurements import Measurements
-from .problem import Problem, predict_legs
 from .methods import IdentificationResult
+from .problem import Problem, predict_legs
 from .robot import Robot
 
 __all__ = ["Calibration", "leg_residual_stats"]

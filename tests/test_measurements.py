@@ -171,10 +171,12 @@ def test_weight_scale_does_not_matter(data, scale):
 
 
 @pytest.mark.parametrize("column, value, what", [
-    (4, "1e308", r"column x_mm: 1e\+308 mm is beyond any robot or instrument \(\|value\| <= 100000 mm\)"),
+    (4, "1e308",
+     r"column x_mm: 1e\+308 mm is beyond any robot or instrument \(\|value\| <= 100000 mm\)"),
     (10, "-2e5", r"column s1_mm: -200000.0 mm is beyond"),
     (0, "1e6", r"column q1_mm: 1000000.0 mm is beyond"),
-    (2, "5000", r"column q3_rad: 5000.0 rad is beyond any robot or instrument \(\|value\| <= 1000 rad\)"),
+    (2, "5000",
+     r"column q3_rad: 5000.0 rad is beyond any robot or instrument \(\|value\| <= 1000 rad\)"),
 ])
 def test_values_beyond_any_robot_are_refused_with_line_and_column(tmp_path, data, column, value,
                                                                    what):

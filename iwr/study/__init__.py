@@ -53,8 +53,8 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write_text
-from ..methods import METHODS, identify
 from ..measurements import Measurements
+from ..methods import METHODS, identify
 from ..problem import predict_legs
 from ..robot import Robot
 from ..simulate import Noise, sample_poses, simulate
