@@ -28,6 +28,10 @@ METRE_SUSPICION = 5.0
 #: value is a mistake (a wrong unit, a corrupted file), refused where it is read.
 MAX_LENGTH_MM = 1e5
 MAX_ANGLE_RAD = 1e3
+#: The largest measurement file read (a million poses take about 300 MB).
+MAX_CSV_BYTES = 1_000_000_000
+#: The longest line of a measurement file: a row is a few dozen numbers of at most ~25 characters.
+MAX_LINE_CHARS = 10_000
 #: The first line of a file written by ``iwr plan`` (:meth:`iwr.PosePlan.to_csv`).
 PLAN_MARKER = "# iwr plan:"
 
@@ -254,7 +258,13 @@ class Measurements:
         try:
             # utf-8-sig: a byte order mark, as spreadsheets write "CSV UTF-8", is not a character
             # of the first column's name.
-            text = path.read_text(encoding="utf-8-sig")
+            with open(path, "rb") as fh:
+                raw = fh.read(MAX_CSV_BYTES + 1)  # bounded: a device or a dump is refused
+            if len(raw) > MAX_CSV_BYTES:
+                raise MeasurementFileError(
+                    f"{path}: larger than {MAX_CSV_BYTES // 10**6} MB; is this the right file?"
+                )
+            text = raw.decode("utf-8-sig")
         except FileNotFoundError:
             raise MeasurementFileError(f"{path}: no such file") from None
         except IsADirectoryError:
@@ -277,6 +287,14 @@ class Measurements:
         for lineno, line in enumerate(text.splitlines(), start=1):
             stripped = line.strip()
             if not stripped or stripped.startswith("#"):
+                continue
+            if len(line) > MAX_LINE_CHARS:
+                # A row is a few dozen numbers; a huge line is a wrong file, refused before it is
+                # split into millions of fields.
+                problems.append((lineno, f"line {lineno}: {len(line):,} characters; a measurement "
+                                         f"row has at most {MAX_LINE_CHARS:,}"))
+                if header is None:
+                    break
                 continue
             if header is None:
                 delimiter = _delimiter(line)
@@ -319,7 +337,7 @@ class Measurements:
             else:
                 rows.append(values)
                 lines.append(lineno)
-        if header is None:
+        if header is None and not problems:
             raise MeasurementFileError(f"{path}: empty file (no header line)")
         if problems:
             raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad row')}")

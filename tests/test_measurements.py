@@ -258,3 +258,15 @@ def test_columns_in_another_order_say_the_order_expected(tmp_path, data):
     with pytest.raises(iwr.MeasurementFileError, match="all there but in another order"):
         iwr.Measurements.from_csv(path)
 
+
+
+def test_a_huge_line_is_refused_before_it_is_split(tmp_path, data):
+    path, lines, h = write(tmp_path, data)
+    lines[h + 2] = ",".join(["1"] * 200_000)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=rf"line {h + 3}: 399,999 characters; a measurement row has at most"):
+        iwr.Measurements.from_csv(path)
+    path.write_text("x" * 20_000 + "\n")  # the header itself
+    with pytest.raises(iwr.MeasurementFileError, match="line 1: 20,000 characters"):
+        iwr.Measurements.from_csv(path)
