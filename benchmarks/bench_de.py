@@ -97,6 +97,7 @@ def iwr_runner(robot, data, workers: int):
             generations=generations,
             seed=1,
             workers=workers,
+            polish=False,
             progress=False,
         )
 

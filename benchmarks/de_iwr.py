@@ -136,7 +136,7 @@ def main() -> None:
     if "3" not in args.skip:
         s = args.seeds[0]
         res = iwr.identify(robot, data[s], "de", preset="paper", seed=s, workers=args.workers,
-                           max_seconds=args.paper_seconds, progress=False)
+                           max_seconds=args.paper_seconds, polish=False, progress=False)
         h = res.history
         print(f"## The paper preset for {args.paper_seconds:g} s (data seed {s})")
         print()

@@ -2,7 +2,8 @@
 
 The IWR (Intersector Welding Robot) is a 4-DOF serial carriage carrying a 6-DOF Stewart hexapod.
 iwr identifies its geometric error parameters from leg sensor readings at measured poses, by
-differential evolution (Wang, Wu & Handroos) and by baselines on the same objective.
+Levenberg-Marquardt (the default), differential evolution (Wang, Wu & Handroos) and NLopt baselines
+on the same objective (:mod:`iwr.methods`).
 """
 
 from __future__ import annotations

@@ -87,7 +87,7 @@ class Accuracy:
     Attributes
     ----------
     nominal : PoseErrors
-        Errors of the nominal robot (errors = 0).
+        Errors of the nominal robot (x = 0).
     calibrated : PoseErrors
         Errors of the calibrated robot (the identified errors).
     """

@@ -28,6 +28,10 @@ METRE_SUSPICION = 5.0
 #: value is a mistake (a wrong unit, a corrupted file), refused where it is read.
 MAX_LENGTH_MM = 1e5
 MAX_ANGLE_RAD = 1e3
+#: The largest measurement file read (a million poses take about 300 MB).
+MAX_CSV_BYTES = 1_000_000_000
+#: The longest line of a measurement file: a row is a few dozen numbers of at most ~25 characters.
+MAX_LINE_CHARS = 10_000
 #: The first line of a file written by ``iwr plan`` (:meth:`iwr.PosePlan.to_csv`).
 PLAN_MARKER = "# iwr plan:"
 
@@ -56,7 +60,8 @@ def _check_limits(arr: np.ndarray, units: list[str], name: str) -> None:
     bad = np.argwhere(np.abs(arr) > limits)
     if bad.size:
         r, c = (int(i) for i in bad[0])
-        raise ValueError(f"{name}: row {r}, column {c}: {_limit_problem(float(arr[r, c]), units[c])}")
+        why = _limit_problem(float(arr[r, c]), units[c])
+        raise ValueError(f"{name}: row {r}, column {c}: {why}")
 
 
 def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray:
@@ -67,8 +72,8 @@ def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray
     5e-324, and a weight far below the others cannot underflow the cost to zero."""
     if np.any(weights < 0):
         r, c = (int(i) for i in np.argwhere(weights < 0)[0])
-        raise ValueError(f"{name}: row {r}, column {c} is negative ({float(weights[r, c])!r}); weights "
-                         "must be >= 0")
+        raise ValueError(f"{name}: row {r}, column {c} is negative ({float(weights[r, c])!r}); "
+                         "weights must be >= 0")
     top = float(weights.max())
     if not top > 0:
         raise ValueError(f"{name}: every weight is zero, so no reading counts; weights are "
@@ -253,7 +258,13 @@ class Measurements:
         try:
             # utf-8-sig: a byte order mark, as spreadsheets write "CSV UTF-8", is not a character
             # of the first column's name.
-            text = path.read_text(encoding="utf-8-sig")
+            with open(path, "rb") as fh:
+                raw = fh.read(MAX_CSV_BYTES + 1)  # bounded: a device or a dump is refused
+            if len(raw) > MAX_CSV_BYTES:
+                raise MeasurementFileError(
+                    f"{path}: larger than {MAX_CSV_BYTES // 10**6} MB; is this the right file?"
+                )
+            text = raw.decode("utf-8-sig")
         except FileNotFoundError:
             raise MeasurementFileError(f"{path}: no such file") from None
         except IsADirectoryError:
@@ -276,6 +287,14 @@ class Measurements:
         for lineno, line in enumerate(text.splitlines(), start=1):
             stripped = line.strip()
             if not stripped or stripped.startswith("#"):
+                continue
+            if len(line) > MAX_LINE_CHARS:
+                # A row is a few dozen numbers; a huge line is a wrong file, refused before it is
+                # split into millions of fields.
+                problems.append((lineno, f"line {lineno}: {len(line):,} characters; a measurement "
+                                         f"row has at most {MAX_LINE_CHARS:,}"))
+                if header is None:
+                    break
                 continue
             if header is None:
                 delimiter = _delimiter(line)
@@ -318,7 +337,7 @@ class Measurements:
             else:
                 rows.append(values)
                 lines.append(lineno)
-        if header is None:
+        if header is None and not problems:
             raise MeasurementFileError(f"{path}: empty file (no header line)")
         if problems:
             raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad row')}")
@@ -521,7 +540,8 @@ def _parse_header(header: list[str], path: Path, lineno: int,
 
 
 def _expected_order(n_joints: int, weights: bool = False) -> str:
-    joints = ", ".join(f"q{i + 1}_mm|rad" for i in range(n_joints)) if n_joints else "q1_mm|rad, ..."
+    joints = (", ".join(f"q{i + 1}_mm|rad" for i in range(n_joints)) if n_joints
+              else "q1_mm|rad, ...")
     cols = [joints, *_POSE_COLUMNS, *_LEG_COLUMNS]
     if weights:
         cols += list(_WEIGHT_COLUMNS)

@@ -229,8 +229,8 @@ def plan_poses(
     if (isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer))
             or not k_min <= n_poses <= n_cand):
         raise ValueError(
-            f"n_poses: {n_poses!r}; expected an integer from {k_min} (to determine {r} base parameters from "
-            f"6 readings per pose) to {n_cand} (the number of candidates)"
+            f"n_poses: {n_poses!r}; expected an integer from {k_min} (to determine {r} base "
+            f"parameters from 6 readings per pose) to {n_cand} (the number of candidates)"
         )
     k = int(n_poses)
     jac = Problem(robot, cand).jacobian(x)[:, base]

@@ -33,8 +33,9 @@ def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
     Parameters
     ----------
     robot : Robot
-    x : array_like, shape (n_params,)
-        Error parameters added to the robot's nominal geometry (zeros for the nominal robot).
+    x : array_like, shape (n_params,), or None
+        Error parameters added to the robot's nominal geometry (None or zeros: the nominal
+        robot).
     q : array_like, shape (N, n_joints)
         Carriage joint readings (mm, rad).
     poses : array_like, shape (N, 6)
@@ -46,7 +47,7 @@ def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
     """
     poses = as_matrix(poses, 6, "poses")
     q = as_matrix(q, robot.n_joints, "q", rows=poses.shape[0])
-    x = np.ascontiguousarray(x, dtype=float)
+    x = np.zeros(robot.n_params) if x is None else np.ascontiguousarray(x, dtype=float)
     if x.shape != (robot.n_params,):
         raise ValueError(f"x: shape {x.shape}; expected ({robot.n_params},)")
     return _core.predict_legs(robot._geometry, x, q, poses)

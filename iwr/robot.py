@@ -60,6 +60,8 @@ def _as_array(value: Any, shape: tuple[int, ...], name: str, units: Any = None) 
 
 
 _POSE_UNITS = ["mm"] * 3 + ["rad"] * 3
+#: The largest robot TOML file read (a robot description is about 3 kB).
+MAX_TOML_BYTES = 1_000_000
 
 
 class Robot:
@@ -367,7 +369,19 @@ class Robot:
         path = Path(path)
         try:
             with open(path, "rb") as fh:
-                data = tomllib.load(fh)
+                # A robot is a few kB: read no more than the limit, so that a wrong file (a device,
+                # a data dump) is refused at once instead of being read whole.
+                raw = fh.read(MAX_TOML_BYTES + 1)
+            if len(raw) > MAX_TOML_BYTES:
+                raise RobotFileError(
+                    f"{path}: larger than {MAX_TOML_BYTES // 1000} kB; a robot description is a "
+                    "few kB (is this the right file?)"
+                )
+            data = tomllib.loads(raw.decode("utf-8"))
+        except RecursionError:
+            raise RobotFileError(
+                f"{path}: not a robot description: arrays or tables nested too deeply"
+            ) from None
         except FileNotFoundError:
             raise RobotFileError(f"{path}: no such file") from None
         except IsADirectoryError:

@@ -171,10 +171,12 @@ def test_weight_scale_does_not_matter(data, scale):
 
 
 @pytest.mark.parametrize("column, value, what", [
-    (4, "1e308", r"column x_mm: 1e\+308 mm is beyond any robot or instrument \(\|value\| <= 100000 mm\)"),
+    (4, "1e308",
+     r"column x_mm: 1e\+308 mm is beyond any robot or instrument \(\|value\| <= 100000 mm\)"),
     (10, "-2e5", r"column s1_mm: -200000.0 mm is beyond"),
     (0, "1e6", r"column q1_mm: 1000000.0 mm is beyond"),
-    (2, "5000", r"column q3_rad: 5000.0 rad is beyond any robot or instrument \(\|value\| <= 1000 rad\)"),
+    (2, "5000",
+     r"column q3_rad: 5000.0 rad is beyond any robot or instrument \(\|value\| <= 1000 rad\)"),
 ])
 def test_values_beyond_any_robot_are_refused_with_line_and_column(tmp_path, data, column, value,
                                                                    what):
@@ -256,3 +258,15 @@ def test_columns_in_another_order_say_the_order_expected(tmp_path, data):
     with pytest.raises(iwr.MeasurementFileError, match="all there but in another order"):
         iwr.Measurements.from_csv(path)
 
+
+
+def test_a_huge_line_is_refused_before_it_is_split(tmp_path, data):
+    path, lines, h = write(tmp_path, data)
+    lines[h + 2] = ",".join(["1"] * 200_000)
+    path.write_text("\n".join(lines) + "\n")
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=rf"line {h + 3}: 399,999 characters; a measurement row has at most"):
+        iwr.Measurements.from_csv(path)
+    path.write_text("x" * 20_000 + "\n")  # the header itself
+    with pytest.raises(iwr.MeasurementFileError, match="line 1: 20,000 characters"):
+        iwr.Measurements.from_csv(path)

@@ -82,3 +82,13 @@ def test_values_beyond_any_robot_are_refused_in_python():
     with pytest.raises(ValueError, match=r"leg_offsets: entry \(2,\) is 1e\+26 mm, beyond"):
         iwr.Robot(r.joint_types, r.dh, r.joint_limits, r.base_joints, r.platform_joints,
                   [600, 600, 1e26, 600, 600, 600], r.leg_stroke)
+
+
+def test_deeply_nested_or_huge_files_are_refused(tmp_path):
+    path = tmp_path / "r.toml"
+    path.write_text("a = " + "[" * 30_000 + "]" * 30_000 + "\n")
+    with pytest.raises(iwr.RobotFileError, match="nested too deeply"):
+        iwr.Robot.from_toml(path)
+    path.write_text("# padding\n" * 200_000)
+    with pytest.raises(iwr.RobotFileError, match="larger than 1000 kB"):
+        iwr.Robot.from_toml(path)

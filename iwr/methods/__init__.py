@@ -134,7 +134,12 @@ def identify(
     result["method"] = method
     result["parameter_names"] = problem.parameter_names
     result["active"] = mask
-    # Every method's reported cost is re-evaluated here, at the point it returns.
-    result["fun"] = problem.cost(result.x)
+    # Every method's reported cost is re-evaluated here, at the point it returns (a Ctrl-C here
+    # keeps the method's own value, and the result, marked interrupted).
+    try:
+        result["fun"] = problem.cost(result.x)
+    except KeyboardInterrupt:
+        result.update(success=False, status="interrupted",
+                      message=f"{result.message}; interrupted (Ctrl-C)")
     result.check_finite()
     return result

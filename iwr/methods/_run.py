@@ -13,7 +13,7 @@ from scipy.optimize import OptimizeResult
 
 from .reduced import ReducedProblem
 
-__all__ = ["Monitor", "Stop", "check_budget", "show_progress", "call_back"]
+__all__ = ["Monitor", "Stop", "check_budget", "int_arg", "show_progress", "call_back"]
 
 #: Evaluations between two progress-bar updates (tqdm's own throttling costs a clock read).
 _BAR_EVERY = 64
@@ -23,13 +23,18 @@ class Stop(Exception):
     """Raised inside a method's objective wrapper to end the run; the monitor knows why."""
 
 
-def check_budget(value: Any, minimum: int = 1) -> int:
-    """``max_evaluations`` as a positive integer, else a ValueError naming it."""
+def int_arg(name: str, value: Any, minimum: int) -> int:
+    """``value`` as an integer >= ``minimum`` (not a bool), else a ValueError naming it."""
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"max_evaluations: {value!r}; expected an integer >= {minimum}")
+        raise ValueError(f"{name}: {value!r}; expected an integer >= {minimum}")
     if value < minimum:
-        raise ValueError(f"max_evaluations: {value}; expected an integer >= {minimum}")
+        raise ValueError(f"{name}: {value}; expected an integer >= {minimum}")
     return int(value)
+
+
+def check_budget(value: Any, minimum: int = 1) -> int:
+    """``max_evaluations``, the budget every method takes, as an integer >= ``minimum``."""
+    return int_arg("max_evaluations", value, minimum)
 
 
 def show_progress(progress: bool | None) -> bool:

@@ -45,7 +45,7 @@ import numpy as np
 from scipy.optimize import Bounds, OptimizeResult
 
 from .. import _core
-from ._run import call_back, check_budget
+from ._run import call_back, check_budget, int_arg
 from .lm import levenberg_marquardt
 from .reduced import ReducedProblem
 from .result import IdentificationResult
@@ -67,14 +67,6 @@ _STRATEGY_OPTIONS = (
 )
 _BUDGETED = ("lshade", "jso")  # their schedules run to an evaluation budget
 _INTERVAL = 0.1  # seconds between Ctrl-C checks and progress-bar updates
-
-
-def _int_arg(name: str, value: Any, minimum: int) -> int:
-    if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name}: {value!r}; expected an integer >= {minimum}")
-    if value < minimum:
-        raise ValueError(f"{name}: {value}; expected an integer >= {minimum}")
-    return int(value)
 
 
 def _float_arg(name: str, value: Any) -> float:
@@ -139,7 +131,7 @@ class _Run:
             raise ValueError(f"strategy: {strategy!r}; expected one of {', '.join(STRATEGIES)}")
         self.strategy = strategy
         self.population_size = (
-            0 if population_size is None else _int_arg("population_size", population_size, 1)
+            0 if population_size is None else int_arg("population_size", population_size, 1)
         )
         self.F = math.nan if F is None else _float_arg("F", F)
         if F is not None and not self.F > 0:
@@ -151,7 +143,7 @@ class _Run:
         if workers is None:
             self.threads = 0
         else:
-            self.threads = _int_arg("workers", workers, 1)
+            self.threads = int_arg("workers", workers, 1)
         options = dict(options)
         self.bound_rule = options.pop("bound_rule", "midpoint")
         if self.bound_rule not in ("midpoint", "reinit", "reflect", "clip"):
@@ -165,15 +157,15 @@ class _Run:
                 value = options.pop(key)
                 if value is not None:
                     if key in ("memory_size", "min_population_size"):
-                        value = _int_arg(key, value, 1)
+                        value = int_arg(key, value, 1)
                     else:
                         value = _float_arg(key, value)
                     self.extra[key] = value
         max_evaluations = options.pop("max_evaluations", None)
         if max_evaluations is not None:
-            max_evaluations = _int_arg("max_evaluations", max_evaluations, 1)
+            max_evaluations = int_arg("max_evaluations", max_evaluations, 1)
         if generations is not None:
-            generations = _int_arg("generations", generations, 0)
+            generations = int_arg("generations", generations, 0)
         # lshade and jso plan their schedules over an evaluation budget (default 10000 D, the CEC
         # budget); the other strategies run DEFAULT_GENERATIONS unless told otherwise.
         if strategy in _BUDGETED:
@@ -189,7 +181,7 @@ class _Run:
         self.tol = _float_arg("tol", options.pop("tol", 0.0))
         self.atol = _float_arg("atol", options.pop("atol", 0.0))
         stag = options.pop("stagnation_generations", None)
-        self.stagnation_generations = 0 if stag is None else _int_arg(
+        self.stagnation_generations = 0 if stag is None else int_arg(
             "stagnation_generations", stag, 1
         )
         self.stagnation_tol = _float_arg("stagnation_tol", options.pop("stagnation_tol", 0.0))

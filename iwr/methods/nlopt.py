@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import OptimizeResult
 
-from ._run import Monitor, Stop, check_budget
+from ._run import Monitor, Stop, check_budget, int_arg
 from .reduced import ReducedProblem
 from .result import IdentificationResult
 
@@ -41,12 +41,6 @@ _RESULT_TEXT = {
     -4: "roundoff errors limited progress",
     -5: "forced stop",
 }
-
-
-def _int_option(name: str, value: Any, minimum: int) -> int:
-    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name}: {value!r}; expected an integer >= {minimum}")
-    return int(value)
 
 
 def _float_option(name: str, value: Any, lo: float, hi: float = math.inf,
@@ -263,7 +257,7 @@ def crs2(
 
     def configure(opt: Any, reduced: ReducedProblem, z0: np.ndarray) -> dict[str, Any]:
         if population is not None:
-            pop = _int_option("population", population, reduced.n + 1)
+            pop = int_arg("population", population, reduced.n + 1)
             opt.set_population(pop)
         return {"population": population if population is not None else 10 * (reduced.n + 1)}
 

@@ -110,6 +110,11 @@ class IdentificationResult(OptimizeResult):
         )
         self.check_finite()
 
+    def __repr__(self) -> str:
+        # SciPy's formatter fails on an empty nested dict (settings, history): leave those out.
+        return repr(OptimizeResult({k: v for k, v in self.items()
+                                    if not (isinstance(v, dict) and not v)}))
+
     @property
     def interrupted(self) -> bool:
         """Ctrl-C ended the run (``status == "interrupted"``)."""
@@ -119,10 +124,10 @@ class IdentificationResult(OptimizeResult):
         """A result that is not finite is never a success: ``success`` False, status "failed"."""
         if math.isfinite(self.fun) and np.all(np.isfinite(self.x)):
             return
-        what = "the cost" if np.all(np.isfinite(self.x)) else "the parameters"
-        note = f"{what} at the result are not finite"
-        if self.success or self.status == "converged":
-            self["success"] = False
+        note = ("the cost at the result is not finite" if np.all(np.isfinite(self.x))
+                else "the parameters of the result are not finite")
+        self["success"] = False
+        if self.status in ("converged", "stopped"):
             self["status"] = "failed"
         if note not in self.message:
             self["message"] = f"{self.message}; {note}" if self.message else note
@@ -171,6 +176,8 @@ def _status(success: bool, message: str) -> str:
     if success:
         return "converged"
     text = message.lower()
+    if "not finite" in text:
+        return "failed"
     if "interrupt" in text or "sigint" in text or "sigterm" in text:
         return "interrupted"
     if "callback" in text:

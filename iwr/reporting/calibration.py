@@ -14,8 +14,8 @@ import numpy as np
 from .._io import atomic_write_bytes, atomic_write_text, jsonable
 from ..accuracy import Accuracy
 from ..measurements import Measurements
-from ..problem import Problem, predict_legs
 from ..methods import IdentificationResult
+from ..problem import Problem, predict_legs
 from ..robot import Robot
 from .figures import new_figure, png_bytes
 from .html import Page, write_page

@@ -207,3 +207,20 @@ def test_unknown_method(robot, data):
     m, _ = data
     with pytest.raises(ValueError, match="method: 'nope'; available: bobyqa, crs2, de, lm"):
         iwr.identify(robot, m, "nope")
+
+
+def test_ctrl_c_while_identify_re_evaluates_the_cost_keeps_the_result(robot, data, monkeypatch):
+    m, _ = data
+    original = iwr.Problem.cost
+    calls = []
+
+    def cost(self, x):
+        calls.append(1)
+        if len(calls) == 2:  # LM's own final evaluation is the first; identify()'s the second
+            raise KeyboardInterrupt
+        return original(self, x)
+
+    monkeypatch.setattr(iwr.Problem, "cost", cost)
+    res = iwr.identify(robot, m, "lm", progress=False)
+    assert res.interrupted and not res.success and len(calls) == 2
+    assert res.fun == original(iwr.Problem(robot, m), res.x)

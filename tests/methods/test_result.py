@@ -1,0 +1,91 @@
+"""The one result type: status and success, the JSON file (also written by iwr-calibrate), and
+results that are not finite."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from scipy.optimize import OptimizeResult
+
+import iwr
+from iwr.methods import STATUSES, IdentificationResult
+
+
+def result(**kw):
+    base = dict(x=np.arange(3.0), fun=1.5, nfev=10, nit=2, success=True, message="ok",
+                method="lm", parameter_names=["a", "b", "c"], history={"nfev": [1, 10],
+                                                                       "best": [3.0, 1.5]})
+    return IdentificationResult(**{**base, **kw})
+
+
+def test_an_optimize_result_with_declared_attributes():
+    r = result()
+    assert isinstance(r, OptimizeResult)
+    assert r.status == "converged" and r.success and not r.interrupted
+    assert r.named() == {"a": 0.0, "b": 1.0, "c": 2.0}
+    assert r.settings == {} and r.active is None and np.isnan(r.wall_time)
+    assert not result(success=False).success and result(success=False).status == "stopped"
+    stopped = result(success=True, status="interrupted", message="interrupted (Ctrl-C)")
+    assert not stopped.success and stopped.interrupted
+    with pytest.raises(ValueError, match="status: 'done'"):
+        result(status="done")
+    assert set(STATUSES) == {"converged", "stopped", "callback", "interrupted", "failed"}
+    assert "status: converged" in repr(result(settings={}, history={}))  # SciPy's fails there
+
+
+@pytest.mark.parametrize("x, fun", [([np.nan, 0.0, 0.0], 1.0), ([0.0, 0.0, 0.0], np.inf),
+                                    ([0.0, 0.0, 0.0], np.nan)])
+def test_not_finite_is_never_a_success(x, fun):
+    r = result(x=x, fun=fun)
+    assert not r.success and r.status == "failed" and "not finite" in r.message
+
+
+def test_file_round_trip_keeps_the_keys(tmp_path):
+    r = result(settings={"seed": 3, "tol": np.float64(0.5)}, wall_time=0.25)
+    r.save(tmp_path / "r.json")
+    data = json.loads((tmp_path / "r.json").read_text())
+    assert set(data) == {"format", "version", "method", "x", "parameter_names", "fun", "nfev",
+                         "nit", "success", "message", "wall_time", "settings", "history"}
+    back = iwr.load_result(tmp_path / "r.json")
+    np.testing.assert_array_equal(back.x, r.x)
+    assert (back.fun, back.nfev, back.nit, back.success, back.status, back.method) == \
+        (1.5, 10, 2, True, "converged", "lm")
+    assert back.settings == {"seed": 3, "tol": 0.5}
+    np.testing.assert_array_equal(back.history["best"], [3.0, 1.5])
+
+
+def test_a_cost_that_is_not_finite_is_written_null_and_loads(tmp_path):
+    """iwr-calibrate writes "fun": null for a cost that is not finite; it loads, as a failure."""
+    r = result(fun=np.inf)
+    r.save(tmp_path / "r.json")
+    text = (tmp_path / "r.json").read_text()
+    assert '"fun": null' in text and "Infinity" not in text
+    json.loads(text, parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
+    back = iwr.load_result(tmp_path / "r.json")
+    assert np.isnan(back.fun) and not back.success and back.status == "failed"
+    data = json.loads(text)
+    data.update(success=True, x=[None, 1.0, 2.0], fun=0.5)
+    (tmp_path / "c.json").write_text(json.dumps(data))
+    back = iwr.load_result(tmp_path / "c.json")
+    assert np.isnan(back.x[0]) and not back.success
+
+
+@pytest.mark.parametrize("message, status", [
+    ("interrupted by SIGINT at generation 3", "interrupted"),
+    ("stopped by the callback", "callback"),
+    ("the maximum number of generations (5) was reached", "stopped"),
+])
+def test_status_of_a_loaded_unsuccessful_result(tmp_path, message, status):
+    result(success=False, message=message).save(tmp_path / "r.json")
+    assert iwr.load_result(tmp_path / "r.json").status == status
+
+
+def test_bad_files_are_named(tmp_path):
+    (tmp_path / "r.json").write_text('{"format": "iwr-result", "x": [1, "a"], "fun": 1, '
+                                     '"nfev": 1, "success": true, "message": ""}')
+    with pytest.raises(iwr.ResultFileError, match=r"r.json: x: expected numbers"):
+        iwr.load_result(tmp_path / "r.json")
+    with pytest.raises(iwr.ResultFileError, match="no such file"):
+        iwr.load_result(tmp_path / "missing.json")
