@@ -302,8 +302,8 @@ def _best_so_far(robot: Any, data: Any, method: str, tracker: _Tracker, kwargs: 
                  args: argparse.Namespace) -> Any:
     """The result of an identification that Ctrl-C cut short without a result: the best point
     the callback saw (else the start), its cost evaluated afresh."""
-    from ..problem import Problem
     from ..methods import IdentificationResult
+    from ..problem import Problem
 
     x = tracker.x
     if x is None or x.shape != (robot.n_params,):

@@ -41,9 +41,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 def cmd_report(args: argparse.Namespace) -> int:
     from ..accuracy import accuracy
     from ..identifiability import identifiability
+    from ..methods import load_result
     from ..reporting.calibration import Calibration
     from ..reporting.html import provenance
-    from ..methods import load_result
     from ..uncertainty import uncertainty
 
     result = load_result(args.run)

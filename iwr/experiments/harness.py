@@ -29,8 +29,8 @@ import numpy as np
 
 from ..accuracy import accuracy
 from ..identifiability import identifiability, parameter_error
-from ..methods import METHODS, identify
 from ..measurements import Measurements
+from ..methods import METHODS, identify
 from ..problem import Problem, predict_legs
 from ..robot import Robot
 from ..simulate import Noise, sample_poses, simulate

@@ -326,7 +326,7 @@ class Calibration:
                  f"the {self.accuracy.n_poses} identification poses (nothing held out: "
                  "optimistic)")
         change = f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on {where}"
-        if r.get("interrupted"):
+        if r.get("status") == "interrupted":
             return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
                     "bad")
         if not r.success:
