@@ -35,13 +35,13 @@ def small_methods() -> list[str]:
     return [m for m in ("lm", "crs2", "bobyqa", "de", "de:jso") if m.partition(":")[0] in METHODS]
 
 
-def small_run(out_dir, **kw):
+def small_run(out, **kw):
     # DE evaluates its initial population whole (10 D = 580 by default, 773 for jSO): small
     # populations keep it within the budget. jSO plans its schedule over the budget.
     options = ({"de": {"population_size": 20}, "de:jso": {"population_size": 30}}
                if "de" in METHODS else {})
     args = dict(n_poses=20, seeds=SEEDS, methods=small_methods(), budget=BUDGET, start="both",
-                out=out_dir, n_validation=20, progress=False, method_options=options)
+                out=out, n_validation=20, progress=False, method_options=options)
     args.update(kw)
     return iwr.compare_methods(**args)
 

@@ -351,7 +351,8 @@ def study(
     retries : int
         Extra attempts of a cell whose worker died or that raised an unexpected error.
     report : bool
-        Write the plots and ``summary.md`` (:func:`iwr.study.report`) at the end.
+        Write the plots, ``summary.md`` and ``report.html`` (:func:`iwr.reporting.study.report`)
+        at the end.
     progress : bool, optional
         A progress bar (default: when standard error is a terminal).
 
