@@ -480,6 +480,12 @@ def study(
     )
     if failures:
         cell, exc = failures[0]
+        if any("scheduler-connection-lost" in str(e) for _, e in failures):
+            raise StudyError(
+                f"scheduler: lost the connection to {scheduler!r}; {len(failures)} of "
+                f"{len(cells)} cells did not finish; the others are in {table}; run the study "
+                "again to compute the missing ones"
+            )
         raise StudyError(
             f"{len(failures)} of {len(cells)} cells failed on every attempt (first: {cell.method}, "
             f"N={cell.n_poses}, noise={cell.noise}, draw={cell.draw}, seed={cell.seed}: "
