@@ -44,7 +44,7 @@ def assert_fails(proc, code: int, pattern: str) -> None:
 def sim(tmp_path_factory) -> Path:
     """A simulated robot, 60 noisy poses and the truth, written by ``iwr simulate``."""
     out = tmp_path_factory.mktemp("sim")
-    proc = run("simulate", "--poses", "60", "--seed", "3", "--out-dir", str(out))
+    proc = run("simulate", "--poses", "60", "--seed", "3", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     assert "wrote" in proc.stdout
     return out
@@ -109,11 +109,11 @@ def test_simulate_writes_consistent_reproducible_files(sim, tmp_path):
     assert len(data) == 60 and truth["seed"] == 3 and truth["parameter_names"] == \
         robot.parameter_names
     # the same seed writes the same data; noise 'none' gives readings the truth explains exactly
-    proc = run("simulate", "--poses", "60", "--seed", "3", "--out-dir", str(tmp_path))
+    proc = run("simulate", "--poses", "60", "--seed", "3", "--out", str(tmp_path))
     assert proc.returncode == 0
     assert (tmp_path / "measurements.csv").read_bytes() == (sim / "measurements.csv").read_bytes()
     proc = run("simulate", "--poses", "10", "--seed", "4", "--noise", "none",
-               "--out-dir", str(tmp_path), "--data-file", "exact.csv", "--truth-file", "t.json")
+               "--out", str(tmp_path), "--data-file", "exact.csv", "--truth-file", "t.json")
     assert proc.returncode == 0, proc.stderr
     exact = iwr.Measurements.from_csv(tmp_path / "exact.csv")
     x = np.array(json.loads((tmp_path / "t.json").read_text())["errors"])
@@ -127,7 +127,7 @@ def test_simulate_writes_consistent_reproducible_files(sim, tmp_path):
 def test_calibrate_files(sim, tmp_path):
     out = tmp_path / "out"
     proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"),
-               "--method", "lm", "--out-dir", str(out), "--no-plots")
+               "--method", "lm", "--out", str(out), "--no-plots")
     assert proc.returncode == 0, proc.stderr
     assert proc.stderr == ""  # no progress bar when stderr is not a terminal
     assert "accuracy on 12 validation poses" in proc.stdout
@@ -149,11 +149,11 @@ def test_calibrate_files(sim, tmp_path):
 def test_calibrate_with_a_validation_file_and_without_hold_out(sim, tmp_path):
     robot, data = sim / "robot.toml", sim / "measurements.csv"
     proc = run("calibrate", str(robot), str(data), "--validation", str(data), "--method", "lm",
-               "--out-dir", str(tmp_path / "a"), "--no-plots")
+               "--out", str(tmp_path / "a"), "--no-plots")
     assert proc.returncode == 0, proc.stderr
     assert "poses: 60 for identification, 60 held out" in proc.stdout
     proc = run("calibrate", str(robot), str(data), "--validation-fraction", "0", "--method",
-               "lm", "--out-dir", str(tmp_path / "b"), "--no-plots")
+               "lm", "--out", str(tmp_path / "b"), "--no-plots")
     assert proc.returncode == 0, proc.stderr
     assert "identification poses (optimistic)" in proc.stdout
 
@@ -180,7 +180,7 @@ def test_calibrate_without_arguments_runs_the_example(tmp_path):
 
 def test_shipped_example_files(tmp_path):
     proc = run("calibrate", str(REPO / "examples" / "iwr.toml"),
-               str(REPO / "examples" / "iwr_example.csv"), "--out-dir", str(tmp_path),
+               str(REPO / "examples" / "iwr_example.csv"), "--out", str(tmp_path),
                "--method", "lm", "--no-plots")
     assert proc.returncode == 0, proc.stderr
     acc = json.loads((tmp_path / "summary.json").read_text())["accuracy"]
@@ -240,7 +240,7 @@ def _bad_files(sim: Path, tmp: Path, case: str) -> tuple[Path, Path]:
 )
 def test_data_errors_exit_1_with_one_line(sim, tmp_path, case, pattern):
     robot, data = _bad_files(sim, tmp_path, case)
-    proc = run("calibrate", str(robot), str(data), "--out-dir", str(tmp_path / "out"))
+    proc = run("calibrate", str(robot), str(data), "--out", str(tmp_path / "out"))
     assert_fails(proc, 1, pattern)
     assert not (tmp_path / "out").exists()  # nothing written from bad input
 
@@ -371,7 +371,7 @@ def test_ctrl_c_writes_the_best_point_so_far_and_exits_130(sim, tmp_path):
     proc = subprocess.Popen(
         [sys.executable, "-m", "iwr", "calibrate", str(sim / "robot.toml"),
          str(sim / "measurements.csv"), "--method", "de", "--generations", "100000",
-         "--workers", "1", "--out-dir", str(out), "--no-plots"],
+         "--workers", "1", "--out", str(out), "--no-plots"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=environ,
         cwd=tempfile.gettempdir(),
     )

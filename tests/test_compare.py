@@ -35,13 +35,13 @@ def small_methods() -> list[str]:
     return [m for m in ("lm", "crs2", "bobyqa", "de", "de:jso") if m.partition(":")[0] in METHODS]
 
 
-def small_run(out_dir, **kw):
+def small_run(out, **kw):
     # DE evaluates its initial population whole (10 D = 580 by default, 773 for jSO): small
     # populations keep it within the budget. jSO plans its schedule over the budget.
     options = ({"de": {"population_size": 20}, "de:jso": {"population_size": 30}}
                if "de" in METHODS else {})
     args = dict(n_poses=20, seeds=SEEDS, methods=small_methods(), budget=BUDGET, start="both",
-                out=out_dir, n_validation=20, progress=False, method_options=options)
+                out=out, n_validation=20, progress=False, method_options=options)
     args.update(kw)
     return iwr.compare_methods(**args)
 
@@ -369,3 +369,26 @@ def test_parameter_error_is_iwr_parameter_error(report):
     assert r["param_error_length"] == pe.rms_length
     assert r["param_error_angle"] == pe.rms_angle
     assert "iwr.parameter_error" in (out / "report.md").read_text(encoding="utf-8")
+
+
+def test_dask_executor_gives_the_same_rows():
+    """The harness's executors: the same comparison in this process and on a local Dask cluster
+    gives the same rows, bit for bit (wall times apart)."""
+    distributed = pytest.importorskip("distributed")
+    args = dict(n_poses=12, seeds=[0, 1], methods=["lm", "crs2"], budget=150, start="both",
+                out=None, n_validation=10, progress=False)
+    here = iwr.compare_methods(**args)
+    with distributed.LocalCluster(n_workers=2, threads_per_worker=1, processes=True,
+                                  dashboard_address=":0") as cluster, \
+            distributed.Client(cluster) as client:
+        there = iwr.compare_methods(**args, scheduler=client)
+    assert len(here.runs) == len(there.runs) == 8
+    for a, b in zip(here.runs, there.runs, strict=True):
+        assert a.keys() == b.keys()
+        for key in a:
+            if key == "wall_time":
+                continue
+            same = a[key] == b[key] or (a[key] != a[key] and b[key] != b[key])
+            if key.startswith("param_error"):  # an SVD: its last bit may change with the process
+                same = same or math.isclose(a[key], b[key], rel_tol=1e-12)
+            assert same, (a["method"], key, a[key], b[key])

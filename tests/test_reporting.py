@@ -93,7 +93,7 @@ def run_iwr(*args: str) -> subprocess.CompletedProcess[str]:
 @pytest.fixture(scope="module")
 def sim(tmp_path_factory: pytest.TempPathFactory) -> Path:
     out = tmp_path_factory.mktemp("sim")
-    proc = run_iwr("simulate", "--poses", "40", "--seed", "5", "--out-dir", str(out))
+    proc = run_iwr("simulate", "--poses", "40", "--seed", "5", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     return out
 
@@ -102,7 +102,7 @@ def test_calibration_and_report_pages_open_cleanly(sim: Path, tmp_path: Path) ->
     chromium()
     out = tmp_path / "cal"
     proc = run_iwr("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"),
-                   "--method", "lm", "--out-dir", str(out))
+                   "--method", "lm", "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     page = (out / "report.html").read_text(encoding="utf-8")
     # summary first, then parameters, identifiability, residuals, settings, provenance

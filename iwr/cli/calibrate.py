@@ -100,7 +100,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                      "figure (default: %(default)s; 0: none, the accuracy is then optimistic)")
     val.add_argument("--validation", metavar="VALID.csv",
                      help="validation poses from a separate file; all of DATA.csv identifies")
-    p.add_argument("--out-dir", default=None, metavar="DIR",
+    p.add_argument("-o", "--out", default=None, metavar="DIR",
                    help="folder of the calibrated robot, result and report (default: "
                    "iwr-calibration, or iwr-example for the example)")
     p.add_argument("--poses", type=positive_int, default=None, metavar="N",
@@ -166,7 +166,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     robot = load_robot(args.robot)
     data = load_data(args.data, robot)
     validation = load_data(args.validation, robot) if args.validation else None
-    out = Path(args.out_dir or "iwr-calibration")
+    out = Path(args.out or "iwr-calibration")
     try:
         _calibrate(robot, data, validation, args, method, kwargs, out,
                    robot_name=str(args.robot), data_name=str(args.data))
@@ -185,7 +185,7 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     n = args.poses or (EXAMPLE_POSES_QUICK if quick else EXAMPLE_POSES)
     if quick and method == "de" and args.generations is None and args.budget is None:
         kwargs = {**kwargs, "generations": EXAMPLE_GENERATIONS_QUICK}
-    out = Path(args.out_dir or EXAMPLE_DIR)
+    out = Path(args.out or EXAMPLE_DIR)
     out.mkdir(parents=True, exist_ok=True)
     robot = Robot.default()
     noise = Noise.realistic()

@@ -94,6 +94,10 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
                    help="scenario(s) (default: %(default)s)")
     p.add_argument("--validation-poses", type=int, default=200, metavar="N",
                    help="fresh poses for the validation RMS (default: %(default)s)")
+    p.add_argument("--scheduler", default="synchronous",
+                   help="where the runs execute: 'synchronous' (default: this process), 'local' "
+                        "(a local Dask cluster) or a Dask scheduler's address, tcp://HOST:8786; "
+                        "the rows are the same")
     p.add_argument("-o", "--out", default=DEFAULT_OUT, metavar="DIR",
                    help="output folder (default: %(default)s)")
     p.add_argument("--no-progress", action="store_true", help="no progress bars")
@@ -116,6 +120,7 @@ def run_compare(args: argparse.Namespace) -> int:
             start=args.start,
             out=args.out,
             n_validation=args.validation_poses,
+            scheduler=None if args.scheduler == "local" else args.scheduler,
             progress=False if args.no_progress else None,
         )
     except KeyboardInterrupt:

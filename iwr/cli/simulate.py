@@ -33,7 +33,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    "paper's simulation), or standard deviations KEY=SIGMA,... with KEY among legs, "
                    "joint_lengths, joint_angles, position, orientation (mm, rad; others 0) "
                    "(default: realistic)")
-    p.add_argument("--out-dir", default=".", metavar="DIR",
+    p.add_argument("-o", "--out", default=".", metavar="DIR",
                    help="folder of the files written (created if needed; default: current)")
     p.add_argument("--robot-file", default="robot.toml", metavar="NAME",
                    help="name of the robot file in DIR (default: %(default)s)")
@@ -69,7 +69,7 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     robot = load_robot(args.robot) if args.robot else Robot.default()
     data, truth = simulate(robot, n_poses=args.poses, seed=args.seed, noise=args.noise)
-    out = Path(args.out_dir)
+    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     robot_path, data_path = out / args.robot_file, out / args.data_file
     truth_path = out / args.truth_file

@@ -207,14 +207,14 @@ class Scenario:
 
     def truth(self, robot: Robot) -> np.ndarray:
         """The actual robot's error vector: uniform within the scenario's bounds."""
+        if self.kind not in SCENARIOS:
+            raise ValueError(f"scenario: {self.kind!r}; expected one of {', '.join(SCENARIOS)}")
         rng = np.random.default_rng(stream_seed(self.base_seed, _ERRORS, self.draw))
         lower, upper = robot.default_bounds(_BOUNDS[self.kind])
         return lower + (upper - lower) * rng.random(robot.n_params)
 
     def build(self, robot: Robot) -> ScenarioData:
         """Simulate the scenario for ``robot`` (deterministic)."""
-        if self.kind not in SCENARIOS:
-            raise ValueError(f"scenario: {self.kind!r}; expected one of {', '.join(SCENARIOS)}")
         truth = self.truth(robot)
         data, _ = simulate(robot, self.n_poses,
                            seed=stream_seed(self.base_seed, _DATA, self.draw, self.seed),

@@ -351,7 +351,8 @@ def study(
     retries : int
         Extra attempts of a cell whose worker died or that raised an unexpected error.
     report : bool
-        Write the plots and ``summary.md`` (:func:`iwr.study.report`) at the end.
+        Write the plots, ``summary.md`` and ``report.html`` (:func:`iwr.reporting.study.report`)
+        at the end.
     progress : bool, optional
         A progress bar (default: when standard error is a terminal).
 
@@ -479,6 +480,12 @@ def study(
     )
     if failures:
         cell, exc = failures[0]
+        if any("scheduler-connection-lost" in str(e) for _, e in failures):
+            raise StudyError(
+                f"scheduler: lost the connection to {scheduler!r}; {len(failures)} of "
+                f"{len(cells)} cells did not finish; the others are in {table}; run the study "
+                "again to compute the missing ones"
+            )
         raise StudyError(
             f"{len(failures)} of {len(cells)} cells failed on every attempt (first: {cell.method}, "
             f"N={cell.n_poses}, noise={cell.noise}, draw={cell.draw}, seed={cell.seed}: "

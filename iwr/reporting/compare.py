@@ -320,20 +320,22 @@ def write_report(comp: Any, out: str | Path, robot: Robot) -> dict[str, Path]:
     return files
 
 
-def _best_at_floor(comp: Any) -> list[str]:
-    """The methods that reached the noise floor on every run of every scenario."""
-    return [m for m in comp.settings["methods"]
-            if all(s["successes"] == s["runs"] for s in comp.summary if s["method"] == m)]
+def _at_floor(comp: Any) -> dict[str, list[str]]:
+    """Per scenario, the methods that reached the noise floor on every run."""
+    return {sc: [s["method"] for s in comp.summary
+                 if s["scenario"] == sc and s["successes"] == s["runs"]]
+            for sc in comp.settings["scenarios"]}
+
+
+def _best_at_floor(comp: Any) -> bool:
+    return all(_at_floor(comp).values())
 
 
 def _verdict(comp: Any) -> str:
-    best = _best_at_floor(comp)
     n = len(comp.settings["seeds"])
-    if best:
-        return (f"At the noise floor on every run ({n} seed(s) per scenario) within "
-                f"{comp.settings['budget']} evaluations: {', '.join(best)}.")
-    return (f"No method reached the noise floor on every run within {comp.settings['budget']} "
-            "evaluations; see the success column.")
+    parts = [f"{sc}: {', '.join(ms) if ms else 'none'}" for sc, ms in _at_floor(comp).items()]
+    return (f"At the noise floor on every run ({n} seed(s)) within {comp.settings['budget']} "
+            f"evaluations, by scenario: {'; '.join(parts)}.")
 
 
 def _csv_value(v: Any) -> Any:

@@ -1,0 +1,75 @@
+"""iwr.experiments.harness: one seeding scheme (common random numbers), one row schema, failures
+recorded in the row."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr.experiments.harness import (
+    COLUMNS,
+    Cell,
+    Scenario,
+    canonical,
+    evaluate,
+    noise_at,
+    rms,
+    robot_hash,
+    stream_seed,
+)
+
+ROBOT = iwr.Robot.default()
+
+
+def test_streams_are_independent_and_reproducible():
+    assert stream_seed(0, 1, 2) == stream_seed(0, 1, 2)
+    assert len({stream_seed(0, p, 2, 3) for p in (1, 2, 3, 4)}) == 4
+    assert 0 <= stream_seed(5, 1) < 2**63
+
+
+def test_common_random_numbers():
+    """The truth depends on the draw only; the validation poses on (draw, seed), not on the pose
+    count or the noise; the bad scenario's truth is the near one's uniform draws, rescaled."""
+    a = Scenario(12, noise_at(0.0), draw=1, seed=0).build(ROBOT)
+    b = Scenario(20, noise_at(0.02), draw=1, seed=0).build(ROBOT)
+    c = Scenario(12, noise_at(0.0), draw=1, seed=1).build(ROBOT)
+    d = Scenario(12, noise_at(0.0), draw=2, seed=0).build(ROBOT)
+    np.testing.assert_array_equal(a.truth, b.truth)
+    np.testing.assert_array_equal(a.truth, c.truth)
+    assert not np.array_equal(a.truth, d.truth)
+    np.testing.assert_array_equal(a.validation.q, b.validation.q)
+    assert not np.array_equal(a.validation.q, c.validation.q)
+    assert a.method_seed == b.method_seed != c.method_seed
+    lo, hi = ROBOT.default_bounds("default")
+    plo, phi = ROBOT.default_bounds("paper")
+    bad = Scenario(12, noise_at(0.0), draw=1, kind="bad").truth(ROBOT)
+    np.testing.assert_allclose((bad - plo) / (phi - plo), (a.truth - lo) / (hi - lo), rtol=1e-12)
+    # Noise of the same shape, scaled: the same poses, every reading off by twice as much (to
+    # first order for the orientation, whose noise is a rotation).
+    e = Scenario(20, noise_at(0.04), draw=1, seed=0).build(ROBOT)
+    z = Scenario(20, noise_at(0.0), draw=1, seed=0).build(ROBOT)
+    for f, rtol, atol in (("q", 1e-9, 1e-15), ("legs", 1e-9, 1e-12), ("poses", 1e-3, 1e-8)):
+        exact = getattr(z.data, f)
+        np.testing.assert_allclose(getattr(e.data, f) - exact, 2 * (getattr(b.data, f) - exact),
+                                   rtol=rtol, atol=atol)
+        assert np.any(getattr(b.data, f) != exact)
+
+
+def test_a_row_has_every_column_and_a_failure_is_recorded():
+    rh = robot_hash(ROBOT)
+    ok = evaluate(Cell("lm", "{}", None, 12, 0.02, 0, 0, 0, 10, rh), ROBOT)
+    assert set(COLUMNS) - {"notes", "within_budget", "budget_option"} <= set(ok)
+    assert ok["status"] == "ok" and ok["within_budget"] is None
+    assert ok["val_rms"] < 0.1 * ok["val_rms_nominal"] and ok["at_floor"]
+    assert ok["rms_fit"] == pytest.approx(math.sqrt(ok["cost"] / 72), rel=1e-12)
+    bad = evaluate(Cell("de", canonical({"population_size": 3}), None, 12, 0.0, 0, 0, 0, 10, rh),
+                   ROBOT)
+    assert bad["status"] == "failed" and "population_size: 3" in bad["message"]
+
+
+def test_rms():
+    assert rms([3.0, 4.0]) == pytest.approx(math.sqrt(12.5))
+    assert math.isnan(rms([]))
