@@ -135,10 +135,8 @@ def test_numbers_are_consistent(report):
             assert r["val_rms"] < 0.1 * r["val_rms_nominal"]
 
 
-needs_de = pytest.mark.skipif("de" not in METHODS, reason="this build has no DE")
 
 
-@needs_de
 def test_de_variants_run_under_their_labels(report):
     """'de:jso' is identify(method="de", strategy="jso") with the budget as max_evaluations (jSO's
     schedule runs to it), labelled 'de:jso' everywhere; 'de' is the paper's rand1bin."""
@@ -178,7 +176,6 @@ def test_de_variants_run_under_their_labels(report):
     assert res.settings["max_evaluations"] == BUDGET and res.settings["polish"] is False
 
 
-@needs_de
 def test_de_respects_the_budget(report):
     """Every DE run spends exactly the budget (no target is set) and never more, although the
     budget is not a whole number of generations; the report has no over-budget mark."""
@@ -279,7 +276,6 @@ def test_bad_arguments_name_the_argument(kwargs, name):
         iwr.compare_methods(**args)
 
 
-@needs_de
 @pytest.mark.parametrize(
     "kwargs, match",
     [
