@@ -1,0 +1,527 @@
+#include "iwr/tracker.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+namespace iwr {
+
+namespace {
+
+using Matrix6d = Eigen::Matrix<double, 6, 6>;
+
+Mat3 skew(const Vec3& v) {
+    Mat3 m;
+    m << 0, -v(2), v(1), v(2), 0, -v(0), -v(1), v(0), 0;
+    return m;
+}
+
+// Chord iterations (the reference's inverse Jacobian, not refactorised) before falling back to the
+// damped Newton-Raphson of hexapod_forward. From the reference, a parameter change of a millimetre
+// moves the pose by about as much and the Jacobian by about 1e-3 relative, so the error shrinks a
+// thousandfold per iteration and 4-5 iterations reach 1e-10 mm.
+constexpr int kMaxChord = 12;
+
+// The hexapod's leg-length Jacobian in the (dP, omega) parametrisation: d l_j = u_j . dP +
+// (w_j x u_j) . omega, with omega a rotation in {4} (R <- Exp(omega) R) and w_j = R b_j.
+Matrix6d leg_jacobian(const LegMatrix& a, const LegMatrix& b, const Vec3& p, const Mat3& r,
+                      LegVector* len = nullptr) {
+    Matrix6d j;
+    for (int l = 0; l < kLegs; ++l) {
+        const Vec3 w = r * b.row(l).transpose();
+        const Vec3 v = p + w - a.row(l).transpose();
+        const double n = v.norm();
+        if (len) (*len)(l) = n;
+        const Vec3 u = v / n;
+        j.row(l) << u.transpose(), w.cross(u).transpose();
+    }
+    return j;
+}
+
+void require_rows(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, const char* what) {
+    if (m.rows() != rows || m.cols() != cols) {
+        std::ostringstream msg;
+        msg << what << ": shape (" << m.rows() << ", " << m.cols() << "); expected (" << rows
+            << ", " << cols << ")";
+        throw std::invalid_argument(msg.str());
+    }
+}
+
+}  // namespace
+
+Mat3 rotvec_matrix(const Vec3& w) {
+    const double t2 = w.squaredNorm();
+    double s, c;  // sin(t)/t, (1 - cos t)/t^2
+    if (t2 < 1e-8) {
+        s = 1 - t2 / 6 + t2 * t2 / 120;
+        c = 0.5 - t2 / 24 + t2 * t2 / 720;
+    } else {
+        const double t = std::sqrt(t2);
+        s = std::sin(t) / t;
+        c = (1 - std::cos(t)) / t2;
+    }
+    const Mat3 k = skew(w);
+    return Mat3::Identity() + s * k + c * k * k;
+}
+
+Mat3 so3_left_jacobian(const Vec3& w) {
+    const double t2 = w.squaredNorm();
+    double c, d;  // (1 - cos t)/t^2, (t - sin t)/t^3
+    if (t2 < 1e-8) {
+        c = 0.5 - t2 / 24 + t2 * t2 / 720;
+        d = 1.0 / 6 - t2 / 120 + t2 * t2 / 5040;
+    } else {
+        const double t = std::sqrt(t2);
+        c = (1 - std::cos(t)) / t2;
+        d = (t - std::sin(t)) / (t2 * t);
+    }
+    const Mat3 k = skew(w);
+    return Mat3::Identity() + c * k + d * k * k;
+}
+
+TrackerSetup TrackerSetup::points(const Vector6d& registration, const RowMatrixXd& reflectors) {
+    require_finite(registration.data(), 6, "registration");
+    if (reflectors.rows() < 1 || reflectors.cols() != 3) {
+        std::ostringstream msg;
+        msg << "reflectors: shape (" << reflectors.rows() << ", " << reflectors.cols()
+            << "); expected (K, 3) with K >= 1";
+        throw std::invalid_argument(msg.str());
+    }
+    require_finite(reflectors.data(), reflectors.size(), "reflectors");
+    TrackerSetup s;
+    s.kind_ = TrackerKind::Points;
+    s.registration_ = registration;
+    s.reflectors_ = reflectors;
+    s.reg_rot_ = euler_zyx(registration(3), registration(4), registration(5));
+    return s;
+}
+
+TrackerSetup TrackerSetup::probe(const Vector6d& registration, const Vector6d& probe,
+                                 double length) {
+    require_finite(registration.data(), 6, "registration");
+    require_finite(probe.data(), 6, "probe");
+    if (!(std::isfinite(length) && length > 0))
+        throw std::invalid_argument("probe_length: " + std::to_string(length) +
+                                    "; expected a finite length > 0 (mm)");
+    TrackerSetup s;
+    s.kind_ = TrackerKind::Probe;
+    s.registration_ = registration;
+    s.probe_ = probe;
+    s.probe_length_ = length;
+    s.reg_rot_ = euler_zyx(registration(3), registration(4), registration(5));
+    s.probe_rot_ = euler_zyx(probe(3), probe(4), probe(5));
+    return s;
+}
+
+void TrackerSetup::registration_transform(const double* xt, Mat3& rot, Vec3& trans) const {
+    const Vec3 t(xt[0], xt[1], xt[2]), w(xt[3], xt[4], xt[5]);
+    rot = reg_rot_ * rotvec_matrix(w);
+    trans = reg_rot_ * t + registration_.head<3>();
+}
+
+void TrackerSetup::platform_points(const double* xo, Vec3* r, RowMatrixXd* jac) const {
+    const int k = n_points(), no = n_offset_params();
+    if (jac) jac->setZero(3 * k, no);
+    if (kind_ == TrackerKind::Points) {
+        for (int i = 0; i < k; ++i) {
+            r[i] = reflectors_.row(i).transpose() + Vec3(xo[3 * i], xo[3 * i + 1], xo[3 * i + 2]);
+            if (jac) jac->block<3, 3>(3 * i, 3 * i).setIdentity();
+        }
+        return;
+    }
+    const Vec3 t = probe_.head<3>() + Vec3(xo[0], xo[1], xo[2]);
+    const Vec3 w(xo[3], xo[4], xo[5]);
+    const Mat3 rp = rotvec_matrix(w) * probe_rot_;
+    const Mat3 jl = jac ? so3_left_jacobian(w) : Mat3::Identity();
+    r[0] = t;
+    if (jac) jac->block<3, 3>(0, 0).setIdentity();
+    for (int c = 0; c < 3; ++c) {
+        const Vec3 arm = probe_length_ * rp.col(c);
+        r[c + 1] = t + arm;
+        if (jac) {
+            jac->block<3, 3>(3 * (c + 1), 0).setIdentity();
+            jac->block<3, 3>(3 * (c + 1), 3) = -skew(arm) * jl;
+        }
+    }
+}
+
+TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const RowMatrixXd& q,
+                                   const RowMatrixXd& legs, const RowMatrixXd& points,
+                                   const VectorXd& reference, const Vector6d& home,
+                                   double tolerance)
+    : geometry_(std::move(geometry)),
+      setup_(std::move(setup)),
+      n_(static_cast<int>(legs.rows())),
+      tolerance_(tolerance),
+      q_(q),
+      legs_(legs),
+      points_(points) {
+    const int nj = geometry_.n_joints(), k = setup_.n_points();
+    if (n_ == 0) throw std::invalid_argument("legs: no measurements (0 rows)");
+    require_rows(legs, n_, kLegs, "legs");
+    require_rows(q, n_, nj, "q");
+    require_rows(points, n_, 3 * k, "points");
+    require_finite(q.data(), q.size(), "q");
+    require_finite(legs.data(), legs.size(), "legs");
+    if (!(std::isfinite(tolerance) && tolerance > 0))
+        throw std::invalid_argument("tolerance: " + std::to_string(tolerance) +
+                                    "; expected a finite number > 0 (mm)");
+    geometry_.check_errors(reference.data(), reference.size(), "reference");
+    require_finite(home.data(), 6, "home");
+    for (int p = 0; p < n_; ++p) {
+        for (int i = 0; i < k; ++i) {
+            const int nan = std::isnan(points(p, 3 * i)) + std::isnan(points(p, 3 * i + 1)) +
+                            std::isnan(points(p, 3 * i + 2));
+            bool finite = true;
+            for (int c = 0; c < 3; ++c) finite = finite && !std::isinf(points(p, 3 * i + c));
+            if ((nan != 0 && nan != 3) || !finite) {
+                std::ostringstream msg;
+                msg << "points: pose " << p << ", point " << i + 1
+                    << " has a non-finite coordinate; a point not seen has all three NaN";
+                throw std::invalid_argument(msg.str());
+            }
+            if (nan == 0) ++n_seen_;
+        }
+    }
+    cq_.resize(n_, nj);
+    sq_.resize(n_, nj);
+    for (int p = 0; p < n_; ++p)
+        for (int i = 0; i < nj; ++i) cq_(p, i) = std::cos(q(p, i)), sq_(p, i) = std::sin(q(p, i));
+
+    // The reference solves: damped Newton from the home pose, once.
+    VectorXd xref(n_params());
+    xref.setZero();
+    xref.head(geometry_.n_params()) = reference;
+    const Hexapod h = hexapod(xref.data());
+    ForwardOptions opt;
+    opt.tolerance = tolerance_;
+    ref_p_.resize(static_cast<size_t>(n_));
+    ref_r_.resize(static_cast<size_t>(n_));
+    ref_inv_.resize(static_cast<size_t>(n_));
+    ref_euler_.resize(static_cast<size_t>(n_));
+    for (int p = 0; p < n_; ++p) {
+        const LegVector len = legs_.row(p).transpose() + h.l0;
+        const HexapodSolution sol = hexapod_forward(h.a, h.b, len, home, opt, p);
+        const size_t s = static_cast<size_t>(p);
+        ref_euler_[s] = sol.pose;
+        ref_p_[s] = sol.pose.head<3>();
+        ref_r_[s] = euler_zyx(sol.pose(3), sol.pose(4), sol.pose(5));
+        ref_inv_[s] = leg_jacobian(h.a, h.b, ref_p_[s], ref_r_[s]).inverse();
+    }
+}
+
+TrackerObjective::Hexapod TrackerObjective::hexapod(const double* x) const {
+    const Geometry& g = geometry_;
+    Hexapod h;
+    for (int j = 0; j < kLegs; ++j) {
+        for (int c = 0; c < 3; ++c) {
+            h.a(j, c) = g.base()(j, c) + x[g.idx_base(j, c)];
+            h.b(j, c) = g.platform()(j, c) + x[g.idx_platform(j, c)];
+        }
+        h.l0(j) = g.leg_offsets()(j) + x[g.idx_offset(j)];
+    }
+    return h;
+}
+
+TrackerObjective::Workspace TrackerObjective::make_workspace() const {
+    Workspace ws;
+    ws.joint.resize(static_cast<size_t>(6 * geometry_.n_joints()));
+    ws.r.resize(static_cast<size_t>(setup_.n_points()));
+    return ws;
+}
+
+void TrackerObjective::prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& tt) const {
+    const Geometry& g = geometry_;
+    for (int i = 0; i < g.n_joints(); ++i) {
+        double* jc = ws.joint.data() + 6 * i;
+        const double alpha = g.dh()(i, 0) + x[4 * i], theta = g.dh()(i, 3) + x[4 * i + 3];
+        jc[0] = std::cos(alpha), jc[1] = std::sin(alpha);
+        jc[2] = std::cos(theta), jc[3] = std::sin(theta);
+        jc[4] = g.dh()(i, 1) + x[4 * i + 1];
+        jc[5] = g.dh()(i, 2) + x[4 * i + 2];
+    }
+    setup_.registration_transform(x + g.n_params(), rt, tt);
+    setup_.platform_points(x + g.n_params() + 6, ws.r.data());
+}
+
+Mat4 TrackerObjective::carriage(const Workspace& ws, int k) const {
+    // 0T4 = A_1 ... A_n (eq. 1-2), with the readings' cos/sin precomputed: theta + q by the
+    // angle-sum identity.
+    Mat4 t = Mat4::Identity();
+    for (int i = 0; i < geometry_.n_joints(); ++i) {
+        const double* jc = ws.joint.data() + 6 * i;
+        double ct = jc[2], st = jc[3], d = jc[5];
+        if (geometry_.is_prismatic(i)) {
+            d += q_(k, i);
+        } else {
+            const double c = cq_(k, i), s = sq_(k, i);
+            ct = jc[2] * c - jc[3] * s;
+            st = jc[3] * c + jc[2] * s;
+        }
+        const double ca = jc[0], sa = jc[1], a = jc[4];
+        Mat4 ai;
+        ai << ct, -ca * st, sa * st, a * ct, st, ca * ct, -sa * ct, a * st, 0, sa, ca, d, 0, 0, 0, 1;
+        t = t * ai;
+    }
+    return t;
+}
+
+void TrackerObjective::solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const {
+    const size_t s = static_cast<size_t>(k);
+    const LegVector len = legs_.row(k).transpose() + h.l0;
+    for (int j = 0; j < kLegs; ++j) {
+        if (!(len(j) > 0)) {
+            std::ostringstream msg;
+            msg << "forward kinematics: pose " << k << ": leg " << j + 1 << " has length " << len(j)
+                << " mm (reading + offset + error); a leg length must be > 0";
+            throw ForwardKinematicsError(msg.str(), k);
+        }
+    }
+    p = ref_p_[s];
+    r = ref_r_[s];
+    const Matrix6d& inv = ref_inv_[s];
+    double prev = std::numeric_limits<double>::infinity();
+    for (int it = 0; it <= kMaxChord; ++it) {
+        Eigen::Matrix<double, 6, 1> f;
+        for (int j = 0; j < kLegs; ++j) {
+            const Vec3 v = p + r * h.b.row(j).transpose() - h.a.row(j).transpose();
+            f(j) = v.norm() - len(j);
+        }
+        const double err = f.cwiseAbs().maxCoeff();
+        if (err <= tolerance_) return;
+        if (!(err < 0.5 * prev) || it == kMaxChord) break;  // not contracting: fall back
+        prev = err;
+        const Eigen::Matrix<double, 6, 1> step = -(inv * f);
+        p += step.head<3>();
+        // Cayley's rotation of omega: exactly orthogonal, Exp(omega) to second order, no trig.
+        const Vec3 hw = 0.5 * step.tail<3>();
+        const Mat3 hk = skew(hw);
+        r = (Mat3::Identity() + (2.0 / (1.0 + hw.squaredNorm())) * (hk + hk * hk)) * r;
+    }
+    ForwardOptions opt;
+    opt.tolerance = tolerance_;
+    const HexapodSolution sol = hexapod_forward(h.a, h.b, len, ref_euler_[s], opt, k);
+    p = sol.pose.head<3>();
+    r = euler_zyx(sol.pose(3), sol.pose(4), sol.pose(5));
+}
+
+double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
+                                  std::vector<int>* failed, RowMatrixXd* poses,
+                                  RowMatrixXd* predicted) const {
+    Mat3 rt;
+    Vec3 tt;
+    prepare(x, ws, rt, tt);
+    const Hexapod h = hexapod(x);
+    const int kp = setup_.n_points();
+    double cost = 0;
+    for (int k = 0; k < n_; ++k) {
+        Vec3 p;
+        Mat3 r;
+        bool ok = true;
+        try {
+            solve(h, k, p, r);
+        } catch (const ForwardKinematicsError&) {
+            ok = false;
+        }
+        if (!ok) {
+            if (failed) failed->push_back(k);
+            if (poses) poses->row(k).setConstant(std::numeric_limits<double>::quiet_NaN());
+            if (predicted) predicted->row(k).setConstant(std::numeric_limits<double>::quiet_NaN());
+            for (int i = 0; i < kp; ++i) {
+                const bool seen = !std::isnan(points_(k, 3 * i));
+                for (int c = 0; c < 3; ++c) {
+                    const double v = seen ? kFailedResidual : 0.0;
+                    if (res) res[3 * (kp * k + i) + c] = v;
+                    cost += v * v;
+                }
+            }
+            continue;
+        }
+        const Mat4 t4 = carriage(ws, k);
+        const Mat3 r4 = t4.topLeftCorner<3, 3>();
+        const Vec3 p4 = t4.topRightCorner<3, 1>();
+        if (poses) {
+            const Mat3 r5 = r4 * r;
+            poses->block<1, 3>(k, 0) = (p4 + r4 * p).transpose();
+            poses->block<1, 3>(k, 3) = euler_from_matrix(r5).transpose();
+        }
+        // y = R_T (p4 + R4 (P + R r_i)) + t_T = m (P + R r_i) + o.
+        const Mat3 m = rt * r4;
+        const Vec3 o = rt * p4 + tt;
+        for (int i = 0; i < kp; ++i) {
+            const Vec3 y = m * (p + r * ws.r[static_cast<size_t>(i)]) + o;
+            if (predicted) predicted->block<1, 3>(k, 3 * i) = y.transpose();
+            const bool seen = !std::isnan(points_(k, 3 * i));
+            for (int c = 0; c < 3; ++c) {
+                const double v = seen ? y(c) - points_(k, 3 * i + c) : 0.0;
+                if (res) res[3 * (kp * k + i) + c] = v;
+                cost += v * v;
+            }
+        }
+    }
+    return cost;
+}
+
+void TrackerObjective::check_x(const Eigen::Ref<const VectorXd>& x) const {
+    if (x.size() != n_params()) {
+        std::ostringstream msg;
+        msg << "x: " << x.size() << " values given but this problem has " << n_params()
+            << " parameters (" << geometry_.n_params() << " of the robot, "
+            << setup_.n_params() << " of the tracker setup)";
+        throw std::invalid_argument(msg.str());
+    }
+    require_finite(x.data(), x.size(), "x");
+}
+
+double TrackerObjective::cost(const double* x, Workspace& ws) const {
+    return evaluate(x, ws, nullptr, nullptr, nullptr, nullptr);
+}
+
+double TrackerObjective::cost(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    Workspace ws = make_workspace();
+    return cost(x.data(), ws);
+}
+
+VectorXd TrackerObjective::residuals(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    VectorXd r(n_residuals());
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws, r.data(), nullptr, nullptr, nullptr);
+    return r;
+}
+
+std::vector<std::pair<int, std::string>> TrackerObjective::failures(
+    const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    const Hexapod h = hexapod(x.data());
+    std::vector<std::pair<int, std::string>> out;
+    for (int k = 0; k < n_; ++k) {
+        Vec3 p;
+        Mat3 r;
+        try {
+            solve(h, k, p, r);
+        } catch (const ForwardKinematicsError& e) {
+            out.emplace_back(k, e.what());
+        }
+    }
+    return out;
+}
+
+RowMatrixXd TrackerObjective::platform_poses(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    RowMatrixXd poses(n_, 6);
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws, nullptr, nullptr, &poses, nullptr);
+    return poses;
+}
+
+RowMatrixXd TrackerObjective::predicted_points(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    RowMatrixXd pred(n_, 3 * setup_.n_points());
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws, nullptr, nullptr, nullptr, &pred);
+    return pred;
+}
+
+void TrackerObjective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residuals,
+                                RowMatrixXd* jac) const {
+    check_x(x);
+    const Geometry& g = geometry_;
+    const int nj = g.n_joints(), nr = g.n_params(), kp = setup_.n_points();
+    const int no = setup_.n_offset_params();
+    Workspace ws = make_workspace();
+    std::vector<int> failed;
+    VectorXd res(n_residuals());
+    evaluate(x.data(), ws, res.data(), &failed, nullptr, nullptr);
+    if (residuals) *residuals = res;
+    if (!jac) return;
+    jac->setZero(n_residuals(), n_params());
+
+    const Hexapod h = hexapod(x.data());
+    const double* xt = x.data() + nr;
+    Mat3 rt;
+    Vec3 tt;
+    setup_.registration_transform(xt, rt, tt);
+    const Mat3 rnom = euler_zyx(setup_.registration()(3), setup_.registration()(4),
+                                setup_.registration()(5));
+    const Vec3 wc(xt[3], xt[4], xt[5]);
+    const Mat3 rc = rotvec_matrix(wc), jl = so3_left_jacobian(wc);
+    RowMatrixXd djo;  // d r_i / d offsets
+    setup_.platform_points(xt + 6, ws.r.data(), &djo);
+    std::vector<Mat4> frames(static_cast<size_t>(nj) + 1);
+    size_t next_failed = 0;
+    for (int k = 0; k < n_; ++k) {
+        if (next_failed < failed.size() && failed[next_failed] == k) {
+            ++next_failed;
+            continue;  // zero rows: the penalty does not depend on x
+        }
+        Vec3 p;
+        Mat3 r;
+        solve(h, k, p, r);
+        const Mat4 t4 = carriage_transform(g, x.data(), q_.row(k).data(), frames.data());
+        const Mat3 r4 = t4.topLeftCorner<3, 3>();
+        const Vec3 p4 = t4.topRightCorner<3, 1>();
+        // Implicit differentiation of the leg-length equations g(P, R, x) = 0:
+        // d(P, omega)/dx_h = -Jh^-1 dg/dx_h, over the 42 hexapod parameters (a, b, l0).
+        const Matrix6d jh = leg_jacobian(h.a, h.b, p, r);
+        Eigen::Matrix<double, 6, kHexapodParams> gx;
+        gx.setZero();
+        for (int j = 0; j < kLegs; ++j) {
+            const Vec3 v = p + r * h.b.row(j).transpose() - h.a.row(j).transpose();
+            const Vec3 u = v.normalized();
+            const Vec3 ub = r.transpose() * u;
+            for (int c = 0; c < 3; ++c) {
+                gx(j, 3 * j + c) = -u(c);        // a_j
+                gx(j, 18 + 3 * j + c) = ub(c);  // b_j
+            }
+            gx(j, 36 + j) = -1.0;  // l0_j
+        }
+        const Eigen::Matrix<double, 6, kHexapodParams> dpose = -(jh.partialPivLu().solve(gx));
+        const Mat3 m = rt * r4;
+        for (int i = 0; i < kp; ++i) {
+            if (std::isnan(points_(k, 3 * i))) continue;
+            const Vec3 ri = r * ws.r[static_cast<size_t>(i)];  // R r_i
+            const Vec3 z = p + ri;                             // point in {4}
+            const Vec3 w = p4 + r4 * z;                        // point in {0}
+            auto rows = jac->middleRows(3 * (kp * k + i), 3);
+            // Hexapod: dz = dP + omega x (R r_i) = [I, -[R r_i]x] d(P, omega).
+            Eigen::Matrix<double, 3, 6> dz;
+            dz.leftCols<3>().setIdentity();
+            dz.rightCols<3>() = -skew(ri);
+            rows.middleCols(g.idx_base(0, 0), kHexapodParams) = m * dz * dpose;
+            // Carriage: theta and d act about/along z_{i-1} through o_{i-1}; alpha and a
+            // about/along x_i through o_i (as in the leg objective).
+            for (int jn = 0; jn < nj; ++jn) {
+                const Vec3 z_prev = frames[static_cast<size_t>(jn)].block<3, 1>(0, 2);
+                const Vec3 o_prev = frames[static_cast<size_t>(jn)].block<3, 1>(0, 3);
+                const Vec3 x_i = frames[static_cast<size_t>(jn) + 1].block<3, 1>(0, 0);
+                const Vec3 o_i = frames[static_cast<size_t>(jn) + 1].block<3, 1>(0, 3);
+                rows.col(4 * jn + 0) = rt * x_i.cross(w - o_i);
+                rows.col(4 * jn + 1) = rt * x_i;
+                rows.col(4 * jn + 2) = rt * z_prev;
+                rows.col(4 * jn + 3) = rt * z_prev.cross(w - o_prev);
+            }
+            // Registration: y = R_nom (Exp(wc) w + t) + t_nom.
+            rows.middleCols(nr, 3) = rnom;
+            rows.middleCols(nr + 3, 3) = -rnom * skew(rc * w) * jl;
+            // Offsets: y = m (P + R r_i(x_o)) + ...
+            rows.middleCols(nr + 6, no) = m * r * djo.middleRows(3 * i, 3);
+        }
+    }
+}
+
+void TrackerObjective::cost_batch(const double* X, Eigen::Index m, double* out,
+                                  ThreadPool& pool) const {
+    std::vector<Workspace> ws(static_cast<size_t>(pool.size()));
+    for (auto& w : ws) w = make_workspace();
+    const size_t np = static_cast<size_t>(n_params());
+    pool.parallel_for(static_cast<size_t>(m), [&](size_t b, size_t e, int id) {
+        Workspace& w = ws[static_cast<size_t>(id)];
+        for (size_t i = b; i < e; ++i) out[i] = cost(X + i * np, w);
+    });
+}
+
+}  // namespace iwr
