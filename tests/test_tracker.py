@@ -279,7 +279,9 @@ def test_lm_from_the_nominal_model_and_the_registration_guess_recovers_the_tool_
     assert after.position.max() < 1e-6
     assert math.radians(after.orientation.max()) < 1e-9
     # The gauge is real: {5} in {0} by forward kinematics differs by what the data cannot see.
-    raw = tool_pose_errors(robot, setup, res["x"], truth, q, legs, gauge=False)
+    joints = tool_pose_errors(robot, setup, res["x"], truth, q, legs, gauge="joints")
+    assert joints.position.max() < 1e-6 and math.radians(joints.orientation.max()) < 1e-9
+    raw = tool_pose_errors(robot, setup, res["x"], truth, q, legs, gauge=None)
     assert raw.position.max() > 1e-3
 
 

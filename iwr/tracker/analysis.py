@@ -54,14 +54,46 @@ def tool_frames(robot: Robot, setup: TrackerSetup, x: Any, q: Any, legs: Any,
     return setup.registration_matrix(x[nr:]) @ t @ k
 
 
+def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The one rigid transform D (4x4) that best maps the frames ``a @ D`` onto ``b`` (N, 4, 4):
+    the chordal mean of the rotations ``a_k^-1 b_k`` projected on SO(3), then the translation
+    that minimises the squared position differences of the frames' origins."""
+    rel = np.linalg.solve(a, b)
+    u, _, vt = np.linalg.svd(rel[:, :3, :3].mean(axis=0))
+    r = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
+    # origin of a_k D: pa_k + Ra_k t = pb_k  ->  least squares in t
+    ra = a[:, :3, :3]
+    t, *_ = np.linalg.lstsq(ra.reshape(-1, 3), (b[:, :3, 3] - a[:, :3, 3]).reshape(-1),
+                            rcond=None)
+    d = np.eye(4)
+    d[:3, :3], d[:3, 3] = r, t
+    return d
+
+
 def tool_pose_errors(robot: Robot, setup: TrackerSetup, x: Any, truth: Any, q: Any, legs: Any,
-                     *, tool: Any = None, gauge: bool = True) -> PoseErrors:
+                     *, tool: Any = None, gauge: str | None = "fit") -> PoseErrors:
     """Tool pose errors (position mm, orientation degrees) of the model ``x`` against ``truth``
-    at readings ``q``, ``legs`` (fresh poses of the true robot), from :func:`tool_frames` (so in
-    {T} and modulo the gauge by default). ``tool``: a tool point in the platform frame (mm).
-    ``poses`` of the result are the model's tool frames as poses in {T}."""
-    a = tool_frames(robot, setup, x, q, legs, gauge)
-    b = tool_frames(robot, setup, truth, q, legs, gauge)
+    at readings ``q``, ``legs`` (fresh poses of the true robot), in the tracker frame {T}.
+
+    Tracker data determine the platform frame {5} only up to a rigid motion on the platform
+    (docs/tracker.md), so the platform frames of the two models are compared modulo that gauge:
+
+    - ``"fit"`` (default): the model's frame is moved on its platform by the one rigid transform
+      that best aligns it with the truth's over these poses (the chordal mean of the pose-wise
+      differences): what is left is the error no choice of tool frame removes;
+    - ``"joints"``: each model's frame as its six spherical joints fix it (:func:`tool_frames`);
+      exact for noise-free data, but the identified joints' own scatter then tilts it;
+    - ``None``: {5} in {0} as forward kinematics gives it, with no gauge removed (and no
+      registration: the registration's gauge stays in), for comparison.
+
+    ``tool``: a tool point in the compared frame (mm). ``poses`` of the result are the model's
+    compared frames as poses ({T}, or {0} for ``gauge=None``)."""
+    if gauge not in ("fit", "joints", None):
+        raise ValueError(f"gauge: {gauge!r}; expected 'fit', 'joints' or None")
+    a = tool_frames(robot, setup, x, q, legs, gauge is not None)
+    b = tool_frames(robot, setup, truth, q, legs, gauge is not None)
+    if gauge == "fit":
+        a = a @ _align(a, b)
     p = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
     position = np.linalg.norm((a[:, :3, :3] - b[:, :3, :3]) @ p + a[:, :3, 3] - b[:, :3, 3], axis=1)
     r = np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]
