@@ -51,6 +51,102 @@ void require_rows(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, co
 
 }  // namespace
 
+namespace detail {
+
+// Chord iterations for kTrackerLanes poses at once, one pose per lane, written as loops over the
+// lanes so that the compiler vectorises them; compiled for AVX-512, AVX2 and the x86-64 baseline
+// and chosen at load time (GCC's target_clones). Each lane computes exactly what it would alone:
+// a lane that has converged (or must fall back) gets a zero step, which leaves its pose unchanged
+// bit for bit, so results never depend on the other poses of the block. No FMA contraction
+// (-ffp-contract=off) and a correctly rounded sqrt: the same bits for every variant.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+__attribute__((target_clones("avx512f", "avx2", "default")))
+#endif
+void tracker_chord_block(const double* __restrict blk, const double* __restrict a,
+                         const double* __restrict b, const double* __restrict l0, double tol,
+                         int max_iter, double* __restrict p, double* __restrict r,
+                         int* __restrict status) {
+    constexpr int W = kTrackerLanes;
+    const double* inv = blk;
+    const double* pref = blk + 36 * W;
+    const double* rref = blk + 39 * W;
+    const double* legs = blk + 48 * W;
+    double len[6 * W], f[6 * W], s[6 * W], err[W], prev[W], act[W];
+    for (int i = 0; i < 3 * W; ++i) p[i] = pref[i];
+    for (int i = 0; i < 9 * W; ++i) r[i] = rref[i];
+    for (int j = 0; j < 6; ++j)
+        for (int l = 0; l < W; ++l) len[j * W + l] = legs[j * W + l] + l0[j];
+    for (int l = 0; l < W; ++l) {
+        status[l] = 0;
+        act[l] = 1.0;
+        prev[l] = std::numeric_limits<double>::infinity();
+        for (int j = 0; j < 6; ++j) {
+            if (!(len[j * W + l] > 0)) status[l] = 2, act[l] = 0.0;
+        }
+    }
+    for (int it = 0;; ++it) {
+        for (int l = 0; l < W; ++l) err[l] = 0.0;
+        for (int j = 0; j < 6; ++j) {
+            const double ax = a[3 * j], ay = a[3 * j + 1], az = a[3 * j + 2];
+            const double bx = b[3 * j], by = b[3 * j + 1], bz = b[3 * j + 2];
+            for (int l = 0; l < W; ++l) {
+                const double vx = p[l] + r[l] * bx + r[W + l] * by + r[2 * W + l] * bz - ax;
+                const double vy = p[W + l] + r[3 * W + l] * bx + r[4 * W + l] * by +
+                                  r[5 * W + l] * bz - ay;
+                const double vz = p[2 * W + l] + r[6 * W + l] * bx + r[7 * W + l] * by +
+                                  r[8 * W + l] * bz - az;
+                const double fj = std::sqrt(vx * vx + vy * vy + vz * vz) - len[j * W + l];
+                f[j * W + l] = fj;
+                err[l] = std::max(err[l], std::abs(fj));
+            }
+        }
+        bool any = false;
+        for (int l = 0; l < W; ++l) {
+            if (act[l] == 0.0) continue;
+            if (err[l] <= tol) {
+                act[l] = 0.0;
+            } else if (!(err[l] < 0.5 * prev[l]) || it == max_iter) {
+                act[l] = 0.0;  // not contracting: the damped Newton fallback
+                status[l] = 1;
+            } else {
+                prev[l] = err[l];
+                any = true;
+            }
+        }
+        if (!any) return;
+        for (int m = 0; m < 6; ++m) {
+            for (int l = 0; l < W; ++l) {
+                double acc = 0.0;
+                for (int n = 0; n < 6; ++n) acc += inv[(6 * m + n) * W + l] * f[n * W + l];
+                s[m * W + l] = -(act[l] * acc);
+            }
+        }
+        for (int l = 0; l < W; ++l) {
+            p[l] += s[l];
+            p[W + l] += s[W + l];
+            p[2 * W + l] += s[2 * W + l];
+            // Cayley's rotation of omega = s[3..5]: C = I + 2/(1 + |h|^2) (H + H^2), h = omega/2,
+            // H = [h]x, H^2 = h h^T - |h|^2 I; exactly orthogonal, Exp(omega) to second order.
+            const double hx = 0.5 * s[3 * W + l], hy = 0.5 * s[4 * W + l], hz = 0.5 * s[5 * W + l];
+            const double h2 = hx * hx + hy * hy + hz * hz, k = 2.0 / (1.0 + h2);
+            const double c00 = 1.0 + k * (hx * hx - h2), c01 = k * (hx * hy - hz),
+                         c02 = k * (hx * hz + hy);
+            const double c10 = k * (hx * hy + hz), c11 = 1.0 + k * (hy * hy - h2),
+                         c12 = k * (hy * hz - hx);
+            const double c20 = k * (hx * hz - hy), c21 = k * (hy * hz + hx),
+                         c22 = 1.0 + k * (hz * hz - h2);
+            for (int c = 0; c < 3; ++c) {
+                const double r0 = r[c * W + l], r1 = r[(3 + c) * W + l], r2 = r[(6 + c) * W + l];
+                r[c * W + l] = c00 * r0 + c01 * r1 + c02 * r2;
+                r[(3 + c) * W + l] = c10 * r0 + c11 * r1 + c12 * r2;
+                r[(6 + c) * W + l] = c20 * r0 + c21 * r1 + c22 * r2;
+            }
+        }
+    }
+}
+
+}  // namespace detail
+
 Mat3 rotvec_matrix(const Vec3& w) {
     const double t2 = w.squaredNorm();
     double s, c;  // sin(t)/t, (1 - cos t)/t^2
@@ -197,18 +293,25 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
     const Hexapod h = hexapod(xref.data());
     ForwardOptions opt;
     opt.tolerance = tolerance_;
-    ref_p_.resize(static_cast<size_t>(n_));
-    ref_r_.resize(static_cast<size_t>(n_));
-    ref_inv_.resize(static_cast<size_t>(n_));
     ref_euler_.resize(static_cast<size_t>(n_));
-    for (int p = 0; p < n_; ++p) {
-        const LegVector len = legs_.row(p).transpose() + h.l0;
-        const HexapodSolution sol = hexapod_forward(h.a, h.b, len, home, opt, p);
+    const int n_blocks = (n_ + kLanes - 1) / kLanes;
+    blocks_.assign(static_cast<size_t>(n_blocks) * kPerPose * kLanes, 0.0);
+    for (int kk = 0; kk < n_blocks * kLanes; ++kk) {
+        const int p = std::min(kk, n_ - 1);
         const size_t s = static_cast<size_t>(p);
-        ref_euler_[s] = sol.pose;
-        ref_p_[s] = sol.pose.head<3>();
-        ref_r_[s] = euler_zyx(sol.pose(3), sol.pose(4), sol.pose(5));
-        ref_inv_[s] = leg_jacobian(h.a, h.b, ref_p_[s], ref_r_[s]).inverse();
+        if (kk < n_) {
+            const LegVector len = legs_.row(p).transpose() + h.l0;
+            ref_euler_[s] = hexapod_forward(h.a, h.b, len, home, opt, p).pose;
+        }
+        const Vec3 pr = ref_euler_[s].head<3>();
+        const Mat3 rr = euler_zyx(ref_euler_[s](3), ref_euler_[s](4), ref_euler_[s](5));
+        const Matrix6d inv = leg_jacobian(h.a, h.b, pr, rr).inverse();
+        double* blk = blocks_.data() + static_cast<size_t>(kk / kLanes) * kPerPose * kLanes;
+        auto put = [&](int e, double v) { blk[e * kLanes + kk % kLanes] = v; };
+        for (int e = 0; e < 36; ++e) put(e, inv(e / 6, e % 6));
+        for (int e = 0; e < 3; ++e) put(36 + e, pr(e));
+        for (int e = 0; e < 9; ++e) put(39 + e, rr(e / 3, e % 3));
+        for (int e = 0; e < 6; ++e) put(48 + e, legs_(p, e));
     }
 }
 
@@ -268,43 +371,53 @@ Mat4 TrackerObjective::carriage(const Workspace& ws, int k) const {
     return t;
 }
 
-void TrackerObjective::solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const {
-    const size_t s = static_cast<size_t>(k);
-    const LegVector len = legs_.row(k).transpose() + h.l0;
+void TrackerObjective::solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r,
+                                   int* status) const {
+    constexpr int W = kLanes;
+    static_assert(W == detail::kTrackerLanes, "one block width");
+    double pp[3 * W], rr[9 * W];
+    double a[18], b[18], l0[6];
     for (int j = 0; j < kLegs; ++j) {
-        if (!(len(j) > 0)) {
-            std::ostringstream msg;
-            msg << "forward kinematics: pose " << k << ": leg " << j + 1 << " has length " << len(j)
-                << " mm (reading + offset + error); a leg length must be > 0";
-            throw ForwardKinematicsError(msg.str(), k);
-        }
+        for (int c = 0; c < 3; ++c) a[3 * j + c] = h.a(j, c), b[3 * j + c] = h.b(j, c);
+        l0[j] = h.l0(j);
     }
-    p = ref_p_[s];
-    r = ref_r_[s];
-    const Matrix6d& inv = ref_inv_[s];
-    double prev = std::numeric_limits<double>::infinity();
-    for (int it = 0; it <= kMaxChord; ++it) {
-        Eigen::Matrix<double, 6, 1> f;
+    detail::tracker_chord_block(blocks_.data() + static_cast<size_t>(block) * kPerPose * W, a, b,
+                                l0, tolerance_, kMaxChord, pp, rr, status);
+    for (int l = 0; l < W; ++l) {
+        p[l] = Vec3(pp[l], pp[W + l], pp[2 * W + l]);
+        for (int e = 0; e < 9; ++e) r[l](e / 3, e % 3) = rr[e * W + l];
+    }
+}
+
+void TrackerObjective::finish(const Hexapod& h, int k, int status, Vec3& p, Mat3& r) const {
+    if (status == 0) return;
+    const LegVector len = legs_.row(k).transpose() + h.l0;
+    if (status == 2) {
         for (int j = 0; j < kLegs; ++j) {
-            const Vec3 v = p + r * h.b.row(j).transpose() - h.a.row(j).transpose();
-            f(j) = v.norm() - len(j);
+            if (!(len(j) > 0)) {
+                std::ostringstream msg;
+                msg << "forward kinematics: pose " << k << ": leg " << j + 1 << " has length "
+                    << len(j) << " mm (reading + offset + error); a leg length must be > 0";
+                throw ForwardKinematicsError(msg.str(), k);
+            }
         }
-        const double err = f.cwiseAbs().maxCoeff();
-        if (err <= tolerance_) return;
-        if (!(err < 0.5 * prev) || it == kMaxChord) break;  // not contracting: fall back
-        prev = err;
-        const Eigen::Matrix<double, 6, 1> step = -(inv * f);
-        p += step.head<3>();
-        // Cayley's rotation of omega: exactly orthogonal, Exp(omega) to second order, no trig.
-        const Vec3 hw = 0.5 * step.tail<3>();
-        const Mat3 hk = skew(hw);
-        r = (Mat3::Identity() + (2.0 / (1.0 + hw.squaredNorm())) * (hk + hk * hk)) * r;
     }
     ForwardOptions opt;
     opt.tolerance = tolerance_;
-    const HexapodSolution sol = hexapod_forward(h.a, h.b, len, ref_euler_[s], opt, k);
+    const HexapodSolution sol =
+        hexapod_forward(h.a, h.b, len, ref_euler_[static_cast<size_t>(k)], opt, k);
     p = sol.pose.head<3>();
     r = euler_zyx(sol.pose(3), sol.pose(4), sol.pose(5));
+}
+
+void TrackerObjective::solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const {
+    Vec3 pb[kLanes];
+    Mat3 rb[kLanes];
+    int status[kLanes];
+    solve_block(h, k / kLanes, pb, rb, status);
+    p = pb[k % kLanes];
+    r = rb[k % kLanes];
+    finish(h, k, status[k % kLanes], p, r);
 }
 
 double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
@@ -316,12 +429,16 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
     const Hexapod h = hexapod(x);
     const int kp = setup_.n_points();
     double cost = 0;
+    Vec3 pb[kLanes];
+    Mat3 rb[kLanes];
+    int status[kLanes];
     for (int k = 0; k < n_; ++k) {
-        Vec3 p;
-        Mat3 r;
+        if (k % kLanes == 0) solve_block(h, k / kLanes, pb, rb, status);
+        Vec3& p = pb[k % kLanes];
+        Mat3& r = rb[k % kLanes];
         bool ok = true;
         try {
-            solve(h, k, p, r);
+            finish(h, k, status[k % kLanes], p, r);
         } catch (const ForwardKinematicsError&) {
             ok = false;
         }

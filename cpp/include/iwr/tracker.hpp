@@ -45,6 +45,14 @@ Mat3 so3_left_jacobian(const Vec3& w);
 
 enum class TrackerKind { Points, Probe };
 
+namespace detail {
+constexpr int kTrackerLanes = 8;
+/// The chord iterations of the hexapod's forward kinematics for one block of kTrackerLanes poses
+/// (tracker.cpp; internal).
+void tracker_chord_block(const double* blk, const double* a, const double* b, const double* l0,
+                         double tol, int max_iter, double* p, double* r, int* status);
+}  // namespace detail
+
 /// The nominal measurement setup. Poses are (x, y, z, alpha, beta, gamma), Z-Y-X Euler (eq. 6).
 class TrackerSetup {
 public:
@@ -135,7 +143,13 @@ private:
     Hexapod hexapod(const double* x) const;
     void prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& tt) const;
     Mat4 carriage(const Workspace& ws, int k) const;
-    // Local pose (P, R) of {5} in {4} at pose k; throws ForwardKinematicsError when it fails.
+    // Chord iterations for the kLanes poses of block `block`: local poses (P, R) of {5} in {4}
+    // and a status per lane (0 solved, 1 needs the damped Newton fallback, 2 a leg length <= 0).
+    void solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r, int* status) const;
+    // Finishes lane `lane` of a block solve (the fallback when needed) for pose k; throws
+    // ForwardKinematicsError when it fails.
+    void finish(const Hexapod& h, int k, int status, Vec3& p, Mat3& r) const;
+    // Local pose of pose k alone (its block solved, the lane taken): as in evaluate().
     void solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const;
     void check_x(const Eigen::Ref<const VectorXd>& x) const;
     // Residuals into res (n_residuals, may be null); returns the cost; failed poses into failed.
@@ -148,10 +162,14 @@ private:
     double tolerance_;
     RowMatrixXd q_, legs_, points_;
     RowMatrixXd cq_, sq_;  // cos and sin of the revolute readings
-    std::vector<Vec3> ref_p_;
-    std::vector<Mat3> ref_r_;
-    std::vector<Eigen::Matrix<double, 6, 6>> ref_inv_;  // inverse Jacobian at the reference
-    std::vector<Vector6d> ref_euler_;                  // the reference as a local pose
+    // Per pose, in blocks of kLanes poses, structure of arrays (quantity e of lane l at
+    // e * kLanes + l): the inverse leg Jacobian at the reference (36, row-major), the reference
+    // position (3) and rotation (9, row-major), the leg readings (6). The last block is padded
+    // with copies of the last pose.
+    static constexpr int kLanes = 8;
+    static constexpr int kPerPose = 54;
+    std::vector<double> blocks_;
+    std::vector<Vector6d> ref_euler_;  // the reference as a local pose (the fallback's start)
 };
 
 }  // namespace iwr
