@@ -349,10 +349,10 @@ void TrackerObjective::prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& t
     setup_.platform_points(x + g.n_params() + 6, ws.r.data());
 }
 
-Mat4 TrackerObjective::carriage(const Workspace& ws, int k) const {
-    // 0T4 = A_1 ... A_n (eq. 1-2), with the readings' cos/sin precomputed: theta + q by the
-    // angle-sum identity.
-    Mat4 t = Mat4::Identity();
+void TrackerObjective::carriage(const Workspace& ws, int k, Mat3& r4, Vec3& p4) const {
+    // 0T4 = A_1 ... A_n (eq. 1-2), each A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) applied to the rows
+    // of T in place; the readings' cos/sin precomputed, theta + q by the angle-sum identity.
+    double t[3][4] = {{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}};
     for (int i = 0; i < geometry_.n_joints(); ++i) {
         const double* jc = ws.joint.data() + 6 * i;
         double ct = jc[2], st = jc[3], d = jc[5];
@@ -364,11 +364,19 @@ Mat4 TrackerObjective::carriage(const Workspace& ws, int k) const {
             st = jc[3] * c + jc[2] * s;
         }
         const double ca = jc[0], sa = jc[1], a = jc[4];
-        Mat4 ai;
-        ai << ct, -ca * st, sa * st, a * ct, st, ca * ct, -sa * ct, a * st, 0, sa, ca, d, 0, 0, 0, 1;
-        t = t * ai;
+        for (int row = 0; row < 3; ++row) {
+            double* tr = t[row];
+            const double u = tr[0] * ct + tr[1] * st;
+            const double v = tr[1] * ct - tr[0] * st;
+            const double w = tr[2];
+            tr[3] += a * u + d * w;
+            tr[0] = u;
+            tr[1] = ca * v + sa * w;
+            tr[2] = ca * w - sa * v;
+        }
     }
-    return t;
+    r4 << t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], t[2][0], t[2][1], t[2][2];
+    p4 << t[0][3], t[1][3], t[2][3];
 }
 
 void TrackerObjective::solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r,
@@ -456,9 +464,9 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
             }
             continue;
         }
-        const Mat4 t4 = carriage(ws, k);
-        const Mat3 r4 = t4.topLeftCorner<3, 3>();
-        const Vec3 p4 = t4.topRightCorner<3, 1>();
+        Mat3 r4;
+        Vec3 p4;
+        carriage(ws, k, r4, p4);
         if (poses) {
             const Mat3 r5 = r4 * r;
             poses->block<1, 3>(k, 0) = (p4 + r4 * p).transpose();

@@ -142,7 +142,7 @@ private:
     };
     Hexapod hexapod(const double* x) const;
     void prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& tt) const;
-    Mat4 carriage(const Workspace& ws, int k) const;
+    void carriage(const Workspace& ws, int k, Mat3& r4, Vec3& p4) const;
     // Chord iterations for the kLanes poses of block `block`: local poses (P, R) of {5} in {4}
     // and a status per lane (0 solved, 1 needs the damped Newton fallback, 2 a leg length <= 0).
     void solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r, int* status) const;
