@@ -58,7 +58,7 @@ namespace detail {
 // and chosen at load time (GCC's target_clones). Each lane computes exactly what it would alone:
 // a lane that has converged (or must fall back) gets a zero step, which leaves its pose unchanged
 // bit for bit, so results never depend on the other poses of the block. No FMA contraction
-// (-ffp-contract=off) and a correctly rounded sqrt: the same bits for every variant.
+// (-ffp-contract=off): the same bits for every variant.
 #if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
 __attribute__((target_clones("avx512f", "avx2", "default")))
 #endif
@@ -71,11 +71,14 @@ void tracker_chord_block(const double* __restrict blk, const double* __restrict 
     const double* pref = blk + 36 * W;
     const double* rref = blk + 39 * W;
     const double* legs = blk + 48 * W;
-    double len[6 * W], f[6 * W], s[6 * W], err[W], prev[W], act[W];
+    double len[6 * W], len2[6 * W], half_inv[6 * W], f[6 * W], s[6 * W], err[W], prev[W], act[W];
     for (int i = 0; i < 3 * W; ++i) p[i] = pref[i];
     for (int i = 0; i < 9 * W; ++i) r[i] = rref[i];
     for (int j = 0; j < 6; ++j)
         for (int l = 0; l < W; ++l) len[j * W + l] = legs[j * W + l] + l0[j];
+    // The residual of leg j is (|v|^2 - L^2) / (2 L) rather than |v| - L: the same root, the same
+    // derivative there (u . dv), a difference of (|v| - L)^2 / (2 L), and no square root.
+    for (int i = 0; i < 6 * W; ++i) len2[i] = len[i] * len[i], half_inv[i] = 0.5 / len[i];
     for (int l = 0; l < W; ++l) {
         status[l] = 0;
         act[l] = 1.0;
@@ -95,7 +98,7 @@ void tracker_chord_block(const double* __restrict blk, const double* __restrict 
                                   r[5 * W + l] * bz - ay;
                 const double vz = p[2 * W + l] + r[6 * W + l] * bx + r[7 * W + l] * by +
                                   r[8 * W + l] * bz - az;
-                const double fj = std::sqrt(vx * vx + vy * vy + vz * vz) - len[j * W + l];
+                const double fj = (vx * vx + vy * vy + vz * vz - len2[j * W + l]) * half_inv[j * W + l];
                 f[j * W + l] = fj;
                 err[l] = std::max(err[l], std::abs(fj));
             }
@@ -140,6 +143,77 @@ void tracker_chord_block(const double* __restrict blk, const double* __restrict 
                 r[c * W + l] = c00 * r0 + c01 * r1 + c02 * r2;
                 r[(3 + c) * W + l] = c10 * r0 + c11 * r1 + c12 * r2;
                 r[(6 + c) * W + l] = c20 * r0 + c21 * r1 + c22 * r2;
+            }
+        }
+    }
+}
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
+__attribute__((target_clones("avx512f", "avx2", "default")))
+#endif
+void tracker_points_block(const double* __restrict qb, int nj, const char* __restrict prismatic,
+                          const double* __restrict joint, const double* __restrict rt,
+                          const double* __restrict tt, const double* __restrict refl, int kp,
+                          const double* __restrict p, const double* __restrict r,
+                          double* __restrict t, double* __restrict y) {
+    constexpr int W = kTrackerLanes;
+    for (int e = 0; e < 12; ++e)
+        for (int l = 0; l < W; ++l) t[e * W + l] = (e % 4 == e / 4) ? 1.0 : 0.0;
+    double ct[W], st[W], d[W];
+    for (int i = 0; i < nj; ++i) {
+        const double* jc = joint + 6 * i;
+        const double ca = jc[0], sa = jc[1], ct0 = jc[2], st0 = jc[3], a = jc[4], d0 = jc[5];
+        const double* q0 = qb + 2 * i * W;
+        const double* q1 = q0 + W;
+        if (prismatic[i]) {
+            for (int l = 0; l < W; ++l) ct[l] = ct0, st[l] = st0, d[l] = d0 + q0[l];
+        } else {
+            for (int l = 0; l < W; ++l) {
+                ct[l] = ct0 * q0[l] - st0 * q1[l];
+                st[l] = st0 * q0[l] + ct0 * q1[l];
+                d[l] = d0;
+            }
+        }
+        // T <- T A_i, A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) (eq. 1), row by row.
+        for (int row = 0; row < 3; ++row) {
+            double* t0 = t + 4 * row * W;
+            double* t1 = t0 + W;
+            double* t2 = t1 + W;
+            double* t3 = t2 + W;
+            for (int l = 0; l < W; ++l) {
+                const double u = t0[l] * ct[l] + t1[l] * st[l];
+                const double v = t1[l] * ct[l] - t0[l] * st[l];
+                const double w = t2[l];
+                t3[l] += a * u + d[l] * w;
+                t0[l] = u;
+                t1[l] = ca * v + sa * w;
+                t2[l] = ca * w - sa * v;
+            }
+        }
+    }
+    // y = m (P + R r_i) + o with m = R_T R4, o = R_T p4 + t_T.
+    double m[9 * W], o[3 * W];
+    for (int i = 0; i < 3; ++i) {
+        for (int j = 0; j < 3; ++j) {
+            for (int l = 0; l < W; ++l) {
+                m[(3 * i + j) * W + l] = rt[3 * i] * t[j * W + l] + rt[3 * i + 1] * t[(4 + j) * W + l] +
+                                         rt[3 * i + 2] * t[(8 + j) * W + l];
+            }
+        }
+        for (int l = 0; l < W; ++l) {
+            o[i * W + l] = rt[3 * i] * t[3 * W + l] + rt[3 * i + 1] * t[7 * W + l] +
+                           rt[3 * i + 2] * t[11 * W + l] + tt[i];
+        }
+    }
+    for (int k = 0; k < kp; ++k) {
+        const double rx = refl[3 * k], ry = refl[3 * k + 1], rz = refl[3 * k + 2];
+        for (int l = 0; l < W; ++l) {
+            const double zx = p[l] + r[l] * rx + r[W + l] * ry + r[2 * W + l] * rz;
+            const double zy = p[W + l] + r[3 * W + l] * rx + r[4 * W + l] * ry + r[5 * W + l] * rz;
+            const double zz = p[2 * W + l] + r[6 * W + l] * rx + r[7 * W + l] * ry + r[8 * W + l] * rz;
+            for (int c = 0; c < 3; ++c) {
+                y[(3 * k + c) * W + l] = m[(3 * c) * W + l] * zx + m[(3 * c + 1) * W + l] * zy +
+                                         m[(3 * c + 2) * W + l] * zz + o[c * W + l];
             }
         }
     }
@@ -295,7 +369,9 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
     opt.tolerance = tolerance_;
     ref_euler_.resize(static_cast<size_t>(n_));
     const int n_blocks = (n_ + kLanes - 1) / kLanes;
-    blocks_.assign(static_cast<size_t>(n_blocks) * kPerPose * kLanes, 0.0);
+    stride_ = (kChordQuantities + 2 * nj) * kLanes;
+    blocks_.assign(static_cast<size_t>(n_blocks) * static_cast<size_t>(stride_), 0.0);
+    for (int i = 0; i < nj; ++i) prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
     for (int kk = 0; kk < n_blocks * kLanes; ++kk) {
         const int p = std::min(kk, n_ - 1);
         const size_t s = static_cast<size_t>(p);
@@ -306,12 +382,16 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
         const Vec3 pr = ref_euler_[s].head<3>();
         const Mat3 rr = euler_zyx(ref_euler_[s](3), ref_euler_[s](4), ref_euler_[s](5));
         const Matrix6d inv = leg_jacobian(h.a, h.b, pr, rr).inverse();
-        double* blk = blocks_.data() + static_cast<size_t>(kk / kLanes) * kPerPose * kLanes;
+        double* blk = blocks_.data() + static_cast<size_t>(kk / kLanes) * static_cast<size_t>(stride_);
         auto put = [&](int e, double v) { blk[e * kLanes + kk % kLanes] = v; };
         for (int e = 0; e < 36; ++e) put(e, inv(e / 6, e % 6));
         for (int e = 0; e < 3; ++e) put(36 + e, pr(e));
         for (int e = 0; e < 9; ++e) put(39 + e, rr(e / 3, e % 3));
         for (int e = 0; e < 6; ++e) put(48 + e, legs_(p, e));
+        for (int i = 0; i < nj; ++i) {  // q (and 0) for a prismatic joint, cos q and sin q else
+            put(kChordQuantities + 2 * i, geometry_.is_prismatic(i) ? q(p, i) : cq_(p, i));
+            put(kChordQuantities + 2 * i + 1, geometry_.is_prismatic(i) ? 0.0 : sq_(p, i));
+        }
     }
 }
 
@@ -332,6 +412,8 @@ TrackerObjective::Workspace TrackerObjective::make_workspace() const {
     Workspace ws;
     ws.joint.resize(static_cast<size_t>(6 * geometry_.n_joints()));
     ws.r.resize(static_cast<size_t>(setup_.n_points()));
+    ws.refl.resize(static_cast<size_t>(3 * setup_.n_points()));
+    ws.y.resize(static_cast<size_t>(3 * setup_.n_points() * kLanes));
     return ws;
 }
 
@@ -349,48 +431,23 @@ void TrackerObjective::prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& t
     setup_.platform_points(x + g.n_params() + 6, ws.r.data());
 }
 
-void TrackerObjective::carriage(const Workspace& ws, int k, Mat3& r4, Vec3& p4) const {
-    // 0T4 = A_1 ... A_n (eq. 1-2), each A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) applied to the rows
-    // of T in place; the readings' cos/sin precomputed, theta + q by the angle-sum identity.
-    double t[3][4] = {{1, 0, 0, 0}, {0, 1, 0, 0}, {0, 0, 1, 0}};
-    for (int i = 0; i < geometry_.n_joints(); ++i) {
-        const double* jc = ws.joint.data() + 6 * i;
-        double ct = jc[2], st = jc[3], d = jc[5];
-        if (geometry_.is_prismatic(i)) {
-            d += q_(k, i);
-        } else {
-            const double c = cq_(k, i), s = sq_(k, i);
-            ct = jc[2] * c - jc[3] * s;
-            st = jc[3] * c + jc[2] * s;
-        }
-        const double ca = jc[0], sa = jc[1], a = jc[4];
-        for (int row = 0; row < 3; ++row) {
-            double* tr = t[row];
-            const double u = tr[0] * ct + tr[1] * st;
-            const double v = tr[1] * ct - tr[0] * st;
-            const double w = tr[2];
-            tr[3] += a * u + d * w;
-            tr[0] = u;
-            tr[1] = ca * v + sa * w;
-            tr[2] = ca * w - sa * v;
-        }
-    }
-    r4 << t[0][0], t[0][1], t[0][2], t[1][0], t[1][1], t[1][2], t[2][0], t[2][1], t[2][2];
-    p4 << t[0][3], t[1][3], t[2][3];
-}
-
-void TrackerObjective::solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r,
-                                   int* status) const {
-    constexpr int W = kLanes;
-    static_assert(W == detail::kTrackerLanes, "one block width");
-    double pp[3 * W], rr[9 * W];
+void TrackerObjective::chord(const Hexapod& h, int block, double* pp, double* rr,
+                             int* status) const {
+    static_assert(kLanes == detail::kTrackerLanes, "one block width");
     double a[18], b[18], l0[6];
     for (int j = 0; j < kLegs; ++j) {
         for (int c = 0; c < 3; ++c) a[3 * j + c] = h.a(j, c), b[3 * j + c] = h.b(j, c);
         l0[j] = h.l0(j);
     }
-    detail::tracker_chord_block(blocks_.data() + static_cast<size_t>(block) * kPerPose * W, a, b,
-                                l0, tolerance_, kMaxChord, pp, rr, status);
+    detail::tracker_chord_block(blocks_.data() + static_cast<size_t>(block) * static_cast<size_t>(stride_),
+                                a, b, l0, tolerance_, kMaxChord, pp, rr, status);
+}
+
+void TrackerObjective::solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r,
+                                   int* status) const {
+    constexpr int W = kLanes;
+    double pp[3 * W], rr[9 * W];
+    chord(h, block, pp, rr, status);
     for (int l = 0; l < W; ++l) {
         p[l] = Vec3(pp[l], pp[W + l], pp[2 * W + l]);
         for (int e = 0; e < 9; ++e) r[l](e / 3, e % 3) = rr[e * W + l];
@@ -431,58 +488,74 @@ void TrackerObjective::solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const {
 double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
                                   std::vector<int>* failed, RowMatrixXd* poses,
                                   RowMatrixXd* predicted) const {
-    Mat3 rt;
+    constexpr int W = kLanes;
+    Mat3 rt_m;
     Vec3 tt;
-    prepare(x, ws, rt, tt);
-    const Hexapod h = hexapod(x);
+    prepare(x, ws, rt_m, tt);
+    double rt[9];
+    for (int e = 0; e < 9; ++e) rt[e] = rt_m(e / 3, e % 3);
     const int kp = setup_.n_points();
+    double* refl = ws.refl.data();
+    double* y = ws.y.data();
+    for (int i = 0; i < kp; ++i)
+        for (int c = 0; c < 3; ++c) refl[3 * i + c] = ws.r[static_cast<size_t>(i)](c);
+    const Hexapod h = hexapod(x);
+    double pp[3 * W], rr[9 * W], t[12 * W];
+    int status[W];
+    bool bad[W];
     double cost = 0;
-    Vec3 pb[kLanes];
-    Mat3 rb[kLanes];
-    int status[kLanes];
-    for (int k = 0; k < n_; ++k) {
-        if (k % kLanes == 0) solve_block(h, k / kLanes, pb, rb, status);
-        Vec3& p = pb[k % kLanes];
-        Mat3& r = rb[k % kLanes];
-        bool ok = true;
-        try {
-            finish(h, k, status[k % kLanes], p, r);
-        } catch (const ForwardKinematicsError&) {
-            ok = false;
+    for (int blk = 0; blk * W < n_; ++blk) {
+        chord(h, blk, pp, rr, status);
+        for (int l = 0; l < W; ++l) {
+            const int k = blk * W + l;
+            bad[l] = false;
+            if (status[l] == 0 || k >= n_) continue;
+            Vec3 p;
+            Mat3 r;
+            try {
+                finish(h, k, status[l], p, r);
+                for (int c = 0; c < 3; ++c) pp[c * W + l] = p(c);
+                for (int e = 0; e < 9; ++e) rr[e * W + l] = r(e / 3, e % 3);
+            } catch (const ForwardKinematicsError&) {
+                bad[l] = true;
+            }
         }
-        if (!ok) {
-            if (failed) failed->push_back(k);
-            if (poses) poses->row(k).setConstant(std::numeric_limits<double>::quiet_NaN());
-            if (predicted) predicted->row(k).setConstant(std::numeric_limits<double>::quiet_NaN());
+        detail::tracker_points_block(
+            blocks_.data() + static_cast<size_t>(blk) * static_cast<size_t>(stride_) +
+                kChordQuantities * W,
+            geometry_.n_joints(), prismatic_.data(), ws.joint.data(), rt, tt.data(), refl, kp, pp,
+            rr, t, y);
+        for (int l = 0; l < W && blk * W + l < n_; ++l) {
+            const int k = blk * W + l;
+            if (bad[l]) {
+                if (failed) failed->push_back(k);
+                if (poses) poses->row(k).setConstant(std::numeric_limits<double>::quiet_NaN());
+                if (predicted)
+                    predicted->row(k).setConstant(std::numeric_limits<double>::quiet_NaN());
+            } else {
+                if (poses) {
+                    Mat3 r4, r;
+                    Vec3 p4, p;
+                    for (int e = 0; e < 9; ++e) {
+                        r4(e / 3, e % 3) = t[(4 * (e / 3) + e % 3) * W + l];
+                        r(e / 3, e % 3) = rr[e * W + l];
+                    }
+                    for (int c = 0; c < 3; ++c) p4(c) = t[(4 * c + 3) * W + l], p(c) = pp[c * W + l];
+                    poses->block<1, 3>(k, 0) = (p4 + r4 * p).transpose();
+                    poses->block<1, 3>(k, 3) = euler_from_matrix(r4 * r).transpose();
+                }
+                if (predicted)
+                    for (int e = 0; e < 3 * kp; ++e) (*predicted)(k, e) = y[e * W + l];
+            }
             for (int i = 0; i < kp; ++i) {
                 const bool seen = !std::isnan(points_(k, 3 * i));
                 for (int c = 0; c < 3; ++c) {
-                    const double v = seen ? kFailedResidual : 0.0;
+                    const double v = !seen ? 0.0
+                                     : bad[l] ? kFailedResidual
+                                              : y[(3 * i + c) * W + l] - points_(k, 3 * i + c);
                     if (res) res[3 * (kp * k + i) + c] = v;
                     cost += v * v;
                 }
-            }
-            continue;
-        }
-        Mat3 r4;
-        Vec3 p4;
-        carriage(ws, k, r4, p4);
-        if (poses) {
-            const Mat3 r5 = r4 * r;
-            poses->block<1, 3>(k, 0) = (p4 + r4 * p).transpose();
-            poses->block<1, 3>(k, 3) = euler_from_matrix(r5).transpose();
-        }
-        // y = R_T (p4 + R4 (P + R r_i)) + t_T = m (P + R r_i) + o.
-        const Mat3 m = rt * r4;
-        const Vec3 o = rt * p4 + tt;
-        for (int i = 0; i < kp; ++i) {
-            const Vec3 y = m * (p + r * ws.r[static_cast<size_t>(i)]) + o;
-            if (predicted) predicted->block<1, 3>(k, 3 * i) = y.transpose();
-            const bool seen = !std::isnan(points_(k, 3 * i));
-            for (int c = 0; c < 3; ++c) {
-                const double v = seen ? y(c) - points_(k, 3 * i + c) : 0.0;
-                if (res) res[3 * (kp * k + i) + c] = v;
-                cost += v * v;
             }
         }
     }

@@ -51,6 +51,11 @@ constexpr int kTrackerLanes = 8;
 /// (tracker.cpp; internal).
 void tracker_chord_block(const double* blk, const double* a, const double* b, const double* l0,
                          double tol, int max_iter, double* p, double* r, int* status);
+/// The carriage transforms (rows of 0T4, 12 x kTrackerLanes) and the points in {T} (3 K x lanes)
+/// of one block, from its local platform poses (internal).
+void tracker_points_block(const double* qb, int nj, const char* prismatic, const double* joint,
+                          const double* rt, const double* tt, const double* refl, int kp,
+                          const double* p, const double* r, double* t, double* y);
 }  // namespace detail
 
 /// The nominal measurement setup. Poses are (x, y, z, alpha, beta, gamma), Z-Y-X Euler (eq. 6).
@@ -115,6 +120,8 @@ public:
         friend class TrackerObjective;
         std::vector<double> joint;  // per joint: cos/sin alpha, cos/sin theta, a, d
         std::vector<Vec3> r;        // points in {5}
+        std::vector<double> refl;   // the same, flat
+        std::vector<double> y;      // predicted points of a block (3 K x lanes)
     };
     Workspace make_workspace() const;
 
@@ -142,7 +149,8 @@ private:
     };
     Hexapod hexapod(const double* x) const;
     void prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& tt) const;
-    void carriage(const Workspace& ws, int k, Mat3& r4, Vec3& p4) const;
+    // Chord iterations of block `block` into SoA arrays pp (3 x kLanes), rr (9 x kLanes).
+    void chord(const Hexapod& h, int block, double* pp, double* rr, int* status) const;
     // Chord iterations for the kLanes poses of block `block`: local poses (P, R) of {5} in {4}
     // and a status per lane (0 solved, 1 needs the damped Newton fallback, 2 a leg length <= 0).
     void solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r, int* status) const;
@@ -164,11 +172,14 @@ private:
     RowMatrixXd cq_, sq_;  // cos and sin of the revolute readings
     // Per pose, in blocks of kLanes poses, structure of arrays (quantity e of lane l at
     // e * kLanes + l): the inverse leg Jacobian at the reference (36, row-major), the reference
-    // position (3) and rotation (9, row-major), the leg readings (6). The last block is padded
-    // with copies of the last pose.
+    // position (3) and rotation (9, row-major), the leg readings (6), then per joint q and 0
+    // (prismatic) or cos q and sin q (revolute). The last block is padded with copies of the last
+    // pose.
     static constexpr int kLanes = 8;
-    static constexpr int kPerPose = 54;
+    static constexpr int kChordQuantities = 54;
+    int stride_ = 0;  // doubles per block
     std::vector<double> blocks_;
+    std::vector<char> prismatic_;
     std::vector<Vector6d> ref_euler_;  // the reference as a local pose (the fallback's start)
 };
 
