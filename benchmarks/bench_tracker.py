@@ -119,13 +119,20 @@ def main() -> None:
                                                            joint_types=robot.joint_types))
         rng = np.random.default_rng(0)
         X = tracker.lower + (tracker.upper - tracker.lower) * rng.random((m, tracker.n_params))
+        base = _core._bench.EigenBaseline(robot._geometry, data.q, poses, data.legs)
+        def points_cost(A, p=tracker):
+            return p.cost_batch(A, workers=1)
+
+        def legs_cost(A, p=legs_problem, n_r=robot.n_params):
+            return p.cost_batch(A[:, :n_r], workers=1)
+
+        def baseline_cost(A, b=base, n_r=robot.n_params):
+            return b.cost_batch(np.ascontiguousarray(A[:, :n_r]))
+
         with OtherLoad() as load:
-            t_pts = per_eval_us(lambda A: tracker.cost_batch(A, workers=1), X, reps)
-            t_leg = per_eval_us(lambda A: legs_problem.cost_batch(A[:, :robot.n_params],
-                                                                  workers=1), X, reps)
-            t_base = per_eval_us(
-                lambda A: _core._bench.EigenBaseline(robot._geometry, data.q, poses, data.legs)
-                .cost_batch(np.ascontiguousarray(A[:, :robot.n_params])), X, reps)
+            t_pts = per_eval_us(points_cost, X, reps)
+            t_leg = per_eval_us(legs_cost, X, reps)
+            t_base = per_eval_us(baseline_cost, X, reps)
         rows.append((k, t_pts, t_leg, t_base, load.cores))
     print(f"N = {args.n} poses, one thread, CPU time per evaluation (median of {reps} x {m}); "
           f"leg kernel variant: {_core._active_kernel()}")

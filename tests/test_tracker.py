@@ -78,8 +78,9 @@ def test_setup_names_order_and_toml_round_trip(robot):
     assert p.parameter_names[6:] == ["probe.x", "probe.y", "probe.z", "probe.rx", "probe.ry",
                                      "probe.rz"]
     assert TrackerSetup.from_dict(p.to_dict()) == p
-    problem_names = TrackerProblem(robot, s, simulate_tracker(robot, s, 3, seed=0)[0]).parameter_names
-    assert problem_names == robot.parameter_names + s.parameter_names
+    data = simulate_tracker(robot, s, 3, seed=0)[0]
+    names = TrackerProblem(robot, s, data).parameter_names
+    assert names == robot.parameter_names + s.parameter_names
 
 
 def test_setup_rejects_bad_input():
@@ -111,7 +112,7 @@ def test_correction_is_right_multiplied_in_world_frame():
 # -- the objective --------------------------------------------------------------------------------
 
 @pytest.mark.parametrize("kind", ["points", "probe"])
-def test_residuals_match_an_independent_prediction_and_the_jacobian_central_differences(robot, kind):
+def test_residuals_match_a_numpy_prediction_and_the_jacobian_central_differences(robot, kind):
     if kind == "points":
         setup = points_setup()
     else:
@@ -190,7 +191,8 @@ def test_problem_rejects_mismatched_data(robot):
         pts[1, 1, 0] = np.nan
         TrackerMeasurements(np.zeros((2, 4)), np.zeros((2, 6)), points=pts)
     with pytest.raises(ValueError, match="x: shape"):
-        TrackerProblem(robot, setup, simulate_tracker(robot, setup, 3, seed=0)[0]).cost(np.zeros(58))
+        data3 = simulate_tracker(robot, setup, 3, seed=0)[0]
+        TrackerProblem(robot, setup, data3).cost(np.zeros(58))
 
 
 # -- the registration guess -----------------------------------------------------------------------
@@ -297,8 +299,9 @@ def test_every_method_runs_on_the_tracker_problem(robot):
                                            progress=False, max_evaluations=300)
         assert res["fun"] < c0 and res["nfev"] <= 300
     reduced = ReducedProblem(problem, active, x0)
-    de = iwr.differential_evolution(reduced.cost_batch, np.column_stack([reduced.lower, reduced.upper]),
-                                    population_size=20, generations=5, seed=1, workers=2)
+    box = np.column_stack([reduced.lower, reduced.upper])
+    de = iwr.differential_evolution(reduced.cost_batch, box, population_size=20, generations=5,
+                                    seed=1, workers=2)
     assert np.isfinite(de["fun"]) and de["fun"] == pytest.approx(reduced.cost(de["x"]))
 
 

@@ -94,7 +94,7 @@ def guess_registration(robot: Robot, setup: TrackerSetup, measurements: TrackerM
     xr = np.zeros(robot.n_params) if x is None else np.ascontiguousarray(x, dtype=float)
     if xr.shape != (robot.n_params,):
         raise ValueError(f"x: shape {xr.shape}; expected ({robot.n_params},) (the robot's errors)")
-    if not (isinstance(max_rms, (int, float)) and max_rms > 0):
+    if isinstance(max_rms, bool) or not (isinstance(max_rms, (int, float)) and max_rms > 0):
         raise ValueError(f"max_rms: {max_rms!r}; expected a length > 0 (mm)")
     n = len(measurements)
     poses = np.full((n, 6), np.nan)

@@ -117,8 +117,8 @@ class TrackerSetup:
             self.reflectors = None
             self.probe = _vector(probe, 6, "probe")
             self.names = ["probe"]
-        if not (isinstance(probe_length, (int, float)) and math.isfinite(probe_length)
-                and probe_length > 0):
+        if (isinstance(probe_length, bool) or not isinstance(probe_length, (int, float))
+                or not math.isfinite(probe_length) or probe_length <= 0):
             raise ValueError(f"probe_length: {probe_length!r}; expected a finite length > 0 (mm)")
         self.probe_length = float(probe_length)
 
@@ -149,7 +149,10 @@ class TrackerSetup:
     def angle_parameters(self) -> np.ndarray:
         """True where a setup parameter is an angle (rad)."""
         mask = [False] * 3 + [True] * 3
-        mask += [False] * 3 + [True] * 3 if self.kind == "probe" else [False] * 3 * self.n_reflectors
+        if self.kind == "probe":
+            mask += [False] * 3 + [True] * 3
+        else:
+            mask += [False] * 3 * self.n_reflectors
         return np.array(mask, dtype=bool)
 
     def default_bounds(self) -> tuple[np.ndarray, np.ndarray]:

@@ -47,7 +47,8 @@ class TrackerNoise:
         for name in ("distance", "distance_per_m", "transverse", "transverse_per_m",
                      "orientation"):
             v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
+            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
+                                           and v >= 0):
                 raise ValueError(f"TrackerNoise.{name}: {v!r}; expected a finite number >= 0")
 
     @classmethod
@@ -67,7 +68,8 @@ class TrackerNoise:
     def sigmas(self, d_mm: Any) -> tuple[np.ndarray, np.ndarray]:
         """(radial, transverse) sigma (mm) at distances ``d_mm`` (mm) from the tracker."""
         d_m = np.asarray(d_mm, dtype=float) / 1000.0
-        return self.distance + self.distance_per_m * d_m, self.transverse + self.transverse_per_m * d_m
+        return (self.distance + self.distance_per_m * d_m,
+                self.transverse + self.transverse_per_m * d_m)
 
     def perturb(self, points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
         """Points (..., 3) in {T} with tracker noise; three standard normal draws per point
@@ -119,7 +121,8 @@ def simulate_tracker(
         The same seed gives the same data.
     x : array_like, shape (robot.n_params + setup.n_params,), optional
         The truth: robot errors, then the setup's parameters. Default: uniform within the robot's
-        default bounds (as :func:`iwr.simulate`) and the setup's (:meth:`TrackerSetup.default_bounds`).
+        default bounds (as :func:`iwr.simulate`) and the setup's
+        (:meth:`TrackerSetup.default_bounds`).
     noise : iwr.Noise, optional
         Leg and joint reading noise (``legs``, ``joint_lengths``, ``joint_angles``); its
         ``position`` and ``orientation`` (a pose measured in {0}) must be zero here: the tracker's
@@ -153,7 +156,7 @@ def simulate_tracker(
     tnoise = TrackerNoise.none() if tracker_noise is None else tracker_noise
     if not isinstance(tnoise, TrackerNoise):
         raise TypeError(f"tracker_noise: expected a TrackerNoise, got {type(tnoise).__name__}")
-    if not (isinstance(hidden, (int, float)) and 0 <= hidden <= 1):
+    if isinstance(hidden, bool) or not (isinstance(hidden, (int, float)) and 0 <= hidden <= 1):
         raise ValueError(f"hidden: {hidden!r}; expected a fraction in [0, 1]")
     if hidden and setup.kind == "probe":
         raise ValueError("hidden: a probe pose is measured whole or not at all; simulate fewer "
@@ -191,7 +194,8 @@ def simulate_tracker(
     rot = np.swapaxes(axes, 1, 2)  # columns: the probe's axes in {T}
     if not tnoise.is_zero:
         origin = tnoise.perturb(origin, rng)
-        rot = Rotation.from_rotvec(tnoise.orientation * rng.standard_normal((n, 3))).as_matrix() @ rot
+        turn = Rotation.from_rotvec(tnoise.orientation * rng.standard_normal((n, 3)))
+        rot = turn.as_matrix() @ rot
     mats = np.tile(np.eye(4), (n, 1, 1))
     mats[:, :3, :3], mats[:, :3, 3] = rot, origin
     probe = np.array([pose_from_matrix_safe(m) for m in mats])
