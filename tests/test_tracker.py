@@ -326,3 +326,32 @@ def test_null_directions_of_point_data(robot):
     for u in (v, w):  # in the null space: its projection on the basis reproduces it
         coef, *_ = np.linalg.lstsq(ns.vectors, u, rcond=None)
         np.testing.assert_allclose(ns.vectors @ coef, u, atol=1e-6)
+
+
+def test_a_pose_gives_the_same_bits_whatever_its_neighbours_in_a_block(robot):
+    # The chord iterations run 8 poses at a time; a converged lane takes zero steps, so a pose's
+    # residuals must not depend on which poses share its block.
+    setup = points_setup()
+    data, truth = simulate_tracker(robot, setup, 21, seed=9)
+    order = np.random.default_rng(0).permutation(21)
+    shuffled = TrackerMeasurements(data.q[order], data.legs[order], points=data.points[order])
+    x = truth + np.concatenate([0.3 * np.ones(robot.n_params), np.zeros(setup.n_params)]) * \
+        np.where(np.concatenate([robot.angle_parameters, setup.angle_parameters]), 0.01, 1.0)
+    a = TrackerProblem(robot, setup, data).residuals(x).reshape(21, -1)
+    b = TrackerProblem(robot, setup, shuffled).residuals(x).reshape(21, -1)
+    assert np.array_equal(a[order], b)
+
+
+def test_lm_recovers_the_tool_pose_from_noise_free_probe_poses(robot):
+    setup = TrackerSetup(REGISTRATION, probe=(10.0, -20.0, 60.0, 0.2, -0.1, 0.3))
+    truth = truth_vector(robot, setup, 4)
+    data, _ = simulate_tracker(robot, setup, 60, seed=4, x=truth)
+    g = guess_registration(robot, setup, data)
+    problem = TrackerProblem(robot, setup, data, center=g.x_setup)
+    x0 = np.concatenate([np.zeros(robot.n_params), g.x_setup])
+    res = levenberg_marquardt(problem, x0=x0, active=np.ones(problem.n_params, dtype=bool))
+    assert res["success"], res["message"]
+    q, _, legs = sample_poses(robot, 50, np.random.default_rng(98), truth[: robot.n_params])
+    after = tool_pose_errors(robot, setup, res["x"], truth, q, legs)
+    assert after.position.max() < 1e-6
+    assert math.radians(after.orientation.max()) < 1e-9
