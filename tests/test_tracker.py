@@ -179,6 +179,13 @@ def test_failed_forward_kinematics_is_a_finite_penalty_and_named(robot):
         problem.check(x)
     assert info.value.pose == 0
     problem.check(np.zeros(problem.n_params))  # nothing fails there
+    # Readings no pose can produce, at the reference solve: named at construction.
+    legs = data.legs.copy()
+    legs[3, 0] -= 500.0
+    bad = TrackerMeasurements(data.q, legs, points=data.points, source="run.csv", lines=range(2, 7))
+    with pytest.raises(iwr.ForwardKinematicsError, match="run.csv, line 5: the leg") as info:
+        TrackerProblem(robot, setup, bad)
+    assert info.value.pose == 3
 
 
 def test_problem_rejects_mismatched_data(robot):

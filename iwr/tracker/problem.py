@@ -97,15 +97,25 @@ class TrackerProblem:
         ref = np.zeros(robot.n_params) if reference is None else np.asarray(reference, float)
         if ref.shape != (robot.n_params,):
             raise ValueError(f"reference: shape {ref.shape}; expected ({robot.n_params},)")
-        self._objective = _core.TrackerObjective(
-            robot._geometry, setup.kind,
-            setup.registration,
-            setup.reflectors if setup.reflectors is not None else np.zeros((1, 3)),
-            setup.probe if setup.probe is not None else np.zeros(6),
-            setup.probe_length,
-            measurements.q, measurements.legs, measurements.tracker_points(setup),
-            np.ascontiguousarray(ref), robot.home_pose,
-        )
+        try:
+            self._objective = _core.TrackerObjective(
+                robot._geometry, setup.kind,
+                setup.registration,
+                setup.reflectors if setup.reflectors is not None else np.zeros((1, 3)),
+                setup.probe if setup.probe is not None else np.zeros(6),
+                setup.probe_length,
+                measurements.q, measurements.legs, measurements.tracker_points(setup),
+                np.ascontiguousarray(ref), robot.home_pose,
+            )
+        except _core.ForwardKinematicsError as exc:
+            # The reference solve (at `reference`, from the home pose) failed: name the data row.
+            k = getattr(exc, "pose", None)
+            where = measurements.where(k) if isinstance(k, int) else "a pose"
+            err = _core.ForwardKinematicsError(
+                f"{where}: the leg readings have no forward kinematics for the robot at the "
+                f"reference parameters ({exc})")
+            err.pose = k
+            raise err from None
 
     # -- sizes and names ------------------------------------------------------------------------
     @property

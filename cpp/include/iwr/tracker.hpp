@@ -154,8 +154,8 @@ private:
     // Chord iterations for the kLanes poses of block `block`: local poses (P, R) of {5} in {4}
     // and a status per lane (0 solved, 1 needs the damped Newton fallback, 2 a leg length <= 0).
     void solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r, int* status) const;
-    // Finishes lane `lane` of a block solve (the fallback when needed) for pose k; throws
-    // ForwardKinematicsError when it fails.
+    // Finishes pose k after its block's chord iterations ended with `status`: nothing, the
+    // damped Newton fallback, or ForwardKinematicsError when it fails.
     void finish(const Hexapod& h, int k, int status, Vec3& p, Mat3& r) const;
     // Local pose of pose k alone (its block solved, the lane taken): as in evaluate().
     void solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const;
