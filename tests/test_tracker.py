@@ -277,7 +277,8 @@ def test_lm_from_the_nominal_model_and_the_registration_guess_recovers_the_tool_
         assert 10 < np.count_nonzero(~data.seen) < 30
     g = guess_registration(robot, setup, data)
     problem = TrackerProblem(robot, setup, data, center=g.x_setup)
-    x0 = np.concatenate([np.zeros(robot.n_params), g.x_setup])
+    x0 = problem.x0(g)
+    np.testing.assert_array_equal(x0[robot.n_params:], g.x_setup)
     res = levenberg_marquardt(problem, x0=x0, active=np.ones(problem.n_params, dtype=bool))
     assert res["success"], res["message"]
     problem.check(res["x"])

@@ -5,7 +5,7 @@ with the registration and the offsets identified beside the robot's errors (docs
     data, truth = simulate_tracker(robot, setup, 100, seed=1, tracker_noise=TrackerNoise.leica())
     guess = guess_registration(robot, setup, data)             # Kabsch: no registration needed
     problem = TrackerProblem(robot, setup, data, center=guess.x_setup)
-    x0 = np.concatenate([np.zeros(robot.n_params), guess.x_setup])
+    x0 = problem.x0(guess)
 """
 
 from __future__ import annotations

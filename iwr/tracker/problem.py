@@ -149,6 +149,14 @@ class TrackerProblem:
     def angle_parameters(self) -> np.ndarray:
         return np.concatenate([self.robot.angle_parameters, self.setup.angle_parameters])
 
+    def x0(self, guess: Any = None) -> np.ndarray:
+        """A starting point: the nominal robot (zeros), the setup's parameters of a
+        :class:`RegistrationGuess` (or zeros: the nominal setup)."""
+        xs = np.zeros(self.setup.n_params) if guess is None else np.asarray(guess.x_setup, float)
+        if xs.shape != (self.setup.n_params,):
+            raise ValueError(f"guess: {xs.size} setup parameters; expected {self.setup.n_params}")
+        return np.concatenate([np.zeros(self.robot.n_params), xs])
+
     def split(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
         """``(x_robot, x_setup)``."""
         arr = self._x(x)
