@@ -86,7 +86,8 @@ def accuracy_table(seed: int) -> None:
                     from iwr.accuracy import pose_errors
                     from iwr.forward import forward_kinematics
 
-                    pos, ang = pose_errors(forward_kinematics(robot, q, legs, x), poses)
+                    fk = forward_kinematics(robot, x[: robot.n_params], q, legs)
+                    pos, ang = pose_errors(fk, poses)
                 else:
                     e = tool_pose_errors(robot, setup, x, truth, q, legs)
                     pos, ang = e.position, e.orientation
