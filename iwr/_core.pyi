@@ -5,7 +5,7 @@ import numpy
 import numpy.typing
 import typing
 _bench: typing.Any  # benchmark-only submodule
-__all__: list[str] = ['ForwardKinematicsError', 'Geometry', 'Objective', 'carriage_transform', 'de_function', 'de_objective', 'de_resolve', 'dh_transform', 'euler_zyx', 'forward_kinematics', 'hexapod_leg_lengths', 'predict_legs']
+__all__: list[str] = ['ForwardKinematicsError', 'Geometry', 'Objective', 'carriage_transform', 'de_function', 'de_objective', 'de_resolve', 'dh_transform', 'euler_zyx', 'forward_kinematics', 'hexapod_leg_lengths', 'predict_legs', 'TrackerObjective', 'rotvec_matrix', 'so3_left_jacobian']
 class Geometry:
     def __init__(self, joint_types: str, dh: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], base: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 3]"], platform: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 3]"], leg_offsets: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"]) -> None:
         ...
@@ -37,6 +37,42 @@ class Objective:
     @property
     def n_poses(self) -> int:
         ...
+class TrackerObjective:
+    def __init__(self, geometry: Geometry, kind: str, registration: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], reflectors: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], probe: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], probe_length: typing.SupportsFloat | typing.SupportsIndex, q: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], legs: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], points: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], reference: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], home: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-10) -> None:
+        ...
+    def cost(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> float:
+        ...
+    def cost_batch(self, X: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], threads: typing.SupportsInt | typing.SupportsIndex = 0) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
+        ...
+    def failures(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> list[tuple[int, str]]:
+        """
+        Poses whose forward kinematics fails at x: [(index, message)].
+        """
+    def jacobian(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> tuple[typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]]:
+        """
+        Residuals and their exact Jacobian at x.
+        """
+    def platform_poses(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
+        ...
+    def predicted_points(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
+        ...
+    def residuals(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
+        ...
+    @property
+    def n_params(self) -> int:
+        ...
+    @property
+    def n_points(self) -> int:
+        ...
+    @property
+    def n_poses(self) -> int:
+        ...
+    @property
+    def n_residuals(self) -> int:
+        ...
+    @property
+    def n_seen(self) -> int:
+        ...
 class ForwardKinematicsError(RuntimeError):
     pass
 def _active_kernel() -> str:
@@ -67,5 +103,9 @@ def hexapod_leg_lengths(base: typing.Annotated[numpy.typing.ArrayLike, numpy.flo
     """
     Whole leg lengths at a local pose of {5} in {4}, and their Jacobian (6, 6).
     """
+def rotvec_matrix(w: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[3, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 3]"]:
+    ...
+def so3_left_jacobian(w: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[3, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 3]"]:
+    ...
 def predict_legs(geometry: Geometry, errors: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], q: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], poses: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
     ...

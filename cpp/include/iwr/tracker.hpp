@@ -1,0 +1,186 @@
+// Laser-tracker data: reflector points (or a 6-DOF probe) measured in the tracker's own frame {T}.
+//
+// The model of one measured point i at pose k (docs/tracker.md):
+//
+//     y_ki = T_T0(x_t) 0T4(x_c, q_k) 4T5(x_h, s_k) r_i(x_o)                 (in {T}, mm)
+//
+//   * T_T0 = T_nom C(x_t): the nominal registration (pose of {0} in {T}) times a correction
+//     C = [Exp(w), t] with x_t = (t_x, t_y, t_z, w_x, w_y, w_z): a translation and a rotation vector
+//     expressed in {0}, about {0}'s origin. Right-multiplying keeps the correction independent of
+//     where the tracker stands (a rotation about the tracker's origin 2 m away would be nearly a
+//     translation at the robot), and makes the registration's null directions with the carriage's
+//     first joint exact two-parameter combinations (tracker.rz with joint1.dtheta, tracker.z with
+//     joint1.dd).
+//   * 0T4: the DH carriage (eq. 1-2); 4T5: the hexapod's forward kinematics from the leg readings
+//     (Newton-Raphson on eq. 5-8).
+//   * r_i: the point in {5}. Reflectors: r_i = r_nom_i + x_o[3i .. 3i+2]. Probe: four virtual
+//     points, the probe's origin t_p and t_p + L R_p e_c (c = x, y, z), with t_p = t_nom + x_o[0..2]
+//     and R_p = Exp(x_o[3..5]) R_nom, so the residuals of a probe pose are its position error and L
+//     times its rotation-matrix error (a chordal metric; L = probe_length, mm).
+//
+// Parameters: the robot's 4 n + 42, then tracker.x .. tracker.rz (6), then reflector1.x ..
+// reflectorK.z (3 K) or probe.x .. probe.rz (6).
+//
+// Residual 3 (K k + i) + c is y_ki,c - measured_ki,c; a point not seen at a pose (NaN in the data)
+// has residuals 0 and zero Jacobian rows. A pose whose forward kinematics fails gets the residual
+// kFailedResidual on every seen coordinate (a large finite penalty, zero Jacobian rows), never NaN;
+// failures(x) names such poses.
+#pragma once
+
+#include <string>
+#include <utility>
+#include <vector>
+
+#include "iwr/forward.hpp"
+#include "iwr/model.hpp"
+#include "iwr/parallel.hpp"
+
+namespace iwr {
+
+/// Rotation matrix of a rotation vector (Rodrigues' formula).
+Mat3 rotvec_matrix(const Vec3& w);
+/// Left Jacobian of SO(3): Exp(w + dw) = Exp(J_l(w) dw) Exp(w) to first order, so that
+/// d(Exp(w) v)/dw = -[Exp(w) v]x J_l(w).
+Mat3 so3_left_jacobian(const Vec3& w);
+
+enum class TrackerKind { Points, Probe };
+
+namespace detail {
+constexpr int kTrackerLanes = 8;
+/// The chord iterations of the hexapod's forward kinematics for one block of kTrackerLanes poses
+/// (tracker.cpp; internal).
+void tracker_chord_block(const double* blk, const double* a, const double* b, const double* l0,
+                         double tol, int max_iter, double* p, double* r, int* status);
+/// The carriage transforms (rows of 0T4, 12 x kTrackerLanes) and the points in {T} (3 K x lanes)
+/// of one block, from its local platform poses (internal).
+void tracker_points_block(const double* qb, int nj, const char* prismatic, const double* joint,
+                          const double* rt, const double* tt, const double* refl, int kp,
+                          const double* p, const double* r, double* t, double* y);
+}  // namespace detail
+
+/// The nominal measurement setup. Poses are (x, y, z, alpha, beta, gamma), Z-Y-X Euler (eq. 6).
+class TrackerSetup {
+public:
+    /// K >= 1 reflectors with nominal offsets (K, 3) in {5}; registration: nominal pose of {0} in {T}.
+    static TrackerSetup points(const Vector6d& registration, const RowMatrixXd& reflectors);
+    /// A 6-DOF probe whose frame has the nominal pose `probe` in {5}; `length` (mm) weighs its
+    /// orientation error like points that far from its origin.
+    static TrackerSetup probe(const Vector6d& registration, const Vector6d& probe, double length);
+
+    TrackerKind kind() const { return kind_; }
+    /// Points per pose: K reflectors, or the probe's 4 virtual points.
+    int n_points() const { return kind_ == TrackerKind::Points ? static_cast<int>(reflectors_.rows()) : 4; }
+    /// Parameters of the setup: 6 (registration) + 3 K or + 6.
+    int n_params() const { return 6 + n_offset_params(); }
+    int n_offset_params() const { return kind_ == TrackerKind::Points ? 3 * n_points() : 6; }
+    const Vector6d& registration() const { return registration_; }
+    const RowMatrixXd& reflectors() const { return reflectors_; }
+    const Vector6d& probe_pose() const { return probe_; }
+    double probe_length() const { return probe_length_; }
+
+    /// The registration T_T0 = T_nom C(xt): rotation and translation, xt 6 entries.
+    void registration_transform(const double* xt, Mat3& rot, Vec3& trans) const;
+    /// The measured points in {5} for offset parameters xo (n_offset_params() entries); when jac is
+    /// given, also d r_i / d xo, one 3 x n_offset_params() block per point, stacked.
+    void platform_points(const double* xo, Vec3* r, RowMatrixXd* jac = nullptr) const;
+
+private:
+    TrackerKind kind_ = TrackerKind::Points;
+    Vector6d registration_ = Vector6d::Zero();
+    RowMatrixXd reflectors_;
+    Vector6d probe_ = Vector6d::Zero();
+    double probe_length_ = 100.0;
+    Mat3 reg_rot_ = Mat3::Identity(), probe_rot_ = Mat3::Identity();
+};
+
+class TrackerObjective {
+public:
+    /// Residual given to every seen coordinate of a pose whose forward kinematics fails (mm).
+    static constexpr double kFailedResidual = 1e3;
+
+    /// q (N, n_joints) joint readings, legs (N, 6) leg sensor readings, points (N, 3 K) measured
+    /// points in {T} (a reflector not seen: its 3 entries NaN). reference: robot error vector
+    /// (4 n + 42) where the forward kinematics of every pose is solved once (from `home`, a local
+    /// pose of {5} in {4}) to start each evaluation's solve. tolerance: largest leg-length residual
+    /// of the solves (mm).
+    TrackerObjective(Geometry geometry, TrackerSetup setup, const RowMatrixXd& q,
+                     const RowMatrixXd& legs, const RowMatrixXd& points,
+                     const VectorXd& reference, const Vector6d& home, double tolerance = 1e-10);
+
+    const Geometry& geometry() const { return geometry_; }
+    const TrackerSetup& setup() const { return setup_; }
+    int n_params() const { return geometry_.n_params() + setup_.n_params(); }
+    int n_poses() const { return n_; }
+    int n_points() const { return setup_.n_points(); }
+    int n_residuals() const { return 3 * n_ * setup_.n_points(); }
+    /// Seen points (3 residuals each).
+    int n_seen() const { return n_seen_; }
+
+    class Workspace {
+        friend class TrackerObjective;
+        std::vector<double> joint;  // per joint: cos/sin alpha, cos/sin theta, a, d
+        std::vector<Vec3> r;        // points in {5}
+        std::vector<double> refl;   // the same, flat
+        std::vector<double> y;      // predicted points of a block (3 K x lanes)
+    };
+    Workspace make_workspace() const;
+
+    /// Sum of squared residuals at x (n_params entries, unchecked: the hot path).
+    double cost(const double* x, Workspace& ws) const;
+    double cost(const Eigen::Ref<const VectorXd>& x) const;
+    VectorXd residuals(const Eigen::Ref<const VectorXd>& x) const;
+    /// Residuals and their exact Jacobian (n_residuals x n_params): implicit differentiation of
+    /// the forward kinematics, d(pose)/dx = -(dg/dpose)^-1 dg/dx with g the leg-length equations.
+    void jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residuals, RowMatrixXd* jac) const;
+    /// Costs of the rows of X (M, n_params) across the pool's threads; thread-count independent.
+    void cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const;
+
+    /// Poses whose forward kinematics fails at x, with the solver's message.
+    std::vector<std::pair<int, std::string>> failures(const Eigen::Ref<const VectorXd>& x) const;
+    /// World poses of {5} (N, 6) at x, and the predicted points in {T} (N, 3 K); rows of failed
+    /// poses are NaN.
+    RowMatrixXd platform_poses(const Eigen::Ref<const VectorXd>& x) const;
+    RowMatrixXd predicted_points(const Eigen::Ref<const VectorXd>& x) const;
+
+private:
+    struct Hexapod {
+        LegMatrix a, b;
+        LegVector l0;
+    };
+    Hexapod hexapod(const double* x) const;
+    void prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& tt) const;
+    // Chord iterations of block `block` into SoA arrays pp (3 x kLanes), rr (9 x kLanes).
+    void chord(const Hexapod& h, int block, double* pp, double* rr, int* status) const;
+    // Chord iterations for the kLanes poses of block `block`: local poses (P, R) of {5} in {4}
+    // and a status per lane (0 solved, 1 needs the damped Newton fallback, 2 a leg length <= 0).
+    void solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r, int* status) const;
+    // Finishes pose k after its block's chord iterations ended with `status`: nothing, the
+    // damped Newton fallback, or ForwardKinematicsError when it fails.
+    void finish(const Hexapod& h, int k, int status, Vec3& p, Mat3& r) const;
+    // Local pose of pose k alone (its block solved, the lane taken): as in evaluate().
+    void solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const;
+    void check_x(const Eigen::Ref<const VectorXd>& x) const;
+    // Residuals into res (n_residuals, may be null); returns the cost; failed poses into failed.
+    double evaluate(const double* x, Workspace& ws, double* res, std::vector<int>* failed,
+                    RowMatrixXd* poses, RowMatrixXd* predicted) const;
+
+    Geometry geometry_;
+    TrackerSetup setup_;
+    int n_ = 0, n_seen_ = 0;
+    double tolerance_;
+    RowMatrixXd q_, legs_, points_;
+    RowMatrixXd cq_, sq_;  // cos and sin of the revolute readings
+    // Per pose, in blocks of kLanes poses, structure of arrays (quantity e of lane l at
+    // e * kLanes + l): the inverse leg Jacobian at the reference (36, row-major), the reference
+    // position (3) and rotation (9, row-major), the leg readings (6), then per joint q and 0
+    // (prismatic) or cos q and sin q (revolute). The last block is padded with copies of the last
+    // pose.
+    static constexpr int kLanes = 8;
+    static constexpr int kChordQuantities = 54;
+    int stride_ = 0;  // doubles per block
+    std::vector<double> blocks_;
+    std::vector<char> prismatic_;
+    std::vector<Vector6d> ref_euler_;  // the reference as a local pose (the fallback's start)
+};
+
+}  // namespace iwr

@@ -1,0 +1,115 @@
+// Bindings of the laser-tracker objective (iwr/tracker.hpp). Private: iwr.tracker is the public API.
+#include <memory>
+#include <mutex>
+
+#include "common.hpp"
+#include "iwr/tracker.hpp"
+
+namespace iwr::python {
+
+namespace {
+
+// The objective together with a persistent thread pool for population batches (as PyObjective).
+class PyTrackerObjective {
+public:
+    explicit PyTrackerObjective(std::shared_ptr<TrackerObjective> obj) : obj_(std::move(obj)) {}
+    ThreadPool& pool(int threads) {
+        const int n = ThreadPool::resolve(threads);
+        if (!pool_ || pool_->size() != n) pool_ = std::make_unique<ThreadPool>(n);
+        return *pool_;
+    }
+    std::shared_ptr<TrackerObjective> obj_;
+    std::unique_ptr<ThreadPool> pool_;
+    std::mutex mutex_;
+};
+
+TrackerSetup make_setup(const std::string& kind, const Vector6d& registration,
+                        const RowMatrixXd& reflectors, const Vector6d& probe, double length) {
+    if (kind == "points") return TrackerSetup::points(registration, reflectors);
+    if (kind == "probe") return TrackerSetup::probe(registration, probe, length);
+    throw std::invalid_argument("kind: '" + kind + "'; expected 'points' or 'probe'");
+}
+
+}  // namespace
+
+void bind_tracker(py::module_& m) {
+    m.def("rotvec_matrix", &rotvec_matrix, py::arg("w"));
+    m.def("so3_left_jacobian", &so3_left_jacobian, py::arg("w"));
+    py::class_<PyTrackerObjective>(m, "TrackerObjective")
+        .def(py::init([](const Geometry& g, const std::string& kind, const Vector6d& registration,
+                         const RowMatrixXd& reflectors, const Vector6d& probe, double probe_length,
+                         const RowMatrixXd& q, const RowMatrixXd& legs, const RowMatrixXd& points,
+                         const VectorXd& reference, const Vector6d& home, double tolerance) {
+                 TrackerSetup s = make_setup(kind, registration, reflectors, probe, probe_length);
+                 std::shared_ptr<TrackerObjective> obj;
+                 {
+                     py::gil_scoped_release release;
+                     obj = std::make_shared<TrackerObjective>(g, s, q, legs, points, reference,
+                                                              home, tolerance);
+                 }
+                 return std::make_unique<PyTrackerObjective>(std::move(obj));
+             }),
+             py::arg("geometry"), py::arg("kind"), py::arg("registration"), py::arg("reflectors"),
+             py::arg("probe"), py::arg("probe_length"), py::arg("q"), py::arg("legs"),
+             py::arg("points"), py::arg("reference"), py::arg("home"),
+             py::arg("tolerance") = 1e-10)
+        .def_property_readonly("n_params",
+                               [](const PyTrackerObjective& o) { return o.obj_->n_params(); })
+        .def_property_readonly("n_poses", [](const PyTrackerObjective& o) { return o.obj_->n_poses(); })
+        .def_property_readonly("n_points",
+                               [](const PyTrackerObjective& o) { return o.obj_->n_points(); })
+        .def_property_readonly("n_residuals",
+                               [](const PyTrackerObjective& o) { return o.obj_->n_residuals(); })
+        .def_property_readonly("n_seen", [](const PyTrackerObjective& o) { return o.obj_->n_seen(); })
+        .def("cost",
+             [](const PyTrackerObjective& o, const VecRef& x) {
+                 py::gil_scoped_release release;
+                 return o.obj_->cost(x);
+             },
+             py::arg("x"))
+        .def("residuals",
+             [](const PyTrackerObjective& o, const VecRef& x) {
+                 py::gil_scoped_release release;
+                 return o.obj_->residuals(x);
+             },
+             py::arg("x"))
+        .def(
+            "jacobian",
+            [](const PyTrackerObjective& o, const VecRef& x) {
+                VectorXd r;
+                RowMatrixXd j;
+                {
+                    py::gil_scoped_release release;
+                    o.obj_->jacobian(x, &r, &j);
+                }
+                return py::make_tuple(r, j);
+            },
+            py::arg("x"), "Residuals and their exact Jacobian at x.")
+        .def("failures", [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->failures(x); },
+             py::arg("x"), "Poses whose forward kinematics fails at x: [(index, message)].")
+        .def("platform_poses",
+             [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->platform_poses(x); },
+             py::arg("x"))
+        .def("predicted_points",
+             [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->predicted_points(x); },
+             py::arg("x"))
+        .def(
+            "cost_batch",
+            [](PyTrackerObjective& o, const RowRef& X, int threads) {
+                if (X.cols() != o.obj_->n_params())
+                    throw std::invalid_argument(
+                        "X: shape (" + std::to_string(X.rows()) + ", " + std::to_string(X.cols()) +
+                        "); expected (M, " + std::to_string(o.obj_->n_params()) + ")");
+                require_finite(X.data(), X.size(), "X");
+                VectorXd out(X.rows());
+                {
+                    py::gil_scoped_release release;
+                    std::lock_guard<std::mutex> lock(o.mutex_);
+                    o.obj_->cost_batch(X.data(), X.rows(), out.data(), o.pool(threads));
+                }
+                return out;
+            },
+            py::arg("X"), py::arg("threads") = 0);
+}
+
+}  // namespace iwr::python

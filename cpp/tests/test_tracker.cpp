@@ -1,0 +1,204 @@
+// C++ tests of the laser-tracker objective: exact Jacobian against central differences (points,
+// probe, a hidden reflector), cost = sum of squared residuals, thread-count independence, and the
+// finite penalty of a pose whose forward kinematics fails.
+#include <cmath>
+#include <cstdio>
+#include <limits>
+#include <random>
+#include <string>
+
+#include "check.hpp"
+#include "iwr/tracker.hpp"
+
+namespace {
+
+// The default IWR of docs/model.md (legs pairing 40 degrees apart: not architecturally singular).
+iwr::Geometry iwr_geometry() {
+    const double h = M_PI / 2;
+    iwr::RowMatrixXd dh(4, 4);
+    dh << h, 0, 500, 0, h, 0, 300, h, h, 400, 250, 0, -h, 300, 0, 0;
+    iwr::LegMatrix base, platform;
+    const double ub[6] = {-10, 10, 110, 130, 230, 250}, pb[6] = {-50, 50, 70, 170, 190, 290};
+    for (int j = 0; j < 6; ++j) {
+        base.row(j) << 400 * std::cos(ub[j] * M_PI / 180), 400 * std::sin(ub[j] * M_PI / 180), 0;
+        platform.row(j) << 250 * std::cos(pb[j] * M_PI / 180), 250 * std::sin(pb[j] * M_PI / 180), 0;
+    }
+    return iwr::Geometry("PPRR", dh, base, platform, iwr::LegVector::Constant(600));
+}
+
+struct Data {
+    iwr::RowMatrixXd q, legs, points;
+};
+
+// Readings of the robot with errors x at random local poses; points from `truth` (the setup's
+// parameters appended to x) through the objective's own prediction, plus an offset so that the
+// residuals are not zero.
+Data make_data(const iwr::Geometry& g, const iwr::TrackerSetup& s, int n, std::mt19937_64& rng) {
+    std::uniform_real_distribution<double> u(-1, 1);
+    Data d;
+    d.q.resize(n, 4);
+    d.legs.resize(n, 6);
+    d.points.resize(n, 3 * s.n_points());
+    for (int k = 0; k < n; ++k) {
+        d.q.row(k) << 1000 * (1 + u(rng)), 500 * (1 + u(rng)), 1.5 * u(rng), 1.0 * u(rng);
+        iwr::Vector6d local;
+        local << 100 * u(rng), 100 * u(rng), 750 + 60 * u(rng), 0.15 * u(rng), 0.15 * u(rng),
+            0.15 * u(rng);
+        const iwr::LegVector len = iwr::hexapod_leg_lengths(g.base(), g.platform(), local);
+        d.legs.row(k) = (len - g.leg_offsets()).transpose();
+        for (int c = 0; c < d.points.cols(); ++c) d.points(k, c) = 2000 * u(rng);
+    }
+    return d;
+}
+
+iwr::VectorXd random_x(int n, std::mt19937_64& rng, double scale) {
+    std::uniform_real_distribution<double> u(-scale, scale);
+    iwr::VectorXd x(n);
+    for (int i = 0; i < n; ++i) x(i) = u(rng);
+    return x;
+}
+
+// Largest |analytic - central difference| over the Jacobian, relative to its largest entry.
+double jacobian_error(const iwr::TrackerObjective& obj, const iwr::VectorXd& x) {
+    iwr::VectorXd r;
+    iwr::RowMatrixXd jac;
+    obj.jacobian(x, &r, &jac);
+    double worst = 0, scale = jac.cwiseAbs().maxCoeff();
+    for (int i = 0; i < x.size(); ++i) {
+        const double h = 1e-6;
+        iwr::VectorXd xp = x, xm = x;
+        xp(i) += h;
+        xm(i) -= h;
+        const iwr::VectorXd fd = (obj.residuals(xp) - obj.residuals(xm)) / (2 * h);
+        worst = std::max(worst, (fd - jac.col(i)).cwiseAbs().maxCoeff());
+    }
+    return worst / scale;
+}
+
+void test_points_jacobian() {
+    std::mt19937_64 rng(7);
+    const iwr::Geometry g = iwr_geometry();
+    iwr::Vector6d reg;
+    reg << 2000, -500, 300, M_PI / 2, 0.1, -0.2;  // 2 m away, turned 90 degrees
+    iwr::RowMatrixXd refl(3, 3);
+    refl << 100, 0, 30, -50, 90, 30, -50, -90, 30;
+    const iwr::TrackerSetup s = iwr::TrackerSetup::points(reg, refl);
+    Data d = make_data(g, s, 12, rng);
+    d.points.block<1, 3>(3, 3).setConstant(std::numeric_limits<double>::quiet_NaN());  // hidden
+    iwr::Vector6d home;
+    home << 0, 0, 750, 0, 0, 0;
+    const iwr::TrackerObjective obj(g, s, d.q, d.legs, d.points, iwr::VectorXd::Zero(g.n_params()),
+                                    home);
+    CHECK(obj.n_params() == 58 + 6 + 9);
+    CHECK(obj.n_seen() == 12 * 3 - 1);
+    iwr::VectorXd x = random_x(obj.n_params(), rng, 0.3);
+    x.segment(58 + 3, 3) *= 0.1;  // the registration's rotation vector (rad)
+    const double err = jacobian_error(obj, x);
+    std::printf("points: Jacobian vs central differences, relative error %.2e\n", err);
+    CHECK(err < 1e-6);
+    // A large registration correction (45 degrees) exercises the left Jacobian of SO(3).
+    iwr::VectorXd x2 = x;
+    x2.segment(58 + 3, 3) << 0.5, -0.4, 0.3;
+    CHECK(jacobian_error(obj, x2) < 1e-6);
+    // cost == sum of squared residuals; a hidden reflector has zero residuals.
+    const iwr::VectorXd r = obj.residuals(x);
+    CHECK(std::abs(obj.cost(x) - r.squaredNorm()) <= 1e-12 * r.squaredNorm());
+    CHECK(r.segment(3 * (3 * 3 + 1), 3).isZero(0));
+}
+
+void test_probe_jacobian() {
+    std::mt19937_64 rng(8);
+    const iwr::Geometry g = iwr_geometry();
+    iwr::Vector6d reg, probe;
+    reg << -1500, 2000, 100, -M_PI / 2, 0.05, 0.1;
+    probe << 20, -10, 80, 0.3, -0.2, 0.1;
+    const iwr::TrackerSetup s = iwr::TrackerSetup::probe(reg, probe, 100.0);
+    const Data d = make_data(g, s, 8, rng);
+    iwr::Vector6d home;
+    home << 0, 0, 750, 0, 0, 0;
+    const iwr::TrackerObjective obj(g, s, d.q, d.legs, d.points, iwr::VectorXd::Zero(g.n_params()),
+                                    home);
+    CHECK(obj.n_params() == 58 + 12);
+    iwr::VectorXd x = random_x(obj.n_params(), rng, 0.3);
+    x.segment(58 + 9, 3) << 0.4, 0.2, -0.3;  // a large probe rotation correction
+    const double err = jacobian_error(obj, x);
+    std::printf("probe: Jacobian vs central differences, relative error %.2e\n", err);
+    CHECK(err < 1e-6);
+}
+
+void test_batch_and_failures() {
+    std::mt19937_64 rng(9);
+    const iwr::Geometry g = iwr_geometry();
+    iwr::Vector6d reg;
+    reg << 2000, 0, 0, M_PI / 2, 0, 0;
+    iwr::RowMatrixXd refl(2, 3);
+    refl << 100, 0, 30, -50, 90, 30;
+    const iwr::TrackerSetup s = iwr::TrackerSetup::points(reg, refl);
+    Data d = make_data(g, s, 40, rng);
+    iwr::Vector6d home;
+    home << 0, 0, 750, 0, 0, 0;
+    const iwr::TrackerObjective obj(g, s, d.q, d.legs, d.points, iwr::VectorXd::Zero(g.n_params()),
+                                    home);
+    const int m = 37;
+    iwr::RowMatrixXd X(m, obj.n_params());
+    for (int i = 0; i < m; ++i) X.row(i) = random_x(obj.n_params(), rng, 0.4).transpose();
+    iwr::VectorXd one(m), two(m), five(m);
+    iwr::ThreadPool p1(1), p2(2), p5(5);
+    obj.cost_batch(X.data(), m, one.data(), p1);
+    obj.cost_batch(X.data(), m, two.data(), p2);
+    obj.cost_batch(X.data(), m, five.data(), p5);
+    CHECK(one == two);
+    CHECK(one == five);
+    for (int i = 0; i < m; ++i) CHECK(one(i) == obj.cost(iwr::VectorXd(X.row(i).transpose())));
+    // Leg 1 made 2 m shorter: no pose can close (a negative length): a finite penalty per pose,
+    // named by failures().
+    const iwr::TrackerObjective& obj2 = obj;
+    iwr::VectorXd x = iwr::VectorXd::Zero(obj2.n_params());
+    x(g.idx_offset(0)) = -2000;
+    const auto f = obj2.failures(x);
+    CHECK(static_cast<int>(f.size()) == obj2.n_poses());
+    const double c = obj2.cost(x);
+    CHECK(std::isfinite(c));
+    CHECK(c >= f.size() * 2 * 3 * iwr::TrackerObjective::kFailedResidual *
+                   iwr::TrackerObjective::kFailedResidual);
+    if (!f.empty()) CHECK(f[0].second.find("pose " + std::to_string(f[0].first)) != std::string::npos);
+    iwr::VectorXd r;
+    iwr::RowMatrixXd jac;
+    obj2.jacobian(x, &r, &jac);
+    CHECK(r.allFinite() && jac.allFinite());
+    CHECK(jac.middleRows(3 * 2 * f[0].first, 6).isZero(0));
+}
+
+void test_validation() {
+    const iwr::Geometry g = iwr_geometry();
+    iwr::Vector6d reg = iwr::Vector6d::Zero(), home;
+    home << 0, 0, 750, 0, 0, 0;
+    bool thrown = false;
+    try {
+        iwr::TrackerSetup::points(reg, iwr::RowMatrixXd(0, 3));
+    } catch (const std::invalid_argument& e) {
+        thrown = std::string(e.what()).find("reflectors") != std::string::npos;
+    }
+    CHECK(thrown);
+    const iwr::TrackerSetup s = iwr::TrackerSetup::points(reg, iwr::RowMatrixXd::Zero(1, 3));
+    iwr::RowMatrixXd q = iwr::RowMatrixXd::Constant(2, 4, 100), legs = iwr::RowMatrixXd::Constant(2, 6, 150);
+    iwr::RowMatrixXd pts = iwr::RowMatrixXd::Zero(2, 3);
+    pts(1, 1) = std::numeric_limits<double>::quiet_NaN();  // one NaN of three
+    thrown = false;
+    try {
+        iwr::TrackerObjective(g, s, q, legs, pts, iwr::VectorXd::Zero(g.n_params()), home);
+    } catch (const std::invalid_argument& e) {
+        thrown = std::string(e.what()).find("pose 1, point 1") != std::string::npos;
+    }
+    CHECK(thrown);
+}
+
+}  // namespace
+
+int main() {
+    test_points_jacobian();
+    test_probe_jacobian();
+    test_batch_and_failures();
+    test_validation();
+    return iwr_test::finish("all tracker checks passed");
+}

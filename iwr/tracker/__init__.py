@@ -1,0 +1,37 @@
+"""Laser-tracker data: reflector points (or a 6-DOF probe) measured in the tracker's own frame,
+with the registration and the offsets identified beside the robot's errors (docs/tracker.md).
+
+    setup = TrackerSetup(registration=(2000, 0, 0, pi / 2, 0, 0), reflectors=[(100, 0, 30), ...])
+    data, truth = simulate_tracker(robot, setup, 100, seed=1, tracker_noise=TrackerNoise.leica())
+    guess = guess_registration(robot, setup, data)             # Kabsch: no registration needed
+    problem = TrackerProblem(robot, setup, data, center=guess.x_setup)
+    x0 = problem.x0(guess)
+"""
+
+from __future__ import annotations
+
+from .analysis import NullSpace, null_space, tool_frames, tool_pose_errors
+from .data import TrackerMeasurements
+from .problem import FAILED_RESIDUAL, TrackerProblem
+from .registration import RegistrationError, RegistrationGuess, guess_registration, kabsch
+from .setup import TrackerSetup, pose_from_matrix_safe
+from .simulate import TrackerNoise, simulate_tracker, true_points
+
+__all__ = [
+    "FAILED_RESIDUAL",
+    "NullSpace",
+    "RegistrationError",
+    "RegistrationGuess",
+    "TrackerMeasurements",
+    "TrackerNoise",
+    "TrackerProblem",
+    "TrackerSetup",
+    "guess_registration",
+    "kabsch",
+    "null_space",
+    "pose_from_matrix_safe",
+    "simulate_tracker",
+    "tool_frames",
+    "tool_pose_errors",
+    "true_points",
+]

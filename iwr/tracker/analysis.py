@@ -1,0 +1,164 @@
+"""What tracker data determine: the tool pose error modulo the gauge the data cannot see, and the
+null directions of the tracker problem."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+from scipy.linalg import qr
+
+from .. import _core
+from ..accuracy import PoseErrors
+from ..robot import Robot
+from ..transforms import pose_matrix
+from .problem import TrackerProblem
+from .registration import kabsch
+from .setup import TrackerSetup, pose_from_matrix_safe
+
+__all__ = ["tool_frames", "tool_pose_errors", "NullSpace", "null_space"]
+
+
+def _fk(robot: Robot, xr: np.ndarray, q: np.ndarray, legs: np.ndarray) -> np.ndarray:
+    return _core.forward_kinematics(robot._geometry, np.ascontiguousarray(xr, dtype=float),
+                                    np.ascontiguousarray(q, dtype=float),
+                                    np.ascontiguousarray(legs, dtype=float), np.zeros((0, 6)),
+                                    robot.home_pose)[0]
+
+
+def tool_frames(robot: Robot, setup: TrackerSetup, x: Any, q: Any, legs: Any,
+                gauge: bool = True) -> np.ndarray:
+    """4x4 transforms (N, 4, 4) of the platform, by forward kinematics of the readings ``q``,
+    ``legs`` with the full parameter vector ``x`` (robot then setup).
+
+    ``gauge=True`` (default): the platform frame as its six spherical joints fix it (the frame
+    in which the joints ``b_j(x)`` best match their nominal positions, by Kabsch), expressed in
+    the tracker frame {T}. Tracker data cannot tell {0} from a frame turned about and moved along
+    the first joint's axis, nor {5} from a frame rigidly moved on the platform (the registration
+    and the offsets absorb both: docs/tracker.md), so only this frame's pose is determined and
+    comparable between two parameter vectors. ``gauge=False``: {5} in {0}, as
+    :func:`iwr.forward_kinematics` gives it (gauge dependent for tracker data)."""
+    x = np.asarray(x, dtype=float)
+    nr = robot.n_params
+    poses = _fk(robot, x[:nr], np.asarray(q, dtype=float), np.asarray(legs, dtype=float))
+    t = pose_matrix(poses)
+    if not gauge:
+        return t
+    n = robot.n_joints
+    b = robot.platform_joints + x[4 * n + 18: 4 * n + 36].reshape(6, 3)
+    r, c = kabsch(robot.platform_joints, b)
+    k = np.eye(4)
+    k[:3, :3], k[:3, 3] = r, c
+    return setup.registration_matrix(x[nr:]) @ t @ k
+
+
+def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The one rigid transform D (4x4) that best maps the frames ``a @ D`` onto ``b`` (N, 4, 4):
+    the chordal mean of the rotations ``a_k^-1 b_k`` projected on SO(3), then the translation
+    that minimises the squared position differences of the frames' origins."""
+    rel = np.linalg.solve(a, b)
+    u, _, vt = np.linalg.svd(rel[:, :3, :3].mean(axis=0))
+    r = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
+    # origin of a_k D: pa_k + Ra_k t = pb_k  ->  least squares in t
+    ra = a[:, :3, :3]
+    t, *_ = np.linalg.lstsq(ra.reshape(-1, 3), (b[:, :3, 3] - a[:, :3, 3]).reshape(-1),
+                            rcond=None)
+    d = np.eye(4)
+    d[:3, :3], d[:3, 3] = r, t
+    return d
+
+
+def tool_pose_errors(robot: Robot, setup: TrackerSetup, x: Any, truth: Any, q: Any, legs: Any,
+                     *, tool: Any = None, gauge: str | None = "fit") -> PoseErrors:
+    """Tool pose errors (position mm, orientation degrees) of the model ``x`` against ``truth``
+    at readings ``q``, ``legs`` (fresh poses of the true robot), in the tracker frame {T}.
+
+    Tracker data determine the platform frame {5} only up to a rigid motion on the platform
+    (docs/tracker.md), so the platform frames of the two models are compared modulo that gauge:
+
+    - ``"fit"`` (default): the model's frame is moved on its platform by the one rigid transform
+      that best aligns it with the truth's over these poses (the chordal mean of the pose-wise
+      differences): what is left is the error no choice of tool frame removes;
+    - ``"joints"``: each model's frame as its six spherical joints fix it (:func:`tool_frames`);
+      exact for noise-free data, but the identified joints' own scatter then tilts it;
+    - ``None``: {5} in {0} as forward kinematics gives it, with no gauge removed (and no
+      registration: the registration's gauge stays in), for comparison.
+
+    ``tool``: a tool point in the compared frame (mm). ``poses`` of the result are the model's
+    compared frames as poses ({T}, or {0} for ``gauge=None``)."""
+    if gauge not in ("fit", "joints", None):
+        raise ValueError(f"gauge: {gauge!r}; expected 'fit', 'joints' or None")
+    a = tool_frames(robot, setup, x, q, legs, gauge is not None)
+    b = tool_frames(robot, setup, truth, q, legs, gauge is not None)
+    if gauge == "fit":
+        a = a @ _align(a, b)
+    p = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+    position = np.linalg.norm((a[:, :3, :3] - b[:, :3, :3]) @ p + a[:, :3, 3] - b[:, :3, 3], axis=1)
+    r = np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]
+    sin_axis = 0.5 * np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
+                               r[:, 1, 0] - r[:, 0, 1]], axis=1)
+    cos = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
+    angle = np.degrees(np.arctan2(np.linalg.norm(sin_axis, axis=1), cos))
+    return PoseErrors(position, angle, np.array([pose_from_matrix_safe(m) for m in a]))
+
+
+@dataclass(frozen=True)
+class NullSpace:
+    """The null directions of a tracker problem's column-scaled Jacobian.
+
+    ``vectors[:, k]`` (physical units) has coefficient 1 on ``left_out[k]`` and 0 on the other
+    left-out parameters; moving ``x`` along it leaves every residual unchanged to first order.
+    """
+
+    singular_values: np.ndarray
+    rank: int
+    threshold: float
+    parameter_names: list[str]
+    left_out: list[str]
+    vectors: np.ndarray
+    scale: np.ndarray = field(repr=False)
+
+    def describe(self, k: int, tol: float = 1e-6) -> str:
+        """``"tracker.rz = -1 * joint1.dtheta"``-style text of null direction k: its nonzero
+        components, largest scaled first."""
+        v = self.vectors[:, k]
+        scaled = np.abs(v * self.scale)
+        order = [int(i) for i in np.argsort(-scaled) if scaled[i] > tol * scaled.max()]
+        return " + ".join(f"{v[i]:+.4g} {self.parameter_names[i]}" for i in order)
+
+    def __str__(self) -> str:
+        lines = [f"rank {self.rank} of {len(self.parameter_names)} "
+                 f"({len(self.left_out)} null directions, threshold {self.threshold:.3g})"]
+        lines += [f"  {name}: {self.describe(k)}" for k, name in enumerate(self.left_out)]
+        return "\n".join(lines)
+
+
+def null_space(problem: TrackerProblem, x: Any = None, rtol: float | None = None) -> NullSpace:
+    """SVD of the column-scaled exact Jacobian (each column divided by its norm, as
+    :func:`iwr.identifiability`) at ``x`` (default zeros); the rank threshold is ``rtol`` times
+    the largest singular value, default ``max(shape) * eps``."""
+    x = np.zeros(problem.n_params) if x is None else np.asarray(x, dtype=float)
+    jac = problem.jacobian(x)
+    d = np.linalg.norm(jac, axis=0)
+    d = np.where(d > 0, d, 1.0)
+    _, s, vt = np.linalg.svd(jac / d, full_matrices=True)
+    rtol = max(jac.shape) * np.finfo(float).eps if rtol is None else float(rtol)
+    thr = rtol * s[0]
+    rank = int(np.sum(s > thr))
+    ns = vt[rank:].T / d[:, None]  # physical units
+    names = problem.parameter_names
+    if ns.shape[1] == 0:
+        return NullSpace(s, rank, thr, names, [], ns, d)
+    # One direction per left-out parameter: the best-conditioned rows of the scaled null basis.
+    _, _, piv = qr((vt[rank:]).copy(), pivoting=True, mode="economic")
+    out = np.sort(piv[: ns.shape[1]])
+    basis = ns @ np.linalg.solve(ns[out], np.eye(out.size))
+    basis[out] = np.eye(out.size)
+    return NullSpace(s, rank, thr, names, [names[i] for i in out], basis, d)
+
+
+def rms(values: Any) -> float:
+    v = np.asarray(values, dtype=float)
+    return float(math.sqrt(np.mean(v**2))) if v.size else 0.0

@@ -1,0 +1,150 @@
+"""Tracker measurements: the robot's joint and leg readings with reflector points or probe poses
+measured in the tracker frame {T}."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..transforms import euler_zyx
+from .setup import TrackerSetup
+
+__all__ = ["TrackerMeasurements"]
+
+
+def _matrix(value: Any, cols: int, name: str, rows: int | None = None,
+            allow_nan: bool = False) -> np.ndarray:
+    try:
+        arr = np.array(value, dtype=float)
+    except (TypeError, ValueError) as exc:
+        raise ValueError(f"{name}: cannot be read as numbers ({exc})") from None
+    if cols == 0 and arr.size == 0 and rows is not None:
+        arr = np.zeros((rows, 0))
+    if arr.ndim != 2 or arr.shape[1] != cols or (rows is not None and arr.shape[0] != rows):
+        raise ValueError(f"{name}: shape {arr.shape}; expected "
+                         f"({rows if rows is not None else 'N'}, {cols})")
+    bad = np.isinf(arr) if allow_nan else ~np.isfinite(arr)
+    if bad.any():
+        r, c = (int(i) for i in np.argwhere(bad)[0])
+        raise ValueError(f"{name}: row {r}, column {c} is {arr[r, c]}; every value must be finite")
+    return np.ascontiguousarray(arr)
+
+
+class TrackerMeasurements:
+    """A calibration data set measured with a laser tracker, N poses.
+
+    Parameters
+    ----------
+    q : array_like, shape (N, n_joints)
+        Carriage joint readings (mm, rad).
+    legs : array_like, shape (N, 6)
+        Leg sensor readings (mm).
+    points : array_like, shape (N, K, 3), optional
+        Reflector positions measured in the tracker frame {T} (mm); all three coordinates NaN
+        where a reflector was not seen at a pose. Reflector k is the setup's reflector k.
+    probe : array_like, shape (N, 6), optional
+        Instead of points: the probe frame's measured pose in {T}, ``(x, y, z, alpha, beta,
+        gamma)`` (mm; Z-Y-X Euler angles, rad).
+    joint_types : str, optional
+        ``"P"``/``"R"`` per joint, checked against the robot.
+    lines, source : optional
+        Where each pose comes from in a file (as :class:`iwr.Measurements`).
+    """
+
+    def __init__(self, q: Any, legs: Any, *, points: Any = None, probe: Any = None,
+                 joint_types: str | None = None, lines: Any = None,
+                 source: str | None = None) -> None:
+        if (points is None) == (probe is None):
+            raise ValueError("TrackerMeasurements: give either points (N, K, 3) or probe (N, 6)")
+        self.legs = _matrix(legs, 6, "legs")
+        n = self.legs.shape[0]
+        if n == 0:
+            raise ValueError("legs: no measurements (0 rows)")
+        q_arr = np.asarray(q, dtype=float)
+        nj = q_arr.shape[1] if q_arr.ndim == 2 else (len(joint_types) if joint_types else 0)
+        self.q = _matrix(q, nj, "q", rows=n)
+        if joint_types is not None and (len(joint_types) != nj
+                                        or any(c not in "PR" for c in joint_types)):
+            raise ValueError(f"joint_types: {joint_types!r} does not describe {nj} joints")
+        self.joint_types = joint_types
+        self.points: np.ndarray | None = None
+        self.probe: np.ndarray | None = None
+        if points is not None:
+            try:
+                pts = np.array(points, dtype=float)
+            except (TypeError, ValueError) as exc:
+                raise ValueError(f"points: cannot be read as numbers ({exc})") from None
+            if pts.ndim != 3 or pts.shape[0] != n or pts.shape[1] < 1 or pts.shape[2] != 3:
+                raise ValueError(f"points: shape {pts.shape}; expected ({n}, K, 3) with K >= 1")
+            nan = np.isnan(pts)
+            partial = nan.any(axis=2) & ~nan.all(axis=2)
+            if partial.any():
+                k, i = (int(v) for v in np.argwhere(partial)[0])
+                raise ValueError(f"points: pose {k}, reflector {i + 1} has some coordinates NaN "
+                                 "and some not; a reflector not seen has all three NaN")
+            if np.isinf(pts).any():
+                k, i, _ = (int(v) for v in np.argwhere(np.isinf(pts))[0])
+                raise ValueError(f"points: pose {k}, reflector {i + 1} is infinite")
+            self.kind = "points"
+            self.points = pts
+        else:
+            self.kind = "probe"
+            self.probe = _matrix(probe, 6, "probe", rows=n)
+        self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
+        self.source = None if source is None else str(source)
+
+    def __len__(self) -> int:
+        return int(self.legs.shape[0])
+
+    @property
+    def n_poses(self) -> int:
+        return len(self)
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.q.shape[1])
+
+    @property
+    def n_reflectors(self) -> int:
+        """K (1 for a probe)."""
+        return 1 if self.points is None else int(self.points.shape[1])
+
+    @property
+    def seen(self) -> np.ndarray:
+        """(N, K) bool: the reflectors seen at each pose (all True for a probe)."""
+        if self.points is None:
+            return np.ones((len(self), 1), dtype=bool)
+        return ~np.isnan(self.points[:, :, 0])
+
+    def where(self, k: int) -> str:
+        """Where pose ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
+        loc = f"pose {k}" if self.lines is None else f"line {int(self.lines[k])}"
+        return f"{self.source}, {loc}" if self.source and self.lines is not None else loc
+
+    def check_setup(self, setup: TrackerSetup) -> None:
+        """Raise ValueError unless these data are of ``setup``'s kind and number of reflectors."""
+        if setup.kind != self.kind:
+            raise ValueError(f"measurements: {self.kind} data, but the tracker setup measures "
+                             f"{setup.kind}")
+        if self.kind == "points" and self.n_reflectors != setup.n_reflectors:
+            raise ValueError(f"measurements: {self.n_reflectors} reflectors per pose, but the "
+                             f"tracker setup has {setup.n_reflectors}")
+
+    def tracker_points(self, setup: TrackerSetup) -> np.ndarray:
+        """The measured points as the objective takes them, (N, 3 n_points), NaN where unseen: the
+        reflectors, or the probe's four virtual points (origin, and ``setup.probe_length`` along
+        its three axes)."""
+        self.check_setup(setup)
+        if self.points is not None:
+            return np.ascontiguousarray(self.points.reshape(len(self), -1))
+        assert self.probe is not None
+        r = euler_zyx(self.probe[:, 3], self.probe[:, 4], self.probe[:, 5])
+        p = self.probe[:, :3]
+        virtual = np.concatenate([p[:, None, :], p[:, None, :] + setup.probe_length
+                                  * np.swapaxes(r, 1, 2)], axis=1)
+        return np.ascontiguousarray(virtual.reshape(len(self), -1))
+
+    def __repr__(self) -> str:
+        what = f"K={self.n_reflectors}" if self.kind == "points" else "probe"
+        return f"TrackerMeasurements(n_poses={len(self)}, {what})"

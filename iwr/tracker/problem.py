@@ -1,0 +1,228 @@
+"""The identification problem for tracker data: residuals in tracker space, in C++."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+from ..robot import Robot
+from .data import TrackerMeasurements
+from .setup import TrackerSetup
+
+__all__ = ["TrackerProblem", "FAILED_RESIDUAL"]
+
+#: The residual (mm) of every seen coordinate of a pose whose forward kinematics fails.
+FAILED_RESIDUAL = 1e3
+
+
+class TrackerProblem:
+    """The identification problem for reflector points or probe poses in the tracker frame.
+
+    The same surface as :class:`iwr.Problem` (``n_params``, ``parameter_names``, ``lower``,
+    ``upper``, ``cost``, ``residuals``, ``jacobian``, ``residuals_and_jacobian``,
+    ``cost_batch``), so every method runs on it through :class:`iwr.ReducedProblem`.
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot.
+    setup : TrackerSetup
+        The nominal measurement setup.
+    measurements : TrackerMeasurements
+    bounds : None or (lower, upper)
+        Search bounds of all ``n_params`` parameters; default the robot's default bounds, then
+        the setup's (:meth:`TrackerSetup.default_bounds`, about ``center``).
+    center : array_like, shape (setup.n_params,), optional
+        Centre of the setup's default bounds, for example the parameters of a registration
+        guess (:attr:`RegistrationGuess.x_setup`); default zeros (the nominal setup).
+    reference : array_like, shape (robot.n_params,), optional
+        The robot error vector at which forward kinematics is solved once per pose, from
+        ``robot.home_pose``; every evaluation starts its solve there. Default zeros.
+
+    Notes
+    -----
+    Residual ``3 (K k + i) + c`` (pose k, point i, coordinate c) is predicted minus measured, in
+    mm, in the tracker frame; K is the number of reflectors, or 4 for a probe (its origin and
+    three points ``probe_length`` along its axes). A point not seen has residuals 0. A pose whose
+    forward kinematics fails at ``x`` gets the finite residual ``FAILED_RESIDUAL`` (1000 mm) on
+    each seen coordinate and zero Jacobian rows, so every method sees a huge but finite cost;
+    :meth:`failures` names those poses and :meth:`check` raises on them.
+    """
+
+    def __init__(self, robot: Robot, setup: TrackerSetup, measurements: TrackerMeasurements,
+                 bounds: Any = None, *, center: Any = None, reference: Any = None) -> None:
+        if not isinstance(robot, Robot):
+            raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+        if not isinstance(setup, TrackerSetup):
+            raise TypeError(f"setup: expected an iwr.tracker.TrackerSetup, got "
+                            f"{type(setup).__name__}")
+        if not isinstance(measurements, TrackerMeasurements):
+            raise TypeError(f"measurements: expected an iwr.tracker.TrackerMeasurements, got "
+                            f"{type(measurements).__name__}")
+        if measurements.n_joints != robot.n_joints:
+            raise ValueError(f"measurements: {measurements.n_joints} joint readings per pose, "
+                             f"but robot {robot.name!r} has {robot.n_joints} joints")
+        jt = measurements.joint_types
+        if jt is not None and jt != robot.joint_types:
+            raise ValueError(f"measurements: joint types {jt!r} do not match robot "
+                             f"{robot.name!r}, {robot.joint_types!r}")
+        measurements.check_setup(setup)
+        self.robot = robot
+        self.setup = setup
+        self.measurements = measurements
+        n = robot.n_params + setup.n_params
+        if bounds is None:
+            lo_r, hi_r = robot.default_bounds()
+            lo_s, hi_s = setup.default_bounds()
+            c = np.zeros(setup.n_params) if center is None else np.asarray(center, dtype=float)
+            if c.shape != (setup.n_params,) or not np.all(np.isfinite(c)):
+                raise ValueError(f"center: expected {setup.n_params} finite values")
+            lower = np.concatenate([lo_r, lo_s + c])
+            upper = np.concatenate([hi_r, hi_s + c])
+        else:
+            try:
+                lower, upper = (np.broadcast_to(np.array(b, dtype=float), (n,)).copy()
+                                for b in bounds)
+            except (TypeError, ValueError):
+                raise ValueError(f"bounds: expected None or a pair (lower, upper) of {n} "
+                                 "values") from None
+        names = self.parameter_names
+        for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ValueError(f"bounds: parameter {i} ({names[i]}) has lower {lo}, upper "
+                                 f"{hi}; bounds must be finite with lower < upper")
+        self.lower, self.upper = lower, upper
+        ref = np.zeros(robot.n_params) if reference is None else np.asarray(reference, float)
+        if ref.shape != (robot.n_params,):
+            raise ValueError(f"reference: shape {ref.shape}; expected ({robot.n_params},)")
+        try:
+            self._objective = _core.TrackerObjective(
+                robot._geometry, setup.kind,
+                setup.registration,
+                setup.reflectors if setup.reflectors is not None else np.zeros((1, 3)),
+                setup.probe if setup.probe is not None else np.zeros(6),
+                setup.probe_length,
+                measurements.q, measurements.legs, measurements.tracker_points(setup),
+                np.ascontiguousarray(ref), robot.home_pose,
+            )
+        except _core.ForwardKinematicsError as exc:
+            # The reference solve (at `reference`, from the home pose) failed: name the data row.
+            k = getattr(exc, "pose", None)
+            where = measurements.where(k) if isinstance(k, int) else "a pose"
+            err = _core.ForwardKinematicsError(
+                f"{where}: the leg readings have no forward kinematics for the robot at the "
+                f"reference parameters ({exc})")
+            err.pose = k
+            raise err from None
+
+    # -- sizes and names ------------------------------------------------------------------------
+    @property
+    def n_params(self) -> int:
+        return self.robot.n_params + self.setup.n_params
+
+    @property
+    def n_robot_params(self) -> int:
+        """The robot's ``4 n + 42``; the setup's parameters follow."""
+        return self.robot.n_params
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.measurements)
+
+    @property
+    def n_residuals(self) -> int:
+        """``3 N n_points`` (unseen points included, as zeros)."""
+        return int(self._objective.n_residuals)
+
+    @property
+    def n_observations(self) -> int:
+        """Residuals that carry data: 3 per seen point."""
+        return 3 * int(self._objective.n_seen)
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return self.robot.parameter_names + self.setup.parameter_names
+
+    @property
+    def angle_parameters(self) -> np.ndarray:
+        return np.concatenate([self.robot.angle_parameters, self.setup.angle_parameters])
+
+    def x0(self, guess: Any = None) -> np.ndarray:
+        """A starting point: the nominal robot (zeros), the setup's parameters of a
+        :class:`RegistrationGuess` (or zeros: the nominal setup)."""
+        xs = np.zeros(self.setup.n_params) if guess is None else np.asarray(guess.x_setup, float)
+        if xs.shape != (self.setup.n_params,):
+            raise ValueError(f"guess: {xs.size} setup parameters; expected {self.setup.n_params}")
+        return np.concatenate([np.zeros(self.robot.n_params), xs])
+
+    def split(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``(x_robot, x_setup)``."""
+        arr = self._x(x)
+        return arr[: self.robot.n_params], arr[self.robot.n_params:]
+
+    def _x(self, x: Any) -> np.ndarray:
+        arr = np.ascontiguousarray(x, dtype=float)
+        if arr.shape != (self.n_params,):
+            raise ValueError(f"x: shape {arr.shape}; expected ({self.n_params},): the robot's "
+                             f"{self.robot.n_params} then the setup's {self.setup.n_params}")
+        return arr
+
+    # -- the objective --------------------------------------------------------------------------
+    def cost(self, x: Any) -> float:
+        """Sum of squared residuals (mm^2)."""
+        return float(self._objective.cost(self._x(x)))
+
+    def residuals(self, x: Any) -> np.ndarray:
+        """Predicted minus measured points in {T}, shape (n_residuals,), pose-major."""
+        return self._objective.residuals(self._x(x))
+
+    def jacobian(self, x: Any) -> np.ndarray:
+        """Exact Jacobian of :meth:`residuals` (implicit differentiation of the forward
+        kinematics), shape (n_residuals, n_params)."""
+        return self._objective.jacobian(self._x(x))[1]
+
+    def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        return self._objective.jacobian(self._x(x))
+
+    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
+        """Costs of the rows of ``X`` (M, n_params) across ``workers`` threads (``None``: all
+        cores), in C++; the result does not depend on the number of threads."""
+        arr = np.ascontiguousarray(X, dtype=float)
+        if arr.ndim != 2 or arr.shape[1] != self.n_params:
+            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
+        if workers is not None and workers < 1:
+            raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
+        return self._objective.cost_batch(arr, 0 if workers is None else int(workers))
+
+    # -- diagnostics ----------------------------------------------------------------------------
+    def failures(self, x: Any) -> list[tuple[int, str]]:
+        """Poses whose forward kinematics fails at ``x``: ``[(pose index, message)]``."""
+        return [(int(k), str(m)) for k, m in self._objective.failures(self._x(x))]
+
+    def check(self, x: Any) -> None:
+        """Raise :class:`iwr.ForwardKinematicsError` naming the first pose (and its line in the
+        data file) whose forward kinematics fails at ``x``, if any: a result whose cost holds a
+        penalty is not a calibration."""
+        bad = self.failures(x)
+        if bad:
+            k, msg = bad[0]
+            err = _core.ForwardKinematicsError(
+                f"{self.measurements.where(k)}: {msg} ({len(bad)} of {self.n_poses} poses fail "
+                "at this parameter vector; their residuals are the penalty "
+                f"{FAILED_RESIDUAL:g} mm)")
+            err.pose = k
+            raise err
+
+    def platform_poses(self, x: Any) -> np.ndarray:
+        """World poses of {5} (N, 6) by forward kinematics at ``x``; NaN rows where it fails."""
+        return self._objective.platform_poses(self._x(x))
+
+    def predicted_points(self, x: Any) -> np.ndarray:
+        """Predicted points in {T}, shape (N, n_points, 3); NaN rows where it fails."""
+        return self._objective.predicted_points(self._x(x)).reshape(self.n_poses, -1, 3)
+
+    def __repr__(self) -> str:
+        return (f"TrackerProblem(robot={self.robot.name!r}, kind={self.setup.kind!r}, "
+                f"n_poses={self.n_poses}, n_params={self.n_params})")

@@ -1,0 +1,365 @@
+"""Laser-tracker data (issue 13): the setup, the objective and its exact Jacobian, the registration
+guess, the noise model, the null directions, and recovery of the robot from point data."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr.identify import METHODS, ReducedProblem, levenberg_marquardt
+from iwr.simulate import sample_poses
+from iwr.tracker import (
+    FAILED_RESIDUAL,
+    RegistrationError,
+    TrackerMeasurements,
+    TrackerNoise,
+    TrackerProblem,
+    TrackerSetup,
+    guess_registration,
+    kabsch,
+    null_space,
+    simulate_tracker,
+    tool_pose_errors,
+    true_points,
+)
+from iwr.transforms import pose_matrix
+
+REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
+# 2 m from the robot's origin and turned 90 degrees.
+REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
+
+
+def truth_vector(robot: iwr.Robot, setup: TrackerSetup, seed: int) -> np.ndarray:
+    """Robot errors drawn as iwr.simulate draws them; the registration 5 mm and 1 degree off the
+    nominal; each reflector 1 mm off (or the probe 1 mm and 1 degree)."""
+    rng = np.random.default_rng(seed)
+    lo, hi = robot.default_bounds()
+    xr = lo + (hi - lo) * rng.random(robot.n_params)
+
+    def unit(n: int) -> np.ndarray:
+        v = rng.standard_normal((n, 3))
+        return v / np.linalg.norm(v, axis=1, keepdims=True)
+
+    reg = np.concatenate([5.0 * unit(1)[0], math.radians(1.0) * unit(1)[0]])
+    if setup.kind == "points":
+        offsets = unit(setup.n_reflectors).ravel()
+    else:
+        offsets = np.concatenate([unit(1)[0], math.radians(1.0) * unit(1)[0]])
+    return np.concatenate([xr, reg, offsets])
+
+
+@pytest.fixture(scope="module")
+def robot() -> iwr.Robot:
+    return iwr.Robot.default()
+
+
+def points_setup(k: int = 3) -> TrackerSetup:
+    return TrackerSetup(REGISTRATION, reflectors=REFLECTORS[:k])
+
+
+# -- setup ----------------------------------------------------------------------------------------
+
+def test_setup_names_order_and_toml_round_trip(robot):
+    s = points_setup()
+    assert s.n_params == 15
+    assert s.parameter_names[:6] == ["tracker.x", "tracker.y", "tracker.z", "tracker.rx",
+                                     "tracker.ry", "tracker.rz"]
+    assert s.parameter_names[6:9] == ["reflector1.x", "reflector1.y", "reflector1.z"]
+    assert s.parameter_names[-1] == "reflector3.z"
+    tomli_w = pytest.importorskip("tomli_w")
+    import tomllib
+
+    back = TrackerSetup.from_dict(tomllib.loads(tomli_w.dumps({"tracker": s.to_dict()}))["tracker"])
+    assert back == s
+    p = TrackerSetup(REGISTRATION, probe=(10, 0, 50, 0.1, 0, 0), probe_length=80)
+    assert p.parameter_names[6:] == ["probe.x", "probe.y", "probe.z", "probe.rx", "probe.ry",
+                                     "probe.rz"]
+    assert TrackerSetup.from_dict(p.to_dict()) == p
+    data = simulate_tracker(robot, s, 3, seed=0)[0]
+    names = TrackerProblem(robot, s, data).parameter_names
+    assert names == robot.parameter_names + s.parameter_names
+
+
+def test_setup_rejects_bad_input():
+    with pytest.raises(ValueError, match="either reflectors"):
+        TrackerSetup(REGISTRATION)
+    with pytest.raises(ValueError, match=r"reflectors: shape \(3,\)"):
+        TrackerSetup(REGISTRATION, reflectors=[1, 2, 3])
+    with pytest.raises(ValueError, match=r"tracker: unknown key\(s\) reflector"):
+        TrackerSetup.from_dict({"registration": list(REGISTRATION), "reflector": [[0, 0, 0]]})
+    with pytest.raises(ValueError, match="tracker.registration: missing"):
+        TrackerSetup.from_dict({"reflectors": [[0, 0, 0]]})
+    with pytest.raises(ValueError, match="registration: entry 2 is not finite"):
+        TrackerSetup((0, 0, math.nan, 0, 0, 0), reflectors=[(0, 0, 0)])
+
+
+def test_correction_is_right_multiplied_in_world_frame():
+    s = points_setup()
+    xs = np.zeros(s.n_params)
+    xs[:3] = (1.0, 2.0, 3.0)
+    xs[5] = 0.01  # about z of {0}
+    t = s.registration_matrix(xs)
+    c = np.eye(4)
+    c[:3, :3] = iwr.transforms.rotvec_matrix(np.array([0, 0, 0.01]))
+    c[:3, 3] = (1.0, 2.0, 3.0)
+    np.testing.assert_allclose(t, pose_matrix(np.array(REGISTRATION)) @ c, atol=1e-12)
+    np.testing.assert_allclose(s.correction_for(t)[:6], xs[:6], atol=1e-12)
+
+
+# -- the objective --------------------------------------------------------------------------------
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_residuals_match_a_numpy_prediction_and_the_jacobian_central_differences(robot, kind):
+    if kind == "points":
+        setup = points_setup()
+    else:
+        setup = TrackerSetup((-1500, 2000, 100, -math.pi / 2, 0.05, 0.1),
+                             probe=(20, -10, 80, 0.3, -0.2, 0.1), probe_length=100)
+    truth = truth_vector(robot, setup, 3)
+    data, _ = simulate_tracker(robot, setup, 8, seed=3, x=truth, hidden=0.0)
+    problem = TrackerProblem(robot, setup, data)
+    # Noise-free data: zero residuals at the truth, to rounding.
+    assert np.max(np.abs(problem.residuals(truth))) < 1e-9
+    # The C++ prediction against NumPy's (true_points) at another x, through the true poses.
+    rng = np.random.default_rng(5)
+    x = truth + 0.2 * rng.uniform(-1, 1, truth.size) * np.where(problem.angle_parameters, 0.01, 1)
+    poses = problem.platform_poses(x)
+    np.testing.assert_allclose(problem.predicted_points(x), true_points(robot, setup, x, poses),
+                               atol=1e-9)
+    r, jac = problem.residuals_and_jacobian(x)
+    fd = np.empty_like(jac)
+    for i in range(x.size):
+        h = 1e-6
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        fd[:, i] = (problem.residuals(xp) - problem.residuals(xm)) / (2 * h)
+    assert np.max(np.abs(fd - jac)) < 1e-6 * np.max(np.abs(jac))
+    assert problem.cost(x) == pytest.approx(float(r @ r), rel=1e-12)
+
+
+def test_hidden_reflectors_have_zero_residuals(robot):
+    setup = points_setup()
+    data, truth = simulate_tracker(robot, setup, 30, seed=4, hidden=0.5)
+    seen = data.seen
+    assert 5 < np.count_nonzero(~seen) < 25 and np.all(seen.sum(axis=1) >= 2)
+    problem = TrackerProblem(robot, setup, data)
+    r = problem.residuals(np.zeros(problem.n_params)).reshape(30, 3, 3)
+    assert np.all(r[~seen] == 0) and np.all(np.abs(r[seen]).sum(axis=1) > 0)
+    assert problem.n_observations == 3 * int(seen.sum())
+
+
+def test_cost_batch_is_thread_independent_and_equals_cost(robot):
+    setup = points_setup()
+    data, truth = simulate_tracker(robot, setup, 40, seed=6)
+    problem = TrackerProblem(robot, setup, data)
+    rng = np.random.default_rng(1)
+    lo, hi = problem.lower, problem.upper
+    X = lo + (hi - lo) * rng.random((23, problem.n_params))
+    one = problem.cost_batch(X, workers=1)
+    assert np.array_equal(one, problem.cost_batch(X, workers=2))
+    assert np.array_equal(one, problem.cost_batch(X, workers=5))
+    assert np.array_equal(one, [problem.cost(x) for x in X])
+
+
+def test_failed_forward_kinematics_is_a_finite_penalty_and_named(robot):
+    setup = points_setup()
+    data, _ = simulate_tracker(robot, setup, 5, seed=7)
+    problem = TrackerProblem(robot, setup, data)
+    x = np.zeros(problem.n_params)
+    x[problem.parameter_names.index("leg1.dl0")] = -2000.0  # no leg can be that short
+    assert [k for k, _ in problem.failures(x)] == list(range(5))
+    assert problem.cost(x) == pytest.approx(5 * 9 * FAILED_RESIDUAL**2)
+    r, jac = problem.residuals_and_jacobian(x)
+    assert np.all(np.isfinite(r)) and not jac.any()
+    with pytest.raises(iwr.ForwardKinematicsError, match="pose 0") as info:
+        problem.check(x)
+    assert info.value.pose == 0
+    problem.check(np.zeros(problem.n_params))  # nothing fails there
+    # Readings no pose can produce, at the reference solve: named at construction.
+    legs = data.legs.copy()
+    legs[3, 0] -= 500.0
+    bad = TrackerMeasurements(data.q, legs, points=data.points, source="run.csv", lines=range(2, 7))
+    with pytest.raises(iwr.ForwardKinematicsError, match="run.csv, line 5: the leg") as info:
+        TrackerProblem(robot, setup, bad)
+    assert info.value.pose == 3
+
+
+def test_problem_rejects_mismatched_data(robot):
+    setup = points_setup()
+    data, _ = simulate_tracker(robot, points_setup(2), 3, seed=0)
+    with pytest.raises(ValueError, match="2 reflectors per pose, but the tracker setup has 3"):
+        TrackerProblem(robot, setup, data)
+    with pytest.raises(ValueError, match="pose 1, reflector 2 has some coordinates NaN"):
+        pts = np.zeros((2, 3, 3))
+        pts[1, 1, 0] = np.nan
+        TrackerMeasurements(np.zeros((2, 4)), np.zeros((2, 6)), points=pts)
+    with pytest.raises(ValueError, match="x: shape"):
+        data3 = simulate_tracker(robot, setup, 3, seed=0)[0]
+        TrackerProblem(robot, setup, data3).cost(np.zeros(58))
+
+
+# -- the registration guess -----------------------------------------------------------------------
+
+def test_kabsch_recovers_a_rotation_and_never_a_reflection():
+    rng = np.random.default_rng(0)
+    a = rng.normal(size=(10, 3)) * 100
+    r = iwr.transforms.rotvec_matrix(np.array([0.3, -1.2, 2.0]))
+    rr, t = kabsch(a, a @ r.T + (5, 6, 7))
+    np.testing.assert_allclose(rr, r, atol=1e-12)
+    np.testing.assert_allclose(t, (5, 6, 7), atol=1e-9)
+    mirrored = a * (1, 1, -1)  # the best orthogonal map is a reflection: still a rotation back
+    rr, _ = kabsch(a, mirrored)
+    assert np.linalg.det(rr) == pytest.approx(1.0)
+
+
+def test_registration_guess_from_the_nominal_model(robot):
+    setup = points_setup()
+    truth = truth_vector(robot, setup, 2)
+    data, _ = simulate_tracker(robot, setup, 50, seed=2, x=truth)
+    g = guess_registration(robot, setup, data)
+    t_true = setup.registration_matrix(truth[robot.n_params:])
+    # The nominal robot's poses are millimetres off, so is the guess (and part of the difference
+    # is the gauge: a shift of the robot's base that the registration absorbs), but it fits the
+    # data far better than the nominal registration, 5 mm and 1 degree off at 2 m.
+    assert 0.01 < g.rms < 20.0
+    np.testing.assert_allclose(setup.registration_matrix(g.x_setup), g.matrix, atol=1e-9)
+    problem = TrackerProblem(robot, setup, data)
+    at_guess = np.concatenate([np.zeros(robot.n_params), g.x_setup])
+    assert problem.cost(at_guess) < 0.05 * problem.cost(np.zeros(problem.n_params))
+    assert problem.cost(at_guess) == pytest.approx(g.rms**2 * g.n_points, rel=1e-9)
+    # With the true robot and offsets the guess is exact.
+    exact = guess_registration(robot, TrackerSetup(REGISTRATION, reflectors=np.array(REFLECTORS)
+                                                   + truth[-9:].reshape(3, 3)),
+                               data, truth[: robot.n_params])
+    assert exact.rms < 1e-9
+    np.testing.assert_allclose(exact.matrix, t_true, atol=1e-8)
+
+
+def test_registration_guess_refuses_a_model_too_poor(robot):
+    setup = points_setup()
+    data, _ = simulate_tracker(robot, setup, 20, seed=3)
+    # Reflectors 2 and 3 swapped in the description: no rigid motion fits.
+    swapped = TrackerSetup(REGISTRATION, reflectors=[REFLECTORS[0], REFLECTORS[2], REFLECTORS[1]])
+    with pytest.raises(RegistrationError, match=r"RMS of .* mm .* > max_rms = 20 mm"):
+        guess_registration(robot, swapped, data)
+    assert guess_registration(robot, swapped, data, max_rms=1e3).rms > 20.0
+    one = TrackerSetup(REGISTRATION, reflectors=[(0.0, 0.0, 40.0)])
+    data1, _ = simulate_tracker(robot, one, 2, seed=3)
+    with pytest.raises(RegistrationError, match="2 usable points"):
+        guess_registration(robot, one, data1)
+
+
+# -- noise ----------------------------------------------------------------------------------------
+
+def test_tracker_noise_is_long_across_the_line_of_sight():
+    noise = TrackerNoise.leica()
+    p = np.tile([0.0, 3000.0, 0.0], (20000, 1))  # 3 m along y
+    e = noise.perturb(p, np.random.default_rng(0)) - p
+    sr, st = noise.sigmas(3000.0)
+    assert sr == pytest.approx(0.005 + 0.00045) and st == pytest.approx(0.0075 + 0.009)
+    assert np.std(e[:, 1]) == pytest.approx(sr, rel=0.03)
+    assert np.std(e[:, 0]) == pytest.approx(st, rel=0.03)
+    assert np.std(e[:, 2]) == pytest.approx(st, rel=0.03)
+
+
+# -- recovery of the robot from point data --------------------------------------------------------
+
+@pytest.mark.parametrize("hidden", [0.0, 0.2])
+def test_lm_from_the_nominal_model_and_the_registration_guess_recovers_the_tool_pose(robot, hidden):
+    setup = points_setup()
+    truth = truth_vector(robot, setup, 1)
+    data, _ = simulate_tracker(robot, setup, 100, seed=1, x=truth, hidden=hidden)
+    if hidden:
+        assert 10 < np.count_nonzero(~data.seen) < 30
+    g = guess_registration(robot, setup, data)
+    problem = TrackerProblem(robot, setup, data, center=g.x_setup)
+    x0 = problem.x0(g)
+    np.testing.assert_array_equal(x0[robot.n_params:], g.x_setup)
+    res = levenberg_marquardt(problem, x0=x0, active=np.ones(problem.n_params, dtype=bool))
+    assert res["success"], res["message"]
+    problem.check(res["x"])
+    q, _, legs = sample_poses(robot, 50, np.random.default_rng(99), truth[: robot.n_params])
+    before = tool_pose_errors(robot, setup, x0, truth, q, legs)
+    after = tool_pose_errors(robot, setup, res["x"], truth, q, legs)
+    assert before.position.max() > 0.1  # the nominal model is millimetres off
+    assert after.position.max() < 1e-6
+    assert math.radians(after.orientation.max()) < 1e-9
+    # The gauge is real: {5} in {0} by forward kinematics differs by what the data cannot see.
+    joints = tool_pose_errors(robot, setup, res["x"], truth, q, legs, gauge="joints")
+    assert joints.position.max() < 1e-6 and math.radians(joints.orientation.max()) < 1e-9
+    raw = tool_pose_errors(robot, setup, res["x"], truth, q, legs, gauge=None)
+    assert raw.position.max() > 1e-3
+
+
+def test_every_method_runs_on_the_tracker_problem(robot):
+    setup = points_setup(2)
+    data, truth = simulate_tracker(robot, setup, 20, seed=8)
+    problem = TrackerProblem(robot, setup, data)
+    active = np.ones(problem.n_params, dtype=bool)
+    x0 = np.zeros(problem.n_params)
+    c0 = problem.cost(x0)
+    for method in ("crs2", "bobyqa"):
+        res = METHODS[method](problem, x0=x0, active=active, seed=1, callback=None,
+                                           progress=False, max_evaluations=300)
+        assert res["fun"] < c0 and res["nfev"] <= 300
+    reduced = ReducedProblem(problem, active, x0)
+    box = np.column_stack([reduced.lower, reduced.upper])
+    de = iwr.differential_evolution(reduced.cost_batch, box, population_size=20, generations=5,
+                                    seed=1, workers=2)
+    assert np.isfinite(de["fun"]) and de["fun"] == pytest.approx(reduced.cost(de["x"]))
+
+
+# -- identifiability ------------------------------------------------------------------------------
+
+def test_null_directions_of_point_data(robot):
+    setup = points_setup()
+    data, truth = simulate_tracker(robot, setup, 60, seed=5)
+    ns = null_space(TrackerProblem(robot, setup, data))  # at x = 0: an exact correction
+    legs_only = iwr.identifiability(robot, iwr.simulate(robot, 60, seed=5)[0])
+    # The leg data's 6, the registration's 4 (every translation: joint 1 and 2 slide, and
+    # joint 1's a; a turn about joint 1's axis),
+    # and the platform frame's 6 (a rigid motion of {5} with the joints b_j and the reflectors).
+    assert len(legs_only.null_directions) == 6
+    assert ns.rank == ns.vectors.shape[0] - 16
+    assert ns.singular_values[ns.rank - 1] > 1e6 * ns.singular_values[ns.rank]
+    names = ns.parameter_names
+    v = np.zeros(len(names))
+    v[names.index("tracker.rz")], v[names.index("joint1.dtheta")] = 1.0, -1.0
+    w = np.zeros(len(names))
+    w[names.index("tracker.z")], w[names.index("joint1.dd")] = 1.0, -1.0
+    for u in (v, w):  # in the null space: its projection on the basis reproduces it
+        coef, *_ = np.linalg.lstsq(ns.vectors, u, rcond=None)
+        np.testing.assert_allclose(ns.vectors @ coef, u, atol=1e-6)
+
+
+def test_a_pose_gives_the_same_bits_whatever_its_neighbours_in_a_block(robot):
+    # The chord iterations run 8 poses at a time; a converged lane takes zero steps, so a pose's
+    # residuals must not depend on which poses share its block.
+    setup = points_setup()
+    data, truth = simulate_tracker(robot, setup, 21, seed=9)
+    order = np.random.default_rng(0).permutation(21)
+    shuffled = TrackerMeasurements(data.q[order], data.legs[order], points=data.points[order])
+    x = truth + np.concatenate([0.3 * np.ones(robot.n_params), np.zeros(setup.n_params)]) * \
+        np.where(np.concatenate([robot.angle_parameters, setup.angle_parameters]), 0.01, 1.0)
+    a = TrackerProblem(robot, setup, data).residuals(x).reshape(21, -1)
+    b = TrackerProblem(robot, setup, shuffled).residuals(x).reshape(21, -1)
+    assert np.array_equal(a[order], b)
+
+
+def test_lm_recovers_the_tool_pose_from_noise_free_probe_poses(robot):
+    setup = TrackerSetup(REGISTRATION, probe=(10.0, -20.0, 60.0, 0.2, -0.1, 0.3))
+    truth = truth_vector(robot, setup, 4)
+    data, _ = simulate_tracker(robot, setup, 60, seed=4, x=truth)
+    g = guess_registration(robot, setup, data)
+    problem = TrackerProblem(robot, setup, data, center=g.x_setup)
+    x0 = np.concatenate([np.zeros(robot.n_params), g.x_setup])
+    res = levenberg_marquardt(problem, x0=x0, active=np.ones(problem.n_params, dtype=bool))
+    assert res["success"], res["message"]
+    q, _, legs = sample_poses(robot, 50, np.random.default_rng(98), truth[: robot.n_params])
+    after = tool_pose_errors(robot, setup, res["x"], truth, q, legs)
+    assert after.position.max() < 1e-6
+    assert math.radians(after.orientation.max()) < 1e-9
