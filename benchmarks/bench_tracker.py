@@ -51,7 +51,8 @@ def per_eval_us(fn, X: np.ndarray, reps: int) -> float:
 
 
 def accuracy_table(seed: int) -> None:
-    from iwr.identify import levenberg_marquardt
+    from iwr.methods import ReducedProblem
+    from iwr.methods.lm import levenberg_marquardt
     from iwr.simulate import sample_poses
     from iwr.tracker import TrackerNoise, guess_registration, tool_pose_errors
 
@@ -77,7 +78,8 @@ def accuracy_table(seed: int) -> None:
                 g = guess_registration(robot, setup, m)
                 problem = TrackerProblem(robot, setup, m, center=g.x_setup)
                 x0 = np.concatenate([np.zeros(robot.n_params), g.x_setup])
-            res = levenberg_marquardt(problem, x0=x0, active=np.ones(problem.n_params, bool))
+            res = levenberg_marquardt(
+                ReducedProblem(problem, np.ones(problem.n_params, bool), x0), progress=False)
             q, poses, legs = sample_poses(robot, 50, np.random.default_rng(seed + 1000),
                                           truth[: robot.n_params])
             out = []

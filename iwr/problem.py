@@ -114,6 +114,11 @@ class Problem:
         return len(self.measurements)
 
     @property
+    def n_residuals(self) -> int:
+        """Six leg readings per pose."""
+        return 6 * self.n_poses
+
+    @property
     def parameter_names(self) -> list[str]:
         return self.robot.parameter_names
 

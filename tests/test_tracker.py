@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import iwr
-from iwr.identify import METHODS, ReducedProblem, levenberg_marquardt
+from iwr.methods import METHODS, ReducedProblem
+from iwr.methods.lm import levenberg_marquardt
 from iwr.simulate import sample_poses
 from iwr.tracker import (
     FAILED_RESIDUAL,
@@ -279,7 +280,8 @@ def test_lm_from_the_nominal_model_and_the_registration_guess_recovers_the_tool_
     problem = TrackerProblem(robot, setup, data, center=g.x_setup)
     x0 = problem.x0(g)
     np.testing.assert_array_equal(x0[robot.n_params:], g.x_setup)
-    res = levenberg_marquardt(problem, x0=x0, active=np.ones(problem.n_params, dtype=bool))
+    res = levenberg_marquardt(ReducedProblem(problem, np.ones(problem.n_params, dtype=bool), x0),
+                              progress=False)
     assert res["success"], res["message"]
     problem.check(res["x"])
     q, _, legs = sample_poses(robot, 50, np.random.default_rng(99), truth[: robot.n_params])
@@ -303,8 +305,8 @@ def test_every_method_runs_on_the_tracker_problem(robot):
     x0 = np.zeros(problem.n_params)
     c0 = problem.cost(x0)
     for method in ("crs2", "bobyqa"):
-        res = METHODS[method](problem, x0=x0, active=active, seed=1, callback=None,
-                                           progress=False, max_evaluations=300)
+        res = METHODS[method](ReducedProblem(problem, active, x0), seed=1, callback=None,
+                              progress=False, max_evaluations=300)
         assert res["fun"] < c0 and res["nfev"] <= 300
     reduced = ReducedProblem(problem, active, x0)
     box = np.column_stack([reduced.lower, reduced.upper])
@@ -357,7 +359,8 @@ def test_lm_recovers_the_tool_pose_from_noise_free_probe_poses(robot):
     g = guess_registration(robot, setup, data)
     problem = TrackerProblem(robot, setup, data, center=g.x_setup)
     x0 = np.concatenate([np.zeros(robot.n_params), g.x_setup])
-    res = levenberg_marquardt(problem, x0=x0, active=np.ones(problem.n_params, dtype=bool))
+    res = levenberg_marquardt(ReducedProblem(problem, np.ones(problem.n_params, dtype=bool), x0),
+                              progress=False)
     assert res["success"], res["message"]
     q, _, legs = sample_poses(robot, 50, np.random.default_rng(98), truth[: robot.n_params])
     after = tool_pose_errors(robot, setup, res["x"], truth, q, legs)

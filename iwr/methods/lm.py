@@ -135,7 +135,7 @@ def levenberg_marquardt(
             f"regularization: {regularization!r}; expected 'auto' or a finite number >= 0"
         )
     reduced = problem
-    n_res = 6 * reduced.problem.n_poses
+    n_res = reduced.problem.n_residuals
     if not auto and regularization == 0 and n_res <= reduced.n:
         raise ValueError(
             f"method 'lm': {n_res} residuals for {reduced.n} parameters; MINPACK's LM needs "
