@@ -26,6 +26,8 @@ from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 PROG = "iwr-calibrate"
 ENGINE = "iwr-engine"
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
@@ -38,6 +40,7 @@ _ENGINE_VALUED = {
     "--checkpoint-every", "--resume",
 }
 _OWN_VALUED = {"--bounds", "--output", "--problem", "--export"}
+_FLAGS = {"--quiet", "-q", "--help", "-h", "--version"}
 
 HELP = """\
 usage: iwr-calibrate ROBOT.toml DATA.csv [--bounds B] [--output RESULT] [--problem PATH] [options]
@@ -128,6 +131,9 @@ def _split(argv: Sequence[str]) -> tuple[list[str], dict[str, str], list[str], s
             else:
                 engine += [name, value]
             continue
+        if name not in _FLAGS:
+            raise _Usage(f"unknown option '{name}'" + (" (the options are --F and --CR)"
+                                                        if name in ("--f", "--cr") else ""))
         flags.add(name)
         engine.append(a)
     return positional, own, engine, flags
@@ -152,6 +158,26 @@ def _export(checkpoint: str, problem: str | None, output: str) -> None:
     from .problem_file import engine_result
 
     engine_result(checkpoint, problem).save(output)
+
+
+def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: str) -> None:
+    """When resuming, the problem file already there is the run's record: refuse to replace it by
+    another problem (the engine would refuse the run anyway, after the record was lost)."""
+    from . import _core
+    from .problem_file import encode_problem, read_problem
+
+    if not Path(path).exists():
+        return
+    old = read_problem(path)
+    new = _core._decode_problem(encode_problem(problem), "")
+    differ = [k for k in old if k != "sources" and not k.endswith("_fingerprint")
+              and not np.array_equal(old[k], new[k])]
+    if differ:
+        made_from = ", ".join(p for _, p, _ in old["sources"]) or "unknown files"
+        raise ValueError(
+            f"{path}: the problem of the run being resumed (made from {made_from}) differs from "
+            f"{robot_path} {data_path} in {', '.join(differ)}; resume with the files the run was "
+            "made from, or give --problem NEW.iwrp")
 
 
 def _run_engine(engine: str, args: list[str]) -> int:
@@ -296,6 +322,8 @@ def _main(argv: list[str]) -> int:
         robot = Robot.from_toml(robot_path)
         data = Measurements.from_csv(data_path, robot=robot)  # the checks of `iwr calibrate`
         problem = Problem(robot, data, bounds=own.get("--bounds", "default"))
+        if resume is not None:
+            _keep_the_run_problem(problem, problem_path, robot_path, data_path)
         problem.save(problem_path, sources={"robot": robot_path, "data": data_path})
 
     pass_checkpoint = [] if _option(engine_args, "--checkpoint") else ["--checkpoint", checkpoint]

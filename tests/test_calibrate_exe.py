@@ -542,6 +542,7 @@ def test_engine_usage_errors(files: dict[str, Path], args: tuple[str, ...], need
         (("{problem}", "--bounds", "paper"), "--bounds: the bounds of a problem file"),
         (("{robot}", "{data}", "--resume", "run.state"), "give --output"),
         (("--export", "x.ckpt"), "--output"),
+        (("{robot}", "{data}", "--populaton-size", "50"), "unknown option '--populaton-size'"),
     ],
 )
 def test_launcher_usage_errors(files: dict[str, Path], args: tuple[str, ...],
@@ -599,3 +600,21 @@ def test_launcher_lock_is_visible_to_flock(files: dict[str, Path], tmp_path: Pat
     assert proc.returncode == 1 and "in use by another iwr-engine process" in proc.stderr
     proc = run_engine(files["problem"], "--checkpoint", ckpt, "--generations", 2, "--quiet")
     assert proc.returncode == 0, proc.stderr
+
+
+def test_launcher_resume_keeps_the_run_problem(files: dict[str, Path], tmp_path: Path) -> None:
+    """Resuming with other data is refused before the run's problem file is replaced."""
+    run = run_cal(files["robot"], files["data"], "--population-size", NP, "--generations", 3,
+                  "--output", tmp_path / "k.json", "--quiet")
+    assert run.returncode == 0, run.stderr
+    before = (tmp_path / "k.json.iwrp").read_bytes()
+    proc = run_cal(files["robot"], files["other"], "--resume", tmp_path / "k.json.ckpt")
+    assert proc.returncode == 1
+    msg = one_line_error(proc, "iwr-calibrate")
+    assert "k.json.iwrp: the problem of the run being resumed" in msg and "legs" in msg, msg
+    assert (tmp_path / "k.json.iwrp").read_bytes() == before
+    # The same files again: accepted (the problem file rewritten identically).
+    proc = run_cal(files["robot"], files["data"], "--resume", tmp_path / "k.json.ckpt",
+                   "--generations", 5, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert iwr.load_result(tmp_path / "k.json").nit == 5

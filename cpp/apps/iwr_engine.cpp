@@ -724,9 +724,13 @@ int run(const Options& o) {
         if (c.robot_fingerprint != info.robot_fp)
             throw InputError(path + ": made for another robot (problem " + c.problem_file + "); the geometry in " +
                              problem_path + " differs");
-        if (c.data_fingerprint != info.data_fp)
+        if (c.data_fingerprint != info.data_fp) {
+            std::string from;
+            for (const auto& src : problem.sources)
+                if (src.role == "data") from = " (from " + src.path + ")";
             throw InputError(path + ": made for other data (problem " + c.problem_file + "); the measurements in " +
-                             problem_path + " differ");
+                             problem_path + from + " differ");
+        }
         if (settings_fingerprint(c.state.settings) != c.settings_fingerprint)
             throw InputError(path + ": corrupt: the settings fingerprint does not match the engine state");
         if (c.state.dim() != problem.n_params())

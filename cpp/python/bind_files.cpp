@@ -7,6 +7,8 @@
 
 namespace iwr::python {
 
+py::dict problem_dict(const ProblemData& p);
+
 void bind_files(py::module_& m) {
     // A malformed file: a ValueError (bad input), and a RuntimeError as before for the DE state.
     static py::object format_error = py::reinterpret_steal<py::object>(PyErr_NewExceptionWithDoc(
@@ -73,35 +75,45 @@ void bind_files(py::module_& m) {
                 py::gil_scoped_release release;
                 p = read_problem(path);
             }
-            py::dict d;
-            d["robot_name"] = p.robot_name;
-            d["joint_types"] = p.joint_types;
-            d["dh"] = p.dh;
-            d["joint_limits"] = p.joint_limits;
-            d["base_joints"] = RowMatrixXd(p.base);
-            d["platform_joints"] = RowMatrixXd(p.platform);
-            d["leg_offsets"] = VectorXd(p.leg_offsets);
-            d["leg_stroke"] = RowMatrixXd(p.leg_stroke);
-            d["home_pose"] = VectorXd(p.home_pose);
-            d["workspace"] = VectorXd(p.workspace);
-            d["measurement_joint_types"] =
-                p.has_measurement_joint_types ? py::cast(p.measurement_joint_types) : py::none();
-            d["q"] = p.q;
-            d["poses"] = p.poses;
-            d["legs"] = p.legs;
-            d["weights"] = p.weights.size() ? py::cast(p.weights) : py::none();
-            d["lower"] = p.lower;
-            d["upper"] = p.upper;
-            d["bounds_kind"] = p.bounds_kind;
-            d["parameter_names"] = p.parameter_names;
-            py::list sources;
-            for (const auto& s : p.sources) sources.append(py::make_tuple(s.role, s.path, s.sha256));
-            d["sources"] = sources;
-            d["robot_fingerprint"] = io::hex64(p.robot_fingerprint());
-            d["data_fingerprint"] = io::hex64(p.data_fingerprint());
-            return d;
+            return problem_dict(p);
         },
         py::arg("path"));
+    m.def(
+        "_decode_problem",
+        [](const py::bytes& data, const std::string& context) {
+            return problem_dict(decode_problem(std::string(data), context));
+        },
+        py::arg("data"), py::arg("context"));
+}
+
+py::dict problem_dict(const ProblemData& p) {
+    py::dict d;
+    d["robot_name"] = p.robot_name;
+    d["joint_types"] = p.joint_types;
+    d["dh"] = p.dh;
+    d["joint_limits"] = p.joint_limits;
+    d["base_joints"] = RowMatrixXd(p.base);
+    d["platform_joints"] = RowMatrixXd(p.platform);
+    d["leg_offsets"] = VectorXd(p.leg_offsets);
+    d["leg_stroke"] = RowMatrixXd(p.leg_stroke);
+    d["home_pose"] = VectorXd(p.home_pose);
+    d["workspace"] = VectorXd(p.workspace);
+    d["measurement_joint_types"] =
+        p.has_measurement_joint_types ? py::cast(p.measurement_joint_types) : py::none();
+    d["q"] = p.q;
+    d["poses"] = p.poses;
+    d["legs"] = p.legs;
+    d["weights"] = p.weights.size() ? py::cast(p.weights) : py::none();
+    d["lower"] = p.lower;
+    d["upper"] = p.upper;
+    d["bounds_kind"] = p.bounds_kind;
+    d["parameter_names"] = p.parameter_names;
+    py::list sources;
+    for (const auto& s : p.sources) sources.append(py::make_tuple(s.role, s.path, s.sha256));
+    d["sources"] = sources;
+    d["robot_fingerprint"] = io::hex64(p.robot_fingerprint());
+    d["data_fingerprint"] = io::hex64(p.data_fingerprint());
+    return d;
 }
 
 }  // namespace iwr::python
