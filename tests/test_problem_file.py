@@ -183,7 +183,12 @@ def test_a_thread_the_system_refuses_is_an_error_not_a_hang(problem: iwr.Problem
 
 
 def test_worker_counts_are_capped(problem: iwr.Problem) -> None:
+    """No hang and no exhaustion of process ids: thousands of threads are refused up front, in
+    cost_batch as in identify (the same pool)."""
     cap = max(16, 4 * len(os.sched_getaffinity(0)))
-    with pytest.raises(ValueError, match=f"threads: 2000; at most {cap}"):
+    with pytest.raises(ValueError, match=f"2000 threads asked for; at most {cap}"):
         problem.cost_batch(np.zeros((4, 58)), workers=2000)
     assert problem.cost_batch(np.zeros((4, 58)), workers=cap).shape == (4,)
+    with pytest.raises(ValueError, match="2000 threads asked for"):
+        iwr.identify(problem.robot, problem.measurements, method="de", workers=2000,
+                     generations=2, population_size=20, seed=1, progress=False)

@@ -72,7 +72,7 @@ bool ThreadPool::usable_here() const { return owner_pid_ == static_cast<long>(::
 ThreadPool::ThreadPool(int threads) : owner_pid_(static_cast<long>(::getpid())) {
     const int n = resolve(threads);
     if (n > max_threads())
-        throw std::invalid_argument("threads: " + std::to_string(n) + "; at most " +
+        throw std::invalid_argument(std::to_string(n) + " threads asked for; at most " +
                                     std::to_string(max_threads()) + " (" + std::to_string(kThreadsPerCpu) +
                                     " per CPU this process may use, at least " +
                                     std::to_string(kMinMaxThreads) + ")");
