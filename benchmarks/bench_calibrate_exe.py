@@ -1,8 +1,9 @@
-"""Throughput of the iwr-calibrate executable: objective evaluations per second of DE.
+"""Throughput of the iwr-engine executable (behind iwr-calibrate): evaluations per second of DE.
 
-Runs ``iwr-calibrate`` on a simulated IWR data set (no noise) for a few hundred generations at each
-thread count and prints a table. The rate is ``nfev / wall_time`` from the result file, where
-``wall_time`` is the engine's time (initialisation and generations), not the file writing.
+Runs ``iwr-engine`` on the problem file of a simulated IWR data set (no noise) for a few hundred
+generations at each thread count and prints a table. The rate is ``nfev / wall_time`` from the
+final checkpoint, where ``wall_time`` is the engine's time (initialisation and generations), not
+the file writing.
 
 Usage: python benchmarks/bench_calibrate_exe.py [--poses 100] [--population-size 600]
                                                  [--generations 300] [--threads 1 2]
@@ -19,15 +20,16 @@ import tempfile
 from pathlib import Path
 
 import iwr
+from iwr.problem_file import engine_result
 
 
 def find_exe() -> str:
-    exe = shutil.which("iwr-calibrate")
+    exe = shutil.which("iwr-engine")
     if exe is None:
-        cand = Path(sys.executable).parent / "iwr-calibrate"
+        cand = Path(sys.executable).parent / "iwr-engine"
         exe = str(cand) if cand.exists() else None
     if exe is None:
-        sys.exit("iwr-calibrate is not installed (pip install .)")
+        sys.exit("iwr-engine is not installed (pip install .)")
     return exe
 
 
@@ -42,22 +44,21 @@ def main() -> None:
     with tempfile.TemporaryDirectory() as tmp:
         d = Path(tmp)
         robot = iwr.Robot.default()
-        robot.to_toml(d / "robot.toml")
         data, _ = iwr.simulate(robot, args.poses, seed=1)
-        data.to_csv(d / "data.csv")
-        print(f"iwr-calibrate, rand1bin, N = {args.poses} poses, NP = {args.population_size}, "
+        iwr.Problem(robot, data).save(d / "run.iwrp")
+        print(f"iwr-engine, rand1bin, N = {args.poses} poses, NP = {args.population_size}, "
               f"{args.generations} generations; {os.cpu_count()} CPUs, load average "
               f"{os.getloadavg()[0]:.1f}")
         print(f"{'threads':>8} {'evaluations':>12} {'seconds':>9} {'evals/s':>10} {'us/eval':>8}")
         for t in args.threads:
-            out = d / f"r{t}.json"
+            out = d / f"r{t}.ckpt"
             subprocess.run(
-                [exe, str(d / "robot.toml"), str(d / "data.csv"), "--population-size",
-                 str(args.population_size), "--generations", str(args.generations), "--threads",
-                 str(t), "--output", str(out), "--checkpoint-every", "0", "--quiet"],
+                [exe, str(d / "run.iwrp"), "--population-size", str(args.population_size),
+                 "--generations", str(args.generations), "--threads", str(t), "--checkpoint",
+                 str(out), "--checkpoint-every", "0", "--quiet"],
                 check=True,
             )
-            r = iwr.load_result(out)
+            r = engine_result(out)
             rate = r.nfev / r.wall_time
             print(f"{t:>8} {r.nfev:>12} {r.wall_time:>9.2f} {rate:>10.0f} {1e6 / rate:>8.2f}")
 

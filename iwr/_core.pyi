@@ -5,7 +5,7 @@ import numpy
 import numpy.typing
 import typing
 _bench: typing.Any  # benchmark-only submodule
-__all__: list[str] = ['ForwardKinematicsError', 'Geometry', 'Objective', 'carriage_transform', 'de_function', 'de_objective', 'de_resolve', 'dh_transform', 'euler_zyx', 'forward_kinematics', 'hexapod_leg_lengths', 'predict_legs', 'TrackerObjective', 'rotvec_matrix', 'so3_left_jacobian']
+__all__: list[str] = ['FormatError', 'ForwardKinematicsError', 'Geometry', 'Objective', 'TrackerObjective', 'carriage_transform', 'de_function', 'de_objective', 'de_resolve', 'dh_transform', 'euler_zyx', 'forward_kinematics', 'hexapod_leg_lengths', 'predict_legs', 'rotvec_matrix', 'so3_left_jacobian']
 class Geometry:
     def __init__(self, joint_types: str, dh: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], base: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 3]"], platform: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 3]"], leg_offsets: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"]) -> None:
         ...
@@ -75,6 +75,16 @@ class TrackerObjective:
         ...
 class ForwardKinematicsError(RuntimeError):
     pass
+class FormatError(ValueError, RuntimeError):
+    """A malformed, truncated or foreign binary file (problem, checkpoint, DE state)."""
+def _encode_problem(robot_name: str, joint_types: str, dh: typing.Any, joint_limits: typing.Any, base: typing.Any, platform: typing.Any, leg_offsets: typing.Any, leg_stroke: typing.Any, home_pose: typing.Any, workspace: typing.Any, measurement_joint_types: str | None, q: typing.Any, poses: typing.Any, legs: typing.Any, weights: typing.Any, lower: collections.abc.Sequence[float], upper: collections.abc.Sequence[float], bounds_kind: str, parameter_names: collections.abc.Sequence[str], sources: collections.abc.Sequence[tuple[str, str, str]]) -> bytes:
+    ...
+def _read_problem(path: str) -> dict:
+    ...
+def _decode_problem(data: bytes, context: str) -> dict:
+    ...
+def _read_checkpoint(path: str) -> dict:
+    ...
 def _active_kernel() -> str:
     ...
 def _select_kernel(name: str) -> None:

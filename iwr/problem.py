@@ -157,3 +157,23 @@ class Problem:
     def __repr__(self) -> str:
         return (f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, "
                 f"n_params={self.n_params})")
+
+    def save(self, path: Any, *, sources: dict[str, Any] | None = None) -> None:
+        """Write the problem file that ``iwr-engine`` runs from, atomically.
+
+        A versioned, checksummed binary file (``docs/iwr-calibrate.md``) with the robot, the
+        measurements and weights, the bounds and the parameter names; ``sources`` maps a role
+        (``"robot"``, ``"data"``) to the file it came from, recorded with its SHA-256.
+        :meth:`load` reads it back.
+        """
+        from .problem_file import save_problem
+
+        save_problem(self, path, sources)
+
+    @classmethod
+    def load(cls, path: Any) -> Problem:
+        """Read a problem file written by :meth:`save` (``iwr._core.FormatError``, a ValueError
+        naming the file and field, if it is malformed, truncated or of another version)."""
+        from .problem_file import load_problem
+
+        return load_problem(path)

@@ -12,6 +12,8 @@
 #include <sstream>
 
 #include "common.hpp"
+#include "iwr/binary_io.hpp"
+#include "iwr/checkpoint.hpp"
 #include "iwr/de.hpp"
 
 namespace iwr::python {
@@ -334,6 +336,46 @@ void bind_de(py::module_& m) {
         py::arg("stagnation_generations"), py::arg("stagnation_tol"), py::arg("max_seconds"),
         py::arg("threads"), py::arg("monitor"), py::arg("every_generation"), py::arg("interval"),
         py::arg("resume"), py::arg("return_state"));
+
+    // The engine's checkpoint (and result) for iwr.problem_file.engine_result: the one reader of
+    // iwr/checkpoint.hpp, so Python refuses exactly what the engine refuses.
+    m.def(
+        "_read_checkpoint",
+        [](const std::string& path) {
+            Checkpoint c;
+            {
+                py::gil_scoped_release release;
+                c = read_checkpoint(path);
+            }
+            de::RunResult r;
+            r.success = c.success;
+            r.message = c.message;
+            Session session;
+            py::dict d = result_dict(c.state, r, session, false);
+            d["x"] = VectorXd(Eigen::Map<const VectorXd>(c.x.data(), static_cast<Eigen::Index>(c.x.size())));
+            d["fun"] = c.fun;
+            d["success"] = c.success;
+            d["message"] = c.message;
+            d["reason"] = py::none();
+            d["program"] = c.program;
+            d["robot_fingerprint"] = io::hex64(c.robot_fingerprint);
+            d["data_fingerprint"] = io::hex64(c.data_fingerprint);
+            d["settings_fingerprint"] = io::hex64(c.settings_fingerprint);
+            d["problem_file"] = c.problem_file;
+            d["generations"] = c.generations ? py::cast(*c.generations) : py::none();
+            d["max_evaluations"] = c.max_evaluations ? py::cast(*c.max_evaluations) : py::none();
+            d["target_cost"] = c.target_cost ? py::cast(*c.target_cost) : py::none();
+            d["checkpoint_every"] = c.checkpoint_every;
+            d["preset"] = c.preset_paper ? py::cast("paper") : py::none();
+            d["resumed_from"] = c.resumed_from.empty() ? py::none() : py::cast(c.resumed_from);
+            d["lower"] = VectorXd(Eigen::Map<const VectorXd>(c.state.settings.lower.data(),
+                                                             static_cast<Eigen::Index>(c.state.settings.lower.size())));
+            d["upper"] = VectorXd(Eigen::Map<const VectorXd>(c.state.settings.upper.data(),
+                                                             static_cast<Eigen::Index>(c.state.settings.upper.size())));
+            d["wall_time"] = c.state.elapsed;
+            return d;
+        },
+        py::arg("path"));
 }
 
 }  // namespace iwr::python

@@ -17,7 +17,15 @@ public:
 
     ThreadPool& pool(int threads) {
         const int n = ThreadPool::resolve(threads);
-        if (!pool_ || pool_->size() != n) pool_ = std::make_unique<ThreadPool>(n);
+        if (pool_ && !pool_->usable_here()) {
+            // Made before a fork(): its threads do not exist in this child, and destroying it could
+            // wait on them; leave it (a few bytes) and make a new pool here.
+            (void)pool_.release();
+        }
+        if (!pool_ || pool_->size() != n) {
+            pool_.reset();
+            pool_ = std::make_unique<ThreadPool>(n);
+        }
         return *pool_;
     }
     std::shared_ptr<Objective> obj_;

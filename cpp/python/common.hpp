@@ -21,4 +21,5 @@ void bind_forward(py::module_& m);
 void bind_de(py::module_& m);
 void bind_bench(py::module_& m);
 void bind_tracker(py::module_& m);
+void bind_files(py::module_& m);
 }  // namespace iwr::python

@@ -2,6 +2,7 @@
 
 PYBIND11_MODULE(_core, m) {
     m.doc() = "iwr's compiled core. Private: use the public API of the iwr package.";
+    iwr::python::bind_files(m);
     iwr::python::bind_model(m);
     iwr::python::bind_forward(m);
     iwr::python::bind_de(m);

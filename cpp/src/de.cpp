@@ -1,6 +1,8 @@
 // Differential evolution engine; see iwr/de.hpp for the API, the strategies and their references.
 #include "iwr/de.hpp"
 
+#include "iwr/binary_io.hpp"
+
 #include <algorithm>
 #include <chrono>
 #include <cmath>
@@ -728,12 +730,32 @@ int State::best_index() const {
     return b;
 }
 
+double memory_estimate(const Settings& s) {
+    const double np = s.population_size, d = s.dim(), a = std::max(0.0, s.archive_rate);
+    // Rows of D doubles per individual: its row, its trial, its archive share; and, while a
+    // checkpoint is written, three more copies of the row and archive (the state's payload, the
+    // sealed state, the checkpoint's payload and seal overlapping two at a time, plus one).
+    // Per individual also: its random stream (32 bytes, copied likewise), cost, trial cost, F/CR.
+    const double rows = 2.0 + a + 3.0 * (1.0 + a);
+    return np * (rows * d * 8.0 + 4 * 32.0 + 8 * 8.0);
+}
+
+void require_memory(const Settings& s, std::uint64_t available) {
+    const double need = memory_estimate(s);
+    if (available > 0 && need > static_cast<double>(available))
+        throw std::invalid_argument("population_size: " + str(s.population_size) + " individuals of " +
+                                    str(s.dim()) + " parameters need about " + io::human_bytes(need) +
+                                    " of memory (population, trials, archive, checkpoint); " +
+                                    io::human_bytes(static_cast<double>(available)) + " are available");
+}
+
 State init(const Settings& settings, BatchFunction& f, ThreadPool& pool) {
     const auto t0 = Clock::now();
     State st;
     st.settings = resolve(settings);
     check_dim(st, f);
     const Settings& s = st.settings;
+    require_memory(s, io::available_memory());
     const int np = s.population_size;
     const int d = s.dim();
     st.np = np;
@@ -945,100 +967,21 @@ namespace {
 
 constexpr char kMagic[8] = {'I', 'W', 'R', 'D', 'E', 'S', 'T', '\n'};
 
-std::uint64_t fnv1a(const char* p, std::size_t n) {
-    std::uint64_t h = 0xcbf29ce484222325ULL;
-    for (std::size_t i = 0; i < n; ++i) {
-        h ^= static_cast<unsigned char>(p[i]);
-        h *= 0x100000001b3ULL;
-    }
-    return h;
-}
-
-class Writer {
-public:
-    std::string buf;
-    void u8(std::uint8_t v) { buf.push_back(static_cast<char>(v)); }
-    void u64(std::uint64_t v) {
-        for (int b = 0; b < 8; ++b) buf.push_back(static_cast<char>((v >> (8 * b)) & 0xff));
-    }
-    void u32(std::uint32_t v) {
-        for (int b = 0; b < 4; ++b) buf.push_back(static_cast<char>((v >> (8 * b)) & 0xff));
-    }
-    void i64(std::int64_t v) { u64(static_cast<std::uint64_t>(v)); }
-    void f64(double v) {
-        std::uint64_t bits;
-        std::memcpy(&bits, &v, sizeof bits);
-        u64(bits);
-    }
-    void f64s(const double* p, std::size_t n) {
-        u64(n);
-        for (std::size_t i = 0; i < n; ++i) f64(p[i]);
-    }
-    void f64s(const std::vector<double>& v) { f64s(v.data(), v.size()); }
-};
+using io::Reader;
+using io::Writer;
 
 [[noreturn]] void corrupt(const std::string& what) {
-    throw std::runtime_error("DE state: " + what);
+    throw io::FormatError("DE state: " + what);
 }
 
-class Reader {
-public:
-    Reader(const std::string& b, std::size_t end) : buf_(b), end_(end) {}
-    std::size_t pos() const { return pos_; }
-    void need(std::size_t n, const char* what) {
-        if (n > end_ - pos_) corrupt(std::string("truncated while reading ") + what);
-    }
-    std::uint8_t u8(const char* what) {
-        need(1, what);
-        return static_cast<std::uint8_t>(buf_[pos_++]);
-    }
-    std::uint64_t u64(const char* what) {
-        need(8, what);
-        std::uint64_t v = 0;
-        for (int b = 0; b < 8; ++b)
-            v |= static_cast<std::uint64_t>(static_cast<unsigned char>(buf_[pos_ + static_cast<std::size_t>(b)])) << (8 * b);
-        pos_ += 8;
-        return v;
-    }
-    std::uint32_t u32(const char* what) {
-        need(4, what);
-        std::uint32_t v = 0;
-        for (int b = 0; b < 4; ++b)
-            v |= static_cast<std::uint32_t>(static_cast<unsigned char>(buf_[pos_ + static_cast<std::size_t>(b)])) << (8 * b);
-        pos_ += 4;
-        return v;
-    }
-    std::int64_t i64(const char* what) { return static_cast<std::int64_t>(u64(what)); }
-    int i32(const char* what) {
-        const std::int64_t v = i64(what);
-        if (v < std::numeric_limits<int>::min() || v > std::numeric_limits<int>::max())
-            corrupt(std::string(what) + " out of range");
-        return static_cast<int>(v);
-    }
-    double f64(const char* what) {
-        const std::uint64_t bits = u64(what);
-        double v;
-        std::memcpy(&v, &bits, sizeof v);
-        return v;
-    }
-    std::vector<double> f64s(const char* what) {
-        const std::uint64_t n = u64(what);
-        if (n > (end_ - pos_) / 8) corrupt(std::string("truncated or corrupt length of ") + what);
-        std::vector<double> v(static_cast<std::size_t>(n));
-        for (auto& x : v) x = f64(what);
-        return v;
-    }
-
-private:
-    const std::string& buf_;
-    std::size_t end_;
-    std::size_t pos_ = 0;
-};
+int i32(Reader& r, const char* what) {
+    return static_cast<int>(r.i64_in(what, std::numeric_limits<int>::min(), std::numeric_limits<int>::max()));
+}
 
 void write_settings(Writer& w, const Settings& s) {
     w.u8(static_cast<std::uint8_t>(s.strategy));
-    w.f64s(s.lower);
-    w.f64s(s.upper);
+    w.doubles(s.lower);
+    w.doubles(s.upper);
     w.u64(s.seed);
     w.i64(s.population_size);
     w.f64(s.F);
@@ -1061,10 +1004,10 @@ Settings read_settings(Reader& r) {
     const std::uint8_t st = r.u8("strategy");
     if (st >= kStrategyCount) corrupt("unknown strategy code " + str(int(st)));
     s.strategy = static_cast<Strategy>(st);
-    s.lower = r.f64s("lower bounds");
-    s.upper = r.f64s("upper bounds");
+    s.lower = r.doubles("lower bounds");
+    s.upper = r.doubles("upper bounds");
     s.seed = r.u64("seed");
-    s.population_size = r.i32("population size");
+    s.population_size = i32(r, "population size");
     s.F = r.f64("F");
     s.CR = r.f64("CR");
     const std::uint8_t br = r.u8("bound rule");
@@ -1073,38 +1016,38 @@ Settings read_settings(Reader& r) {
     s.p_best = r.f64("p_best");
     s.c = r.f64("c");
     s.archive_rate = r.f64("archive_rate");
-    s.memory_size = r.i32("memory_size");
+    s.memory_size = i32(r, "memory_size");
     s.tau1 = r.f64("tau1");
     s.tau2 = r.f64("tau2");
     s.F_lower = r.f64("F_lower");
     s.F_upper = r.f64("F_upper");
-    s.min_population_size = r.i32("min_population_size");
+    s.min_population_size = i32(r, "min_population_size");
     s.max_evaluations = r.i64("max_evaluations");
     return s;
 }
 
 }  // namespace
 
-void State::serialize(std::ostream& out) const {
+std::string State::to_bytes() const {
     Writer w;
-    w.buf.append(kMagic, sizeof kMagic);
-    w.u32(kFormatVersion);
+    w.data().reserve(256 + 8 * static_cast<std::size_t>(population.size() + archive.size() + 8 * np) +
+                     48 * log.size());
     write_settings(w, settings);
     w.i64(np);
-    w.f64s(population.data(), static_cast<std::size_t>(population.size()));
-    w.f64s(costs.data(), static_cast<std::size_t>(costs.size()));
+    w.doubles(population.data(), static_cast<std::size_t>(population.size()));
+    w.doubles(costs.data(), static_cast<std::size_t>(costs.size()));
     w.u64(streams.size());
     for (const Rng& r : streams)
         for (std::uint64_t v : r.s) w.u64(v);
-    w.f64s(ind_F);
-    w.f64s(ind_CR);
+    w.doubles(ind_F);
+    w.doubles(ind_CR);
     w.f64(mu_F);
     w.f64(mu_CR);
-    w.f64s(mem_F);
-    w.f64s(mem_CR);
+    w.doubles(mem_F);
+    w.doubles(mem_CR);
     w.i64(mem_pos);
     w.i64(archive_count);
-    w.f64s(archive);
+    w.doubles(archive);
     w.i64(generation);
     w.i64(nfev);
     w.f64(elapsed);
@@ -1117,33 +1060,24 @@ void State::serialize(std::ostream& out) const {
         w.f64(e.spread);
         w.f64(e.elapsed);
     }
-    w.u64(fnv1a(w.buf.data(), w.buf.size()));
-    out.write(w.buf.data(), static_cast<std::streamsize>(w.buf.size()));
+    return io::seal(kMagic, kFormatVersion, w.data());
+}
+
+void State::serialize(std::ostream& out) const {
+    const std::string bytes = to_bytes();
+    out.write(bytes.data(), static_cast<std::streamsize>(bytes.size()));
     if (!out) throw std::runtime_error("DE state: write failed");
 }
 
 State State::deserialize(std::istream& in) {
     std::string buf((std::istreambuf_iterator<char>(in)), std::istreambuf_iterator<char>());
     if (in.bad()) corrupt("read failed");
-    if (buf.size() < sizeof kMagic + 4 + 8) corrupt("truncated (" + str(buf.size()) + " bytes)");
-    if (std::memcmp(buf.data(), kMagic, sizeof kMagic) != 0) corrupt("not a DE state (bad magic)");
-    const std::size_t body = buf.size() - 8;
-    auto le = [&](std::size_t at, int bytes) {
-        std::uint64_t v = 0;
-        for (int b = 0; b < bytes; ++b)
-            v |= static_cast<std::uint64_t>(static_cast<unsigned char>(buf[at + static_cast<std::size_t>(b)]))
-                 << (8 * b);
-        return v;
-    };
-    // The version is checked before the checksum, so that another format gets a clear message.
-    const std::uint64_t version = le(sizeof kMagic, 4);
-    if (version != kFormatVersion)
-        corrupt("format version " + str(version) + "; this build reads version " + str(kFormatVersion));
-    if (fnv1a(buf.data(), body) != le(body, 8)) corrupt("checksum mismatch (truncated or corrupted)");
-    Reader r(buf, body);
-    r.need(sizeof kMagic, "magic");
-    for (std::size_t i = 0; i < sizeof kMagic; ++i) r.u8("magic");
-    r.u32("version");
+    return from_bytes(buf);
+}
+
+State State::from_bytes(const std::string& bytes) {
+    const std::string payload = io::unseal(bytes, kMagic, kFormatVersion, "DE state: ", "a DE state");
+    Reader r(payload.data(), payload.size(), "DE state: ");
     State st;
     const Settings raw = read_settings(r);
     try {
@@ -1154,11 +1088,11 @@ State State::deserialize(std::istream& in) {
     if (st.settings != raw) corrupt("settings are not in resolved form");
     const Settings& s = st.settings;
     const std::size_t d = static_cast<std::size_t>(s.dim());
-    st.np = r.i32("population size");
+    st.np = i32(r, "population size");
     if (st.np < min_population_size(s.strategy) || st.np > s.population_size)
         corrupt("current population size " + str(st.np) + " out of range");
     const std::size_t np = static_cast<std::size_t>(st.np);
-    const std::vector<double> pop = r.f64s("population");
+    const std::vector<double> pop = r.doubles("population");
     if (pop.size() != np * d) corrupt("population has the wrong size");
     st.population = Eigen::Map<const RowMatrixXd>(pop.data(), st.np, static_cast<Eigen::Index>(d));
     for (std::size_t i = 0; i < np; ++i)
@@ -1166,21 +1100,21 @@ State State::deserialize(std::istream& in) {
             const double v = pop[i * d + j];
             if (!(v >= s.lower[j] && v <= s.upper[j])) corrupt("population outside the bounds");
         }
-    const std::vector<double> c = r.f64s("costs");
+    const std::vector<double> c = r.doubles("costs");
     if (c.size() != np) corrupt("costs have the wrong size");
     for (double v : c)
         if (std::isnan(v)) corrupt("NaN cost");
     st.costs = Eigen::Map<const VectorXd>(c.data(), st.np);
     const std::uint64_t ns = r.u64("stream count");
     if (ns != static_cast<std::uint64_t>(s.population_size) + 1) corrupt("wrong number of random streams");
-    r.need(static_cast<std::size_t>(ns) * 32, "random streams");
+    if (ns > r.remaining() / 32) corrupt("truncated while reading the random streams");
     st.streams.resize(static_cast<std::size_t>(ns));
     for (Rng& g : st.streams) {
         for (std::uint64_t& v : g.s) v = r.u64("random stream");
         if ((g.s[0] | g.s[1] | g.s[2] | g.s[3]) == 0) corrupt("zero random stream state");
     }
-    st.ind_F = r.f64s("jDE F");
-    st.ind_CR = r.f64s("jDE CR");
+    st.ind_F = r.doubles("jDE F");
+    st.ind_CR = r.doubles("jDE CR");
     const std::size_t n_ind = s.strategy == Strategy::jde ? np : 0;
     if (st.ind_F.size() != n_ind || st.ind_CR.size() != n_ind) corrupt("jDE parameters have the wrong size");
     for (std::size_t i = 0; i < n_ind; ++i)
@@ -1190,18 +1124,18 @@ State State::deserialize(std::istream& in) {
     st.mu_CR = r.f64("mu_CR");
     if (s.strategy == Strategy::jade && !(st.mu_F > 0 && st.mu_F <= 1 && st.mu_CR >= 0 && st.mu_CR <= 1))
         corrupt("JADE means out of range");
-    st.mem_F = r.f64s("memory F");
-    st.mem_CR = r.f64s("memory CR");
+    st.mem_F = r.doubles("memory F");
+    st.mem_CR = r.doubles("memory CR");
     const std::size_t h = static_cast<std::size_t>(s.memory_size);
     if (st.mem_F.size() != h || st.mem_CR.size() != h) corrupt("memories have the wrong size");
     for (std::size_t k = 0; k < h; ++k)
         if (!(st.mem_F[k] >= 0 && st.mem_F[k] <= 1 && st.mem_CR[k] <= 1 && (st.mem_CR[k] >= 0 || st.mem_CR[k] == -1)))
             corrupt("memory values out of range");
-    st.mem_pos = r.i32("memory position");
+    st.mem_pos = i32(r, "memory position");
     if (st.mem_pos < 0 || (h > 0 ? st.mem_pos >= s.memory_size : st.mem_pos != 0))
         corrupt("memory position out of range");
-    st.archive_count = r.i32("archive count");
-    st.archive = r.f64s("archive");
+    st.archive_count = i32(r, "archive count");
+    st.archive = r.doubles("archive");
     if (st.archive_count < 0 || st.archive.size() != static_cast<std::size_t>(st.archive_count) * d ||
         st.archive_count > archive_capacity(st))
         corrupt("archive has the wrong size");
@@ -1215,7 +1149,7 @@ State State::deserialize(std::istream& in) {
     const std::uint64_t nlog = r.u64("log length");
     if (nlog != static_cast<std::uint64_t>(st.generation) + 1)
         corrupt("log length does not match the generation");
-    if (nlog > (body - r.pos()) / 48) corrupt("truncated while reading the log");
+    if (nlog > r.remaining() / 48) corrupt("truncated while reading the log");
     st.log.resize(static_cast<std::size_t>(nlog));
     for (LogEntry& e : st.log) {
         e.generation = r.i64("log");
@@ -1225,7 +1159,7 @@ State State::deserialize(std::istream& in) {
         e.spread = r.f64("log");
         e.elapsed = r.f64("log");
     }
-    if (r.pos() != body) corrupt("unexpected bytes after the log");
+    if (r.remaining() != 0) corrupt("unexpected bytes after the log");
     return st;
 }
 

@@ -2,6 +2,11 @@
 
 #include <algorithm>
 #include <chrono>
+#include <stdexcept>
+#include <string>
+#include <system_error>
+
+#include <unistd.h>
 
 #if defined(__linux__)
 #include <sched.h>
@@ -60,19 +65,52 @@ int ThreadPool::resolve(int threads) {
     return hw == 0 ? 1 : static_cast<int>(hw);
 }
 
-ThreadPool::ThreadPool(int threads) {
+int ThreadPool::max_threads() { return std::max(kMinMaxThreads, kThreadsPerCpu * resolve(0)); }
+
+bool ThreadPool::usable_here() const { return owner_pid_ == static_cast<long>(::getpid()); }
+
+ThreadPool::ThreadPool(int threads) : owner_pid_(static_cast<long>(::getpid())) {
     const int n = resolve(threads);
+    if (n > max_threads())
+        throw std::invalid_argument(std::to_string(n) + " threads asked for; at most " +
+                                    std::to_string(max_threads()) + " (" + std::to_string(kThreadsPerCpu) +
+                                    " per CPU this process may use, at least " +
+                                    std::to_string(kMinMaxThreads) + ")");
     spin_ = n <= resolve(0);
-    for (int i = 1; i < n; ++i) workers_.emplace_back([this, i] { worker_loop(i); });
+    workers_.reserve(static_cast<std::size_t>(n - 1));
+    for (int i = 1; i < n; ++i) {
+        try {
+            workers_.emplace_back([this, i] { worker_loop(i); });
+        } catch (const std::system_error& e) {
+            // The constructor fails: the destructor will not run, so stop what did start here.
+            const std::size_t started = workers_.size();
+            shutdown();
+            throw std::runtime_error("threads: cannot start " + std::to_string(n) + " threads (" +
+                                     std::to_string(started + 1) + " running when the system refused one: " +
+                                     e.what() + "); use fewer threads or raise the process limit");
+        }
+    }
+}
+
+void ThreadPool::shutdown() {
+    {
+        std::lock_guard<std::mutex> lock(sync_->mutex);
+        stop_.store(true, std::memory_order_release);
+    }
+    sync_->start_cv.notify_all();
+    for (auto& w : workers_) w.join();
+    workers_.clear();
 }
 
 ThreadPool::~ThreadPool() {
-    {
-        std::lock_guard<std::mutex> lock(mutex_);
-        stop_.store(true, std::memory_order_release);
+    if (!usable_here()) {
+        // A forked child's copy: its threads do not exist here. Joining them, or destroying a
+        // condition variable they were waiting on in the parent, would wait forever: leak both.
+        new std::vector<std::thread>(std::move(workers_));
+        (void)sync_.release();
+        return;
     }
-    start_cv_.notify_all();
-    for (auto& w : workers_) w.join();
+    shutdown();
 }
 
 void ThreadPool::worker_loop(int id) {
@@ -83,8 +121,8 @@ void ThreadPool::worker_loop(int id) {
                    generation_.load(std::memory_order_acquire) != seen;
         };
         if (!spin_until(spin_, posted)) {
-            std::unique_lock<std::mutex> lock(mutex_);
-            start_cv_.wait(lock, posted);
+            std::unique_lock<std::mutex> lock(sync_->mutex);
+            sync_->start_cv.wait(lock, posted);
         }
         if (stop_.load(std::memory_order_acquire)) return;
         seen = generation_.load(std::memory_order_acquire);
@@ -95,32 +133,36 @@ void ThreadPool::worker_loop(int id) {
         try {
             if (b < e) (*job)(b, e, id);
         } catch (...) {
-            std::lock_guard<std::mutex> lock(mutex_);
+            std::lock_guard<std::mutex> lock(sync_->mutex);
             if (!error_) error_ = std::current_exception();
         }
         if (pending_.fetch_sub(1, std::memory_order_acq_rel) == 1) {
-            // The caller may be asleep on done_cv_: the lock orders this notify after its check.
-            std::lock_guard<std::mutex> lock(mutex_);
-            done_cv_.notify_one();
+            // The caller may be asleep on sync_->done_cv: the lock orders this notify after its check.
+            std::lock_guard<std::mutex> lock(sync_->mutex);
+            sync_->done_cv.notify_one();
         }
     }
 }
 
 void ThreadPool::parallel_for(std::size_t n,
                               const std::function<void(std::size_t, std::size_t, int)>& fn) {
+    if (!usable_here())
+        throw std::logic_error("thread pool: made in process " + std::to_string(owner_pid_) +
+                               ", used in process " + std::to_string(::getpid()) +
+                               " (a fork): its threads do not exist here; make a new pool");
     if (workers_.empty() || n < 2) {
         if (n > 0) fn(0, n, 0);
         return;
     }
     {
-        std::lock_guard<std::mutex> lock(mutex_);
+        std::lock_guard<std::mutex> lock(sync_->mutex);
         job_ = &fn;
         n_ = n;
         error_ = nullptr;
         pending_.store(static_cast<int>(workers_.size()), std::memory_order_relaxed);
         generation_.fetch_add(1, std::memory_order_release);  // publishes job_, n_, pending_
     }
-    start_cv_.notify_all();  // for workers that stopped spinning
+    sync_->start_cv.notify_all();  // for workers that stopped spinning
     std::exception_ptr mine;
     std::size_t b, e;
     chunk(n, size(), 0, b, e);
@@ -132,11 +174,11 @@ void ThreadPool::parallel_for(std::size_t n,
     const auto done = [&] { return pending_.load(std::memory_order_acquire) == 0; };
     std::exception_ptr theirs;
     if (!spin_until(spin_, done)) {
-        std::unique_lock<std::mutex> lock(mutex_);
-        done_cv_.wait(lock, done);
+        std::unique_lock<std::mutex> lock(sync_->mutex);
+        sync_->done_cv.wait(lock, done);
     }
     {
-        std::lock_guard<std::mutex> lock(mutex_);
+        std::lock_guard<std::mutex> lock(sync_->mutex);
         theirs = error_;
         job_ = nullptr;
     }

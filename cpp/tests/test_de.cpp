@@ -71,7 +71,7 @@ constexpr Strategy kAll[] = {Strategy::rand1bin, Strategy::best1bin, Strategy::j
                              Strategy::jde,      Strategy::shade,    Strategy::lshade,
                              Strategy::jso};
 
-void test_threads_and_resume() {
+IWR_TEST(threads_and_resume) {
     for (Strategy s : kAll) {
         TestFunction f(7);
         const auto set = settings_for(s, 7, 123);
@@ -103,7 +103,7 @@ void test_threads_and_resume() {
     }
 }
 
-void test_selection_is_less_or_equal() {
+IWR_TEST(selection_is_less_or_equal) {
     // A flat function: with `<=` every trial replaces its target, so every row changes.
     TestFunction f(5, true);
     iwr::ThreadPool pool(2);
@@ -115,7 +115,7 @@ void test_selection_is_less_or_equal() {
     for (int i = 0; i < st.np; ++i) CHECK(st.population.row(i) != before.row(i));
 }
 
-void test_solves_sphere() {
+IWR_TEST(solves_sphere) {
     for (Strategy s : kAll) {
         TestFunction f(5);
         iwr::ThreadPool pool(2);
@@ -159,7 +159,7 @@ bool throws_runtime(Fn fn) {
     return false;
 }
 
-void test_damaged_states() {
+IWR_TEST(damaged_states) {
     TestFunction f(3);
     iwr::ThreadPool pool(1);
     auto set = settings_for(Strategy::lshade, 3, 9);
@@ -213,7 +213,7 @@ bool throws_naming(Fn fn, const std::string& needle) {
     return false;
 }
 
-void test_validation() {
+IWR_TEST(validation) {
     auto base = settings_for(Strategy::rand1bin, 3, 0);
     auto with = [&](auto edit) {
         auto s = base;
@@ -244,11 +244,4 @@ void test_validation() {
 
 }  // namespace
 
-int main() {
-    test_threads_and_resume();
-    test_selection_is_less_or_equal();
-    test_solves_sphere();
-    test_damaged_states();
-    test_validation();
-    return iwr_test::finish("all DE checks passed");
-}
+IWR_TEST_MAIN

@@ -9,6 +9,10 @@
 #include <string>
 #include <vector>
 
+#include <sys/resource.h>
+#include <sys/wait.h>
+#include <unistd.h>
+
 #include "check.hpp"
 #include "iwr/forward.hpp"
 #include "iwr/model.hpp"
@@ -45,7 +49,7 @@ iwr::Objective make_objective(const iwr::Geometry& g, int n, std::mt19937_64& rn
     return iwr::Objective(g, q, poses, legs, w);
 }
 
-void test_cost_residuals_jacobian() {
+IWR_TEST(cost_residuals_jacobian) {
     std::mt19937_64 rng(42);
     std::uniform_real_distribution<double> u(-0.5, 0.5);
     for (bool carriage : {true, false}) {
@@ -77,7 +81,7 @@ void test_cost_residuals_jacobian() {
     }
 }
 
-void test_batch_is_thread_independent() {
+IWR_TEST(batch_is_thread_independent) {
     std::mt19937_64 rng(7);
     const iwr::Geometry g = iwr_geometry(true);
     const iwr::Objective obj = make_objective(g, 33, rng, false);
@@ -96,7 +100,7 @@ void test_batch_is_thread_independent() {
 
 // Every compiled instruction-set variant of the kernel gives the same bits, and agrees with the
 // per-pose Eigen model (predict_legs) for carriages of mixed joint types and N not a multiple of 8.
-void test_kernel_variants() {
+IWR_TEST(kernel_variants) {
     std::mt19937_64 rng(3);
     std::uniform_real_distribution<double> u(-1, 1);
     const std::string before = iwr::active_kernel();
@@ -152,7 +156,7 @@ void test_kernel_variants() {
     CHECK(thrown);
 }
 
-void test_pool_propagates_exceptions() {
+IWR_TEST(pool_propagates_exceptions) {
     iwr::ThreadPool pool(2);
     bool thrown = false;
     try {
@@ -173,7 +177,7 @@ void test_pool_propagates_exceptions() {
     }
 }
 
-void test_pool_sizes_and_lifetimes() {
+IWR_TEST(pool_sizes_and_lifetimes) {
     // More threads than the machine has (the pool then sleeps instead of spinning), pools
     // destroyed right after a call, and many short calls in a row: every item once.
     const int hw = iwr::ThreadPool::resolve(0);
@@ -191,7 +195,81 @@ void test_pool_sizes_and_lifetimes() {
     }
 }
 
-void test_validation() {
+IWR_TEST(pool_refuses_too_many_threads) {
+    const int cap = iwr::ThreadPool::max_threads();
+    CHECK(cap >= iwr::ThreadPool::kMinMaxThreads);
+    CHECK(cap >= iwr::ThreadPool::kThreadsPerCpu * iwr::ThreadPool::resolve(0));
+    bool named = false;
+    try {
+        iwr::ThreadPool pool(cap + 1);
+    } catch (const std::invalid_argument& e) {
+        named = std::string(e.what()).find(std::to_string(cap + 1) + " threads asked for; at most") != std::string::npos;
+    }
+    CHECK(named);
+    iwr::ThreadPool ok(cap);  // the cap itself is allowed
+    CHECK(ok.size() == cap);
+}
+
+// Runs `body` in a forked child with a 30 s alarm (a hang is a failure, not a stuck test); true if
+// the child exited 0.
+template <class Body>
+bool in_child(Body body) {
+    std::fflush(nullptr);
+    const pid_t pid = ::fork();
+    if (pid == 0) {
+        ::alarm(30);
+        ::_exit(body() ? 0 : 1);
+    }
+    int status = 0;
+    ::waitpid(pid, &status, 0);
+    return WIFEXITED(status) && WEXITSTATUS(status) == 0;
+}
+
+IWR_TEST(pool_thread_refused_is_an_error_not_a_hang) {
+    // No thread may be created: RLIMIT_NPROC 0 for a user without privileges (root ignores the
+    // limit, so a root test drops to uid 65534 first). The pool must say so and stop the threads
+    // it did start, not wait on the ones that do not exist.
+    CHECK(in_child([] {
+        if (::getuid() == 0 && ::setuid(65534) != 0) return false;
+        const struct rlimit none = {0, 0};
+        if (::setrlimit(RLIMIT_NPROC, &none) != 0) return false;
+        try {
+            iwr::ThreadPool pool(4);
+        } catch (const std::runtime_error& e) {
+            const bool named = std::string(e.what()).find("cannot start 4 threads") != std::string::npos;
+            if (!named) std::fprintf(stderr, "message: %s\n", e.what());
+            return named;
+        }
+        return false;
+    }));
+}
+
+IWR_TEST(pool_after_fork) {
+    // A pool that ran in the parent: in a forked child its threads do not exist. Using it there is
+    // an error (not a hang), destroying it returns, and a new pool works.
+    auto* pool = new iwr::ThreadPool(3);
+    std::atomic<int> sum{0};
+    pool->parallel_for(30, [&](std::size_t b, std::size_t e, int) { sum += static_cast<int>(e - b); });
+    CHECK(sum == 30);
+    CHECK(in_child([&] {
+        if (pool->usable_here()) return false;
+        bool refused = false;
+        try {
+            pool->parallel_for(30, [](std::size_t, std::size_t, int) {});
+        } catch (const std::logic_error&) {
+            refused = true;
+        }
+        delete pool;
+        iwr::ThreadPool fresh(3);
+        std::atomic<int> n{0};
+        fresh.parallel_for(30, [&](std::size_t b, std::size_t e, int) { n += static_cast<int>(e - b); });
+        return refused && n == 30;
+    }));
+    CHECK(pool->usable_here());
+    delete pool;
+}
+
+IWR_TEST(validation) {
     bool thrown = false;
     try {
         iwr::Geometry("PX", iwr::RowMatrixXd::Zero(2, 4), iwr::LegMatrix::Zero(),
@@ -214,7 +292,7 @@ void test_validation() {
 // Forward kinematics: a round trip through the inverse model, and a clean error when the legs
 // cannot close. The platform joints are rolled by one so that leg j spans 40 degrees, alternately
 // behind and ahead (iwr_geometry's pairing is architecturally singular: see docs/model.md).
-void test_forward_kinematics() {
+IWR_TEST(forward_kinematics) {
     const iwr::Geometry g0 = iwr_geometry(true);
     iwr::LegMatrix platform;
     for (int j = 0; j < 6; ++j) platform.row(j) = g0.platform().row((j + 5) % 6);
@@ -260,13 +338,4 @@ void test_forward_kinematics() {
 
 }  // namespace
 
-int main() {
-    test_cost_residuals_jacobian();
-    test_batch_is_thread_independent();
-    test_kernel_variants();
-    test_pool_propagates_exceptions();
-    test_pool_sizes_and_lifetimes();
-    test_validation();
-    test_forward_kinematics();
-    return iwr_test::finish("all C++ checks passed");
-}
+IWR_TEST_MAIN

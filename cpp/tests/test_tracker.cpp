@@ -75,7 +75,7 @@ double jacobian_error(const iwr::TrackerObjective& obj, const iwr::VectorXd& x) 
     return worst / scale;
 }
 
-void test_points_jacobian() {
+IWR_TEST(points_jacobian) {
     std::mt19937_64 rng(7);
     const iwr::Geometry g = iwr_geometry();
     iwr::Vector6d reg;
@@ -106,7 +106,7 @@ void test_points_jacobian() {
     CHECK(r.segment(3 * (3 * 3 + 1), 3).isZero(0));
 }
 
-void test_probe_jacobian() {
+IWR_TEST(probe_jacobian) {
     std::mt19937_64 rng(8);
     const iwr::Geometry g = iwr_geometry();
     iwr::Vector6d reg, probe;
@@ -126,7 +126,7 @@ void test_probe_jacobian() {
     CHECK(err < 1e-6);
 }
 
-void test_batch_and_failures() {
+IWR_TEST(batch_and_failures) {
     std::mt19937_64 rng(9);
     const iwr::Geometry g = iwr_geometry();
     iwr::Vector6d reg;
@@ -169,7 +169,7 @@ void test_batch_and_failures() {
     CHECK(jac.middleRows(3 * 2 * f[0].first, 6).isZero(0));
 }
 
-void test_validation() {
+IWR_TEST(validation) {
     const iwr::Geometry g = iwr_geometry();
     iwr::Vector6d reg = iwr::Vector6d::Zero(), home;
     home << 0, 0, 750, 0, 0, 0;
@@ -195,10 +195,4 @@ void test_validation() {
 
 }  // namespace
 
-int main() {
-    test_points_jacobian();
-    test_probe_jacobian();
-    test_batch_and_failures();
-    test_validation();
-    return iwr_test::finish("all tracker checks passed");
-}
+IWR_TEST_MAIN

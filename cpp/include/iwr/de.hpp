@@ -266,14 +266,16 @@ struct State {
     double best_cost() const { return costs(best_index()); }
     VectorXd best_x() const { return population.row(best_index()).transpose(); }
 
-    /// Versioned little-endian binary format: magic "IWRDEST\n", format version, the fields,
-    /// an FNV-1a 64 checksum of everything before it.
+    /// The sealed container of iwr/binary_io.hpp (magic "IWRDEST\n", format version, size,
+    /// FNV-1a 64 checksum) around the fields.
+    std::string to_bytes() const;
     void serialize(std::ostream& out) const;
     /// Reads what serialize wrote. Throws std::runtime_error (never crashes, never allocates more
     /// than the input's size justifies) on a wrong magic, an unknown version, a truncated or
     /// corrupted stream, or inconsistent contents.
     static State deserialize(std::istream& in);
-    static constexpr std::uint32_t kFormatVersion = 1;
+    static State from_bytes(const std::string& bytes);
+    static constexpr std::uint32_t kFormatVersion = 2;
 };
 
 // ----- the engine ------------------------------------------------------------------------------------
@@ -281,7 +283,17 @@ struct State {
 /// Generation 0: resolves and validates the settings (std::invalid_argument), draws the population
 /// uniformly within the bounds (eq. 11) from each slot's stream, evaluates it, writes log row 0.
 /// Throws std::invalid_argument if f.dim() != settings.lower.size().
+/// Also refuses (std::invalid_argument naming population_size) a population whose memory,
+/// estimated by memory_estimate, exceeds what the machine has available.
 State init(const Settings& settings, BatchFunction& f, ThreadPool& pool);
+
+/// Bytes a run of these resolved settings holds at once (population, trials, archive, random
+/// streams, per-individual memories, and the serialized copy a checkpoint makes), per-generation
+/// log aside.
+double memory_estimate(const Settings& resolved);
+/// Throws std::invalid_argument ("population_size: ... need about X of memory; Y are available")
+/// when memory_estimate exceeds `available` bytes (0: unknown, no check).
+void require_memory(const Settings& resolved, std::uint64_t available);
 
 /// One generation: trials for every slot (in parallel, slot i from stream i), their evaluation,
 /// selection (eq. 14), the strategy's serial bookkeeping, then a log row.

@@ -17,6 +17,7 @@
 #include <cstddef>
 #include <exception>
 #include <functional>
+#include <memory>
 #include <mutex>
 #include <thread>
 #include <vector>
@@ -25,7 +26,10 @@ namespace iwr {
 
 class ThreadPool {
 public:
-    /// threads <= 0 means std::thread::hardware_concurrency().
+    /// threads <= 0 means all the CPUs this process may use (resolve()). Throws
+    /// std::invalid_argument above max_threads(), and std::runtime_error naming the count when the
+    /// system refuses a thread (a process limit): the threads already started are stopped and
+    /// joined first, so nothing waits on a thread that does not exist.
     explicit ThreadPool(int threads = 0);
     ~ThreadPool();
     ThreadPool(const ThreadPool&) = delete;
@@ -42,15 +46,31 @@ public:
     /// cpu.max) are not taken into account.
     static int resolve(int threads);
 
+    /// The most threads a pool takes: max(kMinMaxThreads, kThreadsPerCpu x the CPUs this process
+    /// may use). More cannot make a CPU-bound pool faster, and thousands of threads exhaust the
+    /// system's process ids.
+    static int max_threads();
+    static constexpr int kThreadsPerCpu = 4;
+    static constexpr int kMinMaxThreads = 16;
+
+    /// A pool belongs to the process that made it: after fork() its threads do not exist in the
+    /// child, so parallel_for there throws std::logic_error instead of waiting for them forever
+    /// (make a new pool in the child; the Python bindings do).
+    bool usable_here() const;
+
     /// How long a thread spins waiting for work (or for the workers) before it sleeps.
     static constexpr int kSpinMicroseconds = 100;
 
 private:
     void worker_loop(int id);
+    void shutdown();
 
+    struct Sync {
+        std::mutex mutex;
+        std::condition_variable start_cv, done_cv;
+    };
     std::vector<std::thread> workers_;
-    std::mutex mutex_;
-    std::condition_variable start_cv_, done_cv_;
+    std::unique_ptr<Sync> sync_ = std::make_unique<Sync>();
     // Written by the caller before it publishes generation_ (release); read after (acquire).
     const std::function<void(std::size_t, std::size_t, int)>* job_ = nullptr;
     std::size_t n_ = 0;
@@ -58,7 +78,8 @@ private:
     std::atomic<int> pending_{0};
     std::atomic<bool> stop_{false};
     bool spin_ = true;  // false when oversubscribed
-    std::exception_ptr error_;  // guarded by mutex_
+    long owner_pid_ = 0;
+    std::exception_ptr error_;  // guarded by sync_->mutex
 };
 
 }  // namespace iwr

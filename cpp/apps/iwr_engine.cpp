@@ -1,36 +1,40 @@
-// iwr-calibrate: long differential-evolution calibration runs, with checkpoints and resume.
+// iwr-engine: long differential-evolution calibration runs, with checkpoints and resume.
 //
-// Reads the robot TOML and measurement CSV that the Python package writes, runs the DE engine of
-// iwr/de.hpp on the objective of eq. (10), and writes a result that iwr.load_result reads. The run's
-// whole state (iwr::de::State) goes into checkpoints, so that --resume ends with exactly the result
-// of a run that was never interrupted. See `iwr-calibrate --help` and docs/iwr-calibrate.md.
+// Runs from one problem file (iwr.Problem.save; the iwr-calibrate launcher writes it from a robot
+// TOML and a measurement CSV), with no Python at run time, so that it can be copied to a compute
+// node. Runs the DE engine of iwr/de.hpp on the objective of eq. (10). The run's whole state
+// (iwr::de::State) and its result so far go into checkpoints, so that --resume ends with exactly
+// the result of a run that was never interrupted; iwr-calibrate (Python) turns the final checkpoint
+// into the JSON result. See `iwr-engine --help` and docs/iwr-calibrate.md.
+#include <dirent.h>
+#include <fcntl.h>
 #include <pthread.h>
+#include <sys/file.h>
+#include <sys/stat.h>
 #include <unistd.h>
 
 #include <algorithm>
 #include <cerrno>
 #include <chrono>
-#include <cstdint>
 #include <cmath>
 #include <csignal>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <cstring>
 #include <exception>
-#include <iostream>
 #include <map>
 #include <new>
 #include <optional>
-#include <sstream>
 #include <string>
 #include <vector>
 
-#include "checkpoint.hpp"
-#include "files.hpp"
-#include "inputs.hpp"
+#include "iwr/binary_io.hpp"
+#include "iwr/checkpoint.hpp"
 #include "iwr/de.hpp"
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
+#include "iwr/problem_file.hpp"
 
 #ifndef IWR_VERSION
 #define IWR_VERSION "unknown"
@@ -38,10 +42,12 @@
 
 namespace {
 
-using iwr::app::InputError;
 namespace de = iwr::de;
+using iwr::io::FormatError;
 
-const char* const kProgram = "iwr-calibrate";
+// The name messages start with: the one the program was started by (the iwr-calibrate launcher
+// starts it as "iwr-calibrate", so that the user reads the command they typed).
+const char* kProgram = "iwr-engine";
 constexpr int kExitOk = 0;
 constexpr int kExitError = 1;
 constexpr int kExitUsage = 2;
@@ -85,6 +91,9 @@ const char* signal_name(int sig) {
 struct UsageError : std::runtime_error {
     using std::runtime_error::runtime_error;
 };
+struct InputError : std::runtime_error {
+    using std::runtime_error::runtime_error;
+};
 
 // One line on standard error, whatever a message quotes (a key or a file name may hold a newline):
 // control characters and Unicode line separators escaped.
@@ -110,37 +119,37 @@ std::string one_line(const std::string& msg) {
     return out;
 }
 
-// --- command line -------------------------------------------------------------------------------
+// --- command line ---------------------------------------------------------------------------------
 
-const char* const kHelp = R"(usage: iwr-calibrate ROBOT.toml DATA.csv [options]
+const char* const kHelp = R"(usage: iwr-engine PROBLEM.iwrp [options]
 
-Identify the error parameters of a robot by differential evolution (DE), for long runs: progress on
-standard error, checkpoints, and resume after an interruption with exactly the result of a run that
-was never interrupted. Reads the robot TOML (iwr.Robot.to_toml) and measurement CSV
-(iwr.Measurements.to_csv) of the iwr Python package; writes a JSON result that iwr.load_result()
-reads. The same seed and settings give the same result as iwr.identify(robot, measurements,
-method="de", ...), whatever the number of threads.
+The engine behind iwr-calibrate: identifies the error parameters of a robot by differential
+evolution (DE), for long runs, from a problem file alone (no Python at run time: copy the program
+and the problem file to a compute node). Progress on standard error, checkpoints, and resume
+after an interruption with exactly the result of a run that was never interrupted. The same seed
+and settings give the same result as iwr.identify(robot, measurements, method="de", ...),
+whatever the number of threads.
 
 positional arguments:
-  ROBOT.toml               the nominal robot (lengths in mm, angles in rad)
-  DATA.csv                 the measurements: joint readings, measured poses, leg readings
+  PROBLEM.iwrp             the problem: robot, measurements, weights and search bounds, as
+                           iwr.Problem.save writes it (iwr-calibrate ROBOT.toml DATA.csv writes
+                           it for you)
 
 DE settings (they shape the run; a checkpoint remembers them):
   --strategy S             rand1bin (the paper's DE/rand/1/bin, default), best1bin, jade, jde,
                            shade, lshade, jso
   --population-size NP     population size (default: the strategy's published one: rand1bin,
                            best1bin 10 D; jade 30/100/400; jde, shade 100; lshade 18 D;
-                           jso 25 ln(D) sqrt(D); D = 58 for the IWR)
+                           jso 25 ln(D) sqrt(D); D = 58 for the IWR). A population whose memory
+                           exceeds what the machine has available is refused with the estimate
   --F F                    scale factor (rand1bin/best1bin) or its initial value/mean (others)
   --CR CR                  crossover rate, in [0, 1] (same remark)
-  --bounds B               search bounds: default (+-0.5 mm for lengths, +-0.5 degree for
-                           angles) or paper (+-0.5 for every parameter, Table 2 literally)
   --bound-rule R           out-of-bounds trial components: midpoint (default), reinit, reflect,
                            clip
   --seed N                 seed of the random streams (default 0)
   --preset paper           the paper's Table 2 for rand1bin: NP 600, F 0.9, CR 1.0, 60000
-                           generations; options given explicitly take precedence. As in
-                           iwr.identify, the bounds stay as they are (add --bounds paper for
+                           generations; options given explicitly take precedence. The search
+                           bounds are the problem file's (iwr-calibrate --bounds paper writes
                            Table 2's literal +-0.5 everywhere)
 
 when to stop (not part of the trajectory, lshade/jso's budget aside: may be changed when
@@ -153,49 +162,57 @@ resuming, to extend a run):
   --target-cost C          stop as soon as the best cost is <= C (mm^2; the paper reached 1e-4)
 
 running:
-  --threads T              threads evaluating the population (default 0: all cores); the result
-                           does not depend on it
-  --output RESULT          the JSON result (default iwr-result.json)
+  --threads T              threads evaluating the population (default 0: all the CPUs this
+                           process may use; at most 4 per CPU, and at least 16 allowed); the
+                           result does not depend on it
+  --checkpoint PATH        where checkpoints, and the result, go (default: PROBLEM without .iwrp,
+                           plus .ckpt; with --resume, the checkpoint resumed from)
   --log LOG.csv            the per-generation log: generation, nfev, best, mean, spread, elapsed
-                           (rewritten at each checkpoint and at the end)
-  --checkpoint PATH        where checkpoints go (default RESULT.ckpt; with --resume, the
-                           checkpoint resumed from)
+                           (rewritten at each checkpoint and at the end; give it again when
+                           resuming)
   --checkpoint-every G     a checkpoint every G generations (default 10000; 0: only at the end
                            and on a signal). A checkpoint is also written at the end of the run,
                            on SIGINT/SIGTERM/SIGHUP, and on request: kill -USR1 PID.
-  --resume PATH            continue the run saved in checkpoint PATH. ROBOT.toml and DATA.csv
-                           must be those it was made with. Settings not given take the
+  --resume PATH            continue the run saved in checkpoint PATH. PROBLEM.iwrp must hold the
+                           robot and data it was made with. Settings not given take the
                            checkpoint's values (so --resume PATH alone carries on); settings
-                           given must agree with it, except the stopping criteria.
+                           given must agree with it, except the stopping criteria. A checkpoint
+                           in use is locked: a second process resuming it is refused.
   --quiet                  no progress on standard error (errors are still reported)
   -h, --help               this help
   --version                the program's version
 
-Every write (result, log, checkpoint) is atomic: a temporary file in the same folder, flushed to
-disk, then renamed. kill -9 loses at most the work since the last checkpoint. Progress goes to
-standard error, every 0.5 s on a terminal and every 10 s otherwise.
+The result is the final checkpoint: its best point, cost, counters, log, success and message;
+iwr-calibrate turns it into the JSON that iwr.load_result reads (iwr-calibrate --export CKPT).
+No output may be an input of the same run (the problem file, the checkpoint resumed, or the
+TOML/CSV files the problem was made from). Every write is atomic: a temporary file .NAME.XXXXXX
+in the same folder, flushed to disk, then renamed; those a kill left behind are removed at the
+next start. kill -9 loses at most the work since the last checkpoint. Progress goes to standard
+error, every 0.5 s on a terminal and every 10 s otherwise.
 
 exit status:
   0    the run ended (generations done or target reached; see "success" in the result)
-  1    an error in the input files, a checkpoint (missing, truncated, corrupt, made for other
-       data or settings) or while writing; the message names the file
-  2    a usage error: unknown option, bad value, missing argument
+  1    an error in the problem file, a checkpoint (missing, truncated, corrupt, locked, made for
+       other data or settings), while writing, or when the system refuses a thread; the message
+       names the file or the number of threads
+  2    a usage error: unknown option, bad value, missing argument, an output that is an input,
+       a population too large for the memory available
   129, 130, 143
        stopped by SIGHUP, SIGINT (Ctrl-C) or SIGTERM at the end of a generation, after writing a
-       final checkpoint and the best result so far (128 + the signal number). A signal ignored
+       final checkpoint with the best result so far (128 + the signal number). A signal ignored
        when the program starts stays ignored: nohup ignores SIGHUP, and a shell script's
        background job (cmd &) ignores SIGINT, so stop such a job with SIGTERM (kill PID).
 
 example:
-  iwr-calibrate robot.toml data.csv --preset paper --seed 1 --output run.json --log run.csv
+  iwr-engine run.iwrp --preset paper --seed 1 --log run.csv      # writes run.ckpt
   # ... Ctrl-C, a reboot, a time limit of the batch system ...
-  iwr-calibrate robot.toml data.csv --resume run.json.ckpt
+  iwr-engine run.iwrp --resume run.ckpt --log run.csv
 )";
 
 struct Options {
     std::vector<std::string> positional;
     // Trajectory settings: only those given are set.
-    std::optional<std::string> strategy, bounds, bound_rule, preset;
+    std::optional<std::string> strategy, bound_rule, preset;
     std::optional<int> population_size;
     std::optional<double> F, CR;
     std::optional<std::uint64_t> seed;
@@ -204,7 +221,7 @@ struct Options {
     std::optional<double> target_cost;
     // Running.
     std::optional<int> threads;
-    std::optional<std::string> output, log, checkpoint, resume;
+    std::optional<std::string> log, checkpoint, resume;
     std::optional<std::int64_t> checkpoint_every;
     bool quiet = false, help = false, version = false;
 };
@@ -264,15 +281,18 @@ Options parse_args(int argc, char** argv) {
             has_value = true;
         }
         static const char* const kValued[] = {
-            "--strategy", "--population-size", "--F", "--CR", "--bounds", "--bound-rule",
-            "--seed", "--preset", "--generations", "--max-evaluations", "--target-cost",
-            "--threads", "--output",
-            "--log", "--checkpoint", "--checkpoint-every", "--resume"};
+            "--strategy", "--population-size", "--F", "--CR", "--bound-rule", "--seed", "--preset",
+            "--generations", "--max-evaluations", "--target-cost", "--threads", "--log",
+            "--checkpoint", "--checkpoint-every", "--resume"};
         bool known = false;
         for (const char* k : kValued) known = known || name == k;
         if (!known) {
+            const bool launcher = name == "--output" || name == "--bounds" || name == "--problem";
             throw UsageError("unknown option '" + name + "'" +
-                             (name == "--f" || name == "--cr" ? " (the options are --F and --CR)" : ""));
+                             (name == "--f" || name == "--cr" ? " (the options are --F and --CR)" : "") +
+                             (launcher ? " (an option of iwr-calibrate, which writes the problem file "
+                                         "and the JSON result)"
+                                       : ""));
         }
         if (!has_value) {
             if (i + 1 >= argc) throw UsageError(name + ": expected a value");
@@ -282,11 +302,7 @@ Options parse_args(int argc, char** argv) {
         else if (name == "--population-size") o.population_size = static_cast<int>(parse_int(name, value, 1, 100000000));
         else if (name == "--F") o.F = parse_real(name, value);
         else if (name == "--CR") o.CR = parse_real(name, value);
-        else if (name == "--bounds") {
-            if (value != "default" && value != "paper")
-                throw UsageError("--bounds: '" + value + "'; expected default or paper");
-            o.bounds = value;
-        } else if (name == "--bound-rule") o.bound_rule = value;
+        else if (name == "--bound-rule") o.bound_rule = value;
         else if (name == "--seed") {
             if (value.empty() || value[0] == '-') throw UsageError("--seed: '" + value + "'; expected an integer >= 0");
             errno = 0;
@@ -301,42 +317,33 @@ Options parse_args(int argc, char** argv) {
         } else if (name == "--generations") o.generations = parse_int(name, value, 0, INT64_MAX);
         else if (name == "--max-evaluations") o.max_evaluations = parse_int(name, value, 1, INT64_MAX);
         else if (name == "--target-cost") o.target_cost = parse_real(name, value);
-        else if (name == "--threads") o.threads = static_cast<int>(parse_int(name, value, 0, 4096));
-        else if (name == "--output") o.output = value;
-        else if (name == "--log") o.log = value;
+        else if (name == "--threads") {
+            const int cap = iwr::ThreadPool::max_threads();
+            const std::int64_t t = parse_int(name, value, 0, INT32_MAX);
+            if (t > cap)
+                throw UsageError("--threads: " + value + "; at most " + std::to_string(cap) + " (" +
+                                 std::to_string(iwr::ThreadPool::kThreadsPerCpu) +
+                                 " per CPU this process may use, at least " +
+                                 std::to_string(iwr::ThreadPool::kMinMaxThreads) + ")");
+            o.threads = static_cast<int>(t);
+        } else if (name == "--log") o.log = value;
         else if (name == "--checkpoint") o.checkpoint = value;
         else if (name == "--checkpoint-every") o.checkpoint_every = parse_int(name, value, 0, INT64_MAX);
         else if (name == "--resume") o.resume = value;
-        if ((name == "--output" || name == "--log" || name == "--checkpoint" || name == "--resume") &&
-            value.empty())
+        if ((name == "--log" || name == "--checkpoint" || name == "--resume") && value.empty())
             throw UsageError(name + ": expected a file name");
     }
     if (o.help || o.version) return o;
-    if (o.positional.size() != 2)
-        throw UsageError(o.positional.size() < 2 ? "expected ROBOT.toml and DATA.csv"
-                                                 : "unexpected argument '" + o.positional[2] + "'");
+    if (o.positional.size() != 1)
+        throw UsageError(o.positional.empty() ? "expected PROBLEM.iwrp (write one with iwr.Problem.save, or run "
+                                                "iwr-calibrate ROBOT.toml DATA.csv)"
+                                              : "unexpected argument '" + o.positional[1] +
+                                                    "' (iwr-engine reads one problem file; iwr-calibrate "
+                                                    "reads ROBOT.toml DATA.csv)");
     return o;
 }
 
 // --- fingerprints ---------------------------------------------------------------------------------
-
-std::uint64_t robot_fingerprint(const iwr::app::RobotFile& r) {
-    iwr::app::Hash64 h;
-    h.str("robot").str(r.joint_types);
-    h.doubles(r.dh.data(), static_cast<std::size_t>(r.dh.size()));
-    h.doubles(r.base.data(), 18).doubles(r.platform.data(), 18).doubles(r.leg_offsets.data(), 6);
-    return h.value();
-}
-
-std::uint64_t data_fingerprint(const iwr::app::MeasurementFile& m) {
-    iwr::app::Hash64 h;
-    h.str("measurements").str(m.joint_types);
-    for (const iwr::RowMatrixXd* a : {&m.q, &m.poses, &m.legs, &m.weights}) {
-        h.u64(static_cast<std::uint64_t>(a->rows())).u64(static_cast<std::uint64_t>(a->cols()));
-        h.doubles(a->data(), static_cast<std::size_t>(a->size()));
-    }
-    return h.value();
-}
 
 std::string real_text(double v) {
     char buf[32];
@@ -346,7 +353,7 @@ std::string real_text(double v) {
 
 // The resolved settings, readable, in a fixed order (the bounds by their hash).
 std::vector<std::pair<std::string, std::string>> settings_pairs(const de::Settings& s) {
-    iwr::app::Hash64 b;
+    iwr::io::Hash64 b;
     b.doubles(s.lower.data(), s.lower.size()).doubles(s.upper.data(), s.upper.size());
     return {
         {"strategy", de::to_string(s.strategy)},
@@ -355,7 +362,7 @@ std::vector<std::pair<std::string, std::string>> settings_pairs(const de::Settin
         {"CR", real_text(s.CR)},
         {"seed", std::to_string(s.seed)},
         {"bound_rule", de::to_string(s.bound_rule)},
-        {"bounds", std::to_string(s.lower.size()) + " pairs, hash " + iwr::app::hex64(b.value())},
+        {"bounds", std::to_string(s.lower.size()) + " pairs, hash " + iwr::io::hex64(b.value())},
         {"p_best", real_text(s.p_best)},
         {"c", real_text(s.c)},
         {"archive_rate", real_text(s.archive_rate)},
@@ -370,7 +377,7 @@ std::vector<std::pair<std::string, std::string>> settings_pairs(const de::Settin
 }
 
 std::uint64_t settings_fingerprint(const de::Settings& s) {
-    iwr::app::Hash64 h;
+    iwr::io::Hash64 h;
     h.str("settings");
     for (const auto& kv : settings_pairs(s)) h.str(kv.first).str(kv.second);
     return h.value();
@@ -455,6 +462,15 @@ private:
 
 // --- outputs --------------------------------------------------------------------------------------
 
+// A CSV number: 17 significant digits, "inf"/"nan" as Python writes them.
+std::string csv_number(double v) {
+    if (std::isnan(v)) return "nan";
+    if (std::isinf(v)) return v > 0 ? "inf" : "-inf";
+    char buf[32];
+    std::snprintf(buf, sizeof buf, "%.17g", v);
+    return buf;
+}
+
 // The log as CSV text, formatted incrementally: rows never change once logged, and formatting
 // the whole log at every checkpoint would make a long run's checkpoints ever slower.
 class LogText {
@@ -464,9 +480,8 @@ public:
         if (text_.empty()) text_ = "generation,nfev,best,mean,spread,elapsed\n";
         for (; rows_ < st.log.size(); ++rows_) {
             const de::LogEntry& e = st.log[rows_];
-            text_ += std::to_string(e.generation) + "," + std::to_string(e.nfev) + "," +
-                     iwr::app::csv_number(e.best) + "," + iwr::app::csv_number(e.mean) + "," +
-                     iwr::app::csv_number(e.spread) + "," + iwr::app::csv_number(e.elapsed) + "\n";
+            text_ += std::to_string(e.generation) + "," + std::to_string(e.nfev) + "," + csv_number(e.best) +
+                     "," + csv_number(e.mean) + "," + csv_number(e.spread) + "," + csv_number(e.elapsed) + "\n";
         }
         return text_;
     }
@@ -477,184 +492,127 @@ private:
 };
 
 struct RunInfo {
-    std::string robot_file, data_file;
-    std::string bounds_kind;  // "default", "paper" or "checkpoint"
-    std::string preset;
-    int n_poses = 0;
+    std::string problem_file;
+    bool preset_paper = false;
     int threads = 0;
     std::optional<std::int64_t> generations, max_evaluations;
     std::optional<double> target_cost;
-    std::string output, log, checkpoint, resumed_from;
+    std::string log, checkpoint, resumed_from;
     std::int64_t checkpoint_every = 0;
     std::uint64_t robot_fp = 0, data_fp = 0;
     LogText log_text;
 };
 
-std::string json_doubles(const std::vector<double>& v) {
-    std::string out = "[";
-    for (size_t i = 0; i < v.size(); ++i) out += (i ? ", " : "") + iwr::app::json_number(v[i]);
-    return out + "]";
-}
+// The result so far: the best point, its cost evaluated afresh, and whether the run succeeded.
+struct Outcome {
+    bool success = false;
+    std::string message;
+    double fun = 0;
+    iwr::VectorXd x;
+};
 
-std::string result_json(const de::State& st, const iwr::VectorXd& x, double fun,
-                        const std::vector<std::string>& names, bool success,
-                        const std::string& message, const RunInfo& info) {
-    using iwr::app::json_number;
-    using iwr::app::json_string;
-    const de::Settings& s = st.settings;
-    std::ostringstream o;
-    o << "{\n";
-    o << " \"format\": \"iwr-result\",\n \"version\": 1,\n \"method\": \"de\",\n";
-    o << " \"x\": " << json_doubles(std::vector<double>(x.data(), x.data() + x.size())) << ",\n";
-    o << " \"parameter_names\": [";
-    for (size_t i = 0; i < names.size(); ++i) o << (i ? ", " : "") << json_string(names[i]);
-    o << "],\n";
-    o << " \"fun\": " << json_number(fun) << ",\n";
-    o << " \"nfev\": " << st.nfev << ",\n \"nit\": " << st.generation << ",\n";
-    o << " \"success\": " << (success ? "true" : "false") << ",\n";
-    o << " \"message\": " << json_string(message) << ",\n";
-    o << " \"wall_time\": " << json_number(st.elapsed) << ",\n";
-    o << " \"settings\": {\n";
-    auto num_or_null = [](double v) { return std::isfinite(v) ? json_number(v) : std::string("null"); };
-    std::vector<std::pair<std::string, std::string>> kv = {
-        {"strategy", json_string(de::to_string(s.strategy))},
-        {"population_size", std::to_string(s.population_size)},
-        {"F", num_or_null(s.F)},
-        {"CR", num_or_null(s.CR)},
-        {"seed", std::to_string(s.seed)},
-        {"bound_rule", json_string(de::to_string(s.bound_rule))},
-        {"bounds", json_string(info.bounds_kind)},
-        {"lower", json_doubles(s.lower)},
-        {"upper", json_doubles(s.upper)},
-        {"p_best", num_or_null(s.p_best)},
-        {"c", num_or_null(s.c)},
-        {"archive_rate", num_or_null(s.archive_rate)},
-        {"memory_size", std::to_string(s.memory_size)},
-        {"tau1", num_or_null(s.tau1)},
-        {"tau2", num_or_null(s.tau2)},
-        {"F_lower", num_or_null(s.F_lower)},
-        {"F_upper", num_or_null(s.F_upper)},
-        {"min_population_size", std::to_string(s.min_population_size)},
-        {"generations", info.generations ? std::to_string(*info.generations) : "null"},
-        {"max_evaluations", info.max_evaluations ? std::to_string(*info.max_evaluations) : "null"},
-        {"target_cost", info.target_cost ? json_number(*info.target_cost) : "null"},
-        {"preset", info.preset.empty() ? "null" : json_string(info.preset)},
-        {"workers", std::to_string(info.threads)},
-        {"robot", json_string(info.robot_file)},
-        {"data", json_string(info.data_file)},
-        {"n_poses", std::to_string(info.n_poses)},
-        {"checkpoint", json_string(info.checkpoint)},
-        {"checkpoint_every", std::to_string(info.checkpoint_every)},
-        {"resumed_from", info.resumed_from.empty() ? "null" : json_string(info.resumed_from)},
-        {"robot_fingerprint", json_string(iwr::app::hex64(info.robot_fp))},
-        {"data_fingerprint", json_string(iwr::app::hex64(info.data_fp))},
-        {"settings_fingerprint", json_string(iwr::app::hex64(settings_fingerprint(s)))},
-        {"program", json_string(std::string(kProgram) + " " + IWR_VERSION)},
-    };
-    for (size_t i = 0; i < kv.size(); ++i)
-        o << "  " << json_string(kv[i].first) << ": " << kv[i].second << (i + 1 < kv.size() ? ",\n" : "\n");
-    o << " },\n";
-    o << " \"history\": {\n";
-    std::vector<double> gen, nfev, best, mean, spread, elapsed;
-    for (const de::LogEntry& e : st.log) {
-        gen.push_back(static_cast<double>(e.generation));
-        nfev.push_back(static_cast<double>(e.nfev));
-        best.push_back(e.best);
-        mean.push_back(e.mean);
-        spread.push_back(e.spread);
-        elapsed.push_back(e.elapsed);
-    }
-    auto ints = [](const std::vector<double>& v) {
-        std::string out = "[";
-        for (size_t i = 0; i < v.size(); ++i) out += (i ? ", " : "") + std::to_string(static_cast<long long>(v[i]));
-        return out + "]";
-    };
-    o << "  \"generation\": " << ints(gen) << ",\n";
-    o << "  \"nfev\": " << ints(nfev) << ",\n";
-    o << "  \"best\": " << json_doubles(best) << ",\n";
-    o << "  \"mean\": " << json_doubles(mean) << ",\n";
-    o << "  \"spread\": " << json_doubles(spread) << ",\n";
-    o << "  \"elapsed\": " << json_doubles(elapsed) << "\n";
-    o << " }\n}\n";
-    return o.str();
-}
-
-std::string serialize_state(const de::State& st) {
-    std::ostringstream out(std::ios::binary);
-    st.serialize(out);
-    return out.str();
-}
-
-std::vector<std::pair<std::string, std::string>> run_options(const RunInfo& info) {
-    std::vector<std::pair<std::string, std::string>> o;
-    if (info.generations) o.emplace_back("generations", std::to_string(*info.generations));
-    if (info.max_evaluations) o.emplace_back("max_evaluations", std::to_string(*info.max_evaluations));
-    if (info.target_cost) o.emplace_back("target_cost", real_text(*info.target_cost));
-    o.emplace_back("output", info.output);
-    if (!info.log.empty()) o.emplace_back("log", info.log);
-    o.emplace_back("checkpoint_every", std::to_string(info.checkpoint_every));
-    o.emplace_back("bounds", info.bounds_kind);
-    if (!info.preset.empty()) o.emplace_back("preset", info.preset);
-    return o;
-}
-
-void write_checkpoint_file(const de::State& st, const RunInfo& info) {
-    iwr::app::Checkpoint c;
+void write_checkpoint_file(const de::State& st, const RunInfo& info, const Outcome& out) {
+    iwr::Checkpoint c;
     c.program = std::string(kProgram) + " " + IWR_VERSION;
     c.robot_fingerprint = info.robot_fp;
     c.data_fingerprint = info.data_fp;
     c.settings_fingerprint = settings_fingerprint(st.settings);
-    c.robot_file = info.robot_file;
-    c.data_file = info.data_file;
-    c.options = run_options(info);
-    c.engine_state = serialize_state(st);
-    iwr::app::atomic_write(info.checkpoint, iwr::app::encode_checkpoint(c));
+    c.problem_file = one_line(info.problem_file);
+    c.generations = info.generations;
+    c.max_evaluations = info.max_evaluations;
+    c.target_cost = info.target_cost;
+    c.checkpoint_every = info.checkpoint_every;
+    c.preset_paper = info.preset_paper;
+    c.had_log = !info.log.empty();
+    c.success = out.success;
+    c.message = out.message;
+    c.fun = out.fun;
+    c.x.assign(out.x.data(), out.x.data() + out.x.size());
+    c.resumed_from = one_line(info.resumed_from);
+    iwr::io::atomic_write(info.checkpoint, iwr::encode_checkpoint(c, st));
 }
 
-// A checkpoint and the log as far as it goes.
-void write_checkpoint(const de::State& st, RunInfo& info) {
-    write_checkpoint_file(st, info);
-    if (!info.log.empty()) iwr::app::atomic_write(info.log, info.log_text.update(st));
+// --- files: no output onto an input, one process per checkpoint, no stale temporary files ---------
+
+std::string folder_of(const std::string& path) {
+    const size_t slash = path.find_last_of('/');
+    return slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
 }
 
-// --- the run --------------------------------------------------------------------------------------
-
-std::string option_or(const std::vector<std::pair<std::string, std::string>>& kv, const std::string& key,
-                      const std::string& fallback) {
-    for (const auto& p : kv)
-        if (p.first == key) return p.second;
-    return fallback;
+std::string base_of(const std::string& path) {
+    const size_t slash = path.find_last_of('/');
+    return slash == std::string::npos ? path : path.substr(slash + 1);
 }
 
-bool has_option(const std::vector<std::pair<std::string, std::string>>& kv, const std::string& key) {
-    for (const auto& p : kv)
-        if (p.first == key) return true;
-    return false;
-}
-
-// A number among a checkpoint's saved options (its checksum matched, so a bad one means a file
-// written by another program).
-template <class T>
-T saved_number(const std::vector<std::pair<std::string, std::string>>& kv, const std::string& key,
-               const std::string& path) {
-    const std::string text = option_or(kv, key, "");
-    std::istringstream in(text);
-    T v{};
-    in >> v;
-    if (text.empty() || in.fail() || !in.eof())
-        throw InputError(path + ": corrupt: option " + key + " is '" + text + "'");
-    return v;
+// The same file (st_dev and st_ino, so after every link is resolved); false if either is missing.
+bool same_file(const std::string& a, const std::string& b) {
+    struct stat sa {}, sb {};
+    if (::stat(a.c_str(), &sa) != 0 || ::stat(b.c_str(), &sb) != 0) return false;
+    return sa.st_dev == sb.st_dev && sa.st_ino == sb.st_ino;
 }
 
 // Fails now, not at the end of a long run, if an output file's folder is missing or read-only.
 void check_writable(const std::string& path, const char* what) {
-    const size_t slash = path.find_last_of('/');
-    const std::string dir = slash == std::string::npos ? "." : (slash == 0 ? "/" : path.substr(0, slash));
+    const std::string dir = folder_of(path);
+    if (base_of(path).empty()) throw UsageError(path + ": not a file name for the " + what);
     if (::access(dir.c_str(), F_OK) != 0)
         throw InputError(path + ": cannot write the " + what + " here: folder " + dir + " does not exist");
     if (::access(dir.c_str(), W_OK) != 0)
         throw InputError(path + ": cannot write the " + what + " here: folder " + dir + " is not writable");
+    struct stat st {};
+    if (::stat(path.c_str(), &st) == 0 && S_ISDIR(st.st_mode))
+        throw InputError(path + ": is a folder; cannot write the " + what + " there");
 }
+
+// Holds an exclusive flock on a lock file next to a checkpoint (".NAME.lock"): the checkpoint
+// itself is replaced by a rename at every write, so a lock on it would not outlive the first write.
+class CheckpointLock {
+public:
+    explicit CheckpointLock(const std::string& checkpoint) {
+        const std::string dir = folder_of(checkpoint);
+        path_ = (checkpoint.find('/') == std::string::npos ? "" : dir + "/") + "." + base_of(checkpoint) + ".lock";
+        fd_ = ::open(path_.c_str(), O_RDWR | O_CREAT | O_CLOEXEC, 0644);
+        if (fd_ < 0)
+            throw InputError(checkpoint + ": cannot create its lock file " + path_ + " (" + std::strerror(errno) + ")");
+        if (::flock(fd_, LOCK_EX | LOCK_NB) != 0) {
+            const int err = errno;
+            ::close(fd_);
+            if (err == EWOULDBLOCK)
+                throw InputError(checkpoint + ": in use by another iwr-engine process (locked: " + path_ +
+                                 "); wait for it to end or stop it");
+            throw InputError(checkpoint + ": cannot lock " + path_ + " (" + std::strerror(err) + ")");
+        }
+    }
+    ~CheckpointLock() { ::close(fd_); }  // the lock file stays: removing it would race a new locker
+    CheckpointLock(const CheckpointLock&) = delete;
+    CheckpointLock& operator=(const CheckpointLock&) = delete;
+
+private:
+    std::string path_;
+    int fd_ = -1;
+};
+
+// Removes the temporary files ".NAME.XXXXXX" that an atomic write of `path` killed part way left
+// (mkstemp's six letters or digits; nothing else matches). Called with the checkpoint locked, so
+// no live writer of these names exists.
+int remove_stale_temporaries(const std::string& path) {
+    const std::string dir = folder_of(path), prefix = "." + base_of(path) + ".";
+    DIR* d = ::opendir(dir.c_str());
+    if (!d) return 0;
+    int removed = 0;
+    while (const dirent* e = ::readdir(d)) {
+        const std::string name = e->d_name;
+        if (name.size() != prefix.size() + 6 || name.compare(0, prefix.size(), prefix) != 0) continue;
+        bool random = true;
+        for (size_t k = prefix.size(); k < name.size(); ++k)
+            random = random && std::isalnum(static_cast<unsigned char>(name[k]));
+        if (random && ::unlink((dir + "/" + name).c_str()) == 0) ++removed;
+    }
+    ::closedir(d);
+    return removed;
+}
+
+// --- the run --------------------------------------------------------------------------------------
 
 bool budgeted(de::Strategy s) { return s == de::Strategy::lshade || s == de::Strategy::jso; }
 
@@ -662,8 +620,7 @@ bool budgeted(de::Strategy s) { return s == de::Strategy::lshade || s == de::Str
 std::string as_option_message(const std::string& msg) {
     static const std::map<std::string, std::string> names = {
         {"population_size", "--population-size"}, {"F", "--F"}, {"CR", "--CR"}, {"seed", "--seed"},
-        {"bound_rule", "--bound-rule"}, {"strategy", "--strategy"}, {"lower", "--bounds"},
-        {"upper", "--bounds"}};
+        {"bound_rule", "--bound-rule"}, {"strategy", "--strategy"}, {"threads", "--threads"}};
     const size_t colon = msg.find(':');
     if (colon == std::string::npos) return msg;
     const auto it = names.find(msg.substr(0, colon));
@@ -671,7 +628,7 @@ std::string as_option_message(const std::string& msg) {
 }
 
 // Applies the settings given on the command line to `s` (a fresh default, or a checkpoint's).
-void apply_settings(const Options& o, const iwr::app::RobotFile& robot, de::Settings& s) {
+void apply_settings(const Options& o, de::Settings& s) {
     const bool paper = o.preset.has_value();
     if (o.strategy) s.strategy = de::parse_strategy(*o.strategy, "--strategy");
     if (paper && s.strategy != de::Strategy::rand1bin)
@@ -687,68 +644,104 @@ void apply_settings(const Options& o, const iwr::app::RobotFile& robot, de::Sett
     if (o.seed) s.seed = *o.seed;
     // lshade and jso plan their schedules over an evaluation budget: part of the trajectory.
     if (o.max_evaluations && budgeted(s.strategy)) s.max_evaluations = *o.max_evaluations;
-    if (o.bounds) {
-        iwr::VectorXd lo, hi;
-        iwr::app::default_bounds(robot, *o.bounds, lo, hi);
-        s.lower.assign(lo.data(), lo.data() + lo.size());
-        s.upper.assign(hi.data(), hi.data() + hi.size());
-    }
+}
+
+// The default checkpoint of a problem file: its name without ".iwrp", plus ".ckpt".
+std::string default_checkpoint(const std::string& problem) {
+    const std::string ext = ".iwrp";
+    if (problem.size() > ext.size() && problem.compare(problem.size() - ext.size(), ext.size(), ext) == 0)
+        return problem.substr(0, problem.size() - ext.size()) + ".ckpt";
+    return problem + ".ckpt";
 }
 
 int run(const Options& o) {
-    const std::string& robot_path = o.positional[0];
-    const std::string& data_path = o.positional[1];
-    const iwr::app::RobotFile robot = iwr::app::read_robot(robot_path);
-    const iwr::app::MeasurementFile data = iwr::app::read_measurements(data_path);
-    iwr::app::check_measurements(data, robot, data_path);  // as `iwr calibrate` checks them
+    const std::string& problem_path = o.positional[0];
+    iwr::ProblemData problem;
+    try {
+        problem = iwr::read_problem(problem_path);
+    } catch (const FormatError& e) {
+        throw InputError(e.what());
+    }
     std::optional<iwr::Objective> objective;
     try {
-        objective.emplace(robot.geometry(), data.q, data.poses, data.legs, data.weights);
+        objective.emplace(problem.geometry(), problem.q, problem.poses, problem.legs, problem.weights);
     } catch (const std::invalid_argument& e) {
-        throw InputError(data_path + ": " + e.what());
+        throw InputError(problem_path + ": " + e.what());
     }
 
     RunInfo info;
-    info.robot_file = robot_path;
-    info.data_file = data_path;
-    info.n_poses = data.n_poses();
-    info.robot_fp = robot_fingerprint(robot);
-    info.data_fp = data_fingerprint(data);
+    info.problem_file = problem_path;
+    info.robot_fp = problem.robot_fingerprint();
+    info.data_fp = problem.data_fingerprint();
     info.threads = iwr::ThreadPool::resolve(o.threads.value_or(0));
+    if (info.threads > iwr::ThreadPool::max_threads())  // all the CPUs is always allowed
+        info.threads = iwr::ThreadPool::max_threads();
+
+    // The files: outputs named now, checked against the inputs before anything is read or written.
+    info.checkpoint = o.checkpoint ? *o.checkpoint : (o.resume ? *o.resume : default_checkpoint(problem_path));
+    info.log = o.log.value_or("");
+    std::vector<std::pair<std::string, std::string>> inputs = {{problem_path, "the problem file"}};
+    const bool resume_elsewhere = o.resume && *o.resume != info.checkpoint && !same_file(*o.resume, info.checkpoint);
+    if (o.resume) {
+        struct stat st {};
+        if (::stat(o.resume->c_str(), &st) != 0) throw InputError(*o.resume + ": no such file");
+    }
+    if (resume_elsewhere) inputs.emplace_back(*o.resume, "the checkpoint resumed");
+    for (const auto& src : problem.sources)
+        if (!src.path.empty()) inputs.emplace_back(src.path, "the " + src.role + " file the problem was made from");
+    std::vector<std::pair<std::string, std::string>> outputs = {{info.checkpoint, "--checkpoint"}};
+    if (!info.log.empty()) outputs.emplace_back(info.log, "--log");
+    for (const auto& out : outputs) {
+        for (const auto& in : inputs)
+            if (out.first == in.first || same_file(out.first, in.first))
+                throw UsageError(out.second + ": " + out.first + " is " + in.second +
+                                 "; an output may not overwrite an input");
+    }
+    if (!info.log.empty() && (info.log == info.checkpoint || same_file(info.log, info.checkpoint)))
+        throw UsageError("--log: " + info.log + " is also the checkpoint");
+    if (!info.log.empty() && o.resume && same_file(info.log, *o.resume))
+        throw UsageError("--log: " + info.log + " is the checkpoint resumed");
+    check_writable(info.checkpoint, "checkpoint");
+    if (!info.log.empty()) check_writable(info.log, "log");
+
+    // One process per checkpoint: the one written, and the one resumed if it is another file.
+    std::optional<CheckpointLock> lock_out, lock_in;
+    lock_out.emplace(info.checkpoint);
+    if (resume_elsewhere) lock_in.emplace(*o.resume);
+    remove_stale_temporaries(info.checkpoint);
+    if (!info.log.empty()) remove_stale_temporaries(info.log);
 
     std::optional<de::State> state;
-    std::vector<std::pair<std::string, std::string>> saved;  // the checkpoint's run options
+    std::optional<iwr::Checkpoint> saved;
     if (o.resume) {
         const std::string& path = *o.resume;
-        iwr::app::Checkpoint c;
         try {
-            c = iwr::app::decode_checkpoint(iwr::app::read_file(path, "a checkpoint"));
-        } catch (const InputError&) {
-            throw;
-        } catch (const std::runtime_error& e) {
-            throw InputError(path + ": " + e.what());
+            saved = iwr::read_checkpoint(path);
+        } catch (const FormatError& e) {
+            throw InputError(e.what());
         }
+        const iwr::Checkpoint& c = *saved;
         if (c.robot_fingerprint != info.robot_fp)
-            throw InputError(path + ": made for another robot (" + c.robot_file +
-                             "); the geometry in " + robot_path + " differs");
-        if (c.data_fingerprint != info.data_fp)
-            throw InputError(path + ": made for other data (" + c.data_file + "); the measurements in " +
-                             data_path + " differ");
-        try {
-            std::istringstream in(c.engine_state, std::ios::binary);
-            state = de::State::deserialize(in);
-        } catch (const std::exception& e) {
-            throw InputError(path + ": corrupt engine state (" + e.what() + ")");
+            throw InputError(path + ": made for another robot (problem " + c.problem_file + "); the geometry in " +
+                             problem_path + " differs");
+        if (c.data_fingerprint != info.data_fp) {
+            std::string from;
+            for (const auto& src : problem.sources)
+                if (src.role == "data") from = " (from " + src.path + ")";
+            throw InputError(path + ": made for other data (problem " + c.problem_file + "); the measurements in " +
+                             problem_path + from + " differ");
         }
-        if (settings_fingerprint(state->settings) != c.settings_fingerprint)
+        if (settings_fingerprint(c.state.settings) != c.settings_fingerprint)
             throw InputError(path + ": corrupt: the settings fingerprint does not match the engine state");
-        if (state->dim() != robot.geometry().n_params())
-            throw InputError(path + ": made for " + std::to_string(state->dim()) + " parameters; " +
-                             robot_path + " has " + std::to_string(robot.geometry().n_params()));
-        saved = c.options;
+        if (c.state.dim() != problem.n_params())
+            throw InputError(path + ": made for " + std::to_string(c.state.dim()) + " parameters; " +
+                             problem_path + " has " + std::to_string(problem.n_params()));
+        state = c.state;
         de::Settings wanted = state->settings;
+        wanted.lower = problem.lower;
+        wanted.upper = problem.upper;
         try {
-            apply_settings(o, robot, wanted);
+            apply_settings(o, wanted);
             wanted = de::resolve(wanted);
         } catch (const std::invalid_argument& e) {
             throw UsageError(as_option_message(e.what()));
@@ -763,36 +756,38 @@ int run(const Options& o) {
             throw InputError(path + ": made with other settings (" + diff + ")");
         }
         info.resumed_from = path;
-        info.bounds_kind = option_or(saved, "bounds", "default");
-        info.preset = option_or(saved, "preset", "");
+        info.preset_paper = c.preset_paper;
+        if (c.had_log && info.log.empty() && !o.quiet)
+            std::fprintf(stderr, "%s: note: the run had a log; give --log again to keep writing it (the "
+                                 "result holds the whole history anyway)\n", kProgram);
     } else {
         de::Settings s;
-        iwr::VectorXd lo, hi;
-        iwr::app::default_bounds(robot, "default", lo, hi);
-        s.lower.assign(lo.data(), lo.data() + lo.size());
-        s.upper.assign(hi.data(), hi.data() + hi.size());
+        s.lower = problem.lower;
+        s.upper = problem.upper;
         try {
-            apply_settings(o, robot, s);
+            apply_settings(o, s);
             s = de::resolve(s);
         } catch (const std::invalid_argument& e) {
             throw UsageError(as_option_message(e.what()));
         }
-        info.bounds_kind = o.bounds.value_or("default");
-        info.preset = o.preset.value_or("");
+        info.preset_paper = o.preset.has_value();
         state.emplace();
         state->settings = s;  // init() below replaces the whole state
     }
+    // Memory: refused up front, with the estimate, rather than killed part way.
+    try {
+        de::require_memory(state->settings, iwr::io::available_memory());
+    } catch (const std::invalid_argument& e) {
+        throw UsageError(as_option_message(e.what()));
+    }
 
-    // Stopping criteria and outputs: the command line, else the checkpoint's, else the defaults.
+    // Stopping criteria: the command line, else the checkpoint's, else the defaults.
     if (o.generations) info.generations = *o.generations;
-    else if (has_option(saved, "generations"))
-        info.generations = saved_number<std::int64_t>(saved, "generations", *o.resume);
+    else if (saved) info.generations = saved->generations;
     if (o.max_evaluations) info.max_evaluations = *o.max_evaluations;
-    else if (has_option(saved, "max_evaluations"))
-        info.max_evaluations = saved_number<std::int64_t>(saved, "max_evaluations", *o.resume);
+    else if (saved) info.max_evaluations = saved->max_evaluations;
     if (o.target_cost) info.target_cost = *o.target_cost;
-    else if (has_option(saved, "target_cost"))
-        info.target_cost = saved_number<double>(saved, "target_cost", *o.resume);
+    else if (saved) info.target_cost = saved->target_cost;
     // The defaults of iwr.identify(method="de"): the paper's 60000 generations with its preset;
     // lshade and jso run to their evaluation budget (10000 D unless given); others 1000 generations.
     const bool budget = budgeted(state->settings.strategy);
@@ -801,16 +796,9 @@ int run(const Options& o) {
         if (budget && !info.max_evaluations) info.max_evaluations = state->settings.max_evaluations;
         if (!info.generations && !info.max_evaluations) info.generations = kDefaultGenerations;
     }
-    info.output = o.output ? *o.output : option_or(saved, "output", "iwr-result.json");
-    info.log = o.log ? *o.log : option_or(saved, "log", "");
-    info.checkpoint = o.checkpoint ? *o.checkpoint : (o.resume ? *o.resume : info.output + ".ckpt");
     info.checkpoint_every = kDefaultCheckpointEvery;
     if (o.checkpoint_every) info.checkpoint_every = *o.checkpoint_every;
-    else if (has_option(saved, "checkpoint_every"))
-        info.checkpoint_every = saved_number<std::int64_t>(saved, "checkpoint_every", *o.resume);
-    check_writable(info.output, "result");
-    check_writable(info.checkpoint, "checkpoint");
-    if (!info.log.empty()) check_writable(info.log, "log");
+    else if (saved) info.checkpoint_every = saved->checkpoint_every;
 
     de::Stop stop;
     if (info.generations) stop.max_generations = *info.generations;
@@ -834,7 +822,13 @@ int run(const Options& o) {
     sigemptyset(&ours);
     for (int sig : {SIGINT, SIGTERM, SIGHUP, SIGUSR1}) sigaddset(&ours, sig);
     pthread_sigmask(SIG_BLOCK, &ours, &previous);
-    iwr::ThreadPool pool(info.threads);
+    std::optional<iwr::ThreadPool> pool;
+    try {
+        pool.emplace(info.threads);
+    } catch (...) {
+        pthread_sigmask(SIG_SETMASK, &previous, nullptr);
+        throw;
+    }
     install(SIGINT, on_stop_signal);
     install(SIGTERM, on_stop_signal);
     install(SIGHUP, on_stop_signal);
@@ -843,31 +837,48 @@ int run(const Options& o) {
     Progress progress(!o.quiet, stop.max_generations);
 
     if (o.resume) {
-        progress.message("resuming " + info.resumed_from + " at generation " +
-                         std::to_string(state->generation) + " (best cost " + real_text(state->best_cost()) + ")");
+        progress.message("resuming " + info.resumed_from + " at generation " + std::to_string(state->generation) +
+                         " (best cost " + real_text(state->best_cost()) + ")");
     } else {
-        progress.message(std::to_string(robot.geometry().n_params()) + " parameters, " +
-                         std::to_string(info.n_poses) + " poses; " + de::to_string(state->settings.strategy) +
-                         ", NP " + std::to_string(state->settings.population_size) + ", seed " +
-                         std::to_string(state->settings.seed) + ", " + std::to_string(info.threads) +
-                         " thread(s)");
+        progress.message(std::to_string(problem.n_params()) + " parameters, " + std::to_string(problem.n_poses()) +
+                         " poses; " + de::to_string(state->settings.strategy) + ", NP " +
+                         std::to_string(state->settings.population_size) + ", seed " +
+                         std::to_string(state->settings.seed) + ", " + std::to_string(info.threads) + " thread(s)");
         progress.start(0, 0);
-        *state = de::init(state->settings, f, pool);
+        *state = de::init(state->settings, f, *pool);
     }
     if (o.resume) progress.start(state->generation, state->nfev);
 
+    auto outcome = [&](bool success, const std::string& message) {
+        Outcome out;
+        out.x = f.full(state->best_x().data());
+        out.fun = objective->cost(out.x);
+        out.success = success;
+        out.message = message;
+        // A cost that is not finite is never a success (and the result still loads: the JSON
+        // writer of iwr-calibrate writes it as Infinity/NaN, which iwr.load_result reads).
+        if (!std::isfinite(out.fun)) {
+            out.success = false;
+            out.message += "; the best cost is not finite (" + real_text(out.fun) +
+                           "): the data are far outside what the robot model can fit";
+        }
+        return out;
+    };
     auto callback = [&](const de::State& st) {
         progress.update(st);
         if (g_stop_signal) return true;
         const bool due = info.checkpoint_every > 0 && st.generation % info.checkpoint_every == 0;
         if (due || g_checkpoint_request) {
             g_checkpoint_request = 0;
-            write_checkpoint(st, info);
+            write_checkpoint_file(st, info, outcome(false, "checkpoint at generation " +
+                                                               std::to_string(st.generation) +
+                                                               "; the run was still going"));
+            if (!info.log.empty()) iwr::io::atomic_write(info.log, info.log_text.update(st));
         }
         return false;
     };
     de::RunResult rr;
-    if (!g_stop_signal) rr = de::run(*state, f, pool, stop, callback);
+    if (!g_stop_signal) rr = de::run(*state, f, *pool, stop, callback);
     const int sig = g_stop_signal;
     const bool interrupted = sig != 0 && (rr.reason == de::StopReason::callback || rr.reason == de::StopReason::none);
     progress.update(*state, true);
@@ -879,23 +890,19 @@ int run(const Options& o) {
                   std::to_string(state->generation) + "; continue with --resume " + info.checkpoint;
         success = false;
     }
-    // The checkpoint first (what a resume needs), then the result, then the log.
-    write_checkpoint_file(*state, info);
-    const iwr::VectorXd x = f.full(state->best_x().data());
-    const double fun = objective->cost(x);
-    iwr::app::atomic_write(info.output, result_json(*state, x, fun, robot.parameter_names(), success,
-                                                    message, info));
-    if (!info.log.empty()) iwr::app::atomic_write(info.log, info.log_text.update(*state));
+    const Outcome out = outcome(success, message);
+    // The checkpoint (what a resume needs, and the result), then the log.
+    write_checkpoint_file(*state, info, out);
+    if (!info.log.empty()) iwr::io::atomic_write(info.log, info.log_text.update(*state));
     const double secs = progress.session_seconds();
     const long long ev = static_cast<long long>(progress.session_nfev(*state));
     char summary[512];
     std::snprintf(summary, sizeof summary,
                   "best cost %.6e at generation %lld, %lld evaluations (%lld in this session: %.1f s, "
-                  "%.0f/s); result in %s, checkpoint in %s",
-                  fun, static_cast<long long>(state->generation), static_cast<long long>(state->nfev),
-                  ev, secs, secs > 0 ? static_cast<double>(ev) / secs : 0.0, info.output.c_str(),
-                  info.checkpoint.c_str());
-    progress.message(message);
+                  "%.0f/s); checkpoint and result in %s",
+                  out.fun, static_cast<long long>(state->generation), static_cast<long long>(state->nfev), ev, secs,
+                  secs > 0 ? static_cast<double>(ev) / secs : 0.0, info.checkpoint.c_str());
+    progress.message(out.message);
     progress.message(summary);
     return interrupted ? 128 + sig : kExitOk;
 }
@@ -903,6 +910,11 @@ int run(const Options& o) {
 }  // namespace
 
 int main(int argc, char** argv) {
+    if (argc > 0 && argv[0] && *argv[0]) {
+        const char* slash = std::strrchr(argv[0], '/');
+        kProgram = slash ? slash + 1 : argv[0];
+        if (!*kProgram) kProgram = "iwr-engine";
+    }
     try {
         const Options o = parse_args(argc, argv);
         if (o.help) {

@@ -1,0 +1,55 @@
+// Checkpoints of iwr-engine: a sealed container (iwr/binary_io.hpp, magic "IWRCKPT\x1a", version
+// kCheckpointVersion) whose payload is, in this order:
+//   str  program ("iwr-engine 0.1.0", for the record)
+//   u64  robot, data and settings fingerprints (of the problem file and of the DE settings)
+//   str  problem file (its path when the run started, for messages only)
+//   i64  generations (-1: none), max evaluations (-1: none); f64 target cost (NaN: none)
+//   i64  checkpoint every; u8 preset (0 none, 1 paper); u8 had a log
+//   u8   success; str message; f64 cost at x; f64s x   (the run's result so far)
+//   str  resumed from (for the record)
+//   str  the DE engine's state (iwr::de::State::to_bytes, itself sealed and checked)
+// A checkpoint is untrusted input: every field is range-checked as if typed by a user, and it
+// holds no output path (the run's outputs come from the command line, or from the name of the
+// checkpoint itself).
+#pragma once
+
+#include <cstdint>
+#include <optional>
+#include <string>
+#include <vector>
+
+#include "iwr/de.hpp"
+
+namespace iwr {
+
+constexpr std::uint32_t kCheckpointVersion = 2;
+
+struct Checkpoint {
+    std::string program;
+    std::uint64_t robot_fingerprint = 0, data_fingerprint = 0, settings_fingerprint = 0;
+    std::string problem_file;
+    std::optional<std::int64_t> generations, max_evaluations;
+    std::optional<double> target_cost;
+    std::int64_t checkpoint_every = 0;
+    bool preset_paper = false;
+    bool had_log = false;
+    bool success = false;
+    std::string message;
+    double fun = 0;
+    std::vector<double> x;
+    std::string resumed_from;
+    de::State state;
+};
+
+/// The file's bytes, with `state` as the engine state (c.state is ignored: no copy of a large
+/// population is made for writing).
+std::string encode_checkpoint(const Checkpoint& c, const de::State& state);
+
+/// Parses and checks file contents; `context` starts every message ("run.ckpt: "). Throws
+/// io::FormatError naming the field.
+Checkpoint decode_checkpoint(const std::string& bytes, const std::string& context);
+
+/// Reads and decodes a checkpoint file (io::FormatError naming the file).
+Checkpoint read_checkpoint(const std::string& path);
+
+}  // namespace iwr

@@ -1,0 +1,104 @@
+#include "iwr/checkpoint.hpp"
+
+#include <cmath>
+#include <limits>
+
+#include "iwr/binary_io.hpp"
+
+namespace iwr {
+
+namespace {
+
+const char kMagic[8] = {'I', 'W', 'R', 'C', 'K', 'P', 'T', '\x1a'};
+constexpr std::uint64_t kMaxFile = std::uint64_t(64) << 30;
+constexpr std::int64_t kInt64Max = std::numeric_limits<std::int64_t>::max();
+
+std::string printable_text(io::Reader& r, const char* field, std::size_t max_len) {
+    std::string s = r.str(field, max_len);
+    for (unsigned char c : s)
+        if (c < 0x20 || c == 0x7f) r.fail(std::string(field) + ": holds a control character");
+    return s;
+}
+
+bool flag(io::Reader& r, const char* field) {
+    const std::uint8_t v = r.u8(field);
+    if (v > 1) r.fail(std::string(field) + " is " + std::to_string(v) + ", expected 0 or 1");
+    return v == 1;
+}
+
+}  // namespace
+
+std::string encode_checkpoint(const Checkpoint& c, const de::State& state) {
+    io::Writer w;
+    w.str(c.program);
+    w.u64(c.robot_fingerprint);
+    w.u64(c.data_fingerprint);
+    w.u64(c.settings_fingerprint);
+    w.str(c.problem_file);
+    w.i64(c.generations ? *c.generations : -1);
+    w.i64(c.max_evaluations ? *c.max_evaluations : -1);
+    w.f64(c.target_cost ? *c.target_cost : std::numeric_limits<double>::quiet_NaN());
+    w.i64(c.checkpoint_every);
+    w.u8(c.preset_paper ? 1 : 0);
+    w.u8(c.had_log ? 1 : 0);
+    w.u8(c.success ? 1 : 0);
+    w.str(c.message);
+    w.f64(c.fun);
+    w.doubles(c.x);
+    w.str(c.resumed_from);
+    {
+        const std::string blob = state.to_bytes();
+        w.data().reserve(w.data().size() + 8 + blob.size());
+        w.str(blob);
+    }
+    return io::seal(kMagic, kCheckpointVersion, w.data());
+}
+
+Checkpoint decode_checkpoint(const std::string& bytes, const std::string& context) {
+    const std::string payload =
+        io::unseal(bytes, kMagic, kCheckpointVersion, context, "an iwr-engine checkpoint");
+    io::Reader r(payload.data(), payload.size(), context);
+    Checkpoint c;
+    c.program = printable_text(r, "program", 256);
+    c.robot_fingerprint = r.u64("robot fingerprint");
+    c.data_fingerprint = r.u64("data fingerprint");
+    c.settings_fingerprint = r.u64("settings fingerprint");
+    c.problem_file = printable_text(r, "problem file", 4096);
+    const std::int64_t g = r.i64_in("generations", -1, kInt64Max);
+    if (g >= 0) c.generations = g;
+    const std::int64_t m = r.i64_in("max evaluations", -1, kInt64Max);
+    if (m == 0) r.fail("max evaluations is 0, outside [1, 2^63)");
+    if (m > 0) c.max_evaluations = m;
+    const double t = r.f64("target cost");
+    if (std::isinf(t)) r.fail("target cost is not finite");
+    if (!std::isnan(t)) c.target_cost = t;
+    c.checkpoint_every = r.i64_in("checkpoint every", 0, kInt64Max);
+    c.preset_paper = flag(r, "preset");
+    c.had_log = flag(r, "had a log");
+    c.success = flag(r, "success");
+    c.message = r.str("message", 4096);
+    c.fun = r.f64("cost");
+    if (c.success && !std::isfinite(c.fun)) r.fail("success with a cost that is not finite");
+    c.x = r.doubles("x");
+    c.resumed_from = printable_text(r, "resumed from", 4096);
+    const std::string state = r.str("engine state", payload.size());
+    r.finish();
+    try {
+        c.state = de::State::from_bytes(state);
+    } catch (const io::FormatError& e) {
+        r.fail(std::string("corrupt engine state (") + e.what() + ")");
+    }
+    if (c.x.size() != static_cast<std::size_t>(c.state.dim()))
+        r.fail("x has " + std::to_string(c.x.size()) + " values; the engine state has " +
+               std::to_string(c.state.dim()) + " parameters");
+    for (std::size_t j = 0; j < c.x.size(); ++j)
+        if (!(c.x[j] >= c.state.settings.lower[j] && c.x[j] <= c.state.settings.upper[j]))
+            r.fail("x: parameter " + std::to_string(j) + " is outside the bounds");
+    return c;
+}
+
+Checkpoint read_checkpoint(const std::string& path) {
+    return decode_checkpoint(io::read_file(path, "an iwr-engine checkpoint", kMaxFile), path + ": ");
+}
+
+}  // namespace iwr

@@ -1,0 +1,397 @@
+// C++ tests of the one binary writer/reader/hash (iwr/binary_io.hpp) and of the files built on it:
+// the problem file and the engine's checkpoints. Includes the fuzzing campaign: random mutations of
+// valid files, resealed with a correct checksum so that they reach the field parser, must each be
+// accepted or refused with a FormatError; under -DIWR_SANITIZE=ON (.ci/run) any out-of-bounds
+// read, overflow or leak aborts the test. IWR_FUZZ_ITERATIONS sets the number of mutations per
+// file kind (default 3000; benchmarks/fuzz_binary_io.sh runs a longer campaign).
+#include <fcntl.h>
+#include <sys/stat.h>
+#include <unistd.h>
+
+#include <chrono>
+#include <cmath>
+#include <cstdio>
+#include <cstdlib>
+#include <limits>
+#include <random>
+#include <stdexcept>
+#include <string>
+
+#include "check.hpp"
+#include "iwr/binary_io.hpp"
+#include "iwr/checkpoint.hpp"
+#include "iwr/de.hpp"
+#include "iwr/objective.hpp"
+#include "iwr/parallel.hpp"
+#include "iwr/problem_file.hpp"
+
+namespace {
+
+namespace io = iwr::io;
+
+bool contains(const std::string& s, const std::string& needle) { return s.find(needle) != std::string::npos; }
+
+// The message of the FormatError `fn` throws ("" if none; "OTHER: ..." for another exception).
+template <class Fn>
+std::string refusal(Fn fn) {
+    try {
+        fn();
+    } catch (const io::FormatError& e) {
+        return e.what();
+    } catch (const std::exception& e) {
+        return std::string("OTHER: ") + e.what();
+    }
+    return "";
+}
+
+iwr::ProblemData sample_problem(int n_poses, bool weights, const std::string& joints = "PR") {
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> u(-1, 1);
+    iwr::ProblemData p;
+    p.robot_name = "test robot";
+    p.joint_types = joints;
+    const int n = static_cast<int>(joints.size());
+    p.dh = iwr::RowMatrixXd::Zero(n, 4);
+    for (int i = 0; i < n; ++i) p.dh.row(i) << M_PI / 2, 10.0 * i, 300 + i, 0.1 * i;
+    p.joint_limits.resize(n, 2);
+    for (int i = 0; i < n; ++i) p.joint_limits.row(i) << -1000, 1000;
+    for (int j = 0; j < 6; ++j) {
+        const double a = j * M_PI / 3;
+        p.base.row(j) << 400 * std::cos(a), 400 * std::sin(a), 0;
+        p.platform.row(j) << 250 * std::cos(a + 0.3), 250 * std::sin(a + 0.3), 0;
+        p.leg_offsets(j) = 600;
+        p.leg_stroke.row(j) << 0, 400;
+    }
+    p.home_pose << 0, 0, 600, 0, 0, 0;
+    p.workspace << 100, 100, 60, 0.15, 0.15, 0.15;
+    p.has_measurement_joint_types = true;
+    p.measurement_joint_types = joints;
+    p.q.resize(n_poses, n);
+    p.poses.resize(n_poses, 6);
+    p.legs.resize(n_poses, 6);
+    for (int k = 0; k < n_poses; ++k) {
+        for (int i = 0; i < n; ++i) p.q(k, i) = 100 * u(rng);
+        p.poses.row(k) << 50 * u(rng), 50 * u(rng), 600 + 50 * u(rng), 0.1 * u(rng), 0.1 * u(rng), 0.1 * u(rng);
+        for (int j = 0; j < 6; ++j) p.legs(k, j) = 200 + 50 * u(rng);
+    }
+    if (weights) p.weights = iwr::RowMatrixXd::Constant(n_poses, 6, 2.0);
+    const int np = p.n_params();
+    p.lower.assign(static_cast<std::size_t>(np), -0.5);
+    p.upper.assign(static_cast<std::size_t>(np), 0.5);
+    p.bounds_kind = "default";
+    for (int k = 0; k < np; ++k) p.parameter_names.push_back("p" + std::to_string(k));
+    p.sources = {{"robot", "robot.toml", std::string(64, 'a')}, {"data", "data.csv", ""}};
+    return p;
+}
+
+bool same_problem(const iwr::ProblemData& a, const iwr::ProblemData& b) {
+    return a.robot_name == b.robot_name && a.joint_types == b.joint_types && a.dh == b.dh &&
+           a.joint_limits == b.joint_limits && a.base == b.base && a.platform == b.platform &&
+           a.leg_offsets == b.leg_offsets && a.leg_stroke == b.leg_stroke && a.home_pose == b.home_pose &&
+           a.workspace == b.workspace && a.q == b.q && a.poses == b.poses && a.legs == b.legs &&
+           a.weights == b.weights && a.lower == b.lower && a.upper == b.upper &&
+           a.bounds_kind == b.bounds_kind && a.parameter_names == b.parameter_names &&
+           a.measurement_joint_types == b.measurement_joint_types && a.sources.size() == b.sources.size() &&
+           a.sources[0].sha256 == b.sources[0].sha256 && a.sources[1].path == b.sources[1].path;
+}
+
+// The same container header around another payload, with its size and checksum recomputed.
+std::string reseal(const std::string& file, const std::string& payload) {
+    io::Writer w;
+    w.raw(file.substr(0, 16));
+    w.u64(payload.size());
+    w.u64(io::hash64(payload.data(), payload.size()));
+    w.raw(payload);
+    return w.data();
+}
+
+int fuzz_iterations() {
+    const char* env = std::getenv("IWR_FUZZ_ITERATIONS");
+    return env ? std::max(1, std::atoi(env)) : 3000;
+}
+
+// Random mutations of the payload of `good`, resealed; each must be accepted or refused with a
+// FormatError. Returns the number refused; counts anything else as a failure.
+template <class Decode>
+int fuzz(const std::string& good, Decode decode, const char* what, std::uint64_t seed) {
+    std::mt19937_64 rng(seed);
+    const std::string payload = good.substr(32);
+    const int iterations = fuzz_iterations();
+    int refused = 0, accepted = 0, other = 0;
+    for (int t = 0; t < iterations; ++t) {
+        std::string m = payload;
+        const int edits = 1 + static_cast<int>(rng() % 4);
+        for (int e = 0; e < edits && !m.empty(); ++e) {
+            const std::size_t at = rng() % m.size();
+            switch (rng() % 6) {
+                case 0: m[at] = static_cast<char>(m[at] ^ (1 << (rng() % 8))); break;  // a bit
+                case 1: m[at] = static_cast<char>(rng()); break;                         // a byte
+                case 2: {  // a 64-bit count or value: 0, -1, huge, or a NaN's bits
+                    const std::uint64_t vals[] = {0, ~0ULL, 1ULL << 62, 0x7ff8000000000001ULL, 0xfff0000000000000ULL,
+                                                  static_cast<std::uint64_t>(-5)};
+                    const std::uint64_t v = vals[rng() % 6];
+                    for (int k = 0; k < 8 && at + static_cast<std::size_t>(k) < m.size(); ++k)
+                        m[at + static_cast<std::size_t>(k)] = static_cast<char>(v >> (8 * k));
+                    break;
+                }
+                case 3: m.resize(at); break;                                               // cut
+                case 4: m.insert(at, std::string(1 + rng() % 16, static_cast<char>(rng()))); break;
+                default: m.erase(at, 1 + rng() % 16); break;
+            }
+        }
+        const std::string msg = refusal([&] { decode(reseal(good, m)); });
+        if (msg.empty()) ++accepted;
+        else if (contains(msg, "OTHER: ")) {
+            ++other;
+            if (other < 5) std::fprintf(stderr, "%s: not a FormatError: %s\n", what, msg.c_str());
+        } else ++refused;
+    }
+    std::printf("fuzz %s: %d mutations, %d refused with a message, %d accepted, %d other errors, 0 crashes\n",
+                what, iterations, refused, accepted, other);
+    CHECK(other == 0);
+    return refused;
+}
+
+IWR_TEST(hash_and_hex) {
+    CHECK(io::hash64("", 0) == 0xcbf29ce484222325ULL);
+    CHECK(io::hash64("a", 1) == 0xaf63dc4c8601ec8cULL);  // the published FNV-1a 64 test vector
+    CHECK(io::hex64(255) == "00000000000000ff");
+    CHECK(io::human_bytes(25.3e9) == "25.3 GB");
+}
+
+IWR_TEST(reader_checks_counts_before_allocating) {
+    io::Writer w;
+    w.u64(1ULL << 60);  // a count of doubles no file holds
+    w.f64(1.0);
+    io::Reader r(w.data().data(), w.data().size(), "x.bin: ");
+    const std::string msg = refusal([&] { r.doubles("population"); });
+    CHECK(contains(msg, "x.bin: truncated or corrupt: population says 1152921504606846976 items"));
+    io::Reader r2(w.data().data(), 4, "x.bin: ");
+    CHECK(contains(refusal([&] { r2.u64("seed"); }), "x.bin: truncated while reading seed"));
+    io::Writer s;
+    s.str(std::string(100, 'a'));
+    io::Reader r3(s.data().data(), s.data().size(), "");
+    CHECK(contains(refusal([&] { r3.str("name", 10); }), "name is 100 bytes long, more than 10"));
+    io::Writer v;
+    v.i64(-5);
+    io::Reader r4(v.data().data(), v.data().size(), "");
+    CHECK(contains(refusal([&] { r4.i64_in("generations", -1, 100); }), "generations is -5, outside [-1, 100]"));
+}
+
+IWR_TEST(container_refuses_damage) {
+    const char magic[8] = {'T', 'E', 'S', 'T', 'M', 'A', 'G', '\x1a'};
+    const std::string good = io::seal(magic, 3, "some payload bytes");
+    CHECK(io::unseal(good, magic, 3, "f: ", "a test file") == "some payload bytes");
+    int refused = 0;
+    for (std::size_t n = 0; n < good.size(); ++n)
+        refused += !refusal([&] { io::unseal(good.substr(0, n), magic, 3, "f: ", "a test file"); }).empty();
+    CHECK(refused == static_cast<int>(good.size()));
+    refused = 0;
+    int total = 0;
+    for (std::size_t i = 0; i < good.size(); ++i)
+        for (int bit = 0; bit < 8; ++bit, ++total) {
+            std::string bad = good;
+            bad[i] = static_cast<char>(bad[i] ^ (1 << bit));
+            refused += !refusal([&] { io::unseal(bad, magic, 3, "f: ", "a test file"); }).empty();
+        }
+    CHECK(refused == total);
+    CHECK(contains(refusal([&] { io::unseal(good, magic, 4, "f: ", "a test file"); }),
+                   "f: format version 3; this program reads version 4"));
+    CHECK(contains(refusal([&] { io::unseal("hello world, not it", magic, 3, "f: ", "a test file"); }),
+                   "f: not a test file (wrong magic bytes)"));
+    CHECK(contains(refusal([&] { io::unseal(good + "x", magic, 3, "f: ", "a test file"); }), "1 bytes after the end"));
+    // A header claiming 2^64 - 1 bytes: refused from the length, nothing allocated.
+    std::string huge = good.substr(0, 32);
+    for (int k = 0; k < 8; ++k) huge[16 + static_cast<std::size_t>(k)] = '\xff';
+    CHECK(contains(refusal([&] { io::unseal(huge, magic, 3, "f: ", "a test file"); }), "truncated"));
+}
+
+IWR_TEST(read_file_refuses_what_is_not_a_file) {
+    const auto t0 = std::chrono::steady_clock::now();
+    CHECK(contains(refusal([] { io::read_file("/dev/zero", "a checkpoint", 1 << 30); }),
+                   "/dev/zero: not a regular file"));
+    CHECK(std::chrono::steady_clock::now() - t0 < std::chrono::seconds(5));  // not 2 GB read first
+    CHECK(contains(refusal([] { io::read_file("/", "a checkpoint", 1 << 30); }), "/: is a folder"));
+    CHECK(contains(refusal([] { io::read_file("/nonexistent/x.ckpt", "a checkpoint", 1 << 30); }),
+                   "/nonexistent/x.ckpt: no such file"));
+    char name[] = "/tmp/iwr_io_testXXXXXX";
+    const int fd = ::mkstemp(name);
+    CHECK(fd >= 0);
+    CHECK(::write(fd, "0123456789", 10) == 10);
+    ::close(fd);
+    CHECK(io::read_file(name, "a test file", 10) == "0123456789");
+    CHECK(contains(refusal([&] { io::read_file(name, "a test file", 9); }), "larger than any a test file"));
+    io::atomic_write(name, "new");
+    CHECK(io::read_file(name, "a test file", 10) == "new");
+    ::unlink(name);
+}
+
+IWR_TEST(problem_round_trip) {
+    for (const std::string joints : {"", "PR", "PPRR"}) {
+        for (bool weights : {false, true}) {
+            const iwr::ProblemData p = sample_problem(5, weights, joints);
+            const std::string bytes = iwr::encode_problem(p);
+            const iwr::ProblemData q = iwr::decode_problem(bytes, "p.iwrp: ");
+            CHECK(same_problem(p, q));
+            CHECK(q.robot_fingerprint() == p.robot_fingerprint() && q.data_fingerprint() == p.data_fingerprint());
+            CHECK(iwr::encode_problem(q) == bytes);  // deterministic
+            // The objective it describes can be built and evaluated.
+            iwr::Objective obj(q.geometry(), q.q, q.poses, q.legs, q.weights);
+            CHECK(std::isfinite(obj.cost(iwr::VectorXd::Zero(q.n_params()))));
+        }
+    }
+    iwr::ProblemData other = sample_problem(5, false);
+    other.legs(0, 0) += 1e-3;
+    CHECK(other.data_fingerprint() != sample_problem(5, false).data_fingerprint());
+}
+
+IWR_TEST(problem_refuses_bad_values) {
+    auto refused_with = [](auto edit, const std::string& needle) {
+        iwr::ProblemData p = sample_problem(4, true);
+        edit(p);
+        try {
+            iwr::encode_problem(p);
+        } catch (const std::invalid_argument& e) {
+            if (contains(e.what(), needle)) return true;
+            std::fprintf(stderr, "message without '%s': %s\n", needle.c_str(), e.what());
+            return false;
+        }
+        std::fprintf(stderr, "accepted; expected '%s'\n", needle.c_str());
+        return false;
+    };
+    CHECK(refused_with([](auto& p) { p.poses(2, 1) = NAN; }, "poses: row 2, column 1 is nan, not finite"));
+    CHECK(refused_with([](auto& p) { p.legs(0, 3) = 1e308; }, "legs: row 0, column 3"));
+    CHECK(refused_with([](auto& p) { p.weights(1, 1) = -1; }, "weights: row 1, column 1 is negative"));
+    CHECK(refused_with([](auto& p) { p.lower[3] = 1; }, "bounds: parameter 3"));
+    CHECK(refused_with([](auto& p) { p.parameter_names.pop_back(); }, "parameter names: 49; expected 50"));
+    CHECK(refused_with([](auto& p) { p.joint_types = "PX"; }, "joint types: 'X'"));
+    CHECK(refused_with([](auto& p) { p.bounds_kind = "wide"; }, "bounds kind: 'wide'"));
+    CHECK(refused_with([](auto& p) { p.parameter_names[0] = "a\nb"; }, "parameter name: holds a control character"));
+    CHECK(refused_with([](auto& p) { p.leg_stroke(2, 0) = 500; }, "leg stroke: leg 3"));
+    CHECK(refused_with([](auto& p) { p.measurement_joint_types = "RR"; }, "do not match the robot's"));
+    CHECK(refused_with([](auto& p) { p.sources[0].sha256 = "xyz"; }, "source sha256"));
+    CHECK(refused_with(
+              [](auto& p) {
+                  p.q.resize(0, 2), p.poses.resize(0, 6), p.legs.resize(0, 6), p.weights.resize(0, 6);
+              },
+              "number of poses: 0"));
+}
+
+IWR_TEST(problem_fuzz) {
+    const std::string good = iwr::encode_problem(sample_problem(6, true));
+    const int refused = fuzz(good, [](const std::string& b) { iwr::decode_problem(b, "fuzz.iwrp: "); },
+                             "problem file", 1);
+    CHECK(refused > 0);
+}
+
+// A tiny DE run's checkpoint.
+class Sphere : public iwr::de::BatchFunction {
+public:
+    int dim() const override { return 5; }
+    void evaluate(const double* X, std::size_t m, double* out, iwr::ThreadPool&) override {
+        for (std::size_t i = 0; i < m; ++i) {
+            double s = 0;
+            for (int j = 0; j < 5; ++j) s += X[i * 5 + static_cast<std::size_t>(j)] * X[i * 5 + static_cast<std::size_t>(j)];
+            out[i] = s;
+        }
+    }
+};
+
+iwr::Checkpoint sample_checkpoint() {
+    iwr::de::Settings s;
+    s.strategy = iwr::de::Strategy::shade;
+    s.lower.assign(5, -1.0);
+    s.upper.assign(5, 1.0);
+    s.population_size = 8;
+    s.memory_size = 3;
+    Sphere f;
+    iwr::ThreadPool pool(1);
+    iwr::Checkpoint c;
+    c.state = iwr::de::init(s, f, pool);
+    for (int g = 0; g < 3; ++g) iwr::de::step(c.state, f, pool);
+    c.program = "test";
+    c.robot_fingerprint = 1;
+    c.data_fingerprint = 2;
+    c.settings_fingerprint = 3;
+    c.problem_file = "p.iwrp";
+    c.generations = 10;
+    c.target_cost = 1e-4;
+    c.checkpoint_every = 5;
+    c.success = false;
+    c.message = "checkpoint";
+    const iwr::VectorXd x = c.state.best_x();
+    c.x.assign(x.data(), x.data() + x.size());
+    c.fun = c.state.best_cost();
+    return c;
+}
+
+IWR_TEST(checkpoint_round_trip_and_damage) {
+    const iwr::Checkpoint c = sample_checkpoint();
+    const std::string bytes = iwr::encode_checkpoint(c, c.state);
+    const iwr::Checkpoint back = iwr::decode_checkpoint(bytes, "c.ckpt: ");
+    CHECK(back.robot_fingerprint == 1 && back.data_fingerprint == 2 && back.settings_fingerprint == 3);
+    CHECK(back.generations == 10 && !back.max_evaluations && back.target_cost == 1e-4);
+    CHECK(back.x == c.x && back.fun == c.fun && back.message == "checkpoint" && !back.success);
+    CHECK(back.state.generation == 3 && back.state.population == c.state.population);
+    int refused = 0, total = 0;
+    for (std::size_t n = 0; n < bytes.size(); n += 7, ++total)
+        refused += !refusal([&] { iwr::decode_checkpoint(bytes.substr(0, n), ""); }).empty();
+    CHECK(refused == total);
+}
+
+IWR_TEST(checkpoint_fields_are_range_checked) {
+    // Crafted checkpoints, checksums recomputed: each field as if a user had typed it.
+    auto refused_with = [](auto edit, const std::string& needle) {
+        iwr::Checkpoint c = sample_checkpoint();
+        edit(c);
+        const std::string msg = refusal([&] { iwr::decode_checkpoint(iwr::encode_checkpoint(c, c.state), "c.ckpt: "); });
+        if (!contains(msg, needle)) std::fprintf(stderr, "expected '%s', got '%s'\n", needle.c_str(), msg.c_str());
+        return contains(msg, needle) && !contains(msg, "OTHER");
+    };
+    CHECK(refused_with([](auto& c) { c.generations = -5; }, "c.ckpt: generations is -5, outside [-1,"));
+    CHECK(refused_with([](auto& c) { c.checkpoint_every = -1; }, "checkpoint every is -1"));
+    CHECK(refused_with([](auto& c) { c.target_cost = INFINITY; }, "target cost is not finite"));
+    CHECK(refused_with([](auto& c) { c.x.push_back(0); }, "x has 6 values"));
+    CHECK(refused_with([](auto& c) { c.x[0] = 7; }, "x: parameter 0 is outside the bounds"));
+    CHECK(refused_with([](auto& c) { c.success = true, c.fun = NAN; }, "success with a cost that is not finite"));
+    CHECK(refused_with([](auto& c) { c.problem_file = "a\nb"; }, "problem file: holds a control character"));
+    CHECK(refused_with([](auto& c) { c.state.generation = -2; }, "corrupt engine state"));
+    CHECK(refused_with([](auto& c) { c.state.np = 100000; }, "corrupt engine state"));
+    // Unknown trailing fields (a key this version does not know) are refused.
+    const std::string good = iwr::encode_checkpoint(sample_checkpoint(), sample_checkpoint().state);
+    io::Writer extra;
+    extra.str("output");
+    extra.str("/etc/passwd");
+    CHECK(contains(refusal([&] { iwr::decode_checkpoint(reseal(good, good.substr(32) + extra.data()), ""); }),
+                   "unexpected bytes at the end"));
+}
+
+IWR_TEST(checkpoint_fuzz) {
+    const std::string good = iwr::encode_checkpoint(sample_checkpoint(), sample_checkpoint().state);
+    const int refused = fuzz(good, [](const std::string& b) { iwr::decode_checkpoint(b, "fuzz.ckpt: "); },
+                             "checkpoint", 2);
+    CHECK(refused > 0);
+}
+
+IWR_TEST(memory_estimate_refuses_huge_populations) {
+    iwr::de::Settings s;
+    s.lower.assign(58, -0.5);
+    s.upper.assign(58, 0.5);
+    s.population_size = 10'000'000;
+    const iwr::de::Settings r = iwr::de::resolve(s);
+    CHECK(iwr::de::memory_estimate(r) > 1e10);  // tens of GB: what the issue saw killed
+    bool named = false;
+    try {
+        iwr::de::require_memory(r, 8'000'000'000ULL);
+    } catch (const std::invalid_argument& e) {
+        named = contains(e.what(), "population_size: 10000000 individuals of 58 parameters need about") &&
+                contains(e.what(), "8.0 GB are available");
+    }
+    CHECK(named);
+    s.population_size = 600;
+    iwr::de::require_memory(iwr::de::resolve(s), 8'000'000'000ULL);  // the paper's: a few MB
+}
+
+}  // namespace
+
+IWR_TEST_MAIN

@@ -1,0 +1,340 @@
+"""``iwr-calibrate``: a long DE run from ``ROBOT.toml DATA.csv`` (or a problem file) in one command.
+
+The launcher of the C++ engine ``iwr-engine``. It reads and checks the robot TOML and the
+measurement CSV with the package's readers (the same checks and messages as ``iwr calibrate``),
+writes the problem file ``RESULT.iwrp`` next to the result, runs the engine on it (the engine needs
+no Python: the problem file and the ``iwr-engine`` program can be copied to a compute node), and
+turns the engine's final checkpoint into the JSON result that :func:`iwr.load_result` reads (the one
+JSON writer, :meth:`iwr.IdentificationResult.save`).
+
+The engine runs as a child process started as ``iwr-calibrate`` (so its messages name the command
+the user typed). SIGINT, SIGTERM, SIGHUP and SIGUSR1 sent to the launcher are passed on to it (a
+signal ignored when the launcher starts stays ignored, in both), and the launcher exits with the
+engine's exit status (a child killed by signal N: 128 + N, as a shell says). If the launcher itself
+is killed, the engine gets SIGTERM (Linux ``PR_SET_PDEATHSIG``) and writes its checkpoint.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import sysconfig
+from collections.abc import Sequence
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+PROG = "iwr-calibrate"
+ENGINE = "iwr-engine"
+EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
+
+# The engine's options that take a value (the others are flags): needed to tell the positional
+# arguments from option values. The engine itself checks every one of them.
+_ENGINE_VALUED = {
+    "--strategy", "--population-size", "--F", "--CR", "--bound-rule", "--seed", "--preset",
+    "--generations", "--max-evaluations", "--target-cost", "--threads", "--log", "--checkpoint",
+    "--checkpoint-every", "--resume",
+}
+_OWN_VALUED = {"--bounds", "--output", "--problem", "--export"}
+_FLAGS = {"--quiet", "-q", "--help", "-h", "--version"}
+
+HELP = """\
+usage: iwr-calibrate ROBOT.toml DATA.csv [--bounds B] [--output RESULT] [--problem PATH] [options]
+       iwr-calibrate PROBLEM.iwrp [--output RESULT] [options]
+       iwr-calibrate --export CHECKPOINT [--problem PROBLEM.iwrp] --output RESULT
+
+Long differential-evolution runs with checkpoints and resume. Reads ROBOT.toml and DATA.csv with
+the checks of `iwr calibrate` (or a problem file written by iwr.Problem.save), writes the problem
+file (default RESULT.iwrp), runs the engine iwr-engine on it, and writes the JSON result that
+iwr.load_result reads. The engine needs no Python: to run on a compute node, copy iwr-engine and
+the problem file there, run `iwr-engine PROBLEM.iwrp ...`, bring its checkpoint back and
+convert it with --export.
+
+options of iwr-calibrate (the others are the engine's, below):
+  --bounds B               search bounds written into the problem file: default (+-0.5 mm for
+                           lengths, +-0.5 degree for angles) or paper (+-0.5 for every parameter,
+                           Table 2 literally); only with ROBOT.toml DATA.csv
+  --output RESULT          the JSON result (default iwr-result.json; with --resume CKPT, CKPT
+                           without its .ckpt). Its checkpoint is RESULT.ckpt unless --checkpoint
+                           says otherwise
+  --problem PATH           where the problem file goes (default RESULT.iwrp)
+  --export CHECKPOINT      write the result that CHECKPOINT holds to --output, and stop
+
+No output (result, problem file, checkpoint, log) may be one of the run's inputs: refused with
+exit status 2.
+
+The engine's help follows; its exit statuses are iwr-calibrate's.
+
+"""
+
+
+class _Usage(Exception):
+    pass
+
+
+def _error(msg: str, code: int) -> int:
+    text = " ".join(line.strip() for line in str(msg).splitlines() if line.strip())
+    hint = f" (see {PROG} --help)" if code == EXIT_USAGE else ""
+    print(f"{PROG}: error: {text}{hint}", file=sys.stderr)
+    return code
+
+
+def engine_path() -> str:
+    """The ``iwr-engine`` installed with this package (the scripts folder holding this command)."""
+    candidates = []
+    if sys.argv and sys.argv[0]:
+        candidates.append(Path(sys.argv[0]).resolve().parent / ENGINE)
+    candidates.append(Path(sysconfig.get_path("scripts")) / ENGINE)
+    candidates.append(Path(sys.executable).parent / ENGINE)
+    for c in candidates:
+        if c.is_file() and os.access(c, os.X_OK):
+            return str(c)
+    found = shutil.which(ENGINE)
+    if found:
+        return found
+    raise FileNotFoundError(f"{ENGINE} is not installed: `pip install .` puts it next to python")
+
+
+def _split(argv: Sequence[str]) -> tuple[list[str], dict[str, str], list[str], set[str]]:
+    """Positional arguments, the launcher's own options, the engine's arguments, flags seen."""
+    positional: list[str] = []
+    own: dict[str, str] = {}
+    engine: list[str] = []
+    flags: set[str] = set()
+    args = list(argv)
+    i = 0
+    only_positional = False
+    while i < len(args):
+        a = args[i]
+        i += 1
+        if only_positional or len(a) < 2 or not a.startswith("-"):
+            positional.append(a)
+            continue
+        if a == "--":
+            only_positional = True
+            continue
+        name, eq, value = a.partition("=") if a.startswith("--") else (a, "", "")
+        if name in _OWN_VALUED or name in _ENGINE_VALUED:
+            if not eq:
+                if i >= len(args):
+                    raise _Usage(f"{name}: expected a value")
+                value = args[i]
+                i += 1
+            if name in _OWN_VALUED:
+                if name in own:
+                    raise _Usage(f"{name}: given twice")
+                own[name] = value
+            else:
+                engine += [name, value]
+            continue
+        if name not in _FLAGS:
+            raise _Usage(f"unknown option '{name}'" + (" (the options are --F and --CR)"
+                                                        if name in ("--f", "--cr") else ""))
+        flags.add(name)
+        engine.append(a)
+    return positional, own, engine, flags
+
+
+def _option(engine: list[str], name: str) -> str | None:
+    value = None
+    for k in range(0, len(engine) - 1):
+        if engine[k] == name:
+            value = engine[k + 1]
+    return value
+
+
+def _same(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return os.path.abspath(a) == os.path.abspath(b)
+
+
+def _export(checkpoint: str, problem: str | None, output: str) -> None:
+    from .problem_file import engine_result
+
+    engine_result(checkpoint, problem).save(output)
+
+
+def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: str) -> None:
+    """When resuming, the problem file already there is the run's record: refuse to replace it by
+    another problem (the engine would refuse the run anyway, after the record was lost)."""
+    from . import _core
+    from .problem_file import encode_problem, read_problem
+
+    if not Path(path).exists():
+        return
+    old = read_problem(path)
+    new = _core._decode_problem(encode_problem(problem), "")
+    differ = [k for k in old if k != "sources" and not k.endswith("_fingerprint")
+              and not np.array_equal(old[k], new[k])]
+    if differ:
+        made_from = ", ".join(p for _, p, _ in old["sources"]) or "unknown files"
+        raise ValueError(
+            f"{path}: the problem of the run being resumed (made from {made_from}) differs from "
+            f"{robot_path} {data_path} in {', '.join(differ)}; resume with the files the run was "
+            "made from, or give --problem NEW.iwrp")
+
+
+def _run_engine(engine: str, args: list[str]) -> int:
+    """Runs the engine, passing our signals on; returns its exit status, 128 + N for signal N."""
+    handled = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGUSR1)
+    proc: subprocess.Popen[bytes] | None = None
+    pending: list[int] = []
+
+    def forward(sig: int, _frame: Any) -> None:
+        if proc is None:
+            pending.append(sig)
+        else:
+            try:
+                proc.send_signal(sig)
+            except ProcessLookupError:
+                pass
+
+    previous = {}
+    for sig in handled:
+        if signal.getsignal(sig) is not signal.SIG_IGN:  # ignored at start (nohup): stays ignored
+            previous[sig] = signal.signal(sig, forward)
+
+    def child_setup() -> None:
+        # If the launcher dies (kill -9), the engine gets SIGTERM and writes its checkpoint.
+        try:
+            import ctypes
+
+            ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM))  # PR_SET_PDEATHSIG
+        except (OSError, AttributeError):
+            pass
+
+    try:
+        proc = subprocess.Popen([PROG, *args], executable=engine, preexec_fn=child_setup)  # noqa: PLW1509
+        for sig in pending:
+            proc.send_signal(sig)
+        code = proc.wait()
+    finally:
+        for sig, handler in previous.items():
+            signal.signal(sig, handler)
+    return 128 - code if code < 0 else code
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """The ``iwr-calibrate`` command; returns its exit status."""
+    argv = list(sys.argv[1:] if argv is None else argv)
+    try:
+        return _main(argv)
+    except _Usage as exc:
+        return _error(str(exc), EXIT_USAGE)
+    except KeyboardInterrupt:
+        print(f"\n{PROG}: interrupted", file=sys.stderr)
+        return 130
+    except (ValueError, OSError, RuntimeError) as exc:
+        return _error(str(exc), EXIT_ERROR)
+
+
+def _main(argv: list[str]) -> int:
+    positional, own, engine_args, flags = _split(argv)
+    if flags & {"-h", "--help"}:
+        sys.stdout.write(HELP)
+        sys.stdout.flush()
+        return subprocess.call([PROG, "--help"], executable=engine_path())
+    if "--version" in flags:
+        return subprocess.call([PROG, "--version"], executable=engine_path())
+    if "--export" in own:
+        if positional:
+            raise _Usage(f"--export: unexpected argument '{positional[0]}'")
+        if "--output" not in own:
+            raise _Usage("--export: give the JSON result's name with --output")
+        if _same(own["--output"], own["--export"]):
+            raise _Usage(f"--output: {own['--output']} is the checkpoint exported")
+        _export(own["--export"], own.get("--problem"), own["--output"])
+        return EXIT_OK
+
+    resume = _option(engine_args, "--resume")
+    if len(positional) == 2:
+        robot_path, data_path = positional
+        problem_in = None
+    elif len(positional) == 1:
+        problem_in = positional[0]
+        robot_path = data_path = None
+        if "--bounds" in own:
+            raise _Usage("--bounds: the bounds of a problem file are its own; set them when "
+                         "writing it (iwr.Problem(..., bounds=...).save)")
+        if "--problem" in own:
+            raise _Usage("--problem: the problem file is the argument given")
+    else:
+        raise _Usage("expected ROBOT.toml and DATA.csv, or PROBLEM.iwrp" if not positional
+                     else f"unexpected argument '{positional[2]}'")
+    if "--bounds" in own and own["--bounds"] not in ("default", "paper"):
+        raise _Usage(f"--bounds: '{own['--bounds']}'; expected default or paper")
+
+    # The outputs. No output path is ever taken from a checkpoint: with --resume CKPT the result
+    # is named after CKPT itself.
+    if "--output" in own:
+        output = own["--output"]
+    elif resume is not None:
+        if not resume.endswith(".ckpt") or len(resume) <= len(".ckpt"):
+            raise _Usage(f"--resume {resume}: give --output (the result is named after the "
+                         "checkpoint only when its name ends in .ckpt)")
+        output = resume[: -len(".ckpt")]
+    else:
+        output = "iwr-result.json"
+    if not output or output.endswith("/"):
+        raise _Usage(f"--output: '{output}' is not a file name")
+    checkpoint = _option(engine_args, "--checkpoint") or resume or output + ".ckpt"
+    problem_path = problem_in or own.get("--problem") or output + ".iwrp"
+    log = _option(engine_args, "--log")
+
+    inputs = [(p, what) for p, what in ((robot_path, "the robot file"),
+                                         (data_path, "the data file"),
+                                         (problem_in, "the problem file"),
+                                         (resume, "the checkpoint resumed")) if p]
+    outputs = [("--output", output), ("--checkpoint", checkpoint)]
+    if problem_in is None:
+        outputs.append(("--problem", problem_path))
+    if log:
+        outputs.append(("--log", log))
+    for opt, out in outputs:
+        for path, what in inputs:
+            if opt == "--checkpoint" and what == "the checkpoint resumed":
+                continue  # a resumed run writes its checkpoint back: by design
+            if _same(out, path):
+                raise _Usage(f"{opt}: {out} is {what}; an output may not overwrite an input")
+    for k, (opt_a, a) in enumerate(outputs):
+        for opt_b, b in outputs[k + 1:]:
+            if _same(a, b):
+                raise _Usage(f"{opt_a} and {opt_b} name the same file, {a}")
+    folder = Path(output).parent
+    if not folder.is_dir():
+        raise ValueError(f"{output}: cannot write the result here: folder {folder} does not exist")
+    if not os.access(folder, os.W_OK):
+        raise ValueError(f"{output}: cannot write the result here: folder {folder} is not writable")
+
+    engine = engine_path()
+    if problem_in is None:
+        from .measurements import Measurements
+        from .problem import Problem
+        from .robot import Robot
+
+        assert robot_path is not None and data_path is not None
+        robot = Robot.from_toml(robot_path)
+        data = Measurements.from_csv(data_path, robot=robot)  # the checks of `iwr calibrate`
+        problem = Problem(robot, data, bounds=own.get("--bounds", "default"))
+        if resume is not None:
+            _keep_the_run_problem(problem, problem_path, robot_path, data_path)
+        problem.save(problem_path, sources={"robot": robot_path, "data": data_path})
+
+    pass_checkpoint = [] if _option(engine_args, "--checkpoint") else ["--checkpoint", checkpoint]
+    code = _run_engine(engine, [problem_path, *pass_checkpoint, *engine_args])
+    if code in (EXIT_OK, 128 + signal.SIGHUP, 128 + signal.SIGINT, 128 + signal.SIGTERM) and \
+            Path(checkpoint).is_file():
+        _export(checkpoint, problem_path, output)
+        if "--quiet" not in flags and "-q" not in flags:
+            print(f"{PROG}: result in {output}", file=sys.stderr)
+    return code
+
+
+if __name__ == "__main__":  # pragma: no cover
+    sys.exit(main())

@@ -1,0 +1,155 @@
+"""The problem file (``.iwrp``) and the engine's result.
+
+A problem file holds everything the C++ engine (``iwr-engine``) needs after every Python check: the
+robot (geometry, limits, workspace), the measurements and their weights, the search bounds, the
+parameter names, and where the data came from (paths and SHA-256 of the TOML and CSV files). It is
+a versioned, checksummed little-endian binary file (``docs/iwr-calibrate.md`` gives the layout),
+written and read by the one C++ writer and reader (``cpp/include/iwr/problem_file.hpp``) through
+``iwr._core``, so Python and the engine accept exactly the same files.
+
+The engine writes its result into its checkpoint (binary, the same container); :func:`engine_result`
+turns a checkpoint into an :class:`~iwr.result.IdentificationResult`, whose ``save`` writes the one
+JSON result format.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from . import _core
+from ._io import atomic_write
+from .measurements import Measurements
+from .result import IdentificationResult
+from .robot import Robot
+
+__all__ = ["save_problem", "load_problem", "engine_result", "sha256_of", "FormatError"]
+
+#: A malformed, truncated or foreign binary file (a ValueError).
+FormatError = _core.FormatError
+
+
+def sha256_of(path: str | os.PathLike[str]) -> str:
+    """The SHA-256 of a file's bytes, in hex."""
+    h = hashlib.sha256()
+    with open(path, "rb") as fh:
+        for block in iter(lambda: fh.read(1 << 20), b""):
+            h.update(block)
+    return h.hexdigest()
+
+
+def _bounds_kind(robot: Robot, lower: np.ndarray, upper: np.ndarray) -> str:
+    for kind in ("default", "paper"):
+        lo, hi = robot.default_bounds(kind)
+        if np.array_equal(lo, lower) and np.array_equal(hi, upper):
+            return kind
+    return "custom"
+
+
+def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | None = None) -> bytes:
+    """The bytes of ``problem``'s file; ``sources`` maps a role (``"robot"``, ``"data"``) to the
+    file it was read from (recorded with its SHA-256)."""
+    robot, m = problem.robot, problem.measurements
+    srcs = []
+    for role, path in (sources or {}).items():
+        p = Path(path)
+        srcs.append((str(role), str(p.resolve()), sha256_of(p) if p.is_file() else ""))
+    return _core._encode_problem(
+        robot_name=robot.name,
+        joint_types=robot.joint_types,
+        dh=np.ascontiguousarray(robot.dh, dtype=float),
+        joint_limits=np.ascontiguousarray(robot.joint_limits, dtype=float),
+        base=robot.base_joints,
+        platform=robot.platform_joints,
+        leg_offsets=robot.leg_offsets,
+        leg_stroke=np.ascontiguousarray(robot.leg_stroke, dtype=float),
+        home_pose=robot.home_pose,
+        workspace=robot.workspace,
+        measurement_joint_types=m.joint_types,
+        q=np.ascontiguousarray(m.q, dtype=float),
+        poses=m.poses,
+        legs=m.legs,
+        weights=m.weights,
+        lower=[float(v) for v in problem.lower],
+        upper=[float(v) for v in problem.upper],
+        bounds_kind=_bounds_kind(robot, problem.lower, problem.upper),
+        parameter_names=list(problem.parameter_names),
+        sources=srcs,
+    )
+
+
+def save_problem(problem: Any, path: str | os.PathLike[str],
+                 sources: dict[str, str | os.PathLike[str]] | None = None) -> None:
+    """Write ``problem``'s file atomically (see :meth:`iwr.Problem.save`)."""
+    data = encode_problem(problem, sources)
+    atomic_write(path, lambda fh: fh.write(data), binary=True)
+
+
+def read_problem(path: str | os.PathLike[str]) -> dict[str, Any]:
+    """The fields of a problem file, checked; raises :class:`FormatError` naming the file and
+    field."""
+    return _core._read_problem(os.fspath(path))
+
+
+def load_problem(path: str | os.PathLike[str]) -> Any:
+    """The :class:`~iwr.Problem` of a problem file (see :meth:`iwr.Problem.load`)."""
+    from .problem import Problem  # problem.py imports this module lazily: no cycle at import
+
+    d = read_problem(path)
+    robot = Robot(
+        d["joint_types"], d["dh"], d["joint_limits"], d["base_joints"], d["platform_joints"],
+        d["leg_offsets"], d["leg_stroke"], d["home_pose"], d["workspace"], name=d["robot_name"],
+    )
+    m = Measurements(d["q"], d["poses"], d["legs"], joint_types=d["measurement_joint_types"],
+                     weights=d["weights"], source=os.fspath(path))
+    return Problem(robot, m, bounds=(np.array(d["lower"]), np.array(d["upper"])))
+
+
+def engine_result(checkpoint: str | os.PathLike[str],
+                  problem: str | os.PathLike[str] | None = None) -> IdentificationResult:
+    """The result an ``iwr-engine`` checkpoint holds (its final one is the run's result).
+
+    Parameters
+    ----------
+    checkpoint : path
+    problem : path, optional
+        The problem file of the run, for the parameter names (checked against the checkpoint's
+        fingerprints); without it the names are ``x0``, ``x1``, ...
+    """
+    c = _core._read_checkpoint(os.fspath(checkpoint))
+    names = [f"x{i}" for i in range(len(c["x"]))]
+    settings: dict[str, Any] = dict(c["settings"])
+    if problem is not None:
+        p = read_problem(problem)
+        if (p["robot_fingerprint"], p["data_fingerprint"]) != (c["robot_fingerprint"],
+                                                             c["data_fingerprint"]):
+            raise FormatError(f"{checkpoint}: made for another problem than {problem}")
+        names = list(p["parameter_names"])
+        settings["bounds"] = p["bounds_kind"]
+        settings["n_poses"] = len(p["poses"])
+        settings["sources"] = {role: path for role, path, _ in p["sources"]}
+    settings.update(
+        lower=c["lower"].tolist(), upper=c["upper"].tolist(), generations=c["generations"],
+        max_evaluations=c["max_evaluations"], target_cost=c["target_cost"], preset=c["preset"],
+        checkpoint=os.fspath(checkpoint), checkpoint_every=c["checkpoint_every"],
+        resumed_from=c["resumed_from"], problem=c["problem_file"],
+        robot_fingerprint=c["robot_fingerprint"], data_fingerprint=c["data_fingerprint"],
+        settings_fingerprint=c["settings_fingerprint"], program=c["program"],
+    )
+    return IdentificationResult(
+        x=np.asarray(c["x"], dtype=float),
+        fun=float(c["fun"]),
+        nfev=int(c["nfev"]),
+        nit=int(c["nit"]),
+        success=bool(c["success"]),
+        message=str(c["message"]),
+        method="de",
+        wall_time=float(c["wall_time"]),
+        parameter_names=names,
+        settings=settings,
+        history={k: np.asarray(v) for k, v in c["history"].items()},
+    )

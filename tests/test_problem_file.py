@@ -1,0 +1,194 @@
+"""iwr.Problem.save / iwr.Problem.load (iwr/problem_file.py, cpp/src/problem_file.cpp), and the
+thread pool behind Problem.cost_batch: a thread the system refuses, too many threads, fork()."""
+
+from __future__ import annotations
+
+import os
+import resource
+import signal
+import time
+import warnings
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr import _core
+from iwr.problem_file import FormatError, read_problem, sha256_of
+
+
+@pytest.fixture(scope="module")
+def problem() -> iwr.Problem:
+    robot = iwr.Robot.default()
+    m, _ = iwr.simulate(robot, 9, seed=5)
+    w = np.linspace(0.5, 2.0, m.legs.size).reshape(m.legs.shape)
+    m = iwr.Measurements(m.q, m.poses, m.legs, joint_types=m.joint_types, weights=w)
+    return iwr.Problem(robot, m, bounds="paper")
+
+
+def test_round_trip_is_exact(problem: iwr.Problem, tmp_path: Path) -> None:
+    path = tmp_path / "p.iwrp"
+    problem.save(path)
+    back = iwr.Problem.load(path)
+    r, b = problem.robot, back.robot
+    assert (b.name, b.joint_types) == (r.name, r.joint_types)
+    for attr in ("dh", "joint_limits", "base_joints", "platform_joints", "leg_offsets",
+                 "leg_stroke", "home_pose", "workspace"):
+        np.testing.assert_array_equal(getattr(b, attr), getattr(r, attr), err_msg=attr)
+    for attr in ("q", "poses", "legs", "weights"):
+        np.testing.assert_array_equal(getattr(back.measurements, attr),
+                                      getattr(problem.measurements, attr), err_msg=attr)
+    assert back.measurements.joint_types == problem.measurements.joint_types
+    np.testing.assert_array_equal(back.lower, problem.lower)
+    np.testing.assert_array_equal(back.upper, problem.upper)
+    assert back.parameter_names == problem.parameter_names
+    x = np.random.default_rng(1).uniform(problem.lower, problem.upper)
+    assert back.cost(x) == problem.cost(x)  # the same objective, bit for bit
+    assert read_problem(path)["bounds_kind"] == "paper"
+    # Deterministic bytes: saving again writes the same file.
+    back.save(tmp_path / "q.iwrp")
+    assert (tmp_path / "q.iwrp").read_bytes() == path.read_bytes()
+
+
+def test_without_weights_and_without_carriage(tmp_path: Path) -> None:
+    robot = iwr.Robot.hexapod()
+    m, _ = iwr.simulate(robot, 4, seed=1)
+    p = iwr.Problem(robot, m, bounds=(-0.1, 0.2))
+    p.save(tmp_path / "h.iwrp")
+    back = iwr.Problem.load(tmp_path / "h.iwrp")
+    assert back.measurements.weights is None and back.robot.n_joints == 0
+    assert read_problem(tmp_path / "h.iwrp")["bounds_kind"] == "custom"
+    np.testing.assert_array_equal(back.lower, np.full(42, -0.1))
+
+
+def test_sources_are_recorded_with_their_sha256(problem: iwr.Problem, tmp_path: Path) -> None:
+    problem.robot.to_toml(tmp_path / "r.toml")
+    problem.save(tmp_path / "p.iwrp", sources={"robot": tmp_path / "r.toml"})
+    (role, path, sha), = read_problem(tmp_path / "p.iwrp")["sources"]
+    assert role == "robot" and Path(path) == (tmp_path / "r.toml").resolve()
+    assert sha == sha256_of(tmp_path / "r.toml") and len(sha) == 64
+
+
+def test_save_is_atomic_and_leaves_no_temporary(problem: iwr.Problem, tmp_path: Path) -> None:
+    path = tmp_path / "p.iwrp"
+    path.write_bytes(b"old")
+    problem.save(path)
+    assert [p.name for p in tmp_path.iterdir()] == ["p.iwrp"]
+    with pytest.raises(FileNotFoundError):
+        problem.save(tmp_path / "missing" / "p.iwrp")
+
+
+def test_damaged_files_are_refused_naming_file_and_field(problem: iwr.Problem,
+                                                         tmp_path: Path) -> None:
+    path = tmp_path / "p.iwrp"
+    problem.save(path)
+    good = path.read_bytes()
+    bad = tmp_path / "bad.iwrp"
+    for n in (0, 7, 31, 32, 100, len(good) - 1):
+        bad.write_bytes(good[:n])
+        with pytest.raises(ValueError, match=r"bad\.iwrp: (truncated|empty file)"):
+            iwr.Problem.load(bad)
+    for at in (0, 9, 20, 40, len(good) // 2, len(good) - 1):
+        edited = bytearray(good)
+        edited[at] ^= 0x04
+        bad.write_bytes(bytes(edited))
+        with pytest.raises(FormatError, match=r"bad\.iwrp: "):
+            iwr.Problem.load(bad)
+    edited = bytearray(good)
+    edited[8] = 99  # the format version
+    bad.write_bytes(bytes(edited))
+    with pytest.raises(ValueError, match="format version 99; this program reads version 1"):
+        iwr.Problem.load(bad)
+    with pytest.raises(ValueError, match="/dev/zero: not a regular file"):
+        iwr.Problem.load("/dev/zero")
+    with pytest.raises(ValueError, match="nope.iwrp: no such file"):
+        iwr.Problem.load(tmp_path / "nope.iwrp")
+    # A problem file is also a RuntimeError's kind of error for old callers of the DE state.
+    assert issubclass(FormatError, ValueError) and issubclass(FormatError, RuntimeError)
+
+
+def test_the_writer_refuses_what_the_reader_would(problem: iwr.Problem) -> None:
+    robot, m = problem.robot, problem.measurements
+    lo, hi = problem.lower, problem.upper
+    args: dict[str, Any] = dict(
+        robot_name="r", joint_types=robot.joint_types, dh=robot.dh,
+        joint_limits=robot.joint_limits, base=robot.base_joints, platform=robot.platform_joints,
+        leg_offsets=robot.leg_offsets, leg_stroke=robot.leg_stroke, home_pose=robot.home_pose,
+        workspace=robot.workspace, measurement_joint_types=m.joint_types, q=m.q, poses=m.poses,
+        legs=m.legs, weights=None, lower=list(lo), upper=list(hi), bounds_kind="paper",
+        parameter_names=problem.parameter_names, sources=[])
+    _core._encode_problem(**args)  # as given: fine
+    legs = m.legs.copy()
+    legs[2, 4] = 1e300
+    with pytest.raises(ValueError, match="legs: row 2, column 4 is .*beyond any robot"):
+        _core._encode_problem(**{**args, "legs": legs})
+    with pytest.raises(ValueError, match="parameter names: 57; expected 58"):
+        _core._encode_problem(**{**args, "parameter_names": problem.parameter_names[:-1]})
+
+
+# --- the thread pool: no hang, a cap, fork ---------------------------------------------------------
+
+
+def _in_child(body: Any, timeout: float = 60) -> int:
+    """Runs body() in a forked child (fork is what is tested); its exit status, or -1 on a hang."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", DeprecationWarning)  # "multi-threaded process forked"
+        pid = os.fork()
+    if pid == 0:  # pragma: no cover (the child)
+        code = 1
+        try:
+            code = int(body())
+        finally:
+            os._exit(code)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        done, status = os.waitpid(pid, os.WNOHANG)
+        if done:
+            return os.waitstatus_to_exitcode(status)
+        time.sleep(0.02)
+    os.kill(pid, signal.SIGKILL)
+    os.waitpid(pid, 0)
+    return -1
+
+
+def test_pool_works_in_a_forked_child(problem: iwr.Problem) -> None:
+    X = np.random.default_rng(2).uniform(problem.lower, problem.upper, size=(40, 58))
+    expected = problem.cost_batch(X, workers=2)  # the pool now runs in this process
+
+    def child() -> int:
+        return 0 if np.array_equal(problem.cost_batch(X, workers=2), expected) else 3
+
+    assert _in_child(child) == 0  # not -1: no hang
+    np.testing.assert_array_equal(problem.cost_batch(X, workers=2), expected)  # parent unharmed
+
+
+def test_a_thread_the_system_refuses_is_an_error_not_a_hang(problem: iwr.Problem) -> None:
+    X = np.zeros((8, 58))
+
+    def child() -> int:
+        # No new thread for this user: RLIMIT_NPROC 0 (root ignores it, so drop to nobody).
+        if os.getuid() == 0:
+            os.setuid(65534)
+        resource.setrlimit(resource.RLIMIT_NPROC, (0, 0))
+        fresh = iwr.Problem(problem.robot, problem.measurements)
+        try:
+            fresh.cost_batch(X, workers=4)
+        except RuntimeError as exc:
+            return 0 if "cannot start 4 threads" in str(exc) else 4
+        return 5
+
+    assert _in_child(child) == 0
+
+
+def test_worker_counts_are_capped(problem: iwr.Problem) -> None:
+    """No hang and no exhaustion of process ids: thousands of threads are refused up front, in
+    cost_batch as in identify (the same pool)."""
+    cap = max(16, 4 * len(os.sched_getaffinity(0)))
+    with pytest.raises(ValueError, match=f"2000 threads asked for; at most {cap}"):
+        problem.cost_batch(np.zeros((4, 58)), workers=2000)
+    assert problem.cost_batch(np.zeros((4, 58)), workers=cap).shape == (4,)
+    with pytest.raises(ValueError, match="2000 threads asked for"):
+        iwr.identify(problem.robot, problem.measurements, method="de", workers=2000,
+                     generations=2, population_size=20, seed=1, progress=False)
