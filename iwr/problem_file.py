@@ -24,7 +24,7 @@ import numpy as np
 from . import _core
 from ._io import atomic_write
 from .measurements import Measurements
-from .result import IdentificationResult
+from .methods.result import IdentificationResult, status_from_message
 from .robot import Robot
 
 __all__ = ["save_problem", "load_problem", "engine_result", "sha256_of", "FormatError"]
@@ -147,6 +147,7 @@ def engine_result(checkpoint: str | os.PathLike[str],
         nit=int(c["nit"]),
         success=bool(c["success"]),
         message=str(c["message"]),
+        status=status_from_message(bool(c["success"]), str(c["message"])),
         method="de",
         wall_time=float(c["wall_time"]),
         parameter_names=names,

@@ -155,7 +155,7 @@ def _same(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
 
 
 def _export(checkpoint: str, problem: str | None, output: str) -> None:
-    from .problem_file import engine_result
+    from ..problem_file import engine_result
 
     engine_result(checkpoint, problem).save(output)
 
@@ -163,8 +163,8 @@ def _export(checkpoint: str, problem: str | None, output: str) -> None:
 def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: str) -> None:
     """When resuming, the problem file already there is the run's record: refuse to replace it by
     another problem (the engine would refuse the run anyway, after the record was lost)."""
-    from . import _core
-    from .problem_file import encode_problem, read_problem
+    from .. import _core
+    from ..problem_file import encode_problem, read_problem
 
     if not Path(path).exists():
         return
@@ -314,9 +314,9 @@ def _main(argv: list[str]) -> int:
 
     engine = engine_path()
     if problem_in is None:
-        from .measurements import Measurements
-        from .problem import Problem
-        from .robot import Robot
+        from ..measurements import Measurements
+        from ..problem import Problem
+        from ..robot import Robot
 
         assert robot_path is not None and data_path is not None
         robot = Robot.from_toml(robot_path)

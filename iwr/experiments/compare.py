@@ -239,7 +239,7 @@ def compare_methods(
         One simulated problem per seed and scenario; the same seeds give the same numbers.
     methods : sequence of str, optional
         Method specs, each also its label in the report: a name registered in
-        ``iwr.identify.METHODS`` (``"de"`` is the paper's DE/rand/1/bin with its defaults), or
+        ``iwr.methods.METHODS`` (``"de"`` is the paper's DE/rand/1/bin with its defaults), or
         ``"de:STRATEGY"``, DE with a strategy of ``iwr.de.STRATEGIES`` (``"de:jso"``,
         ``"de:lshade"``, ...). Default: :data:`DEFAULT_METHODS` (``lm``, ``de``, ``de:jso``,
         ``crs2``, ``bobyqa``), then any other registered method.

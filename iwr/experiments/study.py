@@ -314,7 +314,7 @@ def study(
     Parameters
     ----------
     methods : str or list of str
-        Identification methods, names of ``iwr.identify.METHODS`` (``"lm"``, ``"de"``, ...).
+        Identification methods, names of ``iwr.methods.METHODS`` (``"lm"``, ``"de"``, ...).
     poses : int or list of int
         Numbers of measurement poses N.
     noise : float or list of float

@@ -111,9 +111,11 @@ class IdentificationResult(OptimizeResult):
         self.check_finite()
 
     def __repr__(self) -> str:
-        # SciPy's formatter fails on an empty nested dict (settings, history): leave those out.
-        return repr(OptimizeResult({k: v for k, v in self.items()
-                                    if not (isinstance(v, dict) and not v)}))
+        # SciPy's formatter fails on empty nested dicts (settings, history, at any depth): the
+        # summary fields only, one per line as SciPy shows them.
+        keys = ("method", "status", "success", "message", "fun", "nfev", "nit", "x")
+        width = max(map(len, keys))
+        return "\n".join(f"{k:>{width}}: {self[k]}" for k in keys if k in self)
 
     @property
     def interrupted(self) -> bool:
@@ -171,7 +173,7 @@ def _floats(value: Any, where: str) -> np.ndarray:
         raise ValueError(f"{where}: expected numbers, got {value!r:.60}") from None
 
 
-def _status(success: bool, message: str) -> str:
+def status_from_message(success: bool, message: str) -> str:
     """The status of a file, which keeps only ``success`` and ``message``."""
     if success:
         return "converged"
@@ -213,7 +215,7 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
             nfev=int(data["nfev"]),
             nit=int(data.get("nit", 0)),
             success=success,
-            status=_status(success, message),
+            status=status_from_message(success, message),
             message=message,
             method=str(data.get("method", "")),
             wall_time=math.nan if wall is None else float(wall),
