@@ -20,4 +20,5 @@ void bind_model(py::module_& m);
 void bind_forward(py::module_& m);
 void bind_de(py::module_& m);
 void bind_bench(py::module_& m);
+void bind_implicit_loop(py::module_& m);
 }  // namespace iwr::python

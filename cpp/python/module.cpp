@@ -6,4 +6,5 @@ PYBIND11_MODULE(_core, m) {
     iwr::python::bind_forward(m);
     iwr::python::bind_de(m);
     iwr::python::bind_bench(m);
+    iwr::python::bind_implicit_loop(m);
 }
