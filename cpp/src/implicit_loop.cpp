@@ -194,6 +194,29 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         seen[static_cast<size_t>(i)] = 1;
     }
     const int p = static_cast<int>(active.size());
+    if (options.two_stage && corr.isZero(0.0) && !sigma.rightCols(ny).isZero(0.0)) {
+        RowMatrixXd s1 = sigma;
+        s1.rightCols(ny).setZero();
+        ImplicitLoopOptions o1 = options;
+        o1.two_stage = false;
+        o1.statistics = false;
+        o1.ftol = std::max(options.ftol, 1e-8);
+        const ImplicitLoopResult r1 =
+            implicit_loop(g, x0, active, q, poses, legs, s1, RowMatrixXd(), o1, callback);
+        ImplicitLoopOptions o2 = options;
+        o2.two_stage = false;
+        ImplicitLoopResult r2 = r1.status == -1 ? r1 : implicit_loop(g, r1.x, active, q, poses, legs,
+                                                                      sigma, RowMatrixXd(), o2, callback);
+        if (r1.status == -1) {  // stopped by the callback: statistics of the full problem anyway
+            o2.max_iterations = 0;
+            r2 = implicit_loop(g, r1.x, active, q, poses, legs, sigma, RowMatrixXd(), o2, LoopCallback());
+            r2.status = -1;
+            r2.message = r1.message;
+        }
+        r2.iterations += r1.iterations;
+        r2.nfev += r1.nfev;
+        return r2;
+    }
     Layout lay;
     lay.nj = nj;
     lay.ny = ny;
@@ -430,6 +453,15 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         nfev += 2;
     }
     res.x = x;
+    if (!options.statistics) {
+        res.corrections = corr;
+        res.cost = cost;
+        res.iterations = iter;
+        res.nfev = nfev;
+        res.status = status;
+        res.message = message;
+        return res;
+    }
     res.corrections = corr;
     res.cost = cost;
     res.iterations = iter;

@@ -46,13 +46,20 @@ LoopJacobians loop_jacobians(const Geometry& g, const Eigen::Ref<const VectorXd>
                              const Eigen::Ref<const RowMatrixXd>& corrections);
 
 struct ImplicitLoopOptions {
-    int max_iterations = 200;  ///< LM iterations (each one Jacobian evaluation)
+    int max_iterations = 200;  ///< LM iterations per stage (each one Jacobian evaluation)
     /// Converged when an accepted step lowers the cost by at most ftol * cost, or the scaled step
     /// is below xtol, or the scaled gradient below gtol.
     double ftol = 1e-12;
     double xtol = 1e-12;
     double gtol = 1e-12;
     double initial_lambda = 1e-4;  ///< LM damping relative to the diagonal of the normal matrix
+    /// From a cold start (no corrections given), first solve with every non-leg reading exact
+    /// (the weighted eq. 10, no nuisance unknowns) to ftol 1e-8, then the full problem from there.
+    /// Far from the solution (a frame 2 m off) the full problem's first steps would otherwise put
+    /// radians into the orientation corrections, where the model is far from linear, and crawl.
+    bool two_stage = true;
+    /// Compute the statistics at the solution (redundancy numbers, pose tests, covariance).
+    bool statistics = true;
 };
 
 /// Called after every accepted iteration with (iteration, x, cost); true stops the solve.

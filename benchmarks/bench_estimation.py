@@ -1,0 +1,140 @@
+"""The efficient estimator (implicit loop, ``iwr.estimation.efficient``) against eq. (10).
+
+Two tables:
+
+1. **Time** of one solve (the C++ Schur-complement Levenberg-Marquardt, ``iwr._core.implicit_loop``,
+   one thread, statistics included) at N = 25 .. 200 poses, ``Noise.realistic()`` data, from the
+   nominal robot; median of ``--repeat`` runs. The full ``efficient`` call (base parameters,
+   outlier tests, predicted accuracy) is timed too.
+2. **Statistics** (``--seeds``, default 20): ``Noise.realistic()`` data, N = 100 poses per data set
+   (``iwr.simulate(robot, 100, seed=s, noise=...)``, truth drawn by the seed), 200 fresh noise-free
+   poses of the same true robot (``seed=10000 + s``). For eq. (10) (``iwr.identify(method="lm")``)
+   and the estimator: the tool position and orientation RMS error on the fresh poses, by forward
+   kinematics of the identified model from the exact readings, against the simulation's true poses
+   (``iwr.accuracy``). The Cramer-Rao bound is the estimator's predicted RMS tool error on the same
+   fresh poses (``iwr.estimation.predicted_accuracy`` from its covariance); its Monte-Carlo check is
+   ``sqrt(mean over seeds of actual^2) / sqrt(mean over seeds of predicted^2)``, with a bootstrap
+   90 % interval over the seeds.
+
+Usage::
+
+    python benchmarks/bench_estimation.py [--seeds 20] [--repeat 7] [--no-stats] [--no-time]
+"""
+
+from __future__ import annotations
+
+import os
+
+for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import argparse  # noqa: E402
+import math  # noqa: E402
+import time  # noqa: E402
+
+import numpy as np  # noqa: E402
+
+import iwr  # noqa: E402
+from iwr import _core  # noqa: E402
+from iwr import estimation as est  # noqa: E402
+
+
+def time_table(repeat: int) -> None:
+    robot = iwr.Robot.default()
+    noise = iwr.Noise.realistic()
+    print("| N | one solve (ms), median | iterations | full `efficient` call (ms) |")
+    print("|---|---|---|---|")
+    for n in (25, 50, 100, 200):
+        m, _ = iwr.simulate(robot, n, seed=1, noise=noise)
+        active = iwr.identifiability(robot, m).active
+        idx = [int(i) for i in np.flatnonzero(active)]
+        sigma = est.sigma_matrix(robot, m, noise)
+        times, full = [], []
+        out = None
+        for _ in range(repeat):
+            t = time.perf_counter()
+            out = _core.implicit_loop(robot._geometry, np.zeros(robot.n_params), idx, m.q,
+                                      m.poses, m.legs, sigma, np.zeros((0, 0)))
+            times.append(time.perf_counter() - t)
+            t = time.perf_counter()
+            est.efficient(robot, m, noise, active=active)
+            full.append(time.perf_counter() - t)
+        print(f"| {n} | {1e3 * np.median(times):.1f} | {out['iterations']} | "
+              f"{1e3 * np.median(full):.0f} |")
+
+
+def stats_table(seeds: int) -> None:
+    robot = iwr.Robot.default()
+    noise = iwr.Noise.realistic()
+    rows = []
+    for s in range(seeds):
+        m, truth = iwr.simulate(robot, 100, seed=s, noise=noise)
+        fresh, _ = iwr.simulate(robot, 200, seed=10000 + s, errors=truth)
+        lm = iwr.identify(robot, m, "lm")
+        ef = est.efficient(robot, m, noise)
+        a_lm = iwr.accuracy(robot, lm.x, fresh).calibrated
+        a_ef = iwr.accuracy(robot, ef.x, fresh).calibrated
+        pred = est.predicted_accuracy(robot, fresh, ef.x, ef.covariance, active=ef.active)
+
+        def rms(v: np.ndarray) -> float:
+            return math.sqrt(float(np.mean(v**2)))
+
+        rows.append((rms(a_lm.position), rms(a_ef.position), rms(a_lm.orientation),
+                     rms(a_ef.orientation), pred.position_rms, pred.orientation_rms,
+                     ef.success, len(ef.outliers)))
+        print(f"seed {s:2d}: position RMS eq.(10) {rows[-1][0]:.5f} mm, efficient "
+              f"{rows[-1][1]:.5f} mm (predicted {rows[-1][4]:.5f}); orientation "
+              f"{rows[-1][2]:.6f} / {rows[-1][3]:.6f} deg (predicted {rows[-1][5]:.6f}); "
+              f"success {ef.success}, {len(ef.outliers)} outlier(s)", flush=True)
+    r = np.array([row[:6] for row in rows])
+    pos_ratio = r[:, 0] / r[:, 1]
+    ori_ratio = r[:, 2] / r[:, 3]
+    rng = np.random.default_rng(0)
+
+    def crb(actual: np.ndarray, predicted: np.ndarray) -> tuple[float, float, float]:
+        ratio = math.sqrt(np.mean(actual**2) / np.mean(predicted**2))
+        boot = []
+        for _ in range(2000):
+            i = rng.integers(0, len(actual), len(actual))
+            boot.append(math.sqrt(np.mean(actual[i] ** 2) / np.mean(predicted[i] ** 2)))
+        lo, hi = np.quantile(boot, [0.05, 0.95])
+        return ratio, float(lo), float(hi)
+
+    pc = crb(r[:, 1], r[:, 4])
+    oc = crb(r[:, 3], r[:, 5])
+    print()
+    print(f"Noise.realistic(), N = 100, {seeds} seeds (0..{seeds - 1}), 200 fresh noise-free poses "
+          "per seed")
+    print()
+    print("| | eq. (10) median | efficient median | ratio median | ratio min | ratio max |")
+    print("|---|---|---|---|---|---|")
+    print(f"| tool position RMS (mm) | {np.median(r[:, 0]):.5f} | {np.median(r[:, 1]):.5f} | "
+          f"{np.median(pos_ratio):.3f} | {pos_ratio.min():.3f} | {pos_ratio.max():.3f} |")
+    print(f"| tool orientation RMS (deg) | {np.median(r[:, 2]):.6f} | {np.median(r[:, 3]):.6f} | "
+          f"{np.median(ori_ratio):.3f} | {ori_ratio.min():.3f} | {ori_ratio.max():.3f} |")
+    print()
+    print("| Cramer-Rao check | actual / predicted RMS over seeds | bootstrap 90 % |")
+    print("|---|---|---|")
+    print(f"| tool position | {pc[0]:.3f} | {pc[1]:.3f} .. {pc[2]:.3f} |")
+    print(f"| tool orientation | {oc[0]:.3f} | {oc[1]:.3f} .. {oc[2]:.3f} |")
+    print()
+    print(f"efficient: success {sum(row[6] for row in rows)} of {seeds}; outliers removed "
+          f"{sum(row[7] for row in rows)} in all")
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--seeds", type=int, default=20)
+    ap.add_argument("--repeat", type=int, default=7)
+    ap.add_argument("--no-stats", action="store_true")
+    ap.add_argument("--no-time", action="store_true")
+    args = ap.parse_args()
+    if not args.no_time:
+        time_table(args.repeat)
+        print()
+    if not args.no_stats:
+        stats_table(args.seeds)
+
+
+if __name__ == "__main__":
+    main()
