@@ -31,7 +31,7 @@ from scipy.optimize import OptimizeResult
 
 from . import _core
 from ._blas import single_thread
-from .forward import forward_kinematics
+from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import identifiability
 from .measurements import Measurements, as_matrix
 from .problem import Problem, _check_joint_types
@@ -705,8 +705,9 @@ def efficient(
         more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
         causes.append(
             f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
-            f"size (modulo the unidentifiable directions): {shown}{more}. The model has absorbed something it does not describe (an "
-            "unregistered measurement frame, a wrong nominal geometry)")
+            f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
+            "absorbed something it does not describe: an unregistered measurement frame, leg "
+            "or pose columns swapped, a wrong nominal geometry")
     if too_many:
         causes.append(
             f"{len(found)} poses fail the outlier test (more than {max_outlier_fraction:.0%} of "
@@ -761,7 +762,8 @@ def efficient(
     noise_used = replace(noise0, **{c.name: c.sigma for c in components})
     try:
         predicted = predicted_accuracy(robot, m_used, x, cov, active=mask, tool=tool)
-    except Exception as exc:  # forward kinematics may fail for a model that does not fit
+    except (ForwardKinematicsError, np.linalg.LinAlgError) as exc:
+        # Forward kinematics may fail for a model that does not fit.
         predicted = None
         fit.causes.append(f"predicted accuracy unavailable: {exc}")
     return IdentificationResult(

@@ -215,6 +215,23 @@ def test_pure_translation_of_the_frame_is_named_implausible(base_mask: np.ndarra
     assert abs(named["joint1.dd"] + named["joint2.da"] - 2000) < 1
 
 
+@pytest.mark.parametrize("what", ["legs", "poses"])
+def test_swapped_columns_are_reported(base_mask: np.ndarray, what: str) -> None:
+    # Legs 1 and 2 swapped: the model moves the joints of legs 1 and 2 onto each other's and fits
+    # (chi2 passes), with errors of hundreds of mm; x and y of the poses swapped: no fit at all.
+    m, _ = iwr.simulate(ROBOT, 60, seed=21, noise=NOISE)
+    legs, poses = m.legs, m.poses
+    if what == "legs":
+        legs = legs[:, [1, 0, 2, 3, 4, 5]]
+    else:
+        poses = poses[:, [1, 0, 2, 3, 4, 5]]
+    res = est.efficient(ROBOT, iwr.Measurements(m.q, poses, legs, joint_types=m.joint_types),
+                        NOISE, active=base_mask)
+    assert not res.success and not res.fit_ok
+    assert res.fit.implausible or res.fit.p_value < 1e-3
+    assert "DOES NOT FIT" in str(res.fit)
+
+
 def test_plausible_truth_with_null_directions_is_not_named(base_mask: np.ndarray) -> None:
     # joint 4's rotation about its axis is held fixed at 0 and absorbed by legs 1, 2 moving
     # 694 mm/rad: a true 0.5 degree makes the base parameters 6 mm, beyond 10 x 0.5 mm, but the
