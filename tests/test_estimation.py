@@ -232,6 +232,19 @@ def test_swapped_columns_are_reported(base_mask: np.ndarray, what: str) -> None:
     assert "DOES NOT FIT" in str(res.fit)
 
 
+def test_forgotten_tool_offset_is_named_implausible(base_mask: np.ndarray) -> None:
+    # The instrument measured a frame 80 mm above {5}: the six b_i absorb it exactly (each moves
+    # by -80 mm along z of {5}), so the fit passes, but 80 mm is no assembly error.
+    m, _ = iwr.simulate(ROBOT, 60, seed=22, noise=NOISE)
+    t = pose_matrix(m.poses)
+    t[:, :3, 3] += t[:, :3, 2] * 80.0
+    moved = iwr.Measurements(m.q, pose_from_matrix(t), m.legs, joint_types=m.joint_types)
+    res = est.efficient(ROBOT, moved, NOISE, active=base_mask)
+    assert not res.success and not res.fit_ok
+    named = {name: v for name, v, _ in res.fit.implausible}
+    assert all(abs(named[f"leg{j}.db_z"] + 80) < 1 for j in range(1, 7)), named
+
+
 def test_plausible_truth_with_null_directions_is_not_named(base_mask: np.ndarray) -> None:
     # joint 4's rotation about its axis is held fixed at 0 and absorbed by legs 1, 2 moving
     # 694 mm/rad: a true 0.5 degree makes the base parameters 6 mm, beyond 10 x 0.5 mm, but the
