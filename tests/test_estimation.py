@@ -375,3 +375,34 @@ def test_exact_instruments_reduce_to_weighted_eq10(base_mask: np.ndarray) -> Non
     assert np.max(np.abs(res.x - lm.x)[base_mask] / res.std[base_mask]) < 1e-3
     assert res.fun == pytest.approx(iwr.Problem(ROBOT, m).cost(lm.x) / 0.002**2, rel=1e-9)
     assert np.all(res.corrections == 0)
+
+
+def test_same_input_same_answer_bit_for_bit(base_mask: np.ndarray) -> None:
+    m, _ = iwr.simulate(ROBOT, 40, seed=13, noise=NOISE)
+    a = est.efficient(ROBOT, m, NOISE, active=base_mask)
+    b = est.efficient(ROBOT, m, NOISE, active=base_mask)
+    assert np.array_equal(a.x, b.x) and a.fun == b.fun
+    assert np.array_equal(a.covariance, b.covariance)
+
+
+def test_core_solver_checks_its_arguments() -> None:
+    from iwr import _core
+
+    m, _ = iwr.simulate(ROBOT, 5, seed=1)
+    sigma = est.sigma_matrix(ROBOT, m, NOISE)
+    x0 = np.zeros(ROBOT.n_params)
+    bad = sigma.copy()
+    bad[2, 0] = 0.0
+    with pytest.raises(ValueError, match=r"sigma: entry \(2, 0\)"):
+        _core.implicit_loop(ROBOT._geometry, x0, [0, 1], m.q, m.poses, m.legs, bad,
+                            np.zeros((0, 0)))
+    with pytest.raises(ValueError, match="sigma: shape"):
+        _core.implicit_loop(ROBOT._geometry, x0, [0, 1], m.q, m.poses, m.legs, sigma[:, :6],
+                            np.zeros((0, 0)))
+    with pytest.raises(ValueError, match="active: index 58"):
+        _core.implicit_loop(ROBOT._geometry, x0, [58], m.q, m.poses, m.legs, sigma,
+                            np.zeros((0, 0)))
+    legs = m.legs.copy()
+    legs[1, 1] = np.nan
+    with pytest.raises(ValueError, match="legs"):
+        _core.implicit_loop(ROBOT._geometry, x0, [0], m.q, m.poses, legs, sigma, np.zeros((0, 0)))
