@@ -314,6 +314,11 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
     std::string message;
     std::vector<VecX> dy(static_cast<size_t>(n));
     std::vector<Eigen::LDLT<MatX>> vfac(static_cast<size_t>(n));
+    std::vector<MatX> vwt(static_cast<size_t>(n));
+    std::vector<VecX> vg(static_cast<size_t>(n));
+    MatX S0;
+    VecX rhs0, du;
+    bool schur_ready = false;
     const double tiny = std::numeric_limits<double>::min();
     bool fresh = true;  // normal equations built at the current point
     while (true) {
@@ -332,6 +337,7 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
             cost = build(x, corr);
             nfev += 2;
             fresh = true;
+            schur_ready = false;
         }
         // Gradient test, scaled by the diagonal of the normal matrix (a cosine, as MINPACK's).
         double gmax = 0;
@@ -343,45 +349,49 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
             break;
         }
         ++iter;
-        // Damped Schur complement (Marquardt: lambda times the diagonal).
-        MatX S = U;
-        VecX rhs = -gx;
-        double dmax = 0;
-        for (int i = 0; i < p; ++i) dmax = std::max(dmax, U(i, i));
-        VecX du(p);
-        for (int i = 0; i < p; ++i) du(i) = std::max(U(i, i), 1e-12 * dmax);
-        S.diagonal() += lambda * du;
-        for (int k = 0; k < n; ++k) {
-            MatX v = V[static_cast<size_t>(k)];
-            v.diagonal() += lambda * V[static_cast<size_t>(k)].diagonal();
-            vfac[static_cast<size_t>(k)].compute(v);
-            const MatX& w = W[static_cast<size_t>(k)];
-            const MatX vw = vfac[static_cast<size_t>(k)].solve(w.transpose());  // m x p
-            S.noalias() -= w * vw;
-            rhs.noalias() += vw.transpose() * gy[static_cast<size_t>(k)];
+        // The reduced normal matrix S = U - sum W V^-1 W^T, once per point (rejected steps reuse
+        // it). Damping lambda diag(S) on the parameters only: the nuisance blocks V are positive
+        // definite through their priors, and damping U's diagonal instead would over-damp the
+        // weak directions, where S is much smaller than U (seen: 13 iterations instead of 4).
+        if (!schur_ready) {
+            S0 = U;
+            rhs0 = -gx;
+            for (int k = 0; k < n; ++k) {
+                const size_t kk = static_cast<size_t>(k);
+                vfac[kk].compute(V[kk]);
+                vwt[kk] = vfac[kk].solve(W[kk].transpose());  // m x p
+                vg[kk] = vfac[kk].solve(gy[kk]);
+                S0.noalias() -= W[kk] * vwt[kk];
+                rhs0.noalias() += W[kk] * vg[kk];
+            }
+            double dmax = 0;
+            for (int i = 0; i < p; ++i) dmax = std::max(dmax, S0(i, i));
+            du.resize(p);
+            for (int i = 0; i < p; ++i) du(i) = std::max(S0(i, i), 1e-12 * dmax);
+            schur_ready = true;
         }
+        MatX S = S0;
+        S.diagonal() += lambda * du;
         // Jacobi scaling before the factorisation: mm and rad columns differ by orders of
         // magnitude.
         VecX d = S.diagonal().cwiseMax(tiny).cwiseSqrt().cwiseInverse();
         const MatX Ss = d.asDiagonal() * S * d.asDiagonal();
         Eigen::LDLT<MatX> sfac(Ss);
-        const VecX dx = d.asDiagonal() * sfac.solve(d.asDiagonal() * rhs);
+        const VecX dx = d.asDiagonal() * sfac.solve(d.asDiagonal() * rhs0);
         double gd = gx.dot(dx), ddd = (dx.array().square() * du.array()).sum();
-        double step2 = (dx.array().square() * du.array()).sum(), xn2 = 0;
+        double step2 = ddd, xn2 = 0;
         for (int i = 0; i < p; ++i) {
             const double xi = x(active[static_cast<size_t>(i)]);
             xn2 += xi * xi * du(i);
         }
         for (int k = 0; k < n; ++k) {
-            const VecX& g2 = gy[static_cast<size_t>(k)];
-            VecX t = -g2 - W[static_cast<size_t>(k)].transpose() * dx;
-            dy[static_cast<size_t>(k)] = vfac[static_cast<size_t>(k)].solve(t);
-            const VecX& s = dy[static_cast<size_t>(k)];
-            const auto vd = V[static_cast<size_t>(k)].diagonal();
-            gd += g2.dot(s);
-            ddd += (s.array().square() * vd.array()).sum();
-            step2 += (s.array().square() * vd.array()).sum();
-            const auto& fr = lay.free[static_cast<size_t>(k)];
+            const size_t kk = static_cast<size_t>(k);
+            dy[kk] = -vg[kk] - vwt[kk] * dx;
+            const VecX& sy = dy[kk];
+            const auto vd = V[kk].diagonal();
+            gd += gy[kk].dot(sy);
+            step2 += (sy.array().square() * vd.array()).sum();
+            const auto& fr = lay.free[kk];
             for (size_t i = 0; i < fr.size(); ++i) {
                 const double c = corr(k, fr[i]);
                 xn2 += c * c * vd(static_cast<Eigen::Index>(i));

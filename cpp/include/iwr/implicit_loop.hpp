@@ -52,7 +52,10 @@ struct ImplicitLoopOptions {
     double ftol = 1e-12;
     double xtol = 1e-12;
     double gtol = 1e-12;
-    double initial_lambda = 1e-4;  ///< LM damping relative to the diagonal of the normal matrix
+    /// LM damping relative to the diagonal of the reduced normal matrix. Small: that matrix has a
+    /// condition number near 1e6 after Jacobi scaling, so 1e-4 would already damp its weakest
+    /// directions a hundredfold; a step that fails raises it.
+    double initial_lambda = 1e-8;
     /// From a cold start (no corrections given), first solve with every non-leg reading exact
     /// (the weighted eq. 10, no nuisance unknowns) to ftol 1e-8, then the full problem from there.
     /// Far from the solution (a frame 2 m off) the full problem's first steps would otherwise put
