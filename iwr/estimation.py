@@ -31,6 +31,7 @@ from scipy.optimize import OptimizeResult
 
 from . import _core
 from ._blas import single_thread
+from ._io import jsonable
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import identifiability
 from .measurements import Measurements, as_matrix
@@ -50,6 +51,7 @@ __all__ = [
     "predicted_accuracy",
     "reading_names",
     "sigma_matrix",
+    "summary",
 ]
 
 #: The variance components, named as the fields of :class:`iwr.Noise`.
@@ -800,3 +802,28 @@ def efficient(
                   "max_iterations": max_iterations,
                   "max_variance_iterations": max_variance_iterations},
     )
+
+
+def summary(result: IdentificationResult) -> dict[str, Any]:
+    """What :func:`efficient` adds to an identification result, JSON-able (for a result file or a
+    report): the fit test, the outliers, the noise used, the variance components, the predicted
+    accuracy and the standard deviations of the parameters (null for those held fixed)."""
+    fit: FitTest = result["fit"]
+    pred: PredictedAccuracy | None = result.get("predicted")
+    return jsonable({
+        "fit": {"statistic": fit.statistic, "dof": fit.dof, "p_value": fit.p_value,
+                "alpha": fit.alpha, "fit_ok": fit.fit_ok, "verdict": fit.verdict,
+                "causes": list(fit.causes),
+                "implausible": [{"parameter": n, "value": v, "limit": lim}
+                                for n, v, lim in fit.implausible]},
+        "outliers": [asdict(o) for o in result["outliers"]],
+        "n_poses_used": int(np.sum(result["used"])),
+        "noise": asdict(result["noise"]),
+        "variance_components": [asdict(c) for c in result["variance_components"]],
+        "predicted": None if pred is None else {
+            "position_rms_mm": pred.position_rms, "position_95_mm": pred.position_95,
+            "orientation_rms_deg": pred.orientation_rms,
+            "orientation_95_deg": pred.orientation_95},
+        "std": result["std"],
+        "cost_eq10": result["cost_eq10"],
+    }, finite_only=True)

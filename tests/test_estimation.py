@@ -325,6 +325,12 @@ def test_result_carries_the_identification_result_fields() -> None:
     d = res.to_dict()
     assert d["method"] == "efficient" and d["settings"]["noise"]["legs"] == NOISE.legs
     assert str(res.fit).startswith("the model fits")
+    import json
+
+    summ = est.summary(res)
+    assert json.loads(json.dumps(summ)) == summ
+    assert summ["fit"]["dof"] == res.fit.dof and summ["n_poses_used"] == 30
+    assert summ["std"][5] is None and summ["predicted"]["position_rms_mm"] > 0
     assert str(res.predicted).startswith("predicted tool error")
 
 
