@@ -131,8 +131,8 @@ class Accuracy:
 
 def accuracy(
     robot: Robot,
-    errors: Any,
     measurements: Measurements,
+    x: Any,
     *,
     tool: Any = None,
     tolerance: float = 1e-9,
@@ -142,7 +142,7 @@ def accuracy(
 
     For each measurement, the platform pose is computed by forward kinematics
     (:func:`iwr.forward_kinematics`) from the joint and leg readings, once with the nominal robot
-    and once with the calibrated one (nominal plus ``errors``), and compared with the measured
+    and once with the calibrated one (nominal plus ``x``), and compared with the measured
     pose. Use measurements that were **not** used for identification (validation poses): on the
     identification poses the figure is optimistic.
 
@@ -150,10 +150,10 @@ def accuracy(
     ----------
     robot : Robot
         The nominal robot.
-    errors : array_like, shape (n_params,)
-        The identified error parameters (for example ``result.x``).
     measurements : Measurements
         Validation measurements: joint readings, leg readings and the measured poses.
+    x : array_like, shape (n_params,)
+        The identified error parameters (for example ``result.x``).
     tool : array_like, shape (3,), optional
         The tool point in the platform frame {5} (mm); default its origin.
     tolerance, max_iterations
@@ -175,12 +175,12 @@ def accuracy(
         raise TypeError(
             f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
         )
-    x = np.zeros(robot.n_params) if errors is None else np.asarray(errors, dtype=float)
+    x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
     out = {}
     for label, xe in (("nominal", np.zeros(robot.n_params)), ("calibrated", x)):
         try:
             poses = forward_kinematics(
-                robot, measurements.q, measurements.legs, xe,
+                robot, xe, measurements.q, measurements.legs,
                 tolerance=tolerance, max_iterations=max_iterations,
             )
         except ForwardKinematicsError as exc:

@@ -546,10 +546,10 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     except ValueError as exc:
         unc = None
         notes.append(f"note: no standard deviations: {_one_line(exc)}")
-    acc = accuracy(robot, result.x, val)
+    acc = accuracy(robot, val, result.x)
     truth_acc = perr = None
     if truth is not None:
-        truth_acc = accuracy(robot, truth, val)
+        truth_acc = accuracy(robot, val, truth)
         perr = parameter_error(robot, ident, result.x, truth)
     cal = Calibration(
         robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
@@ -598,7 +598,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
         plan = plan_poses(robot, cand, args.poses, criterion=args.criterion, seed=args.seed)
     except ValueError as exc:
         msg = str(exc)
-        raise CommandError("--poses" + msg[1:] if msg.startswith("k:") else msg) from None
+        raise CommandError("--poses" + msg[7:] if msg.startswith("n_poses:") else msg) from None
     plan.measurements.to_csv(args.out)
     print(f"candidates: {source}")
     print(plan)

@@ -307,7 +307,7 @@ def _scenario_problem(
     bounds = _BOUNDS[scenario]
     lower, upper = robot.default_bounds(bounds)
     truth = lower + (upper - lower) * rng_truth.random(robot.n_params)
-    data, _ = simulate(robot, n_poses, seed=int(rng_data.integers(2**63)), errors=truth,
+    data, _ = simulate(robot, n_poses, seed=int(rng_data.integers(2**63)), x=truth,
                        noise=noise)
     if scenario == "near":
         x0 = np.zeros(robot.n_params)

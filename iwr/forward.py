@@ -19,9 +19,9 @@ ForwardKinematicsError = _core.ForwardKinematicsError
 
 def forward_kinematics(
     robot: Robot,
+    x: Any,
     q: Any,
     legs: Any,
-    errors: Any = None,
     guess: Any = None,
     *,
     tolerance: float = 1e-9,
@@ -38,13 +38,13 @@ def forward_kinematics(
     ----------
     robot : Robot
         The nominal robot.
+    x : array_like, shape (n_params,), or None
+        Error parameters added to the nominal geometry (None or zeros: the nominal robot; an
+        identified vector: the calibrated robot).
     q : array_like, shape (N, n_joints)
         Carriage joint readings (mm, rad).
     legs : array_like, shape (N, 6)
         Leg sensor readings (mm); a leg's whole length is its reading plus ``l0 + dl0``.
-    errors : array_like, shape (n_params,), optional
-        Error parameters added to the nominal geometry (default zeros: the nominal robot; an
-        identified vector: the calibrated robot).
     guess : array_like, shape (6,) or (N, 6), optional
         World poses to start from. Default: ``robot.home_pose`` carried through the carriage at
         each ``q``. Newton-Raphson converges to the assembly mode nearest the guess.
@@ -79,9 +79,9 @@ def forward_kinematics(
     legs = as_matrix(legs, 6, "legs")
     n = legs.shape[0]
     q = as_matrix(q, robot.n_joints, "q", rows=n)
-    x = np.zeros(robot.n_params) if errors is None else np.ascontiguousarray(errors, dtype=float)
+    x = np.zeros(robot.n_params) if x is None else np.ascontiguousarray(x, dtype=float)
     if x.shape != (robot.n_params,):
-        raise ValueError(f"errors: shape {x.shape}; expected ({robot.n_params},)")
+        raise ValueError(f"x: shape {x.shape}; expected ({robot.n_params},)")
     if guess is None:
         g = np.zeros((0, 6))
     else:

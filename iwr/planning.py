@@ -104,7 +104,7 @@ def _as_candidates(robot: Robot, candidates: Any) -> Measurements:
 def plan_poses(
     robot: Robot,
     candidates: Any,
-    k: int,
+    n_poses: int,
     criterion: str = "O1",
     seed: int | None = None,
     *,
@@ -113,7 +113,7 @@ def plan_poses(
     max_passes: int = 20,
     report: IdentifiabilityReport | None = None,
 ) -> PosePlan:
-    """Choose ``k`` of the candidate poses that maximise an observability index.
+    """Choose ``n_poses`` of the candidate poses that maximise an observability index.
 
     Parameters
     ----------
@@ -122,7 +122,7 @@ def plan_poses(
     candidates : Measurements or (q, poses)
         M candidate poses: joint readings (M, n_joints) and platform poses in the world frame
         (M, 6). Leg readings, if any, are not used.
-    k : int
+    n_poses : int
         Number of poses to choose, at least ``ceil(rank / 6)`` so the base parameters can be
         determined.
     criterion : {"O1", "O2", "O3", "O4"}
@@ -154,11 +154,13 @@ def plan_poses(
     base = report.base_indices
     r = base.size
     k_min = -(-r // 6)
-    if isinstance(k, bool) or not isinstance(k, (int, np.integer)) or not k_min <= k <= n_cand:
+    if (isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer))
+            or not k_min <= n_poses <= n_cand):
         raise ValueError(
-            f"k: {k!r}; expected an integer from {k_min} (to determine {r} base parameters from "
+            f"n_poses: {n_poses!r}; expected an integer from {k_min} (to determine {r} base parameters from "
             f"6 readings per pose) to {n_cand} (the number of candidates)"
         )
+    k = int(n_poses)
     jac = Problem(robot, cand).jacobian(x)[:, base]
     js = (jac / column_scale(jac)).reshape(n_cand, 6, r)
     info = np.einsum("kij,kil->kjl", js, js)  # per-pose information, (M, r, r)
@@ -246,13 +248,13 @@ def plan_poses(
 
 def measure(
     robot: Robot,
-    errors: Any,
+    x: Any,
     q: Any,
     poses: Any,
     noise: Noise | None = None,
     seed: int | np.random.Generator | None = None,
 ) -> Measurements:
-    """Simulated readings at given poses: the actual robot (nominal + ``errors``) at joint readings
+    """Simulated readings at given poses: the actual robot (nominal + ``x``) at joint readings
     ``q`` and world platform poses ``poses``, with the noise model of :func:`iwr.simulate`.
 
     This is how a planned set of poses is measured in a simulation: the leg readings are those of
@@ -260,7 +262,7 @@ def measure(
     """
     poses = np.asarray(poses, dtype=float)
     q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
-    legs = predict_legs(robot, np.asarray(errors, dtype=float), q, poses)
+    legs = predict_legs(robot, np.asarray(x, dtype=float), q, poses)
     noise = noise if noise is not None else Noise()
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
     return add_noise(robot, q, poses, legs, noise, rng)

@@ -27,13 +27,13 @@ def _check_joint_types(robot: Robot, measurements: Measurements) -> None:
         )
 
 
-def predict_legs(robot: Robot, errors: Any, q: Any, poses: Any) -> np.ndarray:
+def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
     """Predicted leg sensor readings, ``||0P5 + 0R5 b_j - 0P4 - 0R4 a_j|| - l0_j``.
 
     Parameters
     ----------
     robot : Robot
-    errors : array_like, shape (n_params,)
+    x : array_like, shape (n_params,)
         Error parameters added to the robot's nominal geometry (zeros for the nominal robot).
     q : array_like, shape (N, n_joints)
         Carriage joint readings (mm, rad).
@@ -46,9 +46,9 @@ def predict_legs(robot: Robot, errors: Any, q: Any, poses: Any) -> np.ndarray:
     """
     poses = as_matrix(poses, 6, "poses")
     q = as_matrix(q, robot.n_joints, "q", rows=poses.shape[0])
-    x = np.ascontiguousarray(errors, dtype=float)
+    x = np.ascontiguousarray(x, dtype=float)
     if x.shape != (robot.n_params,):
-        raise ValueError(f"errors: shape {x.shape}; expected ({robot.n_params},)")
+        raise ValueError(f"x: shape {x.shape}; expected ({robot.n_params},)")
     return _core.predict_legs(robot._geometry, x, q, poses)
 
 

@@ -166,9 +166,10 @@ class Robot:
             raise ValueError(f"bounds: unknown preset {kind!r}; expected 'default' or 'paper'")
         return -half, half
 
-    def with_errors(self, errors: Any) -> Robot:
-        """The robot whose nominal geometry is this one's plus ``errors`` (a calibrated robot)."""
-        x = _as_array(errors, (self.n_params,), "errors")
+    def with_errors(self, x: Any) -> Robot:
+        """The robot whose nominal geometry is this one's plus the error vector ``x`` (a
+        calibrated robot)."""
+        x = _as_array(x, (self.n_params,), "x")
         n = self.n_joints
         dh = self.dh + x[: 4 * n].reshape(n, 4)
         return Robot(
@@ -184,9 +185,10 @@ class Robot:
             name=self.name,
         )
 
-    def carriage_transform(self, q: Any, errors: Any = None) -> np.ndarray:
-        """The 4x4 transform 0T4 of the carriage at joint readings ``q`` (eq. 2)."""
-        x = np.zeros(self.n_params) if errors is None else np.asarray(errors, dtype=float)
+    def carriage_transform(self, q: Any, x: Any = None) -> np.ndarray:
+        """The 4x4 transform 0T4 of the carriage at joint readings ``q`` (eq. 2), with the error
+        vector ``x`` (default: the nominal robot)."""
+        x = np.zeros(self.n_params) if x is None else np.asarray(x, dtype=float)
         return _core.carriage_transform(self._geometry, x, np.asarray(q, dtype=float))
 
     # -- presets ------------------------------------------------------------------------------

@@ -67,10 +67,10 @@ def sample_poses(
     robot: Robot,
     n_poses: int,
     rng: np.random.Generator,
-    errors: Any = None,
+    x: Any = None,
     max_tries: int = 200,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Random reachable measurement poses of the robot with ``errors`` (default: nominal).
+    """Random reachable measurement poses of the robot with error vector ``x`` (default: nominal).
 
     Joint readings are uniform within the joint limits; the platform pose relative to frame {4}
     is uniform within ``robot.workspace`` around ``robot.home_pose``. A pose is kept only when
@@ -79,7 +79,7 @@ def sample_poses(
     Returns ``(q, poses, legs)``: joint readings (N, n_joints), world poses (N, 6), exact leg
     readings (N, 6).
     """
-    x = np.zeros(robot.n_params) if errors is None else np.asarray(errors, dtype=float)
+    x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
     qs, ps, ls = [], [], []
     have, tries = 0, 0
     batch = max(16, 2 * n_poses)
@@ -107,9 +107,10 @@ def sample_poses(
 
 def simulate(
     robot: Robot,
-    n_poses: int = 100,
-    seed: int | None = 0,
-    errors: Any = None,
+    n_poses: int,
+    *,
+    seed: int | None,
+    x: Any = None,
     noise: Noise | None = None,
 ) -> tuple[Measurements, np.ndarray]:
     """Simulate a calibration experiment (the paper's section 4, with optional noise).
@@ -120,9 +121,9 @@ def simulate(
         The nominal robot.
     n_poses : int
         Number of measurement poses N.
-    seed : int
-        Seed of the random generator; the same seed gives the same data.
-    errors : array_like, optional
+    seed : int or None
+        Seed of the random generator; the same seed gives the same data (None: a fresh one).
+    x : array_like, optional
         The 'actual' robot's error vector. Default: uniform within the default bounds
         (+-0.5 mm, +-0.5 degree).
     noise : Noise, optional
@@ -132,7 +133,8 @@ def simulate(
     -------
     measurements : Measurements
         Joint readings, measured poses and leg readings of the actual robot, with noise.
-    true_errors : ndarray, shape (n_params,)
+    x_true : ndarray, shape (n_params,)
+        The actual robot's error vector.
     """
     if not isinstance(robot, Robot):
         raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
@@ -143,13 +145,13 @@ def simulate(
         raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
     rng = np.random.default_rng(seed)
     lower, upper = robot.default_bounds()
-    if errors is None:
+    if x is None:
         x = lower + (upper - lower) * rng.random(robot.n_params)
     else:
-        x = np.array(errors, dtype=float)
+        x = np.array(x, dtype=float)
         if x.shape != (robot.n_params,) or not np.all(np.isfinite(x)):
             raise ValueError(
-                f"errors: expected {robot.n_params} finite values, got shape {x.shape}"
+                f"x: expected {robot.n_params} finite values, got shape {x.shape}"
             )
     q, poses, legs = sample_poses(robot, int(n_poses), rng, x)
     return add_noise(robot, q, poses, legs, noise, rng), x

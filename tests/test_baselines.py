@@ -32,7 +32,7 @@ def data(robot):
 def validation(robot, data):
     """Fresh poses of the same actual robot, exact readings."""
     _, truth = data
-    m, _ = iwr.simulate(robot, n_poses=40, seed=77, errors=truth)
+    m, _ = iwr.simulate(robot, n_poses=40, seed=77, x=truth)
     return m
 
 

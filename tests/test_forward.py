@@ -74,7 +74,7 @@ def test_round_trip_through_the_inverse_model(robot):
     t = world_poses(robot, x, q, random_local_poses(robot, n, rng))
     poses = np.concatenate([t[:, :3, 3], iwr.transforms.euler_from_matrix(t[:, :3, :3])], axis=1)
     legs = iwr.predict_legs(robot, x, q, poses)
-    back = iwr.forward_kinematics(robot, q, legs, x)
+    back = iwr.forward_kinematics(robot, x, q, legs)
     # compare transforms, not Euler angles (the IWR's world angles are near their gimbal lock)
     tb = pose_matrix(back)
     np.testing.assert_allclose(tb[:, :3, 3], t[:, :3, 3], atol=1e-7)
@@ -92,10 +92,10 @@ def test_equal_legs_give_the_symmetric_pose():
     for reading in (100.0, 200.0, 350.0):
         length = reading + 600.0
         z = math.sqrt(length**2 - d2)
-        pose = iwr.forward_kinematics(hexa, np.zeros((1, 0)), np.full((1, 6), reading))
+        pose = iwr.forward_kinematics(hexa, None, np.zeros((1, 0)), np.full((1, 6), reading))
         np.testing.assert_allclose(pose[0], [0, 0, z, 0, 0, 0], atol=1e-9)
         # the mirror assembly mode below the base plate, reached from a guess down there
-        below = iwr.forward_kinematics(hexa, np.zeros((1, 0)), np.full((1, 6), reading),
+        below = iwr.forward_kinematics(hexa, None, np.zeros((1, 0)), np.full((1, 6), reading),
                                        guess=[0, 0, -700, 0, 0, 0])
         np.testing.assert_allclose(below[0], [0, 0, -z, 0, 0, 0], atol=1e-9)
 
@@ -104,7 +104,7 @@ def test_equal_legs_on_the_carriage_follow_the_carriage(robot):
     q = np.array([[700.0, 250.0, 0.3, -0.4], [0.0, 1000.0, -1.2, 0.9]])
     reading = 150.0
     z = math.sqrt((reading + 600.0) ** 2 - (400**2 + 250**2 - 2e5 * math.cos(math.radians(40))))
-    poses = iwr.forward_kinematics(robot, q, np.full((2, 6), reading))
+    poses = iwr.forward_kinematics(robot, None, q, np.full((2, 6), reading))
     for k in range(2):
         expected = robot.carriage_transform(q[k]) @ pose_matrix([0, 0, z, 0, 0, 0])
         np.testing.assert_allclose(pose_matrix(poses[k]), expected, atol=1e-9)
@@ -115,30 +115,30 @@ def test_forward_kinematics_errors(robot):
     legs = m.legs.copy()
     legs[2, 0] = -590.0  # a 10 mm leg among legs of ~800 mm: no pose closes the loop
     with pytest.raises(iwr.ForwardKinematicsError, match="pose 2") as info:
-        iwr.forward_kinematics(robot, m.q, legs, x)
+        iwr.forward_kinematics(robot, x, m.q, legs)
     assert info.value.pose == 2
     assert isinstance(info.value, RuntimeError)
     with pytest.raises(iwr.ForwardKinematicsError, match="no convergence in 1 Newton"):
-        iwr.forward_kinematics(robot, m.q, m.legs, x, max_iterations=1)
+        iwr.forward_kinematics(robot, x, m.q, m.legs, max_iterations=1)
     # a degenerate platform (all joints at one point) makes the Jacobian singular
     flat = iwr.Robot("", np.zeros((0, 4)), np.zeros((0, 2)), robot.base_joints, np.zeros((6, 3)),
                      robot.leg_offsets, robot.leg_stroke, robot.home_pose, robot.workspace)
     with pytest.raises(iwr.ForwardKinematicsError, match="singular"):
-        iwr.forward_kinematics(flat, np.zeros((1, 0)), np.full((1, 6), 200.0))
+        iwr.forward_kinematics(flat, None, np.zeros((1, 0)), np.full((1, 6), 200.0))
     legs = m.legs.copy()
     legs[1, 3] = -700.0
     with pytest.raises(ValueError, match="pose 1: leg 4 has length -100"):
-        iwr.forward_kinematics(robot, m.q, legs, x)
+        iwr.forward_kinematics(robot, x, m.q, legs)
     with pytest.raises(ValueError, match=r"legs: shape \(4, 5\)"):
-        iwr.forward_kinematics(robot, m.q, m.legs[:, :5])
+        iwr.forward_kinematics(robot, None, m.q, m.legs[:, :5])
     with pytest.raises(ValueError, match=r"q: shape \(3, 4\)"):
-        iwr.forward_kinematics(robot, m.q[:3], m.legs)
-    with pytest.raises(ValueError, match="errors: shape"):
-        iwr.forward_kinematics(robot, m.q, m.legs, np.zeros(3))
+        iwr.forward_kinematics(robot, None, m.q[:3], m.legs)
+    with pytest.raises(ValueError, match=r"x: shape \(3,\)"):
+        iwr.forward_kinematics(robot, np.zeros(3), m.q, m.legs)
     with pytest.raises(ValueError, match="tolerance: -1"):
-        iwr.forward_kinematics(robot, m.q, m.legs, tolerance=-1.0)
+        iwr.forward_kinematics(robot, None, m.q, m.legs, tolerance=-1.0)
     with pytest.raises(ValueError, match=r"guess: shape \(2, 6\)"):
-        iwr.forward_kinematics(robot, m.q, m.legs, guess=np.zeros((2, 6)))
+        iwr.forward_kinematics(robot, None, m.q, m.legs, guess=np.zeros((2, 6)))
 
 
 # -- accuracy ------------------------------------------------------------------------------------
@@ -171,7 +171,7 @@ def test_pose_errors_of_known_displacements():
 
 def test_accuracy_with_true_errors_is_exact_without_noise(robot):
     m, x = iwr.simulate(robot, n_poses=20, seed=5)
-    acc = iwr.accuracy(robot, x, m)
+    acc = iwr.accuracy(robot, m, x)
     assert acc.n_poses == 20
     assert acc.calibrated.position.max() < 1e-6
     assert acc.calibrated.orientation.max() < 1e-8
@@ -188,8 +188,8 @@ def test_accuracy_after_calibration_is_better_on_held_out_noisy_poses(robot):
     data, truth = iwr.simulate(robot, n_poses=90, seed=6, noise=iwr.Noise.realistic())
     ident, valid = data.subset(np.arange(70)), data.subset(np.arange(70, 90))
     result = iwr.identify(robot, ident, method="lm")
-    acc = iwr.accuracy(robot, result.x, valid)
-    floor = iwr.accuracy(robot, truth, valid).calibrated.summary()["position_mm"]["rms"]
+    acc = iwr.accuracy(robot, valid, result.x)
+    floor = iwr.accuracy(robot, valid, truth).calibrated.summary()["position_mm"]["rms"]
     before = acc.nominal.summary()["position_mm"]["rms"]
     after = acc.calibrated.summary()["position_mm"]["rms"]
     assert after < before / 50
@@ -206,12 +206,12 @@ def test_accuracy_ignores_unidentifiable_directions(robot):
     norms = np.linalg.norm(jac, axis=0)
     _, s, vt = np.linalg.svd(jac / norms)
     assert s[-1] < 1e-12 * s[0]
-    base = iwr.accuracy(robot, x, m).calibrated.position
+    base = iwr.accuracy(robot, m, x).calibrated.position
     null = vt[-1] / norms
     generic = np.random.default_rng(8).normal(size=robot.n_params) / norms
     for direction, small in ((null, True), (generic, False)):
         step = 0.05 * direction / np.abs(direction).max()
-        moved = iwr.accuracy(robot, x + step, m).calibrated.position
+        moved = iwr.accuracy(robot, m, x + step).calibrated.position
         change = np.abs(moved - base).max()
         assert (change < 1e-4) if small else (change > 1e-3)
 
@@ -223,4 +223,4 @@ def test_accuracy_names_the_line_of_a_pose_that_does_not_converge(robot, tmp_pat
     back = iwr.Measurements.from_csv(path)
     back.legs[3, 2] = -595.0  # 5 mm: legal for from_csv without a robot, unreachable for FK
     with pytest.raises(iwr.ForwardKinematicsError, match=r"nominal robot at .*d\.csv, line 1[0-9]"):
-        iwr.accuracy(robot, x, back)
+        iwr.accuracy(robot, back, x)

@@ -364,7 +364,7 @@ def test_planned_poses_beat_random_ones(robot, candidates) -> None:
 def test_plan_arguments(robot, candidates) -> None:
     with pytest.raises(ValueError, match="criterion"):
         iwr.plan_poses(robot, candidates, 15, "O5")
-    with pytest.raises(ValueError, match="k: 3"):
+    with pytest.raises(ValueError, match="n_poses: 3"):
         iwr.plan_poses(robot, candidates, 3)
     a = iwr.plan_poses(robot, candidates, 12, "O1", seed=1)
     b = iwr.plan_poses(robot, candidates, 12, "O1", seed=1)

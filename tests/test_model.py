@@ -67,7 +67,7 @@ def data(robot):
 
 
 def test_eq2_is_the_dh_product_symbolically():
-    sp = pytest.importorskip("sympy")
+    import sympy as sp
     d1, d2, d3, a3, a4, t3, t4 = sp.symbols("d1 d2 d3 a3 a4 theta3 theta4")
 
     def A(al, a, d, th):
@@ -197,8 +197,8 @@ def test_simulate_is_seeded(robot):
 
 def test_noise_has_the_requested_spread(robot):
     x = np.zeros(robot.n_params)
-    clean, _ = iwr.simulate(robot, 400, seed=5, errors=x)
-    noisy, _ = iwr.simulate(robot, 400, seed=5, errors=x, noise=iwr.Noise(legs=0.01, position=0.05))
+    clean, _ = iwr.simulate(robot, 400, seed=5, x=x)
+    noisy, _ = iwr.simulate(robot, 400, seed=5, x=x, noise=iwr.Noise(legs=0.01, position=0.05))
     assert np.std(noisy.legs - clean.legs) == pytest.approx(0.01, rel=0.1)
     assert np.std(noisy.poses[:, :3] - clean.poses[:, :3]) == pytest.approx(0.05, rel=0.1)
     np.testing.assert_array_equal(noisy.q, clean.q)
@@ -276,7 +276,7 @@ def test_lm_recovers_noise_free_problem(robot):
     m, x = iwr.simulate(robot, 60, seed=12)
     res = iwr.identify(robot, m, method="lm")
     assert res.success and res.fun < 1e-16
-    val, _ = iwr.simulate(robot, 30, seed=99, errors=x)
+    val, _ = iwr.simulate(robot, 30, seed=99, x=x)
     pred = iwr.predict_legs(robot, res.x, val.q, val.poses)
     assert np.sqrt(np.mean((pred - val.legs) ** 2)) < 1e-7
 
@@ -438,7 +438,7 @@ def test_bad_shapes_and_values(robot, data):
     with pytest.raises(ValueError, match="weights: row 0, column 0 is negative"):
         iwr.Measurements(m.q, m.poses, m.legs, weights=-np.ones((40, 6)))
     with pytest.raises(ValueError, match="n_poses"):
-        iwr.simulate(robot, 0)
+        iwr.simulate(robot, 0, seed=0)
 
 
 def test_unreachable_workspace_is_reported():

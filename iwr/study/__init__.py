@@ -343,7 +343,7 @@ def _validate(
     accuracy = getattr(iwr, "accuracy", None)
     if accuracy is not None:
         try:
-            acc = accuracy(robot, x, data)
+            acc = accuracy(robot, data, x)
             out["tool_position_rms"] = _rms(acc.calibrated.position)
             out["tool_orientation_rms"] = _rms(acc.calibrated.orientation)
             out["tool_position_rms_nominal"] = _rms(acc.nominal.position)
@@ -370,7 +370,7 @@ def run_cell(cell: Cell, robot_json: str, runtime_options: Mapping[str, Any]) ->
         truth = true_errors(robot, cell.base_seed, cell.draw)
         data, _ = simulate(
             robot, cell.n_poses, seed=_seed(cell.base_seed, _DATA, cell.draw, cell.seed),
-            errors=truth, noise=noise_at(cell.noise),
+            x=truth, noise=noise_at(cell.noise),
         )
         options = dict(json.loads(cell.options))
         if cell.budget is not None:
