@@ -74,11 +74,11 @@ def stats_table(seeds: int) -> None:
     rows = []
     for s in range(seeds):
         m, truth = iwr.simulate(robot, 100, seed=s, noise=noise)
-        fresh, _ = iwr.simulate(robot, 200, seed=10000 + s, errors=truth)
+        fresh, _ = iwr.simulate(robot, 200, seed=10000 + s, x=truth)
         lm = iwr.identify(robot, m, "lm")
         ef = est.efficient(robot, m, noise)
-        a_lm = iwr.accuracy(robot, lm.x, fresh).calibrated
-        a_ef = iwr.accuracy(robot, ef.x, fresh).calibrated
+        a_lm = iwr.accuracy(robot, fresh, lm.x).calibrated
+        a_ef = iwr.accuracy(robot, fresh, ef.x).calibrated
         pred = est.predicted_accuracy(robot, fresh, ef.x, ef.covariance, active=ef.active)
 
         def rms(v: np.ndarray) -> float:
@@ -192,9 +192,9 @@ def outlier_table(seeds: int) -> None:
         missed += 5 - len(flagged & set(bad.tolist()))
         false_bad += len(flagged - set(bad.tolist()))
         false_clean += len(c.outliers)
-        fresh, _ = iwr.simulate(robot, 200, seed=10000 + s, errors=truth)
-        pb = iwr.accuracy(robot, r.x, fresh).calibrated.position
-        pc = iwr.accuracy(robot, c.x, fresh).calibrated.position
+        fresh, _ = iwr.simulate(robot, 200, seed=10000 + s, x=truth)
+        pb = iwr.accuracy(robot, fresh, r.x).calibrated.position
+        pc = iwr.accuracy(robot, fresh, c.x).calibrated.position
         ratios.append(math.sqrt(np.mean(pb**2) / np.mean(pc**2)))
     ratios_a = np.array(ratios)
     print(f"Outliers: N = 100, 5 gross errors of 1 mm per data set, {seeds} seeds")

@@ -28,8 +28,8 @@ def base_mask() -> np.ndarray:
 
 
 def _tool_errors(x: np.ndarray, truth: np.ndarray, seed: int, n: int = 50) -> tuple[float, float]:
-    fresh, _ = iwr.simulate(ROBOT, n, seed=seed, errors=truth)
-    a = iwr.accuracy(ROBOT, x, fresh).calibrated
+    fresh, _ = iwr.simulate(ROBOT, n, seed=seed, x=truth)
+    a = iwr.accuracy(ROBOT, fresh, x).calibrated
     return float(np.sqrt(np.mean(a.position**2))), float(np.sqrt(np.mean(a.orientation**2)))
 
 
@@ -252,7 +252,7 @@ def test_plausible_truth_with_null_directions_is_not_named(base_mask: np.ndarray
     names = ROBOT.parameter_names
     truth = np.zeros(ROBOT.n_params)
     truth[names.index("joint4.dtheta")] = math.radians(0.5)
-    m, _ = iwr.simulate(ROBOT, 60, seed=5, errors=truth, noise=NOISE)
+    m, _ = iwr.simulate(ROBOT, 60, seed=5, x=truth, noise=NOISE)
     res = est.efficient(ROBOT, m, NOISE, active=base_mask)
     assert np.max(np.abs(res.x[[names.index("leg1.da_z"), names.index("leg2.da_z")]])) > 5
     assert res.fit.implausible == [] and res.success
@@ -278,7 +278,7 @@ def test_predicted_covariance_matches_monte_carlo(base_mask: np.ndarray) -> None
     assert 0.9 < np.median(ratio) < 1.1, ratio
     assert ratio.min() > 0.7 and ratio.max() < 1.3, ratio
     # Tool error: predicted RMS against the spread of the calibrated model's tool pose.
-    fresh, _ = iwr.simulate(ROBOT, 40, seed=12, errors=truth)
+    fresh, _ = iwr.simulate(ROBOT, 40, seed=12, x=truth)
     pa = est.predicted_accuracy(ROBOT, fresh, res.x, res.covariance, active=base_mask)
     assert pa.position_95 > pa.position_rms > 0 and pa.orientation_95 > pa.orientation_rms > 0
     errs = []
@@ -286,7 +286,7 @@ def test_predicted_covariance_matches_monte_carlo(base_mask: np.ndarray) -> None
         x = truth.copy()
         x[base_mask] = xa
         x[~base_mask] = 0.0
-        errs.append(iwr.accuracy(ROBOT, x, fresh).calibrated.position)
+        errs.append(iwr.accuracy(ROBOT, fresh, x).calibrated.position)
     # Every estimate is compared with the truth through forward kinematics; the null directions
     # (held at 0 while the truth is not) leave the tool pose unchanged.
     actual = math.sqrt(float(np.mean(np.array(errs) ** 2)))
