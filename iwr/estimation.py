@@ -485,7 +485,10 @@ def efficient(
     -------
     IdentificationResult
         ``x``, ``fun`` (the weighted cost: sum of squared normalised corrections), ``nfev``,
-        ``nit``, ``success`` (converged *and* the fit is sane), ``status``, ``message``, and:
+        ``nit``, ``success`` (converged *and* the fit is sane), ``status`` (``"converged"``,
+        ``"stopped"`` at the iteration limit, ``"callback"``, ``"failed"``: no step lowered the
+        cost, or the model does not fit), ``solver_status`` (the C++ solver's code, see
+        ``implicit_loop.hpp``), ``message``, and:
         ``fit`` (:class:`FitTest`), ``fit_ok``, ``verdict``, ``outliers`` (list of
         :class:`Outlier`), ``used`` (mask of the poses in the final solution), ``active``,
         ``covariance`` (active parameters), ``std`` (all parameters, nan where fixed),
@@ -740,16 +743,24 @@ def efficient(
     fit = FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict,
                   causes if not fit_ok else notes, implausible)
 
+    # The statuses of iwr's results: "converged" only when the solver converged *and* the fit is
+    # sane; a model that does not fit is "failed" whatever the solver said.
+    solver_status = int(out["status"])
     if stopped["flag"]:
-        status, message = -1, "stopped by the callback"
+        status, message = "callback", "stopped by the callback"
     elif not converged:
-        status, message = int(out["status"]), str(out["message"])
+        status = "stopped" if solver_status == 0 else "failed"
+        message = str(out["message"])
+        if not fit_ok:
+            message += "; the model does not fit the data" + (
+                f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
+                if dof > 0 else "")
     elif not fit_ok:
-        status, message = 5, "converged, but the model does not fit the data" + (
+        status, message = "failed", "converged, but the model does not fit the data" + (
             f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
             if dof > 0 else "") + ("; implausible parameters" if implausible else "")
     else:
-        status, message = int(out["status"]), str(out["message"])
+        status, message = "converged", str(out["message"])
     success = bool(converged and fit_ok)
 
     cov = np.array(out["covariance"])
@@ -778,6 +789,7 @@ def efficient(
         nit=totals["nit"],
         success=success,
         status=status,
+        solver_status=solver_status,
         message=message,
         method="efficient",
         fit=fit,

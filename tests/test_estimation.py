@@ -72,7 +72,7 @@ def test_noise_free_data_recover_the_truth() -> None:
     m, truth = iwr.simulate(ROBOT, 60, seed=2)
     res = est.efficient(ROBOT, m, NOISE)
     assert res.success and res.fit_ok, res.message
-    assert res.status > 0
+    assert res.status == "converged" and res.solver_status > 0
     pos, ori = _tool_errors(res.x, truth, seed=3)
     assert pos < 1e-9  # mm
     assert math.radians(ori) < 1e-9
@@ -195,7 +195,7 @@ def test_unregistered_frame_is_reported(base_mask: np.ndarray) -> None:
                              joint_types=m.joint_types)
     res = est.efficient(ROBOT, moved, NOISE, active=base_mask)
     assert not res.success and not res.fit_ok
-    assert res.status != 1 or "does not fit" in res.message.lower()
+    assert res.status == "failed" and "does not fit" in res.message.lower()
     assert "DOES NOT FIT" in res.verdict
     assert res.fit.implausible or res.fit.p_value < 1e-3
 
@@ -303,13 +303,13 @@ def test_callback_follows_scipy_and_stops() -> None:
 
     res = est.efficient(ROBOT, m, NOISE, callback=cb)
     assert len(seen) == 1 and seen[0][2] == (ROBOT.n_params,)
-    assert not res.success and res.status == -1 and "callback" in res.message
+    assert not res.success and res.status == "callback" and "callback" in res.message
 
     def stop(r):
         raise StopIteration
 
     res = est.efficient(ROBOT, m, NOISE, callback=stop)
-    assert not res.success and res.status == -1
+    assert not res.success and res.status == "callback"
 
 
 def test_result_carries_the_identification_result_fields() -> None:
