@@ -214,8 +214,9 @@ class Outlier:
     def __str__(self) -> str:
         what = "removed" if self.removed else "kept"
         alt = f" or {', '.join(self.confounded)}, indistinguishable" if self.confounded else ""
-        return (f"{self.where}: chi2 {self.statistic:.1f} ({self.dof} dof, p = {self.p_value:.2g}); "
-                f"largest normalised residual {self.instrument} (w = {self.w:+.1f}{alt}); {what}")
+        return (f"{self.where}: chi2 {self.statistic:.1f} ({self.dof} dof, "
+                f"p = {self.p_value:.2g}); largest normalised residual {self.instrument} "
+                f"(w = {self.w:+.1f}{alt}); {what}")
 
 
 @dataclass(frozen=True)

@@ -33,11 +33,13 @@ def _tool_errors(x: np.ndarray, truth: np.ndarray, seed: int, n: int = 50) -> tu
     return float(np.sqrt(np.mean(a.position**2))), float(np.sqrt(np.mean(a.orientation**2)))
 
 
-def test_loop_jacobians_match_central_differences() -> None:
+@pytest.mark.parametrize("size", [0.3, 1e-6])
+def test_loop_jacobians_match_central_differences(size: float) -> None:
+    # 0.3 rad rotation corrections use the closed forms of exp and J_r, 1e-6 rad their series.
     rng = np.random.default_rng(5)
     m, truth = iwr.simulate(ROBOT, 6, seed=4)
     nj = ROBOT.n_joints
-    corr = rng.uniform(-0.3, 0.3, (6, nj + 6))
+    corr = rng.uniform(-size, size, (6, nj + 6))
     legs, jx, jy = est.loop_jacobians(ROBOT, truth, m.q, m.poses, corr)
     h = 1e-5
     num_x = np.empty_like(jx)
