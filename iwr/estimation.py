@@ -573,6 +573,8 @@ def efficient(
             s[:, cols[c]] *= f
         return s
 
+    last: dict[str, Any] = {}  # the state of the last completed solve (for Ctrl-C)
+
     def solve() -> dict[str, Any]:
         nonlocal x, corr
         m = measurements.subset(np.flatnonzero(used)) if not used.all() else measurements
@@ -584,6 +586,7 @@ def efficient(
         totals["nit"] += int(out["iterations"])
         x = np.array(out["x"])
         corr[used] = out["corrections"]
+        last.update(out=out, used=used.copy(), x=x.copy(), corr=corr.copy(), scale=dict(scale))
         return out
 
     components: list[VarianceComponent] = []
@@ -599,14 +602,17 @@ def efficient(
                 if c in frozen:
                     continue
                 red = float(np.sum(out["redundancy"][:, cols[c]]))
-                if red < 1.0:  # (almost) no redundancy: not identifiable from these data
-                    frozen.add(c)
-                    continue
                 omega = float(np.sum(out["residuals"][:, cols[c]] ** 2))
-                f = math.sqrt(omega / red)  # Foerstner: sigma^2 <- sigma^2 Omega_c / r_c
-                if f < 1e-6:  # collapsed: hold it (the data do not separate it)
+                f = math.sqrt(omega / red) if red > 0 else 0.0
+                # (Almost) no redundancy, or collapsed towards zero: the data do not separate it
+                # from the others; hold it at its starting value (and solve again with it).
+                if red < 1.0 or f < 1e-6:
                     frozen.add(c)
+                    if scale[c] != 1.0:
+                        scale[c] = 1.0
+                        change = max(change, 1.0)
                     continue
+                # Foerstner: sigma^2 <- sigma^2 Omega_c / r_c.
                 scale[c] *= f
                 change = max(change, abs(f - 1.0))
             out = solve()
@@ -616,16 +622,11 @@ def efficient(
         for c in est:
             red = float(np.sum(out["redundancy"][:, cols[c]]))
             s = getattr(noise0, c) * scale[c]
-            ok = c not in frozen
-            if not ok:
-                scale[c] = 1.0
-                s = getattr(noise0, c)
             components.append(VarianceComponent(
-                c, s, getattr(noise0, c), red, s / math.sqrt(2 * red) if red > 0 else math.inf, ok))
+                c, s, getattr(noise0, c), red, s / math.sqrt(2 * red) if red > 0 else math.inf,
+                c not in frozen))
         return out
 
-    out = solve_with_variances()
-    found: list[Outlier] = []
     crit_dof: dict[int, float] = {}
 
     def test_poses(o: dict[str, Any]) -> list[tuple[Any, ...]]:
@@ -640,51 +641,70 @@ def efficient(
                 crit_dof[d] = float(stats.chi2.isf(outlier_alpha, d))
             if t > crit_dof[d]:
                 red = o["redundancy"][r_i]
-                w = np.where(red > 1e-10, o["residuals"][r_i] / np.sqrt(np.maximum(red, 1e-300)),
-                             0.0)
+                w = np.where(red > 1e-10,
+                             o["residuals"][r_i] / np.sqrt(np.maximum(red, 1e-300)), 0.0)
                 j = int(np.argmax(np.abs(w)))
                 alt = tuple(names[i] for i in np.flatnonzero(np.abs(w) >= 0.99 * abs(w[j]))
                             if i != j)
                 bad.append((int(k), t, d, float(stats.chi2.sf(t, d)), names[j], float(w[j]), alt))
         return bad
 
+    found: list[Outlier] = []
     too_many = False
-    if outliers != "off" and not stopped["flag"]:
-        cap = int(math.floor(max_outlier_fraction * n))
-        while True:
-            bad = test_poses(out)
-            if not bad:
-                break
-            if outliers == "report":
-                found = [Outlier(k, measurements.where(k), t, d, pv, ins, w, False, alt)
-                         for k, t, d, pv, ins, w, alt in bad]
-                too_many = len(bad) > cap
-                break
-            if len(found) >= cap:
-                # More failing poses than gross errors can explain: report them, stop removing.
-                # (Not decided on the first round's count: a few 1 mm errors among 2 um readings
-                # distort the first solution so much that most clean poses fail with them.)
-                too_many = True
-                found += [Outlier(k, measurements.where(k), t, d, pv, ins, w, False, alt)
-                          for k, t, d, pv, ins, w, alt in bad]
-                break
-            k, t, d, pv, ins, w, alt = max(bad, key=lambda b: b[1] / crit_dof[b[2]])
-            found.append(Outlier(k, measurements.where(k), t, d, pv, ins, w, True, alt))
-            used[k] = False
-            corr[k] = 0.0
-            if 6 * int(used.sum()) <= p:
-                too_many = True
-                break
-            out = solve_with_variances()
-            if stopped["flag"]:
-                break
+    interrupted = False
+    try:
+        out = solve_with_variances()
+        if outliers != "off" and not stopped["flag"]:
+            cap = int(math.floor(max_outlier_fraction * n))
+            while True:
+                bad = test_poses(out)
+                if not bad:
+                    break
+                if outliers == "report":
+                    found = [Outlier(k, measurements.where(k), t, d, pv, ins, w, False, alt)
+                             for k, t, d, pv, ins, w, alt in bad]
+                    too_many = len(bad) > cap
+                    break
+                if len(found) >= cap:
+                    # More failing poses than gross errors can explain: report them, stop
+                    # removing. (Not decided on the first round's count: a few 1 mm errors among
+                    # 2 um readings distort the first solution so much that most clean poses fail
+                    # with them.)
+                    too_many = True
+                    found += [Outlier(k, measurements.where(k), t, d, pv, ins, w, False, alt)
+                              for k, t, d, pv, ins, w, alt in bad]
+                    break
+                k, t, d, pv, ins, w, alt = max(bad, key=lambda b: b[1] / crit_dof[b[2]])
+                found.append(Outlier(k, measurements.where(k), t, d, pv, ins, w, True, alt))
+                used[k] = False
+                corr[k] = 0.0
+                if 6 * int(used.sum()) <= p:
+                    too_many = True
+                    break
+                out = solve_with_variances()
+                if stopped["flag"]:
+                    break
+
+    except KeyboardInterrupt:
+        # Ctrl-C: the result of the last completed solve, marked interrupted (nothing to return
+        # before the first one has finished).
+        if "out" not in last:
+            raise
+        interrupted = True
+        out, x = last["out"], last["x"]
+        used[:] = last["used"]
+        corr[:] = last["corr"]
+        scale.update(last["scale"])
+        found = [replace(o, removed=False) if o.removed and used[o.pose] else o for o in found]
+        components[:] = [VarianceComponent(c, getattr(noise0, c) * scale[c], getattr(noise0, c),
+                                           math.nan, math.nan, False) for c in est]
 
     # --- the verdict ---------------------------------------------------------------------------
     n_used = int(used.sum())
     dof = 6 * n_used - p
     statistic = float(out["cost"])
     p_value = float(stats.chi2.sf(statistic, dof)) if dof > 0 else math.nan
-    converged = int(out["status"]) > 0 and not stopped["flag"]
+    converged = int(out["status"]) > 0 and not stopped["flag"] and not interrupted
     causes: list[str] = []
     names = robot.parameter_names
     m_used = measurements.subset(np.flatnonzero(used)) if not used.all() else measurements
@@ -747,7 +767,10 @@ def efficient(
     # The statuses of iwr's results: "converged" only when the solver converged *and* the fit is
     # sane; a model that does not fit is "failed" whatever the solver said.
     solver_status = int(out["status"])
-    if stopped["flag"]:
+    if interrupted:
+        status = "interrupted"
+        message = "interrupted (Ctrl-C): the result of the last completed solve"
+    elif stopped["flag"]:
         status, message = "callback", "stopped by the callback"
     elif not converged:
         status = "stopped" if solver_status == 0 else "failed"

@@ -414,3 +414,28 @@ def test_core_solver_checks_its_arguments() -> None:
     legs[1, 1] = np.nan
     with pytest.raises(ValueError, match="legs"):
         _core.implicit_loop(ROBOT._geometry, x0, [0], m.q, m.poses, legs, sigma, np.zeros((0, 0)))
+
+
+def test_ctrl_c_returns_the_last_completed_solve_marked_interrupted(base_mask: np.ndarray) -> None:
+    # KeyboardInterrupt from inside a later solve (here raised by the callback during the
+    # variance-component iterations): the result of the last completed solve, status
+    # "interrupted", never success. Before the first solve has finished there is nothing to return.
+    m, _ = iwr.simulate(ROBOT, 40, seed=14, noise=NOISE)
+    calls = []
+
+    def late(r):
+        calls.append(r.nit)
+        if len(calls) > 12:
+            raise KeyboardInterrupt
+
+    res = est.efficient(ROBOT, m, NOISE, active=base_mask, callback=late,
+                        estimate=("position", "orientation"))
+    assert res.status == "interrupted" and not res.success and "Ctrl-C" in res.message
+    assert np.all(np.isfinite(res.x)) and res.fit.dof == 6 * 40 - int(base_mask.sum())
+    assert all(not c.identified for c in res.variance_components)
+
+    def early(r):
+        raise KeyboardInterrupt
+
+    with pytest.raises(KeyboardInterrupt):
+        est.efficient(ROBOT, m, NOISE, active=base_mask, callback=early)
