@@ -5,7 +5,7 @@ import numpy
 import numpy.typing
 import typing
 _bench: typing.Any  # benchmark-only submodule
-__all__: list[str] = ['FormatError', 'ForwardKinematicsError', 'Geometry', 'Objective', 'TrackerObjective', 'carriage_transform', 'de_function', 'de_objective', 'de_resolve', 'dh_transform', 'euler_zyx', 'forward_kinematics', 'hexapod_leg_lengths', 'predict_legs', 'rotvec_matrix', 'so3_left_jacobian']
+__all__: list[str] = ['FormatError', 'ForwardKinematicsError', 'Geometry', 'Objective', 'TrackerObjective', 'carriage_transform', 'de_function', 'de_objective', 'de_resolve', 'dh_transform', 'euler_zyx', 'forward_kinematics', 'hexapod_leg_lengths', 'implicit_loop', 'loop_jacobians', 'predict_legs', 'rotvec_matrix', 'so3_left_jacobian']
 class Geometry:
     def __init__(self, joint_types: str, dh: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], base: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 3]"], platform: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 3]"], leg_offsets: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"]) -> None:
         ...
@@ -117,5 +117,13 @@ def rotvec_matrix(w: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[3
     ...
 def so3_left_jacobian(w: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[3, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[3, 3]"]:
     ...
+def implicit_loop(geometry: Geometry, x0: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], active: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], q: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], poses: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], legs: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], sigma: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], corrections0: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], max_iterations: typing.SupportsInt | typing.SupportsIndex = 200, ftol: typing.SupportsFloat | typing.SupportsIndex = 1e-12, xtol: typing.SupportsFloat | typing.SupportsIndex = 1e-12, gtol: typing.SupportsFloat | typing.SupportsIndex = 1e-12, callback: typing.Any = None) -> dict:
+    """
+    The implicit loop (errors-in-variables) estimator; see cpp/include/iwr/implicit_loop.hpp.
+    """
+def loop_jacobians(geometry: Geometry, x: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], q: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], poses: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], corrections: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"]) -> tuple:
+    """
+    Predicted legs (N, 6) at corrected readings and their exact derivatives: (6 N, n_params) with respect to x and (6 N, n_joints + 6) with respect to the corrections (dq, dp, w).
+    """
 def predict_legs(geometry: Geometry, errors: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], q: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], poses: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
     ...

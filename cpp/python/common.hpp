@@ -22,4 +22,5 @@ void bind_de(py::module_& m);
 void bind_bench(py::module_& m);
 void bind_tracker(py::module_& m);
 void bind_files(py::module_& m);
+void bind_implicit_loop(py::module_& m);
 }  // namespace iwr::python

@@ -1,0 +1,551 @@
+// The implicit loop estimator: see implicit_loop.hpp.
+#include "iwr/implicit_loop.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+namespace iwr {
+
+namespace {
+
+using MatX = Eigen::MatrixXd;
+using VecX = Eigen::VectorXd;
+
+Mat3 skew(const Vec3& v) {
+    Mat3 k;
+    k << 0, -v(2), v(1), v(2), 0, -v(0), -v(1), v(0), 0;
+    return k;
+}
+
+// exp([w]x) (Rodrigues) and the right Jacobian J_r(w): exp([w + d]x) = exp([w]x) exp([J_r d]x)
+// + O(d^2). Series below 1e-4 rad, where the closed forms lose digits to cancellation.
+void so3_exp(const Vec3& w, Mat3* r, Mat3* jr) {
+    const double t2 = w.squaredNorm();
+    const double t = std::sqrt(t2);
+    double s, c, e;  // sin t / t, (1 - cos t) / t^2, (t - sin t) / t^3
+    if (t < 1e-4) {
+        s = 1 - t2 / 6 + t2 * t2 / 120;
+        c = 0.5 - t2 / 24 + t2 * t2 / 720;
+        e = 1.0 / 6 - t2 / 120 + t2 * t2 / 5040;
+    } else {
+        s = std::sin(t) / t;
+        c = (1 - std::cos(t)) / t2;
+        e = (t - std::sin(t)) / (t2 * t);
+    }
+    const Mat3 k = skew(w);
+    const Mat3 k2 = k * k;
+    if (r) *r = Mat3::Identity() + s * k + c * k2;
+    if (jr) *jr = Mat3::Identity() - c * k + e * k2;
+}
+
+// One pose: predicted legs at (x, q + dq, (p + dp, R exp([w]x))) and, when jx != nullptr, the
+// exact derivatives with respect to every parameter (6 x n_params) and to the corrections
+// (6 x (n_joints + 6)). `frames` has n_joints + 1 entries.
+void pose_legs(const Geometry& g, const double* x, const double* q, const double* pose,
+               const double* corr, double* legs, RowMatrixXd* jx, RowMatrixXd* jy, int row0,
+               Mat4* frames, double* qt) {
+    const int nj = g.n_joints();
+    for (int i = 0; i < nj; ++i) qt[i] = q[i] + corr[i];
+    const Mat4 t4 = carriage_transform(g, x, qt, frames);
+    const Mat3 r4 = t4.topLeftCorner<3, 3>();
+    const Vec3 p4 = t4.topRightCorner<3, 1>();
+    const Vec3 w(corr[nj + 3], corr[nj + 4], corr[nj + 5]);
+    Mat3 ew, jr;
+    so3_exp(w, &ew, jx ? &jr : nullptr);
+    const Mat3 r5 = euler_zyx(pose[3], pose[4], pose[5]) * ew;
+    const Vec3 p5 = Vec3(pose[0], pose[1], pose[2]) + Vec3(corr[nj], corr[nj + 1], corr[nj + 2]);
+    const int base = 4 * nj;
+    for (int j = 0; j < kLegs; ++j) {
+        const Vec3 a = g.base().row(j).transpose() + Eigen::Map<const Vec3>(x + base + 3 * j);
+        const Vec3 b = g.platform().row(j).transpose() + Eigen::Map<const Vec3>(x + base + 18 + 3 * j);
+        const Vec3 pa = p4 + r4 * a;  // universal joint centre in {0}
+        const Vec3 v = p5 + r5 * b - pa;
+        const double len = v.norm();
+        legs[j] = len - (g.leg_offsets()(j) + x[base + 36 + j]);
+        if (!jx) continue;
+        const Vec3 u = v / len;  // d len = u . (dB - dA)
+        auto rx = jx->row(row0 + j);
+        auto ry = jy->row(row0 + j);
+        rx.setZero();
+        // As Objective::jacobian: theta and d act about/along z_{i-1} through o_{i-1}, a and alpha
+        // along/about x_i through o_i. A joint reading adds to d (P) or theta (R).
+        for (int i = 0; i < nj; ++i) {
+            const Vec3 z_prev = frames[i].block<3, 1>(0, 2);
+            const Vec3 o_prev = frames[i].block<3, 1>(0, 3);
+            const Vec3 x_i = frames[i + 1].block<3, 1>(0, 0);
+            const Vec3 o_i = frames[i + 1].block<3, 1>(0, 3);
+            rx(4 * i + 0) = -u.dot(x_i.cross(pa - o_i));
+            rx(4 * i + 1) = -u.dot(x_i);
+            rx(4 * i + 2) = -u.dot(z_prev);
+            rx(4 * i + 3) = -u.dot(z_prev.cross(pa - o_prev));
+            ry(i) = g.is_prismatic(i) ? rx(4 * i + 2) : rx(4 * i + 3);
+        }
+        const Vec3 da = -(r4.transpose() * u);
+        const Vec3 c = r5.transpose() * u;
+        for (int k = 0; k < 3; ++k) {
+            rx(g.idx_base(j, k)) = da(k);
+            rx(g.idx_platform(j, k)) = c(k);
+        }
+        rx(g.idx_offset(j)) = -1.0;
+        // d(R exp([w]x) b)/dw = -R exp([w]x) [b]x J_r(w), so d len/dw = (b x c)^T J_r(w).
+        const Vec3 dw = jr.transpose() * b.cross(c);
+        for (int k = 0; k < 3; ++k) {
+            ry(nj + k) = u(k);
+            ry(nj + 3 + k) = dw(k);
+        }
+    }
+}
+
+void check_shape(const Eigen::Ref<const RowMatrixXd>& m, Eigen::Index rows, Eigen::Index cols,
+                 const char* what) {
+    if (m.rows() != rows || m.cols() != cols) {
+        std::ostringstream msg;
+        msg << what << ": shape (" << m.rows() << ", " << m.cols() << "); expected (" << rows
+            << ", " << cols << ")";
+        throw std::invalid_argument(msg.str());
+    }
+    require_finite(m.data(), m.size(), what);
+}
+
+// Per-pose layout of the free (non-exact) corrections.
+struct Layout {
+    int nj = 0, ny = 0;                 // joints, corrections per pose (nj + 6)
+    std::vector<std::vector<int>> free;  // per pose: indices (0..ny) of corrections with sigma > 0
+};
+
+}  // namespace
+
+LoopJacobians loop_jacobians(const Geometry& g, const Eigen::Ref<const VectorXd>& x,
+                             const Eigen::Ref<const RowMatrixXd>& q,
+                             const Eigen::Ref<const RowMatrixXd>& poses,
+                             const Eigen::Ref<const RowMatrixXd>& corrections) {
+    g.check_errors(x.data(), x.size(), "x");
+    require_pose_shapes(g, q, poses, "poses");
+    require_finite(q.data(), q.size(), "q");
+    require_finite(poses.data(), poses.size(), "poses");
+    const Eigen::Index n = poses.rows();
+    const int nj = g.n_joints(), ny = nj + 6;
+    RowMatrixXd corr = RowMatrixXd::Zero(n, ny);
+    if (corrections.size() != 0) {
+        check_shape(corrections, n, ny, "corrections");
+        corr = corrections;
+    }
+    LoopJacobians out;
+    out.legs.resize(n, kLegs);
+    out.jac_x.resize(kLegs * n, g.n_params());
+    out.jac_y.resize(kLegs * n, ny);
+    std::vector<Mat4> frames(static_cast<size_t>(nj) + 1);
+    std::vector<double> qt(static_cast<size_t>(nj) + 1);
+    for (Eigen::Index k = 0; k < n; ++k) {
+        const RowMatrixXd qk = q.row(k), pk = poses.row(k);
+        pose_legs(g, x.data(), qk.data(), pk.data(), corr.row(k).data(), out.legs.row(k).data(),
+                  &out.jac_x, &out.jac_y, static_cast<int>(kLegs * k), frames.data(), qt.data());
+    }
+    return out;
+}
+
+ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const VectorXd>& x0,
+                                 const std::vector<int>& active,
+                                 const Eigen::Ref<const RowMatrixXd>& q,
+                                 const Eigen::Ref<const RowMatrixXd>& poses,
+                                 const Eigen::Ref<const RowMatrixXd>& legs,
+                                 const Eigen::Ref<const RowMatrixXd>& sigma,
+                                 const Eigen::Ref<const RowMatrixXd>& corrections0,
+                                 const ImplicitLoopOptions& options,
+                                 const LoopCallback& callback) {
+    // --- checks ---------------------------------------------------------------------------------
+    g.check_errors(x0.data(), x0.size(), "x0");
+    require_pose_shapes(g, q, poses, "poses");
+    require_pose_shapes(g, q, legs, "legs");
+    require_finite(q.data(), q.size(), "q");
+    require_finite(poses.data(), poses.size(), "poses");
+    require_finite(legs.data(), legs.size(), "legs");
+    const int n = static_cast<int>(poses.rows());
+    const int nj = g.n_joints(), ny = nj + 6, nr = kLegs + ny, np = g.n_params();
+    if (n < 1) throw std::invalid_argument("poses: no pose given");
+    check_shape(sigma, n, nr, "sigma");
+    for (int k = 0; k < n; ++k) {
+        for (int c = 0; c < nr; ++c) {
+            const double s = sigma(k, c);
+            if (c < kLegs ? !(s > 0) : !(s >= 0)) {
+                std::ostringstream msg;
+                msg << "sigma: entry (" << k << ", " << c << ") is " << s << "; the leg readings"
+                    << " need a standard deviation > 0, the other readings >= 0 (0: exact)";
+                throw std::invalid_argument(msg.str());
+            }
+        }
+    }
+    RowMatrixXd corr = RowMatrixXd::Zero(n, ny);
+    if (corrections0.size() != 0) {
+        check_shape(corrections0, n, ny, "corrections0");
+        corr = corrections0;
+    }
+    std::vector<char> seen(static_cast<size_t>(np), 0);
+    for (int i : active) {
+        if (i < 0 || i >= np || seen[static_cast<size_t>(i)]) {
+            std::ostringstream msg;
+            msg << "active: index " << i << " is out of range or repeated (" << np
+                << " parameters)";
+            throw std::invalid_argument(msg.str());
+        }
+        seen[static_cast<size_t>(i)] = 1;
+    }
+    const int p = static_cast<int>(active.size());
+    if (options.two_stage && corr.isZero(0.0) && !sigma.rightCols(ny).isZero(0.0)) {
+        RowMatrixXd s1 = sigma;
+        s1.rightCols(ny).setZero();
+        ImplicitLoopOptions o1 = options;
+        o1.two_stage = false;
+        o1.statistics = false;
+        o1.ftol = std::max(options.ftol, 1e-8);
+        const ImplicitLoopResult r1 =
+            implicit_loop(g, x0, active, q, poses, legs, s1, RowMatrixXd(), o1, callback);
+        ImplicitLoopOptions o2 = options;
+        o2.two_stage = false;
+        ImplicitLoopResult r2 = r1.status == -1 ? r1 : implicit_loop(g, r1.x, active, q, poses, legs,
+                                                                      sigma, RowMatrixXd(), o2, callback);
+        if (r1.status == -1) {  // stopped by the callback: statistics of the full problem anyway
+            o2.max_iterations = 0;
+            r2 = implicit_loop(g, r1.x, active, q, poses, legs, sigma, RowMatrixXd(), o2, LoopCallback());
+            r2.status = -1;
+            r2.message = r1.message;
+        }
+        r2.iterations += r1.iterations;
+        r2.nfev += r1.nfev;
+        return r2;
+    }
+    Layout lay;
+    lay.nj = nj;
+    lay.ny = ny;
+    lay.free.resize(static_cast<size_t>(n));
+    for (int k = 0; k < n; ++k) {
+        for (int c = 0; c < ny; ++c) {
+            if (sigma(k, kLegs + c) > 0) lay.free[static_cast<size_t>(k)].push_back(c);
+            else corr(k, c) = 0;  // an exact reading has no correction
+        }
+    }
+
+    // --- evaluation -----------------------------------------------------------------------------
+    std::vector<Mat4> frames(static_cast<size_t>(nj) + 1);
+    std::vector<double> qt(static_cast<size_t>(nj) + 1);
+    RowMatrixXd jx(kLegs, np), jy(kLegs, ny);
+    RowMatrixXd qrow(1, nj), prow(1, 6);
+
+    // Normalised residuals of pose k into rk (6 + ny): legs, then the corrections.
+    auto residuals_of = [&](const VectorXd& x, const RowMatrixXd& cr, int k, double* rk,
+                            bool jac) {
+        double lg[kLegs];
+        const RowMatrixXd qk = q.row(k), pk = poses.row(k);
+        pose_legs(g, x.data(), qk.data(), pk.data(), cr.row(k).data(), lg, jac ? &jx : nullptr,
+                  jac ? &jy : nullptr, 0, frames.data(), qt.data());
+        for (int j = 0; j < kLegs; ++j) rk[j] = (lg[j] - legs(k, j)) / sigma(k, j);
+        for (int c = 0; c < ny; ++c) {
+            const double s = sigma(k, kLegs + c);
+            rk[kLegs + c] = s > 0 ? cr(k, c) / s : 0.0;
+        }
+    };
+    auto total_cost = [&](const VectorXd& x, const RowMatrixXd& cr) {
+        double cost = 0;
+        std::vector<double> rk(static_cast<size_t>(nr));
+        for (int k = 0; k < n; ++k) {
+            residuals_of(x, cr, k, rk.data(), false);
+            for (double v : rk) cost += v * v;
+        }
+        return cost;
+    };
+
+    // Normal equations, per pose: A (6 x p) = d r_legs / d x_active, B (6 x m) = d r_legs / d y,
+    // the correction rows being diag(1 / sigma) in y. U = sum A^T A, W_k = A^T B,
+    // V_k = B^T B + diag(1 / sigma^2), gradients gx = sum A^T r, gy_k = B^T r + y / sigma^2.
+    MatX U(p, p);
+    VecX gx(p);
+    std::vector<MatX> W(static_cast<size_t>(n)), V(static_cast<size_t>(n)),
+        A(static_cast<size_t>(n)), B(static_cast<size_t>(n));
+    std::vector<VecX> gy(static_cast<size_t>(n)), rr(static_cast<size_t>(n));
+    auto build = [&](const VectorXd& x, const RowMatrixXd& cr) {
+        U.setZero();
+        gx.setZero();
+        double cost = 0;
+        std::vector<double> rk(static_cast<size_t>(nr));
+        for (int k = 0; k < n; ++k) {
+            const auto& fr = lay.free[static_cast<size_t>(k)];
+            const int m = static_cast<int>(fr.size());
+            residuals_of(x, cr, k, rk.data(), true);
+            for (double v : rk) cost += v * v;
+            MatX& a = A[static_cast<size_t>(k)];
+            MatX& b = B[static_cast<size_t>(k)];
+            a.resize(kLegs, p);
+            b.resize(kLegs, m);
+            VecX rl(kLegs);
+            for (int j = 0; j < kLegs; ++j) {
+                const double is = 1.0 / sigma(k, j);
+                for (int i = 0; i < p; ++i) a(j, i) = jx(j, active[static_cast<size_t>(i)]) * is;
+                for (int i = 0; i < m; ++i) b(j, i) = jy(j, fr[static_cast<size_t>(i)]) * is;
+                rl(j) = rk[static_cast<size_t>(j)];
+            }
+            rr[static_cast<size_t>(k)] = rl;
+            U.noalias() += a.transpose() * a;
+            gx.noalias() += a.transpose() * rl;
+            W[static_cast<size_t>(k)].noalias() = a.transpose() * b;
+            MatX& v = V[static_cast<size_t>(k)];
+            v.noalias() = b.transpose() * b;
+            VecX g2 = b.transpose() * rl;
+            for (int i = 0; i < m; ++i) {
+                const int c = fr[static_cast<size_t>(i)];
+                const double s = sigma(k, kLegs + c);
+                v(i, i) += 1.0 / (s * s);
+                g2(i) += cr(k, c) / (s * s);
+            }
+            gy[static_cast<size_t>(k)] = g2;
+        }
+        return cost;
+    };
+
+    ImplicitLoopResult res;
+    VectorXd x = x0;
+    int nfev = 0, iter = 0;
+    double cost = build(x, corr);
+    nfev += 2;
+    double lambda = options.initial_lambda, nu = 2.0;
+    int status = 0;
+    std::string message;
+    std::vector<VecX> dy(static_cast<size_t>(n));
+    std::vector<Eigen::LDLT<MatX>> vfac(static_cast<size_t>(n));
+    std::vector<MatX> vwt(static_cast<size_t>(n));
+    std::vector<VecX> vg(static_cast<size_t>(n));
+    MatX S0;
+    VecX rhs0, du;
+    bool schur_ready = false;
+    const double tiny = std::numeric_limits<double>::min();
+    bool fresh = true;  // normal equations built at the current point
+    while (true) {
+        if (cost <= tiny) {
+            status = 4;
+            message = "the residuals are zero";
+            break;
+        }
+        if (iter >= options.max_iterations) {
+            status = 0;
+            message = "iteration limit reached (max_iterations=" +
+                      std::to_string(options.max_iterations) + ")";
+            break;
+        }
+        if (!fresh) {
+            cost = build(x, corr);
+            nfev += 2;
+            fresh = true;
+            schur_ready = false;
+        }
+        // Gradient test, scaled by the diagonal of the normal matrix (a cosine, as MINPACK's).
+        double gmax = 0;
+        for (int i = 0; i < p; ++i)
+            gmax = std::max(gmax, std::abs(gx(i)) / std::sqrt(std::max(U(i, i), tiny) * cost));
+        if (gmax <= options.gtol) {
+            status = 3;
+            message = "the gradient is below gtol";
+            break;
+        }
+        ++iter;
+        // The reduced normal matrix S = U - sum W V^-1 W^T, once per point (rejected steps reuse
+        // it). Damping lambda diag(S) on the parameters only: the nuisance blocks V are positive
+        // definite through their priors, and damping U's diagonal instead would over-damp the
+        // weak directions, where S is much smaller than U (seen: 13 iterations instead of 4).
+        if (!schur_ready) {
+            S0 = U;
+            rhs0 = -gx;
+            for (int k = 0; k < n; ++k) {
+                const size_t kk = static_cast<size_t>(k);
+                vfac[kk].compute(V[kk]);
+                vwt[kk] = vfac[kk].solve(W[kk].transpose());  // m x p
+                vg[kk] = vfac[kk].solve(gy[kk]);
+                S0.noalias() -= W[kk] * vwt[kk];
+                rhs0.noalias() += W[kk] * vg[kk];
+            }
+            double dmax = 0;
+            for (int i = 0; i < p; ++i) dmax = std::max(dmax, S0(i, i));
+            du.resize(p);
+            for (int i = 0; i < p; ++i) du(i) = std::max(S0(i, i), 1e-12 * dmax);
+            schur_ready = true;
+        }
+        MatX S = S0;
+        S.diagonal() += lambda * du;
+        // Jacobi scaling before the factorisation: mm and rad columns differ by orders of
+        // magnitude.
+        VecX d = S.diagonal().cwiseMax(tiny).cwiseSqrt().cwiseInverse();
+        const MatX Ss = d.asDiagonal() * S * d.asDiagonal();
+        Eigen::LDLT<MatX> sfac(Ss);
+        const VecX dx = d.asDiagonal() * sfac.solve(d.asDiagonal() * rhs0);
+        double gd = gx.dot(dx), ddd = (dx.array().square() * du.array()).sum();
+        double step2 = ddd, xn2 = 0;
+        for (int i = 0; i < p; ++i) {
+            const double xi = x(active[static_cast<size_t>(i)]);
+            xn2 += xi * xi * du(i);
+        }
+        for (int k = 0; k < n; ++k) {
+            const size_t kk = static_cast<size_t>(k);
+            dy[kk] = -vg[kk] - vwt[kk] * dx;
+            const VecX& sy = dy[kk];
+            const auto vd = V[kk].diagonal();
+            gd += gy[kk].dot(sy);
+            step2 += (sy.array().square() * vd.array()).sum();
+            const auto& fr = lay.free[kk];
+            for (size_t i = 0; i < fr.size(); ++i) {
+                const double c = corr(k, fr[i]);
+                xn2 += c * c * vd(static_cast<Eigen::Index>(i));
+            }
+        }
+        // Predicted reduction of the cost sum r^2 by the linear model: -2 g.d - d^T J^T J d
+        // = -g.d + lambda d^T D d (from (J^T J + lambda D) d = -g).
+        const double predicted = -gd + lambda * ddd;
+        VectorXd xt = x;
+        for (int i = 0; i < p; ++i) xt(active[static_cast<size_t>(i)]) += dx(i);
+        RowMatrixXd ct = corr;
+        for (int k = 0; k < n; ++k) {
+            const auto& fr = lay.free[static_cast<size_t>(k)];
+            for (size_t i = 0; i < fr.size(); ++i)
+                ct(k, fr[i]) += dy[static_cast<size_t>(k)](static_cast<Eigen::Index>(i));
+        }
+        const double ct_cost = xt.allFinite() && ct.allFinite()
+                                   ? total_cost(xt, ct)
+                                   : std::numeric_limits<double>::infinity();
+        ++nfev;
+        const double actual = cost - ct_cost;
+        const bool small_step = std::sqrt(step2) <= options.xtol * (std::sqrt(xn2) + options.xtol);
+        if (actual > 0 && std::isfinite(ct_cost)) {
+            const double rho = predicted > 0 ? actual / predicted : 0;
+            x = xt;
+            corr = ct;
+            const double old = cost;
+            cost = ct_cost;
+            fresh = false;
+            lambda *= std::max(1.0 / 3.0, 1.0 - std::pow(2.0 * rho - 1.0, 3));
+            nu = 2.0;
+            if (callback && callback(iter, x, cost)) {
+                status = -1;
+                message = "stopped by the callback";
+                break;
+            }
+            if (actual <= options.ftol * old) {
+                status = 1;
+                message = "the cost changes by less than ftol";
+                break;
+            }
+            if (small_step) {
+                status = 2;
+                message = "the step is below xtol";
+                break;
+            }
+        } else {
+            // At rounding level the model predicts no gain and no step helps: converged.
+            // (Only while the damping is mild: a heavily damped step predicts little anyway.)
+            if (lambda <= 1.0 && (predicted <= options.ftol * cost || small_step)) {
+                status = predicted <= options.ftol * cost ? 1 : 2;
+                message = status == 1 ? "the cost changes by less than ftol"
+                                      : "the step is below xtol";
+                break;
+            }
+            lambda *= nu;
+            nu *= 2.0;
+            if (lambda > 1e16) {
+                status = -2;
+                message = "no step lowers the cost (damping exhausted)";
+                break;
+            }
+        }
+    }
+
+    // --- statistics at the solution ----------------------------------------------------------
+    if (!fresh) {
+        cost = build(x, corr);
+        nfev += 2;
+    }
+    res.x = x;
+    if (!options.statistics) {
+        res.corrections = corr;
+        res.cost = cost;
+        res.iterations = iter;
+        res.nfev = nfev;
+        res.status = status;
+        res.message = message;
+        return res;
+    }
+    res.corrections = corr;
+    res.cost = cost;
+    res.iterations = iter;
+    res.nfev = nfev;
+    res.status = status;
+    res.message = message;
+    res.residuals = RowMatrixXd::Zero(n, nr);
+    res.redundancy = RowMatrixXd::Zero(n, nr);
+    res.pose_statistic = VecX::Zero(n);
+    res.pose_dof = Eigen::VectorXi::Zero(n);
+    // Undamped reduced normal matrix S = U - sum W V^-1 W^T and its inverse, the covariance.
+    MatX S = U;
+    for (int k = 0; k < n; ++k) {
+        vfac[static_cast<size_t>(k)].compute(V[static_cast<size_t>(k)]);
+        const MatX& w = W[static_cast<size_t>(k)];
+        S.noalias() -= w * vfac[static_cast<size_t>(k)].solve(w.transpose());
+    }
+    MatX C = MatX::Zero(p, p);
+    if (p > 0) {
+        VecX d = S.diagonal().cwiseMax(tiny).cwiseSqrt().cwiseInverse();
+        const MatX Ss = d.asDiagonal() * S * d.asDiagonal();
+        Eigen::SelfAdjointEigenSolver<MatX> es(Ss);
+        const VecX ev = es.eigenvalues();
+        res.reciprocal_condition = ev(p - 1) > 0 ? std::max(ev(0), 0.0) / ev(p - 1) : 0.0;
+        // Pseudo-inverse: directions at rounding level get no variance (the caller is told by
+        // reciprocal_condition that the active set is not identifiable).
+        const double cut = ev(p - 1) * p * std::numeric_limits<double>::epsilon();
+        VecX inv(p);
+        for (int i = 0; i < p; ++i) inv(i) = ev(i) > cut ? 1.0 / ev(i) : 0.0;
+        C = d.asDiagonal() * (es.eigenvectors() * inv.asDiagonal() * es.eigenvectors().transpose()) *
+            d.asDiagonal();
+    } else {
+        res.reciprocal_condition = 1.0;
+    }
+    res.covariance = C;
+    // Per pose: H_kk = B V^-1 B^T + E C E^T with E = A - B V^-1 W^T over the pose's rows
+    // (legs, then the free corrections), Q_vv,kk = I - H_kk.
+    std::vector<double> rk(static_cast<size_t>(nr));
+    for (int k = 0; k < n; ++k) {
+        const auto& fr = lay.free[static_cast<size_t>(k)];
+        const int m = static_cast<int>(fr.size()), rows = kLegs + m;
+        MatX Ja = MatX::Zero(rows, p), Jb = MatX::Zero(rows, m);
+        Ja.topRows(kLegs) = A[static_cast<size_t>(k)];
+        Jb.topRows(kLegs) = B[static_cast<size_t>(k)];
+        VecX v(rows);
+        residuals_of(x, corr, k, rk.data(), false);
+        for (int j = 0; j < kLegs; ++j) v(j) = rk[static_cast<size_t>(j)];
+        for (int i = 0; i < m; ++i) {
+            const int c = fr[static_cast<size_t>(i)];
+            Jb(kLegs + i, i) = 1.0 / sigma(k, kLegs + c);
+            v(kLegs + i) = rk[static_cast<size_t>(kLegs + c)];
+        }
+        for (int c = 0; c < nr; ++c) res.residuals(k, c) = rk[static_cast<size_t>(c)];
+        const auto& vf = vfac[static_cast<size_t>(k)];
+        const MatX E = Ja - Jb * vf.solve(W[static_cast<size_t>(k)].transpose());
+        MatX H = Jb * vf.solve(Jb.transpose()) + E * C * E.transpose();
+        const MatX Q = MatX::Identity(rows, rows) - H;
+        for (int j = 0; j < kLegs; ++j) res.redundancy(k, j) = Q(j, j);
+        for (int i = 0; i < m; ++i) res.redundancy(k, kLegs + fr[static_cast<size_t>(i)]) =
+            Q(kLegs + i, kLegs + i);
+        Eigen::SelfAdjointEigenSolver<MatX> es(Q);
+        const VecX proj = es.eigenvectors().transpose() * v;
+        double t = 0;
+        int dof = 0;
+        for (int i = 0; i < rows; ++i) {
+            if (es.eigenvalues()(i) > 1e-8) {
+                t += proj(i) * proj(i) / es.eigenvalues()(i);
+                ++dof;
+            }
+        }
+        res.pose_statistic(k) = t;
+        res.pose_dof(k) = dof;
+    }
+    return res;
+}
+
+}  // namespace iwr

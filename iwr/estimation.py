@@ -1,0 +1,868 @@
+"""The efficient estimator: every instrument weighted by its noise (implicit loop method).
+
+Eq. (10) puts all the error in the leg readings and weighs every reading alike. Here every measured
+quantity of a pose (carriage joint readings, measured platform position and orientation, leg
+readings) gets a correction with its own standard deviation, and the estimator minimises the
+Mahalanobis norm of all corrections subject to the loop-closure equations (the legs predicted at
+the corrected joint readings and pose equal the corrected leg readings): the implicit loop method of
+Wampler, Hollerbach & Arai (IEEE Trans. Robotics and Automation 11(5), 1995), an errors-in-variables
+least squares. The unknowns are the (base) error parameters and, per pose, the corrections of the
+joint readings and of the platform pose (the nuisance unknowns: the true joint readings and the
+true pose); the solver, in C++ (``cpp/src/implicit_loop.cpp``), is a Levenberg-Marquardt method
+whose per-pose blocks are eliminated by the Schur complement, with exact derivatives.
+
+On top of the solve this module tests the fit (chi-square), finds outliers (a per-pose chi-square
+test on the normalised residuals, and Baarda's w-test to name the instrument), estimates variance
+components (Foerstner's iteration with redundancy numbers) and predicts the tool accuracy from the
+covariance. See ``docs/estimation.md``.
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import asdict, dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy import stats
+from scipy.optimize import OptimizeResult
+
+from . import _core
+from ._blas import single_thread
+from ._io import jsonable
+from .identifiability import identifiability
+from .measurements import Measurements, as_matrix
+from .methods.result import IdentificationResult
+from .problem import Problem, _check_joint_types
+from .robot import Robot
+from .simulate import Noise
+
+__all__ = [
+    "COMPONENTS",
+    "FitTest",
+    "Outlier",
+    "PredictedAccuracy",
+    "VarianceComponent",
+    "efficient",
+    "loop_jacobians",
+    "predicted_accuracy",
+    "reading_names",
+    "sigma_matrix",
+    "summary",
+]
+
+#: The variance components, named as the fields of :class:`iwr.Noise`.
+COMPONENTS = ("legs", "joint_lengths", "joint_angles", "position", "orientation")
+
+
+def reading_names(robot: Robot) -> list[str]:
+    """Names of the readings of one pose, in the column order of the estimator's residuals:
+    ``leg1 .. leg6``, ``q1 .. qn``, ``position.x .. position.z``, ``orientation.x ..
+    orientation.z`` (a rotation vector in the platform frame)."""
+    return ([f"leg{j + 1}" for j in range(6)] + [f"q{i + 1}" for i in range(robot.n_joints)]
+            + [f"position.{c}" for c in "xyz"] + [f"orientation.{c}" for c in "xyz"])
+
+
+def _component_columns(robot: Robot) -> dict[str, np.ndarray]:
+    nj = robot.n_joints
+    prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
+    return {
+        "legs": np.arange(6),
+        "joint_lengths": 6 + np.flatnonzero(prism),
+        "joint_angles": 6 + np.flatnonzero(~prism),
+        "position": np.arange(6 + nj, 9 + nj),
+        "orientation": np.arange(9 + nj, 12 + nj),
+    }
+
+
+def sigma_matrix(robot: Robot, measurements: Measurements, noise: Noise) -> np.ndarray:
+    """Standard deviation of every reading, shape (N, 12 + n_joints), columns as
+    :func:`reading_names`. Leg weights of the measurements (if any) scale the leg sigma by
+    ``1 / sqrt(w)``, so relative weights act as inverse relative variances."""
+    if not isinstance(noise, Noise):
+        raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
+    n = len(measurements)
+    s = np.zeros((n, 12 + robot.n_joints))
+    for name, cols in _component_columns(robot).items():
+        s[:, cols] = getattr(noise, name)
+    if measurements.weights is not None:
+        w = measurements.weights
+        if np.any(w <= 0):
+            r, c = (int(i) for i in np.argwhere(w <= 0)[0])
+            raise ValueError(
+                f"weights: row {r}, column {c} is {w[r, c]}; the efficient estimator reads a "
+                "weight as an inverse relative variance and needs it > 0 (drop the pose instead)"
+            )
+        s[:, :6] = s[:, :6] / np.sqrt(w)
+    return s
+
+
+def loop_jacobians(
+    robot: Robot, x: Any, q: Any, poses: Any, corrections: Any = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Predicted leg readings at corrected readings and their exact derivatives.
+
+    The joint readings are ``q + dq`` and the platform pose ``(p + dp, R(pose) exp([w]x))`` (the
+    rotation vector ``w`` in the platform frame, as :func:`iwr.simulate` applies orientation
+    noise), with ``corrections`` rows ``(dq, dp, w)`` (default zeros).
+
+    Returns
+    -------
+    legs : ndarray, shape (N, 6)
+    d_x : ndarray, shape (N, 6, n_params)
+        Derivatives with respect to the error parameters.
+    d_corrections : ndarray, shape (N, 6, n_joints + 6)
+        Derivatives with respect to ``(dq, dp, w)``.
+    """
+    poses = as_matrix(poses, 6, "poses")
+    n = poses.shape[0]
+    q = as_matrix(q, robot.n_joints, "q", rows=n)
+    x = np.ascontiguousarray(x, dtype=float)
+    if x.shape != (robot.n_params,):
+        raise ValueError(f"x: shape {x.shape}; expected ({robot.n_params},)")
+    corr = (np.zeros((0, 0)) if corrections is None
+            else as_matrix(corrections, robot.n_joints + 6, "corrections", rows=n))
+    legs, jx, jy = _core.loop_jacobians(robot._geometry, x, q, poses, corr)
+    return legs, jx.reshape(n, 6, -1), jy.reshape(n, 6, -1)
+
+
+@dataclass(frozen=True)
+class FitTest:
+    """The global test of the fit: does the weighted residual sum follow its chi-square law?
+
+    Attributes
+    ----------
+    statistic : float
+        Sum of the squared normalised corrections at the solution (``fun``).
+    dof : int
+        Degrees of freedom: readings - nuisance unknowns - identified parameters
+        (``6 N - n_active`` for leg data: 6 closure equations per pose).
+    p_value : float
+        ``P(chi2(dof) >= statistic)``.
+    alpha : float
+        Significance level of the test.
+    fit_ok : bool
+        The statistic is within its law (``p_value >= alpha``), no identified error is beyond its
+        plausible size and the outliers are few enough to be outliers.
+    verdict : str
+        One line for a report.
+    causes : list of str
+        What is wrong, with the likely causes, when ``fit_ok`` is False; notes otherwise.
+    implausible : list of (str, float, float)
+        Parameters beyond their plausible size: (name, value, limit), mm or rad.
+    """
+
+    statistic: float
+    dof: int
+    p_value: float
+    alpha: float
+    fit_ok: bool
+    verdict: str
+    causes: list[str] = field(default_factory=list)
+    implausible: list[tuple[str, float, float]] = field(default_factory=list)
+
+    @property
+    def variance_factor(self) -> float:
+        """``statistic / dof``: 1 on average when model, data and noise model agree."""
+        return self.statistic / self.dof if self.dof > 0 else math.nan
+
+    def __str__(self) -> str:
+        lines = [self.verdict]
+        lines += [f"  - {c}" for c in self.causes]
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """A pose whose readings fail the outlier test.
+
+    Attributes
+    ----------
+    pose : int
+        Row of the measurements.
+    where : str
+        ``"pose 17"`` or ``"data.csv, line 19"``.
+    statistic : float
+        The pose's test value ``v^T Q_vv^+ v`` (chi-square with ``dof`` degrees of freedom).
+    dof : int
+    p_value : float
+    instrument : str
+        The reading with the largest normalised residual (Baarda's w-test), e.g. ``"leg3"``,
+        ``"q2"``, ``"position.x"``: the likeliest culprit under a single gross error.
+    w : float
+        Its w-test value (standard normal for a clean reading).
+    removed : bool
+        Whether the pose was left out of the final solution.
+    confounded : tuple of str
+        Other readings of the pose whose w-test value is as large (within 1 %): the data cannot
+        tell them from ``instrument`` (for example ``q1``, the rail's prismatic joint along z0,
+        against ``position.z``: moving the base up moves every leg as moving the platform down).
+    """
+
+    pose: int
+    where: str
+    statistic: float
+    dof: int
+    p_value: float
+    instrument: str
+    w: float
+    removed: bool
+    confounded: tuple[str, ...] = ()
+
+    def __str__(self) -> str:
+        what = "removed" if self.removed else "kept"
+        alt = f" or {', '.join(self.confounded)}, indistinguishable" if self.confounded else ""
+        return (f"{self.where}: chi2 {self.statistic:.1f} ({self.dof} dof, "
+                f"p = {self.p_value:.2g}); largest normalised residual {self.instrument} "
+                f"(w = {self.w:+.1f}{alt}); {what}")
+
+
+@dataclass(frozen=True)
+class VarianceComponent:
+    """One estimated variance component.
+
+    Attributes
+    ----------
+    name : str
+        A field of :class:`iwr.Noise`.
+    sigma : float
+        The estimate (mm or rad).
+    start : float
+        The starting value.
+    redundancy : float
+        The share of the redundancy carried by its readings (sum of their redundancy numbers).
+    std : float
+        Approximate standard deviation of ``sigma`` (``sigma / sqrt(2 redundancy)``; ignores the
+        correlation between components).
+    identified : bool
+        False when its readings carry (almost) no redundancy, or the estimate collapsed to zero: the
+        data do not separate it from the other components; it is then held at ``start``.
+    """
+
+    name: str
+    sigma: float
+    start: float
+    redundancy: float
+    std: float
+    identified: bool
+
+
+@dataclass(frozen=True)
+class PredictedAccuracy:
+    """Tool pose error predicted from the covariance of the identified parameters.
+
+    The errors are those of the calibrated model's forward kinematics (exact readings) caused by the
+    uncertainty of the identified parameters alone: the figure a validation on fresh poses
+    measures against the truth.
+
+    Attributes
+    ----------
+    position_rms : float
+        RMS tool position error over the poses (mm).
+    position_95 : float
+        95th percentile of the tool position error over the poses and the estimation noise (mm).
+    orientation_rms, orientation_95 : float
+        The same for the orientation error angle (degrees).
+    position_cov : ndarray, shape (N, 3, 3)
+        Per pose, covariance of the tool position (mm^2, world frame).
+    orientation_cov : ndarray, shape (N, 3, 3)
+        Per pose, covariance of the orientation error (rad^2, platform frame).
+    """
+
+    position_rms: float
+    position_95: float
+    orientation_rms: float
+    orientation_95: float
+    position_cov: np.ndarray
+    orientation_cov: np.ndarray
+
+    def __str__(self) -> str:
+        return (f"predicted tool error on {len(self.position_cov)} poses: position RMS "
+                f"{self.position_rms:.4f} mm (95 %: {self.position_95:.4f} mm), orientation RMS "
+                f"{self.orientation_rms:.5f} deg (95 %: {self.orientation_95:.5f} deg)")
+
+
+def predicted_accuracy(
+    robot: Robot,
+    measurements: Measurements,
+    x: Any,
+    covariance: Any,
+    *,
+    active: Any,
+    tool: Any = None,
+    n_samples: int = 500,
+    seed: int = 0,
+) -> PredictedAccuracy:
+    """Predicted tool pose error of the calibrated robot at the poses of ``measurements``.
+
+    At each pose the calibrated model's forward kinematics from the joint and leg readings gives
+    the platform pose (linearised at the measured pose); by the implicit function theorem, a
+    parameter error ``dx`` moves it by
+    ``-(d legs / d pose)^-1 (d legs / d x) dx``, so the pose error covariance is
+    ``G C G^T`` with ``C`` the covariance of the active parameters.
+
+    Parameters
+    ----------
+    robot : Robot
+    measurements : Measurements
+        Poses at which to predict (the joint and leg readings, and the poses as linearisation
+        points).
+    x : array_like, shape (n_params,)
+        The identified parameters.
+    covariance : array_like, shape (n_active, n_active)
+        Their covariance (``result.covariance``).
+    active : array_like of bool, shape (n_params,)
+        The identified parameters (``result.active``).
+    tool : array_like, shape (3,), optional
+        Tool point in the platform frame {5} (mm); default its origin.
+    n_samples : int
+        Gaussian draws per pose for the 95th percentiles (the same draws at every pose).
+    seed : int
+        Seed of those draws.
+    """
+    x = np.asarray(x, dtype=float)
+    mask = np.asarray(active, dtype=bool)
+    cov = np.asarray(covariance, dtype=float)
+    p = int(mask.sum())
+    if mask.shape != (robot.n_params,):
+        raise ValueError(f"active: shape {mask.shape}; expected ({robot.n_params},)")
+    if cov.shape != (p, p):
+        raise ValueError(f"covariance: shape {cov.shape}; expected ({p}, {p}) for {p} active "
+                         "parameters")
+    t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+    # Linearised at the measured poses: the calibrated model's forward kinematics would move them
+    # by the calibration residual (micrometres), a relative 1e-6 change of the covariance.
+    poses = measurements.poses
+    _, jx, jy = loop_jacobians(robot, x, measurements.q, poses)
+    nj = robot.n_joints
+    jpose = jy[:, :, nj:]  # (N, 6, 6): d legs / d (dp, w)
+    g = -np.linalg.solve(jpose, jx[:, :, mask])  # (N, 6, p): d (dp, w) / d x
+    r = _core_rotations(poses)
+    # Tool point p + R t: d = dp + R (w x t) = dp - R [t]x w.
+    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
+    gp = g[:, :3] - np.einsum("kij,jl,klp->kip", r, tx, g[:, 3:])
+    go = g[:, 3:]
+    cp = np.einsum("kip,pq,kjq->kij", gp, cov, gp)
+    co = np.einsum("kip,pq,kjq->kij", go, cov, go)
+    rng = np.random.default_rng(seed)
+    z = rng.standard_normal((3, n_samples))
+
+    def stats_of(c: np.ndarray) -> tuple[float, float]:
+        rms = math.sqrt(float(np.mean(np.trace(c, axis1=1, axis2=2))))
+        # Draws of each pose's error vector through its Cholesky-like factor (eigen, so that a
+        # singular covariance is fine).
+        ev, vec = np.linalg.eigh(c)
+        f = vec * np.sqrt(np.clip(ev, 0, None))[:, None, :]
+        norms = np.sqrt(np.sum((f @ z) ** 2, axis=1))  # (N, n_samples)
+        return rms, float(np.quantile(norms, 0.95))
+
+    prms, p95 = stats_of(cp)
+    orms, o95 = stats_of(co)
+    return PredictedAccuracy(prms, p95, math.degrees(orms), math.degrees(o95), cp, co)
+
+
+def _core_rotations(poses: np.ndarray) -> np.ndarray:
+    from .transforms import euler_zyx
+
+    return euler_zyx(poses[:, 3], poses[:, 4], poses[:, 5])
+
+
+def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
+                       limit: np.ndarray) -> np.ndarray:
+    """The vector equivalent to ``x`` (same readings, to first order) that is smallest in units of
+    ``limit``: ``x`` minus its component along the null directions of the leg Jacobian.
+
+    Holding the unidentifiable parameters fixed makes the base parameters absorb their true values
+    (joint 4's rotation about its axis moves two base joints by 694 mm per radian), so a plausible
+    robot can have base parameters beyond any bound; its smallest equivalent cannot (each entry of
+    it is at most the norm of the true vector in these units)."""
+    with single_thread():
+        jac = Problem(robot, measurements).jacobian(x)
+        d = np.linalg.norm(jac, axis=0)
+        d = np.where(d > 0, d, 1.0)
+        _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
+    rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
+    null = vt[rank:].T / d[:, None] / limit[:, None]  # null directions in units of limit
+    xb = x / limit
+    if null.shape[1]:
+        xb = xb - null @ np.linalg.lstsq(null, xb, rcond=None)[0]
+    return xb * limit
+
+
+def _as_noise(noise: Any) -> tuple[Noise, tuple[str, ...]]:
+    """The starting noise model and the components to estimate."""
+    if isinstance(noise, str):
+        if noise != "estimate":
+            raise ValueError(f"noise: {noise!r}; expected an iwr.Noise or 'estimate'")
+        return Noise.realistic(), COMPONENTS
+    if not isinstance(noise, Noise):
+        raise TypeError(f"noise: expected an iwr.Noise or 'estimate', got {type(noise).__name__}")
+    return noise, ()
+
+
+def _check_noise(noise: Noise) -> None:
+    if noise.legs <= 0:
+        if noise.is_zero:
+            raise ValueError(
+                "noise: every standard deviation is 0; the efficient estimator weighs each "
+                "instrument by its noise: give the instruments' noise (e.g. iwr.Noise.realistic()"
+                ", or noise='estimate'), or use eq. (10), iwr.identify(method='lm')"
+            )
+        raise ValueError(
+            "noise.legs: 0; the leg readings close the loop and need a standard deviation > 0 (at "
+            "least their resolution, e.g. 0.001 mm)"
+        )
+
+
+def efficient(
+    robot: Robot,
+    measurements: Measurements,
+    noise: Noise | str,
+    *,
+    x0: Any = None,
+    active: Any = None,
+    callback: Callable[[OptimizeResult], Any] | None = None,
+    estimate: Sequence[str] | None = None,
+    outliers: str = "remove",
+    outlier_alpha: float = 1e-3,
+    max_outlier_fraction: float = 0.2,
+    fit_alpha: float = 1e-3,
+    plausible: float = 10.0,
+    max_iterations: int = 200,
+    max_variance_iterations: int = 50,
+    tool: Any = None,
+) -> IdentificationResult:
+    """Identify the error parameters with every instrument weighted by its noise.
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot.
+    measurements : Measurements
+    noise : Noise or "estimate"
+        The standard deviation of each instrument (legs > 0; a 0 elsewhere makes that reading
+        exact). ``"estimate"``: every component estimated from the data, starting from
+        :meth:`iwr.Noise.realistic`.
+    x0 : array_like, optional
+        Starting point and value of the inactive parameters; default zeros (the nominal robot).
+    active : array_like of bool, optional
+        The parameters to identify; default the base parameters of :func:`iwr.identifiability`
+        at ``x0`` (the unidentifiable ones are held at ``x0``, so the answer is unique and its
+        covariance finite). They must be identifiable.
+    callback : callable, optional
+        SciPy's convention: ``callback(intermediate_result)`` after every accepted iteration, with
+        an ``OptimizeResult`` holding ``x`` (all parameters), ``fun`` (the weighted cost), ``nfev``
+        and ``nit``; a truthy return or ``StopIteration`` stops the solve, which then returns its
+        current point with ``success=False``.
+    estimate : sequence of str, optional
+        Noise components to estimate from the data (names of :class:`iwr.Noise` fields), the
+        others being held at ``noise``: e.g. ``("position", "orientation")`` when only the leg and
+        joint noise is known. Default: none (all when ``noise="estimate"``).
+    outliers : {"remove", "report", "off"}
+        ``"remove"``: data snooping, one pose at a time: while the worst pose fails its test
+        (``outlier_alpha``), it is reported and left out, and the solve is repeated. ``"report"``:
+        every failing pose is reported, none is removed. ``"off"``: no test.
+    outlier_alpha : float
+        Significance level of each pose's chi-square test (default 0.001: 0.1 % of clean poses
+        flagged).
+    max_outlier_fraction : float
+        More failing poses than this fraction is no longer a few gross errors but a model that
+        does not fit: the removal stops and the fit is reported as bad.
+    fit_alpha : float
+        Significance level of the global chi-square test.
+    plausible : float
+        Identified errors beyond ``plausible`` times the default bounds (+-0.5 mm, +-0.5 degree)
+        are reported as implausible (a model that does not fit).
+    max_iterations : int
+        Levenberg-Marquardt iterations per solve.
+    max_variance_iterations : int
+        Iterations of the variance component estimation.
+    tool : array_like, shape (3,), optional
+        Tool point in {5} for the predicted accuracy.
+
+    Returns
+    -------
+    IdentificationResult
+        ``x``, ``fun`` (the weighted cost: sum of squared normalised corrections), ``nfev``,
+        ``nit``, ``success`` (converged *and* the fit is sane), ``status`` (``"converged"``,
+        ``"stopped"`` at the iteration limit, ``"callback"``, ``"failed"``: no step lowered the
+        cost, or the model does not fit), ``solver_status`` (the C++ solver's code, see
+        ``implicit_loop.hpp``), ``message``, and:
+        ``fit`` (:class:`FitTest`), ``fit_ok``, ``verdict``, ``outliers`` (list of
+        :class:`Outlier`), ``used`` (mask of the poses in the final solution), ``active``,
+        ``covariance`` (active parameters), ``std`` (all parameters, nan where fixed),
+        ``noise`` (the noise model used, estimated where asked), ``variance_components``,
+        ``corrections`` (N, n_joints + 6; nan for removed poses), ``residuals`` and
+        ``redundancy`` (N, 12 + n_joints, columns :func:`reading_names`), ``pose_statistic``,
+        ``predicted`` (:class:`PredictedAccuracy` on the calibration poses), ``cost_eq10``.
+    """
+    start_time = time.perf_counter()
+    if not isinstance(robot, Robot):
+        raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+    if not isinstance(measurements, Measurements):
+        raise TypeError(
+            f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
+        )
+    _check_joint_types(robot, measurements)
+    noise0, est = _as_noise(noise)
+    if estimate is not None:
+        bad = [c for c in estimate if c not in COMPONENTS]
+        if bad:
+            raise ValueError(f"estimate: unknown component(s) {bad}; expected names among "
+                             f"{', '.join(COMPONENTS)}")
+        est = tuple(dict.fromkeys(estimate))
+    _check_noise(noise0)
+    if outliers not in ("remove", "report", "off"):
+        raise ValueError(f"outliers: {outliers!r}; expected 'remove', 'report' or 'off'")
+    for name, v, lo, hi in (("outlier_alpha", outlier_alpha, 0, 1), ("fit_alpha", fit_alpha, 0, 1),
+                            ("max_outlier_fraction", max_outlier_fraction, 0, 1)):
+        if not (isinstance(v, (int, float)) and lo < v < hi) and not (
+                name == "max_outlier_fraction" and v == 0):
+            raise ValueError(f"{name}: {v!r}; expected a number in ({lo}, {hi})")
+    if not (isinstance(plausible, (int, float)) and plausible > 0):
+        raise ValueError(f"plausible: {plausible!r}; expected a number > 0")
+    for name, v in (("max_iterations", max_iterations),
+                    ("max_variance_iterations", max_variance_iterations)):
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
+            raise ValueError(f"{name}: {v!r}; expected a positive integer")
+    n = len(measurements)
+    x0_arr = np.zeros(robot.n_params) if x0 is None else np.array(x0, dtype=float)
+    if x0_arr.shape != (robot.n_params,) or not np.all(np.isfinite(x0_arr)):
+        raise ValueError(f"x0: expected {robot.n_params} finite values, got shape {x0_arr.shape}")
+    if active is None:
+        with single_thread():
+            mask = identifiability(robot, measurements, x0_arr).active
+    else:
+        mask = np.asarray(active)
+        if mask.dtype != bool or mask.shape != (robot.n_params,):
+            raise ValueError(f"active: expected a boolean mask of shape ({robot.n_params},), got "
+                             f"{mask.dtype} of shape {mask.shape}")
+        if not mask.any():
+            raise ValueError("active: no parameter is active")
+    idx = [int(i) for i in np.flatnonzero(mask)]
+    p = len(idx)
+
+    cols = _component_columns(robot)
+    sigma_all = sigma_matrix(robot, measurements, noise0)
+    # Which components to estimate: only those with readings (and not exact).
+    est = tuple(c for c in est if cols[c].size and getattr(noise0, c) > 0)
+    scale = {c: 1.0 for c in est}
+    used = np.ones(n, dtype=bool)
+    corr = np.zeros((n, robot.n_joints + 6))
+    x = x0_arr.copy()
+    stopped = {"flag": False}
+    totals = {"nfev": 0, "nit": 0}
+
+    def cb(it: int, xx: np.ndarray, cost: float) -> bool:
+        if callback is None:
+            return False
+        inter = OptimizeResult(x=np.array(xx), fun=float(cost), nfev=totals["nfev"] + it,
+                               nit=totals["nit"] + it)
+        try:
+            stop = bool(callback(inter))
+        except StopIteration:
+            stop = True
+        stopped["flag"] = stopped["flag"] or stop
+        return stop
+
+    def sigma_now() -> np.ndarray:
+        s = sigma_all.copy()
+        for c, f in scale.items():
+            s[:, cols[c]] *= f
+        return s
+
+    last: dict[str, Any] = {}  # the state of the last completed solve (for Ctrl-C)
+
+    def solve() -> dict[str, Any]:
+        nonlocal x, corr
+        m = measurements.subset(np.flatnonzero(used)) if not used.all() else measurements
+        out = _core.implicit_loop(
+            robot._geometry, x, idx, m.q, m.poses, m.legs,
+            np.ascontiguousarray(sigma_now()[used]), np.ascontiguousarray(corr[used]),
+            max_iterations=int(max_iterations), callback=cb if callback is not None else None)
+        totals["nfev"] += int(out["nfev"])
+        totals["nit"] += int(out["iterations"])
+        x = np.array(out["x"])
+        corr[used] = out["corrections"]
+        last.update(out=out, used=used.copy(), x=x.copy(), corr=corr.copy(), scale=dict(scale))
+        return out
+
+    components: list[VarianceComponent] = []
+
+    def solve_with_variances() -> dict[str, Any]:
+        out = solve()
+        if not est or stopped["flag"]:
+            return out
+        frozen: set[str] = set()
+        for _ in range(int(max_variance_iterations)):
+            change = 0.0
+            for c in est:
+                if c in frozen:
+                    continue
+                red = float(np.sum(out["redundancy"][:, cols[c]]))
+                omega = float(np.sum(out["residuals"][:, cols[c]] ** 2))
+                f = math.sqrt(omega / red) if red > 0 else 0.0
+                # (Almost) no redundancy, or collapsed towards zero: the data do not separate it
+                # from the others; hold it at its starting value (and solve again with it).
+                if red < 1.0 or f < 1e-6:
+                    frozen.add(c)
+                    if scale[c] != 1.0:
+                        scale[c] = 1.0
+                        change = max(change, 1.0)
+                    continue
+                # Foerstner: sigma^2 <- sigma^2 Omega_c / r_c.
+                scale[c] *= f
+                change = max(change, abs(f - 1.0))
+            out = solve()
+            if change < 1e-4 or stopped["flag"]:
+                break
+        components.clear()
+        for c in est:
+            red = float(np.sum(out["redundancy"][:, cols[c]]))
+            s = getattr(noise0, c) * scale[c]
+            components.append(VarianceComponent(
+                c, s, getattr(noise0, c), red, s / math.sqrt(2 * red) if red > 0 else math.inf,
+                c not in frozen))
+        return out
+
+    crit_dof: dict[int, float] = {}
+
+    def test_poses(o: dict[str, Any]) -> list[tuple[Any, ...]]:
+        rows = np.flatnonzero(used)
+        names = reading_names(robot)
+        bad = []
+        for r_i, k in enumerate(rows):
+            t, d = float(o["pose_statistic"][r_i]), int(o["pose_dof"][r_i])
+            if d < 1:
+                continue
+            if d not in crit_dof:
+                crit_dof[d] = float(stats.chi2.isf(outlier_alpha, d))
+            if t > crit_dof[d]:
+                red = o["redundancy"][r_i]
+                w = np.where(red > 1e-10,
+                             o["residuals"][r_i] / np.sqrt(np.maximum(red, 1e-300)), 0.0)
+                j = int(np.argmax(np.abs(w)))
+                alt = tuple(names[i] for i in np.flatnonzero(np.abs(w) >= 0.99 * abs(w[j]))
+                            if i != j)
+                bad.append((int(k), t, d, float(stats.chi2.sf(t, d)), names[j], float(w[j]), alt))
+        return bad
+
+    found: list[Outlier] = []
+    too_many = False
+    interrupted = False
+    try:
+        out = solve_with_variances()
+        if outliers != "off" and not stopped["flag"]:
+            cap = int(math.floor(max_outlier_fraction * n))
+            while True:
+                bad = test_poses(out)
+                if not bad:
+                    break
+                if outliers == "report":
+                    found = [Outlier(k, measurements.where(k), t, d, pv, ins, w, False, alt)
+                             for k, t, d, pv, ins, w, alt in bad]
+                    too_many = len(bad) > cap
+                    break
+                if len(found) >= cap:
+                    # More failing poses than gross errors can explain: report them, stop
+                    # removing. (Not decided on the first round's count: a few 1 mm errors among
+                    # 2 um readings distort the first solution so much that most clean poses fail
+                    # with them.)
+                    too_many = True
+                    found += [Outlier(k, measurements.where(k), t, d, pv, ins, w, False, alt)
+                              for k, t, d, pv, ins, w, alt in bad]
+                    break
+                k, t, d, pv, ins, w, alt = max(bad, key=lambda b: b[1] / crit_dof[b[2]])
+                found.append(Outlier(k, measurements.where(k), t, d, pv, ins, w, True, alt))
+                used[k] = False
+                corr[k] = 0.0
+                if 6 * int(used.sum()) <= p:
+                    too_many = True
+                    break
+                out = solve_with_variances()
+                if stopped["flag"]:
+                    break
+
+    except KeyboardInterrupt:
+        # Ctrl-C: the result of the last completed solve, marked interrupted (nothing to return
+        # before the first one has finished).
+        if "out" not in last:
+            raise
+        interrupted = True
+        out, x = last["out"], last["x"]
+        used[:] = last["used"]
+        corr[:] = last["corr"]
+        scale.update(last["scale"])
+        found = [replace(o, removed=False) if o.removed and used[o.pose] else o for o in found]
+        components[:] = [VarianceComponent(c, getattr(noise0, c) * scale[c], getattr(noise0, c),
+                                           math.nan, math.nan, False) for c in est]
+
+    # --- the verdict ---------------------------------------------------------------------------
+    n_used = int(used.sum())
+    dof = 6 * n_used - p
+    statistic = float(out["cost"])
+    p_value = float(stats.chi2.sf(statistic, dof)) if dof > 0 else math.nan
+    converged = int(out["status"]) > 0 and not stopped["flag"] and not interrupted
+    causes: list[str] = []
+    names = robot.parameter_names
+    m_used = measurements.subset(np.flatnonzero(used)) if not used.all() else measurements
+    limit = plausible * robot.default_bounds("default")[1]
+    x_plain = _nearest_plausible(robot, m_used, x, limit)
+    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(robot.n_params)
+                   if abs(x_plain[i]) > limit[i]]
+    rank_ok = float(out["reciprocal_condition"]) > 1e-13
+    if not rank_ok:
+        causes.append(
+            f"the active parameters are not all identifiable (reciprocal condition "
+            f"{out['reciprocal_condition']:.1e}): hold the unidentifiable ones fixed "
+            "(active=iwr.identifiability(...).active, the default)")
+    chi_ok = bool(dof > 0 and p_value >= fit_alpha)
+    if dof <= 0:
+        causes.append(f"no redundancy: {6 * n_used} closure equations for {p} parameters; "
+                      "measure more poses")
+    elif not chi_ok:
+        causes.append(
+            f"the weighted residual sum {statistic:.4g} is {statistic / dof:.3g} times its "
+            f"expectation ({dof} degrees of freedom, p = {p_value:.2g}): the model does not fit "
+            "the data. Likely causes: the poses are not expressed in the robot's world frame "
+            "(tracker frame not registered), a tool or reflector offset left out of the model, "
+            "columns swapped or in the wrong unit, or noise larger than stated")
+    if implausible:
+        shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in implausible[:6])
+        more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
+        causes.append(
+            f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
+            f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
+            "absorbed something it does not describe: an unregistered measurement frame, leg "
+            "or pose columns swapped, a wrong nominal geometry")
+    if too_many:
+        causes.append(
+            f"{len(found)} poses fail the outlier test (more than {max_outlier_fraction:.0%} of "
+            f"{n}): not a few gross errors but a model or noise model that does not fit")
+    for c in components:
+        if c.identified and c.sigma > 10 * c.start:
+            causes.append(f"the noise of {c.name} is estimated at {c.sigma:.3g}, "
+                          f"{c.sigma / c.start:.0f} times the stated {c.start:.3g}: the model may "
+                          "not fit, or that instrument is much worse than stated")
+    fit_ok = chi_ok and rank_ok and not implausible and not too_many
+    notes: list[str] = []
+    if dof > 0 and chi_ok and stats.chi2.cdf(statistic, dof) < fit_alpha:
+        notes.append(f"the weighted residual sum {statistic:.4g} is far below its expectation "
+                     f"{dof}: the noise model is pessimistic (the data are better than stated)")
+    if est:
+        notes.append("noise estimated for " + ", ".join(est) + ": the chi-square test checks "
+                     "only what the estimate leaves free")
+    if fit_ok:
+        verdict = (f"the model fits the data: chi2 = {statistic:.4g} for {dof} degrees of "
+                   f"freedom (p = {p_value:.3g})")
+    else:
+        verdict = ("THE MODEL DOES NOT FIT THE DATA: " + (
+            f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
+            if dof > 0 else "no degrees of freedom"))
+    fit = FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict,
+                  causes if not fit_ok else notes, implausible)
+
+    # The statuses of iwr's results: "converged" only when the solver converged *and* the fit is
+    # sane; a model that does not fit is "failed" whatever the solver said.
+    solver_status = int(out["status"])
+    if interrupted:
+        status = "interrupted"
+        message = "interrupted (Ctrl-C): the result of the last completed solve"
+    elif stopped["flag"]:
+        status, message = "callback", "stopped by the callback"
+    elif not converged:
+        status = "stopped" if solver_status == 0 else "failed"
+        message = str(out["message"])
+        if not fit_ok:
+            message += "; the model does not fit the data" + (
+                f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
+                if dof > 0 else "")
+    elif not fit_ok:
+        status, message = "failed", "converged, but the model does not fit the data" + (
+            f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
+            if dof > 0 else "") + ("; implausible parameters" if implausible else "")
+    else:
+        status, message = "converged", str(out["message"])
+    success = bool(converged and fit_ok)
+
+    cov = np.array(out["covariance"])
+    std = np.full(robot.n_params, np.nan)
+    std[mask] = np.sqrt(np.clip(np.diag(cov), 0, None))
+    nr = 12 + robot.n_joints
+    residuals = np.full((n, nr), np.nan)
+    redundancy = np.full((n, nr), np.nan)
+    pose_stat = np.full(n, np.nan)
+    residuals[used] = out["residuals"]
+    redundancy[used] = out["redundancy"]
+    pose_stat[used] = out["pose_statistic"]
+    corrections = corr.copy()
+    corrections[~used] = np.nan
+    noise_used = replace(noise0, **{c.name: c.sigma for c in components})
+    try:
+        predicted = predicted_accuracy(robot, m_used, x, cov, active=mask, tool=tool)
+    except np.linalg.LinAlgError as exc:
+        # A singular leg Jacobian (a hexapod singularity) at some pose.
+        predicted = None
+        fit.causes.append(f"predicted accuracy unavailable: {exc}")
+    return IdentificationResult(
+        x=x,
+        fun=statistic,
+        nfev=totals["nfev"],
+        nit=totals["nit"],
+        success=success,
+        status=status,
+        solver_status=solver_status,
+        message=message,
+        method="efficient",
+        fit=fit,
+        fit_ok=bool(fit_ok),
+        verdict=verdict,
+        outliers=found,
+        used=used,
+        active=mask,
+        covariance=cov,
+        std=std,
+        noise=noise_used,
+        variance_components=components,
+        corrections=corrections,
+        residuals=residuals,
+        redundancy=redundancy,
+        pose_statistic=pose_stat,
+        predicted=predicted,
+        cost_eq10=Problem(robot, measurements).cost(x),
+        parameter_names=names,
+        history={"nfev": np.array([totals["nfev"]]), "best": np.array([statistic])},
+        wall_time=time.perf_counter() - start_time,
+        settings={"noise": asdict(noise0), "estimate": list(est), "outliers": outliers,
+                  "outlier_alpha": outlier_alpha, "max_outlier_fraction": max_outlier_fraction,
+                  "fit_alpha": fit_alpha, "plausible": plausible,
+                  "max_iterations": max_iterations,
+                  "max_variance_iterations": max_variance_iterations},
+    )
+
+
+def summary(result: IdentificationResult) -> dict[str, Any]:
+    """What :func:`efficient` adds to an identification result, JSON-able (for a result file or a
+    report): the fit test, the outliers, the noise used, the variance components, the predicted
+    accuracy and the standard deviations of the parameters (null for those held fixed)."""
+    fit: FitTest = result["fit"]
+    pred: PredictedAccuracy | None = result.get("predicted")
+    return jsonable({
+        "fit": {"statistic": fit.statistic, "dof": fit.dof, "p_value": fit.p_value,
+                "alpha": fit.alpha, "fit_ok": fit.fit_ok, "verdict": fit.verdict,
+                "causes": list(fit.causes),
+                "implausible": [{"parameter": n, "value": v, "limit": lim}
+                                for n, v, lim in fit.implausible]},
+        "outliers": [asdict(o) for o in result["outliers"]],
+        "n_poses_used": int(np.sum(result["used"])),
+        "noise": asdict(result["noise"]),
+        "variance_components": [asdict(c) for c in result["variance_components"]],
+        "predicted": None if pred is None else {
+            "position_rms_mm": pred.position_rms, "position_95_mm": pred.position_95,
+            "orientation_rms_deg": pred.orientation_rms,
+            "orientation_95_deg": pred.orientation_95},
+        "std": result["std"],
+        "cost_eq10": result["cost_eq10"],
+    }, finite_only=True)
