@@ -46,6 +46,7 @@ __all__ = [
     "PredictedAccuracy",
     "VarianceComponent",
     "efficient",
+    "fit_check",
     "loop_jacobians",
     "predicted_accuracy",
     "reading_names",
@@ -391,6 +392,80 @@ def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
     return xb * limit
 
 
+def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: float) -> str:
+    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in implausible[:6])
+    more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
+    return (f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
+            f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
+            "absorbed something it does not describe: an unregistered measurement frame, a tool "
+            "or reflector offset left out, leg or pose columns swapped, a wrong nominal geometry")
+
+
+def _chi2_cause(statistic: float, dof: int, p_value: float) -> str:
+    return (f"the weighted residual sum {statistic:.4g} is {statistic / dof:.3g} times its "
+            f"expectation ({dof} degrees of freedom, p = {p_value:.2g}): the model does not fit "
+            "the data. Likely causes: the poses are not expressed in the robot's world frame "
+            "(tracker frame not registered), a tool or reflector offset left out of the model, "
+            "columns swapped or in the wrong unit, noise larger than stated, or a local minimum "
+            "(try another method or start)")
+
+
+def fit_check(robot: Robot, measurements: Measurements, x: Any, *, n_active: int,
+              noise: Noise | None = None, fit_alpha: float = 1e-3,
+              plausible: float = 10.0) -> FitTest:
+    """Is an eq. (10) solution ``x`` sane? The check :func:`iwr.identify` applies to every method
+    but the efficient estimator (which tests its own fit).
+
+    Always: no identified error beyond ``plausible`` times the default bounds, modulo the
+    unidentifiable directions (as :func:`efficient`). With a ``noise`` model also the chi-square
+    test of the generalised least squares statistic ``sum_k r_k^T C_k^-1 r_k``: ``r_k`` the six
+    leg residuals of pose k, ``C_k`` their covariance propagated (to first order) from every
+    instrument's noise, ``dof = 6 N - n_active``. It is eq. (10)'s solution weighed as the
+    efficient estimator would weigh it: above its law the point is not a solution of a model
+    that fits (a local minimum, a frame not registered, ...). Without a noise model the cost
+    cannot be judged (the leg noise is unknown: any cost fits some sigma), only the size of the
+    errors; ``statistic``, ``dof`` and ``p_value`` are then nan, 0, nan.
+    """
+    x = np.asarray(x, dtype=float)
+    limit = plausible * robot.default_bounds("default")[1]
+    x_plain = _nearest_plausible(robot, measurements, x, limit)
+    names = robot.parameter_names
+    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(robot.n_params)
+                   if abs(x_plain[i]) > limit[i]]
+    causes: list[str] = []
+    statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
+    if noise is not None:
+        _check_noise(noise)
+        sig = sigma_matrix(robot, measurements, noise)
+        legs, _, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+        r = legs - measurements.legs
+        cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
+        cov[:, np.arange(6), np.arange(6)] += sig[:, :6] ** 2
+        statistic = float(np.einsum("ki,ki->", r, np.linalg.solve(cov, r[..., None])[..., 0]))
+        dof = 6 * len(measurements) - int(n_active)
+        p_value = float(stats.chi2.sf(statistic, dof)) if dof > 0 else math.nan
+        chi_ok = bool(dof <= 0 or p_value >= fit_alpha)
+        if not chi_ok:
+            causes.append(_chi2_cause(statistic, dof, p_value))
+    if implausible:
+        causes.append(_implausible_cause(implausible, plausible))
+    fit_ok = chi_ok and not implausible
+    if noise is None:
+        head = ("no noise model: the cost is not tested (give one for the chi-square test); "
+                "identified errors " + ("within" if not implausible else "NOT within")
+                + " their plausible size")
+        verdict = head if fit_ok else "THE MODEL DOES NOT FIT THE DATA: " + head
+    elif fit_ok:
+        verdict = (f"the model fits the data: chi2 = {statistic:.4g} for {dof} degrees of "
+                   f"freedom (p = {p_value:.3g})")
+    else:
+        verdict = ("THE MODEL DOES NOT FIT THE DATA: " + (
+            f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
+            if dof > 0 else "implausible parameters"))
+    return FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict, causes,
+                   implausible)
+
+
 def _as_noise(noise: Any) -> tuple[Noise, tuple[str, ...]]:
     """The starting noise model and the components to estimate."""
     if isinstance(noise, str):
@@ -723,20 +798,9 @@ def efficient(
         causes.append(f"no redundancy: {6 * n_used} closure equations for {p} parameters; "
                       "measure more poses")
     elif not chi_ok:
-        causes.append(
-            f"the weighted residual sum {statistic:.4g} is {statistic / dof:.3g} times its "
-            f"expectation ({dof} degrees of freedom, p = {p_value:.2g}): the model does not fit "
-            "the data. Likely causes: the poses are not expressed in the robot's world frame "
-            "(tracker frame not registered), a tool or reflector offset left out of the model, "
-            "columns swapped or in the wrong unit, or noise larger than stated")
+        causes.append(_chi2_cause(statistic, dof, p_value))
     if implausible:
-        shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in implausible[:6])
-        more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
-        causes.append(
-            f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
-            f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
-            "absorbed something it does not describe: an unregistered measurement frame, leg "
-            "or pose columns swapped, a wrong nominal geometry")
+        causes.append(_implausible_cause(implausible, plausible))
     if too_many:
         causes.append(
             f"{len(found)} poses fail the outlier test (more than {max_outlier_fraction:.0%} of "
@@ -780,7 +844,7 @@ def efficient(
                 f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
                 if dof > 0 else "")
     elif not fit_ok:
-        status, message = "failed", "converged, but the model does not fit the data" + (
+        status, message = "failed", "solved, but the model does not fit the data" + (
             f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
             if dof > 0 else "") + ("; implausible parameters" if implausible else "")
     else:

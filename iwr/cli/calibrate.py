@@ -5,6 +5,7 @@ Markdown)."""
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import inspect
 import math
 import os
@@ -27,6 +28,7 @@ from ._base import (
     fraction,
     load_data,
     load_robot,
+    noise_spec,
     nonneg_int,
     one_line,
     positive_int,
@@ -39,6 +41,9 @@ EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 
 EXAMPLE_POSES_QUICK = 50
 EXAMPLE_GENERATIONS_QUICK = 30  # of DE in the quick example (then polished by LM)
 EXAMPLE_DIR = "iwr-example"
+#: Exit code of a calibration whose model does not fit the data (chi-square test failed, or
+#: identified errors far beyond their plausible size): the files are written, but not as success.
+EXIT_NO_FIT = 3
 
 # CLI option -> keyword a method takes for it: first the known ones per method (for options taken
 # through **options), then the first of the names below found in the method's signature.
@@ -63,16 +68,25 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         "(cost, leg residuals, identifiability, accuracy before and after) and write the "
         "calibrated robot, the result and a report. Without arguments: the whole job on a "
         "built-in example, a simulated IWR with realistic noise, in ./iwr-example/.",
-        epilog=f"The default method is 'lm' (Levenberg-Marquardt on the exact Jacobian from the "
-        f"nominal robot, the best we have); 'de' is the paper's differential evolution, polished "
-        f"by Levenberg-Marquardt. Set ${METHOD_ENV} to change the default. "
+        epilog=f"The default method is 'efficient' (the efficient estimator, every instrument "
+        f"weighted by its noise) when a noise model is known (--noise, or the built-in example's "
+        f"realistic noise), else 'lm' (eq. (10) by Levenberg-Marquardt on the exact Jacobian from "
+        f"the nominal robot); 'de' is the paper's differential evolution, polished by "
+        f"Levenberg-Marquardt. Set ${METHOD_ENV} to change the default. Exit code "
+        f"{EXIT_NO_FIT}: the model does not fit the data (the files are written). "
         f"${QUICK_ENV}=1 makes the built-in example smaller (for tests).",
     )
     p.add_argument("robot", nargs="?", metavar="ROBOT.toml", help="the nominal robot")
     p.add_argument("data", nargs="?", metavar="DATA.csv", help="the measurements (docs/data.md)")
     p.add_argument("--method", default=None,
-                   help="identification method: lm, de, crs2, bobyqa, ... as available "
-                   "(default: $IWR_METHOD, else de if available, else lm)")
+                   help="identification method: efficient, lm, de, crs2, bobyqa (default: "
+                   "$IWR_METHOD, else efficient when a noise model is known, else lm)")
+    p.add_argument("--noise", type=_noise_arg, default=None, metavar="SPEC",
+                   help="the instruments' noise: 'realistic' (iwr.Noise.realistic()), "
+                   "KEY=SIGMA,... with KEY among legs, joint_lengths, joint_angles, position, "
+                   "orientation (mm, rad; others 0, legs > 0), 'estimate' (estimated from the "
+                   "data), or 'none' (no noise model). Default: none for your files, realistic "
+                   "for the built-in example. With a noise model the fit is tested (chi-square)")
     p.add_argument("--budget", type=positive_int, default=None, metavar="N",
                    help="largest number of objective evaluations (method's default if not given)")
     p.add_argument("--generations", type=positive_int, default=None, metavar="G",
@@ -111,6 +125,21 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     add_common(p)
     p.set_defaults(func=cmd_calibrate)
     return p
+
+
+def _noise_arg(text: str) -> Any:
+    """``--noise``: :func:`noise_spec`, ``estimate``, or ``none`` (no noise model)."""
+    spec = text.strip().lower()
+    if spec == "estimate":
+        return "estimate"
+    if spec in ("none", "0", "zero"):
+        return "none"
+    noise = noise_spec(text)
+    if noise.legs <= 0:
+        raise argparse.ArgumentTypeError(
+            f"{text!r}: the leg sensors' noise must be > 0 (legs=SIGMA): the efficient estimator "
+            "closes every loop through the legs")
+    return noise
 
 
 def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
@@ -157,8 +186,21 @@ class _Tracker:
 def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.robot is not None and args.data is None:
         raise UsageError("give both ROBOT.toml and DATA.csv, or neither (the built-in example)")
-    method = args.method or default_method()
+    noise = None if args.noise == "none" else args.noise
+    args.noise_note = ""
+    if args.robot is None and args.noise is None:
+        from ..simulate import Noise
+
+        noise = Noise.realistic()
+        args.noise_note = " (the built-in example knows its noise: iwr.Noise.realistic())"
+    method = args.method or (default_method() if (os.environ.get(METHOD_ENV, "").strip()
+                                                   or noise is None) else "efficient")
     kwargs = _method_kwargs(method, args)
+    if noise is not None:
+        kwargs["noise"] = noise
+    elif method == "efficient":
+        raise UsageError("--method efficient needs a noise model: --noise realistic, "
+                         "--noise legs=SIGMA,..., or --noise estimate")
     if args.robot is None:
         return _run_example(args, method, kwargs)
     if args.poses is not None:
@@ -168,10 +210,19 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     validation = load_data(args.validation, robot) if args.validation else None
     out = Path(args.out or "iwr-calibration")
     try:
-        _calibrate(robot, data, validation, args, method, kwargs, out,
-                   robot_name=str(args.robot), data_name=str(args.data))
+        cal = _calibrate(robot, data, validation, args, method, kwargs, out,
+                         robot_name=str(args.robot), data_name=str(args.data))
     except _Interrupted:
         return EXIT_INTERRUPTED
+    return _exit_code(cal)
+
+
+def _exit_code(cal: Any) -> int:
+    fit = cal.result.get("fit")
+    if fit is not None and not fit.fit_ok:
+        print(f"iwr calibrate: the model does not fit the data (exit {EXIT_NO_FIT}); the files "
+              "are written, see the report", file=sys.stderr)
+        return EXIT_NO_FIT
     return EXIT_OK
 
 
@@ -204,13 +255,14 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     robot = load_robot(str(robot_path))
     data = load_data(str(data_path), robot)
     try:
-        _calibrate(robot, data, None, args, method, kwargs, out, robot_name=str(robot_path),
-                   data_name=str(data_path), truth=truth)
+        cal = _calibrate(robot, data, None, args, method, kwargs, out, robot_name=str(robot_path),
+                         data_name=str(data_path), truth=truth)
     except _Interrupted:
         return EXIT_INTERRUPTED
     print(f"\nthe same on your own files: iwr calibrate ROBOT.toml DATA.csv (docs/data.md); "
-          f"here: iwr calibrate {robot_path} {data_path}")
-    return EXIT_OK
+          f"here: iwr calibrate {robot_path} {data_path}"
+          + (" --noise realistic" if "noise" in kwargs else ""))
+    return _exit_code(cal)
 
 
 def _split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
@@ -252,6 +304,17 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     # (status "interrupted"); the tracker keeps that point should Ctrl-C escape a method anyway.
     tracker = _Tracker()
     kwargs = {**kwargs, "callback": tracker}
+    noise = kwargs.get("noise")
+    if noise is None:
+        print("noise model: none given (--noise): eq. (10) cannot test the fit, only the size of "
+              "the identified errors")
+    else:
+        what = ("estimated from the data (variance components)" if isinstance(noise, str)
+                else ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(noise).items()))
+        print(f"noise model: {what}{getattr(args, 'noise_note', '')}")
+        if method == "efficient":
+            print("method: the efficient estimator (every instrument weighted by its noise; "
+                  "eq. (10) is --method lm)")
     print(f"identifying with {method} ({len(ident)} poses; Ctrl-C stops and keeps the best "
           "point so far)", flush=True)
     try:
@@ -272,6 +335,15 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     if truth is not None:
         truth_acc = accuracy(robot, val, truth)
         perr = parameter_error(robot, ident, result.x, truth)
+    predicted = None
+    if result.get("covariance") is not None and not interrupted:
+        from ..estimation import predicted_accuracy
+
+        try:
+            predicted = predicted_accuracy(robot, val, result.x, result["covariance"],
+                                           active=result["active"], seed=args.seed)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            notes.append(f"note: no predicted accuracy: {one_line(exc)}")
     inputs = {"robot": robot_name, "data": data_name}
     if getattr(args, "validation", None):
         inputs["validation"] = str(args.validation)
@@ -282,7 +354,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
         robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
         accuracy=acc, data_name=data_name, robot_name=robot_name, identifiability=report,
         uncertainty=unc, parameter_error=perr, truth_accuracy=truth_acc, notes=notes,
-        settings=settings, provenance=provenance(inputs),
+        settings=settings, provenance=provenance(inputs), predicted=predicted,
     )
     print(cal.summary())
     written = cal.write(out, plots=not args.no_plots)

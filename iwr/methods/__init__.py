@@ -15,6 +15,23 @@ that returns an :class:`IdentificationResult`. They share:
   (``result.interrupted``), never a success.
 
 :data:`METHODS` is the registry: add a method by adding it there.
+
+**The efficient estimator is a method like the others** (``"efficient"``, :mod:`iwr.estimation`),
+so that one call, one result type and the comparison and study harnesses cover it; it differs in
+that it needs a noise model: ``identify(..., noise=iwr.Noise(...))`` (or ``noise="estimate"``,
+variance components). ``identify`` with a noise model and no method uses it; without a noise
+model the default stays eq. (10) (``"lm"``, :data:`DEFAULT_METHOD`); ``method="efficient"``
+without a noise model is an error. Its ``fun`` is its own objective (the chi-square statistic);
+eq. (10)'s cost at its ``x`` is ``result.cost_eq10``.
+
+**"converged" only when the fit is sane.** Every other method's result is checked by
+:func:`iwr.estimation.fit_check`: identified errors beyond 10 times their plausible size (modulo
+the unidentifiable directions) always, and, when a noise model is given, the chi-square test of
+the generalised least squares statistic at ``x``. A method that converged to a point failing the
+check returns ``success=False``, ``status="failed"``, the message naming the parameters or the
+test; the check is ``result.fit`` (a :class:`iwr.estimation.FitTest`). Without a noise model the
+cost itself cannot be judged (a local minimum with plausible parameters passes): see
+``docs/estimation.md``.
 """
 
 from __future__ import annotations
@@ -29,6 +46,7 @@ from ..measurements import Measurements
 from ..problem import Problem
 from ..robot import Robot
 from .de import de_method
+from .efficient import efficient_method
 from .lm import levenberg_marquardt
 from .nlopt import bobyqa, crs2
 from .reduced import ReducedProblem, active_mask
@@ -51,9 +69,11 @@ METHODS: dict[str, Callable[..., IdentificationResult]] = {
     "de": de_method,
     "crs2": crs2,
     "bobyqa": bobyqa,
+    "efficient": efficient_method,
 }
 
-#: The method used when none is named: the best we have. Levenberg-Marquardt from the nominal
+#: The method used when none is named and no noise model is given (with one: ``"efficient"``).
+#: Eq. (10) is the best we have without a noise model. Levenberg-Marquardt from the nominal
 #: robot reaches the noise floor of every data set of docs/compare.md, in about a hundred
 #: evaluations (DE, polished by LM, is one argument away).
 DEFAULT_METHOD = "lm"
@@ -62,8 +82,9 @@ DEFAULT_METHOD = "lm"
 def identify(
     robot: Robot,
     measurements: Measurements,
-    method: str = DEFAULT_METHOD,
+    method: str | None = None,
     *,
+    noise: Any = None,
     bounds: Any = None,
     x0: Any = None,
     active: Any = None,
@@ -80,10 +101,16 @@ def identify(
     robot : Robot
         The nominal robot.
     measurements : Measurements
-    method : str
-        A name of :data:`METHODS`: ``"lm"`` (default, Levenberg-Marquardt on the exact Jacobian),
-        ``"de"`` (differential evolution, the paper's method, polished by LM unless
-        ``polish=False``), ``"crs2"`` or ``"bobyqa"`` (NLopt).
+    method : str, optional
+        A name of :data:`METHODS`: ``"lm"`` (the default without a noise model,
+        Levenberg-Marquardt on eq. (10) with the exact Jacobian), ``"efficient"`` (the default
+        with a noise model: :func:`iwr.estimation.efficient`), ``"de"`` (differential
+        evolution, the paper's method, polished by LM unless ``polish=False``), ``"crs2"`` or
+        ``"bobyqa"`` (NLopt).
+    noise : Noise or "estimate", optional
+        The instruments' noise. Selects the efficient estimator when ``method`` is not given;
+        for the other methods it adds the chi-square test of the fit (``"estimate"`` then
+        tests nothing more).
     bounds : None, "default", "paper" or (lower, upper)
         Search bounds; see :class:`iwr.Problem`.
     x0 : array_like, optional
@@ -92,7 +119,8 @@ def identify(
     active : array_like of bool, names or indices, or "base", optional
         The parameters to identify; the rest are held at ``x0``. For example the base parameters
         of :func:`iwr.identifiability` (``active=report.active``, or ``active="base"`` to compute
-        them at ``x0``), so that the answer is unique.
+        them at ``x0``), so that the answer is unique. Default: all of them, but the base
+        parameters for ``"efficient"`` (whose covariance and fit test need a unique answer).
     max_evaluations : int, optional
         Evaluation budget; default: the method's.
     seed : int, optional
@@ -107,15 +135,26 @@ def identify(
     Returns
     -------
     IdentificationResult
-        ``fun`` is re-evaluated at ``x``; ``success`` only when the method converged and the
-        result is finite.
+        ``fun`` is re-evaluated at ``x`` (eq. 10's cost; the chi-square statistic for
+        ``"efficient"``); ``success`` only when the method converged, the result is finite and
+        the fit is sane (``result.fit``, see :mod:`iwr.methods`).
     """
+    from ..simulate import Noise
+
+    if noise is not None and not (isinstance(noise, Noise) or (isinstance(noise, str)
+                                                               and noise == "estimate")):
+        raise TypeError(f"noise: expected an iwr.Noise or 'estimate', got {noise!r}")
+    if method is None:
+        method = DEFAULT_METHOD if noise is None else "efficient"
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
     problem = Problem(robot, measurements, bounds)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
     if x0_arr.shape != (problem.n_params,) or not np.all(np.isfinite(x0_arr)):
         raise ValueError(f"x0: expected {problem.n_params} finite values, got shape {x0_arr.shape}")
+    if method == "efficient" and active is None:
+        # The estimator's own default: its covariance and chi-square test need a unique answer.
+        active = "base"
     if isinstance(active, str) and active == "base":
         # The base parameters of the identifiability analysis at x0: a unique answer.
         from ..identifiability import identifiability
@@ -124,6 +163,8 @@ def identify(
     mask = active_mask(problem, active)
     if max_evaluations is not None:
         options["max_evaluations"] = max_evaluations
+    if method == "efficient":
+        options["noise"] = noise
     start = time.perf_counter()
     result = METHODS[method](
         ReducedProblem(problem, mask, x0_arr), seed=seed, callback=callback, progress=progress,
@@ -134,6 +175,9 @@ def identify(
     result["method"] = method
     result["parameter_names"] = problem.parameter_names
     result["active"] = mask
+    if method == "efficient":  # its own objective and its own fit test
+        result.check_finite()
+        return result
     # Every method's reported cost is re-evaluated here, at the point it returns (a Ctrl-C here
     # keeps the method's own value, and the result, marked interrupted).
     try:
@@ -142,4 +186,22 @@ def identify(
         result.update(success=False, status="interrupted",
                       message=f"{result.message}; interrupted (Ctrl-C)")
     result.check_finite()
+    if result.status != "interrupted":
+        _check_fit(result, robot, measurements, noise, int(mask.sum()))
     return result
+
+
+def _check_fit(result: IdentificationResult, robot: Robot, measurements: Measurements,
+               noise: Any, n_active: int) -> None:
+    """Issue 16: "converged" only when the fit is sane (:func:`iwr.estimation.fit_check`)."""
+    from ..estimation import fit_check
+    from ..simulate import Noise
+
+    fit = fit_check(robot, measurements, result.x, n_active=n_active,
+                    noise=noise if isinstance(noise, Noise) else None)
+    result["fit"] = fit
+    if result.success and not fit.fit_ok:
+        # The method's own message (e.g. "converged") is kept, but no longer as the outcome.
+        result.update(success=False, status="failed",
+                      message=f"{fit.verdict}: " + "; ".join(fit.causes)
+                      + f" (the method: {str(result.message).strip().rstrip('.')})")

@@ -5,7 +5,7 @@ from __future__ import annotations
 import itertools
 import json
 import math
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -64,6 +64,12 @@ class Calibration:
         How the calibration was run (method, options, bounds, ...), for the report.
     provenance : dict or None
         :func:`iwr.reporting.html.provenance`: version, command line, date, inputs' SHA-256.
+    predicted : PredictedAccuracy or None
+        The tool accuracy the efficient estimator predicts from its covariance, on the validation
+        poses (:func:`iwr.estimation.predicted_accuracy`), beside the measured figures.
+
+    The result's ``fit`` (:class:`iwr.estimation.FitTest`) and ``outliers``, when present, are
+    reported: a fit that fails makes the verdict "the model does not fit the data".
     """
 
     robot: Robot
@@ -81,13 +87,16 @@ class Calibration:
     notes: list[str] = field(default_factory=list)
     settings: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] | None = None
+    predicted: Any = None
 
     # -- numbers --------------------------------------------------------------------------------
     def costs(self) -> dict[str, float]:
         """Cost of eq. (10) on the identification poses, nominal and calibrated (mm^2)."""
         p = Problem(self.robot, self.identification)
         nominal = p.cost(np.zeros(self.robot.n_params))
-        return {"nominal": nominal, "calibrated": float(self.result.fun)}
+        # The efficient estimator's fun is its chi-square statistic; eq. (10)'s cost is aside.
+        return {"nominal": nominal,
+                "calibrated": float(self.result.get("cost_eq10", self.result.fun))}
 
     def residuals(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
         """Per-leg residual statistics, ``[set][nominal|calibrated]``."""
@@ -144,7 +153,67 @@ class Calibration:
                 "max_abs_length_mm": float(pe.max_abs_length),
                 "max_abs_angle_rad": float(pe.max_abs_angle),
             }
+        fit = self.result.get("fit")
+        if fit is not None:
+            out["fit"] = {"statistic": fit.statistic, "dof": fit.dof, "p_value": fit.p_value,
+                          "alpha": fit.alpha, "fit_ok": fit.fit_ok, "verdict": fit.verdict,
+                          "causes": list(fit.causes),
+                          "implausible": [{"parameter": n, "value": v, "limit": lim}
+                                          for n, v, lim in fit.implausible]}
+        if self.result.get("outliers") is not None:
+            out["outliers"] = [asdict(o) for o in self.result["outliers"]]
+        if self.predicted is not None:
+            pr = self.predicted
+            out["predicted_accuracy"] = {
+                "on": "validation poses" if self.held_out else "identification poses",
+                "position_rms_mm": pr.position_rms, "position_95_mm": pr.position_95,
+                "orientation_rms_deg": pr.orientation_rms,
+                "orientation_95_deg": pr.orientation_95}
         return jsonable(out, finite_only=True)
+
+    # -- fit, outliers, prediction ----------------------------------------------------------------
+    def status_text(self) -> str:
+        """``converged`` only for a success; otherwise what happened."""
+        r = self.result
+        if r.success:
+            return "converged"
+        fit = r.get("fit")
+        if fit is not None and not fit.fit_ok:
+            return "the model does not fit the data"
+        return f"not converged (status {r.get('status', '?')})"
+
+    def _fit_failed(self) -> bool:
+        fit = self.result.get("fit")
+        return fit is not None and not fit.fit_ok
+
+    def fit_lines(self) -> list[str]:
+        """The fit test, the outliers and what was done with them, the predicted accuracy."""
+        lines: list[str] = []
+        fit = self.result.get("fit")
+        if fit is not None:
+            head = "fit test: " + fit.verdict
+            if fit.dof > 0 and math.isfinite(fit.statistic):
+                head += f" [statistic {fit.statistic:.4g}, dof {fit.dof}, p-value {fit.p_value:.3g}]"
+            lines.append(head)
+            lines += [f"  - {c}" for c in fit.causes]
+        outliers = self.result.get("outliers")
+        if outliers is not None:
+            if not outliers:
+                lines.append("outliers: none (every pose passes its test)")
+            else:
+                n_rm = sum(o.removed for o in outliers)
+                lines.append(f"outliers: {len(outliers)} pose(s) fail their test, {n_rm} removed "
+                             f"from the solution, {len(outliers) - n_rm} kept:")
+                lines += [f"  - {o}" for o in outliers]
+        return lines
+
+    def predicted_line(self) -> str:
+        pr = self.predicted
+        if pr is None:
+            return ""
+        return (f"{'predicted':18}{'':10}{pr.position_rms:10.4f}{'':10}  {'':10}"
+                f"{pr.orientation_rms:10.5f}   (from the estimator's covariance: 95 % "
+                f"{pr.position_95:.4f} mm, {pr.orientation_95:.5f} deg; against the truth)")
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """One row per error parameter: name, value, std (None if not identified), unit, status."""
@@ -182,8 +251,9 @@ class Calibration:
                "none held out (accuracy below is on the identification poses: optimistic)"),
             f"method {r.get('method', '?')}: {int(r.nfev)} evaluations, "
             f"{float(r.get('wall_time', math.nan)):.2f} s, "
-            f"{'converged' if r.success else 'not converged'}"
-            f" ({str(r.message).strip()})",
+            f"{self.status_text()}"
+            + (" (see the fit test below)" if self._fit_failed() else
+               f" ({str(r.message).strip()})"),
         ]
         c = self.costs()
         lines.append(
@@ -212,11 +282,21 @@ class Calibration:
                                  for k in ("mean", "rms", "max"))
                 + "   (the simulation's truth: the noise floor)"
             )
+        if self.predicted is not None:
+            lines.append(self.predicted_line())
         before = self.accuracy.nominal.summary()["position_mm"]["rms"]
         after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
-        if after > 0:
+        if after > 0 and not self._fit_failed():
             lines.append(f"position RMS error {before:.4g} mm -> {after:.4g} mm "
                          f"({before / after:.1f} times smaller)")
+        fit = self.fit_lines()
+        if fit:
+            lines.append("")
+            lines.extend(fit)
+        fit_test = r.get("fit")
+        if fit_test is not None and not fit_test.fit_ok:
+            lines.append("VERDICT: THE MODEL DOES NOT FIT THE DATA; the accuracy figures above "
+                         "are not a calibration (causes listed above)")
         lines.extend(self.notes)
         return "\n".join(lines)
 
@@ -329,6 +409,11 @@ class Calibration:
         if r.get("status") == "interrupted":
             return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
                     "bad")
+        fit = r.get("fit")
+        if fit is not None and not fit.fit_ok:
+            return ("The model does not fit the data: " + fit.verdict.removeprefix(
+                "THE MODEL DOES NOT FIT THE DATA: ") + ". Likely causes: " + " ".join(
+                    c.rstrip(".") + "." for c in fit.causes) + f" ({change}.)", "bad")
         if not r.success:
             return f"Not converged ({str(r.message).strip().rstrip('.')}); {change}.", "bad"
         if not (math.isfinite(after) and math.isfinite(before)) or after >= before:
@@ -368,8 +453,20 @@ class Calibration:
             f"pose. Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated "
             f"{c['calibrated']:.6g}{self._before_polish()}. Method {r.get('method', '?')}: "
             f"{int(r.nfev)} evaluations, {float(r.get('wall_time', math.nan)):.2f} s, "
-            f"{'converged' if r.success else 'not converged'}: "
+            f"{self.status_text()}: "
             f"{str(r.message).strip().rstrip('.')}.")
+        if self.predicted is not None:
+            pr = self.predicted
+            page.paragraph(
+                f"Predicted by the estimator's covariance (against the truth, on the "
+                f"{'validation' if self.held_out else 'identification'} poses): tool position "
+                f"RMS {pr.position_rms:.4g} mm (95 %: {pr.position_95:.4g} mm), orientation RMS "
+                f"{pr.orientation_rms:.4g} deg (95 %: {pr.orientation_95:.4g} deg); the measured "
+                "figures above also contain the measurement noise of the validation poses.")
+        fit_lines = self.fit_lines()
+        if fit_lines:
+            page.heading("Fit test and outliers")
+            page.pre("\n".join(fit_lines))
         if "accuracy.png" in figures:
             page.figure(figures["accuracy.png"], "Tool pose errors before and after calibration",
                         "accuracy.png")
@@ -441,7 +538,7 @@ class Calibration:
                else "none held out (accuracy is on the identification poses: optimistic)"),
             f"- Method: `{r.get('method', '?')}`, {int(r.nfev)} evaluations, "
             f"{float(r.get('wall_time', math.nan)):.2f} s, "
-            f"{'converged' if r.success else 'not converged'}: {str(r.message).strip()}",
+            f"{self.status_text()}: {str(r.message).strip()}",
             f"- Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated {c['calibrated']:.6g}"
             + self._before_polish(),
             "",
@@ -464,6 +561,16 @@ class Calibration:
             p, o = s["position_mm"], s["orientation_deg"]
             md.append(f"| {label} | {p['mean']:.4f} | {p['rms']:.4f} | {p['max']:.4f} | "
                       f"{o['mean']:.5f} | {o['rms']:.5f} | {o['max']:.5f} |")
+        if self.predicted is not None:
+            pr = self.predicted
+            md += ["", f"Predicted by the estimator's covariance (against the truth): tool "
+                   f"position RMS {pr.position_rms:.4f} mm (95 %: {pr.position_95:.4f} mm), "
+                   f"orientation RMS {pr.orientation_rms:.5f} deg (95 %: "
+                   f"{pr.orientation_95:.5f} deg); the measured figures above also contain the "
+                   "measurement noise of the validation poses."]
+        fit_lines = self.fit_lines()
+        if fit_lines:
+            md += ["", "## Fit test and outliers", "", "```", *fit_lines, "```"]
         if "accuracy.png" in figures:
             md += ["", "![Tool pose errors before and after calibration](accuracy.png)"]
         md += ["", "## Leg residuals", "",

@@ -1,0 +1,42 @@
+"""The efficient estimator as a registered method (``"efficient"``): :func:`iwr.estimation.efficient`
+behind the one method interface."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from .reduced import ReducedProblem
+from .result import IdentificationResult
+
+
+def efficient_method(
+    problem: ReducedProblem,
+    *,
+    noise: Any = None,
+    max_evaluations: int | None = None,
+    seed: int | None = None,
+    callback: Callable[..., Any] | None = None,
+    progress: bool | None = None,
+    **options: Any,
+) -> IdentificationResult:
+    """The implicit loop method on ``problem``'s robot and measurements, its active parameters
+    and start: every instrument weighted by ``noise`` (an :class:`iwr.Noise`, or ``"estimate"``),
+    which it needs. ``max_evaluations`` bounds the Levenberg-Marquardt iterations of each solve
+    (``max_iterations``); ``seed`` and ``progress`` are accepted for the interface and unused (the
+    method is deterministic and takes milliseconds). ``options``: those of
+    :func:`iwr.estimation.efficient` (``estimate``, ``outliers``, ``fit_alpha``, ...)."""
+    from ..estimation import efficient
+
+    del seed, progress
+    if noise is None:
+        raise ValueError(
+            "method 'efficient' weighs every instrument by its noise: give noise=iwr.Noise(...) "
+            "(e.g. iwr.Noise.realistic()) or noise='estimate'; without a noise model use eq. "
+            "(10), method='lm'"
+        )
+    if max_evaluations is not None:
+        options.setdefault("max_iterations", int(max_evaluations))
+    p = problem.problem
+    return efficient(p.robot, p.measurements, noise, x0=problem.x0, active=problem.active,
+                     callback=callback, **options)
