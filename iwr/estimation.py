@@ -371,7 +371,7 @@ def _core_rotations(poses: np.ndarray) -> np.ndarray:
 
 
 def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
-                       limit: np.ndarray) -> np.ndarray:
+                       limit: np.ndarray, jac: np.ndarray | None = None) -> np.ndarray:
     """The vector equivalent to ``x`` (same readings, to first order) that is smallest in units of
     ``limit``: ``x`` minus its component along the null directions of the leg Jacobian.
 
@@ -380,7 +380,8 @@ def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
     robot can have base parameters beyond any bound; its smallest equivalent cannot (each entry of
     it is at most the norm of the true vector in these units)."""
     with single_thread():
-        jac = Problem(robot, measurements).jacobian(x)
+        if jac is None:  # rows may be scaled (weights): the null space is the same
+            jac = Problem(robot, measurements).jacobian(x)
         d = np.linalg.norm(jac, axis=0)
         d = np.where(d > 0, d, 1.0)
         _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
@@ -428,7 +429,11 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, n_active: int
     """
     x = np.asarray(x, dtype=float)
     limit = plausible * robot.default_bounds("default")[1]
-    x_plain = _nearest_plausible(robot, measurements, x, limit)
+    # The leg Jacobian from the estimator's kernel, not Problem's: the check is no evaluation of
+    # the method that produced x (its budget counts those).
+    legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+    x_plain = _nearest_plausible(robot, measurements, x, limit,
+                                 jac=jx.reshape(-1, robot.n_params))
     names = robot.parameter_names
     implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(robot.n_params)
                    if abs(x_plain[i]) > limit[i]]
@@ -437,7 +442,6 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, n_active: int
     if noise is not None:
         _check_noise(noise)
         sig = sigma_matrix(robot, measurements, noise)
-        legs, _, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
         r = legs - measurements.legs
         cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
         cov[:, np.arange(6), np.arange(6)] += sig[:, :6] ** 2
