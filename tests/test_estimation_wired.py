@@ -180,3 +180,18 @@ def test_calibrate_efficient_without_noise_is_a_usage_error(sim, tmp_path) -> No
     proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"),
                "--method", "efficient", "--out", str(tmp_path))
     assert proc.returncode == 2 and "noise" in proc.stderr and "Traceback" not in proc.stderr
+
+
+def test_the_example_knows_its_noise_and_uses_the_estimator(tmp_path) -> None:
+    proc = run("calibrate", "--no-plots", cwd=tmp_path, env={"IWR_EXAMPLE_QUICK": "1"})
+    assert proc.returncode == 0, proc.stderr
+    assert "the built-in example knows its noise" in proc.stdout
+    assert "identifying with efficient" in proc.stdout
+    assert "fit test: the model fits the data" in proc.stdout
+    summary = json.loads((tmp_path / "iwr-example" / "summary.json").read_text())
+    pred = summary["predicted_accuracy"]["position_rms_mm"]
+    truth = summary["accuracy_with_true_errors"]["position_mm"]["rms"]
+    # Predicted against the truth (parameter uncertainty only): below the measured noise floor.
+    assert 0 < pred < truth
+    report = (tmp_path / "iwr-example" / "report.md").read_text()
+    assert "Predicted by the estimator's covariance" in report and "## Fit test" in report
