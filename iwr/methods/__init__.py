@@ -25,9 +25,10 @@ without a noise model is an error. Its ``fun`` is its own objective (the chi-squ
 eq. (10)'s cost at its ``x`` is ``result.cost_eq10``.
 
 **"converged" only when the fit is sane.** Every other method's result is checked by
-:func:`iwr.estimation.fit_check`: identified errors beyond 10 times their plausible size (modulo
+:func:`iwr.estimation.fit_check`: identified errors beyond 10 times the search bounds (modulo
 the unidentifiable directions) always, and, when a noise model is given, the chi-square test of
-the generalised least squares statistic at ``x``. A method that converged to a point failing the
+the generalised least squares statistic around ``x``. The efficient estimator runs the same
+tests itself, with the same bounds as the yardstick. A method that converged to a point failing the
 check returns ``success=False``, ``status="failed"``, the message naming the parameters or the
 test; the check is ``result.fit`` (a :class:`iwr.estimation.FitTest`). Without a noise model the
 cost itself cannot be judged (a local minimum with plausible parameters passes): see
@@ -187,18 +188,20 @@ def identify(
                       message=f"{result.message}; interrupted (Ctrl-C)")
     result.check_finite()
     if result.status != "interrupted":
-        _check_fit(result, robot, measurements, noise, int(mask.sum()))
+        _check_fit(result, problem, noise, mask)
     return result
 
 
-def _check_fit(result: IdentificationResult, robot: Robot, measurements: Measurements,
-               noise: Any, n_active: int) -> None:
-    """Issue 16: "converged" only when the fit is sane (:func:`iwr.estimation.fit_check`)."""
+def _check_fit(result: IdentificationResult, problem: Problem, noise: Any,
+               active: np.ndarray) -> None:
+    """Issue 16: "converged" only when the fit is sane (:func:`iwr.estimation.fit_check`), with
+    the search bounds as the parameters' plausible range."""
     from ..estimation import fit_check
     from ..simulate import Noise
 
-    fit = fit_check(robot, measurements, result.x, n_active=n_active,
-                    noise=noise if isinstance(noise, Noise) else None)
+    fit = fit_check(problem.robot, problem.measurements, result.x, active=active,
+                    noise=noise if isinstance(noise, Noise) else None,
+                    bounds=(problem.lower, problem.upper))
     result["fit"] = fit
     if result.success and not fit.fit_ok:
         # The method's own message (e.g. "converged") is kept, but no longer as the outcome.

@@ -38,5 +38,7 @@ def efficient_method(
     if max_evaluations is not None:
         options.setdefault("max_iterations", int(max_evaluations))
     p = problem.problem
+    # The problem's bounds are the parameters' expected range: the plausibility test's yardstick.
+    options.setdefault("bounds", (p.lower, p.upper))
     return efficient(p.robot, p.measurements, noise, x0=problem.x0, active=problem.active,
                      callback=callback, **options)
