@@ -196,6 +196,11 @@ class Calibration:
                 head += f" [statistic {fit.statistic:.4g}, dof {fit.dof}, p-value {fit.p_value:.3g}]"
             lines.append(head)
             lines += [f"  - {c}" for c in fit.causes]
+        for c in self.result.get("variance_components") or []:
+            lines.append(
+                f"noise of {c.name} estimated: {c.sigma:.3g} (+- {c.std:.2g}; start {c.start:.3g})"
+                if c.identified else f"noise of {c.name}: not identified from the data, held at "
+                f"{c.start:.3g}")
         outliers = self.result.get("outliers")
         if outliers is not None:
             if not outliers:
