@@ -206,3 +206,22 @@ def test_study_runs_the_estimator_beside_eq10(tmp_path) -> None:
     summary = (out / "summary.md").read_text()
     assert "| efficient | 0.02 |" in summary and "| lm | 0.02 |" in summary
     assert "0 failed" in summary
+
+
+def test_calibrate_lists_an_outlier_by_line_and_instrument(sim, tmp_path) -> None:
+    m = iwr.Measurements.from_csv(sim / "measurements.csv", ROBOT)
+    legs = m.legs.copy()
+    legs[7, 2] += 1.0  # a misread leg 3 at the 8th pose
+    data = tmp_path / "gross.csv"
+    iwr.Measurements(m.q, m.poses, legs, joint_types=m.joint_types).to_csv(data)
+    line = int(iwr.Measurements.from_csv(data, ROBOT).lines[7])
+    out = tmp_path / "out"
+    proc = run("calibrate", str(sim / "robot.toml"), str(data), "--noise", "realistic",
+               "--validation-fraction", "0", "--out", str(out), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    expected = f"gross.csv, line {line}: chi2"
+    assert expected in proc.stdout and "leg3" in proc.stdout and "removed" in proc.stdout
+    assert expected in (out / "report.md").read_text()
+    summary = json.loads((out / "summary.json").read_text())
+    assert [(o["pose"], o["instrument"], o["removed"]) for o in summary["outliers"]] == [
+        (7, "leg3", True)]

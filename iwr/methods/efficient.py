@@ -1,5 +1,5 @@
-"""The efficient estimator as a registered method (``"efficient"``): :func:`iwr.estimation.efficient`
-behind the one method interface."""
+"""The efficient estimator as a registered method (``"efficient"``):
+:func:`iwr.estimation.efficient` behind the one method interface."""
 
 from __future__ import annotations
 

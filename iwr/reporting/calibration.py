@@ -193,7 +193,8 @@ class Calibration:
         if fit is not None:
             head = "fit test: " + fit.verdict
             if fit.dof > 0 and math.isfinite(fit.statistic):
-                head += f" [statistic {fit.statistic:.4g}, dof {fit.dof}, p-value {fit.p_value:.3g}]"
+                head += (f" [statistic {fit.statistic:.4g}, dof {fit.dof}, "
+                         f"p-value {fit.p_value:.3g}]")
             lines.append(head)
             lines += [f"  - {c}" for c in fit.causes]
         for c in self.result.get("variance_components") or []:

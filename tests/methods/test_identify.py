@@ -216,7 +216,8 @@ def test_bad_budget_is_named(robot, data, method):
 
 def test_unknown_method(robot, data):
     m, _ = data
-    with pytest.raises(ValueError, match="method: 'nope'; available: bobyqa, crs2, de, efficient, lm"):
+    with pytest.raises(ValueError,
+                       match="method: 'nope'; available: bobyqa, crs2, de, efficient, lm"):
         iwr.identify(robot, m, "nope")
 
 
