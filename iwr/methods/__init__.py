@@ -187,7 +187,7 @@ def identify(
         result.update(success=False, status="interrupted",
                       message=f"{result.message}; interrupted (Ctrl-C)")
     result.check_finite()
-    if result.status != "interrupted":
+    if result.status != "interrupted" and np.all(np.isfinite(result.x)):
         _check_fit(result, problem, noise, mask)
     return result
 
