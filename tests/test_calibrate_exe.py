@@ -428,7 +428,7 @@ def test_a_result_that_is_not_finite_is_never_a_success_and_loads(tmp_path: Path
     assert not np.isfinite(again.fun) and not again.success
 
 
-# --- the launcher ----------------------------------------------------------------------------------
+# --- the launcher ------------------------------------------------------------------------------
 
 
 def test_launcher_result_matches_identify(files: dict[str, Path]) -> None:
