@@ -61,7 +61,8 @@ def test_tracker_toml_errors_name_the_file_and_key(robot, tmp_path):
     text = path.read_text()
     bad = tmp_path / "bad.toml"
     bad.write_text(text.replace("registration = [", "registraton = ["))
-    with pytest.raises(iwr.RobotFileError, match=r"bad\.toml: tracker: unknown key\(s\) registraton"):
+    with pytest.raises(iwr.RobotFileError,
+                       match=r"bad\.toml: tracker: unknown key\(s\) registraton"):
         iwr.Robot.from_toml(bad)
     bad.write_text(text.replace("registration = [2000.0, ", "registration = ["))
     with pytest.raises(iwr.RobotFileError, match=r"bad\.toml: tracker: registration: shape"):

@@ -9,7 +9,12 @@ import numpy as np
 import pytest
 
 import iwr
-from iwr.tracker import TrackerMeasurements, read_tracker_data, write_tracker_long, write_tracker_wide
+from iwr.tracker import (
+    TrackerMeasurements,
+    read_tracker_data,
+    write_tracker_long,
+    write_tracker_wide,
+)
 
 REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
 REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
