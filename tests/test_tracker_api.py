@@ -166,3 +166,12 @@ def test_probe_data_through_the_public_api():
     fresh, _ = iwr.simulate(robot, 30, seed=9, x=truth)
     acc = iwr.accuracy(robot, fresh, res.x, truth=truth)
     assert acc.calibrated.position.max() < 1e-6
+
+
+def test_accuracy_on_too_few_points_for_a_registration_guess(robot):
+    one = iwr.Robot.default().with_tracker(registration=REGISTRATION, reflectors=REFLECTORS[:1])
+    data, truth = iwr.simulate(one, 2, seed=3)  # 2 points: no guess of their own
+    acc = iwr.accuracy(one, data, truth)
+    assert acc.calibrated.position.max() < 1e-9
+    assert acc.nominal.position.max() > 0.1  # the nominal robot in the true registration
+    assert np.isnan(acc.calibrated.orientation).all()  # one point per pose: no orientation

@@ -228,17 +228,28 @@ def _point_errors(problem: TrackerProblem, x: np.ndarray) -> PoseErrors:
 def tracker_accuracy(robot: Robot, measurements: TrackerMeasurements, x: Any, *,
                      truth: Any = None, tool: Any = None) -> Accuracy:
     """:func:`iwr.accuracy` on tracker data, before (the nominal robot with the registration
-    guess on these data) and after (``x``, robot then setup parameters).
+    guess on these data; with fewer than 3 points not on one line, the nominal robot with the
+    registration and offsets of ``x``) and after (``x``, robot then setup parameters).
 
     With ``truth`` (the simulation's true vector): tool pose errors against the truth by forward
     kinematics of the readings, in {T} modulo the gauge (:func:`tool_pose_errors`). Without it:
     per validation pose, the largest distance between predicted and measured points (mm) and
     the angle of their best rigid rotation (degrees; NaN with fewer than 3 points)."""
-    problem, start = tracker_problem(robot, measurements)
+    from .registration import RegistrationError
+
+    setup = _setup(robot)
     x = np.asarray(x, dtype=float)
-    if x.shape != (problem.n_params,):
-        raise ValueError(f"x: shape {x.shape}; expected ({problem.n_params},): the robot's "
-                         f"{robot.n_params} then the tracker setup's {problem.setup.n_params}")
+    n = robot.n_params + setup.n_params
+    if x.shape != (n,):
+        raise ValueError(f"x: shape {x.shape}; expected ({n},): the robot's {robot.n_params} "
+                         f"then the tracker setup's {setup.n_params}")
+    try:
+        problem, start = tracker_problem(robot, measurements)
+    except RegistrationError:
+        # Too few validation points for a registration guess of their own (fewer than 3, or
+        # on one line): "before" is then the nominal robot in the identified registration.
+        problem, _ = tracker_problem(robot, measurements, x0=x)
+        start = np.concatenate([np.zeros(robot.n_params), x[robot.n_params:]])
     if truth is not None:
         setup, m = problem.setup, measurements
         return Accuracy(
