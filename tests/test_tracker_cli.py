@@ -105,3 +105,13 @@ def test_the_shipped_example_runs_end_to_end(tmp_path):
                str(REPO / "examples" / "iwr_tracker_points.csv"), "-o", str(tmp_path))
     assert proc.returncode == 0, proc.stderr
     assert (tmp_path / "calibrated.toml").is_file()
+
+
+def test_tracker_data_with_a_robot_without_tracker_is_refused(sim, tmp_path):
+    plain = tmp_path / "plain.toml"
+    iwr.Robot.default().to_toml(plain)
+    proc = run("calibrate", str(plain), str(sim / "measurements.csv"), "-o", str(tmp_path))
+    assert proc.returncode == 2 and "has no [tracker] table" in proc.stderr
+    proc = run("calibrate", str(plain), str(REPO / "examples" / "iwr_example.csv"),
+               "--readings", str(sim / "measurements_readings.csv"), "-o", str(tmp_path))
+    assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr

@@ -34,7 +34,7 @@ from ._base import (
 )
 from .simulate import write_truth
 from .tracker import add_arguments as add_tracker_arguments
-from .tracker import calibrate_tracker
+from .tracker import calibrate_tracker, refuse_tracker_data
 
 EXAMPLE_SEED = 2024
 EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 0.2)
@@ -169,8 +169,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     robot = load_robot(args.robot)
     if robot.tracker is not None:  # laser-tracker data (docs/tracker.md)
         return calibrate_tracker(args, robot, method, kwargs)
-    if args.readings is not None:
-        raise UsageError("--readings: only for a robot with a [tracker] table (docs/tracker.md)")
+    refuse_tracker_data(args)  # tracker data, or --readings, with a robot that has no tracker
     data = load_data(args.data, robot)
     validation = load_data(args.validation, robot) if args.validation else None
     out = Path(args.out or "iwr-calibration")

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ._base import EXIT_INTERRUPTED, EXIT_OK, CommandError, progress_enabled
+from ._base import EXIT_INTERRUPTED, EXIT_OK, CommandError, UsageError, progress_enabled
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -22,6 +22,20 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="tracker data as a long table of points (DATA: pose, reflector, x_mm, "
                    "y_mm, z_mm): the robot's log of readings (pose, q1_mm, ..., s1_mm .. s6_mm) "
                    "joined to it by pose (docs/tracker.md)")
+
+
+def refuse_tracker_data(args: argparse.Namespace) -> None:
+    """For a robot without a [tracker] table: refuse --readings and tracker data files with a
+    message that says what is missing."""
+    from ..tracker.files import is_tracker_file
+
+    if args.readings is not None:
+        raise UsageError(f"--readings: only for a robot with a [tracker] table; {args.robot} has "
+                         "none (docs/tracker.md)")
+    if is_tracker_file(args.data):
+        raise UsageError(f"{args.data}: laser-tracker data (a 'pose' column), but {args.robot} has "
+                         "no [tracker] table describing the setup (registration, reflectors or "
+                         "probe): add one (docs/tracker.md)")
 
 
 def load_tracker_data(path: str, robot: Any, readings: str | None = None) -> Any:
