@@ -112,6 +112,13 @@ def identify(
     """
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+    if type(measurements).__name__ == "TrackerMeasurements":
+        # Tracker data (docs/tracker.md): the point objective, from the registration guess.
+        from ..tracker.api import tracker_identify
+
+        return tracker_identify(robot, measurements, method, bounds=bounds, x0=x0,
+                                active=active, max_evaluations=max_evaluations, seed=seed,
+                                callback=callback, progress=progress, **options)
     problem = Problem(robot, measurements, bounds)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
     if x0_arr.shape != (problem.n_params,) or not np.all(np.isfinite(x0_arr)):
