@@ -20,6 +20,7 @@ Usage::
 
     python benchmarks/bench_tracker.py [--quick] [--n 100] [--k 3]
     python benchmarks/bench_tracker.py --accuracy [--seed 1]
+    python benchmarks/bench_tracker.py --accuracy --seeds 10
 """
 
 from __future__ import annotations
@@ -99,6 +100,52 @@ def accuracy_table(seed: int) -> None:
                   f"| {res['nfev']} |")
 
 
+def accuracy_table_seeds(seeds: int) -> None:
+    """The same table through the public API (``Robot.with_tracker``, ``iwr.simulate``,
+    ``iwr.identify``, ``iwr.accuracy(truth=)``) over seeds 1..``seeds``: the median over the
+    seeds of the tool RMS on 50 fresh noise-free poses, and the range of the "after" figures."""
+    robot0 = iwr.Robot.default()
+    reg = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
+    kinds = [("pose in {0}", robot0),
+             ("pose in {T} (probe)", robot0.with_tracker(registration=reg,
+                                                          probe=(0.0, 0.0, 60.0, 0, 0, 0)))]
+    kinds += [(f"points, K = {k}", robot0.with_tracker(registration=reg,
+                                                        reflectors=REFLECTORS[:k]))
+              for k in (1, 2, 3)]
+    from iwr.tracker import TrackerNoise
+
+    readings = iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6)
+    print(f"seeds 1..{seeds}; tool RMS on 50 fresh noise-free poses: median over the seeds of "
+          "before -> after [range of after]; LM from the nominal robot (and the registration "
+          "guess)")
+    print()
+    print("| data | N | position (mm) | orientation (deg) |")
+    print("|---|---|---|---|")
+    for name, robot in kinds:
+        for n in (25, 50, 100):
+            rows = []
+            for seed in range(1, seeds + 1):
+                if robot.tracker is None:
+                    m, truth = iwr.simulate(robot, n, seed=seed, noise=iwr.Noise.realistic())
+                    fresh, _ = iwr.simulate(robot, 50, seed=seed + 1000, x=truth)
+                    res = iwr.identify(robot, m)
+                    acc = iwr.accuracy(robot, fresh, res.x)
+                else:
+                    m, truth = iwr.simulate(robot, n, seed=seed,
+                                            noise=(readings, TrackerNoise.leica()))
+                    fresh, _ = iwr.simulate(robot, 50, seed=seed + 1000, x=truth)
+                    res = iwr.identify(robot, m)
+                    acc = iwr.accuracy(robot, fresh, res.x, truth=truth)
+                rows.append([math.sqrt(np.mean(e**2)) for e in (
+                    acc.nominal.position, acc.calibrated.position, acc.nominal.orientation,
+                    acc.calibrated.orientation)])
+            a = np.array(rows)
+            med = np.median(a, axis=0)
+            print(f"| {name} | {n} | {med[0]:.3g} -> {med[1]:.3g} [{a[:, 1].min():.3g}, "
+                  f"{a[:, 1].max():.3g}] | {med[2]:.3g} -> {med[3]:.3g} [{a[:, 3].min():.3g}, "
+                  f"{a[:, 3].max():.3g}] |", flush=True)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="a smoke test: few rows, 2 repetitions")
@@ -106,7 +153,12 @@ def main() -> None:
     ap.add_argument("--k", type=int, default=3, help="reflectors K (default 3, at most 6)")
     ap.add_argument("--accuracy", action="store_true", help="the accuracy table instead")
     ap.add_argument("--seed", type=int, default=1, help="seed of --accuracy (default 1)")
+    ap.add_argument("--seeds", type=int, default=None,
+                    help="--accuracy through the public API over seeds 1..SEEDS (medians)")
     args = ap.parse_args()
+    if args.accuracy and args.seeds:
+        accuracy_table_seeds(args.seeds)
+        return
     if args.accuracy:
         accuracy_table(args.seed)
         return

@@ -8,6 +8,8 @@ on the same objective (:mod:`iwr.methods`).
 
 from __future__ import annotations
 
+from importlib import metadata as _metadata
+
 try:
     from . import _core  # noqa: F401  (the compiled module; checked first for a clear message)
 except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
@@ -40,7 +42,8 @@ from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
 from .uncertainty import Uncertainty, uncertainty
 
-__version__ = "0.1.0"
+# The version is written once, in pyproject.toml; the installed package's metadata carries it.
+__version__ = _metadata.version("iwr")
 
 
 __all__ = [

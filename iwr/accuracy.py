@@ -135,6 +135,7 @@ def accuracy(
     x: Any,
     *,
     tool: Any = None,
+    truth: Any = None,
     tolerance: float = 1e-9,
     max_iterations: int = 50,
 ) -> Accuracy:
@@ -156,6 +157,9 @@ def accuracy(
         The identified error parameters (for example ``result.x``).
     tool : array_like, shape (3,), optional
         The tool point in the platform frame {5} (mm); default its origin.
+    truth : array_like, optional
+        Tracker data only: the simulation's true vector; the errors are then tool pose errors
+        against it (else point residuals). See docs/tracker.md.
     tolerance, max_iterations
         Of the forward kinematics.
 
@@ -171,6 +175,13 @@ def accuracy(
     they do not change the leg readings predicted at any pose, hence not the pose that forward
     kinematics finds from the readings either.
     """
+    if type(measurements).__name__ == "TrackerMeasurements":
+        # Tracker data: tool pose errors against `truth` when known, else point residuals.
+        from .tracker.api import tracker_accuracy
+
+        return tracker_accuracy(robot, measurements, x, truth=truth, tool=tool)
+    if truth is not None:
+        raise ValueError("truth: only for tracker data (iwr.tracker.TrackerMeasurements)")
     if not isinstance(measurements, Measurements):
         raise TypeError(
             f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"

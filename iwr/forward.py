@@ -76,6 +76,11 @@ def forward_kinematics(
     """
     if not isinstance(robot, Robot):
         raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+    if robot.tracker is not None and np.size(x) == robot.n_params + robot.tracker.n_params:
+        # An x identified from tracker data: the poses in the tracker frame (docs/tracker.md).
+        from .tracker.api import tracker_forward_kinematics
+
+        return tracker_forward_kinematics(robot, x, q, legs)
     legs = as_matrix(legs, 6, "legs")
     n = legs.shape[0]
     q = as_matrix(q, robot.n_joints, "q", rows=n)

@@ -290,8 +290,14 @@ def identifiability(
     Returns
     -------
     IdentifiabilityReport
-        Printable; ``report.active`` is the mask to pass to :func:`iwr.identify`.
+        Printable; ``report.active`` is the mask to pass to :func:`iwr.identify`. For tracker
+        data (:class:`iwr.tracker.TrackerMeasurements`): an :class:`iwr.tracker.NullSpace` of
+        the point objective, with ``active`` too (docs/tracker.md).
     """
+    if type(measurements).__name__ == "TrackerMeasurements":
+        from .tracker.api import tracker_identifiability
+
+        return tracker_identifiability(robot, measurements, x, rtol=rtol)  # type: ignore[return-value]
     problem = Problem(robot, measurements)
     x = _x_or_zeros(robot, x)
     jac = problem.jacobian(x)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import copy
 import datetime
 import json
 import math
@@ -113,6 +114,7 @@ class Robot:
         workspace: Any = (100.0, 100.0, 60.0, 0.15, 0.15, 0.15),
         name: str = "robot",
         provenance: Mapping[str, Any] | None = None,
+        tracker: Any = None,
     ) -> None:
         if not isinstance(joint_types, str) or any(c not in "PR" for c in joint_types):
             raise ValueError(
@@ -143,6 +145,16 @@ class Robot:
         self.home_pose = _as_array(home_pose, (6,), "home_pose", _POSE_UNITS)
         self.workspace = _as_array(workspace, (6,), "workspace", _POSE_UNITS)
         self.provenance = _provenance(provenance or {}, "provenance")
+        if tracker is not None:
+            from .tracker.setup import TrackerSetup  # here: iwr.tracker imports this module
+
+            if not isinstance(tracker, TrackerSetup):
+                raise TypeError(f"tracker: expected an iwr.tracker.TrackerSetup or None, got "
+                                f"{type(tracker).__name__}")
+        #: The laser-tracker measurement setup (:class:`iwr.tracker.TrackerSetup`) or None: the
+        #: data are then poses in {0}. Its parameters are not in :attr:`n_params`
+        #: (docs/tracker.md).
+        self.tracker = tracker
         if np.any(self.workspace < 0):
             raise ValueError(f"workspace: half-widths must be >= 0, got {self.workspace}")
         self._geometry = _core.Geometry(
@@ -215,7 +227,36 @@ class Robot:
             self.home_pose,
             self.workspace,
             name=self.name,
+            tracker=self.tracker,
         )
+
+    def with_tracker(self, registration: Any = None, *, reflectors: Any = None, probe: Any = None,
+                     probe_length: float = 100.0, names: Any = None, setup: Any = None) -> Robot:
+        """This robot measured by a laser tracker (docs/tracker.md): ``registration`` the nominal
+        pose ``(x, y, z, alpha, beta, gamma)`` of {0} in the tracker frame {T}, and either
+        ``reflectors=[(x, y, z), ...]`` (nominal reflector positions in {5}) or ``probe=(x, y, z,
+        alpha, beta, gamma)`` (a 6-DOF probe's nominal pose in {5}); or a ready ``setup``
+        (:class:`iwr.tracker.TrackerSetup`). ``with_tracker(None)`` removes it.
+
+        :attr:`n_params` stays the robot's own ``4 n + 42``; the setup's parameters are appended
+        after them in the problems built for tracker data (``iwr.tracker.TrackerProblem``'s
+        ``n_params`` and ``parameter_names``), and in every ``x`` of the public API for them.
+        """
+        from .tracker.setup import TrackerSetup  # here: iwr.tracker imports this module
+
+        if setup is None and registration is not None:
+            setup = TrackerSetup(registration, reflectors=reflectors, probe=probe,
+                                 probe_length=probe_length, names=names)
+        elif setup is not None and (registration is not None or reflectors is not None
+                                    or probe is not None):
+            raise ValueError("with_tracker: give either setup= or registration= with "
+                             "reflectors= or probe=, not both")
+        out = copy.copy(self)
+        out.tracker = setup
+        if setup is not None and not isinstance(setup, TrackerSetup):
+            raise TypeError(f"setup: expected an iwr.tracker.TrackerSetup, got "
+                            f"{type(setup).__name__}")
+        return out
 
     def carriage_transform(self, q: Any, x: Any = None) -> np.ndarray:
         """The 4x4 transform 0T4 of the carriage at joint readings ``q`` (eq. 2), with the error
@@ -318,6 +359,7 @@ class Robot:
                 "home_pose": self.home_pose.tolist(),
                 "workspace": self.workspace.tolist(),
             },
+            **({"tracker": self.tracker.to_dict()} if self.tracker is not None else {}),
         }
 
     def to_toml(self, path: str | os.PathLike[str],
@@ -361,6 +403,16 @@ class Robot:
                 out.append("]")
             else:
                 out.append(f"{k} = {_toml_value(v)}")
+        if self.tracker is not None:
+            out += ["", "[tracker]  # laser tracker: registration = {0} in {T} (x, y, z, alpha, "
+                    "beta, gamma); reflectors (or probe) in {5}"]
+            for k, v in d["tracker"].items():
+                if v and isinstance(v, list) and isinstance(v[0], list):
+                    out.append(f"{k} = [")
+                    out += [f"    {_toml_value(row)}," for row in v]
+                    out.append("]")
+                else:
+                    out.append(f"{k} = {_toml_value(v)}")
         atomic_write_text(path, "\n".join(out) + "\n")
 
     @classmethod
@@ -407,7 +459,8 @@ class Robot:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Robot:
         """Build a robot from the dictionary form of :meth:`to_dict`; strict about keys."""
-        _check_keys(data, {"name", "units", "carriage", "hexapod", "provenance"}, {"hexapod"}, "")
+        _check_keys(data, {"name", "units", "carriage", "hexapod", "provenance", "tracker"},
+                    {"hexapod"}, "")
         units = data.get("units", {"length": "mm", "angle": "rad"})
         _check_keys(units, {"length", "angle"}, set(), "units")
         if units.get("length", "mm") != "mm" or units.get("angle", "rad") != "rad":
@@ -442,6 +495,10 @@ class Robot:
         for key in ("home_pose", "workspace"):
             if key in hexa:
                 kwargs[key] = _numbers(hexa[key], 6, f"hexapod.{key}", _POSE_UNITS)
+        if "tracker" in data:
+            from .tracker.setup import TrackerSetup  # here: iwr.tracker imports this module
+
+            kwargs["tracker"] = TrackerSetup.from_dict(data["tracker"], "tracker")
         return cls(
             types,
             np.array(dh, dtype=float).reshape(len(types), 4),

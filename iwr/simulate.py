@@ -127,7 +127,11 @@ def simulate(
         The 'actual' robot's error vector. Default: uniform within the default bounds
         (+-0.5 mm, +-0.5 degree).
     noise : Noise, optional
-        Measurement noise; default none (the paper's simulation).
+        Measurement noise; default none (the paper's simulation). For a robot with a tracker
+        (``Robot.with_tracker``): None, an ``iwr.Noise`` (readings), an
+        ``iwr.tracker.TrackerNoise`` or a pair of both; the data are then
+        :class:`iwr.tracker.TrackerMeasurements` and ``x_true`` covers the setup's parameters
+        too (docs/tracker.md).
 
     Returns
     -------
@@ -138,6 +142,11 @@ def simulate(
     """
     if not isinstance(robot, Robot):
         raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+    if robot.tracker is not None:
+        # A robot measured by a laser tracker: points (or probe poses) in {T} (docs/tracker.md).
+        from .tracker.api import tracker_simulate
+
+        return tracker_simulate(robot, n_poses, seed=seed, x=x, noise=noise)  # type: ignore[return-value]
     if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ValueError(f"n_poses: {n_poses!r}; expected a positive integer")
     noise = noise if noise is not None else Noise()

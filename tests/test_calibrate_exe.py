@@ -428,7 +428,7 @@ def test_a_result_that_is_not_finite_is_never_a_success_and_loads(tmp_path: Path
     assert not np.isfinite(again.fun) and not again.success
 
 
-# --- the launcher ----------------------------------------------------------------------------------
+# --- the launcher ------------------------------------------------------------------------------
 
 
 def test_launcher_result_matches_identify(files: dict[str, Path]) -> None:
@@ -618,3 +618,16 @@ def test_launcher_resume_keeps_the_run_problem(files: dict[str, Path], tmp_path:
                    "--generations", 5, "--quiet")
     assert proc.returncode == 0, proc.stderr
     assert iwr.load_result(tmp_path / "k.json").nit == 5
+
+
+def test_one_version_everywhere() -> None:
+    """The version is written once (pyproject.toml): the package and the engine report it."""
+    try:
+        import tomllib
+    except ModuleNotFoundError:  # Python 3.10
+        import tomli as tomllib
+    pyproject = Path(__file__).resolve().parents[1] / "pyproject.toml"
+    version = tomllib.loads(pyproject.read_text(encoding="utf-8"))["project"]["version"]
+    assert iwr.__version__ == version
+    proc = run_engine("--version")
+    assert proc.returncode == 0 and proc.stdout.split()[-1] == version, proc.stdout

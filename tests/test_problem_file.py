@@ -128,7 +128,7 @@ def test_the_writer_refuses_what_the_reader_would(problem: iwr.Problem) -> None:
         _core._encode_problem(**{**args, "parameter_names": problem.parameter_names[:-1]})
 
 
-# --- the thread pool: no hang, a cap, fork ---------------------------------------------------------
+# --- the thread pool: no hang, a cap, fork -----------------------------------------------------
 
 
 def _in_child(body: Any, timeout: float = 60) -> int:

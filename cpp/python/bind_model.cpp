@@ -8,30 +8,7 @@ namespace iwr::python {
 
 namespace {
 
-// The objective together with a persistent thread pool for population batches.
-class PyObjective {
-public:
-    PyObjective(const Geometry& g, const RowMatrixXd& q, const RowMatrixXd& poses,
-                const RowMatrixXd& legs, const RowMatrixXd& weights)
-        : obj_(std::make_shared<Objective>(g, q, poses, legs, weights)) {}
-
-    ThreadPool& pool(int threads) {
-        const int n = ThreadPool::resolve(threads);
-        if (pool_ && !pool_->usable_here()) {
-            // Made before a fork(): its threads do not exist in this child, and destroying it could
-            // wait on them; leave it (a few bytes) and make a new pool here.
-            (void)pool_.release();
-        }
-        if (!pool_ || pool_->size() != n) {
-            pool_.reset();
-            pool_ = std::make_unique<ThreadPool>(n);
-        }
-        return *pool_;
-    }
-    std::shared_ptr<Objective> obj_;
-    std::unique_ptr<ThreadPool> pool_;
-    std::mutex mutex_;  // one batch at a time per pool: Python threads may share a Problem
-};
+using PyObjective = Pooled<Objective>;
 
 }  // namespace
 
@@ -73,8 +50,11 @@ void bind_model(py::module_& m) {
         py::arg("geometry"), py::arg("errors"), py::arg("q"), py::arg("poses"));
 
     py::class_<PyObjective>(m, "Objective")
-        .def(py::init<const Geometry&, const RowMatrixXd&, const RowMatrixXd&, const RowMatrixXd&,
-                      const RowMatrixXd&>(),
+        .def(py::init([](const Geometry& g, const RowMatrixXd& q, const RowMatrixXd& poses,
+                         const RowMatrixXd& legs, const RowMatrixXd& weights) {
+                 return std::make_unique<PyObjective>(
+                     std::make_shared<Objective>(g, q, poses, legs, weights));
+             }),
              py::arg("geometry"), py::arg("q"), py::arg("poses"), py::arg("legs"),
              py::arg("weights") = RowMatrixXd())
         .def_property_readonly("n_params", [](const PyObjective& o) { return o.obj_->n_params(); })
@@ -95,22 +75,7 @@ void bind_model(py::module_& m) {
                 return py::make_tuple(r, j);
             },
             py::arg("x"), "Residuals and their exact Jacobian at x.")
-        .def(
-            "cost_batch",
-            [](PyObjective& o, const RowRef& X, int threads) {
-                if (X.cols() != o.obj_->n_params())
-                    throw std::invalid_argument(
-                        "X: shape (" + std::to_string(X.rows()) + ", " + std::to_string(X.cols()) +
-                        "); expected (M, " + std::to_string(o.obj_->n_params()) + ")");
-                require_finite(X.data(), X.size(), "X");
-                VectorXd out(X.rows());
-                {
-                    py::gil_scoped_release release;
-                    std::lock_guard<std::mutex> lock(o.mutex_);
-                    o.obj_->cost_batch(X.data(), X.rows(), out.data(), o.pool(threads));
-                }
-                return out;
-            },
+        .def("cost_batch", &PyObjective::cost_batch,
             py::arg("X"), py::arg("threads") = 0);
 }
 

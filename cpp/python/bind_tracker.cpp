@@ -9,19 +9,7 @@ namespace iwr::python {
 
 namespace {
 
-// The objective together with a persistent thread pool for population batches (as PyObjective).
-class PyTrackerObjective {
-public:
-    explicit PyTrackerObjective(std::shared_ptr<TrackerObjective> obj) : obj_(std::move(obj)) {}
-    ThreadPool& pool(int threads) {
-        const int n = ThreadPool::resolve(threads);
-        if (!pool_ || pool_->size() != n) pool_ = std::make_unique<ThreadPool>(n);
-        return *pool_;
-    }
-    std::shared_ptr<TrackerObjective> obj_;
-    std::unique_ptr<ThreadPool> pool_;
-    std::mutex mutex_;
-};
+using PyTrackerObjective = Pooled<TrackerObjective>;
 
 TrackerSetup make_setup(const std::string& kind, const Vector6d& registration,
                         const RowMatrixXd& reflectors, const Vector6d& probe, double length) {
@@ -93,22 +81,7 @@ void bind_tracker(py::module_& m) {
         .def("predicted_points",
              [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->predicted_points(x); },
              py::arg("x"))
-        .def(
-            "cost_batch",
-            [](PyTrackerObjective& o, const RowRef& X, int threads) {
-                if (X.cols() != o.obj_->n_params())
-                    throw std::invalid_argument(
-                        "X: shape (" + std::to_string(X.rows()) + ", " + std::to_string(X.cols()) +
-                        "); expected (M, " + std::to_string(o.obj_->n_params()) + ")");
-                require_finite(X.data(), X.size(), "X");
-                VectorXd out(X.rows());
-                {
-                    py::gil_scoped_release release;
-                    std::lock_guard<std::mutex> lock(o.mutex_);
-                    o.obj_->cost_batch(X.data(), X.rows(), out.data(), o.pool(threads));
-                }
-                return out;
-            },
+        .def("cost_batch", &PyTrackerObjective::cost_batch,
             py::arg("X"), py::arg("threads") = 0);
 }
 

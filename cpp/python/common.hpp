@@ -7,7 +7,13 @@
 #include <pybind11/pybind11.h>
 #include <pybind11/stl.h>
 
+#include <memory>
+#include <mutex>
+#include <string>
+#include <utility>
+
 #include "iwr/model.hpp"
+#include "iwr/parallel.hpp"
 
 namespace py = pybind11;
 
@@ -15,6 +21,47 @@ namespace iwr::python {
 // Row-major on purpose: NumPy's default layout, so C-contiguous float64 arrays pass without a copy.
 using RowRef = Eigen::Ref<const RowMatrixXd>;
 using VecRef = Eigen::Ref<const VectorXd>;
+
+// An objective (Objective, TrackerObjective) with the persistent thread pool its population
+// batches run on.
+template <class T>
+struct Pooled {
+    explicit Pooled(std::shared_ptr<T> obj) : obj_(std::move(obj)) {}
+
+    ThreadPool& pool(int threads) {
+        const int n = ThreadPool::resolve(threads);
+        if (pool_ && !pool_->usable_here()) {
+            // Made before a fork(): its threads do not exist in this child, and destroying it could
+            // wait on them; leave it (a few bytes) and make a new pool here.
+            (void)pool_.release();
+        }
+        if (!pool_ || pool_->size() != n) {
+            pool_.reset();
+            pool_ = std::make_unique<ThreadPool>(n);
+        }
+        return *pool_;
+    }
+
+    /// The costs of the rows of X (M, n_params), on `threads` threads without the GIL.
+    VectorXd cost_batch(const RowRef& X, int threads) {
+        if (X.cols() != obj_->n_params())
+            throw std::invalid_argument("X: shape (" + std::to_string(X.rows()) + ", " +
+                                        std::to_string(X.cols()) + "); expected (M, " +
+                                        std::to_string(obj_->n_params()) + ")");
+        require_finite(X.data(), X.size(), "X");
+        VectorXd out(X.rows());
+        {
+            py::gil_scoped_release release;
+            std::lock_guard<std::mutex> lock(mutex_);
+            obj_->cost_batch(X.data(), X.rows(), out.data(), pool(threads));
+        }
+        return out;
+    }
+
+    std::shared_ptr<T> obj_;
+    std::unique_ptr<ThreadPool> pool_;
+    std::mutex mutex_;  // one batch at a time per pool: Python threads may share a Problem
+};
 
 void bind_model(py::module_& m);
 void bind_forward(py::module_& m);

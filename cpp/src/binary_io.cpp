@@ -54,6 +54,20 @@ std::string Reader::str(const char* field, std::size_t max_len) {
     return std::string(take(n, field), n);
 }
 
+std::string Reader::text(const char* field, std::size_t max_len, bool allow_empty) {
+    std::string s = str(field, max_len);
+    for (unsigned char c : s)
+        if (c < 0x20 || c == 0x7f) fail(std::string(field) + ": holds a control character");
+    if (!allow_empty && s.empty()) fail(std::string(field) + ": empty");
+    return s;
+}
+
+bool Reader::flag(const char* field) {
+    const std::uint8_t v = u8(field);
+    if (v > 1) fail(std::string(field) + ": " + std::to_string(v) + ", expected 0 or 1");
+    return v == 1;
+}
+
 std::vector<double> Reader::doubles(const char* field) {
     const std::size_t n = count(field, 8);
     std::vector<double> v(n);

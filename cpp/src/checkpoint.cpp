@@ -13,19 +13,6 @@ const char kMagic[8] = {'I', 'W', 'R', 'C', 'K', 'P', 'T', '\x1a'};
 constexpr std::uint64_t kMaxFile = std::uint64_t(64) << 30;
 constexpr std::int64_t kInt64Max = std::numeric_limits<std::int64_t>::max();
 
-std::string printable_text(io::Reader& r, const char* field, std::size_t max_len) {
-    std::string s = r.str(field, max_len);
-    for (unsigned char c : s)
-        if (c < 0x20 || c == 0x7f) r.fail(std::string(field) + ": holds a control character");
-    return s;
-}
-
-bool flag(io::Reader& r, const char* field) {
-    const std::uint8_t v = r.u8(field);
-    if (v > 1) r.fail(std::string(field) + " is " + std::to_string(v) + ", expected 0 or 1");
-    return v == 1;
-}
-
 }  // namespace
 
 std::string encode_checkpoint(const Checkpoint& c, const de::State& state) {
@@ -59,11 +46,11 @@ Checkpoint decode_checkpoint(const std::string& bytes, const std::string& contex
         io::unseal(bytes, kMagic, kCheckpointVersion, context, "an iwr-engine checkpoint");
     io::Reader r(payload.data(), payload.size(), context);
     Checkpoint c;
-    c.program = printable_text(r, "program", 256);
+    c.program = r.text("program", 256);
     c.robot_fingerprint = r.u64("robot fingerprint");
     c.data_fingerprint = r.u64("data fingerprint");
     c.settings_fingerprint = r.u64("settings fingerprint");
-    c.problem_file = printable_text(r, "problem file", 4096);
+    c.problem_file = r.text("problem file", 4096);
     const std::int64_t g = r.i64_in("generations", -1, kInt64Max);
     if (g >= 0) c.generations = g;
     const std::int64_t m = r.i64_in("max evaluations", -1, kInt64Max);
@@ -73,14 +60,14 @@ Checkpoint decode_checkpoint(const std::string& bytes, const std::string& contex
     if (std::isinf(t)) r.fail("target cost is not finite");
     if (!std::isnan(t)) c.target_cost = t;
     c.checkpoint_every = r.i64_in("checkpoint every", 0, kInt64Max);
-    c.preset_paper = flag(r, "preset");
-    c.had_log = flag(r, "had a log");
-    c.success = flag(r, "success");
+    c.preset_paper = r.flag("preset");
+    c.had_log = r.flag("had a log");
+    c.success = r.flag("success");
     c.message = r.str("message", 4096);
     c.fun = r.f64("cost");
     if (c.success && !std::isfinite(c.fun)) r.fail("success with a cost that is not finite");
     c.x = r.doubles("x");
-    c.resumed_from = printable_text(r, "resumed from", 4096);
+    c.resumed_from = r.text("resumed from", 4096);
     const std::string state = r.str("engine state", payload.size());
     r.finish();
     try {

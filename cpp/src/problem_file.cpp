@@ -36,25 +36,6 @@ void get(io::Reader& r, const char* field, M& m, Eigen::Index rows, Eigen::Index
         for (Eigen::Index j = 0; j < cols; ++j) m(i, j) = v[static_cast<std::size_t>(i * cols + j)];
 }
 
-bool printable(const std::string& s) {
-    for (unsigned char c : s)
-        if (c < 0x20 || c == 0x7f) return false;
-    return true;
-}
-
-std::string text(io::Reader& r, const char* field, bool allow_empty = true) {
-    std::string s = r.str(field, kMaxText);
-    if (!printable(s)) r.fail(std::string(field) + ": holds a control character");
-    if (!allow_empty && s.empty()) r.fail(std::string(field) + ": empty");
-    return s;
-}
-
-bool flag(io::Reader& r, const char* field) {
-    const std::uint8_t v = r.u8(field);
-    if (v > 1) r.fail(std::string(field) + ": " + std::to_string(v) + ", expected 0 or 1");
-    return v == 1;
-}
-
 }  // namespace
 
 Geometry ProblemData::geometry() const { return Geometry(joint_types, dh, base, platform, leg_offsets); }
@@ -122,7 +103,7 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
     const std::string payload = io::unseal(bytes, kMagic, kProblemVersion, context, "an iwr problem file");
     io::Reader r(payload.data(), payload.size(), context);
     ProblemData p;
-    p.robot_name = text(r, "robot name");
+    p.robot_name = r.text("robot name", kMaxText);
     p.joint_types = r.str("joint types", kMaxJoints);
     for (char c : p.joint_types)
         if (c != 'P' && c != 'R') r.fail("joint types: '" + std::string(1, c) + "'; expected P or R");
@@ -143,7 +124,7 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
     get(r, "workspace", p.workspace, 6, 1);
     for (int i = 0; i < 6; ++i)
         if (p.workspace(i) < 0) r.fail("workspace: half-width " + std::to_string(i) + " is negative");
-    p.has_measurement_joint_types = flag(r, "has measurement joint types");
+    p.has_measurement_joint_types = r.flag("has measurement joint types");
     p.measurement_joint_types = r.str("measurement joint types", kMaxJoints);
     if (p.has_measurement_joint_types && p.measurement_joint_types != p.joint_types)
         r.fail("measurement joint types '" + p.measurement_joint_types + "' do not match the robot's '" +
@@ -161,7 +142,7 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
     get(r, "q", p.q, rows, n);
     get(r, "poses", p.poses, rows, 6);
     get(r, "legs", p.legs, rows, 6);
-    if (flag(r, "has weights")) {
+    if (r.flag("has weights")) {
         // Any finite weight: their scale is the user's (the cost scales with it).
         get(r, "weights", p.weights, rows, 6, std::numeric_limits<double>::max());
         for (Eigen::Index k = 0; k < p.weights.size(); ++k)
@@ -186,13 +167,14 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
     if (nn != np)
         r.fail("parameter names: " + std::to_string(nn) + "; expected " + std::to_string(np));
     p.parameter_names.reserve(nn);
-    for (std::size_t k = 0; k < nn; ++k) p.parameter_names.push_back(text(r, "parameter name", false));
+    for (std::size_t k = 0; k < nn; ++k)
+        p.parameter_names.push_back(r.text("parameter name", kMaxText, false));
     const std::size_t ns = r.count("sources", 24);
     if (ns > kMaxSources) r.fail("sources: " + std::to_string(ns) + "; at most " + std::to_string(kMaxSources));
     for (std::size_t k = 0; k < ns; ++k) {
         ProblemSource s;
-        s.role = text(r, "source role", false);
-        s.path = text(r, "source path");
+        s.role = r.text("source role", kMaxText, false);
+        s.path = r.text("source path", kMaxText);
         s.sha256 = r.str("source sha256", 64);
         for (char c : s.sha256)
             if (!((c >= '0' && c <= '9') || (c >= 'a' && c <= 'f'))) r.fail("source sha256: not hexadecimal");

@@ -7,26 +7,11 @@
 #include <vector>
 
 #include "check.hpp"
+#include "fixtures.hpp"
 #include "iwr/implicit_loop.hpp"
 #include "iwr/model.hpp"
 
 namespace {
-
-iwr::Geometry iwr_geometry(bool with_carriage) {
-    const double h = M_PI / 2;
-    iwr::RowMatrixXd dh(4, 4);
-    dh << h, 0, 500, 0, h, 0, 300, h, h, 400, 250, 0, -h, 300, 0, 0;
-    iwr::LegMatrix base, platform;
-    const double b_deg[6] = {-10, 10, 110, 130, 230, 250}, p_deg[6] = {-50, 50, 70, 170, 190, 290};
-    for (int j = 0; j < 6; ++j) {
-        base.row(j) << 400 * std::cos(b_deg[j] * M_PI / 180), 400 * std::sin(b_deg[j] * M_PI / 180), 0;
-        platform.row(j) << 250 * std::cos(p_deg[j] * M_PI / 180),
-            250 * std::sin(p_deg[j] * M_PI / 180), 0;
-    }
-    iwr::LegVector l0 = iwr::LegVector::Constant(600);
-    if (!with_carriage) return iwr::Geometry("", iwr::RowMatrixXd(0, 4), base, platform, l0);
-    return iwr::Geometry("PPRR", dh, base, platform, l0);
-}
 
 // World poses: 0T4(x, q) times a local pose around 750 mm above the base plate.
 struct Data {
@@ -72,7 +57,7 @@ IWR_TEST(derivatives) {
     std::mt19937_64 rng(7);
     std::uniform_real_distribution<double> u(-1, 1);
     for (bool carriage : {true, false}) {
-        const iwr::Geometry g = iwr_geometry(carriage);
+        const iwr::Geometry g = iwr_test::default_iwr(carriage);
         const iwr::VectorXd x = random_errors(g, rng);
         const Data d = make_data(g, x, 5, rng);
         const int ny = g.n_joints() + 6;
@@ -126,7 +111,7 @@ iwr::RowMatrixXd sigma_matrix(int n, int nj, double legs, double q, double pos, 
 // The standalone hexapod: all 42 parameters are identifiable (docs/identifiability.md).
 IWR_TEST(noise_free_recovery) {
     std::mt19937_64 rng(11);
-    const iwr::Geometry g = iwr_geometry(false);
+    const iwr::Geometry g = iwr_test::default_iwr(false);
     const iwr::VectorXd truth = random_errors(g, rng);
     const Data d = make_data(g, truth, 30, rng);
     std::vector<int> active(42);
@@ -145,7 +130,7 @@ IWR_TEST(noise_free_recovery) {
 IWR_TEST(noisy_statistics) {
     std::mt19937_64 rng(12);
     std::normal_distribution<double> gauss;
-    const iwr::Geometry g = iwr_geometry(true);
+    const iwr::Geometry g = iwr_test::default_iwr(true);
     const int n = 40, nj = 4;
     const iwr::VectorXd truth = random_errors(g, rng);
     Data d = make_data(g, truth, n, rng);
@@ -184,7 +169,7 @@ IWR_TEST(noisy_statistics) {
 }
 
 IWR_TEST(argument_checks) {
-    const iwr::Geometry g = iwr_geometry(false);
+    const iwr::Geometry g = iwr_test::default_iwr(false);
     std::mt19937_64 rng(3);
     const Data d = make_data(g, iwr::VectorXd::Zero(42), 3, rng);
     std::vector<int> active = {0, 1, 2};

@@ -8,23 +8,10 @@
 #include <string>
 
 #include "check.hpp"
+#include "fixtures.hpp"
 #include "iwr/tracker.hpp"
 
 namespace {
-
-// The default IWR of docs/model.md (legs pairing 40 degrees apart: not architecturally singular).
-iwr::Geometry iwr_geometry() {
-    const double h = M_PI / 2;
-    iwr::RowMatrixXd dh(4, 4);
-    dh << h, 0, 500, 0, h, 0, 300, h, h, 400, 250, 0, -h, 300, 0, 0;
-    iwr::LegMatrix base, platform;
-    const double ub[6] = {-10, 10, 110, 130, 230, 250}, pb[6] = {-50, 50, 70, 170, 190, 290};
-    for (int j = 0; j < 6; ++j) {
-        base.row(j) << 400 * std::cos(ub[j] * M_PI / 180), 400 * std::sin(ub[j] * M_PI / 180), 0;
-        platform.row(j) << 250 * std::cos(pb[j] * M_PI / 180), 250 * std::sin(pb[j] * M_PI / 180), 0;
-    }
-    return iwr::Geometry("PPRR", dh, base, platform, iwr::LegVector::Constant(600));
-}
 
 struct Data {
     iwr::RowMatrixXd q, legs, points;
@@ -77,7 +64,7 @@ double jacobian_error(const iwr::TrackerObjective& obj, const iwr::VectorXd& x) 
 
 IWR_TEST(points_jacobian) {
     std::mt19937_64 rng(7);
-    const iwr::Geometry g = iwr_geometry();
+    const iwr::Geometry g = iwr_test::default_iwr();
     iwr::Vector6d reg;
     reg << 2000, -500, 300, M_PI / 2, 0.1, -0.2;  // 2 m away, turned 90 degrees
     iwr::RowMatrixXd refl(3, 3);
@@ -108,7 +95,7 @@ IWR_TEST(points_jacobian) {
 
 IWR_TEST(probe_jacobian) {
     std::mt19937_64 rng(8);
-    const iwr::Geometry g = iwr_geometry();
+    const iwr::Geometry g = iwr_test::default_iwr();
     iwr::Vector6d reg, probe;
     reg << -1500, 2000, 100, -M_PI / 2, 0.05, 0.1;
     probe << 20, -10, 80, 0.3, -0.2, 0.1;
@@ -128,7 +115,7 @@ IWR_TEST(probe_jacobian) {
 
 IWR_TEST(batch_and_failures) {
     std::mt19937_64 rng(9);
-    const iwr::Geometry g = iwr_geometry();
+    const iwr::Geometry g = iwr_test::default_iwr();
     iwr::Vector6d reg;
     reg << 2000, 0, 0, M_PI / 2, 0, 0;
     iwr::RowMatrixXd refl(2, 3);
@@ -170,7 +157,7 @@ IWR_TEST(batch_and_failures) {
 }
 
 IWR_TEST(validation) {
-    const iwr::Geometry g = iwr_geometry();
+    const iwr::Geometry g = iwr_test::default_iwr();
     iwr::Vector6d reg = iwr::Vector6d::Zero(), home;
     home << 0, 0, 750, 0, 0, 0;
     bool thrown = false;

@@ -35,6 +35,8 @@ from ._base import (
     progress_enabled,
 )
 from .simulate import write_truth
+from .tracker import add_arguments as add_tracker_arguments
+from .tracker import calibrate_tracker, refuse_tracker_data
 
 EXAMPLE_SEED = 2024
 EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 0.2)
@@ -78,6 +80,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("robot", nargs="?", metavar="ROBOT.toml", help="the nominal robot")
     p.add_argument("data", nargs="?", metavar="DATA.csv", help="the measurements (docs/data.md)")
+    add_tracker_arguments(p)  # --readings (docs/tracker.md)
     p.add_argument("--method", default=None,
                    help="identification method: efficient, lm, de, crs2, bobyqa (default: "
                    "$IWR_METHOD, else efficient when a noise model is known, else lm)")
@@ -206,6 +209,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.poses is not None:
         raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     robot = load_robot(args.robot)
+    if robot.tracker is not None:  # laser-tracker data (docs/tracker.md)
+        if "noise" in kwargs or method == "efficient":
+            raise UsageError("--noise, --method efficient: the efficient estimator does not yet "
+                             "handle laser-tracker point data (docs/estimation.md, Limits); "
+                             "calibrate it without --noise")
+        return calibrate_tracker(args, robot, method, kwargs)
+    refuse_tracker_data(args)  # tracker data, or --readings, with a robot that has no tracker
     data = load_data(args.data, robot)
     validation = load_data(args.validation, robot) if args.validation else None
     out = Path(args.out or "iwr-calibration")

@@ -320,6 +320,14 @@ def _main(argv: list[str]) -> int:
 
         assert robot_path is not None and data_path is not None
         robot = Robot.from_toml(robot_path)
+        from ..tracker.files import is_tracker_file
+
+        if robot.tracker is not None or is_tracker_file(data_path):
+            # The engine's problem file holds leg data only (docs/tracker.md).
+            raise _Usage(f"{robot_path if robot.tracker is not None else data_path}: "
+                         "laser-tracker data (a [tracker] table, or points/probe poses in the "
+                         "tracker frame) are not supported by the C++ engine yet; use "
+                         f"iwr calibrate {robot_path} {data_path}")
         data = Measurements.from_csv(data_path, robot=robot)  # the checks of `iwr calibrate`
         problem = Problem(robot, data, bounds=own.get("--bounds", "default"))
         if resume is not None:

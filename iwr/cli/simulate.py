@@ -68,6 +68,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from ..simulate import simulate
 
     robot = load_robot(args.robot) if args.robot else Robot.default()
+    if robot.tracker is not None:  # a [tracker] table: points or probe poses (docs/tracker.md)
+        from .tracker import simulate_tracker_files
+
+        return simulate_tracker_files(args, robot)
     data, truth = simulate(robot, n_poses=args.poses, seed=args.seed, noise=args.noise)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

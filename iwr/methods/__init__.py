@@ -149,6 +149,17 @@ def identify(
         method = DEFAULT_METHOD if noise is None else "efficient"
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+    if type(measurements).__name__ == "TrackerMeasurements":
+        if noise is not None or method == "efficient":
+            raise ValueError("noise, method 'efficient': the efficient estimator does not yet "
+                             "handle laser-tracker point data (docs/estimation.md, Limits); "
+                             "identify it without a noise model")
+        # Tracker data (docs/tracker.md): the point objective, from the registration guess.
+        from ..tracker.api import tracker_identify
+
+        return tracker_identify(robot, measurements, method, bounds=bounds, x0=x0,
+                                active=active, max_evaluations=max_evaluations, seed=seed,
+                                callback=callback, progress=progress, **options)
     problem = Problem(robot, measurements, bounds)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
     if x0_arr.shape != (problem.n_params,) or not np.all(np.isfinite(x0_arr)):

@@ -11,7 +11,16 @@ with the registration and the offsets identified beside the robot's errors (docs
 from __future__ import annotations
 
 from .analysis import NullSpace, null_space, tool_frames, tool_pose_errors
+from .api import (
+    tracker_accuracy,
+    tracker_forward_kinematics,
+    tracker_identifiability,
+    tracker_identify,
+    tracker_problem,
+    tracker_simulate,
+)
 from .data import TrackerMeasurements
+from .files import is_tracker_file, read_tracker_data, write_tracker_long, write_tracker_wide
 from .problem import FAILED_RESIDUAL, TrackerProblem
 from .registration import RegistrationError, RegistrationGuess, guess_registration, kabsch
 from .setup import TrackerSetup, pose_from_matrix_safe
@@ -27,6 +36,16 @@ __all__ = [
     "TrackerProblem",
     "TrackerSetup",
     "guess_registration",
+    "is_tracker_file",
+    "read_tracker_data",
+    "tracker_accuracy",
+    "tracker_forward_kinematics",
+    "tracker_identifiability",
+    "tracker_identify",
+    "tracker_problem",
+    "tracker_simulate",
+    "write_tracker_long",
+    "write_tracker_wide",
     "kabsch",
     "null_space",
     "pose_from_matrix_safe",

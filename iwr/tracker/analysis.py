@@ -120,6 +120,12 @@ class NullSpace:
     vectors: np.ndarray
     scale: np.ndarray = field(repr=False)
 
+    @property
+    def active(self) -> np.ndarray:
+        """The parameters kept (not left out): the mask to pass to ``iwr.identify(active=)``."""
+        out = set(self.left_out)
+        return np.array([n not in out for n in self.parameter_names], dtype=bool)
+
     def describe(self, k: int, tol: float = 1e-6) -> str:
         """``"tracker.rz = -1 * joint1.dtheta"``-style text of null direction k: its nonzero
         components, largest scaled first."""

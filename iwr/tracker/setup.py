@@ -208,6 +208,21 @@ class TrackerSetup:
                             probe_length=self.probe_length,
                             names=self.names if self.kind == "points" else None)
 
+    def with_parameters(self, x_setup: Any) -> TrackerSetup:
+        """The setup whose nominal values are this one's corrected by ``x_setup`` (the setup's
+        part of an identified ``x``): the calibrated registration and offsets, to write with
+        the calibrated robot."""
+        xs = self._xs(x_setup)
+        reg = pose_from_matrix_safe(self.registration_matrix(xs))
+        if self.kind == "points":
+            return TrackerSetup(reg, reflectors=self.platform_points(xs),
+                                probe_length=self.probe_length, names=self.names)
+        assert self.probe is not None
+        t = np.eye(4)
+        t[:3, :3] = Rotation.from_rotvec(xs[9:12]).as_matrix() @ euler_zyx(*self.probe[3:])
+        t[:3, 3] = self.probe[:3] + xs[6:9]
+        return TrackerSetup(reg, probe=pose_from_matrix_safe(t), probe_length=self.probe_length)
+
     # -- TOML -----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
         """A TOML-able table: ``registration``, then ``reflectors`` (and ``names``) or ``probe``

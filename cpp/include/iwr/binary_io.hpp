@@ -131,6 +131,10 @@ public:
     }
     /// A string of at most max_len bytes.
     std::string str(const char* field, std::size_t max_len = 1 << 16);
+    /// A string of printable characters (no control character), at most `max_len` bytes.
+    std::string text(const char* field, std::size_t max_len, bool allow_empty = true);
+    /// A byte that must be 0 or 1.
+    bool flag(const char* field);
     /// A count of items of `item_bytes` bytes each that must still fit in the bytes left.
     std::size_t count(const char* field, std::size_t item_bytes);
     std::vector<double> doubles(const char* field);

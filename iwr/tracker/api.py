@@ -1,0 +1,288 @@
+"""The public API on tracker data: what :func:`iwr.simulate`, :func:`iwr.identify`,
+:func:`iwr.accuracy`, :func:`iwr.identifiability` and :func:`iwr.forward_kinematics` do when the
+robot carries a tracker setup (``Robot.with_tracker``) and the data are
+:class:`TrackerMeasurements` (docs/tracker.md, "The public API")."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+from typing import Any
+
+import numpy as np
+from scipy.optimize import OptimizeResult
+from scipy.spatial.transform import Rotation
+
+from ..accuracy import Accuracy, PoseErrors
+from ..robot import Robot
+from ..simulate import Noise
+from .analysis import NullSpace, null_space, tool_pose_errors
+from .data import TrackerMeasurements
+from .problem import TrackerProblem
+from .registration import kabsch
+from .setup import TrackerSetup, pose_from_matrix_safe
+from .simulate import TrackerNoise, simulate_tracker
+
+__all__ = [
+    "tracker_accuracy",
+    "tracker_forward_kinematics",
+    "tracker_identifiability",
+    "tracker_identify",
+    "tracker_problem",
+    "tracker_simulate",
+]
+
+
+def _setup(robot: Robot) -> TrackerSetup:
+    if not isinstance(robot, Robot):
+        raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+    if robot.tracker is None:
+        raise ValueError(
+            f"robot {robot.name!r} has no tracker setup, but the data are tracker data "
+            "(points or probe poses in the tracker frame): describe the setup with "
+            "robot.with_tracker(registration=..., reflectors=[...]) or a [tracker] table in the "
+            "robot's TOML file (docs/tracker.md)")
+    return robot.tracker
+
+
+def _split_noise(noise: Any) -> tuple[Noise | None, TrackerNoise | None]:
+    if noise is None:
+        return None, None
+    if isinstance(noise, TrackerNoise):
+        return None, noise
+    if isinstance(noise, Noise):
+        if noise.position or noise.orientation:
+            raise ValueError(
+                "noise: an iwr.Noise with position or orientation noise describes a pose "
+                "measured in {0}; for a robot with a tracker give noise=(iwr.Noise(legs=..., "
+                "joint_lengths=..., joint_angles=...), iwr.tracker.TrackerNoise.leica())")
+        return noise, None
+    if (isinstance(noise, tuple) and len(noise) == 2 and isinstance(noise[0], (Noise, type(None)))
+            and isinstance(noise[1], (TrackerNoise, type(None)))):
+        return noise
+    raise TypeError(f"noise: {noise!r}; for a robot with a tracker expected None, an iwr.Noise "
+                    "(readings), an iwr.tracker.TrackerNoise, or a pair (Noise, TrackerNoise)")
+
+
+def tracker_simulate(robot: Robot, n_poses: int, *, seed: int | None, x: Any = None,
+                     noise: Any = None, hidden: float = 0.0
+                     ) -> tuple[TrackerMeasurements, np.ndarray]:
+    """:func:`iwr.simulate` for a robot with a tracker: ``(TrackerMeasurements, x_true)``, where
+    ``x_true`` covers the robot's ``n_params`` then the setup's parameters. ``noise``: None
+    (noise-free), an ``iwr.Noise`` (leg and joint readings only), a ``TrackerNoise``, or a pair
+    ``(Noise, TrackerNoise)``."""
+    setup = _setup(robot)
+    readings, tracker = _split_noise(noise)
+    return simulate_tracker(robot, setup, n_poses, seed=seed, x=x, noise=readings,
+                            tracker_noise=tracker, hidden=hidden)
+
+
+def _bounds(robot: Robot, setup: TrackerSetup, bounds: Any, center: np.ndarray) -> Any:
+    if bounds is None or (isinstance(bounds, str) and bounds == "default"):
+        return None
+    if isinstance(bounds, str):
+        if bounds != "paper":
+            raise ValueError(f"bounds: {bounds!r}; expected None, 'default', 'paper' or "
+                             "(lower, upper)")
+        lo_r, hi_r = robot.default_bounds("paper")
+        lo_s, hi_s = setup.default_bounds()
+        return (np.concatenate([lo_r, lo_s + center]), np.concatenate([hi_r, hi_s + center]))
+    return bounds
+
+
+def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
+                    x0: Any = None) -> tuple[TrackerProblem, np.ndarray]:
+    """The problem for these data and its starting point: the nominal robot with the closed-form
+    registration guess (:func:`guess_registration`, which raises
+    :class:`RegistrationError` when the nominal model is too poor for it), or ``x0``."""
+    from .registration import guess_registration
+
+    setup = _setup(robot)
+    if x0 is None:
+        guess = guess_registration(robot, setup, measurements)
+        center = guess.x_setup
+    else:
+        center = None
+    problem_bounds = _bounds(robot, setup, bounds,
+                             np.zeros(setup.n_params) if center is None else center)
+    problem = TrackerProblem(robot, setup, measurements, problem_bounds, center=center)
+    if x0 is None:
+        start = problem.x0(guess)
+    else:
+        start = np.array(x0, dtype=float)
+        if start.shape != (problem.n_params,) or not np.all(np.isfinite(start)):
+            raise ValueError(f"x0: expected {problem.n_params} finite values (the robot's "
+                             f"{robot.n_params}, then the tracker setup's {setup.n_params}), "
+                             f"got shape {start.shape}")
+    return problem, start
+
+
+def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
+                 callback: Callable[..., Any] | None, progress: bool | None,
+                 polish: bool = True, **options: Any) -> Any:
+    """DE (any strategy) on the tracker objective's ``cost_batch`` (one Python call per
+    generation, the population evaluated in C++ across threads), polished by LM."""
+    from ..methods.de import _STATUS, differential_evolution
+    from ..methods.lm import levenberg_marquardt
+    from ..methods.reduced import ReducedProblem
+    from ..methods.result import IdentificationResult
+
+    start = time.perf_counter()
+    box = np.column_stack([reduced.lower, reduced.upper])
+    if max_evaluations is not None:
+        options["max_evaluations"] = int(max_evaluations)
+    if callback is not None:
+        user = callback
+
+        def callback(res: Any) -> Any:  # the user sees full vectors, as from every method
+            return user(OptimizeResult(x=reduced.full(res.x), fun=res.fun,
+                                       nfev=res.get("nfev", 0), nit=res.get("nit", 0)))
+    raw = differential_evolution(reduced.cost_batch, box, seed=seed, callback=callback,
+                                 progress=progress, **options)
+    x = reduced.full(raw.x)
+    fun, nfev = float(raw.fun), int(raw.nfev)
+    success, status = bool(raw.success), _STATUS.get(str(raw.reason), "failed")
+    message = str(raw.message)
+    interrupted = status in ("interrupted", "callback")
+    if polish and not interrupted:
+        lm = levenberg_marquardt(ReducedProblem(reduced.problem, reduced.active, x),
+                                 progress=progress)
+        nfev += int(lm.nfev)
+        success, status = bool(lm.success), str(lm.status)
+        message = f"{message}; polished by Levenberg-Marquardt: {lm.message}"
+        if lm.fun <= fun:
+            x, fun = lm.x, float(lm.fun)
+    return IdentificationResult(x=x, fun=fun, nfev=nfev, nit=int(raw.get("nit", 0)),
+                                success=success, status=status, message=message,
+                                wall_time=time.perf_counter() - start,
+                                settings={"polish": bool(polish), "objective": "cost_batch"})
+
+
+def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: str = "lm", *,
+                     bounds: Any = None, x0: Any = None, active: Any = None,
+                     max_evaluations: int | None = None, seed: int | None = None,
+                     callback: Callable[..., Any] | None = None, progress: bool | None = None,
+                     **options: Any) -> Any:
+    """:func:`iwr.identify` on tracker data: every method of the registry on the point (or probe)
+    objective, from the nominal robot with the closed-form registration guess (default ``x0``).
+    ``x`` of the result holds the robot's ``n_params`` then the setup's parameters
+    (``result.parameter_names``). DE runs on ``TrackerProblem.cost_batch`` and is polished by LM
+    (``polish=False``: DE alone). A result at which a pose's forward kinematics fails is never a
+    success (``problem.check`` names the pose)."""
+    from ..methods import METHODS
+    from ..methods.reduced import ReducedProblem, active_mask
+
+    if method not in METHODS:
+        raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+    problem, start_x = tracker_problem(robot, measurements, bounds, x0)
+    if isinstance(active, str) and active == "base":
+        ns = null_space(problem, start_x)
+        active = [n not in set(ns.left_out) for n in problem.parameter_names]
+    mask = active_mask(problem, active)
+    reduced = ReducedProblem(problem, mask, start_x)
+    t0 = time.perf_counter()
+    if method == "de":
+        result = _de_on_batch(reduced, max_evaluations=max_evaluations, seed=seed,
+                              callback=callback, progress=progress, **options)
+    else:
+        if max_evaluations is not None:
+            options["max_evaluations"] = max_evaluations
+        result = METHODS[method](reduced, seed=seed, callback=callback, progress=progress,
+                                 **options)
+    if not np.isfinite(result.wall_time):
+        result["wall_time"] = time.perf_counter() - t0
+    result["method"] = method
+    result["parameter_names"] = problem.parameter_names
+    result["active"] = mask
+    result["fun"] = problem.cost(result.x)
+    bad = problem.failures(result.x)
+    if bad:
+        k, msg = bad[0]
+        result.update(success=False, status="failed",
+                      message=f"{result.message}; {len(bad)} poses have no forward kinematics at "
+                      f"the result ({measurements.where(k)}: {msg})")
+    result.check_finite()
+    return result
+
+
+def _point_errors(problem: TrackerProblem, x: np.ndarray) -> PoseErrors:
+    """Per pose: the largest distance (mm) between a predicted and a measured point, and the
+    angle (degrees) of the rigid rotation between them (the probe's orientation error, or the
+    Kabsch fit of K >= 3 points; NaN for fewer points: one or two points have no orientation)."""
+    m = problem.measurements
+    pred = problem.predicted_points(x)
+    meas = m.tracker_points(problem.setup).reshape(pred.shape)
+    dist = np.linalg.norm(pred - meas, axis=2)
+    position = np.nanmax(np.where(np.isnan(dist), -np.inf, dist), axis=1)
+    angle = np.full(len(m), np.nan)
+    for k in range(len(m)):
+        ok = ~np.isnan(meas[k, :, 0]) & ~np.isnan(pred[k, :, 0])
+        if ok.sum() >= 3:
+            r, _ = kabsch(pred[k, ok], meas[k, ok])
+            # The rotation vector's norm: exact near zero, where arccos of the trace is not.
+            angle[k] = np.degrees(Rotation.from_matrix(r).magnitude())
+    poses = problem.platform_poses(x)
+    return PoseErrors(position, angle, poses)
+
+
+def tracker_accuracy(robot: Robot, measurements: TrackerMeasurements, x: Any, *,
+                     truth: Any = None, tool: Any = None) -> Accuracy:
+    """:func:`iwr.accuracy` on tracker data, before (the nominal robot with the registration
+    guess on these data; with fewer than 3 points not on one line, the nominal robot with the
+    registration and offsets of ``x``) and after (``x``, robot then setup parameters).
+
+    With ``truth`` (the simulation's true vector): tool pose errors against the truth by forward
+    kinematics of the readings, in {T} modulo the gauge (:func:`tool_pose_errors`). Without it:
+    per validation pose, the largest distance between predicted and measured points (mm) and
+    the angle of their best rigid rotation (degrees; NaN with fewer than 3 points)."""
+    from .registration import RegistrationError
+
+    setup = _setup(robot)
+    x = np.asarray(x, dtype=float)
+    n = robot.n_params + setup.n_params
+    if x.shape != (n,):
+        raise ValueError(f"x: shape {x.shape}; expected ({n},): the robot's {robot.n_params} "
+                         f"then the tracker setup's {setup.n_params}")
+    try:
+        problem, start = tracker_problem(robot, measurements)
+    except RegistrationError:
+        # Too few validation points for a registration guess of their own (fewer than 3, or
+        # on one line): "before" is then the nominal robot in the identified registration.
+        problem, _ = tracker_problem(robot, measurements, x0=x)
+        start = np.concatenate([np.zeros(robot.n_params), x[robot.n_params:]])
+    if truth is not None:
+        setup, m = problem.setup, measurements
+        return Accuracy(
+            tool_pose_errors(robot, setup, start, truth, m.q, m.legs, tool=tool),
+            tool_pose_errors(robot, setup, x, truth, m.q, m.legs, tool=tool))
+    return Accuracy(_point_errors(problem, start), _point_errors(problem, x))
+
+
+def tracker_identifiability(robot: Robot, measurements: TrackerMeasurements,
+                            x: Any = None, *, rtol: float | None = None) -> NullSpace:
+    """:func:`iwr.identifiability` on tracker data: the null directions of the point (or probe)
+    objective's column-scaled Jacobian at ``x`` (default: the nominal robot with the registration
+    guess), one per left-out parameter (:class:`NullSpace`; ``left_out``, ``rank``,
+    ``describe(k)``)."""
+    problem, start = tracker_problem(robot, measurements)
+    return null_space(problem, start if x is None else x, rtol)
+
+
+def tracker_forward_kinematics(robot: Robot, x: Any, q: Any, legs: Any) -> np.ndarray:
+    """:func:`iwr.forward_kinematics` with a tracker ``x`` (robot then setup parameters): the
+    platform poses in the tracker frame {T}, ``(N, 6)``, by forward kinematics of the readings
+    with the robot's part of ``x`` and the identified registration. (Modulo the gauge of
+    docs/tracker.md: what tracker data determine.)"""
+    from ..forward import forward_kinematics
+
+    setup = _setup(robot)
+    x = np.asarray(x, dtype=float)
+    nr = robot.n_params
+    if x.shape != (nr + setup.n_params,):
+        raise ValueError(f"x: shape {x.shape}; expected ({nr + setup.n_params},) for a robot "
+                         f"with a tracker, or ({nr},) for poses in {{0}}")
+    poses = forward_kinematics(robot, x[:nr], q, legs)
+    from ..transforms import pose_matrix
+
+    reg = setup.registration_matrix(x[nr:])
+    return np.array([pose_from_matrix_safe(reg @ pose_matrix(p)) for p in poses])

@@ -1,0 +1,392 @@
+"""Tracker data files (docs/tracker.md, "Data files"), read and written in this one place.
+
+- **Wide**: one CSV, one row per pose: ``pose, q1_mm|rad, ..., s1_mm .. s6_mm``, then per
+  reflector ``reflector<name>_x_mm, reflector<name>_y_mm, reflector<name>_z_mm`` (empty cells: the
+  reflector was not seen), or for a probe ``probe_x_mm .. probe_z_mm, probe_alpha_rad ..
+  probe_gamma_rad``.
+- **Long** (points as tracker software exports them): ``pose, reflector, x_mm, y_mm, z_mm``, one
+  row per measured point, joined by pose id to the robot's log ``pose, q1_mm|rad, ..., s1_mm ..
+  s6_mm`` (a second file).
+
+Every bad row is named with its file and line; nothing is dropped silently.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import os
+import re
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from .._io import atomic_write_text
+from ..measurements import (
+    _JOINT_RE,
+    _LEG_COLUMNS,
+    MAX_CSV_BYTES,
+    MAX_LINE_CHARS,
+    PLAN_MARKER,
+    MeasurementFileError,
+    _delimiter,
+    _limit_problem,
+    _summarise,
+)
+from .data import TrackerMeasurements
+from .setup import TrackerSetup
+
+__all__ = ["read_tracker_data", "write_tracker_long", "write_tracker_wide", "is_tracker_file"]
+
+_XYZ = ("x", "y", "z")
+_PROBE_COLUMNS = tuple(f"probe_{c}_mm" for c in _XYZ) + tuple(
+    f"probe_{c}_rad" for c in ("alpha", "beta", "gamma"))
+_LONG_POINT_COLUMNS = ("pose", "reflector", "x_mm", "y_mm", "z_mm")
+_UNIT_RE = re.compile(r"^(.*)_(m|cm|mm|um|in|deg|rad|mrad)$")
+
+HEADER_COMMENT = """\
+# iwr laser-tracker data (docs/tracker.md). Lengths in mm, angles in rad.
+# pose: the pose id; q<i>_<unit>: carriage joint readings; s1_mm .. s6_mm: leg sensor readings.
+"""
+
+
+def _read_rows(path: Path) -> tuple[list[str], int, str, list[tuple[int, list[str]]]]:
+    """The header, its line, the separator and the data rows ``(line, fields)`` of a CSV file;
+    bounded reads, a byte order mark accepted, comments (``#``) and blank lines skipped."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_CSV_BYTES + 1)
+        if len(raw) > MAX_CSV_BYTES:
+            raise MeasurementFileError(
+                f"{path}: larger than {MAX_CSV_BYTES // 10**6} MB; is this the right file?")
+        text = raw.decode("utf-8-sig")
+    except FileNotFoundError:
+        raise MeasurementFileError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
+    if text.lstrip().startswith(PLAN_MARKER):
+        raise MeasurementFileError(f"{path}: a pose plan written by 'iwr plan', not measurements")
+    header: list[str] | None = None
+    header_line = 0
+    delimiter = ","
+    rows: list[tuple[int, list[str]]] = []
+    problems: list[tuple[int, str]] = []
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        if len(line) > MAX_LINE_CHARS:
+            problems.append((lineno, f"line {lineno}: {len(line):,} characters; a row has at "
+                                     f"most {MAX_LINE_CHARS:,}"))
+            if header is None:
+                break
+            continue
+        if header is None:
+            delimiter = _delimiter(line)
+        try:
+            fields = [f.strip() for f in next(csv.reader([line], delimiter=delimiter))]
+        except csv.Error as exc:
+            problems.append((lineno, f"line {lineno}: not valid CSV ({exc})"))
+            continue
+        if header is None:
+            header, header_line = fields, lineno
+            continue
+        if len(fields) != len(header):
+            problems.append((lineno, f"line {lineno}: {len(fields)} fields; the header has "
+                                     f"{len(header)}"))
+            continue
+        rows.append((lineno, fields))
+    if problems:
+        raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad row')}")
+    if header is None:
+        raise MeasurementFileError(f"{path}: empty file (no header line)")
+    if not rows:
+        raise MeasurementFileError(f"{path}: no data rows after the header")
+    return header, header_line, delimiter, rows
+
+
+def is_tracker_file(path: str | os.PathLike[str]) -> bool:
+    """Whether a CSV file's header is one of the tracker formats (starts with a ``pose``
+    column), without checking the rest."""
+    try:
+        header, _, _, _ = _read_rows(Path(path))
+    except MeasurementFileError:
+        return False
+    return bool(header) and header[0] == "pose"
+
+
+def _value(field: str, unit: str, lineno: int, name: str, problems: list[tuple[int, str]],
+           allow_empty: bool = False) -> float | None:
+    if not field:
+        if allow_empty:
+            return math.nan
+        problems.append((lineno, f"line {lineno}, column {name}: is empty"))
+        return None
+    try:
+        v = float(field)
+    except ValueError:
+        problems.append((lineno, f"line {lineno}, column {name}: {field!r} is not a number"))
+        return None
+    if not math.isfinite(v):
+        problems.append((lineno, f"line {lineno}, column {name}: {field!r} is not finite"))
+        return None
+    beyond = _limit_problem(v, unit)
+    if beyond:
+        problems.append((lineno, f"line {lineno}, column {name}: {beyond}"))
+        return None
+    return v
+
+
+def _check_columns(got: list[str], expected: list[str], where: str, start: int = 0) -> None:
+    order = "Expected columns, in this order: " + ", ".join(expected) + "; see docs/tracker.md"
+    for k, (g, w) in enumerate(zip(got, expected, strict=False)):
+        if g != w:
+            mg, mw = _UNIT_RE.match(g), _UNIT_RE.match(w)
+            if mg and mw and mg.group(1) == mw.group(1):
+                raise MeasurementFileError(
+                    f"{where}: column {start + k + 1} is {g!r}, in {mg.group(2)}; iwr reads "
+                    f"{mw.group(2)} ({w!r}): convert the file's units. {order}")
+            raise MeasurementFileError(
+                f"{where}: column {start + k + 1} is {g!r}; expected {w!r}. {order}")
+    if len(got) != len(expected):
+        missing, extra = expected[len(got):], got[len(expected):]
+        what = f"missing columns {missing}" if missing else f"unknown columns {extra}"
+        raise MeasurementFileError(f"{where}: {what}. {order}")
+
+
+def _joint_header(header: list[str], where: str) -> tuple[str, int]:
+    """The joint types of the columns after ``pose``; the index of the first leg column."""
+    if not header or header[0] != "pose":
+        raise MeasurementFileError(
+            f"{where}: column 1 is {header[0] if header else ''!r}; expected 'pose' (the pose "
+            "id), then q1_mm|rad, ..., s1_mm .. s6_mm; see docs/tracker.md")
+    types = ""
+    i = 1
+    while i < len(header) and _JOINT_RE.match(header[i]):
+        m = _JOINT_RE.match(header[i])
+        assert m is not None
+        if int(m.group(1)) != i:
+            raise MeasurementFileError(f"{where}: column {i + 1} is {header[i]!r}; expected "
+                                       f"'q{i}_mm' or 'q{i}_rad' (the joints in order)")
+        types += "P" if m.group(2) == "mm" else "R"
+        i += 1
+    return types, i
+
+
+def _readings(header: list[str], rows: list[tuple[int, list[str]]], types: str,
+              problems: list[tuple[int, str]]) -> dict[int, tuple[str, list[float]]]:
+    """Pose id and joint + leg values of each good row, by line."""
+    units = ["mm" if c == "P" else "rad" for c in types] + ["mm"] * 6
+    out: dict[int, tuple[str, list[float]]] = {}
+    seen: dict[str, int] = {}
+    for lineno, fields in rows:
+        pose = fields[0]
+        if not pose:
+            problems.append((lineno, f"line {lineno}, column pose: is empty"))
+            continue
+        if pose in seen:
+            problems.append((lineno, f"line {lineno}: pose {pose!r} again (first at line "
+                                     f"{seen[pose]})"))
+            continue
+        seen[pose] = lineno
+        vals = [_value(f, u, lineno, n, problems)
+                for f, u, n in zip(fields[1:1 + len(units)], units,
+                                   header[1:1 + len(units)], strict=True)]
+        if all(v is not None for v in vals):
+            out[lineno] = (pose, [float(v) for v in vals])  # type: ignore[arg-type]
+    return out
+
+
+def read_tracker_data(path: str | os.PathLike[str], setup: TrackerSetup,
+                      readings: str | os.PathLike[str] | None = None) -> TrackerMeasurements:
+    """Read tracker data for ``setup``: a wide CSV, or a long table of points (``path``) with the
+    robot's log of readings (``readings``). Raises :class:`iwr.MeasurementFileError` naming the
+    file and every bad line."""
+    path = Path(path)
+    header, hline, _, rows = _read_rows(path)
+    where = f"{path}, line {hline}"
+    if len(header) > 1 and header[1] == "reflector":
+        if readings is None:
+            raise MeasurementFileError(
+                f"{where}: a long table of points (pose, reflector, x_mm, y_mm, z_mm); give the "
+                "robot's log of joint and leg readings with it (pose, q1_mm, ..., s1_mm .. "
+                "s6_mm; iwr calibrate ROBOT POINTS --readings READINGS)")
+        return _read_long(path, header, hline, rows, setup, Path(readings))
+    if readings is not None:
+        raise MeasurementFileError(f"{where}: readings were given, but this is not a long table "
+                                   "of points (pose, reflector, x_mm, y_mm, z_mm)")
+    types, i = _joint_header(header, where)
+    if setup.kind == "points":
+        extra = [f"reflector{n}_{c}_mm" for n in setup.names for c in _XYZ]
+    else:
+        extra = list(_PROBE_COLUMNS)
+    _check_columns(header[i:], list(_LEG_COLUMNS) + extra, where, i)
+    problems: list[tuple[int, str]] = []
+    good = _readings(header, rows, types, problems)
+    nr = len(types) + 6
+    ids, q, legs, meas, lines = [], [], [], [], []
+    units = ["mm"] * len(extra) if setup.kind == "points" else ["mm"] * 3 + ["rad"] * 3
+    for lineno, fields in rows:
+        vals = [_value(f, u, lineno, n, problems, allow_empty=setup.kind == "points")
+                for f, u, n in zip(fields[1 + nr:], units, extra, strict=True)]
+        if lineno not in good or any(v is None for v in vals):
+            continue
+        arr = np.array(vals, dtype=float)
+        if setup.kind == "points":
+            pts = arr.reshape(-1, 3)
+            partial = np.isnan(pts).any(axis=1) & ~np.isnan(pts).all(axis=1)
+            if partial.any():
+                name = setup.names[int(np.flatnonzero(partial)[0])]
+                problems.append((lineno, f"line {lineno}: reflector {name} has some coordinates "
+                                         "empty and some not; a reflector not seen has all three "
+                                         "empty"))
+                continue
+            if np.isnan(pts).all():
+                problems.append((lineno, f"line {lineno}: no reflector seen at pose "
+                                         f"{fields[0]!r}; remove the row"))
+                continue
+        pose, values = good[lineno]
+        ids.append(pose)
+        q.append(values[: len(types)])
+        legs.append(values[len(types):])
+        meas.append(arr)
+        lines.append(lineno)
+    if problems:
+        raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad row')}")
+    return _build(setup, types, q, legs, meas, lines, str(path), ids)
+
+
+def _build(setup: TrackerSetup, types: str, q: list[Any], legs: list[Any], meas: list[Any],
+           lines: list[int], source: str, ids: list[str]) -> TrackerMeasurements:
+    n = len(legs)
+    q_arr = np.array(q, dtype=float).reshape(n, len(types))
+    try:
+        if setup.kind == "points":
+            out = TrackerMeasurements(q_arr, legs, points=np.array(meas).reshape(n, -1, 3),
+                                      joint_types=types, lines=lines, source=source)
+        else:
+            out = TrackerMeasurements(q_arr, legs, probe=meas, joint_types=types, lines=lines,
+                                      source=source)
+    except ValueError as exc:
+        raise MeasurementFileError(f"{source}: {exc}") from None
+    out.pose_ids = list(ids)  # type: ignore[attr-defined]
+    return out
+
+
+def _read_long(path: Path, header: list[str], hline: int, rows: list[tuple[int, list[str]]],
+               setup: TrackerSetup, readings: Path) -> TrackerMeasurements:
+    if setup.kind != "points":
+        raise MeasurementFileError(f"{path}: a long table of points, but the tracker setup "
+                                   "measures a probe: give probe data as one wide CSV")
+    _check_columns(header, list(_LONG_POINT_COLUMNS), f"{path}, line {hline}")
+    rheader, rline, _, rrows = _read_rows(readings)
+    rwhere = f"{readings}, line {rline}"
+    types, i = _joint_header(rheader, rwhere)
+    _check_columns(rheader[i:], list(_LEG_COLUMNS), rwhere, i)
+    rproblems: list[tuple[int, str]] = []
+    good = _readings(rheader, rrows, types, rproblems)
+    if rproblems:
+        raise MeasurementFileError(f"{readings}, {_summarise(rproblems, 'bad row')}")
+    by_id = {pose: (lineno, vals) for lineno, (pose, vals) in good.items()}
+    index = {name: k for k, name in enumerate(setup.names)}
+    k_refl = setup.n_reflectors
+    points = {pose: np.full((k_refl, 3), np.nan) for pose in by_id}
+    first: dict[tuple[str, str], int] = {}
+    problems: list[tuple[int, str]] = []
+    for lineno, fields in rows:
+        pose, name = fields[0], fields[1]
+        if pose not in by_id:
+            problems.append((lineno, f"line {lineno}: pose {pose!r} is not in {readings}"))
+            continue
+        if name not in index:
+            problems.append((lineno, f"line {lineno}: reflector {name!r} is not in the tracker "
+                                     f"setup (reflectors {', '.join(setup.names)})"))
+            continue
+        if (pose, name) in first:
+            problems.append((lineno, f"line {lineno}: reflector {name!r} at pose {pose!r} again "
+                                     f"(first at line {first[(pose, name)]})"))
+            continue
+        first[(pose, name)] = lineno
+        vals = [_value(f, "mm", lineno, n, problems)
+                for f, n in zip(fields[2:], _LONG_POINT_COLUMNS[2:], strict=True)]
+        if all(v is not None for v in vals):
+            points[pose][index[name]] = vals
+    if problems:
+        raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad row')}")
+    unseen = [(line, pose) for pose, (line, _) in by_id.items() if np.isnan(points[pose]).all()]
+    if unseen:
+        raise MeasurementFileError(
+            f"{readings}, {_summarise([(ln, f'line {ln}: pose {p!r} has no point in {path}') for ln, p in sorted(unseen)], 'bad row')}")  # noqa: E501
+    order = sorted(by_id.items(), key=lambda item: item[1][0])
+    nj = len(types)
+    return _build(setup, types, [v[:nj] for _, (_, v) in order],
+                  [v[nj:] for _, (_, v) in order], [points[p] for p, _ in order],
+                  [ln for _, (ln, _) in order], f"{readings} + {path}", [p for p, _ in order])
+
+
+def _reading_columns(data: TrackerMeasurements) -> list[str]:
+    types = data.joint_types or ""
+    if len(types) != data.n_joints:
+        raise ValueError("joint_types: unknown, so the joint units cannot be written")
+    return ["pose", *[f"q{i + 1}_{'mm' if t == 'P' else 'rad'}" for i, t in enumerate(types)],
+            *_LEG_COLUMNS]
+
+
+def _fmt(v: float) -> str:
+    return "" if math.isnan(v) else repr(float(v))
+
+
+def write_tracker_wide(path: str | os.PathLike[str], setup: TrackerSetup,
+                       data: TrackerMeasurements) -> None:
+    """Write the wide CSV (atomically); poses numbered 1..N, empty cells for unseen points."""
+    data.check_setup(setup)
+    cols = _reading_columns(data)
+    if setup.kind == "points":
+        cols += [f"reflector{n}_{c}_mm" for n in setup.names for c in _XYZ]
+        extra = data.points.reshape(len(data), -1)  # type: ignore[union-attr]
+    else:
+        cols += list(_PROBE_COLUMNS)
+        extra = data.probe
+    buf = io.StringIO()
+    buf.write(HEADER_COMMENT)
+    buf.write("# then the points measured in the tracker frame {T} (empty: not seen), or the "
+              "probe's pose in {T}.\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(cols)
+    for k in range(len(data)):
+        w.writerow([str(k + 1), *[_fmt(v) for v in data.q[k]], *[_fmt(v) for v in data.legs[k]],
+                    *[_fmt(v) for v in extra[k]]])  # type: ignore[index]
+    atomic_write_text(path, buf.getvalue())
+
+
+def write_tracker_long(points_path: str | os.PathLike[str],
+                       readings_path: str | os.PathLike[str], setup: TrackerSetup,
+                       data: TrackerMeasurements) -> None:
+    """Write point data as a long table of points and the robot's log of readings."""
+    data.check_setup(setup)
+    if setup.kind != "points":
+        raise ValueError("write_tracker_long: a probe's poses are written as one wide CSV")
+    buf = io.StringIO()
+    buf.write(HEADER_COMMENT)
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(_reading_columns(data))
+    for k in range(len(data)):
+        w.writerow([str(k + 1), *[_fmt(v) for v in data.q[k]], *[_fmt(v) for v in data.legs[k]]])
+    readings_text = buf.getvalue()
+    buf = io.StringIO()
+    buf.write("# iwr laser-tracker points in the tracker frame {T} (mm), one row per point seen; "
+              "joined by pose to the readings.\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(_LONG_POINT_COLUMNS)
+    assert data.points is not None
+    for k in range(len(data)):
+        for i, name in enumerate(setup.names):
+            p = data.points[k, i]
+            if not np.isnan(p).any():
+                w.writerow([str(k + 1), name, *[_fmt(v) for v in p]])
+    atomic_write_text(readings_path, readings_text)
+    atomic_write_text(points_path, buf.getvalue())

@@ -1,0 +1,117 @@
+"""``iwr simulate`` and ``iwr calibrate`` with a robot that has a [tracker] table, the shipped
+point-data example, and ``iwr-calibrate`` refusing tracker data; run as a user runs them."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import re
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import iwr
+
+REPO = Path(__file__).resolve().parents[1]
+REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
+REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
+
+
+def run(*args: str, prog: list[str] | None = None):
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+    return subprocess.run([*(prog or [sys.executable, "-m", "iwr"]), *args], capture_output=True,
+                          text=True, cwd=tempfile.gettempdir(), env=environ, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def sim(tmp_path_factory) -> Path:
+    out = tmp_path_factory.mktemp("trk")
+    robot = iwr.Robot.default().with_tracker(registration=REGISTRATION, reflectors=REFLECTORS)
+    robot.to_toml(out / "nominal.toml")
+    proc = run("simulate", "--robot", str(out / "nominal.toml"), "--poses", "60", "--seed", "3",
+               "-o", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "iwr calibrate" in proc.stdout
+    return out
+
+
+def test_simulate_writes_tracker_files(sim):
+    robot = iwr.Robot.from_toml(sim / "robot.toml")
+    assert robot.tracker is not None
+    truth = json.loads((sim / "true_errors.json").read_text())
+    assert len(truth["errors"]) == 73 and truth["parameter_names"][58] == "tracker.x"
+    for name in ("measurements.csv", "measurements_long.csv", "measurements_readings.csv"):
+        assert (sim / name).is_file()
+
+
+@pytest.mark.parametrize("form", ["wide", "long"])
+def test_calibrate_takes_tracker_files(sim, tmp_path, form):
+    data = ([str(sim / "measurements.csv")] if form == "wide" else
+            [str(sim / "measurements_long.csv"), "--readings",
+             str(sim / "measurements_readings.csv")])
+    proc = run("calibrate", str(sim / "robot.toml"), *data, "-o", str(tmp_path), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert "tracker data: 60 poses, points (K = 3)" in proc.stdout
+    m = re.search(r"calibrated +position RMS ([0-9.]+) mm", proc.stdout)
+    before = re.search(r"registration guess +position RMS ([0-9.]+) mm", proc.stdout)
+    assert m and before and float(m.group(1)) < 0.1 < float(before.group(1))
+    cal = iwr.Robot.from_toml(tmp_path / "calibrated.toml")
+    assert cal.tracker is not None
+    truth = json.loads((sim / "true_errors.json").read_text())["errors"]
+    # The calibrated registration is the true one within the noise (not the 5 mm-off nominal).
+    nominal = iwr.Robot.from_toml(sim / "robot.toml").tracker
+    true_reg = nominal.registration_matrix(np.array(truth[58:]))
+    np.testing.assert_allclose(cal.tracker.registration_matrix()[:3, 3], true_reg[:3, 3],
+                               atol=2.0)
+    result = iwr.load_result(tmp_path / "result.json")
+    assert result.x.shape == (73,)
+
+
+def test_calibrate_names_a_bad_row(sim, tmp_path):
+    lines = (sim / "measurements.csv").read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("5,"))
+    lines[k] = lines[k].replace(",", ",x", 1)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    proc = run("calibrate", str(sim / "robot.toml"), str(bad), "-o", str(tmp_path))
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert f"bad.csv, line {k + 1}, column q1_mm" in proc.stderr
+
+
+def test_iwr_calibrate_refuses_tracker_data(sim, tmp_path):
+    launcher = shutil.which("iwr-calibrate", path=str(Path(sys.executable).parent))
+    assert launcher is not None
+    proc = run(str(sim / "robot.toml"), str(sim / "measurements.csv"), "--output",
+               str(tmp_path / "r.json"), prog=[launcher])
+    assert proc.returncode == 2, proc.stderr
+    assert "laser-tracker data" in proc.stderr and "Traceback" not in proc.stderr
+    plain = tmp_path / "plain.toml"
+    iwr.Robot.default().to_toml(plain)
+    proc = run(str(plain), str(sim / "measurements.csv"), "--output", str(tmp_path / "r.json"),
+               prog=[launcher])
+    assert proc.returncode == 2 and "laser-tracker data" in proc.stderr
+
+
+def test_the_shipped_example_runs_end_to_end(tmp_path):
+    robot = iwr.Robot.from_toml(REPO / "examples" / "iwr_tracker.toml")
+    assert robot.tracker is not None and robot.tracker.n_reflectors == 3
+    proc = run("calibrate", str(REPO / "examples" / "iwr_tracker.toml"),
+               str(REPO / "examples" / "iwr_tracker_points.csv"), "-o", str(tmp_path))
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "calibrated.toml").is_file()
+
+
+def test_tracker_data_with_a_robot_without_tracker_is_refused(sim, tmp_path):
+    plain = tmp_path / "plain.toml"
+    iwr.Robot.default().to_toml(plain)
+    proc = run("calibrate", str(plain), str(sim / "measurements.csv"), "-o", str(tmp_path))
+    assert proc.returncode == 2 and "has no [tracker] table" in proc.stderr
+    proc = run("calibrate", str(plain), str(REPO / "examples" / "iwr_example.csv"),
+               "--readings", str(sim / "measurements_readings.csv"), "-o", str(tmp_path))
+    assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr

@@ -1,0 +1,134 @@
+"""Tracker data files: the wide CSV and the long table of points with the log of readings; round
+trips, units checked, every bad row named."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr.tracker import (
+    TrackerMeasurements,
+    read_tracker_data,
+    write_tracker_long,
+    write_tracker_wide,
+)
+
+REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
+REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
+
+
+@pytest.fixture(scope="module")
+def robot() -> iwr.Robot:
+    return iwr.Robot.default().with_tracker(registration=REGISTRATION, reflectors=REFLECTORS,
+                                            names=["A", "B", "C"])
+
+
+@pytest.fixture(scope="module")
+def data(robot) -> TrackerMeasurements:
+    d, _ = iwr.simulate(robot, 12, seed=2)
+    pts = d.points.copy()
+    pts[3, 1] = np.nan  # reflector B not seen at pose 4
+    pts[7, 2] = np.nan
+    return TrackerMeasurements(d.q, d.legs, points=pts, joint_types=d.joint_types)
+
+
+def same(a: TrackerMeasurements, b: TrackerMeasurements) -> None:
+    np.testing.assert_array_equal(a.q, b.q)
+    np.testing.assert_array_equal(a.legs, b.legs)
+    np.testing.assert_array_equal(a.points, b.points)  # NaN where unseen, in both
+
+
+def test_wide_round_trip(robot, data, tmp_path):
+    path = tmp_path / "points.csv"
+    write_tracker_wide(path, robot.tracker, data)
+    header = [ln for ln in path.read_text().splitlines() if not ln.startswith("#")][0]
+    assert header.startswith("pose,q1_mm,q2_mm,q3_rad,q4_rad,s1_mm")
+    assert header.endswith("reflectorC_x_mm,reflectorC_y_mm,reflectorC_z_mm")
+    back = read_tracker_data(path, robot.tracker)
+    same(back, data)
+    assert back.joint_types == robot.joint_types and back.source == str(path)
+
+
+def test_long_round_trip(robot, data, tmp_path):
+    pts, rd = tmp_path / "points.csv", tmp_path / "readings.csv"
+    write_tracker_long(pts, rd, robot.tracker, data)
+    rows = [ln for ln in pts.read_text().splitlines() if not ln.startswith("#")]
+    assert rows[0] == "pose,reflector,x_mm,y_mm,z_mm" and len(rows) == 1 + 12 * 3 - 2
+    same(read_tracker_data(pts, robot.tracker, readings=rd), data)
+    # The points in another order (as a tracker exports them, by reflector): the same data.
+    shuffled = tmp_path / "shuffled.csv"
+    body = rows[1:]
+    shuffled.write_text("\n".join([rows[0], *sorted(body, key=lambda r: r.split(",")[1])]) + "\n")
+    same(read_tracker_data(shuffled, robot.tracker, readings=rd), data)
+
+
+def test_probe_wide_round_trip(tmp_path):
+    robot = iwr.Robot.default().with_tracker(registration=REGISTRATION, probe=(0, 0, 60, 0, 0, 0))
+    d, _ = iwr.simulate(robot, 5, seed=1)
+    path = tmp_path / "probe.csv"
+    write_tracker_wide(path, robot.tracker, d)
+    back = read_tracker_data(path, robot.tracker)
+    np.testing.assert_array_equal(back.probe, d.probe)
+
+
+def test_bad_rows_are_all_named_with_file_and_line(robot, data, tmp_path):
+    path = tmp_path / "points.csv"
+    write_tracker_wide(path, robot.tracker, data)
+    lines = path.read_text().splitlines()
+    first = next(i for i, ln in enumerate(lines) if not ln.startswith("#")) + 1  # data row 1
+    f = lines[first].split(",")
+    f[2] = "abc"
+    lines[first] = ",".join(f)
+    f = lines[first + 2].split(",")
+    f[-2] = ""  # one coordinate of reflector C missing
+    lines[first + 2] = ",".join(f)
+    f = lines[first + 4].split(",")
+    f[8] = "1e300"
+    lines[first + 4] = ",".join(f)
+    bad = tmp_path / "bad.csv"
+    bad.write_text("\n".join(lines) + "\n")
+    with pytest.raises(iwr.MeasurementFileError) as exc:
+        read_tracker_data(bad, robot.tracker)
+    msg = str(exc.value)
+    n1, n3, n5 = first + 1, first + 3, first + 5
+    assert msg.startswith(f"{bad}, line {n1}, column q2_mm: 'abc' is not a number")
+    assert f"3 bad rows in all, none dropped: lines {n1}, {n3} and {n5}" in msg
+
+
+def test_units_and_columns_are_checked(robot, data, tmp_path):
+    path = tmp_path / "points.csv"
+    write_tracker_wide(path, robot.tracker, data)
+    text = path.read_text()
+    bad = tmp_path / "m.csv"
+    bad.write_text(text.replace("reflectorA_x_mm", "reflectorA_x_m"))
+    with pytest.raises(iwr.MeasurementFileError, match=r"m\.csv, line \d+: column 12 is "
+                       r"'reflectorA_x_m', in m; iwr reads mm"):
+        read_tracker_data(bad, robot.tracker)
+    bad.write_text(text.replace("reflectorB_", "reflectorX_"))
+    with pytest.raises(iwr.MeasurementFileError, match="expected 'reflectorB_x_mm'"):
+        read_tracker_data(bad, robot.tracker)
+
+
+def test_long_table_errors_name_the_file_and_line(robot, data, tmp_path):
+    pts, rd = tmp_path / "points.csv", tmp_path / "readings.csv"
+    write_tracker_long(pts, rd, robot.tracker, data)
+    lines = pts.read_text().splitlines()
+    lines.append("99,A,1,2,3")          # a pose not in the readings
+    lines.append("1,D,1,2,3")           # a reflector not in the setup
+    lines.append(lines[2])              # a point given twice
+    pts.write_text("\n".join(lines) + "\n")
+    n = len(lines)
+    with pytest.raises(iwr.MeasurementFileError) as exc:
+        read_tracker_data(pts, robot.tracker, readings=rd)
+    msg = str(exc.value)
+    assert msg.startswith(f"{pts}, line {n - 2}: pose '99' is not in {rd}")
+    assert f"lines {n - 2}, {n - 1} and {n}" in msg
+    with pytest.raises(iwr.MeasurementFileError, match="give the robot's log of joint and leg"):
+        read_tracker_data(pts, robot.tracker)
+    bad = tmp_path / "mm.csv"
+    bad.write_text("pose,reflector,x_m,y_m,z_m\n1,A,1,2,3\n")
+    with pytest.raises(iwr.MeasurementFileError, match="'x_m', in m; iwr reads mm"):
+        read_tracker_data(bad, robot.tracker, readings=rd)
