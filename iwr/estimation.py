@@ -471,8 +471,12 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
         # The identifiable directions among the active parameters (all 58 active: 52 on the IWR).
         dof = 6 * len(measurements) - int(rank)
         p_value = float(stats.chi2.sf(statistic, dof)) if dof > 0 else math.nan
-        chi_ok = bool(dof <= 0 or p_value >= fit_alpha)
-        if not chi_ok:
+        chi_ok = bool(dof > 0 and p_value >= fit_alpha)
+        if dof <= 0:
+            causes.append(f"no redundancy: {6 * len(measurements)} readings for {int(rank)} "
+                          "identifiable parameters, so the data cannot test the model: measure "
+                          "more poses")
+        elif not chi_ok:
             causes.append(_chi2_cause(statistic, dof, p_value))
     if implausible:
         causes.append(_implausible_cause(implausible, plausible))

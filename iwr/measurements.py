@@ -7,6 +7,7 @@ import io
 import math
 import os
 import re
+from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
@@ -255,53 +256,16 @@ class Measurements:
             With the file, line and column of the problem.
         """
         path = Path(path)
-        try:
-            # utf-8-sig: a byte order mark, as spreadsheets write "CSV UTF-8", is not a character
-            # of the first column's name.
-            with open(path, "rb") as fh:
-                raw = fh.read(MAX_CSV_BYTES + 1)  # bounded: a device or a dump is refused
-            if len(raw) > MAX_CSV_BYTES:
-                raise MeasurementFileError(
-                    f"{path}: larger than {MAX_CSV_BYTES // 10**6} MB; is this the right file?"
-                )
-            text = raw.decode("utf-8-sig")
-        except FileNotFoundError:
-            raise MeasurementFileError(f"{path}: no such file") from None
-        except IsADirectoryError:
-            raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
-        except (OSError, UnicodeDecodeError) as exc:
-            raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
-        if text.lstrip().startswith(PLAN_MARKER):
-            raise MeasurementFileError(
-                f"{path}: a pose plan written by 'iwr plan' (the poses to measure), not "
-                "measurements: drive the robot to each of its poses, record the joint readings, "
-                "the six leg readings and the platform pose measured by the tracker, and "
-                "calibrate with that file (format: docs/data.md)"
-            )
+        text = read_csv_text(path)
         rows: list[list[float]] = []
         lines: list[int] = []
         problems: list[tuple[int, str]] = []  # (line, message), every bad row
         header: list[str] | None = None
         units: list[str] = []
         delimiter = ","
-        for lineno, line in enumerate(text.splitlines(), start=1):
-            stripped = line.strip()
-            if not stripped or stripped.startswith("#"):
-                continue
-            if len(line) > MAX_LINE_CHARS:
-                # A row is a few dozen numbers; a huge line is a wrong file, refused before it is
-                # split into millions of fields.
-                problems.append((lineno, f"line {lineno}: {len(line):,} characters; a measurement "
-                                         f"row has at most {MAX_LINE_CHARS:,}"))
-                if header is None:
-                    break
-                continue
-            if header is None:
-                delimiter = _delimiter(line)
-            try:
-                fields = [f.strip() for f in next(csv.reader([line], delimiter=delimiter))]
-            except csv.Error as exc:
-                problems.append((lineno, f"line {lineno}: not valid CSV ({exc})"))
+        for lineno, fields, delimiter, problem in csv_rows(text, "a measurement row"):
+            if problem is not None:
+                problems.append((lineno, problem))
                 continue
             if header is None:
                 header = fields
@@ -481,6 +445,63 @@ def _summarise(problems: list[tuple[int, str]], what: str) -> str:
         return first
     return (f"{first} ({len(lines)} {what}s in all, none dropped: lines "
             f"{_enumerate([str(n) for n in lines])})")
+
+
+def read_csv_text(path: Path) -> str:
+    """The text of a CSV file people wrote: a bounded read (a device or a dump is refused), a byte
+    order mark accepted (spreadsheets write one for "CSV UTF-8"), a plan file of ``iwr plan``
+    refused with what to do instead."""
+    try:
+        with open(path, "rb") as fh:
+            raw = fh.read(MAX_CSV_BYTES + 1)
+        if len(raw) > MAX_CSV_BYTES:
+            raise MeasurementFileError(
+                f"{path}: larger than {MAX_CSV_BYTES // 10**6} MB; is this the right file?"
+            )
+        text = raw.decode("utf-8-sig")
+    except FileNotFoundError:
+        raise MeasurementFileError(f"{path}: no such file") from None
+    except IsADirectoryError:
+        raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
+    except (OSError, UnicodeDecodeError) as exc:
+        raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
+    if text.lstrip().startswith(PLAN_MARKER):
+        raise MeasurementFileError(
+            f"{path}: a pose plan written by 'iwr plan' (the poses to measure), not "
+            "measurements: drive the robot to each of its poses, record the joint readings, "
+            "the six leg readings and the platform pose measured by the tracker, and "
+            "calibrate with that file (format: docs/data.md)"
+        )
+    return text
+
+
+def csv_rows(text: str, row: str = "a row") -> Iterator[tuple[int, list[str], str, str | None]]:
+    """The rows of a CSV text as ``(line, fields, separator, problem)``: blank lines and ``#``
+    comments skipped, the separator detected on the header line (the first row), fields stripped.
+    A line that is no row gives ``problem`` (a message naming the line) and no fields; a huge line
+    before the header ends the file (a row is a few dozen numbers: a wrong file, refused before
+    it is split into millions of fields)."""
+    delimiter = ","
+    header_seen = False
+    for lineno, line in enumerate(text.splitlines(), start=1):
+        stripped = line.strip()
+        if not stripped or stripped.startswith("#"):
+            continue
+        if len(line) > MAX_LINE_CHARS:
+            yield lineno, [], delimiter, (f"line {lineno}: {len(line):,} characters; {row} has "
+                                          f"at most {MAX_LINE_CHARS:,}")
+            if not header_seen:
+                return
+            continue
+        if not header_seen:
+            delimiter = _delimiter(line)
+        try:
+            fields = [f.strip() for f in next(csv.reader([line], delimiter=delimiter))]
+        except csv.Error as exc:
+            yield lineno, [], delimiter, f"line {lineno}: not valid CSV ({exc})"
+            continue
+        header_seen = True
+        yield lineno, fields, delimiter, None
 
 
 def _delimiter(header_line: str) -> str:

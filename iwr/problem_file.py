@@ -8,7 +8,7 @@ written and read by the one C++ writer and reader (``cpp/include/iwr/problem_fil
 ``iwr._core``, so Python and the engine accept exactly the same files.
 
 The engine writes its result into its checkpoint (binary, the same container); :func:`engine_result`
-turns a checkpoint into an :class:`~iwr.result.IdentificationResult`, whose ``save`` writes the one
+turns a checkpoint into an :class:`~iwr.methods.IdentificationResult`, whose ``save`` writes the one
 JSON result format.
 """
 

@@ -390,3 +390,13 @@ def test_ctrl_c_writes_the_best_point_so_far_and_exits_130(sim, tmp_path):
     assert result.success is False and "interrupted" in result.message
     assert np.isfinite(result.fun) and result.nfev > 0
     assert "Interrupted" in (out / "report.html").read_text(encoding="utf-8")
+
+
+def test_a_method_stopped_before_converging_exits_4(sim, tmp_path):
+    """A budget too small to converge: the files are written, but the exit code is not success."""
+    out = tmp_path / "out"
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--method",
+               "lm", "--budget", "3", "--out", str(out), "--no-plots")
+    assert proc.returncode == 4, proc.stderr
+    assert "not converged" in proc.stderr
+    assert iwr.load_result(out / "result.json").success is False

@@ -225,3 +225,23 @@ def test_calibrate_lists_an_outlier_by_line_and_instrument(sim, tmp_path) -> Non
     summary = json.loads((out / "summary.json").read_text())
     assert [(o["pose"], o["instrument"], o["removed"]) for o in summary["outliers"]] == [
         (7, "leg3", True)]
+
+
+def test_no_redundancy_is_not_a_fit() -> None:
+    """Five poses (30 readings) for the 52 identifiable parameters leave no degree of freedom: the
+    chi-square test cannot pass, and the result is not a success."""
+    m, _ = iwr.simulate(ROBOT, 5, seed=3, noise=iwr.Noise.realistic())
+    r = iwr.identify(ROBOT, m, "lm", noise=iwr.Noise.realistic(), progress=False)
+    assert not r.success and r.status == "failed"
+    assert not r.fit.fit_ok and "no redundancy" in r.message
+
+
+def test_a_noise_model_the_test_cannot_use_leaves_the_plausibility_check(data60) -> None:
+    """A pose weighted 0 (eq. (10)'s way to leave it out) cannot enter the chi-square test: LM's
+    result keeps the plausibility check and says why there is no chi-square test."""
+    m, _ = data60
+    w = np.ones((len(m), 6))
+    w[3] = 0.0
+    m0 = iwr.Measurements(m.q, m.poses, m.legs, weights=w, joint_types=ROBOT.joint_types)
+    r = iwr.identify(ROBOT, m0, "lm", noise=iwr.Noise.realistic(), progress=False)
+    assert r.fit is not None and r.fit.fit_ok and "no chi-square test: weights" in r.message

@@ -46,6 +46,8 @@ EXAMPLE_DIR = "iwr-example"
 #: Exit code of a calibration whose model does not fit the data (chi-square test failed, or
 #: identified errors far beyond their plausible size): the files are written, but not as success.
 EXIT_NO_FIT = 3
+# The method stopped before converging (a budget, a limit) or failed; the files say so.
+EXIT_NOT_CONVERGED = 4
 
 # CLI option -> keyword a method takes for it: first the known ones per method (for options taken
 # through **options), then the first of the names below found in the method's signature.
@@ -233,6 +235,10 @@ def _exit_code(cal: Any) -> int:
         print(f"iwr calibrate: the model does not fit the data (exit {EXIT_NO_FIT}); the files "
               "are written, see the report", file=sys.stderr)
         return EXIT_NO_FIT
+    if not cal.result.success:
+        print(f"iwr calibrate: not converged (status {cal.result.get('status', 'stopped')}, exit "
+              f"{EXIT_NOT_CONVERGED}); the files hold the best point so far", file=sys.stderr)
+        return EXIT_NOT_CONVERGED
     return EXIT_OK
 
 

@@ -210,9 +210,18 @@ def _check_fit(result: IdentificationResult, problem: Problem, noise: Any,
     from ..estimation import fit_check
     from ..simulate import Noise
 
-    fit = fit_check(problem.robot, problem.measurements, result.x, active=active,
-                    noise=noise if isinstance(noise, Noise) else None,
-                    bounds=(problem.lower, problem.upper))
+    noise = noise if isinstance(noise, Noise) else None
+    try:
+        fit = fit_check(problem.robot, problem.measurements, result.x, active=active, noise=noise,
+                        bounds=(problem.lower, problem.upper))
+    except ValueError as exc:
+        if noise is None:
+            raise
+        # A noise model the chi-square test cannot use (all zero; a pose weighted 0, which eq.
+        # (10) reads as "left out"): the plausibility check alone, and the reason in the message.
+        fit = fit_check(problem.robot, problem.measurements, result.x, active=active, noise=None,
+                        bounds=(problem.lower, problem.upper))
+        result["message"] = f"{result.message} (no chi-square test: {exc})"
     result["fit"] = fit
     if result.success and not fit.fit_ok:
         # The method's own message (e.g. "converged") is kept, but no longer as the outcome.

@@ -293,8 +293,9 @@ class Calibration:
         before = self.accuracy.nominal.summary()["position_mm"]["rms"]
         after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
         if after > 0 and not self._fit_failed():
-            lines.append(f"position RMS error {before:.4g} mm -> {after:.4g} mm "
-                         f"({before / after:.1f} times smaller)")
+            change = (f"{before / after:.1f} times smaller" if after < before else
+                      f"WORSE, {after / before:.2f} times larger" if before > 0 else "")
+            lines.append(f"position RMS error {before:.4g} mm -> {after:.4g} mm ({change})")
         fit = self.fit_lines()
         if fit:
             lines.append("")

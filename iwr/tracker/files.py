@@ -27,13 +27,11 @@ from .._io import atomic_write_text
 from ..measurements import (
     _JOINT_RE,
     _LEG_COLUMNS,
-    MAX_CSV_BYTES,
-    MAX_LINE_CHARS,
-    PLAN_MARKER,
     MeasurementFileError,
-    _delimiter,
     _limit_problem,
     _summarise,
+    csv_rows,
+    read_csv_text,
 )
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
@@ -55,42 +53,16 @@ HEADER_COMMENT = """\
 def _read_rows(path: Path) -> tuple[list[str], int, str, list[tuple[int, list[str]]]]:
     """The header, its line, the separator and the data rows ``(line, fields)`` of a CSV file;
     bounded reads, a byte order mark accepted, comments (``#``) and blank lines skipped."""
-    try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_CSV_BYTES + 1)
-        if len(raw) > MAX_CSV_BYTES:
-            raise MeasurementFileError(
-                f"{path}: larger than {MAX_CSV_BYTES // 10**6} MB; is this the right file?")
-        text = raw.decode("utf-8-sig")
-    except FileNotFoundError:
-        raise MeasurementFileError(f"{path}: no such file") from None
-    except IsADirectoryError:
-        raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
-    except (OSError, UnicodeDecodeError) as exc:
-        raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
-    if text.lstrip().startswith(PLAN_MARKER):
-        raise MeasurementFileError(f"{path}: a pose plan written by 'iwr plan', not measurements")
+    text = read_csv_text(path)
     header: list[str] | None = None
     header_line = 0
     delimiter = ","
     rows: list[tuple[int, list[str]]] = []
     problems: list[tuple[int, str]] = []
-    for lineno, line in enumerate(text.splitlines(), start=1):
-        stripped = line.strip()
-        if not stripped or stripped.startswith("#"):
-            continue
-        if len(line) > MAX_LINE_CHARS:
-            problems.append((lineno, f"line {lineno}: {len(line):,} characters; a row has at "
-                                     f"most {MAX_LINE_CHARS:,}"))
-            if header is None:
-                break
-            continue
-        if header is None:
-            delimiter = _delimiter(line)
-        try:
-            fields = [f.strip() for f in next(csv.reader([line], delimiter=delimiter))]
-        except csv.Error as exc:
-            problems.append((lineno, f"line {lineno}: not valid CSV ({exc})"))
+    for lineno, fields, sep, problem in csv_rows(text):
+        delimiter = sep
+        if problem is not None:
+            problems.append((lineno, problem))
             continue
         if header is None:
             header, header_line = fields, lineno
