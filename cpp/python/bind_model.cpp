@@ -63,18 +63,8 @@ void bind_model(py::module_& m) {
              py::arg("x"))
         .def("residuals",
              [](const PyObjective& o, const VecRef& x) { return o.obj_->residuals(x); }, py::arg("x"))
-        .def(
-            "jacobian",
-            [](const PyObjective& o, const VecRef& x) {
-                VectorXd r;
-                RowMatrixXd j;
-                {
-                    py::gil_scoped_release release;
-                    o.obj_->jacobian(x, &r, &j);
-                }
-                return py::make_tuple(r, j);
-            },
-            py::arg("x"), "Residuals and their exact Jacobian at x.")
+        .def("jacobian", &PyObjective::jacobian, py::arg("x"),
+             "Residuals and their exact Jacobian at x.")
         .def("cost_batch", &PyObjective::cost_batch,
             py::arg("X"), py::arg("threads") = 0);
 }

@@ -61,18 +61,8 @@ void bind_tracker(py::module_& m) {
                  return o.obj_->residuals(x);
              },
              py::arg("x"))
-        .def(
-            "jacobian",
-            [](const PyTrackerObjective& o, const VecRef& x) {
-                VectorXd r;
-                RowMatrixXd j;
-                {
-                    py::gil_scoped_release release;
-                    o.obj_->jacobian(x, &r, &j);
-                }
-                return py::make_tuple(r, j);
-            },
-            py::arg("x"), "Residuals and their exact Jacobian at x.")
+        .def("jacobian", &PyTrackerObjective::jacobian, py::arg("x"),
+             "Residuals and their exact Jacobian at x.")
         .def("failures", [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->failures(x); },
              py::arg("x"), "Poses whose forward kinematics fails at x: [(index, message)].")
         .def("platform_poses",

@@ -42,6 +42,17 @@ struct Pooled {
         return *pool_;
     }
 
+    /// The residuals at x and their exact Jacobian, without the GIL.
+    py::tuple jacobian(const VecRef& x) const {
+        VectorXd r;
+        RowMatrixXd j;
+        {
+            py::gil_scoped_release release;
+            obj_->jacobian(x, &r, &j);
+        }
+        return py::make_tuple(r, j);
+    }
+
     /// The costs of the rows of X (M, n_params), on `threads` threads without the GIL.
     VectorXd cost_batch(const RowRef& X, int threads) {
         if (X.cols() != obj_->n_params())
