@@ -713,13 +713,7 @@ void TrackerObjective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* r
 
 void TrackerObjective::cost_batch(const double* X, Eigen::Index m, double* out,
                                   ThreadPool& pool) const {
-    std::vector<Workspace> ws(static_cast<size_t>(pool.size()));
-    for (auto& w : ws) w = make_workspace();
-    const size_t np = static_cast<size_t>(n_params());
-    pool.parallel_for(static_cast<size_t>(m), [&](size_t b, size_t e, int id) {
-        Workspace& w = ws[static_cast<size_t>(id)];
-        for (size_t i = b; i < e; ++i) out[i] = cost(X + i * np, w);
-    });
+    batch_costs(*this, X, static_cast<std::size_t>(m), out, pool);
 }
 
 }  // namespace iwr

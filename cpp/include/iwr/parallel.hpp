@@ -82,4 +82,19 @@ private:
     std::exception_ptr error_;  // guarded by sync_->mutex
 };
 
+/// The costs of the m rows of X (each obj.n_params() long) into out, across the pool's threads,
+/// one workspace per thread: a row's cost never depends on the thread or the other rows. Serves
+/// every objective with `make_workspace()` and `cost(const double*, Workspace&)`.
+template <class Objective>
+void batch_costs(const Objective& obj, const double* X, std::size_t m, double* out,
+                 ThreadPool& pool) {
+    std::vector<typename Objective::Workspace> ws(static_cast<std::size_t>(pool.size()));
+    for (auto& w : ws) w = obj.make_workspace();
+    const std::size_t np = static_cast<std::size_t>(obj.n_params());
+    pool.parallel_for(m, [&](std::size_t b, std::size_t e, int id) {
+        auto& w = ws[static_cast<std::size_t>(id)];
+        for (std::size_t i = b; i < e; ++i) out[i] = obj.cost(X + i * np, w);
+    });
+}
+
 }  // namespace iwr
