@@ -36,7 +36,7 @@ from ._base import (
 )
 from .simulate import write_truth
 from .tracker import add_arguments as add_tracker_arguments
-from .tracker import calibrate_tracker, refuse_tracker_data
+from .tracker import calibrate_tracker, refuse_tracker_data, tracker_noise_of
 
 EXAMPLE_SEED = 2024
 EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 0.2)
@@ -212,10 +212,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     robot = load_robot(args.robot)
     if robot.tracker is not None:  # laser-tracker data (docs/tracker.md)
-        if "noise" in kwargs or method == "efficient":
-            raise UsageError("--noise, --method efficient: the efficient estimator does not yet "
-                             "handle laser-tracker point data (docs/estimation.md, Limits); "
-                             "calibrate it without --noise")
+        if "noise" in kwargs:  # --noise means what it means to `iwr simulate` there
+            kwargs["noise"] = tracker_noise_of(kwargs["noise"])
         return calibrate_tracker(args, robot, method, kwargs)
     refuse_tracker_data(args)  # tracker data, or --readings, with a robot that has no tracker
     data = load_data(args.data, robot)

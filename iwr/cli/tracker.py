@@ -8,6 +8,7 @@ import argparse
 import dataclasses
 import json
 import math
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -36,6 +37,20 @@ def refuse_tracker_data(args: argparse.Namespace) -> None:
         raise UsageError(f"{args.data}: laser-tracker data (a 'pose' column), but {args.robot} has "
                          "no [tracker] table describing the setup (registration, reflectors or "
                          "probe): add one (docs/tracker.md)")
+
+
+def tracker_noise_of(noise: Any) -> Any:
+    """What ``--noise`` means for a robot with a tracker, in ``iwr simulate`` and ``iwr
+    calibrate`` alike: the reading noise of the :class:`iwr.Noise` (its ``position`` and
+    ``orientation``, a pose measured in {0}, do not apply) and ``TrackerNoise.leica()`` (none
+    when the whole noise is zero); ``"estimate"`` stays."""
+    from ..simulate import Noise
+    from ..tracker.simulate import TrackerNoise
+
+    if isinstance(noise, str):
+        return noise
+    readings = dataclasses.replace(noise, position=0.0, orientation=0.0)
+    return readings, (TrackerNoise.none() if noise == Noise() else TrackerNoise.leica())
 
 
 def load_tracker_data(path: str, robot: Any, readings: str | None = None) -> Any:
@@ -96,9 +111,12 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     ns = identifiability(robot, ident, result.x)
     acc = accuracy(robot, val, result.x)
     where = "held-out" if held_out else "identification (no poses held out)"
+    fit = result.get("fit")
+    cost = (f"chi2 {result.fun:.6g}" if method == "efficient" else f"cost {result.fun:.6g} mm^2")
     lines = [
-        f"{result.message} (status {result.status}, {result.nfev} evaluations, "
-        f"cost {result.fun:.6g} mm^2)",
+        f"{result.message} (status {result.status}, {result.nfev} evaluations, {cost})",
+        *([] if fit is None else [str(fit)]),
+        *[f"outlier: {o}" for o in result.get("outliers", [])],
         f"identifiability: rank {ns.rank} of {len(ns.parameter_names)}, "
         f"{len(ns.left_out)} null directions (docs/tracker.md)",
         f"accuracy on {acc.n_poses} {where} poses: largest predicted-minus-measured point "
@@ -124,7 +142,20 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
               *[f"    {name:<22} {value:+.6g}" for name, value in result.named().items()]]
     atomic_write_text(out / "report.md", "\n".join(report) + "\n")
     print(f"\nwrote {out}/: calibrated.toml, result.json, accuracy.json, report.md")
-    return EXIT_INTERRUPTED if result.interrupted else EXIT_OK
+    if result.interrupted:
+        return EXIT_INTERRUPTED
+    if method == "efficient":  # the estimator tests its fit: the exit codes of leg data
+        from .calibrate import EXIT_NO_FIT, EXIT_NOT_CONVERGED
+
+        if fit is not None and not fit.fit_ok:
+            print(f"iwr calibrate: the model does not fit the data (exit {EXIT_NO_FIT}); the "
+                  "files are written, see the report", file=sys.stderr)
+            return EXIT_NO_FIT
+        if not result.success:
+            print(f"iwr calibrate: not converged (status {result.status}, exit "
+                  f"{EXIT_NOT_CONVERGED})", file=sys.stderr)
+            return EXIT_NOT_CONVERGED
+    return EXIT_OK
 
 
 def _subset(data: Any, rows: np.ndarray) -> Any:
@@ -142,13 +173,11 @@ def simulate_tracker_files(args: argparse.Namespace, robot: Any) -> int:
     """``iwr simulate --robot ROBOT.toml`` with a ``[tracker]`` table: the wide CSV of points (or
     probe poses), the long pair (points + readings) for point data, and the true errors."""
     from .._io import atomic_write_text
-    from ..simulate import Noise, simulate
+    from ..simulate import simulate
     from ..tracker.files import write_tracker_long, write_tracker_wide
-    from ..tracker.simulate import TrackerNoise
 
-    readings_noise = dataclasses.replace(args.noise, position=0.0, orientation=0.0)
-    tracker_noise = (TrackerNoise.none() if args.noise == Noise() else TrackerNoise.leica())
-    noise = (readings_noise, tracker_noise)
+    noise = tracker_noise_of(args.noise)
+    readings_noise, tracker_noise = noise
     data, truth = simulate(robot, args.poses, seed=args.seed, noise=noise)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

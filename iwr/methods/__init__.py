@@ -142,24 +142,21 @@ def identify(
     """
     from ..simulate import Noise
 
-    if noise is not None and not (isinstance(noise, Noise) or (isinstance(noise, str)
-                                                               and noise == "estimate")):
-        raise TypeError(f"noise: expected an iwr.Noise or 'estimate', got {noise!r}")
     if method is None:
         method = DEFAULT_METHOD if noise is None else "efficient"
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
     if type(measurements).__name__ == "TrackerMeasurements":
-        if noise is not None or method == "efficient":
-            raise ValueError("noise, method 'efficient': the efficient estimator does not yet "
-                             "handle laser-tracker point data (docs/estimation.md, Limits); "
-                             "identify it without a noise model")
-        # Tracker data (docs/tracker.md): the point objective, from the registration guess.
+        # Tracker data (docs/tracker.md): the point objective, from the registration guess; with
+        # a noise model the efficient estimator (its noise convention is iwr.simulate's there).
         from ..tracker.api import tracker_identify
 
-        return tracker_identify(robot, measurements, method, bounds=bounds, x0=x0,
+        return tracker_identify(robot, measurements, method, noise=noise, bounds=bounds, x0=x0,
                                 active=active, max_evaluations=max_evaluations, seed=seed,
                                 callback=callback, progress=progress, **options)
+    if noise is not None and not (isinstance(noise, Noise) or (isinstance(noise, str)
+                                                               and noise == "estimate")):
+        raise TypeError(f"noise: expected an iwr.Noise or 'estimate', got {noise!r}")
     problem = Problem(robot, measurements, bounds)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
     if x0_arr.shape != (problem.n_params,) or not np.all(np.isfinite(x0_arr)):

@@ -159,7 +159,7 @@ def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
 
 
 def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: str = "lm", *,
-                     bounds: Any = None, x0: Any = None, active: Any = None,
+                     noise: Any = None, bounds: Any = None, x0: Any = None, active: Any = None,
                      max_evaluations: int | None = None, seed: int | None = None,
                      callback: Callable[..., Any] | None = None, progress: bool | None = None,
                      **options: Any) -> Any:
@@ -174,6 +174,30 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
 
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+    if method == "efficient":
+        # Every instrument weighted by its noise (docs/estimation.md, "Tracker data"): its own
+        # start (LM on the points from the registration guess), base parameters and fit test.
+        from ..estimation import efficient
+
+        if noise is None:
+            raise ValueError("method 'efficient' weighs every instrument by its noise: give "
+                             "noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...)) or "
+                             "noise='estimate'")
+        if max_evaluations is not None:
+            options.setdefault("max_iterations", int(max_evaluations))
+        if isinstance(active, str) and active == "base":
+            active = None
+        if active is not None:
+            problem, _ = tracker_problem(robot, measurements, bounds, x0)
+            active = active_mask(problem, active)
+        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
+                           bounds=bounds, **options)
+        result.check_finite()
+        return result
+    if noise is not None:
+        raise ValueError(f"noise: method {method!r} on tracker data does not use a noise model "
+                         "(no chi-square test there yet); leave it out, or use the efficient "
+                         "estimator (method='efficient', the default with a noise model)")
     problem, start_x = tracker_problem(robot, measurements, bounds, x0)
     if isinstance(active, str) and active == "base":
         ns = null_space(problem, start_x)
