@@ -347,6 +347,14 @@ def predicted_accuracy(
     go = g[:, 3:]
     cp = np.einsum("kip,pq,kjq->kij", gp, cov, gp)
     co = np.einsum("kip,pq,kjq->kij", go, cov, go)
+    return accuracy_from_covariances(cp, co, n_samples=n_samples, seed=seed)
+
+
+def accuracy_from_covariances(cp: np.ndarray, co: np.ndarray, *, n_samples: int = 500,
+                              seed: int = 0) -> PredictedAccuracy:
+    """:class:`PredictedAccuracy` from per-pose covariances of the tool position (N, 3, 3; mm^2)
+    and orientation (N, 3, 3; rad^2): RMS from their traces, 95th percentiles from ``n_samples``
+    Gaussian draws per pose (the same draws at every pose, ``seed``)."""
     rng = np.random.default_rng(seed)
     z = rng.standard_normal((3, n_samples))
 

@@ -265,3 +265,34 @@ def test_cli_forgotten_offset_exits_non_zero(tmp_path):
     # named as implausible (beyond 10 times the 2 mm offset bound), or the fit fails: exit 3.
     assert good.returncode == 3, good.stdout + good.stderr
     assert "does not fit" in good.stderr
+
+
+def test_predicted_accuracy_derivative_matches_forward_kinematics():
+    """The predicted tool error uses the loop closure's exact pose derivative; against central
+    differences of the full chain (forward kinematics of the readings, tool_frames, the gauge
+    alignment), parameter by parameter (a unit covariance on one parameter)."""
+    from iwr.tracker.analysis import tool_frames
+    from iwr.tracker.estimation import _aligned_errors, tracker_predicted_accuracy
+
+    robot = _robot()
+    data, truth = iwr.simulate(robot, 60, seed=11, noise=NOISE)
+    res = iwr.identify(robot, data, noise=NOISE)
+    assert res.predicted is not None and res.predicted.position_rms > 0
+    fresh, _ = iwr.simulate(robot, 20, seed=12, x=truth)
+    x, idx = res.x, np.flatnonzero(res.active)
+    b = tool_frames(robot, robot.tracker, x, fresh.q, fresh.legs)
+    h = 1e-5
+    for j in range(0, idx.size, 7):
+        e = np.zeros_like(x)
+        e[idx[j]] = h
+        fd = (_aligned_errors(tool_frames(robot, robot.tracker, x + e, fresh.q, fresh.legs), b,
+                              np.zeros(3))
+              - _aligned_errors(tool_frames(robot, robot.tracker, x - e, fresh.q, fresh.legs), b,
+                                np.zeros(3))) / (2 * h)
+        c = np.zeros((idx.size, idx.size))
+        c[j, j] = 1.0
+        p = tracker_predicted_accuracy(robot, x, c, res.active, fresh.q, fresh.legs)
+        want_p = math.sqrt(np.mean(np.sum(fd[:, :3] ** 2, axis=1)))
+        want_o = math.degrees(math.sqrt(np.mean(np.sum(fd[:, 3:] ** 2, axis=1))))
+        assert p.position_rms == pytest.approx(want_p, rel=1e-5, abs=1e-9)
+        assert p.orientation_rms == pytest.approx(want_o, rel=1e-5, abs=1e-9)

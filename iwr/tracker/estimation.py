@@ -25,7 +25,8 @@ from .api import _setup, _split_noise, tracker_problem
 from .data import TrackerMeasurements
 from .simulate import TrackerNoise
 
-__all__ = ["TRACKER_COMPONENTS", "TrackerSpec", "tracker_reading_names"]
+__all__ = ["TRACKER_COMPONENTS", "TrackerSpec", "tracker_predicted_accuracy",
+           "tracker_reading_names"]
 
 #: The variance components on tracker data: the reading noise (as :class:`iwr.Noise`'s fields)
 #: and one factor each on the tracker's distance sigma (``distance`` and ``distance_per_m``
@@ -215,8 +216,84 @@ class TrackerSpec:
         return {"readings": asdict(noise[0]), "tracker": asdict(noise[1])}
 
     def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray, tool: Any) -> Any:
-        return None
+        m = self.measurements
+        return tracker_predicted_accuracy(self.robot, x, cov, self.mask, m.q[used], m.legs[used],
+                                          tool=tool)
 
     def cost_eq10(self, x: np.ndarray) -> float:
         """The unweighted point objective (mm^2), eq. (10)'s analogue on tracker data."""
         return self.problem.cost(x)
+
+
+def _aligned_errors(a: np.ndarray, b: np.ndarray, tool: np.ndarray) -> np.ndarray:
+    """Per pose the tool error vector (position in {T}, mm; orientation, a rotation vector in the
+    tool frame, rad), (N, 6), of the frames ``a`` against ``b`` modulo the gauge, as
+    :func:`tool_pose_errors` (``gauge="fit"``) measures its norms."""
+    from .analysis import _align
+
+    a = a @ _align(a, b)
+    dp = a[:, :3, :3] @ tool + a[:, :3, 3] - (b[:, :3, :3] @ tool + b[:, :3, 3])
+    r = np.swapaxes(b[:, :3, :3], 1, 2) @ a[:, :3, :3]
+    w = 0.5 * np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
+                        r[:, 1, 0] - r[:, 0, 1]], axis=1)
+    return np.concatenate([dp, w], axis=1)
+
+
+def _frames(robot: Robot, x: np.ndarray, t05: np.ndarray, dpose: np.ndarray) -> np.ndarray:
+    """:func:`tool_frames` (the joints' gauge, in {T}) with the platform poses ``t05`` (N, 4, 4)
+    moved by ``dpose`` (N, 6): ``p + dp``, ``R exp([w]x)``."""
+    from scipy.spatial.transform import Rotation
+
+    from .registration import kabsch
+
+    nj = robot.n_joints
+    t = t05.copy()
+    t[:, :3, 3] += dpose[:, :3]
+    t[:, :3, :3] = t[:, :3, :3] @ Rotation.from_rotvec(dpose[:, 3:]).as_matrix()
+    b = robot.platform_joints + x[4 * nj + 18: 4 * nj + 36].reshape(6, 3)
+    r, c = kabsch(robot.platform_joints, b)
+    k = np.eye(4)
+    k[:3, :3], k[:3, 3] = r, c
+    return _setup(robot).registration_matrix(x[robot.n_params:]) @ t @ k
+
+
+def tracker_predicted_accuracy(robot: Robot, x: Any, covariance: Any, active: Any, q: Any,
+                               legs: Any, *, tool: Any = None, n_samples: int = 500,
+                               seed: int = 0, step: float = 1e-6) -> Any:
+    """Predicted tool pose error (:class:`iwr.estimation.PredictedAccuracy`) of the model ``x``
+    (robot then setup parameters) at the readings ``q``, ``legs``, from the covariance of its
+    active parameters: ``G C G^T`` per pose, ``G`` the derivative of the tool error vector modulo
+    the gauge (what :func:`tool_pose_errors` measures against a truth, with ``gauge="fit"``).
+    The platform pose's derivative is exact (implicit differentiation of the loop closure,
+    :func:`iwr.estimation.loop_jacobians`); the frame's composition with the registration, the
+    joints' gauge and the gauge alignment is differentiated by central differences of step
+    ``step`` (mm, rad; no forward kinematics in them). The orientation error is in the tool
+    frame."""
+    from ..estimation import accuracy_from_covariances, loop_jacobians
+    from ..transforms import pose_matrix
+    from .analysis import _fk
+
+    x = np.asarray(x, dtype=float)
+    mask = np.asarray(active, dtype=bool)
+    cov = np.asarray(covariance, dtype=float)
+    q = np.asarray(q, dtype=float)
+    legs = np.asarray(legs, dtype=float)
+    t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+    nr, nj = robot.n_params, robot.n_joints
+    poses = _fk(robot, x[:nr], q, legs)
+    _, jx, jy = loop_jacobians(robot, x[:nr], q, poses)
+    g_pose = -np.linalg.solve(jy[:, :, nj:], jx)  # (N, 6, nr): d (dp, w) / d x_robot
+    t05 = pose_matrix(poses)
+    zero = np.zeros((len(poses), 6))
+    base = _frames(robot, x, t05, zero)
+    cols = []
+    for i in np.flatnonzero(mask):
+        e = np.zeros_like(x)
+        e[i] = step
+        d = g_pose[:, :, i] * step if i < nr else zero
+        cols.append((_aligned_errors(_frames(robot, x + e, t05, d), base, t)
+                     - _aligned_errors(_frames(robot, x - e, t05, -d), base, t)) / (2 * step))
+    g = np.stack(cols, axis=2)  # (N, 6, p)
+    cp = np.einsum("kip,pq,kjq->kij", g[:, :3], cov, g[:, :3])
+    co = np.einsum("kip,pq,kjq->kij", g[:, 3:], cov, g[:, 3:])
+    return accuracy_from_covariances(cp, co, n_samples=n_samples, seed=seed)
