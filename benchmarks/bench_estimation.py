@@ -81,6 +81,26 @@ def crb(actual: np.ndarray, predicted: np.ndarray,
     return ratio, float(lo), float(hi)
 
 
+def comparison_tables(r: np.ndarray, other: str) -> None:
+    """The tables of the rows (other's position, efficient's position, other's orientation,
+    efficient's orientation, predicted position, predicted orientation) RMS, one row per seed:
+    the ratios other / efficient, and the Cramer-Rao check."""
+    pos_ratio, ori_ratio = r[:, 0] / r[:, 1], r[:, 2] / r[:, 3]
+    rng = np.random.default_rng(0)
+    pc, oc = crb(r[:, 1], r[:, 4], rng), crb(r[:, 3], r[:, 5], rng)
+    print(f"| | {other} median | efficient median | ratio median | ratio min | ratio max |")
+    print("|---|---|---|---|---|---|")
+    print(f"| tool position RMS (mm) | {np.median(r[:, 0]):.5f} | {np.median(r[:, 1]):.5f} | "
+          f"{np.median(pos_ratio):.3f} | {pos_ratio.min():.3f} | {pos_ratio.max():.3f} |")
+    print(f"| tool orientation RMS (deg) | {np.median(r[:, 2]):.6f} | {np.median(r[:, 3]):.6f} | "
+          f"{np.median(ori_ratio):.3f} | {ori_ratio.min():.3f} | {ori_ratio.max():.3f} |")
+    print()
+    print("| Cramer-Rao check | actual / predicted RMS over seeds | bootstrap 90 % |")
+    print("|---|---|---|")
+    print(f"| tool position | {pc[0]:.3f} | {pc[1]:.3f} .. {pc[2]:.3f} |")
+    print(f"| tool orientation | {oc[0]:.3f} | {oc[1]:.3f} .. {oc[2]:.3f} |")
+
+
 def stats_table(seeds: int) -> None:
     robot = iwr.Robot.default()
     noise = iwr.Noise.realistic()
@@ -105,26 +125,11 @@ def stats_table(seeds: int) -> None:
               f"{rows[-1][2]:.6f} / {rows[-1][3]:.6f} deg (predicted {rows[-1][5]:.6f}); "
               f"success {ef.success}, {len(ef.outliers)} outlier(s)", flush=True)
     r = np.array([row[:6] for row in rows])
-    pos_ratio = r[:, 0] / r[:, 1]
-    ori_ratio = r[:, 2] / r[:, 3]
-    rng = np.random.default_rng(0)
-    pc = crb(r[:, 1], r[:, 4], rng)
-    oc = crb(r[:, 3], r[:, 5], rng)
     print()
     print(f"Noise.realistic(), N = 100, {seeds} seeds (0..{seeds - 1}), 200 fresh noise-free poses "
           "per seed")
     print()
-    print("| | eq. (10) median | efficient median | ratio median | ratio min | ratio max |")
-    print("|---|---|---|---|---|---|")
-    print(f"| tool position RMS (mm) | {np.median(r[:, 0]):.5f} | {np.median(r[:, 1]):.5f} | "
-          f"{np.median(pos_ratio):.3f} | {pos_ratio.min():.3f} | {pos_ratio.max():.3f} |")
-    print(f"| tool orientation RMS (deg) | {np.median(r[:, 2]):.6f} | {np.median(r[:, 3]):.6f} | "
-          f"{np.median(ori_ratio):.3f} | {ori_ratio.min():.3f} | {ori_ratio.max():.3f} |")
-    print()
-    print("| Cramer-Rao check | actual / predicted RMS over seeds | bootstrap 90 % |")
-    print("|---|---|---|")
-    print(f"| tool position | {pc[0]:.3f} | {pc[1]:.3f} .. {pc[2]:.3f} |")
-    print(f"| tool orientation | {oc[0]:.3f} | {oc[1]:.3f} .. {oc[2]:.3f} |")
+    comparison_tables(r, "eq. (10)")
     print()
     print(f"efficient: success {sum(row[6] for row in rows)} of {seeds}; outliers removed "
           f"{sum(row[7] for row in rows)} in all")
@@ -291,26 +296,12 @@ def tracker_table(seeds: int, kind: str, repeat: int) -> None:
                      f"accuracy {outl[-1][2]:.3f}x clean")
         print(line, flush=True)
     r = np.array(rows)
-    pos_ratio, ori_ratio = r[:, 0] / r[:, 1], r[:, 2] / r[:, 3]
-    rng = np.random.default_rng(0)
-    pc, oc = crb(r[:, 1], r[:, 4], rng), crb(r[:, 3], r[:, 5], rng)
     print()
     print(f"Tracker {kind} (K = {setup.n_reflectors if kind == 'points' else 'probe'}), "
           f"readings of Noise.realistic() + TrackerNoise.leica(), N = 100, {seeds} seeds "
           f"(0..{seeds - 1}), 200 fresh noise-free poses per seed")
     print()
-    print("| | LM (unweighted points) median | efficient median | ratio median | ratio min | "
-          "ratio max |")
-    print("|---|---|---|---|---|---|")
-    print(f"| tool position RMS (mm) | {np.median(r[:, 0]):.5f} | {np.median(r[:, 1]):.5f} | "
-          f"{np.median(pos_ratio):.3f} | {pos_ratio.min():.3f} | {pos_ratio.max():.3f} |")
-    print(f"| tool orientation RMS (deg) | {np.median(r[:, 2]):.6f} | {np.median(r[:, 3]):.6f} | "
-          f"{np.median(ori_ratio):.3f} | {ori_ratio.min():.3f} | {ori_ratio.max():.3f} |")
-    print()
-    print("| Cramer-Rao check | actual / predicted RMS over seeds | bootstrap 90 % |")
-    print("|---|---|---|")
-    print(f"| tool position | {pc[0]:.3f} | {pc[1]:.3f} .. {pc[2]:.3f} |")
-    print(f"| tool orientation | {oc[0]:.3f} | {oc[1]:.3f} .. {oc[2]:.3f} |")
+    comparison_tables(r, "LM (unweighted points)")
     c = np.array([row[:3] for row in chi], dtype=float)
     ks = stats.kstest(c[:, 2], "uniform")
     print()

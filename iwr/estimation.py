@@ -532,8 +532,8 @@ def _check_noise(noise: Noise) -> None:
 
 def efficient(
     robot: Robot,
-    measurements: Measurements,
-    noise: Noise | str,
+    measurements: Any,
+    noise: Any,
     *,
     x0: Any = None,
     active: Any = None,
@@ -555,11 +555,16 @@ def efficient(
     ----------
     robot : Robot
         The nominal robot.
-    measurements : Measurements
-    noise : Noise or "estimate"
+    measurements : Measurements or iwr.tracker.TrackerMeasurements
+        Pose data in {0}; or laser-tracker data (points or probe poses in {T}) for a robot with a
+        tracker setup (docs/estimation.md, "Tracker data": the parameters then cover the setup's,
+        the start is LM on the points from the registration guess, and ``x0``, ``active`` are
+        of the full length).
+    noise : Noise, (Noise, TrackerNoise) or "estimate"
         The standard deviation of each instrument (legs > 0; a 0 elsewhere makes that reading
         exact). ``"estimate"``: every component estimated from the data, starting from
-        :meth:`iwr.Noise.realistic`.
+        :meth:`iwr.Noise.realistic` (and ``TrackerNoise.leica()``). Tracker data take the pair,
+        as :func:`iwr.simulate` does on such a robot.
     x0 : array_like, optional
         Starting point and value of the inactive parameters; default zeros (the nominal robot).
     active : array_like of bool, optional
@@ -574,7 +579,10 @@ def efficient(
     estimate : sequence of str, optional
         Noise components to estimate from the data (names of :class:`iwr.Noise` fields), the
         others being held at ``noise``: e.g. ``("position", "orientation")`` when only the leg and
-        joint noise is known. Default: none (all when ``noise="estimate"``).
+        joint noise is known. Default: none (all when ``noise="estimate"``). Tracker data:
+        ``legs``, ``joint_lengths``, ``joint_angles``, ``tracker_distance``,
+        ``tracker_transverse``, ``tracker_orientation`` (probe), or ``"tracker"`` for all of the
+        tracker's.
     outliers : {"remove", "report", "off"}
         ``"remove"``: data snooping, one pose at a time: while the worst pose fails its test
         (``outlier_alpha``), it is reported and left out, and the solve is repeated. ``"report"``:
