@@ -296,3 +296,17 @@ def test_predicted_accuracy_derivative_matches_forward_kinematics():
         want_o = math.degrees(math.sqrt(np.mean(np.sum(fd[:, 3:] ** 2, axis=1))))
         assert p.position_rms == pytest.approx(want_p, rel=1e-5, abs=1e-9)
         assert p.orientation_rms == pytest.approx(want_o, rel=1e-5, abs=1e-9)
+
+
+def test_callback_stops_the_tracker_solve():
+    robot = _robot()
+    data, _ = iwr.simulate(robot, 30, seed=13, noise=NOISE)
+    seen = []
+
+    def cb(r):
+        seen.append((r.x.size, float(r.fun)))
+        return True
+
+    res = iwr.identify(robot, data, noise=NOISE, callback=cb)
+    assert seen and seen[0][0] == robot.n_params + robot.tracker.n_params
+    assert res.status == "callback" and not res.success
