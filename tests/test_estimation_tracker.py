@@ -16,7 +16,13 @@ import pytest
 
 import iwr
 from iwr import _core
-from iwr.tracker import TrackerNoise, null_space, tool_pose_errors, tracker_problem
+from iwr.tracker import (
+    RegistrationError,
+    TrackerNoise,
+    null_space,
+    tool_pose_errors,
+    tracker_problem,
+)
 from iwr.tracker.estimation import tracker_reading_names
 
 REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
@@ -175,16 +181,19 @@ def test_forgotten_reflector_offset_does_not_fit():
     assert "DOES NOT FIT" in res.verdict
 
 
-def test_swapped_leg_columns_do_not_fit():
+def test_swapped_leg_columns_are_refused():
+    """Two leg columns swapped: never "converged". The registration guess refuses the data (its
+    rigid fit leaves tens of mm), and from a given start the readings have no forward kinematics
+    at some pose, named."""
     robot = _robot()
-    data, _ = iwr.simulate(robot, 60, seed=7, noise=NOISE)
+    data, truth = iwr.simulate(robot, 60, seed=7, noise=NOISE)
     legs = data.legs[:, [1, 0, 2, 3, 4, 5]]
     swapped = type(data)(data.q, legs, points=data.points, joint_types=data.joint_types)
-    try:
-        res = iwr.identify(robot, swapped, noise=NOISE)
-    except (iwr.ForwardKinematicsError, ValueError):
-        return  # refused outright (named): also never "converged"
-    assert not res.fit_ok and not res.success
+    with pytest.raises(RegistrationError, match="registration guess"):
+        iwr.identify(robot, swapped, noise=NOISE)
+    x0 = np.concatenate([np.zeros(robot.n_params), truth[robot.n_params:]])
+    with pytest.raises(iwr.ForwardKinematicsError, match="pose"):
+        iwr.identify(robot, swapped, noise=NOISE, x0=x0)
 
 
 def test_bumped_reflector_is_flagged_by_pose_and_reflector():
