@@ -9,6 +9,7 @@ import dataclasses
 import json
 import math
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -124,7 +125,11 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
               *[f"    {name:<22} {value:+.6g}" for name, value in result.named().items()]]
     atomic_write_text(out / "report.md", "\n".join(report) + "\n")
     print(f"\nwrote {out}/: calibrated.toml, result.json, accuracy.json, report.md")
-    return EXIT_INTERRUPTED if result.interrupted else EXIT_OK
+    if result.interrupted:
+        return EXIT_INTERRUPTED
+    from .calibrate import _exit_code  # exit 3 when the model does not fit, as for leg data
+
+    return _exit_code(SimpleNamespace(result=result))
 
 
 def _subset(data: Any, rows: np.ndarray) -> Any:
