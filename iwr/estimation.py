@@ -394,7 +394,9 @@ def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
 
 
 def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: float) -> str:
-    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in implausible[:6])
+    # The farthest beyond its limit first: the likeliest cause.
+    worst = sorted(implausible, key=lambda t: -abs(t[1]) / t[2])
+    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in worst[:6])
     more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
     return (f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
             f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
