@@ -429,11 +429,7 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
 
     Always: no identified error beyond ``plausible`` times the default bounds, modulo the
     unidentifiable directions (as :func:`efficient`; ``bounds``, a pair (lower, upper), sets the
-    plausible size instead of the default bounds). Laser-tracker data (``robot.tracker`` and
-    :class:`iwr.tracker.TrackerMeasurements`, ``x`` the robot's then the setup's parameters): the
-    same, modulo the null directions of the point (probe) objective, each parameter measured from
-    the centre of its bounds (the registration guess for the registration's correction) against
-    ``plausible`` times their half-width; no chi-square test yet (``noise`` must be None). With a ``noise`` model also the chi-square
+    plausible size instead of the default bounds). With a ``noise`` model also the chi-square
     test of the generalised least squares statistic ``sum_k r_k^T C_k^-1 r_k`` (``r_k`` the six
     leg residuals of pose k, ``C_k`` their covariance propagated to first order from every
     instrument's noise) **minimised to first order around x** over the ``active`` parameters
@@ -445,6 +441,12 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     a noise model the cost cannot be judged (the leg noise is unknown: any cost fits some
     sigma), only the size of the errors; ``statistic``, ``dof`` and ``p_value`` are then nan, 0,
     nan.
+
+    Laser-tracker data (``robot.tracker`` and :class:`iwr.tracker.TrackerMeasurements`, ``x`` the
+    robot's then the setup's parameters): the same size test, modulo the null directions of the
+    point (probe) objective, each parameter measured from the centre of its bounds (the
+    registration guess for the registration's correction) against ``plausible`` times their
+    half-width; no chi-square test yet (``noise`` must be None).
     """
     x = np.asarray(x, dtype=float)
     mask = np.asarray(active, dtype=bool)

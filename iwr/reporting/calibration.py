@@ -213,6 +213,24 @@ class Calibration:
                 lines += [f"  - {o}" for o in outliers]
         return lines
 
+    def _fit_section(self, page: Page, title: str) -> None:
+        """The fit lines as text that wraps (a <pre> of one long cause runs off the page): the
+        top-level lines as paragraphs, their indented details as a list under each."""
+        lines = self.fit_lines()
+        if not lines:
+            return
+        page.heading(title)
+        details: list[str] = []
+        for line in lines + [""]:
+            if line.startswith("  "):
+                details.append(line.strip().removeprefix("- "))
+                continue
+            if details:
+                page.items(details)
+                details = []
+            if line:
+                page.paragraph(line)
+
     def predicted_line(self) -> str:
         pr = self.predicted
         if pr is None:
@@ -470,10 +488,7 @@ class Calibration:
                 f"RMS {pr.position_rms:.4g} mm (95 %: {pr.position_95:.4g} mm), orientation RMS "
                 f"{pr.orientation_rms:.4g} deg (95 %: {pr.orientation_95:.4g} deg); the measured "
                 "figures above also contain the measurement noise of the validation poses.")
-        fit_lines = self.fit_lines()
-        if fit_lines:
-            page.heading("Fit test and outliers")
-            page.pre("\n".join(fit_lines))
+        self._fit_section(page, "Fit test and outliers")
         if "accuracy.png" in figures:
             page.figure(figures["accuracy.png"], "Tool pose errors before and after calibration",
                         "accuracy.png")
@@ -1088,12 +1103,10 @@ class TrackerCalibration(Calibration):
             f"Cost (sum of squared point residuals, mm^2): nominal robot with the registration "
             f"guess {c['nominal']:.6g}, calibrated {c['calibrated']:.6g}. Method "
             f"{r.get('method', '?')}: {int(r.nfev)} evaluations, "
-            f"{float(r.get('wall_time', math.nan)):.2f} s, {self.status_text()}: "
-            f"{str(r.message).strip().rstrip('.')}.")
-        fit_lines = self.fit_lines()
-        if fit_lines:
-            page.heading("Fit test")
-            page.pre("\n".join(fit_lines))
+            f"{float(r.get('wall_time', math.nan)):.2f} s, {self.status_text()}"
+            + (" (see the fit test)." if self._fit_failed()
+               else f": {str(r.message).strip().rstrip('.')}."))
+        self._fit_section(page, "Fit test")
         if "accuracy.png" in figures:
             page.figure(figures["accuracy.png"], "Point residuals per pose before and after "
                         "calibration", "accuracy.png")
@@ -1103,16 +1116,18 @@ class TrackerCalibration(Calibration):
         page.heading("Reflector offsets" if s.kind == "points" else "Probe offset")
         page.table((["", "nominal in {5}", "identified offset", "identified in {5}",
                      "offset size"], self.offset_rows()), "num")
+        what = "the reflectors" if s.kind == "points" else "the probe"
         page.paragraph("Offsets in mm in the platform frame {5}"
-                       + ("" if s.kind == "points" else " (the probe's rotation in degrees)")
-                       + ". A common shift of the reflectors and the spherical joints is "
-                       "a null direction: only the reflectors' positions relative to the joints "
-                       "are determined.")
+                       + ("" if s.kind == "points" else " (the probe's rotation in degrees: "
+                          "the offset as a rotation vector, the poses as Z-Y-X Euler angles)")
+                       + f". A common rigid motion of {what} and the spherical joints is a null "
+                       f"direction: only {what}' position relative to the joints is determined.")
         page.heading("Point residuals")
         page.table(self._residual_rows(), "num")
         if "residuals.png" in figures:
-            page.figure(figures["residuals.png"], "Point residuals per reflector before and "
-                        "after calibration", "residuals.png")
+            page.figure(figures["residuals.png"], "Point residuals per "
+                        + ("reflector" if s.kind == "points" else "probe point")
+                        + " before and after calibration", "residuals.png")
         page.heading("Identified parameters")
         unc = self.uncertainty
         if unc is not None:
@@ -1194,7 +1209,8 @@ class TrackerCalibration(Calibration):
         data = self.validation if self.held_out else self.identification
         which = "validation" if self.held_out else "identification"
         d = self.point_distances(data)
-        labels = [lb.replace("reflector ", "") for lb in self.point_labels()]
+        labels = (list(self.setup.names) if self.setup.kind == "points"
+                  else ["origin", "x axis", "y axis", "z axis"])
         fig = new_figure(10, 4)
         axes = fig.subplots(1, 2)
         for ax, v, title, unit in ((axes[0], d["nominal"], "nominal robot + registration guess",
@@ -1202,9 +1218,9 @@ class TrackerCalibration(Calibration):
                                    (axes[1], d["calibrated"] * 1000.0, "calibrated", "um")):
             cols = [v[:, i][np.isfinite(v[:, i])] for i in range(v.shape[1])]
             ax.boxplot(cols)
-            ax.set_xticks(range(1, len(cols) + 1), labels,
-                          rotation=0 if self.setup.kind == "points" else 15)
-            ax.set_xlabel("reflector" if self.setup.kind == "points" else "probe point")
+            ax.set_xticks(range(1, len(cols) + 1), labels)
+            ax.set_xlabel("reflector" if self.setup.kind == "points" else
+                          f"probe point (axis points {self.setup.probe_length:g} mm out)")
             ax.set_ylabel(f"distance ({unit})")
             ax.set_title(title)
             ax.set_ylim(bottom=0)
