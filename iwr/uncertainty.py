@@ -42,9 +42,10 @@ class Uncertainty:
     sigma : float
         The leg noise standard deviation used (mm): given, or estimated from the residuals.
     source : str
-        ``"residuals"`` (sigma^2 = cost / (6 N - n_active)), ``"legs"`` (given leg sigma) or
+        ``"residuals"`` (sigma^2 = cost / (6 N - n_active)), ``"legs"`` (given leg sigma),
         ``"noise"`` (an :class:`iwr.Noise` propagated through the joint, position and orientation
-        readings as well).
+        readings as well), or ``"estimator"`` (the efficient estimator's own covariance,
+        :meth:`from_result`).
     dof : int
         Residual degrees of freedom, ``6 N - n_active``.
     """
@@ -57,6 +58,28 @@ class Uncertainty:
     source: str
     dof: int
 
+    @classmethod
+    def from_result(cls, result: Any) -> Uncertainty | None:
+        """The efficient estimator's own covariance (``result["covariance"]``, over
+        ``result["active"]``) as an :class:`Uncertainty` with ``source="estimator"``; None for a
+        result without one (eq. (10)'s methods: use :func:`uncertainty`)."""
+        cov = result.get("covariance")
+        active = result.get("active")
+        if cov is None or active is None:
+            return None
+        mask = np.asarray(active, dtype=bool)
+        cov = np.asarray(cov, dtype=float)
+        if cov.shape != (int(mask.sum()),) * 2:
+            raise ValueError(f"result: covariance of shape {cov.shape} for {int(mask.sum())} "
+                             "active parameters")
+        std = np.full(mask.size, np.nan)
+        std[mask] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        noise = result.get("noise")
+        fit = result.get("fit")
+        return cls(list(result.parameter_names), mask, cov, std,
+                   float(getattr(noise, "legs", np.nan)), "estimator",
+                   int(getattr(fit, "dof", 0)))
+
     @property
     def correlation(self) -> np.ndarray:
         """Correlation matrix of the active parameters."""
@@ -68,15 +91,23 @@ class Uncertainty:
         names = self.parameter_names
         return {names[i]: float(self.std[i]) for i in np.flatnonzero(self.active)}
 
+    def describe(self) -> str:
+        """Where the standard deviations come from, in one phrase (for reports)."""
+        return {
+            "residuals": "first-order, eq. (10)'s Jacobian at the solution, with the leg noise "
+                         f"estimated from the residuals (sigma {self.sigma:.3g} mm)",
+            "legs": f"first-order, eq. (10)'s Jacobian at the solution, with the given leg "
+                    f"noise sigma {self.sigma:.3g} mm",
+            "noise": "first-order, eq. (10)'s Jacobian at the solution, with the given noise of "
+                     "legs, joints and measured poses propagated",
+            "estimator": "the efficient estimator's covariance (its information matrix, every "
+                         "instrument weighted by its noise model)",
+        }.get(self.source, self.source)
+
     def __str__(self) -> str:
-        how = {
-            "residuals": f"leg noise estimated from the residuals, sigma {self.sigma:.3g} mm",
-            "legs": f"given leg noise sigma {self.sigma:.3g} mm",
-            "noise": "given noise of legs, joints and measured poses, propagated",
-        }[self.source]
         lines = [
-            f"Standard deviations of {int(self.active.sum())} identified parameters ({how}; "
-            f"{self.dof} residual degrees of freedom):"
+            f"Standard deviations of {int(self.active.sum())} identified parameters "
+            f"({self.describe()}; {self.dof} residual degrees of freedom):"
         ]
         for name, sd in self.named().items():
             unit = "rad" if name.endswith(("dalpha", "dtheta")) else "mm"

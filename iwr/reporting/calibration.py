@@ -356,9 +356,7 @@ class Calibration:
         shown = [r for r in rows if r["status"] == "identified"]
         unc = self.uncertainty
         if unc is not None:
-            how = ("estimated from the residuals" if unc.source == "residuals" else unc.source)
-            lines.append(f"identified parameters, value +- standard deviation (leg noise sigma "
-                         f"{unc.sigma:.3g} mm, {how}):")
+            lines.append(f"identified parameters, value +- standard deviation ({unc.describe()}):")
         else:
             lines.append("identified parameters (no standard deviations: see the notes):")
         cells = []
@@ -495,9 +493,7 @@ class Calibration:
         page.heading("Identified parameters")
         unc = self.uncertainty
         if unc is not None:
-            how = "estimated from the residuals" if unc.source == "residuals" else unc.source
-            page.paragraph("Standard deviations: first-order, from the Jacobian at the solution, "
-                           f"with leg noise sigma {unc.sigma:.3g} mm ({how}).")
+            page.paragraph(f"Standard deviations: {unc.describe()}.")
         else:
             page.paragraph("No standard deviations (see the notes).")
         if self.parameter_error is not None:
@@ -621,9 +617,7 @@ class Calibration:
             md += ["", "```", str(rep).rstrip(), "```", ""]
         if self.uncertainty is not None:
             unc = self.uncertainty
-            how = "estimated from the residuals" if unc.source == "residuals" else unc.source
-            md += ["Standard deviations: first-order, from the Jacobian at the solution, with "
-                   f"leg noise sigma {unc.sigma:.3g} mm ({how}).", ""]
+            md += [f"Standard deviations: {unc.describe()}.", ""]
         if self.parameter_error is not None:
             pe = self.parameter_error
             md += [f"Against the simulation's truth, modulo the unidentifiable directions: RMS "
@@ -1131,8 +1125,7 @@ class TrackerCalibration(Calibration):
         page.heading("Identified parameters")
         unc = self.uncertainty
         if unc is not None:
-            page.paragraph("Standard deviations: first-order, from the tracker problem's "
-                           f"Jacobian at the solution ({unc.source}).")
+            page.paragraph(f"Standard deviations: {unc.describe()}.")
         page.table((["parameter", "value", "std", "unit", "status"],
                     [[row["name"], f"{row['value']:.6g}",
                       "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
