@@ -838,8 +838,9 @@ class TrackerCalibration(Calibration):
                 off = x[6 + 3 * i: 9 + 3 * i]
                 nom = s.reflectors[i]
                 cell = ", ".join(f"{v:+.4f}" for v in off)
-                if sd is not None and np.all(np.isfinite(sd[6 + 3 * i: 9 + 3 * i])):
-                    cell += " (std " + ", ".join(f"{v:.2g}" for v in sd[6 + 3 * i: 9 + 3 * i]) + ")"
+                if sd is not None and np.any(np.isfinite(sd[6 + 3 * i: 9 + 3 * i])):
+                    cell += " (std " + ", ".join(f"{v:.2g}" if np.isfinite(v) else "held"
+                                                 for v in sd[6 + 3 * i: 9 + 3 * i]) + ")"
                 rows.append([f"reflector {name}", ", ".join(f"{v:.3f}" for v in nom), cell,
                              ", ".join(f"{v:.4f}" for v in nom + off),
                              f"{float(np.linalg.norm(off)):.4f}"])
