@@ -402,7 +402,9 @@ def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
 
 
 def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: float) -> str:
-    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in implausible[:6])
+    # The farthest beyond its limit first: the likeliest cause.
+    worst = sorted(implausible, key=lambda t: -abs(t[1]) / t[2])
+    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in worst[:6])
     more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
     return (f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
             f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
@@ -447,18 +449,39 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     a noise model the cost cannot be judged (the leg noise is unknown: any cost fits some
     sigma), only the size of the errors; ``statistic``, ``dof`` and ``p_value`` are then nan, 0,
     nan.
+
+    Laser-tracker data (``robot.tracker`` and :class:`iwr.tracker.TrackerMeasurements`, ``x`` the
+    robot's then the setup's parameters): the same size test, modulo the null directions of the
+    point (probe) objective, each parameter measured from the centre of its bounds (the
+    registration guess for the registration's correction) against ``plausible`` times their
+    half-width; no chi-square test yet (``noise`` must be None).
     """
     x = np.asarray(x, dtype=float)
     mask = np.asarray(active, dtype=bool)
     n_active = int(mask.sum())
-    limit = _plausible_limit(robot, plausible, bounds)
-    # The leg Jacobian from the estimator's kernel, not Problem's: the check is no evaluation of
-    # the method that produced x (its budget counts those).
-    legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
-    x_plain = _nearest_plausible(robot, measurements, x, limit,
-                                 jac=jx.reshape(-1, robot.n_params))
-    names = robot.parameter_names
-    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(robot.n_params)
+    if type(measurements).__name__ == "TrackerMeasurements":
+        # Laser-tracker data (docs/tracker.md): the same test on the point (probe) objective's
+        # exact Jacobian, so modulo its null directions (the registration's and the platform
+        # frame's gauge among them). The setup's parameters are judged from the centre of their
+        # bounds (the registration guess; the nominal offsets), the robot's from zero.
+        from .tracker.problem import TrackerProblem
+
+        if noise is not None:
+            raise ValueError("noise: the chi-square test of laser-tracker data is not "
+                             "implemented; only the size of the identified errors is tested")
+        tp = TrackerProblem(robot, robot.tracker, measurements, bounds)
+        centre = 0.5 * (tp.lower + tp.upper)
+        limit = plausible * 0.5 * (tp.upper - tp.lower)
+        jac, names = tp.jacobian(x), tp.parameter_names
+    else:
+        centre = np.zeros(robot.n_params)
+        limit = _plausible_limit(robot, plausible, bounds)
+        # The leg Jacobian from the estimator's kernel, not Problem's: the check is no evaluation
+        # of the method that produced x (its budget counts those).
+        legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+        jac, names = jx.reshape(-1, robot.n_params), robot.parameter_names
+    x_plain = _nearest_plausible(robot, measurements, x - centre, limit, jac=jac)
+    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
                    if abs(x_plain[i]) > limit[i]]
     causes: list[str] = []
     statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True

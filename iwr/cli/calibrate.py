@@ -299,7 +299,8 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     from ..identifiability import identifiability, parameter_error
     from ..methods import identify
     from ..reporting.calibration import Calibration
-    from ..uncertainty import uncertainty
+    from ..uncertainty import Uncertainty, uncertainty
+    from .report import data_fingerprint
 
     if validation is not None:
         ident, val, held_out = data, validation, True
@@ -337,10 +338,18 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     except KeyboardInterrupt:
         result = _best_so_far(robot, ident, method, tracker, kwargs, args)
     interrupted = result.interrupted
+    # What `iwr report` checks its DATA.csv against: the whole file's fingerprint, as the engine's
+    # problem file records it.
+    result["settings"] = {**dict(result.get("settings") or {}), "data_file": data_name,
+                          "data_fingerprint": data_fingerprint(robot, data)}
     report = identifiability(robot, ident, result.x)
     try:
-        active = result["active"] if args.parameters == "base" else report
-        unc = uncertainty(robot, ident, result.x, active=active)
+        # The efficient estimator's own covariance when it has one (eq. (10)'s first-order
+        # covariance differs from it by up to 2x); else eq. (10)'s.
+        unc = Uncertainty.from_result(result)
+        if unc is None:
+            active = result["active"] if args.parameters == "base" else report
+            unc = uncertainty(robot, ident, result.x, active=active)
     except ValueError as exc:
         unc = None
         notes.append(f"note: no standard deviations: {one_line(exc)}")

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 import sys
 from pathlib import Path
 from typing import Any
@@ -59,25 +58,17 @@ def load_tracker_data(path: str, robot: Any, readings: str | None = None) -> Any
     return read_tracker_data(path, robot.tracker, readings)
 
 
-def _summary_line(label: str, e: Any) -> str:
-    pos = np.asarray(e.position, dtype=float)
-    ori = np.asarray(e.orientation, dtype=float)
-    ori = ori[np.isfinite(ori)]  # poses with fewer than 3 points seen have no orientation
-    o = (f"orientation RMS {math.sqrt(np.mean(ori**2)):.5f} deg ({ori.size} poses)" if ori.size
-         else "no orientation (fewer than 3 points per pose)")
-    return (f"  {label:<36} position RMS {math.sqrt(np.mean(pos**2)):.4f} mm, max "
-            f"{pos.max():.4f} mm; {o}")
-
-
 def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
                       kwargs: dict[str, Any]) -> int:
     """Identify the robot, the registration and the reflector (or probe) offsets from tracker
-    data; validate on held-out poses (point residuals); write calibrated.toml (the calibrated
-    robot with its calibrated tracker setup), result.json and report.md."""
-    from .._io import atomic_write_text, jsonable
+    data; validate on held-out poses (point residuals); write the calibrated robot (with its
+    calibrated tracker setup), the result and the report (HTML and Markdown) as for leg data."""
     from ..accuracy import accuracy
     from ..identifiability import identifiability
     from ..methods import identify
+    from ..reporting.calibration import TrackerCalibration
+    from ..reporting.html import provenance
+    from ..tracker.registration import guess_registration
 
     if args.poses is not None:
         raise CommandError("--poses applies to the built-in example only")
@@ -106,56 +97,44 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
           + f"; identifying {robot.n_params} robot + {setup.n_params} setup parameters with "
           f"{method} ({len(ident)} poses), from the nominal robot and the closed-form "
           "registration guess", flush=True)
+    guess = guess_registration(robot, setup, ident)
+    print(str(guess), flush=True)
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
                       progress=progress_enabled(args), **kwargs)
-    ns = identifiability(robot, ident, result.x)
-    acc = accuracy(robot, val, result.x)
-    where = "held-out" if held_out else "identification (no poses held out)"
-    fit = result.get("fit")
-    cost = (f"chi2 {result.fun:.6g}" if method == "efficient" else f"cost {result.fun:.6g} mm^2")
-    lines = [
-        f"{result.message} (status {result.status}, {result.nfev} evaluations, {cost})",
-        *([] if fit is None else [str(fit)]),
-        *[f"outlier: {o}" for o in result.get("outliers", [])],
-        f"identifiability: rank {ns.rank} of {len(ns.parameter_names)}, "
-        f"{len(ns.left_out)} null directions (docs/tracker.md)",
-        f"accuracy on {acc.n_poses} {where} poses: largest predicted-minus-measured point "
-        "distance per pose, and the rotation between predicted and measured points:",
-        _summary_line("nominal robot + registration guess", acc.nominal),
-        _summary_line("calibrated", acc.calibrated),
-    ]
-    print("\n".join(lines))
+    notes: list[str] = []
+    # At the start, as identify(active="base") chose the parameters it holds: the report's
+    # "held" and "null direction" then agree with what was done.
+    ns = identifiability(robot, ident)
+    unc = None
+    try:
+        from ..uncertainty import uncertainty
+
+        unc = uncertainty(robot, ident, result.x, active=result["active"])
+    except (ValueError, TypeError) as exc:
+        notes.append(f"note: no standard deviations: {' '.join(str(exc).split())}")
+    inputs = {"robot": str(args.robot), "data": str(args.data)}
+    if args.readings:
+        inputs["readings"] = str(args.readings)
+    if args.validation:
+        inputs["validation"] = str(args.validation)
+    settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
+                "seed": args.seed, "validation_fraction": args.validation_fraction,
+                **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
+    cal = TrackerCalibration(
+        robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
+        accuracy=accuracy(robot, val, result.x), data_name=str(args.data),
+        robot_name=str(args.robot), identifiability=ns, uncertainty=unc, notes=notes,
+        settings=settings, provenance=provenance(inputs), guess=guess,
+        readings_name=str(args.readings or ""))
+    print(cal.summary())
     out = Path(args.out or "iwr-calibration")
-    out.mkdir(parents=True, exist_ok=True)
-    nr = robot.n_params
-    calibrated = robot.with_errors(result.x[:nr]).with_tracker(
-        setup=setup.with_parameters(result.x[nr:]))
-    calibrated.to_toml(out / "calibrated.toml",
-                       provenance={"method": method, "data": str(args.data),
-                                   "cost_mm2": float(result.fun)})
-    result.save(out / "result.json")
-    atomic_write_text(out / "accuracy.json", json.dumps(jsonable(acc.to_dict()), indent=1) + "\n")
-    report = ["# iwr calibration with laser-tracker data", "", f"- robot: `{args.robot}`",
-              f"- data: `{args.data}`" + (f" + `{args.readings}`" if args.readings else ""),
-              f"- method: {method}", "", *[f"    {line}" for line in lines], "",
-              "Identified parameters (robot, then tracker setup):", "",
-              *[f"    {name:<22} {value:+.6g}" for name, value in result.named().items()]]
-    atomic_write_text(out / "report.md", "\n".join(report) + "\n")
-    print(f"\nwrote {out}/: calibrated.toml, result.json, accuracy.json, report.md")
+    written = cal.write(out, plots=not args.no_plots)
+    print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
     if result.interrupted:
         return EXIT_INTERRUPTED
-    if method == "efficient":  # the estimator tests its fit: the exit codes of leg data
-        from .calibrate import EXIT_NO_FIT, EXIT_NOT_CONVERGED
+    from .calibrate import _exit_code  # exit 3 when the model does not fit, as for leg data
 
-        if fit is not None and not fit.fit_ok:
-            print(f"iwr calibrate: the model does not fit the data (exit {EXIT_NO_FIT}); the "
-                  "files are written, see the report", file=sys.stderr)
-            return EXIT_NO_FIT
-        if not result.success:
-            print(f"iwr calibrate: not converged (status {result.status}, exit "
-                  f"{EXIT_NOT_CONVERGED})", file=sys.stderr)
-            return EXIT_NOT_CONVERGED
-    return EXIT_OK
+    return _exit_code(cal)
 
 
 def _subset(data: Any, rows: np.ndarray) -> Any:

@@ -200,10 +200,12 @@ def identify(
     return result
 
 
-def _check_fit(result: IdentificationResult, problem: Problem, noise: Any,
+def _check_fit(result: IdentificationResult, problem: Any, noise: Any,
                active: np.ndarray) -> None:
     """Issue 16: "converged" only when the fit is sane (:func:`iwr.estimation.fit_check`), with
-    the search bounds as the parameters' plausible range."""
+    the search bounds as the parameters' plausible range. ``problem``: an :class:`iwr.Problem`
+    (leg data) or an :class:`iwr.tracker.TrackerProblem` (tracker data: its bounds are centred
+    on the registration guess, and the check is modulo its null directions)."""
     from ..estimation import fit_check
     from ..simulate import Noise
 

@@ -169,7 +169,7 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     (``result.parameter_names``). DE runs on ``TrackerProblem.cost_batch`` and is polished by LM
     (``polish=False``: DE alone). A result at which a pose's forward kinematics fails is never a
     success (``problem.check`` names the pose)."""
-    from ..methods import METHODS
+    from ..methods import METHODS, _check_fit
     from ..methods.reduced import ReducedProblem, active_mask
 
     if method not in METHODS:
@@ -226,6 +226,10 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
                       message=f"{result.message}; {len(bad)} poses have no forward kinematics at "
                       f"the result ({measurements.where(k)}: {msg})")
     result.check_finite()
+    if result.status != "interrupted" and np.all(np.isfinite(result.x)):
+        # "converged" only when the fit is sane, as for leg data: the identified errors within
+        # their plausible size modulo the null directions (iwr.estimation.fit_check).
+        _check_fit(result, problem, None, mask)
     return result
 
 
