@@ -14,7 +14,9 @@ from iwr.experiments.harness import (
     Cell,
     Scenario,
     canonical,
+    check_n_poses,
     evaluate,
+    min_poses,
     noise_at,
     rms,
     robot_hash,
@@ -113,3 +115,20 @@ def test_bad_scenario_plausibility_follows_the_curved_null_directions():
     res = iwr.identify(ROBOT, stuck.data, "lm", bounds="paper", x0=stuck.x0, seed=0,
                        progress=False)
     assert res.fun > 1e3 and not res.success and len(res.fit.implausible) > 10
+
+
+def test_min_poses_is_what_the_identifiable_parameters_need():
+    """9 poses (54 leg readings) determine the IWR's 52 identifiable parameters, 8 (48) cannot:
+    checked on the rank of the Jacobian at random poses, independently of min_poses."""
+    assert min_poses(ROBOT) == 9
+    for n, rank in ((9, 52), (8, 48)):
+        m, truth = iwr.simulate(ROBOT, n, seed=3)
+        assert iwr.identifiability(ROBOT, m, truth).rank == rank
+    assert check_n_poses(ROBOT, 9) == 9
+    with pytest.raises(ValueError, match="n_poses: 8 poses are too few: the 52 identifiable "
+                                         "parameters of robot 'IWR' need at least 9 poses"):
+        check_n_poses(ROBOT, 8)
+    with pytest.raises(ValueError, match="n_poses: 8 poses are too few"):
+        Scenario(8, noise_at(0.0)).build(ROBOT)
+    row = evaluate(Cell("lm", "{}", None, 3, 0.0, 0, 0, 0, 10, robot_hash(ROBOT)), ROBOT)
+    assert row["status"] == "failed" and "n_poses: 3 poses are too few" in row["message"]

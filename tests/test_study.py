@@ -244,6 +244,8 @@ def test_bad_arguments() -> None:
         iwr.study(methods="nope", scheduler="synchronous")
     with pytest.raises(ValueError, match="poses: 0"):
         iwr.study(poses=[0], scheduler="synchronous")
+    with pytest.raises(ValueError, match="poses: 8 poses are too few.*at least 9 poses"):
+        iwr.study(poses=[20, 8], scheduler="synchronous")
     with pytest.raises(ValueError, match="noise: -1.0"):
         iwr.study(noise=[-1.0], scheduler="synchronous")
     with pytest.raises(ValueError, match="workers: only for the local cluster"):
@@ -294,6 +296,7 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
         (["--budget", "lm=5,x"], "--budget"),
         (["--budget", "nope=5"], "budgets: method 'nope'"),
         (["--poses", "0"], "poses: 0"),
+        (["--poses", "20,3"], "--poses: 3 poses are too few: the 52 identifiable parameters"),
         (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "workers: only for the local"),
         (["--report-only", "--out", str(tmp_path / "missing")], "no such file"),
     ):
