@@ -198,6 +198,9 @@ def test_default_methods():
     names = cmp.default_methods()
     expected = [m for m in cmp.DEFAULT_METHODS if m.partition(":")[0] in METHODS]
     assert names[: len(expected)] == expected and set(METHODS) <= set(names)
+    # Noise-free data: nothing to weigh the efficient estimator by.
+    assert cmp.default_methods(iwr.Noise()) == [m for m in names if m != "efficient"]
+    assert cmp.default_methods(iwr.Noise.realistic()) == names
     if "de" in METHODS:
         assert cmp.split_method("de:lshade") == ("de", {"strategy": "lshade"})
         assert cmp.split_method("de") == ("de", {})
@@ -274,6 +277,7 @@ def test_unidentifiable_mask_matches_finite_differences():
         ({"n_validation": 0}, "n_validation"),
         ({"success_rtol": -1}, "success_rtol"),
         ({"method_options": {"nope": {}}}, "method_options"),
+        ({"methods": ["lm", "efficient"], "noise": "none"}, "methods: 'efficient' weighs"),
         ({"robot": "IWR"}, "robot"),
     ],
 )

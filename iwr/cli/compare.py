@@ -88,7 +88,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated methods: registered names ("
                         + ", ".join(sorted(_methods())) + "; de is the paper's DE/rand/1/bin) or "
                         "de:STRATEGY (e.g. de:jso, de:lshade); default: "
-                        + ",".join(default_methods()))
+                        + ",".join(default_methods()) + " (without efficient for --noise none)")
     p.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="EVALS",
                    help="evaluation budget per run (default: %(default)s)")
     p.add_argument("--start", choices=["near", "bad", "both"], default="both",

@@ -58,8 +58,10 @@ __all__ = [
 DEFAULT_BUDGET = 20_000
 #: Methods compared when none are given (then any other registered method): Levenberg-Marquardt,
 #: the paper's DE/rand/1/bin with Storn & Price's defaults, jSO (the DE variant that converges
-#: fastest on IWR, docs/de.md), CRS2 and BOBYQA. ``"de:STRATEGY"`` is DE with that strategy.
-DEFAULT_METHODS = ("lm", "de", "de:jso", "crs2", "bobyqa")
+#: fastest on IWR, docs/de.md), CRS2, BOBYQA and the efficient estimator (weighted by each
+#: scenario's noise model; with no noise it cannot run). ``"de:STRATEGY"`` is DE with that
+#: strategy.
+DEFAULT_METHODS = ("lm", "de", "de:jso", "crs2", "bobyqa", "efficient")
 DEFAULT_SEEDS = (0, 1, 2)
 DEFAULT_OUT = "iwr-compare"
 _BOUNDS = {"near": "default", "bad": "paper"}
@@ -130,16 +132,25 @@ def _methods_registered() -> Any:
     return METHODS
 
 
-def default_methods() -> list[str]:
+def default_methods(noise: Noise | None = None) -> list[str]:
     """The methods compared when none are given: :data:`DEFAULT_METHODS` (those registered), then
-    any other registered method."""
+    any other registered method; with a ``noise`` model whose leg noise is 0 (noise-free data)
+    without the efficient estimator, which weighs the instruments by their noise."""
     names = [m for m in DEFAULT_METHODS if m.partition(":")[0] in _methods_registered()]
-    return names + sorted(m for m in _methods_registered() if m not in names)
+    names += sorted(m for m in _methods_registered() if m not in names)
+    if noise is not None and not _weighted(noise):
+        names = [m for m in names if m != "efficient"]
+    return names
 
 
-def _check_methods(methods: Any) -> list[str]:
+def _weighted(noise: Noise) -> bool:
+    """Whether the efficient estimator can weigh the data by ``noise`` (it needs the legs')."""
+    return noise.legs > 0
+
+
+def _check_methods(methods: Any, noise: Noise) -> list[str]:
     if methods is None:
-        return default_methods()
+        return default_methods(noise)
     names = [methods] if isinstance(methods, str) else list(methods)
     if not names:
         raise ValueError(f"methods: empty; expected one or more of: {_available()}")
@@ -147,6 +158,10 @@ def _check_methods(methods: Any) -> list[str]:
         split_method(m)
     if len(set(names)) != len(names):
         raise ValueError(f"methods: {names!r} has duplicates")
+    if "efficient" in names and not _weighted(noise):
+        raise ValueError("methods: 'efficient' weighs every instrument by the data's noise model, "
+                         f"and this noise has no leg noise (legs = {noise.legs}); give a noise "
+                         "model with legs > 0 (e.g. 'realistic') or leave 'efficient' out")
     return names
 
 
@@ -246,7 +261,7 @@ def compare_methods(
         ``iwr.methods.METHODS`` (``"de"`` is the paper's DE/rand/1/bin with its defaults), or
         ``"de:STRATEGY"``, DE with a strategy of ``iwr.de.STRATEGIES`` (``"de:jso"``,
         ``"de:lshade"``, ...). Default: :data:`DEFAULT_METHODS` (``lm``, ``de``, ``de:jso``,
-        ``crs2``, ``bobyqa``), then any other registered method.
+        ``crs2``, ``bobyqa``, ``efficient``), then any other registered method.
     budget : int
         Evaluation budget of every run, passed as ``max_evaluations`` (a Jacobian counts as one
         evaluation); lshade and jso plan their schedules over it. DE never exceeds it, but it
@@ -284,7 +299,7 @@ def compare_methods(
     budget = _check_int("budget", budget, 2)
     noise = _check_noise(noise)
     seeds = _check_seeds(seeds)
-    names = _check_methods(methods)
+    names = _check_methods(methods, noise)
     starts = _check_starts(start)
     for label, v in (("success_rtol", success_rtol), ("success_atol", success_atol)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):

@@ -29,8 +29,9 @@ _fmt = fmt
 def summary_table(summary: list[dict[str, Any]]) -> Table:
     """The summary table: one row per (scenario, method)."""
     head = [
-        "scenario", "method", "success", "at floor", "median cost (mm^2)", "cost range", "noise floor",
-        "validation RMS (mm)", "param. error, identifiable part: lengths (mm) / angles (mrad)",
+        "scenario", "method", "success", "at floor", "median cost (mm^2)", "cost range",
+        "noise floor", "validation RMS (mm)",
+        "param. error, identifiable part: lengths (mm) / angles (mrad)",
         "raw param. error: lengths (mm) / angles (mrad)", "evaluations (median / max)",
         "wall time (s)",
     ]
