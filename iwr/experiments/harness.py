@@ -655,7 +655,11 @@ def run_dask(
             try:
                 for fut in as_completed(list(futures)):
                     try:
-                        row = fut.result(timeout=connect_timeout)
+                        # No timeout: a finished cell whose result was lost with its worker
+                        # (killed before this process fetched the row) is computed again
+                        # elsewhere, and the wait for that is a cell's computation, which may
+                        # take as long as it needs. A lost scheduler cancels the futures.
+                        row = fut.result()
                     except Exception as exc:  # noqa: BLE001 - any failure of a cell is reported
                         failures.append((futures[fut], exc))
                     else:
