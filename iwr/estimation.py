@@ -378,27 +378,101 @@ def _core_rotations(poses: np.ndarray) -> np.ndarray:
     return euler_zyx(poses[:, 3], poses[:, 4], poses[:, 5])
 
 
-def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
-                       limit: np.ndarray, jac: np.ndarray | None = None) -> np.ndarray:
-    """The vector equivalent to ``x`` (same readings, to first order) that is smallest in units of
-    ``limit``: ``x`` minus its component along the null directions of the leg Jacobian.
+def leg_readings(robot: Robot, measurements: Measurements
+                 ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """``x -> (predicted leg readings, their Jacobian)`` at the measured poses, the readings
+    weighted 0 left out: what :func:`_nearest_plausible` keeps fixed for pose data. From the
+    estimator's kernel, not Problem's: the check is no evaluation of the method that produced
+    ``x`` (its budget counts those)."""
+    rows = (np.ones((len(measurements), 6), dtype=bool) if measurements.weights is None
+            else measurements.weights > 0).reshape(-1)  # a reading weighted 0 does not count
+
+    def readings(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        legs, jx, _ = loop_jacobians(robot, x, measurements.q, measurements.poses)
+        return legs.reshape(-1)[rows], jx.reshape(-1, robot.n_params)[rows]
+
+    return readings
+
+
+def tracker_readings(problem: Any) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """``x -> (residuals, their Jacobian)`` of a :class:`iwr.tracker.TrackerProblem`: what
+    :func:`_nearest_plausible` keeps fixed for laser-tracker data (the measured points are
+    constant, so equal residuals are equal predictions)."""
+    return lambda x: (problem.residuals(x), problem.jacobian(x))
+
+
+def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                       x: np.ndarray, limit: np.ndarray,
+                       centre: np.ndarray | None = None) -> np.ndarray:
+    """The vector equivalent to ``x`` (the same predictions ``model(x)[0]`` of the readings, with
+    their Jacobian ``model(x)[1]``) that is smallest in units of ``limit``, measured from
+    ``centre`` (default zero); returned measured from ``centre``.
 
     Holding the unidentifiable parameters fixed makes the base parameters absorb their true values
     (joint 4's rotation about its axis moves two base joints by 694 mm per radian), so a plausible
     robot can have base parameters beyond any bound; its smallest equivalent cannot (each entry of
-    it is at most the norm of the true vector in these units)."""
-    with single_thread():
-        if jac is None:  # rows may be scaled (weights): the null space is the same
-            jac = Problem(robot, measurements).jacobian(x)
+    it is at most the norm of the true vector in these units).
+
+    The set of equivalent vectors is curved (two of the six null directions of the IWR are
+    rotations of frame {4}, compensated by moving the base joints on circles), so removing the
+    null-space component of ``x`` along straight lines is right only for small errors: with tens
+    of degrees along them (the comparison's ``bad`` scenario) the straight step leaves the set by
+    tens of millimetres of readings and names a robot at the noise floor implausible. Instead the
+    norm is minimised on the set itself, by a feasible-point method: a step along the null
+    directions of the Jacobian at the current point (the straight removal), then Gauss-Newton back
+    onto the set within the identifiable directions, the step halved until the norm decreases.
+    Every accepted point predicts the readings of ``x`` to round-off; at the end the point has no
+    component along the null directions (the optimality condition). A ``x`` that is not
+    equivalent to a plausible vector stays implausible: no point of its set is small."""
+    c = np.zeros_like(x, dtype=float) if centre is None else np.asarray(centre, dtype=float)
+
+    def readings(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        values, jac = model(c + y * limit)
+        return values, jac * limit
+
+    target, jac = readings((np.asarray(x, dtype=float) - c) / limit)
+    tol = 1e-10 * (1.0 + float(np.sqrt(np.mean(target**2))))  # mm RMS: round-off of the readings
+
+    def split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Orthonormal bases of the null directions and of their complement (units of limit)."""
         d = np.linalg.norm(jac, axis=0)
-        d = np.where(d > 0, d, 1.0)
+        d = np.where(d > 0, d, 1.0)  # the scaled columns: the rank does not depend on units
         _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
-    rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
-    null = vt[rank:].T / d[:, None] / limit[:, None]  # null directions in units of limit
-    xb = x / limit
-    if null.shape[1]:
-        xb = xb - null @ np.linalg.lstsq(null, xb, rcond=None)[0]
-    return xb * limit
+        rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
+        basis, _ = np.linalg.qr(vt[rank:].T / d[:, None], mode="complete")
+        return basis[:, : jac.shape[1] - rank], basis[:, jac.shape[1] - rank:]
+
+    def restore(y: np.ndarray, ident: np.ndarray) -> np.ndarray | None:
+        """Gauss-Newton onto the readings of ``x`` within the identifiable directions."""
+        for _ in range(20):
+            legs, jac = readings(y)
+            r = target - legs
+            if np.sqrt(np.mean(r**2)) <= tol:
+                return y
+            step = np.linalg.lstsq(jac @ ident, r, rcond=None)[0]
+            if not np.all(np.isfinite(step)):
+                return None
+            y = y + ident @ step
+        return None
+
+    y = (np.asarray(x, dtype=float) - c) / limit
+    with single_thread():
+        for _ in range(50):
+            null, ident = split(jac)
+            if null.shape[1] == 0:
+                break
+            along = -null @ (null.T @ y)  # the straight removal of the null component
+            if np.linalg.norm(along) <= 1e-10 * (1.0 + np.linalg.norm(y)):
+                break  # no null component left: the smallest equivalent
+            for t in 0.5 ** np.arange(12):
+                z = restore(y + t * along, ident)
+                if z is not None and np.linalg.norm(z) < np.linalg.norm(y):
+                    break
+            else:
+                break  # no progress (round-off): y is as small as it gets
+            y = z
+            jac = readings(y)[1]
+    return y * limit
 
 
 def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: float) -> str:
@@ -460,10 +534,10 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     mask = np.asarray(active, dtype=bool)
     n_active = int(mask.sum())
     if type(measurements).__name__ == "TrackerMeasurements":
-        # Laser-tracker data (docs/tracker.md): the same test on the point (probe) objective's
-        # exact Jacobian, so modulo its null directions (the registration's and the platform
-        # frame's gauge among them). The setup's parameters are judged from the centre of their
-        # bounds (the registration guess; the nominal offsets), the robot's from zero.
+        # Laser-tracker data (docs/tracker.md): the same test on the point (probe) objective,
+        # so modulo its null directions (the registration's and the platform frame's gauge
+        # among them). The setup's parameters are judged from the centre of their bounds (the
+        # registration guess; the nominal offsets), the robot's from zero.
         from .tracker.problem import TrackerProblem
 
         if noise is not None:
@@ -472,15 +546,13 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
         tp = TrackerProblem(robot, robot.tracker, measurements, bounds)
         centre = 0.5 * (tp.lower + tp.upper)
         limit = plausible * 0.5 * (tp.upper - tp.lower)
-        jac, names = tp.jacobian(x), tp.parameter_names
+        names = tp.parameter_names
+        x_plain = _nearest_plausible(tracker_readings(tp), x, limit, centre)
     else:
-        centre = np.zeros(robot.n_params)
         limit = _plausible_limit(robot, plausible, bounds)
-        # The leg Jacobian from the estimator's kernel, not Problem's: the check is no evaluation
-        # of the method that produced x (its budget counts those).
         legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
-        jac, names = jx.reshape(-1, robot.n_params), robot.parameter_names
-    x_plain = _nearest_plausible(robot, measurements, x - centre, limit, jac=jac)
+        names = robot.parameter_names
+        x_plain = _nearest_plausible(leg_readings(robot, measurements), x, limit)
     implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
                    if abs(x_plain[i]) > limit[i]]
     causes: list[str] = []
@@ -752,7 +824,8 @@ class _PoseSpec:
             np.ascontiguousarray(corr), max_iterations=int(max_iterations), callback=cb)
 
     def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        x_plain = _nearest_plausible(self.robot, self.subset(used), x, self.limit)
+        x_plain = _nearest_plausible(leg_readings(self.robot, self.subset(used)), x,
+                                     self.limit)
         return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
                 for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
 

@@ -15,8 +15,8 @@ import numpy as np
 
 from ._io import atomic_write_text
 
-__all__ = ["Measurements", "MeasurementFileError", "as_matrix", "MAX_LENGTH_MM", "MAX_ANGLE_RAD",
-           "PLAN_MARKER"]
+__all__ = ["Measurements", "MeasurementFileError", "as_matrix", "joint_readings", "MAX_LENGTH_MM",
+           "MAX_ANGLE_RAD", "PLAN_MARKER"]
 
 _POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
 _LEG_COLUMNS = tuple(f"s{j}_mm" for j in range(1, 7))
@@ -105,6 +105,22 @@ def as_matrix(value: Any, cols: int, name: str, rows: int | None = None) -> np.n
     return np.ascontiguousarray(arr)
 
 
+def joint_readings(q: Any, joint_types: str | None, n: int) -> np.ndarray:
+    """The carriage joint readings ``q`` as an (n, n_joints) matrix (:func:`as_matrix`), the
+    number of joints from ``q``'s columns (from ``joint_types`` when ``q`` is empty), checked
+    against ``joint_types`` (``"P"``/``"R"`` per joint) when given; else ValueError."""
+    try:
+        shape = np.asarray(q, dtype=float).shape
+    except (TypeError, ValueError):
+        shape = ()  # not numbers: as_matrix names the problem
+    n_joints = shape[1] if len(shape) == 2 else (len(joint_types) if joint_types else 0)
+    out = as_matrix(q, n_joints, "q", rows=n)
+    if joint_types is not None and (len(joint_types) != n_joints
+                                    or any(c not in "PR" for c in joint_types)):
+        raise ValueError(f"joint_types: {joint_types!r} does not describe {n_joints} joints")
+    return out
+
+
 class Measurements:
     """A calibration data set of N measurement poses.
 
@@ -149,15 +165,8 @@ class Measurements:
         n = self.poses.shape[0]
         if n == 0:
             raise ValueError("poses: no measurements (0 rows)")
-        q_arr = np.asarray(q, dtype=float)
-        n_joints = q_arr.shape[1] if q_arr.ndim == 2 else (len(joint_types) if joint_types else 0)
-        self.q = as_matrix(q, n_joints, "q", rows=n)
+        self.q = joint_readings(q, joint_types, n)
         self.legs = as_matrix(legs, 6, "legs", rows=n)
-        if joint_types is not None:
-            if len(joint_types) != self.q.shape[1] or any(c not in "PR" for c in joint_types):
-                raise ValueError(
-                    f"joint_types: {joint_types!r} does not describe {self.q.shape[1]} joints"
-                )
         self.joint_types = joint_types
         _check_limits(self.poses, ["mm"] * 3 + ["rad"] * 3, "poses")
         _check_limits(self.legs, ["mm"] * 6, "legs")

@@ -123,6 +123,12 @@ def test_numbers_are_consistent(report):
         assert r["rms_fit"] == pytest.approx(math.sqrt(r["cost"] / (6 * 20)), rel=1e-12)
         assert np.array(r["history_best"])[-1] >= r["cost"] * (1 - 1e-9) or r["method"] == "lm"
         assert 0 < sum(r["unidentifiable"]) < 58
+    # The summary counts the method's own success and, beside it, the runs at the floor.
+    for s in comp.summary:
+        rs = [r for r in comp.runs if (r["scenario"], r["method"]) == (s["scenario"], s["method"])]
+        assert s["runs"] == len(rs) > 0
+        assert s["successes"] == sum(r["success"] for r in rs)
+        assert s["at_floor"] == sum(r["at_floor"] for r in rs)
     # The bad start is near the bounds, on the side opposite to the truth.
     for r in comp.runs:
         if r["scenario"] == "bad":
@@ -192,6 +198,9 @@ def test_default_methods():
     names = cmp.default_methods()
     expected = [m for m in cmp.DEFAULT_METHODS if m.partition(":")[0] in METHODS]
     assert names[: len(expected)] == expected and set(METHODS) <= set(names)
+    # Noise-free data: nothing to weigh the efficient estimator by.
+    assert cmp.default_methods(iwr.Noise()) == [m for m in names if m != "efficient"]
+    assert cmp.default_methods(iwr.Noise.realistic()) == names
     if "de" in METHODS:
         assert cmp.split_method("de:lshade") == ("de", {"strategy": "lshade"})
         assert cmp.split_method("de") == ("de", {})
@@ -254,6 +263,8 @@ def test_unidentifiable_mask_matches_finite_differences():
     "kwargs, name",
     [
         ({"n_poses": 0}, "n_poses"),
+        ({"n_poses": 8}, "n_poses: 8 poses are too few: the 52 identifiable parameters .* at "
+                         "least 9 poses"),
         ({"budget": 1}, "budget"),
         ({"budget": 10.5}, "budget"),
         ({"seeds": []}, "seeds"),
@@ -266,6 +277,7 @@ def test_unidentifiable_mask_matches_finite_differences():
         ({"n_validation": 0}, "n_validation"),
         ({"success_rtol": -1}, "success_rtol"),
         ({"method_options": {"nope": {}}}, "method_options"),
+        ({"methods": ["lm", "efficient"], "noise": "none"}, "methods: 'efficient' weighs"),
         ({"robot": "IWR"}, "robot"),
     ],
 )
@@ -327,6 +339,7 @@ def test_command_line(tmp_path, capsys):
         (["--methods", "nope"], "methods"),
         (["--methods", "lm,de:nope"], "'de:nope'"),
         (["--robot", "/nonexistent/robot.toml"], "robot.toml"),
+        (["--poses", "3"], "--poses: 3 poses are too few"),
     ],
 )
 def test_command_line_errors(argv, name, capsys):

@@ -14,7 +14,9 @@ from iwr.experiments.harness import (
     Cell,
     Scenario,
     canonical,
+    check_n_poses,
     evaluate,
+    min_poses,
     noise_at,
     rms,
     robot_hash,
@@ -73,3 +75,61 @@ def test_a_row_has_every_column_and_a_failure_is_recorded():
 def test_rms():
     assert rms([3.0, 4.0]) == pytest.approx(math.sqrt(12.5))
     assert math.isnan(rms([]))
+
+
+def test_bad_scenario_plausibility_follows_the_curved_null_directions():
+    """The bad scenario's truth has angle errors up to 0.5 rad. On its noise-free data LM from the
+    bad start reaches the truth's readings exactly (cost ~1e-22) hundreds of mm away from it along
+    the unidentifiable directions, two of which are rotations of frame {4}: the straight removal
+    of the null component named such a solution implausible. The smallest equivalent vector,
+    found on the curved set of equivalents, is the truth's own smallest equivalent (an
+    independent yardstick: both are the minimum of one set), so the fit is plausible; LM's local
+    minimum of draw 2 stays implausible."""
+    from iwr.estimation import _nearest_plausible, fit_check, leg_readings, loop_jacobians
+
+    lower, upper = ROBOT.default_bounds("paper")
+    limit = 10 * upper
+    all_active = np.ones(ROBOT.n_params, dtype=bool)
+    sc = Scenario(30, noise_at(0.0), draw=0, kind="bad").build(ROBOT)
+    res = iwr.identify(ROBOT, sc.data, "lm", bounds="paper", x0=sc.x0, seed=0, progress=False)
+    assert res.fun < 1e-15 and np.max(np.abs(res.x - sc.truth)) > 100  # mm, along null directions
+    assert res.success and res.fit.implausible == []
+    fit = fit_check(ROBOT, sc.data, res.x, active=all_active, bounds=(lower, upper))
+    assert fit.fit_ok and fit.implausible == []
+    model = leg_readings(ROBOT, sc.data)
+    smallest = _nearest_plausible(model, res.x, limit)
+    np.testing.assert_allclose(smallest, _nearest_plausible(model, sc.truth, limit),
+                               atol=1e-6)
+    assert np.linalg.norm(smallest / limit) <= np.linalg.norm(sc.truth / limit)
+    legs = [loop_jacobians(ROBOT, v, sc.data.q, sc.data.poses)[0] for v in (res.x, smallest)]
+    np.testing.assert_allclose(legs[1], legs[0], atol=1e-8)
+    # The straight removal, for contrast: it leaves the set and names parameters.
+    jac = loop_jacobians(ROBOT, res.x, sc.data.q, sc.data.poses)[1].reshape(-1, ROBOT.n_params)
+    d = np.linalg.norm(jac, axis=0)
+    _, s, vt = np.linalg.svd(jac / d, full_matrices=False)
+    null = vt[int(np.sum(s > 1e-10 * s[0])):].T / d[:, None] / limit[:, None]
+    y = res.x / limit
+    straight = y - null @ np.linalg.lstsq(null, y, rcond=None)[0]
+    assert np.max(np.abs(straight)) > 1
+
+    stuck = Scenario(30, noise_at(0.0), draw=2, kind="bad").build(ROBOT)
+    res = iwr.identify(ROBOT, stuck.data, "lm", bounds="paper", x0=stuck.x0, seed=0,
+                       progress=False)
+    assert res.fun > 1e3 and not res.success and len(res.fit.implausible) > 10
+
+
+def test_min_poses_is_what_the_identifiable_parameters_need():
+    """9 poses (54 leg readings) determine the IWR's 52 identifiable parameters, 8 (48) cannot:
+    checked on the rank of the Jacobian at random poses, independently of min_poses."""
+    assert min_poses(ROBOT) == 9
+    for n, rank in ((9, 52), (8, 48)):
+        m, truth = iwr.simulate(ROBOT, n, seed=3)
+        assert iwr.identifiability(ROBOT, m, truth).rank == rank
+    assert check_n_poses(ROBOT, 9) == 9
+    with pytest.raises(ValueError, match="n_poses: 8 poses are too few: the 52 identifiable "
+                                         "parameters of robot 'IWR' need at least 9 poses"):
+        check_n_poses(ROBOT, 8)
+    with pytest.raises(ValueError, match="n_poses: 8 poses are too few"):
+        Scenario(8, noise_at(0.0)).build(ROBOT)
+    row = evaluate(Cell("lm", "{}", None, 3, 0.0, 0, 0, 0, 10, robot_hash(ROBOT)), ROBOT)
+    assert row["status"] == "failed" and "n_poses: 3 poses are too few" in row["message"]

@@ -270,3 +270,21 @@ def test_a_huge_line_is_refused_before_it_is_split(tmp_path, data):
     path.write_text("x" * 20_000 + "\n")  # the header itself
     with pytest.raises(iwr.MeasurementFileError, match="line 1: 20,000 characters"):
         iwr.Measurements.from_csv(path)
+
+
+@pytest.mark.parametrize("kind", ["pose", "probe"])
+@pytest.mark.parametrize("q, match", [
+    ("abc", "q: cannot be read as numbers"),
+    (np.zeros((5, 3)), "joint_types: 'PPRR' does not describe 3 joints"),
+    (np.full((5, 4), np.nan), "q: row 0, column 0 is nan"),
+])
+def test_joint_readings_are_checked_alike_for_every_kind_of_data(kind, q, match):
+    """One reader of the joint readings for pose data and tracker data."""
+    from iwr.tracker.data import TrackerMeasurements
+
+    legs = np.full((5, 6), 1000.0)
+    with pytest.raises(ValueError, match=match):
+        if kind == "pose":
+            iwr.Measurements(q, np.zeros((5, 6)), legs, joint_types="PPRR")
+        else:
+            TrackerMeasurements(q, legs, probe=np.zeros((5, 6)), joint_types="PPRR")

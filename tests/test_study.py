@@ -3,7 +3,8 @@
 The crash is deterministic: a test method, registered in every worker by a plugin, creates a marker
 file on its first execution anywhere and kills its worker process with ``os._exit`` (no Python
 cleanup, as a machine that dies). Every execution of the method also leaves a file, so the tests
-count executions: a finished cell is never computed again.
+count executions: a finished cell is never computed again by a later run of the study (within
+one run Dask computes a task at least once, not exactly once).
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import math
 import os
 import subprocess
 import sys
+import time
 import uuid
 from pathlib import Path
 from typing import Any
@@ -113,8 +115,13 @@ def test_worker_dies_mid_study_and_table_matches_one_process(
         pids_after = set(client.run(os.getpid).values())
     assert marker.exists(), "the crash never happened"
     assert pids_before - pids_after, "no worker process died"
-    # Every cell of the crashing method ran once, and one of them twice (the killed attempt).
-    assert executions(log) == n_cells // 2 + 1
+    # Every cell of the crashing method ran, one of them twice (the killed attempt). Dask runs a
+    # task at least once, not exactly once: a finished cell whose row had not been fetched when
+    # its worker died is computed again, and under load a task moved to a restarted worker can
+    # start there and again elsewhere (both seen with a busy machine). The cells are
+    # deterministic, so the table is the same (below); only the count may be higher.
+    on_dask = executions(log)
+    assert on_dask >= n_cells // 2 + 1
     assert res.executed == n_cells and res.reused == 0 and res.failed == 0
     rows = read_table(tmp_path / "dask")
     assert len(rows) == n_cells and all(r["status"] == "ok" for r in rows)
@@ -122,7 +129,7 @@ def test_worker_dies_mid_study_and_table_matches_one_process(
 
     # The same study in this process (the marker exists now: nothing crashes).
     one = iwr.study(**grid, out=tmp_path / "one", scheduler="synchronous")
-    assert executions(log) == 2 * (n_cells // 2) + 1
+    assert executions(log) == on_dask + n_cells // 2  # in this process: each cell once
     assert_same_table(rows, one.rows)
     # Both methods are LM on the same data: the crash lost nothing and changed nothing.
     lm = [r for r in rows if r["method"] == "lm"]
@@ -135,14 +142,67 @@ def test_worker_dies_mid_study_and_table_matches_one_process(
     # Started again: nothing is computed again, on the cluster or in this process.
     again = iwr.study(**grid, out=tmp_path / "dask", scheduler=cluster.scheduler_address)
     assert (again.executed, again.reused) == (0, n_cells)
-    assert executions(log) == 2 * (n_cells // 2) + 1
+    assert executions(log) == on_dask + n_cells // 2
     assert_same_table(rows, again.rows)
     # A larger grid (one more seed), sent to the cluster by address, computes only its new cells.
     bigger = iwr.study(**{**grid, "seeds": [0, 1, 2]}, out=tmp_path / "dask",
                        scheduler=cluster.scheduler_address)
     assert (bigger.executed, bigger.reused) == (n_cells // 2, n_cells)
-    assert executions(log) == 2 * (n_cells // 2) + 1 + n_cells // 4
+    assert executions(log) >= on_dask + n_cells // 2 + n_cells // 4
     assert len(bigger.rows) == 3 * n_cells // 2
+
+
+def logged_lm(problem: Any, *, log: str, **kwargs: Any) -> Any:
+    """Levenberg-Marquardt, leaving a file per execution."""
+    Path(log, uuid.uuid4().hex).touch()
+    return identify_module.METHODS["lm"](problem, **kwargs)
+
+
+class RegisterLoggedMethod(distributed.WorkerPlugin):
+    def setup(self, worker: Any) -> None:
+        identify_module.METHODS["test-logged-lm"] = logged_lm
+
+
+def test_a_result_lost_with_its_worker_is_waited_for_not_failed(
+    cluster: Any, tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    """The executor's race: a cell finished on a worker that dies before this process fetched
+    its row is computed again elsewhere; waiting for that is not a failure of the cell (it was,
+    after ``connect_timeout`` seconds, which a loaded machine exceeded). Here the first row's
+    callback holds this process until the crash, so the rows finished meanwhile on the worker
+    that dies are lost, and the timeout is 0.1 s."""
+    from iwr.experiments.harness import canonical, run_dask
+
+    marker, log, crash_log = tmp_path / "crashed", tmp_path / "log", tmp_path / "crash-log"
+    log.mkdir()
+    crash_log.mkdir()
+    robot = iwr.Robot.default()
+    rh = robot_hash(robot)
+    cells = [Cell("test-logged-lm", canonical({"log": str(log)}), None, 60, 0.02, 0, s, 0, 10, rh)
+             for s in range(8)]
+    cells += [Cell(CRASH, canonical({"marker": str(marker), "log": str(crash_log)}), None, 60,
+                   0.02, 0, s, 0, 10, rh) for s in range(2)]
+    rows: list[dict[str, Any]] = []
+
+    def on_done(row: dict[str, Any]) -> None:
+        if not rows:
+            for _ in range(600):  # until the worker has crashed (60 s at most)
+                if marker.exists():
+                    break
+                time.sleep(0.1)
+        rows.append(row)
+
+    monkeypatch.setitem(identify_module.METHODS, CRASH, crash_once)
+    monkeypatch.setitem(identify_module.METHODS, "test-logged-lm", logged_lm)
+    with distributed.Client(cluster) as client:
+        client.register_plugin(RegisterCrashMethod())
+        client.register_plugin(RegisterLoggedMethod())
+        failures = run_dask(cells, robot, on_done, {"workers": 1}, scheduler=client,
+                            connect_timeout=0.1)
+    assert marker.exists()
+    assert failures == [] and len(rows) == len(cells)
+    assert all(r["status"] == "ok" for r in rows)
+    assert executions(log) >= 8
 
 
 def test_lost_result_file_is_recomputed_and_figures_make_sense(tmp_path: Path) -> None:
@@ -244,6 +304,8 @@ def test_bad_arguments() -> None:
         iwr.study(methods="nope", scheduler="synchronous")
     with pytest.raises(ValueError, match="poses: 0"):
         iwr.study(poses=[0], scheduler="synchronous")
+    with pytest.raises(ValueError, match="poses: 8 poses are too few.*at least 9 poses"):
+        iwr.study(poses=[20, 8], scheduler="synchronous")
     with pytest.raises(ValueError, match="noise: -1.0"):
         iwr.study(noise=[-1.0], scheduler="synchronous")
     with pytest.raises(ValueError, match="workers: only for the local cluster"):
@@ -294,6 +356,7 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
         (["--budget", "lm=5,x"], "--budget"),
         (["--budget", "nope=5"], "budgets: method 'nope'"),
         (["--poses", "0"], "poses: 0"),
+        (["--poses", "20,3"], "--poses: 3 poses are too few: the 52 identifiable parameters"),
         (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "workers: only for the local"),
         (["--report-only", "--out", str(tmp_path / "missing")], "no such file"),
     ):

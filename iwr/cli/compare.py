@@ -15,6 +15,7 @@ from ..experiments.compare import (
     compare_methods,
     default_methods,
 )
+from ..experiments.harness import check_n_poses
 from ..robot import Robot
 from ..simulate import Noise
 
@@ -87,7 +88,7 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
                    help="comma-separated methods: registered names ("
                         + ", ".join(sorted(_methods())) + "; de is the paper's DE/rand/1/bin) or "
                         "de:STRATEGY (e.g. de:jso, de:lshade); default: "
-                        + ",".join(default_methods()))
+                        + ",".join(default_methods()) + " (without efficient for --noise none)")
     p.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="EVALS",
                    help="evaluation budget per run (default: %(default)s)")
     p.add_argument("--start", choices=["near", "bad", "both"], default="both",
@@ -107,7 +108,8 @@ def run_compare(args: argparse.Namespace) -> int:
     """Run ``iwr compare`` with parsed arguments; print the summary table; return the exit code
     (0 ok, 1 an input or run error, 130 interrupted)."""
     try:
-        robot = Robot.from_toml(args.robot) if args.robot else None
+        robot = Robot.from_toml(args.robot) if args.robot else Robot.default()
+        check_n_poses(robot, args.poses, "--poses")  # named as the command line spells it
         methods = None if args.methods is None else [
             m.strip() for m in args.methods.split(",") if m.strip()]
         comp = compare_methods(

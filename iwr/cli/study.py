@@ -9,7 +9,9 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
+from ..experiments.harness import check_n_poses
 from ..experiments.study import study
+from ..robot import Robot
 
 __all__ = ["add_study_parser", "run_study"]
 
@@ -182,9 +184,12 @@ def _run_study(args: argparse.Namespace) -> int:
         files = make_report(out)
         print(f"wrote {', '.join(str(f) for f in files)}")
         return 0
+    robot = Robot.from_toml(args.robot) if args.robot else Robot.default()
+    for n in args.poses:  # named as the command line spells it
+        check_n_poses(robot, n, "--poses")
     result = study(
         methods=args.methods, poses=args.poses, noise=args.noise, draws=args.draws,
-        seeds=args.seeds, budgets=_parse_budgets(args.budget), out=out, robot=args.robot,
+        seeds=args.seeds, budgets=_parse_budgets(args.budget), out=out, robot=robot,
         options=_parse_options(args.option), validation_poses=args.validation_poses,
         base_seed=args.base_seed, scheduler=args.scheduler, workers=args.workers,
         retries=args.retries, report=not args.no_report, progress=args.progress,

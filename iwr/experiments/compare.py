@@ -34,6 +34,7 @@ from .harness import (
     ExecutorError,
     budget_option,
     canonical,
+    check_n_poses,
     dry_run,
     robot_hash,
     run_dask,
@@ -57,8 +58,10 @@ __all__ = [
 DEFAULT_BUDGET = 20_000
 #: Methods compared when none are given (then any other registered method): Levenberg-Marquardt,
 #: the paper's DE/rand/1/bin with Storn & Price's defaults, jSO (the DE variant that converges
-#: fastest on IWR, docs/de.md), CRS2 and BOBYQA. ``"de:STRATEGY"`` is DE with that strategy.
-DEFAULT_METHODS = ("lm", "de", "de:jso", "crs2", "bobyqa")
+#: fastest on IWR, docs/de.md), CRS2, BOBYQA and the efficient estimator (weighted by each
+#: scenario's noise model; with no noise it cannot run). ``"de:STRATEGY"`` is DE with that
+#: strategy.
+DEFAULT_METHODS = ("lm", "de", "de:jso", "crs2", "bobyqa", "efficient")
 DEFAULT_SEEDS = (0, 1, 2)
 DEFAULT_OUT = "iwr-compare"
 _BOUNDS = {"near": "default", "bad": "paper"}
@@ -74,7 +77,9 @@ class Comparison:
         One per (scenario, seed, method): the harness's row (``runs.csv``) plus ``x``, ``truth``,
         ``x0``, ``history_nfev``, ``history_best``, ``unidentifiable``.
     summary : list of dict
-        One per (scenario, method): medians, ranges and the success rate (``summary.csv``).
+        One per (scenario, method): medians, ranges, the successes (the method's own ``success``:
+        converged, and with a noise model its fit tested) and the runs at the noise floor
+        (``summary.csv``).
     settings : dict
         Everything the comparison was run with.
     files : dict of str to Path
@@ -127,16 +132,25 @@ def _methods_registered() -> Any:
     return METHODS
 
 
-def default_methods() -> list[str]:
+def default_methods(noise: Noise | None = None) -> list[str]:
     """The methods compared when none are given: :data:`DEFAULT_METHODS` (those registered), then
-    any other registered method."""
+    any other registered method; with a ``noise`` model whose leg noise is 0 (noise-free data)
+    without the efficient estimator, which weighs the instruments by their noise."""
     names = [m for m in DEFAULT_METHODS if m.partition(":")[0] in _methods_registered()]
-    return names + sorted(m for m in _methods_registered() if m not in names)
+    names += sorted(m for m in _methods_registered() if m not in names)
+    if noise is not None and not _weighted(noise):
+        names = [m for m in names if m != "efficient"]
+    return names
 
 
-def _check_methods(methods: Any) -> list[str]:
+def _weighted(noise: Noise) -> bool:
+    """Whether the efficient estimator can weigh the data by ``noise`` (it needs the legs')."""
+    return noise.legs > 0
+
+
+def _check_methods(methods: Any, noise: Noise) -> list[str]:
     if methods is None:
-        return default_methods()
+        return default_methods(noise)
     names = [methods] if isinstance(methods, str) else list(methods)
     if not names:
         raise ValueError(f"methods: empty; expected one or more of: {_available()}")
@@ -144,6 +158,10 @@ def _check_methods(methods: Any) -> list[str]:
         split_method(m)
     if len(set(names)) != len(names):
         raise ValueError(f"methods: {names!r} has duplicates")
+    if "efficient" in names and not _weighted(noise):
+        raise ValueError("methods: 'efficient' weighs every instrument by the data's noise model, "
+                         f"and this noise has no leg noise (legs = {noise.legs}); give a noise "
+                         "model with legs > 0 (e.g. 'realistic') or leave 'efficient' out")
     return names
 
 
@@ -232,7 +250,8 @@ def compare_methods(
     robot : Robot, optional
         The nominal robot (default :meth:`Robot.default`).
     n_poses : int
-        Measurement poses per identification (the paper: 100).
+        Measurement poses per identification (the paper: 100); at least
+        :func:`~iwr.experiments.harness.min_poses` (9 for the IWR).
     noise : Noise, "realistic", "none" or None
         Measurement noise of the identification data (default: :meth:`Noise.realistic`).
     seeds : sequence of int
@@ -242,7 +261,7 @@ def compare_methods(
         ``iwr.methods.METHODS`` (``"de"`` is the paper's DE/rand/1/bin with its defaults), or
         ``"de:STRATEGY"``, DE with a strategy of ``iwr.de.STRATEGIES`` (``"de:jso"``,
         ``"de:lshade"``, ...). Default: :data:`DEFAULT_METHODS` (``lm``, ``de``, ``de:jso``,
-        ``crs2``, ``bobyqa``), then any other registered method.
+        ``crs2``, ``bobyqa``, ``efficient``), then any other registered method.
     budget : int
         Evaluation budget of every run, passed as ``max_evaluations`` (a Jacobian counts as one
         evaluation); lshade and jso plan their schedules over it. DE never exceeds it, but it
@@ -256,9 +275,12 @@ def compare_methods(
         Fresh, noise-free poses of the actual robot for the validation figures; they are also
         the yardstick of :func:`iwr.parameter_error` (what is identifiable).
     success_rtol, success_atol : float
-        A run succeeds when its cost is at most ``(1 + success_rtol) * floor + 6 N success_atol^2``,
-        where ``floor`` is the cost of the true parameters on the same (noisy) data: within
-        ``success_rtol`` of the noise floor, or within ``success_atol`` mm RMS of the readings.
+        A run is *at the floor* when its cost is at most ``(1 + success_rtol) * floor + 6 N
+        success_atol^2``, where ``floor`` is the cost of the true parameters on the same (noisy)
+        data: within ``success_rtol`` of the noise floor, or within ``success_atol`` mm RMS of the
+        readings. A run *succeeds* when the method says so (``success``: it converged and, with a
+        noise model, passed the fit test of :func:`iwr.estimation.fit_check`); the two are
+        counted side by side.
     method_options : dict, optional
         Extra options per method label, e.g. ``{"crs2": {"population": 1000}}`` or
         ``{"de:jso": {"population_size": 200}}``.
@@ -272,12 +294,12 @@ def compare_methods(
     robot = Robot.default() if robot is None else robot
     if not isinstance(robot, Robot):
         raise ValueError(f"robot: expected an iwr.Robot or None, got {type(robot).__name__}")
-    n_poses = _check_int("n_poses", n_poses, 1)
+    n_poses = check_n_poses(robot, n_poses)
     n_validation = _check_int("n_validation", n_validation, 1)
     budget = _check_int("budget", budget, 2)
     noise = _check_noise(noise)
     seeds = _check_seeds(seeds)
-    names = _check_methods(methods)
+    names = _check_methods(methods, noise)
     starts = _check_starts(start)
     for label, v in (("success_rtol", success_rtol), ("success_atol", success_atol)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
@@ -399,8 +421,11 @@ def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) 
                 "scenario": scenario,
                 "method": method,
                 "runs": len(rs),
-                "successes": sum(r["at_floor"] for r in rs),
-                "success_rate": sum(r["at_floor"] for r in rs) / len(rs),
+                # The method's own verdict (converged, and its fit tested), then the cost alone.
+                "successes": sum(bool(r["success"]) for r in rs),
+                "success_rate": sum(bool(r["success"]) for r in rs) / len(rs),
+                "at_floor": sum(bool(r["at_floor"]) for r in rs),
+                "at_floor_rate": sum(bool(r["at_floor"]) for r in rs) / len(rs),
                 "median_cost": _median(costs),
                 "min_cost": float(np.min(costs)),
                 "max_cost": float(np.max(costs)),

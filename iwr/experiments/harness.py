@@ -38,6 +38,8 @@ from ..simulate import Noise, sample_poses, simulate
 __all__ = [
     "Cell",
     "Scenario",
+    "check_n_poses",
+    "min_poses",
     "ScenarioData",
     "SETTING_COLUMNS",
     "FIGURE_COLUMNS",
@@ -162,6 +164,44 @@ def split_method(spec: Any) -> tuple[str, dict[str, Any]]:
     raise ValueError(f"methods: {spec!r} is not registered; available: {available_methods()}")
 
 
+# -- how many poses -----------------------------------------------------------------------------
+
+_IDENTIFIABLE: dict[str, int] = {}
+
+
+def _identifiable(robot: Robot) -> int:
+    """The number of identifiable parameters of ``robot`` (the rank of :func:`iwr.identifiability`
+    on generic poses: 52 of 58 for the IWR), computed once per robot."""
+    key = robot_hash(robot)
+    if key not in _IDENTIFIABLE:
+        data, _ = simulate(robot, max(60, robot.n_params), seed=0)
+        _IDENTIFIABLE[key] = int(identifiability(robot, data).rank)
+    return _IDENTIFIABLE[key]
+
+
+def min_poses(robot: Robot) -> int:
+    """The fewest measurement poses whose leg readings (six a pose) can determine the identifiable
+    parameters of ``robot``: 9 for the IWR (54 readings for 52 identifiable parameters). Below
+    it the identification is underdetermined whatever the method, and its figures mean
+    nothing."""
+    return -(-_identifiable(robot) // 6)
+
+
+def check_n_poses(robot: Robot, n_poses: Any, name: str = "n_poses") -> int:
+    """``n_poses`` as an int, or ValueError naming ``name``, the value and the minimum
+    (:func:`min_poses`)."""
+    if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
+        raise ValueError(f"{name}: {n_poses!r}; expected an integer >= 1")
+    need = min_poses(robot)
+    if n_poses < need:
+        raise ValueError(
+            f"{name}: {int(n_poses)} poses are too few: the {_identifiable(robot)} identifiable "
+            f"parameters of robot {robot.name!r} need at least {need} poses (6 leg readings "
+            "each); give at least that"
+        )
+    return int(n_poses)
+
+
 # -- the scenario ---------------------------------------------------------------------------------
 
 
@@ -214,7 +254,9 @@ class Scenario:
         return lower + (upper - lower) * rng.random(robot.n_params)
 
     def build(self, robot: Robot) -> ScenarioData:
-        """Simulate the scenario for ``robot`` (deterministic)."""
+        """Simulate the scenario for ``robot`` (deterministic). ValueError when ``n_poses`` is
+        below :func:`min_poses`."""
+        check_n_poses(robot, self.n_poses)
         truth = self.truth(robot)
         data, _ = simulate(robot, self.n_poses,
                            seed=stream_seed(self.base_seed, _DATA, self.draw, self.seed),
@@ -613,7 +655,11 @@ def run_dask(
             try:
                 for fut in as_completed(list(futures)):
                     try:
-                        row = fut.result(timeout=connect_timeout)
+                        # No timeout: a finished cell whose result was lost with its worker
+                        # (killed before this process fetched the row) is computed again
+                        # elsewhere, and the wait for that is a cell's computation, which may
+                        # take as long as it needs. A lost scheduler cancels the futures.
+                        row = fut.result()
                     except Exception as exc:  # noqa: BLE001 - any failure of a cell is reported
                         failures.append((futures[fut], exc))
                     else:

@@ -56,6 +56,7 @@ from .harness import (
     accepts,
     budget_option,
     canonical,
+    check_n_poses,
     noise_at,
     robot_hash,
     run_dask,
@@ -316,7 +317,8 @@ def study(
     methods : str or list of str
         Identification methods, names of ``iwr.methods.METHODS`` (``"lm"``, ``"de"``, ...).
     poses : int or list of int
-        Numbers of measurement poses N.
+        Numbers of measurement poses N, each at least :func:`~iwr.experiments.harness.min_poses`
+        (9 for the IWR).
     noise : float or list of float
         Noise levels: the tracker's position standard deviation in mm, the other channels in the
         proportions of :meth:`iwr.Noise.realistic` (:func:`noise_at`). 0 is the paper's setting.
@@ -423,6 +425,8 @@ def study(
         robot = Robot.default()
     elif not isinstance(robot, Robot):
         robot = Robot.from_toml(robot)
+    for n in poses_l:
+        check_n_poses(robot, n, "poses")
 
     out = Path(out)
     runs = out / RUNS_FOLDER

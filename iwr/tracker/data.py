@@ -7,28 +7,11 @@ from typing import Any
 
 import numpy as np
 
+from ..measurements import as_matrix, joint_readings
 from ..transforms import euler_zyx
 from .setup import TrackerSetup
 
 __all__ = ["TrackerMeasurements"]
-
-
-def _matrix(value: Any, cols: int, name: str, rows: int | None = None,
-            allow_nan: bool = False) -> np.ndarray:
-    try:
-        arr = np.array(value, dtype=float)
-    except (TypeError, ValueError) as exc:
-        raise ValueError(f"{name}: cannot be read as numbers ({exc})") from None
-    if cols == 0 and arr.size == 0 and rows is not None:
-        arr = np.zeros((rows, 0))
-    if arr.ndim != 2 or arr.shape[1] != cols or (rows is not None and arr.shape[0] != rows):
-        raise ValueError(f"{name}: shape {arr.shape}; expected "
-                         f"({rows if rows is not None else 'N'}, {cols})")
-    bad = np.isinf(arr) if allow_nan else ~np.isfinite(arr)
-    if bad.any():
-        r, c = (int(i) for i in np.argwhere(bad)[0])
-        raise ValueError(f"{name}: row {r}, column {c} is {arr[r, c]}; every value must be finite")
-    return np.ascontiguousarray(arr)
 
 
 class TrackerMeasurements:
@@ -57,16 +40,11 @@ class TrackerMeasurements:
                  source: str | None = None) -> None:
         if (points is None) == (probe is None):
             raise ValueError("TrackerMeasurements: give either points (N, K, 3) or probe (N, 6)")
-        self.legs = _matrix(legs, 6, "legs")
+        self.legs = as_matrix(legs, 6, "legs")
         n = self.legs.shape[0]
         if n == 0:
             raise ValueError("legs: no measurements (0 rows)")
-        q_arr = np.asarray(q, dtype=float)
-        nj = q_arr.shape[1] if q_arr.ndim == 2 else (len(joint_types) if joint_types else 0)
-        self.q = _matrix(q, nj, "q", rows=n)
-        if joint_types is not None and (len(joint_types) != nj
-                                        or any(c not in "PR" for c in joint_types)):
-            raise ValueError(f"joint_types: {joint_types!r} does not describe {nj} joints")
+        self.q = joint_readings(q, joint_types, n)
         self.joint_types = joint_types
         self.points: np.ndarray | None = None
         self.probe: np.ndarray | None = None
@@ -90,7 +68,7 @@ class TrackerMeasurements:
             self.points = pts
         else:
             self.kind = "probe"
-            self.probe = _matrix(probe, 6, "probe", rows=n)
+            self.probe = as_matrix(probe, 6, "probe", rows=n)
         self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
         self.source = None if source is None else str(source)
 

@@ -192,11 +192,9 @@ class TrackerSpec:
             max_iterations=int(max_iterations), callback=cb)
 
     def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        from ..estimation import _nearest_plausible
+        from ..estimation import _nearest_plausible, tracker_readings
 
-        jac = self.problem.jacobian(x)
-        x_plain = _nearest_plausible(self.robot, None, x - self.center, self.limit,  # type: ignore[arg-type]
-                                     jac=jac)
+        x_plain = _nearest_plausible(tracker_readings(self.problem), x, self.limit, self.center)
         return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
                 for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
 
