@@ -1012,7 +1012,6 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
                                            math.nan, math.nan, False) for c in est]
 
     # --- the verdict ---------------------------------------------------------------------------
-    n_used = int(used.sum())
     dof = int(out["dof"])
     statistic = float(out["cost"])
     p_value = float(stats.chi2.sf(statistic, dof)) if dof > 0 else math.nan
@@ -1103,7 +1102,6 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
         # A singular leg Jacobian (a hexapod singularity) at some pose.
         predicted = None
         fit.causes.append(f"predicted accuracy unavailable: {exc}")
-    del n_used
     return IdentificationResult(
         x=x,
         fun=statistic,

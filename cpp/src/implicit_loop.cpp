@@ -102,6 +102,37 @@ void pose_legs(const Geometry& g, const double* x, const double* q, const double
     }
 }
 
+// The rows both residual models share, for pose k at (x, y): the legs, (predicted - measured) /
+// sigma (with their derivatives), then y_c / sigma_c for the first n_prior corrections (0 where
+// sigma_c = 0, an exact reading). jx, jy (when given) are zeroed first.
+void legs_and_priors(const Geometry& g, const VectorXd& x, int k, const double* y,
+                     const Eigen::Ref<const RowMatrixXd>& q,
+                     const Eigen::Ref<const RowMatrixXd>& poses,
+                     const Eigen::Ref<const RowMatrixXd>& legs,
+                     const Eigen::Ref<const RowMatrixXd>& sigma, int n_prior, double* r,
+                     RowMatrixXd* jx, RowMatrixXd* jy, Mat4* frames, double* qt) {
+    double lg[kLegs];
+    const RowMatrixXd qk = q.row(k), pk = poses.row(k);
+    if (jx) {
+        jx->setZero();
+        jy->setZero();
+    }
+    pose_legs(g, x.data(), qk.data(), pk.data(), y, lg, jx, jy, 0, frames, qt);
+    for (int j = 0; j < kLegs; ++j) {
+        const double is = 1.0 / sigma(k, j);
+        r[j] = (lg[j] - legs(k, j)) * is;
+        if (jx) {
+            jx->row(j) *= is;
+            jy->row(j) *= is;
+        }
+    }
+    for (int c = 0; c < n_prior; ++c) {
+        const double s = sigma(k, kLegs + c);
+        r[kLegs + c] = s > 0 ? y[c] / s : 0.0;
+        if (jy && s > 0) (*jy)(kLegs + c, c) = 1.0 / s;
+    }
+}
+
 void check_shape(const Eigen::Ref<const RowMatrixXd>& m, Eigen::Index rows, Eigen::Index cols,
                  const char* what) {
     if (m.rows() != rows || m.cols() != cols) {
@@ -256,30 +287,11 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
     }
     auto frames = std::make_shared<std::vector<Mat4>>(static_cast<size_t>(nj) + 1);
     auto qt = std::make_shared<std::vector<double>>(static_cast<size_t>(nj) + 1);
-    model.eval = [&g, &q, &poses, &legs, &sigma, frames, qt, nj, ny](
+    model.eval = [&g, &q, &poses, &legs, &sigma, frames, qt, ny](
                      const VectorXd& x, int k, const double* y, double* r, RowMatrixXd* jx,
                      RowMatrixXd* jy) {
-        double lg[kLegs];
-        const RowMatrixXd qk = q.row(k), pk = poses.row(k);
-        if (jx) {
-            jx->setZero();
-            jy->setZero();
-        }
-        pose_legs(g, x.data(), qk.data(), pk.data(), y, lg, jx, jy, 0, frames->data(), qt->data());
-        for (int j = 0; j < kLegs; ++j) {
-            const double is = 1.0 / sigma(k, j);
-            r[j] = (lg[j] - legs(k, j)) * is;
-            if (jx) {
-                jx->row(j) *= is;
-                jy->row(j) *= is;
-            }
-        }
-        for (int c = 0; c < ny; ++c) {
-            const double s = sigma(k, kLegs + c);
-            r[kLegs + c] = s > 0 ? y[c] / s : 0.0;
-            if (jy && s > 0) (*jy)(kLegs + c, c) = 1.0 / s;
-        }
-        (void)nj;
+        legs_and_priors(g, x, k, y, q, poses, legs, sigma, ny, r, jx, jy, frames->data(),
+                        qt->data());
     };
     return solve_loop(model, x0, active, corr, options, callback);
 }
@@ -642,34 +654,15 @@ LoopModel tracker_model(const Geometry& g, const TrackerLoopData& data,
                      RowMatrixXd* jy) {
         const int nr = kLegs + nj + 3 * nb;
         for (int c = 0; c < nr; ++c) r[c] = 0.0;
-        if (jx) {
-            jx->setZero();
-            jy->setZero();
-        }
-        const RowMatrixXd qk = q.row(k), pk = data.reference.row(k);
-        double lg[kLegs];
-        pose_legs(g, x.data(), qk.data(), pk.data(), y, lg, jx, jy, 0, sc->frames.data(),
-                  sc->qt.data());
-        for (int j = 0; j < kLegs; ++j) {
-            const double is = 1.0 / sigma(k, j);
-            r[j] = (lg[j] - legs(k, j)) * is;
-            if (jx) {
-                jx->row(j) *= is;
-                jy->row(j) *= is;
-            }
-        }
-        for (int c = 0; c < nj; ++c) {
-            const double s = sigma(k, kLegs + c);
-            if (!(s > 0)) continue;
-            r[kLegs + c] = y[c] / s;
-            if (jy) (*jy)(kLegs + c, c) = 1.0 / s;
-        }
+        legs_and_priors(g, x, k, y, q, data.reference, legs, sigma, nj, r, jx, jy,
+                        sc->frames.data(), sc->qt.data());
+        const RowMatrixXd pk = data.reference.row(k);
         // The true platform pose in {0} and the setup's transforms at x.
         const double* xs = x.data() + npr;
         const Vec3 w(y[nj + 3], y[nj + 4], y[nj + 5]), rr(xs[3], xs[4], xs[5]);
-        Mat3 ew, jrw, er, jrr;
+        Mat3 ew, jrw, jrr;
         so3_exp(w, &ew, &jrw);
-        so3_exp(rr, &er, &jrr);
+        so3_exp(rr, nullptr, &jrr);
         const Mat3 r5 = euler_zyx(pk(0, 3), pk(0, 4), pk(0, 5)) * ew;
         const Vec3 p5 = Vec3(pk(0, 0), pk(0, 1), pk(0, 2)) + Vec3(y[nj], y[nj + 1], y[nj + 2]);
         Mat3 rreg;
