@@ -37,7 +37,7 @@ def candidates(robot: iwr.Robot, m: int) -> iwr.Measurements:
 @pytest.mark.parametrize("kind", ["points", "probe"])
 def test_planned_poses_beat_random_ones_on_the_criterion(kind):
     robot = robot_for(kind)
-    cand = candidates(robot, 150)
+    cand = candidates(robot, 100)
     plan = iwr.plan_poses(robot, cand, 20, criterion="O1", seed=0)
     assert plan.data_kind == kind and len(set(plan.indices.tolist())) == 20
     problem, x = _tracker_problem(robot, cand, None)
@@ -46,7 +46,7 @@ def test_planned_poses_beat_random_ones_on_the_criterion(kind):
     assert plan.base_indices.size == ns.rank == problem.n_params - 16
     assert any(problem.parameter_names[i].startswith("tracker.") for i in plan.base_indices)
     jac = problem.jacobian(x)[:, plan.base_indices]
-    js = (jac / column_scale(jac)).reshape(150, 3 * robot.tracker.n_points, -1)
+    js = (jac / column_scale(jac)).reshape(100, 3 * robot.tracker.n_points, -1)
 
     def value(idx):
         info = np.einsum("kij,kil->jl", js[idx], js[idx])
@@ -54,7 +54,7 @@ def test_planned_poses_beat_random_ones_on_the_criterion(kind):
 
     assert value(plan.indices) == pytest.approx(plan.value)
     rng = np.random.default_rng(1)
-    random = [value(rng.choice(150, 20, replace=False)) for _ in range(10)]
+    random = [value(rng.choice(100, 20, replace=False)) for _ in range(10)]
     assert plan.value > 1.15 * max(random), (plan.value, random)
     with pytest.raises(ValueError, match="probe coordinates" if kind == "probe"
                        else "point coordinates"):
