@@ -447,12 +447,11 @@ def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
         for _ in range(20):
             legs, jac = readings(y)
             r = target - legs
+            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
+                return None  # a step too far for the model: the caller halves it
             if np.sqrt(np.mean(r**2)) <= tol:
                 return y
-            step = np.linalg.lstsq(jac @ ident, r, rcond=None)[0]
-            if not np.all(np.isfinite(step)):
-                return None
-            y = y + ident @ step
+            y = y + ident @ np.linalg.lstsq(jac @ ident, r, rcond=None)[0]
         return None
 
     y = (np.asarray(x, dtype=float) - c) / limit

@@ -279,6 +279,9 @@ def test_unidentifiable_mask_matches_finite_differences():
         ({"method_options": {"nope": {}}}, "method_options"),
         ({"methods": ["lm", "efficient"], "noise": "none"}, "methods: 'efficient' weighs"),
         ({"robot": "IWR"}, "robot"),
+        ({"robot": iwr.Robot.default().with_tracker(registration=(0, 0, 0, 0, 0, 0),
+                                                    reflectors=[(0, 0, 40)])},
+         "robot: 'IWR' has a laser-tracker setup"),
     ],
 )
 def test_bad_arguments_name_the_argument(kwargs, name):

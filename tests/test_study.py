@@ -306,6 +306,10 @@ def test_bad_arguments() -> None:
         iwr.study(poses=[0], scheduler="synchronous")
     with pytest.raises(ValueError, match="poses: 8 poses are too few.*at least 9 poses"):
         iwr.study(poses=[20, 8], scheduler="synchronous")
+    tracker = iwr.Robot.default().with_tracker(registration=(0, 0, 0, 0, 0, 0),
+                                               reflectors=[(0, 0, 40)])
+    with pytest.raises(ValueError, match="robot: 'IWR' has a laser-tracker setup"):
+        iwr.study(robot=tracker, scheduler="synchronous")
     with pytest.raises(ValueError, match="noise: -1.0"):
         iwr.study(noise=[-1.0], scheduler="synchronous")
     with pytest.raises(ValueError, match="workers: only for the local cluster"):

@@ -15,7 +15,7 @@ from ..experiments.compare import (
     compare_methods,
     default_methods,
 )
-from ..experiments.harness import check_n_poses
+from ..experiments.harness import check_n_poses, check_robot
 from ..robot import Robot
 from ..simulate import Noise
 
@@ -109,6 +109,7 @@ def run_compare(args: argparse.Namespace) -> int:
     (0 ok, 1 an input or run error, 130 interrupted)."""
     try:
         robot = Robot.from_toml(args.robot) if args.robot else Robot.default()
+        check_robot(robot)
         check_n_poses(robot, args.poses, "--poses")  # named as the command line spells it
         methods = None if args.methods is None else [
             m.strip() for m in args.methods.split(",") if m.strip()]

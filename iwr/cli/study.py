@@ -9,7 +9,7 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..experiments.harness import check_n_poses
+from ..experiments.harness import check_n_poses, check_robot
 from ..experiments.study import study
 from ..robot import Robot
 
@@ -185,6 +185,7 @@ def _run_study(args: argparse.Namespace) -> int:
         print(f"wrote {', '.join(str(f) for f in files)}")
         return 0
     robot = Robot.from_toml(args.robot) if args.robot else Robot.default()
+    check_robot(robot)
     for n in args.poses:  # named as the command line spells it
         check_n_poses(robot, n, "--poses")
     result = study(

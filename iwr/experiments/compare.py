@@ -35,6 +35,7 @@ from .harness import (
     budget_option,
     canonical,
     check_n_poses,
+    check_robot,
     dry_run,
     robot_hash,
     run_dask,
@@ -294,6 +295,7 @@ def compare_methods(
     robot = Robot.default() if robot is None else robot
     if not isinstance(robot, Robot):
         raise ValueError(f"robot: expected an iwr.Robot or None, got {type(robot).__name__}")
+    check_robot(robot)
     n_poses = check_n_poses(robot, n_poses)
     n_validation = _check_int("n_validation", n_validation, 1)
     budget = _check_int("budget", budget, 2)

@@ -39,6 +39,7 @@ __all__ = [
     "Cell",
     "Scenario",
     "check_n_poses",
+    "check_robot",
     "min_poses",
     "ScenarioData",
     "SETTING_COLUMNS",
@@ -185,6 +186,17 @@ def min_poses(robot: Robot) -> int:
     it the identification is underdetermined whatever the method, and its figures mean
     nothing."""
     return -(-_identifiable(robot) // 6)
+
+
+def check_robot(robot: Robot) -> None:
+    """ValueError for a robot whose data the harness cannot simulate: one with a laser-tracker
+    setup (its scenarios simulate platform poses in {0})."""
+    if getattr(robot, "tracker", None) is not None:
+        raise ValueError(
+            f"robot: {robot.name!r} has a laser-tracker setup; the experiments simulate the "
+            "platform pose measured in the world frame {0} (the paper's data): give the robot "
+            "without it (Robot.with_tracker's input)"
+        )
 
 
 def check_n_poses(robot: Robot, n_poses: Any, name: str = "n_poses") -> int:

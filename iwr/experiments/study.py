@@ -57,6 +57,7 @@ from .harness import (
     budget_option,
     canonical,
     check_n_poses,
+    check_robot,
     noise_at,
     robot_hash,
     run_dask,
@@ -425,6 +426,7 @@ def study(
         robot = Robot.default()
     elif not isinstance(robot, Robot):
         robot = Robot.from_toml(robot)
+    check_robot(robot)
     for n in poses_l:
         check_n_poses(robot, n, "poses")
 
