@@ -765,3 +765,52 @@ def test_tracker_active_set_and_x0_reach_the_engine(tracker_files: dict[str, Pat
     proc = run_engine(tracker_files["points_problem"], "--resume", d / "active.ckpt",
                       "--checkpoint", d / "other.ckpt")
     assert proc.returncode == 1 and "made for another robot" in one_line_error(proc)
+
+
+def test_tracker_result_without_forward_kinematics_is_a_failure(
+        tracker_files: dict[str, Path]) -> None:
+    """Held leg offsets 1 m short (negative leg lengths): no pose has forward kinematics at any
+    point searched, so every cost is the penalty, and even a run that reaches its target cost is
+    no success; the message names a pose."""
+    d = tracker_files["dir"]
+    loaded = iwr.Problem.load(tracker_files["points_problem"])
+    x0 = np.zeros(loaded.n_params)
+    x0[52:58] = -1000.0  # leg1.dl0 .. leg6.dl0
+    active = np.zeros(loaded.n_params, dtype=bool)
+    active[58:64] = True  # the registration only
+    loaded.save(d / "nofk.iwrp", x0=x0, active=active)
+    proc = run_engine(d / "nofk.iwrp", "--population-size", 8, "--generations", 2,
+                      "--target-cost", 1e300, "--checkpoint", d / "nofk.ckpt", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    res = engine_result(d / "nofk.ckpt", d / "nofk.iwrp")
+    assert not res.success
+    assert "10 of 10 poses have no forward kinematics at the result (pose 0:" in res.message
+    # The penalty, 1000 mm on each seen coordinate.
+    assert res.fun == loaded.cost(res.x) == 1e6 * loaded.n_observations
+
+
+def test_tracker_launcher_resume_keeps_the_run_problem(tracker_files: dict[str, Path],
+                                                       tmp_path: Path) -> None:
+    """Resuming tracker data: the same files are accepted (NaN mask and guess rewritten
+    identically); other data are refused before the run's problem file is replaced."""
+    robot, data = tracker_files["points_robot"], tracker_files["points_data"]
+    run = run_cal(robot, data, "--population-size", TRACKER_NP, "--generations", 3,
+                  "--output", tmp_path / "k.json", "--quiet")
+    assert run.returncode == 0, run.stderr
+    before = (tmp_path / "k.json.iwrp").read_bytes()
+    proc = run_cal(robot, data, "--resume", tmp_path / "k.json.ckpt", "--generations", 6,
+                   "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert iwr.load_result(tmp_path / "k.json").nit == 6
+    assert (tmp_path / "k.json.iwrp").read_bytes() == before
+    lines = data.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("3,"))
+    cells = lines[k].split(",")
+    cells[5] = repr(float(cells[5]) + 1e-3)  # s1_mm of pose 3, one micrometre longer
+    lines[k] = ",".join(cells)
+    (tmp_path / "other.csv").write_text("\n".join(lines) + "\n")
+    proc = run_cal(robot, tmp_path / "other.csv", "--resume", tmp_path / "k.json.ckpt")
+    assert proc.returncode == 1
+    msg = one_line_error(proc, "iwr-calibrate")
+    assert "k.json.iwrp: the problem of the run being resumed" in msg and "legs" in msg, msg
+    assert (tmp_path / "k.json.iwrp").read_bytes() == before
