@@ -2,7 +2,9 @@
 //
 // Runs from one problem file (iwr.Problem.save; the iwr-calibrate launcher writes it from a robot
 // TOML and a measurement CSV), with no Python at run time, so that it can be copied to a compute
-// node. Runs the DE engine of iwr/de.hpp on the objective of eq. (10). The run's whole state
+// node. Runs the DE engine of iwr/de.hpp on the objective of the problem's measurements: eq. (10)
+// for leg data, the tracker-space residuals of iwr/tracker.hpp for laser-tracker points or probe
+// poses (one loop, search<Obj>, for both). The run's whole state
 // (iwr::de::State) and its result so far go into checkpoints, so that --resume ends with exactly
 // the result of a run that was never interrupted; iwr-calibrate (Python) turns the final checkpoint
 // into the JSON result. See `iwr-engine --help` and docs/iwr-calibrate.md.
@@ -132,16 +134,19 @@ and settings give the same result as iwr.identify(robot, measurements, method="d
 whatever the number of threads.
 
 positional arguments:
-  PROBLEM.iwrp             the problem: robot, measurements, weights and search bounds, as
-                           iwr.Problem.save writes it (iwr-calibrate ROBOT.toml DATA.csv writes
-                           it for you)
+  PROBLEM.iwrp             the problem: robot, measurements (leg data, or laser-tracker points
+                           or probe poses with the nominal tracker setup), weights, search
+                           bounds, x0 and active set, as iwr.Problem.save or
+                           iwr.tracker.TrackerProblem.save writes it (iwr-calibrate ROBOT.toml
+                           DATA.csv writes it for you)
 
 DE settings (they shape the run; a checkpoint remembers them):
   --strategy S             rand1bin (the paper's DE/rand/1/bin, default), best1bin, jade, jde,
                            shade, lshade, jso
   --population-size NP     population size (default: the strategy's published one: rand1bin,
                            best1bin 10 D; jade 30/100/400; jde, shade 100; lshade 18 D;
-                           jso 25 ln(D) sqrt(D); D = 58 for the IWR). A population whose memory
+                           jso 25 ln(D) sqrt(D); D = 58 for the IWR, 73 with a tracker and
+                           3 reflectors: the active parameters). A population whose memory
                            exceeds what the machine has available is refused with the estimate
   --F F                    scale factor (rand1bin/best1bin) or its initial value/mean (others)
   --CR CR                  crossover rate, in [0, 1] (same remark)

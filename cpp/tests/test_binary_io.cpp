@@ -152,7 +152,8 @@ bool same_problem(const iwr::ProblemData& a, const iwr::ProblemData& b) {
            a.probe_poses == b.probe_poses && a.reference == b.reference && a.x0 == b.x0 && a.active == b.active &&
            // NaN != NaN: the points compared bit for bit
            a.points.size() == b.points.size() &&
-           std::memcmp(a.points.data(), b.points.data(), sizeof(double) * static_cast<std::size_t>(a.points.size())) == 0;
+           (a.points.size() == 0 ||
+            std::memcmp(a.points.data(), b.points.data(), sizeof(double) * static_cast<std::size_t>(a.points.size())) == 0);
 }
 
 // The same container header around another payload, with its size and checksum recomputed.
