@@ -77,7 +77,7 @@ class ForwardKinematicsError(RuntimeError):
     pass
 class FormatError(ValueError, RuntimeError):
     """A malformed, truncated or foreign binary file (problem, checkpoint, DE state)."""
-def _encode_problem(robot_name: str, joint_types: str, dh: typing.Any, joint_limits: typing.Any, base: typing.Any, platform: typing.Any, leg_offsets: typing.Any, leg_stroke: typing.Any, home_pose: typing.Any, workspace: typing.Any, measurement_joint_types: str | None, q: typing.Any, poses: typing.Any, legs: typing.Any, weights: typing.Any, lower: collections.abc.Sequence[float], upper: collections.abc.Sequence[float], bounds_kind: str, parameter_names: collections.abc.Sequence[str], sources: collections.abc.Sequence[tuple[str, str, str]]) -> bytes:
+def _encode_problem(fields: dict[str, typing.Any]) -> bytes:
     ...
 def _read_problem(path: str) -> dict:
     ...

@@ -158,22 +158,26 @@ class Problem:
         return (f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, "
                 f"n_params={self.n_params})")
 
-    def save(self, path: Any, *, sources: dict[str, Any] | None = None) -> None:
+    def save(self, path: Any, *, sources: dict[str, Any] | None = None, x0: Any = None,
+             active: Any = None) -> None:
         """Write the problem file that ``iwr-engine`` runs from, atomically.
 
         A versioned, checksummed binary file (``docs/iwr-calibrate.md``) with the robot, the
         measurements and weights, the bounds and the parameter names; ``sources`` maps a role
-        (``"robot"``, ``"data"``) to the file it came from, recorded with its SHA-256.
-        :meth:`load` reads it back.
+        (``"robot"``, ``"data"``) to the file it came from, recorded with its SHA-256; ``x0``
+        (default zeros: where the inactive parameters stay) and ``active`` (default all) are the
+        search's starting point and active set. :meth:`load` reads it back; tracker data are
+        saved by :meth:`iwr.tracker.TrackerProblem.save`, to the same format.
         """
         from .problem_file import save_problem
 
-        save_problem(self, path, sources)
+        save_problem(self, path, sources, x0=x0, active=active)
 
     @classmethod
-    def load(cls, path: Any) -> Problem:
+    def load(cls, path: Any) -> Any:
         """Read a problem file written by :meth:`save` (``iwr._core.FormatError``, a ValueError
-        naming the file and field, if it is malformed, truncated or of another version)."""
+        naming the file and field, if it is malformed, truncated or of another version). A file
+        of tracker data gives an :class:`iwr.tracker.TrackerProblem`."""
         from .problem_file import load_problem
 
         return load_problem(path)

@@ -154,6 +154,7 @@ def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
             x, fun = lm.x, float(lm.fun)
     return IdentificationResult(x=x, fun=fun, nfev=nfev, nit=int(raw.get("nit", 0)),
                                 success=success, status=status, message=message,
+                                history={k: np.asarray(v) for k, v in raw.history.items()},
                                 wall_time=time.perf_counter() - start,
                                 settings={"polish": bool(polish), "objective": "cost_batch"})
 
