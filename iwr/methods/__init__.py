@@ -24,8 +24,9 @@ model the default stays eq. (10) (``"lm"``, :data:`DEFAULT_METHOD`); ``method="e
 without a noise model is an error. **A method named with a noise model** (``"lm"``, ``"de"``,
 ``"crs2"``, ``"bobyqa"``) minimises the noise-weighted objective instead of eq. (10): generalised
 least squares with each pose's residuals whitened by their propagated covariance
-(:func:`iwr.problem.gls_whitening`); its ``fun`` is that statistic and ``cost_eq10`` eq. (10)'s. Its ``fun`` is its own objective (the chi-square statistic);
-eq. (10)'s cost at its ``x`` is ``result.cost_eq10``.
+(:func:`iwr.problem.gls_whitening`); its ``fun`` is that statistic and ``cost_eq10`` eq. (10)'s.
+The efficient estimator's ``fun`` is its own objective (the chi-square statistic); eq. (10)'s cost
+at its ``x`` is ``result.cost_eq10``.
 
 **"converged" only when the fit is sane.** Every other method's result is checked by
 :func:`iwr.estimation.fit_check`: identified errors beyond 10 times the search bounds (modulo
