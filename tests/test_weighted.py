@@ -144,6 +144,8 @@ def test_identify_routes_a_named_method_with_noise_to_the_weighted_objective(dat
     weighted = Problem(ROBOT, m, noise=NOISE)
     assert res.fun == pytest.approx(weighted.cost(res.x), rel=1e-14)
     assert res.cost_eq10 == pytest.approx(Problem(ROBOT, m).cost(res.x), rel=1e-14)
+    objective = res.to_dict()["settings"]["objective"]
+    assert objective["weighted"] and objective["noise"]["legs"] == NOISE.legs
     # The fit test applies, with dof = readings - identifiable parameters, and the weighted
     # minimum is what it tests (its linearised minimum: the same statistic).
     assert res.success and res.fit.fit_ok

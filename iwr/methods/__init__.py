@@ -41,6 +41,7 @@ cost itself cannot be judged (a local minimum with plausible parameters passes):
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
@@ -223,6 +224,10 @@ def identify(
         result["fun"] = problem.cost(result.x)
         if weighted:
             result["cost_eq10"] = Problem(robot, measurements, bounds).cost(result.x)
+            # Said in the settings too, so that a saved result's fun is not read as eq. (10)'s.
+            result["settings"] = {**dict(result.get("settings") or {}), "objective": {
+                "weighted": True, "noise": dataclasses.asdict(noise),
+                "cost_eq10": float(result["cost_eq10"])}}
     except KeyboardInterrupt:
         result.update(success=False, status="interrupted",
                       message=f"{result.message}; interrupted (Ctrl-C)")
