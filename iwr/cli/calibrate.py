@@ -329,7 +329,10 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
         print(f"noise model: {what}{getattr(args, 'noise_note', '')}")
         if method == "efficient":
             print("method: the efficient estimator (every instrument weighted by its noise; "
-                  "eq. (10) is --method lm)")
+                  "eq. (10) weighted by it is --method lm, unweighted --noise none)")
+        elif not isinstance(noise, str):
+            print(f"method: {method} on eq. (10) weighted by the noise model (each pose's leg "
+                  "residuals whitened by their propagated covariance; unweighted: --noise none)")
     print(f"identifying with {method} ({len(ident)} poses; Ctrl-C stops and keeps the best "
           "point so far)", flush=True)
     try:
