@@ -659,7 +659,8 @@ def tracker_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
     base = iwr.Robot.default()
     for kind, robot in (
         ("points", base.with_tracker(registration=REGISTRATION, reflectors=REFLECTORS)),
-        ("probe", base.with_tracker(registration=REGISTRATION, probe=(5.0, 0.0, 60.0, 0.0, 0.1, 0.0))),
+        ("probe", base.with_tracker(registration=REGISTRATION,
+                                    probe=(5.0, 0.0, 60.0, 0.0, 0.1, 0.0))),
     ):
         m, _ = tracker_simulate(robot, 10, seed=4, hidden=0.2 if kind == "points" else 0.0)
         robot.to_toml(d / f"{kind}.toml")
