@@ -116,3 +116,36 @@ def test_efficient_estimator_std_come_from_its_covariance(sims, tmp_path):
                str(sims[0] / "measurements.csv"), "--out", str(tmp_path / "r"), "--no-plots")
     assert proc.returncode == 0, proc.stderr
     assert "not the efficient estimator's covariance" in (tmp_path / "r" / "report.md").read_text()
+
+
+def test_report_on_a_tracker_result(tmp_path):
+    """iwr report with a robot that has a [tracker] table: the tracker report, the data checked
+    by their fingerprint (the same from the wide file and from the long pair)."""
+    repo = Path(__file__).resolve().parents[1]
+    robot = repo / "examples" / "iwr_tracker.toml"
+    wide = repo / "examples" / "iwr_tracker_points.csv"
+    long = [str(repo / "examples" / "iwr_tracker_points_long.csv"), "--readings",
+            str(repo / "examples" / "iwr_tracker_readings.csv")]
+    proc = run("calibrate", str(robot), str(wide), "-o", str(tmp_path / "cal"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    res = tmp_path / "cal" / "result.json"
+    assert json.loads(res.read_text())["settings"]["data_fingerprint"].startswith("tracker-")
+    for data in ([str(wide)], long):
+        out = tmp_path / f"r{len(data)}"
+        proc = run("report", str(res), str(robot), *data, "--out", str(out), "--no-plots")
+        assert proc.returncode == 0, proc.stderr
+        page = (out / "report.html").read_text()
+        assert "<h2>Registration</h2>" in page and "records no fingerprint" not in page
+    other = iwr.Robot.from_toml(robot)
+    sim, _ = iwr.simulate(other, 20, seed=9)
+    from iwr.tracker.files import write_tracker_wide
+
+    write_tracker_wide(tmp_path / "other.csv", other.tracker, sim)
+    proc = run("report", str(res), str(robot), str(tmp_path / "other.csv"), "--out",
+               str(tmp_path / "bad"), "--no-plots")
+    assert proc.returncode == 2 and "is not the data" in proc.stderr, proc.stderr
+    plain = tmp_path / "plain.toml"
+    iwr.Robot.default().to_toml(plain)
+    proc = run("report", str(res), str(plain), str(wide), "--readings", str(wide), "--out",
+               str(tmp_path / "bad"))
+    assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr

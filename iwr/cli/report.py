@@ -19,6 +19,7 @@ from ._base import (
     load_robot,
     one_line,
 )
+from .tracker import add_arguments as add_tracker_arguments
 
 DEFAULT_OUT = "iwr-report"
 
@@ -38,6 +39,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--validation", metavar="VALID.csv",
                    help="held-out poses for the accuracy figure (default: DATA.csv itself, an "
                    "optimistic figure)")
+    add_tracker_arguments(p)  # --readings: tracker data as a long table (docs/tracker.md)
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help="output folder (created if needed; default: %(default)s)")
     p.add_argument("--no-plots", action="store_true", help="write the report without figures")
@@ -48,10 +50,21 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 def data_fingerprint(robot: Any, data: Any) -> str:
     """The fingerprint of ``data`` that ``iwr-calibrate``'s problem file and result record (the
-    engine's own hash of the measurements: joint types, q, poses, legs, weights), as hex."""
+    engine's own hash of the measurements: joint types, q, poses, legs, weights), as hex. Tracker
+    data (no problem file yet): ``"tracker-"`` and the SHA-256 of the readings and the points
+    (or probe poses), 16 hex digits."""
     from .. import _core
     from ..problem import Problem
     from ..problem_file import encode_problem
+
+    if type(data).__name__ == "TrackerMeasurements":
+        import hashlib
+
+        h = hashlib.sha256(str(data.joint_types).encode())
+        for arr in (data.q, data.legs, data.points if data.points is not None else data.probe):
+            h.update(repr(arr.shape).encode())
+            h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
+        return "tracker-" + h.hexdigest()[:16]
 
     return str(_core._decode_problem(encode_problem(Problem(robot, data)), "")["data_fingerprint"])
 
@@ -85,6 +98,11 @@ def cmd_report(args: argparse.Namespace) -> int:
 
     result = load_result(args.run)
     robot = load_robot(args.robot)
+    if robot.tracker is not None:
+        return _report_tracker(args, result, robot)
+    if args.readings is not None:
+        raise UsageError(f"--readings: only for a robot with a [tracker] table; {args.robot} has "
+                         "none (docs/tracker.md)", "iwr report")
     data = load_data(args.data, robot)
     x = np.asarray(result.x, dtype=float)
     if x.shape != (robot.n_params,):
@@ -121,6 +139,60 @@ def cmd_report(args: argparse.Namespace) -> int:
         robot_name=str(args.robot), identifiability=rep, uncertainty=unc, notes=notes,
         settings=settings, provenance=provenance(inputs),
     )
+    print(cal.summary())
+    out = Path(args.out)
+    written = cal.write(out, plots=not args.no_plots)
+    print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
+    return EXIT_OK
+
+
+def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
+    """``iwr report`` for a robot with a ``[tracker]`` table: the report of ``iwr calibrate`` on
+    tracker data (:class:`iwr.reporting.calibration.TrackerCalibration`)."""
+    from ..accuracy import accuracy
+    from ..identifiability import identifiability
+    from ..reporting.calibration import TrackerCalibration
+    from ..reporting.html import provenance
+    from ..tracker.registration import RegistrationError, guess_registration
+    from ..uncertainty import uncertainty
+    from .tracker import load_tracker_data
+
+    data = load_tracker_data(args.data, robot, args.readings)
+    names = robot.parameter_names + robot.tracker.parameter_names
+    x = np.asarray(result.x, dtype=float)
+    if x.shape != (len(names),):
+        raise CommandError(f"{args.run}: {x.size} parameters, but robot {robot.name!r} "
+                           f"({args.robot}) with its tracker setup has {len(names)}")
+    saved = list(result.get("parameter_names") or [])
+    if saved and saved != names:
+        first = next(a for a, b in zip(saved, names, strict=True) if a != b)
+        raise CommandError(f"{args.run}: its parameters are not those of robot {robot.name!r} "
+                           f"({args.robot}) and its tracker setup: first difference {first!r}")
+    note = _check_data(args, result, robot, data)
+    validation = load_tracker_data(args.validation, robot) if args.validation else None
+    notes: list[str] = [note] if note else []
+    ns = identifiability(robot, data)
+    active = result.get("active")
+    try:
+        unc = uncertainty(robot, data, x, active=ns if active is None else active)
+    except ValueError as exc:
+        unc = None
+        notes.append(f"note: no standard deviations: {one_line(exc)}")
+    try:
+        guess = guess_registration(robot, robot.tracker, data)
+    except RegistrationError:
+        guess = None
+    inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
+    for key in ("readings", "validation"):
+        if getattr(args, key):
+            inputs[key] = str(getattr(args, key))
+    val = validation if validation is not None else data
+    cal = TrackerCalibration(
+        robot=robot, identification=data, validation=val, held_out=validation is not None,
+        result=result, accuracy=accuracy(robot, val, x), data_name=str(args.data),
+        robot_name=str(args.robot), identifiability=ns, uncertainty=unc, notes=notes,
+        settings={"method": result.get("method", ""), **dict(result.get("settings", {}) or {})},
+        provenance=provenance(inputs), guess=guess, readings_name=str(args.readings or ""))
     print(cal.summary())
     out = Path(args.out)
     written = cal.write(out, plots=not args.no_plots)

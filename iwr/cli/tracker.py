@@ -111,6 +111,11 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
         unc = uncertainty(robot, ident, result.x, active=result["active"])
     except (ValueError, TypeError) as exc:
         notes.append(f"note: no standard deviations: {' '.join(str(exc).split())}")
+    # What `iwr report` checks its DATA.csv against, as for leg data.
+    from .report import data_fingerprint
+
+    result["settings"] = {**dict(result.get("settings") or {}), "data_file": str(args.data),
+                          "data_fingerprint": data_fingerprint(robot, data)}
     inputs = {"robot": str(args.robot), "data": str(args.data)}
     if args.readings:
         inputs["readings"] = str(args.readings)
