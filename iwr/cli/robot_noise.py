@@ -43,3 +43,16 @@ def simulation_noise(noise: Any, robot: Any, path: str | None) -> tuple[Any, str
     if path is not None and robot.noise_model is not None:
         return robot.noise_model, noise_source(robot, path)
     return Noise.realistic(), None
+
+
+def describe(noise: Any) -> str:
+    """A noise model in one line: ``legs 0.002, ...`` (``iwr.Noise``), and for a robot with a
+    tracker ``...; tracker distance 0.005, ...``; ``estimate`` as is."""
+    import dataclasses
+
+    if isinstance(noise, str):
+        return "estimated from the data (variance components)" if noise == "estimate" else noise
+    parts = noise if isinstance(noise, tuple) else (noise,)
+    return "; ".join(("tracker " if i else "") + ", ".join(
+        f"{k} {v:g}" for k, v in dataclasses.asdict(p).items()) for i, p in enumerate(parts)
+        if p is not None)

@@ -97,7 +97,10 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
           f"{method} ({len(ident)} poses), from the nominal robot and the closed-form "
           "registration guess", flush=True)
     if "noise" in kwargs:
-        print(f"noise model: {kwargs['noise']} (from {getattr(args, 'noise_from', '--noise')})")
+        from .robot_noise import describe
+
+        print(f"noise model: {describe(kwargs['noise'])} (from "
+              f"{getattr(args, 'noise_from', None) or '--noise'})")
     guess = guess_registration(robot, setup, ident)
     print(str(guess), flush=True)
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
