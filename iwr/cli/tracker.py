@@ -88,6 +88,14 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
         ident = val = data
         held_out = False
     kwargs = {k: v for k, v in kwargs.items() if k not in ("callback",)}
+    if method != "efficient" and "noise" in kwargs and getattr(args, "noise_from", None) not in (
+            None, "--noise"):
+        # The other methods take no noise model on tracker data: the file's is the estimator's,
+        # not a reason to refuse the method named (--noise with them is refused, as it says).
+        print(f"noise model of {args.noise_from}: not used by method {method} on tracker data "
+              "(only by the efficient estimator)")
+        kwargs.pop("noise")
+        args.noise_from = None
     if args.parameters == "base":
         kwargs["active"] = "base"
     setup = robot.tracker
