@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import copy
+import dataclasses
 import datetime
 import json
 import math
@@ -97,6 +98,19 @@ class Robot:
         Where the description comes from (date, iwr version, method, data file, cost...): plain
         values written by :meth:`to_toml` as a ``[provenance]`` table and kept by
         :meth:`from_toml`. Not part of the geometry (``==`` ignores it).
+    tracker : iwr.tracker.TrackerSetup, optional
+        The laser-tracker measurement setup (docs/tracker.md); see also :meth:`with_tracker`.
+    noise : iwr.Noise, optional
+        The instruments' noise (standard deviations, mm and rad), the ``[noise]`` table of the
+        TOML file (docs/data.md). For a robot with a tracker only its reading noise (``legs``,
+        ``joint_lengths``, ``joint_angles``) applies: ``position`` and ``orientation`` must be 0.
+    tracker_noise : iwr.tracker.TrackerNoise, optional
+        The tracker's noise, the ``[tracker.noise]`` table; only with ``tracker``.
+
+    ``noise`` and ``tracker_noise`` describe the bench, not the geometry; they are kept by
+    :meth:`with_errors` and written by :meth:`to_toml`. ``iwr calibrate`` and ``iwr simulate``
+    use them when ``--noise`` is not given; the Python API never does on its own: pass
+    ``noise=robot.noise_model`` (docs/estimation.md).
 
     Lengths beyond 1e5 mm (100 m) or angles beyond 1e3 rad are refused: no robot has them.
     """
@@ -115,6 +129,8 @@ class Robot:
         name: str = "robot",
         provenance: Mapping[str, Any] | None = None,
         tracker: Any = None,
+        noise: Any = None,
+        tracker_noise: Any = None,
     ) -> None:
         if not isinstance(joint_types, str) or any(c not in "PR" for c in joint_types):
             raise ValueError(
@@ -155,6 +171,7 @@ class Robot:
         #: data are then poses in {0}. Its parameters are not in :attr:`n_params`
         #: (docs/tracker.md).
         self.tracker = tracker
+        self.noise, self.tracker_noise = _check_noise_model(noise, tracker_noise, tracker)
         if np.any(self.workspace < 0):
             raise ValueError(f"workspace: half-widths must be >= 0, got {self.workspace}")
         self._geometry = _core.Geometry(
@@ -228,6 +245,8 @@ class Robot:
             self.workspace,
             name=self.name,
             tracker=self.tracker,
+            noise=self.noise,
+            tracker_noise=self.tracker_noise,
         )
 
     def with_tracker(self, registration: Any = None, *, reflectors: Any = None, probe: Any = None,
@@ -256,7 +275,31 @@ class Robot:
         if setup is not None and not isinstance(setup, TrackerSetup):
             raise TypeError(f"setup: expected an iwr.tracker.TrackerSetup, got "
                             f"{type(setup).__name__}")
+        # The tracker's noise goes with the tracker; a pose-in-{0} noise does not fit one.
+        out.noise, out.tracker_noise = _check_noise_model(
+            self.noise, self.tracker_noise if setup is not None else None, setup)
         return out
+
+    def with_noise(self, noise: Any = None, tracker_noise: Any = None) -> Robot:
+        """This robot with the instruments' noise model ``noise`` (an :class:`iwr.Noise`) and,
+        for a robot with a tracker, ``tracker_noise`` (an :class:`iwr.tracker.TrackerNoise`);
+        ``with_noise()`` removes both. Written by :meth:`to_toml` as ``[noise]`` and
+        ``[tracker.noise]``."""
+        out = copy.copy(self)
+        out.noise, out.tracker_noise = _check_noise_model(noise, tracker_noise, self.tracker)
+        return out
+
+    @property
+    def noise_model(self) -> Any:
+        """What ``noise=`` of :func:`iwr.identify` and :func:`iwr.simulate` takes for this
+        robot's data, from :attr:`noise` and :attr:`tracker_noise`: None when neither is given;
+        the :class:`iwr.Noise` for a robot without a tracker; the pair ``(Noise, TrackerNoise)``
+        (either may be None) for a robot with one."""
+        if self.noise is None and self.tracker_noise is None:
+            return None
+        if self.tracker is None:
+            return self.noise
+        return (self.noise, self.tracker_noise)
 
     def carriage_transform(self, q: Any, x: Any = None) -> np.ndarray:
         """The 4x4 transform 0T4 of the carriage at joint readings ``q`` (eq. 2), with the error
@@ -359,8 +402,15 @@ class Robot:
                 "home_pose": self.home_pose.tolist(),
                 "workspace": self.workspace.tolist(),
             },
-            **({"tracker": self.tracker.to_dict()} if self.tracker is not None else {}),
+            **({"noise": dataclasses.asdict(self.noise)} if self.noise is not None else {}),
+            **({"tracker": self._tracker_dict()} if self.tracker is not None else {}),
         }
+
+    def _tracker_dict(self) -> dict[str, Any]:
+        out = dict(self.tracker.to_dict())
+        if self.tracker_noise is not None:
+            out["noise"] = dataclasses.asdict(self.tracker_noise)
+        return out
 
     def to_toml(self, path: str | os.PathLike[str],
                 provenance: Mapping[str, Any] | None = None) -> None:
@@ -403,9 +453,14 @@ class Robot:
                 out.append("]")
             else:
                 out.append(f"{k} = {_toml_value(v)}")
+        if self.noise is not None:
+            out += ["", "[noise]  # standard deviations: legs, joint_lengths, position (mm); "
+                    "joint_angles, orientation (rad)"]
+            out += [f"{k} = {_toml_value(float(v))}" for k, v in d["noise"].items()]
         if self.tracker is not None:
             out += ["", "[tracker]  # laser tracker: registration = {0} in {T} (x, y, z, alpha, "
                     "beta, gamma); reflectors (or probe) in {5}"]
+            tnoise = d["tracker"].pop("noise", None)
             for k, v in d["tracker"].items():
                 if v and isinstance(v, list) and isinstance(v[0], list):
                     out.append(f"{k} = [")
@@ -413,6 +468,10 @@ class Robot:
                     out.append("]")
                 else:
                     out.append(f"{k} = {_toml_value(v)}")
+            if tnoise is not None:
+                out += ["", "[tracker.noise]  # standard deviations: distance, transverse (mm), "
+                        "distance_per_m, transverse_per_m (mm per m), orientation (rad)"]
+                out += [f"{k} = {_toml_value(float(v))}" for k, v in tnoise.items()]
         atomic_write_text(path, "\n".join(out) + "\n")
 
     @classmethod
@@ -459,8 +518,8 @@ class Robot:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Robot:
         """Build a robot from the dictionary form of :meth:`to_dict`; strict about keys."""
-        _check_keys(data, {"name", "units", "carriage", "hexapod", "provenance", "tracker"},
-                    {"hexapod"}, "")
+        _check_keys(data, {"name", "units", "carriage", "hexapod", "provenance", "tracker",
+                           "noise"}, {"hexapod"}, "")
         units = data.get("units", {"length": "mm", "angle": "rad"})
         _check_keys(units, {"length", "angle"}, set(), "units")
         if units.get("length", "mm") != "mm" or units.get("angle", "rad") != "rad":
@@ -495,10 +554,28 @@ class Robot:
         for key in ("home_pose", "workspace"):
             if key in hexa:
                 kwargs[key] = _numbers(hexa[key], 6, f"hexapod.{key}", _POSE_UNITS)
+        if "noise" in data:
+            from .simulate import Noise  # here: iwr.simulate imports this module
+
+            kwargs["noise"] = Noise(**_sigmas(data["noise"], "noise", _NOISE_UNITS))
         if "tracker" in data:
             from .tracker.setup import TrackerSetup  # here: iwr.tracker imports this module
+            from .tracker.simulate import TrackerNoise
 
-            kwargs["tracker"] = TrackerSetup.from_dict(data["tracker"], "tracker")
+            table = data["tracker"]
+            if isinstance(table, Mapping) and "noise" in table:
+                table = {k: v for k, v in table.items() if k != "noise"}
+                kwargs["tracker_noise"] = TrackerNoise(
+                    **_sigmas(data["tracker"]["noise"], "tracker.noise", _TRACKER_NOISE_UNITS))
+            kwargs["tracker"] = TrackerSetup.from_dict(table, "tracker")
+            # A bench's noise model is whole or absent: the efficient estimator weighs both.
+            if ("noise" in kwargs) != ("tracker_noise" in kwargs):
+                given, missing = (("[noise]", "[tracker.noise]") if "noise" in kwargs
+                                  else ("[tracker.noise]", "[noise]"))
+                raise ValueError(
+                    f"{missing}: missing; a robot with a [tracker] table and a {given} table "
+                    "needs both: [noise] the leg and joint readings' (legs, joint_lengths, "
+                    "joint_angles), [tracker.noise] the tracker's (docs/data.md)")
         return cls(
             types,
             np.array(dh, dtype=float).reshape(len(types), 4),
@@ -523,6 +600,55 @@ class Robot:
             return NotImplemented
         a, b = self.to_dict(), other.to_dict()
         return a == b
+
+
+#: Unit of each field of ``[noise]`` (:class:`iwr.Noise`) and of ``[tracker.noise]``
+#: (:class:`iwr.tracker.TrackerNoise`): standard deviations.
+_NOISE_UNITS = {"legs": "mm", "joint_lengths": "mm", "joint_angles": "rad", "position": "mm",
+                "orientation": "rad"}
+_TRACKER_NOISE_UNITS = {"distance": "mm", "distance_per_m": "mm/m", "transverse": "mm",
+                        "transverse_per_m": "mm/m", "orientation": "rad"}
+
+
+def _sigmas(table: Any, where: str, units: Mapping[str, str]) -> dict[str, float]:
+    """A table of standard deviations: known keys only, each a finite number >= 0."""
+    if not isinstance(table, Mapping):
+        raise ValueError(f"{where}: expected a table of standard deviations "
+                         f"({', '.join(units)}), got {type(table).__name__} {table!r:.60}")
+    out = {}
+    for key, value in table.items():
+        if key not in units:
+            raise ValueError(f"{where}.{key}: unknown key; known: {', '.join(units)} (units: "
+                             + ", ".join(f"{k} {u}" for k, u in units.items()) + ")")
+        unit = units[key]
+        v = _number(value, f"{where}.{key}", "rad" if unit == "rad" else "mm")
+        if v < 0:
+            raise ValueError(f"{where}.{key}: {value!r} is negative; a standard deviation "
+                             f"({unit}) is >= 0")
+        out[key] = v
+    return out
+
+
+def _check_noise_model(noise: Any, tracker_noise: Any, tracker: Any) -> tuple[Any, Any]:
+    from .simulate import Noise  # here: iwr.simulate imports this module
+    from .tracker.simulate import TrackerNoise
+
+    if noise is not None and not isinstance(noise, Noise):
+        raise TypeError(f"noise: expected an iwr.Noise or None, got {type(noise).__name__}")
+    if tracker_noise is not None:
+        if not isinstance(tracker_noise, TrackerNoise):
+            raise TypeError(f"tracker_noise: expected an iwr.tracker.TrackerNoise or None, got "
+                            f"{type(tracker_noise).__name__}")
+        if tracker is None:
+            raise ValueError("tracker_noise: only for a robot with a tracker ([tracker] table, "
+                             "Robot.with_tracker)")
+    if tracker is not None and noise is not None and (noise.position or noise.orientation):
+        raise ValueError(
+            f"noise: position {noise.position!r} mm, orientation {noise.orientation!r} rad: the "
+            "noise of a pose measured in {0}; a robot with a tracker measures in the tracker's "
+            "frame, whose noise is [tracker.noise] (tracker_noise=): give position = orientation "
+            "= 0")
+    return noise, tracker_noise
 
 
 def _ring(radius: float, centre_deg: float, spread_deg: float) -> np.ndarray:

@@ -198,6 +198,12 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
 
         noise = Noise.realistic()
         args.noise_note = " (the built-in example knows its noise: iwr.Noise.realistic())"
+    args.noise_from = "--noise" if args.noise not in (None, "none") else None
+    if args.robot is not None and args.noise is None:  # the robot file's [noise], if any
+        from .robot_noise import calibration_noise
+
+        noise, args.noise_from = calibration_noise(args.robot)
+        args.noise_note = f" (from {args.noise_from}; --noise overrides it)" if noise else ""
     method = args.method or (default_method() if (os.environ.get(METHOD_ENV, "").strip()
                                                    or noise is None) else "efficient")
     kwargs = _method_kwargs(method, args)
@@ -326,6 +332,8 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     else:
         what = ("estimated from the data (variance components)" if isinstance(noise, str)
                 else ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(noise).items()))
+        if getattr(args, "noise_from", None) == "--noise":
+            args.noise_note = " (from --noise)"
         print(f"noise model: {what}{getattr(args, 'noise_note', '')}")
         if method == "efficient":
             print("method: the efficient estimator (every instrument weighted by its noise; "
@@ -376,6 +384,8 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
                 "seed": args.seed, "validation_fraction": args.validation_fraction,
                 **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
+    if getattr(args, "noise_from", None):
+        settings["noise_from"] = args.noise_from
     cal = Calibration(
         robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
         accuracy=acc, data_name=data_name, robot_name=robot_name, identifiability=report,

@@ -27,12 +27,12 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="number of measurement poses (default: %(default)s)")
     p.add_argument("--seed", type=nonneg_int, default=1,
                    help="random seed: the same seed writes the same files (default: %(default)s)")
-    p.add_argument("--noise", type=noise_spec, default="realistic", metavar="SPEC",
+    p.add_argument("--noise", type=noise_spec, default=None, metavar="SPEC",
                    help="measurement noise: 'realistic' (iwr.Noise.realistic(): legs 0.002 mm, "
                    "joints 0.005 mm and 5e-6 rad, tracker 0.02 mm and 2e-5 rad), 'none' (the "
                    "paper's simulation), or standard deviations KEY=SIGMA,... with KEY among legs, "
                    "joint_lengths, joint_angles, position, orientation (mm, rad; others 0) "
-                   "(default: realistic)")
+                   "(default: the --robot file's [noise] table if it has one, else realistic)")
     p.add_argument("-o", "--out", default=".", metavar="DIR",
                    help="folder of the files written (created if needed; default: current)")
     p.add_argument("--robot-file", default="robot.toml", metavar="NAME",
@@ -68,6 +68,9 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from ..simulate import simulate
 
     robot = load_robot(args.robot) if args.robot else Robot.default()
+    from .robot_noise import simulation_noise
+
+    args.noise, args.noise_from = simulation_noise(args.noise, robot, args.robot)
     if robot.tracker is not None:  # a [tracker] table: points or probe poses (docs/tracker.md)
         from .tracker import simulate_tracker_files
 
@@ -82,7 +85,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     write_truth(truth_path, robot, truth, args.seed, args.noise, len(data))
     noise = ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(args.noise).items() if v)
     print(f"simulated {len(data)} poses of robot {robot.name!r} (seed {args.seed}, "
-          f"noise: {noise or 'none'})")
+          f"noise: {noise or 'none'}"
+          f"{' from ' + args.noise_from if args.noise_from else ''})")
     print(f"wrote {robot_path} (nominal robot), {data_path} (measurements), "
           f"{truth_path} (true errors)")
     print(f"next: iwr calibrate {robot_path} {data_path}")

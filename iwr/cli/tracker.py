@@ -45,7 +45,7 @@ def tracker_noise_of(noise: Any) -> Any:
     from ..simulate import Noise
     from ..tracker.simulate import TrackerNoise
 
-    if isinstance(noise, str):
+    if isinstance(noise, (str, tuple)):  # a tuple: the robot file's (Noise, TrackerNoise)
         return noise
     readings = dataclasses.replace(noise, position=0.0, orientation=0.0)
     return readings, (TrackerNoise.none() if noise == Noise() else TrackerNoise.leica())
@@ -88,6 +88,14 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
         ident = val = data
         held_out = False
     kwargs = {k: v for k, v in kwargs.items() if k not in ("callback",)}
+    if method != "efficient" and "noise" in kwargs and getattr(args, "noise_from", None) not in (
+            None, "--noise"):
+        # The other methods take no noise model on tracker data: the file's is the estimator's,
+        # not a reason to refuse the method named (--noise with them is refused, as it says).
+        print(f"noise model of {args.noise_from}: not used by method {method} on tracker data "
+              "(only by the efficient estimator)")
+        kwargs.pop("noise")
+        args.noise_from = None
     if args.parameters == "base":
         kwargs["active"] = "base"
     setup = robot.tracker
@@ -96,6 +104,11 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
           + f"; identifying {robot.n_params} robot + {setup.n_params} setup parameters with "
           f"{method} ({len(ident)} poses), from the nominal robot and the closed-form "
           "registration guess", flush=True)
+    if "noise" in kwargs:
+        from .robot_noise import describe
+
+        print(f"noise model: {describe(kwargs['noise'])} (from "
+              f"{getattr(args, 'noise_from', None) or '--noise'})")
     guess = guess_registration(robot, setup, ident)
     print(str(guess), flush=True)
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
@@ -124,6 +137,8 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
                 "seed": args.seed, "validation_fraction": args.validation_fraction,
                 **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
+    if getattr(args, "noise_from", None):
+        settings["noise_from"] = args.noise_from
     cal = TrackerCalibration(
         robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
         accuracy=accuracy(robot, val, result.x), data_name=str(args.data),
@@ -182,7 +197,8 @@ def simulate_tracker_files(args: argparse.Namespace, robot: Any) -> int:
     atomic_write_text(truth_path, json.dumps(doc, indent=1) + "\n")
     print(f"simulated {len(data)} poses of robot {robot.name!r} measured by a laser tracker "
           f"({robot.tracker.kind}; seed {args.seed}; tracker noise "
-          f"{'none' if tracker_noise.is_zero else 'TrackerNoise.leica()'})")
+          + ("none" if tracker_noise.is_zero else f"{tracker_noise} from {args.noise_from}"
+             if getattr(args, "noise_from", None) else "TrackerNoise.leica()") + ")")
     print(f"wrote {robot_path} (nominal robot with its [tracker] table), "
           + ", ".join(written) + f", {truth_path} (true errors)")
     print(f"next: iwr calibrate {robot_path} {data_path}")
