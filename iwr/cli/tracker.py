@@ -106,9 +106,13 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     ns = identifiability(robot, ident)
     unc = None
     try:
-        from ..uncertainty import uncertainty
+        from ..uncertainty import Uncertainty, uncertainty
 
-        unc = uncertainty(robot, ident, result.x, active=result["active"])
+        # The efficient estimator's own covariance when it has one (as for leg data): the
+        # unweighted point objective's first-order covariance is not the estimate's.
+        unc = Uncertainty.from_result(result)
+        if unc is None:
+            unc = uncertainty(robot, ident, result.x, active=result["active"])
     except (ValueError, TypeError) as exc:
         notes.append(f"note: no standard deviations: {' '.join(str(exc).split())}")
     inputs = {"robot": str(args.robot), "data": str(args.data)}
