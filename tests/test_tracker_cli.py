@@ -74,6 +74,21 @@ def test_calibrate_takes_tracker_files(sim, tmp_path, form):
     assert result.x.shape == (73,)
 
 
+def test_calibrate_with_a_noise_model_reports_the_estimators_covariance(sim, tmp_path):
+    """--noise on tracker data: the noise model used is said (a position sigma, for a pose in
+    {0}, is named as not used), and the report's standard deviations are the efficient
+    estimator's covariance, not the unweighted point objective's."""
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--noise",
+               "legs=0.002,joint_lengths=0.005,joint_angles=5e-6,position=0.5", "-o",
+               str(tmp_path), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert "tracker TrackerNoise.leica()" in proc.stdout
+    assert "position=0.5: a pose measured in {0}, not used" in proc.stdout
+    html = (tmp_path / "report.html").read_text()
+    assert "efficient estimator&#x27;s covariance" in html
+    assert "point noise estimated from the residuals" not in html
+
+
 def test_calibrate_names_a_bad_row(sim, tmp_path):
     lines = (sim / "measurements.csv").read_text().splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("5,"))
