@@ -130,3 +130,11 @@ def test_tracker_data_with_a_robot_without_tracker_is_refused(sim, tmp_path):
     proc = run("calibrate", str(plain), str(REPO / "examples" / "iwr_example.csv"),
                "--readings", str(sim / "measurements_readings.csv"), "-o", str(tmp_path))
     assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr
+
+
+def test_a_method_with_a_noise_model_is_a_usage_error_on_tracker_data(sim, tmp_path):
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--method",
+               "lm", "--noise", "realistic", "-o", str(tmp_path))
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "--method lm with --noise" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "result.json").exists()

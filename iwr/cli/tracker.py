@@ -71,6 +71,12 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
 
     if args.poses is not None:
         raise CommandError("--poses applies to the built-in example only")
+    if kwargs.get("noise") is not None and method != "efficient":
+        # Checked before the data are read: iwr.identify refuses it too, in the API's words.
+        raise UsageError(f"--method {method} with --noise: on laser-tracker data only the "
+                         "efficient estimator weighs the instruments by a noise model (the other "
+                         "methods minimise the unweighted point residuals); use --method "
+                         "efficient (the default with --noise) or leave --noise out")
     data = load_tracker_data(args.data, robot, getattr(args, "readings", None))
     if args.validation:
         val = load_tracker_data(args.validation, robot)
