@@ -138,3 +138,13 @@ def test_a_method_with_a_noise_model_is_a_usage_error_on_tracker_data(sim, tmp_p
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "--method lm with --noise" in proc.stderr and "Traceback" not in proc.stderr
     assert not (tmp_path / "result.json").exists()
+
+
+def test_leg_data_with_a_tracker_robot_is_named_as_such(sim, tmp_path):
+    data, _ = iwr.simulate(iwr.Robot.default(), 10, seed=1)
+    data.to_csv(tmp_path / "legs.csv")
+    proc = run("calibrate", str(sim / "robot.toml"), str(tmp_path / "legs.csv"), "-o",
+               str(tmp_path / "out"))
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert "legs.csv, line" in proc.stderr
+    assert "platform pose in {0}" in proc.stderr and "without [tracker]" in proc.stderr
