@@ -104,7 +104,7 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
             chol = np.linalg.cholesky(cov[k])
         except np.linalg.LinAlgError:
             raise ValueError(
-                f"noise: pose {k} (data row {k + 1}): the covariance of its six leg residuals "
+                f"noise: {measurements.where(k)}: the covariance of its six leg residuals "
                 f"is singular with {noise} (every reading that enters the pose without noise, "
                 "or a leg weighted 0 with no leg noise): give the legs a sigma > 0") from None
         w[k] = np.linalg.solve(chol, eye)

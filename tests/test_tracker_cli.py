@@ -74,6 +74,21 @@ def test_calibrate_takes_tracker_files(sim, tmp_path, form):
     assert result.x.shape == (73,)
 
 
+def test_calibrate_with_a_noise_model_reports_the_estimators_covariance(sim, tmp_path):
+    """--noise on tracker data: the noise model used is said (a position sigma, for a pose in
+    {0}, is named as not used), and the report's standard deviations are the efficient
+    estimator's covariance, not the unweighted point objective's."""
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--noise",
+               "legs=0.002,joint_lengths=0.005,joint_angles=5e-6,position=0.5", "-o",
+               str(tmp_path), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert "tracker TrackerNoise.leica()" in proc.stdout
+    assert "position=0.5: a pose measured in {0}, not used" in proc.stdout
+    html = (tmp_path / "report.html").read_text()
+    assert "efficient estimator&#x27;s covariance" in html
+    assert "point noise estimated from the residuals" not in html
+
+
 def test_calibrate_names_a_bad_row(sim, tmp_path):
     lines = (sim / "measurements.csv").read_text().splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("5,"))
@@ -115,3 +130,33 @@ def test_tracker_data_with_a_robot_without_tracker_is_refused(sim, tmp_path):
     proc = run("calibrate", str(plain), str(REPO / "examples" / "iwr_example.csv"),
                "--readings", str(sim / "measurements_readings.csv"), "-o", str(tmp_path))
     assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr
+
+
+def test_a_method_with_a_noise_model_is_a_usage_error_on_tracker_data(sim, tmp_path):
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--method",
+               "lm", "--noise", "realistic", "-o", str(tmp_path))
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "--method lm with --noise" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "result.json").exists()
+
+
+def test_leg_data_with_a_tracker_robot_is_named_as_such(sim, tmp_path):
+    data, _ = iwr.simulate(iwr.Robot.default(), 10, seed=1)
+    data.to_csv(tmp_path / "legs.csv")
+    proc = run("calibrate", str(sim / "robot.toml"), str(tmp_path / "legs.csv"), "-o",
+               str(tmp_path / "out"))
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
+    assert "legs.csv, line" in proc.stderr
+    assert "platform pose in {0}" in proc.stderr and "without [tracker]" in proc.stderr
+
+
+def test_report_refuses_tracker_data_by_name(sim, tmp_path):
+    """`iwr report` reads leg results only (docs/tracker.md): a tracker run is refused as such,
+    not with the leg reader's message about a 'pose' column."""
+    out = tmp_path / "cal"
+    assert run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "-o",
+               str(out), "--no-plots").returncode == 0
+    proc = run("report", str(out / "result.json"), str(sim / "robot.toml"),
+               str(sim / "measurements.csv"), "--out", str(tmp_path / "rep"))
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert "laser-tracker data" in proc.stderr and "expected 'x_mm'" not in proc.stderr

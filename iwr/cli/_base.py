@@ -124,8 +124,22 @@ def load_robot(path: str) -> Any:
 
 
 def load_data(path: str, robot: Any) -> Any:
+    """Leg data (platform poses in {0}, docs/data.md) of ``robot``; laser-tracker data, or a
+    robot with a ``[tracker]`` table, are refused by name (only ``iwr calibrate`` and
+    ``iwr-calibrate`` read them), not with the leg reader's missing-column message."""
     from ..measurements import Measurements
+    from ..tracker.files import is_tracker_file
 
+    tracker = getattr(robot, "tracker", None) is not None
+    try:
+        tracker = tracker or is_tracker_file(path)
+    except OSError:
+        pass  # the reader below names the file
+    if tracker:
+        raise CommandError(
+            f"{path}: laser-tracker data, or a robot description with a [tracker] table: this "
+            "command reads data with the platform pose in {0} only (docs/data.md); tracker data "
+            "are calibrated by iwr calibrate and iwr-calibrate (docs/tracker.md)")
     return Measurements.from_csv(path, robot=robot)
 
 

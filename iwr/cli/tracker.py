@@ -71,6 +71,12 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
 
     if args.poses is not None:
         raise CommandError("--poses applies to the built-in example only")
+    if kwargs.get("noise") is not None and method != "efficient":
+        # Checked before the data are read: iwr.identify refuses it too, in the API's words.
+        raise UsageError(f"--method {method} with --noise: on laser-tracker data only the "
+                         "efficient estimator weighs the instruments by a noise model (the other "
+                         "methods minimise the unweighted point residuals); use --method "
+                         "efficient (the default with --noise) or leave --noise out")
     data = load_tracker_data(args.data, robot, getattr(args, "readings", None))
     if args.validation:
         val = load_tracker_data(args.validation, robot)
@@ -111,6 +117,23 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
               f"{getattr(args, 'noise_from', None) or '--noise'})")
     guess = guess_registration(robot, setup, ident)
     print(str(guess), flush=True)
+    noise = kwargs.get("noise")
+    if isinstance(noise, tuple):
+        # Say what --noise became on tracker data (tracker_noise_of): a position or orientation
+        # sigma given for a pose measured in {0} has no reading here and is not used.
+        readings, tnoise = noise
+        from ..simulate import Noise
+        from ..tracker.simulate import TrackerNoise
+
+        given = getattr(args, "noise", None)
+        dropped = [] if given == Noise.realistic() else [
+            f"{k}={getattr(given, k):g}" for k in ("position", "orientation")
+            if getattr(given, k, 0.0)]
+        tn = "TrackerNoise.leica()" if tnoise == TrackerNoise.leica() else str(tnoise)
+        print(f"noise model: legs {readings.legs:g} mm, joint lengths {readings.joint_lengths:g} "
+              f"mm, joint angles {readings.joint_angles:g} rad; tracker {tn}"
+              + (f" (--noise {', '.join(dropped)}: a pose measured in {{0}}, not used with "
+                 "tracker data)" if dropped else ""), flush=True)
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
                       progress=progress_enabled(args), **kwargs)
     notes: list[str] = []
@@ -119,9 +142,13 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     ns = identifiability(robot, ident)
     unc = None
     try:
-        from ..uncertainty import uncertainty
+        from ..uncertainty import Uncertainty, uncertainty
 
-        unc = uncertainty(robot, ident, result.x, active=result["active"])
+        # The efficient estimator's own covariance when it has one (as for leg data): the
+        # unweighted point objective's first-order covariance is not the estimate's.
+        unc = Uncertainty.from_result(result)
+        if unc is None:
+            unc = uncertainty(robot, ident, result.x, active=result["active"])
     except (ValueError, TypeError) as exc:
         notes.append(f"note: no standard deviations: {' '.join(str(exc).split())}")
     # What `iwr report` checks its DATA.csv against, as for leg data.

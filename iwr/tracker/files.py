@@ -133,9 +133,15 @@ def _check_columns(got: list[str], expected: list[str], where: str, start: int =
 def _joint_header(header: list[str], where: str) -> tuple[str, int]:
     """The joint types of the columns after ``pose``; the index of the first leg column."""
     if not header or header[0] != "pose":
+        # Leg data (platform poses in {0}, docs/data.md) read for a robot with a [tracker] table:
+        # say so, rather than only that a column is missing.
+        legs = ("; this looks like data with the platform pose in {0} (x_mm .. gamma_rad, "
+                "docs/data.md), which a robot with a [tracker] table does not take: calibrate it "
+                "with a robot description without [tracker]"
+                if {"x_mm", "gamma_rad"} <= set(header) else "")
         raise MeasurementFileError(
             f"{where}: column 1 is {header[0] if header else ''!r}; expected 'pose' (the pose "
-            "id), then q1_mm|rad, ..., s1_mm .. s6_mm; see docs/tracker.md")
+            f"id), then q1_mm|rad, ..., s1_mm .. s6_mm; see docs/tracker.md{legs}")
     types = ""
     i = 1
     while i < len(header) and _JOINT_RE.match(header[i]):
