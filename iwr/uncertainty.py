@@ -44,8 +44,8 @@ class Uncertainty:
     source : str
         ``"residuals"`` (sigma^2 = cost / (6 N - n_active)), ``"legs"`` (given leg sigma),
         ``"noise"`` (an :class:`iwr.Noise` propagated through the joint, position and orientation
-        readings as well), or ``"estimator"`` (the efficient estimator's own covariance,
-        :meth:`from_result`).
+        readings as well), ``"weighted"`` (the noise-weighted objective's), or ``"estimator"``
+        (the efficient estimator's own covariance, :meth:`from_result`).
     dof : int
         Residual degrees of freedom, ``6 N - n_active``.
     """
@@ -100,6 +100,8 @@ class Uncertainty:
                     f"noise sigma {self.sigma:.3g} mm",
             "noise": "first-order, eq. (10)'s Jacobian at the solution, with the given noise of "
                      "legs, joints and measured poses propagated",
+            "weighted": "first-order, the noise-weighted objective's whitened Jacobian at the "
+                        "solution (generalised least squares with the given noise model)",
             "estimator": "the efficient estimator's covariance (its information matrix, every "
                          "instrument weighted by its noise model)",
             "point residuals": "first-order, the tracker problem's Jacobian at the solution, "
@@ -171,6 +173,7 @@ def uncertainty(
     noise: float | Noise | None = None,
     *,
     active: Any = None,
+    weighted: bool = False,
 ) -> Uncertainty:
     """Covariance and standard deviations of identified parameters.
 
@@ -192,6 +195,11 @@ def uncertainty(
         The parameters that were identified; default: the base parameters of
         :func:`iwr.identifiability` at ``x``. The matrix ``J^T J`` of the active parameters must
         be nonsingular.
+    weighted : bool
+        ``x`` minimises the noise-weighted objective (``iwr.identify(method=..., noise=Noise)``,
+        :func:`iwr.problem.gls_whitening`), not eq. (10): the covariance is ``(J_w^T J_w)^-1``
+        of the whitened Jacobian (the noise known: no scaling). Needs ``noise`` an
+        :class:`iwr.Noise`.
 
     Returns
     -------
@@ -206,7 +214,9 @@ def uncertainty(
     """
     if type(measurements).__name__ == "TrackerMeasurements":
         return _tracker_uncertainty(robot, measurements, x, noise, active)
-    problem = Problem(robot, measurements)
+    if weighted and not isinstance(noise, Noise):
+        raise ValueError(f"weighted=True needs noise an iwr.Noise, got {noise!r}")
+    problem = Problem(robot, measurements, noise=noise if weighted else None)
     x = np.array(x, dtype=float)
     if x.shape != (robot.n_params,) or not np.all(np.isfinite(x)):
         raise ValueError(f"x: expected {robot.n_params} finite values, got shape {x.shape}")
@@ -234,7 +244,11 @@ def uncertainty(
             "unidentifiable ones fixed (active=iwr.identifiability(...).active)"
         )
     a = (vt.T / s) @ u.T / d[:, None]  # (p, m): dx = -a @ e
-    if noise is None:
+    if weighted:  # whitened residuals have unit variance
+        sigma = float(noise.legs)  # type: ignore[union-attr]
+        cov = a @ a.T
+        source = "weighted"
+    elif noise is None:
         if dof <= 0:
             raise ValueError(f"measurements: {m} readings for {p} parameters; cannot estimate "
                              "the noise from the residuals (pass noise=)")

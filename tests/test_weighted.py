@@ -227,3 +227,24 @@ def test_zero_leg_weights_leave_the_leg_out(data40) -> None:
     x = np.zeros(ROBOT.n_params)
     assert Problem(ROBOT, moved, noise=NOISE).cost(x) == pytest.approx(
         Problem(ROBOT, mw, noise=NOISE).cost(x), rel=1e-12)
+
+
+def test_weighted_uncertainty(data40) -> None:
+    """The covariance of the weighted fit: with the noise on the legs only it is eq. (10)'s
+    with the given leg sigma; with every instrument noisy it is no larger than eq. (10)'s
+    propagated (sandwich) covariance, parameter by parameter (Gauss-Markov: generalised least
+    squares is the best linear unbiased estimator; 1 % slack for the whitening being computed at
+    the nominal robot, the sandwich at x)."""
+    m, truth = data40
+    active = iwr.identifiability(ROBOT, m).active
+    legs_only = iwr.Noise(legs=NOISE.legs)
+    a = iwr.uncertainty(ROBOT, m, truth, legs_only, active=active, weighted=True)
+    b = iwr.uncertainty(ROBOT, m, truth, NOISE.legs, active=active)
+    assert a.source == "weighted" and "weighted" in a.describe()
+    np.testing.assert_allclose(a.covariance, b.covariance, rtol=1e-6, atol=1e-18)
+    gls = iwr.uncertainty(ROBOT, m, truth, NOISE, active=active, weighted=True)
+    ols = iwr.uncertainty(ROBOT, m, truth, NOISE, active=active)
+    assert np.all(gls.std[active] <= 1.01 * ols.std[active])
+    assert np.median(ols.std[active] / gls.std[active]) > 1.05  # a real gain, not equality
+    with pytest.raises(ValueError, match="weighted=True needs noise"):
+        iwr.uncertainty(ROBOT, m, truth, 0.002, active=active, weighted=True)

@@ -360,7 +360,13 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
         unc = Uncertainty.from_result(result)
         if unc is None:
             active = result["active"] if args.parameters == "base" else report
-            unc = uncertainty(robot, ident, result.x, active=active)
+            objective = dict(result.get("settings") or {}).get("objective")
+            if isinstance(objective, dict) and objective.get("weighted"):
+                # The method minimised the noise-weighted objective: its covariance.
+                unc = uncertainty(robot, ident, result.x, kwargs["noise"], active=active,
+                                  weighted=True)
+            else:
+                unc = uncertainty(robot, ident, result.x, active=active)
     except ValueError as exc:
         unc = None
         notes.append(f"note: no standard deviations: {one_line(exc)}")

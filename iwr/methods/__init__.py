@@ -167,6 +167,10 @@ def identify(
         # a noise model the efficient estimator (its noise convention is iwr.simulate's there).
         from ..tracker.api import tracker_identify
 
+        if weighted:
+            raise ValueError("weighted=True: the noise-weighted objective is for leg data "
+                             "(poses in {0}); tracker data are weighted by the efficient "
+                             "estimator (noise=..., docs/estimation.md)")
         return tracker_identify(robot, measurements, method, noise=noise, bounds=bounds, x0=x0,
                                 active=active, max_evaluations=max_evaluations, seed=seed,
                                 callback=callback, progress=progress, **options)

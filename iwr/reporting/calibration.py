@@ -752,7 +752,9 @@ class TrackerCalibration(Calibration):
         """Sum of squared point residuals on the identification poses (mm^2), at the nominal
         robot with the registration guess and at the result."""
         problem, start = self._problem(self.identification)
-        return {"nominal": problem.cost(start), "calibrated": float(self.result.fun)}
+        # Not result.fun: the efficient estimator's is its chi-square statistic.
+        return {"nominal": problem.cost(start),
+                "calibrated": problem.cost(np.asarray(self.result.x, dtype=float))}
 
     def point_labels(self) -> list[str]:
         s = self.setup
@@ -1266,7 +1268,7 @@ class TrackerCalibration(Calibration):
                    out / "summary.json"]
         calibrated.to_toml(written[0], provenance={
             "method": str(self.result.get("method", "")), "data": self.data_name,
-            "cost_mm2": float(self.result.fun)})
+            "cost_mm2": self.costs()["calibrated"]})
         self.result.save(written[1])
         atomic_write_text(written[2], json.dumps(jsonable(self.accuracy.to_dict(),
                                                           finite_only=True), indent=1) + "\n")
