@@ -150,13 +150,20 @@ def test_leg_data_with_a_tracker_robot_is_named_as_such(sim, tmp_path):
     assert "platform pose in {0}" in proc.stderr and "without [tracker]" in proc.stderr
 
 
-def test_report_refuses_tracker_data_by_name(sim, tmp_path):
-    """`iwr report` reads leg results only (docs/tracker.md): a tracker run is refused as such,
-    not with the leg reader's message about a 'pose' column."""
+def test_report_of_a_tracker_run_and_tracker_data_without_a_tracker_robot(sim, tmp_path):
+    """`iwr report` renders a tracker run's report from the run's files; the same data with a
+    robot description that has no [tracker] table are refused as laser-tracker data, not with
+    the leg reader's message about a 'pose' column."""
     out = tmp_path / "cal"
     assert run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "-o",
                str(out), "--no-plots").returncode == 0
     proc = run("report", str(out / "result.json"), str(sim / "robot.toml"),
                str(sim / "measurements.csv"), "--out", str(tmp_path / "rep"))
-    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert proc.returncode == 0, proc.stderr
+    assert (tmp_path / "rep" / "report.html").exists()
+    legs_robot = tmp_path / "legs_robot.toml"
+    iwr.Robot.default().to_toml(legs_robot)
+    proc = run("report", str(out / "result.json"), str(legs_robot),
+               str(sim / "measurements.csv"), "--out", str(tmp_path / "rep2"))
+    assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert "laser-tracker data" in proc.stderr and "expected 'x_mm'" not in proc.stderr
