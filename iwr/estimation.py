@@ -347,6 +347,14 @@ def predicted_accuracy(
     go = g[:, 3:]
     cp = np.einsum("kip,pq,kjq->kij", gp, cov, gp)
     co = np.einsum("kip,pq,kjq->kij", go, cov, go)
+    return accuracy_from_covariances(cp, co, n_samples=n_samples, seed=seed)
+
+
+def accuracy_from_covariances(cp: np.ndarray, co: np.ndarray, *, n_samples: int = 500,
+                              seed: int = 0) -> PredictedAccuracy:
+    """:class:`PredictedAccuracy` from per-pose covariances of the tool position (N, 3, 3; mm^2)
+    and orientation (N, 3, 3; rad^2): RMS from their traces, 95th percentiles from ``n_samples``
+    Gaussian draws per pose (the same draws at every pose, ``seed``)."""
     rng = np.random.default_rng(seed)
     z = rng.standard_normal((3, n_samples))
 
@@ -370,10 +378,35 @@ def _core_rotations(poses: np.ndarray) -> np.ndarray:
     return euler_zyx(poses[:, 3], poses[:, 4], poses[:, 5])
 
 
-def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
-                       limit: np.ndarray) -> np.ndarray:
-    """The vector equivalent to ``x`` (the same predicted leg readings at the measured poses)
-    that is smallest in units of ``limit``.
+def leg_readings(robot: Robot, measurements: Measurements
+                 ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """``x -> (predicted leg readings, their Jacobian)`` at the measured poses, the readings
+    weighted 0 left out: what :func:`_nearest_plausible` keeps fixed for pose data. From the
+    estimator's kernel, not Problem's: the check is no evaluation of the method that produced
+    ``x`` (its budget counts those)."""
+    rows = (np.ones((len(measurements), 6), dtype=bool) if measurements.weights is None
+            else measurements.weights > 0).reshape(-1)  # a reading weighted 0 does not count
+
+    def readings(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        legs, jx, _ = loop_jacobians(robot, x, measurements.q, measurements.poses)
+        return legs.reshape(-1)[rows], jx.reshape(-1, robot.n_params)[rows]
+
+    return readings
+
+
+def tracker_readings(problem: Any) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """``x -> (residuals, their Jacobian)`` of a :class:`iwr.tracker.TrackerProblem`: what
+    :func:`_nearest_plausible` keeps fixed for laser-tracker data (the measured points are
+    constant, so equal residuals are equal predictions)."""
+    return lambda x: (problem.residuals(x), problem.jacobian(x))
+
+
+def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                       x: np.ndarray, limit: np.ndarray,
+                       centre: np.ndarray | None = None) -> np.ndarray:
+    """The vector equivalent to ``x`` (the same predictions ``model(x)[0]`` of the readings, with
+    their Jacobian ``model(x)[1]``) that is smallest in units of ``limit``, measured from
+    ``centre`` (default zero); returned measured from ``centre``.
 
     Holding the unidentifiable parameters fixed makes the base parameters absorb their true values
     (joint 4's rotation about its axis moves two base joints by 694 mm per radian), so a plausible
@@ -391,14 +424,13 @@ def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
     Every accepted point predicts the readings of ``x`` to round-off; at the end the point has no
     component along the null directions (the optimality condition). A ``x`` that is not
     equivalent to a plausible vector stays implausible: no point of its set is small."""
-    rows = (np.ones((len(measurements), 6), dtype=bool) if measurements.weights is None
-            else measurements.weights > 0).reshape(-1)  # a reading weighted 0 does not count
+    c = np.zeros_like(x, dtype=float) if centre is None else np.asarray(centre, dtype=float)
 
     def readings(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        legs, jx, _ = loop_jacobians(robot, y * limit, measurements.q, measurements.poses)
-        return legs.reshape(-1)[rows], jx.reshape(-1, robot.n_params)[rows] * limit
+        values, jac = model(c + y * limit)
+        return values, jac * limit
 
-    target, jac = readings(x / limit)
+    target, jac = readings((np.asarray(x, dtype=float) - c) / limit)
     tol = 1e-10 * (1.0 + float(np.sqrt(np.mean(target**2))))  # mm RMS: round-off of the readings
 
     def split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -422,7 +454,7 @@ def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
             y = y + ident @ np.linalg.lstsq(jac @ ident, r, rcond=None)[0]
         return None
 
-    y = np.asarray(x, dtype=float) / limit
+    y = (np.asarray(x, dtype=float) - c) / limit
     with single_thread():
         for _ in range(50):
             null, ident = split(jac)
@@ -443,7 +475,9 @@ def _nearest_plausible(robot: Robot, measurements: Measurements, x: np.ndarray,
 
 
 def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: float) -> str:
-    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in implausible[:6])
+    # The farthest beyond its limit first: the likeliest cause.
+    worst = sorted(implausible, key=lambda t: -abs(t[1]) / t[2])
+    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in worst[:6])
     more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
     return (f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
             f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
@@ -488,17 +522,37 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     a noise model the cost cannot be judged (the leg noise is unknown: any cost fits some
     sigma), only the size of the errors; ``statistic``, ``dof`` and ``p_value`` are then nan, 0,
     nan.
+
+    Laser-tracker data (``robot.tracker`` and :class:`iwr.tracker.TrackerMeasurements`, ``x`` the
+    robot's then the setup's parameters): the same size test, modulo the null directions of the
+    point (probe) objective, each parameter measured from the centre of its bounds (the
+    registration guess for the registration's correction) against ``plausible`` times their
+    half-width; no chi-square test yet (``noise`` must be None).
     """
     x = np.asarray(x, dtype=float)
     mask = np.asarray(active, dtype=bool)
     n_active = int(mask.sum())
-    limit = _plausible_limit(robot, plausible, bounds)
-    # The leg Jacobian from the estimator's kernel, not Problem's: the check is no evaluation of
-    # the method that produced x (its budget counts those).
-    legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
-    x_plain = _nearest_plausible(robot, measurements, x, limit)
-    names = robot.parameter_names
-    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(robot.n_params)
+    if type(measurements).__name__ == "TrackerMeasurements":
+        # Laser-tracker data (docs/tracker.md): the same test on the point (probe) objective,
+        # so modulo its null directions (the registration's and the platform frame's gauge
+        # among them). The setup's parameters are judged from the centre of their bounds (the
+        # registration guess; the nominal offsets), the robot's from zero.
+        from .tracker.problem import TrackerProblem
+
+        if noise is not None:
+            raise ValueError("noise: the chi-square test of laser-tracker data is not "
+                             "implemented; only the size of the identified errors is tested")
+        tp = TrackerProblem(robot, robot.tracker, measurements, bounds)
+        centre = 0.5 * (tp.lower + tp.upper)
+        limit = plausible * 0.5 * (tp.upper - tp.lower)
+        names = tp.parameter_names
+        x_plain = _nearest_plausible(tracker_readings(tp), x, limit, centre)
+    else:
+        limit = _plausible_limit(robot, plausible, bounds)
+        legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+        names = robot.parameter_names
+        x_plain = _nearest_plausible(leg_readings(robot, measurements), x, limit)
+    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
                    if abs(x_plain[i]) > limit[i]]
     causes: list[str] = []
     statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
@@ -572,8 +626,8 @@ def _check_noise(noise: Noise) -> None:
 
 def efficient(
     robot: Robot,
-    measurements: Measurements,
-    noise: Noise | str,
+    measurements: Any,
+    noise: Any,
     *,
     x0: Any = None,
     active: Any = None,
@@ -595,11 +649,16 @@ def efficient(
     ----------
     robot : Robot
         The nominal robot.
-    measurements : Measurements
-    noise : Noise or "estimate"
+    measurements : Measurements or iwr.tracker.TrackerMeasurements
+        Pose data in {0}; or laser-tracker data (points or probe poses in {T}) for a robot with a
+        tracker setup (docs/estimation.md, "Tracker data": the parameters then cover the setup's,
+        the start is LM on the points from the registration guess, and ``x0``, ``active`` are
+        of the full length).
+    noise : Noise, (Noise, TrackerNoise) or "estimate"
         The standard deviation of each instrument (legs > 0; a 0 elsewhere makes that reading
         exact). ``"estimate"``: every component estimated from the data, starting from
-        :meth:`iwr.Noise.realistic`.
+        :meth:`iwr.Noise.realistic` (and ``TrackerNoise.leica()``). Tracker data take the pair,
+        as :func:`iwr.simulate` does on such a robot.
     x0 : array_like, optional
         Starting point and value of the inactive parameters; default zeros (the nominal robot).
     active : array_like of bool, optional
@@ -614,7 +673,10 @@ def efficient(
     estimate : sequence of str, optional
         Noise components to estimate from the data (names of :class:`iwr.Noise` fields), the
         others being held at ``noise``: e.g. ``("position", "orientation")`` when only the leg and
-        joint noise is known. Default: none (all when ``noise="estimate"``).
+        joint noise is known. Default: none (all when ``noise="estimate"``). Tracker data:
+        ``legs``, ``joint_lengths``, ``joint_angles``, ``tracker_distance``,
+        ``tracker_transverse``, ``tracker_orientation`` (probe), or ``"tracker"`` for all of the
+        tracker's.
     outliers : {"remove", "report", "off"}
         ``"remove"``: data snooping, one pose at a time: while the worst pose fails its test
         (``outlier_alpha``), it is reported and left out, and the solve is repeated. ``"report"``:
@@ -659,19 +721,11 @@ def efficient(
     start_time = time.perf_counter()
     if not isinstance(robot, Robot):
         raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-    if not isinstance(measurements, Measurements):
+    tracker = type(measurements).__name__ == "TrackerMeasurements"
+    if not tracker and not isinstance(measurements, Measurements):
         raise TypeError(
             f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
         )
-    _check_joint_types(robot, measurements)
-    noise0, est = _as_noise(noise)
-    if estimate is not None:
-        bad = [c for c in estimate if c not in COMPONENTS]
-        if bad:
-            raise ValueError(f"estimate: unknown component(s) {bad}; expected names among "
-                             f"{', '.join(COMPONENTS)}")
-        est = tuple(dict.fromkeys(estimate))
-    _check_noise(noise0)
     if outliers not in ("remove", "report", "off"):
         raise ValueError(f"outliers: {outliers!r}; expected 'remove', 'report' or 'off'")
     for name, v, lo, hi in (("outlier_alpha", outlier_alpha, 0, 1), ("fit_alpha", fit_alpha, 0, 1),
@@ -685,31 +739,139 @@ def efficient(
                     ("max_variance_iterations", max_variance_iterations)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name}: {v!r}; expected a positive integer")
-    n = len(measurements)
-    x0_arr = np.zeros(robot.n_params) if x0 is None else np.array(x0, dtype=float)
-    if x0_arr.shape != (robot.n_params,) or not np.all(np.isfinite(x0_arr)):
-        raise ValueError(f"x0: expected {robot.n_params} finite values, got shape {x0_arr.shape}")
+    if tracker:
+        from .tracker.estimation import TrackerSpec
+
+        spec: Any = TrackerSpec(robot, measurements, noise, x0, active, estimate, bounds,
+                                plausible)
+    else:
+        spec = _PoseSpec(robot, measurements, noise, x0, active, estimate, bounds, plausible)
+    return _estimate(spec, start_time, callback=callback, outliers=outliers,
+                     outlier_alpha=outlier_alpha, max_outlier_fraction=max_outlier_fraction,
+                     fit_alpha=fit_alpha, plausible=plausible, max_iterations=max_iterations,
+                     max_variance_iterations=max_variance_iterations, tool=tool)
+
+
+def _check_estimate(estimate: Sequence[str] | None, est: tuple[str, ...],
+                    components: Sequence[str], aliases: dict[str, tuple[str, ...]] | None = None
+                    ) -> tuple[str, ...]:
+    if estimate is None:
+        return est
+    if isinstance(estimate, str):
+        raise TypeError(f"estimate: {estimate!r}; expected a sequence of component names, e.g. "
+                        f"({estimate!r},)")
+    aliases = aliases or {}
+    bad = [c for c in estimate if c not in components and c not in aliases]
+    if bad:
+        raise ValueError(f"estimate: unknown component(s) {bad}; expected names among "
+                         f"{', '.join(list(components) + list(aliases))}")
+    out: list[str] = []
+    for c in estimate:
+        out += list(aliases.get(c, (c,)))
+    return tuple(dict.fromkeys(out))
+
+
+class _PoseSpec:
+    """What the estimation loop (:func:`_estimate`) needs to know of pose-in-{0} data: the
+    solve, the readings' names and variance components, the plausibility test, the predicted
+    accuracy. (The tracker kinds have theirs in :mod:`iwr.tracker.estimation`.)"""
+
+    kind = "pose"
+
+    def __init__(self, robot: Robot, measurements: Measurements, noise: Any, x0: Any,
+                 active: Any, estimate: Any, bounds: Any, plausible: float) -> None:
+        _check_joint_types(robot, measurements)
+        noise0, est = _as_noise(noise)
+        est = _check_estimate(estimate, est, COMPONENTS)
+        _check_noise(noise0)
+        self.robot, self.measurements, self.noise0 = robot, measurements, noise0
+        self.n = len(measurements)
+        x0_arr = np.zeros(robot.n_params) if x0 is None else np.array(x0, dtype=float)
+        if x0_arr.shape != (robot.n_params,) or not np.all(np.isfinite(x0_arr)):
+            raise ValueError(f"x0: expected {robot.n_params} finite values, got shape "
+                             f"{x0_arr.shape}")
+        self.x_start = x0_arr
+        self.mask = _active_mask(active, robot.n_params, lambda: identifiability(
+            robot, measurements, x0_arr).active)
+        self.cols = _component_columns(robot)
+        self.sigma_all = sigma_matrix(robot, measurements, noise0)
+        # Which components to estimate: only those with readings (and not exact).
+        self.est = tuple(c for c in est if self.cols[c].size and getattr(noise0, c) > 0)
+        self.names = reading_names(robot)
+        self.parameter_names = robot.parameter_names
+        self.ny = robot.n_joints + 6
+        self.limit = _plausible_limit(robot, plausible, bounds)
+
+    def start_sigma(self, c: str) -> float:
+        return float(getattr(self.noise0, c))
+
+    def where(self, k: int) -> str:
+        return self.measurements.where(k)
+
+    def subset(self, used: np.ndarray) -> Measurements:
+        return self.measurements.subset(np.flatnonzero(used)) if not used.all() \
+            else self.measurements
+
+    def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
+              corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:
+        s = self.sigma_all.copy()
+        for c, f in scale.items():
+            s[:, self.cols[c]] *= f
+        m = self.subset(used)
+        return _core.implicit_loop(
+            self.robot._geometry, x, idx, m.q, m.poses, m.legs, np.ascontiguousarray(s[used]),
+            np.ascontiguousarray(corr), max_iterations=int(max_iterations), callback=cb)
+
+    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
+        x_plain = _nearest_plausible(leg_readings(self.robot, self.subset(used)), x,
+                                     self.limit)
+        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
+                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+
+    def noise_used(self, sigmas: dict[str, float]) -> Any:
+        return replace(self.noise0, **sigmas)
+
+    def noise_dict(self, noise: Any) -> dict[str, Any]:
+        return asdict(noise)
+
+    def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray,
+                  tool: Any) -> PredictedAccuracy:
+        return predicted_accuracy(self.robot, self.subset(used), x, cov, active=self.mask,
+                                  tool=tool)
+
+    def cost_eq10(self, x: np.ndarray) -> float:
+        return Problem(self.robot, self.measurements).cost(x)
+
+
+def _active_mask(active: Any, n_params: int, default: Callable[[], np.ndarray]) -> np.ndarray:
     if active is None:
         with single_thread():
-            mask = identifiability(robot, measurements, x0_arr).active
-    else:
-        mask = np.asarray(active)
-        if mask.dtype != bool or mask.shape != (robot.n_params,):
-            raise ValueError(f"active: expected a boolean mask of shape ({robot.n_params},), got "
-                             f"{mask.dtype} of shape {mask.shape}")
-        if not mask.any():
-            raise ValueError("active: no parameter is active")
+            return np.asarray(default(), dtype=bool)
+    mask = np.asarray(active)
+    if mask.dtype != bool or mask.shape != (n_params,):
+        raise ValueError(f"active: expected a boolean mask of shape ({n_params},), got "
+                         f"{mask.dtype} of shape {mask.shape}")
+    if not mask.any():
+        raise ValueError("active: no parameter is active")
+    return mask
+
+
+def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
+              outlier_alpha: float, max_outlier_fraction: float, fit_alpha: float,
+              plausible: float, max_iterations: int, max_variance_iterations: int,
+              tool: Any) -> IdentificationResult:
+    """The estimation loop shared by every measurement kind: solves, variance components,
+    data snooping, the fit test and the result."""
+    n = spec.n
+    mask = spec.mask
     idx = [int(i) for i in np.flatnonzero(mask)]
     p = len(idx)
-
-    cols = _component_columns(robot)
-    sigma_all = sigma_matrix(robot, measurements, noise0)
-    # Which components to estimate: only those with readings (and not exact).
-    est = tuple(c for c in est if cols[c].size and getattr(noise0, c) > 0)
+    cols = spec.cols
+    est = spec.est
     scale = {c: 1.0 for c in est}
     used = np.ones(n, dtype=bool)
-    corr = np.zeros((n, robot.n_joints + 6))
-    x = x0_arr.copy()
+    corr = np.zeros((n, spec.ny))
+    x = spec.x_start.copy()
     stopped = {"flag": False}
     totals = {"nfev": 0, "nit": 0}
 
@@ -725,21 +887,12 @@ def efficient(
         stopped["flag"] = stopped["flag"] or stop
         return stop
 
-    def sigma_now() -> np.ndarray:
-        s = sigma_all.copy()
-        for c, f in scale.items():
-            s[:, cols[c]] *= f
-        return s
-
     last: dict[str, Any] = {}  # the state of the last completed solve (for Ctrl-C)
 
     def solve() -> dict[str, Any]:
         nonlocal x, corr
-        m = measurements.subset(np.flatnonzero(used)) if not used.all() else measurements
-        out = _core.implicit_loop(
-            robot._geometry, x, idx, m.q, m.poses, m.legs,
-            np.ascontiguousarray(sigma_now()[used]), np.ascontiguousarray(corr[used]),
-            max_iterations=int(max_iterations), callback=cb if callback is not None else None)
+        out = spec.solve(x, idx, used, scale, corr[used], max_iterations,
+                         cb if callback is not None else None)
         totals["nfev"] += int(out["nfev"])
         totals["nit"] += int(out["iterations"])
         x = np.array(out["x"])
@@ -779,9 +932,9 @@ def efficient(
         components.clear()
         for c in est:
             red = float(np.sum(out["redundancy"][:, cols[c]]))
-            s = getattr(noise0, c) * scale[c]
+            s = spec.start_sigma(c) * scale[c]
             components.append(VarianceComponent(
-                c, s, getattr(noise0, c), red, s / math.sqrt(2 * red) if red > 0 else math.inf,
+                c, s, spec.start_sigma(c), red, s / math.sqrt(2 * red) if red > 0 else math.inf,
                 c not in frozen))
         return out
 
@@ -789,7 +942,7 @@ def efficient(
 
     def test_poses(o: dict[str, Any]) -> list[tuple[Any, ...]]:
         rows = np.flatnonzero(used)
-        names = reading_names(robot)
+        names = spec.names
         bad = []
         for r_i, k in enumerate(rows):
             t, d = float(o["pose_statistic"][r_i]), int(o["pose_dof"][r_i])
@@ -819,7 +972,7 @@ def efficient(
                 if not bad:
                     break
                 if outliers == "report":
-                    found = [Outlier(k, measurements.where(k), t, d, pv, ins, w, False, alt)
+                    found = [Outlier(k, spec.where(k), t, d, pv, ins, w, False, alt)
                              for k, t, d, pv, ins, w, alt in bad]
                     too_many = len(bad) > cap
                     break
@@ -829,14 +982,14 @@ def efficient(
                     # 2 um readings distort the first solution so much that most clean poses fail
                     # with them.)
                     too_many = True
-                    found += [Outlier(k, measurements.where(k), t, d, pv, ins, w, False, alt)
+                    found += [Outlier(k, spec.where(k), t, d, pv, ins, w, False, alt)
                               for k, t, d, pv, ins, w, alt in bad]
                     break
                 k, t, d, pv, ins, w, alt = max(bad, key=lambda b: b[1] / crit_dof[b[2]])
-                found.append(Outlier(k, measurements.where(k), t, d, pv, ins, w, True, alt))
+                found.append(Outlier(k, spec.where(k), t, d, pv, ins, w, True, alt))
                 used[k] = False
                 corr[k] = 0.0
-                if 6 * int(used.sum()) <= p:
+                if int(out["dof"]) - int(out["pose_dof"][int(np.sum(used[:k]))]) <= 0:
                     too_many = True
                     break
                 out = solve_with_variances()
@@ -854,22 +1007,17 @@ def efficient(
         corr[:] = last["corr"]
         scale.update(last["scale"])
         found = [replace(o, removed=False) if o.removed and used[o.pose] else o for o in found]
-        components[:] = [VarianceComponent(c, getattr(noise0, c) * scale[c], getattr(noise0, c),
+        components[:] = [VarianceComponent(c, spec.start_sigma(c) * scale[c], spec.start_sigma(c),
                                            math.nan, math.nan, False) for c in est]
 
     # --- the verdict ---------------------------------------------------------------------------
-    n_used = int(used.sum())
-    dof = 6 * n_used - p
+    dof = int(out["dof"])
     statistic = float(out["cost"])
     p_value = float(stats.chi2.sf(statistic, dof)) if dof > 0 else math.nan
     converged = int(out["status"]) > 0 and not stopped["flag"] and not interrupted
     causes: list[str] = []
-    names = robot.parameter_names
-    m_used = measurements.subset(np.flatnonzero(used)) if not used.all() else measurements
-    limit = _plausible_limit(robot, plausible, bounds)
-    x_plain = _nearest_plausible(robot, m_used, x, limit)
-    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(robot.n_params)
-                   if abs(x_plain[i]) > limit[i]]
+    names = spec.parameter_names
+    implausible = spec.implausible(x, used)
     rank_ok = float(out["reciprocal_condition"]) > 1e-13
     if not rank_ok:
         causes.append(
@@ -878,7 +1026,7 @@ def efficient(
             "(active=iwr.identifiability(...).active, the default)")
     chi_ok = bool(dof > 0 and p_value >= fit_alpha)
     if dof <= 0:
-        causes.append(f"no redundancy: {6 * n_used} closure equations for {p} parameters; "
+        causes.append(f"no redundancy: {dof + p} independent readings for {p} parameters; "
                       "measure more poses")
     elif not chi_ok:
         causes.append(_chi2_cause(statistic, dof, p_value))
@@ -935,9 +1083,9 @@ def efficient(
     success = bool(converged and fit_ok)
 
     cov = np.array(out["covariance"])
-    std = np.full(robot.n_params, np.nan)
+    std = np.full(mask.size, np.nan)
     std[mask] = np.sqrt(np.clip(np.diag(cov), 0, None))
-    nr = 12 + robot.n_joints
+    nr = len(spec.names)
     residuals = np.full((n, nr), np.nan)
     redundancy = np.full((n, nr), np.nan)
     pose_stat = np.full(n, np.nan)
@@ -946,9 +1094,9 @@ def efficient(
     pose_stat[used] = out["pose_statistic"]
     corrections = corr.copy()
     corrections[~used] = np.nan
-    noise_used = replace(noise0, **{c.name: c.sigma for c in components})
+    noise_used = spec.noise_used({c.name: c.sigma for c in components})
     try:
-        predicted = predicted_accuracy(robot, m_used, x, cov, active=mask, tool=tool)
+        predicted = spec.predicted(x, cov, used, tool)
     except np.linalg.LinAlgError as exc:
         # A singular leg Jacobian (a hexapod singularity) at some pose.
         predicted = None
@@ -976,13 +1124,15 @@ def efficient(
         corrections=corrections,
         residuals=residuals,
         redundancy=redundancy,
+        reading_names=list(spec.names),
         pose_statistic=pose_stat,
         predicted=predicted,
-        cost_eq10=Problem(robot, measurements).cost(x),
+        cost_eq10=spec.cost_eq10(x),
         parameter_names=names,
         history={"nfev": np.array([totals["nfev"]]), "best": np.array([statistic])},
         wall_time=time.perf_counter() - start_time,
-        settings={"noise": asdict(noise0), "estimate": list(est), "outliers": outliers,
+        settings={"noise": spec.noise_dict(spec.noise0), "estimate": list(est),
+                  "outliers": outliers,
                   "outlier_alpha": outlier_alpha, "max_outlier_fraction": max_outlier_fraction,
                   "fit_alpha": fit_alpha, "plausible": plausible,
                   "max_iterations": max_iterations,
@@ -1004,7 +1154,8 @@ def summary(result: IdentificationResult) -> dict[str, Any]:
                                 for n, v, lim in fit.implausible]},
         "outliers": [asdict(o) for o in result["outliers"]],
         "n_poses_used": int(np.sum(result["used"])),
-        "noise": asdict(result["noise"]),
+        "noise": (asdict(result["noise"]) if isinstance(result["noise"], Noise) else
+                  {"readings": asdict(result["noise"][0]), "tracker": asdict(result["noise"][1])}),
         "variance_components": [asdict(c) for c in result["variance_components"]],
         "predicted": None if pred is None else {
             "position_rms_mm": pred.position_rms, "position_95_mm": pred.position_95,

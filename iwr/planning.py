@@ -67,6 +67,9 @@ class PosePlan:
     n_exchanges: int
     base_indices: np.ndarray
     measurements: Measurements
+    #: ``"pose"`` (a pose measured in {0}) or the tracker setup's kind (``"points"``,
+    #: ``"probe"``): what is measured at each pose, for the plan file's instructions.
+    data_kind: str = "pose"
 
     def __str__(self) -> str:
         return (
@@ -83,11 +86,16 @@ class PosePlan:
         cols = m.columns()[: m.n_joints + 6]
         buf = io.StringIO()
         origin = f" from {source}" if source else ""
+        what = {"points": "the reflector points measured by the tracker, in its frame",
+                "probe": "the probe pose measured by the tracker, in its frame"}.get(
+                    self.data_kind, "the platform pose measured by the tracker")
+        doc = "docs/tracker.md" if self.data_kind in ("points", "probe") else "docs/data.md"
         buf.write(
             f"{PLAN_MARKER} {len(self.indices)} poses chosen for {self.criterion}{origin}.\n"
             "# Not measurements: drive the robot to each pose below, record the joint readings,\n"
-            "# the six leg readings and the platform pose measured by the tracker, and calibrate\n"
-            "# with that measurement file (docs/data.md). Lengths in mm, angles in rad.\n"
+            f"# the six leg readings and {what}, and calibrate\n"
+            f"# with that measurement file ({doc}). Lengths in mm, angles in rad; the platform\n"
+            "# poses are {5} in the world frame {0} of the nominal robot.\n"
         )
         writer = csv.writer(buf, lineterminator="\n")
         writer.writerow(cols)
@@ -161,6 +169,13 @@ def _criterion(eig: np.ndarray, name: str, k: int) -> np.ndarray:
 def _as_candidates(robot: Robot, candidates: Any) -> Measurements:
     if isinstance(candidates, Measurements):
         return candidates
+    if type(candidates).__name__ == "TrackerMeasurements":
+        # Tracker data hold no world pose: the nominal robot's forward kinematics gives it.
+        from .forward import forward_kinematics
+
+        poses = forward_kinematics(robot, np.zeros(robot.n_params), candidates.q,
+                                   candidates.legs)
+        return Measurements(candidates.q, poses, candidates.legs, joint_types=robot.joint_types)
     try:
         q, poses = candidates
     except (TypeError, ValueError):
@@ -193,7 +208,12 @@ def plan_poses(
         The nominal robot.
     candidates : Measurements or (q, poses)
         M candidate poses: joint readings (M, n_joints) and platform poses in the world frame
-        (M, 6). Leg readings, if any, are not used.
+        (M, 6). Leg readings, if any, are not used. For a robot with a tracker
+        (``robot.tracker``) the information is the tracker problem's (docs/tracker.md: points or
+        probe poses in {T} as the nominal setup measures them at these poses; the registration
+        and offsets among the parameters, one parameter per null direction left out), and
+        :class:`iwr.tracker.TrackerMeasurements` are candidates too (their poses by forward
+        kinematics of the nominal robot).
     n_poses : int
         Number of poses to choose, at least ``ceil(rank / 6)`` so the base parameters can be
         determined.
@@ -204,13 +224,15 @@ def plan_poses(
         Breaks ties between equally good candidates at random (reproducibly); ``None``: ties go
         to the lowest index.
     x : array_like, optional
-        Where to linearise (default: the nominal robot).
+        Where to linearise (default: the nominal robot; with a tracker, the robot's then the
+        setup's parameters, or the robot's alone with the nominal setup).
     exchange : bool
         Follow the greedy pass with exchange passes.
     max_passes : int
         At most this many exchange passes over the chosen poses.
-    report : IdentifiabilityReport, optional
-        Identifiability of all candidates, if already computed (defines the base parameters).
+    report : IdentifiabilityReport or NullSpace, optional
+        Identifiability of all candidates, if already computed (defines the base parameters;
+        with a tracker, :func:`iwr.identifiability`'s NullSpace, whose ``active`` are kept).
 
     Returns
     -------
@@ -220,21 +242,35 @@ def plan_poses(
         raise ValueError(f"criterion: {criterion!r}; expected one of {', '.join(CRITERIA)}")
     cand = _as_candidates(robot, candidates)
     n_cand = len(cand)
-    x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
-    if report is None:
-        report = identifiability(robot, cand, x)
-    base = report.base_indices
+    if robot.tracker is not None:
+        # Laser-tracker data (docs/tracker.md): the information of the tracker problem (the
+        # registration and the offsets included), one null direction per held parameter.
+        problem, x = _tracker_problem(robot, cand, x)
+        if report is None:
+            from .tracker.analysis import null_space
+
+            report = null_space(problem, x)
+        base = np.flatnonzero(report.active)
+        rows = 3 * robot.tracker.n_points
+        what = "point coordinates" if robot.tracker.kind == "points" else "probe coordinates"
+    else:
+        problem = Problem(robot, cand)
+        x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
+        if report is None:
+            report = identifiability(robot, cand, x)
+        base = report.base_indices
+        rows, what = 6, "readings"
     r = base.size
-    k_min = -(-r // 6)
+    k_min = -(-r // rows)
     if (isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer))
             or not k_min <= n_poses <= n_cand):
         raise ValueError(
             f"n_poses: {n_poses!r}; expected an integer from {k_min} (to determine {r} base "
-            f"parameters from 6 readings per pose) to {n_cand} (the number of candidates)"
+            f"parameters from {rows} {what} per pose) to {n_cand} (the number of candidates)"
         )
     k = int(n_poses)
-    jac = Problem(robot, cand).jacobian(x)[:, base]
-    js = (jac / column_scale(jac)).reshape(n_cand, 6, r)
+    jac = problem.jacobian(x)[:, base]
+    js = (jac / column_scale(jac)).reshape(n_cand, rows, r)
     info = np.einsum("kij,kil->kjl", js, js)  # per-pose information, (M, r, r)
     rng = np.random.default_rng(seed) if seed is not None else None
     eps = 1e-9 * float(np.trace(info.sum(axis=0))) / r
@@ -251,9 +287,9 @@ def plan_poses(
         solve for all candidates instead of M eigen-decompositions."""
         a = base_info + eps * np.eye(r)
         low = np.linalg.cholesky(a)
-        b = np.linalg.solve(low, js.transpose(2, 1, 0).reshape(r, 6 * n_cand))  # L^-1 J^T
-        b = b.reshape(r, 6, n_cand)
-        g = np.einsum("ijc,ilc->cjl", b, b) + np.eye(6)
+        b = np.linalg.solve(low, js.transpose(2, 1, 0).reshape(r, rows * n_cand))  # L^-1 J^T
+        b = b.reshape(r, rows, n_cand)
+        g = np.einsum("ijc,ilc->cjl", b, b) + np.eye(rows)
         return 2.0 * np.sum(np.log(np.diag(low))) + np.linalg.slogdet(g)[1]
 
     def scores(base_info: np.ndarray, size: int, name: str | None) -> np.ndarray:
@@ -315,7 +351,37 @@ def plan_poses(
         n_exchanges=n_exchanges,
         base_indices=base,
         measurements=cand.subset(idx),
+        data_kind="pose" if robot.tracker is None else robot.tracker.kind,
     )
+
+
+def _tracker_problem(robot: Robot, cand: Measurements, x: Any) -> tuple[Any, np.ndarray]:
+    """The tracker problem of candidate poses measured by the nominal setup: the points (probe
+    poses) the nominal robot and setup give at them, and ``x`` (robot's then setup's; default
+    zeros; the robot's alone: the nominal setup)."""
+    from .tracker.data import TrackerMeasurements
+    from .tracker.problem import TrackerProblem
+    from .tracker.setup import pose_from_matrix_safe
+    from .tracker.simulate import true_points
+
+    setup = robot.tracker
+    n_all = robot.n_params + setup.n_params
+    xf = np.zeros(n_all) if x is None else np.asarray(x, dtype=float)
+    if xf.shape == (robot.n_params,):
+        xf = np.concatenate([xf, np.zeros(setup.n_params)])
+    if xf.shape != (n_all,) or not np.all(np.isfinite(xf)):
+        raise ValueError(f"x: expected {n_all} finite values (the robot's {robot.n_params} then "
+                         f"the tracker setup's {setup.n_params}), got shape {xf.shape}")
+    pts = true_points(robot, setup, np.zeros(n_all), cand.poses)
+    if setup.kind == "points":
+        m = TrackerMeasurements(cand.q, cand.legs, points=pts, joint_types=robot.joint_types)
+    else:
+        t = np.tile(np.eye(4), (len(cand), 1, 1))
+        t[:, :3, 3] = pts[:, 0]
+        t[:, :3, :3] = np.swapaxes((pts[:, 1:] - pts[:, :1]) / setup.probe_length, 1, 2)
+        probe = np.array([pose_from_matrix_safe(mat) for mat in t])
+        m = TrackerMeasurements(cand.q, cand.legs, probe=probe, joint_types=robot.joint_types)
+    return TrackerProblem(robot, setup, m), xf
 
 
 def measure(
@@ -331,10 +397,58 @@ def measure(
 
     This is how a planned set of poses is measured in a simulation: the leg readings are those of
     the actual robot, then the joint readings, legs, position and orientation get their noise.
+    For a robot with a tracker (``robot.tracker``), ``x`` holds the robot's then the setup's true
+    parameters and the result is :class:`iwr.tracker.TrackerMeasurements` (the points or probe
+    poses in {T}); ``noise`` is then None, an iwr.Noise (readings), an
+    :class:`iwr.tracker.TrackerNoise` or a pair of both.
     """
     poses = np.asarray(poses, dtype=float)
     q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
-    legs = predict_legs(robot, np.asarray(x, dtype=float), q, poses)
-    noise = noise if noise is not None else Noise()
+    x = np.asarray(x, dtype=float)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    if robot.tracker is not None:
+        return _measure_tracker(robot, x, q, poses, noise, rng)
+    legs = predict_legs(robot, x, q, poses)
+    noise = noise if noise is not None else Noise()
     return add_noise(robot, q, poses, legs, noise, rng)
+
+
+def _measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
+                     rng: np.random.Generator) -> Any:
+    """:func:`measure` for a robot with a tracker: ``x`` the robot's then the setup's true
+    parameters; the points (or probe poses) in {T} the true setup measures, with the reading
+    noise then the tracker noise of :func:`iwr.simulate` (``noise``: None, an iwr.Noise, a
+    TrackerNoise, or a pair)."""
+    from .tracker.api import _split_noise
+    from .tracker.data import TrackerMeasurements
+    from .tracker.setup import pose_from_matrix_safe
+    from .tracker.simulate import true_points
+
+    setup = robot.tracker
+    nr = robot.n_params
+    if x.shape != (nr + setup.n_params,):
+        raise ValueError(f"x: shape {x.shape}; expected ({nr + setup.n_params},): the robot's "
+                         f"{nr} then the tracker setup's {setup.n_params}")
+    readings, tracker = _split_noise(noise)
+    legs = predict_legs(robot, x[:nr], q, poses)
+    pts = true_points(robot, setup, x, poses)
+    if readings is not None and not readings.is_zero:
+        sq = np.where([c == "P" for c in robot.joint_types], readings.joint_lengths,
+                      readings.joint_angles)
+        q = q + sq * rng.standard_normal(q.shape)
+        legs = legs + readings.legs * rng.standard_normal(legs.shape)
+    if setup.kind == "points":
+        if tracker is not None:
+            pts = tracker.perturb(pts, rng)
+        return TrackerMeasurements(q, legs, points=pts, joint_types=robot.joint_types)
+    t = np.tile(np.eye(4), (len(poses), 1, 1))
+    t[:, :3, 3] = pts[:, 0]
+    t[:, :3, :3] = np.swapaxes((pts[:, 1:] - pts[:, :1]) / setup.probe_length, 1, 2)
+    if tracker is not None:
+        from scipy.spatial.transform import Rotation
+
+        t[:, :3, 3] = tracker.perturb(t[:, :3, 3], rng)
+        turn = Rotation.from_rotvec(tracker.orientation * rng.standard_normal((len(poses), 3)))
+        t[:, :3, :3] = turn.as_matrix() @ t[:, :3, :3]
+    probe = np.array([pose_from_matrix_safe(m) for m in t])
+    return TrackerMeasurements(q, legs, probe=probe, joint_types=robot.joint_types)

@@ -10,7 +10,7 @@ from . import _core
 from .measurements import Measurements, as_matrix
 from .robot import Robot
 
-__all__ = ["Problem", "predict_legs"]
+__all__ = ["Problem", "gls_whitening", "predict_legs"]
 
 
 def _check_joint_types(robot: Robot, measurements: Measurements) -> None:
@@ -53,6 +53,67 @@ def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
     return _core.predict_legs(robot._geometry, x, q, poses)
 
 
+def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
+                  x: Any = None) -> np.ndarray:
+    """Per-pose whitening of eq. (10)'s residuals by the instruments' noise (issue 14, item 3).
+
+    The six leg residuals ``r_k`` of pose k have, to first order, the covariance
+    ``S_k = sigma_legs^2 I + J_k Sigma_k J_k^T``: the leg sensors' own noise plus the carriage
+    encoders' and the measured pose's noise (``Sigma_k``, diagonal, from
+    :func:`iwr.estimation.sigma_matrix`) propagated through the loop (``J_k`` the derivatives of
+    the predicted legs with respect to those readings, :func:`iwr.estimation.loop_jacobians`),
+    evaluated at ``x`` (default: the nominal robot) and then held fixed. The whitening is
+    ``W_k = L_k^-1`` with ``S_k = L_k L_k^T`` (Cholesky), so that
+    ``||W_k r_k||^2 = r_k^T S_k^-1 r_k``: generalised least squares with fixed weights.
+
+    Leg weights of the measurements (``w``, inverse relative variances of the legs) are folded
+    in as ``W_k = L_k^-1 D_k^1/2`` with ``L_k L_k^T = sigma_legs^2 I + D_k^1/2 J_k Sigma_k J_k^T
+    D_k^1/2`` and ``D_k = diag(w_k)``: ``r_k^T S_k^-1 r_k`` for the legs' variance divided by
+    ``w``, and a weight of 0 leaves that leg out (as in eq. 10) rather than failing.
+
+    Returns
+    -------
+    ndarray, shape (N, 6, 6)
+        Lower-triangular ``W_k`` (1/mm).
+
+    Raises
+    ------
+    ValueError
+        When a pose's covariance is singular (for example every sigma 0, or the leg sigma 0 with
+        a leg weighted 0), naming the pose.
+    """
+    from .estimation import loop_jacobians, sigma_matrix
+    from .simulate import Noise
+
+    if not isinstance(noise, Noise):
+        raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
+    x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
+    plain = Measurements(measurements.q, measurements.poses, measurements.legs,
+                         joint_types=measurements.joint_types)
+    sig = sigma_matrix(robot, plain, noise)
+    _, _, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+    cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
+    if measurements.weights is not None:
+        d = np.sqrt(measurements.weights)
+        cov = d[:, :, None] * cov * d[:, None, :]
+    cov[:, np.arange(6), np.arange(6)] += sig[:, :6] ** 2
+    w = np.empty_like(cov)
+    eye = np.eye(6)
+    for k in range(cov.shape[0]):
+        try:
+            chol = np.linalg.cholesky(cov[k])
+        except np.linalg.LinAlgError:
+            raise ValueError(
+                f"noise: pose {k} (data row {k + 1}): the covariance of its six leg residuals "
+                f"is singular with {noise} (every reading that enters the pose without noise, "
+                "or a leg weighted 0 with no leg noise): give the legs a sigma > 0") from None
+        w[k] = np.linalg.solve(chol, eye)
+        if measurements.weights is not None:
+            w[k] = w[k] * np.sqrt(measurements.weights[k])[None, :]
+        w[k] = np.tril(w[k])  # exactly lower triangular (the inverse of a lower-triangular L)
+    return w
+
+
 class Problem:
     """The identification problem of eq. (10) for a robot and a data set.
 
@@ -64,14 +125,25 @@ class Problem:
     bounds : None, "default", "paper" or (lower, upper)
         Search bounds of the error parameters. ``None``/``"default"``: +-0.5 mm for lengths and
         +-0.5 degree for angles; ``"paper"``: Table 2 literally, +-0.5 everywhere.
+    noise : Noise, optional
+        The instruments' noise: the residuals are then whitened pose by pose
+        (:func:`gls_whitening`, propagated at the nominal robot and held fixed), and the cost is
+        the generalised least squares statistic ``sum_k r_k^T S_k^-1 r_k`` (dimensionless; a
+        chi-square variable with ``6 N - rank`` degrees of freedom at the minimum when model and
+        data agree). Default: eq. (10) unweighted.
+    whitening : array_like, shape (N, 6, 6), optional
+        A whitening of one's own instead (lower triangular per pose); not with ``noise``.
 
     Notes
     -----
     The cost is ``sum_k sum_j w_kj (s_pred_kj - s_meas_kj)^2`` (weights default to 1), in mm^2, so
-    it compares directly with the paper's final value of about 1e-4.
+    it compares directly with the paper's final value of about 1e-4; with ``noise`` or
+    ``whitening`` it is ``sum_k ||W_k r_k||^2``. Every method (LM, DE and its strategies, CRS2,
+    BOBYQA) minimises the cost of the problem it is given.
     """
 
-    def __init__(self, robot: Robot, measurements: Measurements, bounds: Any = None) -> None:
+    def __init__(self, robot: Robot, measurements: Measurements, bounds: Any = None, *,
+                 noise: Any = None, whitening: Any = None) -> None:
         if not isinstance(robot, Robot):
             raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
         if not isinstance(measurements, Measurements):
@@ -100,10 +172,38 @@ class Problem:
                 )
         self.lower = lower
         self.upper = upper
-        weights = measurements.weights if measurements.weights is not None else np.zeros((0, 0))
+        if noise is not None and whitening is not None:
+            raise ValueError("noise, whitening: give one or the other")
+        self.noise = noise
+        if noise is not None:
+            whitening = gls_whitening(robot, measurements, noise)
+        if whitening is not None:
+            wh = np.asarray(whitening, dtype=float)
+            if wh.shape != (len(measurements), 6, 6):
+                raise ValueError(f"whitening: shape {wh.shape}; expected ({len(measurements)}, "
+                                 "6, 6)")
+            self.whitening: np.ndarray | None = wh
+            # Measurement weights are folded into the whitening (gls_whitening does).
+            weights = np.zeros((0, 0))
+        else:
+            self.whitening = None
+            weights = (measurements.weights if measurements.weights is not None
+                       else np.zeros((0, 0)))
         self._objective = _core.Objective(
-            robot._geometry, measurements.q, measurements.poses, measurements.legs, weights
+            robot._geometry, measurements.q, measurements.poses, measurements.legs, weights,
+            self.whitening_matrix(),
         )
+
+    def whitening_matrix(self) -> np.ndarray:
+        """The whitening as the C++ objective takes it: (N, 36), or (0, 0) when there is none."""
+        if self.whitening is None:
+            return np.zeros((0, 0))
+        return np.ascontiguousarray(self.whitening.reshape(len(self.measurements), 36))
+
+    @property
+    def weighted(self) -> bool:
+        """Whether the residuals are whitened (generalised least squares)."""
+        return self.whitening is not None
 
     @property
     def n_params(self) -> int:
@@ -129,11 +229,12 @@ class Problem:
         return arr
 
     def cost(self, x: Any) -> float:
-        """The cost of eq. (10) at error vector ``x`` (mm^2)."""
+        """The cost of eq. (10) at error vector ``x`` (mm^2; whitened: dimensionless)."""
         return self._objective.cost(self._x(x))
 
     def residuals(self, x: Any) -> np.ndarray:
-        """Residuals ``sqrt(w) (predicted - measured)``, shape (6 N,), pose-major."""
+        """Residuals ``sqrt(w) (predicted - measured)`` (whitened: ``W_k (predicted -
+        measured)``), shape (6 N,), pose-major."""
         return self._objective.residuals(self._x(x))
 
     def jacobian(self, x: Any) -> np.ndarray:
@@ -158,22 +259,30 @@ class Problem:
         return (f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, "
                 f"n_params={self.n_params})")
 
-    def save(self, path: Any, *, sources: dict[str, Any] | None = None) -> None:
+    def save(self, path: Any, *, sources: dict[str, Any] | None = None, x0: Any = None,
+             active: Any = None) -> None:
         """Write the problem file that ``iwr-engine`` runs from, atomically.
 
         A versioned, checksummed binary file (``docs/iwr-calibrate.md``) with the robot, the
         measurements and weights, the bounds and the parameter names; ``sources`` maps a role
-        (``"robot"``, ``"data"``) to the file it came from, recorded with its SHA-256.
-        :meth:`load` reads it back.
+        (``"robot"``, ``"data"``) to the file it came from, recorded with its SHA-256; ``x0``
+        (default zeros: where the inactive parameters stay) and ``active`` (default all) are the
+        search's starting point and active set. :meth:`load` reads it back; tracker data are
+        saved by :meth:`iwr.tracker.TrackerProblem.save`, to the same format.
         """
         from .problem_file import save_problem
 
-        save_problem(self, path, sources)
+        if self.whitening is not None:
+            raise ValueError("Problem.save: the problem file does not carry the noise weighting "
+                             "(the whitening) of this problem; iwr-engine runs eq. (10) "
+                             "unweighted only (docs/estimation.md)")
+        save_problem(self, path, sources, x0=x0, active=active)
 
     @classmethod
-    def load(cls, path: Any) -> Problem:
+    def load(cls, path: Any) -> Any:
         """Read a problem file written by :meth:`save` (``iwr._core.FormatError``, a ValueError
-        naming the file and field, if it is malformed, truncated or of another version)."""
+        naming the file and field, if it is malformed, truncated or of another version). A file
+        of tracker data gives an :class:`iwr.tracker.TrackerProblem`."""
         from .problem_file import load_problem
 
         return load_problem(path)

@@ -1,8 +1,11 @@
 """The problem file (``.iwrp``) and the engine's result.
 
 A problem file holds everything the C++ engine (``iwr-engine``) needs after every Python check: the
-robot (geometry, limits, workspace), the measurements and their weights, the search bounds, the
-parameter names, and where the data came from (paths and SHA-256 of the TOML and CSV files). It is
+robot (geometry, limits, workspace), the measurements (leg data with poses in {0} and their
+weights, or laser-tracker data: points or probe poses in the tracker frame, with the nominal
+tracker setup and the reference of the forward kinematics), the search bounds, the starting point
+``x0`` and the active set, the parameter names, and where the data came from (paths and SHA-256
+of the TOML and CSV files). It is
 a versioned, checksummed little-endian binary file (``docs/iwr-calibrate.md`` gives the layout),
 written and read by the one C++ writer and reader (``cpp/include/iwr/problem_file.hpp``) through
 ``iwr._core``, so Python and the engine accept exactly the same files.
@@ -42,61 +45,104 @@ def sha256_of(path: str | os.PathLike[str]) -> str:
     return h.hexdigest()
 
 
-def _bounds_kind(robot: Robot, lower: np.ndarray, upper: np.ndarray) -> str:
+def _bounds_kind(problem: Any) -> str:
+    """"default" or "paper" when the bounds are the robot's (and, for tracker data, the setup's
+    widths about any centre), else "custom"."""
+    robot, lower, upper = problem.robot, np.asarray(problem.lower), np.asarray(problem.upper)
+    nr = robot.n_params
+    setup = getattr(problem, "setup", None)
+    if setup is not None:
+        lo_s, hi_s = setup.default_bounds()
+        # The setup's bounds are centred on a registration guess: their widths are the test.
+        if not np.allclose(upper[nr:] - lower[nr:], hi_s - lo_s, rtol=1e-12, atol=0):
+            return "custom"
     for kind in ("default", "paper"):
         lo, hi = robot.default_bounds(kind)
-        if np.array_equal(lo, lower) and np.array_equal(hi, upper):
+        if np.array_equal(lo, lower[:nr]) and np.array_equal(hi, upper[:nr]):
             return kind
     return "custom"
 
 
-def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | None = None) -> bytes:
-    """The bytes of ``problem``'s file; ``sources`` maps a role (``"robot"``, ``"data"``) to the
-    file it was read from (recorded with its SHA-256)."""
+def _search_start(problem: Any, x0: Any, active: Any) -> tuple[list[float], list[bool]]:
+    n = problem.n_params
+    x = np.zeros(n) if x0 is None else np.asarray(x0, dtype=float)
+    if x.shape != (n,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"x0: expected {n} finite values, got shape {x.shape}")
+    a = np.ones(n, dtype=bool) if active is None else np.asarray(active)
+    if a.shape != (n,) or a.dtype != bool:
+        raise ValueError(f"active: expected {n} booleans, got {a.dtype} of shape {a.shape}")
+    if not a.any():
+        raise ValueError("active: no parameter is active")
+    return [float(v) for v in x], [bool(v) for v in a]
+
+
+def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | None = None, *,
+                   x0: Any = None, active: Any = None) -> bytes:
+    """The bytes of ``problem``'s file (an :class:`iwr.Problem` or an
+    :class:`iwr.tracker.TrackerProblem`); ``sources`` maps a role (``"robot"``, ``"data"``) to the
+    file it was read from (recorded with its SHA-256); ``x0`` (default zeros) and ``active``
+    (default all) are the search's starting point and active set."""
     robot, m = problem.robot, problem.measurements
     srcs = []
     for role, path in (sources or {}).items():
         p = Path(path)
         srcs.append((str(role), str(p.resolve()), sha256_of(p) if p.is_file() else ""))
-    return _core._encode_problem(
+    start, mask = _search_start(problem, x0, active)
+    fields: dict[str, Any] = dict(
         robot_name=robot.name,
         joint_types=robot.joint_types,
         dh=np.ascontiguousarray(robot.dh, dtype=float),
         joint_limits=np.ascontiguousarray(robot.joint_limits, dtype=float),
-        base=robot.base_joints,
-        platform=robot.platform_joints,
+        base_joints=robot.base_joints,
+        platform_joints=robot.platform_joints,
         leg_offsets=robot.leg_offsets,
         leg_stroke=np.ascontiguousarray(robot.leg_stroke, dtype=float),
         home_pose=robot.home_pose,
         workspace=robot.workspace,
         measurement_joint_types=m.joint_types,
         q=np.ascontiguousarray(m.q, dtype=float),
-        poses=m.poses,
-        legs=m.legs,
-        weights=m.weights,
+        legs=np.ascontiguousarray(m.legs, dtype=float),
         lower=[float(v) for v in problem.lower],
         upper=[float(v) for v in problem.upper],
-        bounds_kind=_bounds_kind(robot, problem.lower, problem.upper),
+        bounds_kind=_bounds_kind(problem),
+        x0=start,
+        active=mask,
         parameter_names=list(problem.parameter_names),
         sources=srcs,
     )
+    setup = getattr(problem, "setup", None)
+    if setup is None:
+        fields.update(kind="pose", poses=m.poses, weights=m.weights)
+    else:
+        fields.update(kind=setup.kind, registration=setup.registration,
+                      points=m.tracker_points(setup), reference=problem.reference)
+        if setup.kind == "points":
+            fields.update(reflectors=setup.reflectors, reflector_names=list(setup.names))
+        else:
+            fields.update(probe=setup.probe, probe_length=setup.probe_length,
+                          probe_poses=m.probe)
+    return _core._encode_problem(fields)
 
 
 def save_problem(problem: Any, path: str | os.PathLike[str],
-                 sources: dict[str, str | os.PathLike[str]] | None = None) -> None:
+                 sources: dict[str, str | os.PathLike[str]] | None = None, *, x0: Any = None,
+                 active: Any = None) -> None:
     """Write ``problem``'s file atomically (see :meth:`iwr.Problem.save`)."""
-    data = encode_problem(problem, sources)
+    data = encode_problem(problem, sources, x0=x0, active=active)
     atomic_write(path, lambda fh: fh.write(data), binary=True)
 
 
 def read_problem(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The fields of a problem file, checked; raises :class:`FormatError` naming the file and
-    field."""
+    field. ``kind`` is ``"pose"`` (leg data, poses in {0}), ``"points"`` or ``"probe"`` (tracker
+    data); ``x0`` and ``active`` are the search's starting point and active set."""
     return _core._read_problem(os.fspath(path))
 
 
 def load_problem(path: str | os.PathLike[str]) -> Any:
-    """The :class:`~iwr.Problem` of a problem file (see :meth:`iwr.Problem.load`)."""
+    """The problem of a problem file (see :meth:`iwr.Problem.load`): an :class:`iwr.Problem` for
+    leg data, an :class:`iwr.tracker.TrackerProblem` for tracker data. The search's ``x0`` and
+    ``active`` are in :func:`read_problem`'s fields."""
     from .problem import Problem  # problem.py imports this module lazily: no cycle at import
 
     d = read_problem(path)
@@ -104,9 +150,30 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
         d["joint_types"], d["dh"], d["joint_limits"], d["base_joints"], d["platform_joints"],
         d["leg_offsets"], d["leg_stroke"], d["home_pose"], d["workspace"], name=d["robot_name"],
     )
-    m = Measurements(d["q"], d["poses"], d["legs"], joint_types=d["measurement_joint_types"],
-                     weights=d["weights"], source=os.fspath(path))
-    return Problem(robot, m, bounds=(np.array(d["lower"]), np.array(d["upper"])))
+    bounds = (np.array(d["lower"]), np.array(d["upper"]))
+    if d["kind"] == "pose":
+        m = Measurements(d["q"], d["poses"], d["legs"], joint_types=d["measurement_joint_types"],
+                         weights=d["weights"], source=os.fspath(path))
+        return Problem(robot, m, bounds=bounds)
+    from .tracker.data import TrackerMeasurements
+    from .tracker.problem import TrackerProblem
+    from .tracker.setup import TrackerSetup
+
+    n = len(d["legs"])
+    if d["kind"] == "points":
+        setup = TrackerSetup(d["registration"], reflectors=d["reflectors"],
+                             names=d["reflector_names"])
+        tm = TrackerMeasurements(d["q"], d["legs"], points=d["points"].reshape(n, -1, 3),
+                                 joint_types=d["measurement_joint_types"], source=os.fspath(path))
+    else:
+        setup = TrackerSetup(d["registration"], probe=d["probe"], probe_length=d["probe_length"])
+        tm = TrackerMeasurements(d["q"], d["legs"], probe=d["probe_poses"],
+                                 joint_types=d["measurement_joint_types"], source=os.fspath(path))
+        # The engine runs on the stored virtual points: they must be those of the probe poses.
+        if not np.array_equal(tm.tracker_points(setup), d["points"]):
+            raise FormatError(f"{path}: points: not the virtual points of the probe poses")
+    return TrackerProblem(robot.with_tracker(setup=setup), setup, tm, bounds,
+                          reference=d["reference"])
 
 
 def engine_result(checkpoint: str | os.PathLike[str],
@@ -130,7 +197,8 @@ def engine_result(checkpoint: str | os.PathLike[str],
             raise FormatError(f"{checkpoint}: made for another problem than {problem}")
         names = list(p["parameter_names"])
         settings["bounds"] = p["bounds_kind"]
-        settings["n_poses"] = len(p["poses"])
+        settings["n_poses"] = len(p["legs"])
+        settings["measurements"] = p["kind"]
         settings["sources"] = {role: path for role, path, _ in p["sources"]}
     settings.update(
         lower=c["lower"].tolist(), upper=c["upper"].tolist(), generations=c["generations"],
@@ -140,7 +208,9 @@ def engine_result(checkpoint: str | os.PathLike[str],
         robot_fingerprint=c["robot_fingerprint"], data_fingerprint=c["data_fingerprint"],
         settings_fingerprint=c["settings_fingerprint"], program=c["program"],
     )
+    active = None if problem is None or all(p["active"]) else np.array(p["active"], dtype=bool)
     return IdentificationResult(
+        active=active,
         x=np.asarray(c["x"], dtype=float),
         fun=float(c["fun"]),
         nfev=int(c["nfev"]),

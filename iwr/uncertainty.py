@@ -42,9 +42,10 @@ class Uncertainty:
     sigma : float
         The leg noise standard deviation used (mm): given, or estimated from the residuals.
     source : str
-        ``"residuals"`` (sigma^2 = cost / (6 N - n_active)), ``"legs"`` (given leg sigma) or
+        ``"residuals"`` (sigma^2 = cost / (6 N - n_active)), ``"legs"`` (given leg sigma),
         ``"noise"`` (an :class:`iwr.Noise` propagated through the joint, position and orientation
-        readings as well).
+        readings as well), or ``"estimator"`` (the efficient estimator's own covariance,
+        :meth:`from_result`).
     dof : int
         Residual degrees of freedom, ``6 N - n_active``.
     """
@@ -57,6 +58,28 @@ class Uncertainty:
     source: str
     dof: int
 
+    @classmethod
+    def from_result(cls, result: Any) -> Uncertainty | None:
+        """The efficient estimator's own covariance (``result["covariance"]``, over
+        ``result["active"]``) as an :class:`Uncertainty` with ``source="estimator"``; None for a
+        result without one (eq. (10)'s methods: use :func:`uncertainty`)."""
+        cov = result.get("covariance")
+        active = result.get("active")
+        if cov is None or active is None:
+            return None
+        mask = np.asarray(active, dtype=bool)
+        cov = np.asarray(cov, dtype=float)
+        if cov.shape != (int(mask.sum()),) * 2:
+            raise ValueError(f"result: covariance of shape {cov.shape} for {int(mask.sum())} "
+                             "active parameters")
+        std = np.full(mask.size, np.nan)
+        std[mask] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+        noise = result.get("noise")
+        fit = result.get("fit")
+        return cls(list(result.parameter_names), mask, cov, std,
+                   float(getattr(noise, "legs", np.nan)), "estimator",
+                   int(getattr(fit, "dof", 0)))
+
     @property
     def correlation(self) -> np.ndarray:
         """Correlation matrix of the active parameters."""
@@ -68,18 +91,34 @@ class Uncertainty:
         names = self.parameter_names
         return {names[i]: float(self.std[i]) for i in np.flatnonzero(self.active)}
 
+    def describe(self) -> str:
+        """Where the standard deviations come from, in one phrase (for reports)."""
+        return {
+            "residuals": "first-order, eq. (10)'s Jacobian at the solution, with the leg noise "
+                         f"estimated from the residuals (sigma {self.sigma:.3g} mm)",
+            "legs": f"first-order, eq. (10)'s Jacobian at the solution, with the given leg "
+                    f"noise sigma {self.sigma:.3g} mm",
+            "noise": "first-order, eq. (10)'s Jacobian at the solution, with the given noise of "
+                     "legs, joints and measured poses propagated",
+            "estimator": "the efficient estimator's covariance (its information matrix, every "
+                         "instrument weighted by its noise model)",
+            "point residuals": "first-order, the tracker problem's Jacobian at the solution, "
+                               "with the point noise estimated from the residuals (sigma "
+                               f"{self.sigma:.3g} mm per coordinate)",
+            "point sigma": "first-order, the tracker problem's Jacobian at the solution, with "
+                           f"the given point noise sigma {self.sigma:.3g} mm per coordinate",
+            "tracker noise": "first-order, the tracker problem's Jacobian at the solution, with "
+                             "the given tracker noise (along and across the line of sight) and "
+                             "reading noise propagated",
+        }.get(self.source, self.source)
+
     def __str__(self) -> str:
-        how = {
-            "residuals": f"leg noise estimated from the residuals, sigma {self.sigma:.3g} mm",
-            "legs": f"given leg noise sigma {self.sigma:.3g} mm",
-            "noise": "given noise of legs, joints and measured poses, propagated",
-        }[self.source]
         lines = [
-            f"Standard deviations of {int(self.active.sum())} identified parameters ({how}; "
-            f"{self.dof} residual degrees of freedom):"
+            f"Standard deviations of {int(self.active.sum())} identified parameters "
+            f"({self.describe()}; {self.dof} residual degrees of freedom):"
         ]
         for name, sd in self.named().items():
-            unit = "rad" if name.endswith(("dalpha", "dtheta")) else "mm"
+            unit = "rad" if name.endswith(("dalpha", "dtheta", ".rx", ".ry", ".rz")) else "mm"
             lines.append(f"  {name:16s} {sd:.3g} {unit}")
         return "\n".join(lines)
 
@@ -165,6 +204,8 @@ def uncertainty(
     for micrometre noise. Errors in the measured poses make the estimate slightly biased (errors in
     variables); the covariance does not include that bias.
     """
+    if type(measurements).__name__ == "TrackerMeasurements":
+        return _tracker_uncertainty(robot, measurements, x, noise, active)
     problem = Problem(robot, measurements)
     x = np.array(x, dtype=float)
     if x.shape != (robot.n_params,) or not np.all(np.isfinite(x)):
@@ -239,3 +280,144 @@ def _propagated(
     c = c * w[:, :, None] * w[:, None, :]
     ak = a.reshape(a.shape[0], -1, 6)  # (p, N, 6)
     return np.einsum("pki,kij,qkj->pq", ak, c, ak)
+
+
+# -- laser-tracker data ---------------------------------------------------------------------------
+def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
+                         active: Any) -> Uncertainty:
+    """:func:`uncertainty` on tracker data (docs/tracker.md): the covariance of the unweighted
+    least-squares estimate (what :func:`iwr.identify` computes on these data) of the active
+    parameters, robot's and setup's, ``A Cov(r) A^T`` with ``A = (J^T J)^-1 J^T`` and ``J`` the
+    tracker problem's exact Jacobian over the seen points.
+
+    ``noise``: None (isotropic point noise estimated from the residuals,
+    ``sigma^2 = cost / (3 n_seen - n_active)``), a float (that point sigma, mm per coordinate),
+    a :class:`iwr.tracker.TrackerNoise` (each point's covariance, long across the line of sight
+    from the tracker's origin; a probe's orientation noise on its axis points), an
+    :class:`iwr.Noise` (reading noise: legs and carriage joints, propagated to the points through
+    the forward kinematics) or a pair of both. ``active``: a mask, a NullSpace, or None (one
+    parameter per null direction held: :func:`iwr.tracker.null_space` at ``x``)."""
+    from .tracker.analysis import NullSpace, null_space
+    from .tracker.api import _split_noise, tracker_problem
+
+    problem, _ = tracker_problem(robot, measurements, x0=x)
+    x = np.array(x, dtype=float)
+    n = problem.n_params
+    if active is None:
+        mask = null_space(problem, x).active
+    elif isinstance(active, NullSpace):
+        mask = active.active
+    else:
+        mask = np.asarray(active, dtype=bool)
+        if mask.shape != (n,):
+            raise ValueError(f"active: boolean mask of shape {mask.shape}; expected ({n},) (the "
+                             f"robot's {robot.n_params}, then the setup's "
+                             f"{n - robot.n_params})")
+    r, jac = problem.residuals_and_jacobian(x)
+    jb = jac[:, mask]
+    m, p = problem.n_observations, int(mask.sum())
+    dof = m - p
+    d = np.linalg.norm(jb, axis=0)
+    d = np.where(d > 0, d, 1.0)
+    u, s, vt = np.linalg.svd(jb / d, full_matrices=False)
+    if s.size < p or s[-1] <= s[0] * max(jb.shape) * np.finfo(float).eps:
+        raise ValueError("active: the tracker problem's Jacobian of the active parameters is "
+                         "rank deficient; hold one parameter per null direction "
+                         "(active=iwr.identifiability(robot, data).active)")
+    a = (vt.T / s) @ u.T / d[:, None]  # (p, 3 N P); zero columns for unseen points
+    if noise is None or isinstance(noise, (int, float)) and not isinstance(noise, bool):
+        if noise is None:
+            if dof <= 0:
+                raise ValueError(f"measurements: {m} point coordinates for {p} parameters; "
+                                 "cannot estimate the noise from the residuals (pass noise=)")
+            sigma, source = float(np.sqrt(r @ r / dof)), "point residuals"
+        else:
+            sigma, source = float(noise), "point sigma"
+            if not (np.isfinite(sigma) and sigma >= 0):
+                raise ValueError(f"noise: {noise!r}; expected None, a point sigma >= 0 (mm), "
+                                 "an iwr.tracker.TrackerNoise, an iwr.Noise or a pair")
+        cov = sigma**2 * (a @ a.T)
+    else:
+        readings, tracker = _split_noise(noise)
+        c = _point_covariance(problem, x, readings, tracker)  # (N, 3P, 3P)
+        ak = a.reshape(p, problem.n_poses, -1)
+        cov = np.einsum("pki,kij,qkj->pq", ak, c, ak)
+        sigma, source = float("nan"), "tracker noise"
+    std = np.full(n, np.nan)
+    std[mask] = np.sqrt(np.diag(cov))
+    return Uncertainty(problem.parameter_names, mask, cov, std, sigma, source, dof)
+
+
+def _point_covariance(problem: Any, x: np.ndarray, readings: Noise | None,
+                      tracker: Any) -> np.ndarray:
+    """Per pose, the covariance (3P, 3P) of the residuals (predicted minus measured points) from
+    the tracker's noise (on the measured points) and the readings' (through the predicted ones;
+    central differences of the forward kinematics, as :func:`measurement_jacobians`)."""
+    from .tracker.data import TrackerMeasurements
+    from .tracker.problem import TrackerProblem
+
+    m, setup = problem.measurements, problem.setup
+    n, npts = problem.n_poses, setup.n_points
+    c = np.zeros((n, 3 * npts, 3 * npts))
+    meas = m.tracker_points(setup).reshape(n, npts, 3)
+    if tracker is not None:
+        def point_cov(p: np.ndarray) -> np.ndarray:  # (..., 3) -> (..., 3, 3)
+            dist = np.linalg.norm(p, axis=-1)
+            e = p / np.where(dist > 0, dist, 1.0)[..., None]
+            sr, st = tracker.sigmas(dist)
+            outer = e[..., :, None] * e[..., None, :]
+            return (sr**2)[..., None, None] * outer + (st**2)[..., None, None] * (
+                np.eye(3) - outer)
+
+        if setup.kind == "points":
+            blocks = point_cov(np.nan_to_num(meas))
+            for i in range(npts):
+                c[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = blocks[:, i]
+        else:
+            # The probe's origin has the point noise; its axis points also turn with its
+            # orientation error w (a rotation in {T}): a_c + L w x a_c, i.e. -L [a_c]x w.
+            co = point_cov(meas[:, 0])
+            g = np.zeros((n, 12, 6))
+            g[:, :, :3] = np.tile(np.eye(3), (4, 1))
+            axes = (meas[:, 1:] - meas[:, :1]) / setup.probe_length
+            for k in range(3):
+                ax = axes[:, k]
+                skew = np.zeros((n, 3, 3))
+                skew[:, 0, 1], skew[:, 0, 2] = -ax[:, 2], ax[:, 1]
+                skew[:, 1, 0], skew[:, 1, 2] = ax[:, 2], -ax[:, 0]
+                skew[:, 2, 0], skew[:, 2, 1] = -ax[:, 1], ax[:, 0]
+                g[:, 3 * k + 3:3 * k + 6, 3:] = -setup.probe_length * skew
+            src = np.zeros((n, 6, 6))
+            src[:, :3, :3] = co
+            src[:, 3:, 3:] = tracker.orientation**2 * np.eye(3)
+            c += g @ src @ np.swapaxes(g, 1, 2)
+    if readings is not None and not readings.is_zero:
+        robot = problem.robot
+        sig = np.concatenate([np.where([t == "P" for t in robot.joint_types],
+                                       readings.joint_lengths, readings.joint_angles),
+                              np.full(6, readings.legs)])
+        h = 1e-4
+        base_q, base_legs = m.q, m.legs
+        grads = np.zeros((n, 3 * npts, sig.size))
+        for j in range(sig.size):
+            if sig[j] == 0:
+                continue
+            pred = []
+            for sign in (1.0, -1.0):
+                q, legs = base_q.copy(), base_legs.copy()
+                if j < robot.n_joints:
+                    q[:, j] += sign * h
+                else:
+                    legs[:, j - robot.n_joints] += sign * h
+                pm = TrackerMeasurements(q, legs, points=m.points, probe=m.probe,
+                                         joint_types=m.joint_types)
+                pred.append(TrackerProblem(robot, setup, pm, reference=x[:robot.n_params])
+                            .predicted_points(x).reshape(n, -1))
+            grads[:, :, j] = (pred[0] - pred[1]) / (2 * h)
+        gs = grads * sig
+        c += gs @ np.swapaxes(gs, 1, 2)
+    seen = ~np.isnan(meas[:, :, 0])
+    rows = np.repeat(seen, 3, axis=1)
+    c[~rows] = 0.0  # unseen points: no residual (their columns of A are zero anyway)
+    c[np.repeat(~rows[:, None, :], 3 * npts, axis=1)] = 0.0
+    return c

@@ -119,14 +119,18 @@ def reference(files: dict[str, Path]) -> iwr.IdentificationResult:
 
 
 def _start_and_stop(files: dict[str, Path], name: str, sig: int,
-                    env: dict[str, str] | None = None) -> Path:
-    """Starts the engine on the problem file, waits for its first checkpoint, sends `sig`."""
+                    env: dict[str, str] | None = None, problem: Path | None = None,
+                    args: list[object] | None = None, every: int = 100
+                    ) -> tuple[Path, str]:
+    """Starts the engine on the problem file (default: files["problem"] with COMMON and G
+    generations), waits for its first checkpoint, sends `sig`; the checkpoint and stderr."""
     d = files["dir"]
     ckpt = d / f"{name}.ckpt"
+    if args is None:
+        args = [*COMMON, "--generations", G, "--log", d / f"{name}.csv"]
     proc = subprocess.Popen(  # noqa: PLW1509 (SIGINT to default: see _default_sigint)
-        [ENGINE, str(files["problem"]), *map(str, COMMON), "--generations", str(G),
-         "--threads", "1", "--checkpoint", str(ckpt), "--checkpoint-every", "100",
-         "--log", str(d / f"{name}.csv")],
+        [ENGINE, str(problem or files["problem"]), *map(str, args), "--threads", "1",
+         "--checkpoint", str(ckpt), "--checkpoint-every", str(every)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint,
         env=env,
     )
@@ -137,7 +141,7 @@ def _start_and_stop(files: dict[str, Path], name: str, sig: int,
     proc.send_signal(sig)
     _, err = proc.communicate(timeout=60)
     assert proc.returncode == (128 + sig if sig != signal.SIGKILL else -sig), err
-    return ckpt
+    return ckpt, err
 
 
 def test_engine_alone_sigint_resume_equals_identify(
@@ -147,7 +151,7 @@ def test_engine_alone_sigint_resume_equals_identify(
     iwr.identify(method="de")."""
     d = files["dir"]
     empty: dict[str, str] = {}  # env -i: no PATH, no PYTHONPATH, nothing
-    ckpt = _start_and_stop(files, "int", signal.SIGINT, env=empty)
+    ckpt, _ = _start_and_stop(files, "int", signal.SIGINT, env=empty)
     partial = engine_result(ckpt, files["problem"])
     assert 0 < partial.nit < G, "the run was not stopped part way"
     assert not partial.success and "SIGINT" in partial.message and "--resume" in partial.message
@@ -174,7 +178,7 @@ def test_engine_alone_sigint_resume_equals_identify(
 def test_kill_9_loses_only_the_work_since_the_last_checkpoint(
     files: dict[str, Path], reference: iwr.IdentificationResult
 ) -> None:
-    ckpt = _start_and_stop(files, "kill", signal.SIGKILL)
+    ckpt, _ = _start_and_stop(files, "kill", signal.SIGKILL)
     resumed = run_engine(files["problem"], "--resume", ckpt, "--quiet", "--checkpoint-every", 5000)
     assert resumed.returncode == 0, resumed.stderr
     _same_run(engine_result(ckpt, files["problem"]), reference)
@@ -409,13 +413,14 @@ def test_a_result_that_is_not_finite_is_never_a_success_and_loads(tmp_path: Path
     robot = iwr.Robot.hexapod()
     m, _ = iwr.simulate(robot, 6, seed=2)
     lo, hi = robot.default_bounds()
-    data = _core._encode_problem(
+    data = _core._encode_problem(dict(
         robot_name="far", joint_types="", dh=np.zeros((0, 4)), joint_limits=np.zeros((0, 2)),
-        base=robot.base_joints, platform=robot.platform_joints, leg_offsets=robot.leg_offsets,
-        leg_stroke=robot.leg_stroke, home_pose=robot.home_pose, workspace=robot.workspace,
-        measurement_joint_types="", q=np.zeros((6, 0)), poses=m.poses, legs=m.legs + 2e4,
-        weights=np.full((6, 6), 1e300), lower=list(lo), upper=list(hi), bounds_kind="default",
-        parameter_names=robot.parameter_names, sources=[])
+        base_joints=robot.base_joints, platform_joints=robot.platform_joints,
+        leg_offsets=robot.leg_offsets, leg_stroke=robot.leg_stroke, home_pose=robot.home_pose,
+        workspace=robot.workspace, measurement_joint_types="", kind="pose", q=np.zeros((6, 0)),
+        poses=m.poses, legs=m.legs + 2e4, weights=np.full((6, 6), 1e300), lower=list(lo),
+        upper=list(hi), bounds_kind="default", x0=[0.0] * 42, active=[True] * 42,
+        parameter_names=robot.parameter_names, sources=[]))
     (tmp_path / "far.iwrp").write_bytes(data)
     proc = run_engine(tmp_path / "far.iwrp", "--population-size", 10, "--generations", 3,
                       "--target-cost", 1e-3, "--quiet")
@@ -631,3 +636,182 @@ def test_one_version_everywhere() -> None:
     assert iwr.__version__ == version
     proc = run_engine("--version")
     assert proc.returncode == 0 and proc.stdout.split()[-1] == version, proc.stdout
+
+
+# --- laser-tracker data: points and probe poses in the tracker frame ---------------------------
+
+EXAMPLES = Path(__file__).resolve().parents[1] / "examples"
+TRACKER_NP = 20
+TRACKER_G = 4000  # long enough to be stopped part way
+REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
+REGISTRATION = (2000.0, 0.0, 0.0, 1.5707963267948966, 0.0, 0.0)
+
+
+@pytest.fixture(scope="module")
+def tracker_files(tmp_path_factory: pytest.TempPathFactory) -> dict[str, Path]:
+    """Point data (one reflector in five hidden) and probe data of 10 poses, their TOML and CSV
+    files, and the point problem's file as iwr-calibrate writes it."""
+    from iwr.tracker.api import tracker_problem, tracker_simulate
+    from iwr.tracker.files import write_tracker_wide
+
+    d = tmp_path_factory.mktemp("tracker")
+    out: dict[str, Path] = {"dir": d}
+    base = iwr.Robot.default()
+    for kind, robot in (
+        ("points", base.with_tracker(registration=REGISTRATION, reflectors=REFLECTORS)),
+        ("probe", base.with_tracker(registration=REGISTRATION,
+                                    probe=(5.0, 0.0, 60.0, 0.0, 0.1, 0.0))),
+    ):
+        m, _ = tracker_simulate(robot, 10, seed=4, hidden=0.2 if kind == "points" else 0.0)
+        robot.to_toml(d / f"{kind}.toml")
+        write_tracker_wide(d / f"{kind}.csv", robot.tracker, m)
+        out[kind + "_robot"], out[kind + "_data"] = d / f"{kind}.toml", d / f"{kind}.csv"
+    robot = iwr.Robot.from_toml(out["points_robot"])
+    from iwr.tracker.files import read_tracker_data
+
+    problem, x0 = tracker_problem(robot, read_tracker_data(out["points_data"], robot.tracker))
+    problem.save(d / "points.iwrp", x0=x0, sources={"robot": out["points_robot"],
+                                                     "data": out["points_data"]})
+    out["points_problem"] = d / "points.iwrp"
+    return out
+
+
+def _tracker_identify(robot_path: Path, data_path: Path, **settings: object
+                      ) -> iwr.IdentificationResult:
+    """iwr.identify(method="de") on the files, DE alone (iwr-calibrate does not polish)."""
+    from iwr.tracker.files import read_tracker_data
+
+    robot = iwr.Robot.from_toml(robot_path)
+    data = read_tracker_data(data_path, robot.tracker)
+    return iwr.identify(robot, data, method="de", polish=False, progress=False, **settings)
+
+
+def test_tracker_engine_sigint_resume_equals_uninterrupted_and_identify(
+        tracker_files: dict[str, Path]) -> None:
+    """Point data with hidden reflectors through the engine: SIGINT part way, resume, and the
+    result equals an uninterrupted engine run and iwr.identify(method="de"), bit for bit."""
+    d, problem = tracker_files["dir"], tracker_files["points_problem"]
+    common = ["--population-size", TRACKER_NP, "--seed", 5, "--strategy", "jade",
+              "--generations", TRACKER_G]
+    ckpt, err = _start_and_stop(tracker_files, "int", signal.SIGINT, problem=problem,
+                                args=common, every=50)
+    assert "73 parameters, 15 of them the tracker setup's, 10 poses (points in the tracker " \
+           "frame)" in err
+    partial = engine_result(ckpt, problem)
+    assert 0 < partial.nit < TRACKER_G and not partial.success and "SIGINT" in partial.message
+    resumed = run_engine(problem, "--resume", ckpt, "--threads", 2, "--quiet")
+    assert resumed.returncode == 0, resumed.stderr
+    result = engine_result(ckpt, problem)
+
+    straight = run_engine(problem, *common, "--threads", 2, "--checkpoint", d / "straight.ckpt",
+                          "--quiet")
+    assert straight.returncode == 0, straight.stderr
+    _same_run(result, engine_result(d / "straight.ckpt", problem))
+
+    py = _tracker_identify(tracker_files["points_robot"], tracker_files["points_data"],
+                           strategy="jade", population_size=TRACKER_NP, seed=5,
+                           generations=TRACKER_G, workers=2)
+    _same_run(result, py)
+    assert result.parameter_names == py.parameter_names
+    assert result.parameter_names[-3:] == ["reflector3.x", "reflector3.y", "reflector3.z"]
+    assert result.settings["measurements"] == "points"
+
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_tracker_launcher_equals_identify(tracker_files: dict[str, Path], kind: str) -> None:
+    """iwr-calibrate ROBOT.toml DATA.csv on point and probe data: the result JSON equals
+    iwr.identify(method="de") with the same settings, and its cost the problem's."""
+    d = tracker_files["dir"]
+    out = d / f"launch-{kind}.json"
+    proc = run_cal(tracker_files[kind + "_robot"], tracker_files[kind + "_data"], "--strategy",
+                   "rand1bin", "--population-size", TRACKER_NP, "--F", 0.8, "--CR", 0.95,
+                   "--generations", 40, "--seed", 9, "--threads", 2, "--output", out, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    exe = iwr.load_result(out)
+    py = _tracker_identify(tracker_files[kind + "_robot"], tracker_files[kind + "_data"],
+                           strategy="rand1bin", population_size=TRACKER_NP, F=0.8, CR=0.95,
+                           generations=40, seed=9, workers=1)
+    _same_run(exe, py)
+    problem = iwr.Problem.load(out.with_suffix(".json.iwrp"))
+    assert problem.setup.kind == kind
+    assert exe.fun == problem.cost(exe.x)
+    assert exe.parameter_names == problem.parameter_names
+    assert len(exe.x) == 58 + (15 if kind == "points" else 12)
+
+
+def test_tracker_active_set_and_x0_reach_the_engine(tracker_files: dict[str, Path]) -> None:
+    """A problem file with parameters held fixed (at x0): the engine searches the others only,
+    as iwr.identify(active=..., x0=...) does."""
+    from iwr.tracker.api import tracker_problem
+
+    d = tracker_files["dir"]
+    loaded = iwr.Problem.load(tracker_files["points_problem"])
+    x0 = np.asarray(iwr.problem_file.read_problem(tracker_files["points_problem"])["x0"])
+    x0[:58] = np.random.default_rng(2).uniform(-0.01, 0.01, 58)
+    active = np.zeros(loaded.n_params, dtype=bool)
+    active[40:] = True  # the hexapod's offsets, the registration and the reflectors
+    problem, _ = tracker_problem(loaded.robot, loaded.measurements, x0=x0)
+    problem.save(d / "active.iwrp", x0=x0, active=active)
+    proc = run_engine(d / "active.iwrp", "--population-size", TRACKER_NP, "--generations", 30,
+                      "--seed", 3, "--threads", 1, "--checkpoint", d / "active.ckpt", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    exe = engine_result(d / "active.ckpt", d / "active.iwrp")
+    py = iwr.identify(loaded.robot, loaded.measurements, method="de", polish=False,
+                      progress=False, population_size=TRACKER_NP, generations=30, seed=3,
+                      workers=1, x0=x0, active=active)
+    _same_run(exe, py)
+    np.testing.assert_array_equal(exe.x[:40], x0[:40])
+    np.testing.assert_array_equal(exe.active, active)
+    # Another active set is another problem: its checkpoint is refused.
+    proc = run_engine(tracker_files["points_problem"], "--resume", d / "active.ckpt",
+                      "--checkpoint", d / "other.ckpt")
+    assert proc.returncode == 1 and "made for another robot" in one_line_error(proc)
+
+
+def test_tracker_result_without_forward_kinematics_is_a_failure(
+        tracker_files: dict[str, Path]) -> None:
+    """Held leg offsets 1 m short (negative leg lengths): no pose has forward kinematics at any
+    point searched, so every cost is the penalty, and even a run that reaches its target cost is
+    no success; the message names a pose."""
+    d = tracker_files["dir"]
+    loaded = iwr.Problem.load(tracker_files["points_problem"])
+    x0 = np.zeros(loaded.n_params)
+    x0[52:58] = -1000.0  # leg1.dl0 .. leg6.dl0
+    active = np.zeros(loaded.n_params, dtype=bool)
+    active[58:64] = True  # the registration only
+    loaded.save(d / "nofk.iwrp", x0=x0, active=active)
+    proc = run_engine(d / "nofk.iwrp", "--population-size", 8, "--generations", 2,
+                      "--target-cost", 1e300, "--checkpoint", d / "nofk.ckpt", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    res = engine_result(d / "nofk.ckpt", d / "nofk.iwrp")
+    assert not res.success
+    assert "10 of 10 poses have no forward kinematics at the result (pose 0:" in res.message
+    # The penalty, 1000 mm on each seen coordinate.
+    assert res.fun == loaded.cost(res.x) == 1e6 * loaded.n_observations
+
+
+def test_tracker_launcher_resume_keeps_the_run_problem(tracker_files: dict[str, Path],
+                                                       tmp_path: Path) -> None:
+    """Resuming tracker data: the same files are accepted (NaN mask and guess rewritten
+    identically); other data are refused before the run's problem file is replaced."""
+    robot, data = tracker_files["points_robot"], tracker_files["points_data"]
+    run = run_cal(robot, data, "--population-size", TRACKER_NP, "--generations", 3,
+                  "--output", tmp_path / "k.json", "--quiet")
+    assert run.returncode == 0, run.stderr
+    before = (tmp_path / "k.json.iwrp").read_bytes()
+    proc = run_cal(robot, data, "--resume", tmp_path / "k.json.ckpt", "--generations", 6,
+                   "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    assert iwr.load_result(tmp_path / "k.json").nit == 6
+    assert (tmp_path / "k.json.iwrp").read_bytes() == before
+    lines = data.read_text().splitlines()
+    k = next(i for i, ln in enumerate(lines) if ln.startswith("3,"))
+    cells = lines[k].split(",")
+    cells[5] = repr(float(cells[5]) + 1e-3)  # s1_mm of pose 3, one micrometre longer
+    lines[k] = ",".join(cells)
+    (tmp_path / "other.csv").write_text("\n".join(lines) + "\n")
+    proc = run_cal(robot, tmp_path / "other.csv", "--resume", tmp_path / "k.json.ckpt")
+    assert proc.returncode == 1
+    msg = one_line_error(proc, "iwr-calibrate")
+    assert "k.json.iwrp: the problem of the run being resumed" in msg and "legs" in msg, msg
+    assert (tmp_path / "k.json.iwrp").read_bytes() == before

@@ -85,7 +85,7 @@ def test_bad_scenario_plausibility_follows_the_curved_null_directions():
     found on the curved set of equivalents, is the truth's own smallest equivalent (an
     independent yardstick: both are the minimum of one set), so the fit is plausible; LM's local
     minimum of draw 2 stays implausible."""
-    from iwr.estimation import _nearest_plausible, fit_check, loop_jacobians
+    from iwr.estimation import _nearest_plausible, fit_check, leg_readings, loop_jacobians
 
     lower, upper = ROBOT.default_bounds("paper")
     limit = 10 * upper
@@ -96,8 +96,9 @@ def test_bad_scenario_plausibility_follows_the_curved_null_directions():
     assert res.success and res.fit.implausible == []
     fit = fit_check(ROBOT, sc.data, res.x, active=all_active, bounds=(lower, upper))
     assert fit.fit_ok and fit.implausible == []
-    smallest = _nearest_plausible(ROBOT, sc.data, res.x, limit)
-    np.testing.assert_allclose(smallest, _nearest_plausible(ROBOT, sc.data, sc.truth, limit),
+    model = leg_readings(ROBOT, sc.data)
+    smallest = _nearest_plausible(model, res.x, limit)
+    np.testing.assert_allclose(smallest, _nearest_plausible(model, sc.truth, limit),
                                atol=1e-6)
     assert np.linalg.norm(smallest / limit) <= np.linalg.norm(sc.truth / limit)
     legs = [loop_jacobians(ROBOT, v, sc.data.q, sc.data.poses)[0] for v in (res.x, smallest)]

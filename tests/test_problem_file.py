@@ -3,6 +3,7 @@ thread pool behind Problem.cost_batch: a thread the system refuses, too many thr
 
 from __future__ import annotations
 
+import math
 import os
 import resource
 import signal
@@ -99,7 +100,7 @@ def test_damaged_files_are_refused_naming_file_and_field(problem: iwr.Problem,
     edited = bytearray(good)
     edited[8] = 99  # the format version
     bad.write_bytes(bytes(edited))
-    with pytest.raises(ValueError, match="format version 99; this program reads version 1"):
+    with pytest.raises(ValueError, match="format version 99; this program reads version 2"):
         iwr.Problem.load(bad)
     with pytest.raises(ValueError, match="/dev/zero: not a regular file"):
         iwr.Problem.load("/dev/zero")
@@ -114,18 +115,25 @@ def test_the_writer_refuses_what_the_reader_would(problem: iwr.Problem) -> None:
     lo, hi = problem.lower, problem.upper
     args: dict[str, Any] = dict(
         robot_name="r", joint_types=robot.joint_types, dh=robot.dh,
-        joint_limits=robot.joint_limits, base=robot.base_joints, platform=robot.platform_joints,
-        leg_offsets=robot.leg_offsets, leg_stroke=robot.leg_stroke, home_pose=robot.home_pose,
-        workspace=robot.workspace, measurement_joint_types=m.joint_types, q=m.q, poses=m.poses,
-        legs=m.legs, weights=None, lower=list(lo), upper=list(hi), bounds_kind="paper",
-        parameter_names=problem.parameter_names, sources=[])
-    _core._encode_problem(**args)  # as given: fine
+        joint_limits=robot.joint_limits, base_joints=robot.base_joints,
+        platform_joints=robot.platform_joints, leg_offsets=robot.leg_offsets,
+        leg_stroke=robot.leg_stroke, home_pose=robot.home_pose, workspace=robot.workspace,
+        measurement_joint_types=m.joint_types, kind="pose", q=m.q, poses=m.poses, legs=m.legs,
+        weights=None, lower=list(lo), upper=list(hi), bounds_kind="paper", x0=[0.0] * 58,
+        active=[True] * 58, parameter_names=problem.parameter_names, sources=[])
+    _core._encode_problem(args)  # as given: fine
     legs = m.legs.copy()
     legs[2, 4] = 1e300
     with pytest.raises(ValueError, match="legs: row 2, column 4 is .*beyond any robot"):
-        _core._encode_problem(**{**args, "legs": legs})
+        _core._encode_problem({**args, "legs": legs})
     with pytest.raises(ValueError, match="parameter names: 57; expected 58"):
-        _core._encode_problem(**{**args, "parameter_names": problem.parameter_names[:-1]})
+        _core._encode_problem({**args, "parameter_names": problem.parameter_names[:-1]})
+    with pytest.raises(ValueError, match="kind: 'legs'; expected pose, points or probe"):
+        _core._encode_problem({**args, "kind": "legs"})
+    with pytest.raises(ValueError, match="x0: missing"):
+        _core._encode_problem({k: v for k, v in args.items() if k != "x0"})
+    with pytest.raises(ValueError, match="x0: parameter 3 is inf, not finite"):
+        _core._encode_problem({**args, "x0": [0.0] * 3 + [math.inf] + [0.0] * 54})
 
 
 # --- the thread pool: no hang, a cap, fork -----------------------------------------------------

@@ -144,3 +144,48 @@ def test_a_broken_image_and_a_console_error_are_seen(tmp_path: Path) -> None:
     res = open_in_browser(bad, tmp_path)
     assert res["bad"] == ["missing"]
     assert res["errors"] and res["console"]
+
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_tracker_calibration_page_opens_cleanly(tmp_path: Path, kind: str) -> None:
+    """Tracker data get the same HTML report, with what belongs to them: the registration found,
+    the offsets, the point residuals per reflector, the hidden points, the null directions."""
+    chromium()
+    repo = Path(__file__).resolve().parents[1]
+    if kind == "points":
+        robot_file = repo / "examples" / "iwr_tracker.toml"
+        data_file = repo / "examples" / "iwr_tracker_points.csv"
+    else:
+        import math
+
+        robot = iwr.Robot.default().with_tracker(
+            registration=(2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0), probe=(0, 0, 60, 0, 0, 0))
+        sim = tmp_path / "sim"
+        robot.to_toml(tmp_path / "nominal.toml")
+        proc = run_iwr("simulate", "--robot", str(tmp_path / "nominal.toml"), "--poses", "40",
+                       "--seed", "4", "-o", str(sim))
+        assert proc.returncode == 0, proc.stderr
+        robot_file, data_file = sim / "robot.toml", sim / "measurements.csv"
+    out = tmp_path / "cal"
+    proc = run_iwr("calibrate", str(robot_file), str(data_file), "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    page = (out / "report.html").read_text(encoding="utf-8")
+    sections = ["<h2>Summary</h2>", "<h2>Registration</h2>",
+                "<h2>Reflector offsets</h2>" if kind == "points" else "<h2>Probe offset</h2>",
+                "<h2>Point residuals</h2>", "<h2>Identified parameters</h2>",
+                "<h2>Identifiability</h2>", "<h2>Settings</h2>", "<h2>Provenance</h2>"]
+    order = [page.index(h) for h in sections]
+    assert order == sorted(order)
+    assert 'class="verdict good"' in page
+    assert "closed-form guess (Kabsch)" in page and "16 null directions" in page
+    if kind == "points":  # the shipped example hides one reflector at 6 poses
+        assert "6 of 180 points not seen" in page
+        assert "reflector 1" in page and "reflector 3" in page
+    else:
+        assert "probe origin" in page and "probe orientation (deg)" in page
+    # every parameter held by identify(active="base") is reported as held on a null direction
+    assert "held fixed" not in page and page.count("held (null direction") == 16
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["data_kind"] == kind and summary["fit"]["fit_ok"] is True
+    assert (out / "report.md").read_text().startswith("# Calibration report: laser-tracker data")
+    assert_opens_cleanly(out / "report.html", tmp_path, 2)

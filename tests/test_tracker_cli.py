@@ -1,5 +1,6 @@
 """``iwr simulate`` and ``iwr calibrate`` with a robot that has a [tracker] table, the shipped
-point-data example, and ``iwr-calibrate`` refusing tracker data; run as a user runs them."""
+point-data example, and ``iwr-calibrate`` refusing tracker data without a setup; run as a user
+runs them."""
 
 from __future__ import annotations
 
@@ -84,18 +85,17 @@ def test_calibrate_names_a_bad_row(sim, tmp_path):
     assert f"bad.csv, line {k + 1}, column q1_mm" in proc.stderr
 
 
-def test_iwr_calibrate_refuses_tracker_data(sim, tmp_path):
+def test_iwr_calibrate_refuses_tracker_data_without_a_setup(sim, tmp_path):
+    """iwr-calibrate takes tracker data (tests/test_calibrate_exe.py), but not for a robot
+    without a [tracker] table: refused as iwr calibrate refuses it."""
     launcher = shutil.which("iwr-calibrate", path=str(Path(sys.executable).parent))
     assert launcher is not None
-    proc = run(str(sim / "robot.toml"), str(sim / "measurements.csv"), "--output",
-               str(tmp_path / "r.json"), prog=[launcher])
-    assert proc.returncode == 2, proc.stderr
-    assert "laser-tracker data" in proc.stderr and "Traceback" not in proc.stderr
     plain = tmp_path / "plain.toml"
     iwr.Robot.default().to_toml(plain)
     proc = run(str(plain), str(sim / "measurements.csv"), "--output", str(tmp_path / "r.json"),
                prog=[launcher])
-    assert proc.returncode == 2 and "laser-tracker data" in proc.stderr
+    assert proc.returncode == 2 and "has no [tracker] table" in proc.stderr, proc.stderr
+    assert "Traceback" not in proc.stderr
 
 
 def test_the_shipped_example_runs_end_to_end(tmp_path):

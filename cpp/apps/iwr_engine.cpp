@@ -2,7 +2,9 @@
 //
 // Runs from one problem file (iwr.Problem.save; the iwr-calibrate launcher writes it from a robot
 // TOML and a measurement CSV), with no Python at run time, so that it can be copied to a compute
-// node. Runs the DE engine of iwr/de.hpp on the objective of eq. (10). The run's whole state
+// node. Runs the DE engine of iwr/de.hpp on the objective of the problem's measurements: eq. (10)
+// for leg data, the tracker-space residuals of iwr/tracker.hpp for laser-tracker points or probe
+// poses (one loop, search<Obj>, for both). The run's whole state
 // (iwr::de::State) and its result so far go into checkpoints, so that --resume ends with exactly
 // the result of a run that was never interrupted; iwr-calibrate (Python) turns the final checkpoint
 // into the JSON result. See `iwr-engine --help` and docs/iwr-calibrate.md.
@@ -35,6 +37,7 @@
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
 #include "iwr/problem_file.hpp"
+#include "iwr/tracker.hpp"
 
 #ifndef IWR_VERSION
 #define IWR_VERSION "unknown"
@@ -131,16 +134,19 @@ and settings give the same result as iwr.identify(robot, measurements, method="d
 whatever the number of threads.
 
 positional arguments:
-  PROBLEM.iwrp             the problem: robot, measurements, weights and search bounds, as
-                           iwr.Problem.save writes it (iwr-calibrate ROBOT.toml DATA.csv writes
-                           it for you)
+  PROBLEM.iwrp             the problem: robot, measurements (leg data, or laser-tracker points
+                           or probe poses with the nominal tracker setup), weights, search
+                           bounds, x0 and active set, as iwr.Problem.save or
+                           iwr.tracker.TrackerProblem.save writes it (iwr-calibrate ROBOT.toml
+                           DATA.csv writes it for you)
 
 DE settings (they shape the run; a checkpoint remembers them):
   --strategy S             rand1bin (the paper's DE/rand/1/bin, default), best1bin, jade, jde,
                            shade, lshade, jso
   --population-size NP     population size (default: the strategy's published one: rand1bin,
                            best1bin 10 D; jade 30/100/400; jde, shade 100; lshade 18 D;
-                           jso 25 ln(D) sqrt(D); D = 58 for the IWR). A population whose memory
+                           jso 25 ln(D) sqrt(D); D = 58 for the IWR, 73 with a tracker and
+                           3 reflectors: the active parameters). A population whose memory
                            exceeds what the machine has available is refused with the estimate
   --F F                    scale factor (rand1bin/best1bin) or its initial value/mean (others)
   --CR CR                  crossover rate, in [0, 1] (same remark)
@@ -500,6 +506,7 @@ struct RunInfo {
     std::string log, checkpoint, resumed_from;
     std::int64_t checkpoint_every = 0;
     std::uint64_t robot_fp = 0, data_fp = 0;
+    std::vector<std::int64_t> active;  // positions of the searched parameters in x
     LogText log_text;
 };
 
@@ -528,6 +535,7 @@ void write_checkpoint_file(const de::State& st, const RunInfo& info, const Outco
     c.message = out.message;
     c.fun = out.fun;
     c.x.assign(out.x.data(), out.x.data() + out.x.size());
+    c.active = info.active;
     c.resumed_from = one_line(info.resumed_from);
     iwr::io::atomic_write(info.checkpoint, iwr::encode_checkpoint(c, st));
 }
@@ -654,6 +662,36 @@ std::string default_checkpoint(const std::string& problem) {
     return problem + ".ckpt";
 }
 
+// The poses whose forward kinematics fails at x carry a penalty (tracker data): never a success.
+// Leg data need no forward kinematics.
+std::string unsolved(const iwr::Objective&, const iwr::VectorXd&) { return ""; }
+std::string unsolved(const iwr::TrackerObjective& objective, const iwr::VectorXd& x) {
+    const auto bad = objective.failures(x);
+    if (bad.empty()) return "";
+    return std::to_string(bad.size()) + " of " + std::to_string(objective.n_poses()) +
+           " poses have no forward kinematics at the result (pose " + std::to_string(bad.front().first) + ": " +
+           bad.front().second + ")";
+}
+
+const char* kind_text(iwr::MeasurementKind k) {
+    switch (k) {
+        case iwr::MeasurementKind::Points: return " (points in the tracker frame)";
+        case iwr::MeasurementKind::Probe: return " (probe poses in the tracker frame)";
+        default: return "";
+    }
+}
+
+// The active entries of a full-length vector.
+std::vector<double> active_part(const std::vector<double>& v, const std::vector<bool>& active) {
+    std::vector<double> out;
+    for (std::size_t i = 0; i < v.size(); ++i)
+        if (active[i]) out.push_back(v[i]);
+    return out;
+}
+
+template <class Obj>
+int search(const Options& o, const iwr::ProblemData& problem, const Obj& objective);
+
 int run(const Options& o) {
     const std::string& problem_path = o.positional[0];
     iwr::ProblemData problem;
@@ -662,13 +700,31 @@ int run(const Options& o) {
     } catch (const FormatError& e) {
         throw InputError(e.what());
     }
-    std::optional<iwr::Objective> objective;
+    // The objective of the measurement kind: eq. (10) on leg readings, or the tracker residuals.
+    std::optional<iwr::Objective> legs;
+    std::optional<iwr::TrackerObjective> tracker;
     try {
-        objective.emplace(problem.geometry(), problem.q, problem.poses, problem.legs, problem.weights);
+        if (!problem.tracker())
+            legs.emplace(problem.geometry(), problem.q, problem.poses, problem.legs, problem.weights);
+        else
+            tracker.emplace(problem.geometry(), problem.tracker_setup(), problem.q, problem.legs, problem.points,
+                            problem.reference, problem.home_pose);
+    } catch (const iwr::ForwardKinematicsError& e) {
+        throw InputError(problem_path + ": pose " + std::to_string(e.pose()) +
+                         ": the leg readings have no forward kinematics for the robot at the reference "
+                         "parameters (" + e.what() + ")");
     } catch (const std::invalid_argument& e) {
         throw InputError(problem_path + ": " + e.what());
     }
+    return legs ? search(o, problem, *legs) : search(o, problem, *tracker);
+}
 
+// The run on either objective: one engine loop, checkpoints and resume for every kind of data.
+template <class Obj>
+int search(const Options& o, const iwr::ProblemData& problem, const Obj& objective) {
+    const std::string& problem_path = o.positional[0];
+    const std::vector<double> lower = active_part(problem.lower, problem.active);
+    const std::vector<double> upper = active_part(problem.upper, problem.active);
     RunInfo info;
     info.problem_file = problem_path;
     info.robot_fp = problem.robot_fingerprint();
@@ -722,8 +778,9 @@ int run(const Options& o) {
         }
         const iwr::Checkpoint& c = *saved;
         if (c.robot_fingerprint != info.robot_fp)
-            throw InputError(path + ": made for another robot (problem " + c.problem_file + "); the geometry in " +
-                             problem_path + " differs");
+            throw InputError(path + ": made for another robot (problem " + c.problem_file + "); the geometry" +
+                             (problem.tracker() ? ", the tracker setup" : "") + " or the search's x0 and active set in " +
+                             problem_path + " differ");
         if (c.data_fingerprint != info.data_fp) {
             std::string from;
             for (const auto& src : problem.sources)
@@ -733,13 +790,13 @@ int run(const Options& o) {
         }
         if (settings_fingerprint(c.state.settings) != c.settings_fingerprint)
             throw InputError(path + ": corrupt: the settings fingerprint does not match the engine state");
-        if (c.state.dim() != problem.n_params())
+        if (c.state.dim() != problem.n_active())
             throw InputError(path + ": made for " + std::to_string(c.state.dim()) + " parameters; " +
-                             problem_path + " has " + std::to_string(problem.n_params()));
+                             problem_path + " has " + std::to_string(problem.n_active()) + " active");
         state = c.state;
         de::Settings wanted = state->settings;
-        wanted.lower = problem.lower;
-        wanted.upper = problem.upper;
+        wanted.lower = lower;
+        wanted.upper = upper;
         try {
             apply_settings(o, wanted);
             wanted = de::resolve(wanted);
@@ -762,8 +819,8 @@ int run(const Options& o) {
                                  "result holds the whole history anyway)\n", kProgram);
     } else {
         de::Settings s;
-        s.lower = problem.lower;
-        s.upper = problem.upper;
+        s.lower = lower;
+        s.upper = upper;
         try {
             apply_settings(o, s);
             s = de::resolve(s);
@@ -815,7 +872,9 @@ int run(const Options& o) {
         }
     }
 
-    de::ObjectiveFunction f(*objective);
+    de::ReducedObjective<Obj> f(objective, problem.active,
+                                Eigen::Map<const iwr::VectorXd>(problem.x0.data(), problem.n_params()));
+    info.active.assign(f.active_index().begin(), f.active_index().end());
     // The pool's threads start with our signals blocked, so the handlers always run on this thread,
     // the one that reads the flags (a sig_atomic_t is only safe within one thread).
     sigset_t ours, previous;
@@ -840,8 +899,14 @@ int run(const Options& o) {
         progress.message("resuming " + info.resumed_from + " at generation " + std::to_string(state->generation) +
                          " (best cost " + real_text(state->best_cost()) + ")");
     } else {
-        progress.message(std::to_string(problem.n_params()) + " parameters, " + std::to_string(problem.n_poses()) +
-                         " poses; " + de::to_string(state->settings.strategy) + ", NP " +
+        const std::string active = problem.n_active() == problem.n_params()
+                                       ? ""
+                                       : " (" + std::to_string(problem.n_active()) + " active)";
+        const std::string setup = problem.tracker() ? ", " + std::to_string(problem.n_params() - problem.n_robot_params()) +
+                                                          " of them the tracker setup's"
+                                                    : "";
+        progress.message(std::to_string(problem.n_params()) + " parameters" + setup + active + ", " +
+                         std::to_string(problem.n_poses()) + " poses" + kind_text(problem.kind) + "; " + de::to_string(state->settings.strategy) + ", NP " +
                          std::to_string(state->settings.population_size) + ", seed " +
                          std::to_string(state->settings.seed) + ", " + std::to_string(info.threads) + " thread(s)");
         progress.start(0, 0);
@@ -852,9 +917,14 @@ int run(const Options& o) {
     auto outcome = [&](bool success, const std::string& message) {
         Outcome out;
         out.x = f.full(state->best_x().data());
-        out.fun = objective->cost(out.x);
+        out.fun = objective.cost(out.x);
         out.success = success;
         out.message = message;
+        const std::string failed = unsolved(objective, out.x);
+        if (!failed.empty()) {
+            out.success = false;
+            out.message += "; " + failed;
+        }
         // A cost that is not finite is never a success (and the result still loads: the JSON
         // writer of iwr-calibrate writes it as Infinity/NaN, which iwr.load_result reads).
         if (!std::isfinite(out.fun)) {

@@ -315,14 +315,15 @@ void bind_de(py::module_& m) {
            std::int64_t max_evaluations, double target_cost, double tol, double atol,
            std::int64_t stagnation_generations, double stagnation_tol, double max_seconds,
            int threads, py::object monitor, bool every_generation, double interval,
-           py::object resume, bool return_state) {
+           py::object resume, bool return_state, const RowMatrixXd& whitening) {
             const de::Settings s = make_settings(strategy, lower, upper, seed, population_size, F,
                                                  CR, bound_rule, extra);
             const de::Stop stop = make_stop(max_generations, max_evaluations, target_cost, tol,
                                             atol, stagnation_generations, stagnation_tol,
                                             max_seconds);
-            // The C++ objective is built from the same data as iwr.Problem's.
-            const Objective obj(g, q, poses, legs, weights);
+            // The C++ objective is built from the same data as iwr.Problem's (its whitening too:
+            // DE on the noise-weighted objective).
+            const Objective obj(g, q, poses, legs, weights, whitening);
             de::ObjectiveFunction f(obj, active, x0);
             Session session;
             return run_de(f, session, s, stop, threads, monitor, every_generation, interval,
@@ -335,7 +336,7 @@ void bind_de(py::module_& m) {
         py::arg("max_evaluations"), py::arg("target_cost"), py::arg("tol"), py::arg("atol"),
         py::arg("stagnation_generations"), py::arg("stagnation_tol"), py::arg("max_seconds"),
         py::arg("threads"), py::arg("monitor"), py::arg("every_generation"), py::arg("interval"),
-        py::arg("resume"), py::arg("return_state"));
+        py::arg("resume"), py::arg("return_state"), py::arg("whitening") = RowMatrixXd());
 
     // The engine's checkpoint (and result) for iwr.problem_file.engine_result: the one reader of
     // iwr/checkpoint.hpp, so Python refuses exactly what the engine refuses.

@@ -23,24 +23,28 @@ void bind_files(py::module_& m) {
         }
     });
 
+    // Every field by name (problem_dict's keys): iwr/problem_file.py builds the dict for both
+    // kinds of problem, and a field missing or of the wrong type is a KeyError/TypeError there.
     m.def(
         "_encode_problem",
-        [](const std::string& robot_name, const std::string& joint_types, const RowMatrixXd& dh,
-           const RowMatrixXd& joint_limits, const LegMatrix& base, const LegMatrix& platform,
-           const LegVector& leg_offsets, const RowMatrixXd& leg_stroke, const VectorXd& home_pose,
-           const VectorXd& workspace, const py::object& measurement_joint_types, const RowMatrixXd& q,
-           const RowMatrixXd& poses, const RowMatrixXd& legs, const py::object& weights,
-           const std::vector<double>& lower, const std::vector<double>& upper, const std::string& bounds_kind,
-           const std::vector<std::string>& parameter_names,
-           const std::vector<std::tuple<std::string, std::string, std::string>>& sources) {
+        [](const py::dict& d) {
+            auto get = [&](const char* key) -> py::object {
+                if (!d.contains(key)) throw std::invalid_argument(std::string(key) + ": missing");
+                return d[key];
+            };
             ProblemData p;
-            p.robot_name = robot_name;
-            p.joint_types = joint_types;
+            p.robot_name = get("robot_name").cast<std::string>();
+            p.joint_types = get("joint_types").cast<std::string>();
+            const auto dh = get("dh").cast<RowMatrixXd>();
+            const auto joint_limits = get("joint_limits").cast<RowMatrixXd>();
             p.dh = dh.rows() ? dh : RowMatrixXd(0, 4);
             p.joint_limits = joint_limits.rows() ? joint_limits : RowMatrixXd(0, 2);
-            p.base = base;
-            p.platform = platform;
-            p.leg_offsets = leg_offsets;
+            p.base = get("base_joints").cast<LegMatrix>();
+            p.platform = get("platform_joints").cast<LegMatrix>();
+            p.leg_offsets = get("leg_offsets").cast<LegVector>();
+            const auto leg_stroke = get("leg_stroke").cast<RowMatrixXd>();
+            const auto home_pose = get("home_pose").cast<VectorXd>();
+            const auto workspace = get("workspace").cast<VectorXd>();
             if (leg_stroke.rows() != 6 || leg_stroke.cols() != 2)
                 throw std::invalid_argument("leg_stroke: expected 6 x 2");
             if (home_pose.size() != 6 || workspace.size() != 6)
@@ -48,24 +52,49 @@ void bind_files(py::module_& m) {
             p.leg_stroke = leg_stroke;
             p.home_pose = home_pose;
             p.workspace = workspace;
-            p.has_measurement_joint_types = !measurement_joint_types.is_none();
-            if (p.has_measurement_joint_types) p.measurement_joint_types = measurement_joint_types.cast<std::string>();
-            p.q = q.cols() == static_cast<Eigen::Index>(joint_types.size()) ? q : RowMatrixXd(poses.rows(), 0);
-            p.poses = poses;
-            p.legs = legs;
-            if (!weights.is_none()) p.weights = weights.cast<RowMatrixXd>();
-            p.lower = lower;
-            p.upper = upper;
-            p.bounds_kind = bounds_kind;
-            p.parameter_names = parameter_names;
-            for (const auto& s : sources) p.sources.push_back({std::get<0>(s), std::get<1>(s), std::get<2>(s)});
+            const py::object mjt = get("measurement_joint_types");
+            p.has_measurement_joint_types = !mjt.is_none();
+            if (p.has_measurement_joint_types) p.measurement_joint_types = mjt.cast<std::string>();
+            const auto kind = get("kind").cast<std::string>();
+            if (kind == "pose") p.kind = MeasurementKind::Pose;
+            else if (kind == "points") p.kind = MeasurementKind::Points;
+            else if (kind == "probe") p.kind = MeasurementKind::Probe;
+            else throw std::invalid_argument("kind: '" + kind + "'; expected pose, points or probe");
+            p.legs = get("legs").cast<RowMatrixXd>();
+            const auto q = get("q").cast<RowMatrixXd>();
+            p.q = q.cols() == static_cast<Eigen::Index>(p.joint_types.size()) ? q : RowMatrixXd(p.legs.rows(), 0);
+            if (!p.tracker()) {
+                p.poses = get("poses").cast<RowMatrixXd>();
+                const py::object weights = get("weights");
+                if (!weights.is_none()) p.weights = weights.cast<RowMatrixXd>();
+            } else {
+                const auto reg = get("registration").cast<VectorXd>();
+                if (reg.size() != 6) throw std::invalid_argument("registration: expected 6 values");
+                p.registration = reg;
+                if (p.kind == MeasurementKind::Points) {
+                    p.reflectors = get("reflectors").cast<RowMatrixXd>();
+                    p.reflector_names = get("reflector_names").cast<std::vector<std::string>>();
+                } else {
+                    const auto probe = get("probe").cast<VectorXd>();
+                    if (probe.size() != 6) throw std::invalid_argument("probe: expected 6 values");
+                    p.probe = probe;
+                    p.probe_length = get("probe_length").cast<double>();
+                    p.probe_poses = get("probe_poses").cast<RowMatrixXd>();
+                }
+                p.points = get("points").cast<RowMatrixXd>();
+                p.reference = get("reference").cast<VectorXd>();
+            }
+            p.lower = get("lower").cast<std::vector<double>>();
+            p.upper = get("upper").cast<std::vector<double>>();
+            p.bounds_kind = get("bounds_kind").cast<std::string>();
+            p.x0 = get("x0").cast<std::vector<double>>();
+            p.active = get("active").cast<std::vector<bool>>();
+            p.parameter_names = get("parameter_names").cast<std::vector<std::string>>();
+            for (const auto& s : get("sources").cast<std::vector<std::tuple<std::string, std::string, std::string>>>())
+                p.sources.push_back({std::get<0>(s), std::get<1>(s), std::get<2>(s)});
             return py::bytes(encode_problem(p));
         },
-        py::arg("robot_name"), py::arg("joint_types"), py::arg("dh"), py::arg("joint_limits"), py::arg("base"),
-        py::arg("platform"), py::arg("leg_offsets"), py::arg("leg_stroke"), py::arg("home_pose"),
-        py::arg("workspace"), py::arg("measurement_joint_types"), py::arg("q"), py::arg("poses"), py::arg("legs"),
-        py::arg("weights"), py::arg("lower"), py::arg("upper"), py::arg("bounds_kind"),
-        py::arg("parameter_names"), py::arg("sources"));
+        py::arg("fields"));
 
     m.def(
         "_read_problem",
@@ -100,13 +129,30 @@ py::dict problem_dict(const ProblemData& p) {
     d["workspace"] = VectorXd(p.workspace);
     d["measurement_joint_types"] =
         p.has_measurement_joint_types ? py::cast(p.measurement_joint_types) : py::none();
+    d["kind"] = p.kind == MeasurementKind::Points ? "points" : p.kind == MeasurementKind::Probe ? "probe" : "pose";
     d["q"] = p.q;
-    d["poses"] = p.poses;
     d["legs"] = p.legs;
-    d["weights"] = p.weights.size() ? py::cast(p.weights) : py::none();
+    if (!p.tracker()) {
+        d["poses"] = p.poses;
+        d["weights"] = p.weights.size() ? py::cast(p.weights) : py::none();
+    } else {
+        d["registration"] = VectorXd(p.registration);
+        if (p.kind == MeasurementKind::Points) {
+            d["reflectors"] = p.reflectors;
+            d["reflector_names"] = p.reflector_names;
+        } else {
+            d["probe"] = VectorXd(p.probe);
+            d["probe_length"] = p.probe_length;
+            d["probe_poses"] = p.probe_poses;
+        }
+        d["points"] = p.points;
+        d["reference"] = p.reference;
+    }
     d["lower"] = p.lower;
     d["upper"] = p.upper;
     d["bounds_kind"] = p.bounds_kind;
+    d["x0"] = p.x0;
+    d["active"] = p.active;
     d["parameter_names"] = p.parameter_names;
     py::list sources;
     for (const auto& s : p.sources) sources.append(py::make_tuple(s.role, s.path, s.sha256));

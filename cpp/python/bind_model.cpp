@@ -51,12 +51,14 @@ void bind_model(py::module_& m) {
 
     py::class_<PyObjective>(m, "Objective")
         .def(py::init([](const Geometry& g, const RowMatrixXd& q, const RowMatrixXd& poses,
-                         const RowMatrixXd& legs, const RowMatrixXd& weights) {
+                         const RowMatrixXd& legs, const RowMatrixXd& weights,
+                         const RowMatrixXd& whitening) {
                  return std::make_unique<PyObjective>(
-                     std::make_shared<Objective>(g, q, poses, legs, weights));
+                     std::make_shared<Objective>(g, q, poses, legs, weights, whitening));
              }),
              py::arg("geometry"), py::arg("q"), py::arg("poses"), py::arg("legs"),
-             py::arg("weights") = RowMatrixXd())
+             py::arg("weights") = RowMatrixXd(), py::arg("whitening") = RowMatrixXd())
+        .def_property_readonly("whitened", [](const PyObjective& o) { return o.obj_->whitened(); })
         .def_property_readonly("n_params", [](const PyObjective& o) { return o.obj_->n_params(); })
         .def_property_readonly("n_poses", [](const PyObjective& o) { return o.obj_->n_poses(); })
         .def("cost", [](const PyObjective& o, const VecRef& x) { return o.obj_->cost(x); },

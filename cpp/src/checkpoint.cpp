@@ -32,6 +32,8 @@ std::string encode_checkpoint(const Checkpoint& c, const de::State& state) {
     w.str(c.message);
     w.f64(c.fun);
     w.doubles(c.x);
+    w.u64(c.active.size());
+    for (std::int64_t i : c.active) w.i64(i);
     w.str(c.resumed_from);
     {
         const std::string blob = state.to_bytes();
@@ -67,6 +69,13 @@ Checkpoint decode_checkpoint(const std::string& bytes, const std::string& contex
     c.fun = r.f64("cost");
     if (c.success && !std::isfinite(c.fun)) r.fail("success with a cost that is not finite");
     c.x = r.doubles("x");
+    const std::size_t na = r.count("active", 8);
+    for (std::size_t k = 0; k < na; ++k) {
+        const std::int64_t lo = c.active.empty() ? 0 : c.active.back() + 1;
+        if (c.x.empty()) r.fail("active: indices into an empty x");
+        // Increasing indices into x: the positions of the engine state's parameters.
+        c.active.push_back(r.i64_in("active", lo, static_cast<std::int64_t>(c.x.size()) - 1));
+    }
     c.resumed_from = r.text("resumed from", 4096);
     const std::string state = r.str("engine state", payload.size());
     r.finish();
@@ -75,12 +84,16 @@ Checkpoint decode_checkpoint(const std::string& bytes, const std::string& contex
     } catch (const io::FormatError& e) {
         r.fail(std::string("corrupt engine state (") + e.what() + ")");
     }
-    if (c.x.size() != static_cast<std::size_t>(c.state.dim()))
-        r.fail("x has " + std::to_string(c.x.size()) + " values; the engine state has " +
-               std::to_string(c.state.dim()) + " parameters");
+    if (c.active.size() != static_cast<std::size_t>(c.state.dim()))
+        r.fail("active: " + std::to_string(c.active.size()) + " parameters; the engine state has " +
+               std::to_string(c.state.dim()));
     for (std::size_t j = 0; j < c.x.size(); ++j)
-        if (!(c.x[j] >= c.state.settings.lower[j] && c.x[j] <= c.state.settings.upper[j]))
-            r.fail("x: parameter " + std::to_string(j) + " is outside the bounds");
+        if (!(std::fabs(c.x[j]) <= 1e12)) r.fail("x: parameter " + std::to_string(j) + " is not finite");
+    for (std::size_t k = 0; k < c.active.size(); ++k) {
+        const double v = c.x[static_cast<std::size_t>(c.active[k])];
+        if (!(v >= c.state.settings.lower[k] && v <= c.state.settings.upper[k]))
+            r.fail("x: parameter " + std::to_string(c.active[k]) + " is outside the bounds");
+    }
     return c;
 }
 

@@ -321,50 +321,23 @@ bool operator==(const Settings& a, const Settings& b) {
 
 // ===== objective adapter =============================================================================
 
-ObjectiveFunction::ObjectiveFunction(const Objective& objective, std::vector<bool> active,
-                                     VectorXd x0)
-    : objective_(objective) {
-    const int n = objective.n_params();
+namespace detail {
+
+std::vector<int> active_index(int n, std::vector<bool> active, VectorXd& x0) {
     if (active.empty()) active.assign(static_cast<std::size_t>(n), true);
     if (static_cast<int>(active.size()) != n)
         bad("active: " + str(active.size()) + " flags; expected " + str(n));
     if (x0.size() == 0) x0 = VectorXd::Zero(n);
     if (x0.size() != n) bad("x0: " + str(x0.size()) + " values; expected " + str(n));
     require_finite(x0.data(), x0.size(), "x0");
+    std::vector<int> index;
     for (int i = 0; i < n; ++i)
-        if (active[static_cast<std::size_t>(i)]) index_.push_back(i);
-    if (index_.empty()) bad("active: no parameter is active");
-    x0_ = std::move(x0);
+        if (active[static_cast<std::size_t>(i)]) index.push_back(i);
+    if (index.empty()) bad("active: no parameter is active");
+    return index;
 }
 
-VectorXd ObjectiveFunction::full(const double* z) const {
-    VectorXd x = x0_;
-    for (std::size_t k = 0; k < index_.size(); ++k) x(index_[k]) = z[k];
-    return x;
-}
-
-void ObjectiveFunction::evaluate(const double* X, std::size_t m, double* out, ThreadPool& pool) {
-    const std::size_t threads = static_cast<std::size_t>(pool.size());
-    while (workspaces_.size() < threads) {
-        workspaces_.push_back(objective_.make_workspace());
-        buffers_.push_back(x0_);
-    }
-    const std::size_t d = index_.size();
-    const bool all = static_cast<int>(d) == objective_.n_params();
-    pool.parallel_for(m, [&](std::size_t b, std::size_t e, int id) {
-        Objective::Workspace& ws = workspaces_[static_cast<std::size_t>(id)];
-        double* x = buffers_[static_cast<std::size_t>(id)].data();
-        for (std::size_t i = b; i < e; ++i) {
-            const double* z = X + i * d;
-            if (all) {
-                out[i] = objective_.cost(z, ws);
-            } else {
-                for (std::size_t k = 0; k < d; ++k) x[index_[k]] = z[k];
-                out[i] = objective_.cost(x, ws);
-            }
-        }
-    });
-}
+}  // namespace detail
 
 // ===== the engine ====================================================================================
 

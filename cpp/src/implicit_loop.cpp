@@ -2,6 +2,8 @@
 #include "iwr/implicit_loop.hpp"
 
 #include <algorithm>
+#include <functional>
+#include <memory>
 #include <cmath>
 #include <limits>
 #include <sstream>
@@ -13,6 +15,7 @@ namespace {
 
 using MatX = Eigen::MatrixXd;
 using VecX = Eigen::VectorXd;
+using Map3c = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>;
 
 Mat3 skew(const Vec3& v) {
     Mat3 k;
@@ -99,6 +102,37 @@ void pose_legs(const Geometry& g, const double* x, const double* q, const double
     }
 }
 
+// The rows both residual models share, for pose k at (x, y): the legs, (predicted - measured) /
+// sigma (with their derivatives), then y_c / sigma_c for the first n_prior corrections (0 where
+// sigma_c = 0, an exact reading). jx, jy (when given) are zeroed first.
+void legs_and_priors(const Geometry& g, const VectorXd& x, int k, const double* y,
+                     const Eigen::Ref<const RowMatrixXd>& q,
+                     const Eigen::Ref<const RowMatrixXd>& poses,
+                     const Eigen::Ref<const RowMatrixXd>& legs,
+                     const Eigen::Ref<const RowMatrixXd>& sigma, int n_prior, double* r,
+                     RowMatrixXd* jx, RowMatrixXd* jy, Mat4* frames, double* qt) {
+    double lg[kLegs];
+    const RowMatrixXd qk = q.row(k), pk = poses.row(k);
+    if (jx) {
+        jx->setZero();
+        jy->setZero();
+    }
+    pose_legs(g, x.data(), qk.data(), pk.data(), y, lg, jx, jy, 0, frames, qt);
+    for (int j = 0; j < kLegs; ++j) {
+        const double is = 1.0 / sigma(k, j);
+        r[j] = (lg[j] - legs(k, j)) * is;
+        if (jx) {
+            jx->row(j) *= is;
+            jy->row(j) *= is;
+        }
+    }
+    for (int c = 0; c < n_prior; ++c) {
+        const double s = sigma(k, kLegs + c);
+        r[kLegs + c] = s > 0 ? y[c] / s : 0.0;
+        if (jy && s > 0) (*jy)(kLegs + c, c) = 1.0 / s;
+    }
+}
+
 void check_shape(const Eigen::Ref<const RowMatrixXd>& m, Eigen::Index rows, Eigen::Index cols,
                  const char* what) {
     if (m.rows() != rows || m.cols() != cols) {
@@ -110,11 +144,35 @@ void check_shape(const Eigen::Ref<const RowMatrixXd>& m, Eigen::Index rows, Eige
     require_finite(m.data(), m.size(), what);
 }
 
-// Per-pose layout of the free (non-exact) corrections.
-struct Layout {
-    int nj = 0, ny = 0;                 // joints, corrections per pose (nj + 6)
-    std::vector<std::vector<int>> free;  // per pose: indices (0..ny) of corrections with sigma > 0
+// The per-pose residual model the solver works on: pose k has ny nuisance corrections y_k, of
+// which `free[k]` are unknowns (the rest held), and nr normalised residual columns, of which
+// `rows[k]` are live (the others are 0: an exact reading, an unseen point).
+struct LoopModel {
+    int n = 0, ny = 0, nr = 0, np = 0;
+    std::vector<std::vector<int>> free, rows;
+    // Residuals r (nr) of pose k at (x, y_k); with jx, jy non-null also their derivatives (nr x np,
+    // nr x ny, zero where a residual does not depend on the variable).
+    std::function<void(const VectorXd&, int, const double*, double*, RowMatrixXd*, RowMatrixXd*)>
+        eval;
 };
+
+ImplicitLoopResult solve_loop(const LoopModel& model, const Eigen::Ref<const VectorXd>& x0,
+                              const std::vector<int>& active,
+                              const Eigen::Ref<const RowMatrixXd>& corrections0,
+                              const ImplicitLoopOptions& options, const LoopCallback& callback);
+
+std::vector<int> checked_active(const std::vector<int>& active, int np) {
+    std::vector<char> seen(static_cast<size_t>(np), 0);
+    for (int i : active) {
+        if (i < 0 || i >= np || seen[static_cast<size_t>(i)]) {
+            std::ostringstream msg;
+            msg << "active: index " << i << " is out of range [0, " << np << ") or repeated";
+            throw std::invalid_argument(msg.str());
+        }
+        seen[static_cast<size_t>(i)] = 1;
+    }
+    return active;
+}
 
 }  // namespace
 
@@ -183,17 +241,7 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         check_shape(corrections0, n, ny, "corrections0");
         corr = corrections0;
     }
-    std::vector<char> seen(static_cast<size_t>(np), 0);
-    for (int i : active) {
-        if (i < 0 || i >= np || seen[static_cast<size_t>(i)]) {
-            std::ostringstream msg;
-            msg << "active: index " << i << " is out of range or repeated (" << np
-                << " parameters)";
-            throw std::invalid_argument(msg.str());
-        }
-        seen[static_cast<size_t>(i)] = 1;
-    }
-    const int p = static_cast<int>(active.size());
+    checked_active(active, np);
     if (options.two_stage && corr.isZero(0.0) && !sigma.rightCols(ny).isZero(0.0)) {
         RowMatrixXd s1 = sigma;
         s1.rightCols(ny).setZero();
@@ -217,49 +265,67 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         r2.nfev += r1.nfev;
         return r2;
     }
-    Layout lay;
-    lay.nj = nj;
-    lay.ny = ny;
-    lay.free.resize(static_cast<size_t>(n));
+    // The pose model: legs (predicted - measured) / sigma, then each free correction / sigma.
+    LoopModel model;
+    model.n = n;
+    model.ny = ny;
+    model.nr = nr;
+    model.np = np;
+    model.free.resize(static_cast<size_t>(n));
+    model.rows.resize(static_cast<size_t>(n));
     for (int k = 0; k < n; ++k) {
+        auto& rows = model.rows[static_cast<size_t>(k)];
+        for (int j = 0; j < kLegs; ++j) rows.push_back(j);
         for (int c = 0; c < ny; ++c) {
-            if (sigma(k, kLegs + c) > 0) lay.free[static_cast<size_t>(k)].push_back(c);
-            else corr(k, c) = 0;  // an exact reading has no correction
+            if (sigma(k, kLegs + c) > 0) {
+                model.free[static_cast<size_t>(k)].push_back(c);
+                rows.push_back(kLegs + c);
+            } else {
+                corr(k, c) = 0;  // an exact reading has no correction
+            }
         }
     }
+    auto frames = std::make_shared<std::vector<Mat4>>(static_cast<size_t>(nj) + 1);
+    auto qt = std::make_shared<std::vector<double>>(static_cast<size_t>(nj) + 1);
+    model.eval = [&g, &q, &poses, &legs, &sigma, frames, qt, ny](
+                     const VectorXd& x, int k, const double* y, double* r, RowMatrixXd* jx,
+                     RowMatrixXd* jy) {
+        legs_and_priors(g, x, k, y, q, poses, legs, sigma, ny, r, jx, jy, frames->data(),
+                        qt->data());
+    };
+    return solve_loop(model, x0, active, corr, options, callback);
+}
 
-    // --- evaluation -----------------------------------------------------------------------------
-    std::vector<Mat4> frames(static_cast<size_t>(nj) + 1);
-    std::vector<double> qt(static_cast<size_t>(nj) + 1);
-    RowMatrixXd jx(kLegs, np), jy(kLegs, ny);
-    RowMatrixXd qrow(1, nj), prow(1, 6);
+namespace {
 
-    // Normalised residuals of pose k into rk (6 + ny): legs, then the corrections.
+ImplicitLoopResult solve_loop(const LoopModel& model, const Eigen::Ref<const VectorXd>& x0,
+                              const std::vector<int>& active,
+                              const Eigen::Ref<const RowMatrixXd>& corrections0,
+                              const ImplicitLoopOptions& options, const LoopCallback& callback) {
+    const int n = model.n, ny = model.ny, nr = model.nr, np = model.np;
+    const int p = static_cast<int>(active.size());
+    RowMatrixXd corr = corrections0;
+    RowMatrixXd jx(nr, np), jy(nr, ny);
+
+    // Normalised residuals of pose k into rk (nr).
     auto residuals_of = [&](const VectorXd& x, const RowMatrixXd& cr, int k, double* rk,
                             bool jac) {
-        double lg[kLegs];
-        const RowMatrixXd qk = q.row(k), pk = poses.row(k);
-        pose_legs(g, x.data(), qk.data(), pk.data(), cr.row(k).data(), lg, jac ? &jx : nullptr,
-                  jac ? &jy : nullptr, 0, frames.data(), qt.data());
-        for (int j = 0; j < kLegs; ++j) rk[j] = (lg[j] - legs(k, j)) / sigma(k, j);
-        for (int c = 0; c < ny; ++c) {
-            const double s = sigma(k, kLegs + c);
-            rk[kLegs + c] = s > 0 ? cr(k, c) / s : 0.0;
-        }
+        model.eval(x, k, cr.row(k).data(), rk, jac ? &jx : nullptr, jac ? &jy : nullptr);
     };
     auto total_cost = [&](const VectorXd& x, const RowMatrixXd& cr) {
         double cost = 0;
         std::vector<double> rk(static_cast<size_t>(nr));
         for (int k = 0; k < n; ++k) {
             residuals_of(x, cr, k, rk.data(), false);
-            for (double v : rk) cost += v * v;
+            for (int c : model.rows[static_cast<size_t>(k)]) cost += rk[static_cast<size_t>(c)] *
+                                                                     rk[static_cast<size_t>(c)];
         }
         return cost;
     };
 
-    // Normal equations, per pose: A (6 x p) = d r_legs / d x_active, B (6 x m) = d r_legs / d y,
-    // the correction rows being diag(1 / sigma) in y. U = sum A^T A, W_k = A^T B,
-    // V_k = B^T B + diag(1 / sigma^2), gradients gx = sum A^T r, gy_k = B^T r + y / sigma^2.
+    // Normal equations, per pose over its live rows: A = d r / d x_active, B = d r / d y_free.
+    // U = sum A^T A, W_k = A^T B, V_k = B^T B, gradients gx = sum A^T r, gy_k = B^T r. (A
+    // correction's own row, y / sigma, is one of the rows: V_k is positive definite through it.)
     MatX U(p, p);
     VecX gx(p);
     std::vector<MatX> W(static_cast<size_t>(n)), V(static_cast<size_t>(n)),
@@ -271,35 +337,28 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         double cost = 0;
         std::vector<double> rk(static_cast<size_t>(nr));
         for (int k = 0; k < n; ++k) {
-            const auto& fr = lay.free[static_cast<size_t>(k)];
-            const int m = static_cast<int>(fr.size());
+            const auto& fr = model.free[static_cast<size_t>(k)];
+            const auto& rows = model.rows[static_cast<size_t>(k)];
+            const int m = static_cast<int>(fr.size()), nrow = static_cast<int>(rows.size());
             residuals_of(x, cr, k, rk.data(), true);
-            for (double v : rk) cost += v * v;
             MatX& a = A[static_cast<size_t>(k)];
             MatX& b = B[static_cast<size_t>(k)];
-            a.resize(kLegs, p);
-            b.resize(kLegs, m);
-            VecX rl(kLegs);
-            for (int j = 0; j < kLegs; ++j) {
-                const double is = 1.0 / sigma(k, j);
-                for (int i = 0; i < p; ++i) a(j, i) = jx(j, active[static_cast<size_t>(i)]) * is;
-                for (int i = 0; i < m; ++i) b(j, i) = jy(j, fr[static_cast<size_t>(i)]) * is;
-                rl(j) = rk[static_cast<size_t>(j)];
+            a.resize(nrow, p);
+            b.resize(nrow, m);
+            VecX rl(nrow);
+            for (int j = 0; j < nrow; ++j) {
+                const int c = rows[static_cast<size_t>(j)];
+                for (int i = 0; i < p; ++i) a(j, i) = jx(c, active[static_cast<size_t>(i)]);
+                for (int i = 0; i < m; ++i) b(j, i) = jy(c, fr[static_cast<size_t>(i)]);
+                rl(j) = rk[static_cast<size_t>(c)];
+                cost += rl(j) * rl(j);
             }
             rr[static_cast<size_t>(k)] = rl;
             U.noalias() += a.transpose() * a;
             gx.noalias() += a.transpose() * rl;
             W[static_cast<size_t>(k)].noalias() = a.transpose() * b;
-            MatX& v = V[static_cast<size_t>(k)];
-            v.noalias() = b.transpose() * b;
-            VecX g2 = b.transpose() * rl;
-            for (int i = 0; i < m; ++i) {
-                const int c = fr[static_cast<size_t>(i)];
-                const double s = sigma(k, kLegs + c);
-                v(i, i) += 1.0 / (s * s);
-                g2(i) += cr(k, c) / (s * s);
-            }
-            gy[static_cast<size_t>(k)] = g2;
+            V[static_cast<size_t>(k)].noalias() = b.transpose() * b;
+            gy[static_cast<size_t>(k)].noalias() = b.transpose() * rl;
         }
         return cost;
     };
@@ -391,7 +450,7 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
             const auto vd = V[kk].diagonal();
             gd += gy[kk].dot(sy);
             step2 += (sy.array().square() * vd.array()).sum();
-            const auto& fr = lay.free[kk];
+            const auto& fr = model.free[kk];
             for (size_t i = 0; i < fr.size(); ++i) {
                 const double c = corr(k, fr[i]);
                 xn2 += c * c * vd(static_cast<Eigen::Index>(i));
@@ -404,7 +463,7 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         for (int i = 0; i < p; ++i) xt(active[static_cast<size_t>(i)]) += dx(i);
         RowMatrixXd ct = corr;
         for (int k = 0; k < n; ++k) {
-            const auto& fr = lay.free[static_cast<size_t>(k)];
+            const auto& fr = model.free[static_cast<size_t>(k)];
             for (size_t i = 0; i < fr.size(); ++i)
                 ct(k, fr[i]) += dy[static_cast<size_t>(k)](static_cast<Eigen::Index>(i));
         }
@@ -507,31 +566,25 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         res.reciprocal_condition = 1.0;
     }
     res.covariance = C;
-    // Per pose: H_kk = B V^-1 B^T + E C E^T with E = A - B V^-1 W^T over the pose's rows
-    // (legs, then the free corrections), Q_vv,kk = I - H_kk.
+    // Per pose: H_kk = B V^-1 B^T + E C E^T with E = A - B V^-1 W^T over the pose's live rows,
+    // Q_vv,kk = I - H_kk.
     std::vector<double> rk(static_cast<size_t>(nr));
+    int n_rows = 0, n_free = 0;
     for (int k = 0; k < n; ++k) {
-        const auto& fr = lay.free[static_cast<size_t>(k)];
-        const int m = static_cast<int>(fr.size()), rows = kLegs + m;
-        MatX Ja = MatX::Zero(rows, p), Jb = MatX::Zero(rows, m);
-        Ja.topRows(kLegs) = A[static_cast<size_t>(k)];
-        Jb.topRows(kLegs) = B[static_cast<size_t>(k)];
-        VecX v(rows);
+        const auto& rows_k = model.rows[static_cast<size_t>(k)];
+        const int rows = static_cast<int>(rows_k.size());
+        n_rows += rows;
+        n_free += static_cast<int>(model.free[static_cast<size_t>(k)].size());
+        const MatX& Ja = A[static_cast<size_t>(k)];
+        const MatX& Jb = B[static_cast<size_t>(k)];
+        const VecX& v = rr[static_cast<size_t>(k)];
         residuals_of(x, corr, k, rk.data(), false);
-        for (int j = 0; j < kLegs; ++j) v(j) = rk[static_cast<size_t>(j)];
-        for (int i = 0; i < m; ++i) {
-            const int c = fr[static_cast<size_t>(i)];
-            Jb(kLegs + i, i) = 1.0 / sigma(k, kLegs + c);
-            v(kLegs + i) = rk[static_cast<size_t>(kLegs + c)];
-        }
         for (int c = 0; c < nr; ++c) res.residuals(k, c) = rk[static_cast<size_t>(c)];
         const auto& vf = vfac[static_cast<size_t>(k)];
         const MatX E = Ja - Jb * vf.solve(W[static_cast<size_t>(k)].transpose());
         MatX H = Jb * vf.solve(Jb.transpose()) + E * C * E.transpose();
         const MatX Q = MatX::Identity(rows, rows) - H;
-        for (int j = 0; j < kLegs; ++j) res.redundancy(k, j) = Q(j, j);
-        for (int i = 0; i < m; ++i) res.redundancy(k, kLegs + fr[static_cast<size_t>(i)]) =
-            Q(kLegs + i, kLegs + i);
+        for (int j = 0; j < rows; ++j) res.redundancy(k, rows_k[static_cast<size_t>(j)]) = Q(j, j);
         Eigen::SelfAdjointEigenSolver<MatX> es(Q);
         const VecX proj = es.eigenvectors().transpose() * v;
         double t = 0;
@@ -545,7 +598,235 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         res.pose_statistic(k) = t;
         res.pose_dof(k) = dof;
     }
+    res.dof = n_rows - n_free - p;
     return res;
+}
+
+}  // namespace
+
+namespace {
+
+// The tracker model of implicit_loop_tracker (see the header), on checked inputs.
+LoopModel tracker_model(const Geometry& g, const TrackerLoopData& data,
+                        const Eigen::Ref<const RowMatrixXd>& q,
+                        const Eigen::Ref<const RowMatrixXd>& legs,
+                        const Eigen::Ref<const RowMatrixXd>& sigma) {
+    const TrackerSetup& setup = data.setup;
+    const bool probe = setup.kind() == TrackerKind::Probe;
+    const int n = static_cast<int>(legs.rows()), nj = g.n_joints(), npr = g.n_params();
+    const int nb = probe ? 2 : setup.n_points();
+    LoopModel model;
+    model.n = n;
+    model.ny = nj + 6;
+    model.nr = kLegs + nj + 3 * nb;
+    model.np = npr + setup.n_params();
+    model.free.resize(static_cast<size_t>(n));
+    model.rows.resize(static_cast<size_t>(n));
+    for (int k = 0; k < n; ++k) {
+        auto& fr = model.free[static_cast<size_t>(k)];
+        auto& rows = model.rows[static_cast<size_t>(k)];
+        for (int j = 0; j < kLegs; ++j) rows.push_back(j);
+        for (int c = 0; c < nj; ++c) {
+            if (sigma(k, kLegs + c) > 0) {
+                fr.push_back(c);
+                rows.push_back(kLegs + c);
+            }
+        }
+        for (int c = nj; c < nj + 6; ++c) fr.push_back(c);  // the true pose: always unknown
+        for (int b = 0; b < nb; ++b) {
+            if (!probe && std::isnan(data.measured(k, 3 * b))) continue;  // not seen
+            for (int c = 0; c < 3; ++c) rows.push_back(kLegs + nj + 3 * b + c);
+        }
+    }
+    const Mat3 r_nom = euler_zyx(setup.registration()(3), setup.registration()(4),
+                                 setup.registration()(5));
+    struct Scratch {
+        std::vector<Mat4> frames;
+        std::vector<double> qt;
+        std::vector<Vec3> pts;
+    };
+    auto sc = std::make_shared<Scratch>();
+    sc->frames.resize(static_cast<size_t>(nj) + 1);
+    sc->qt.resize(static_cast<size_t>(nj) + 1);
+    sc->pts.resize(static_cast<size_t>(setup.n_points()));
+    model.eval = [&g, &data, &setup, q, legs, sigma, sc, r_nom, probe, nb, nj, npr](
+                     const VectorXd& x, int k, const double* y, double* r, RowMatrixXd* jx,
+                     RowMatrixXd* jy) {
+        const int nr = kLegs + nj + 3 * nb;
+        for (int c = 0; c < nr; ++c) r[c] = 0.0;
+        legs_and_priors(g, x, k, y, q, data.reference, legs, sigma, nj, r, jx, jy,
+                        sc->frames.data(), sc->qt.data());
+        const RowMatrixXd pk = data.reference.row(k);
+        // The true platform pose in {0} and the setup's transforms at x.
+        const double* xs = x.data() + npr;
+        const Vec3 w(y[nj + 3], y[nj + 4], y[nj + 5]), rr(xs[3], xs[4], xs[5]);
+        Mat3 ew, jrw, jrr;
+        so3_exp(w, &ew, &jrw);
+        so3_exp(rr, nullptr, &jrr);
+        const Mat3 r5 = euler_zyx(pk(0, 3), pk(0, 4), pk(0, 5)) * ew;
+        const Vec3 p5 = Vec3(pk(0, 0), pk(0, 1), pk(0, 2)) + Vec3(y[nj], y[nj + 1], y[nj + 2]);
+        Mat3 rreg;
+        Vec3 treg;
+        setup.registration_transform(xs, rreg, treg);
+        setup.platform_points(xs + 6, sc->pts.data());
+        const Mat3 rreg5 = rreg * r5;
+        const int row0 = kLegs + nj, col_t = npr, col_o = npr + 6;
+        // One point o (in {5}) measured at m with whitening wm: residual rows row, derivatives
+        // with respect to the registration, the pose and (offset_col >= 0) its offset.
+        auto point = [&](const Vec3& o, const double* m, const double* wm, int row,
+                         int offset_col) {
+            const Map3c wmat(wm);
+            const Vec3 p0 = p5 + r5 * o;
+            const Vec3 e = rreg * p0 + treg - Vec3(m[0], m[1], m[2]);
+            const Vec3 we = wmat * e;
+            for (int c = 0; c < 3; ++c) r[row + c] = we(c);
+            if (!jx) return;
+            jx->block<3, 3>(row, col_t) = wmat * r_nom;
+            jx->block<3, 3>(row, col_t + 3) = -wmat * rreg * skew(p0) * jrr;
+            if (offset_col >= 0) jx->block<3, 3>(row, offset_col) = wmat * rreg5;
+            jy->block<3, 3>(row, nj) = wmat * rreg;
+            jy->block<3, 3>(row, nj + 3) = -wmat * rreg5 * skew(o) * jrw;
+        };
+        if (!probe) {
+            for (int i = 0; i < nb; ++i) {
+                const double* m = data.measured.row(k).data() + 3 * i;
+                if (std::isnan(m[0])) continue;
+                point(sc->pts[static_cast<size_t>(i)], m, data.whitening.row(k).data() + 9 * i,
+                      row0 + 3 * i, col_o + 3 * i);
+            }
+            return;
+        }
+        // Probe: its origin as a point, then its orientation residual e = vee(asym(R_pred R_m^T)),
+        // whose derivative for a left perturbation phi of R_pred (in {T}) is (tr(R_e) I - R_e)/2.
+        const double* m = data.measured.row(k).data();
+        point(sc->pts[0], m, data.whitening.row(k).data(), row0, col_o);
+        const double len = setup.probe_length();
+        Mat3 rp;
+        for (int c = 0; c < 3; ++c) rp.col(c) = (sc->pts[static_cast<size_t>(c) + 1] - sc->pts[0]) / len;
+        const Mat3 re = rreg5 * rp * euler_zyx(m[3], m[4], m[5]).transpose();
+        const Vec3 e(0.5 * (re(2, 1) - re(1, 2)), 0.5 * (re(0, 2) - re(2, 0)),
+                     0.5 * (re(1, 0) - re(0, 1)));
+        const Map3c wo(data.whitening.row(k).data() + 9);
+        const Vec3 we = wo * e;
+        for (int c = 0; c < 3; ++c) r[row0 + 3 + c] = we(c);
+        if (!jx) return;
+        const Mat3 dm = wo * (0.5 * (re.trace() * Mat3::Identity() - re));
+        const Vec3 rho(xs[9], xs[10], xs[11]);
+        Mat3 erho, jrho;
+        so3_exp(rho, &erho, &jrho);
+        jx->block<3, 3>(row0 + 3, col_t + 3) = dm * rreg * jrr;
+        jx->block<3, 3>(row0 + 3, col_o + 3) = dm * rreg5 * jrho.transpose();  // J_l = J_r^T
+        jy->block<3, 3>(row0 + 3, nj + 3) = dm * rreg5 * jrw;
+    };
+    return model;
+}
+
+void check_tracker_inputs(const Geometry& g, const TrackerLoopData& data,
+                          const Eigen::Ref<const RowMatrixXd>& q,
+                          const Eigen::Ref<const RowMatrixXd>& legs,
+                          const Eigen::Ref<const RowMatrixXd>& sigma) {
+    require_pose_shapes(g, q, legs, "legs");
+    require_finite(q.data(), q.size(), "q");
+    require_finite(legs.data(), legs.size(), "legs");
+    const int n = static_cast<int>(legs.rows()), nj = g.n_joints();
+    if (n < 1) throw std::invalid_argument("legs: no pose given");
+    const bool probe = data.setup.kind() == TrackerKind::Probe;
+    const int nb = probe ? 2 : data.setup.n_points();
+    check_shape(data.reference, n, 6, "reference");
+    check_shape(data.whitening, n, 9 * nb, "whitening");
+    check_shape(sigma, n, kLegs + nj, "sigma");
+    if (data.measured.rows() != n || data.measured.cols() != (probe ? 6 : 3 * nb)) {
+        std::ostringstream msg;
+        msg << "measured: shape (" << data.measured.rows() << ", " << data.measured.cols()
+            << "); expected (" << n << ", " << (probe ? 6 : 3 * nb) << ")";
+        throw std::invalid_argument(msg.str());
+    }
+    for (int k = 0; k < n; ++k) {
+        for (int c = 0; c < kLegs + nj; ++c) {
+            const double s = sigma(k, c);
+            if (c < kLegs ? !(s > 0) : !(s >= 0)) {
+                std::ostringstream msg;
+                msg << "sigma: entry (" << k << ", " << c << ") is " << s << "; the leg readings"
+                    << " need a standard deviation > 0, the joint readings >= 0 (0: exact)";
+                throw std::invalid_argument(msg.str());
+            }
+        }
+        for (int b = 0; b < (probe ? 1 : nb); ++b) {
+            const int w = probe ? 6 : 3;
+            int nan = 0;
+            for (int c = 0; c < w; ++c) nan += std::isnan(data.measured(k, w * b + c)) ? 1 : 0;
+            const bool bad_inf = !probe && nan == 0 && !data.measured.row(k).segment(3 * b, 3).allFinite();
+            if ((nan != 0 && (probe || nan != 3)) || bad_inf ||
+                (probe && !data.measured.row(k).allFinite())) {
+                std::ostringstream msg;
+                msg << "measured: pose " << k << (probe ? "" : ", reflector " + std::to_string(b + 1))
+                    << " is not finite" << (probe ? "" : " (an unseen point has all three NaN)");
+                throw std::invalid_argument(msg.str());
+            }
+        }
+    }
+}
+
+}  // namespace
+
+LoopJacobians tracker_loop_jacobians(const Geometry& g, const TrackerLoopData& data,
+                                     const Eigen::Ref<const VectorXd>& x,
+                                     const Eigen::Ref<const RowMatrixXd>& q,
+                                     const Eigen::Ref<const RowMatrixXd>& legs,
+                                     const Eigen::Ref<const RowMatrixXd>& sigma,
+                                     const Eigen::Ref<const RowMatrixXd>& corrections) {
+    check_tracker_inputs(g, data, q, legs, sigma);
+    const LoopModel model = tracker_model(g, data, q, legs, sigma);
+    if (x.size() != model.np) {
+        throw std::invalid_argument("x: " + std::to_string(x.size()) + " values; expected " +
+                                    std::to_string(model.np));
+    }
+    require_finite(x.data(), x.size(), "x");
+    RowMatrixXd corr = RowMatrixXd::Zero(model.n, model.ny);
+    if (corrections.size() != 0) {
+        check_shape(corrections, model.n, model.ny, "corrections");
+        corr = corrections;
+    }
+    LoopJacobians out;
+    out.legs.resize(model.n, model.nr);
+    out.jac_x.resize(static_cast<Eigen::Index>(model.nr) * model.n, model.np);
+    out.jac_y.resize(static_cast<Eigen::Index>(model.nr) * model.n, model.ny);
+    RowMatrixXd jx(model.nr, model.np), jy(model.nr, model.ny);
+    const VectorXd xv = x;
+    for (int k = 0; k < model.n; ++k) {
+        model.eval(xv, k, corr.row(k).data(), out.legs.row(k).data(), &jx, &jy);
+        out.jac_x.middleRows(static_cast<Eigen::Index>(model.nr) * k, model.nr) = jx;
+        out.jac_y.middleRows(static_cast<Eigen::Index>(model.nr) * k, model.nr) = jy;
+    }
+    return out;
+}
+
+ImplicitLoopResult implicit_loop_tracker(const Geometry& g, const TrackerLoopData& data,
+                                         const Eigen::Ref<const VectorXd>& x0,
+                                         const std::vector<int>& active,
+                                         const Eigen::Ref<const RowMatrixXd>& q,
+                                         const Eigen::Ref<const RowMatrixXd>& legs,
+                                         const Eigen::Ref<const RowMatrixXd>& sigma,
+                                         const Eigen::Ref<const RowMatrixXd>& corrections0,
+                                         const ImplicitLoopOptions& options,
+                                         const LoopCallback& callback) {
+    check_tracker_inputs(g, data, q, legs, sigma);
+    const LoopModel model = tracker_model(g, data, q, legs, sigma);
+    if (x0.size() != model.np) {
+        throw std::invalid_argument("x0: " + std::to_string(x0.size()) + " values; expected " +
+                                    std::to_string(model.np) + " (the robot's, then the setup's)");
+    }
+    require_finite(x0.data(), x0.size(), "x0");
+    checked_active(active, model.np);
+    RowMatrixXd corr = RowMatrixXd::Zero(model.n, model.ny);
+    if (corrections0.size() != 0) {
+        check_shape(corrections0, model.n, model.ny, "corrections0");
+        corr = corrections0;
+    }
+    for (int k = 0; k < model.n; ++k)
+        for (int c = 0; c < g.n_joints(); ++c)
+            if (!(sigma(k, kLegs + c) > 0)) corr(k, c) = 0;  // an exact reading: no correction
+    return solve_loop(model, x0, active, corr, options, callback);
 }
 
 }  // namespace iwr

@@ -68,7 +68,8 @@ void sincos_offset(int n, const double* nominal, const double* cn, const double*
 }  // namespace
 
 Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd& poses,
-                     const RowMatrixXd& legs, const RowMatrixXd& weights)
+                     const RowMatrixXd& legs, const RowMatrixXd& weights,
+                     const RowMatrixXd& whitening)
     : geometry_(std::move(geometry)), n_(static_cast<int>(poses.rows())), q_(q) {
     const int nj = geometry_.n_joints();
     if (n_ == 0) throw std::invalid_argument("poses: no measurements (0 rows)");
@@ -90,12 +91,34 @@ Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd&
             }
         }
     }
+    if (whitening.size() != 0) {
+        if (weights.size() != 0)
+            throw std::invalid_argument(
+                "weights, whitening: give one or the other (fold the weights into the whitening)");
+        require_shape(whitening, n_, kLegs * kLegs, "whitening");
+        require_finite(whitening.data(), whitening.size(), "whitening");
+        for (int k = 0; k < n_; ++k) {
+            for (int i = 0; i < kLegs; ++i) {
+                for (int j = i + 1; j < kLegs; ++j) {
+                    if (whitening(k, kLegs * i + j) != 0.0) {
+                        std::ostringstream msg;
+                        msg << "whitening: pose " << k << ", entry (" << i << ", " << j << ") is "
+                            << whitening(k, kLegs * i + j)
+                            << "; the whitening of a pose must be lower triangular";
+                        throw std::invalid_argument(msg.str());
+                    }
+                }
+            }
+        }
+        whitening_ = whitening;
+    }
     // Blocked layout (see objective_kernel.hpp). Joint readings: the sines and cosines of revolute
     // readings are computed once per data set; each evaluation then needs only the angle-sum
     // identity.
     static_assert(kBlock == detail::kBlock, "one block size");
     int nq = 18;
     if (weights.size() != 0) off_w_ = nq, nq += kLegs;
+    if (whitening.size() != 0) off_wh_ = nq, nq += kLegs * (kLegs + 1) / 2;
     for (int i = 0; i < nj; ++i) {
         q_off_.push_back(nq);
         prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
@@ -122,6 +145,11 @@ Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd&
         for (int j = 0; j < kLegs; ++j) put(12 + j, legs(k, j));
         if (off_w_ >= 0)
             for (int j = 0; j < kLegs; ++j) put(off_w_ + j, std::sqrt(weights(k, j)));
+        if (off_wh_ >= 0) {
+            int e = off_wh_;
+            for (int i = 0; i < kLegs; ++i)
+                for (int j = 0; j <= i; ++j) put(e++, whitening(k, kLegs * i + j));
+        }
         for (int i = 0; i < nj; ++i) {
             const int o = q_off_[static_cast<size_t>(i)];
             if (prismatic_[static_cast<size_t>(i)]) {
@@ -202,6 +230,7 @@ double Objective::evaluate(const double* x, double* jbuf, double* res) const {
     pd.off_p5 = 9;
     pd.off_s = 12;
     pd.off_w = off_w_;
+    pd.off_wh = off_wh_;
     pd.n_joints = geometry_.n_joints();
     pd.n_prefix = n_prefix_;
     pd.q_off = q_off_.data();
@@ -283,6 +312,12 @@ void Objective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residual
                 jr(g.idx_platform(j, c)) = db(c);
             }
             jr(g.idx_offset(j)) = -sw;
+        }
+        if (off_wh_ >= 0) {  // the whitened rows: W_k times the six rows of pose k
+            const Eigen::Map<const Eigen::Matrix<double, kLegs, kLegs, Eigen::RowMajor>> w(
+                whitening_.row(k).data());
+            jac->middleRows(kLegs * k, kLegs) =
+                (w.triangularView<Eigen::Lower>() * jac->middleRows(kLegs * k, kLegs)).eval();
         }
     }
 }

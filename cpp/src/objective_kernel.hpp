@@ -26,6 +26,7 @@ struct PoseData {
     int off_p5 = 0;   // 3: 0P5
     int off_s = 0;    // 6: measured leg readings
     int off_w = -1;   // 6: sqrt of weights, or -1 when unweighted
+    int off_wh = -1;  // 21: the whitening's lower triangle row by row, or -1 when not whitened
     int n_joints = 0;
     int n_prefix = 0;            // leading prismatic joints: their rotation is the same at every pose
     const int* q_off = nullptr;  // per joint: q (prismatic) or cos q, sin q (revolute, 2 quantities)

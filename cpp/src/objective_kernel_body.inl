@@ -47,7 +47,7 @@ IWR_FORCE_INLINE Pack sqrt(const Pack& a) {
 // One block of 8 poses: 0T4 by the DH chain (eq. 1-2), then M = 4R0 0R5 and w = 4R0 (0P5 - 0P4),
 // the platform pose in frame {4}; leg j is v = M b_j + w - a_j (eq. 8 expressed in {4}), its length
 // |v| and its residual sqrt(w_kj) (|v| - l0_j - s_kj). Returns the per-lane sums of squares.
-template <bool Weighted, bool Residuals>
+template <int Weighted, bool Residuals>
 IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const double* blk,
                             Pack (&res)[6]) {
     constexpr int B = kBlock;
@@ -100,7 +100,9 @@ IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const doub
     }
 
     // --- the six legs --------------------------------------------------------------------------------
-    Pack acc = splat(0.0);
+    // Weighted: 0 none, 1 a weight per leg, 2 a whitening per pose (the raw residuals of the six
+    // legs first, then W r row by row, the lower triangle only).
+    Pack acc = splat(0.0), raw[6];
     for (int j = 0; j < 6; ++j) {
         const Pack b0 = splat(ec.b[j][0]), b1 = splat(ec.b[j][1]), b2 = splat(ec.b[j][2]);
         const Pack vx = (m[0] * b0 + m[1] * b1 + m[2] * b2) + (m[9] - splat(ec.a[j][0]));
@@ -108,14 +110,28 @@ IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const doub
         const Pack vz = (m[6] * b0 + m[7] * b1 + m[8] * b2) + (m[11] - splat(ec.a[j][2]));
         Pack r = (sqrt(vx * vx + vy * vy + vz * vz) - splat(ec.l0[j])) -
                  load(blk + (pd.off_s + j) * B);
-        if (Weighted) r = r * load(blk + (pd.off_w + j) * B);
-        if (Residuals) res[j] = r;
-        acc = acc + r * r;
+        if (Weighted == 1) r = r * load(blk + (pd.off_w + j) * B);
+        if (Weighted == 2) {
+            raw[j] = r;
+        } else {
+            if (Residuals) res[j] = r;
+            acc = acc + r * r;
+        }
+    }
+    if (Weighted == 2) {
+        const double* w = blk + pd.off_wh * B;
+        for (int i = 0; i < 6; ++i) {
+            Pack r = load(w) * raw[0];
+            w += B;
+            for (int j = 1; j <= i; ++j, w += B) r = r + load(w) * raw[j];
+            if (Residuals) res[i] = r;
+            acc = acc + r * r;
+        }
     }
     return acc;
 }
 
-template <bool Weighted, bool Residuals>
+template <int Weighted, bool Residuals>
 IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* out) {
     constexpr int B = kBlock;
     // Per-lane partial sums: pose k goes to lane k mod 8 whatever the register width, so the order
@@ -146,6 +162,7 @@ IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* ou
 }
 
 double kernel(const PoseData& pd, const EvalConsts& ec, double* out) {
-    if (pd.off_w >= 0) return out ? run<true, true>(pd, ec, out) : run<true, false>(pd, ec, out);
-    return out ? run<false, true>(pd, ec, out) : run<false, false>(pd, ec, out);
+    if (pd.off_wh >= 0) return out ? run<2, true>(pd, ec, out) : run<2, false>(pd, ec, out);
+    if (pd.off_w >= 0) return out ? run<1, true>(pd, ec, out) : run<1, false>(pd, ec, out);
+    return out ? run<0, true>(pd, ec, out) : run<0, false>(pd, ec, out);
 }

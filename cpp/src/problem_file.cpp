@@ -1,5 +1,6 @@
 #include "iwr/problem_file.hpp"
 
+#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <stdexcept>
@@ -22,12 +23,13 @@ void put(io::Writer& w, const M& m) {
 
 // Exactly rows x cols finite values (any value outside [-limit, limit] refused: no coordinate,
 // length or angle of a robot comes near 1e12, and larger ones would overflow the cost).
+// allow_nan: NaN is a value (a reflector not seen), not an error.
 template <class M>
 void get(io::Reader& r, const char* field, M& m, Eigen::Index rows, Eigen::Index cols,
-         double limit = 1e12) {
+         double limit = 1e12, bool allow_nan = false) {
     const std::vector<double> v = r.doubles(field, static_cast<std::size_t>(rows * cols));
     for (std::size_t k = 0; k < v.size(); ++k)
-        if (!(std::fabs(v[k]) <= limit))
+        if (!(std::fabs(v[k]) <= limit) && !(allow_nan && std::isnan(v[k])))
             r.fail(std::string(field) + ": row " + std::to_string(cols ? k / static_cast<std::size_t>(cols) : 0) +
                    ", column " + std::to_string(cols ? k % static_cast<std::size_t>(cols) : 0) + " is " +
                    std::to_string(v[k]) + (std::isfinite(v[k]) ? ", beyond any robot" : ", not finite"));
@@ -40,25 +42,70 @@ void get(io::Reader& r, const char* field, M& m, Eigen::Index rows, Eigen::Index
 
 Geometry ProblemData::geometry() const { return Geometry(joint_types, dh, base, platform, leg_offsets); }
 
+int ProblemData::n_params() const {
+    switch (kind) {
+        case MeasurementKind::Points: return n_robot_params() + 6 + 3 * static_cast<int>(reflectors.rows());
+        case MeasurementKind::Probe: return n_robot_params() + 12;
+        default: return n_robot_params();
+    }
+}
+
+int ProblemData::n_active() const {
+    return static_cast<int>(std::count(active.begin(), active.end(), true));
+}
+
+TrackerSetup ProblemData::tracker_setup() const {
+    if (kind == MeasurementKind::Points) return TrackerSetup::points(registration, reflectors);
+    if (kind == MeasurementKind::Probe) return TrackerSetup::probe(registration, probe, probe_length);
+    throw std::invalid_argument("tracker setup: the measurements are poses in {0}, not tracker data");
+}
+
 std::uint64_t ProblemData::robot_fingerprint() const {
     io::Hash64 h;
     h.str("robot").str(joint_types);
     h.doubles(dh.data(), static_cast<std::size_t>(dh.size()));
     h.doubles(base.data(), 18).doubles(platform.data(), 18).doubles(leg_offsets.data(), 6);
+    // Leg data searched over every parameter from zeros hash as version 1 did: their checkpoints
+    // stay valid.
+    if (tracker()) {
+        h.str("tracker").u64(static_cast<std::uint64_t>(kind)).doubles(registration.data(), 6);
+        h.doubles(reflectors.data(), static_cast<std::size_t>(reflectors.size()));
+        h.doubles(probe.data(), 6).f64(probe_length);
+        h.doubles(reference.data(), static_cast<std::size_t>(reference.size()));
+    }
+    const bool plain = std::all_of(x0.begin(), x0.end(), [](double v) { return v == 0; }) &&
+                       std::all_of(active.begin(), active.end(), [](bool a) { return a; });
+    if (!plain) {
+        h.str("search").doubles(x0.data(), x0.size()).u64(active.size());
+        for (bool a : active) h.u64(a ? 1 : 0);
+    }
     return h.value();
 }
 
 std::uint64_t ProblemData::data_fingerprint() const {
     io::Hash64 h;
     h.str("measurements").str(has_measurement_joint_types ? measurement_joint_types : joint_types);
+    if (tracker()) h.str("tracker").u64(static_cast<std::uint64_t>(kind));
     for (const RowMatrixXd* a : {&q, &poses, &legs, &weights}) {
         h.u64(static_cast<std::uint64_t>(a->rows())).u64(static_cast<std::uint64_t>(a->cols()));
         h.doubles(a->data(), static_cast<std::size_t>(a->size()));
     }
+    if (tracker())
+        for (const RowMatrixXd* a : {&probe_poses, &points}) {
+            h.u64(static_cast<std::uint64_t>(a->rows())).u64(static_cast<std::uint64_t>(a->cols()));
+            h.doubles(a->data(), static_cast<std::size_t>(a->size()));
+        }
     return h.value();
 }
 
 std::string encode_problem(const ProblemData& p) {
+    // What the reader could not tell from a misaligned file: counts the payload does not store.
+    if (p.kind == MeasurementKind::Points && p.reflector_names.size() != static_cast<std::size_t>(p.reflectors.rows()))
+        throw std::invalid_argument("reflector names: " + std::to_string(p.reflector_names.size()) + "; expected " +
+                                    std::to_string(p.reflectors.rows()));
+    if (p.active.size() != p.x0.size())
+        throw std::invalid_argument("active: " + std::to_string(p.active.size()) + " flags; expected " +
+                                    std::to_string(p.x0.size()));
     io::Writer w;
     w.str(p.robot_name);
     w.str(p.joint_types);
@@ -72,15 +119,34 @@ std::string encode_problem(const ProblemData& p) {
     put(w, p.workspace);
     w.u8(p.has_measurement_joint_types ? 1 : 0);
     w.str(p.measurement_joint_types);
-    w.u64(static_cast<std::uint64_t>(p.poses.rows()));
+    w.u8(static_cast<std::uint8_t>(p.kind));
+    w.u64(static_cast<std::uint64_t>(p.legs.rows()));
     put(w, p.q);
-    put(w, p.poses);
     put(w, p.legs);
-    w.u8(p.weights.size() ? 1 : 0);
-    put(w, p.weights);
+    if (!p.tracker()) {
+        put(w, p.poses);
+        w.u8(p.weights.size() ? 1 : 0);
+        put(w, p.weights);
+    } else {
+        put(w, p.registration);
+        if (p.kind == MeasurementKind::Points) {
+            w.u64(static_cast<std::uint64_t>(p.reflectors.rows()));
+            put(w, p.reflectors);
+            for (const auto& n : p.reflector_names) w.str(n);
+        } else {
+            put(w, p.probe);
+            w.f64(p.probe_length);
+            put(w, p.probe_poses);
+        }
+        put(w, p.points);
+        put(w, p.reference);
+    }
     w.doubles(p.lower);
     w.doubles(p.upper);
     w.str(p.bounds_kind);
+    w.doubles(p.x0);
+    w.u64(p.active.size());
+    for (bool a : p.active) w.u8(a ? 1 : 0);
     w.u64(p.parameter_names.size());
     for (const auto& n : p.parameter_names) w.str(n);
     w.u64(p.sources.size());
@@ -131,8 +197,11 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
                p.joint_types + "'");
     if (!p.has_measurement_joint_types && !p.measurement_joint_types.empty())
         r.fail("measurement joint types: set without its flag");
+    const std::uint8_t kind = r.u8("measurement kind");
+    if (kind > 2) r.fail("measurement kind: " + std::to_string(kind) + "; expected 0 (pose in {0}), 1 (points in {T}) or 2 (probe pose in {T})");
+    p.kind = static_cast<MeasurementKind>(kind);
     const std::uint64_t N = r.u64("number of poses");
-    // Each pose takes at least 8 (6 + 6) doubles below: a count the file cannot hold is refused
+    // Each pose takes at least 12 (6 + 6) doubles below: a count the file cannot hold is refused
     // before anything is allocated.
     if (N == 0) r.fail("number of poses: 0; a problem needs measurements");
     if (N > kMaxPoses || N > r.remaining() / (12 * 8))
@@ -140,17 +209,59 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
                std::to_string(r.remaining()) + " bytes left");
     const Eigen::Index rows = static_cast<Eigen::Index>(N);
     get(r, "q", p.q, rows, n);
-    get(r, "poses", p.poses, rows, 6);
     get(r, "legs", p.legs, rows, 6);
-    if (r.flag("has weights")) {
-        // Any finite weight: their scale is the user's (the cost scales with it).
-        get(r, "weights", p.weights, rows, 6, std::numeric_limits<double>::max());
-        for (Eigen::Index k = 0; k < p.weights.size(); ++k)
-            if (p.weights.data()[k] < 0)
-                r.fail("weights: row " + std::to_string(k / 6) + ", column " + std::to_string(k % 6) +
-                       " is negative");
+    if (!p.tracker()) {
+        get(r, "poses", p.poses, rows, 6);
+        if (r.flag("has weights")) {
+            // Any finite weight: their scale is the user's (the cost scales with it).
+            get(r, "weights", p.weights, rows, 6, std::numeric_limits<double>::max());
+            for (Eigen::Index k = 0; k < p.weights.size(); ++k)
+                if (p.weights.data()[k] < 0)
+                    r.fail("weights: row " + std::to_string(k / 6) + ", column " + std::to_string(k % 6) +
+                           " is negative");
+        } else {
+            get(r, "weights", p.weights, 0, 0);
+        }
     } else {
-        get(r, "weights", p.weights, 0, 0);
+        p.poses.resize(0, 6);
+        get(r, "registration", p.registration, 6, 1);
+        Eigen::Index cols = 12;
+        if (p.kind == MeasurementKind::Points) {
+            const std::uint64_t k = r.u64("number of reflectors");
+            // Each reflector takes 3 doubles and a name (8 bytes at least).
+            if (k == 0) r.fail("number of reflectors: 0; point data need at least one reflector");
+            if (k > r.remaining() / (4 * 8))
+                r.fail("truncated or corrupt: number of reflectors " + std::to_string(k) +
+                       " does not fit in the " + std::to_string(r.remaining()) + " bytes left");
+            get(r, "reflectors", p.reflectors, static_cast<Eigen::Index>(k), 3);
+            for (std::uint64_t i = 0; i < k; ++i) {
+                p.reflector_names.push_back(r.text("reflector name", kMaxText, false));
+                for (std::uint64_t j = 0; j < i; ++j)
+                    if (p.reflector_names[j] == p.reflector_names.back())
+                        r.fail("reflector name: '" + p.reflector_names.back() + "' given twice");
+            }
+            cols = 3 * static_cast<Eigen::Index>(k);
+            get(r, "points", p.points, rows, cols, 1e12, true);
+            bool any = false;
+            for (Eigen::Index i = 0; i < rows; ++i)
+                for (Eigen::Index c = 0; c < cols; c += 3) {
+                    const int nan = std::isnan(p.points(i, c)) + std::isnan(p.points(i, c + 1)) +
+                                    std::isnan(p.points(i, c + 2));
+                    if (nan != 0 && nan != 3)
+                        r.fail("points: row " + std::to_string(i) + ", reflector " + std::to_string(c / 3 + 1) +
+                               " has some coordinates NaN and some not; a reflector not seen has all three NaN");
+                    any = any || nan == 0;
+                }
+            if (!any) r.fail("points: no reflector is seen at any pose");
+        } else {
+            get(r, "probe", p.probe, 6, 1);
+            p.probe_length = r.f64("probe length");
+            if (!(std::isfinite(p.probe_length) && p.probe_length > 0 && p.probe_length <= 1e12))
+                r.fail("probe length: " + std::to_string(p.probe_length) + "; expected a finite length > 0 (mm)");
+            get(r, "probe poses", p.probe_poses, rows, 6);
+            get(r, "points", p.points, rows, cols);
+        }
+        get(r, "reference", p.reference, p.n_robot_params(), 1);
     }
     const std::size_t np = static_cast<std::size_t>(p.n_params());
     p.lower = r.doubles("lower bounds", np);
@@ -163,6 +274,15 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
     p.bounds_kind = r.str("bounds kind", 16);
     if (p.bounds_kind != "default" && p.bounds_kind != "paper" && p.bounds_kind != "custom")
         r.fail("bounds kind: '" + p.bounds_kind + "'; expected default, paper or custom");
+    p.x0 = r.doubles("x0", np);
+    for (std::size_t j = 0; j < np; ++j)
+        if (!(std::fabs(p.x0[j]) <= 1e12))
+            r.fail("x0: parameter " + std::to_string(j) + " is " + std::to_string(p.x0[j]) +
+                   (std::isfinite(p.x0[j]) ? ", beyond any robot" : ", not finite"));
+    const std::uint64_t na = r.u64("number of active flags");
+    if (na != np) r.fail("active: " + std::to_string(na) + " flags; expected " + std::to_string(np));
+    for (std::size_t j = 0; j < np; ++j) p.active.push_back(r.flag("active flag"));
+    if (p.n_active() == 0) r.fail("active: no parameter is active");
     const std::size_t nn = r.count("parameter names", 8);
     if (nn != np)
         r.fail("parameter names: " + std::to_string(nn) + "; expected " + std::to_string(np));
@@ -186,6 +306,13 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
         (void)p.geometry();  // its own checks (joint types, sizes)
     } catch (const std::invalid_argument& e) {
         r.fail(std::string("robot: ") + e.what());
+    }
+    if (p.tracker()) {
+        try {
+            (void)p.tracker_setup();
+        } catch (const std::invalid_argument& e) {
+            r.fail(std::string("tracker setup: ") + e.what());
+        }
     }
     return p;
 }

@@ -12,18 +12,22 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <cstring>
 #include <limits>
 #include <random>
 #include <stdexcept>
 #include <string>
 
 #include "check.hpp"
+#include "fixtures.hpp"
 #include "iwr/binary_io.hpp"
 #include "iwr/checkpoint.hpp"
 #include "iwr/de.hpp"
+#include "iwr/forward.hpp"
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
 #include "iwr/problem_file.hpp"
+#include "iwr/tracker.hpp"
 
 namespace {
 
@@ -79,8 +83,58 @@ iwr::ProblemData sample_problem(int n_poses, bool weights, const std::string& jo
     p.lower.assign(static_cast<std::size_t>(np), -0.5);
     p.upper.assign(static_cast<std::size_t>(np), 0.5);
     p.bounds_kind = "default";
+    p.x0.assign(static_cast<std::size_t>(np), 0.0);
+    p.active.assign(static_cast<std::size_t>(np), true);
     for (int k = 0; k < np; ++k) p.parameter_names.push_back("p" + std::to_string(k));
     p.sources = {{"robot", "robot.toml", std::string(64, 'a')}, {"data", "data.csv", ""}};
+    return p;
+}
+
+// Tracker data of the same robot: K = 3 reflectors (some unseen) or a probe, the points made by
+// the objective itself at the nominal robot (so that every pose has forward kinematics).
+iwr::ProblemData sample_tracker_problem(iwr::MeasurementKind kind, int n_poses = 6) {
+    iwr::ProblemData p = sample_problem(n_poses, false, "PR");
+    p.kind = kind;
+    // A hexapod that is not architecturally singular (the planar one of sample_problem is).
+    const iwr::Geometry hexapod = iwr_test::default_iwr(false);
+    p.base = hexapod.base();
+    p.platform = hexapod.platform();
+    p.poses.resize(0, 6);
+    p.weights.resize(0, 0);
+    p.registration << 2000, -300, 100, 0.2, -0.1, M_PI / 2;
+    // Leg readings of poses near home, so that the forward kinematics converges.
+    for (int k = 0; k < n_poses; ++k) {
+        iwr::Vector6d pose = p.home_pose;
+        pose(0) += 10.0 * k, pose(1) -= 5.0 * k, pose(5) += 0.01 * k;
+        p.legs.row(k) = (iwr::hexapod_leg_lengths(p.base, p.platform, pose) - p.leg_offsets).transpose();
+    }
+    if (kind == iwr::MeasurementKind::Points) {
+        p.reflectors.resize(3, 3);
+        p.reflectors << 100, 0, 20, -50, 80, 20, -50, -80, 20;
+        p.reflector_names = {"A", "B", "C"};
+    } else {
+        p.probe << 10, 20, 30, 0.1, 0.2, 0.3;
+        p.probe_length = 150;
+    }
+    p.reference = iwr::VectorXd::Zero(p.n_robot_params());
+    const iwr::TrackerObjective obj(p.geometry(), p.tracker_setup(), p.q, p.legs,
+                                    iwr::RowMatrixXd::Zero(n_poses, 3 * p.tracker_setup().n_points()),
+                                    p.reference, p.home_pose);
+    p.points = obj.predicted_points(iwr::VectorXd::Zero(obj.n_params()));
+    if (kind == iwr::MeasurementKind::Points) {
+        p.points.block(1, 3, 1, 3).setConstant(NAN);  // reflector B not seen at pose 1
+    } else {
+        p.probe_poses = iwr::RowMatrixXd::Constant(n_poses, 6, 0.5);
+    }
+    const int np = p.n_params();
+    p.lower.assign(static_cast<std::size_t>(np), -0.5);
+    p.upper.assign(static_cast<std::size_t>(np), 0.5);
+    p.x0.assign(static_cast<std::size_t>(np), 0.0);
+    p.x0.back() = 0.25;
+    p.active.assign(static_cast<std::size_t>(np), true);
+    p.active[3] = false;
+    p.parameter_names.clear();
+    for (int k = 0; k < np; ++k) p.parameter_names.push_back("p" + std::to_string(k));
     return p;
 }
 
@@ -92,7 +146,14 @@ bool same_problem(const iwr::ProblemData& a, const iwr::ProblemData& b) {
            a.weights == b.weights && a.lower == b.lower && a.upper == b.upper &&
            a.bounds_kind == b.bounds_kind && a.parameter_names == b.parameter_names &&
            a.measurement_joint_types == b.measurement_joint_types && a.sources.size() == b.sources.size() &&
-           a.sources[0].sha256 == b.sources[0].sha256 && a.sources[1].path == b.sources[1].path;
+           a.sources[0].sha256 == b.sources[0].sha256 && a.sources[1].path == b.sources[1].path &&
+           a.kind == b.kind && a.registration == b.registration && a.reflectors == b.reflectors &&
+           a.reflector_names == b.reflector_names && a.probe == b.probe && a.probe_length == b.probe_length &&
+           a.probe_poses == b.probe_poses && a.reference == b.reference && a.x0 == b.x0 && a.active == b.active &&
+           // NaN != NaN: the points compared bit for bit
+           a.points.size() == b.points.size() &&
+           (a.points.size() == 0 ||
+            std::memcmp(a.points.data(), b.points.data(), sizeof(double) * static_cast<std::size_t>(a.points.size())) == 0);
 }
 
 // The same container header around another payload, with its size and checksum recomputed.
@@ -245,19 +306,86 @@ IWR_TEST(problem_round_trip) {
     CHECK(other.data_fingerprint() != sample_problem(5, false).data_fingerprint());
 }
 
+// Whether the writer refuses `p` after `edit` with a message holding `needle`.
+template <class Edit>
+bool encode_refused(iwr::ProblemData p, Edit edit, const std::string& needle) {
+    edit(p);
+    try {
+        iwr::encode_problem(p);
+    } catch (const std::invalid_argument& e) {
+        if (contains(e.what(), needle)) return true;
+        std::fprintf(stderr, "message without '%s': %s\n", needle.c_str(), e.what());
+        return false;
+    }
+    std::fprintf(stderr, "accepted; expected '%s'\n", needle.c_str());
+    return false;
+}
+
+IWR_TEST(tracker_problem_round_trip) {
+    for (auto kind : {iwr::MeasurementKind::Points, iwr::MeasurementKind::Probe}) {
+        const iwr::ProblemData p = sample_tracker_problem(kind);
+        const std::string bytes = iwr::encode_problem(p);
+        const iwr::ProblemData q = iwr::decode_problem(bytes, "t.iwrp: ");
+        CHECK(same_problem(p, q));
+        CHECK(q.n_params() == q.n_robot_params() + (kind == iwr::MeasurementKind::Points ? 15 : 12));
+        CHECK(q.n_active() == q.n_params() - 1);
+        CHECK(iwr::encode_problem(q) == bytes);
+        CHECK(q.robot_fingerprint() == p.robot_fingerprint() && q.data_fingerprint() == p.data_fingerprint());
+        // Not the fingerprints of the same robot's leg data, nor of the other kind.
+        CHECK(q.robot_fingerprint() != sample_problem(6, false).robot_fingerprint());
+        // The objective it describes: zero cost at the nominal (the points were made there).
+        const iwr::TrackerObjective obj(q.geometry(), q.tracker_setup(), q.q, q.legs, q.points, q.reference,
+                                        q.home_pose);
+        CHECK(obj.cost(iwr::VectorXd::Zero(q.n_params())) < 1e-18);
+        // The search start is part of the problem's identity (a checkpoint of another is refused).
+        iwr::ProblemData other = p;
+        other.active[3] = true;
+        CHECK(other.robot_fingerprint() != p.robot_fingerprint());
+        other = p;
+        other.points(0, 0) += 1e-9;
+        CHECK(other.data_fingerprint() != p.data_fingerprint());
+    }
+    CHECK(sample_tracker_problem(iwr::MeasurementKind::Points).robot_fingerprint() !=
+          sample_tracker_problem(iwr::MeasurementKind::Probe).robot_fingerprint());
+}
+
+IWR_TEST(tracker_problem_refuses_bad_values) {
+    auto refused_with = [](iwr::MeasurementKind kind, auto edit, const std::string& needle) {
+        return encode_refused(sample_tracker_problem(kind), edit, needle);
+    };
+    const auto points = iwr::MeasurementKind::Points, probe = iwr::MeasurementKind::Probe;
+    CHECK(refused_with(points, [](auto& p) { p.points(2, 4) = NAN; }, "points: row 2, reflector 2 has some coordinates NaN"));
+    CHECK(refused_with(points, [](auto& p) { p.points(2, 4) = INFINITY; }, "points: row 2, column 4 is inf, not finite"));
+    CHECK(refused_with(points, [](auto& p) { p.points.setConstant(NAN); }, "points: no reflector is seen"));
+    CHECK(refused_with(probe, [](auto& p) { p.points(1, 1) = NAN; }, "points: row 1, column 1 is nan, not finite"));
+    CHECK(refused_with(points, [](auto& p) { p.reflector_names[2] = "A"; }, "reflector name: 'A' given twice"));
+    CHECK(refused_with(points, [](auto& p) { p.reflector_names[2] = ""; }, "reflector name"));
+    CHECK(refused_with(points, [](auto& p) { p.reflectors(1, 2) = NAN; }, "reflectors: row 1, column 2 is nan"));
+    CHECK(refused_with(points, [](auto& p) { p.registration(4) = NAN; }, "registration: row 4, column 0 is nan"));
+    CHECK(refused_with(probe, [](auto& p) { p.probe_length = 0; }, "probe length: 0"));
+    CHECK(refused_with(probe, [](auto& p) { p.probe_length = NAN; }, "probe length: nan"));
+    CHECK(refused_with(probe, [](auto& p) { p.probe_poses(0, 5) = NAN; }, "probe poses: row 0, column 5 is nan"));
+    CHECK(refused_with(probe, [](auto& p) { p.reference(7) = NAN; }, "reference: row 7, column 0 is nan"));
+    CHECK(refused_with(points, [](auto& p) { p.x0[2] = NAN; }, "x0: parameter 2 is nan, not finite"));
+    CHECK(refused_with(points, [](auto& p) { p.active.assign(p.active.size(), false); }, "active: no parameter is active"));
+    CHECK(refused_with(points, [](auto& p) { p.active.pop_back(); }, "active: 64 flags; expected 65"));
+    CHECK(refused_with(points, [](auto& p) { p.lower.pop_back(), p.upper.pop_back(); }, "lower bounds"));
+    CHECK(refused_with(probe, [](auto& p) { p.parameter_names.pop_back(); }, "parameter names: 61; expected 62"));
+    // A file whose kind byte is not 0, 1 or 2.
+    const std::string good = iwr::encode_problem(sample_tracker_problem(points));
+    io::Reader r(good.data() + 32, good.size() - 32, "");
+    (void)r.text("", 4096), (void)r.str("", 64);
+    for (int k = 0; k < 8; ++k) (void)r.doubles("");
+    (void)r.u8(""), (void)r.str("", 64);
+    std::string payload = good.substr(32);
+    payload[r.position()] = 7;
+    CHECK(contains(refusal([&] { iwr::decode_problem(reseal(good, payload), "t.iwrp: "); }),
+                   "t.iwrp: measurement kind: 7; expected 0 (pose in {0}), 1 (points in {T}) or 2"));
+}
+
 IWR_TEST(problem_refuses_bad_values) {
     auto refused_with = [](auto edit, const std::string& needle) {
-        iwr::ProblemData p = sample_problem(4, true);
-        edit(p);
-        try {
-            iwr::encode_problem(p);
-        } catch (const std::invalid_argument& e) {
-            if (contains(e.what(), needle)) return true;
-            std::fprintf(stderr, "message without '%s': %s\n", needle.c_str(), e.what());
-            return false;
-        }
-        std::fprintf(stderr, "accepted; expected '%s'\n", needle.c_str());
-        return false;
+        return encode_refused(sample_problem(4, true), edit, needle);
     };
     CHECK(refused_with([](auto& p) { p.poses(2, 1) = NAN; }, "poses: row 2, column 1 is nan, not finite"));
     CHECK(refused_with([](auto& p) { p.legs(0, 3) = 1e308; }, "legs: row 0, column 3"));
@@ -282,6 +410,11 @@ IWR_TEST(problem_fuzz) {
     const int refused = fuzz(good, [](const std::string& b) { iwr::decode_problem(b, "fuzz.iwrp: "); },
                              "problem file", 1);
     CHECK(refused > 0);
+    for (auto kind : {iwr::MeasurementKind::Points, iwr::MeasurementKind::Probe}) {
+        const std::string tracker = iwr::encode_problem(sample_tracker_problem(kind));
+        CHECK(fuzz(tracker, [](const std::string& b) { iwr::decode_problem(b, "fuzz.iwrp: "); },
+                   "tracker problem file", 1) > 0);
+    }
 }
 
 // A tiny DE run's checkpoint.
@@ -320,7 +453,11 @@ iwr::Checkpoint sample_checkpoint() {
     c.success = false;
     c.message = "checkpoint";
     const iwr::VectorXd x = c.state.best_x();
+    // x: every parameter; the state searched parameters 0..4 of 7 (two held at x0 = 0.25).
     c.x.assign(x.data(), x.data() + x.size());
+    c.x.push_back(0.25);
+    c.x.push_back(0.25);
+    c.active = {0, 1, 2, 3, 4};
     c.fun = c.state.best_cost();
     return c;
 }
@@ -332,6 +469,7 @@ IWR_TEST(checkpoint_round_trip_and_damage) {
     CHECK(back.robot_fingerprint == 1 && back.data_fingerprint == 2 && back.settings_fingerprint == 3);
     CHECK(back.generations == 10 && !back.max_evaluations && back.target_cost == 1e-4);
     CHECK(back.x == c.x && back.fun == c.fun && back.message == "checkpoint" && !back.success);
+    CHECK(back.active == c.active);
     CHECK(back.state.generation == 3 && back.state.population == c.state.population);
     int refused = 0, total = 0;
     for (std::size_t n = 0; n < bytes.size(); n += 7, ++total)
@@ -351,8 +489,12 @@ IWR_TEST(checkpoint_fields_are_range_checked) {
     CHECK(refused_with([](auto& c) { c.generations = -5; }, "c.ckpt: generations is -5, outside [-1,"));
     CHECK(refused_with([](auto& c) { c.checkpoint_every = -1; }, "checkpoint every is -1"));
     CHECK(refused_with([](auto& c) { c.target_cost = INFINITY; }, "target cost is not finite"));
-    CHECK(refused_with([](auto& c) { c.x.push_back(0); }, "x has 6 values"));
+    CHECK(refused_with([](auto& c) { c.active.push_back(6); }, "active: 6 parameters; the engine state has 5"));
+    CHECK(refused_with([](auto& c) { c.active[2] = 7; }, "active is 7, outside [2, 6]"));
+    CHECK(refused_with([](auto& c) { c.active[3] = 1; }, "active is 1, outside [3, 6]"));  // not increasing
     CHECK(refused_with([](auto& c) { c.x[0] = 7; }, "x: parameter 0 is outside the bounds"));
+    CHECK(refused_with([](auto& c) { c.active[4] = 6, c.x[6] = 7; }, "x: parameter 6 is outside the bounds"));
+    CHECK(refused_with([](auto& c) { c.x[5] = NAN; }, "x: parameter 5 is not finite"));
     CHECK(refused_with([](auto& c) { c.success = true, c.fun = NAN; }, "success with a cost that is not finite"));
     CHECK(refused_with([](auto& c) { c.problem_file = "a\nb"; }, "problem file: holds a control character"));
     CHECK(refused_with([](auto& c) { c.state.generation = -2; }, "corrupt engine state"));

@@ -168,6 +168,76 @@ IWR_TEST(noisy_statistics) {
     CHECK(r.reciprocal_condition > 1e-14);
 }
 
+// The tracker model: residuals of reflector points (one unseen) and of a probe pose, their exact
+// derivatives against central differences in every parameter (robot and setup) and correction.
+IWR_TEST(tracker_derivatives) {
+    std::mt19937_64 rng(21);
+    std::uniform_real_distribution<double> u(-1, 1);
+    const iwr::Geometry g = iwr_test::default_iwr(true);
+    const int n = 4, nj = g.n_joints(), ny = nj + 6;
+    const iwr::VectorXd xr = random_errors(g, rng);
+    const Data d = make_data(g, xr, n, rng);
+    iwr::Vector6d reg;
+    reg << 2000, 10, -20, M_PI / 2, 0.1, -0.05;
+    iwr::RowMatrixXd refl(3, 3);
+    refl << 120, 0, 40, -60, 104, 40, -60, -104, 40;
+    iwr::Vector6d probe;
+    probe << 30, -20, 60, 0.3, -0.2, 0.1;
+    for (bool is_probe : {false, true}) {
+        iwr::TrackerLoopData data;
+        data.setup = is_probe ? iwr::TrackerSetup::probe(reg, probe, 100.0)
+                              : iwr::TrackerSetup::points(reg, refl);
+        const int nb = is_probe ? 2 : 3, ns = data.setup.n_params();
+        data.reference = d.poses;
+        data.measured.resize(n, is_probe ? 6 : 9);
+        data.whitening.resize(n, 9 * nb);
+        for (int k = 0; k < n; ++k) {
+            for (int c = 0; c < data.measured.cols(); ++c)
+                data.measured(k, c) = (is_probe && c >= 3) ? 0.2 * u(rng) : 2000 * u(rng);
+            for (int c = 0; c < 9 * nb; ++c) data.whitening(k, c) = u(rng);
+        }
+        if (!is_probe) data.measured.block(1, 3, 1, 3).setConstant(std::nan(""));  // unseen
+        iwr::VectorXd x(g.n_params() + ns);
+        x.head(g.n_params()) = xr;
+        for (int i = 0; i < ns; ++i) x(g.n_params() + i) = (i % 6 >= 3 ? 0.02 : 1.0) * u(rng);
+        iwr::RowMatrixXd sigma(n, 6 + nj), corr(n, ny);
+        sigma.leftCols(6).setConstant(0.002);
+        for (int i = 0; i < nj; ++i) sigma.col(6 + i).setConstant(i == 1 ? 0.0 : 0.005);
+        for (int k = 0; k < n; ++k)
+            for (int c = 0; c < ny; ++c) corr(k, c) = (c >= ny - 3 ? 0.01 : 0.3) * u(rng);
+        const iwr::LoopJacobians j = iwr::tracker_loop_jacobians(g, data, x, d.q, d.legs, sigma, corr);
+        const double h = 1e-6;
+        double worst = 0, scale = std::max(j.jac_x.cwiseAbs().maxCoeff(), j.jac_y.cwiseAbs().maxCoeff());
+        auto res = [&](const iwr::VectorXd& xx, const iwr::RowMatrixXd& cc) {
+            return iwr::tracker_loop_jacobians(g, data, xx, d.q, d.legs, sigma, cc).legs;
+        };
+        const int nr = static_cast<int>(j.legs.cols());
+        for (int i = 0; i < x.size(); ++i) {
+            iwr::VectorXd xp = x, xm = x;
+            xp(i) += h;
+            xm(i) -= h;
+            const iwr::RowMatrixXd diff = (res(xp, corr) - res(xm, corr)) / (2 * h);
+            for (int k = 0; k < n; ++k)
+                for (int r = 0; r < nr; ++r)
+                    worst = std::max(worst, std::abs(diff(k, r) - j.jac_x(nr * k + r, i)));
+        }
+        for (int c = 0; c < ny; ++c) {
+            iwr::RowMatrixXd cp = corr, cm = corr;
+            cp.col(c).array() += h;
+            cm.col(c).array() -= h;
+            const iwr::RowMatrixXd diff = (res(x, cp) - res(x, cm)) / (2 * h);
+            for (int k = 0; k < n; ++k)
+                for (int r = 0; r < nr; ++r)
+                    worst = std::max(worst, std::abs(diff(k, r) - j.jac_y(nr * k + r, c)));
+        }
+        std::printf("  tracker derivatives (%s): worst |analytic - central difference| %.2e of %.2e\n",
+                    is_probe ? "probe" : "points", worst, scale);
+        // Round-off: residuals up to ~1e6 (random whitening of metre-size misfits) times 1e-16 / h.
+        CHECK(worst < 1e-8 * scale);
+        if (!is_probe) CHECK(j.legs.row(1).segment(6 + nj + 3, 3).isZero(0.0));
+    }
+}
+
 IWR_TEST(argument_checks) {
     const iwr::Geometry g = iwr_test::default_iwr(false);
     std::mt19937_64 rng(3);

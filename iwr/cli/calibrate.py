@@ -36,7 +36,7 @@ from ._base import (
 )
 from .simulate import write_truth
 from .tracker import add_arguments as add_tracker_arguments
-from .tracker import calibrate_tracker, refuse_tracker_data
+from .tracker import calibrate_tracker, refuse_tracker_data, tracker_noise_of
 
 EXAMPLE_SEED = 2024
 EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 0.2)
@@ -212,10 +212,8 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     robot = load_robot(args.robot)
     if robot.tracker is not None:  # laser-tracker data (docs/tracker.md)
-        if "noise" in kwargs or method == "efficient":
-            raise UsageError("--noise, --method efficient: the efficient estimator does not yet "
-                             "handle laser-tracker point data (docs/estimation.md, Limits); "
-                             "calibrate it without --noise")
+        if "noise" in kwargs:  # --noise means what it means to `iwr simulate` there
+            kwargs["noise"] = tracker_noise_of(kwargs["noise"])
         return calibrate_tracker(args, robot, method, kwargs)
     refuse_tracker_data(args)  # tracker data, or --readings, with a robot that has no tracker
     data = load_data(args.data, robot)
@@ -301,7 +299,8 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     from ..identifiability import identifiability, parameter_error
     from ..methods import identify
     from ..reporting.calibration import Calibration
-    from ..uncertainty import uncertainty
+    from ..uncertainty import Uncertainty, uncertainty
+    from .report import data_fingerprint
 
     if validation is not None:
         ident, val, held_out = data, validation, True
@@ -330,7 +329,10 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
         print(f"noise model: {what}{getattr(args, 'noise_note', '')}")
         if method == "efficient":
             print("method: the efficient estimator (every instrument weighted by its noise; "
-                  "eq. (10) is --method lm)")
+                  "eq. (10) weighted by it is --method lm, unweighted --noise none)")
+        elif not isinstance(noise, str):
+            print(f"method: {method} on eq. (10) weighted by the noise model (each pose's leg "
+                  "residuals whitened by their propagated covariance; unweighted: --noise none)")
     print(f"identifying with {method} ({len(ident)} poses; Ctrl-C stops and keeps the best "
           "point so far)", flush=True)
     try:
@@ -339,10 +341,18 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     except KeyboardInterrupt:
         result = _best_so_far(robot, ident, method, tracker, kwargs, args)
     interrupted = result.interrupted
+    # What `iwr report` checks its DATA.csv against: the whole file's fingerprint, as the engine's
+    # problem file records it.
+    result["settings"] = {**dict(result.get("settings") or {}), "data_file": data_name,
+                          "data_fingerprint": data_fingerprint(robot, data)}
     report = identifiability(robot, ident, result.x)
     try:
-        active = result["active"] if args.parameters == "base" else report
-        unc = uncertainty(robot, ident, result.x, active=active)
+        # The efficient estimator's own covariance when it has one (eq. (10)'s first-order
+        # covariance differs from it by up to 2x); else eq. (10)'s.
+        unc = Uncertainty.from_result(result)
+        if unc is None:
+            active = result["active"] if args.parameters == "base" else report
+            unc = uncertainty(robot, ident, result.x, active=active)
     except ValueError as exc:
         unc = None
         notes.append(f"note: no standard deviations: {one_line(exc)}")

@@ -1,7 +1,9 @@
 """``iwr-calibrate``: a long DE run from ``ROBOT.toml DATA.csv`` (or a problem file) in one command.
 
 The launcher of the C++ engine ``iwr-engine``. It reads and checks the robot TOML and the
-measurement CSV with the package's readers (the same checks and messages as ``iwr calibrate``),
+measurement CSV with the package's readers (the same checks and messages as ``iwr calibrate``;
+leg data, or laser-tracker points or probe poses for a robot with a ``[tracker]`` table, searched
+from the nominal robot and the closed-form registration guess as ``iwr.identify`` does),
 writes the problem file ``RESULT.iwrp`` next to the result, runs the engine on it (the engine needs
 no Python: the problem file and the ``iwr-engine`` program can be copied to a compute node), and
 turns the engine's final checkpoint into the JSON result that :func:`iwr.load_result` reads (the one
@@ -39,16 +41,20 @@ _ENGINE_VALUED = {
     "--generations", "--max-evaluations", "--target-cost", "--threads", "--log", "--checkpoint",
     "--checkpoint-every", "--resume",
 }
-_OWN_VALUED = {"--bounds", "--output", "--problem", "--export"}
+_OWN_VALUED = {"--bounds", "--output", "--problem", "--export", "--readings"}
 _FLAGS = {"--quiet", "-q", "--help", "-h", "--version"}
 
 HELP = """\
-usage: iwr-calibrate ROBOT.toml DATA.csv [--bounds B] [--output RESULT] [--problem PATH] [options]
+usage: iwr-calibrate ROBOT.toml DATA.csv [--readings READINGS.csv] [--bounds B] [--output RESULT]
+                     [--problem PATH] [options]
        iwr-calibrate PROBLEM.iwrp [--output RESULT] [options]
        iwr-calibrate --export CHECKPOINT [--problem PROBLEM.iwrp] --output RESULT
 
 Long differential-evolution runs with checkpoints and resume. Reads ROBOT.toml and DATA.csv with
-the checks of `iwr calibrate` (or a problem file written by iwr.Problem.save), writes the problem
+the checks of `iwr calibrate` (or a problem file written by iwr.Problem.save), leg data or, for a
+robot with a [tracker] table, laser-tracker points or probe poses in the tracker frame (the
+registration and the reflector or probe offsets are identified too, searched about the closed-form
+registration guess, as iwr.identify does; docs/tracker.md), writes the problem
 file (default RESULT.iwrp), runs the engine iwr-engine on it, and writes the JSON result that
 iwr.load_result reads. The engine needs no Python: to run on a compute node, copy iwr-engine and
 the problem file there, run `iwr-engine PROBLEM.iwrp ...`, bring its checkpoint back and
@@ -57,7 +63,10 @@ convert it with --export.
 options of iwr-calibrate (the others are the engine's, below):
   --bounds B               search bounds written into the problem file: default (+-0.5 mm for
                            lengths, +-0.5 degree for angles) or paper (+-0.5 for every parameter,
-                           Table 2 literally); only with ROBOT.toml DATA.csv
+                           Table 2 literally); only with ROBOT.toml DATA.csv. The tracker
+                           setup's bounds are its defaults about the registration guess
+  --readings READINGS.csv  with tracker data given as a long table of points (pose, reflector,
+                           x_mm, y_mm, z_mm): the robot's log of joint and leg readings
   --output RESULT          the JSON result (default iwr-result.json; with --resume CKPT, CKPT
                            without its .ckpt). Its checkpoint is RESULT.ckpt unless --checkpoint
                            says otherwise
@@ -160,7 +169,15 @@ def _export(checkpoint: str, problem: str | None, output: str) -> None:
     engine_result(checkpoint, problem).save(output)
 
 
-def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: str) -> None:
+def _same_value(a: Any, b: Any) -> bool:
+    try:
+        return bool(np.array_equal(a, b, equal_nan=True))  # unseen reflectors are NaN
+    except TypeError:  # strings, lists of names
+        return bool(np.array_equal(a, b))
+
+
+def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: str,
+                          x0: Any = None) -> None:
     """When resuming, the problem file already there is the run's record: refuse to replace it by
     another problem (the engine would refuse the run anyway, after the record was lost)."""
     from .. import _core
@@ -169,15 +186,49 @@ def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: s
     if not Path(path).exists():
         return
     old = read_problem(path)
-    new = _core._decode_problem(encode_problem(problem), "")
-    differ = [k for k in old if k != "sources" and not k.endswith("_fingerprint")
-              and not np.array_equal(old[k], new[k])]
+    new = _core._decode_problem(encode_problem(problem, x0=x0), "")
+    differ = [k for k in sorted(set(old) | set(new)) if k != "sources"
+              and not k.endswith("_fingerprint")
+              and (k not in old or k not in new or not _same_value(old[k], new[k]))]
     if differ:
         made_from = ", ".join(p for _, p, _ in old["sources"]) or "unknown files"
         raise ValueError(
             f"{path}: the problem of the run being resumed (made from {made_from}) differs from "
             f"{robot_path} {data_path} in {', '.join(differ)}; resume with the files the run was "
             "made from, or give --problem NEW.iwrp")
+
+
+def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
+                        bounds: str) -> tuple[Any, Any, dict[str, str]]:
+    """The problem of ROBOT.toml DATA.csv (with the checks of ``iwr calibrate``), the search's
+    starting point (None: zeros) and the files it was made from."""
+    from ..measurements import Measurements
+    from ..problem import Problem
+    from ..robot import Robot
+    from ..tracker.files import is_tracker_file
+
+    robot = Robot.from_toml(robot_path)
+    sources = {"robot": robot_path, "data": data_path}
+    if robot.tracker is None:
+        if readings is not None:
+            raise _Usage(f"--readings: only for a robot with a [tracker] table; {robot_path} has "
+                         "none (docs/tracker.md)")
+        if is_tracker_file(data_path):
+            raise _Usage(f"{data_path}: laser-tracker data (a 'pose' column), but {robot_path} "
+                         "has no [tracker] table describing the setup (registration, "
+                         "reflectors or probe): add one (docs/tracker.md)")
+        data = Measurements.from_csv(data_path, robot=robot)  # the checks of `iwr calibrate`
+        return Problem(robot, data, bounds=bounds), None, sources
+    from ..tracker.api import tracker_problem
+    from ..tracker.files import read_tracker_data
+
+    tdata = read_tracker_data(data_path, robot.tracker, readings)
+    if readings is not None:
+        sources["readings"] = readings
+    # As iwr.identify: the nominal robot and the closed-form registration guess, the setup's
+    # bounds about it.
+    problem, x0 = tracker_problem(robot, tdata, bounds)
+    return problem, x0, sources
 
 
 def _run_engine(engine: str, args: list[str]) -> int:
@@ -289,6 +340,7 @@ def _main(argv: list[str]) -> int:
 
     inputs = [(p, what) for p, what in ((robot_path, "the robot file"),
                                          (data_path, "the data file"),
+                                         (own.get("--readings"), "the readings file"),
                                          (problem_in, "the problem file"),
                                          (resume, "the checkpoint resumed")) if p]
     outputs = [("--output", output), ("--checkpoint", checkpoint)]
@@ -314,25 +366,14 @@ def _main(argv: list[str]) -> int:
 
     engine = engine_path()
     if problem_in is None:
-        from ..measurements import Measurements
-        from ..problem import Problem
-        from ..robot import Robot
-
         assert robot_path is not None and data_path is not None
-        robot = Robot.from_toml(robot_path)
-        from ..tracker.files import is_tracker_file
-
-        if robot.tracker is not None or is_tracker_file(data_path):
-            # The engine's problem file holds leg data only (docs/tracker.md).
-            raise _Usage(f"{robot_path if robot.tracker is not None else data_path}: "
-                         "laser-tracker data (a [tracker] table, or points/probe poses in the "
-                         "tracker frame) are not supported by the C++ engine yet; use "
-                         f"iwr calibrate {robot_path} {data_path}")
-        data = Measurements.from_csv(data_path, robot=robot)  # the checks of `iwr calibrate`
-        problem = Problem(robot, data, bounds=own.get("--bounds", "default"))
+        problem, x0, sources = _read_problem_files(robot_path, data_path, own.get("--readings"),
+                                                   own.get("--bounds", "default"))
         if resume is not None:
-            _keep_the_run_problem(problem, problem_path, robot_path, data_path)
-        problem.save(problem_path, sources={"robot": robot_path, "data": data_path})
+            _keep_the_run_problem(problem, problem_path, robot_path, data_path, x0)
+        problem.save(problem_path, sources=sources, x0=x0)
+    elif "--readings" in own:
+        raise _Usage("--readings: only with ROBOT.toml DATA.csv")
 
     pass_checkpoint = [] if _option(engine_args, "--checkpoint") else ["--checkpoint", checkpoint]
     code = _run_engine(engine, [problem_path, *pass_checkpoint, *engine_args])

@@ -10,7 +10,15 @@ from typing import Any
 
 import numpy as np
 
-from ._base import EXIT_OK, CommandError, add_common, load_data, load_robot, one_line
+from ._base import (
+    EXIT_OK,
+    CommandError,
+    UsageError,
+    add_common,
+    load_data,
+    load_robot,
+    one_line,
+)
 
 DEFAULT_OUT = "iwr-report"
 
@@ -38,6 +46,35 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     return p
 
 
+def data_fingerprint(robot: Any, data: Any) -> str:
+    """The fingerprint of ``data`` that ``iwr-calibrate``'s problem file and result record (the
+    engine's own hash of the measurements: joint types, q, poses, legs, weights), as hex."""
+    from .. import _core
+    from ..problem import Problem
+    from ..problem_file import encode_problem
+
+    return str(_core._decode_problem(encode_problem(Problem(robot, data)), "")["data_fingerprint"])
+
+
+def _check_data(args: argparse.Namespace, result: Any, robot: Any, data: Any) -> str:
+    """Refuse a DATA.csv that is not the one the result was identified from (exit 2); a note
+    when the result records no fingerprint (a result saved by the API)."""
+    settings = dict(result.get("settings") or {})
+    expected = settings.get("data_fingerprint")
+    if not expected:
+        return (f"note: {args.run} records no fingerprint of its data, so {args.data} could not "
+                "be checked to be the data it was identified from")
+    found = data_fingerprint(robot, data)
+    if str(expected) != found:
+        made_from = (settings.get("sources") or {}).get("data") or settings.get("data_file")
+        raise UsageError(
+            f"{args.data} is not the data {args.run} was identified from: its fingerprint is "
+            f"{found}, the result's {expected}"
+            + (f" (made from {made_from})" if made_from else "")
+            + "; give the data file of the run", "iwr report")
+    return ""
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from ..accuracy import accuracy
     from ..identifiability import identifiability
@@ -58,9 +95,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         first = next(a for a, b in zip(names, robot.parameter_names, strict=True) if a != b)
         raise CommandError(f"{args.run}: its parameters are not those of robot {robot.name!r} "
                            f"({args.robot}): first difference {first!r}")
+    note = _check_data(args, result, robot, data)
     validation = load_data(args.validation, robot) if args.validation else None
     val = validation if validation is not None else data
-    notes: list[str] = []
+    notes: list[str] = [note] if note else []
     rep = identifiability(robot, data, x)
     active = result.get("active")
     try:
@@ -68,6 +106,11 @@ def cmd_report(args: argparse.Namespace) -> int:
     except ValueError as exc:
         unc = None
         notes.append(f"note: no standard deviations: {one_line(exc)}")
+    if unc is not None and result.get("method") == "efficient":
+        # A result file does not keep the estimator's covariance: say whose these are.
+        notes.append("note: the standard deviations are eq. (10)'s first-order ones at the "
+                     "result, not the efficient estimator's covariance (which `iwr calibrate` "
+                     "reports; a result file does not keep it); they can differ by up to 2x")
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
     if args.validation:
         inputs["validation"] = str(args.validation)

@@ -7,7 +7,6 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
-import math
 from pathlib import Path
 from typing import Any
 
@@ -38,31 +37,37 @@ def refuse_tracker_data(args: argparse.Namespace) -> None:
                          "probe): add one (docs/tracker.md)")
 
 
+def tracker_noise_of(noise: Any) -> Any:
+    """What ``--noise`` means for a robot with a tracker, in ``iwr simulate`` and ``iwr
+    calibrate`` alike: the reading noise of the :class:`iwr.Noise` (its ``position`` and
+    ``orientation``, a pose measured in {0}, do not apply) and ``TrackerNoise.leica()`` (none
+    when the whole noise is zero); ``"estimate"`` stays."""
+    from ..simulate import Noise
+    from ..tracker.simulate import TrackerNoise
+
+    if isinstance(noise, str):
+        return noise
+    readings = dataclasses.replace(noise, position=0.0, orientation=0.0)
+    return readings, (TrackerNoise.none() if noise == Noise() else TrackerNoise.leica())
+
+
 def load_tracker_data(path: str, robot: Any, readings: str | None = None) -> Any:
     from ..tracker.files import read_tracker_data
 
     return read_tracker_data(path, robot.tracker, readings)
 
 
-def _summary_line(label: str, e: Any) -> str:
-    pos = np.asarray(e.position, dtype=float)
-    ori = np.asarray(e.orientation, dtype=float)
-    ori = ori[np.isfinite(ori)]  # poses with fewer than 3 points seen have no orientation
-    o = (f"orientation RMS {math.sqrt(np.mean(ori**2)):.5f} deg ({ori.size} poses)" if ori.size
-         else "no orientation (fewer than 3 points per pose)")
-    return (f"  {label:<36} position RMS {math.sqrt(np.mean(pos**2)):.4f} mm, max "
-            f"{pos.max():.4f} mm; {o}")
-
-
 def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
                       kwargs: dict[str, Any]) -> int:
     """Identify the robot, the registration and the reflector (or probe) offsets from tracker
-    data; validate on held-out poses (point residuals); write calibrated.toml (the calibrated
-    robot with its calibrated tracker setup), result.json and report.md."""
-    from .._io import atomic_write_text, jsonable
+    data; validate on held-out poses (point residuals); write the calibrated robot (with its
+    calibrated tracker setup), the result and the report (HTML and Markdown) as for leg data."""
     from ..accuracy import accuracy
     from ..identifiability import identifiability
     from ..methods import identify
+    from ..reporting.calibration import TrackerCalibration
+    from ..reporting.html import provenance
+    from ..tracker.registration import guess_registration
 
     if args.poses is not None:
         raise CommandError("--poses applies to the built-in example only")
@@ -91,40 +96,44 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
           + f"; identifying {robot.n_params} robot + {setup.n_params} setup parameters with "
           f"{method} ({len(ident)} poses), from the nominal robot and the closed-form "
           "registration guess", flush=True)
+    guess = guess_registration(robot, setup, ident)
+    print(str(guess), flush=True)
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
                       progress=progress_enabled(args), **kwargs)
-    ns = identifiability(robot, ident, result.x)
-    acc = accuracy(robot, val, result.x)
-    where = "held-out" if held_out else "identification (no poses held out)"
-    lines = [
-        f"{result.message} (status {result.status}, {result.nfev} evaluations, "
-        f"cost {result.fun:.6g} mm^2)",
-        f"identifiability: rank {ns.rank} of {len(ns.parameter_names)}, "
-        f"{len(ns.left_out)} null directions (docs/tracker.md)",
-        f"accuracy on {acc.n_poses} {where} poses: largest predicted-minus-measured point "
-        "distance per pose, and the rotation between predicted and measured points:",
-        _summary_line("nominal robot + registration guess", acc.nominal),
-        _summary_line("calibrated", acc.calibrated),
-    ]
-    print("\n".join(lines))
+    notes: list[str] = []
+    # At the start, as identify(active="base") chose the parameters it holds: the report's
+    # "held" and "null direction" then agree with what was done.
+    ns = identifiability(robot, ident)
+    unc = None
+    try:
+        from ..uncertainty import uncertainty
+
+        unc = uncertainty(robot, ident, result.x, active=result["active"])
+    except (ValueError, TypeError) as exc:
+        notes.append(f"note: no standard deviations: {' '.join(str(exc).split())}")
+    inputs = {"robot": str(args.robot), "data": str(args.data)}
+    if args.readings:
+        inputs["readings"] = str(args.readings)
+    if args.validation:
+        inputs["validation"] = str(args.validation)
+    settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
+                "seed": args.seed, "validation_fraction": args.validation_fraction,
+                **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
+    cal = TrackerCalibration(
+        robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
+        accuracy=accuracy(robot, val, result.x), data_name=str(args.data),
+        robot_name=str(args.robot), identifiability=ns, uncertainty=unc, notes=notes,
+        settings=settings, provenance=provenance(inputs), guess=guess,
+        readings_name=str(args.readings or ""))
+    print(cal.summary())
     out = Path(args.out or "iwr-calibration")
-    out.mkdir(parents=True, exist_ok=True)
-    nr = robot.n_params
-    calibrated = robot.with_errors(result.x[:nr]).with_tracker(
-        setup=setup.with_parameters(result.x[nr:]))
-    calibrated.to_toml(out / "calibrated.toml",
-                       provenance={"method": method, "data": str(args.data),
-                                   "cost_mm2": float(result.fun)})
-    result.save(out / "result.json")
-    atomic_write_text(out / "accuracy.json", json.dumps(jsonable(acc.to_dict()), indent=1) + "\n")
-    report = ["# iwr calibration with laser-tracker data", "", f"- robot: `{args.robot}`",
-              f"- data: `{args.data}`" + (f" + `{args.readings}`" if args.readings else ""),
-              f"- method: {method}", "", *[f"    {line}" for line in lines], "",
-              "Identified parameters (robot, then tracker setup):", "",
-              *[f"    {name:<22} {value:+.6g}" for name, value in result.named().items()]]
-    atomic_write_text(out / "report.md", "\n".join(report) + "\n")
-    print(f"\nwrote {out}/: calibrated.toml, result.json, accuracy.json, report.md")
-    return EXIT_INTERRUPTED if result.interrupted else EXIT_OK
+    written = cal.write(out, plots=not args.no_plots)
+    print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
+    if result.interrupted:
+        return EXIT_INTERRUPTED
+    from .calibrate import _exit_code  # exit 3 when the model does not fit, as for leg data
+
+    return _exit_code(cal)
 
 
 def _subset(data: Any, rows: np.ndarray) -> Any:
@@ -142,13 +151,11 @@ def simulate_tracker_files(args: argparse.Namespace, robot: Any) -> int:
     """``iwr simulate --robot ROBOT.toml`` with a ``[tracker]`` table: the wide CSV of points (or
     probe poses), the long pair (points + readings) for point data, and the true errors."""
     from .._io import atomic_write_text
-    from ..simulate import Noise, simulate
+    from ..simulate import simulate
     from ..tracker.files import write_tracker_long, write_tracker_wide
-    from ..tracker.simulate import TrackerNoise
 
-    readings_noise = dataclasses.replace(args.noise, position=0.0, orientation=0.0)
-    tracker_noise = (TrackerNoise.none() if args.noise == Noise() else TrackerNoise.leica())
-    noise = (readings_noise, tracker_noise)
+    noise = tracker_noise_of(args.noise)
+    readings_noise, tracker_noise = noise
     data, truth = simulate(robot, args.poses, seed=args.seed, noise=noise)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

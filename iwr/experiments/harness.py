@@ -459,6 +459,8 @@ def evaluate(
             # The efficient estimator weighs every instrument by the scenario's noise model; the
             # other methods' success then includes the chi-square test of their fit.
             options.setdefault("noise", noise)
+            if method != "efficient":  # eq. (10), not its noise-weighted form (iwr.identify)
+                options.setdefault("weighted", False)
         start = time.perf_counter()
         result = identify(robot, sc.data, method, bounds=sc.bounds, x0=sc.x0,
                           seed=sc.method_seed, progress=False, **options)

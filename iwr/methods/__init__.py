@@ -21,8 +21,12 @@ so that one call, one result type and the comparison and study harnesses cover i
 that it needs a noise model: ``identify(..., noise=iwr.Noise(...))`` (or ``noise="estimate"``,
 variance components). ``identify`` with a noise model and no method uses it; without a noise
 model the default stays eq. (10) (``"lm"``, :data:`DEFAULT_METHOD`); ``method="efficient"``
-without a noise model is an error. Its ``fun`` is its own objective (the chi-square statistic);
-eq. (10)'s cost at its ``x`` is ``result.cost_eq10``.
+without a noise model is an error. **A method named with a noise model** (``"lm"``, ``"de"``,
+``"crs2"``, ``"bobyqa"``) minimises the noise-weighted objective instead of eq. (10): generalised
+least squares with each pose's residuals whitened by their propagated covariance
+(:func:`iwr.problem.gls_whitening`); its ``fun`` is that statistic and ``cost_eq10`` eq. (10)'s.
+The efficient estimator's ``fun`` is its own objective (the chi-square statistic); eq. (10)'s cost
+at its ``x`` is ``result.cost_eq10``.
 
 **"converged" only when the fit is sane.** Every other method's result is checked by
 :func:`iwr.estimation.fit_check`: identified errors beyond 10 times the search bounds (modulo
@@ -37,6 +41,7 @@ cost itself cannot be judged (a local minimum with plausible parameters passes):
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
@@ -86,6 +91,7 @@ def identify(
     method: str | None = None,
     *,
     noise: Any = None,
+    weighted: bool | None = None,
     bounds: Any = None,
     x0: Any = None,
     active: Any = None,
@@ -109,9 +115,19 @@ def identify(
         evolution, the paper's method, polished by LM unless ``polish=False``), ``"crs2"`` or
         ``"bobyqa"`` (NLopt).
     noise : Noise or "estimate", optional
-        The instruments' noise. Selects the efficient estimator when ``method`` is not given;
-        for the other methods it adds the chi-square test of the fit (``"estimate"`` then
-        tests nothing more).
+        The instruments' noise. Selects the efficient estimator when ``method`` is not given.
+        With a method named, a :class:`iwr.Noise` makes it minimise the noise-weighted
+        objective instead of eq. (10): generalised least squares, each pose's six leg
+        residuals whitened by their covariance propagated from the legs', the encoders' and
+        the measured pose's noise at the nominal robot (:func:`iwr.problem.gls_whitening`);
+        ``fun`` is then that weighted cost, ``cost_eq10`` eq. (10)'s at ``x``, and the fit gets
+        the chi-square test. ``"estimate"`` with a method other than ``"efficient"`` leaves
+        eq. (10) unweighted and tests nothing more.
+    weighted : bool, optional
+        ``False``: eq. (10) unweighted even with a noise model (which then only adds the
+        chi-square test of the fit, to first order around ``x``); ``True``: the weighted
+        objective (needs an :class:`iwr.Noise`). Default: weighted when a method is named with
+        an :class:`iwr.Noise`.
     bounds : None, "default", "paper" or (lower, upper)
         Search bounds; see :class:`iwr.Problem`.
     x0 : array_like, optional
@@ -142,25 +158,34 @@ def identify(
     """
     from ..simulate import Noise
 
-    if noise is not None and not (isinstance(noise, Noise) or (isinstance(noise, str)
-                                                               and noise == "estimate")):
-        raise TypeError(f"noise: expected an iwr.Noise or 'estimate', got {noise!r}")
     if method is None:
         method = DEFAULT_METHOD if noise is None else "efficient"
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
     if type(measurements).__name__ == "TrackerMeasurements":
-        if noise is not None or method == "efficient":
-            raise ValueError("noise, method 'efficient': the efficient estimator does not yet "
-                             "handle laser-tracker point data (docs/estimation.md, Limits); "
-                             "identify it without a noise model")
-        # Tracker data (docs/tracker.md): the point objective, from the registration guess.
+        # Tracker data (docs/tracker.md): the point objective, from the registration guess; with
+        # a noise model the efficient estimator (its noise convention is iwr.simulate's there).
         from ..tracker.api import tracker_identify
 
-        return tracker_identify(robot, measurements, method, bounds=bounds, x0=x0,
+        return tracker_identify(robot, measurements, method, noise=noise, bounds=bounds, x0=x0,
                                 active=active, max_evaluations=max_evaluations, seed=seed,
                                 callback=callback, progress=progress, **options)
-    problem = Problem(robot, measurements, bounds)
+    if noise is not None and not (isinstance(noise, Noise) or (isinstance(noise, str)
+                                                               and noise == "estimate")):
+        raise TypeError(f"noise: expected an iwr.Noise or 'estimate', got {noise!r}")
+    # An explicit method with a noise model runs on the noise-weighted objective (issue 14, item
+    # 3): each pose's six leg residuals whitened by their covariance propagated from every
+    # instrument's noise at the nominal robot (iwr.problem.gls_whitening), so that its fun is the
+    # generalised least squares statistic and its chi-square test applies.
+    if weighted is None:
+        weighted = isinstance(noise, Noise) and method != "efficient"
+    elif weighted and not isinstance(noise, Noise):
+        raise ValueError(f"weighted=True needs a noise model (an iwr.Noise), got noise={noise!r}")
+    elif method == "efficient" and not weighted:
+        raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
+    if method == "efficient":
+        weighted = False  # its own weighting (iwr.estimation); Problem stays eq. (10)
+    problem = Problem(robot, measurements, bounds, noise=noise if weighted else None)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
     if x0_arr.shape != (problem.n_params,) or not np.all(np.isfinite(x0_arr)):
         raise ValueError(f"x0: expected {problem.n_params} finite values, got shape {x0_arr.shape}")
@@ -194,6 +219,12 @@ def identify(
     # keeps the method's own value, and the result, marked interrupted).
     try:
         result["fun"] = problem.cost(result.x)
+        if weighted:
+            result["cost_eq10"] = Problem(robot, measurements, bounds).cost(result.x)
+            # Said in the settings too, so that a saved result's fun is not read as eq. (10)'s.
+            result["settings"] = {**dict(result.get("settings") or {}), "objective": {
+                "weighted": True, "noise": dataclasses.asdict(noise),
+                "cost_eq10": float(result["cost_eq10"])}}
     except KeyboardInterrupt:
         result.update(success=False, status="interrupted",
                       message=f"{result.message}; interrupted (Ctrl-C)")
@@ -203,10 +234,12 @@ def identify(
     return result
 
 
-def _check_fit(result: IdentificationResult, problem: Problem, noise: Any,
+def _check_fit(result: IdentificationResult, problem: Any, noise: Any,
                active: np.ndarray) -> None:
     """Issue 16: "converged" only when the fit is sane (:func:`iwr.estimation.fit_check`), with
-    the search bounds as the parameters' plausible range."""
+    the search bounds as the parameters' plausible range. ``problem``: an :class:`iwr.Problem`
+    (leg data) or an :class:`iwr.tracker.TrackerProblem` (tracker data: its bounds are centred
+    on the registration guess, and the check is modulo its null directions)."""
     from ..estimation import fit_check
     from ..simulate import Noise
 

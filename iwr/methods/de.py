@@ -489,6 +489,7 @@ def de_method(
             "poses": m.poses,
             "legs": m.legs,
             "weights": weights,
+            "whitening": reduced.problem.whitening_matrix(),
             "active": [bool(a) for a in reduced.active],
             "x0": np.ascontiguousarray(reduced.x0, dtype=float),
             **run.core_args(

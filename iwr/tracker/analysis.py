@@ -149,7 +149,8 @@ def null_space(problem: TrackerProblem, x: Any = None, rtol: float | None = None
     jac = problem.jacobian(x)
     d = np.linalg.norm(jac, axis=0)
     d = np.where(d > 0, d, 1.0)
-    _, s, vt = np.linalg.svd(jac / d, full_matrices=True)
+    # U is not needed: full matrices only when there are fewer rows than parameters (for V).
+    _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
     rtol = max(jac.shape) * np.finfo(float).eps if rtol is None else float(rtol)
     thr = rtol * s[0]
     rank = int(np.sum(s > thr))

@@ -154,12 +154,13 @@ def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
             x, fun = lm.x, float(lm.fun)
     return IdentificationResult(x=x, fun=fun, nfev=nfev, nit=int(raw.get("nit", 0)),
                                 success=success, status=status, message=message,
+                                history={k: np.asarray(v) for k, v in raw.history.items()},
                                 wall_time=time.perf_counter() - start,
                                 settings={"polish": bool(polish), "objective": "cost_batch"})
 
 
 def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: str = "lm", *,
-                     bounds: Any = None, x0: Any = None, active: Any = None,
+                     noise: Any = None, bounds: Any = None, x0: Any = None, active: Any = None,
                      max_evaluations: int | None = None, seed: int | None = None,
                      callback: Callable[..., Any] | None = None, progress: bool | None = None,
                      **options: Any) -> Any:
@@ -169,11 +170,35 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     (``result.parameter_names``). DE runs on ``TrackerProblem.cost_batch`` and is polished by LM
     (``polish=False``: DE alone). A result at which a pose's forward kinematics fails is never a
     success (``problem.check`` names the pose)."""
-    from ..methods import METHODS
+    from ..methods import METHODS, _check_fit
     from ..methods.reduced import ReducedProblem, active_mask
 
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+    if method == "efficient":
+        # Every instrument weighted by its noise (docs/estimation.md, "Tracker data"): its own
+        # start (LM on the points from the registration guess), base parameters and fit test.
+        from ..estimation import efficient
+
+        if noise is None:
+            raise ValueError("method 'efficient' weighs every instrument by its noise: give "
+                             "noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...)) or "
+                             "noise='estimate'")
+        if max_evaluations is not None:
+            options.setdefault("max_iterations", int(max_evaluations))
+        if isinstance(active, str) and active == "base":
+            active = None
+        if active is not None:
+            problem, _ = tracker_problem(robot, measurements, bounds, x0)
+            active = active_mask(problem, active)
+        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
+                           bounds=bounds, **options)
+        result.check_finite()
+        return result
+    if noise is not None:
+        raise ValueError(f"noise: method {method!r} on tracker data does not use a noise model "
+                         "(no chi-square test there yet); leave it out, or use the efficient "
+                         "estimator (method='efficient', the default with a noise model)")
     problem, start_x = tracker_problem(robot, measurements, bounds, x0)
     if isinstance(active, str) and active == "base":
         ns = null_space(problem, start_x)
@@ -202,6 +227,10 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
                       message=f"{result.message}; {len(bad)} poses have no forward kinematics at "
                       f"the result ({measurements.where(k)}: {msg})")
     result.check_finite()
+    if result.status != "interrupted" and np.all(np.isfinite(result.x)):
+        # "converged" only when the fit is sane, as for leg data: the identified errors within
+        # their plausible size modulo the null directions (iwr.estimation.fit_check).
+        _check_fit(result, problem, None, mask)
     return result
 
 

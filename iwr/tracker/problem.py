@@ -97,6 +97,8 @@ class TrackerProblem:
         ref = np.zeros(robot.n_params) if reference is None else np.asarray(reference, float)
         if ref.shape != (robot.n_params,):
             raise ValueError(f"reference: shape {ref.shape}; expected ({robot.n_params},)")
+        #: Where forward kinematics is solved once per pose (each evaluation starts there).
+        self.reference = ref
         try:
             self._objective = _core.TrackerObjective(
                 robot._geometry, setup.kind,
@@ -222,6 +224,29 @@ class TrackerProblem:
     def predicted_points(self, x: Any) -> np.ndarray:
         """Predicted points in {T}, shape (N, n_points, 3); NaN rows where it fails."""
         return self._objective.predicted_points(self._x(x)).reshape(self.n_poses, -1, 3)
+
+    def save(self, path: Any, *, sources: dict[str, Any] | None = None, x0: Any = None,
+             active: Any = None) -> None:
+        """Write the problem file that ``iwr-engine`` runs from, atomically (as
+        :meth:`iwr.Problem.save`): the robot, the nominal tracker setup, the data, the reference,
+        the bounds, and the search's starting point ``x0`` (default zeros: where the inactive
+        parameters stay) and ``active`` set (default all). :meth:`load` reads it back."""
+        from ..problem_file import save_problem
+
+        save_problem(self, path, sources, x0=x0, active=active)
+
+    @classmethod
+    def load(cls, path: Any) -> TrackerProblem:
+        """Read a problem file of tracker data written by :meth:`save`
+        (``iwr._core.FormatError``, a ValueError naming the file and field, if it is malformed,
+        truncated, of another version, or holds leg data)."""
+        from ..problem_file import FormatError, load_problem
+
+        problem = load_problem(path)
+        if not isinstance(problem, cls):
+            raise FormatError(f"{path}: holds leg data (poses in {{0}}), not tracker data; read "
+                              "it with iwr.Problem.load")
+        return problem
 
     def __repr__(self) -> str:
         return (f"TrackerProblem(robot={self.robot.name!r}, kind={self.setup.kind!r}, "

@@ -71,22 +71,54 @@ class TrackerNoise:
         return (self.distance + self.distance_per_m * d_m,
                 self.transverse + self.transverse_per_m * d_m)
 
-    def perturb(self, points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Points (..., 3) in {T} with tracker noise; three standard normal draws per point
-        (radial, then the two transverse directions)."""
+    @staticmethod
+    def basis(points: Any) -> np.ndarray:
+        """Per point (..., 3) of {T}, the orthonormal rows (..., 3, 3) ``[e_r, e_1, e_2]``: the line
+        of sight from the tracker (the origin of {T}) and the two directions across it (``e_1``
+        perpendicular to ``e_r`` and to the axis least aligned with it): the principal axes of
+        the point's noise."""
         p = np.asarray(points, dtype=float)
-        z = rng.standard_normal(p.shape)
         d = np.linalg.norm(p, axis=-1, keepdims=True)
         er = p / np.where(d > 0, d, 1.0)
-        # A transverse basis: e1 perpendicular to er and to the axis least aligned with it.
         helper = np.zeros_like(er)
         idx = np.argmin(np.abs(er), axis=-1)
         np.put_along_axis(helper, idx[..., None], 1.0, axis=-1)
         e1 = np.cross(er, helper)
         e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
         e2 = np.cross(er, e1)
-        sr, st = self.sigmas(d)
-        return p + sr * z[..., :1] * er + st * (z[..., 1:2] * e1 + z[..., 2:3] * e2)
+        return np.stack([er, e1, e2], axis=-2)
+
+    def whitening(self, points: Any) -> np.ndarray:
+        """Per point (..., 3) of {T}, the 3x3 matrix ``W`` (..., 3, 3) with ``W^T W`` the inverse
+        of the point's noise covariance (``W @ error`` has unit covariance): the rows of
+        :meth:`basis` divided by the radial and transverse sigmas at the point's distance."""
+        p = np.asarray(points, dtype=float)
+        sr, st = self.sigmas(np.linalg.norm(p, axis=-1))
+        if np.any(np.asarray(sr) <= 0) or np.any(np.asarray(st) <= 0):
+            raise ValueError("tracker noise: the radial and the transverse sigma must be > 0 "
+                             f"(distance {self.distance}, transverse {self.transverse}); a "
+                             "tracker reading is never exact")
+        scale = np.stack([1.0 / sr, 1.0 / st, 1.0 / st], axis=-1)
+        return self.basis(p) * scale[..., :, None]
+
+    def covariance(self, points: Any) -> np.ndarray:
+        """Per point (..., 3) of {T}, its noise covariance (..., 3, 3) (mm^2): ``sigma_r^2`` along
+        the line of sight, ``sigma_t^2`` across it; the law :meth:`perturb` draws from."""
+        p = np.asarray(points, dtype=float)
+        b = self.basis(p)
+        sr, st = self.sigmas(np.linalg.norm(p, axis=-1))
+        var = np.stack([np.square(sr), np.square(st), np.square(st)], axis=-1)
+        return np.einsum("...ki,...k,...kj->...ij", b, var, b)
+
+    def perturb(self, points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
+        """Points (..., 3) in {T} with tracker noise; three standard normal draws per point
+        (radial, then the two transverse directions of :meth:`basis`)."""
+        p = np.asarray(points, dtype=float)
+        z = rng.standard_normal(p.shape)
+        b = self.basis(p)
+        sr, st = self.sigmas(np.linalg.norm(p, axis=-1, keepdims=True))
+        return (p + sr * z[..., :1] * b[..., 0, :]
+                + st * (z[..., 1:2] * b[..., 1, :] + z[..., 2:3] * b[..., 2, :]))
 
 
 def true_points(robot: Robot, setup: TrackerSetup, x: Any, poses: Any) -> np.ndarray:

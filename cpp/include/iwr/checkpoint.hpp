@@ -5,7 +5,8 @@
 //   str  problem file (its path when the run started, for messages only)
 //   i64  generations (-1: none), max evaluations (-1: none); f64 target cost (NaN: none)
 //   i64  checkpoint every; u8 preset (0 none, 1 paper); u8 had a log
-//   u8   success; str message; f64 cost at x; f64s x   (the run's result so far)
+//   u8   success; str message; f64 cost at x; f64s x   (the run's result so far: every parameter)
+//   u64  D; D i64s: the increasing positions in x of the engine state's D (active) parameters
 //   str  resumed from (for the record)
 //   str  the DE engine's state (iwr::de::State::to_bytes, itself sealed and checked)
 // A checkpoint is untrusted input: every field is range-checked as if typed by a user, and it
@@ -22,7 +23,7 @@
 
 namespace iwr {
 
-constexpr std::uint32_t kCheckpointVersion = 2;
+constexpr std::uint32_t kCheckpointVersion = 3;
 
 struct Checkpoint {
     std::string program;
@@ -37,6 +38,7 @@ struct Checkpoint {
     std::string message;
     double fun = 0;
     std::vector<double> x;
+    std::vector<std::int64_t> active;  // positions in x of the state's parameters
     std::string resumed_from;
     de::State state;
 };

@@ -7,6 +7,7 @@
 //   iwr::de::Settings s;                     // what defines a run's trajectory (see below)
 //   s.strategy = iwr::de::Strategy::lshade;  s.lower = ...;  s.upper = ...;  s.seed = 42;
 //   iwr::de::ObjectiveFunction f(objective, active_mask, x0);   // or any iwr::de::BatchFunction
+//   (iwr::de::ReducedObjective<iwr::TrackerObjective> for laser-tracker data)
 //   iwr::ThreadPool pool(2);
 //
 //   iwr::de::State st = iwr::de::init(s, f, pool);   // generation 0: uniform population, evaluated
@@ -86,27 +87,67 @@ public:
     virtual void evaluate(const double* X, std::size_t m, double* out, ThreadPool& pool) = 0;
 };
 
-/// The IWR objective of eq. (10) over the active parameters only; inactive ones are held at x0.
-/// The Objective must outlive this adapter.
-class ObjectiveFunction final : public BatchFunction {
+namespace detail {
+/// The indices of the active parameters of an objective with n parameters (active empty: all),
+/// and x0 filled (empty: zeros). Throws std::invalid_argument on bad sizes, a non-finite x0 or no
+/// active flag.
+std::vector<int> active_index(int n, std::vector<bool> active, VectorXd& x0);
+}  // namespace detail
+
+/// An objective over its active parameters only; inactive ones are held at x0. Obj is the leg
+/// objective of eq. (10) (iwr::Objective) or the tracker objective (iwr::TrackerObjective): any
+/// type with n_params(), make_workspace() and cost(const double* x, Workspace&). The objective
+/// must outlive this adapter.
+template <class Obj>
+class ReducedObjective final : public BatchFunction {
 public:
     /// active: n_params flags, or empty for all parameters; x0: n_params values (the inactive ones
     /// are used), or empty for zeros. Throws std::invalid_argument on bad sizes or no active flag.
-    ObjectiveFunction(const Objective& objective, std::vector<bool> active = {},
-                      VectorXd x0 = VectorXd());
+    ReducedObjective(const Obj& objective, std::vector<bool> active = {}, VectorXd x0 = VectorXd())
+        : objective_(objective), index_(detail::active_index(objective.n_params(), std::move(active), x0)),
+          x0_(std::move(x0)) {}
     int dim() const override { return static_cast<int>(index_.size()); }
-    void evaluate(const double* X, std::size_t m, double* out, ThreadPool& pool) override;
+    void evaluate(const double* X, std::size_t m, double* out, ThreadPool& pool) override {
+        const std::size_t threads = static_cast<std::size_t>(pool.size());
+        while (workspaces_.size() < threads) {
+            workspaces_.push_back(objective_.make_workspace());
+            buffers_.push_back(x0_);
+        }
+        const std::size_t d = index_.size();
+        const bool all = static_cast<int>(d) == objective_.n_params();
+        pool.parallel_for(m, [&](std::size_t b, std::size_t e, int id) {
+            auto& ws = workspaces_[static_cast<std::size_t>(id)];
+            double* x = buffers_[static_cast<std::size_t>(id)].data();
+            for (std::size_t i = b; i < e; ++i) {
+                const double* z = X + i * d;
+                if (all) {
+                    out[i] = objective_.cost(z, ws);
+                } else {
+                    for (std::size_t k = 0; k < d; ++k) x[index_[k]] = z[k];
+                    out[i] = objective_.cost(x, ws);
+                }
+            }
+        });
+    }
     /// The full n_params vector for a reduced one (dim() entries).
-    VectorXd full(const double* z) const;
+    VectorXd full(const double* z) const {
+        VectorXd x = x0_;
+        for (std::size_t k = 0; k < index_.size(); ++k) x(index_[k]) = z[k];
+        return x;
+    }
     const std::vector<int>& active_index() const { return index_; }
+    const Obj& objective() const { return objective_; }
 
 private:
-    const Objective& objective_;
+    const Obj& objective_;
     std::vector<int> index_;
     VectorXd x0_;
-    std::vector<Objective::Workspace> workspaces_;
+    std::vector<typename Obj::Workspace> workspaces_;
     std::vector<VectorXd> buffers_;
 };
+
+/// The IWR objective of eq. (10) over the active parameters only.
+using ObjectiveFunction = ReducedObjective<Objective>;
 
 // ----- settings --------------------------------------------------------------------------------------
 

@@ -28,6 +28,7 @@
 #include <vector>
 
 #include "iwr/model.hpp"
+#include "iwr/tracker.hpp"
 
 namespace iwr {
 
@@ -94,6 +95,8 @@ struct ImplicitLoopResult {
     /// Smallest eigenvalue of the Jacobi-scaled reduced normal matrix over its largest: near
     /// machine precision when the active parameters are not all identifiable.
     double reciprocal_condition = 0;
+    /// Degrees of freedom of the chi-square law of `cost`: live residuals - free corrections - p.
+    int dof = 0;
 };
 
 /// The efficient estimator. x0 (n_params) is the starting point and the value of inactive
@@ -111,5 +114,53 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
                                  const Eigen::Ref<const RowMatrixXd>& corrections0,
                                  const ImplicitLoopOptions& options = ImplicitLoopOptions(),
                                  const LoopCallback& callback = LoopCallback());
+
+// --- Laser-tracker data (docs/estimation.md, "Tracker data") ---------------------------------
+//
+// The same estimator when the platform is measured by a laser tracker in its own frame {T}:
+// reflector points (K per pose, some possibly unseen) or a 6-DOF probe pose. The parameters are
+// the robot's n_params then the setup's (registration correction, reflector or probe offsets:
+// iwr/tracker.hpp). Per pose the nuisance unknowns are the true joint readings q + dq and the true
+// platform pose in {0}, (p_ref + dp, R_ref exp([w]x)) about a reference pose (forward kinematics
+// at the starting point); the normalised residuals (the layout of `residuals`, nr = 6 + n_joints +
+// 3 n_blocks columns) are
+//
+//   legs:    (legs(x, q + dq, pose) - s) / sigma_legs                    (6; eq. 8 closed)
+//   joints:  dq / sigma_q                                                 (n_joints; 0 if exact)
+//   points:  W_ki (T_T0(x) pose r_i(x) - m_ki)                           (3 per reflector; 0 unseen)
+//   probe:   W_k0 (T_T0(x) pose t_p(x) - m_k),  W_k1 vee(asym(R_pred R_m^T))     (3 + 3)
+//
+// with W a 3x3 whitening matrix per point (W^T W = the point's inverse covariance: the tracker's
+// anisotropic noise) and n_blocks = K for points, 2 for a probe (position, orientation).
+
+/// Inputs of the tracker estimator besides the robot and its readings.
+struct TrackerLoopData {
+    TrackerSetup setup;      ///< the nominal setup (iwr/tracker.hpp)
+    RowMatrixXd measured;    ///< (N, 3 K) points in {T}, NaN where unseen; probe: (N, 6) poses
+    RowMatrixXd whitening;   ///< (N, 9 n_blocks): per block a row-major 3x3 W
+    RowMatrixXd reference;   ///< (N, 6) reference platform poses in {0}
+};
+
+/// Normalised residuals (N, nr) at (x, corrections) and their exact derivatives (N nr, n_params)
+/// and (N nr, n_joints + 6), pose-major rows (for tests); sigma (N, 6 + n_joints) the leg and
+/// joint standard deviations.
+LoopJacobians tracker_loop_jacobians(const Geometry& g, const TrackerLoopData& data,
+                                     const Eigen::Ref<const VectorXd>& x,
+                                     const Eigen::Ref<const RowMatrixXd>& q,
+                                     const Eigen::Ref<const RowMatrixXd>& legs,
+                                     const Eigen::Ref<const RowMatrixXd>& sigma,
+                                     const Eigen::Ref<const RowMatrixXd>& corrections);
+
+/// The efficient estimator on tracker data; arguments as implicit_loop (sigma: (N, 6 + n_joints),
+/// legs > 0, joints >= 0), corrections (N, n_joints + 6) = (dq, dp, w) about data.reference.
+ImplicitLoopResult implicit_loop_tracker(const Geometry& g, const TrackerLoopData& data,
+                                         const Eigen::Ref<const VectorXd>& x0,
+                                         const std::vector<int>& active,
+                                         const Eigen::Ref<const RowMatrixXd>& q,
+                                         const Eigen::Ref<const RowMatrixXd>& legs,
+                                         const Eigen::Ref<const RowMatrixXd>& sigma,
+                                         const Eigen::Ref<const RowMatrixXd>& corrections0,
+                                         const ImplicitLoopOptions& options = ImplicitLoopOptions(),
+                                         const LoopCallback& callback = LoopCallback());
 
 }  // namespace iwr

@@ -48,8 +48,18 @@ class Objective {
 public:
     /// q (N, n_joints), poses (N, 6), legs (N, 6) measured sensor readings, weights (N, 6) or empty
     /// (all ones). Residual k*6+j is sqrt(w_kj) * (predicted_kj - legs_kj).
+    ///
+    /// whitening (N, 36) or empty: per pose a lower-triangular 6x6 matrix W_k (row-major, its
+    /// upper triangle 0), and residuals k*6+i = sum_{j<=i} W_k[i][j] (predicted_kj - legs_kj):
+    /// generalised least squares with fixed weights, cost = sum_k r_k^T W_k^T W_k r_k, for
+    /// example W_k = L_k^-1 with L_k L_k^T the covariance of pose k's six residuals. Not together
+    /// with weights (fold them into W_k).
     Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd& poses,
-              const RowMatrixXd& legs, const RowMatrixXd& weights = RowMatrixXd());
+              const RowMatrixXd& legs, const RowMatrixXd& weights = RowMatrixXd(),
+              const RowMatrixXd& whitening = RowMatrixXd());
+
+    /// Whether the residuals are whitened (a whitening was given).
+    bool whitened() const { return off_wh_ >= 0; }
 
     const Geometry& geometry() const { return geometry_; }
     int n_params() const { return geometry_.n_params(); }
@@ -95,10 +105,12 @@ private:
     RowMatrixXd q_;  // joint readings as given (for the Jacobian)
     // Pose data in blocks of kBlock poses, structure of arrays inside a block (see
     // objective_kernel.hpp): quantities 0R5 (9, row-major), 0P5 (3), readings (6), sqrt weights
-    // (6, when weighted), then per joint q (prismatic) or cos q, sin q (revolute). The last block is
-    // padded with copies of the last pose.
+    // (6, when weighted), the whitening's lower triangle row by row (21, when whitened), then per
+    // joint q (prismatic) or cos q, sin q (revolute). The last block is padded with copies of the
+    // last pose.
     std::vector<double, detail::AlignedAllocator<double>> blocks_;
-    int n_blocks_ = 0, stride_ = 0, off_w_ = -1, n_prefix_ = 0;
+    int n_blocks_ = 0, stride_ = 0, off_w_ = -1, off_wh_ = -1, n_prefix_ = 0;
+    RowMatrixXd whitening_;  // (N, 36) as given, for the Jacobian
     std::vector<int> q_off_;
     std::vector<char> prismatic_;
     std::vector<double> nominal_;  // nominal alpha_i, theta_i (interleaved), their cos, their sin

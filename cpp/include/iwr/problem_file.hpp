@@ -9,13 +9,27 @@
 //   f64s dh (n x 4, alpha a d theta), joint limits (n x 2), base joints (6 x 3), platform joints
 //        (6 x 3), leg offsets (6), leg stroke (6 x 2), home pose (6), workspace (6)
 //   u8   has measurement joint types; str measurement joint types
-//   u64  poses N; f64s q (N x n), poses (N x 6), legs (N x 6)
-//   u8   has weights; f64s weights (N x 6)
-//   f64s lower, upper (4 n + 42 each); str bounds kind ("default", "paper" or "custom")
+//   u8   measurement kind: 0 pose of {5} in {0} (the paper's), 1 points in the tracker frame {T},
+//        2 probe pose in {T}
+//   u64  poses N; f64s q (N x n), legs (N x 6)
+//   kind 0: f64s poses (N x 6); u8 has weights; f64s weights (N x 6)
+//   kind 1, 2 (the tracker setup, then the data):
+//        f64s registration (6: nominal pose of {0} in {T})
+//        kind 1: u64 reflectors K; f64s reflector offsets in {5} (K x 3); K strs reflector names;
+//                f64s points (N x 3 K; a reflector not seen at a pose: its three values NaN)
+//        kind 2: f64s probe pose in {5} (6); f64 probe length (mm); f64s probe poses (N x 6);
+//                f64s the probe's virtual points as the objective takes them (N x 12, computed
+//                from the probe poses by the writer)
+//        f64s reference (4 n + 42: the robot error vector where forward kinematics is solved once)
+//   f64s lower, upper (n_params each); str bounds kind ("default", "paper" or "custom")
+//   f64s x0 (n_params: where the inactive parameters stay); u64 n_params + that many u8 active
+//        flags (at least one 1)
 //   u64  parameter names; each a str
 //   u64  sources; each: str role ("robot", "data", ...), str path, str SHA-256 (hex, or empty)
-// Every value is checked as if a user had typed it: sizes against the file, finite numbers,
-// lower < upper, non-negative weights, names of printable ASCII.
+// n_params is 4 n + 42, plus 6 + 3 K (points) or 12 (probe). Every value is checked as if a user
+// had typed it: sizes against the file, finite numbers (NaN only for unseen reflectors), lower <
+// upper, non-negative weights, names of printable ASCII.
+// Version 1 (leg data only, no kind, x0 or active set) is refused with its version named.
 #pragma once
 
 #include <cstdint>
@@ -23,13 +37,17 @@
 #include <vector>
 
 #include "iwr/model.hpp"
+#include "iwr/tracker.hpp"
 
 namespace iwr {
 
-constexpr std::uint32_t kProblemVersion = 1;
+constexpr std::uint32_t kProblemVersion = 2;
 /// Limits that no real problem comes near; they bound what a damaged file can make us allocate.
 constexpr int kMaxJoints = 64;
 constexpr std::uint64_t kMaxPoses = 100'000'000;
+
+/// What the measurements are (the problem file's "measurement kind").
+enum class MeasurementKind : std::uint8_t { Pose = 0, Points = 1, Probe = 2 };
 
 struct ProblemSource {
     std::string role, path, sha256;
@@ -45,16 +63,37 @@ struct ProblemData {
     Eigen::Matrix<double, 6, 1> home_pose, workspace;
     bool has_measurement_joint_types = false;
     std::string measurement_joint_types;
-    RowMatrixXd q, poses, legs, weights;   // weights empty when none
+    MeasurementKind kind = MeasurementKind::Pose;
+    RowMatrixXd q, legs;                   // N x n, N x 6
+    RowMatrixXd poses, weights;            // Pose: N x 6 and N x 6 or empty (none); else empty
+    // Points and Probe: the nominal tracker setup and the data.
+    Vector6d registration = Vector6d::Zero();
+    RowMatrixXd reflectors;                // Points: K x 3
+    std::vector<std::string> reflector_names;
+    Vector6d probe = Vector6d::Zero();     // Probe
+    double probe_length = 0;
+    RowMatrixXd probe_poses;               // Probe: N x 6 as measured
+    RowMatrixXd points;                    // N x 3 K (Points) or N x 12 (Probe): the objective's
+    VectorXd reference;                    // 4 n + 42
     std::vector<double> lower, upper;
     std::string bounds_kind;
+    std::vector<double> x0;                // n_params
+    std::vector<bool> active;              // n_params
     std::vector<std::string> parameter_names;
     std::vector<ProblemSource> sources;
 
-    int n_params() const { return 4 * static_cast<int>(joint_types.size()) + 42; }
-    int n_poses() const { return static_cast<int>(poses.rows()); }
+    bool tracker() const { return kind != MeasurementKind::Pose; }
+    int n_robot_params() const { return 4 * static_cast<int>(joint_types.size()) + 42; }
+    /// The robot's, then the tracker setup's (6 + 3 K or 12).
+    int n_params() const;
+    int n_active() const;
+    int n_poses() const { return static_cast<int>(legs.rows()); }
     Geometry geometry() const;
-    /// 64-bit fingerprints of the geometry the objective uses, and of the measurements + weights.
+    /// The nominal tracker setup (Points or Probe only).
+    TrackerSetup tracker_setup() const;
+    /// 64-bit fingerprints of what the objective is made of (the geometry, and for tracker data
+    /// the setup and the reference; the search's x0 and active set when not all zeros and all
+    /// active), and of the measurements + weights.
     std::uint64_t robot_fingerprint() const;
     std::uint64_t data_fingerprint() const;
 };

@@ -1,0 +1,297 @@
+"""The efficient estimator (:func:`iwr.estimation.efficient`) on laser-tracker data: what its
+estimation loop needs to know of point and probe data (docs/estimation.md, "Tracker data").
+
+Per pose the unknowns are the true joint readings and the true platform pose in {0} (about a
+reference pose, the forward kinematics at the starting point); the readings are the six legs, the
+joints, and the K reflector points (3 each, in {T}) or the probe pose (6). Each point is whitened
+by its own anisotropic covariance (:meth:`TrackerNoise.whitening`: the distance sigma along the
+line of sight, the transverse sigma across it), evaluated at the measured point: the covariance
+depends on the true point only through its distance from the tracker, which the measurement
+gives to a few micrometres in metres (a relative change of 1e-8), the usual choice in
+errors-in-variables adjustment.
+"""
+
+from __future__ import annotations
+
+from dataclasses import asdict, replace
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+from ..robot import Robot
+from ..simulate import Noise
+from .api import _setup, _split_noise, tracker_problem
+from .data import TrackerMeasurements
+from .simulate import TrackerNoise
+
+__all__ = ["TRACKER_COMPONENTS", "TrackerSpec", "tracker_predicted_accuracy",
+           "tracker_reading_names"]
+
+#: The variance components on tracker data: the reading noise (as :class:`iwr.Noise`'s fields)
+#: and one factor each on the tracker's distance sigma (``distance`` and ``distance_per_m``
+#: together), transverse sigma (``transverse`` and ``transverse_per_m``) and, for a probe, its
+#: orientation sigma. ``"tracker"`` in ``estimate=`` names all of the tracker's.
+TRACKER_COMPONENTS = ("legs", "joint_lengths", "joint_angles", "tracker_distance",
+                      "tracker_transverse", "tracker_orientation")
+
+
+def tracker_reading_names(robot: Robot) -> list[str]:
+    """Names of the normalised residuals of one pose on tracker data: ``leg1 .. leg6``, ``q1 ..
+    qn``, then per reflector ``reflector<name>.radial`` (along the line of sight),
+    ``.across1``, ``.across2`` (the two directions across it, :meth:`TrackerNoise.basis`); for a
+    probe ``probe.radial .. probe.across2`` and ``probe.rx .. probe.rz`` (its orientation error,
+    a rotation vector in {T})."""
+    setup = _setup(robot)
+    head = [f"leg{j + 1}" for j in range(6)] + [f"q{i + 1}" for i in range(robot.n_joints)]
+    parts = ("radial", "across1", "across2")
+    if setup.kind == "probe":
+        return head + [f"probe.{c}" for c in parts] + [f"probe.r{c}" for c in "xyz"]
+    return head + [f"reflector{nm}.{c}" for nm in setup.names for c in parts]
+
+
+def _noise(noise: Any) -> tuple[Noise, TrackerNoise, tuple[str, ...]]:
+    """(reading noise, tracker noise, components to estimate) from ``noise=``: the convention of
+    :func:`iwr.simulate` on a robot with a tracker (a pair ``(Noise, TrackerNoise)``), or
+    ``"estimate"``."""
+    if isinstance(noise, str):
+        if noise != "estimate":
+            raise ValueError(f"noise: {noise!r}; expected (iwr.Noise, TrackerNoise) or 'estimate'")
+        r = Noise.realistic()
+        return replace(r, position=0.0, orientation=0.0), TrackerNoise.leica(), TRACKER_COMPONENTS
+    readings, tracker = _split_noise(noise)
+    if readings is None or tracker is None:
+        raise ValueError(
+            "noise: the efficient estimator on tracker data weighs the leg and joint readings and "
+            "the tracker: give both, noise=(iwr.Noise(legs=..., joint_lengths=..., "
+            "joint_angles=...), iwr.tracker.TrackerNoise.leica()) (as iwr.simulate takes it), "
+            "or noise='estimate'")
+    return readings, tracker, ()
+
+
+class TrackerSpec:
+    """The tracker kinds' part of the estimation loop (the pose kind's is
+    ``iwr.estimation._PoseSpec``; the same methods)."""
+
+    kind = "tracker"
+
+    def __init__(self, robot: Robot, measurements: TrackerMeasurements, noise: Any, x0: Any,
+                 active: Any, estimate: Any, bounds: Any, plausible: float) -> None:
+        from ..estimation import _active_mask, _check_estimate, _check_noise
+        from ..methods.lm import levenberg_marquardt
+        from ..methods.reduced import ReducedProblem
+        from .analysis import null_space
+
+        setup = _setup(robot)
+        readings, tnoise, est = _noise(noise)
+        extra = ("tracker_orientation",) if setup.kind == "probe" else ()
+        aliases = {"tracker": ("tracker_distance", "tracker_transverse") + extra}
+        est = _check_estimate(estimate, est, TRACKER_COMPONENTS, aliases)
+        _check_noise(readings)
+        self.robot, self.setup, self.measurements = robot, setup, measurements
+        self.noise0 = (readings, tnoise)
+        problem, start = tracker_problem(robot, measurements, bounds, x0)
+        self.problem = problem
+        self.n = len(measurements)
+        nr, nj = robot.n_params, robot.n_joints
+        self.mask = _active_mask(active, problem.n_params,
+                                 lambda: null_space(problem, start).active)
+        # The start: eq. (10)'s analogue on points (LM, unweighted), from the nominal robot and
+        # the registration guess; the estimator then only refines (its first steps from a frame
+        # 2 m off would put radians into the pose corrections, far from linear).
+        lm = levenberg_marquardt(ReducedProblem(problem, self.mask, start), progress=False)
+        self.x_start = np.array(lm.x, dtype=float)
+        ref = problem.platform_poses(self.x_start)
+        bad = np.flatnonzero(~np.all(np.isfinite(ref), axis=1))
+        if bad.size:
+            raise _core.ForwardKinematicsError(
+                f"{measurements.where(int(bad[0]))}: the leg readings have no forward kinematics "
+                f"at the starting point ({bad.size} poses)")
+        self.reference = np.ascontiguousarray(ref)
+        # Readings: sigma of the legs and joints.
+        prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
+        self.sigma_all = np.empty((self.n, 6 + nj))
+        self.sigma_all[:, :6] = readings.legs
+        self.sigma_all[:, 6:] = np.where(prism, readings.joint_lengths, readings.joint_angles)
+        # The tracker: whitening per block (reflectors; or the probe's position and orientation).
+        if setup.kind == "points":
+            assert measurements.points is not None
+            pts = measurements.points
+            self.measured = np.ascontiguousarray(pts.reshape(self.n, -1))
+            seen = ~np.isnan(pts[:, :, 0])
+            w = np.zeros(pts.shape + (3,))
+            w[seen] = tnoise.whitening(pts[seen])
+            nb = pts.shape[1]
+        else:
+            assert measurements.probe is not None
+            if not tnoise.orientation > 0:
+                raise ValueError("noise: TrackerNoise.orientation is 0; a probe's orientation "
+                                 "reading needs a standard deviation > 0")
+            self.measured = np.ascontiguousarray(measurements.probe)
+            w = np.zeros((self.n, 2, 3, 3))
+            w[:, 0] = tnoise.whitening(measurements.probe[:, :3])
+            w[:, 1] = np.eye(3) / tnoise.orientation
+            nb = 2
+        self.whitening_all = w
+        base = 6 + nj
+        pos_blocks = range(nb) if setup.kind == "points" else range(1)
+        self.cols = {
+            "legs": np.arange(6),
+            "joint_lengths": 6 + np.flatnonzero(prism),
+            "joint_angles": 6 + np.flatnonzero(~prism),
+            "tracker_distance": np.array([base + 3 * b for b in pos_blocks], dtype=int),
+            "tracker_transverse": np.array([base + 3 * b + c for b in pos_blocks for c in (1, 2)],
+                                           dtype=int),
+            "tracker_orientation": (np.arange(base + 3, base + 6) if setup.kind == "probe"
+                                    else np.zeros(0, dtype=int)),
+        }
+        self.est = tuple(c for c in est if self.cols[c].size and self.start_sigma(c) > 0)
+        self.names = tracker_reading_names(robot)
+        self.parameter_names = problem.parameter_names
+        self.ny = nj + 6
+        # Plausible size: about the nominal robot and the setup's start (the registration guess).
+        self.center = np.concatenate([np.zeros(nr), start[nr:]])
+        if bounds is None or isinstance(bounds, str):
+            half = np.concatenate([robot.default_bounds("default")[1], setup.default_bounds()[1]])
+        else:
+            lo, hi = (np.asarray(b, dtype=float) for b in (problem.lower, problem.upper))
+            half = np.maximum(np.abs(lo - self.center), np.abs(hi - self.center))
+        self.limit = plausible * half
+
+    def start_sigma(self, c: str) -> float:
+        readings, tn = self.noise0
+        if c.startswith("tracker_"):
+            return float(getattr(tn, c[len("tracker_"):]))
+        return float(getattr(readings, c))
+
+    def where(self, k: int) -> str:
+        return self.measurements.where(k)
+
+    def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
+              corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:
+        s = self.sigma_all.copy()
+        w = self.whitening_all.copy()
+        nj = self.robot.n_joints
+        for c, f in scale.items():
+            if c.startswith("tracker_"):
+                for col in self.cols[c]:
+                    b, row = divmod(int(col) - 6 - nj, 3)
+                    w[:, b, row, :] /= f
+            else:
+                s[:, self.cols[c]] *= f
+        m, st = self.measurements, self.setup
+        return _core.implicit_loop_tracker(
+            self.robot._geometry, st.kind, st.registration,
+            st.reflectors if st.reflectors is not None else np.zeros((1, 3)),
+            st.probe if st.probe is not None else np.zeros(6), st.probe_length,
+            np.ascontiguousarray(self.measured[used]),
+            np.ascontiguousarray(w[used].reshape(int(used.sum()), -1)),
+            np.ascontiguousarray(self.reference[used]), x, idx,
+            np.ascontiguousarray(m.q[used]), np.ascontiguousarray(m.legs[used]),
+            np.ascontiguousarray(s[used]), np.ascontiguousarray(corr),
+            max_iterations=int(max_iterations), callback=cb)
+
+    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
+        from ..estimation import _nearest_plausible, tracker_readings
+
+        x_plain = _nearest_plausible(tracker_readings(self.problem), x, self.limit, self.center)
+        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
+                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+
+    def noise_used(self, sigmas: dict[str, float]) -> tuple[Noise, TrackerNoise]:
+        readings, tn = self.noise0
+        f = {c: sigmas[c] / self.start_sigma(c) for c in sigmas if c.startswith("tracker_")}
+        readings = replace(readings, **{c: v for c, v in sigmas.items()
+                                        if not c.startswith("tracker_")})
+        fd, ft = f.get("tracker_distance", 1.0), f.get("tracker_transverse", 1.0)
+        tn = replace(tn, distance=tn.distance * fd, distance_per_m=tn.distance_per_m * fd,
+                     transverse=tn.transverse * ft, transverse_per_m=tn.transverse_per_m * ft,
+                     orientation=tn.orientation * f.get("tracker_orientation", 1.0))
+        return readings, tn
+
+    @staticmethod
+    def noise_dict(noise: tuple[Noise, TrackerNoise]) -> dict[str, Any]:
+        return {"readings": asdict(noise[0]), "tracker": asdict(noise[1])}
+
+    def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray, tool: Any) -> Any:
+        m = self.measurements
+        return tracker_predicted_accuracy(self.robot, x, cov, self.mask, m.q[used], m.legs[used],
+                                          tool=tool)
+
+    def cost_eq10(self, x: np.ndarray) -> float:
+        """The unweighted point objective (mm^2), eq. (10)'s analogue on tracker data."""
+        return self.problem.cost(x)
+
+
+def _aligned_errors(a: np.ndarray, b: np.ndarray, tool: np.ndarray) -> np.ndarray:
+    """Per pose the tool error vector (position in {T}, mm; orientation, a rotation vector in the
+    tool frame, rad), (N, 6), of the frames ``a`` against ``b`` modulo the gauge, as
+    :func:`tool_pose_errors` (``gauge="fit"``) measures its norms."""
+    from .analysis import _align
+
+    a = a @ _align(a, b)
+    dp = a[:, :3, :3] @ tool + a[:, :3, 3] - (b[:, :3, :3] @ tool + b[:, :3, 3])
+    r = np.swapaxes(b[:, :3, :3], 1, 2) @ a[:, :3, :3]
+    w = 0.5 * np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
+                        r[:, 1, 0] - r[:, 0, 1]], axis=1)
+    return np.concatenate([dp, w], axis=1)
+
+
+def _frames(robot: Robot, x: np.ndarray, t05: np.ndarray, dpose: np.ndarray) -> np.ndarray:
+    """:func:`tool_frames` (the joints' gauge, in {T}) with the platform poses ``t05`` (N, 4, 4)
+    moved by ``dpose`` (N, 6): ``p + dp``, ``R exp([w]x)``."""
+    from scipy.spatial.transform import Rotation
+
+    from .registration import kabsch
+
+    nj = robot.n_joints
+    t = t05.copy()
+    t[:, :3, 3] += dpose[:, :3]
+    t[:, :3, :3] = t[:, :3, :3] @ Rotation.from_rotvec(dpose[:, 3:]).as_matrix()
+    b = robot.platform_joints + x[4 * nj + 18: 4 * nj + 36].reshape(6, 3)
+    r, c = kabsch(robot.platform_joints, b)
+    k = np.eye(4)
+    k[:3, :3], k[:3, 3] = r, c
+    return _setup(robot).registration_matrix(x[robot.n_params:]) @ t @ k
+
+
+def tracker_predicted_accuracy(robot: Robot, x: Any, covariance: Any, active: Any, q: Any,
+                               legs: Any, *, tool: Any = None, n_samples: int = 500,
+                               seed: int = 0, step: float = 1e-6) -> Any:
+    """Predicted tool pose error (:class:`iwr.estimation.PredictedAccuracy`) of the model ``x``
+    (robot then setup parameters) at the readings ``q``, ``legs``, from the covariance of its
+    active parameters: ``G C G^T`` per pose, ``G`` the derivative of the tool error vector modulo
+    the gauge (what :func:`tool_pose_errors` measures against a truth, with ``gauge="fit"``).
+    The platform pose's derivative is exact (implicit differentiation of the loop closure,
+    :func:`iwr.estimation.loop_jacobians`); the frame's composition with the registration, the
+    joints' gauge and the gauge alignment is differentiated by central differences of step
+    ``step`` (mm, rad; no forward kinematics in them). The orientation error is in the tool
+    frame."""
+    from ..estimation import accuracy_from_covariances, loop_jacobians
+    from ..transforms import pose_matrix
+    from .analysis import _fk
+
+    x = np.asarray(x, dtype=float)
+    mask = np.asarray(active, dtype=bool)
+    cov = np.asarray(covariance, dtype=float)
+    q = np.asarray(q, dtype=float)
+    legs = np.asarray(legs, dtype=float)
+    t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+    nr, nj = robot.n_params, robot.n_joints
+    poses = _fk(robot, x[:nr], q, legs)
+    _, jx, jy = loop_jacobians(robot, x[:nr], q, poses)
+    g_pose = -np.linalg.solve(jy[:, :, nj:], jx)  # (N, 6, nr): d (dp, w) / d x_robot
+    t05 = pose_matrix(poses)
+    zero = np.zeros((len(poses), 6))
+    base = _frames(robot, x, t05, zero)
+    cols = []
+    for i in np.flatnonzero(mask):
+        e = np.zeros_like(x)
+        e[i] = step
+        d = g_pose[:, :, i] * step if i < nr else zero
+        cols.append((_aligned_errors(_frames(robot, x + e, t05, d), base, t)
+                     - _aligned_errors(_frames(robot, x - e, t05, -d), base, t)) / (2 * step))
+    g = np.stack(cols, axis=2)  # (N, 6, p)
+    cp = np.einsum("kip,pq,kjq->kij", g[:, :3], cov, g[:, :3])
+    co = np.einsum("kip,pq,kjq->kij", g[:, 3:], cov, g[:, 3:])
+    return accuracy_from_covariances(cp, co, n_samples=n_samples, seed=seed)

@@ -1,0 +1,118 @@
+"""``iwr report`` checks that DATA.csv is the run's (the result's data fingerprint), and the
+reports say which covariance their standard deviations come from (the efficient estimator's own,
+or eq. (10)'s first-order one)."""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import sys
+import tempfile
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr.cli.report import data_fingerprint
+from iwr.uncertainty import Uncertainty, uncertainty
+
+
+def run(*args: str, prog: list[str] | None = None) -> subprocess.CompletedProcess[str]:
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+    return subprocess.run([*(prog or [sys.executable, "-m", "iwr"]), *args], capture_output=True,
+                          text=True, cwd=tempfile.gettempdir(), env=environ, timeout=600)
+
+
+@pytest.fixture(scope="module")
+def sims(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, Path]:
+    out = tmp_path_factory.mktemp("rep")
+    for seed in (5, 6):
+        proc = run("simulate", "--poses", "30", "--seed", str(seed), "--out", str(out / f"s{seed}"))
+        assert proc.returncode == 0, proc.stderr
+    return out / "s5", out / "s6"
+
+
+def test_the_fingerprint_is_the_engines(sims, tmp_path):
+    """The Python fingerprint is the one the problem file (the engine) records."""
+    robot = iwr.Robot.from_toml(sims[0] / "robot.toml")
+    data = iwr.Measurements.from_csv(sims[0] / "measurements.csv", robot=robot)
+    iwr.Problem(robot, data).save(tmp_path / "p.iwrp")
+    from iwr.problem_file import read_problem
+
+    assert read_problem(tmp_path / "p.iwrp")["data_fingerprint"] == data_fingerprint(robot, data)
+    other = iwr.Measurements.from_csv(sims[1] / "measurements.csv", robot=robot)
+    assert data_fingerprint(robot, other) != data_fingerprint(robot, data)
+
+
+def test_report_refuses_another_data_file_for_an_engine_result(sims, tmp_path):
+    launcher = shutil.which("iwr-calibrate", path=str(Path(sys.executable).parent))
+    assert launcher is not None
+    good, bad = sims[0] / "measurements.csv", sims[1] / "measurements.csv"
+    proc = run(str(sims[0] / "robot.toml"), str(good), "--generations", "3", "--output",
+               str(tmp_path / "eng.json"), "-q", prog=[launcher])
+    assert proc.returncode == 0, proc.stderr
+    proc = run("report", str(tmp_path / "eng.json"), str(sims[0] / "robot.toml"), str(bad),
+               "--out", str(tmp_path / "r"), "--no-plots")
+    assert proc.returncode == 2, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr
+    assert f"{bad} is not the data {tmp_path / 'eng.json'} was identified from" in proc.stderr
+    assert str(good.resolve()) in proc.stderr  # where the run's data came from
+    assert not (tmp_path / "r").exists()  # refused before anything is written
+    proc = run("report", str(tmp_path / "eng.json"), str(sims[0] / "robot.toml"), str(good),
+               "--out", str(tmp_path / "r"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert "records no fingerprint" not in (tmp_path / "r" / "report.md").read_text()
+
+
+def test_report_refuses_another_data_file_for_an_iwr_calibrate_result(sims, tmp_path):
+    good, bad = sims[0] / "measurements.csv", sims[1] / "measurements.csv"
+    proc = run("calibrate", str(sims[0] / "robot.toml"), str(good), "--method", "lm",
+               "-o", str(tmp_path / "cal"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    saved = json.loads((tmp_path / "cal" / "result.json").read_text())
+    assert saved["settings"]["data_fingerprint"] and saved["settings"]["data_file"] == str(good)
+    proc = run("report", str(tmp_path / "cal" / "result.json"), str(sims[0] / "robot.toml"),
+               str(bad), "--out", str(tmp_path / "r"), "--no-plots")
+    assert proc.returncode == 2 and "is not the data" in proc.stderr and str(bad) in proc.stderr
+    proc = run("report", str(tmp_path / "cal" / "result.json"), str(sims[0] / "robot.toml"),
+               str(good), "--out", str(tmp_path / "r"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_a_result_without_fingerprint_is_reported_with_a_note(sims, tmp_path):
+    robot = iwr.Robot.from_toml(sims[0] / "robot.toml")
+    data = iwr.Measurements.from_csv(sims[0] / "measurements.csv", robot=robot)
+    iwr.identify(robot, data, progress=False).save(tmp_path / "api.json")
+    proc = run("report", str(tmp_path / "api.json"), str(sims[0] / "robot.toml"),
+               str(sims[1] / "measurements.csv"), "--out", str(tmp_path / "r"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert "records no fingerprint of its data" in proc.stdout
+
+
+def test_efficient_estimator_std_come_from_its_covariance(sims, tmp_path):
+    robot = iwr.Robot.from_toml(sims[0] / "robot.toml")
+    data = iwr.Measurements.from_csv(sims[0] / "measurements.csv", robot=robot)
+    res = iwr.identify(robot, data, noise=iwr.Noise.realistic())
+    unc = Uncertainty.from_result(res)
+    assert unc is not None and unc.source == "estimator"
+    np.testing.assert_allclose(unc.std, res["std"], equal_nan=True)
+    eq10 = uncertainty(robot, data, res.x, active=res["active"])
+    assert not np.allclose(unc.std[res["active"]], eq10.std[res["active"]], rtol=0.05)
+    assert Uncertainty.from_result(iwr.identify(robot, data)) is None  # eq. (10): none
+    proc = run("calibrate", str(sims[0] / "robot.toml"), str(sims[0] / "measurements.csv"),
+               "--noise", "realistic", "-o", str(tmp_path / "cal"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    md = (tmp_path / "cal" / "report.md").read_text()
+    assert "Standard deviations: the efficient estimator's covariance" in md
+    rows = json.loads((tmp_path / "cal" / "summary.json").read_text())["parameters"]
+    std = np.array([np.nan if r["std"] is None else r["std"] for r in rows])
+    # the CLI holds 20 % out: same order of magnitude as the API's on all poses, not eq. (10)'s
+    ok = np.isfinite(std)
+    assert ok.sum() == res["active"].sum()
+    proc = run("report", str(tmp_path / "cal" / "result.json"), str(sims[0] / "robot.toml"),
+               str(sims[0] / "measurements.csv"), "--out", str(tmp_path / "r"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    assert "not the efficient estimator's covariance" in (tmp_path / "r" / "report.md").read_text()

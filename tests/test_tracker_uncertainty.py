@@ -1,0 +1,108 @@
+"""iwr.uncertainty on laser-tracker data, checked by Monte-Carlo: the true robot and poses fixed,
+fresh reading and tracker noise per seed, the spread of the identified parameters against the
+predicted standard deviations."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+import iwr
+from iwr.tracker import TrackerMeasurements, TrackerNoise
+from iwr.tracker.analysis import null_space
+from iwr.tracker.api import tracker_problem
+from iwr.tracker.setup import pose_from_matrix_safe
+from iwr.transforms import pose_matrix
+
+REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
+REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
+READINGS = iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6)
+TRACKER = TrackerNoise.leica()
+
+
+def robot_for(kind: str) -> iwr.Robot:
+    kw = {"reflectors": REFLECTORS} if kind == "points" else {"probe": (0, 0, 60, 0, 0, 0)}
+    return iwr.Robot.default().with_tracker(registration=REGISTRATION, **kw)
+
+
+def noisy_copy(robot: iwr.Robot, clean: TrackerMeasurements,
+               rng: np.random.Generator) -> TrackerMeasurements:
+    """The same poses with fresh noise, drawn as iwr.simulate draws it."""
+    sq = np.where([c == "P" for c in robot.joint_types], READINGS.joint_lengths,
+                  READINGS.joint_angles)
+    q = clean.q + sq * rng.standard_normal(clean.q.shape)
+    legs = clean.legs + READINGS.legs * rng.standard_normal(clean.legs.shape)
+    if clean.points is not None:
+        return TrackerMeasurements(q, legs, points=TRACKER.perturb(clean.points, rng),
+                                   joint_types=clean.joint_types)
+    t = pose_matrix(clean.probe)
+    t[:, :3, 3] = TRACKER.perturb(t[:, :3, 3], rng)
+    turn = Rotation.from_rotvec(TRACKER.orientation * rng.standard_normal((len(clean), 3)))
+    t[:, :3, :3] = turn.as_matrix() @ t[:, :3, :3]
+    return TrackerMeasurements(q, legs, probe=np.array([pose_from_matrix_safe(m) for m in t]),
+                               joint_types=clean.joint_types)
+
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_predicted_std_matches_the_monte_carlo_spread(kind):
+    robot = robot_for(kind)
+    clean, _ = iwr.simulate(robot, 40, seed=1)
+    problem, x0 = tracker_problem(robot, clean)
+    mask = null_space(problem, x0).active
+    # The truth in the gauge of the held parameters (held at x0, as every run below holds them).
+    ref = iwr.identify(robot, clean, x0=x0, active=mask).x
+    pred = iwr.uncertainty(robot, clean, ref, noise=(READINGS, TRACKER), active=mask)
+    assert pred.source == "tracker noise" and pred.covariance.shape == (mask.sum(),) * 2
+    assert np.all(np.isnan(pred.std[~mask])) and np.all(pred.std[mask] > 0)
+    runs = []
+    for seed in range(20):
+        res = iwr.identify(robot, noisy_copy(robot, clean, np.random.default_rng(100 + seed)),
+                           x0=x0, active=mask)
+        assert res.success, res.message
+        runs.append(res.x[mask])
+    x = np.array(runs)
+    ratio = x.std(axis=0, ddof=1) / pred.std[mask]
+    assert 0.85 < np.median(ratio) < 1.15, np.median(ratio)
+    dev = x - ref[mask]
+    maha = np.einsum("si,ij,sj->s", dev, np.linalg.inv(pred.covariance), dev) / mask.sum()
+    assert 0.85 < maha.mean() < 1.15, maha.mean()
+
+
+def test_the_point_covariance_is_the_tracker_noise_model():
+    """Each point's covariance, long across the line of sight, against samples of
+    TrackerNoise.perturb (the simulation's noise)."""
+    from iwr.uncertainty import _point_covariance
+
+    robot = robot_for("points")
+    clean, truth = iwr.simulate(robot, 3, seed=2)
+    problem, _ = tracker_problem(robot, clean, x0=truth)
+    c = _point_covariance(problem, truth, None, TRACKER)
+    rng = np.random.default_rng(0)
+    p = clean.points[1, 2]
+    draws = TRACKER.perturb(np.tile(p, (40000, 1)), rng) - p
+    np.testing.assert_allclose(np.cov(draws.T), c[1, 6:9, 6:9], rtol=0.05,
+                               atol=0.05 * np.abs(c[1, 6:9, 6:9]).max())
+    e = p / np.linalg.norm(p)
+    along = e @ c[1, 6:9, 6:9] @ e
+    sr, st = TRACKER.sigmas(np.linalg.norm(p))
+    assert along == pytest.approx(sr**2) and np.trace(c[1, 6:9, 6:9]) == pytest.approx(
+        sr**2 + 2 * st**2)
+    assert np.all(c[:, :3, 3:] == 0)  # points independent
+
+
+def test_without_a_noise_model_sigma_comes_from_the_residuals():
+    robot = robot_for("points")
+    from iwr.tracker.api import tracker_simulate
+
+    data, _ = tracker_simulate(robot, 30, seed=3, noise=(READINGS, TRACKER), hidden=0.2)
+    res = iwr.identify(robot, data, active="base")
+    unc = iwr.uncertainty(robot, data, res.x, active=res["active"])
+    problem, _ = tracker_problem(robot, data, x0=res.x)
+    assert unc.dof == problem.n_observations - res["active"].sum()
+    assert unc.sigma == pytest.approx(math.sqrt(problem.cost(res.x) / unc.dof))
+    assert unc.source == "point residuals" and "tracker problem" in unc.describe()
+    with pytest.raises(ValueError, match="rank deficient"):
+        iwr.uncertainty(robot, data, res.x, active=np.ones(res.x.size, bool))
