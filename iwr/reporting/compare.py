@@ -199,8 +199,10 @@ def _definitions(settings: dict[str, Any]) -> list[str]:
         "point. Noise floor: the cost of the true parameters on the same noisy data.",
         "Success: the method's own verdict (result.success): it converged, its result is "
         "finite and its fit is sane (iwr.estimation.fit_check: no identified error beyond 10 "
-        "times the searched bounds modulo the unidentifiable directions and, as every run here "
-        "is given the scenario's noise model, the chi-square test of the fit).",
+        "times the searched bounds modulo the unidentifiable directions"
+        + (" and, as every run here is given the scenario's noise model, the chi-square test of "
+           "the fit)." if settings["noise"]["legs"] > 0 else
+           "; the data have no leg noise, so no noise model and no chi-square test)."),
         f"At floor: cost <= (1 + {settings['success_rtol']}) x noise floor + 6 N x "
         f"({settings['success_atol']} mm)^2, i.e. within {100 * settings['success_rtol']:.0f}% of "
         f"the noise floor or {1e3 * settings['success_atol']:.3g} um RMS of the readings, whatever "
