@@ -71,8 +71,10 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
 
     if args.poses is not None:
         raise CommandError("--poses applies to the built-in example only")
-    if kwargs.get("noise") is not None and method != "efficient":
-        # Checked before the data are read: iwr.identify refuses it too, in the API's words.
+    if (kwargs.get("noise") is not None and method != "efficient"
+            and getattr(args, "noise_from", "--noise") == "--noise"):
+        # Checked before the data are read: iwr.identify refuses it too, in the API's words. (A
+        # noise model from the robot file is set aside below, with a note.)
         raise UsageError(f"--method {method} with --noise: on laser-tracker data only the "
                          "efficient estimator weighs the instruments by a noise model (the other "
                          "methods minimise the unweighted point residuals); use --method "
