@@ -52,7 +52,11 @@ def describe(noise: Any) -> str:
 
     if isinstance(noise, str):
         return "estimated from the data (variance components)" if noise == "estimate" else noise
+    from ..tracker.simulate import TrackerNoise
+
     parts = noise if isinstance(noise, tuple) else (noise,)
-    return "; ".join(("tracker " if i else "") + ", ".join(
-        f"{k} {v:g}" for k, v in dataclasses.asdict(p).items()) for i, p in enumerate(parts)
-        if p is not None)
+    return "; ".join(
+        "tracker TrackerNoise.leica()" if i and p == TrackerNoise.leica()
+        else ("tracker " if i else "") + ", ".join(
+            f"{k} {v:g}" for k, v in dataclasses.asdict(p).items())
+        for i, p in enumerate(parts) if p is not None)

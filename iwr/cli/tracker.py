@@ -119,23 +119,16 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
               f"{getattr(args, 'noise_from', None) or '--noise'})")
     guess = guess_registration(robot, setup, ident)
     print(str(guess), flush=True)
-    noise = kwargs.get("noise")
-    if isinstance(noise, tuple):
-        # Say what --noise became on tracker data (tracker_noise_of): a position or orientation
-        # sigma given for a pose measured in {0} has no reading here and is not used.
-        readings, tnoise = noise
-        from ..simulate import Noise
-        from ..tracker.simulate import TrackerNoise
+    from ..simulate import Noise
 
-        given = getattr(args, "noise", None)
-        dropped = [] if given == Noise.realistic() else [
-            f"{k}={getattr(given, k):g}" for k in ("position", "orientation")
-            if getattr(given, k, 0.0)]
-        tn = "TrackerNoise.leica()" if tnoise == TrackerNoise.leica() else str(tnoise)
-        print(f"noise model: legs {readings.legs:g} mm, joint lengths {readings.joint_lengths:g} "
-              f"mm, joint angles {readings.joint_angles:g} rad; tracker {tn}"
-              + (f" (--noise {', '.join(dropped)}: a pose measured in {{0}}, not used with "
-                 "tracker data)" if dropped else ""), flush=True)
+    given = getattr(args, "noise", None)
+    if isinstance(kwargs.get("noise"), tuple) and getattr(args, "noise_from", None) == "--noise":
+        # A position or orientation sigma given for a pose measured in {0} has no reading here.
+        dropped = [f"{k}={getattr(given, k):g}" for k in ("position", "orientation")
+                   if getattr(given, k, 0.0)] if given != Noise.realistic() else []
+        if dropped:
+            print(f"--noise {', '.join(dropped)}: a pose measured in {{0}}, not used with tracker "
+                  "data", flush=True)
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
                       progress=progress_enabled(args), **kwargs)
     notes: list[str] = []
