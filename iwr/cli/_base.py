@@ -151,3 +151,14 @@ def one_line(exc: BaseException) -> str:
     return " ".join(line.strip() for line in msg.splitlines() if line.strip())
 
 
+
+
+def run_settings(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The settings of an ``iwr calibrate`` run, as its report and ``summary.json`` record them
+    (leg and tracker data alike)."""
+    settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
+                "seed": args.seed, "validation_fraction": args.validation_fraction,
+                **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
+    if getattr(args, "noise_from", None):
+        settings["noise_from"] = args.noise_from
+    return settings

@@ -33,6 +33,7 @@ from ._base import (
     one_line,
     positive_int,
     progress_enabled,
+    run_settings,
 )
 from .simulate import write_truth
 from .tracker import add_arguments as add_tracker_arguments
@@ -387,11 +388,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     inputs = {"robot": robot_name, "data": data_name}
     if getattr(args, "validation", None):
         inputs["validation"] = str(args.validation)
-    settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
-                "seed": args.seed, "validation_fraction": args.validation_fraction,
-                **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
-    if getattr(args, "noise_from", None):
-        settings["noise_from"] = args.noise_from
+    settings = run_settings(args, method, kwargs)
     cal = Calibration(
         robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
         accuracy=acc, data_name=data_name, robot_name=robot_name, identifiability=report,

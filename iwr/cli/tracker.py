@@ -12,7 +12,14 @@ from typing import Any
 
 import numpy as np
 
-from ._base import EXIT_INTERRUPTED, EXIT_OK, CommandError, UsageError, progress_enabled
+from ._base import (
+    EXIT_INTERRUPTED,
+    EXIT_OK,
+    CommandError,
+    UsageError,
+    progress_enabled,
+    run_settings,
+)
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -156,11 +163,7 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
         inputs["readings"] = str(args.readings)
     if args.validation:
         inputs["validation"] = str(args.validation)
-    settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
-                "seed": args.seed, "validation_fraction": args.validation_fraction,
-                **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
-    if getattr(args, "noise_from", None):
-        settings["noise_from"] = args.noise_from
+    settings = run_settings(args, method, kwargs)
     cal = TrackerCalibration(
         robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
         accuracy=accuracy(robot, val, result.x), data_name=str(args.data),
