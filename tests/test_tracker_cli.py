@@ -89,6 +89,20 @@ def test_calibrate_with_a_noise_model_reports_the_estimators_covariance(sim, tmp
     assert "point noise estimated from the residuals" not in html
 
 
+def test_plan_takes_tracker_candidates(sim, tmp_path):
+    """iwr plan with a tracker robot reads tracker data as candidates (not with the leg
+    reader, which stops at the 'pose' column) and plans with the tracker problem."""
+    out = tmp_path / "plan.csv"
+    proc = run("plan", str(sim / "robot.toml"), "--candidates", str(sim / "measurements.csv"),
+               "--poses", "12", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "12 poses chosen" in proc.stdout
+    text = out.read_text()
+    assert "reflector points measured by the tracker" in text
+    rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#")]
+    assert len(rows) == 13  # header and the 12 poses
+
+
 def test_calibrate_names_a_bad_row(sim, tmp_path):
     lines = (sim / "measurements.csv").read_text().splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("5,"))
