@@ -420,9 +420,13 @@ class Calibration:
         result = out / "result.json"
         self.result.save(result)
         written.append(result)
-        summary = out / "summary.json"
-        atomic_write_text(summary, json.dumps(self.to_dict(), indent=1) + "\n")
-        written.append(summary)
+        return written + self._write_report(out, plots)
+
+    def _write_report(self, out: Path, plots: bool) -> list[Path]:
+        """``summary.json``, the figures (PNG), ``report.md`` and ``report.html`` into ``out``
+        (the part of :meth:`write` common to leg and tracker data); returns the paths written."""
+        written = [out / "summary.json"]
+        atomic_write_text(written[0], json.dumps(self.to_dict(), indent=1) + "\n")
         figures: dict[str, bytes] = {}
         if plots:
             figures = {"residuals.png": png_bytes(self._plot_residuals(), dpi=110),
@@ -430,9 +434,8 @@ class Calibration:
             for name, png in figures.items():
                 atomic_write_bytes(out / name, png)
                 written.append(out / name)
-        report = out / "report.md"
-        atomic_write_text(report, self.markdown(list(figures)))
-        written.append(report)
+        atomic_write_text(out / "report.md", self.markdown(list(figures)))
+        written.append(out / "report.md")
         written.append(write_page(self.html(figures), out / "report.html"))
         return written
 
@@ -1282,23 +1285,11 @@ class TrackerCalibration(Calibration):
         x = np.asarray(self.result.x, dtype=float)
         calibrated = self.robot.with_errors(x[:self.n_robot]).with_tracker(
             setup=self.setup.with_parameters(x[self.n_robot:]))
-        written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json",
-                   out / "summary.json"]
+        written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
         calibrated.to_toml(written[0], provenance={
             "method": str(self.result.get("method", "")), "data": self.data_name,
             "cost_mm2": self.costs()["calibrated"]})
         self.result.save(written[1])
         atomic_write_text(written[2], json.dumps(jsonable(self.accuracy.to_dict(),
                                                           finite_only=True), indent=1) + "\n")
-        atomic_write_text(written[3], json.dumps(self.to_dict(), indent=1) + "\n")
-        figures: dict[str, bytes] = {}
-        if plots:
-            figures = {"residuals.png": png_bytes(self._plot_residuals(), dpi=110),
-                       "accuracy.png": png_bytes(self._plot_accuracy(), dpi=110)}
-            for name, png in figures.items():
-                atomic_write_bytes(out / name, png)
-                written.append(out / name)
-        atomic_write_text(out / "report.md", self.markdown(list(figures)))
-        written.append(out / "report.md")
-        written.append(write_page(self.html(figures), out / "report.html"))
-        return written
+        return written + self._write_report(out, plots)
