@@ -183,6 +183,8 @@ def test_tracker_calibration_page_opens_cleanly(tmp_path: Path, kind: str) -> No
         assert "reflector 1" in page and "reflector 3" in page
     else:
         assert "probe origin" in page and "probe orientation (deg)" in page
+        # a probe's pose is seen whole or not: counted as poses, not points
+        assert "0 of 40 probe poses not seen" in page and "points not seen" not in page
     # every parameter held by identify(active="base") is reported as held on a null direction
     assert "held fixed" not in page and page.count("held (null direction") == 16
     summary = json.loads((out / "summary.json").read_text())

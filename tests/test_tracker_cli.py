@@ -89,6 +89,49 @@ def test_calibrate_with_a_noise_model_reports_the_estimators_covariance(sim, tmp
     assert "point noise estimated from the residuals" not in html
 
 
+def test_the_report_shows_the_predicted_accuracy_once_readably(sim, tmp_path):
+    """With a noise model the tracker report gives the efficient estimator's predicted tool
+    accuracy (as the leg report does); the noise setting reads as values, not a repr; the fit
+    test is said once. With nothing held out the prediction is on the identification poses:
+    the estimator's own ``result["predicted"]``."""
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--noise",
+               "realistic", "--validation-fraction", "0", "-o", str(tmp_path), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    html = (tmp_path / "report.html").read_text()
+    md = (tmp_path / "report.md").read_text()
+    m = re.search(r"Predicted by the estimator&#x27;s covariance \(against the truth, on the "
+                  r"identification poses\): tool position RMS ([0-9.e-]+) mm", html)
+    assert m, html
+    assert "Predicted by the estimator's covariance" in md
+    # Against the estimator's own prediction, from the API (computed on its side).
+    from iwr.cli.tracker import load_tracker_data, tracker_noise_of
+
+    robot = iwr.Robot.from_toml(sim / "robot.toml")
+    data = load_tracker_data(str(sim / "measurements.csv"), robot)
+    res = iwr.identify(robot, data, method="efficient",
+                       noise=tracker_noise_of(iwr.Noise.realistic()), active="base")
+    assert float(m.group(1)) == pytest.approx(res["predicted"].position_rms, rel=1e-3)
+    settings = re.search(r"<td>noise</td><td>([^<]*)</td>", html)
+    assert settings and "Noise(" not in settings.group(1)
+    assert "legs 0.002" in settings.group(1) and "tracker distance" in settings.group(1)
+    for text in (html, md):
+        assert text.count("degrees of freedom") == 1 and "[statistic" not in text
+
+
+def test_plan_takes_tracker_candidates(sim, tmp_path):
+    """iwr plan with a tracker robot reads tracker data as candidates (not with the leg
+    reader, which stops at the 'pose' column) and plans with the tracker problem."""
+    out = tmp_path / "plan.csv"
+    proc = run("plan", str(sim / "robot.toml"), "--candidates", str(sim / "measurements.csv"),
+               "--poses", "12", "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    assert "12 poses chosen" in proc.stdout
+    text = out.read_text()
+    assert "reflector points measured by the tracker" in text
+    rows = [ln for ln in text.splitlines() if ln and not ln.startswith("#")]
+    assert len(rows) == 13  # header and the 12 poses
+
+
 def test_calibrate_names_a_bad_row(sim, tmp_path):
     lines = (sim / "measurements.csv").read_text().splitlines()
     k = next(i for i, ln in enumerate(lines) if ln.startswith("5,"))

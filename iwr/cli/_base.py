@@ -159,6 +159,10 @@ def run_settings(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
                 "seed": args.seed, "validation_fraction": args.validation_fraction,
                 **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
+    if settings.get("noise") is not None:
+        from .robot_noise import describe
+
+        settings["noise"] = describe(settings["noise"])  # readable, not a repr
     if getattr(args, "noise_from", None):
         settings["noise_from"] = args.noise_from
     return settings

@@ -19,7 +19,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     )
     p.add_argument("robot", metavar="ROBOT.toml", help="the nominal robot")
     p.add_argument("--candidates", metavar="CANDIDATES.csv",
-                   help="candidate poses (a measurement CSV; leg readings may be predicted ones)")
+                   help="candidate poses (a measurement CSV, or laser-tracker data in the "
+                   "wide form for a robot with a [tracker] table; leg readings may be "
+                   "predicted ones)")
     p.add_argument("--n-candidates", type=positive_int, default=1000, metavar="M",
                    help="without --candidates: candidates sampled in the workspace "
                    "(default: %(default)s)")
@@ -42,7 +44,16 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
     robot = load_robot(args.robot)
     if args.candidates:
-        cand = Measurements.from_csv(args.candidates, robot=robot)
+        from ..tracker.files import is_tracker_file
+
+        if robot.tracker is not None and is_tracker_file(args.candidates):
+            # plan_poses takes tracker measurements as candidates (their poses by forward
+            # kinematics); the leg reader would stop at the 'pose' column.
+            from .tracker import load_tracker_data
+
+            cand = load_tracker_data(args.candidates, robot)
+        else:
+            cand = Measurements.from_csv(args.candidates, robot=robot)
         source = str(args.candidates)
     else:
         rng = np.random.default_rng(args.seed)

@@ -153,6 +153,18 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
             unc = uncertainty(robot, ident, result.x, active=result["active"])
     except (ValueError, TypeError) as exc:
         notes.append(f"note: no standard deviations: {' '.join(str(exc).split())}")
+    predicted = None
+    if result.get("covariance") is not None and not result.interrupted:
+        # On the poses the measured figures are on (result["predicted"] is on the identification
+        # poses), as for leg data.
+        from ..tracker.estimation import tracker_predicted_accuracy
+
+        try:
+            predicted = tracker_predicted_accuracy(robot, result.x, result["covariance"],
+                                                   result["active"], val.q, val.legs,
+                                                   seed=args.seed)
+        except (ValueError, np.linalg.LinAlgError) as exc:
+            notes.append(f"note: no predicted accuracy: {' '.join(str(exc).split())}")
     # What `iwr report` checks its DATA.csv against, as for leg data.
     from .report import data_fingerprint
 
@@ -169,7 +181,7 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
         accuracy=accuracy(robot, val, result.x), data_name=str(args.data),
         robot_name=str(args.robot), identifiability=ns, uncertainty=unc, notes=notes,
         settings=settings, provenance=provenance(inputs), guess=guess,
-        readings_name=str(args.readings or ""))
+        readings_name=str(args.readings or ""), predicted=predicted)
     print(cal.summary())
     out = Path(args.out or "iwr-calibration")
     written = cal.write(out, plots=not args.no_plots)

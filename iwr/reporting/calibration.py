@@ -192,7 +192,8 @@ class Calibration:
         fit = self.result.get("fit")
         if fit is not None:
             head = "fit test: " + fit.verdict
-            if fit.dof > 0 and math.isfinite(fit.statistic):
+            # Once: the verdict of a chi-square test already gives these (FitTest.verdict).
+            if fit.dof > 0 and math.isfinite(fit.statistic) and "chi2 =" not in fit.verdict:
                 head += (f" [statistic {fit.statistic:.4g}, dof {fit.dof}, "
                          f"p-value {fit.p_value:.3g}]")
             lines.append(head)
@@ -238,6 +239,21 @@ class Calibration:
         return (f"{'predicted':18}{'':10}{pr.position_rms:10.4f}{'':10}  {'':10}"
                 f"{pr.orientation_rms:10.5f}   (from the estimator's covariance: 95 % "
                 f"{pr.position_95:.4f} mm, {pr.orientation_95:.5f} deg; against the truth)")
+
+    # What the measured figures next to the prediction hold besides the model's error.
+    _measured_also = ("the measured figures above also contain the measurement noise of the "
+                      "{where} poses")
+
+    def predicted_text(self) -> str:
+        """The efficient estimator's predicted tool accuracy as a sentence for the reports, beside
+        the measured figures (HTML and Markdown alike)."""
+        pr = self.predicted
+        where = "validation" if self.held_out else "identification"
+        return (f"Predicted by the estimator's covariance (against the truth, on the {where} "
+                f"poses): tool position RMS {pr.position_rms:.4g} mm (95 %: "
+                f"{pr.position_95:.4g} mm), orientation RMS {pr.orientation_rms:.4g} deg (95 %: "
+                f"{pr.orientation_95:.4g} deg); "
+                + self._measured_also.format(where=where) + ".")
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """One row per error parameter: name, value, std (None if not identified), unit, status."""
@@ -404,9 +420,13 @@ class Calibration:
         result = out / "result.json"
         self.result.save(result)
         written.append(result)
-        summary = out / "summary.json"
-        atomic_write_text(summary, json.dumps(self.to_dict(), indent=1) + "\n")
-        written.append(summary)
+        return written + self._write_report(out, plots)
+
+    def _write_report(self, out: Path, plots: bool) -> list[Path]:
+        """``summary.json``, the figures (PNG), ``report.md`` and ``report.html`` into ``out``
+        (the part of :meth:`write` common to leg and tracker data); returns the paths written."""
+        written = [out / "summary.json"]
+        atomic_write_text(written[0], json.dumps(self.to_dict(), indent=1) + "\n")
         figures: dict[str, bytes] = {}
         if plots:
             figures = {"residuals.png": png_bytes(self._plot_residuals(), dpi=110),
@@ -414,9 +434,8 @@ class Calibration:
             for name, png in figures.items():
                 atomic_write_bytes(out / name, png)
                 written.append(out / name)
-        report = out / "report.md"
-        atomic_write_text(report, self.markdown(list(figures)))
-        written.append(report)
+        atomic_write_text(out / "report.md", self.markdown(list(figures)))
+        written.append(out / "report.md")
         written.append(write_page(self.html(figures), out / "report.html"))
         return written
 
@@ -479,13 +498,7 @@ class Calibration:
             f"{self.status_text()}: "
             f"{str(r.message).strip().rstrip('.')}.")
         if self.predicted is not None:
-            pr = self.predicted
-            page.paragraph(
-                f"Predicted by the estimator's covariance (against the truth, on the "
-                f"{'validation' if self.held_out else 'identification'} poses): tool position "
-                f"RMS {pr.position_rms:.4g} mm (95 %: {pr.position_95:.4g} mm), orientation RMS "
-                f"{pr.orientation_rms:.4g} deg (95 %: {pr.orientation_95:.4g} deg); the measured "
-                "figures above also contain the measurement noise of the validation poses.")
+            page.paragraph(self.predicted_text())
         self._fit_section(page, "Fit test and outliers")
         if "accuracy.png" in figures:
             page.figure(figures["accuracy.png"], "Tool pose errors before and after calibration",
@@ -580,12 +593,7 @@ class Calibration:
             md.append(f"| {label} | {p['mean']:.4f} | {p['rms']:.4f} | {p['max']:.4f} | "
                       f"{o['mean']:.5f} | {o['rms']:.5f} | {o['max']:.5f} |")
         if self.predicted is not None:
-            pr = self.predicted
-            md += ["", f"Predicted by the estimator's covariance (against the truth): tool "
-                   f"position RMS {pr.position_rms:.4f} mm (95 %: {pr.position_95:.4f} mm), "
-                   f"orientation RMS {pr.orientation_rms:.5f} deg (95 %: "
-                   f"{pr.orientation_95:.5f} deg); the measured figures above also contain the "
-                   "measurement noise of the validation poses."]
+            md += ["", self.predicted_text()]
         fit_lines = self.fit_lines()
         if fit_lines:
             md += ["", "## Fit test and outliers", "", "```", *fit_lines, "```"]
@@ -721,6 +729,8 @@ class TrackerCalibration(Calibration):
 
     guess: Any = None
     readings_name: str = ""
+    _measured_also = ("the point residuals above are not a tool pose error: they also contain the "
+                      "tracker's noise on the {where} poses")
 
     # -- numbers --------------------------------------------------------------------------------
     @property
@@ -787,6 +797,13 @@ class TrackerCalibration(Calibration):
                 "seen": seen.sum(axis=0).tolist(), "hidden": (~seen).sum(axis=0).tolist(),
                 **{k: [_nanstats(v[:, i]) for i in range(v.shape[1])] for k, v in d.items()}}
         return out
+
+    def hidden_text(self) -> str:
+        """``N of M points not seen`` (reflector data), ``N of M probe poses not seen`` (a probe's
+        pose is seen whole or not at all)."""
+        hidden, total = self.hidden_counts()
+        return f"{hidden} of {total} " + ("points" if self.setup.kind == "points"
+                                          else "probe poses") + " not seen"
 
     def hidden_counts(self) -> tuple[int, int]:
         """(points not seen, points expected) over every pose of the run."""
@@ -1008,7 +1025,7 @@ class TrackerCalibration(Calibration):
             f"cost (sum of squared point residuals, mm^2, {len(self.identification)} poses): "
             f"nominal robot + registration guess {c['nominal']:.6g} -> calibrated "
             f"{c['calibrated']:.6g}",
-            f"points not seen: {hidden} of {total}",
+            self.hidden_text(),
             f"registration found: {_fmt(d_nom, '.4g')} mm and {_fmt(a_nom, '.4g')} deg from the "
             f"nominal, {_fmt(d_guess, '.4g')} mm and {_fmt(a_guess, '.4g')} deg from the "
             "closed-form guess",
@@ -1080,7 +1097,7 @@ class TrackerCalibration(Calibration):
             + f": {what} in the tracker frame {{T}}; {len(self.identification)} poses for "
             "identification, " + (f"{len(self.validation)} held out for validation; "
                                   if self.held_out else "none held out; ")
-            + f"{hidden} of {total} points not seen.", "muted")
+            + self.hidden_text() + ".", "muted")
         page.heading("Summary")
         text, grade = self.verdict()
         page.verdict(text, grade)
@@ -1093,6 +1110,8 @@ class TrackerCalibration(Calibration):
             rows.append([label, _fmt(p["rms"], ".4g"), _fmt(p["max"], ".4g"),
                          _fmt(o["rms"], ".4g"), _fmt(o["max"], ".4g")])
         page.table((head, rows), "num")
+        if self.predicted is not None:
+            page.paragraph(self.predicted_text())
         c = self.costs()
         page.paragraph(
             "Per pose: the largest distance between a predicted and a measured point, and the "
@@ -1167,12 +1186,14 @@ class TrackerCalibration(Calibration):
               + (f" + readings{_src(self.readings_name)}" if self.readings_name else "")
               + f": {self.setup.kind}, {len(self.identification)} poses for identification, "
               + (f"{len(self.validation)} held out" if self.held_out else "none held out")
-              + f"; {hidden} of {total} points not seen",
+              + "; " + self.hidden_text(),
               f"- Method: `{r.get('method', '?')}`, {int(r.nfev)} evaluations, "
               f"{self.status_text()}: {str(r.message).strip()}",
               f"- Cost (sum of squared point residuals, mm^2): nominal robot + registration guess "
               f"{c['nominal']:.6g}, calibrated {c['calibrated']:.6g}", "", "## Accuracy", "",
               "```", self.summary(), "```"]
+        if self.predicted is not None:
+            md += ["", self.predicted_text()]
         if "accuracy.png" in figures:
             md += ["", "![Point residuals per pose](accuracy.png)"]
         md += ["", "## Registration", "", *table(*self._registration_table()), "",
@@ -1264,23 +1285,11 @@ class TrackerCalibration(Calibration):
         x = np.asarray(self.result.x, dtype=float)
         calibrated = self.robot.with_errors(x[:self.n_robot]).with_tracker(
             setup=self.setup.with_parameters(x[self.n_robot:]))
-        written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json",
-                   out / "summary.json"]
+        written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
         calibrated.to_toml(written[0], provenance={
             "method": str(self.result.get("method", "")), "data": self.data_name,
             "cost_mm2": self.costs()["calibrated"]})
         self.result.save(written[1])
         atomic_write_text(written[2], json.dumps(jsonable(self.accuracy.to_dict(),
                                                           finite_only=True), indent=1) + "\n")
-        atomic_write_text(written[3], json.dumps(self.to_dict(), indent=1) + "\n")
-        figures: dict[str, bytes] = {}
-        if plots:
-            figures = {"residuals.png": png_bytes(self._plot_residuals(), dpi=110),
-                       "accuracy.png": png_bytes(self._plot_accuracy(), dpi=110)}
-            for name, png in figures.items():
-                atomic_write_bytes(out / name, png)
-                written.append(out / name)
-        atomic_write_text(out / "report.md", self.markdown(list(figures)))
-        written.append(out / "report.md")
-        written.append(write_page(self.html(figures), out / "report.html"))
-        return written
+        return written + self._write_report(out, plots)
