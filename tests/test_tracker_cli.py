@@ -82,7 +82,7 @@ def test_calibrate_with_a_noise_model_reports_the_estimators_covariance(sim, tmp
                "legs=0.002,joint_lengths=0.005,joint_angles=5e-6,position=0.5", "-o",
                str(tmp_path), "--no-plots")
     assert proc.returncode == 0, proc.stderr
-    assert "tracker TrackerNoise.leica()" in proc.stdout
+    assert "(TrackerNoise.leica())" in proc.stdout
     assert "position=0.5: a pose measured in {0}, not used" in proc.stdout
     html = (tmp_path / "report.html").read_text()
     assert "efficient estimator&#x27;s covariance" in html

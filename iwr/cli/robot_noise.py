@@ -56,7 +56,7 @@ def describe(noise: Any) -> str:
 
     parts = noise if isinstance(noise, tuple) else (noise,)
     return "; ".join(
-        "tracker TrackerNoise.leica()" if i and p == TrackerNoise.leica()
-        else ("tracker " if i else "") + ", ".join(
-            f"{k} {v:g}" for k, v in dataclasses.asdict(p).items())
+        ("tracker " if i else "")
+        + ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(p).items())
+        + (" (TrackerNoise.leica())" if i and p == TrackerNoise.leica() else "")
         for i, p in enumerate(parts) if p is not None)
