@@ -441,13 +441,18 @@ class Calibration:
 
     def verdict(self) -> tuple[str, str]:
         """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``)."""
-        r = self.result
         before = self.accuracy.nominal.summary()["position_mm"]["rms"]
         after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
         where = (f"{self.accuracy.n_poses} validation poses" if self.held_out else
                  f"the {self.accuracy.n_poses} identification poses (nothing held out: "
                  "optimistic)")
         change = f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on {where}"
+        return self._graded(before, after, change, "the accuracy")
+
+    def _graded(self, before: float, after: float, change: str, what: str) -> tuple[str, str]:
+        """The verdict from the result's status and fit and the error ``before`` and ``after``
+        calibration (``change`` says them in words, ``what`` names them)."""
+        r = self.result
         if r.get("status") == "interrupted":
             return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
                     "bad")
@@ -459,10 +464,10 @@ class Calibration:
         if not r.success:
             return f"Not converged ({str(r.message).strip().rstrip('.')}); {change}.", "bad"
         if not (math.isfinite(after) and math.isfinite(before)) or after >= before:
-            return f"The calibration did not improve the accuracy: {change}.", "bad"
+            return f"The calibration did not improve {what}: {change}.", "bad"
         ratio = before / after if after > 0 else math.inf
         if ratio >= 5:
-            return f"Calibrated: {change}, {ratio:.3g} times smaller.", "good"
+            return f"Calibrated: {change}: {ratio:.3g} times smaller.", "good"
         return (f"Improved, but only {ratio:.3g} times: {change}. Check the data and the "
                 "identifiability below.", "fair")
 
@@ -990,25 +995,9 @@ class TrackerCalibration(Calibration):
                 f"{where}")
 
     def verdict(self) -> tuple[str, str]:
-        r = self.result
         before = _nanstats(self.accuracy.nominal.position)["rms"]
         after = _nanstats(self.accuracy.calibrated.position)["rms"]
-        change = self.change_text()
-        if r.get("status") == "interrupted":
-            return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
-                    "bad")
-        fit = r.get("fit")
-        if fit is not None and not fit.fit_ok:
-            return ("The model does not fit the data: " + fit.verdict.removeprefix(
-                "THE MODEL DOES NOT FIT THE DATA: ") + ". " + " ".join(
-                    c.rstrip(".") + "." for c in fit.causes) + f" ({change}.)", "bad")
-        if not r.success:
-            return f"Not converged ({str(r.message).strip().rstrip('.')}); {change}.", "bad"
-        if not (math.isfinite(after) and math.isfinite(before)) or after >= before:
-            return f"The calibration did not improve the point residuals: {change}.", "bad"
-        ratio = before / after if after > 0 else math.inf
-        grade = "good" if ratio >= 5 else "fair"
-        return f"Calibrated: {change}: {ratio:.3g} times smaller.", grade
+        return self._graded(before, after, self.change_text(), "the point residuals")
 
     def summary(self) -> str:
         r = self.result
