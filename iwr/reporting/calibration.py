@@ -544,19 +544,34 @@ class Calibration:
         if "residuals.png" in figures:
             page.figure(figures["residuals.png"], "Leg residuals before and after calibration",
                         "residuals.png")
+        return self._html_tail(page, [
+            "calibrated.toml: the calibrated robot (nominal plus identified errors)",
+            "result.json: the identification result (iwr.load_result)",
+            "summary.json: the figures of this report", "report.md: this report as Markdown",
+            *figures])
+
+    def _html_tail(self, page: Page, files: list[str]) -> Page:
+        """The end of the HTML report: settings, notes, the files written, provenance."""
         page.heading("Settings")
         page.table((["setting", "value"], [[k, str(v)] for k, v in self.settings.items()]
-                    + [["result", str(r.message).strip()]]), "left")
+                    + [["result", str(self.result.message).strip()]]), "left")
         if self.notes:
             page.heading("Notes").items([n.strip() for n in self.notes])
         page.heading("Files")
-        page.items(["calibrated.toml: the calibrated robot (nominal plus identified errors)",
-                    "result.json: the identification result (iwr.load_result)",
-                    "summary.json: the figures of this report", "report.md: this report as "
-                    "Markdown", *figures])
+        page.items(files)
         if self.provenance is not None:
             page.provenance(self.provenance)
         return page
+
+    def _provenance_md(self) -> list[str]:
+        """The Markdown report's provenance section (none without provenance)."""
+        p = self.provenance
+        if p is None:
+            return []
+        return (["", "## Provenance", "", f"- iwr {p['iwr_version']}, {p['date']}",
+                 f"- command: `{' '.join(p['command'])}`"]
+                + [f"- {label}: `{f['path']}`, SHA-256 `{f['sha256']}`"
+                   for label, f in p["inputs"].items()])
 
     def markdown(self, figures: list[str]) -> str:
         """The report as Markdown (figures referenced by file name)."""
@@ -648,12 +663,7 @@ class Calibration:
         md += [f"- `{f}`" for f in figures]
         if self.notes:
             md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
-        if self.provenance is not None:
-            p = self.provenance
-            md += ["", "## Provenance", "", f"- iwr {p['iwr_version']}, {p['date']}",
-                   f"- command: `{' '.join(p['command'])}`"]
-            md += [f"- {label}: `{f['path']}`, SHA-256 `{f['sha256']}`"
-                   for label, f in p["inputs"].items()]
+        md += self._provenance_md()
         return "\n".join(md) + "\n"
 
     def _plot_residuals(self) -> Any:
@@ -1146,19 +1156,11 @@ class TrackerCalibration(Calibration):
             page.heading("Identifiability")
             page.paragraph(self.null_sentence())
             page.pre(self.null_text())
-        page.heading("Settings")
-        page.table((["setting", "value"], [[k, str(v)] for k, v in self.settings.items()]
-                    + [["result", str(r.message).strip()]]), "left")
-        if self.notes:
-            page.heading("Notes").items([n.strip() for n in self.notes])
-        page.heading("Files")
-        page.items(["calibrated.toml: the calibrated robot with its calibrated [tracker] table",
-                    "result.json: the identification result (iwr.load_result)",
-                    "accuracy.json: the accuracy figures", "summary.json: the figures of this "
-                    "report", "report.md: this report as Markdown", *figures])
-        if self.provenance is not None:
-            page.provenance(self.provenance)
-        return page
+        return self._html_tail(page, [
+            "calibrated.toml: the calibrated robot with its calibrated [tracker] table",
+            "result.json: the identification result (iwr.load_result)",
+            "accuracy.json: the accuracy figures", "summary.json: the figures of this report",
+            "report.md: this report as Markdown", *figures])
 
     def markdown(self, figures: list[str]) -> str:
         r = self.result
@@ -1202,12 +1204,7 @@ class TrackerCalibration(Calibration):
                    self.null_text(), "```"]
         md += ["", "## Files", "", "- `calibrated.toml`, `result.json`, `accuracy.json`, "
                "`summary.json`, `report.html`", *[f"- `{f}`" for f in figures]]
-        if self.provenance is not None:
-            p = self.provenance
-            md += ["", "## Provenance", "", f"- iwr {p['iwr_version']}, {p['date']}",
-                   f"- command: `{' '.join(p['command'])}`"]
-            md += [f"- {label}: `{f['path']}`, SHA-256 `{f['sha256']}`"
-                   for label, f in p["inputs"].items()]
+        md += self._provenance_md()
         return "\n".join(md) + "\n"
 
     # -- figures --------------------------------------------------------------------------------
