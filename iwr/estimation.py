@@ -485,6 +485,17 @@ def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: f
             "or reflector offset left out, leg or pose columns swapped, a wrong nominal geometry")
 
 
+def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
+                  without_dof: str) -> str:
+    """The fit test's one-line verdict (``without_dof`` when it failed with no redundancy)."""
+    if fit_ok:
+        return (f"the model fits the data: chi2 = {statistic:.4g} for {dof} degrees of "
+                f"freedom (p = {p_value:.3g})")
+    return "THE MODEL DOES NOT FIT THE DATA: " + (
+        f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
+        if dof > 0 else without_dof)
+
+
 def _chi2_cause(statistic: float, dof: int, p_value: float) -> str:
     return (f"the weighted residual sum {statistic:.4g} is {statistic / dof:.3g} times its "
             f"expectation ({dof} degrees of freedom, p = {p_value:.2g}): the model does not fit "
@@ -588,13 +599,8 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
                 "identified errors " + ("within" if not implausible else "NOT within")
                 + " their plausible size")
         verdict = head if fit_ok else "THE MODEL DOES NOT FIT THE DATA: " + head
-    elif fit_ok:
-        verdict = (f"the model fits the data: chi2 = {statistic:.4g} for {dof} degrees of "
-                   f"freedom (p = {p_value:.3g})")
     else:
-        verdict = ("THE MODEL DOES NOT FIT THE DATA: " + (
-            f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
-            if dof > 0 else "implausible parameters"))
+        verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "implausible parameters")
     return FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict, causes,
                    implausible)
 
@@ -1049,13 +1055,7 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
     if est:
         notes.append("noise estimated for " + ", ".join(est) + ": the chi-square test checks "
                      "only what the estimate leaves free")
-    if fit_ok:
-        verdict = (f"the model fits the data: chi2 = {statistic:.4g} for {dof} degrees of "
-                   f"freedom (p = {p_value:.3g})")
-    else:
-        verdict = ("THE MODEL DOES NOT FIT THE DATA: " + (
-            f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
-            if dof > 0 else "no degrees of freedom"))
+    verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "no degrees of freedom")
     fit = FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict,
                   causes if not fit_ok else notes, implausible)
 

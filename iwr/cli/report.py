@@ -94,7 +94,6 @@ def cmd_report(args: argparse.Namespace) -> int:
     from ..methods import load_result
     from ..reporting.calibration import Calibration
     from ..reporting.html import provenance
-    from ..uncertainty import uncertainty
 
     result = load_result(args.run)
     robot = load_robot(args.robot)
@@ -118,12 +117,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     val = validation if validation is not None else data
     notes: list[str] = [note] if note else []
     rep = identifiability(robot, data, x)
-    active = result.get("active")
-    try:
-        unc = uncertainty(robot, data, x, active=rep if active is None else active)
-    except ValueError as exc:
-        unc = None
-        notes.append(f"note: no standard deviations: {one_line(exc)}")
+    unc = _uncertainty(robot, data, x, result, rep, notes)
     if unc is not None and result.get("method") == "efficient":
         # A result file does not keep the estimator's covariance: say whose these are.
         notes.append("note: the standard deviations are eq. (10)'s first-order ones at the "
@@ -146,6 +140,20 @@ def cmd_report(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
+def _uncertainty(robot: Any, data: Any, x: Any, result: Any, report: Any,
+                 notes: list[str]) -> Any:
+    """eq. (10)'s (or the point objective's) standard deviations over the result's active
+    parameters (``report``'s when it has none); None, with a note, where they do not exist."""
+    from ..uncertainty import uncertainty
+
+    active = result.get("active")
+    try:
+        return uncertainty(robot, data, x, active=report if active is None else active)
+    except ValueError as exc:
+        notes.append(f"note: no standard deviations: {one_line(exc)}")
+        return None
+
+
 def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
     """``iwr report`` for a robot with a ``[tracker]`` table: the report of ``iwr calibrate`` on
     tracker data (:class:`iwr.reporting.calibration.TrackerCalibration`)."""
@@ -154,7 +162,6 @@ def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
     from ..reporting.calibration import TrackerCalibration
     from ..reporting.html import provenance
     from ..tracker.registration import RegistrationError, guess_registration
-    from ..uncertainty import uncertainty
     from .tracker import load_tracker_data
 
     data = load_tracker_data(args.data, robot, args.readings)
@@ -172,12 +179,7 @@ def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
     validation = load_tracker_data(args.validation, robot) if args.validation else None
     notes: list[str] = [note] if note else []
     ns = identifiability(robot, data)
-    active = result.get("active")
-    try:
-        unc = uncertainty(robot, data, x, active=ns if active is None else active)
-    except ValueError as exc:
-        unc = None
-        notes.append(f"note: no standard deviations: {one_line(exc)}")
+    unc = _uncertainty(robot, data, x, result, ns, notes)
     try:
         guess = guess_registration(robot, robot.tracker, data)
     except RegistrationError:
