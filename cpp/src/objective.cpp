@@ -124,14 +124,7 @@ Objective::Objective(Geometry geometry, const RowMatrixXd& q, const RowMatrixXd&
         prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
         nq += geometry_.is_prismatic(i) ? 1 : 2;
     }
-    while (n_prefix_ < nj && geometry_.is_prismatic(n_prefix_)) ++n_prefix_;
-    nominal_.resize(static_cast<size_t>(6 * nj));  // angles, their cosines, their sines
-    for (int e = 0; e < 2 * nj; ++e) {
-        const double angle = geometry_.dh()(e / 2, e % 2 ? 3 : 0);
-        nominal_[static_cast<size_t>(e)] = angle;
-        nominal_[static_cast<size_t>(2 * nj + e)] = std::cos(angle);
-        nominal_[static_cast<size_t>(4 * nj + e)] = std::sin(angle);
-    }
+    carriage_ = detail::CarriageNominal(geometry_);
     n_blocks_ = (n_ + kBlock - 1) / kBlock;
     stride_ = nq * kBlock;
     blocks_.assign(static_cast<size_t>(n_blocks_) * static_cast<size_t>(stride_), 0.0);
@@ -168,8 +161,20 @@ Objective::Workspace Objective::make_workspace() const {
     return ws;
 }
 
-void Objective::prepare(const double* x, detail::EvalConsts& ec, double* jbuf) const {
-    const Geometry& g = geometry_;
+detail::CarriageNominal::CarriageNominal(const Geometry& g) {
+    const int nj = g.n_joints();
+    while (n_prefix_ < nj && g.is_prismatic(n_prefix_)) ++n_prefix_;
+    nominal_.resize(static_cast<size_t>(6 * nj));  // angles, their cosines, their sines
+    for (int e = 0; e < 2 * nj; ++e) {
+        const double angle = g.dh()(e / 2, e % 2 ? 3 : 0);
+        nominal_[static_cast<size_t>(e)] = angle;
+        nominal_[static_cast<size_t>(2 * nj + e)] = std::cos(angle);
+        nominal_[static_cast<size_t>(4 * nj + e)] = std::sin(angle);
+    }
+}
+
+void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalConsts& ec,
+                                     double* jbuf) const {
     const int nj = g.n_joints();
     double* z = jbuf;               // 3 per prefix joint
     double* joint = jbuf + 3 * nj;  // 6 per joint: cos/sin alpha, cos/sin theta, a, d
@@ -218,6 +223,10 @@ void Objective::prepare(const double* x, detail::EvalConsts& ec, double* jbuf) c
     ec.joint = joint;
 }
 
+void Objective::prepare(const double* x, detail::EvalConsts& ec, double* jbuf) const {
+    carriage_.consts(geometry_, x, ec, jbuf);
+}
+
 double Objective::evaluate(const double* x, double* jbuf, double* res) const {
     detail::EvalConsts ec;
     prepare(x, ec, jbuf);
@@ -232,7 +241,7 @@ double Objective::evaluate(const double* x, double* jbuf, double* res) const {
     pd.off_w = off_w_;
     pd.off_wh = off_wh_;
     pd.n_joints = geometry_.n_joints();
-    pd.n_prefix = n_prefix_;
+    pd.n_prefix = carriage_.n_prefix();
     pd.q_off = q_off_.data();
     pd.prismatic = prismatic_.data();
     return detail::active_kernel()(pd, ec, res);

@@ -44,15 +44,11 @@ IWR_FORCE_INLINE Pack sqrt(const Pack& a) {
     return p;
 }
 
-// One block of 8 poses: 0T4 by the DH chain (eq. 1-2), then M = 4R0 0R5 and w = 4R0 (0P5 - 0P4),
-// the platform pose in frame {4}; leg j is v = M b_j + w - a_j (eq. 8 expressed in {4}), its length
-// |v| and its residual sqrt(w_kj) (|v| - l0_j - s_kj). Returns the per-lane sums of squares.
-template <int Weighted, bool Residuals>
-IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const double* blk,
-                            Pack (&res)[6]) {
+// 0T4 of a block's 8 poses by the DH chain (eq. 1-2): the prismatic prefix (the same rotation at
+// every pose), then joint by joint. t: rotation row-major (0..8), position (9..11).
+IWR_FORCE_INLINE void carriage(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                               Pack (&t)[12]) {
     constexpr int B = kBlock;
-    // --- carriage: the prismatic prefix (same rotation at every pose), then joint by joint ---------
-    Pack t[12];  // 0T4: rotation row-major (0..8), position (9..11)
     for (int e = 0; e < 9; ++e) t[e] = splat(ec.rc[e]);
     for (int r = 0; r < 3; ++r) t[9 + r] = splat(ec.pc[r]);
     for (int i = 0; i < pd.n_prefix; ++i) {
@@ -84,6 +80,17 @@ IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const doub
             t[9 + r] = t[9 + r] + (a * u + dk * w);
         }
     }
+}
+
+// One block of 8 poses: 0T4 (carriage), then M = 4R0 0R5 and w = 4R0 (0P5 - 0P4),
+// the platform pose in frame {4}; leg j is v = M b_j + w - a_j (eq. 8 expressed in {4}), its length
+// |v| and its residual sqrt(w_kj) (|v| - l0_j - s_kj). Returns the per-lane sums of squares.
+template <int Weighted, bool Residuals>
+IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                            Pack (&res)[6]) {
+    constexpr int B = kBlock;
+    Pack t[12];  // 0T4: rotation row-major (0..8), position (9..11)
+    carriage(pd, ec, blk, t);
 
     // --- platform pose in {4}: M = R4^T R5, w = R4^T (p5 - p4) -------------------------------------
     Pack m[12];

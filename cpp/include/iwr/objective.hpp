@@ -32,6 +32,22 @@ struct AlignedAllocator {
     template <class U>
     bool operator!=(const AlignedAllocator<U>&) const noexcept { return false; }
 };
+struct EvalConsts;
+
+/// What the carriage's per-evaluation constants need of the geometry alone (both objectives).
+class CarriageNominal {
+public:
+    CarriageNominal() = default;
+    explicit CarriageNominal(const Geometry& g);
+    int n_prefix() const { return n_prefix_; }
+    /// ec at x: the prismatic prefix's rotation and position, cos/sin of alpha and theta, a, d of
+    /// each joint (into jbuf, 15 n_joints + 1 doubles), and the hexapod's a, b, l0.
+    void consts(const Geometry& g, const double* x, EvalConsts& ec, double* jbuf) const;
+
+private:
+    int n_prefix_ = 0;             // leading prismatic joints
+    std::vector<double> nominal_;  // nominal alpha_i, theta_i (interleaved), their cos, their sin
+};
 }  // namespace detail
 
 /// SIMD variants of the cost kernel that this CPU can run, baseline first: "baseline" (x86-64
@@ -109,11 +125,11 @@ private:
     // joint q (prismatic) or cos q, sin q (revolute). The last block is padded with copies of the
     // last pose.
     std::vector<double, detail::AlignedAllocator<double>> blocks_;
-    int n_blocks_ = 0, stride_ = 0, off_w_ = -1, off_wh_ = -1, n_prefix_ = 0;
+    int n_blocks_ = 0, stride_ = 0, off_w_ = -1, off_wh_ = -1;
     RowMatrixXd whitening_;  // (N, 36) as given, for the Jacobian
     std::vector<int> q_off_;
     std::vector<char> prismatic_;
-    std::vector<double> nominal_;  // nominal alpha_i, theta_i (interleaved), their cos, their sin
+    detail::CarriageNominal carriage_;
 };
 
 }  // namespace iwr
