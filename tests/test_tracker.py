@@ -364,3 +364,72 @@ def test_lm_recovers_the_tool_pose_from_noise_free_probe_poses(robot):
     after = tool_pose_errors(robot, setup, res["x"], truth, q, legs)
     assert after.position.max() < 1e-6
     assert math.radians(after.orientation.max()) < 1e-9
+
+
+# -- the SIMD kernel -------------------------------------------------------------------------------
+
+@pytest.fixture
+def restore_kernel():
+    from iwr import _core
+
+    before = _core._active_kernel()
+    yield _core
+    _core._select_kernel(before)
+
+
+def _setups():
+    probe = TrackerSetup((-1500, 2000, 100, -math.pi / 2, 0.05, 0.1),
+                         probe=(20, -10, 80, 0.3, -0.2, 0.1), probe_length=100)
+    return [points_setup(), points_setup(1), probe]
+
+
+@pytest.mark.parametrize("which", [0, 1, 2])
+def test_every_instruction_set_gives_the_same_tracker_bits(robot, which, restore_kernel):
+    # The point objective's kernel is compiled for the baseline, AVX2 and AVX-512 with explicit
+    # fused multiply-adds (glibc's fma() in the baseline): the same bits on every CPU. 21 poses:
+    # a padded last block; a fifth of the reflectors hidden; vectors across the search box, one
+    # far outside it (the damped Newton fallback) and one where every pose fails.
+    _core = restore_kernel
+    setup = _setups()[which]
+    data, truth = simulate_tracker(robot, setup, 21, seed=11,
+                                   hidden=0.2 if setup.kind == "points" else 0.0)
+    problem = TrackerProblem(robot, setup, data)
+    rng = np.random.default_rng(3)
+    X = problem.lower + (problem.upper - problem.lower) * rng.random((12, problem.n_params))
+    far = truth.copy()
+    far[: robot.n_params] += np.where(robot.angle_parameters, 0.05, 40.0)
+    dead = np.zeros(problem.n_params)
+    dead[problem.parameter_names.index("leg1.dl0")] = -2000.0
+    X = np.vstack([X, far, dead])
+    results = {}
+    for v in _core._supported_kernels():
+        _core._select_kernel(v)
+        results[v] = (problem.cost_batch(X, workers=1), problem.cost_batch(X, workers=2),
+                      problem.residuals(X[0]), problem.residuals(far),
+                      problem.platform_poses(X[1]))
+    base = results["baseline"]
+    for v, got in results.items():
+        for a, b in zip(got, base, strict=True):
+            np.testing.assert_array_equal(a, b, err_msg=f"variant {v}")
+    assert np.array_equal(base[0], base[1])
+    # every pose failed: the penalty on every seen coordinate, none on the hidden ones
+    r = problem.residuals(dead)
+    assert set(np.unique(r)) <= {0.0, FAILED_RESIDUAL}
+    assert np.count_nonzero(r) == (3 * int(data.seen.sum()) if setup.kind == "points" else 12 * 21)
+    assert base[0][-1] == pytest.approx(np.count_nonzero(r) * FAILED_RESIDUAL**2)
+
+
+def test_kernel_forward_kinematics_agrees_with_the_damped_newton_solver(robot):
+    # The kernel's chord-and-refinement solve against iwr.forward_kinematics (forward.cpp's damped
+    # Newton-Raphson, an independent implementation), across DE's search box and 40 mm beyond it.
+    setup = points_setup()
+    data, _ = simulate_tracker(robot, setup, 30, seed=12)
+    problem = TrackerProblem(robot, setup, data)
+    rng = np.random.default_rng(4)
+    for scale in (1.0, 1.0, 1.0, 80.0):
+        x = problem.lower + (problem.upper - problem.lower) * rng.random(problem.n_params)
+        x[: robot.n_params] *= np.where(robot.angle_parameters, 1.0, scale)
+        kernel = problem.platform_poses(x)
+        newton = iwr.forward_kinematics(robot, x[: robot.n_params], data.q, data.legs)
+        assert np.max(np.abs(kernel[:, :3] - newton[:, :3])) < 1e-8
+        assert np.max(np.abs(kernel[:, 3:] - newton[:, 3:])) < 1e-10

@@ -8,10 +8,15 @@
 // The variants are bit-identical: each performs the same IEEE operations, lane by lane, in the same
 // order; -ffp-contract=off (CMakeLists.txt) keeps the compiler from fusing a*b+c into FMAs (which
 // would round differently from the non-FMA baseline); sqrt is correctly rounded everywhere.
+// The tracker point objective's body (tracker_kernel_body.inl) is compiled alongside, with the same
+// register operations plus explicit fused multiply-adds (r_fma: one rounding in every variant; the
+// AVX2 variant therefore also requires FMA, which every AVX2 CPU has).
 #include "objective_kernel.hpp"
 
 #include <atomic>
+#include <algorithm>
 #include <cmath>
+#include <limits>
 #include <stdexcept>
 
 #if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
@@ -43,14 +48,34 @@ IWR_FORCE_INLINE R r_add(R a, R b) { return _mm_add_pd(a, b); }
 IWR_FORCE_INLINE R r_sub(R a, R b) { return _mm_sub_pd(a, b); }
 IWR_FORCE_INLINE R r_mul(R a, R b) { return _mm_mul_pd(a, b); }
 IWR_FORCE_INLINE R r_sqrt(R a) { return _mm_sqrt_pd(a); }
+IWR_FORCE_INLINE R r_div(R a, R b) { return _mm_div_pd(a, b); }
+// a * b + c rounded once (the tracker kernel): no FMA instruction in the baseline, so glibc's
+// correctly rounded fma() lane by lane, the same bits as the FMA instructions of the other variants.
+IWR_FORCE_INLINE R r_fma(R a, R b, R c) {
+    alignas(16) double x[2], y[2], z[2];
+    _mm_store_pd(x, a), _mm_store_pd(y, b), _mm_store_pd(z, c);
+    for (int i = 0; i < 2; ++i) x[i] = std::fma(x[i], y[i], z[i]);
+    return _mm_load_pd(x);
+}
+// Lane masks (the tracker kernel): all ones or all zeros per lane.
+using M = __m128d;
+IWR_FORCE_INLINE M m_le(R a, R b) { return _mm_cmple_pd(a, b); }
+IWR_FORCE_INLINE M m_lt(R a, R b) { return _mm_cmplt_pd(a, b); }
+IWR_FORCE_INLINE M m_and(M a, M b) { return _mm_and_pd(a, b); }
+IWR_FORCE_INLINE M m_andnot(M a, M b) { return _mm_andnot_pd(b, a); }  // a and not b
+IWR_FORCE_INLINE M m_or(M a, M b) { return _mm_or_pd(a, b); }
+IWR_FORCE_INLINE M m_all(bool on) { return _mm_castsi128_pd(_mm_set1_epi64x(on ? -1 : 0)); }
+IWR_FORCE_INLINE int m_bits(M a) { return _mm_movemask_pd(a); }
+IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm_or_pd(_mm_and_pd(m, a), _mm_andnot_pd(m, b)); }
 #include "objective_kernel_body.inl"
+#include "tracker_kernel_body.inl"
 }  // namespace sse2
 
 #if defined(__clang__)
-#pragma clang attribute push(__attribute__((target("avx2"))), apply_to = function)
+#pragma clang attribute push(__attribute__((target("avx2,fma"))), apply_to = function)
 #else
 #pragma GCC push_options
-#pragma GCC target("avx2")
+#pragma GCC target("avx2,fma")
 #endif
 namespace avx2 {
 using R = __m256d;
@@ -62,7 +87,19 @@ IWR_FORCE_INLINE R r_add(R a, R b) { return _mm256_add_pd(a, b); }
 IWR_FORCE_INLINE R r_sub(R a, R b) { return _mm256_sub_pd(a, b); }
 IWR_FORCE_INLINE R r_mul(R a, R b) { return _mm256_mul_pd(a, b); }
 IWR_FORCE_INLINE R r_sqrt(R a) { return _mm256_sqrt_pd(a); }
+IWR_FORCE_INLINE R r_div(R a, R b) { return _mm256_div_pd(a, b); }
+IWR_FORCE_INLINE R r_fma(R a, R b, R c) { return _mm256_fmadd_pd(a, b, c); }
+using M = __m256d;
+IWR_FORCE_INLINE M m_le(R a, R b) { return _mm256_cmp_pd(a, b, _CMP_LE_OQ); }
+IWR_FORCE_INLINE M m_lt(R a, R b) { return _mm256_cmp_pd(a, b, _CMP_LT_OQ); }
+IWR_FORCE_INLINE M m_and(M a, M b) { return _mm256_and_pd(a, b); }
+IWR_FORCE_INLINE M m_andnot(M a, M b) { return _mm256_andnot_pd(b, a); }
+IWR_FORCE_INLINE M m_or(M a, M b) { return _mm256_or_pd(a, b); }
+IWR_FORCE_INLINE M m_all(bool on) { return _mm256_castsi256_pd(_mm256_set1_epi64x(on ? -1 : 0)); }
+IWR_FORCE_INLINE int m_bits(M a) { return _mm256_movemask_pd(a); }
+IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm256_blendv_pd(b, a, m); }
 #include "objective_kernel_body.inl"
+#include "tracker_kernel_body.inl"
 }  // namespace avx2
 #if defined(__clang__)
 #pragma clang attribute pop
@@ -76,8 +113,10 @@ IWR_FORCE_INLINE R r_sqrt(R a) { return _mm256_sqrt_pd(a); }
 #pragma GCC push_options
 #pragma GCC target("avx512f")
 #pragma GCC diagnostic push
-// GCC 12 warns inside its own _mm512_sqrt_pd (an intentionally undefined pass-through operand).
+// GCC 12 warns inside its own _mm512_sqrt_pd and _mm512_cmp_pd_mask (an intentionally undefined
+// pass-through operand).
 #pragma GCC diagnostic ignored "-Wmaybe-uninitialized"
+#pragma GCC diagnostic ignored "-Wuninitialized"
 #endif
 namespace avx512 {
 using R = __m512d;
@@ -89,7 +128,19 @@ IWR_FORCE_INLINE R r_add(R a, R b) { return _mm512_add_pd(a, b); }
 IWR_FORCE_INLINE R r_sub(R a, R b) { return _mm512_sub_pd(a, b); }
 IWR_FORCE_INLINE R r_mul(R a, R b) { return _mm512_mul_pd(a, b); }
 IWR_FORCE_INLINE R r_sqrt(R a) { return _mm512_sqrt_pd(a); }
+IWR_FORCE_INLINE R r_div(R a, R b) { return _mm512_div_pd(a, b); }
+IWR_FORCE_INLINE R r_fma(R a, R b, R c) { return _mm512_fmadd_pd(a, b, c); }
+using M = __mmask8;
+IWR_FORCE_INLINE M m_le(R a, R b) { return _mm512_cmp_pd_mask(a, b, _CMP_LE_OQ); }
+IWR_FORCE_INLINE M m_lt(R a, R b) { return _mm512_cmp_pd_mask(a, b, _CMP_LT_OQ); }
+IWR_FORCE_INLINE M m_and(M a, M b) { return static_cast<M>(a & b); }
+IWR_FORCE_INLINE M m_andnot(M a, M b) { return static_cast<M>(a & ~b); }
+IWR_FORCE_INLINE M m_or(M a, M b) { return static_cast<M>(a | b); }
+IWR_FORCE_INLINE M m_all(bool on) { return static_cast<M>(on ? 0xff : 0); }
+IWR_FORCE_INLINE int m_bits(M a) { return a; }
+IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm512_mask_blend_pd(m, b, a); }
 #include "objective_kernel_body.inl"
+#include "tracker_kernel_body.inl"
 }  // namespace avx512
 #if defined(__clang__)
 #pragma clang attribute pop
@@ -110,7 +161,19 @@ inline R r_add(R a, R b) { return a + b; }
 inline R r_sub(R a, R b) { return a - b; }
 inline R r_mul(R a, R b) { return a * b; }
 inline R r_sqrt(R a) { return std::sqrt(a); }
+inline R r_div(R a, R b) { return a / b; }
+inline R r_fma(R a, R b, R c) { return std::fma(a, b, c); }
+using M = bool;
+inline M m_le(R a, R b) { return a <= b; }
+inline M m_lt(R a, R b) { return a < b; }
+inline M m_and(M a, M b) { return a && b; }
+inline M m_andnot(M a, M b) { return a && !b; }
+inline M m_or(M a, M b) { return a || b; }
+inline M m_all(bool on) { return on; }
+inline int m_bits(M a) { return a ? 1 : 0; }
+inline R m_select(M m, R a, R b) { return m ? a : b; }
 #include "objective_kernel_body.inl"
+#include "tracker_kernel_body.inl"
 }  // namespace portable
 
 #endif
@@ -118,14 +181,15 @@ inline R r_sqrt(R a) { return std::sqrt(a); }
 struct Variant {
     const char* name;
     KernelFn fn;
+    TrackerKernels tracker;
     bool (*supported)();
 };
 
 bool always() { return true; }
 #if IWR_X86_DISPATCH
-bool has_avx2() {
+bool has_avx2() {  // and FMA, which every AVX2 CPU has (Intel Haswell, AMD Excavator and later)
     __builtin_cpu_init();
-    return __builtin_cpu_supports("avx2");
+    return __builtin_cpu_supports("avx2") && __builtin_cpu_supports("fma");
 }
 bool has_avx512() {
     __builtin_cpu_init();
@@ -135,11 +199,11 @@ bool has_avx512() {
 
 const Variant kVariants[] = {
 #if IWR_X86_DISPATCH
-    {"baseline", sse2::kernel, always},
-    {"avx2", avx2::kernel, has_avx2},
-    {"avx512", avx512::kernel, has_avx512},
+    {"baseline", sse2::kernel, {sse2::tracker_chord, sse2::tracker_points}, always},
+    {"avx2", avx2::kernel, {avx2::tracker_chord, avx2::tracker_points}, has_avx2},
+    {"avx512", avx512::kernel, {avx512::tracker_chord, avx512::tracker_points}, has_avx512},
 #else
-    {"baseline", portable::kernel, always},
+    {"baseline", portable::kernel, {portable::tracker_chord, portable::tracker_points}, always},
 #endif
 };
 constexpr int kNumVariants = static_cast<int>(sizeof(kVariants) / sizeof(kVariants[0]));
@@ -158,6 +222,10 @@ std::atomic<int>& active_index() {
 }  // namespace
 
 KernelFn active_kernel() { return kVariants[active_index().load(std::memory_order_relaxed)].fn; }
+
+TrackerKernels active_tracker_kernels() {
+    return kVariants[active_index().load(std::memory_order_relaxed)].tracker;
+}
 
 const char* active_kernel_name() {
     return kVariants[active_index().load(std::memory_order_relaxed)].name;

@@ -45,6 +45,31 @@ struct EvalConsts {
 /// Sum of squared (weighted) residuals; when residuals != nullptr also writes them (N*6, pose-major).
 using KernelFn = double (*)(const PoseData&, const EvalConsts&, double* residuals);
 
+/// Per-evaluation constants of the tracker point objective (TrackerObjective, tracker.cpp).
+struct TrackerConsts {
+    EvalConsts ec;  // the carriage at x and the hexapod's a, b, l0
+    PoseData pd;    // the carriage's layout in the tracker's blocks (n_joints, n_prefix, q_off,
+                    // prismatic; nothing else)
+    double binv[9];  // B^-1 (row-major), B = [b_i, b_k, b_i x b_k] for the pair (i, k)
+    int pair[2] = {0, 1};
+    double tol = 0;   // forward kinematics: |leg residuals| at most (mm)
+    int max_iter = 0; // chord steps before the fallback
+    double rt[9], tt[3];  // the registration T_T0 at x (rotation row-major)
+    int n_points = 0;
+    const double* refl = nullptr;  // the points in {5} (3 per point)
+    double failed_residual = 0;
+};
+/// The two halves of a block of the tracker objective (tracker_kernel_body.inl): the forward
+/// kinematics by chord iterations, and the carriage, the points and the squared residuals.
+struct TrackerKernels {
+    void (*chord)(const double* blk, const TrackerConsts& tc, double* p, double* r, int* status);
+    void (*points)(const double* blk, const TrackerConsts& tc, const double* p, const double* r,
+                   const double* meas, const double* seen, const double* bad, bool all_seen,
+                   double* t, double* y, double* acc);
+};
+/// The variant of the same instruction set as active_kernel().
+TrackerKernels active_tracker_kernels();
+
 /// The variant chosen for this CPU at start-up, or the one forced by select_kernel.
 KernelFn active_kernel();
 const char* active_kernel_name();

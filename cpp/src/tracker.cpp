@@ -1,5 +1,7 @@
 #include "iwr/tracker.hpp"
 
+#include "objective_kernel.hpp"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -18,10 +20,9 @@ Mat3 skew(const Vec3& v) {
     return m;
 }
 
-// Chord iterations (the reference's inverse Jacobian, not refactorised) before falling back to the
-// damped Newton-Raphson of hexapod_forward. From the reference, a parameter change of a millimetre
-// moves the pose by about as much and the Jacobian by about 1e-3 relative, so the error shrinks a
-// thousandfold per iteration and 4-5 iterations reach 1e-10 mm.
+// Steps of the kernel's forward kinematics (tracker_kernel_body.inl: chord steps with the
+// reference's inverse Jacobian, one refined) before falling back to the damped Newton-Raphson of
+// hexapod_forward. Three steps reach 1e-10 mm from the reference across DE's search box.
 constexpr int kMaxChord = 12;
 
 // The hexapod's leg-length Jacobian in the (dP, omega) parametrisation: d l_j = u_j . dP +
@@ -50,176 +51,6 @@ void require_rows(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, co
 }
 
 }  // namespace
-
-namespace detail {
-
-// Chord iterations for kTrackerLanes poses at once, one pose per lane, written as loops over the
-// lanes so that the compiler vectorises them; compiled for AVX-512, AVX2 and the x86-64 baseline
-// and chosen at load time (GCC's target_clones). Each lane computes exactly what it would alone:
-// a lane that has converged (or must fall back) gets a zero step, which leaves its pose unchanged
-// bit for bit, so results never depend on the other poses of the block. No FMA contraction
-// (-ffp-contract=off): the same bits for every variant.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-__attribute__((target_clones("avx512f", "avx2", "default")))
-#endif
-void tracker_chord_block(const double* __restrict blk, const double* __restrict a,
-                         const double* __restrict b, const double* __restrict l0, double tol,
-                         int max_iter, double* __restrict p, double* __restrict r,
-                         int* __restrict status) {
-    constexpr int W = kTrackerLanes;
-    const double* inv = blk;
-    const double* pref = blk + 36 * W;
-    const double* rref = blk + 39 * W;
-    const double* legs = blk + 48 * W;
-    double len[6 * W], len2[6 * W], half_inv[6 * W], f[6 * W], s[6 * W], err[W], prev[W], act[W];
-    for (int i = 0; i < 3 * W; ++i) p[i] = pref[i];
-    for (int i = 0; i < 9 * W; ++i) r[i] = rref[i];
-    for (int j = 0; j < 6; ++j)
-        for (int l = 0; l < W; ++l) len[j * W + l] = legs[j * W + l] + l0[j];
-    // The residual of leg j is (|v|^2 - L^2) / (2 L) rather than |v| - L: the same root, the same
-    // derivative there (u . dv), a difference of (|v| - L)^2 / (2 L), and no square root.
-    for (int i = 0; i < 6 * W; ++i) len2[i] = len[i] * len[i], half_inv[i] = 0.5 / len[i];
-    for (int l = 0; l < W; ++l) {
-        status[l] = 0;
-        act[l] = 1.0;
-        prev[l] = std::numeric_limits<double>::infinity();
-        for (int j = 0; j < 6; ++j) {
-            if (!(len[j * W + l] > 0)) status[l] = 2, act[l] = 0.0;
-        }
-    }
-    for (int it = 0;; ++it) {
-        for (int l = 0; l < W; ++l) err[l] = 0.0;
-        for (int j = 0; j < 6; ++j) {
-            const double ax = a[3 * j], ay = a[3 * j + 1], az = a[3 * j + 2];
-            const double bx = b[3 * j], by = b[3 * j + 1], bz = b[3 * j + 2];
-            for (int l = 0; l < W; ++l) {
-                const double vx = p[l] + r[l] * bx + r[W + l] * by + r[2 * W + l] * bz - ax;
-                const double vy = p[W + l] + r[3 * W + l] * bx + r[4 * W + l] * by +
-                                  r[5 * W + l] * bz - ay;
-                const double vz = p[2 * W + l] + r[6 * W + l] * bx + r[7 * W + l] * by +
-                                  r[8 * W + l] * bz - az;
-                const double fj = (vx * vx + vy * vy + vz * vz - len2[j * W + l]) * half_inv[j * W + l];
-                f[j * W + l] = fj;
-                err[l] = std::max(err[l], std::abs(fj));
-            }
-        }
-        bool any = false;
-        for (int l = 0; l < W; ++l) {
-            if (act[l] == 0.0) continue;
-            if (err[l] <= tol) {
-                act[l] = 0.0;
-            } else if (!(err[l] < 0.5 * prev[l]) || it == max_iter) {
-                act[l] = 0.0;  // not contracting: the damped Newton fallback
-                status[l] = 1;
-            } else {
-                prev[l] = err[l];
-                any = true;
-            }
-        }
-        if (!any) return;
-        for (int m = 0; m < 6; ++m) {
-            for (int l = 0; l < W; ++l) {
-                double acc = 0.0;
-                for (int n = 0; n < 6; ++n) acc += inv[(6 * m + n) * W + l] * f[n * W + l];
-                s[m * W + l] = -(act[l] * acc);
-            }
-        }
-        for (int l = 0; l < W; ++l) {
-            p[l] += s[l];
-            p[W + l] += s[W + l];
-            p[2 * W + l] += s[2 * W + l];
-            // Cayley's rotation of omega = s[3..5]: C = I + 2/(1 + |h|^2) (H + H^2), h = omega/2,
-            // H = [h]x, H^2 = h h^T - |h|^2 I; exactly orthogonal, Exp(omega) to second order.
-            const double hx = 0.5 * s[3 * W + l], hy = 0.5 * s[4 * W + l], hz = 0.5 * s[5 * W + l];
-            const double h2 = hx * hx + hy * hy + hz * hz, k = 2.0 / (1.0 + h2);
-            const double c00 = 1.0 + k * (hx * hx - h2), c01 = k * (hx * hy - hz),
-                         c02 = k * (hx * hz + hy);
-            const double c10 = k * (hx * hy + hz), c11 = 1.0 + k * (hy * hy - h2),
-                         c12 = k * (hy * hz - hx);
-            const double c20 = k * (hx * hz - hy), c21 = k * (hy * hz + hx),
-                         c22 = 1.0 + k * (hz * hz - h2);
-            for (int c = 0; c < 3; ++c) {
-                const double r0 = r[c * W + l], r1 = r[(3 + c) * W + l], r2 = r[(6 + c) * W + l];
-                r[c * W + l] = c00 * r0 + c01 * r1 + c02 * r2;
-                r[(3 + c) * W + l] = c10 * r0 + c11 * r1 + c12 * r2;
-                r[(6 + c) * W + l] = c20 * r0 + c21 * r1 + c22 * r2;
-            }
-        }
-    }
-}
-
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__)
-__attribute__((target_clones("avx512f", "avx2", "default")))
-#endif
-void tracker_points_block(const double* __restrict qb, int nj, const char* __restrict prismatic,
-                          const double* __restrict joint, const double* __restrict rt,
-                          const double* __restrict tt, const double* __restrict refl, int kp,
-                          const double* __restrict p, const double* __restrict r,
-                          double* __restrict t, double* __restrict y) {
-    constexpr int W = kTrackerLanes;
-    for (int e = 0; e < 12; ++e)
-        for (int l = 0; l < W; ++l) t[e * W + l] = (e % 4 == e / 4) ? 1.0 : 0.0;
-    double ct[W], st[W], d[W];
-    for (int i = 0; i < nj; ++i) {
-        const double* jc = joint + 6 * i;
-        const double ca = jc[0], sa = jc[1], ct0 = jc[2], st0 = jc[3], a = jc[4], d0 = jc[5];
-        const double* q0 = qb + 2 * i * W;
-        const double* q1 = q0 + W;
-        if (prismatic[i]) {
-            for (int l = 0; l < W; ++l) ct[l] = ct0, st[l] = st0, d[l] = d0 + q0[l];
-        } else {
-            for (int l = 0; l < W; ++l) {
-                ct[l] = ct0 * q0[l] - st0 * q1[l];
-                st[l] = st0 * q0[l] + ct0 * q1[l];
-                d[l] = d0;
-            }
-        }
-        // T <- T A_i, A_i = Rz(theta) Tz(d) Tx(a) Rx(alpha) (eq. 1), row by row.
-        for (int row = 0; row < 3; ++row) {
-            double* t0 = t + 4 * row * W;
-            double* t1 = t0 + W;
-            double* t2 = t1 + W;
-            double* t3 = t2 + W;
-            for (int l = 0; l < W; ++l) {
-                const double u = t0[l] * ct[l] + t1[l] * st[l];
-                const double v = t1[l] * ct[l] - t0[l] * st[l];
-                const double w = t2[l];
-                t3[l] += a * u + d[l] * w;
-                t0[l] = u;
-                t1[l] = ca * v + sa * w;
-                t2[l] = ca * w - sa * v;
-            }
-        }
-    }
-    // y = m (P + R r_i) + o with m = R_T R4, o = R_T p4 + t_T.
-    double m[9 * W], o[3 * W];
-    for (int i = 0; i < 3; ++i) {
-        for (int j = 0; j < 3; ++j) {
-            for (int l = 0; l < W; ++l) {
-                m[(3 * i + j) * W + l] = rt[3 * i] * t[j * W + l] + rt[3 * i + 1] * t[(4 + j) * W + l] +
-                                         rt[3 * i + 2] * t[(8 + j) * W + l];
-            }
-        }
-        for (int l = 0; l < W; ++l) {
-            o[i * W + l] = rt[3 * i] * t[3 * W + l] + rt[3 * i + 1] * t[7 * W + l] +
-                           rt[3 * i + 2] * t[11 * W + l] + tt[i];
-        }
-    }
-    for (int k = 0; k < kp; ++k) {
-        const double rx = refl[3 * k], ry = refl[3 * k + 1], rz = refl[3 * k + 2];
-        for (int l = 0; l < W; ++l) {
-            const double zx = p[l] + r[l] * rx + r[W + l] * ry + r[2 * W + l] * rz;
-            const double zy = p[W + l] + r[3 * W + l] * rx + r[4 * W + l] * ry + r[5 * W + l] * rz;
-            const double zz = p[2 * W + l] + r[6 * W + l] * rx + r[7 * W + l] * ry + r[8 * W + l] * rz;
-            for (int c = 0; c < 3; ++c) {
-                y[(3 * k + c) * W + l] = m[(3 * c) * W + l] * zx + m[(3 * c + 1) * W + l] * zy +
-                                         m[(3 * c + 2) * W + l] * zz + o[c * W + l];
-            }
-        }
-    }
-}
-
-}  // namespace detail
 
 Mat3 rotvec_matrix(const Vec3& w) {
     const double t2 = w.squaredNorm();
@@ -364,14 +195,30 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
     VectorXd xref(n_params());
     xref.setZero();
     xref.head(geometry_.n_params()) = reference;
+    // The two platform joints whose cross product is largest: the kernel's forward kinematics
+    // recovers the platform's rotation from them.
+    double best = -1;
+    for (int i = 0; i < kLegs; ++i) {
+        for (int j = i + 1; j < kLegs; ++j) {
+            const double c = geometry_.platform().row(i).cross(geometry_.platform().row(j)).norm();
+            if (c > best) best = c, pair_[0] = i, pair_[1] = j;
+        }
+    }
+    if (!(best > 1e-6 * geometry_.platform().squaredNorm()))
+        throw std::invalid_argument("platform joints: all on one line through the origin of {5}; "
+                                    "the forward kinematics needs two that span a plane with it");
     const Hexapod h = hexapod(xref.data());
     ForwardOptions opt;
     opt.tolerance = tolerance_;
     ref_euler_.resize(static_cast<size_t>(n_));
     const int n_blocks = (n_ + kLanes - 1) / kLanes;
-    stride_ = (kChordQuantities + 2 * nj) * kLanes;
+    stride_ = (kChordQuantities + 2 * nj + 4 * k) * kLanes;
     blocks_.assign(static_cast<size_t>(n_blocks) * static_cast<size_t>(stride_), 0.0);
-    for (int i = 0; i < nj; ++i) prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
+    for (int i = 0; i < nj; ++i) {
+        prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
+        q_off_.push_back(kChordQuantities + 2 * i);
+    }
+    carriage_ = detail::CarriageNominal(geometry_);
     for (int kk = 0; kk < n_blocks * kLanes; ++kk) {
         const int p = std::min(kk, n_ - 1);
         const size_t s = static_cast<size_t>(p);
@@ -388,9 +235,19 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
         for (int e = 0; e < 3; ++e) put(36 + e, pr(e));
         for (int e = 0; e < 9; ++e) put(39 + e, rr(e / 3, e % 3));
         for (int e = 0; e < 6; ++e) put(48 + e, legs_(p, e));
+        for (int e = 0; e < 6; ++e) put(54 + e, 0.5 / (legs_(p, e) + h.l0(e)));
         for (int i = 0; i < nj; ++i) {  // q (and 0) for a prismatic joint, cos q and sin q else
             put(kChordQuantities + 2 * i, geometry_.is_prismatic(i) ? q(p, i) : cq_(p, i));
             put(kChordQuantities + 2 * i + 1, geometry_.is_prismatic(i) ? 0.0 : sq_(p, i));
+        }
+        // The measured points (0 where not seen) and 1 or 0 for seen; a padding lane sees nothing.
+        const int e0 = kChordQuantities + 2 * nj;
+        if (kk % kLanes == 0) all_seen_.push_back(1);
+        for (int i = 0; i < k; ++i) {
+            const bool seen = kk < n_ && !std::isnan(points(p, 3 * i));
+            for (int c = 0; c < 3; ++c) put(e0 + 3 * i + c, seen ? points(p, 3 * i + c) : 0.0);
+            put(e0 + 3 * k + i, seen ? 1.0 : 0.0);
+            if (!seen) all_seen_.back() = 0;
         }
     }
 }
@@ -410,44 +267,69 @@ TrackerObjective::Hexapod TrackerObjective::hexapod(const double* x) const {
 
 TrackerObjective::Workspace TrackerObjective::make_workspace() const {
     Workspace ws;
-    ws.joint.resize(static_cast<size_t>(6 * geometry_.n_joints()));
+    ws.jbuf.assign(static_cast<size_t>(15 * geometry_.n_joints() + 1), 0.0);
     ws.r.resize(static_cast<size_t>(setup_.n_points()));
     ws.refl.resize(static_cast<size_t>(3 * setup_.n_points()));
     ws.y.resize(static_cast<size_t>(3 * setup_.n_points() * kLanes));
     return ws;
 }
 
-void TrackerObjective::prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& tt) const {
-    const Geometry& g = geometry_;
-    for (int i = 0; i < g.n_joints(); ++i) {
-        double* jc = ws.joint.data() + 6 * i;
-        const double alpha = g.dh()(i, 0) + x[4 * i], theta = g.dh()(i, 3) + x[4 * i + 3];
-        jc[0] = std::cos(alpha), jc[1] = std::sin(alpha);
-        jc[2] = std::cos(theta), jc[3] = std::sin(theta);
-        jc[4] = g.dh()(i, 1) + x[4 * i + 1];
-        jc[5] = g.dh()(i, 2) + x[4 * i + 2];
-    }
-    setup_.registration_transform(x + g.n_params(), rt, tt);
-    setup_.platform_points(x + g.n_params() + 6, ws.r.data());
+void TrackerObjective::fk_consts(detail::TrackerConsts& tc) const {
+    // The rotation from the platform joints (tracker_chord): B^-1 with B = [b_i, b_k, b_i x b_k].
+    const Vec3 bi(tc.ec.b[pair_[0]][0], tc.ec.b[pair_[0]][1], tc.ec.b[pair_[0]][2]);
+    const Vec3 bk(tc.ec.b[pair_[1]][0], tc.ec.b[pair_[1]][1], tc.ec.b[pair_[1]][2]);
+    Mat3 bm;
+    bm << bi, bk, bi.cross(bk);
+    const Mat3 binv = bm.inverse();
+    for (int e = 0; e < 9; ++e) tc.binv[e] = binv(e / 3, e % 3);
+    tc.pair[0] = pair_[0], tc.pair[1] = pair_[1];
+    tc.tol = tolerance_;
+    tc.max_iter = kMaxChord;
 }
 
-void TrackerObjective::chord(const Hexapod& h, int block, double* pp, double* rr,
-                             int* status) const {
-    static_assert(kLanes == detail::kTrackerLanes, "one block width");
-    double a[18], b[18], l0[6];
-    for (int j = 0; j < kLegs; ++j) {
-        for (int c = 0; c < 3; ++c) a[3 * j + c] = h.a(j, c), b[3 * j + c] = h.b(j, c);
-        l0[j] = h.l0(j);
+void TrackerObjective::prepare(const double* x, Workspace& ws, detail::TrackerConsts& tc) const {
+    const Geometry& g = geometry_;
+    carriage_.consts(g, x, tc.ec, ws.jbuf.data());
+    fk_consts(tc);
+    tc.pd.n_joints = g.n_joints();
+    tc.pd.n_prefix = carriage_.n_prefix();
+    tc.pd.q_off = q_off_.data();
+    tc.pd.prismatic = prismatic_.data();
+    Mat3 rt;
+    Vec3 tt;
+    setup_.registration_transform(x + g.n_params(), rt, tt);
+    setup_.platform_points(x + g.n_params() + 6, ws.r.data());
+    for (int e = 0; e < 9; ++e) tc.rt[e] = rt(e / 3, e % 3);
+    for (int c = 0; c < 3; ++c) tc.tt[c] = tt(c);
+    // The registration folded into the carriage: the kernel's chain starts from T_T0 and ends at
+    // T_T4. ec.z points into ws.jbuf (one direction per prismatic prefix joint).
+    Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> rc(tc.ec.rc);
+    Eigen::Map<Vec3> pc(tc.ec.pc);
+    rc = (rt * rc).eval();
+    pc = rt * pc + tt;
+    for (int i = 0; i < tc.pd.n_prefix; ++i) {
+        Eigen::Map<Vec3> z(ws.jbuf.data() + 3 * i);
+        z = (rt * z).eval();
     }
-    detail::tracker_chord_block(blocks_.data() + static_cast<size_t>(block) * static_cast<size_t>(stride_),
-                                a, b, l0, tolerance_, kMaxChord, pp, rr, status);
+    tc.n_points = setup_.n_points();
+    for (int i = 0; i < tc.n_points; ++i)
+        for (int c = 0; c < 3; ++c) ws.refl[static_cast<size_t>(3 * i + c)] = ws.r[static_cast<size_t>(i)](c);
+    tc.refl = ws.refl.data();
+    tc.failed_residual = kFailedResidual;
 }
 
 void TrackerObjective::solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r,
                                    int* status) const {
     constexpr int W = kLanes;
-    double pp[3 * W], rr[9 * W];
-    chord(h, block, pp, rr, status);
+    static_assert(kLanes == detail::kBlock, "one block width");
+    detail::TrackerConsts tc;
+    for (int j = 0; j < kLegs; ++j) {
+        for (int c = 0; c < 3; ++c) tc.ec.a[j][c] = h.a(j, c), tc.ec.b[j][c] = h.b(j, c);
+        tc.ec.l0[j] = h.l0(j);
+    }
+    fk_consts(tc);
+    alignas(64) double pp[3 * W], rr[9 * W];
+    detail::active_tracker_kernels().chord(block_data(block), tc, pp, rr, status);
     for (int l = 0; l < W; ++l) {
         p[l] = Vec3(pp[l], pp[W + l], pp[2 * W + l]);
         for (int e = 0; e < 9; ++e) r[l](e / 3, e % 3) = rr[e * W + l];
@@ -489,45 +371,52 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
                                   std::vector<int>* failed, RowMatrixXd* poses,
                                   RowMatrixXd* predicted) const {
     constexpr int W = kLanes;
-    Mat3 rt_m;
-    Vec3 tt;
-    prepare(x, ws, rt_m, tt);
-    double rt[9];
-    for (int e = 0; e < 9; ++e) rt[e] = rt_m(e / 3, e % 3);
-    const int kp = setup_.n_points();
-    double* refl = ws.refl.data();
+    const int kp = setup_.n_points(), nj = geometry_.n_joints();
+    detail::TrackerConsts tc;
+    prepare(x, ws, tc);
+    const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> rt(tc.rt);
+    const Eigen::Map<const Vec3> tt(tc.tt);
+    const detail::TrackerKernels kernel = detail::active_tracker_kernels();
+    Hexapod h;
+    bool have_h = false;
     double* y = ws.y.data();
-    for (int i = 0; i < kp; ++i)
-        for (int c = 0; c < 3; ++c) refl[3 * i + c] = ws.r[static_cast<size_t>(i)](c);
-    const Hexapod h = hexapod(x);
-    double pp[3 * W], rr[9 * W], t[12 * W];
+    alignas(64) double pp[3 * W], rr[9 * W], t[12 * W], bad[W], acc[W] = {};
     int status[W];
-    bool bad[W];
-    double cost = 0;
+    const bool scalar = res || failed || poses || predicted;
     for (int blk = 0; blk * W < n_; ++blk) {
-        chord(h, blk, pp, rr, status);
+        const double* data = block_data(blk);
+        kernel.chord(data, tc, pp, rr, status);
         for (int l = 0; l < W; ++l) {
             const int k = blk * W + l;
-            bad[l] = false;
-            if (status[l] == 0 || k >= n_) continue;
+            bad[l] = 0.0;
+            if (status[l] == 0) continue;
             Vec3 p;
             Mat3 r;
-            try {
-                finish(h, k, status[l], p, r);
-                for (int c = 0; c < 3; ++c) pp[c * W + l] = p(c);
-                for (int e = 0; e < 9; ++e) rr[e * W + l] = r(e / 3, e % 3);
-            } catch (const ForwardKinematicsError&) {
-                bad[l] = true;
+            bool solved = false;
+            if (k < n_) {
+                if (!have_h) h = hexapod(x), have_h = true;
+                try {
+                    finish(h, k, status[l], p, r);
+                    solved = true;
+                } catch (const ForwardKinematicsError&) {
+                    bad[l] = 1.0;
+                }
             }
+            if (!solved) {  // a failed pose or a padding lane: the reference pose, finite
+                for (int c = 0; c < 3; ++c) p(c) = data[(36 + c) * W + l];
+                for (int e = 0; e < 9; ++e) r(e / 3, e % 3) = data[(39 + e) * W + l];
+            }
+            for (int c = 0; c < 3; ++c) pp[c * W + l] = p(c);
+            for (int e = 0; e < 9; ++e) rr[e * W + l] = r(e / 3, e % 3);
         }
-        detail::tracker_points_block(
-            blocks_.data() + static_cast<size_t>(blk) * static_cast<size_t>(stride_) +
-                kChordQuantities * W,
-            geometry_.n_joints(), prismatic_.data(), ws.joint.data(), rt, tt.data(), refl, kp, pp,
-            rr, t, y);
+        const double* meas = data + (kChordQuantities + 2 * nj) * W;
+        kernel.points(data, tc, pp, rr, meas, meas + 3 * kp * W, bad,
+                      all_seen_[static_cast<size_t>(blk)] != 0, scalar ? t : nullptr,
+                      scalar ? y : nullptr, acc);
+        if (!scalar) continue;
         for (int l = 0; l < W && blk * W + l < n_; ++l) {
             const int k = blk * W + l;
-            if (bad[l]) {
+            if (bad[l] != 0.0) {
                 if (failed) failed->push_back(k);
                 if (poses) poses->row(k).setConstant(std::numeric_limits<double>::quiet_NaN());
                 if (predicted)
@@ -537,29 +426,32 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
                     Mat3 r4, r;
                     Vec3 p4, p;
                     for (int e = 0; e < 9; ++e) {
-                        r4(e / 3, e % 3) = t[(4 * (e / 3) + e % 3) * W + l];
+                        r4(e / 3, e % 3) = t[e * W + l];
                         r(e / 3, e % 3) = rr[e * W + l];
                     }
-                    for (int c = 0; c < 3; ++c) p4(c) = t[(4 * c + 3) * W + l], p(c) = pp[c * W + l];
+                    for (int c = 0; c < 3; ++c) p4(c) = t[(9 + c) * W + l], p(c) = pp[c * W + l];
+                    // t is T_T4: back to {0}.
+                    r4 = (rt.transpose() * r4).eval();
+                    p4 = rt.transpose() * (p4 - tt);
                     poses->block<1, 3>(k, 0) = (p4 + r4 * p).transpose();
                     poses->block<1, 3>(k, 3) = euler_from_matrix(r4 * r).transpose();
                 }
                 if (predicted)
                     for (int e = 0; e < 3 * kp; ++e) (*predicted)(k, e) = y[e * W + l];
             }
+            if (!res) continue;
             for (int i = 0; i < kp; ++i) {
                 const bool seen = !std::isnan(points_(k, 3 * i));
                 for (int c = 0; c < 3; ++c) {
-                    const double v = !seen ? 0.0
-                                     : bad[l] ? kFailedResidual
-                                              : y[(3 * i + c) * W + l] - points_(k, 3 * i + c);
-                    if (res) res[3 * (kp * k + i) + c] = v;
-                    cost += v * v;
+                    res[3 * (kp * k + i) + c] = !seen          ? 0.0
+                                                : bad[l] != 0.0 ? kFailedResidual
+                                                                : y[(3 * i + c) * W + l] - points_(k, 3 * i + c);
                 }
             }
         }
     }
-    return cost;
+    // The lanes' sums in a fixed order: the same bits whatever the thread or the instruction set.
+    return ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
 }
 
 void TrackerObjective::check_x(const Eigen::Ref<const VectorXd>& x) const {

@@ -33,6 +33,7 @@
 
 #include "iwr/forward.hpp"
 #include "iwr/model.hpp"
+#include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
 
 namespace iwr {
@@ -46,16 +47,7 @@ Mat3 so3_left_jacobian(const Vec3& w);
 enum class TrackerKind { Points, Probe };
 
 namespace detail {
-constexpr int kTrackerLanes = 8;
-/// The chord iterations of the hexapod's forward kinematics for one block of kTrackerLanes poses
-/// (tracker.cpp; internal).
-void tracker_chord_block(const double* blk, const double* a, const double* b, const double* l0,
-                         double tol, int max_iter, double* p, double* r, int* status);
-/// The carriage transforms (rows of 0T4, 12 x kTrackerLanes) and the points in {T} (3 K x lanes)
-/// of one block, from its local platform poses (internal).
-void tracker_points_block(const double* qb, int nj, const char* prismatic, const double* joint,
-                          const double* rt, const double* tt, const double* refl, int kp,
-                          const double* p, const double* r, double* t, double* y);
+struct TrackerConsts;
 }  // namespace detail
 
 /// The nominal measurement setup. Poses are (x, y, z, alpha, beta, gamma), Z-Y-X Euler (eq. 6).
@@ -118,10 +110,10 @@ public:
 
     class Workspace {
         friend class TrackerObjective;
-        std::vector<double> joint;  // per joint: cos/sin alpha, cos/sin theta, a, d
+        std::vector<double> jbuf;   // the carriage's per-joint constants (CarriageNominal)
         std::vector<Vec3> r;        // points in {5}
         std::vector<double> refl;   // the same, flat
-        std::vector<double> y;      // predicted points of a block (3 K x lanes)
+        std::vector<double, detail::AlignedAllocator<double>> y;  // a block's points (3 K x lanes)
     };
     Workspace make_workspace() const;
 
@@ -148,9 +140,13 @@ private:
         LegVector l0;
     };
     Hexapod hexapod(const double* x) const;
-    void prepare(const double* x, Workspace& ws, Mat3& rt, Vec3& tt) const;
-    // Chord iterations of block `block` into SoA arrays pp (3 x kLanes), rr (9 x kLanes).
-    void chord(const Hexapod& h, int block, double* pp, double* rr, int* status) const;
+    // The kernel's constants at x.
+    void prepare(const double* x, Workspace& ws, detail::TrackerConsts& tc) const;
+    // The forward kinematics' constants beyond the hexapod's a, b, l0 (already in tc).
+    void fk_consts(detail::TrackerConsts& tc) const;
+    const double* block_data(int block) const {
+        return blocks_.data() + static_cast<size_t>(block) * static_cast<size_t>(stride_);
+    }
     // Chord iterations for the kLanes poses of block `block`: local poses (P, R) of {5} in {4}
     // and a status per lane (0 solved, 1 needs the damped Newton fallback, 2 a leg length <= 0).
     void solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r, int* status) const;
@@ -172,14 +168,20 @@ private:
     RowMatrixXd cq_, sq_;  // cos and sin of the revolute readings
     // Per pose, in blocks of kLanes poses, structure of arrays (quantity e of lane l at
     // e * kLanes + l): the inverse leg Jacobian at the reference (36, row-major), the reference
-    // position (3) and rotation (9, row-major), the leg readings (6), then per joint q and 0
-    // (prismatic) or cos q and sin q (revolute). The last block is padded with copies of the last
-    // pose.
+    // position (3) and rotation (9, row-major), the leg readings (6), 1 / (2 L) with L the leg
+    // lengths at the reference (6), then per joint q and 0
+    // (prismatic) or cos q and sin q (revolute), then the measured points (3 K, 0 where not seen)
+    // and a flag per point (1 seen, 0 not). The last block is padded with copies of the last pose,
+    // which see no point.
     static constexpr int kLanes = 8;
-    static constexpr int kChordQuantities = 54;
+    static constexpr int kChordQuantities = 60;
     int stride_ = 0;  // doubles per block
-    std::vector<double> blocks_;
+    std::vector<double, detail::AlignedAllocator<double>> blocks_;  // 64-byte aligned
     std::vector<char> prismatic_;
+    std::vector<int> q_off_;  // per joint: its first quantity in a block
+    std::vector<char> all_seen_;  // per block: every point of its (real) poses seen
+    detail::CarriageNominal carriage_;
+    int pair_[2] = {0, 1};  // the platform joints the kernel recovers the rotation from
     std::vector<Vector6d> ref_euler_;  // the reference as a local pose (the fallback's start)
 };
 

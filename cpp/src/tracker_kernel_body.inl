@@ -1,0 +1,239 @@
+// The SIMD body of the tracker point objective (tracker.cpp), written once for a block of 8 poses
+// with the Pack type of objective_kernel_body.inl and included after it, in each instruction set's
+// namespace (objective_kernel.cpp): every variant performs the same IEEE operations in the same
+// order on each lane, so all variants give the same bits.
+// (No include guard: included several times on purpose.)
+
+IWR_FORCE_INLINE Pack operator/(const Pack& a, const Pack& b) {
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = r_div(a.v[k], b.v[k]);
+    return p;
+}
+
+// a * b + c with one rounding (FMA): fewer operations on the adder, the same bits in every variant.
+IWR_FORCE_INLINE Pack fma(const Pack& a, const Pack& b, const Pack& c) {
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = r_fma(a.v[k], b.v[k], c.v[k]);
+    return p;
+}
+IWR_FORCE_INLINE Pack zero_pack() { return splat(0.0); }
+
+// A mask of the 8 lanes; false for NaN in the comparisons.
+struct Mask {
+    M v[K];
+};
+IWR_FORCE_INLINE Mask operator<=(const Pack& a, const Pack& b) {
+    Mask m;
+    for (int k = 0; k < K; ++k) m.v[k] = m_le(a.v[k], b.v[k]);
+    return m;
+}
+IWR_FORCE_INLINE Mask operator<(const Pack& a, const Pack& b) {
+    Mask m;
+    for (int k = 0; k < K; ++k) m.v[k] = m_lt(a.v[k], b.v[k]);
+    return m;
+}
+IWR_FORCE_INLINE Mask operator&(const Mask& a, const Mask& b) {
+    Mask m;
+    for (int k = 0; k < K; ++k) m.v[k] = m_and(a.v[k], b.v[k]);
+    return m;
+}
+IWR_FORCE_INLINE Mask operator|(const Mask& a, const Mask& b) {
+    Mask m;
+    for (int k = 0; k < K; ++k) m.v[k] = m_or(a.v[k], b.v[k]);
+    return m;
+}
+IWR_FORCE_INLINE Mask and_not(const Mask& a, const Mask& b) {  // a and not b
+    Mask m;
+    for (int k = 0; k < K; ++k) m.v[k] = m_andnot(a.v[k], b.v[k]);
+    return m;
+}
+IWR_FORCE_INLINE Mask all_lanes(bool on) {
+    Mask m;
+    for (int k = 0; k < K; ++k) m.v[k] = m_all(on);
+    return m;
+}
+IWR_FORCE_INLINE int bits(const Mask& m) {  // bit l: lane l
+    int b = 0;
+    for (int k = 0; k < K; ++k) b |= m_bits(m.v[k]) << (k * (kBlock / K));
+    return b;
+}
+IWR_FORCE_INLINE Pack select(const Mask& m, const Pack& a, const Pack& b) {
+    Pack p;
+    for (int k = 0; k < K; ++k) p.v[k] = m_select(m.v[k], a.v[k], b.v[k]);
+    return p;
+}
+
+// The forward kinematics of the block's 8 poses, one per lane, from the reference solves stored in
+// the block (blk: the inverse leg Jacobian J_ref^-1 36, P 3, R 9, leg readings 6, 1 / (2 L'_j) 6,
+// each 8 lanes). Each lane computes exactly what it would alone: the decisions are per lane, and a
+// lane that has converged (or must fall back) gets a zero step, which leaves its pose unchanged bit
+// for bit.
+//
+// The unknowns are the platform position P in {4} and the six platform joints d_j = R b_j relative
+// to it, rotated together (d_j <- C(omega) d_j, C Cayley's rotation: exactly orthogonal, Exp(omega)
+// to second order); R itself is needed only at the end: R = [d_i, d_k, d_i x d_k] B^-1 with
+// B = [b_i, b_k, b_i x b_k] for the pair (i, k) of platform joints that spans the platform best.
+// Leg j's residual is f_j = (|v_j|^2 - L_j^2) / (2 L'_j), v_j = P + d_j - a_j, L'_j the leg's
+// length at the reference parameters (within a millimetre of L_j): the root of |v_j| - L_j, nearly
+// the same derivative there (v_j . dv_j / L'_j), no square root, no division. Converged when
+// |f|_2 <= tol. A step is the chord step s0 = -J_ref^-1 f; after the first, in a lane whose |f|_2
+// is above 300 tol, refined once towards Newton's step: s = s0 - J_ref^-1 (J s0 + f) with the
+// current Jacobian J, whose row j applied to (dP, omega) is v_j . (dP + omega x d_j) / L'_j (exact
+// for f). From the reference, in DE's search box, the chord step shrinks |f| about 400-fold and the
+// refined step about 1e5-fold (from 3e-3 mm to 1e-8 mm): four residual evaluations where the chord
+// alone needs five or six.
+// status per lane: 0 solved, 1 not contracting (the caller's damped Newton fallback), 2 a leg
+// length <= 0. Out: P (3 x 8) and R (9 x 8, row-major) of each lane.
+void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, double* rout,
+                   int* status) {
+    constexpr int B = kBlock;
+    const double* inv = blk;
+    // Per-lane constants, residuals and the platform joints live in memory (loads are cheap and
+    // the registers few), the position in registers.
+    alignas(64) double d[18 * B], nl2[6 * B], f[6 * B], g[6 * B];
+    const double* hinv = blk + 54 * B;  // 1 / (2 L_j) at the reference
+    Pack p[3];
+    for (int c = 0; c < 3; ++c) p[c] = load(blk + (36 + c) * B);
+    for (int j = 0; j < 6; ++j) {
+        const Pack b0 = splat(tc.ec.b[j][0]), b1 = splat(tc.ec.b[j][1]), b2 = splat(tc.ec.b[j][2]);
+        for (int c = 0; c < 3; ++c) {
+            const double* rr = blk + (39 + 3 * c) * B;
+            store(d + (3 * j + c) * B, load(rr) * b0 + load(rr + B) * b1 + load(rr + 2 * B) * b2);
+        }
+    }
+    Mask act = all_lanes(true);
+    for (int j = 0; j < 6; ++j) {
+        const Pack len = load(blk + (48 + j) * B) + splat(tc.ec.l0[j]);
+        store(nl2 + j * B, splat(0.0) - len * len);
+        act = act & (splat(0.0) < len);  // false for a length <= 0 (or NaN)
+    }
+    const Mask short_leg = and_not(all_lanes(true), act);
+    Mask stalled_lanes = all_lanes(false);
+    // Refined steps while a lane's |f| is above 300 tol: the plain chord, some 400-fold a step,
+    // might not reach tol in one more.
+    const Pack tol2 = splat(tc.tol * tc.tol), quarter = splat(0.25), zero = splat(0.0);
+    const Pack refine_above = splat(9e4 * tc.tol * tc.tol);
+    Pack prev = splat(std::numeric_limits<double>::infinity());
+    for (int it = 0;; ++it) {
+        Pack err = zero;  // |f|^2, NaN when a residual is: not converged
+#pragma GCC unroll 1
+        for (int j = 0; j < 6; ++j) {
+            const double* dj = d + 3 * j * B;
+            const Pack vx = (p[0] - splat(tc.ec.a[j][0])) + load(dj);
+            const Pack vy = (p[1] - splat(tc.ec.a[j][1])) + load(dj + B);
+            const Pack vz = (p[2] - splat(tc.ec.a[j][2])) + load(dj + 2 * B);
+            const Pack fj = fma(vz, vz, fma(vy, vy, fma(vx, vx, load(nl2 + j * B)))) * load(hinv + j * B);
+            store(f + j * B, fj);
+            err = fma(fj, fj, err);
+        }
+        // Per lane: converged, not contracting (the damped Newton fallback), or on to a step.
+        const Mask live = and_not(act, err <= tol2);
+        const Mask stalled = it == tc.max_iter ? live : and_not(live, err < quarter * prev);
+        stalled_lanes = stalled_lanes | stalled;
+        act = and_not(live, stalled);
+        if (bits(act) == 0) break;
+        prev = select(act, err, prev);
+        Pack s[6];
+        for (int m = 0; m < 6; ++m) {
+            const double* row = inv + 6 * m * B;
+            Pack acc = load(row) * load(f);
+            for (int n = 1; n < 6; ++n) acc = fma(load(row + n * B), load(f + n * B), acc);
+            s[m] = select(act, zero - acc, zero);
+        }
+        const Mask refine = act & (refine_above < err);
+        if (it > 0 && bits(refine) != 0) {
+            // g = J s0 + f, then s = s0 - J_ref^-1 g in the lanes that refine (the others keep s0).
+#pragma GCC unroll 1
+            for (int j = 0; j < 6; ++j) {
+                const double* dj = d + 3 * j * B;
+                const Pack dx = load(dj), dy = load(dj + B), dz = load(dj + 2 * B);
+                const Pack ex = s[0] + (s[4] * dz - s[5] * dy);
+                const Pack ey = s[1] + (s[5] * dx - s[3] * dz);
+                const Pack ez = s[2] + (s[3] * dy - s[4] * dx);
+                const Pack dot = fma((p[2] - splat(tc.ec.a[j][2])) + dz, ez,
+                                     fma((p[1] - splat(tc.ec.a[j][1])) + dy, ey,
+                                         ((p[0] - splat(tc.ec.a[j][0])) + dx) * ex));
+                const Pack h = load(hinv + j * B);
+                store(g + j * B, fma(h + h, dot, load(f + j * B)));
+            }
+            for (int m = 0; m < 6; ++m) {
+                const double* row = inv + 6 * m * B;
+                Pack acc = load(row) * load(g);
+                for (int n = 1; n < 6; ++n) acc = fma(load(row + n * B), load(g + n * B), acc);
+                s[m] = select(refine, s[m] - acc, s[m]);
+            }
+        }
+        for (int c = 0; c < 3; ++c) p[c] = p[c] + s[c];
+        const Pack half = splat(0.5), one = splat(1.0);
+        const Pack hx = half * s[3], hy = half * s[4], hz = half * s[5];
+        const Pack xx = hx * hx, yy = hy * hy, zz = hz * hz, xy = hx * hy, xz = hx * hz, yz = hy * hz;
+        const Pack h2 = xx + yy + zz, k = splat(2.0) / (one + h2);
+        const Pack c00 = one + k * (xx - h2), c01 = k * (xy - hz), c02 = k * (xz + hy);
+        const Pack c10 = k * (xy + hz), c11 = one + k * (yy - h2), c12 = k * (yz - hx);
+        const Pack c20 = k * (xz - hy), c21 = k * (yz + hx), c22 = one + k * (zz - h2);
+#pragma GCC unroll 1
+        for (int j = 0; j < 6; ++j) {
+            double* dj = d + 3 * j * B;
+            const Pack d0 = load(dj), d1 = load(dj + B), d2 = load(dj + 2 * B);
+            store(dj, fma(c02, d2, fma(c01, d1, c00 * d0)));
+            store(dj + B, fma(c12, d2, fma(c11, d1, c10 * d0)));
+            store(dj + 2 * B, fma(c22, d2, fma(c21, d1, c20 * d0)));
+        }
+    }
+    for (int c = 0; c < 3; ++c) store(pout + c * B, p[c]);
+    {
+        const double* di = d + 3 * tc.pair[0] * B;
+        const double* dk = d + 3 * tc.pair[1] * B;
+        const Pack ix = load(di), iy = load(di + B), iz = load(di + 2 * B);
+        const Pack kx = load(dk), ky = load(dk + B), kz = load(dk + 2 * B);
+        const Pack col[3][3] = {{ix, kx, iy * kz - iz * ky},
+                                {iy, ky, iz * kx - ix * kz},
+                                {iz, kz, ix * ky - iy * kx}};
+        for (int row = 0; row < 3; ++row)
+            for (int c = 0; c < 3; ++c)
+                store(rout + (3 * row + c) * B, col[row][0] * splat(tc.binv[c]) +
+                                                    col[row][1] * splat(tc.binv[3 + c]) +
+                                                    col[row][2] * splat(tc.binv[6 + c]));
+    }
+    const int two = bits(short_leg), one = bits(stalled_lanes);
+    for (int l = 0; l < B; ++l) status[l] = (two >> l & 1) ? 2 : (one >> l & 1) ? 1 : 0;
+}
+
+// The transform T_T4 = T_T0 0T4 of the block's poses (the registration is folded into the carriage's
+// constants; tout: rotation row-major 0..8, position 9..11, each 8 lanes), the points in {T}
+// (3 K x 8: yout) from the platform poses (P, R) in {4}, y = T_T4 (P + R r_i), and each
+// lane's sum of squared residuals added to acc (8). meas: the measured points (3 K x 8, 0 where not
+// seen); seen (K x 8) and bad (8): 1 or 0; all_seen: every point of the block seen. A point not seen
+// contributes 0, a lane whose forward kinematics failed (its P and R finite) kFailedResidual on
+// every seen coordinate. tout, yout may be null (the cost alone).
+void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
+                    const double* rin, const double* meas, const double* seen, const double* bad,
+                    bool all_seen, double* tout, double* yout, double* acc) {
+    constexpr int B = kBlock;
+    Pack t[12];
+    carriage(tc.pd, tc.ec, blk, t);
+    if (tout)
+        for (int e = 0; e < 12; ++e) store(tout + e * B, t[e]);
+    Pack p[3], r[9];
+    for (int c = 0; c < 3; ++c) p[c] = load(pin + c * B);
+    for (int e = 0; e < 9; ++e) r[e] = load(rin + e * B);
+    const Pack fail = load(bad), keep = splat(1.0) - fail, penalty = fail * splat(tc.failed_residual);
+    // Every point seen and every pose solved (the rule): the residual is y - measured.
+    const bool plain = all_seen && bits(zero_pack() < fail) == 0;
+    Pack total = load(acc);
+    for (int i = 0; i < tc.n_points; ++i) {
+        const Pack x0 = splat(tc.refl[3 * i]), x1 = splat(tc.refl[3 * i + 1]), x2 = splat(tc.refl[3 * i + 2]);
+        const Pack z0 = fma(r[2], x2, fma(r[1], x1, fma(r[0], x0, p[0])));
+        const Pack z1 = fma(r[5], x2, fma(r[4], x1, fma(r[3], x0, p[1])));
+        const Pack z2 = fma(r[8], x2, fma(r[7], x1, fma(r[6], x0, p[2])));
+        const Pack on = plain ? keep : load(seen + i * B);
+        for (int c = 0; c < 3; ++c) {
+            const Pack y = fma(t[3 * c + 2], z2, fma(t[3 * c + 1], z1, fma(t[3 * c], z0, t[9 + c])));
+            if (yout) store(yout + (3 * i + c) * B, y);
+            const Pack e = y - load(meas + (3 * i + c) * B);
+            const Pack v = plain ? e : (e * keep + penalty) * on;
+            total = fma(v, v, total);
+        }
+    }
+    store(acc, total);
+}
