@@ -18,7 +18,7 @@ data are compared modulo their gauge (``iwr.tracker.tool_pose_errors``), a pose 
 
 Usage::
 
-    python benchmarks/bench_tracker.py [--quick] [--n 100] [--k 3]
+    python benchmarks/bench_tracker.py [--quick] [--n 100] [--k 3] [--repeat 7] [--kernels]
     python benchmarks/bench_tracker.py --accuracy [--seed 1]
     python benchmarks/bench_tracker.py --accuracy --seeds 10
 """
@@ -42,6 +42,9 @@ REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0), (
 
 
 def per_eval_us(fn, X: np.ndarray, reps: int) -> float:
+    """Median CPU time of the calling thread per row of X (us); X made C-contiguous first, so
+    no copy is timed."""
+    X = np.ascontiguousarray(X)
     fn(X[:4])  # warm-up
     times = []
     for _ in range(reps):
@@ -151,6 +154,9 @@ def main() -> None:
     ap.add_argument("--quick", action="store_true", help="a smoke test: few rows, 2 repetitions")
     ap.add_argument("--n", type=int, default=100, help="poses N (default 100)")
     ap.add_argument("--k", type=int, default=3, help="reflectors K (default 3, at most 6)")
+    ap.add_argument("--repeat", type=int, default=7, help="repetitions, the median (default 7)")
+    ap.add_argument("--kernels", action="store_true",
+                    help="every instruction-set variant this CPU runs, not only the fastest")
     ap.add_argument("--accuracy", action="store_true", help="the accuracy table instead")
     ap.add_argument("--seed", type=int, default=1, help="seed of --accuracy (default 1)")
     ap.add_argument("--seeds", type=int, default=None,
@@ -162,7 +168,8 @@ def main() -> None:
     if args.accuracy:
         accuracy_table(args.seed)
         return
-    m, reps = (50, 2) if args.quick else (600, 7)
+    m, reps = (50, 2) if args.quick else (600, args.repeat)
+    kernels = _core._supported_kernels() if args.kernels else [_core._active_kernel()]
     robot = iwr.Robot.default()
     rows = []
     for k in sorted({1, args.k}):
@@ -178,26 +185,34 @@ def main() -> None:
         def points_cost(A, p=tracker):
             return p.cost_batch(A, workers=1)
 
-        def legs_cost(A, p=legs_problem, n_r=robot.n_params):
-            return p.cost_batch(A[:, :n_r], workers=1)
+        def legs_cost(A, p=legs_problem):
+            return p.cost_batch(A, workers=1)
 
-        def baseline_cost(A, b=base, n_r=robot.n_params):
-            return b.cost_batch(np.ascontiguousarray(A[:, :n_r]))
+        def baseline_cost(A, b=base):
+            return b.cost_batch(A)
 
-        with OtherLoad() as load:
-            t_pts = per_eval_us(points_cost, X, reps)
-            t_leg = per_eval_us(legs_cost, X, reps)
-            t_base = per_eval_us(baseline_cost, X, reps)
-        rows.append((k, t_pts, t_leg, t_base, load.cores))
+        XL = X[:, :robot.n_params]  # the robot's parameters: what the leg objective takes
+        before = _core._active_kernel()
+        try:
+            for variant in kernels:
+                _core._select_kernel(variant)
+                with OtherLoad() as load:
+                    t_pts = per_eval_us(points_cost, X, reps)
+                    t_leg = per_eval_us(legs_cost, XL, reps)
+                    t_base = per_eval_us(baseline_cost, XL, reps)
+                rows.append((variant, k, t_pts, t_leg, t_base, load.cores))
+        finally:
+            _core._select_kernel(before)
     print(f"N = {args.n} poses, one thread, CPU time per evaluation (median of {reps} x {m}); "
-          f"leg kernel variant: {_core._active_kernel()}")
+          "kernel variant: the instruction set of both objectives' SIMD kernels")
     print()
-    print("| K | point objective (us) | leg objective, SIMD kernel (us) | ratio "
+    print("| kernel | K | point objective (us) | leg objective, SIMD kernel (us) | ratio "
           "| leg objective, Eigen baseline (us) | ratio | other processes (cores) |")
-    print("|---|---|---|---|---|---|---|")
-    for k, tp, tl, tb, cores in rows:
+    print("|---|---|---|---|---|---|---|---|")
+    for variant, k, tp, tl, tb, cores in rows:
         other = "?" if cores is None else f"{cores:.2f}"
-        print(f"| {k} | {tp:.2f} | {tl:.3f} | {tp / tl:.1f}x | {tb:.2f} | {tp / tb:.2f}x "
+        print(f"| {variant} | {k} | {tp:.2f} | {tl:.3f} | {tp / tl:.1f}x | {tb:.2f} "
+              f"| {tp / tb:.2f}x "
               f"| {other} |")
 
 
