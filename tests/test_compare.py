@@ -404,3 +404,23 @@ def test_dask_executor_gives_the_same_rows():
             if key.startswith("param_error"):  # an SVD: its last bit may change with the process
                 same = same or math.isclose(a[key], b[key], rel_tol=1e-12)
             assert same, (a["method"], key, a[key], b[key])
+
+
+def test_command_line_takes_the_robot_files_noise_model(tmp_path, capsys):
+    # As iwr simulate: without --noise, the --robot file's [noise] table; --noise overrides it.
+    noise = iwr.Noise(legs=0.004, joint_lengths=0.006, joint_angles=7e-6, position=0.03,
+                      orientation=3e-5)
+    iwr.Robot.default().with_noise(noise).to_toml(tmp_path / "bench.toml")
+    argv = ["compare", "--robot", str(tmp_path / "bench.toml"), "--poses", "12", "--seeds", "0",
+            "--methods", "lm", "--budget", "100", "--start", "near", "--validation-poses", "10",
+            "--no-progress"]
+    assert cli_main([*argv, "-o", str(tmp_path / "a")]) == 0
+    text = capsys.readouterr().out
+    assert "noise model: legs 0.004, joint_lengths 0.006" in text
+    assert f"(from {tmp_path / 'bench.toml'} [noise])" in text
+    settings = json.loads((tmp_path / "a" / "results.json").read_text())["settings"]
+    assert settings["noise"]["legs"] == 0.004 and settings["noise"]["position"] == 0.03
+    assert cli_main([*argv, "--noise", "none", "-o", str(tmp_path / "b")]) == 0
+    assert "noise model:" not in capsys.readouterr().out
+    settings = json.loads((tmp_path / "b" / "results.json").read_text())["settings"]
+    assert settings["noise"]["legs"] == 0.0

@@ -18,6 +18,7 @@ from ..experiments.compare import (
 from ..experiments.harness import check_n_poses, check_robot
 from ..robot import Robot
 from ..simulate import Noise
+from .robot_noise import describe, simulation_noise
 
 __all__ = ["add_compare_parser", "run_compare"]
 
@@ -79,9 +80,10 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", metavar="TOML", help="robot description (default: the built-in IWR)")
     p.add_argument("--poses", type=int, default=100, metavar="N",
                    help="measurement poses per identification (default: %(default)s)")
-    p.add_argument("--noise", default="realistic",
-                   help="'none', 'realistic' (default) or key=value pairs, e.g. "
-                        "'legs=0.002,position=0.02' (mm, rad)")
+    p.add_argument("--noise", default=None,
+                   help="'none', 'realistic' or key=value pairs, e.g. "
+                        "'legs=0.002,position=0.02' (mm, rad); default: the --robot file's [noise] "
+                        "table, else 'realistic'")
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)),
                    help="seeds, '0,1,2' or '0..4' (default: %(default)s)")
     p.add_argument("--methods", default=None,
@@ -113,10 +115,15 @@ def run_compare(args: argparse.Namespace) -> int:
         check_n_poses(robot, args.poses, "--poses")  # named as the command line spells it
         methods = None if args.methods is None else [
             m.strip() for m in args.methods.split(",") if m.strip()]
+        # As iwr simulate: --noise, else the robot file's model, else realistic.
+        noise, source = simulation_noise(
+            None if args.noise is None else _parse_noise(args.noise), robot, args.robot)
+        if source is not None:
+            print(f"noise model: {describe(noise)} (from {source})")
         comp = compare_methods(
             robot=robot,
             n_poses=args.poses,
-            noise=_parse_noise(args.noise),
+            noise=noise,
             seeds=_parse_ints(args.seeds, "--seeds"),
             methods=methods,
             budget=args.budget,
