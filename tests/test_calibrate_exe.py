@@ -15,6 +15,7 @@ import fcntl
 import json
 import os
 import resource
+import shlex
 import shutil
 import signal
 import subprocess
@@ -154,7 +155,11 @@ def test_engine_alone_sigint_resume_equals_identify(
     ckpt, _ = _start_and_stop(files, "int", signal.SIGINT, env=empty)
     partial = engine_result(ckpt, files["problem"])
     assert 0 < partial.nit < G, "the run was not stopped part way"
-    assert not partial.success and "SIGINT" in partial.message and "--resume" in partial.message
+    assert not partial.success and "SIGINT" in partial.message
+    # The engine's own resume command: it knows the problem file, the checkpoint and the log.
+    assert partial.message.endswith(
+        f"; continue with: iwr-engine {shlex.quote(str(files['problem']))} --resume "
+        f"{shlex.quote(str(ckpt))} --log {shlex.quote(str(d / 'int.csv'))}"), partial.message
     log = np.genfromtxt(d / "int.csv", delimiter=",", names=True)
     assert log["generation"][-1] == partial.nit
     assert log["best"][-1] == partial.history["best"][-1] == partial.fun

@@ -24,7 +24,7 @@ PROBE_BOUND_RAD = math.radians(2.0)
 _POSE_FIELDS = ("x", "y", "z", "alpha", "beta", "gamma")
 _POSE_UNITS = "x, y, z in mm, alpha, beta, gamma in rad"
 #: The largest angle of a pose accepted (rad): a larger one is degrees written for radians.
-MAX_ANGLE_RAD = 2.0 * math.pi
+MAX_SETUP_ANGLE_RAD = 2.0 * math.pi
 
 
 def _shown(value: Any) -> str:
@@ -72,7 +72,7 @@ def _pose(value: Any, name: str) -> np.ndarray:
     degrees, and a setup 90 rad off can still be fitted, to a wrong registration."""
     arr = _numbers(value, 6, name, _POSE_UNITS)
     for i in range(3, 6):
-        if abs(arr[i]) > MAX_ANGLE_RAD:
+        if abs(arr[i]) > MAX_SETUP_ANGLE_RAD:
             raise ValueError(
                 f"{name} {_POSE_FIELDS[i]} (entry {i}) = {arr[i]:g}: angles are in radians "
                 f"({arr[i]:g} deg = {math.radians(arr[i]):.4f} rad); expected |angle| <= 2 pi")
