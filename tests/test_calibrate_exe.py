@@ -15,6 +15,7 @@ import fcntl
 import json
 import os
 import resource
+import shlex
 import shutil
 import signal
 import subprocess
@@ -154,7 +155,11 @@ def test_engine_alone_sigint_resume_equals_identify(
     ckpt, _ = _start_and_stop(files, "int", signal.SIGINT, env=empty)
     partial = engine_result(ckpt, files["problem"])
     assert 0 < partial.nit < G, "the run was not stopped part way"
-    assert not partial.success and "SIGINT" in partial.message and "--resume" in partial.message
+    assert not partial.success and "SIGINT" in partial.message
+    # The engine's own resume command: it knows the problem file, the checkpoint and the log.
+    assert partial.message.endswith(
+        f"; continue with: iwr-engine {shlex.quote(str(files['problem']))} --resume "
+        f"{shlex.quote(str(ckpt))} --log {shlex.quote(str(d / 'int.csv'))}"), partial.message
     log = np.genfromtxt(d / "int.csv", delimiter=",", names=True)
     assert log["generation"][-1] == partial.nit
     assert log["best"][-1] == partial.history["best"][-1] == partial.fun
@@ -211,6 +216,52 @@ def test_launcher_sigterm_then_resume(files: dict[str, Path],
     again = run_cal(files["robot"], files["data"], "--resume", ckpt, "--threads", 2, "--quiet")
     assert again.returncode == 0, again.stderr
     _same_run(iwr.load_result(out), reference)
+
+
+def test_launcher_sigint_prints_a_resume_command_that_works(files: dict[str, Path],
+                                                           tmp_path: Path) -> None:
+    """Ctrl-C on iwr-calibrate ROBOT.toml DATA.csv with options the resume needs (paper bounds, a
+    checkpoint not named after the result, a log) and names a shell must quote: the command it
+    prints, pasted into a shell, finishes the run as if it had never been interrupted."""
+    d = tmp_path / "my run"
+    d.mkdir()
+    shutil.copy(files["robot"], d / "robot 1.toml")
+    shutil.copy(files["data"], d / "data's.csv")
+    args = ["robot 1.toml", "data's.csv", "--bounds", "paper", *map(str, COMMON),
+            "--generations", str(G), "--checkpoint", "state $1.ckpt", "--log", "log file.csv"]
+    proc = subprocess.Popen(  # noqa: PLW1509
+        [LAUNCHER, *args, "--output", "result.json", "--threads", "1", "--checkpoint-every", "100"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint,
+        cwd=d,
+    )
+    ckpt = d / "state $1.ckpt"
+    deadline = time.monotonic() + 60
+    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert ckpt.exists(), "no checkpoint appeared"
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    hints = [ln.split("; continue with: ", 1)[1] for ln in err.splitlines()
+             if "; continue with: " in ln]
+    assert len(hints) == 1, err
+    command = hints[0]
+    assert command.startswith("iwr-calibrate 'robot 1.toml' 'data'\"'\"'s.csv' "), command
+    partial = iwr.load_result(d / "result.json")
+    assert not partial.success and 0 < partial.nit < G and command in partial.message
+
+    env = {**os.environ, "PATH": f"{Path(LAUNCHER).parent}{os.pathsep}{os.environ['PATH']}"}
+    resumed = subprocess.run(command, shell=True, cwd=d, env=env, capture_output=True, text=True,
+                             timeout=120, check=False)
+    assert resumed.returncode == 0, resumed.stderr
+    whole = run_cal(d / "robot 1.toml", d / "data's.csv", "--bounds", "paper", *COMMON,
+                    "--generations", G, "--output", d / "whole.json", "--quiet")
+    assert whole.returncode == 0, whole.stderr
+    result = iwr.load_result(d / "result.json")
+    assert result.nit == G
+    _same_run(result, iwr.load_result(d / "whole.json"))
+    log = np.genfromtxt(d / "log file.csv", delimiter=",", names=True)
+    np.testing.assert_array_equal(log["best"], result.history["best"])
 
 
 def test_a_finished_run_extended_equals_the_longer_run(

@@ -85,7 +85,7 @@ def test_setup_names_order_and_toml_round_trip(robot):
 def test_setup_rejects_bad_input():
     with pytest.raises(ValueError, match="either reflectors"):
         TrackerSetup(REGISTRATION)
-    with pytest.raises(ValueError, match=r"reflectors: shape \(3,\)"):
+    with pytest.raises(ValueError, match=r"reflectors: reflector 1: 1; expected 3 numbers"):
         TrackerSetup(REGISTRATION, reflectors=[1, 2, 3])
     with pytest.raises(ValueError, match=r"tracker: unknown key\(s\) reflector"):
         TrackerSetup.from_dict({"registration": list(REGISTRATION), "reflector": [[0, 0, 0]]})
@@ -93,6 +93,52 @@ def test_setup_rejects_bad_input():
         TrackerSetup.from_dict({"reflectors": [[0, 0, 0]]})
     with pytest.raises(ValueError, match="registration: entry 2 is not finite"):
         TrackerSetup((0, 0, math.nan, 0, 0, 0), reflectors=[(0, 0, 0)])
+
+
+def test_setup_refuses_angles_in_degrees():
+    """An angle beyond 2 pi is degrees written for radians: refused, naming the field and axis,
+    through TrackerSetup, Robot.with_tracker and from_dict alike (the TOML: test_tracker_api)."""
+    with pytest.raises(ValueError, match=r"^registration gamma \(entry 5\) = 90: angles are in "
+                                         r"radians \(90 deg = 1\.5708 rad\); expected \|angle\| "
+                                         r"<= 2 pi$"):
+        TrackerSetup((2000, 0, 0, 0, 0, 90), reflectors=REFLECTORS)
+    with pytest.raises(ValueError, match=r"^probe beta \(entry 4\) = -180: angles are in radians "
+                                         r"\(-180 deg = -3\.1416 rad\)"):
+        TrackerSetup(REGISTRATION, probe=(0, 0, 60, 0, -180, 0))
+    with pytest.raises(ValueError, match=r"^registration alpha \(entry 3\) = 6\.3: "):
+        iwr.Robot.default().with_tracker(registration=(0, 0, 0, 6.3, 0, 0), reflectors=REFLECTORS)
+    with pytest.raises(ValueError, match=r"^tracker: registration beta \(entry 4\) = 45: "):
+        TrackerSetup.from_dict({"registration": [0, 0, 0, 0, 45, 0], "reflectors": REFLECTORS})
+    # Lengths are millimetres, whatever their size; every angle up to 2 pi is taken as it is.
+    edge = (2000, -3000, 10, 2 * math.pi, -2 * math.pi, -6.28)
+    np.testing.assert_array_equal(TrackerSetup(edge, reflectors=REFLECTORS).registration, edge)
+    np.testing.assert_array_equal(TrackerSetup(edge, probe=edge).probe, edge)
+
+
+@pytest.mark.parametrize(("reflectors", "message"), [
+    ([(120, 0, 40), (-60, 104)],
+     r"reflectors: reflector 2: \(-60, 104\); expected 3 numbers \(x, y, z in mm\)"),
+    ([(120, 0, 40), (-60, 104, 40, 1)], r"reflector 2: \(-60, 104, 40, 1\); expected 3 numbers"),
+    ([(120, 0, 40), (-60, "104", 40)],
+     r"reflector 2: entry 1 is '104'; expected a number \(x, y, z in mm\)"),
+    ([(120, 0, 40), (True, 0, 40)], r"reflector 2: entry 0 is True; expected a number"),
+    ([(120, 0, 40), (-60, math.inf, 40)], r"reflector 2: entry 1 is not finite"),
+    ([], r"reflectors: empty; expected at least one reflector, 3 numbers \(x, y, z in mm\)"),
+    ("abc", r"reflectors: 'abc'; expected a list of reflectors, 3 numbers each"),
+    (5, r"reflectors: 5; expected a list of reflectors"),
+    (np.zeros((2, 3, 1)), r"reflector 1: \[\[0\.0\], \[0\.0\], \[0\.0\]\]; expected 3 numbers"),
+])
+def test_setup_names_a_bad_reflector(reflectors, message):
+    with pytest.raises(ValueError, match=message):
+        TrackerSetup(REGISTRATION, reflectors=reflectors)
+
+
+def test_setup_takes_reflectors_as_any_array_of_numbers():
+    expected = np.array(REFLECTORS)
+    for given in (REFLECTORS, expected, expected.astype(np.float32), [list(r) for r in REFLECTORS],
+                  np.array(REFLECTORS, dtype=int)):
+        np.testing.assert_array_equal(TrackerSetup(REGISTRATION, reflectors=given).reflectors,
+                                      np.asarray(given, dtype=float))
 
 
 def test_correction_is_right_multiplied_in_world_frame():

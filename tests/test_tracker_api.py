@@ -65,7 +65,54 @@ def test_tracker_toml_errors_name_the_file_and_key(robot, tmp_path):
                        match=r"bad\.toml: tracker: unknown key\(s\) registraton"):
         iwr.Robot.from_toml(bad)
     bad.write_text(text.replace("registration = [2000.0, ", "registration = ["))
-    with pytest.raises(iwr.RobotFileError, match=r"bad\.toml: tracker: registration: shape"):
+    with pytest.raises(iwr.RobotFileError,
+                       match=r"bad\.toml: tracker: registration: \[0\.0, 0\.0, 1\.57\d*, 0\.0, "
+                             r"0\.0\]; expected 6 numbers \(x, y, z in mm, alpha, beta, gamma "
+                             r"in rad\)"):
+        iwr.Robot.from_toml(bad)
+
+
+ALL_REFLECTORS = ("reflectors = [\n    [120.0, 0.0, 40.0],\n    [-60.0, 104.0, 40.0],\n"
+                  "    [-60.0, -104.0, 40.0],\n]")
+
+
+@pytest.mark.parametrize(("old", "new", "message"), [
+    # Degrees written for radians.
+    ("registration = [2000.0, 0.0, 0.0, 1.5707963267948966,",
+     "registration = [2000.0, 0.0, 0.0, 90,",
+     r"bad\.toml: tracker: registration alpha \(entry 3\) = 90: angles are in radians \(90 deg "
+     r"= 1\.5708 rad\); expected \|angle\| <= 2 pi$"),
+    ("probe = [0.0, 0.0, 60.0, 0.0, 0.0, 0.0]", "probe = [0.0, 0.0, 60.0, 0.0, 0.0, -45]",
+     r"bad\.toml: tracker: probe gamma \(entry 5\) = -45: angles are in radians \(-45 deg = "
+     r"-0\.7854 rad\)"),
+    # A ragged, non-numeric or empty reflectors array.
+    ("[-60.0, 104.0, 40.0]", "[-60.0, 104.0]",
+     r"bad\.toml: tracker: reflectors: reflector 2: \[-60\.0, 104\.0\]; expected 3 numbers "
+     r"\(x, y, z in mm\)$"),
+    ("[-60.0, -104.0, 40.0]", '[-60.0, "-104", 40.0]',
+     r"bad\.toml: tracker: reflectors: reflector 3: entry 1 is '-104'; expected a number "
+     r"\(x, y, z in mm\)$"),
+    ("[-60.0, -104.0, 40.0]", "[-60.0, [-104], 40.0]",
+     r"bad\.toml: tracker: reflectors: reflector 3: entry 1 is \[-104\]; expected a number"),
+    (ALL_REFLECTORS,
+     "reflectors = []",
+     r"bad\.toml: tracker: reflectors: empty; expected at least one reflector, 3 numbers "
+     r"\(x, y, z in mm\)$"),
+    (ALL_REFLECTORS,
+     'reflectors = "120 0 40"', r"bad\.toml: tracker: reflectors: '120 0 40'; expected a list"),
+])
+def test_tracker_toml_names_a_bad_value(robot, tmp_path, old, new, message):
+    """A bad value in [tracker]: one message naming the file, the table, the field and the
+    entry (a reflector by its 1-based number), never NumPy's words."""
+    path = tmp_path / "r.toml"
+    if old.startswith("probe"):
+        robot = robot.with_tracker(registration=REGISTRATION, probe=(0, 0, 60, 0, 0, 0))
+    robot.to_toml(path)
+    text = path.read_text()
+    assert old in text
+    bad = tmp_path / "bad.toml"
+    bad.write_text(text.replace(old, new))
+    with pytest.raises(iwr.RobotFileError, match=message):
         iwr.Robot.from_toml(bad)
 
 

@@ -156,6 +156,29 @@ def test_iwr_calibrate_refuses_tracker_data_without_a_setup(sim, tmp_path):
     assert "Traceback" not in proc.stderr
 
 
+def test_a_registration_in_degrees_is_refused_by_both_commands(sim, tmp_path):
+    """[tracker] registration with 90 meaning degrees: iwr calibrate and iwr-calibrate refuse it
+    with the setup's message, naming the file, the table, the field and the axis."""
+    text = (sim / "robot.toml").read_text()
+    line = next(ln for ln in text.splitlines() if ln.startswith("registration = ["))
+    values = line.split("[", 1)[1].split("]")[0].split(",")
+    values[5] = " 90"
+    bad = tmp_path / "degrees.toml"
+    bad.write_text(text.replace(line, "registration = [" + ",".join(values) + "]"))
+    message = (f"{bad}: tracker: registration gamma (entry 5) = 90: angles are in radians "
+               "(90 deg = 1.5708 rad); expected |angle| <= 2 pi")
+    launcher = shutil.which("iwr-calibrate", path=str(Path(sys.executable).parent))
+    assert launcher is not None
+    for prog, args in ((None, ["calibrate", str(bad), str(sim / "measurements.csv"), "-o",
+                               str(tmp_path), "--no-plots"]),
+                       ([launcher], [str(bad), str(sim / "measurements.csv"), "--output",
+                                     str(tmp_path / "r.json")])):
+        proc = run(*args, prog=prog)
+        assert proc.returncode == 1, proc.stderr
+        assert proc.stderr.strip().splitlines()[-1].endswith(message), proc.stderr
+        assert "Traceback" not in proc.stderr
+
+
 def test_the_shipped_example_runs_end_to_end(tmp_path):
     robot = iwr.Robot.from_toml(REPO / "examples" / "iwr_tracker.toml")
     assert robot.tracker is not None and robot.tracker.n_reflectors == 3

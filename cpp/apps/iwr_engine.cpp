@@ -98,6 +98,16 @@ struct InputError : std::runtime_error {
     using std::runtime_error::runtime_error;
 };
 
+// A word for a POSIX shell, as Python's shlex.quote: the hint of an interrupted run is pasted.
+std::string shell_quote(const std::string& word) {
+    const bool plain = !word.empty() && word.find_first_not_of("abcdefghijklmnopqrstuvwxyzABCDEFGHIJKLMNOPQRSTUVWXYZ"
+                                                                "0123456789_@%+=:,./-") == std::string::npos;
+    if (plain) return word;
+    std::string out = "'";
+    for (const char c : word) out += c == '\'' ? std::string("'\"'\"'") : std::string(1, c);
+    return out + "'";
+}
+
 // One line on standard error, whatever a message quotes (a key or a file name may hold a newline):
 // control characters and Unicode line separators escaped.
 std::string one_line(const std::string& msg) {
@@ -184,6 +194,9 @@ running:
                            checkpoint's values (so --resume PATH alone carries on); settings
                            given must agree with it, except the stopping criteria. A checkpoint
                            in use is locked: a second process resuming it is refused.
+  --resume-command CMD     the command that the message of an interrupted run gives to resume it
+                           (default: this program, PROBLEM.iwrp, --resume and the checkpoint,
+                           and --log if given; iwr-calibrate passes its own)
   --quiet                  no progress on standard error (errors are still reported)
   -h, --help               this help
   --version                the program's version
@@ -227,7 +240,7 @@ struct Options {
     std::optional<double> target_cost;
     // Running.
     std::optional<int> threads;
-    std::optional<std::string> log, checkpoint, resume;
+    std::optional<std::string> log, checkpoint, resume, resume_command;
     std::optional<std::int64_t> checkpoint_every;
     bool quiet = false, help = false, version = false;
 };
@@ -289,7 +302,7 @@ Options parse_args(int argc, char** argv) {
         static const char* const kValued[] = {
             "--strategy", "--population-size", "--F", "--CR", "--bound-rule", "--seed", "--preset",
             "--generations", "--max-evaluations", "--target-cost", "--threads", "--log",
-            "--checkpoint", "--checkpoint-every", "--resume"};
+            "--checkpoint", "--checkpoint-every", "--resume", "--resume-command"};
         bool known = false;
         for (const char* k : kValued) known = known || name == k;
         if (!known) {
@@ -336,6 +349,7 @@ Options parse_args(int argc, char** argv) {
         else if (name == "--checkpoint") o.checkpoint = value;
         else if (name == "--checkpoint-every") o.checkpoint_every = parse_int(name, value, 0, INT64_MAX);
         else if (name == "--resume") o.resume = value;
+        else if (name == "--resume-command") o.resume_command = value;
         if ((name == "--log" || name == "--checkpoint" || name == "--resume") && value.empty())
             throw UsageError(name + ": expected a file name");
     }
@@ -956,8 +970,13 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
     std::string message = rr.message;
     bool success = rr.success;
     if (interrupted) {
+        const std::string command =
+            o.resume_command ? *o.resume_command
+                             : std::string(kProgram) + " " + shell_quote(problem_path) + " --resume " +
+                                   shell_quote(info.checkpoint) +
+                                   (info.log.empty() ? "" : " --log " + shell_quote(info.log));
         message = std::string("interrupted by ") + signal_name(sig) + " at generation " +
-                  std::to_string(state->generation) + "; continue with --resume " + info.checkpoint;
+                  std::to_string(state->generation) + "; continue with: " + command;
         success = false;
     }
     const Outcome out = outcome(success, message);

@@ -19,6 +19,7 @@ is killed, the engine gets SIGTERM (Linux ``PR_SET_PDEATHSIG``) and writes its c
 from __future__ import annotations
 
 import os
+import shlex
 import shutil
 import signal
 import subprocess
@@ -231,6 +232,24 @@ def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
     return problem, x0, sources
 
 
+def _resume_command(positional: list[str], own: dict[str, str], output: str, checkpoint: str,
+                    log: str | None) -> str:
+    """The command that resumes this run, pasted into a shell where it was started: the engine
+    gives it in the message of an interrupted run (it knows neither ROBOT.toml nor DATA.csv)."""
+    words: list[str] = []
+    for opt in ("--readings", "--bounds", "--problem"):  # the problem must be made again alike
+        if opt in own:
+            words += [opt, own[opt]]
+    if checkpoint != output + ".ckpt":  # else --resume names the result
+        words += ["--output", output]
+    words += ["--resume", checkpoint]
+    if log:
+        words += ["--log", log]  # the engine rewrites the log from the checkpoint's history
+    if any(p.startswith("-") and len(p) > 1 for p in positional):  # a file named -x.csv
+        return shlex.join([PROG, *words, "--", *positional])
+    return shlex.join([PROG, *positional, *words])
+
+
 def _run_engine(engine: str, args: list[str]) -> int:
     """Runs the engine, passing our signals on; returns its exit status, 128 + N for signal N."""
     handled = (signal.SIGINT, signal.SIGTERM, signal.SIGHUP, signal.SIGUSR1)
@@ -376,7 +395,9 @@ def _main(argv: list[str]) -> int:
         raise _Usage("--readings: only with ROBOT.toml DATA.csv")
 
     pass_checkpoint = [] if _option(engine_args, "--checkpoint") else ["--checkpoint", checkpoint]
-    code = _run_engine(engine, [problem_path, *pass_checkpoint, *engine_args])
+    hint = _resume_command(positional, own, output, checkpoint, log)
+    code = _run_engine(engine, [problem_path, *pass_checkpoint, *engine_args,
+                                "--resume-command", hint])
     if code in (EXIT_OK, 128 + signal.SIGHUP, 128 + signal.SIGINT, 128 + signal.SIGTERM) and \
             Path(checkpoint).is_file():
         _export(checkpoint, problem_path, output)

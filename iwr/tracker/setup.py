@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import numbers
 from collections.abc import Mapping
 from typing import Any
 
@@ -20,6 +21,16 @@ OFFSET_BOUND_MM = 2.0
 PROBE_BOUND_RAD = math.radians(2.0)
 
 
+_POSE_FIELDS = ("x", "y", "z", "alpha", "beta", "gamma")
+_POSE_UNITS = "x, y, z in mm, alpha, beta, gamma in rad"
+#: The largest angle of a pose accepted (rad): a larger one is degrees written for radians.
+MAX_SETUP_ANGLE_RAD = 2.0 * math.pi
+
+
+def _shown(value: Any) -> str:
+    return repr(value.tolist() if isinstance(value, np.ndarray) else value)
+
+
 def _vector(value: Any, n: int, name: str) -> np.ndarray:
     try:
         arr = np.array(value, dtype=float)
@@ -30,6 +41,58 @@ def _vector(value: Any, n: int, name: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: entry {int(np.flatnonzero(~np.isfinite(arr))[0])} is not finite")
     return arr
+
+
+def _numbers(value: Any, n: int, name: str, what: str) -> np.ndarray:
+    """``n`` finite numbers (a list, tuple or 1-D array), else an error naming ``name`` and
+    saying ``what`` they are. Strings are refused, not converted as NumPy would."""
+    items: list[Any] | None
+    if isinstance(value, (str, bytes, Mapping)) or (isinstance(value, np.ndarray)
+                                                    and value.ndim != 1):
+        items = None
+    else:
+        try:
+            items = list(value)
+        except TypeError:
+            items = None
+    if items is None or len(items) != n:
+        raise ValueError(f"{name}: {_shown(value)}; expected {n} numbers ({what})")
+    for i, v in enumerate(items):
+        if isinstance(v, (bool, np.bool_)) or not isinstance(v, numbers.Real):
+            raise ValueError(f"{name}: entry {i} is {_shown(v)}; expected a number ({what})")
+    arr = np.array(items, dtype=float)
+    if not np.all(np.isfinite(arr)):
+        raise ValueError(f"{name}: entry {int(np.flatnonzero(~np.isfinite(arr))[0])} is "
+                         "not finite")
+    return arr
+
+
+def _pose(value: Any, name: str) -> np.ndarray:
+    """A pose ``(x, y, z, alpha, beta, gamma)``; an angle beyond 2 pi is refused: it was meant in
+    degrees, and a setup 90 rad off can still be fitted, to a wrong registration."""
+    arr = _numbers(value, 6, name, _POSE_UNITS)
+    for i in range(3, 6):
+        if abs(arr[i]) > MAX_SETUP_ANGLE_RAD:
+            raise ValueError(
+                f"{name} {_POSE_FIELDS[i]} (entry {i}) = {arr[i]:g}: angles are in radians "
+                f"({arr[i]:g} deg = {math.radians(arr[i]):.4f} rad); expected |angle| <= 2 pi")
+    return arr
+
+
+def _reflectors(value: Any) -> np.ndarray:
+    """The (K, 3) nominal reflector positions, K >= 1; errors name the reflector (1-based)."""
+    what = "x, y, z in mm"
+    if isinstance(value, np.ndarray) and value.ndim == 2 and value.dtype.kind in "iuf":
+        rows: list[Any] = list(value)
+    elif isinstance(value, (str, bytes, Mapping)) or not hasattr(value, "__iter__"):
+        raise ValueError(f"reflectors: {_shown(value)}; expected a list of reflectors, 3 numbers "
+                         f"each ({what})")
+    else:
+        rows = list(value)
+    if not rows:
+        raise ValueError(f"reflectors: empty; expected at least one reflector, 3 numbers ({what})")
+    return np.array([_numbers(row, 3, f"reflectors: reflector {k}", what)
+                     for k, row in enumerate(rows, 1)])
 
 
 def pose_from_matrix_safe(t: np.ndarray) -> np.ndarray:
@@ -58,11 +121,12 @@ class TrackerSetup:
         Nominal pose of the robot's world frame {0} in the tracker frame {T}, ``(x, y, z, alpha,
         beta, gamma)`` like every pose in iwr (mm; Z-Y-X Euler angles of eq. 6, rad): a point
         ``p`` in {0} is at ``T_T0 p`` in tracker coordinates. Anything goes (2 m and 90 degrees
-        is normal); :func:`iwr.tracker.guess_registration` finds it from the data.
+        is normal); :func:`iwr.tracker.guess_registration` finds it from the data. An angle
+        beyond 2 pi is refused, as degrees written for radians.
     reflectors : array_like, shape (K, 3), optional
         Nominal positions of the K >= 1 reflectors (SMR nests) in the platform frame {5} (mm).
     probe : array_like, shape (6,), optional
-        Instead of reflectors: nominal pose of a 6-DOF probe's frame in {5}.
+        Instead of reflectors: nominal pose of a 6-DOF probe's frame in {5} (angles as above).
     probe_length : float
         The probe's orientation residual is its rotation-matrix error times this length (mm):
         four virtual points, the probe's origin and points this far along its three axes.
@@ -91,19 +155,12 @@ class TrackerSetup:
         probe_length: float = 100.0,
         names: Any = None,
     ) -> None:
-        self.registration = _vector(registration, 6, "registration")
+        self.registration = _pose(registration, "registration")
         if (reflectors is None) == (probe is None):
             raise ValueError("TrackerSetup: give either reflectors=[(x, y, z), ...] or probe="
                              "(x, y, z, alpha, beta, gamma), not both or neither")
         if reflectors is not None:
-            try:
-                refl = np.array(reflectors, dtype=float)
-            except (TypeError, ValueError) as exc:
-                raise ValueError(f"reflectors: cannot be read as numbers ({exc})") from None
-            if refl.ndim != 2 or refl.shape[0] < 1 or refl.shape[1] != 3:
-                raise ValueError(f"reflectors: shape {refl.shape}; expected (K, 3) with K >= 1")
-            if not np.all(np.isfinite(refl)):
-                raise ValueError("reflectors: every offset must be finite")
+            refl = _reflectors(reflectors)
             self.kind = "points"
             self.reflectors: np.ndarray | None = refl
             self.probe: np.ndarray | None = None
@@ -115,7 +172,7 @@ class TrackerSetup:
         else:
             self.kind = "probe"
             self.reflectors = None
-            self.probe = _vector(probe, 6, "probe")
+            self.probe = _pose(probe, "probe")
             self.names = ["probe"]
         if (isinstance(probe_length, bool) or not isinstance(probe_length, (int, float))
                 or not math.isfinite(probe_length) or probe_length <= 0):
