@@ -458,3 +458,29 @@ def test_kernel_forward_kinematics_agrees_with_the_damped_newton_solver(robot):
         newton = iwr.forward_kinematics(robot, x[: robot.n_params], data.q, data.legs)
         assert np.max(np.abs(kernel[:, :3] - newton[:, :3])) < 1e-8
         assert np.max(np.abs(kernel[:, 3:] - newton[:, 3:])) < 1e-10
+
+
+def test_the_cost_is_never_nan_where_a_prediction_overflows(robot, restore_kernel):
+    # A finite but absurd x whose carriage position overflows to inf: a failed pose still costs
+    # the finite penalty on its seen coordinates and a hidden point nothing, as residuals() says
+    # (the kernel once multiplied the prediction by 0 there: inf * 0 = NaN), in every variant.
+    _core = restore_kernel
+    setup = points_setup()
+    data, _ = simulate_tracker(robot, setup, 11, seed=5, hidden=0.5)
+    assert not data.seen.all()
+    problem = TrackerProblem(robot, setup, data)
+    names = problem.parameter_names
+    x = np.zeros(problem.n_params)
+    for name in ("joint2.dd", "joint3.da", "joint3.dd", "joint4.da"):
+        x[names.index(name)] = 1e308
+    dead = x.copy()
+    dead[names.index("leg1.dl0")] = -2000.0  # no pose closes: the penalty alone
+    for v in _core._supported_kernels():
+        _core._select_kernel(v)
+        r = problem.residuals(x)
+        assert np.isinf(r).any() and not np.isnan(r).any()
+        assert problem.cost(x) == np.inf, v  # every pose solved: inf residuals, inf cost
+        r = problem.residuals(dead)
+        assert len(problem.failures(dead)) == 11 and np.isfinite(r).all()
+        assert problem.cost(dead) == pytest.approx(r @ r, rel=1e-15), v
+        assert problem.cost_batch(dead[None], workers=1)[0] == problem.cost(dead)
