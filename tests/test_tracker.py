@@ -396,6 +396,31 @@ def test_a_pose_gives_the_same_bits_whatever_its_neighbours_in_a_block(robot):
     assert np.array_equal(a[order], b)
 
 
+def test_a_pose_alone_gives_the_same_bits_as_beside_poses_that_fall_back_or_fail(robot):
+    # Each pose solved alone (N = 1: its block is its own copies) against the same pose in blocks
+    # of 8 whose other lanes converge later, take the damped Newton fallback or fail, at vectors
+    # across and far beyond the search box: the per-lane masks must leave a lane's bits alone.
+    setup = points_setup()
+    data, _ = simulate_tracker(robot, setup, 13, seed=21, hidden=0.3)
+    full = TrackerProblem(robot, setup, data)
+    half = (full.upper - full.lower) / 2
+    rng = np.random.default_rng(5)
+    xs = []
+    for scale in (1.0, 200.0):
+        x = (2 * rng.random(full.n_params) - 1) * half
+        x[: robot.n_params] *= scale
+        xs.append(x)
+    x = np.zeros(full.n_params)
+    x[full.parameter_names.index("leg2.dl0")] = 300.0  # some poses cannot close
+    xs.append(x)
+    assert 0 < len(full.failures(x)) < 13
+    alone = [TrackerProblem(robot, setup, TrackerMeasurements(
+        data.q[k:k + 1], data.legs[k:k + 1], points=data.points[k:k + 1])) for k in range(13)]
+    for x in xs:
+        rows = full.residuals(x).reshape(13, -1)
+        for k in range(13):
+            assert np.array_equal(alone[k].residuals(x), rows[k]), k
+
 def test_lm_recovers_the_tool_pose_from_noise_free_probe_poses(robot):
     setup = TrackerSetup(REGISTRATION, probe=(10.0, -20.0, 60.0, 0.2, -0.1, 0.3))
     truth = truth_vector(robot, setup, 4)
@@ -479,3 +504,29 @@ def test_kernel_forward_kinematics_agrees_with_the_damped_newton_solver(robot):
         newton = iwr.forward_kinematics(robot, x[: robot.n_params], data.q, data.legs)
         assert np.max(np.abs(kernel[:, :3] - newton[:, :3])) < 1e-8
         assert np.max(np.abs(kernel[:, 3:] - newton[:, 3:])) < 1e-10
+
+
+def test_the_cost_is_never_nan_where_a_prediction_overflows(robot, restore_kernel):
+    # A finite but absurd x whose carriage position overflows to inf: a failed pose still costs
+    # the finite penalty on its seen coordinates and a hidden point nothing, as residuals() says
+    # (the kernel once multiplied the prediction by 0 there: inf * 0 = NaN), in every variant.
+    _core = restore_kernel
+    setup = points_setup()
+    data, _ = simulate_tracker(robot, setup, 11, seed=5, hidden=0.5)
+    assert not data.seen.all()
+    problem = TrackerProblem(robot, setup, data)
+    names = problem.parameter_names
+    x = np.zeros(problem.n_params)
+    for name in ("joint2.dd", "joint3.da", "joint3.dd", "joint4.da"):
+        x[names.index(name)] = 1e308
+    dead = x.copy()
+    dead[names.index("leg1.dl0")] = -2000.0  # no pose closes: the penalty alone
+    for v in _core._supported_kernels():
+        _core._select_kernel(v)
+        r = problem.residuals(x)
+        assert np.isinf(r).any() and not np.isnan(r).any()
+        assert problem.cost(x) == np.inf, v  # every pose solved: inf residuals, inf cost
+        r = problem.residuals(dead)
+        assert len(problem.failures(dead)) == 11 and np.isfinite(r).all()
+        assert problem.cost(dead) == pytest.approx(r @ r, rel=1e-15), v
+        assert problem.cost_batch(dead[None], workers=1)[0] == problem.cost(dead)

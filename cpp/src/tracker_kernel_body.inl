@@ -204,8 +204,8 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
 // (3 K x 8: yout) from the platform poses (P, R) in {4}, y = T_T4 (P + R r_i), and each
 // lane's sum of squared residuals added to acc (8). meas: the measured points (3 K x 8, 0 where not
 // seen); seen (K x 8) and bad (8): 1 or 0; all_seen: every point of the block seen. A point not seen
-// contributes 0, a lane whose forward kinematics failed (its P and R finite) kFailedResidual on
-// every seen coordinate. tout, yout may be null (the cost alone).
+// contributes 0, a lane whose forward kinematics failed kFailedResidual on every seen
+// coordinate, whatever its prediction. tout, yout may be null (the cost alone).
 void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
                     const double* rin, const double* meas, const double* seen, const double* bad,
                     bool all_seen, double* tout, double* yout, double* acc) {
@@ -217,21 +217,25 @@ void tracker_points(const double* blk, const TrackerConsts& tc, const double* pi
     Pack p[3], r[9];
     for (int c = 0; c < 3; ++c) p[c] = load(pin + c * B);
     for (int e = 0; e < 9; ++e) r[e] = load(rin + e * B);
-    const Pack fail = load(bad), keep = splat(1.0) - fail, penalty = fail * splat(tc.failed_residual);
+    // Lanes chosen by masks, not by multiplying with 0 or 1: a prediction that overflows to inf
+    // (an absurd but finite x) must give the penalty in a failed lane and 0 for a point not seen,
+    // as residuals() does, not inf * 0 = NaN.
+    const Mask failed = zero_pack() < load(bad);
+    const Pack penalty = splat(tc.failed_residual), zero = zero_pack();
     // Every point seen and every pose solved (the rule): the residual is y - measured.
-    const bool plain = all_seen && bits(zero_pack() < fail) == 0;
+    const bool plain = all_seen && bits(failed) == 0;
     Pack total = load(acc);
     for (int i = 0; i < tc.n_points; ++i) {
         const Pack x0 = splat(tc.refl[3 * i]), x1 = splat(tc.refl[3 * i + 1]), x2 = splat(tc.refl[3 * i + 2]);
         const Pack z0 = fma(r[2], x2, fma(r[1], x1, fma(r[0], x0, p[0])));
         const Pack z1 = fma(r[5], x2, fma(r[4], x1, fma(r[3], x0, p[1])));
         const Pack z2 = fma(r[8], x2, fma(r[7], x1, fma(r[6], x0, p[2])));
-        const Pack on = plain ? keep : load(seen + i * B);
+        const Mask on = plain ? all_lanes(true) : zero < load(seen + i * B);
         for (int c = 0; c < 3; ++c) {
             const Pack y = fma(t[3 * c + 2], z2, fma(t[3 * c + 1], z1, fma(t[3 * c], z0, t[9 + c])));
             if (yout) store(yout + (3 * i + c) * B, y);
             const Pack e = y - load(meas + (3 * i + c) * B);
-            const Pack v = plain ? e : (e * keep + penalty) * on;
+            const Pack v = plain ? e : select(on, select(failed, penalty, e), zero);
             total = fma(v, v, total);
         }
     }
