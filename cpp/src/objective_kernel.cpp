@@ -14,7 +14,6 @@
 #include "objective_kernel.hpp"
 
 #include <atomic>
-#include <algorithm>
 #include <cmath>
 #include <limits>
 #include <stdexcept>

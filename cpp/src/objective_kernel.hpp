@@ -52,7 +52,7 @@ struct TrackerConsts {
                     // prismatic; nothing else)
     double binv[9];  // B^-1 (row-major), B = [b_i, b_k, b_i x b_k] for the pair (i, k)
     int pair[2] = {0, 1};
-    double tol = 0;   // forward kinematics: |leg residuals| at most (mm)
+    double tol = 0;   // forward kinematics: the leg residuals' 2-norm at most (mm)
     int max_iter = 0; // chord steps before the fallback
     double rt[9], tt[3];  // the registration T_T0 at x (rotation row-major)
     int n_points = 0;

@@ -21,8 +21,9 @@ Mat3 skew(const Vec3& v) {
 }
 
 // Steps of the kernel's forward kinematics (tracker_kernel_body.inl: chord steps with the
-// reference's inverse Jacobian, one refined) before falling back to the damped Newton-Raphson of
-// hexapod_forward. Three steps reach 1e-10 mm from the reference across DE's search box.
+// reference's inverse Jacobian, refined while the residual is large) before falling back to the
+// damped Newton-Raphson of hexapod_forward. Three steps reach 1e-10 mm from the reference across
+// DE's search box.
 constexpr int kMaxChord = 12;
 
 // The hexapod's leg-length Jacobian in the (dP, omega) parametrisation: d l_j = u_j . dP +

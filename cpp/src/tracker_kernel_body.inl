@@ -66,8 +66,8 @@ IWR_FORCE_INLINE Pack select(const Mask& m, const Pack& a, const Pack& b) {
 // The forward kinematics of the block's 8 poses, one per lane, from the reference solves stored in
 // the block (blk: the inverse leg Jacobian J_ref^-1 36, P 3, R 9, leg readings 6, 1 / (2 L'_j) 6,
 // each 8 lanes). Each lane computes exactly what it would alone: the decisions are per lane, and a
-// lane that has converged (or must fall back) gets a zero step, which leaves its pose unchanged bit
-// for bit.
+// lane that has converged (or must fall back) gets a zero step, which leaves its pose unchanged
+// (bit for bit, but for the sign of an exact zero).
 //
 // The unknowns are the platform position P in {4} and the six platform joints d_j = R b_j relative
 // to it, rotated together (d_j <- C(omega) d_j, C Cayley's rotation: exactly orthogonal, Exp(omega)
@@ -76,8 +76,9 @@ IWR_FORCE_INLINE Pack select(const Mask& m, const Pack& a, const Pack& b) {
 // Leg j's residual is f_j = (|v_j|^2 - L_j^2) / (2 L'_j), v_j = P + d_j - a_j, L'_j the leg's
 // length at the reference parameters (within a millimetre of L_j): the root of |v_j| - L_j, nearly
 // the same derivative there (v_j . dv_j / L'_j), no square root, no division. Converged when
-// |f|_2 <= tol. A step is the chord step s0 = -J_ref^-1 f; after the first, in a lane whose |f|_2
-// is above 300 tol, refined once towards Newton's step: s = s0 - J_ref^-1 (J s0 + f) with the
+// |f|_2 <= tol. A step is the chord step s0 = -J_ref^-1 f; every step after the first, in a lane
+// whose |f|_2 is above 300 tol, takes one iteration of iterative refinement towards Newton's
+// step: s = s0 - J_ref^-1 (J s0 + f) with the
 // current Jacobian J, whose row j applied to (dP, omega) is v_j . (dP + omega x d_j) / L'_j (exact
 // for f). From the reference, in DE's search box, the chord step shrinks |f| about 400-fold and the
 // refined step about 1e5-fold (from 3e-3 mm to 1e-8 mm): four residual evaluations where the chord

@@ -178,6 +178,19 @@ IWR_TEST(validation) {
         thrown = std::string(e.what()).find("pose 1, point 1") != std::string::npos;
     }
     CHECK(thrown);
+    // Platform joints on one line through the origin of {5}: the kernel could not recover the
+    // platform's rotation from them; refused by name before any solve.
+    iwr::LegMatrix line = g.platform();
+    for (int j = 0; j < 6; ++j) line.row(j) << 100.0 * (j - 2.5), 0, 0;
+    const iwr::Geometry bad("PPRR", g.dh(), g.base(), line, g.leg_offsets());
+    const iwr::RowMatrixXd pts2 = iwr::RowMatrixXd::Zero(2, 3);
+    thrown = false;
+    try {
+        iwr::TrackerObjective(bad, s, q, legs, pts2, iwr::VectorXd::Zero(bad.n_params()), home);
+    } catch (const std::invalid_argument& e) {
+        thrown = std::string(e.what()).find("platform joints: all on one line") != std::string::npos;
+    }
+    CHECK(thrown);
 }
 
 }  // namespace

@@ -93,8 +93,9 @@ public:
     /// q (N, n_joints) joint readings, legs (N, 6) leg sensor readings, points (N, 3 K) measured
     /// points in {T} (a reflector not seen: its 3 entries NaN). reference: robot error vector
     /// (4 n + 42) where the forward kinematics of every pose is solved once (from `home`, a local
-    /// pose of {5} in {4}) to start each evaluation's solve. tolerance: largest leg-length residual
-    /// of the solves (mm).
+    /// pose of {5} in {4}) to start each evaluation's solve. tolerance (mm): an evaluation's solve
+    /// stops when the 2-norm of the six leg-length residuals is at most this; the reference solve
+    /// and the damped Newton fallback, when the largest residual is.
     TrackerObjective(Geometry geometry, TrackerSetup setup, const RowMatrixXd& q,
                      const RowMatrixXd& legs, const RowMatrixXd& points,
                      const VectorXd& reference, const Vector6d& home, double tolerance = 1e-10);
