@@ -37,6 +37,17 @@ def _default_sigint() -> None:
     signal.signal(signal.SIGINT, signal.SIG_DFL)
 
 
+def _signal_at_checkpoint(proc: subprocess.Popen, ckpt: Path, sig: int) -> str:
+    """Waits (60 s at most) for the running program's first checkpoint, sends `sig`, and returns
+    its stderr once it has ended."""
+    deadline = time.monotonic() + 60
+    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
+        time.sleep(0.005)
+    assert ckpt.exists(), "no checkpoint appeared"
+    proc.send_signal(sig)
+    return proc.communicate(timeout=60)[1]
+
+
 # Small problems: the whole module runs in well under a minute on two cores.
 N_POSES = 12
 NP = 24
@@ -135,12 +146,7 @@ def _start_and_stop(files: dict[str, Path], name: str, sig: int,
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint,
         env=env,
     )
-    deadline = time.monotonic() + 60
-    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    assert ckpt.exists(), "no checkpoint appeared"
-    proc.send_signal(sig)
-    _, err = proc.communicate(timeout=60)
+    err = _signal_at_checkpoint(proc, ckpt, sig)
     assert proc.returncode == (128 + sig if sig != signal.SIGKILL else -sig), err
     return ckpt, err
 
@@ -201,12 +207,7 @@ def test_launcher_sigterm_then_resume(files: dict[str, Path],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint,
     )
     ckpt = d / "term.json.ckpt"
-    deadline = time.monotonic() + 60
-    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    assert ckpt.exists(), "no checkpoint appeared"
-    proc.send_signal(signal.SIGTERM)
-    _, err = proc.communicate(timeout=60)
+    err = _signal_at_checkpoint(proc, ckpt, signal.SIGTERM)
     assert proc.returncode == 143, err
     assert "iwr-calibrate: interrupted by SIGTERM" in err  # the engine speaks as iwr-calibrate
     partial = iwr.load_result(out)
@@ -235,12 +236,7 @@ def test_launcher_sigint_prints_a_resume_command_that_works(files: dict[str, Pat
         cwd=d,
     )
     ckpt = d / "state $1.ckpt"
-    deadline = time.monotonic() + 60
-    while not ckpt.exists() and proc.poll() is None and time.monotonic() < deadline:
-        time.sleep(0.005)
-    assert ckpt.exists(), "no checkpoint appeared"
-    proc.send_signal(signal.SIGINT)
-    _, err = proc.communicate(timeout=60)
+    err = _signal_at_checkpoint(proc, ckpt, signal.SIGINT)
     assert proc.returncode == 130, err
     hints = [ln.split("; continue with: ", 1)[1] for ln in err.splitlines()
              if "; continue with: " in ln]
