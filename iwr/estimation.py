@@ -169,6 +169,14 @@ class FitTest:
         """``statistic / dof``: 1 on average when model, data and noise model agree."""
         return self.statistic / self.dof if self.dof > 0 else math.nan
 
+    def to_dict(self) -> dict[str, Any]:
+        """The test as a result file and a report's JSON hold it."""
+        return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value,
+                "alpha": self.alpha, "fit_ok": self.fit_ok, "verdict": self.verdict,
+                "causes": list(self.causes),
+                "implausible": [{"parameter": n, "value": v, "limit": lim}
+                                for n, v, lim in self.implausible]}
+
     def __str__(self) -> str:
         lines = [self.verdict]
         lines += [f"  - {c}" for c in self.causes]
@@ -1147,11 +1155,7 @@ def summary(result: IdentificationResult) -> dict[str, Any]:
     fit: FitTest = result["fit"]
     pred: PredictedAccuracy | None = result.get("predicted")
     return jsonable({
-        "fit": {"statistic": fit.statistic, "dof": fit.dof, "p_value": fit.p_value,
-                "alpha": fit.alpha, "fit_ok": fit.fit_ok, "verdict": fit.verdict,
-                "causes": list(fit.causes),
-                "implausible": [{"parameter": n, "value": v, "limit": lim}
-                                for n, v, lim in fit.implausible]},
+        "fit": fit.to_dict(),
         "outliers": [asdict(o) for o in result["outliers"]],
         "n_poses_used": int(np.sum(result["used"])),
         "noise": (asdict(result["noise"]) if isinstance(result["noise"], Noise) else

@@ -155,11 +155,7 @@ class Calibration:
             }
         fit = self.result.get("fit")
         if fit is not None:
-            out["fit"] = {"statistic": fit.statistic, "dof": fit.dof, "p_value": fit.p_value,
-                          "alpha": fit.alpha, "fit_ok": fit.fit_ok, "verdict": fit.verdict,
-                          "causes": list(fit.causes),
-                          "implausible": [{"parameter": n, "value": v, "limit": lim}
-                                          for n, v, lim in fit.implausible]}
+            out["fit"] = fit.to_dict()
         if self.result.get("outliers") is not None:
             out["outliers"] = [asdict(o) for o in self.result["outliers"]]
         if self.predicted is not None:
@@ -979,11 +975,7 @@ class TrackerCalibration(Calibration):
             out["noise_sigma_source"] = self.uncertainty.source
         fit = self.result.get("fit")
         if fit is not None:
-            out["fit"] = {"statistic": fit.statistic, "dof": fit.dof, "p_value": fit.p_value,
-                          "alpha": fit.alpha, "fit_ok": fit.fit_ok, "verdict": fit.verdict,
-                          "causes": list(fit.causes),
-                          "implausible": [{"parameter": n, "value": v, "limit": lim}
-                                          for n, v, lim in fit.implausible]}
+            out["fit"] = fit.to_dict()
         return jsonable(out, finite_only=True)
 
     # -- text -----------------------------------------------------------------------------------
