@@ -10,39 +10,18 @@ from __future__ import annotations
 import math
 import sys
 import time
-from typing import Any
 
 import numpy as np
-from scipy.spatial.transform import Rotation
 
 import iwr
-from iwr.tracker import TrackerMeasurements, TrackerNoise
+from iwr.tracker import TrackerNoise, perturb_measurements
 from iwr.tracker.analysis import null_space
 from iwr.tracker.api import tracker_problem
-from iwr.tracker.setup import pose_from_matrix_safe
-from iwr.transforms import pose_matrix
 
 REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
 REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
 READINGS = iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6)
 TRACKER = TrackerNoise.leica()
-
-
-def noisy(robot: iwr.Robot, clean: TrackerMeasurements, rng: np.random.Generator) -> Any:
-    """The same poses with fresh noise, drawn as iwr.simulate draws it."""
-    sq = np.where([c == "P" for c in robot.joint_types], READINGS.joint_lengths,
-                  READINGS.joint_angles)
-    q = clean.q + sq * rng.standard_normal(clean.q.shape)
-    legs = clean.legs + READINGS.legs * rng.standard_normal(clean.legs.shape)
-    if clean.points is not None:
-        return TrackerMeasurements(q, legs, points=TRACKER.perturb(clean.points, rng),
-                                   joint_types=clean.joint_types)
-    t = pose_matrix(clean.probe)
-    t[:, :3, 3] = TRACKER.perturb(t[:, :3, 3], rng)
-    turn = Rotation.from_rotvec(TRACKER.orientation * rng.standard_normal((len(clean), 3)))
-    t[:, :3, :3] = turn.as_matrix() @ t[:, :3, :3]
-    return TrackerMeasurements(q, legs, probe=np.array([pose_from_matrix_safe(m) for m in t]),
-                               joint_types=clean.joint_types)
 
 
 def main() -> None:
@@ -60,7 +39,8 @@ def main() -> None:
     start = time.time()
     runs = []
     for seed in range(seeds):
-        res = iwr.identify(robot, noisy(robot, clean, np.random.default_rng(1000 + seed)),
+        res = iwr.identify(robot, perturb_measurements(robot, clean, READINGS, TRACKER,
+                                                     np.random.default_rng(1000 + seed)),
                            x0=x0, active=mask)
         assert res.success, res.message
         runs.append(res.x[mask])

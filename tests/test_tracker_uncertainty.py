@@ -8,14 +8,11 @@ import math
 
 import numpy as np
 import pytest
-from scipy.spatial.transform import Rotation
 
 import iwr
-from iwr.tracker import TrackerMeasurements, TrackerNoise
+from iwr.tracker import TrackerNoise, perturb_measurements
 from iwr.tracker.analysis import null_space
 from iwr.tracker.api import tracker_problem
-from iwr.tracker.setup import pose_from_matrix_safe
-from iwr.transforms import pose_matrix
 
 REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
 REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
@@ -26,24 +23,6 @@ TRACKER = TrackerNoise.leica()
 def robot_for(kind: str) -> iwr.Robot:
     kw = {"reflectors": REFLECTORS} if kind == "points" else {"probe": (0, 0, 60, 0, 0, 0)}
     return iwr.Robot.default().with_tracker(registration=REGISTRATION, **kw)
-
-
-def noisy_copy(robot: iwr.Robot, clean: TrackerMeasurements,
-               rng: np.random.Generator) -> TrackerMeasurements:
-    """The same poses with fresh noise, drawn as iwr.simulate draws it."""
-    sq = np.where([c == "P" for c in robot.joint_types], READINGS.joint_lengths,
-                  READINGS.joint_angles)
-    q = clean.q + sq * rng.standard_normal(clean.q.shape)
-    legs = clean.legs + READINGS.legs * rng.standard_normal(clean.legs.shape)
-    if clean.points is not None:
-        return TrackerMeasurements(q, legs, points=TRACKER.perturb(clean.points, rng),
-                                   joint_types=clean.joint_types)
-    t = pose_matrix(clean.probe)
-    t[:, :3, 3] = TRACKER.perturb(t[:, :3, 3], rng)
-    turn = Rotation.from_rotvec(TRACKER.orientation * rng.standard_normal((len(clean), 3)))
-    t[:, :3, :3] = turn.as_matrix() @ t[:, :3, :3]
-    return TrackerMeasurements(q, legs, probe=np.array([pose_from_matrix_safe(m) for m in t]),
-                               joint_types=clean.joint_types)
 
 
 @pytest.mark.parametrize("kind", ["points", "probe"])
@@ -59,7 +38,8 @@ def test_predicted_std_matches_the_monte_carlo_spread(kind):
     assert np.all(np.isnan(pred.std[~mask])) and np.all(pred.std[mask] > 0)
     runs = []
     for seed in range(20):
-        res = iwr.identify(robot, noisy_copy(robot, clean, np.random.default_rng(100 + seed)),
+        res = iwr.identify(robot, perturb_measurements(robot, clean, READINGS, TRACKER,
+                                                         np.random.default_rng(100 + seed)),
                            x0=x0, active=mask)
         assert res.success, res.message
         runs.append(res.x[mask])

@@ -24,7 +24,7 @@ from .files import is_tracker_file, read_tracker_data, write_tracker_long, write
 from .problem import FAILED_RESIDUAL, TrackerProblem
 from .registration import RegistrationError, RegistrationGuess, guess_registration, kabsch
 from .setup import TrackerSetup, pose_from_matrix_safe
-from .simulate import TrackerNoise, simulate_tracker, true_points
+from .simulate import TrackerNoise, perturb_measurements, simulate_tracker, true_points
 
 __all__ = [
     "FAILED_RESIDUAL",
@@ -49,6 +49,7 @@ __all__ = [
     "kabsch",
     "null_space",
     "pose_from_matrix_safe",
+    "perturb_measurements",
     "simulate_tracker",
     "tool_frames",
     "tool_pose_errors",

@@ -232,3 +232,25 @@ def simulate_tracker(
     mats[:, :3, :3], mats[:, :3, 3] = rot, origin
     probe = np.array([pose_from_matrix_safe(m) for m in mats])
     return TrackerMeasurements(q, legs, probe=probe, joint_types=robot.joint_types), x_true
+
+
+def perturb_measurements(robot: Robot, clean: TrackerMeasurements, noise: Noise,
+                         tracker_noise: TrackerNoise,
+                         rng: np.random.Generator) -> TrackerMeasurements:
+    """The same poses with fresh noise (a Monte-Carlo over the noise alone): the joint and leg
+    readings with ``noise`` (as :func:`simulate_tracker` draws them), the points (or the probe's
+    origin) with ``tracker_noise`` and the probe's orientation turned by a small random rotation
+    of ``tracker_noise.orientation`` rad per axis. Points not seen stay not seen."""
+    sigma_q = np.where([c == "P" for c in robot.joint_types], noise.joint_lengths,
+                       noise.joint_angles)
+    q = clean.q + sigma_q * rng.standard_normal(clean.q.shape)
+    legs = clean.legs + noise.legs * rng.standard_normal(clean.legs.shape)
+    if clean.points is not None:
+        return TrackerMeasurements(q, legs, points=tracker_noise.perturb(clean.points, rng),
+                                   joint_types=clean.joint_types)
+    t = pose_matrix(clean.probe)
+    t[:, :3, 3] = tracker_noise.perturb(t[:, :3, 3], rng)
+    turn = Rotation.from_rotvec(tracker_noise.orientation * rng.standard_normal((len(clean), 3)))
+    t[:, :3, :3] = turn.as_matrix() @ t[:, :3, :3]
+    return TrackerMeasurements(q, legs, probe=np.array([pose_from_matrix_safe(m) for m in t]),
+                               joint_types=clean.joint_types)
