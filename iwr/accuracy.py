@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from . import kinds
 from .forward import ForwardKinematicsError, forward_kinematics
 from .measurements import Measurements
 from .robot import Robot
@@ -175,11 +176,16 @@ def accuracy(
     they do not change the leg readings predicted at any pose, hence not the pose that forward
     kinematics finds from the readings either.
     """
-    if type(measurements).__name__ == "TrackerMeasurements":
-        # Tracker data: tool pose errors against `truth` when known, else point residuals.
-        from .tracker.api import tracker_accuracy
+    # What accuracy means is the kind's (tracker data: tool pose errors against `truth` when
+    # known, else point residuals).
+    return kinds.of(measurements).accuracy(robot, measurements, x, tool=tool, truth=truth,
+                                           tolerance=tolerance, max_iterations=max_iterations)
 
-        return tracker_accuracy(robot, measurements, x, truth=truth, tool=tool)
+
+def pose_accuracy(robot: Robot, measurements: Measurements, x: Any, *, tool: Any = None,
+                  truth: Any = None, tolerance: float = 1e-9, max_iterations: int = 50
+                  ) -> Accuracy:
+    """:func:`accuracy` on pose data (the platform pose measured in {0})."""
     if truth is not None:
         raise ValueError("truth: only for tracker data (iwr.tracker.TrackerMeasurements)")
     if not isinstance(measurements, Measurements):

@@ -29,7 +29,7 @@ import numpy as np
 from scipy import stats
 from scipy.optimize import OptimizeResult
 
-from . import _core
+from . import _core, kinds
 from ._blas import single_thread
 from ._io import jsonable
 from .identifiability import identifiability
@@ -551,32 +551,24 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     x = np.asarray(x, dtype=float)
     mask = np.asarray(active, dtype=bool)
     n_active = int(mask.sum())
-    if type(measurements).__name__ == "TrackerMeasurements":
-        # Laser-tracker data (docs/tracker.md): the same test on the point (probe) objective,
-        # so modulo its null directions (the registration's and the platform frame's gauge
-        # among them). The setup's parameters are judged from the centre of their bounds (the
-        # registration guess; the nominal offsets), the robot's from zero.
-        from .tracker.problem import TrackerProblem
-
-        if noise is not None:
-            raise ValueError("noise: the chi-square test of laser-tracker data is not "
-                             "implemented; only the size of the identified errors is tested")
-        tp = TrackerProblem(robot, robot.tracker, measurements, bounds)
-        centre = 0.5 * (tp.lower + tp.upper)
-        limit = plausible * 0.5 * (tp.upper - tp.lower)
-        names = tp.parameter_names
-        x_plain = _nearest_plausible(tracker_readings(tp), x, limit, centre)
-    else:
-        limit = _plausible_limit(robot, plausible, bounds)
-        legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
-        names = robot.parameter_names
-        x_plain = _nearest_plausible(leg_readings(robot, measurements), x, limit)
+    # The kind's part: each parameter's plausible size about its centre and the readings model
+    # whose null directions the test ignores (tracker data, docs/tracker.md: the point (probe)
+    # objective, so modulo the registration's and the platform frame's gauge; the setup's
+    # parameters judged from the centre of their bounds, the robot's from zero).
+    kind = kinds.of(measurements)
+    if noise is not None and not kind.chi2_fit_test:
+        raise ValueError(f"noise: the chi-square test of {kind.name} data is not implemented "
+                         "here (the efficient estimator tests their fit); only the size of the "
+                         "identified errors is tested")
+    names, limit, centre, readings = kind.plausibility(robot, measurements, bounds, plausible)
+    x_plain = _nearest_plausible(readings, x, limit, centre)
     implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
                    if abs(x_plain[i]) > limit[i]]
     causes: list[str] = []
     statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
     if noise is not None:
         _check_noise(noise)
+        legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
         sig = sigma_matrix(robot, measurements, noise)
         r = legs - measurements.legs
         cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
@@ -735,11 +727,7 @@ def efficient(
     start_time = time.perf_counter()
     if not isinstance(robot, Robot):
         raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-    tracker = type(measurements).__name__ == "TrackerMeasurements"
-    if not tracker and not isinstance(measurements, Measurements):
-        raise TypeError(
-            f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
-        )
+    kind = kinds.of(measurements)
     if outliers not in ("remove", "report", "off"):
         raise ValueError(f"outliers: {outliers!r}; expected 'remove', 'report' or 'off'")
     for name, v, lo, hi in (("outlier_alpha", outlier_alpha, 0, 1), ("fit_alpha", fit_alpha, 0, 1),
@@ -753,13 +741,9 @@ def efficient(
                     ("max_variance_iterations", max_variance_iterations)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name}: {v!r}; expected a positive integer")
-    if tracker:
-        from .tracker.estimation import TrackerSpec
-
-        spec: Any = TrackerSpec(robot, measurements, noise, x0, active, estimate, bounds,
-                                plausible)
-    else:
-        spec = _PoseSpec(robot, measurements, noise, x0, active, estimate, bounds, plausible)
+    # The kind's model of its readings, their noise and the nuisance unknowns per pose.
+    spec = kind.estimator(robot, measurements, noise, x0=x0, active=active, estimate=estimate,
+                          bounds=bounds, plausible=plausible)
     return _estimate(spec, start_time, callback=callback, outliers=outliers,
                      outlier_alpha=outlier_alpha, max_outlier_fraction=max_outlier_fraction,
                      fit_alpha=fit_alpha, plausible=plausible, max_iterations=max_iterations,

@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 import scipy.linalg
 
+from . import kinds
 from .measurements import Measurements
 from .problem import Problem, predict_legs
 from .robot import Robot
@@ -294,10 +295,14 @@ def identifiability(
         data (:class:`iwr.tracker.TrackerMeasurements`): an :class:`iwr.tracker.NullSpace` of
         the point objective, with ``active`` too (docs/tracker.md).
     """
-    if type(measurements).__name__ == "TrackerMeasurements":
-        from .tracker.api import tracker_identifiability
+    return kinds.of(measurements).identifiability(robot, measurements, x, rtol=rtol,
+                                                  selection=selection)
 
-        return tracker_identifiability(robot, measurements, x, rtol=rtol)  # type: ignore[return-value]
+
+def pose_identifiability(robot: Robot, measurements: Measurements, x: Any = None, *,
+                         rtol: float | None = None, selection: str = "ordered"
+                         ) -> IdentifiabilityReport:
+    """:func:`identifiability` on pose data (the platform pose measured in {0})."""
     problem = Problem(robot, measurements)
     x = _x_or_zeros(robot, x)
     jac = problem.jacobian(x)

@@ -150,6 +150,9 @@ class Measurements:
         The file the measurements come from.
     """
 
+    #: The kind of these data (:mod:`iwr.kinds`): the platform pose measured in {0}.
+    kind = "pose"
+
     def __init__(
         self,
         q: Any,

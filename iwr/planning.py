@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from . import kinds
 from ._io import atomic_write_text
 from .identifiability import IdentifiabilityReport, column_scale, identifiability
 from .measurements import PLAN_MARKER, MeasurementFileError, Measurements
@@ -167,15 +168,10 @@ def _criterion(eig: np.ndarray, name: str, k: int) -> np.ndarray:
 
 
 def _as_candidates(robot: Robot, candidates: Any) -> Measurements:
-    if isinstance(candidates, Measurements):
-        return candidates
-    if type(candidates).__name__ == "TrackerMeasurements":
-        # Tracker data hold no world pose: the nominal robot's forward kinematics gives it.
-        from .forward import forward_kinematics
-
-        poses = forward_kinematics(robot, np.zeros(robot.n_params), candidates.q,
-                                   candidates.legs)
-        return Measurements(candidates.q, poses, candidates.legs, joint_types=robot.joint_types)
+    if isinstance(getattr(candidates, "kind", None), str):
+        # Data of any kind: their platform poses in {0} (tracker data hold none: the nominal
+        # robot's forward kinematics gives them).
+        return kinds.of(candidates).candidate_poses(robot, candidates)
     try:
         q, poses = candidates
     except (TypeError, ValueError):
@@ -242,24 +238,9 @@ def plan_poses(
         raise ValueError(f"criterion: {criterion!r}; expected one of {', '.join(CRITERIA)}")
     cand = _as_candidates(robot, candidates)
     n_cand = len(cand)
-    if robot.tracker is not None:
-        # Laser-tracker data (docs/tracker.md): the information of the tracker problem (the
-        # registration and the offsets included), one null direction per held parameter.
-        problem, x = _tracker_problem(robot, cand, x)
-        if report is None:
-            from .tracker.analysis import null_space
-
-            report = null_space(problem, x)
-        base = np.flatnonzero(report.active)
-        rows = 3 * robot.tracker.n_points
-        what = "point coordinates" if robot.tracker.kind == "points" else "probe coordinates"
-    else:
-        problem = Problem(robot, cand)
-        x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
-        if report is None:
-            report = identifiability(robot, cand, x)
-        base = report.base_indices
-        rows, what = 6, "readings"
+    # The information of the kind of data the robot measures (laser-tracker data,
+    # docs/tracker.md: the tracker problem's, the registration and the offsets included).
+    problem, x, base, rows, what = kinds.for_robot(robot).design(robot, cand, x, report)
     r = base.size
     k_min = -(-r // rows)
     if (isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer))
@@ -351,8 +332,32 @@ def plan_poses(
         n_exchanges=n_exchanges,
         base_indices=base,
         measurements=cand.subset(idx),
-        data_kind="pose" if robot.tracker is None else robot.tracker.kind,
+        data_kind=kinds.for_robot(robot).name,
     )
+
+
+def pose_design(robot: Robot, cand: Measurements, x: Any, report: Any
+                ) -> tuple[Problem, np.ndarray, np.ndarray, int, str]:
+    """:func:`plan_poses`'s problem for pose data: ``(problem, x, base indices, readings per
+    pose, what they are)``."""
+    problem = Problem(robot, cand)
+    x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
+    if report is None:
+        report = identifiability(robot, cand, x)
+    return problem, x, report.base_indices, 6, "readings"
+
+
+def tracker_design(robot: Robot, cand: Measurements, x: Any, report: Any
+                   ) -> tuple[Any, np.ndarray, np.ndarray, int, str]:
+    """:func:`plan_poses`'s problem for laser-tracker data: the tracker problem's information,
+    the registration and the offsets included, one null direction per held parameter."""
+    from .tracker.analysis import null_space
+
+    problem, x = _tracker_problem(robot, cand, x)
+    if report is None:
+        report = null_space(problem, x)
+    what = "point coordinates" if robot.tracker.kind == "points" else "probe coordinates"
+    return problem, x, np.flatnonzero(report.active), 3 * robot.tracker.n_points, what
 
 
 def _tracker_problem(robot: Robot, cand: Measurements, x: Any) -> tuple[Any, np.ndarray]:
@@ -361,8 +366,8 @@ def _tracker_problem(robot: Robot, cand: Measurements, x: Any) -> tuple[Any, np.
     zeros; the robot's alone: the nominal setup)."""
     from .tracker.data import TrackerMeasurements
     from .tracker.problem import TrackerProblem
-    from .tracker.setup import pose_from_matrix_safe
     from .tracker.simulate import true_points
+    from .transforms import pose_from_matrix
 
     setup = robot.tracker
     n_all = robot.n_params + setup.n_params
@@ -379,7 +384,7 @@ def _tracker_problem(robot: Robot, cand: Measurements, x: Any) -> tuple[Any, np.
         t = np.tile(np.eye(4), (len(cand), 1, 1))
         t[:, :3, 3] = pts[:, 0]
         t[:, :3, :3] = np.swapaxes((pts[:, 1:] - pts[:, :1]) / setup.probe_length, 1, 2)
-        probe = np.array([pose_from_matrix_safe(mat) for mat in t])
+        probe = np.array([pose_from_matrix(mat) for mat in t])
         m = TrackerMeasurements(cand.q, cand.legs, probe=probe, joint_types=robot.joint_types)
     return TrackerProblem(robot, setup, m), xf
 
@@ -406,14 +411,18 @@ def measure(
     q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
     x = np.asarray(x, dtype=float)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    if robot.tracker is not None:
-        return _measure_tracker(robot, x, q, poses, noise, rng)
+    return kinds.for_robot(robot).measure(robot, x, q, poses, noise, rng)
+
+
+def measure_poses(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
+                  rng: np.random.Generator) -> Measurements:
+    """:func:`measure` for pose data."""
     legs = predict_legs(robot, x, q, poses)
     noise = noise if noise is not None else Noise()
     return add_noise(robot, q, poses, legs, noise, rng)
 
 
-def _measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
+def measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
                      rng: np.random.Generator) -> Any:
     """:func:`measure` for a robot with a tracker: ``x`` the robot's then the setup's true
     parameters; the points (or probe poses) in {T} the true setup measures, with the reading
@@ -421,8 +430,8 @@ def _measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarr
     TrackerNoise, or a pair)."""
     from .tracker.api import _split_noise
     from .tracker.data import TrackerMeasurements
-    from .tracker.setup import pose_from_matrix_safe
     from .tracker.simulate import true_points
+    from .transforms import pose_from_matrix
 
     setup = robot.tracker
     nr = robot.n_params
@@ -450,5 +459,5 @@ def _measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarr
         t[:, :3, 3] = tracker.perturb(t[:, :3, 3], rng)
         turn = Rotation.from_rotvec(tracker.orientation * rng.standard_normal((len(poses), 3)))
         t[:, :3, :3] = turn.as_matrix() @ t[:, :3, :3]
-    probe = np.array([pose_from_matrix_safe(m) for m in t])
+    probe = np.array([pose_from_matrix(m) for m in t])
     return TrackerMeasurements(q, legs, probe=probe, joint_types=robot.joint_types)

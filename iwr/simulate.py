@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from . import kinds
 from .measurements import Measurements
 from .problem import predict_legs
 from .robot import Robot
@@ -142,11 +143,14 @@ def simulate(
     """
     if not isinstance(robot, Robot):
         raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-    if robot.tracker is not None:
-        # A robot measured by a laser tracker: points (or probe poses) in {T} (docs/tracker.md).
-        from .tracker.api import tracker_simulate
+    # The kind of data the robot's description measures (a [tracker] table: points or probe
+    # poses in {T}, docs/tracker.md) simulates them.
+    return kinds.for_robot(robot).simulate(robot, n_poses, seed=seed, x=x, noise=noise)
 
-        return tracker_simulate(robot, n_poses, seed=seed, x=x, noise=noise)  # type: ignore[return-value]
+
+def simulate_poses(robot: Robot, n_poses: int, *, seed: int | None, x: Any = None,
+                   noise: Noise | None = None) -> tuple[Measurements, np.ndarray]:
+    """:func:`simulate` for pose data (the paper's): the platform pose measured in {0}."""
     if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ValueError(f"n_poses: {n_poses!r}; expected a positive integer")
     noise = noise if noise is not None else Noise()

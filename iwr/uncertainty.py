@@ -15,6 +15,7 @@ from typing import Any
 
 import numpy as np
 
+from . import kinds
 from .identifiability import IdentifiabilityReport, identifiability
 from .measurements import Measurements
 from .problem import Problem, predict_legs
@@ -212,8 +213,14 @@ def uncertainty(
     for micrometre noise. Errors in the measured poses make the estimate slightly biased (errors in
     variables); the covariance does not include that bias.
     """
-    if type(measurements).__name__ == "TrackerMeasurements":
-        return _tracker_uncertainty(robot, measurements, x, noise, active)
+    return kinds.of(measurements).uncertainty(robot, measurements, x, noise, active=active,
+                                              weighted=weighted)
+
+
+def pose_uncertainty(robot: Robot, measurements: Measurements, x: Any,
+                     noise: float | Noise | None = None, *, active: Any = None,
+                     weighted: bool = False) -> Uncertainty:
+    """:func:`uncertainty` on pose data (the platform pose measured in {0})."""
     if weighted and not isinstance(noise, Noise):
         raise ValueError(f"weighted=True needs noise an iwr.Noise, got {noise!r}")
     problem = Problem(robot, measurements, noise=noise if weighted else None)

@@ -140,6 +140,28 @@ def test_euler_matrix_is_eq6():
         )
 
 
+def test_euler_angles_agree_with_scipy_and_survive_the_gimbal_lock():
+    """One pose conversion for the package: iwr.transforms.euler_from_matrix is SciPy's intrinsic
+    Z-Y-X decomposition away from the lock, and at beta = +-pi/2 (where SciPy warns and only
+    gamma -+ alpha is defined) it still gives angles whose matrix is the input."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(11)
+    rots = Rotation.random(200, random_state=rng)
+    np.testing.assert_allclose(iwr.transforms.euler_from_matrix(rots.as_matrix()),
+                               rots.as_euler("ZYX"), atol=1e-9)
+    for beta in (np.pi / 2, -np.pi / 2):
+        for a, g in rng.uniform(-3, 3, size=(20, 2)):
+            r = np_euler(a, beta, g)
+            angles = iwr.transforms.euler_from_matrix(r)
+            assert angles[0] == 0.0 and abs(angles[1] - beta) < 1e-7
+            np.testing.assert_allclose(iwr.transforms.euler_zyx(*angles), r, atol=1e-12)
+            t = np.eye(4)
+            t[:3, :3], t[:3, 3] = r, (1.0, -2.0, 3.0)
+            np.testing.assert_allclose(
+                iwr.transforms.pose_matrix(iwr.transforms.pose_from_matrix(t)), t, atol=1e-12)
+
+
 # -- hexapod -------------------------------------------------------------------------------------
 
 

@@ -129,7 +129,8 @@ def test_report_on_a_tracker_result(tmp_path):
     proc = run("calibrate", str(robot), str(wide), "-o", str(tmp_path / "cal"), "--no-plots")
     assert proc.returncode == 0, proc.stderr
     res = tmp_path / "cal" / "result.json"
-    assert json.loads(res.read_text())["settings"]["data_fingerprint"].startswith("tracker-")
+    fp = json.loads(res.read_text())["settings"]["data_fingerprint"]
+    assert len(fp) == 16 and not fp.startswith("tracker-")  # the problem file's
     for data in ([str(wide)], long):
         out = tmp_path / f"r{len(data)}"
         proc = run("report", str(res), str(robot), *data, "--out", str(out), "--no-plots")

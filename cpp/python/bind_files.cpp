@@ -96,6 +96,37 @@ void bind_files(py::module_& m) {
         },
         py::arg("fields"));
 
+    // The fingerprint of a data set alone, as the problem file records it (ProblemData's
+    // data_fingerprint): what `iwr report` checks a DATA file against, for every kind, without
+    // building the problem (no forward kinematics, no registration guess).
+    m.def(
+        "_data_fingerprint",
+        [](const std::string& kind, const std::string& joint_types, const py::object& measurement_joint_types,
+           const RowMatrixXd& q, const RowMatrixXd& legs, const RowMatrixXd& poses, const py::object& weights,
+           const RowMatrixXd& probe_poses, const RowMatrixXd& points) {
+            ProblemData p;
+            if (kind == "pose") p.kind = MeasurementKind::Pose;
+            else if (kind == "points") p.kind = MeasurementKind::Points;
+            else if (kind == "probe") p.kind = MeasurementKind::Probe;
+            else throw std::invalid_argument("kind: '" + kind + "'; expected pose, points or probe");
+            p.joint_types = joint_types;
+            p.has_measurement_joint_types = !measurement_joint_types.is_none();
+            if (p.has_measurement_joint_types) p.measurement_joint_types = measurement_joint_types.cast<std::string>();
+            p.legs = legs;
+            // As _encode_problem stores it: no joint columns when the robot has no joints.
+            p.q = q.cols() == static_cast<Eigen::Index>(joint_types.size()) ? q : RowMatrixXd(legs.rows(), 0);
+            if (!p.tracker()) {
+                p.poses = poses;
+                if (!weights.is_none()) p.weights = weights.cast<RowMatrixXd>();
+            } else {
+                p.poses.resize(0, 6);  // as decode_problem leaves them for tracker data
+                if (p.kind == MeasurementKind::Probe) p.probe_poses = probe_poses;
+                p.points = points;
+            }
+            return io::hex64(p.data_fingerprint());
+        },
+        py::arg("kind"), py::arg("joint_types"), py::arg("measurement_joint_types"), py::arg("q"),
+        py::arg("legs"), py::arg("poses"), py::arg("weights"), py::arg("probe_poses"), py::arg("points"));
     m.def(
         "_read_problem",
         [](const std::string& path) {

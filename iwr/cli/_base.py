@@ -166,3 +166,14 @@ def run_settings(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     if getattr(args, "noise_from", None):
         settings["noise_from"] = args.noise_from
     return settings
+
+
+def validation_split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
+    """``--validation-fraction``: :func:`iwr.kinds.split` (one rule for every kind), its
+    ValueError as a command error naming the option."""
+    from ..kinds import split
+
+    try:
+        return split(data, fraction, seed)
+    except ValueError as exc:
+        raise CommandError(f"--validation-{one_line(exc)}") from None

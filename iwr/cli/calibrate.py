@@ -21,7 +21,6 @@ from ._base import (
     EXIT_OK,
     METHOD_ENV,
     QUICK_ENV,
-    CommandError,
     UsageError,
     add_common,
     default_method,
@@ -34,6 +33,7 @@ from ._base import (
     positive_int,
     progress_enabled,
     run_settings,
+    validation_split,
 )
 from .simulate import write_truth
 from .tracker import add_arguments as add_tracker_arguments
@@ -286,19 +286,6 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     return _exit_code(cal)
 
 
-def _split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
-    n = len(data)
-    n_val = int(round(fraction * n))
-    if fraction > 0 and n_val == 0:
-        n_val = 1
-    if n - n_val < 1:
-        raise CommandError(f"--validation-fraction {fraction}: leaves no pose for identification "
-                           f"out of {n}")
-    order = np.random.default_rng(seed).permutation(n)
-    val, ident = np.sort(order[:n_val]), np.sort(order[n_val:])
-    return data.subset(ident), data.subset(val)
-
-
 def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace, method: str,
                kwargs: dict[str, Any], out: Path, *, robot_name: str, data_name: str,
                truth: np.ndarray | None = None) -> Any:
@@ -312,7 +299,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     if validation is not None:
         ident, val, held_out = data, validation, True
     elif args.validation_fraction > 0:
-        ident, val = _split(data, args.validation_fraction, args.seed)
+        ident, val = validation_split(data, args.validation_fraction, args.seed)
         held_out = True
     else:
         ident, val, held_out = data, data, False

@@ -19,6 +19,7 @@ from ._base import (
     UsageError,
     progress_enabled,
     run_settings,
+    validation_split,
 )
 
 
@@ -90,14 +91,8 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     if args.validation:
         val = load_tracker_data(args.validation, robot)
         ident, held_out = data, True
-    elif args.validation_fraction > 0 and len(data) > 1:
-        n = len(data)
-        n_val = max(1, int(round(args.validation_fraction * n)))
-        if n - n_val < 1:
-            raise CommandError(f"--validation-fraction {args.validation_fraction}: leaves no pose "
-                               f"for identification out of {n}")
-        order = np.random.default_rng(args.seed).permutation(n)
-        ident, val = _subset(data, np.sort(order[n_val:])), _subset(data, np.sort(order[:n_val]))
+    elif args.validation_fraction > 0:
+        ident, val = validation_split(data, args.validation_fraction, args.seed)
         held_out = True
     else:
         ident = val = data
@@ -191,17 +186,6 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     from .calibrate import _exit_code  # exit 3 when the model does not fit, as for leg data
 
     return _exit_code(cal)
-
-
-def _subset(data: Any, rows: np.ndarray) -> Any:
-    from ..tracker.data import TrackerMeasurements
-
-    lines = None if data.lines is None else data.lines[rows]
-    if data.points is not None:
-        return TrackerMeasurements(data.q[rows], data.legs[rows], points=data.points[rows],
-                                   joint_types=data.joint_types, lines=lines, source=data.source)
-    return TrackerMeasurements(data.q[rows], data.legs[rows], probe=data.probe[rows],
-                               joint_types=data.joint_types, lines=lines, source=data.source)
 
 
 def simulate_tracker_files(args: argparse.Namespace, robot: Any) -> int:

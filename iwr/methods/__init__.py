@@ -48,6 +48,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import kinds
 from ..measurements import Measurements
 from ..problem import Problem
 from ..robot import Robot
@@ -156,24 +157,26 @@ def identify(
         ``"efficient"``); ``success`` only when the method converged, the result is finite and
         the fit is sane (``result.fit``, see :mod:`iwr.methods`).
     """
-    from ..simulate import Noise
-
     if method is None:
         method = DEFAULT_METHOD if noise is None else "efficient"
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
-    if type(measurements).__name__ == "TrackerMeasurements":
-        # Tracker data (docs/tracker.md): the point objective, from the registration guess; with
-        # a noise model the efficient estimator (its noise convention is iwr.simulate's there).
-        from ..tracker.api import tracker_identify
+    # The kind of the data identifies (tracker data, docs/tracker.md: the point objective from
+    # the registration guess; with a noise model the efficient estimator).
+    return kinds.of(measurements).identify(
+        robot, measurements, method, noise=noise, weighted=weighted, bounds=bounds, x0=x0,
+        active=active, max_evaluations=max_evaluations, seed=seed, callback=callback,
+        progress=progress, **options)
 
-        if weighted:
-            raise ValueError("weighted=True: the noise-weighted objective is for leg data "
-                             "(poses in {0}); tracker data are weighted by the efficient "
-                             "estimator (noise=..., docs/estimation.md)")
-        return tracker_identify(robot, measurements, method, noise=noise, bounds=bounds, x0=x0,
-                                active=active, max_evaluations=max_evaluations, seed=seed,
-                                callback=callback, progress=progress, **options)
+
+def pose_identify(robot: Robot, measurements: Measurements, method: str, *, noise: Any = None,
+                  weighted: bool | None = None, bounds: Any = None, x0: Any = None,
+                  active: Any = None, max_evaluations: int | None = None, seed: int | None = None,
+                  callback: Callable[..., Any] | None = None, progress: bool | None = None,
+                  **options: Any) -> IdentificationResult:
+    """:func:`identify` on pose data (the platform pose measured in {0}); ``method`` checked."""
+    from ..simulate import Noise
+
     if noise is not None and not (isinstance(noise, Noise) or (isinstance(noise, str)
                                                                and noise == "estimate")):
         raise TypeError(f"noise: expected an iwr.Noise or 'estimate', got {noise!r}")

@@ -826,14 +826,14 @@ class TrackerCalibration(Calibration):
     def registration_rows(self) -> list[tuple[str, np.ndarray]]:
         """``(label, pose)``: the nominal registration, the closed-form guess and the identified
         one, poses ``(x, y, z, alpha, beta, gamma)`` of {0} in {T} (mm, rad)."""
-        from ..tracker.setup import pose_from_matrix_safe
+        from ..transforms import pose_from_matrix
 
         s = self.setup
         x = np.asarray(self.result.x, dtype=float)
         rows = [("nominal (robot file)", np.asarray(s.registration, dtype=float))]
         if self.guess is not None:
             rows.append(("closed-form guess (Kabsch)", np.asarray(self.guess.registration)))
-        rows.append(("identified", pose_from_matrix_safe(s.registration_matrix(x[self.n_robot:]))))
+        rows.append(("identified", pose_from_matrix(s.registration_matrix(x[self.n_robot:]))))
         return rows
 
     def registration_change(self) -> tuple[float, float, float, float]:

@@ -23,7 +23,7 @@ from .data import TrackerMeasurements
 from .files import is_tracker_file, read_tracker_data, write_tracker_long, write_tracker_wide
 from .problem import FAILED_RESIDUAL, TrackerProblem
 from .registration import RegistrationError, RegistrationGuess, guess_registration, kabsch
-from .setup import TrackerSetup, pose_from_matrix_safe
+from .setup import TrackerSetup
 from .simulate import TrackerNoise, perturb_measurements, simulate_tracker, true_points
 
 __all__ = [
@@ -48,7 +48,6 @@ __all__ = [
     "write_tracker_wide",
     "kabsch",
     "null_space",
-    "pose_from_matrix_safe",
     "perturb_measurements",
     "simulate_tracker",
     "tool_frames",

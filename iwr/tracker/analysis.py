@@ -13,10 +13,10 @@ from scipy.linalg import qr
 from .. import _core
 from ..accuracy import PoseErrors
 from ..robot import Robot
-from ..transforms import pose_matrix
+from ..transforms import pose_from_matrix, pose_matrix
 from .problem import TrackerProblem
 from .registration import kabsch
-from .setup import TrackerSetup, pose_from_matrix_safe
+from .setup import TrackerSetup
 
 __all__ = ["tool_frames", "tool_pose_errors", "NullSpace", "null_space"]
 
@@ -101,7 +101,7 @@ def tool_pose_errors(robot: Robot, setup: TrackerSetup, x: Any, truth: Any, q: A
                                r[:, 1, 0] - r[:, 0, 1]], axis=1)
     cos = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
     angle = np.degrees(np.arctan2(np.linalg.norm(sin_axis, axis=1), cos))
-    return PoseErrors(position, angle, np.array([pose_from_matrix_safe(m) for m in a]))
+    return PoseErrors(position, angle, np.array([pose_from_matrix(m) for m in a]))
 
 
 @dataclass(frozen=True)

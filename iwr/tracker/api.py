@@ -16,11 +16,12 @@ from scipy.spatial.transform import Rotation
 from ..accuracy import Accuracy, PoseErrors
 from ..robot import Robot
 from ..simulate import Noise
+from ..transforms import pose_from_matrix
 from .analysis import NullSpace, null_space, tool_pose_errors
 from .data import TrackerMeasurements
 from .problem import TrackerProblem
 from .registration import kabsch
-from .setup import TrackerSetup, pose_from_matrix_safe
+from .setup import TrackerSetup
 from .simulate import TrackerNoise, simulate_tracker
 
 __all__ = [
@@ -314,4 +315,4 @@ def tracker_forward_kinematics(robot: Robot, x: Any, q: Any, legs: Any) -> np.nd
     from ..transforms import pose_matrix
 
     reg = setup.registration_matrix(x[nr:])
-    return np.array([pose_from_matrix_safe(reg @ pose_matrix(p)) for p in poses])
+    return np.array([pose_from_matrix(reg @ pose_matrix(p)) for p in poses])

@@ -95,6 +95,18 @@ class TrackerMeasurements:
             return np.ones((len(self), 1), dtype=bool)
         return ~np.isnan(self.points[:, :, 0])
 
+    def subset(self, rows: Any) -> TrackerMeasurements:
+        """The measurements at the given row indices (or boolean mask), lines and source kept."""
+        idx = np.asarray(rows)
+        lines = None if self.lines is None else self.lines[idx]
+        if self.points is not None:
+            return TrackerMeasurements(self.q[idx], self.legs[idx], points=self.points[idx],
+                                       joint_types=self.joint_types, lines=lines,
+                                       source=self.source)
+        assert self.probe is not None
+        return TrackerMeasurements(self.q[idx], self.legs[idx], probe=self.probe[idx],
+                                   joint_types=self.joint_types, lines=lines, source=self.source)
+
     def where(self, k: int) -> str:
         """Where pose ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
         loc = f"pose {k}" if self.lines is None else f"line {int(self.lines[k])}"

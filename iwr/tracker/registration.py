@@ -11,8 +11,9 @@ import numpy as np
 
 from .. import _core
 from ..robot import Robot
+from ..transforms import pose_from_matrix
 from .data import TrackerMeasurements
-from .setup import TrackerSetup, pose_from_matrix_safe
+from .setup import TrackerSetup
 
 __all__ = ["RegistrationGuess", "RegistrationError", "guess_registration", "kabsch"]
 
@@ -136,7 +137,7 @@ def guess_registration(robot: Robot, setup: TrackerSetup, measurements: TrackerM
             f"at {measurements.where(worst)}) > max_rms = {max_rms:g} mm: the nominal robot, "
             "the reflector offsets or the pairing of reflectors is too far from the data "
             "(check units, reflector order and the robot description), or raise max_rms")
-    reg = pose_from_matrix_safe(mat)
+    reg = pose_from_matrix(mat)
     x_setup = np.zeros(setup.n_params)
     x_setup[:6] = setup.correction_for(mat)
     return RegistrationGuess(matrix=mat, registration=reg, x_setup=x_setup, rms=rms,

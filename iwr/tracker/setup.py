@@ -10,9 +10,9 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..transforms import euler_zyx, pose_matrix
+from ..transforms import euler_zyx, pose_from_matrix, pose_matrix
 
-__all__ = ["TrackerSetup", "pose_from_matrix_safe"]
+__all__ = ["TrackerSetup"]
 
 #: Default half-widths of the search bounds of the setup's parameters (mm, rad).
 REGISTRATION_BOUND_MM = 10.0
@@ -93,23 +93,6 @@ def _reflectors(value: Any) -> np.ndarray:
         raise ValueError(f"reflectors: empty; expected at least one reflector, 3 numbers ({what})")
     return np.array([_numbers(row, 3, f"reflectors: reflector {k}", what)
                      for k, row in enumerate(rows, 1)])
-
-
-def pose_from_matrix_safe(t: np.ndarray) -> np.ndarray:
-    """The pose ``(x, y, z, alpha, beta, gamma)`` (Z-Y-X Euler, eq. 6) of one 4x4 transform, also
-    at the gimbal lock beta = +-pi/2 (where :func:`iwr.transforms.euler_from_matrix` loses the
-    angle alpha -+ gamma): there alpha = 0 and gamma carries the whole turn."""
-    t = np.asarray(t, dtype=float)
-    r = t[:3, :3]
-    cb = math.hypot(r[0, 0], r[1, 0])
-    beta = math.atan2(-r[2, 0], cb)
-    if cb > 1e-9:
-        alpha = math.atan2(r[1, 0], r[0, 0])
-        gamma = math.atan2(r[2, 1], r[2, 2])
-    else:  # R = Ry(+-pi/2) Rx(gamma) with alpha = 0
-        alpha = 0.0
-        gamma = math.atan2(-r[1, 2], r[1, 1])
-    return np.array([t[0, 3], t[1, 3], t[2, 3], alpha, beta, gamma])
 
 
 class TrackerSetup:
@@ -260,7 +243,7 @@ class TrackerSetup:
         """The same setup with another nominal registration (a pose, or a 4x4 transform)."""
         reg = np.asarray(registration, dtype=float)
         if reg.shape == (4, 4):
-            reg = pose_from_matrix_safe(reg)
+            reg = pose_from_matrix(reg)
         return TrackerSetup(reg, reflectors=self.reflectors, probe=self.probe,
                             probe_length=self.probe_length,
                             names=self.names if self.kind == "points" else None)
@@ -270,7 +253,7 @@ class TrackerSetup:
         part of an identified ``x``): the calibrated registration and offsets, to write with
         the calibrated robot."""
         xs = self._xs(x_setup)
-        reg = pose_from_matrix_safe(self.registration_matrix(xs))
+        reg = pose_from_matrix(self.registration_matrix(xs))
         if self.kind == "points":
             return TrackerSetup(reg, reflectors=self.platform_points(xs),
                                 probe_length=self.probe_length, names=self.names)
@@ -278,7 +261,7 @@ class TrackerSetup:
         t = np.eye(4)
         t[:3, :3] = Rotation.from_rotvec(xs[9:12]).as_matrix() @ euler_zyx(*self.probe[3:])
         t[:3, 3] = self.probe[:3] + xs[6:9]
-        return TrackerSetup(reg, probe=pose_from_matrix_safe(t), probe_length=self.probe_length)
+        return TrackerSetup(reg, probe=pose_from_matrix(t), probe_length=self.probe_length)
 
     # -- TOML -----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:

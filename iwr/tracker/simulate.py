@@ -11,9 +11,9 @@ from scipy.spatial.transform import Rotation
 
 from ..robot import Robot
 from ..simulate import Noise, sample_poses
-from ..transforms import pose_matrix
+from ..transforms import pose_from_matrix, pose_matrix
 from .data import TrackerMeasurements
-from .setup import TrackerSetup, pose_from_matrix_safe
+from .setup import TrackerSetup
 
 __all__ = ["TrackerNoise", "simulate_tracker", "true_points"]
 
@@ -230,7 +230,7 @@ def simulate_tracker(
         rot = turn.as_matrix() @ rot
     mats = np.tile(np.eye(4), (n, 1, 1))
     mats[:, :3, :3], mats[:, :3, 3] = rot, origin
-    probe = np.array([pose_from_matrix_safe(m) for m in mats])
+    probe = np.array([pose_from_matrix(m) for m in mats])
     return TrackerMeasurements(q, legs, probe=probe, joint_types=robot.joint_types), x_true
 
 
@@ -252,5 +252,5 @@ def perturb_measurements(robot: Robot, clean: TrackerMeasurements, noise: Noise,
     t[:, :3, 3] = tracker_noise.perturb(t[:, :3, 3], rng)
     turn = Rotation.from_rotvec(tracker_noise.orientation * rng.standard_normal((len(clean), 3)))
     t[:, :3, :3] = turn.as_matrix() @ t[:, :3, :3]
-    return TrackerMeasurements(q, legs, probe=np.array([pose_from_matrix_safe(m) for m in t]),
+    return TrackerMeasurements(q, legs, probe=np.array([pose_from_matrix(m) for m in t]),
                                joint_types=clean.joint_types)

@@ -1,0 +1,89 @@
+"""The paper's data as a measurement kind: the platform pose measured in the world frame {0}
+beside the joint and leg readings (:class:`iwr.Measurements`, docs/data.md)."""
+
+from __future__ import annotations
+
+import os
+from typing import Any
+
+import numpy as np
+
+from ..accuracy import pose_accuracy
+from ..estimation import _plausible_limit, _PoseSpec, leg_readings
+from ..identifiability import pose_identifiability
+from ..measurements import Measurements
+from ..methods import pose_identify
+from ..planning import measure_poses, pose_design
+from ..problem import Problem
+from ..simulate import simulate_poses
+from ..uncertainty import pose_uncertainty
+from . import MeasurementKind, data_fingerprint
+
+__all__ = ["PoseKind"]
+
+
+class PoseKind(MeasurementKind):
+    """The platform pose measured in {0}: six leg residuals per pose (eq. 10), no setup
+    parameters, and the world frame fixed by the data."""
+
+    name = "pose"
+    description = "the platform pose"
+    frame = "{0}"
+    determines_world_frame = True
+    chi2_fit_test = True
+
+    def applies_to(self, robot: Any) -> bool:
+        return getattr(robot, "tracker", None) is None
+
+    def setup_parameter_names(self, robot: Any) -> list[str]:
+        return []
+
+    def fingerprint(self, robot: Any, data: Any) -> str:
+        return data_fingerprint(self.name, robot, data, poses=data.poses, weights=data.weights)
+
+    def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
+        if options:
+            raise TypeError("pose data: unexpected reading option(s) " + ", ".join(sorted(options)))
+        return Measurements.from_csv(path, robot=robot)
+
+    def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
+                 noise: Any = None) -> tuple[Any, np.ndarray]:
+        return simulate_poses(robot, n_poses, seed=seed, x=x, noise=noise)
+
+    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None
+                ) -> tuple[Any, np.ndarray]:
+        problem = Problem(robot, data, bounds)
+        start = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
+        return problem, start
+
+    def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
+        return pose_identify(robot, data, method, **options)
+
+    def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        return pose_accuracy(robot, data, x, **options)
+
+    def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
+        return pose_identifiability(robot, data, x, **options)
+
+    def uncertainty(self, robot: Any, data: Any, x: Any, noise: Any, **options: Any) -> Any:
+        return pose_uncertainty(robot, data, x, noise, **options)
+
+    def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+        return _PoseSpec(robot, data, noise, options["x0"], options["active"],
+                         options["estimate"], options["bounds"], options["plausible"])
+
+    def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
+                     ) -> tuple[list[str], np.ndarray, Any, Any]:
+        return (robot.parameter_names, _plausible_limit(robot, plausible, bounds), None,
+                leg_readings(robot, data))
+
+    def candidate_poses(self, robot: Any, data: Any) -> Any:
+        return data
+
+    def design(self, robot: Any, candidates: Any, x: Any, report: Any
+               ) -> tuple[Any, np.ndarray, np.ndarray, int, str]:
+        return pose_design(robot, candidates, x, report)
+
+    def measure(self, robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
+                rng: np.random.Generator) -> Any:
+        return measure_poses(robot, x, q, poses, noise, rng)
