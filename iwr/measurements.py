@@ -83,6 +83,12 @@ def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray
 
 
 
+def _row_index(rows: Any) -> np.ndarray:
+    """Row indices or a boolean mask as an index array (an empty list is no rows)."""
+    idx = np.asarray(rows)
+    return idx if idx.dtype == bool else idx.astype(np.intp, copy=False)
+
+
 class MeasurementFileError(ValueError):
     """A measurement CSV file is missing or malformed; the message names the file and line."""
 
@@ -212,7 +218,7 @@ class Measurements:
 
     def subset(self, rows: Any) -> Measurements:
         """The measurements at the given row indices (or boolean mask)."""
-        idx = np.asarray(rows)
+        idx = _row_index(rows)
         return Measurements(
             self.q[idx],
             self.poses[idx],

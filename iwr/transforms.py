@@ -24,22 +24,18 @@ def euler_zyx(alpha, beta, gamma) -> np.ndarray:
     return r
 
 
-#: Below this ``cos(beta)`` a rotation is at the gimbal lock of Z-Y-X angles (beta = +-pi/2),
-#: where only ``gamma -+ alpha`` is defined: :func:`euler_from_matrix` then sets ``alpha = 0``.
-GIMBAL_LOCK = 1e-9
-
-
 def euler_from_matrix(r) -> np.ndarray:
     """Z-Y-X Euler angles ``(alpha, beta, gamma)`` of rotation matrices (..., 3, 3), with beta in
-    [-pi/2, pi/2]; also at the gimbal lock beta = +-pi/2, where ``alpha = 0`` and ``gamma``
-    carries the whole turn about the vertical (``R = Ry(+-pi/2) Rx(gamma)``)."""
+    [-pi/2, pi/2], exact also at and near the gimbal lock beta = +-pi/2: gamma is read from
+    ``Rz(-alpha) R = Ry(beta) Rx(gamma)`` (its second row is ``(0, cos gamma, -sin gamma)``), so
+    it carries whatever turn alpha does not; at the lock itself (``cos beta = 0`` exactly)
+    ``alpha = 0``."""
     r = np.asarray(r, dtype=float)
     cb = np.hypot(r[..., 0, 0], r[..., 1, 0])
-    lock = cb <= GIMBAL_LOCK
     beta = np.arctan2(-r[..., 2, 0], cb)
-    alpha = np.where(lock, 0.0, np.arctan2(r[..., 1, 0], r[..., 0, 0]))
-    gamma = np.where(lock, np.arctan2(-r[..., 1, 2], r[..., 1, 1]),
-                     np.arctan2(r[..., 2, 1], r[..., 2, 2]))
+    alpha = np.arctan2(r[..., 1, 0], r[..., 0, 0])  # 0 where cos(beta) = 0
+    ca, sa = np.cos(alpha), np.sin(alpha)
+    gamma = np.arctan2(sa * r[..., 0, 2] - ca * r[..., 1, 2], ca * r[..., 1, 1] - sa * r[..., 0, 1])
     return np.stack([alpha, beta, gamma], axis=-1)
 
 

@@ -116,9 +116,17 @@ def test_split_refuses_what_leaves_nothing(kind):
     one = kinds.of(data).subset(data, [0])
     with pytest.raises(ValueError, match="leaves no pose for identification out of 1"):
         kinds.split(one, 0.2, seed=0)
-    for bad in (-0.1, 1.0, math.nan):
+    for bad in (-0.1, 0, 0.0, 1.0, math.nan, True):
         with pytest.raises(ValueError, match="fraction"):
             kinds.split(data, bad, seed=0)
+    a, b = kinds.split(data, np.float32(0.2), seed=3), kinds.split(data, 0.2, seed=3)
+    np.testing.assert_array_equal(a[1].legs, b[1].legs)
+
+
+def test_empty_subset_is_refused_by_name(kind):
+    _, _, data = kind
+    with pytest.raises(ValueError, match="no measurements"):
+        kinds.of(data).subset(data, [])
 
 
 def test_subset_keeps_lines_and_source(kind):
@@ -147,6 +155,54 @@ def test_registry_refuses_unknown_data_and_duplicate_names():
     with pytest.raises(ValueError, match="expected an identifier"):
         kinds.register("a b", "x:Y")
     assert kinds.available()[:3] == ["pose", "points", "probe"]
+    robot = _robot("points")
+    with pytest.raises(TypeError, match="got TrackerSetup"):  # it has a .kind, but is no data
+        kinds.of(robot.tracker)
+    with pytest.raises(TypeError, match="got TrackerSetup"):
+        iwr.accuracy(robot, robot.tracker, np.zeros(robot.n_params + robot.tracker.n_params))
+    from iwr.kinds.pose import PoseKind
+
+    with pytest.raises(ValueError, match="is named 'pose', not 'other'"):
+        kinds.register("other", PoseKind())
+
+
+def test_for_robot_finds_a_new_instrument_before_the_pose_fallback():
+    """A robot describing a new instrument gets that kind, not the pose in {0} (the fallback)."""
+    from iwr.kinds.pose import PoseKind
+
+    class BarKind(PoseKind):
+        name = "bar_test"
+        fallback = False
+
+        def applies_to(self, robot):
+            return getattr(robot, "bar", None) is not None
+
+    if "bar_test" not in kinds.available():
+        kinds.register("bar_test", BarKind())
+    robot = iwr.Robot.default()
+    assert kinds.for_robot(robot).name == "pose"
+    robot.bar = "a bar"
+    assert kinds.for_robot(robot).name == "bar_test"
+
+
+def test_first_use_of_the_registry_from_threads_loads_one_instance_per_kind():
+    code = (
+        "import threading, iwr\n"
+        "from iwr import kinds\n"
+        "r = iwr.Robot.default()\n"
+        "found = []\n"
+        "barrier = threading.Barrier(8)\n"
+        "def go():\n"
+        "    barrier.wait()\n"
+        "    found.append(kinds.for_robot(r))\n"
+        "ts = [threading.Thread(target=go) for _ in range(8)]\n"
+        "[t.start() for t in ts]; [t.join() for t in ts]\n"
+        "print(len({id(k) for k in found}), len(found))\n")
+    for _ in range(5):
+        proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True,
+                              cwd=tempfile.gettempdir(), timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        assert proc.stdout.split() == ["1", "8"]
 
 
 class _Mirrored(iwr.Measurements):
@@ -156,9 +212,9 @@ class _Mirrored(iwr.Measurements):
 
 
 def test_a_new_kind_is_one_class_and_one_registration():
-    """The public functions reach a new kind through the registry alone: identify, accuracy,
-    identifiability and uncertainty of data of kind 'mirrored_pose' run the new class's methods
-    (here: un-mirror, then the pose kind's)."""
+    """The public functions reach a new kind through the registry alone: identify, accuracy and
+    identifiability of data of kind 'mirrored_pose' run the new class's methods (here:
+    un-mirror, then the pose kind's)."""
     from iwr.kinds.pose import PoseKind
 
     calls: list[str] = []
@@ -245,3 +301,24 @@ def test_report_accepts_the_data_of_an_engine_run_on_tracker_data(tmp_path):
         proc = _run("report", str(tmp_path / "old.json"), str(robot), str(data), "--out",
                     str(tmp_path / f"old{code}"), "--no-plots")
         assert proc.returncode == code, proc.stdout + proc.stderr
+
+
+def test_analyze_reads_the_data_of_the_robots_kind(tmp_path):
+    """iwr analyze on tracker data (wide, or long with --readings): the point objective's null
+    directions, the registration's among them; --readings refused for a pose robot."""
+    robot = REPO / "examples" / "iwr_tracker.toml"
+    wide = REPO / "examples" / "iwr_tracker_points.csv"
+    long = [str(REPO / "examples" / "iwr_tracker_points_long.csv"), "--readings",
+            str(REPO / "examples" / "iwr_tracker_readings.csv")]
+    outs = []
+    for data in ([str(wide)], long):
+        proc = _run("analyze", str(robot), *data)
+        assert proc.returncode == 0, proc.stderr
+        outs.append(proc.stdout)
+    assert outs[0] == outs[1] and "of 73" in outs[0] and "tracker.x" in outs[0]
+    proc = _run("analyze", str(REPO / "examples" / "iwr.toml"),
+                str(REPO / "examples" / "iwr_example.csv"), "--readings", str(wide))
+    assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr
+    assert "iwr analyze --help" in proc.stderr
+    proc = _run("analyze", str(REPO / "examples" / "iwr.toml"), str(wide))
+    assert proc.returncode == 1 and "laser-tracker data" in proc.stderr

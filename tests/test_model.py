@@ -149,13 +149,22 @@ def test_euler_angles_agree_with_scipy_and_survive_the_gimbal_lock():
     rng = np.random.default_rng(11)
     rots = Rotation.random(200, random_state=rng)
     np.testing.assert_allclose(iwr.transforms.euler_from_matrix(rots.as_matrix()),
-                               rots.as_euler("ZYX"), atol=1e-9)
-    for beta in (np.pi / 2, -np.pi / 2):
+                               rots.as_euler("ZYX"), atol=1e-12)
+    for beta in (np.pi / 2, -np.pi / 2, np.pi / 2 - 1e-9, -np.pi / 2 + 3e-10):
         for a, g in rng.uniform(-3, 3, size=(20, 2)):
             r = np_euler(a, beta, g)
             angles = iwr.transforms.euler_from_matrix(r)
-            assert angles[0] == 0.0 and abs(angles[1] - beta) < 1e-7
-            np.testing.assert_allclose(iwr.transforms.euler_zyx(*angles), r, atol=1e-12)
+            assert abs(angles[1] - beta) < 1e-7
+            np.testing.assert_allclose(iwr.transforms.euler_zyx(*angles), r, atol=1e-14)
+            if abs(beta) != np.pi / 2:
+                continue
+            # At the lock itself (cos beta exactly 0) alpha is 0 and gamma carries the turn.
+            locked = r.copy()
+            locked[:2, 0] = 0.0
+            locked[2, 0] = -np.sign(beta)
+            angles = iwr.transforms.euler_from_matrix(locked)
+            assert angles[0] == 0.0 and abs(angles[1] - np.sign(beta) * np.pi / 2) < 1e-15
+            np.testing.assert_allclose(iwr.transforms.euler_zyx(*angles), locked, atol=1e-14)
             t = np.eye(4)
             t[:3, :3], t[:3, 3] = r, (1.0, -2.0, 3.0)
             np.testing.assert_allclose(

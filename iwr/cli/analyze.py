@@ -7,7 +7,8 @@ from typing import Any
 
 import numpy as np
 
-from ._base import EXIT_OK, CommandError, add_common, load_data, load_robot
+from ._base import EXIT_OK, CommandError, add_common, load_robot, read_data
+from .tracker import add_arguments as add_tracker_arguments
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -16,10 +17,13 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         description="Print the identifiability report of ROBOT.toml on the poses of DATA.csv "
         "(iwr.identifiability): the rank and conditioning of the identification Jacobian, "
         "observability indices, the unidentifiable combinations of parameters and a set of base "
-        "parameters.",
+        "parameters. For a robot with a [tracker] table, DATA are its tracker data and the "
+        "report covers the registration and the reflector (probe) offsets too, with one null "
+        "direction per parameter held (docs/tracker.md).",
     )
     p.add_argument("robot", metavar="ROBOT.toml", help="the nominal robot")
     p.add_argument("data", metavar="DATA.csv", help="the measurements")
+    add_tracker_arguments(p)  # --readings: tracker data as a long table
     p.add_argument("--result", metavar="RESULT.json",
                    help="analyse at an identified error vector (default: the nominal robot)")
     add_common(p)
@@ -29,15 +33,17 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 def cmd_analyze(args: argparse.Namespace) -> int:
     from ..identifiability import identifiability
+    from ..kinds import for_robot
     from ..methods import load_result
 
     robot = load_robot(args.robot)
-    data = load_data(args.data, robot)
+    data = read_data(args.data, robot, args.readings, prog="iwr analyze")
     x = None
     if args.result:
         x = np.asarray(load_result(args.result).x, dtype=float)
-        if x.shape != (robot.n_params,):
+        n = for_robot(robot).n_params(robot)
+        if x.shape != (n,):
             raise CommandError(f"{args.result}: {x.size} parameters, but robot {robot.name!r} "
-                               f"has {robot.n_params}")
+                               f"({args.robot}) has {n} on {for_robot(robot).name} data")
     print(identifiability(robot, data, x))
     return EXIT_OK

@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import abc
 import importlib
-import math
+import numbers
 import os
+import threading
 from typing import Any, ClassVar
 
 import numpy as np
@@ -60,8 +61,15 @@ class MeasurementKind(abc.ABC):
     #: Whether :func:`iwr.estimation.fit_check` can test an eq. (10)-type solution's cost with a
     #: noise model (else only the efficient estimator tests the fit of these data).
     chi2_fit_test: ClassVar[bool] = False
+    #: Whether :func:`for_robot` chooses this kind only when no other applies (the pose in {0}:
+    #: a robot describes no instrument for it).
+    fallback: ClassVar[bool] = False
 
     # -- the data -----------------------------------------------------------------------------
+
+    @abc.abstractmethod
+    def owns(self, data: Any) -> bool:
+        """Whether ``data`` (whose ``kind`` attribute names this kind) are of its data type."""
 
     @abc.abstractmethod
     def applies_to(self, robot: Any) -> bool:
@@ -100,7 +108,7 @@ class MeasurementKind(abc.ABC):
     @abc.abstractmethod
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
         """Read a data file of this kind for ``robot``, with every check (errors name the file
-        and line)."""
+        and line); TypeError naming an option the kind's files do not take."""
 
     @abc.abstractmethod
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
@@ -185,6 +193,7 @@ def data_fingerprint(kind: str, robot: Any, data: Any, *, poses: Any = None, wei
 
 _SPECS: dict[str, str | MeasurementKind] = {}
 _LOADED: dict[str, MeasurementKind] = {}
+_LOCK = threading.RLock()  # one instance per kind, whichever thread asks first
 
 
 def register(name: str, kind: str | MeasurementKind) -> None:
@@ -197,7 +206,12 @@ def register(name: str, kind: str | MeasurementKind) -> None:
     if not isinstance(kind, (str, MeasurementKind)):
         raise TypeError(f"kind: expected a MeasurementKind or 'module:Class', got "
                         f"{type(kind).__name__}")
-    _SPECS[name] = kind
+    if isinstance(kind, MeasurementKind) and kind.name != name:
+        raise ValueError(f"kind: {type(kind).__name__} is named {kind.name!r}, not {name!r}")
+    with _LOCK:
+        if name in _SPECS:
+            raise ValueError(f"kind: {name!r} is already registered")
+        _SPECS[name] = kind
 
 
 register("pose", "iwr.kinds.pose:PoseKind")
@@ -206,16 +220,20 @@ register("probe", "iwr.tracker.kind:ProbeKind")
 
 
 def _load(name: str) -> MeasurementKind:
-    if name not in _LOADED:
-        spec = _SPECS[name]
-        if isinstance(spec, str):
-            module, _, cls = spec.partition(":")
-            spec = getattr(importlib.import_module(module), cls)()
-        if not isinstance(spec, MeasurementKind) or spec.name != name:
-            raise TypeError(f"kind {name!r}: {_SPECS[name]!r} is not a MeasurementKind named "
-                            f"{name!r}")
-        _LOADED[name] = spec
-    return _LOADED[name]
+    kind = _LOADED.get(name)
+    if kind is not None:
+        return kind
+    with _LOCK:
+        if name not in _LOADED:
+            spec = _SPECS[name]
+            if isinstance(spec, str):
+                module, _, cls = spec.partition(":")
+                spec = getattr(importlib.import_module(module), cls)()
+            if not isinstance(spec, MeasurementKind) or spec.name != name:
+                raise TypeError(f"kind {name!r}: {_SPECS[name]!r} is not a MeasurementKind "
+                                f"named {name!r}")
+            _LOADED[name] = spec
+        return _LOADED[name]
 
 
 def available() -> list[str]:
@@ -226,16 +244,20 @@ def available() -> list[str]:
 def of(data: Any) -> MeasurementKind:
     """The kind of ``data`` (its ``kind`` attribute); TypeError naming the type otherwise."""
     name = getattr(data, "kind", None)
-    if not isinstance(name, str) or name not in _SPECS:
+    kind = _load(name) if isinstance(name, str) and name in _SPECS else None
+    if kind is None or not kind.owns(data):
         raise TypeError(f"measurements: expected an iwr.Measurements or another registered kind "
-                        f"of data ({', '.join(_SPECS)}), got {type(data).__name__}")
-    return _load(name)
+                        f"of data ({', '.join(list(_SPECS))}), got {type(data).__name__}"
+                        + (f" of unregistered kind {name!r}" if isinstance(name, str)
+                           and kind is None else ""))
+    return kind
 
 
 def for_robot(robot: Any) -> MeasurementKind:
-    """The kind of data ``robot``'s description measures (its ``[tracker]`` table, if any)."""
-    for name in _SPECS:
-        kind = _load(name)
+    """The kind of data ``robot``'s description measures (its ``[tracker]`` table, if any); a
+    fallback kind (the pose in {0}) only when no other applies."""
+    loaded = [_load(name) for name in list(_SPECS)]
+    for kind in sorted(loaded, key=lambda k: k.fallback):
         if kind.applies_to(robot):
             return kind
     raise ValueError(f"robot {getattr(robot, 'name', robot)!r}: no registered kind of data "
@@ -243,17 +265,15 @@ def for_robot(robot: Any) -> MeasurementKind:
 
 
 def split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
-    """``(identification, validation)``: ``round(fraction * N)`` poses (at least one when
-    ``fraction > 0``) drawn by ``seed`` for validation, each part in file order; the same rule
-    for every kind. ValueError when no pose would be left to identify from."""
-    if not (isinstance(fraction, (int, float)) and not math.isnan(fraction)
-            and 0 <= fraction < 1):
-        raise ValueError(f"fraction: {fraction!r}; expected 0 <= fraction < 1")
+    """``(identification, validation)``: ``round(fraction * N)`` poses (at least one) drawn by
+    ``seed`` for validation, each part in file order; the same rule for every kind. ValueError
+    when no pose would be left to identify from."""
+    if not (isinstance(fraction, numbers.Real) and not isinstance(fraction, bool)
+            and 0 < float(fraction) < 1):
+        raise ValueError(f"fraction: {fraction!r}; expected 0 < fraction < 1")
     kind = of(data)
     n = len(data)
-    n_val = int(round(fraction * n))
-    if fraction > 0 and n_val == 0:
-        n_val = 1
+    n_val = max(1, int(round(float(fraction) * n)))
     if n - n_val < 1:
         raise ValueError(f"fraction {fraction}: leaves no pose for identification out of {n}")
     order = np.random.default_rng(seed).permutation(n)

@@ -11,11 +11,12 @@ import numpy as np
 from ..accuracy import pose_accuracy
 from ..estimation import _plausible_limit, _PoseSpec, leg_readings
 from ..identifiability import pose_identifiability
-from ..measurements import Measurements
+from ..measurements import MeasurementFileError, Measurements
 from ..methods import pose_identify
 from ..planning import measure_poses, pose_design
 from ..problem import Problem
 from ..simulate import simulate_poses
+from ..tracker.files import is_tracker_file
 from ..uncertainty import pose_uncertainty
 from . import MeasurementKind, data_fingerprint
 
@@ -31,6 +32,10 @@ class PoseKind(MeasurementKind):
     frame = "{0}"
     determines_world_frame = True
     chi2_fit_test = True
+    fallback = True
+
+    def owns(self, data: Any) -> bool:
+        return isinstance(data, Measurements)
 
     def applies_to(self, robot: Any) -> bool:
         return getattr(robot, "tracker", None) is None
@@ -42,8 +47,19 @@ class PoseKind(MeasurementKind):
         return data_fingerprint(self.name, robot, data, poses=data.poses, weights=data.weights)
 
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
-        if options:
-            raise TypeError("pose data: unexpected reading option(s) " + ", ".join(sorted(options)))
+        given = sorted(k for k, v in options.items() if v is not None)
+        if given:
+            raise TypeError(f"--{given[0]}: only for a robot with a [tracker] table; robot "
+                            f"{robot.name!r} measures the platform pose in {{0}}")
+        try:
+            tracker = is_tracker_file(path)
+        except OSError:
+            tracker = False  # Measurements.from_csv names the file and what is wrong with it
+        if tracker:
+            raise MeasurementFileError(
+                f"{path}: laser-tracker data (a 'pose' column), but robot {robot.name!r} has no "
+                "[tracker] table describing the setup (registration, reflectors or probe): add "
+                "one (docs/tracker.md)")
         return Measurements.from_csv(path, robot=robot)
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,

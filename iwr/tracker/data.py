@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..measurements import as_matrix, joint_readings
+from ..measurements import _row_index, as_matrix, joint_readings
 from ..transforms import euler_zyx
 from .setup import TrackerSetup
 
@@ -97,7 +97,7 @@ class TrackerMeasurements:
 
     def subset(self, rows: Any) -> TrackerMeasurements:
         """The measurements at the given row indices (or boolean mask), lines and source kept."""
-        idx = np.asarray(rows)
+        idx = _row_index(rows)
         lines = None if self.lines is None else self.lines[idx]
         if self.points is not None:
             return TrackerMeasurements(self.q[idx], self.legs[idx], points=self.points[idx],

@@ -22,6 +22,7 @@ from .api import (
     tracker_problem,
     tracker_simulate,
 )
+from .data import TrackerMeasurements
 from .estimation import TrackerSpec
 from .files import read_tracker_data
 from .problem import TrackerProblem
@@ -32,6 +33,9 @@ __all__ = ["PointsKind", "ProbeKind"]
 class _TrackerKind(MeasurementKind):
     frame = "{T}"
     determines_world_frame = False
+
+    def owns(self, data: Any) -> bool:
+        return isinstance(data, TrackerMeasurements)
 
     def applies_to(self, robot: Any) -> bool:
         tracker = getattr(robot, "tracker", None)
@@ -51,9 +55,9 @@ class _TrackerKind(MeasurementKind):
 
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
         readings = options.pop("readings", None)
-        if options:
-            raise TypeError(f"{self.name} data: unexpected reading option(s) "
-                            + ", ".join(sorted(options)))
+        given = sorted(k for k, v in options.items() if v is not None)
+        if given:
+            raise TypeError(f"--{given[0]}: not an option of {self.name} data")
         return read_tracker_data(path, robot.tracker, readings)
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
