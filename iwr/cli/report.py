@@ -64,6 +64,8 @@ def data_fingerprint(robot: Any, data: Any) -> str:
         for arr in (data.q, data.legs, data.points if data.points is not None else data.probe):
             h.update(repr(arr.shape).encode())
             h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
+        if getattr(data, "point_sigma", None) is not None:  # the points' own uncertainties
+            h.update(np.ascontiguousarray(data.point_sigma, dtype="<f8").tobytes())
         return "tracker-" + h.hexdigest()[:16]
 
     return str(_core._decode_problem(encode_problem(Problem(robot, data)), "")["data_fingerprint"])
@@ -162,9 +164,9 @@ def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
     from ..reporting.calibration import TrackerCalibration
     from ..reporting.html import provenance
     from ..tracker.registration import RegistrationError, guess_registration
-    from .tracker import load_tracker_data
+    from .tracker import load_tracker_data, target_format
 
-    data = load_tracker_data(args.data, robot, args.readings)
+    data = load_tracker_data(args.data, robot, args.readings, target_format(args))
     names = robot.parameter_names + robot.tracker.parameter_names
     x = np.asarray(result.x, dtype=float)
     if x.shape != (len(names),):
