@@ -92,7 +92,8 @@ class TrackerMeasurements:
         if bad.size:
             k, i, c = (int(v) for v in bad[0])
             raise ValueError(f"point_sigma: pose {k}, reflector {i + 1}, axis {'xyz'[c]} is "
-                             f"{float(sig[k, i, c])!r}; a seen point's uncertainty is finite and > 0")
+                             f"{float(sig[k, i, c])!r}; a seen point's uncertainty is finite "
+                             "and > 0")
         if not np.all(np.isnan(sig[~seen])):
             k, i = (int(v) for v in np.argwhere(~seen & ~np.all(np.isnan(sig), axis=2))[0])
             raise ValueError(f"point_sigma: pose {k}, reflector {i + 1} was not seen, but has an "

@@ -126,7 +126,7 @@ def _comments_and_lines(text: str) -> Iterator[tuple[int, str, bool]]:
         stripped = line.strip()
         if not stripped:
             continue
-        yield lineno, stripped, stripped.startswith("//")
+        yield lineno, stripped, stripped.startswith(("//", "#"))
 
 
 def _split(line: str) -> list[str]:
@@ -144,9 +144,9 @@ def is_target_export(path: str | Path) -> bool:
     except MeasurementFileError:
         return False
     for _, line, comment in _comments_and_lines(text[:100_000]):
-        if comment:
+        if line.startswith("//"):
             return True
-        if line.startswith("#"):
+        if comment:
             continue
         fields = _split(line)
         return len(fields) >= 6 and not _NUMBER_HEAD.match(fields[0]) and all(
@@ -177,7 +177,7 @@ def read_target_lines(path: str | Path, fmt: TargetFormat) -> tuple[list[TargetL
     expected = f"Collection Group Target {' '.join(fmt.columns)}"
     for lineno, line, comment in _comments_and_lines(text):
         if comment:
-            body = line[2:].strip()
+            body = line.lstrip("/#").strip()
             m = _UNITS_COMMENT.search(body)
             if m:
                 unit = _UNIT_WORDS.get(m.group(1).lower())
