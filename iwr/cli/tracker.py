@@ -179,6 +179,9 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
                       progress=progress_enabled(args), **kwargs)
     notes: list[str] = []
+    if data.point_sigma is not None and method == "efficient":
+        notes.append(f"note: the points are weighted by their own uncertainties from {args.data}, "
+                     "not by the tracker noise model named above (docs/data.md)")
     # At the start, as identify(active="base") chose the parameters it holds: the report's
     # "held" and "null direction" then agree with what was done.
     ns = identifiability(robot, ident)
