@@ -79,6 +79,7 @@ def test_target_list_reads_the_same_points_and_their_uncertainties(robot, data, 
     for a in ("q", "legs", "points", "lines"):
         np.testing.assert_array_equal(getattr(got, a), getattr(want, a))
     assert want.point_sigma is None
+    assert got.source.endswith("targets.txt (working frame Tracker)")
     seen = got.seen
     assert np.all(np.isnan(got.point_sigma[~seen]))
     for k, i in zip(*np.nonzero(seen), strict=True):

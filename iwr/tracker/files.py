@@ -292,12 +292,15 @@ def _read_targets(path: Path, setup: TrackerSetup, readings: Path | None,
             f"{path}: a target list of tracker software (Collection Group Target x y z); give "
             "the robot's log of joint and leg readings with it (pose, q1_mm, ..., s1_mm .. "
             "s6_mm; iwr calibrate ROBOT TARGETS --readings READINGS --target-names PATTERN)")
-    lines, unit, _ = read_target_lines(path, fmt)
+    lines, unit, frame = read_target_lines(path, fmt)
     problems = [(t.line, t.problem) for t in lines if t.problem is not None]
     entries = [(t.line, t.pose, t.reflector,
                 (lambda t=t: target_values(t, fmt, unit, problems)))
                for t in lines if t.problem is None]
-    return _join_points(path, entries, setup, readings, problems)
+    out = _join_points(path, entries, setup, readings, problems)
+    if frame:  # the software's working frame, which the points are in: {T} here
+        out.source = f"{out.source} (working frame {frame})"
+    return out
 
 
 def _join_points(path: Path, entries: list[tuple[int, str, str, Callable[[], Any]]],
