@@ -1,6 +1,6 @@
 """The ``iwr`` command line: ``calibrate``, ``simulate``, ``analyze``, ``plan``, ``compare``,
-``study``, ``report`` and ``legs``, one module per command (each with ``add_parser(subparsers)``;
-every argument parser of the package is here).
+``study``, ``report``, ``legs`` and ``export``, one module per command (each with
+``add_parser(subparsers)``; every argument parser of the package is here).
 
 Every command has ``--help``. Exit codes: 0 success, 1 bad data or a failed computation, 2 bad
 usage, 3 the model does not fit the data and 4 not converged (``iwr calibrate``), 130
@@ -34,7 +34,7 @@ __all__ = ["main", "build_parser", "default_method"]
 def build_parser() -> argparse.ArgumentParser:
     """The ``iwr`` argument parser, with every command."""
     from ..reporting.html import iwr_version
-    from . import analyze, calibrate, compare, legs, plan, report, simulate, study
+    from . import analyze, calibrate, compare, export, legs, plan, report, simulate, study
 
     parser = Parser(
         prog="iwr",
@@ -52,7 +52,7 @@ def build_parser() -> argparse.ArgumentParser:
     sub.required = True
     for add in (calibrate.add_parser, simulate.add_parser, analyze.add_parser, plan.add_parser,
                 compare.add_compare_parser, study.add_study_parser, report.add_parser,
-                legs.add_parser):
+                legs.add_parser, export.add_parser):
         p = add(sub)
         if "--debug" not in p._option_string_actions:
             add_common(p)

@@ -144,15 +144,16 @@ def load_data(path: str, robot: Any) -> Any:
 
 
 
-def read_data(path: str, robot: Any, readings: str | None = None, *,
+def read_data(path: str, robot: Any, readings: str | None = None, *, targets: Any = None,
               prog: str = "iwr calibrate") -> Any:
     """The data of the kind ``robot`` measures (:func:`iwr.kinds.for_robot`: poses in {0}, or
     the tracker data of its ``[tracker]`` table), read with every check of that kind's reader;
-    ``readings`` (``--readings``) for tracker data given as a long table of points."""
+    ``readings`` (``--readings``) for tracker data given as a long table of points, ``targets``
+    (``--target-*``) for a tracker software's target list."""
     from ..kinds import for_robot
 
     try:
-        return for_robot(robot).read(path, robot, readings=readings)
+        return for_robot(robot).read(path, robot, readings=readings, targets=targets)
     except TypeError as exc:  # an option this kind's files do not take
         raise UsageError(f"{one_line(exc)} (docs/tracker.md)", prog) from None
 

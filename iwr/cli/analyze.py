@@ -9,6 +9,7 @@ import numpy as np
 
 from ._base import EXIT_OK, CommandError, add_common, load_robot, read_data
 from .tracker import add_arguments as add_tracker_arguments
+from .tracker import target_format
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -37,7 +38,8 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     from ..methods import load_result
 
     robot = load_robot(args.robot)
-    data = read_data(args.data, robot, args.readings, prog="iwr analyze")
+    data = read_data(args.data, robot, args.readings, targets=target_format(args),
+                     prog="iwr analyze")
     x = None
     if args.result:
         x = np.asarray(load_result(args.result).x, dtype=float)

@@ -163,9 +163,9 @@ def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
     from ..reporting.calibration import TrackerCalibration
     from ..reporting.html import provenance
     from ..tracker.registration import RegistrationError, guess_registration
-    from .tracker import load_tracker_data
+    from .tracker import load_tracker_data, target_format
 
-    data = load_tracker_data(args.data, robot, args.readings)
+    data = load_tracker_data(args.data, robot, args.readings, target_format(args))
     names = robot.parameter_names + robot.tracker.parameter_names
     x = np.asarray(result.x, dtype=float)
     if x.shape != (len(names),):

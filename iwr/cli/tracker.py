@@ -29,18 +29,52 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="tracker data as a long table of points (DATA: pose, reflector, x_mm, "
                    "y_mm, z_mm): the robot's log of readings (pose, q1_mm, ..., s1_mm .. s6_mm) "
                    "joined to it by pose (docs/tracker.md)")
+    p.add_argument("--target-names", default=None, metavar="PATTERN",
+                   help="DATA is a target list exported by tracker software (Collection Group "
+                   "Target x y z ..., docs/data.md): the pattern of its target names, with "
+                   "{pose} and {reflector} (default P{pose}_R{reflector}; Group::Target or "
+                   "Collection::Group::Target patterns match those names)")
+    p.add_argument("--target-columns", default=None, metavar="COLUMNS",
+                   help="the columns of the target list after its three names, space "
+                   "separated, among x y z u ux uy uz time rms - (default 'x y z'; u or ux uy "
+                   "uz: the points' standard uncertainties)")
+    p.add_argument("--target-units", default=None, metavar="UNIT",
+                   help="the target list's length unit (mm, cm, m, um, in, ft), when no '// "
+                   "Units: ...' comment line states it")
+
+
+def target_format(args: argparse.Namespace) -> Any:
+    """The :class:`iwr.tracker.sa_export.TargetFormat` of ``--target-*``, or None when none is
+    given (a target list is then read with the defaults)."""
+    from ..tracker.sa_export import TargetFormat
+
+    given = {k: getattr(args, f"target_{k}", None) for k in ("names", "columns", "units")}
+    if all(v is None for v in given.values()):
+        return None
+    kw = {k: v for k, v in given.items() if v is not None}
+    if "columns" in kw:
+        kw["columns"] = tuple(kw["columns"].replace(",", " ").split())
+    try:
+        return TargetFormat(**kw)
+    except ValueError as exc:
+        raise UsageError(str(exc).replace("target ", "--target-", 1)) from None
 
 
 def refuse_tracker_data(args: argparse.Namespace) -> None:
     """For a robot without a [tracker] table: refuse --readings and tracker data files with a
     message that says what is missing."""
     from ..tracker.files import is_tracker_file
+    from ..tracker.sa_export import is_target_export
 
     if args.readings is not None:
         raise UsageError(f"--readings: only for a robot with a [tracker] table; {args.robot} has "
                          "none (docs/tracker.md)")
-    if is_tracker_file(args.data):
-        raise UsageError(f"{args.data}: laser-tracker data (a 'pose' column), but {args.robot} has "
+    if target_format(args) is not None:
+        raise UsageError(f"--target-names, --target-columns, --target-units: only for a robot "
+                         f"with a [tracker] table; {args.robot} has none (docs/tracker.md)")
+    if is_tracker_file(args.data) or is_target_export(args.data):
+        raise UsageError(f"{args.data}: laser-tracker data (a 'pose' column, or a target list "
+                         f"of tracker software), but {args.robot} has "
                          "no [tracker] table describing the setup (registration, reflectors or "
                          "probe): add one (docs/tracker.md)")
 
@@ -59,10 +93,11 @@ def tracker_noise_of(noise: Any) -> Any:
     return readings, (TrackerNoise.none() if noise == Noise() else TrackerNoise.leica())
 
 
-def load_tracker_data(path: str, robot: Any, readings: str | None = None) -> Any:
+def load_tracker_data(path: str, robot: Any, readings: str | None = None,
+                      targets: Any = None) -> Any:
     from ..tracker.files import read_tracker_data
 
-    return read_tracker_data(path, robot.tracker, readings)
+    return read_tracker_data(path, robot.tracker, readings, targets)
 
 
 def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
@@ -87,7 +122,12 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
                          "efficient estimator weighs the instruments by a noise model (the other "
                          "methods minimise the unweighted point residuals); use --method "
                          "efficient (the default with --noise) or leave --noise out")
-    data = load_tracker_data(args.data, robot, getattr(args, "readings", None))
+    data = load_tracker_data(args.data, robot, getattr(args, "readings", None),
+                             target_format(args))
+    if data.point_sigma is not None:
+        print(f"{args.data}: each point's standard uncertainties, as the file gives them, weigh "
+              "the points in the efficient estimator (the tracker's noise model is not used); "
+              "other methods do not weigh the points")
     if args.validation:
         val = load_tracker_data(args.validation, robot)
         ident, held_out = data, True
@@ -134,6 +174,9 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
                       progress=progress_enabled(args), **kwargs)
     notes: list[str] = []
+    if data.point_sigma is not None and method == "efficient":
+        notes.append(f"note: the points are weighted by their own uncertainties from {args.data}, "
+                     "not by the tracker noise model named above (docs/data.md)")
     # At the start, as identify(active="base") chose the parameters it holds: the report's
     # "held" and "null direction" then agree with what was done.
     ns = identifiability(robot, ident)

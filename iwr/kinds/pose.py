@@ -49,7 +49,9 @@ class PoseKind(MeasurementKind):
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
         given = sorted(k for k, v in options.items() if v is not None)
         if given:
-            raise TypeError(f"--{given[0]}: only for a robot with a [tracker] table; robot "
+            option = {"targets": "target-names, --target-columns, --target-units"}.get(
+                given[0], given[0])
+            raise TypeError(f"--{option}: only for a robot with a [tracker] table; robot "
                             f"{robot.name!r} measures the platform pose in {{0}}")
         try:
             tracker = is_tracker_file(path)

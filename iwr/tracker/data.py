@@ -33,11 +33,16 @@ class TrackerMeasurements:
         ``"P"``/``"R"`` per joint, checked against the robot.
     lines, source : optional
         Where each pose comes from in a file (as :class:`iwr.Measurements`).
+    point_sigma : array_like, shape (N, K, 3), optional
+        With points: each point's standard uncertainties along the x, y and z axes of {T} (mm),
+        as tracker software exports them; NaN where the point was not seen, > 0 where it was.
+        The efficient estimator weighs each point by them instead of the
+        :class:`~iwr.tracker.TrackerNoise` model (docs/data.md).
     """
 
     def __init__(self, q: Any, legs: Any, *, points: Any = None, probe: Any = None,
                  joint_types: str | None = None, lines: Any = None,
-                 source: str | None = None) -> None:
+                 source: str | None = None, point_sigma: Any = None) -> None:
         if (points is None) == (probe is None):
             raise ValueError("TrackerMeasurements: give either points (N, K, 3) or probe (N, 6)")
         self.legs = as_matrix(legs, 6, "legs")
@@ -71,6 +76,43 @@ class TrackerMeasurements:
             self.probe = as_matrix(probe, 6, "probe", rows=n)
         self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
         self.source = None if source is None else str(source)
+        self.point_sigma: np.ndarray | None = None
+        if point_sigma is not None:
+            self.point_sigma = self._check_sigma(point_sigma)
+
+    def _check_sigma(self, point_sigma: Any) -> np.ndarray:
+        if self.points is None:
+            raise ValueError("point_sigma: only with points, not with a probe")
+        sig = np.array(point_sigma, dtype=float)
+        if sig.shape != self.points.shape:
+            raise ValueError(f"point_sigma: shape {sig.shape}; expected {self.points.shape}, "
+                             "the points' shape")
+        seen = self.seen
+        bad = np.argwhere(seen[:, :, None] & ~(np.isfinite(sig) & (sig > 0)))
+        if bad.size:
+            k, i, c = (int(v) for v in bad[0])
+            raise ValueError(f"point_sigma: pose {k}, reflector {i + 1}, axis {'xyz'[c]} is "
+                             f"{float(sig[k, i, c])!r}; a seen point's uncertainty is finite "
+                             "and > 0")
+        if not np.all(np.isnan(sig[~seen])):
+            k, i = (int(v) for v in np.argwhere(~seen & ~np.all(np.isnan(sig), axis=2))[0])
+            raise ValueError(f"point_sigma: pose {k}, reflector {i + 1} was not seen, but has an "
+                             "uncertainty; give NaN")
+        return sig
+
+    def subset(self, rows: Any) -> TrackerMeasurements:
+        """The measurements of the poses ``rows`` (indices or a mask), in that order, lines,
+        source and uncertainties kept."""
+        rows = np.arange(len(self))[_row_index(rows)]
+        lines = None if self.lines is None else self.lines[rows]
+        sig = None if self.point_sigma is None else self.point_sigma[rows]
+        if self.points is not None:
+            return TrackerMeasurements(self.q[rows], self.legs[rows], points=self.points[rows],
+                                       joint_types=self.joint_types, lines=lines,
+                                       source=self.source, point_sigma=sig)
+        assert self.probe is not None
+        return TrackerMeasurements(self.q[rows], self.legs[rows], probe=self.probe[rows],
+                                   joint_types=self.joint_types, lines=lines, source=self.source)
 
     def __len__(self) -> int:
         return int(self.legs.shape[0])
@@ -94,18 +136,6 @@ class TrackerMeasurements:
         if self.points is None:
             return np.ones((len(self), 1), dtype=bool)
         return ~np.isnan(self.points[:, :, 0])
-
-    def subset(self, rows: Any) -> TrackerMeasurements:
-        """The measurements at the given row indices (or boolean mask), lines and source kept."""
-        idx = _row_index(rows)
-        lines = None if self.lines is None else self.lines[idx]
-        if self.points is not None:
-            return TrackerMeasurements(self.q[idx], self.legs[idx], points=self.points[idx],
-                                       joint_types=self.joint_types, lines=lines,
-                                       source=self.source)
-        assert self.probe is not None
-        return TrackerMeasurements(self.q[idx], self.legs[idx], probe=self.probe[idx],
-                                   joint_types=self.joint_types, lines=lines, source=self.source)
 
     def where(self, k: int) -> str:
         """Where pose ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""

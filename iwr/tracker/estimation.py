@@ -23,7 +23,7 @@ from ..robot import Robot
 from ..simulate import Noise
 from .api import _setup, _split_noise, tracker_problem
 from .data import TrackerMeasurements
-from .simulate import TrackerNoise
+from .simulate import TrackerNoise, axis_whitening
 
 __all__ = ["TRACKER_COMPONENTS", "TrackerSpec", "tracker_predicted_accuracy",
            "tracker_reading_names"]
@@ -120,7 +120,11 @@ class TrackerSpec:
             self.measured = np.ascontiguousarray(pts.reshape(self.n, -1))
             seen = ~np.isnan(pts[:, :, 0])
             w = np.zeros(pts.shape + (3,))
-            w[seen] = tnoise.whitening(pts[seen])
+            if measurements.point_sigma is None:
+                w[seen] = tnoise.whitening(pts[seen])
+            else:  # each point's own uncertainties (tracker software's), taken as given
+                w[seen] = axis_whitening(pts[seen], measurements.point_sigma[seen])
+                est = tuple(c for c in est if not c.startswith("tracker_"))
             nb = pts.shape[1]
         else:
             assert measurements.probe is not None

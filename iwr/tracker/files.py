@@ -4,6 +4,9 @@
   reflector ``reflector<name>_x_mm, reflector<name>_y_mm, reflector<name>_z_mm`` (empty cells: the
   reflector was not seen), or for a probe ``probe_x_mm .. probe_z_mm, probe_alpha_rad ..
   probe_gamma_rad``.
+- **Target list** (as tracker software exports it, :mod:`iwr.tracker.sa_export`):
+  ``Collection Group Target x y z ...`` lines, names mapped to pose and reflector by a pattern,
+  joined to the log of readings as the long table is.
 - **Long** (points as tracker software exports them): ``pose, reflector, x_mm, y_mm, z_mm``, one
   row per measured point, joined by pose id to the robot's log ``pose, q1_mm|rad, ..., s1_mm ..
   s6_mm`` (a second file).
@@ -18,6 +21,7 @@ import io
 import math
 import os
 import re
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -34,6 +38,7 @@ from ..measurements import (
     read_csv_text,
 )
 from .data import TrackerMeasurements
+from .sa_export import TargetFormat, is_target_export, read_target_lines, target_values
 from .setup import TrackerSetup
 
 __all__ = ["read_tracker_data", "write_tracker_long", "write_tracker_wide", "is_tracker_file"]
@@ -180,11 +185,18 @@ def _readings(header: list[str], rows: list[tuple[int, list[str]]], types: str,
 
 
 def read_tracker_data(path: str | os.PathLike[str], setup: TrackerSetup,
-                      readings: str | os.PathLike[str] | None = None) -> TrackerMeasurements:
+                      readings: str | os.PathLike[str] | None = None,
+                      targets: TargetFormat | None = None) -> TrackerMeasurements:
     """Read tracker data for ``setup``: a wide CSV, or a long table of points (``path``) with the
-    robot's log of readings (``readings``). Raises :class:`iwr.MeasurementFileError` naming the
-    file and every bad line."""
+    robot's log of readings (``readings``), or a target list exported by tracker software
+    (``Collection Group Target x y z ...``, :mod:`iwr.tracker.sa_export`; read as ``targets``
+    says, else as the default :class:`~iwr.tracker.sa_export.TargetFormat` when the file looks
+    like one) with the log of readings. Raises :class:`iwr.MeasurementFileError` naming the file
+    and every bad line."""
     path = Path(path)
+    if targets is not None or is_target_export(path):
+        return _read_targets(path, setup, None if readings is None else Path(readings),
+                             targets or TargetFormat())
     header, hline, _, rows = _read_rows(path)
     where = f"{path}, line {hline}"
     if len(header) > 1 and header[1] == "reflector":
@@ -257,10 +269,50 @@ def _build(setup: TrackerSetup, types: str, q: list[Any], legs: list[Any], meas:
 
 def _read_long(path: Path, header: list[str], hline: int, rows: list[tuple[int, list[str]]],
                setup: TrackerSetup, readings: Path) -> TrackerMeasurements:
+    _check_columns(header, list(_LONG_POINT_COLUMNS), f"{path}, line {hline}")
+    problems: list[tuple[int, str]] = []
+
+    def parse(lineno: int, fields: list[str]) -> Callable[[], tuple[list[float], None] | None]:
+        def values() -> tuple[list[float], None] | None:
+            vals = [_value(f, "mm", lineno, n, problems)
+                    for f, n in zip(fields[2:], _LONG_POINT_COLUMNS[2:], strict=True)]
+            return None if any(v is None for v in vals) else (vals, None)  # type: ignore[misc]
+        return values
+
+    entries = [(lineno, fields[0], fields[1], parse(lineno, fields)) for lineno, fields in rows]
+    return _join_points(path, entries, setup, readings, problems)
+
+
+def _read_targets(path: Path, setup: TrackerSetup, readings: Path | None,
+                  fmt: TargetFormat) -> TrackerMeasurements:
+    """A target list of tracker software (:mod:`iwr.tracker.sa_export`), joined to the log of
+    readings as the long table of points is."""
+    if readings is None:
+        raise MeasurementFileError(
+            f"{path}: a target list of tracker software (Collection Group Target x y z); give "
+            "the robot's log of joint and leg readings with it (pose, q1_mm, ..., s1_mm .. "
+            "s6_mm; iwr calibrate ROBOT TARGETS --readings READINGS --target-names PATTERN)")
+    lines, unit, frame = read_target_lines(path, fmt)
+    problems = [(t.line, t.problem) for t in lines if t.problem is not None]
+    entries = [(t.line, t.pose, t.reflector,
+                (lambda t=t: target_values(t, fmt, unit, problems)))
+               for t in lines if t.problem is None]
+    out = _join_points(path, entries, setup, readings, problems)
+    if frame:  # the software's working frame, which the points are in: {T} here
+        out.source = f"{out.source} (working frame {frame})"
+    return out
+
+
+def _join_points(path: Path, entries: list[tuple[int, str, str, Callable[[], Any]]],
+                 setup: TrackerSetup, readings: Path,
+                 problems: list[tuple[int, str]]) -> TrackerMeasurements:
+    """Points ``(line, pose, reflector, values)`` joined by pose to the log of readings:
+    ``values()`` gives the point (mm) and its three standard uncertainties (or None), or None
+    when a value is bad (its problem recorded in ``problems``). Every problem is named by line
+    (the points' first, then the log's)."""
     if setup.kind != "points":
         raise MeasurementFileError(f"{path}: a long table of points, but the tracker setup "
                                    "measures a probe: give probe data as one wide CSV")
-    _check_columns(header, list(_LONG_POINT_COLUMNS), f"{path}, line {hline}")
     rheader, rline, _, rrows = _read_rows(readings)
     rwhere = f"{readings}, line {rline}"
     types, i = _joint_header(rheader, rwhere)
@@ -273,10 +325,9 @@ def _read_long(path: Path, header: list[str], hline: int, rows: list[tuple[int, 
     index = {name: k for k, name in enumerate(setup.names)}
     k_refl = setup.n_reflectors
     points = {pose: np.full((k_refl, 3), np.nan) for pose in by_id}
+    sigmas: dict[str, np.ndarray] = {}
     first: dict[tuple[str, str], int] = {}
-    problems: list[tuple[int, str]] = []
-    for lineno, fields in rows:
-        pose, name = fields[0], fields[1]
+    for lineno, pose, name, values in entries:
         if pose not in by_id:
             problems.append((lineno, f"line {lineno}: pose {pose!r} is not in {readings}"))
             continue
@@ -289,11 +340,13 @@ def _read_long(path: Path, header: list[str], hline: int, rows: list[tuple[int, 
                                      f"(first at line {first[(pose, name)]})"))
             continue
         first[(pose, name)] = lineno
-        vals = [_value(f, "mm", lineno, n, problems)
-                for f, n in zip(fields[2:], _LONG_POINT_COLUMNS[2:], strict=True)]
-        if all(v is not None for v in vals):
-            points[pose][index[name]] = vals
+        got = values()
+        if got is not None:
+            points[pose][index[name]] = got[0]
+            if got[1] is not None:
+                sigmas.setdefault(pose, np.full((k_refl, 3), np.nan))[index[name]] = got[1]
     if problems:
+        problems.sort(key=lambda p: p[0])
         raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad row')}")
     unseen = [(line, pose) for pose, (line, _) in by_id.items() if np.isnan(points[pose]).all()]
     if unseen:
@@ -301,9 +354,16 @@ def _read_long(path: Path, header: list[str], hline: int, rows: list[tuple[int, 
             f"{readings}, {_summarise([(ln, f'line {ln}: pose {p!r} has no point in {path}') for ln, p in sorted(unseen)], 'bad row')}")  # noqa: E501
     order = sorted(by_id.items(), key=lambda item: item[1][0])
     nj = len(types)
-    return _build(setup, types, [v[:nj] for _, (_, v) in order],
-                  [v[nj:] for _, (_, v) in order], [points[p] for p, _ in order],
-                  [ln for _, (ln, _) in order], f"{readings} + {path}", [p for p, _ in order])
+    out = _build(setup, types, [v[:nj] for _, (_, v) in order],
+                 [v[nj:] for _, (_, v) in order], [points[p] for p, _ in order],
+                 [ln for _, (ln, _) in order], f"{readings} + {path}", [p for p, _ in order])
+    if sigmas:
+        try:
+            out.point_sigma = out._check_sigma([sigmas.get(p, np.full((k_refl, 3), np.nan))
+                                                for p, _ in order])
+        except ValueError as exc:
+            raise MeasurementFileError(f"{path}: {exc}") from None
+    return out
 
 
 def _reading_columns(data: TrackerMeasurements) -> list[str]:

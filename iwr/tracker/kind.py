@@ -55,10 +55,11 @@ class _TrackerKind(MeasurementKind):
 
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
         readings = options.pop("readings", None)
+        targets = options.pop("targets", None)  # a target list's format (iwr.tracker.sa_export)
         given = sorted(k for k, v in options.items() if v is not None)
         if given:
             raise TypeError(f"--{given[0]}: not an option of {self.name} data")
-        return read_tracker_data(path, robot.tracker, readings)
+        return read_tracker_data(path, robot.tracker, readings, targets)
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:

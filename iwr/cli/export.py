@@ -1,0 +1,87 @@
+"""``iwr export ROBOT.toml``: the (calibrated) robot for the software that drives it: the hexapod
+for LinuxCNC ``genhexkins`` (HAL), as plain JSON and as a table of leg corrections over a grid of
+poses (with ``--nominal``); the carriage as URDF (:mod:`iwr.export`)."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from ._base import EXIT_OK, UsageError, add_common, load_robot, positive_int
+
+DEFAULT_OUT = "iwr-export"
+#: Poses per coordinate of the leg-correction grid by default (3^6 = 729 poses).
+DEFAULT_GRID = 3
+#: The largest grid accepted per coordinate (12^6 = 3 million poses, about 1 GB of CSV).
+MAX_GRID = 12
+
+
+def add_parser(sub: Any) -> argparse.ArgumentParser:
+    p = sub.add_parser(
+        "export", help="write a calibrated robot for controllers: genhexkins HAL, JSON, leg "
+        "correction table, URDF",
+        description="Write the robot of ROBOT.toml (normally calibrated.toml from iwr calibrate) "
+        "for the software that drives it, into the folder --out: genhexkins.hal (LinuxCNC "
+        "genhexkins's base and platform joint coordinates, setp lines), hexapod.json (the same "
+        "numbers and the leg offsets, plain JSON), carriage.urdf (the carriage chain with its "
+        "DH parameters, the hexapod base frame {4} as a fixed link) and, with --nominal, "
+        "leg_corrections.csv (the leg readings of the nominal and the calibrated model over a "
+        "grid of platform poses, and their difference). Each file states its frames; "
+        "docs/cli.md describes them.",
+    )
+    p.add_argument("robot", metavar="ROBOT.toml", help="the (calibrated) robot")
+    p.add_argument("-o", "--out", default=DEFAULT_OUT, metavar="DIR",
+                   help="folder of the exported files (default: %(default)s)")
+    p.add_argument("--nominal", default=None, metavar="NOMINAL.toml",
+                   help="the nominal robot the controller's own model uses: writes "
+                   "leg_corrections.csv, the calibrated minus nominal leg readings over a grid")
+    p.add_argument("--grid", type=positive_int, default=DEFAULT_GRID, metavar="N",
+                   help="poses per coordinate of the correction table, evenly over home_pose +- "
+                   f"workspace (N^6 poses; default %(default)s, at most {MAX_GRID})")
+    add_common(p)
+    p.set_defaults(func=cmd_export)
+    return p
+
+
+def cmd_export(args: argparse.Namespace) -> int:
+    from ..export import (
+        write_carriage_urdf,
+        write_genhexkins_hal,
+        write_hexapod_json,
+        write_leg_corrections,
+    )
+
+    if args.grid > MAX_GRID:
+        raise UsageError(f"--grid {args.grid}: at most {MAX_GRID} poses per coordinate "
+                         f"({args.grid}^6 poses is too large a table)", "iwr export")
+    robot = load_robot(args.robot)
+    nominal = load_robot(args.nominal) if args.nominal else None
+    if nominal is not None and nominal.joint_types != robot.joint_types:
+        raise UsageError(f"--nominal {args.nominal}: joints {nominal.joint_types!r}, but "
+                         f"{args.robot} has {robot.joint_types!r}: not the same robot",
+                         "iwr export")
+    out = Path(args.out)
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    write_genhexkins_hal(out / "genhexkins.hal", robot, args.robot)
+    written.append("genhexkins.hal (LinuxCNC genhexkins: base joints in {4}, platform joints "
+                   "in {5})")
+    write_hexapod_json(out / "hexapod.json", robot, args.robot)
+    written.append("hexapod.json (the same numbers and the leg offsets)")
+    if robot.n_joints:
+        write_carriage_urdf(out / "carriage.urdf", robot, args.robot)
+        written.append(f"carriage.urdf ({robot.n_joints} joints, hexapod_base = {{4}})")
+    else:
+        written.append("no carriage.urdf: the robot has no carriage joints")
+    if nominal is not None:
+        n = write_leg_corrections(out / "leg_corrections.csv", robot, nominal, args.grid,
+                                  args.robot, args.nominal)
+        written.append(f"leg_corrections.csv ({n} poses of {{5}} in {{4}})")
+    else:
+        written.append("no leg_corrections.csv: give --nominal NOMINAL.toml (the model the "
+                       "controller uses) for it")
+    print(f"wrote {out}/:")
+    for line in written:
+        print(f"  {line}")
+    return EXIT_OK

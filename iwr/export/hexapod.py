@@ -1,0 +1,203 @@
+"""The calibrated hexapod as controllers take it: LinuxCNC ``genhexkins`` parameters (a HAL file of
+``setp`` lines), the same numbers as plain JSON, and a table of leg corrections over a grid of
+platform poses for controllers that compensate by table (docs/cli.md, ``iwr export``).
+
+Frames and conventions (docs/model.md): the base joints ``a_i`` are in the hexapod's base frame
+{4} (the carriage's last frame), the platform joints ``b_i`` in the platform frame {5}; a pose of
+{5} in {4} is ``(x, y, z, alpha, beta, gamma)`` with ``R = Rz(alpha) Ry(beta) Rx(gamma)``; the
+leg length is ``l_i = |p + R b_i - a_i| = s_i + l0_i``, ``s_i`` the leg sensor's reading and
+``l0_i`` the leg offset.
+
+``genhexkins`` (LinuxCNC, src/emc/kinematics/genhexkins.c) computes its joint ``i`` (0-based) as
+the strut length ``|p + R platform_i - base_i|`` with ``base_i`` in its world frame (here {4}),
+``platform_i`` in the platform frame (here {5}) and ``R`` its roll-pitch-yaw matrix
+``Rz(C) Ry(B) Rx(A)`` of the pose words A, B, C in degrees: so A = gamma, B = beta, C = alpha, and
+its joint ``i`` is iwr's whole leg length ``l_{i+1}``, the sensor reading plus ``l0``.
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import itertools
+import json
+import os
+from typing import Any
+
+import numpy as np
+
+from .._io import atomic_write_text
+from ..problem import predict_legs
+from ..robot import Robot
+
+__all__ = ["FRAMES", "genhexkins_hal", "hexapod_dict", "hexapod_readings", "leg_correction_table",
+           "leg_corrections_csv", "pose_grid",
+           "write_genhexkins_hal", "write_hexapod_json", "write_leg_corrections"]
+
+#: The frame convention every hexapod export states.
+FRAMES = (
+    "base joints a_i in the hexapod base frame {4} (the carriage's last frame, the hexapod's "
+    "base plate); platform joints b_i in the platform frame {5}; a platform pose is {5} in {4}, "
+    "(x, y, z, alpha, beta, gamma) with R = Rz(alpha) Ry(beta) Rx(gamma); leg length "
+    "l_i = |p + R b_i - a_i| = s_i + l0_i (s_i the leg sensor's reading, l0_i the leg offset); "
+    "lengths in mm, angles in rad")
+
+_POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
+
+
+def _origin(robot: Robot, source: str | None) -> str:
+    """One line saying which robot the numbers are of."""
+    prov = ", ".join(f"{k} {v}" for k, v in robot.provenance.items())
+    where = f" ({source})" if source else ""
+    return " ".join(f"robot {robot.name!r}{where}{'; ' + prov if prov else ''}".split())
+
+
+def genhexkins_hal(robot: Robot, source: str | None = None) -> str:
+    """The text of a HAL file that sets LinuxCNC ``genhexkins``'s joint coordinates to ``robot``'s
+    (``setp genhexkins.base.N.x ...``, N = 0..5 for iwr's legs 1..6), with comments stating the
+    frames, the pose convention and how to apply the leg offsets."""
+    lines = [
+        "# LinuxCNC genhexkins parameters of the hexapod of " + _origin(robot, source)
+        + ", written by iwr export.",
+        "# Load after 'loadrt genhexkins' (or switchkins with genhexkins) in the HAL files of the "
+        "machine.",
+        "#",
+        "# Frames: genhexkins.base.N.* are the base joint centres a_{N+1} in the hexapod base "
+        "frame {4}",
+        "# (genhexkins's world frame); genhexkins.platform.N.* are the platform joint centres "
+        "b_{N+1} in the",
+        "# platform frame {5}. Lengths in mm. genhexkins's pose words: X, Y, Z (mm) and A, B, C "
+        "(degrees),",
+        "# R = Rz(C) Ry(B) Rx(A); iwr's pose (x, y, z, alpha, beta, gamma) with R = Rz(alpha) "
+        "Ry(beta) Rx(gamma)",
+        "# is A = gamma, B = beta, C = alpha (converted to degrees).",
+        "#",
+        "# Joint N of genhexkins is the whole length of leg N+1, |p + R b - a|. iwr's leg sensor "
+        "reading is",
+        "# that length less the leg offset l0: s = joint - l0. A controller whose joint feedback "
+        "is the",
+        "# sensor reading adds l0 to it (in the joint's home position, or by a HAL offset "
+        "component):",
+    ]
+    lines += [f"#   leg {j + 1} (joint {j}): l0 = {float(robot.leg_offsets[j])!r} mm, stroke of "
+              f"the reading {float(robot.leg_stroke[j, 0])!r} .. "
+              f"{float(robot.leg_stroke[j, 1])!r} mm" for j in range(6)]
+    lines += ["# genhexkins.spindle-offset and genhexkins.tool-offset must stay 0 for these "
+              "numbers (both move the", "# z of every joint).", ""]
+    for j in range(6):
+        for c, k in zip("xyz", range(3), strict=True):
+            lines.append(f"setp genhexkins.base.{j}.{c} {float(robot.base_joints[j, k])!r}")
+        for c, k in zip("xyz", range(3), strict=True):
+            lines.append(f"setp genhexkins.platform.{j}.{c} "
+                         f"{float(robot.platform_joints[j, k])!r}")
+    return "\n".join(lines) + "\n"
+
+
+def hexapod_dict(robot: Robot, source: str | None = None) -> dict[str, Any]:
+    """The hexapod's calibrated numbers as a plain dictionary (the JSON export)."""
+    return {
+        "format": "iwr-hexapod",
+        "version": 1,
+        "robot": robot.name,
+        "source": _origin(robot, source),
+        "units": {"length": "mm", "angle": "rad"},
+        "frames": FRAMES,
+        "genhexkins": "base.N = legs[N].base_joint, platform.N = legs[N].platform_joint; "
+                      "genhexkins's joint N = leg length = reading + leg_offset; its pose words "
+                      "A, B, C (degrees) = gamma, beta, alpha",
+        "legs": [
+            {"leg": j + 1,
+             "base_joint": [float(v) for v in robot.base_joints[j]],
+             "platform_joint": [float(v) for v in robot.platform_joints[j]],
+             "leg_offset": float(robot.leg_offsets[j]),
+             "reading_stroke": [float(v) for v in robot.leg_stroke[j]]}
+            for j in range(6)],
+        "home_pose": [float(v) for v in robot.home_pose],
+    }
+
+
+def _hexapod_only(robot: Robot) -> Robot:
+    """The hexapod of ``robot`` alone: frame {4} is its world, so iwr's own model
+    (:func:`iwr.predict_legs`) gives the leg readings of poses in {4}."""
+    return Robot("", np.zeros((0, 4)), np.zeros((0, 2)), robot.base_joints,
+                 robot.platform_joints, robot.leg_offsets, robot.leg_stroke, robot.home_pose,
+                 robot.workspace, name=robot.name)
+
+
+def hexapod_readings(robot: Robot, poses: Any) -> np.ndarray:
+    """The leg sensor readings (N, 6) of ``robot``'s hexapod at platform poses (N, 6) of {5} in
+    {4} (mm, rad), by iwr's model."""
+    poses = np.atleast_2d(np.asarray(poses, dtype=float))
+    hexa = _hexapod_only(robot)
+    return predict_legs(hexa, None, np.zeros((len(poses), 0)), poses)
+
+
+def pose_grid(robot: Robot, n_per_axis: int) -> np.ndarray:
+    """The grid of platform poses in {4}: ``n_per_axis`` values per coordinate, evenly over the
+    robot's sampled workspace (``home_pose`` +- ``workspace``), all combinations (``n^6``)."""
+    if isinstance(n_per_axis, bool) or not isinstance(n_per_axis, int) or n_per_axis < 1:
+        raise ValueError(f"n_per_axis: {n_per_axis!r}; expected an integer >= 1")
+    axes = [np.array([c]) if n_per_axis == 1 or w == 0 else np.linspace(c - w, c + w, n_per_axis)
+            for c, w in zip(robot.home_pose, robot.workspace, strict=True)]
+    return np.array(list(itertools.product(*axes)), dtype=float)
+
+
+def leg_correction_table(calibrated: Robot, nominal: Robot, n_per_axis: int = 3
+                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Over :func:`pose_grid` of the calibrated robot: the poses (M, 6), the nominal robot's leg
+    readings (M, 6) and the calibrated robot's (M, 6) at each. A controller that commands the
+    nominal model's reading ``s_nominal`` adds ``s_calibrated - s_nominal``."""
+    poses = pose_grid(calibrated, n_per_axis)
+    return poses, hexapod_readings(nominal, poses), hexapod_readings(calibrated, poses)
+
+
+def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
+                        source: str | None = None, nominal_source: str | None = None) -> str:
+    """The text of the leg-correction table (CSV with ``#`` comments stating the frame)."""
+    poses, s_nom, s_cal = leg_correction_table(calibrated, nominal, n_per_axis)
+    lo, hi = calibrated.leg_stroke[:, 0], calibrated.leg_stroke[:, 1]
+    inside = np.all((s_cal >= lo) & (s_cal <= hi), axis=1)
+    buf = io.StringIO()
+    for line in (
+        f"iwr leg corrections: {len(poses)} platform poses ({n_per_axis} per coordinate over "
+        "home_pose +- workspace), calibrated " + _origin(calibrated, source) + ", nominal "
+        + _origin(nominal, nominal_source) + ".",
+        "Pose: the platform frame {5} in the hexapod base frame {4}, x_mm .. gamma_rad with "
+        "R = Rz(alpha) Ry(beta) Rx(gamma)",
+        "(genhexkins's A, B, C are gamma, beta, alpha in degrees).",
+        "sN_nominal_mm: leg N's sensor reading by the nominal model; sN_calibrated_mm: by the "
+        "calibrated model;",
+        "dsN_mm = sN_calibrated_mm - sN_nominal_mm: what a controller that computes the nominal "
+        "reading adds to it.",
+        "Leg length = reading + leg offset l0 (each model's own). within_stroke: 1 if every "
+        "calibrated reading is within the stroke.",
+    ):
+        buf.write(f"# {line}\n")
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow([*_POSE_COLUMNS, *[f"s{j}_nominal_mm" for j in range(1, 7)],
+                *[f"s{j}_calibrated_mm" for j in range(1, 7)],
+                *[f"ds{j}_mm" for j in range(1, 7)], "within_stroke"])
+    for p, a, b, ok in zip(poses, s_nom, s_cal, inside, strict=True):
+        w.writerow([*(repr(float(v)) for v in (*p, *a, *b, *(b - a))), int(ok)])
+    return buf.getvalue()
+
+
+def write_genhexkins_hal(path: str | os.PathLike[str], robot: Robot,
+                         source: str | None = None) -> None:
+    """Write :func:`genhexkins_hal` atomically."""
+    atomic_write_text(path, genhexkins_hal(robot, source))
+
+
+def write_hexapod_json(path: str | os.PathLike[str], robot: Robot,
+                       source: str | None = None) -> None:
+    """Write :func:`hexapod_dict` as JSON atomically (full double precision)."""
+    atomic_write_text(path, json.dumps(hexapod_dict(robot, source), indent=1) + "\n")
+
+
+def write_leg_corrections(path: str | os.PathLike[str], calibrated: Robot, nominal: Robot,
+                          n_per_axis: int = 3, source: str | None = None,
+                          nominal_source: str | None = None) -> int:
+    """Write :func:`leg_corrections_csv` atomically; returns the number of poses."""
+    text = leg_corrections_csv(calibrated, nominal, n_per_axis, source, nominal_source)
+    atomic_write_text(path, text)
+    return len(pose_grid(calibrated, n_per_axis))

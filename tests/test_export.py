@@ -1,0 +1,194 @@
+"""``iwr export`` (iwr.export): every file read back by an implementation that is not iwr's model:
+the genhexkins numbers by a few lines of inverse kinematics written from genhexkins's definition
+(strut length = |p + R platform - base|, R = Rz(C) Ry(B) Rx(A) of the pose words in degrees),
+the URDF by yourdfpy's forward kinematics."""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import re
+
+import numpy as np
+import pytest
+import yourdfpy
+
+import iwr
+from iwr.cli import main
+from iwr.export import carriage_urdf, genhexkins_hal, hexapod_dict, link_names
+from iwr.transforms import pose_from_matrix, pose_matrix
+
+N_POSES = 100
+TOL_MM = 1e-9
+
+
+@pytest.fixture(scope="module")
+def calibrated():
+    """A nominal IWR, a random error vector within the default bounds, the calibrated robot."""
+    nominal = iwr.Robot.default()
+    lo, hi = nominal.default_bounds()
+    x = np.random.default_rng(25).uniform(lo, hi)
+    return nominal, x, nominal.with_errors(x)
+
+
+def _read_hal(text: str) -> tuple[np.ndarray, np.ndarray]:
+    """base (6, 3) and platform (6, 3) from the ``setp genhexkins...`` lines, each set once."""
+    base, plat = np.full((6, 3), np.nan), np.full((6, 3), np.nan)
+    seen = set()
+    for line in text.splitlines():
+        if not line.strip() or line.lstrip().startswith("#"):
+            continue
+        m = re.fullmatch(r"setp genhexkins\.(base|platform)\.([0-5])\.([xyz]) (\S+)", line)
+        assert m, line
+        assert m.group(0) not in seen
+        seen.add(m.group(0))
+        which = base if m.group(1) == "base" else plat
+        which[int(m.group(2)), "xyz".index(m.group(3))] = float(m.group(4))
+    assert len(seen) == 36
+    return base, plat
+
+
+def _rpy_deg(a: float, b: float, c: float) -> np.ndarray:
+    """genhexkins's rotation (pmRpyMatConvert): Rz(C) Ry(B) Rx(A), angles in degrees."""
+    a, b, c = (math.radians(v) for v in (a, b, c))
+    rx = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]])
+    ry = np.array([[math.cos(b), 0, math.sin(b)], [0, 1, 0], [-math.sin(b), 0, math.cos(b)]])
+    rz = np.array([[math.cos(c), -math.sin(c), 0], [math.sin(c), math.cos(c), 0], [0, 0, 1]])
+    return rz @ ry @ rx
+
+
+def _genhex_inverse(base: np.ndarray, plat: np.ndarray, xyzabc: np.ndarray) -> np.ndarray:
+    """genhexKinematicsInverse without screw-lead correction: the six strut lengths."""
+    r = _rpy_deg(*xyzabc[3:])
+    return np.linalg.norm(xyzabc[:3] + plat @ r.T - base, axis=1)
+
+
+def _random_poses(robot, rng, n):
+    lo, hi = robot.home_pose - robot.workspace, robot.home_pose + robot.workspace
+    return rng.uniform(lo, hi, size=(n, 6))
+
+
+def test_genhexkins_leg_lengths_equal_iwr_model(calibrated):
+    nominal, x, cal = calibrated
+    base, plat = _read_hal(genhexkins_hal(cal, "calibrated.toml"))
+    rng = np.random.default_rng(7)
+    poses4 = _random_poses(nominal, rng, N_POSES)  # {5} in {4}
+    q = rng.uniform(nominal.joint_limits[:, 0], nominal.joint_limits[:, 1],
+                    size=(N_POSES, nominal.n_joints))
+    # iwr's calibrated model on the whole robot: the nominal robot with the errors x, the
+    # platform pose in {0} through the calibrated carriage.
+    t04 = np.array([nominal.carriage_transform(qk, x) for qk in q])
+    poses0 = pose_from_matrix(t04 @ pose_matrix(poses4))
+    lengths_iwr = iwr.predict_legs(nominal, x, q, poses0) + cal.leg_offsets
+    worst = 0.0
+    for p, want in zip(poses4, lengths_iwr, strict=True):
+        words = np.array([*p[:3], *np.degrees([p[5], p[4], p[3]])])  # X Y Z A B C
+        worst = max(worst, float(np.max(np.abs(_genhex_inverse(base, plat, words) - want))))
+    assert worst < TOL_MM
+    # and the numbers are the calibrated ones (not a model that happens to agree)
+    assert np.array_equal(base, cal.base_joints)
+    assert np.array_equal(plat, cal.platform_joints)
+
+
+def test_json_holds_the_same_numbers_and_offsets(calibrated):
+    _, _, cal = calibrated
+    doc = json.loads(json.dumps(hexapod_dict(cal)))
+    base, plat = _read_hal(genhexkins_hal(cal))
+    assert doc["units"] == {"length": "mm", "angle": "rad"}
+    assert "{4}" in doc["frames"] and "{5}" in doc["frames"]
+    for j, leg in enumerate(doc["legs"]):
+        assert leg["leg"] == j + 1
+        assert leg["base_joint"] == base[j].tolist()
+        assert leg["platform_joint"] == plat[j].tolist()
+        assert leg["leg_offset"] == float(cal.leg_offsets[j])
+
+
+def test_urdf_forward_kinematics_by_yourdfpy_equals_iwr(calibrated, tmp_path):
+    nominal, x, cal = calibrated
+    path = tmp_path / "carriage.urdf"
+    path.write_text(carriage_urdf(cal, "calibrated.toml"))
+    urdf = yourdfpy.URDF.load(str(path), load_meshes=False, build_collision_scene_graph=False)
+    assert set(urdf.link_map) == set(link_names(cal))
+    rng = np.random.default_rng(11)
+    worst_p = worst_r = 0.0
+    for _ in range(N_POSES):
+        q = rng.uniform(nominal.joint_limits[:, 0], nominal.joint_limits[:, 1])
+        urdf.update_cfg({f"joint{i + 1}": q[i] / 1000.0 if t == "P" else q[i]
+                         for i, t in enumerate(nominal.joint_types)})
+        t = urdf.get_transform("hexapod_base", "base_link")
+        want = nominal.carriage_transform(q, x)
+        worst_p = max(worst_p, float(np.max(np.abs(1000.0 * t[:3, 3] - want[:3, 3]))))
+        worst_r = max(worst_r, float(np.max(np.abs(t[:3, :3] - want[:3, :3]))))
+        leg = urdf.get_transform("leg3_base_joint", "base_link")[:3, 3] * 1000.0
+        worst_p = max(worst_p, float(np.max(np.abs(
+            leg - (want[:3, :3] @ cal.base_joints[2] + want[:3, 3])))))
+    assert worst_p < TOL_MM
+    assert worst_r < 1e-12
+
+
+def test_urdf_joint_limits_in_urdf_units(calibrated, tmp_path):
+    _, _, cal = calibrated
+    (tmp_path / "c.urdf").write_text(carriage_urdf(cal))
+    urdf = yourdfpy.URDF.load(str(tmp_path / "c.urdf"), load_meshes=False)
+    for i, t in enumerate(cal.joint_types):
+        joint = urdf.joint_map[f"joint{i + 1}"]
+        scale = 1000.0 if t == "P" else 1.0
+        assert joint.type == ("prismatic" if t == "P" else "revolute")
+        assert joint.limit.lower == pytest.approx(cal.joint_limits[i, 0] / scale, abs=1e-15)
+        assert joint.limit.upper == pytest.approx(cal.joint_limits[i, 1] / scale, abs=1e-15)
+
+
+def test_cli_export_writes_every_file_and_the_table(calibrated, tmp_path, capsys):
+    nominal, _, cal = calibrated
+    nominal.to_toml(tmp_path / "robot.toml")
+    cal.to_toml(tmp_path / "calibrated.toml")
+    out = tmp_path / "exp"
+    assert main(["export", str(tmp_path / "calibrated.toml"), "-o", str(out), "--nominal",
+                 str(tmp_path / "robot.toml"), "--grid", "2"]) == 0
+    assert {p.name for p in out.iterdir()} == {"genhexkins.hal", "hexapod.json",
+                                               "carriage.urdf", "leg_corrections.csv"}
+    assert "64 poses" in capsys.readouterr().out
+    text = (out / "leg_corrections.csv").read_text()
+    assert "{5} in the hexapod base frame {4}" in text
+    rows = list(csv.DictReader(line for line in text.splitlines() if not line.startswith("#")))
+    assert len(rows) == 2 ** 6
+    base_c, plat_c = _read_hal((out / "genhexkins.hal").read_text())
+    base_n, plat_n = _read_hal(genhexkins_hal(nominal))
+    worst = 0.0
+    for row in rows:
+        p = np.array([float(row[c]) for c in ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad",
+                                              "gamma_rad")])
+        words = np.array([*p[:3], *np.degrees([p[5], p[4], p[3]])])
+        s_cal = _genhex_inverse(base_c, plat_c, words) - cal.leg_offsets
+        s_nom = _genhex_inverse(base_n, plat_n, words) - nominal.leg_offsets
+        ds = np.array([float(row[f"ds{j}_mm"]) for j in range(1, 7)])
+        worst = max(worst, float(np.max(np.abs(ds - (s_cal - s_nom)))))
+        inside = np.all((s_cal >= cal.leg_stroke[:, 0]) & (s_cal <= cal.leg_stroke[:, 1]))
+        assert int(row["within_stroke"]) == int(inside)
+    assert worst < TOL_MM
+    # the corner poses of the grid are home_pose +- workspace
+    first = [float(rows[0][c]) for c in ("x_mm", "z_mm", "gamma_rad")]
+    assert first == pytest.approx([cal.home_pose[0] - cal.workspace[0],
+                                   cal.home_pose[2] - cal.workspace[2],
+                                   cal.home_pose[5] - cal.workspace[5]])
+
+
+def test_cli_export_without_nominal_and_hexapod_only(tmp_path, capsys):
+    iwr.Robot.hexapod().to_toml(tmp_path / "hexapod.toml")
+    out = tmp_path / "exp"
+    assert main(["export", str(tmp_path / "hexapod.toml"), "-o", str(out)]) == 0
+    said = capsys.readouterr().out
+    assert "no carriage.urdf" in said and "give --nominal" in said
+    assert {p.name for p in out.iterdir()} == {"genhexkins.hal", "hexapod.json"}
+
+
+def test_cli_export_refuses_a_nominal_of_another_robot(tmp_path, capsys):
+    iwr.Robot.default().to_toml(tmp_path / "robot.toml")
+    iwr.Robot.hexapod().to_toml(tmp_path / "hexapod.toml")
+    code = main(["export", str(tmp_path / "robot.toml"), "--nominal",
+                 str(tmp_path / "hexapod.toml"), "-o", str(tmp_path / "e")])
+    assert code == 2
+    assert "not the same robot" in capsys.readouterr().err
+    assert main(["export", str(tmp_path / "robot.toml"), "--grid", "13", "-o",
+                 str(tmp_path / "e")]) == 2
