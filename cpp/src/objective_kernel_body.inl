@@ -134,14 +134,16 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
     // --- the six legs --------------------------------------------------------------------------------
     // Weighted: 0 none, 1 a weight per leg, 2 a whitening per pose (the raw residuals of the six
     // legs first, then W r row by row, the lower triangle only).
-    P acc = bcast<P>(0.0), raw[6];
-    for (int j = 0; j < 6; ++j) {
+    P acc = bcast<P>(0.0), raw[6], len[6];
+    for (int j = 0; j < 6; ++j) {  // the six lengths first: their square roots overlap
         const P b0 = bcast<P>(ec.b[j][0]), b1 = bcast<P>(ec.b[j][1]), b2 = bcast<P>(ec.b[j][2]);
         const P vx = (m[0] * b0 + m[1] * b1 + m[2] * b2) + (m[9] - bcast<P>(ec.a[j][0]));
         const P vy = (m[3] * b0 + m[4] * b1 + m[5] * b2) + (m[10] - bcast<P>(ec.a[j][1]));
         const P vz = (m[6] * b0 + m[7] * b1 + m[8] * b2) + (m[11] - bcast<P>(ec.a[j][2]));
-        P r = (sqrt(vx * vx + vy * vy + vz * vz) - bcast<P>(ec.l0[j])) -
-              ld<P>(blk + (pd.off_s + j) * B);
+        len[j] = sqrt(vx * vx + vy * vy + vz * vz);
+    }
+    for (int j = 0; j < 6; ++j) {
+        P r = (len[j] - bcast<P>(ec.l0[j])) - ld<P>(blk + (pd.off_s + j) * B);
         if (Weighted == 1) r = r * ld<P>(blk + (pd.off_w + j) * B);
         if (Weighted == 2) {
             raw[j] = r;
