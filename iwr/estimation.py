@@ -26,6 +26,7 @@ from dataclasses import asdict, dataclass, field, replace
 from typing import Any
 
 import numpy as np
+
 # The chi-square distribution by scipy.special (chdtrc = sf, chdtr = cdf, chdtri = isf: the
 # functions scipy.stats.chi2 evaluates): importing scipy.stats costs every short command 0.5-0.8 s.
 from scipy import special
