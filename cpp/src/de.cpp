@@ -393,7 +393,32 @@ void archive_trim(State& st) {
     }
 }
 
-void append_log(State& st) {
+// Sums of squared deviations from the mean of columns [j0, j0 + nc) of the row-major np x sd
+// population into v, each column summed row by row in slot order. NC > 0: nc == NC columns, a
+// constant, so that the partial sums stay in registers; NC == 0: nc <= kLogColumns of them.
+constexpr int kLogColumns = 16;
+template <int NC>
+void column_deviations(const double* pop, int np, std::size_t sd, int j0, int nc, double* v) {
+    const int n = NC > 0 ? NC : nc;
+    double s1[kLogColumns] = {}, s2[kLogColumns] = {};
+    for (int i = 0; i < np; ++i) {
+        const double* x = pop + static_cast<std::size_t>(i) * sd + j0;
+        for (int k = 0; k < n; ++k) s1[k] += x[k];
+    }
+    for (int k = 0; k < n; ++k) s1[k] /= np;
+    for (int i = 0; i < np; ++i) {
+        const double* x = pop + static_cast<std::size_t>(i) * sd + j0;
+        for (int k = 0; k < n; ++k) {
+            const double t = x[k] - s1[k];
+            s2[k] += t * t;
+        }
+    }
+    for (int k = 0; k < n; ++k) v[j0 + k] = s2[k];
+}
+
+// The log row of the current population. The column sums run on the pool's threads, each column
+// on one thread (the same bits with any number of threads).
+void append_log(State& st, ThreadPool& pool) {
     LogEntry e;
     e.generation = st.generation;
     e.nfev = st.nfev;
@@ -403,15 +428,26 @@ void append_log(State& st) {
     double sum = 0;
     for (int i = 0; i < np; ++i) sum += st.costs(i);
     e.mean = sum / np;
-    // Column means and variances, row by row (the population is row-major).
-    VectorXd m = st.population.colwise().mean().transpose();
-    VectorXd v = VectorXd::Zero(d);
-    for (int i = 0; i < np; ++i) v += (st.population.row(i).transpose() - m).cwiseAbs2();
+    std::vector<double> v(static_cast<std::size_t>(d));
+    const double* pop = st.population.data();
+    const auto sd = static_cast<std::size_t>(d);
+    const int blocks = (d + kLogColumns - 1) / kLogColumns;
+    pool.parallel_for(static_cast<std::size_t>(blocks), [&](std::size_t b, std::size_t end, int) {
+        for (std::size_t k = b; k < end; ++k) {
+            const int j0 = static_cast<int>(k) * kLogColumns;
+            const int nc = std::min(kLogColumns, d - j0);
+            if (nc == kLogColumns) {
+                column_deviations<kLogColumns>(pop, np, sd, j0, nc, v.data());
+            } else {
+                column_deviations<0>(pop, np, sd, j0, nc, v.data());
+            }
+        }
+    });
     double acc = 0;
     for (int j = 0; j < d; ++j) {
         const double w = st.settings.upper[static_cast<std::size_t>(j)] -
                          st.settings.lower[static_cast<std::size_t>(j)];
-        acc += v(j) / np / (w * w);
+        acc += v[static_cast<std::size_t>(j)] / np / (w * w);
     }
     e.spread = std::sqrt(acc / d);
     e.elapsed = st.elapsed;
@@ -432,13 +468,45 @@ double sample_CR(Rng& g, double loc) {
     return std::clamp(g.normal(loc, 0.1), 0.0, 1.0);
 }
 
+// Rng::below(n) with its rejection threshold (2^64 mod n, a division) computed once: the same
+// draws, for the n every trial uses (NP, D).
+struct Below {
+    std::uint64_t n = 1, threshold = 0;
+    Below() = default;
+    explicit Below(std::uint64_t n_) : n(n_), threshold((0 - n_) % n_) {}
+    std::uint64_t operator()(Rng& g) const {
+        for (;;) {
+            const std::uint64_t r = g.next();
+            if (r >= threshold) return r % n;
+        }
+    }
+};
+
 // Everything a slot's trial needs that is computed once per generation.
 struct Generation {
     State* st;  // read-only but for streams[1 + i], which only slot i touches
     std::vector<int> order;  // population indices by cost, ties by index
     int pnum = 2;            // size of the p-best set (fixed-p strategies)
     double progress = 0;     // NFE / NFE_max (lshade, jso)
+    Below below_np, below_d;  // draws in [0, np) and [0, D)
 };
+
+// The out-of-bounds components of u repaired by the midpoint (Mid) or the clip rule, branch-free
+// (a mutant component leaves the bounds at random, so a branch would be mispredicted often): the
+// same values as the general loop of make_trial (xi, the parent, is within the bounds).
+template <bool Mid>
+void repair_simple(double* __restrict u, const double* __restrict xi, const double* __restrict lo,
+                   const double* __restrict hi, int d) {
+    for (int j = 0; j < d; ++j) {
+        const double l = lo[j], h = hi[j], v = u[j];
+        const double bound = v < l ? l : h;
+        double r = Mid ? 0.5 * (xi[j] + bound) : bound;
+        r = r < l ? l : r;  // a no-op but for rounding; r is never NaN
+        r = h < r ? h : r;
+        const bool inside = (v >= l) & (v <= h);
+        u[j] = inside ? v : r;
+    }
+}
 
 // Builds the trial of slot i into u; returns its F and CR in Fi, CRi.
 void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi) {
@@ -450,10 +518,11 @@ void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi
     const auto NP = static_cast<std::uint64_t>(np);
     const double* xi = st.population.row(i).data();
     auto row = [&](int k) { return st.population.row(k).data(); };
+    const Below& below_np = gen.below_np;
     auto draw_other = [&](int a, int b, int c) {  // uniform in [0, np) \ {a, b, c}
         int r;
         do {
-            r = static_cast<int>(g.below(NP));
+            r = static_cast<int>(below_np(g));
         } while (r == a || r == b || r == c);
         return r;
     };
@@ -544,6 +613,10 @@ void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi
             break;
         }
     }
+    const bool simple_bounds = s.bound_rule == BoundRule::midpoint || s.bound_rule == BoundRule::clip;
+    const bool mid = s.bound_rule == BoundRule::midpoint;
+    const double* lower = s.lower.data();
+    const double* upper = s.upper.data();
     // The mutant (eq. 12 or the strategy's rule) for every component: a branch-free loop.
     if (pbest) {
         for (int j = 0; j < d; ++j) u[j] = base[j] + Fw * (pbest[j] - xi[j]) + Fi * (d1[j] - d2[j]);
@@ -552,7 +625,7 @@ void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi
     }
     // Binomial crossover, eq. (13), with the forced index j_r. With CR = 1 every component comes
     // from the mutant whatever the draws, so none are made (the paper's setting).
-    const int jr = static_cast<int>(g.below(static_cast<std::uint64_t>(d)));
+    const int jr = static_cast<int>(gen.below_d(g));
     if (CRi < 1) {
         for (int j = 0; j < d; ++j) {
             const bool take = g.uniform() < CRi || j == jr;
@@ -560,7 +633,17 @@ void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi
         }
     }
     // Out-of-bounds components (only mutated ones can be) are repaired by the bound rule, in
-    // index order.
+    // index order. midpoint and clip draw nothing: a branch-free loop (a mutant component leaves
+    // the bounds at random, so a branch would be mispredicted often), with the same values as the
+    // general loop below.
+    if (simple_bounds) {
+        if (mid) {
+            repair_simple<true>(u, xi, lower, upper, d);
+        } else {
+            repair_simple<false>(u, xi, lower, upper, d);
+        }
+        return;
+    }
     for (int j = 0; j < d; ++j) {
         const double lo = s.lower[static_cast<std::size_t>(j)];
         const double hi = s.upper[static_cast<std::size_t>(j)];
@@ -770,7 +853,7 @@ State init(const Settings& settings, BatchFunction& f, ThreadPool& pool) {
         if (s.strategy == Strategy::jso) st.mem_F.back() = st.mem_CR.back() = 0.9;
     }
     st.elapsed = seconds_since(t0);
-    append_log(st);
+    append_log(st, pool);
     return st;
 }
 
@@ -786,6 +869,8 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
 
     Generation gen;
     gen.st = &st;
+    gen.below_np = Below(static_cast<std::uint64_t>(np));
+    gen.below_d = Below(static_cast<std::uint64_t>(d));
     if (reduces_population(s.strategy))
         gen.progress = static_cast<double>(st.nfev) / static_cast<double>(s.max_evaluations);
     double p = s.p_best;
@@ -809,14 +894,26 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     std::vector<Rng> saved = st.streams;
     RowMatrixXd trials(np, d);
     std::vector<double> tF(static_cast<std::size_t>(np)), tCR(static_cast<std::size_t>(np));
-    pool.parallel_for(static_cast<std::size_t>(np), [&](std::size_t b, std::size_t e, int) {
+    VectorXd tcost(np);
+    const auto make_trials = [&](std::size_t b, std::size_t e) {
         for (std::size_t i = b; i < e; ++i)
             make_trial(gen, static_cast<int>(i), trials.row(static_cast<Eigen::Index>(i)).data(),
                        tF[i], tCR[i]);
-    });
-    VectorXd tcost(np);
+    };
     try {
-        f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
+        if (f.prepare(pool.size())) {
+            // One pass of the pool: each thread builds its slots' trials and evaluates them
+            // (while they are in its cache); one hand-over per generation instead of two.
+            const auto nev = static_cast<std::size_t>(ne);
+            pool.parallel_for(static_cast<std::size_t>(np), [&](std::size_t b, std::size_t e, int id) {
+                make_trials(b, e);
+                if (b < std::min(e, nev)) f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
+            });
+        } else {
+            pool.parallel_for(static_cast<std::size_t>(np),
+                              [&](std::size_t b, std::size_t e, int) { make_trials(b, e); });
+            f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
+        }
     } catch (...) {
         st.streams = std::move(saved);  // the state is left as it was before this step
         throw;
@@ -846,7 +943,7 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     if (reduces_population(s.strategy)) reduce_population(st);
     ++st.generation;
     st.elapsed += seconds_since(t0);
-    append_log(st);
+    append_log(st, pool);
 }
 
 void require_budget_for_init(const Settings& resolved, const Stop& stop) {

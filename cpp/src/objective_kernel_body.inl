@@ -6,74 +6,96 @@
 // any R: the variants are bit-identical.
 // (No include guard: included several times on purpose.)
 
-struct Pack {
-    R v[K];
+// A pack of KK registers. Pack: a block's 8 lanes (K registers). Sub: one register's lanes, what
+// the leg kernel works on: it runs a block as K passes of one register each, so that its working
+// set (0T4, M, w: 24 values) fits the register file of every instruction set (16 registers for
+// SSE2 and AVX2); with K registers at once it spilled, and GCC moved the spilled packs through the
+// stack in halves. Each lane still sees the same operations in the same order.
+template <int KK>
+struct PackN {
+    static constexpr int n = KK;
+    R v[KK];
 };
+using Pack = PackN<K>;
+using Sub = PackN<1>;
+constexpr int kSubLanes = kBlock / K;  // lanes of one register
 
-IWR_FORCE_INLINE Pack splat(double x) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_splat(x);
+template <class P>
+IWR_FORCE_INLINE P bcast(double x) {
+    P p;
+    for (auto& r : p.v) r = r_splat(x);
     return p;
 }
-IWR_FORCE_INLINE Pack load(const double* ptr) {  // 64-byte aligned
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_load(ptr + k * (kBlock / K));
+template <class P>
+IWR_FORCE_INLINE P ld(const double* ptr) {  // aligned to the register's width
+    P p;
+    for (int k = 0; k < P::n; ++k) p.v[k] = r_load(ptr + k * kSubLanes);
     return p;
 }
-IWR_FORCE_INLINE void store(double* ptr, const Pack& a) {  // 64-byte aligned
-    for (int k = 0; k < K; ++k) r_store(ptr + k * (kBlock / K), a.v[k]);
+IWR_FORCE_INLINE Pack splat(double x) { return bcast<Pack>(x); }
+IWR_FORCE_INLINE Pack load(const double* ptr) { return ld<Pack>(ptr); }  // 64-byte aligned
+template <int KK>
+IWR_FORCE_INLINE void store(double* ptr, const PackN<KK>& a) {  // aligned
+    for (int k = 0; k < KK; ++k) r_store(ptr + k * kSubLanes, a.v[k]);
 }
-IWR_FORCE_INLINE Pack operator+(const Pack& a, const Pack& b) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_add(a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE PackN<KK> operator+(const PackN<KK>& a, const PackN<KK>& b) {
+    PackN<KK> p;
+    for (int k = 0; k < KK; ++k) p.v[k] = r_add(a.v[k], b.v[k]);
     return p;
 }
-IWR_FORCE_INLINE Pack operator-(const Pack& a, const Pack& b) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_sub(a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE PackN<KK> operator-(const PackN<KK>& a, const PackN<KK>& b) {
+    PackN<KK> p;
+    for (int k = 0; k < KK; ++k) p.v[k] = r_sub(a.v[k], b.v[k]);
     return p;
 }
-IWR_FORCE_INLINE Pack operator*(const Pack& a, const Pack& b) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_mul(a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE PackN<KK> operator*(const PackN<KK>& a, const PackN<KK>& b) {
+    PackN<KK> p;
+    for (int k = 0; k < KK; ++k) p.v[k] = r_mul(a.v[k], b.v[k]);
     return p;
 }
-IWR_FORCE_INLINE Pack sqrt(const Pack& a) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_sqrt(a.v[k]);
+template <int KK>
+IWR_FORCE_INLINE PackN<KK> sqrt(const PackN<KK>& a) {
+    PackN<KK> p;
+    for (int k = 0; k < KK; ++k) p.v[k] = r_sqrt(a.v[k]);
     return p;
 }
 
 // 0T4 of a block's 8 poses by the DH chain (eq. 1-2): the prismatic prefix (the same rotation at
 // every pose), then joint by joint. t: rotation row-major (0..8), position (9..11).
+// P: Pack (the whole block) or Sub (one register's lanes; blk then points at its first lane).
+template <class P>
 IWR_FORCE_INLINE void carriage(const PoseData& pd, const EvalConsts& ec, const double* blk,
-                               Pack (&t)[12]) {
+                               P (&t)[12]) {
     constexpr int B = kBlock;
-    for (int e = 0; e < 9; ++e) t[e] = splat(ec.rc[e]);
-    for (int r = 0; r < 3; ++r) t[9 + r] = splat(ec.pc[r]);
+    for (int e = 0; e < 9; ++e) t[e] = bcast<P>(ec.rc[e]);
+    for (int r = 0; r < 3; ++r) t[9 + r] = bcast<P>(ec.pc[r]);
     for (int i = 0; i < pd.n_prefix; ++i) {
-        const Pack q = load(blk + pd.q_off[i] * B);
+        const P q = ld<P>(blk + pd.q_off[i] * B);
         const double* z = ec.z + 3 * i;
-        for (int r = 0; r < 3; ++r) t[9 + r] = t[9 + r] + q * splat(z[r]);
+        for (int r = 0; r < 3; ++r) t[9 + r] = t[9 + r] + q * bcast<P>(z[r]);
     }
     for (int i = pd.n_prefix; i < pd.n_joints; ++i) {
         const double* jc = ec.joint + 6 * i;
-        const Pack ca = splat(jc[0]), sa = splat(jc[1]), ct = splat(jc[2]), st = splat(jc[3]);
-        const Pack a = splat(jc[4]), d = splat(jc[5]);
+        const P ca = bcast<P>(jc[0]), sa = bcast<P>(jc[1]), ct = bcast<P>(jc[2]),
+                st = bcast<P>(jc[3]);
+        const P a = bcast<P>(jc[4]), d = bcast<P>(jc[5]);
         const double* q = blk + pd.q_off[i] * B;
-        Pack c, s, dk;
+        P c, s, dk;
         if (pd.prismatic[i]) {
-            c = ct, s = st, dk = d + load(q);
+            c = ct, s = st, dk = d + ld<P>(q);
         } else {  // angle-sum identity on the per-data-set cos q, sin q
-            const Pack cq = load(q), sq = load(q + B);
+            const P cq = ld<P>(q), sq = ld<P>(q + B);
             c = ct * cq - st * sq, s = st * cq + ct * sq, dk = d;
         }
         // T <- T A_i row by row: u = T0 c + T1 s, v = T1 c - T0 s; the new row is
         // (u, ca v + sa T2, ca T2 - sa v) and the position gains a u + d_k T2.
         for (int r = 0; r < 3; ++r) {
-            const Pack t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
-            const Pack u = t0 * c + t1 * s;
-            const Pack v = t1 * c - t0 * s;
+            const P t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
+            const P u = t0 * c + t1 * s;
+            const P v = t1 * c - t0 * s;
             t[3 * r] = u;
             t[3 * r + 1] = ca * v + sa * w;
             t[3 * r + 2] = ca * w - sa * v;
@@ -82,26 +104,29 @@ IWR_FORCE_INLINE void carriage(const PoseData& pd, const EvalConsts& ec, const d
     }
 }
 
-// One block of 8 poses: 0T4 (carriage), then M = 4R0 0R5 and w = 4R0 (0P5 - 0P4),
-// the platform pose in frame {4}; leg j is v = M b_j + w - a_j (eq. 8 expressed in {4}), its length
-// |v| and its residual sqrt(w_kj) (|v| - l0_j - s_kj). Returns the per-lane sums of squares.
+// One register's lanes of a block of 8 poses (blk points at the first of them): 0T4 (carriage),
+// then M = 4R0 0R5 and w = 4R0 (0P5 - 0P4), the platform pose in frame {4}; leg j is
+// v = M b_j + w - a_j (eq. 8 expressed in {4}), its length |v| and its residual
+// sqrt(w_kj) (|v| - l0_j - s_kj). Returns the per-lane sums of squares.
 template <int Weighted, bool Residuals>
-IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const double* blk,
-                            Pack (&res)[6]) {
+IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                           Sub (&res)[6]) {
     constexpr int B = kBlock;
-    Pack t[12];  // 0T4: rotation row-major (0..8), position (9..11)
+    using P = Sub;
+    P t[12];  // 0T4: rotation row-major (0..8), position (9..11)
     carriage(pd, ec, blk, t);
 
     // --- platform pose in {4}: M = R4^T R5, w = R4^T (p5 - p4) -------------------------------------
-    Pack m[12];
+    P m[12];
     {
         const double* p5 = blk + pd.off_p5 * B;
         const double* r5 = blk + pd.off_r5 * B;
-        const Pack d0 = load(p5) - t[9], d1 = load(p5 + B) - t[10], d2 = load(p5 + 2 * B) - t[11];
+        const P d0 = ld<P>(p5) - t[9], d1 = ld<P>(p5 + B) - t[10], d2 = ld<P>(p5 + 2 * B) - t[11];
         for (int r = 0; r < 3; ++r)  // w = R4^T (p5 - p4): column r of R4 . d
             m[9 + r] = t[r] * d0 + t[3 + r] * d1 + t[6 + r] * d2;
         for (int c = 0; c < 3; ++c) {  // column c of R5 (fewer live registers than all nine)
-            const Pack f0 = load(r5 + c * B), f1 = load(r5 + (3 + c) * B), f2 = load(r5 + (6 + c) * B);
+            const P f0 = ld<P>(r5 + c * B), f1 = ld<P>(r5 + (3 + c) * B),
+                    f2 = ld<P>(r5 + (6 + c) * B);
             for (int r = 0; r < 3; ++r) m[3 * r + c] = t[r] * f0 + t[3 + r] * f1 + t[6 + r] * f2;
         }
     }
@@ -109,15 +134,17 @@ IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const doub
     // --- the six legs --------------------------------------------------------------------------------
     // Weighted: 0 none, 1 a weight per leg, 2 a whitening per pose (the raw residuals of the six
     // legs first, then W r row by row, the lower triangle only).
-    Pack acc = splat(0.0), raw[6];
+    P acc = bcast<P>(0.0), raw[6], len[6];
+    for (int j = 0; j < 6; ++j) {  // the six lengths first: their square roots overlap
+        const P b0 = bcast<P>(ec.b[j][0]), b1 = bcast<P>(ec.b[j][1]), b2 = bcast<P>(ec.b[j][2]);
+        const P vx = (m[0] * b0 + m[1] * b1 + m[2] * b2) + (m[9] - bcast<P>(ec.a[j][0]));
+        const P vy = (m[3] * b0 + m[4] * b1 + m[5] * b2) + (m[10] - bcast<P>(ec.a[j][1]));
+        const P vz = (m[6] * b0 + m[7] * b1 + m[8] * b2) + (m[11] - bcast<P>(ec.a[j][2]));
+        len[j] = sqrt(vx * vx + vy * vy + vz * vz);
+    }
     for (int j = 0; j < 6; ++j) {
-        const Pack b0 = splat(ec.b[j][0]), b1 = splat(ec.b[j][1]), b2 = splat(ec.b[j][2]);
-        const Pack vx = (m[0] * b0 + m[1] * b1 + m[2] * b2) + (m[9] - splat(ec.a[j][0]));
-        const Pack vy = (m[3] * b0 + m[4] * b1 + m[5] * b2) + (m[10] - splat(ec.a[j][1]));
-        const Pack vz = (m[6] * b0 + m[7] * b1 + m[8] * b2) + (m[11] - splat(ec.a[j][2]));
-        Pack r = (sqrt(vx * vx + vy * vy + vz * vz) - splat(ec.l0[j])) -
-                 load(blk + (pd.off_s + j) * B);
-        if (Weighted == 1) r = r * load(blk + (pd.off_w + j) * B);
+        P r = (len[j] - bcast<P>(ec.l0[j])) - ld<P>(blk + (pd.off_s + j) * B);
+        if (Weighted == 1) r = r * ld<P>(blk + (pd.off_w + j) * B);
         if (Weighted == 2) {
             raw[j] = r;
         } else {
@@ -128,9 +155,9 @@ IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const doub
     if (Weighted == 2) {
         const double* w = blk + pd.off_wh * B;
         for (int i = 0; i < 6; ++i) {
-            Pack r = load(w) * raw[0];
+            P r = ld<P>(w) * raw[0];
             w += B;
-            for (int j = 1; j <= i; ++j, w += B) r = r + load(w) * raw[j];
+            for (int j = 1; j <= i; ++j, w += B) r = r + ld<P>(w) * raw[j];
             if (Residuals) res[i] = r;
             acc = acc + r * r;
         }
@@ -140,31 +167,36 @@ IWR_FORCE_INLINE Pack block(const PoseData& pd, const EvalConsts& ec, const doub
 
 template <int Weighted, bool Residuals>
 IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* out) {
-    constexpr int B = kBlock;
+    constexpr int B = kBlock, W = kSubLanes;
     // Per-lane partial sums: pose k goes to lane k mod 8 whatever the register width, so the order
     // of summation (and the result) is the same for every variant.
-    Pack lanes = splat(0.0), res[6];
+    Sub lanes[K], res[6];
+    for (auto& l : lanes) l = bcast<Sub>(0.0);
     alignas(64) double tmp[B];
     const int full = pd.n / B;
     for (int b = 0; b < pd.n_blocks; ++b) {
         const double* blk = pd.data + static_cast<long>(b) * pd.stride;
-        const Pack acc = block<Weighted, Residuals>(pd, ec, blk, res);
         const int valid = b < full ? B : pd.n - b * B;  // the last block may be padded
-        if (valid == B) {
-            lanes = lanes + acc;
-        } else {
-            store(tmp, acc);
-            for (int l = valid; l < B; ++l) tmp[l] = 0.0;
-            lanes = lanes + load(tmp);
-        }
-        if (Residuals) {
-            for (int j = 0; j < 6; ++j) {
-                store(tmp, res[j]);
-                for (int l = 0; l < valid; ++l) out[(static_cast<long>(b) * B + l) * 6 + j] = tmp[l];
+        for (int h = 0; h < K; ++h) {  // the block's registers one at a time
+            const Sub acc = block<Weighted, Residuals>(pd, ec, blk + h * W, res);
+            if (valid == B) {
+                lanes[h] = lanes[h] + acc;
+            } else {
+                store(tmp, acc);
+                for (int l = 0; l < W; ++l)
+                    if (h * W + l >= valid) tmp[l] = 0.0;
+                lanes[h] = lanes[h] + ld<Sub>(tmp);
+            }
+            if (Residuals) {
+                for (int j = 0; j < 6; ++j) {
+                    store(tmp, res[j]);
+                    for (int l = 0; l < W && h * W + l < valid; ++l)
+                        out[(static_cast<long>(b) * B + h * W + l) * 6 + j] = tmp[l];
+                }
             }
         }
     }
-    store(tmp, lanes);
+    for (int h = 0; h < K; ++h) store(tmp + h * W, lanes[h]);
     return ((tmp[0] + tmp[4]) + (tmp[1] + tmp[5])) + ((tmp[2] + tmp[6]) + (tmp[3] + tmp[7]));
 }
 

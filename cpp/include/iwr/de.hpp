@@ -85,6 +85,18 @@ public:
     virtual int dim() const = 0;
     /// out[i] = f(row i of X), X row-major (m x dim()).
     virtual void evaluate(const double* X, std::size_t m, double* out, ThreadPool& pool) = 0;
+    /// Optional, for functions that are thread-safe row by row (the C++ objectives): prepare(t)
+    /// readies t threads; then evaluate_rows(X, b, e, out, id) sets out[i] = f(row i of X) for
+    /// b <= i < e on the calling thread, id < t, concurrently for disjoint ranges and ids. The
+    /// engine then builds and evaluates each thread's trials in one pass of the pool per
+    /// generation instead of two. The default: not supported (prepare returns false).
+    virtual bool prepare(int threads) {
+        (void)threads;
+        return false;
+    }
+    virtual void evaluate_rows(const double* X, std::size_t b, std::size_t e, double* out, int id) {
+        (void)X, (void)b, (void)e, (void)out, (void)id;
+    }
 };
 
 namespace detail {
@@ -108,26 +120,32 @@ public:
           x0_(std::move(x0)) {}
     int dim() const override { return static_cast<int>(index_.size()); }
     void evaluate(const double* X, std::size_t m, double* out, ThreadPool& pool) override {
-        const std::size_t threads = static_cast<std::size_t>(pool.size());
-        while (workspaces_.size() < threads) {
+        prepare(pool.size());
+        pool.parallel_for(m, [&](std::size_t b, std::size_t e, int id) {
+            evaluate_rows(X, b, e, out, id);
+        });
+    }
+    bool prepare(int threads) override {
+        while (workspaces_.size() < static_cast<std::size_t>(threads)) {
             workspaces_.push_back(objective_.make_workspace());
             buffers_.push_back(x0_);
         }
+        return true;
+    }
+    void evaluate_rows(const double* X, std::size_t b, std::size_t e, double* out, int id) override {
+        auto& ws = workspaces_[static_cast<std::size_t>(id)];
+        double* x = buffers_[static_cast<std::size_t>(id)].data();
         const std::size_t d = index_.size();
         const bool all = static_cast<int>(d) == objective_.n_params();
-        pool.parallel_for(m, [&](std::size_t b, std::size_t e, int id) {
-            auto& ws = workspaces_[static_cast<std::size_t>(id)];
-            double* x = buffers_[static_cast<std::size_t>(id)].data();
-            for (std::size_t i = b; i < e; ++i) {
-                const double* z = X + i * d;
-                if (all) {
-                    out[i] = objective_.cost(z, ws);
-                } else {
-                    for (std::size_t k = 0; k < d; ++k) x[index_[k]] = z[k];
-                    out[i] = objective_.cost(x, ws);
-                }
+        for (std::size_t i = b; i < e; ++i) {
+            const double* z = X + i * d;
+            if (all) {
+                out[i] = objective_.cost(z, ws);
+            } else {
+                for (std::size_t k = 0; k < d; ++k) x[index_[k]] = z[k];
+                out[i] = objective_.cost(x, ws);
             }
-        });
+        }
     }
     /// The full n_params vector for a reduced one (dim() entries).
     VectorXd full(const double* z) const {

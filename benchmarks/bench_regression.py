@@ -1,0 +1,344 @@
+"""Two builds of iwr side by side, alternated in one run, every kernel variant and thread count:
+the leg objective per evaluation (and its fraction of the floating-point floor of the variant's own
+instruction set), `cost_batch` of a DE population, and DE's generations per second (issue 24).
+
+Each build runs in its own Python process (``--python NAME=PATH``, e.g. the interpreter of a
+virtualenv with that build installed), started once and kept; the parent sends each process one
+measurement at a time and alternates the builds (old, new, new, old, ...), so that a neighbour's
+load or a clock change hits both alike. The machine may be shared: every table is printed with the
+load average and the CPU other processes used meanwhile (from /proc/stat).
+
+What is timed (per build, per kernel variant forced with ``iwr._core._select_kernel``):
+
+- objective: ``Problem.cost_batch(X, workers=1)`` on 600 random vectors within the default bounds
+  (one DE population), N = 100 poses (``iwr.simulate(Robot.default(), 100, seed=1)``), in thread CPU
+  time, divided by 600; the minimum over ``--repeat`` (default 15) alternated repetitions. "of the
+  floor": N x 370 flops (``bench_objective.py``'s count) at the peak of one core measured with the
+  same instruction set and separate multiplies and adds (``_bench.measure_peak_gflops``), divided
+  by the time.
+- batch: ``Problem.cost_batch(X, workers=T)`` of the same 600 vectors on T threads, wall time, the
+  minimum: what one DE generation's objective costs on T threads.
+- DE: ``iwr.identify(method="de", population_size=600, F=0.9, CR=1, seed=1, workers=T,
+  polish=False)``; generations/s = (G2 - G1) / (t(G2) - t(G1)) from runs of G1 and G2
+  generations (wall time; the set-up cancels), the best of ``--de-repeat`` pairs. "DE's own" is the
+  time per generation minus the batch time on the same threads: trial generation, bound repairs,
+  selection, the log, the thread hand-overs, the reduced-to-full mapping.
+
+Usage::
+
+    cd /tmp && python /path/to/benchmarks/bench_regression.py \\
+        --python old=/work/venvs/perf-old/bin/python --python new=/work/venvs/perf/bin/python
+
+With one ``--python`` (or none: this interpreter) it measures one build. ``--quick``: a smoke test.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+NP, N = 600, 100
+FLOPS_PER_POSE = 370  # bench_objective.py's count for the IWR (PPRR carriage), unweighted
+
+
+# ---- the worker: one build, in its own process ---------------------------------------------------
+
+
+class Worker:
+    """Runs in the build's interpreter; answers one JSON request per line on stdin."""
+
+    def __init__(self) -> None:
+        for var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
+            os.environ.setdefault(var, "1")
+        import numpy as np
+
+        import iwr
+        from iwr import _core
+
+        self.np, self.iwr, self.core = np, iwr, _core
+        self.robot = iwr.Robot.default()
+        self.data, _ = iwr.simulate(self.robot, n_poses=N, seed=1)
+        self.problem = iwr.Problem(self.robot, self.data)
+        p = self.problem
+        rng = np.random.default_rng(0)
+        self.X = p.lower + (p.upper - p.lower) * rng.random((NP, p.n_params))
+        self.default_kernel = _core._active_kernel()
+
+    def info(self) -> dict:
+        import iwr
+
+        bench = self.core._bench
+        peaks = {}
+        for isa in self.core._supported_kernels():
+            key = "sse2" if isa == "baseline" else isa
+            peaks[isa] = bench.measure_peak_gflops(key, False, 0.3)
+        return {"version": iwr.__version__, "path": str(Path(iwr.__file__).parent),
+                "kernels": self.core._supported_kernels(), "default_kernel": self.default_kernel,
+                "peak_mul_add_gflops": peaks}
+
+    def objective(self, kernel: str) -> float:
+        """One repetition: thread CPU time per evaluation (us), one thread."""
+        self.core._select_kernel(kernel)
+        t0 = time.thread_time()
+        self.problem.cost_batch(self.X, workers=1)
+        return (time.thread_time() - t0) / NP * 1e6
+
+    def batch(self, kernel: str, threads: int) -> float:
+        """One repetition: wall time of cost_batch of the population on `threads` (ms)."""
+        self.core._select_kernel(kernel)
+        t0 = time.perf_counter()
+        self.problem.cost_batch(self.X, workers=threads)
+        return (time.perf_counter() - t0) * 1e3
+
+    def de(self, kernel: str, threads: int, generations: int) -> dict:
+        """One DE run: wall and process CPU time (s), and its result's bits (for determinism)."""
+        self.core._select_kernel(kernel)
+        w0, c0 = time.perf_counter(), time.process_time()
+        res = self.iwr.identify(self.robot, self.data, method="de", population_size=NP, F=0.9,
+                                CR=1.0, generations=generations, seed=1, workers=threads,
+                                polish=False, progress=False)
+        return {"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0,
+                "fun": float(res.fun).hex()}
+
+    def serve(self) -> None:
+        out = sys.stdout
+        for line in sys.stdin:
+            req = json.loads(line)
+            try:
+                ans = getattr(self, req["op"])(*req.get("args", []))
+            except Exception as e:  # reported to the parent, which stops
+                ans = {"error": f"{type(e).__name__}: {e}"}
+            finally:
+                self.core._select_kernel(self.default_kernel)
+            out.write(json.dumps(ans) + "\n")
+            out.flush()
+
+
+# ---- the parent: alternates the builds -----------------------------------------------------------
+
+
+class Build:
+    def __init__(self, name: str, python: str) -> None:
+        self.name = name
+        self.proc = subprocess.Popen([python, __file__, "--worker"], stdin=subprocess.PIPE,
+                                     stdout=subprocess.PIPE, text=True, cwd="/tmp")
+
+    def ask(self, op: str, *args):
+        assert self.proc.stdin and self.proc.stdout
+        self.proc.stdin.write(json.dumps({"op": op, "args": list(args)}) + "\n")
+        self.proc.stdin.flush()
+        line = self.proc.stdout.readline()
+        if not line:
+            raise SystemExit(f"{self.name}: the worker process ended")
+        ans = json.loads(line)
+        if isinstance(ans, dict) and "error" in ans:
+            raise SystemExit(f"{self.name}: {op}{args}: {ans['error']}")
+        return ans
+
+    def close(self) -> None:
+        if self.proc.stdin:
+            self.proc.stdin.close()
+        self.proc.wait()
+
+
+def alternated(builds: list[Build], reps: int, op: str, *args) -> dict[str, list]:
+    """reps answers per build, the order of the builds reversed every repetition."""
+    out: dict[str, list] = {b.name: [] for b in builds}
+    for r in range(reps):
+        for b in builds if r % 2 == 0 else builds[::-1]:
+            out[b.name].append(b.ask(op, *args))
+    return out
+
+
+class Load:
+    """Load average and the CPU other processes used (cores), over a block of measurements."""
+
+    def __init__(self, children: list[Build]) -> None:
+        self.children = children
+
+    @staticmethod
+    def _busy() -> float | None:
+        try:
+            with open("/proc/stat") as f:
+                v = [int(x) for x in f.readline().split()[1:]]
+        except OSError:
+            return None
+        return (sum(v[:8]) - v[3] - v[4]) / os.sysconf("SC_CLK_TCK")
+
+    def _ours(self) -> float:
+        tck = os.sysconf("SC_CLK_TCK")
+        total = time.process_time()
+        for b in self.children:
+            try:
+                f = Path(f"/proc/{b.proc.pid}/stat").read_text().rsplit(")", 1)[1].split()
+                total += (int(f[11]) + int(f[12])) / tck  # utime, stime
+            except OSError:
+                pass
+        return total
+
+    def __enter__(self) -> Load:
+        self.t0, self.b0, self.o0 = time.perf_counter(), self._busy(), self._ours()
+        return self
+
+    def __exit__(self, *exc: object) -> None:
+        wall = time.perf_counter() - self.t0
+        b1 = self._busy()
+        self.cores = (None if b1 is None or self.b0 is None else
+                      max(0.0, (b1 - self.b0 - (self._ours() - self.o0)) / wall))
+
+    def __str__(self) -> str:
+        la = os.getloadavg()[0]
+        other = "unknown" if self.cores is None else f"{self.cores:.2f} cores"
+        return f"load average {la:.2f}, other processes meanwhile {other}"
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawTextHelpFormatter)
+    ap.add_argument("--worker", action="store_true", help=argparse.SUPPRESS)
+    ap.add_argument("--python", action="append", default=[], metavar="NAME=PATH",
+                    help="a build: a name and its Python interpreter (repeatable)")
+    ap.add_argument("--repeat", type=int, default=15, help="objective repetitions (default 15)")
+    ap.add_argument("--de-repeat", type=int, default=3, help="DE run pairs (default 3)")
+    ap.add_argument("--generations", default="100,600", help="G1,G2 of the DE rate")
+    ap.add_argument("--kernels", default=None, help="variants, comma-separated (default: all)")
+    ap.add_argument("--threads", default="1,2")
+    ap.add_argument("--no-de", action="store_true", help="skip DE")
+    ap.add_argument("--quick", action="store_true", help="a smoke test")
+    args = ap.parse_args()
+    if args.worker:
+        Worker().serve()
+        return
+    specs = args.python or [f"this={sys.executable}"]
+    builds = []
+    for spec in specs:
+        name, sep, path = spec.partition("=")
+        if not sep or not name or not path:
+            ap.error(f"--python: {spec!r}; expected NAME=PATH")
+        builds.append(Build(name, path))
+    reps = 3 if args.quick else args.repeat
+    de_reps = 1 if args.quick else args.de_repeat
+    g1, g2 = (20, 70) if args.quick else tuple(int(g) for g in args.generations.split(","))
+    threads = [int(t) for t in args.threads.split(",")]
+    try:
+        infos = {b.name: b.ask("info") for b in builds}
+        ref = infos[builds[0].name]
+        kernels = args.kernels.split(",") if args.kernels else ref["kernels"]
+        print(f"cpu: {cpu_name()}, {os.cpu_count()} cores, {os.getloadavg()[0]:.2f} load average "
+              "at start")
+        print(f"this machine runs the {ref['default_kernel']} variant of the kernel (of "
+              f"{', '.join(ref['kernels'])})")
+        for b in builds:
+            i = infos[b.name]
+            print(f"  {b.name}: iwr {i['version']} from {i['path']}")
+        peak = ref["peak_mul_add_gflops"]
+        print("measured peak of one core, separate multiplies and adds (GFLOP/s): "
+              + ", ".join(f"{k} {v:.1f}" for k, v in peak.items()))
+        names = [b.name for b in builds]
+        flops = FLOPS_PER_POSE * N
+
+        print(f"\nleg objective, Problem.cost_batch(X, workers=1), {NP} vectors, N = {N}, "
+              f"thread CPU time per evaluation, min of {reps}:")
+        hdr = "| variant | " + " | ".join(f"{n} (us) | {n}: of the floor" for n in names)
+        if len(builds) == 2:
+            hdr += f" | {names[1]} / {names[0]}"
+        print(hdr + " |")
+        print("|" + "---|" * (1 + 2 * len(names) + (len(builds) == 2)))
+        summary: dict = {"objective": {}, "batch": {}, "de": {}}
+        with Load(builds) as load:
+            for k in kernels:
+                r = alternated(builds, reps, "objective", k)
+                best = {n: min(v) for n, v in r.items()}
+                summary["objective"][k] = best
+                floor_us = flops / (peak[k] * 1e3)
+                row = f"| {k} | " + " | ".join(
+                    f"{best[n]:.3f} | {floor_us / best[n]:.0%}" for n in names)
+                if len(builds) == 2:
+                    row += f" | {best[names[1]] / best[names[0]]:.2f}x"
+                print(row + " |", flush=True)
+        print(f"floor: {flops} flops at the peak above; {load}")
+
+        print(f"\ncost_batch(X, workers=T) of the {NP} vectors, wall time, min of {reps}:")
+        print("| variant | threads | " + " | ".join(f"{n} (ms)" for n in names) + " |")
+        print("|---|---|" + "---|" * len(names))
+        with Load(builds) as load:
+            for k in kernels:
+                for t in threads:
+                    r = alternated(builds, reps, "batch", k, t)
+                    best = {n: min(v) for n, v in r.items()}
+                    summary["batch"][(k, t)] = best
+                    print(f"| {k} | {t} | " + " | ".join(f"{best[n]:.3f}" for n in names) + " |",
+                          flush=True)
+        print(str(load))
+        if args.no_de:
+            return
+
+        print(f"\nDE/rand/1/bin, NP {NP}, N {N}, iwr.identify(method='de', polish=False), "
+              f"generations/s from runs of {g1} and {g2} generations (wall), best of {de_reps}; "
+              "DE's own = time per generation - cost_batch on the same threads:")
+        print("(1 thread also in process CPU time: ms/gen, and DE's own against the objective's "
+              "CPU time above x 600)")
+        print("| variant | threads | " + " | ".join(
+            f"{n}: gen/s | {n}: ms/gen | {n}: DE's own | {n}: CPU ms/gen | {n}: DE's own (CPU)"
+            for n in names) + " |")
+        print("|---|---|" + "---|" * (5 * len(names)))
+        bits: dict = {}
+        with Load(builds) as load:
+            for k in kernels:
+                for t in threads:
+                    rates: dict[str, list[float]] = {n: [] for n in names}
+                    cpu: dict[str, list[float]] = {n: [] for n in names}
+                    for _ in range(de_reps):
+                        a = alternated(builds, 1, "de", k, t, g1)
+                        b = alternated(builds[::-1], 1, "de", k, t, g2)
+                        for n in names:
+                            rates[n].append((g2 - g1) / max(b[n][0]["wall"] - a[n][0]["wall"],
+                                                            1e-9))
+                            cpu[n].append((b[n][0]["cpu"] - a[n][0]["cpu"]) / (g2 - g1) * 1e3)
+                            bits.setdefault((n, g2), set()).add(b[n][0]["fun"])
+                    row = f"| {k} | {t} | "
+                    cells = []
+                    for n in names:
+                        gps = max(rates[n])
+                        ms = 1e3 / gps
+                        own = ms - summary["batch"][(k, t)][n]
+                        summary["de"][(k, t, n)] = gps
+                        cell = (f"{gps:.0f} | {ms:.3f} | {own:.3f} ms "
+                                f"({own / summary['batch'][(k, t)][n]:.0%})")
+                        if t == 1:  # CPU time: robust to a neighbour's load on one thread
+                            obj = summary["objective"][k][n] * NP / 1e3
+                            c = min(cpu[n])
+                            cell += f" | {c:.3f} | {(c - obj) / obj:.0%}"
+                        else:
+                            cell += " | | "
+                        cells.append(cell)
+                    print(row + " | ".join(cells) + " |", flush=True)
+        print(str(load))
+        for n in names:
+            if 1 in threads and 2 in threads:
+                ratio = [summary["de"][(k, 2, n)] / summary["de"][(k, 1, n)] for k in kernels]
+                print(f"{n}: DE on 2 threads / on 1: "
+                      + ", ".join(f"{k} {r:.2f}x" for k, r in zip(kernels, ratio, strict=True)))
+            same = all(len(v) == 1 for (m, _), v in bits.items() if m == n)
+            print(f"{n}: the same best cost bits on every variant and thread count: {same}")
+    finally:
+        for b in builds:
+            b.close()
+
+
+def cpu_name() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return "unknown"
+
+
+if __name__ == "__main__":
+    main()
