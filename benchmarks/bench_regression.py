@@ -42,6 +42,8 @@ import sys
 import time
 from pathlib import Path
 
+from _load import _machine_busy  # benchmarks/ is on sys.path when this script runs
+
 NP, N = 600, 100
 FLOPS_PER_POSE = 370  # bench_objective.py's count for the IWR (PPRR carriage), unweighted
 
@@ -163,12 +165,7 @@ class Load:
 
     @staticmethod
     def _busy() -> float | None:
-        try:
-            with open("/proc/stat") as f:
-                v = [int(x) for x in f.readline().split()[1:]]
-        except OSError:
-            return None
-        return (sum(v[:8]) - v[3] - v[4]) / os.sysconf("SC_CLK_TCK")
+        return _machine_busy()
 
     def _ours(self) -> float:
         tck = os.sysconf("SC_CLK_TCK")
