@@ -143,8 +143,12 @@ HexapodSolution hexapod_forward(const LegMatrix& base, const LegMatrix& platform
 }
 
 Vec3 euler_from_matrix(const Mat3& r) {
-    return Vec3(std::atan2(r(1, 0), r(0, 0)), std::atan2(-r(2, 0), std::hypot(r(0, 0), r(1, 0))),
-                std::atan2(r(2, 1), r(2, 2)));
+    // As iwr.transforms.euler_from_matrix: exact at and near the gimbal lock (beta = +-pi/2),
+    // gamma read from Rz(-alpha) R = Ry(beta) Rx(gamma), whose second row is (0, cg, -sg).
+    const double alpha = std::atan2(r(1, 0), r(0, 0));  // 0 where cos(beta) = 0
+    const double ca = std::cos(alpha), sa = std::sin(alpha);
+    return Vec3(alpha, std::atan2(-r(2, 0), std::hypot(r(0, 0), r(1, 0))),
+                std::atan2(sa * r(0, 2) - ca * r(1, 2), ca * r(1, 1) - sa * r(0, 1)));
 }
 
 RowMatrixXd forward_kinematics(const Geometry& g, const Eigen::Ref<const VectorXd>& x,

@@ -339,3 +339,24 @@ IWR_TEST(forward_kinematics) {
 }  // namespace
 
 IWR_TEST_MAIN
+
+// One pose conversion in both languages: Z-Y-X angles back from the matrix, exact also at and
+// near the gimbal lock (iwr.transforms.euler_from_matrix has the same formula and test).
+IWR_TEST(euler_from_matrix_at_the_gimbal_lock) {
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> u(-3, 3);
+    const double half_pi = std::acos(0.0);
+    for (double beta : {half_pi, -half_pi, half_pi - 1e-9, -half_pi + 3e-10, 0.3}) {
+        for (int i = 0; i < 20; ++i) {
+            const iwr::Mat3 r = iwr::euler_zyx(u(rng), beta, u(rng));
+            const iwr::Vec3 e = iwr::euler_from_matrix(r);
+            CHECK((iwr::euler_zyx(e(0), e(1), e(2)) - r).cwiseAbs().maxCoeff() < 1e-14);
+            CHECK(std::abs(e(1) - beta) < 1e-7);
+        }
+    }
+    iwr::Mat3 locked = iwr::euler_zyx(0.0, half_pi, 0.7);
+    locked(0, 0) = locked(1, 0) = 0.0;  // cos(beta) exactly 0
+    const iwr::Vec3 e = iwr::euler_from_matrix(locked);
+    CHECK(e(0) == 0.0);
+    CHECK((iwr::euler_zyx(e(0), e(1), e(2)) - locked).cwiseAbs().maxCoeff() < 1e-14);
+}

@@ -61,7 +61,7 @@ HexapodSolution hexapod_forward(const LegMatrix& base, const LegMatrix& platform
                                 Eigen::Index pose_index = -1);
 
 /// Z-Y-X Euler angles (alpha, beta, gamma) of a rotation matrix, beta in [-pi/2, pi/2]: the
-/// inverse of euler_zyx (eq. 6) away from the gimbal lock beta = +-pi/2.
+/// inverse of euler_zyx (eq. 6), also at the gimbal lock beta = +-pi/2 (there alpha = 0).
 Vec3 euler_from_matrix(const Mat3& r);
 
 /// World poses (N, 6) of the platform of the robot with errors x, from carriage joint readings
