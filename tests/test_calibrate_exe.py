@@ -654,6 +654,34 @@ def test_launcher_lock_is_visible_to_flock(files: dict[str, Path], tmp_path: Pat
     assert proc.returncode == 0, proc.stderr
 
 
+def test_a_second_launcher_leaves_the_running_jobs_record(files: dict[str, Path],
+                                                          tmp_path: Path) -> None:
+    """Issue 26: a second iwr-calibrate on the same --output wrote its problem file (the running
+    job's record) before the engine's lock refused it; the first run then ended "made for another
+    problem". The launcher now takes the lock first and writes nothing."""
+    out = tmp_path / "r.json"
+    problem = tmp_path / "r.json.iwrp"
+    problem.write_bytes(b"the running job's record")
+    with open(tmp_path / ".r.json.ckpt.lock", "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # as the running engine holds it
+        proc = run_cal(files["robot"], files["other"], "--output", out, "--generations", 2)
+    assert proc.returncode == 1, proc.stderr
+    msg = one_line_error(proc, "iwr-calibrate")
+    assert "r.json.ckpt: in use by another iwr-engine process" in msg
+    assert "nothing was written" in msg
+    assert problem.read_bytes() == b"the running job's record" and not out.exists()
+
+
+def test_export_onto_the_problem_read_is_refused(files: dict[str, Path], tmp_path: Path) -> None:
+    problem = tmp_path / "r.iwrp"
+    problem.write_bytes(files["problem"].read_bytes())
+    proc = run_cal("--export", tmp_path / "r.ckpt", "--problem", problem, "--output", problem)
+    assert proc.returncode == 2
+    assert "is the problem file read; an output may not overwrite an input" in one_line_error(
+        proc, "iwr-calibrate")
+    assert problem.read_bytes() == files["problem"].read_bytes()
+
+
 def test_launcher_resume_keeps_the_run_problem(files: dict[str, Path], tmp_path: Path) -> None:
     """Resuming with other data is refused before the run's problem file is replaced."""
     run = run_cal(files["robot"], files["data"], "--population-size", NP, "--generations", 3,
