@@ -7,6 +7,8 @@ import argparse
 import dataclasses
 import os
 import sys
+from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 __all__ = ["UsageError", "CommandError", "Parser", "EXIT_OK", "EXIT_ERROR", "EXIT_USAGE",
@@ -142,6 +144,51 @@ def load_data(path: str, robot: Any) -> Any:
             "are calibrated by iwr calibrate and iwr-calibrate (docs/tracker.md)")
     return Measurements.from_csv(path, robot=robot)
 
+
+
+def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    """Whether two paths name one existing file, by any spelling or link."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def overwritten_input(outputs: Iterable[str | os.PathLike[str]],
+                      inputs: Iterable[str | os.PathLike[str] | None]) -> tuple[Path, str] | None:
+    """The first output that is one of the inputs (by any spelling or link), and that input."""
+    ins = [str(i) for i in inputs if i]
+    for out in outputs:
+        for inp in ins:
+            if _same_file(out, inp):
+                return Path(out), inp
+    return None
+
+
+def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[Any] = (),
+                 files: Iterable[str] | None = None, prog: str = "iwr calibrate") -> None:
+    """Refuse, before any work, an output that cannot be written or would overwrite an input:
+    ``path`` is a file, or with ``files`` (the names written in it) a folder."""
+    path = Path(path)
+    if files is None:
+        clash = overwritten_input([path], inputs)
+        if path.is_dir():
+            raise UsageError(f"{option} {path}: is a folder; expected a file name", prog)
+    else:
+        clash = overwritten_input([path / name for name in files], inputs)
+        if path.exists() and not path.is_dir():
+            raise UsageError(f"{option} {path}: exists and is not a folder", prog)
+    if clash is not None:
+        raise UsageError(f"{option} {path}: would overwrite {clash[1]}, an input of this run "
+                         f"({clash[0]}); give another {option}", prog)
+    # The nearest folder that exists must be writable: the files or folders are made there.
+    folder = path if files is not None else path.parent
+    folder = Path(os.path.abspath(folder))
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {path}: cannot write there: {folder} is not a writable "
+                         "folder", prog)
 
 
 def one_line(exc: BaseException) -> str:
