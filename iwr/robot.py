@@ -672,6 +672,9 @@ def _sigmas(table: Any, where: str, units: Mapping[str, str]) -> dict[str, float
         if v < 0:
             raise ValueError(f"{where}.{key}: {value!r} is negative; a standard deviation "
                              f"({unit}) is >= 0")
+        if 0 < v < MIN_SIGMA:
+            raise ValueError(f"{where}.{key}: {value!r} {unit} is below any instrument's noise; a "
+                             f"standard deviation is 0 (none) or at least {MIN_SIGMA:g}")
         out[key] = v
     return out
 
