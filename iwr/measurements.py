@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_write_text
+from ._io import NotRegularFileError, atomic_write_text, available_memory, open_regular
 
 __all__ = ["Measurements", "MeasurementFileError", "as_matrix", "joint_readings", "MAX_LENGTH_MM",
            "MAX_ANGLE_RAD", "PLAN_MARKER"]
@@ -29,8 +29,13 @@ METRE_SUSPICION = 5.0
 #: value is a mistake (a wrong unit, a corrupted file), refused where it is read.
 MAX_LENGTH_MM = 1e5
 MAX_ANGLE_RAD = 1e3
-#: The largest measurement file read (a million poses take about 300 MB).
+#: The largest measurement file read (a million poses take about 300 MB), whatever the memory.
 MAX_CSV_BYTES = 1_000_000_000
+#: The peak memory of ``iwr calibrate`` per byte of its data file, rounded up: measured 87 for
+#: tracker data (3 reflectors; lm and the efficient estimator alike) and 57 for leg data, from
+#: 2,000 to 8,000 poses (docs/data.md). A file is refused, before it is read, when this many
+#: times its size exceeds the memory available (:func:`data_file_limit`).
+MEMORY_PER_DATA_BYTE = 100
 #: The longest line of a measurement file: a row is a few dozen numbers of at most ~25 characters.
 MAX_LINE_CHARS = 10_000
 #: The first line of a file written by ``iwr plan`` (:meth:`iwr.PosePlan.to_csv`).
@@ -456,22 +461,44 @@ def _summarise(problems: list[tuple[int, str]], what: str) -> str:
             f"{_enumerate([str(n) for n in lines])})")
 
 
+def _mb(n: float) -> str:
+    return f"{n / 1e6:,.1f} MB" if n < 1e8 else f"{n / 1e6:,.0f} MB"
+
+
+def data_file_limit() -> tuple[int, str]:
+    """The largest data file read, and why: :data:`MAX_CSV_BYTES`, or less when
+    :data:`MEMORY_PER_DATA_BYTE` times a file would not fit in the memory available."""
+    avail = available_memory()
+    by_memory = avail // MEMORY_PER_DATA_BYTE if avail > 0 else MAX_CSV_BYTES
+    if by_memory < MAX_CSV_BYTES:
+        return int(by_memory), (
+            f"the {_mb(avail)} of memory available process data files up to {_mb(by_memory)} "
+            f"(calibrating takes about {MEMORY_PER_DATA_BYTE} times a file's size; docs/data.md)")
+    return MAX_CSV_BYTES, "is this the right file? (docs/data.md)"
+
+
 def read_csv_text(path: Path) -> str:
     """The text of a CSV file people wrote: a bounded read (a device or a dump is refused), a byte
     order mark accepted (spreadsheets write one for "CSV UTF-8"), a plan file of ``iwr plan``
     refused with what to do instead."""
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_CSV_BYTES + 1)
-        if len(raw) > MAX_CSV_BYTES:
-            raise MeasurementFileError(
-                f"{path}: larger than {MAX_CSV_BYTES // 10**6} MB; is this the right file?"
-            )
+        with open_regular(path) as fh:
+            # Before reading: what the memory available can process (a file growing meanwhile
+            # is cut at the limit and refused below).
+            limit, why = data_file_limit()
+            size = os.fstat(fh.fileno()).st_size
+            if size > limit:
+                raise MeasurementFileError(f"{path}: {_mb(size)}; {why}")
+            raw = fh.read(limit + 1)
+        if len(raw) > limit:
+            raise MeasurementFileError(f"{path}: larger than {_mb(limit)}; {why}")
         text = raw.decode("utf-8-sig")
     except FileNotFoundError:
         raise MeasurementFileError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
+    except NotRegularFileError as exc:
+        raise MeasurementFileError(str(exc)) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
     if text.lstrip().startswith(PLAN_MARKER):

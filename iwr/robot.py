@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from ._io import atomic_write_text
+from ._io import NotRegularFileError, atomic_write_text, open_regular
 from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM
 
 if sys.version_info >= (3, 11):
@@ -516,7 +516,7 @@ class Robot:
         """Read a robot written by :meth:`to_toml` (or by hand); errors name the file and key."""
         path = Path(path)
         try:
-            with open(path, "rb") as fh:
+            with open_regular(path) as fh:
                 # A robot is a few kB: read no more than the limit, so that a wrong file (a device,
                 # a data dump) is refused at once instead of being read whole.
                 raw = fh.read(MAX_TOML_BYTES + 1)
@@ -544,6 +544,8 @@ class Robot:
             raise RobotFileError(f"{path}: no such file") from None
         except IsADirectoryError:
             raise RobotFileError(f"{path}: is a folder, not a robot TOML file") from None
+        except NotRegularFileError as exc:
+            raise RobotFileError(str(exc)) from None
         except UnicodeDecodeError as exc:
             line = exc.object[: exc.start].count(b"\n") + 1
             raise RobotFileError(

@@ -4,6 +4,7 @@ trips, units checked, every bad row named."""
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -194,3 +195,38 @@ def test_a_registration_beyond_any_setup_is_refused_by_name():
                        r"setup \(\|value\| <= 100000"):
         iwr.Robot.default().with_tracker(registration=(1e300, 0, 0, 0, 0, 0),
                                          reflectors=REFLECTORS)
+
+
+def test_what_is_no_regular_file_is_refused_without_reading(robot, data, tmp_path):
+    """Issue 26: a named pipe as data, readings or robot blocked iwr calibrate for ever;
+    /dev/zero as tracker data read 1 GB before it was refused."""
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)  # nobody writes it: a read would block
+    with pytest.raises(iwr.MeasurementFileError, match=r"pipe.csv: a named pipe \(FIFO\), not a "
+                       "regular file"):
+        read_tracker_data(fifo, robot.tracker)
+    pts, rd = tmp_path / "points.csv", tmp_path / "readings.csv"
+    write_tracker_long(pts, rd, robot.tracker, data)
+    with pytest.raises(iwr.MeasurementFileError, match=r"pipe.csv: a named pipe"):
+        read_tracker_data(pts, robot.tracker, readings=fifo)
+    with pytest.raises(iwr.RobotFileError, match=r"pipe.csv: a named pipe"):
+        iwr.Robot.from_toml(fifo)
+    with pytest.raises(iwr.MeasurementFileError, match=r"/dev/zero: a device, not a regular"):
+        read_tracker_data("/dev/zero", robot.tracker)
+
+
+def test_a_data_file_beyond_the_memory_available_is_refused_before_reading(
+        robot, tmp_path, monkeypatch):
+    import iwr.measurements as meas
+
+    monkeypatch.setattr(meas, "available_memory", lambda: 1_000_000_000)  # 1 GB free
+    big = tmp_path / "big.csv"
+    with open(big, "wb") as fh:
+        fh.truncate(20_000_000)  # 20 MB of holes: its size, without writing it
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=r"big.csv: 20.0 MB; the 1,000 MB of memory available process data "
+                       r"files up to 10.0 MB \(calibrating takes about 100 times"):
+        read_tracker_data(big, robot.tracker)
+    with pytest.raises(iwr.MeasurementFileError, match=r"big.csv: 20.0 MB; the 1,000 MB"):
+        iwr.Measurements.from_csv(big)
+    assert meas.data_file_limit()[0] == 10_000_000
