@@ -426,6 +426,25 @@ def test_stale_temporary_files_are_removed(files: dict[str, Path], tmp_path: Pat
     assert all(p.exists() for p in keep)
 
 
+def test_the_file_size_limit_is_an_error_naming_the_file(files: dict[str, Path],
+                                                          tmp_path: Path) -> None:
+    """Issue 26: at a file-size limit (ulimit -f) the engine died of SIGXFSZ (exit 153) without
+    a word, leaving its temporary file; now the write fails with EFBIG, reported by name."""
+    ckpt = tmp_path / "t.ckpt"
+
+    def small_files() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))  # a checkpoint is larger
+
+    proc = subprocess.run([ENGINE, str(files["problem"]), "--population-size", str(NP),
+                           "--generations", "3", "--checkpoint", str(ckpt), "--quiet"],
+                          capture_output=True, text=True, timeout=120, preexec_fn=small_files)
+    assert proc.returncode == 1, (proc.returncode, proc.stderr)
+    msg = one_line_error(proc)
+    assert f"{ckpt}: cannot write (File too large)" in msg, msg
+    assert not ckpt.exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name != ".t.ckpt.lock"] == []
+
+
 # --- sizes beyond the machine, threads, results that are not finite -----------------------------
 
 
