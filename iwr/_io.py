@@ -122,7 +122,8 @@ def write_folder(out: str | os.PathLike[str], write: Callable[[Path], list[Path]
     out = Path(out)
     try:
         out.mkdir(parents=True, exist_ok=True)
-        tmp = Path(tempfile.mkdtemp(prefix=".iwr-writing-", dir=out))
+        _remove_dead_writers(out)
+        tmp = Path(tempfile.mkdtemp(prefix=f".iwr-writing-{os.getpid()}-", dir=out))
     except OSError as exc:
         raise OSError(exc.errno, f"{out}: cannot create the output folder: "
                                  f"{exc.strerror or exc}") from None
@@ -149,6 +150,21 @@ def write_folder(out: str | os.PathLike[str], write: Callable[[Path], list[Path]
         return [out / name for name in names]
     finally:
         shutil.rmtree(tmp, ignore_errors=True)
+
+
+def _remove_dead_writers(out: Path) -> None:
+    """Remove the temporary folders of :func:`write_folder` that a killed process left in
+    ``out`` (named ``.iwr-writing-PID-...``, PID no longer running)."""
+    import shutil
+
+    for entry in out.glob(".iwr-writing-*-*"):
+        try:
+            pid = int(entry.name.split("-")[2])
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            shutil.rmtree(entry, ignore_errors=True)
+        except (ValueError, IndexError, PermissionError):
+            pass  # not ours, or another user's live process
 
 
 class NotRegularFileError(OSError):
