@@ -492,3 +492,39 @@ def test_no_command_writes_over_its_inputs(sim, tmp_path):
         assert_fails(proc, 2, pattern)
     for p, content in saved.items():
         assert p.read_bytes() == content, p
+
+
+def test_weighted_poses_all_held_out_are_named_as_such(sim, tmp_path):
+    """Issue 26: "every weight is zero" when the only weighted poses all fell in the validation
+    split; the message now says what happened and what to do."""
+    robot = iwr.Robot.from_toml(sim / "robot.toml")
+    data = iwr.Measurements.from_csv(sim / "measurements.csv", robot=robot).subset(range(20))
+    # One weighted pose: with 50 % held out, some seed puts it among them.
+    seed = next(s for s in range(100)
+                if 0 in np.random.default_rng(s).permutation(20)[:10])
+    w = np.zeros((20, 6))
+    w[0] = 1.0
+    weighted = iwr.Measurements(data.q, data.poses, data.legs, joint_types=data.joint_types,
+                                weights=w)
+    weighted.to_csv(tmp_path / "w.csv")
+    proc = run("calibrate", str(sim / "robot.toml"), str(tmp_path / "w.csv"), "--method", "lm",
+               "--validation-fraction", "0.5", "--seed", str(seed), "--out", str(tmp_path / "o"))
+    assert_fails(proc, 1, r"--validation-fraction 0.5 \(--seed \d+\): every pose with a weight "
+                          r"> 0 fell in the 10 held-out poses")
+
+
+def test_report_md_carries_no_raw_html_from_names(sim, tmp_path):
+    text = (sim / "robot.toml").read_text()
+    name = "<img src=x onerror=alert(1)>"
+    robot = tmp_path / "r<b>.toml"
+    robot.write_text(re.sub(r"(?m)^name = .*$", lambda m: f"name = {json.dumps(name)}", text,
+                            count=1))
+    assert name in iwr.Robot.from_toml(robot).name
+    proc = run("calibrate", str(robot), str(sim / "measurements.csv"), "--method", "lm",
+               "--no-plots", "--out", str(tmp_path / "o"))
+    assert proc.returncode == 0, proc.stderr
+    md = (tmp_path / "o" / "report.md").read_text()
+    # Outside fenced code blocks (verbatim text to a Markdown viewer) no tag is left.
+    outside = re.sub(r"(?ms)^```.*?^```", "", md)
+    assert "<img" not in outside and "<b>" not in outside
+    assert "&lt;img src=x onerror=alert(1)&gt;" in md and "r&lt;b&gt;.toml" in md

@@ -340,6 +340,12 @@ def _split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
                            f"out of {n}")
     order = np.random.default_rng(seed).permutation(n)
     val, ident = np.sort(order[:n_val]), np.sort(order[n_val:])
+    weights = getattr(data, "weights", None)
+    if weights is not None and not np.any(weights[ident] > 0):
+        raise CommandError(
+            f"--validation-fraction {fraction} (--seed {seed}): every pose with a weight > 0 fell "
+            f"in the {n_val} held-out poses, so no identification reading counts; use another "
+            "--seed, a smaller --validation-fraction, or --validation VALID.csv")
     return data.subset(ident), data.subset(val)
 
 
