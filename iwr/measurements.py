@@ -36,6 +36,9 @@ MAX_CSV_BYTES = 1_000_000_000
 #: 2,000 to 8,000 poses (docs/data.md). A file is refused, before it is read, when this many
 #: times its size exceeds the memory available (:func:`data_file_limit`).
 MEMORY_PER_DATA_BYTE = 100
+#: A measured platform position beyond this many times the hexapod's reach from its base frame
+#: is unreachable (Measurements.check).
+REACH_SLACK = 2.0
 #: The longest line of a measurement file: a row is a few dozen numbers of at most ~25 characters.
 MAX_LINE_CHARS = 10_000
 #: The first line of a file written by ``iwr plan`` (:meth:`iwr.PosePlan.to_csv`).
@@ -431,6 +434,19 @@ class Measurements:
             for k in np.flatnonzero(outside):
                 problems.append((k, f"{self._loc(k)}: leg {j + 1} reading {self.legs[k, j]:.6g} mm "
                                     f"is outside the stroke [{lo:.6g}, {hi:.6g}]"))
+        # A measured platform farther from the hexapod's base frame {4} than its joints and
+        # longest legs reach (twice over, for any error of the robot): a typo, a unit or a frame
+        # (issue 26: x_mm = 99999.9 was taken, and reported only after the identification).
+        reach = float(np.linalg.norm(robot.base_joints, axis=1).max()
+                      + np.linalg.norm(robot.platform_joints, axis=1).max()
+                      + (robot.leg_offsets + robot.leg_stroke[:, 1]).max())
+        origins = (np.array([robot.carriage_transform(qk)[:3, 3] for qk in self.q])
+                   if robot.n_joints else np.zeros((len(self), 3)))
+        far = np.linalg.norm(self.poses[:, :3] - origins, axis=1)
+        for k in np.flatnonzero(far > REACH_SLACK * reach):
+            problems.append((k, f"{self._loc(k)}: the measured platform position is "
+                                f"{far[k]:.6g} mm from the hexapod's base, beyond its reach "
+                                f"({reach:.6g} mm with the longest legs)"))
         if problems:
             problems.sort(key=lambda p: p[0])
             rows = sorted({k for k, _ in problems})
