@@ -38,7 +38,7 @@ MAX_CSV_BYTES = 1_000_000_000
 MEMORY_PER_DATA_BYTE = 100
 #: A measured platform position beyond this many times the hexapod's reach from its base frame
 #: is unreachable (Measurements.check).
-REACH_SLACK = 2.0
+REACH_SLACK = 10.0
 #: The longest line of a measurement file: a row is a few dozen numbers of at most ~25 characters.
 MAX_LINE_CHARS = 10_000
 #: The first line of a file written by ``iwr plan`` (:meth:`iwr.PosePlan.to_csv`).
@@ -434,9 +434,10 @@ class Measurements:
             for k in np.flatnonzero(outside):
                 problems.append((k, f"{self._loc(k)}: leg {j + 1} reading {self.legs[k, j]:.6g} mm "
                                     f"is outside the stroke [{lo:.6g}, {hi:.6g}]"))
-        # A measured platform farther from the hexapod's base frame {4} than its joints and
-        # longest legs reach (twice over, for any error of the robot): a typo, a unit or a frame
-        # (issue 26: x_mm = 99999.9 was taken, and reported only after the identification).
+        # A measured platform farther from the hexapod's base frame {4} than ten times what its
+        # joints and longest legs reach: a typo or a unit (issue 26: x_mm = 99999.9 was taken,
+        # and reported only after the identification). A frame off by metres is within it: the
+        # fit test names that cause.
         reach = float(np.linalg.norm(robot.base_joints, axis=1).max()
                       + np.linalg.norm(robot.platform_joints, axis=1).max()
                       + (robot.leg_offsets + robot.leg_stroke[:, 1]).max())
