@@ -497,14 +497,17 @@ def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: f
 
 
 def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
-                  without_dof: str) -> str:
-    """The fit test's one-line verdict (``without_dof`` when it failed with no redundancy)."""
+                  without_dof: str, failed: list[str] | None = None) -> str:
+    """The fit test's one-line verdict (``without_dof`` when it failed with no redundancy;
+    ``failed``: what failed when the chi-square test itself passed)."""
     if fit_ok:
         return (f"the model fits the data: chi2 = {statistic:.4g} for {dof} degrees of "
                 f"freedom (p = {p_value:.3g})")
-    return "THE MODEL DOES NOT FIT THE DATA: " + (
-        f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
-        if dof > 0 else without_dof)
+    chi = f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
+    if dof > 0 and failed:  # not the chi-square test: say what, not only its passing p-value
+        return (f"THE MODEL DOES NOT FIT THE DATA: {' and '.join(failed)} (the chi-square test "
+                f"alone passes: {chi})")
+    return "THE MODEL DOES NOT FIT THE DATA: " + (chi if dof > 0 else without_dof)
 
 
 def _chi2_cause(statistic: float, dof: int, p_value: float) -> str:
@@ -603,7 +606,9 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
                 + " their plausible size")
         verdict = head if fit_ok else "THE MODEL DOES NOT FIT THE DATA: " + head
     else:
-        verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "implausible parameters")
+        verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "implausible parameters",
+                                ["identified errors beyond their plausible size"]
+                                if chi_ok and implausible else None)
     return FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict, causes,
                    implausible)
 
@@ -1050,7 +1055,11 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
     if est:
         notes.append("noise estimated for " + ", ".join(est) + ": the chi-square test checks "
                      "only what the estimate leaves free")
-    verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "no degrees of freedom")
+    failed = [what for what, bad in (
+        ("the active parameters are not all identifiable", not rank_ok),
+        ("identified errors beyond their plausible size", bool(implausible)),
+        ("too many poses fail the outlier test", bool(too_many))) if bad] if chi_ok else None
+    verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "no degrees of freedom", failed)
     fit = FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict,
                   causes if not fit_ok else notes, implausible)
 

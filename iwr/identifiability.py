@@ -39,6 +39,7 @@ __all__ = [
     "NullDirection",
     "ParameterError",
     "identifiability",
+    "identifiable_count",
     "parameter_error",
     "column_scale",
 ]
@@ -344,6 +345,21 @@ def pose_identifiability(robot: Robot, measurements: Measurements, x: Any = None
         angle_parameters=robot.angle_parameters,
         **ind,
     )
+
+
+#: Poses of the varied pose set of :func:`identifiable_count` (the data's seed is fixed).
+GENERIC_POSES = 60
+
+
+def identifiable_count(robot: Robot) -> int:
+    """How many error parameters (with a tracker: robot and setup) varied poses identify for
+    ``robot``: the rank of the information matrix on :data:`GENERIC_POSES` random poses of its
+    workspace (:func:`iwr.simulate`, a fixed seed, no noise). Data of a lower rank cannot
+    identify the robot's errors, whatever the method (too few distinct poses, copies)."""
+    from .simulate import simulate
+
+    data, _ = simulate(robot, GENERIC_POSES, seed=0)
+    return int(identifiability(robot, data).rank)
 
 
 def _preference(robot: Robot) -> np.ndarray:

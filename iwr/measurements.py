@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ._io import atomic_write_text
+from ._io import NotRegularFileError, atomic_write_text, available_memory, open_regular
 
 __all__ = ["Measurements", "MeasurementFileError", "as_matrix", "joint_readings", "MAX_LENGTH_MM",
            "MAX_ANGLE_RAD", "PLAN_MARKER"]
@@ -29,8 +29,16 @@ METRE_SUSPICION = 5.0
 #: value is a mistake (a wrong unit, a corrupted file), refused where it is read.
 MAX_LENGTH_MM = 1e5
 MAX_ANGLE_RAD = 1e3
-#: The largest measurement file read (a million poses take about 300 MB).
+#: The largest measurement file read (a million poses take about 300 MB), whatever the memory.
 MAX_CSV_BYTES = 1_000_000_000
+#: The peak memory of ``iwr calibrate`` per byte of its data file, rounded up: measured 87 for
+#: tracker data (3 reflectors; lm and the efficient estimator alike) and 57 for leg data, from
+#: 2,000 to 8,000 poses (docs/data.md). A file is refused, before it is read, when this many
+#: times its size exceeds the memory available (:func:`data_file_limit`).
+MEMORY_PER_DATA_BYTE = 100
+#: A measured platform position beyond this many times the hexapod's reach from its base frame
+#: is unreachable (Measurements.check).
+REACH_SLACK = 10.0
 #: The longest line of a measurement file: a row is a few dozen numbers of at most ~25 characters.
 MAX_LINE_CHARS = 10_000
 #: The first line of a file written by ``iwr plan`` (:meth:`iwr.PosePlan.to_csv`).
@@ -435,6 +443,20 @@ class Measurements:
             for k in np.flatnonzero(outside):
                 problems.append((k, f"{self._loc(k)}: leg {j + 1} reading {self.legs[k, j]:.6g} mm "
                                     f"is outside the stroke [{lo:.6g}, {hi:.6g}]"))
+        # A measured platform farther from the hexapod's base frame {4} than ten times what its
+        # joints and longest legs reach: a typo or a unit (issue 26: x_mm = 99999.9 was taken,
+        # and reported only after the identification). A frame off by metres is within it: the
+        # fit test names that cause.
+        reach = float(np.linalg.norm(robot.base_joints, axis=1).max()
+                      + np.linalg.norm(robot.platform_joints, axis=1).max()
+                      + (robot.leg_offsets + robot.leg_stroke[:, 1]).max())
+        origins = (np.array([robot.carriage_transform(qk)[:3, 3] for qk in self.q])
+                   if robot.n_joints else np.zeros((len(self), 3)))
+        far = np.linalg.norm(self.poses[:, :3] - origins, axis=1)
+        for k in np.flatnonzero(far > REACH_SLACK * reach):
+            problems.append((k, f"{self._loc(k)}: the measured platform position is "
+                                f"{far[k]:.6g} mm from the hexapod's base, beyond its reach "
+                                f"({reach:.6g} mm with the longest legs)"))
         if problems:
             problems.sort(key=lambda p: p[0])
             rows = sorted({k for k, _ in problems})
@@ -465,22 +487,44 @@ def _summarise(problems: list[tuple[int, str]], what: str) -> str:
             f"{_enumerate([str(n) for n in lines])})")
 
 
+def _mb(n: float) -> str:
+    return f"{n / 1e6:,.1f} MB" if n < 1e8 else f"{n / 1e6:,.0f} MB"
+
+
+def data_file_limit() -> tuple[int, str]:
+    """The largest data file read, and why: :data:`MAX_CSV_BYTES`, or less when
+    :data:`MEMORY_PER_DATA_BYTE` times a file would not fit in the memory available."""
+    avail = available_memory()
+    by_memory = avail // MEMORY_PER_DATA_BYTE if avail > 0 else MAX_CSV_BYTES
+    if by_memory < MAX_CSV_BYTES:
+        return int(by_memory), (
+            f"the {_mb(avail)} of memory available process data files up to {_mb(by_memory)} "
+            f"(calibrating takes about {MEMORY_PER_DATA_BYTE} times a file's size; docs/data.md)")
+    return MAX_CSV_BYTES, "is this the right file? (docs/data.md)"
+
+
 def read_csv_text(path: Path) -> str:
     """The text of a CSV file people wrote: a bounded read (a device or a dump is refused), a byte
     order mark accepted (spreadsheets write one for "CSV UTF-8"), a plan file of ``iwr plan``
     refused with what to do instead."""
     try:
-        with open(path, "rb") as fh:
-            raw = fh.read(MAX_CSV_BYTES + 1)
-        if len(raw) > MAX_CSV_BYTES:
-            raise MeasurementFileError(
-                f"{path}: larger than {MAX_CSV_BYTES // 10**6} MB; is this the right file?"
-            )
+        with open_regular(path) as fh:
+            # Before reading: what the memory available can process (a file growing meanwhile
+            # is cut at the limit and refused below).
+            limit, why = data_file_limit()
+            size = os.fstat(fh.fileno()).st_size
+            if size > limit:
+                raise MeasurementFileError(f"{path}: {_mb(size)}; {why}")
+            raw = fh.read(limit + 1)
+        if len(raw) > limit:
+            raise MeasurementFileError(f"{path}: larger than {_mb(limit)}; {why}")
         text = raw.decode("utf-8-sig")
     except FileNotFoundError:
         raise MeasurementFileError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
+    except NotRegularFileError as exc:
+        raise MeasurementFileError(str(exc)) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
     if text.lstrip().startswith(PLAN_MARKER):

@@ -17,7 +17,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from ._io import atomic_write_text
+from ._io import NotRegularFileError, atomic_write_text, open_regular
 from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM
 
 if sys.version_info >= (3, 11):
@@ -62,8 +62,45 @@ def _as_array(value: Any, shape: tuple[int, ...], name: str, units: Any = None) 
 
 
 _POSE_UNITS = ["mm"] * 3 + ["rad"] * 3
-#: The largest robot TOML file read (a robot description is about 3 kB).
-MAX_TOML_BYTES = 1_000_000
+#: The smallest non-zero standard deviation of a noise model (mm, rad, mm per m): far below any
+#: instrument's, and far above what breaks the weighting (1 / sigma^2 overflows near 1e-155).
+MIN_SIGMA = 1e-9
+#: The largest robot TOML file read (a robot description is about 3 kB). The standard library's
+#: TOML reader takes seconds per MB of even the simplest keys, so this also bounds its time.
+MAX_TOML_BYTES = 256_000
+#: The most parts of a dotted key or table header (``a.b.c`` has 3; a robot file needs 2): the
+#: standard library's reader takes a time quadratic in them (50,000 parts: minutes).
+MAX_TOML_KEY_PARTS = 16
+
+# What may hold a dot that does not separate key parts: strings (multi-line ones first; an
+# unterminated one runs to the end of its line or of the file) and comments. The other tokens are
+# the characters that end a key (or separate a value from it).
+_TOML_TOKENS = re.compile(
+    r'"""(?:\\.|[^\\])*?(?:"""|\Z)'
+    r"|'''.*?(?:'''|\Z)"
+    r'|"(?:\\.|[^"\\\n])*"?'
+    r"|'[^'\n]*'?"
+    r"|#[^\n]*"
+    r"|[.=,\[\]{}\n]",
+    re.DOTALL,
+)
+
+
+def _toml_key_too_long(text: str) -> int | None:
+    """The line of the first dotted key or table header of more than :data:`MAX_TOML_KEY_PARTS`
+    parts in TOML ``text``, else None. A linear scan that skips strings and comments, run before
+    the standard library's reader, whose time is quadratic in the parts. A float value (one dot)
+    never counts as a long key."""
+    parts = 1
+    for m in _TOML_TOKENS.finditer(text):
+        token = m.group()
+        if token == ".":
+            parts += 1
+            if parts > MAX_TOML_KEY_PARTS:
+                return text.count("\n", 0, m.start()) + 1
+        elif token[0] not in "\"'#":
+            parts = 1
+    return None
 
 
 class Robot:
@@ -479,7 +516,7 @@ class Robot:
         """Read a robot written by :meth:`to_toml` (or by hand); errors name the file and key."""
         path = Path(path)
         try:
-            with open(path, "rb") as fh:
+            with open_regular(path) as fh:
                 # A robot is a few kB: read no more than the limit, so that a wrong file (a device,
                 # a data dump) is refused at once instead of being read whole.
                 raw = fh.read(MAX_TOML_BYTES + 1)
@@ -488,7 +525,17 @@ class Robot:
                     f"{path}: larger than {MAX_TOML_BYTES // 1000} kB; a robot description is a "
                     "few kB (is this the right file?)"
                 )
-            data = tomllib.loads(raw.decode("utf-8"))
+            text = raw.decode("utf-8")
+            line = _toml_key_too_long(text)
+            if line is not None:
+                raise RobotFileError(
+                    f"{path}, line {line}: a dotted key or table header of more than "
+                    f"{MAX_TOML_KEY_PARTS} parts; a robot description needs 2 (is this the right "
+                    "file?)"
+                )
+            data = tomllib.loads(text)
+        except RobotFileError:
+            raise
         except RecursionError:
             raise RobotFileError(
                 f"{path}: not a robot description: arrays or tables nested too deeply"
@@ -497,6 +544,8 @@ class Robot:
             raise RobotFileError(f"{path}: no such file") from None
         except IsADirectoryError:
             raise RobotFileError(f"{path}: is a folder, not a robot TOML file") from None
+        except NotRegularFileError as exc:
+            raise RobotFileError(str(exc)) from None
         except UnicodeDecodeError as exc:
             line = exc.object[: exc.start].count(b"\n") + 1
             raise RobotFileError(
@@ -625,6 +674,9 @@ def _sigmas(table: Any, where: str, units: Mapping[str, str]) -> dict[str, float
         if v < 0:
             raise ValueError(f"{where}.{key}: {value!r} is negative; a standard deviation "
                              f"({unit}) is >= 0")
+        if 0 < v < MIN_SIGMA:
+            raise ValueError(f"{where}.{key}: {value!r} {unit} is below any instrument's noise; a "
+                             f"standard deviation is 0 (none) or at least {MIN_SIGMA:g}")
         out[key] = v
     return out
 

@@ -10,7 +10,7 @@ import numpy as np
 from . import kinds
 from .measurements import Measurements
 from .problem import predict_legs
-from .robot import Robot
+from .robot import MIN_SIGMA, Robot
 from .transforms import euler_zyx, pose_from_matrix, pose_matrix, rotvec_matrix
 
 __all__ = ["Noise", "simulate", "sample_poses", "UnreachableError"]
@@ -50,6 +50,9 @@ class Noise:
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
                 raise ValueError(f"Noise.{name}: {v!r}; expected a finite number >= 0")
+            if 0 < v < MIN_SIGMA:
+                raise ValueError(f"Noise.{name}: {v!r} is below any instrument's noise; "
+                                 f"expected 0 (none) or at least {MIN_SIGMA:g}")
 
     @classmethod
     def realistic(cls) -> Noise:

@@ -426,6 +426,25 @@ def test_stale_temporary_files_are_removed(files: dict[str, Path], tmp_path: Pat
     assert all(p.exists() for p in keep)
 
 
+def test_the_file_size_limit_is_an_error_naming_the_file(files: dict[str, Path],
+                                                          tmp_path: Path) -> None:
+    """Issue 26: at a file-size limit (ulimit -f) the engine died of SIGXFSZ (exit 153) without
+    a word, leaving its temporary file; now the write fails with EFBIG, reported by name."""
+    ckpt = tmp_path / "t.ckpt"
+
+    def small_files() -> None:
+        resource.setrlimit(resource.RLIMIT_FSIZE, (4096, 4096))  # a checkpoint is larger
+
+    proc = subprocess.run([ENGINE, str(files["problem"]), "--population-size", str(NP),
+                           "--generations", "3", "--checkpoint", str(ckpt), "--quiet"],
+                          capture_output=True, text=True, timeout=120, preexec_fn=small_files)
+    assert proc.returncode == 1, (proc.returncode, proc.stderr)
+    msg = one_line_error(proc)
+    assert f"{ckpt}: cannot write (File too large)" in msg, msg
+    assert not ckpt.exists()
+    assert [p.name for p in tmp_path.iterdir() if p.name != ".t.ckpt.lock"] == []
+
+
 # --- sizes beyond the machine, threads, results that are not finite -----------------------------
 
 
@@ -652,6 +671,34 @@ def test_launcher_lock_is_visible_to_flock(files: dict[str, Path], tmp_path: Pat
     assert proc.returncode == 1 and "in use by another iwr-engine process" in proc.stderr
     proc = run_engine(files["problem"], "--checkpoint", ckpt, "--generations", 2, "--quiet")
     assert proc.returncode == 0, proc.stderr
+
+
+def test_a_second_launcher_leaves_the_running_jobs_record(files: dict[str, Path],
+                                                          tmp_path: Path) -> None:
+    """Issue 26: a second iwr-calibrate on the same --output wrote its problem file (the running
+    job's record) before the engine's lock refused it; the first run then ended "made for another
+    problem". The launcher now takes the lock first and writes nothing."""
+    out = tmp_path / "r.json"
+    problem = tmp_path / "r.json.iwrp"
+    problem.write_bytes(b"the running job's record")
+    with open(tmp_path / ".r.json.ckpt.lock", "w") as fh:
+        fcntl.flock(fh, fcntl.LOCK_EX)  # as the running engine holds it
+        proc = run_cal(files["robot"], files["other"], "--output", out, "--generations", 2)
+    assert proc.returncode == 1, proc.stderr
+    msg = one_line_error(proc, "iwr-calibrate")
+    assert "r.json.ckpt: in use by another iwr-engine process" in msg
+    assert "nothing was written" in msg
+    assert problem.read_bytes() == b"the running job's record" and not out.exists()
+
+
+def test_export_onto_the_problem_read_is_refused(files: dict[str, Path], tmp_path: Path) -> None:
+    problem = tmp_path / "r.iwrp"
+    problem.write_bytes(files["problem"].read_bytes())
+    proc = run_cal("--export", tmp_path / "r.ckpt", "--problem", problem, "--output", problem)
+    assert proc.returncode == 2
+    assert "is the problem file read; an output may not overwrite an input" in one_line_error(
+        proc, "iwr-calibrate")
+    assert problem.read_bytes() == files["problem"].read_bytes()
 
 
 def test_launcher_resume_keeps_the_run_problem(files: dict[str, Path], tmp_path: Path) -> None:

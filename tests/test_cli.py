@@ -400,3 +400,131 @@ def test_a_method_stopped_before_converging_exits_4(sim, tmp_path):
     assert proc.returncode == 4, proc.stderr
     assert "not converged" in proc.stderr
     assert iwr.load_result(out / "result.json").success is False
+
+
+# -- issue 26: degenerate data, outputs over inputs --------------------------------------------
+
+
+def test_too_few_distinct_poses_are_not_a_calibration(sim, tmp_path):
+    """3 poses (18 leg readings) cannot identify the 50-odd parameters that varied poses
+    identify: not success, whatever the method's convergence; exit 5, and the verdict says so."""
+    lines, h = csv_lines(sim / "measurements.csv")
+    (tmp_path / "few.csv").write_text("\n".join(lines[:h + 4]) + "\n")
+    out = tmp_path / "out"
+    proc = run("calibrate", str(sim / "robot.toml"), str(tmp_path / "few.csv"), "--method", "lm",
+               "--validation-fraction", "0", "--out", str(out), "--no-plots")
+    assert proc.returncode == 5, proc.stdout + proc.stderr
+    assert "iwr calibrate: not calibrated (exit 5): degenerate data: the 3 distinct" in proc.stderr
+    result = json.loads((out / "result.json").read_text())
+    assert result["success"] is False
+    assert result["message"].startswith("not calibrated: degenerate data: the 3 distinct")
+    assert iwr.load_result(out / "result.json").status == "not calibrated"
+    assert "**Not calibrated: degenerate data" in (out / "report.md").read_text()
+
+
+def test_recalibration_with_the_default_folder_keeps_its_input(sim, tmp_path):
+    """`iwr calibrate iwr-calibration/calibrated.toml DATA.csv` wrote over its own robot; now the
+    run goes to iwr-calibration-2/ and its report's SHA-256 names a file that exists."""
+    args = ["--method", "lm", "--no-plots"]
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), *args,
+               cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    first = tmp_path / "iwr-calibration" / "calibrated.toml"
+    before = first.read_bytes()
+    proc = run("calibrate", "iwr-calibration/calibrated.toml", str(sim / "measurements.csv"),
+               *args, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "output folder: iwr-calibration-2/" in proc.stdout
+    # Calibrated before: no better, and not worse.
+    assert "**Unchanged within 5%" in (tmp_path / "iwr-calibration-2" / "report.md").read_text()
+    assert first.read_bytes() == before
+    page = (tmp_path / "iwr-calibration-2" / "report.html").read_text(encoding="utf-8")
+    assert hashlib.sha256(before).hexdigest() in page
+    # Any spelling or link of the folder, given with --out: refused before any work.
+    (tmp_path / "link").symlink_to(tmp_path / "iwr-calibration")
+    for out in ("./iwr-calibration/", "link", str(tmp_path / "iwr-calibration" / ".")):
+        proc = run("calibrate", "iwr-calibration/calibrated.toml", str(sim / "measurements.csv"),
+                   *args, "--out", out, cwd=tmp_path)
+        assert_fails(proc, 2, r"--out .*: would overwrite iwr-calibration/calibrated.toml, an "
+                              r"input of this run .*; give another --out")
+        assert "identifying" not in proc.stdout
+    assert first.read_bytes() == before
+
+
+def test_outputs_that_cannot_be_written_are_refused_before_the_work(sim, tmp_path):
+    (tmp_path / "file").write_text("x")
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--method",
+               "de", "--out", str(tmp_path / "file"))
+    assert_fails(proc, 2, r"--out .*file: exists and is not a folder")
+    assert "identifying" not in proc.stdout
+    locked = tmp_path / "locked"
+    locked.mkdir(mode=0o500)
+    if not os.access(locked, os.W_OK):  # root writes anywhere
+        proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"),
+                   "--out", str(locked / "new" / "deeper"))
+        assert_fails(proc, 2, r"cannot write there: .*locked is not a writable folder")
+
+
+def test_no_command_writes_over_its_inputs(sim, tmp_path):
+    robot, data = sim / "robot.toml", sim / "measurements.csv"
+    saved = {p: p.read_bytes() for p in (robot, data)}
+    targets = tmp_path / "t.csv"
+    targets.write_text("q1_mm,q2_mm,q3_rad,q4_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad\n"
+                       "100,50,0.1,0.05,0,0,800,0,0,0\n")
+    saved[targets] = targets.read_bytes()
+    run_json = tmp_path / "rep" / "result.json"
+    run_json.parent.mkdir()
+    r = iwr.Robot.from_toml(robot)
+    iwr.identify(r, iwr.Measurements.from_csv(data, robot=r), method="lm",
+                 progress=False).save(run_json)
+    saved[run_json] = run_json.read_bytes()
+    cases = [
+        (["legs", str(robot), str(targets), "-o", str(targets)], r"-o .*t.csv: would overwrite"),
+        (["plan", str(robot), "--out", str(robot), "--n-candidates", "50", "--poses", "5"],
+         r"--out .*robot.toml: would overwrite"),
+        (["report", str(run_json), str(robot), str(data), "--out", str(run_json.parent)],
+         r"--out .*rep: would overwrite .*result.json"),
+        (["simulate", "--robot", str(robot), "--out", str(sim)],
+         r"--out .*: would overwrite .*robot.toml"),
+    ]
+    for args, pattern in cases:
+        proc = run(*args)
+        assert_fails(proc, 2, pattern)
+    for p, content in saved.items():
+        assert p.read_bytes() == content, p
+
+
+def test_weighted_poses_all_held_out_are_named_as_such(sim, tmp_path):
+    """Issue 26: "every weight is zero" when the only weighted poses all fell in the validation
+    split; the message now says what happened and what to do."""
+    robot = iwr.Robot.from_toml(sim / "robot.toml")
+    data = iwr.Measurements.from_csv(sim / "measurements.csv", robot=robot).subset(range(20))
+    # One weighted pose: with 50 % held out, some seed puts it among them.
+    seed = next(s for s in range(100)
+                if 0 in np.random.default_rng(s).permutation(20)[:10])
+    w = np.zeros((20, 6))
+    w[0] = 1.0
+    weighted = iwr.Measurements(data.q, data.poses, data.legs, joint_types=data.joint_types,
+                                weights=w)
+    weighted.to_csv(tmp_path / "w.csv")
+    proc = run("calibrate", str(sim / "robot.toml"), str(tmp_path / "w.csv"), "--method", "lm",
+               "--validation-fraction", "0.5", "--seed", str(seed), "--out", str(tmp_path / "o"))
+    assert_fails(proc, 1, r"--validation-fraction 0.5 \(--seed \d+\): every pose with a weight "
+                          r"> 0 fell in the 10 held-out poses")
+
+
+def test_report_md_carries_no_raw_html_from_names(sim, tmp_path):
+    text = (sim / "robot.toml").read_text()
+    name = "<img src=x onerror=alert(1)>"
+    robot = tmp_path / "r<b>.toml"
+    robot.write_text(re.sub(r"(?m)^name = .*$", lambda m: f"name = {json.dumps(name)}", text,
+                            count=1))
+    assert name in iwr.Robot.from_toml(robot).name
+    proc = run("calibrate", str(robot), str(sim / "measurements.csv"), "--method", "lm",
+               "--no-plots", "--out", str(tmp_path / "o"))
+    assert proc.returncode == 0, proc.stderr
+    md = (tmp_path / "o" / "report.md").read_text()
+    # Outside fenced code blocks (verbatim text to a Markdown viewer) no tag is left.
+    outside = re.sub(r"(?ms)^```.*?^```", "", md)
+    assert "<img" not in outside and "<b>" not in outside
+    assert "&lt;img src=x onerror=alert(1)&gt;" in md and "r&lt;b&gt;.toml" in md

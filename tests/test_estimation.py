@@ -211,6 +211,10 @@ def test_pure_translation_of_the_frame_is_named_implausible(base_mask: np.ndarra
     res = est.efficient(ROBOT, moved, NOISE, active=base_mask)
     assert not res.success and not res.fit_ok
     assert res.fit.p_value > 1e-3  # the chi-square test alone would pass
+    # Issue 26: the verdict said "does not fit (p = 0.14)"; it now names what failed.
+    assert res.fit.verdict.startswith("THE MODEL DOES NOT FIT THE DATA: identified errors "
+                                      "beyond their plausible size (the chi-square test alone "
+                                      "passes: chi2 = ")
     # joint1.dd and joint2.da both move along z0 (a null direction): the smallest equivalent
     # vector shares the 2 m between them.
     named = {name: v for name, v, _ in res.fit.implausible}

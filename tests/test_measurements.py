@@ -115,6 +115,22 @@ def test_unreachable_poses(tmp_path, data, robot):
     assert f"line {h + 6}: leg 3 reading 480 mm is outside the stroke [0, 400]" in msg
 
 
+def test_a_platform_beyond_the_hexapods_reach_is_unreachable(tmp_path, data, robot):
+    """Issue 26: x_mm = 99999.9 (within the 1e5 mm limit of any value) was taken, and reported
+    only after the identification, at another line."""
+    poses = data.poses.copy()
+    poses[3, 0] = 99999.9
+    path, _, h = write(tmp_path, iwr.Measurements(data.q, poses, data.legs, joint_types="PPRR"))
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=rf"1 unreachable pose\(s\) for robot 'IWR' \(line {h + 5}; "
+                       rf"nothing dropped\); first: line {h + 5}: the measured platform position "
+                       r"is \d{5,6}(\.\d+)? mm from the hexapod's base, "
+                       r"beyond its reach \(1650 mm"):
+        iwr.Measurements.from_csv(path, robot=robot)
+    # Every simulated pose is well within it (the slack covers any error of the robot).
+    iwr.Measurements.from_csv(write(tmp_path, data)[0], robot=robot)
+
+
 def test_noise_just_outside_the_stroke_is_tolerated(tmp_path, data, robot):
     legs = data.legs.copy()
     legs[0, 0] = -0.01

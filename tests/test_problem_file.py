@@ -172,6 +172,38 @@ def test_pool_works_in_a_forked_child(problem: iwr.Problem) -> None:
     np.testing.assert_array_equal(problem.cost_batch(X, workers=2), expected)  # parent unharmed
 
 
+def test_fork_while_another_thread_is_inside_the_same_problems_batch(problem) -> None:
+    """Issue 26: the child of a fork() taken while another thread held the problem's batch lock
+    hung on that lock (17 of 20 children); the lock is now checked by process id first."""
+    import threading
+
+    X = np.random.default_rng(3).uniform(problem.lower, problem.upper, size=(3000, 58))
+    small = X[:5]
+    expected = problem.cost_batch(small, workers=1)
+    stop, busy = threading.Event(), threading.Event()
+
+    def load() -> None:
+        while not stop.is_set():
+            busy.set()
+            problem.cost_batch(X, workers=2)  # the lock is held almost all the time
+
+    thread = threading.Thread(target=load, daemon=True)
+    thread.start()
+    try:
+        assert busy.wait(60)
+        time.sleep(0.05)
+
+        def child() -> int:
+            return 0 if np.allclose(problem.cost_batch(small, workers=2), expected,
+                                    rtol=1e-12, atol=0) else 3
+
+        codes = [_in_child(child, timeout=30) for _ in range(8)]
+    finally:
+        stop.set()
+        thread.join(60)
+    assert codes == [0] * 8  # -1: a child hung
+
+
 def test_a_thread_the_system_refuses_is_an_error_not_a_hang(problem: iwr.Problem) -> None:
     X = np.zeros((8, 58))
 

@@ -191,3 +191,39 @@ def test_tracker_calibration_page_opens_cleanly(tmp_path: Path, kind: str) -> No
     assert summary["data_kind"] == kind and summary["fit"]["fit_ok"] is True
     assert (out / "report.md").read_text().startswith("# Calibration report: laser-tracker data")
     assert_opens_cleanly(out / "report.html", tmp_path, 2)
+
+
+def test_an_output_folder_is_written_as_a_whole(tmp_path):
+    """Issue 26: a kill or a full disk while the report was written left a folder mixing two
+    runs. write_folder makes the files elsewhere first; a failure leaves the earlier run whole."""
+    from iwr._io import INCOMPLETE_MARKER, write_folder
+
+    out = tmp_path / "out"
+
+    def run(tag: str, names: list[str], fail_after: int | None = None):
+        def write(tmp):
+            paths = []
+            for k, name in enumerate(names):
+                if fail_after is not None and k == fail_after:
+                    raise OSError(28, "No space left on device")
+                (tmp / name).write_text(tag)
+                paths.append(tmp / name)
+            return paths
+        return write_folder(out, write, owned=["a.txt", "b.txt", "c.png"])
+
+    run("first", ["a.txt", "b.txt", "c.png"])
+    (out / "user.txt").write_text("mine")
+    with pytest.raises(OSError, match=r"out: cannot write the output: No space left on device"):
+        run("second", ["a.txt", "b.txt"], fail_after=1)
+    assert {p.name: p.read_text() for p in out.iterdir()} == {
+        "a.txt": "first", "b.txt": "first", "c.png": "first", "user.txt": "mine"}
+    written = run("third", ["a.txt", "b.txt"])  # without its figure: the old one goes
+    assert [p.name for p in written] == ["a.txt", "b.txt"]
+    assert {p.name: p.read_text() for p in out.iterdir()} == {
+        "a.txt": "third", "b.txt": "third", "user.txt": "mine"}
+    assert not (out / INCOMPLETE_MARKER).exists()
+    # A writer killed while making its files left its temporary folder: removed by the next.
+    dead = out / ".iwr-writing-999999999-x1y2"
+    dead.mkdir()
+    run("fourth", ["a.txt"])
+    assert not dead.exists()

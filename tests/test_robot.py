@@ -90,5 +90,32 @@ def test_deeply_nested_or_huge_files_are_refused(tmp_path):
     with pytest.raises(iwr.RobotFileError, match="nested too deeply"):
         iwr.Robot.from_toml(path)
     path.write_text("# padding\n" * 200_000)
-    with pytest.raises(iwr.RobotFileError, match="larger than 1000 kB"):
+    with pytest.raises(iwr.RobotFileError, match="larger than 256 kB"):
         iwr.Robot.from_toml(path)
+
+
+@pytest.mark.parametrize("text, line", [
+    ("[provenance]\nk" + ".k" * 3000 + " = 1\n", 2),  # tomllib: minutes at 50,000 parts
+    ("name = 'x'\n[" + ".".join(["k"] * 3000) + "]\n", 2),
+    ("a = {b" + '."c.d"' * 20 + " = 1}\n", 1),
+    ("# x.y\n[[a . b . 'c' . d . e . f . g . h . i . j . k . l . m . n . o . p . q]]\n", 2),
+])
+def test_long_dotted_keys_are_refused_before_parsing(tmp_path, text, line):
+    path = tmp_path / "r.toml"
+    path.write_text(text)
+    with pytest.raises(iwr.RobotFileError,
+                       match=rf"r.toml, line {line}: a dotted key or table header of more "
+                             "than 16 "):
+        iwr.Robot.from_toml(path)
+
+
+def test_dots_in_values_strings_and_comments_are_not_key_parts(tmp_path):
+    dots = "." * 40
+    iwr.Robot.default().to_toml(tmp_path / "r.toml", provenance={"note": f"a{dots}b", "x": 1.5})
+    text = (tmp_path / "r.toml").read_text()
+    head = f"# {dots}\n" + "name = '''\n" + dots + "\n'''\n"
+    text = head + text.replace("name = ", "# name = ", 1)
+    (tmp_path / "r.toml").write_text(text + f'[tracker]\nnoise.distance = 0.01\n"{dots}" = 1\n')
+    # Past the scan: the only complaint is the unknown key, not the dots.
+    with pytest.raises(iwr.RobotFileError, match=r"r.toml: tracker: unknown key\(s\) \.{40};"):
+        iwr.Robot.from_toml(tmp_path / "r.toml")

@@ -80,6 +80,9 @@ def test_tracker_noise_round_trip(tmp_path):
     ("[noise]\nposition = nan", "noise.position: nan is not a finite double"),
     ("[noise]\norientation = 2e9", "noise.orientation: 2000000000.0 rad is beyond any robot"),
     ("noise = 0.002", "noise: expected a table of standard deviations"),
+    # Issue 26: 1e-200 ended with chi2 = inf (1 / sigma^2 overflows).
+    ("[noise]\nlegs = 1e-200", "noise.legs: 1e-200 mm is below any instrument's noise; a "
+     "standard deviation is 0 (none) or at least 1e-09"),
 ])
 def test_bad_noise_values_are_named(tmp_path, table, message):
     iwr.Robot.default().to_toml(tmp_path / "r.toml")
@@ -100,6 +103,9 @@ def test_bad_noise_values_are_named(tmp_path, table, message):
      "tracker.noise.distance_per_metre: unknown key; known: distance, distance_per_m, "
      "transverse, transverse_per_m, orientation"),
     ("[tracker.noise]\ntransverse = 'x'", "tracker.noise.transverse: expected a number"),
+    # Issue 26: 5e-324 gave "whitening: entry 0 is inf".
+    ("[tracker.noise]\ndistance = 5e-324", "tracker.noise.distance: 5e-324 mm is below any "
+     "instrument's noise"),
     ("[noise]\nlegs = 0.002\nposition = 0.02", "noise: position 0.02 mm, orientation 0.0 rad"),
 ])
 def test_bad_tracker_noise_values_are_named(tmp_path, table, message):
@@ -230,3 +236,13 @@ def test_another_method_on_tracker_data_leaves_the_file_noise_aside(tmp_path):
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "not used by method lm on tracker data" in proc.stdout
     assert iwr.load_result(tmp_path / "cal" / "result.json")["method"] == "lm"
+
+
+def test_tiny_sigmas_are_refused_in_python_too():
+    with pytest.raises(ValueError, match=r"Noise.legs: 1e-200 is below any instrument's noise"):
+        iwr.Noise(legs=1e-200)
+    from iwr.tracker import TrackerNoise
+
+    with pytest.raises(ValueError, match=r"TrackerNoise.orientation: 5e-324 is below"):
+        TrackerNoise(orientation=5e-324)
+    assert iwr.Noise(legs=1e-9).legs == 1e-9 and iwr.Noise(legs=0.0).is_zero

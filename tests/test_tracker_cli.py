@@ -233,3 +233,29 @@ def test_report_of_a_tracker_run_and_tracker_data_without_a_tracker_robot(sim, t
                str(sim / "measurements.csv"), "--out", str(tmp_path / "rep2"))
     assert proc.returncode != 0 and "Traceback" not in proc.stderr
     assert "laser-tracker data" in proc.stderr and "expected 'x_mm'" not in proc.stderr
+
+
+def _first_rows(src: Path, dst: Path, n: int) -> Path:
+    """The comment lines, the header and the first n data rows of a wide tracker file."""
+    lines = src.read_text().splitlines()
+    head = next(i for i, ln in enumerate(lines) if not ln.startswith("#"))
+    dst.write_text("\n".join(lines[:head + 1 + n]) + "\n")
+    return dst
+
+
+@pytest.mark.parametrize("n_poses", [1, 4])
+def test_too_few_tracker_poses_are_not_a_calibration(sim, tmp_path, n_poses):
+    """Issue 26: 1 pose, or 3 to 6, ended with exit 0 and success = true while the verdict said
+    "did not improve": 4 poses x 3 reflectors are 36 equations for the 73 parameters that varied
+    poses identify. success, the verdict and the exit code now agree."""
+    data = _first_rows(sim / "measurements.csv", tmp_path / "few.csv", n_poses)
+    out = tmp_path / "out"
+    proc = run("calibrate", str(sim / "robot.toml"), str(data), "-o", str(out), "--no-plots",
+               "--validation-fraction", "0")
+    assert proc.returncode == 5, proc.stdout + proc.stderr
+    assert "not calibrated" in proc.stderr and "degenerate data" in proc.stderr
+    result = json.loads((out / "result.json").read_text())
+    assert result["success"] is False and result["message"].startswith("not calibrated: ")
+    report = (out / "report.md").read_text()
+    assert f"Not calibrated: degenerate data: the {n_poses} distinct identification poses" in report
+    assert "Calibrated:" not in report

@@ -4,6 +4,7 @@ trips, units checked, every bad row named."""
 from __future__ import annotations
 
 import math
+import os
 
 import numpy as np
 import pytest
@@ -132,3 +133,100 @@ def test_long_table_errors_name_the_file_and_line(robot, data, tmp_path):
     bad.write_text("pose,reflector,x_m,y_m,z_m\n1,A,1,2,3\n")
     with pytest.raises(iwr.MeasurementFileError, match="'x_m', in m; iwr reads mm"):
         read_tracker_data(bad, robot.tracker, readings=rd)
+
+
+def _with_copies(path, copies):
+    """Append to a wide file a copy of data row ``k`` under a new pose id, for each k."""
+    lines = path.read_text().splitlines()
+    first = next(i for i, ln in enumerate(lines) if not ln.startswith("#")) + 1
+    for n, k in enumerate(copies):
+        f = lines[first + k].split(",")
+        lines.append(",".join([f"copy{n}"] + f[1:]))
+    path.write_text("\n".join(lines) + "\n")
+    return first + 1  # the line of data row 0
+
+
+def test_repeated_poses_under_other_ids_are_refused(robot, data, tmp_path):
+    # The same pose measured twice never gives identical readings and points: a copy counts
+    # one pose twice (issue 26: 2 poses copied 30 times were "calibrated").
+    path = tmp_path / "points.csv"
+    write_tracker_wide(path, robot.tracker, data)
+    row0 = _with_copies(path, [0, 3, 0])  # row 3 has reflector B unseen (NaN): still a copy
+    n = len(data)
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=rf"points.csv: 2 repeated pose\(s\): lines {row0} \(pose '1'\), "
+                       rf"{row0 + n} \(pose 'copy0'\), {row0 + n + 2} \(pose 'copy2'\); "
+                       rf"lines {row0 + 3} \(pose '4'\), {row0 + n + 1} \(pose 'copy1'\) have "
+                       "exactly the same"):
+        read_tracker_data(path, robot.tracker)
+    # The long pair: the copy is in the readings and the points under a new id.
+    pts, rd = tmp_path / "long.csv", tmp_path / "readings.csv"
+    write_tracker_long(pts, rd, robot.tracker, data)
+    r_lines = rd.read_text().splitlines()
+    r_first = next(i for i, ln in enumerate(r_lines) if not ln.startswith("#")) + 1
+    rd.write_text("\n".join(r_lines + ["copy," + r_lines[r_first + 1].split(",", 1)[1]]) + "\n")
+    p_lines = pts.read_text().splitlines()
+    p_lines += ["copy," + ln.split(",", 1)[1] for ln in p_lines if ln.startswith("2,")]
+    pts.write_text("\n".join(p_lines) + "\n")
+    with pytest.raises(iwr.MeasurementFileError, match=rf"readings.csv \+ .*long.csv: 1 repeated "
+                       rf"pose\(s\): lines {r_first + 2} \(pose '2'\), {r_first + n + 1} "):
+        read_tracker_data(pts, robot.tracker, readings=rd)
+    # Distinct points at the same readings are two measurements, not a copy.
+    lines = path.read_text().splitlines()[:row0 + n - 1]
+    f = lines[row0 - 1].split(",")
+    f[0], f[-1] = "again", repr(float(f[-1]) + 0.001)
+    path.write_text("\n".join(lines + [",".join(f)]) + "\n")
+    assert len(read_tracker_data(path, robot.tracker)) == n + 1
+
+
+def test_repeated_probe_poses_are_refused(tmp_path):
+    robot = iwr.Robot.default().with_tracker(registration=REGISTRATION, probe=(0, 0, 60, 0, 0, 0))
+    d, _ = iwr.simulate(robot, 5, seed=1)
+    path = tmp_path / "probe.csv"
+    write_tracker_wide(path, robot.tracker, d)
+    _with_copies(path, [4])
+    with pytest.raises(iwr.MeasurementFileError, match=r"probe.csv: 1 repeated pose\(s\)"):
+        read_tracker_data(path, robot.tracker)
+
+
+def test_a_registration_beyond_any_setup_is_refused_by_name():
+    """Issue 26: a registration x of 1e300 gave a bounds error about "parameter 58"."""
+    with pytest.raises(ValueError, match=r"registration: entry 0 is 1e\+300, beyond any tracker "
+                       r"setup \(\|value\| <= 100000"):
+        iwr.Robot.default().with_tracker(registration=(1e300, 0, 0, 0, 0, 0),
+                                         reflectors=REFLECTORS)
+
+
+def test_what_is_no_regular_file_is_refused_without_reading(robot, data, tmp_path):
+    """Issue 26: a named pipe as data, readings or robot blocked iwr calibrate for ever;
+    /dev/zero as tracker data read 1 GB before it was refused."""
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)  # nobody writes it: a read would block
+    with pytest.raises(iwr.MeasurementFileError, match=r"pipe.csv: a named pipe \(FIFO\), not a "
+                       "regular file"):
+        read_tracker_data(fifo, robot.tracker)
+    pts, rd = tmp_path / "points.csv", tmp_path / "readings.csv"
+    write_tracker_long(pts, rd, robot.tracker, data)
+    with pytest.raises(iwr.MeasurementFileError, match=r"pipe.csv: a named pipe"):
+        read_tracker_data(pts, robot.tracker, readings=fifo)
+    with pytest.raises(iwr.RobotFileError, match=r"pipe.csv: a named pipe"):
+        iwr.Robot.from_toml(fifo)
+    with pytest.raises(iwr.MeasurementFileError, match=r"/dev/zero: a device, not a regular"):
+        read_tracker_data("/dev/zero", robot.tracker)
+
+
+def test_a_data_file_beyond_the_memory_available_is_refused_before_reading(
+        robot, tmp_path, monkeypatch):
+    import iwr.measurements as meas
+
+    monkeypatch.setattr(meas, "available_memory", lambda: 1_000_000_000)  # 1 GB free
+    big = tmp_path / "big.csv"
+    with open(big, "wb") as fh:
+        fh.truncate(20_000_000)  # 20 MB of holes: its size, without writing it
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=r"big.csv: 20.0 MB; the 1,000 MB of memory available process data "
+                       r"files up to 10.0 MB \(calibrating takes about 100 times"):
+        read_tracker_data(big, robot.tracker)
+    with pytest.raises(iwr.MeasurementFileError, match=r"big.csv: 20.0 MB; the 1,000 MB"):
+        iwr.Measurements.from_csv(big)
+    assert meas.data_file_limit()[0] == 10_000_000

@@ -1004,6 +1004,10 @@ int main(int argc, char** argv) {
         kProgram = slash ? slash + 1 : argv[0];
         if (!*kProgram) kProgram = "iwr-engine";
     }
+    // At a file-size limit (ulimit -f) a write then fails with EFBIG, which the writers report
+    // naming the file and clean up after, instead of SIGXFSZ killing the engine silently with a
+    // temporary file left behind (as Python does).
+    std::signal(SIGXFSZ, SIG_IGN);
     try {
         const Options o = parse_args(argc, argv);
         if (o.help) {

@@ -12,6 +12,8 @@
 #include <string>
 #include <utility>
 
+#include <unistd.h>
+
 #include "iwr/model.hpp"
 #include "iwr/parallel.hpp"
 
@@ -61,17 +63,33 @@ struct Pooled {
                                         std::to_string(obj_->n_params()) + ")");
         require_finite(X.data(), X.size(), "X");
         VectorXd out(X.rows());
+        std::mutex& mutex = mutex_here();  // with the GIL held: one caller at a time
         {
             py::gil_scoped_release release;
-            std::lock_guard<std::mutex> lock(mutex_);
+            std::lock_guard<std::mutex> lock(mutex);
             obj_->cost_batch(X.data(), X.rows(), out.data(), pool(threads));
         }
         return out;
     }
 
+    /// The mutex of this process. After a fork() the child's copy of the parent's may be locked
+    /// for good (a parent thread was inside cost_batch, and does not exist in the child): checked
+    /// by the process id before it is taken, and the copy left (a few bytes) for a new one.
+    std::mutex& mutex_here() {
+        const long pid = static_cast<long>(::getpid());
+        if (mutex_pid_ != pid) {
+            (void)mutex_.release();
+            mutex_ = std::make_unique<std::mutex>();
+            mutex_pid_ = pid;
+        }
+        return *mutex_;
+    }
+
     std::shared_ptr<T> obj_;
     std::unique_ptr<ThreadPool> pool_;
-    std::mutex mutex_;  // one batch at a time per pool: Python threads may share a Problem
+    // One batch at a time per pool: Python threads may share a Problem. Taken through mutex_here().
+    std::unique_ptr<std::mutex> mutex_ = std::make_unique<std::mutex>();
+    long mutex_pid_ = static_cast<long>(::getpid());
 };
 
 void bind_model(py::module_& m);

@@ -184,14 +184,15 @@ std::string read_file(const std::string& path, const char* what, std::uint64_t m
 
 namespace {
 
-void write_all(int fd, const std::string& data, const std::string& tmp) {
+// `path`: the file the data are for (a full disk's error names it, not its temporary file).
+void write_all(int fd, const std::string& data, const std::string& path) {
     const char* p = data.data();
     std::size_t left = data.size();
     while (left > 0) {
         const ssize_t n = ::write(fd, p, left);
         if (n < 0) {
             if (errno == EINTR) continue;  // a signal arrived (SIGINT, SIGTERM): keep writing
-            throw std::runtime_error(tmp + ": cannot write (" + std::strerror(errno) + ")");
+            throw std::runtime_error(path + ": cannot write (" + std::strerror(errno) + ")");
         }
         p += n;
         left -= static_cast<std::size_t>(n);
@@ -220,7 +221,7 @@ void atomic_write(const std::string& path, const std::string& data) {
         const mode_t mask = ::umask(0);
         ::umask(mask);
         ::fchmod(fd, 0666 & ~mask);
-        write_all(fd, data, tmp);
+        write_all(fd, data, path);
         if (::fsync(fd) != 0) throw std::runtime_error(tmp + ": fsync failed (" + std::strerror(errno) + ")");
     } catch (...) {
         ::close(fd);

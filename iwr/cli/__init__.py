@@ -3,9 +3,9 @@
 ``add_parser(subparsers)``; every argument parser of the package is here).
 
 Every command has ``--help``. Exit codes: 0 success, 1 bad data or a failed computation, 2 bad
-usage, 3 the model does not fit the data and 4 not converged (``iwr calibrate``), 130
-interrupted. Errors are one line, ``iwr: error: ...``, on standard error; ``--debug``
-adds the Python traceback.
+usage, 3 the model does not fit the data, 4 not converged and 5 not calibrated (``iwr
+calibrate``), 130 interrupted. Errors are one line, ``iwr: error: ...``, on standard error;
+``--debug`` adds the Python traceback.
 """
 
 from __future__ import annotations
@@ -42,8 +42,8 @@ def build_parser() -> argparse.ArgumentParser:
         "hexapod) and similar hybrid robots. Start with 'iwr calibrate', which runs the whole job "
         "on a built-in simulated example.",
         epilog="Units: mm and rad everywhere. File formats: docs/data.md. Exit codes: 0 success, "
-        "1 bad data or failed computation, 2 bad usage, 3 the model does not fit the data and "
-        "4 not converged (iwr calibrate), 130 interrupted.",
+        "1 bad data or failed computation, 2 bad usage, 3 the model does not fit the data, "
+        "4 not converged and 5 not calibrated (iwr calibrate), 130 interrupted.",
     )
     parser.add_argument("--version", action="version", version=f"iwr {iwr_version()}")
     parser.add_argument("--debug", action="store_true",

@@ -7,6 +7,8 @@ import argparse
 import dataclasses
 import os
 import sys
+from collections.abc import Iterable
+from pathlib import Path
 from typing import Any
 
 __all__ = ["UsageError", "CommandError", "Parser", "EXIT_OK", "EXIT_ERROR", "EXIT_USAGE",
@@ -158,6 +160,51 @@ def read_data(path: str, robot: Any, readings: str | None = None, *, targets: An
         raise UsageError(f"{one_line(exc)} (docs/tracker.md)", prog) from None
 
 
+def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
+    """Whether two paths name one existing file, by any spelling or link."""
+    try:
+        return os.path.samefile(a, b)
+    except OSError:
+        return False
+
+
+def overwritten_input(outputs: Iterable[str | os.PathLike[str]],
+                      inputs: Iterable[str | os.PathLike[str] | None]) -> tuple[Path, str] | None:
+    """The first output that is one of the inputs (by any spelling or link), and that input."""
+    ins = [str(i) for i in inputs if i]
+    for out in outputs:
+        for inp in ins:
+            if _same_file(out, inp):
+                return Path(out), inp
+    return None
+
+
+def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[Any] = (),
+                 files: Iterable[str] | None = None, prog: str = "iwr calibrate") -> None:
+    """Refuse, before any work, an output that cannot be written or would overwrite an input:
+    ``path`` is a file, or with ``files`` (the names written in it) a folder."""
+    path = Path(path)
+    if files is None:
+        clash = overwritten_input([path], inputs)
+        if path.is_dir():
+            raise UsageError(f"{option} {path}: is a folder; expected a file name", prog)
+    else:
+        clash = overwritten_input([path / name for name in files], inputs)
+        if path.exists() and not path.is_dir():
+            raise UsageError(f"{option} {path}: exists and is not a folder", prog)
+    if clash is not None:
+        raise UsageError(f"{option} {path}: would overwrite {clash[1]}, an input of this run "
+                         f"({clash[0]}); give another {option}", prog)
+    # The nearest folder that exists must be writable: the files or folders are made there.
+    folder = path if files is not None else path.parent
+    folder = Path(os.path.abspath(folder))
+    while not folder.exists() and folder != folder.parent:
+        folder = folder.parent
+    if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
+        raise UsageError(f"{option} {path}: cannot write there: {folder} is not a writable "
+                         "folder", prog)
+
+
 def one_line(exc: BaseException) -> str:
     msg = str(exc) if str(exc) else type(exc).__name__
     if isinstance(exc, KeyError):  # str(KeyError) is the quoted key
@@ -188,6 +235,13 @@ def validation_split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
     from ..kinds import split
 
     try:
-        return split(data, fraction, seed)
+        ident, val = split(data, fraction, seed)
     except ValueError as exc:
         raise CommandError(f"--validation-{one_line(exc)}") from None
+    weights = getattr(ident, "weights", None)
+    if weights is not None and not (weights > 0).any():
+        raise CommandError(
+            f"--validation-fraction {fraction} (--seed {seed}): every pose with a weight > 0 fell "
+            f"in the {len(val)} held-out poses, so no identification reading counts; use another "
+            "--seed, a smaller --validation-fraction, or --validation VALID.csv")
+    return ident, val

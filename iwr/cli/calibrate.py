@@ -23,6 +23,7 @@ from ._base import (
     QUICK_ENV,
     UsageError,
     add_common,
+    check_output,
     default_method,
     fraction,
     load_data,
@@ -30,6 +31,7 @@ from ._base import (
     noise_spec,
     nonneg_int,
     one_line,
+    overwritten_input,
     positive_int,
     progress_enabled,
     run_settings,
@@ -44,11 +46,15 @@ EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 
 EXAMPLE_POSES_QUICK = 50
 EXAMPLE_GENERATIONS_QUICK = 30  # of DE in the quick example (then polished by LM)
 EXAMPLE_DIR = "iwr-example"
+DEFAULT_OUT = "iwr-calibration"
 #: Exit code of a calibration whose model does not fit the data (chi-square test failed, or
 #: identified errors far beyond their plausible size): the files are written, but not as success.
 EXIT_NO_FIT = 3
 # The method stopped before converging (a budget, a limit) or failed; the files say so.
 EXIT_NOT_CONVERGED = 4
+# The method converged, but the data cannot identify the errors (too few distinct poses, a
+# rank-deficient information matrix) or the calibrated robot is no better than the nominal one.
+EXIT_NOT_CALIBRATED = 5
 
 # CLI option -> keyword a method takes for it: first the known ones per method (for options taken
 # through **options), then the first of the names below found in the method's signature.
@@ -78,7 +84,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         f"realistic noise), else 'lm' (eq. (10) by Levenberg-Marquardt on the exact Jacobian from "
         f"the nominal robot); 'de' is the paper's differential evolution, polished by "
         f"Levenberg-Marquardt. Set ${METHOD_ENV} to change the default. Exit code "
-        f"{EXIT_NO_FIT}: the model does not fit the data (the files are written). "
+        f"{EXIT_NO_FIT}: the model does not fit the data; {EXIT_NOT_CALIBRATED}: the data cannot "
+        f"identify the errors, or the calibration did not improve the accuracy (the files are "
+        f"written in both cases). "
         f"${QUICK_ENV}=1 makes the built-in example smaller (for tests).",
     )
     p.add_argument("robot", nargs="?", metavar="ROBOT.toml", help="the nominal robot")
@@ -217,6 +225,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         return _run_example(args, method, kwargs)
     if args.poses is not None:
         raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
+    args.out = str(_out_folder(args))
     robot = load_robot(args.robot)
     if robot.tracker is not None:  # laser-tracker data (docs/tracker.md)
         if "noise" in kwargs:  # --noise means what it means to `iwr simulate` there
@@ -225,7 +234,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     refuse_tracker_data(args)  # tracker data, or --readings, with a robot that has no tracker
     data = load_data(args.data, robot)
     validation = load_data(args.validation, robot) if args.validation else None
-    out = Path(args.out or "iwr-calibration")
+    out = Path(args.out)
     try:
         cal = _calibrate(robot, data, validation, args, method, kwargs, out,
                          robot_name=str(args.robot), data_name=str(args.data))
@@ -234,12 +243,45 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return _exit_code(cal)
 
 
+def _out_folder(args: argparse.Namespace) -> Path:
+    """The output folder, checked before any work: writable, and writing no file over an input
+    (robot, data, readings, validation), by any spelling or link. Without --out, when the
+    default folder holds an input (the re-calibration flow: ``iwr calibrate
+    iwr-calibration/calibrated.toml DATA.csv``), the first of iwr-calibration-2, -3, ... that
+    does not exist."""
+    from ..reporting.calibration import OUTPUT_FILES
+
+    inputs = [args.robot, args.data, args.readings, args.validation]
+    if args.out is not None:
+        check_output(args.out, "--out", inputs=inputs, files=OUTPUT_FILES)
+        return Path(args.out)
+    out = Path(DEFAULT_OUT)
+    clash = overwritten_input([out / name for name in OUTPUT_FILES], inputs)
+    if clash is not None:
+        n = 2
+        while Path(f"{DEFAULT_OUT}-{n}").exists():
+            n += 1
+        out = Path(f"{DEFAULT_OUT}-{n}")
+        print(f"output folder: {out}/ ({DEFAULT_OUT}/{clash[0].name} is {clash[1]}, an input of "
+              "this run, kept; --out DIR chooses the folder)")
+    check_output(out, "--out", inputs=inputs, files=OUTPUT_FILES)
+    return out
+
+
 def _exit_code(cal: Any) -> int:
+    from ..reporting.calibration import NOT_CALIBRATED
+
     fit = cal.result.get("fit")
     if fit is not None and not fit.fit_ok:
         print(f"iwr calibrate: the model does not fit the data (exit {EXIT_NO_FIT}); the files "
               "are written, see the report", file=sys.stderr)
         return EXIT_NO_FIT
+    if cal.result.get("status") == NOT_CALIBRATED:
+        reason = str(cal.result.message).removeprefix(f"{NOT_CALIBRATED}: ")
+        print(f"iwr calibrate: not calibrated (exit {EXIT_NOT_CALIBRATED}): "
+              f"{' '.join(reason.split())}; the files are written, see the report",
+              file=sys.stderr)
+        return EXIT_NOT_CALIBRATED
     if not cal.result.success:
         print(f"iwr calibrate: not converged (status {cal.result.get('status', 'stopped')}, exit "
               f"{EXIT_NOT_CONVERGED}); the files hold the best point so far", file=sys.stderr)
@@ -248,6 +290,7 @@ def _exit_code(cal: Any) -> int:
 
 
 def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) -> int:
+    from ..reporting.calibration import OUTPUT_FILES
     from ..robot import Robot
     from ..simulate import Noise, simulate
 
@@ -258,6 +301,7 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     if quick and method == "de" and args.generations is None and args.budget is None:
         kwargs = {**kwargs, "generations": EXAMPLE_GENERATIONS_QUICK}
     out = Path(args.out or EXAMPLE_DIR)
+    check_output(out, "--out", files=OUTPUT_FILES)
     out.mkdir(parents=True, exist_ok=True)
     robot = Robot.default()
     noise = Noise.realistic()

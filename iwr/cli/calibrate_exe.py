@@ -164,6 +164,30 @@ def _same(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
         return os.path.abspath(a) == os.path.abspath(b)
 
 
+def _lock_checkpoint(checkpoint: str) -> int:
+    """Take the engine's lock of ``checkpoint`` (an exclusive flock on ``.NAME.lock`` beside it,
+    as iwr-engine's CheckpointLock); returns its descriptor. Refuses while another run holds it."""
+    import fcntl
+
+    folder, base = os.path.split(checkpoint)
+    path = os.path.join(folder, f".{base}.lock")
+    try:
+        fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
+    except OSError as exc:
+        raise ValueError(f"{checkpoint}: cannot create its lock file {path} "
+                         f"({exc.strerror or exc})") from None
+    try:
+        fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+    except OSError as exc:
+        os.close(fd)
+        if isinstance(exc, BlockingIOError):
+            raise ValueError(f"{checkpoint}: in use by another iwr-engine process (locked: "
+                             f"{path}); wait for it to end or stop it (nothing was written)"
+                             ) from None
+        raise ValueError(f"{checkpoint}: cannot lock {path} ({exc.strerror or exc})") from None
+    return fd
+
+
 def _export(checkpoint: str, problem: str | None, output: str) -> None:
     from ..problem_file import engine_result
 
@@ -317,8 +341,11 @@ def _main(argv: list[str]) -> int:
             raise _Usage(f"--export: unexpected argument '{positional[0]}'")
         if "--output" not in own:
             raise _Usage("--export: give the JSON result's name with --output")
-        if _same(own["--output"], own["--export"]):
-            raise _Usage(f"--output: {own['--output']} is the checkpoint exported")
+        for opt, what in (("--export", "the checkpoint exported"),
+                          ("--problem", "the problem file read")):
+            if opt in own and _same(own["--output"], own[opt]):
+                raise _Usage(f"--output: {own['--output']} is {what}; an output may not "
+                             "overwrite an input")
         _export(own["--export"], own.get("--problem"), own["--output"])
         return EXIT_OK
 
@@ -386,11 +413,18 @@ def _main(argv: list[str]) -> int:
     engine = engine_path()
     if problem_in is None:
         assert robot_path is not None and data_path is not None
-        problem, x0, sources = _read_problem_files(robot_path, data_path, own.get("--readings"),
-                                                   own.get("--bounds", "default"))
-        if resume is not None:
-            _keep_the_run_problem(problem, problem_path, robot_path, data_path, x0)
-        problem.save(problem_path, sources=sources, x0=x0)
+        # The engine's lock first: a run going on with this checkpoint keeps its problem file
+        # (its record) untouched; released just before the engine takes it.
+        lock = _lock_checkpoint(checkpoint)
+        try:
+            problem, x0, sources = _read_problem_files(robot_path, data_path,
+                                                       own.get("--readings"),
+                                                       own.get("--bounds", "default"))
+            if resume is not None:
+                _keep_the_run_problem(problem, problem_path, robot_path, data_path, x0)
+            problem.save(problem_path, sources=sources, x0=x0)
+        finally:
+            os.close(lock)
     elif "--readings" in own:
         raise _Usage("--readings: only with ROBOT.toml DATA.csv")
 

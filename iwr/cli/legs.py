@@ -92,7 +92,9 @@ def _joint_columns(robot: Any) -> list[str]:
 def cmd_legs(args: argparse.Namespace) -> int:
     from .._io import atomic_write_text
     from ..problem import predict_legs
+    from ._base import check_output
 
+    check_output(args.out, "-o", inputs=[args.robot, args.targets], prog="iwr legs")
     robot = load_robot(args.robot)
     q_cols, q, poses = read_targets(args.targets, robot)
     # ROBOT.toml is the calibrated robot: its errors are part of its geometry.

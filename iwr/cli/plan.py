@@ -7,7 +7,15 @@ from typing import Any
 
 import numpy as np
 
-from ._base import EXIT_OK, CommandError, add_common, load_robot, nonneg_int, positive_int
+from ._base import (
+    EXIT_OK,
+    CommandError,
+    add_common,
+    check_output,
+    load_robot,
+    nonneg_int,
+    positive_int,
+)
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -42,6 +50,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from ..planning import plan_poses
     from ..simulate import sample_poses
 
+    check_output(args.out, "--out", inputs=[args.robot, args.candidates], prog="iwr plan")
     robot = load_robot(args.robot)
     if args.candidates:
         from ..tracker.files import is_tracker_file

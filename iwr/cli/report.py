@@ -15,6 +15,7 @@ from ._base import (
     CommandError,
     UsageError,
     add_common,
+    check_output,
     load_data,
     load_robot,
     one_line,
@@ -93,9 +94,11 @@ def cmd_report(args: argparse.Namespace) -> int:
     from ..accuracy import accuracy
     from ..identifiability import identifiability
     from ..methods import load_result
-    from ..reporting.calibration import Calibration
+    from ..reporting.calibration import OUTPUT_FILES, Calibration
     from ..reporting.html import provenance
 
+    check_output(args.out, "--out", files=OUTPUT_FILES, prog="iwr report", inputs=[
+        args.run, args.robot, args.data, args.validation, args.readings])
     result = load_result(args.run)
     robot = load_robot(args.robot)
     if robot.tracker is not None:

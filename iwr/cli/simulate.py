@@ -10,7 +10,15 @@ from typing import Any
 
 import numpy as np
 
-from ._base import EXIT_OK, add_common, load_robot, noise_spec, nonneg_int, positive_int
+from ._base import (
+    EXIT_OK,
+    add_common,
+    check_output,
+    load_robot,
+    noise_spec,
+    nonneg_int,
+    positive_int,
+)
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -67,6 +75,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from ..robot import Robot
     from ..simulate import simulate
 
+    stem = Path(args.data_file).with_suffix("")
+    check_output(args.out, "--out", inputs=[args.robot], prog="iwr simulate", files=[
+        args.robot_file, args.data_file, args.truth_file, f"{stem}_long.csv",
+        f"{stem}_readings.csv"])
     robot = load_robot(args.robot) if args.robot else Robot.default()
     from .robot_noise import simulation_noise
 

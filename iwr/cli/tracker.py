@@ -221,7 +221,7 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
         settings=settings, provenance=provenance(inputs), guess=guess,
         readings_name=str(args.readings or ""), predicted=predicted)
     print(cal.summary())
-    out = Path(args.out or "iwr-calibration")
+    out = Path(args.out)  # checked before the work (calibrate._out_folder)
     written = cal.write(out, plots=not args.no_plots)
     print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
     if result.interrupted:

@@ -26,6 +26,8 @@ STATUSES = {
     "callback": "the callback asked to stop",
     "interrupted": "KeyboardInterrupt (Ctrl-C)",
     "failed": "the method failed, or its result is not finite",
+    "not calibrated": "the method converged, but the data cannot identify the errors or the "
+                      "result is worse than the nominal robot (iwr.reporting.calibration)",
 }
 
 
@@ -178,6 +180,8 @@ def status_from_message(success: bool, message: str) -> str:
     if success:
         return "converged"
     text = message.lower()
+    if text.startswith("not calibrated"):  # iwr.reporting.calibration.NOT_CALIBRATED
+        return "not calibrated"
     if "not finite" in text:
         return "failed"
     if "interrupt" in text or "sigint" in text or "sigterm" in text:

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from .._io import atomic_write_bytes, atomic_write_text, jsonable
+from .._io import atomic_write_bytes, atomic_write_text, jsonable, write_folder
 from ..accuracy import Accuracy
 from ..measurements import Measurements
 from ..methods import IdentificationResult
@@ -20,7 +20,31 @@ from ..robot import Robot
 from .figures import new_figure, png_bytes
 from .html import Page, write_page
 
-__all__ = ["Calibration", "TrackerCalibration", "leg_residual_stats"]
+__all__ = ["Calibration", "TrackerCalibration", "leg_residual_stats", "NOT_CALIBRATED"]
+
+#: The status given to a result whose method converged but which is no calibration: data that
+#: cannot identify the robot's errors (too few distinct poses, a rank-deficient information
+#: matrix), or a calibrated robot no better than the nominal one. ``success`` is then false, the
+#: verdict says why and ``iwr calibrate`` exits with 5.
+NOT_CALIBRATED = "not calibrated"
+#: A calibrated robot whose error is more than this factor above the nominal one's is worse: not
+#: calibrated. Within it (a robot already calibrated, calibrated again) the verdict is "unchanged".
+WORSE = 1.05
+#: Every file :meth:`Calibration.write` may write into its folder (leg or tracker data).
+OUTPUT_FILES = ("calibrated.toml", "result.json", "accuracy.json", "summary.json",
+                "residuals.png", "accuracy.png", "report.md", "report.html")
+
+
+def _distinct_poses(data: Any) -> int:
+    """The number of distinct poses (rows of readings and measurements) in leg or tracker data."""
+    parts = [np.asarray(data.q, dtype=float).reshape(len(data), -1),
+             np.asarray(data.legs, dtype=float)]
+    for name in ("poses", "points", "probe"):
+        value = getattr(data, name, None)
+        if value is not None:
+            parts.append(np.asarray(value, dtype=float).reshape(len(data), -1))
+    key = np.hstack(parts)
+    return len(np.unique(np.where(np.isnan(key), np.inf, key), axis=0))
 
 
 def leg_residual_stats(robot: Robot, errors: Any, data: Measurements) -> dict[str, np.ndarray]:
@@ -88,6 +112,43 @@ class Calibration:
     settings: dict[str, Any] = field(default_factory=dict)
     provenance: dict[str, Any] | None = None
     predicted: Any = None
+
+    def __post_init__(self) -> None:
+        # success, the verdict and the exit code agree: a converged method is not yet a
+        # calibration (issue 26: 2 poses copied 30 times, or 3 tracker poses, were "calibrated").
+        r = self.result
+        if not r.success or r.get("status") == "interrupted" or self._fit_failed():
+            return
+        reason = self._degenerate()
+        if reason is None:
+            before, after, change, what = self._change()
+            if not (math.isfinite(after) and math.isfinite(before)) or after > WORSE * before:
+                reason = f"the calibration did not improve {what}: {change}"
+        if reason is not None:
+            r["success"] = False
+            r["status"] = NOT_CALIBRATED
+            # The prefix keeps the status in a result file (methods.result.status_from_message).
+            r["message"] = f"{NOT_CALIBRATED}: {reason}"
+
+    def _degenerate(self) -> str | None:
+        """Why the identification data cannot identify the robot's errors, else None: their
+        information matrix has a lower rank than varied poses give this robot (too few distinct
+        poses, copies, poses that do not move some joint)."""
+        from ..identifiability import identifiable_count
+
+        report = self.identifiability
+        if report is None:
+            return None
+        need = identifiable_count(self.robot)
+        if report.rank >= need:
+            return None
+        distinct = _distinct_poses(self.identification)
+        n = len(self.identification)
+        copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
+        return (f"degenerate data: the {distinct} distinct identification poses{copies} "
+                f"identify {report.rank} of the {need} parameters that varied poses identify "
+                f"for this robot; the other {need - report.rank} would be left at nominal: "
+                "measure more, and more varied, poses")
 
     # -- numbers --------------------------------------------------------------------------------
     def costs(self) -> dict[str, float]:
@@ -173,6 +234,8 @@ class Calibration:
         r = self.result
         if r.success:
             return "converged"
+        if r.get("status") == NOT_CALIBRATED:
+            return NOT_CALIBRATED
         fit = r.get("fit")
         if fit is not None and not fit.fit_ok:
             return "the model does not fit the data"
@@ -405,10 +468,12 @@ class Calibration:
     # -- files ----------------------------------------------------------------------------------
     def write(self, out: str | Path, *, plots: bool = True) -> list[Path]:
         """Write the calibrated robot (TOML), the result (JSON), ``summary.json``, the report
-        (``report.html``, self-contained, and ``report.md``) and its figures (PNG) into ``out``;
-        returns the paths written."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
+        (``report.html``, self-contained, and ``report.md``) and its figures (PNG) into ``out``,
+        as a whole (:func:`iwr._io.write_folder`: the files of an earlier run there are all
+        replaced or removed); returns the paths written."""
+        return write_folder(out, lambda tmp: self._write_files(tmp, plots), OUTPUT_FILES)
+
+    def _write_files(self, out: Path, plots: bool) -> list[Path]:
         written = []
         calibrated = out / "calibrated.toml"
         self.robot.with_errors(self.result.x).to_toml(calibrated)
@@ -430,20 +495,24 @@ class Calibration:
             for name, png in figures.items():
                 atomic_write_bytes(out / name, png)
                 written.append(out / name)
-        atomic_write_text(out / "report.md", self.markdown(list(figures)))
+        atomic_write_text(out / "report.md", _no_raw_html(self.markdown(list(figures))))
         written.append(out / "report.md")
         written.append(write_page(self.html(figures), out / "report.html"))
         return written
 
-    def verdict(self) -> tuple[str, str]:
-        """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``)."""
+    def _change(self) -> tuple[float, float, str, str]:
+        """The error before and after calibration, the change in words, and what it measures."""
         before = self.accuracy.nominal.summary()["position_mm"]["rms"]
         after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
         where = (f"{self.accuracy.n_poses} validation poses" if self.held_out else
                  f"the {self.accuracy.n_poses} identification poses (nothing held out: "
                  "optimistic)")
         change = f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on {where}"
-        return self._graded(before, after, change, "the accuracy")
+        return before, after, change, "the accuracy"
+
+    def verdict(self) -> tuple[str, str]:
+        """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``)."""
+        return self._graded(*self._change())
 
     def _graded(self, before: float, after: float, change: str, what: str) -> tuple[str, str]:
         """The verdict from the result's status and fit and the error ``before`` and ``after``
@@ -457,15 +526,23 @@ class Calibration:
             return ("The model does not fit the data: " + fit.verdict.removeprefix(
                 "THE MODEL DOES NOT FIT THE DATA: ") + ". Likely causes: " + " ".join(
                     c.rstrip(".") + "." for c in fit.causes) + f" ({change}.)", "bad")
+        if r.get("status") == NOT_CALIBRATED:
+            message = str(r.message).strip().rstrip(".").removeprefix(f"{NOT_CALIBRATED}: ")
+            if message.startswith("the calibration did not improve"):
+                return f"The calibration did not improve {what}: {change}.", "bad"
+            return f"Not calibrated: {message} ({change}).", "bad"
         if not r.success:
             return f"Not converged ({str(r.message).strip().rstrip('.')}); {change}.", "bad"
-        if not (math.isfinite(after) and math.isfinite(before)) or after >= before:
+        if not (math.isfinite(after) and math.isfinite(before)) or after > WORSE * before:
             return f"The calibration did not improve {what}: {change}.", "bad"
         ratio = before / after if after > 0 else math.inf
         if ratio >= 5:
             return f"Calibrated: {change}: {ratio:.3g} times smaller.", "good"
-        return (f"Improved, but only {ratio:.3g} times: {change}. Check the data and the "
-                "identifiability below.", "fair")
+        if ratio >= WORSE:
+            return (f"Improved, but only {ratio:.3g} times: {change}. Check the data and the "
+                    "identifiability below.", "fair")
+        return (f"Unchanged within {WORSE - 1:.0%}: {change}: the robot given is already as "
+                "accurate as these data tell (a robot calibrated before?).", "fair")
 
     def html(self, figures: dict[str, bytes] | None = None) -> Page:
         """The report as one self-contained HTML page (figures embedded)."""
@@ -705,6 +782,21 @@ class Calibration:
                      f"{'validation' if self.held_out else 'identification'} poses")
         fig.tight_layout()
         return fig
+
+
+def _no_raw_html(markdown: str) -> str:
+    """``markdown`` with ``&``, ``<`` and ``>`` written as entities outside fenced code blocks:
+    names and messages from the user's files (robot name, file names, reflector names) never
+    become raw HTML in a Markdown viewer. The fences are found as a viewer finds them, so a
+    name that closes one is escaped too. (Within a code span an entity shows as written.)"""
+    out, fenced = [], False
+    for line in markdown.split("\n"):
+        if line.lstrip(" ").startswith("```") and len(line) - len(line.lstrip(" ")) <= 3:
+            fenced = not fenced
+        elif not fenced:
+            line = line.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+        out.append(line)
+    return "\n".join(out)
 
 
 def _src(name: str) -> str:
@@ -996,10 +1088,10 @@ class TrackerCalibration(Calibration):
                 f"(nominal robot with the registration guess) and {after:.4g} mm after, on "
                 f"{where}")
 
-    def verdict(self) -> tuple[str, str]:
+    def _change(self) -> tuple[float, float, str, str]:
         before = _nanstats(self.accuracy.nominal.position)["rms"]
         after = _nanstats(self.accuracy.calibrated.position)["rms"]
-        return self._graded(before, after, self.change_text(), "the point residuals")
+        return before, after, self.change_text(), "the point residuals"
 
     def summary(self) -> str:
         r = self.result
@@ -1254,12 +1346,10 @@ class TrackerCalibration(Calibration):
         return fig
 
     # -- files ----------------------------------------------------------------------------------
-    def write(self, out: str | Path, *, plots: bool = True) -> list[Path]:
-        """Write ``calibrated.toml`` (the calibrated robot with its calibrated ``[tracker]``
-        table), ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the report
+    def _write_files(self, out: Path, plots: bool) -> list[Path]:
+        """``calibrated.toml`` (the calibrated robot with its calibrated ``[tracker]`` table),
+        ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the report
         (``report.html``, ``report.md``) into ``out``; returns the paths written."""
-        out = Path(out)
-        out.mkdir(parents=True, exist_ok=True)
         x = np.asarray(self.result.x, dtype=float)
         calibrated = self.robot.with_errors(x[:self.n_robot]).with_tracker(
             setup=self.setup.with_parameters(x[self.n_robot:]))

@@ -254,6 +254,8 @@ def _build(setup: TrackerSetup, types: str, q: list[Any], legs: list[Any], meas:
            lines: list[int], source: str, ids: list[str]) -> TrackerMeasurements:
     n = len(legs)
     q_arr = np.array(q, dtype=float).reshape(n, len(types))
+    _refuse_repeats(np.hstack([q_arr, np.array(legs, dtype=float).reshape(n, 6),
+                               np.array(meas, dtype=float).reshape(n, -1)]), lines, ids, source)
     try:
         if setup.kind == "points":
             out = TrackerMeasurements(q_arr, legs, points=np.array(meas).reshape(n, -1, 3),
@@ -265,6 +267,27 @@ def _build(setup: TrackerSetup, types: str, q: list[Any], legs: list[Any], meas:
         raise MeasurementFileError(f"{source}: {exc}") from None
     out.pose_ids = list(ids)  # type: ignore[attr-defined]
     return out
+
+
+def _refuse_repeats(rows: np.ndarray, lines: list[int], ids: list[str], source: str) -> None:
+    """Refuse poses whose readings and measurements repeat another's exactly under another id:
+    two real measurements never do, and a copy would count one pose twice (as the leg data's
+    reader refuses repeated rows, docs/data.md)."""
+    # A reflector not seen (NaN) is the same in both copies: compare it as a value none can have.
+    key = np.where(np.isnan(rows), np.inf, rows)
+    _, inverse, counts = np.unique(key, axis=0, return_inverse=True, return_counts=True)
+    if not np.any(counts > 1):
+        return
+    groups = [np.flatnonzero(inverse.ravel() == g) for g in np.flatnonzero(counts > 1)]
+    groups.sort(key=lambda rows: rows[0])
+    desc = "; ".join(
+        "lines " + ", ".join(f"{lines[k]} (pose {ids[k]!r})" for k in g[:5])
+        + (f" and {len(g) - 5} more" if len(g) > 5 else "") for g in groups[:5])
+    more = f" (and {len(groups) - 5} more groups)" if len(groups) > 5 else ""
+    raise MeasurementFileError(
+        f"{source}: {len(groups)} repeated pose(s): {desc}{more} have exactly the same joint and "
+        "leg readings and measurements under other pose ids; remove the copies (or average "
+        "repeated measurements)")
 
 
 def _read_long(path: Path, header: list[str], hline: int, rows: list[tuple[int, list[str]]],

@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..measurements import MAX_LENGTH_MM
 from ..transforms import euler_zyx, pose_from_matrix, pose_matrix
 
 __all__ = ["TrackerSetup"]
@@ -64,6 +65,10 @@ def _numbers(value: Any, n: int, name: str, what: str) -> np.ndarray:
     if not np.all(np.isfinite(arr)):
         raise ValueError(f"{name}: entry {int(np.flatnonzero(~np.isfinite(arr))[0])} is "
                          "not finite")
+    big = np.flatnonzero(np.abs(arr) > MAX_LENGTH_MM)
+    if big.size:
+        raise ValueError(f"{name}: entry {int(big[0])} is {arr[big[0]]:g}, beyond any tracker "
+                         f"setup (|value| <= {MAX_LENGTH_MM:g}; {what})")
     return arr
 
 

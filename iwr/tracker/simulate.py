@@ -9,7 +9,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..robot import Robot
+from ..robot import MIN_SIGMA, Robot
 from ..simulate import Noise, sample_poses
 from ..transforms import pose_from_matrix, pose_matrix
 from .data import TrackerMeasurements
@@ -50,6 +50,9 @@ class TrackerNoise:
             if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
                                            and v >= 0):
                 raise ValueError(f"TrackerNoise.{name}: {v!r}; expected a finite number >= 0")
+            if 0 < v < MIN_SIGMA:
+                raise ValueError(f"TrackerNoise.{name}: {v!r} is below any instrument's noise; "
+                                 f"expected 0 (none) or at least {MIN_SIGMA:g}")
 
     @classmethod
     def leica(cls) -> TrackerNoise:
