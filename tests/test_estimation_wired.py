@@ -202,7 +202,8 @@ def test_the_example_knows_its_noise_and_uses_the_estimator(tmp_path) -> None:
 def test_study_runs_the_estimator_beside_eq10(tmp_path) -> None:
     out = tmp_path / "st"
     proc = run("study", "--methods", "lm,efficient", "--poses", "40", "--noise", "0.02",
-               "--draws", "2", "--seeds", "1", "--out", str(out), "--no-progress")
+               "--draws", "2", "--seeds", "1", "--out", str(out), "--no-progress",
+               "--scheduler", "synchronous")  # the estimator beside eq. (10), not Dask (test_study)
     assert proc.returncode == 0, proc.stderr
     summary = (out / "summary.md").read_text()
     assert "| efficient | 0.02 |" in summary and "| lm | 0.02 |" in summary
