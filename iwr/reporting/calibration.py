@@ -411,12 +411,36 @@ class Calibration:
         out.mkdir(parents=True, exist_ok=True)
         written = []
         calibrated = out / "calibrated.toml"
-        self.robot.with_errors(self.result.x).to_toml(calibrated)
+        self.robot.with_errors(self.result.x).to_toml(calibrated,
+                                                      provenance=self.file_provenance())
         written.append(calibrated)
         result = out / "result.json"
         self.result.save(result)
         written.append(result)
         return written + self._write_report(out, plots)
+
+    def file_provenance(self, **extra: Any) -> dict[str, Any]:
+        """The ``[provenance]`` table of ``calibrated.toml``: what the file is (``status``,
+        :data:`iwr.compensation.CALIBRATION_STATUSES`; ``iwr legs`` refuses any but
+        ``success``), how it was made, and from what."""
+        from ..compensation import calibration_status
+
+        r = self.result
+        fit = r.get("fit")
+        prov: dict[str, Any] = {
+            "status": calibration_status(r),
+            "status_detail": " ".join(str(r.message).split()) or str(r.get("status", "")),
+            "fit_test": ("not run" if fit is None else "passed" if fit.fit_ok else "failed"),
+            "method": str(r.get("method", "")),
+            "robot": self.robot_name,
+            "data": self.data_name,
+            "cost_mm2": self.costs()["calibrated"],
+        }
+        if self.provenance is not None:
+            prov["iwr_version"] = str(self.provenance.get("iwr_version", ""))
+            prov["date"] = str(self.provenance.get("date", ""))
+        prov.update(extra)
+        return {k: v for k, v in prov.items() if v != ""}
 
     def _write_report(self, out: Path, plots: bool) -> list[Path]:
         """``summary.json``, the figures (PNG), ``report.md`` and ``report.html`` into ``out``
@@ -1260,13 +1284,15 @@ class TrackerCalibration(Calibration):
         (``report.html``, ``report.md``) into ``out``; returns the paths written."""
         out = Path(out)
         out.mkdir(parents=True, exist_ok=True)
-        x = np.asarray(self.result.x, dtype=float)
+        from ..tracker.analysis import fix_platform_frame
+
+        # The same model with {5} moved to the frame the measured points fix (the data do not
+        # fix {5}): a pose of {5} in {T} then means what a user measures (iwr legs).
+        x, frame = fix_platform_frame(self.robot, self.setup, self.result.x)
         calibrated = self.robot.with_errors(x[:self.n_robot]).with_tracker(
             setup=self.setup.with_parameters(x[self.n_robot:]))
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
-        calibrated.to_toml(written[0], provenance={
-            "method": str(self.result.get("method", "")), "data": self.data_name,
-            "cost_mm2": self.costs()["calibrated"]})
+        calibrated.to_toml(written[0], provenance=self.file_provenance(platform_frame=frame))
         self.result.save(written[1])
         atomic_write_text(written[2], json.dumps(jsonable(self.accuracy.to_dict(),
                                                           finite_only=True), indent=1) + "\n")
