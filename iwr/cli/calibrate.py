@@ -225,6 +225,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     refuse_tracker_data(args)  # tracker data, or --readings, with a robot that has no tracker
     data = load_data(args.data, robot)
     validation = load_data(args.validation, robot) if args.validation else None
+    for path, m in ((args.data, data), (args.validation, validation)):
+        if m is not None:
+            check_frame(robot, m, str(path))
     out = Path(args.out or "iwr-calibration")
     try:
         cal = _calibrate(robot, data, validation, args, method, kwargs, out,
@@ -232,6 +235,19 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     except _Interrupted:
         return EXIT_INTERRUPTED
     return _exit_code(cal)
+
+
+def check_frame(robot: Any, data: Any, path: str) -> None:
+    """Refuse poses that a frame or column mistake puts far from the robot
+    (:func:`iwr.pose_frame.check_pose_frame`), before anything is identified; warn when the
+    poses are far and nothing explains it."""
+    from ..pose_frame import check_pose_frame
+
+    check = check_pose_frame(robot, data)
+    if check.diagnosis in ("frame", "mirrored", "columns"):
+        raise CommandError(f"{path}: {check.message}")
+    if not check.ok:
+        print(f"warning: {path}: {check.message}", flush=True)
 
 
 def _exit_code(cal: Any) -> int:
