@@ -361,3 +361,26 @@ def test_a_successful_pose_calibration_records_success_and_legs_use_it(sim, tmp_
                "-o", str(tmp_path / "legs.csv"))
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "world frame {0}" in proc.stdout
+
+
+@pytest.mark.parametrize("kind", ["points", "probe", "one reflector"])
+def test_fixing_the_platform_frame_changes_no_residual(kind):
+    """fix_platform_frame moves the joints and the reflectors (probe) together: the same
+    residuals, and the reflectors (probe) at their nominal place in the new frame."""
+    from iwr.tracker import TrackerSetup, fix_platform_frame, simulate_tracker, tracker_problem
+
+    robot = iwr.Robot.default()
+    reg = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
+    setup = (TrackerSetup(reg, reflectors=REFLECTORS) if kind == "points" else
+             TrackerSetup(reg, reflectors=REFLECTORS[:1]) if kind == "one reflector" else
+             TrackerSetup(reg, probe=(10.0, 0.0, 60.0, 0.1, 0.0, 0.0)))
+    robot = robot.with_tracker(setup=setup)
+    data, truth = simulate_tracker(robot, setup, 20, seed=4)
+    problem, _ = tracker_problem(robot, data)
+    fixed, frame = fix_platform_frame(robot, setup, truth)
+    assert frame == {"points": "reflectors", "probe": "probe", "one reflector": "joints"}[kind]
+    np.testing.assert_allclose(problem.residuals(fixed), problem.residuals(truth), rtol=0,
+                               atol=1e-8)
+    assert np.abs(fixed - truth).max() > 0.01  # the frame did move
+    if kind == "probe":
+        np.testing.assert_array_equal(fixed[robot.n_params + 6:], 0.0)
