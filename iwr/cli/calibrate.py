@@ -91,8 +91,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="the instruments' noise: 'realistic' (iwr.Noise.realistic()), "
                    "KEY=SIGMA,... with KEY among legs, joint_lengths, joint_angles, position, "
                    "orientation (mm, rad; others 0, legs > 0), 'estimate' (estimated from the "
-                   "data), or 'none' (no noise model). Default: none for your files, realistic "
-                   "for the built-in example. With a noise model the fit is tested (chi-square)")
+                   "data), or 'none' (no noise model). Default: the [noise] table of ROBOT.toml "
+                   "(and [tracker.noise]) when it has one, else none; realistic for the "
+                   "built-in example. With a noise model the fit is tested (chi-square)")
     p.add_argument("--budget", type=positive_int, default=None, metavar="N",
                    help="largest number of objective evaluations (method's default if not given)")
     p.add_argument("--generations", type=positive_int, default=None, metavar="G",

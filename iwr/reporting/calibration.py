@@ -232,9 +232,13 @@ class Calibration:
         pr = self.predicted
         if pr is None:
             return ""
-        return (f"{'predicted':18}{'':10}{pr.position_rms:10.4f}{'':10}  {'':10}"
-                f"{pr.orientation_rms:10.5f}   (from the estimator's covariance: 95 % "
-                f"{pr.position_95:.4f} mm, {pr.orientation_95:.5f} deg; against the truth)")
+        # Not in the table's columns: against the truth, while the measured figures also hold
+        # the measurement noise of the poses.
+        return (f"predicted by the estimator's covariance, against the truth (not comparable "
+                f"with the measured figures above, which also hold the poses' measurement "
+                f"noise): position RMS {pr.position_rms:.4f} mm (95 % {pr.position_95:.4f} mm), "
+                f"orientation RMS {pr.orientation_rms:.5f} deg (95 % {pr.orientation_95:.5f} "
+                "deg)")
 
     # What the measured figures next to the prediction hold besides the model's error.
     _measured_also = ("the measured figures above also contain the measurement noise of the "
