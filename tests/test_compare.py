@@ -378,8 +378,9 @@ def test_parameter_error_is_iwr_parameter_error(report):
                   kind=r["scenario"]).build(robot)
     np.testing.assert_array_equal(sc.truth, r["truth"])
     pe = iwr.parameter_error(robot, sc.validation, np.array(r["x"]), sc.truth)
-    assert r["param_error_length"] == pe.rms_length
-    assert r["param_error_angle"] == pe.rms_angle
+    # The same computation on the same inputs, but BLAS may sum in another order with more threads.
+    assert r["param_error_length"] == pytest.approx(pe.rms_length, rel=1e-9)
+    assert r["param_error_angle"] == pytest.approx(pe.rms_angle, rel=1e-9)
     assert "iwr.parameter_error" in (out / "report.md").read_text(encoding="utf-8")
 
 

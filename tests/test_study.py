@@ -21,7 +21,6 @@ import uuid
 from pathlib import Path
 from typing import Any
 
-import cloudpickle
 import numpy as np
 import pytest
 
@@ -32,6 +31,7 @@ from iwr.experiments.harness import Cell, noise_at, robot_hash
 from iwr.experiments.study import TIMING_COLUMNS, StudyError, make_grid, read_table
 
 distributed = pytest.importorskip("distributed")
+cloudpickle = pytest.importorskip("cloudpickle")  # a dependency of distributed, used by name here
 # The module (the package's attribute iwr.identify is the function).
 identify_module = importlib.import_module("iwr.methods")
 

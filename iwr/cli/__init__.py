@@ -43,7 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
         "on a built-in simulated example.",
         epilog="Units: mm and rad everywhere. File formats: docs/data.md. Exit codes: 0 success, "
         "1 bad data or failed computation, 2 bad usage, 3 the model does not fit the data, "
-        "4 not converged and 5 not calibrated (iwr calibrate), 130 interrupted.",
+        "4 not converged and 5 not calibrated (iwr calibrate), 6 a target out of stroke or "
+        "workspace (iwr legs), 130 interrupted.",
     )
     parser.add_argument("--version", action="version", version=f"iwr {iwr_version()}")
     parser.add_argument("--debug", action="store_true",

@@ -99,8 +99,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="the instruments' noise: 'realistic' (iwr.Noise.realistic()), "
                    "KEY=SIGMA,... with KEY among legs, joint_lengths, joint_angles, position, "
                    "orientation (mm, rad; others 0, legs > 0), 'estimate' (estimated from the "
-                   "data), or 'none' (no noise model). Default: none for your files, realistic "
-                   "for the built-in example. With a noise model the fit is tested (chi-square)")
+                   "data), or 'none' (no noise model). Default: the [noise] table of ROBOT.toml "
+                   "(and [tracker.noise]) when it has one, else none; realistic for the "
+                   "built-in example. With a noise model the fit is tested (chi-square)")
     p.add_argument("--budget", type=positive_int, default=None, metavar="N",
                    help="largest number of objective evaluations (method's default if not given)")
     p.add_argument("--generations", type=positive_int, default=None, metavar="G",
@@ -234,6 +235,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     refuse_tracker_data(args)  # tracker data, or --readings, with a robot that has no tracker
     data = load_data(args.data, robot)
     validation = load_data(args.validation, robot) if args.validation else None
+    for path, m in ((args.data, data), (args.validation, validation)):
+        if m is not None:
+            check_frame(robot, m, str(path))
     out = Path(args.out)
     try:
         cal = _calibrate(robot, data, validation, args, method, kwargs, out,
@@ -266,6 +270,19 @@ def _out_folder(args: argparse.Namespace) -> Path:
               "this run, kept; --out DIR chooses the folder)")
     check_output(out, "--out", inputs=inputs, files=OUTPUT_FILES)
     return out
+
+
+def check_frame(robot: Any, data: Any, path: str) -> None:
+    """Refuse poses that a frame or column mistake puts far from the robot
+    (:func:`iwr.pose_frame.check_pose_frame`), before anything is identified; warn when the
+    poses are far and nothing explains it."""
+    from ..pose_frame import check_pose_frame
+
+    check = check_pose_frame(robot, data)
+    if check.diagnosis in ("frame", "mirrored", "columns"):
+        raise CommandError(f"{path}: {check.message}")
+    if not check.ok:
+        print(f"warning: {path}: {check.message}", flush=True)
 
 
 def _exit_code(cal: Any) -> int:

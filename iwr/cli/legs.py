@@ -1,6 +1,6 @@
-"""``iwr legs ROBOT.toml TARGETS.csv``: the leg commands that put the platform at given poses, for
-given carriage readings, with a (calibrated) robot: the hexapod's inverse kinematics
-(:func:`iwr.predict_legs`), the compensation a controller needs."""
+"""``iwr legs ROBOT.toml TARGETS.csv``: the leg commands that put the platform (or a tool on it)
+at given poses, for given carriage readings, with a calibrated robot, in the frame its calibration
+data determine (:func:`iwr.compensation.leg_commands`): the compensation a controller needs."""
 
 from __future__ import annotations
 
@@ -13,35 +13,71 @@ from typing import Any
 
 import numpy as np
 
-from ._base import EXIT_OK, CommandError, add_common, load_robot
+from ._base import EXIT_OK, CommandError, UsageError, add_common, load_robot
 
 DEFAULT_OUT = "legs.csv"
 _POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
 _LEG_COLUMNS = tuple(f"s{j}_mm" for j in range(1, 7))
+_FLAG_COLUMNS = ("out_of_stroke", "out_of_workspace")
+#: Exit code of ``iwr legs`` when a target is out of stroke or out of workspace (the file is
+#: written, with the flags).
+EXIT_FLAGGED = 6
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
     p = sub.add_parser(
         "legs", help="leg commands for target poses with a calibrated robot",
         description="For each row of TARGETS.csv (carriage joint readings q1.. and the wanted "
-        "platform pose x_mm .. gamma_rad, as in a measurement file; other columns are ignored), "
-        "compute the six leg lengths that put the platform there with the robot of ROBOT.toml "
-        "(normally calibrated.toml from iwr calibrate): the inverse kinematics of the hexapod. "
-        "Writes the targets with the leg columns s1_mm .. s6_mm.",
+        "pose x_mm .. gamma_rad, as in a measurement file; other columns are ignored), compute "
+        "the six leg readings that put the platform (or the --tool frame) there with the robot "
+        "of ROBOT.toml (normally calibrated.toml from iwr calibrate): the compensation. Targets "
+        "are in the frame the calibration's data determine: the world frame {0} for pose data, "
+        "the laser tracker's frame {T} for tracker data (through the calibrated registration); "
+        "another frame is refused. A calibration whose [provenance] status is not 'success' is "
+        "refused unless --allow-unverified. Writes the targets with s1_mm .. s6_mm and the flags "
+        f"{' and '.join(_FLAG_COLUMNS)}; exit {EXIT_FLAGGED} when any target is flagged.",
     )
     p.add_argument("robot", metavar="ROBOT.toml", help="the (calibrated) robot")
     p.add_argument("targets", metavar="TARGETS.csv",
-                   help="carriage readings and platform poses, one target per row")
+                   help="carriage readings and target poses, one target per row")
     p.add_argument("-o", "--out", default=DEFAULT_OUT, metavar="FILE",
                    help="the leg commands, CSV (default: %(default)s)")
+    p.add_argument("--frame", choices=("0", "T"), default=None,
+                   help="the frame of the target poses: 0 (world frame, pose data) or T "
+                   "(tracker frame, tracker data); default and only allowed: the one the "
+                   "calibration's data determine (T for a robot with a [tracker] table)")
+    p.add_argument("--tool", metavar="X,Y,Z,ALPHA,BETA,GAMMA", type=_pose_arg, default=None,
+                   help="the tool frame's pose in the platform frame {5} (mm, rad): the targets "
+                   "are then the tool's poses (default: {5} itself; for tracker data {5} is "
+                   "where the reflectors sit at their nominal positions, or the probe at its "
+                   "nominal pose: give the probe's pose from the [tracker] table to target the "
+                   "probe)")
+    p.add_argument("--allow-unverified", action="store_true",
+                   help="use a calibration whose [provenance] status is not 'success' (a failed "
+                   "fit test, an interrupted or unconverged run)")
     add_common(p)
     p.set_defaults(func=cmd_legs)
     return p
 
 
-def read_targets(path: str, robot: Any) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """The joint columns, joint readings (N, n_joints) and poses (N, 6) of a targets file. Lines
-    starting with ``#`` are comments. Errors name the file, line and column."""
+def _pose_arg(text: str) -> np.ndarray:
+    try:
+        v = np.array([float(t) for t in text.split(",")])
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 6 numbers X,Y,Z,ALPHA,BETA,GAMMA "
+                                         "(mm, rad)") from None
+    if v.shape != (6,) or not np.all(np.isfinite(v)):
+        raise argparse.ArgumentTypeError(f"{text!r}: expected 6 finite numbers "
+                                         "X,Y,Z,ALPHA,BETA,GAMMA (mm, rad)")
+    if np.any(np.abs(v[3:]) > 2 * math.pi):
+        raise argparse.ArgumentTypeError(f"{text!r}: an angle beyond 2 pi; angles are in radians")
+    return v
+
+
+def read_targets(path: str, robot: Any) -> tuple[list[str], np.ndarray, np.ndarray, list[int]]:
+    """The joint columns, joint readings (N, n_joints), poses (N, 6) and file lines (N) of a
+    targets file. Lines starting with ``#`` are comments. Errors name the file, line and
+    column."""
     q_cols = _joint_columns(robot)
     try:
         text = Path(path).read_text(encoding="utf-8-sig")
@@ -61,7 +97,7 @@ def read_targets(path: str, robot: Any) -> tuple[list[str], np.ndarray, np.ndarr
         raise CommandError(f"{path}, line {rows[0][0]}: missing columns {missing}; expected "
                            f"{', '.join(need)}{hint}")
     index = [header.index(c) for c in need]
-    values = []
+    values, lines = [], []
     for (n, _), fields in zip(rows[1:], reader, strict=True):
         if len(fields) != len(header):
             raise CommandError(f"{path}, line {n}: {len(fields)} fields; the header has "
@@ -77,11 +113,12 @@ def read_targets(path: str, robot: Any) -> tuple[list[str], np.ndarray, np.ndarr
                 raise CommandError(f"{path}, line {n}, column {c!r}: {fields[i]!r} is not finite")
             row.append(v)
         values.append(row)
+        lines.append(n)
     if not values:
         raise CommandError(f"{path}: no targets (only a header)")
     a = np.array(values)
     nj = len(q_cols)
-    return q_cols, a[:, :nj], a[:, nj:]
+    return q_cols, a[:, :nj], a[:, nj:], lines
 
 
 def _joint_columns(robot: Any) -> list[str]:
@@ -91,28 +128,62 @@ def _joint_columns(robot: Any) -> list[str]:
 
 def cmd_legs(args: argparse.Namespace) -> int:
     from .._io import atomic_write_text
-    from ..problem import predict_legs
+    from ..compensation import (
+        FRAMES,
+        CalibrationStatusError,
+        FrameError,
+        TargetError,
+        check_calibration,
+        leg_commands,
+    )
     from ._base import check_output
 
     check_output(args.out, "-o", inputs=[args.robot, args.targets], prog="iwr legs")
     robot = load_robot(args.robot)
-    q_cols, q, poses = read_targets(args.targets, robot)
-    # ROBOT.toml is the calibrated robot: its errors are part of its geometry.
-    legs = predict_legs(robot, np.zeros(robot.n_params), q, poses)
-    lo, hi = robot.leg_stroke[:, 0], robot.leg_stroke[:, 1]
-    outside = np.any((legs < lo) | (legs > hi), axis=1)
+    try:
+        note = check_calibration(robot, allow_unverified=args.allow_unverified,
+                                 where=str(args.robot))
+    except CalibrationStatusError as exc:
+        raise CommandError(str(exc)) from None
+    q_cols, q, poses, lines = read_targets(args.targets, robot)
+    try:
+        cmd = leg_commands(robot, q, poses, frame=args.frame, tool=args.tool,
+                           joint_columns=q_cols, where=str(args.robot))
+    except FrameError as exc:
+        raise UsageError(str(exc), "iwr legs") from None
+    except TargetError as exc:
+        raise CommandError(f"{args.targets}, line {lines[exc.index]}, column {exc.column!r}: "
+                           f"{exc.detail}") from None
+    if note:
+        print(note)
+    stroke, workspace = cmd.unreachable, cmd.out_of_workspace
     buf = io.StringIO()
     name = " ".join(f"{robot.name} ({args.robot})".splitlines())
+    tool = "" if args.tool is None else (
+        "; targets are the poses of the tool frame at "
+        + ",".join(repr(float(v)) for v in args.tool) + " in {5}")
     buf.write(f"# iwr legs: leg sensor readings s1..s6 (mm; leg length = reading + l0) that put "
-              f"the platform at each target pose, by the inverse kinematics of {name}\n")
+              f"the platform at each target pose, by the inverse kinematics of {name}; targets "
+              f"in {FRAMES[cmd.frame]}{tool}; flags 1 where a leg is outside its stroke or the "
+              "target outside the workspace (joint limits, home_pose +- workspace)\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow([*q_cols, *_POSE_COLUMNS, *_LEG_COLUMNS])
-    for qi, pi, li in zip(q, poses, legs, strict=True):
-        w.writerow([repr(float(v)) for v in (*qi, *pi, *li)])
+    w.writerow([*q_cols, *_POSE_COLUMNS, *_LEG_COLUMNS, *_FLAG_COLUMNS])
+    for qi, pi, li, fs, fw in zip(q, poses, cmd.legs, stroke, workspace, strict=True):
+        w.writerow([repr(float(v)) for v in (*qi, *pi, *li)] + [int(fs), int(fw)])
     atomic_write_text(args.out, buf.getvalue())
-    print(f"wrote {args.out}: leg commands for {len(legs)} targets")
-    if outside.any():
-        first = int(np.flatnonzero(outside)[0])
-        print(f"warning: {int(outside.sum())} targets need a leg outside its stroke "
-              f"(first: target {first + 1}); the robot cannot reach them", flush=True)
+    print(f"wrote {args.out}: leg commands for {len(cmd.legs)} targets in {FRAMES[cmd.frame]}")
+    flagged = False
+    for what, mask, column in (("need a leg outside its stroke", stroke, _FLAG_COLUMNS[0]),
+                               ("are outside the workspace", workspace, _FLAG_COLUMNS[1])):
+        if mask.any():
+            flagged = True
+            where = [lines[k] for k in np.flatnonzero(mask)]
+            shown = ", ".join(map(str, where[:10])) + (" ..." if len(where) > 10 else "")
+            print(f"warning: {len(where)} of {len(lines)} targets {what} ({args.targets}, "
+                  f"lines {shown}; column {column})",
+                  flush=True)
+    if flagged:
+        print(f"iwr legs: {cmd.n_flagged} targets flagged (exit {EXIT_FLAGGED}); the robot "
+              "cannot reach them as commanded", flush=True)
+        return EXIT_FLAGGED
     return EXIT_OK

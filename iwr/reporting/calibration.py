@@ -295,9 +295,13 @@ class Calibration:
         pr = self.predicted
         if pr is None:
             return ""
-        return (f"{'predicted':18}{'':10}{pr.position_rms:10.4f}{'':10}  {'':10}"
-                f"{pr.orientation_rms:10.5f}   (from the estimator's covariance: 95 % "
-                f"{pr.position_95:.4f} mm, {pr.orientation_95:.5f} deg; against the truth)")
+        # Not in the table's columns: against the truth, while the measured figures also hold
+        # the measurement noise of the poses.
+        return (f"predicted by the estimator's covariance, against the truth (not comparable "
+                f"with the measured figures above, which also hold the poses' measurement "
+                f"noise): position RMS {pr.position_rms:.4f} mm (95 % {pr.position_95:.4f} mm), "
+                f"orientation RMS {pr.orientation_rms:.5f} deg (95 % {pr.orientation_95:.5f} "
+                "deg)")
 
     # What the measured figures next to the prediction hold besides the model's error.
     _measured_also = ("the measured figures above also contain the measurement noise of the "
@@ -476,12 +480,36 @@ class Calibration:
     def _write_files(self, out: Path, plots: bool) -> list[Path]:
         written = []
         calibrated = out / "calibrated.toml"
-        self.robot.with_errors(self.result.x).to_toml(calibrated)
+        self.robot.with_errors(self.result.x).to_toml(calibrated,
+                                                      provenance=self.file_provenance())
         written.append(calibrated)
         result = out / "result.json"
         self.result.save(result)
         written.append(result)
         return written + self._write_report(out, plots)
+
+    def file_provenance(self, **extra: Any) -> dict[str, Any]:
+        """The ``[provenance]`` table of ``calibrated.toml``: what the file is (``status``,
+        :data:`iwr.compensation.CALIBRATION_STATUSES`; ``iwr legs`` refuses any but
+        ``success``), how it was made, and from what."""
+        from ..compensation import calibration_status
+
+        r = self.result
+        fit = r.get("fit")
+        prov: dict[str, Any] = {
+            "status": calibration_status(r),
+            "status_detail": " ".join(str(r.message).split()) or str(r.get("status", "")),
+            "fit_test": ("not run" if fit is None else "passed" if fit.fit_ok else "failed"),
+            "method": str(r.get("method", "")),
+            "robot": self.robot_name,
+            "data": self.data_name,
+            "cost_mm2": self.costs()["calibrated"],
+        }
+        if self.provenance is not None:
+            prov["iwr_version"] = str(self.provenance.get("iwr_version", ""))
+            prov["date"] = str(self.provenance.get("date", ""))
+        prov.update(extra)
+        return {k: v for k, v in prov.items() if v != ""}
 
     def _write_report(self, out: Path, plots: bool) -> list[Path]:
         """``summary.json``, the figures (PNG), ``report.md`` and ``report.html`` into ``out``
@@ -1350,13 +1378,15 @@ class TrackerCalibration(Calibration):
         """``calibrated.toml`` (the calibrated robot with its calibrated ``[tracker]`` table),
         ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the report
         (``report.html``, ``report.md``) into ``out``; returns the paths written."""
-        x = np.asarray(self.result.x, dtype=float)
+        from ..tracker.analysis import fix_platform_frame
+
+        # The same model with {5} moved to the frame the measured points fix (the data do not
+        # fix {5}): a pose of {5} in {T} then means what a user measures (iwr legs).
+        x, frame = fix_platform_frame(self.robot, self.setup, self.result.x)
         calibrated = self.robot.with_errors(x[:self.n_robot]).with_tracker(
             setup=self.setup.with_parameters(x[self.n_robot:]))
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
-        calibrated.to_toml(written[0], provenance={
-            "method": str(self.result.get("method", "")), "data": self.data_name,
-            "cost_mm2": self.costs()["calibrated"]})
+        calibrated.to_toml(written[0], provenance=self.file_provenance(platform_frame=frame))
         self.result.save(written[1])
         atomic_write_text(written[2], json.dumps(jsonable(self.accuracy.to_dict(),
                                                           finite_only=True), indent=1) + "\n")

@@ -10,7 +10,7 @@ with the registration and the offsets identified beside the robot's errors (docs
 
 from __future__ import annotations
 
-from .analysis import NullSpace, null_space, tool_frames, tool_pose_errors
+from .analysis import NullSpace, fix_platform_frame, null_space, tool_frames, tool_pose_errors
 from .api import (
     tracker_accuracy,
     tracker_forward_kinematics,
@@ -35,6 +35,7 @@ __all__ = [
     "TrackerNoise",
     "TrackerProblem",
     "TrackerSetup",
+    "fix_platform_frame",
     "guess_registration",
     "is_tracker_file",
     "read_tracker_data",

@@ -18,7 +18,7 @@ from .problem import TrackerProblem
 from .registration import kabsch
 from .setup import TrackerSetup
 
-__all__ = ["tool_frames", "tool_pose_errors", "NullSpace", "null_space"]
+__all__ = ["tool_frames", "tool_pose_errors", "NullSpace", "null_space", "fix_platform_frame"]
 
 
 def _fk(robot: Robot, xr: np.ndarray, q: np.ndarray, legs: np.ndarray) -> np.ndarray:
@@ -52,6 +52,52 @@ def tool_frames(robot: Robot, setup: TrackerSetup, x: Any, q: Any, legs: Any,
     k = np.eye(4)
     k[:3, :3], k[:3, 3] = r, c
     return setup.registration_matrix(x[nr:]) @ t @ k
+
+
+def fix_platform_frame(robot: Robot, setup: TrackerSetup, x: Any) -> tuple[np.ndarray, str]:
+    """The parameter vector equivalent to ``x`` (robot then setup: the same leg lengths, points
+    and residuals) whose platform frame {5} is the one the measured points fix, and its name.
+
+    Tracker data do not fix {5} on the platform (a rigid motion of the joints ``b_j`` and the
+    reflectors together changes nothing measured: 6 null directions, docs/tracker.md), so an
+    identified {5} is one arbitrary choice. Moving it to a frame defined by what the tracker
+    measures makes a pose of {5} in {T} mean what a user measures:
+
+    - ``"reflectors"``: the frame in which the calibrated reflectors best fit their nominal
+      positions (least squares, Kabsch): the platform pose a user computes from measured
+      reflectors and their nominal coordinates (3 or more reflectors not on one line);
+    - ``"probe"``: the frame in which the calibrated probe sits at its nominal pose;
+    - ``"joints"``: with fewer than 3 reflectors (or all on one line), which fix no frame, the
+      frame in which the spherical joints best fit their nominal positions.
+    """
+    x = np.array(x, dtype=float, copy=True)
+    nr, n = robot.n_params, robot.n_joints
+    joints = slice(4 * n + 18, 4 * n + 36)
+    b = robot.platform_joints + x[joints].reshape(6, 3)
+    xs = x[nr:]
+    g = np.eye(4)
+    if setup.kind == "probe":
+        assert setup.probe is not None
+        calibrated = pose_matrix(setup.with_parameters(xs).probe)
+        g = pose_matrix(setup.probe) @ np.linalg.inv(calibrated)
+        kind = "probe"
+    else:
+        assert setup.reflectors is not None
+        nominal = setup.reflectors
+        s = np.linalg.svd(nominal - nominal.mean(axis=0), compute_uv=False)
+        if len(nominal) >= 3 and s[1] > 1e-6 * s[0]:
+            g[:3, :3], g[:3, 3] = kabsch(setup.platform_points(xs), nominal)
+            kind = "reflectors"
+        else:
+            g[:3, :3], g[:3, 3] = kabsch(b, robot.platform_joints)
+            kind = "joints"
+    rot, shift = g[:3, :3], g[:3, 3]
+    x[joints] = (b @ rot.T + shift - robot.platform_joints).ravel()
+    if setup.kind == "probe":
+        x[nr + 6:nr + 12] = 0.0  # the probe at its nominal pose in the new frame
+    else:
+        x[nr + 6:] = (setup.platform_points(xs) @ rot.T + shift - setup.reflectors).ravel()
+    return x, kind
 
 
 def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:

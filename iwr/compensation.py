@@ -1,0 +1,255 @@
+"""Compensation: the leg commands that put the platform (or a tool on it) at target poses with a
+calibrated robot, in the frame the calibration's data determine; and the status a calibration
+file records, which decides whether it may be used at all.
+
+Pose data (the platform pose measured in the world frame {0}) determine {0}: targets are poses
+in {0}. Laser-tracker data determine the robot only in the tracker frame {T}: the registration
+and the carriage's base share null directions (docs/tracker.md), so {0} of a tracker calibration
+is one arbitrary choice among many, and targets in {0} would be commanded to a frame nobody
+measured. Targets are then poses in {T}, carried into the calibrated robot's {0} through its
+calibrated registration; the platform frame they place is the one the calibration file fixes
+(``[provenance] platform_frame``: the frame in which the reflectors sit at their nominal
+positions, or the probe at its nominal pose; :func:`iwr.tracker.fix_platform_frame`).
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from .measurements import MAX_LENGTH_MM
+from .problem import predict_legs
+from .robot import Robot
+from .transforms import pose_from_matrix, pose_matrix
+
+__all__ = ["CALIBRATION_STATUSES", "FRAMES", "CalibrationStatusError", "FrameError",
+           "LegCommands", "TargetError", "calibration_status", "check_calibration",
+           "determined_frame", "leg_commands"]
+
+#: What ``[provenance] status`` of a calibration file can say; only ``success`` is used without
+#: being told to (``allow_unverified``).
+CALIBRATION_STATUSES = {
+    "success": "the method converged and the model fits the data (or no fit test was possible)",
+    "failed fit test": "the model does not fit the data (chi-square test or implausible errors)",
+    "interrupted": "Ctrl-C (or a signal) ended the identification: its best point so far",
+    "not converged": "a limit (evaluations, generations, time) ended the identification first",
+    "failed": "the identification failed, or its result is not finite",
+}
+
+#: A target within this fraction of a range beyond the joint limits or the workspace is not
+#: flagged out of the workspace (as measurement files are checked).
+WORKSPACE_TOLERANCE = 0.01
+
+#: The frames targets may be given in: the key, and what it is.
+FRAMES = {"0": "the robot's world frame {0}", "T": "the laser tracker's frame {T}"}
+
+
+class CalibrationStatusError(ValueError):
+    """A calibration file that is not a success, used without ``allow_unverified``."""
+
+
+class FrameError(ValueError):
+    """Targets in a frame the calibration's data do not determine."""
+
+
+class TargetError(ValueError):
+    """A target value out of the plausible range; ``index`` (0-based) and ``column`` name it."""
+
+    def __init__(self, index: int, column: str, message: str) -> None:
+        super().__init__(f"target {index + 1}, {column}: {message}")
+        self.index, self.column, self.detail = index, column, message
+
+
+def calibration_status(result: Mapping[str, Any]) -> str:
+    """The status a calibration file records for an identification ``result``
+    (:data:`CALIBRATION_STATUSES`): interrupted, then a failed fit test, then not converged or
+    failed, else success."""
+    status = result.get("status")
+    if status == "interrupted":
+        return "interrupted"
+    fit = result.get("fit")
+    if fit is not None and not fit.fit_ok:
+        return "failed fit test"
+    if not result.get("success"):
+        return "failed" if status == "failed" else "not converged"
+    return "success"
+
+
+def check_calibration(robot: Robot, *, allow_unverified: bool = False,
+                      where: str = "robot") -> str:
+    """Check the status a robot file records before it is used for compensation.
+
+    Returns a note for the user ("" when there is nothing to say). Raises
+    :class:`CalibrationStatusError` for a calibration whose ``[provenance] status`` is not
+    ``success``, or a calibration that records none (written by an iwr before statuses, or by
+    hand), unless ``allow_unverified``. A robot description that is no calibration (no
+    ``[provenance] method``) is used as it is."""
+    prov = robot.provenance
+    status = prov.get("status")
+    if status is None and "method" not in prov:
+        return ""
+    if status == "success":
+        return ""
+    what = (f"records status {status!r} ({CALIBRATION_STATUSES.get(str(status), 'unknown')})"
+            if status is not None else "records no calibration status (an older iwr, or edited)")
+    detail = prov.get("status_detail")
+    what += f": {detail}" if detail else ""
+    if not allow_unverified:
+        raise CalibrationStatusError(
+            f"{where}: [provenance] {what}; it is not a verified calibration. Fix the "
+            "calibration (its report says why), or use it anyway with --allow-unverified "
+            "(allow_unverified=True in Python)")
+    return f"warning: {where} {what}; used because --allow-unverified was given"
+
+
+def determined_frame(robot: Robot) -> str:
+    """The frame a robot's calibration data determine, as its kind of data says
+    (:attr:`iwr.kinds.MeasurementKind.frame`): ``"T"`` for a robot with a ``[tracker]`` table
+    (tracker data), ``"0"`` for pose data."""
+    from .kinds import for_robot
+
+    return for_robot(robot).frame.strip("{}")
+
+
+def _check_frame(robot: Robot, frame: str | None, where: str) -> str:
+    if frame is None:
+        return determined_frame(robot)
+    if frame not in FRAMES:
+        raise FrameError(f"frame {frame!r}: expected one of {', '.join(FRAMES)} "
+                         f"({'; '.join(f'{k}: {v}' for k, v in FRAMES.items())})")
+    own = determined_frame(robot)
+    if frame == own:
+        return frame
+    if frame == "0":
+        raise FrameError(
+            f"targets in {FRAMES['0']}: {where} was calibrated from laser-tracker data, which "
+            "do not determine {0} (the registration and the carriage's base share null "
+            "directions, docs/tracker.md), so its {0} is arbitrary and the legs would be wrong "
+            "by millimetres; give the targets in the tracker frame {T} (--frame T, "
+            "frame='T'), where the tracker measures them")
+    raise FrameError(
+        f"targets in {FRAMES['T']}: {where} has no [tracker] table (its calibration used poses "
+        "measured in {0}), so {T} is unknown; give the targets in {0} (--frame 0, frame='0')")
+
+
+def _check_targets(q: np.ndarray, poses: np.ndarray, joint_columns: list[str]) -> None:
+    """Refuse values no target can have: positions beyond 100 m, pose angles beyond 2 pi
+    (degrees written for radians), as data files are checked."""
+    names = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
+    for k in range(len(poses)):
+        for c in range(6):
+            v = float(poses[k, c])
+            if not math.isfinite(v):
+                raise TargetError(k, names[c], f"{v!r} is not finite")
+            if c < 3 and abs(v) > MAX_LENGTH_MM:
+                raise TargetError(k, names[c], f"{v:g} mm is beyond {MAX_LENGTH_MM:g} mm: "
+                                  "not millimetres?")
+            if c >= 3 and abs(v) > 2 * math.pi:
+                raise TargetError(k, names[c], f"{v:g} rad is beyond 2 pi: angles are in "
+                                  f"radians ({v:g} deg = {math.radians(v):.6g} rad)")
+        for c, name in enumerate(joint_columns):
+            if not math.isfinite(float(q[k, c])):
+                raise TargetError(k, name, f"{q[k, c]!r} is not finite")
+
+
+@dataclass(frozen=True)
+class LegCommands:
+    """The leg commands for a list of targets (:func:`leg_commands`).
+
+    Attributes
+    ----------
+    legs : ndarray (N, 6)
+        Leg sensor readings (mm; leg length = reading + l0) that put the target frame at each
+        target with the robot.
+    frame : str
+        The frame the targets were given in (:data:`FRAMES`).
+    platform_poses : ndarray (N, 6)
+        The platform frame {5} in the robot's {0} that the commands give.
+    out_of_stroke : ndarray (N, 6) of bool
+        Legs whose command is outside ``robot.leg_stroke``.
+    out_of_workspace : ndarray (N,) of bool
+        Targets outside the robot's workspace: a carriage joint reading outside
+        ``robot.joint_limits``, or the platform's pose in {4} outside ``home_pose +-
+        workspace`` (where the robot was sampled and calibrated: beyond, the model is an
+        extrapolation), each widened by :data:`WORKSPACE_TOLERANCE` of its range.
+    """
+
+    legs: np.ndarray
+    frame: str
+    platform_poses: np.ndarray
+    out_of_stroke: np.ndarray
+    out_of_workspace: np.ndarray
+
+    @property
+    def unreachable(self) -> np.ndarray:
+        """(N,) targets needing any leg outside its stroke."""
+        return self.out_of_stroke.any(axis=1)
+
+    @property
+    def n_flagged(self) -> int:
+        """Targets out of stroke or out of workspace."""
+        return int(np.count_nonzero(self.unreachable | self.out_of_workspace))
+
+
+def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
+                 tool: Any = None, joint_columns: list[str] | None = None,
+                 where: str = "robot") -> LegCommands:
+    """The leg commands that put a tool frame at target poses, with a (calibrated) robot.
+
+    Parameters
+    ----------
+    robot : Robot
+        The calibrated robot (``calibrated.toml``): its errors are part of its geometry. Its
+        status is checked separately (:func:`check_calibration`).
+    q : array_like (N, n_joints)
+        Carriage joint readings at each target.
+    poses : array_like (N, 6)
+        Target poses ``(x, y, z, alpha, beta, gamma)`` (mm, rad) of the tool frame in ``frame``.
+    frame : {"0", "T"}, optional
+        The frame of the targets; default (and the only one allowed) the frame the robot's
+        calibration data determine (:func:`determined_frame`): {0} for pose data, the tracker
+        frame {T} for tracker data. Another raises :class:`FrameError` saying which to give.
+    tool : array_like (6,), optional
+        The tool frame's pose in the platform frame {5} (mm, rad); default {5} itself. For
+        tracker data, {5} is the frame the calibration file fixes (its reflectors at their
+        nominal positions, or its probe at its nominal pose); the probe's own pose as ``tool``
+        makes the targets the probe's poses in {T}.
+    joint_columns : list of str, optional
+        Names of ``q``'s columns, for messages.
+
+    Raises
+    ------
+    FrameError, TargetError (a value no target can have: a pose angle beyond 2 pi, ...)
+    """
+    poses = np.asarray(poses, dtype=float).reshape(-1, 6)
+    q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
+    cols = joint_columns or [f"q{i + 1}" for i in range(robot.n_joints)]
+    _check_targets(q, poses, cols)
+    frame = _check_frame(robot, frame, where)
+    target = pose_matrix(poses)
+    if tool is not None:
+        tool_m = pose_matrix(np.asarray(tool, dtype=float).reshape(6))
+        target = target @ np.linalg.inv(tool_m)
+    if frame == "T":
+        assert robot.tracker is not None
+        target = np.linalg.solve(robot.tracker.registration_matrix(), target)
+    world = pose_from_matrix(target)
+    legs = predict_legs(robot, None, q, world)
+    lo, hi = robot.leg_stroke[:, 0], robot.leg_stroke[:, 1]
+    stroke = (legs < lo) | (legs > hi)
+    local = np.array([pose_from_matrix(np.linalg.solve(robot.carriage_transform(qk), t))
+                      for qk, t in zip(q, target, strict=True)])
+    dev = local - robot.home_pose
+    dev[:, 3:] = (dev[:, 3:] + math.pi) % (2 * math.pi) - math.pi
+    # Widened by 1 % of each range, as measurement files are checked (Measurements.check): a
+    # target the data could have held is not flagged.
+    lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
+    slack = WORKSPACE_TOLERANCE * (hi - lo)
+    workspace = (np.any(np.abs(dev) > robot.workspace * (1 + 2 * WORKSPACE_TOLERANCE), axis=1)
+                 | np.any((q < lo - slack) | (q > hi + slack), axis=1))
+    return LegCommands(legs=legs, frame=frame, platform_poses=world, out_of_stroke=stroke,
+                       out_of_workspace=workspace)
