@@ -21,6 +21,7 @@ from ._base import (
     EXIT_OK,
     METHOD_ENV,
     QUICK_ENV,
+    CommandError,
     UsageError,
     add_common,
     check_output,
