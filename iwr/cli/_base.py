@@ -232,16 +232,17 @@ def run_settings(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
 def validation_split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
     """``--validation-fraction``: :func:`iwr.kinds.split` (one rule for every kind), its
     ValueError as a command error naming the option."""
-    from ..kinds import split
+    from ..kinds import of, split_rows
 
     try:
-        ident, val = split(data, fraction, seed)
+        ident, val = split_rows(len(data), fraction, seed)
     except ValueError as exc:
         raise CommandError(f"--validation-{one_line(exc)}") from None
-    weights = getattr(ident, "weights", None)
-    if weights is not None and not (weights > 0).any():
+    weights = getattr(data, "weights", None)
+    if weights is not None and not (weights[ident] > 0).any():
         raise CommandError(
             f"--validation-fraction {fraction} (--seed {seed}): every pose with a weight > 0 fell "
             f"in the {len(val)} held-out poses, so no identification reading counts; use another "
             "--seed, a smaller --validation-fraction, or --validation VALID.csv")
-    return ident, val
+    kind = of(data)
+    return kind.subset(data, ident), kind.subset(data, val)

@@ -38,6 +38,7 @@ __all__ = [
     "of",
     "register",
     "split",
+    "split_rows",
 ]
 
 
@@ -266,16 +267,20 @@ def for_robot(robot: Any) -> MeasurementKind:
 
 def split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
     """``(identification, validation)``: ``round(fraction * N)`` poses (at least one) drawn by
-    ``seed`` for validation, each part in file order; the same rule for every kind. ValueError
-    when no pose would be left to identify from."""
+    ``seed`` for validation, each part in file order (:func:`split_rows`); the same rule for
+    every kind. ValueError when no pose would be left to identify from."""
+    kind = of(data)
+    ident, val = split_rows(len(data), fraction, seed)
+    return kind.subset(data, ident), kind.subset(data, val)
+
+
+def split_rows(n: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
+    """The rows of :func:`split`: ``(identification, validation)`` indices of ``n`` poses."""
     if not (isinstance(fraction, numbers.Real) and not isinstance(fraction, bool)
             and 0 < float(fraction) < 1):
         raise ValueError(f"fraction: {fraction!r}; expected 0 < fraction < 1")
-    kind = of(data)
-    n = len(data)
     n_val = max(1, int(round(float(fraction) * n)))
     if n - n_val < 1:
         raise ValueError(f"fraction {fraction}: leaves no pose for identification out of {n}")
     order = np.random.default_rng(seed).permutation(n)
-    val, ident = np.sort(order[:n_val]), np.sort(order[n_val:])
-    return kind.subset(data, ident), kind.subset(data, val)
+    return np.sort(order[n_val:]), np.sort(order[:n_val])
