@@ -228,7 +228,8 @@ def levenberg_marquardt(
         x = reduced.full(sol.x[:-1])
         success = bool(sol.status > 0)
         status = "converged" if success else "stopped"
-        message = str(sol.message)
+        # SciPy quotes option names in backticks (Markdown), which reports showed literally.
+        message = str(sol.message).replace("`", "")
     else:
         x = mon.best_x()
         success = False

@@ -18,6 +18,7 @@ def test_lm_recovers_all_58_despite_rank_deficiency(robot, data, validation):
     assert np.linalg.matrix_rank(jac / np.linalg.norm(jac, axis=0)) < 58  # really rank deficient
     res = iwr.identify(robot, m, "lm", progress=False)
     assert res.success and res.fun < 1e-16
+    assert "`" not in res.message and "termination condition" in res.message  # no Markdown quotes
     assert validation_rms(robot, res.x, validation) < 1e-7
     # The regularisation keeps the unidentifiable combinations near the start: no sliding away.
     assert np.max(np.abs(res.x)) < 5.0
