@@ -104,10 +104,11 @@ def test_the_report_shows_the_predicted_accuracy_once_readably(sim, tmp_path):
     assert m, html
     assert "Predicted by the estimator's covariance" in md
     # Against the estimator's own prediction, from the API (computed on its side).
-    from iwr.cli.tracker import load_tracker_data, tracker_noise_of
+    from iwr import kinds
+    from iwr.cli.tracker import tracker_noise_of
 
     robot = iwr.Robot.from_toml(sim / "robot.toml")
-    data = load_tracker_data(str(sim / "measurements.csv"), robot)
+    data = kinds.for_robot(robot).read(sim / "measurements.csv", robot)
     res = iwr.identify(robot, data, method="efficient",
                        noise=tracker_noise_of(iwr.Noise.realistic()), active="base")
     assert float(m.group(1)) == pytest.approx(res["predicted"].position_rms, rel=1e-3)

@@ -230,8 +230,9 @@ def run_settings(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
 
 
 def validation_split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
-    """``--validation-fraction``: :func:`iwr.kinds.split` (one rule for every kind), its
-    ValueError as a command error naming the option."""
+    """``--validation-fraction``: the rows of :func:`iwr.kinds.split` (one rule for every
+    kind), its ValueError as a command error naming the option, and no split whose
+    identification part has no weight > 0."""
     from ..kinds import of, split_rows
 
     try:

@@ -43,9 +43,10 @@ def cmd_analyze(args: argparse.Namespace) -> int:
     x = None
     if args.result:
         x = np.asarray(load_result(args.result).x, dtype=float)
-        n = for_robot(robot).n_params(robot)
+        kind = for_robot(robot)
+        n = kind.n_params(robot)
         if x.shape != (n,):
             raise CommandError(f"{args.result}: {x.size} parameters, but robot {robot.name!r} "
-                               f"({args.robot}) has {n} on {for_robot(robot).name} data")
+                               f"({args.robot}) has {n} on {kind.name} data")
     print(identifiability(robot, data, x))
     return EXIT_OK

@@ -58,9 +58,9 @@ def cmd_plan(args: argparse.Namespace) -> int:
         if robot.tracker is not None and is_tracker_file(args.candidates):
             # plan_poses takes tracker measurements as candidates (their poses by forward
             # kinematics); the leg reader would stop at the 'pose' column.
-            from .tracker import load_tracker_data
+            from ._base import read_data
 
-            cand = load_tracker_data(args.candidates, robot)
+            cand = read_data(args.candidates, robot, prog="iwr plan")
         else:
             cand = Measurements.from_csv(args.candidates, robot=robot)
         source = str(args.candidates)

@@ -19,6 +19,7 @@ from ._base import (
     load_data,
     load_robot,
     one_line,
+    read_data,
 )
 from .tracker import add_arguments as add_tracker_arguments
 
@@ -166,9 +167,10 @@ def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
     from ..reporting.calibration import TrackerCalibration
     from ..reporting.html import provenance
     from ..tracker.registration import RegistrationError, guess_registration
-    from .tracker import load_tracker_data, target_format
+    from .tracker import target_format
 
-    data = load_tracker_data(args.data, robot, args.readings, target_format(args))
+    data = read_data(args.data, robot, args.readings, targets=target_format(args),
+                     prog="iwr report")
     names = robot.parameter_names + robot.tracker.parameter_names
     x = np.asarray(result.x, dtype=float)
     if x.shape != (len(names),):
@@ -180,7 +182,7 @@ def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
         raise CommandError(f"{args.run}: its parameters are not those of robot {robot.name!r} "
                            f"({args.robot}) and its tracker setup: first difference {first!r}")
     note = _check_data(args, result, robot, data)
-    validation = load_tracker_data(args.validation, robot) if args.validation else None
+    validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
     notes: list[str] = [note] if note else []
     ns = identifiability(robot, data)
     unc = _uncertainty(robot, data, x, result, ns, notes)

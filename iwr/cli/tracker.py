@@ -18,6 +18,7 @@ from ._base import (
     CommandError,
     UsageError,
     progress_enabled,
+    read_data,
     run_settings,
     validation_split,
 )
@@ -63,8 +64,7 @@ def target_format(args: argparse.Namespace) -> Any:
 def refuse_tracker_data(args: argparse.Namespace) -> None:
     """For a robot without a [tracker] table: refuse --readings and tracker data files with a
     message that says what is missing."""
-    from ..tracker.files import is_tracker_file
-    from ..tracker.sa_export import is_target_export
+    from ..tracker.files import tracker_file_format
 
     if args.readings is not None:
         raise UsageError(f"--readings: only for a robot with a [tracker] table; {args.robot} has "
@@ -72,9 +72,9 @@ def refuse_tracker_data(args: argparse.Namespace) -> None:
     if target_format(args) is not None:
         raise UsageError(f"--target-names, --target-columns, --target-units: only for a robot "
                          f"with a [tracker] table; {args.robot} has none (docs/tracker.md)")
-    if is_tracker_file(args.data) or is_target_export(args.data):
-        raise UsageError(f"{args.data}: laser-tracker data (a 'pose' column, or a target list "
-                         f"of tracker software), but {args.robot} has "
+    what = tracker_file_format(args.data)
+    if what is not None:
+        raise UsageError(f"{args.data}: laser-tracker data ({what}), but {args.robot} has "
                          "no [tracker] table describing the setup (registration, reflectors or "
                          "probe): add one (docs/tracker.md)")
 
@@ -91,13 +91,6 @@ def tracker_noise_of(noise: Any) -> Any:
         return noise
     readings = dataclasses.replace(noise, position=0.0, orientation=0.0)
     return readings, (TrackerNoise.none() if noise == Noise() else TrackerNoise.leica())
-
-
-def load_tracker_data(path: str, robot: Any, readings: str | None = None,
-                      targets: Any = None) -> Any:
-    from ..tracker.files import read_tracker_data
-
-    return read_tracker_data(path, robot.tracker, readings, targets)
 
 
 def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
@@ -122,14 +115,14 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
                          "efficient estimator weighs the instruments by a noise model (the other "
                          "methods minimise the unweighted point residuals); use --method "
                          "efficient (the default with --noise) or leave --noise out")
-    data = load_tracker_data(args.data, robot, getattr(args, "readings", None),
-                             target_format(args))
+    data = read_data(args.data, robot, getattr(args, "readings", None),
+                     targets=target_format(args))
     if data.point_sigma is not None:
         print(f"{args.data}: each point's standard uncertainties, as the file gives them, weigh "
               "the points in the efficient estimator (the tracker's noise model is not used); "
               "other methods do not weigh the points")
     if args.validation:
-        val = load_tracker_data(args.validation, robot)
+        val = read_data(args.validation, robot)
         ident, held_out = data, True
     elif args.validation_fraction > 0:
         ident, val = validation_split(data, args.validation_fraction, args.seed)

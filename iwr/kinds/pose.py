@@ -16,7 +16,7 @@ from ..methods import pose_identify
 from ..planning import measure_poses, pose_design
 from ..problem import Problem
 from ..simulate import simulate_poses
-from ..tracker.files import is_tracker_file
+from ..tracker.files import tracker_file_format
 from ..uncertainty import pose_uncertainty
 from . import MeasurementKind, data_fingerprint
 
@@ -53,13 +53,10 @@ class PoseKind(MeasurementKind):
                 given[0], given[0])
             raise TypeError(f"--{option}: only for a robot with a [tracker] table; robot "
                             f"{robot.name!r} measures the platform pose in {{0}}")
-        try:
-            tracker = is_tracker_file(path)
-        except OSError:
-            tracker = False  # Measurements.from_csv names the file and what is wrong with it
-        if tracker:
+        what = tracker_file_format(path)
+        if what is not None:
             raise MeasurementFileError(
-                f"{path}: laser-tracker data (a 'pose' column), but robot {robot.name!r} has no "
+                f"{path}: laser-tracker data ({what}), but robot {robot.name!r} has no "
                 "[tracker] table describing the setup (registration, reflectors or probe): add "
                 "one (docs/tracker.md)")
         return Measurements.from_csv(path, robot=robot)

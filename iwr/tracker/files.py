@@ -96,6 +96,20 @@ def is_tracker_file(path: str | os.PathLike[str]) -> bool:
     return bool(header) and header[0] == "pose"
 
 
+def tracker_file_format(path: str | os.PathLike[str]) -> str | None:
+    """What makes ``path`` laser-tracker data, for a message refusing it to a robot without a
+    ``[tracker]`` table (``"a 'pose' column"``, ``"a target list of tracker software"``), or
+    None; an unreadable file is None (its reader names the problem)."""
+    try:
+        if is_tracker_file(path):
+            return "a 'pose' column"
+        if is_target_export(path):
+            return "a target list of tracker software"
+    except OSError:
+        pass
+    return None
+
+
 def _value(field: str, unit: str, lineno: int, name: str, problems: list[tuple[int, str]],
            allow_empty: bool = False) -> float | None:
     if not field:
