@@ -10,7 +10,8 @@ it), :func:`for_robot` the kind a robot's description measures; the public funct
 :func:`iwr.uncertainty`, the efficient estimator, :func:`iwr.plan_poses`) call the kind's
 methods and never test the type of their data. A new instrument is a new class in its own
 module and one :func:`register` line (``register("name", "package.module:Class")``; the module
-is imported on first use, so that it may build on everything below the public functions).
+is imported on first use, so that it may import the modules of the public functions, where the
+built-in kinds' implementations still live: docs/kinds.md).
 
 What a kind says of its data: the frame they are given in and whether they fix the robot's world
 frame (``frame``, ``determines_world_frame``), the setup parameters identified beside the
