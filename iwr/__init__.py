@@ -23,6 +23,7 @@ except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
     ) from _exc
 
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
+from .calibration import Calibration, calibrate
 from .experiments.compare import Comparison, compare_methods
 from .experiments.study import StudyError, StudyResult, study
 from .forward import ForwardKinematicsError, forward_kinematics
@@ -48,6 +49,7 @@ __version__ = _metadata.version("iwr")
 
 __all__ = [
     "Accuracy",
+    "Calibration",
     "Comparison",
     "ForwardKinematicsError",
     "IdentifiabilityReport",
@@ -70,6 +72,7 @@ __all__ = [
     "UnreachableError",
     "__version__",
     "accuracy",
+    "calibrate",
     "compare_methods",
     "differential_evolution",
     "forward_kinematics",

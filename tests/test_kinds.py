@@ -321,4 +321,4 @@ def test_analyze_reads_the_data_of_the_robots_kind(tmp_path):
     assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr
     assert "iwr analyze --help" in proc.stderr
     proc = _run("analyze", str(REPO / "examples" / "iwr.toml"), str(wide))
-    assert proc.returncode == 1 and "laser-tracker data" in proc.stderr
+    assert proc.returncode == 2 and "laser-tracker data" in proc.stderr  # a usage mistake

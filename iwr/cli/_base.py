@@ -157,7 +157,9 @@ def read_data(path: str, robot: Any, readings: str | None = None, *, targets: An
     try:
         return for_robot(robot).read(path, robot, readings=readings, targets=targets)
     except TypeError as exc:  # an option this kind's files do not take
-        raise UsageError(f"{one_line(exc)} (docs/tracker.md)", prog) from None
+        msg = one_line(exc)
+        raise UsageError(msg if "docs/tracker.md" in msg else f"{msg} (docs/tracker.md)",
+                         prog) from None
 
 
 def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
@@ -229,11 +231,11 @@ def run_settings(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     return settings
 
 
-def validation_split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
-    """``--validation-fraction``: the rows of :func:`iwr.kinds.split` (one rule for every
-    kind), its ValueError as a command error naming the option, and no split whose
-    identification part has no weight > 0."""
-    from ..kinds import of, split_rows
+def check_validation_split(data: Any, fraction: float, seed: int) -> None:
+    """``--validation-fraction``, checked before the job: the split of :func:`iwr.kinds.split`
+    (one rule for every kind) exists, and leaves the identification part a weight > 0; a
+    command error naming the option otherwise."""
+    from ..kinds import split_rows
 
     try:
         ident, val = split_rows(len(data), fraction, seed)
@@ -245,5 +247,3 @@ def validation_split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
             f"--validation-fraction {fraction} (--seed {seed}): every pose with a weight > 0 fell "
             f"in the {len(val)} held-out poses, so no identification reading counts; use another "
             "--seed, a smaller --validation-fraction, or --validation VALID.csv")
-    kind = of(data)
-    return kind.subset(data, ident), kind.subset(data, val)

@@ -5,9 +5,7 @@ Markdown)."""
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import inspect
-import math
 import os
 import sys
 from pathlib import Path
@@ -15,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ..kinds import for_robot
 from ..reporting.html import provenance
 from ._base import (
     EXIT_INTERRUPTED,
@@ -25,22 +24,21 @@ from ._base import (
     UsageError,
     add_common,
     check_output,
+    check_validation_split,
     default_method,
     fraction,
-    load_data,
     load_robot,
     noise_spec,
     nonneg_int,
-    one_line,
     overwritten_input,
     positive_int,
     progress_enabled,
+    read_data,
     run_settings,
-    validation_split,
 )
 from .simulate import write_truth
 from .tracker import add_arguments as add_tracker_arguments
-from .tracker import calibrate_tracker, refuse_tracker_data, tracker_noise_of
+from .tracker import target_format
 
 EXAMPLE_SEED = 2024
 EXAMPLE_POSES = 125  # 100 for identification, 25 held out (validation fraction 0.2)
@@ -184,21 +182,6 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
     return kwargs
 
 
-class _Tracker:
-    """A method's callback (SciPy's convention, ``callback(intermediate_result)``) that keeps the
-    best point seen: what is left if Ctrl-C escapes a method before it returns its own result."""
-
-    def __init__(self) -> None:
-        self.best = math.inf
-        self.x: np.ndarray | None = None
-        self.calls = 0
-
-    def __call__(self, res: Any) -> None:
-        self.calls = max(int(getattr(res, "nfev", self.calls + 1)), self.calls)
-        if float(res.fun) < self.best:
-            self.best, self.x = float(res.fun), np.array(res.x, dtype=float, copy=True)
-
-
 def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.robot is not None and args.data is None:
         raise UsageError("give both ROBOT.toml and DATA.csv, or neither (the built-in example)")
@@ -229,23 +212,55 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     args.out = str(_out_folder(args))
     robot = load_robot(args.robot)
-    if robot.tracker is not None:  # laser-tracker data (docs/tracker.md)
-        if "noise" in kwargs:  # --noise means what it means to `iwr simulate` there
-            kwargs["noise"] = tracker_noise_of(kwargs["noise"])
-        return calibrate_tracker(args, robot, method, kwargs)
-    refuse_tracker_data(args)  # tracker data, or --readings, with a robot that has no tracker
-    data = load_data(args.data, robot)
-    validation = load_data(args.validation, robot) if args.validation else None
+    kind = for_robot(robot)
+    if "noise" in kwargs:
+        kwargs["noise"] = _reading_noise(kind, kwargs["noise"], method, args)
+    data = read_data(args.data, robot, args.readings, targets=target_format(args))
+    validation = read_data(args.validation, robot) if args.validation else None
+    if validation is None and args.validation_fraction > 0:
+        check_validation_split(data, args.validation_fraction, args.seed)
     for path, m in ((args.data, data), (args.validation, validation)):
         if m is not None:
-            check_frame(robot, m, str(path))
+            check_frame(kind, robot, m, str(path))
+    sources = {"readings": str(args.readings)} if args.readings else {}
     out = Path(args.out)
     try:
         cal = _calibrate(robot, data, validation, args, method, kwargs, out,
-                         robot_name=str(args.robot), data_name=str(args.data))
+                         robot_name=str(args.robot), data_name=str(args.data), sources=sources)
     except _Interrupted:
         return EXIT_INTERRUPTED
     return _exit_code(cal)
+
+
+def _reading_noise(kind: Any, noise: Any, method: str, args: argparse.Namespace) -> Any:
+    """The noise model in the form the data's kind takes (:meth:`MeasurementKind.reading_noise`),
+    and what is set aside: a noise model a kind cannot weigh method ``method`` by (refused when
+    --noise gives it, set aside with a note when the robot file does), the readings a pose
+    measured in {0} has and these data have not."""
+    from ..simulate import Noise
+
+    if method != "efficient" and not kind.weighted_objective:
+        if getattr(args, "noise_from", None) in (None, "--noise"):
+            raise UsageError(f"--method {method} with --noise: on {kind.description} data only "
+                             "the efficient estimator weighs the instruments by a noise model "
+                             "(the other methods minimise the unweighted residuals); use --method "
+                             "efficient (the default with --noise) or leave --noise out")
+        # The file's noise model is the estimator's, not a reason to refuse the method named.
+        print(f"noise model of {args.noise_from}: not used by method {method} on "
+              f"{kind.description} data (only by the efficient estimator)")
+        args.noise_from = None
+        return None
+    converted = kind.reading_noise(noise)
+    readings = converted[0] if isinstance(converted, tuple) else converted
+    if (isinstance(noise, Noise) and isinstance(readings, Noise) and noise != Noise.realistic()
+            and getattr(args, "noise_from", None) == "--noise"):
+        # A position or orientation sigma given for a pose measured in {0} has no reading here.
+        dropped = [f"{k}={getattr(noise, k):g}" for k in ("position", "orientation")
+                   if getattr(noise, k) and not getattr(readings, k)]
+        if dropped:
+            print(f"--noise {', '.join(dropped)}: a pose measured in {{0}}, not used with "
+                  f"{kind.description} data", flush=True)
+    return converted
 
 
 def _out_folder(args: argparse.Namespace) -> Path:
@@ -273,13 +288,13 @@ def _out_folder(args: argparse.Namespace) -> Path:
     return out
 
 
-def check_frame(robot: Any, data: Any, path: str) -> None:
-    """Refuse poses that a frame or column mistake puts far from the robot
-    (:func:`iwr.pose_frame.check_pose_frame`), before anything is identified; warn when the
-    poses are far and nothing explains it."""
-    from ..pose_frame import check_pose_frame
-
-    check = check_pose_frame(robot, data)
+def check_frame(kind: Any, robot: Any, data: Any, path: str) -> None:
+    """Refuse data that a frame or column mistake puts far from the robot
+    (:meth:`iwr.kinds.MeasurementKind.frame_check`), before anything is identified; warn when
+    they are far and nothing explains it."""
+    check = kind.frame_check(robot, data)
+    if check is None:
+        return
     if check.diagnosis in ("frame", "mirrored", "columns"):
         raise CommandError(f"{path}: {check.message}")
     if not check.ok:
@@ -287,21 +302,20 @@ def check_frame(robot: Any, data: Any, path: str) -> None:
 
 
 def _exit_code(cal: Any) -> int:
-    from ..reporting.calibration import NOT_CALIBRATED
+    from ..calibration import NOT_CALIBRATED
 
-    fit = cal.result.get("fit")
-    if fit is not None and not fit.fit_ok:
+    if cal.fit_ok is False:
         print(f"iwr calibrate: the model does not fit the data (exit {EXIT_NO_FIT}); the files "
               "are written, see the report", file=sys.stderr)
         return EXIT_NO_FIT
-    if cal.result.get("status") == NOT_CALIBRATED:
+    if cal.status == NOT_CALIBRATED:
         reason = str(cal.result.message).removeprefix(f"{NOT_CALIBRATED}: ")
         print(f"iwr calibrate: not calibrated (exit {EXIT_NOT_CALIBRATED}): "
               f"{' '.join(reason.split())}; the files are written, see the report",
               file=sys.stderr)
         return EXIT_NOT_CALIBRATED
-    if not cal.result.success:
-        print(f"iwr calibrate: not converged (status {cal.result.get('status', 'stopped')}, exit "
+    if not cal.success:
+        print(f"iwr calibrate: not converged (status {cal.status or 'stopped'}, exit "
               f"{EXIT_NOT_CONVERGED}); the files hold the best point so far", file=sys.stderr)
         return EXIT_NOT_CONVERGED
     return EXIT_OK
@@ -336,7 +350,7 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
     print(f"inputs: {robot_path}, {data_path}, {out / 'true_errors.json'} (the truth)")
     print()
     robot = load_robot(str(robot_path))
-    data = load_data(str(data_path), robot)
+    data = read_data(str(data_path), robot)
     try:
         cal = _calibrate(robot, data, None, args, method, kwargs, out, robot_name=str(robot_path),
                          data_name=str(data_path), truth=truth)
@@ -350,104 +364,44 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
 
 def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace, method: str,
                kwargs: dict[str, Any], out: Path, *, robot_name: str, data_name: str,
-               truth: np.ndarray | None = None) -> Any:
-    from ..accuracy import accuracy
-    from ..identifiability import identifiability, parameter_error
-    from ..methods import identify
-    from ..reporting.calibration import Calibration
-    from ..uncertainty import Uncertainty, uncertainty
-    from .report import data_fingerprint
+               truth: np.ndarray | None = None, sources: dict[str, str] | None = None) -> Any:
+    """The job (:func:`iwr.calibration.calibrate`), printed as it goes and written as its
+    report (:func:`iwr.reporting.calibration.render`)."""
+    from ..calibration import calibrate
+    from ..reporting.calibration import render
 
-    if validation is not None:
-        ident, val, held_out = data, validation, True
-    elif args.validation_fraction > 0:
-        ident, val = validation_split(data, args.validation_fraction, args.seed)
-        held_out = True
-    else:
-        ident, val, held_out = data, data, False
-    notes: list[str] = []
-    if args.parameters == "base":
-        # Identify the base parameters only, the others held at nominal: a unique answer whose
-        # values and standard deviations mean something.
-        kwargs = {**kwargs, "active": identifiability(robot, ident).active}
-    show = progress_enabled(args)
-    # Every method shows its own progress and returns its best point so far on Ctrl-C
-    # (status "interrupted"); the tracker keeps that point should Ctrl-C escape a method anyway.
-    tracker = _Tracker()
-    kwargs = {**kwargs, "callback": tracker}
     noise = kwargs.get("noise")
     if noise is None:
         print("noise model: none given (--noise): eq. (10) cannot test the fit, only the size of "
               "the identified errors")
     else:
-        what = ("estimated from the data (variance components)" if isinstance(noise, str)
-                else ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(noise).items()))
+        from .robot_noise import describe
+
         if getattr(args, "noise_from", None) == "--noise":
             args.noise_note = " (from --noise)"
-        print(f"noise model: {what}{getattr(args, 'noise_note', '')}")
+        print(f"noise model: {describe(noise)}{getattr(args, 'noise_note', '')}")
         if method == "efficient":
             print("method: the efficient estimator (every instrument weighted by its noise; "
                   "eq. (10) weighted by it is --method lm, unweighted --noise none)")
         elif not isinstance(noise, str):
             print(f"method: {method} on eq. (10) weighted by the noise model (each pose's leg "
                   "residuals whitened by their propagated covariance; unweighted: --noise none)")
-    print(f"identifying with {method} ({len(ident)} poses; Ctrl-C stops and keeps the best "
-          "point so far)", flush=True)
-    try:
-        result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
-                          progress=show, **kwargs)
-    except KeyboardInterrupt:
-        result = _best_so_far(robot, ident, method, tracker, kwargs, args)
-    interrupted = result.interrupted
-    # What `iwr report` checks its DATA.csv against: the whole file's fingerprint, as the engine's
-    # problem file records it.
-    result["settings"] = {**dict(result.get("settings") or {}), "data_file": data_name,
-                          "data_fingerprint": data_fingerprint(robot, data)}
-    report = identifiability(robot, ident, result.x)
-    try:
-        # The efficient estimator's own covariance when it has one (eq. (10)'s first-order
-        # covariance differs from it by up to 2x); else eq. (10)'s.
-        unc = Uncertainty.from_result(result)
-        if unc is None:
-            active = result["active"] if args.parameters == "base" else report
-            objective = dict(result.get("settings") or {}).get("objective")
-            if isinstance(objective, dict) and objective.get("weighted"):
-                # The method minimised the noise-weighted objective: its covariance.
-                unc = uncertainty(robot, ident, result.x, kwargs["noise"], active=active,
-                                  weighted=True)
-            else:
-                unc = uncertainty(robot, ident, result.x, active=active)
-    except ValueError as exc:
-        unc = None
-        notes.append(f"note: no standard deviations: {one_line(exc)}")
-    acc = accuracy(robot, val, result.x)
-    truth_acc = perr = None
-    if truth is not None:
-        truth_acc = accuracy(robot, val, truth)
-        perr = parameter_error(robot, ident, result.x, truth)
-    predicted = None
-    if result.get("covariance") is not None and not interrupted:
-        from ..estimation import predicted_accuracy
-
-        try:
-            predicted = predicted_accuracy(robot, val, result.x, result["covariance"],
-                                           active=result["active"], seed=args.seed)
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            notes.append(f"note: no predicted accuracy: {one_line(exc)}")
-    inputs = {"robot": robot_name, "data": data_name}
+    inputs = {"robot": robot_name, "data": data_name, **(sources or {})}
     if getattr(args, "validation", None):
         inputs["validation"] = str(args.validation)
-    settings = run_settings(args, method, kwargs)
-    cal = Calibration(
-        robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
-        accuracy=acc, data_name=data_name, robot_name=robot_name, identifiability=report,
-        uncertainty=unc, parameter_error=perr, truth_accuracy=truth_acc, notes=notes,
-        settings=settings, provenance=provenance(inputs), predicted=predicted,
-    )
-    print(cal.summary())
-    written = cal.write(out, plots=not args.no_plots)
+    options = {k: v for k, v in kwargs.items() if k != "noise"}
+    cal = calibrate(
+        robot, data, method, noise=noise, validation=validation,
+        validation_fraction=args.validation_fraction, seed=args.seed,
+        parameters=args.parameters, bounds=args.bounds, truth=truth,
+        progress=progress_enabled(args), log=lambda line: print(line, flush=True),
+        data_name=data_name, robot_name=robot_name, sources=sources,
+        settings=run_settings(args, method, kwargs), provenance=provenance(inputs), **options)
+    report = render(cal)
+    print(report.text())
+    written = report.write(out, plots=not args.no_plots)
     print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
-    if interrupted:
+    if cal.interrupted:
         print("iwr calibrate: interrupted; the files hold the best point so far "
               "(success = false)", file=sys.stderr)
         raise _Interrupted
@@ -456,22 +410,3 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
 
 class _Interrupted(Exception):
     """The identification was interrupted; its best point so far has been written."""
-
-
-def _best_so_far(robot: Any, data: Any, method: str, tracker: _Tracker, kwargs: dict[str, Any],
-                 args: argparse.Namespace) -> Any:
-    """The result of an identification that Ctrl-C cut short without a result: the best point
-    the callback saw (else the start), its cost evaluated afresh."""
-    from ..methods import IdentificationResult
-    from ..problem import Problem
-
-    x = tracker.x
-    if x is None or x.shape != (robot.n_params,):
-        x = np.zeros(robot.n_params)
-    return IdentificationResult(
-        x=x, fun=Problem(robot, data, args.bounds).cost(x), nfev=tracker.calls, nit=0,
-        success=False, status="interrupted", message="interrupted (Ctrl-C)", method=method,
-        parameter_names=robot.parameter_names, active=kwargs.get("active"),
-        settings={}, history={},
-    )
-

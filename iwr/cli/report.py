@@ -16,7 +16,6 @@ from ._base import (
     UsageError,
     add_common,
     check_output,
-    load_data,
     load_robot,
     one_line,
     read_data,
@@ -92,117 +91,39 @@ def _check_data(args: argparse.Namespace, result: Any, robot: Any, data: Any) ->
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from ..accuracy import accuracy
-    from ..identifiability import identifiability
+    from ..calibration import from_result
     from ..methods import load_result
-    from ..reporting.calibration import OUTPUT_FILES, Calibration
+    from ..reporting.calibration import OUTPUT_FILES, render
     from ..reporting.html import provenance
+    from .tracker import target_format
 
     check_output(args.out, "--out", files=OUTPUT_FILES, prog="iwr report", inputs=[
         args.run, args.robot, args.data, args.validation, args.readings])
     result = load_result(args.run)
     robot = load_robot(args.robot)
-    if robot.tracker is not None:
-        return _report_tracker(args, result, robot)
-    if args.readings is not None:
-        raise UsageError(f"--readings: only for a robot with a [tracker] table; {args.robot} has "
-                         "none (docs/tracker.md)", "iwr report")
-    data = load_data(args.data, robot)
-    x = np.asarray(result.x, dtype=float)
-    if x.shape != (robot.n_params,):
-        raise CommandError(f"{args.run}: {x.size} parameters, but robot {robot.name!r} "
-                           f"({args.robot}) has {robot.n_params}")
-    names = list(result.get("parameter_names") or [])
-    if names and names != robot.parameter_names:
-        first = next(a for a, b in zip(names, robot.parameter_names, strict=True) if a != b)
-        raise CommandError(f"{args.run}: its parameters are not those of robot {robot.name!r} "
-                           f"({args.robot}): first difference {first!r}")
-    note = _check_data(args, result, robot, data)
-    validation = load_data(args.validation, robot) if args.validation else None
-    val = validation if validation is not None else data
-    notes: list[str] = [note] if note else []
-    rep = identifiability(robot, data, x)
-    unc = _uncertainty(robot, data, x, result, rep, notes)
-    if unc is not None and result.get("method") == "efficient":
-        # A result file does not keep the estimator's covariance: say whose these are.
-        notes.append("note: the standard deviations are eq. (10)'s first-order ones at the "
-                     "result, not the efficient estimator's covariance (which `iwr calibrate` "
-                     "reports; a result file does not keep it); they can differ by up to 2x")
-    inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
-    if args.validation:
-        inputs["validation"] = str(args.validation)
-    settings = {"method": result.get("method", ""), **dict(result.get("settings", {}) or {})}
-    cal = Calibration(
-        robot=robot, identification=data, validation=val, held_out=validation is not None,
-        result=result, accuracy=accuracy(robot, val, x), data_name=str(args.data),
-        robot_name=str(args.robot), identifiability=rep, uncertainty=unc, notes=notes,
-        settings=settings, provenance=provenance(inputs),
-    )
-    print(cal.summary())
-    out = Path(args.out)
-    written = cal.write(out, plots=not args.no_plots)
-    print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
-    return EXIT_OK
-
-
-def _uncertainty(robot: Any, data: Any, x: Any, result: Any, report: Any,
-                 notes: list[str]) -> Any:
-    """eq. (10)'s (or the point objective's) standard deviations over the result's active
-    parameters (``report``'s when it has none); None, with a note, where they do not exist."""
-    from ..uncertainty import uncertainty
-
-    active = result.get("active")
-    try:
-        return uncertainty(robot, data, x, active=report if active is None else active)
-    except ValueError as exc:
-        notes.append(f"note: no standard deviations: {one_line(exc)}")
-        return None
-
-
-def _report_tracker(args: argparse.Namespace, result: Any, robot: Any) -> int:
-    """``iwr report`` for a robot with a ``[tracker]`` table: the report of ``iwr calibrate`` on
-    tracker data (:class:`iwr.reporting.calibration.TrackerCalibration`)."""
-    from ..accuracy import accuracy
-    from ..identifiability import identifiability
-    from ..reporting.calibration import TrackerCalibration
-    from ..reporting.html import provenance
-    from ..tracker.registration import RegistrationError, guess_registration
-    from .tracker import target_format
-
     data = read_data(args.data, robot, args.readings, targets=target_format(args),
                      prog="iwr report")
-    names = robot.parameter_names + robot.tracker.parameter_names
-    x = np.asarray(result.x, dtype=float)
-    if x.shape != (len(names),):
-        raise CommandError(f"{args.run}: {x.size} parameters, but robot {robot.name!r} "
-                           f"({args.robot}) with its tracker setup has {len(names)}")
-    saved = list(result.get("parameter_names") or [])
-    if saved and saved != names:
-        first = next(a for a, b in zip(saved, names, strict=True) if a != b)
-        raise CommandError(f"{args.run}: its parameters are not those of robot {robot.name!r} "
-                           f"({args.robot}) and its tracker setup: first difference {first!r}")
     note = _check_data(args, result, robot, data)
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
-    notes: list[str] = [note] if note else []
-    ns = identifiability(robot, data)
-    unc = _uncertainty(robot, data, x, result, ns, notes)
-    try:
-        guess = guess_registration(robot, robot.tracker, data)
-    except RegistrationError:
-        guess = None
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
     for key in ("readings", "validation"):
         if getattr(args, key):
             inputs[key] = str(getattr(args, key))
-    val = validation if validation is not None else data
-    cal = TrackerCalibration(
-        robot=robot, identification=data, validation=val, held_out=validation is not None,
-        result=result, accuracy=accuracy(robot, val, x), data_name=str(args.data),
-        robot_name=str(args.robot), identifiability=ns, uncertainty=unc, notes=notes,
-        settings={"method": result.get("method", ""), **dict(result.get("settings", {}) or {})},
-        provenance=provenance(inputs), guess=guess, readings_name=str(args.readings or ""))
-    print(cal.summary())
+    try:
+        cal = from_result(
+            robot, data, result, validation=validation, data_name=str(args.data),
+            robot_name=str(args.robot),
+            sources={"readings": str(args.readings)} if args.readings else None,
+            settings={"method": result.get("method", ""),
+                      **dict(result.get("settings", {}) or {})},
+            provenance=provenance(inputs))
+    except ValueError as exc:  # the result's parameters are not this robot's
+        raise CommandError(f"{args.run}: {one_line(exc)} ({args.robot})") from None
+    if note:
+        cal.notes.insert(0, note)
+    report = render(cal)
+    print(report.text())
     out = Path(args.out)
-    written = cal.write(out, plots=not args.no_plots)
+    written = report.write(out, plots=not args.no_plots)
     print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
     return EXIT_OK

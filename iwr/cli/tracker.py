@@ -10,17 +10,9 @@ import json
 from pathlib import Path
 from typing import Any
 
-import numpy as np
-
 from ._base import (
-    EXIT_INTERRUPTED,
     EXIT_OK,
-    CommandError,
     UsageError,
-    progress_enabled,
-    read_data,
-    run_settings,
-    validation_split,
 )
 
 
@@ -61,167 +53,13 @@ def target_format(args: argparse.Namespace) -> Any:
         raise UsageError(str(exc).replace("target ", "--target-", 1)) from None
 
 
-def refuse_tracker_data(args: argparse.Namespace) -> None:
-    """For a robot without a [tracker] table: refuse --readings and tracker data files with a
-    message that says what is missing."""
-    from ..tracker.files import tracker_file_format
-
-    if args.readings is not None:
-        raise UsageError(f"--readings: only for a robot with a [tracker] table; {args.robot} has "
-                         "none (docs/tracker.md)")
-    if target_format(args) is not None:
-        raise UsageError(f"--target-names, --target-columns, --target-units: only for a robot "
-                         f"with a [tracker] table; {args.robot} has none (docs/tracker.md)")
-    what = tracker_file_format(args.data)
-    if what is not None:
-        raise UsageError(f"{args.data}: laser-tracker data ({what}), but {args.robot} has "
-                         "no [tracker] table describing the setup (registration, reflectors or "
-                         "probe): add one (docs/tracker.md)")
-
-
 def tracker_noise_of(noise: Any) -> Any:
     """What ``--noise`` means for a robot with a tracker, in ``iwr simulate`` and ``iwr
-    calibrate`` alike: the reading noise of the :class:`iwr.Noise` (its ``position`` and
-    ``orientation``, a pose measured in {0}, do not apply) and ``TrackerNoise.leica()`` (none
-    when the whole noise is zero); ``"estimate"`` stays."""
-    from ..simulate import Noise
-    from ..tracker.simulate import TrackerNoise
+    calibrate`` alike (:meth:`iwr.tracker.kind.PointsKind.reading_noise`): the reading noise of
+    the :class:`iwr.Noise` and ``TrackerNoise.leica()`` (none when the whole noise is zero)."""
+    from ..kinds import _load
 
-    if isinstance(noise, (str, tuple)):  # a tuple: the robot file's (Noise, TrackerNoise)
-        return noise
-    readings = dataclasses.replace(noise, position=0.0, orientation=0.0)
-    return readings, (TrackerNoise.none() if noise == Noise() else TrackerNoise.leica())
-
-
-def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
-                      kwargs: dict[str, Any]) -> int:
-    """Identify the robot, the registration and the reflector (or probe) offsets from tracker
-    data; validate on held-out poses (point residuals); write the calibrated robot (with its
-    calibrated tracker setup), the result and the report (HTML and Markdown) as for leg data."""
-    from ..accuracy import accuracy
-    from ..identifiability import identifiability
-    from ..methods import identify
-    from ..reporting.calibration import TrackerCalibration
-    from ..reporting.html import provenance
-    from ..tracker.registration import guess_registration
-
-    if args.poses is not None:
-        raise CommandError("--poses applies to the built-in example only")
-    if (kwargs.get("noise") is not None and method != "efficient"
-            and getattr(args, "noise_from", "--noise") == "--noise"):
-        # Checked before the data are read: iwr.identify refuses it too, in the API's words. (A
-        # noise model from the robot file is set aside below, with a note.)
-        raise UsageError(f"--method {method} with --noise: on laser-tracker data only the "
-                         "efficient estimator weighs the instruments by a noise model (the other "
-                         "methods minimise the unweighted point residuals); use --method "
-                         "efficient (the default with --noise) or leave --noise out")
-    data = read_data(args.data, robot, getattr(args, "readings", None),
-                     targets=target_format(args))
-    if data.point_sigma is not None:
-        print(f"{args.data}: each point's standard uncertainties, as the file gives them, weigh "
-              "the points in the efficient estimator (the tracker's noise model is not used); "
-              "other methods do not weigh the points")
-    if args.validation:
-        val = read_data(args.validation, robot)
-        ident, held_out = data, True
-    elif args.validation_fraction > 0:
-        ident, val = validation_split(data, args.validation_fraction, args.seed)
-        held_out = True
-    else:
-        ident = val = data
-        held_out = False
-    kwargs = {k: v for k, v in kwargs.items() if k not in ("callback",)}
-    if method != "efficient" and "noise" in kwargs and getattr(args, "noise_from", None) not in (
-            None, "--noise"):
-        # The other methods take no noise model on tracker data: the file's is the estimator's,
-        # not a reason to refuse the method named (--noise with them is refused, as it says).
-        print(f"noise model of {args.noise_from}: not used by method {method} on tracker data "
-              "(only by the efficient estimator)")
-        kwargs.pop("noise")
-        args.noise_from = None
-    if args.parameters == "base":
-        kwargs["active"] = "base"
-    setup = robot.tracker
-    print(f"tracker data: {len(data)} poses, {setup.kind}"
-          + (f" (K = {setup.n_reflectors})" if setup.kind == "points" else "")
-          + f"; identifying {robot.n_params} robot + {setup.n_params} setup parameters with "
-          f"{method} ({len(ident)} poses), from the nominal robot and the closed-form "
-          "registration guess", flush=True)
-    if "noise" in kwargs:
-        from .robot_noise import describe
-
-        print(f"noise model: {describe(kwargs['noise'])} (from "
-              f"{getattr(args, 'noise_from', None) or '--noise'})")
-    guess = guess_registration(robot, setup, ident)
-    print(str(guess), flush=True)
-    from ..simulate import Noise
-
-    given = getattr(args, "noise", None)
-    if isinstance(kwargs.get("noise"), tuple) and getattr(args, "noise_from", None) == "--noise":
-        # A position or orientation sigma given for a pose measured in {0} has no reading here.
-        dropped = [f"{k}={getattr(given, k):g}" for k in ("position", "orientation")
-                   if getattr(given, k, 0.0)] if given != Noise.realistic() else []
-        if dropped:
-            print(f"--noise {', '.join(dropped)}: a pose measured in {{0}}, not used with tracker "
-                  "data", flush=True)
-    result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
-                      progress=progress_enabled(args), **kwargs)
-    notes: list[str] = []
-    if data.point_sigma is not None and method == "efficient":
-        notes.append(f"note: the points are weighted by their own uncertainties from {args.data}, "
-                     "not by the tracker noise model named above (docs/data.md)")
-    # At the start, as identify(active="base") chose the parameters it holds: the report's
-    # "held" and "null direction" then agree with what was done.
-    ns = identifiability(robot, ident)
-    unc = None
-    try:
-        from ..uncertainty import Uncertainty, uncertainty
-
-        # The efficient estimator's own covariance when it has one (as for leg data): the
-        # unweighted point objective's first-order covariance is not the estimate's.
-        unc = Uncertainty.from_result(result)
-        if unc is None:
-            unc = uncertainty(robot, ident, result.x, active=result["active"])
-    except (ValueError, TypeError) as exc:
-        notes.append(f"note: no standard deviations: {' '.join(str(exc).split())}")
-    predicted = None
-    if result.get("covariance") is not None and not result.interrupted:
-        # On the poses the measured figures are on (result["predicted"] is on the identification
-        # poses), as for leg data.
-        from ..tracker.estimation import tracker_predicted_accuracy
-
-        try:
-            predicted = tracker_predicted_accuracy(robot, result.x, result["covariance"],
-                                                   result["active"], val.q, val.legs,
-                                                   seed=args.seed)
-        except (ValueError, np.linalg.LinAlgError) as exc:
-            notes.append(f"note: no predicted accuracy: {' '.join(str(exc).split())}")
-    # What `iwr report` checks its DATA.csv against, as for leg data.
-    from .report import data_fingerprint
-
-    result["settings"] = {**dict(result.get("settings") or {}), "data_file": str(args.data),
-                          "data_fingerprint": data_fingerprint(robot, data)}
-    inputs = {"robot": str(args.robot), "data": str(args.data)}
-    if args.readings:
-        inputs["readings"] = str(args.readings)
-    if args.validation:
-        inputs["validation"] = str(args.validation)
-    settings = run_settings(args, method, kwargs)
-    cal = TrackerCalibration(
-        robot=robot, identification=ident, validation=val, held_out=held_out, result=result,
-        accuracy=accuracy(robot, val, result.x), data_name=str(args.data),
-        robot_name=str(args.robot), identifiability=ns, uncertainty=unc, notes=notes,
-        settings=settings, provenance=provenance(inputs), guess=guess,
-        readings_name=str(args.readings or ""), predicted=predicted)
-    print(cal.summary())
-    out = Path(args.out)  # checked before the work (calibrate._out_folder)
-    written = cal.write(out, plots=not args.no_plots)
-    print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
-    if result.interrupted:
-        return EXIT_INTERRUPTED
-    from .calibrate import _exit_code  # exit 3 when the model does not fit, as for leg data
-
-    return _exit_code(cal)
+    return _load("points").reading_noise(noise)
 
 
 def simulate_tracker_files(args: argparse.Namespace, robot: Any) -> int:

@@ -24,6 +24,8 @@ its problem and starting point (``problem``), and the per-kind part of each algo
 from __future__ import annotations
 
 import abc
+import contextlib
+import contextvars
 import importlib
 import numbers
 import os
@@ -38,6 +40,7 @@ __all__ = [
     "for_robot",
     "of",
     "register",
+    "reuse",
     "split",
     "split_rows",
 ]
@@ -66,6 +69,12 @@ class MeasurementKind(abc.ABC):
     #: Whether :func:`for_robot` chooses this kind only when no other applies (the pose in {0}:
     #: a robot describes no instrument for it).
     fallback: ClassVar[bool] = False
+    #: Whether the methods other than the efficient estimator minimise an objective weighted by
+    #: a noise model on these data (:func:`iwr.identify` with ``noise=``).
+    weighted_objective: ClassVar[bool] = False
+    #: The report of a calibration on these data, ``"module:Class"`` (a subclass of
+    #: :class:`iwr.reporting.calibration.CalibrationReport`), imported by the report layer.
+    report: ClassVar[str] = "iwr.reporting.calibration:CalibrationReport"
 
     # -- the data -----------------------------------------------------------------------------
 
@@ -171,8 +180,97 @@ class MeasurementKind(abc.ABC):
         """For :func:`iwr.planning.measure`: this kind's readings of the actual robot ``x`` at
         joint readings ``q`` and platform poses ``poses`` in {0}, with ``noise``."""
 
+    # -- the calibration job's per-kind part (iwr.calibrate) --------------------------------
+
+    def frame_check(self, robot: Any, data: Any) -> Any:
+        """Whether a frame or column mistake puts the data far from the robot, checked before
+        anything is identified (:class:`iwr.pose_frame.PoseFrameCheck`: ``ok``, ``diagnosis``,
+        ``message``), or None when the kind has no such check."""
+        return None
+
+    def reading_noise(self, noise: Any) -> Any:
+        """``noise`` (an :class:`iwr.Noise`, ``"estimate"``, or the kind's own form) in the form
+        this kind's estimator takes."""
+        return noise
+
+    def start(self, robot: Any, data: Any) -> Any:
+        """What the identification starts from beyond the nominal robot, for the report (the
+        tracker's registration guess), or None."""
+        return None
+
+    def job_lines(self, robot: Any, data: Any, n_identification: int, method: str) -> list[str]:
+        """What :func:`iwr.calibrate` says before it identifies (its ``log``)."""
+        return [f"identifying with {method} ({n_identification} poses; Ctrl-C stops and keeps "
+                "the best point so far)"]
+
+    def weighting_note(self, data: Any, method: str, data_name: str) -> str:
+        """A note for the report when the data carry their own weights that ``method`` uses in
+        place of the noise model, else ``""``."""
+        return ""
+
+    def predicted_accuracy(self, robot: Any, data: Any, x: Any, covariance: Any, active: Any,
+                           seed: int) -> Any:
+        """The tool accuracy the covariance of the active parameters predicts at the poses of
+        ``data`` (:class:`iwr.estimation.PredictedAccuracy`)."""
+        raise NotImplementedError(f"{self.name} data: no predicted accuracy")
+
+    def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
+        """``(before, after, sentence, what)``: the error the calibration is judged by
+        (:func:`iwr.calibrate` calls a run that makes it worse "not calibrated"), before and
+        after, in words, and what it is. The default: the tool position RMS of an
+        :class:`iwr.Accuracy`."""
+        before = accuracy.nominal.summary()["position_mm"]["rms"]
+        after = accuracy.calibrated.summary()["position_mm"]["rms"]
+        change = (f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on "
+                  f"{_where(accuracy.n_poses, held_out)}")
+        return before, after, change, "the accuracy"
+
     def __repr__(self) -> str:
         return f"<measurement kind {self.name!r}: {self.description} in {self.frame}>"
+
+
+def _where(n_poses: int, held_out: bool) -> str:
+    """The poses an accuracy figure is on, in words."""
+    return (f"{n_poses} validation poses" if held_out else
+            f"the {n_poses} identification poses (nothing held out: optimistic)")
+
+
+# -- problems built once per job ---------------------------------------------------------------
+
+_MEMO: contextvars.ContextVar[dict[Any, Any] | None] = contextvars.ContextVar(
+    "iwr_kinds_memo", default=None)
+
+
+@contextlib.contextmanager
+def reuse(memo: dict[Any, Any] | None = None) -> Any:
+    """Within the block, each data set's problem (and its start, the tracker's registration
+    guess) is built once and shared by every call that asks for it (:func:`memo`), so that one
+    calibration job builds it once. ``memo`` continues an earlier block's (the report of a
+    job); the data and robot objects must not be changed inside. Yields the memo."""
+    outer = _MEMO.get()
+    if memo is None:
+        memo = outer if outer is not None else {}
+    token = _MEMO.set(memo)
+    try:
+        yield memo
+    finally:
+        _MEMO.reset(token)
+
+
+def memo(key: tuple[Any, ...], objects: tuple[Any, ...], build: Any) -> Any:
+    """``build()``, kept for ``key`` and the identity of ``objects`` inside a :func:`reuse`
+    block (the objects are held so that their identities stay theirs); outside, built afresh.
+    ``build=None`` only looks: the kept value, or None."""
+    cache = _MEMO.get()
+    if cache is None:
+        return None if build is None else build()
+    full = (*key, *(id(o) for o in objects))
+    hit = cache.get(full)
+    if hit is None:
+        if build is None:
+            return None
+        hit = cache[full] = (build(), objects)
+    return hit[0]
 
 
 def data_fingerprint(kind: str, robot: Any, data: Any, *, poses: Any = None, weights: Any = None,

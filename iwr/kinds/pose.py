@@ -9,11 +9,12 @@ from typing import Any
 import numpy as np
 
 from ..accuracy import pose_accuracy
-from ..estimation import _plausible_limit, _PoseSpec, leg_readings
+from ..estimation import _plausible_limit, _PoseSpec, leg_readings, predicted_accuracy
 from ..identifiability import pose_identifiability
-from ..measurements import MeasurementFileError, Measurements
+from ..measurements import Measurements
 from ..methods import pose_identify
 from ..planning import measure_poses, pose_design
+from ..pose_frame import check_pose_frame
 from ..problem import Problem
 from ..simulate import simulate_poses
 from ..tracker.files import tracker_file_format
@@ -33,6 +34,7 @@ class PoseKind(MeasurementKind):
     determines_world_frame = True
     chi2_fit_test = True
     fallback = True
+    weighted_objective = True
 
     def owns(self, data: Any) -> bool:
         return isinstance(data, Measurements)
@@ -55,7 +57,9 @@ class PoseKind(MeasurementKind):
                             f"{robot.name!r} measures the platform pose in {{0}}")
         what = tracker_file_format(path)
         if what is not None:
-            raise MeasurementFileError(
+            # TypeError: data of another kind for this robot, a usage mistake (as an option the
+            # kind's files do not take), not a bad file.
+            raise TypeError(
                 f"{path}: laser-tracker data ({what}), but robot {robot.name!r} has no "
                 "[tracker] table describing the setup (registration, reflectors or probe): add "
                 "one (docs/tracker.md)")
@@ -102,3 +106,10 @@ class PoseKind(MeasurementKind):
     def measure(self, robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
                 rng: np.random.Generator) -> Any:
         return measure_poses(robot, x, q, poses, noise, rng)
+
+    def frame_check(self, robot: Any, data: Any) -> Any:
+        return check_pose_frame(robot, data)
+
+    def predicted_accuracy(self, robot: Any, data: Any, x: Any, covariance: Any, active: Any,
+                           seed: int) -> Any:
+        return predicted_accuracy(robot, data, x, covariance, active=active, seed=seed)

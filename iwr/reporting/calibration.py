@@ -5,46 +5,27 @@ from __future__ import annotations
 import itertools
 import json
 import math
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
 from .._io import atomic_write_bytes, atomic_write_text, jsonable, write_folder
-from ..accuracy import Accuracy
+from ..calibration import NOT_CALIBRATED, WORSE, Calibration
+from ..kinds import reuse
 from ..measurements import Measurements
-from ..methods import IdentificationResult
 from ..problem import Problem, predict_legs
 from ..robot import Robot
 from .figures import new_figure, png_bytes
 from .html import Page, write_page
 
-__all__ = ["Calibration", "TrackerCalibration", "leg_residual_stats", "NOT_CALIBRATED"]
+__all__ = ["CalibrationReport", "TrackerCalibrationReport", "leg_residual_stats", "render",
+           "NOT_CALIBRATED", "OUTPUT_FILES"]
 
-#: The status given to a result whose method converged but which is no calibration: data that
-#: cannot identify the robot's errors (too few distinct poses, a rank-deficient information
-#: matrix), or a calibrated robot no better than the nominal one. ``success`` is then false, the
-#: verdict says why and ``iwr calibrate`` exits with 5.
-NOT_CALIBRATED = "not calibrated"
-#: A calibrated robot whose error is more than this factor above the nominal one's is worse: not
-#: calibrated. Within it (a robot already calibrated, calibrated again) the verdict is "unchanged".
-WORSE = 1.05
-#: Every file :meth:`Calibration.write` may write into its folder (leg or tracker data).
+#: Every file :meth:`CalibrationReport.write` may write into its folder (any kind of data).
 OUTPUT_FILES = ("calibrated.toml", "result.json", "accuracy.json", "summary.json",
                 "residuals.png", "accuracy.png", "report.md", "report.html")
-
-
-def _distinct_poses(data: Any) -> int:
-    """The number of distinct poses (rows of readings and measurements) in leg or tracker data."""
-    parts = [np.asarray(data.q, dtype=float).reshape(len(data), -1),
-             np.asarray(data.legs, dtype=float)]
-    for name in ("poses", "points", "probe"):
-        value = getattr(data, name, None)
-        if value is not None:
-            parts.append(np.asarray(value, dtype=float).reshape(len(data), -1))
-    key = np.hstack(parts)
-    return len(np.unique(np.where(np.isnan(key), np.inf, key), axis=0))
 
 
 def leg_residual_stats(robot: Robot, errors: Any, data: Measurements) -> dict[str, np.ndarray]:
@@ -60,95 +41,28 @@ def leg_residual_stats(robot: Robot, errors: Any, data: Measurements) -> dict[st
     }
 
 
-@dataclass
-class Calibration:
-    """Everything a calibration run produced, for the summary and the report.
+def render(cal: Calibration) -> CalibrationReport:
+    """The report of a calibration job: the class its kind names
+    (:attr:`iwr.kinds.MeasurementKind.report`), sharing the job's problems."""
+    import importlib
 
-    Attributes
-    ----------
-    robot : Robot
-        The nominal robot.
-    identification, validation : Measurements
-        The poses used for identification, and the held-out ones (``validation`` may be the
-        identification set itself when nothing was held out: ``held_out`` is then False).
-    result : IdentificationResult
-    accuracy : Accuracy
-        On the validation poses.
-    identifiability : IdentifiabilityReport
-        At the solution, on the identification poses.
-    uncertainty : Uncertainty or None
-        Standard deviations of the identified parameters (None if they could not be computed).
-    parameter_error : ParameterError or None
-        Against the truth, modulo the unidentifiable directions (simulations only).
-    truth_accuracy : Accuracy or None
-        The accuracy of the true errors (simulations only): the noise floor.
-    notes : list of str
-        Printed after the summary and listed in the report.
-    settings : dict
-        How the calibration was run (method, options, bounds, ...), for the report.
-    provenance : dict or None
-        :func:`iwr.reporting.html.provenance`: version, command line, date, inputs' SHA-256.
-    predicted : PredictedAccuracy or None
-        The tool accuracy the efficient estimator predicts from its covariance, on the validation
-        poses (:func:`iwr.estimation.predicted_accuracy`), beside the measured figures.
+    module, _, name = cal.kind.report.partition(":")
+    cls = getattr(importlib.import_module(module), name)
+    if not (isinstance(cls, type) and issubclass(cls, CalibrationReport)):
+        raise TypeError(f"kind {cal.kind.name!r}: report {cal.kind.report!r} is not a "
+                        "CalibrationReport")
+    return cls(**{f.name: getattr(cal, f.name) for f in fields(Calibration)})
+
+
+class CalibrationReport(Calibration):
+    """What a calibration job (:class:`iwr.calibration.Calibration`) prints and writes: the
+    summary, ``calibrated.toml``, ``result.json``, ``summary.json``, the figures and the report
+    (``report.html``, ``report.md``); a kind's report (:attr:`iwr.kinds.MeasurementKind.report`)
+    subclasses it with what belongs to its data. Made by :func:`render`.
 
     The result's ``fit`` (:class:`iwr.estimation.FitTest`) and ``outliers``, when present, are
     reported: a fit that fails makes the verdict "the model does not fit the data".
     """
-
-    robot: Robot
-    identification: Measurements
-    validation: Measurements
-    held_out: bool
-    result: IdentificationResult
-    accuracy: Accuracy
-    data_name: str = ""
-    robot_name: str = ""
-    identifiability: Any = None
-    uncertainty: Any = None
-    parameter_error: Any = None
-    truth_accuracy: Accuracy | None = None
-    notes: list[str] = field(default_factory=list)
-    settings: dict[str, Any] = field(default_factory=dict)
-    provenance: dict[str, Any] | None = None
-    predicted: Any = None
-
-    def __post_init__(self) -> None:
-        # success, the verdict and the exit code agree: a converged method is not yet a
-        # calibration (issue 26: 2 poses copied 30 times, or 3 tracker poses, were "calibrated").
-        r = self.result
-        if not r.success or r.get("status") == "interrupted" or self._fit_failed():
-            return
-        reason = self._degenerate()
-        if reason is None:
-            before, after, change, what = self._change()
-            if not (math.isfinite(after) and math.isfinite(before)) or after > WORSE * before:
-                reason = f"the calibration did not improve {what}: {change}"
-        if reason is not None:
-            r["success"] = False
-            r["status"] = NOT_CALIBRATED
-            # The prefix keeps the status in a result file (methods.result.status_from_message).
-            r["message"] = f"{NOT_CALIBRATED}: {reason}"
-
-    def _degenerate(self) -> str | None:
-        """Why the identification data cannot identify the robot's errors, else None: their
-        information matrix has a lower rank than varied poses give this robot (too few distinct
-        poses, copies, poses that do not move some joint)."""
-        from ..identifiability import identifiable_count
-
-        report = self.identifiability
-        if report is None:
-            return None
-        need = identifiable_count(self.robot)
-        if report.rank >= need:
-            return None
-        distinct = _distinct_poses(self.identification)
-        n = len(self.identification)
-        copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
-        return (f"degenerate data: the {distinct} distinct identification poses{copies} "
-                f"identify {report.rank} of the {need} parameters that varied poses identify "
-                f"for this robot; the other {need - report.rank} would be left at nominal: "
-                "measure more, and more varied, poses")
 
     # -- numbers --------------------------------------------------------------------------------
     def costs(self) -> dict[str, float]:
@@ -475,7 +389,13 @@ class Calibration:
         (``report.html``, self-contained, and ``report.md``) and its figures (PNG) into ``out``,
         as a whole (:func:`iwr._io.write_folder`: the files of an earlier run there are all
         replaced or removed); returns the paths written."""
-        return write_folder(out, lambda tmp: self._write_files(tmp, plots), OUTPUT_FILES)
+        with reuse(self.problems):  # the job's problems, not built again
+            return write_folder(out, lambda tmp: self._write_files(tmp, plots), OUTPUT_FILES)
+
+    def text(self) -> str:
+        """:meth:`summary`, with the job's problems (what a command prints)."""
+        with reuse(self.problems):
+            return self.summary()
 
     def _write_files(self, out: Path, plots: bool) -> list[Path]:
         written = []
@@ -528,19 +448,9 @@ class Calibration:
         written.append(write_page(self.html(figures), out / "report.html"))
         return written
 
-    def _change(self) -> tuple[float, float, str, str]:
-        """The error before and after calibration, the change in words, and what it measures."""
-        before = self.accuracy.nominal.summary()["position_mm"]["rms"]
-        after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
-        where = (f"{self.accuracy.n_poses} validation poses" if self.held_out else
-                 f"the {self.accuracy.n_poses} identification poses (nothing held out: "
-                 "optimistic)")
-        change = f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on {where}"
-        return before, after, change, "the accuracy"
-
     def verdict(self) -> tuple[str, str]:
         """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``)."""
-        return self._graded(*self._change())
+        return self._graded(*self.improvement())
 
     def _graded(self, before: float, after: float, change: str, what: str) -> tuple[str, str]:
         """The verdict from the result's status and fit and the error ``before`` and ``after``
@@ -845,8 +755,7 @@ def _fmt(v: float, spec: str) -> str:
     return format(v, spec) if math.isfinite(v) else "-"
 
 
-@dataclass
-class TrackerCalibration(Calibration):
+class TrackerCalibrationReport(CalibrationReport):
     """A calibration run on laser-tracker data (docs/tracker.md): the same report as for leg
     data, with what belongs to tracker data.
 
@@ -854,12 +763,10 @@ class TrackerCalibration(Calibration):
     holds the robot's then the setup's parameters, ``accuracy`` is
     :func:`iwr.tracker.api.tracker_accuracy`'s (largest point distance per pose, and the angle of
     the best rigid rotation between predicted and measured points), ``identifiability`` a
-    :class:`iwr.tracker.NullSpace`. ``guess`` is the registration guess on the identification
-    poses (the start); ``readings_name`` the robot's log of readings beside a long table.
+    :class:`iwr.tracker.NullSpace`. ``start`` is the registration guess on the identification
+    poses; ``sources["readings"]`` the robot's log of readings beside a long table.
     """
 
-    guess: Any = None
-    readings_name: str = ""
     _measured_also = ("the point residuals above are not a tool pose error: they also contain the "
                       "tracker's noise on the {where} poses")
 
@@ -1107,19 +1014,16 @@ class TrackerCalibration(Calibration):
         return (f"  {label:<36} position RMS {pos['rms']:.4f} mm, max {pos['max']:.4f} mm; {o}")
 
     def change_text(self) -> str:
-        before = _nanstats(self.accuracy.nominal.position)["rms"]
-        after = _nanstats(self.accuracy.calibrated.position)["rms"]
-        where = (f"{self.accuracy.n_poses} validation poses" if self.held_out else
-                 f"the {self.accuracy.n_poses} identification poses (nothing held out: "
-                 "optimistic)")
-        return (f"the largest point residual per pose has an RMS of {before:.4g} mm before "
-                f"(nominal robot with the registration guess) and {after:.4g} mm after, on "
-                f"{where}")
+        return self.improvement()[2]
 
-    def _change(self) -> tuple[float, float, str, str]:
-        before = _nanstats(self.accuracy.nominal.position)["rms"]
-        after = _nanstats(self.accuracy.calibrated.position)["rms"]
-        return before, after, self.change_text(), "the point residuals"
+    @property
+    def guess(self) -> Any:
+        """The closed-form registration guess the identification started from."""
+        return self.start
+
+    @property
+    def readings_name(self) -> str:
+        return str(self.sources.get("readings", ""))
 
     def summary(self) -> str:
         r = self.result

@@ -29,6 +29,7 @@ __all__ = [
     "tracker_forward_kinematics",
     "tracker_identifiability",
     "tracker_identify",
+    "registration_guess",
     "tracker_problem",
     "tracker_simulate",
 ]
@@ -94,28 +95,50 @@ def _bounds(robot: Robot, setup: TrackerSetup, bounds: Any, center: np.ndarray) 
 def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
                     x0: Any = None) -> tuple[TrackerProblem, np.ndarray]:
     """The problem for these data and its starting point: the nominal robot with the closed-form
-    registration guess (:func:`guess_registration`, which raises
-    :class:`RegistrationError` when the nominal model is too poor for it), or ``x0``."""
+    registration guess (:func:`registration_guess`, which raises
+    :class:`RegistrationError` when the nominal model is too poor for it), or ``x0``.
+
+    Inside :func:`iwr.kinds.reuse` (one calibration job) the guess and the problem of a data
+    set are made once and shared; a call with ``x0`` then takes the problem already made for the
+    data (its bounds centred on the guess) with ``x0`` as the start."""
+    from ..kinds import memo
+
+    setup = _setup(robot)
+    if isinstance(bounds, str) and bounds == "default":
+        bounds = None
+    given = not (bounds is None or isinstance(bounds, str))
+    held = (robot, measurements, bounds) if given else (robot, measurements)
+    key = ("tracker problem", "given" if given else bounds)
+
+    def build(center: Any) -> TrackerProblem:
+        problem_bounds = _bounds(robot, setup, bounds,
+                                 np.zeros(setup.n_params) if center is None else center)
+        return TrackerProblem(robot, setup, measurements, problem_bounds, center=center)
+
+    if x0 is None:
+        guess = registration_guess(robot, measurements)
+        problem = memo((*key, "guess"), held, lambda: build(guess.x_setup))
+        return problem, problem.x0(guess)
+    problem = (memo((*key, "guess"), held, None)
+               or memo((*key, "nominal"), held, lambda: build(None)))
+    start = np.array(x0, dtype=float)
+    if start.shape != (problem.n_params,) or not np.all(np.isfinite(start)):
+        raise ValueError(f"x0: expected {problem.n_params} finite values (the robot's "
+                         f"{robot.n_params}, then the tracker setup's {setup.n_params}), "
+                         f"got shape {start.shape}")
+    return problem, start
+
+
+def registration_guess(robot: Robot, measurements: TrackerMeasurements) -> Any:
+    """The closed-form registration guess of these data with the nominal robot
+    (:func:`iwr.tracker.registration.guess_registration`), made once per data set inside
+    :func:`iwr.kinds.reuse`."""
+    from ..kinds import memo
     from .registration import guess_registration
 
     setup = _setup(robot)
-    if x0 is None:
-        guess = guess_registration(robot, setup, measurements)
-        center = guess.x_setup
-    else:
-        center = None
-    problem_bounds = _bounds(robot, setup, bounds,
-                             np.zeros(setup.n_params) if center is None else center)
-    problem = TrackerProblem(robot, setup, measurements, problem_bounds, center=center)
-    if x0 is None:
-        start = problem.x0(guess)
-    else:
-        start = np.array(x0, dtype=float)
-        if start.shape != (problem.n_params,) or not np.all(np.isfinite(start)):
-            raise ValueError(f"x0: expected {problem.n_params} finite values (the robot's "
-                             f"{robot.n_params}, then the tracker setup's {setup.n_params}), "
-                             f"got shape {start.shape}")
-    return problem, start
+    return memo(("registration guess",), (robot, measurements),
+                lambda: guess_registration(robot, setup, measurements))
 
 
 def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,

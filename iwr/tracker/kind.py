@@ -11,11 +11,12 @@ import numpy as np
 
 from ..estimation import tracker_readings
 from ..forward import forward_kinematics
-from ..kinds import MeasurementKind, data_fingerprint
+from ..kinds import MeasurementKind, _where, data_fingerprint
 from ..measurements import Measurements
 from ..planning import measure_tracker, tracker_design
 from ..uncertainty import _tracker_uncertainty
 from .api import (
+    registration_guess,
     tracker_accuracy,
     tracker_identifiability,
     tracker_identify,
@@ -33,6 +34,7 @@ __all__ = ["PointsKind", "ProbeKind"]
 class _TrackerKind(MeasurementKind):
     frame = "{T}"
     determines_world_frame = False
+    report = "iwr.reporting.calibration:TrackerCalibrationReport"
 
     def owns(self, data: Any) -> bool:
         return isinstance(data, TrackerMeasurements)
@@ -92,9 +94,17 @@ class _TrackerKind(MeasurementKind):
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
                      ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:
-        tp = TrackerProblem(robot, robot.tracker, data, bounds)
-        centre = 0.5 * (tp.lower + tp.upper)
-        limit = plausible * 0.5 * (tp.upper - tp.lower)
+        from .registration import RegistrationError
+
+        given = not (bounds is None or isinstance(bounds, str))
+        try:  # the problem identify searched, its setup bounds about the registration guess
+            tp, _ = tracker_problem(robot, data, None if given else bounds)
+        except RegistrationError:  # data too few for a guess: about the nominal setup
+            tp = TrackerProblem(robot, robot.tracker, data, bounds if given else None)
+        lower, upper = ((np.asarray(bounds[0], dtype=float), np.asarray(bounds[1], dtype=float))
+                        if given else (tp.lower, tp.upper))
+        centre = 0.5 * (lower + upper)
+        limit = plausible * 0.5 * (upper - lower)
         return tp.parameter_names, limit, centre, tracker_readings(tp)
 
     def candidate_poses(self, robot: Any, data: Any) -> Any:
@@ -109,6 +119,59 @@ class _TrackerKind(MeasurementKind):
     def measure(self, robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
                 rng: np.random.Generator) -> Any:
         return measure_tracker(robot, x, q, poses, noise, rng)
+
+    # -- the calibration job ----------------------------------------------------------------
+
+    def reading_noise(self, noise: Any) -> Any:
+        """An :class:`iwr.Noise` means its readings' noise here (its ``position`` and
+        ``orientation``, a pose measured in {0}, have no reading) and
+        ``TrackerNoise.leica()`` for the tracker (none when the whole noise is zero); a pair
+        ``(Noise, TrackerNoise)``, a ``TrackerNoise`` and ``"estimate"`` stay."""
+        import dataclasses
+
+        from ..simulate import Noise
+        from .simulate import TrackerNoise
+
+        if not isinstance(noise, Noise):
+            return noise
+        readings = dataclasses.replace(noise, position=0.0, orientation=0.0)
+        return readings, (TrackerNoise.none() if noise == Noise() else TrackerNoise.leica())
+
+    def start(self, robot: Any, data: Any) -> Any:
+        return registration_guess(robot, data)
+
+    def job_lines(self, robot: Any, data: Any, n_identification: int, method: str) -> list[str]:
+        setup = robot.tracker
+        return [f"tracker data: {len(data)} poses, {setup.kind}"
+                + (f" (K = {setup.n_reflectors})" if setup.kind == "points" else "")
+                + f"; identifying {robot.n_params} robot + {setup.n_params} setup parameters "
+                f"with {method} ({n_identification} poses), from the nominal robot and the "
+                "closed-form registration guess"]
+
+    def weighting_note(self, data: Any, method: str, data_name: str) -> str:
+        if data.point_sigma is None or method != "efficient":
+            return ""
+        return (f"note: the points are weighted by their own uncertainties from {data_name}, "
+                "not by the tracker noise model named above (docs/data.md)")
+
+    def predicted_accuracy(self, robot: Any, data: Any, x: Any, covariance: Any, active: Any,
+                           seed: int) -> Any:
+        from .estimation import tracker_predicted_accuracy
+
+        return tracker_predicted_accuracy(robot, x, covariance, active, data.q, data.legs,
+                                          seed=seed)
+
+    def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
+        def rms(v: Any) -> float:
+            v = np.asarray(v, dtype=float)
+            v = v[np.isfinite(v)]
+            return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
+        before, after = rms(accuracy.nominal.position), rms(accuracy.calibrated.position)
+        change = (f"the largest point residual per pose has an RMS of {before:.4g} mm before "
+                  f"(nominal robot with the registration guess) and {after:.4g} mm after, on "
+                  f"{_where(accuracy.n_poses, held_out)}")
+        return before, after, change, "the point residuals"
 
 
 class PointsKind(_TrackerKind):

@@ -1,0 +1,444 @@
+"""The calibration job as one library call.
+
+:func:`calibrate` does what ``iwr calibrate`` does, for every kind of data
+(:mod:`iwr.kinds`), and computes each thing once: the validation split, the start (the
+tracker's registration guess), the identifiability and the parameters identified, the
+identification, the fit test and outliers (the method's), the standard deviations, the accuracy
+on the validation poses and the accuracy the covariance predicts. It returns a
+:class:`Calibration` that holds them; the commands and the reports only render it
+(:func:`iwr.reporting.calibration.render`). :func:`from_result` makes the same object from a
+result identified elsewhere (``iwr report`` on a run of ``iwr-calibrate``).
+
+Inside the job each data set's problem is built once (:func:`iwr.kinds.reuse`); the
+:class:`Calibration` keeps that memo so that its report shares it.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+from . import kinds
+from .accuracy import Accuracy, accuracy
+from .identifiability import identifiability, identifiable_count, parameter_error
+from .methods import IdentificationResult, identify
+from .uncertainty import Uncertainty, uncertainty
+
+__all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "calibrate", "from_result"]
+
+#: The status (and message prefix) of a run whose method converged but whose data cannot
+#: identify the errors, or whose calibrated robot is no better than the nominal one.
+NOT_CALIBRATED = "not calibrated"
+#: A calibration whose error after is more than this times the error before did not improve.
+WORSE = 1.05
+
+
+@dataclass
+class Calibration:
+    """Everything a calibration job produced (:func:`calibrate`, :func:`from_result`).
+
+    Attributes
+    ----------
+    robot : Robot
+        The nominal robot.
+    identification, validation
+        The poses used for identification, and the held-out ones (``validation`` is the
+        identification set itself when nothing was held out: ``held_out`` is then False).
+    held_out : bool
+    result : IdentificationResult
+        Its ``status`` and ``success`` say what the job is: ``"not calibrated"``
+        (:data:`NOT_CALIBRATED`) when the method converged on data that cannot identify the
+        errors, or to a robot no better than the nominal one.
+    accuracy : Accuracy
+        On the validation poses (what accuracy means for the kind: :func:`iwr.accuracy`).
+    data_name, robot_name : str
+        How the inputs are named in the report.
+    identifiability
+        At the start, on the identification poses (:func:`iwr.identifiability`): what the
+        parameters identified were chosen by.
+    uncertainty : Uncertainty or None
+        Standard deviations of the identified parameters (None if they could not be computed;
+        ``notes`` says why).
+    parameter_error : ParameterError or None
+        Against the truth, modulo the unidentifiable directions (simulations only).
+    truth_accuracy : Accuracy or None
+        The accuracy of the true errors (simulations only): the noise floor.
+    notes : list of str
+        For the summary and the report.
+    settings : dict
+        How the job was run (method, options, bounds, ...), for the report.
+    provenance : dict or None
+        :func:`iwr.reporting.html.provenance`: version, command line, date, inputs' SHA-256.
+    predicted : PredictedAccuracy or None
+        The tool accuracy the covariance predicts on the validation poses.
+    start
+        What the identification started from beyond the nominal robot (the tracker's
+        registration guess), or None.
+    sources : dict
+        Other inputs named in the report (``{"readings": path}``).
+    kind : MeasurementKind
+        The kind of the data (:func:`iwr.kinds.of`).
+    """
+
+    robot: Any
+    identification: Any
+    validation: Any
+    held_out: bool
+    result: IdentificationResult
+    accuracy: Accuracy
+    data_name: str = ""
+    robot_name: str = ""
+    identifiability: Any = None
+    uncertainty: Any = None
+    parameter_error: Any = None
+    truth_accuracy: Accuracy | None = None
+    notes: list[str] = field(default_factory=list)
+    settings: dict[str, Any] = field(default_factory=dict)
+    provenance: dict[str, Any] | None = None
+    predicted: Any = None
+    start: Any = None
+    sources: dict[str, str] = field(default_factory=dict)
+    kind: Any = None
+    problems: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        if self.kind is None:
+            self.kind = kinds.of(self.identification)
+
+    # -- what the job is ----------------------------------------------------------------------
+    @property
+    def success(self) -> bool:
+        """Whether the job calibrated the robot: converged, fits, and improved it."""
+        return bool(self.result.success)
+
+    @property
+    def status(self) -> str:
+        return str(self.result.get("status", ""))
+
+    @property
+    def interrupted(self) -> bool:
+        return bool(self.result.interrupted)
+
+    @property
+    def fit_ok(self) -> bool | None:
+        """The fit test's answer, or None when there was none (no noise model)."""
+        fit = self.result.get("fit")
+        return None if fit is None else bool(fit.fit_ok)
+
+    def improvement(self) -> tuple[float, float, str, str]:
+        """``(before, after, sentence, what)``: the error the job is judged by
+        (:meth:`iwr.kinds.MeasurementKind.improvement`)."""
+        return self.kind.improvement(self.accuracy, self.held_out)
+
+    def degenerate(self) -> str | None:
+        """Why the identification data cannot identify the robot's errors, else None: their
+        information matrix has a lower rank than varied poses give this robot (too few distinct
+        poses, copies, poses that do not move some joint)."""
+        report = self.identifiability
+        if report is None:
+            return None
+        need = identifiable_count(self.robot)
+        if report.rank >= need:
+            return None
+        distinct = distinct_poses(self.identification)
+        n = len(self.identification)
+        copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
+        return (f"degenerate data: the {distinct} distinct identification poses{copies} "
+                f"identify {report.rank} of the {need} parameters that varied poses identify "
+                f"for this robot; the other {need - report.rank} would be left at nominal: "
+                "measure more, and more varied, poses")
+
+    def _settle(self) -> None:
+        """success, the verdict and the exit code agree: a converged method is not yet a
+        calibration (issue 26: 2 poses copied 30 times, or 3 tracker poses, were
+        "calibrated")."""
+        r = self.result
+        if not r.success or r.get("status") == "interrupted" or self.fit_ok is False:
+            return
+        reason = self.degenerate()
+        if reason is None:
+            before, after, change, what = self.improvement()
+            if not (math.isfinite(after) and math.isfinite(before)) or after > WORSE * before:
+                reason = f"the calibration did not improve {what}: {change}"
+        if reason is not None:
+            r["success"] = False
+            r["status"] = NOT_CALIBRATED
+            # The prefix keeps the status in a result file (methods.result.status_from_message).
+            r["message"] = f"{NOT_CALIBRATED}: {reason}"
+
+
+def distinct_poses(data: Any) -> int:
+    """The number of distinct poses (rows of readings and measurements) in ``data``."""
+    parts = [np.asarray(data.q, dtype=float).reshape(len(data), -1),
+             np.asarray(data.legs, dtype=float)]
+    for name in ("poses", "points", "probe"):
+        value = getattr(data, name, None)
+        if value is not None:
+            parts.append(np.asarray(value, dtype=float).reshape(len(data), -1))
+    key = np.hstack(parts)
+    return len(np.unique(np.where(np.isnan(key), np.inf, key), axis=0))
+
+
+class _Best:
+    """A method's callback (SciPy's convention, ``callback(intermediate_result)``) that keeps the
+    best point seen, then calls the caller's: what is left if Ctrl-C escapes a method before it
+    returns its own result."""
+
+    def __init__(self, then: Callable[..., Any] | None) -> None:
+        self.best = math.inf
+        self.x: np.ndarray | None = None
+        self.calls = 0
+        self.then = then
+
+    def __call__(self, res: Any) -> Any:
+        self.calls = max(int(getattr(res, "nfev", self.calls + 1)), self.calls)
+        if float(res.fun) < self.best:
+            self.best, self.x = float(res.fun), np.array(res.x, dtype=float, copy=True)
+        return None if self.then is None else self.then(res)
+
+
+def _quiet(_line: str) -> None:
+    pass
+
+
+def calibrate(
+    robot: Any,
+    data: Any,
+    method: str | None = None,
+    *,
+    noise: Any = None,
+    validation: Any = None,
+    validation_fraction: float = 0.2,
+    seed: int = 0,
+    parameters: str = "base",
+    bounds: Any = None,
+    truth: Any = None,
+    progress: bool | None = None,
+    callback: Callable[..., Any] | None = None,
+    log: Callable[[str], None] | None = None,
+    data_name: str = "",
+    robot_name: str = "",
+    sources: dict[str, str] | None = None,
+    settings: dict[str, Any] | None = None,
+    provenance: dict[str, Any] | None = None,
+    **options: Any,
+) -> Calibration:
+    """Calibrate ``robot`` from ``data`` of any kind: the whole job of ``iwr calibrate``.
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot (with its instrument's setup, e.g. a ``[tracker]`` table, for data
+        measured by one).
+    data
+        The measurements (:class:`iwr.Measurements`, tracker data, or any registered kind).
+    method : str, optional
+        As :func:`iwr.identify`; default ``"efficient"`` with a noise model, else ``"lm"``.
+    noise : optional
+        The instruments' noise (:class:`iwr.Noise`, the kind's own form, or ``"estimate"``):
+        the efficient estimator weighs every reading by it and tests the fit; other methods
+        minimise the objective weighted by it where the kind has one.
+    validation : optional
+        Held-out poses of the same kind; else ``validation_fraction`` of ``data`` is held out at
+        random (seed ``seed``; 0: none, and the accuracy is then optimistic).
+    parameters : {"base", "all"}
+        Identify the base parameters only (the unidentifiable ones held at nominal: a unique
+        answer), or all of them.
+    bounds, seed, progress, options
+        As :func:`iwr.identify` (``max_evaluations``, ``generations``, ``polish``, ...).
+    truth : array_like, optional
+        The true parameters of a simulation: the parameter error and the noise floor.
+    callback : callable, optional
+        Called with each intermediate result, as by :func:`iwr.identify`.
+    log : callable, optional
+        Called with each line the job says as it goes (``print`` for a command line).
+    data_name, robot_name, sources, settings, provenance
+        What the report names and records.
+
+    Returns
+    -------
+    Calibration
+        Ctrl-C during the identification ends the job with the best point so far
+        (``status == "interrupted"``, ``success`` false).
+    """
+    kind = kinds.of(data)
+    kind.check(robot, data)
+    if parameters not in ("base", "all"):
+        raise ValueError(f"parameters: {parameters!r}; expected 'base' or 'all'")
+    say = log or _quiet
+    if validation is not None:
+        if kinds.of(validation) is not kind:
+            raise TypeError(f"validation: {kinds.of(validation).name} data, but data are "
+                            f"{kind.name} data")
+        ident, val, held_out = data, validation, True
+    elif validation_fraction:
+        ident, val = kinds.split(data, validation_fraction, seed)
+        held_out = True
+        weights = getattr(ident, "weights", None)
+        if weights is not None and not (np.asarray(weights) > 0).any():
+            raise ValueError(f"validation_fraction {validation_fraction} (seed {seed}): every "
+                             "pose with a weight > 0 was held out; no identification reading "
+                             "counts")
+    else:
+        ident = val = data
+        held_out = False
+    if noise is not None:
+        noise = kind.reading_noise(noise)
+    if method is None:
+        method = "efficient" if noise is not None else "lm"
+    problems: dict[Any, Any] = {}
+    notes: list[str] = []
+    with kinds.reuse(problems):
+        for line in kind.job_lines(robot, data, len(ident), method):
+            say(line)
+        start = kind.start(robot, ident)
+        if start is not None:
+            say(str(start))
+        # At the start: what identify holds at nominal, so that the report's "held" and "null
+        # direction" agree with what was done.
+        report = identifiability(robot, ident)
+        if parameters == "base":
+            options["active"] = report.active
+        best = _Best(callback)
+        try:
+            result = identify(robot, ident, method, noise=noise, bounds=bounds, seed=seed,
+                              progress=progress, callback=best, **options)
+        except KeyboardInterrupt:
+            result = _best_so_far(robot, ident, kind, method, best, options.get("active"),
+                                  bounds)
+        # What `iwr report` checks its data against: the whole data set's fingerprint, as the
+        # engine's problem file records it.
+        result["settings"] = {**dict(result.get("settings") or {}), "data_file": data_name,
+                              "data_fingerprint": kind.fingerprint(robot, data)}
+        note = kind.weighting_note(data, method, data_name)
+        if note:
+            notes.append(note)
+        unc = _uncertainty(robot, ident, result, report if parameters == "all" else None,
+                           noise, notes)
+        acc = accuracy(robot, val, result.x)
+        truth_acc = perr = None
+        if truth is not None:
+            truth_acc = accuracy(robot, val, truth)
+            perr = parameter_error(robot, ident, result.x, truth)
+        predicted = None
+        if result.get("covariance") is not None and not result.interrupted:
+            try:
+                predicted = kind.predicted_accuracy(robot, val, result.x, result["covariance"],
+                                                    result["active"], seed)
+            except (ValueError, NotImplementedError, np.linalg.LinAlgError) as exc:
+                notes.append(f"note: no predicted accuracy: {_one_line(exc)}")
+        cal = Calibration(
+            robot=robot, identification=ident, validation=val, held_out=held_out,
+            result=result, accuracy=acc, data_name=data_name, robot_name=robot_name,
+            identifiability=report, uncertainty=unc, parameter_error=perr,
+            truth_accuracy=truth_acc, notes=notes, settings=dict(settings or {"method": method}),
+            provenance=provenance, predicted=predicted, start=start,
+            sources=dict(sources or {}), kind=kind, problems=problems)
+        cal._settle()
+    return cal
+
+
+def from_result(
+    robot: Any,
+    data: Any,
+    result: IdentificationResult,
+    *,
+    validation: Any = None,
+    data_name: str = "",
+    robot_name: str = "",
+    sources: dict[str, str] | None = None,
+    settings: dict[str, Any] | None = None,
+    provenance: dict[str, Any] | None = None,
+) -> Calibration:
+    """The :class:`Calibration` of a result identified elsewhere (``iwr-calibrate``'s run, a
+    saved result) from ``data``: everything :func:`calibrate` computes after the
+    identification, on ``validation`` (default the data themselves: an optimistic accuracy).
+    ValueError when the result's parameters are not those of ``robot`` and the data's kind."""
+    kind = kinds.of(data)
+    kind.check(robot, data)
+    names = robot.parameter_names + kind.setup_parameter_names(robot)
+    x = np.asarray(result.x, dtype=float)
+    if x.shape != (len(names),):
+        raise ValueError(f"{x.size} parameters, but robot {robot.name!r} "
+                         + ("" if len(names) == robot.n_params else "with its tracker setup ")
+                         + f"has {len(names)}")
+    saved = list(result.get("parameter_names") or [])
+    if saved and saved != names:
+        first = next(a for a, b in zip(saved, names, strict=True) if a != b)
+        raise ValueError(f"its parameters are not those of robot {robot.name!r}"
+                         + ("" if len(names) == robot.n_params else " and its tracker setup")
+                         + f": first difference {first!r}")
+    if validation is not None and kinds.of(validation) is not kind:
+        raise TypeError(f"validation: {kinds.of(validation).name} data, but data are "
+                        f"{kind.name} data")
+    val = data if validation is None else validation
+    problems: dict[Any, Any] = {}
+    notes: list[str] = []
+    with kinds.reuse(problems):
+        try:
+            start = kind.start(robot, data)
+        except ValueError:  # too few points for a registration guess of their own
+            start = None
+        report = identifiability(robot, data)
+        unc = _uncertainty(robot, data, result, report if result.get("active") is None else None,
+                           None, notes, own_covariance=False)
+        if unc is not None and result.get("method") == "efficient":
+            # A result file does not keep the estimator's covariance: say whose these are.
+            notes.append("note: the standard deviations are eq. (10)'s first-order ones at the "
+                         "result, not the efficient estimator's covariance (which `iwr "
+                         "calibrate` reports; a result file does not keep it); they can differ "
+                         "by up to 2x")
+        cal = Calibration(
+            robot=robot, identification=data, validation=val, held_out=validation is not None,
+            result=result, accuracy=accuracy(robot, val, x), data_name=data_name,
+            robot_name=robot_name, identifiability=report, uncertainty=unc, notes=notes,
+            settings=dict(settings or {"method": result.get("method", "")}),
+            provenance=provenance, start=start, sources=dict(sources or {}), kind=kind,
+            problems=problems)
+        cal._settle()
+    return cal
+
+
+def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, notes: list[str],
+                 *, own_covariance: bool = True) -> Uncertainty | None:
+    """The standard deviations of the identified parameters: the efficient estimator's own
+    covariance when it has one (eq. (10)'s first-order covariance differs from it by up to 2x),
+    else the objective's the method minimised (weighted by ``noise`` when it was) over the
+    result's active parameters, or ``report``'s identifiable ones. None, with a note, where
+    they do not exist."""
+    try:
+        unc = Uncertainty.from_result(result) if own_covariance else None
+        if unc is None:
+            active = result.get("active") if report is None else report
+            objective = dict(result.get("settings") or {}).get("objective")
+            if isinstance(objective, dict) and objective.get("weighted"):
+                unc = uncertainty(robot, data, result.x, noise, active=active, weighted=True)
+            else:
+                unc = uncertainty(robot, data, result.x, active=active)
+    except (ValueError, TypeError) as exc:
+        notes.append(f"note: no standard deviations: {_one_line(exc)}")
+        return None
+    return unc
+
+
+def _best_so_far(robot: Any, data: Any, kind: Any, method: str, best: _Best, active: Any,
+                 bounds: Any) -> IdentificationResult:
+    """The result of an identification that Ctrl-C cut short without a result: the best point
+    the callback saw (else the start), its cost evaluated afresh."""
+    problem, start = kind.problem(robot, data, bounds)
+    x = best.x
+    if x is None or x.shape != (problem.n_params,):
+        x = np.asarray(start, dtype=float)
+    return IdentificationResult(
+        x=x, fun=problem.cost(x), nfev=best.calls, nit=0, success=False, status="interrupted",
+        message="interrupted (Ctrl-C)", method=method,
+        parameter_names=list(problem.parameter_names), active=active, settings={}, history={},
+    )
+
+
+def _one_line(exc: BaseException) -> str:
+    return " ".join(str(exc).split())

@@ -1,0 +1,121 @@
+"""The calibration job as a library call (iwr.calibrate, iwr/calibration.py): one job for every
+kind, each thing computed once, and the report rendered from it."""
+
+from __future__ import annotations
+
+import collections
+from typing import Any
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr import kinds
+from iwr.calibration import NOT_CALIBRATED, from_result
+from iwr.reporting.calibration import CalibrationReport, TrackerCalibrationReport, render
+from iwr.tracker.simulate import TrackerNoise
+
+
+def _tracker_robot(kind: str) -> iwr.Robot:
+    registration = (2000.0, -150.0, 300.0, 1.5, 0.01, -0.02)
+    if kind == "points":
+        return iwr.Robot.default().with_tracker(
+            registration=registration,
+            reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)])
+    return iwr.Robot.default().with_tracker(registration=registration,
+                                            probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
+
+
+@pytest.fixture(scope="module", params=["pose", "points", "probe"])
+def job(request: Any) -> tuple[str, iwr.Robot, Any, np.ndarray]:
+    robot = iwr.Robot.default() if request.param == "pose" else _tracker_robot(request.param)
+    data, truth = iwr.simulate(robot, 40, seed=7)
+    return request.param, robot, data, truth
+
+
+def test_one_job_for_every_kind(job, tmp_path):
+    """Noise-free data: the job calibrates (success, the kind's report class), validates on the
+    held-out poses, and the report renders and writes from the Calibration alone."""
+    name, robot, data, truth = job
+    lines: list[str] = []
+    cal = iwr.calibrate(robot, data, "lm", seed=1, log=lines.append)
+    assert cal.kind.name == name and cal.success and cal.status != NOT_CALIBRATED
+    assert cal.held_out and len(cal.identification) + len(cal.validation) == len(data)
+    assert any("identifying" in line for line in lines)
+    assert (cal.start is None) == (name == "pose")
+    before, after, _, _ = cal.improvement()
+    assert after < 1e-6 * before  # noise-free: the held-out poses fit exactly
+    report = render(cal)
+    assert isinstance(report, TrackerCalibrationReport if name != "pose" else CalibrationReport)
+    text = report.text()
+    written = {p.name for p in report.write(tmp_path / "out", plots=False)}
+    assert {"calibrated.toml", "result.json", "report.html", "summary.json"} <= written
+    assert "converged" in text
+    # The fingerprint iwr report checks is the data's, whatever was held out.
+    assert cal.result["settings"]["data_fingerprint"] == cal.kind.fingerprint(robot, data)
+
+
+def test_tracker_job_builds_its_problem_and_guesses_its_registration_once(monkeypatch):
+    """One tracker calibration (identification, identifiability, fit test, standard deviations,
+    accuracy, and its report) builds the identification poses' problem once and guesses their
+    registration once (issue 21: it was 15-17 problems and 16 guesses)."""
+    from iwr.tracker import problem as problem_module
+    from iwr.tracker import registration
+
+    robot = _tracker_robot("points")
+    data, _ = iwr.simulate(robot, 30, seed=3, noise=TrackerNoise.leica())
+    guesses: collections.Counter[int] = collections.Counter()
+    builds: collections.Counter[int] = collections.Counter()
+    guess = registration.guess_registration
+    init = problem_module.TrackerProblem.__init__
+
+    def counted_guess(robot: Any, setup: Any, m: Any, *a: Any, **k: Any) -> Any:
+        guesses[id(m)] += 1
+        return guess(robot, setup, m, *a, **k)
+
+    def counted_init(self: Any, robot: Any, setup: Any, m: Any, *a: Any, **k: Any) -> None:
+        builds[id(m)] += 1
+        init(self, robot, setup, m, *a, **k)
+
+    monkeypatch.setattr(registration, "guess_registration", counted_guess)
+    monkeypatch.setattr(problem_module.TrackerProblem, "__init__", counted_init)
+    cal = iwr.calibrate(robot, data, "lm", seed=2)
+    render(cal).text()
+    ident = id(cal.identification)
+    assert guesses[ident] == 1 and builds[ident] == 1, (guesses, builds)
+    # Outside a job nothing is kept: a second call builds again (no stale problem for data a
+    # user may change).
+    iwr.identifiability(robot, cal.identification)
+    assert guesses[ident] == 2
+
+
+def test_from_result_is_the_job_without_the_identification(job):
+    """iwr report's path: the Calibration of a result identified elsewhere has the same
+    verdict and accuracy as the job's, on the same poses."""
+    name, robot, data, truth = job
+    cal = iwr.calibrate(robot, data, "lm", seed=1, validation_fraction=0)
+    again = from_result(robot, data, cal.result)
+    assert again.kind is cal.kind and again.success == cal.success
+    np.testing.assert_allclose(again.accuracy.calibrated.position,
+                               cal.accuracy.calibrated.position, rtol=1e-9, atol=1e-9)
+    bad = iwr.IdentificationResult(**{**dict(cal.result), "x": np.zeros(3)})
+    with pytest.raises(ValueError, match="3 parameters, but robot"):
+        from_result(robot, data, bad)
+
+
+def test_degenerate_data_are_not_calibrated(job):
+    """Two distinct poses copied: the method converges, the job says 'not calibrated'."""
+    name, robot, data, _ = job
+    kind = kinds.of(data)
+    copies = kind.subset(data, np.array([0, 1] * 15))
+    cal = iwr.calibrate(robot, copies, "lm", validation=kind.subset(data, np.arange(2, 10)))
+    assert not cal.success and cal.status == NOT_CALIBRATED
+    assert "degenerate data" in str(cal.result.message)
+
+
+def test_calibrate_checks_its_arguments(job):
+    name, robot, data, _ = job
+    with pytest.raises(ValueError, match="parameters"):
+        iwr.calibrate(robot, data, "lm", parameters="some")
+    with pytest.raises(ValueError, match="fraction"):
+        iwr.calibrate(robot, data, "lm", validation_fraction=1.5)
