@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import sys
 import time
+from typing import Any
 
 import numpy as np
 
@@ -45,10 +46,9 @@ def perturbed(robot: iwr.Robot, clean: BallbarMeasurements,
     return BallbarMeasurements(q, legs, clean.setup, d, joint_types=clean.joint_types)
 
 
-def main() -> None:
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 200
-    seeds = int(sys.argv[2]) if len(sys.argv) > 2 else 20
-    names = sys.argv[3] if len(sys.argv) > 3 else "AB"
+def run(n: int = 200, seeds: int = 20, names: str = "AB") -> dict[str, Any]:
+    """The Monte Carlo; its figures as a dictionary (``ratio``: actual / predicted RMS error of
+    the fresh readings over all seeds)."""
     robot = iwr.Robot.default().with_instrument("ballbar", {k: BARS[k] for k in names})
     clean, truth = iwr.simulate(robot, n, seed=1)
     fresh, _ = iwr.simulate(robot, 100, seed=2, x=truth)
@@ -70,26 +70,36 @@ def main() -> None:
         maha.append(float(dev @ np.linalg.solve(unc.covariance, dev)) / int(mask.sum()))
         tool.append(iwr.accuracy(robot, fresh, res.x, truth=truth).calibrated.position)
         chi2_p.append(res.fit.p_value)
-    elapsed = time.time() - start
     per_seed = np.sqrt(np.array(actual) / np.array(predicted))
-    ratio = float(np.sqrt(np.mean(actual) / np.mean(predicted)))
-    tool_all = np.concatenate(tool)
-    print(f"ballbar Monte Carlo: IWR, set-ups {', '.join(names)}, N = {n}, {seeds} seeds, "
-          f"{int(mask.sum())} base parameters of {mask.size}; noise legs {READINGS.legs} mm, "
+    return {"names": names, "n": n, "seeds": seeds, "n_base": int(mask.sum()),
+            "n_params": mask.size, "actual": float(np.sqrt(np.mean(actual))),
+            "predicted": float(np.sqrt(np.mean(predicted))),
+            "ratio": float(np.sqrt(np.mean(actual) / np.mean(predicted))), "per_seed": per_seed,
+            "maha": np.array(maha), "chi2_p": np.array(chi2_p), "tool": np.concatenate(tool),
+            "elapsed": time.time() - start}
+
+
+def main() -> None:
+    n = int(sys.argv[1]) if len(sys.argv) > 1 else 200
+    seeds = int(sys.argv[2]) if len(sys.argv) > 2 else 20
+    out = run(n, seeds, sys.argv[3] if len(sys.argv) > 3 else "AB")
+    per_seed, maha, tool = out["per_seed"], out["maha"], out["tool"]
+    print(f"ballbar Monte Carlo: IWR, set-ups {', '.join(out['names'])}, N = {n}, {seeds} seeds, "
+          f"{out['n_base']} base parameters of {out['n_params']}; noise legs {READINGS.legs} mm, "
           f"joints {READINGS.joint_lengths} mm / {READINGS.joint_angles} rad, bar "
           f"{BAR.distance} mm")
-    print(f"fresh readings (100 poses): actual RMS error {np.sqrt(np.mean(actual)) * 1e3:.3f} um, "
-          f"predicted {np.sqrt(np.mean(predicted)) * 1e3:.3f} um, actual/predicted {ratio:.3f}")
-    print(f"  per seed actual/predicted: mean {per_seed.mean():.3f}, std {per_seed.std(ddof=1):.3f}, "
-          f"min {per_seed.min():.3f}, max {per_seed.max():.3f}")
+    print(f"fresh readings (100 poses): actual RMS error {out['actual'] * 1e3:.3f} um, "
+          f"predicted {out['predicted'] * 1e3:.3f} um, actual/predicted {out['ratio']:.3f}")
+    print(f"  per seed actual/predicted: mean {per_seed.mean():.3f}, std "
+          f"{per_seed.std(ddof=1):.3f}, min {per_seed.min():.3f}, max {per_seed.max():.3f}")
     print(f"base parameters: Mahalanobis distance / p from the noise-free solution: mean "
-          f"{np.mean(maha):.3f} (1 expected; std of the mean over seeds "
-          f"{np.std(maha, ddof=1) / np.sqrt(seeds):.3f})")
-    print(f"chi-square p-values: min {min(chi2_p):.3f}, median {np.median(chi2_p):.3f}")
-    print(f"tool position error, gauge-aligned (actual): RMS {np.sqrt(np.mean(tool_all**2)) * 1e3:.2f}"
-          f" um, max {tool_all.max() * 1e3:.2f} um")
-    print(f"{elapsed:.1f} s ({elapsed / seeds:.2f} s per seed)")
-
+          f"{maha.mean():.3f} (1 expected; std of the mean over seeds "
+          f"{maha.std(ddof=1) / np.sqrt(seeds):.3f})")
+    print(f"chi-square p-values: min {out['chi2_p'].min():.3f}, median "
+          f"{np.median(out['chi2_p']):.3f}")
+    print(f"tool position error, gauge-aligned (actual): RMS "
+          f"{np.sqrt(np.mean(tool**2)) * 1e3:.2f} um, max {tool.max() * 1e3:.2f} um")
+    print(f"{out['elapsed']:.1f} s ({out['elapsed'] / seeds:.2f} s per seed)")
 
 if __name__ == "__main__":
     main()
