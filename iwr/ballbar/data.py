@@ -83,6 +83,12 @@ class BallbarMeasurements:
                                    lines=None if self.lines is None else self.lines[rows],
                                    source=self.source)
 
+    def to_csv(self, path: Any) -> None:
+        """Write the data file (docs/ballbar.md), atomically: :func:`iwr.ballbar.write_ballbar`."""
+        from .files import write_ballbar
+
+        write_ballbar(path, self)
+
     def setup_index(self, setup: BallbarSetup) -> np.ndarray:
         """Each pose's set-up as an index into ``setup.bars``; ValueError naming the first pose
         whose set-up the robot does not describe."""
