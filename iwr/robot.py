@@ -334,6 +334,7 @@ class Robot:
         if setup is not None and not isinstance(setup, TrackerSetup):
             raise TypeError(f"setup: expected an iwr.tracker.TrackerSetup, got "
                             f"{type(setup).__name__}")
+        out.instruments = _instruments(self.instruments, setup)  # one instrument per robot
         # The tracker's noise goes with the tracker; a pose-in-{0} noise does not fit one.
         out.noise, out.tracker_noise = _check_noise_model(
             self.noise, self.tracker_noise if setup is not None else None, setup)

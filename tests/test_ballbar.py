@@ -95,6 +95,8 @@ def test_robot_toml_round_trip_and_errors(tmp_path):
     tracker = iwr.Robot.default().with_tracker((0, 0, 0, 0, 0, 0), reflectors=[(0, 0, 0)])
     with pytest.raises(ValueError, match="tracker and ballbar: a robot is measured by one"):
         tracker.with_instrument("ballbar", BARS)
+    with pytest.raises(ValueError, match="tracker and ballbar: a robot is measured by one"):
+        robot.with_tracker((0, 0, 0, 0, 0, 0), reflectors=[(0, 0, 0)])
 
 
 def test_simulation_and_problem_agree(sim):
