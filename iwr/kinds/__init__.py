@@ -102,10 +102,10 @@ class MeasurementKind(abc.ABC):
     def read_setup(self, setup: Any, where: str) -> Any:
         """The kind's instrument set-up from the robot TOML's table named after the kind
         (``setup`` a mapping; errors name ``where`` and the key) or a set-up object of the
-        kind's own, checked: what :attr:`iwr.Robot.instruments` holds (:meth:`iwr.Robot.
-        with_instrument`). The set-up's ``to_dict()`` is the table written back. The default:
-        the kind is described by no table of its own (poses in {0}: none; the tracker: the
-        robot's ``[tracker]`` table, :attr:`iwr.Robot.tracker`)."""
+        kind's own, checked: what ``Robot.instruments`` holds (``Robot.with_instrument``). The
+        set-up's ``to_dict()`` is the table written back. The default: the kind is described
+        by no table of its own (poses in {0}: none; the tracker: the robot's ``[tracker]``
+        table, ``Robot.tracker``)."""
         raise ValueError(f"[{where}]: measurement kind {self.name!r} is not described by a "
                          "table of its own; " + self._setup_hint())
 
