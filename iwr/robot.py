@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
+from . import _core, kinds
 from ._io import NotRegularFileError, atomic_write_text, open_regular
 from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM
 
@@ -143,6 +143,12 @@ class Robot:
         ``joint_lengths``, ``joint_angles``) applies: ``position`` and ``orientation`` must be 0.
     tracker_noise : iwr.tracker.TrackerNoise, optional
         The tracker's noise, the ``[tracker.noise]`` table; only with ``tracker``.
+    instruments : mapping, optional
+        The set-ups of other instruments, by the name of their measurement kind (its table in
+        the TOML file, e.g. ``{"ballbar": iwr.ballbar.BallbarSetup(...)}``, the ``[ballbar]``
+        table: docs/ballbar.md); see :meth:`with_instrument`. Each is read and checked by its
+        kind (:meth:`iwr.kinds.MeasurementKind.read_setup`). A robot is measured by one
+        instrument: not with ``tracker``.
 
     ``noise`` and ``tracker_noise`` describe the bench, not the geometry; they are kept by
     :meth:`with_errors` and written by :meth:`to_toml`. ``iwr calibrate`` and ``iwr simulate``
@@ -168,6 +174,7 @@ class Robot:
         tracker: Any = None,
         noise: Any = None,
         tracker_noise: Any = None,
+        instruments: Mapping[str, Any] | None = None,
     ) -> None:
         if not isinstance(joint_types, str) or any(c not in "PR" for c in joint_types):
             raise ValueError(
@@ -209,6 +216,9 @@ class Robot:
         #: (docs/tracker.md).
         self.tracker = tracker
         self.noise, self.tracker_noise = _check_noise_model(noise, tracker_noise, tracker)
+        #: The set-ups of the instruments described by a kind's own table (docs/kinds.md), by
+        #: kind name; empty for poses in {0} and for the tracker (:attr:`tracker`).
+        self.instruments = _instruments(instruments or {}, tracker)
         if np.any(self.workspace < 0):
             raise ValueError(f"workspace: half-widths must be >= 0, got {self.workspace}")
         self._geometry = _core.Geometry(
@@ -284,7 +294,19 @@ class Robot:
             tracker=self.tracker,
             noise=self.noise,
             tracker_noise=self.tracker_noise,
+            instruments=self.instruments,
         )
+
+    def with_instrument(self, name: str, setup: Any) -> Robot:
+        """This robot measured by the instrument of measurement kind ``name`` (for example
+        ``"ballbar"``), described by ``setup`` (the kind's set-up object, or its TOML table as a
+        mapping); ``setup=None`` removes it."""
+        out = copy.copy(self)
+        instruments = {k: v for k, v in self.instruments.items() if k != name}
+        if setup is not None:
+            instruments[name] = setup
+        out.instruments = _instruments(instruments, self.tracker)
+        return out
 
     def with_tracker(self, registration: Any = None, *, reflectors: Any = None, probe: Any = None,
                      probe_length: float = 100.0, names: Any = None, setup: Any = None) -> Robot:
@@ -312,6 +334,7 @@ class Robot:
         if setup is not None and not isinstance(setup, TrackerSetup):
             raise TypeError(f"setup: expected an iwr.tracker.TrackerSetup, got "
                             f"{type(setup).__name__}")
+        out.instruments = _instruments(self.instruments, setup)  # one instrument per robot
         # The tracker's noise goes with the tracker; a pose-in-{0} noise does not fit one.
         out.noise, out.tracker_noise = _check_noise_model(
             self.noise, self.tracker_noise if setup is not None else None, setup)
@@ -441,6 +464,7 @@ class Robot:
             },
             **({"noise": dataclasses.asdict(self.noise)} if self.noise is not None else {}),
             **({"tracker": self._tracker_dict()} if self.tracker is not None else {}),
+            **{name: setup.to_dict() for name, setup in self.instruments.items()},
         }
 
     def _tracker_dict(self) -> dict[str, Any]:
@@ -509,6 +533,8 @@ class Robot:
                 out += ["", "[tracker.noise]  # standard deviations: distance, transverse (mm), "
                         "distance_per_m, transverse_per_m (mm per m), orientation (rad)"]
                 out += [f"{k} = {_toml_value(float(v))}" for k, v in tnoise.items()]
+        for name in self.instruments:
+            out += _toml_table(name, d[name])
         atomic_write_text(path, "\n".join(out) + "\n")
 
     @classmethod
@@ -567,8 +593,10 @@ class Robot:
     @classmethod
     def from_dict(cls, data: Mapping[str, Any]) -> Robot:
         """Build a robot from the dictionary form of :meth:`to_dict`; strict about keys."""
-        _check_keys(data, {"name", "units", "carriage", "hexapod", "provenance", "tracker",
-                           "noise"}, {"hexapod"}, "")
+        builtin = {"name", "units", "carriage", "hexapod", "provenance", "tracker", "noise"}
+        # A table named after a registered measurement kind describes its instrument's set-up.
+        tables = [k for k in data if k not in builtin and k in kinds.available()]
+        _check_keys(data, builtin | set(tables), {"hexapod"}, "")
         units = data.get("units", {"length": "mm", "angle": "rad"})
         _check_keys(units, {"length", "angle"}, set(), "units")
         if units.get("length", "mm") != "mm" or units.get("angle", "rad") != "rad":
@@ -635,6 +663,7 @@ class Robot:
             _stroke(hexa["leg_stroke"]),
             name=name,
             provenance=_provenance(data.get("provenance", {}), "provenance"),
+            instruments={name: data[name] for name in tables},
             **kwargs,
         )
 
@@ -678,6 +707,38 @@ def _sigmas(table: Any, where: str, units: Mapping[str, str]) -> dict[str, float
             raise ValueError(f"{where}.{key}: {value!r} {unit} is below any instrument's noise; a "
                              f"standard deviation is 0 (none) or at least {MIN_SIGMA:g}")
         out[key] = v
+    return out
+
+
+def _instruments(instruments: Mapping[str, Any], tracker: Any) -> dict[str, Any]:
+    """Each instrument's set-up read and checked by its kind (a table or a set-up object)."""
+    if not isinstance(instruments, Mapping):
+        raise TypeError(f"instruments: expected a mapping of kind names to set-ups, got "
+                        f"{type(instruments).__name__}")
+    out = {}
+    for name, setup in instruments.items():
+        if name not in kinds.available():
+            raise ValueError(f"{name}: not a registered measurement kind "
+                             f"({', '.join(kinds.available())})")
+        out[name] = kinds.named(name).read_setup(setup, name)
+    if len(out) + (tracker is not None) > 1:
+        described = (["tracker"] if tracker is not None else []) + list(out)
+        raise ValueError(f"{' and '.join(described)}: a robot is measured by one instrument; "
+                         "describe one")
+    return out
+
+
+def _toml_table(name: str, table: Mapping[str, Any]) -> list[str]:
+    """Lines of a TOML table ``[name]`` with its sub-tables ``[name.key]``, one key a line."""
+    out: list[str] = []
+    plain = {k: v for k, v in table.items() if not isinstance(v, Mapping)}
+    if plain:
+        out += ["", f"[{_toml_key(name)}]"]
+        out += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in plain.items()]
+    for key, sub in table.items():
+        if isinstance(sub, Mapping):
+            out += ["", f"[{_toml_key(name)}.{_toml_key(key)}]"]
+            out += [f"{_toml_key(k)} = {_toml_value(v)}" for k, v in sub.items()]
     return out
 
 

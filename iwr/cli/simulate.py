@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..kinds import for_robot
 from ._base import (
     EXIT_OK,
     add_common,
@@ -65,7 +66,8 @@ def write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: Any
         "seed": seed,
         "n_poses": n_poses,
         "noise": dataclasses.asdict(noise),
-        "parameter_names": robot.parameter_names,
+        # the robot's, then its instrument's set-up parameters (a ballbar's balls and offsets)
+        "parameter_names": robot.parameter_names + for_robot(robot).setup_parameter_names(robot),
         "errors": [float(v) for v in truth],
     }
     atomic_write_text(path, json.dumps(doc, indent=1) + "\n")

@@ -38,6 +38,7 @@ __all__ = [
     "MeasurementKind",
     "available",
     "for_robot",
+    "named",
     "of",
     "register",
     "reuse",
@@ -106,6 +107,16 @@ class MeasurementKind(abc.ABC):
 
     def _setup_hint(self) -> str:
         return "describe the instrument in the robot's TOML file (docs/data.md, docs/tracker.md)"
+
+    def read_setup(self, setup: Any, where: str) -> Any:
+        """The kind's instrument set-up from the robot TOML's table named after the kind
+        (``setup`` a mapping; errors name ``where`` and the key) or a set-up object of the
+        kind's own, checked: what ``Robot.instruments`` holds (``Robot.with_instrument``). The
+        set-up's ``to_dict()`` is the table written back. The default: the kind is described
+        by no table of its own (poses in {0}: none; the tracker: the robot's ``[tracker]``
+        table, ``Robot.tracker``)."""
+        raise ValueError(f"[{where}]: measurement kind {self.name!r} is not described by a "
+                         "table of its own; " + self._setup_hint())
 
     def subset(self, data: Any, rows: Any) -> Any:
         """The poses at ``rows`` (indices or a boolean mask), lines and source kept."""
@@ -317,6 +328,7 @@ def register(name: str, kind: str | MeasurementKind) -> None:
 register("pose", "iwr.kinds.pose:PoseKind")
 register("points", "iwr.tracker.kind:PointsKind")
 register("probe", "iwr.tracker.kind:ProbeKind")
+register("ballbar", "iwr.ballbar.kind:BallbarKind")
 
 
 def _load(name: str) -> MeasurementKind:
@@ -334,6 +346,13 @@ def _load(name: str) -> MeasurementKind:
                                 f"named {name!r}")
             _LOADED[name] = spec
         return _LOADED[name]
+
+
+def named(name: str) -> MeasurementKind:
+    """The registered kind ``name``; ValueError naming the registered ones otherwise."""
+    if name not in _SPECS:
+        raise ValueError(f"kind: {name!r} is not registered ({', '.join(list(_SPECS))})")
+    return _load(name)
 
 
 def available() -> list[str]:

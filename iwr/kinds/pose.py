@@ -40,7 +40,8 @@ class PoseKind(MeasurementKind):
         return isinstance(data, Measurements)
 
     def applies_to(self, robot: Any) -> bool:
-        return getattr(robot, "tracker", None) is None
+        # No instrument described: neither a tracker nor another kind's set-up.
+        return getattr(robot, "tracker", None) is None and not getattr(robot, "instruments", {})
 
     def setup_parameter_names(self, robot: Any) -> list[str]:
         return []

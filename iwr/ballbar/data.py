@@ -1,0 +1,106 @@
+"""Double-ballbar measurements: the robot's joint and leg readings with one bar reading per pose."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..measurements import MAX_LENGTH_MM, _row_index, as_matrix, joint_readings
+from .setup import BallbarSetup
+
+__all__ = ["BallbarMeasurements"]
+
+
+class BallbarMeasurements:
+    """A calibration data set measured with a double ballbar, N poses (docs/ballbar.md).
+
+    Parameters
+    ----------
+    q : array_like, shape (N, n_joints)
+        Carriage joint readings (mm, rad).
+    legs : array_like, shape (N, 6)
+        Leg sensor readings (mm).
+    setup : sequence of str, length N
+        The bar set-up each pose was measured in (a name of the robot's ``[ballbar]`` set-ups).
+    distance : array_like, shape (N,)
+        The bar's reading: the distance between the two balls' centres plus the set-up's length
+        offset (mm).
+    joint_types, lines, source : optional
+        As :class:`iwr.Measurements`.
+    """
+
+    kind = "ballbar"
+
+    def __init__(self, q: Any, legs: Any, setup: Any, distance: Any, *,
+                 joint_types: str | None = None, lines: Any = None,
+                 source: str | None = None) -> None:
+        self.legs = as_matrix(legs, 6, "legs")
+        n = self.legs.shape[0]
+        if n == 0:
+            raise ValueError("legs: no measurements (0 rows)")
+        self.q = joint_readings(q, joint_types, n)
+        self.joint_types = joint_types
+        d = as_matrix(np.asarray(distance, dtype=float).reshape(-1, 1)
+                      if np.ndim(distance) == 1 else distance, 1, "distance", rows=n)[:, 0]
+        bad = np.flatnonzero(~((d > 0) & (d < MAX_LENGTH_MM)))
+        if bad.size:
+            raise ValueError(f"distance: pose {int(bad[0])} is {float(d[bad[0]])!r}; a bar reading is a "
+                             f"length in mm, > 0 and below {MAX_LENGTH_MM:g}")
+        self.distance = np.ascontiguousarray(d)
+        if isinstance(setup, str):
+            raise ValueError("setup: expected one set-up name per pose, got one string")
+        names = np.array([str(s) for s in setup], dtype=object)
+        if names.shape != (n,):
+            raise ValueError(f"setup: {names.size} names; expected {n}, one per pose")
+        self.setup = names
+        self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
+        self.source = None if source is None else str(source)
+
+    def __len__(self) -> int:
+        return int(self.legs.shape[0])
+
+    @property
+    def n_poses(self) -> int:
+        return len(self)
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.q.shape[1])
+
+    def where(self, k: int) -> str:
+        """Where pose ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
+        loc = f"pose {k}" if self.lines is None else f"line {int(self.lines[k])}"
+        return f"{self.source}, {loc}" if self.source and self.lines is not None else loc
+
+    def subset(self, rows: Any) -> BallbarMeasurements:
+        """The poses ``rows`` (indices or a mask), in that order, lines and source kept."""
+        rows = np.arange(len(self))[_row_index(rows)]
+        if rows.size == 0:
+            raise ValueError("rows: no measurements selected")
+        return BallbarMeasurements(self.q[rows], self.legs[rows], self.setup[rows],
+                                   self.distance[rows], joint_types=self.joint_types,
+                                   lines=None if self.lines is None else self.lines[rows],
+                                   source=self.source)
+
+    def to_csv(self, path: Any) -> None:
+        """Write the data file (docs/ballbar.md), atomically: :func:`iwr.ballbar.write_ballbar`."""
+        from .files import write_ballbar
+
+        write_ballbar(path, self)
+
+    def setup_index(self, setup: BallbarSetup) -> np.ndarray:
+        """Each pose's set-up as an index into ``setup.bars``; ValueError naming the first pose
+        whose set-up the robot does not describe."""
+        index = {name: i for i, name in enumerate(setup.names)}
+        out = np.empty(len(self), dtype=np.intp)
+        for k, name in enumerate(self.setup):
+            if name not in index:
+                raise ValueError(f"{self.where(k)}: set-up {name!r} is not one of the robot's "
+                                 f"[ballbar] set-ups ({', '.join(setup.names)})")
+            out[k] = index[name]
+        return out
+
+    def __repr__(self) -> str:
+        return (f"BallbarMeasurements(n_poses={len(self)}, set-ups="
+                f"{sorted(set(self.setup.tolist()))})")

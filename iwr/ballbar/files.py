@@ -1,0 +1,92 @@
+"""Double-ballbar data files: one row per pose, the robot's readings, the set-up and the bar's
+reading (docs/ballbar.md)."""
+
+from __future__ import annotations
+
+import csv
+import io
+import os
+from pathlib import Path
+
+import numpy as np
+
+from .._io import atomic_write_text
+from ..measurements import _JOINT_RE, _LEG_COLUMNS, MeasurementFileError, _summarise
+from ..tracker.files import _read_rows, _value
+from .data import BallbarMeasurements
+from .setup import BallbarSetup
+
+__all__ = ["read_ballbar", "write_ballbar", "HEADER_COMMENT"]
+
+HEADER_COMMENT = """\
+# iwr double-ballbar data (docs/ballbar.md). Lengths in mm, angles in rad.
+# q<i>_<unit>: carriage joint readings; s1_mm .. s6_mm: leg sensor readings;
+# setup: the bar set-up (a [ballbar.NAME] of the robot); distance_mm: the bar's reading
+#   (the balls' centre distance plus the set-up's length offset).
+"""
+
+
+def _columns(joint_types: str) -> list[str]:
+    return [*(f"q{i + 1}_{'mm' if t == 'P' else 'rad'}" for i, t in enumerate(joint_types)),
+            *_LEG_COLUMNS, "setup", "distance_mm"]
+
+
+def read_ballbar(path: str | os.PathLike[str], joint_types: str,
+                 setup: BallbarSetup) -> BallbarMeasurements:
+    """Read a ballbar CSV for a robot with ``joint_types`` and ``setup``; errors name the file,
+    the line and the column (every bad cell of the file, summarised)."""
+    path = Path(path)
+    header, header_line, _, rows = _read_rows(path)
+    expected = _columns(joint_types)
+    where = f"{path}, line {header_line}"
+    order = "expected columns, in this order: " + ", ".join(expected) + " (docs/ballbar.md)"
+    for k, (got, want) in enumerate(zip(header, expected, strict=False)):
+        if got != want:
+            hint = ""
+            if _JOINT_RE.match(got) and _JOINT_RE.match(want):
+                hint = " (the robot's joint types say the unit)"
+            raise MeasurementFileError(f"{where}, column {k + 1}: {got!r}; {order}{hint}")
+    if len(header) != len(expected):
+        what = (f"missing column(s) {', '.join(expected[len(header):])}"
+                if len(header) < len(expected) else
+                f"unknown column(s) {', '.join(header[len(expected):])}")
+        raise MeasurementFileError(f"{where}: {what}; {order}")
+    n_joints = len(joint_types)
+    units = [*("mm" if t == "P" else "rad" for t in joint_types), *["mm"] * 6]
+    problems: list[tuple[int, str]] = []
+    known = set(setup.names)
+    values, names, lines = [], [], []
+    for lineno, fields in rows:
+        row = [_value(f, u, lineno, header[k], problems) for k, (f, u)
+               in enumerate(zip(fields[: n_joints + 6], units, strict=True))]
+        name = fields[n_joints + 6]
+        if name not in known:
+            problems.append((lineno, f"line {lineno}, column setup: {name!r} is not one of the "
+                                     f"robot's [ballbar] set-ups ({', '.join(setup.names)})"))
+        d = _value(fields[n_joints + 7], "mm", lineno, "distance_mm", problems)
+        if d is not None and d <= 0:
+            problems.append((lineno, f"line {lineno}, column distance_mm: {d!r}; a bar reading "
+                                     "is a length > 0 (mm)"))
+        values.append([*row, d])
+        names.append(name)
+        lines.append(lineno)
+    if problems:
+        raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad value')}")
+    arr = np.array(values, dtype=float)
+    return BallbarMeasurements(arr[:, :n_joints], arr[:, n_joints:n_joints + 6], names,
+                               arr[:, -1], joint_types=joint_types, lines=lines,
+                               source=str(path))
+
+
+def write_ballbar(path: str | os.PathLike[str], data: BallbarMeasurements) -> None:
+    """Write ballbar data as :func:`read_ballbar` reads them (atomically)."""
+    if data.joint_types is None:
+        raise ValueError("joint_types: unknown, so the joint units cannot be written")
+    buf = io.StringIO()
+    buf.write(HEADER_COMMENT)
+    w = csv.writer(buf, lineterminator="\n")
+    w.writerow(_columns(data.joint_types))
+    for k in range(len(data)):
+        w.writerow([*(repr(float(v)) for v in data.q[k]), *(repr(float(v)) for v in data.legs[k]),
+                    str(data.setup[k]), repr(float(data.distance[k]))])
+    atomic_write_text(path, buf.getvalue())

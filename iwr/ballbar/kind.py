@@ -1,0 +1,129 @@
+"""The double ballbar as a measurement kind (docs/ballbar.md): one distance per pose between a
+ball on the platform and a ball fixed on the base or the table; the balls' centres and the
+bar's length offset of every set-up are identified beside the robot, and the data fix no world
+frame."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from collections.abc import Mapping
+from typing import Any
+
+import numpy as np
+
+from ..kinds import MeasurementKind
+from .api import (
+    ballbar_accuracy,
+    ballbar_identifiability,
+    ballbar_identify,
+    ballbar_problem,
+    ballbar_setup,
+    ballbar_uncertainty,
+)
+from .data import BallbarMeasurements
+from .files import read_ballbar
+from .setup import BallbarSetup
+from .simulate import simulate_ballbar
+
+__all__ = ["BallbarKind"]
+
+
+class BallbarKind(MeasurementKind):
+    """A double ballbar's readings: one centre distance (plus the bar's length offset) per
+    pose, in set-ups of the robot's ``[ballbar]`` table."""
+
+    name = "ballbar"
+    description = "a ballbar's distance"
+    frame = "{0}"
+    determines_world_frame = False
+
+    def owns(self, data: Any) -> bool:
+        return isinstance(data, BallbarMeasurements)
+
+    def applies_to(self, robot: Any) -> bool:
+        return "ballbar" in getattr(robot, "instruments", {})
+
+    def _setup_hint(self) -> str:
+        return ("describe the bar's set-ups with a [ballbar] table in the robot's TOML file or "
+                "robot.with_instrument('ballbar', iwr.ballbar.BallbarSetup(...)) "
+                "(docs/ballbar.md)")
+
+    def read_setup(self, setup: Any, where: str) -> Any:
+        if isinstance(setup, BallbarSetup):
+            return setup
+        if isinstance(setup, Mapping):
+            return BallbarSetup.from_dict(setup, where)
+        raise TypeError(f"{where}: expected an iwr.ballbar.BallbarSetup or a table of set-ups, "
+                        f"got {type(setup).__name__}")
+
+    def setup_parameter_names(self, robot: Any) -> list[str]:
+        return ballbar_setup(robot).parameter_names
+
+    def fingerprint(self, robot: Any, data: Any) -> str:
+        """SHA-256 of the kind, the joint types and every reading and set-up name, as 16 hex
+        digits (no problem file holds ballbar data yet, so no C++ fingerprint either)."""
+        self.check(robot, data)
+        h = hashlib.sha256()
+        h.update(f"ballbar\0{robot.joint_types}\0{data.joint_types}\0{len(data)}\0".encode())
+        for arr in (data.q, data.legs, data.distance):
+            h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
+        h.update("\0".join(str(s) for s in data.setup).encode())
+        return h.hexdigest()[:16]
+
+    def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
+        given = sorted(k for k, v in options.items() if v is not None)
+        if given:
+            raise TypeError(f"--{given[0]}: not an option of ballbar data")
+        return read_ballbar(path, robot.joint_types, ballbar_setup(robot))
+
+    def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
+                 noise: Any = None) -> tuple[Any, np.ndarray]:
+        return simulate_ballbar(robot, ballbar_setup(robot), n_poses, seed=seed, x=x,
+                                noise=noise)
+
+    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None
+                ) -> tuple[Any, np.ndarray]:
+        return ballbar_problem(robot, data, bounds, x0)
+
+    def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
+        return ballbar_identify(robot, data, method, **options)
+
+    def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        return ballbar_accuracy(robot, data, x, **options)
+
+    def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
+        return ballbar_identifiability(robot, data, x, rtol=options.get("rtol"))
+
+    def uncertainty(self, robot: Any, data: Any, x: Any, noise: Any, **options: Any) -> Any:
+        return ballbar_uncertainty(robot, data, x, noise, active=options.get("active"),
+                                   weighted=bool(options.get("weighted")))
+
+    def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+        raise ValueError("ballbar data: the efficient estimator's loop model does not take a "
+                         "ballbar's distances; identify with a method ('lm', 'de', 'crs2', "
+                         "'bobyqa') and noise=(iwr.Noise(...), iwr.ballbar.BallbarNoise(...)): "
+                         "the noise-weighted objective (docs/ballbar.md)")
+
+    def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
+                     ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:
+        problem, _ = ballbar_problem(robot, data, bounds)
+        centre = 0.5 * (problem.lower + problem.upper)
+        limit = plausible * 0.5 * (problem.upper - problem.lower)
+        return (problem.parameter_names, limit, centre,
+                lambda x: problem.residuals_and_jacobian(x))
+
+    def _no_planning(self) -> ValueError:
+        return ValueError("pose planning (iwr.plan_poses) does not take ballbar set-ups yet: a "
+                          "candidate pose belongs to no set-up (docs/ballbar.md)")
+
+    def candidate_poses(self, robot: Any, data: Any) -> Any:
+        raise self._no_planning()
+
+    def design(self, robot: Any, candidates: Any, x: Any, report: Any
+               ) -> tuple[Any, np.ndarray, np.ndarray, int, str]:
+        raise self._no_planning()
+
+    def measure(self, robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
+                rng: np.random.Generator) -> Any:
+        raise self._no_planning()

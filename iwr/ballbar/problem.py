@@ -1,0 +1,256 @@
+"""The identification problem for double-ballbar data: one distance residual per pose."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+from ..robot import Robot
+from .data import BallbarMeasurements
+from .setup import BallbarSetup
+
+__all__ = ["BallbarProblem", "FAILED_RESIDUAL"]
+
+#: The residual (mm) of a pose whose forward kinematics fails (as the tracker problem's).
+FAILED_RESIDUAL = 1e3
+
+
+class BallbarProblem:
+    """The least-squares problem of ballbar data: the surface of :class:`iwr.Problem`
+    (``n_params``, ``parameter_names``, ``lower``, ``upper``, ``cost``, ``residuals``,
+    ``jacobian``, ``residuals_and_jacobian``, ``cost_batch``), so that every method runs on it
+    through :class:`iwr.ReducedProblem`.
+
+    Residual k is ``(|T_05,k P_s - F_s| + o_s - d_k) * w_k`` (mm): the predicted reading minus
+    the measured one, for pose k measured in set-up s, with ``T_05,k`` the platform pose by
+    forward kinematics of the readings, ``P_s`` the platform ball in {5}, ``F_s`` the fixed ball
+    in {0}, ``o_s`` the length offset, and ``w_k`` the pose's weight (1 unweighted; ``1 /
+    sigma_k`` for the noise-weighted objective, :meth:`with_weights`).
+
+    The platform pose and its exact derivative with respect to the robot's parameters come from
+    the C++ tracker kernel (``_core.TrackerObjective``) used as a kinematics kernel: a "probe"
+    at the origin of {5} in a tracker frame equal to {0}, whose four virtual points (the origin
+    and the tips of the unit axes) give ``T_05`` and its derivative by implicit differentiation
+    of the forward kinematics. The distance, its chain rule and the set-ups' columns are NumPy.
+
+    A pose whose forward kinematics fails at ``x`` gets the residual ``FAILED_RESIDUAL`` (times
+    its weight) and a zero Jacobian row, so every method sees a huge but finite cost.
+    """
+
+    def __init__(self, robot: Robot, setup: BallbarSetup, measurements: BallbarMeasurements,
+                 bounds: Any = None, *, reference: Any = None, weights: Any = None) -> None:
+        if not isinstance(robot, Robot):
+            raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+        if not isinstance(setup, BallbarSetup):
+            raise TypeError(f"setup: expected an iwr.ballbar.BallbarSetup, got "
+                            f"{type(setup).__name__}")
+        if not isinstance(measurements, BallbarMeasurements):
+            raise TypeError(f"measurements: expected an iwr.ballbar.BallbarMeasurements, got "
+                            f"{type(measurements).__name__}")
+        if measurements.n_joints != robot.n_joints:
+            raise ValueError(f"measurements: {measurements.n_joints} joint readings per pose, "
+                             f"but robot {robot.name!r} has {robot.n_joints} joints")
+        jt = measurements.joint_types
+        if jt is not None and jt != robot.joint_types:
+            raise ValueError(f"measurements: joint types {jt!r} do not match robot "
+                             f"{robot.name!r}, {robot.joint_types!r}")
+        self.robot, self.setup, self.measurements = robot, setup, measurements
+        self.bar = measurements.setup_index(setup)
+        n = self.n_params
+        if bounds is None:
+            lo_r, hi_r = robot.default_bounds()
+            lo_s, hi_s = setup.default_bounds()
+            lower, upper = np.concatenate([lo_r, lo_s]), np.concatenate([hi_r, hi_s])
+        else:
+            try:
+                lower, upper = (np.broadcast_to(np.array(b, dtype=float), (n,)).copy()
+                                for b in bounds)
+            except (TypeError, ValueError):
+                raise ValueError(f"bounds: expected None or a pair (lower, upper) of {n} "
+                                 "values") from None
+        names = self.parameter_names
+        for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
+            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
+                raise ValueError(f"bounds: parameter {i} ({names[i]}) has lower {lo}, upper "
+                                 f"{hi}; bounds must be finite with lower < upper")
+        self.lower, self.upper = lower, upper
+        ref = np.zeros(robot.n_params) if reference is None else np.asarray(reference, float)
+        if ref.shape != (robot.n_params,):
+            raise ValueError(f"reference: shape {ref.shape}; expected ({robot.n_params},)")
+        self.reference = ref
+        w = np.ones(len(measurements)) if weights is None else np.array(weights, dtype=float)
+        if w.shape != (len(measurements),) or not np.all(np.isfinite(w) & (w > 0)):
+            raise ValueError(f"weights: expected {len(measurements)} finite values > 0, one per "
+                             "pose")
+        self.weights = w
+        try:
+            self._kernel = _core.TrackerObjective(
+                robot._geometry, "probe", np.zeros(6), np.zeros((1, 3)), np.zeros(6), 1.0,
+                measurements.q, measurements.legs, np.zeros((len(measurements), 12)),
+                np.ascontiguousarray(ref), robot.home_pose)
+        except _core.ForwardKinematicsError as exc:
+            k = getattr(exc, "pose", None)
+            where = measurements.where(k) if isinstance(k, int) else "a pose"
+            err = _core.ForwardKinematicsError(
+                f"{where}: the leg readings have no forward kinematics for the robot at the "
+                f"reference parameters ({exc})")
+            err.pose = k
+            raise err from None
+
+    def with_weights(self, weights: Any) -> BallbarProblem:
+        """The same problem with residual k multiplied by ``weights[k]`` (e.g. ``1 / sigma_k``)."""
+        return BallbarProblem(self.robot, self.setup, self.measurements,
+                              (self.lower, self.upper), reference=self.reference, weights=weights)
+
+    # -- sizes and names ----------------------------------------------------------------------
+    @property
+    def n_params(self) -> int:
+        return self.robot.n_params + self.setup.n_params
+
+    @property
+    def n_robot_params(self) -> int:
+        return self.robot.n_params
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.measurements)
+
+    @property
+    def n_residuals(self) -> int:
+        return len(self.measurements)
+
+    n_observations = n_residuals
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return self.robot.parameter_names + self.setup.parameter_names
+
+    @property
+    def angle_parameters(self) -> np.ndarray:
+        return np.concatenate([self.robot.angle_parameters, np.zeros(self.setup.n_params, bool)])
+
+    def x0(self) -> np.ndarray:
+        """The nominal robot and the nominal set-ups: zeros."""
+        return np.zeros(self.n_params)
+
+    def _x(self, x: Any) -> np.ndarray:
+        arr = np.ascontiguousarray(x, dtype=float)
+        if arr.shape != (self.n_params,):
+            raise ValueError(f"x: shape {arr.shape}; expected ({self.n_params},): the robot's "
+                             f"{self.robot.n_params} then the set-ups' {self.setup.n_params}")
+        return arr
+
+    def _kernel_x(self, x: np.ndarray) -> np.ndarray:
+        return np.concatenate([x[: self.robot.n_params], np.zeros(12)])
+
+    # -- the model ----------------------------------------------------------------------------
+    def _frames(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Origins (N, 3) and rotations (N, 3, 3) of {5} in {0}; NaN where FK fails."""
+        pts = self._kernel.predicted_points(self._kernel_x(x)).reshape(self.n_poses, 4, 3)
+        origin = pts[:, 0]
+        rot = np.swapaxes(pts[:, 1:] - origin[:, None, :], 1, 2)  # columns: the axes
+        return origin, rot
+
+    def ball_vectors(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``(P - F, |P - F|)`` per pose: the platform ball's centre minus the fixed ball's, in
+        {0} (N, 3), and their distance (N,); NaN where forward kinematics fails."""
+        x = self._x(x)
+        p, f, _ = self.setup.split(x[self.robot.n_params:])
+        origin, rot = self._frames(x)
+        v = origin + np.einsum("nij,nj->ni", rot, p[self.bar]) - f[self.bar]
+        return v, np.linalg.norm(v, axis=1)
+
+    def predicted(self, x: Any) -> np.ndarray:
+        """The predicted bar readings (N,), mm: centre distance plus length offset; NaN where
+        forward kinematics fails."""
+        x = self._x(x)
+        _, _, o = self.setup.split(x[self.robot.n_params:])
+        return self.ball_vectors(x)[1] + o[self.bar]
+
+    def residuals(self, x: Any) -> np.ndarray:
+        """Predicted minus measured readings, weighted, (N,)."""
+        r = self.predicted(x) - self.measurements.distance
+        return self.weights * np.where(np.isnan(r), FAILED_RESIDUAL, r)
+
+    def cost(self, x: Any) -> float:
+        r = self.residuals(x)
+        return float(r @ r)
+
+    def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Residuals and their exact Jacobian (N, n_params)."""
+        x = self._x(x)
+        nr, n = self.robot.n_params, self.n_poses
+        p, f, o = self.setup.split(x[nr:])
+        res, jac_pts = self._kernel.jacobian(self._kernel_x(x))
+        pts = res.reshape(n, 4, 3)  # the virtual points (their measured values are zero)
+        dpts = jac_pts[:, :nr].reshape(n, 4, 3, nr)
+        origin = pts[:, 0]
+        axes = pts[:, 1:] - origin[:, None, :]  # (N, 3 axes, 3 coords)
+        ball = p[self.bar]
+        v = origin + np.einsum("nji,nj->ni", axes, ball) - f[self.bar]
+        dist = np.linalg.norm(v, axis=1)
+        bad = np.zeros(n, dtype=bool)
+        for k, _ in self._kernel.failures(self._kernel_x(x)):
+            bad[int(k)] = True
+        u = v / np.where(dist > 0, dist, 1.0)[:, None]
+        # d(ball point)/dx_robot = d origin + sum_j ball_j d(axis j)
+        dball = dpts[:, 0] + np.einsum("nj,njcp->ncp", ball, dpts[:, 1:] - dpts[:, :1])
+        jac = np.zeros((n, self.n_params))
+        jac[:, :nr] = np.einsum("nc,ncp->np", u, dball)
+        cols = nr + 7 * self.bar
+        rows = np.arange(n)
+        rot_u = np.einsum("njc,nc->nj", axes, u)  # R^T u: d dist / d platform ball
+        for c in range(3):
+            jac[rows, cols + c] = rot_u[:, c]
+            jac[rows, cols + 3 + c] = -u[:, c]
+        jac[rows, cols + 6] = 1.0
+        r = dist + o[self.bar] - self.measurements.distance
+        r[bad] = FAILED_RESIDUAL
+        jac[bad] = 0.0
+        return self.weights * r, jac * self.weights[:, None]
+
+    def jacobian(self, x: Any) -> np.ndarray:
+        return self.residuals_and_jacobian(x)[1]
+
+    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
+        """Costs of the rows of ``X`` (M, n_params): one forward kinematics of every pose per
+        row (C++), the distances in NumPy; ``workers`` is accepted for the interface and not
+        used (the rows are evaluated one after the other, so the result does not depend on
+        it)."""
+        arr = np.ascontiguousarray(X, dtype=float)
+        if arr.ndim != 2 or arr.shape[1] != self.n_params:
+            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
+        if workers is not None and workers < 1:
+            raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
+        return np.array([self.cost(row) for row in arr])
+
+    # -- diagnostics --------------------------------------------------------------------------
+    def failures(self, x: Any) -> list[tuple[int, str]]:
+        """Poses whose forward kinematics fails at ``x``: ``[(pose index, message)]``."""
+        return [(int(k), str(m)) for k, m in self._kernel.failures(self._kernel_x(self._x(x)))]
+
+    def check(self, x: Any) -> None:
+        """Raise :class:`iwr.ForwardKinematicsError` naming the first pose (and its line) whose
+        forward kinematics fails at ``x``, if any."""
+        bad = self.failures(x)
+        if bad:
+            k, msg = bad[0]
+            err = _core.ForwardKinematicsError(
+                f"{self.measurements.where(k)}: {msg} ({len(bad)} of {self.n_poses} poses fail "
+                f"at this parameter vector; their residuals are the penalty "
+                f"{FAILED_RESIDUAL:g} mm)")
+            err.pose = k
+            raise err
+
+    def platform_frames(self, x: Any) -> np.ndarray:
+        """4x4 transforms (N, 4, 4) of {5} in {0} by forward kinematics; NaN where it fails."""
+        origin, rot = self._frames(self._x(x))
+        t = np.tile(np.eye(4), (self.n_poses, 1, 1))
+        t[:, :3, :3], t[:, :3, 3] = rot, origin
+        return t
+
+    def __repr__(self) -> str:
+        return (f"BallbarProblem(robot={self.robot.name!r}, set-ups={self.setup.n_setups}, "
+                f"n_poses={self.n_poses}, n_params={self.n_params})")
