@@ -234,7 +234,7 @@ def test_another_method_on_tracker_data_leaves_the_file_noise_aside(tmp_path):
     proc = run("calibrate", str(tmp_path / "robot.toml"), str(tmp_path / "measurements.csv"),
                "--method", "lm", "-o", str(tmp_path / "cal"), "--no-plots", "--no-progress")
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "not used by method lm on tracker data" in proc.stdout
+    assert "not used by method lm on reflector points data" in proc.stdout
     assert iwr.load_result(tmp_path / "cal" / "result.json")["method"] == "lm"
 
 
