@@ -119,3 +119,33 @@ def test_calibrate_checks_its_arguments(job):
         iwr.calibrate(robot, data, "lm", parameters="some")
     with pytest.raises(ValueError, match="fraction"):
         iwr.calibrate(robot, data, "lm", validation_fraction=1.5)
+
+
+def _ballbar_robot() -> iwr.Robot:
+    return iwr.Robot.default().with_instrument("ballbar", {
+        "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
+        "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400],
+              "range": [300, 700]},
+    })
+
+
+def test_the_job_takes_a_new_kind_the_commands_refuse_it_by_name(tmp_path):
+    """Ballbar data (a kind added as a plug-in) go through iwr.calibrate unchanged; the commands,
+    which have no report for them yet, refuse them before any work with a message naming the
+    kind (not an internal error after the identification)."""
+    import subprocess
+    import sys
+
+    robot = _ballbar_robot()
+    data, _ = iwr.simulate(robot, 120, seed=5)
+    cal = iwr.calibrate(robot, data, "lm", seed=1)
+    before, after, sentence, what = cal.improvement()
+    assert cal.success and after < 1e-6 * before and what == "the distance residuals"
+    with pytest.raises(TypeError, match="no calibration report"):
+        render(cal)
+    robot.to_toml(tmp_path / "robot.toml")
+    data.to_csv(tmp_path / "bb.csv")
+    proc = subprocess.run([sys.executable, "-m", "iwr", "calibrate", "robot.toml", "bb.csv"],
+                          cwd=tmp_path, capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 2 and "ballbar data" in proc.stderr, proc.stderr
+    assert "internal error" not in proc.stderr and not (tmp_path / "iwr-calibration").exists()

@@ -37,6 +37,9 @@ class BallbarKind(MeasurementKind):
     description = "a ballbar's distance"
     frame = "{0}"
     determines_world_frame = False
+    #: No command report yet (the report classes are written for leg and point residuals):
+    #: ``iwr calibrate`` refuses ballbar data before any work; ``iwr.calibrate`` takes them.
+    report = ""
 
     def owns(self, data: Any) -> bool:
         return isinstance(data, BallbarMeasurements)
@@ -91,6 +94,20 @@ class BallbarKind(MeasurementKind):
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
         return ballbar_accuracy(robot, data, x, **options)
+
+    def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
+        from ..kinds import _where
+
+        def rms(v: Any) -> float:
+            v = np.asarray(v, dtype=float)
+            v = v[np.isfinite(v)]
+            return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
+        before, after = rms(accuracy.nominal.position), rms(accuracy.calibrated.position)
+        change = (f"the distance residual has an RMS of {before:.4g} mm before (nominal robot "
+                  f"and ball centres) and {after:.4g} mm after, on "
+                  f"{_where(accuracy.n_poses, held_out)}")
+        return before, after, change, "the distance residuals"
 
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
         return ballbar_identifiability(robot, data, x, rtol=options.get("rtol"))

@@ -213,6 +213,10 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     args.out = str(_out_folder(args))
     robot = load_robot(args.robot)
     kind = for_robot(robot)
+    if not kind.report:
+        raise UsageError(f"{args.robot}: {kind.name} data ({kind.description}): iwr calibrate "
+                         "has no report for them yet; calibrate them from Python with "
+                         "iwr.calibrate (docs/kinds.md)")
     if "noise" in kwargs:
         kwargs["noise"] = _reading_noise(kind, kwargs["noise"], method, args)
     data = read_data(args.data, robot, args.readings, targets=target_format(args))

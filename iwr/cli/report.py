@@ -92,6 +92,7 @@ def _check_data(args: argparse.Namespace, result: Any, robot: Any, data: Any) ->
 
 def cmd_report(args: argparse.Namespace) -> int:
     from ..calibration import from_result
+    from ..kinds import for_robot
     from ..methods import load_result
     from ..reporting.calibration import OUTPUT_FILES, render
     from ..reporting.html import provenance
@@ -101,6 +102,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         args.run, args.robot, args.data, args.validation, args.readings])
     result = load_result(args.run)
     robot = load_robot(args.robot)
+    kind = for_robot(robot)
+    if not kind.report:
+        raise UsageError(f"{args.robot}: {kind.name} data ({kind.description}): no report for "
+                         "them yet (docs/kinds.md)", "iwr report")
     data = read_data(args.data, robot, args.readings, targets=target_format(args),
                      prog="iwr report")
     note = _check_data(args, result, robot, data)

@@ -46,6 +46,9 @@ def render(cal: Calibration) -> CalibrationReport:
     (:attr:`iwr.kinds.MeasurementKind.report`), sharing the job's problems."""
     import importlib
 
+    if not cal.kind.report:
+        raise TypeError(f"{cal.kind.name} data: no calibration report yet (the Python API "
+                        "iwr.calibrate takes them; docs/kinds.md)")
     module, _, name = cal.kind.report.partition(":")
     cls = getattr(importlib.import_module(module), name)
     if not (isinstance(cls, type) and issubclass(cls, CalibrationReport)):
