@@ -8,7 +8,7 @@ on the same objective (:mod:`iwr.methods`).
 
 from __future__ import annotations
 
-from importlib import metadata as _metadata
+from typing import TYPE_CHECKING, Any
 
 try:
     from . import _core  # noqa: F401  (the compiled module; checked first for a clear message)
@@ -22,10 +22,10 @@ except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
         "package, or install in place with pip install -e . (see README.md)"
     ) from _exc
 
+# What every use needs, and the public functions named like their modules (``iwr.simulate`` must
+# stay the function: importing the module ``iwr.simulate`` later would rebind a lazy name to it).
+# None of these imports SciPy.
 from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
-from .calibration import Calibration, calibrate
-from .experiments.compare import Comparison, compare_methods
-from .experiments.study import StudyError, StudyResult, study
 from .forward import ForwardKinematicsError, forward_kinematics
 from .identifiability import (
     IdentifiabilityReport,
@@ -35,16 +35,67 @@ from .identifiability import (
     parameter_error,
 )
 from .measurements import MeasurementFileError, Measurements
-from .methods import IdentificationResult, ReducedProblem, ResultFileError, identify, load_result
-from .methods.de import differential_evolution
-from .planning import PosePlan, plan_poses, read_plan
 from .problem import Problem, predict_legs
 from .robot import Robot, RobotFileError
 from .simulate import Noise, UnreachableError, simulate
 from .uncertainty import Uncertainty, uncertainty
 
-# The version is written once, in pyproject.toml; the installed package's metadata carries it.
-__version__ = _metadata.version("iwr")
+# The rest is imported on first use (module __getattr__, PEP 562): the methods import SciPy's
+# optimize, the experiments everything; a short command (``iwr --help``) pays for neither.
+_LAZY = {
+    "Calibration": ".calibration",
+    "calibrate": ".calibration",
+    "Comparison": ".experiments.compare",
+    "compare_methods": ".experiments.compare",
+    "StudyError": ".experiments.study",
+    "StudyResult": ".experiments.study",
+    "study": ".experiments.study",
+    "IdentificationResult": ".methods",
+    "ReducedProblem": ".methods",
+    "ResultFileError": ".methods",
+    "identify": ".methods",
+    "load_result": ".methods",
+    "differential_evolution": ".methods.de",
+    "PosePlan": ".planning",
+    "plan_poses": ".planning",
+    "read_plan": ".planning",
+}
+
+if TYPE_CHECKING:  # the same names for type checkers (and for tools/layers.py's import graph)
+    from .calibration import Calibration, calibrate
+    from .experiments.compare import Comparison, compare_methods
+    from .experiments.study import StudyError, StudyResult, study
+    from .methods import (
+        IdentificationResult,
+        ReducedProblem,
+        ResultFileError,
+        identify,
+        load_result,
+    )
+    from .methods.de import differential_evolution
+    from .planning import PosePlan, plan_poses, read_plan
+
+
+def __getattr__(name: str) -> Any:
+    """The lazily imported names of ``__all__``, and ``__version__``."""
+    if name == "__version__":
+        # The version is written once, in pyproject.toml; the installed package's metadata
+        # carries it (importlib.metadata costs a short command some 30-70 ms: read when asked).
+        from importlib import metadata
+
+        value: Any = metadata.version("iwr")
+    elif name in _LAZY:
+        from importlib import import_module
+
+        value = getattr(import_module(_LAZY[name], __name__), name)
+    else:
+        raise AttributeError(f"module 'iwr' has no attribute {name!r}")
+    globals()[name] = value
+    return value
+
+
+def __dir__() -> list[str]:
+    return sorted(set(globals()) | set(__all__))
 
 
 __all__ = [

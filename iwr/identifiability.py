@@ -27,7 +27,6 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-import scipy.linalg
 
 from . import kinds
 from .measurements import Measurements
@@ -402,6 +401,8 @@ def _base_parameters(
         if len(kept) == rank:
             base = np.sort(np.array(kept, dtype=int))
             return base, np.setdiff1d(np.arange(n), base)
+    import scipy.linalg  # here, not at the top: scipy.linalg costs every short command
+
     _, _, piv = scipy.linalg.qr(js, mode="economic", pivoting=True)
     return np.sort(piv[:rank]), np.sort(piv[rank:])
 

@@ -210,35 +210,43 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
 void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
                     const double* rin, const double* meas, const double* seen, const double* bad,
                     bool all_seen, double* tout, double* yout, double* acc) {
-    constexpr int B = kBlock;
-    Pack t[12];
-    carriage(tc.pd, tc.ec, blk, t);
-    if (tout)
-        for (int e = 0; e < 12; ++e) store(tout + e * B, t[e]);
-    Pack p[3], r[9];
-    for (int c = 0; c < 3; ++c) p[c] = load(pin + c * B);
-    for (int e = 0; e < 9; ++e) r[e] = load(rin + e * B);
+    constexpr int B = kBlock, W = kSubLanes;
     // Lanes chosen by masks, not by multiplying with 0 or 1: a prediction that overflows to inf
     // (an absurd but finite x) must give the penalty in a failed lane and 0 for a point not seen,
     // as residuals() does, not inf * 0 = NaN.
-    const Mask failed = zero_pack() < load(bad);
-    const Pack penalty = splat(tc.failed_residual), zero = zero_pack();
     // Every point seen and every pose solved (the rule): the residual is y - measured.
-    const bool plain = all_seen && bits(failed) == 0;
-    Pack total = load(acc);
-    for (int i = 0; i < tc.n_points; ++i) {
-        const Pack x0 = splat(tc.refl[3 * i]), x1 = splat(tc.refl[3 * i + 1]), x2 = splat(tc.refl[3 * i + 2]);
-        const Pack z0 = fma(r[2], x2, fma(r[1], x1, fma(r[0], x0, p[0])));
-        const Pack z1 = fma(r[5], x2, fma(r[4], x1, fma(r[3], x0, p[1])));
-        const Pack z2 = fma(r[8], x2, fma(r[7], x1, fma(r[6], x0, p[2])));
-        const Mask on = plain ? all_lanes(true) : zero < load(seen + i * B);
-        for (int c = 0; c < 3; ++c) {
-            const Pack y = fma(t[3 * c + 2], z2, fma(t[3 * c + 1], z1, fma(t[3 * c], z0, t[9 + c])));
-            if (yout) store(yout + (3 * i + c) * B, y);
-            const Pack e = y - load(meas + (3 * i + c) * B);
-            const Pack v = plain ? e : select(on, select(failed, penalty, e), zero);
-            total = fma(v, v, total);
+    const bool plain = all_seen && bits(zero_pack() < load(bad)) == 0;
+    const R penalty = r_splat(tc.failed_residual), zero = r_splat(0.0);
+    // The block as K passes of one register each, as the leg kernel's (objective_kernel_body.inl):
+    // 0T4, P and R are 24 values, more than the 16 registers of SSE2 and AVX2 hold when each is
+    // K registers. Each lane sees the same operations in the same order.
+    for (int h = 0; h < K; ++h) {
+        const int o = h * W;  // the pass's first lane
+        Sub t[12];
+        carriage(tc.pd, tc.ec, blk + o, t);
+        if (tout)
+            for (int e = 0; e < 12; ++e) r_store(tout + e * B + o, t[e].v[0]);
+        R p[3], r[9];
+        for (int c = 0; c < 3; ++c) p[c] = r_load(pin + c * B + o);
+        for (int e = 0; e < 9; ++e) r[e] = r_load(rin + e * B + o);
+        const M failed = m_lt(zero, r_load(bad + o));
+        R total = r_load(acc + o);
+        for (int i = 0; i < tc.n_points; ++i) {
+            const R x0 = r_splat(tc.refl[3 * i]), x1 = r_splat(tc.refl[3 * i + 1]),
+                    x2 = r_splat(tc.refl[3 * i + 2]);
+            const R z0 = r_fma(r[2], x2, r_fma(r[1], x1, r_fma(r[0], x0, p[0])));
+            const R z1 = r_fma(r[5], x2, r_fma(r[4], x1, r_fma(r[3], x0, p[1])));
+            const R z2 = r_fma(r[8], x2, r_fma(r[7], x1, r_fma(r[6], x0, p[2])));
+            const M on = plain ? m_all(true) : m_lt(zero, r_load(seen + i * B + o));
+            for (int c = 0; c < 3; ++c) {
+                const R y = r_fma(t[3 * c + 2].v[0], z2,
+                                  r_fma(t[3 * c + 1].v[0], z1, r_fma(t[3 * c].v[0], z0, t[9 + c].v[0])));
+                if (yout) r_store(yout + (3 * i + c) * B + o, y);
+                const R e = r_sub(y, r_load(meas + (3 * i + c) * B + o));
+                const R v = plain ? e : m_select(on, m_select(failed, penalty, e), zero);
+                total = r_fma(v, v, total);
+            }
         }
+        r_store(acc + o, total);
     }
-    store(acc, total);
 }

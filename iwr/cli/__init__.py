@@ -31,9 +31,25 @@ from ._base import (
 __all__ = ["main", "build_parser", "default_method"]
 
 
+class _Version(argparse.Action):
+    """``--version``: argparse's, with the version read when asked (importlib.metadata would cost
+    every command some 30 ms)."""
+
+    def __init__(self, option_strings: Sequence[str], dest: str = argparse.SUPPRESS,
+                 default: str = argparse.SUPPRESS, help: str = "show the version and exit"
+                 ) -> None:
+        super().__init__(option_strings, dest, nargs=0, default=default, help=help)
+
+    def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
+                 values: object, option_string: str | None = None) -> None:
+        from ..reporting.html import iwr_version
+
+        print(f"iwr {iwr_version()}")
+        parser.exit()
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The ``iwr`` argument parser, with every command."""
-    from ..reporting.html import iwr_version
     from . import analyze, calibrate, compare, export, legs, plan, report, simulate, study
 
     parser = Parser(
@@ -46,7 +62,7 @@ def build_parser() -> argparse.ArgumentParser:
         "4 not converged and 5 not calibrated (iwr calibrate), 6 a target out of stroke or "
         "workspace (iwr legs), 130 interrupted.",
     )
-    parser.add_argument("--version", action="version", version=f"iwr {iwr_version()}")
+    parser.add_argument("--version", action=_Version)
     parser.add_argument("--debug", action="store_true",
                         help="show the Python traceback of an error")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", parser_class=Parser)

@@ -7,7 +7,7 @@ import argparse
 import dataclasses
 import os
 import sys
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
@@ -38,6 +38,23 @@ class Parser(argparse.ArgumentParser):
 
     def error(self, message: str) -> Any:  # type: ignore[override]
         raise UsageError(message, self.prog)
+
+
+class LazyHelp(str):
+    """A help text made when argparse shows it (argparse formats every help text as ``help %
+    params``), not when the parser is built: for the texts that list a registry whose import is
+    slow (the methods import SciPy's optimize), which ``iwr --help`` and the commands that do not
+    use it should not pay for."""
+
+    _make: Callable[[], str]
+
+    def __new__(cls, make: Callable[[], str]) -> LazyHelp:
+        self = super().__new__(cls, "(made when shown)")  # not empty: argparse skips empty help
+        self._make = make
+        return self
+
+    def __mod__(self, params: Any) -> str:
+        return self._make() % params
 
 
 def default_method() -> str:

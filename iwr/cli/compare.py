@@ -18,6 +18,7 @@ from ..experiments.compare import (
 from ..experiments.harness import check_n_poses, check_robot
 from ..robot import Robot
 from ..simulate import Noise
+from ._base import LazyHelp
 from .robot_noise import describe, simulation_noise
 
 __all__ = ["add_compare_parser", "run_compare"]
@@ -86,11 +87,10 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
                         "table, else 'realistic'")
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)),
                    help="seeds, '0,1,2' or '0..4' (default: %(default)s)")
-    p.add_argument("--methods", default=None,
-                   help="comma-separated methods: registered names ("
-                        + ", ".join(sorted(_methods())) + "; de is the paper's DE/rand/1/bin) or "
-                        "de:STRATEGY (e.g. de:jso, de:lshade); default: "
-                        + ",".join(default_methods()) + " (without efficient for --noise none)")
+    p.add_argument("--methods", default=None, help=LazyHelp(lambda: (
+        "comma-separated methods: registered names (" + ", ".join(sorted(_methods()))
+        + "; de is the paper's DE/rand/1/bin) or de:STRATEGY (e.g. de:jso, de:lshade); default: "
+        + ",".join(default_methods()) + " (without efficient for --noise none)")))
     p.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="EVALS",
                    help="evaluation budget per run (default: %(default)s)")
     p.add_argument("--start", choices=["near", "bad", "both"], default="both",

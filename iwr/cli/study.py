@@ -12,6 +12,7 @@ from typing import Any
 from ..experiments.harness import check_n_poses, check_robot
 from ..experiments.study import study
 from ..robot import Robot
+from ._base import LazyHelp
 
 __all__ = ["add_study_parser", "run_study"]
 
@@ -113,9 +114,8 @@ def add_study_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 
 def _add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--methods", default="lm",
-                        help=f"comma-separated methods, of: {', '.join(sorted(_methods()))} "
-                             "(default: lm)")
+    parser.add_argument("--methods", default="lm", help=LazyHelp(
+        lambda: f"comma-separated methods, of: {', '.join(sorted(_methods()))} (default: lm)"))
     parser.add_argument("--poses", type=_ints, default=[20, 50, 100],
                         help="comma-separated numbers of measurement poses (default: 20,50,100)")
     parser.add_argument("--noise", type=_floats, default=[0.0, 0.02],

@@ -37,6 +37,7 @@ from .harness import (
     check_n_poses,
     check_robot,
     dry_run,
+    registered_methods,
     robot_hash,
     run_dask,
     run_in_process,
@@ -127,18 +128,12 @@ def _check_starts(start: Any) -> list[str]:
     return starts
 
 
-def _methods_registered() -> Any:
-    from ..methods import METHODS
-
-    return METHODS
-
-
 def default_methods(noise: Noise | None = None) -> list[str]:
     """The methods compared when none are given: :data:`DEFAULT_METHODS` (those registered), then
     any other registered method; with a ``noise`` model whose leg noise is 0 (noise-free data)
     without the efficient estimator, which weighs the instruments by their noise."""
-    names = [m for m in DEFAULT_METHODS if m.partition(":")[0] in _methods_registered()]
-    names += sorted(m for m in _methods_registered() if m not in names)
+    names = [m for m in DEFAULT_METHODS if m.partition(":")[0] in registered_methods()]
+    names += sorted(m for m in registered_methods() if m not in names)
     if noise is not None and not _weighted(noise):
         names = [m for m in names if m != "efficient"]
     return names

@@ -30,7 +30,6 @@ import numpy as np
 from ..accuracy import accuracy
 from ..identifiability import identifiability, parameter_error
 from ..measurements import Measurements
-from ..methods import METHODS, identify
 from ..problem import Problem, predict_legs
 from ..robot import Robot
 from ..simulate import Noise, sample_poses, simulate
@@ -132,6 +131,14 @@ def noise_at(level: float) -> Noise:
     )
 
 
+def registered_methods() -> dict[str, Any]:
+    """:data:`iwr.methods.METHODS`, imported on first use: the methods import SciPy's optimize,
+    which a command's ``--help`` should not pay for."""
+    from ..methods import METHODS
+
+    return METHODS
+
+
 def _de_strategies() -> tuple[str, ...]:
     from ..methods.de import STRATEGIES
 
@@ -140,7 +147,7 @@ def _de_strategies() -> tuple[str, ...]:
 
 def available_methods() -> str:
     """The method specs accepted, as text for a message."""
-    return (", ".join(sorted(METHODS)) + "; or de:STRATEGY with STRATEGY one of "
+    return (", ".join(sorted(registered_methods())) + "; or de:STRATEGY with STRATEGY one of "
             + ", ".join(_de_strategies()))
 
 
@@ -151,7 +158,7 @@ def split_method(spec: Any) -> tuple[str, dict[str, Any]]:
     if not isinstance(spec, str):
         raise ValueError(f"methods: {spec!r}; expected a method name; available: "
                          f"{available_methods()}")
-    if spec in METHODS:
+    if spec in registered_methods():
         return spec, {}
     base, sep, variant = spec.partition(":")
     if sep and base == "de":
@@ -160,7 +167,7 @@ def split_method(spec: Any) -> tuple[str, dict[str, Any]]:
             raise ValueError(f"methods: {spec!r}: unknown DE strategy {variant!r}; available: "
                              + ", ".join(strategies))
         return "de", {"strategy": variant}
-    if sep and base in METHODS:
+    if sep and base in registered_methods():
         raise ValueError(f"methods: {spec!r}: only de takes a variant (de:STRATEGY)")
     raise ValueError(f"methods: {spec!r} is not registered; available: {available_methods()}")
 
@@ -399,8 +406,9 @@ BUDGET_OPTIONS = {"de": "generations"}
 def budget_option(method: str) -> str:
     """The option of ``method`` that a budget sets (``generations`` for DE, else
     ``max_evaluations``, the budget every method takes)."""
-    if method not in METHODS:
-        raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+    methods = registered_methods()
+    if method not in methods:
+        raise ValueError(f"method: {method!r}; available: {', '.join(sorted(methods))}")
     return BUDGET_OPTIONS.get(method, "max_evaluations")
 
 
@@ -408,7 +416,7 @@ def accepts(method: str, option: str) -> bool:
     """Whether the registered ``method`` takes ``option`` by name."""
     import inspect
 
-    return option in inspect.signature(METHODS[method]).parameters
+    return option in inspect.signature(registered_methods()[method]).parameters
 
 
 def unidentifiable_mask(robot: Robot, data: Measurements, x: np.ndarray) -> np.ndarray:
@@ -461,6 +469,8 @@ def evaluate(
             options.setdefault("noise", noise)
             if method != "efficient":  # eq. (10), not its noise-weighted form (iwr.identify)
                 options.setdefault("weighted", False)
+        from ..methods import identify
+
         start = time.perf_counter()
         result = identify(robot, sc.data, method, bounds=sc.bounds, x0=sc.x0,
                           seed=sc.method_seed, progress=False, **options)
@@ -729,6 +739,8 @@ def dry_run(robot: Robot, method: str, options: Mapping[str, Any]) -> dict[str, 
     """The settings a method resolves from ``options`` (for DE: strategy, NP, F, CR, ...), from a
     run of its initial population alone on a small noise-free problem, so that bad options fail
     before an experiment starts. ValueError or TypeError names a bad option."""
+    from ..methods import identify
+
     data, _ = simulate(robot, 12, seed=0)
     res = identify(robot, data, method, x0=np.zeros(robot.n_params), seed=0, progress=False,
                    **{**options, "generations": 0})

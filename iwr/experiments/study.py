@@ -44,7 +44,6 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write_text
-from ..methods import METHODS
 from ..robot import Robot
 from .harness import (
     COLUMNS,
@@ -59,6 +58,7 @@ from .harness import (
     check_n_poses,
     check_robot,
     noise_at,
+    registered_methods,
     robot_hash,
     run_dask,
     run_in_process,
@@ -374,9 +374,10 @@ def study(
     methods = list(dict.fromkeys(methods))
     if not methods:
         raise ValueError("methods: empty")
+    registered = registered_methods()
     for m in methods:
-        if m not in METHODS:
-            raise ValueError(f"methods: {m!r}; available: {', '.join(sorted(METHODS))}")
+        if m not in registered:
+            raise ValueError(f"methods: {m!r}; available: {', '.join(sorted(registered))}")
     poses_l = _int_list(poses, "poses", 1)
     draws_l = _int_list(draws, "draws", 0)
     seeds_l = _int_list(seeds, "seeds", 0)
@@ -398,7 +399,7 @@ def study(
             raise ValueError(f"options: method {m!r} is not one of the study's methods {methods}")
         options_d[m] = _json_value(dict(opts), f"options.{m}")
     for m, opts in options_d.items():
-        params = inspect.signature(METHODS[m]).parameters
+        params = inspect.signature(registered[m]).parameters
         if not any(p.kind is inspect.Parameter.VAR_KEYWORD for p in params.values()):
             known = [n for n, p in params.items() if p.kind is inspect.Parameter.KEYWORD_ONLY
                      and n not in ("x0", "active", "seed", "callback", "progress")]
@@ -536,7 +537,7 @@ def _budgets(budgets: Any, methods: list[str]) -> dict[str, tuple[str | None, li
         if option:
             if not accepts(m, option) and not any(
                 p.kind is inspect.Parameter.VAR_KEYWORD
-                for p in inspect.signature(METHODS[m]).parameters.values()
+                for p in inspect.signature(registered_methods()[m]).parameters.values()
             ):
                 raise ValueError(f"budgets: {option!r} is not an option of method {m!r}")
             if option == budget_option(m):
