@@ -45,8 +45,8 @@ class BallbarMeasurements:
                       if np.ndim(distance) == 1 else distance, 1, "distance", rows=n)[:, 0]
         bad = np.flatnonzero(~((d > 0) & (d < MAX_LENGTH_MM)))
         if bad.size:
-            raise ValueError(f"distance: pose {int(bad[0])} is {float(d[bad[0]])!r}; a bar reading is a "
-                             f"length in mm, > 0 and below {MAX_LENGTH_MM:g}")
+            raise ValueError(f"distance: pose {int(bad[0])} is {float(d[bad[0]])!r}; a bar "
+                             f"reading is a length in mm, > 0 and below {MAX_LENGTH_MM:g}")
         self.distance = np.ascontiguousarray(d)
         if isinstance(setup, str):
             raise ValueError("setup: expected one set-up name per pose, got one string")
