@@ -37,6 +37,7 @@ from .harness import (
     check_n_poses,
     check_robot,
     dry_run,
+    leg_sigma,
     robot_hash,
     run_dask,
     run_in_process,
@@ -106,14 +107,18 @@ def _check_int(name: str, value: Any, minimum: int) -> int:
     return int(value)
 
 
-def _check_noise(noise: Any) -> Noise:
-    if noise is None or noise == "none":
+def _check_noise(noise: Any) -> Any:
+    if noise is None or (isinstance(noise, str) and noise == "none"):
         return Noise()
     if isinstance(noise, Noise):
         return noise
-    if noise == "realistic":
+    if isinstance(noise, tuple) and len(noise) == 2:  # a kind's own model, e.g. a tracker's
+        return noise
+    if isinstance(noise, str) and noise == "realistic":
         return Noise.realistic()
-    raise ValueError(f"noise: {noise!r}; expected an iwr.Noise, 'realistic', 'none' or None")
+    raise ValueError(f"noise: {noise!r}; expected an iwr.Noise, a pair (iwr.Noise, "
+                     "iwr.tracker.TrackerNoise) for a robot with a tracker, 'realistic', 'none' "
+                     "or None")
 
 
 def _check_starts(start: Any) -> list[str]:
@@ -144,9 +149,9 @@ def default_methods(noise: Noise | None = None) -> list[str]:
     return names
 
 
-def _weighted(noise: Noise) -> bool:
+def _weighted(noise: Any) -> bool:
     """Whether the efficient estimator can weigh the data by ``noise`` (it needs the legs')."""
-    return noise.legs > 0
+    return leg_sigma(noise) > 0
 
 
 def _check_methods(methods: Any, noise: Noise) -> list[str]:
@@ -161,7 +166,7 @@ def _check_methods(methods: Any, noise: Noise) -> list[str]:
         raise ValueError(f"methods: {names!r} has duplicates")
     if "efficient" in names and not _weighted(noise):
         raise ValueError("methods: 'efficient' weighs every instrument by the data's noise model, "
-                         f"and this noise has no leg noise (legs = {noise.legs}); give a noise "
+                         f"and this noise has no leg noise (legs = {leg_sigma(noise)}); give a noise "
                          "model with legs > 0 (e.g. 'realistic') or leave 'efficient' out")
     return names
 
@@ -249,12 +254,17 @@ def compare_methods(
     Parameters
     ----------
     robot : Robot, optional
-        The nominal robot (default :meth:`Robot.default`).
+        The nominal robot (default :meth:`Robot.default`); its kind of data
+        (:func:`iwr.kinds.for_robot`: the platform pose in {0}, or with a ``[tracker]`` setup
+        reflector points or a probe in {T}) is what is simulated and identified.
     n_poses : int
         Measurement poses per identification (the paper: 100); at least
         :func:`~iwr.experiments.harness.min_poses` (9 for the IWR).
-    noise : Noise, "realistic", "none" or None
-        Measurement noise of the identification data (default: :meth:`Noise.realistic`).
+    noise : Noise, (Noise, TrackerNoise), "realistic", "none" or None
+        Measurement noise of the identification data (default: :meth:`Noise.realistic`). For a
+        robot with a tracker, an :class:`iwr.Noise` gives the leg and joint readings' noise and,
+        by its ``position``, the tracker's (:meth:`iwr.tracker.TrackerNoise.leica` scaled by
+        ``position / 0.02``); a pair gives both.
     seeds : sequence of int
         One simulated problem per seed and scenario; the same seeds give the same numbers.
     methods : sequence of str, optional
@@ -295,11 +305,12 @@ def compare_methods(
     robot = Robot.default() if robot is None else robot
     if not isinstance(robot, Robot):
         raise ValueError(f"robot: expected an iwr.Robot or None, got {type(robot).__name__}")
-    check_robot(robot)
+    kind = check_robot(robot)
     n_poses = check_n_poses(robot, n_poses)
     n_validation = _check_int("n_validation", n_validation, 1)
     budget = _check_int("budget", budget, 2)
     noise = _check_noise(noise)
+    kind.experiment_noise(robot, noise)  # a model the robot's kind cannot take fails here
     seeds = _check_seeds(seeds)
     names = _check_methods(methods, noise)
     starts = _check_starts(start)
@@ -327,11 +338,13 @@ def compare_methods(
 
     settings = {
         "robot": robot.name,
-        "n_params": robot.n_params,
+        "n_params": kind.n_params(robot),
         "n_poses": n_poses,
         "n_validation": n_validation,
-        "noise": {k: getattr(noise, k) for k in
-                  ("legs", "joint_lengths", "joint_angles", "position", "orientation")},
+        "noise": _noise_settings(noise),
+        "kind": {"name": kind.name, "description": kind.description, "frame": kind.frame,
+                 "parameter_names": robot.parameter_names + kind.setup_parameter_names(robot),
+                 **kind.experiment_text},
         "seeds": seeds,
         "methods": names,
         "budget": budget,
@@ -381,7 +394,19 @@ def compare_methods(
     return comparison
 
 
-def _grid(robot: Robot, n_poses: int, noise: Noise, seeds: list[int], names: list[str],
+def _noise_settings(noise: Any) -> dict[str, Any]:
+    """The noise model as the settings say it: an iwr.Noise's fields, or a pair's as
+    ``{"readings": {...}, "tracker": {...}}``, with ``legs`` (the leg sigma) on top."""
+    import dataclasses
+
+    if isinstance(noise, tuple):
+        readings, other = (dataclasses.asdict(p) if p is not None else {} for p in noise)
+        return {"legs": leg_sigma(noise), "readings": readings, "tracker": other}
+    return {k: getattr(noise, k) for k in
+            ("legs", "joint_lengths", "joint_angles", "position", "orientation")}
+
+
+def _grid(robot: Robot, n_poses: int, noise: Any, seeds: list[int], names: list[str],
           budget: int, starts: list[str], n_validation: int,
           extra: dict[str, dict[str, Any]]) -> list[Cell]:
     """The cells of a comparison, in report order (scenario, seed, method). Seed k is the

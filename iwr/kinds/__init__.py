@@ -36,6 +36,7 @@ __all__ = [
     "MeasurementKind",
     "available",
     "for_robot",
+    "observed",
     "of",
     "register",
     "split",
@@ -171,8 +172,108 @@ class MeasurementKind(abc.ABC):
         """For :func:`iwr.planning.measure`: this kind's readings of the actual robot ``x`` at
         joint readings ``q`` and platform poses ``poses`` in {0}, with ``noise``."""
 
+    # -- the experiments (iwr compare, iwr study) ---------------------------------------------
+    # What a simulated calibration needs of the kind beyond the calibration steps: its noise at
+    # an experiment's noise level, the actual set-up, and its yardsticks on fresh poses. Each
+    # has a default that suits a kind whose readings are exact functions of the truth.
+
+    #: What the experiments' figures measure for this kind, for their tables and captions:
+    #: ``cost`` (the unweighted objective, mm^2), ``readings`` (the validation residuals),
+    #: ``tool`` (the tool pose error against the truth), ``parameters`` (the parameter error
+    #: modulo the null directions), ``noise_level`` (what an experiment's noise level sets).
+    experiment_text: ClassVar[dict[str, str]] = {
+        "cost": "the sum of squared residuals of the readings (mm^2)",
+        "readings": "readings predicted with the recovered parameters against their exact values "
+                    "(mm)",
+        "tool": "tool pose error against the truth by forward kinematics of the readings",
+        "parameters": "x minus the parameter vector nearest to x that predicts exactly the "
+                      "truth's readings at the validation poses, projected onto the identifiable "
+                      "directions",
+        "noise_level": "the measurement noise scaled from iwr.Noise.realistic() (level 0.02)",
+    }
+
+    def experiment_noise(self, robot: Any, noise: Any) -> Any:
+        """The noise model that :meth:`simulate` and the efficient estimator take for an
+        experiment's ``noise``: an :class:`iwr.Noise` (a noise level's, :func:`iwr.experiments.
+        harness.noise_at`, or a user's) or already this kind's model. Default: as it is."""
+        return noise
+
+    def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
+        """The setup parameters of an experiment's actual set-up (registration, offsets, ...),
+        drawn from ``rng`` after the robot's errors. Default: the nominal setup (zeros)."""
+        return np.zeros(len(self.setup_parameter_names(robot)))
+
+    def angle_parameters(self, robot: Any) -> np.ndarray:
+        """Which parameters of ``x`` are angles (rad): the robot's, then the setup's (default:
+        none of the setup's)."""
+        n = len(self.setup_parameter_names(robot))
+        return np.concatenate([np.asarray(robot.angle_parameters, dtype=bool),
+                               np.zeros(n, dtype=bool)])
+
+    def readings_per_pose(self, robot: Any, data: Any) -> float:
+        """Independent readings one pose gives of the parameters (the fewest poses an
+        identification needs is the identifiable parameters divided by this). Default: the
+        problem's residuals that carry data, per pose."""
+        problem, _ = self.problem(robot, data)
+        n = getattr(problem, "n_observations", None)
+        return float(problem.n_residuals if n is None else n) / len(data)
+
+    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        """The tool pose errors (:class:`iwr.Accuracy`: nominal and calibrated) of ``x`` on
+        ``data``, exact readings of the actual robot ``truth``. Default: :meth:`accuracy`
+        (measured poses of exact data are the truth's)."""
+        return self.accuracy(robot, data, x)
+
+    def validate(self, robot: Any, data: Any, x: Any, truth: Any) -> dict[str, float]:
+        """The validation figures of ``x`` on ``data`` (fresh poses of the actual robot ``truth``,
+        read without noise): ``val_rms``, ``val_max`` (the readings' residuals at ``x``, mm),
+        ``val_rms_nominal`` (at the start of :meth:`problem`: the nominal robot, with this
+        kind's setup guess); then ``tool_position_rms``, ``tool_orientation_rms`` (degrees) and
+        ``tool_position_rms_nominal`` from :meth:`tool_accuracy` (nan, with ``notes`` saying
+        why, where it fails). The residuals do not depend on the gauge: null directions leave
+        them unchanged."""
+        problem, start = self.problem(robot, data, x0=None)
+        seen = observed(problem)
+        err = np.asarray(problem.residuals(x))[seen]
+        err0 = np.asarray(problem.residuals(start))[seen]
+        out: dict[str, Any] = {
+            "val_rms": _rms(err), "val_max": float(np.max(np.abs(err))),
+            "val_rms_nominal": _rms(err0),
+            "tool_position_rms": float("nan"), "tool_orientation_rms": float("nan"),
+            "tool_position_rms_nominal": float("nan"),
+        }
+        try:
+            acc = self.tool_accuracy(robot, data, x, truth)
+        except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
+            out["notes"] = f"accuracy: {type(exc).__name__}: {exc}"  # e.g. forward kinematics
+        else:
+            out.update(tool_position_rms=_rms(acc.calibrated.position),
+                       tool_orientation_rms=_rms(acc.calibrated.orientation),
+                       tool_position_rms_nominal=_rms(acc.nominal.position))
+        return out
+
+    def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        """``x - truth`` modulo what ``data`` (exact readings of the actual robot ``truth``)
+        cannot see (an :class:`iwr.identifiability.ParameterError`): the kinds' implementations
+        say over which parameters. Default: NotImplementedError (the experiments then leave the
+        figure out and say so)."""
+        raise NotImplementedError(f"kind {self.name!r} has no parameter error modulo its null "
+                                  "directions")
+
     def __repr__(self) -> str:
         return f"<measurement kind {self.name!r}: {self.description} in {self.frame}>"
+
+
+def _rms(v: Any) -> float:
+    a = np.asarray(v, dtype=float)
+    return float(np.sqrt(np.mean(np.square(a)))) if a.size else float("nan")
+
+
+def observed(problem: Any) -> np.ndarray:
+    """The residuals of ``problem`` that carry data (a tracker problem's unseen points are
+    zeros): all of them unless the problem says which it holds (``seen``)."""
+    mask = getattr(problem, "seen", None)
+    return np.ones(problem.n_residuals, dtype=bool) if mask is None else np.asarray(mask, bool)
 
 
 def data_fingerprint(kind: str, robot: Any, data: Any, *, poses: Any = None, weights: Any = None,

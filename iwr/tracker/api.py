@@ -157,7 +157,8 @@ def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
                                 success=success, status=status, message=message,
                                 history={k: np.asarray(v) for k, v in raw.history.items()},
                                 wall_time=time.perf_counter() - start,
-                                settings={"polish": bool(polish), "objective": "cost_batch"})
+                                settings={**dict(raw.get("settings") or {}),
+                                          "polish": bool(polish), "objective": "cost_batch"})
 
 
 def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: str = "lm", *,

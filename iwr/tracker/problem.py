@@ -144,6 +144,13 @@ class TrackerProblem:
         return 3 * int(self._objective.n_seen)
 
     @property
+    def seen(self) -> np.ndarray:
+        """Which residuals carry data, (n_residuals,) booleans: the coordinates of seen points
+        (an unseen point's residuals are zeros)."""
+        pts = self.measurements.tracker_points(self.setup).reshape(self.n_poses, -1, 3)
+        return np.repeat(~np.isnan(pts[:, :, 0]).ravel(), 3)
+
+    @property
     def parameter_names(self) -> list[str]:
         return self.robot.parameter_names + self.setup.parameter_names
 
