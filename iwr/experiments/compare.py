@@ -27,6 +27,7 @@ import numpy as np
 from ..robot import Robot
 from ..simulate import Noise
 from .harness import (
+    FIGURE_COLUMNS,
     FLOOR_ATOL,
     FLOOR_RTOL,
     SCENARIOS,
@@ -166,8 +167,8 @@ def _check_methods(methods: Any, noise: Noise) -> list[str]:
         raise ValueError(f"methods: {names!r} has duplicates")
     if "efficient" in names and not _weighted(noise):
         raise ValueError("methods: 'efficient' weighs every instrument by the data's noise model, "
-                         f"and this noise has no leg noise (legs = {leg_sigma(noise)}); give a noise "
-                         "model with legs > 0 (e.g. 'realistic') or leave 'efficient' out")
+                         f"and this noise has no leg noise (legs = {leg_sigma(noise)}); give a "
+                         "noise model with legs > 0 (e.g. 'realistic') or leave 'efficient' out")
     return names
 
 
@@ -341,10 +342,10 @@ def compare_methods(
         "n_params": kind.n_params(robot),
         "n_poses": n_poses,
         "n_validation": n_validation,
-        "noise": _noise_settings(noise),
+        "noise": _noise_settings(kind.experiment_noise(robot, noise)),
         "kind": {"name": kind.name, "description": kind.description, "frame": kind.frame,
                  "parameter_names": robot.parameter_names + kind.setup_parameter_names(robot),
-                 **kind.experiment_text},
+                 "chi2_fit_test": kind.chi2_fit_test, **kind.experiment_text},
         "seeds": seeds,
         "methods": names,
         "budget": budget,
@@ -381,11 +382,15 @@ def compare_methods(
         raise RuntimeError(f"{len(failures)} runs failed on every attempt (first: {cell.method}, "
                            f"seed {cell.draw}: {type(exc).__name__}: {exc})")
     runs = [_run_row(rows[c.key]) for c in cells]
-    failed = [r for r in runs if r["status"] != "ok"]
-    if failed:
-        r = failed[0]
-        raise ValueError(f"method {r['method']!r}, scenario {r['scenario']}, seed {r['seed']}: "
-                         f"{r['message']}")
+    # A method that failed on every run never ran (bad options, or no start it can take): an
+    # error. A run that failed among others (e.g. the efficient estimator from a start where a
+    # pose has no forward kinematics) is a result: kept, not a success, its figures nan.
+    for method in names:
+        mine = [r for r in runs if r["method"] == method]
+        if all(r["status"] != "ok" for r in mine):
+            r = mine[0]
+            raise ValueError(f"method {r['method']!r}, scenario {r['scenario']}, seed "
+                             f"{r['seed']}: {r['message']}")
     comparison = Comparison(runs=runs, summary=_summarise(runs, starts, names), settings=settings)
     if out_path is not None:
         from ..reporting.compare import write_report
@@ -427,13 +432,28 @@ def _grid(robot: Robot, n_poses: int, noise: Any, seeds: list[int], names: list[
 
 
 def _run_row(row: dict[str, Any]) -> dict[str, Any]:
-    """A harness row as a run of the comparison: ``seed`` is the comparison's seed (the draw)."""
-    return {**row, "seed": row["draw"]}
+    """A harness row as a run of the comparison: ``seed`` is the comparison's seed (the draw);
+    a failed run's figures nan (counts 0), not a success."""
+    out = {**row, "seed": row["draw"]}
+    if out["status"] != "ok":
+        for c in FIGURE_COLUMNS:
+            out.setdefault(c, math.nan)
+        out.update(nfev=0, nit=0, success=False, at_floor=False, within_budget=None)
+        for c in ("x", "truth", "x0", "history_nfev", "history_best", "unidentifiable"):
+            out.setdefault(c, [])
+        out.setdefault("floor_threshold", math.nan)
+    return out
 
 
 def _median(values: list[float]) -> float:
     arr = np.array([v for v in values if not math.isnan(v)], dtype=float)
     return float(np.median(arr)) if arr.size else math.nan
+
+
+def _extreme(f: Any, values: list[float]) -> float:
+    """``f`` (nanmin, nanmax) of the values that are numbers; nan when none is."""
+    arr = np.asarray(values, dtype=float)
+    return float(f(arr)) if np.isfinite(arr).any() else math.nan
 
 
 def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) -> list[dict]:
@@ -454,8 +474,8 @@ def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) 
                 "at_floor": sum(bool(r["at_floor"]) for r in rs),
                 "at_floor_rate": sum(bool(r["at_floor"]) for r in rs) / len(rs),
                 "median_cost": _median(costs),
-                "min_cost": float(np.min(costs)),
-                "max_cost": float(np.max(costs)),
+                "min_cost": _extreme(np.nanmin, costs),
+                "max_cost": _extreme(np.nanmax, costs),
                 "median_noise_floor": _median([r["noise_floor"] for r in rs]),
                 "median_val_rms": _median([r["val_rms"] for r in rs]),
                 "median_val_rms_nominal": _median([r["val_rms_nominal"] for r in rs]),
@@ -464,9 +484,12 @@ def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) 
                 "median_raw_error_length": _median([r["raw_error_length"] for r in rs]),
                 "median_raw_error_angle": _median([r["raw_error_angle"] for r in rs]),
                 "median_tool_position_rms": _median([r["tool_position_rms"] for r in rs]),
+                "median_tool_position_rms_nominal": _median([r["tool_position_rms_nominal"]
+                                                             for r in rs]),
                 "median_nfev": _median([float(r["nfev"]) for r in rs]),
                 "max_nfev": int(max(r["nfev"] for r in rs)),
-                "all_within_budget": all(r["within_budget"] for r in rs),
+                "all_within_budget": all(r["within_budget"] for r in rs if r["status"] == "ok"),
+                "failed": sum(r["status"] != "ok" for r in rs),
                 "median_wall_time": _median([r["wall_time"] for r in rs]),
             })
     return out

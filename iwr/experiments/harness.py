@@ -63,12 +63,14 @@ CELL_FORMAT = 1
 SCENARIOS: dict[str, str] = {
     "near": (
         "errors uniform within the default bounds (+-0.5 mm, +-0.5 degree); every method starts "
-        "from the nominal robot (all errors zero), the usual calibration situation"
+        "from the nominal robot (all errors zero; a set-up, if any, as the kind guesses it from "
+        "the data), the usual calibration situation"
     ),
     "bad": (
         "large errors, uniform within the paper's Table 2 bounds taken literally (+-0.5 mm for "
         "lengths, +-0.5 rad for angles), searched within those bounds; every parameter starts at "
-        "90% of its bound on the side opposite to its true value"
+        "90% of its bound on the side opposite to its true value (a set-up's too, within its "
+        "default bounds about the nominal set-up)"
     ),
 }
 _BOUNDS = {"near": "default", "bad": "paper"}
@@ -299,15 +301,17 @@ class Scenario:
                                 seed=stream_seed(self.base_seed, _DATA, self.draw, self.seed),
                                 x=truth, noise=kind.experiment_noise(robot, self.noise))
         bounds = _BOUNDS[self.kind]
-        # The kind's start: the nominal robot (with the set-up guessed from the data, for a
-        # kind that identifies one).
-        _, x0 = kind.problem(robot, data, bounds)
-        if self.kind == "bad":
-            # The opposite side of each robot parameter's range, near its bound.
-            nr = robot.n_params
-            lower, upper = robot.default_bounds(bounds)
+        if self.kind == "near":
+            # The kind's start: the nominal robot (with the set-up guessed from the data, for a
+            # kind that identifies one).
+            _, x0 = kind.problem(robot, data, bounds)
+        else:
+            # The opposite side of each parameter's range (the robot's and the set-up's about
+            # the nominal one), near its bound.
+            problem, _ = kind.problem(robot, data, bounds, x0=np.zeros(truth.size))
+            lower, upper = problem.lower, problem.upper
             half, mid = 0.5 * (upper - lower), 0.5 * (upper + lower)
-            x0[:nr] = mid + np.where(truth[:nr] >= mid, -1.0, 1.0) * _BAD_START_FRACTION * half
+            x0 = mid + np.where(truth >= mid, -1.0, 1.0) * _BAD_START_FRACTION * half
         # Fresh poses of the actual robot, read without noise.
         validation, _ = kind.simulate(
             robot, self.validation_poses,

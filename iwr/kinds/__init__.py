@@ -36,6 +36,7 @@ __all__ = [
     "MeasurementKind",
     "available",
     "for_robot",
+    "get",
     "observed",
     "of",
     "register",
@@ -178,11 +179,18 @@ class MeasurementKind(abc.ABC):
     # has a default that suits a kind whose readings are exact functions of the truth.
 
     #: What the experiments' figures measure for this kind, for their tables and captions:
-    #: ``cost`` (the unweighted objective, mm^2), ``readings`` (the validation residuals),
-    #: ``tool`` (the tool pose error against the truth), ``parameters`` (the parameter error
-    #: modulo the null directions), ``noise_level`` (what an experiment's noise level sets).
+    #: ``cost`` (the unweighted objective, mm^2) and ``cost_label`` (its short name),
+    #: ``readings`` (the validation residuals), ``tool`` (the tool pose error against the
+    #: truth), ``parameters`` (the parameter error modulo the null directions),
+    #: ``noise_level`` (what an experiment's noise level sets), ``gauge`` (what the data leave
+    #: free and how the figures treat it; empty when nothing), ``readings_short`` and
+    #: ``tool_short`` (a word for the readings, and what qualifies the tool pose error, in the
+    #: figures' labels).
     experiment_text: ClassVar[dict[str, str]] = {
         "cost": "the sum of squared residuals of the readings (mm^2)",
+        "cost_label": "the unweighted objective",
+        "readings_short": "reading",
+        "tool_short": "",
         "readings": "readings predicted with the recovered parameters against their exact values "
                     "(mm)",
         "tool": "tool pose error against the truth by forward kinematics of the readings",
@@ -190,6 +198,7 @@ class MeasurementKind(abc.ABC):
                       "truth's readings at the validation poses, projected onto the identifiable "
                       "directions",
         "noise_level": "the measurement noise scaled from iwr.Noise.realistic() (level 0.02)",
+        "gauge": "",
     }
 
     def experiment_noise(self, robot: Any, noise: Any) -> Any:
@@ -228,28 +237,35 @@ class MeasurementKind(abc.ABC):
         """The validation figures of ``x`` on ``data`` (fresh poses of the actual robot ``truth``,
         read without noise): ``val_rms``, ``val_max`` (the readings' residuals at ``x``, mm),
         ``val_rms_nominal`` (at the start of :meth:`problem`: the nominal robot, with this
-        kind's setup guess); then ``tool_position_rms``, ``tool_orientation_rms`` (degrees) and
-        ``tool_position_rms_nominal`` from :meth:`tool_accuracy` (nan, with ``notes`` saying
-        why, where it fails). The residuals do not depend on the gauge: null directions leave
-        them unchanged."""
-        problem, start = self.problem(robot, data, x0=None)
+        kind's setup guess; nan when there is none); then ``tool_position_rms``,
+        ``tool_orientation_rms`` (degrees) and ``tool_position_rms_nominal`` from
+        :meth:`tool_accuracy` (nan, with ``notes`` saying why, where it fails). The residuals
+        do not depend on the gauge: null directions leave them unchanged."""
+        problem, _ = self.problem(robot, data, x0=x)
         seen = observed(problem)
         err = np.asarray(problem.residuals(x))[seen]
-        err0 = np.asarray(problem.residuals(start))[seen]
         out: dict[str, Any] = {
             "val_rms": _rms(err), "val_max": float(np.max(np.abs(err))),
-            "val_rms_nominal": _rms(err0),
+            "val_rms_nominal": float("nan"),
             "tool_position_rms": float("nan"), "tool_orientation_rms": float("nan"),
             "tool_position_rms_nominal": float("nan"),
         }
+        notes = []
+        try:
+            nominal, start = self.problem(robot, data)
+            out["val_rms_nominal"] = _rms(np.asarray(nominal.residuals(start))[seen])
+        except _FAILURES as exc:  # e.g. no set-up guess for a nominal robot far from the data
+            notes.append(f"nominal: {type(exc).__name__}: {exc}")
         try:
             acc = self.tool_accuracy(robot, data, x, truth)
-        except (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError) as exc:
-            out["notes"] = f"accuracy: {type(exc).__name__}: {exc}"  # e.g. forward kinematics
+        except _FAILURES as exc:  # e.g. forward kinematics of a poor model diverges
+            notes.append(f"accuracy: {type(exc).__name__}: {exc}")
         else:
             out.update(tool_position_rms=_rms(acc.calibrated.position),
                        tool_orientation_rms=_rms(acc.calibrated.orientation),
                        tool_position_rms_nominal=_rms(acc.nominal.position))
+        if notes:
+            out["notes"] = "; ".join(notes)
         return out
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
@@ -262,6 +278,10 @@ class MeasurementKind(abc.ABC):
 
     def __repr__(self) -> str:
         return f"<measurement kind {self.name!r}: {self.description} in {self.frame}>"
+
+
+# What a figure's computation raises deterministically (recorded, not retried).
+_FAILURES = (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError)
 
 
 def _rms(v: Any) -> float:
@@ -337,6 +357,14 @@ def _load(name: str) -> MeasurementKind:
                                 f"named {name!r}")
             _LOADED[name] = spec
         return _LOADED[name]
+
+
+def get(name: str) -> MeasurementKind:
+    """The registered kind named ``name``; ValueError naming the registered ones otherwise."""
+    if not isinstance(name, str) or name not in _SPECS:
+        raise ValueError(f"kind: {name!r} is not registered; registered: "
+                         + ", ".join(list(_SPECS)))
+    return _load(name)
 
 
 def available() -> list[str]:

@@ -36,6 +36,9 @@ class PoseKind(MeasurementKind):
     #: The figures of iwr compare and iwr study on pose data (MeasurementKind.experiment_text).
     experiment_text = {
         "cost": "eq. (10), the sum of squared leg residuals (mm^2)",
+        "cost_label": "eq. (10)",
+        "readings_short": "leg",
+        "tool_short": "",
         "readings": "leg readings predicted with the recovered parameters against their exact "
                     "(noise-free) values (mm)",
         "tool": "tool pose error by forward kinematics of the readings against the exact platform "
@@ -45,6 +48,7 @@ class PoseKind(MeasurementKind):
                       "projected onto the identifiable directions (iwr.parameter_error)",
         "noise_level": "the tracker's position sd (mm), the other channels in the proportions of "
                        "iwr.Noise.realistic() (level 0.02)",
+        "gauge": "",
     }
 
     def owns(self, data: Any) -> bool:

@@ -34,8 +34,10 @@ from .simulate import TrackerNoise
 
 __all__ = ["PointsKind", "ProbeKind", "parameter_error_on"]
 
-_GAUGE = ("point data do not fix {0} nor {5} (docs/tracker.md), so every figure here is "
-          "gauge-invariant: ")
+_GAUGE = ("Tracker data do not fix {0} nor {5} (docs/tracker.md): every figure here is "
+          "gauge-invariant (the residuals, the tool pose aligned with the truth's and the "
+          "projected parameter error do not move along the null directions); the raw parameter "
+          "error is not.")
 
 
 class _TrackerKind(MeasurementKind):
@@ -44,10 +46,13 @@ class _TrackerKind(MeasurementKind):
     #: The figures of iwr compare and iwr study on tracker data (MeasurementKind.experiment_text).
     experiment_text = {
         "cost": "the sum of squared point residuals in {T}, predicted minus measured (mm^2)",
+        "cost_label": "point residuals in {T}",
+        "readings_short": "point ({T})",
+        "tool_short": " modulo the gauge",
         "readings": "points in {T} predicted with the recovered parameters (robot, registration "
-                    "and offsets) against their exact values (mm); the nominal robot's uses the "
-                    "closed-form registration guess from these points. " + _GAUGE
-                    + "residuals do not move along the null directions",
+                    "and offsets) against their exact values (mm; the nominal robot's with the "
+                    "closed-form registration guess from these points)",
+        "gauge": _GAUGE,
         "tool": "tool pose error against the truth by forward kinematics of the readings, in {T}, "
                 "modulo the gauge (iwr.tracker.tool_pose_errors, gauge='fit': the model's platform "
                 "frame moved by the one rigid transform that best aligns it with the truth's over "
@@ -131,7 +136,12 @@ class _TrackerKind(MeasurementKind):
         """Over the robot's and the setup's parameters, modulo the null directions of the point
         (probe) objective on ``data`` (the gauge among them): :func:`parameter_error_on`."""
         problem, _ = tracker_problem(robot, data, x0=truth)
-        return parameter_error_on(problem, x, truth, self.angle_parameters(robot))
+        error = parameter_error_on(problem, x, truth, self.angle_parameters(robot))
+        if not error.converged:
+            raise ValueError("no parameter vector with the truth's points was reached from x "
+                             f"(points RMS {error.reading_rms:.3g} mm off at x): x is too far "
+                             "from the truth for its error to be split into seen and unseen parts")
+        return error
 
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
         if options.pop("weighted", None):
@@ -187,11 +197,11 @@ class ProbeKind(_TrackerKind):
 
     name = "probe"
     description = "the probe's pose"
-    experiment_text = {**_TrackerKind.experiment_text, "readings": (
+    experiment_text = {**_TrackerKind.experiment_text, "readings_short": "probe point ({T})",
+                       "readings": (
         "the probe's four points in {T} (its origin and one probe_length along each axis) "
-        "predicted with the recovered parameters against their exact values (mm); the nominal "
-        "robot's uses the closed-form registration guess. " + _GAUGE + "residuals do not move "
-        "along the null directions")}
+        "predicted with the recovered parameters against their exact values (mm; the nominal "
+        "robot's with the closed-form registration guess from these poses)")}
 
     def readings_per_pose(self, robot: Any, data: Any) -> float:
         """Six: a pose (its four points are twelve coordinates of one rigid pose)."""
