@@ -144,10 +144,6 @@ class _TrackerKind(MeasurementKind):
         return error
 
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
-        if options.pop("weighted", None):
-            raise ValueError("weighted=True: the noise-weighted objective is for leg data "
-                             "(poses in {0}); tracker data are weighted by the efficient "
-                             "estimator (noise=..., docs/estimation.md)")
         return tracker_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
