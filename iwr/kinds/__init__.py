@@ -203,8 +203,9 @@ class MeasurementKind(abc.ABC):
 
     def experiment_noise(self, robot: Any, noise: Any) -> Any:
         """The noise model that :meth:`simulate` and the efficient estimator take for an
-        experiment's ``noise``: an :class:`iwr.Noise` (a noise level's, :func:`iwr.experiments.
-        harness.noise_at`, or a user's) or already this kind's model. Default: as it is."""
+        experiment's ``noise``: an :class:`iwr.Noise` (a noise level's,
+        :func:`iwr.experiments.harness.noise_at`, or a user's) or already this kind's model.
+        Default: as it is."""
         return noise
 
     def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
