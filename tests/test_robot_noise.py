@@ -225,7 +225,7 @@ def test_tracker_noise_reaches_the_estimator(tmp_path):
         (READINGS, TRACKER)
 
 
-def test_another_method_on_tracker_data_leaves_the_file_noise_aside(tmp_path):
+def test_another_method_on_tracker_points_is_weighted_by_the_file_noise(tmp_path):
     robot = tracker_robot().with_noise(READINGS, TRACKER)
     robot.to_toml(tmp_path / "bench.toml")
     proc = run("simulate", "--robot", str(tmp_path / "bench.toml"), "--poses", "20", "--seed",
@@ -234,7 +234,7 @@ def test_another_method_on_tracker_data_leaves_the_file_noise_aside(tmp_path):
     proc = run("calibrate", str(tmp_path / "robot.toml"), str(tmp_path / "measurements.csv"),
                "--method", "lm", "-o", str(tmp_path / "cal"), "--no-plots", "--no-progress")
     assert proc.returncode == 0, proc.stdout + proc.stderr
-    assert "not used by method lm on reflector points data" in proc.stdout
+    assert "method: lm on the objective weighted by the noise model" in proc.stdout
     assert iwr.load_result(tmp_path / "cal" / "result.json")["method"] == "lm"
 
 

@@ -308,8 +308,9 @@ def test_bad_arguments() -> None:
         iwr.study(poses=[20, 8], scheduler="synchronous")
     tracker = iwr.Robot.default().with_tracker(registration=(0, 0, 0, 0, 0, 0),
                                                reflectors=[(0, 0, 40)])
-    with pytest.raises(ValueError, match="robot: 'IWR' has a laser-tracker setup"):
-        iwr.study(robot=tracker, scheduler="synchronous")
+    # A tracker robot is studied on its points: one reflector gives 3 readings a pose.
+    with pytest.raises(ValueError, match=r"poses: 10 poses are too few.*reflector points"):
+        iwr.study(robot=tracker, poses=[10], scheduler="synchronous")
     with pytest.raises(ValueError, match="noise: -1.0"):
         iwr.study(noise=[-1.0], scheduler="synchronous")
     with pytest.raises(ValueError, match="workers: only for the local cluster"):

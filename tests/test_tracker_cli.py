@@ -199,12 +199,23 @@ def test_tracker_data_with_a_robot_without_tracker_is_refused(sim, tmp_path):
     assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr
 
 
-def test_a_method_with_a_noise_model_is_a_usage_error_on_tracker_data(sim, tmp_path):
+def test_a_method_with_a_noise_model_is_weighted_on_points_refused_on_a_probe(sim, tmp_path):
+    """LM with --noise on point data minimises the noise-weighted point objective; on probe data,
+    whose points move rigidly (a singular covariance), it is a usage error before any work."""
     proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--method",
-               "lm", "--noise", "realistic", "-o", str(tmp_path))
+               "lm", "--noise", "realistic", "-o", str(tmp_path / "pts"), "--no-plots")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "on the objective weighted by the noise model" in proc.stdout
+    result = iwr.load_result(tmp_path / "pts" / "result.json")
+    assert result["method"] == "lm" and "cost_eq10" in result
+    probe = iwr.Robot.default().with_tracker(registration=(2000.0, -150.0, 300.0, 1.5, 0, 0),
+                                             probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
+    probe.to_toml(tmp_path / "probe.toml")
+    proc = run("calibrate", str(tmp_path / "probe.toml"), str(sim / "measurements.csv"),
+               "--method", "lm", "--noise", "realistic", "-o", str(tmp_path / "prb"))
     assert proc.returncode == 2, proc.stdout + proc.stderr
     assert "--method lm with --noise" in proc.stderr and "Traceback" not in proc.stderr
-    assert not (tmp_path / "result.json").exists()
+    assert not (tmp_path / "prb").exists()
 
 
 def test_leg_data_with_a_tracker_robot_is_named_as_such(sim, tmp_path):

@@ -388,7 +388,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
             print("method: the efficient estimator (every instrument weighted by its noise; "
                   "eq. (10) weighted by it is --method lm, unweighted --noise none)")
         elif not isinstance(noise, str):
-            print(f"method: {method} on eq. (10) weighted by the noise model (each pose's leg "
+            print(f"method: {method} on the objective weighted by the noise model (each pose's "
                   "residuals whitened by their propagated covariance; unweighted: --noise none)")
     inputs = {"robot": robot_name, "data": data_name, **(sources or {})}
     if getattr(args, "validation", None):

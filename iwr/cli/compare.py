@@ -83,8 +83,10 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
                    help="measurement poses per identification (default: %(default)s)")
     p.add_argument("--noise", default=None,
                    help="'none', 'realistic' or key=value pairs, e.g. "
-                        "'legs=0.002,position=0.02' (mm, rad); default: the --robot file's [noise] "
-                        "table, else 'realistic'")
+                        "'legs=0.002,position=0.02' (mm, rad); for a robot with a tracker, "
+                        "position scales the tracker's noise (TrackerNoise.leica() x position / "
+                        "0.02); default: the --robot file's [noise] (and [tracker.noise]) table, "
+                        "else 'realistic'")
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)),
                    help="seeds, '0,1,2' or '0..4' (default: %(default)s)")
     p.add_argument("--methods", default=None, help=LazyHelp(lambda: (

@@ -57,9 +57,9 @@ def tracker_noise_of(noise: Any) -> Any:
     """What ``--noise`` means for a robot with a tracker, in ``iwr simulate`` and ``iwr
     calibrate`` alike (:meth:`iwr.tracker.kind.PointsKind.reading_noise`): the reading noise of
     the :class:`iwr.Noise` and ``TrackerNoise.leica()`` (none when the whole noise is zero)."""
-    from ..kinds import _load
+    from ..kinds import named
 
-    return _load("points").reading_noise(noise)
+    return named("points").reading_noise(noise)
 
 
 def simulate_tracker_files(args: argparse.Namespace, robot: Any) -> int:

@@ -27,6 +27,7 @@ import numpy as np
 from ..robot import Robot
 from ..simulate import Noise
 from .harness import (
+    FIGURE_COLUMNS,
     FLOOR_ATOL,
     FLOOR_RTOL,
     SCENARIOS,
@@ -37,6 +38,7 @@ from .harness import (
     check_n_poses,
     check_robot,
     dry_run,
+    leg_sigma,
     registered_methods,
     robot_hash,
     run_dask,
@@ -107,14 +109,18 @@ def _check_int(name: str, value: Any, minimum: int) -> int:
     return int(value)
 
 
-def _check_noise(noise: Any) -> Noise:
-    if noise is None or noise == "none":
+def _check_noise(noise: Any) -> Any:
+    if noise is None or (isinstance(noise, str) and noise == "none"):
         return Noise()
     if isinstance(noise, Noise):
         return noise
-    if noise == "realistic":
+    if isinstance(noise, tuple) and len(noise) == 2:  # a kind's own model, e.g. a tracker's
+        return noise
+    if isinstance(noise, str) and noise == "realistic":
         return Noise.realistic()
-    raise ValueError(f"noise: {noise!r}; expected an iwr.Noise, 'realistic', 'none' or None")
+    raise ValueError(f"noise: {noise!r}; expected an iwr.Noise, a pair (iwr.Noise, "
+                     "iwr.tracker.TrackerNoise) for a robot with a tracker, 'realistic', 'none' "
+                     "or None")
 
 
 def _check_starts(start: Any) -> list[str]:
@@ -139,9 +145,9 @@ def default_methods(noise: Noise | None = None) -> list[str]:
     return names
 
 
-def _weighted(noise: Noise) -> bool:
+def _weighted(noise: Any) -> bool:
     """Whether the efficient estimator can weigh the data by ``noise`` (it needs the legs')."""
-    return noise.legs > 0
+    return leg_sigma(noise) > 0
 
 
 def _check_methods(methods: Any, noise: Noise) -> list[str]:
@@ -156,8 +162,8 @@ def _check_methods(methods: Any, noise: Noise) -> list[str]:
         raise ValueError(f"methods: {names!r} has duplicates")
     if "efficient" in names and not _weighted(noise):
         raise ValueError("methods: 'efficient' weighs every instrument by the data's noise model, "
-                         f"and this noise has no leg noise (legs = {noise.legs}); give a noise "
-                         "model with legs > 0 (e.g. 'realistic') or leave 'efficient' out")
+                         f"and this noise has no leg noise (legs = {leg_sigma(noise)}); give a "
+                         "noise model with legs > 0 (e.g. 'realistic') or leave 'efficient' out")
     return names
 
 
@@ -244,12 +250,17 @@ def compare_methods(
     Parameters
     ----------
     robot : Robot, optional
-        The nominal robot (default :meth:`Robot.default`).
+        The nominal robot (default :meth:`Robot.default`); its kind of data
+        (:func:`iwr.kinds.for_robot`: the platform pose in {0}, or with a ``[tracker]`` setup
+        reflector points or a probe in {T}) is what is simulated and identified.
     n_poses : int
         Measurement poses per identification (the paper: 100); at least
         :func:`~iwr.experiments.harness.min_poses` (9 for the IWR).
-    noise : Noise, "realistic", "none" or None
-        Measurement noise of the identification data (default: :meth:`Noise.realistic`).
+    noise : Noise, (Noise, TrackerNoise), "realistic", "none" or None
+        Measurement noise of the identification data (default: :meth:`Noise.realistic`). For a
+        robot with a tracker, an :class:`iwr.Noise` gives the leg and joint readings' noise and,
+        by its ``position``, the tracker's (:meth:`iwr.tracker.TrackerNoise.leica` scaled by
+        ``position / 0.02``); a pair gives both.
     seeds : sequence of int
         One simulated problem per seed and scenario; the same seeds give the same numbers.
     methods : sequence of str, optional
@@ -290,11 +301,12 @@ def compare_methods(
     robot = Robot.default() if robot is None else robot
     if not isinstance(robot, Robot):
         raise ValueError(f"robot: expected an iwr.Robot or None, got {type(robot).__name__}")
-    check_robot(robot)
+    kind = check_robot(robot)
     n_poses = check_n_poses(robot, n_poses)
     n_validation = _check_int("n_validation", n_validation, 1)
     budget = _check_int("budget", budget, 2)
     noise = _check_noise(noise)
+    kind.experiment_noise(robot, noise)  # a model the robot's kind cannot take fails here
     seeds = _check_seeds(seeds)
     names = _check_methods(methods, noise)
     starts = _check_starts(start)
@@ -322,11 +334,13 @@ def compare_methods(
 
     settings = {
         "robot": robot.name,
-        "n_params": robot.n_params,
+        "n_params": kind.n_params(robot),
         "n_poses": n_poses,
         "n_validation": n_validation,
-        "noise": {k: getattr(noise, k) for k in
-                  ("legs", "joint_lengths", "joint_angles", "position", "orientation")},
+        "noise": _noise_settings(kind.experiment_noise(robot, noise)),
+        "kind": {"name": kind.name, "description": kind.description, "frame": kind.frame,
+                 "parameter_names": robot.parameter_names + kind.setup_parameter_names(robot),
+                 "chi2_fit_test": kind.chi2_fit_test, **kind.experiment_text},
         "seeds": seeds,
         "methods": names,
         "budget": budget,
@@ -363,11 +377,15 @@ def compare_methods(
         raise RuntimeError(f"{len(failures)} runs failed on every attempt (first: {cell.method}, "
                            f"seed {cell.draw}: {type(exc).__name__}: {exc})")
     runs = [_run_row(rows[c.key]) for c in cells]
-    failed = [r for r in runs if r["status"] != "ok"]
-    if failed:
-        r = failed[0]
-        raise ValueError(f"method {r['method']!r}, scenario {r['scenario']}, seed {r['seed']}: "
-                         f"{r['message']}")
+    # A method that failed on every run never ran (bad options, or no start it can take): an
+    # error. A run that failed among others (e.g. the efficient estimator from a start where a
+    # pose has no forward kinematics) is a result: kept, not a success, its figures nan.
+    for method in names:
+        mine = [r for r in runs if r["method"] == method]
+        if all(r["status"] != "ok" for r in mine):
+            r = mine[0]
+            raise ValueError(f"method {r['method']!r}, scenario {r['scenario']}, seed "
+                             f"{r['seed']}: {r['message']}")
     comparison = Comparison(runs=runs, summary=_summarise(runs, starts, names), settings=settings)
     if out_path is not None:
         from ..reporting.compare import write_report
@@ -376,7 +394,19 @@ def compare_methods(
     return comparison
 
 
-def _grid(robot: Robot, n_poses: int, noise: Noise, seeds: list[int], names: list[str],
+def _noise_settings(noise: Any) -> dict[str, Any]:
+    """The noise model as the settings say it: an iwr.Noise's fields, or a pair's as
+    ``{"readings": {...}, "tracker": {...}}``, with ``legs`` (the leg sigma) on top."""
+    import dataclasses
+
+    if isinstance(noise, tuple):
+        readings, other = (dataclasses.asdict(p) if p is not None else {} for p in noise)
+        return {"legs": leg_sigma(noise), "readings": readings, "tracker": other}
+    return {k: getattr(noise, k) for k in
+            ("legs", "joint_lengths", "joint_angles", "position", "orientation")}
+
+
+def _grid(robot: Robot, n_poses: int, noise: Any, seeds: list[int], names: list[str],
           budget: int, starts: list[str], n_validation: int,
           extra: dict[str, dict[str, Any]]) -> list[Cell]:
     """The cells of a comparison, in report order (scenario, seed, method). Seed k is the
@@ -397,13 +427,28 @@ def _grid(robot: Robot, n_poses: int, noise: Noise, seeds: list[int], names: lis
 
 
 def _run_row(row: dict[str, Any]) -> dict[str, Any]:
-    """A harness row as a run of the comparison: ``seed`` is the comparison's seed (the draw)."""
-    return {**row, "seed": row["draw"]}
+    """A harness row as a run of the comparison: ``seed`` is the comparison's seed (the draw);
+    a failed run's figures nan (counts 0), not a success."""
+    out = {**row, "seed": row["draw"]}
+    if out["status"] != "ok":
+        for c in FIGURE_COLUMNS:
+            out.setdefault(c, math.nan)
+        out.update(nfev=0, nit=0, success=False, at_floor=False, within_budget=None)
+        for c in ("x", "truth", "x0", "history_nfev", "history_best", "unidentifiable"):
+            out.setdefault(c, [])
+        out.setdefault("floor_threshold", math.nan)
+    return out
 
 
 def _median(values: list[float]) -> float:
     arr = np.array([v for v in values if not math.isnan(v)], dtype=float)
     return float(np.median(arr)) if arr.size else math.nan
+
+
+def _extreme(f: Any, values: list[float]) -> float:
+    """``f`` (nanmin, nanmax) of the values that are numbers; nan when none is."""
+    arr = np.asarray(values, dtype=float)
+    return float(f(arr)) if np.isfinite(arr).any() else math.nan
 
 
 def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) -> list[dict]:
@@ -424,8 +469,8 @@ def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) 
                 "at_floor": sum(bool(r["at_floor"]) for r in rs),
                 "at_floor_rate": sum(bool(r["at_floor"]) for r in rs) / len(rs),
                 "median_cost": _median(costs),
-                "min_cost": float(np.min(costs)),
-                "max_cost": float(np.max(costs)),
+                "min_cost": _extreme(np.nanmin, costs),
+                "max_cost": _extreme(np.nanmax, costs),
                 "median_noise_floor": _median([r["noise_floor"] for r in rs]),
                 "median_val_rms": _median([r["val_rms"] for r in rs]),
                 "median_val_rms_nominal": _median([r["val_rms_nominal"] for r in rs]),
@@ -434,9 +479,12 @@ def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) 
                 "median_raw_error_length": _median([r["raw_error_length"] for r in rs]),
                 "median_raw_error_angle": _median([r["raw_error_angle"] for r in rs]),
                 "median_tool_position_rms": _median([r["tool_position_rms"] for r in rs]),
+                "median_tool_position_rms_nominal": _median([r["tool_position_rms_nominal"]
+                                                             for r in rs]),
                 "median_nfev": _median([float(r["nfev"]) for r in rs]),
                 "max_nfev": int(max(r["nfev"] for r in rs)),
-                "all_within_budget": all(r["within_budget"] for r in rs),
+                "all_within_budget": all(r["within_budget"] for r in rs if r["status"] == "ok"),
+                "failed": sum(r["status"] != "ok" for r in rs),
                 "median_wall_time": _median([r["wall_time"] for r in rs]),
             })
     return out

@@ -11,6 +11,11 @@ sees the same actual robot and validation poses, and every noise level the same 
 of the same shape, scaled (common random numbers: differences between cells are not sampling
 noise).
 
+Every kind of data (:mod:`iwr.kinds`: the platform pose in {0}, tracker points or a probe in
+{T}) runs through the same harness: the robot's kind says what a scenario simulates (its noise at
+a noise level, the actual set-up beside the robot's errors) and what the validation figures
+measure (:attr:`iwr.kinds.MeasurementKind.experiment_text`).
+
 The row of a cell has one schema (:data:`SETTING_COLUMNS` then :data:`FIGURE_COLUMNS`), whatever
 runs it; every call into the identification and analysis API is in :func:`evaluate`.
 """
@@ -27,12 +32,9 @@ from typing import Any
 
 import numpy as np
 
-from ..accuracy import accuracy
-from ..identifiability import identifiability, parameter_error
-from ..measurements import Measurements
-from ..problem import Problem, predict_legs
+from .. import kinds
 from ..robot import Robot
-from ..simulate import Noise, sample_poses, simulate
+from ..simulate import Noise, simulate
 
 __all__ = [
     "Cell",
@@ -60,12 +62,14 @@ CELL_FORMAT = 1
 SCENARIOS: dict[str, str] = {
     "near": (
         "errors uniform within the default bounds (+-0.5 mm, +-0.5 degree); every method starts "
-        "from the nominal robot (all errors zero), the usual calibration situation"
+        "from the nominal robot (all errors zero; a set-up, if any, as the kind guesses it from "
+        "the data), the usual calibration situation"
     ),
     "bad": (
         "large errors, uniform within the paper's Table 2 bounds taken literally (+-0.5 mm for "
         "lengths, +-0.5 rad for angles), searched within those bounds; every parameter starts at "
-        "90% of its bound on the side opposite to its true value"
+        "90% of its bound on the side opposite to its true value (a set-up's too, within its "
+        "default bounds about the nominal set-up)"
     ),
 }
 _BOUNDS = {"near": "default", "bad": "paper"}
@@ -177,33 +181,50 @@ def split_method(spec: Any) -> tuple[str, dict[str, Any]]:
 _IDENTIFIABLE: dict[str, int] = {}
 
 
+_READINGS: dict[str, float] = {}
+
+
+def _scaled_null_basis(problem: Any, x: np.ndarray) -> tuple[int, np.ndarray]:
+    """``(rank, basis)`` of the column-scaled Jacobian of ``problem`` at ``x`` (each column
+    divided by its norm; rank threshold numpy's, as :func:`iwr.identifiability`): an
+    orthonormal basis of its null space in the scaled metric, (n_params, n_null)."""
+    jac = problem.jacobian(x)
+    d = np.linalg.norm(jac, axis=0)
+    d = np.where(d > 0, d, 1.0)
+    _, s, vt = np.linalg.svd(jac / d, full_matrices=True)
+    rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * s[0]))
+    return rank, vt[rank:].T
+
+
 def _identifiable(robot: Robot) -> int:
-    """The number of identifiable parameters of ``robot`` (the rank of :func:`iwr.identifiability`
-    on generic poses: 52 of 58 for the IWR), computed once per robot."""
+    """The number of identifiable parameters of ``robot`` on its kind of data (the rank of the
+    column-scaled Jacobian on generic poses: 52 of 58 for the IWR's poses in {0}), computed once
+    per robot."""
     key = robot_hash(robot)
     if key not in _IDENTIFIABLE:
-        data, _ = simulate(robot, max(60, robot.n_params), seed=0)
-        _IDENTIFIABLE[key] = int(identifiability(robot, data).rank)
+        kind = kinds.for_robot(robot)
+        data, x = simulate(robot, max(60, kind.n_params(robot)), seed=0)
+        problem, _ = kind.problem(robot, data, x0=x)
+        _IDENTIFIABLE[key] = _scaled_null_basis(problem, x)[0]
+        _READINGS[key] = kind.readings_per_pose(robot, data)
     return _IDENTIFIABLE[key]
 
 
 def min_poses(robot: Robot) -> int:
-    """The fewest measurement poses whose leg readings (six a pose) can determine the identifiable
-    parameters of ``robot``: 9 for the IWR (54 readings for 52 identifiable parameters). Below
-    it the identification is underdetermined whatever the method, and its figures mean
-    nothing."""
-    return -(-_identifiable(robot) // 6)
+    """The fewest measurement poses whose readings can determine the identifiable parameters of
+    ``robot``: 9 for the IWR measured in {0} (six leg readings a pose: 54 readings for 52
+    identifiable parameters). Below it the identification is underdetermined whatever the
+    method, and its figures mean nothing."""
+    need = _identifiable(robot)
+    return max(1, math.ceil(need / _READINGS[robot_hash(robot)] - 1e-9))
 
 
-def check_robot(robot: Robot) -> None:
-    """ValueError for a robot whose data the harness cannot simulate: one with a laser-tracker
-    setup (its scenarios simulate platform poses in {0})."""
-    if getattr(robot, "tracker", None) is not None:
-        raise ValueError(
-            f"robot: {robot.name!r} has a laser-tracker setup; the experiments simulate the "
-            "platform pose measured in the world frame {0} (the paper's data): give the robot "
-            "without it (Robot.with_tracker's input)"
-        )
+def check_robot(robot: Robot) -> kinds.MeasurementKind:
+    """The kind of data ``robot`` measures (:func:`iwr.kinds.for_robot`), which the experiments
+    simulate; ValueError when no registered kind applies to it."""
+    if not isinstance(robot, Robot):
+        raise ValueError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+    return kinds.for_robot(robot)
 
 
 def check_n_poses(robot: Robot, n_poses: Any, name: str = "n_poses") -> int:
@@ -215,8 +236,9 @@ def check_n_poses(robot: Robot, n_poses: Any, name: str = "n_poses") -> int:
     if n_poses < need:
         raise ValueError(
             f"{name}: {int(n_poses)} poses are too few: the {_identifiable(robot)} identifiable "
-            f"parameters of robot {robot.name!r} need at least {need} poses (6 leg readings "
-            "each); give at least that"
+            f"parameters of robot {robot.name!r} need at least {need} poses "
+            f"({_READINGS[robot_hash(robot)]:g} independent readings each, "
+            f"{kinds.for_robot(robot).description}); give at least that"
         )
     return int(n_poses)
 
@@ -230,10 +252,10 @@ class ScenarioData:
     the validation poses (exact readings, no noise), and the method's seed."""
 
     truth: np.ndarray
-    data: Measurements
+    data: Any
     x0: np.ndarray
     bounds: str
-    validation: Measurements
+    validation: Any
     method_seed: int
 
 
@@ -245,8 +267,9 @@ class Scenario:
     ----------
     n_poses : int
         Measurement poses of the identification data.
-    noise : Noise
-        Their measurement noise.
+    noise : Noise or the robot's kind's noise model
+        Their measurement noise (an :class:`iwr.Noise` is converted by the kind,
+        :meth:`iwr.kinds.MeasurementKind.experiment_noise`).
     draw, seed, base_seed : int
         The error draw (the actual robot), the seed of the data, validation poses and method,
         and the root of every stream.
@@ -257,7 +280,7 @@ class Scenario:
     """
 
     n_poses: int
-    noise: Noise
+    noise: Any
     draw: int = 0
     seed: int = 0
     base_seed: int = 0
@@ -265,33 +288,41 @@ class Scenario:
     kind: str = "near"
 
     def truth(self, robot: Robot) -> np.ndarray:
-        """The actual robot's error vector: uniform within the scenario's bounds."""
+        """The actual robot's error vector, uniform within the scenario's bounds, then the actual
+        set-up's parameters (:meth:`iwr.kinds.MeasurementKind.draw_setup`; none for poses in
+        {0})."""
         if self.kind not in SCENARIOS:
             raise ValueError(f"scenario: {self.kind!r}; expected one of {', '.join(SCENARIOS)}")
         rng = np.random.default_rng(stream_seed(self.base_seed, _ERRORS, self.draw))
         lower, upper = robot.default_bounds(_BOUNDS[self.kind])
-        return lower + (upper - lower) * rng.random(robot.n_params)
+        errors = lower + (upper - lower) * rng.random(robot.n_params)
+        return np.concatenate([errors, kinds.for_robot(robot).draw_setup(robot, rng)])
 
     def build(self, robot: Robot) -> ScenarioData:
         """Simulate the scenario for ``robot`` (deterministic). ValueError when ``n_poses`` is
         below :func:`min_poses`."""
         check_n_poses(robot, self.n_poses)
+        kind = kinds.for_robot(robot)
         truth = self.truth(robot)
-        data, _ = simulate(robot, self.n_poses,
-                           seed=stream_seed(self.base_seed, _DATA, self.draw, self.seed),
-                           x=truth, noise=self.noise)
+        data, _ = kind.simulate(robot, self.n_poses,
+                                seed=stream_seed(self.base_seed, _DATA, self.draw, self.seed),
+                                x=truth, noise=kind.experiment_noise(robot, self.noise))
         bounds = _BOUNDS[self.kind]
         if self.kind == "near":
-            x0 = np.zeros(robot.n_params)
+            # The kind's start: the nominal robot (with the set-up guessed from the data, for a
+            # kind that identifies one).
+            _, x0 = kind.problem(robot, data, bounds)
         else:
-            # The opposite side of each parameter's range, near its bound.
-            lower, upper = robot.default_bounds(bounds)
+            # The opposite side of each parameter's range (the robot's and the set-up's about
+            # the nominal one), near its bound.
+            problem, _ = kind.problem(robot, data, bounds, x0=np.zeros(truth.size))
+            lower, upper = problem.lower, problem.upper
             half, mid = 0.5 * (upper - lower), 0.5 * (upper + lower)
             x0 = mid + np.where(truth >= mid, -1.0, 1.0) * _BAD_START_FRACTION * half
-        rng = np.random.default_rng(stream_seed(self.base_seed, _VALIDATION, self.draw,
-                                                self.seed))
-        q, poses, legs = sample_poses(robot, self.validation_poses, rng, truth)
-        validation = Measurements(q, poses, legs, joint_types=robot.joint_types)
+        # Fresh poses of the actual robot, read without noise.
+        validation, _ = kind.simulate(
+            robot, self.validation_poses,
+            seed=stream_seed(self.base_seed, _VALIDATION, self.draw, self.seed), x=truth)
         return ScenarioData(truth, data, x0, bounds, validation,
                             stream_seed(self.base_seed, _METHOD, self.draw, self.seed))
 
@@ -343,6 +374,8 @@ class Cell:
         noise = self.noise
         if isinstance(noise, Noise):  # a level when it is one, so that equal cells share a key
             noise = noise.position if noise == noise_at(noise.position) else _noise_dict(noise)
+        elif isinstance(noise, tuple):  # a kind's own model, e.g. (Noise, TrackerNoise)
+            noise = [_noise_dict(part) for part in noise]
         return {
             **extra,
             "format": CELL_FORMAT,
@@ -363,8 +396,11 @@ class Cell:
     def key(self) -> str:
         return hashlib.sha256(canonical(self.settings).encode()).hexdigest()[:20]
 
-    def noise_model(self) -> Noise:
-        return self.noise if isinstance(self.noise, Noise) else noise_at(self.noise)
+    def noise_model(self) -> Any:
+        """The cell's noise: :func:`noise_at` of a level, else the model given."""
+        if isinstance(self.noise, (Noise, tuple)):
+            return self.noise
+        return noise_at(self.noise)
 
     def scenario_problem(self) -> Scenario:
         """The cell's scenario."""
@@ -388,14 +424,18 @@ class Cell:
         row["key"] = self.key
         if isinstance(self.noise, Noise):
             row["noise"] = self.noise.position
+        elif isinstance(self.noise, tuple):  # no level: the model is in the settings
+            row["noise"] = math.nan
         if self.budget is not None and self.budget_option is None:
             row["budget_option"] = budget_option(split_method(self.method)[0])
         return row
 
 
-def _noise_dict(noise: Noise) -> dict[str, float]:
-    return {k: float(getattr(noise, k)) for k in
-            ("legs", "joint_lengths", "joint_angles", "position", "orientation")}
+def _noise_dict(noise: Any) -> dict[str, float]:
+    """A noise model's fields (an :class:`iwr.Noise` or another kind's dataclass)."""
+    import dataclasses
+
+    return {k: float(v) for k, v in dataclasses.asdict(noise).items()}
 
 
 # The option that a budget sets: every method takes ``max_evaluations``; DE's budget axis in the
@@ -419,16 +459,14 @@ def accepts(method: str, option: str) -> bool:
     return option in inspect.signature(registered_methods()[method]).parameters
 
 
-def unidentifiable_mask(robot: Robot, data: Measurements, x: np.ndarray) -> np.ndarray:
-    """The parameters that take part in an unidentifiable combination at ``x`` on ``data``'s poses
-    (a nonzero coefficient in the null space of the column-scaled Jacobian): they cannot be judged
-    one by one."""
-    rep = identifiability(robot, data, x)
-    if rep.null_space.size == 0:
-        return np.zeros(robot.n_params, dtype=bool)
+def unidentifiable_mask(robot: Robot, data: Any, x: np.ndarray) -> np.ndarray:
+    """The parameters (the robot's, then its kind's set-up) that take part in an unidentifiable
+    combination at ``x`` on ``data``'s poses (a nonzero coefficient in the null space of the
+    column-scaled Jacobian): they cannot be judged one by one."""
+    problem, _ = kinds.of(data).problem(robot, data, x0=x)
     # An orthonormal basis of the null space in the scaled metric: its rows measure each
-    # parameter's part in it, whatever basis the report chose.
-    basis, _ = np.linalg.qr(rep.null_space * rep.scale[:, None])
+    # parameter's part in it.
+    _, basis = _scaled_null_basis(problem, np.asarray(x, dtype=float))
     return np.linalg.norm(basis, axis=1) > 1e-6
 
 
@@ -447,25 +485,29 @@ def evaluate(
 
     Deterministic: the same cell gives the same row (``wall_time`` aside), in any process.
     ``runtime_options`` are options that change the speed only (``workers``): given to the method
-    when it takes them. The figures on the validation poses: ``val_rms``, ``val_max`` (leg
+    when it takes them. The figures on the validation poses (what each measures for the robot's
+    kind: :attr:`iwr.kinds.MeasurementKind.experiment_text`): ``val_rms``, ``val_max`` (the
     readings predicted by the calibrated model against the exact ones, mm) and
     ``val_rms_nominal`` (the nominal model's); the parameter error modulo the unidentifiable
-    directions (:func:`iwr.parameter_error`, with the validation poses as the yardstick of what is
-    identifiable: the same generic set for every pose count, so that small calibration sets do
-    not hide errors in directions they happen not to see) and raw; the tool pose error by forward
-    kinematics (:func:`iwr.accuracy`).
+    directions (:meth:`iwr.kinds.MeasurementKind.parameter_error`, :func:`iwr.parameter_error`
+    for poses in {0}, with the validation poses as the yardstick of what is identifiable: the
+    same generic set for every pose count, so that small calibration sets do not hide errors in
+    directions they happen not to see) and raw; the tool pose error by forward kinematics
+    against the truth (:meth:`iwr.kinds.MeasurementKind.tool_accuracy`).
     """
     row = cell.columns()
     try:
+        kind = kinds.for_robot(robot)
         sc = cell.scenario_problem().build(robot)
         method, options = cell.method_options()
         for name, value in (runtime_options or {}).items():
             if accepts(method, name):
                 options.setdefault(name, value)
-        noise = cell.noise_model()
-        if method == "efficient" or noise.legs > 0:
+        noise = kind.experiment_noise(robot, cell.noise_model())
+        if method == "efficient" or (kind.chi2_fit_test and leg_sigma(noise) > 0):
             # The efficient estimator weighs every instrument by the scenario's noise model; the
-            # other methods' success then includes the chi-square test of their fit.
+            # other methods' success then includes the chi-square test of their fit (for the
+            # kinds that have one).
             options.setdefault("noise", noise)
             if method != "efficient":  # eq. (10), not its noise-weighted form (iwr.identify)
                 options.setdefault("weighted", False)
@@ -476,20 +518,22 @@ def evaluate(
                           seed=sc.method_seed, progress=False, **options)
         row["wall_time"] = time.perf_counter() - start
         x = np.asarray(result.x, dtype=float)
-        cost = float(result.get("cost_eq10", result.fun))  # eq. (10)'s, for every method
-        floor = Problem(robot, sc.data, sc.bounds).cost(sc.truth)
-        threshold = (1 + floor_rtol) * floor + 6 * cell.n_poses * floor_atol**2
+        cost = float(result.get("cost_eq10", result.fun))  # the unweighted one, for every method
+        floor_problem, _ = kind.problem(robot, sc.data, sc.bounds, x0=sc.truth)
+        floor = floor_problem.cost(sc.truth)
+        n_obs = int(np.count_nonzero(kinds.observed(floor_problem)))
+        threshold = (1 + floor_rtol) * floor + n_obs * floor_atol**2
         row.update(
             cost=cost,
             noise_floor=floor,
             at_floor=bool(cost <= threshold),
-            rms_fit=math.sqrt(max(cost, 0.0) / (6 * cell.n_poses)),
+            rms_fit=math.sqrt(max(cost, 0.0) / n_obs),
             nfev=int(result.nfev),
             nit=int(result.get("nit", 0)),
             within_budget=_within_budget(cell, method, int(result.nfev)),
             success=bool(result.success),
         )
-        row.update(_validate(robot, x, sc))
+        row.update(_validate(kind, robot, x, sc))
         row.update(status="ok", message=str(result.get("message", "")))
         row["x"] = x.tolist()
         if details:
@@ -519,41 +563,39 @@ def _within_budget(cell: Cell, method: str, nfev: int) -> bool | None:
     return bool(nfev <= cell.budget) if option in _EVALUATION_OPTIONS else None
 
 
-def _validate(robot: Robot, x: np.ndarray, sc: ScenarioData) -> dict[str, Any]:
-    """Figures of an identified vector ``x`` on the scenario's validation poses."""
+def leg_sigma(noise: Any) -> float:
+    """The leg sensors' sigma of a noise model (an :class:`iwr.Noise`, or a pair whose first
+    part is one): the efficient estimator closes every loop through the legs."""
+    readings = noise[0] if isinstance(noise, tuple) else noise
+    return float(getattr(readings, "legs", 0.0) or 0.0)
+
+
+def _validate(kind: kinds.MeasurementKind, robot: Robot, x: np.ndarray,
+              sc: ScenarioData) -> dict[str, Any]:
+    """Figures of an identified vector ``x`` on the scenario's validation poses (the kind's
+    yardsticks)."""
     val = sc.validation
-    err = predict_legs(robot, x, val.q, val.poses) - val.legs
-    err0 = predict_legs(robot, np.zeros_like(x), val.q, val.poses) - val.legs
     raw = x - sc.truth
-    ang = robot.angle_parameters
+    ang = kind.angle_parameters(robot)
     out: dict[str, Any] = {
-        "val_rms": rms(err),
-        "val_max": float(np.max(np.abs(err))),
-        "val_rms_nominal": rms(err0),
         "raw_error_length": rms(raw[~ang]),
         "raw_error_angle": rms(raw[ang]),
         "max_raw_error_length": float(np.max(np.abs(raw[~ang]))),
         # nan where a figure cannot be computed (the notes say why)
         "param_error_length": math.nan,
         "param_error_angle": math.nan,
-        "tool_position_rms": math.nan,
-        "tool_orientation_rms": math.nan,
-        "tool_position_rms_nominal": math.nan,
     }
     notes = []
     try:
-        pe = parameter_error(robot, val, x, sc.truth)
+        pe = kind.parameter_error(robot, val, x, sc.truth)
         out["param_error_length"] = float(pe.rms_length)
         out["param_error_angle"] = float(pe.rms_angle)
-    except RECORDED_ERRORS as exc:
+    except (*RECORDED_ERRORS, NotImplementedError) as exc:
         notes.append(f"parameter_error: {type(exc).__name__}: {exc}")
-    try:
-        acc = accuracy(robot, val, x)
-        out["tool_position_rms"] = rms(acc.calibrated.position)
-        out["tool_orientation_rms"] = rms(acc.calibrated.orientation)
-        out["tool_position_rms_nominal"] = rms(acc.nominal.position)
-    except RECORDED_ERRORS as exc:  # e.g. forward kinematics of a poor model diverges
-        notes.append(f"accuracy: {type(exc).__name__}: {exc}")
+    figures = kind.validate(robot, val, x, sc.truth)
+    if figures.get("notes"):
+        notes.append(figures.pop("notes"))
+    out.update(figures)
     if notes:
         out["notes"] = "; ".join(notes)
     return out
@@ -742,6 +784,6 @@ def dry_run(robot: Robot, method: str, options: Mapping[str, Any]) -> dict[str, 
     from ..methods import identify
 
     data, _ = simulate(robot, 12, seed=0)
-    res = identify(robot, data, method, x0=np.zeros(robot.n_params), seed=0, progress=False,
+    res = identify(robot, data, method, seed=0, progress=False,
                    **{**options, "generations": 0})
     return dict(res.get("settings", {}))

@@ -323,6 +323,8 @@ def study(
     noise : float or list of float
         Noise levels: the tracker's position standard deviation in mm, the other channels in the
         proportions of :meth:`iwr.Noise.realistic` (:func:`noise_at`). 0 is the paper's setting.
+        On tracker data the level scales the leg and joint noise the same way and the tracker's
+        :meth:`iwr.tracker.TrackerNoise.leica` by level / 0.02.
     draws : int or list of int
         Error draws (the 'actual' robots): a count n for draws 0..n-1, or the indices.
     seeds : int or list of int
@@ -337,7 +339,10 @@ def study(
         The study folder: ``runs/`` (one JSON file per cell), ``results.csv``, ``study.json``, and
         the report (``summary.md`` and PNG figures).
     robot : Robot or path of a robot TOML file, optional
-        The nominal robot (default: :meth:`iwr.Robot.default`).
+        The nominal robot (default: :meth:`iwr.Robot.default`). Its kind of data
+        (:func:`iwr.kinds.for_robot`: the platform pose in {0}, or reflector points or a probe
+        in {T} for a robot with a ``[tracker]`` setup) is simulated, identified and validated
+        (:attr:`iwr.kinds.MeasurementKind.experiment_text` says what each figure measures).
     options : {method: {option: value}}, optional
         Options of each method (e.g. ``{"de": {"strategy": "lshade"}}``); part of the cells' keys,
         except ``workers`` (threads per identification, default 1: a study parallelises across
@@ -427,7 +432,7 @@ def study(
         robot = Robot.default()
     elif not isinstance(robot, Robot):
         robot = Robot.from_toml(robot)
-    check_robot(robot)
+    kind = check_robot(robot)
     for n in poses_l:
         check_n_poses(robot, n, "poses")
 
@@ -442,8 +447,9 @@ def study(
         "methods": methods, "poses": poses_l, "noise": noise_l, "draws": draws_l,
         "seeds": seeds_l, "budgets": budgets_d, "options": options_d,
         "validation_poses": validation_poses, "base_seed": int(base_seed),
-        "noise_model": "level = tracker position sd (mm); other channels in the proportions of "
-                       "iwr.Noise.realistic(), which is level 0.02",
+        "noise_model": "level: " + kind.experiment_text["noise_level"],
+        "kind": {"name": kind.name, "description": kind.description, "frame": kind.frame,
+                 **kind.experiment_text},
         "robot": robot.to_dict(), "robot_hash": rhash, "cells": len(cells),
     }, indent=1) + "\n")
 

@@ -39,6 +39,7 @@ __all__ = [
     "available",
     "for_robot",
     "named",
+    "observed",
     "of",
     "register",
     "reuse",
@@ -235,6 +236,109 @@ class MeasurementKind(abc.ABC):
         change = (f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on "
                   f"{_where(accuracy.n_poses, held_out)}")
         return before, after, change, "the accuracy"
+    # -- the experiments (iwr compare, iwr study) ---------------------------------------------
+    # What a simulated calibration needs of the kind beyond the calibration steps: its noise at
+    # an experiment's noise level, the actual set-up, and its yardsticks on fresh poses. Each
+    # has a default that suits a kind whose readings are exact functions of the truth.
+
+    #: What the experiments' figures measure for this kind, for their tables and captions:
+    #: ``cost`` (the unweighted objective, mm^2) and ``cost_label`` (its short name),
+    #: ``readings`` (the validation residuals), ``tool`` (the tool pose error against the
+    #: truth), ``parameters`` (the parameter error modulo the null directions),
+    #: ``noise_level`` (what an experiment's noise level sets), ``gauge`` (what the data leave
+    #: free and how the figures treat it; empty when nothing), ``readings_short`` and
+    #: ``tool_short`` (a word for the readings, and what qualifies the tool pose error, in the
+    #: figures' labels).
+    experiment_text: ClassVar[dict[str, str]] = {
+        "cost": "the sum of squared residuals of the readings (mm^2)",
+        "cost_label": "the unweighted objective",
+        "readings_short": "reading",
+        "tool_short": "",
+        "readings": "readings predicted with the recovered parameters against their exact values "
+                    "(mm)",
+        "tool": "tool pose error against the truth by forward kinematics of the readings",
+        "parameters": "x minus the parameter vector nearest to x that predicts exactly the "
+                      "truth's readings at the validation poses, projected onto the identifiable "
+                      "directions",
+        "noise_level": "the measurement noise scaled from iwr.Noise.realistic() (level 0.02)",
+        "gauge": "",
+    }
+
+    def experiment_noise(self, robot: Any, noise: Any) -> Any:
+        """The noise model that :meth:`simulate` and the efficient estimator take for an
+        experiment's ``noise``: an :class:`iwr.Noise` (a noise level's,
+        :func:`iwr.experiments.harness.noise_at`, or a user's) or already this kind's model.
+        Default: as it is."""
+        return noise
+
+    def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
+        """The setup parameters of an experiment's actual set-up (registration, offsets, ...),
+        drawn from ``rng`` after the robot's errors. Default: the nominal setup (zeros)."""
+        return np.zeros(len(self.setup_parameter_names(robot)))
+
+    def angle_parameters(self, robot: Any) -> np.ndarray:
+        """Which parameters of ``x`` are angles (rad): the robot's, then the setup's (default:
+        none of the setup's)."""
+        n = len(self.setup_parameter_names(robot))
+        return np.concatenate([np.asarray(robot.angle_parameters, dtype=bool),
+                               np.zeros(n, dtype=bool)])
+
+    def readings_per_pose(self, robot: Any, data: Any) -> float:
+        """Independent readings one pose gives of the parameters (the fewest poses an
+        identification needs is the identifiable parameters divided by this). Default: the
+        problem's residuals that carry data, per pose."""
+        problem, _ = self.problem(robot, data)
+        n = getattr(problem, "n_observations", None)
+        return float(problem.n_residuals if n is None else n) / len(data)
+
+    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        """The tool pose errors (:class:`iwr.Accuracy`: nominal and calibrated) of ``x`` on
+        ``data``, exact readings of the actual robot ``truth``. Default: :meth:`accuracy`
+        (measured poses of exact data are the truth's)."""
+        return self.accuracy(robot, data, x)
+
+    def validate(self, robot: Any, data: Any, x: Any, truth: Any) -> dict[str, float]:
+        """The validation figures of ``x`` on ``data`` (fresh poses of the actual robot ``truth``,
+        read without noise): ``val_rms``, ``val_max`` (the readings' residuals at ``x``, mm),
+        ``val_rms_nominal`` (at the start of :meth:`problem`: the nominal robot, with this
+        kind's setup guess; nan when there is none); then ``tool_position_rms``,
+        ``tool_orientation_rms`` (degrees) and ``tool_position_rms_nominal`` from
+        :meth:`tool_accuracy` (nan, with ``notes`` saying why, where it fails). The residuals
+        do not depend on the gauge: null directions leave them unchanged."""
+        problem, _ = self.problem(robot, data, x0=x)
+        seen = observed(problem)
+        err = np.asarray(problem.residuals(x))[seen]
+        out: dict[str, Any] = {
+            "val_rms": _rms(err), "val_max": float(np.max(np.abs(err))),
+            "val_rms_nominal": float("nan"),
+            "tool_position_rms": float("nan"), "tool_orientation_rms": float("nan"),
+            "tool_position_rms_nominal": float("nan"),
+        }
+        notes = []
+        try:
+            nominal, start = self.problem(robot, data)
+            out["val_rms_nominal"] = _rms(np.asarray(nominal.residuals(start))[seen])
+        except _FAILURES as exc:  # e.g. no set-up guess for a nominal robot far from the data
+            notes.append(f"nominal: {type(exc).__name__}: {exc}")
+        try:
+            acc = self.tool_accuracy(robot, data, x, truth)
+        except _FAILURES as exc:  # e.g. forward kinematics of a poor model diverges
+            notes.append(f"accuracy: {type(exc).__name__}: {exc}")
+        else:
+            out.update(tool_position_rms=_rms(acc.calibrated.position),
+                       tool_orientation_rms=_rms(acc.calibrated.orientation),
+                       tool_position_rms_nominal=_rms(acc.nominal.position))
+        if notes:
+            out["notes"] = "; ".join(notes)
+        return out
+
+    def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        """``x - truth`` modulo what ``data`` (exact readings of the actual robot ``truth``)
+        cannot see (an :class:`iwr.identifiability.ParameterError`): the kinds' implementations
+        say over which parameters. Default: NotImplementedError (the experiments then leave the
+        figure out and say so)."""
+        raise NotImplementedError(f"kind {self.name!r} has no parameter error modulo its null "
+                                  "directions")
 
     def __repr__(self) -> str:
         return f"<measurement kind {self.name!r}: {self.description} in {self.frame}>"
@@ -282,6 +386,20 @@ def memo(key: tuple[Any, ...], objects: tuple[Any, ...], build: Any) -> Any:
             return None
         hit = cache[full] = (build(), objects)
     return hit[0]
+# What a figure's computation raises deterministically (recorded, not retried).
+_FAILURES = (ValueError, ArithmeticError, RuntimeError, np.linalg.LinAlgError)
+
+
+def _rms(v: Any) -> float:
+    a = np.asarray(v, dtype=float)
+    return float(np.sqrt(np.mean(np.square(a)))) if a.size else float("nan")
+
+
+def observed(problem: Any) -> np.ndarray:
+    """The residuals of ``problem`` that carry data (a tracker problem's unseen points are
+    zeros): all of them unless the problem says which it holds (``seen``)."""
+    mask = getattr(problem, "seen", None)
+    return np.ones(problem.n_residuals, dtype=bool) if mask is None else np.asarray(mask, bool)
 
 
 def data_fingerprint(kind: str, robot: Any, data: Any, *, poses: Any = None, weights: Any = None,
@@ -349,9 +467,10 @@ def _load(name: str) -> MeasurementKind:
 
 
 def named(name: str) -> MeasurementKind:
-    """The registered kind ``name``; ValueError naming the registered ones otherwise."""
-    if name not in _SPECS:
-        raise ValueError(f"kind: {name!r} is not registered ({', '.join(list(_SPECS))})")
+    """The registered kind named ``name``; ValueError naming the registered ones otherwise."""
+    if not isinstance(name, str) or name not in _SPECS:
+        raise ValueError(f"kind: {name!r} is not registered; registered: "
+                         + ", ".join(list(_SPECS)))
     return _load(name)
 
 

@@ -30,7 +30,7 @@ def summary_table(summary: list[dict[str, Any]]) -> Table:
     """The summary table: one row per (scenario, method)."""
     head = [
         "scenario", "method", "success", "at floor", "median cost (mm^2)", "cost range",
-        "noise floor", "validation RMS (mm)",
+        "noise floor", "validation RMS (mm)", "tool position RMS (mm)",
         "param. error, identifiable part: lengths (mm) / angles (mrad)",
         "raw param. error: lengths (mm) / angles (mrad)", "evaluations (median / max)",
         "wall time (s)",
@@ -46,6 +46,7 @@ def summary_table(summary: list[dict[str, Any]]) -> Table:
             f"{_fmt(s['min_cost'], 2)} .. {_fmt(s['max_cost'], 2)}",
             _fmt(s["median_noise_floor"]),
             _fmt(s["median_val_rms"]),
+            _fmt(s["median_tool_position_rms"]),
             f"{_fmt(s['median_param_error_length'])} / "
             f"{_fmt(1e3 * s['median_param_error_angle'])}",
             f"{_fmt(s['median_raw_error_length'])} / {_fmt(1e3 * s['median_raw_error_angle'])}",
@@ -84,7 +85,7 @@ def _plot_convergence(comp: Any, scenario: str) -> bytes:
     ax.set_xscale("log")
     ax.set_yscale("log")
     ax.set_xlabel("objective evaluations (a Jacobian counts as one)")
-    ax.set_ylabel("best cost so far, eq. (10) (mm$^2$)")
+    ax.set_ylabel(f"best cost so far, {_kind(comp.settings)['cost_label']} (mm$^2$)")
     ax.set_title(f"Best cost against evaluations, scenario '{scenario}' "
                  f"({len(comp.settings['seeds'])} seeds, one line each)")
     ax.grid(True, which="major", alpha=0.3)
@@ -100,6 +101,7 @@ def _plot_parameters(comp: Any, scenario: str, robot: Robot) -> bytes:
     runs = {r["method"]: r for r in comp.runs if r["scenario"] == scenario and r["seed"] == seed}
     lower, upper = robot.default_bounds(_BOUNDS[scenario])
     half = 0.5 * (upper - lower)
+    n = robot.n_params  # the robot's parameters (a set-up's, if any, are not on this scale)
     ncol = min(len(names), 3)
     nrow = math.ceil(len(names) / ncol)
     fig = new_figure(4.0 * ncol, 3.9 * nrow)
@@ -107,11 +109,12 @@ def _plot_parameters(comp: Any, scenario: str, robot: Robot) -> bytes:
     for k, method in enumerate(names):
         ax = fig.add_subplot(nrow, ncol, k + 1)
         r = runs.get(method)
-        if r is None:
+        if r is None or r["status"] != "ok":
+            ax.set_title(f"{method}: failed" if r is not None else method, fontsize=10)
             continue
-        t = np.asarray(r["truth"]) / half
-        x = np.asarray(r["x"]) / half
-        un = np.asarray(r["unidentifiable"], dtype=bool)
+        t = np.asarray(r["truth"])[:n] / half
+        x = np.asarray(r["x"])[:n] / half
+        un = np.asarray(r["unidentifiable"], dtype=bool)[:n]
         xc = np.clip(x, -lim, lim)
         out = np.abs(x) > lim
         ax.plot([-1, 1], [-1, 1], color="0.6", lw=1)
@@ -131,7 +134,7 @@ def _plot_parameters(comp: Any, scenario: str, robot: Robot) -> bytes:
         if k == 0:
             ax.legend(fontsize=7, loc="upper left")
     fig.suptitle(f"Recovered against true parameters, scenario '{scenario}', seed {seed} "
-                 "(each parameter divided by its bound)", fontsize=11)
+                 f"(each of the robot's {n} parameters divided by its bound)", fontsize=11)
     fig.tight_layout()
     return png_bytes(fig)
 
@@ -187,31 +190,44 @@ def _figures(comp: Any, robot: Robot) -> list[tuple[str, str, bytes]]:
     return out
 
 
+def _kind(settings: dict[str, Any]) -> dict[str, Any]:
+    """What the comparison's kind of data measures (``settings["kind"]``: the kind's
+    :attr:`iwr.kinds.MeasurementKind.experiment_text` and its names)."""
+    return dict(settings["kind"])
+
+
 def _definitions(settings: dict[str, Any]) -> list[str]:
     n = settings["n_poses"]
+    kind = _kind(settings)
+    tested = settings["noise"]["legs"] > 0 and kind["chi2_fit_test"]
     return [
         f"Robot {settings['robot']} ({settings['n_params']} error parameters), {n} measurement "
         f"poses per identification, noise {settings['noise']} (mm, rad), seeds "
         f"{settings['seeds']}, evaluation budget {settings['budget']} per run (a Jacobian counts "
         "as one evaluation).",
+        f"Data: {kind['description']} measured in {kind['frame']} ({kind['name']} data).",
         *(f"Scenario '{k}': {v}." for k, v in settings["scenarios"].items()),
-        "Cost: eq. (10), the sum of squared leg residuals (mm^2), re-evaluated at the returned "
-        "point. Noise floor: the cost of the true parameters on the same noisy data.",
+        f"Cost: {kind['cost']}, re-evaluated at the returned point. Noise floor: the cost of the "
+        "true parameters on the same noisy data.",
         "Success: the method's own verdict (result.success): it converged, its result is "
         "finite and its fit is sane (iwr.estimation.fit_check: no identified error beyond 10 "
         "times the searched bounds modulo the unidentifiable directions"
         + (" and, as every run here is given the scenario's noise model, the chi-square test of "
-           "the fit)." if settings["noise"]["legs"] > 0 else
-           "; the data have no leg noise, so no noise model and no chi-square test)."),
-        f"At floor: cost <= (1 + {settings['success_rtol']}) x noise floor + 6 N x "
-        f"({settings['success_atol']} mm)^2, i.e. within {100 * settings['success_rtol']:.0f}% of "
-        f"the noise floor or {1e3 * settings['success_atol']:.3g} um RMS of the readings, whatever "
-        "the method says.",
-        f"Validation RMS: leg readings predicted with the recovered parameters at "
-        f"{settings['n_validation']} fresh poses of the actual robot, against their exact "
-        "(noise-free) values; the nominal robot's is given for scale.",
+           "the fit)." if tested else
+           "; the data have no leg noise, so no noise model and no chi-square test)."
+           if settings["noise"]["legs"] <= 0 else
+           "; no chi-square test of this objective on these data: the efficient estimator's "
+           "own fit test only)."),
+        f"At floor: cost <= (1 + {settings['success_rtol']}) x noise floor + n x "
+        f"({settings['success_atol']} mm)^2 (n the readings), i.e. within "
+        f"{100 * settings['success_rtol']:.0f}% of the noise floor or "
+        f"{1e3 * settings['success_atol']:.3g} um RMS of the readings, whatever the method says.",
+        f"Validation RMS: {kind['readings']}, at {settings['n_validation']} fresh poses of the "
+        "actual robot; the nominal robot's is given for scale.",
+        f"Tool position RMS: {kind['tool']}; position of the platform frame's origin (mm).",
+        *([kind["gauge"]] if kind.get("gauge") else []),
         *_de_text(settings),
-        _parameter_error_text(settings["parameter_error"]),
+        _parameter_error_text(kind.get("parameters")),
         "Medians over seeds. Wall times depend on the machine and its load; everything else is "
         "the same for the same seeds.",
     ]
@@ -234,14 +250,15 @@ def _de_text(settings: dict[str, Any]) -> list[str]:
             "generation may evaluate only part of the population): " + "; ".join(parts) + "."]
 
 
-def _parameter_error_text(name: str) -> str:
+def _parameter_error_text(what: str | None = None) -> str:
+    what = what or ("x minus the parameter vector nearest to x that predicts exactly the "
+                    "truth's readings at the validation poses (the yardstick of what is "
+                    "identifiable), projected onto the identifiable directions")
     return (
-        "Parameter error, identifiable part (iwr.parameter_error): x minus the parameter vector "
-        "nearest to x that predicts exactly the truth's readings at the validation poses (the "
-        "yardstick of what is identifiable), projected onto the identifiable directions; the part "
-        "of the error that readings can see. RMS over lengths (mm) and over angles (mrad in the "
-        "tables). Raw: x - truth as it is. Unidentifiable combinations cost nothing, so a method "
-        "may land anywhere along them: raw errors there say nothing about the method."
+        f"Parameter error, identifiable part: {what}; the part of the error that "
+        "readings can see. RMS over lengths (mm) and over angles (mrad in the tables). Raw: "
+        "x - truth as it is. Unidentifiable combinations cost nothing, so a method may land "
+        "anywhere along them: raw errors there say nothing about the method."
     )
 
 
@@ -281,7 +298,7 @@ def write_report(comp: Any, out: str | Path, robot: Robot) -> dict[str, Path]:
         "version": 2,
         "settings": comp.settings,
         "provenance": prov,
-        "parameter_names": robot.parameter_names,
+        "parameter_names": _kind(comp.settings)["parameter_names"],
         "summary": comp.summary,
         "runs": comp.runs,
     }

@@ -34,12 +34,27 @@ LEVEL_OFF = 0.10
 FLOOR = 1e-6
 
 _FIGURES = {
-    "val_rms": "validation leg RMS error (mm)",
-    "tool_position_rms": "tool position RMS error (mm)",
-    "tool_orientation_rms": "tool orientation RMS error (degrees)",
+    "val_rms": "validation {readings_short} RMS error (mm)",
+    "tool_position_rms": "tool position RMS error{tool_short} (mm)",
+    "tool_orientation_rms": "tool orientation RMS error{tool_short} (degrees)",
     "param_error_length": "parameter error, identifiable part: RMS of lengths (mm)",
     "param_error_angle": "parameter error, identifiable part: RMS of angles (rad)",
 }
+
+
+def _kind_text(meta: dict[str, Any]) -> dict[str, str]:
+    """What the study's kind of data measures (study.json's ``kind``: the kind's
+    :attr:`iwr.kinds.MeasurementKind.experiment_text`); the pose kind's for a study written
+    before kinds were recorded (only poses in {0} could be studied then)."""
+    from .. import kinds
+
+    return {**kinds.get("pose").experiment_text, **meta.get("kind", {})}
+
+
+def _labels(meta: dict[str, Any]) -> dict[str, str]:
+    """The figures' labels for the study's kind of data."""
+    text = _kind_text(meta)
+    return {k: v.format(**text) for k, v in _FIGURES.items()}
 
 
 def _stats(values: Sequence[float]) -> tuple[float, float, float, int]:
@@ -114,6 +129,7 @@ def _plot_vs(
     rows: list[dict[str, Any]], values: Sequence[str], xcol: str, panel_col: str, path: Path,
     panel_title: Any, xlabel: str, line_cols: Sequence[str] = ("method", "budget"),
     names: dict[str, str] | None = None, refs: list[dict[str, Any]] | None = None,
+    ylabels: dict[str, str] | None = None,
 ) -> Path | None:
     """One row of panels per figure in ``values`` (those with finite data), one column per value
     of ``panel_col``; x = ``xcol``; one line (median) and band (interquartile) per ``line_cols``.
@@ -157,7 +173,7 @@ def _plot_vs(
                 ax.set_title(panel_title(p), fontsize=10)
             if i == len(values) - 1:
                 ax.set_xlabel(xlabel)
-        axes[i, 0].set_ylabel(_FIGURES.get(value, value), fontsize=8)
+        axes[i, 0].set_ylabel((ylabels or {}).get(value, value), fontsize=8)
     axes[0, 0].legend(fontsize=7)
     return _save(fig, path)
 
@@ -228,6 +244,7 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
     except (OSError, ValueError):
         meta = {}
     files: list[Path] = []
+    labels = _labels(meta)
     head = _headline(ok)
     names = _budget_names(rows_all)
     noise_title = lambda v: f"noise {v:g} mm"  # noqa: E731
@@ -237,7 +254,8 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
         ("n_poses", "noise", noise_title, "number of poses N", "accuracy_vs_poses.png"),
         ("noise", "n_poses", poses_title, "noise level: tracker sd (mm)", "accuracy_vs_noise.png"),
     ):
-        f = _plot_vs(head, figures, xcol, pcol, out / name, title, xlabel, names=names)
+        f = _plot_vs(head, figures, xcol, pcol, out / name, title, xlabel, names=names,
+                     ylabels=labels)
         if f is not None:
             files.append(f)
     for m in sorted({r["method"] for r in ok if r["budget"] is not None}):
@@ -248,7 +266,7 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
                      f"{m}: {names.get(m, 'budget')}"
                      + (f" (dashed: {', '.join(sorted({r['method'] for r in refs}))})"
                         if refs else ""),
-                     line_cols=("n_poses",), refs=refs)
+                     line_cols=("n_poses",), refs=refs, ylabels=labels)
         if f is not None:
             files.append(f)
     summary = out / "summary.md"
@@ -303,6 +321,8 @@ def _summary(
     rows_all: list[dict[str, Any]], ok: list[dict[str, Any]], head: list[dict[str, Any]],
     meta: dict[str, Any], files: list[Path], names: dict[str, str],
 ) -> str:
+    text = _kind_text(meta)
+    short = text["readings_short"]
     n_vals = _sorted_unique(r.get("validation_poses") for r in rows_all)
     n_val = meta.get("validation_poses") or ", ".join(str(v) for v in n_vals if v is not None)
     lines = ["# Study summary", ""]
@@ -321,16 +341,17 @@ def _summary(
             for m, b in budgets.items() if b != [None]) + ".")
     lines += [
         "",
-        f"Validation error: RMS of the error of the leg readings predicted by the calibrated model "
-        f"on {n_val} fresh, noise-free poses of the actual robot (mm); median [25 %, 75 %] over "
-        "error draws x seeds. Noise level: the tracker's position sd in mm, the other channels in "
-        "the proportions of `iwr.Noise.realistic()` (which is 0.02).",
+        f"Validation error: RMS over {n_val} fresh, noise-free poses of the actual robot of the "
+        f"{short} readings' error, {text['readings']}; median [25 %, 75 %] over error draws x "
+        f"seeds. Noise level: {text['noise_level']}.",
         "",
     ]
+    if text.get("gauge"):
+        lines += [text["gauge"], ""]
     nominal = _stats([r["val_rms_nominal"] for r in ok])
     if nominal[3]:
         lines += [f"Before calibration (nominal model): {_cell(nominal)} mm.", ""]
-    for value, title in _FIGURES.items():
+    for value, title in _labels(meta).items():
         if not any(np.isfinite(r[value]) for r in head):
             continue
         poses = _sorted_unique(r["n_poses"] for r in head)
@@ -350,7 +371,7 @@ def _summary(
     stats = _group(head, ("method", "budget", "noise", "n_poses"), "val_rms")
     poses = _sorted_unique(r["n_poses"] for r in head)
     if len(poses) > 1:
-        lines += ["More poses (validation leg RMS):", ""]
+        lines += [f"More poses (validation {short} RMS):", ""]
         for (m, b, lv) in sorted({k[:3] for k in stats}, key=lambda k: (k[0], k[2])):
             xs = [n for n in poses if (m, b, lv, n) in stats]
             meds = [stats[(m, b, lv, n)][0] for n in xs]
@@ -359,8 +380,8 @@ def _summary(
         lines.append("")
     levels = [lv for lv in _sorted_unique(r["noise"] for r in head) if lv > 0]
     if len(levels) > 1:
-        lines += ["More noise (validation leg RMS against the noise level, over the levels > 0; a "
-                  "log-log slope of 1 means proportional to the noise):", ""]
+        lines += [f"More noise (validation {short} RMS against the noise level, over the levels "
+                  "> 0; a log-log slope of 1 means proportional to the noise):", ""]
         for (m, b) in sorted({k[:2] for k in stats}):
             parts = []
             for n in poses:
@@ -379,7 +400,7 @@ def _summary(
             continue
         name = names.get(m, "budget")
         st = _group(rows_m, ("noise", "n_poses", "budget"), "val_rms")
-        lines += [f"More {name} ({m}, validation leg RMS):", ""]
+        lines += [f"More {name} ({m}, validation {short} RMS):", ""]
         for (lv, n) in sorted({k[:2] for k in st}):
             meds = [st[(lv, n, b)][0] for b in bs if (lv, n, b) in st]
             xs = [b for b in bs if (lv, n, b) in st]

@@ -21,7 +21,7 @@ from .api import (
 )
 from .data import TrackerMeasurements
 from .files import is_tracker_file, read_tracker_data, write_tracker_long, write_tracker_wide
-from .problem import FAILED_RESIDUAL, TrackerProblem
+from .problem import FAILED_RESIDUAL, TrackerProblem, point_covariances
 from .registration import RegistrationError, RegistrationGuess, guess_registration, kabsch
 from .setup import TrackerSetup
 from .simulate import TrackerNoise, perturb_measurements, simulate_tracker, true_points
@@ -50,6 +50,7 @@ __all__ = [
     "kabsch",
     "null_space",
     "perturb_measurements",
+    "point_covariances",
     "simulate_tracker",
     "tool_frames",
     "tool_pose_errors",

@@ -5,6 +5,7 @@ robot carries a tracker setup (``Robot.with_tracker``) and the data are
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
@@ -93,39 +94,56 @@ def _bounds(robot: Robot, setup: TrackerSetup, bounds: Any, center: np.ndarray) 
 
 
 def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
-                    x0: Any = None) -> tuple[TrackerProblem, np.ndarray]:
+                    x0: Any = None, noise: Any = None) -> tuple[TrackerProblem, np.ndarray]:
     """The problem for these data and its starting point: the nominal robot with the closed-form
     registration guess (:func:`registration_guess`, which raises
-    :class:`RegistrationError` when the nominal model is too poor for it), or ``x0``.
+    :class:`RegistrationError` when the nominal model is too poor for it), or ``x0``. With a
+    ``noise`` model (``(iwr.Noise, TrackerNoise)``, as :func:`iwr.simulate` takes it; the
+    tracker's part required) the problem is weighted by it (:class:`TrackerProblem`'s
+    ``noise``), its weights evaluated at the nominal robot with the start's set-up.
 
-    Inside :func:`iwr.kinds.reuse` (one calibration job) the guess and the problem of a data
-    set are made once and shared; a call with ``x0`` then takes the problem already made for the
-    data (its bounds centred on the guess) with ``x0`` as the start."""
+    Inside :func:`iwr.kinds.reuse` (one calibration job) the guess and the unweighted problem
+    of a data set are made once and shared; a call with ``x0`` then takes the problem already
+    made for the data (its bounds centred on the guess) with ``x0`` as the start."""
     from ..kinds import memo
 
     setup = _setup(robot)
     if isinstance(bounds, str) and bounds == "default":
         bounds = None
+    n = robot.n_params + setup.n_params
+    if x0 is not None:
+        start = np.array(x0, dtype=float)
+        if start.shape != (n,) or not np.all(np.isfinite(start)):
+            raise ValueError(f"x0: expected {n} finite values (the robot's "
+                             f"{robot.n_params}, then the tracker setup's {setup.n_params}), "
+                             f"got shape {start.shape}")
+    weights = None
+    if noise is not None:
+        readings, tracker = _split_noise(noise)
+        if tracker is None and measurements.point_sigma is None:
+            raise ValueError("noise: the weighted objective on tracker data needs the tracker's "
+                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
+        weights = (readings, tracker)
     given = not (bounds is None or isinstance(bounds, str))
     held = (robot, measurements, bounds) if given else (robot, measurements)
     key = ("tracker problem", "given" if given else bounds)
 
-    def build(center: Any) -> TrackerProblem:
+    def build(center: Any, at: Any) -> TrackerProblem:
         problem_bounds = _bounds(robot, setup, bounds,
                                  np.zeros(setup.n_params) if center is None else center)
-        return TrackerProblem(robot, setup, measurements, problem_bounds, center=center)
+        return TrackerProblem(robot, setup, measurements, problem_bounds, center=center,
+                              noise=weights, weights_at=None if weights is None else at)
 
     if x0 is None:
         guess = registration_guess(robot, measurements)
-        problem = memo((*key, "guess"), held, lambda: build(guess.x_setup))
-        return problem, problem.x0(guess)
+        start = np.concatenate([np.zeros(robot.n_params), guess.x_setup])
+        if weights is not None:  # weighted: its own problem (weights at the guess)
+            return build(guess.x_setup, guess.x_setup), start
+        return memo((*key, "guess"), held, lambda: build(guess.x_setup, None)), start
+    if weights is not None:
+        return build(None, start[robot.n_params:]), start
     problem = (memo((*key, "guess"), held, None)
-               or memo((*key, "nominal"), held, lambda: build(None)))
-    start = np.array(x0, dtype=float)
-    if start.shape != (problem.n_params,) or not np.all(np.isfinite(start)):
-        raise ValueError(f"x0: expected {problem.n_params} finite values (the robot's "
-                         f"{robot.n_params}, then the tracker setup's {setup.n_params}), "
-                         f"got shape {start.shape}")
+               or memo((*key, "nominal"), held, lambda: build(None, None)))
     return problem, start
 
 
@@ -180,20 +198,27 @@ def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
                                 success=success, status=status, message=message,
                                 history={k: np.asarray(v) for k, v in raw.history.items()},
                                 wall_time=time.perf_counter() - start,
-                                settings={"polish": bool(polish), "objective": "cost_batch"})
+                                settings={**dict(raw.get("settings") or {}),
+                                          "polish": bool(polish), "objective": "cost_batch"})
 
 
 def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: str = "lm", *,
-                     noise: Any = None, bounds: Any = None, x0: Any = None, active: Any = None,
-                     max_evaluations: int | None = None, seed: int | None = None,
-                     callback: Callable[..., Any] | None = None, progress: bool | None = None,
-                     **options: Any) -> Any:
+                     noise: Any = None, weighted: bool | None = None, bounds: Any = None,
+                     x0: Any = None, active: Any = None, max_evaluations: int | None = None,
+                     seed: int | None = None, callback: Callable[..., Any] | None = None,
+                     progress: bool | None = None, **options: Any) -> Any:
     """:func:`iwr.identify` on tracker data: every method of the registry on the point (or probe)
     objective, from the nominal robot with the closed-form registration guess (default ``x0``).
     ``x`` of the result holds the robot's ``n_params`` then the setup's parameters
     (``result.parameter_names``). DE runs on ``TrackerProblem.cost_batch`` and is polished by LM
     (``polish=False``: DE alone). A result at which a pose's forward kinematics fails is never a
-    success (``problem.check`` names the pose)."""
+    success (``problem.check`` names the pose).
+
+    With a ``noise`` model ``(iwr.Noise, TrackerNoise)`` a method other than ``"efficient"``
+    minimises the noise-weighted point objective (``weighted``, default True with a noise
+    model; :class:`TrackerProblem`'s ``noise``, reflector points only): ``fun`` is then that
+    weighted cost, ``cost_eq10`` the unweighted one at ``x``. ``weighted=False`` with a noise
+    model is refused: the unweighted objective on tracker data has no chi-square test yet."""
     from ..methods import METHODS, _check_fit
     from ..methods.reduced import ReducedProblem, active_mask
 
@@ -210,6 +235,8 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
                              "noise='estimate'")
         if max_evaluations is not None:
             options.setdefault("max_iterations", int(max_evaluations))
+        if weighted is False:
+            raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
         if isinstance(active, str) and active == "base":
             active = None
         if active is not None:
@@ -219,11 +246,18 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
                            bounds=bounds, **options)
         result.check_finite()
         return result
-    if noise is not None:
-        raise ValueError(f"noise: method {method!r} on tracker data does not use a noise model "
-                         "(no chi-square test there yet); leave it out, or use the efficient "
-                         "estimator (method='efficient', the default with a noise model)")
-    problem, start_x = tracker_problem(robot, measurements, bounds, x0)
+    if weighted is None:
+        weighted = noise is not None
+    if weighted and noise is None:
+        raise ValueError("weighted=True needs a noise model: noise=(iwr.Noise(...), "
+                         "iwr.tracker.TrackerNoise(...))")
+    if not weighted and noise is not None:
+        raise ValueError(f"noise with weighted=False: method {method!r} on the unweighted point "
+                         "objective does not use a noise model (no chi-square test there yet); "
+                         "leave the noise out, or weigh by it (weighted=True, or the efficient "
+                         "estimator)")
+    problem, start_x = tracker_problem(robot, measurements, bounds, x0,
+                                       noise=noise if weighted else None)
     if isinstance(active, str) and active == "base":
         ns = null_space(problem, start_x)
         active = [n not in set(ns.left_out) for n in problem.parameter_names]
@@ -244,6 +278,14 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     result["parameter_names"] = problem.parameter_names
     result["active"] = mask
     result["fun"] = problem.cost(result.x)
+    if weighted:
+        result["cost_eq10"] = problem.cost_unweighted(result.x)
+        # Said in the settings too, so that a saved result's fun is not read as unweighted.
+        readings, tracker = problem.noise
+        result["settings"] = {**dict(result.get("settings") or {}), "objective": {
+            "weighted": True, "cost_eq10": float(result["cost_eq10"]), "noise": {
+                "readings": None if readings is None else dataclasses.asdict(readings),
+                "tracker": None if tracker is None else dataclasses.asdict(tracker)}}}
     bad = problem.failures(result.x)
     if bad:
         k, msg = bad[0]

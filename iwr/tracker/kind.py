@@ -5,17 +5,21 @@ offsets are identified beside the robot, and the data do not fix {0}."""
 from __future__ import annotations
 
 import os
+from dataclasses import asdict, replace
 from typing import Any
 
 import numpy as np
 
 from ..estimation import tracker_readings
 from ..forward import forward_kinematics
+from ..identifiability import ParameterError, _nearest_equivalent, _row_space
 from ..kinds import MeasurementKind, _where, data_fingerprint
 from ..measurements import Measurements
 from ..planning import measure_tracker, tracker_design
+from ..simulate import Noise
 from ..uncertainty import _tracker_uncertainty
 from .api import (
+    _split_noise,
     registration_guess,
     tracker_accuracy,
     tracker_identifiability,
@@ -27,14 +31,42 @@ from .data import TrackerMeasurements
 from .estimation import TrackerSpec
 from .files import read_tracker_data
 from .problem import TrackerProblem
+from .simulate import TrackerNoise
 
-__all__ = ["PointsKind", "ProbeKind"]
+__all__ = ["PointsKind", "ProbeKind", "parameter_error_on"]
+
+_GAUGE = ("Tracker data do not fix {0} nor {5} (docs/tracker.md): every figure here is "
+          "gauge-invariant (the residuals, the tool pose aligned with the truth's and the "
+          "projected parameter error do not move along the null directions); the raw parameter "
+          "error is not.")
 
 
 class _TrackerKind(MeasurementKind):
     frame = "{T}"
     determines_world_frame = False
     report = "iwr.reporting.calibration:TrackerCalibrationReport"
+    #: The figures of iwr compare and iwr study on tracker data (MeasurementKind.experiment_text).
+    experiment_text = {
+        "cost": "the sum of squared point residuals in {T}, predicted minus measured (mm^2)",
+        "cost_label": "point residuals in {T}",
+        "readings_short": "point ({T})",
+        "tool_short": " modulo the gauge",
+        "readings": "points in {T} predicted with the recovered parameters (robot, registration "
+                    "and offsets) against their exact values (mm; the nominal robot's with the "
+                    "closed-form registration guess from these points)",
+        "gauge": _GAUGE,
+        "tool": "tool pose error against the truth by forward kinematics of the readings, in {T}, "
+                "modulo the gauge (iwr.tracker.tool_pose_errors, gauge='fit': the model's platform "
+                "frame moved by the one rigid transform that best aligns it with the truth's over "
+                "the validation poses); the nominal robot's with the registration guess",
+        "parameters": "x minus the parameter vector nearest to x that predicts exactly the truth's "
+                      "points at the validation poses, projected onto the directions the points "
+                      "see (the registration and the offsets included; the gauge and the robot's "
+                      "unidentifiable combinations removed)",
+        "noise_level": "the leg and joint readings' noise scaled from iwr.Noise.realistic() and "
+                       "the tracker's from TrackerNoise.leica(), both by level / 0.02 (level 0.02 "
+                       "is the realistic model)",
+    }
 
     def owns(self, data: Any) -> bool:
         return isinstance(data, TrackerMeasurements)
@@ -71,11 +103,49 @@ class _TrackerKind(MeasurementKind):
                 ) -> tuple[Any, np.ndarray]:
         return tracker_problem(robot, data, bounds, x0)
 
+    # -- the experiments ------------------------------------------------------------------------
+
+    def experiment_noise(self, robot: Any, noise: Any) -> Any:
+        """``(Noise, TrackerNoise)``: a pair as it is; an :class:`iwr.Noise` (an experiment's
+        noise level, :func:`iwr.experiments.harness.noise_at`) keeps its leg and joint noise, and
+        its ``position`` sets the tracker's: :meth:`TrackerNoise.leica` scaled by ``position /
+        0.02`` (``Noise.realistic().position``), so that the realistic level is Leica's tracker."""
+        if isinstance(noise, tuple):
+            _split_noise(noise)  # its types checked
+            return noise
+        if not isinstance(noise, Noise):
+            raise TypeError(f"noise: expected an iwr.Noise or a pair (iwr.Noise, "
+                            f"iwr.tracker.TrackerNoise), got {type(noise).__name__}")
+        readings = replace(noise, position=0.0, orientation=0.0)
+        scale = noise.position / Noise.realistic().position
+        leica = TrackerNoise.leica()
+        tracker = TrackerNoise(**{k: v * scale for k, v in asdict(leica).items()})
+        return readings, tracker
+
+    def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
+        """Uniform within the setup's default bounds about the nominal setup (as
+        :func:`iwr.simulate` draws it)."""
+        lo, hi = robot.tracker.default_bounds()
+        return lo + (hi - lo) * rng.random(lo.size)
+
+    def angle_parameters(self, robot: Any) -> np.ndarray:
+        return np.concatenate([robot.angle_parameters, robot.tracker.angle_parameters])
+
+    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        return tracker_accuracy(robot, data, x, truth=truth)
+
+    def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        """Over the robot's and the setup's parameters, modulo the null directions of the point
+        (probe) objective on ``data`` (the gauge among them): :func:`parameter_error_on`."""
+        problem, _ = tracker_problem(robot, data, x0=truth)
+        error = parameter_error_on(problem, x, truth, self.angle_parameters(robot))
+        if not error.converged:
+            raise ValueError("no parameter vector with the truth's points was reached from x "
+                             f"(points RMS {error.reading_rms:.3g} mm off at x): x is too far "
+                             "from the truth for its error to be split into seen and unseen parts")
+        return error
+
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
-        if options.pop("weighted", None):
-            raise ValueError("weighted=True: the noise-weighted objective is for leg data "
-                             "(poses in {0}); tracker data are weighted by the efficient "
-                             "estimator (noise=..., docs/estimation.md)")
         return tracker_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
@@ -179,6 +249,7 @@ class PointsKind(_TrackerKind):
 
     name = "points"
     description = "reflector points"
+    weighted_objective = True  # the points' covariance (TrackerProblem's noise)
 
 
 class ProbeKind(_TrackerKind):
@@ -186,3 +257,48 @@ class ProbeKind(_TrackerKind):
 
     name = "probe"
     description = "the probe's pose"
+    experiment_text = {**_TrackerKind.experiment_text, "readings_short": "probe point ({T})",
+                       "readings": (
+        "the probe's four points in {T} (its origin and one probe_length along each axis) "
+        "predicted with the recovered parameters against their exact values (mm; the nominal "
+        "robot's with the closed-form registration guess from these poses)")}
+
+    def readings_per_pose(self, robot: Any, data: Any) -> float:
+        """Six: a pose (its four points are twelve coordinates of one rigid pose)."""
+        return 6.0
+
+
+def parameter_error_on(problem: Any, x: Any, truth: Any, angles: Any) -> ParameterError:
+    """``x - truth`` modulo the null directions of ``problem`` (:func:`iwr.parameter_error`'s
+    nonlinear method on any problem whose residuals vanish at ``truth``: exact readings of the
+    truth): ``y``, the vector nearest to ``x`` (column-scaled metric) with the truth's readings,
+    by Gauss-Newton with minimum-norm steps, then ``x - y`` projected onto the row space of the
+    Jacobian at ``y``. ``angles`` marks the angle parameters (rad). ValueError when the
+    residuals do not vanish at ``truth`` (noisy data: no vector predicts them)."""
+    x = np.asarray(x, dtype=float)
+    truth = np.asarray(truth, dtype=float)
+    ang = np.asarray(angles, dtype=bool)
+    r_truth = np.max(np.abs(problem.residuals(truth)), initial=0.0)
+    if not r_truth < 1e-6:
+        raise ValueError(f"data: residuals up to {r_truth:.3g} mm at the truth; the parameter "
+                         "error needs exact readings of the truth (noise-free poses)")
+    y = _nearest_equivalent(problem, x, None)
+    converged = bool(np.max(np.abs(problem.residuals(y)), initial=0.0) < 1e-9)
+    d, _, vt, rank = _row_space(problem.jacobian(y), None)
+    vr = vt[:rank].T
+    projected = (vr @ (vr.T @ (d * (x - y)))) / d
+    raw = x - truth
+
+    def rms(v: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
+    def maxabs(v: np.ndarray) -> float:
+        return float(np.max(np.abs(v))) if v.size else float("nan")
+
+    return ParameterError(
+        projected=projected, raw=raw, null_component=raw - projected,
+        rms_length=rms(projected[~ang]), rms_angle=rms(projected[ang]),
+        max_abs_length=maxabs(projected[~ang]), max_abs_angle=maxabs(projected[ang]),
+        raw_rms_length=rms(raw[~ang]), raw_rms_angle=rms(raw[ang]),
+        reading_rms=rms(problem.residuals(x)), rank=rank,
+        parameter_names=list(problem.parameter_names), converged=converged)

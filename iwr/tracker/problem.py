@@ -11,7 +11,7 @@ from ..robot import Robot
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
 
-__all__ = ["TrackerProblem", "FAILED_RESIDUAL"]
+__all__ = ["TrackerProblem", "FAILED_RESIDUAL", "point_covariances"]
 
 #: The residual (mm) of every seen coordinate of a pose whose forward kinematics fails.
 FAILED_RESIDUAL = 1e3
@@ -40,6 +40,18 @@ class TrackerProblem:
     reference : array_like, shape (robot.n_params,), optional
         The robot error vector at which forward kinematics is solved once per pose, from
         ``robot.home_pose``; every evaluation starts its solve there. Default zeros.
+    noise : (iwr.Noise or None, TrackerNoise), optional
+        Weigh the residuals by the instruments' noise (generalised least squares with fixed
+        weights, as :class:`iwr.Problem` with ``noise=``): each pose's point residuals whitened
+        by their covariance (:func:`point_covariances`: the tracker's noise of each point, plus
+        the leg and joint readings' noise propagated through the loop closure into the
+        predicted points), evaluated at the nominal robot with the setup at ``weights_at``
+        (default ``center``, else the nominal setup) and then held fixed. ``cost`` is then
+        dimensionless (a chi-square statistic), ``cost_unweighted`` the sum of squared point
+        residuals. Reflector points only (a probe's four points move rigidly: their covariance
+        is singular). Without it: unweighted (mm).
+    weights_at : array_like, shape (setup.n_params,), optional
+        The setup's parameters at which the weights are evaluated (see ``noise``).
 
     Notes
     -----
@@ -52,7 +64,8 @@ class TrackerProblem:
     """
 
     def __init__(self, robot: Robot, setup: TrackerSetup, measurements: TrackerMeasurements,
-                 bounds: Any = None, *, center: Any = None, reference: Any = None) -> None:
+                 bounds: Any = None, *, center: Any = None, reference: Any = None,
+                 noise: Any = None, weights_at: Any = None) -> None:
         if not isinstance(robot, Robot):
             raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
         if not isinstance(setup, TrackerSetup):
@@ -118,6 +131,22 @@ class TrackerProblem:
                 f"reference parameters ({exc})")
             err.pose = k
             raise err from None
+        #: The per-pose whitening (N, 3 K, 3 K), lower triangular on the seen coordinates (zero
+        #: rows and columns for unseen points), or None: unweighted.
+        self.whitening: np.ndarray | None = None
+        self.noise = noise
+        if noise is not None:
+            if setup.kind != "points":
+                raise ValueError("noise: the weighted objective is for reflector points; a probe's "
+                                 "four points move rigidly, so their covariance is singular: use "
+                                 "the efficient estimator (method='efficient') on probe data")
+            at = weights_at if weights_at is not None else center
+            xs = np.zeros(setup.n_params) if at is None else np.asarray(at, dtype=float)
+            if xs.shape != (setup.n_params,):
+                raise ValueError(f"weights_at: expected {setup.n_params} setup parameters")
+            self.whitening = _whitening(point_covariances(
+                self, np.concatenate([np.zeros(robot.n_params), xs]), *noise), self.seen,
+                measurements)
 
     # -- sizes and names ------------------------------------------------------------------------
     @property
@@ -142,6 +171,13 @@ class TrackerProblem:
     def n_observations(self) -> int:
         """Residuals that carry data: 3 per seen point."""
         return 3 * int(self._objective.n_seen)
+
+    @property
+    def seen(self) -> np.ndarray:
+        """Which residuals carry data, (n_residuals,) booleans: the coordinates of seen points
+        (an unseen point's residuals are zeros)."""
+        pts = self.measurements.tracker_points(self.setup).reshape(self.n_poses, -1, 3)
+        return np.repeat(~np.isnan(pts[:, :, 0]).ravel(), 3)
 
     @property
     def parameter_names(self) -> list[str]:
@@ -172,30 +208,54 @@ class TrackerProblem:
         return arr
 
     # -- the objective --------------------------------------------------------------------------
+    @property
+    def weighted(self) -> bool:
+        """Whether the residuals are whitened by the noise (generalised least squares)."""
+        return self.whitening is not None
+
+    def _whiten(self, r: np.ndarray) -> np.ndarray:
+        """``W_k r_k`` per pose of residuals (or Jacobian rows) ``r`` (n_residuals, ...)."""
+        if self.whitening is None:
+            return r
+        n = self.n_poses
+        blocks = r.reshape(n, -1, *r.shape[1:])
+        return np.einsum("kij,kj...->ki...", self.whitening, blocks).reshape(r.shape)
+
     def cost(self, x: Any) -> float:
-        """Sum of squared residuals (mm^2)."""
+        """Sum of squared residuals (mm^2; weighted: dimensionless)."""
+        if self.whitening is None:
+            return float(self._objective.cost(self._x(x)))
+        return float(np.sum(np.square(self.residuals(x))))
+
+    def cost_unweighted(self, x: Any) -> float:
+        """Sum of squared point residuals (mm^2), weighted or not."""
         return float(self._objective.cost(self._x(x)))
 
     def residuals(self, x: Any) -> np.ndarray:
-        """Predicted minus measured points in {T}, shape (n_residuals,), pose-major."""
-        return self._objective.residuals(self._x(x))
+        """Predicted minus measured points in {T} (weighted: whitened per pose), shape
+        (n_residuals,), pose-major."""
+        return self._whiten(self._objective.residuals(self._x(x)))
 
     def jacobian(self, x: Any) -> np.ndarray:
         """Exact Jacobian of :meth:`residuals` (implicit differentiation of the forward
         kinematics), shape (n_residuals, n_params)."""
-        return self._objective.jacobian(self._x(x))[1]
+        return self._whiten(self._objective.jacobian(self._x(x))[1])
 
     def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
-        return self._objective.jacobian(self._x(x))
+        r, jac = self._objective.jacobian(self._x(x))
+        return self._whiten(r), self._whiten(jac)
 
     def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
         """Costs of the rows of ``X`` (M, n_params) across ``workers`` threads (``None``: all
-        cores), in C++; the result does not depend on the number of threads."""
+        cores), in C++; the result does not depend on the number of threads. Weighted: row by
+        row (the C++ objective carries no weights yet; ``workers`` unused)."""
         arr = np.ascontiguousarray(X, dtype=float)
         if arr.ndim != 2 or arr.shape[1] != self.n_params:
             raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
         if workers is not None and workers < 1:
             raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
+        if self.whitening is not None:
+            return np.array([self.cost(row) for row in arr])
         return self._objective.cost_batch(arr, 0 if workers is None else int(workers))
 
     # -- diagnostics ----------------------------------------------------------------------------
@@ -233,6 +293,10 @@ class TrackerProblem:
         parameters stay) and ``active`` set (default all). :meth:`load` reads it back."""
         from ..problem_file import save_problem
 
+        if self.whitening is not None:
+            raise ValueError("TrackerProblem.save: the problem file does not carry the noise "
+                             "weighting (the whitening) of this problem; iwr-engine runs the "
+                             "unweighted point objective only (docs/estimation.md)")
         save_problem(self, path, sources, x0=x0, active=active)
 
     @classmethod
@@ -251,3 +315,77 @@ class TrackerProblem:
     def __repr__(self) -> str:
         return (f"TrackerProblem(robot={self.robot.name!r}, kind={self.setup.kind!r}, "
                 f"n_poses={self.n_poses}, n_params={self.n_params})")
+
+
+def point_covariances(problem: TrackerProblem, x: Any, readings: Any, tracker: Any
+                      ) -> np.ndarray:
+    """Per pose the covariance (N, 3 K, 3 K) (mm^2) of the point residuals of ``problem`` at
+    ``x`` (robot then setup), to first order: the tracker's noise of each measured point
+    (``tracker``, a :class:`TrackerNoise`: its anisotropic covariance at the measured point; or
+    the data's own ``point_sigma`` along the axes of {T}), plus the leg and joint readings' noise
+    (``readings``, an :class:`iwr.Noise`, or None for none) propagated into the predicted points:
+    ``G diag(sigma_q^2, sigma_legs^2) G^T``, ``G`` the derivative of the predicted points with
+    respect to the joint and leg readings by implicit differentiation of the loop closure
+    (:func:`iwr.estimation.loop_jacobians`). Rows and columns of unseen points are zero."""
+    from ..estimation import loop_jacobians
+    from ..transforms import pose_matrix
+
+    robot, setup, m = problem.robot, problem.setup, problem.measurements
+    x = problem._x(x)
+    nr, nj, n = robot.n_params, robot.n_joints, problem.n_poses
+    local = setup.platform_points(x[nr:])
+    npt = len(local)
+    cov = np.zeros((n, 3 * npt, 3 * npt))
+    pts = m.tracker_points(setup).reshape(n, npt, 3)
+    seen = ~np.isnan(pts[:, :, 0])
+    for i in range(npt):
+        block = slice(3 * i, 3 * i + 3)
+        if m.point_sigma is not None:
+            cov[seen[:, i], block, block] = np.einsum(
+                "ki,ij->kij", np.square(m.point_sigma[seen[:, i], i]), np.eye(3))
+        elif tracker is not None:
+            cov[seen[:, i], block, block] = tracker.covariance(pts[seen[:, i], i])
+    if readings is not None and not readings.is_zero:
+        poses = problem.platform_poses(x)
+        bad = np.flatnonzero(~np.all(np.isfinite(poses), axis=1))
+        if bad.size:
+            raise ValueError(f"noise: {m.where(int(bad[0]))}: no forward kinematics at the "
+                             "point where the weights are evaluated")
+        _, _, jy = loop_jacobians(robot, x[:nr], m.q, poses)
+        # Loop closure f(q + dq, pose (+) (dp, w)) = legs: the pose's change per reading.
+        rhs = np.concatenate([-jy[:, :, :nj], np.broadcast_to(np.eye(6), (n, 6, 6))], axis=2)
+        d_pose = np.linalg.solve(jy[:, :, nj:], rhs)  # (N, 6, nj + 6): d (dp, w) / d (q, legs)
+        r0 = setup.registration_matrix(x[nr:])[:3, :3]
+        rot = pose_matrix(poses)[:, :3, :3]
+        d_pts = np.zeros((n, 3 * npt, 6))
+        for i, r in enumerate(local):
+            skew = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+            d_pts[:, 3 * i:3 * i + 3, :3] = r0
+            d_pts[:, 3 * i:3 * i + 3, 3:] = -r0 @ rot @ skew  # R exp([w]x) r = R r - R [r]x w
+        g = d_pts @ d_pose
+        prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
+        var = np.concatenate([np.where(prism, readings.joint_lengths, readings.joint_angles),
+                              np.full(6, readings.legs)]) ** 2
+        mask = np.repeat(seen, 3, axis=1).astype(float)
+        cov += np.einsum("kip,p,kjp->kij", g, var, g) * mask[:, :, None] * mask[:, None, :]
+    return cov
+
+
+def _whitening(cov: np.ndarray, seen: np.ndarray, measurements: Any) -> np.ndarray:
+    """Per pose ``W_k = L_k^-1`` (zero rows and columns for unseen points) with ``L_k L_k^T``
+    the covariance of its seen coordinates; ValueError naming a pose whose covariance is
+    singular."""
+    n = cov.shape[0]
+    seen = seen.reshape(n, -1)
+    w = np.zeros_like(cov)
+    for k in range(n):
+        idx = np.flatnonzero(seen[k])
+        try:
+            chol = np.linalg.cholesky(cov[k][np.ix_(idx, idx)])
+        except np.linalg.LinAlgError:
+            raise ValueError(
+                f"noise: {measurements.where(k)}: the covariance of its point residuals is "
+                "singular (a tracker without noise and no reading noise to spread it?): give the "
+                "tracker a sigma > 0") from None
+        w[k][np.ix_(idx, idx)] = np.tril(np.linalg.solve(chol, np.eye(idx.size)))
+    return w

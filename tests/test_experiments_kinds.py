@@ -1,0 +1,270 @@
+"""iwr compare and iwr study on every kind of data (issue 21, item 3): the experiment harness asks
+the robot's kind for its noise, its actual set-up and its yardsticks; the figures on tracker data
+are gauge-invariant; the noise-weighted objective on tracker points."""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr import kinds
+from iwr.cli import main as cli_main
+from iwr.experiments.harness import (
+    Cell,
+    Scenario,
+    canonical,
+    evaluate,
+    min_poses,
+    noise_at,
+    robot_hash,
+)
+from iwr.tracker import TrackerNoise
+from iwr.tracker.analysis import null_space
+from iwr.tracker.data import TrackerMeasurements
+from iwr.tracker.kind import parameter_error_on
+from iwr.tracker.problem import TrackerProblem, point_covariances
+
+REPO = Path(__file__).resolve().parents[1]
+TRACKER_TOML = REPO / "examples" / "iwr_tracker.toml"
+REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
+REGISTRATION = (2000.0, -150.0, 300.0, math.pi / 2, 0.01, -0.02)
+READINGS = iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6)
+
+
+def _robot(name: str) -> iwr.Robot:
+    base = iwr.Robot.default()
+    if name == "points":
+        return base.with_tracker(registration=REGISTRATION, reflectors=REFLECTORS)
+    if name == "probe":
+        return base.with_tracker(registration=REGISTRATION, probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
+    return base
+
+
+@pytest.fixture(scope="module", params=["pose", "points", "probe"])
+def kind(request: Any) -> tuple[str, iwr.Robot]:
+    return request.param, _robot(request.param)
+
+
+def _cell(robot: iwr.Robot, method: str, n_poses: int, noise: Any) -> Cell:
+    return Cell(method, canonical({}), None, n_poses, noise, 0, 0, 0, 12, robot_hash(robot))
+
+
+def test_a_scenario_simulates_the_robots_kind(kind):
+    name, robot = kind
+    k = kinds.for_robot(robot)
+    sc = Scenario(14, iwr.Noise(), draw=1, validation_poses=5).build(robot)
+    assert kinds.of(sc.data) is k and kinds.of(sc.validation) is k
+    n = k.n_params(robot)
+    assert sc.truth.shape == sc.x0.shape == (n,)
+    # The actual set-up is drawn within the set-up's default bounds, not the nominal one.
+    extra = sc.truth[robot.n_params:]
+    assert extra.size == len(k.setup_parameter_names(robot))
+    if extra.size:
+        lo, hi = robot.tracker.default_bounds()
+        assert np.all((lo <= extra) & (extra <= hi)) and np.any(extra != 0)
+    # The same scenario twice: the same data.
+    again = Scenario(14, iwr.Noise(), draw=1, validation_poses=5).build(robot)
+    assert np.array_equal(again.truth, sc.truth) and np.array_equal(again.data.q, sc.data.q)
+
+
+def test_min_poses_counts_the_kinds_readings(kind):
+    """Six independent readings a pose for the platform pose or a probe, three per reflector."""
+    name, robot = kind
+    need = min_poses(robot)
+    per_pose = {"pose": 6, "points": 9, "probe": 6}[name]
+    data, x = iwr.simulate(robot, 80, seed=3)
+    problem, _ = kinds.of(data).problem(robot, data, x0=x)
+    rank = np.linalg.matrix_rank(problem.jacobian(x) / np.linalg.norm(problem.jacobian(x), axis=0))
+    assert need == math.ceil(rank / per_pose)
+
+
+def test_noise_free_lm_recovers_what_the_data_see(kind):
+    """Noise-free data, LM from the kind's start: the validation readings, the tool pose (modulo
+    the gauge for tracker data) and the parameter error modulo the null directions all vanish."""
+    name, robot = kind
+    row = evaluate(_cell(robot, "lm", 30, 0.0), robot, details=True)
+    assert row["status"] == "ok", row["message"]
+    assert row["at_floor"] and row["success"]
+    assert row["val_rms"] < 1e-6 and row["val_rms_nominal"] > 0.1
+    assert row["tool_position_rms"] < 1e-5 and row["tool_position_rms_nominal"] > 0.1
+    assert row["param_error_length"] < 1e-5 and row["param_error_angle"] < 1e-8
+    n = kinds.for_robot(robot).n_params(robot)
+    assert len(row["x"]) == len(row["truth"]) == len(row["unidentifiable"]) == n
+
+
+def test_the_parameter_error_on_tracker_data_ignores_the_gauge():
+    """Moving x along a null direction of the point objective (the registration and {5} absorb
+    a rigid motion) leaves its parameter error unchanged; an identifiable change does not."""
+    robot = _robot("points")
+    m, truth = iwr.simulate(robot, 20, seed=5)
+    problem = TrackerProblem(robot, robot.tracker, m)
+    ns = null_space(problem, truth)
+    assert ns.vectors.shape[1] >= 6
+    ang = kinds.for_robot(robot).angle_parameters(robot)
+    rng = np.random.default_rng(0)
+    visible = 1e-3 * rng.standard_normal(truth.size) * np.where(ang, 1e-3, 1.0)
+    x = truth + visible
+    base = parameter_error_on(problem, x, truth, ang)
+    along = ns.vectors @ rng.standard_normal(ns.vectors.shape[1])
+    moved = parameter_error_on(problem, x + 1e-2 * along / np.sqrt(np.mean(along**2)), truth,
+                               ang)
+    assert base.converged and moved.converged
+    assert base.rms_length > 1e-4
+    # The raw error grows tenfold; the error the points see stays (to second order).
+    assert moved.raw_rms_length > 10 * base.raw_rms_length
+    assert moved.rms_length == pytest.approx(base.rms_length, rel=1e-3)
+    assert moved.rms_angle == pytest.approx(base.rms_angle, rel=1e-3)
+
+
+def test_compare_writes_the_report_for_every_kind(kind, tmp_path):
+    name, robot = kind
+    comp = iwr.compare_methods(robot, n_poses=12, seeds=[0], methods=["lm", "efficient"],
+                               budget=200, start="near", out=tmp_path, n_validation=6,
+                               progress=False)
+    assert {r["status"] for r in comp.runs} == {"ok"}
+    k = kinds.for_robot(robot)
+    assert comp.settings["kind"]["name"] == name
+    assert comp.settings["n_params"] == k.n_params(robot)
+    md = (tmp_path / "report.md").read_text()
+    assert f"measured in {k.frame} ({name} data)" in md
+    assert k.experiment_text["readings"] in md
+    assert "tool position RMS (mm)" in md
+    data = json.loads((tmp_path / "results.json").read_text())
+    assert len(data["parameter_names"]) == k.n_params(robot)
+    assert all((tmp_path / f).is_file() for f in ("report.html", "runs.csv", "summary.csv"))
+
+
+def test_the_bad_start_on_tracker_data_is_a_failed_run_not_an_abort(tmp_path):
+    """From the 'bad' start no pose of the tracker robot has forward kinematics: the efficient
+    estimator cannot start there (a failed run in the report), LM runs (and fails to converge)."""
+    robot = iwr.Robot.from_toml(TRACKER_TOML)
+    comp = iwr.compare_methods(robot, n_poses=12, seeds=[0], methods=["lm", "efficient"],
+                               budget=100, start="both", out=None, n_validation=6, progress=False)
+    by = {(r["scenario"], r["method"]): r for r in comp.runs}
+    assert by["near", "efficient"]["status"] == "ok"
+    bad = by["bad", "efficient"]
+    assert bad["status"] == "failed" and not bad["success"] and math.isnan(bad["cost"])
+    assert "forward kinematics" in bad["message"]
+    summary = {(s["scenario"], s["method"]): s for s in comp.summary}
+    assert summary["bad", "efficient"]["failed"] == 1
+    with pytest.raises(ValueError, match="method 'efficient', scenario bad"):
+        iwr.compare_methods(robot, n_poses=12, seeds=[0], methods=["efficient"], budget=100,
+                            start="bad", out=None, n_validation=6, progress=False)
+
+
+def test_study_on_tracker_data_says_what_it_measures(tmp_path):
+    robot = iwr.Robot.from_toml(TRACKER_TOML)
+    res = iwr.study(methods="lm", poses=[10], noise=[0.0, 0.02], draws=1, seeds=1,
+                    out=tmp_path, robot=robot, validation_poses=6, scheduler="synchronous",
+                    progress=False)
+    assert res.failed == 0 and len(res.rows) == 2
+    noisy = next(r for r in res.rows if r["noise"] == 0.02)
+    clean = next(r for r in res.rows if r["noise"] == 0.0)
+    assert clean["tool_position_rms"] < 1e-5 < noisy["tool_position_rms"] < 1.0
+    meta = json.loads((tmp_path / "study.json").read_text())
+    assert meta["kind"]["name"] == "points"
+    summary = (tmp_path / "summary.md").read_text()
+    assert "Validation point ({T}) RMS error (mm)" in summary
+    assert "Tool position RMS error modulo the gauge (mm)" in summary
+    assert "TrackerNoise.leica()" in summary
+
+
+def test_a_noise_level_scales_the_trackers_noise():
+    k = kinds.for_robot(_robot("points"))
+    readings, tracker = k.experiment_noise(_robot("points"), noise_at(0.01))
+    assert readings.position == readings.orientation == 0 and readings.legs == pytest.approx(0.001)
+    leica = TrackerNoise.leica()
+    assert tracker.transverse_per_m == pytest.approx(0.5 * leica.transverse_per_m)
+    pair = (READINGS, leica)
+    assert k.experiment_noise(_robot("points"), pair) is pair
+    pose = kinds.for_robot(_robot("pose"))
+    assert pose.experiment_noise(_robot("pose"), READINGS) is READINGS
+
+
+def test_cli_compare_and_study_on_the_tracker_example(tmp_path, capsys):
+    code = cli_main(["compare", "--robot", str(TRACKER_TOML), "--poses", "10", "--seeds", "0",
+                     "--methods", "lm,bobyqa", "--budget", "60", "--start", "near",
+                     "--validation-poses", "5", "--no-progress", "-o", str(tmp_path / "c")])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    assert "tool position RMS (mm)" in out.out and (tmp_path / "c" / "report.html").is_file()
+    code = cli_main(["study", "--robot", str(TRACKER_TOML), "--poses", "10", "--noise", "0.02",
+                     "--draws", "1", "--seeds", "1", "--validation-poses", "5",
+                     "--scheduler", "synchronous", "--out", str(tmp_path / "s"), "--no-progress"])
+    out = capsys.readouterr()
+    assert code == 0, out.err
+    assert (tmp_path / "s" / "report.html").is_file()
+
+
+# -- the noise-weighted objective on tracker data --------------------------------------------
+
+
+def test_point_covariances_match_finite_differences():
+    """The readings' noise propagated into the predicted points: the exact derivative (loop
+    closure) against central differences of forward kinematics with perturbed readings."""
+    robot = _robot("points")
+    m, _ = iwr.simulate(robot, 6, seed=1, noise=(READINGS, TrackerNoise.leica()))
+    problem = TrackerProblem(robot, robot.tracker, m)
+    x = np.zeros(problem.n_params)
+    cov = point_covariances(problem, x, READINGS, None)
+    nj, h = robot.n_joints, 1e-5
+    sigma = np.concatenate([np.where([c == "P" for c in robot.joint_types], READINGS.joint_lengths,
+                                     READINGS.joint_angles), np.full(6, READINGS.legs)])
+    g = np.zeros((len(m), cov.shape[1], nj + 6))
+    for j in range(nj + 6):
+        pts = []
+        for s in (1.0, -1.0):
+            q, legs = m.q.copy(), m.legs.copy()
+            if j < nj:
+                q[:, j] += s * h
+            else:
+                legs[:, j - nj] += s * h
+            moved = TrackerMeasurements(q, legs, points=m.points, joint_types=robot.joint_types)
+            pts.append(TrackerProblem(robot, robot.tracker, moved).predicted_points(x)
+                       .reshape(len(m), -1))
+        g[:, :, j] = (pts[0] - pts[1]) / (2 * h)
+    expected = np.einsum("kip,p,kjp->kij", g, sigma**2, g)
+    assert np.max(np.abs(cov - expected)) < 1e-6 * np.max(np.abs(expected))
+    # The tracker's part: its covariance at each measured point, block by block.
+    both = point_covariances(problem, x, None, TrackerNoise.leica())
+    assert np.allclose(both[:, :3, :3], TrackerNoise.leica().covariance(m.points[:, 0]))
+
+
+def test_weighted_lm_on_points_is_generalised_least_squares():
+    robot = _robot("points")
+    noise = (READINGS, TrackerNoise.leica())
+    m, truth = iwr.simulate(robot, 30, seed=2, noise=noise)
+    res = iwr.identify(robot, m, "lm", noise=noise)
+    plain = iwr.identify(robot, m, "lm")
+    assert res.success and res.settings["objective"]["weighted"]
+    # fun is the chi-square statistic, about the number of readings less the parameters seen.
+    problem, _ = kinds.of(m).problem(robot, m, x0=truth)
+    dof = problem.n_observations - null_space(problem, truth).rank
+    assert 0.5 * dof < res.fun < 1.5 * dof
+    assert res.cost_eq10 == pytest.approx(problem.cost(res.x))
+    assert res.cost_eq10 >= plain.fun * (1 - 1e-9)  # the unweighted optimum is unweighted LM's
+    with pytest.raises(ValueError, match="weighted=False"):
+        iwr.identify(robot, m, "lm", noise=noise, weighted=False)
+
+
+def test_weighted_tracker_problems_that_cannot_be_refuse(tmp_path):
+    probe = _robot("probe")
+    noise = (READINGS, TrackerNoise.leica())
+    m, _ = iwr.simulate(probe, 12, seed=1, noise=noise)
+    with pytest.raises(ValueError, match="probe's four points move rigidly"):
+        iwr.identify(probe, m, "lm", noise=noise)
+    robot = _robot("points")
+    m, _ = iwr.simulate(robot, 12, seed=1, noise=noise)
+    problem, _ = kinds.of(m).problem(robot, m)
+    weighted = TrackerProblem(robot, robot.tracker, m, noise=noise)
+    assert weighted.weighted and not problem.weighted
+    with pytest.raises(ValueError, match="does not carry the noise weighting"):
+        weighted.save(tmp_path / "p.iwrp")
+    with pytest.raises(ValueError, match="needs the tracker's noise"):
+        iwr.identify(robot, m, "lm", noise=READINGS)
