@@ -352,6 +352,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
                kwargs: dict[str, Any], out: Path, *, robot_name: str, data_name: str,
                truth: np.ndarray | None = None) -> Any:
     from ..accuracy import accuracy
+    from ..gross_errors import screen as screen_gross_errors
     from ..identifiability import identifiability, parameter_error
     from ..methods import identify
     from ..reporting.calibration import Calibration
@@ -398,6 +399,9 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
                           progress=show, **kwargs)
     except KeyboardInterrupt:
         result = _best_so_far(robot, ident, method, tracker, kwargs, args)
+    # Issue 22: gross errors in every pose, held-out ones too, with or without a noise model.
+    result, ident, val = screen_gross_errors(robot, ident, val, result, kwargs.get("noise"),
+                                             held_out=held_out, bounds=args.bounds)
     interrupted = result.interrupted
     # What `iwr report` checks its DATA.csv against: the whole file's fingerprint, as the engine's
     # problem file records it.

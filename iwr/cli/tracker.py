@@ -99,6 +99,7 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
     data; validate on held-out poses (point residuals); write the calibrated robot (with its
     calibrated tracker setup), the result and the report (HTML and Markdown) as for leg data."""
     from ..accuracy import accuracy
+    from ..gross_errors import screen as screen_gross_errors
     from ..identifiability import identifiability
     from ..methods import identify
     from ..reporting.calibration import TrackerCalibration
@@ -166,6 +167,9 @@ def calibrate_tracker(args: argparse.Namespace, robot: Any, method: str,
                   "data", flush=True)
     result = identify(robot, ident, method=method, bounds=args.bounds, seed=args.seed,
                       progress=progress_enabled(args), **kwargs)
+    # Issue 22: gross errors in every pose, held-out ones too, with or without a noise model.
+    result, ident, val = screen_gross_errors(robot, ident, val, result, kwargs.get("noise"),
+                                             held_out=held_out, bounds=args.bounds)
     notes: list[str] = []
     if data.point_sigma is not None and method == "efficient":
         notes.append(f"note: the points are weighted by their own uncertainties from {args.data}, "

@@ -264,13 +264,23 @@ class Calibration:
                 f"{c.start:.3g}")
         outliers = self.result.get("outliers")
         if outliers is not None:
+            held = "" if self.held_out else " (no pose held out)"
             if not outliers:
-                lines.append("outliers: none (every pose passes its test)")
+                lines.append(f"outliers: none (every pose passes its test, the held-out ones "
+                             f"too{held})")
             else:
-                n_rm = sum(o.removed for o in outliers)
-                lines.append(f"outliers: {len(outliers)} pose(s) fail their test, {n_rm} removed "
-                             f"from the solution, {len(outliers) - n_rm} kept:")
+                ident = [o for o in outliers if o.data_set != "validation"]
+                n_rm = sum(o.removed for o in ident)
+                n_val = len(outliers) - len(ident)
+                lines.append(
+                    f"outliers: {len(outliers)} pose(s) fail their test: {len(ident)} of the "
+                    f"identification poses ({n_rm} removed from the solution, "
+                    f"{len(ident) - n_rm} kept), {n_val} held out (left out of the accuracy "
+                    "figures); check each line named:")
                 lines += [f"  - {o}" for o in outliers]
+            rate = self.result.get("gross_errors")
+            if rate:
+                lines.append(f"  - {rate}")
         return lines
 
     def _fit_section(self, page: Page, title: str) -> None:

@@ -1,0 +1,418 @@
+"""Gross errors in every pose, with or without a noise model (issue 22, item 3).
+
+The efficient estimator tests its own identification poses (:mod:`iwr.estimation`, "Outliers").
+This module tests what it does not: the **held-out (validation) poses**, at the identified
+parameters, and the identification poses of every other method (eq. (10) and its analogue on
+tracker data, weighted by a noise model or not). It works on the **linearised** problem at the
+identified parameters ``x``: per pose ``k`` the misclosures ``r_k`` (predicted minus measured: the
+six leg residuals of pose data, the point coordinates of tracker data), their derivatives ``A_k``
+in the parameters and ``B_k`` in each reading (a gross error ``e`` in reading ``i`` moves ``r_k``
+by ``B_k[:, i] e``), and their covariance ``C_k``: ``B_k Sigma_k B_k^T`` from a noise model, or
+``sigma^2`` times the objective's own metric (unit, or ``1 / w`` for leg weights) with ``sigma``
+unknown. The kind of the data gives them (:meth:`iwr.kinds.MeasurementKind.misclosures`).
+
+Whitened by ``C_k = L_k L_k^T``, the identification poses give the normal matrix ``N = sum_k
+A~_k^T A~_k``; a pose's residuals have the cofactor ``Q_k = I - A~_k N^+ A~_k^T`` when it is in the
+fit, ``I + A~_k N^+ A~_k^T`` when it is not (a held-out pose: its residuals also carry the
+uncertainty of ``x``).
+
+- **With a noise model**: each pose's ``T_k = r~_k^T Q_k^+ r~_k``, chi-square with ``rank Q_k``
+  degrees of freedom (the estimator's per-pose test), at ``alpha`` (default 0.001).
+- **Without a noise model**: Pope's tau test. ``sigma`` is estimated from the identification
+  residuals, ``s^2 = sum r~^T r~ / f`` (``f`` = residuals - rank), and each residual component is
+  studentized, ``tau_j = r~_j / (s sqrt(q_jj))``: for an identification pose it follows the tau
+  distribution with ``f`` degrees of freedom (``tau^2 / f ~ Beta(1/2, (f - 1) / 2)``: the residual
+  is part of ``s``), for a held-out pose Student's t with ``f`` (independent of ``s``). A pose
+  fails when its largest ``|tau_j|`` exceeds the critical value of ``1 - (1 - alpha)^(1/m_k)``
+  (Sidak over its ``m_k`` components), so that a clean pose fails with probability ``alpha``.
+  Why this and not a robust (Huber, Tukey) re-fit: the test has an exact null distribution under
+  the model of the unweighted objective, so its false-alarm rate is stated, not tuned; it needs
+  no scale guess (a robust loss needs one, the very thing that is unknown); and it is testable
+  per component, so correlated noise within a pose (the tracker's 3 directions reach all six
+  legs) does not inflate it as a per-pose statistic with an estimated sigma would (a per-pose
+  F test assumes independent components: measured 10 times its nominal rate on such data).
+
+In both cases the reading to blame is the one with the largest Baarda w-test value ``w_i =
+c~_i^T Q_k^{-1 or identity} r~_k / sqrt(...)`` over every reading of the pose (``c~_i`` the
+whitened column ``B_k[:, i]``): the likeliest culprit under a single gross error (a leg, a joint,
+a coordinate of the measured pose or point). :func:`screen` runs the test inside a calibration:
+data snooping on the identification poses (the worst failing pose left out and the parameters
+re-fitted by Levenberg-Marquardt from ``x``, one at a time) and the held-out poses tested at the
+final parameters and left out of the accuracy figures. See ``docs/estimation.md``, "Gross errors
+without a noise model, and in held-out poses".
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from scipy import special
+
+from . import kinds
+from ._blas import single_thread
+
+__all__ = ["GrossErrors", "Misclosures", "find_gross_errors", "screen"]
+
+
+@dataclass(frozen=True)
+class Misclosures:
+    """A kind's linearised model of its readings at ``x`` (:meth:`MeasurementKind.misclosures`).
+
+    Attributes
+    ----------
+    r : ndarray, shape (N, m)
+        Misclosures, predicted minus measured; NaN for a component that carries no data (a point
+        not seen, a leg weighted 0, a pose whose forward kinematics fails).
+    a : ndarray, shape (N, m, n_params)
+        Their derivatives in the parameters.
+    b : ndarray, shape (N, m, n_readings)
+        Their derivatives in each reading's error: a gross error ``e`` in reading ``i`` of pose
+        ``k`` changes ``r[k]`` by ``b[k, :, i] e``.
+    names : list of str
+        The readings' names (``leg3``, ``q2``, ``position.x``, ``reflector2.z``, ...).
+    components : list of str
+        The names of the misclosures' components (``leg1`` .. ``leg6``, ``reflector1.x``, ...).
+    reading_cov : ndarray, shape (N, n_readings, n_readings), or None
+        The readings' covariance under the noise model; None without one.
+    metric : ndarray, shape (N, m, m), or None
+        Without a noise model: the misclosures' covariance up to the unknown factor ``sigma^2``
+        (the objective's weighting; None: the identity).
+    """
+
+    r: np.ndarray
+    a: np.ndarray
+    b: np.ndarray
+    names: list[str]
+    components: list[str]
+    reading_cov: np.ndarray | None = None
+    metric: np.ndarray | None = None
+
+    def covariance(self, k: int, rows: np.ndarray) -> np.ndarray:
+        """The covariance (noise model) or metric (without) of pose ``k``'s components ``rows``."""
+        if self.reading_cov is not None:
+            bk = self.b[k][rows]
+            return bk @ self.reading_cov[k] @ bk.T
+        if self.metric is None:
+            return np.eye(int(np.sum(rows)))
+        return self.metric[k][np.ix_(rows, rows)]
+
+
+@dataclass(frozen=True)
+class GrossErrors:
+    """What :func:`find_gross_errors` found.
+
+    Attributes
+    ----------
+    outliers : list of iwr.estimation.Outlier
+        The failing poses, identification (``data_set="identification"``) then validation, each
+        with its line, test value, p-value and the reading to blame. ``removed`` is False here
+        (:func:`screen` sets it for what it leaves out).
+    test : str
+        ``"chi2"`` (a noise model) or ``"tau"`` (Pope's test, sigma from the residuals).
+    alpha : float
+        Probability that a clean pose fails (each pose's significance level).
+    sigma : float
+        Without a noise model, the estimated sigma of the misclosures (in the objective's units:
+        mm for legs and points); with one, the square root of the variance factor (1 when the
+        noise model is right).
+    dof : int
+        Redundancy of the identification poses (residuals minus rank).
+    n_tested : dict
+        Poses tested per data set (``identification``, ``validation``).
+    """
+
+    outliers: list[Any]
+    test: str
+    alpha: float
+    sigma: float
+    dof: int
+    n_tested: dict[str, int] = field(default_factory=dict)
+
+    def describe(self) -> str:
+        """The test in one sentence, with its false-alarm rate, for a report."""
+        if self.test == "chi2":
+            how = "each pose's chi-square test under the noise model"
+        else:
+            how = (f"Pope's tau test on each residual, the noise estimated from the residuals "
+                   f"(sigma {self.sigma:.3g} mm, {self.dof} degrees of freedom)")
+        n = sum(self.n_tested.values())
+        return (f"gross errors: {how}, at {self.alpha:g} per pose: a clean pose fails with "
+                f"probability {self.alpha:g}, so about {self.alpha * n:.2g} of the {n} poses "
+                "tested would fail on clean data (false alarms)")
+
+
+def _studentize_crit(test: str, alpha0: float, f: int, in_fit: bool) -> float:
+    """The critical |value| of one studentized residual at level ``alpha0`` (two-sided)."""
+    if test == "tau" and in_fit:
+        # tau^2 / f ~ Beta(1/2, (f - 1) / 2)
+        return math.sqrt(f * float(special.betaincinv(0.5, (f - 1) / 2.0, 1.0 - alpha0)))
+    return float(special.stdtrit(f, 1.0 - alpha0 / 2.0))
+
+
+def _studentize_p(test: str, value: float, f: int, in_fit: bool) -> float:
+    if test == "tau" and in_fit:
+        return float(special.betaincc(0.5, (f - 1) / 2.0, min(value * value / f, 1.0)))
+    return float(2.0 * special.stdtr(f, -abs(value)))
+
+
+class _Whitened:
+    """Per pose: the rows that carry data, the Cholesky factor of their covariance, and the
+    whitened misclosures, parameter derivatives and reading columns."""
+
+    def __init__(self, mis: Misclosures, k: int, active: np.ndarray) -> None:
+        self.rows = np.isfinite(mis.r[k])
+        c = mis.covariance(k, self.rows)
+        self.chol = np.linalg.cholesky(c)
+        solve = np.linalg.solve
+        self.r = solve(self.chol, mis.r[k][self.rows])
+        self.a = solve(self.chol, mis.a[k][self.rows][:, active])
+        self.b = solve(self.chol, mis.b[k][self.rows])
+
+
+def _normal_pinv(blocks: list[_Whitened]) -> tuple[np.ndarray, int]:
+    """``N^+`` of the identification blocks (column-scaled, so mm and rad do not set the rank)
+    and its rank."""
+    n = sum(b.a.T @ b.a for b in blocks)
+    d = np.sqrt(np.clip(np.diag(n), 0, None))
+    d = np.where(d > 0, d, 1.0)
+    ns = n / np.outer(d, d)
+    with single_thread():
+        u, s, vt = np.linalg.svd(ns)
+    rank = int(np.sum(s > max(ns.shape) * np.finfo(float).eps * 1e3 * (s[0] if s.size else 0)))
+    inv = (vt[:rank].T / s[:rank]) @ u[:, :rank].T
+    return inv / np.outer(d, d), rank
+
+
+def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None, *,
+                      validation: Any = None, used: Any = None, active: Any = None,
+                      alpha: float = 1e-3, test_identification: bool = True) -> GrossErrors:
+    """Test every pose for a gross error at the identified parameters ``x``.
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot (with its tracker setup for tracker data).
+    identification : Measurements or TrackerMeasurements
+        The poses ``x`` was identified from (those of ``used``).
+    x : array_like
+        The identified parameters (the robot's, then the setup's).
+    noise : noise model or None
+        As :func:`iwr.simulate` takes it for this kind (an :class:`iwr.Noise`; for tracker data
+        the pair ``(Noise, TrackerNoise)``); None: the noise level is estimated from the residuals
+        (Pope's test).
+    validation : same kind as ``identification``, optional
+        Held-out poses, tested at ``x`` (they are not in the fit).
+    used : array_like of bool, optional
+        The identification poses in the fit (default all).
+    active : array_like of bool, optional
+        The identified parameters (default all): the others are not estimated, so they take no
+        redundancy.
+    alpha : float
+        Probability that a clean pose fails its test.
+    test_identification : bool
+        False: only the held-out poses are tested (the efficient estimator tests its own).
+    """
+    from .estimation import Outlier
+
+    if not (isinstance(alpha, (int, float)) and 0 < alpha < 1):
+        raise ValueError(f"alpha: {alpha!r}; expected a number in (0, 1)")
+    kind = kinds.of(identification)
+    x = np.asarray(x, dtype=float)
+    n = len(identification)
+    used_mask = np.ones(n, dtype=bool) if used is None else np.asarray(used, dtype=bool)
+    if used_mask.shape != (n,):
+        raise ValueError(f"used: shape {used_mask.shape}; expected ({n},)")
+    act = np.ones(x.size, dtype=bool) if active is None else np.asarray(active, dtype=bool)
+    if act.shape != x.shape:
+        raise ValueError(f"active: shape {act.shape}; expected {x.shape}")
+    test = "tau" if noise is None else "chi2"
+    mis = kind.misclosures(robot, identification, x, noise)
+    rows = [k for k in np.flatnonzero(used_mask) if np.any(np.isfinite(mis.r[k]))]
+    blocks = {int(k): _Whitened(mis, int(k), act) for k in rows}
+    n_inv, rank = _normal_pinv(list(blocks.values()))
+    m_total = sum(b.r.size for b in blocks.values())
+    f = m_total - rank
+    ssq = float(sum(b.r @ b.r for b in blocks.values()))
+    if f < 1 or (test == "tau" and f < 2):
+        raise ValueError(f"no redundancy: {m_total} residuals for {rank} identifiable parameters; "
+                         "the data cannot test themselves for gross errors (measure more poses)")
+    sigma = math.sqrt(ssq / f)
+    found: list[Outlier] = []
+
+    def test_pose(w: _Whitened, k: int, data: Any, in_fit: bool, what: str) -> None:
+        h = w.a @ n_inv @ w.a.T
+        q = np.eye(w.r.size) - h if in_fit else np.eye(w.r.size) + h
+        # w-test of each reading: in the fit c^T r / sqrt(c^T Q c) (Baarda, P = I in the
+        # whitened space); held out c^T Q^-1 r / sqrt(c^T Q^-1 c) (r ~ N(0, Q)).
+        with single_thread():
+            qi = np.linalg.pinv(q, rcond=1e-10, hermitian=True)
+        if in_fit:
+            num, den = w.b.T @ w.r, np.einsum("ji,jl,li->i", w.b, q, w.b)
+        else:
+            num, den = w.b.T @ qi @ w.r, np.einsum("ji,jl,li->i", w.b, qi, w.b)
+        ok = den > 1e-20 * max(float(np.max(den)), 1e-300)
+        wt = np.where(ok, num / np.sqrt(np.where(ok, den, 1.0)), 0.0)
+        if test == "chi2":
+            stat = float(w.r @ qi @ w.r)
+            dof = int(np.linalg.matrix_rank(q, tol=1e-10, hermitian=True)) if in_fit else w.r.size
+            p = float(special.chdtrc(dof, stat))
+            fails = p < alpha
+        else:
+            wt = wt / sigma
+            tau = w.r / (sigma * np.sqrt(np.clip(np.diag(q), 1e-300, None)))
+            m = tau.size
+            a0 = 1.0 - (1.0 - alpha) ** (1.0 / m)  # Sidak over the pose's components
+            stat = float(np.max(np.abs(tau)))
+            dof = f
+            p1 = _studentize_p(test, stat, f, in_fit)
+            p = float(-np.expm1(m * np.log1p(-min(p1, 1.0 - 1e-16))))  # 1 - (1 - p1)^m
+            fails = stat > _studentize_crit(test, a0, f, in_fit)
+        if not fails:
+            return
+        j = int(np.argmax(np.abs(wt)))
+        alt = tuple(mis_names[i] for i in np.flatnonzero(np.abs(wt) >= 0.99 * abs(wt[j]))
+                    if i != j)
+        found.append(Outlier(int(k), data.where(int(k)), stat, dof, p, mis_names[j],
+                             float(wt[j]), False, alt, data_set=what, test=test))
+
+    mis_names = mis.names
+    tested = {"identification": 0, "validation": 0}
+    if test_identification:
+        for k, w in blocks.items():
+            test_pose(w, k, identification, True, "identification")
+            tested["identification"] += 1
+    if validation is not None and len(validation):
+        vmis = kinds.of(validation).misclosures(robot, validation, x, noise)
+        mis_names = vmis.names
+        for k in range(len(validation)):
+            if not np.any(np.isfinite(vmis.r[k])):
+                continue
+            test_pose(_Whitened(vmis, k, act), k, validation, False, "validation")
+            tested["validation"] += 1
+    return GrossErrors(found, test, float(alpha), sigma if test == "tau" else math.sqrt(ssq / f),
+                       int(f), tested)
+
+
+def _refit(robot: Any, data: Any, result: Any, noise: Any, options: dict[str, Any]) -> Any:
+    """Levenberg-Marquardt on ``data`` from ``result.x`` with its active set (the objective of
+    ``result``'s method: weighted by ``noise`` when given)."""
+    from .methods import identify
+
+    kw = dict(options)
+    if noise is not None:
+        kw["noise"] = noise
+    return identify(robot, data, "lm", x0=result.x, active=result.get("active"), progress=False,
+                    **kw)
+
+
+def screen(robot: Any, identification: Any, validation: Any, result: Any, noise: Any = None, *,
+           held_out: bool = True, alpha: float = 1e-3, max_outlier_fraction: float = 0.2,
+           **options: Any) -> tuple[Any, Any, Any]:
+    """Gross errors in a calibration job: ``(result, identification, validation)`` after them.
+
+    - The efficient estimator (``result.method == "efficient"``) has tested and snooped its
+      identification poses; only the held-out poses are tested here, with the noise it used.
+    - Any other method: data snooping with :func:`find_gross_errors` (the chi-square test with
+      ``noise``, Pope's test without): while an identification pose fails, the worst (largest
+      value over its critical value) is left out and the parameters re-fitted by
+      Levenberg-Marquardt from the result (``options``, e.g. ``bounds``, go to
+      :func:`iwr.identify`), at most ``max_outlier_fraction`` of the poses; then the held-out
+      poses are tested at the final parameters.
+
+    Every failing pose is appended to ``result["outliers"]`` (:class:`iwr.estimation.Outlier`,
+    with its data set); identification poses left out are out of the returned identification
+    set (and of ``result["used"]``), failing held-out poses out of the returned validation set
+    (so the accuracy figures are not those of a typo). More failing identification poses than
+    ``max_outlier_fraction`` is no longer a few gross errors: the fit is then reported as not
+    fitting (``fit_ok`` False), nothing more removed. An interrupted result is returned as is.
+    The test's description (:meth:`GrossErrors.describe`) goes to ``result["gross_errors"]``."""
+    if result.get("status") == "interrupted" or not np.all(np.isfinite(result.x)):
+        return result, identification, validation
+    kind = kinds.of(identification)
+    efficient = result.get("method") == "efficient"
+    if efficient:
+        noise = result.get("noise", noise)
+    elif isinstance(noise, str):
+        noise = None  # "estimate" without the estimator: no model to test with
+    n = len(identification)
+    cap = int(math.floor(max_outlier_fraction * n))
+    keep = np.ones(n, dtype=bool)
+    removed: list[Any] = []
+    too_many = False
+    current = result
+    ident = identification
+    while not efficient:
+        found = find_gross_errors(robot, ident, current.x, noise, active=current.get("active"),
+                                  alpha=alpha)
+        if not found.outliers:
+            break
+        if len(removed) >= cap:
+            too_many = True
+            rows = np.flatnonzero(keep)
+            removed += [replace(o, pose=int(rows[o.pose])) for o in found.outliers]
+            break
+        worst = min(found.outliers, key=lambda o: o.p_value)
+        k = int(np.flatnonzero(keep)[worst.pose])
+        keep[k] = False
+        removed.append(replace(worst, pose=k, removed=True))
+        ident = kind.subset(identification, np.flatnonzero(keep))
+        refit = _refit(robot, ident, current, noise, options)
+        refit["method"] = result.get("method", "lm")
+        refit["nfev"] = int(current.nfev) + int(refit.nfev)
+        current = refit
+    held = validation if held_out else None
+    final = find_gross_errors(robot, ident, current.x, noise, validation=held,
+                              used=current.get("used"), active=current.get("active"),
+                              alpha=alpha, test_identification=False)
+    val_bad = [replace(o, removed=True) for o in final.outliers]
+    if val_bad:
+        vkeep = np.ones(len(validation), dtype=bool)
+        vkeep[[o.pose for o in val_bad]] = False
+        validation = kinds.of(validation).subset(validation, np.flatnonzero(vkeep))
+    if current is not result:
+        n_rm = int(np.sum(~keep))
+        current["message"] = (f"{str(result.message).strip().rstrip('.')}; then "
+                              f"Levenberg-Marquardt from its result without the {n_rm} outlier "
+                              f"pose(s): {str(current.message).strip()}")
+        current["settings"] = {**dict(result.get("settings") or {}),
+                               "outlier_refit": "lm"}
+        if result.get("wall_time") is not None:
+            current["wall_time"] = float(result["wall_time"]) + float(current.get("wall_time", 0))
+    if not held_out:
+        validation = ident
+    outliers = list(current.get("outliers") or []) if efficient else []
+    current["outliers"] = outliers + removed + val_bad
+    if not efficient:
+        current["used"] = keep
+    described = find_description(found if not efficient else final, final, n_tested={
+        "identification": n, "validation": final.n_tested["validation"]})
+    current["gross_errors"] = described
+    if too_many:
+        _fail_fit(current, f"{len(removed)} poses fail the outlier test (more than "
+                  f"{max_outlier_fraction:.0%} of {n}): not a few gross errors but a model or "
+                  "noise model that does not fit")
+    return current, ident, validation
+
+
+def find_description(first: GrossErrors, final: GrossErrors, n_tested: dict[str, int]) -> str:
+    """:meth:`GrossErrors.describe` with the counts of the whole screen."""
+    return replace(final, test=first.test, sigma=first.sigma if first.test == "tau"
+                   else final.sigma, dof=first.dof, n_tested=n_tested).describe()
+
+
+def _fail_fit(result: Any, cause: str) -> None:
+    from .estimation import FitTest
+
+    fit = result.get("fit")
+    if fit is None:
+        fit = FitTest(math.nan, 0, math.nan, 1e-3, True, "", [], [])
+    head = "THE MODEL DOES NOT FIT THE DATA: too many poses fail the outlier test"
+    verdict = fit.verdict if not fit.fit_ok else head
+    causes = (list(fit.causes) if not fit.fit_ok else []) + [cause]
+    result["fit"] = replace(fit, fit_ok=False, verdict=verdict, causes=causes)
+    result["fit_ok"] = False
+    if result.success:
+        result.update(success=False, status="failed", message=f"{verdict}: {cause}")
