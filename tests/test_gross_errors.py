@@ -286,3 +286,32 @@ def test_cli_held_out_typo_named_and_left_out(tmp_path, noise):
     assert summary["n_validation"] == len(val_rows) - 1
     report = (tmp_path / "cal" / "report.html").read_text()
     assert f"line {line} (held-out pose)" in report
+
+
+@pytest.mark.parametrize("noise", ["none", "realistic"])
+def test_cli_tracker_typos_in_both_sets(tmp_path, noise):
+    """Tracker data (the shipped example's setup): a swapped digit in a held-out pose's point and
+    in an identification pose's leg reading, with and without a noise model: both named by line
+    and reading, the first left out of the accuracy figures, the second of the solution; exit 0
+    and the fit passes (one reading is wrong, not the model)."""
+    robot = Path(__file__).resolve().parents[1] / "examples" / "iwr_tracker.toml"
+    sim = _run("simulate", "--robot", str(robot), "--out", "sim", "--poses", "40", "--seed", "5",
+               cwd=tmp_path)
+    assert sim.returncode == 0, sim.stderr
+    ident_rows, val_rows = kinds.split_rows(40, 0.2, 0)
+    data = tmp_path / "sim" / "measurements.csv"
+    point_line = _file_typo(data, int(val_rows[2]), "reflector2_y_mm", 1)
+    leg_line = _file_typo(data, int(ident_rows[5]), "s2_mm", -1)
+    out = _run("calibrate", "sim/robot.toml", "sim/measurements.csv", "--noise", noise,
+               "--out", "cal", "--no-plots", "--no-progress", cwd=tmp_path)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "the model fits the data" in out.stdout or "within their plausible size" in out.stdout
+    assert f"measurements.csv, line {point_line} (held-out pose)" in out.stdout, out.stdout
+    assert f"measurements.csv, line {leg_line}:" in out.stdout, out.stdout
+    summary = json.loads((tmp_path / "cal" / "summary.json").read_text())
+    named = {o["where"].rsplit("line ", 1)[1]: o for o in summary["outliers"]}
+    assert set(named) == {str(point_line), str(leg_line)}
+    assert named[str(point_line)]["instrument"] in ("reflector2.y", "reflector2.across1",
+                                                     "reflector2.across2")
+    assert named[str(leg_line)]["instrument"] == "leg2"
+    assert named[str(point_line)]["data_set"] == "validation"

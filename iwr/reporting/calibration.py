@@ -214,11 +214,7 @@ class Calibration:
                 "max_abs_length_mm": float(pe.max_abs_length),
                 "max_abs_angle_rad": float(pe.max_abs_angle),
             }
-        fit = self.result.get("fit")
-        if fit is not None:
-            out["fit"] = fit.to_dict()
-        if self.result.get("outliers") is not None:
-            out["outliers"] = [asdict(o) for o in self.result["outliers"]]
+        self._add_fit(out)
         if self.predicted is not None:
             pr = self.predicted
             out["predicted_accuracy"] = {
@@ -229,6 +225,17 @@ class Calibration:
         return jsonable(out, finite_only=True)
 
     # -- fit, outliers, prediction ----------------------------------------------------------------
+    def _add_fit(self, out: dict[str, Any]) -> None:
+        """The fit test, the outliers (identification and held-out poses) and the gross-error
+        test's description, into a summary.json dict."""
+        fit = self.result.get("fit")
+        if fit is not None:
+            out["fit"] = fit.to_dict()
+        if self.result.get("outliers") is not None:
+            out["outliers"] = [asdict(o) for o in self.result["outliers"]]
+        if self.result.get("gross_errors"):
+            out["gross_errors"] = str(self.result["gross_errors"])
+
     def status_text(self) -> str:
         """``converged`` only for a success; otherwise what happened."""
         r = self.result
@@ -1103,9 +1110,7 @@ class TrackerCalibration(Calibration):
         if self.uncertainty is not None:
             out["noise_sigma_mm"] = float(self.uncertainty.sigma)
             out["noise_sigma_source"] = self.uncertainty.source
-        fit = self.result.get("fit")
-        if fit is not None:
-            out["fit"] = fit.to_dict()
+        self._add_fit(out)
         return jsonable(out, finite_only=True)
 
     # -- text -----------------------------------------------------------------------------------
