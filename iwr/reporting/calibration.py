@@ -17,7 +17,7 @@ from ..measurements import Measurements
 from ..methods import IdentificationResult
 from ..problem import Problem, predict_legs
 from ..robot import Robot
-from .figures import new_figure, png_bytes
+from .figures import histogram, new_figure, png_bytes
 from .html import Page, write_page
 
 __all__ = ["Calibration", "TrackerCalibration", "leg_residual_stats", "NOT_CALIBRATED"]
@@ -818,8 +818,7 @@ class Calibration:
              "calibrated robot"),
         ]
         for ax, v, unit, what, title in panels:
-            colour = "C0" if "nominal" in title else "C2"
-            ax.hist(v, bins=min(30, max(5, v.size // 3)), color=colour)
+            histogram(ax, v, "C0" if "nominal" in title else "C2")
             ax.set_xlabel(f"{what} ({unit})")
             ax.set_ylabel("poses")
             ax.set_title(f"{title}: RMS {math.sqrt(np.mean(v**2)):.3g} {unit}")
@@ -1374,8 +1373,7 @@ class TrackerCalibration(Calibration):
             v = np.asarray(v, dtype=float)
             v = v[np.isfinite(v)]
             if v.size:
-                ax.hist(v, bins=min(30, max(5, v.size // 3)),
-                        color="C0" if "nominal" in title else "C2")
+                histogram(ax, v, "C0" if "nominal" in title else "C2")
                 ax.set_title(f"{title}: RMS {math.sqrt(np.mean(v**2)):.3g} {unit}")
             else:
                 ax.text(0.5, 0.5, "no pose with 3 points seen", ha="center", va="center",

@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["fmt", "markdown_table", "html_table", "Table"]
+__all__ = ["fmt", "markdown_table", "html_table", "split_columns", "Table"]
 
 #: A table: the header and the rows, every cell already text.
 Table = tuple[list[str], list[list[str]]]
@@ -47,3 +47,19 @@ def html_table(table: Table, css_class: str = "") -> str:
         out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>")
     out.append("</table>")
     return "\n".join(out)
+
+
+def split_columns(table: Table, keys: list[int], width: int = 12) -> list[Table]:
+    """A table too wide for a page as several, each with the ``keys`` columns (which name a row)
+    then at most ``width - len(keys)`` of the others, in order: every cell on the page, none cut at
+    its right edge."""
+    head, rows = table
+    rest = [j for j in range(len(head)) if j not in keys]
+    step = max(1, width - len(keys))
+    if len(head) <= width:
+        return [table]
+    out: list[Table] = []
+    for i in range(0, len(rest), step):
+        cols = list(keys) + rest[i:i + step]
+        out.append(([head[j] for j in cols], [[r[j] for j in cols] for r in rows]))
+    return out
