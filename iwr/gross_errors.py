@@ -28,9 +28,11 @@ uncertainty of ``x``).
   Why this and not a robust (Huber, Tukey) re-fit: the test has an exact null distribution under
   the model of the unweighted objective, so its false-alarm rate is stated, not tuned; it needs
   no scale guess (a robust loss needs one, the very thing that is unknown); and it is testable
-  per component, so correlated noise within a pose (the tracker's 3 directions reach all six
-  legs) does not inflate it as a per-pose statistic with an estimated sigma would (a per-pose
-  F test assumes independent components: measured 10 times its nominal rate on such data).
+  per component, so correlated noise within a pose (a measured pose's 3 position errors reach
+  all six legs) does not inflate it as a per-pose statistic with an estimated sigma would (a
+  per-pose F test assumes independent components; were the six residuals' noise in 3
+  directions, ``2 chi2(3)`` against ``chi2(6)``, it would fail about 10 times its nominal 0.001:
+  an estimate, not measured).
 
 In both cases the reading to blame is the one with the largest Baarda w-test value ``w_i =
 c~_i^T Q_k^{-1 or identity} r~_k / sqrt(...)`` over every reading of the pose (``c~_i`` the

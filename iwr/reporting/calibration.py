@@ -215,19 +215,12 @@ class Calibration:
                 "max_abs_angle_rad": float(pe.max_abs_angle),
             }
         self._add_fit(out)
-        if self.predicted is not None:
-            pr = self.predicted
-            out["predicted_accuracy"] = {
-                "on": "validation poses" if self.held_out else "identification poses",
-                "position_rms_mm": pr.position_rms, "position_95_mm": pr.position_95,
-                "orientation_rms_deg": pr.orientation_rms,
-                "orientation_95_deg": pr.orientation_95}
         return jsonable(out, finite_only=True)
 
     # -- fit, outliers, prediction ----------------------------------------------------------------
     def _add_fit(self, out: dict[str, Any]) -> None:
-        """The fit test, the outliers (identification and held-out poses) and the gross-error
-        test's description, into a summary.json dict."""
+        """The fit test, the outliers (identification and held-out poses), the gross-error
+        test's description and the predicted accuracy, into a summary.json dict."""
         fit = self.result.get("fit")
         if fit is not None:
             out["fit"] = fit.to_dict()
@@ -235,6 +228,13 @@ class Calibration:
             out["outliers"] = [asdict(o) for o in self.result["outliers"]]
         if self.result.get("gross_errors"):
             out["gross_errors"] = str(self.result["gross_errors"])
+        if self.predicted is not None:
+            pr = self.predicted
+            out["predicted_accuracy"] = {
+                "on": "validation poses" if self.held_out else "identification poses",
+                "position_rms_mm": pr.position_rms, "position_95_mm": pr.position_95,
+                "orientation_rms_deg": pr.orientation_rms,
+                "orientation_95_deg": pr.orientation_95}
 
     def status_text(self) -> str:
         """``converged`` only for a success; otherwise what happened."""
