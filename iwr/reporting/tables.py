@@ -49,17 +49,32 @@ def html_table(table: Table, css_class: str = "") -> str:
     return "\n".join(out)
 
 
-def split_columns(table: Table, keys: list[int], width: int = 12) -> list[Table]:
+def split_columns(table: Table, keys: list[int], width: int = 120) -> list[Table]:
     """A table too wide for a page as several, each with the ``keys`` columns (which name a row)
-    then at most ``width - len(keys)`` of the others, in order: every cell on the page, none cut at
-    its right edge."""
+    then as many of the others, in order, as fit in ``width`` characters (a column takes its
+    longest cell or header plus 3 for its padding and border): every cell on the page, none cut
+    at its right edge."""
     head, rows = table
+
+    def chars(j: int) -> int:
+        return max([len(head[j])] + [len(r[j]) for r in rows]) + 3
+
     rest = [j for j in range(len(head)) if j not in keys]
-    step = max(1, width - len(keys))
-    if len(head) <= width:
+    if sum(chars(j) for j in range(len(head))) <= width:
         return [table]
+    base = sum(chars(j) for j in keys)
     out: list[Table] = []
-    for i in range(0, len(rest), step):
-        cols = list(keys) + rest[i:i + step]
-        out.append(([head[j] for j in cols], [[r[j] for j in cols] for r in rows]))
+    group: list[int] = []
+    for j in rest:
+        if group and base + sum(chars(i) for i in group) + chars(j) > width:
+            out.append(_columns(table, list(keys) + group))
+            group = []
+        group.append(j)
+    if group:
+        out.append(_columns(table, list(keys) + group))
     return out
+
+
+def _columns(table: Table, cols: list[int]) -> Table:
+    head, rows = table
+    return [head[j] for j in cols], [[r[j] for j in cols] for r in rows]
