@@ -56,7 +56,11 @@ from scipy import special
 from . import kinds
 from ._blas import single_thread
 
-__all__ = ["GrossErrors", "Misclosures", "find_gross_errors", "screen"]
+__all__ = ["GrossErrors", "Misclosures", "NoRedundancy", "find_gross_errors", "screen"]
+
+
+class NoRedundancy(ValueError):
+    """The identification poses have no redundancy to test anything with."""
 
 
 @dataclass(frozen=True)
@@ -239,7 +243,7 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
     f = m_total - rank
     ssq = float(sum(b.r @ b.r for b in blocks.values()))
     if f < 1 or (test == "tau" and f < 2):
-        raise ValueError(f"no redundancy: {m_total} residuals for {rank} identifiable parameters; "
+        raise NoRedundancy(f"no redundancy: {m_total} residuals for {rank} identifiable parameters; "
                          "the data cannot test themselves for gross errors (measure more poses)")
     sigma = math.sqrt(ssq / f)
     # Without a noise model a held-out pose is studentized by the scale of the identification
@@ -367,8 +371,13 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     current = result
     ident = identification
     while not efficient:
-        found = find_gross_errors(robot, ident, current.x, noise, active=current.get("active"),
-                                  alpha=alpha)
+        try:
+            found = find_gross_errors(robot, ident, current.x, noise,
+                                      active=current.get("active"), alpha=alpha)
+        except NoRedundancy as exc:
+            # Nothing to test with (the fit's own verdict says why the data do not suffice).
+            result["gross_errors"] = f"gross errors: not tested ({exc})"
+            return result, identification, validation
         if not found.outliers:
             break
         if len(removed) >= cap:
@@ -386,9 +395,13 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         refit["nfev"] = int(current.nfev) + int(refit.nfev)
         current = refit
     held = validation if held_out else None
-    final = find_gross_errors(robot, ident, current.x, noise, validation=held,
-                              used=current.get("used"), active=current.get("active"),
-                              alpha=alpha, test_identification=False)
+    try:
+        final = find_gross_errors(robot, ident, current.x, noise, validation=held,
+                                  used=current.get("used"), active=current.get("active"),
+                                  alpha=alpha, test_identification=False)
+    except NoRedundancy as exc:
+        result["gross_errors"] = f"gross errors: not tested ({exc})"
+        return result, identification, validation
     val_bad = [replace(o, removed=True) for o in final.outliers]
     if val_bad:
         vkeep = np.ones(len(validation), dtype=bool)
