@@ -33,7 +33,6 @@ import argparse  # noqa: E402
 import math  # noqa: E402
 import time  # noqa: E402
 
-import numpy as np  # noqa: E402
 from scipy import stats  # noqa: E402
 
 import iwr  # noqa: E402

@@ -243,8 +243,9 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
     f = m_total - rank
     ssq = float(sum(b.r @ b.r for b in blocks.values()))
     if f < 1 or (test == "tau" and f < 2):
-        raise NoRedundancy(f"no redundancy: {m_total} residuals for {rank} identifiable parameters; "
-                         "the data cannot test themselves for gross errors (measure more poses)")
+        raise NoRedundancy(f"no redundancy: {m_total} residuals for {rank} identifiable "
+                           "parameters; the data cannot test themselves for gross errors "
+                           "(measure more poses)")
     sigma = math.sqrt(ssq / f)
     # Without a noise model a held-out pose is studentized by the scale of the identification
     # poses' deleted (leave-one-pose-out) residuals, Q_kk^-1 r~_k: what a pose not in the fit
@@ -342,15 +343,16 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     - The efficient estimator (``result.method == "efficient"``) has tested and snooped its
       identification poses; only the held-out poses are tested here, with the noise it used.
     - Any other method: data snooping with :func:`find_gross_errors` (the chi-square test with
-      ``noise``, Pope's test without): while an identification pose fails, the worst (largest
-      value over its critical value) is left out and the parameters re-fitted by
+      ``noise``, Pope's test without): while an identification pose fails, the worst (smallest
+      p-value) is left out and the parameters re-fitted by
       Levenberg-Marquardt from the result (``options``, e.g. ``bounds``, go to
       :func:`iwr.identify`), at most ``max_outlier_fraction`` of the poses; then the held-out
       poses are tested at the final parameters.
 
     Every failing pose is appended to ``result["outliers"]`` (:class:`iwr.estimation.Outlier`,
-    with its data set); identification poses left out are out of the returned identification
-    set (and of ``result["used"]``), failing held-out poses out of the returned validation set
+    with its data set; ``pose`` is its row in the set given here, ``where`` its line);
+    identification poses left out are out of the returned identification set (the estimator's
+    own: out of its ``result["used"]``), failing held-out poses out of the returned validation set
     (so the accuracy figures are not those of a typo). More failing identification poses than
     ``max_outlier_fraction`` is no longer a few gross errors: the fit is then reported as not
     fitting (``fit_ok`` False), nothing more removed. An interrupted result is returned as is.
@@ -395,14 +397,14 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         refit["nfev"] = int(current.nfev) + int(refit.nfev)
         current = refit
     held = validation if held_out else None
+    untested = ""
     try:
         final = find_gross_errors(robot, ident, current.x, noise, validation=held,
                                   used=current.get("used"), active=current.get("active"),
                                   alpha=alpha, test_identification=False)
-    except NoRedundancy as exc:
-        result["gross_errors"] = f"gross errors: not tested ({exc})"
-        return result, identification, validation
-    val_bad = [replace(o, removed=True) for o in final.outliers]
+    except NoRedundancy as exc:  # after removals: the held-out poses cannot be tested
+        final, untested = None, f"gross errors: held-out poses not tested ({exc})"
+    val_bad = [] if final is None else [replace(o, removed=True) for o in final.outliers]
     if val_bad:
         vkeep = np.ones(len(validation), dtype=bool)
         vkeep[[o.pose for o in val_bad]] = False
@@ -420,11 +422,12 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         validation = ident
     outliers = list(current.get("outliers") or []) if efficient else []
     current["outliers"] = outliers + removed + val_bad
-    if not efficient:
-        current["used"] = keep
-    described = find_description(found if not efficient else final, final, n_tested={
-        "identification": n, "validation": final.n_tested["validation"]})
-    current["gross_errors"] = described
+    if final is None:
+        current["gross_errors"] = untested
+    else:
+        current["gross_errors"] = _description(found if not efficient else final, final,
+                                                   n_tested={"identification": n, "validation":
+                                                             final.n_tested["validation"]})
     if too_many:
         _fail_fit(current, f"{len(removed)} poses fail the outlier test (more than "
                   f"{max_outlier_fraction:.0%} of {n}): not a few gross errors but a model or "
@@ -432,7 +435,7 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     return current, ident, validation
 
 
-def find_description(first: GrossErrors, final: GrossErrors, n_tested: dict[str, int]) -> str:
+def _description(first: GrossErrors, final: GrossErrors, n_tested: dict[str, int]) -> str:
     """:meth:`GrossErrors.describe` with the counts of the whole screen."""
     return replace(final, test=first.test, sigma=first.sigma if first.test == "tau"
                    else final.sigma, dof=first.dof, n_tested=n_tested).describe()
