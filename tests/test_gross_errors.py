@@ -315,3 +315,37 @@ def test_cli_tracker_typos_in_both_sets(tmp_path, noise):
                                                      "reflector2.across2")
     assert named[str(leg_line)]["instrument"] == "leg2"
     assert named[str(point_line)]["data_set"] == "validation"
+
+
+@pytest.mark.parametrize("noisy", [False, True], ids=["tau", "chi2"])
+def test_pose_statistics_match_the_stacked_problem(noisy):
+    """Each identification pose's test value against the same statistic computed on the whole
+    stacked, whitened problem in plain NumPy (hat matrix of all 6 N residuals, not per pose
+    blocks): Pope's largest |tau| per pose, or the chi-square of the pose's block of Q^+."""
+    robot = _robot("pose")
+    data, _ = iwr.simulate(robot, 25, seed=21, noise=REAL)
+    result = iwr.identify(robot, data, "lm", active="base")
+    active = result["active"]
+    noise = REAL if noisy else None
+    found = find_gross_errors(robot, data, result.x, noise, active=active, alpha=1 - 1e-12)
+    assert sorted(o.pose for o in found.outliers) == list(range(len(data)))  # all "fail"
+    mis = kinds.of(data).misclosures(robot, data, result.x, noise)
+    n = len(data)
+    if noisy:
+        cov = np.einsum("kij,kjl,kml->kim", mis.b, mis.reading_cov, mis.b)
+        white = np.linalg.inv(np.linalg.cholesky(cov))
+    else:
+        white = np.broadcast_to(np.eye(6), (n, 6, 6))
+    r = np.einsum("kij,kj->ki", white, mis.r).reshape(-1)
+    a = np.einsum("kij,kjp->kip", white, mis.a[:, :, active]).reshape(6 * n, -1)
+    h = a @ np.linalg.pinv(a.T @ a) @ a.T
+    q = np.eye(6 * n) - h
+    f = 6 * n - np.linalg.matrix_rank(a)
+    s = math.sqrt(r @ r / f)
+    for o in found.outliers:
+        rows = slice(6 * o.pose, 6 * o.pose + 6)
+        if noisy:
+            want = r[rows] @ np.linalg.pinv(q[rows, rows]) @ r[rows]
+        else:
+            want = np.max(np.abs(r[rows] / (s * np.sqrt(np.diag(q)[rows]))))
+        assert o.statistic == pytest.approx(want, rel=1e-6), o
