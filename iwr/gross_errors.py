@@ -355,7 +355,8 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     own: out of its ``result["used"]``), failing held-out poses out of the returned validation set
     (so the accuracy figures are not those of a typo). More failing identification poses than
     ``max_outlier_fraction`` is no longer a few gross errors: the fit is then reported as not
-    fitting (``fit_ok`` False), nothing more removed. An interrupted result is returned as is.
+    fitting (``fit_ok`` False), nothing more removed; so with more than that fraction of the
+    held-out poses failing (kept, then). An interrupted result is returned as is.
     The test's description (:meth:`GrossErrors.describe`) goes to ``result["gross_errors"]``."""
     if result.get("status") == "interrupted" or not np.all(np.isfinite(result.x)):
         return result, identification, validation
@@ -405,7 +406,12 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     except NoRedundancy as exc:  # after removals: the held-out poses cannot be tested
         final, untested = None, f"gross errors: held-out poses not tested ({exc})"
     val_bad = [] if final is None else [replace(o, removed=True) for o in final.outliers]
-    if val_bad:
+    val_cap = int(math.floor(max_outlier_fraction * len(validation))) if held_out else 0
+    val_too_many = len(val_bad) > val_cap and bool(val_bad)
+    if val_too_many:
+        # More than a few: the model or the noise model, not typos; kept, and the fit fails.
+        val_bad = [replace(o, removed=False) for o in val_bad]
+    elif val_bad:
         vkeep = np.ones(len(validation), dtype=bool)
         vkeep[[o.pose for o in val_bad]] = False
         validation = kinds.of(validation).subset(validation, np.flatnonzero(vkeep))
@@ -432,6 +438,10 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         _fail_fit(current, f"{len(removed)} poses fail the outlier test (more than "
                   f"{max_outlier_fraction:.0%} of {n}): not a few gross errors but a model or "
                   "noise model that does not fit")
+    if val_too_many:
+        _fail_fit(current, f"{len(val_bad)} of the {len(validation)} held-out poses fail the "
+                  f"outlier test (more than {max_outlier_fraction:.0%}): not a few gross errors "
+                  "but a model or noise model that does not fit the poses it was not fitted to")
     return current, ident, validation
 
 
