@@ -86,6 +86,11 @@ class Misclosures:
     metric : ndarray, shape (N, m, m), or None
         Without a noise model: the misclosures' covariance up to the unknown factor ``sigma^2``
         (the objective's weighting; None: the identity).
+    groups : ndarray of int, shape (m,), or None
+        Without a noise model: the components that share one unknown sigma (estimated from
+        their residuals), by group number; None: one sigma for all. Tracker points: the
+        distance along the line of sight and the two directions across it, whose noise differs
+        by a factor of 2 to 3 (the components are then along and across it).
     """
 
     r: np.ndarray
@@ -95,6 +100,7 @@ class Misclosures:
     components: list[str]
     reading_cov: np.ndarray | None = None
     metric: np.ndarray | None = None
+    groups: np.ndarray | None = None
 
     def covariance(self, k: int, rows: np.ndarray) -> np.ndarray:
         """The covariance (noise model) or metric (without) of pose ``k``'s components ``rows``."""
@@ -121,13 +127,16 @@ class GrossErrors:
     alpha : float
         Probability that a clean pose fails (each pose's significance level).
     sigma : float
-        Without a noise model, the estimated sigma of the misclosures (in the objective's units:
-        mm for legs and points); with one, the square root of the variance factor (1 when the
-        noise model is right).
+        The square root of the variance factor ``sum r~^T r~ / dof``: without a noise model the
+        pooled sigma of the misclosures (the objective's units: mm for legs and points); with
+        one, 1 when the noise model is right.
     dof : int
         Redundancy of the identification poses (residuals minus rank).
     n_tested : dict
         Poses tested per data set (``identification``, ``validation``).
+    group_sigmas : tuple of float
+        Without a noise model, the sigma estimated for each group of components
+        (:attr:`Misclosures.groups`; one: all alike).
     """
 
     outliers: list[Any]
@@ -136,14 +145,18 @@ class GrossErrors:
     sigma: float
     dof: int
     n_tested: dict[str, int] = field(default_factory=dict)
+    group_sigmas: tuple[float, ...] = ()
 
     def describe(self) -> str:
         """The test in one sentence, with its false-alarm rate, for a report."""
         if self.test == "chi2":
             how = "each pose's chi-square test under the noise model"
         else:
+            sig = (", ".join(f"{v:.3g}" for v in self.group_sigmas)
+                   if len(self.group_sigmas) > 1 else f"{self.sigma:.3g}")
+            what = (" (along, across the line of sight)" if len(self.group_sigmas) == 2 else "")
             how = (f"Pope's tau test on each residual, the noise estimated from the residuals "
-                   f"(sigma {self.sigma:.3g} mm, {self.dof} degrees of freedom)")
+                   f"(sigma {sig} mm{what}, {self.dof} degrees of freedom)")
         n = sum(self.n_tested.values())
         return (f"gross errors: {how}, at {self.alpha:g} per pose: a clean pose fails with "
                 f"probability {self.alpha:g}, so about {self.alpha * n:.2g} of the {n} poses "
@@ -247,25 +260,34 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
                            "parameters; the data cannot test themselves for gross errors "
                            "(measure more poses)")
     sigma = math.sqrt(ssq / f)
-    # Without a noise model a held-out pose is studentized by the scale of the identification
-    # poses' deleted (leave-one-pose-out) residuals, Q_kk^-1 r~_k: what a pose not in the fit
-    # looks like, whatever the noise's correlation within a pose. s (the fit's own) is not that
-    # scale when the readings' noise is correlated within a pose (a measured pose's error reaches
-    # all six legs): the fit absorbs more of it than of independent noise, and the parameters'
-    # error at a new pose is larger than s^2 N^+ says (measured: 3.5 times the nominal rate).
-    sigma_val = sigma
-    if test == "tau" and validation is not None:
-        num = den = 0.0
+    # Without a noise model: one sigma per group of components (mis.groups), from the
+    # identification residuals, s_g^2 = sum r~^2 / sum q_jj over the group (its redundancy f_g),
+    # and, for the held-out poses, the scale of the identification poses' deleted
+    # (leave-one-pose-out) residuals Q_kk^-1 r~_k: what a pose not in the fit looks like,
+    # whatever the noise's correlation within a pose. s (the fit's own) is not that scale when
+    # the readings' noise is correlated within a pose (a measured pose's error reaches all six
+    # legs): the fit absorbs more of it than of independent noise, and the parameters' error at
+    # a new pose is larger than s^2 N^+ says (measured: 3.5 times the nominal rate).
+    ngroups = 1 if mis.groups is None else int(np.max(mis.groups)) + 1
+    g_of = np.zeros(mis.r.shape[1], dtype=int) if mis.groups is None else mis.groups
+    sums = np.zeros((4, ngroups))  # r~^2, q_jj, e^2 / (Q^-1)_jj, count
+    if test == "tau":
         for b in blocks.values():
             qkk = np.eye(b.r.size) - b.a @ n_inv @ b.a.T
             with single_thread():
                 qinv = np.linalg.pinv(qkk, rcond=1e-10, hermitian=True)
-            e = qinv @ b.r
-            d = np.diag(qinv)
+            e, d, g = qinv @ b.r, np.diag(qinv), g_of[b.rows]
             ok = d > 0
-            num += float(np.sum(e[ok] ** 2 / d[ok]))
-            den += float(np.sum(ok))
-        sigma_val = math.sqrt(num / den) if den else sigma
+            np.add.at(sums[0], g, b.r**2)
+            np.add.at(sums[1], g, np.diag(qkk))
+            np.add.at(sums[2], g[ok], e[ok] ** 2 / d[ok])
+            np.add.at(sums[3], g[ok], 1.0)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s_fit = np.where(sums[1] > 0, np.sqrt(sums[0] / sums[1]), sigma)
+        s_val = np.where(sums[3] > 0, np.sqrt(sums[2] / sums[3]), s_fit)
+    f_group = np.maximum(np.round(sums[1]).astype(int), 2) if test == "tau" else None
+    meat = (sum(b.a.T @ (b.a * s_fit[g_of[b.rows]][:, None] ** 2) for b in blocks.values())
+            if test == "tau" else None)
     found: list[Outlier] = []
 
     def test_pose(w: _Whitened, k: int, data: Any, in_fit: bool, what: str) -> None:
@@ -287,16 +309,29 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
             p = float(special.chdtrc(dof, stat))
             fails = p < alpha
         else:
-            s = sigma if in_fit else sigma_val
-            wt = wt / s
+            g = g_of[w.rows]
+            s = (s_fit if in_fit else s_val)[g]
             tau = w.r / (s * np.sqrt(np.clip(np.diag(q), 1e-300, None)))
+            # The readings' w-test with each group's variance d: the residuals' covariance of
+            # the unweighted fit under diag(d) is D - H D - D H + A N^+ M N^+ A^T in the fit
+            # (D + A N^+ M N^+ A^T held out), M = sum_l A_l^T D_l A_l; the statistic of a
+            # reading's column c is c^T D^-1 r / sqrt(c^T D^-1 C D^-1 c).
+            d = s_fit[g] ** 2
+            v = w.a @ n_inv @ meat @ n_inv @ w.a.T
+            cov = (np.diag(d) - h * d - d[:, None] * h + v) if in_fit else np.diag(d) + v
+            pb = w.b / d[:, None]
+            den = np.einsum("ji,jl,li->i", pb, cov, pb)
+            ok = den > 1e-20 * max(float(np.max(den)), 1e-300)
+            wt = np.where(ok, (pb.T @ w.r) / np.sqrt(np.where(ok, den, 1.0)), 0.0)
             m = tau.size
             a0 = 1.0 - (1.0 - alpha) ** (1.0 / m)  # Sidak over the pose's components
-            stat = float(np.max(np.abs(tau)))
-            dof = f
-            p1 = _studentize_p(test, stat, f, in_fit)
+            j_max = int(np.argmax(np.abs(tau)))
+            stat = float(abs(tau[j_max]))
+            dof = int(f_group[g[j_max]])
+            p1 = _studentize_p(test, stat, dof, in_fit)
             p = float(-np.expm1(m * np.log1p(-min(p1, 1.0 - 1e-16))))  # 1 - (1 - p1)^m
-            fails = stat > _studentize_crit(test, a0, f, in_fit)
+            crit = np.array([_studentize_crit(test, a0, int(f_group[gi]), in_fit) for gi in g])
+            fails = bool(np.any(np.abs(tau) > crit))
         if not fails:
             return
         j = int(np.argmax(np.abs(wt)))
@@ -319,8 +354,8 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
                 continue
             test_pose(_Whitened(vmis, k, act), k, validation, False, "validation")
             tested["validation"] += 1
-    return GrossErrors(found, test, float(alpha), sigma if test == "tau" else math.sqrt(ssq / f),
-                       int(f), tested)
+    return GrossErrors(found, test, float(alpha), sigma, int(f), tested,
+                       tuple(float(v) for v in s_fit) if test == "tau" else ())
 
 
 def _refit(robot: Any, data: Any, result: Any, noise: Any, options: dict[str, Any]) -> Any:
@@ -447,8 +482,8 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
 
 def _description(first: GrossErrors, final: GrossErrors, n_tested: dict[str, int]) -> str:
     """:meth:`GrossErrors.describe` with the counts of the whole screen."""
-    return replace(final, test=first.test, sigma=first.sigma if first.test == "tau"
-                   else final.sigma, dof=first.dof, n_tested=n_tested).describe()
+    return replace(final, test=first.test, sigma=first.sigma, dof=first.dof,
+                   group_sigmas=first.group_sigmas, n_tested=n_tested).describe()
 
 
 def _fail_fit(result: Any, cause: str) -> None:

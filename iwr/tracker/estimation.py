@@ -359,11 +359,24 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
         b_t[..., 3:] = np.nan_to_num(_skew(arms))
         b_t = b_t.reshape(n, m, 6)
     b = np.concatenate([b_legs, b_q, b_t], axis=2)
-    components = ([f"reflector{nm}.{c}" for nm in setup.names for c in "xyz"]
+    # Each point's misclosure along the line of sight and across it (TrackerNoise.basis: an
+    # orthonormal change of coordinates, which changes no test with a noise model), so that
+    # without one the distance meter's and the angle encoders' noise, 2 to 3 times apart, each
+    # get their own sigma (Misclosures.groups).
+    rot = TrackerNoise.basis(np.where(np.isfinite(measured), measured, 1.0).reshape(n, npts, 3))
+    rot_all = np.zeros((n, m, m))
+    for i in range(npts):
+        rot_all[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = rot[:, i]
+    r = np.einsum("kij,kj->ki", rot_all, np.nan_to_num(r)) + np.where(np.isnan(r), np.nan, 0.0)
+    a = np.einsum("kij,kjp->kip", rot_all, a)
+    b = np.einsum("kij,kjp->kip", rot_all, b)
+    parts = ("radial", "across1", "across2")
+    components = ([f"reflector{nm}.{c}" for nm in setup.names for c in parts]
                   if setup.kind == "points" else
-                  [f"probe.{p}.{c}" for p in ("origin", "x", "y", "z") for c in "xyz"])
+                  [f"probe.{p}.{c}" for p in ("origin", "x", "y", "z") for c in parts])
+    groups = np.tile([0, 1, 1], npts)
     if noise is None:
-        return Misclosures(r, a, b, names, components)
+        return Misclosures(r, a, b, names, components, groups=groups)
     readings, tnoise, _ = _noise(noise)
     prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
     nread = len(names)
@@ -390,7 +403,7 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
         wp = tnoise.whitening(measurements.probe[:, :3])
         cov[:, base:base + 3, base:base + 3] = np.linalg.inv(np.swapaxes(wp, -1, -2) @ wp)
         cov[:, base + 3:base + 6, base + 3:base + 6] = tnoise.orientation ** 2 * np.eye(3)
-    return Misclosures(r, a, b, names, components, reading_cov=cov)
+    return Misclosures(r, a, b, names, components, reading_cov=cov, groups=groups)
 
 
 def _skew(v: np.ndarray) -> np.ndarray:
