@@ -422,12 +422,12 @@ def leg_readings(robot: Robot, measurements: Measurements
 
 
 def pose_misclosures(robot: Robot, measurements: Measurements, x: Any, noise: Any = None) -> Any:
-    """:class:`iwr.gross_errors.Misclosures` of pose data at ``x``: the six leg residuals of eq.
+    """:class:`iwr.misclosures.Misclosures` of pose data at ``x``: the six leg residuals of eq.
     (10) per pose (a leg weighted 0 left out), their derivatives in the parameters and in every
     reading (:func:`reading_names`: the leg readings, the joints, the measured position and
     orientation, from :func:`loop_jacobians`), the readings' covariance under ``noise``
     (:func:`sigma_matrix`), or, without one, eq. (10)'s metric ``1 / w`` per leg."""
-    from .gross_errors import Misclosures
+    from .misclosures import Misclosures
 
     legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
     n = len(measurements)

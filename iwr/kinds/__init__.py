@@ -155,10 +155,10 @@ class MeasurementKind(abc.ABC):
 
     def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
         """For :mod:`iwr.gross_errors`: the linearised readings model at ``x``
-        (:class:`iwr.gross_errors.Misclosures`). This default: the residuals of :meth:`problem`
+        (:class:`iwr.misclosures.Misclosures`). This default: the residuals of :meth:`problem`
         per pose, their Jacobian, each residual its own reading with unit weight; no noise model
         (a kind that has one overrides this, with the derivatives in every reading)."""
-        from ..gross_errors import Misclosures
+        from ..misclosures import Misclosures
 
         if noise is not None:
             raise ValueError(f"noise: the gross-error test of {self.name} data has no noise "

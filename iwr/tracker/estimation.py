@@ -303,7 +303,7 @@ def tracker_predicted_accuracy(robot: Robot, x: Any, covariance: Any, active: An
 
 def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
                         noise: Any = None) -> Any:
-    """:class:`iwr.gross_errors.Misclosures` of tracker data at ``x`` (robot then setup
+    """:class:`iwr.misclosures.Misclosures` of tracker data at ``x`` (robot then setup
     parameters): per pose the predicted minus measured points in {T} (the reflectors, or the
     probe's four virtual points; NaN where unseen or where the forward kinematics fails), their
     derivatives in the parameters (:meth:`TrackerProblem.jacobian`) and in every reading: the leg
@@ -314,7 +314,7 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
     anisotropic covariance (:meth:`TrackerNoise.whitening`, or the file's own uncertainties);
     without, the unweighted point objective's identity metric."""
     from ..estimation import _core_rotations, loop_jacobians
-    from ..gross_errors import Misclosures
+    from ..misclosures import Misclosures
     from .problem import TrackerProblem
 
     setup = _setup(robot)
