@@ -24,6 +24,7 @@ import numpy as np
 
 from . import kinds
 from .accuracy import Accuracy, accuracy
+from .gross_errors import screen as screen_gross_errors
 from .identifiability import identifiability, identifiable_count, parameter_error
 from .methods import IdentificationResult, identify
 from .uncertainty import Uncertainty, uncertainty
@@ -310,6 +311,10 @@ def calibrate(
         except KeyboardInterrupt:
             result = _best_so_far(robot, ident, kind, method, best, options.get("active"),
                                   bounds)
+        # Gross errors in every pose, held-out ones too, with or without a noise model (issue 22):
+        # named, and left out of the identification (re-fitted) and of the accuracy.
+        result, ident, val = screen_gross_errors(robot, ident, val, result, noise,
+                                                 held_out=held_out, bounds=bounds)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
         result["settings"] = {**dict(result.get("settings") or {}), "data_file": data_name,

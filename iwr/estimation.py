@@ -211,6 +211,13 @@ class Outlier:
         Other readings of the pose whose w-test value is as large (within 1 %): the data cannot
         tell them from ``instrument`` (for example ``q1``, the rail's prismatic joint along z0,
         against ``position.z``: moving the base up moves every leg as moving the platform down).
+    data_set : str
+        ``"identification"``, or ``"validation"`` for a held-out pose (tested at the identified
+        parameters, :mod:`iwr.gross_errors`; ``removed``: left out of the accuracy figures).
+    test : str
+        ``"chi2"``: ``statistic`` is the pose's chi-square value under the noise model;
+        ``"tau"``: without a noise model, its largest studentized residual (Pope's test, the
+        noise estimated from the residuals; ``dof`` their redundancy; ``w`` studentized too).
     """
 
     pose: int
@@ -222,12 +229,21 @@ class Outlier:
     w: float
     removed: bool
     confounded: tuple[str, ...] = ()
+    data_set: str = "identification"
+    test: str = "chi2"
 
     def __str__(self) -> str:
-        what = "removed" if self.removed else "kept"
+        held = self.data_set == "validation"
+        what = (("left out of the accuracy figures" if held else "removed") if self.removed
+                else "kept")
         alt = f" or {', '.join(self.confounded)}, indistinguishable" if self.confounded else ""
-        return (f"{self.where}: chi2 {self.statistic:.1f} ({self.dof} dof, "
-                f"p = {self.p_value:.2g}); largest normalised residual {self.instrument} "
+        head = f"{self.where}" + (" (held-out pose)" if held else "")
+        if self.test == "tau":
+            value = (f"largest studentized residual {self.statistic:.1f} (no noise model: "
+                     f"Pope's test, {self.dof} dof, p = {self.p_value:.2g})")
+        else:
+            value = f"chi2 {self.statistic:.1f} ({self.dof} dof, p = {self.p_value:.2g})"
+        return (f"{head}: {value}; largest normalised residual {self.instrument} "
                 f"(w = {self.w:+.1f}{alt}); {what}")
 
 
@@ -403,6 +419,35 @@ def leg_readings(robot: Robot, measurements: Measurements
         return legs.reshape(-1)[rows], jx.reshape(-1, robot.n_params)[rows]
 
     return readings
+
+
+def pose_misclosures(robot: Robot, measurements: Measurements, x: Any, noise: Any = None) -> Any:
+    """:class:`iwr.misclosures.Misclosures` of pose data at ``x``: the six leg residuals of eq.
+    (10) per pose (a leg weighted 0 left out), their derivatives in the parameters and in every
+    reading (:func:`reading_names`: the leg readings, the joints, the measured position and
+    orientation, from :func:`loop_jacobians`), the readings' covariance under ``noise``
+    (:func:`sigma_matrix`), or, without one, eq. (10)'s metric ``1 / w`` per leg."""
+    from .misclosures import Misclosures
+
+    legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+    n = len(measurements)
+    r = legs - measurements.legs
+    b = np.concatenate([np.broadcast_to(-np.eye(6), (n, 6, 6)), jy], axis=2)
+    w = measurements.weights
+    if w is not None:
+        r = np.where(w > 0, r, np.nan)
+    names = reading_names(robot)
+    if noise is not None:
+        if not isinstance(noise, Noise):
+            raise TypeError(f"noise: expected an iwr.Noise or None, got {type(noise).__name__}")
+        _check_noise(noise)
+        sig = sigma_matrix(robot, measurements, noise)
+        return Misclosures(r, jx, b, names, names[:6], reading_cov=np.einsum(
+            "ki,ij->kij", sig**2, np.eye(sig.shape[1])))
+    metric = None
+    if w is not None:
+        metric = np.einsum("ki,ij->kij", 1.0 / np.where(w > 0, w, 1.0), np.eye(6))
+    return Misclosures(r, jx, b, names, names[:6], metric=metric)
 
 
 def tracker_readings(problem: Any) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:

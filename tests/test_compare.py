@@ -72,7 +72,16 @@ def test_html_is_self_contained_with_every_figure_and_table(report):
     assert "<link" not in page
     # the summary table: one row per (scenario, method), and the table of every run
     n_methods = len(small_methods())
-    assert page.count("<table>") == 3
+    # (summary, figures, every run: the last in parts led by scenario, method, seed, each a
+    # table that fits the page, every column in one of them)
+    every_run = page[page.index("<h2>Every run</h2>"):]
+    parts = every_run.count("<table>")
+    assert page.count("<table>") == 2 + parts
+    heads = re.findall(r"<tr>((?:<th>[^<]*</th>)+)</tr>", every_run)
+    cols = [c for h in heads[:parts] for c in re.findall(r"<th>([^<]*)</th>", h)]
+    assert all(re.findall(r"<th>([^<]*)</th>", h)[:3] == ["scenario", "method", "seed"]
+               for h in heads[:parts])
+    assert {"cost", "nfev", "success", "wall_time"} <= set(cols)
     for scenario in ("near", "bad"):
         for method in small_methods():
             assert f"<td>{scenario}</td><td>{method}</td>" in page

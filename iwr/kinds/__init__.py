@@ -174,6 +174,25 @@ class MeasurementKind(abc.ABC):
         size and centre, and the readings model ``x -> (residuals, Jacobian)`` whose null
         directions the size test ignores."""
 
+    def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        """For :mod:`iwr.gross_errors`: the linearised readings model at ``x``
+        (:class:`iwr.misclosures.Misclosures`). This default: the residuals of :meth:`problem`
+        per pose, their Jacobian, each residual its own reading with unit weight; no noise model
+        (a kind that has one overrides this, with the derivatives in every reading)."""
+        from ..misclosures import Misclosures
+
+        if noise is not None:
+            raise ValueError(f"noise: the gross-error test of {self.name} data has no noise "
+                             "model; give noise=None (the noise is then estimated from the "
+                             "residuals)")
+        problem, _ = self.problem(robot, data)
+        n = len(data)
+        r = np.asarray(problem.residuals(x), dtype=float).reshape(n, -1)
+        a = np.asarray(problem.jacobian(x), dtype=float).reshape(n, r.shape[1], -1)
+        names = [f"residual{j + 1}" for j in range(r.shape[1])]
+        b = np.broadcast_to(-np.eye(r.shape[1]), (n, r.shape[1], r.shape[1])).copy()
+        return Misclosures(r, a, b, names, names)
+
     @abc.abstractmethod
     def candidate_poses(self, robot: Any, data: Any) -> Any:
         """For :func:`iwr.plan_poses`: the candidates as :class:`iwr.Measurements` with their

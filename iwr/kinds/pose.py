@@ -9,7 +9,13 @@ from typing import Any
 import numpy as np
 
 from ..accuracy import pose_accuracy
-from ..estimation import _plausible_limit, _PoseSpec, leg_readings, predicted_accuracy
+from ..estimation import (
+    _plausible_limit,
+    _PoseSpec,
+    leg_readings,
+    pose_misclosures,
+    predicted_accuracy,
+)
 from ..identifiability import parameter_error, pose_identifiability
 from ..measurements import Measurements
 from ..methods import pose_identify
@@ -113,6 +119,9 @@ class PoseKind(MeasurementKind):
                      ) -> tuple[list[str], np.ndarray, Any, Any]:
         return (robot.parameter_names, _plausible_limit(robot, plausible, bounds), None,
                 leg_readings(robot, data))
+
+    def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        return pose_misclosures(robot, data, x, noise)
 
     def candidate_poses(self, robot: Any, data: Any) -> Any:
         return data

@@ -17,7 +17,7 @@ from ..kinds import reuse
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
-from .figures import new_figure, png_bytes
+from .figures import histogram, new_figure, png_bytes
 from .html import Page, write_page
 
 __all__ = ["CalibrationReport", "TrackerCalibrationReport", "leg_residual_stats", "render",
@@ -131,11 +131,20 @@ class CalibrationReport(Calibration):
                 "max_abs_length_mm": float(pe.max_abs_length),
                 "max_abs_angle_rad": float(pe.max_abs_angle),
             }
+        self._add_fit(out)
+        return jsonable(out, finite_only=True)
+
+    # -- fit, outliers, prediction ----------------------------------------------------------------
+    def _add_fit(self, out: dict[str, Any]) -> None:
+        """The fit test, the outliers (identification and held-out poses), the gross-error
+        test's description and the predicted accuracy, into a summary.json dict."""
         fit = self.result.get("fit")
         if fit is not None:
             out["fit"] = fit.to_dict()
         if self.result.get("outliers") is not None:
             out["outliers"] = [asdict(o) for o in self.result["outliers"]]
+        if self.result.get("gross_errors"):
+            out["gross_errors"] = str(self.result["gross_errors"])
         if self.predicted is not None:
             pr = self.predicted
             out["predicted_accuracy"] = {
@@ -143,9 +152,7 @@ class CalibrationReport(Calibration):
                 "position_rms_mm": pr.position_rms, "position_95_mm": pr.position_95,
                 "orientation_rms_deg": pr.orientation_rms,
                 "orientation_95_deg": pr.orientation_95}
-        return jsonable(out, finite_only=True)
 
-    # -- fit, outliers, prediction ----------------------------------------------------------------
     def status_text(self) -> str:
         """``converged`` only for a success; otherwise what happened."""
         r = self.result
@@ -181,13 +188,23 @@ class CalibrationReport(Calibration):
                 f"{c.start:.3g}")
         outliers = self.result.get("outliers")
         if outliers is not None:
+            held = "" if self.held_out else " (no pose held out)"
             if not outliers:
-                lines.append("outliers: none (every pose passes its test)")
+                lines.append(f"outliers: none (every pose passes its test, the held-out ones "
+                             f"too{held})")
             else:
-                n_rm = sum(o.removed for o in outliers)
-                lines.append(f"outliers: {len(outliers)} pose(s) fail their test, {n_rm} removed "
-                             f"from the solution, {len(outliers) - n_rm} kept:")
+                ident = [o for o in outliers if o.data_set != "validation"]
+                n_rm = sum(o.removed for o in ident)
+                n_val = len(outliers) - len(ident)
+                lines.append(
+                    f"outliers: {len(outliers)} pose(s) fail their test: {len(ident)} of the "
+                    f"identification poses ({n_rm} removed from the solution, "
+                    f"{len(ident) - n_rm} kept), {n_val} held out (left out of the accuracy "
+                    "figures); check each line named:")
                 lines += [f"  - {o}" for o in outliers]
+            rate = self.result.get("gross_errors")
+            if rate:
+                lines.append(f"  - {rate}")
         return lines
 
     def _fit_section(self, page: Page, title: str) -> None:
@@ -714,8 +731,7 @@ class CalibrationReport(Calibration):
              "calibrated robot"),
         ]
         for ax, v, unit, what, title in panels:
-            colour = "C0" if "nominal" in title else "C2"
-            ax.hist(v, bins=min(30, max(5, v.size // 3)), color=colour)
+            histogram(ax, v, "C0" if "nominal" in title else "C2")
             ax.set_xlabel(f"{what} ({unit})")
             ax.set_ylabel("poses")
             ax.set_title(f"{title}: RMS {math.sqrt(np.mean(v**2)):.3g} {unit}")
@@ -1003,9 +1019,7 @@ class TrackerCalibrationReport(CalibrationReport):
         if self.uncertainty is not None:
             out["noise_sigma_mm"] = float(self.uncertainty.sigma)
             out["noise_sigma_source"] = self.uncertainty.source
-        fit = self.result.get("fit")
-        if fit is not None:
-            out["fit"] = fit.to_dict()
+        self._add_fit(out)
         return jsonable(out, finite_only=True)
 
     # -- text -----------------------------------------------------------------------------------
@@ -1266,8 +1280,7 @@ class TrackerCalibrationReport(CalibrationReport):
             v = np.asarray(v, dtype=float)
             v = v[np.isfinite(v)]
             if v.size:
-                ax.hist(v, bins=min(30, max(5, v.size // 3)),
-                        color="C0" if "nominal" in title else "C2")
+                histogram(ax, v, "C0" if "nominal" in title else "C2")
                 ax.set_title(f"{title}: RMS {math.sqrt(np.mean(v**2)):.3g} {unit}")
             else:
                 ax.text(0.5, 0.5, "no pose with 3 points seen", ha="center", va="center",

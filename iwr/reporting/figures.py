@@ -11,7 +11,7 @@ from typing import Any
 
 from .._io import atomic_write_bytes
 
-__all__ = ["new_figure", "png_bytes", "save_png", "method_colors", "PALETTE"]
+__all__ = ["new_figure", "png_bytes", "save_png", "method_colors", "histogram", "PALETTE"]
 
 #: Colours of lines and markers, in order (matplotlib's default cycle).
 PALETTE = ["#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2",
@@ -57,3 +57,19 @@ def method_colors(names: Sequence[str]) -> dict[str, str]:
             out[m] = others[k % len(others)]
             k += 1
     return out
+
+
+def histogram(ax: Any, values: Any, color: str) -> None:
+    """A histogram of ``values`` on ``ax`` whose axes stay readable: at most 6 ticks on the value
+    axis, large or small values with a common power of ten (not "100000150000200000"), whole
+    counts on the count axis (no half-pose steps)."""
+    import numpy as np
+    from matplotlib.ticker import MaxNLocator, ScalarFormatter
+
+    v = np.asarray(values, dtype=float)
+    ax.hist(v, bins=min(30, max(5, v.size // 3)), color=color)
+    ax.xaxis.set_major_locator(MaxNLocator(nbins=6))
+    fmt = ScalarFormatter(useMathText=True)
+    fmt.set_powerlimits((-3, 4))
+    ax.xaxis.set_major_formatter(fmt)
+    ax.yaxis.set_major_locator(MaxNLocator(integer=True))

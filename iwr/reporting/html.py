@@ -30,7 +30,9 @@ _STYLE = (
     "th{text-align:center}"
     "figure{margin:1.2em 0}img{max-width:100%;height:auto}"
     "figcaption{font-size:0.9em;color:#333}"
-    "pre{background:#f6f6f6;padding:0.6em;overflow-x:auto;font-size:0.85em}"
+    "pre{background:#f6f6f6;padding:0.6em;font-size:0.85em;white-space:pre-wrap;"
+    "overflow-wrap:anywhere}"
+    ".tw{overflow-x:auto;max-width:100%}"
     ".verdict{font-size:1.1em;padding:0.6em 0.9em;border-radius:4px;margin:0.8em 0}"
     ".good{background:#e3f4e1;border-left:5px solid #2e7d32}"
     ".fair{background:#fff4d6;border-left:5px solid #b7791f}"
@@ -105,7 +107,9 @@ class Page:
         return self
 
     def table(self, table: Table, css_class: str = "") -> Page:
-        self.parts.append(html_table(table, css_class))
+        # In a box that scrolls sideways should a table still be wider than the page: never
+        # cut at its right edge (a long line of text wraps, a <pre> too).
+        self.parts.append('<div class="tw">' + html_table(table, css_class) + "</div>")
         return self
 
     def pre(self, text: str) -> Page:

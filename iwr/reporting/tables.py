@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["fmt", "markdown_table", "html_table", "Table"]
+__all__ = ["fmt", "markdown_table", "html_table", "split_columns", "Table"]
 
 #: A table: the header and the rows, every cell already text.
 Table = tuple[list[str], list[list[str]]]
@@ -47,3 +47,34 @@ def html_table(table: Table, css_class: str = "") -> str:
         out.append("<tr>" + "".join(f"<td>{html.escape(c)}</td>" for c in r) + "</tr>")
     out.append("</table>")
     return "\n".join(out)
+
+
+def split_columns(table: Table, keys: list[int], width: int = 120) -> list[Table]:
+    """A table too wide for a page as several, each with the ``keys`` columns (which name a row)
+    then as many of the others, in order, as fit in ``width`` characters (a column takes its
+    longest cell or header plus 3 for its padding and border): every cell on the page, none cut
+    at its right edge."""
+    head, rows = table
+
+    def chars(j: int) -> int:
+        return max([len(head[j])] + [len(r[j]) for r in rows]) + 3
+
+    rest = [j for j in range(len(head)) if j not in keys]
+    if sum(chars(j) for j in range(len(head))) <= width:
+        return [table]
+    base = sum(chars(j) for j in keys)
+    out: list[Table] = []
+    group: list[int] = []
+    for j in rest:
+        if group and base + sum(chars(i) for i in group) + chars(j) > width:
+            out.append(_columns(table, list(keys) + group))
+            group = []
+        group.append(j)
+    if group:
+        out.append(_columns(table, list(keys) + group))
+    return out
+
+
+def _columns(table: Table, cols: list[int]) -> Table:
+    head, rows = table
+    return [head[j] for j in cols], [[r[j] for j in cols] for r in rows]

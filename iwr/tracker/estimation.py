@@ -25,8 +25,8 @@ from .api import _setup, _split_noise, tracker_problem
 from .data import TrackerMeasurements
 from .simulate import TrackerNoise, axis_whitening
 
-__all__ = ["TRACKER_COMPONENTS", "TrackerSpec", "tracker_predicted_accuracy",
-           "tracker_reading_names"]
+__all__ = ["TRACKER_COMPONENTS", "TrackerSpec", "tracker_misclosures",
+           "tracker_predicted_accuracy", "tracker_reading_names"]
 
 #: The variance components on tracker data: the reading noise (as :class:`iwr.Noise`'s fields)
 #: and one factor each on the tracker's distance sigma (``distance`` and ``distance_per_m``
@@ -299,3 +299,115 @@ def tracker_predicted_accuracy(robot: Robot, x: Any, covariance: Any, active: An
     cp = np.einsum("kip,pq,kjq->kij", g[:, :3], cov, g[:, :3])
     co = np.einsum("kip,pq,kjq->kij", g[:, 3:], cov, g[:, 3:])
     return accuracy_from_covariances(cp, co, n_samples=n_samples, seed=seed)
+
+
+def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
+                        noise: Any = None) -> Any:
+    """:class:`iwr.misclosures.Misclosures` of tracker data at ``x`` (robot then setup
+    parameters): per pose the predicted minus measured points in {T} (the reflectors, or the
+    probe's four virtual points; NaN where unseen or where the forward kinematics fails), their
+    derivatives in the parameters (:meth:`TrackerProblem.jacobian`) and in every reading: the leg
+    and joint readings through the forward kinematics (the platform pose's derivative by implicit
+    differentiation of the loop closure, :func:`iwr.estimation.loop_jacobians`), each point's x,
+    y, z in {T} (a probe's position and its rotation about the axes of {T}). With ``noise`` (the
+    pair ``(Noise, TrackerNoise)``) the readings' covariance: the legs and joints, each point's
+    anisotropic covariance (:meth:`TrackerNoise.whitening`, or the file's own uncertainties);
+    without, the unweighted point objective's identity metric."""
+    from ..estimation import _core_rotations, loop_jacobians
+    from ..misclosures import Misclosures
+    from .problem import TrackerProblem
+
+    setup = _setup(robot)
+    x = np.asarray(x, dtype=float)
+    nr, nj, n = robot.n_params, robot.n_joints, len(measurements)
+    problem = TrackerProblem(robot, setup, measurements, reference=x[:nr])
+    m = problem.n_residuals // n
+    measured = measurements.tracker_points(setup).reshape(n, m)
+    r = problem.residuals(x).reshape(n, m)
+    a = problem.jacobian(x).reshape(n, m, -1)
+    poses = problem.platform_poses(x)
+    ok = np.all(np.isfinite(poses), axis=1)
+    r = np.where(np.isfinite(measured) & ok[:, None], r, np.nan)
+    safe = np.where(ok[:, None], poses, robot.home_pose)
+    _, _, jy = loop_jacobians(robot, x[:nr], measurements.q, safe)
+    g_legs = np.linalg.inv(jy[:, :, nj:])  # d (dp, w) / d legs
+    g_q = -g_legs @ jy[:, :, :nj]
+    reg = setup.registration_matrix(x[nr:])
+    rr, tr = reg[:3, :3], reg[:3, 3]
+    rot = _core_rotations(safe)
+    pred = problem.predicted_points(x)  # (n, P, 3)
+    npts = pred.shape[1]
+    # Each predicted point in {5}: p_T = R_reg (p + R r5) + t_reg; d p_T = R_reg (dp - R [r5]x w).
+    r5 = np.einsum("kji,kpj->kpi", rot, np.einsum("ji,kpj->kpi", rr, pred - tr) - safe[:, None, :3])
+    r5 = np.nan_to_num(r5)
+    skew = _skew(r5)
+    d_pose = np.zeros((n, npts, 3, 6))
+    d_pose[..., :3] = rr
+    d_pose[..., 3:] = -np.einsum("ij,kjl,kplm->kpim", rr, rot, skew)
+    b_legs = np.einsum("kpij,kjl->kpil", d_pose, g_legs).reshape(n, m, 6)
+    b_q = np.einsum("kpij,kjl->kpil", d_pose, g_q).reshape(n, m, nj)
+    head = [f"leg{j + 1}" for j in range(6)] + [f"q{i + 1}" for i in range(nj)]
+    if setup.kind == "points":
+        names = head + [f"reflector{nm}.{c}" for nm in setup.names for c in "xyz"]
+        b_t = np.broadcast_to(-np.eye(m), (n, m, m))
+    else:
+        names = head + [f"probe.{c}" for c in "xyz"] + [f"probe.r{c}" for c in "xyz"]
+        arms = measured.reshape(n, npts, 3) - measured.reshape(n, npts, 3)[:, :1]
+        b_t = np.zeros((n, npts, 3, 6))
+        b_t[..., :3] = -np.eye(3)
+        # m_j = p + exp([w]x) (m_j - p): d r = -d m_j = [m_j - p]x w
+        b_t[..., 3:] = np.nan_to_num(_skew(arms))
+        b_t = b_t.reshape(n, m, 6)
+    b = np.concatenate([b_legs, b_q, b_t], axis=2)
+    # Each point's misclosure along the line of sight and across it (TrackerNoise.basis: an
+    # orthonormal change of coordinates, which changes no test with a noise model), so that
+    # without one the distance meter's and the angle encoders' noise, 2 to 3 times apart, each
+    # get their own sigma (Misclosures.groups).
+    rot = TrackerNoise.basis(np.where(np.isfinite(measured), measured, 1.0).reshape(n, npts, 3))
+    rot_all = np.zeros((n, m, m))
+    for i in range(npts):
+        rot_all[:, 3 * i:3 * i + 3, 3 * i:3 * i + 3] = rot[:, i]
+    r = np.einsum("kij,kj->ki", rot_all, np.nan_to_num(r)) + np.where(np.isnan(r), np.nan, 0.0)
+    a = np.einsum("kij,kjp->kip", rot_all, a)
+    b = np.einsum("kij,kjp->kip", rot_all, b)
+    parts = ("radial", "across1", "across2")
+    components = ([f"reflector{nm}.{c}" for nm in setup.names for c in parts]
+                  if setup.kind == "points" else
+                  [f"probe.{p}.{c}" for p in ("origin", "x", "y", "z") for c in parts])
+    groups = np.tile([0, 1, 1], npts)
+    if noise is None:
+        return Misclosures(r, a, b, names, components, groups=groups)
+    readings, tnoise, _ = _noise(noise)
+    prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
+    nread = len(names)
+    cov = np.zeros((n, nread, nread))
+    idx = np.arange(6 + nj)
+    cov[:, idx[:6], idx[:6]] = readings.legs ** 2
+    cov[:, 6 + np.arange(nj), 6 + np.arange(nj)] = np.where(
+        prism, readings.joint_lengths, readings.joint_angles) ** 2
+    base = 6 + nj
+    if setup.kind == "points":
+        pts = measurements.points
+        assert pts is not None
+        seen = ~np.isnan(pts[..., 0])
+        w = np.zeros(pts.shape + (3,))
+        w[seen] = (tnoise.whitening(pts[seen]) if measurements.point_sigma is None
+                   else axis_whitening(pts[seen], measurements.point_sigma[seen]))
+        w[~seen] = np.eye(3)
+        pc = np.linalg.inv(np.swapaxes(w, -1, -2) @ w)  # (n, K, 3, 3)
+        for i in range(pts.shape[1]):
+            sl = slice(base + 3 * i, base + 3 * i + 3)
+            cov[:, sl, sl] = pc[:, i]
+    else:
+        assert measurements.probe is not None
+        wp = tnoise.whitening(measurements.probe[:, :3])
+        cov[:, base:base + 3, base:base + 3] = np.linalg.inv(np.swapaxes(wp, -1, -2) @ wp)
+        cov[:, base + 3:base + 6, base + 3:base + 6] = tnoise.orientation ** 2 * np.eye(3)
+    return Misclosures(r, a, b, names, components, reading_cov=cov, groups=groups)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` for the last axis of ``v`` (..., 3) -> (..., 3, 3)."""
+    s = np.zeros(v.shape + (3,))
+    s[..., 0, 1], s[..., 0, 2], s[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    return s - np.swapaxes(s, -1, -2)

@@ -28,7 +28,7 @@ from .api import (
     tracker_simulate,
 )
 from .data import TrackerMeasurements
-from .estimation import TrackerSpec
+from .estimation import TrackerSpec, tracker_misclosures
 from .files import read_tracker_data
 from .problem import TrackerProblem
 from .simulate import TrackerNoise
@@ -176,6 +176,9 @@ class _TrackerKind(MeasurementKind):
         centre = 0.5 * (lower + upper)
         limit = plausible * 0.5 * (upper - lower)
         return tp.parameter_names, limit, centre, tracker_readings(tp)
+
+    def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        return tracker_misclosures(robot, data, x, noise)
 
     def candidate_poses(self, robot: Any, data: Any) -> Any:
         # Tracker data hold no world pose: the nominal robot's forward kinematics gives it.

@@ -1,0 +1,353 @@
+"""Gross errors in every pose, with or without a noise model (iwr.gross_errors; issue 22, item 3):
+the kinds' linearised readings model against finite differences, a swapped-digit typo in a leg
+reading and in a point (pose data: the measured position) named by line and reading in the
+identification and in the validation set, with and without a noise model, and the command line
+(docs/cli.md: exit 0 with the pose named and left out; never "outliers: none")."""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr import kinds
+from iwr.gross_errors import find_gross_errors, screen
+from iwr.tracker import TrackerNoise
+from iwr.tracker.data import TrackerMeasurements
+
+REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
+REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
+PROBE = (30.0, -20.0, 60.0, 0.3, -0.2, 0.1)
+REAL = iwr.Noise.realistic()
+READINGS = iwr.Noise(legs=REAL.legs, joint_lengths=REAL.joint_lengths,
+                     joint_angles=REAL.joint_angles)
+TRACKER_NOISE = (READINGS, TrackerNoise.leica())
+
+
+def _robot(kind: str) -> iwr.Robot:
+    robot = iwr.Robot.default()
+    if kind == "points":
+        return robot.with_tracker(registration=REGISTRATION, reflectors=REFLECTORS)
+    if kind == "probe":
+        return robot.with_tracker(registration=REGISTRATION, probe=PROBE)
+    return robot
+
+
+def _noise(kind: str) -> object:
+    return REAL if kind == "pose" else TRACKER_NOISE
+
+
+def _rebuild(data: object, *, legs: np.ndarray | None = None, q: np.ndarray | None = None,
+             readings: np.ndarray | None = None) -> object:
+    """``data`` with new legs, joints or tracker (pose) readings, lines and source kept."""
+    lines = getattr(data, "lines", None)
+    kw = {"joint_types": data.joint_types, "lines": lines, "source": data.source}
+    legs = data.legs if legs is None else legs
+    q = data.q if q is None else q
+    if isinstance(data, TrackerMeasurements):
+        key = "points" if data.points is not None else "probe"
+        kw[key] = getattr(data, key) if readings is None else readings
+        return TrackerMeasurements(q, legs, **kw)
+    return iwr.Measurements(q, data.poses if readings is None else readings, legs, **kw)
+
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_tracker_misclosures_match_finite_differences(kind):
+    """The derivatives of the predicted-minus-measured points (along and across the line of
+    sight) in every reading (legs and joints through the forward kinematics, the tracker's own
+    readings) against central differences of the misclosures recomputed from perturbed data."""
+    robot = _robot(kind)
+    # Noise-free: the residuals vanish at the truth, so that the change of the line of sight
+    # with a perturbed point (the misclosures are along and across it) is second order.
+    data, truth = iwr.simulate(robot, 6, seed=1)
+    kind_ = kinds.of(data)
+    mis = kind_.misclosures(robot, data, truth, None)
+    h = 1e-5
+    nj = robot.n_joints
+    raw = data.points.reshape(len(data), -1) if data.points is not None else data.probe
+
+    def at(**kw: np.ndarray) -> np.ndarray:
+        return kind_.misclosures(robot, _rebuild(data, **kw), truth, None).r
+
+    for j in range(len(mis.names)):
+        if j < 6:
+            arrays = [data.legs.copy(), data.legs.copy()]
+            key = "legs"
+        elif j < 6 + nj:
+            arrays, key = [data.q.copy(), data.q.copy()], "q"
+        else:
+            arrays, key = [raw.copy(), raw.copy()], "readings"
+        col = j if j < 6 else j - 6 if j < 6 + nj else j - 6 - nj
+        if key == "readings" and kind == "probe" and col >= 3:
+            continue  # the probe's rotation about {T}'s axes: checked below, not an Euler column
+        arrays[0][:, col] += h
+        arrays[1][:, col] -= h
+        if key == "readings" and data.points is not None:
+            arrays = [a.reshape(data.points.shape) for a in arrays]
+        fd = (at(**{key: arrays[0]}) - at(**{key: arrays[1]})) / (2 * h)
+        scale = max(1.0, float(np.max(np.abs(mis.b[:, :, j]))))
+        assert np.max(np.abs(fd - mis.b[:, :, j])) < 1e-6 * scale, mis.names[j]
+    if kind == "probe":
+        # Rotating the measured probe by a small rotation vector w about its origin, in {T}.
+        from scipy.spatial.transform import Rotation
+
+        from iwr.transforms import euler_zyx, pose_from_matrix
+        for c in range(3):
+            w = np.zeros(3)
+            w[c] = h
+            out = []
+            for sign in (1, -1):
+                probe = data.probe.copy()
+                for k in range(len(data)):
+                    t = np.eye(4)
+                    t[:3, :3] = Rotation.from_rotvec(sign * w).as_matrix() @ euler_zyx(
+                        *probe[k, 3:])
+                    t[:3, 3] = probe[k, :3]
+                    probe[k] = pose_from_matrix(t)
+                out.append(at(readings=probe))
+            fd = (out[0] - out[1]) / (2 * h)
+            assert np.max(np.abs(fd - mis.b[:, :, 6 + nj + 3 + c])) < 1e-5
+
+
+def test_default_misclosures_are_the_problems_residuals():
+    """The protocol's default (a kind without its own): the problem's residuals per pose, each
+    its own reading; no noise model."""
+    robot = _robot("pose")
+    data, truth = iwr.simulate(robot, 5, seed=2, noise=REAL)
+    mis = kinds.MeasurementKind.misclosures(kinds.of(data), robot, data, truth)
+    own = kinds.of(data).misclosures(robot, data, truth)
+    assert np.allclose(mis.r, own.r, atol=1e-9)
+    assert np.allclose(mis.a, own.a, atol=1e-6)
+    with pytest.raises(ValueError, match="no noise model"):
+        kinds.MeasurementKind.misclosures(kinds.of(data), robot, data, truth, REAL)
+
+
+def _swap_digits(value: float, place: int) -> float:
+    """``value`` with two adjacent differing digits swapped: those of ``10^place`` and
+    ``10^(place - 1)`` (``place`` 1: tens and units, -1: the first two decimals), or, where they
+    are equal, the next pair down, else the next pair up (so that the typo is not a few um)."""
+    text = f"{abs(value):.6f}"
+    point = text.index(".")
+    for p in (place, place - 1 if place != 1 else 2, place + 2 if place != -2 else 1):
+        i = point - 1 - p if p > 0 else point - p
+        s = list(text)
+        if i >= 0 and s[i] != s[i + 1]:
+            s[i], s[i + 1] = s[i + 1], s[i]
+            return math.copysign(float("".join(s)), value)
+    raise AssertionError(f"no digits to swap in {text}")
+
+
+def _typo(data: object, row: int, reading: str) -> tuple[object, str]:
+    """A swapped-digit typo in pose ``row``: in leg 3's reading (its first decimals: tenths of a
+    mm), or in the first coordinate of the measured point (reflector 1's x; the probe's x; the
+    platform's x for poses in {0}; its tens and units: up to 81 mm). Returns the data and the
+    reading the test must blame."""
+    if reading == "leg":
+        legs = data.legs.copy()
+        legs[row, 2] = _swap_digits(legs[row, 2], -1)
+        return _rebuild(data, legs=legs), "leg3"
+    if isinstance(data, TrackerMeasurements) and data.points is not None:
+        pts = data.points.copy()
+        pts[row, 0, 0] = _swap_digits(pts[row, 0, 0], 1)
+        return _rebuild(data, readings=pts), "reflector1.x"
+    raw = (data.probe if isinstance(data, TrackerMeasurements) else data.poses).copy()
+    raw[row, 0] = _swap_digits(raw[row, 0], 1)
+    return _rebuild(data, readings=raw), ("probe.x" if isinstance(data, TrackerMeasurements)
+                                          else "position.x")
+
+
+def _with_lines(data: object) -> object:
+    """As if read from ``data.csv`` with a comment line and a header before the rows."""
+    n = len(data)
+    kw = {"joint_types": data.joint_types, "lines": np.arange(n) + 3, "source": "data.csv"}
+    if isinstance(data, TrackerMeasurements):
+        key = "points" if data.points is not None else "probe"
+        return TrackerMeasurements(data.q, data.legs, **{key: getattr(data, key)}, **kw)
+    return iwr.Measurements(data.q, data.poses, data.legs, **kw)
+
+
+@pytest.mark.parametrize("noisy", [False, True], ids=["no-noise-model", "noise-model"])
+@pytest.mark.parametrize("where", ["identification", "validation"])
+@pytest.mark.parametrize("reading", ["leg", "point"])
+@pytest.mark.parametrize("kind", ["pose", "points"])
+def test_swapped_digit_named_by_line_and_reading(kind, reading, where, noisy):
+    """One swapped-digit typo among clean poses with realistic noise is named by its file line
+    and the reading at fault, in either set, whether or not a noise model is given; the pose is
+    left out (of the solution, or of the accuracy figures), the fit passes, and the clean poses
+    are not named."""
+    robot = _robot(kind)
+    data, _ = iwr.simulate(robot, 40, seed=11, noise=_noise(kind))
+    data = _with_lines(data)
+    ident_rows, val_rows = kinds.split_rows(len(data), 0.2, 0)
+    row = int((ident_rows if where == "identification" else val_rows)[3])
+    bad, blame = _typo(data, row, reading)
+    kind_ = kinds.of(bad)
+    ident, val = kind_.subset(bad, ident_rows), kind_.subset(bad, val_rows)
+    noise = _noise(kind) if noisy else None
+    method = "efficient" if noisy else "lm"
+    kw = {"noise": noise} if noisy else {}
+    result = iwr.identify(robot, ident, method, active="base", **kw)
+    result, ident2, val2 = screen(robot, ident, val, result, noise, held_out=True)
+    named = [o for o in result["outliers"] if o.where == f"data.csv, line {row + 3}"]
+    assert len(named) == 1, [str(o) for o in result["outliers"]]
+    o = named[0]
+    assert o.data_set == where and o.removed
+    # The estimator names a point's reading along its line of sight (radial) and across it.
+    names = {o.instrument, *o.confounded}
+    assert blame in names or (blame == "reflector1.x" and "reflector1.radial" in names), str(o)
+    assert o.test == ("chi2" if noisy else "tau")
+    assert len(result["outliers"]) <= 2, [str(o) for o in result["outliers"]]  # <= 1 false alarm
+    assert result["fit"].fit_ok, result["fit"].verdict
+    lines = [int(v) for v in (ident2.lines if where == "identification" else val2.lines)]
+    # Out of the returned set, or (the estimator's own snooping) out of the poses it used.
+    assert row + 3 not in lines or not result["used"][lines.index(row + 3)]
+    assert "false alarms" in result["gross_errors"]
+
+
+def test_clean_data_without_noise_model_pass_and_say_the_rate():
+    robot = _robot("pose")
+    data, _ = iwr.simulate(robot, 40, seed=12, noise=REAL)
+    ident, val = kinds.split(data, 0.2, 0)
+    result = iwr.identify(robot, ident, "lm", active="base")
+    found = find_gross_errors(robot, ident, result.x, None, validation=val,
+                              active=result["active"])
+    # At 0.001 per pose, 40 clean poses give a false alarm in 4 % of such data sets (this one
+    # has one, at p = 0.0008): the rates are measured in benchmarks/bench_gross_errors.py.
+    assert found.test == "tau" and len(found.outliers) <= 1
+    assert found.n_tested == {"identification": len(ident), "validation": len(val)}
+    # The noise estimated from the residuals: the legs' share of realistic noise, tens of um.
+    assert 0.005 < found.sigma < 0.05
+    assert "0.001 per pose" in found.describe()
+
+
+def test_a_wrong_model_is_not_blamed_on_readings():
+    """A tool offset left out (80 mm along z of {5}, times 0.5 .. 1.5 over the poses), no noise
+    model: every pose misfits alike, so no pose stands out from the noise estimated from the
+    residuals (none is removed), and the fit fails on the implausible errors: the model, not a
+    reading."""
+    robot = _robot("pose")
+    data, _ = iwr.simulate(robot, 30, seed=13, noise=REAL)
+    from iwr.transforms import euler_zyx
+
+    r = euler_zyx(data.poses[:, 3], data.poses[:, 4], data.poses[:, 5])
+    poses = data.poses.copy()
+    poses[:, :3] += 80.0 * r[:, :, 2] * np.linspace(0.5, 1.5, len(data))[:, None]
+    bad = _rebuild(data, readings=poses)
+    result = iwr.identify(robot, bad, "lm", active="base")
+    result, ident, _ = screen(robot, bad, bad, result, None, held_out=False)
+    assert not result["fit"].fit_ok and not result.success
+    assert len(ident) >= 0.8 * len(bad)
+    assert not any(o.removed for o in result["outliers"])
+
+
+# -- the command line ---------------------------------------------------------------------------
+
+def _run(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1"}
+    return subprocess.run([sys.executable, "-m", "iwr", *args], cwd=cwd, env=env,
+                          capture_output=True, text=True, timeout=900)
+
+
+def _file_typo(path: Path, row: int, column: str, place: int) -> int:
+    """Swap two digits of ``column`` in data row ``row`` of a CSV file; its line number."""
+    lines = path.read_text().splitlines()
+    head = next(i for i, line in enumerate(lines) if not line.startswith("#"))
+    j = lines[head].split(",").index(column)
+    i = head + 1 + row
+    fields = lines[i].split(",")
+    fields[j] = repr(_swap_digits(float(fields[j]), place))
+    lines[i] = ",".join(fields)
+    path.write_text("\n".join(lines) + "\n")
+    return i + 1
+
+
+@pytest.mark.parametrize("noise", ["none", "realistic"])
+def test_cli_held_out_typo_named_and_left_out(tmp_path, noise):
+    """The issue's case: a swapped digit in a held-out pose. Named by file and line, left out of
+    the accuracy figures, exit 0 (docs/cli.md), and never "outliers: none"."""
+    sim = _run("simulate", "--out", "sim", "--poses", "40", "--seed", "5", cwd=tmp_path)
+    assert sim.returncode == 0, sim.stderr
+    _, val_rows = kinds.split_rows(40, 0.2, 0)
+    data = tmp_path / "sim" / "measurements.csv"
+    line = _file_typo(data, int(val_rows[1]), "s3_mm", -1)
+    out = _run("calibrate", "sim/robot.toml", "sim/measurements.csv", "--noise", noise,
+               "--out", "cal", "--no-plots", "--no-progress", cwd=tmp_path)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert f"measurements.csv, line {line} (held-out pose)" in out.stdout, out.stdout
+    assert "outliers: none" not in out.stdout
+    summary = json.loads((tmp_path / "cal" / "summary.json").read_text())
+    held = [o for o in summary["outliers"] if o["data_set"] == "validation"]
+    assert [o["instrument"] for o in held] == ["leg3"]
+    assert summary["n_validation"] == len(val_rows) - 1
+    report = (tmp_path / "cal" / "report.html").read_text()
+    assert f"line {line} (held-out pose)" in report
+
+
+@pytest.mark.parametrize("noise", ["none", "realistic"])
+def test_cli_tracker_typos_in_both_sets(tmp_path, noise):
+    """Tracker data (the shipped example's setup): a swapped digit in a held-out pose's point and
+    in an identification pose's leg reading, with and without a noise model: both named by line
+    and reading, the first left out of the accuracy figures, the second of the solution; exit 0
+    and the fit passes (one reading is wrong, not the model)."""
+    robot = Path(__file__).resolve().parents[1] / "examples" / "iwr_tracker.toml"
+    sim = _run("simulate", "--robot", str(robot), "--out", "sim", "--poses", "40", "--seed", "5",
+               cwd=tmp_path)
+    assert sim.returncode == 0, sim.stderr
+    ident_rows, val_rows = kinds.split_rows(40, 0.2, 0)
+    data = tmp_path / "sim" / "measurements.csv"
+    point_line = _file_typo(data, int(val_rows[2]), "reflector2_y_mm", 1)
+    leg_line = _file_typo(data, int(ident_rows[5]), "s2_mm", -1)
+    out = _run("calibrate", "sim/robot.toml", "sim/measurements.csv", "--noise", noise,
+               "--out", "cal", "--no-plots", "--no-progress", cwd=tmp_path)
+    assert out.returncode == 0, out.stdout + out.stderr
+    assert "the model fits the data" in out.stdout or "within their plausible size" in out.stdout
+    assert f"measurements.csv, line {point_line} (held-out pose)" in out.stdout, out.stdout
+    assert f"measurements.csv, line {leg_line}:" in out.stdout, out.stdout
+    summary = json.loads((tmp_path / "cal" / "summary.json").read_text())
+    named = {o["where"].rsplit("line ", 1)[1]: o for o in summary["outliers"]}
+    assert set(named) == {str(point_line), str(leg_line)}
+    assert named[str(point_line)]["instrument"] in ("reflector2.y", "reflector2.across1",
+                                                     "reflector2.across2")
+    assert named[str(leg_line)]["instrument"] == "leg2"
+    assert named[str(point_line)]["data_set"] == "validation"
+
+
+@pytest.mark.parametrize("noisy", [False, True], ids=["tau", "chi2"])
+def test_pose_statistics_match_the_stacked_problem(noisy):
+    """Each identification pose's test value against the same statistic computed on the whole
+    stacked, whitened problem in plain NumPy (hat matrix of all 6 N residuals, not per pose
+    blocks): Pope's largest |tau| per pose, or the chi-square of the pose's block of Q^+."""
+    robot = _robot("pose")
+    data, _ = iwr.simulate(robot, 25, seed=21, noise=REAL)
+    result = iwr.identify(robot, data, "lm", active="base")
+    active = result["active"]
+    noise = REAL if noisy else None
+    found = find_gross_errors(robot, data, result.x, noise, active=active, alpha=1 - 1e-12)
+    assert sorted(o.pose for o in found.outliers) == list(range(len(data)))  # all "fail"
+    mis = kinds.of(data).misclosures(robot, data, result.x, noise)
+    n = len(data)
+    if noisy:
+        cov = np.einsum("kij,kjl,kml->kim", mis.b, mis.reading_cov, mis.b)
+        white = np.linalg.inv(np.linalg.cholesky(cov))
+    else:
+        white = np.broadcast_to(np.eye(6), (n, 6, 6))
+    r = np.einsum("kij,kj->ki", white, mis.r).reshape(-1)
+    a = np.einsum("kij,kjp->kip", white, mis.a[:, :, active]).reshape(6 * n, -1)
+    h = a @ np.linalg.pinv(a.T @ a) @ a.T
+    q = np.eye(6 * n) - h
+    f = 6 * n - np.linalg.matrix_rank(a)
+    s = math.sqrt(r @ r / f)
+    for o in found.outliers:
+        rows = slice(6 * o.pose, 6 * o.pose + 6)
+        if noisy:
+            want = r[rows] @ np.linalg.pinv(q[rows, rows]) @ r[rows]
+        else:
+            want = np.max(np.abs(r[rows] / (s * np.sqrt(np.diag(q)[rows]))))
+        assert o.statistic == pytest.approx(want, rel=1e-6), o
