@@ -136,22 +136,9 @@ class Calibration:
         return self.kind.improvement(self.accuracy, self.held_out)
 
     def degenerate(self) -> str | None:
-        """Why the identification data cannot identify the robot's errors, else None: their
-        information matrix has a lower rank than varied poses give this robot (too few distinct
-        poses, copies, poses that do not move some joint)."""
-        report = self.identifiability
-        if report is None:
-            return None
-        need = identifiable_count(self.robot)
-        if report.rank >= need:
-            return None
-        distinct = distinct_poses(self.identification)
-        n = len(self.identification)
-        copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
-        return (f"degenerate data: the {distinct} distinct identification poses{copies} "
-                f"identify {report.rank} of the {need} parameters that varied poses identify "
-                f"for this robot; the other {need - report.rank} would be left at nominal: "
-                "measure more, and more varied, poses")
+        """Why the identification data cannot identify the robot's errors, else None
+        (:func:`degenerate`)."""
+        return degenerate(self.robot, self.identification, self.identifiability)
 
     def _settle(self) -> None:
         """success, the verdict and the exit code agree: a converged method is not yet a
@@ -170,6 +157,24 @@ class Calibration:
             r["status"] = NOT_CALIBRATED
             # The prefix keeps the status in a result file (methods.result.status_from_message).
             r["message"] = f"{NOT_CALIBRATED}: {reason}"
+
+
+def degenerate(robot: Any, identification: Any, report: Any) -> str | None:
+    """Why ``identification`` cannot identify the robot's errors, else None: their information
+    matrix (``report``, :func:`iwr.identifiability`) has a lower rank than varied poses give
+    this robot (too few distinct poses, copies, poses that do not move some joint)."""
+    if report is None:
+        return None
+    need = identifiable_count(robot)
+    if report.rank >= need:
+        return None
+    distinct = distinct_poses(identification)
+    n = len(identification)
+    copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
+    return (f"degenerate data: the {distinct} distinct identification poses{copies} "
+            f"identify {report.rank} of the {need} parameters that varied poses identify "
+            f"for this robot; the other {need - report.rank} would be left at nominal: "
+            "measure more, and more varied, poses")
 
 
 def distinct_poses(data: Any) -> int:
@@ -312,9 +317,11 @@ def calibrate(
             result = _best_so_far(robot, ident, kind, method, best, options.get("active"),
                                   bounds)
         # Gross errors in every pose, held-out ones too, with or without a noise model (issue 22):
-        # named, and left out of the identification (re-fitted) and of the accuracy.
-        result, ident, val = screen_gross_errors(robot, ident, val, result, noise,
-                                                 held_out=held_out, bounds=bounds)
+        # named, and left out of the identification (re-fitted) and of the accuracy. Not on
+        # degenerate data: those are "not calibrated" (below), whatever their residuals say.
+        if degenerate(robot, ident, report) is None:
+            result, ident, val = screen_gross_errors(robot, ident, val, result, noise,
+                                                     held_out=held_out, bounds=bounds)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
         result["settings"] = {**dict(result.get("settings") or {}), "data_file": data_name,

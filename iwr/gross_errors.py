@@ -56,6 +56,7 @@ from scipy import special
 from . import kinds
 from ._blas import single_thread
 from .misclosures import Misclosures
+from .robot import MIN_SIGMA
 
 __all__ = ["GrossErrors", "Misclosures", "NoRedundancy", "find_gross_errors", "screen"]
 
@@ -294,6 +295,11 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
 
     mis_names = mis.names
     tested = {"identification": 0, "validation": 0}
+    if test == "tau" and sigma < MIN_SIGMA:
+        # The residuals are rounding (noise-free data, a simulation): no noise to scale a test
+        # by, and nothing to find; a gross error would make sigma far larger than this.
+        return GrossErrors(found, test, float(alpha), sigma, int(f), tested,
+                           tuple(float(v) for v in s_fit))
     if test_identification:
         for k, w in blocks.items():
             test_pose(w, k, identification, True, "identification")

@@ -207,7 +207,7 @@ def test_a_method_with_a_noise_model_is_weighted_on_points_refused_on_a_probe(si
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "on the objective weighted by the noise model" in proc.stdout
     result = iwr.load_result(tmp_path / "pts" / "result.json")
-    assert result["method"] == "lm" and "cost_eq10" in result
+    assert result["method"] == "lm" and result["settings"]["objective"]["weighted"]
     probe = iwr.Robot.default().with_tracker(registration=(2000.0, -150.0, 300.0, 1.5, 0, 0),
                                              probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
     probe.to_toml(tmp_path / "probe.toml")

@@ -315,12 +315,12 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
     without, the unweighted point objective's identity metric."""
     from ..estimation import _core_rotations, loop_jacobians
     from ..misclosures import Misclosures
-    from .problem import TrackerProblem
 
     setup = _setup(robot)
     x = np.asarray(x, dtype=float)
     nr, nj, n = robot.n_params, robot.n_joints, len(measurements)
-    problem = TrackerProblem(robot, setup, measurements, reference=x[:nr])
+    # The problem identify evaluated (within a calibration job: the same object, iwr.kinds.reuse).
+    problem, _ = tracker_problem(robot, measurements, x0=x)
     m = problem.n_residuals // n
     measured = measurements.tracker_points(setup).reshape(n, m)
     r = problem.residuals(x).reshape(n, m)
