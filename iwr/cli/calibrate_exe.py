@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from .. import _startup
+
 PROG = "iwr-calibrate"
 ENGINE = "iwr-engine"
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
@@ -318,6 +320,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """The ``iwr-calibrate`` command; returns its exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
+        _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
         return _main(argv)
     except _Usage as exc:
         return _error(str(exc), EXIT_USAGE)
