@@ -4,8 +4,8 @@ Their console scripts import ``iwr`` (NumPy, SciPy, the compiled module: a few t
 before the command's ``main`` and its handler of ``KeyboardInterrupt`` run, so a Ctrl-C there
 printed a Python traceback (or, when it fell in the compiled module's initialisation, "the
 compiled module iwr._core is missing"). ``iwr/__init__.py`` imports this module first: when the
-process is one of these commands (``sys.argv[0]``), SIGINT ends it at once with
-``PROG: interrupted`` and exit status 130 until the command's ``main`` takes over
+process is one of these commands (``sys.argv[0]``, or ``python -m iwr``), SIGINT ends it at once
+with ``PROG: interrupted`` and exit status 130 until the command's ``main`` takes over
 (:func:`release`). A program that imports iwr keeps Python's ``KeyboardInterrupt``; a SIGINT
 ignored at start (a background job, ``nohup``) stays ignored.
 
@@ -29,7 +29,14 @@ def _command() -> str | None:
     if not argv or not argv[0]:
         return None
     name = os.path.basename(argv[0]).removesuffix(".exe")
-    return name if name in COMMANDS else None
+    if name in COMMANDS:
+        return name
+    # python -m iwr: while runpy imports the package, argv[0] is "-m"
+    orig = list(getattr(sys, "orig_argv", []))
+    if argv[0] == "-m" and any(a == "-m" and b in ("iwr", "iwr.__main__")
+                               for a, b in zip(orig, orig[1:], strict=False)):
+        return "iwr"
+    return None
 
 
 def _interrupted(signum: int, frame: object) -> None:

@@ -163,6 +163,11 @@ def test_ctrl_c_during_iwr_calibrate_startup(tmp_path):
     _interrupt_during_startup(cmd, "iwr.cli", "iwr", tmp_path, started=bool)
 
 
+def test_ctrl_c_during_python_m_iwr_startup(tmp_path):
+    cmd = [sys.executable, "-m", "iwr", "calibrate", ROBOT, DATA, "--out", str(tmp_path / "out")]
+    _interrupt_during_startup(cmd, "iwr.cli", "iwr", tmp_path, started=bool)
+
+
 def test_ctrl_c_during_iwr_calibrate_exe_startup(tmp_path):
     out = tmp_path / "r.json"
     cmd = [_find("iwr-calibrate"), ROBOT, DATA, "--output", str(out), "--generations", "100000",
