@@ -117,9 +117,12 @@ class Calibration:
         # success, the verdict and the exit code agree: a converged method is not yet a
         # calibration (issue 26: 2 poses copied 30 times, or 3 tracker poses, were "calibrated").
         r = self.result
-        if not r.success or r.get("status") == "interrupted" or self._fit_failed():
+        if r.get("status") == "interrupted" or self._fit_failed():
             return
+        # Degenerate data whether or not the method converged: more budget would not help.
         reason = self._degenerate()
+        if reason is None and not r.success:
+            return
         if reason is None:
             before, after, change, what = self._change()
             if not (math.isfinite(after) and math.isfinite(before)) or after > WORSE * before:
