@@ -8,6 +8,10 @@ on the same objective (:mod:`iwr.methods`).
 
 from __future__ import annotations
 
+# First: Ctrl-C while the iwr commands start exits 130 with one line, not a traceback.
+from . import _startup  # noqa: F401
+
+# isort: split
 from typing import TYPE_CHECKING, Any
 
 try:

@@ -30,8 +30,10 @@ def atomic_write(
     directory = path.parent if str(path.parent) else Path(".")
     if not directory.is_dir():
         raise FileNotFoundError(f"{path}: folder {directory} does not exist")
+    _remove_dead_temporaries(path)
     try:
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=directory)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=".tmp",
+                                   dir=directory)
     except OSError as exc:
         raise _named(exc, path) from None
     try:
@@ -58,6 +60,25 @@ def atomic_write(
         if isinstance(exc, OSError):  # a full disk, a file-size limit: say which file
             raise _named(exc, path) from None
         raise
+
+
+def _remove_dead_temporaries(path: Path) -> None:
+    """Remove the temporary files of :func:`atomic_write` to ``path`` that a killed process left
+    (``.NAME.PID.XXXX.tmp``, PID no longer running)."""
+    import glob
+
+    prefix = f".{path.name}."
+    for entry in path.parent.glob(glob.escape(prefix) + "*.tmp"):
+        try:
+            pid = int(entry.name[len(prefix):].split(".", 1)[0])
+            os.kill(pid, 0)
+        except ProcessLookupError:
+            try:
+                entry.unlink()
+            except OSError:
+                pass
+        except (ValueError, PermissionError, OSError):
+            pass  # not ours, or another user's live process
 
 
 def _named(exc: OSError, path: Path) -> OSError:

@@ -145,9 +145,12 @@ class Calibration:
         calibration (issue 26: 2 poses copied 30 times, or 3 tracker poses, were
         "calibrated")."""
         r = self.result
-        if not r.success or r.get("status") == "interrupted" or self.fit_ok is False:
+        if r.get("status") == "interrupted" or self.fit_ok is False:
             return
+        # Degenerate data whether or not the method converged: more budget would not help.
         reason = self.degenerate()
+        if reason is None and not r.success:
+            return
         if reason is None:
             before, after, change, what = self.improvement()
             if not (math.isfinite(after) and math.isfinite(before)) or after > WORSE * before:

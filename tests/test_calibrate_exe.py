@@ -909,3 +909,38 @@ def test_tracker_launcher_resume_keeps_the_run_problem(tracker_files: dict[str, 
     msg = one_line_error(proc, "iwr-calibrate")
     assert "k.json.iwrp: the problem of the run being resumed" in msg and "legs" in msg, msg
     assert (tmp_path / "k.json.iwrp").read_bytes() == before
+
+
+def test_a_second_launcher_is_refused_before_the_first_ones_engine_runs(
+        files: dict[str, Path], tmp_path: Path) -> None:
+    """Issue 26's campaign: the first launcher releases the checkpoint's lock just before its
+    engine takes it; a second launcher in between took the lock, wrote its problem file over the
+    first's and ran, the first ending with exit 1. The first launcher's engine is made slow to
+    start here (a wrapper that waits 3 s), so the second always comes in that gap."""
+    bin_dir = tmp_path / "bin"
+    bin_dir.mkdir()
+    shutil.copy(LAUNCHER, bin_dir / "iwr-calibrate")
+    slow = bin_dir / "iwr-engine"
+    slow.write_text(f'#!/bin/sh\nsleep 3\nexec "{ENGINE}" "$@"\n')
+    slow.chmod(0o755)
+    out = tmp_path / "r.json"
+    first = subprocess.Popen(  # noqa: PLW1509 (SIGINT to default: see _default_sigint)
+        [str(bin_dir / "iwr-calibrate"), str(files["robot"]), str(files["data"]), "--output",
+         str(out), "--generations", "100000", "--population-size", str(NP), "--quiet"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, preexec_fn=_default_sigint)
+    try:
+        problem = Path(str(out) + ".iwrp")
+        deadline = time.monotonic() + 60
+        while not problem.exists() and time.monotonic() < deadline and first.poll() is None:
+            time.sleep(0.01)
+        assert problem.exists(), first.stderr.read() if first.poll() is not None else "no file"
+        record = problem.read_bytes()
+        second = run_cal(files["robot"], files["other"], "--output", out, "--generations", 2)
+        assert second.returncode == 1, second.stderr
+        assert "r.json.ckpt: in use by another iwr-calibrate process" in one_line_error(
+            second, "iwr-calibrate")
+        assert problem.read_bytes() == record
+    finally:
+        first.send_signal(signal.SIGINT)
+        _, err = first.communicate(timeout=120)
+    assert first.returncode == 130, err  # stopped in its wrapper's wait: nothing to export

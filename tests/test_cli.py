@@ -422,6 +422,20 @@ def test_too_few_distinct_poses_are_not_a_calibration(sim, tmp_path):
     assert "**Not calibrated: degenerate data" in (out / "report.md").read_text()
 
 
+def test_too_few_poses_and_a_method_not_converged_say_the_data_are_the_cause(sim, tmp_path):
+    """The same 3 poses with a budget the method exhausts: the verdict said "not converged" (exit
+    4), as if a larger budget would do; the data are the cause: exit 5, degenerate data."""
+    lines, h = csv_lines(sim / "measurements.csv")
+    (tmp_path / "few.csv").write_text("\n".join(lines[:h + 4]) + "\n")
+    out = tmp_path / "out"
+    proc = run("calibrate", str(sim / "robot.toml"), str(tmp_path / "few.csv"), "--method", "lm",
+               "--budget", "3", "--validation-fraction", "0", "--out", str(out), "--no-plots")
+    assert proc.returncode == 5, proc.stdout + proc.stderr
+    assert "iwr calibrate: not calibrated (exit 5): degenerate data: the 3 distinct" in proc.stderr
+    assert iwr.load_result(out / "result.json").success is False
+    assert "**Not calibrated: degenerate data" in (out / "report.md").read_text()
+
+
 def test_recalibration_with_the_default_folder_keeps_its_input(sim, tmp_path):
     """`iwr calibrate iwr-calibration/calibrated.toml DATA.csv` wrote over its own robot; now the
     run goes to iwr-calibration-2/ and its report's SHA-256 names a file that exists."""

@@ -227,3 +227,34 @@ def test_an_output_folder_is_written_as_a_whole(tmp_path):
     dead.mkdir()
     run("fourth", ["a.txt"])
     assert not dead.exists()
+
+
+def test_atomic_write_removes_the_temporaries_of_killed_writers(tmp_path):
+    """A writer killed (SIGKILL) between its temporary file and the rename left `.NAME.XXXX.tmp`
+    for good (issue 26's campaign: iwr-calibrate killed while writing its problem file); the next
+    write of NAME removes those of processes no longer running, and keeps a live one's."""
+    import subprocess
+    import sys
+
+    from iwr._io import atomic_write_text
+
+    dead = subprocess.run([sys.executable, "-c", "import os; print(os.getpid())"],
+                          capture_output=True, text=True, check=True)
+    dead_pid = int(dead.stdout)
+    live = subprocess.Popen([sys.executable, "-c", "import time; time.sleep(60)"])
+    try:
+        target = tmp_path / "r.json.iwrp"
+        stale = tmp_path / f".r.json.iwrp.{dead_pid}.abc123.tmp"
+        running = tmp_path / f".r.json.iwrp.{live.pid}.def456.tmp"
+        other = tmp_path / ".other.iwrp.1.x.tmp"
+        for p in (stale, running, other):
+            p.write_text("partial")
+        atomic_write_text(target, "whole")
+        assert target.read_text() == "whole"
+        assert not stale.exists()
+        assert running.exists() and other.exists()
+        assert sorted(p.name for p in tmp_path.iterdir()) == sorted(
+            [target.name, running.name, other.name])
+    finally:
+        live.kill()
+        live.wait()

@@ -15,6 +15,7 @@ import sys
 import traceback
 from collections.abc import Callable, Sequence
 
+from .. import _startup
 from ._base import (
     EXIT_ERROR,
     EXIT_INTERRUPTED,
@@ -85,6 +86,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         ((CommandError, ValueError, RuntimeError, OSError, ArithmeticError), EXIT_ERROR, ""),
     ]
     try:
+        _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
         args = build_parser().parse_args(argv)
         func: Callable[[argparse.Namespace], int | None] = args.func
         code = func(args)

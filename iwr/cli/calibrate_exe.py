@@ -31,6 +31,8 @@ from typing import Any
 
 import numpy as np
 
+from .. import _startup
+
 PROG = "iwr-calibrate"
 ENGINE = "iwr-engine"
 EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
@@ -164,13 +166,15 @@ def _same(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:
         return os.path.abspath(a) == os.path.abspath(b)
 
 
-def _lock_checkpoint(checkpoint: str) -> int:
+def _lock_checkpoint(checkpoint: str, kind: str = "lock", holder: str = ENGINE) -> int:
     """Take the engine's lock of ``checkpoint`` (an exclusive flock on ``.NAME.lock`` beside it,
-    as iwr-engine's CheckpointLock); returns its descriptor. Refuses while another run holds it."""
+    as iwr-engine's CheckpointLock), or with ``kind="launch"`` the launcher's
+    (``.NAME.launch.lock``, held by an iwr-calibrate for its whole run); returns its descriptor.
+    Refuses while another process holds it."""
     import fcntl
 
     folder, base = os.path.split(checkpoint)
-    path = os.path.join(folder, f".{base}.lock")
+    path = os.path.join(folder, f".{base}.{'launch.lock' if kind == 'launch' else 'lock'}")
     try:
         fd = os.open(path, os.O_RDWR | os.O_CREAT | os.O_CLOEXEC, 0o644)
     except OSError as exc:
@@ -181,7 +185,7 @@ def _lock_checkpoint(checkpoint: str) -> int:
     except OSError as exc:
         os.close(fd)
         if isinstance(exc, BlockingIOError):
-            raise ValueError(f"{checkpoint}: in use by another iwr-engine process (locked: "
+            raise ValueError(f"{checkpoint}: in use by another {holder} process (locked: "
                              f"{path}); wait for it to end or stop it (nothing was written)"
                              ) from None
         raise ValueError(f"{checkpoint}: cannot lock {path} ({exc.strerror or exc})") from None
@@ -318,6 +322,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     """The ``iwr-calibrate`` command; returns its exit status."""
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
+        _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
         return _main(argv)
     except _Usage as exc:
         return _error(str(exc), EXIT_USAGE)
@@ -411,6 +416,20 @@ def _main(argv: list[str]) -> int:
         raise ValueError(f"{output}: cannot write the result here: folder {folder} is not writable")
 
     engine = engine_path()
+    # The launcher's own lock, held to the end: the engine's lock below is released just before
+    # the engine takes it, and another launcher must not come in between (issue 26's campaign).
+    launch_lock = _lock_checkpoint(checkpoint, "launch", PROG)
+    try:
+        return _launch(engine, positional, own, engine_args, flags, robot_path, data_path,
+                       problem_in, problem_path, output, checkpoint, resume, log)
+    finally:
+        os.close(launch_lock)
+
+
+def _launch(engine: str, positional: list[str], own: dict[str, str], engine_args: list[str],
+            flags: set[str], robot_path: str | None, data_path: str | None,
+            problem_in: str | None, problem_path: str, output: str, checkpoint: str,
+            resume: str | None, log: str | None) -> int:
     if problem_in is None:
         assert robot_path is not None and data_path is not None
         # The engine's lock first: a run going on with this checkpoint keeps its problem file

@@ -1,0 +1,66 @@
+"""Ctrl-C during the start-up of the ``iwr`` and ``iwr-calibrate`` commands: one line, status 130.
+
+Their console scripts import ``iwr`` (NumPy, SciPy, the compiled module: a few tenths of a second)
+before the command's ``main`` and its handler of ``KeyboardInterrupt`` run, so a Ctrl-C there
+printed a Python traceback (or, when it fell in the compiled module's initialisation, "the
+compiled module iwr._core is missing"). ``iwr/__init__.py`` imports this module first: when the
+process is one of these commands (``sys.argv[0]``, or ``python -m iwr``), SIGINT ends it at once
+with ``PROG: interrupted`` and exit status 130 until the command's ``main`` takes over
+(:func:`release`). A program that imports iwr keeps Python's ``KeyboardInterrupt``; a SIGINT
+ignored at start (a background job, ``nohup``) stays ignored.
+
+Before Python has set its own handler (the first milliseconds of the interpreter's start) SIGINT
+kills the process as it does any program: no message, and a shell says status 130.
+"""
+
+from __future__ import annotations
+
+# _signal, the C module under signal: importing signal imports enum, and the guard should be in
+# place as early as it can.
+import _signal
+import os
+import sys
+
+COMMANDS = ("iwr", "iwr-calibrate")
+
+
+def _command() -> str | None:
+    argv = getattr(sys, "argv", None)
+    if not argv or not argv[0]:
+        return None
+    name = os.path.basename(argv[0]).removesuffix(".exe")
+    if name in COMMANDS:
+        return name
+    # python -m iwr: while runpy imports the package, argv[0] is "-m"
+    orig = list(getattr(sys, "orig_argv", []))
+    if argv[0] == "-m" and any(a == "-m" and b in ("iwr", "iwr.__main__")
+                               for a, b in zip(orig, orig[1:], strict=False)):
+        return "iwr"
+    return None
+
+
+def _interrupted(signum: int, frame: object) -> None:
+    try:
+        os.write(2, f"\n{_command() or 'iwr'}: interrupted\n".encode())
+    finally:
+        os._exit(130)  # nothing to save yet; no exception through half-done imports
+
+
+def guard() -> None:
+    """SIGINT ends the process with one line and status 130, when it is one of the commands and
+    SIGINT has Python's default handler (so neither ignored nor set by the program)."""
+    if _command() is None or _signal.getsignal(_signal.SIGINT) is not _signal.default_int_handler:
+        return
+    try:
+        _signal.signal(_signal.SIGINT, _interrupted)
+    except ValueError:  # not the main thread: leave Python's handler
+        pass
+
+
+def release() -> None:
+    """The command's ``main`` takes over: ``KeyboardInterrupt`` again, if :func:`guard` set it."""
+    if _signal.getsignal(_signal.SIGINT) is _interrupted:
+        _signal.signal(_signal.SIGINT, _signal.default_int_handler)
+
+
+guard()
