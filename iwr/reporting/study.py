@@ -48,7 +48,7 @@ def _kind_text(meta: dict[str, Any]) -> dict[str, str]:
     before kinds were recorded (only poses in {0} could be studied then)."""
     from .. import kinds
 
-    return {**kinds.get("pose").experiment_text, **meta.get("kind", {})}
+    return {**kinds.named("pose").experiment_text, **meta.get("kind", {})}
 
 
 def _labels(meta: dict[str, Any]) -> dict[str, str]:
