@@ -96,14 +96,9 @@ class BallbarKind(MeasurementKind):
         return ballbar_accuracy(robot, data, x, **options)
 
     def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
-        from ..kinds import _where
+        from ..kinds import _where, position_rms
 
-        def rms(v: Any) -> float:
-            v = np.asarray(v, dtype=float)
-            v = v[np.isfinite(v)]
-            return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
-
-        before, after = rms(accuracy.nominal.position), rms(accuracy.calibrated.position)
+        before, after = position_rms(accuracy)
         change = (f"the distance residual has an RMS of {before:.4g} mm before (nominal robot "
                   f"and ball centres) and {after:.4g} mm after, on "
                   f"{_where(accuracy.n_poses, held_out)}")

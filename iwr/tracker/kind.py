@@ -13,7 +13,7 @@ import numpy as np
 from ..estimation import tracker_readings
 from ..forward import forward_kinematics
 from ..identifiability import ParameterError, _nearest_equivalent, _row_space
-from ..kinds import MeasurementKind, _where, data_fingerprint
+from ..kinds import MeasurementKind, _where, data_fingerprint, position_rms
 from ..measurements import Measurements
 from ..planning import measure_tracker, tracker_design
 from ..simulate import Noise
@@ -235,12 +235,7 @@ class _TrackerKind(MeasurementKind):
                                           seed=seed)
 
     def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
-        def rms(v: Any) -> float:
-            v = np.asarray(v, dtype=float)
-            v = v[np.isfinite(v)]
-            return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
-
-        before, after = rms(accuracy.nominal.position), rms(accuracy.calibrated.position)
+        before, after = position_rms(accuracy)
         change = (f"the largest point residual per pose has an RMS of {before:.4g} mm before "
                   f"(nominal robot with the registration guess) and {after:.4g} mm after, on "
                   f"{_where(accuracy.n_poses, held_out)}")
