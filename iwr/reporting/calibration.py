@@ -350,7 +350,7 @@ class CalibrationReport(Calibration):
             return []
         n = self.robot.n_params
         lines = [
-            f"identifiability (iwr.identifiability at the solution, {rep.n_poses} poses): rank "
+            f"identifiability (iwr.identifiability at the start, {rep.n_poses} poses): rank "
             f"{rep.rank} of {n}, condition number {rep.condition_number:.4g} (column-scaled "
             "Jacobian)"
         ]
