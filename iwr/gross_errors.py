@@ -390,6 +390,8 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         refit["method"] = result.get("method", "lm")
         refit["nfev"] = int(current.nfev) + int(refit.nfev)
         current = refit
+        if current.get("status") == "interrupted":  # Ctrl-C: no further refit may lose it
+            break
     held = validation if held_out else None
     untested = ""
     try:
