@@ -195,8 +195,33 @@ class LegCommands:
         return int(np.count_nonzero(self.unreachable | self.out_of_workspace))
 
 
+def frame_from_points(origin: Any, on_x: Any, in_xy: Any) -> np.ndarray:
+    """A user frame from three points measured in the frame the data determine, as tracker
+    software builds one ("frame from 3 points", 3-2-1): its origin at ``origin``, its x axis
+    towards ``on_x``, its xy plane through ``in_xy`` (on the +y side). The 4x4 pose of the user
+    frame in the measured frame; ValueError for points that fix no frame (coincident, or on one
+    line to within 1e-6 of their spread)."""
+    o, px, pxy = (np.asarray(p, dtype=float).reshape(3) for p in (origin, on_x, in_xy))
+    if not all(np.all(np.isfinite(p)) for p in (o, px, pxy)):
+        raise ValueError("user frame: the points must be finite")
+    ex = px - o
+    size = max(float(np.linalg.norm(ex)), float(np.linalg.norm(pxy - o)))
+    if float(np.linalg.norm(ex)) <= 1e-6 * max(size, 1.0):
+        raise ValueError("user frame: the point on x coincides with the origin")
+    ex = ex / np.linalg.norm(ex)
+    ez = np.cross(ex, pxy - o)
+    if float(np.linalg.norm(ez)) <= 1e-6 * size:
+        raise ValueError("user frame: the three points are on one line; the point in the xy "
+                         "plane must be off the x axis")
+    ez = ez / np.linalg.norm(ez)
+    out = np.eye(4)
+    out[:3, :3] = np.column_stack([ex, np.cross(ez, ex), ez])
+    out[:3, 3] = o
+    return out
+
+
 def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
-                 tool: Any = None, joint_columns: list[str] | None = None,
+                 tool: Any = None, user_frame: Any = None, joint_columns: list[str] | None = None,
                  where: str = "robot") -> LegCommands:
     """The leg commands that put a tool frame at target poses, with a (calibrated) robot.
 
@@ -218,6 +243,9 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
         tracker data, {5} is the frame the calibration file fixes (its reflectors at their
         nominal positions, or its probe at its nominal pose); the probe's own pose as ``tool``
         makes the targets the probe's poses in {T}.
+    user_frame : array_like (4, 4), optional
+        The targets are in this user frame, given by its pose in ``frame``
+        (:func:`frame_from_points` from three points measured with the instrument).
     joint_columns : list of str, optional
         Names of ``q``'s columns, for messages.
 
@@ -231,6 +259,12 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
     _check_targets(q, poses, cols)
     frame = _check_frame(robot, frame, where)
     target = pose_matrix(poses)
+    if user_frame is not None:
+        user = np.asarray(user_frame, dtype=float)
+        if user.shape != (4, 4) or not np.allclose(user[:3, :3] @ user[:3, :3].T, np.eye(3),
+                                                   atol=1e-9):
+            raise ValueError("user_frame: expected a 4x4 rigid transform")
+        target = user @ target
     if tool is not None:
         tool_m = pose_matrix(np.asarray(tool, dtype=float).reshape(6))
         target = target @ np.linalg.inv(tool_m)

@@ -459,3 +459,42 @@ def test_tracker_leg_commands_with_realistic_noise_within_predicted_accuracy(see
           "RMS off the true robot's")
     assert pos_rms <= 3 * predicted["position_rms_mm"]
     assert ang_rms <= 3 * predicted["orientation_rms_deg"]
+
+
+def test_targets_in_a_user_frame_of_three_measured_points(tracker_case, tmp_path):
+    """--user-frame: three points measured in {T} (origin, one on +x, one in the xy plane) fix
+    a user frame; the targets given in it get the legs of the same targets in {T} (the true
+    robot's, to 1e-6 mm). The frame is built here independently (a known rigid transform, its
+    points measured), the targets carried into it by its inverse."""
+    d, q, poses_t, legs_true, _ = tracker_case
+    user = homogeneous(Rotation.from_rotvec([0.3, -0.2, 1.1]).as_matrix(),
+                       np.array([1500.0, -300.0, 200.0]))
+    pts = {"origin": user[:3, 3], "x": user[:3, 3] + 250.0 * user[:3, 0],
+           "xy": user[:3, 3] + 40.0 * user[:3, 0] + 180.0 * user[:3, 1]}
+    (tmp_path / "frame.csv").write_text(
+        "point,x_mm,y_mm,z_mm\n" + "".join(f"{k},{float(v[0])!r},{float(v[1])!r},{float(v[2])!r}\n"
+                                           for k, v in pts.items()))
+    in_user = np.array([as_pose(np.linalg.solve(user, euler(p))) for p in poses_t])
+    head = "q1_mm,q2_mm,q3_rad,q4_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad"
+    (tmp_path / "targets.csv").write_text(head + "\n" + "\n".join(
+        ",".join(repr(float(v)) for v in (*qk, *p)) for qk, p in zip(q, in_user, strict=True))
+        + "\n")
+    proc = run("legs", str(d / "cal" / "calibrated.toml"), str(tmp_path / "targets.csv"),
+               "--user-frame", str(tmp_path / "frame.csv"), "-o", str(tmp_path / "legs.csv"))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "user frame of" in proc.stdout
+    head_out, values = read_legs(tmp_path / "legs.csv")
+    legs = values[:, [head_out.index(f"s{j}_mm") for j in range(1, 7)]]
+    np.testing.assert_allclose(legs, legs_true, rtol=0, atol=1e-6)
+    # Points on one line fix no frame: refused, naming the file.
+    (tmp_path / "line.csv").write_text("point,x_mm,y_mm,z_mm\norigin,0,0,0\nx,100,0,0\n"
+                                       "xy,250,0,0\n")
+    proc = run("legs", str(d / "cal" / "calibrated.toml"), str(tmp_path / "targets.csv"),
+               "--user-frame", str(tmp_path / "line.csv"), "-o", str(tmp_path / "l2.csv"))
+    assert proc.returncode == 1 and "line.csv" in proc.stderr and "one line" in proc.stderr
+    (tmp_path / "bad.csv").write_text("point,x_mm,y_mm,z_mm\norigin,0,0,0\nx,1e2,0,0\n"
+                                      "yz,0,100,0\n")
+    proc = run("legs", str(d / "cal" / "calibrated.toml"), str(tmp_path / "targets.csv"),
+               "--user-frame", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "l3.csv"))
+    assert proc.returncode == 1 and "bad.csv, line 4, column 'point'" in proc.stderr
+    assert not (tmp_path / "l2.csv").exists() and not (tmp_path / "l3.csv").exists()

@@ -46,6 +46,11 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="the frame of the target poses: 0 (world frame, pose data) or T "
                    "(tracker frame, tracker data); default and only allowed: the one the "
                    "calibration's data determine (T for a robot with a [tracker] table)")
+    p.add_argument("--user-frame", metavar="POINTS.csv", default=None,
+                   help="the targets are in a user frame given by three points measured in the "
+                   "calibration's frame (columns point,x_mm,y_mm,z_mm; rows origin, x: a point "
+                   "on its +x axis, xy: a point in its xy plane on the +y side), as tracker "
+                   "software builds a frame from 3 points")
     p.add_argument("--tool", metavar="X,Y,Z,ALPHA,BETA,GAMMA", type=_pose_arg, default=None,
                    help="the tool frame's pose in the platform frame {5} (mm, rad): the targets "
                    "are then the tool's poses (default: {5} itself; for tracker data {5} is "
@@ -121,6 +126,63 @@ def read_targets(path: str, robot: Any) -> tuple[list[str], np.ndarray, np.ndarr
     return q_cols, a[:, :nj], a[:, nj:], lines
 
 
+_USER_POINTS = ("origin", "x", "xy")
+
+
+def read_user_frame(path: str) -> np.ndarray:
+    """``--user-frame``: the 4x4 pose of the user frame of three points
+    (:func:`iwr.compensation.frame_from_points`); errors name the file, line and column."""
+    from ..compensation import frame_from_points
+
+    try:
+        text = Path(path).read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise CommandError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    rows = [(n, line) for n, line in enumerate(text.splitlines(), 1)
+            if line.strip() and not line.lstrip().startswith("#")]
+    need = ["point", "x_mm", "y_mm", "z_mm"]
+    if not rows:
+        raise CommandError(f"{path}: no header line (expected columns {', '.join(need)})")
+    reader = csv.reader(io.StringIO("\n".join(line for _, line in rows)))
+    header = [h.strip() for h in next(reader)]
+    missing = [c for c in need if c not in header]
+    if missing:
+        raise CommandError(f"{path}, line {rows[0][0]}: missing columns {missing}; expected "
+                           f"{', '.join(need)}")
+    points: dict[str, np.ndarray] = {}
+    for (n, _), fields in zip(rows[1:], reader, strict=True):
+        if len(fields) != len(header):
+            raise CommandError(f"{path}, line {n}: {len(fields)} fields; the header has "
+                               f"{len(header)}")
+        name = fields[header.index("point")].strip().lower()
+        if name not in _USER_POINTS:
+            raise CommandError(f"{path}, line {n}, column 'point': {name!r}; expected one of "
+                               f"{', '.join(_USER_POINTS)}")
+        if name in points:
+            raise CommandError(f"{path}, line {n}: point {name!r} given twice")
+        xyz = []
+        for c in need[1:]:
+            text_value = fields[header.index(c)]
+            try:
+                v = float(text_value)
+            except ValueError:
+                raise CommandError(f"{path}, line {n}, column {c!r}: {text_value!r} is not a "
+                                   "number") from None
+            if not math.isfinite(v):
+                raise CommandError(f"{path}, line {n}, column {c!r}: {text_value!r} is not "
+                                   "finite")
+            xyz.append(v)
+        points[name] = np.array(xyz)
+    absent = [p for p in _USER_POINTS if p not in points]
+    if absent:
+        raise CommandError(f"{path}: no point {', '.join(map(repr, absent))} (rows origin, x, "
+                           "xy)")
+    try:
+        return frame_from_points(points["origin"], points["x"], points["xy"])
+    except ValueError as exc:
+        raise CommandError(f"{path}: {exc}") from None
+
+
 def _joint_columns(robot: Any) -> list[str]:
     units = {"P": "mm", "R": "rad"}
     return [f"q{i + 1}_{units[t]}" for i, t in enumerate(robot.joint_types)]
@@ -138,7 +200,8 @@ def cmd_legs(args: argparse.Namespace) -> int:
     )
     from ._base import check_output
 
-    check_output(args.out, "-o", inputs=[args.robot, args.targets], prog="iwr legs")
+    check_output(args.out, "-o", inputs=[args.robot, args.targets, args.user_frame],
+                 prog="iwr legs")
     robot = load_robot(args.robot)
     try:
         note = check_calibration(robot, allow_unverified=args.allow_unverified,
@@ -146,8 +209,9 @@ def cmd_legs(args: argparse.Namespace) -> int:
     except CalibrationStatusError as exc:
         raise CommandError(str(exc)) from None
     q_cols, q, poses, lines = read_targets(args.targets, robot)
+    user = read_user_frame(args.user_frame) if args.user_frame else None
     try:
-        cmd = leg_commands(robot, q, poses, frame=args.frame, tool=args.tool,
+        cmd = leg_commands(robot, q, poses, frame=args.frame, tool=args.tool, user_frame=user,
                            joint_columns=q_cols, where=str(args.robot))
     except FrameError as exc:
         raise UsageError(str(exc), "iwr legs") from None
@@ -159,19 +223,21 @@ def cmd_legs(args: argparse.Namespace) -> int:
     stroke, workspace = cmd.unreachable, cmd.out_of_workspace
     buf = io.StringIO()
     name = " ".join(f"{robot.name} ({args.robot})".splitlines())
+    frame_text = FRAMES[cmd.frame] if user is None else (
+        f"the user frame of {args.user_frame} (three points measured in {FRAMES[cmd.frame]})")
     tool = "" if args.tool is None else (
         "; targets are the poses of the tool frame at "
         + ",".join(repr(float(v)) for v in args.tool) + " in {5}")
     buf.write(f"# iwr legs: leg sensor readings s1..s6 (mm; leg length = reading + l0) that put "
               f"the platform at each target pose, by the inverse kinematics of {name}; targets "
-              f"in {FRAMES[cmd.frame]}{tool}; flags 1 where a leg is outside its stroke or the "
+              f"in {frame_text}{tool}; flags 1 where a leg is outside its stroke or the "
               "target outside the workspace (joint limits, home_pose +- workspace)\n")
     w = csv.writer(buf, lineterminator="\n")
     w.writerow([*q_cols, *_POSE_COLUMNS, *_LEG_COLUMNS, *_FLAG_COLUMNS])
     for qi, pi, li, fs, fw in zip(q, poses, cmd.legs, stroke, workspace, strict=True):
         w.writerow([repr(float(v)) for v in (*qi, *pi, *li)] + [int(fs), int(fw)])
     atomic_write_text(args.out, buf.getvalue())
-    print(f"wrote {args.out}: leg commands for {len(cmd.legs)} targets in {FRAMES[cmd.frame]}")
+    print(f"wrote {args.out}: leg commands for {len(cmd.legs)} targets in {frame_text}")
     flagged = False
     for what, mask, column in (("need a leg outside its stroke", stroke, _FLAG_COLUMNS[0]),
                                ("are outside the workspace", workspace, _FLAG_COLUMNS[1])):
