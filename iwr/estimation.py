@@ -38,9 +38,9 @@ from ._io import jsonable
 from .identifiability import identifiability
 from .measurements import Measurements, as_matrix
 from .methods.result import IdentificationResult
+from .noise import Noise
 from .problem import Problem, _check_joint_types
 from .robot import Robot
-from .simulate import Noise
 
 __all__ = [
     "COMPONENTS",

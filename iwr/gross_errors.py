@@ -56,7 +56,7 @@ from scipy import special
 from . import kinds
 from ._blas import single_thread
 from .misclosures import Misclosures
-from .robot import MIN_SIGMA
+from .noise import MIN_SIGMA
 
 __all__ = ["GrossErrors", "Misclosures", "NoRedundancy", "find_gross_errors", "screen"]
 

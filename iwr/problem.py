@@ -83,7 +83,7 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
         a leg weighted 0), naming the pose.
     """
     from .estimation import loop_jacobians, sigma_matrix
-    from .simulate import Noise
+    from .noise import Noise
 
     if not isinstance(noise, Noise):
         raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")

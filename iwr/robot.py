@@ -19,6 +19,7 @@ import numpy as np
 from . import _core, kinds
 from ._io import NotRegularFileError, atomic_write_text, open_regular
 from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM
+from .noise import MIN_SIGMA, Noise, TrackerNoise
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -62,9 +63,6 @@ def _as_array(value: Any, shape: tuple[int, ...], name: str, units: Any = None) 
 
 
 _POSE_UNITS = ["mm"] * 3 + ["rad"] * 3
-#: The smallest non-zero standard deviation of a noise model (mm, rad, mm per m): far below any
-#: instrument's, and far above what breaks the weighting (1 / sigma^2 overflows near 1e-155).
-MIN_SIGMA = 1e-9
 #: The largest robot TOML file read (a robot description is about 3 kB). The standard library's
 #: TOML reader takes seconds per MB of even the simplest keys, so this also bounds its time.
 MAX_TOML_BYTES = 256_000
@@ -632,12 +630,10 @@ class Robot:
             if key in hexa:
                 kwargs[key] = _numbers(hexa[key], 6, f"hexapod.{key}", _POSE_UNITS)
         if "noise" in data:
-            from .simulate import Noise  # here: iwr.simulate imports this module
 
             kwargs["noise"] = Noise(**_sigmas(data["noise"], "noise", _NOISE_UNITS))
         if "tracker" in data:
             from .tracker.setup import TrackerSetup  # here: iwr.tracker imports this module
-            from .tracker.simulate import TrackerNoise
 
             table = data["tracker"]
             if isinstance(table, Mapping) and "noise" in table:
@@ -743,8 +739,6 @@ def _toml_table(name: str, table: Mapping[str, Any]) -> list[str]:
 
 
 def _check_noise_model(noise: Any, tracker_noise: Any, tracker: Any) -> tuple[Any, Any]:
-    from .simulate import Noise  # here: iwr.simulate imports this module
-    from .tracker.simulate import TrackerNoise
 
     if noise is not None and not isinstance(noise, Noise):
         raise TypeError(f"noise: expected an iwr.Noise or None, got {type(noise).__name__}")

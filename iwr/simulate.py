@@ -2,15 +2,15 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
 from . import kinds
 from .measurements import Measurements
+from .noise import Noise
 from .problem import predict_legs
-from .robot import MIN_SIGMA, Robot
+from .robot import Robot
 from .transforms import euler_zyx, pose_from_matrix, pose_matrix, rotvec_matrix
 
 __all__ = ["Noise", "simulate", "sample_poses", "UnreachableError"]
@@ -18,53 +18,6 @@ __all__ = ["Noise", "simulate", "sample_poses", "UnreachableError"]
 
 class UnreachableError(RuntimeError):
     """Too few reachable poses were found in the robot's workspace."""
-
-
-@dataclass(frozen=True)
-class Noise:
-    """Standard deviations of Gaussian measurement noise (mm and rad).
-
-    Attributes
-    ----------
-    legs : float
-        On each leg sensor reading (mm). Leg encoders: micrometres, e.g. 0.002.
-    joint_lengths : float
-        On each prismatic joint reading (mm).
-    joint_angles : float
-        On each revolute joint reading (rad).
-    position : float
-        On each coordinate of the measured platform position (mm). A laser tracker: tens of
-        micrometres, e.g. 0.02.
-    orientation : float
-        On each axis of a small random rotation applied to the measured orientation (rad).
-    """
-
-    legs: float = 0.0
-    joint_lengths: float = 0.0
-    joint_angles: float = 0.0
-    position: float = 0.0
-    orientation: float = 0.0
-
-    def __post_init__(self) -> None:
-        for name in ("legs", "joint_lengths", "joint_angles", "position", "orientation"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
-                raise ValueError(f"Noise.{name}: {v!r}; expected a finite number >= 0")
-            if 0 < v < MIN_SIGMA:
-                raise ValueError(f"Noise.{name}: {v!r} is below any instrument's noise; "
-                                 f"expected 0 (none) or at least {MIN_SIGMA:g}")
-
-    @classmethod
-    def realistic(cls) -> Noise:
-        """A laser tracker and good encoders: legs 2 um, joints 5 um and 5 urad, tracker 20 um
-        and 20 urad."""
-        return cls(legs=0.002, joint_lengths=0.005, joint_angles=5e-6, position=0.02,
-                   orientation=2e-5)
-
-    @property
-    def is_zero(self) -> bool:
-        return not any((self.legs, self.joint_lengths, self.joint_angles, self.position,
-                        self.orientation))
 
 
 def sample_poses(

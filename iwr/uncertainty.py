@@ -18,9 +18,9 @@ import numpy as np
 from . import kinds
 from .identifiability import IdentifiabilityReport, identifiability
 from .measurements import Measurements
+from .noise import Noise
 from .problem import Problem, predict_legs
 from .robot import Robot
-from .simulate import Noise
 from .transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 
 __all__ = ["Uncertainty", "uncertainty", "measurement_jacobians"]

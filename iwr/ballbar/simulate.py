@@ -8,7 +8,8 @@ from typing import Any
 
 import numpy as np
 
-from ..robot import MIN_SIGMA, Robot
+from ..noise import MIN_SIGMA
+from ..robot import Robot
 from ..simulate import Noise, UnreachableError, sample_poses
 from ..transforms import pose_matrix
 from .data import BallbarMeasurements

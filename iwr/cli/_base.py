@@ -99,7 +99,7 @@ def fraction(text: str) -> float:
 
 def noise_spec(text: str) -> Any:
     """``realistic``, ``none``, or ``key=sigma,...`` over the fields of :class:`iwr.Noise`."""
-    from ..simulate import Noise
+    from ..noise import Noise
 
     spec = text.strip().lower()
     if spec == "realistic":

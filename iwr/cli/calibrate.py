@@ -188,7 +188,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     noise = None if args.noise == "none" else args.noise
     args.noise_note = ""
     if args.robot is None and args.noise is None:
-        from ..simulate import Noise
+        from ..noise import Noise
 
         noise = Noise.realistic()
         args.noise_note = " (the built-in example knows its noise: iwr.Noise.realistic())"
@@ -241,7 +241,7 @@ def _reading_noise(kind: Any, noise: Any, method: str, args: argparse.Namespace)
     and what is set aside: a noise model a kind cannot weigh method ``method`` by (refused when
     --noise gives it, set aside with a note when the robot file does), the readings a pose
     measured in {0} has and these data have not."""
-    from ..simulate import Noise
+    from ..noise import Noise
 
     if method != "efficient" and not kind.weighted_objective:
         if getattr(args, "noise_from", None) in (None, "--noise"):

@@ -16,8 +16,8 @@ from ..experiments.compare import (
     default_methods,
 )
 from ..experiments.harness import check_n_poses, check_robot
+from ..noise import Noise
 from ..robot import Robot
-from ..simulate import Noise
 from ._base import LazyHelp
 from .robot_noise import describe, simulation_noise
 

@@ -36,7 +36,7 @@ def simulation_noise(noise: Any, robot: Any, path: str | None) -> tuple[Any, str
     """``(noise, source)`` for ``iwr simulate``: ``--noise`` when given (source None), else the
     robot file's noise model (source: the file and table), else ``iwr.Noise.realistic()``
     (source None)."""
-    from ..simulate import Noise
+    from ..noise import Noise
 
     if noise is not None:
         return noise, None

@@ -24,8 +24,8 @@ from typing import Any
 
 import numpy as np
 
+from ..noise import Noise
 from ..robot import Robot
-from ..simulate import Noise
 from .harness import (
     FIGURE_COLUMNS,
     FLOOR_ATOL,

@@ -175,7 +175,7 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
                   callback: Callable[..., Any] | None = None, progress: bool | None = None,
                   **options: Any) -> IdentificationResult:
     """:func:`identify` on pose data (the platform pose measured in {0}); ``method`` checked."""
-    from ..simulate import Noise
+    from ..noise import Noise
 
     if noise is not None and not (isinstance(noise, Noise) or (isinstance(noise, str)
                                                                and noise == "estimate")):
@@ -248,7 +248,7 @@ def _check_fit(result: IdentificationResult, problem: Any, noise: Any,
     (leg data) or an :class:`iwr.tracker.TrackerProblem` (tracker data: its bounds are centred
     on the registration guess, and the check is modulo its null directions)."""
     from ..estimation import fit_check
-    from ..simulate import Noise
+    from ..noise import Noise
 
     noise = noise if isinstance(noise, Noise) else None
     try:

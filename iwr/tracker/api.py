@@ -15,8 +15,8 @@ from scipy.optimize import OptimizeResult
 from scipy.spatial.transform import Rotation
 
 from ..accuracy import Accuracy, PoseErrors
+from ..noise import Noise
 from ..robot import Robot
-from ..simulate import Noise
 from ..transforms import pose_from_matrix
 from .analysis import NullSpace, null_space, tool_pose_errors
 from .data import TrackerMeasurements

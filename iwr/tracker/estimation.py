@@ -19,8 +19,8 @@ from typing import Any
 import numpy as np
 
 from .. import _core
+from ..noise import Noise
 from ..robot import Robot
-from ..simulate import Noise
 from .api import _setup, _split_noise, tracker_problem
 from .data import TrackerMeasurements
 from .simulate import TrackerNoise, axis_whitening

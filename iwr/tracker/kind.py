@@ -15,8 +15,8 @@ from ..forward import forward_kinematics
 from ..identifiability import ParameterError, _nearest_equivalent, _row_space
 from ..kinds import MeasurementKind, _where, data_fingerprint, position_rms
 from ..measurements import Measurements
+from ..noise import Noise, TrackerNoise
 from ..planning import measure_tracker, tracker_design
-from ..simulate import Noise
 from ..uncertainty import _tracker_uncertainty
 from .api import (
     _split_noise,
@@ -31,7 +31,6 @@ from .data import TrackerMeasurements
 from .estimation import TrackerSpec, tracker_misclosures
 from .files import read_tracker_data
 from .problem import TrackerProblem
-from .simulate import TrackerNoise
 
 __all__ = ["PointsKind", "ProbeKind", "parameter_error_on"]
 
@@ -202,8 +201,7 @@ class _TrackerKind(MeasurementKind):
         ``(Noise, TrackerNoise)``, a ``TrackerNoise`` and ``"estimate"`` stay."""
         import dataclasses
 
-        from ..simulate import Noise
-        from .simulate import TrackerNoise
+        from ..noise import Noise, TrackerNoise
 
         if not isinstance(noise, Noise):
             return noise

@@ -2,126 +2,19 @@
 
 from __future__ import annotations
 
-import math
-from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..robot import MIN_SIGMA, Robot
-from ..simulate import Noise, sample_poses
+from ..noise import Noise, TrackerNoise
+from ..robot import Robot
+from ..simulate import sample_poses
 from ..transforms import pose_from_matrix, pose_matrix
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
 
 __all__ = ["TrackerNoise", "axis_whitening", "simulate_tracker", "true_points"]
-
-
-@dataclass(frozen=True)
-class TrackerNoise:
-    """One-sigma noise of a laser tracker, in its spherical coordinates (mm, mm per m, rad).
-
-    A measured point is off its true position by a radial error (along the line of sight, the
-    distance meter's) of sigma ``distance + distance_per_m * d`` and a transverse error (across
-    it, the angle encoders') of sigma ``transverse + transverse_per_m * d`` along each of the two
-    directions across the line of sight, ``d`` the distance from the tracker (the origin of {T})
-    in metres. Across the line of sight the error grows with the distance and dominates: the
-    noise ellipsoid is long across, short along. A probe's orientation gets a small random
-    rotation of sigma ``orientation`` (rad) about each axis.
-
-    The defaults, :meth:`leica`, are half the maximum permissible errors (MPE, ISO 10360-10:2021
-    Annex D) of Leica's laser tracker subsystem as its user manual states them (Leica Absolute
-    Tracker AT500 user manual, section 2.8.2): ADM +-(10 um + 0.3 um/m), transverse +-(15 um +
-    6 um/m); the manual says that typical results are half the MPE, read here as one sigma. The
-    probe's 0.005 degree is half of the +-0.01 degree commonly quoted for 6-DOF probes.
-    """
-
-    distance: float = 0.005
-    distance_per_m: float = 0.00015
-    transverse: float = 0.0075
-    transverse_per_m: float = 0.003
-    orientation: float = math.radians(0.005)
-
-    def __post_init__(self) -> None:
-        for name in ("distance", "distance_per_m", "transverse", "transverse_per_m",
-                     "orientation"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
-                                           and v >= 0):
-                raise ValueError(f"TrackerNoise.{name}: {v!r}; expected a finite number >= 0")
-            if 0 < v < MIN_SIGMA:
-                raise ValueError(f"TrackerNoise.{name}: {v!r} is below any instrument's noise; "
-                                 f"expected 0 (none) or at least {MIN_SIGMA:g}")
-
-    @classmethod
-    def leica(cls) -> TrackerNoise:
-        """The defaults: half the MPE of Leica's absolute tracker (see the class notes)."""
-        return cls()
-
-    @classmethod
-    def none(cls) -> TrackerNoise:
-        return cls(0.0, 0.0, 0.0, 0.0, 0.0)
-
-    @property
-    def is_zero(self) -> bool:
-        return not any((self.distance, self.distance_per_m, self.transverse,
-                        self.transverse_per_m, self.orientation))
-
-    def sigmas(self, d_mm: Any) -> tuple[np.ndarray, np.ndarray]:
-        """(radial, transverse) sigma (mm) at distances ``d_mm`` (mm) from the tracker."""
-        d_m = np.asarray(d_mm, dtype=float) / 1000.0
-        return (self.distance + self.distance_per_m * d_m,
-                self.transverse + self.transverse_per_m * d_m)
-
-    @staticmethod
-    def basis(points: Any) -> np.ndarray:
-        """Per point (..., 3) of {T}, the orthonormal rows (..., 3, 3) ``[e_r, e_1, e_2]``: the line
-        of sight from the tracker (the origin of {T}) and the two directions across it (``e_1``
-        perpendicular to ``e_r`` and to the axis least aligned with it): the principal axes of
-        the point's noise."""
-        p = np.asarray(points, dtype=float)
-        d = np.linalg.norm(p, axis=-1, keepdims=True)
-        er = p / np.where(d > 0, d, 1.0)
-        helper = np.zeros_like(er)
-        idx = np.argmin(np.abs(er), axis=-1)
-        np.put_along_axis(helper, idx[..., None], 1.0, axis=-1)
-        e1 = np.cross(er, helper)
-        e1 /= np.linalg.norm(e1, axis=-1, keepdims=True)
-        e2 = np.cross(er, e1)
-        return np.stack([er, e1, e2], axis=-2)
-
-    def whitening(self, points: Any) -> np.ndarray:
-        """Per point (..., 3) of {T}, the 3x3 matrix ``W`` (..., 3, 3) with ``W^T W`` the inverse
-        of the point's noise covariance (``W @ error`` has unit covariance): the rows of
-        :meth:`basis` divided by the radial and transverse sigmas at the point's distance."""
-        p = np.asarray(points, dtype=float)
-        sr, st = self.sigmas(np.linalg.norm(p, axis=-1))
-        if np.any(np.asarray(sr) <= 0) or np.any(np.asarray(st) <= 0):
-            raise ValueError("tracker noise: the radial and the transverse sigma must be > 0 "
-                             f"(distance {self.distance}, transverse {self.transverse}); a "
-                             "tracker reading is never exact")
-        scale = np.stack([1.0 / sr, 1.0 / st, 1.0 / st], axis=-1)
-        return self.basis(p) * scale[..., :, None]
-
-    def covariance(self, points: Any) -> np.ndarray:
-        """Per point (..., 3) of {T}, its noise covariance (..., 3, 3) (mm^2): ``sigma_r^2`` along
-        the line of sight, ``sigma_t^2`` across it; the law :meth:`perturb` draws from."""
-        p = np.asarray(points, dtype=float)
-        b = self.basis(p)
-        sr, st = self.sigmas(np.linalg.norm(p, axis=-1))
-        var = np.stack([np.square(sr), np.square(st), np.square(st)], axis=-1)
-        return np.einsum("...ki,...k,...kj->...ij", b, var, b)
-
-    def perturb(self, points: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-        """Points (..., 3) in {T} with tracker noise; three standard normal draws per point
-        (radial, then the two transverse directions of :meth:`basis`)."""
-        p = np.asarray(points, dtype=float)
-        z = rng.standard_normal(p.shape)
-        b = self.basis(p)
-        sr, st = self.sigmas(np.linalg.norm(p, axis=-1, keepdims=True))
-        return (p + sr * z[..., :1] * b[..., 0, :]
-                + st * (z[..., 1:2] * b[..., 1, :] + z[..., 2:3] * b[..., 2, :]))
 
 
 def axis_whitening(points: Any, sigmas: Any) -> np.ndarray:
