@@ -597,11 +597,16 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     robot's then the setup's parameters): the same size test, modulo the null directions of the
     point (probe) objective, each parameter measured from the centre of its bounds (the
     registration guess for the registration's correction) against ``plausible`` times their
-    half-width; no chi-square test yet (``noise`` must be None).
+    half-width. Reflector points with a ``noise`` model ``(iwr.Noise or None, TrackerNoise)``:
+    the same chi-square test on the point residuals, each pose's whitened by their covariance at
+    ``x`` (:func:`iwr.tracker.problem.point_covariances`: the tracker's noise plus the readings'
+    propagated through the loop closure), ``dof`` the seen coordinates minus the rank. Probe
+    data have no chi-square test here (``noise`` must be None; the efficient estimator tests
+    their fit). Each kind gives its whitened residuals
+    (:meth:`iwr.kinds.MeasurementKind.whitened`).
     """
     x = np.asarray(x, dtype=float)
     mask = np.asarray(active, dtype=bool)
-    n_active = int(mask.sum())
     # The kind's part: each parameter's plausible size about its centre and the readings model
     # whose null directions the test ignores (tracker data, docs/tracker.md: the point (probe)
     # objective, so modulo the registration's and the platform frame's gauge; the setup's
@@ -618,26 +623,20 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     causes: list[str] = []
     statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
     if noise is not None:
-        _check_noise(noise)
-        legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
-        sig = sigma_matrix(robot, measurements, noise)
-        r = legs - measurements.legs
-        cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
-        cov[:, np.arange(6), np.arange(6)] += sig[:, :6] ** 2
-        chol = np.linalg.cholesky(cov)
-        rw = np.linalg.solve(chol, r[..., None])[..., 0].reshape(-1)  # whitened residuals
-        jw = np.linalg.solve(chol, jx[:, :, mask]).reshape(-1, n_active)
+        # The kind's whitened residuals and Jacobian at x (iwr.kinds.MeasurementKind.whitened).
+        rw, jw, n_readings = kind.whitened(robot, measurements, x, noise)
+        jw = jw[:, mask]
         scale = np.linalg.norm(jw, axis=0)
         scale = np.where(scale > 0, scale, 1.0)
         with single_thread():
             step, _, rank, _ = np.linalg.lstsq(jw / scale, rw, rcond=None)
         statistic = float(np.sum((rw - (jw / scale) @ step) ** 2))
         # The identifiable directions among the active parameters (all 58 active: 52 on the IWR).
-        dof = 6 * len(measurements) - int(rank)
+        dof = int(n_readings) - int(rank)
         p_value = float(special.chdtrc(dof, statistic)) if dof > 0 else math.nan
         chi_ok = bool(dof > 0 and p_value >= fit_alpha)
         if dof <= 0:
-            causes.append(f"no redundancy: {6 * len(measurements)} readings for {int(rank)} "
+            causes.append(f"no redundancy: {int(n_readings)} readings for {int(rank)} "
                           "identifiable parameters, so the data cannot test the model: measure "
                           "more poses")
         elif not chi_ok:

@@ -243,9 +243,8 @@ def test_noise_convention_and_refusals():
     with pytest.raises(ValueError, match="estimate: unknown"):
         iwr.identify(robot, data, noise=NOISE, estimate=("position",))
     # LM with a noise model minimises the weighted point objective (test_experiments_kinds.py);
-    # the unweighted one with a noise model would promise a test it has not.
-    with pytest.raises(ValueError, match="weighted=False"):
-        iwr.identify(robot, data, method="lm", noise=NOISE, weighted=False)
+    # weighted=False minimises the unweighted one and the noise model tests its fit
+    # (tests/test_tracker_fit_test.py).
     with pytest.raises(ValueError, match="sigma must be > 0"):
         iwr.identify(robot, data, noise=(READINGS, TrackerNoise.none()))
 

@@ -249,8 +249,11 @@ def test_weighted_lm_on_points_is_generalised_least_squares():
     assert 0.5 * dof < res.fun < 1.5 * dof
     assert res.cost_eq10 == pytest.approx(problem.cost(res.x))
     assert res.cost_eq10 >= plain.fun * (1 - 1e-9)  # the unweighted optimum is unweighted LM's
-    with pytest.raises(ValueError, match="weighted=False"):
-        iwr.identify(robot, m, "lm", noise=noise, weighted=False)
+    # Unweighted LM with the noise model: the same minimum as without, now with a fit test.
+    tested = iwr.identify(robot, m, "lm", noise=noise, weighted=False)
+    assert tested.fun == pytest.approx(plain.fun, rel=1e-9)
+    assert tested.fit.dof == res.fit.dof > 0
+    assert plain.fit.dof == 0 and np.isnan(plain.fit.statistic)
 
 
 def test_weighted_tracker_problems_that_cannot_be_refuse(tmp_path):

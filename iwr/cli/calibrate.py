@@ -376,8 +376,8 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
 
     noise = kwargs.get("noise")
     if noise is None:
-        print("noise model: none given (--noise): eq. (10) cannot test the fit, only the size of "
-              "the identified errors")
+        print("noise model: none given (--noise): the cost cannot be tested against the noise, "
+              "only the size of the identified errors")
     else:
         from .robot_noise import describe
 

@@ -174,6 +174,16 @@ class MeasurementKind(abc.ABC):
         size and centre, and the readings model ``x -> (residuals, Jacobian)`` whose null
         directions the size test ignores."""
 
+    def whitened(self, robot: Any, data: Any, x: Any, noise: Any
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
+        """For the chi-square test of :func:`iwr.estimation.fit_check` (the kinds with
+        :attr:`chi2_fit_test`): the residuals at ``x`` and their Jacobian (every parameter's
+        column), each pose's whitened by the covariance of its residuals propagated to first
+        order from every instrument's ``noise`` at ``x``, and the number of readings that carry
+        data (the statistic's degrees of freedom before the fitted parameters). ValueError for a
+        noise model whose covariance is singular."""
+        raise NotImplementedError(f"{self.name} data: no chi-square test of the fit")
+
     def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
         """For :mod:`iwr.gross_errors`: the linearised readings model at ``x``
         (:class:`iwr.misclosures.Misclosures`). This default: the residuals of :meth:`problem`

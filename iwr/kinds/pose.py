@@ -10,11 +10,14 @@ import numpy as np
 
 from ..accuracy import pose_accuracy
 from ..estimation import (
+    _check_noise,
     _plausible_limit,
     _PoseSpec,
     leg_readings,
+    loop_jacobians,
     pose_misclosures,
     predicted_accuracy,
+    sigma_matrix,
 )
 from ..identifiability import parameter_error, pose_identifiability
 from ..measurements import Measurements
@@ -119,6 +122,21 @@ class PoseKind(MeasurementKind):
                      ) -> tuple[list[str], np.ndarray, Any, Any]:
         return (robot.parameter_names, _plausible_limit(robot, plausible, bounds), None,
                 leg_readings(robot, data))
+
+    def whitened(self, robot: Any, data: Any, x: Any, noise: Any
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
+        """The six leg residuals of each pose and their Jacobian, whitened by their covariance
+        ``C_k = diag(sigma_legs^2) + J_y diag(sigma_y^2) J_y^T`` (every other reading's noise
+        propagated through the loop closure, :func:`iwr.estimation.loop_jacobians`)."""
+        _check_noise(noise)
+        legs, jx, jy = loop_jacobians(robot, x, data.q, data.poses)
+        sig = sigma_matrix(robot, data, noise)
+        cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
+        cov[:, np.arange(6), np.arange(6)] += sig[:, :6] ** 2
+        chol = np.linalg.cholesky(cov)
+        rw = np.linalg.solve(chol, (legs - data.legs)[..., None])[..., 0].reshape(-1)
+        jw = np.linalg.solve(chol, jx).reshape(-1, jx.shape[2])
+        return rw, jw, rw.size
 
     def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
         return pose_misclosures(robot, data, x, noise)

@@ -246,11 +246,12 @@ def _check_fit(result: IdentificationResult, problem: Any, noise: Any,
     """Issue 16: "converged" only when the fit is sane (:func:`iwr.estimation.fit_check`), with
     the search bounds as the parameters' plausible range. ``problem``: an :class:`iwr.Problem`
     (leg data) or an :class:`iwr.tracker.TrackerProblem` (tracker data: its bounds are centred
-    on the registration guess, and the check is modulo its null directions)."""
+    on the registration guess, and the check is modulo its null directions); ``noise``: the
+    model the chi-square test weighs the residuals by (None: no chi-square test)."""
     from ..estimation import fit_check
-    from ..noise import Noise
 
-    noise = noise if isinstance(noise, Noise) else None
+    if isinstance(noise, str):  # 'estimate': the efficient estimator's, never here
+        noise = None
     try:
         fit = fit_check(problem.robot, problem.measurements, result.x, active=active, noise=noise,
                         bounds=(problem.lower, problem.upper))

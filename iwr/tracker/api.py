@@ -218,7 +218,11 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     minimises the noise-weighted point objective (``weighted``, default True with a noise
     model; :class:`TrackerProblem`'s ``noise``, reflector points only): ``fun`` is then that
     weighted cost, ``cost_eq10`` the unweighted one at ``x``. ``weighted=False`` with a noise
-    model is refused: the unweighted objective on tracker data has no chi-square test yet."""
+    model minimises the unweighted point objective. Either way a noise model adds the
+    chi-square test of the fit (:func:`iwr.estimation.fit_check`: the noise-weighted statistic
+    minimised to first order around ``x``) to "converged", on reflector points; probe data take
+    a noise model in the efficient estimator only."""
+    from .. import kinds
     from ..methods import METHODS, _check_fit
     from ..methods.reduced import ReducedProblem, active_mask
 
@@ -251,11 +255,11 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     if weighted and noise is None:
         raise ValueError("weighted=True needs a noise model: noise=(iwr.Noise(...), "
                          "iwr.tracker.TrackerNoise(...))")
-    if not weighted and noise is not None:
-        raise ValueError(f"noise with weighted=False: method {method!r} on the unweighted point "
-                         "objective does not use a noise model (no chi-square test there yet); "
-                         "leave the noise out, or weigh by it (weighted=True, or the efficient "
-                         "estimator)")
+    if not weighted and noise is not None and not kinds.of(measurements).chi2_fit_test:
+        raise ValueError(f"noise with weighted=False: method {method!r} on the unweighted "
+                         f"{kinds.of(measurements).description} objective does not use a noise "
+                         "model (no chi-square test of these data); leave the noise out, or use "
+                         "the efficient estimator")
     problem, start_x = tracker_problem(robot, measurements, bounds, x0,
                                        noise=noise if weighted else None)
     if isinstance(active, str) and active == "base":
@@ -296,7 +300,7 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     if result.status != "interrupted" and np.all(np.isfinite(result.x)):
         # "converged" only when the fit is sane, as for leg data: the identified errors within
         # their plausible size modulo the null directions (iwr.estimation.fit_check).
-        _check_fit(result, problem, None, mask)
+        _check_fit(result, problem, noise, mask)
     return result
 
 

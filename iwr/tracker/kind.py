@@ -30,7 +30,7 @@ from .api import (
 from .data import TrackerMeasurements
 from .estimation import TrackerSpec, tracker_misclosures
 from .files import read_tracker_data
-from .problem import TrackerProblem
+from .problem import TrackerProblem, _whitening, point_covariances
 
 __all__ = ["PointsKind", "ProbeKind", "parameter_error_on"]
 
@@ -246,6 +246,26 @@ class PointsKind(_TrackerKind):
     name = "points"
     description = "reflector points"
     weighted_objective = True  # the points' covariance (TrackerProblem's noise)
+    chi2_fit_test = True
+
+    def whitened(self, robot: Any, data: Any, x: Any, noise: Any
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
+        """The point residuals of each pose and their Jacobian, whitened by their covariance at
+        ``x`` (:func:`iwr.tracker.problem.point_covariances`: the tracker's noise of each point
+        plus the leg and joint readings' propagated through the loop closure); the readings
+        that carry data are the seen points' coordinates."""
+        readings, tracker = _split_noise(noise)
+        if tracker is None and data.point_sigma is None:
+            raise ValueError("noise: the chi-square test on tracker data needs the tracker's "
+                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
+        x = np.asarray(x, dtype=float)
+        tp, _ = tracker_problem(robot, data, None, x)
+        n = tp.n_poses
+        w = _whitening(point_covariances(tp, x, readings, tracker), tp.seen, data)
+        r, jac = tp.residuals_and_jacobian(x)
+        rw = np.einsum("kij,kj->ki", w, r.reshape(n, -1)).reshape(-1)
+        jw = np.einsum("kij,kjp->kip", w, jac.reshape(n, -1, jac.shape[1]))
+        return rw, jw.reshape(-1, jac.shape[1]), tp.n_observations
 
 
 class ProbeKind(_TrackerKind):
