@@ -181,14 +181,9 @@ def degenerate(robot: Any, identification: Any, report: Any) -> str | None:
 
 
 def distinct_poses(data: Any) -> int:
-    """The number of distinct poses (rows of readings and measurements) in ``data``."""
-    parts = [np.asarray(data.q, dtype=float).reshape(len(data), -1),
-             np.asarray(data.legs, dtype=float)]
-    for name in ("poses", "points", "probe"):
-        value = getattr(data, name, None)
-        if value is not None:
-            parts.append(np.asarray(value, dtype=float).reshape(len(data), -1))
-    key = np.hstack(parts)
+    """The number of distinct poses (rows of readings and measurements,
+    :meth:`iwr.kinds.MeasurementKind.rows`) in ``data``."""
+    key = kinds.of(data).rows(data)
     return len(np.unique(np.where(np.isnan(key), np.inf, key), axis=0))
 
 

@@ -74,6 +74,11 @@ class BallbarKind(MeasurementKind):
         h.update("\0".join(str(s) for s in data.setup).encode())
         return h.hexdigest()[:16]
 
+    def measured(self, data: Any) -> np.ndarray:
+        # The bar's reading and its set-up: one robot pose in two set-ups is two rows of data.
+        _, index = np.unique(np.asarray(data.setup, dtype=str), return_inverse=True)
+        return np.column_stack([np.asarray(data.distance, dtype=float), index.astype(float)])
+
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
         given = sorted(k for k, v in options.items() if v is not None)
         if given:

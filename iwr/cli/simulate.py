@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import argparse
-import dataclasses
 import json
 from pathlib import Path
 from typing import Any
@@ -56,21 +55,33 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 
 def write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: Any,
-                 n_poses: int) -> None:
+                n_poses: int) -> None:
+    """The true errors of a simulation as JSON (atomically): the robot's parameters, then its
+    instrument's set-up parameters, and the noise model in the kind's form
+    (:meth:`iwr.kinds.MeasurementKind.noise_record`)."""
     from .._io import atomic_write_text
 
+    kind = for_robot(robot)
     doc = {
         "format": "iwr-true-errors",
         "version": 1,
         "robot": robot.name,
         "seed": seed,
         "n_poses": n_poses,
-        "noise": dataclasses.asdict(noise),
+        **kind.noise_record(noise),
         # the robot's, then its instrument's set-up parameters (a ballbar's balls and offsets)
-        "parameter_names": robot.parameter_names + for_robot(robot).setup_parameter_names(robot),
+        "parameter_names": robot.parameter_names + kind.setup_parameter_names(robot),
         "errors": [float(v) for v in truth],
     }
     atomic_write_text(path, json.dumps(doc, indent=1) + "\n")
+
+
+def _describe(record: dict[str, Any]) -> str:
+    parts = []
+    for name, part in record.items():  # "noise": the readings'; "tracker_noise": "tracker ..."
+        prefix = "" if name == "noise" else name.removesuffix("_noise") + " "
+        parts += [f"{prefix}{k} {v:g}" for k, v in (part or {}).items() if v]
+    return ", ".join(parts) or "none"
 
 
 def cmd_simulate(args: argparse.Namespace) -> int:
@@ -85,23 +96,21 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from .robot_noise import simulation_noise
 
     args.noise, args.noise_from = simulation_noise(args.noise, robot, args.robot)
-    if robot.tracker is not None:  # a [tracker] table: points or probe poses (docs/tracker.md)
-        from .tracker import simulate_tracker_files
-
-        return simulate_tracker_files(args, robot)
-    data, truth = simulate(robot, n_poses=args.poses, seed=args.seed, noise=args.noise)
+    kind = for_robot(robot)
+    # What --noise means for the robot's instrument (a tracker's: its readings' noise and the
+    # tracker's own, iwr.kinds.MeasurementKind.reading_noise).
+    noise = kind.reading_noise(args.noise)
+    data, truth = simulate(robot, n_poses=args.poses, seed=args.seed, noise=noise)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     robot_path, data_path = out / args.robot_file, out / args.data_file
     truth_path = out / args.truth_file
     robot.to_toml(robot_path)
-    data.to_csv(data_path)
-    write_truth(truth_path, robot, truth, args.seed, args.noise, len(data))
-    noise = ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(args.noise).items() if v)
-    print(f"simulated {len(data)} poses of robot {robot.name!r} (seed {args.seed}, "
-          f"noise: {noise or 'none'}"
+    written = kind.write(robot, data, data_path)
+    write_truth(truth_path, robot, truth, args.seed, noise, len(data))
+    print(f"simulated {len(data)} poses of robot {robot.name!r}: {kind.description} measured in "
+          f"{kind.frame} (seed {args.seed}, noise: {_describe(kind.noise_record(noise))}"
           f"{' from ' + args.noise_from if args.noise_from else ''})")
-    print(f"wrote {robot_path} (nominal robot), {data_path} (measurements), "
-          f"{truth_path} (true errors)")
+    print(f"wrote {robot_path} (nominal robot), {', '.join(written)}, {truth_path} (true errors)")
     print(f"next: iwr calibrate {robot_path} {data_path}")
     return EXIT_OK

@@ -5,13 +5,9 @@ tracker's frame."""
 from __future__ import annotations
 
 import argparse
-import dataclasses
-import json
-from pathlib import Path
 from typing import Any
 
 from ._base import (
-    EXIT_OK,
     UsageError,
 )
 
@@ -60,41 +56,3 @@ def tracker_noise_of(noise: Any) -> Any:
     from ..kinds import named
 
     return named("points").reading_noise(noise)
-
-
-def simulate_tracker_files(args: argparse.Namespace, robot: Any) -> int:
-    """``iwr simulate --robot ROBOT.toml`` with a ``[tracker]`` table: the wide CSV of points (or
-    probe poses), the long pair (points + readings) for point data, and the true errors."""
-    from .._io import atomic_write_text
-    from ..simulate import simulate
-    from ..tracker.files import write_tracker_long, write_tracker_wide
-
-    noise = tracker_noise_of(args.noise)
-    readings_noise, tracker_noise = noise
-    data, truth = simulate(robot, args.poses, seed=args.seed, noise=noise)
-    out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
-    robot_path, data_path = out / args.robot_file, out / args.data_file
-    robot.to_toml(robot_path)
-    write_tracker_wide(data_path, robot.tracker, data)
-    written = [f"{data_path} (wide: readings and points)"]
-    if robot.tracker.kind == "points":
-        stem = data_path.with_suffix("")
-        pts, rd = Path(f"{stem}_long.csv"), Path(f"{stem}_readings.csv")
-        write_tracker_long(pts, rd, robot.tracker, data)
-        written.append(f"{pts} + {rd} (the same as a long table of points and a log of readings)")
-    names = robot.parameter_names + robot.tracker.parameter_names
-    doc = {"format": "iwr-true-errors", "version": 1, "robot": robot.name, "seed": args.seed,
-           "n_poses": len(data), "noise": dataclasses.asdict(readings_noise),
-           "tracker_noise": dataclasses.asdict(tracker_noise), "parameter_names": names,
-           "errors": [float(v) for v in truth]}
-    truth_path = out / args.truth_file
-    atomic_write_text(truth_path, json.dumps(doc, indent=1) + "\n")
-    print(f"simulated {len(data)} poses of robot {robot.name!r} measured by a laser tracker "
-          f"({robot.tracker.kind}; seed {args.seed}; tracker noise "
-          + ("none" if tracker_noise.is_zero else f"{tracker_noise} from {args.noise_from}"
-             if getattr(args, "noise_from", None) else "TrackerNoise.leica()") + ")")
-    print(f"wrote {robot_path} (nominal robot with its [tracker] table), "
-          + ", ".join(written) + f", {truth_path} (true errors)")
-    print(f"next: iwr calibrate {robot_path} {data_path}")
-    return EXIT_OK

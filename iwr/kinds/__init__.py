@@ -133,6 +133,34 @@ class MeasurementKind(abc.ABC):
         """Read a data file of this kind for ``robot``, with every check (errors name the file
         and line); TypeError naming an option the kind's files do not take."""
 
+    def write(self, robot: Any, data: Any, path: str | os.PathLike[str]) -> list[str]:
+        """Write ``data`` (atomically) as the file(s) :meth:`read` reads back, ``path`` the main
+        one; a description of each file written (``iwr simulate``). Default: the data's own
+        ``to_csv``."""
+        data.to_csv(path)
+        return [f"{path} (measurements)"]
+
+    def noise_record(self, noise: Any) -> dict[str, Any]:
+        """The noise model a simulation of this kind took (:meth:`reading_noise`'s form), as
+        the JSON fields of a truth file (``iwr simulate``). Default: ``{"noise": fields}``."""
+        import dataclasses
+
+        return {"noise": dataclasses.asdict(noise)}
+
+    def rows(self, data: Any) -> np.ndarray:
+        """Each pose's readings and measurements as one row (N, k), NaN where nothing was seen:
+        two equal rows are the same pose measured twice
+        (:func:`iwr.calibration.distinct_poses`). Default: the joint and leg readings, then the
+        data's ``measured`` columns."""
+        n = len(data)
+        return np.hstack([np.asarray(data.q, dtype=float).reshape(n, -1),
+                          np.asarray(data.legs, dtype=float).reshape(n, -1),
+                          self.measured(data).reshape(n, -1)])
+
+    def measured(self, data: Any) -> np.ndarray:
+        """What the instrument measured at each pose, one row per pose (for :meth:`rows`)."""
+        raise NotImplementedError(f"{self.name} data: MeasurementKind.measured")
+
     @abc.abstractmethod
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:

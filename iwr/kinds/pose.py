@@ -75,6 +75,9 @@ class PoseKind(MeasurementKind):
     def fingerprint(self, robot: Any, data: Any) -> str:
         return data_fingerprint(self.name, robot, data, poses=data.poses, weights=data.weights)
 
+    def measured(self, data: Any) -> np.ndarray:
+        return np.asarray(data.poses, dtype=float)
+
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
         given = sorted(k for k, v in options.items() if v is not None)
         if given:

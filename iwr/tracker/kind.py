@@ -86,6 +86,32 @@ class _TrackerKind(MeasurementKind):
         return data_fingerprint(self.name, robot, data, probe_poses=data.probe,
                                 points=data.tracker_points(robot.tracker))
 
+    def measured(self, data: Any) -> np.ndarray:
+        return np.asarray(data.points if data.points is not None else data.probe, dtype=float)
+
+    def write(self, robot: Any, data: Any, path: str | os.PathLike[str]) -> list[str]:
+        """The wide CSV (readings and points, or probe poses), and for points also the long pair
+        (a table of points and a log of readings) beside it: ``STEM_long.csv`` and
+        ``STEM_readings.csv``."""
+        from pathlib import Path
+
+        from .files import write_tracker_long, write_tracker_wide
+
+        write_tracker_wide(path, robot.tracker, data)
+        written = [f"{path} (wide: readings and points)"]
+        if robot.tracker.kind == "points":
+            stem = Path(path).with_suffix("")
+            pts, rd = Path(f"{stem}_long.csv"), Path(f"{stem}_readings.csv")
+            write_tracker_long(pts, rd, robot.tracker, data)
+            written.append(f"{pts} + {rd} (the same as a long table of points and a log of "
+                           "readings)")
+        return written
+
+    def noise_record(self, noise: Any) -> dict[str, Any]:
+        readings, tracker = _split_noise(noise)
+        return {"noise": None if readings is None else asdict(readings),
+                "tracker_noise": None if tracker is None else asdict(tracker)}
+
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
         readings = options.pop("readings", None)
         targets = options.pop("targets", None)  # a target list's format (iwr.tracker.sa_export)
