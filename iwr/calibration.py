@@ -318,8 +318,12 @@ def calibrate(
         # named, and left out of the identification (re-fitted) and of the accuracy. Not on
         # degenerate data: those are "not calibrated" (below), whatever their residuals say.
         if degenerate(robot, ident, report) is None:
+            before = len(ident)
             result, ident, val = screen_gross_errors(robot, ident, val, result, noise,
                                                      held_out=held_out, bounds=bounds)
+            if len(ident) != before:
+                # The report describes the poses the result was identified from.
+                report = identifiability(robot, ident)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
         result["settings"] = {**dict(result.get("settings") or {}), "data_file": data_name,

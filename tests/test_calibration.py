@@ -149,3 +149,21 @@ def test_the_job_takes_a_new_kind_the_commands_refuse_it_by_name(tmp_path):
                           cwd=tmp_path, capture_output=True, text=True, timeout=600)
     assert proc.returncode == 2 and "ballbar data" in proc.stderr, proc.stderr
     assert "internal error" not in proc.stderr and not (tmp_path / "iwr-calibration").exists()
+
+
+def test_identifiability_describes_the_poses_left_after_the_gross_error_screen():
+    """A swapped-digit leg reading among 40 poses: the screen leaves that pose out and re-fits;
+    the job's identifiability is then that of the poses the result was identified from."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 40, seed=11, noise=iwr.Noise.realistic())
+    legs = data.legs.copy()
+    legs[5, 2] += 9.0  # a typo of 9 mm in leg 3 of pose 5
+    bad = iwr.Measurements(data.q, data.poses, legs, joint_types=data.joint_types)
+    cal = iwr.calibrate(robot, bad, "lm", validation_fraction=0.2, seed=0)
+    removed = [o for o in cal.result["outliers"] if o.removed and o.data_set == "identification"]
+    assert len(removed) == 1, [str(o) for o in cal.result["outliers"]]
+    assert len(cal.identification) == 31  # 32 identification poses, one left out
+    fresh = iwr.identifiability(robot, cal.identification)
+    whole = iwr.identifiability(robot, kinds.split(bad, 0.2, 0)[0])
+    assert not np.allclose(fresh.singular_values, whole.singular_values, rtol=1e-9)
+    assert np.allclose(cal.identifiability.singular_values, fresh.singular_values, rtol=1e-9)
