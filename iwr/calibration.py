@@ -24,6 +24,7 @@ import numpy as np
 
 from . import kinds
 from .accuracy import Accuracy, accuracy
+from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
 from .identifiability import identifiability, identifiable_count, parameter_error
 from .methods import IdentificationResult, identify
@@ -398,6 +399,10 @@ def from_result(
         except ValueError:  # too few points for a registration guess of their own
             start = None
         report = identifiability(robot, data)
+        if degenerate(robot, data, report) is None:
+            # Gross errors (issue 22), tested but not re-fitted: the result is another's.
+            result, val = check_gross_errors(robot, data, val, result,
+                                             held_out=validation is not None)
         unc = _uncertainty(robot, data, result, report if result.get("active") is None else None,
                            None, notes, own_covariance=False)
         if unc is not None and result.get("method") == "efficient":

@@ -167,3 +167,31 @@ def test_identifiability_describes_the_poses_left_after_the_gross_error_screen()
     whole = iwr.identifiability(robot, kinds.split(bad, 0.2, 0)[0])
     assert not np.allclose(fresh.singular_values, whole.singular_values, rtol=1e-9)
     assert np.allclose(cal.identifiability.singular_values, fresh.singular_values, rtol=1e-9)
+
+
+def test_from_result_names_gross_errors_without_refitting():
+    """`iwr report`'s path: a result identified elsewhere from data with a 9 mm typo is not
+    re-fitted; the typo's pose is named (kept), the fit fails with the advice; a typo in a
+    held-out pose is left out of the accuracy figures and the fit stands."""
+    robot = iwr.Robot.default()
+    whole, _ = iwr.simulate(robot, 50, seed=11, noise=iwr.Noise.realistic())
+    data, val = whole.subset(np.arange(40)), whole.subset(np.arange(40, 50))  # one true robot
+    legs = data.legs.copy()
+    legs[5, 2] += 9.0
+    bad = iwr.Measurements(data.q, data.poses, legs, joint_types=data.joint_types)
+    result = iwr.identify(robot, bad, "lm", active="base")
+    x = result.x.copy()
+    cal = from_result(robot, bad, result, validation=val)
+    assert np.array_equal(cal.result.x, x) and "outliers" not in result  # a copy, not re-fitted
+    named = [o for o in cal.result["outliers"] if o.data_set == "identification"]
+    assert [o.pose for o in named] == [5] and not named[0].removed
+    assert not cal.result["fit"].fit_ok and not cal.success
+    assert "identify again" in " ".join(cal.result["fit"].causes)
+    # The clean data's result, a typo in held-out pose 3: left out of the accuracy.
+    clean = iwr.identify(robot, data, "lm", active="base")
+    vlegs = val.legs.copy()
+    vlegs[3, 0] += 9.0
+    vbad = iwr.Measurements(val.q, val.poses, vlegs, joint_types=val.joint_types)
+    cal = from_result(robot, data, clean, validation=vbad)
+    assert [o.pose for o in cal.result["outliers"]] == [3] and cal.result["outliers"][0].removed
+    assert len(cal.validation) == 9 and cal.result["fit"].fit_ok
