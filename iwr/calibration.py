@@ -158,7 +158,7 @@ class Calibration:
         if reason is not None:
             r["success"] = False
             r["status"] = NOT_CALIBRATED
-            # The prefix keeps the status in a result file (methods.result.status_from_message).
+            # The prefix keeps the status in a result file (iwr.result.status_from_message).
             r["message"] = f"{NOT_CALIBRATED}: {reason}"
 
 

@@ -37,9 +37,9 @@ from ._blas import single_thread
 from ._io import jsonable
 from .identifiability import identifiability
 from .measurements import Measurements, as_matrix
-from .methods.result import IdentificationResult
 from .noise import Noise
 from .problem import Problem, _check_joint_types
+from .result import IdentificationResult
 from .robot import Robot
 
 __all__ = [

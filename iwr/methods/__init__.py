@@ -51,13 +51,13 @@ import numpy as np
 from .. import kinds
 from ..measurements import Measurements
 from ..problem import Problem
+from ..result import STATUSES, IdentificationResult, ResultFileError, load_result
 from ..robot import Robot
 from .de import de_method
 from .efficient import efficient_method
 from .lm import levenberg_marquardt
 from .nlopt import bobyqa, crs2
 from .reduced import ReducedProblem, active_mask
-from .result import STATUSES, IdentificationResult, ResultFileError, load_result
 
 __all__ = [
     "DEFAULT_METHOD",

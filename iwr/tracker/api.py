@@ -167,7 +167,7 @@ def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
     from ..methods.de import _STATUS, differential_evolution
     from ..methods.lm import levenberg_marquardt
     from ..methods.reduced import ReducedProblem
-    from ..methods.result import IdentificationResult
+    from ..result import IdentificationResult
 
     start = time.perf_counter()
     box = np.column_stack([reduced.lower, reduced.upper])
