@@ -428,7 +428,7 @@ def measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarra
     parameters; the points (or probe poses) in {T} the true setup measures, with the reading
     noise then the tracker noise of :func:`iwr.simulate` (``noise``: None, an iwr.Noise, a
     TrackerNoise, or a pair)."""
-    from .tracker.api import _split_noise
+    from .noise import split_noise
     from .tracker.data import TrackerMeasurements
     from .tracker.simulate import true_points
     from .transforms import pose_from_matrix
@@ -438,7 +438,7 @@ def measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarra
     if x.shape != (nr + setup.n_params,):
         raise ValueError(f"x: shape {x.shape}; expected ({nr + setup.n_params},): the robot's "
                          f"{nr} then the tracker setup's {setup.n_params}")
-    readings, tracker = _split_noise(noise)
+    readings, tracker = split_noise(noise)
     legs = predict_legs(robot, x[:nr], q, poses)
     pts = true_points(robot, setup, x, poses)
     if readings is not None and not readings.is_zero:

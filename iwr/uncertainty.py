@@ -318,8 +318,9 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
     :class:`iwr.Noise` (reading noise: legs and carriage joints, propagated to the points through
     the forward kinematics) or a pair of both. ``active``: a mask, a NullSpace, or None (one
     parameter per null direction held: :func:`iwr.tracker.null_space` at ``x``)."""
+    from .noise import split_noise
     from .tracker.analysis import NullSpace, null_space
-    from .tracker.api import _split_noise, tracker_problem
+    from .tracker.start import tracker_problem
 
     problem, _ = tracker_problem(robot, measurements, x0=x)
     x = np.array(x, dtype=float)
@@ -359,7 +360,7 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
                                  "an iwr.tracker.TrackerNoise, an iwr.Noise or a pair")
         cov = sigma**2 * (a @ a.T)
     else:
-        readings, tracker = _split_noise(noise)
+        readings, tracker = split_noise(noise)
         c = _point_covariance(problem, x, readings, tracker)  # (N, 3P, 3P)
         ak = a.reshape(p, problem.n_poses, -1)
         cov = np.einsum("pki,kij,qkj->pq", ak, c, ak)

@@ -805,8 +805,8 @@ class TrackerCalibrationReport(CalibrationReport):
     def _problem(self, data: Any) -> tuple[Any, np.ndarray]:
         """The problem of ``data`` and its "before" point: the nominal robot with the data's own
         registration guess (or, for data too few for one, with the identified setup)."""
-        from ..tracker.api import tracker_problem
         from ..tracker.registration import RegistrationError
+        from ..tracker.start import tracker_problem
 
         try:
             return tracker_problem(self.robot, data)

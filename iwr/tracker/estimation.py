@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from ..noise import Noise
+from ..noise import Noise, TrackerNoise, axis_whitening, split_noise
 from ..robot import Robot
-from .api import _setup, _split_noise, tracker_problem
 from .data import TrackerMeasurements
-from .simulate import TrackerNoise, axis_whitening
+from .gauge import _align, _fk, null_space
+from .start import _setup, tracker_problem
 
 __all__ = ["TRACKER_COMPONENTS", "TrackerSpec", "tracker_misclosures",
            "tracker_predicted_accuracy", "tracker_reading_names"]
@@ -59,7 +59,7 @@ def _noise(noise: Any) -> tuple[Noise, TrackerNoise, tuple[str, ...]]:
             raise ValueError(f"noise: {noise!r}; expected (iwr.Noise, TrackerNoise) or 'estimate'")
         r = Noise.realistic()
         return replace(r, position=0.0, orientation=0.0), TrackerNoise.leica(), TRACKER_COMPONENTS
-    readings, tracker = _split_noise(noise)
+    readings, tracker = split_noise(noise)
     if readings is None or tracker is None:
         raise ValueError(
             "noise: the efficient estimator on tracker data weighs the leg and joint readings and "
@@ -80,7 +80,6 @@ class TrackerSpec:
         from ..estimation import _active_mask, _check_estimate, _check_noise
         from ..methods.lm import levenberg_marquardt
         from ..methods.reduced import ReducedProblem
-        from .analysis import null_space
 
         setup = _setup(robot)
         readings, tnoise, est = _noise(noise)
@@ -231,8 +230,6 @@ def _aligned_errors(a: np.ndarray, b: np.ndarray, tool: np.ndarray) -> np.ndarra
     """Per pose the tool error vector (position in {T}, mm; orientation, a rotation vector in the
     tool frame, rad), (N, 6), of the frames ``a`` against ``b`` modulo the gauge, as
     :func:`tool_pose_errors` (``gauge="fit"``) measures its norms."""
-    from .analysis import _align
-
     a = a @ _align(a, b)
     dp = a[:, :3, :3] @ tool + a[:, :3, 3] - (b[:, :3, :3] @ tool + b[:, :3, 3])
     r = np.swapaxes(b[:, :3, :3], 1, 2) @ a[:, :3, :3]
@@ -273,7 +270,6 @@ def tracker_predicted_accuracy(robot: Robot, x: Any, covariance: Any, active: An
     frame."""
     from ..estimation import accuracy_from_covariances, loop_jacobians
     from ..transforms import pose_matrix
-    from .analysis import _fk
 
     x = np.asarray(x, dtype=float)
     mask = np.asarray(active, dtype=bool)

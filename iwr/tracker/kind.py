@@ -15,11 +15,10 @@ from ..forward import forward_kinematics
 from ..identifiability import ParameterError, _nearest_equivalent, _row_space
 from ..kinds import MeasurementKind, _where, data_fingerprint, position_rms
 from ..measurements import Measurements
-from ..noise import Noise, TrackerNoise
+from ..noise import Noise, TrackerNoise, split_noise
 from ..planning import measure_tracker, tracker_design
 from ..uncertainty import _tracker_uncertainty
 from .api import (
-    _split_noise,
     registration_guess,
     tracker_accuracy,
     tracker_identifiability,
@@ -110,7 +109,7 @@ class _TrackerKind(MeasurementKind):
         its ``position`` sets the tracker's: :meth:`TrackerNoise.leica` scaled by ``position /
         0.02`` (``Noise.realistic().position``), so that the realistic level is Leica's tracker."""
         if isinstance(noise, tuple):
-            _split_noise(noise)  # its types checked
+            split_noise(noise)  # its types checked
             return noise
         if not isinstance(noise, Noise):
             raise TypeError(f"noise: expected an iwr.Noise or a pair (iwr.Noise, "
