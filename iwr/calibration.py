@@ -23,11 +23,11 @@ from typing import Any
 import numpy as np
 
 from . import kinds
-from .accuracy import Accuracy, accuracy
+from .analysis.accuracy import Accuracy, accuracy
+from .analysis.identifiability import identifiability, identifiable_count, parameter_error
+from .analysis.uncertainty import Uncertainty, uncertainty
 from .gross_errors import screen as screen_gross_errors
-from .identifiability import identifiability, identifiable_count, parameter_error
 from .methods import IdentificationResult, identify
-from .uncertainty import Uncertainty, uncertainty
 
 __all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "calibrate", "from_result"]
 

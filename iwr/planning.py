@@ -4,7 +4,7 @@ The information that a set S of poses carries about the base parameters is
 ``M(S) = sum_{k in S} Js_k^T Js_k``, where ``Js_k`` is the 6-row block of pose k of the Jacobian,
 restricted to the base parameters and column-scaled once for all candidates (so that the scaling
 does not change with the subset). Its eigenvalues are the squared singular values of the stacked
-Jacobian, so each observability index of :mod:`iwr.identifiability` is a function of them:
+Jacobian, so each observability index of :mod:`iwr.analysis.identifiability` is a function of them:
 O1 (D-optimality: the geometric mean), O2 (inverse condition number), O3 (E-optimality: the
 smallest), O4 (noise amplification, ``s_min^2 / s_max``).
 
@@ -28,11 +28,11 @@ import numpy as np
 
 from . import kinds
 from ._io import atomic_write_text
-from .identifiability import IdentifiabilityReport, column_scale, identifiability
+from .analysis.identifiability import IdentifiabilityReport, column_scale, identifiability
 from .measurements import PLAN_MARKER, MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
 from .robot import Robot
-from .simulate import Noise, add_noise
+from .simulation import Noise, add_noise
 
 __all__ = ["PosePlan", "plan_poses", "measure", "read_plan"]
 

@@ -24,12 +24,12 @@ def layers():
 
 # The public functions that serve every kind of data (issue 21), by module.
 PUBLIC = {
-    "accuracy.py": ["accuracy"],
-    "identifiability.py": ["identifiability"],
-    "uncertainty.py": ["uncertainty"],
+    "analysis/accuracy.py": ["accuracy"],
+    "analysis/identifiability.py": ["identifiability"],
+    "analysis/uncertainty.py": ["uncertainty"],
     "methods/__init__.py": ["identify"],
     "estimation.py": ["efficient", "fit_check"],
-    "simulate.py": ["simulate"],
+    "simulation.py": ["simulate"],
     "planning.py": ["plan_poses", "measure", "_as_candidates"],
 }
 
@@ -125,6 +125,12 @@ def test_every_hook_names_a_higher_module_and_resolves(layers):
         hook("no such hook")
 
 
+def test_no_submodule_is_shadowed(layers):
+    """No package binds a submodule's name to something else (``iwr.simulate`` is the function,
+    the module is ``iwr.simulation``)."""
+    assert layers.shadowed(REPO) == []
+
+
 def _tree(root: Path, files: dict[str, str]) -> Path:
     for name, text in files.items():
         path = root / name
@@ -157,6 +163,10 @@ def test_the_tool_sees_cycles_upward_imports_and_unlisted_modules(layers, tmp_pa
     assert layers.unlisted(root, table[1:]) == ["iwr.data", "iwr.kinds", "iwr.low", "iwr.mid",
                                                 "iwr.pkg.setup"]
     assert layers.unlisted(root, table) == []
+    assert layers.shadowed(root) == []
+    (root / "iwr" / "pkg" / "__init__.py").write_text("from .api import y\n\n\ndef setup():\n"
+                                                      "    pass\n")
+    assert layers.shadowed(root) == ["iwr.pkg.setup"]
     assert layers.broken_hooks(root) == ["iwr/kinds/__init__.py:1: iwr.nowhere:Kind: no module "
                                          "iwr.nowhere"]
     (root / "iwr" / "high.py").write_text("from . import mid\n")

@@ -28,7 +28,7 @@ import iwr
 from iwr.cli import main as cli_main
 from iwr.cli import study as study_cli
 from iwr.experiments.harness import Cell, noise_at, robot_hash
-from iwr.experiments.study import TIMING_COLUMNS, StudyError, make_grid, read_table
+from iwr.experiments.monte_carlo import TIMING_COLUMNS, StudyError, make_grid, read_table
 
 distributed = pytest.importorskip("distributed")
 cloudpickle = pytest.importorskip("cloudpickle")  # a dependency of distributed, used by name here

@@ -43,8 +43,8 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("solvers, the efficient estimator and the fit test", [
         "iwr.methods.*", "iwr.estimation", "iwr.estimation.*", "iwr.tracker.estimation"]),
     ("public functions: identify, accuracy, identifiability, uncertainty, planning, simulate", [
-        "iwr.methods", "iwr.accuracy", "iwr.identifiability", "iwr.uncertainty", "iwr.planning",
-        "iwr.simulate", "iwr.forward", "iwr.pose_frame", "iwr.compensation", "iwr.gross_errors",
+        "iwr.methods", "iwr.analysis", "iwr.analysis.*", "iwr.planning", "iwr.simulation",
+        "iwr.forward", "iwr.pose_frame", "iwr.compensation", "iwr.gross_errors",
         "iwr.tracker", "iwr.tracker.*", "iwr.ballbar", "iwr.ballbar.*", "iwr.export",
         "iwr.export.*"]),
     ("kind implementations (reached through the kinds' registry)", [
@@ -304,6 +304,47 @@ def type_name_tests(root: Path) -> list[tuple[str, int]]:
     return out
 
 
+def _top_level(body: list[ast.stmt]) -> list[ast.stmt]:
+    """The statements of a module body, those inside its ``if`` and ``try`` blocks included."""
+    out = []
+    for node in body:
+        out.append(node)
+        for block in ("body", "orelse", "finalbody", "handlers"):
+            inner = getattr(node, block, None)
+            if isinstance(node, (ast.If, ast.Try, ast.ExceptHandler)) and inner:
+                out += _top_level(inner)
+    return out
+
+
+def shadowed(root: Path) -> list[str]:
+    """``package.name`` for every submodule of a package that the package's ``__init__`` binds
+    to something else (a function of the same name, say): ``package.name`` is then the function
+    until something imports the submodule, which rebinds it. Names bound by an import (also under
+    ``if TYPE_CHECKING``), a def, a class, an assignment, or a key of a lazy table (``_LAZY``)."""
+    mods = modules(root)
+    out = []
+    for package, path in mods.items():
+        if path.name != "__init__.py":
+            continue
+        subs = {m.rsplit(".", 1)[1] for m in mods if m.rpartition(".")[0] == package}
+        bound: set[str] = set()
+        for node in _top_level(ast.parse(path.read_text()).body):
+            if isinstance(node, ast.ImportFrom):
+                submodule_itself = node.level == 1 and node.module is None
+                bound.update(a.asname or a.name for a in node.names
+                             if not (submodule_itself and (a.asname or a.name) == a.name))
+            elif isinstance(node, (ast.FunctionDef, ast.AsyncFunctionDef, ast.ClassDef)):
+                bound.add(node.name)
+            elif isinstance(node, ast.Assign):
+                bound.update(t.id for t in node.targets if isinstance(t, ast.Name))
+                if (any(getattr(t, "id", None) == "_LAZY" for t in node.targets)
+                        and isinstance(node.value, ast.Dict)):
+                    bound.update(k.value for k in node.value.keys
+                                 if isinstance(k, ast.Constant) and isinstance(k.value, str))
+        out += [f"{package}.{name}" for name in sorted(bound & subs)]
+    return out
+
+
 def main(argv: list[str]) -> int:
     root = Path(argv[1] if len(argv) > 1 else Path(__file__).resolve().parents[1])
     edges, inner = graph(root)
@@ -326,9 +367,12 @@ def main(argv: list[str]) -> int:
     broken = broken_hooks(root)
     print(f"{len(found)} registered hooks (a lower layer reaching up by name), "
           f"{len(broken)} broken" + "".join(f"\n  {b}" for b in broken))
+    hidden = shadowed(root)
+    print(f"{len(hidden)} submodules shadowed by a name of their package"
+          + "".join(f"\n  {m}" for m in hidden))
     named = type_name_tests(root)
     print(f"{len(named)} type-name tests" + "".join(f"\n  {f}:{n}" for f, n in named))
-    return 1 if (comps or missing or up or broken or named) else 0
+    return 1 if (comps or missing or up or broken or hidden or named) else 0
 
 
 if __name__ == "__main__":

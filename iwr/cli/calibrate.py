@@ -339,7 +339,7 @@ def _exit_code(cal: Any) -> int:
 def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) -> int:
     from ..reporting.calibration import OUTPUT_FILES
     from ..robot import Robot
-    from ..simulate import Noise, simulate
+    from ..simulation import Noise, simulate
 
     if args.validation:
         raise UsageError("--validation needs ROBOT.toml and DATA.csv")

@@ -75,7 +75,7 @@ def write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: Any
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from ..robot import Robot
-    from ..simulate import simulate
+    from ..simulation import simulate
 
     stem = Path(args.data_file).with_suffix("")
     check_output(args.out, "--out", inputs=[args.robot], prog="iwr simulate", files=[

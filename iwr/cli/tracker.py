@@ -66,7 +66,7 @@ def simulate_tracker_files(args: argparse.Namespace, robot: Any) -> int:
     """``iwr simulate --robot ROBOT.toml`` with a ``[tracker]`` table: the wide CSV of points (or
     probe poses), the long pair (points + readings) for point data, and the true errors."""
     from .._io import atomic_write_text
-    from ..simulate import simulate
+    from ..simulation import simulate
     from ..tracker.files import write_tracker_long, write_tracker_wide
 
     noise = tracker_noise_of(args.noise)

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from .compare import Comparison, compare_methods
 from .harness import Cell, Scenario, evaluate, noise_at
-from .study import StudyError, StudyResult, read_table, study
+from .monte_carlo import StudyError, StudyResult, read_table, study
 
 __all__ = [
     "Cell",

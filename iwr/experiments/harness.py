@@ -34,7 +34,7 @@ import numpy as np
 
 from .. import kinds
 from ..robot import Robot
-from ..simulate import Noise, simulate
+from ..simulation import Noise, simulate
 
 __all__ = [
     "Cell",

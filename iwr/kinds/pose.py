@@ -8,7 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from ..accuracy import pose_accuracy
+from ..analysis.accuracy import pose_accuracy
+from ..analysis.identifiability import parameter_error, pose_identifiability
+from ..analysis.uncertainty import pose_uncertainty
 from ..estimation import (
     _plausible_limit,
     _PoseSpec,
@@ -16,15 +18,13 @@ from ..estimation import (
     pose_misclosures,
     predicted_accuracy,
 )
-from ..identifiability import parameter_error, pose_identifiability
 from ..measurements import Measurements
 from ..methods import pose_identify
 from ..planning import measure_poses, pose_design
 from ..pose_frame import check_pose_frame
 from ..problem import Problem
-from ..simulate import simulate_poses
+from ..simulation import simulate_poses
 from ..tracker.files import tracker_file_format
-from ..uncertainty import pose_uncertainty
 from . import MeasurementKind, data_fingerprint
 
 __all__ = ["PoseKind"]

@@ -201,7 +201,7 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
         active = "base"
     if isinstance(active, str) and active == "base":
         # The base parameters of the identifiability analysis at x0: a unique answer.
-        from ..identifiability import identifiability
+        from ..analysis.identifiability import identifiability
 
         active = identifiability(robot, measurements, x0_arr).active
     mask = active_mask(problem, active)

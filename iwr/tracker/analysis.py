@@ -8,7 +8,7 @@ from typing import Any
 
 import numpy as np
 
-from ..accuracy import PoseErrors
+from ..analysis.accuracy import PoseErrors
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix
 from .gauge import NullSpace, _align, _fk, null_space

@@ -14,7 +14,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 from scipy.spatial.transform import Rotation
 
-from ..accuracy import Accuracy, PoseErrors
+from ..analysis.accuracy import Accuracy, PoseErrors
 from ..forward import in_tracker_frame
 from ..noise import split_noise
 from ..robot import Robot

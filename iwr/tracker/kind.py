@@ -10,14 +10,14 @@ from typing import Any
 
 import numpy as np
 
+from ..analysis.identifiability import ParameterError, _nearest_equivalent, _row_space
+from ..analysis.uncertainty import _tracker_uncertainty
 from ..estimation import tracker_readings
 from ..forward import forward_kinematics
-from ..identifiability import ParameterError, _nearest_equivalent, _row_space
 from ..kinds import MeasurementKind, _where, data_fingerprint, position_rms
 from ..measurements import Measurements
 from ..noise import Noise, TrackerNoise, split_noise
 from ..planning import measure_tracker, tracker_design
-from ..uncertainty import _tracker_uncertainty
 from .api import (
     registration_guess,
     tracker_accuracy,

@@ -9,7 +9,7 @@ from scipy.spatial.transform import Rotation
 
 from ..noise import Noise, TrackerNoise, axis_whitening
 from ..robot import Robot
-from ..simulate import sample_poses
+from ..simulation import sample_poses
 from ..transforms import pose_from_matrix, pose_matrix
 from .data import TrackerMeasurements
 from .setup import TrackerSetup

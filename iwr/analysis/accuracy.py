@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from . import kinds
-from .forward import ForwardKinematicsError, forward_kinematics
-from .measurements import Measurements
-from .robot import Robot
-from .transforms import pose_matrix
+from .. import kinds
+from ..forward import ForwardKinematicsError, forward_kinematics
+from ..measurements import Measurements
+from ..robot import Robot
+from ..transforms import pose_matrix
 
 __all__ = ["accuracy", "Accuracy", "PoseErrors", "pose_errors"]
 
