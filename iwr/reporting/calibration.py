@@ -885,9 +885,8 @@ class TrackerCalibrationReport(CalibrationReport):
     def registration_change(self) -> tuple[float, float, float, float]:
         """How far the identified registration is from the nominal and from the guess: distance
         (mm) and angle (degrees) of the relative transform, on {0}'s origin."""
-        from scipy.spatial.transform import Rotation
 
-        from ..transforms import pose_matrix
+        from ..transforms import pose_matrix, rotation_angle
 
         rows = dict(self.registration_rows())
         ident = pose_matrix(rows["identified"])
@@ -898,7 +897,7 @@ class TrackerCalibrationReport(CalibrationReport):
                 continue
             rel = np.linalg.solve(pose_matrix(rows[key]), ident)
             out += [float(np.linalg.norm(rel[:3, 3])),
-                    float(np.degrees(Rotation.from_matrix(rel[:3, :3]).magnitude()))]
+                    float(np.degrees(rotation_angle(rel[:3, :3])))]
         return out[0], out[1], out[2], out[3]
 
     def offset_rows(self) -> list[list[str]]:

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..analysis.accuracy import PoseErrors
 from ..robot import Robot
-from ..transforms import pose_from_matrix, pose_matrix
+from ..transforms import pose_from_matrix, pose_matrix, rotation_angle
 from .gauge import NullSpace, _align, _fk, null_space
 from .registration import kabsch
 from .setup import TrackerSetup
@@ -116,11 +116,7 @@ def tool_pose_errors(robot: Robot, setup: TrackerSetup, x: Any, truth: Any, q: A
         a = a @ _align(a, b)
     p = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
     position = np.linalg.norm((a[:, :3, :3] - b[:, :3, :3]) @ p + a[:, :3, 3] - b[:, :3, 3], axis=1)
-    r = np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]
-    sin_axis = 0.5 * np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
-                               r[:, 1, 0] - r[:, 0, 1]], axis=1)
-    cos = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
-    angle = np.degrees(np.arctan2(np.linalg.norm(sin_axis, axis=1), cos))
+    angle = np.degrees(rotation_angle(np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]))
     return PoseErrors(position, angle, np.array([pose_from_matrix(m) for m in a]))
 
 

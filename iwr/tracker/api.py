@@ -12,12 +12,12 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import OptimizeResult
-from scipy.spatial.transform import Rotation
 
 from ..analysis.accuracy import Accuracy, PoseErrors
 from ..forward import in_tracker_frame
 from ..noise import split_noise
 from ..robot import Robot
+from ..transforms import rotation_angle
 from .analysis import NullSpace, null_space, tool_pose_errors
 from .data import TrackerMeasurements
 from .problem import TrackerProblem
@@ -204,8 +204,7 @@ def _point_errors(problem: TrackerProblem, x: np.ndarray) -> PoseErrors:
         ok = ~np.isnan(meas[k, :, 0]) & ~np.isnan(pred[k, :, 0])
         if ok.sum() >= 3:
             r, _ = kabsch(pred[k, ok], meas[k, ok])
-            # The rotation vector's norm: exact near zero, where arccos of the trace is not.
-            angle[k] = np.degrees(Rotation.from_matrix(r).magnitude())
+            angle[k] = np.degrees(rotation_angle(r))
     poses = problem.platform_poses(x)
     return PoseErrors(position, angle, poses)
 
