@@ -87,3 +87,23 @@ def loop_jacobians(
             else as_matrix(corrections, robot.n_joints + 6, "corrections", rows=n))
     legs, jx, jy = _core.loop_jacobians(robot._geometry, x, q, poses, corr)
     return legs, jx.reshape(n, 6, -1), jy.reshape(n, 6, -1)
+
+
+def _core_rotations(poses: np.ndarray) -> np.ndarray:
+    from .transforms import euler_zyx
+
+    return euler_zyx(poses[:, 3], poses[:, 4], poses[:, 5])
+
+
+def _check_noise(noise: Noise) -> None:
+    if noise.legs <= 0:
+        if noise.is_zero:
+            raise ValueError(
+                "noise: every standard deviation is 0; the efficient estimator weighs each "
+                "instrument by its noise: give the instruments' noise (e.g. iwr.Noise.realistic()"
+                ", or noise='estimate'), or use eq. (10), iwr.identify(method='lm')"
+            )
+        raise ValueError(
+            "noise.legs: 0; the leg readings close the loop and need a standard deviation > 0 (at "
+            "least their resolution, e.g. 0.001 mm)"
+        )

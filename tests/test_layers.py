@@ -28,7 +28,8 @@ PUBLIC = {
     "analysis/identifiability.py": ["identifiability"],
     "analysis/uncertainty.py": ["uncertainty"],
     "methods/__init__.py": ["identify"],
-    "estimation.py": ["efficient", "fit_check"],
+    "estimation.py": ["efficient"],
+    "fit_test.py": ["fit_check"],
     "simulation.py": ["simulate"],
     "planning.py": ["plan_poses", "measure", "_as_candidates"],
 }

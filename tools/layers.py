@@ -17,6 +17,7 @@ that each names a module of a higher (or the same) layer and an attribute define
 from __future__ import annotations
 
 import ast
+import re
 import sys
 from collections import defaultdict
 from pathlib import Path
@@ -41,7 +42,8 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.methods.reduced", "iwr.result"]),
     ("the problem file (iwr-engine's input and result)", ["iwr.problem_file"]),
     ("solvers, the efficient estimator and the fit test", [
-        "iwr.methods.*", "iwr.estimation", "iwr.estimation.*", "iwr.tracker.estimation"]),
+        "iwr.methods.*", "iwr.estimation", "iwr.fit_test", "iwr.accuracy_prediction",
+        "iwr.tracker.estimation"]),
     ("public functions: identify, accuracy, identifiability, uncertainty, planning, simulate", [
         "iwr.methods", "iwr.analysis", "iwr.analysis.*", "iwr.planning", "iwr.simulation",
         "iwr.forward", "iwr.pose_frame", "iwr.compensation", "iwr.gross_errors",
@@ -193,29 +195,23 @@ def upward(root: Path, layers: list[tuple[str, list[str]]] | None = None) -> lis
     return out
 
 
-def _string_constants(tree: ast.AST) -> list[tuple[str, int]]:
-    return [(n.value, n.lineno) for n in ast.walk(tree)
-            if isinstance(n, ast.Constant) and isinstance(n.value, str)]
+_DOTTED = re.compile(r"iwr(\.\w+)+:\w+")
 
 
 def hooks(root: Path) -> list[tuple[str, int, str]]:
-    """``(file, line, "module:attribute")`` of every registered hook: the kinds' registry
-    (``register(name, "module:Class")`` in iwr/kinds/__init__.py) and the values of
-    ``iwr._hooks.HOOKS``."""
+    """``(file, line, "module:attribute")`` of every name by which iwr imports a module on first
+    use: each string of that form in its modules (the kinds' registry,
+    ``register("pose", "iwr.kinds.pose:PoseKind")``; a kind's ``report``; the values of
+    ``iwr._hooks.HOOKS``)."""
     out = []
-    kinds = root / "iwr" / "kinds" / "__init__.py"
-    for node in ast.walk(ast.parse(kinds.read_text())):
-        if (isinstance(node, ast.Call) and getattr(node.func, "id", None) == "register"
-                and len(node.args) == 2 and isinstance(node.args[1], ast.Constant)):
-            out.append(("iwr/kinds/__init__.py", node.lineno, node.args[1].value))
-    table = root / "iwr" / "_hooks.py"
-    if table.exists():
-        for node in ast.walk(ast.parse(table.read_text())):
-            if isinstance(node, ast.AnnAssign) and getattr(node.target, "id", None) == "HOOKS":
-                assert isinstance(node.value, ast.Dict)
-                out += [("iwr/_hooks.py", v.lineno, v.value) for v in node.value.values
-                        if isinstance(v, ast.Constant)]
-    return out
+    for path in modules(root).values():
+        if path.suffix == ".pyi":
+            continue
+        for node in ast.walk(ast.parse(path.read_text())):
+            if (isinstance(node, ast.Constant) and isinstance(node.value, str)
+                    and _DOTTED.fullmatch(node.value)):
+                out.append((str(path.relative_to(root)), node.lineno, node.value))
+    return sorted(out)
 
 
 def _defines(path: Path, name: str) -> bool:

@@ -1,6 +1,6 @@
-"""Simulated calibration experiments: one harness (:mod:`.harness`: scenario, cell, grid,
-executors) and its two uses, :func:`compare_methods` (``iwr compare``, :mod:`.compare`) and
-:func:`study` (``iwr study``, :mod:`.study`)."""
+"""Simulated calibration experiments: one harness (:mod:`.harness`: scenario, cell, evaluation;
+:mod:`.executors`: in this process or on Dask) and its two uses, :func:`compare_methods`
+(``iwr compare``, :mod:`.compare`) and :func:`study` (``iwr study``, :mod:`.monte_carlo`)."""
 
 from __future__ import annotations
 

@@ -27,23 +27,20 @@ import numpy as np
 from .._hooks import hook
 from ..noise import Noise
 from ..robot import Robot
+from .executors import ExecutorError, dry_run, run_dask, run_in_process
 from .harness import (
     FIGURE_COLUMNS,
     FLOOR_ATOL,
     FLOOR_RTOL,
     SCENARIOS,
     Cell,
-    ExecutorError,
     budget_option,
     canonical,
     check_n_poses,
     check_robot,
-    dry_run,
     leg_sigma,
     registered_methods,
     robot_hash,
-    run_dask,
-    run_in_process,
     split_method,
 )
 from .harness import available_methods as _available

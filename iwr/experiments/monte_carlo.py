@@ -46,13 +46,13 @@ import numpy as np
 from .._hooks import hook
 from .._io import atomic_write_text
 from ..robot import Robot
+from .executors import ExecutorError, run_dask, run_in_process
 from .harness import (
     COLUMNS,
     FIGURE_COLUMNS,
     SETTING_COLUMNS,
     TIMING_COLUMNS,
     Cell,
-    ExecutorError,
     accepts,
     budget_option,
     canonical,
@@ -61,8 +61,6 @@ from .harness import (
     noise_at,
     registered_methods,
     robot_hash,
-    run_dask,
-    run_in_process,
 )
 
 __all__ = [

@@ -8,16 +8,12 @@ from typing import Any
 
 import numpy as np
 
+from ..accuracy_prediction import predicted_accuracy
 from ..analysis.accuracy import pose_accuracy
 from ..analysis.identifiability import parameter_error, pose_identifiability
 from ..analysis.uncertainty import pose_uncertainty
-from ..estimation import (
-    _plausible_limit,
-    _PoseSpec,
-    leg_readings,
-    pose_misclosures,
-    predicted_accuracy,
-)
+from ..estimation import _PoseSpec, pose_misclosures
+from ..fit_test import _plausible_limit, leg_readings
 from ..measurements import Measurements
 from ..methods import pose_identify
 from ..planning import measure_poses, pose_design

@@ -247,7 +247,7 @@ def _check_fit(result: IdentificationResult, problem: Any, noise: Any,
     the search bounds as the parameters' plausible range. ``problem``: an :class:`iwr.Problem`
     (leg data) or an :class:`iwr.tracker.TrackerProblem` (tracker data: its bounds are centred
     on the registration guess, and the check is modulo its null directions)."""
-    from ..estimation import fit_check
+    from ..fit_test import fit_check
     from ..noise import Noise
 
     noise = noise if isinstance(noise, Noise) else None

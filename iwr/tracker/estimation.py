@@ -77,7 +77,8 @@ class TrackerSpec:
 
     def __init__(self, robot: Robot, measurements: TrackerMeasurements, noise: Any, x0: Any,
                  active: Any, estimate: Any, bounds: Any, plausible: float) -> None:
-        from ..estimation import _active_mask, _check_estimate, _check_noise
+        from ..estimation import _active_mask, _check_estimate
+        from ..implicit_loop import _check_noise
         from ..methods.lm import levenberg_marquardt
         from ..methods.reduced import ReducedProblem
 
@@ -195,7 +196,7 @@ class TrackerSpec:
             max_iterations=int(max_iterations), callback=cb)
 
     def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        from ..estimation import _nearest_plausible, tracker_readings
+        from ..fit_test import _nearest_plausible, tracker_readings
 
         x_plain = _nearest_plausible(tracker_readings(self.problem), x, self.limit, self.center)
         return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
@@ -268,7 +269,8 @@ def tracker_predicted_accuracy(robot: Robot, x: Any, covariance: Any, active: An
     joints' gauge and the gauge alignment is differentiated by central differences of step
     ``step`` (mm, rad; no forward kinematics in them). The orientation error is in the tool
     frame."""
-    from ..estimation import accuracy_from_covariances, loop_jacobians
+    from ..accuracy_prediction import accuracy_from_covariances
+    from ..implicit_loop import loop_jacobians
     from ..transforms import pose_matrix
 
     x = np.asarray(x, dtype=float)
@@ -309,7 +311,7 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
     pair ``(Noise, TrackerNoise)``) the readings' covariance: the legs and joints, each point's
     anisotropic covariance (:meth:`TrackerNoise.whitening`, or the file's own uncertainties);
     without, the unweighted point objective's identity metric."""
-    from ..estimation import _core_rotations, loop_jacobians
+    from ..implicit_loop import _core_rotations, loop_jacobians
     from ..misclosures import Misclosures
 
     setup = _setup(robot)

@@ -12,7 +12,7 @@ import numpy as np
 
 from ..analysis.identifiability import ParameterError, _nearest_equivalent, _row_space
 from ..analysis.uncertainty import _tracker_uncertainty
-from ..estimation import tracker_readings
+from ..fit_test import tracker_readings
 from ..forward import forward_kinematics
 from ..kinds import MeasurementKind, _where, data_fingerprint, position_rms
 from ..measurements import Measurements
@@ -42,7 +42,7 @@ _GAUGE = ("Tracker data do not fix {0} nor {5} (docs/tracker.md): every figure h
 class _TrackerKind(MeasurementKind):
     frame = "{T}"
     determines_world_frame = False
-    report = "iwr.reporting.calibration:TrackerCalibrationReport"
+    report = "iwr.reporting.tracker_calibration:TrackerCalibrationReport"
     #: The figures of iwr compare and iwr study on tracker data (MeasurementKind.experiment_text).
     experiment_text = {
         "cost": "the sum of squared point residuals in {T}, predicted minus measured (mm^2)",
