@@ -25,7 +25,6 @@ from .robot_file import (
     robot_arguments,
     write_toml,
 )
-from .tracker.setup import TrackerSetup
 
 __all__ = ["Robot", "RobotFileError"]
 
@@ -159,6 +158,9 @@ class Robot:
         self.workspace = _as_array(workspace, (6,), "workspace", _POSE_UNITS)
         self.provenance = _provenance(provenance or {}, "provenance")
         if tracker is not None:
+            # Here, not at the top: iwr.tracker.setup imports SciPy, which ``import iwr`` must not.
+            from .tracker.setup import TrackerSetup
+
             if not isinstance(tracker, TrackerSetup):
                 raise TypeError(f"tracker: expected an iwr.tracker.TrackerSetup or None, got "
                                 f"{type(tracker).__name__}")
@@ -271,6 +273,8 @@ class Robot:
         after them in the problems built for tracker data (``iwr.tracker.TrackerProblem``'s
         ``n_params`` and ``parameter_names``), and in every ``x`` of the public API for them.
         """
+        from .tracker.setup import TrackerSetup  # here: it imports SciPy (see __init__)
+
         if setup is None and registration is not None:
             setup = TrackerSetup(registration, reflectors=reflectors, probe=probe,
                                  probe_length=probe_length, names=names)

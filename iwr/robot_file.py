@@ -21,7 +21,6 @@ from . import kinds
 from ._io import NotRegularFileError, atomic_write_text, open_regular
 from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM
 from .noise import MIN_SIGMA, Noise, TrackerNoise
-from .tracker.setup import TrackerSetup
 
 if sys.version_info >= (3, 11):
     import tomllib
@@ -334,6 +333,8 @@ def robot_arguments(data: Mapping[str, Any]) -> tuple[tuple[Any, ...], dict[str,
     if "noise" in data:
         kwargs["noise"] = Noise(**_sigmas(data["noise"], "noise", _NOISE_UNITS))
     if "tracker" in data:
+        from .tracker.setup import TrackerSetup  # here: it imports SciPy, which import iwr must not
+
         table = data["tracker"]
         if isinstance(table, Mapping) and "noise" in table:
             table = {k: v for k, v in table.items() if k != "noise"}
