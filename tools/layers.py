@@ -351,8 +351,13 @@ def main(argv: list[str]) -> int:
     for comp in comps:
         print(f"  {len(comp):3d} modules: {', '.join(comp)}")
     missing = unlisted(root)
-    print(f"{len(LAYERS)} layers; {len(missing)} modules not in the table"
-          + "".join(f"\n  {m}" for m in missing))
+    counts = defaultdict(int)
+    for m in edges:
+        counts[layer_of(m)] += 1
+    print(f"{len(LAYERS)} layers (lowest first; modules in each); {len(missing)} modules not in "
+          "the table" + "".join(f"\n  {i:2d} {name.split(':')[0]}: {counts[i]}"
+                               for i, (name, _) in enumerate(LAYERS))
+          + "".join(f"\n  not in the table: {m}" for m in missing))
     up = upward(root)
     print(f"{len(up)} upward imports" + "".join(
         f"\n  {i.source} ({LAYERS[layer_of(i.source) or 0][0].split(':')[0]}) -> {i.target} "
