@@ -57,7 +57,7 @@ def per_eval_us(fn, X: np.ndarray, reps: int) -> float:
 def accuracy_table(seed: int) -> None:
     from iwr.methods import ReducedProblem
     from iwr.methods.lm import levenberg_marquardt
-    from iwr.simulate import sample_poses
+    from iwr.simulation import sample_poses
     from iwr.tracker import TrackerNoise, guess_registration, tool_pose_errors
 
     robot = iwr.Robot.default()
@@ -89,7 +89,7 @@ def accuracy_table(seed: int) -> None:
             out = []
             for x in (x0, res["x"]):
                 if setup is None:
-                    from iwr.accuracy import pose_errors
+                    from iwr.analysis.accuracy import pose_errors
                     from iwr.forward import forward_kinematics
 
                     fk = forward_kinematics(robot, x[: robot.n_params], q, legs)

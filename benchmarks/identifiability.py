@@ -19,7 +19,7 @@ import numpy as np
 
 import iwr
 from iwr.planning import measure
-from iwr.simulate import sample_poses
+from iwr.simulation import sample_poses
 
 
 def table_rank() -> None:

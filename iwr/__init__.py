@@ -26,23 +26,22 @@ except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
         "package, or install in place with pip install -e . (see README.md)"
     ) from _exc
 
-# What every use needs, and the public functions named like their modules (``iwr.simulate`` must
-# stay the function: importing the module ``iwr.simulate`` later would rebind a lazy name to it).
+# What every use needs (no module of iwr is named like a function here: tools/layers.py checks).
 # None of these imports SciPy.
-from .accuracy import Accuracy, PoseErrors, accuracy, pose_errors
-from .forward import ForwardKinematicsError, forward_kinematics
-from .identifiability import (
+from .analysis.accuracy import Accuracy, PoseErrors, accuracy, pose_errors
+from .analysis.identifiability import (
     IdentifiabilityReport,
     NullDirection,
     ParameterError,
     identifiability,
     parameter_error,
 )
+from .analysis.uncertainty import Uncertainty, uncertainty
+from .forward import ForwardKinematicsError, forward_kinematics
 from .measurements import MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
 from .robot import Robot, RobotFileError
-from .simulate import Noise, UnreachableError, simulate
-from .uncertainty import Uncertainty, uncertainty
+from .simulation import Noise, UnreachableError, simulate
 
 # The rest is imported on first use (module __getattr__, PEP 562): the methods import SciPy's
 # optimize, the experiments everything; a short command (``iwr --help``) pays for neither.
@@ -51,9 +50,9 @@ _LAZY = {
     "calibrate": ".calibration",
     "Comparison": ".experiments.compare",
     "compare_methods": ".experiments.compare",
-    "StudyError": ".experiments.study",
-    "StudyResult": ".experiments.study",
-    "study": ".experiments.study",
+    "StudyError": ".experiments.monte_carlo",
+    "StudyResult": ".experiments.monte_carlo",
+    "study": ".experiments.monte_carlo",
     "IdentificationResult": ".methods",
     "ReducedProblem": ".methods",
     "ResultFileError": ".methods",
@@ -68,7 +67,7 @@ _LAZY = {
 if TYPE_CHECKING:  # the same names for type checkers (and for tools/layers.py's import graph)
     from .calibration import Calibration, calibrate
     from .experiments.compare import Comparison, compare_methods
-    from .experiments.study import StudyError, StudyResult, study
+    from .experiments.monte_carlo import StudyError, StudyResult, study
     from .methods import (
         IdentificationResult,
         ReducedProblem,

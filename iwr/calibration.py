@@ -23,12 +23,12 @@ from typing import Any
 import numpy as np
 
 from . import kinds
-from .accuracy import Accuracy, accuracy
+from .analysis.accuracy import Accuracy, accuracy
+from .analysis.identifiability import identifiability, identifiable_count, parameter_error
+from .analysis.uncertainty import Uncertainty, uncertainty
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
-from .identifiability import identifiability, identifiable_count, parameter_error
 from .methods import IdentificationResult, identify
-from .uncertainty import Uncertainty, uncertainty
 
 __all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "calibrate", "from_result"]
 
@@ -159,7 +159,7 @@ class Calibration:
         if reason is not None:
             r["success"] = False
             r["status"] = NOT_CALIBRATED
-            # The prefix keeps the status in a result file (methods.result.status_from_message).
+            # The prefix keeps the status in a result file (iwr.result.status_from_message).
             r["message"] = f"{NOT_CALIBRATED}: {reason}"
 
 

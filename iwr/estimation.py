@@ -11,10 +11,12 @@ joint readings and of the platform pose (the nuisance unknowns: the true joint r
 true pose); the solver, in C++ (``cpp/src/implicit_loop.cpp``), is a Levenberg-Marquardt method
 whose per-pose blocks are eliminated by the Schur complement, with exact derivatives.
 
-On top of the solve this module tests the fit (chi-square), finds outliers (a per-pose chi-square
-test on the normalised residuals, and Baarda's w-test to name the instrument), estimates variance
-components (Foerstner's iteration with redundancy numbers) and predicts the tool accuracy from the
-covariance. See ``docs/estimation.md``.
+On top of the solve this module tests the fit (chi-square, with the verdicts of
+:mod:`iwr.fit_test`), finds outliers (a per-pose chi-square test on the normalised residuals, and
+Baarda's w-test to name the instrument), estimates variance components (Foerstner's iteration
+with redundancy numbers) and predicts the tool accuracy from the covariance
+(:mod:`iwr.accuracy_prediction`). The readings model is :mod:`iwr.implicit_loop`. See
+``docs/estimation.md``.
 """
 
 from __future__ import annotations
@@ -22,7 +24,7 @@ from __future__ import annotations
 import math
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -35,11 +37,28 @@ from scipy.optimize import OptimizeResult
 from . import _core, kinds
 from ._blas import single_thread
 from ._io import jsonable
-from .identifiability import identifiability
-from .measurements import Measurements, as_matrix
-from .methods.result import IdentificationResult
+from .accuracy_prediction import PredictedAccuracy, predicted_accuracy
+from .fit_test import (
+    FitTest,
+    _chi2_cause,
+    _chi2_verdict,
+    _implausible_cause,
+    _nearest_plausible,
+    _plausible_limit,
+    fit_check,
+    leg_readings,
+)
+from .implicit_loop import (
+    _check_noise,
+    _component_columns,
+    loop_jacobians,
+    reading_names,
+    sigma_matrix,
+)
+from .measurements import Measurements
 from .noise import Noise
 from .problem import Problem, _check_joint_types
+from .result import IdentificationResult
 from .robot import Robot
 
 __all__ = [
@@ -59,131 +78,6 @@ __all__ = [
 
 #: The variance components, named as the fields of :class:`iwr.Noise`.
 COMPONENTS = ("legs", "joint_lengths", "joint_angles", "position", "orientation")
-
-
-def reading_names(robot: Robot) -> list[str]:
-    """Names of the readings of one pose, in the column order of the estimator's residuals:
-    ``leg1 .. leg6``, ``q1 .. qn``, ``position.x .. position.z``, ``orientation.x ..
-    orientation.z`` (a rotation vector in the platform frame)."""
-    return ([f"leg{j + 1}" for j in range(6)] + [f"q{i + 1}" for i in range(robot.n_joints)]
-            + [f"position.{c}" for c in "xyz"] + [f"orientation.{c}" for c in "xyz"])
-
-
-def _component_columns(robot: Robot) -> dict[str, np.ndarray]:
-    nj = robot.n_joints
-    prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
-    return {
-        "legs": np.arange(6),
-        "joint_lengths": 6 + np.flatnonzero(prism),
-        "joint_angles": 6 + np.flatnonzero(~prism),
-        "position": np.arange(6 + nj, 9 + nj),
-        "orientation": np.arange(9 + nj, 12 + nj),
-    }
-
-
-def sigma_matrix(robot: Robot, measurements: Measurements, noise: Noise) -> np.ndarray:
-    """Standard deviation of every reading, shape (N, 12 + n_joints), columns as
-    :func:`reading_names`. Leg weights of the measurements (if any) scale the leg sigma by
-    ``1 / sqrt(w)``, so relative weights act as inverse relative variances."""
-    if not isinstance(noise, Noise):
-        raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
-    n = len(measurements)
-    s = np.zeros((n, 12 + robot.n_joints))
-    for name, cols in _component_columns(robot).items():
-        s[:, cols] = getattr(noise, name)
-    if measurements.weights is not None:
-        w = measurements.weights
-        if np.any(w <= 0):
-            r, c = (int(i) for i in np.argwhere(w <= 0)[0])
-            raise ValueError(
-                f"weights: row {r}, column {c} is {w[r, c]}; the efficient estimator reads a "
-                "weight as an inverse relative variance and needs it > 0 (drop the pose instead)"
-            )
-        s[:, :6] = s[:, :6] / np.sqrt(w)
-    return s
-
-
-def loop_jacobians(
-    robot: Robot, x: Any, q: Any, poses: Any, corrections: Any = None
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Predicted leg readings at corrected readings and their exact derivatives.
-
-    The joint readings are ``q + dq`` and the platform pose ``(p + dp, R(pose) exp([w]x))`` (the
-    rotation vector ``w`` in the platform frame, as :func:`iwr.simulate` applies orientation
-    noise), with ``corrections`` rows ``(dq, dp, w)`` (default zeros).
-
-    Returns
-    -------
-    legs : ndarray, shape (N, 6)
-    d_x : ndarray, shape (N, 6, n_params)
-        Derivatives with respect to the error parameters.
-    d_corrections : ndarray, shape (N, 6, n_joints + 6)
-        Derivatives with respect to ``(dq, dp, w)``.
-    """
-    poses = as_matrix(poses, 6, "poses")
-    n = poses.shape[0]
-    q = as_matrix(q, robot.n_joints, "q", rows=n)
-    x = np.ascontiguousarray(x, dtype=float)
-    if x.shape != (robot.n_params,):
-        raise ValueError(f"x: shape {x.shape}; expected ({robot.n_params},)")
-    corr = (np.zeros((0, 0)) if corrections is None
-            else as_matrix(corrections, robot.n_joints + 6, "corrections", rows=n))
-    legs, jx, jy = _core.loop_jacobians(robot._geometry, x, q, poses, corr)
-    return legs, jx.reshape(n, 6, -1), jy.reshape(n, 6, -1)
-
-
-@dataclass(frozen=True)
-class FitTest:
-    """The global test of the fit: does the weighted residual sum follow its chi-square law?
-
-    Attributes
-    ----------
-    statistic : float
-        Sum of the squared normalised corrections at the solution (``fun``).
-    dof : int
-        Degrees of freedom: readings - nuisance unknowns - identified parameters
-        (``6 N - n_active`` for leg data: 6 closure equations per pose).
-    p_value : float
-        ``P(chi2(dof) >= statistic)``.
-    alpha : float
-        Significance level of the test.
-    fit_ok : bool
-        The statistic is within its law (``p_value >= alpha``), no identified error is beyond its
-        plausible size and the outliers are few enough to be outliers.
-    verdict : str
-        One line for a report.
-    causes : list of str
-        What is wrong, with the likely causes, when ``fit_ok`` is False; notes otherwise.
-    implausible : list of (str, float, float)
-        Parameters beyond their plausible size: (name, value, limit), mm or rad.
-    """
-
-    statistic: float
-    dof: int
-    p_value: float
-    alpha: float
-    fit_ok: bool
-    verdict: str
-    causes: list[str] = field(default_factory=list)
-    implausible: list[tuple[str, float, float]] = field(default_factory=list)
-
-    @property
-    def variance_factor(self) -> float:
-        """``statistic / dof``: 1 on average when model, data and noise model agree."""
-        return self.statistic / self.dof if self.dof > 0 else math.nan
-
-    def to_dict(self) -> dict[str, Any]:
-        """The test as a result file and a report's JSON hold it."""
-        return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value,
-                "alpha": self.alpha, "fit_ok": self.fit_ok, "verdict": self.verdict,
-                "causes": list(self.causes),
-                "implausible": [{"parameter": n, "value": v, "limit": lim}
-                                for n, v, lim in self.implausible]}
-
-    def __str__(self) -> str:
-        lines = [self.verdict]
-        lines += [f"  - {c}" for c in self.causes]
-        return "\n".join(lines)
 
 
 @dataclass(frozen=True)
@@ -277,150 +171,6 @@ class VarianceComponent:
     identified: bool
 
 
-@dataclass(frozen=True)
-class PredictedAccuracy:
-    """Tool pose error predicted from the covariance of the identified parameters.
-
-    The errors are those of the calibrated model's forward kinematics (exact readings) caused by the
-    uncertainty of the identified parameters alone: the figure a validation on fresh poses
-    measures against the truth.
-
-    Attributes
-    ----------
-    position_rms : float
-        RMS tool position error over the poses (mm).
-    position_95 : float
-        95th percentile of the tool position error over the poses and the estimation noise (mm).
-    orientation_rms, orientation_95 : float
-        The same for the orientation error angle (degrees).
-    position_cov : ndarray, shape (N, 3, 3)
-        Per pose, covariance of the tool position (mm^2, world frame).
-    orientation_cov : ndarray, shape (N, 3, 3)
-        Per pose, covariance of the orientation error (rad^2, platform frame).
-    """
-
-    position_rms: float
-    position_95: float
-    orientation_rms: float
-    orientation_95: float
-    position_cov: np.ndarray
-    orientation_cov: np.ndarray
-
-    def __str__(self) -> str:
-        return (f"predicted tool error on {len(self.position_cov)} poses: position RMS "
-                f"{self.position_rms:.4f} mm (95 %: {self.position_95:.4f} mm), orientation RMS "
-                f"{self.orientation_rms:.5f} deg (95 %: {self.orientation_95:.5f} deg)")
-
-
-def predicted_accuracy(
-    robot: Robot,
-    measurements: Measurements,
-    x: Any,
-    covariance: Any,
-    *,
-    active: Any,
-    tool: Any = None,
-    n_samples: int = 500,
-    seed: int = 0,
-) -> PredictedAccuracy:
-    """Predicted tool pose error of the calibrated robot at the poses of ``measurements``.
-
-    At each pose the calibrated model's forward kinematics from the joint and leg readings gives
-    the platform pose (linearised at the measured pose); by the implicit function theorem, a
-    parameter error ``dx`` moves it by
-    ``-(d legs / d pose)^-1 (d legs / d x) dx``, so the pose error covariance is
-    ``G C G^T`` with ``C`` the covariance of the active parameters.
-
-    Parameters
-    ----------
-    robot : Robot
-    measurements : Measurements
-        Poses at which to predict (the joint and leg readings, and the poses as linearisation
-        points).
-    x : array_like, shape (n_params,)
-        The identified parameters.
-    covariance : array_like, shape (n_active, n_active)
-        Their covariance (``result.covariance``).
-    active : array_like of bool, shape (n_params,)
-        The identified parameters (``result.active``).
-    tool : array_like, shape (3,), optional
-        Tool point in the platform frame {5} (mm); default its origin.
-    n_samples : int
-        Gaussian draws per pose for the 95th percentiles (the same draws at every pose).
-    seed : int
-        Seed of those draws.
-    """
-    x = np.asarray(x, dtype=float)
-    mask = np.asarray(active, dtype=bool)
-    cov = np.asarray(covariance, dtype=float)
-    p = int(mask.sum())
-    if mask.shape != (robot.n_params,):
-        raise ValueError(f"active: shape {mask.shape}; expected ({robot.n_params},)")
-    if cov.shape != (p, p):
-        raise ValueError(f"covariance: shape {cov.shape}; expected ({p}, {p}) for {p} active "
-                         "parameters")
-    t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
-    # Linearised at the measured poses: the calibrated model's forward kinematics would move them
-    # by the calibration residual (micrometres), a relative 1e-6 change of the covariance.
-    poses = measurements.poses
-    _, jx, jy = loop_jacobians(robot, x, measurements.q, poses)
-    nj = robot.n_joints
-    jpose = jy[:, :, nj:]  # (N, 6, 6): d legs / d (dp, w)
-    g = -np.linalg.solve(jpose, jx[:, :, mask])  # (N, 6, p): d (dp, w) / d x
-    r = _core_rotations(poses)
-    # Tool point p + R t: d = dp + R (w x t) = dp - R [t]x w.
-    tx = np.array([[0, -t[2], t[1]], [t[2], 0, -t[0]], [-t[1], t[0], 0]])
-    gp = g[:, :3] - np.einsum("kij,jl,klp->kip", r, tx, g[:, 3:])
-    go = g[:, 3:]
-    cp = np.einsum("kip,pq,kjq->kij", gp, cov, gp)
-    co = np.einsum("kip,pq,kjq->kij", go, cov, go)
-    return accuracy_from_covariances(cp, co, n_samples=n_samples, seed=seed)
-
-
-def accuracy_from_covariances(cp: np.ndarray, co: np.ndarray, *, n_samples: int = 500,
-                              seed: int = 0) -> PredictedAccuracy:
-    """:class:`PredictedAccuracy` from per-pose covariances of the tool position (N, 3, 3; mm^2)
-    and orientation (N, 3, 3; rad^2): RMS from their traces, 95th percentiles from ``n_samples``
-    Gaussian draws per pose (the same draws at every pose, ``seed``)."""
-    rng = np.random.default_rng(seed)
-    z = rng.standard_normal((3, n_samples))
-
-    def stats_of(c: np.ndarray) -> tuple[float, float]:
-        rms = math.sqrt(float(np.mean(np.trace(c, axis1=1, axis2=2))))
-        # Draws of each pose's error vector through its Cholesky-like factor (eigen, so that a
-        # singular covariance is fine).
-        ev, vec = np.linalg.eigh(c)
-        f = vec * np.sqrt(np.clip(ev, 0, None))[:, None, :]
-        norms = np.sqrt(np.sum((f @ z) ** 2, axis=1))  # (N, n_samples)
-        return rms, float(np.quantile(norms, 0.95))
-
-    prms, p95 = stats_of(cp)
-    orms, o95 = stats_of(co)
-    return PredictedAccuracy(prms, p95, math.degrees(orms), math.degrees(o95), cp, co)
-
-
-def _core_rotations(poses: np.ndarray) -> np.ndarray:
-    from .transforms import euler_zyx
-
-    return euler_zyx(poses[:, 3], poses[:, 4], poses[:, 5])
-
-
-def leg_readings(robot: Robot, measurements: Measurements
-                 ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """``x -> (predicted leg readings, their Jacobian)`` at the measured poses, the readings
-    weighted 0 left out: what :func:`_nearest_plausible` keeps fixed for pose data. From the
-    estimator's kernel, not Problem's: the check is no evaluation of the method that produced
-    ``x`` (its budget counts those)."""
-    rows = (np.ones((len(measurements), 6), dtype=bool) if measurements.weights is None
-            else measurements.weights > 0).reshape(-1)  # a reading weighted 0 does not count
-
-    def readings(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        legs, jx, _ = loop_jacobians(robot, x, measurements.q, measurements.poses)
-        return legs.reshape(-1)[rows], jx.reshape(-1, robot.n_params)[rows]
-
-    return readings
-
-
 def pose_misclosures(robot: Robot, measurements: Measurements, x: Any, noise: Any = None) -> Any:
     """:class:`iwr.misclosures.Misclosures` of pose data at ``x``: the six leg residuals of eq.
     (10) per pose (a leg weighted 0 left out), their derivatives in the parameters and in every
@@ -450,213 +200,6 @@ def pose_misclosures(robot: Robot, measurements: Measurements, x: Any, noise: An
     return Misclosures(r, jx, b, names, names[:6], metric=metric)
 
 
-def tracker_readings(problem: Any) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
-    """``x -> (residuals, their Jacobian)`` of a :class:`iwr.tracker.TrackerProblem`: what
-    :func:`_nearest_plausible` keeps fixed for laser-tracker data (the measured points are
-    constant, so equal residuals are equal predictions)."""
-    return lambda x: (problem.residuals(x), problem.jacobian(x))
-
-
-def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
-                       x: np.ndarray, limit: np.ndarray,
-                       centre: np.ndarray | None = None) -> np.ndarray:
-    """The vector equivalent to ``x`` (the same predictions ``model(x)[0]`` of the readings, with
-    their Jacobian ``model(x)[1]``) that is smallest in units of ``limit``, measured from
-    ``centre`` (default zero); returned measured from ``centre``.
-
-    Holding the unidentifiable parameters fixed makes the base parameters absorb their true values
-    (joint 4's rotation about its axis moves two base joints by 694 mm per radian), so a plausible
-    robot can have base parameters beyond any bound; its smallest equivalent cannot (each entry of
-    it is at most the norm of the true vector in these units).
-
-    The set of equivalent vectors is curved (two of the six null directions of the IWR are
-    rotations of frame {4}, compensated by moving the base joints on circles), so removing the
-    null-space component of ``x`` along straight lines is right only for small errors: with tens
-    of degrees along them (the comparison's ``bad`` scenario) the straight step leaves the set by
-    tens of millimetres of readings and names a robot at the noise floor implausible. Instead the
-    norm is minimised on the set itself, by a feasible-point method: a step along the null
-    directions of the Jacobian at the current point (the straight removal), then Gauss-Newton back
-    onto the set within the identifiable directions, the step halved until the norm decreases.
-    Every accepted point predicts the readings of ``x`` to round-off; at the end the point has no
-    component along the null directions (the optimality condition). A ``x`` that is not
-    equivalent to a plausible vector stays implausible: no point of its set is small."""
-    c = np.zeros_like(x, dtype=float) if centre is None else np.asarray(centre, dtype=float)
-
-    def readings(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        values, jac = model(c + y * limit)
-        return values, jac * limit
-
-    target, jac = readings((np.asarray(x, dtype=float) - c) / limit)
-    tol = 1e-10 * (1.0 + float(np.sqrt(np.mean(target**2))))  # mm RMS: round-off of the readings
-
-    def split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Orthonormal bases of the null directions and of their complement (units of limit)."""
-        d = np.linalg.norm(jac, axis=0)
-        d = np.where(d > 0, d, 1.0)  # the scaled columns: the rank does not depend on units
-        _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
-        rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
-        basis, _ = np.linalg.qr(vt[rank:].T / d[:, None], mode="complete")
-        return basis[:, : jac.shape[1] - rank], basis[:, jac.shape[1] - rank:]
-
-    def restore(y: np.ndarray, ident: np.ndarray) -> np.ndarray | None:
-        """Gauss-Newton onto the readings of ``x`` within the identifiable directions."""
-        for _ in range(20):
-            legs, jac = readings(y)
-            r = target - legs
-            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
-                return None  # a step too far for the model: the caller halves it
-            if np.sqrt(np.mean(r**2)) <= tol:
-                return y
-            y = y + ident @ np.linalg.lstsq(jac @ ident, r, rcond=None)[0]
-        return None
-
-    y = (np.asarray(x, dtype=float) - c) / limit
-    with single_thread():
-        for _ in range(50):
-            null, ident = split(jac)
-            if null.shape[1] == 0:
-                break
-            along = -null @ (null.T @ y)  # the straight removal of the null component
-            if np.linalg.norm(along) <= 1e-10 * (1.0 + np.linalg.norm(y)):
-                break  # no null component left: the smallest equivalent
-            for t in 0.5 ** np.arange(12):
-                z = restore(y + t * along, ident)
-                if z is not None and np.linalg.norm(z) < np.linalg.norm(y):
-                    break
-            else:
-                break  # no progress (round-off): y is as small as it gets
-            y = z
-            jac = readings(y)[1]
-    return y * limit
-
-
-def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: float) -> str:
-    # The farthest beyond its limit first: the likeliest cause.
-    worst = sorted(implausible, key=lambda t: -abs(t[1]) / t[2])
-    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in worst[:6])
-    more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
-    return (f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
-            f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
-            "absorbed something it does not describe: an unregistered measurement frame, a tool "
-            "or reflector offset left out, leg or pose columns swapped, a wrong nominal geometry")
-
-
-def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
-                  without_dof: str, failed: list[str] | None = None) -> str:
-    """The fit test's one-line verdict (``without_dof`` when it failed with no redundancy;
-    ``failed``: what failed when the chi-square test itself passed)."""
-    if fit_ok:
-        return (f"the model fits the data: chi2 = {statistic:.4g} for {dof} degrees of "
-                f"freedom (p = {p_value:.3g})")
-    chi = f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
-    if dof > 0 and failed:  # not the chi-square test: say what, not only its passing p-value
-        return (f"THE MODEL DOES NOT FIT THE DATA: {' and '.join(failed)} (the chi-square test "
-                f"alone passes: {chi})")
-    return "THE MODEL DOES NOT FIT THE DATA: " + (chi if dof > 0 else without_dof)
-
-
-def _chi2_cause(statistic: float, dof: int, p_value: float) -> str:
-    return (f"the weighted residual sum {statistic:.4g} is {statistic / dof:.3g} times its "
-            f"expectation ({dof} degrees of freedom, p = {p_value:.2g}): the model does not fit "
-            "the data. Likely causes: the poses are not expressed in the robot's world frame "
-            "(tracker frame not registered), a tool or reflector offset left out of the model, "
-            "columns swapped or in the wrong unit, noise larger than stated, or a local minimum "
-            "(try another method or start)")
-
-
-def _plausible_limit(robot: Robot, plausible: float, bounds: Any) -> np.ndarray:
-    """``plausible`` times the half-width of ``bounds`` (None: the default bounds)."""
-    if bounds is None:
-        return plausible * robot.default_bounds("default")[1]
-    lower, upper = (np.asarray(b, dtype=float) for b in bounds)
-    return plausible * np.maximum(np.abs(lower), np.abs(upper))
-
-
-def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
-              noise: Noise | None = None, bounds: Any = None, fit_alpha: float = 1e-3,
-              plausible: float = 10.0) -> FitTest:
-    """Is an eq. (10) solution ``x`` sane? The check :func:`iwr.identify` applies to every method
-    but the efficient estimator (which tests its own fit).
-
-    Always: no identified error beyond ``plausible`` times the default bounds, modulo the
-    unidentifiable directions (as :func:`efficient`; ``bounds``, a pair (lower, upper), sets the
-    plausible size instead of the default bounds). With a ``noise`` model also the chi-square
-    test of the generalised least squares statistic ``sum_k r_k^T C_k^-1 r_k`` (``r_k`` the six
-    leg residuals of pose k, ``C_k`` their covariance propagated to first order from every
-    instrument's noise) **minimised to first order around x** over the ``active`` parameters
-    (the Gauss-Newton step is computed, not taken), ``dof = 6 N`` minus the rank of the active
-    columns: eq. (10)'s
-    minimum is not the weighted one, and the statistic at it exceeds its law by the efficiency
-    loss (about 100 at N = 100 on ``Noise.realistic()``); the linearised minimum does not, while
-    a local minimum far from the solution, an unregistered frame, ... stay far above it. Without
-    a noise model the cost cannot be judged (the leg noise is unknown: any cost fits some
-    sigma), only the size of the errors; ``statistic``, ``dof`` and ``p_value`` are then nan, 0,
-    nan.
-
-    Laser-tracker data (``robot.tracker`` and :class:`iwr.tracker.TrackerMeasurements`, ``x`` the
-    robot's then the setup's parameters): the same size test, modulo the null directions of the
-    point (probe) objective, each parameter measured from the centre of its bounds (the
-    registration guess for the registration's correction) against ``plausible`` times their
-    half-width. Reflector points with a ``noise`` model ``(iwr.Noise or None, TrackerNoise)``:
-    the same chi-square test on the point residuals, each pose's whitened by their covariance at
-    ``x`` (:func:`iwr.tracker.problem.point_covariances`: the tracker's noise plus the readings'
-    propagated through the loop closure), ``dof`` the seen coordinates minus the rank. Probe
-    data have no chi-square test here (``noise`` must be None; the efficient estimator tests
-    their fit). Each kind gives its whitened residuals
-    (:meth:`iwr.kinds.MeasurementKind.whitened`).
-    """
-    x = np.asarray(x, dtype=float)
-    mask = np.asarray(active, dtype=bool)
-    # The kind's part: each parameter's plausible size about its centre and the readings model
-    # whose null directions the test ignores (tracker data, docs/tracker.md: the point (probe)
-    # objective, so modulo the registration's and the platform frame's gauge; the setup's
-    # parameters judged from the centre of their bounds, the robot's from zero).
-    kind = kinds.of(measurements)
-    if noise is not None and not kind.chi2_fit_test:
-        raise ValueError(f"noise: the chi-square test of {kind.name} data is not implemented "
-                         "here (the efficient estimator tests their fit); only the size of the "
-                         "identified errors is tested")
-    names, limit, centre, readings = kind.plausibility(robot, measurements, bounds, plausible)
-    x_plain = _nearest_plausible(readings, x, limit, centre)
-    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
-                   if abs(x_plain[i]) > limit[i]]
-    causes: list[str] = []
-    statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
-    if noise is not None:
-        # The kind's whitened residuals and Jacobian at x (iwr.kinds.MeasurementKind.whitened).
-        rw, jw, n_readings = kind.whitened(robot, measurements, x, noise)
-        jw = jw[:, mask]
-        scale = np.linalg.norm(jw, axis=0)
-        scale = np.where(scale > 0, scale, 1.0)
-        with single_thread():
-            step, _, rank, _ = np.linalg.lstsq(jw / scale, rw, rcond=None)
-        statistic = float(np.sum((rw - (jw / scale) @ step) ** 2))
-        # The identifiable directions among the active parameters (all 58 active: 52 on the IWR).
-        dof = int(n_readings) - int(rank)
-        p_value = float(special.chdtrc(dof, statistic)) if dof > 0 else math.nan
-        chi_ok = bool(dof > 0 and p_value >= fit_alpha)
-        if dof <= 0:
-            causes.append(f"no redundancy: {int(n_readings)} readings for {int(rank)} "
-                          "identifiable parameters, so the data cannot test the model: measure "
-                          "more poses")
-        elif not chi_ok:
-            causes.append(_chi2_cause(statistic, dof, p_value))
-    if implausible:
-        causes.append(_implausible_cause(implausible, plausible))
-    fit_ok = chi_ok and not implausible
-    if noise is None:
-        head = ("no noise model: the cost is not tested (give one for the chi-square test); "
-                "identified errors " + ("within" if not implausible else "NOT within")
-                + " their plausible size")
-        verdict = head if fit_ok else "THE MODEL DOES NOT FIT THE DATA: " + head
-    else:
-        verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "implausible parameters",
-                                ["identified errors beyond their plausible size"]
-                                if chi_ok and implausible else None)
-    return FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict, causes,
-                   implausible)
-
-
 def _as_noise(noise: Any) -> tuple[Noise, tuple[str, ...]]:
     """The starting noise model and the components to estimate."""
     if isinstance(noise, str):
@@ -666,20 +209,6 @@ def _as_noise(noise: Any) -> tuple[Noise, tuple[str, ...]]:
     if not isinstance(noise, Noise):
         raise TypeError(f"noise: expected an iwr.Noise or 'estimate', got {type(noise).__name__}")
     return noise, ()
-
-
-def _check_noise(noise: Noise) -> None:
-    if noise.legs <= 0:
-        if noise.is_zero:
-            raise ValueError(
-                "noise: every standard deviation is 0; the efficient estimator weighs each "
-                "instrument by its noise: give the instruments' noise (e.g. iwr.Noise.realistic()"
-                ", or noise='estimate'), or use eq. (10), iwr.identify(method='lm')"
-            )
-        raise ValueError(
-            "noise.legs: 0; the leg readings close the loop and need a standard deviation > 0 (at "
-            "least their resolution, e.g. 0.001 mm)"
-        )
 
 
 def efficient(
@@ -841,8 +370,8 @@ class _PoseSpec:
             raise ValueError(f"x0: expected {robot.n_params} finite values, got shape "
                              f"{x0_arr.shape}")
         self.x_start = x0_arr
-        self.mask = _active_mask(active, robot.n_params, lambda: identifiability(
-            robot, measurements, x0_arr).active)
+        self.mask = _active_mask(active, robot.n_params, lambda: kinds.of(
+            measurements).identifiability(robot, measurements, x0_arr).active)
         self.cols = _component_columns(robot)
         self.sigma_all = sigma_matrix(robot, measurements, noise0)
         # Which components to estimate: only those with readings (and not exact).

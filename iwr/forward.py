@@ -9,6 +9,7 @@ import numpy as np
 from . import _core
 from .measurements import as_matrix
 from .robot import Robot
+from .transforms import pose_from_matrix, pose_matrix
 
 __all__ = ["forward_kinematics", "ForwardKinematicsError"]
 
@@ -78,9 +79,7 @@ def forward_kinematics(
         raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
     if robot.tracker is not None and np.size(x) == robot.n_params + robot.tracker.n_params:
         # An x identified from tracker data: the poses in the tracker frame (docs/tracker.md).
-        from .tracker.api import tracker_forward_kinematics
-
-        return tracker_forward_kinematics(robot, x, q, legs)
+        return in_tracker_frame(robot, x, q, legs)
     legs = as_matrix(legs, 6, "legs")
     n = legs.shape[0]
     q = as_matrix(q, robot.n_joints, "q", rows=n)
@@ -100,3 +99,20 @@ def forward_kinematics(
         robot._geometry, x, q, legs, g, robot.home_pose, float(tolerance), int(max_iterations)
     )
     return poses
+
+
+def in_tracker_frame(robot: Robot, x: Any, q: Any, legs: Any) -> np.ndarray:
+    """:func:`forward_kinematics` with a tracker ``x`` (robot then setup parameters): the
+    platform poses in the tracker frame {T}, ``(N, 6)``, by forward kinematics of the readings
+    with the robot's part of ``x`` and the identified registration. (Modulo the gauge of
+    docs/tracker.md: what tracker data determine.)"""
+    setup = robot.tracker
+    assert setup is not None
+    x = np.asarray(x, dtype=float)
+    nr = robot.n_params
+    if x.shape != (nr + setup.n_params,):
+        raise ValueError(f"x: shape {x.shape}; expected ({nr + setup.n_params},) for a robot "
+                         f"with a tracker, or ({nr},) for poses in {{0}}")
+    poses = forward_kinematics(robot, x[:nr], q, legs)
+    reg = setup.registration_matrix(x[nr:])
+    return np.array([pose_from_matrix(reg @ pose_matrix(p)) for p in poses])

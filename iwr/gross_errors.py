@@ -491,7 +491,7 @@ def _description(first: GrossErrors, final: GrossErrors, n_tested: dict[str, int
 
 
 def _fail_fit(result: Any, cause: str) -> None:
-    from .estimation import FitTest
+    from .fit_test import FitTest
 
     fit = result.get("fit")
     if fit is None:

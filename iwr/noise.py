@@ -169,3 +169,43 @@ class TrackerNoise:
         sr, st = self.sigmas(np.linalg.norm(p, axis=-1, keepdims=True))
         return (p + sr * z[..., :1] * b[..., 0, :]
                 + st * (z[..., 1:2] * b[..., 1, :] + z[..., 2:3] * b[..., 2, :]))
+
+
+def axis_whitening(points: Any, sigmas: Any) -> np.ndarray:
+    """Per point (..., 3) of {T} with standard uncertainties ``sigmas`` (..., 3) along the x, y
+    and z axes of {T} (tracker software's per-point uncertainties), the 3x3 ``W`` (..., 3, 3)
+    with ``W^T W`` the inverse of ``diag(sigma_x^2, sigma_y^2, sigma_z^2)`` and its rows along the
+    line of sight and across it, as :meth:`TrackerNoise.whitening`: ``W = L^-1 B`` with ``B``
+    the rows of :meth:`TrackerNoise.basis` and ``L`` the Cholesky factor of ``B C B^T``, so that
+    the first row is the distance's alone (with equal sigmas ``W = B / sigma``, as
+    ``TrackerNoise(distance=sigma, transverse=sigma)`` gives)."""
+    p = np.asarray(points, dtype=float)
+    s = np.asarray(sigmas, dtype=float)
+    if s.shape != p.shape or not np.all(np.isfinite(s) & (s > 0)):
+        raise ValueError(f"sigmas: shape {s.shape} for points {p.shape}; every sigma finite and "
+                         "> 0 expected")
+    b = TrackerNoise.basis(p)
+    cov = np.einsum("...ki,...i,...li->...kl", b, np.square(s), b)
+    return np.linalg.solve(np.linalg.cholesky(cov), b)
+
+
+def split_noise(noise: Any) -> tuple[Noise | None, TrackerNoise | None]:
+    """The readings' and the tracker's parts of ``noise`` for a robot with a tracker (``None``,
+    an :class:`Noise` of the readings, a :class:`TrackerNoise`, or a pair of both), as
+    :func:`iwr.simulate` takes it."""
+    if noise is None:
+        return None, None
+    if isinstance(noise, TrackerNoise):
+        return None, noise
+    if isinstance(noise, Noise):
+        if noise.position or noise.orientation:
+            raise ValueError(
+                "noise: an iwr.Noise with position or orientation noise describes a pose "
+                "measured in {0}; for a robot with a tracker give noise=(iwr.Noise(legs=..., "
+                "joint_lengths=..., joint_angles=...), iwr.tracker.TrackerNoise.leica())")
+        return noise, None
+    if (isinstance(noise, tuple) and len(noise) == 2 and isinstance(noise[0], (Noise, type(None)))
+            and isinstance(noise[1], (TrackerNoise, type(None)))):
+        return noise
+    raise TypeError(f"noise: {noise!r}; for a robot with a tracker expected None, an iwr.Noise "
+                    "(readings), an iwr.tracker.TrackerNoise, or a pair (Noise, TrackerNoise)")

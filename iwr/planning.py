@@ -4,7 +4,7 @@ The information that a set S of poses carries about the base parameters is
 ``M(S) = sum_{k in S} Js_k^T Js_k``, where ``Js_k`` is the 6-row block of pose k of the Jacobian,
 restricted to the base parameters and column-scaled once for all candidates (so that the scaling
 does not change with the subset). Its eigenvalues are the squared singular values of the stacked
-Jacobian, so each observability index of :mod:`iwr.identifiability` is a function of them:
+Jacobian, so each observability index of :mod:`iwr.analysis.identifiability` is a function of them:
 O1 (D-optimality: the geometric mean), O2 (inverse condition number), O3 (E-optimality: the
 smallest), O4 (noise amplification, ``s_min^2 / s_max``).
 
@@ -28,11 +28,11 @@ import numpy as np
 
 from . import kinds
 from ._io import atomic_write_text
-from .identifiability import IdentifiabilityReport, column_scale, identifiability
+from .analysis.identifiability import IdentifiabilityReport, column_scale, identifiability
 from .measurements import PLAN_MARKER, MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
 from .robot import Robot
-from .simulate import Noise, add_noise
+from .simulation import Noise, add_noise
 
 __all__ = ["PosePlan", "plan_poses", "measure", "read_plan"]
 
@@ -428,7 +428,7 @@ def measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarra
     parameters; the points (or probe poses) in {T} the true setup measures, with the reading
     noise then the tracker noise of :func:`iwr.simulate` (``noise``: None, an iwr.Noise, a
     TrackerNoise, or a pair)."""
-    from .tracker.api import _split_noise
+    from .noise import split_noise
     from .tracker.data import TrackerMeasurements
     from .tracker.simulate import true_points
     from .transforms import pose_from_matrix
@@ -438,7 +438,7 @@ def measure_tracker(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarra
     if x.shape != (nr + setup.n_params,):
         raise ValueError(f"x: shape {x.shape}; expected ({nr + setup.n_params},): the robot's "
                          f"{nr} then the tracker setup's {setup.n_params}")
-    readings, tracker = _split_noise(noise)
+    readings, tracker = split_noise(noise)
     legs = predict_legs(robot, x[:nr], q, poses)
     pts = true_points(robot, setup, x, poses)
     if readings is not None and not readings.is_zero:

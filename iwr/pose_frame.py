@@ -23,7 +23,7 @@ import numpy as np
 from .forward import ForwardKinematicsError, forward_kinematics
 from .measurements import Measurements
 from .robot import Robot
-from .transforms import euler_zyx
+from .transforms import euler_zyx, rotation_angle
 
 __all__ = ["PoseFrameCheck", "PoseFrameError", "check_pose_frame", "FRAME_POSITION_MM",
            "FRAME_ORIENTATION_DEG", "MODEL_POSITION_MM", "MODEL_ORIENTATION_DEG"]
@@ -85,10 +85,7 @@ def _rms(v: np.ndarray) -> float:
 
 def _angle_deg(r: np.ndarray) -> np.ndarray:
     """Rotation angles (degrees) of matrices (..., 3, 3)."""
-    s = 0.5 * np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
-                        r[..., 1, 0] - r[..., 0, 1]], axis=-1)
-    c = 0.5 * (np.trace(r, axis1=-2, axis2=-1) - 1.0)
-    return np.degrees(np.arctan2(np.linalg.norm(s, axis=-1), c))
+    return np.degrees(rotation_angle(r))
 
 
 def _differences(p_meas: np.ndarray, r_meas: np.ndarray, p_pred: np.ndarray,

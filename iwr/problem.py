@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from ._hooks import hook
 from .measurements import Measurements, as_matrix
 from .robot import Robot
 
@@ -82,7 +83,7 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
         When a pose's covariance is singular (for example every sigma 0, or the leg sigma 0 with
         a leg weighted 0), naming the pose.
     """
-    from .estimation import loop_jacobians, sigma_matrix
+    from .implicit_loop import loop_jacobians, sigma_matrix
     from .noise import Noise
 
     if not isinstance(noise, Noise):
@@ -270,7 +271,7 @@ class Problem:
         search's starting point and active set. :meth:`load` reads it back; tracker data are
         saved by :meth:`iwr.tracker.TrackerProblem.save`, to the same format.
         """
-        from .problem_file import save_problem
+        save_problem = hook("save_problem")  # iwr.problem_file, a layer up
 
         if self.whitening is not None:
             raise ValueError("Problem.save: the problem file does not carry the noise weighting "
@@ -283,6 +284,4 @@ class Problem:
         """Read a problem file written by :meth:`save` (``iwr._core.FormatError``, a ValueError
         naming the file and field, if it is malformed, truncated or of another version). A file
         of tracker data gives an :class:`iwr.tracker.TrackerProblem`."""
-        from .problem_file import load_problem
-
-        return load_problem(path)
+        return hook("load_problem")(path)  # iwr.problem_file, a layer up

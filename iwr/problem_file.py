@@ -27,7 +27,7 @@ import numpy as np
 from . import _core
 from ._io import atomic_write
 from .measurements import Measurements
-from .methods.result import IdentificationResult, status_from_message
+from .result import IdentificationResult, status_from_message
 from .robot import Robot
 
 __all__ = ["save_problem", "load_problem", "engine_result", "sha256_of", "FormatError"]

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-__all__ = ["euler_zyx", "euler_from_matrix", "pose_matrix", "pose_from_matrix", "rotvec_matrix"]
+__all__ = ["euler_zyx", "euler_from_matrix", "pose_matrix", "pose_from_matrix", "rotation_angle",
+           "rotvec_matrix"]
 
 
 def euler_zyx(alpha, beta, gamma) -> np.ndarray:
@@ -53,6 +54,18 @@ def pose_from_matrix(t) -> np.ndarray:
     """Poses (..., 6) of homogeneous transforms (..., 4, 4)."""
     t = np.asarray(t, dtype=float)
     return np.concatenate([t[..., :3, 3], euler_from_matrix(t[..., :3, :3])], axis=-1)
+
+
+def rotation_angle(r) -> np.ndarray:
+    """The angle (rad, in [0, pi]) of rotation matrices (..., 3, 3): ``atan2(|sin theta axis|,
+    cos theta)`` from the skew part and the trace, accurate near 0 and pi, unlike
+    ``arccos((trace - 1) / 2)``; independent of any Euler angles (and so of their gimbal
+    lock). The error between two orientations is the angle of ``Ra^T Rb``."""
+    r = np.asarray(r, dtype=float)
+    sin_axis = 0.5 * np.stack([r[..., 2, 1] - r[..., 1, 2], r[..., 0, 2] - r[..., 2, 0],
+                               r[..., 1, 0] - r[..., 0, 1]], axis=-1)
+    cos = 0.5 * (np.trace(r, axis1=-2, axis2=-1) - 1.0)
+    return np.arctan2(np.linalg.norm(sin_axis, axis=-1), cos)
 
 
 def rotvec_matrix(w) -> np.ndarray:

@@ -12,7 +12,8 @@ import pytest
 import iwr
 from iwr import kinds
 from iwr.calibration import NOT_CALIBRATED, from_result
-from iwr.reporting.calibration import CalibrationReport, TrackerCalibrationReport, render
+from iwr.reporting.calibration import CalibrationReport, render
+from iwr.reporting.tracker_calibration import TrackerCalibrationReport
 from iwr.tracker.simulate import TrackerNoise
 
 

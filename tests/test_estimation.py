@@ -12,7 +12,7 @@ from scipy import stats
 
 import iwr
 from iwr import estimation as est
-from iwr.simulate import add_noise, sample_poses
+from iwr.simulation import add_noise, sample_poses
 from iwr.transforms import euler_zyx, pose_from_matrix, pose_matrix
 
 ROBOT = iwr.Robot.default()

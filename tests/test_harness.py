@@ -85,7 +85,8 @@ def test_bad_scenario_plausibility_follows_the_curved_null_directions():
     found on the curved set of equivalents, is the truth's own smallest equivalent (an
     independent yardstick: both are the minimum of one set), so the fit is plausible; LM's local
     minimum of draw 2 stays implausible."""
-    from iwr.estimation import _nearest_plausible, fit_check, leg_readings, loop_jacobians
+    from iwr.fit_test import _nearest_plausible, fit_check, leg_readings
+    from iwr.implicit_loop import loop_jacobians
 
     lower, upper = ROBOT.default_bounds("paper")
     limit = 10 * upper

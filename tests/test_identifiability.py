@@ -9,9 +9,9 @@ import pytest
 
 import iwr
 from iwr import transforms
+from iwr.analysis.uncertainty import measurement_jacobians
 from iwr.planning import measure
-from iwr.simulate import sample_poses
-from iwr.uncertainty import measurement_jacobians
+from iwr.simulation import sample_poses
 
 N_POSES = 30
 

@@ -171,6 +171,43 @@ def test_euler_angles_agree_with_scipy_and_survive_the_gimbal_lock():
                 iwr.transforms.pose_matrix(iwr.transforms.pose_from_matrix(t)), t, atol=1e-12)
 
 
+def test_rotation_angle_and_pose_errors_at_and_near_the_gimbal_lock():
+    """The one rotation angle of the package (iwr.transforms.rotation_angle: pose errors, the
+    tracker's, the frame check, the report) against SciPy's rotation vector; and pose errors at
+    beta = +-90 degrees, where Z-Y-X angles (alpha, gamma) and (alpha + d, gamma +- d) are one
+    orientation, and next to it, against the angle of the relative rotation built by SciPy."""
+    from scipy.spatial.transform import Rotation
+
+    rng = np.random.default_rng(12)
+    rots = Rotation.random(300, random_state=rng)
+    axes = rng.normal(size=(50, 3))
+    axes /= np.linalg.norm(axes, axis=1)[:, None]
+    near_pi = Rotation.from_rotvec(axes * (np.pi - 1e-9))
+    tiny = Rotation.from_rotvec(axes * 1e-9)  # where arccos((trace - 1) / 2) gives 0 or 2e-8
+    for r in (rots, near_pi, tiny, Rotation.identity(3)):
+        np.testing.assert_allclose(iwr.transforms.rotation_angle(r.as_matrix()), r.magnitude(),
+                                   rtol=1e-12, atol=1e-15)
+    for beta in (np.pi / 2, -np.pi / 2):
+        for a, g, d in rng.uniform(-3, 3, size=(20, 3)):
+            # Rz(a) Ry(+-pi/2) Rx(g) depends on g - a (beta = +pi/2) or g + a (beta = -pi/2) only.
+            same = (a + d, beta, g + d * np.sign(beta))
+            np.testing.assert_allclose(np_euler(*same), np_euler(a, beta, g), atol=1e-12)
+            p = np.array([[10.0, -20.0, 30.0, a, beta, g]])
+            q = np.array([[10.0, -20.0, 30.0, *same]])
+            pos, ori = iwr.pose_errors(p, q, tool=(5.0, 0.0, 100.0))
+            assert pos[0] < 1e-9 and ori[0] < 1e-6, (pos, ori)
+            for step in (1e-7, 1e-4, 0.01):  # next to the lock, on either side of it
+                near = (a + d, beta - np.sign(beta) * step, g - d)
+                expected = (Rotation.from_euler("ZYX", [a, beta, g]).inv()
+                            * Rotation.from_euler("ZYX", near)).magnitude()
+                _, ori = iwr.pose_errors(p, np.array([[10.0, -20.0, 30.0, *near]]))
+                np.testing.assert_allclose(np.radians(ori[0]), expected, rtol=1e-9, atol=1e-12)
+                # and the round trip through the one Euler decomposition
+                r = np_euler(*near)
+                back = iwr.transforms.euler_zyx(*iwr.transforms.euler_from_matrix(r))
+                np.testing.assert_allclose(back, r, atol=1e-13)
+
+
 # -- hexapod -------------------------------------------------------------------------------------
 
 

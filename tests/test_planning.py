@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 import iwr
-from iwr.simulate import sample_poses
+from iwr.simulation import sample_poses
 
 
 @pytest.fixture(scope="module")

@@ -16,8 +16,8 @@ import numpy as np
 import pytest
 
 import iwr
+from iwr.analysis.uncertainty import Uncertainty, uncertainty
 from iwr.cli.report import data_fingerprint
-from iwr.uncertainty import Uncertainty, uncertainty
 
 
 def run(*args: str, prog: list[str] | None = None) -> subprocess.CompletedProcess[str]:

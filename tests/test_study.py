@@ -28,7 +28,7 @@ import iwr
 from iwr.cli import main as cli_main
 from iwr.cli import study as study_cli
 from iwr.experiments.harness import Cell, noise_at, robot_hash
-from iwr.experiments.study import TIMING_COLUMNS, StudyError, make_grid, read_table
+from iwr.experiments.monte_carlo import TIMING_COLUMNS, StudyError, make_grid, read_table
 
 distributed = pytest.importorskip("distributed")
 cloudpickle = pytest.importorskip("cloudpickle")  # a dependency of distributed, used by name here
@@ -171,7 +171,8 @@ def test_a_result_lost_with_its_worker_is_waited_for_not_failed(
     after ``connect_timeout`` seconds, which a loaded machine exceeded). Here the first row's
     callback holds this process until the crash, so the rows finished meanwhile on the worker
     that dies are lost, and the timeout is 0.1 s."""
-    from iwr.experiments.harness import canonical, run_dask
+    from iwr.experiments.executors import run_dask
+    from iwr.experiments.harness import canonical
 
     marker, log, crash_log = tmp_path / "crashed", tmp_path / "log", tmp_path / "crash-log"
     log.mkdir()

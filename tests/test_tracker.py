@@ -12,7 +12,7 @@ import pytest
 import iwr
 from iwr.methods import METHODS, ReducedProblem
 from iwr.methods.lm import levenberg_marquardt
-from iwr.simulate import sample_poses
+from iwr.simulation import sample_poses
 from iwr.tracker import (
     FAILED_RESIDUAL,
     RegistrationError,

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 import iwr
-from iwr.simulate import sample_poses
+from iwr.simulation import sample_poses
 from iwr.tracker import TrackerMeasurements, TrackerNoise, TrackerSetup, tool_pose_errors
 from iwr.transforms import pose_matrix
 

@@ -14,9 +14,9 @@ import numpy as np
 import pytest
 
 import iwr
-from iwr.identifiability import column_scale
+from iwr.analysis.identifiability import column_scale
 from iwr.planning import _criterion, _tracker_problem, measure
-from iwr.simulate import sample_poses
+from iwr.simulation import sample_poses
 from iwr.tracker import TrackerMeasurements, TrackerNoise
 
 REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]

@@ -54,7 +54,7 @@ def test_predicted_std_matches_the_monte_carlo_spread(kind):
 def test_the_point_covariance_is_the_tracker_noise_model():
     """Each point's covariance, long across the line of sight, against samples of
     TrackerNoise.perturb (the simulation's noise)."""
-    from iwr.uncertainty import _point_covariance
+    from iwr.analysis.uncertainty import _point_covariance
 
     robot = robot_for("points")
     clean, truth = iwr.simulate(robot, 3, seed=2)

@@ -14,11 +14,11 @@ import numpy as np
 from scipy import special
 from scipy.optimize import least_squares
 
-from ..accuracy import Accuracy, PoseErrors, pose_errors
+from ..analysis.accuracy import Accuracy, PoseErrors, pose_errors
+from ..analysis.uncertainty import Uncertainty
 from ..robot import Robot
 from ..tracker.analysis import NullSpace, null_space
 from ..transforms import pose_from_matrix, rotvec_matrix
-from ..uncertainty import Uncertainty
 from .data import BallbarMeasurements
 from .problem import BallbarProblem
 from .setup import BallbarSetup

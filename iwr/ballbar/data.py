@@ -6,6 +6,7 @@ from typing import Any
 
 import numpy as np
 
+from .._hooks import hook
 from ..measurements import MAX_LENGTH_MM, _row_index, as_matrix, joint_readings
 from .setup import BallbarSetup
 
@@ -85,9 +86,7 @@ class BallbarMeasurements:
 
     def to_csv(self, path: Any) -> None:
         """Write the data file (docs/ballbar.md), atomically: :func:`iwr.ballbar.write_ballbar`."""
-        from .files import write_ballbar
-
-        write_ballbar(path, self)
+        hook("write_ballbar")(path, self)  # iwr.ballbar.files, which reads into this class
 
     def setup_index(self, setup: BallbarSetup) -> np.ndarray:
         """Each pose's set-up as an index into ``setup.bars``; ValueError naming the first pose

@@ -10,7 +10,7 @@ import numpy as np
 
 from ..noise import MIN_SIGMA
 from ..robot import Robot
-from ..simulate import Noise, UnreachableError, sample_poses
+from ..simulation import Noise, UnreachableError, sample_poses
 from ..transforms import pose_matrix
 from .data import BallbarMeasurements
 from .setup import BallbarSetup
@@ -80,7 +80,7 @@ def simulate_ballbar(robot: Robot, setup: BallbarSetup, n_poses: int = 100, *,
 
     The poses are shared out among the set-ups in order (the first ``n_poses % S`` set-ups get
     one more); each set-up's poses are the robot's random reachable poses
-    (:func:`iwr.simulate.sample_poses`) whose centre distance lies in the set-up's ``range``
+    (:func:`iwr.simulation.sample_poses`) whose centre distance lies in the set-up's ``range``
     (any, without one). ``x``: the truth, the robot's errors then the set-ups' parameters;
     default uniform within the robot's default bounds and the set-ups'
     (:meth:`BallbarSetup.default_bounds`). ``noise``: see :func:`split_noise`; default none.

@@ -233,21 +233,6 @@ def one_line(exc: BaseException) -> str:
 
 
 
-def run_settings(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) -> dict[str, Any]:
-    """The settings of an ``iwr calibrate`` run, as its report and ``summary.json`` record them
-    (leg and tracker data alike)."""
-    settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
-                "seed": args.seed, "validation_fraction": args.validation_fraction,
-                **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
-    if settings.get("noise") is not None:
-        from .robot_noise import describe
-
-        settings["noise"] = describe(settings["noise"])  # readable, not a repr
-    if getattr(args, "noise_from", None):
-        settings["noise_from"] = args.noise_from
-    return settings
-
-
 def check_validation_split(data: Any, fraction: float, seed: int) -> None:
     """``--validation-fraction``, checked before the job: the split of :func:`iwr.kinds.split`
     (one rule for every kind) exists, and leaves the identification part a weight > 0; a

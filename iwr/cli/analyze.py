@@ -33,7 +33,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 
 def cmd_analyze(args: argparse.Namespace) -> int:
-    from ..identifiability import identifiability
+    from ..analysis.identifiability import identifiability
     from ..kinds import for_robot
     from ..methods import load_result
 

@@ -34,8 +34,8 @@ from ._base import (
     positive_int,
     progress_enabled,
     read_data,
-    run_settings,
 )
+from .robot_noise import calibration_noise, describe
 from .simulate import write_truth
 from .tracker import add_arguments as add_tracker_arguments
 from .tracker import target_format
@@ -69,6 +69,18 @@ _METHOD_OPTIONS: dict[str, tuple[str, ...]] = {
     "strategy": ("strategy",),
 }
 
+
+def run_settings(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """The settings of an ``iwr calibrate`` run, as its report and ``summary.json`` record them
+    (leg and tracker data alike)."""
+    settings = {"method": method, "bounds": args.bounds, "parameters": args.parameters,
+                "seed": args.seed, "validation_fraction": args.validation_fraction,
+                **{k: v for k, v in kwargs.items() if k not in ("callback", "active")}}
+    if settings.get("noise") is not None:
+        settings["noise"] = describe(settings["noise"])  # readable, not a repr
+    if getattr(args, "noise_from", None):
+        settings["noise_from"] = args.noise_from
+    return settings
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -194,7 +206,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         args.noise_note = " (the built-in example knows its noise: iwr.Noise.realistic())"
     args.noise_from = "--noise" if args.noise not in (None, "none") else None
     if args.robot is not None and args.noise is None:  # the robot file's [noise], if any
-        from .robot_noise import calibration_noise
 
         noise, args.noise_from = calibration_noise(args.robot)
         args.noise_note = f" (from {args.noise_from}; --noise overrides it)" if noise else ""
@@ -328,7 +339,7 @@ def _exit_code(cal: Any) -> int:
 def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) -> int:
     from ..reporting.calibration import OUTPUT_FILES
     from ..robot import Robot
-    from ..simulate import Noise, simulate
+    from ..simulation import Noise, simulate
 
     if args.validation:
         raise UsageError("--validation needs ROBOT.toml and DATA.csv")
@@ -379,8 +390,6 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
         print("noise model: none given (--noise): the cost cannot be tested against the noise, "
               "only the size of the identified errors")
     else:
-        from .robot_noise import describe
-
         if getattr(args, "noise_from", None) == "--noise":
             args.noise_note = " (from --noise)"
         print(f"noise model: {describe(noise)}{getattr(args, 'noise_note', '')}")

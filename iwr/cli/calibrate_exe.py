@@ -248,8 +248,8 @@ def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
                          "reflectors or probe): add one (docs/tracker.md)")
         data = Measurements.from_csv(data_path, robot=robot)  # the checks of `iwr calibrate`
         return Problem(robot, data, bounds=bounds), None, sources
-    from ..tracker.api import tracker_problem
     from ..tracker.files import read_tracker_data
+    from ..tracker.start import tracker_problem
 
     tdata = read_tracker_data(data_path, robot.tracker, readings)
     if readings is not None:

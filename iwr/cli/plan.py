@@ -48,7 +48,7 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 def cmd_plan(args: argparse.Namespace) -> int:
     from ..measurements import Measurements
     from ..planning import plan_poses
-    from ..simulate import sample_poses
+    from ..simulation import sample_poses
 
     check_output(args.out, "--out", inputs=[args.robot, args.candidates], prog="iwr plan")
     robot = load_robot(args.robot)

@@ -86,7 +86,7 @@ def _describe(record: dict[str, Any]) -> str:
 
 def cmd_simulate(args: argparse.Namespace) -> int:
     from ..robot import Robot
-    from ..simulate import simulate
+    from ..simulation import simulate
 
     stem = Path(args.data_file).with_suffix("")
     check_output(args.out, "--out", inputs=[args.robot], prog="iwr simulate", files=[

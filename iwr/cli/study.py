@@ -10,7 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from ..experiments.harness import check_n_poses, check_robot
-from ..experiments.study import study
+from ..experiments.monte_carlo import study
 from ..robot import Robot
 from ._base import LazyHelp
 

@@ -1,12 +1,12 @@
-"""Simulated calibration experiments: one harness (:mod:`.harness`: scenario, cell, grid,
-executors) and its two uses, :func:`compare_methods` (``iwr compare``, :mod:`.compare`) and
-:func:`study` (``iwr study``, :mod:`.study`)."""
+"""Simulated calibration experiments: one harness (:mod:`.harness`: scenario, cell, evaluation;
+:mod:`.executors`: in this process or on Dask) and its two uses, :func:`compare_methods`
+(``iwr compare``, :mod:`.compare`) and :func:`study` (``iwr study``, :mod:`.monte_carlo`)."""
 
 from __future__ import annotations
 
 from .compare import Comparison, compare_methods
 from .harness import Cell, Scenario, evaluate, noise_at
-from .study import StudyError, StudyResult, read_table, study
+from .monte_carlo import StudyError, StudyResult, read_table, study
 
 __all__ = [
     "Cell",

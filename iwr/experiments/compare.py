@@ -24,25 +24,23 @@ from typing import Any
 
 import numpy as np
 
+from .._hooks import hook
 from ..noise import Noise
 from ..robot import Robot
+from .executors import ExecutorError, dry_run, run_dask, run_in_process
 from .harness import (
     FIGURE_COLUMNS,
     FLOOR_ATOL,
     FLOOR_RTOL,
     SCENARIOS,
     Cell,
-    ExecutorError,
     budget_option,
     canonical,
     check_n_poses,
     check_robot,
-    dry_run,
     leg_sigma,
     registered_methods,
     robot_hash,
-    run_dask,
-    run_in_process,
     split_method,
 )
 from .harness import available_methods as _available
@@ -97,10 +95,8 @@ class Comparison:
 
     def summary_markdown(self) -> str:
         """The summary table as Markdown."""
-        from ..reporting.compare import summary_table
-        from ..reporting.tables import markdown_table
-
-        return markdown_table(summary_table(self.summary))
+        # The reports' tables (iwr.reporting, a layer up).
+        return hook("markdown_table")(hook("compare_summary_table")(self.summary))
 
 
 def _check_int(name: str, value: Any, minimum: int) -> int:
@@ -388,9 +384,7 @@ def compare_methods(
                              f"{r['seed']}: {r['message']}")
     comparison = Comparison(runs=runs, summary=_summarise(runs, starts, names), settings=settings)
     if out_path is not None:
-        from ..reporting.compare import write_report
-
-        comparison.files = write_report(comparison, out_path, robot)
+        comparison.files = hook("compare_report")(comparison, out_path, robot)
     return comparison
 
 

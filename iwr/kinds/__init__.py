@@ -391,9 +391,9 @@ class MeasurementKind(abc.ABC):
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """``x - truth`` modulo what ``data`` (exact readings of the actual robot ``truth``)
-        cannot see (an :class:`iwr.identifiability.ParameterError`): the kinds' implementations
-        say over which parameters. Default: NotImplementedError (the experiments then leave the
-        figure out and say so)."""
+        cannot see (an :class:`iwr.analysis.identifiability.ParameterError`): the kinds'
+        implementations say over which parameters. Default: NotImplementedError (the
+        experiments then leave the figure out and say so)."""
         raise NotImplementedError(f"kind {self.name!r} has no parameter error modulo its null "
                                   "directions")
 

@@ -8,26 +8,20 @@ from typing import Any
 
 import numpy as np
 
-from ..accuracy import pose_accuracy
-from ..estimation import (
-    _check_noise,
-    _plausible_limit,
-    _PoseSpec,
-    leg_readings,
-    loop_jacobians,
-    pose_misclosures,
-    predicted_accuracy,
-    sigma_matrix,
-)
-from ..identifiability import parameter_error, pose_identifiability
+from ..accuracy_prediction import predicted_accuracy
+from ..analysis.accuracy import pose_accuracy
+from ..analysis.identifiability import parameter_error, pose_identifiability
+from ..analysis.uncertainty import pose_uncertainty
+from ..estimation import _PoseSpec, pose_misclosures
+from ..fit_test import _plausible_limit, leg_readings
+from ..implicit_loop import _check_noise, loop_jacobians, sigma_matrix
 from ..measurements import Measurements
 from ..methods import pose_identify
 from ..planning import measure_poses, pose_design
 from ..pose_frame import check_pose_frame
 from ..problem import Problem
-from ..simulate import simulate_poses
+from ..simulation import simulate_poses
 from ..tracker.files import tracker_file_format
-from ..uncertainty import pose_uncertainty
 from . import MeasurementKind, data_fingerprint
 
 __all__ = ["PoseKind"]

@@ -51,13 +51,13 @@ import numpy as np
 from .. import kinds
 from ..measurements import Measurements
 from ..problem import Problem
+from ..result import STATUSES, IdentificationResult, ResultFileError, load_result
 from ..robot import Robot
 from .de import de_method
 from .efficient import efficient_method
 from .lm import levenberg_marquardt
 from .nlopt import bobyqa, crs2
 from .reduced import ReducedProblem, active_mask
-from .result import STATUSES, IdentificationResult, ResultFileError, load_result
 
 __all__ = [
     "DEFAULT_METHOD",
@@ -201,7 +201,7 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
         active = "base"
     if isinstance(active, str) and active == "base":
         # The base parameters of the identifiability analysis at x0: a unique answer.
-        from ..identifiability import identifiability
+        from ..analysis.identifiability import identifiability
 
         active = identifiability(robot, measurements, x0_arr).active
     mask = active_mask(problem, active)
@@ -248,7 +248,7 @@ def _check_fit(result: IdentificationResult, problem: Any, noise: Any,
     (leg data) or an :class:`iwr.tracker.TrackerProblem` (tracker data: its bounds are centred
     on the registration guess, and the check is modulo its null directions); ``noise``: the
     model the chi-square test weighs the residuals by (None: no chi-square test)."""
-    from ..estimation import fit_check
+    from ..fit_test import fit_check
 
     if isinstance(noise, str):  # 'estimate': the efficient estimator's, never here
         noise = None

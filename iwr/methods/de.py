@@ -45,10 +45,10 @@ import numpy as np
 from scipy.optimize import Bounds, OptimizeResult
 
 from .. import _core
+from ..result import IdentificationResult
 from ._run import call_back, check_budget, int_arg
 from .lm import levenberg_marquardt
 from .reduced import ReducedProblem
-from .result import IdentificationResult
 
 __all__ = ["differential_evolution", "de_method", "STRATEGIES", "PAPER_PRESET"]
 

@@ -6,8 +6,8 @@ from __future__ import annotations
 from collections.abc import Callable
 from typing import Any
 
+from ..result import IdentificationResult
 from .reduced import ReducedProblem
-from .result import IdentificationResult
 
 
 def efficient_method(

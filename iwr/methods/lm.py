@@ -12,9 +12,9 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 from .._blas import single_thread
+from ..result import IdentificationResult
 from ._run import Monitor, Stop, check_budget
 from .reduced import ReducedProblem
-from .result import IdentificationResult
 
 __all__ = ["levenberg_marquardt"]
 

@@ -18,9 +18,9 @@ from typing import Any
 import numpy as np
 from scipy.optimize import OptimizeResult
 
+from ..result import IdentificationResult
 from ._run import Monitor, Stop, check_budget, int_arg
 from .reduced import ReducedProblem
-from .result import IdentificationResult
 
 __all__ = ["crs2", "bobyqa", "DEFAULT_MAX_EVALUATIONS"]
 

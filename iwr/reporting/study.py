@@ -234,7 +234,7 @@ def _trend(xs: Sequence[int], meds: Sequence[float], what: str) -> str:
 
 def report(out: str | os.PathLike[str]) -> list[Path]:
     """Write the figures and ``summary.md`` of the study in folder ``out``; their paths."""
-    from ..experiments.study import STUDY_FILE, read_table
+    from ..experiments.monte_carlo import STUDY_FILE, read_table
 
     out = Path(out)
     rows_all = read_table(out)

@@ -4,28 +4,18 @@ null directions of the tracker problem."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.linalg import qr
 
-from .. import _core
-from ..accuracy import PoseErrors
+from ..analysis.accuracy import PoseErrors
 from ..robot import Robot
-from ..transforms import pose_from_matrix, pose_matrix
-from .problem import TrackerProblem
+from ..transforms import pose_from_matrix, pose_matrix, rotation_angle
+from .gauge import NullSpace, _align, _fk, null_space
 from .registration import kabsch
 from .setup import TrackerSetup
 
 __all__ = ["tool_frames", "tool_pose_errors", "NullSpace", "null_space", "fix_platform_frame"]
-
-
-def _fk(robot: Robot, xr: np.ndarray, q: np.ndarray, legs: np.ndarray) -> np.ndarray:
-    return _core.forward_kinematics(robot._geometry, np.ascontiguousarray(xr, dtype=float),
-                                    np.ascontiguousarray(q, dtype=float),
-                                    np.ascontiguousarray(legs, dtype=float), np.zeros((0, 6)),
-                                    robot.home_pose)[0]
 
 
 def tool_frames(robot: Robot, setup: TrackerSetup, x: Any, q: Any, legs: Any,
@@ -100,22 +90,6 @@ def fix_platform_frame(robot: Robot, setup: TrackerSetup, x: Any) -> tuple[np.nd
     return x, kind
 
 
-def _align(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The one rigid transform D (4x4) that best maps the frames ``a @ D`` onto ``b`` (N, 4, 4):
-    the chordal mean of the rotations ``a_k^-1 b_k`` projected on SO(3), then the translation
-    that minimises the squared position differences of the frames' origins."""
-    rel = np.linalg.solve(a, b)
-    u, _, vt = np.linalg.svd(rel[:, :3, :3].mean(axis=0))
-    r = u @ np.diag([1.0, 1.0, np.sign(np.linalg.det(u @ vt)) or 1.0]) @ vt
-    # origin of a_k D: pa_k + Ra_k t = pb_k  ->  least squares in t
-    ra = a[:, :3, :3]
-    t, *_ = np.linalg.lstsq(ra.reshape(-1, 3), (b[:, :3, 3] - a[:, :3, 3]).reshape(-1),
-                            rcond=None)
-    d = np.eye(4)
-    d[:3, :3], d[:3, 3] = r, t
-    return d
-
-
 def tool_pose_errors(robot: Robot, setup: TrackerSetup, x: Any, truth: Any, q: Any, legs: Any,
                      *, tool: Any = None, gauge: str | None = "fit") -> PoseErrors:
     """Tool pose errors (position mm, orientation degrees) of the model ``x`` against ``truth``
@@ -142,74 +116,8 @@ def tool_pose_errors(robot: Robot, setup: TrackerSetup, x: Any, truth: Any, q: A
         a = a @ _align(a, b)
     p = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
     position = np.linalg.norm((a[:, :3, :3] - b[:, :3, :3]) @ p + a[:, :3, 3] - b[:, :3, 3], axis=1)
-    r = np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]
-    sin_axis = 0.5 * np.stack([r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0],
-                               r[:, 1, 0] - r[:, 0, 1]], axis=1)
-    cos = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
-    angle = np.degrees(np.arctan2(np.linalg.norm(sin_axis, axis=1), cos))
+    angle = np.degrees(rotation_angle(np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]))
     return PoseErrors(position, angle, np.array([pose_from_matrix(m) for m in a]))
-
-
-@dataclass(frozen=True)
-class NullSpace:
-    """The null directions of a tracker problem's column-scaled Jacobian.
-
-    ``vectors[:, k]`` (physical units) has coefficient 1 on ``left_out[k]`` and 0 on the other
-    left-out parameters; moving ``x`` along it leaves every residual unchanged to first order.
-    """
-
-    singular_values: np.ndarray
-    rank: int
-    threshold: float
-    parameter_names: list[str]
-    left_out: list[str]
-    vectors: np.ndarray
-    scale: np.ndarray = field(repr=False)
-
-    @property
-    def active(self) -> np.ndarray:
-        """The parameters kept (not left out): the mask to pass to ``iwr.identify(active=)``."""
-        out = set(self.left_out)
-        return np.array([n not in out for n in self.parameter_names], dtype=bool)
-
-    def describe(self, k: int, tol: float = 1e-6) -> str:
-        """``"tracker.rz = -1 * joint1.dtheta"``-style text of null direction k: its nonzero
-        components, largest scaled first."""
-        v = self.vectors[:, k]
-        scaled = np.abs(v * self.scale)
-        order = [int(i) for i in np.argsort(-scaled) if scaled[i] > tol * scaled.max()]
-        return " + ".join(f"{v[i]:+.4g} {self.parameter_names[i]}" for i in order)
-
-    def __str__(self) -> str:
-        lines = [f"rank {self.rank} of {len(self.parameter_names)} "
-                 f"({len(self.left_out)} null directions, threshold {self.threshold:.3g})"]
-        lines += [f"  {name}: {self.describe(k)}" for k, name in enumerate(self.left_out)]
-        return "\n".join(lines)
-
-
-def null_space(problem: TrackerProblem, x: Any = None, rtol: float | None = None) -> NullSpace:
-    """SVD of the column-scaled exact Jacobian (each column divided by its norm, as
-    :func:`iwr.identifiability`) at ``x`` (default zeros); the rank threshold is ``rtol`` times
-    the largest singular value, default ``max(shape) * eps``."""
-    x = np.zeros(problem.n_params) if x is None else np.asarray(x, dtype=float)
-    jac = problem.jacobian(x)
-    d = np.linalg.norm(jac, axis=0)
-    d = np.where(d > 0, d, 1.0)
-    # U is not needed: full matrices only when there are fewer rows than parameters (for V).
-    _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
-    rtol = max(jac.shape) * np.finfo(float).eps if rtol is None else float(rtol)
-    thr = rtol * s[0]
-    rank = int(np.sum(s > thr))
-    ns = vt[rank:].T / d[:, None]  # physical units
-    names = problem.parameter_names
-    if ns.shape[1] == 0:
-        return NullSpace(s, rank, thr, names, [], ns, d)
-    # One direction per left-out parameter: the best-conditioned rows of the scaled null basis.
-    _, _, piv = qr((vt[rank:]).copy(), pivoting=True, mode="economic")
-    out = np.sort(piv[: ns.shape[1]])
-    basis = ns @ np.linalg.solve(ns[out], np.eye(out.size))
-    basis[out] = np.eye(out.size)
-    return NullSpace(s, rank, thr, names, [names[i] for i in out], basis, d)
 
 
 def rms(values: Any) -> float:

@@ -12,18 +12,18 @@ from typing import Any
 
 import numpy as np
 from scipy.optimize import OptimizeResult
-from scipy.spatial.transform import Rotation
 
-from ..accuracy import Accuracy, PoseErrors
-from ..noise import Noise
+from ..analysis.accuracy import Accuracy, PoseErrors
+from ..forward import in_tracker_frame
+from ..noise import split_noise
 from ..robot import Robot
-from ..transforms import pose_from_matrix
+from ..transforms import rotation_angle
 from .analysis import NullSpace, null_space, tool_pose_errors
 from .data import TrackerMeasurements
 from .problem import TrackerProblem
 from .registration import kabsch
-from .setup import TrackerSetup
-from .simulate import TrackerNoise, simulate_tracker
+from .simulate import simulate_tracker
+from .start import _setup, registration_guess, tracker_problem
 
 __all__ = [
     "tracker_accuracy",
@@ -36,37 +36,6 @@ __all__ = [
 ]
 
 
-def _setup(robot: Robot) -> TrackerSetup:
-    if not isinstance(robot, Robot):
-        raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-    if robot.tracker is None:
-        raise ValueError(
-            f"robot {robot.name!r} has no tracker setup, but the data are tracker data "
-            "(points or probe poses in the tracker frame): describe the setup with "
-            "robot.with_tracker(registration=..., reflectors=[...]) or a [tracker] table in the "
-            "robot's TOML file (docs/tracker.md)")
-    return robot.tracker
-
-
-def _split_noise(noise: Any) -> tuple[Noise | None, TrackerNoise | None]:
-    if noise is None:
-        return None, None
-    if isinstance(noise, TrackerNoise):
-        return None, noise
-    if isinstance(noise, Noise):
-        if noise.position or noise.orientation:
-            raise ValueError(
-                "noise: an iwr.Noise with position or orientation noise describes a pose "
-                "measured in {0}; for a robot with a tracker give noise=(iwr.Noise(legs=..., "
-                "joint_lengths=..., joint_angles=...), iwr.tracker.TrackerNoise.leica())")
-        return noise, None
-    if (isinstance(noise, tuple) and len(noise) == 2 and isinstance(noise[0], (Noise, type(None)))
-            and isinstance(noise[1], (TrackerNoise, type(None)))):
-        return noise
-    raise TypeError(f"noise: {noise!r}; for a robot with a tracker expected None, an iwr.Noise "
-                    "(readings), an iwr.tracker.TrackerNoise, or a pair (Noise, TrackerNoise)")
-
-
 def tracker_simulate(robot: Robot, n_poses: int, *, seed: int | None, x: Any = None,
                      noise: Any = None, hidden: float = 0.0
                      ) -> tuple[TrackerMeasurements, np.ndarray]:
@@ -75,88 +44,9 @@ def tracker_simulate(robot: Robot, n_poses: int, *, seed: int | None, x: Any = N
     (noise-free), an ``iwr.Noise`` (leg and joint readings only), a ``TrackerNoise``, or a pair
     ``(Noise, TrackerNoise)``."""
     setup = _setup(robot)
-    readings, tracker = _split_noise(noise)
+    readings, tracker = split_noise(noise)
     return simulate_tracker(robot, setup, n_poses, seed=seed, x=x, noise=readings,
                             tracker_noise=tracker, hidden=hidden)
-
-
-def _bounds(robot: Robot, setup: TrackerSetup, bounds: Any, center: np.ndarray) -> Any:
-    if bounds is None or (isinstance(bounds, str) and bounds == "default"):
-        return None
-    if isinstance(bounds, str):
-        if bounds != "paper":
-            raise ValueError(f"bounds: {bounds!r}; expected None, 'default', 'paper' or "
-                             "(lower, upper)")
-        lo_r, hi_r = robot.default_bounds("paper")
-        lo_s, hi_s = setup.default_bounds()
-        return (np.concatenate([lo_r, lo_s + center]), np.concatenate([hi_r, hi_s + center]))
-    return bounds
-
-
-def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
-                    x0: Any = None, noise: Any = None) -> tuple[TrackerProblem, np.ndarray]:
-    """The problem for these data and its starting point: the nominal robot with the closed-form
-    registration guess (:func:`registration_guess`, which raises
-    :class:`RegistrationError` when the nominal model is too poor for it), or ``x0``. With a
-    ``noise`` model (``(iwr.Noise, TrackerNoise)``, as :func:`iwr.simulate` takes it; the
-    tracker's part required) the problem is weighted by it (:class:`TrackerProblem`'s
-    ``noise``), its weights evaluated at the nominal robot with the start's set-up.
-
-    Inside :func:`iwr.kinds.reuse` (one calibration job) the guess and the unweighted problem
-    of a data set are made once and shared; a call with ``x0`` then takes the problem already
-    made for the data (its bounds centred on the guess) with ``x0`` as the start."""
-    from ..kinds import memo
-
-    setup = _setup(robot)
-    if isinstance(bounds, str) and bounds == "default":
-        bounds = None
-    n = robot.n_params + setup.n_params
-    if x0 is not None:
-        start = np.array(x0, dtype=float)
-        if start.shape != (n,) or not np.all(np.isfinite(start)):
-            raise ValueError(f"x0: expected {n} finite values (the robot's "
-                             f"{robot.n_params}, then the tracker setup's {setup.n_params}), "
-                             f"got shape {start.shape}")
-    weights = None
-    if noise is not None:
-        readings, tracker = _split_noise(noise)
-        if tracker is None and measurements.point_sigma is None:
-            raise ValueError("noise: the weighted objective on tracker data needs the tracker's "
-                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
-        weights = (readings, tracker)
-    given = not (bounds is None or isinstance(bounds, str))
-    held = (robot, measurements, bounds) if given else (robot, measurements)
-    key = ("tracker problem", "given" if given else bounds)
-
-    def build(center: Any, at: Any) -> TrackerProblem:
-        problem_bounds = _bounds(robot, setup, bounds,
-                                 np.zeros(setup.n_params) if center is None else center)
-        return TrackerProblem(robot, setup, measurements, problem_bounds, center=center,
-                              noise=weights, weights_at=None if weights is None else at)
-
-    if x0 is None:
-        guess = registration_guess(robot, measurements)
-        start = np.concatenate([np.zeros(robot.n_params), guess.x_setup])
-        if weights is not None:  # weighted: its own problem (weights at the guess)
-            return build(guess.x_setup, guess.x_setup), start
-        return memo((*key, "guess"), held, lambda: build(guess.x_setup, None)), start
-    if weights is not None:
-        return build(None, start[robot.n_params:]), start
-    problem = (memo((*key, "guess"), held, None)
-               or memo((*key, "nominal"), held, lambda: build(None, None)))
-    return problem, start
-
-
-def registration_guess(robot: Robot, measurements: TrackerMeasurements) -> Any:
-    """The closed-form registration guess of these data with the nominal robot
-    (:func:`iwr.tracker.registration.guess_registration`), made once per data set inside
-    :func:`iwr.kinds.reuse`."""
-    from ..kinds import memo
-    from .registration import guess_registration
-
-    setup = _setup(robot)
-    return memo(("registration guess",), (robot, measurements),
-                lambda: guess_registration(robot, setup, measurements))
 
 
 def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
@@ -167,7 +57,7 @@ def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
     from ..methods.de import _STATUS, differential_evolution
     from ..methods.lm import levenberg_marquardt
     from ..methods.reduced import ReducedProblem
-    from ..methods.result import IdentificationResult
+    from ..result import IdentificationResult
 
     start = time.perf_counter()
     box = np.column_stack([reduced.lower, reduced.upper])
@@ -318,8 +208,7 @@ def _point_errors(problem: TrackerProblem, x: np.ndarray) -> PoseErrors:
         ok = ~np.isnan(meas[k, :, 0]) & ~np.isnan(pred[k, :, 0])
         if ok.sum() >= 3:
             r, _ = kabsch(pred[k, ok], meas[k, ok])
-            # The rotation vector's norm: exact near zero, where arccos of the trace is not.
-            angle[k] = np.degrees(Rotation.from_matrix(r).magnitude())
+            angle[k] = np.degrees(rotation_angle(r))
     poses = problem.platform_poses(x)
     return PoseErrors(position, angle, poses)
 
@@ -372,16 +261,5 @@ def tracker_forward_kinematics(robot: Robot, x: Any, q: Any, legs: Any) -> np.nd
     platform poses in the tracker frame {T}, ``(N, 6)``, by forward kinematics of the readings
     with the robot's part of ``x`` and the identified registration. (Modulo the gauge of
     docs/tracker.md: what tracker data determine.)"""
-    from ..forward import forward_kinematics
-
-    setup = _setup(robot)
-    x = np.asarray(x, dtype=float)
-    nr = robot.n_params
-    if x.shape != (nr + setup.n_params,):
-        raise ValueError(f"x: shape {x.shape}; expected ({nr + setup.n_params},) for a robot "
-                         f"with a tracker, or ({nr},) for poses in {{0}}")
-    poses = forward_kinematics(robot, x[:nr], q, legs)
-    from ..transforms import pose_matrix
-
-    reg = setup.registration_matrix(x[nr:])
-    return np.array([pose_from_matrix(reg @ pose_matrix(p)) for p in poses])
+    _setup(robot)
+    return in_tracker_frame(robot, x, q, legs)

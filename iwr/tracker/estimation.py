@@ -19,11 +19,11 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from ..noise import Noise
+from ..noise import Noise, TrackerNoise, axis_whitening, split_noise
 from ..robot import Robot
-from .api import _setup, _split_noise, tracker_problem
 from .data import TrackerMeasurements
-from .simulate import TrackerNoise, axis_whitening
+from .gauge import _align, _fk, null_space
+from .start import _setup, tracker_problem
 
 __all__ = ["TRACKER_COMPONENTS", "TrackerSpec", "tracker_misclosures",
            "tracker_predicted_accuracy", "tracker_reading_names"]
@@ -59,7 +59,7 @@ def _noise(noise: Any) -> tuple[Noise, TrackerNoise, tuple[str, ...]]:
             raise ValueError(f"noise: {noise!r}; expected (iwr.Noise, TrackerNoise) or 'estimate'")
         r = Noise.realistic()
         return replace(r, position=0.0, orientation=0.0), TrackerNoise.leica(), TRACKER_COMPONENTS
-    readings, tracker = _split_noise(noise)
+    readings, tracker = split_noise(noise)
     if readings is None or tracker is None:
         raise ValueError(
             "noise: the efficient estimator on tracker data weighs the leg and joint readings and "
@@ -77,10 +77,10 @@ class TrackerSpec:
 
     def __init__(self, robot: Robot, measurements: TrackerMeasurements, noise: Any, x0: Any,
                  active: Any, estimate: Any, bounds: Any, plausible: float) -> None:
-        from ..estimation import _active_mask, _check_estimate, _check_noise
+        from ..estimation import _active_mask, _check_estimate
+        from ..implicit_loop import _check_noise
         from ..methods.lm import levenberg_marquardt
         from ..methods.reduced import ReducedProblem
-        from .analysis import null_space
 
         setup = _setup(robot)
         readings, tnoise, est = _noise(noise)
@@ -196,7 +196,7 @@ class TrackerSpec:
             max_iterations=int(max_iterations), callback=cb)
 
     def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        from ..estimation import _nearest_plausible, tracker_readings
+        from ..fit_test import _nearest_plausible, tracker_readings
 
         x_plain = _nearest_plausible(tracker_readings(self.problem), x, self.limit, self.center)
         return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
@@ -231,8 +231,6 @@ def _aligned_errors(a: np.ndarray, b: np.ndarray, tool: np.ndarray) -> np.ndarra
     """Per pose the tool error vector (position in {T}, mm; orientation, a rotation vector in the
     tool frame, rad), (N, 6), of the frames ``a`` against ``b`` modulo the gauge, as
     :func:`tool_pose_errors` (``gauge="fit"``) measures its norms."""
-    from .analysis import _align
-
     a = a @ _align(a, b)
     dp = a[:, :3, :3] @ tool + a[:, :3, 3] - (b[:, :3, :3] @ tool + b[:, :3, 3])
     r = np.swapaxes(b[:, :3, :3], 1, 2) @ a[:, :3, :3]
@@ -271,9 +269,9 @@ def tracker_predicted_accuracy(robot: Robot, x: Any, covariance: Any, active: An
     joints' gauge and the gauge alignment is differentiated by central differences of step
     ``step`` (mm, rad; no forward kinematics in them). The orientation error is in the tool
     frame."""
-    from ..estimation import accuracy_from_covariances, loop_jacobians
+    from ..accuracy_prediction import accuracy_from_covariances
+    from ..implicit_loop import loop_jacobians
     from ..transforms import pose_matrix
-    from .analysis import _fk
 
     x = np.asarray(x, dtype=float)
     mask = np.asarray(active, dtype=bool)
@@ -313,7 +311,7 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
     pair ``(Noise, TrackerNoise)``) the readings' covariance: the legs and joints, each point's
     anisotropic covariance (:meth:`TrackerNoise.whitening`, or the file's own uncertainties);
     without, the unweighted point objective's identity metric."""
-    from ..estimation import _core_rotations, loop_jacobians
+    from ..implicit_loop import _core_rotations, loop_jacobians
     from ..misclosures import Misclosures
 
     setup = _setup(robot)

@@ -10,16 +10,15 @@ from typing import Any
 
 import numpy as np
 
-from ..estimation import tracker_readings
+from ..analysis.identifiability import ParameterError, _nearest_equivalent, _row_space
+from ..analysis.uncertainty import _tracker_uncertainty
+from ..fit_test import tracker_readings
 from ..forward import forward_kinematics
-from ..identifiability import ParameterError, _nearest_equivalent, _row_space
 from ..kinds import MeasurementKind, _where, data_fingerprint, position_rms
 from ..measurements import Measurements
-from ..noise import Noise, TrackerNoise
+from ..noise import Noise, TrackerNoise, split_noise
 from ..planning import measure_tracker, tracker_design
-from ..uncertainty import _tracker_uncertainty
 from .api import (
-    _split_noise,
     registration_guess,
     tracker_accuracy,
     tracker_identifiability,
@@ -43,7 +42,7 @@ _GAUGE = ("Tracker data do not fix {0} nor {5} (docs/tracker.md): every figure h
 class _TrackerKind(MeasurementKind):
     frame = "{T}"
     determines_world_frame = False
-    report = "iwr.reporting.calibration:TrackerCalibrationReport"
+    report = "iwr.reporting.tracker_calibration:TrackerCalibrationReport"
     #: The figures of iwr compare and iwr study on tracker data (MeasurementKind.experiment_text).
     experiment_text = {
         "cost": "the sum of squared point residuals in {T}, predicted minus measured (mm^2)",
@@ -108,7 +107,7 @@ class _TrackerKind(MeasurementKind):
         return written
 
     def noise_record(self, noise: Any) -> dict[str, Any]:
-        readings, tracker = _split_noise(noise)
+        readings, tracker = split_noise(noise)
         return {"noise": None if readings is None else asdict(readings),
                 "tracker_noise": None if tracker is None else asdict(tracker)}
 
@@ -136,7 +135,7 @@ class _TrackerKind(MeasurementKind):
         its ``position`` sets the tracker's: :meth:`TrackerNoise.leica` scaled by ``position /
         0.02`` (``Noise.realistic().position``), so that the realistic level is Leica's tracker."""
         if isinstance(noise, tuple):
-            _split_noise(noise)  # its types checked
+            split_noise(noise)  # its types checked
             return noise
         if not isinstance(noise, Noise):
             raise TypeError(f"noise: expected an iwr.Noise or a pair (iwr.Noise, "
@@ -280,7 +279,7 @@ class PointsKind(_TrackerKind):
         ``x`` (:func:`iwr.tracker.problem.point_covariances`: the tracker's noise of each point
         plus the leg and joint readings' propagated through the loop closure); the readings
         that carry data are the seen points' coordinates."""
-        readings, tracker = _split_noise(noise)
+        readings, tracker = split_noise(noise)
         if tracker is None and data.point_sigma is None:
             raise ValueError("noise: the chi-square test on tracker data needs the tracker's "
                              "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")

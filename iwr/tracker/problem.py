@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .. import _core
+from .._hooks import hook
 from ..robot import Robot
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
@@ -291,7 +292,7 @@ class TrackerProblem:
         :meth:`iwr.Problem.save`): the robot, the nominal tracker setup, the data, the reference,
         the bounds, and the search's starting point ``x0`` (default zeros: where the inactive
         parameters stay) and ``active`` set (default all). :meth:`load` reads it back."""
-        from ..problem_file import save_problem
+        save_problem = hook("save_problem")  # iwr.problem_file, a layer up
 
         if self.whitening is not None:
             raise ValueError("TrackerProblem.save: the problem file does not carry the noise "
@@ -304,12 +305,10 @@ class TrackerProblem:
         """Read a problem file of tracker data written by :meth:`save`
         (``iwr._core.FormatError``, a ValueError naming the file and field, if it is malformed,
         truncated, of another version, or holds leg data)."""
-        from ..problem_file import FormatError, load_problem
-
-        problem = load_problem(path)
+        problem = hook("load_problem")(path)  # iwr.problem_file, a layer up
         if not isinstance(problem, cls):
-            raise FormatError(f"{path}: holds leg data (poses in {{0}}), not tracker data; read "
-                              "it with iwr.Problem.load")
+            raise _core.FormatError(f"{path}: holds leg data (poses in {{0}}), not tracker "
+                                    "data; read it with iwr.Problem.load")
         return problem
 
     def __repr__(self) -> str:
@@ -327,7 +326,7 @@ def point_covariances(problem: TrackerProblem, x: Any, readings: Any, tracker: A
     ``G diag(sigma_q^2, sigma_legs^2) G^T``, ``G`` the derivative of the predicted points with
     respect to the joint and leg readings by implicit differentiation of the loop closure
     (:func:`iwr.estimation.loop_jacobians`). Rows and columns of unseen points are zero."""
-    from ..estimation import loop_jacobians
+    from ..implicit_loop import loop_jacobians
     from ..transforms import pose_matrix
 
     robot, setup, m = problem.robot, problem.setup, problem.measurements

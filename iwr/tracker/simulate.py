@@ -7,32 +7,14 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from ..noise import Noise, TrackerNoise
+from ..noise import Noise, TrackerNoise, axis_whitening
 from ..robot import Robot
-from ..simulate import sample_poses
+from ..simulation import sample_poses
 from ..transforms import pose_from_matrix, pose_matrix
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
 
 __all__ = ["TrackerNoise", "axis_whitening", "simulate_tracker", "true_points"]
-
-
-def axis_whitening(points: Any, sigmas: Any) -> np.ndarray:
-    """Per point (..., 3) of {T} with standard uncertainties ``sigmas`` (..., 3) along the x, y
-    and z axes of {T} (tracker software's per-point uncertainties), the 3x3 ``W`` (..., 3, 3)
-    with ``W^T W`` the inverse of ``diag(sigma_x^2, sigma_y^2, sigma_z^2)`` and its rows along the
-    line of sight and across it, as :meth:`TrackerNoise.whitening`: ``W = L^-1 B`` with ``B``
-    the rows of :meth:`TrackerNoise.basis` and ``L`` the Cholesky factor of ``B C B^T``, so that
-    the first row is the distance's alone (with equal sigmas ``W = B / sigma``, as
-    ``TrackerNoise(distance=sigma, transverse=sigma)`` gives)."""
-    p = np.asarray(points, dtype=float)
-    s = np.asarray(sigmas, dtype=float)
-    if s.shape != p.shape or not np.all(np.isfinite(s) & (s > 0)):
-        raise ValueError(f"sigmas: shape {s.shape} for points {p.shape}; every sigma finite and "
-                         "> 0 expected")
-    b = TrackerNoise.basis(p)
-    cov = np.einsum("...ki,...i,...li->...kl", b, np.square(s), b)
-    return np.linalg.solve(np.linalg.cholesky(cov), b)
 
 
 def true_points(robot: Robot, setup: TrackerSetup, x: Any, poses: Any) -> np.ndarray:

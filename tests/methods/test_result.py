@@ -34,7 +34,7 @@ def test_an_optimize_result_with_declared_attributes():
     assert set(STATUSES) == {"converged", "stopped", "callback", "interrupted", "failed",
                              "not calibrated"}
     # A result file keeps success and message: the judgement of a calibration survives it.
-    from iwr.methods.result import status_from_message
+    from iwr.result import status_from_message
 
     assert status_from_message(False, "not calibrated: degenerate data: ...") == "not calibrated"
     assert "status: converged" in repr(result(settings={}, history={}))  # SciPy's fails there

@@ -28,10 +28,10 @@ from typing import Any
 
 import numpy as np
 
-from . import kinds
-from .measurements import Measurements
-from .problem import Problem, predict_legs
-from .robot import Robot
+from .. import kinds
+from ..measurements import Measurements
+from ..problem import Problem, predict_legs
+from ..robot import Robot
 
 __all__ = [
     "IdentifiabilityReport",
@@ -355,7 +355,7 @@ def identifiable_count(robot: Robot) -> int:
     ``robot``: the rank of the information matrix on :data:`GENERIC_POSES` random poses of its
     workspace (:func:`iwr.simulate`, a fixed seed, no noise). Data of a lower rank cannot
     identify the robot's errors, whatever the method (too few distinct poses, copies)."""
-    from .simulate import simulate
+    from ..simulation import simulate
 
     data, _ = simulate(robot, GENERIC_POSES, seed=0)
     return int(identifiability(robot, data).rank)

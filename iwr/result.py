@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import OptimizeResult
 
-from .._io import atomic_write_text, jsonable
+from ._io import atomic_write_text, jsonable
 
 __all__ = ["IdentificationResult", "load_result", "ResultFileError", "STATUSES"]
 

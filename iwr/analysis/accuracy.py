@@ -8,11 +8,11 @@ from typing import Any
 
 import numpy as np
 
-from . import kinds
-from .forward import ForwardKinematicsError, forward_kinematics
-from .measurements import Measurements
-from .robot import Robot
-from .transforms import pose_matrix
+from .. import kinds
+from ..forward import ForwardKinematicsError, forward_kinematics
+from ..measurements import Measurements
+from ..robot import Robot
+from ..transforms import pose_matrix, rotation_angle
 
 __all__ = ["accuracy", "Accuracy", "PoseErrors", "pose_errors"]
 
@@ -40,13 +40,7 @@ def pose_errors(poses: Any, reference: Any, tool: Any = None) -> tuple[np.ndarra
     pa = a[:, :3, 3] + a[:, :3, :3] @ t
     pb = b[:, :3, 3] + b[:, :3, :3] @ t
     position = np.linalg.norm(pa - pb, axis=1)
-    r = np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]
-    # angle = atan2(|axis * sin|, cos): accurate near 0 and pi, unlike arccos((tr - 1) / 2).
-    sin_axis = 0.5 * np.stack(
-        [r[:, 2, 1] - r[:, 1, 2], r[:, 0, 2] - r[:, 2, 0], r[:, 1, 0] - r[:, 0, 1]], axis=1
-    )
-    cos = 0.5 * (np.trace(r, axis1=1, axis2=2) - 1.0)
-    orientation = np.degrees(np.arctan2(np.linalg.norm(sin_axis, axis=1), cos))
+    orientation = np.degrees(rotation_angle(np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]))
     return position, orientation
 
 

@@ -15,13 +15,13 @@ from typing import Any
 
 import numpy as np
 
-from . import kinds
+from .. import kinds
+from ..measurements import Measurements
+from ..noise import Noise
+from ..problem import Problem, predict_legs
+from ..robot import Robot
+from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 from .identifiability import IdentifiabilityReport, identifiability
-from .measurements import Measurements
-from .noise import Noise
-from .problem import Problem, predict_legs
-from .robot import Robot
-from .transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 
 __all__ = ["Uncertainty", "uncertainty", "measurement_jacobians"]
 
@@ -318,8 +318,9 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
     :class:`iwr.Noise` (reading noise: legs and carriage joints, propagated to the points through
     the forward kinematics) or a pair of both. ``active``: a mask, a NullSpace, or None (one
     parameter per null direction held: :func:`iwr.tracker.null_space` at ``x``)."""
-    from .tracker.analysis import NullSpace, null_space
-    from .tracker.api import _split_noise, tracker_problem
+    from ..noise import split_noise
+    from ..tracker.analysis import NullSpace, null_space
+    from ..tracker.start import tracker_problem
 
     problem, _ = tracker_problem(robot, measurements, x0=x)
     x = np.array(x, dtype=float)
@@ -359,7 +360,7 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
                                  "an iwr.tracker.TrackerNoise, an iwr.Noise or a pair")
         cov = sigma**2 * (a @ a.T)
     else:
-        readings, tracker = _split_noise(noise)
+        readings, tracker = split_noise(noise)
         c = _point_covariance(problem, x, readings, tracker)  # (N, 3P, 3P)
         ak = a.reshape(p, problem.n_poses, -1)
         cov = np.einsum("pki,kij,qkj->pq", ak, c, ak)
@@ -374,8 +375,8 @@ def _point_covariance(problem: Any, x: np.ndarray, readings: Noise | None,
     """Per pose, the covariance (3P, 3P) of the residuals (predicted minus measured points) from
     the tracker's noise (on the measured points) and the readings' (through the predicted ones;
     central differences of the forward kinematics, as :func:`measurement_jacobians`)."""
-    from .tracker.data import TrackerMeasurements
-    from .tracker.problem import TrackerProblem
+    from ..tracker.data import TrackerMeasurements
+    from ..tracker.problem import TrackerProblem
 
     m, setup = problem.measurements, problem.setup
     n, npts = problem.n_poses, setup.n_points

@@ -43,15 +43,16 @@ from typing import Any
 
 import numpy as np
 
+from .._hooks import hook
 from .._io import atomic_write_text
 from ..robot import Robot
+from .executors import ExecutorError, run_dask, run_in_process
 from .harness import (
     COLUMNS,
     FIGURE_COLUMNS,
     SETTING_COLUMNS,
     TIMING_COLUMNS,
     Cell,
-    ExecutorError,
     accepts,
     budget_option,
     canonical,
@@ -60,8 +61,6 @@ from .harness import (
     noise_at,
     registered_methods,
     robot_hash,
-    run_dask,
-    run_in_process,
 )
 
 __all__ = [
@@ -506,9 +505,7 @@ def study(
             "retry the missing ones"
         )
     if report:
-        from ..reporting.study import report as make_report
-
-        result.plots = make_report(out)
+        result.plots = hook("study_report")(out)  # iwr.reporting.study, a layer up
     return result
 
 

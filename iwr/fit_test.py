@@ -1,0 +1,304 @@
+"""The fit test of an identification (:func:`fit_check`, :class:`FitTest`): is a solution of eq.
+(10) sane? The identified errors within their plausible size modulo what the data cannot see
+(:func:`_nearest_plausible`, on the kind's readings model), and with a noise model the
+chi-square test of the generalised least squares statistic. :func:`iwr.identify` applies it to
+every method but the efficient estimator, which tests its own fit with the same verdicts."""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+# The chi-square distribution by scipy.special (chdtrc = sf): importing scipy.stats costs every
+# short command 0.5-0.8 s.
+from scipy import special
+
+from . import kinds
+from ._blas import single_thread
+from .implicit_loop import loop_jacobians
+from .measurements import Measurements
+from .noise import Noise
+from .robot import Robot
+
+__all__ = ["FitTest", "fit_check"]
+
+
+@dataclass(frozen=True)
+class FitTest:
+    """The global test of the fit: does the weighted residual sum follow its chi-square law?
+
+    Attributes
+    ----------
+    statistic : float
+        Sum of the squared normalised corrections at the solution (``fun``).
+    dof : int
+        Degrees of freedom: readings - nuisance unknowns - identified parameters
+        (``6 N - n_active`` for leg data: 6 closure equations per pose).
+    p_value : float
+        ``P(chi2(dof) >= statistic)``.
+    alpha : float
+        Significance level of the test.
+    fit_ok : bool
+        The statistic is within its law (``p_value >= alpha``), no identified error is beyond its
+        plausible size and the outliers are few enough to be outliers.
+    verdict : str
+        One line for a report.
+    causes : list of str
+        What is wrong, with the likely causes, when ``fit_ok`` is False; notes otherwise.
+    implausible : list of (str, float, float)
+        Parameters beyond their plausible size: (name, value, limit), mm or rad.
+    """
+
+    statistic: float
+    dof: int
+    p_value: float
+    alpha: float
+    fit_ok: bool
+    verdict: str
+    causes: list[str] = field(default_factory=list)
+    implausible: list[tuple[str, float, float]] = field(default_factory=list)
+
+    @property
+    def variance_factor(self) -> float:
+        """``statistic / dof``: 1 on average when model, data and noise model agree."""
+        return self.statistic / self.dof if self.dof > 0 else math.nan
+
+    def to_dict(self) -> dict[str, Any]:
+        """The test as a result file and a report's JSON hold it."""
+        return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value,
+                "alpha": self.alpha, "fit_ok": self.fit_ok, "verdict": self.verdict,
+                "causes": list(self.causes),
+                "implausible": [{"parameter": n, "value": v, "limit": lim}
+                                for n, v, lim in self.implausible]}
+
+    def __str__(self) -> str:
+        lines = [self.verdict]
+        lines += [f"  - {c}" for c in self.causes]
+        return "\n".join(lines)
+
+
+def leg_readings(robot: Robot, measurements: Measurements
+                 ) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """``x -> (predicted leg readings, their Jacobian)`` at the measured poses, the readings
+    weighted 0 left out: what :func:`_nearest_plausible` keeps fixed for pose data. From the
+    estimator's kernel, not Problem's: the check is no evaluation of the method that produced
+    ``x`` (its budget counts those)."""
+    rows = (np.ones((len(measurements), 6), dtype=bool) if measurements.weights is None
+            else measurements.weights > 0).reshape(-1)  # a reading weighted 0 does not count
+
+    def readings(x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        legs, jx, _ = loop_jacobians(robot, x, measurements.q, measurements.poses)
+        return legs.reshape(-1)[rows], jx.reshape(-1, robot.n_params)[rows]
+
+    return readings
+
+
+def tracker_readings(problem: Any) -> Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]]:
+    """``x -> (residuals, their Jacobian)`` of a :class:`iwr.tracker.TrackerProblem`: what
+    :func:`_nearest_plausible` keeps fixed for laser-tracker data (the measured points are
+    constant, so equal residuals are equal predictions)."""
+    return lambda x: (problem.residuals(x), problem.jacobian(x))
+
+
+def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                       x: np.ndarray, limit: np.ndarray,
+                       centre: np.ndarray | None = None) -> np.ndarray:
+    """The vector equivalent to ``x`` (the same predictions ``model(x)[0]`` of the readings, with
+    their Jacobian ``model(x)[1]``) that is smallest in units of ``limit``, measured from
+    ``centre`` (default zero); returned measured from ``centre``.
+
+    Holding the unidentifiable parameters fixed makes the base parameters absorb their true values
+    (joint 4's rotation about its axis moves two base joints by 694 mm per radian), so a plausible
+    robot can have base parameters beyond any bound; its smallest equivalent cannot (each entry of
+    it is at most the norm of the true vector in these units).
+
+    The set of equivalent vectors is curved (two of the six null directions of the IWR are
+    rotations of frame {4}, compensated by moving the base joints on circles), so removing the
+    null-space component of ``x`` along straight lines is right only for small errors: with tens
+    of degrees along them (the comparison's ``bad`` scenario) the straight step leaves the set by
+    tens of millimetres of readings and names a robot at the noise floor implausible. Instead the
+    norm is minimised on the set itself, by a feasible-point method: a step along the null
+    directions of the Jacobian at the current point (the straight removal), then Gauss-Newton back
+    onto the set within the identifiable directions, the step halved until the norm decreases.
+    Every accepted point predicts the readings of ``x`` to round-off; at the end the point has no
+    component along the null directions (the optimality condition). A ``x`` that is not
+    equivalent to a plausible vector stays implausible: no point of its set is small."""
+    c = np.zeros_like(x, dtype=float) if centre is None else np.asarray(centre, dtype=float)
+
+    def readings(y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        values, jac = model(c + y * limit)
+        return values, jac * limit
+
+    target, jac = readings((np.asarray(x, dtype=float) - c) / limit)
+    tol = 1e-10 * (1.0 + float(np.sqrt(np.mean(target**2))))  # mm RMS: round-off of the readings
+
+    def split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Orthonormal bases of the null directions and of their complement (units of limit)."""
+        d = np.linalg.norm(jac, axis=0)
+        d = np.where(d > 0, d, 1.0)  # the scaled columns: the rank does not depend on units
+        _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
+        rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
+        basis, _ = np.linalg.qr(vt[rank:].T / d[:, None], mode="complete")
+        return basis[:, : jac.shape[1] - rank], basis[:, jac.shape[1] - rank:]
+
+    def restore(y: np.ndarray, ident: np.ndarray) -> np.ndarray | None:
+        """Gauss-Newton onto the readings of ``x`` within the identifiable directions."""
+        for _ in range(20):
+            legs, jac = readings(y)
+            r = target - legs
+            if not (np.all(np.isfinite(r)) and np.all(np.isfinite(jac))):
+                return None  # a step too far for the model: the caller halves it
+            if np.sqrt(np.mean(r**2)) <= tol:
+                return y
+            y = y + ident @ np.linalg.lstsq(jac @ ident, r, rcond=None)[0]
+        return None
+
+    y = (np.asarray(x, dtype=float) - c) / limit
+    with single_thread():
+        for _ in range(50):
+            null, ident = split(jac)
+            if null.shape[1] == 0:
+                break
+            along = -null @ (null.T @ y)  # the straight removal of the null component
+            if np.linalg.norm(along) <= 1e-10 * (1.0 + np.linalg.norm(y)):
+                break  # no null component left: the smallest equivalent
+            for t in 0.5 ** np.arange(12):
+                z = restore(y + t * along, ident)
+                if z is not None and np.linalg.norm(z) < np.linalg.norm(y):
+                    break
+            else:
+                break  # no progress (round-off): y is as small as it gets
+            y = z
+            jac = readings(y)[1]
+    return y * limit
+
+
+def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: float) -> str:
+    # The farthest beyond its limit first: the likeliest cause.
+    worst = sorted(implausible, key=lambda t: -abs(t[1]) / t[2])
+    shown = ", ".join(f"{nm} = {v:.4g} (limit {lim:.3g})" for nm, v, lim in worst[:6])
+    more = f" and {len(implausible) - 6} more" if len(implausible) > 6 else ""
+    return (f"{len(implausible)} identified error(s) beyond {plausible:g} times their plausible "
+            f"size (modulo the unidentifiable directions): {shown}{more}. The model has "
+            "absorbed something it does not describe: an unregistered measurement frame, a tool "
+            "or reflector offset left out, leg or pose columns swapped, a wrong nominal geometry")
+
+
+def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
+                  without_dof: str, failed: list[str] | None = None) -> str:
+    """The fit test's one-line verdict (``without_dof`` when it failed with no redundancy;
+    ``failed``: what failed when the chi-square test itself passed)."""
+    if fit_ok:
+        return (f"the model fits the data: chi2 = {statistic:.4g} for {dof} degrees of "
+                f"freedom (p = {p_value:.3g})")
+    chi = f"chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
+    if dof > 0 and failed:  # not the chi-square test: say what, not only its passing p-value
+        return (f"THE MODEL DOES NOT FIT THE DATA: {' and '.join(failed)} (the chi-square test "
+                f"alone passes: {chi})")
+    return "THE MODEL DOES NOT FIT THE DATA: " + (chi if dof > 0 else without_dof)
+
+
+def _chi2_cause(statistic: float, dof: int, p_value: float) -> str:
+    return (f"the weighted residual sum {statistic:.4g} is {statistic / dof:.3g} times its "
+            f"expectation ({dof} degrees of freedom, p = {p_value:.2g}): the model does not fit "
+            "the data. Likely causes: the poses are not expressed in the robot's world frame "
+            "(tracker frame not registered), a tool or reflector offset left out of the model, "
+            "columns swapped or in the wrong unit, noise larger than stated, or a local minimum "
+            "(try another method or start)")
+
+
+def _plausible_limit(robot: Robot, plausible: float, bounds: Any) -> np.ndarray:
+    """``plausible`` times the half-width of ``bounds`` (None: the default bounds)."""
+    if bounds is None:
+        return plausible * robot.default_bounds("default")[1]
+    lower, upper = (np.asarray(b, dtype=float) for b in bounds)
+    return plausible * np.maximum(np.abs(lower), np.abs(upper))
+
+
+def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
+              noise: Noise | None = None, bounds: Any = None, fit_alpha: float = 1e-3,
+              plausible: float = 10.0) -> FitTest:
+    """Is an eq. (10) solution ``x`` sane? The check :func:`iwr.identify` applies to every method
+    but the efficient estimator (which tests its own fit).
+
+    Always: no identified error beyond ``plausible`` times the default bounds, modulo the
+    unidentifiable directions (as :func:`efficient`; ``bounds``, a pair (lower, upper), sets the
+    plausible size instead of the default bounds). With a ``noise`` model also the chi-square
+    test of the generalised least squares statistic ``sum_k r_k^T C_k^-1 r_k`` (``r_k`` the six
+    leg residuals of pose k, ``C_k`` their covariance propagated to first order from every
+    instrument's noise) **minimised to first order around x** over the ``active`` parameters
+    (the Gauss-Newton step is computed, not taken), ``dof = 6 N`` minus the rank of the active
+    columns: eq. (10)'s
+    minimum is not the weighted one, and the statistic at it exceeds its law by the efficiency
+    loss (about 100 at N = 100 on ``Noise.realistic()``); the linearised minimum does not, while
+    a local minimum far from the solution, an unregistered frame, ... stay far above it. Without
+    a noise model the cost cannot be judged (the leg noise is unknown: any cost fits some
+    sigma), only the size of the errors; ``statistic``, ``dof`` and ``p_value`` are then nan, 0,
+    nan.
+
+    Laser-tracker data (``robot.tracker`` and :class:`iwr.tracker.TrackerMeasurements`, ``x`` the
+    robot's then the setup's parameters): the same size test, modulo the null directions of the
+    point (probe) objective, each parameter measured from the centre of its bounds (the
+    registration guess for the registration's correction) against ``plausible`` times their
+    half-width. Reflector points with a ``noise`` model ``(iwr.Noise or None, TrackerNoise)``:
+    the same chi-square test on the point residuals, each pose's whitened by their covariance at
+    ``x`` (:func:`iwr.tracker.problem.point_covariances`: the tracker's noise plus the readings'
+    propagated through the loop closure), ``dof`` the seen coordinates minus the rank. Probe
+    data have no chi-square test here (``noise`` must be None; the efficient estimator tests
+    their fit). Each kind gives its whitened residuals
+    (:meth:`iwr.kinds.MeasurementKind.whitened`).
+    """
+    x = np.asarray(x, dtype=float)
+    mask = np.asarray(active, dtype=bool)
+    # The kind's part: each parameter's plausible size about its centre and the readings model
+    # whose null directions the test ignores (tracker data, docs/tracker.md: the point (probe)
+    # objective, so modulo the registration's and the platform frame's gauge; the setup's
+    # parameters judged from the centre of their bounds, the robot's from zero).
+    kind = kinds.of(measurements)
+    if noise is not None and not kind.chi2_fit_test:
+        raise ValueError(f"noise: the chi-square test of {kind.name} data is not implemented "
+                         "here (the efficient estimator tests their fit); only the size of the "
+                         "identified errors is tested")
+    names, limit, centre, readings = kind.plausibility(robot, measurements, bounds, plausible)
+    x_plain = _nearest_plausible(readings, x, limit, centre)
+    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
+                   if abs(x_plain[i]) > limit[i]]
+    causes: list[str] = []
+    statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
+    if noise is not None:
+        # The kind's whitened residuals and Jacobian at x (iwr.kinds.MeasurementKind.whitened).
+        rw, jw, n_readings = kind.whitened(robot, measurements, x, noise)
+        jw = jw[:, mask]
+        scale = np.linalg.norm(jw, axis=0)
+        scale = np.where(scale > 0, scale, 1.0)
+        with single_thread():
+            step, _, rank, _ = np.linalg.lstsq(jw / scale, rw, rcond=None)
+        statistic = float(np.sum((rw - (jw / scale) @ step) ** 2))
+        # The identifiable directions among the active parameters (all 58 active: 52 on the IWR).
+        dof = int(n_readings) - int(rank)
+        p_value = float(special.chdtrc(dof, statistic)) if dof > 0 else math.nan
+        chi_ok = bool(dof > 0 and p_value >= fit_alpha)
+        if dof <= 0:
+            causes.append(f"no redundancy: {int(n_readings)} readings for {int(rank)} "
+                          "identifiable parameters, so the data cannot test the model: measure "
+                          "more poses")
+        elif not chi_ok:
+            causes.append(_chi2_cause(statistic, dof, p_value))
+    if implausible:
+        causes.append(_implausible_cause(implausible, plausible))
+    fit_ok = chi_ok and not implausible
+    if noise is None:
+        head = ("no noise model: the cost is not tested (give one for the chi-square test); "
+                "identified errors " + ("within" if not implausible else "NOT within")
+                + " their plausible size")
+        verdict = head if fit_ok else "THE MODEL DOES NOT FIT THE DATA: " + head
+    else:
+        verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "implausible parameters",
+                                ["identified errors beyond their plausible size"]
+                                if chi_ok and implausible else None)
+    return FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict, causes,
+                   implausible)

@@ -1,0 +1,106 @@
+"""The identification problem of a tracker data set and its starting point: the robot's tracker
+setup, the problem's bounds, the closed-form registration guess (made once per data set inside
+:func:`iwr.kinds.reuse`) and :func:`tracker_problem`, what every public function on tracker data
+(:mod:`iwr.tracker.api`) and the efficient estimator (:mod:`iwr.tracker.estimation`) build."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..kinds import memo
+from ..noise import split_noise
+from ..robot import Robot
+from . import registration
+from .data import TrackerMeasurements
+from .problem import TrackerProblem
+from .setup import TrackerSetup
+
+__all__ = ["registration_guess", "tracker_problem"]
+
+
+def _setup(robot: Robot) -> TrackerSetup:
+    if not isinstance(robot, Robot):
+        raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+    if robot.tracker is None:
+        raise ValueError(
+            f"robot {robot.name!r} has no tracker setup, but the data are tracker data "
+            "(points or probe poses in the tracker frame): describe the setup with "
+            "robot.with_tracker(registration=..., reflectors=[...]) or a [tracker] table in the "
+            "robot's TOML file (docs/tracker.md)")
+    return robot.tracker
+
+
+def _bounds(robot: Robot, setup: TrackerSetup, bounds: Any, center: np.ndarray) -> Any:
+    if bounds is None or (isinstance(bounds, str) and bounds == "default"):
+        return None
+    if isinstance(bounds, str):
+        if bounds != "paper":
+            raise ValueError(f"bounds: {bounds!r}; expected None, 'default', 'paper' or "
+                             "(lower, upper)")
+        lo_r, hi_r = robot.default_bounds("paper")
+        lo_s, hi_s = setup.default_bounds()
+        return (np.concatenate([lo_r, lo_s + center]), np.concatenate([hi_r, hi_s + center]))
+    return bounds
+
+
+def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
+                    x0: Any = None, noise: Any = None) -> tuple[TrackerProblem, np.ndarray]:
+    """The problem for these data and its starting point: the nominal robot with the closed-form
+    registration guess (:func:`registration_guess`, which raises
+    :class:`RegistrationError` when the nominal model is too poor for it), or ``x0``. With a
+    ``noise`` model (``(iwr.Noise, TrackerNoise)``, as :func:`iwr.simulate` takes it; the
+    tracker's part required) the problem is weighted by it (:class:`TrackerProblem`'s
+    ``noise``), its weights evaluated at the nominal robot with the start's set-up.
+
+    Inside :func:`iwr.kinds.reuse` (one calibration job) the guess and the unweighted problem
+    of a data set are made once and shared; a call with ``x0`` then takes the problem already
+    made for the data (its bounds centred on the guess) with ``x0`` as the start."""
+    setup = _setup(robot)
+    if isinstance(bounds, str) and bounds == "default":
+        bounds = None
+    n = robot.n_params + setup.n_params
+    if x0 is not None:
+        start = np.array(x0, dtype=float)
+        if start.shape != (n,) or not np.all(np.isfinite(start)):
+            raise ValueError(f"x0: expected {n} finite values (the robot's "
+                             f"{robot.n_params}, then the tracker setup's {setup.n_params}), "
+                             f"got shape {start.shape}")
+    weights = None
+    if noise is not None:
+        readings, tracker = split_noise(noise)
+        if tracker is None and measurements.point_sigma is None:
+            raise ValueError("noise: the weighted objective on tracker data needs the tracker's "
+                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
+        weights = (readings, tracker)
+    given = not (bounds is None or isinstance(bounds, str))
+    held = (robot, measurements, bounds) if given else (robot, measurements)
+    key = ("tracker problem", "given" if given else bounds)
+
+    def build(center: Any, at: Any) -> TrackerProblem:
+        problem_bounds = _bounds(robot, setup, bounds,
+                                 np.zeros(setup.n_params) if center is None else center)
+        return TrackerProblem(robot, setup, measurements, problem_bounds, center=center,
+                              noise=weights, weights_at=None if weights is None else at)
+
+    if x0 is None:
+        guess = registration_guess(robot, measurements)
+        start = np.concatenate([np.zeros(robot.n_params), guess.x_setup])
+        if weights is not None:  # weighted: its own problem (weights at the guess)
+            return build(guess.x_setup, guess.x_setup), start
+        return memo((*key, "guess"), held, lambda: build(guess.x_setup, None)), start
+    if weights is not None:
+        return build(None, start[robot.n_params:]), start
+    problem = (memo((*key, "guess"), held, None)
+               or memo((*key, "nominal"), held, lambda: build(None, None)))
+    return problem, start
+
+
+def registration_guess(robot: Robot, measurements: TrackerMeasurements) -> Any:
+    """The closed-form registration guess of these data with the nominal robot
+    (:func:`iwr.tracker.registration.guess_registration`), made once per data set inside
+    :func:`iwr.kinds.reuse`."""
+    setup = _setup(robot)
+    return memo(("registration guess",), (robot, measurements),
+                lambda: registration.guess_registration(robot, setup, measurements))
