@@ -24,6 +24,7 @@ import numpy as np
 
 from . import kinds
 from .accuracy import Accuracy, accuracy
+from .effects import refuse as refuse_effects
 from .gross_errors import screen as screen_gross_errors
 from .identifiability import identifiability, identifiable_count, parameter_error
 from .methods import IdentificationResult, identify
@@ -274,6 +275,8 @@ def calibrate(
         Ctrl-C during the identification ends the job with the best point so far
         (``status == "interrupted"``, ``success`` false).
     """
+    # Issue 23: the job (gross errors, fit test, uncertainty, report) models the geometry only.
+    refuse_effects(robot, "iwr.calibrate (the calibration job and its report)")
     kind = kinds.of(data)
     kind.check(robot, data)
     if parameters not in ("base", "all"):

@@ -35,6 +35,7 @@ from scipy.optimize import OptimizeResult
 from . import _core, kinds
 from ._blas import single_thread
 from ._io import jsonable
+from .effects import refuse as refuse_effects
 from .identifiability import identifiability
 from .measurements import Measurements, as_matrix
 from .methods.result import IdentificationResult
@@ -120,6 +121,7 @@ def loop_jacobians(
     d_corrections : ndarray, shape (N, 6, n_joints + 6)
         Derivatives with respect to ``(dq, dp, w)``.
     """
+    refuse_effects(robot, "loop_jacobians")  # issue 23: iwr/effects models them
     poses = as_matrix(poses, 6, "poses")
     n = poses.shape[0]
     q = as_matrix(q, robot.n_joints, "q", rows=n)

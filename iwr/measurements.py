@@ -642,6 +642,28 @@ def _effect_inputs(payload: Any, temperatures: Any, n: int) -> tuple[Any, Any]:
     return payload, temperatures
 
 
+def effect_columns() -> list[str]:
+    """The optional columns of the effects' inputs (issue 23): payload, then temperatures."""
+    return [*_PAYLOAD_COLUMNS, *_TEMPERATURE_COLUMNS[1], *_TEMPERATURE_COLUMNS[6]]
+
+
+def effect_inputs(columns: dict[str, np.ndarray], where: str) -> dict[str, Any]:
+    """``payload`` (N, 4) and ``temperatures`` (N, 1 or 6) from the columns of
+    :func:`effect_columns` a file has (name -> values), for :class:`Measurements`'s arguments
+    of those names (None when absent); ValueError naming ``where`` when a group is partial."""
+    out: dict[str, Any] = {"payload": None, "temperatures": None}
+    for key, groups in (("payload", [_PAYLOAD_COLUMNS]),
+                        ("temperatures", list(_TEMPERATURE_COLUMNS.values()))):
+        have = [c for g in groups for c in g if c in columns]
+        for group in groups:
+            if have and set(have) == set(group):
+                out[key] = np.column_stack([columns[c] for c in group])
+        if have and out[key] is None:
+            raise ValueError(f"{where}: columns {have}: expected all of "
+                             + " or ".join(", ".join(g) for g in groups) + " (docs/effects.md)")
+    return out
+
+
 def _strip_effect_columns(rest: list[str]) -> tuple[list[str], tuple[int, int]]:
     """The columns before the optional payload and temperature columns (issue 23), and
     ``(payload columns, payload + temperature columns)``."""

@@ -290,3 +290,32 @@ def test_effect_registry():
     given = LegThermal(11.5, 20.0)
     assert given.parameter_names() == [] and LegThermal(identify=True, per_leg=True
                                                         ).parameter_names()[5] == "leg6.alpha"
+
+
+def test_iwr_legs_compensates_with_the_targets_load_and_temperature(tmp_path, with_effects, data):
+    """``iwr legs`` on a robot with effects reads each target's payload and temperature from
+    its columns and writes the compensated commands (the true robot's readings there)."""
+    import csv
+    import subprocess
+    import sys
+
+    _, x_true = data
+    truth = api.apply(with_effects, x_true)
+    truth.to_toml(tmp_path / "robot.toml")
+    targets = _fresh(truth, 5, seed=8)
+    targets.to_csv(tmp_path / "targets.csv")
+    run = [sys.executable, "-m", "iwr", "legs", str(tmp_path / "robot.toml"),
+           str(tmp_path / "targets.csv"), "-o", str(tmp_path / "legs.csv"), "--allow-unverified"]
+    done = subprocess.run(run, capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode in (0, 6), done.stderr
+    rows = list(csv.DictReader(line for line in (tmp_path / "legs.csv").read_text().splitlines()
+                               if not line.startswith("#")))
+    legs = np.array([[float(r[f"s{j}_mm"]) for j in range(1, 7)] for r in rows])
+    assert np.abs(legs - targets.legs).max() < 1e-9
+    # Without the temperature column the thermal effect has nothing to work with: refused.
+    text = (tmp_path / "targets.csv").read_text().replace(",T_C\n", "\n")
+    lines = [line.rsplit(",", 1)[0] if line[:1].isdigit() else line
+             for line in text.splitlines()]
+    (tmp_path / "targets.csv").write_text("\n".join(lines) + "\n")
+    done = subprocess.run(run, capture_output=True, text=True, cwd=tmp_path)
+    assert done.returncode != 0 and "T_C" in done.stderr and "Traceback" not in done.stderr

@@ -13,7 +13,7 @@ import numpy as np
 from . import bounds as effect_bounds
 from . import parameter_names as effect_names
 from .builtin import STANDARD_GRAVITY, LegCompliance, LegThermal
-from .model import predicted_readings, split
+from .model import check_inputs, predicted_readings, split
 
 __all__ = ["EffectIdentifiability", "apply", "forward_kinematics", "identifiability",
            "leg_commands", "realistic", "simulate", "DEFAULT_PAYLOADS"]
@@ -244,6 +244,7 @@ def leg_commands(robot: Any, q: Any, poses: Any, *, payload: Any = None,
         temps = np.full(n, float(temps))
     cond = Measurements(qa, world, np.zeros((n, 6)), joint_types=robot.joint_types,
                         payload=pay, temperatures=temps)
+    check_inputs(robot, cond, "temperatures")
     n_eff = len(effect_names(robot.effects))
     legs = predicted_readings(robot, np.zeros(robot.n_params + n_eff), qa, world, cond)
     lo, hi = robot.leg_stroke[:, 0], robot.leg_stroke[:, 1]
