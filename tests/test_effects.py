@@ -222,9 +222,11 @@ def test_what_does_not_model_the_effects_refuses(with_effects, data):
         predict_legs(with_effects, None, m.q, m.poses)
     with pytest.raises(ValueError, match="C\\+\\+ batch kernels"):
         EffectProblem(with_effects, m).cost_batch(np.zeros((2, len(x))))
-    with pytest.raises(ValueError, match="T_C"):
-        EffectProblem(with_effects, m.subset(np.arange(5)).__class__(
-            m.q, m.poses, m.legs, joint_types=m.joint_types, payload=m.payload))
+    with pytest.raises(ValueError, match="thermal effect.*T_C"):
+        EffectProblem(with_effects, Measurements(m.q, m.poses, m.legs,
+                                                 joint_types=m.joint_types, payload=m.payload))
+    with pytest.raises(ValueError, match="no problem file"):
+        EffectProblem(with_effects, m).save("unused.iwrp")
 
 
 def test_robot_file_round_trip_and_checks(tmp_path, robot, with_effects):
@@ -319,3 +321,27 @@ def test_iwr_legs_compensates_with_the_targets_load_and_temperature(tmp_path, wi
     (tmp_path / "targets.csv").write_text("\n".join(lines) + "\n")
     done = subprocess.run(run, capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode != 0 and "T_C" in done.stderr and "Traceback" not in done.stderr
+
+
+@pytest.mark.parametrize("variant", ["thermal given", "shared compliance"])
+def test_one_effect_alone(robot, variant):
+    """Each effect on its own: a given coefficient (no parameter) and one shared compliance;
+    the data carry only the columns the effect needs, and LM fits them exactly."""
+    comp, _ = api.realistic(robot)
+    if variant == "thermal given":
+        effect = LegThermal(11.5, 20.0)
+    else:
+        effect = LegCompliance(comp.platform_mass, comp.platform_centre, comp.gravity, 0.01,
+                               per_leg=False)
+    rob = robot.with_effects(effect)
+    m, x_true = api.simulate(rob, 50, seed=9)
+    assert (m.payload is None) == (variant == "thermal given")
+    assert (m.temperatures is None) == (variant != "thermal given")
+    assert len(x_true) == robot.n_params + (0 if variant == "thermal given" else 1)
+    result = iwr.identify(rob, m, "lm")
+    assert result.success and result.fun < 1e-16
+    truth, calibrated = api.apply(rob, x_true), api.apply(rob, result.x)
+    fresh = _fresh(truth, 10, seed=4)
+    options = {"payload": fresh.payload, "temperatures": fresh.temperatures}
+    assert np.abs(api.leg_commands(calibrated, fresh.q, fresh.poses, **options).legs
+                  - api.leg_commands(truth, fresh.q, fresh.poses, **options).legs).max() < 1e-6

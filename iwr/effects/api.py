@@ -56,9 +56,10 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
     """:func:`iwr.simulate` for a robot with effects: random reachable poses of the actual robot
     (geometric errors and effect parameters ``x``, default uniform within their bounds), each
     with a payload (``payloads``: (P, 4) rows ``(kg, x, y, z mm in {5})`` taken in turn, or one
-    row per pose; default :data:`DEFAULT_PAYLOADS`) and temperatures (``temperatures``: (N,),
-    (N, 1) or (N, 6) degrees C; default one per pose, uniform in the thermal effect's reference
-    plus :data:`DEFAULT_TEMPERATURE_SPREAD`), and the leg readings that the actual robot gives
+    row per pose; default :data:`DEFAULT_PAYLOADS` when the compliance effect is on, else none)
+    and temperatures (``temperatures``: (N,), (N, 1) or (N, 6) degrees C; default, with the
+    thermal effect on, one per pose uniform in its reference plus
+    :data:`DEFAULT_TEMPERATURE_SPREAD`, else none), and the leg readings that the actual robot gives
     there (:func:`iwr.effects.model.predicted_readings`), with ``noise`` (an :class:`iwr.Noise`)
     as :func:`iwr.simulate`. Returns ``(measurements, x_true)``."""
     from ..measurements import Measurements
@@ -86,14 +87,17 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
                              f"{x.shape}")
     n = int(n_poses)
     q, poses, _ = sample_poses(geometric, n, rng, x[: robot.n_params])
-    pay = DEFAULT_PAYLOADS if payloads is None else np.asarray(payloads, dtype=float)
-    if pay.ndim != 2 or pay.shape[1] != 4:
-        raise ValueError(f"payloads: shape {pay.shape}; expected (P, 4): mass kg, centre in "
-                         "{5} mm")
-    pay = pay if len(pay) == n else pay[np.arange(n) % len(pay)]
+    loaded = any("forces" in e.needs for e in robot.effects)
+    pay = None
+    if payloads is not None or loaded:
+        pay = DEFAULT_PAYLOADS if payloads is None else np.asarray(payloads, dtype=float)
+        if pay.ndim != 2 or pay.shape[1] != 4 or len(pay) == 0:
+            raise ValueError(f"payloads: shape {pay.shape}; expected (P, 4): mass kg, centre "
+                             "in {5} mm")
+        pay = pay if len(pay) == n else pay[np.arange(n) % len(pay)]
     thermal = [e for e in robot.effects if isinstance(e, LegThermal)]
-    if temperatures is None:
-        ref = thermal[0].reference if thermal else 20.0
+    if temperatures is None and thermal:
+        ref = thermal[0].reference
         lo, hi = DEFAULT_TEMPERATURE_SPREAD
         temperatures = ref + lo + (hi - lo) * rng.random(n)
     plain = Measurements(q, poses, np.zeros((n, 6)), joint_types=robot.joint_types,

@@ -140,7 +140,12 @@ class EffectProblem:
                          f"the methods that do: {', '.join(METHODS)} (docs/effects.md)")
 
     def save(self, path: Any, **options: Any) -> None:
-        self.cost_batch(None)
+        """Refused: the problem file runs on ``iwr-engine``, whose kernels model the geometry
+        only."""
+        names = ", ".join(e.name for e in self.robot.effects)
+        raise ValueError(f"save: robot {self.robot.name!r} has effects on ({names}), which "
+                         "iwr-engine's kernels do not model; no problem file is written "
+                         "(docs/effects.md)")
 
     def __repr__(self) -> str:
         return (f"EffectProblem(robot={self.robot.name!r}, n_poses={self.n_poses}, "
