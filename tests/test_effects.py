@@ -127,7 +127,8 @@ def test_noise_free_recovery_of_geometry_and_effects(robot, with_effects, data):
     fresh = _fresh(truth, 50, seed=11)
     # Tool poses: the calibrated model's forward kinematics of the true readings.
     zero = np.zeros(len(x_true))
-    poses = api.forward_kinematics(calibrated, zero, fresh.q, fresh.legs, fresh, fresh.poses)
+    guess = fresh.poses + np.array([0.5, -0.5, 0.5, 1e-3, -1e-3, 1e-3])
+    poses = api.forward_kinematics(calibrated, zero, fresh.q, fresh.legs, fresh, guess)
     tool = np.array([0.0, 0.0, 200.0])
     def points(p):
         t = pose_matrix(p)
