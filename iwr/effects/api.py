@@ -34,6 +34,7 @@ def realistic(robot: Any, *, per_leg: bool = True, identify_alpha: bool = True) 
     about 20 C, the coefficient identified (one shared) when ``identify_alpha``."""
     t4 = robot.carriage_transform(robot.joint_limits.mean(axis=1)) if robot.n_joints else np.eye(4)
     gravity = -STANDARD_GRAVITY * t4[:3, 2]
+    gravity[np.abs(gravity) < 1e-12] = 0.0  # round-off of the DH angles, not a tilt
     return (LegCompliance(120.0, [0.0, 0.0, 40.0], gravity, 0.01, per_leg=per_leg),
             LegThermal(11.5, 20.0, identify=identify_alpha))
 
