@@ -26,6 +26,7 @@ from . import kinds
 from .analysis.accuracy import Accuracy, accuracy
 from .analysis.identifiability import identifiability, identifiable_count, parameter_error
 from .analysis.uncertainty import Uncertainty, uncertainty
+from .effects import refuse as refuse_effects
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
 from .methods import IdentificationResult, identify
@@ -270,6 +271,8 @@ def calibrate(
         Ctrl-C during the identification ends the job with the best point so far
         (``status == "interrupted"``, ``success`` false).
     """
+    # Issue 23: the job (gross errors, fit test, uncertainty, report) models the geometry only.
+    refuse_effects(robot, "iwr.calibrate (the calibration job and its report)")
     kind = kinds.of(data)
     kind.check(robot, data)
     if parameters not in ("base", "all"):

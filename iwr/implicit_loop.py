@@ -11,6 +11,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from .effects import refuse as refuse_effects
 from .measurements import Measurements, as_matrix
 from .noise import Noise
 from .robot import Robot
@@ -77,6 +78,7 @@ def loop_jacobians(
     d_corrections : ndarray, shape (N, 6, n_joints + 6)
         Derivatives with respect to ``(dq, dp, w)``.
     """
+    refuse_effects(robot, "loop_jacobians")  # issue 23: iwr/effects models them
     poses = as_matrix(poses, 6, "poses")
     n = poses.shape[0]
     q = as_matrix(q, robot.n_joints, "q", rows=n)

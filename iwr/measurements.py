@@ -21,6 +21,13 @@ __all__ = ["Measurements", "MeasurementFileError", "as_matrix", "joint_readings"
 _POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
 _LEG_COLUMNS = tuple(f"s{j}_mm" for j in range(1, 7))
 _WEIGHT_COLUMNS = tuple(f"w{j}" for j in range(1, 7))
+# Issue 23 (docs/effects.md): the loads and temperatures the non-geometric effects need, optional,
+# last: the payload (mass and centre of mass in {5}) and one temperature per pose or per leg.
+_PAYLOAD_COLUMNS = ("payload_kg", "payload_x_mm", "payload_y_mm", "payload_z_mm")
+_TEMPERATURE_COLUMNS = {1: ("T_C",), 6: tuple(f"T{j}_C" for j in range(1, 7))}
+#: The range of a temperature (degrees C) and of a payload's mass (kg) that a measurement can have.
+TEMPERATURE_RANGE_C = (-60.0, 200.0)
+MAX_PAYLOAD_KG = 1e5
 _JOINT_RE = re.compile(r"^q(\d+)_(mm|rad)$")
 # Lengths all below this (in what should be millimetres) look like metres.
 METRE_SUSPICION = 5.0
@@ -51,6 +58,11 @@ CSV_HEADER_COMMENT = """\
 #   Euler angles, R = Rz(alpha) Ry(beta) Rx(gamma) (the paper's eq. 6).
 # s1_mm .. s6_mm: leg sensor readings (leg length = reading + leg offset l0).
 # w1 .. w6 (optional): weights of the leg residuals (1 / variance, relative).
+"""
+# Written only when the data have these columns (a file without them stays as it was).
+_EFFECT_HEADER_COMMENT = """\
+# payload_kg, payload_x_mm .. payload_z_mm (optional): the payload and its centre in {5}.
+# T_C or T1_C .. T6_C (optional): the machine's or each leg's temperature (degrees C).
 """
 
 
@@ -162,6 +174,13 @@ class Measurements:
         messages about a measurement can name its line.
     source : str, optional
         The file the measurements come from.
+    payload : array_like, shape (N, 4), optional
+        The payload at each pose: its mass (kg, >= 0) and its centre of mass in the platform
+        frame {5} (mm); what the compliance effect needs beside the robot's platform mass
+        (docs/effects.md). None: no payload.
+    temperatures : array_like, shape (N,), (N, 1) or (N, 6), optional
+        The machine's temperature at each pose, or each leg's (degrees C): what the thermal
+        effect needs.
     """
 
     #: The kind of these data (:mod:`iwr.kinds`): the platform pose measured in {0}.
@@ -177,6 +196,8 @@ class Measurements:
         weights: Any = None,
         lines: Any = None,
         source: str | None = None,
+        payload: Any = None,
+        temperatures: Any = None,
     ) -> None:
         self.poses = as_matrix(poses, 6, "poses")
         n = self.poses.shape[0]
@@ -195,6 +216,7 @@ class Measurements:
             self.weights = normalised_weights(as_matrix(weights, 6, "weights", rows=n))
         self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
         self.source = None if source is None else str(source)
+        self.payload, self.temperatures = _effect_inputs(payload, temperatures, n)
 
     def where(self, k: int) -> str:
         """Where measurement ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
@@ -235,6 +257,8 @@ class Measurements:
             weights=None if self.weights is None else self.weights[idx],
             lines=None if self.lines is None else self.lines[idx],
             source=self.source,
+            payload=None if self.payload is None else self.payload[idx],
+            temperatures=None if self.temperatures is None else self.temperatures[idx],
         )
 
     def columns(self) -> list[str]:
@@ -248,6 +272,10 @@ class Measurements:
         cols += list(_POSE_COLUMNS) + list(_LEG_COLUMNS)
         if self.weights is not None:
             cols += list(_WEIGHT_COLUMNS)
+        if self.payload is not None:
+            cols += list(_PAYLOAD_COLUMNS)
+        if self.temperatures is not None:
+            cols += list(_TEMPERATURE_COLUMNS[self.temperatures.shape[1]])
         return cols
 
     def to_csv(self, path: str | os.PathLike[str]) -> None:
@@ -256,9 +284,12 @@ class Measurements:
         parts = [self.q, self.poses, self.legs]
         if self.weights is not None:
             parts.append(self.weights)
+        parts += [a for a in (self.payload, self.temperatures) if a is not None]
         data = np.hstack(parts)
         buf = io.StringIO()
         buf.write(CSV_HEADER_COMMENT)
+        if self.payload is not None or self.temperatures is not None:
+            buf.write(_EFFECT_HEADER_COMMENT)
         writer = csv.writer(buf, lineterminator="\n")
         writer.writerow(cols)
         for row in data:
@@ -295,9 +326,10 @@ class Measurements:
                 continue
             if header is None:
                 header = fields
-                joint_types, weights = _parse_header(header, path, lineno, delimiter)
+                joint_types, weights, extra = _parse_header(header, path, lineno, delimiter)
                 units = ["mm" if c == "P" else "rad" for c in joint_types]
                 units += ["mm"] * 3 + ["rad"] * 3 + ["mm"] * 6 + ["1"] * (6 if weights else 0)
+                units += ["1"] * extra[1]  # checked by Measurements (payload, temperatures)
                 continue
             if len(fields) != len(header):
                 problems.append(
@@ -335,6 +367,8 @@ class Measurements:
             raise MeasurementFileError(f"{path}: no data rows after the header")
         data = np.array(rows)
         nj = len(joint_types)
+        end = nj + 18 if weights else nj + 12
+        n_payload, n_extra = extra
         try:
             out = cls(
                 data[:, :nj],
@@ -344,6 +378,9 @@ class Measurements:
                 weights=data[:, nj + 12 : nj + 18] if weights else None,
                 lines=lines,
                 source=str(path),
+                payload=data[:, end : end + 4] if n_payload else None,
+                temperatures=(data[:, end + n_payload : end + n_extra]
+                              if n_extra > n_payload else None),
             )
         except ValueError as exc:
             raise MeasurementFileError(f"{path}: {exc}") from None
@@ -577,8 +614,70 @@ def _delimiter(header_line: str) -> str:
         return ","
 
 
+def _effect_inputs(payload: Any, temperatures: Any, n: int) -> tuple[Any, Any]:
+    """The payload (N, 4) and temperatures (N, 1 or 6) of :class:`Measurements`, checked."""
+    if payload is not None:
+        payload = as_matrix(payload, 4, "payload", rows=n)
+        bad = np.flatnonzero((payload[:, 0] < 0) | (payload[:, 0] > MAX_PAYLOAD_KG))
+        if bad.size:
+            mass = float(payload[bad[0], 0])
+            raise ValueError(f"payload: row {int(bad[0])}, mass {mass!r} kg; "
+                             f"expected 0 <= mass <= {MAX_PAYLOAD_KG:g} kg")
+        _check_limits(payload[:, 1:], ["mm"] * 3, "payload centre")
+    if temperatures is not None:
+        t = np.array(temperatures, dtype=float)
+        t = t.reshape(n, 1) if t.ndim == 1 else t
+        cols = t.shape[1] if t.ndim == 2 else 0
+        if cols not in (1, 6):
+            raise ValueError(f"temperatures: shape {np.shape(temperatures)}; expected ({n},), "
+                             f"({n}, 1) (one per pose) or ({n}, 6) (one per leg)")
+        temperatures = as_matrix(t, cols, "temperatures", rows=n)
+        lo, hi = TEMPERATURE_RANGE_C
+        bad = np.argwhere((temperatures < lo) | (temperatures > hi))
+        if bad.size:
+            r, c = (int(i) for i in bad[0])
+            value = float(temperatures[r, c])
+            raise ValueError(f"temperatures: row {r}, column {c} is {value!r} degrees C; "
+                             f"expected {lo:g} .. {hi:g} (degrees C, not K or F)")
+    return payload, temperatures
+
+
+def effect_columns() -> list[str]:
+    """The optional columns of the effects' inputs (issue 23): payload, then temperatures."""
+    return [*_PAYLOAD_COLUMNS, *_TEMPERATURE_COLUMNS[1], *_TEMPERATURE_COLUMNS[6]]
+
+
+def effect_inputs(columns: dict[str, np.ndarray], where: str) -> dict[str, Any]:
+    """``payload`` (N, 4) and ``temperatures`` (N, 1 or 6) from the columns of
+    :func:`effect_columns` a file has (name -> values), for :class:`Measurements`'s arguments
+    of those names (None when absent); ValueError naming ``where`` when a group is partial."""
+    out: dict[str, Any] = {"payload": None, "temperatures": None}
+    for key, groups in (("payload", [_PAYLOAD_COLUMNS]),
+                        ("temperatures", list(_TEMPERATURE_COLUMNS.values()))):
+        have = [c for g in groups for c in g if c in columns]
+        for group in groups:
+            if have and set(have) == set(group):
+                out[key] = np.column_stack([columns[c] for c in group])
+        if have and out[key] is None:
+            raise ValueError(f"{where}: columns {have}: expected all of "
+                             + " or ".join(", ".join(g) for g in groups) + " (docs/effects.md)")
+    return out
+
+
+def _strip_effect_columns(rest: list[str]) -> tuple[list[str], tuple[int, int]]:
+    """The columns before the optional payload and temperature columns (issue 23), and
+    ``(payload columns, payload + temperature columns)``."""
+    n_temp = 0
+    for cols in _TEMPERATURE_COLUMNS.values():
+        if len(rest) >= len(cols) and tuple(rest[len(rest) - len(cols):]) == cols:
+            n_temp = len(cols)
+    rest = rest[: len(rest) - n_temp]
+    n_payload = 4 if tuple(rest[-4:]) == _PAYLOAD_COLUMNS else 0
+    return rest[: len(rest) - n_payload], (n_payload, n_payload + n_temp)
+
+
 def _parse_header(header: list[str], path: Path, lineno: int,
-                  delimiter: str = ",") -> tuple[str, bool]:
+                  delimiter: str = ",") -> tuple[str, bool, tuple[int, int]]:
     where = f"{path}, line {lineno}"
     if delimiter != ",":
         where += f" (separator {'tab' if delimiter == chr(9) else repr(delimiter)})"
@@ -595,7 +694,7 @@ def _parse_header(header: list[str], path: Path, lineno: int,
         joint_types += "P" if m.group(2) == "mm" else "R"
         i += 1
     expected = list(_POSE_COLUMNS) + list(_LEG_COLUMNS)
-    rest = header[i:]
+    rest, extra = _strip_effect_columns(header[i:])
     weights = len(rest) == len(expected) + 6 or any(c in _WEIGHT_COLUMNS for c in rest)
     if weights:
         expected += list(_WEIGHT_COLUMNS)
@@ -619,7 +718,7 @@ def _parse_header(header: list[str], path: Path, lineno: int,
         extra = rest[len(expected) :]
         what = f"missing columns {missing}" if missing else f"unknown columns {extra}"
         raise MeasurementFileError(f"{where}: {what}. {order}")
-    return joint_types, weights
+    return joint_types, weights, extra
 
 
 def _expected_order(n_joints: int, weights: bool = False) -> str:
@@ -629,4 +728,6 @@ def _expected_order(n_joints: int, weights: bool = False) -> str:
     if weights:
         cols += list(_WEIGHT_COLUMNS)
     return ("Expected columns, in this order: " + ", ".join(cols)
-            + ("" if weights else " (then w1 .. w6, optional)") + "; see docs/data.md")
+            + ("" if weights else " (then w1 .. w6, optional)")
+            + " (then payload_kg .. payload_z_mm and T_C or T1_C .. T6_C, optional: "
+            "docs/effects.md); see docs/data.md")

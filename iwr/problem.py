@@ -8,6 +8,7 @@ import numpy as np
 
 from . import _core
 from ._hooks import hook
+from .effects import refuse as _refuse_effects
 from .measurements import Measurements, as_matrix
 from .robot import Robot
 
@@ -46,6 +47,7 @@ def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
     -------
     ndarray, shape (N, 6)
     """
+    _refuse_effects(robot, "predict_legs")  # issue 23: iwr.effects.model.predicted_readings
     poses = as_matrix(poses, 6, "poses")
     q = as_matrix(q, robot.n_joints, "q", rows=poses.shape[0])
     x = np.zeros(robot.n_params) if x is None else np.ascontiguousarray(x, dtype=float)
@@ -152,6 +154,7 @@ class Problem:
                 f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
             )
         _check_joint_types(robot, measurements)
+        _refuse_effects(robot, "iwr.Problem")  # issue 23: iwr.effects.problem.EffectProblem
         self.robot = robot
         self.measurements = measurements
         if bounds is None or isinstance(bounds, str):

@@ -13,6 +13,7 @@ from typing import Any
 import numpy as np
 
 from . import _core, kinds
+from . import effects as _effects
 from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM
 from .noise import Noise, TrackerNoise
 from .robot_file import (
@@ -101,6 +102,10 @@ class Robot:
         table: docs/ballbar.md); see :meth:`with_instrument`. Each is read and checked by its
         kind (:meth:`iwr.kinds.MeasurementKind.read_setup`). A robot is measured by one
         instrument: not with ``tracker``.
+    effects : mapping or sequence, optional
+        Non-geometric effects switched on (issue 23, docs/effects.md): ``iwr.effects.Effect``
+        objects, or the ``[effects]`` table (effect name -> its table); see
+        :meth:`with_effects`. None (the default): the geometry alone, as before.
 
     ``noise`` and ``tracker_noise`` describe the bench, not the geometry; they are kept by
     :meth:`with_errors` and written by :meth:`to_toml`. ``iwr calibrate`` and ``iwr simulate``
@@ -127,6 +132,7 @@ class Robot:
         noise: Any = None,
         tracker_noise: Any = None,
         instruments: Mapping[str, Any] | None = None,
+        effects: Any = None,
     ) -> None:
         if not isinstance(joint_types, str) or any(c not in "PR" for c in joint_types):
             raise ValueError(
@@ -172,6 +178,9 @@ class Robot:
         #: The set-ups of the instruments described by a kind's own table (docs/kinds.md), by
         #: kind name; empty for poses in {0} and for the tracker (:attr:`tracker`).
         self.instruments = _instruments(instruments or {}, tracker)
+        #: The non-geometric effects switched on (issue 23): a tuple of iwr.effects.Effect,
+        #: empty for the geometry alone. Their parameters are not in :attr:`n_params`.
+        self.effects = _effects.read_table(effects)
         if np.any(self.workspace < 0):
             raise ValueError(f"workspace: half-widths must be >= 0, got {self.workspace}")
         self._geometry = _core.Geometry(
@@ -248,7 +257,17 @@ class Robot:
             noise=self.noise,
             tracker_noise=self.tracker_noise,
             instruments=self.instruments,
+            effects=self.effects,
         )
+
+    def with_effects(self, *effects: Any) -> Robot:
+        """This robot with the non-geometric effects ``effects`` (:class:`iwr.effects.Effect`
+        objects, or one mapping: the ``[effects]`` table) switched on, in place of its own;
+        ``with_effects()`` switches every effect off (docs/effects.md)."""
+        out = copy.copy(self)
+        out.effects = _effects.read_table(
+            effects[0] if len(effects) == 1 and isinstance(effects[0], Mapping) else effects)
+        return out
 
     def with_instrument(self, name: str, setup: Any) -> Robot:
         """This robot measured by the instrument of measurement kind ``name`` (for example
@@ -418,6 +437,7 @@ class Robot:
             **({"noise": dataclasses.asdict(self.noise)} if self.noise is not None else {}),
             **({"tracker": self._tracker_dict()} if self.tracker is not None else {}),
             **{name: setup.to_dict() for name, setup in self.instruments.items()},
+            **({"effects": {e.name: e.to_dict() for e in self.effects}} if self.effects else {}),
         }
 
     def _tracker_dict(self) -> dict[str, Any]:

@@ -292,7 +292,8 @@ def robot_arguments(data: Mapping[str, Any]) -> tuple[tuple[Any, ...], dict[str,
     """The positional and keyword arguments of :class:`iwr.Robot` from the dictionary form of a
     robot (:meth:`iwr.Robot.to_dict`, a TOML file's tables); strict about keys, errors name
     the key."""
-    builtin = {"name", "units", "carriage", "hexapod", "provenance", "tracker", "noise"}
+    builtin = {"name", "units", "carriage", "hexapod", "provenance", "tracker", "noise",
+               "effects"}
     # A table named after a registered measurement kind describes its instrument's set-up.
     tables = [k for k in data if k not in builtin and k in kinds.available()]
     _check_keys(data, builtin | set(tables), {"hexapod"}, "")
@@ -360,6 +361,7 @@ def robot_arguments(data: Mapping[str, Any]) -> tuple[tuple[Any, ...], dict[str,
         name=name,
         provenance=_provenance(data.get("provenance", {}), "provenance"),
         instruments={name: data[name] for name in tables},
+        effects=data.get("effects"),
         **kwargs,
     )
 
@@ -419,4 +421,6 @@ def write_toml(robot: Any, path: str | os.PathLike[str],
             out += [f"{k} = {_toml_value(float(v))}" for k, v in tnoise.items()]
     for name in robot.instruments:
         out += _toml_table(name, d[name])
+    if robot.effects:  # issue 23: the non-geometric effects (docs/effects.md)
+        out += _toml_table("effects", d["effects"])
     atomic_write_text(path, "\n".join(out) + "\n")

@@ -30,7 +30,8 @@ from typing import NamedTuple
 LAYERS: list[tuple[str, list[str]]] = [
     ("base: compiled core, noise, rotations, files, misclosures", [
         "iwr._core", "iwr._blas", "iwr._io", "iwr._hooks", "iwr._startup", "iwr.noise",
-        "iwr.transforms", "iwr.misclosures"]),
+        "iwr.transforms", "iwr.misclosures", "iwr.effects", "iwr.effects.builtin",
+        "iwr.effects.model"]),
     ("kinds: the measurement-kind protocol and registry", ["iwr.kinds"]),
     ("data and the robot model", [
         "iwr.measurements", "iwr.robot", "iwr.robot_file",
@@ -39,7 +40,7 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("problems: the objective, the implicit loop, the result type", [
         "iwr.implicit_loop", "iwr.problem", "iwr.tracker.problem", "iwr.tracker.registration",
         "iwr.tracker.gauge", "iwr.tracker.start", "iwr.ballbar.problem",
-        "iwr.methods.reduced", "iwr.result"]),
+        "iwr.methods.reduced", "iwr.result", "iwr.effects.problem"]),
     ("the problem file (iwr-engine's input and result)", ["iwr.problem_file"]),
     ("solvers, the efficient estimator and the fit test", [
         "iwr.methods.*", "iwr.estimation", "iwr.fit_test", "iwr.accuracy_prediction",
@@ -48,7 +49,7 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.methods", "iwr.analysis", "iwr.analysis.*", "iwr.planning", "iwr.simulation",
         "iwr.forward", "iwr.pose_frame", "iwr.compensation", "iwr.gross_errors",
         "iwr.tracker", "iwr.tracker.*", "iwr.ballbar", "iwr.ballbar.*", "iwr.export",
-        "iwr.export.*"]),
+        "iwr.export.*", "iwr.effects.api"]),
     ("kind implementations (reached through the kinds' registry)", [
         "iwr.kinds.pose", "iwr.tracker.kind", "iwr.ballbar.kind"]),
     ("the calibration job", ["iwr.calibration"]),

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ..measurements import effect_columns, effect_inputs
 from ._base import EXIT_OK, CommandError, UsageError, add_common, load_robot
 
 DEFAULT_OUT = "legs.csv"
@@ -79,10 +80,12 @@ def _pose_arg(text: str) -> np.ndarray:
     return v
 
 
-def read_targets(path: str, robot: Any) -> tuple[list[str], np.ndarray, np.ndarray, list[int]]:
-    """The joint columns, joint readings (N, n_joints), poses (N, 6) and file lines (N) of a
-    targets file. Lines starting with ``#`` are comments. Errors name the file, line and
-    column."""
+def read_targets(path: str, robot: Any, optional: Any = ()
+                 ) -> tuple[list[str], np.ndarray, np.ndarray, list[int], dict[str, np.ndarray]]:
+    """The joint columns, joint readings (N, n_joints), poses (N, 6), file lines (N) and the
+    columns of ``optional`` that the file has (name -> (N,) values; issue 23: a move's load and
+    temperature) of a targets file. Lines starting with ``#`` are comments. Errors name the
+    file, line and column."""
     q_cols = _joint_columns(robot)
     try:
         text = Path(path).read_text(encoding="utf-8-sig")
@@ -97,18 +100,19 @@ def read_targets(path: str, robot: Any) -> tuple[list[str], np.ndarray, np.ndarr
     header = [h.strip() for h in next(reader)]
     need = q_cols + list(_POSE_COLUMNS)
     missing = [c for c in need if c not in header]
+    extra = [c for c in optional if c in header]
     if missing:
         hint = " (is the file separated by ';' or tabs? use commas)" if len(header) == 1 else ""
         raise CommandError(f"{path}, line {rows[0][0]}: missing columns {missing}; expected "
                            f"{', '.join(need)}{hint}")
-    index = [header.index(c) for c in need]
+    index = [header.index(c) for c in need + extra]
     values, lines = [], []
     for (n, _), fields in zip(rows[1:], reader, strict=True):
         if len(fields) != len(header):
             raise CommandError(f"{path}, line {n}: {len(fields)} fields; the header has "
                                f"{len(header)}")
         row = []
-        for c, i in zip(need, index, strict=True):
+        for c, i in zip(need + extra, index, strict=True):
             try:
                 v = float(fields[i])
             except ValueError:
@@ -123,7 +127,8 @@ def read_targets(path: str, robot: Any) -> tuple[list[str], np.ndarray, np.ndarr
         raise CommandError(f"{path}: no targets (only a header)")
     a = np.array(values)
     nj = len(q_cols)
-    return q_cols, a[:, :nj], a[:, nj:], lines
+    return (q_cols, a[:, :nj], a[:, nj: nj + 6], lines,
+            {c: a[:, len(need) + k] for k, c in enumerate(extra)})
 
 
 _USER_POINTS = ("origin", "x", "xy")
@@ -208,11 +213,19 @@ def cmd_legs(args: argparse.Namespace) -> int:
                                  where=str(args.robot))
     except CalibrationStatusError as exc:
         raise CommandError(str(exc)) from None
-    q_cols, q, poses, lines = read_targets(args.targets, robot)
+    conditions = effect_columns() if robot.effects else ()
+    q_cols, q, poses, lines, extra = read_targets(args.targets, robot, conditions)
     user = read_user_frame(args.user_frame) if args.user_frame else None
     try:
-        cmd = leg_commands(robot, q, poses, frame=args.frame, tool=args.tool, user_frame=user,
-                           joint_columns=q_cols, where=str(args.robot))
+        options = dict(frame=args.frame, tool=args.tool, user_frame=user,
+                       joint_columns=q_cols, where=str(args.robot))
+        if robot.effects:  # issue 23: the move's load and temperature (docs/effects.md)
+            from ..effects.api import leg_commands as effect_commands
+
+            cmd = effect_commands(robot, q, poses, **effect_inputs(extra, args.targets),
+                                  **options)
+        else:
+            cmd = leg_commands(robot, q, poses, **options)
     except FrameError as exc:
         raise UsageError(str(exc), "iwr legs") from None
     except TargetError as exc:

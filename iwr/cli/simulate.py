@@ -9,6 +9,7 @@ from typing import Any
 
 import numpy as np
 
+from ..effects import parameter_names as effect_parameter_names
 from ..kinds import for_robot
 from ._base import (
     EXIT_OK,
@@ -70,7 +71,8 @@ def write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: Any
         "n_poses": n_poses,
         **kind.noise_record(noise),
         # the robot's, then its instrument's set-up parameters (a ballbar's balls and offsets)
-        "parameter_names": robot.parameter_names + kind.setup_parameter_names(robot),
+        "parameter_names": robot.parameter_names + kind.setup_parameter_names(robot)
+        + effect_parameter_names(robot.effects),  # issue 23: then the effects' (docs/effects.md)
         "errors": [float(v) for v in truth],
     }
     atomic_write_text(path, json.dumps(doc, indent=1) + "\n")

@@ -91,6 +91,10 @@ class PoseKind(MeasurementKind):
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:
+        if robot.effects:  # issue 23: loads, temperatures and the effects (docs/effects.md)
+            from ..effects.api import simulate as simulate_effects
+
+            return simulate_effects(robot, n_poses, seed=seed, x=x, noise=noise)
         return simulate_poses(robot, n_poses, seed=seed, x=x, noise=noise)
 
     def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None
@@ -106,6 +110,13 @@ class PoseKind(MeasurementKind):
         return pose_accuracy(robot, data, x, **options)
 
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the geometry and the effects' parameters together
+            from ..effects.api import identifiability as effect_identifiability
+
+            if options.get("selection", "ordered") != "ordered":
+                raise ValueError(f"selection: {options['selection']!r}; a robot with effects "
+                                 "has the 'ordered' rule only")
+            return effect_identifiability(robot, data, x, rtol=options.get("rtol"))
         return pose_identifiability(robot, data, x, **options)
 
     def uncertainty(self, robot: Any, data: Any, x: Any, noise: Any, **options: Any) -> Any:
@@ -117,6 +128,13 @@ class PoseKind(MeasurementKind):
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
                      ) -> tuple[list[str], np.ndarray, Any, Any]:
+        if robot.effects:  # issue 23: the effects' parameters judged against their own bounds
+            from ..effects.problem import EffectProblem
+
+            problem = EffectProblem(robot, data, bounds)
+            limit = plausible * np.maximum(np.abs(problem.lower), np.abs(problem.upper))
+            return (problem.parameter_names, limit, None,
+                    lambda x: problem.residuals_and_jacobian(x))
         return (robot.parameter_names, _plausible_limit(robot, plausible, bounds), None,
                 leg_readings(robot, data))
 

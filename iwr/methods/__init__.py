@@ -192,7 +192,13 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
         raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
     if method == "efficient":
         weighted = False  # its own weighting (iwr.estimation); Problem stays eq. (10)
-    problem = Problem(robot, measurements, bounds, noise=noise if weighted else None)
+    if robot.effects:  # issue 23: the effects' objective (iwr/effects/problem.py), LM only
+        from ..effects.problem import EffectProblem, check_method
+
+        check_method(robot, method, noise, weighted)
+        problem: Any = EffectProblem(robot, measurements, bounds)
+    else:
+        problem = Problem(robot, measurements, bounds, noise=noise if weighted else None)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
     if x0_arr.shape != (problem.n_params,) or not np.all(np.isfinite(x0_arr)):
         raise ValueError(f"x0: expected {problem.n_params} finite values, got shape {x0_arr.shape}")

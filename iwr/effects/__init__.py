@@ -1,0 +1,250 @@
+"""Non-geometric effects: what the robot's legs do beyond their geometry (issue 23), behind one
+protocol (:class:`Effect`), parallel to the measurement kinds (:mod:`iwr.kinds`).
+
+An effect changes the true length of each leg at each pose by an amount its own parameters
+describe: the axial compliance of the legs under the load they carry
+(:class:`iwr.effects.builtin.LegCompliance`, ``"compliance"``) and the thermal expansion of
+the legs with their temperature (:class:`iwr.effects.builtin.LegThermal`, ``"thermal"``).
+The true leg length between the joint centres is
+
+    D = s + l0 + sum over the effects of their change  (e.g. c f + alpha D (T - T_ref)),
+
+with ``s`` the leg sensor reading and ``l0`` the leg offset of the geometric model. A robot
+carries its effects (:attr:`iwr.Robot.effects`, the ``[effects]`` table of the robot TOML, one
+sub-table per effect, named after it); with none on, nothing changes. Each effect's parameters
+are appended to the robot's geometric ones, in the order the effects are listed: ``x`` of a
+problem with effects has ``robot.n_params`` geometric errors, then :func:`parameter_names`.
+Like the geometric errors, they are corrections to the values the robot file holds
+(:meth:`Effect.values`), so that a calibrated robot file holds the identified values.
+
+A new effect is a class implementing :class:`Effect` in its own module and one
+:func:`register` line. This module imports nothing of iwr (the implementations are imported
+on first use), so that the robot description may use it.
+"""
+
+from __future__ import annotations
+
+import abc
+import importlib
+import threading
+from collections.abc import Mapping, Sequence
+from typing import Any, ClassVar
+
+import numpy as np
+
+__all__ = [
+    "Effect",
+    "LegState",
+    "available",
+    "bounds",
+    "named",
+    "parameter_names",
+    "read_table",
+    "register",
+    "refuse",
+]
+
+
+class LegState:
+    """What an effect needs to know of the legs at the poses of a data set, at one geometric
+    error vector: filled by :func:`iwr.effects.model.leg_state`.
+
+    Attributes
+    ----------
+    lengths : ndarray (N, 6)
+        The leg lengths between the joint centres (mm) predicted by the geometry.
+    d_lengths : ndarray (N, 6, n_geometric)
+        Their derivatives in the geometric error parameters.
+    forces : ndarray (N, 6) or None
+        The axial leg forces (N, tension positive) that hold the platform and its load
+        (statics, ``f = J^-T w``), when an effect asked for them.
+    d_forces : ndarray (N, 6, n_geometric) or None
+        Their derivatives in the geometric error parameters.
+    temperatures : ndarray (N, 6) or None
+        Each leg's temperature at each pose (degrees C), from the data.
+    """
+
+    def __init__(self, lengths: np.ndarray, d_lengths: np.ndarray, forces: Any = None,
+                 d_forces: Any = None, temperatures: Any = None) -> None:
+        self.lengths = lengths
+        self.d_lengths = d_lengths
+        self.forces = forces
+        self.d_forces = d_forces
+        self.temperatures = temperatures
+
+
+class Effect(abc.ABC):
+    """The protocol of a non-geometric effect on the legs (one instance per robot: it holds the
+    effect's settings and the current values of its parameters).
+
+    An effect with ``k`` parameters (:meth:`parameter_names`, possibly none: a coefficient
+    given, not identified) changes the true leg lengths by :meth:`leg_change` and says what it
+    needs of the data (:attr:`needs`)."""
+
+    #: The effect's name: its table in the robot TOML (``[effects.<name>]``) and its registry key.
+    name: ClassVar[str]
+    #: What it is, for messages and reports.
+    description: ClassVar[str]
+    #: What :meth:`leg_change` needs in its :class:`LegState`: ``"forces"`` (the statics of
+    #: the payload, platform and gravity), ``"temperatures"`` (the data's temperature columns).
+    needs: ClassVar[frozenset[str]] = frozenset()
+
+    @abc.abstractmethod
+    def parameter_names(self) -> list[str]:
+        """The names of the parameters identified (appended after the geometric ones)."""
+
+    @abc.abstractmethod
+    def units(self) -> list[str]:
+        """The unit of each parameter."""
+
+    @abc.abstractmethod
+    def values(self) -> np.ndarray:
+        """The current value of each parameter (what the robot file holds)."""
+
+    @abc.abstractmethod
+    def bounds(self) -> tuple[np.ndarray, np.ndarray]:
+        """Search bounds of the corrections to :meth:`values` (lower < upper): the range a
+        plausible machine has, the yardstick of the fit check's size test and the range
+        :func:`iwr.effects.simulate` draws a true machine from."""
+
+    @abc.abstractmethod
+    def with_values(self, values: np.ndarray) -> Effect:
+        """This effect with its parameters' values replaced by ``values`` (checked)."""
+
+    @abc.abstractmethod
+    def leg_change(self, state: LegState, values: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(change, d_geometric, d_own)``: the change of the true leg lengths (N, 6) (mm),
+        at parameter values ``values``, its derivatives in the geometric errors
+        (N, 6, n_geometric) and in its own parameters (N, 6, k)."""
+
+    @abc.abstractmethod
+    def to_dict(self) -> dict[str, Any]:
+        """The ``[effects.<name>]`` table (flat: numbers, booleans, arrays of numbers)."""
+
+    @classmethod
+    @abc.abstractmethod
+    def from_dict(cls, table: Mapping[str, Any], where: str) -> Effect:
+        """Read the table (errors name ``where`` and the key)."""
+
+    def __eq__(self, other: object) -> bool:
+        return type(self) is type(other) and self.to_dict() == other.to_dict()  # type: ignore
+
+    def __hash__(self) -> int:
+        return hash(self.name)
+
+    def __repr__(self) -> str:
+        return f"{type(self).__name__}({self.to_dict()})"
+
+
+# -- the registry ---------------------------------------------------------------------------
+
+_SPECS: dict[str, str | type[Effect]] = {}
+_LOADED: dict[str, type[Effect]] = {}
+_LOCK = threading.RLock()
+
+
+def register(name: str, effect: str | type[Effect]) -> None:
+    """Make effect ``name`` known: ``effect`` an :class:`Effect` subclass, or
+    ``"package.module:Class"`` imported on first use."""
+    if not isinstance(name, str) or not name.isidentifier():
+        raise ValueError(f"name: {name!r}; expected an identifier")
+    if not isinstance(effect, str) and not (isinstance(effect, type)
+                                            and issubclass(effect, Effect)):
+        raise TypeError(f"effect: expected an Effect subclass or 'module:Class', got {effect!r}")
+    with _LOCK:
+        if name in _SPECS:
+            raise ValueError(f"effect: {name!r} is already registered")
+        _SPECS[name] = effect
+
+
+register("compliance", "iwr.effects.builtin:LegCompliance")
+register("thermal", "iwr.effects.builtin:LegThermal")
+
+
+def available() -> list[str]:
+    """The registered effects' names."""
+    return list(_SPECS)
+
+
+def named(name: str) -> type[Effect]:
+    """The class of the registered effect ``name``; ValueError naming the registered ones."""
+    if not isinstance(name, str) or name not in _SPECS:
+        raise ValueError(f"effect: {name!r} is not registered; registered: "
+                         + ", ".join(_SPECS))
+    with _LOCK:
+        if name not in _LOADED:
+            spec = _SPECS[name]
+            if isinstance(spec, str):
+                module, _, cls = spec.partition(":")
+                spec = getattr(importlib.import_module(module), cls)
+            if not (isinstance(spec, type) and issubclass(spec, Effect)) or spec.name != name:
+                raise TypeError(f"effect {name!r}: {_SPECS[name]!r} is not an Effect named "
+                                f"{name!r}")
+            _LOADED[name] = spec
+        return _LOADED[name]
+
+
+def read_table(effects: Any, where: str = "effects") -> tuple[Effect, ...]:
+    """The robot's effects from the ``[effects]`` table (a mapping of effect name to its
+    table), or from a sequence of :class:`Effect` objects; each at most once."""
+    if effects is None:
+        return ()
+    if isinstance(effects, Mapping):
+        out = []
+        for name, table in effects.items():
+            if name not in _SPECS:
+                raise ValueError(f"{where}.{name}: unknown effect; known: "
+                                 + ", ".join(_SPECS))
+            if isinstance(table, Effect):
+                out.append(table)
+                continue
+            if not isinstance(table, Mapping):
+                raise ValueError(f"{where}.{name}: expected a table, got "
+                                 f"{type(table).__name__} {table!r:.60}")
+            out.append(named(name).from_dict(table, f"{where}.{name}"))
+    elif isinstance(effects, Sequence) and not isinstance(effects, str):
+        out = list(effects)
+        for e in out:
+            if not isinstance(e, Effect):
+                raise TypeError(f"{where}: expected iwr.effects.Effect objects, got "
+                                f"{type(e).__name__}")
+    else:
+        raise TypeError(f"{where}: expected a table of effects or a sequence of "
+                        f"iwr.effects.Effect, got {type(effects).__name__}")
+    names = [e.name for e in out]
+    for name in names:
+        if names.count(name) > 1:
+            raise ValueError(f"{where}: effect {name!r} given twice")
+    return tuple(out)
+
+
+def parameter_names(effects: Sequence[Effect]) -> list[str]:
+    """The names of the effects' parameters, in order."""
+    return [n for e in effects for n in e.parameter_names()]
+
+
+def bounds(effects: Sequence[Effect]) -> tuple[np.ndarray, np.ndarray]:
+    """The effects' parameters' search bounds, in order."""
+    lo = [np.asarray(e.bounds()[0], dtype=float) for e in effects]
+    hi = [np.asarray(e.bounds()[1], dtype=float) for e in effects]
+    return (np.concatenate(lo) if lo else np.zeros(0), np.concatenate(hi) if hi else np.zeros(0))
+
+
+#: The methods and functions that model the effects (the others refuse a robot with effects).
+SUPPORTED = ("iwr.identify with method 'lm' (unweighted)", "iwr.simulate",
+             "iwr.identifiability", "iwr.effects.leg_commands",
+             "iwr.effects.forward_kinematics")
+
+
+def refuse(robot: Any, what: str) -> None:
+    """ValueError when ``robot`` has effects on: ``what`` (a function, a method) models the
+    geometry only and would silently leave them out."""
+    effects = getattr(robot, "effects", ())
+    if effects:
+        names = ", ".join(e.name for e in effects)
+        raise ValueError(
+            f"robot {getattr(robot, 'name', '?')!r} has effects on ({names}): {what} models "
+            "the geometry only and would leave them out; what models them: "
+            + "; ".join(SUPPORTED) + " (docs/effects.md). Remove the [effects] table (or "
+            "robot.with_effects()) for a geometric calibration")

@@ -1,0 +1,227 @@
+"""The legs' geometry and statics with their exact derivatives in the geometric errors, and the
+leg readings of a robot with effects (docs/effects.md).
+
+Everything here is vectorised over the poses in numpy; the leg lengths agree with the C++ core's
+(:func:`iwr.problem.predict_legs`) to round-off, which a test checks.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from ..transforms import pose_matrix
+from . import LegState
+
+__all__ = ["carriage_and_derivatives", "leg_forces", "leg_state", "leg_vectors",
+           "predicted_readings", "split"]
+
+
+def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray
+        ) -> tuple[np.ndarray, np.ndarray]:
+    """Standard DH transforms ``Rz(theta) Tz(d) Tx(a) Rx(alpha)`` (N, 4, 4) and their derivatives
+    in (alpha, a, d, theta), shape (4, N, 4, 4)."""
+    ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
+    n = alpha.shape[0]
+    t = np.zeros((n, 4, 4))
+    t[:, 0] = np.stack([ct, -st * ca, st * sa, a * ct], axis=1)
+    t[:, 1] = np.stack([st, ct * ca, -ct * sa, a * st], axis=1)
+    t[:, 2] = np.stack([np.zeros(n), sa, ca, d], axis=1)
+    t[:, 3, 3] = 1.0
+    dt = np.zeros((4, n, 4, 4))
+    z = np.zeros(n)
+    dt[0, :, 0] = np.stack([z, st * sa, st * ca, z], axis=1)       # alpha
+    dt[0, :, 1] = np.stack([z, -ct * sa, -ct * ca, z], axis=1)
+    dt[0, :, 2] = np.stack([z, ca, -sa, z], axis=1)
+    dt[1, :, 0, 3], dt[1, :, 1, 3] = ct, st                        # a
+    dt[2, :, 2, 3] = 1.0                                           # d
+    dt[3, :, 0] = np.stack([-st, -ct * ca, ct * sa, -a * st], axis=1)  # theta
+    dt[3, :, 1] = np.stack([ct, -st * ca, st * sa, a * ct], axis=1)
+    return t, dt
+
+
+def carriage_and_derivatives(robot: Any, x: np.ndarray, q: np.ndarray
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """``0T4`` at each pose (N, 4, 4) and its derivatives in the carriage's 4 n error parameters
+    (4 n, N, 4, 4), errors ``x`` (the geometric ones) added as :meth:`iwr.Robot.with_errors`
+    does and the joint readings to ``d`` (prismatic) or ``theta`` (revolute)."""
+    n_poses, nj = q.shape[0], robot.n_joints
+    dh = robot.dh + x[: 4 * nj].reshape(nj, 4)
+    mats, ders = [], []
+    for i, kind in enumerate(robot.joint_types):
+        col = np.broadcast_to(dh[i], (n_poses, 4)).copy()
+        col[:, 2 if kind == "P" else 3] += q[:, i]
+        t, dt = _dh(col[:, 0], col[:, 1], col[:, 2], col[:, 3])
+        mats.append(t)
+        ders.append(dt)
+    eye = np.broadcast_to(np.eye(4), (n_poses, 4, 4))
+    prefix = [eye]
+    for t in mats:
+        prefix.append(prefix[-1] @ t)
+    suffix = [eye]
+    for t in reversed(mats):
+        suffix.insert(0, t @ suffix[0])
+    d_total = np.zeros((4 * nj, n_poses, 4, 4))
+    for i in range(nj):
+        for c in range(4):
+            d_total[4 * i + c] = prefix[i] @ ders[i][c] @ suffix[i + 1]
+    return prefix[-1], d_total
+
+
+def split(robot: Any, x: Any) -> tuple[np.ndarray, np.ndarray]:
+    """``x`` (geometric errors, then the effects' parameters) as ``(geometric, effects)``."""
+    x = np.asarray(x, dtype=float)
+    n_eff = sum(len(e.parameter_names()) for e in robot.effects)
+    if x.shape != (robot.n_params + n_eff,):
+        raise ValueError(f"x: shape {x.shape}; expected ({robot.n_params + n_eff},): "
+                         f"{robot.n_params} geometric errors, then {n_eff} effect parameters")
+    return x[: robot.n_params], x[robot.n_params:]
+
+
+def leg_vectors(robot: Any, xg: np.ndarray, q: np.ndarray, poses: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(v, dv, r)``: the leg vectors from each U-joint to its S-joint in {0} (N, 6, 3), their
+    derivatives in the geometric errors (N, 6, 3, n_params), and the S-joints' positions
+    relative to the platform origin, in {0} (N, 6, 3), at platform poses ``poses`` in {0}."""
+    n, nc = len(poses), 4 * robot.n_joints
+    t4, dt4 = carriage_and_derivatives(robot, xg, q)
+    base = robot.base_joints + xg[nc: nc + 18].reshape(6, 3)
+    plat = robot.platform_joints + xg[nc + 18: nc + 36].reshape(6, 3)
+    t5 = pose_matrix(poses)
+    r = np.einsum("kab,jb->kja", t5[:, :3, :3], plat)
+    a0 = t4[:, None, :3, 3] + np.einsum("kab,jb->kja", t4[:, :3, :3], base)
+    v = t5[:, None, :3, 3] + r - a0
+    dv = np.zeros((n, 6, 3, robot.n_params))
+    if nc:
+        dcar = dt4[:, :, None, :3, 3] + np.einsum("pkab,jb->pkja", dt4[:, :, :3, :3], base)
+        dv[..., :nc] = -np.moveaxis(dcar, 0, -1)
+    for j in range(6):
+        dv[:, j, :, nc + 3 * j: nc + 3 * j + 3] = -t4[:, :3, :3]
+        dv[:, j, :, nc + 18 + 3 * j: nc + 18 + 3 * j + 3] = t5[:, :3, :3]
+    return v, dv, r
+
+
+def leg_forces(v: np.ndarray, dv: np.ndarray | None, r: np.ndarray, dr: np.ndarray | None,
+               rotations: np.ndarray, masses: np.ndarray, centres: np.ndarray,
+               gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+    """The axial leg forces (N, 6) that hold the platform in equilibrium under gravity, tension
+    positive, and their derivatives (N, 6, n) when ``dv``, ``dr`` (the derivatives of the leg
+    vectors and of the S-joints' arms, (N, 6, 3, n)) are given.
+
+    Statics of the massless legs (two-force members along their axes): ``G f = w`` with column
+    j of G the leg's unit vector ``u_j`` and its moment ``r_j x u_j`` about the platform origin
+    (``G = J^T``, J the leg Jacobian of the platform twist: ``dL = J (dP, dphi)``), and ``w``
+    the gravity wrench of the bodies ``(sum m_b g, sum (R c_b) x m_b g)`` (N, N mm). So
+    ``f = J^-T w``: with the virtual work ``f . dL = w . dX`` (a test checks it against the
+    change of the bodies' potential energy). ``masses`` (N, B) kg, ``centres`` (N, B, 3) mm in
+    {5}, ``rotations`` (N, 3, 3) the platform's orientation in {0}, ``gravity`` (3,) m/s^2 in
+    {0}."""
+    length = np.linalg.norm(v, axis=2)
+    u = v / length[..., None]
+    g_mat = np.concatenate([u, np.cross(r, u)], axis=2).transpose(0, 2, 1)  # (N, 6, 6)
+    weight = masses[..., None] * gravity  # (N, B, 3)
+    arm = np.einsum("kab,kcb->kca", rotations, centres)
+    wrench = np.concatenate([weight.sum(axis=1), np.cross(arm, weight).sum(axis=1)], axis=1)
+    cond = np.linalg.cond(g_mat)
+    if not np.all(np.isfinite(cond)) or np.any(cond > 1e12):
+        k = int(np.argmax(np.where(np.isfinite(cond), cond, np.inf)))
+        raise ValueError(f"pose {k}: the hexapod is singular there (leg Jacobian condition "
+                         f"number {cond[k]:.3g}): the legs cannot hold a load")
+    f = np.linalg.solve(g_mat, wrench[..., None])[..., 0]
+    if dv is None:
+        return f, None
+    assert dr is not None
+    du = (dv - u[..., None] * np.einsum("kja,kjap->kjp", u, dv)[:, :, None, :]) \
+        / length[..., None, None]
+    dmom = (np.cross(dr, u[..., None], axisa=2, axisb=2, axisc=2)
+            + np.cross(r[..., None], du, axisa=2, axisb=2, axisc=2))
+    dg_f = np.concatenate([np.einsum("kjap,kj->kap", du, f),
+                           np.einsum("kjap,kj->kap", dmom, f)], axis=1)  # (N, 6, n)
+    df = -np.linalg.solve(g_mat, dg_f)
+    return f, df
+
+
+def leg_state(robot: Any, xg: np.ndarray, q: np.ndarray, poses: np.ndarray, data: Any,
+              needs: frozenset[str] | set[str] = frozenset({"forces", "temperatures"})
+              ) -> LegState:
+    """The :class:`iwr.effects.LegState` of ``data``'s loads and temperatures (``data`` with
+    optional ``payload`` (N, 4) and ``temperatures`` (N, 1) or (N, 6)) at poses ``poses`` in
+    {0}, geometric errors ``xg``; the forces only when ``"forces"`` is needed."""
+    v, dv, r = leg_vectors(robot, xg, q, poses)
+    length = np.linalg.norm(v, axis=2)
+    u = v / length[..., None]
+    d_length = np.einsum("kja,kjap->kjp", u, dv)
+    forces = d_forces = None
+    if "forces" in needs:
+        comp = _compliance(robot)
+        nc = 4 * robot.n_joints
+        rot = pose_matrix(poses)[:, :3, :3]
+        dr = np.zeros_like(dv)
+        for j in range(6):
+            dr[:, j, :, nc + 18 + 3 * j: nc + 18 + 3 * j + 3] = rot
+        payload = getattr(data, "payload", None)
+        n = len(poses)
+        masses = np.full((n, 1), comp.platform_mass)
+        centres = np.broadcast_to(comp.platform_centre, (n, 1, 3))
+        if payload is not None:
+            masses = np.hstack([masses, payload[:, :1]])
+            centres = np.concatenate([centres, payload[:, None, 1:]], axis=1)
+        forces, d_forces = leg_forces(v, dv, r, dr, rot, masses, centres, comp.gravity)
+    temps = None
+    if "temperatures" in needs:
+        t = getattr(data, "temperatures", None)
+        if t is not None:
+            temps = np.broadcast_to(t, (len(poses), 6))
+    return LegState(length, d_length, forces, d_forces, temps)
+
+
+def _compliance(robot: Any) -> Any:
+    """The robot's compliance effect (which holds the statics' gravity and platform mass)."""
+    for e in robot.effects:
+        if hasattr(e, "gravity"):
+            return e
+    raise ValueError(f"robot {robot.name!r}: no effect describes the loads (gravity, platform "
+                     "mass): switch on [effects.compliance]")
+
+
+def check_inputs(robot: Any, data: Any, where: str = "measurements") -> None:
+    """ValueError unless ``data`` holds what the robot's effects need (temperatures)."""
+    for e in robot.effects:
+        if "temperatures" in e.needs and getattr(data, "temperatures", None) is None:
+            raise ValueError(
+                f"{where}: the {e.name} effect ({e.description}) needs each pose's "
+                "temperature: columns T_C (one per pose) or T1_C .. T6_C (one per leg), "
+                "degrees C (docs/effects.md)")
+
+
+def predicted_readings(robot: Any, x: Any, q: Any, poses: Any, data: Any,
+                       derivatives: bool = False) -> Any:
+    """The leg sensor readings (N, 6) that the robot with geometric errors and effect
+    parameters ``x`` (:func:`split`) gives at platform poses ``poses`` in {0}, under ``data``'s
+    loads and temperatures: ``s = D - l0 - sum of the effects' changes``, D the distance
+    between the joint centres. With ``derivatives``: also their Jacobian (N, 6, len(x))."""
+    xg, xe = split(robot, x)
+    q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
+    poses = np.asarray(poses, dtype=float)
+    check_inputs(robot, data)
+    needs: set[str] = set()
+    for e in robot.effects:
+        needs |= e.needs
+    state = leg_state(robot, xg, q, poses, data, needs)
+    nc = 4 * robot.n_joints
+    l0 = robot.leg_offsets + xg[nc + 36: nc + 42]
+    s = state.lengths - l0
+    jac = np.zeros((len(poses), 6, len(x)))
+    jac[..., : robot.n_params] = state.d_lengths
+    jac[..., nc + 36: nc + 42] -= np.eye(6)
+    col = robot.n_params
+    for e in robot.effects:
+        k = len(e.parameter_names())
+        change, d_geo, d_own = e.leg_change(state, e.values() + xe[col - robot.n_params:
+                                                                   col - robot.n_params + k])
+        s = s - change
+        jac[..., : robot.n_params] -= d_geo
+        jac[..., col: col + k] -= d_own
+        col += k
+    return (s, jac) if derivatives else s

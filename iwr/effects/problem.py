@@ -1,0 +1,152 @@
+"""The leg (pose-data) objective of a robot with effects: eq. (10) with the effects' change of
+each leg's length, its exact Jacobian, and the methods that can minimise it (docs/effects.md)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from . import bounds as effect_bounds
+from . import parameter_names as effect_names
+from .model import check_inputs, predicted_readings
+
+__all__ = ["EffectProblem", "METHODS", "check_method"]
+
+#: The identification methods that minimise the objective with effects (the others run the C++
+#: kernels of the geometry alone).
+METHODS = ("lm",)
+
+
+def check_method(robot: Any, method: str, noise: Any, weighted: Any) -> None:
+    """ValueError unless ``method`` (with ``noise``) models ``robot``'s effects."""
+    names = ", ".join(e.name for e in robot.effects)
+    if method not in METHODS:
+        raise ValueError(
+            f"method {method!r}: robot {robot.name!r} has effects on ({names}), which the "
+            f"C++ kernels of method {method!r} (and of iwr-engine) do not model; the methods "
+            f"that do: {', '.join(METHODS)} (docs/effects.md)")
+    if noise is not None or weighted:
+        raise ValueError(
+            f"noise: robot {robot.name!r} has effects on ({names}); the noise-weighted "
+            "objective and its chi-square test do not model them yet: give noise=None "
+            "(eq. (10), method 'lm'; docs/effects.md)")
+
+
+class EffectProblem:
+    """Eq. (10) for a robot with effects: the unknowns are the geometric errors then the
+    effects' parameters (:func:`iwr.effects.parameter_names`); each predicted reading is the
+    geometry's minus the effects' change of the leg at that pose's load and temperature
+    (:func:`iwr.effects.model.predicted_readings`). The residuals, their Jacobian and the cost
+    are computed in numpy (``cost_batch`` refuses: the global methods run the C++ kernels).
+
+    Parameters
+    ----------
+    robot : Robot
+        The nominal robot, with its effects.
+    measurements : Measurements
+        With the payload and temperature columns the effects need.
+    bounds : None, "default", "paper" or (lower, upper)
+        The geometric errors' as :class:`iwr.Problem`'s, or a pair over every parameter; the
+        effects' parameters get their own (:func:`iwr.effects.bounds`) unless the pair covers
+        them.
+    """
+
+    def __init__(self, robot: Any, measurements: Any, bounds: Any = None) -> None:
+        from ..problem import Problem
+
+        if not robot.effects:
+            raise ValueError(f"robot {robot.name!r}: no effect on; use iwr.Problem")
+        self.robot = robot
+        self.measurements = measurements
+        self.geometric = robot.with_effects()
+        check_inputs(robot, measurements)
+        names = effect_names(robot.effects)
+        n_all = robot.n_params + len(names)
+        lo_e, hi_e = effect_bounds(robot.effects)
+        if bounds is None or isinstance(bounds, str):
+            base = Problem(self.geometric, measurements, bounds)
+            self.lower = np.concatenate([base.lower, lo_e])
+            self.upper = np.concatenate([base.upper, hi_e])
+        else:
+            lo, hi = (np.asarray(b, dtype=float) for b in bounds)
+            if lo.size == robot.n_params and hi.size == robot.n_params:
+                lo, hi = np.concatenate([lo, lo_e]), np.concatenate([hi, hi_e])
+            self.lower = np.broadcast_to(lo, (n_all,)).copy()
+            self.upper = np.broadcast_to(hi, (n_all,)).copy()
+            for i in range(n_all):
+                if not (np.isfinite(self.lower[i]) and np.isfinite(self.upper[i])
+                        and self.lower[i] < self.upper[i]):
+                    raise ValueError(f"bounds: parameter {i} ({self.parameter_names[i]}) has "
+                                     f"lower {self.lower[i]}, upper {self.upper[i]}")
+        w = measurements.weights
+        self._sqrt_w = None if w is None else np.sqrt(w)
+        self.noise = None
+        self.whitening = None
+
+    weighted = False
+
+    @property
+    def n_params(self) -> int:
+        return self.robot.n_params + len(effect_names(self.robot.effects))
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.measurements)
+
+    @property
+    def n_residuals(self) -> int:
+        return 6 * self.n_poses
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return self.robot.parameter_names + effect_names(self.robot.effects)
+
+    def _x(self, x: Any) -> np.ndarray:
+        arr = np.asarray(x, dtype=float)
+        if arr.shape != (self.n_params,):
+            raise ValueError(f"x: shape {arr.shape}; expected ({self.n_params},): "
+                             f"{self.robot.n_params} geometric errors, then "
+                             + ", ".join(effect_names(self.robot.effects)))
+        return arr
+
+    def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        m = self.measurements
+        s, jac = predicted_readings(self.robot, self._x(x), m.q, m.poses, m, derivatives=True)
+        r = s - m.legs
+        if self._sqrt_w is not None:
+            r = r * self._sqrt_w
+            jac = jac * self._sqrt_w[..., None]
+        return r.reshape(-1), jac.reshape(-1, self.n_params)
+
+    def residuals(self, x: Any) -> np.ndarray:
+        m = self.measurements
+        r = predicted_readings(self.robot, self._x(x), m.q, m.poses, m) - m.legs
+        if self._sqrt_w is not None:
+            r = r * self._sqrt_w
+        return r.reshape(-1)
+
+    def jacobian(self, x: Any) -> np.ndarray:
+        return self.residuals_and_jacobian(x)[1]
+
+    def cost(self, x: Any) -> float:
+        r = self.residuals(x)
+        return float(r @ r)
+
+    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
+        names = ", ".join(e.name for e in self.robot.effects)
+        raise ValueError(f"cost_batch: robot {self.robot.name!r} has effects on ({names}), which "
+                         "the C++ batch kernels (DE, CRS2, BOBYQA, iwr-engine) do not model; "
+                         f"the methods that do: {', '.join(METHODS)} (docs/effects.md)")
+
+    def save(self, path: Any, **options: Any) -> None:
+        """Refused: the problem file runs on ``iwr-engine``, whose kernels model the geometry
+        only."""
+        names = ", ".join(e.name for e in self.robot.effects)
+        raise ValueError(f"save: robot {self.robot.name!r} has effects on ({names}), which "
+                         "iwr-engine's kernels do not model; no problem file is written "
+                         "(docs/effects.md)")
+
+    def __repr__(self) -> str:
+        return (f"EffectProblem(robot={self.robot.name!r}, n_poses={self.n_poses}, "
+                f"n_params={self.n_params})")
