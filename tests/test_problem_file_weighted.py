@@ -226,6 +226,24 @@ def test_a_version_2_file_and_its_version_3_copy_are_one_problem(tmp_path: Path)
             assert new[key] == old[key], (name, key)
 
 
+def test_resuming_a_run_whose_problem_file_is_of_version_2(tmp_path: Path) -> None:
+    """The launcher keeps a resumed run's problem file when the problem is the same: a file of
+    the previous version is the same problem (its version is not a difference), another weighting
+    is not."""
+    from iwr.cli.calibrate_exe import _keep_the_run_problem
+
+    for name in ("pose_v2.iwrp", "points_v2.iwrp"):
+        old = read_problem(DATA / name)
+        problem = iwr.Problem.load(DATA / name)
+        _keep_the_run_problem(problem, str(DATA / name), "robot.toml", "data.csv",
+                              x0=np.array(old["x0"]))
+    problem = iwr.Problem.load(DATA / "pose_v2.iwrp")
+    weighted = iwr.Problem(problem.robot, problem.measurements, bounds="paper",
+                           noise=iwr.Noise.realistic())
+    with pytest.raises(ValueError, match="differs from robot.toml data.csv in weighting"):
+        _keep_the_run_problem(weighted, str(DATA / "pose_v2.iwrp"), "robot.toml", "data.csv")
+
+
 def _tracker_files(tmp_path: Path) -> tuple[Path, Path]:
     robot = iwr.Robot.default().with_tracker(registration=REGISTRATION, reflectors=REFLECTORS)
     m, _ = iwr.simulate(robot, 20, seed=4, noise=(READINGS, TrackerNoise.leica()))

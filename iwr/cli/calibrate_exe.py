@@ -230,7 +230,7 @@ def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: s
         return
     old = read_problem(path)
     new = _core._decode_problem(encode_problem(problem, x0=x0), "")
-    differ = [k for k in sorted(set(old) | set(new)) if k != "sources"
+    differ = [k for k in sorted(set(old) | set(new)) if k not in ("sources", "version")
               and not k.endswith("_fingerprint")
               and (k not in old or k not in new or not _same_value(old[k], new[k]))]
     if differ:
