@@ -138,7 +138,7 @@ def test_round_trip_keeps_the_weighting_exactly(name: str, request: Any, tmp_pat
     np.testing.assert_array_equal(back.whitening, problem.whitening)
     x = _random_x(problem, 1)[0]
     assert back.cost(x) == problem.cost(x)
-    # Saved again, the same bytes.
+    # Saved again, the same whitening.
     back.save(tmp_path / "again.iwrp")
     again = read_problem(tmp_path / "again.iwrp")
     np.testing.assert_array_equal(again["weighting"][1], flat)
