@@ -265,8 +265,9 @@ class Problem:
 
         A versioned, checksummed binary file (``docs/iwr-calibrate.md``) with the robot, the
         measurements and weights, the noise weighting (the whitening, when the problem has one:
-        the engine then minimises the same weighted cost), the bounds and the parameter names; ``sources`` maps a role
-        (``"robot"``, ``"data"``) to the file it came from, recorded with its SHA-256; ``x0``
+        the engine then minimises the same weighted cost), the bounds and the parameter names;
+        ``sources`` maps a role (``"robot"``, ``"data"``) to the file it came from, recorded with
+        its SHA-256; ``x0``
         (default zeros: where the inactive parameters stay) and ``active`` (default all) are the
         search's starting point and active set. :meth:`load` reads it back; tracker data are
         saved by :meth:`iwr.tracker.TrackerProblem.save`, to the same format.

@@ -5,10 +5,9 @@ robot (geometry, limits, workspace), the measurements (leg data with poses in {0
 weights, or laser-tracker data: points or probe poses in the tracker frame, with the nominal
 tracker setup and the reference of the forward kinematics), the noise weighting if any (the
 per-pose whitening of the residuals, ``Problem.whitening``), the search bounds, the
-starting point ``x0`` and the active set, the parameter names, and where the data came from (paths and SHA-256
-of the TOML and CSV files). It is
-a versioned, checksummed little-endian binary file (``docs/iwr-calibrate.md`` gives the layout),
-written and read by the one C++ writer and reader (``cpp/include/iwr/problem_file.hpp``) through
+starting point ``x0`` and the active set, the parameter names, and where the data came from
+(paths and SHA-256 of the TOML and CSV files). It is a versioned, checksummed little-endian
+binary file (``docs/iwr-calibrate.md`` gives the layout), written and read by the one C++ writer and reader (``cpp/include/iwr/problem_file.hpp``) through
 ``iwr._core``, so Python and the engine accept exactly the same files.
 
 The engine writes its result into its checkpoint (binary, the same container); :func:`engine_result`

@@ -298,8 +298,9 @@ class TrackerProblem:
              active: Any = None) -> None:
         """Write the problem file that ``iwr-engine`` runs from, atomically (as
         :meth:`iwr.Problem.save`): the robot, the nominal tracker setup, the data, the reference,
-        the noise weighting (the whitening) if any, the bounds, and the search's starting point ``x0`` (default zeros: where the inactive
-        parameters stay) and ``active`` set (default all). :meth:`load` reads it back."""
+        the noise weighting (the whitening) if any, the bounds, and the search's starting point
+        ``x0`` (default zeros: where the inactive parameters stay) and ``active`` set (default
+        all). :meth:`load` reads it back."""
         from ..problem_file import save_problem
 
         save_problem(self, path, sources, x0=x0, active=active)
