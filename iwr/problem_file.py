@@ -7,8 +7,9 @@ tracker setup and the reference of the forward kinematics), the noise weighting 
 per-pose whitening of the residuals, ``Problem.whitening``), the search bounds, the
 starting point ``x0`` and the active set, the parameter names, and where the data came from
 (paths and SHA-256 of the TOML and CSV files). It is a versioned, checksummed little-endian
-binary file (``docs/iwr-calibrate.md`` gives the layout), written and read by the one C++ writer and reader (``cpp/include/iwr/problem_file.hpp``) through
-``iwr._core``, so Python and the engine accept exactly the same files.
+binary file (``docs/iwr-calibrate.md`` gives the layout), written and read by the one C++
+writer and reader (``cpp/include/iwr/problem_file.hpp``) through ``iwr._core``, so Python and
+the engine accept exactly the same files.
 
 The engine writes its result into its checkpoint (binary, the same container); :func:`engine_result`
 turns a checkpoint into an :class:`~iwr.methods.IdentificationResult`, whose ``save`` writes the one
