@@ -268,18 +268,16 @@ class Problem:
         """Write the problem file that ``iwr-engine`` runs from, atomically.
 
         A versioned, checksummed binary file (``docs/iwr-calibrate.md``) with the robot, the
-        measurements and weights, the bounds and the parameter names; ``sources`` maps a role
-        (``"robot"``, ``"data"``) to the file it came from, recorded with its SHA-256; ``x0``
+        measurements and weights, the noise weighting (the whitening, when the problem has one:
+        the engine then minimises the same weighted cost), the bounds and the parameter names;
+        ``sources`` maps a role (``"robot"``, ``"data"``) to the file it came from, recorded with
+        its SHA-256; ``x0``
         (default zeros: where the inactive parameters stay) and ``active`` (default all) are the
         search's starting point and active set. :meth:`load` reads it back; tracker data are
         saved by :meth:`iwr.tracker.TrackerProblem.save`, to the same format.
         """
         save_problem = hook("save_problem")  # iwr.problem_file, a layer up
 
-        if self.whitening is not None:
-            raise ValueError("Problem.save: the problem file does not carry the noise weighting "
-                             "(the whitening) of this problem; iwr-engine runs eq. (10) "
-                             "unweighted only (docs/estimation.md)")
         save_problem(self, path, sources, x0=x0, active=active)
 
     @classmethod

@@ -3,12 +3,13 @@
 A problem file holds everything the C++ engine (``iwr-engine``) needs after every Python check: the
 robot (geometry, limits, workspace), the measurements (leg data with poses in {0} and their
 weights, or laser-tracker data: points or probe poses in the tracker frame, with the nominal
-tracker setup and the reference of the forward kinematics), the search bounds, the starting point
-``x0`` and the active set, the parameter names, and where the data came from (paths and SHA-256
-of the TOML and CSV files). It is
-a versioned, checksummed little-endian binary file (``docs/iwr-calibrate.md`` gives the layout),
-written and read by the one C++ writer and reader (``cpp/include/iwr/problem_file.hpp``) through
-``iwr._core``, so Python and the engine accept exactly the same files.
+tracker setup and the reference of the forward kinematics), the noise weighting if any (the
+per-pose whitening of the residuals, ``Problem.whitening``), the search bounds, the
+starting point ``x0`` and the active set, the parameter names, and where the data came from
+(paths and SHA-256 of the TOML and CSV files). It is a versioned, checksummed little-endian
+binary file (``docs/iwr-calibrate.md`` gives the layout), written and read by the one C++
+writer and reader (``cpp/include/iwr/problem_file.hpp``) through ``iwr._core``, so Python and
+the engine accept exactly the same files.
 
 The engine writes its result into its checkpoint (binary, the same container); :func:`engine_result`
 turns a checkpoint into an :class:`~iwr.methods.IdentificationResult`, whose ``save`` writes the one
@@ -76,6 +77,23 @@ def _search_start(problem: Any, x0: Any, active: Any) -> tuple[list[float], list
     return [float(v) for v in x], [bool(v) for v in a]
 
 
+def _weighting(problem: Any) -> tuple[str, np.ndarray] | None:
+    """The problem's noise weighting as the file holds it: what it was made from (in words) and
+    the whitening, (N, m^2) with m the residuals of a pose; None when unweighted."""
+    wh = getattr(problem, "whitening", None)
+    if wh is None:
+        return None
+    wh = np.asarray(wh, dtype=float)
+    noise = getattr(problem, "noise", None)
+    if noise is None:
+        text = "a whitening given with the problem"
+    elif isinstance(noise, tuple):  # tracker data: (readings' Noise or None, TrackerNoise)
+        text = "; ".join(str(part) for part in noise if part is not None)
+    else:
+        text = str(noise)
+    return text, np.ascontiguousarray(wh.reshape(len(wh), -1))
+
+
 def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | None = None, *,
                    x0: Any = None, active: Any = None) -> bytes:
     """The bytes of ``problem``'s file (an :class:`iwr.Problem` or an
@@ -109,6 +127,7 @@ def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | No
         active=mask,
         parameter_names=list(problem.parameter_names),
         sources=srcs,
+        weighting=_weighting(problem),
     )
     setup = getattr(problem, "setup", None)
     if setup is None:
@@ -135,7 +154,9 @@ def save_problem(problem: Any, path: str | os.PathLike[str],
 def read_problem(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The fields of a problem file, checked; raises :class:`FormatError` naming the file and
     field. ``kind`` is ``"pose"`` (leg data, poses in {0}), ``"points"`` or ``"probe"`` (tracker
-    data); ``x0`` and ``active`` are the search's starting point and active set."""
+    data); ``x0`` and ``active`` are the search's starting point and active set; ``weighting`` is
+    None (unweighted, and every file of version 2) or ``(text, whitening)``: what the noise
+    weighting was made from and the whitening, (N, m^2) with m the residuals of a pose."""
     return _core._read_problem(os.fspath(path))
 
 
@@ -151,15 +172,20 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
         d["leg_offsets"], d["leg_stroke"], d["home_pose"], d["workspace"], name=d["robot_name"],
     )
     bounds = (np.array(d["lower"]), np.array(d["upper"]))
+    n = len(d["legs"])
+    whitening = None
+    if d["weighting"] is not None:  # (N, m^2) -> (N, m, m)
+        flat = d["weighting"][1]
+        m_res = int(round(np.sqrt(flat.shape[1])))
+        whitening = flat.reshape(n, m_res, m_res)
     if d["kind"] == "pose":
         m = Measurements(d["q"], d["poses"], d["legs"], joint_types=d["measurement_joint_types"],
                          weights=d["weights"], source=os.fspath(path))
-        return Problem(robot, m, bounds=bounds)
+        return Problem(robot, m, bounds=bounds, whitening=whitening)
     from .tracker.data import TrackerMeasurements
     from .tracker.problem import TrackerProblem
     from .tracker.setup import TrackerSetup
 
-    n = len(d["legs"])
     if d["kind"] == "points":
         setup = TrackerSetup(d["registration"], reflectors=d["reflectors"],
                              names=d["reflector_names"])
@@ -173,7 +199,7 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
         if not np.array_equal(tm.tracker_points(setup), d["points"]):
             raise FormatError(f"{path}: points: not the virtual points of the probe poses")
     return TrackerProblem(robot.with_tracker(setup=setup), setup, tm, bounds,
-                          reference=d["reference"])
+                          reference=d["reference"], whitening=whitening)
 
 
 def engine_result(checkpoint: str | os.PathLike[str],
@@ -200,6 +226,8 @@ def engine_result(checkpoint: str | os.PathLike[str],
         settings["n_poses"] = len(p["legs"])
         settings["measurements"] = p["kind"]
         settings["sources"] = {role: path for role, path, _ in p["sources"]}
+        if p["weighting"] is not None:
+            settings["weighting"] = p["weighting"][0]
     settings.update(
         lower=c["lower"].tolist(), upper=c["upper"].tolist(), generations=c["generations"],
         max_evaluations=c["max_evaluations"], target_cost=c["target_cost"], preset=c["preset"],

@@ -486,7 +486,7 @@ def test_a_result_that_is_not_finite_is_never_a_success_and_loads(tmp_path: Path
         workspace=robot.workspace, measurement_joint_types="", kind="pose", q=np.zeros((6, 0)),
         poses=m.poses, legs=m.legs + 2e4, weights=np.full((6, 6), 1e300), lower=list(lo),
         upper=list(hi), bounds_kind="default", x0=[0.0] * 42, active=[True] * 42,
-        parameter_names=robot.parameter_names, sources=[]))
+        parameter_names=robot.parameter_names, sources=[], weighting=None))
     (tmp_path / "far.iwrp").write_bytes(data)
     proc = run_engine(tmp_path / "far.iwrp", "--population-size", 10, "--generations", 3,
                       "--target-cost", 1e-3, "--quiet")

@@ -267,7 +267,10 @@ def test_weighted_tracker_problems_that_cannot_be_refuse(tmp_path):
     problem, _ = kinds.of(m).problem(robot, m)
     weighted = TrackerProblem(robot, robot.tracker, m, noise=noise)
     assert weighted.weighted and not problem.weighted
-    with pytest.raises(ValueError, match="does not carry the noise weighting"):
-        weighted.save(tmp_path / "p.iwrp")
+    # The problem file carries the weighting (issue 21): saved, it loads back weighted.
+    weighted.save(tmp_path / "p.iwrp")
+    back = TrackerProblem.load(tmp_path / "p.iwrp")
+    assert back.weighted
+    np.testing.assert_array_equal(back.whitening, weighted.whitening)
     with pytest.raises(ValueError, match="needs the tracker's noise"):
         iwr.identify(robot, m, "lm", noise=READINGS)

@@ -100,7 +100,7 @@ def test_damaged_files_are_refused_naming_file_and_field(problem: iwr.Problem,
     edited = bytearray(good)
     edited[8] = 99  # the format version
     bad.write_bytes(bytes(edited))
-    with pytest.raises(ValueError, match="format version 99; this program reads version 2"):
+    with pytest.raises(ValueError, match="format version 99; this program reads versions 2 to 3"):
         iwr.Problem.load(bad)
     with pytest.raises(ValueError, match="/dev/zero: not a regular file"):
         iwr.Problem.load("/dev/zero")
@@ -120,7 +120,7 @@ def test_the_writer_refuses_what_the_reader_would(problem: iwr.Problem) -> None:
         leg_stroke=robot.leg_stroke, home_pose=robot.home_pose, workspace=robot.workspace,
         measurement_joint_types=m.joint_types, kind="pose", q=m.q, poses=m.poses, legs=m.legs,
         weights=None, lower=list(lo), upper=list(hi), bounds_kind="paper", x0=[0.0] * 58,
-        active=[True] * 58, parameter_names=problem.parameter_names, sources=[])
+        active=[True] * 58, parameter_names=problem.parameter_names, sources=[], weighting=None)
     _core._encode_problem(args)  # as given: fine
     legs = m.legs.copy()
     legs[2, 4] = 1e300

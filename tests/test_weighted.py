@@ -208,8 +208,12 @@ def test_bad_whitening_is_refused(data40, tmp_path) -> None:
     with pytest.raises(ValueError, match="noise: pose 0: .*singular"):
         gls_whitening(ROBOT, m, iwr.Noise(legs=0.0, position=0.0, orientation=0.0,
                                           joint_lengths=0.0, joint_angles=0.0))
-    with pytest.raises(ValueError, match="does not carry the noise weighting"):
-        Problem(ROBOT, m, noise=NOISE).save(tmp_path / "p.iwrp")
+    # The problem file carries the weighting (issue 21): saved, it loads back weighted.
+    weighted = Problem(ROBOT, m, noise=NOISE)
+    weighted.save(tmp_path / "p.iwrp")
+    back = Problem.load(tmp_path / "p.iwrp")
+    assert back.weighted
+    np.testing.assert_array_equal(back.whitening, weighted.whitening)
 
 
 def test_zero_leg_weights_leave_the_leg_out(data40) -> None:

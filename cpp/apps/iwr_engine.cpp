@@ -29,11 +29,13 @@
 #include <new>
 #include <optional>
 #include <string>
+#include <variant>
 #include <vector>
 
 #include "iwr/binary_io.hpp"
 #include "iwr/checkpoint.hpp"
 #include "iwr/de.hpp"
+#include "iwr/measurement_kind.hpp"
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
 #include "iwr/problem_file.hpp"
@@ -145,7 +147,8 @@ whatever the number of threads.
 
 positional arguments:
   PROBLEM.iwrp             the problem: robot, measurements (leg data, or laser-tracker points
-                           or probe poses with the nominal tracker setup), weights, search
+                           or probe poses with the nominal tracker setup), weights or the
+                           noise weighting (the objective is then whitened), search
                            bounds, x0 and active set, as iwr.Problem.save or
                            iwr.tracker.TrackerProblem.save writes it (iwr-calibrate ROBOT.toml
                            DATA.csv writes it for you)
@@ -175,7 +178,8 @@ resuming, to extend a run):
   --max-evaluations N      stop after N evaluations. For lshade and jso also the budget that
                            their population-size and parameter schedules run to (default
                            10000 D), hence part of their trajectory
-  --target-cost C          stop as soon as the best cost is <= C (mm^2; the paper reached 1e-4)
+  --target-cost C          stop as soon as the best cost is <= C (mm^2; the paper reached 1e-4;
+                           a problem weighted by a noise model: the dimensionless chi-square)
 
 running:
   --threads T              threads evaluating the population (default 0: all the CPUs this
@@ -676,11 +680,11 @@ std::string default_checkpoint(const std::string& problem) {
     return problem + ".ckpt";
 }
 
-// The poses whose forward kinematics fails at x carry a penalty (tracker data): never a success.
-// Leg data need no forward kinematics.
-std::string unsolved(const iwr::Objective&, const iwr::VectorXd&) { return ""; }
-std::string unsolved(const iwr::TrackerObjective& objective, const iwr::VectorXd& x) {
-    const auto bad = objective.failures(x);
+// The poses whose model fails at x carry a penalty (tracker data: no forward kinematics): never a
+// success.
+template <class Obj>
+std::string unsolved(const Obj& objective, const iwr::VectorXd& x) {
+    const auto bad = iwr::objective_failures(objective, x);
     if (bad.empty()) return "";
     return std::to_string(bad.size()) + " of " + std::to_string(objective.n_poses()) +
            " poses have no forward kinematics at the result (pose " + std::to_string(bad.front().first) + ": " +
@@ -714,15 +718,11 @@ int run(const Options& o) {
     } catch (const FormatError& e) {
         throw InputError(e.what());
     }
-    // The objective of the measurement kind: eq. (10) on leg readings, or the tracker residuals.
-    std::optional<iwr::Objective> legs;
-    std::optional<iwr::TrackerObjective> tracker;
+    // The objective of the measurement kind (iwr/measurement_kind.hpp): eq. (10) on leg readings,
+    // or the tracker residuals, whitened when the problem is weighted by a noise model.
+    std::optional<iwr::AnyObjective> objective;
     try {
-        if (!problem.tracker())
-            legs.emplace(problem.geometry(), problem.q, problem.poses, problem.legs, problem.weights);
-        else
-            tracker.emplace(problem.geometry(), problem.tracker_setup(), problem.q, problem.legs, problem.points,
-                            problem.reference, problem.home_pose);
+        objective.emplace(iwr::make_objective(problem));
     } catch (const iwr::ForwardKinematicsError& e) {
         throw InputError(problem_path + ": pose " + std::to_string(e.pose()) +
                          ": the leg readings have no forward kinematics for the robot at the reference "
@@ -730,7 +730,7 @@ int run(const Options& o) {
     } catch (const std::invalid_argument& e) {
         throw InputError(problem_path + ": " + e.what());
     }
-    return legs ? search(o, problem, *legs) : search(o, problem, *tracker);
+    return std::visit([&](const auto& obj) { return search(o, problem, obj); }, *objective);
 }
 
 // The run on either objective: one engine loop, checkpoints and resume for every kind of data.
@@ -793,7 +793,8 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
         const iwr::Checkpoint& c = *saved;
         if (c.robot_fingerprint != info.robot_fp)
             throw InputError(path + ": made for another robot (problem " + c.problem_file + "); the geometry" +
-                             (problem.tracker() ? ", the tracker setup" : "") + " or the search's x0 and active set in " +
+                             (problem.tracker() ? ", the tracker setup" : "") +
+                             (problem.weighted() ? ", the noise weighting" : "") + " or the search's x0 and active set in " +
                              problem_path + " differ");
         if (c.data_fingerprint != info.data_fp) {
             std::string from;
@@ -920,7 +921,8 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
                                                           " of them the tracker setup's"
                                                     : "";
         progress.message(std::to_string(problem.n_params()) + " parameters" + setup + active + ", " +
-                         std::to_string(problem.n_poses()) + " poses" + kind_text(problem.kind) + "; " + de::to_string(state->settings.strategy) + ", NP " +
+                         std::to_string(problem.n_poses()) + " poses" + kind_text(problem.kind) +
+                         (problem.weighted() ? ", weighted by the noise (" + problem.weighting + ")" : "") + "; " + de::to_string(state->settings.strategy) + ", NP " +
                          std::to_string(state->settings.population_size) + ", seed " +
                          std::to_string(state->settings.seed) + ", " + std::to_string(info.threads) + " thread(s)");
         progress.start(0, 0);

@@ -3,7 +3,11 @@
 // for both languages; the bytes are written by Python's atomic writer.
 #include "common.hpp"
 #include "iwr/binary_io.hpp"
+#include "iwr/measurement_kind.hpp"
 #include "iwr/problem_file.hpp"
+
+#include <tuple>
+#include <variant>
 
 namespace iwr::python {
 
@@ -84,6 +88,20 @@ void bind_files(py::module_& m) {
                 p.points = get("points").cast<RowMatrixXd>();
                 p.reference = get("reference").cast<VectorXd>();
             }
+            // The noise weighting: None (unweighted), or (what it was made from, (N, m^2) whitening).
+            const py::object weighting = get("weighting");
+            if (!weighting.is_none()) {
+                const auto pair = weighting.cast<std::tuple<std::string, RowMatrixXd>>();
+                p.weighting = std::get<0>(pair);
+                p.whitening = std::get<1>(pair);
+                if (p.whitening.size() == 0)
+                    throw std::invalid_argument("whitening: empty; give None for an unweighted problem");
+                const Eigen::Index m = p.residuals_per_pose();
+                if (p.whitening.rows() != p.legs.rows() || p.whitening.cols() != m * m)
+                    throw std::invalid_argument("whitening: shape (" + std::to_string(p.whitening.rows()) + ", " +
+                                                std::to_string(p.whitening.cols()) + "); expected (" +
+                                                std::to_string(p.legs.rows()) + ", " + std::to_string(m * m) + ")");
+            }
             p.lower = get("lower").cast<std::vector<double>>();
             p.upper = get("upper").cast<std::vector<double>>();
             p.bounds_kind = get("bounds_kind").cast<std::string>();
@@ -144,6 +162,25 @@ void bind_files(py::module_& m) {
             return problem_dict(decode_problem(std::string(data), context));
         },
         py::arg("data"), py::arg("context"));
+    // The costs of the rows of X (M, n_params) on the objective iwr-engine builds from a problem
+    // file (make_objective): how the tests check the engine against iwr.Problem.
+    m.def(
+        "_engine_costs",
+        [](const std::string& path, const RowMatrixXd& X) {
+            const ProblemData p = read_problem(path);
+            if (X.cols() != p.n_params())
+                throw std::invalid_argument("X: " + std::to_string(X.cols()) + " columns; expected " +
+                                            std::to_string(p.n_params()));
+            const AnyObjective objective = make_objective(p);
+            VectorXd out(X.rows());
+            std::visit(
+                [&](const auto& obj) {
+                    for (Eigen::Index i = 0; i < X.rows(); ++i) out(i) = obj.cost(VectorXd(X.row(i).transpose()));
+                },
+                objective);
+            return out;
+        },
+        py::arg("path"), py::arg("X"));
 }
 
 py::dict problem_dict(const ProblemData& p) {
@@ -179,6 +216,8 @@ py::dict problem_dict(const ProblemData& p) {
         d["points"] = p.points;
         d["reference"] = p.reference;
     }
+    d["version"] = p.version;
+    d["weighting"] = p.weighted() ? py::object(py::make_tuple(p.weighting, p.whitening)) : py::object(py::none());
     d["lower"] = p.lower;
     d["upper"] = p.upper;
     d["bounds_kind"] = p.bounds_kind;

@@ -109,6 +109,12 @@ std::string seal(const char magic[8], std::uint32_t version, const std::string& 
 
 std::string unseal(const std::string& bytes, const char magic[8], std::uint32_t version,
                    const std::string& context, const char* what) {
+    return unseal(bytes, magic, version, version, nullptr, context, what);
+}
+
+std::string unseal(const std::string& bytes, const char magic[8], std::uint32_t oldest,
+                   std::uint32_t newest, std::uint32_t* version, const std::string& context,
+                   const char* what) {
     const std::string m(magic, 8);
     if (bytes.empty()) throw FormatError(context + "empty file; not " + what);
     if (bytes.size() < 8 || bytes.compare(0, 8, m) != 0) {
@@ -126,9 +132,11 @@ std::string unseal(const std::string& bytes, const char magic[8], std::uint32_t 
     const std::uint64_t size = h.u64("payload size");
     const std::uint64_t checksum = h.u64("checksum");
     // The version first, so that another version of the format gets a clear message.
-    if (v != version || zero != 0)
-        throw FormatError(context + "format version " + std::to_string(v) + "; this program reads version " +
-                          std::to_string(version));
+    if (v < oldest || v > newest || zero != 0)
+        throw FormatError(context + "format version " + std::to_string(v) + "; this program reads version" +
+                          (oldest == newest ? " " + std::to_string(newest)
+                                            : "s " + std::to_string(oldest) + " to " + std::to_string(newest)));
+    if (version) *version = v;
     const std::uint64_t have = bytes.size() - kHeader;
     if (have < size)
         throw FormatError(context + "truncated: " + std::to_string(bytes.size()) + " bytes of " +

@@ -1,6 +1,8 @@
 // The implicit loop estimator: see implicit_loop.hpp.
 #include "iwr/implicit_loop.hpp"
 
+#include "iwr/measurement_kind.hpp"
+
 #include <algorithm>
 #include <functional>
 #include <memory>
@@ -144,23 +146,6 @@ void check_shape(const Eigen::Ref<const RowMatrixXd>& m, Eigen::Index rows, Eige
     require_finite(m.data(), m.size(), what);
 }
 
-// The per-pose residual model the solver works on: pose k has ny nuisance corrections y_k, of
-// which `free[k]` are unknowns (the rest held), and nr normalised residual columns, of which
-// `rows[k]` are live (the others are 0: an exact reading, an unseen point).
-struct LoopModel {
-    int n = 0, ny = 0, nr = 0, np = 0;
-    std::vector<std::vector<int>> free, rows;
-    // Residuals r (nr) of pose k at (x, y_k); with jx, jy non-null also their derivatives (nr x np,
-    // nr x ny, zero where a residual does not depend on the variable).
-    std::function<void(const VectorXd&, int, const double*, double*, RowMatrixXd*, RowMatrixXd*)>
-        eval;
-};
-
-ImplicitLoopResult solve_loop(const LoopModel& model, const Eigen::Ref<const VectorXd>& x0,
-                              const std::vector<int>& active,
-                              const Eigen::Ref<const RowMatrixXd>& corrections0,
-                              const ImplicitLoopOptions& options, const LoopCallback& callback);
-
 std::vector<int> checked_active(const std::vector<int>& active, int np) {
     std::vector<char> seen(static_cast<size_t>(np), 0);
     for (int i : active) {
@@ -203,6 +188,39 @@ LoopJacobians loop_jacobians(const Geometry& g, const Eigen::Ref<const VectorXd>
                   &out.jac_x, &out.jac_y, static_cast<int>(kLegs * k), frames.data(), qt.data());
     }
     return out;
+}
+
+LoopModel pose_loop_model(const Geometry& g, const Eigen::Ref<const RowMatrixXd>& q,
+                          const Eigen::Ref<const RowMatrixXd>& poses,
+                          const Eigen::Ref<const RowMatrixXd>& legs,
+                          const Eigen::Ref<const RowMatrixXd>& sigma) {
+    const int n = static_cast<int>(poses.rows());
+    const int nj = g.n_joints(), ny = nj + 6;
+    LoopModel model;
+    model.n = n;
+    model.ny = ny;
+    model.nr = kLegs + ny;
+    model.np = g.n_params();
+    model.free.resize(static_cast<size_t>(n));
+    model.rows.resize(static_cast<size_t>(n));
+    for (int k = 0; k < n; ++k) {
+        auto& rows = model.rows[static_cast<size_t>(k)];
+        for (int j = 0; j < kLegs; ++j) rows.push_back(j);
+        for (int c = 0; c < ny; ++c) {
+            if (sigma(k, kLegs + c) > 0) {
+                model.free[static_cast<size_t>(k)].push_back(c);
+                rows.push_back(kLegs + c);
+            }
+        }
+    }
+    auto frames = std::make_shared<std::vector<Mat4>>(static_cast<size_t>(nj) + 1);
+    auto qt = std::make_shared<std::vector<double>>(static_cast<size_t>(nj) + 1);
+    // The inputs by value: Refs onto the caller's arrays, which outlive the model.
+    model.eval = [&g, q, poses, legs, sigma, frames, qt, ny](const VectorXd& x, int k, const double* y,
+                                                              double* r, RowMatrixXd* jx, RowMatrixXd* jy) {
+        legs_and_priors(g, x, k, y, q, poses, legs, sigma, ny, r, jx, jy, frames->data(), qt->data());
+    };
+    return model;
 }
 
 ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const VectorXd>& x0,
@@ -266,37 +284,12 @@ ImplicitLoopResult implicit_loop(const Geometry& g, const Eigen::Ref<const Vecto
         return r2;
     }
     // The pose model: legs (predicted - measured) / sigma, then each free correction / sigma.
-    LoopModel model;
-    model.n = n;
-    model.ny = ny;
-    model.nr = nr;
-    model.np = np;
-    model.free.resize(static_cast<size_t>(n));
-    model.rows.resize(static_cast<size_t>(n));
-    for (int k = 0; k < n; ++k) {
-        auto& rows = model.rows[static_cast<size_t>(k)];
-        for (int j = 0; j < kLegs; ++j) rows.push_back(j);
-        for (int c = 0; c < ny; ++c) {
-            if (sigma(k, kLegs + c) > 0) {
-                model.free[static_cast<size_t>(k)].push_back(c);
-                rows.push_back(kLegs + c);
-            } else {
-                corr(k, c) = 0;  // an exact reading has no correction
-            }
-        }
-    }
-    auto frames = std::make_shared<std::vector<Mat4>>(static_cast<size_t>(nj) + 1);
-    auto qt = std::make_shared<std::vector<double>>(static_cast<size_t>(nj) + 1);
-    model.eval = [&g, &q, &poses, &legs, &sigma, frames, qt, ny](
-                     const VectorXd& x, int k, const double* y, double* r, RowMatrixXd* jx,
-                     RowMatrixXd* jy) {
-        legs_and_priors(g, x, k, y, q, poses, legs, sigma, ny, r, jx, jy, frames->data(),
-                        qt->data());
-    };
+    const LoopModel model = pose_loop_model(g, q, poses, legs, sigma);
+    for (int k = 0; k < n; ++k)
+        for (int c = 0; c < ny; ++c)
+            if (!(sigma(k, kLegs + c) > 0)) corr(k, c) = 0;  // an exact reading has no correction
     return solve_loop(model, x0, active, corr, options, callback);
 }
-
-namespace {
 
 ImplicitLoopResult solve_loop(const LoopModel& model, const Eigen::Ref<const VectorXd>& x0,
                               const std::vector<int>& active,
@@ -602,12 +595,8 @@ ImplicitLoopResult solve_loop(const LoopModel& model, const Eigen::Ref<const Vec
     return res;
 }
 
-}  // namespace
-
-namespace {
-
 // The tracker model of implicit_loop_tracker (see the header), on checked inputs.
-LoopModel tracker_model(const Geometry& g, const TrackerLoopData& data,
+LoopModel tracker_loop_model(const Geometry& g, const TrackerLoopData& data,
                         const Eigen::Ref<const RowMatrixXd>& q,
                         const Eigen::Ref<const RowMatrixXd>& legs,
                         const Eigen::Ref<const RowMatrixXd>& sigma) {
@@ -721,6 +710,8 @@ LoopModel tracker_model(const Geometry& g, const TrackerLoopData& data,
     return model;
 }
 
+namespace {
+
 void check_tracker_inputs(const Geometry& g, const TrackerLoopData& data,
                           const Eigen::Ref<const RowMatrixXd>& q,
                           const Eigen::Ref<const RowMatrixXd>& legs,
@@ -776,7 +767,7 @@ LoopJacobians tracker_loop_jacobians(const Geometry& g, const TrackerLoopData& d
                                      const Eigen::Ref<const RowMatrixXd>& sigma,
                                      const Eigen::Ref<const RowMatrixXd>& corrections) {
     check_tracker_inputs(g, data, q, legs, sigma);
-    const LoopModel model = tracker_model(g, data, q, legs, sigma);
+    const LoopModel model = tracker_loop_model(g, data, q, legs, sigma);
     if (x.size() != model.np) {
         throw std::invalid_argument("x: " + std::to_string(x.size()) + " values; expected " +
                                     std::to_string(model.np));
@@ -811,7 +802,7 @@ ImplicitLoopResult implicit_loop_tracker(const Geometry& g, const TrackerLoopDat
                                          const ImplicitLoopOptions& options,
                                          const LoopCallback& callback) {
     check_tracker_inputs(g, data, q, legs, sigma);
-    const LoopModel model = tracker_model(g, data, q, legs, sigma);
+    const LoopModel model = tracker_loop_model(g, data, q, legs, sigma);
     if (x0.size() != model.np) {
         throw std::invalid_argument("x0: " + std::to_string(x0.size()) + " values; expected " +
                                     std::to_string(model.np) + " (the robot's, then the setup's)");

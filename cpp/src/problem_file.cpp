@@ -38,6 +38,22 @@ void get(io::Reader& r, const char* field, M& m, Eigen::Index rows, Eigen::Index
         for (Eigen::Index j = 0; j < cols; ++j) m(i, j) = v[static_cast<std::size_t>(i * cols + j)];
 }
 
+// The weighting of a version 3 file (after its flag): what it was made from, then per pose a
+// lower-triangular m x m whitening, finite (any scale: 1 / sigma of a sensor far below a micron
+// is large, and the cost scales with it).
+void read_whitening(io::Reader& r, ProblemData& p) {
+    p.weighting = r.text("weighting", kMaxText);
+    const Eigen::Index m = p.residuals_per_pose();
+    get(r, "whitening", p.whitening, p.n_poses(), m * m, std::numeric_limits<double>::max());
+    for (Eigen::Index k = 0; k < p.whitening.rows(); ++k)
+        for (Eigen::Index i = 0; i < m; ++i)
+            for (Eigen::Index j = i + 1; j < m; ++j)
+                if (p.whitening(k, i * m + j) != 0.0)
+                    r.fail("whitening: pose " + std::to_string(k) + ", entry (" + std::to_string(i) + ", " +
+                           std::to_string(j) + ") is " + std::to_string(p.whitening(k, i * m + j)) +
+                           "; the whitening of a pose must be lower triangular");
+}
+
 }  // namespace
 
 Geometry ProblemData::geometry() const { return Geometry(joint_types, dh, base, platform, leg_offsets); }
@@ -47,6 +63,14 @@ int ProblemData::n_params() const {
         case MeasurementKind::Points: return n_robot_params() + 6 + 3 * static_cast<int>(reflectors.rows());
         case MeasurementKind::Probe: return n_robot_params() + 12;
         default: return n_robot_params();
+    }
+}
+
+int ProblemData::residuals_per_pose() const {
+    switch (kind) {
+        case MeasurementKind::Points: return 3 * static_cast<int>(reflectors.rows());
+        case MeasurementKind::Probe: return 12;
+        default: return kLegs;
     }
 }
 
@@ -72,6 +96,12 @@ std::uint64_t ProblemData::robot_fingerprint() const {
         h.doubles(reflectors.data(), static_cast<std::size_t>(reflectors.size()));
         h.doubles(probe.data(), 6).f64(probe_length);
         h.doubles(reference.data(), static_cast<std::size_t>(reference.size()));
+    }
+    // The weighting makes another objective of the same data (unweighted: hashed as before).
+    if (weighted()) {
+        h.str("whitening").u64(static_cast<std::uint64_t>(whitening.rows()))
+            .u64(static_cast<std::uint64_t>(whitening.cols()));
+        h.doubles(whitening.data(), static_cast<std::size_t>(whitening.size()));
     }
     const bool plain = std::all_of(x0.begin(), x0.end(), [](double v) { return v == 0; }) &&
                        std::all_of(active.begin(), active.end(), [](bool a) { return a; });
@@ -141,6 +171,11 @@ std::string encode_problem(const ProblemData& p) {
         put(w, p.points);
         put(w, p.reference);
     }
+    w.u8(p.weighted() ? 1 : 0);
+    if (p.weighted()) {
+        w.str(p.weighting);
+        put(w, p.whitening);
+    }
     w.doubles(p.lower);
     w.doubles(p.upper);
     w.str(p.bounds_kind);
@@ -166,9 +201,10 @@ std::string encode_problem(const ProblemData& p) {
 }
 
 ProblemData decode_problem(const std::string& bytes, const std::string& context) {
-    const std::string payload = io::unseal(bytes, kMagic, kProblemVersion, context, "an iwr problem file");
-    io::Reader r(payload.data(), payload.size(), context);
     ProblemData p;
+    const std::string payload = io::unseal(bytes, kMagic, kOldestProblemVersion, kProblemVersion, &p.version,
+                                           context, "an iwr problem file");
+    io::Reader r(payload.data(), payload.size(), context);
     p.robot_name = r.text("robot name", kMaxText);
     p.joint_types = r.str("joint types", kMaxJoints);
     for (char c : p.joint_types)
@@ -263,6 +299,7 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
         }
         get(r, "reference", p.reference, p.n_robot_params(), 1);
     }
+    if (p.version >= 3 && r.flag("weighted")) read_whitening(r, p);
     const std::size_t np = static_cast<std::size_t>(p.n_params());
     p.lower = r.doubles("lower bounds", np);
     p.upper = r.doubles("upper bounds", np);

@@ -466,8 +466,57 @@ void TrackerObjective::check_x(const Eigen::Ref<const VectorXd>& x) const {
     require_finite(x.data(), x.size(), "x");
 }
 
+void TrackerObjective::set_whitening(const RowMatrixXd& whitening) {
+    if (whitening.size() == 0) {
+        whitening_.resize(0, 0);
+        return;
+    }
+    const Eigen::Index m = 3 * setup_.n_points();
+    require_rows(whitening, n_, m * m, "whitening");
+    require_finite(whitening.data(), whitening.size(), "whitening");
+    for (Eigen::Index k = 0; k < n_; ++k)
+        for (Eigen::Index i = 0; i < m; ++i)
+            for (Eigen::Index j = i + 1; j < m; ++j)
+                if (whitening(k, i * m + j) != 0.0) {
+                    std::ostringstream msg;
+                    msg << "whitening: pose " << k << ", entry (" << i << ", " << j << ") is "
+                        << whitening(k, i * m + j) << "; the whitening of a pose must be lower triangular";
+                    throw std::invalid_argument(msg.str());
+                }
+    whitening_ = whitening;
+}
+
+double TrackerObjective::whitened_cost(const double* res) const {
+    const int m = 3 * setup_.n_points();
+    double cost = 0;
+    for (int k = 0; k < n_; ++k) {
+        const double* w = whitening_.row(k).data();
+        const double* r = res + static_cast<std::ptrdiff_t>(m) * k;
+        for (int i = 0; i < m; ++i) {
+            double s = 0;
+            for (int j = 0; j <= i; ++j) s += w[i * m + j] * r[j];
+            cost += s * s;
+        }
+    }
+    return cost;
+}
+
+void TrackerObjective::whiten_rows(double* rows, Eigen::Index cols) const {
+    const Eigen::Index m = 3 * setup_.n_points();
+    using Rows = Eigen::Map<Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>;
+    using Block = Eigen::Map<const Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, Eigen::RowMajor>>;
+    for (Eigen::Index k = 0; k < n_; ++k) {
+        Rows b(rows + k * m * cols, m, cols);
+        const Block w(whitening_.row(k).data(), m, m);
+        b = (w.triangularView<Eigen::Lower>() * b).eval();
+    }
+}
+
 double TrackerObjective::cost(const double* x, Workspace& ws) const {
-    return evaluate(x, ws, nullptr, nullptr, nullptr, nullptr);
+    if (!whitened()) return evaluate(x, ws, nullptr, nullptr, nullptr, nullptr);
+    ws.res.resize(static_cast<size_t>(n_residuals()));
+    evaluate(x, ws, ws.res.data(), nullptr, nullptr, nullptr);
+    return whitened_cost(ws.res.data());
 }
 
 double TrackerObjective::cost(const Eigen::Ref<const VectorXd>& x) const {
@@ -481,6 +530,7 @@ VectorXd TrackerObjective::residuals(const Eigen::Ref<const VectorXd>& x) const 
     VectorXd r(n_residuals());
     Workspace ws = make_workspace();
     evaluate(x.data(), ws, r.data(), nullptr, nullptr, nullptr);
+    if (whitened()) whiten_rows(r.data(), 1);
     return r;
 }
 
@@ -527,7 +577,10 @@ void TrackerObjective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* r
     std::vector<int> failed;
     VectorXd res(n_residuals());
     evaluate(x.data(), ws, res.data(), &failed, nullptr, nullptr);
-    if (residuals) *residuals = res;
+    if (residuals) {
+        *residuals = res;
+        if (whitened()) whiten_rows(residuals->data(), 1);
+    }
     if (!jac) return;
     jac->setZero(n_residuals(), n_params());
 
@@ -602,6 +655,7 @@ void TrackerObjective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* r
             rows.middleCols(nr + 6, no) = m * r * djo.middleRows(3 * i, 3);
         }
     }
+    if (whitened()) whiten_rows(jac->data(), jac->cols());
 }
 
 void TrackerObjective::cost_batch(const double* X, Eigen::Index m, double* out,

@@ -24,6 +24,7 @@
 #include "iwr/checkpoint.hpp"
 #include "iwr/de.hpp"
 #include "iwr/forward.hpp"
+#include "iwr/measurement_kind.hpp"
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
 #include "iwr/problem_file.hpp"
@@ -403,6 +404,125 @@ IWR_TEST(problem_refuses_bad_values) {
                   p.q.resize(0, 2), p.poses.resize(0, 6), p.legs.resize(0, 6), p.weights.resize(0, 6);
               },
               "number of poses: 0"));
+}
+
+// The sample problem of each kind, weighted by a random lower-triangular whitening.
+iwr::ProblemData sample_weighted_problem(iwr::MeasurementKind kind) {
+    iwr::ProblemData p = kind == iwr::MeasurementKind::Pose ? sample_problem(5, true) : sample_tracker_problem(kind);
+    std::mt19937_64 rng(11);
+    std::uniform_real_distribution<double> u(-1, 1);
+    const int m = p.residuals_per_pose();
+    p.whitening = iwr::RowMatrixXd::Zero(p.n_poses(), m * m);
+    for (int k = 0; k < p.n_poses(); ++k)
+        for (int i = 0; i < m; ++i)
+            for (int j = 0; j <= i; ++j) p.whitening(k, i * m + j) = (i == j ? 3.0 : 0.0) + u(rng);
+    p.weighting = "a test whitening";
+    return p;
+}
+
+// sum_k |W_k r_k|^2 of unweighted residuals r, written out.
+double whitened(const iwr::RowMatrixXd& w, const iwr::VectorXd& r) {
+    const int n = static_cast<int>(w.rows()), m = static_cast<int>(r.size()) / n;
+    double cost = 0;
+    for (int k = 0; k < n; ++k)
+        for (int i = 0; i < m; ++i) {
+            double s = 0;
+            for (int j = 0; j < m; ++j) s += w(k, i * m + j) * r(k * m + j);
+            cost += s * s;
+        }
+    return cost;
+}
+
+IWR_TEST(weighted_problem_round_trip_and_objective) {
+    static_assert(iwr::is_objective_v<iwr::Objective> && iwr::is_objective_v<iwr::TrackerObjective> &&
+                      !iwr::is_objective_v<int>,
+                  "the built-in objectives meet the requirements of iwr/measurement_kind.hpp");
+    for (auto kind : {iwr::MeasurementKind::Pose, iwr::MeasurementKind::Points, iwr::MeasurementKind::Probe}) {
+        const iwr::ProblemData p = sample_weighted_problem(kind);
+        const std::string bytes = iwr::encode_problem(p);
+        const iwr::ProblemData q = iwr::decode_problem(bytes, "w.iwrp: ");
+        CHECK(same_problem(p, q) && q.version == 3 && q.weighted());
+        CHECK(q.whitening == p.whitening && q.weighting == p.weighting);
+        CHECK(iwr::encode_problem(q) == bytes);
+        // Weighted is another problem of the same data.
+        iwr::ProblemData plain = p;
+        plain.whitening.resize(0, 0);
+        CHECK(plain.robot_fingerprint() != q.robot_fingerprint());
+        CHECK(plain.data_fingerprint() == q.data_fingerprint());
+        iwr::ProblemData other = p;
+        other.whitening(1, 0) += 1e-9;
+        CHECK(other.robot_fingerprint() != q.robot_fingerprint());
+        // The engine's objective of the file: the whitened cost of the unweighted residuals (for
+        // leg data without the leg weights: they are folded into the whitening).
+        const iwr::AnyObjective obj = iwr::make_objective(q);
+        CHECK(obj.index() == (kind == iwr::MeasurementKind::Pose ? 0u : 1u));
+        std::mt19937_64 rng(3);
+        std::uniform_real_distribution<double> u(-0.05, 0.05);
+        for (int t = 0; t < 5; ++t) {
+            iwr::VectorXd x(q.n_params());
+            for (int i = 0; i < x.size(); ++i) x(i) = u(rng);
+            iwr::VectorXd r;
+            if (kind == iwr::MeasurementKind::Pose) {
+                r = iwr::Objective(q.geometry(), q.q, q.poses, q.legs).residuals(x);
+            } else {
+                r = iwr::TrackerObjective(q.geometry(), q.tracker_setup(), q.q, q.legs, q.points, q.reference,
+                                          q.home_pose)
+                        .residuals(x);
+            }
+            const double expected = whitened(q.whitening, r);
+            const double cost = std::visit([&](const auto& o) { return o.cost(x); }, obj);
+            CHECK(std::fabs(cost - expected) <= 1e-12 * expected);
+            const auto failures = std::visit([&](const auto& o) { return iwr::objective_failures(o, x); }, obj);
+            CHECK(failures.empty());
+        }
+    }
+    // What the reader refuses of a weighting.
+    auto refused_with = [](auto edit, const std::string& needle) {
+        return encode_refused(sample_weighted_problem(iwr::MeasurementKind::Points), edit, needle);
+    };
+    CHECK(refused_with([](auto& p) { p.whitening(2, 1) = 0.5; }, "whitening: pose 2, entry (0, 1) is 0.5"));
+    CHECK(refused_with([](auto& p) { p.whitening(4, 9) = NAN; }, "whitening: row 4, column 9 is nan, not finite"));
+    CHECK(refused_with([](auto& p) { p.weighting = "a\nb"; }, "weighting: holds a control character"));
+    const std::string weighted = iwr::encode_problem(sample_weighted_problem(iwr::MeasurementKind::Probe));
+    CHECK(fuzz(weighted, [](const std::string& b) { iwr::decode_problem(b, "fuzz.iwrp: "); },
+               "weighted problem file", 2) > 0);
+}
+
+IWR_TEST(version_2_files_read_as_unweighted) {
+    // A version 2 file: a version 3 file of an unweighted problem without the weighted flag (the
+    // byte before the bounds), sealed as version 2.
+    for (auto kind : {iwr::MeasurementKind::Pose, iwr::MeasurementKind::Points, iwr::MeasurementKind::Probe}) {
+        const iwr::ProblemData p = kind == iwr::MeasurementKind::Pose ? sample_problem(5, true)
+                                                                      : sample_tracker_problem(kind);
+        const std::string v3 = iwr::encode_problem(p);
+        io::Writer tail;
+        tail.doubles(p.lower);
+        tail.doubles(p.upper);
+        tail.str(p.bounds_kind);
+        tail.doubles(p.x0);
+        tail.u64(p.active.size());
+        for (bool a : p.active) tail.u8(a ? 1 : 0);
+        tail.u64(p.parameter_names.size());
+        for (const auto& n : p.parameter_names) tail.str(n);
+        tail.u64(p.sources.size());
+        for (const auto& src : p.sources) tail.str(src.role), tail.str(src.path), tail.str(src.sha256);
+        std::string payload = v3.substr(32);
+        const std::size_t flag = payload.size() - tail.data().size() - 1;
+        CHECK(payload.compare(flag + 1, std::string::npos, tail.data()) == 0 && payload[flag] == 0);
+        payload.erase(flag, 1);
+        const std::string v2 = io::seal(v3.substr(0, 8).c_str(), 2, payload);
+        const iwr::ProblemData q = iwr::decode_problem(v2, "old.iwrp: ");
+        const iwr::ProblemData q3 = iwr::decode_problem(v3, "new.iwrp: ");
+        CHECK(q.version == 2 && q3.version == 3 && !q.weighted() && same_problem(q, q3));
+        CHECK(q.robot_fingerprint() == q3.robot_fingerprint() && q.data_fingerprint() == q3.data_fingerprint());
+        // The same objective, bit for bit.
+        const iwr::AnyObjective a = iwr::make_objective(q), b = iwr::make_objective(q3);
+        const iwr::VectorXd x = iwr::VectorXd::Constant(q.n_params(), 0.01);
+        const auto cost = [&](const iwr::AnyObjective& o) { return std::visit([&](const auto& f) { return f.cost(x); }, o); };
+        CHECK(cost(a) == cost(b));
+        // A version 2 payload read as version 3 would be misaligned: the version decides.
+        CHECK(!refusal([&] { iwr::decode_problem(reseal(v3, payload), "mixed.iwrp: "); }).empty());
+    }
 }
 
 IWR_TEST(problem_fuzz) {

@@ -44,12 +44,12 @@ _ENGINE_VALUED = {
     "--generations", "--max-evaluations", "--target-cost", "--threads", "--log", "--checkpoint",
     "--checkpoint-every", "--resume",
 }
-_OWN_VALUED = {"--bounds", "--output", "--problem", "--export", "--readings"}
+_OWN_VALUED = {"--bounds", "--output", "--problem", "--export", "--readings", "--noise"}
 _FLAGS = {"--quiet", "-q", "--help", "-h", "--version"}
 
 HELP = """\
-usage: iwr-calibrate ROBOT.toml DATA.csv [--readings READINGS.csv] [--bounds B] [--output RESULT]
-                     [--problem PATH] [options]
+usage: iwr-calibrate ROBOT.toml DATA.csv [--readings READINGS.csv] [--bounds B] [--noise SPEC]
+                     [--output RESULT] [--problem PATH] [options]
        iwr-calibrate PROBLEM.iwrp [--output RESULT] [options]
        iwr-calibrate --export CHECKPOINT [--problem PROBLEM.iwrp] --output RESULT
 
@@ -68,6 +68,16 @@ options of iwr-calibrate (the others are the engine's, below):
                            lengths, +-0.5 degree for angles) or paper (+-0.5 for every parameter,
                            Table 2 literally); only with ROBOT.toml DATA.csv. The tracker
                            setup's bounds are its defaults about the registration guess
+  --noise SPEC             weigh the residuals by the instruments' noise (generalised least
+                           squares with fixed weights, as iwr.Problem(..., noise=...); the cost
+                           is then the dimensionless chi-square statistic): realistic,
+                           KEY=SIGMA,... over legs, joint_lengths, joint_angles, position,
+                           orientation (mm, rad; as iwr calibrate --noise; for tracker data the
+                           readings' noise, with TrackerNoise.leica() for the tracker), robot
+                           (the [noise] and [tracker.noise] tables of ROBOT.toml), or none
+                           (default: eq. (10) or the point residuals unweighted). Reflector
+                           points and leg data only (a probe's covariance is singular). The
+                           weighting goes into the problem file; only with ROBOT.toml DATA.csv
   --readings READINGS.csv  with tracker data given as a long table of points (pose, reflector,
                            x_mm, y_mm, z_mm): the robot's log of joint and leg readings
   --output RESULT          the JSON result (default iwr-result.json; with --resume CKPT, CKPT
@@ -199,6 +209,10 @@ def _export(checkpoint: str, problem: str | None, output: str) -> None:
 
 
 def _same_value(a: Any, b: Any) -> bool:
+    if isinstance(a, tuple) and isinstance(b, tuple):  # the weighting: (text, whitening)
+        return len(a) == len(b) and all(_same_value(u, v) for u, v in zip(a, b, strict=True))
+    if isinstance(a, tuple) or isinstance(b, tuple):
+        return False
     try:
         return bool(np.array_equal(a, b, equal_nan=True))  # unseen reflectors are NaN
     except TypeError:  # strings, lists of names
@@ -216,7 +230,7 @@ def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: s
         return
     old = read_problem(path)
     new = _core._decode_problem(encode_problem(problem, x0=x0), "")
-    differ = [k for k in sorted(set(old) | set(new)) if k != "sources"
+    differ = [k for k in sorted(set(old) | set(new)) if k not in ("sources", "version")
               and not k.endswith("_fingerprint")
               and (k not in old or k not in new or not _same_value(old[k], new[k]))]
     if differ:
@@ -227,16 +241,51 @@ def _keep_the_run_problem(problem: Any, path: str, robot_path: str, data_path: s
             "made from, or give --problem NEW.iwrp")
 
 
+def _noise(text: str | None, robot: Any, robot_path: str) -> Any:
+    """The noise model of ``--noise`` for ``robot``'s data in the form its problem takes (an
+    ``iwr.Noise``; for tracker data ``(Noise, TrackerNoise)``), or None: unweighted."""
+    import argparse
+
+    from ..kinds import for_robot
+    from ._base import noise_spec
+
+    if text is None or text.strip().lower() in ("none", "0", "zero"):
+        return None
+    spec = text.strip().lower()
+    if spec == "estimate":
+        raise _Usage("--noise estimate: the noise is estimated by the efficient estimator "
+                     "(iwr calibrate --noise estimate); a DE run needs a noise model")
+    if spec == "robot":
+        noise = robot.noise_model
+        if noise is None:
+            raise _Usage(f"--noise robot: {robot_path} has no [noise] table (nor "
+                         "[tracker.noise])")
+    else:
+        try:
+            noise = noise_spec(text)
+        except argparse.ArgumentTypeError as exc:
+            raise _Usage(f"--noise: {exc}") from None
+    if robot.tracker is not None and robot.tracker.kind != "points":
+        raise _Usage(f"--noise: {robot_path} measures a {robot.tracker.kind}; the weighted "
+                     "objective is for reflector points (a probe's four points move rigidly: "
+                     "their covariance is singular): leave --noise out, or use the efficient "
+                     "estimator (iwr calibrate --noise ...)")
+    return for_robot(robot).reading_noise(noise)
+
+
 def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
-                        bounds: str) -> tuple[Any, Any, dict[str, str]]:
-    """The problem of ROBOT.toml DATA.csv (with the checks of ``iwr calibrate``), the search's
-    starting point (None: zeros) and the files it was made from."""
+                        bounds: str, noise_text: str | None = None
+                        ) -> tuple[Any, Any, dict[str, str]]:
+    """The problem of ROBOT.toml DATA.csv (with the checks of ``iwr calibrate``), weighted by the
+    noise model of ``--noise`` if any, the search's starting point (None: zeros) and the files
+    it was made from."""
     from ..measurements import Measurements
     from ..problem import Problem
     from ..robot import Robot
     from ..tracker.files import is_tracker_file
 
     robot = Robot.from_toml(robot_path)
+    noise = _noise(noise_text, robot, robot_path)
     sources = {"robot": robot_path, "data": data_path}
     if robot.tracker is None:
         if readings is not None:
@@ -247,7 +296,7 @@ def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
                          "has no [tracker] table describing the setup (registration, "
                          "reflectors or probe): add one (docs/tracker.md)")
         data = Measurements.from_csv(data_path, robot=robot)  # the checks of `iwr calibrate`
-        return Problem(robot, data, bounds=bounds), None, sources
+        return Problem(robot, data, bounds=bounds, noise=noise), None, sources
     from ..tracker.files import read_tracker_data
     from ..tracker.start import tracker_problem
 
@@ -256,7 +305,7 @@ def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
         sources["readings"] = readings
     # As iwr.identify: the nominal robot and the closed-form registration guess, the setup's
     # bounds about it.
-    problem, x0 = tracker_problem(robot, tdata, bounds)
+    problem, x0 = tracker_problem(robot, tdata, bounds, noise=noise)
     return problem, x0, sources
 
 
@@ -265,7 +314,7 @@ def _resume_command(positional: list[str], own: dict[str, str], output: str, che
     """The command that resumes this run, pasted into a shell where it was started: the engine
     gives it in the message of an interrupted run (it knows neither ROBOT.toml nor DATA.csv)."""
     words: list[str] = []
-    for opt in ("--readings", "--bounds", "--problem"):  # the problem must be made again alike
+    for opt in ("--readings", "--bounds", "--noise", "--problem"):  # made again alike
         if opt in own:
             words += [opt, own[opt]]
     if checkpoint != output + ".ckpt":  # else --resume names the result
@@ -366,6 +415,9 @@ def _main(argv: list[str]) -> int:
                          "writing it (iwr.Problem(..., bounds=...).save)")
         if "--problem" in own:
             raise _Usage("--problem: the problem file is the argument given")
+        if "--noise" in own:
+            raise _Usage("--noise: the noise weighting of a problem file is its own; set it when "
+                         "writing it (iwr.Problem(..., noise=...).save)")
     else:
         raise _Usage("expected ROBOT.toml and DATA.csv, or PROBLEM.iwrp" if not positional
                      else f"unexpected argument '{positional[2]}'")
@@ -438,7 +490,8 @@ def _launch(engine: str, positional: list[str], own: dict[str, str], engine_args
         try:
             problem, x0, sources = _read_problem_files(robot_path, data_path,
                                                        own.get("--readings"),
-                                                       own.get("--bounds", "default"))
+                                                       own.get("--bounds", "default"),
+                                                       own.get("--noise"))
             if resume is not None:
                 _keep_the_run_problem(problem, problem_path, robot_path, data_path, x0)
             problem.save(problem_path, sources=sources, x0=x0)

@@ -53,6 +53,10 @@ class TrackerProblem:
         is singular). Without it: unweighted (mm).
     weights_at : array_like, shape (setup.n_params,), optional
         The setup's parameters at which the weights are evaluated (see ``noise``).
+    whitening : array_like, shape (N, 3 n_points, 3 n_points), optional
+        A whitening of one's own instead of ``noise`` (lower triangular per pose; any kind, a
+        probe's four points too): residuals ``W_k r_k`` per pose, as with ``noise``. What
+        :meth:`load` gives a weighted problem file.
 
     Notes
     -----
@@ -66,7 +70,7 @@ class TrackerProblem:
 
     def __init__(self, robot: Robot, setup: TrackerSetup, measurements: TrackerMeasurements,
                  bounds: Any = None, *, center: Any = None, reference: Any = None,
-                 noise: Any = None, weights_at: Any = None) -> None:
+                 noise: Any = None, weights_at: Any = None, whitening: Any = None) -> None:
         if not isinstance(robot, Robot):
             raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
         if not isinstance(setup, TrackerSetup):
@@ -136,6 +140,11 @@ class TrackerProblem:
         #: rows and columns for unseen points), or None: unweighted.
         self.whitening: np.ndarray | None = None
         self.noise = noise
+        if whitening is not None:
+            if noise is not None:
+                raise ValueError("noise, whitening: give one or the other")
+            self.whitening = _given_whitening(whitening, self.n_poses, self.n_residuals // max(
+                self.n_poses, 1))
         if noise is not None:
             if setup.kind != "points":
                 raise ValueError("noise: the weighted objective is for reflector points; a probe's "
@@ -290,14 +299,11 @@ class TrackerProblem:
              active: Any = None) -> None:
         """Write the problem file that ``iwr-engine`` runs from, atomically (as
         :meth:`iwr.Problem.save`): the robot, the nominal tracker setup, the data, the reference,
-        the bounds, and the search's starting point ``x0`` (default zeros: where the inactive
-        parameters stay) and ``active`` set (default all). :meth:`load` reads it back."""
+        the noise weighting (the whitening) if any, the bounds, and the search's starting point
+        ``x0`` (default zeros: where the inactive parameters stay) and ``active`` set (default
+        all). :meth:`load` reads it back."""
         save_problem = hook("save_problem")  # iwr.problem_file, a layer up
 
-        if self.whitening is not None:
-            raise ValueError("TrackerProblem.save: the problem file does not carry the noise "
-                             "weighting (the whitening) of this problem; iwr-engine runs the "
-                             "unweighted point objective only (docs/estimation.md)")
         save_problem(self, path, sources, x0=x0, active=active)
 
     @classmethod
@@ -368,6 +374,21 @@ def point_covariances(problem: TrackerProblem, x: Any, readings: Any, tracker: A
         mask = np.repeat(seen, 3, axis=1).astype(float)
         cov += np.einsum("kip,p,kjp->kij", g, var, g) * mask[:, :, None] * mask[:, None, :]
     return cov
+
+
+def _given_whitening(whitening: Any, n: int, m: int) -> np.ndarray:
+    """A whitening given with the problem, checked: (n, m, m), finite, lower triangular."""
+    wh = np.array(whitening, dtype=float)
+    if wh.shape != (n, m, m):
+        raise ValueError(f"whitening: shape {wh.shape}; expected ({n}, {m}, {m})")
+    if not np.all(np.isfinite(wh)):
+        raise ValueError("whitening: not every value is finite")
+    upper = np.argwhere(np.triu(wh, 1) != 0)
+    if upper.size:
+        k, i, j = (int(v) for v in upper[0])
+        raise ValueError(f"whitening: pose {k}, entry ({i}, {j}) is {wh[k, i, j]!r}; the "
+                         "whitening of a pose must be lower triangular")
+    return wh
 
 
 def _whitening(cov: np.ndarray, seen: np.ndarray, measurements: Any) -> np.ndarray:

@@ -163,6 +163,12 @@ std::string seal(const char magic[8], std::uint32_t version, const std::string& 
 /// program reads version W", "truncated: N bytes of M", "corrupt: checksum mismatch ...".
 std::string unseal(const std::string& bytes, const char magic[8], std::uint32_t version,
                    const std::string& context, const char* what);
+/// The same for a format that still reads its older versions: any version in [oldest, newest]
+/// is accepted and stored in *version (a version outside: "format version V; this program reads
+/// versions O to N").
+std::string unseal(const std::string& bytes, const char magic[8], std::uint32_t oldest,
+                   std::uint32_t newest, std::uint32_t* version, const std::string& context,
+                   const char* what);
 
 /// The whole of a regular file, read after checking its size: no more than `max_bytes` and no more
 /// than the memory available. Refuses anything that is not a regular file (a folder, /dev/zero, a

@@ -68,6 +68,7 @@
 #include <string>
 #include <vector>
 
+#include "iwr/measurement_kind.hpp"
 #include "iwr/model.hpp"
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
@@ -106,12 +107,14 @@ namespace detail {
 std::vector<int> active_index(int n, std::vector<bool> active, VectorXd& x0);
 }  // namespace detail
 
-/// An objective over its active parameters only; inactive ones are held at x0. Obj is the leg
-/// objective of eq. (10) (iwr::Objective) or the tracker objective (iwr::TrackerObjective): any
-/// type with n_params(), make_workspace() and cost(const double* x, Workspace&). The objective
-/// must outlive this adapter.
+/// An objective over its active parameters only; inactive ones are held at x0. Obj is any type
+/// meeting the objective requirements of iwr/measurement_kind.hpp (the extension point of the
+/// measurement kinds: iwr::Objective for eq. (10), iwr::TrackerObjective for tracker data, ...);
+/// the engine never asks which kind it runs on. The objective must outlive this adapter.
 template <class Obj>
 class ReducedObjective final : public BatchFunction {
+    static_assert(is_objective_v<Obj>, "not an objective (see iwr/measurement_kind.hpp)");
+
 public:
     /// active: n_params flags, or empty for all parameters; x0: n_params values (the inactive ones
     /// are used), or empty for zeros. Throws std::invalid_argument on bad sizes or no active flag.

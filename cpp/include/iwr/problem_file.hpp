@@ -21,6 +21,11 @@
 //                f64s the probe's virtual points as the objective takes them (N x 12, computed
 //                from the probe poses by the writer)
 //        f64s reference (4 n + 42: the robot error vector where forward kinematics is solved once)
+//   (version 3) u8 weighted; when 1: str what the weighting was made from (a noise model, in
+//        words); f64s whitening (N x m^2: per pose a row-major m x m lower-triangular W_k, m the
+//        residuals of a pose: 6 legs, 3 K point coordinates, or 12 for a probe's four points).
+//        The objective is then sum_k |W_k r_k|^2 (generalised least squares with fixed weights;
+//        the leg weights of kind 0, if any, are folded into W_k and not used besides)
 //   f64s lower, upper (n_params each); str bounds kind ("default", "paper" or "custom")
 //   f64s x0 (n_params: where the inactive parameters stay); u64 n_params + that many u8 active
 //        flags (at least one 1)
@@ -29,7 +34,8 @@
 // n_params is 4 n + 42, plus 6 + 3 K (points) or 12 (probe). Every value is checked as if a user
 // had typed it: sizes against the file, finite numbers (NaN only for unseen reflectors), lower <
 // upper, non-negative weights, names of printable ASCII.
-// Version 1 (leg data only, no kind, x0 or active set) is refused with its version named.
+// Version 2 (the same without the weighting: every file unweighted) is read; version 1 (leg data
+// only, no kind, x0 or active set) is refused with its version named.
 #pragma once
 
 #include <cstdint>
@@ -41,7 +47,9 @@
 
 namespace iwr {
 
-constexpr std::uint32_t kProblemVersion = 2;
+constexpr std::uint32_t kProblemVersion = 3;
+/// The oldest version read (files of version 2 are unweighted problems).
+constexpr std::uint32_t kOldestProblemVersion = 2;
 /// Limits that no real problem comes near; they bound what a damaged file can make us allocate.
 constexpr int kMaxJoints = 64;
 constexpr std::uint64_t kMaxPoses = 100'000'000;
@@ -75,6 +83,10 @@ struct ProblemData {
     RowMatrixXd probe_poses;               // Probe: N x 6 as measured
     RowMatrixXd points;                    // N x 3 K (Points) or N x 12 (Probe): the objective's
     VectorXd reference;                    // 4 n + 42
+    // The noise weighting (version 3; empty: unweighted, eq. (10) or the plain point residuals).
+    std::string weighting;                 // what it was made from, in words
+    RowMatrixXd whitening;                 // N x m^2 (m = residuals_per_pose()) or empty
+    std::uint32_t version = kProblemVersion;  // the version of the file read
     std::vector<double> lower, upper;
     std::string bounds_kind;
     std::vector<double> x0;                // n_params
@@ -88,12 +100,16 @@ struct ProblemData {
     int n_params() const;
     int n_active() const;
     int n_poses() const { return static_cast<int>(legs.rows()); }
+    /// Residuals of one pose: 6 legs, 3 K point coordinates, 12 (a probe's four points).
+    int residuals_per_pose() const;
+    bool weighted() const { return whitening.size() != 0; }
     Geometry geometry() const;
     /// The nominal tracker setup (Points or Probe only).
     TrackerSetup tracker_setup() const;
     /// 64-bit fingerprints of what the objective is made of (the geometry, and for tracker data
-    /// the setup and the reference; the search's x0 and active set when not all zeros and all
-    /// active), and of the measurements + weights.
+    /// the setup and the reference; the noise weighting when weighted; the search's x0 and active
+    /// set when not all zeros and all active), and of the measurements + weights (the data file's
+    /// alone: the same data weighted by another noise model keep their data fingerprint).
     std::uint64_t robot_fingerprint() const;
     std::uint64_t data_fingerprint() const;
 };

@@ -109,12 +109,24 @@ public:
     /// Seen points (3 residuals each).
     int n_seen() const { return n_seen_; }
 
+    /// Weighs the residuals by the instruments' noise (generalised least squares with fixed
+    /// weights): whitening (N, m^2), m = 3 n_points(), per pose a row-major lower-triangular
+    /// m x m matrix W_k; from then on residual block k is W_k r_k (r_k as above: unseen
+    /// coordinates 0, a failed pose's kFailedResidual) and the cost sum_k |W_k r_k|^2, for
+    /// example W_k = L_k^-1 with L_k L_k^T the covariance of pose k's point residuals. Empty:
+    /// unweighted. Throws std::invalid_argument on a bad shape, a value not finite or a non-zero
+    /// entry above the diagonal.
+    void set_whitening(const RowMatrixXd& whitening);
+    /// Whether the residuals are whitened.
+    bool whitened() const { return whitening_.size() != 0; }
+
     class Workspace {
         friend class TrackerObjective;
         std::vector<double> jbuf;   // the carriage's per-joint constants (CarriageNominal)
         std::vector<Vec3> r;        // points in {5}
         std::vector<double> refl;   // the same, flat
         std::vector<double, detail::AlignedAllocator<double>> y;  // a block's points (3 K x lanes)
+        std::vector<double> res;    // the residuals before whitening (whitened objective only)
     };
     Workspace make_workspace() const;
 
@@ -184,6 +196,11 @@ private:
     detail::CarriageNominal carriage_;
     int pair_[2] = {0, 1};  // the platform joints the kernel recovers the rotation from
     std::vector<Vector6d> ref_euler_;  // the reference as a local pose (the fallback's start)
+    RowMatrixXd whitening_;  // (N, m^2) or empty: see set_whitening
+    // The whitened cost of unwhitened residuals res (n_residuals).
+    double whitened_cost(const double* res) const;
+    // W_k times the m rows of pose k, for every pose, of a (n_residuals x cols) row-major array.
+    void whiten_rows(double* rows, Eigen::Index cols) const;
 };
 
 }  // namespace iwr

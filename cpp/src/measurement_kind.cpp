@@ -1,0 +1,26 @@
+// The one dispatch from a problem file's measurement kind to its objective type (see
+// iwr/measurement_kind.hpp).
+#include "iwr/measurement_kind.hpp"
+
+namespace iwr {
+
+AnyObjective make_objective(const ProblemData& problem) {
+    switch (problem.kind) {
+        case MeasurementKind::Pose:
+            // Whitened: the leg weights are folded into the whitening (the writer's Problem did).
+            return AnyObjective(std::in_place_type<Objective>, problem.geometry(), problem.q, problem.poses,
+                                problem.legs, problem.weighted() ? RowMatrixXd() : problem.weights,
+                                problem.whitening);
+        case MeasurementKind::Points:
+        case MeasurementKind::Probe: {
+            AnyObjective out(std::in_place_type<TrackerObjective>, problem.geometry(), problem.tracker_setup(),
+                             problem.q, problem.legs, problem.points, problem.reference, problem.home_pose);
+            std::get<TrackerObjective>(out).set_whitening(problem.whitening);
+            return out;
+        }
+    }
+    throw std::invalid_argument("measurement kind: " + std::to_string(static_cast<int>(problem.kind)) +
+                                " has no objective");
+}
+
+}  // namespace iwr
