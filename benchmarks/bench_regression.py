@@ -15,7 +15,11 @@ What is timed (per build, per kernel variant forced with ``iwr._core._select_ker
   time, divided by 600; the minimum over ``--repeat`` (default 15) alternated repetitions. "of the
   floor": N x 370 flops (``bench_objective.py``'s count) at the peak of one core measured with the
   same instruction set and separate multiplies and adds (``_bench.measure_peak_gflops``), divided
-  by the time.
+  by the time. ``--objectives`` adds the weighted leg objective (a weight per leg reading: 376
+  flops a pose), the whitened one (``noise=Noise.realistic()``: 406) and the tracker point
+  objective (``TrackerProblem``, K = 3 reflectors, N = 100 poses of ``simulate_tracker``, seed 1:
+  FLOPS_TRACKER a pose, see there); a build without one of them (``aa02662`` has neither the
+  weights nor the tracker) prints "n/a".
 - batch: ``Problem.cost_batch(X, workers=T)`` of the same 600 vectors on T threads, wall time, the
   minimum: what one DE generation's objective costs on T threads.
 - DE: ``iwr.identify(method="de", population_size=600, F=0.9, CR=1, seed=1, workers=T,
@@ -46,6 +50,15 @@ from _load import _machine_busy  # benchmarks/ is on sys.path when this script r
 
 NP, N = 600, 100
 FLOPS_PER_POSE = 370  # bench_objective.py's count for the IWR (PPRR carriage), unweighted
+# The tracker point objective (K = 3), per pose, counted from tracker_kernel_body.inl (an FMA is 2
+# flops) with the chord iterations of this data set (an instrumented copy of the kernel, per block
+# of 8 poses over the 600 vectors: 4.11 residual evaluations of 91 flops, 3.11 steps of 199, 1.60
+# refinements of 228), the set-up (108), the rotation at the end (54), the carriage (120) and the
+# three points (45 each): 1775.
+FLOPS_TRACKER = 1775
+# flops a pose of each objective of --objectives
+FLOPS = {"leg": FLOPS_PER_POSE, "weighted": FLOPS_PER_POSE + 6, "whitened": FLOPS_PER_POSE + 36,
+         "tracker": FLOPS_TRACKER}
 
 
 # ---- the worker: one build, in its own process ---------------------------------------------------
@@ -70,6 +83,46 @@ class Worker:
         rng = np.random.default_rng(0)
         self.X = p.lower + (p.upper - p.lower) * rng.random((NP, p.n_params))
         self.default_kernel = _core._active_kernel()
+        self.others: dict | None = None
+
+    def _objectives(self) -> dict:
+        """The weighted, whitened and tracker problems (None where this build has none)."""
+        if self.others is not None:
+            return self.others
+        np, iwr = self.np, self.iwr
+        robot, data = self.robot, self.data
+        out: dict = {"leg": (self.problem, self.X)}
+        try:
+            w = np.random.default_rng(5).uniform(0.5, 2.0, (N, 6))
+            m = iwr.Measurements(data.q, data.poses, data.legs, joint_types=robot.joint_types,
+                                 weights=w)
+            out["weighted"] = iwr.Problem(robot, m)
+        except TypeError:  # no weights in this build
+            out["weighted"] = None
+        try:
+            noisy, _ = iwr.simulate(robot, N, seed=1, noise=iwr.Noise.realistic())
+            out["whitened"] = iwr.Problem(robot, noisy, noise=iwr.Noise.realistic())
+        except (TypeError, AttributeError):
+            out["whitened"] = None
+        try:
+            import math
+
+            from iwr.tracker import TrackerProblem, TrackerSetup, simulate_tracker
+
+            setup = TrackerSetup((2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0),
+                                 reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),
+                                             (-60.0, -104.0, 40.0)])
+            td, _ = simulate_tracker(robot, setup, N, seed=1)
+            out["tracker"] = TrackerProblem(robot, setup, td)
+        except ImportError:
+            out["tracker"] = None
+        for k, p in list(out.items())[1:]:
+            if p is not None:
+                rng = np.random.default_rng(0)
+                X = p.lower + (p.upper - p.lower) * rng.random((NP, p.n_params))
+                out[k] = (p, np.ascontiguousarray(X))
+        self.others = out
+        return out
 
     def info(self) -> dict:
         import iwr
@@ -83,11 +136,16 @@ class Worker:
                 "kernels": self.core._supported_kernels(), "default_kernel": self.default_kernel,
                 "peak_mul_add_gflops": peaks}
 
-    def objective(self, kernel: str) -> float:
-        """One repetition: thread CPU time per evaluation (us), one thread."""
+    def objective(self, kernel: str, which: str = "leg") -> float | None:
+        """One repetition: thread CPU time per evaluation (us), one thread; None when this build
+        has no such objective."""
+        got = self._objectives()[which] if which != "leg" else (self.problem, self.X)
+        if got is None:
+            return None
+        problem, X = got
         self.core._select_kernel(kernel)
         t0 = time.thread_time()
-        self.problem.cost_batch(self.X, workers=1)
+        problem.cost_batch(X, workers=1)
         return (time.thread_time() - t0) / NP * 1e6
 
     def batch(self, kernel: str, threads: int) -> float:
@@ -205,6 +263,10 @@ def main() -> None:
     ap.add_argument("--kernels", default=None, help="variants, comma-separated (default: all)")
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--no-de", action="store_true", help="skip DE")
+    ap.add_argument("--objectives", action="store_true",
+                    help="also the weighted, whitened and tracker objectives against their floors")
+    ap.add_argument("--objectives-only", action="store_true",
+                    help="the objectives' table alone (implies --objectives)")
     ap.add_argument("--quick", action="store_true", help="a smoke test")
     args = ap.parse_args()
     if args.worker:
@@ -258,6 +320,10 @@ def main() -> None:
                     row += f" | {best[names[1]] / best[names[0]]:.2f}x"
                 print(row + " |", flush=True)
         print(f"floor: {flops} flops at the peak above; {load}")
+        if args.objectives or args.objectives_only:
+            objectives_table(builds, kernels, reps, peak)
+        if args.objectives_only:
+            return
 
         print(f"\ncost_batch(X, workers=T) of the {NP} vectors, wall time, min of {reps}:")
         print("| variant | threads | " + " | ".join(f"{n} (ms)" for n in names) + " |")
@@ -325,6 +391,34 @@ def main() -> None:
     finally:
         for b in builds:
             b.close()
+
+
+def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: dict) -> None:
+    """Every objective of FLOPS on every variant: thread CPU time per evaluation and the fraction
+    of its floor (FLOPS[objective] x N at the variant's measured peak)."""
+    names = [b.name for b in builds]
+    print(f"\nobjectives, cost_batch(X, workers=1), {NP} vectors, N = {N}, thread CPU time per "
+          f"evaluation, min of {reps} (floor: flops a pose x N at the variant's peak above):")
+    hdr = "| variant | objective | flops a pose | " + " | ".join(
+        f"{n} (us) | {n}: of the floor" for n in names)
+    if len(builds) == 2:
+        hdr += f" | {names[1]} / {names[0]}"
+    print(hdr + " |")
+    print("|" + "---|" * (3 + 2 * len(names) + (len(builds) == 2)))
+    with Load(builds) as load:
+        for k in kernels:
+            for which, fl in FLOPS.items():
+                r = alternated(builds, reps, "objective", k, which)
+                best = {n: (None if None in v else min(v)) for n, v in r.items()}
+                floor_us = fl * N / (peak[k] * 1e3)
+                cells = [("n/a | n/a" if best[n] is None else
+                          f"{best[n]:.3f} | {floor_us / best[n]:.0%}") for n in names]
+                row = f"| {k} | {which} | {fl} | " + " | ".join(cells)
+                if len(builds) == 2:
+                    a, b = best[names[0]], best[names[1]]
+                    row += " | n/a" if a is None or b is None else f" | {b / a:.2f}x"
+                print(row + " |", flush=True)
+    print(str(load))
 
 
 def cpu_name() -> str:

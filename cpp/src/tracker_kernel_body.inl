@@ -207,9 +207,11 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
 // seen); seen (K x 8) and bad (8): 1 or 0; all_seen: every point of the block seen. A point not seen
 // contributes 0, a lane whose forward kinematics failed kFailedResidual on every seen
 // coordinate, whatever its prediction. tout, yout may be null (the cost alone).
-void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
-                    const double* rin, const double* meas, const double* seen, const double* bad,
-                    bool all_seen, double* tout, double* yout, double* acc) {
+template <int NP, int NR>
+IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, const double* pin,
+                                   const double* rin, const double* meas, const double* seen,
+                                   const double* bad, bool all_seen, double* tout, double* yout,
+                                   double* acc) {
     constexpr int B = kBlock, W = kSubLanes;
     // Lanes chosen by masks, not by multiplying with 0 or 1: a prediction that overflows to inf
     // (an absurd but finite x) must give the penalty in a failed lane and 0 for a point not seen,
@@ -223,7 +225,7 @@ void tracker_points(const double* blk, const TrackerConsts& tc, const double* pi
     for (int h = 0; h < K; ++h) {
         const int o = h * W;  // the pass's first lane
         Sub t[12];
-        carriage(tc.pd, tc.ec, blk + o, t);
+        carriage<NP, NR>(tc.pd, tc.ec, blk + o, t);
         if (tout)
             for (int e = 0; e < 12; ++e) r_store(tout + e * B + o, t[e].v[0]);
         R p[3], r[9];
@@ -249,4 +251,13 @@ void tracker_points(const double* blk, const TrackerConsts& tc, const double* pi
         }
         r_store(acc + o, total);
     }
+}
+
+void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
+                    const double* rin, const double* meas, const double* seen, const double* bad,
+                    bool all_seen, double* tout, double* yout, double* acc) {
+    if (chain_is(tc.pd, 2, 2))  // the IWR's carriage unrolled, as the leg kernel's
+        points_chain<2, 2>(blk, tc, pin, rin, meas, seen, bad, all_seen, tout, yout, acc);
+    else
+        points_chain<-1, 0>(blk, tc, pin, rin, meas, seen, bad, all_seen, tout, yout, acc);
 }
