@@ -200,6 +200,7 @@ def open_regular(path: str | os.PathLike[str]) -> IO[bytes]:
     import stat
 
     fd = os.open(path, os.O_RDONLY | os.O_NONBLOCK | getattr(os, "O_CLOEXEC", 0))
+    handed = False
     try:
         mode = os.fstat(fd).st_mode
         if stat.S_ISDIR(mode):
@@ -210,9 +211,14 @@ def open_regular(path: str | os.PathLike[str]) -> IO[bytes]:
                     "a socket" if stat.S_ISSOCK(mode) else "not a file")
             raise NotRegularFileError(f"{path}: {kind}, not a regular file; give the file itself")
         os.set_blocking(fd, True)
+        # From here the file object owns fd: if its construction fails (a Ctrl-C inside it), it
+        # has closed fd itself, and closing it again here would turn the KeyboardInterrupt into
+        # "Bad file descriptor" (or close a descriptor that another open has since been given).
+        handed = True
         return os.fdopen(fd, "rb")
     except BaseException:
-        os.close(fd)
+        if not handed:
+            os.close(fd)
         raise
 
 

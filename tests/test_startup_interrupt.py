@@ -200,3 +200,24 @@ def test_a_program_importing_iwr_keeps_keyboard_interrupt(tmp_path):
     r = subprocess.run([sys.executable, "-c", code], cwd=tmp_path, capture_output=True,
                        text=True, timeout=120, preexec_fn=_default_sigint)  # noqa: PLW1509
     assert (r.returncode, r.stdout, r.stderr) == (0, "KeyboardInterrupt\n", "")
+
+
+def test_ctrl_c_while_a_file_object_is_built_stays_a_ctrl_c(tmp_path, monkeypatch):
+    """A Ctrl-C that lands inside ``os.fdopen`` (the file object already owns the descriptor and
+    closes it as it fails) propagates as KeyboardInterrupt: open_regular must not close the
+    descriptor a second time, which raised "Bad file descriptor" instead (seen as `iwr: error:
+    ...iwr.toml: cannot read: Bad file descriptor`, exit 1, in a full-suite run)."""
+    import os
+
+    from iwr import _io
+
+    path = tmp_path / "robot.toml"
+    path.write_text("name = 'x'\n")
+
+    def interrupted_fdopen(fd, *args, **kwargs):
+        os.close(fd)  # what the failing file object does with the descriptor it owns
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(_io.os, "fdopen", interrupted_fdopen)
+    with pytest.raises(KeyboardInterrupt):
+        _io.open_regular(path)
