@@ -27,7 +27,6 @@ from .analysis.accuracy import Accuracy, accuracy
 from .analysis.identifiability import identifiability, identifiable_count, parameter_error
 from .analysis.uncertainty import Uncertainty, uncertainty
 from .effects import refuse as refuse_effects
-from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
 from .methods import IdentificationResult, identify
 
@@ -402,10 +401,7 @@ def from_result(
         except ValueError:  # too few points for a registration guess of their own
             start = None
         report = identifiability(robot, data)
-        if degenerate(robot, data, report) is None:
-            # Gross errors (issue 22), tested but not re-fitted: the result is another's.
-            result, val = check_gross_errors(robot, data, val, result,
-                                             held_out=validation is not None)
+        result = _weighted_fit(robot, data, result, report)
         unc = _uncertainty(robot, data, result, report if result.get("active") is None else None,
                            None, notes, own_covariance=False)
         if unc is not None and result.get("method") == "efficient":
@@ -423,6 +419,48 @@ def from_result(
             problems=problems)
         cal._settle()
     return cal
+
+
+def _weighted_fit(robot: Any, data: Any, result: IdentificationResult, report: Any
+                  ) -> IdentificationResult:
+    """A result identified elsewhere on a noise-weighted objective (``iwr-calibrate --noise``:
+    its settings name the ``weighting``) and not tested: its cost is the chi-square statistic
+    of the fit (the whitened residuals' sum of squares), tested against chi2 with the readings
+    less the identifiable parameters (``report``'s rank) as degrees of freedom, beside the size
+    check of :func:`iwr.fit_test.fit_check`. A copy of ``result``, ``failed`` when either fails;
+    ``result`` itself when there is nothing to test."""
+    from scipy import special
+
+    from .fit_test import FitTest, _chi2_cause, _chi2_verdict, fit_check
+
+    settings = dict(result.get("settings") or {})
+    x = np.asarray(result.x, dtype=float)
+    if (not settings.get("weighting") or result.get("fit") is not None or result.interrupted
+            or not (np.all(np.isfinite(x)) and math.isfinite(float(result.fun)))):
+        return result
+    problem, _ = kinds.of(data).problem(robot, data)
+    # The readings that carry data (a tracker's unseen points have none).
+    n_readings = int(getattr(problem, "n_observations", problem.n_residuals))
+    active = result.get("active")
+    mask = np.ones(x.size, dtype=bool) if active is None else np.asarray(active, dtype=bool)
+    size = fit_check(robot, data, x, active=mask, noise=None)
+    statistic, dof = float(result.fun), n_readings - int(report.rank)
+    p_value = float(special.chdtrc(dof, statistic)) if dof > 0 else math.nan
+    chi_ok = bool(dof > 0 and p_value >= size.alpha)
+    causes = ([] if chi_ok else [_chi2_cause(statistic, dof, p_value) if dof > 0 else
+                                 f"no redundancy: {n_readings} readings for {report.rank} "
+                                 "identifiable parameters"]) + list(size.causes)
+    fit_ok = chi_ok and size.fit_ok
+    verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "no redundancy",
+                            ["identified errors beyond their plausible size"]
+                            if chi_ok and not size.fit_ok else None)
+    out = IdentificationResult(**dict(result))
+    out["fit"] = FitTest(statistic, dof, p_value, size.alpha, fit_ok, verdict, causes,
+                         size.implausible)
+    if out.success and not fit_ok:
+        out.update(success=False, status="failed",
+                   message=f"{verdict} (the method: {str(result.message).strip().rstrip('.')})")
+    return out
 
 
 def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, notes: list[str],

@@ -170,29 +170,37 @@ def test_identifiability_describes_the_poses_left_after_the_gross_error_screen()
     assert np.allclose(cal.identifiability.singular_values, fresh.singular_values, rtol=1e-9)
 
 
-def test_from_result_names_gross_errors_without_refitting():
-    """`iwr report`'s path: a result identified elsewhere from data with a 9 mm typo is not
-    re-fitted; the typo's pose is named (kept), the fit fails with the advice; a typo in a
-    held-out pose is left out of the accuracy figures and the fit stands."""
+
+@pytest.mark.parametrize("scale", [1.0, 0.1], ids=["right-noise", "noise-10x-too-small"])
+def test_report_tests_a_weighted_result_identified_elsewhere(scale, tmp_path):
+    """`iwr report` of an `iwr-calibrate --noise` run (a result whose settings name its
+    weighting, with no fit test of its own): its cost is the chi-square statistic and is tested,
+    so a noise model 10x too small is "does not fit" (exit 3), not "converged"; the right one
+    passes (exit 0)."""
+    import subprocess
+    import sys
+    import tempfile
+
+    from iwr.result import IdentificationResult
+
     robot = iwr.Robot.default()
-    whole, _ = iwr.simulate(robot, 50, seed=11, noise=iwr.Noise.realistic())
-    data, val = whole.subset(np.arange(40)), whole.subset(np.arange(40, 50))  # one true robot
-    legs = data.legs.copy()
-    legs[5, 2] += 9.0
-    bad = iwr.Measurements(data.q, data.poses, legs, joint_types=data.joint_types)
-    result = iwr.identify(robot, bad, "lm", active="base")
-    x = result.x.copy()
-    cal = from_result(robot, bad, result, validation=val)
-    assert np.array_equal(cal.result.x, x) and "outliers" not in result  # a copy, not re-fitted
-    named = [o for o in cal.result["outliers"] if o.data_set == "identification"]
-    assert [o.pose for o in named] == [5] and not named[0].removed
-    assert not cal.result["fit"].fit_ok and not cal.success
-    assert "identify again" in " ".join(cal.result["fit"].causes)
-    # The clean data's result, a typo in held-out pose 3: left out of the accuracy.
-    clean = iwr.identify(robot, data, "lm", active="base")
-    vlegs = val.legs.copy()
-    vlegs[3, 0] += 9.0
-    vbad = iwr.Measurements(val.q, val.poses, vlegs, joint_types=val.joint_types)
-    cal = from_result(robot, data, clean, validation=vbad)
-    assert [o.pose for o in cal.result["outliers"]] == [3] and cal.result["outliers"][0].removed
-    assert len(cal.validation) == 9 and cal.result["fit"].fit_ok
+    data, _ = iwr.simulate(robot, 60, seed=5, noise=iwr.Noise.realistic())
+    noise = iwr.Noise(**{k: v * scale for k, v in vars(iwr.Noise.realistic()).items()})
+    weighted = iwr.identify(robot, data, "lm", noise=noise)
+    engine_like = IdentificationResult(
+        x=weighted.x, fun=weighted.fun, nfev=weighted.nfev, success=True, message="converged",
+        method="de", parameter_names=robot.parameter_names,
+        settings={"weighting": str(noise), "program": "iwr-engine"})
+    cal = from_result(robot, data, engine_like)
+    assert cal.result.fit is not None and cal.result.fit.dof == 6 * 60 - 52
+    assert cal.result.fit.statistic == pytest.approx(weighted.fun)
+    assert cal.fit_ok is (scale == 1.0) and cal.success is (scale == 1.0)
+    assert "fit" not in engine_like  # the caller's result is not changed
+    robot_path, data_path, run = tmp_path / "r.toml", tmp_path / "d.csv", tmp_path / "run.json"
+    robot.to_toml(robot_path)
+    data.to_csv(data_path)
+    engine_like.save(run)
+    proc = subprocess.run([sys.executable, "-m", "iwr", "report", str(run), str(robot_path),
+                           str(data_path), "--out", str(tmp_path / "rep"), "--no-plots"],
+                          capture_output=True, text=True, cwd=tempfile.gettempdir(), timeout=600)
+    assert proc.returncode == (0 if scale == 1.0 else 3), proc.stdout + proc.stderr

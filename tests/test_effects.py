@@ -228,6 +228,17 @@ def test_what_does_not_model_the_effects_refuses(with_effects, data):
                                                  joint_types=m.joint_types, payload=m.payload))
     with pytest.raises(ValueError, match="no problem file"):
         EffectProblem(with_effects, m).save("unused.iwrp")
+    with pytest.raises(ValueError, match="effects on.*iwr.accuracy"):
+        iwr.accuracy(with_effects, m, x[:with_effects.n_params])
+    # Tracker data model the geometry only so far: refused, not run without the effects.
+    tracked = with_effects.with_tracker(registration=(2000.0, 0.0, 300.0, 1.5708, 0.0, 0.0),
+                                        reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),
+                                                    (-60.0, -104.0, 40.0)])
+    tm, _ = iwr.simulate(tracked.with_effects(), 20, seed=1)
+    for call in (lambda: iwr.identify(tracked, tm, "lm"),
+                 lambda: iwr.identifiability(tracked, tm)):
+        with pytest.raises(ValueError, match="effects on.*tracker data"):
+            call()
 
 
 def test_robot_file_round_trip_and_checks(tmp_path, robot, with_effects):

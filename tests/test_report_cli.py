@@ -88,8 +88,11 @@ def test_a_result_without_fingerprint_is_reported_with_a_note(sims, tmp_path):
     iwr.identify(robot, data, progress=False).save(tmp_path / "api.json")
     proc = run("report", str(tmp_path / "api.json"), str(sims[0] / "robot.toml"),
                str(sims[1] / "measurements.csv"), "--out", str(tmp_path / "r"), "--no-plots")
-    assert proc.returncode == 0, proc.stderr
+    # Reported (with the note), and judged: another robot's data are worse after this result
+    # than before it, so the verdict "not calibrated" is also the exit status, as iwr calibrate's.
+    assert proc.returncode == 5, proc.stderr
     assert "records no fingerprint of its data" in proc.stdout
+    assert "not calibrated" in proc.stderr
 
 
 def test_efficient_estimator_std_come_from_its_covariance(sims, tmp_path):

@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from .. import kinds
+from ..effects import refuse as refuse_effects
 from ..forward import ForwardKinematicsError, forward_kinematics
 from ..measurements import Measurements
 from ..robot import Robot
@@ -180,6 +181,7 @@ def pose_accuracy(robot: Robot, measurements: Measurements, x: Any, *, tool: Any
                   truth: Any = None, tolerance: float = 1e-9, max_iterations: int = 50
                   ) -> Accuracy:
     """:func:`accuracy` on pose data (the platform pose measured in {0})."""
+    refuse_effects(robot, "iwr.accuracy")  # issue 23: the forward kinematics of the geometry
     if truth is not None:
         raise ValueError("truth: only for tracker data (iwr.tracker.TrackerMeasurements)")
     if not isinstance(measurements, Measurements):

@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .. import _core
+from ..effects import refuse as refuse_effects
 from ..robot import Robot
 from .data import BallbarMeasurements
 from .setup import BallbarSetup
@@ -43,6 +44,8 @@ class BallbarProblem:
                  bounds: Any = None, *, reference: Any = None, weights: Any = None) -> None:
         if not isinstance(robot, Robot):
             raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+        # issue 23: the effects are modelled on pose data only so far (docs/effects.md)
+        refuse_effects(robot, "ballbar data (BallbarProblem)")
         if not isinstance(setup, BallbarSetup):
             raise TypeError(f"setup: expected an iwr.ballbar.BallbarSetup, got "
                             f"{type(setup).__name__}")

@@ -316,20 +316,22 @@ def check_frame(kind: Any, robot: Any, data: Any, path: str) -> None:
         print(f"warning: {path}: {check.message}", flush=True)
 
 
-def _exit_code(cal: Any) -> int:
+def _exit_code(cal: Any, prog: str = "iwr calibrate", *, converged: bool = True) -> int:
+    """The exit status of a calibration's verdict (``converged=False``: a run that stopped
+    before converging is not an error, as for ``iwr report`` of a DE run)."""
     from ..calibration import NOT_CALIBRATED
 
     if cal.fit_ok is False:
-        print(f"iwr calibrate: the model does not fit the data (exit {EXIT_NO_FIT}); the files "
+        print(f"{prog}: the model does not fit the data (exit {EXIT_NO_FIT}); the files "
               "are written, see the report", file=sys.stderr)
         return EXIT_NO_FIT
     if cal.status == NOT_CALIBRATED:
         reason = str(cal.result.message).removeprefix(f"{NOT_CALIBRATED}: ")
-        print(f"iwr calibrate: not calibrated (exit {EXIT_NOT_CALIBRATED}): "
+        print(f"{prog}: not calibrated (exit {EXIT_NOT_CALIBRATED}): "
               f"{' '.join(reason.split())}; the files are written, see the report",
               file=sys.stderr)
         return EXIT_NOT_CALIBRATED
-    if not cal.success:
+    if converged and not cal.success:
         print(f"iwr calibrate: not converged (status {cal.status or 'stopped'}, exit "
               f"{EXIT_NOT_CONVERGED}); the files hold the best point so far", file=sys.stderr)
         return EXIT_NOT_CONVERGED

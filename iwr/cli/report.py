@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 
 from ._base import (
-    EXIT_OK,
     CommandError,
     UsageError,
     add_common,
@@ -32,7 +31,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
         description="Read an identification result (the JSON file of iwr-calibrate, or "
         "result.json of iwr calibrate) with the robot and the measurements it was identified "
         "from, and write what iwr calibrate writes: calibrated.toml, report.html "
-        "(self-contained), report.md with its figures, summary.json and a copy of the result.",
+        "(self-contained), report.md with its figures, summary.json and a copy of the result. "
+        "Exit status as iwr calibrate's verdict: 3 when the model does not fit the data, 5 when "
+        "the data cannot calibrate the robot (the files are written either way).",
     )
     p.add_argument("run", metavar="RUN.json", help="the identification result")
     p.add_argument("robot", metavar="ROBOT.toml", help="the nominal robot it was identified for")
@@ -96,6 +97,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     from ..methods import load_result
     from ..reporting.calibration import OUTPUT_FILES, render
     from ..reporting.html import provenance
+    from .calibrate import _exit_code
     from .tracker import target_format
 
     check_output(args.out, "--out", files=OUTPUT_FILES, prog="iwr report", inputs=[
@@ -131,4 +133,5 @@ def cmd_report(args: argparse.Namespace) -> int:
     out = Path(args.out)
     written = report.write(out, plots=not args.no_plots)
     print(f"\nwrote {out}/: " + ", ".join(p.name for p in written))
-    return EXIT_OK
+    # The verdict's exit status, as iwr calibrate's (3: no fit, 5: not calibrated).
+    return _exit_code(cal, "iwr report", converged=False)

@@ -105,7 +105,7 @@ class Effect(abc.ABC):
     def bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """Search bounds of the corrections to :meth:`values` (lower < upper): the range a
         plausible machine has, the yardstick of the fit check's size test and the range
-        :func:`iwr.effects.simulate` draws a true machine from."""
+        :func:`iwr.simulate` draws a true machine from."""
 
     @abc.abstractmethod
     def with_values(self, values: np.ndarray) -> Effect:
@@ -232,9 +232,9 @@ def bounds(effects: Sequence[Effect]) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The methods and functions that model the effects (the others refuse a robot with effects).
-SUPPORTED = ("iwr.identify with method 'lm' (unweighted)", "iwr.simulate",
-             "iwr.identifiability", "iwr.effects.leg_commands",
-             "iwr.effects.forward_kinematics")
+SUPPORTED = ("iwr.identify with method 'lm' (unweighted) on pose data", "iwr.simulate",
+             "iwr.identifiability", "iwr.effects.api.leg_commands",
+             "iwr.effects.api.forward_kinematics")
 
 
 def refuse(robot: Any, what: str) -> None:

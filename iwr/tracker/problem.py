@@ -8,6 +8,7 @@ import numpy as np
 
 from .. import _core
 from .._hooks import hook
+from ..effects import refuse as refuse_effects
 from ..robot import Robot
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
@@ -73,6 +74,8 @@ class TrackerProblem:
                  noise: Any = None, weights_at: Any = None, whitening: Any = None) -> None:
         if not isinstance(robot, Robot):
             raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
+        # issue 23: the effects are modelled on pose data only so far (docs/effects.md)
+        refuse_effects(robot, "tracker data (TrackerProblem)")
         if not isinstance(setup, TrackerSetup):
             raise TypeError(f"setup: expected an iwr.tracker.TrackerSetup, got "
                             f"{type(setup).__name__}")
