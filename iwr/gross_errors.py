@@ -392,6 +392,28 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         current = refit
         if current.get("status") == "interrupted":  # Ctrl-C: no further refit may lose it
             break
+    if removed and not too_many and current.get("status") != "interrupted":
+        # A pose left out while the parameters were far from the solution (a global method's
+        # unconverged result, whose misfit any pose can fail) may be clean: each is tested again
+        # at the final parameters as a held-out pose and put back, with one re-fit, if it passes.
+        gone = np.flatnonzero(~keep)
+        try:
+            again = find_gross_errors(robot, ident, current.x, noise,
+                                      validation=kind.subset(identification, gone),
+                                      active=current.get("active"), alpha=alpha,
+                                      test_identification=False)
+            still = {int(gone[o.pose]) for o in again.outliers}
+        except NoRedundancy:
+            still = {int(k) for k in gone}
+        back = [int(k) for k in gone if int(k) not in still]
+        if back:
+            keep[back] = True
+            removed = [o for o in removed if o.pose not in back]
+            ident = kind.subset(identification, np.flatnonzero(keep))
+            refit = _refit(robot, ident, current, noise, options)
+            refit["method"] = result.get("method", "lm")
+            refit["nfev"] = int(current.nfev) + int(refit.nfev)
+            current = refit
     held = validation if held_out else None
     untested = ""
     try:
@@ -412,9 +434,11 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         validation = kinds.of(validation).subset(validation, np.flatnonzero(vkeep))
     if current is not result:
         n_rm = int(np.sum(~keep))
+        what = (f"without the {n_rm} outlier pose(s)" if n_rm else "with every pose (those that "
+                "failed at the method's own point pass at the solution)")
         current["message"] = (f"{str(result.message).strip().rstrip('.')}; then "
-                              f"Levenberg-Marquardt from its result without the {n_rm} outlier "
-                              f"pose(s): {str(current.message).strip()}")
+                              f"Levenberg-Marquardt from its result {what}: "
+                              f"{str(current.message).strip()}")
         current["settings"] = {**dict(result.get("settings") or {}),
                                "outlier_refit": "lm"}
         if result.get("wall_time") is not None:
