@@ -204,3 +204,16 @@ def test_report_tests_a_weighted_result_identified_elsewhere(scale, tmp_path):
                            str(data_path), "--out", str(tmp_path / "rep"), "--no-plots"],
                           capture_output=True, text=True, cwd=tempfile.gettempdir(), timeout=600)
     assert proc.returncode == (0 if scale == 1.0 else 3), proc.stdout + proc.stderr
+
+
+def test_the_reports_eq10_cost_is_eq10_for_a_weighted_result():
+    """The efficient estimator's fun is its chi-square statistic: the report's "cost (eq. 10)"
+    line is eq. (10)'s cost at the result, in mm^2, not that statistic (the review found the
+    statistic printed as eq. (10))."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 40, seed=2, noise=iwr.Noise.realistic())
+    cal = iwr.calibrate(robot, data, "efficient", noise=iwr.Noise.realistic())
+    costs = render(cal).costs()
+    expected = iwr.Problem(robot, cal.identification).cost(cal.result.x)
+    assert costs["calibrated"] == pytest.approx(expected, rel=1e-12)
+    assert abs(costs["calibrated"] - cal.result.fun) > 0.5 * cal.result.fun  # not the statistic
