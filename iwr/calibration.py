@@ -425,13 +425,12 @@ def _weighted_fit(robot: Any, data: Any, result: IdentificationResult, report: A
                   ) -> IdentificationResult:
     """A result identified elsewhere on a noise-weighted objective (``iwr-calibrate --noise``:
     its settings name the ``weighting``) and not tested: its cost is the chi-square statistic
-    of the fit (the whitened residuals' sum of squares), tested against chi2 with the readings
-    less the identifiable parameters (``report``'s rank) as degrees of freedom, beside the size
-    check of :func:`iwr.fit_test.fit_check`. A copy of ``result``, ``failed`` when either fails;
-    ``result`` itself when there is nothing to test."""
-    from scipy import special
-
-    from .fit_test import FitTest, _chi2_cause, _chi2_verdict, fit_check
+    of the fit (the whitened residuals' sum of squares), tested by
+    :func:`iwr.fit_test.fit_check` (``weighted``) against chi2 with the readings less the
+    identifiable parameters (``report``'s rank) as degrees of freedom, beside the size check.
+    A copy of ``result``, ``failed`` when it fails; ``result`` itself when there is nothing to
+    test."""
+    from .fit_test import fit_check
 
     settings = dict(result.get("settings") or {})
     x = np.asarray(result.x, dtype=float)
@@ -439,27 +438,15 @@ def _weighted_fit(robot: Any, data: Any, result: IdentificationResult, report: A
             or not (np.all(np.isfinite(x)) and math.isfinite(float(result.fun)))):
         return result
     problem, _ = kinds.of(data).problem(robot, data)
-    # The readings that carry data (a tracker's unseen points have none).
-    n_readings = int(getattr(problem, "n_observations", problem.n_residuals))
     active = result.get("active")
     mask = np.ones(x.size, dtype=bool) if active is None else np.asarray(active, dtype=bool)
-    size = fit_check(robot, data, x, active=mask, noise=None)
-    statistic, dof = float(result.fun), n_readings - int(report.rank)
-    p_value = float(special.chdtrc(dof, statistic)) if dof > 0 else math.nan
-    chi_ok = bool(dof > 0 and p_value >= size.alpha)
-    causes = ([] if chi_ok else [_chi2_cause(statistic, dof, p_value) if dof > 0 else
-                                 f"no redundancy: {n_readings} readings for {report.rank} "
-                                 "identifiable parameters"]) + list(size.causes)
-    fit_ok = chi_ok and size.fit_ok
-    verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "no redundancy",
-                            ["identified errors beyond their plausible size"]
-                            if chi_ok and not size.fit_ok else None)
+    fit = fit_check(robot, data, x, active=mask,
+                    weighted=(float(result.fun), problem.n_observations, int(report.rank)))
     out = IdentificationResult(**dict(result))
-    out["fit"] = FitTest(statistic, dof, p_value, size.alpha, fit_ok, verdict, causes,
-                         size.implausible)
-    if out.success and not fit_ok:
-        out.update(success=False, status="failed",
-                   message=f"{verdict} (the method: {str(result.message).strip().rstrip('.')})")
+    out["fit"] = fit
+    if out.success and not fit.fit_ok:
+        out.update(success=False, status="failed", message=f"{fit.verdict} (the method: "
+                   f"{str(result.message).strip().rstrip('.')})")
     return out
 
 

@@ -221,7 +221,8 @@ def _plausible_limit(robot: Robot, plausible: float, bounds: Any) -> np.ndarray:
 
 def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
               noise: Noise | None = None, bounds: Any = None, fit_alpha: float = 1e-3,
-              plausible: float = 10.0) -> FitTest:
+              plausible: float = 10.0, weighted: tuple[float, int, int] | None = None
+              ) -> FitTest:
     """Is an eq. (10) solution ``x`` sane? The check :func:`iwr.identify` applies to every method
     but the efficient estimator (which tests its own fit).
 
@@ -238,7 +239,9 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     a local minimum far from the solution, an unregistered frame, ... stay far above it. Without
     a noise model the cost cannot be judged (the leg noise is unknown: any cost fits some
     sigma), only the size of the errors; ``statistic``, ``dof`` and ``p_value`` are then nan, 0,
-    nan.
+    nan. ``weighted``, instead of ``noise``: a noise-weighted cost minimised elsewhere (a result
+    of ``iwr-engine`` on a weighted problem file), ``(its value, the readings, the identifiable
+    rank)``, tested as that statistic.
 
     Laser-tracker data (``robot.tracker`` and :class:`iwr.tracker.TrackerMeasurements`, ``x`` the
     robot's then the setup's parameters): the same size test, modulo the null directions of the
@@ -269,6 +272,8 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
                    if abs(x_plain[i]) > limit[i]]
     causes: list[str] = []
     statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
+    if noise is not None and weighted is not None:
+        raise ValueError("fit_check: give noise or weighted, not both")
     if noise is not None:
         # The kind's whitened residuals and Jacobian at x (iwr.kinds.MeasurementKind.whitened).
         rw, jw, n_readings = kind.whitened(robot, measurements, x, noise)
@@ -278,6 +283,10 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
         with single_thread():
             step, _, rank, _ = np.linalg.lstsq(jw / scale, rw, rcond=None)
         statistic = float(np.sum((rw - (jw / scale) @ step) ** 2))
+    elif weighted is not None:
+        statistic, n_readings, rank = float(weighted[0]), int(weighted[1]), int(weighted[2])
+    tested = noise is not None or weighted is not None
+    if tested:
         # The identifiable directions among the active parameters (all 58 active: 52 on the IWR).
         dof = int(n_readings) - int(rank)
         p_value = float(special.chdtrc(dof, statistic)) if dof > 0 else math.nan
@@ -291,7 +300,7 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     if implausible:
         causes.append(_implausible_cause(implausible, plausible))
     fit_ok = chi_ok and not implausible
-    if noise is None:
+    if not tested:
         head = ("no noise model: the cost is not tested (give one for the chi-square test); "
                 "identified errors " + ("within" if not implausible else "NOT within")
                 + " their plausible size")

@@ -366,6 +366,15 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     too_many = False
     current = result
     ident = identification
+
+    def refit_kept(current: Any) -> tuple[Any, Any]:
+        """The identification poses ``keep`` holds and LM's re-fit on them from ``current``."""
+        ident = kind.subset(identification, np.flatnonzero(keep))
+        refit = _refit(robot, ident, current, noise, options)
+        refit["method"] = result.get("method", "lm")
+        refit["nfev"] = int(current.nfev) + int(refit.nfev)
+        return ident, refit
+
     while not efficient:
         try:
             found = find_gross_errors(robot, ident, current.x, noise,
@@ -385,11 +394,7 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         k = int(np.flatnonzero(keep)[worst.pose])
         keep[k] = False
         removed.append(replace(worst, pose=k, removed=True))
-        ident = kind.subset(identification, np.flatnonzero(keep))
-        refit = _refit(robot, ident, current, noise, options)
-        refit["method"] = result.get("method", "lm")
-        refit["nfev"] = int(current.nfev) + int(refit.nfev)
-        current = refit
+        ident, current = refit_kept(current)
         if current.get("status") == "interrupted":  # Ctrl-C: no further refit may lose it
             break
     if removed and not too_many and current.get("status") != "interrupted":
@@ -409,11 +414,7 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         if back:
             keep[back] = True
             removed = [o for o in removed if o.pose not in back]
-            ident = kind.subset(identification, np.flatnonzero(keep))
-            refit = _refit(robot, ident, current, noise, options)
-            refit["method"] = result.get("method", "lm")
-            refit["nfev"] = int(current.nfev) + int(refit.nfev)
-            current = refit
+            ident, current = refit_kept(current)
     held = validation if held_out else None
     untested = ""
     try:

@@ -222,6 +222,10 @@ class Problem:
         """Six leg readings per pose."""
         return 6 * self.n_poses
 
+    #: The residuals that carry data (as :attr:`iwr.tracker.TrackerProblem.n_observations`):
+    #: every leg reading.
+    n_observations = n_residuals
+
     @property
     def parameter_names(self) -> list[str]:
         return self.robot.parameter_names
