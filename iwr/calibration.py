@@ -119,7 +119,7 @@ class Calibration:
 
     @property
     def status(self) -> str:
-        return str(self.result.get("status", ""))
+        return str(self.result.status)
 
     @property
     def interrupted(self) -> bool:
@@ -128,8 +128,7 @@ class Calibration:
     @property
     def fit_ok(self) -> bool | None:
         """The fit test's answer, or None when there was none (no noise model)."""
-        fit = self.result.get("fit")
-        return None if fit is None else bool(fit.fit_ok)
+        return self.result.fit_ok
 
     def improvement(self) -> tuple[float, float, str, str]:
         """``(before, after, sentence, what)``: the error the job is judged by
@@ -146,7 +145,7 @@ class Calibration:
         calibration (issue 26: 2 poses copied 30 times, or 3 tracker poses, were
         "calibrated")."""
         r = self.result
-        if r.get("status") == "interrupted" or self.fit_ok is False:
+        if r.interrupted or self.fit_ok is False:
             return
         # Degenerate data whether or not the method converged: more budget would not help.
         reason = self.degenerate()
@@ -329,7 +328,7 @@ def calibrate(
                 report = identifiability(robot, ident)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
-        result["settings"] = {**dict(result.get("settings") or {}), "data_file": data_name,
+        result["settings"] = {**dict(result.settings), "data_file": data_name,
                               "data_fingerprint": kind.fingerprint(robot, data)}
         note = kind.weighting_note(data, method, data_name)
         if note:
@@ -342,7 +341,7 @@ def calibrate(
             truth_acc = accuracy(robot, val, truth)
             perr = parameter_error(robot, ident, result.x, truth)
         predicted = None
-        if result.get("covariance") is not None and not result.interrupted:
+        if result.covariance is not None and not result.interrupted:
             try:
                 predicted = kind.predicted_accuracy(robot, val, result.x, result["covariance"],
                                                     result["active"], seed)
@@ -383,7 +382,7 @@ def from_result(
         raise ValueError(f"{x.size} parameters, but robot {robot.name!r} "
                          + ("" if len(names) == robot.n_params else "with its tracker setup ")
                          + f"has {len(names)}")
-    saved = list(result.get("parameter_names") or [])
+    saved = list(result.parameter_names)
     if saved and saved != names:
         first = next(a for a, b in zip(saved, names, strict=True) if a != b)
         raise ValueError(f"its parameters are not those of robot {robot.name!r}"
@@ -402,9 +401,9 @@ def from_result(
             start = None
         report = identifiability(robot, data)
         result = _weighted_fit(robot, data, result, report)
-        unc = _uncertainty(robot, data, result, report if result.get("active") is None else None,
+        unc = _uncertainty(robot, data, result, report if result.active is None else None,
                            None, notes, own_covariance=False)
-        if unc is not None and result.get("method") == "efficient":
+        if unc is not None and result.method == "efficient":
             # A result file does not keep the estimator's covariance: say whose these are.
             notes.append("note: the standard deviations are eq. (10)'s first-order ones at the "
                          "result, not the efficient estimator's covariance (which `iwr "
@@ -414,7 +413,7 @@ def from_result(
             robot=robot, identification=data, validation=val, held_out=validation is not None,
             result=result, accuracy=accuracy(robot, val, x), data_name=data_name,
             robot_name=robot_name, identifiability=report, uncertainty=unc, notes=notes,
-            settings=dict(settings or {"method": result.get("method", "")}),
+            settings=dict(settings or {"method": result.method}),
             provenance=provenance, start=start, sources=dict(sources or {}), kind=kind,
             problems=problems)
         cal._settle()
@@ -432,13 +431,13 @@ def _weighted_fit(robot: Any, data: Any, result: IdentificationResult, report: A
     test."""
     from .fit_test import fit_check
 
-    settings = dict(result.get("settings") or {})
+    settings = dict(result.settings)
     x = np.asarray(result.x, dtype=float)
-    if (not settings.get("weighting") or result.get("fit") is not None or result.interrupted
+    if (not settings.get("weighting") or result.fit is not None or result.interrupted
             or not (np.all(np.isfinite(x)) and math.isfinite(float(result.fun)))):
         return result
     problem, _ = kinds.of(data).problem(robot, data)
-    active = result.get("active")
+    active = result.active
     mask = np.ones(x.size, dtype=bool) if active is None else np.asarray(active, dtype=bool)
     fit = fit_check(robot, data, x, active=mask,
                     weighted=(float(result.fun), problem.n_observations, int(report.rank)))
@@ -460,8 +459,8 @@ def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, no
     try:
         unc = Uncertainty.from_result(result) if own_covariance else None
         if unc is None:
-            active = result.get("active") if report is None else report
-            objective = dict(result.get("settings") or {}).get("objective")
+            active = result.active if report is None else report
+            objective = dict(result.settings).get("objective")
             if isinstance(objective, dict) and objective.get("weighted"):
                 unc = uncertainty(robot, data, result.x, noise, active=active, weighted=True)
             else:

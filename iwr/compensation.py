@@ -15,7 +15,6 @@ positions, or the probe at its nominal pose; :func:`iwr.tracker.fix_platform_fra
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
@@ -23,6 +22,7 @@ import numpy as np
 
 from .measurements import MAX_LENGTH_MM
 from .problem import predict_legs
+from .result import IdentificationResult
 from .robot import Robot
 from .transforms import pose_from_matrix, pose_matrix
 
@@ -64,17 +64,17 @@ class TargetError(ValueError):
         self.index, self.column, self.detail = index, column, message
 
 
-def calibration_status(result: Mapping[str, Any]) -> str:
+def calibration_status(result: IdentificationResult) -> str:
     """The status a calibration file records for an identification ``result``
     (:data:`CALIBRATION_STATUSES`): interrupted, then a failed fit test, then not converged or
     failed, else success."""
-    status = result.get("status")
+    status = result.status
     if status == "interrupted":
         return "interrupted"
-    fit = result.get("fit")
+    fit = result.fit
     if fit is not None and not fit.fit_ok:
         return "failed fit test"
-    if not result.get("success"):
+    if not result.success:
         return "failed" if status == "failed" else "not converged"
     return "success"
 

@@ -58,7 +58,7 @@ from .implicit_loop import (
 from .measurements import Measurements
 from .noise import Noise
 from .problem import Problem, _check_joint_types
-from .result import IdentificationResult
+from .result import IdentificationResult, Outlier, source_line
 from .robot import Robot
 
 __all__ = [
@@ -78,67 +78,6 @@ __all__ = [
 
 #: The variance components, named as the fields of :class:`iwr.Noise`.
 COMPONENTS = ("legs", "joint_lengths", "joint_angles", "position", "orientation")
-
-
-@dataclass(frozen=True)
-class Outlier:
-    """A pose whose readings fail the outlier test.
-
-    Attributes
-    ----------
-    pose : int
-        Row of the measurements.
-    where : str
-        ``"pose 17"`` or ``"data.csv, line 19"``.
-    statistic : float
-        The pose's test value ``v^T Q_vv^+ v`` (chi-square with ``dof`` degrees of freedom).
-    dof : int
-    p_value : float
-    instrument : str
-        The reading with the largest normalised residual (Baarda's w-test), e.g. ``"leg3"``,
-        ``"q2"``, ``"position.x"``: the likeliest culprit under a single gross error.
-    w : float
-        Its w-test value (standard normal for a clean reading).
-    removed : bool
-        Whether the pose was left out of the final solution.
-    confounded : tuple of str
-        Other readings of the pose whose w-test value is as large (within 1 %): the data cannot
-        tell them from ``instrument`` (for example ``q1``, the rail's prismatic joint along z0,
-        against ``position.z``: moving the base up moves every leg as moving the platform down).
-    data_set : str
-        ``"identification"``, or ``"validation"`` for a held-out pose (tested at the identified
-        parameters, :mod:`iwr.gross_errors`; ``removed``: left out of the accuracy figures).
-    test : str
-        ``"chi2"``: ``statistic`` is the pose's chi-square value under the noise model;
-        ``"tau"``: without a noise model, its largest studentized residual (Pope's test, the
-        noise estimated from the residuals; ``dof`` their redundancy; ``w`` studentized too).
-    """
-
-    pose: int
-    where: str
-    statistic: float
-    dof: int
-    p_value: float
-    instrument: str
-    w: float
-    removed: bool
-    confounded: tuple[str, ...] = ()
-    data_set: str = "identification"
-    test: str = "chi2"
-
-    def __str__(self) -> str:
-        held = self.data_set == "validation"
-        what = (("left out of the accuracy figures" if held else "removed") if self.removed
-                else "kept")
-        alt = f" or {', '.join(self.confounded)}, indistinguishable" if self.confounded else ""
-        head = f"{self.where}" + (" (held-out pose)" if held else "")
-        if self.test == "tau":
-            value = (f"largest studentized residual {self.statistic:.1f} (no noise model: "
-                     f"Pope's test, {self.dof} dof, p = {self.p_value:.2g})")
-        else:
-            value = f"chi2 {self.statistic:.1f} ({self.dof} dof, p = {self.p_value:.2g})"
-        return (f"{head}: {value}; largest normalised residual {self.instrument} "
-                f"(w = {self.w:+.1f}{alt}); {what}")
 
 
 @dataclass(frozen=True)
@@ -387,6 +326,9 @@ class _PoseSpec:
     def where(self, k: int) -> str:
         return self.measurements.where(k)
 
+    def line(self, k: int) -> int | None:
+        return source_line(self.measurements, k)
+
     def subset(self, used: np.ndarray) -> Measurements:
         return self.measurements.subset(np.flatnonzero(used)) if not used.all() \
             else self.measurements
@@ -551,7 +493,8 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
                 if not bad:
                     break
                 if outliers == "report":
-                    found = [Outlier(k, spec.where(k), t, d, pv, ins, w, False, alt)
+                    found = [Outlier(k, spec.where(k), t, d, pv, ins, w, False, alt,
+                                       line=spec.line(k))
                              for k, t, d, pv, ins, w, alt in bad]
                     too_many = len(bad) > cap
                     break
@@ -561,11 +504,13 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
                     # 2 um readings distort the first solution so much that most clean poses fail
                     # with them.)
                     too_many = True
-                    found += [Outlier(k, spec.where(k), t, d, pv, ins, w, False, alt)
+                    found += [Outlier(k, spec.where(k), t, d, pv, ins, w, False, alt,
+                                       line=spec.line(k))
                               for k, t, d, pv, ins, w, alt in bad]
                     break
                 k, t, d, pv, ins, w, alt = max(bad, key=lambda b: b[1] / crit_dof[b[2]])
-                found.append(Outlier(k, spec.where(k), t, d, pv, ins, w, True, alt))
+                found.append(Outlier(k, spec.where(k), t, d, pv, ins, w, True, alt,
+                                       line=spec.line(k)))
                 used[k] = False
                 corr[k] = 0.0
                 if int(out["dof"]) - int(out["pose_dof"][int(np.sum(used[:k]))]) <= 0:
@@ -689,7 +634,6 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
         message=message,
         method="efficient",
         fit=fit,
-        fit_ok=bool(fit_ok),
         verdict=verdict,
         outliers=found,
         used=used,
@@ -722,7 +666,7 @@ def summary(result: IdentificationResult) -> dict[str, Any]:
     report): the fit test, the outliers, the noise used, the variance components, the predicted
     accuracy and the standard deviations of the parameters (null for those held fixed)."""
     fit: FitTest = result["fit"]
-    pred: PredictedAccuracy | None = result.get("predicted")
+    pred: PredictedAccuracy | None = result.predicted
     return jsonable({
         "fit": fit.to_dict(),
         "outliers": [asdict(o) for o in result["outliers"]],

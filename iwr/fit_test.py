@@ -8,7 +8,6 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
@@ -22,63 +21,10 @@ from ._blas import single_thread
 from .implicit_loop import loop_jacobians
 from .measurements import Measurements
 from .noise import Noise
+from .result import FitTest
 from .robot import Robot
 
 __all__ = ["FitTest", "fit_check"]
-
-
-@dataclass(frozen=True)
-class FitTest:
-    """The global test of the fit: does the weighted residual sum follow its chi-square law?
-
-    Attributes
-    ----------
-    statistic : float
-        Sum of the squared normalised corrections at the solution (``fun``).
-    dof : int
-        Degrees of freedom: readings - nuisance unknowns - identified parameters
-        (``6 N - n_active`` for leg data: 6 closure equations per pose).
-    p_value : float
-        ``P(chi2(dof) >= statistic)``.
-    alpha : float
-        Significance level of the test.
-    fit_ok : bool
-        The statistic is within its law (``p_value >= alpha``), no identified error is beyond its
-        plausible size and the outliers are few enough to be outliers.
-    verdict : str
-        One line for a report.
-    causes : list of str
-        What is wrong, with the likely causes, when ``fit_ok`` is False; notes otherwise.
-    implausible : list of (str, float, float)
-        Parameters beyond their plausible size: (name, value, limit), mm or rad.
-    """
-
-    statistic: float
-    dof: int
-    p_value: float
-    alpha: float
-    fit_ok: bool
-    verdict: str
-    causes: list[str] = field(default_factory=list)
-    implausible: list[tuple[str, float, float]] = field(default_factory=list)
-
-    @property
-    def variance_factor(self) -> float:
-        """``statistic / dof``: 1 on average when model, data and noise model agree."""
-        return self.statistic / self.dof if self.dof > 0 else math.nan
-
-    def to_dict(self) -> dict[str, Any]:
-        """The test as a result file and a report's JSON hold it."""
-        return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value,
-                "alpha": self.alpha, "fit_ok": self.fit_ok, "verdict": self.verdict,
-                "causes": list(self.causes),
-                "implausible": [{"parameter": n, "value": v, "limit": lim}
-                                for n, v, lim in self.implausible]}
-
-    def __str__(self) -> str:
-        lines = [self.verdict]
-        lines += [f"  - {c}" for c in self.causes]
-        return "\n".join(lines)
 
 
 def leg_readings(robot: Robot, measurements: Measurements

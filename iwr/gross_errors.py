@@ -57,6 +57,7 @@ from . import kinds
 from ._blas import single_thread
 from .misclosures import Misclosures
 from .noise import MIN_SIGMA
+from .result import FitTest, Outlier, source_line
 
 __all__ = ["GrossErrors", "Misclosures", "NoRedundancy", "find_gross_errors", "screen"]
 
@@ -187,7 +188,6 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
     test_identification : bool
         False: only the held-out poses are tested (the efficient estimator tests its own).
     """
-    from .estimation import Outlier
 
     if not (isinstance(alpha, (int, float)) and 0 < alpha < 1):
         raise ValueError(f"alpha: {alpha!r}; expected a number in (0, 1)")
@@ -291,7 +291,8 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
         alt = tuple(mis_names[i] for i in np.flatnonzero(np.abs(wt) >= 0.99 * abs(wt[j]))
                     if i != j)
         found.append(Outlier(int(k), data.where(int(k)), stat, dof, p, mis_names[j],
-                             float(wt[j]), False, alt, data_set=what, test=test))
+                             float(wt[j]), False, alt, data_set=what, test=test,
+                             line=source_line(data, int(k))))
 
     mis_names = mis.names
     tested = {"identification": 0, "validation": 0}
@@ -324,7 +325,7 @@ def _refit(robot: Any, data: Any, result: Any, noise: Any, options: dict[str, An
     kw = dict(options)
     if noise is not None:
         kw["noise"] = noise
-    return identify(robot, data, "lm", x0=result.x, active=result.get("active"), progress=False,
+    return identify(robot, data, "lm", x0=result.x, active=result.active, progress=False,
                     **kw)
 
 
@@ -351,12 +352,12 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     fitting (``fit_ok`` False), nothing more removed; so with more than that fraction of the
     held-out poses failing (kept, then). An interrupted result is returned as is.
     The test's description (:meth:`GrossErrors.describe`) goes to ``result["gross_errors"]``."""
-    if result.get("status") == "interrupted" or not np.all(np.isfinite(result.x)):
+    if result.interrupted or not np.all(np.isfinite(result.x)):
         return result, identification, validation
     kind = kinds.of(identification)
-    efficient = result.get("method") == "efficient"
+    efficient = result.method == "efficient"
     if efficient:
-        noise = result.get("noise", noise)
+        noise = noise if result.noise is None else result.noise
     elif isinstance(noise, str):
         noise = None  # "estimate" without the estimator: no model to test with
     n = len(identification)
@@ -371,14 +372,14 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         """The identification poses ``keep`` holds and LM's re-fit on them from ``current``."""
         ident = kind.subset(identification, np.flatnonzero(keep))
         refit = _refit(robot, ident, current, noise, options)
-        refit["method"] = result.get("method", "lm")
+        refit["method"] = result.method or "lm"
         refit["nfev"] = int(current.nfev) + int(refit.nfev)
         return ident, refit
 
     while not efficient:
         try:
             found = find_gross_errors(robot, ident, current.x, noise,
-                                      active=current.get("active"), alpha=alpha)
+                                      active=current.active, alpha=alpha)
         except NoRedundancy as exc:
             # Nothing to test with (the fit's own verdict says why the data do not suffice).
             result["gross_errors"] = f"gross errors: not tested ({exc})"
@@ -395,9 +396,9 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         keep[k] = False
         removed.append(replace(worst, pose=k, removed=True))
         ident, current = refit_kept(current)
-        if current.get("status") == "interrupted":  # Ctrl-C: no further refit may lose it
+        if current.interrupted:  # Ctrl-C: no further refit may lose it
             break
-    if removed and not too_many and current.get("status") != "interrupted":
+    if removed and not too_many and not current.interrupted:
         # A pose left out while the parameters were far from the solution (a global method's
         # unconverged result, whose misfit any pose can fail) may be clean: each is tested again
         # at the final parameters as a held-out pose and put back, with one re-fit, if it passes.
@@ -405,7 +406,7 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         try:
             again = find_gross_errors(robot, ident, current.x, noise,
                                       validation=kind.subset(identification, gone),
-                                      active=current.get("active"), alpha=alpha,
+                                      active=current.active, alpha=alpha,
                                       test_identification=False)
             still = {int(gone[o.pose]) for o in again.outliers}
         except NoRedundancy:
@@ -419,7 +420,7 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     untested = ""
     try:
         final = find_gross_errors(robot, ident, current.x, noise, validation=held,
-                                  used=current.get("used"), active=current.get("active"),
+                                  used=current.used, active=current.active,
                                   alpha=alpha, test_identification=False)
     except NoRedundancy as exc:  # after removals: the held-out poses cannot be tested
         final, untested = None, f"gross errors: held-out poses not tested ({exc})"
@@ -440,13 +441,12 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         current["message"] = (f"{str(result.message).strip().rstrip('.')}; then "
                               f"Levenberg-Marquardt from its result {what}: "
                               f"{str(current.message).strip()}")
-        current["settings"] = {**dict(result.get("settings") or {}),
+        current["settings"] = {**dict(result.settings),
                                "outlier_refit": "lm"}
-        if result.get("wall_time") is not None:
-            current["wall_time"] = float(result["wall_time"]) + float(current.get("wall_time", 0))
+        current["wall_time"] = float(result.wall_time) + float(current.wall_time)
     if not held_out:
         validation = ident
-    outliers = list(current.get("outliers") or []) if efficient else []
+    outliers = list(current.outliers or []) if efficient else []
     current["outliers"] = outliers + removed + val_bad
     if final is None:
         current["gross_errors"] = untested
@@ -472,15 +472,12 @@ def _description(first: GrossErrors, final: GrossErrors, n_tested: dict[str, int
 
 
 def _fail_fit(result: Any, cause: str) -> None:
-    from .fit_test import FitTest
-
-    fit = result.get("fit")
+    fit = result.fit
     if fit is None:
         fit = FitTest(math.nan, 0, math.nan, 1e-3, True, "", [], [])
     head = "THE MODEL DOES NOT FIT THE DATA: too many poses fail the outlier test"
     verdict = fit.verdict if not fit.fit_ok else head
     causes = (list(fit.causes) if not fit.fit_ok else []) + [cause]
     result["fit"] = replace(fit, fit_ok=False, verdict=verdict, causes=causes)
-    result["fit_ok"] = False
     if result.success:
         result.update(success=False, status="failed", message=f"{verdict}: {cause}")

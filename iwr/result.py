@@ -6,6 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -14,7 +15,8 @@ from scipy.optimize import OptimizeResult
 
 from ._io import atomic_write_text, jsonable
 
-__all__ = ["IdentificationResult", "load_result", "ResultFileError", "STATUSES"]
+__all__ = ["FitTest", "IdentificationResult", "Outlier", "load_result", "ResultFileError",
+           "STATUSES", "source_line"]
 
 RESULT_FORMAT = "iwr-result"
 RESULT_VERSION = 1
@@ -31,8 +33,161 @@ STATUSES = {
 }
 
 
+@dataclass(frozen=True)
+class FitTest:
+    """The global test of the fit: does the weighted residual sum follow its chi-square law?
+
+    Attributes
+    ----------
+    statistic : float
+        Sum of the squared normalised corrections at the solution (``fun``).
+    dof : int
+        Degrees of freedom: readings - nuisance unknowns - identified parameters
+        (``6 N - n_active`` for leg data: 6 closure equations per pose).
+    p_value : float
+        ``P(chi2(dof) >= statistic)``.
+    alpha : float
+        Significance level of the test.
+    fit_ok : bool
+        The statistic is within its law (``p_value >= alpha``), no identified error is beyond its
+        plausible size and the outliers are few enough to be outliers.
+    verdict : str
+        One line for a report.
+    causes : list of str
+        What is wrong, with the likely causes, when ``fit_ok`` is False; notes otherwise.
+    implausible : list of (str, float, float)
+        Parameters beyond their plausible size: (name, value, limit), mm or rad.
+    """
+
+    statistic: float
+    dof: int
+    p_value: float
+    alpha: float
+    fit_ok: bool
+    verdict: str
+    causes: list[str] = field(default_factory=list)
+    implausible: list[tuple[str, float, float]] = field(default_factory=list)
+
+    @property
+    def variance_factor(self) -> float:
+        """``statistic / dof``: 1 on average when model, data and noise model agree."""
+        return self.statistic / self.dof if self.dof > 0 else math.nan
+
+    def to_dict(self) -> dict[str, Any]:
+        """The test as a result file and a report's JSON hold it."""
+        return {"statistic": self.statistic, "dof": self.dof, "p_value": self.p_value,
+                "alpha": self.alpha, "fit_ok": self.fit_ok, "verdict": self.verdict,
+                "causes": list(self.causes),
+                "implausible": [{"parameter": n, "value": v, "limit": lim}
+                                for n, v, lim in self.implausible]}
+
+    def __str__(self) -> str:
+        lines = [self.verdict]
+        lines += [f"  - {c}" for c in self.causes]
+        return "\n".join(lines)
+
+
+@dataclass(frozen=True)
+class Outlier:
+    """A pose whose readings fail the outlier test.
+
+    Attributes
+    ----------
+    pose : int
+        Row of the measurements.
+    where : str
+        ``"pose 17"`` or ``"data.csv, line 19"``.
+    statistic : float
+        The pose's test value ``v^T Q_vv^+ v`` (chi-square with ``dof`` degrees of freedom).
+    dof : int
+    p_value : float
+    instrument : str
+        The reading with the largest normalised residual (Baarda's w-test), e.g. ``"leg3"``,
+        ``"q2"``, ``"position.x"``: the likeliest culprit under a single gross error.
+    w : float
+        Its w-test value (standard normal for a clean reading).
+    removed : bool
+        Whether the pose was left out of the final solution.
+    confounded : tuple of str
+        Other readings of the pose whose w-test value is as large (within 1 %): the data cannot
+        tell them from ``instrument`` (for example ``q1``, the rail's prismatic joint along z0,
+        against ``position.z``: moving the base up moves every leg as moving the platform down).
+    data_set : str
+        ``"identification"``, or ``"validation"`` for a held-out pose (tested at the identified
+        parameters, :mod:`iwr.gross_errors`; ``removed``: left out of the accuracy figures).
+    test : str
+        ``"chi2"``: ``statistic`` is the pose's chi-square value under the noise model;
+        ``"tau"``: without a noise model, its largest studentized residual (Pope's test, the
+        noise estimated from the residuals; ``dof`` their redundancy; ``w`` studentized too).
+    line : int or None
+        The pose's line in its file (None for data not read from one): what a result file
+        records, so that ``iwr report`` leaves out the poses the run left out.
+    """
+
+    pose: int
+    where: str
+    statistic: float
+    dof: int
+    p_value: float
+    instrument: str
+    w: float
+    removed: bool
+    confounded: tuple[str, ...] = ()
+    data_set: str = "identification"
+    test: str = "chi2"
+    line: int | None = None
+
+    def __str__(self) -> str:
+        held = self.data_set == "validation"
+        what = (("left out of the accuracy figures" if held else "removed") if self.removed
+                else "kept")
+        alt = f" or {', '.join(self.confounded)}, indistinguishable" if self.confounded else ""
+        head = f"{self.where}" + (" (held-out pose)" if held else "")
+        if self.test == "tau":
+            value = (f"largest studentized residual {self.statistic:.1f} (no noise model: "
+                     f"Pope's test, {self.dof} dof, p = {self.p_value:.2g})")
+        else:
+            value = f"chi2 {self.statistic:.1f} ({self.dof} dof, p = {self.p_value:.2g})"
+        return (f"{head}: {value}; largest normalised residual {self.instrument} "
+                f"(w = {self.w:+.1f}{alt}); {what}")
+
+
+def source_line(data: Any, k: int) -> int | None:
+    """The file line of pose ``k`` of ``data`` (any kind's data keep ``lines``), else None."""
+    return None if data.lines is None else int(data.lines[k])
+
+
 class ResultFileError(ValueError):
     """A result file is missing, malformed or of another format."""
+
+
+#: What a method or the calibration job may add to a result, beyond the fields every result has:
+#: typed attributes that read None when absent (``res.fit is None``: no fit test), never a
+#: dictionary read with ``.get()``. Name -> what it holds.
+OPTIONAL_FIELDS: dict[str, str] = {
+    "fit": ":class:`FitTest`: the fit test (the size check; chi-square with a noise model)",
+    "outliers": "list of :class:`Outlier`: the poses that failed the outlier or gross-error "
+                "tests, those left out with ``removed`` True",
+    "gross_errors": "str: what the gross-error screen tested, and how",
+    "covariance": "ndarray: the covariance of the active parameters (the efficient estimator)",
+    "std": "ndarray: their standard deviations, NaN for those held fixed",
+    "noise": "the noise model used, with the components estimated from the data",
+    "variance_components": "list of :class:`iwr.estimation.VarianceComponent`",
+    "predicted": ":class:`iwr.accuracy_prediction.PredictedAccuracy`: the tool accuracy the "
+                 "covariance predicts",
+    "cost_eq10": "float: eq. (10)'s cost at ``x``, for a method that minimised another "
+                 "objective (``fun`` is then its own, e.g. a chi-square statistic)",
+    "used": "ndarray of bool: the poses the estimate used",
+    "verdict": "str: the fit test's verdict, one line",
+    "solver_status": "str: the inner solver's own status",
+    "corrections": "ndarray: the estimated corrections of every reading (NaN: pose not used)",
+    "residuals": "ndarray: the normalised residuals of every reading",
+    "redundancy": "ndarray: the redundancy numbers of every reading",
+    "reading_names": "list of str: the readings of one pose, in the columns' order",
+    "pose_statistic": "ndarray: each pose's chi-square value",
+    "reason": "str: why DE stopped (``iwr.methods.de``)",
+    "state": "DE's state, to resume it",
+}
 
 
 class IdentificationResult(OptimizeResult):
@@ -70,6 +225,11 @@ class IdentificationResult(OptimizeResult):
         The parameters that were identified (the others held at the start).
     settings : dict
         Every setting of the run, for the record.
+    fit, outliers, gross_errors, covariance, ...
+        What a method or the calibration job adds (:data:`OPTIONAL_FIELDS`), None when it did
+        not; ``fit``, ``outliers`` and ``gross_errors`` are kept in the result file.
+    fit_ok : bool or None
+        The fit test's answer (``fit.fit_ok``), None without one.
     """
 
     def __init__(
@@ -119,6 +279,25 @@ class IdentificationResult(OptimizeResult):
         width = max(map(len, keys))
         return "\n".join(f"{k:>{width}}: {self[k]}" for k in keys if k in self)
 
+    def __getattr__(self, name: str) -> Any:
+        try:
+            return self[name]
+        except KeyError:
+            if name in OPTIONAL_FIELDS:
+                return None
+            raise AttributeError(name) from None
+
+    @property
+    def fit_ok(self) -> bool | None:
+        """The fit test's answer, None when there was none."""
+        fit = self.fit
+        return None if fit is None else bool(fit.fit_ok)
+
+    @property
+    def left_out(self) -> list[Outlier]:
+        """The outliers left out of the solution or of the accuracy figures."""
+        return [o for o in (self.outliers or []) if o.removed]
+
     @property
     def interrupted(self) -> bool:
         """Ctrl-C ended the run (``status == "interrupted"``)."""
@@ -155,6 +334,11 @@ class IdentificationResult(OptimizeResult):
             "wall_time": jsonable(float(self.wall_time), finite_only=True),
             "settings": jsonable(self.settings),
             "history": hist,
+            **({"fit": jsonable(self.fit.to_dict())} if self.fit is not None else {}),
+            **({"outliers": [jsonable(asdict(o)) for o in self.outliers]}
+               if self.outliers is not None else {}),
+            **({"gross_errors": self.gross_errors} if isinstance(self.gross_errors, str)
+               else {}),
         }
 
     def save(self, path: str | os.PathLike[str]) -> None:
@@ -173,6 +357,44 @@ def _floats(value: Any, where: str) -> np.ndarray:
         return np.where(arr == None, math.nan, arr).astype(float)  # noqa: E711 (elementwise)
     except (TypeError, ValueError):
         raise ValueError(f"{where}: expected numbers, got {value!r:.60}") from None
+
+
+def _recorded(data: dict[str, Any]) -> dict[str, Any]:
+    """The fit test, outliers and gross-error description a result file keeps."""
+    out: dict[str, Any] = {}
+    fit = data.get("fit")
+    if fit is not None:
+        if not isinstance(fit, dict):
+            raise ValueError(f"fit: expected an object, got {fit!r:.60}")
+        out["fit"] = FitTest(
+            statistic=float(_floats(fit.get("statistic"), "fit.statistic")),
+            dof=int(fit["dof"]), p_value=float(_floats(fit.get("p_value"), "fit.p_value")),
+            alpha=float(fit["alpha"]), fit_ok=bool(fit["fit_ok"]), verdict=str(fit["verdict"]),
+            causes=[str(c) for c in fit.get("causes", [])],
+            implausible=[(str(d["parameter"]), float(d["value"]), float(d["limit"]))
+                         for d in fit.get("implausible", [])])
+    outliers = data.get("outliers")
+    if outliers is not None:
+        if not isinstance(outliers, list):
+            raise ValueError(f"outliers: expected a list, got {outliers!r:.60}")
+        names = {f.name for f in fields(Outlier)}
+        out["outliers"] = []
+        for i, o in enumerate(outliers):
+            if not isinstance(o, dict) or not names >= set(o):
+                raise ValueError(f"outliers[{i}]: expected an object with keys among "
+                                 f"{sorted(names)}, got {o!r:.80}")
+            o = dict(o)
+            for key in ("statistic", "p_value", "w"):
+                o[key] = float(_floats(o.get(key), f"outliers[{i}].{key}"))
+            o["confounded"] = tuple(o.get("confounded", ()))
+            for key in ("pose", "dof", "line"):
+                if key in o and o[key] is not None and not isinstance(o[key], int):
+                    raise ValueError(f"outliers[{i}].{key}: expected an integer, got "
+                                     f"{o[key]!r:.40}")
+            out["outliers"].append(Outlier(**o))
+    if isinstance(data.get("gross_errors"), str):
+        out["gross_errors"] = data["gross_errors"]
+    return out
 
 
 def status_from_message(success: bool, message: str) -> str:
@@ -227,6 +449,9 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
             settings=data.get("settings", {}),
             history={k: _floats(v, f"history.{k}") if k != "nfev" and k != "generation"
                      else np.asarray(v) for k, v in data.get("history", {}).items()},
+            **_recorded(data),
         )
+    except KeyError as exc:
+        raise ResultFileError(f"{path}: missing key {exc}") from None
     except (TypeError, ValueError) as exc:
         raise ResultFileError(f"{path}: {exc}") from None

@@ -19,6 +19,7 @@ from .. import kinds
 from ..measurements import Measurements
 from ..noise import Noise
 from ..problem import Problem, predict_legs
+from ..result import IdentificationResult
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 from .identifiability import IdentifiabilityReport, identifiability
@@ -60,12 +61,12 @@ class Uncertainty:
     dof: int
 
     @classmethod
-    def from_result(cls, result: Any) -> Uncertainty | None:
-        """The efficient estimator's own covariance (``result["covariance"]``, over
-        ``result["active"]``) as an :class:`Uncertainty` with ``source="estimator"``; None for a
+    def from_result(cls, result: IdentificationResult) -> Uncertainty | None:
+        """The efficient estimator's own covariance (``result.covariance``, over
+        ``result.active``) as an :class:`Uncertainty` with ``source="estimator"``; None for a
         result without one (eq. (10)'s methods: use :func:`uncertainty`)."""
-        cov = result.get("covariance")
-        active = result.get("active")
+        cov = result.covariance
+        active = result.active
         if cov is None or active is None:
             return None
         mask = np.asarray(active, dtype=bool)
@@ -75,8 +76,8 @@ class Uncertainty:
                              "active parameters")
         std = np.full(mask.size, np.nan)
         std[mask] = np.sqrt(np.clip(np.diag(cov), 0.0, None))
-        noise = result.get("noise")
-        fit = result.get("fit")
+        noise = result.noise
+        fit = result.fit
         return cls(list(result.parameter_names), mask, cov, std,
                    float(getattr(noise, "legs", np.nan)), "estimator",
                    int(getattr(fit, "dof", 0)))

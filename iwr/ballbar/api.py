@@ -156,7 +156,7 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     result["active"] = mask
     result["fun"] = problem.cost(result.x)
     if weighted:
-        result["settings"] = {**dict(result.get("settings") or {}),
+        result["settings"] = {**dict(result.settings),
                               "objective": {"weighted": True, "noise": repr(noise)}}
     bad = problem.failures(result.x)
     if bad:

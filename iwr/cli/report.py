@@ -74,7 +74,7 @@ def _legacy_tracker_fingerprint(data: Any) -> str:
 def _check_data(args: argparse.Namespace, result: Any, robot: Any, data: Any) -> str:
     """Refuse a DATA.csv that is not the one the result was identified from (exit 2); a note
     when the result records no fingerprint (a result saved by the API)."""
-    settings = dict(result.get("settings") or {})
+    settings = dict(result.settings)
     expected = settings.get("data_fingerprint")
     if not expected:
         return (f"note: {args.run} records no fingerprint of its data, so {args.data} could not "
@@ -121,8 +121,8 @@ def cmd_report(args: argparse.Namespace) -> int:
             robot, data, result, validation=validation, data_name=str(args.data),
             robot_name=str(args.robot),
             sources={"readings": str(args.readings)} if args.readings else None,
-            settings={"method": result.get("method", ""),
-                      **dict(result.get("settings", {}) or {})},
+            settings={"method": result.method,
+                      **dict(result.settings)},
             provenance=provenance(inputs))
     except ValueError as exc:  # the result's parameters are not this robot's
         raise CommandError(f"{args.run}: {one_line(exc)} ({args.robot})") from None

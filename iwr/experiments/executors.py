@@ -201,4 +201,4 @@ def dry_run(robot: Robot, method: str, options: Mapping[str, Any]) -> dict[str, 
     data, _ = simulate(robot, 12, seed=0)
     res = identify(robot, data, method, seed=0, progress=False,
                    **{**options, "generations": 0})
-    return dict(res.get("settings", {}))
+    return dict(res.settings)

@@ -519,7 +519,8 @@ def evaluate(
                           seed=sc.method_seed, progress=False, **options)
         row["wall_time"] = time.perf_counter() - start
         x = np.asarray(result.x, dtype=float)
-        cost = float(result.get("cost_eq10", result.fun))  # the unweighted one, for every method
+        # The unweighted cost (eq. (10)), for every method.
+        cost = float(result.fun if result.cost_eq10 is None else result.cost_eq10)
         floor_problem, _ = kind.problem(robot, sc.data, sc.bounds, x0=sc.truth)
         floor = floor_problem.cost(sc.truth)
         n_obs = int(np.count_nonzero(kinds.observed(floor_problem)))
@@ -530,15 +531,15 @@ def evaluate(
             at_floor=bool(cost <= threshold),
             rms_fit=math.sqrt(max(cost, 0.0) / n_obs),
             nfev=int(result.nfev),
-            nit=int(result.get("nit", 0)),
+            nit=int(result.nit),
             within_budget=_within_budget(cell, method, int(result.nfev)),
             success=bool(result.success),
         )
         row.update(_validate(kind, robot, x, sc))
-        row.update(status="ok", message=str(result.get("message", "")))
+        row.update(status="ok", message=str(result.message))
         row["x"] = x.tolist()
         if details:
-            hist = dict(result.get("history", {}))
+            hist = dict(result.history)
             row.update(
                 truth=sc.truth.tolist(),
                 x0=sc.x0.tolist(),
@@ -549,7 +550,7 @@ def evaluate(
                 # What history_best is: eq. (10)'s cost, or the method's own objective (the
                 # efficient estimator's chi-square, a weighted cost: those results carry
                 # cost_eq10 beside fun). The convergence plot puts only eq. (10) on its axis.
-                history_objective="own" if "cost_eq10" in result else "eq10",
+                history_objective="own" if result.cost_eq10 is not None else "eq10",
             )
     except RECORDED_ERRORS as exc:
         row.update(status="failed", message=f"{type(exc).__name__}: {exc}")

@@ -235,7 +235,7 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
         if weighted:
             result["cost_eq10"] = Problem(robot, measurements, bounds).cost(result.x)
             # Said in the settings too, so that a saved result's fun is not read as eq. (10)'s.
-            result["settings"] = {**dict(result.get("settings") or {}), "objective": {
+            result["settings"] = {**dict(result.settings), "objective": {
                 "weighted": True, "noise": dataclasses.asdict(noise),
                 "cost_eq10": float(result["cost_eq10"])}}
     except KeyboardInterrupt:

@@ -103,9 +103,9 @@ class CalibrationReport(Calibration):
             "data": self.data_name,
             "n_identification": len(self.identification),
             "n_validation": len(self.validation) if self.held_out else 0,
-            "method": self.result.get("method", ""),
+            "method": self.result.method,
             "nfev": int(self.result.nfev),
-            "wall_time": float(self.result.get("wall_time", math.nan)),
+            "wall_time": float(self.result.wall_time),
             "cost": self.costs(),
             "leg_residuals_mm": res,
             "accuracy": self.accuracy.to_dict(),
@@ -138,12 +138,12 @@ class CalibrationReport(Calibration):
     def _add_fit(self, out: dict[str, Any]) -> None:
         """The fit test, the outliers (identification and held-out poses), the gross-error
         test's description and the predicted accuracy, into a summary.json dict."""
-        fit = self.result.get("fit")
+        fit = self.result.fit
         if fit is not None:
             out["fit"] = fit.to_dict()
-        if self.result.get("outliers") is not None:
+        if self.result.outliers is not None:
             out["outliers"] = [asdict(o) for o in self.result["outliers"]]
-        if self.result.get("gross_errors"):
+        if self.result.gross_errors:
             out["gross_errors"] = str(self.result["gross_errors"])
         if self.predicted is not None:
             pr = self.predicted
@@ -158,21 +158,21 @@ class CalibrationReport(Calibration):
         r = self.result
         if r.success:
             return "converged"
-        if r.get("status") == NOT_CALIBRATED:
+        if r.status == NOT_CALIBRATED:
             return NOT_CALIBRATED
-        fit = r.get("fit")
+        fit = r.fit
         if fit is not None and not fit.fit_ok:
             return "the model does not fit the data"
         return f"not converged (status {r.get('status', '?')})"
 
     def _fit_failed(self) -> bool:
-        fit = self.result.get("fit")
+        fit = self.result.fit
         return fit is not None and not fit.fit_ok
 
     def fit_lines(self) -> list[str]:
         """The fit test, the outliers and what was done with them, the predicted accuracy."""
         lines: list[str] = []
-        fit = self.result.get("fit")
+        fit = self.result.fit
         if fit is not None:
             head = "fit test: " + fit.verdict
             # Once: the verdict of a chi-square test already gives these (FitTest.verdict).
@@ -181,12 +181,12 @@ class CalibrationReport(Calibration):
                          f"p-value {fit.p_value:.3g}]")
             lines.append(head)
             lines += [f"  - {c}" for c in fit.causes]
-        for c in self.result.get("variance_components") or []:
+        for c in self.result.variance_components or []:
             lines.append(
                 f"noise of {c.name} estimated: {c.sigma:.3g} (+- {c.std:.2g}; start {c.start:.3g})"
                 if c.identified else f"noise of {c.name}: not identified from the data, held at "
                 f"{c.start:.3g}")
-        outliers = self.result.get("outliers")
+        outliers = self.result.outliers
         if outliers is not None:
             held = "" if self.held_out else " (no pose held out)"
             if not outliers:
@@ -202,7 +202,7 @@ class CalibrationReport(Calibration):
                     f"{len(ident) - n_rm} kept), {n_val} held out (left out of the accuracy "
                     "figures); check each line named:")
                 lines += [f"  - {o}" for o in outliers]
-            rate = self.result.get("gross_errors")
+            rate = self.result.gross_errors
             if rate:
                 lines.append(f"  - {rate}")
         return lines
@@ -254,7 +254,7 @@ class CalibrationReport(Calibration):
 
     def parameter_rows(self) -> list[dict[str, Any]]:
         """One row per error parameter: name, value, std (None if not identified), unit, status."""
-        active = self.result.get("active")
+        active = self.result.active
         # A result read from a file does not record the active parameters: all of them then.
         active = np.ones(self.robot.n_params, bool) if active is None else np.asarray(active)
         left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
@@ -331,7 +331,7 @@ class CalibrationReport(Calibration):
         if fit:
             lines.append("")
             lines.extend(fit)
-        fit_test = r.get("fit")
+        fit_test = r.fit
         if fit_test is not None and not fit_test.fit_ok:
             lines.append("VERDICT: THE MODEL DOES NOT FIT THE DATA; the accuracy figures above "
                          "are not a calibration (causes listed above)")
@@ -339,7 +339,7 @@ class CalibrationReport(Calibration):
         return "\n".join(lines)
 
     def _before_polish(self) -> str:
-        polish = dict(self.result.get("settings", {})).get("polish_result")
+        polish = dict(self.result.settings).get("polish_result")
         if isinstance(polish, dict) and "fun_before" in polish:
             return f" (before the Levenberg-Marquardt polish: {polish['fun_before']:.4g})"
         return ""
@@ -435,12 +435,12 @@ class CalibrationReport(Calibration):
         from ..compensation import calibration_status
 
         r = self.result
-        fit = r.get("fit")
+        fit = r.fit
         prov: dict[str, Any] = {
             "status": calibration_status(r),
-            "status_detail": " ".join(str(r.message).split()) or str(r.get("status", "")),
+            "status_detail": " ".join(str(r.message).split()) or str(r.status),
             "fit_test": ("not run" if fit is None else "passed" if fit.fit_ok else "failed"),
-            "method": str(r.get("method", "")),
+            "method": str(r.method),
             "robot": self.robot_name,
             "data": self.data_name,
             "cost_mm2": self.costs()["calibrated"],
@@ -476,15 +476,15 @@ class CalibrationReport(Calibration):
         """The verdict from the result's status and fit and the error ``before`` and ``after``
         calibration (``change`` says them in words, ``what`` names them)."""
         r = self.result
-        if r.get("status") == "interrupted":
+        if r.interrupted:
             return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
                     "bad")
-        fit = r.get("fit")
+        fit = r.fit
         if fit is not None and not fit.fit_ok:
             return ("The model does not fit the data: " + fit.verdict.removeprefix(
                 "THE MODEL DOES NOT FIT THE DATA: ") + ". Likely causes: " + " ".join(
                     c.rstrip(".") + "." for c in fit.causes) + f" ({change}.)", "bad")
-        if r.get("status") == NOT_CALIBRATED:
+        if r.status == NOT_CALIBRATED:
             message = str(r.message).strip().rstrip(".").removeprefix(f"{NOT_CALIBRATED}: ")
             if message.startswith("the calibration did not improve"):
                 return f"The calibration did not improve {what}: {change}.", "bad"

@@ -199,7 +199,7 @@ class TrackerCalibrationReport(CalibrationReport):
         return std if std.shape == (len(self.parameter_names),) else None
 
     def parameter_rows(self) -> list[dict[str, Any]]:
-        active = self.result.get("active")
+        active = self.result.active
         n = len(self.parameter_names)
         active = np.ones(n, bool) if active is None else np.asarray(active, dtype=bool)
         left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
@@ -258,8 +258,8 @@ class TrackerCalibrationReport(CalibrationReport):
             "robot": self.robot_name or self.robot.name, "data": self.data_name,
             "n_identification": len(self.identification),
             "n_validation": len(self.validation) if self.held_out else 0,
-            "method": self.result.get("method", ""), "nfev": int(self.result.nfev),
-            "wall_time": float(self.result.get("wall_time", math.nan)),
+            "method": self.result.method, "nfev": int(self.result.nfev),
+            "wall_time": float(self.result.wall_time),
             "cost_mm2": self.costs(), "point_residuals_mm": self.residuals(),
             "points_hidden": hidden, "points_expected": total,
             "accuracy": self.accuracy.to_dict(),

@@ -176,7 +176,7 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
         result["cost_eq10"] = problem.cost_unweighted(result.x)
         # Said in the settings too, so that a saved result's fun is not read as unweighted.
         readings, tracker = problem.noise
-        result["settings"] = {**dict(result.get("settings") or {}), "objective": {
+        result["settings"] = {**dict(result.settings), "objective": {
             "weighted": True, "cost_eq10": float(result["cost_eq10"]), "noise": {
                 "readings": None if readings is None else dataclasses.asdict(readings),
                 "tracker": None if tracker is None else dataclasses.asdict(tracker)}}}

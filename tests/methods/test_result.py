@@ -94,3 +94,50 @@ def test_bad_files_are_named(tmp_path):
         iwr.load_result(tmp_path / "r.json")
     with pytest.raises(iwr.ResultFileError, match="no such file"):
         iwr.load_result(tmp_path / "missing.json")
+
+
+def test_optional_fields_are_typed_attributes_that_read_none():
+    """What a method may add (iwr.result.OPTIONAL_FIELDS) reads None when it did not, and a
+    name that is no field still raises AttributeError (a typo is not silently None)."""
+    from iwr.result import OPTIONAL_FIELDS
+
+    r = result()
+    for name in OPTIONAL_FIELDS:
+        assert getattr(r, name) is None, name
+    assert r.fit_ok is None and r.left_out == []
+    with pytest.raises(AttributeError, match="fitt"):
+        r.fitt  # noqa: B018
+    assert "fit" not in r  # absent stays absent (the dictionary is SciPy's)
+
+
+def test_the_file_keeps_the_fit_test_and_the_poses_left_out(tmp_path):
+    """A result file records the fit test and the outliers with their file lines: what `iwr
+    report` needs to leave out the poses the run left out."""
+    from iwr.result import FitTest, Outlier
+
+    fit = FitTest(12.5, 10, 0.25, 1e-3, False, "THE MODEL DOES NOT FIT", ["a cause"],
+                  [("b", 3.0, 1.0)])
+    outliers = [Outlier(4, "m.csv, line 7", 30.0, 6, 1e-6, "leg3", 5.1, True, ("q1",),
+                        line=7),
+                Outlier(2, "pose 2", 20.0, 6, 1e-4, "q2", -4.0, False, data_set="validation",
+                        test="tau")]
+    r = result(fit=fit, outliers=outliers, gross_errors="gross errors: Pope's test")
+    assert r.fit_ok is False and [o.line for o in r.left_out] == [7]
+    r.save(tmp_path / "r.json")
+    back = iwr.load_result(tmp_path / "r.json")
+    assert back.fit == fit and back.outliers == outliers
+    assert back.gross_errors == "gross errors: Pope's test"
+    data = json.loads((tmp_path / "r.json").read_text())
+    data["outliers"][0]["line"] = "seven"
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(iwr.ResultFileError, match=r"bad.json: outliers\[0\].line: expected an integer, got 'seven'"):
+        iwr.load_result(tmp_path / "bad.json")
+    data["outliers"][0] = {"pose": 1, "colour": "red"}
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(iwr.ResultFileError, match=r"bad.json: outliers\[0\]: expected an object"):
+        iwr.load_result(tmp_path / "bad.json")
+    del data["outliers"]
+    del data["fit"]["dof"]
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(iwr.ResultFileError, match="bad.json: missing key 'dof'"):
+        iwr.load_result(tmp_path / "bad.json")
