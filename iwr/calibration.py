@@ -27,7 +27,9 @@ from .analysis.accuracy import Accuracy, accuracy
 from .analysis.identifiability import identifiability, identifiable_count, parameter_error
 from .analysis.uncertainty import Uncertainty, uncertainty
 from .effects import refuse as refuse_effects
+from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
+from .gross_errors import without_left_out
 from .methods import IdentificationResult, identify
 
 __all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "calibrate", "from_result"]
@@ -391,9 +393,23 @@ def from_result(
     if validation is not None and kinds.of(validation) is not kind:
         raise TypeError(f"validation: {kinds.of(validation).name} data, but data are "
                         f"{kind.name} data")
+    notes: list[str] = []
+    # The poses the run's gross-error screen left out (recorded with their lines) are left out
+    # here too: the result was not fitted to them, and its accuracy figures are without them.
+    if validation is None:
+        data, gone = without_left_out(data, result)
+    else:
+        data, gone = without_left_out(data, result, ("identification",))
+        validation, gone_val = without_left_out(validation, result, ("validation",))
+        gone = None if gone is None or gone_val is None else gone + gone_val
+    if gone is None:
+        notes.append(f"note: the {len(result.left_out)} pose(s) the run left out as gross errors "
+                     "are in these figures (no file lines to find them by)")
+    elif gone:
+        notes.append(f"note: {len(gone)} pose(s) the run left out as gross errors are left out "
+                     f"here too (line(s) {', '.join(map(str, gone))})")
     val = data if validation is None else validation
     problems: dict[Any, Any] = {}
-    notes: list[str] = []
     with kinds.reuse(problems):
         try:
             start = kind.start(robot, data)
@@ -401,6 +417,10 @@ def from_result(
             start = None
         report = identifiability(robot, data)
         result = _weighted_fit(robot, data, result, report)
+        if result.gross_errors is None and degenerate(robot, data, report) is None:
+            # Never screened (iwr-calibrate's engine): tested here, not re-fitted (issue 22).
+            result, val = check_gross_errors(robot, data, val, result,
+                                             held_out=validation is not None)
         unc = _uncertainty(robot, data, result, report if result.active is None else None,
                            None, notes, own_covariance=False)
         if unc is not None and result.method == "efficient":

@@ -46,6 +46,7 @@ without a noise model, and in held-out poses".
 
 from __future__ import annotations
 
+import copy
 import math
 from dataclasses import dataclass, field, replace
 from typing import Any
@@ -463,6 +464,69 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
                   f"outlier test (more than {max_outlier_fraction:.0%}): not a few gross errors "
                   "but a model or noise model that does not fit the poses it was not fitted to")
     return current, ident, validation
+
+
+def check_result(robot: Any, identification: Any, validation: Any, result: Any, *,
+                 held_out: bool = True, alpha: float = 1e-3,
+                 max_outlier_fraction: float = 0.2) -> tuple[Any, Any]:
+    """Gross errors in a result identified elsewhere and never screened (``iwr report`` of an
+    ``iwr-calibrate`` run): ``(result, validation)`` after them, ``result`` a copy. The tests of
+    :func:`screen` without a noise model (Pope's tau test: the noise level estimated from the
+    residuals), but nothing is re-fitted: an identification pose that fails is named and kept
+    (``removed`` False), and the fit fails with the lines to check, since the result was fitted
+    to it; a held-out pose that fails is left out of the returned validation set (the accuracy
+    figures), unless more than ``max_outlier_fraction`` fail (then the fit fails too)."""
+    result = copy.copy(result)
+    if result.interrupted or not np.all(np.isfinite(result.x)):
+        return result, validation
+    try:
+        found = find_gross_errors(robot, identification, result.x, None,
+                                  validation=validation if held_out else None,
+                                  used=result.used, active=result.active, alpha=alpha)
+    except NoRedundancy as exc:
+        result["gross_errors"] = f"gross errors: not tested ({exc})"
+        return result, validation
+    ident_bad = [o for o in found.outliers if o.data_set != "validation"]
+    val_bad = [o for o in found.outliers if o.data_set == "validation"]
+    if held_out and val_bad and len(val_bad) <= math.floor(max_outlier_fraction
+                                                          * len(validation)):
+        vkeep = np.ones(len(validation), dtype=bool)
+        vkeep[[o.pose for o in val_bad]] = False
+        validation = kinds.of(validation).subset(validation, np.flatnonzero(vkeep))
+        val_bad = [replace(o, removed=True) for o in val_bad]
+    elif val_bad:
+        _fail_fit(result, f"{len(val_bad)} of the {len(validation)} held-out poses fail the "
+                  f"outlier test (more than {max_outlier_fraction:.0%}): not a few gross errors "
+                  "but a model or noise model that does not fit the poses it was not fitted to")
+    result["outliers"] = ident_bad + val_bad
+    result["gross_errors"] = found.describe()
+    if ident_bad:
+        _fail_fit(result, f"{len(ident_bad)} identification pose(s) fail the outlier test and the "
+                  "result was fitted to them (it was identified elsewhere, so nothing is "
+                  "re-fitted here): check the lines named, correct or remove them, and identify "
+                  "again")
+    return result, validation
+
+
+def without_left_out(data: Any, result: Any, data_sets: tuple[str, ...] = (
+        "identification", "validation")) -> tuple[Any, list[int] | None]:
+    """``data`` without the poses whose file lines ``result`` records as left out (by the
+    gross-error screen of the run that identified it: :attr:`IdentificationResult.left_out`)
+    from the ``data_sets`` named, and those lines (None, ``data`` unchanged, when the record or
+    the data have no lines: data not read from a file). ValueError when the record names a line
+    that is not in ``data`` (not the data of the run)."""
+    gone = [o.line for o in result.left_out if o.data_set in data_sets]
+    if not gone:
+        return data, []
+    if any(line is None for line in gone) or data.lines is None:
+        return data, None
+    lines = np.asarray(data.lines, dtype=int)
+    missing = sorted(set(gone) - set(lines.tolist()))
+    if missing:
+        raise ValueError(f"the result left out line(s) {missing} that these data do not have "
+                         "(not the data it was identified from?)")
+    keep = np.flatnonzero(~np.isin(lines, gone))
+    return kinds.of(data).subset(data, keep), sorted(set(gone))
 
 
 def _description(first: GrossErrors, final: GrossErrors, n_tested: dict[str, int]) -> str:

@@ -217,3 +217,50 @@ def test_the_reports_eq10_cost_is_eq10_for_a_weighted_result():
     expected = iwr.Problem(robot, cal.identification).cost(cal.result.x)
     assert costs["calibrated"] == pytest.approx(expected, rel=1e-12)
     assert abs(costs["calibrated"] - cal.result.fun) > 0.5 * cal.result.fun  # not the statistic
+
+
+def test_from_result_names_gross_errors_without_refitting():
+    """`iwr report`'s path for a result never screened (the engine's): data with a 9 mm typo are
+    not re-fitted; the typo's pose is named (kept) and the fit fails with the advice; a typo in
+    a held-out pose is left out of the accuracy figures and the fit stands."""
+    robot = iwr.Robot.default()
+    whole, _ = iwr.simulate(robot, 50, seed=11, noise=iwr.Noise.realistic())
+    data, val = whole.subset(np.arange(40)), whole.subset(np.arange(40, 50))  # one true robot
+    legs = data.legs.copy()
+    legs[5, 2] += 9.0
+    bad = iwr.Measurements(data.q, data.poses, legs, joint_types=data.joint_types)
+    result = iwr.identify(robot, bad, "lm", active="base")
+    x = result.x.copy()
+    cal = from_result(robot, bad, result, validation=val)
+    assert np.array_equal(cal.result.x, x) and result.outliers is None  # a copy, not re-fitted
+    named = [o for o in cal.result.outliers if o.data_set == "identification"]
+    assert [o.pose for o in named] == [5] and not named[0].removed
+    assert not cal.result.fit.fit_ok and not cal.success
+    assert "identify again" in " ".join(cal.result.fit.causes)
+    clean = iwr.identify(robot, data, "lm", active="base")
+    vlegs = val.legs.copy()
+    vlegs[3, 0] += 9.0
+    vbad = iwr.Measurements(val.q, val.poses, vlegs, joint_types=val.joint_types)
+    cal = from_result(robot, data, clean, validation=vbad)
+    assert [o.pose for o in cal.result.outliers] == [3] and cal.result.outliers[0].removed
+    assert len(cal.validation) == 9 and cal.result.fit_ok is not False
+
+
+def test_from_result_refuses_left_out_lines_the_data_do_not_have():
+    """A result that records a left-out line the data do not have is not of these data."""
+    from dataclasses import replace
+
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 20, seed=3)
+    data = iwr.Measurements(data.q, data.poses, data.legs, joint_types=data.joint_types,
+                            lines=np.arange(2, 22))
+    result = iwr.identify(robot, data, "lm", active="base")
+    result["outliers"] = [iwr.result.Outlier(0, "line 99", 50.0, 6, 1e-9, "leg1", 7.0, True,
+                                             line=99)]
+    result["gross_errors"] = "gross errors: recorded"
+    with pytest.raises(ValueError, match=r"left out line\(s\) \[99\]"):
+        from_result(robot, data, result)
+    result["outliers"] = [replace(result.outliers[0], line=5)]
+    cal = from_result(robot, data, result)
+    assert len(cal.identification) == 19 and 5 not in cal.identification.lines
+    assert any("line(s) 5" in n for n in cal.notes)

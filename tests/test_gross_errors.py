@@ -370,3 +370,36 @@ def test_a_pose_left_out_far_from_the_solution_is_put_back_when_it_passes_there(
     assert len(ident2) == len(ident) and len(val2) == len(val)
     assert result["fit"].fit_ok and result.success, result.message
     assert "with every pose" in result.message
+
+
+def test_cli_report_leaves_out_what_the_run_left_out(tmp_path):
+    """The review's case: `iwr calibrate` leaves an identification pose with a typo out; its
+    result.json records the line, and `iwr report` of that run on the same file leaves it out
+    too (exit 0, the line named), where it used to test the typo again and say "does not fit".
+    The same result without the record (as `iwr-calibrate`'s engine writes it) is tested in
+    the report, not re-fitted: the typo's line is named and the fit fails (exit 3)."""
+    sim = _run("simulate", "--out", "sim", "--poses", "40", "--seed", "5", cwd=tmp_path)
+    assert sim.returncode == 0, sim.stderr
+    ident_rows, _ = kinds.split_rows(40, 0.2, 0)
+    data = tmp_path / "sim" / "measurements.csv"
+    line = _file_typo(data, int(ident_rows[2]), "s3_mm", 1)  # 205.0 -> 250.0 mm
+    out = _run("calibrate", "sim/robot.toml", "sim/measurements.csv", "--method", "lm",
+               "--out", "cal", "--no-plots", "--no-progress", cwd=tmp_path)
+    assert out.returncode == 0, out.stdout + out.stderr
+    run = iwr.load_result(tmp_path / "cal" / "result.json")
+    assert [o.line for o in run.left_out] == [line] and run.gross_errors
+    rep = _run("report", "cal/result.json", "sim/robot.toml", "sim/measurements.csv",
+               "--out", "rep", "--no-plots", cwd=tmp_path)
+    assert rep.returncode == 0, rep.stdout + rep.stderr
+    assert f"left out here too (line(s) {line})" in rep.stdout, rep.stdout
+    summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
+    assert summary["n_identification"] == 39
+    # As the engine writes it: no record of a screen; the report tests and names the line.
+    bare = iwr.result.IdentificationResult(
+        x=run.x, fun=run.fun, nfev=run.nfev, success=True, message="converged", method="de",
+        parameter_names=run.parameter_names, settings={"program": "iwr-engine"})
+    bare.save(tmp_path / "engine.json")
+    rep = _run("report", "engine.json", "sim/robot.toml", "sim/measurements.csv",
+               "--out", "rep2", "--no-plots", cwd=tmp_path)
+    assert rep.returncode == 3, rep.stdout + rep.stderr
+    assert f"measurements.csv, line {line}" in rep.stdout and "identify again" in rep.stdout
