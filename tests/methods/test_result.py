@@ -130,7 +130,8 @@ def test_the_file_keeps_the_fit_test_and_the_poses_left_out(tmp_path):
     data = json.loads((tmp_path / "r.json").read_text())
     data["outliers"][0]["line"] = "seven"
     (tmp_path / "bad.json").write_text(json.dumps(data))
-    with pytest.raises(iwr.ResultFileError, match=r"bad.json: outliers\[0\].line: expected an integer, got 'seven'"):
+    with pytest.raises(iwr.ResultFileError,
+                       match=r"bad.json: outliers\[0\].line: expected an integer, got 'seven'"):
         iwr.load_result(tmp_path / "bad.json")
     data["outliers"][0] = {"pose": 1, "colour": "red"}
     (tmp_path / "bad.json").write_text(json.dumps(data))
