@@ -20,6 +20,7 @@ from typing import Any
 
 import numpy as np
 
+from . import kinds
 from .measurements import MAX_LENGTH_MM
 from .problem import predict_legs
 from .result import IdentificationResult
@@ -110,9 +111,7 @@ def determined_frame(robot: Robot) -> str:
     """The frame a robot's calibration data determine, as its kind of data says
     (:attr:`iwr.kinds.MeasurementKind.frame`): ``"T"`` for a robot with a ``[tracker]`` table
     (tracker data), ``"0"`` for pose data."""
-    from .kinds import for_robot
-
-    return for_robot(robot).frame.strip("{}")
+    return kinds.for_robot(robot).frame.strip("{}")
 
 
 def _check_frame(robot: Robot, frame: str | None, where: str) -> str:
@@ -268,9 +267,8 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
     if tool is not None:
         tool_m = pose_matrix(np.asarray(tool, dtype=float).reshape(6))
         target = target @ np.linalg.inv(tool_m)
-    if frame == "T":
-        assert robot.tracker is not None
-        target = np.linalg.solve(robot.tracker.registration_matrix(), target)
+    if frame == "T":  # the frame the robot's instrument gives its data in (_check_frame)
+        target = np.linalg.solve(kinds.for_robot(robot).registration(robot), target)
     world = pose_from_matrix(target)
     legs = predict_legs(robot, None, q, world)
     lo, hi = robot.leg_stroke[:, 0], robot.leg_stroke[:, 1]

@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from . import _core
+from . import _core, kinds
 from .measurements import as_matrix
 from .robot import Robot
 from .transforms import pose_from_matrix, pose_matrix
@@ -77,9 +77,10 @@ def forward_kinematics(
     """
     if not isinstance(robot, Robot):
         raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-    if robot.tracker is not None and np.size(x) == robot.n_params + robot.tracker.n_params:
-        # An x identified from tracker data: the poses in the tracker frame (docs/tracker.md).
-        return in_tracker_frame(robot, x, q, legs)
+    if x is not None and np.size(x) != robot.n_params:
+        # An x identified with an instrument's setup parameters (tracker data): the poses in
+        # the frame the data are given in (docs/tracker.md).
+        return in_data_frame(robot, x, q, legs)
     legs = as_matrix(legs, 6, "legs")
     n = legs.shape[0]
     q = as_matrix(q, robot.n_joints, "q", rows=n)
@@ -101,18 +102,19 @@ def forward_kinematics(
     return poses
 
 
-def in_tracker_frame(robot: Robot, x: Any, q: Any, legs: Any) -> np.ndarray:
-    """:func:`forward_kinematics` with a tracker ``x`` (robot then setup parameters): the
-    platform poses in the tracker frame {T}, ``(N, 6)``, by forward kinematics of the readings
-    with the robot's part of ``x`` and the identified registration. (Modulo the gauge of
-    docs/tracker.md: what tracker data determine.)"""
-    setup = robot.tracker
-    assert setup is not None
+def in_data_frame(robot: Robot, x: Any, q: Any, legs: Any) -> np.ndarray:
+    """:func:`forward_kinematics` with an ``x`` identified from the robot's instrument's data
+    (the robot's parameters, then the setup's: :func:`iwr.kinds.for_robot`): the platform poses
+    in the frame the data are given in (the tracker's {T}: its identified registration), ``(N,
+    6)``. (Modulo the gauge of docs/tracker.md: what tracker data determine.)"""
+    kind = kinds.for_robot(robot)
     x = np.asarray(x, dtype=float)
     nr = robot.n_params
-    if x.shape != (nr + setup.n_params,):
-        raise ValueError(f"x: shape {x.shape}; expected ({nr + setup.n_params},) for a robot "
-                         f"with a tracker, or ({nr},) for poses in {{0}}")
+    n = kind.n_params(robot)
+    if x.shape != (n,):
+        with_setup = (f"({n},) for robot {robot.name!r} with its {kind.name} setup, or "
+                      if n != nr else "")
+        raise ValueError(f"x: shape {x.shape}; expected {with_setup}({nr},) for poses in {{0}}")
     poses = forward_kinematics(robot, x[:nr], q, legs)
-    reg = setup.registration_matrix(x[nr:])
+    reg = kind.registration(robot, x[nr:])
     return np.array([pose_from_matrix(reg @ pose_matrix(p)) for p in poses])

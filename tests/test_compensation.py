@@ -339,16 +339,18 @@ def test_an_interrupted_engine_run_reported_is_refused_by_legs(sim, tmp_path):
 
 
 def test_calibration_status_order():
-    class Fit:
-        def __init__(self, ok: bool) -> None:
-            self.fit_ok = ok
+    from iwr.result import FitTest, IdentificationResult
 
-    assert calibration_status({"success": True, "status": "converged"}) == "success"
-    assert calibration_status({"success": True, "fit": Fit(False)}) == "failed fit test"
-    assert calibration_status({"success": False, "status": "interrupted",
-                               "fit": Fit(False)}) == "interrupted"
-    assert calibration_status({"success": False, "status": "stopped"}) == "not converged"
-    assert calibration_status({"success": False, "status": "failed"}) == "failed"
+    def result(success: bool, status: str, fit_ok: bool | None = None) -> IdentificationResult:
+        fit = None if fit_ok is None else FitTest(1.0, 1, 0.3, 1e-3, fit_ok, "verdict")
+        return IdentificationResult(x=[0.0], fun=0.0, nfev=1, success=success, status=status,
+                                    message="", fit=fit)
+
+    assert calibration_status(result(True, "converged")) == "success"
+    assert calibration_status(result(True, "converged", fit_ok=False)) == "failed fit test"
+    assert calibration_status(result(False, "interrupted", fit_ok=False)) == "interrupted"
+    assert calibration_status(result(False, "stopped")) == "not converged"
+    assert calibration_status(result(False, "failed")) == "failed"
 
 
 def test_a_successful_pose_calibration_records_success_and_legs_use_it(sim, tmp_path):

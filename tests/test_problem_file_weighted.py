@@ -302,7 +302,7 @@ def test_iwr_calibrate_noise_is_checked(tmp_path: Path) -> None:
     probe.to_toml(tmp_path / "probe.toml")
     proc = _calibrate(tmp_path / "probe.toml", data_path, "--noise", "realistic", "--output",
                       "r.json", cwd=tmp_path)
-    assert proc.returncode == 2 and "weighted objective is for reflector points" in proc.stderr
+    assert proc.returncode == 2 and "have no noise-weighted objective" in proc.stderr
     (tmp_path / "p.iwrp").write_bytes(b"")
     proc = _calibrate(tmp_path / "p.iwrp", "--noise", "realistic", cwd=tmp_path)
     assert proc.returncode == 2 and "--noise: the noise weighting of a problem file" in proc.stderr

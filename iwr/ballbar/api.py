@@ -97,7 +97,8 @@ def reading_sigmas(problem: BallbarProblem, x: Any, noise: Any) -> np.ndarray:
     return np.sqrt(var)
 
 
-def _weighted(problem: BallbarProblem, x0: np.ndarray, noise: Any) -> BallbarProblem:
+def weighted_problem(problem: BallbarProblem, x0: np.ndarray, noise: Any) -> BallbarProblem:
+    """``problem`` weighted by ``noise``: each distance by its standard deviation at ``x0``."""
     return problem.with_weights(1.0 / reading_sigmas(problem, x0, noise))
 
 
@@ -133,7 +134,7 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
                          "iwr.ballbar.BallbarNoise(...))")
     problem, start = ballbar_problem(robot, measurements, bounds, x0)
     if weighted:
-        problem = _weighted(problem, start, noise)
+        problem = weighted_problem(problem, start, noise)
     if isinstance(active, str) and active == "base":
         active = null_space(problem, start, NULL_RTOL).active
     mask = active_mask(problem, active)
@@ -277,7 +278,7 @@ def ballbar_uncertainty(robot: Robot, measurements: BallbarMeasurements, x: Any,
     if weighted and noise is None:
         raise ValueError("weighted=True needs a noise model")
     if weighted:
-        problem = _weighted(problem, np.zeros(problem.n_params), noise)
+        problem = weighted_problem(problem, np.zeros(problem.n_params), noise)
     n = problem.n_params
     if active is None:
         mask = null_space(problem, x, NULL_RTOL).active

@@ -20,6 +20,7 @@ from .api import (
     ballbar_problem,
     ballbar_setup,
     ballbar_uncertainty,
+    weighted_problem,
 )
 from .data import BallbarMeasurements
 from .files import read_ballbar
@@ -90,9 +91,13 @@ class BallbarKind(MeasurementKind):
         return simulate_ballbar(robot, ballbar_setup(robot), n_poses, seed=seed, x=x,
                                 noise=noise)
 
-    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None
-                ) -> tuple[Any, np.ndarray]:
-        return ballbar_problem(robot, data, bounds, x0)
+    engine = False  # no problem file (iwr-calibrate): iwr calibrate, iwr.identify
+    weighted_objective = True  # each distance by its propagated variance (ballbar_identify)
+
+    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
+                noise: Any = None) -> tuple[Any, np.ndarray]:
+        problem, start = ballbar_problem(robot, data, bounds, x0)
+        return (problem if noise is None else weighted_problem(problem, start, noise)), start
 
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
         return ballbar_identify(robot, data, method, **options)

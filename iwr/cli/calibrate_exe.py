@@ -265,12 +265,13 @@ def _noise(text: str | None, robot: Any, robot_path: str) -> Any:
             noise = noise_spec(text)
         except argparse.ArgumentTypeError as exc:
             raise _Usage(f"--noise: {exc}") from None
-    if robot.tracker is not None and robot.tracker.kind != "points":
-        raise _Usage(f"--noise: {robot_path} measures a {robot.tracker.kind}; the weighted "
-                     "objective is for reflector points (a probe's four points move rigidly: "
-                     "their covariance is singular): leave --noise out, or use the efficient "
-                     "estimator (iwr calibrate --noise ...)")
-    return for_robot(robot).reading_noise(noise)
+    kind = for_robot(robot)
+    if not kind.weighted_objective:
+        raise _Usage(f"--noise: {robot_path} measures {kind.description} ({kind.name} data), "
+                     "which have no noise-weighted objective (a probe's four points move "
+                     "rigidly: their covariance is singular): leave --noise out, or use the "
+                     "efficient estimator (iwr calibrate --noise ...)")
+    return kind.reading_noise(noise)
 
 
 def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
@@ -279,34 +280,27 @@ def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
     """The problem of ROBOT.toml DATA.csv (with the checks of ``iwr calibrate``), weighted by the
     noise model of ``--noise`` if any, the search's starting point (None: zeros) and the files
     it was made from."""
-    from ..measurements import Measurements
-    from ..problem import Problem
+    from ..kinds import for_robot
     from ..robot import Robot
-    from ..tracker.files import is_tracker_file
 
     robot = Robot.from_toml(robot_path)
     noise = _noise(noise_text, robot, robot_path)
     sources = {"robot": robot_path, "data": data_path}
-    if robot.tracker is None:
-        if readings is not None:
-            raise _Usage(f"--readings: only for a robot with a [tracker] table; {robot_path} has "
-                         "none (docs/tracker.md)")
-        if is_tracker_file(data_path):
-            raise _Usage(f"{data_path}: laser-tracker data (a 'pose' column), but {robot_path} "
-                         "has no [tracker] table describing the setup (registration, "
-                         "reflectors or probe): add one (docs/tracker.md)")
-        data = Measurements.from_csv(data_path, robot=robot)  # the checks of `iwr calibrate`
-        return Problem(robot, data, bounds=bounds, noise=noise), None, sources
-    from ..tracker.files import read_tracker_data
-    from ..tracker.start import tracker_problem
-
-    tdata = read_tracker_data(data_path, robot.tracker, readings)
+    kind = for_robot(robot)
+    if not kind.engine:
+        raise _Usage(f"{data_path}: {kind.name} data ({robot_path} measures "
+                     f"{kind.description}): iwr-calibrate's engine takes no problem of them; "
+                     "use iwr.identify or iwr calibrate (the Python methods, DE included)")
+    try:  # the checks of `iwr calibrate`; a file of another kind or an option it does not take
+        data = kind.read(data_path, robot, readings=readings)
+    except TypeError as exc:
+        raise _Usage(str(exc)) from None
     if readings is not None:
         sources["readings"] = readings
-    # As iwr.identify: the nominal robot and the closed-form registration guess, the setup's
-    # bounds about it.
-    problem, x0 = tracker_problem(robot, tdata, bounds, noise=noise)
-    return problem, x0, sources
+    # As iwr.identify: the nominal robot and the kind's start (the tracker's closed-form
+    # registration guess), the setup's bounds about it.
+    problem, x0 = kind.problem(robot, data, bounds, noise=noise)
+    return problem, (None if not np.any(x0) else x0), sources  # None: zeros
 
 
 def _resume_command(positional: list[str], own: dict[str, str], output: str, checkpoint: str,

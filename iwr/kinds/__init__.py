@@ -74,6 +74,9 @@ class MeasurementKind(abc.ABC):
     #: Whether the methods other than the efficient estimator minimise an objective weighted by
     #: a noise model on these data (:func:`iwr.identify` with ``noise=``).
     weighted_objective: ClassVar[bool] = False
+    #: Whether ``iwr-calibrate`` (the C++ engine) takes these data: their problem has a problem
+    #: file (``problem.save``).
+    engine: ClassVar[bool] = True
     #: The report of a calibration on these data, ``"module:Class"`` (a subclass of
     #: :class:`iwr.reporting.calibration.CalibrationReport`), imported by the report layer.
     report: ClassVar[str] = "iwr.reporting.calibration:CalibrationReport"
@@ -169,10 +172,12 @@ class MeasurementKind(abc.ABC):
     # -- the problem and the algorithms' per-kind part ---------------------------------------
 
     @abc.abstractmethod
-    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None
-                ) -> tuple[Any, np.ndarray]:
+    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
+                noise: Any = None) -> tuple[Any, np.ndarray]:
         """The least-squares problem of these data (``cost``, ``residuals``, ``jacobian``,
-        ``cost_batch``, ``lower``/``upper``, ``parameter_names``) and its default start."""
+        ``cost_batch``, ``lower``/``upper``, ``parameter_names``) and its default start;
+        weighted by ``noise`` (the form :meth:`reading_noise` gives) when given, for a kind
+        with a :attr:`weighted_objective` (ValueError for the others)."""
 
     @abc.abstractmethod
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
@@ -256,6 +261,12 @@ class MeasurementKind(abc.ABC):
         anything is identified (:class:`iwr.pose_frame.PoseFrameCheck`: ``ok``, ``diagnosis``,
         ``message``), or None when the kind has no such check."""
         return None
+
+    def registration(self, robot: Any, x_setup: Any = None) -> np.ndarray:
+        """The frame the data are given in, in {0} (a 4x4 transform): the identity for data in
+        {0}; the tracker's registration (at its setup parameters ``x_setup``, default the
+        robot's) for data in {T}."""
+        return np.eye(4)
 
     def reading_noise(self, noise: Any) -> Any:
         """``noise`` (an :class:`iwr.Noise`, ``"estimate"``, or the kind's own form) in the form

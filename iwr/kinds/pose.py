@@ -97,9 +97,9 @@ class PoseKind(MeasurementKind):
             return simulate_effects(robot, n_poses, seed=seed, x=x, noise=noise)
         return simulate_poses(robot, n_poses, seed=seed, x=x, noise=noise)
 
-    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None
-                ) -> tuple[Any, np.ndarray]:
-        problem = Problem(robot, data, bounds)
+    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
+                noise: Any = None) -> tuple[Any, np.ndarray]:
+        problem = Problem(robot, data, bounds, noise=noise)
         start = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
         return problem, start
 

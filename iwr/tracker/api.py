@@ -14,7 +14,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 from ..analysis.accuracy import Accuracy, PoseErrors
-from ..forward import in_tracker_frame
+from ..forward import in_data_frame
 from ..noise import split_noise
 from ..robot import Robot
 from ..transforms import rotation_angle
@@ -262,4 +262,4 @@ def tracker_forward_kinematics(robot: Robot, x: Any, q: Any, legs: Any) -> np.nd
     with the robot's part of ``x`` and the identified registration. (Modulo the gauge of
     docs/tracker.md: what tracker data determine.)"""
     _setup(robot)
-    return in_tracker_frame(robot, x, q, legs)
+    return in_data_frame(robot, x, q, legs)

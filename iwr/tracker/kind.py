@@ -123,9 +123,16 @@ class _TrackerKind(MeasurementKind):
                  noise: Any = None) -> tuple[Any, np.ndarray]:
         return tracker_simulate(robot, n_poses, seed=seed, x=x, noise=noise)
 
-    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None
-                ) -> tuple[Any, np.ndarray]:
-        return tracker_problem(robot, data, bounds, x0)
+    def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
+                noise: Any = None) -> tuple[Any, np.ndarray]:
+        if noise is not None and not self.weighted_objective:
+            raise ValueError(f"noise: {self.name} data have no noise-weighted objective (a "
+                             "probe's four points move rigidly: their covariance is singular); "
+                             "the efficient estimator weighs them by their noise")
+        return tracker_problem(robot, data, bounds, x0, noise=noise)
+
+    def registration(self, robot: Any, x_setup: Any = None) -> np.ndarray:
+        return robot.tracker.registration_matrix(x_setup)
 
     # -- the experiments ------------------------------------------------------------------------
 
