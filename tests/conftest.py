@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import signal
+from typing import Any
 
 import pytest
 
@@ -20,3 +21,55 @@ def sigint_handler():
     finally:
         signal.signal(signal.SIGINT, previous)
 
+
+
+# -- the measurement kinds (issue 21: tests parametrised over the kinds, not twin files) ---------
+
+#: Every registered kind of data a robot can be measured by, as the ``kind`` fixture gives them.
+KINDS = ("pose", "points", "probe", "ballbar")
+_REGISTRATION = (2000.0, -150.0, 300.0, 1.5, 0.01, -0.02)
+
+
+def robot_measured_by(name: str) -> Any:
+    """The default IWR robot with the instrument of kind ``name``."""
+    import iwr
+
+    robot = iwr.Robot.default()
+    if name == "points":
+        return robot.with_tracker(registration=_REGISTRATION, reflectors=[
+            (120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)])
+    if name == "probe":
+        return robot.with_tracker(registration=_REGISTRATION,
+                                  probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
+    if name == "ballbar":
+        return robot.with_instrument("ballbar", {
+            "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500],
+                  "range": [300, 700]},
+            "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400],
+                  "range": [300, 700]}})
+    assert name == "pose", name
+    return robot
+
+
+class KindCase:
+    """One kind's robot and noise-free simulated data (``name``, ``robot``, ``data``, ``truth``,
+    ``kind``: the :class:`iwr.kinds.MeasurementKind`)."""
+
+    def __init__(self, name: str, n_poses: int = 30, seed: int = 7) -> None:
+        import iwr
+        from iwr import kinds
+
+        self.name = name
+        self.robot = robot_measured_by(name)
+        self.data, self.truth = iwr.simulate(self.robot, n_poses, seed=seed)
+        self.kind = kinds.of(self.data)
+        assert self.kind.name == name and kinds.for_robot(self.robot) is self.kind
+
+    def __repr__(self) -> str:
+        return f"KindCase({self.name!r})"
+
+
+@pytest.fixture(scope="module", params=KINDS)
+def kind(request: pytest.FixtureRequest) -> KindCase:
+    """Each kind of data in turn: a test written once for every kind."""
+    return KindCase(request.param)

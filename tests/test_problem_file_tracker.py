@@ -35,43 +35,25 @@ def tracker(request: Any) -> tuple[TrackerProblem, np.ndarray]:
     return _problem(request.param, hidden=0.25 if request.param == "points" else 0.0)
 
 
-def test_round_trip_is_exact(tracker: tuple[TrackerProblem, np.ndarray], tmp_path: Path) -> None:
+def test_the_trackers_setup_and_unseen_reflectors_go_through(
+        tracker: tuple[TrackerProblem, np.ndarray], tmp_path: Path) -> None:
+    """What the kind-neutral round trip (test_problem_file.py) does not see: the setup's own
+    fields, and reflectors not seen (NaN) kept as such."""
     problem, x0 = tracker
-    active = np.ones(problem.n_params, dtype=bool)
-    active[[5, problem.n_params - 1]] = False
     path = tmp_path / "t.iwrp"
-    problem.save(path, x0=x0, active=active)
+    problem.save(path, x0=x0)
     back = TrackerProblem.load(path)
-    assert isinstance(iwr.Problem.load(path), TrackerProblem)
     s, b = problem.setup, back.setup
     assert (b.kind, b.names, b.probe_length) == (s.kind, s.names, s.probe_length)
     for attr in ("registration", "reflectors", "probe"):
         np.testing.assert_array_equal(getattr(b, attr), getattr(s, attr), err_msg=attr)
     assert back.robot.tracker is back.setup
+    np.testing.assert_array_equal(back.reference, problem.reference)
     m, mb = problem.measurements, back.measurements
-    assert (mb.kind, mb.joint_types) == (m.kind, m.joint_types)
-    for attr in ("q", "legs", "points", "probe"):
+    for attr in ("points", "probe"):
         np.testing.assert_array_equal(getattr(mb, attr), getattr(m, attr), err_msg=attr)
     if m.kind == "points":
-        assert np.isnan(m.points).any()  # the hidden reflectors went through as NaN
-    np.testing.assert_array_equal(back.reference, problem.reference)
-    np.testing.assert_array_equal(back.lower, problem.lower)
-    np.testing.assert_array_equal(back.upper, problem.upper)
-    assert back.parameter_names == problem.parameter_names
-    d = read_problem(path)
-    assert d["kind"] == m.kind and d["bounds_kind"] == "default"
-    np.testing.assert_array_equal(d["x0"], x0)
-    assert d["active"] == list(active)
-    X = np.random.default_rng(1).uniform(problem.lower, problem.upper, size=(6, problem.n_params))
-    np.testing.assert_array_equal(back.cost_batch(X, workers=1), problem.cost_batch(X, workers=1))
-    # Deterministic bytes: saving again writes the same file.
-    back.save(tmp_path / "again.iwrp", x0=x0, active=active)
-    assert (tmp_path / "again.iwrp").read_bytes() == path.read_bytes()
-    # The search start is part of the problem: another x0 is another robot fingerprint.
-    problem.save(tmp_path / "zero.iwrp")
-    z = read_problem(tmp_path / "zero.iwrp")
-    assert z["data_fingerprint"] == d["data_fingerprint"]
-    assert z["robot_fingerprint"] != d["robot_fingerprint"]
+        assert np.isnan(m.points).any() and np.isnan(mb.points).any()
 
 
 def test_leg_and_tracker_files_are_told_apart(tracker: tuple[TrackerProblem, np.ndarray],
