@@ -19,7 +19,6 @@ import pytest
 import iwr
 from iwr import kinds
 from iwr.problem_file import encode_problem
-from iwr.tracker.api import tracker_problem
 
 REPO = Path(__file__).resolve().parents[1]
 REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
@@ -35,36 +34,36 @@ def _robot(kind: str) -> iwr.Robot:
     return base
 
 
-@pytest.fixture(scope="module", params=["pose", "points", "probe"])
-def kind(request: Any) -> tuple[str, iwr.Robot, Any]:
-    robot = _robot(request.param)
-    data, _ = iwr.simulate(robot, 14, seed=4)
-    return request.param, robot, data
-
-
 def _file_fingerprint(robot: iwr.Robot, data: Any) -> str:
-    problem = (iwr.Problem(robot, data) if robot.tracker is None
-               else tracker_problem(robot, data)[0])
+    problem, _ = kinds.of(data).problem(robot, data)
     return str(iwr._core._decode_problem(encode_problem(problem), "")["data_fingerprint"])
 
 
+# The conftest's `kind` fixture gives every kind in turn (robot, noise-free data, the kind).
+FRAMES = {"pose": ("{0}", True), "points": ("{T}", False), "probe": ("{T}", False),
+          "ballbar": ("{0}", False)}
+
+
 def test_kind_of_data_and_robot(kind):
-    name, robot, data = kind
+    name, robot, data = kind.name, kind.robot, kind.data
     assert kinds.of(data).name == name and kinds.for_robot(robot).name == name
     assert kinds.of(data) is kinds.for_robot(robot)
-    assert kinds.of(data).frame == ("{0}" if name == "pose" else "{T}")
-    assert kinds.of(data).determines_world_frame == (name == "pose")
-    n_setup = 0 if robot.tracker is None else robot.tracker.n_params
+    assert (kinds.of(data).frame, kinds.of(data).determines_world_frame) == FRAMES[name]
+    n_setup = len(kinds.of(data).setup_parameter_names(robot))
     assert kinds.of(data).n_params(robot) == robot.n_params + n_setup
+    assert (n_setup == 0) == (name == "pose")
 
 
 def test_fingerprint_is_the_problem_files(kind):
     """The kind's fingerprint, computed from the data alone, is the one the problem file (and
-    so iwr-engine's result) records; another data set, or one reading changed, has another."""
-    _, robot, data = kind
+    so iwr-engine's result) records, for the kinds the engine takes; another data set, or one
+    reading changed, has another."""
+    robot, data = kind.robot, kind.data
     k = kinds.of(data)
     fp = k.fingerprint(robot, data)
-    assert len(fp) == 16 and fp == _file_fingerprint(robot, data)
+    assert len(fp) == 16
+    if k.engine:
+        assert fp == _file_fingerprint(robot, data)
     assert k.fingerprint(robot, k.subset(data, range(1, len(data)))) != fp
     legs = data.legs.copy()
     legs[3, 2] += 1e-9
@@ -87,7 +86,7 @@ def test_weighted_pose_fingerprint_is_the_problem_files():
 def test_one_split_for_every_kind(kind):
     """The same poses held out for every kind (the rule depends on N, the fraction and the seed
     only), each part in file order, the two parts a partition of the data."""
-    _, _, data = kind
+    data = kind.data
     ident, val = kinds.split(data, 0.2, seed=7)
     pose = iwr.simulate(iwr.Robot.default(), len(data), seed=1)[0]
     pose_ident, pose_val = kinds.split(pose, 0.2, seed=7)
@@ -106,13 +105,13 @@ def _rows(data: Any, part: Any) -> np.ndarray:
 
 @pytest.mark.parametrize("fraction", [0.01, 0.5, 0.9])
 def test_split_always_holds_one_out_and_keeps_one(kind, fraction):
-    _, _, data = kind
+    data = kind.data
     ident, val = kinds.split(data, fraction, seed=1)
     assert len(val) >= 1 and len(ident) >= 1 and len(ident) + len(val) == len(data)
 
 
 def test_split_refuses_what_leaves_nothing(kind):
-    _, _, data = kind
+    data = kind.data
     one = kinds.of(data).subset(data, [0])
     with pytest.raises(ValueError, match="leaves no pose for identification out of 1"):
         kinds.split(one, 0.2, seed=0)
@@ -124,25 +123,15 @@ def test_split_refuses_what_leaves_nothing(kind):
 
 
 def test_empty_subset_is_refused_by_name(kind):
-    _, _, data = kind
+    data = kind.data
     with pytest.raises(ValueError, match="no measurements"):
         kinds.of(data).subset(data, [])
 
 
-def test_subset_keeps_lines_and_source(kind):
-    name, robot, data = kind
-    d = tempfile.mkdtemp()
-    try:
-        path = Path(d) / "data.csv"
-        if name == "pose":
-            data.to_csv(path)
-        else:
-            from iwr.tracker.files import write_tracker_wide
-
-            write_tracker_wide(path, robot.tracker, data)
-        back = kinds.for_robot(robot).read(path, robot)
-    finally:
-        shutil.rmtree(d)
+def test_subset_keeps_lines_and_source(kind, tmp_path):
+    path = tmp_path / "data.csv"
+    kind.kind.write(kind.robot, kind.data, path)
+    back = kind.kind.read(path, kind.robot)
     part = kinds.of(back).subset(back, [2, 5])
     assert part.where(1) == back.where(5) and str(path) in part.where(0)
 
@@ -322,3 +311,18 @@ def test_analyze_reads_the_data_of_the_robots_kind(tmp_path):
     assert "iwr analyze --help" in proc.stderr
     proc = _run("analyze", str(REPO / "examples" / "iwr.toml"), str(wide))
     assert proc.returncode == 2 and "laser-tracker data" in proc.stderr  # a usage mistake
+
+
+def test_each_kind_recognises_its_own_files(kind, tmp_path):
+    """A file a kind writes is recognised by that kind alone (the pose kind, the fallback,
+    claims no file): what lets `iwr plan` take either the robot's own data or poses in {0}."""
+    from iwr import kinds
+
+    path = tmp_path / "data.csv"
+    kind.kind.write(kind.robot, kind.data, path)
+    others = [kinds.named(name) for name in ("pose", "points", "probe", "ballbar")]
+    claims = {k.name for k in others if k.recognises(path)}
+    tracker = {"points", "probe"}  # one file format, the robot's [tracker] table tells which
+    expected = set() if kind.kind.fallback else tracker if kind.name in tracker else {kind.name}
+    assert claims == expected
+    assert not kind.kind.recognises(tmp_path / "missing.csv")

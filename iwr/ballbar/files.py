@@ -31,6 +31,16 @@ def _columns(joint_types: str) -> list[str]:
             *_LEG_COLUMNS, "setup", "distance_mm"]
 
 
+def is_ballbar_file(path: str | os.PathLike[str]) -> bool:
+    """Whether a CSV file's header ends with the ballbar's ``setup`` and ``distance_mm``
+    columns, without checking the rest."""
+    try:
+        header, _, _, _ = _read_rows(Path(path))
+    except (MeasurementFileError, OSError):
+        return False
+    return header[-2:] == ["setup", "distance_mm"]
+
+
 def read_ballbar(path: str | os.PathLike[str], joint_types: str,
                  setup: BallbarSetup) -> BallbarMeasurements:
     """Read a ballbar CSV for a robot with ``joint_types`` and ``setup``; errors name the file,

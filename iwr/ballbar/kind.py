@@ -23,7 +23,7 @@ from .api import (
     weighted_problem,
 )
 from .data import BallbarMeasurements
-from .files import read_ballbar
+from .files import is_ballbar_file, read_ballbar
 from .setup import BallbarSetup
 from .simulate import simulate_ballbar
 
@@ -85,6 +85,9 @@ class BallbarKind(MeasurementKind):
         if given:
             raise TypeError(f"--{given[0]}: not an option of ballbar data")
         return read_ballbar(path, robot.joint_types, ballbar_setup(robot))
+
+    def recognises(self, path: str | os.PathLike[str]) -> bool:
+        return is_ballbar_file(path)
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:

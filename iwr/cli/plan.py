@@ -53,11 +53,11 @@ def cmd_plan(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", inputs=[args.robot, args.candidates], prog="iwr plan")
     robot = load_robot(args.robot)
     if args.candidates:
-        from ..tracker.files import is_tracker_file
+        from ..kinds import for_robot
 
-        if robot.tracker is not None and is_tracker_file(args.candidates):
-            # plan_poses takes tracker measurements as candidates (their poses by forward
-            # kinematics); the leg reader would stop at the 'pose' column.
+        if for_robot(robot).recognises(args.candidates):
+            # plan_poses takes the robot's own data as candidates (tracker data: their poses by
+            # forward kinematics); the pose reader would stop at their columns.
             from ._base import read_data
 
             cand = read_data(args.candidates, robot, prog="iwr plan")

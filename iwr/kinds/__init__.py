@@ -136,6 +136,13 @@ class MeasurementKind(abc.ABC):
         """Read a data file of this kind for ``robot``, with every check (errors name the file
         and line); TypeError naming an option the kind's files do not take."""
 
+    def recognises(self, path: str | os.PathLike[str]) -> bool:
+        """Whether the file at ``path`` looks like this kind's data (its header, nothing more
+        checked; False for a file that cannot be read): how a command that takes either this
+        kind's data or poses in {0} (``iwr plan``'s candidates) tells them apart. Default: no
+        file of its own."""
+        return False
+
     def write(self, robot: Any, data: Any, path: str | os.PathLike[str]) -> list[str]:
         """Write ``data`` (atomically) as the file(s) :meth:`read` reads back, ``path`` the main
         one; a description of each file written (``iwr simulate``). Default: the data's own

@@ -28,7 +28,7 @@ from .api import (
 )
 from .data import TrackerMeasurements
 from .estimation import TrackerSpec, tracker_misclosures
-from .files import read_tracker_data
+from .files import read_tracker_data, tracker_file_format
 from .problem import TrackerProblem, _whitening, point_covariances
 
 __all__ = ["PointsKind", "ProbeKind", "parameter_error_on"]
@@ -118,6 +118,9 @@ class _TrackerKind(MeasurementKind):
         if given:
             raise TypeError(f"--{given[0]}: not an option of {self.name} data")
         return read_tracker_data(path, robot.tracker, readings, targets)
+
+    def recognises(self, path: str | os.PathLike[str]) -> bool:
+        return tracker_file_format(path) is not None
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:
