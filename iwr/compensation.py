@@ -16,16 +16,18 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from . import kinds
 from .measurements import MAX_LENGTH_MM
 from .problem import predict_legs
-from .result import IdentificationResult
 from .robot import Robot
 from .transforms import pose_from_matrix, pose_matrix
+
+if TYPE_CHECKING:  # scipy.optimize's OptimizeResult: not for `import iwr`
+    from .result import IdentificationResult
 
 __all__ = ["CALIBRATION_STATUSES", "FRAMES", "CalibrationStatusError", "FrameError",
            "LegCommands", "TargetError", "calibration_status", "check_calibration",

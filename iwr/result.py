@@ -334,8 +334,9 @@ class IdentificationResult(OptimizeResult):
             "wall_time": jsonable(float(self.wall_time), finite_only=True),
             "settings": jsonable(self.settings),
             "history": hist,
-            **({"fit": jsonable(self.fit.to_dict())} if self.fit is not None else {}),
-            **({"outliers": [jsonable(asdict(o)) for o in self.outliers]}
+            **({"fit": jsonable(self.fit.to_dict(), finite_only=True)}
+               if self.fit is not None else {}),
+            **({"outliers": [jsonable(asdict(o), finite_only=True) for o in self.outliers]}
                if self.outliers is not None else {}),
             **({"gross_errors": self.gross_errors} if isinstance(self.gross_errors, str)
                else {}),

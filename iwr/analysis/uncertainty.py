@@ -11,7 +11,7 @@ singular, which is why the analysis is done with the other parameters held fixed
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -19,10 +19,12 @@ from .. import kinds
 from ..measurements import Measurements
 from ..noise import Noise
 from ..problem import Problem, predict_legs
-from ..result import IdentificationResult
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 from .identifiability import IdentifiabilityReport, identifiability
+
+if TYPE_CHECKING:  # scipy.optimize's OptimizeResult: not for `import iwr`
+    from ..result import IdentificationResult
 
 __all__ = ["Uncertainty", "uncertainty", "measurement_jacobians"]
 

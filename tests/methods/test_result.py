@@ -127,6 +127,12 @@ def test_the_file_keeps_the_fit_test_and_the_poses_left_out(tmp_path):
     back = iwr.load_result(tmp_path / "r.json")
     assert back.fit == fit and back.outliers == outliers
     assert back.gross_errors == "gross errors: Pope's test"
+    # A fit test without a statistic (no redundancy) is written null, as strict JSON, and reads NaN.
+    nan_fit = FitTest(float("nan"), 0, float("nan"), 1e-3, False, "no redundancy")
+    result(fit=nan_fit).save(tmp_path / "n.json")
+    json.loads((tmp_path / "n.json").read_text(),
+               parse_constant=lambda c: pytest.fail(f"not strict JSON: {c}"))
+    assert np.isnan(iwr.load_result(tmp_path / "n.json").fit.statistic)
     data = json.loads((tmp_path / "r.json").read_text())
     data["outliers"][0]["line"] = "seven"
     (tmp_path / "bad.json").write_text(json.dumps(data))
