@@ -192,3 +192,22 @@ def test_cli_export_refuses_a_nominal_of_another_robot(tmp_path, capsys):
     assert "not the same robot" in capsys.readouterr().err
     assert main(["export", str(tmp_path / "robot.toml"), "--grid", "13", "-o",
                  str(tmp_path / "e")]) == 2
+
+
+def test_a_robot_with_effects_exports_them_and_says_what_holds_the_geometry_only(
+        calibrated, tmp_path, capsys):
+    """The effects are not dropped silently: hexapod.json records them, and the command says
+    which files hold the geometry only (a controller's genhexkins has no compliance model)."""
+    from iwr.effects.api import realistic
+
+    _, _, cal = calibrated
+    robot = cal.with_effects(*realistic(cal))
+    d = hexapod_dict(robot)
+    assert set(d["effects"]) == {e.name for e in robot.effects}
+    assert "effects" not in hexapod_dict(cal)
+    robot.to_toml(tmp_path / "r.toml")
+    assert main(["export", str(tmp_path / "r.toml"), "--out", str(tmp_path / "x")]) == 0
+    out = capsys.readouterr().out
+    assert "hold the geometry only" in out and "hexapod.json records the effects" in out
+    back = json.loads((tmp_path / "x" / "hexapod.json").read_text())
+    assert back["effects"] == json.loads(json.dumps(d["effects"]))

@@ -84,4 +84,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     print(f"wrote {out}/:")
     for line in written:
         print(f"  {line}")
+    if robot.effects:
+        names = ", ".join(e.name for e in robot.effects)
+        print(f"note: {args.robot} has non-geometric effects ({names}): genhexkins.hal, "
+              "carriage.urdf and leg_corrections.csv hold the geometry only (the leg lengths "
+              "without the load and the temperature); hexapod.json records the effects; `iwr "
+              "legs` gives leg commands that include them (docs/effects.md)")
     return EXIT_OK

@@ -113,6 +113,9 @@ def hexapod_dict(robot: Robot, source: str | None = None) -> dict[str, Any]:
              "reading_stroke": [float(v) for v in robot.leg_stroke[j]]}
             for j in range(6)],
         "home_pose": [float(v) for v in robot.home_pose],
+        # The non-geometric effects (issue 23, docs/effects.md): what a controller must add to
+        # the geometry's leg lengths under each move's load and temperature.
+        **({"effects": {e.name: e.to_dict() for e in robot.effects}} if robot.effects else {}),
     }
 
 
