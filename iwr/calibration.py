@@ -482,10 +482,12 @@ def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, no
             active = result.active if report is None else report
             objective = dict(result.settings).get("objective")
             if isinstance(objective, dict) and objective.get("weighted"):
+                if noise is None:  # a result read back: the noise model it recorded
+                    noise = kinds.of(data).noise_from_record(objective)
                 unc = uncertainty(robot, data, result.x, noise, active=active, weighted=True)
             else:
                 unc = uncertainty(robot, data, result.x, active=active)
-    except (ValueError, TypeError) as exc:
+    except (ValueError, TypeError, KeyError) as exc:
         notes.append(f"note: no standard deviations: {_one_line(exc)}")
         return None
     return unc

@@ -264,3 +264,21 @@ def test_from_result_refuses_left_out_lines_the_data_do_not_have():
     cal = from_result(robot, data, result)
     assert len(cal.identification) == 19 and 5 not in cal.identification.lines
     assert any("line(s) 5" in n for n in cal.notes)
+
+
+@pytest.mark.parametrize("name", ["pose", "points"])
+def test_report_of_a_weighted_result_has_its_standard_deviations(name, tmp_path):
+    """A noise-weighted result records its noise model (the kind's noise record), so that `iwr
+    report` of it gives the standard deviations the job gave (it said "no standard deviations":
+    the report had no noise model to weigh by)."""
+    robot = iwr.Robot.default() if name == "pose" else _tracker_robot(name)
+    noise = (iwr.Noise.realistic() if name == "pose"
+             else (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6),
+                   TrackerNoise.leica()))
+    data, _ = iwr.simulate(robot, 40, seed=3, noise=noise)
+    cal = iwr.calibrate(robot, data, "lm", noise=noise, validation_fraction=0)
+    assert cal.uncertainty is not None
+    cal.result.save(tmp_path / "r.json")
+    back = from_result(robot, data, iwr.load_result(tmp_path / "r.json"))
+    assert back.uncertainty is not None, back.notes
+    np.testing.assert_allclose(back.uncertainty.std, cal.uncertainty.std, rtol=1e-6)

@@ -14,6 +14,7 @@ import numpy as np
 from scipy import special
 from scipy.optimize import least_squares
 
+from .. import kinds
 from ..analysis.accuracy import Accuracy, PoseErrors, pose_errors
 from ..analysis.uncertainty import Uncertainty
 from ..robot import Robot
@@ -158,7 +159,8 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     result["fun"] = problem.cost(result.x)
     if weighted:
         result["settings"] = {**dict(result.settings),
-                              "objective": {"weighted": True, "noise": repr(noise)}}
+                              "objective": {"weighted": True,
+                                            **kinds.of(measurements).noise_record(noise)}}
     bad = problem.failures(result.x)
     if bad:
         k, msg = bad[0]

@@ -8,11 +8,13 @@ from __future__ import annotations
 import hashlib
 import os
 from collections.abc import Mapping
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
 
 from ..kinds import MeasurementKind
+from ..noise import Noise
 from .api import (
     ballbar_accuracy,
     ballbar_identifiability,
@@ -25,7 +27,7 @@ from .api import (
 from .data import BallbarMeasurements
 from .files import is_ballbar_file, read_ballbar
 from .setup import BallbarSetup
-from .simulate import simulate_ballbar
+from .simulate import BallbarNoise, simulate_ballbar, split_noise
 
 __all__ = ["BallbarKind"]
 
@@ -85,6 +87,16 @@ class BallbarKind(MeasurementKind):
         if given:
             raise TypeError(f"--{given[0]}: not an option of ballbar data")
         return read_ballbar(path, robot.joint_types, ballbar_setup(robot))
+
+    def noise_record(self, noise: Any) -> dict[str, Any]:
+        readings, bar = split_noise(noise)
+        return {"noise": None if readings is None else asdict(readings),
+                "ballbar_noise": None if bar is None else asdict(bar)}
+
+    def noise_from_record(self, record: dict[str, Any]) -> Any:
+        readings, bar = record.get("noise"), record.get("ballbar_noise")
+        return (None if readings is None else Noise(**readings),
+                None if bar is None else BallbarNoise(**bar))
 
     def recognises(self, path: str | os.PathLike[str]) -> bool:
         return is_ballbar_file(path)

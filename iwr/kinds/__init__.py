@@ -157,6 +157,13 @@ class MeasurementKind(abc.ABC):
 
         return {"noise": dataclasses.asdict(noise)}
 
+    def noise_from_record(self, record: dict[str, Any]) -> Any:
+        """The noise model :meth:`noise_record` wrote (a result's weighted objective, a truth
+        file), in :meth:`reading_noise`'s form. Default: ``Noise(**record["noise"])``."""
+        from ..noise import Noise
+
+        return Noise(**record["noise"])
+
     def rows(self, data: Any) -> np.ndarray:
         """Each pose's readings and measurements as one row (N, k), NaN where nothing was seen:
         two equal rows are the same pose measured twice

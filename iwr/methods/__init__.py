@@ -41,7 +41,6 @@ cost itself cannot be judged (a local minimum with plausible parameters passes):
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
@@ -236,7 +235,7 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
             result["cost_eq10"] = Problem(robot, measurements, bounds).cost(result.x)
             # Said in the settings too, so that a saved result's fun is not read as eq. (10)'s.
             result["settings"] = {**dict(result.settings), "objective": {
-                "weighted": True, "noise": dataclasses.asdict(noise),
+                "weighted": True, **kinds.of(measurements).noise_record(noise),
                 "cost_eq10": float(result["cost_eq10"])}}
     except KeyboardInterrupt:
         result.update(success=False, status="interrupted",

@@ -5,7 +5,6 @@ robot carries a tracker setup (``Robot.with_tracker``) and the data are
 
 from __future__ import annotations
 
-import dataclasses
 import time
 from collections.abc import Callable
 from typing import Any
@@ -13,6 +12,7 @@ from typing import Any
 import numpy as np
 from scipy.optimize import OptimizeResult
 
+from .. import kinds
 from ..analysis.accuracy import Accuracy, PoseErrors
 from ..forward import in_data_frame
 from ..noise import split_noise
@@ -112,7 +112,6 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     chi-square test of the fit (:func:`iwr.estimation.fit_check`: the noise-weighted statistic
     minimised to first order around ``x``) to "converged", on reflector points; probe data take
     a noise model in the efficient estimator only."""
-    from .. import kinds
     from ..methods import METHODS, _check_fit
     from ..methods.reduced import ReducedProblem, active_mask
 
@@ -175,11 +174,9 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     if weighted:
         result["cost_eq10"] = problem.cost_unweighted(result.x)
         # Said in the settings too, so that a saved result's fun is not read as unweighted.
-        readings, tracker = problem.noise
         result["settings"] = {**dict(result.settings), "objective": {
-            "weighted": True, "cost_eq10": float(result["cost_eq10"]), "noise": {
-                "readings": None if readings is None else dataclasses.asdict(readings),
-                "tracker": None if tracker is None else dataclasses.asdict(tracker)}}}
+            "weighted": True, "cost_eq10": float(result["cost_eq10"]),
+            **kinds.of(measurements).noise_record(problem.noise)}}
     bad = problem.failures(result.x)
     if bad:
         k, msg = bad[0]

@@ -111,6 +111,11 @@ class _TrackerKind(MeasurementKind):
         return {"noise": None if readings is None else asdict(readings),
                 "tracker_noise": None if tracker is None else asdict(tracker)}
 
+    def noise_from_record(self, record: dict[str, Any]) -> Any:
+        readings, tracker = record.get("noise"), record.get("tracker_noise")
+        return (None if readings is None else Noise(**readings),
+                None if tracker is None else TrackerNoise(**tracker))
+
     def read(self, path: str | os.PathLike[str], robot: Any, **options: Any) -> Any:
         readings = options.pop("readings", None)
         targets = options.pop("targets", None)  # a target list's format (iwr.tracker.sa_export)
