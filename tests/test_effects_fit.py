@@ -1,0 +1,89 @@
+"""Issue 23, the estimation side: the implicit loop model with effects (its exact derivatives in
+the parameters and the reading corrections against central differences), the numpy implicit
+loop solver against the C++ one, and the noise-weighted LM, the efficient estimator, its fit test,
+the uncertainty and the predicted accuracy on pose data with effects (docs/effects.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr.effects import api, model
+from iwr.implicit_loop import loop_jacobians
+from iwr.transforms import pose_from_matrix, pose_matrix, rotvec_matrix
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return iwr.Robot.default()
+
+
+@pytest.fixture(scope="module")
+def with_effects(robot):
+    return robot.with_effects(*api.realistic(robot))
+
+
+def _central(f, x, i, h):
+    xp, xm = x.copy(), x.copy()
+    xp[i] += h
+    xm[i] -= h
+    return (f(xp) - f(xm)) / (2 * h)
+
+
+@pytest.mark.parametrize("variant", ["both", "compliance", "thermal"])
+def test_loop_model_with_effects_and_its_exact_derivatives(robot, variant):
+    comp, therm = api.realistic(robot)
+    effects = {"both": (comp, therm), "compliance": (comp,), "thermal": (therm,)}[variant]
+    rob = robot.with_effects(*effects)
+    m, x = api.simulate(rob, 8, seed=5, noise=iwr.Noise.realistic())
+    rng = np.random.default_rng(2)
+    nj = rob.n_joints
+    corr = np.hstack([1e-3 * rng.standard_normal((8, nj)), 0.05 * rng.standard_normal((8, 3)),
+                      0.02 * rng.standard_normal((8, 3))])  # w large enough that J_r(w) != I
+    legs, jx, jy = loop_jacobians(rob, x, m.q, m.poses, corr, data=m)
+    # The readings: the effects' numpy model (iwr.effects.model) at the corrected readings.
+    t = pose_matrix(m.poses)
+    t[:, :3, :3] = t[:, :3, :3] @ rotvec_matrix(corr[:, nj + 3:])
+    t[:, :3, 3] += corr[:, nj: nj + 3]
+    ref = model.predicted_readings(rob, x, m.q + corr[:, :nj], pose_from_matrix(t), m)
+    assert np.abs(legs - ref).max() < 1e-9
+    # No effect on: the geometry's (the effects change the readings by tens of um).
+    geo = loop_jacobians(robot, x[: robot.n_params], m.q, m.poses, corr)[0]
+    assert np.abs(legs - geo).max() > 1e-3
+    # The derivatives of the effects' change of the legs (predicted by the geometry alone minus
+    # with the effects: micrometres, whose derivatives are 1e-5 of the geometry's) against
+    # central differences of that change, so that a missing term shows.
+    ng = robot.n_params
+
+    def change(y, c):
+        return (loop_jacobians(robot, y[:ng], m.q, m.poses, c)[0]
+                - loop_jacobians(rob, y, m.q, m.poses, c, data=m)[0])
+
+    _, gx, gy = loop_jacobians(robot, x[:ng], m.q, m.poses, corr)
+    dcx = np.concatenate([gx - jx[..., :ng], -jx[..., ng:]], axis=2)
+    dcy = gy - jy
+    for i in range(x.size):
+        h = 1e-3 if i < ng else 1e-4
+        fd = _central(lambda y: change(y, corr), x, i, h)
+        assert np.abs(fd - dcx[..., i]).max() <= 1e-5 * np.abs(dcx).max() + 1e-4 * np.abs(
+            dcx[..., i]).max(), i
+    for i in range(corr.shape[1]):
+        h = 1e-4 if i >= nj + 3 else 1e-3
+        fd = _central(lambda c: change(x, c.reshape(corr.shape)), corr.ravel(),
+                      np.ravel_multi_index((np.arange(8), np.full(8, i)), corr.shape), h)
+        assert np.abs(fd - dcy[..., i]).max() <= 1e-4 * np.abs(dcy[..., i]).max() + 1e-12, i
+    # And the whole: the geometry's derivatives (from the core) plus the effects'.
+    for i in range(corr.shape[1]):
+        fd = _central(lambda c: loop_jacobians(rob, x, m.q, m.poses, c.reshape(corr.shape),
+                                               data=m)[0], corr.ravel(),
+                      np.ravel_multi_index((np.arange(8), np.full(8, i)), corr.shape), 1e-6)
+        assert np.abs(fd - jy[..., i]).max() < 2e-6 * max(1.0, np.abs(jy[..., i]).max()), i
+
+
+def test_loop_model_with_effects_needs_the_loads_and_the_full_x(with_effects):
+    m, x = api.simulate(with_effects, 4, seed=1)
+    with pytest.raises(ValueError, match="data: robot 'IWR' has effects on"):
+        loop_jacobians(with_effects, x, m.q, m.poses)
+    with pytest.raises(ValueError, match="then leg1.compliance"):
+        loop_jacobians(with_effects, x[:58], m.q, m.poses, data=m)
