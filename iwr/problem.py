@@ -8,6 +8,7 @@ import numpy as np
 
 from . import _core
 from ._hooks import hook
+from .effects import parameter_names as _effect_names
 from .effects import refuse as _refuse_effects
 from .measurements import Measurements, as_matrix
 from .robot import Robot
@@ -90,11 +91,14 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
 
     if not isinstance(noise, Noise):
         raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
-    x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
+    # With effects (issue 23): x also holds the effects' parameters, and the loop closure
+    # takes each pose's load and temperature (``data``; ignored without effects).
+    x = (np.zeros(robot.n_params + len(_effect_names(robot.effects))) if x is None
+         else np.asarray(x, dtype=float))
     plain = Measurements(measurements.q, measurements.poses, measurements.legs,
                          joint_types=measurements.joint_types)
     sig = sigma_matrix(robot, plain, noise)
-    _, _, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+    _, _, jy = loop_jacobians(robot, x, measurements.q, measurements.poses, data=measurements)
     cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
     if measurements.weights is not None:
         d = np.sqrt(measurements.weights)

@@ -87,3 +87,72 @@ def test_loop_model_with_effects_needs_the_loads_and_the_full_x(with_effects):
         loop_jacobians(with_effects, x, m.q, m.poses)
     with pytest.raises(ValueError, match="then leg1.compliance"):
         loop_jacobians(with_effects, x[:58], m.q, m.poses, data=m)
+
+
+def test_numpy_loop_solver_agrees_with_the_core(robot):
+    """The numpy implicit loop solver (iwr.effects.solver, what the efficient estimator runs with
+    effects) on the geometric model against the C++ solver (_core.implicit_loop): the same
+    solution, cost, covariance and statistics."""
+    from iwr import _core
+    from iwr.effects.estimation import loop_residuals
+    from iwr.effects.solver import solve_in_stages
+    from iwr.implicit_loop import sigma_matrix
+
+    m, _ = iwr.simulate(robot, 40, seed=7, noise=iwr.Noise.realistic())
+    sigma = sigma_matrix(robot, m, iwr.Noise.realistic())
+    idx = [int(i) for i in np.flatnonzero(iwr.identifiability(robot, m).active)]
+    x0 = np.zeros(robot.n_params)
+    ny = robot.n_joints + 6
+    ref = _core.implicit_loop(robot._geometry, x0, idx, m.q, m.poses, m.legs, sigma,
+                              np.zeros((40, ny)), max_iterations=200, callback=None)
+    out = solve_in_stages(lambda s: loop_residuals(robot, m, s), x0, idx, sigma,
+                          np.zeros((40, ny)))
+    assert out["status"] > 0 and ref["status"] > 0
+    sd = np.sqrt(np.diag(ref["covariance"]))
+    assert np.max(np.abs(out["x"][idx] - ref["x"][idx]) / sd) < 1e-4
+    assert out["cost"] == pytest.approx(ref["cost"], rel=1e-8)
+    assert out["dof"] == ref["dof"] and np.array_equal(out["pose_dof"], ref["pose_dof"])
+    assert np.abs(out["covariance"] - ref["covariance"]).max() < 1e-6 * np.abs(
+        ref["covariance"]).max()
+    for key in ("residuals", "redundancy", "pose_statistic", "corrections"):
+        assert np.abs(out[key] - ref[key]).max() < 1e-6 * max(1.0, np.abs(ref[key]).max()), key
+    assert out["reciprocal_condition"] == pytest.approx(ref["reciprocal_condition"], rel=1e-6)
+
+
+@pytest.fixture(scope="module")
+def noisy(with_effects):
+    return api.simulate(with_effects, 60, seed=11, noise=iwr.Noise.realistic())
+
+
+def test_efficient_estimator_and_weighted_lm_with_effects(robot, with_effects, noisy):
+    """Realistic noise on every instrument: the efficient estimator with the effects fits (its
+    chi-square test passes) and recovers the effects' parameters within their standard
+    deviations; the noise-weighted LM reaches the same statistic (first order); the geometric
+    calibration of the same data fails its test."""
+    m, xt = noisy
+    noise = iwr.Noise.realistic()
+    ng = robot.n_params
+    # (Outlier removal off: at alpha 1e-3 it may take out a clean pose, which the weighted LM
+    # compared below keeps.)
+    r = iwr.identify(with_effects, m, "efficient", noise=noise, outliers="off")
+    assert r.success and r.fit_ok, r.message
+    assert r.parameter_names[ng:] == [f"leg{j}.compliance" for j in range(1, 7)] + ["legs.alpha"]
+    assert r.active[ng:].all()
+    z = (r.x[ng:] - xt[ng:]) / r.std[ng:]
+    assert np.abs(z).max() < 4.0, z
+    assert r.predicted is not None and 0 < r.predicted.position_rms < 0.05
+    w = iwr.identify(with_effects, m, "lm", noise=noise, active=r.active)
+    assert w.success, w.message
+    assert w.fit.statistic == pytest.approx(r.fit.statistic, rel=1e-3)
+    assert w.fit.dof == r.fit.dof
+    assert np.max(np.abs(w.x - r.x)[r.active] / r.std[r.active]) < 0.05
+    # Its uncertainty: the whitened Jacobian's, as the estimator's covariance (both first order).
+    u = iwr.uncertainty(with_effects, m, w.x, noise, weighted=True, active=r.active)
+    assert u.parameter_names == r.parameter_names
+    assert np.allclose(u.std[ng:], r.std[ng:], rtol=0.05)
+    # Eq. (10) with every instrument's noise propagated (sandwich): not smaller than the
+    # weighted estimate's (which is efficient), not wildly larger.
+    u10 = iwr.uncertainty(with_effects, m, w.x, noise, active=r.active)
+    assert np.all(u10.std[ng:] > 0.95 * u.std[ng:]) and np.all(u10.std[ng:] < 3 * u.std[ng:])
+    g = iwr.identify(robot, m, "efficient", noise=noise)
+    assert not g.fit_ok and g.fit.p_value < 1e-6
