@@ -36,8 +36,9 @@ __all__ = ["EffectPoseSpec", "loop_residuals"]
 
 def loop_residuals(robot: Any, data: Any, sigma: np.ndarray) -> Any:
     """The per-pose normalised residuals of the implicit loop (with the robot's effects, if
-    any: :func:`iwr.implicit_loop.loop_jacobians`), as the C++ pose model's (``legs_and_priors``): ``(predicted - measured legs) / sigma_legs``, then each
-    correction over its sigma (0 where the reading is exact), and their derivatives; a
+    any: :func:`iwr.implicit_loop.loop_jacobians`), as the C++ pose model's
+    (``legs_and_priors``): ``(predicted - measured legs) / sigma_legs``, then each correction
+    over its sigma (0 where the reading is exact), and their derivatives; a
     :data:`iwr.effects.solver.LoopModel`. ``sigma`` (N, 12 + n_joints) as
     :func:`iwr.implicit_loop.sigma_matrix`."""
     n, ny = len(data), robot.n_joints + 6
