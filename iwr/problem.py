@@ -75,6 +75,10 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
     D_k^1/2`` and ``D_k = diag(w_k)``: ``r_k^T S_k^-1 r_k`` for the legs' variance divided by
     ``w``, and a weight of 0 leaves that leg out (as in eq. 10) rather than failing.
 
+    A robot with effects (docs/effects.md): ``x`` holds the geometric errors then the effects'
+    parameters (default zeros of that length), and ``J_k`` is the loop closure's with the
+    effects under pose k's load and temperature (:func:`iwr.implicit_loop.loop_jacobians`).
+
     Returns
     -------
     ndarray, shape (N, 6, 6)
