@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from .effects import parameter_names as effect_names
 from .implicit_loop import _core_rotations, loop_jacobians
 from .measurements import Measurements
 from .robot import Robot
@@ -76,7 +77,7 @@ def predicted_accuracy(
     robot : Robot
     measurements : Measurements
         Poses at which to predict (the joint and leg readings, and the poses as linearisation
-        points).
+        points; with effects, their loads and temperatures).
     x : array_like, shape (n_params,)
         The identified parameters.
     covariance : array_like, shape (n_active, n_active)
@@ -94,8 +95,11 @@ def predicted_accuracy(
     mask = np.asarray(active, dtype=bool)
     cov = np.asarray(covariance, dtype=float)
     p = int(mask.sum())
-    if mask.shape != (robot.n_params,):
-        raise ValueError(f"active: shape {mask.shape}; expected ({robot.n_params},)")
+    # With effects (issue 23): x and active also cover the effects' parameters, and the loop
+    # closure takes each pose's load and temperature from the measurements.
+    n_all = robot.n_params + len(effect_names(robot.effects))
+    if mask.shape != (n_all,):
+        raise ValueError(f"active: shape {mask.shape}; expected ({n_all},)")
     if cov.shape != (p, p):
         raise ValueError(f"covariance: shape {cov.shape}; expected ({p}, {p}) for {p} active "
                          "parameters")
@@ -103,7 +107,7 @@ def predicted_accuracy(
     # Linearised at the measured poses: the calibrated model's forward kinematics would move them
     # by the calibration residual (micrometres), a relative 1e-6 change of the covariance.
     poses = measurements.poses
-    _, jx, jy = loop_jacobians(robot, x, measurements.q, poses)
+    _, jx, jy = loop_jacobians(robot, x, measurements.q, poses, data=measurements)
     nj = robot.n_joints
     jpose = jy[:, :, nj:]  # (N, 6, 6): d legs / d (dp, w)
     g = -np.linalg.solve(jpose, jx[:, :, mask])  # (N, 6, p): d (dp, w) / d x

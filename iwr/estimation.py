@@ -118,7 +118,8 @@ def pose_misclosures(robot: Robot, measurements: Measurements, x: Any, noise: An
     (:func:`sigma_matrix`), or, without one, eq. (10)'s metric ``1 / w`` per leg."""
     from .misclosures import Misclosures
 
-    legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+    legs, jx, jy = loop_jacobians(robot, x, measurements.q, measurements.poses,
+                                  data=measurements)
     n = len(measurements)
     r = legs - measurements.legs
     b = np.concatenate([np.broadcast_to(-np.eye(6), (n, 6, 6)), jy], axis=2)

@@ -11,7 +11,6 @@ from typing import Any
 import numpy as np
 
 from . import _core
-from .effects import refuse as refuse_effects
 from .measurements import Measurements, as_matrix
 from .noise import Noise
 from .robot import Robot
@@ -62,7 +61,7 @@ def sigma_matrix(robot: Robot, measurements: Measurements, noise: Noise) -> np.n
 
 
 def loop_jacobians(
-    robot: Robot, x: Any, q: Any, poses: Any, corrections: Any = None
+    robot: Robot, x: Any, q: Any, poses: Any, corrections: Any = None, *, data: Any = None
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Predicted leg readings at corrected readings and their exact derivatives.
 
@@ -70,18 +69,24 @@ def loop_jacobians(
     rotation vector ``w`` in the platform frame, as :func:`iwr.simulate` applies orientation
     noise), with ``corrections`` rows ``(dq, dp, w)`` (default zeros).
 
+    A robot with effects (docs/effects.md): ``x`` holds the geometric errors then the effects'
+    parameters, ``data`` (the :class:`iwr.Measurements`, or any object with their ``payload``
+    and ``temperatures``) gives each pose's load and temperature, and the predicted readings are
+    the geometry's minus the effects' change of each leg (:func:`iwr.effects.loop.loop_jacobians`).
+
     Returns
     -------
     legs : ndarray, shape (N, 6)
     d_x : ndarray, shape (N, 6, n_params)
-        Derivatives with respect to the error parameters.
+        Derivatives with respect to the error parameters (and the effects' parameters).
     d_corrections : ndarray, shape (N, 6, n_joints + 6)
         Derivatives with respect to ``(dq, dp, w)``.
     """
-    refuse_effects(robot, "loop_jacobians")  # issue 23: iwr/effects models them
     poses = as_matrix(poses, 6, "poses")
     n = poses.shape[0]
     q = as_matrix(q, robot.n_joints, "q", rows=n)
+    if robot.effects:  # issue 23: the effects' change of the legs on top of the geometry
+        return _effect_loop_jacobians(robot, x, q, poses, corrections, data)
     x = np.ascontiguousarray(x, dtype=float)
     if x.shape != (robot.n_params,):
         raise ValueError(f"x: shape {x.shape}; expected ({robot.n_params},)")
@@ -89,6 +94,26 @@ def loop_jacobians(
             else as_matrix(corrections, robot.n_joints + 6, "corrections", rows=n))
     legs, jx, jy = _core.loop_jacobians(robot._geometry, x, q, poses, corr)
     return legs, jx.reshape(n, 6, -1), jy.reshape(n, 6, -1)
+
+
+def _effect_loop_jacobians(robot: Robot, x: Any, q: np.ndarray, poses: np.ndarray,
+                           corrections: Any, data: Any) -> tuple[np.ndarray, np.ndarray,
+                                                                 np.ndarray]:
+    from .effects import parameter_names
+    from .effects.loop import loop_jacobians as effect_loop
+
+    if data is None:
+        names = ", ".join(e.name for e in robot.effects)
+        raise ValueError(f"data: robot {robot.name!r} has effects on ({names}); give the "
+                         "poses' loads and temperatures (data=the iwr.Measurements)")
+    n_all = robot.n_params + len(parameter_names(robot.effects))
+    x = np.ascontiguousarray(x, dtype=float)
+    if x.shape != (n_all,):
+        raise ValueError(f"x: shape {x.shape}; expected ({n_all},): {robot.n_params} geometric "
+                         "errors, then " + ", ".join(parameter_names(robot.effects)))
+    corr = (None if corrections is None
+            else as_matrix(corrections, robot.n_joints + 6, "corrections", rows=len(poses)))
+    return effect_loop(robot, x, q, poses, data, corr)
 
 
 def _core_rotations(poses: np.ndarray) -> np.ndarray:

@@ -8,6 +8,7 @@ import numpy as np
 
 from . import _core
 from ._hooks import hook
+from .effects import parameter_names as _effect_names
 from .effects import refuse as _refuse_effects
 from .measurements import Measurements, as_matrix
 from .robot import Robot
@@ -74,6 +75,10 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
     D_k^1/2`` and ``D_k = diag(w_k)``: ``r_k^T S_k^-1 r_k`` for the legs' variance divided by
     ``w``, and a weight of 0 leaves that leg out (as in eq. 10) rather than failing.
 
+    A robot with effects (docs/effects.md): ``x`` holds the geometric errors then the effects'
+    parameters (default zeros of that length), and ``J_k`` is the loop closure's with the
+    effects under pose k's load and temperature (:func:`iwr.implicit_loop.loop_jacobians`).
+
     Returns
     -------
     ndarray, shape (N, 6, 6)
@@ -90,11 +95,14 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
 
     if not isinstance(noise, Noise):
         raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
-    x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
+    # With effects (issue 23): x also holds the effects' parameters, and the loop closure
+    # takes each pose's load and temperature (``data``; ignored without effects).
+    x = (np.zeros(robot.n_params + len(_effect_names(robot.effects))) if x is None
+         else np.asarray(x, dtype=float))
     plain = Measurements(measurements.q, measurements.poses, measurements.legs,
                          joint_types=measurements.joint_types)
     sig = sigma_matrix(robot, plain, noise)
-    _, _, jy = loop_jacobians(robot, x, measurements.q, measurements.poses)
+    _, _, jy = loop_jacobians(robot, x, measurements.q, measurements.poses, data=measurements)
     cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
     if measurements.weights is not None:
         d = np.sqrt(measurements.weights)

@@ -40,20 +40,20 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("problems: the objective, the implicit loop, the result type", [
         "iwr.implicit_loop", "iwr.problem", "iwr.tracker.problem", "iwr.tracker.registration",
         "iwr.tracker.gauge", "iwr.tracker.start", "iwr.ballbar.problem",
-        "iwr.methods.reduced", "iwr.result", "iwr.effects.problem"]),
+        "iwr.methods.reduced", "iwr.result", "iwr.effects.problem", "iwr.effects.loop"]),
     ("the problem file (iwr-engine's input and result)", ["iwr.problem_file"]),
     ("solvers, the efficient estimator and the fit test", [
         "iwr.methods.*", "iwr.estimation", "iwr.fit_test", "iwr.accuracy_prediction",
-        "iwr.tracker.estimation"]),
+        "iwr.tracker.estimation", "iwr.effects.solver"]),
     ("public functions: identify, accuracy, identifiability, uncertainty, planning, simulate", [
         "iwr.methods", "iwr.analysis", "iwr.analysis.*", "iwr.planning", "iwr.simulation",
         "iwr.forward", "iwr.pose_frame", "iwr.compensation", "iwr.gross_errors",
         "iwr.tracker", "iwr.tracker.*", "iwr.ballbar", "iwr.ballbar.*", "iwr.export",
-        "iwr.export.*", "iwr.effects.api"]),
+        "iwr.export.*", "iwr.effects.api", "iwr.effects.estimation"]),
     ("kind implementations (reached through the kinds' registry)", [
         "iwr.kinds.pose", "iwr.tracker.kind", "iwr.ballbar.kind"]),
     ("the calibration job", ["iwr.calibration"]),
-    ("experiments", ["iwr.experiments", "iwr.experiments.*"]),
+    ("experiments", ["iwr.experiments", "iwr.experiments.*", "iwr.effects.study"]),
     ("reports", ["iwr.reporting", "iwr.reporting.*"]),
     ("command line", ["iwr.cli", "iwr.cli.*", "iwr.__main__"]),
     ("the package's public names", ["iwr"]),

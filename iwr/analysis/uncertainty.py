@@ -226,19 +226,29 @@ def pose_uncertainty(robot: Robot, measurements: Measurements, x: Any,
     """:func:`uncertainty` on pose data (the platform pose measured in {0})."""
     if weighted and not isinstance(noise, Noise):
         raise ValueError(f"weighted=True needs noise an iwr.Noise, got {noise!r}")
-    problem = Problem(robot, measurements, noise=noise if weighted else None)
+    problem: Any
+    if robot.effects:  # issue 23: the geometric errors, then the effects' parameters
+        from ..effects.api import EffectIdentifiability
+        from ..effects.problem import EffectProblem
+
+        problem = EffectProblem(robot, measurements, noise=noise if weighted else None)
+        reports: tuple[type, ...] = (IdentifiabilityReport, EffectIdentifiability)
+    else:
+        problem = Problem(robot, measurements, noise=noise if weighted else None)
+        reports = (IdentifiabilityReport,)
+    n_all = problem.n_params
     x = np.array(x, dtype=float)
-    if x.shape != (robot.n_params,) or not np.all(np.isfinite(x)):
-        raise ValueError(f"x: expected {robot.n_params} finite values, got shape {x.shape}")
+    if x.shape != (n_all,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"x: expected {n_all} finite values, got shape {x.shape}")
     if active is None:
         mask = identifiability(robot, measurements, x).active
-    elif isinstance(active, IdentifiabilityReport):
+    elif isinstance(active, reports):
         mask = active.active
     else:
         mask = np.asarray(active, dtype=bool)
-        if mask.shape != (robot.n_params,):
+        if mask.shape != (n_all,):
             raise ValueError(f"active: boolean mask of shape {mask.shape}; expected "
-                             f"({robot.n_params},)")
+                             f"({n_all},)")
     r, jac = problem.residuals_and_jacobian(x)
     jb = jac[:, mask]
     m, p = jb.shape
@@ -277,9 +287,9 @@ def pose_uncertainty(robot: Robot, measurements: Measurements, x: Any,
         w = _sqrt_weights(measurements, m)
         cov = sigma**2 * ((a * w**2) @ a.T)
         source = "legs"
-    std = np.full(robot.n_params, np.nan)
+    std = np.full(n_all, np.nan)
     std[mask] = np.sqrt(np.diag(cov))
-    return Uncertainty(robot.parameter_names, mask, cov, std, sigma, source, dof)
+    return Uncertainty(problem.parameter_names, mask, cov, std, sigma, source, dof)
 
 
 def _sqrt_weights(measurements: Measurements, m: int) -> np.ndarray:
@@ -295,7 +305,14 @@ def _propagated(
     """``A Cov(residuals) A^T`` with the per-pose 6x6 reading covariance
     ``sigma_legs^2 I + G diag(sigma_q^2, sigma_p^2, sigma_o^2) G^T``."""
     mm = measurements
-    dq, dp, dr = measurement_jacobians(robot, x, mm.q, mm.poses)
+    if robot.effects:  # the exact derivatives of the loop closure with the effects
+        from ..implicit_loop import loop_jacobians
+
+        _, _, jy = loop_jacobians(robot, x, mm.q, mm.poses, data=mm)
+        nj = robot.n_joints
+        dq, dp, dr = jy[..., :nj], jy[..., nj: nj + 3], jy[..., nj + 3:]
+    else:
+        dq, dp, dr = measurement_jacobians(robot, x, mm.q, mm.poses)
     sq = np.array([noise.joint_lengths if c == "P" else noise.joint_angles
                    for c in robot.joint_types])
     g = np.concatenate([dq * sq, dp * noise.position, dr * noise.orientation], axis=2)

@@ -232,9 +232,10 @@ def bounds(effects: Sequence[Effect]) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The methods and functions that model the effects (the others refuse a robot with effects).
-SUPPORTED = ("iwr.identify with method 'lm' (unweighted) on pose data", "iwr.simulate",
-             "iwr.identifiability", "iwr.effects.api.leg_commands",
-             "iwr.effects.api.forward_kinematics")
+SUPPORTED = ("iwr.identify with method 'lm' (eq. (10) or noise-weighted) or 'efficient' on "
+             "pose data", "iwr.simulate", "iwr.identifiability", "iwr.uncertainty",
+             "iwr.estimation.predicted_accuracy", "iwr.implicit_loop.loop_jacobians",
+             "iwr.effects.api.leg_commands", "iwr.effects.api.forward_kinematics")
 
 
 def refuse(robot: Any, what: str) -> None:

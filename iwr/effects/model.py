@@ -15,7 +15,7 @@ from ..transforms import pose_matrix
 from . import LegState
 
 __all__ = ["carriage_and_derivatives", "leg_forces", "leg_state", "leg_vectors",
-           "predicted_readings", "split"]
+           "leg_vectors_at", "predicted_readings", "split"]
 
 
 def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray
@@ -84,11 +84,16 @@ def leg_vectors(robot: Any, xg: np.ndarray, q: np.ndarray, poses: np.ndarray
     """``(v, dv, r)``: the leg vectors from each U-joint to its S-joint in {0} (N, 6, 3), their
     derivatives in the geometric errors (N, 6, 3, n_params), and the S-joints' positions
     relative to the platform origin, in {0} (N, 6, 3), at platform poses ``poses`` in {0}."""
-    n, nc = len(poses), 4 * robot.n_joints
+    return leg_vectors_at(robot, xg, q, pose_matrix(poses))
+
+
+def leg_vectors_at(robot: Any, xg: np.ndarray, q: np.ndarray, t5: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`leg_vectors` at platform transforms ``t5`` (N, 4, 4) in {0}."""
+    n, nc = len(t5), 4 * robot.n_joints
     t4, dt4 = carriage_and_derivatives(robot, xg, q)
     base = robot.base_joints + xg[nc: nc + 18].reshape(6, 3)
     plat = robot.platform_joints + xg[nc + 18: nc + 36].reshape(6, 3)
-    t5 = pose_matrix(poses)
     r = np.einsum("kab,jb->kja", t5[:, :3, :3], plat)
     a0 = t4[:, None, :3, 3] + np.einsum("kab,jb->kja", t4[:, :3, :3], base)
     v = t5[:, None, :3, 3] + r - a0
@@ -104,7 +109,8 @@ def leg_vectors(robot: Any, xg: np.ndarray, q: np.ndarray, poses: np.ndarray
 
 def leg_forces(v: np.ndarray, dv: np.ndarray | None, r: np.ndarray, dr: np.ndarray | None,
                rotations: np.ndarray, masses: np.ndarray, centres: np.ndarray,
-               gravity: np.ndarray) -> tuple[np.ndarray, np.ndarray | None]:
+               gravity: np.ndarray, d_rotations: np.ndarray | None = None
+               ) -> tuple[np.ndarray, np.ndarray | None]:
     """The axial leg forces (N, 6) that hold the platform in equilibrium under gravity, tension
     positive, and their derivatives (N, 6, n) when ``dv``, ``dr`` (the derivatives of the leg
     vectors and of the S-joints' arms, (N, 6, 3, n)) are given.
@@ -116,7 +122,8 @@ def leg_forces(v: np.ndarray, dv: np.ndarray | None, r: np.ndarray, dr: np.ndarr
     ``f = J^-T w``: with the virtual work ``f . dL = w . dX`` (a test checks it against the
     change of the bodies' potential energy). ``masses`` (N, B) kg, ``centres`` (N, B, 3) mm in
     {5}, ``rotations`` (N, 3, 3) the platform's orientation in {0}, ``gravity`` (3,) m/s^2 in
-    {0}."""
+    {0}; ``d_rotations`` (N, 3, 3, n), optional: the derivatives of ``rotations`` in the same
+    variables (the platform's orientation among them: the loads' moment arms turn with it)."""
     length = np.linalg.norm(v, axis=2)
     u = v / length[..., None]
     g_mat = np.concatenate([u, np.cross(r, u)], axis=2).transpose(0, 2, 1)  # (N, 6, 6)
@@ -138,6 +145,11 @@ def leg_forces(v: np.ndarray, dv: np.ndarray | None, r: np.ndarray, dr: np.ndarr
             + np.cross(r[..., None], du, axisa=2, axisb=2, axisc=2))
     dg_f = np.concatenate([np.einsum("kjap,kj->kap", du, f),
                            np.einsum("kjap,kj->kap", dmom, f)], axis=1)  # (N, 6, n)
+    if d_rotations is not None:
+        # The gravity moment turns with the platform: d (R c) x m g.
+        d_arm = np.einsum("kabp,kcb->kcap", d_rotations, centres)
+        dg_f[:, 3:] -= np.cross(d_arm, weight[..., None], axisa=2, axisb=2,
+                                axisc=2).sum(axis=1)
     df = -np.linalg.solve(g_mat, dg_f)
     return f, df
 
@@ -160,13 +172,7 @@ def leg_state(robot: Any, xg: np.ndarray, q: np.ndarray, poses: np.ndarray, data
         dr = np.zeros_like(dv)
         for j in range(6):
             dr[:, j, :, nc + 18 + 3 * j: nc + 18 + 3 * j + 3] = rot
-        payload = getattr(data, "payload", None)
-        n = len(poses)
-        masses = np.full((n, 1), comp.platform_mass)
-        centres = np.broadcast_to(comp.platform_centre, (n, 1, 3))
-        if payload is not None:
-            masses = np.hstack([masses, payload[:, :1]])
-            centres = np.concatenate([centres, payload[:, None, 1:]], axis=1)
+        masses, centres = loads(comp, data, len(poses))
         forces, d_forces = leg_forces(v, dv, r, dr, rot, masses, centres, comp.gravity)
     temps = None
     if "temperatures" in needs:
@@ -174,6 +180,19 @@ def leg_state(robot: Any, xg: np.ndarray, q: np.ndarray, poses: np.ndarray, data
         if t is not None:
             temps = np.broadcast_to(t, (len(poses), 6))
     return LegState(length, d_length, forces, d_forces, temps)
+
+
+def loads(comp: Any, data: Any, n: int) -> tuple[np.ndarray, np.ndarray]:
+    """The bodies the legs hold at each of ``n`` poses: masses (N, B) kg and centres of mass in
+    {5} (N, B, 3) mm, the platform's (of the compliance effect ``comp``), then ``data``'s
+    payload if it has one."""
+    payload = getattr(data, "payload", None)
+    masses = np.full((n, 1), comp.platform_mass)
+    centres = np.broadcast_to(comp.platform_centre, (n, 1, 3))
+    if payload is not None:
+        masses = np.hstack([masses, payload[:, :1]])
+        centres = np.concatenate([centres, payload[:, None, 1:]], axis=1)
+    return masses, centres
 
 
 def _compliance(robot: Any) -> Any:

@@ -14,23 +14,19 @@ from .model import check_inputs, predicted_readings
 __all__ = ["EffectProblem", "METHODS", "check_method"]
 
 #: The identification methods that minimise the objective with effects (the others run the C++
-#: kernels of the geometry alone).
-METHODS = ("lm",)
+#: kernels of the geometry alone): Levenberg-Marquardt on eq. (10) or on its noise-weighted form,
+#: and the efficient estimator (its numpy solver, :mod:`iwr.effects.solver`).
+METHODS = ("lm", "efficient")
 
 
 def check_method(robot: Any, method: str, noise: Any, weighted: Any) -> None:
-    """ValueError unless ``method`` (with ``noise``) models ``robot``'s effects."""
+    """ValueError unless ``method`` models ``robot``'s effects."""
     names = ", ".join(e.name for e in robot.effects)
     if method not in METHODS:
         raise ValueError(
             f"method {method!r}: robot {robot.name!r} has effects on ({names}), which the "
             f"C++ kernels of method {method!r} (and of iwr-engine) do not model; the methods "
             f"that do: {', '.join(METHODS)} (docs/effects.md)")
-    if noise is not None or weighted:
-        raise ValueError(
-            f"noise: robot {robot.name!r} has effects on ({names}); the noise-weighted "
-            "objective and its chi-square test do not model them yet: give noise=None "
-            "(eq. (10), method 'lm'; docs/effects.md)")
 
 
 class EffectProblem:
@@ -50,9 +46,15 @@ class EffectProblem:
         The geometric errors' as :class:`iwr.Problem`'s, or a pair over every parameter; the
         effects' parameters get their own (:func:`iwr.effects.bounds`) unless the pair covers
         them.
+    noise : Noise, optional
+        The instruments' noise: each pose's six residuals whitened by their covariance
+        (:func:`iwr.problem.gls_whitening` with the effects: every reading's noise propagated
+        through the loop closure with the effects, at the nominal robot, then held fixed), the
+        cost the generalised least squares statistic, as :class:`iwr.Problem`'s.
     """
 
-    def __init__(self, robot: Any, measurements: Any, bounds: Any = None) -> None:
+    def __init__(self, robot: Any, measurements: Any, bounds: Any = None, *,
+                 noise: Any = None) -> None:
         from ..problem import Problem
 
         if not robot.effects:
@@ -81,10 +83,24 @@ class EffectProblem:
                                      f"lower {self.lower[i]}, upper {self.upper[i]}")
         w = measurements.weights
         self._sqrt_w = None if w is None else np.sqrt(w)
-        self.noise = None
+        self.noise = noise
         self.whitening = None
+        if noise is not None:
+            from ..problem import gls_whitening
 
-    weighted = False
+            # Measurement weights are folded into the whitening (gls_whitening does).
+            self.whitening = gls_whitening(robot, measurements, noise)
+            self._sqrt_w = None
+
+    @property
+    def weighted(self) -> bool:
+        """Whether the residuals are whitened (generalised least squares)."""
+        return self.whitening is not None
+
+    #: The residuals that carry data: every leg reading.
+    @property
+    def n_observations(self) -> int:
+        return self.n_residuals
 
     @property
     def n_params(self) -> int:
@@ -117,6 +133,9 @@ class EffectProblem:
         if self._sqrt_w is not None:
             r = r * self._sqrt_w
             jac = jac * self._sqrt_w[..., None]
+        if self.whitening is not None:
+            r = np.einsum("kij,kj->ki", self.whitening, r)
+            jac = np.einsum("kij,kjp->kip", self.whitening, jac)
         return r.reshape(-1), jac.reshape(-1, self.n_params)
 
     def residuals(self, x: Any) -> np.ndarray:
@@ -124,6 +143,8 @@ class EffectProblem:
         r = predicted_readings(self.robot, self._x(x), m.q, m.poses, m) - m.legs
         if self._sqrt_w is not None:
             r = r * self._sqrt_w
+        if self.whitening is not None:
+            r = np.einsum("kij,kj->ki", self.whitening, r)
         return r.reshape(-1)
 
     def jacobian(self, x: Any) -> np.ndarray:

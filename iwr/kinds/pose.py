@@ -123,6 +123,11 @@ class PoseKind(MeasurementKind):
         return pose_uncertainty(robot, data, x, noise, **options)
 
     def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the loop closure with the effects (numpy solver)
+            from ..effects.estimation import EffectPoseSpec
+
+            return EffectPoseSpec(robot, data, noise, options["x0"], options["active"],
+                                  options["estimate"], options["bounds"], options["plausible"])
         return _PoseSpec(robot, data, noise, options["x0"], options["active"],
                          options["estimate"], options["bounds"], options["plausible"])
 
@@ -144,7 +149,7 @@ class PoseKind(MeasurementKind):
         ``C_k = diag(sigma_legs^2) + J_y diag(sigma_y^2) J_y^T`` (every other reading's noise
         propagated through the loop closure, :func:`iwr.estimation.loop_jacobians`)."""
         _check_noise(noise)
-        legs, jx, jy = loop_jacobians(robot, x, data.q, data.poses)
+        legs, jx, jy = loop_jacobians(robot, x, data.q, data.poses, data=data)
         sig = sigma_matrix(robot, data, noise)
         cov = np.einsum("kij,kj,klj->kil", jy, sig[:, 6:] ** 2, jy)
         cov[:, np.arange(6), np.arange(6)] += sig[:, :6] ** 2

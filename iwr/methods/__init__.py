@@ -195,7 +195,8 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
         from ..effects.problem import EffectProblem, check_method
 
         check_method(robot, method, noise, weighted)
-        problem: Any = EffectProblem(robot, measurements, bounds)
+        problem: Any = EffectProblem(robot, measurements, bounds,
+                                     noise=noise if weighted else None)
     else:
         problem = Problem(robot, measurements, bounds, noise=noise if weighted else None)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
@@ -232,7 +233,8 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
     try:
         result["fun"] = problem.cost(result.x)
         if weighted:
-            result["cost_eq10"] = Problem(robot, measurements, bounds).cost(result.x)
+            result["cost_eq10"] = (EffectProblem if robot.effects else Problem)(
+                robot, measurements, bounds).cost(result.x)
             # Said in the settings too, so that a saved result's fun is not read as eq. (10)'s.
             result["settings"] = {**dict(result.settings), "objective": {
                 "weighted": True, **kinds.of(measurements).noise_record(noise),
