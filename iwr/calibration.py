@@ -27,12 +27,12 @@ from .analysis.accuracy import Accuracy, accuracy
 from .analysis.identifiability import identifiability, identifiable_count, parameter_error
 from .analysis.uncertainty import Uncertainty, uncertainty
 from .effects import refuse as refuse_effects
+from .gross_errors import LeftOutError, without_left_out
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
-from .gross_errors import without_left_out
 from .methods import IdentificationResult, identify
 
-__all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "calibrate", "from_result"]
+__all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "LeftOutError", "calibrate", "from_result"]
 
 #: The status (and message prefix) of a run whose method converged but whose data cannot
 #: identify the errors, or whose calibrated robot is no better than the nominal one.
@@ -321,7 +321,9 @@ def calibrate(
         # Gross errors in every pose, held-out ones too, with or without a noise model (issue 22):
         # named, and left out of the identification (re-fitted) and of the accuracy. Not on
         # degenerate data: those are "not calibrated" (below), whatever their residuals say.
-        if degenerate(robot, ident, report) is None:
+        if degenerate(robot, ident, report) is not None:
+            result["gross_errors"] = "gross errors: not tested (degenerate data)"
+        else:
             before = len(ident)
             result, ident, val = screen_gross_errors(robot, ident, val, result, noise,
                                                      held_out=held_out, bounds=bounds)
@@ -396,18 +398,25 @@ def from_result(
     notes: list[str] = []
     # The poses the run's gross-error screen left out (recorded with their lines) are left out
     # here too: the result was not fitted to them, and its accuracy figures are without them.
+    # A pose is found by its content: a held-out pose of a separate validation file is never one
+    # of DATA's, and a file with other line numbers (comments, another layout) is the same data.
+    # Held-out poses may have come from a separate file: not required to be in DATA.
+    data, gone = without_left_out(data, result, ("identification",))
     if validation is None:
-        data, gone = without_left_out(data, result)
+        data, gone_val = without_left_out(data, result, ("validation",), required=False)
     else:
-        data, gone = without_left_out(data, result, ("identification",))
-        validation, gone_val = without_left_out(validation, result, ("validation",))
-        gone = None if gone is None or gone_val is None else gone + gone_val
-    if gone is None:
-        notes.append(f"note: the {len(result.left_out)} pose(s) the run left out as gross errors "
-                     "are in these figures (no file lines to find them by)")
+        validation, gone_val = without_left_out(validation, result, ("validation",),
+                                                required=False)
+    gone = None if gone is None or gone_val is None else gone + gone_val
+    settings_in = dict(result.settings)
+    job = "data_file" in settings_in and "program" not in settings_in
+    if gone is None or (job and result.gross_errors is None and not result.interrupted):
+        notes.append("note: the poses the run left out as gross errors are in these figures: "
+                     "its result file does not record them (written by an older iwr; calibrate "
+                     "again to have them left out)")
     elif gone:
         notes.append(f"note: {len(gone)} pose(s) the run left out as gross errors are left out "
-                     f"here too (line(s) {', '.join(map(str, gone))})")
+                     f"here too ({'; '.join(gone)})")
     val = data if validation is None else validation
     problems: dict[Any, Any] = {}
     with kinds.reuse(problems):
@@ -417,8 +426,10 @@ def from_result(
             start = None
         report = identifiability(robot, data)
         result = _weighted_fit(robot, data, result, report)
-        if result.gross_errors is None and degenerate(robot, data, report) is None:
-            # Never screened (iwr-calibrate's engine): tested here, not re-fitted (issue 22).
+        if (result.gross_errors is None and not job
+                and degenerate(robot, data, report) is None):
+            # Never screened (iwr-calibrate's engine, iwr.identify): tested here, not re-fitted
+            # (issue 22). A job's result was screened by its run (an older one: not recorded).
             result, val = check_gross_errors(robot, data, val, result,
                                              held_out=validation is not None)
         unc = _uncertainty(robot, data, result, report if result.active is None else None,

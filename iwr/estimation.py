@@ -58,7 +58,7 @@ from .implicit_loop import (
 from .measurements import Measurements
 from .noise import Noise
 from .problem import Problem, _check_joint_types
-from .result import IdentificationResult, Outlier, source_line
+from .result import IdentificationResult, Outlier, pose_key, source_line
 from .robot import Robot
 
 __all__ = [
@@ -330,6 +330,9 @@ class _PoseSpec:
     def line(self, k: int) -> int | None:
         return source_line(self.measurements, k)
 
+    def key(self, k: int) -> str:
+        return pose_key(self.measurements, k)
+
     def subset(self, used: np.ndarray) -> Measurements:
         return self.measurements.subset(np.flatnonzero(used)) if not used.all() \
             else self.measurements
@@ -495,7 +498,7 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
                     break
                 if outliers == "report":
                     found = [Outlier(k, spec.where(k), t, d, pv, ins, w, False, alt,
-                                       line=spec.line(k))
+                                       line=spec.line(k), key=spec.key(k))
                              for k, t, d, pv, ins, w, alt in bad]
                     too_many = len(bad) > cap
                     break
@@ -506,12 +509,12 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
                     # with them.)
                     too_many = True
                     found += [Outlier(k, spec.where(k), t, d, pv, ins, w, False, alt,
-                                       line=spec.line(k))
+                                       line=spec.line(k), key=spec.key(k))
                               for k, t, d, pv, ins, w, alt in bad]
                     break
                 k, t, d, pv, ins, w, alt = max(bad, key=lambda b: b[1] / crit_dof[b[2]])
                 found.append(Outlier(k, spec.where(k), t, d, pv, ins, w, True, alt,
-                                       line=spec.line(k)))
+                                       line=spec.line(k), key=spec.key(k)))
                 used[k] = False
                 corr[k] = 0.0
                 if int(out["dof"]) - int(out["pose_dof"][int(np.sum(used[:k]))]) <= 0:
@@ -665,20 +668,27 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
 def summary(result: IdentificationResult) -> dict[str, Any]:
     """What :func:`efficient` adds to an identification result, JSON-able (for a result file or a
     report): the fit test, the outliers, the noise used, the variance components, the predicted
-    accuracy and the standard deviations of the parameters (null for those held fixed)."""
-    fit: FitTest = result["fit"]
+    accuracy and the standard deviations of the parameters (null for those held fixed).
+    ValueError for another result, or one read back from a file (which keeps only the fit test
+    and the outliers)."""
+    if result.method != "efficient" or result.used is None or result.fit is None:
+        raise ValueError("summary: not a result of the efficient estimator held in memory (a "
+                         "result file keeps its fit test and outliers only: result.fit, "
+                         "result.outliers)")
+    fit: FitTest = result.fit
     pred: PredictedAccuracy | None = result.predicted
+    noise = result.noise
     return jsonable({
         "fit": fit.to_dict(),
-        "outliers": [asdict(o) for o in result["outliers"]],
-        "n_poses_used": int(np.sum(result["used"])),
-        "noise": (asdict(result["noise"]) if isinstance(result["noise"], Noise) else
-                  {"readings": asdict(result["noise"][0]), "tracker": asdict(result["noise"][1])}),
-        "variance_components": [asdict(c) for c in result["variance_components"]],
+        "outliers": [asdict(o) for o in result.outliers or []],
+        "n_poses_used": int(np.sum(result.used)),
+        "noise": (asdict(noise) if isinstance(noise, Noise) else
+                  {"readings": asdict(noise[0]), "tracker": asdict(noise[1])}),
+        "variance_components": [asdict(c) for c in result.variance_components or []],
         "predicted": None if pred is None else {
             "position_rms_mm": pred.position_rms, "position_95_mm": pred.position_95,
             "orientation_rms_deg": pred.orientation_rms,
             "orientation_95_deg": pred.orientation_95},
-        "std": result["std"],
-        "cost_eq10": result["cost_eq10"],
+        "std": result.std,
+        "cost_eq10": result.cost_eq10,
     }, finite_only=True)

@@ -58,7 +58,7 @@ from . import kinds
 from ._blas import single_thread
 from .misclosures import Misclosures
 from .noise import MIN_SIGMA
-from .result import FitTest, Outlier, source_line
+from .result import FitTest, Outlier, pose_key, pose_keys, source_line
 
 __all__ = ["GrossErrors", "Misclosures", "NoRedundancy", "find_gross_errors", "screen"]
 
@@ -293,7 +293,7 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
                     if i != j)
         found.append(Outlier(int(k), data.where(int(k)), stat, dof, p, mis_names[j],
                              float(wt[j]), False, alt, data_set=what, test=test,
-                             line=source_line(data, int(k))))
+                             line=source_line(data, int(k)), key=pose_key(data, int(k))))
 
     mis_names = mis.names
     tested = {"identification": 0, "validation": 0}
@@ -508,25 +508,33 @@ def check_result(robot: Any, identification: Any, validation: Any, result: Any, 
     return result, validation
 
 
+class LeftOutError(ValueError):
+    """A result's record of the poses its run left out names poses these data do not have."""
+
+
 def without_left_out(data: Any, result: Any, data_sets: tuple[str, ...] = (
-        "identification", "validation")) -> tuple[Any, list[int] | None]:
-    """``data`` without the poses whose file lines ``result`` records as left out (by the
-    gross-error screen of the run that identified it: :attr:`IdentificationResult.left_out`)
-    from the ``data_sets`` named, and those lines (None, ``data`` unchanged, when the record or
-    the data have no lines: data not read from a file). ValueError when the record names a line
-    that is not in ``data`` (not the data of the run)."""
-    gone = [o.line for o in result.left_out if o.data_set in data_sets]
+        "identification", "validation"), *, required: bool = True) -> tuple[Any, list[str] | None]:
+    """``data`` without the poses ``result`` records as left out (by the gross-error screen of
+    the run that identified it: :attr:`IdentificationResult.left_out`) from the ``data_sets``
+    named, found by their content (:attr:`Outlier.key`: the same pose in any layout of the
+    file), and where they were in ``data`` (their ``where``, for a note); None, ``data``
+    unchanged, when the record has no keys (a result written before they were recorded).
+    :class:`LeftOutError` when ``required`` and a recorded pose is not in ``data`` (not the data
+    of the run)."""
+    gone = [o for o in result.left_out if o.data_set in data_sets]
     if not gone:
         return data, []
-    if any(line is None for line in gone) or data.lines is None:
+    if any(o.key is None for o in gone):
         return data, None
-    lines = np.asarray(data.lines, dtype=int)
-    missing = sorted(set(gone) - set(lines.tolist()))
-    if missing:
-        raise ValueError(f"the result left out line(s) {missing} that these data do not have "
-                         "(not the data it was identified from?)")
-    keep = np.flatnonzero(~np.isin(lines, gone))
-    return kinds.of(data).subset(data, keep), sorted(set(gone))
+    keys = np.array(pose_keys(data))
+    missing = [o for o in gone if o.key not in set(keys.tolist())]
+    if missing and required:
+        raise LeftOutError(
+            f"the result left out {missing[0].where} ({missing[0].instrument}), which these data "
+            "do not have: not the data it was identified from")
+    drop = np.isin(keys, [o.key for o in gone])
+    where = [data.where(int(k)) for k in np.flatnonzero(drop)]
+    return kinds.of(data).subset(data, np.flatnonzero(~drop)), where
 
 
 def _description(first: GrossErrors, final: GrossErrors, n_tested: dict[str, int]) -> str:

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -120,8 +120,11 @@ class Outlier:
         ``"tau"``: without a noise model, its largest studentized residual (Pope's test, the
         noise estimated from the residuals; ``dof`` their redundancy; ``w`` studentized too).
     line : int or None
-        The pose's line in its file (None for data not read from one): what a result file
-        records, so that ``iwr report`` leaves out the poses the run left out.
+        The pose's line in its file (None for data not read from one), for messages.
+    key : str or None
+        A digest of the pose's readings and measurements (:func:`pose_key`): what a result file
+        records so that ``iwr report`` leaves out the poses the run left out, whatever the
+        layout of the file it is given (comments, another format of the same data).
     """
 
     pose: int
@@ -136,6 +139,7 @@ class Outlier:
     data_set: str = "identification"
     test: str = "chi2"
     line: int | None = None
+    key: str | None = None
 
     def __str__(self) -> str:
         held = self.data_set == "validation"
@@ -155,6 +159,24 @@ class Outlier:
 def source_line(data: Any, k: int) -> int | None:
     """The file line of pose ``k`` of ``data`` (any kind's data keep ``lines``), else None."""
     return None if data.lines is None else int(data.lines[k])
+
+
+def pose_keys(data: Any) -> list[str]:
+    """A digest of each pose of ``data``: its row of readings and measurements
+    (:meth:`iwr.kinds.MeasurementKind.rows`, NaN where nothing was seen), the same for the same
+    values in any file layout."""
+    import hashlib
+
+    from . import kinds
+
+    rows = np.ascontiguousarray(kinds.of(data).rows(data), dtype="<f8")
+    rows = np.where(np.isnan(rows), np.nan, rows + 0.0)  # one NaN, and -0.0 as 0.0
+    return [hashlib.sha256(r.tobytes()).hexdigest()[:16] for r in rows]
+
+
+def pose_key(data: Any, k: int) -> str:
+    """:func:`pose_keys` of pose ``k``."""
+    return pose_keys(data)[k]
 
 
 class ResultFileError(ValueError):
@@ -360,41 +382,83 @@ def _floats(value: Any, where: str) -> np.ndarray:
         raise ValueError(f"{where}: expected numbers, got {value!r:.60}") from None
 
 
+def _typed(value: Any, kind: str, where: str) -> Any:
+    """A recorded value of the expected JSON type, else ValueError naming it: ``"int"``,
+    ``"bool"``, ``"str"``, ``"float"`` (a number, or null for a value that was not finite),
+    ``"int?"``/``"str?"`` (or null)."""
+    if kind.endswith("?"):
+        if value is None:
+            return None
+        kind = kind[:-1]
+    ok = {"int": isinstance(value, int) and not isinstance(value, bool),
+          "bool": isinstance(value, bool), "str": isinstance(value, str),
+          "float": value is None or (isinstance(value, (int, float))
+                                     and not isinstance(value, bool))}[kind]
+    if not ok:
+        expected = {"int": "an integer", "bool": "true or false", "str": "a string",
+                    "float": "a number or null"}[kind]
+        raise ValueError(f"{where}: expected {expected}, got {value!r:.40}")
+    return math.nan if kind == "float" and value is None else value
+
+
 def _recorded(data: dict[str, Any]) -> dict[str, Any]:
-    """The fit test, outliers and gross-error description a result file keeps."""
+    """The fit test, outliers and gross-error description a result file keeps, each value of
+    its type (a bad one named)."""
     out: dict[str, Any] = {}
     fit = data.get("fit")
     if fit is not None:
         if not isinstance(fit, dict):
             raise ValueError(f"fit: expected an object, got {fit!r:.60}")
+        causes = fit.get("causes", [])
+        implausible = fit.get("implausible", [])
+        if not isinstance(causes, list) or not isinstance(implausible, list):
+            raise ValueError("fit.causes, fit.implausible: expected lists")
         out["fit"] = FitTest(
-            statistic=float(_floats(fit.get("statistic"), "fit.statistic")),
-            dof=int(fit["dof"]), p_value=float(_floats(fit.get("p_value"), "fit.p_value")),
-            alpha=float(fit["alpha"]), fit_ok=bool(fit["fit_ok"]), verdict=str(fit["verdict"]),
-            causes=[str(c) for c in fit.get("causes", [])],
-            implausible=[(str(d["parameter"]), float(d["value"]), float(d["limit"]))
-                         for d in fit.get("implausible", [])])
+            statistic=float(_typed(fit["statistic"], "float", "fit.statistic")),
+            dof=_typed(fit["dof"], "int", "fit.dof"),
+            p_value=float(_typed(fit["p_value"], "float", "fit.p_value")),
+            alpha=float(_typed(fit["alpha"], "float", "fit.alpha")),
+            fit_ok=_typed(fit["fit_ok"], "bool", "fit.fit_ok"),
+            verdict=_typed(fit["verdict"], "str", "fit.verdict"),
+            causes=[_typed(c, "str", f"fit.causes[{i}]") for i, c in enumerate(causes)],
+            implausible=[(_typed(d["parameter"], "str", f"fit.implausible[{i}].parameter"),
+                          float(_typed(d["value"], "float", f"fit.implausible[{i}].value")),
+                          float(_typed(d["limit"], "float", f"fit.implausible[{i}].limit")))
+                         for i, d in enumerate(implausible)])
     outliers = data.get("outliers")
     if outliers is not None:
         if not isinstance(outliers, list):
             raise ValueError(f"outliers: expected a list, got {outliers!r:.60}")
-        names = {f.name for f in fields(Outlier)}
+        types = {"pose": "int", "where": "str", "statistic": "float", "dof": "int",
+                 "p_value": "float", "instrument": "str", "w": "float", "removed": "bool",
+                 "data_set": "str", "test": "str", "line": "int?", "key": "str?"}
         out["outliers"] = []
         for i, o in enumerate(outliers):
-            if not isinstance(o, dict) or not names >= set(o):
+            if not isinstance(o, dict) or not set(types) | {"confounded"} >= set(o):
                 raise ValueError(f"outliers[{i}]: expected an object with keys among "
-                                 f"{sorted(names)}, got {o!r:.80}")
-            o = dict(o)
-            for key in ("statistic", "p_value", "w"):
-                o[key] = float(_floats(o.get(key), f"outliers[{i}].{key}"))
-            o["confounded"] = tuple(o.get("confounded", ()))
-            for key in ("pose", "dof", "line"):
-                if key in o and o[key] is not None and not isinstance(o[key], int):
-                    raise ValueError(f"outliers[{i}].{key}: expected an integer, got "
-                                     f"{o[key]!r:.40}")
-            out["outliers"].append(Outlier(**o))
-    if isinstance(data.get("gross_errors"), str):
-        out["gross_errors"] = data["gross_errors"]
+                                 f"{sorted(set(types) | {'confounded'})}, got {o!r:.80}")
+            missing = [k for k in ("pose", "where", "statistic", "dof", "p_value", "instrument",
+                                   "w", "removed") if k not in o]
+            if missing:
+                raise ValueError(f"outliers[{i}]: missing {missing}")
+            values = {k: _typed(o[k], t, f"outliers[{i}].{k}") for k, t in types.items()
+                      if k in o}
+            for k in ("statistic", "p_value", "w"):
+                values[k] = float(values[k])
+            if values.get("data_set", "identification") not in ("identification", "validation"):
+                raise ValueError(f"outliers[{i}].data_set: {values['data_set']!r}; expected "
+                                 "'identification' or 'validation'")
+            if values.get("test", "chi2") not in ("chi2", "tau"):
+                raise ValueError(f"outliers[{i}].test: {values['test']!r}; expected 'chi2' or "
+                                 "'tau'")
+            confounded = o.get("confounded", [])
+            if not isinstance(confounded, list):
+                raise ValueError(f"outliers[{i}].confounded: expected a list")
+            values["confounded"] = tuple(_typed(c, "str", f"outliers[{i}].confounded")
+                                         for c in confounded)
+            out["outliers"].append(Outlier(**values))
+    if "gross_errors" in data:
+        out["gross_errors"] = _typed(data["gross_errors"], "str", "gross_errors")
     return out
 
 

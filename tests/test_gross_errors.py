@@ -391,7 +391,7 @@ def test_cli_report_leaves_out_what_the_run_left_out(tmp_path):
     rep = _run("report", "cal/result.json", "sim/robot.toml", "sim/measurements.csv",
                "--out", "rep", "--no-plots", cwd=tmp_path)
     assert rep.returncode == 0, rep.stdout + rep.stderr
-    assert f"left out here too (line(s) {line})" in rep.stdout, rep.stdout
+    assert f"left out here too (sim/measurements.csv, line {line})" in rep.stdout, rep.stdout
     summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
     assert summary["n_identification"] == 39
     # As the engine writes it: no record of a screen; the report tests and names the line.

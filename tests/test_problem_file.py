@@ -44,6 +44,7 @@ def test_round_trip_is_exact(kind: Any, tmp_path: Path) -> None:
     problem.save(path, x0=x0, active=active)
     back = iwr.Problem.load(path)
     assert type(back) is type(problem) and iwr.kinds.of(back.measurements) is kind.kind
+    assert back.measurements.joint_types == kind.data.joint_types == back.robot.joint_types
     for part in (kind.kind.rows, kind.kind.measured):
         np.testing.assert_array_equal(part(back.measurements), part(kind.data))
     np.testing.assert_array_equal(back.lower, problem.lower)

@@ -268,8 +268,7 @@ def _noise(text: str | None, robot: Any, robot_path: str) -> Any:
     kind = for_robot(robot)
     if not kind.weighted_objective:
         raise _Usage(f"--noise: {robot_path} measures {kind.description} ({kind.name} data), "
-                     "which have no noise-weighted objective (a probe's four points move "
-                     "rigidly: their covariance is singular): leave --noise out, or use the "
+                     "which have no noise-weighted objective: leave --noise out, or use the "
                      "efficient estimator (iwr calibrate --noise ...)")
     return kind.reading_noise(noise)
 

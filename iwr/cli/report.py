@@ -92,7 +92,7 @@ def _check_data(args: argparse.Namespace, result: Any, robot: Any, data: Any) ->
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from ..calibration import from_result
+    from ..calibration import LeftOutError, from_result
     from ..kinds import for_robot
     from ..methods import load_result
     from ..reporting.calibration import OUTPUT_FILES, render
@@ -124,6 +124,8 @@ def cmd_report(args: argparse.Namespace) -> int:
             settings={"method": result.method,
                       **dict(result.settings)},
             provenance=provenance(inputs))
+    except LeftOutError as exc:  # a pose the run left out is not in DATA: other data
+        raise UsageError(f"{args.data}: {one_line(exc)} ({args.run})", "iwr report") from None
     except ValueError as exc:  # the result's parameters are not this robot's
         raise CommandError(f"{args.run}: {one_line(exc)} ({args.robot})") from None
     if note:

@@ -20,7 +20,7 @@ import numpy as np
 
 from .. import _core
 from ..noise import Noise, TrackerNoise, axis_whitening, split_noise
-from ..result import source_line
+from ..result import pose_key, source_line
 from ..robot import Robot
 from .data import TrackerMeasurements
 from .gauge import _align, _fk, null_space
@@ -174,6 +174,9 @@ class TrackerSpec:
 
     def line(self, k: int) -> int | None:
         return source_line(self.measurements, k)
+
+    def key(self, k: int) -> str:
+        return pose_key(self.measurements, k)
 
     def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
               corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:

@@ -113,6 +113,9 @@ class _TrackerKind(MeasurementKind):
 
     def noise_from_record(self, record: dict[str, Any]) -> Any:
         readings, tracker = record.get("noise"), record.get("tracker_noise")
+        if isinstance(readings, dict) and set(readings) == {"readings", "tracker"}:
+            # A weighted result written before the kinds' one noise record (iwr 0.1, Nov 2026).
+            readings, tracker = readings["readings"], readings["tracker"]
         return (None if readings is None else Noise(**readings),
                 None if tracker is None else TrackerNoise(**tracker))
 

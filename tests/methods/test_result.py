@@ -148,3 +148,29 @@ def test_the_file_keeps_the_fit_test_and_the_poses_left_out(tmp_path):
     (tmp_path / "bad.json").write_text(json.dumps(data))
     with pytest.raises(iwr.ResultFileError, match="bad.json: missing key 'dof'"):
         iwr.load_result(tmp_path / "bad.json")
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d["fit"].update(fit_ok="false"), r"fit.fit_ok: expected true or false"),
+    (lambda d: d["outliers"][0].update(removed="no"), r"outliers\[0\].removed: expected true"),
+    (lambda d: d["outliers"][0].update(data_set="validaton"), r"data_set: 'validaton'"),
+    (lambda d: d["fit"].update(dof=2.7), r"fit.dof: expected an integer, got 2.7"),
+    (lambda d: d["fit"].pop("statistic"), r"missing key 'statistic'"),
+    (lambda d: d["fit"].update(causes="abc"), r"fit.causes, fit.implausible: expected lists"),
+    (lambda d: d.update(gross_errors=5), r"gross_errors: expected a string, got 5"),
+    (lambda d: d["outliers"][0].pop("where"), r"outliers\[0\]: missing \['where'\]"),
+])
+def test_recorded_values_of_the_wrong_type_are_named(tmp_path, edit, message):
+    """The review's cases: a recorded value of the wrong type is refused by name, never read
+    as something else ("false" as True, "no" as removed, "abc" as three causes)."""
+    from iwr.result import FitTest, Outlier
+
+    r = result(fit=FitTest(12.5, 10, 0.25, 1e-3, True, "fits"), gross_errors="screened",
+               outliers=[Outlier(4, "m.csv, line 7", 30.0, 6, 1e-6, "leg3", 5.1, True,
+                                 line=7, key="ab")])
+    r.save(tmp_path / "r.json")
+    data = json.loads((tmp_path / "r.json").read_text())
+    edit(data)
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(iwr.ResultFileError, match=message):
+        iwr.load_result(tmp_path / "bad.json")
