@@ -233,8 +233,9 @@ def bounds(effects: Sequence[Effect]) -> tuple[np.ndarray, np.ndarray]:
 
 #: The methods and functions that model the effects (the others refuse a robot with effects).
 SUPPORTED = ("iwr.identify with method 'lm' (unweighted) on pose data", "iwr.simulate",
-             "iwr.identifiability", "iwr.effects.api.leg_commands",
-             "iwr.effects.api.forward_kinematics")
+             "iwr.identifiability", "iwr.accuracy",
+             "iwr.calibrate, iwr calibrate and iwr report with method 'lm' without a noise model",
+             "iwr.effects.api.leg_commands", "iwr.effects.api.forward_kinematics")
 
 
 def refuse(robot: Any, what: str) -> None:
