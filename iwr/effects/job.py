@@ -190,6 +190,8 @@ class Diagnosis:
     weighting: str
     assumptions: list[str] = field(default_factory=list)
     n_residuals: int = 0
+    #: The statics the leg forces were computed with, as ``[effects.compliance]`` lines.
+    statics: list[str] = field(default_factory=list)
 
     @property
     def suggested(self) -> list[str]:
@@ -212,8 +214,7 @@ class Diagnosis:
             if not t.significant:
                 continue
             if t.effect == "compliance":
-                out += ["[effects.compliance]", "per_leg = true",
-                        *(a for a in self.assumptions if a.startswith(("gravity", "platform")))]
+                out += ["[effects.compliance]", "per_leg = true", *self.statics]
             elif t.effect == "thermal":
                 out += ["[effects.thermal]", "identify = true",
                         "reference_C = 20.0                 # the temperature of the geometry"]
@@ -228,9 +229,8 @@ class Diagnosis:
                 + " in the robot file (docs/effects.md)") if self.suggested else (
             "diagnosis: the residuals of the geometric model correlate with none of the leg "
             "forces and temperatures tested (no effect to switch on)")
-        return [head, f"  - {self.describe()}"] + [f"  - {t.line()}" for t in self.tests] + (
-            [f"  - the forces assume {a.split('#')[0].strip()}" for a in self.assumptions
-             if self.tests and self.tests[0].effect == "compliance"])
+        return [head, f"  - {self.describe()}"] + [f"  - {t.line()}" for t in self.tests] + [
+            f"  - {a}" for a in self.assumptions]
 
     def to_dict(self) -> dict[str, Any]:
         return {"suggested": self.suggested, "alpha": self.alpha, "weighting": self.weighting,
@@ -238,7 +238,7 @@ class Diagnosis:
                            "p_value": t.p_value, "alpha": t.alpha,
                            "estimate": t.estimate.tolist(), "unit": t.unit}
                           for t in self.tests],
-                "assumptions": list(self.assumptions)}
+                "assumptions": list(self.assumptions), "statics": list(self.statics)}
 
 
 def _statics(robot: Any) -> LegCompliance:
@@ -266,6 +266,48 @@ def _residual_ss(m: np.ndarray, r: np.ndarray) -> tuple[float, int, np.ndarray]:
     res = r - u[:, :rank] @ proj
     coef = (vt[:rank].T @ (proj / s[:rank])) / d
     return float(res @ res), rank, coef
+
+
+def _cluster_wald(rest: np.ndarray, z: np.ndarray, r: np.ndarray, cluster: np.ndarray
+                  ) -> tuple[float, int]:
+    """The Wald test of ``z``'s coefficients in the regression of ``r`` on ``[rest, z]`` with
+    the cluster-robust (per pose) covariance: ``(F, G - p)``, to be read against
+    ``F(p, G - p)`` (G poses, p the rank of ``z`` beyond ``rest``). Without a noise model the
+    leg residuals of one pose share the noise of its measured pose and joints: only the poses
+    are independent. The residuals of each pose are corrected for its leverage (CR2, Bell and
+    McCaffrey: ``(I - H_kk)^-1/2``) and the statistic scaled as Hotelling's T^2 (``W (G - p) /
+    (p (G - 1))``), the small-sample corrections without which the test rejects too often with
+    tens of poses and six regressors. By Frisch-Waugh-Lovell, ``z`` and ``r`` are first
+    cleared of ``rest``."""
+    def basis(m: np.ndarray) -> np.ndarray:
+        d = np.linalg.norm(m, axis=0)
+        u, s, _ = np.linalg.svd(m / np.where(d > 0, d, 1.0), full_matrices=False)
+        return u[:, s > max(m.shape) * np.finfo(float).eps * 1e3 * (s[0] if s.size else 0)]
+
+    u = basis(rest)
+    zt = z - u @ (u.T @ z)
+    rt = r - u @ (u.T @ r)
+    dz = np.linalg.norm(zt, axis=0)
+    zt = zt / np.where(dz > 0, dz, 1.0)
+    bread = np.linalg.pinv(zt.T @ zt, rcond=1e-10, hermitian=True)
+    beta = bread @ (zt.T @ rt)
+    res = rt - zt @ beta  # the residuals of the whole regression
+    full = np.hstack([u, basis(zt)])  # an orthonormal basis of [rest, z]
+    groups = np.unique(cluster, return_inverse=True)[1]
+    g = int(groups.max()) + 1
+    scores = np.zeros((g, zt.shape[1]))
+    for k in range(g):
+        rows = groups == k
+        h = full[rows] @ full[rows].T
+        val, vec = np.linalg.eigh(np.eye(h.shape[0]) - h)
+        adj = vec @ ((vec.T @ res[rows]) / np.sqrt(np.clip(val, 1e-12, None)))
+        scores[k] = zt[rows].T @ adj
+    cov = bread @ (scores.T @ scores) @ bread
+    p = int(np.linalg.matrix_rank(zt.T @ zt, hermitian=True))
+    wald = float(beta @ np.linalg.pinv(cov, rcond=1e-10, hermitian=True) @ beta)
+    if g - p < 1:
+        return math.nan, 0
+    return wald * (g - p) / (p * (g - 1)), g - p
 
 
 def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = None,
@@ -308,6 +350,7 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
     a = jx[:, :, mask]
     cols: dict[str, np.ndarray] = {}
     assumptions: list[str] = []
+    table: list[str] = []
     if has_payload:
         statics = _statics(robot)
         probe = geometric.with_effects(statics)
@@ -315,11 +358,15 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
         cols["compliance"] = 1e-3 * state.forces[:, :, None] * np.eye(6)[None]
         g = ", ".join(f"{v:.6g}" for v in statics.gravity)
         c = ", ".join(f"{v:.6g}" for v in statics.platform_centre)
-        assumptions = [f"gravity_m_s2 = [{g}]   # gravity in {{0}}: check",
-                       f"platform_mass_kg = {statics.platform_mass:g}   # give yours",
-                       f"platform_centre_mm = [{c}]   # its centre of mass in {{5}}: give yours"]
-        if not robot.effects:
-            assumptions = [s.replace("# gravity", "# assumed: gravity") for s in assumptions]
+        table = [f"gravity_m_s2 = [{g}]        # gravity in {{0}}: check it",
+                 f"platform_mass_kg = {statics.platform_mass:g}       # the platform's: give yours",
+                 f"platform_centre_mm = [{c}]   # its centre of mass in {{5}}: give yours"]
+        assumptions = [f"the leg forces assume gravity [{g}] m/s^2 in {{0}} and a platform of "
+                       f"{statics.platform_mass:g} kg with its centre at [{c}] mm in {{5}} ("
+                       + ("the robot's [effects.compliance]" if any(
+                           isinstance(e, LegCompliance) for e in robot.effects) else
+                          "iwr.effects.api.realistic's defaults: the robot file has no "
+                          "[effects.compliance] table") + ")"]
     if has_temps:
         temps = np.broadcast_to(data.temperatures, (n, 6))
         lengths = leg_state(geometric, x, data.q, data.poses, data, frozenset()).lengths
@@ -345,6 +392,7 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
         weighting = "unweighted" if w is None else "weighted by the data's leg weights"
         rows = sw > 0
     rw = whiten(r[..., None])[..., 0][rows]
+    cluster = np.broadcast_to(np.arange(n)[:, None], (n, 6))[rows]
     aw = whiten(a)[rows]
     zw = {k: whiten(v)[rows] for k, v in cols.items()}
     every = np.concatenate([aw] + list(zw.values()), axis=1)
@@ -355,18 +403,24 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
     start = aw.shape[1]
     for name, z in zw.items():
         others = [v for k, v in zw.items() if k != name]
-        rss0, rank0, _ = _residual_ss(np.concatenate([aw] + others, axis=1), rw)
+        rest = np.concatenate([aw] + others, axis=1)
+        rss0, rank0, _ = _residual_ss(rest, rw)
         p = rank1 - rank0
+        dof = f_dof
         if p < 1 or f_dof < 1:
             stat, pv = math.nan, 1.0
-        else:
+        elif isinstance(noise, Noise):
+            # Whitened by the noise model: the exact F test of the nested regressions.
             stat = ((rss0 - rss1) / p) / (rss1 / f_dof)
             pv = float(special.fdtrc(p, f_dof, max(stat, 0.0)))
+        else:
+            stat, dof = _cluster_wald(rest, z, rw, cluster)
+            pv = float(special.fdtrc(p, dof, max(stat, 0.0))) if dof >= 1 else 1.0
         k = list(zw).index(name)
         first = start + sum(v.shape[1] for v in list(zw.values())[:k])
         est = coef[first: first + z.shape[1]]
         tests.append(EffectTest(
             name, "the six leg forces" if name == "compliance" else
-            "leg length times temperature", float(stat), (int(p), int(f_dof)), pv, level,
+            "leg length times temperature", float(stat), (int(p), int(dof)), pv, level,
             np.asarray(est, dtype=float), "um/N" if name == "compliance" else "ppm/K"))
-    return Diagnosis(tests, alpha, weighting, assumptions, int(rw.size))
+    return Diagnosis(tests, alpha, weighting, assumptions, int(rw.size), table)

@@ -668,7 +668,8 @@ class CalibrationReport(Calibration):
             page.figure(figures["residuals.png"], "Leg residuals before and after calibration",
                         "residuals.png")
         return self._html_tail(page, [
-            "calibrated.toml: the calibrated robot (nominal plus identified errors)",
+            "calibrated.toml: the calibrated robot (nominal plus identified errors"
+            + (", with the identified effects' values)" if self.robot.effects else ")"),
             "result.json: the identification result (iwr.load_result)",
             "summary.json: the figures of this report", "report.md: this report as Markdown",
             *figures])
@@ -822,7 +823,8 @@ class CalibrationReport(Calibration):
                    f"{r['bounds'][0]:.3g} .. {r['bounds'][1]:.3g} | {r['status']} |"
                    for r in self.effect_rows()]
         md += ["", "## Files", "",
-               "- `calibrated.toml`: the calibrated robot (nominal plus identified errors)",
+               "- `calibrated.toml`: the calibrated robot (nominal plus identified errors"
+               + (", with the identified effects' values)" if self.robot.effects else ")"),
                "- `result.json`: the identification result (`iwr.load_result`)",
                "- `summary.json`: the figures of this report"]
         md += [f"- `{f}`" for f in figures]
