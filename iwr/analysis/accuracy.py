@@ -9,6 +9,7 @@ from typing import Any
 import numpy as np
 
 from .. import kinds
+from ..effects import refuse as refuse_effects
 from ..forward import ForwardKinematicsError, forward_kinematics
 from ..measurements import Measurements
 from ..robot import Robot
@@ -180,17 +181,15 @@ def pose_accuracy(robot: Robot, measurements: Measurements, x: Any, *, tool: Any
                   truth: Any = None, tolerance: float = 1e-9, max_iterations: int = 50
                   ) -> Accuracy:
     """:func:`accuracy` on pose data (the platform pose measured in {0})."""
+    # Issue 23: the geometry's forward kinematics; a robot with effects goes to
+    # iwr.effects.job.accuracy (PoseKind.accuracy, what iwr.accuracy calls).
+    refuse_effects(robot, "pose_accuracy")
     if truth is not None:
         raise ValueError("truth: only for tracker data (iwr.tracker.TrackerMeasurements)")
     if not isinstance(measurements, Measurements):
         raise TypeError(
             f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
         )
-    if robot.effects:  # issue 23: the forward kinematics under each pose's load and temperature
-        from ..effects.job import accuracy as effect_accuracy
-
-        return effect_accuracy(robot, measurements, x, tool=tool, tolerance=tolerance,
-                               max_iterations=max_iterations)
     x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
     out = {}
     for label, xe in (("nominal", np.zeros(robot.n_params)), ("calibrated", x)):

@@ -107,6 +107,12 @@ class PoseKind(MeasurementKind):
         return pose_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the forward kinematics under each pose's load and temperature
+            from ..effects.job import accuracy as effect_accuracy
+
+            if options.pop("truth", None) is not None:
+                raise ValueError("truth: only for tracker data (iwr.tracker.TrackerMeasurements)")
+            return effect_accuracy(robot, data, x, **options)
         return pose_accuracy(robot, data, x, **options)
 
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
