@@ -232,6 +232,11 @@ class Diagnosis:
         return [head, f"  - {self.describe()}"] + [f"  - {t.line()}" for t in self.tests] + [
             f"  - {a}" for a in self.assumptions]
 
+    def sentence(self) -> str:
+        """The diagnosis's first line as a sentence (for a verdict)."""
+        head = self.lines()[0].removeprefix("diagnosis: ")
+        return head[:1].upper() + head[1:] + "."
+
     def to_dict(self) -> dict[str, Any]:
         return {"suggested": self.suggested, "alpha": self.alpha, "weighting": self.weighting,
                 "tests": [{"effect": t.effect, "F": t.statistic, "dof": list(t.dof),

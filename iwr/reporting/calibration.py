@@ -558,7 +558,7 @@ class CalibrationReport(Calibration):
         diagnosis's suggestion when it names an effect (issue 23)."""
         text, grade = self._graded(*self.improvement())
         if self.diagnosis is not None and self.diagnosis.suggested:
-            text += " " + self.diagnosis.lines()[0].removeprefix("diagnosis: ").capitalize() + "."
+            text += " " + self.diagnosis.sentence()
         return text, grade
 
     def _graded(self, before: float, after: float, change: str, what: str) -> tuple[str, str]:
@@ -696,7 +696,7 @@ class CalibrationReport(Calibration):
         d = self.diagnosis
         page.heading("Diagnosis: loads and temperatures")
         lines = d.lines()
-        page.verdict(lines[0].removeprefix("diagnosis: ").capitalize() + ".",
+        page.verdict(d.sentence(),
                      "bad" if d.suggested else "good")
         page.items([ln.strip().removeprefix("- ") for ln in lines[1:]])
         if d.suggested:
