@@ -105,6 +105,8 @@ def test_calibration_job_with_effects(with_effects, job, tmp_path):
     names = {p.name for p in written}
     assert {"calibrated.toml", "report.html", "report.md", "summary.json"} <= names
     calibrated = iwr.Robot.from_toml(tmp_path / "out" / "calibrated.toml")
+    toml = (tmp_path / "out" / "calibrated.toml").read_text()
+    assert "[provenance]" in toml and 'status = "success"' in toml
     expected = api.apply(with_effects, cal.result.x)
     assert calibrated.effects == expected.effects
     np.testing.assert_allclose(calibrated.effects[0].compliance,
