@@ -26,7 +26,7 @@ from . import kinds
 from .analysis.accuracy import Accuracy, accuracy
 from .analysis.identifiability import identifiability, identifiable_count, parameter_error
 from .analysis.uncertainty import Uncertainty, uncertainty
-from .effects import refuse as refuse_effects
+from .effects import parameter_names as effect_parameter_names
 from .gross_errors import LeftOutError, without_left_out
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
@@ -86,6 +86,10 @@ class Calibration:
         Other inputs named in the report (``{"readings": path}``).
     kind : MeasurementKind
         The kind of the data (:func:`iwr.kinds.of`).
+    diagnosis : iwr.effects.job.Diagnosis or None
+        A robot without effects on data with payload or temperature columns: whether the
+        residuals correlate with the leg forces or the temperatures, and the effect to switch
+        on (:func:`iwr.effects.job.diagnose`; issue 23).
     """
 
     robot: Any
@@ -107,6 +111,7 @@ class Calibration:
     start: Any = None
     sources: dict[str, str] = field(default_factory=dict)
     kind: Any = None
+    diagnosis: Any = None
     problems: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -170,14 +175,17 @@ def degenerate(robot: Any, identification: Any, report: Any) -> str | None:
     this robot (too few distinct poses, copies, poses that do not move some joint)."""
     if report is None:
         return None
-    need = identifiable_count(robot)
-    if report.rank >= need:
+    # With effects: the geometry's rank (effect parameters the data cannot separate from the
+    # geometry are named by the report and held at the robot file's values, not a degeneracy).
+    rank = getattr(report, "geometric_rank", report.rank)
+    need = identifiable_count(robot.with_effects() if robot.effects else robot)
+    if rank >= need:
         return None
     distinct = distinct_poses(identification)
     n = len(identification)
     copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
     return (f"degenerate data: the {distinct} distinct identification poses{copies} "
-            f"identify {report.rank} of the {need} parameters that varied poses identify "
+            f"identify {rank} of the {need} parameters that varied poses identify "
             f"for this robot; the other {need - report.rank} would be left at nominal: "
             "measure more, and more varied, poses")
 
@@ -271,8 +279,10 @@ def calibrate(
         Ctrl-C during the identification ends the job with the best point so far
         (``status == "interrupted"``, ``success`` false).
     """
-    # Issue 23: the job (gross errors, fit test, uncertainty, report) models the geometry only.
-    refuse_effects(robot, "iwr.calibrate (the calibration job and its report)")
+    if robot.effects:  # issue 23: eq. (10) with the effects by LM, without a noise model so far
+        from .effects.job import check_job
+
+        method = check_job(robot, data, method, noise)
     kind = kinds.of(data)
     kind.check(robot, data)
     if parameters not in ("base", "all"):
@@ -343,7 +353,11 @@ def calibrate(
         truth_acc = perr = None
         if truth is not None:
             truth_acc = accuracy(robot, val, truth)
-            perr = parameter_error(robot, ident, result.x, truth)
+            if robot.effects:
+                notes.append("note: no parameter error against the truth: iwr.parameter_error "
+                             "does not model the effects yet (issue 23)")
+            else:
+                perr = parameter_error(robot, ident, result.x, truth)
         predicted = None
         if result.covariance is not None and not result.interrupted:
             try:
@@ -357,9 +371,33 @@ def calibrate(
             identifiability=report, uncertainty=unc, parameter_error=perr,
             truth_accuracy=truth_acc, notes=notes, settings=dict(settings or {"method": method}),
             provenance=provenance, predicted=predicted, start=start,
-            sources=dict(sources or {}), kind=kind, problems=problems)
+            sources=dict(sources or {}), kind=kind, problems=problems,
+            diagnosis=_diagnosis(robot, ident, result, noise, notes))
         cal._settle()
     return cal
+
+
+def _diagnosis(robot: Any, data: Any, result: Any, noise: Any, notes: list[str]) -> Any:
+    """:func:`iwr.effects.job.diagnose` of a geometric-only result on pose data with payload or
+    temperature columns (issue 23), with the noise the fit was weighted by; None otherwise (a
+    note when it cannot be computed)."""
+    from .effects.job import diagnose
+    from .measurements import Measurements
+    from .noise import Noise
+
+    if robot.effects or not isinstance(data, Measurements) or result.interrupted:
+        return None
+    if data.payload is None and data.temperatures is None:
+        return None
+    if result.method == "efficient" and result.noise is not None:
+        noise = result.noise
+    try:
+        return diagnose(robot, data, result.x, active=result.active,
+                        noise=noise if isinstance(noise, Noise) else None)
+    except (ValueError, np.linalg.LinAlgError) as exc:
+        notes.append(f"note: no diagnosis of the residuals against the loads and temperatures: "
+                     f"{_one_line(exc)}")
+        return None
 
 
 def from_result(
@@ -380,18 +418,21 @@ def from_result(
     ValueError when the result's parameters are not those of ``robot`` and the data's kind."""
     kind = kinds.of(data)
     kind.check(robot, data)
-    names = robot.parameter_names + kind.setup_parameter_names(robot)
+    names = (robot.parameter_names + kind.setup_parameter_names(robot)
+             + effect_parameter_names(robot.effects))
+    if robot.effects:
+        from .effects.job import check_job
+
+        check_job(robot, data, str(result.method or "lm"), None)
     x = np.asarray(result.x, dtype=float)
     if x.shape != (len(names),):
         raise ValueError(f"{x.size} parameters, but robot {robot.name!r} "
-                         + ("" if len(names) == robot.n_params else "with its tracker setup ")
-                         + f"has {len(names)}")
+                         + _extras(robot, kind) + f"has {len(names)}")
     saved = list(result.parameter_names)
     if saved and saved != names:
         first = next(a for a, b in zip(saved, names, strict=True) if a != b)
         raise ValueError(f"its parameters are not those of robot {robot.name!r}"
-                         + ("" if len(names) == robot.n_params else " and its tracker setup")
-                         + f": first difference {first!r}")
+                         + f" {_extras(robot, kind)}".rstrip() + f": first difference {first!r}")
     if validation is not None and kinds.of(validation) is not kind:
         raise TypeError(f"validation: {kinds.of(validation).name} data, but data are "
                         f"{kind.name} data")
@@ -446,9 +487,16 @@ def from_result(
             robot_name=robot_name, identifiability=report, uncertainty=unc, notes=notes,
             settings=dict(settings or {"method": result.method}),
             provenance=provenance, start=start, sources=dict(sources or {}), kind=kind,
-            problems=problems)
+            problems=problems, diagnosis=_diagnosis(robot, data, result, None, notes))
         cal._settle()
     return cal
+
+
+def _extras(robot: Any, kind: Any) -> str:
+    """What a result's parameters hold beyond the robot's geometric errors, for messages."""
+    parts = (["its tracker setup"] if kind.setup_parameter_names(robot) else []) + (
+        ["its effects"] if robot.effects else [])
+    return f"with {' and '.join(parts)} " if parts else ""
 
 
 def _weighted_fit(robot: Any, data: Any, result: IdentificationResult, report: Any
@@ -487,6 +535,11 @@ def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, no
     else the objective's the method minimised (weighted by ``noise`` when it was) over the
     result's active parameters, or ``report``'s identifiable ones. None, with a note, where
     they do not exist."""
+    if robot.effects:  # issue 23: iwr.uncertainty with effects is another helper's (effects-fit)
+        names = ", ".join(e.name for e in robot.effects)
+        notes.append(f"note: no standard deviations: the robot has effects on ({names}), which "
+                     "iwr.uncertainty does not model yet (docs/effects.md)")
+        return None
     try:
         unc = Uncertainty.from_result(result) if own_covariance else None
         if unc is None:

@@ -29,7 +29,7 @@ import numpy as np
 from . import kinds
 from ._io import atomic_write_text
 from .analysis.identifiability import IdentifiabilityReport, column_scale, identifiability
-from .measurements import PLAN_MARKER, MeasurementFileError, Measurements
+from .measurements import _PAYLOAD_COLUMNS, PLAN_MARKER, MeasurementFileError, Measurements
 from .problem import Problem, predict_legs
 from .robot import Robot
 from .simulation import Noise, add_noise
@@ -85,6 +85,8 @@ class PosePlan:
         measurements); :func:`read_plan` reads it back."""
         m = self.measurements
         cols = m.columns()[: m.n_joints + 6]
+        # Issue 23: with payloads planned, the payload to mount at each pose (docs/effects.md).
+        pay = [] if m.payload is None else list(_PAYLOAD_COLUMNS)
         buf = io.StringIO()
         origin = f" from {source}" if source else ""
         what = {"points": "the reflector points measured by the tracker, in its frame",
@@ -94,21 +96,26 @@ class PosePlan:
         buf.write(
             f"{PLAN_MARKER} {len(self.indices)} poses chosen for {self.criterion}{origin}.\n"
             "# Not measurements: drive the robot to each pose below, record the joint readings,\n"
-            f"# the six leg readings and {what}, and calibrate\n"
+            + ("# with the payload of its payload_* columns mounted (mass kg, centre of mass in\n"
+               "# {5} mm), " if pay else "# ")
+            + f"the six leg readings and {what}, and calibrate\n"
             f"# with that measurement file ({doc}). Lengths in mm, angles in rad; the platform\n"
             "# poses are {5} in the world frame {0} of the nominal robot.\n"
         )
         writer = csv.writer(buf, lineterminator="\n")
-        writer.writerow(cols)
-        for row in np.hstack([m.q, m.poses]):
+        writer.writerow(cols + pay)
+        for row in np.hstack([m.q, m.poses] + ([m.payload] if pay else [])):
             writer.writerow([repr(float(v)) for v in row])
         atomic_write_text(path, buf.getvalue())
 
 
-def read_plan(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
+def read_plan(path: str | os.PathLike[str], *, payload: bool = False) -> Any:
     """The poses of a plan written by :meth:`PosePlan.to_csv` (``iwr plan``): ``(q, poses)``,
     joint readings (N, n_joints) and world platform poses (N, 6), a pair that
-    :func:`plan_poses` also takes as candidates.
+    :func:`plan_poses` also takes as candidates. ``payload``: ``(q, poses, payload)``, the
+    payload planned at each pose ((N, 4): mass kg, centre in {5} mm; None when the plan has no
+    ``payload_*`` columns: issue 23). A plan with payloads read without ``payload`` is refused
+    (its payloads are part of what to measure).
 
     Raises
     ------
@@ -130,9 +137,15 @@ def read_plan(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
         fields = [f.strip() for f in next(csv.reader([line]))]
         if header is None:
             header = fields
-            n_joints = len(header) - 6
-            if n_joints < 0 or header[n_joints:] != ["x_mm", "y_mm", "z_mm", "alpha_rad",
-                                                     "beta_rad", "gamma_rad"]:
+            n_pay = 4 if tuple(header[-4:]) == _PAYLOAD_COLUMNS else 0
+            if n_pay and not payload:
+                raise MeasurementFileError(
+                    f"{path}, line {lineno}: the plan names a payload per pose (columns "
+                    f"{', '.join(_PAYLOAD_COLUMNS)}); read it with read_plan(path, "
+                    "payload=True)")
+            n_joints = len(header) - 6 - n_pay
+            if n_joints < 0 or header[n_joints: n_joints + 6] != [
+                    "x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad"]:
                 raise MeasurementFileError(f"{path}, line {lineno}: not a plan's header")
             continue
         try:
@@ -147,6 +160,9 @@ def read_plan(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     if header is None or not rows:
         raise MeasurementFileError(f"{path}: no poses")
     data = np.array(rows)
+    if payload:
+        return (data[:, :n_joints], data[:, n_joints: n_joints + 6],
+                data[:, n_joints + 6:] if n_pay else None)
     return data[:, :n_joints], data[:, n_joints:]
 
 
@@ -180,8 +196,38 @@ def _as_candidates(robot: Robot, candidates: Any) -> Measurements:
         ) from None
     poses = np.asarray(poses, dtype=float)
     q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
-    legs = predict_legs(robot, np.zeros(robot.n_params), q, poses)
+    legs = predict_legs(robot.with_effects(), np.zeros(robot.n_params), q, poses)
     return Measurements(q, poses, legs, joint_types=robot.joint_types)
+
+
+def _with_conditions(robot: Robot, cand: Measurements, payloads: Any, temperatures: Any
+                     ) -> Measurements:
+    """Issue 23: the candidates under each of ``payloads`` in turn (every pose once per
+    payload, the first payload's copies first), with ``temperatures`` (one per pose or per leg)
+    when given."""
+    temps = cand.temperatures
+    if temperatures is not None:
+        temps = np.asarray(temperatures, dtype=float)
+        if temps.ndim == 0:
+            temps = np.full(len(cand), float(temps))
+    pay = cand.payload
+    if payloads is not None:
+        if not any("forces" in e.needs for e in robot.effects):
+            raise ValueError(f"payloads: robot {robot.name!r} has no effect of the load "
+                             "([effects.compliance]); the payloads change nothing it models")
+        p = np.asarray(payloads, dtype=float)
+        if p.ndim != 2 or p.shape[1] != 4 or len(p) == 0:
+            raise ValueError(f"payloads: shape {p.shape}; expected (P, 4): mass kg, centre of "
+                             "mass in {5} mm")
+        rows = np.tile(np.arange(len(cand)), len(p))
+        pay = np.repeat(p, len(cand), axis=0)
+        if temps is not None:
+            temps = np.asarray(temps)[rows]
+        base = cand.subset(rows)
+        return Measurements(base.q, base.poses, base.legs, joint_types=robot.joint_types,
+                            payload=pay, temperatures=temps)
+    return Measurements(cand.q, cand.poses, cand.legs, joint_types=robot.joint_types,
+                        payload=pay, temperatures=temps)
 
 
 def plan_poses(
@@ -195,6 +241,8 @@ def plan_poses(
     exchange: bool = True,
     max_passes: int = 20,
     report: IdentifiabilityReport | None = None,
+    payloads: Any = None,
+    temperatures: Any = None,
 ) -> PosePlan:
     """Choose ``n_poses`` of the candidate poses that maximise an observability index.
 
@@ -229,6 +277,16 @@ def plan_poses(
     report : IdentifiabilityReport or NullSpace, optional
         Identifiability of all candidates, if already computed (defines the base parameters;
         with a tracker, :func:`iwr.identifiability`'s NullSpace, whose ``active`` are kept).
+    payloads : array_like (P, 4), optional
+        A robot with the compliance effect (issue 23, docs/effects.md): the payloads that can
+        be mounted (mass kg, centre of mass in {5} mm; include ``(0, 0, 0, 0)`` for none).
+        Every candidate pose is a candidate once per payload, and the plan chooses poses and
+        payloads together (``plan.measurements.payload``; the plan file's ``payload_*``
+        columns), so that the compliances are separated from the geometry where one payload
+        cannot. Default: the candidates' own payload column (none if they have none).
+    temperatures : float or array_like, optional
+        The legs' temperatures expected at the candidate poses (degrees C; one per pose, or
+        per pose and leg), which the thermal effect needs; default the candidates' own.
 
     Returns
     -------
@@ -237,6 +295,11 @@ def plan_poses(
     if criterion not in CRITERIA:
         raise ValueError(f"criterion: {criterion!r}; expected one of {', '.join(CRITERIA)}")
     cand = _as_candidates(robot, candidates)
+    if robot.effects:  # issue 23: the loads (and temperatures) are part of each candidate
+        cand = _with_conditions(robot, cand, payloads, temperatures)
+    elif payloads is not None or temperatures is not None:
+        raise ValueError(f"payloads, temperatures: robot {robot.name!r} has no effect on; they "
+                         "change nothing its geometry models (docs/effects.md)")
     n_cand = len(cand)
     # The information of the kind of data the robot measures (laser-tracker data,
     # docs/tracker.md: the tracker problem's, the registration and the offsets included).
@@ -340,6 +403,15 @@ def pose_design(robot: Robot, cand: Measurements, x: Any, report: Any
                 ) -> tuple[Problem, np.ndarray, np.ndarray, int, str]:
     """:func:`plan_poses`'s problem for pose data: ``(problem, x, base indices, readings per
     pose, what they are)``."""
+    if robot.effects:  # issue 23: the geometry's and the effects' parameters together
+        from .effects.api import identifiability as effect_identifiability
+        from .effects.problem import EffectProblem
+
+        eproblem = EffectProblem(robot, cand)
+        x = np.zeros(eproblem.n_params) if x is None else np.asarray(x, dtype=float)
+        if report is None:
+            report = effect_identifiability(robot, cand, x)
+        return eproblem, x, np.flatnonzero(report.active), 6, "readings"
     problem = Problem(robot, cand)
     x = np.zeros(robot.n_params) if x is None else np.asarray(x, dtype=float)
     if report is None:

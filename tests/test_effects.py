@@ -225,7 +225,8 @@ def test_what_does_not_model_the_effects_refuses(with_effects, data):
                                                  joint_types=m.joint_types, payload=m.payload))
     with pytest.raises(ValueError, match="no problem file"):
         EffectProblem(with_effects, m).save("unused.iwrp")
-    with pytest.raises(ValueError, match="effects on.*iwr.accuracy"):
+    # iwr.accuracy models them (tests/test_effects_job.py): the effects' parameters are needed.
+    with pytest.raises(ValueError, match="x: shape.*effect parameters"):
         iwr.accuracy(with_effects, m, x[:with_effects.n_params])
     # Tracker data model the geometry only so far: refused, not run without the effects.
     tracked = with_effects.with_tracker(registration=(2000.0, 0.0, 300.0, 1.5708, 0.0, 0.0),

@@ -258,3 +258,33 @@ def test_atomic_write_removes_the_temporaries_of_killed_writers(tmp_path):
     finally:
         live.kill()
         live.wait()
+
+
+def test_effects_and_diagnosis_sections_open_cleanly(tmp_path: Path) -> None:
+    """Issue 23: the report of a calibration with effects (its Effects section after the
+    identifiability) and that of a geometric calibration of data with payloads (its Diagnosis
+    section after the fit test, with the table to add) open cleanly."""
+    from iwr.effects import api
+    from iwr.reporting.calibration import render
+
+    chromium()
+    robot = iwr.Robot.default()
+    with_effects = robot.with_effects(*api.realistic(robot))
+    m, _ = api.simulate(with_effects, 60, seed=3, noise=iwr.Noise(legs=0.001))
+    out = tmp_path / "effects"
+    render(iwr.calibrate(with_effects, m, seed=1)).write(out)
+    page = (out / "report.html").read_text(encoding="utf-8")
+    order = [page.index(h) for h in ("<h2>Identifiability</h2>", "<h2>Effects</h2>",
+                                     "<h2>Leg residuals</h2>")]
+    assert order == sorted(order) and "um/N" in page and "ppm/K" in page
+    assert_opens_cleanly(out / "report.html", tmp_path, 2)
+    comp, _ = api.realistic(robot)
+    m, _ = api.simulate(robot.with_effects(comp), 60, seed=3, noise=iwr.Noise.realistic())
+    out = tmp_path / "diagnosis"
+    render(iwr.calibrate(robot, m, noise=iwr.Noise.realistic(), seed=1)).write(out)
+    page = (out / "report.html").read_text(encoding="utf-8")
+    order = [page.index(h) for h in ("<h2>Fit test and outliers</h2>",
+                                     "<h2>Diagnosis: loads and temperatures</h2>",
+                                     "per_leg = true", "<h2>Identified parameters</h2>")]
+    assert order == sorted(order)
+    assert_opens_cleanly(out / "report.html", tmp_path, 2)

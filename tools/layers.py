@@ -49,7 +49,7 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.methods", "iwr.analysis", "iwr.analysis.*", "iwr.planning", "iwr.simulation",
         "iwr.forward", "iwr.pose_frame", "iwr.compensation", "iwr.gross_errors",
         "iwr.tracker", "iwr.tracker.*", "iwr.ballbar", "iwr.ballbar.*", "iwr.export",
-        "iwr.export.*", "iwr.effects.api", "iwr.effects.estimation"]),
+        "iwr.export.*", "iwr.effects.api", "iwr.effects.estimation", "iwr.effects.job"]),
     ("kind implementations (reached through the kinds' registry)", [
         "iwr.kinds.pose", "iwr.tracker.kind", "iwr.ballbar.kind"]),
     ("the calibration job", ["iwr.calibration"]),

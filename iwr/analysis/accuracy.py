@@ -181,7 +181,9 @@ def pose_accuracy(robot: Robot, measurements: Measurements, x: Any, *, tool: Any
                   truth: Any = None, tolerance: float = 1e-9, max_iterations: int = 50
                   ) -> Accuracy:
     """:func:`accuracy` on pose data (the platform pose measured in {0})."""
-    refuse_effects(robot, "iwr.accuracy")  # issue 23: the forward kinematics of the geometry
+    # Issue 23: the geometry's forward kinematics; a robot with effects goes to
+    # iwr.effects.job.accuracy (PoseKind.accuracy, what iwr.accuracy calls).
+    refuse_effects(robot, "pose_accuracy")
     if truth is not None:
         raise ValueError("truth: only for tracker data (iwr.tracker.TrackerMeasurements)")
     if not isinstance(measurements, Measurements):

@@ -37,12 +37,29 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="number of poses to choose (default: %(default)s)")
     p.add_argument("--criterion", choices=("O1", "O2", "O3", "O4"), default="O1",
                    help="observability index to maximise (default: O1, D-optimal)")
+    p.add_argument("--payload", action="append", type=_payload, default=None,
+                   metavar="KG,X,Y,Z",
+                   help="a robot with [effects.compliance]: a payload that can be mounted "
+                   "(mass kg, centre of mass in {5} mm; 0,0,0,0 for none); repeat it: the plan "
+                   "chooses poses and payloads together (docs/effects.md)")
     p.add_argument("--seed", type=nonneg_int, default=0, help="random seed (default: 0)")
     p.add_argument("--out", default="plan.csv", metavar="FILE",
                    help="the chosen poses, as a measurement CSV (default: %(default)s)")
     add_common(p)
     p.set_defaults(func=cmd_plan)
     return p
+
+
+def _payload(text: str) -> list[float]:
+    """``--payload KG,X,Y,Z``."""
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        values = []
+    if len(values) != 4 or not all(np.isfinite(values)) or values[0] < 0:
+        raise argparse.ArgumentTypeError(f"{text!r}: expected KG,X,Y,Z (mass >= 0 kg, centre "
+                                         "of mass in {5} mm), e.g. 80,50,0,150")
+    return values
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
@@ -66,19 +83,45 @@ def cmd_plan(args: argparse.Namespace) -> int:
         source = str(args.candidates)
     else:
         rng = np.random.default_rng(args.seed)
-        q, poses, legs = sample_poses(robot, args.n_candidates, rng)
+        q, poses, legs = sample_poses(robot.with_effects() if robot.effects else robot,
+                                      args.n_candidates, rng)
         cand = Measurements(q, poses, legs, joint_types=robot.joint_types)
         source = f"{args.n_candidates} reachable poses sampled at random (seed {args.seed})"
-    if args.poses > len(cand):
-        raise CommandError(f"--poses {args.poses}: more than the {len(cand)} candidates")
+    payloads = None
+    temperatures = None
+    if args.payload:
+        if not robot.effects:
+            raise CommandError(f"--payload: robot {robot.name!r} has no [effects.compliance] "
+                               "table; payloads change nothing its geometry models")
+        payloads = np.array(args.payload)
+    thermal = [e for e in robot.effects if "temperatures" in e.needs]
+    if thermal and cand.temperatures is None:
+        # The temperatures are not chosen but met: a day's drift about the reference, as
+        # iwr.simulate draws them (docs/effects.md).
+        from ..effects.api import DEFAULT_TEMPERATURE_SPREAD
+
+        lo, hi = (thermal[0].reference + d for d in DEFAULT_TEMPERATURE_SPREAD)
+        temperatures = np.random.default_rng(args.seed).uniform(lo, hi, len(cand))
+        print(f"temperatures: the {thermal[0].name} effect needs them at the candidates; drawn "
+              f"uniformly in {lo:g} .. {hi:g} C (seed {args.seed})")
+    n_cand = len(cand) * (1 if payloads is None else len(payloads))
+    if args.poses > n_cand:
+        raise CommandError(f"--poses {args.poses}: more than the {n_cand} candidates")
     try:
-        plan = plan_poses(robot, cand, args.poses, criterion=args.criterion, seed=args.seed)
+        plan = plan_poses(robot, cand, args.poses, criterion=args.criterion, seed=args.seed,
+                          **({"payloads": payloads, "temperatures": temperatures}
+                             if robot.effects else {}))
     except ValueError as exc:
         msg = str(exc)
         raise CommandError("--poses" + msg[7:] if msg.startswith("n_poses:") else msg) from None
     plan.to_csv(args.out, source)
     print(f"candidates: {source}")
     print(plan)
+    if payloads is not None:
+        chosen = plan.measurements.payload
+        counts = ", ".join(f"{int(np.sum(np.all(chosen == p, axis=1)))} with {p[0]:g} kg"
+                           for p in payloads)
+        print(f"payloads: {counts}")
     print(f"wrote {args.out}: the chosen poses to measure (joint readings and platform poses); "
           "measure them, then calibrate with the measured file")
     return EXIT_OK

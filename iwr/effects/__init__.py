@@ -235,6 +235,8 @@ def bounds(effects: Sequence[Effect]) -> tuple[np.ndarray, np.ndarray]:
 SUPPORTED = ("iwr.identify with method 'lm' (eq. (10) or noise-weighted) or 'efficient' on "
              "pose data", "iwr.simulate", "iwr.identifiability", "iwr.uncertainty",
              "iwr.estimation.predicted_accuracy", "iwr.implicit_loop.loop_jacobians",
+             "iwr.accuracy",
+             "iwr.calibrate, iwr calibrate and iwr report with method 'lm' without a noise model",
              "iwr.effects.api.leg_commands", "iwr.effects.api.forward_kinematics")
 
 

@@ -141,6 +141,17 @@ class EffectIdentifiability:
     def base_parameters(self) -> list[str]:
         return [n for n, a in zip(self.parameter_names, self.active, strict=True) if a]
 
+    @property
+    def left_out(self) -> list[str]:
+        """The parameters not among the base ones (held at their value by :func:`iwr.identify`)."""
+        return [n for n, a in zip(self.parameter_names, self.active, strict=True) if not a]
+
+    @property
+    def condition_number(self) -> float:
+        """Of the column-scaled Jacobian's identifiable part (as :func:`iwr.identifiability`)."""
+        return float(self.singular_values[0] / self.singular_values[self.rank - 1]) \
+            if self.rank else float("inf")
+
     def __str__(self) -> str:
         n_eff = len(self.parameter_names) - self.n_geometric
         lines = [f"Identifiability with effects: {self.n_poses} poses, rank {self.rank} of "
@@ -178,7 +189,17 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *, rtol: float
     null = vt[rank:].T  # scaled coordinates: unit-free shares
     names = problem.parameter_names
     share = np.linalg.norm(null[ng:], axis=1) if null.size else np.zeros(len(names) - ng)
-    inseparable = [(names[ng + i], float(v)) for i, v in enumerate(share) if v > 1e-6]
+    # Inseparable: the parameter's column is in the span of the others (leaving it out does not
+    # lower the rank). Its share of the null directions alone is not the test: where the
+    # geometry's own null space is large, a null basis vector mixes in a small share of a
+    # separable column near the rank threshold.
+    inseparable = []
+    for i, v in enumerate(share):
+        if v <= 1e-6:
+            continue
+        _, s_i, _ = _scaled_svd(np.delete(jac, ng + i, axis=1))
+        if int(np.sum(s_i > thr)) == rank:
+            inseparable.append((names[ng + i], float(v)))
     # The ordered rule of iwr.identifiability with the effects' parameters after the hexapod's.
     shim = types.SimpleNamespace(n_joints=robot.n_joints, n_params=len(names))
     base, _ = _base_parameters(jac / d, s, thr, rank, shim, "ordered")

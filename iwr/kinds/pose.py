@@ -107,6 +107,12 @@ class PoseKind(MeasurementKind):
         return pose_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the forward kinematics under each pose's load and temperature
+            from ..effects.job import accuracy as effect_accuracy
+
+            if options.pop("truth", None) is not None:
+                raise ValueError("truth: only for tracker data (iwr.tracker.TrackerMeasurements)")
+            return effect_accuracy(robot, data, x, **options)
         return pose_accuracy(robot, data, x, **options)
 
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
@@ -159,6 +165,10 @@ class PoseKind(MeasurementKind):
         return rw, jw, rw.size
 
     def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        if robot.effects:  # issue 23: the gross-error screen of a calibration with effects
+            from ..effects.job import misclosures as effect_misclosures
+
+            return effect_misclosures(robot, data, x, noise)
         return pose_misclosures(robot, data, x, noise)
 
     def candidate_poses(self, robot: Any, data: Any) -> Any:

@@ -13,6 +13,7 @@ import numpy as np
 
 from .._io import atomic_write_bytes, atomic_write_text, jsonable, write_folder
 from ..calibration import NOT_CALIBRATED, WORSE, Calibration
+from ..effects import parameter_names as effect_parameter_names
 from ..kinds import reuse
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
@@ -31,13 +32,30 @@ def leg_residual_stats(robot: Robot, errors: Any, data: Measurements) -> dict[st
     """Per-leg statistics of the unweighted residuals ``predicted - measured`` (mm).
 
     Returns ``{"rms": (6,), "max": (6,), "mean": (6,)}`` (``max`` of the absolute value).
+    A robot with effects: ``errors`` holds the effects' parameters too, and the readings are
+    predicted under each pose's load and temperature.
     """
-    r = predict_legs(robot, errors, data.q, data.poses) - data.legs
+    r = _predicted_legs(robot, errors, data) - data.legs
     return {
         "mean": r.mean(axis=0),
         "rms": np.sqrt(np.mean(r**2, axis=0)),
         "max": np.abs(r).max(axis=0),
     }
+
+
+def _predicted_legs(robot: Robot, x: Any, data: Measurements) -> np.ndarray:
+    """The leg readings predicted at ``data``'s poses: with the effects when the robot has some
+    (issue 23: ``x`` then holds their parameters after the geometric errors)."""
+    if robot.effects:
+        from ..effects.model import predicted_readings
+
+        return predicted_readings(robot, x, data.q, data.poses, data)
+    return predict_legs(robot, x, data.q, data.poses)
+
+
+def _n_all(robot: Robot) -> int:
+    """The robot's geometric errors plus its effects' parameters."""
+    return robot.n_params + len(effect_parameter_names(robot.effects))
 
 
 def render(cal: Calibration) -> CalibrationReport:
@@ -69,8 +87,13 @@ class CalibrationReport(Calibration):
     # -- numbers --------------------------------------------------------------------------------
     def costs(self) -> dict[str, float]:
         """Cost of eq. (10) on the identification poses, nominal and calibrated (mm^2)."""
-        p = Problem(self.robot, self.identification)
-        nominal = p.cost(np.zeros(self.robot.n_params))
+        if self.robot.effects:  # issue 23: eq. (10) with the effects
+            from ..effects.problem import EffectProblem
+
+            p: Any = EffectProblem(self.robot, self.identification)
+        else:
+            p = Problem(self.robot, self.identification)
+        nominal = p.cost(np.zeros(_n_all(self.robot)))
         # Evaluated here, not read from the result: the fun of a noise-weighted objective (the
         # efficient estimator's, weighted LM's, a weighted iwr-calibrate run's) is its
         # chi-square statistic, and a result file does not keep eq. (10)'s cost beside it.
@@ -81,7 +104,7 @@ class CalibrationReport(Calibration):
         sets = {"identification": self.identification}
         if self.held_out:
             sets["validation"] = self.validation
-        zero = np.zeros(self.robot.n_params)
+        zero = np.zeros(_n_all(self.robot))
         return {
             name: {
                 "nominal": leg_residual_stats(self.robot, zero, data),
@@ -116,11 +139,15 @@ class CalibrationReport(Calibration):
         rep = self.identifiability
         if rep is not None:
             out["identifiability"] = {
-                "rank": int(rep.rank), "n_params": self.robot.n_params,
+                "rank": int(rep.rank), "n_params": _n_all(self.robot),
                 "condition_number": float(rep.condition_number),
                 "left_out": list(rep.left_out),
             }
         out["parameters"] = self.parameter_rows()
+        if self.robot.effects:
+            out["effects"] = self.effect_rows()
+        if self.diagnosis is not None:
+            out["diagnosis"] = self.diagnosis.to_dict()
         if self.uncertainty is not None:
             out["noise_sigma_mm"] = float(self.uncertainty.sigma)
             out["noise_sigma_source"] = self.uncertainty.source
@@ -260,9 +287,10 @@ class CalibrationReport(Calibration):
         left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
         std = self.uncertainty.std if self.uncertainty is not None else None
         rows = []
+        # The geometric errors (a robot with effects: its effects' rows are effect_rows()).
+        x = np.asarray(self.result.x, dtype=float)[: self.robot.n_params]
         for i, (name, value, angle) in enumerate(zip(
-                self.robot.parameter_names, self.result.x, self.robot.angle_parameters,
-                strict=True)):
+                self.robot.parameter_names, x, self.robot.angle_parameters, strict=True)):
             if not active[i]:
                 status = "held at nominal (not identifiable)" if name in left_out else "held fixed"
             elif name in left_out:
@@ -273,6 +301,52 @@ class CalibrationReport(Calibration):
             rows.append({"name": name, "value": float(value), "std": sd,
                          "unit": "rad" if angle else "mm", "status": status})
         return rows
+
+    def effect_rows(self) -> list[dict[str, Any]]:
+        """One row per effect parameter (issue 23): name, the robot file's value, the identified
+        correction and value, unit, the plausible range of the value, and its status
+        (identified, or inseparable from the geometry at these poses and loads and held at the
+        file's value)."""
+        rows: list[dict[str, Any]] = []
+        x = np.asarray(self.result.x, dtype=float)[self.robot.n_params:]
+        n = self.robot.n_params
+        active = self.result.active
+        active = np.ones(n + x.size, bool) if active is None else np.asarray(active, bool)
+        rep = self.identifiability
+        inseparable = dict(getattr(rep, "inseparable", []) or [])
+        k = 0
+        for e in self.robot.effects:
+            lo, hi = e.bounds()
+            for name, unit, value, low, high in zip(e.parameter_names(), e.units(), e.values(),
+                                                    lo, hi, strict=True):
+                if not active[n + k]:
+                    status = ("held at the file's value: not separable from the geometry at "
+                              "these poses and loads" if name in inseparable else "held fixed")
+                elif name in inseparable:
+                    status = "identified, but not separable from the geometry: arbitrary"
+                else:
+                    status = "identified"
+                rows.append({"name": name, "effect": e.name, "file_value": float(value),
+                             "correction": float(x[k]), "value": float(value + x[k]),
+                             "unit": unit, "bounds": [float(value + low), float(value + high)],
+                             "status": status})
+                k += 1
+        return rows
+
+    def effect_lines(self) -> list[str]:
+        """The effects' section of the summary (issue 23): what is on and the values."""
+        if not self.robot.effects:
+            return []
+        lines = ["effects on: " + "; ".join(f"{e.name} ({e.description})"
+                                            for e in self.robot.effects)]
+        for r in self.effect_rows():
+            lines.append(f"  {r['name']:17s} {r['value']:+10.4g} {r['unit']:5s} (file "
+                         f"{r['file_value']:.4g}; plausible {r['bounds'][0]:.3g} .. "
+                         f"{r['bounds'][1]:.3g}): {r['status']}")
+        given = [e for e in self.robot.effects if not e.parameter_names()]
+        for e in given:
+            lines.append(f"  {e.name}: given, not identified ({e.to_dict()})")
+        return lines
 
     # -- text -----------------------------------------------------------------------------------
     def summary(self) -> str:
@@ -331,6 +405,9 @@ class CalibrationReport(Calibration):
         if fit:
             lines.append("")
             lines.extend(fit)
+        if self.diagnosis is not None:
+            lines.append("")
+            lines.extend(self.diagnosis.lines())
         fit_test = r.fit
         if fit_test is not None and not fit_test.fit_ok:
             lines.append("VERDICT: THE MODEL DOES NOT FIT THE DATA; the accuracy figures above "
@@ -348,7 +425,7 @@ class CalibrationReport(Calibration):
         rep = self.identifiability
         if rep is None:
             return []
-        n = self.robot.n_params
+        n = _n_all(self.robot)
         lines = [
             f"identifiability (iwr.identifiability at the start, {rep.n_poses} poses): rank "
             f"{rep.rank} of {n}, condition number {rep.condition_number:.4g} (column-scaled "
@@ -379,6 +456,9 @@ class CalibrationReport(Calibration):
         half = (len(cells) + 1) // 2
         for left, right in itertools.zip_longest(cells[:half], cells[half:], fillvalue=""):
             lines.append(f"  {left}   {right}".rstrip())
+        lines.extend(self.effect_lines())
+        if hasattr(rep, "inseparable"):  # with effects: separable from the geometry or not
+            lines.append("  " + str(rep).splitlines()[-1])
         if self.parameter_error is not None:
             pe = self.parameter_error
             lines.append(
@@ -420,8 +500,13 @@ class CalibrationReport(Calibration):
     def _write_files(self, out: Path, plots: bool) -> list[Path]:
         written = []
         calibrated = out / "calibrated.toml"
-        self.robot.with_errors(self.result.x).to_toml(calibrated,
-                                                      provenance=self.file_provenance())
+        if self.robot.effects:  # issue 23: the identified effects' values written too
+            from ..effects.api import apply
+
+            robot = apply(self.robot, self.result.x)
+        else:
+            robot = self.robot.with_errors(self.result.x)
+        robot.to_toml(calibrated, provenance=self.file_provenance())
         written.append(calibrated)
         result = out / "result.json"
         self.result.save(result)
@@ -469,8 +554,12 @@ class CalibrationReport(Calibration):
         return written
 
     def verdict(self) -> tuple[str, str]:
-        """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``)."""
-        return self._graded(*self.improvement())
+        """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``); with the
+        diagnosis's suggestion when it names an effect (issue 23)."""
+        text, grade = self._graded(*self.improvement())
+        if self.diagnosis is not None and self.diagnosis.suggested:
+            text += " " + self.diagnosis.sentence()
+        return text, grade
 
     def _graded(self, before: float, after: float, change: str, what: str) -> tuple[str, str]:
         """The verdict from the result's status and fit and the error ``before`` and ``after``
@@ -536,6 +625,8 @@ class CalibrationReport(Calibration):
         if self.predicted is not None:
             page.paragraph(self.predicted_text())
         self._fit_section(page, "Fit test and outliers")
+        if self.diagnosis is not None:
+            self._diagnosis_html(page)
         if "accuracy.png" in figures:
             page.figure(figures["accuracy.png"], "Tool pose errors before and after calibration",
                         "accuracy.png")
@@ -559,12 +650,13 @@ class CalibrationReport(Calibration):
             page.heading("Identifiability")
             page.paragraph(
                 f"The leg readings at these poses determine {rep.rank} of the "
-                f"{self.robot.n_params} parameters (rank of the column-scaled Jacobian; condition "
+                f"{_n_all(self.robot)} parameters (rank of the column-scaled Jacobian; condition "
                 f"number {rep.condition_number:.4g})."
                 + (" Parameters left out are held at their nominal value: their errors are "
                    "absorbed by the others, without effect on the accuracy." if rep.left_out
                    else ""))
             page.pre(str(rep).rstrip())
+        self._effects_html(page)
         page.heading("Leg residuals")
         res = self.residuals()
         head = ["leg"] + [f"{s} {w}" for s in res
@@ -576,10 +668,40 @@ class CalibrationReport(Calibration):
             page.figure(figures["residuals.png"], "Leg residuals before and after calibration",
                         "residuals.png")
         return self._html_tail(page, [
-            "calibrated.toml: the calibrated robot (nominal plus identified errors)",
+            "calibrated.toml: the calibrated robot (nominal plus identified errors"
+            + (", with the identified effects' values)" if self.robot.effects else ")"),
             "result.json: the identification result (iwr.load_result)",
             "summary.json: the figures of this report", "report.md: this report as Markdown",
             *figures])
+
+    def _effects_html(self, page: Page) -> None:
+        """The effects' section (issue 23): the identified values with units and bounds."""
+        if not self.robot.effects:
+            return
+        page.heading("Effects")
+        page.paragraph("Non-geometric effects on: " + "; ".join(
+            f"{e.name} ({e.description})" for e in self.robot.effects) + ". Identified with the "
+            "geometry (eq. (10) with the effects); calibrated.toml holds their values. The "
+            "range is the plausible one of the robot file.")
+        page.table((["parameter", "value", "file value", "unit", "range", "status"],
+                    [[r["name"], f"{r['value']:.5g}", f"{r['file_value']:.5g}", r["unit"],
+                      f"{r['bounds'][0]:.3g} .. {r['bounds'][1]:.3g}", r["status"]]
+                     for r in self.effect_rows()]), "params")
+        given = [e for e in self.robot.effects if not e.parameter_names()]
+        if given:
+            page.items([f"{e.name}: given, not identified: {e.to_dict()}" for e in given])
+
+    def _diagnosis_html(self, page: Page) -> None:
+        """The diagnosis of a geometric fit against the loads and temperatures (issue 23)."""
+        d = self.diagnosis
+        page.heading("Diagnosis: loads and temperatures")
+        lines = d.lines()
+        page.verdict(d.sentence(),
+                     "bad" if d.suggested else "good")
+        page.items([ln.strip().removeprefix("- ") for ln in lines[1:]])
+        if d.suggested:
+            page.paragraph("Add to the robot file and calibrate again:")
+            page.pre(d.suggestion())
 
     def _html_tail(self, page: Page, files: list[str]) -> Page:
         """The end of the HTML report: settings, notes, the files written, provenance."""
@@ -648,6 +770,12 @@ class CalibrationReport(Calibration):
         fit_lines = self.fit_lines()
         if fit_lines:
             md += ["", "## Fit test and outliers", "", "```", *fit_lines, "```"]
+        if self.diagnosis is not None:
+            md += ["", "## Diagnosis: loads and temperatures", "", "```",
+                   *self.diagnosis.lines(), "```"]
+            if self.diagnosis.suggested:
+                md += ["", "Add to the robot file and calibrate again:", "", "```toml",
+                       self.diagnosis.suggestion(), "```"]
         if "accuracy.png" in figures:
             md += ["", "![Tool pose errors before and after calibration](accuracy.png)"]
         md += ["", "## Leg residuals", "",
@@ -667,7 +795,7 @@ class CalibrationReport(Calibration):
         if rep is not None:
             md.append(
                 f"The leg readings at these poses determine {rep.rank} of the "
-                f"{self.robot.n_params} parameters (rank of the column-scaled Jacobian; condition "
+                f"{_n_all(self.robot)} parameters (rank of the column-scaled Jacobian; condition "
                 f"number {rep.condition_number:.4g}). "
                 + ("Parameters left out are held at their nominal value: their errors are "
                    "absorbed by the others, without effect on the accuracy." if rep.left_out
@@ -687,8 +815,16 @@ class CalibrationReport(Calibration):
             sd = "" if row["std"] is None else f"{row['std']:.3g}"
             md.append(f"| {row['name']} | {row['value']:.6g} | {sd} | {row['unit']} | "
                       f"{row['status']} |")
+        if self.robot.effects:
+            md += ["", "## Effects", "", *(f"- {ln.strip()}" for ln in self.effect_lines()[:1]),
+                   "", "| parameter | value | file value | unit | range | status |",
+                   "|---|---|---|---|---|---|"]
+            md += [f"| {r['name']} | {r['value']:.5g} | {r['file_value']:.5g} | {r['unit']} | "
+                   f"{r['bounds'][0]:.3g} .. {r['bounds'][1]:.3g} | {r['status']} |"
+                   for r in self.effect_rows()]
         md += ["", "## Files", "",
-               "- `calibrated.toml`: the calibrated robot (nominal plus identified errors)",
+               "- `calibrated.toml`: the calibrated robot (nominal plus identified errors"
+               + (", with the identified effects' values)" if self.robot.effects else ")"),
                "- `result.json`: the identification result (`iwr.load_result`)",
                "- `summary.json`: the figures of this report"]
         md += [f"- `{f}`" for f in figures]
@@ -700,9 +836,9 @@ class CalibrationReport(Calibration):
     def _plot_residuals(self) -> Any:
         data = self.validation if self.held_out else self.identification
         which = "validation" if self.held_out else "identification"
-        zero = np.zeros(self.robot.n_params)
-        before = predict_legs(self.robot, zero, data.q, data.poses) - data.legs
-        after = predict_legs(self.robot, self.result.x, data.q, data.poses) - data.legs
+        zero = np.zeros(_n_all(self.robot))
+        before = _predicted_legs(self.robot, zero, data) - data.legs
+        after = _predicted_legs(self.robot, self.result.x, data) - data.legs
         fig = new_figure(10, 4)
         axes = fig.subplots(1, 2)
         for ax, r, title in ((axes[0], before, "nominal robot"),

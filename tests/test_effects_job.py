@@ -1,0 +1,343 @@
+"""Issue 23 on the job side: iwr.accuracy, the calibration job and its report with effects
+(iwr/effects/job.py, docs/effects.md), the diagnosis of a geometric fit against the loads and
+temperatures, and pose planning with payloads."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+import tempfile
+
+import numpy as np
+import pytest
+from scipy import stats
+
+import iwr
+from iwr.effects import api
+from iwr.effects.builtin import LegThermal
+from iwr.effects.job import diagnose, misclosures
+from iwr.effects.problem import EffectProblem
+from iwr.implicit_loop import loop_jacobians
+from iwr.measurements import Measurements
+from iwr.reporting.calibration import render
+from iwr.transforms import pose_from_matrix, pose_matrix
+
+
+@pytest.fixture(scope="module")
+def robot():
+    return iwr.Robot.default()
+
+
+@pytest.fixture(scope="module")
+def with_effects(robot):
+    return robot.with_effects(*api.realistic(robot))
+
+
+def _legs_noise():
+    return iwr.Noise(legs=0.001)
+
+
+def test_accuracy_with_effects_is_the_forward_kinematics_under_the_load(with_effects):
+    """At the truth, iwr.accuracy's calibrated robot finds the measured poses (noise-free) to
+    1e-6 mm; its geometry alone (the effects left out) misses them by micrometres."""
+    m, x = api.simulate(with_effects, 25, seed=5)
+    acc = iwr.accuracy(with_effects, m, x)
+    assert acc.calibrated.position.max() < 1e-6
+    assert acc.calibrated.orientation.max() < 1e-7
+    assert acc.nominal.position.min() > 1e-3  # the nominal robot: its geometric errors
+    geometric = iwr.accuracy(with_effects.with_effects(), m, x[: with_effects.n_params])
+    assert geometric.calibrated.position.max() > 5e-3
+
+
+def test_misclosures_reading_derivatives_are_the_loop_closures(robot):
+    """The gross-error screen's derivatives in the readings (central differences of the
+    readings with the effects) follow loop_jacobians' convention: with the effects' values at
+    zero they are its exact ones."""
+    comp, thermal = api.realistic(robot, identify_alpha=True)
+    zero = robot.with_effects(comp.with_values(np.zeros(6)), thermal.with_values(np.zeros(1)))
+    m, x = api.simulate(zero, 8, seed=2, x=np.concatenate([np.zeros(robot.n_params),
+                                                           np.zeros(7)]))
+    x = np.zeros(robot.n_params + 7)
+    mis = misclosures(zero, m, x)
+    _, jx, jy = loop_jacobians(robot, x[: robot.n_params], m.q, m.poses)
+    assert np.abs(mis.b[:, :, 6:] - jy).max() < 1e-6 * np.abs(jy).max()
+    assert np.abs(mis.a[:, :, : robot.n_params] - jx).max() < 1e-9 * np.abs(jx).max()
+    with pytest.raises(ValueError, match="noise"):
+        misclosures(zero, m, x, iwr.Noise.realistic())
+
+
+@pytest.fixture(scope="module")
+def job(with_effects):
+    m, x = api.simulate(with_effects, 80, seed=7, noise=_legs_noise())
+    return m, x, iwr.calibrate(with_effects, m, seed=1, truth=x)
+
+
+def test_calibration_job_with_effects(with_effects, job, tmp_path):
+    m, x, cal = job
+    assert cal.success, cal.result.message
+    assert cal.result["method"] == "lm"
+    assert cal.identifiability.effects_identifiable
+    # Accuracy with the effects, against the truth's noise floor.
+    before = cal.accuracy.nominal.summary()["position_mm"]["rms"]
+    after = cal.accuracy.calibrated.summary()["position_mm"]["rms"]
+    floor = cal.truth_accuracy.calibrated.summary()["position_mm"]["rms"]
+    assert after < before / 20 and after < 3 * floor + 1e-3
+    # The gross-error screen ran (Pope's test with the effects' misclosures).
+    assert "tau test" in cal.result["gross_errors"]
+    assert any("no standard deviations" in n for n in cal.notes)
+    report = render(cal)
+    rows = report.effect_rows()
+    assert [r["name"] for r in rows] == [f"leg{j}.compliance" for j in range(1, 7)] + [
+        "legs.alpha"]
+    n = with_effects.n_params
+    for r, xi in zip(rows, cal.result.x[n:], strict=True):
+        assert r["value"] == pytest.approx(r["file_value"] + xi)
+        assert r["status"] == "identified" and r["unit"] in ("um/N", "ppm/K")
+        assert r["bounds"][0] <= r["value"] <= r["bounds"][1]
+    # compliances within 0.003 um/N and alpha within 0.3 ppm/K of the truth (1 um leg noise)
+    assert np.abs(cal.result.x[n:n + 6] - x[n:n + 6]).max() < 3e-3
+    assert abs(cal.result.x[-1] - x[-1]) < 0.3
+    text = report.text()
+    assert "effects on: compliance" in text and "leg1.compliance" in text
+    written = report.write(tmp_path / "out")
+    names = {p.name for p in written}
+    assert {"calibrated.toml", "report.html", "report.md", "summary.json"} <= names
+    calibrated = iwr.Robot.from_toml(tmp_path / "out" / "calibrated.toml")
+    toml = (tmp_path / "out" / "calibrated.toml").read_text()
+    assert "[provenance]" in toml and 'status = "success"' in toml
+    expected = api.apply(with_effects, cal.result.x)
+    assert calibrated.effects == expected.effects
+    np.testing.assert_allclose(calibrated.effects[0].compliance,
+                               with_effects.effects[0].compliance + cal.result.x[n:n + 6])
+    summary = json.loads((tmp_path / "out" / "summary.json").read_text())
+    assert [e["name"] for e in summary["effects"]] == [r["name"] for r in rows]
+    md = (tmp_path / "out" / "report.md").read_text()
+    assert "## Effects" in md and "um/N" in md
+    page = (tmp_path / "out" / "report.html").read_text()
+    assert "<h2>Effects</h2>" in page
+
+
+def test_the_job_refuses_what_does_not_model_the_effects(with_effects, job):
+    m = job[0]
+    for method in ("de", "efficient", "bobyqa"):
+        with pytest.raises(ValueError, match=f"method '{method}'.*effects on.*'lm'"):
+            iwr.calibrate(with_effects, m, method)
+    with pytest.raises(ValueError, match="noise.*effects on"):
+        iwr.calibrate(with_effects, m, "lm", noise=iwr.Noise.realistic())
+
+
+def test_gross_error_with_effects_is_named_and_left_out(with_effects):
+    m, x = api.simulate(with_effects, 60, seed=9, noise=_legs_noise())
+    legs = m.legs.copy()
+    legs[17, 3] += 0.2
+    bad = Measurements(m.q, m.poses, legs, joint_types=m.joint_types, payload=m.payload,
+                       temperatures=m.temperatures)
+    cal = iwr.calibrate(with_effects, bad, validation_fraction=0)
+    out = cal.result["outliers"]
+    assert [o.pose for o in out] == [17] and out[0].removed
+    assert out[0].instrument == "leg4"
+    assert cal.success
+
+
+def _carriage_only_poses(robot, n, seed):
+    rng = np.random.default_rng(seed)
+    q = np.zeros((n, robot.n_joints))
+    q[:, 0] = rng.uniform(0, 2000, n)
+    q[:, 1] = rng.uniform(0, 1000, n)
+    local = pose_matrix(robot.home_pose)
+    return q, np.array([pose_from_matrix(robot.carriage_transform(qk) @ local) for qk in q])
+
+
+def _central(f, x, i, h):
+    xp, xm = x.copy(), x.copy()
+    xp[i] += h
+    xm[i] -= h
+    return (f(xp) - f(xm)) / (2 * h)
+
+
+@pytest.mark.parametrize("n_payloads", [1, 2])
+def test_report_names_the_compliances_one_payload_cannot_separate(robot, n_payloads):
+    """Issue 23's check: one payload at every pose of a constant leg-force pattern: the report
+    names the six compliances (held at the file's value); two payloads: all identified. The
+    rank is checked against a finite-difference Jacobian's. (Poses that keep the leg-force
+    pattern constant move the carriage's slides only, which cannot identify its other
+    geometric errors: the job says "not calibrated" in both cases, and why.)"""
+    comp, _ = api.realistic(robot)
+    # The file's compliance 0 (a first calibration): at nominal, the geometric columns carry
+    # no compliance-times-force-derivative term (c df/dx), which mixes them with the effects'.
+    model = robot.with_effects(comp.with_values(np.zeros(6)))
+    q, poses = _carriage_only_poses(robot, 60, 3)
+    payloads = api.DEFAULT_PAYLOADS[-n_payloads:]
+    pay = payloads[np.arange(60) % n_payloads]
+    plain = Measurements(q, poses, np.zeros((60, 6)), joint_types=robot.joint_types,
+                         payload=pay)
+    x_true = np.concatenate([np.zeros(robot.n_params), np.full(6, 0.004)])
+    x_true[52:58] = 0.05  # leg offsets
+    legs = iwr.effects.model.predicted_readings(model, x_true, q, poses, plain)
+    legs += 0.001 * np.random.default_rng(0).standard_normal(legs.shape)
+    m = Measurements(q, poses, legs, joint_types=robot.joint_types, payload=pay)
+    cal = iwr.calibrate(model, m, validation_fraction=0)
+    problem = EffectProblem(model, m)
+    x0 = np.zeros(problem.n_params)
+    fd = np.column_stack([_central(problem.residuals, x0, i, 1e-5)
+                          for i in range(problem.n_params)])
+    scaled = fd / np.where(np.linalg.norm(fd, axis=0) > 0, np.linalg.norm(fd, axis=0), 1)
+    s = np.linalg.svd(scaled, compute_uv=False)
+    assert int(np.sum(s > 1e-7 * s[0])) == cal.identifiability.rank
+    rows = render(cal).effect_rows()
+    text = render(cal).text()
+    assert cal.status == "not calibrated" and "degenerate data" in str(cal.result.message)
+    if n_payloads == 1:
+        assert all(r["status"].startswith("held at the file's value: not separable")
+                   for r in rows)
+        assert "NOT separable" in text and "leg6.compliance" in text
+        np.testing.assert_array_equal(cal.result.x[robot.n_params:], 0.0)
+    else:
+        assert all(r["status"] == "identified" for r in rows)
+        assert "Every effect parameter is separable" in text
+        # within 4.5 standard deviations of the truth (sd from the Jacobian at 1 um noise)
+        act = np.asarray(cal.result["active"])
+        jac = problem.jacobian(cal.result.x)[:, act]
+        sd = 0.001 * np.sqrt(np.diag(np.linalg.inv(jac.T @ jac)))[-6:]
+        assert np.all(np.abs(cal.result.x[robot.n_params:] - 0.004) < 4.5 * sd), sd
+
+
+# -- the diagnosis of a geometric fit -------------------------------------------------------
+
+
+def _with_columns(m, seed):
+    """``m`` with payload and temperature columns (those it lacks drawn: the alternating
+    default payloads, temperatures uniform over 8 K)."""
+    rng = np.random.default_rng(seed)
+    n = len(m)
+    pay = m.payload if m.payload is not None else api.DEFAULT_PAYLOADS[np.arange(n) % 2]
+    temps = m.temperatures if m.temperatures is not None else 17 + 8 * rng.random(n)
+    return Measurements(m.q, m.poses, m.legs, joint_types=m.joint_types, payload=pay,
+                        temperatures=temps)
+
+
+@pytest.mark.parametrize("effect", ["compliance", "thermal"])
+def test_diagnosis_names_the_effect_the_data_carry(robot, effect, tmp_path):
+    """Data simulated with one effect (and the other's columns, without its effect), calibrated
+    geometric-only by the efficient estimator: the fit test fails, and the report names the
+    effect and suggests its table; the other is not named."""
+    comp, _ = api.realistic(robot)
+    truth = robot.with_effects(comp if effect == "compliance"
+                               else LegThermal(11.5, 20.0, identify=True))
+    m, x = api.simulate(truth, 80, seed=4, noise=iwr.Noise.realistic())
+    data = _with_columns(m, 4)
+    cal = iwr.calibrate(robot, data, noise=iwr.Noise.realistic(), seed=2)
+    assert cal.fit_ok is False
+    assert cal.diagnosis.suggested == [effect]
+    report = render(cal)
+    text = report.text()
+    assert f"switch on [effects.{effect}]" in text
+    # The suggested table switches the effect on in a robot file as it is.
+    path = tmp_path / "robot.toml"
+    robot.to_toml(path)
+    path.write_text(path.read_text() + "\n" + report.diagnosis.suggestion() + "\n")
+    assert [e.name for e in iwr.Robot.from_toml(path).effects] == [effect]
+    assert f"switch on [effects.{effect}]" in report.verdict()[0].lower()
+    test = next(t for t in cal.diagnosis.tests if t.effect == effect)
+    # The regression's coefficient, a first guess of the size: the mean compliance (0.01 + x)
+    # within 25 %, alpha within 2 ppm/K (one data set; the realistic noise of the poses).
+    if effect == "compliance":
+        assert test.estimate.mean() == pytest.approx(np.mean(0.01 + x[robot.n_params:]),
+                                                     rel=0.25)
+    else:
+        assert test.estimate[0] == pytest.approx(11.5 + x[-1], abs=2.0)
+
+
+def test_diagnosis_false_alarm_rate_on_clean_data(robot):
+    """Clean geometric data with payload and temperature columns: each effect's F test p-value
+    is uniform (its law under no effect), so that the diagnosis names one with probability at
+    most its alpha (0.01). 20 seeds, Kolmogorov-Smirnov against U(0, 1)."""
+    pc, pt = [], []
+    for seed in range(20):
+        m, _ = iwr.simulate(robot, 40, seed=100 + seed, noise=iwr.Noise.realistic())
+        data = _with_columns(m, seed)
+        res = iwr.identify(robot, data, "efficient", noise=iwr.Noise.realistic())
+        d = diagnose(robot, data, res.x, active=res["active"], noise=res.get("noise"))
+        p = {t.effect: t.p_value for t in d.tests}
+        pc.append(p["compliance"])
+        pt.append(p["thermal"])
+    assert stats.kstest(pc, "uniform").pvalue > 1e-3
+    assert stats.kstest(pt, "uniform").pvalue > 1e-3
+    assert sum(p < 0.005 for p in pc + pt) <= 2
+
+
+def test_no_diagnosis_without_the_columns_or_with_effects(robot, with_effects, job):
+    m, _ = iwr.simulate(robot, 30, seed=1)
+    assert diagnose(robot, m, np.zeros(robot.n_params)) is None
+    assert job[2].diagnosis is None  # a calibration with the effects on
+
+
+# -- planning with payloads -------------------------------------------------------------------
+
+
+def test_plan_picks_a_second_payload_where_one_cannot_separate(robot):
+    """Candidates whose leg-force pattern is the same at every pose (the carriage's slides
+    only): under one payload the compliances are inseparable; offered none and the head, the
+    plan takes both, and its poses identify the compliances."""
+    comp, _ = api.realistic(robot)
+    model = robot.with_effects(comp.with_values(np.zeros(6)))  # see the test above
+    q, poses = _carriage_only_poses(robot, 50, 5)
+    plan = iwr.plan_poses(model, (q, poses), 20, payloads=api.DEFAULT_PAYLOADS)
+    chosen = plan.measurements.payload[:, 0]
+    assert 0 < np.sum(chosen == 0.0) < 20
+    report = iwr.identifiability(model, plan.measurements)
+    assert report.effects_identifiable
+    one = iwr.plan_poses(model, (q, poses), 20, payloads=api.DEFAULT_PAYLOADS[1:])
+    assert not iwr.identifiability(model, one.measurements).effects_identifiable
+
+
+def test_plan_file_with_payloads_round_trip(robot, tmp_path):
+    comp, _ = api.realistic(robot)
+    model = robot.with_effects(comp)
+    q, poses = _carriage_only_poses(robot, 30, 6)
+    plan = iwr.plan_poses(model, (q, poses), 12, payloads=api.DEFAULT_PAYLOADS)
+    path = tmp_path / "plan.csv"
+    plan.to_csv(path)
+    q2, p2, pay = iwr.read_plan(path, payload=True)
+    np.testing.assert_array_equal(pay, plan.measurements.payload)
+    np.testing.assert_array_equal(p2, plan.measurements.poses)
+    with pytest.raises(iwr.measurements.MeasurementFileError, match="payload=True"):
+        iwr.read_plan(path)
+    with pytest.raises(ValueError, match="no effect"):
+        iwr.plan_poses(robot, (q, poses), 12, payloads=api.DEFAULT_PAYLOADS)
+
+
+def _run_iwr(*args):
+    env = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+    return subprocess.run([sys.executable, "-m", "iwr", *args], capture_output=True, text=True,
+                          cwd=tempfile.gettempdir(), env=env, timeout=600)
+
+
+def test_cli_calibrate_report_and_plan_with_effects(with_effects, job, tmp_path):
+    m = job[0]
+    robot_file, data_file = tmp_path / "robot.toml", tmp_path / "data.csv"
+    with_effects.to_toml(robot_file)
+    m.to_csv(data_file)
+    out = tmp_path / "cal"
+    proc = _run_iwr("calibrate", str(robot_file), str(data_file), "--out", str(out))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "effects on: compliance" in proc.stdout
+    calibrated = iwr.Robot.from_toml(out / "calibrated.toml")
+    assert [e.name for e in calibrated.effects] == ["compliance", "thermal"]
+    rep = tmp_path / "rep"
+    proc = _run_iwr("report", str(out / "result.json"), str(robot_file), str(data_file),
+                    "--out", str(rep))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "<h2>Effects</h2>" in (rep / "report.html").read_text()
+    proc = _run_iwr("calibrate", str(robot_file), str(data_file), "--method", "de",
+                    "--out", str(tmp_path / "de"))
+    assert proc.returncode != 0 and "effects on" in proc.stderr
+    assert "Traceback" not in proc.stderr
+    proc = _run_iwr("plan", str(robot_file), "--n-candidates", "200", "--poses", "30",
+                    "--payload", "0,0,0,0", "--payload", "80,50,0,150",
+                    "--out", str(tmp_path / "plan.csv"))
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "payloads:" in proc.stdout and "temperatures:" in proc.stdout
+    assert "payload_kg" in (tmp_path / "plan.csv").read_text()
