@@ -40,6 +40,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -47,6 +48,22 @@ import time
 from pathlib import Path
 
 from _load import _machine_busy  # benchmarks/ is on sys.path when this script runs
+
+try:
+    import resource
+
+    def _switches() -> int:
+        """Context switches of the calling thread so far (Linux; 0 elsewhere)."""
+        r = resource.getrusage(resource.RUSAGE_THREAD)
+        return r.ru_nvcsw + r.ru_nivcsw
+except (ImportError, AttributeError):  # no RUSAGE_THREAD
+    def _switches() -> int:
+        return 0
+
+# A timed call during which the thread was switched out runs slower by the refill of the caches
+# and predictors (on the development machine 0.2 us an evaluation per switch at N = 100, about
+# 20 %): such a call is taken again, up to this many times.
+UNSWITCHED_TRIES = 5
 
 NP, N = 600, 100
 FLOPS_PER_POSE = 370  # bench_objective.py's count for the IWR (PPRR carriage), unweighted
@@ -144,9 +161,16 @@ class Worker:
             return None
         problem, X = got
         self.core._select_kernel(kernel)
-        t0 = time.thread_time()
-        problem.cost_batch(X, workers=1)
-        return (time.thread_time() - t0) / NP * 1e6
+        best = math.inf
+        for _ in range(UNSWITCHED_TRIES):  # a call the scheduler interrupted is taken again
+            s0 = _switches()
+            t0 = time.thread_time()
+            problem.cost_batch(X, workers=1)
+            t = (time.thread_time() - t0) / NP * 1e6
+            best = min(best, t)
+            if _switches() == s0:
+                return t
+        return best
 
     def batch(self, kernel: str, threads: int) -> float:
         """One repetition: wall time of cost_batch of the population on `threads` (ms)."""
@@ -215,6 +239,51 @@ def alternated(builds: list[Build], reps: int, op: str, *args) -> dict[str, list
     return out
 
 
+def spread(builds: list[Build], cells: list[tuple], reps: int, seconds: float) -> dict:
+    """The objective's time per evaluation for every cell (kernel, objective) and build, in
+    rounds over the cells (the builds alternated within each visit, their order reversed every
+    round) for at least `seconds` seconds and until every cell has `reps` repetitions. A cell is
+    visited every s-th round, s its time per evaluation over the cheapest cell's (so far), so
+    that each cell gets about the same time and the costly ones (the SSE2 tracker objective, 80x
+    the cheapest) do not leave the others a handful of repetitions. Returns
+    {cell: {build name: [times]}}.
+
+    Why rounds rather than a cell's repetitions in a row: this machine's cores go through spells
+    of 0.25-2 s in which code bound by latency (the kernels) runs 25-45 % slower while the clock
+    and the multiply-add peak do not move (measured; BENCHMARKS.md, fifth round: most likely the
+    host's other hardware thread on the same core). A cell's repetitions in a row take 20-100 ms
+    and fall inside one spell, so the cell's minimum took the spell's state: the bimodal table.
+    Spread over the whole table, every cell's minimum comes from outside the spells."""
+    out: dict = {c: {b.name: [] for b in builds} for c in cells}
+    cost: dict = {}
+    stride = {c: 1 for c in cells}
+    t0 = time.perf_counter()
+    r = 0
+    while (time.perf_counter() - t0 < seconds
+           or any(len(v) < reps for per in out.values() for v in per.values())):
+        k = r % len(cells)
+        for c in cells[k:] + cells[:k]:
+            if r % stride[c] and all(len(v) >= reps for v in out[c].values()):
+                continue
+            for name, v in alternated(builds if r % 2 == 0 else builds[::-1], 1,
+                                      "objective", *c).items():
+                out[c][name].extend(v)
+                if v[0] is not None:
+                    cost[c] = min(cost.get(c, math.inf), v[0])
+        cheapest = min(cost.values(), default=1.0)
+        stride = {c: max(1, round(cost.get(c, cheapest) / cheapest)) for c in cells}
+        r += 1
+    return out
+
+
+def near_min(times: dict) -> str:
+    """How many repetitions of each cell came within 2 % of its minimum (range over the cells):
+    the minimum is a state the machine returned to, not a lucky call."""
+    fr = [sum(t <= 1.02 * min(v) for t in v) / len(v)
+          for cell in times.values() for v in cell.values() if v and None not in v]
+    return f"{min(fr):.0%}-{max(fr):.0%}" if fr else "n/a"
+
+
 class Load:
     """Load average and the CPU other processes used (cores), over a block of measurements."""
 
@@ -241,7 +310,7 @@ class Load:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        wall = time.perf_counter() - self.t0
+        wall = self.wall = time.perf_counter() - self.t0
         b1 = self._busy()
         self.cores = (None if b1 is None or self.b0 is None else
                       max(0.0, (b1 - self.b0 - (self._ours() - self.o0)) / wall))
@@ -258,6 +327,9 @@ def main() -> None:
     ap.add_argument("--python", action="append", default=[], metavar="NAME=PATH",
                     help="a build: a name and its Python interpreter (repeatable)")
     ap.add_argument("--repeat", type=int, default=15, help="objective repetitions (default 15)")
+    ap.add_argument("--seconds", type=float, default=20.0,
+                    help="each objective table's repetitions spread over at least this long "
+                         "(default 20 s; see spread())")
     ap.add_argument("--de-repeat", type=int, default=3, help="DE run pairs (default 3)")
     ap.add_argument("--generations", default="100,600", help="G1,G2 of the DE rate")
     ap.add_argument("--kernels", default=None, help="variants, comma-separated (default: all)")
@@ -280,6 +352,7 @@ def main() -> None:
             ap.error(f"--python: {spec!r}; expected NAME=PATH")
         builds.append(Build(name, path))
     reps = 3 if args.quick else args.repeat
+    secs = 0.0 if args.quick else args.seconds
     de_reps = 1 if args.quick else args.de_repeat
     g1, g2 = (20, 70) if args.quick else tuple(int(g) for g in args.generations.split(","))
     threads = [int(t) for t in args.threads.split(",")]
@@ -301,7 +374,8 @@ def main() -> None:
         flops = FLOPS_PER_POSE * N
 
         print(f"\nleg objective, Problem.cost_batch(X, workers=1), {NP} vectors, N = {N}, "
-              f"thread CPU time per evaluation, min of {reps}:")
+              f"thread CPU time per evaluation, min of at least {reps} spread "
+              f"over {secs:g} s:")
         hdr = "| variant | " + " | ".join(f"{n} (us) | {n}: of the floor" for n in names)
         if len(builds) == 2:
             hdr += f" | {names[1]} / {names[0]}"
@@ -309,9 +383,9 @@ def main() -> None:
         print("|" + "---|" * (1 + 2 * len(names) + (len(builds) == 2)))
         summary: dict = {"objective": {}, "batch": {}, "de": {}}
         with Load(builds) as load:
+            times = spread(builds, [(k,) for k in kernels], reps, secs)
             for k in kernels:
-                r = alternated(builds, reps, "objective", k)
-                best = {n: min(v) for n, v in r.items()}
+                best = {n: min(v) for n, v in times[(k,)].items()}
                 summary["objective"][k] = best
                 floor_us = flops / (peak[k] * 1e3)
                 row = f"| {k} | " + " | ".join(
@@ -320,8 +394,10 @@ def main() -> None:
                     row += f" | {best[names[1]] / best[names[0]]:.2f}x"
                 print(row + " |", flush=True)
         print(f"floor: {flops} flops at the peak above; {load}")
+        print(f"{len(times[(kernels[0],)][names[0]])} repetitions a cell over {load.wall:.0f} s; "
+              f"within 2 % of the cell's minimum: {near_min(times)} of them")
         if args.objectives or args.objectives_only:
-            objectives_table(builds, kernels, reps, peak)
+            objectives_table(builds, kernels, reps, peak, secs)
         if args.objectives_only:
             return
 
@@ -393,12 +469,14 @@ def main() -> None:
             b.close()
 
 
-def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: dict) -> None:
+def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: dict,
+                     seconds: float) -> None:
     """Every objective of FLOPS on every variant: thread CPU time per evaluation and the fraction
     of its floor (FLOPS[objective] x N at the variant's measured peak)."""
     names = [b.name for b in builds]
     print(f"\nobjectives, cost_batch(X, workers=1), {NP} vectors, N = {N}, thread CPU time per "
-          f"evaluation, min of {reps} (floor: flops a pose x N at the variant's peak above):")
+          f"evaluation, min of at least {reps} spread over {seconds:g} s (floor: flops a pose x N at "
+          "the variant's peak above):")
     hdr = "| variant | objective | flops a pose | " + " | ".join(
         f"{n} (us) | {n}: of the floor" for n in names)
     if len(builds) == 2:
@@ -406,10 +484,10 @@ def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: d
     print(hdr + " |")
     print("|" + "---|" * (3 + 2 * len(names) + (len(builds) == 2)))
     with Load(builds) as load:
+        times = spread(builds, [(k, w) for k in kernels for w in FLOPS], reps, seconds)
         for k in kernels:
             for which, fl in FLOPS.items():
-                r = alternated(builds, reps, "objective", k, which)
-                best = {n: (None if None in v else min(v)) for n, v in r.items()}
+                best = {n: (None if None in v else min(v)) for n, v in times[(k, which)].items()}
                 floor_us = fl * N / (peak[k] * 1e3)
                 cells = [("n/a | n/a" if best[n] is None else
                           f"{best[n]:.3f} | {floor_us / best[n]:.0%}") for n in names]
@@ -419,6 +497,8 @@ def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: d
                     row += " | n/a" if a is None or b is None else f" | {b / a:.2f}x"
                 print(row + " |", flush=True)
     print(str(load))
+    print(f"at least {reps} repetitions a cell over {load.wall:.0f} s; within 2 % of the cell's "
+          f"minimum: {near_min(times)} of them")
 
 
 def cpu_name() -> str:
