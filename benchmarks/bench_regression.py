@@ -12,7 +12,10 @@ What is timed (per build, per kernel variant forced with ``iwr._core._select_ker
 
 - objective: ``Problem.cost_batch(X, workers=1)`` on 600 random vectors within the default bounds
   (one DE population), N = 100 poses (``iwr.simulate(Robot.default(), 100, seed=1)``), in thread CPU
-  time, divided by 600; the minimum over ``--repeat`` (default 15) alternated repetitions. "of the
+  time, divided by 600; the minimum over at least ``--repeat`` (default 15) repetitions, taken in
+  rounds over every variant (and objective) for at least ``--seconds`` (default 20 s), the builds
+  alternated, a call during which the thread was switched out taken again (``spread()`` says
+  why: a variant's repetitions in a row made the tables bimodal on a shared machine). "of the
   floor": N x 370 flops (``bench_objective.py``'s count) at the peak of one core measured with the
   same instruction set and separate multiplies and adds (``_bench.measure_peak_gflops``), divided
   by the time. ``--objectives`` adds the weighted leg objective (a weight per leg reading: 376
@@ -189,6 +192,16 @@ class Worker:
         return {"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0,
                 "fun": float(res.fun).hex()}
 
+    def de_generations(self, kernel: str, threads: int, generations: int) -> dict:
+        """One DE run: the wall time of each generation (ms), from the run's own log (its
+        ``elapsed`` column, taken in C++: no Python callback in the loop), and the result's bits."""
+        self.core._select_kernel(kernel)
+        res = self.iwr.identify(self.robot, self.data, method="de", population_size=NP, F=0.9,
+                                CR=1.0, generations=generations, seed=1, workers=threads,
+                                polish=False, progress=False)
+        e = self.np.asarray(res.history["elapsed"], dtype=float)
+        return {"ms": (self.np.diff(e) * 1e3).tolist(), "fun": float(res.fun).hex()}
+
     def serve(self) -> None:
         out = sys.stdout
         for line in sys.stdin:
@@ -339,6 +352,10 @@ def main() -> None:
                     help="also the weighted, whitened and tracker objectives against their floors")
     ap.add_argument("--objectives-only", action="store_true",
                     help="the objectives' table alone (implies --objectives)")
+    ap.add_argument("--scaling", action="store_true",
+                    help="only DE per generation against cost_batch, 2 threads against 1, from "
+                         "the minimum of each generation over --runs runs (scaling_table)")
+    ap.add_argument("--runs", type=int, default=7, help="DE runs of --scaling (default 7)")
     ap.add_argument("--quick", action="store_true", help="a smoke test")
     args = ap.parse_args()
     if args.worker:
@@ -372,6 +389,10 @@ def main() -> None:
               + ", ".join(f"{k} {v:.1f}" for k, v in peak.items()))
         names = [b.name for b in builds]
         flops = FLOPS_PER_POSE * N
+        if args.scaling:
+            scaling_table(builds, kernels, threads, 2 if args.quick else args.runs,
+                          60 if args.quick else 400, reps, secs)
+            return
 
         print(f"\nleg objective, Problem.cost_batch(X, workers=1), {NP} vectors, N = {N}, "
               f"thread CPU time per evaluation, min of at least {reps} spread "
@@ -475,8 +496,8 @@ def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: d
     of its floor (FLOPS[objective] x N at the variant's measured peak)."""
     names = [b.name for b in builds]
     print(f"\nobjectives, cost_batch(X, workers=1), {NP} vectors, N = {N}, thread CPU time per "
-          f"evaluation, min of at least {reps} spread over {seconds:g} s (floor: flops a pose x N at "
-          "the variant's peak above):")
+          f"evaluation, min of at least {reps} spread over {seconds:g} s (floor: flops a pose x N "
+          "at the variant's peak above):")
     hdr = "| variant | objective | flops a pose | " + " | ".join(
         f"{n} (us) | {n}: of the floor" for n in names)
     if len(builds) == 2:
@@ -499,6 +520,61 @@ def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: d
     print(str(load))
     print(f"at least {reps} repetitions a cell over {load.wall:.0f} s; within 2 % of the cell's "
           f"minimum: {near_min(times)} of them")
+
+
+def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], runs: int,
+                  generations: int, reps: int, seconds: float) -> None:
+    """DE's generation against one cost_batch, and 2 threads against 1, robust to neighbours.
+
+    A generation takes 0.3-2 ms; the neighbours of a shared machine take a core now and then for
+    a few ms. Each generation's wall time comes from the run's own log; over `runs` runs of the
+    same seed (the same work generation by generation) the minimum of each generation is the
+    generation undisturbed, and the median of these minima over generations 50.. is the
+    figure (the first generations, with most mutants out of bounds, are slower). cost_batch of the
+    600 vectors: the minimum over rounds spread over `seconds`, as the objective tables."""
+    names = [b.name for b in builds]
+    print(f"\nDE/rand/1/bin, NP {NP}, N {N}, iwr.identify(method='de', polish=False), "
+          f"{generations} generations x {runs} runs: per generation the minimum over the runs, "
+          "then the median over generations 50..; cost_batch(X, workers=T) of the 600 vectors, "
+          f"wall time, the minimum over rounds spread over {seconds:g} s:")
+    print("| variant | threads | " + " | ".join(
+        f"{n}: ms/gen | {n}: cost_batch (ms) | {n}: gen / batch" for n in names) + " |")
+    print("|---|---|" + "---|" * (3 * len(names)))
+    cells = [(k, t) for k in kernels for t in threads]
+    gen: dict = {c: {n: [] for n in names} for c in cells}
+    bits: dict = {n: set() for n in names}
+    batch: dict = {c: {n: [] for n in names} for c in cells}
+    with Load(builds) as load:
+        for r in range(runs):
+            for c in cells:
+                for b in (builds if r % 2 == 0 else builds[::-1]):
+                    a = b.ask("de_generations", c[0], c[1], generations)
+                    gen[c][b.name].append(a["ms"])
+                    bits[b.name].add(a["fun"])
+        t0 = time.perf_counter()
+        r = 0
+        while r < reps or time.perf_counter() - t0 < seconds:
+            for c in cells[r % len(cells):] + cells[:r % len(cells)]:
+                for b in (builds if r % 2 == 0 else builds[::-1]):
+                    batch[c][b.name].append(b.ask("batch", c[0], c[1]))
+            r += 1
+        per: dict = {}
+        for c in cells:
+            cellout = []
+            for n in names:
+                m = [min(g) for g in zip(*gen[c][n], strict=True)][50:]
+                ms = sorted(m)[len(m) // 2]
+                bt = min(batch[c][n])
+                per[(c, n)] = ms
+                cellout.append(f"{ms:.3f} | {bt:.3f} | {ms / bt:.2f}x")
+            print(f"| {c[0]} | {c[1]} | " + " | ".join(cellout) + " |", flush=True)
+    print(str(load))
+    for n in names:
+        if 1 in threads and 2 in threads:
+            print(f"{n}: generations/s on 2 threads / on 1: " + ", ".join(
+                f"{k} {per[((k, 1), n)] / per[((k, 2), n)]:.2f}x" for k in kernels))
+        print(f"{n}: the same best cost bits on every variant and thread count: "
+              f"{len(bits[n]) == 1}")
 
 
 def cpu_name() -> str:
