@@ -71,9 +71,6 @@ IWR_FORCE_INLINE M m_or(M a, M b) { return _mm_or_pd(a, b); }
 IWR_FORCE_INLINE M m_all(bool on) { return _mm_castsi128_pd(_mm_set1_epi64x(on ? -1 : 0)); }
 IWR_FORCE_INLINE int m_bits(M a) { return _mm_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm_or_pd(_mm_and_pd(m, a), _mm_andnot_pd(m, b)); }
-constexpr bool kHalfPass = false;  // a block is 4 registers: run() skips those of padding only
-template <int Weighted, int NP, int NR>
-void half_pass(const PoseData&, const EvalConsts&, const double*, double*) {}
 #include "objective_kernel_body.inl"
 #include "tracker_kernel_body.inl"
 }  // namespace sse2
@@ -105,9 +102,6 @@ IWR_FORCE_INLINE M m_or(M a, M b) { return _mm256_or_pd(a, b); }
 IWR_FORCE_INLINE M m_all(bool on) { return _mm256_castsi256_pd(_mm256_set1_epi64x(on ? -1 : 0)); }
 IWR_FORCE_INLINE int m_bits(M a) { return _mm256_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm256_blendv_pd(b, a, m); }
-constexpr bool kHalfPass = false;  // a block is 2 registers: run() skips one of padding only
-template <int Weighted, int NP, int NR>
-void half_pass(const PoseData&, const EvalConsts&, const double*, double*) {}
 #include "objective_kernel_body.inl"
 #include "tracker_kernel_body.inl"
 }  // namespace avx2
@@ -150,18 +144,10 @@ IWR_FORCE_INLINE M m_or(M a, M b) { return static_cast<M>(a | b); }
 IWR_FORCE_INLINE M m_all(bool on) { return static_cast<M>(on ? 0xff : 0); }
 IWR_FORCE_INLINE int m_bits(M a) { return a; }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm512_mask_blend_pd(m, b, a); }
-// A block of at most 4 poses (the last one, padded) runs as the AVX2 variant's pass of 4 lanes
-// (the same operations on each lane, so the same bits) instead of a full 8-lane pass: at N = 100
-// the 13th block holds 4 poses. The cost only; residuals() keeps the 8-lane pass.
-constexpr bool kHalfPass = true;
-template <int Weighted, int NP, int NR>
-IWR_FORCE_INLINE void half_pass(const PoseData& pd, const EvalConsts& ec, const double* blk,
-                                double* out) {  // out: the 4 lanes' sums of squares
-    avx2::Sub res[6];
-    const avx2::Sub acc = avx2::block<Weighted, false, NP, NR>(pd, ec, blk, res);
-    _mm256_store_pd(out, acc.v[0]);
-}
+// A last block of at most 4 poses runs as the AVX2 variant's 4-lane pass (objective_kernel_body.inl).
+#define IWR_HALF_PASS avx2
 #include "objective_kernel_body.inl"
+#undef IWR_HALF_PASS
 #include "tracker_kernel_body.inl"
 }  // namespace avx512
 #if defined(__clang__)

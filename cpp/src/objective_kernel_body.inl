@@ -174,6 +174,25 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
     return acc;
 }
 
+#ifdef IWR_HALF_PASS
+// Defined as the namespace of a variant with registers of 4 lanes (the AVX-512 variant: avx2): a
+// block of at most 4 poses (the last one, padded: at N = 100 the 13th holds 4) runs as that
+// variant's pass of 4 lanes, the same operations on each lane (so the same bits), instead of a
+// full pass of 8. The cost only; the residuals keep the full pass.
+constexpr bool kHalfPass = true;
+template <int Weighted, int NP, int NR>
+IWR_FORCE_INLINE void half_pass(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                                double* out) {  // out: the 4 lanes' sums of squares (aligned)
+    IWR_HALF_PASS::Sub res[6];
+    const IWR_HALF_PASS::Sub acc = IWR_HALF_PASS::block<Weighted, false, NP, NR>(pd, ec, blk, res);
+    IWR_HALF_PASS::store(out, acc);
+}
+#else
+constexpr bool kHalfPass = false;
+template <int Weighted, int NP, int NR>
+void half_pass(const PoseData&, const EvalConsts&, const double*, double*) {}
+#endif
+
 template <int Weighted, bool Residuals, int NP, int NR>
 IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* out) {
     constexpr int B = kBlock, W = kSubLanes;
