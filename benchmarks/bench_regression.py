@@ -12,7 +12,10 @@ What is timed (per build, per kernel variant forced with ``iwr._core._select_ker
 
 - objective: ``Problem.cost_batch(X, workers=1)`` on 600 random vectors within the default bounds
   (one DE population), N = 100 poses (``iwr.simulate(Robot.default(), 100, seed=1)``), in thread CPU
-  time, divided by 600; the minimum over ``--repeat`` (default 15) alternated repetitions. "of the
+  time, divided by 600; the minimum over at least ``--repeat`` (default 15) repetitions, taken in
+  rounds over every variant (and objective) for at least ``--seconds`` (default 20 s), the builds
+  alternated, a call during which the thread was switched out taken again (``spread()`` says
+  why: a variant's repetitions in a row made the tables bimodal on a shared machine). "of the
   floor": N x 370 flops (``bench_objective.py``'s count) at the peak of one core measured with the
   same instruction set and separate multiplies and adds (``_bench.measure_peak_gflops``), divided
   by the time. ``--objectives`` adds the weighted leg objective (a weight per leg reading: 376
@@ -40,6 +43,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import os
 import subprocess
 import sys
@@ -47,6 +51,23 @@ import time
 from pathlib import Path
 
 from _load import _machine_busy  # benchmarks/ is on sys.path when this script runs
+
+try:
+    import resource
+
+    def _switches() -> int:
+        """Context switches of the calling thread so far (Linux; 0 elsewhere)."""
+        r = resource.getrusage(resource.RUSAGE_THREAD)
+        return r.ru_nvcsw + r.ru_nivcsw
+except (ImportError, AttributeError):  # no RUSAGE_THREAD
+    def _switches() -> int:
+        return 0
+
+# A timed call during which the thread was switched out runs slower by the refill of the caches
+# and predictors (on the development machine 0.2 us an evaluation per switch at N = 100, about
+# 20 %): such a call is taken again, up to this many times.
+UNSWITCHED_TRIES = 5
+COPIES = 3  # each objective's problem built this many times (Worker._objectives)
 
 NP, N = 600, 100
 FLOPS_PER_POSE = 370  # bench_objective.py's count for the IWR (PPRR carriage), unweighted
@@ -84,43 +105,59 @@ class Worker:
         self.X = p.lower + (p.upper - p.lower) * rng.random((NP, p.n_params))
         self.default_kernel = _core._active_kernel()
         self.others: dict | None = None
+        # The last objective timed: the first call after another one's runs 0.5 % slower at the
+        # minimum and 2-4 % at the 10th percentile (code, data and predictors to reload).
+        self.last: tuple | None = None
+        self.turn: dict = {}  # per objective: the copy timed last
 
     def _objectives(self) -> dict:
-        """The weighted, whitened and tracker problems (None where this build has none)."""
+        """Every objective of FLOPS as (its problem built COPIES times, X); None where this build
+        has none. The copies lie at different addresses (a few kB of heap between them) and the
+        timed calls take them in turn: a Problem's placement can make it 5 % slower for good
+        (1 of 32 copies in a test), which one copy per process would keep for the whole run."""
         if self.others is not None:
             return self.others
         np, iwr = self.np, self.iwr
         robot, data = self.robot, self.data
-        out: dict = {"leg": (self.problem, self.X)}
+        make: dict = {"leg": lambda: iwr.Problem(robot, data)}
         try:
             w = np.random.default_rng(5).uniform(0.5, 2.0, (N, 6))
             m = iwr.Measurements(data.q, data.poses, data.legs, joint_types=robot.joint_types,
                                  weights=w)
-            out["weighted"] = iwr.Problem(robot, m)
+            iwr.Problem(robot, m)
+            make["weighted"] = lambda: iwr.Problem(robot, m)
         except TypeError:  # no weights in this build
-            out["weighted"] = None
+            make["weighted"] = None
         try:
             noisy, _ = iwr.simulate(robot, N, seed=1, noise=iwr.Noise.realistic())
-            out["whitened"] = iwr.Problem(robot, noisy, noise=iwr.Noise.realistic())
+            iwr.Problem(robot, noisy, noise=iwr.Noise.realistic())
+            make["whitened"] = lambda: iwr.Problem(robot, noisy, noise=iwr.Noise.realistic())
         except (TypeError, AttributeError):
-            out["whitened"] = None
+            make["whitened"] = None
         try:
-            import math
-
             from iwr.tracker import TrackerProblem, TrackerSetup, simulate_tracker
 
             setup = TrackerSetup((2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0),
                                  reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),
                                              (-60.0, -104.0, 40.0)])
             td, _ = simulate_tracker(robot, setup, N, seed=1)
-            out["tracker"] = TrackerProblem(robot, setup, td)
+            make["tracker"] = lambda: TrackerProblem(robot, setup, td)
         except ImportError:
-            out["tracker"] = None
-        for k, p in list(out.items())[1:]:
-            if p is not None:
-                rng = np.random.default_rng(0)
-                X = p.lower + (p.upper - p.lower) * rng.random((NP, p.n_params))
-                out[k] = (p, np.ascontiguousarray(X))
+            make["tracker"] = None
+        out: dict = {}
+        self.pads = []
+        for k, f in make.items():
+            if f is None:
+                out[k] = None
+                continue
+            copies = []
+            for i in range(COPIES):
+                self.pads.append(np.empty(1 + 397 * (i + 1)))  # move the heap on
+                copies.append(f())
+            p = copies[0]
+            rng = np.random.default_rng(0)
+            X = p.lower + (p.upper - p.lower) * rng.random((NP, p.n_params))
+            out[k] = (copies, np.ascontiguousarray(X))
         self.others = out
         return out
 
@@ -131,7 +168,8 @@ class Worker:
         peaks = {}
         for isa in self.core._supported_kernels():
             key = "sse2" if isa == "baseline" else isa
-            peaks[isa] = bench.measure_peak_gflops(key, False, 0.3)
+            # the best of 5 short measurements: one of 0.3 s read 2-3 % low on a busy machine
+            peaks[isa] = max(bench.measure_peak_gflops(key, False, 0.1) for _ in range(5))
         return {"version": iwr.__version__, "path": str(Path(iwr.__file__).parent),
                 "kernels": self.core._supported_kernels(), "default_kernel": self.default_kernel,
                 "peak_mul_add_gflops": peaks}
@@ -139,14 +177,26 @@ class Worker:
     def objective(self, kernel: str, which: str = "leg") -> float | None:
         """One repetition: thread CPU time per evaluation (us), one thread; None when this build
         has no such objective."""
-        got = self._objectives()[which] if which != "leg" else (self.problem, self.X)
+        got = self._objectives()[which]
         if got is None:
             return None
-        problem, X = got
+        copies, X = got
+        self.turn[which] = (self.turn.get(which, -1) + 1) % len(copies)
+        problem = copies[self.turn[which]]
         self.core._select_kernel(kernel)
-        t0 = time.thread_time()
-        problem.cost_batch(X, workers=1)
-        return (time.thread_time() - t0) / NP * 1e6
+        if self.last != (kernel, which):  # after another objective or variant: one call untimed
+            problem.cost_batch(X, workers=1)
+            self.last = (kernel, which)
+        best = math.inf
+        for _ in range(UNSWITCHED_TRIES):  # a call the scheduler interrupted is taken again
+            s0 = _switches()
+            t0 = time.thread_time()
+            problem.cost_batch(X, workers=1)
+            t = (time.thread_time() - t0) / NP * 1e6
+            best = min(best, t)
+            if _switches() == s0:
+                return t
+        return best
 
     def batch(self, kernel: str, threads: int) -> float:
         """One repetition: wall time of cost_batch of the population on `threads` (ms)."""
@@ -164,6 +214,16 @@ class Worker:
                                 polish=False, progress=False)
         return {"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0,
                 "fun": float(res.fun).hex()}
+
+    def de_generations(self, kernel: str, threads: int, generations: int) -> dict:
+        """One DE run: the wall time of each generation (ms), from the run's own log (its
+        ``elapsed`` column, taken in C++: no Python callback in the loop), and the result's bits."""
+        self.core._select_kernel(kernel)
+        res = self.iwr.identify(self.robot, self.data, method="de", population_size=NP, F=0.9,
+                                CR=1.0, generations=generations, seed=1, workers=threads,
+                                polish=False, progress=False)
+        e = self.np.asarray(res.history["elapsed"], dtype=float)
+        return {"ms": (self.np.diff(e) * 1e3).tolist(), "fun": float(res.fun).hex()}
 
     def serve(self) -> None:
         out = sys.stdout
@@ -215,6 +275,51 @@ def alternated(builds: list[Build], reps: int, op: str, *args) -> dict[str, list
     return out
 
 
+def spread(builds: list[Build], cells: list[tuple], reps: int, seconds: float) -> dict:
+    """The objective's time per evaluation for every cell (kernel, objective) and build, in
+    rounds over the cells (the builds alternated within each visit, their order reversed every
+    round) for at least `seconds` seconds and until every cell has `reps` repetitions. A cell is
+    visited every s-th round, s its time per evaluation over the cheapest cell's (so far), so
+    that each cell gets about the same time and the costly ones (the SSE2 tracker objective, 80x
+    the cheapest) do not leave the others a handful of repetitions. Returns
+    {cell: {build name: [times]}}.
+
+    Why rounds rather than a cell's repetitions in a row: this machine's cores go through spells
+    of 0.25-2 s in which code bound by latency (the kernels) runs 25-45 % slower while the clock
+    and the multiply-add peak do not move (measured; BENCHMARKS.md, fifth round: most likely the
+    host's other hardware thread on the same core). A cell's repetitions in a row take 20-100 ms
+    and fall inside one spell, so the cell's minimum took the spell's state: the bimodal table.
+    Spread over the whole table, every cell's minimum comes from outside the spells."""
+    out: dict = {c: {b.name: [] for b in builds} for c in cells}
+    cost: dict = {}
+    stride = {c: 1 for c in cells}
+    t0 = time.perf_counter()
+    r = 0
+    while (time.perf_counter() - t0 < seconds
+           or any(len(v) < reps for per in out.values() for v in per.values())):
+        k = r % len(cells)
+        for c in cells[k:] + cells[:k]:
+            if r % stride[c] and all(len(v) >= reps for v in out[c].values()):
+                continue
+            for name, v in alternated(builds if r % 2 == 0 else builds[::-1], 1,
+                                      "objective", *c).items():
+                out[c][name].extend(v)
+                if v[0] is not None:
+                    cost[c] = min(cost.get(c, math.inf), v[0])
+        cheapest = min(cost.values(), default=1.0)
+        stride = {c: max(1, round(cost.get(c, cheapest) / cheapest)) for c in cells}
+        r += 1
+    return out
+
+
+def near_min(times: dict) -> str:
+    """How many repetitions of each cell came within 2 % of its minimum (range over the cells):
+    the minimum is a state the machine returned to, not a lucky call."""
+    fr = [sum(t <= 1.02 * min(v) for t in v) / len(v)
+          for cell in times.values() for v in cell.values() if v and None not in v]
+    return f"{min(fr):.0%}-{max(fr):.0%}" if fr else "n/a"
+
+
 class Load:
     """Load average and the CPU other processes used (cores), over a block of measurements."""
 
@@ -241,7 +346,7 @@ class Load:
         return self
 
     def __exit__(self, *exc: object) -> None:
-        wall = time.perf_counter() - self.t0
+        wall = self.wall = time.perf_counter() - self.t0
         b1 = self._busy()
         self.cores = (None if b1 is None or self.b0 is None else
                       max(0.0, (b1 - self.b0 - (self._ours() - self.o0)) / wall))
@@ -258,6 +363,9 @@ def main() -> None:
     ap.add_argument("--python", action="append", default=[], metavar="NAME=PATH",
                     help="a build: a name and its Python interpreter (repeatable)")
     ap.add_argument("--repeat", type=int, default=15, help="objective repetitions (default 15)")
+    ap.add_argument("--seconds", type=float, default=20.0,
+                    help="each objective table's repetitions spread over at least this long "
+                         "(default 20 s; see spread())")
     ap.add_argument("--de-repeat", type=int, default=3, help="DE run pairs (default 3)")
     ap.add_argument("--generations", default="100,600", help="G1,G2 of the DE rate")
     ap.add_argument("--kernels", default=None, help="variants, comma-separated (default: all)")
@@ -267,6 +375,10 @@ def main() -> None:
                     help="also the weighted, whitened and tracker objectives against their floors")
     ap.add_argument("--objectives-only", action="store_true",
                     help="the objectives' table alone (implies --objectives)")
+    ap.add_argument("--scaling", action="store_true",
+                    help="only DE per generation against cost_batch, 2 threads against 1, from "
+                         "the minimum of each generation over --runs runs (scaling_table)")
+    ap.add_argument("--runs", type=int, default=7, help="DE runs of --scaling (default 7)")
     ap.add_argument("--quick", action="store_true", help="a smoke test")
     args = ap.parse_args()
     if args.worker:
@@ -280,6 +392,7 @@ def main() -> None:
             ap.error(f"--python: {spec!r}; expected NAME=PATH")
         builds.append(Build(name, path))
     reps = 3 if args.quick else args.repeat
+    secs = 0.0 if args.quick else args.seconds
     de_reps = 1 if args.quick else args.de_repeat
     g1, g2 = (20, 70) if args.quick else tuple(int(g) for g in args.generations.split(","))
     threads = [int(t) for t in args.threads.split(",")]
@@ -299,9 +412,14 @@ def main() -> None:
               + ", ".join(f"{k} {v:.1f}" for k, v in peak.items()))
         names = [b.name for b in builds]
         flops = FLOPS_PER_POSE * N
+        if args.scaling:
+            scaling_table(builds, kernels, threads, 2 if args.quick else args.runs,
+                          60 if args.quick else 400, reps, secs)
+            return
 
         print(f"\nleg objective, Problem.cost_batch(X, workers=1), {NP} vectors, N = {N}, "
-              f"thread CPU time per evaluation, min of {reps}:")
+              f"thread CPU time per evaluation, min of at least {reps} spread "
+              f"over {secs:g} s:")
         hdr = "| variant | " + " | ".join(f"{n} (us) | {n}: of the floor" for n in names)
         if len(builds) == 2:
             hdr += f" | {names[1]} / {names[0]}"
@@ -309,9 +427,9 @@ def main() -> None:
         print("|" + "---|" * (1 + 2 * len(names) + (len(builds) == 2)))
         summary: dict = {"objective": {}, "batch": {}, "de": {}}
         with Load(builds) as load:
+            times = spread(builds, [(k,) for k in kernels], reps, secs)
             for k in kernels:
-                r = alternated(builds, reps, "objective", k)
-                best = {n: min(v) for n, v in r.items()}
+                best = {n: min(v) for n, v in times[(k,)].items()}
                 summary["objective"][k] = best
                 floor_us = flops / (peak[k] * 1e3)
                 row = f"| {k} | " + " | ".join(
@@ -320,8 +438,10 @@ def main() -> None:
                     row += f" | {best[names[1]] / best[names[0]]:.2f}x"
                 print(row + " |", flush=True)
         print(f"floor: {flops} flops at the peak above; {load}")
+        print(f"{len(times[(kernels[0],)][names[0]])} repetitions a cell over {load.wall:.0f} s; "
+              f"within 2 % of the cell's minimum: {near_min(times)} of them")
         if args.objectives or args.objectives_only:
-            objectives_table(builds, kernels, reps, peak)
+            objectives_table(builds, kernels, reps, peak, secs)
         if args.objectives_only:
             return
 
@@ -393,12 +513,14 @@ def main() -> None:
             b.close()
 
 
-def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: dict) -> None:
+def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: dict,
+                     seconds: float) -> None:
     """Every objective of FLOPS on every variant: thread CPU time per evaluation and the fraction
     of its floor (FLOPS[objective] x N at the variant's measured peak)."""
     names = [b.name for b in builds]
     print(f"\nobjectives, cost_batch(X, workers=1), {NP} vectors, N = {N}, thread CPU time per "
-          f"evaluation, min of {reps} (floor: flops a pose x N at the variant's peak above):")
+          f"evaluation, min of at least {reps} spread over {seconds:g} s (floor: flops a pose x N "
+          "at the variant's peak above):")
     hdr = "| variant | objective | flops a pose | " + " | ".join(
         f"{n} (us) | {n}: of the floor" for n in names)
     if len(builds) == 2:
@@ -406,10 +528,10 @@ def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: d
     print(hdr + " |")
     print("|" + "---|" * (3 + 2 * len(names) + (len(builds) == 2)))
     with Load(builds) as load:
+        times = spread(builds, [(k, w) for k in kernels for w in FLOPS], reps, seconds)
         for k in kernels:
             for which, fl in FLOPS.items():
-                r = alternated(builds, reps, "objective", k, which)
-                best = {n: (None if None in v else min(v)) for n, v in r.items()}
+                best = {n: (None if None in v else min(v)) for n, v in times[(k, which)].items()}
                 floor_us = fl * N / (peak[k] * 1e3)
                 cells = [("n/a | n/a" if best[n] is None else
                           f"{best[n]:.3f} | {floor_us / best[n]:.0%}") for n in names]
@@ -419,6 +541,63 @@ def objectives_table(builds: list[Build], kernels: list[str], reps: int, peak: d
                     row += " | n/a" if a is None or b is None else f" | {b / a:.2f}x"
                 print(row + " |", flush=True)
     print(str(load))
+    print(f"at least {reps} repetitions a cell over {load.wall:.0f} s; within 2 % of the cell's "
+          f"minimum: {near_min(times)} of them")
+
+
+def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], runs: int,
+                  generations: int, reps: int, seconds: float) -> None:
+    """DE's generation against one cost_batch, and 2 threads against 1, robust to neighbours.
+
+    A generation takes 0.3-2 ms; the neighbours of a shared machine take a core now and then for
+    a few ms. Each generation's wall time comes from the run's own log; over `runs` runs of the
+    same seed (the same work generation by generation) the minimum of each generation is the
+    generation undisturbed, and the median of these minima over generations 50.. is the
+    figure (the first generations, with most mutants out of bounds, are slower). cost_batch of the
+    600 vectors: the minimum over rounds spread over `seconds`, as the objective tables."""
+    names = [b.name for b in builds]
+    print(f"\nDE/rand/1/bin, NP {NP}, N {N}, iwr.identify(method='de', polish=False), "
+          f"{generations} generations x {runs} runs: per generation the minimum over the runs, "
+          "then the median over generations 50..; cost_batch(X, workers=T) of the 600 vectors, "
+          f"wall time, the minimum over rounds spread over {seconds:g} s:")
+    print("| variant | threads | " + " | ".join(
+        f"{n}: ms/gen | {n}: cost_batch (ms) | {n}: gen / batch" for n in names) + " |")
+    print("|---|---|" + "---|" * (3 * len(names)))
+    cells = [(k, t) for k in kernels for t in threads]
+    gen: dict = {c: {n: [] for n in names} for c in cells}
+    bits: dict = {n: set() for n in names}
+    batch: dict = {c: {n: [] for n in names} for c in cells}
+    with Load(builds) as load:
+        for r in range(runs):
+            for c in cells:
+                for b in (builds if r % 2 == 0 else builds[::-1]):
+                    a = b.ask("de_generations", c[0], c[1], generations)
+                    gen[c][b.name].append(a["ms"])
+                    bits[b.name].add(a["fun"])
+        t0 = time.perf_counter()
+        r = 0
+        while r < reps or time.perf_counter() - t0 < seconds:
+            for c in cells[r % len(cells):] + cells[:r % len(cells)]:
+                for b in (builds if r % 2 == 0 else builds[::-1]):
+                    batch[c][b.name].append(b.ask("batch", c[0], c[1]))
+            r += 1
+        per: dict = {}
+        for c in cells:
+            cellout = []
+            for n in names:
+                m = [min(g) for g in zip(*gen[c][n], strict=True)][50:]
+                ms = sorted(m)[len(m) // 2]
+                bt = min(batch[c][n])
+                per[(c, n)] = ms
+                cellout.append(f"{ms:.3f} | {bt:.3f} | {ms / bt:.2f}x")
+            print(f"| {c[0]} | {c[1]} | " + " | ".join(cellout) + " |", flush=True)
+    print(str(load))
+    for n in names:
+        if 1 in threads and 2 in threads:
+            print(f"{n}: generations/s on 2 threads / on 1: " + ", ".join(
+                f"{k} {per[((k, 1), n)] / per[((k, 2), n)]:.2f}x" for k in kernels))
+        print(f"{n}: the same best cost bits on every variant and thread count: "
+              f"{len(bits[n]) == 1}")
 
 
 def cpu_name() -> str:

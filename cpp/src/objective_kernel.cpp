@@ -30,6 +30,11 @@
 #else
 #define IWR_FORCE_INLINE inline
 #endif
+#if defined(__GNUC__) && !defined(__clang__)
+#define IWR_FORCE_INLINE_LAMBDA __attribute__((always_inline))
+#else
+#define IWR_FORCE_INLINE_LAMBDA
+#endif
 
 namespace iwr::detail {
 
@@ -107,10 +112,11 @@ IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm256_blendv_pd(b, a, m); }
 #endif
 
 #if defined(__clang__)
-#pragma clang attribute push(__attribute__((target("avx512f"))), apply_to = function)
+#pragma clang attribute push(__attribute__((target("avx512f,avx2,fma"))), apply_to = function)
 #else
 #pragma GCC push_options
-#pragma GCC target("avx512f")
+// avx2 and fma too (every AVX-512 CPU has them): half_pass inlines the AVX2 variant's pass.
+#pragma GCC target("avx512f,avx2,fma")
 #pragma GCC diagnostic push
 // GCC 12 warns inside its own _mm512_sqrt_pd and _mm512_cmp_pd_mask (an intentionally undefined
 // pass-through operand).
@@ -138,7 +144,10 @@ IWR_FORCE_INLINE M m_or(M a, M b) { return static_cast<M>(a | b); }
 IWR_FORCE_INLINE M m_all(bool on) { return static_cast<M>(on ? 0xff : 0); }
 IWR_FORCE_INLINE int m_bits(M a) { return a; }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm512_mask_blend_pd(m, b, a); }
+// A last block of at most 4 poses runs as the AVX2 variant's 4-lane pass (objective_kernel_body.inl).
+#define IWR_HALF_PASS avx2
 #include "objective_kernel_body.inl"
+#undef IWR_HALF_PASS
 #include "tracker_kernel_body.inl"
 }  // namespace avx512
 #if defined(__clang__)
@@ -192,7 +201,7 @@ bool has_avx2() {  // and FMA, which every AVX2 CPU has (Intel Haswell, AMD Exca
 }
 bool has_avx512() {
     __builtin_cpu_init();
-    return __builtin_cpu_supports("avx512f");
+    return __builtin_cpu_supports("avx512f") && has_avx2();
 }
 #endif
 

@@ -174,6 +174,25 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
     return acc;
 }
 
+#ifdef IWR_HALF_PASS
+// Defined as the namespace of a variant with registers of 4 lanes (the AVX-512 variant: avx2): a
+// block of at most 4 poses (the last one, padded: at N = 100 the 13th holds 4) runs as that
+// variant's pass of 4 lanes, the same operations on each lane (so the same bits), instead of a
+// full pass of 8. The cost only; the residuals keep the full pass.
+constexpr bool kHalfPass = true;
+template <int Weighted, int NP, int NR>
+IWR_FORCE_INLINE void half_pass(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                                double* out) {  // out: the 4 lanes' sums of squares (aligned)
+    IWR_HALF_PASS::Sub res[6];
+    const IWR_HALF_PASS::Sub acc = IWR_HALF_PASS::block<Weighted, false, NP, NR>(pd, ec, blk, res);
+    IWR_HALF_PASS::store(out, acc);
+}
+#else
+constexpr bool kHalfPass = false;
+template <int Weighted, int NP, int NR>
+void half_pass(const PoseData&, const EvalConsts&, const double*, double*) {}
+#endif
+
 template <int Weighted, bool Residuals, int NP, int NR>
 IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* out) {
     constexpr int B = kBlock, W = kSubLanes;
@@ -182,28 +201,45 @@ IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* ou
     Sub lanes[K], res[6];
     for (auto& l : lanes) l = bcast<Sub>(0.0);
     alignas(64) double tmp[B];
-    const int full = pd.n / B;
-    for (int b = 0; b < pd.n_blocks; ++b) {
+    // One register of block b (its lanes h W ...); valid: the block's poses, the rest padding.
+    auto pass = [&](int b, int h, int valid) IWR_FORCE_INLINE_LAMBDA {
         const double* blk = pd.data + static_cast<long>(b) * pd.stride;
-        const int valid = b < full ? B : pd.n - b * B;  // the last block may be padded
-        for (int h = 0; h < K; ++h) {  // the block's registers one at a time
-            const Sub acc = block<Weighted, Residuals, NP, NR>(pd, ec, blk + h * W, res);
-            if (valid == B) {
-                lanes[h] = lanes[h] + acc;
-            } else {
-                store(tmp, acc);
-                for (int l = 0; l < W; ++l)
-                    if (h * W + l >= valid) tmp[l] = 0.0;
-                lanes[h] = lanes[h] + ld<Sub>(tmp);
-            }
-            if (Residuals) {
-                for (int j = 0; j < 6; ++j) {
-                    store(tmp, res[j]);
-                    for (int l = 0; l < W && h * W + l < valid; ++l)
-                        out[(static_cast<long>(b) * B + h * W + l) * 6 + j] = tmp[l];
-                }
+        const Sub acc = block<Weighted, Residuals, NP, NR>(pd, ec, blk + h * W, res);
+        if (valid == B) {
+            lanes[h] = lanes[h] + acc;
+        } else {
+            store(tmp, acc);
+            for (int l = 0; l < W; ++l)
+                if (h * W + l >= valid) tmp[l] = 0.0;
+            lanes[h] = lanes[h] + ld<Sub>(tmp);
+        }
+        if (Residuals) {
+            for (int j = 0; j < 6; ++j) {
+                store(tmp, res[j]);
+                for (int l = 0; l < W && h * W + l < valid; ++l)
+                    out[(static_cast<long>(b) * B + h * W + l) * 6 + j] = tmp[l];
             }
         }
+    };
+    const int full = pd.n / B;
+    for (int b = 0; b < full; ++b)
+        for (int h = 0; h < K; ++h) pass(b, h, B);  // the block's registers one at a time
+    if (full < pd.n_blocks) {  // the last block, padded
+        const int valid = pd.n - full * B;
+        bool done = false;
+        if constexpr (kHalfPass && !Residuals) {
+            if (valid <= B / 2) {  // at most 4 poses: that half of the block on 4 lanes
+                half_pass<Weighted, NP, NR>(pd, ec, pd.data + static_cast<long>(full) * pd.stride,
+                                            tmp);
+                for (int l = valid; l < B; ++l) tmp[l] = 0.0;
+                lanes[0] = lanes[0] + ld<Sub>(tmp);
+                done = true;
+            }
+        }
+        // A register of padding only would add zeros to its lanes' sums: skipped (the same sums).
+#pragma GCC unroll 4
+        for (int h = 0; h < K; ++h)
+            if (!done && h * W < valid) pass(full, h, valid);
     }
     for (int h = 0; h < K; ++h) store(tmp + h * W, lanes[h]);
     return ((tmp[0] + tmp[4]) + (tmp[1] + tmp[5])) + ((tmp[2] + tmp[6]) + (tmp[3] + tmp[7]));
