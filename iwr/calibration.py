@@ -377,6 +377,8 @@ def from_result(
     ValueError when the result's parameters are not those of ``robot`` and the data's kind."""
     kind = kinds.of(data)
     kind.check(robot, data)
+    # issue 23: an iwr-calibrate run with effects (the job does not model them yet)
+    refuse_effects(robot, "iwr report (the calibration job of a result identified elsewhere)")
     names = robot.parameter_names + kind.setup_parameter_names(robot)
     x = np.asarray(result.x, dtype=float)
     if x.shape != (len(names),):

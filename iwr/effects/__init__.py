@@ -232,7 +232,8 @@ def bounds(effects: Sequence[Effect]) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The methods and functions that model the effects (the others refuse a robot with effects).
-SUPPORTED = ("iwr.identify with method 'lm' (unweighted) on pose data", "iwr.simulate",
+SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2' or 'bobyqa' (unweighted) on pose data",
+             "iwr.Problem and its problem file, iwr-engine, iwr-calibrate", "iwr.simulate",
              "iwr.identifiability", "iwr.effects.api.leg_commands",
              "iwr.effects.api.forward_kinematics")
 

@@ -196,7 +196,9 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
         from ..effects.problem import EffectProblem, check_method
 
         check_method(robot, method, noise, weighted)
-        problem: Any = EffectProblem(robot, measurements, bounds)
+        # LM on the numpy model; DE, CRS2, BOBYQA on the C++ objective with effects.
+        problem: Any = (EffectProblem(robot, measurements, bounds) if method == "lm"
+                        else Problem(robot, measurements, bounds))
     else:
         problem = Problem(robot, measurements, bounds, noise=noise if weighted else None)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
