@@ -7,8 +7,10 @@ this CPU runs (``iwr._core._select_kernel``): the geometry alone (``iwr.Problem`
 without effects: the SIMD kernels) against the objective with effects (``cpp/src/effects.cpp``:
 the legs' compliance under the load, from the hexapod's statics, and their thermal growth;
 portable scalar code, the same on every variant), and each effect alone. The minimum over
-``--repeat`` repetitions of the wall time per evaluation (the machine may be shared: the minimum
-is the least disturbed), with the other processes' load (``_load.OtherLoad``).
+``--repeat`` repetitions of the calling thread's CPU time per evaluation (one thread: the batch
+runs in the calling thread; on a shared machine the wall time of a batch that is preempted counts
+the time it waited, its CPU time does not), with the other processes' load
+(``_load.OtherLoad``).
 
 ``--reference PATH/_core....so``: also times the geometric objective of another build of the
 compiled core (e.g. main's, before the effects) on the same vectors, and checks that its costs
@@ -41,12 +43,15 @@ from iwr.effects import api  # noqa: E402
 
 
 def per_eval_us(fn: Any, X: np.ndarray, repeat: int) -> float:
+    """The least CPU time of this thread per evaluation (one thread: the batch runs in the calling
+    thread), so that a batch preempted on a shared machine is not counted for the time it
+    waited."""
     fn(X[:8])  # warm-up
     best = math.inf
     for _ in range(repeat):
-        t = time.perf_counter()
+        t = time.thread_time()
         fn(X)
-        best = min(best, (time.perf_counter() - t) / X.shape[0] * 1e6)
+        best = min(best, (time.thread_time() - t) / X.shape[0] * 1e6)
     return best
 
 
@@ -102,7 +107,7 @@ def main() -> None:
             rows.append((variant, times))
     _core._select_kernel(initial)
     other = "?" if load.cores is None else f"{load.cores:.2f}"
-    print(f"N = 100 poses, cost_batch of {X.shape[0]} vectors, one thread, wall time per "
+    print(f"N = 100 poses, cost_batch of {X.shape[0]} vectors, one thread, CPU time per "
           f"evaluation (us), minimum of {args.repeat}; other processes: {other} cores")
     print()
     head = "| variant | geometry alone | compliance + thermal | ratio | compliance | thermal |"

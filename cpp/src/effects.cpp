@@ -93,9 +93,11 @@ private:
     std::vector<std::string> known_;
 };
 
-// Solves the 6 x 6 system a f = w in place (Gaussian elimination with partial pivoting). a is
-// row-major; false when a pivot falls below `tiny` (a singular hexapod).
+// Solves the 6 x 6 system a f = w in place (Gaussian elimination with partial pivoting; one
+// division per pivot, its inverse multiplies). a is row-major; false when a pivot falls below
+// `tiny` (a singular hexapod).
 bool solve6(double (&a)[36], double (&w)[6], double tiny) {
+    double inv[6];
     for (int c = 0; c < 6; ++c) {
         int p = c;
         for (int r = c + 1; r < 6; ++r)
@@ -105,9 +107,9 @@ bool solve6(double (&a)[36], double (&w)[6], double tiny) {
             for (int k = c; k < 6; ++k) std::swap(a[6 * c + k], a[6 * p + k]);
             std::swap(w[c], w[p]);
         }
-        const double inv = 1.0 / a[6 * c + c];
+        inv[c] = 1.0 / a[6 * c + c];
         for (int r = c + 1; r < 6; ++r) {
-            const double m = a[6 * r + c] * inv;
+            const double m = a[6 * r + c] * inv[c];
             for (int k = c + 1; k < 6; ++k) a[6 * r + k] -= m * a[6 * c + k];
             w[r] -= m * w[c];
         }
@@ -115,7 +117,7 @@ bool solve6(double (&a)[36], double (&w)[6], double tiny) {
     for (int r = 5; r >= 0; --r) {
         double s = w[r];
         for (int k = r + 1; k < 6; ++k) s -= a[6 * r + k] * w[k];
-        w[r] = s / a[6 * r + r];
+        w[r] = s * inv[r];
     }
     return true;
 }
@@ -345,7 +347,7 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
         }
         // The legs in {0}: r_j = 0R5 b_j, v_j = 0P5 + r_j - 0P4 - 0R4 a_j.
         double len[kLegs], g[36], w[6];
-        double radius = 0;
+        double radius = 0;  // the largest |r_j| (its square first)
         for (int j = 0; j < kLegs; ++j) {
             double rj[3], v[3];
             for (int e = 0; e < 3; ++e) {
@@ -355,14 +357,16 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
             }
             len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
             if (m.compliance) {
-                const double u[3] = {v[0] / len[j], v[1] / len[j], v[2] / len[j]};
+                const double inv = 1.0 / len[j];
+                const double u[3] = {v[0] * inv, v[1] * inv, v[2] * inv};
                 g[j] = u[0], g[6 + j] = u[1], g[12 + j] = u[2];
                 g[18 + j] = rj[1] * u[2] - rj[2] * u[1];
                 g[24 + j] = rj[2] * u[0] - rj[0] * u[2];
                 g[30 + j] = rj[0] * u[1] - rj[1] * u[0];
-                radius = std::max(radius, std::sqrt(rj[0] * rj[0] + rj[1] * rj[1] + rj[2] * rj[2]));
+                radius = std::max(radius, rj[0] * rj[0] + rj[1] * rj[1] + rj[2] * rj[2]);
             }
         }
+        radius = std::sqrt(radius);
         bool failed = false;
         if (m.compliance) {
             // G f = w with the moment rows scaled by 1/radius (entries of order 1: the pivot test is

@@ -435,13 +435,14 @@ double whitened(const iwr::RowMatrixXd& w, const iwr::VectorXd& r) {
 
 IWR_TEST(weighted_problem_round_trip_and_objective) {
     static_assert(iwr::is_objective_v<iwr::Objective> && iwr::is_objective_v<iwr::TrackerObjective> &&
+                      iwr::is_objective_v<iwr::EffectObjective> &&
                       !iwr::is_objective_v<int>,
                   "the built-in objectives meet the requirements of iwr/measurement_kind.hpp");
     for (auto kind : {iwr::MeasurementKind::Pose, iwr::MeasurementKind::Points, iwr::MeasurementKind::Probe}) {
         const iwr::ProblemData p = sample_weighted_problem(kind);
         const std::string bytes = iwr::encode_problem(p);
         const iwr::ProblemData q = iwr::decode_problem(bytes, "w.iwrp: ");
-        CHECK(same_problem(p, q) && q.version == 3 && q.weighted());
+        CHECK(same_problem(p, q) && q.version == iwr::kProblemVersion && q.weighted());
         CHECK(q.whitening == p.whitening && q.weighting == p.weighting);
         CHECK(iwr::encode_problem(q) == bytes);
         // Weighted is another problem of the same data.
