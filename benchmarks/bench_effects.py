@@ -31,15 +31,15 @@ for _var in ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS"):
 import argparse  # noqa: E402
 import importlib.util  # noqa: E402
 import math  # noqa: E402
+import subprocess  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
 import time  # noqa: E402
 from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 from _load import OtherLoad  # noqa: E402
-
-import iwr  # noqa: E402
-from iwr import _core  # noqa: E402
-from iwr.effects import api  # noqa: E402
+# iwr is imported in main(): the --worker process loads another build's _core alone.
 
 
 def per_eval_us(fn: Any, X: np.ndarray, repeat: int) -> float:
@@ -55,19 +55,51 @@ def per_eval_us(fn: Any, X: np.ndarray, repeat: int) -> float:
     return best
 
 
-def load_core(path: str) -> Any:
-    spec = importlib.util.spec_from_file_location("_core", path)
+def reference_worker(npz: str, so: str, repeat: int) -> None:
+    """In its own process (two builds of _core cannot share one: pybind11 registers their types
+    once): the geometric objective of the build ``so`` on the arrays of ``npz``, per variant its
+    costs and CPU time per evaluation, into ``npz``.out.npz."""
+    spec = importlib.util.spec_from_file_location("_core", so)
     assert spec is not None and spec.loader is not None
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+    ref = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(ref)
+    d = np.load(npz)
+    obj = ref.Objective(ref.Geometry(str(d["joint_types"]), d["dh"], d["base"], d["platform"],
+                                     d["offsets"]), d["q"], d["poses"], d["legs"])
+    out = {}
+    for variant in d["variants"]:
+        ref._select_kernel(str(variant))
+        out[f"{variant}_costs"] = obj.cost_batch(d["X"], 1)
+        out[f"{variant}_us"] = per_eval_us(lambda A: obj.cost_batch(A, 1), d["X"], repeat)
+    np.savez(npz + ".out.npz", **out)
+
+
+def reference_times(so: str, robot: Any, m: Any, X: np.ndarray, repeat: int,
+                    variants: list[str]) -> dict[str, Any]:
+    with tempfile.TemporaryDirectory() as tmp:
+        npz = os.path.join(tmp, "data.npz")
+        np.savez(npz, joint_types=robot.joint_types, dh=robot.dh, base=robot.base_joints,
+                 platform=robot.platform_joints, offsets=robot.leg_offsets, q=m.q,
+                 poses=m.poses, legs=m.legs, X=X, variants=variants)
+        subprocess.run([sys.executable, __file__, "--worker", npz, so, "--repeat", str(repeat)],
+                       check=True)
+        with np.load(npz + ".out.npz") as f:
+            return dict(f)
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeat", type=int, default=30)
     ap.add_argument("--reference", help="another build's _core module (.so) to compare with")
+    ap.add_argument("--worker", nargs=2, help=argparse.SUPPRESS)
     args = ap.parse_args()
+    if args.worker:
+        reference_worker(*args.worker, args.repeat)
+        return
+    import iwr
+    from iwr import _core
+    from iwr.effects import api
+
     robot = iwr.Robot.default()
     comp, thermal = api.realistic(robot)
     both = robot.with_effects(comp, thermal)
@@ -84,11 +116,9 @@ def main() -> None:
     cols = {name: X[:, : p.n_params] if name != "thermal" else np.hstack(
         [X[:, : robot.n_params], X[:, -1:]]) for name, p in problems.items()}
     reference = None
-    if args.reference:
-        ref = load_core(args.reference)
-        reference = ref.Objective(ref.Geometry(robot.joint_types, robot.dh, robot.base_joints,
-                                               robot.platform_joints, robot.leg_offsets),
-                                  m.q, m.poses, m.legs)
+    if args.reference:  # first, alone: its process and ours do not overlap
+        reference = reference_times(args.reference, robot, m, cols["geometry alone"],
+                                    args.repeat, _core._supported_kernels())
     rows = []
     initial = _core._active_kernel()
     with OtherLoad() as load:
@@ -97,13 +127,10 @@ def main() -> None:
             times = {name: per_eval_us(lambda A, p=p: p.cost_batch(A, workers=1), cols[name],
                                        args.repeat) for name, p in problems.items()}
             if reference is not None:
-                ref._select_kernel(variant)
-                geo = cols["geometry alone"]
-                same = np.array_equal(reference.cost_batch(geo, 1),
-                                      problems["geometry alone"].cost_batch(geo, workers=1))
-                times["reference"] = per_eval_us(lambda A: reference.cost_batch(A, 1), geo,
-                                                 args.repeat)
-                times["same bits"] = same
+                times["reference"] = float(reference[f"{variant}_us"])
+                times["same bits"] = np.array_equal(
+                    reference[f"{variant}_costs"],
+                    problems["geometry alone"].cost_batch(cols["geometry alone"], workers=1))
             rows.append((variant, times))
     _core._select_kernel(initial)
     other = "?" if load.cores is None else f"{load.cores:.2f}"

@@ -285,12 +285,15 @@ class Problem:
 
     def jacobian(self, x: Any) -> np.ndarray:
         """Exact (analytic) Jacobian of :meth:`residuals`, shape (6 N, n_params)."""
-        return self.residuals_and_jacobian(x)[1]
+        return self._residuals_and_jacobian(x)[1]
 
     def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
         """Both at once (one pass). With effects: the residuals of the C++ objective and the
         exact Jacobian of the numpy model (:func:`iwr.effects.model.predicted_readings`, which
         the C++ objective's residuals agree with to round-off)."""
+        return self._residuals_and_jacobian(x)
+
+    def _residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
         if not self.robot.effects:
             return self._objective.jacobian(self._x(x))
         from .effects.model import predicted_readings
