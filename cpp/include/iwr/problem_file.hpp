@@ -37,12 +37,12 @@
 //        flags (at least one 1)
 //   u64  parameter names; each a str
 //   u64  sources; each: str role ("robot", "data", ...), str path, str SHA-256 (hex, or empty)
-// n_params is 4 n + 42, plus 6 + 3 K (points) or 12 (probe), or the effects' parameters. Every value is checked as if a user
-// had typed it: sizes against the file, finite numbers (NaN only for unseen reflectors), lower <
-// upper, non-negative weights, names of printable ASCII.
+// n_params is 4 n + 42, plus 6 + 3 K (points) or 12 (probe), or the effects' parameters. Every
+// value is checked as if a user had typed it: sizes against the file, finite numbers (NaN only
+// for unseen reflectors), lower < upper, non-negative weights, names of printable ASCII.
 // Versions 3 (without the effects: none on) and 2 (without the weighting either: every file
-// unweighted) are read; version 1 (leg data
-// only, no kind, x0 or active set) is refused with its version named.
+// unweighted) are read; version 1 (leg data only, no kind, x0 or active set) is refused with its
+// version named.
 #pragma once
 
 #include <cstdint>
