@@ -8,12 +8,28 @@ import numpy as np
 
 from . import _core
 from ._hooks import hook
-from .effects import parameter_names as _effect_names
+from .effects import bounds as effect_bounds
+from .effects import parameter_names as effect_names
 from .effects import refuse as _refuse_effects
+from .effects.model import check_inputs as check_effect_inputs
 from .measurements import Measurements, as_matrix
 from .robot import Robot
 
 __all__ = ["Problem", "gls_whitening", "predict_legs"]
+
+
+def effect_inputs(robot: Robot, measurements: Measurements) -> dict[str, Any]:
+    """What the C++ objective with effects (``_core.EffectObjective``, ``_core.de_objective``)
+    takes of a robot's effects and the data's loads and temperatures: the effects' tables
+    (:meth:`iwr.effects.Effect.to_dict`, in order), the payload (N, 4) and the temperatures
+    (N, 1 or 6), each ``(0, 0)`` when absent."""
+    empty = np.zeros((0, 0))
+
+    def arr(a: Any) -> np.ndarray:
+        return empty if a is None else np.ascontiguousarray(a, dtype=float)
+
+    return dict(effects=[(e.name, e.to_dict()) for e in robot.effects],
+                payload=arr(measurements.payload), temperatures=arr(measurements.temperatures))
 
 
 def _check_joint_types(robot: Robot, measurements: Measurements) -> None:
@@ -97,7 +113,7 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
         raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
     # With effects (issue 23): x also holds the effects' parameters, and the loop closure
     # takes each pose's load and temperature (``data``; ignored without effects).
-    x = (np.zeros(robot.n_params + len(_effect_names(robot.effects))) if x is None
+    x = (np.zeros(robot.n_params + len(effect_names(robot.effects))) if x is None
          else np.asarray(x, dtype=float))
     plain = Measurements(measurements.q, measurements.poses, measurements.legs,
                          joint_types=measurements.joint_types)
@@ -162,11 +178,17 @@ class Problem:
                 f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
             )
         _check_joint_types(robot, measurements)
-        _refuse_effects(robot, "iwr.Problem")  # issue 23: iwr.effects.problem.EffectProblem
         self.robot = robot
         self.measurements = measurements
+        # Issue 23: the effects' parameters after the geometric ones, with their own bounds.
+        n_geo = robot.n_params
+        names = robot.parameter_names + effect_names(robot.effects)
+        lo_e, hi_e = effect_bounds(robot.effects)
+        if robot.effects:
+            check_effect_inputs(robot, measurements)
         if bounds is None or isinstance(bounds, str):
             lower, upper = robot.default_bounds(bounds or "default")
+            lower, upper = np.concatenate([lower, lo_e]), np.concatenate([upper, hi_e])
         else:
             try:
                 lower, upper = (np.array(b, dtype=float) for b in bounds)
@@ -174,18 +196,26 @@ class Problem:
                 raise ValueError(
                     "bounds: expected None, 'default', 'paper' or a pair (lower, upper)"
                 ) from None
-            lower = np.broadcast_to(lower, (robot.n_params,)).copy()
-            upper = np.broadcast_to(upper, (robot.n_params,)).copy()
+            if robot.effects and lower.size == n_geo and upper.size == n_geo:
+                lower, upper = np.concatenate([lower, lo_e]), np.concatenate([upper, hi_e])
+            lower = np.broadcast_to(lower, (len(names),)).copy()
+            upper = np.broadcast_to(upper, (len(names),)).copy()
         for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
             if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
                 raise ValueError(
-                    f"bounds: parameter {i} ({robot.parameter_names[i]}) has lower {lo}, "
+                    f"bounds: parameter {i} ({names[i]}) has lower {lo}, "
                     f"upper {hi}; bounds must be finite with lower < upper"
                 )
         self.lower = lower
         self.upper = upper
         if noise is not None and whitening is not None:
             raise ValueError("noise, whitening: give one or the other")
+        if noise is not None and robot.effects:
+            raise ValueError(
+                f"noise: robot {robot.name!r} has effects on ("
+                + ", ".join(e.name for e in robot.effects) + "); the noise weighting "
+                "(gls_whitening) does not model them yet: give noise=None, or a whitening= of "
+                "your own (docs/effects.md)")
         self.noise = noise
         if noise is not None:
             whitening = gls_whitening(robot, measurements, noise)
@@ -201,10 +231,16 @@ class Problem:
             self.whitening = None
             weights = (measurements.weights if measurements.weights is not None
                        else np.zeros((0, 0)))
-        self._objective = _core.Objective(
-            robot._geometry, measurements.q, measurements.poses, measurements.legs, weights,
-            self.whitening_matrix(),
-        )
+        if robot.effects:  # issue 23: the leg objective with the effects (cpp/src/effects.cpp)
+            self._objective = _core.EffectObjective(
+                robot._geometry, q=measurements.q, poses=measurements.poses,
+                legs=measurements.legs, weights=weights, whitening=self.whitening_matrix(),
+                **effect_inputs(robot, measurements))
+        else:
+            self._objective = _core.Objective(
+                robot._geometry, measurements.q, measurements.poses, measurements.legs, weights,
+                self.whitening_matrix(),
+            )
 
     def whitening_matrix(self) -> np.ndarray:
         """The whitening as the C++ objective takes it: (N, 36), or (0, 0) when there is none."""
@@ -219,7 +255,8 @@ class Problem:
 
     @property
     def n_params(self) -> int:
-        return self.robot.n_params
+        """The robot's geometric errors, then its effects' parameters (if any)."""
+        return self.robot.n_params + len(effect_names(self.robot.effects))
 
     @property
     def n_poses(self) -> int:
@@ -236,7 +273,7 @@ class Problem:
 
     @property
     def parameter_names(self) -> list[str]:
-        return self.robot.parameter_names
+        return self.robot.parameter_names + effect_names(self.robot.effects)
 
     def _x(self, x: Any) -> np.ndarray:
         arr = np.ascontiguousarray(x, dtype=float)
@@ -255,11 +292,27 @@ class Problem:
 
     def jacobian(self, x: Any) -> np.ndarray:
         """Exact (analytic) Jacobian of :meth:`residuals`, shape (6 N, n_params)."""
-        return self._objective.jacobian(self._x(x))[1]
+        return self._residuals_and_jacobian(x)[1]
 
     def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
-        """Both at once (one pass)."""
-        return self._objective.jacobian(self._x(x))
+        """Both at once (one pass). With effects: the residuals of the C++ objective and the
+        exact Jacobian of the numpy model (:func:`iwr.effects.model.predicted_readings`, which
+        the C++ objective's residuals agree with to round-off)."""
+        return self._residuals_and_jacobian(x)
+
+    def _residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        if not self.robot.effects:
+            return self._objective.jacobian(self._x(x))
+        from .effects.model import predicted_readings
+
+        x = self._x(x)
+        m = self.measurements
+        _, jac = predicted_readings(self.robot, x, m.q, m.poses, m, derivatives=True)
+        if self.whitening is not None:
+            jac = np.einsum("kij,kjp->kip", self.whitening, jac)
+        elif m.weights is not None:
+            jac = jac * np.sqrt(m.weights)[..., None]
+        return self._objective.residuals(x), jac.reshape(-1, self.n_params)
 
     def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
         """Costs of the rows of ``X`` (M, n_params), evaluated across ``workers`` threads

@@ -131,7 +131,10 @@ def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | No
     )
     setup = getattr(problem, "setup", None)
     if setup is None:
-        fields.update(kind="pose", poses=m.poses, weights=m.weights)
+        # The effects (issue 23, version 4): their tables, the payload and the temperatures.
+        fields.update(kind="pose", poses=m.poses, weights=m.weights,
+                      effects=[(e.name, e.to_dict()) for e in robot.effects],
+                      payload=m.payload, temperatures=m.temperatures)
     else:
         fields.update(kind=setup.kind, registration=setup.registration,
                       points=m.tracker_points(setup), reference=problem.reference)
@@ -156,7 +159,9 @@ def read_problem(path: str | os.PathLike[str]) -> dict[str, Any]:
     field. ``kind`` is ``"pose"`` (leg data, poses in {0}), ``"points"`` or ``"probe"`` (tracker
     data); ``x0`` and ``active`` are the search's starting point and active set; ``weighting`` is
     None (unweighted, and every file of version 2) or ``(text, whitening)``: what the noise
-    weighting was made from and the whitening, (N, m^2) with m the residuals of a pose."""
+    weighting was made from and the whitening, (N, m^2) with m the residuals of a pose;
+    ``effects`` is a list of ``(name, table)`` (empty: none, and every file before version 4),
+    ``payload`` (N, 4) and ``temperatures`` (N, 1 or 6) are None when absent."""
     return _core._read_problem(os.fspath(path))
 
 
@@ -179,8 +184,16 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
         m_res = int(round(np.sqrt(flat.shape[1])))
         whitening = flat.reshape(n, m_res, m_res)
     if d["kind"] == "pose":
+        if d["effects"]:  # issue 23: the robot's effects, from their tables (checked again)
+            from .effects import read_table
+
+            try:
+                robot = robot.with_effects(*read_table(dict(d["effects"]), f"{path}: effects"))
+            except ValueError as exc:
+                raise FormatError(str(exc)) from None
         m = Measurements(d["q"], d["poses"], d["legs"], joint_types=d["measurement_joint_types"],
-                         weights=d["weights"], source=os.fspath(path))
+                         weights=d["weights"], payload=d["payload"],
+                         temperatures=d["temperatures"], source=os.fspath(path))
         return Problem(robot, m, bounds=bounds, whitening=whitening)
     from .tracker.data import TrackerMeasurements
     from .tracker.problem import TrackerProblem

@@ -128,7 +128,7 @@ def test_damaged_files_are_refused_naming_file_and_field(problem: iwr.Problem,
     edited = bytearray(good)
     edited[8] = 99  # the format version
     bad.write_bytes(bytes(edited))
-    with pytest.raises(ValueError, match="format version 99; this program reads versions 2 to 3"):
+    with pytest.raises(ValueError, match="format version 99; this program reads versions 2 to 4"):
         iwr.Problem.load(bad)
     with pytest.raises(ValueError, match="/dev/zero: not a regular file"):
         iwr.Problem.load("/dev/zero")

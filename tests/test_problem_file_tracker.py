@@ -90,7 +90,7 @@ def test_damaged_files_name_file_and_fault(tracker: tuple[TrackerProblem, np.nda
     edited = bytearray(good)
     edited[8] = 1
     bad.write_bytes(bytes(edited))
-    with pytest.raises(FormatError, match="format version 1; this program reads versions 2 to 3"):
+    with pytest.raises(FormatError, match="format version 1; this program reads versions 2 to 4"):
         TrackerProblem.load(bad)
 
 

@@ -123,7 +123,7 @@ def test_round_trip_keeps_the_weighting_exactly(name: str, request: Any, tmp_pat
     path = tmp_path / "p.iwrp"
     problem.save(path)
     d = read_problem(path)
-    assert d["version"] == 3
+    assert d["version"] == 4
     text, flat = d["weighting"]
     n = problem.n_poses
     np.testing.assert_array_equal(flat, problem.whitening.reshape(n, -1))
@@ -221,7 +221,7 @@ def test_a_version_2_file_and_its_version_3_copy_are_one_problem(tmp_path: Path)
         path = tmp_path / name
         problem.save(path, x0=old["x0"], active=old["active"])
         new = read_problem(path)
-        assert new["version"] == 3
+        assert new["version"] == 4
         for key in ("robot_fingerprint", "data_fingerprint"):
             assert new[key] == old[key], (name, key)
 

@@ -315,7 +315,8 @@ void bind_de(py::module_& m) {
            std::int64_t max_evaluations, double target_cost, double tol, double atol,
            std::int64_t stagnation_generations, double stagnation_tol, double max_seconds,
            int threads, py::object monitor, bool every_generation, double interval,
-           py::object resume, bool return_state, const RowMatrixXd& whitening) {
+           py::object resume, bool return_state, const RowMatrixXd& whitening,
+           const py::object& effects, const RowMatrixXd& payload, const RowMatrixXd& temperatures) {
             const de::Settings s = make_settings(strategy, lower, upper, seed, population_size, F,
                                                  CR, bound_rule, extra);
             const de::Stop stop = make_stop(max_generations, max_evaluations, target_cost, tol,
@@ -323,9 +324,17 @@ void bind_de(py::module_& m) {
                                             max_seconds);
             // The C++ objective is built from the same data as iwr.Problem's (its whitening too:
             // DE on the noise-weighted objective).
+            Session session;
+            const std::vector<EffectTable> tables = effect_tables(effects);
+            if (!tables.empty()) {  // the legs' compliance and temperature (iwr/effects.hpp)
+                const EffectObjective obj(g, EffectModel::parse(tables, g.n_params()), q, poses, legs,
+                                          payload, temperatures, weights, whitening);
+                de::ReducedObjective<EffectObjective> f(obj, active, x0);
+                return run_de(f, session, s, stop, threads, monitor, every_generation, interval,
+                              resume, return_state);
+            }
             const Objective obj(g, q, poses, legs, weights, whitening);
             de::ObjectiveFunction f(obj, active, x0);
-            Session session;
             return run_de(f, session, s, stop, threads, monitor, every_generation, interval,
                           resume, return_state);
         },
@@ -336,7 +345,9 @@ void bind_de(py::module_& m) {
         py::arg("max_evaluations"), py::arg("target_cost"), py::arg("tol"), py::arg("atol"),
         py::arg("stagnation_generations"), py::arg("stagnation_tol"), py::arg("max_seconds"),
         py::arg("threads"), py::arg("monitor"), py::arg("every_generation"), py::arg("interval"),
-        py::arg("resume"), py::arg("return_state"), py::arg("whitening") = RowMatrixXd());
+        py::arg("resume"), py::arg("return_state"), py::arg("whitening") = RowMatrixXd(),
+        py::arg("effects") = py::none(), py::arg("payload") = RowMatrixXd(),
+        py::arg("temperatures") = RowMatrixXd());
 
     // The engine's checkpoint (and result) for iwr.problem_file.engine_result: the one reader of
     // iwr/checkpoint.hpp, so Python refuses exactly what the engine refuses.

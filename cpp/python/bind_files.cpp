@@ -102,6 +102,13 @@ void bind_files(py::module_& m) {
                                                 std::to_string(p.whitening.cols()) + "); expected (" +
                                                 std::to_string(p.legs.rows()) + ", " + std::to_string(m * m) + ")");
             }
+            // The effects (issue 23): [(name, table)], and the loads and temperatures they read.
+            if (d.contains("effects")) {
+                p.effects = effect_tables(d["effects"]);
+                const py::object payload = get("payload"), temperatures = get("temperatures");
+                if (!payload.is_none()) p.payload = payload.cast<RowMatrixXd>();
+                if (!temperatures.is_none()) p.temperatures = temperatures.cast<RowMatrixXd>();
+            }
             p.lower = get("lower").cast<std::vector<double>>();
             p.upper = get("upper").cast<std::vector<double>>();
             p.bounds_kind = get("bounds_kind").cast<std::string>();
@@ -121,7 +128,8 @@ void bind_files(py::module_& m) {
         "_data_fingerprint",
         [](const std::string& kind, const std::string& joint_types, const py::object& measurement_joint_types,
            const RowMatrixXd& q, const RowMatrixXd& legs, const RowMatrixXd& poses, const py::object& weights,
-           const RowMatrixXd& probe_poses, const RowMatrixXd& points) {
+           const RowMatrixXd& probe_poses, const RowMatrixXd& points, const RowMatrixXd& payload,
+           const RowMatrixXd& temperatures) {
             ProblemData p;
             if (kind == "pose") p.kind = MeasurementKind::Pose;
             else if (kind == "points") p.kind = MeasurementKind::Points;
@@ -136,6 +144,8 @@ void bind_files(py::module_& m) {
             if (!p.tracker()) {
                 p.poses = poses;
                 if (!weights.is_none()) p.weights = weights.cast<RowMatrixXd>();
+                p.payload = payload;
+                p.temperatures = temperatures;
             } else {
                 p.poses.resize(0, 6);  // as decode_problem leaves them for tracker data
                 if (p.kind == MeasurementKind::Probe) p.probe_poses = probe_poses;
@@ -144,7 +154,8 @@ void bind_files(py::module_& m) {
             return io::hex64(p.data_fingerprint());
         },
         py::arg("kind"), py::arg("joint_types"), py::arg("measurement_joint_types"), py::arg("q"),
-        py::arg("legs"), py::arg("poses"), py::arg("weights"), py::arg("probe_poses"), py::arg("points"));
+        py::arg("legs"), py::arg("poses"), py::arg("weights"), py::arg("probe_poses"), py::arg("points"),
+        py::arg("payload") = RowMatrixXd(), py::arg("temperatures") = RowMatrixXd());
     m.def(
         "_read_problem",
         [](const std::string& path) {
@@ -218,6 +229,9 @@ py::dict problem_dict(const ProblemData& p) {
     }
     d["version"] = p.version;
     d["weighting"] = p.weighted() ? py::object(py::make_tuple(p.weighting, p.whitening)) : py::object(py::none());
+    d["effects"] = effect_tables_py(p.effects);
+    d["payload"] = p.payload.size() ? py::cast(p.payload) : py::none();
+    d["temperatures"] = p.temperatures.size() ? py::cast(p.temperatures) : py::none();
     d["lower"] = p.lower;
     d["upper"] = p.upper;
     d["bounds_kind"] = p.bounds_kind;

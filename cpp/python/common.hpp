@@ -11,9 +11,11 @@
 #include <mutex>
 #include <string>
 #include <utility>
+#include <vector>
 
 #include <unistd.h>
 
+#include "iwr/effects.hpp"
 #include "iwr/model.hpp"
 #include "iwr/parallel.hpp"
 
@@ -99,4 +101,9 @@ void bind_bench(py::module_& m);
 void bind_tracker(py::module_& m);
 void bind_files(py::module_& m);
 void bind_implicit_loop(py::module_& m);
+void bind_effects(py::module_& m);
+// The effects' tables from Python's [(name, Effect.to_dict()), ...] (None: none), and back
+// (bind_effects.cpp).
+std::vector<EffectTable> effect_tables(const py::object& effects);
+py::list effect_tables_py(const std::vector<EffectTable>& tables);
 }  // namespace iwr::python

@@ -7,6 +7,11 @@ namespace iwr {
 AnyObjective make_objective(const ProblemData& problem) {
     switch (problem.kind) {
         case MeasurementKind::Pose:
+            if (!problem.effects.empty())  // the legs' compliance and temperature (issue 23)
+                return AnyObjective(std::in_place_type<EffectObjective>, problem.geometry(),
+                                    problem.effect_model(), problem.q, problem.poses, problem.legs,
+                                    problem.payload, problem.temperatures,
+                                    problem.weighted() ? RowMatrixXd() : problem.weights, problem.whitening);
             // Whitened: the leg weights are folded into the whitening (the writer's Problem did).
             return AnyObjective(std::in_place_type<Objective>, problem.geometry(), problem.q, problem.poses,
                                 problem.legs, problem.weighted() ? RowMatrixXd() : problem.weights,

@@ -54,6 +54,92 @@ void read_whitening(io::Reader& r, ProblemData& p) {
                            "; the whitening of a pose must be lower triangular");
 }
 
+constexpr std::size_t kMaxEffects = 16, kMaxEffectKeys = 64, kMaxEffectNumbers = 64;
+
+void write_effects(io::Writer& w, const ProblemData& p) {
+    w.u64(p.effects.size());
+    for (const EffectTable& t : p.effects) {
+        w.str(t.name);
+        w.u64(t.entries.size());
+        for (const auto& [key, value] : t.entries) {
+            w.str(key);
+            w.u8(static_cast<std::uint8_t>(value.type));
+            if (value.type == EffectValue::Type::Numbers) {
+                w.doubles(value.numbers);
+            } else if (value.numbers.size() != 1) {
+                throw std::invalid_argument("effects." + t.name + "." + key + ": " +
+                                            std::to_string(value.numbers.size()) + " values; expected one");
+            } else if (value.type == EffectValue::Type::Bool) {
+                w.u8(value.numbers[0] != 0 ? 1 : 0);
+            } else {
+                w.f64(value.numbers[0]);
+            }
+        }
+    }
+    w.u8(p.payload.size() ? 1 : 0);
+    put(w, p.payload);
+    w.u64(static_cast<std::uint64_t>(p.temperatures.cols()));
+    put(w, p.temperatures);
+}
+
+// The effects of a version 4 file and the payload and temperature columns (checked: the tables by
+// EffectModel::parse, as Python's would be).
+void read_effects(io::Reader& r, ProblemData& p) {
+    const std::size_t ne = r.count("effects", 16);
+    if (ne > kMaxEffects) r.fail("effects: " + std::to_string(ne) + "; at most " + std::to_string(kMaxEffects));
+    if (ne && p.tracker())
+        r.fail("effects: tracker data with effects have no objective in the C++ core (leg data only)");
+    for (std::size_t e = 0; e < ne; ++e) {
+        EffectTable t;
+        t.name = r.text("effect name", 64, false);
+        const std::size_t nk = r.count("effect keys", 10);
+        if (nk > kMaxEffectKeys) r.fail("effects." + t.name + ": " + std::to_string(nk) + " keys; at most " +
+                                        std::to_string(kMaxEffectKeys));
+        for (std::size_t k = 0; k < nk; ++k) {
+            std::string key = r.text("effect key", 64, false);
+            EffectValue v;
+            const std::uint8_t type = r.u8("effect value type");
+            if (type == 0) {
+                v.type = EffectValue::Type::Bool;
+                v.numbers = {r.flag("effect flag") ? 1.0 : 0.0};
+            } else if (type == 1) {
+                v.type = EffectValue::Type::Number;
+                v.numbers = {r.f64("effect number")};
+            } else if (type == 2) {
+                v.type = EffectValue::Type::Numbers;
+                v.numbers = r.doubles("effect numbers");
+                if (v.numbers.size() > kMaxEffectNumbers)
+                    r.fail("effects." + t.name + "." + key + ": " + std::to_string(v.numbers.size()) +
+                           " numbers; at most " + std::to_string(kMaxEffectNumbers));
+            } else {
+                r.fail("effects." + t.name + "." + key + ": value type " + std::to_string(type) +
+                       "; expected 0 (true/false), 1 (a number) or 2 (numbers)");
+            }
+            t.entries.emplace_back(std::move(key), std::move(v));
+        }
+        p.effects.push_back(std::move(t));
+    }
+    try {
+        (void)p.effect_model();
+    } catch (const std::invalid_argument& e) {
+        r.fail(e.what());
+    }
+    const Eigen::Index rows = p.n_poses();
+    if (r.flag("has payload")) {
+        get(r, "payload", p.payload, rows, 4);
+        for (Eigen::Index k = 0; k < rows; ++k)
+            if (!(p.payload(k, 0) >= 0)) r.fail("payload: row " + std::to_string(k) + " has a negative mass");
+    } else {
+        get(r, "payload", p.payload, 0, 0);
+    }
+    const std::uint64_t tc = r.u64("temperature columns");
+    if (tc != 0 && tc != 1 && tc != 6)
+        r.fail("temperature columns: " + std::to_string(tc) + "; expected 0 (none), 1 (per pose) or 6 (per leg)");
+    get(r, "temperatures", p.temperatures, tc ? rows : 0, static_cast<Eigen::Index>(tc), 1e4);
+    if (p.effect_model().thermal && tc == 0)
+        r.fail("temperatures: the thermal effect is on and the file has no temperatures");
+}
+
 }  // namespace
 
 Geometry ProblemData::geometry() const { return Geometry(joint_types, dh, base, platform, leg_offsets); }
@@ -62,7 +148,7 @@ int ProblemData::n_params() const {
     switch (kind) {
         case MeasurementKind::Points: return n_robot_params() + 6 + 3 * static_cast<int>(reflectors.rows());
         case MeasurementKind::Probe: return n_robot_params() + 12;
-        default: return n_robot_params();
+        default: return n_robot_params() + (effects.empty() ? 0 : effect_model().n_params);
     }
 }
 
@@ -103,6 +189,16 @@ std::uint64_t ProblemData::robot_fingerprint() const {
             .u64(static_cast<std::uint64_t>(whitening.cols()));
         h.doubles(whitening.data(), static_cast<std::size_t>(whitening.size()));
     }
+    // The effects make another objective of the same data (none: hashed as before).
+    if (!effects.empty()) {
+        h.str("effects").u64(effects.size());
+        for (const EffectTable& t : effects) {
+            h.str(t.name).u64(t.entries.size());
+            for (const auto& [key, value] : t.entries)
+                h.str(key).u64(static_cast<std::uint64_t>(value.type)).u64(value.numbers.size())
+                    .doubles(value.numbers.data(), value.numbers.size());
+        }
+    }
     const bool plain = std::all_of(x0.begin(), x0.end(), [](double v) { return v == 0; }) &&
                        std::all_of(active.begin(), active.end(), [](bool a) { return a; });
     if (!plain) {
@@ -123,6 +219,12 @@ std::uint64_t ProblemData::data_fingerprint() const {
     if (tracker())
         for (const RowMatrixXd* a : {&probe_poses, &points}) {
             h.u64(static_cast<std::uint64_t>(a->rows())).u64(static_cast<std::uint64_t>(a->cols()));
+            h.doubles(a->data(), static_cast<std::size_t>(a->size()));
+        }
+    // The loads and temperatures the effects read are data (none: hashed as before).
+    if (payload.size() || temperatures.size())
+        for (const RowMatrixXd* a : {&payload, &temperatures}) {
+            h.str("loads").u64(static_cast<std::uint64_t>(a->rows())).u64(static_cast<std::uint64_t>(a->cols()));
             h.doubles(a->data(), static_cast<std::size_t>(a->size()));
         }
     return h.value();
@@ -176,6 +278,7 @@ std::string encode_problem(const ProblemData& p) {
         w.str(p.weighting);
         put(w, p.whitening);
     }
+    write_effects(w, p);
     w.doubles(p.lower);
     w.doubles(p.upper);
     w.str(p.bounds_kind);
@@ -300,6 +403,7 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
         get(r, "reference", p.reference, p.n_robot_params(), 1);
     }
     if (p.version >= 3 && r.flag("weighted")) read_whitening(r, p);
+    if (p.version >= 4) read_effects(r, p);
     const std::size_t np = static_cast<std::size_t>(p.n_params());
     p.lower = r.doubles("lower bounds", np);
     p.upper = r.doubles("upper bounds", np);

@@ -435,13 +435,14 @@ double whitened(const iwr::RowMatrixXd& w, const iwr::VectorXd& r) {
 
 IWR_TEST(weighted_problem_round_trip_and_objective) {
     static_assert(iwr::is_objective_v<iwr::Objective> && iwr::is_objective_v<iwr::TrackerObjective> &&
+                      iwr::is_objective_v<iwr::EffectObjective> &&
                       !iwr::is_objective_v<int>,
                   "the built-in objectives meet the requirements of iwr/measurement_kind.hpp");
     for (auto kind : {iwr::MeasurementKind::Pose, iwr::MeasurementKind::Points, iwr::MeasurementKind::Probe}) {
         const iwr::ProblemData p = sample_weighted_problem(kind);
         const std::string bytes = iwr::encode_problem(p);
         const iwr::ProblemData q = iwr::decode_problem(bytes, "w.iwrp: ");
-        CHECK(same_problem(p, q) && q.version == 3 && q.weighted());
+        CHECK(same_problem(p, q) && q.version == iwr::kProblemVersion && q.weighted());
         CHECK(q.whitening == p.whitening && q.weighting == p.weighting);
         CHECK(iwr::encode_problem(q) == bytes);
         // Weighted is another problem of the same data.
@@ -488,13 +489,14 @@ IWR_TEST(weighted_problem_round_trip_and_objective) {
                "weighted problem file", 2) > 0);
 }
 
-IWR_TEST(version_2_files_read_as_unweighted) {
-    // A version 2 file: a version 3 file of an unweighted problem without the weighted flag (the
-    // byte before the bounds), sealed as version 2.
+IWR_TEST(version_2_and_3_files_read_as_before) {
+    // A version 3 file: a version 4 file of a problem without effects without its (empty) effects
+    // section (the 33 bytes before the bounds: no effect, no payload, no temperature), sealed as
+    // version 3; a version 2 file: that without the weighted flag (the byte before), as version 2.
     for (auto kind : {iwr::MeasurementKind::Pose, iwr::MeasurementKind::Points, iwr::MeasurementKind::Probe}) {
         const iwr::ProblemData p = kind == iwr::MeasurementKind::Pose ? sample_problem(5, true)
                                                                       : sample_tracker_problem(kind);
-        const std::string v3 = iwr::encode_problem(p);
+        const std::string v4 = iwr::encode_problem(p);
         io::Writer tail;
         tail.doubles(p.lower);
         tail.doubles(p.upper);
@@ -506,22 +508,32 @@ IWR_TEST(version_2_files_read_as_unweighted) {
         for (const auto& n : p.parameter_names) tail.str(n);
         tail.u64(p.sources.size());
         for (const auto& src : p.sources) tail.str(src.role), tail.str(src.path), tail.str(src.sha256);
-        std::string payload = v3.substr(32);
-        const std::size_t flag = payload.size() - tail.data().size() - 1;
-        CHECK(payload.compare(flag + 1, std::string::npos, tail.data()) == 0 && payload[flag] == 0);
-        payload.erase(flag, 1);
-        const std::string v2 = io::seal(v3.substr(0, 8).c_str(), 2, payload);
+        io::Writer no_effects;
+        no_effects.u64(0), no_effects.u8(0), no_effects.u64(0), no_effects.u64(0), no_effects.u64(0);
+        std::string payload = v4.substr(32);
+        const std::size_t effects = payload.size() - tail.data().size() - no_effects.data().size();
+        CHECK(payload.compare(effects, std::string::npos, no_effects.data() + tail.data()) == 0);
+        payload.erase(effects, no_effects.data().size());
+        const std::string v3 = io::seal(v4.substr(0, 8).c_str(), 3, payload);
+        const std::size_t flag = effects - 1;
+        CHECK(payload[flag] == 0);
+        std::string payload2 = payload;
+        payload2.erase(flag, 1);
+        const std::string v2 = io::seal(v4.substr(0, 8).c_str(), 2, payload2);
         const iwr::ProblemData q = iwr::decode_problem(v2, "old.iwrp: ");
-        const iwr::ProblemData q3 = iwr::decode_problem(v3, "new.iwrp: ");
-        CHECK(q.version == 2 && q3.version == 3 && !q.weighted() && same_problem(q, q3));
+        const iwr::ProblemData q3 = iwr::decode_problem(v3, "v3.iwrp: ");
+        const iwr::ProblemData q4 = iwr::decode_problem(v4, "new.iwrp: ");
+        CHECK(q.version == 2 && q3.version == 3 && q4.version == 4 && !q.weighted() && same_problem(q, q3) &&
+              same_problem(q3, q4) && q4.effects.empty());
         CHECK(q.robot_fingerprint() == q3.robot_fingerprint() && q.data_fingerprint() == q3.data_fingerprint());
+        CHECK(q4.robot_fingerprint() == q3.robot_fingerprint() && q4.data_fingerprint() == q3.data_fingerprint());
         // The same objective, bit for bit.
-        const iwr::AnyObjective a = iwr::make_objective(q), b = iwr::make_objective(q3);
+        const iwr::AnyObjective a = iwr::make_objective(q), b = iwr::make_objective(q3), c = iwr::make_objective(q4);
         const iwr::VectorXd x = iwr::VectorXd::Constant(q.n_params(), 0.01);
         const auto cost = [&](const iwr::AnyObjective& o) { return std::visit([&](const auto& f) { return f.cost(x); }, o); };
-        CHECK(cost(a) == cost(b));
+        CHECK(cost(a) == cost(b) && cost(b) == cost(c));
         // A version 2 payload read as version 3 would be misaligned: the version decides.
-        CHECK(!refusal([&] { iwr::decode_problem(reseal(v3, payload), "mixed.iwrp: "); }).empty());
+        CHECK(!refusal([&] { iwr::decode_problem(reseal(v3, payload2), "mixed.iwrp: "); }).empty());
     }
 }
 

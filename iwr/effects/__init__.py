@@ -233,7 +233,9 @@ def bounds(effects: Sequence[Effect]) -> tuple[np.ndarray, np.ndarray]:
 
 #: The methods and functions that model the effects (the others refuse a robot with effects).
 SUPPORTED = ("iwr.identify with method 'lm' (eq. (10) or noise-weighted) or 'efficient' on "
-             "pose data", "iwr.simulate", "iwr.identifiability", "iwr.uncertainty",
+             "pose data", "iwr.identify with method 'de', 'crs2' or 'bobyqa' (eq. (10)) on pose "
+             "data", "iwr.Problem and its problem file, iwr-engine, iwr-calibrate",
+             "iwr.simulate", "iwr.identifiability", "iwr.uncertainty",
              "iwr.estimation.predicted_accuracy", "iwr.implicit_loop.loop_jacobians",
              "iwr.accuracy",
              "iwr.calibrate, iwr calibrate and iwr report with method 'lm' without a noise model",

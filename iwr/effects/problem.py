@@ -13,10 +13,11 @@ from .model import check_inputs, predicted_readings
 
 __all__ = ["EffectProblem", "METHODS", "check_method"]
 
-#: The identification methods that minimise the objective with effects (the others run the C++
-#: kernels of the geometry alone): Levenberg-Marquardt on eq. (10) or on its noise-weighted form,
-#: and the efficient estimator (its numpy solver, :mod:`iwr.effects.solver`).
-METHODS = ("lm", "efficient")
+#: The identification methods that minimise the objective with effects: Levenberg-Marquardt on
+#: eq. (10) or its noise-weighted form (this numpy model), the efficient estimator (its numpy
+#: solver, :mod:`iwr.effects.solver`), and DE, CRS2 and BOBYQA on eq. (10) (the C++ objective
+#: with effects: :class:`iwr.Problem`, ``cpp/src/effects.cpp``).
+METHODS = ("lm", "efficient", "de", "crs2", "bobyqa")
 
 
 def check_method(robot: Any, method: str, noise: Any, weighted: Any) -> None:
@@ -24,9 +25,14 @@ def check_method(robot: Any, method: str, noise: Any, weighted: Any) -> None:
     names = ", ".join(e.name for e in robot.effects)
     if method not in METHODS:
         raise ValueError(
-            f"method {method!r}: robot {robot.name!r} has effects on ({names}), which the "
-            f"C++ kernels of method {method!r} (and of iwr-engine) do not model; the methods "
-            f"that do: {', '.join(METHODS)} (docs/effects.md)")
+            f"method {method!r}: robot {robot.name!r} has effects on ({names}), which method "
+            f"{method!r} does not model yet; the methods that do: {', '.join(METHODS)} "
+            "(docs/effects.md)")
+    if method not in ("lm", "efficient") and (noise is not None or weighted):
+        raise ValueError(
+            f"noise: robot {robot.name!r} has effects on ({names}); method {method!r} runs the "
+            "C++ objective with the effects, which is eq. (10)'s, not its noise-weighted form: "
+            "give noise=None, or use method 'lm' or 'efficient' (docs/effects.md)")
 
 
 class EffectProblem:
@@ -34,7 +40,8 @@ class EffectProblem:
     effects' parameters (:func:`iwr.effects.parameter_names`); each predicted reading is the
     geometry's minus the effects' change of the leg at that pose's load and temperature
     (:func:`iwr.effects.model.predicted_readings`). The residuals, their Jacobian and the cost
-    are computed in numpy (``cost_batch`` refuses: the global methods run the C++ kernels).
+    are computed in numpy: the independent model that :class:`iwr.Problem`'s C++ objective with
+    effects is checked against (the global methods run that one).
 
     Parameters
     ----------
@@ -155,18 +162,18 @@ class EffectProblem:
         return float(r @ r)
 
     def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
-        names = ", ".join(e.name for e in self.robot.effects)
-        raise ValueError(f"cost_batch: robot {self.robot.name!r} has effects on ({names}), which "
-                         "the C++ batch kernels (DE, CRS2, BOBYQA, iwr-engine) do not model; "
-                         f"the methods that do: {', '.join(METHODS)} (docs/effects.md)")
+        """The costs of the rows of ``X`` (M, n_params), one by one in numpy (``workers``
+        unused): the reference for :meth:`iwr.Problem.cost_batch`, not a fast path."""
+        arr = np.asarray(X, dtype=float)
+        if arr.ndim != 2 or arr.shape[1] != self.n_params:
+            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
+        return np.array([self.cost(x) for x in arr])
 
     def save(self, path: Any, **options: Any) -> None:
-        """Refused: the problem file runs on ``iwr-engine``, whose kernels model the geometry
-        only."""
-        names = ", ".join(e.name for e in self.robot.effects)
-        raise ValueError(f"save: robot {self.robot.name!r} has effects on ({names}), which "
-                         "iwr-engine's kernels do not model; no problem file is written "
-                         "(docs/effects.md)")
+        """The problem file of :meth:`iwr.Problem.save` (the same robot, data and bounds)."""
+        from ..problem import Problem
+
+        Problem(self.robot, self.measurements, (self.lower, self.upper)).save(path, **options)
 
     def __repr__(self) -> str:
         return (f"EffectProblem(robot={self.robot.name!r}, n_poses={self.n_poses}, "

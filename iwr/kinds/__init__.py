@@ -508,7 +508,9 @@ def data_fingerprint(kind: str, robot: Any, data: Any, *, poses: Any = None, wei
 
     return str(_core._data_fingerprint(
         kind, str(robot.joint_types), data.joint_types, arr(data.q), arr(data.legs), arr(poses),
-        None if weights is None else arr(weights), arr(probe_poses), arr(points)))
+        None if weights is None else arr(weights), arr(probe_poses), arr(points),
+        # the loads and temperatures of the effects (issue 23), when the data carry them
+        arr(getattr(data, "payload", None)), arr(getattr(data, "temperatures", None))))
 
 
 # -- the registry -----------------------------------------------------------------------------

@@ -195,8 +195,11 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
         from ..effects.problem import EffectProblem, check_method
 
         check_method(robot, method, noise, weighted)
-        problem: Any = EffectProblem(robot, measurements, bounds,
-                                     noise=noise if weighted else None)
+        # LM on the numpy model (eq. (10) or noise-weighted); DE, CRS2, BOBYQA on the C++
+        # objective with effects (eq. (10)); the efficient estimator its own (iwr.effects).
+        problem: Any = (Problem(robot, measurements, bounds) if method in ("de", "crs2", "bobyqa")
+                        else EffectProblem(robot, measurements, bounds,
+                                           noise=noise if weighted else None))
     else:
         problem = Problem(robot, measurements, bounds, noise=noise if weighted else None)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)

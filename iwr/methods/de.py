@@ -46,6 +46,7 @@ from scipy.optimize import Bounds, OptimizeResult
 
 from .. import _core
 from ..result import IdentificationResult
+from ..problem import effect_inputs
 from ._run import call_back, check_budget, int_arg
 from .lm import levenberg_marquardt
 from .reduced import ReducedProblem
@@ -490,6 +491,8 @@ def de_method(
             "legs": m.legs,
             "weights": weights,
             "whitening": reduced.problem.whitening_matrix(),
+            # issue 23: the effects' tables, loads and temperatures (none: the SIMD kernels)
+            **(effect_inputs(reduced.problem.robot, m) if reduced.problem.robot.effects else {}),
             "active": [bool(a) for a in reduced.active],
             "x0": np.ascontiguousarray(reduced.x0, dtype=float),
             **run.core_args(

@@ -26,28 +26,36 @@
 //        residuals of a pose: 6 legs, 3 K point coordinates, or 12 for a probe's four points).
 //        The objective is then sum_k |W_k r_k|^2 (generalised least squares with fixed weights;
 //        the leg weights of kind 0, if any, are folded into W_k and not used besides)
+//   (version 4) u64 effects E (0: the geometry alone; only with kind 0); each: str name
+//        ("compliance", "thermal"), u64 keys, each: str key, u8 type (0 true/false, 1 a number,
+//        2 numbers), then u8 (type 0), f64 (type 1) or u64 count and f64s (type 2): the effect's
+//        table as the robot TOML's [effects.<name>] (iwr/effects.hpp); then u8 has payload;
+//        f64s payload (N x 4: kg, centre of mass in {5} mm); u64 temperature columns (0, 1 or
+//        6); f64s temperatures (N x that, degrees C)
 //   f64s lower, upper (n_params each); str bounds kind ("default", "paper" or "custom")
 //   f64s x0 (n_params: where the inactive parameters stay); u64 n_params + that many u8 active
 //        flags (at least one 1)
 //   u64  parameter names; each a str
 //   u64  sources; each: str role ("robot", "data", ...), str path, str SHA-256 (hex, or empty)
-// n_params is 4 n + 42, plus 6 + 3 K (points) or 12 (probe). Every value is checked as if a user
-// had typed it: sizes against the file, finite numbers (NaN only for unseen reflectors), lower <
-// upper, non-negative weights, names of printable ASCII.
-// Version 2 (the same without the weighting: every file unweighted) is read; version 1 (leg data
-// only, no kind, x0 or active set) is refused with its version named.
+// n_params is 4 n + 42, plus 6 + 3 K (points) or 12 (probe), or the effects' parameters. Every
+// value is checked as if a user had typed it: sizes against the file, finite numbers (NaN only
+// for unseen reflectors), lower < upper, non-negative weights, names of printable ASCII.
+// Versions 3 (without the effects: none on) and 2 (without the weighting either: every file
+// unweighted) are read; version 1 (leg data only, no kind, x0 or active set) is refused with its
+// version named.
 #pragma once
 
 #include <cstdint>
 #include <string>
 #include <vector>
 
+#include "iwr/effects.hpp"
 #include "iwr/model.hpp"
 #include "iwr/tracker.hpp"
 
 namespace iwr {
 
-constexpr std::uint32_t kProblemVersion = 3;
+constexpr std::uint32_t kProblemVersion = 4;
 /// The oldest version read (files of version 2 are unweighted problems).
 constexpr std::uint32_t kOldestProblemVersion = 2;
 /// Limits that no real problem comes near; they bound what a damaged file can make us allocate.
@@ -86,6 +94,10 @@ struct ProblemData {
     // The noise weighting (version 3; empty: unweighted, eq. (10) or the plain point residuals).
     std::string weighting;                 // what it was made from, in words
     RowMatrixXd whitening;                 // N x m^2 (m = residuals_per_pose()) or empty
+    // The non-geometric effects (version 4; none: the geometry alone) and the per-pose data they
+    // read: the payload (N x 4 or empty: none) and the temperatures (N x 1, N x 6 or empty).
+    std::vector<EffectTable> effects;
+    RowMatrixXd payload, temperatures;
     std::uint32_t version = kProblemVersion;  // the version of the file read
     std::vector<double> lower, upper;
     std::string bounds_kind;
@@ -96,7 +108,9 @@ struct ProblemData {
 
     bool tracker() const { return kind != MeasurementKind::Pose; }
     int n_robot_params() const { return 4 * static_cast<int>(joint_types.size()) + 42; }
-    /// The robot's, then the tracker setup's (6 + 3 K or 12).
+    /// The effects' model (their parameters after the robot's); throws std::invalid_argument.
+    EffectModel effect_model() const { return EffectModel::parse(effects, n_robot_params()); }
+    /// The robot's, then the tracker setup's (6 + 3 K or 12) or the effects'.
     int n_params() const;
     int n_active() const;
     int n_poses() const { return static_cast<int>(legs.rows()); }
@@ -108,8 +122,9 @@ struct ProblemData {
     TrackerSetup tracker_setup() const;
     /// 64-bit fingerprints of what the objective is made of (the geometry, and for tracker data
     /// the setup and the reference; the noise weighting when weighted; the search's x0 and active
-    /// set when not all zeros and all active), and of the measurements + weights (the data file's
-    /// alone: the same data weighted by another noise model keep their data fingerprint).
+    /// set when not all zeros and all active; the effects' tables when any), and of the
+    /// measurements + weights (+ payload and temperatures when any: the data file's alone; the
+    /// same data weighted by another noise model keep their data fingerprint).
     std::uint64_t robot_fingerprint() const;
     std::uint64_t data_fingerprint() const;
 };

@@ -1,0 +1,461 @@
+// The leg objective with the non-geometric effects (see iwr/effects.hpp): the effects' tables and
+// the per-pose statics and thermal growth, for one parameter vector at a time (cost_batch runs the
+// rows of a population across the pool's threads).
+#include "iwr/effects.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <sstream>
+#include <stdexcept>
+
+#include "objective_kernel.hpp"  // detail::EvalConsts: the carriage's per-evaluation constants
+
+namespace iwr {
+
+namespace {
+
+constexpr double kStandardGravity = 9.80665;  // m/s^2, as iwr/effects/builtin.py
+
+[[noreturn]] void bad(const std::string& where, const std::string& what) {
+    throw std::invalid_argument(where + ": " + what);
+}
+
+std::string number_text(double v) {
+    std::ostringstream s;
+    s.precision(17);
+    s << v;
+    return s.str();
+}
+
+// The keys of one table, checked: each known, each at most once, the required ones present.
+class Keys {
+public:
+    Keys(const EffectTable& t, std::vector<std::string> known)
+        : where_("effects." + t.name), table_(t), known_(std::move(known)) {
+        for (std::size_t i = 0; i < t.entries.size(); ++i) {
+            const std::string& key = t.entries[i].first;
+            if (std::find(known_.begin(), known_.end(), key) == known_.end()) {
+                std::string list;
+                for (const auto& k : known_) list += (list.empty() ? "" : ", ") + k;
+                bad(where_ + "." + key, "unknown key; allowed: " + list);
+            }
+            for (std::size_t j = 0; j < i; ++j)
+                if (t.entries[j].first == key) bad(where_ + "." + key, "given twice");
+        }
+    }
+    const EffectValue& get(const std::string& key) const {
+        for (const auto& e : table_.entries)
+            if (e.first == key) return e.second;
+        bad(where_ + "." + key, "missing key");
+    }
+    bool flag(const std::string& key) const {
+        const EffectValue& v = get(key);
+        if (v.type != EffectValue::Type::Bool || v.numbers.size() != 1 ||
+            (v.numbers[0] != 0 && v.numbers[0] != 1))
+            bad(where_ + "." + key, "expected true or false");
+        return v.numbers[0] != 0;
+    }
+    // One number within [lo, hi].
+    double number(const std::string& key, double lo, double hi, const char* unit) const {
+        const EffectValue& v = get(key);
+        if (v.type != EffectValue::Type::Number || v.numbers.size() != 1)
+            bad(where_ + "." + key, std::string("expected a number (") + unit + ")");
+        check(key, v.numbers[0], lo, hi, unit);
+        return v.numbers[0];
+    }
+    // n numbers: an array of n, or (broadcast) one number; each within [lo, hi].
+    std::vector<double> numbers(const std::string& key, std::size_t n, double lo, double hi,
+                                const char* unit, bool broadcast) const {
+        const EffectValue& v = get(key);
+        std::vector<double> out;
+        if (v.type == EffectValue::Type::Numbers && v.numbers.size() == n) {
+            out = v.numbers;
+        } else if (broadcast && v.type == EffectValue::Type::Number && v.numbers.size() == 1) {
+            out.assign(n, v.numbers[0]);
+        } else {
+            bad(where_ + "." + key, std::to_string(v.numbers.size()) +
+                                        (v.type == EffectValue::Type::Bool ? " boolean" : " number(s)") +
+                                        "; expected " + std::to_string(n) + " numbers (" + unit + ")");
+        }
+        for (std::size_t i = 0; i < out.size(); ++i) check(key + "[" + std::to_string(i) + "]", out[i], lo, hi, unit);
+        return out;
+    }
+    const std::string& where() const { return where_; }
+
+private:
+    void check(const std::string& key, double v, double lo, double hi, const char* unit) const {
+        if (!(v >= lo && v <= hi))
+            bad(where_ + "." + key, number_text(v) + " " + unit + "; expected " + number_text(lo) +
+                                        " <= value <= " + number_text(hi));
+    }
+    std::string where_;
+    const EffectTable& table_;
+    std::vector<std::string> known_;
+};
+
+// Solves the 6 x 6 system a f = w in place (Gaussian elimination with partial pivoting; one
+// division per pivot, its inverse multiplies). a is row-major; false when a pivot falls below
+// `tiny` (a singular hexapod).
+bool solve6(double (&a)[36], double (&w)[6], double tiny) {
+    double inv[6];
+    for (int c = 0; c < 6; ++c) {
+        int p = c;
+        for (int r = c + 1; r < 6; ++r)
+            if (std::fabs(a[6 * r + c]) > std::fabs(a[6 * p + c])) p = r;
+        if (!(std::fabs(a[6 * p + c]) > tiny)) return false;
+        if (p != c) {
+            for (int k = c; k < 6; ++k) std::swap(a[6 * c + k], a[6 * p + k]);
+            std::swap(w[c], w[p]);
+        }
+        inv[c] = 1.0 / a[6 * c + c];
+        for (int r = c + 1; r < 6; ++r) {
+            const double m = a[6 * r + c] * inv[c];
+            for (int k = c + 1; k < 6; ++k) a[6 * r + k] -= m * a[6 * c + k];
+            w[r] -= m * w[c];
+        }
+    }
+    for (int r = 5; r >= 0; --r) {
+        double s = w[r];
+        for (int k = r + 1; k < 6; ++k) s -= a[6 * r + k] * w[k];
+        w[r] = s * inv[r];
+    }
+    return true;
+}
+
+void require_rows(const RowMatrixXd& m, Eigen::Index rows, std::initializer_list<Eigen::Index> cols,
+                  const char* what) {
+    bool ok = m.rows() == rows;
+    if (ok) ok = std::find(cols.begin(), cols.end(), m.cols()) != cols.end();
+    if (!ok) {
+        std::ostringstream msg;
+        msg << what << ": shape (" << m.rows() << ", " << m.cols() << "); expected (" << rows << ", ";
+        bool first = true;
+        for (Eigen::Index c : cols) msg << (first ? "" : " or ") << c, first = false;
+        msg << ")";
+        throw std::invalid_argument(msg.str());
+    }
+}
+
+}  // namespace
+
+EffectModel EffectModel::parse(const std::vector<EffectTable>& tables, int n_geometric) {
+    EffectModel m;
+    m.n_geometric = n_geometric;
+    int next = n_geometric;
+    for (std::size_t t = 0; t < tables.size(); ++t) {
+        const EffectTable& table = tables[t];
+        for (std::size_t u = 0; u < t; ++u)
+            if (tables[u].name == table.name) bad("effects." + table.name, "given twice");
+        if (table.name == "compliance") {
+            const Keys k(table, {"per_leg", "compliance_um_per_N", "max_um_per_N", "gravity_m_s2",
+                                 "platform_mass_kg", "platform_centre_mm"});
+            m.compliance = true;
+            m.compliance_per_leg = k.flag("per_leg");
+            const std::size_t n = m.compliance_per_leg ? 6 : 1;
+            const std::vector<double> c = k.numbers("compliance_um_per_N", n, -10, 10, "um/N", true);
+            for (int j = 0; j < 6; ++j) m.compliance_values[j] = c[m.compliance_per_leg ? static_cast<std::size_t>(j) : 0];
+            (void)k.number("max_um_per_N", 1e-6, 10, "um/N");  // Python's bounds: kept for the round trip
+            m.platform_mass = k.number("platform_mass_kg", 0, 1e6, "kg");
+            const std::vector<double> pc = k.numbers("platform_centre_mm", 3, -1e5, 1e5, "mm in {5}", false);
+            const std::vector<double> g = k.numbers("gravity_m_s2", 3, -20, 20, "m/s^2 in {0}", false);
+            m.platform_centre = Vec3(pc[0], pc[1], pc[2]);
+            m.gravity = Vec3(g[0], g[1], g[2]);
+            if (!(std::fabs(m.gravity.norm() / kStandardGravity - 1.0) <= 0.01))
+                bad(k.where() + ".gravity_m_s2", "norm " + number_text(m.gravity.norm()) +
+                                                     " m/s^2; expected 9.80665 within 1 %");
+            m.compliance_index = next;
+            next += static_cast<int>(n);
+        } else if (table.name == "thermal") {
+            const Keys k(table, {"alpha_ppm_per_K", "reference_C", "identify", "per_leg", "max_ppm_per_K"});
+            m.thermal = true;
+            m.thermal_per_leg = k.flag("per_leg");
+            const bool identify = k.flag("identify");
+            const std::size_t n = m.thermal_per_leg ? 6 : 1;
+            const std::vector<double> a = k.numbers("alpha_ppm_per_K", n, -1000, 1000, "ppm/K", true);
+            for (int j = 0; j < 6; ++j) m.alpha_values[j] = a[m.thermal_per_leg ? static_cast<std::size_t>(j) : 0];
+            m.reference = k.number("reference_C", -50, 150, "degrees C");
+            (void)k.number("max_ppm_per_K", 1e-3, 1000, "ppm/K");  // as max_um_per_N
+            if (identify) {
+                m.thermal_index = next;
+                next += static_cast<int>(n);
+            }
+        } else {
+            bad("effects." + table.name, "no model of this effect in the C++ core; known: compliance, thermal");
+        }
+    }
+    m.n_params = next - n_geometric;
+    return m;
+}
+
+EffectObjective::EffectObjective(Geometry geometry, EffectModel effects, const RowMatrixXd& q,
+                                 const RowMatrixXd& poses, const RowMatrixXd& legs,
+                                 const RowMatrixXd& payload, const RowMatrixXd& temperatures,
+                                 const RowMatrixXd& weights, const RowMatrixXd& whitening)
+    : geometry_(std::move(geometry)), effects_(effects), n_(static_cast<int>(poses.rows())) {
+    const int nj = geometry_.n_joints();
+    if (effects_.n_geometric != geometry_.n_params())
+        throw std::invalid_argument("effects: parsed for " + std::to_string(effects_.n_geometric) +
+                                    " geometric parameters; the robot has " +
+                                    std::to_string(geometry_.n_params()));
+    if (n_ == 0) throw std::invalid_argument("poses: no measurements (0 rows)");
+    require_rows(poses, n_, {6}, "poses");
+    require_rows(q, n_, {nj}, "q");
+    require_rows(legs, n_, {kLegs}, "legs");
+    require_finite(q.data(), q.size(), "q");
+    require_finite(poses.data(), poses.size(), "poses");
+    require_finite(legs.data(), legs.size(), "legs");
+    if (payload.size() != 0) {
+        require_rows(payload, n_, {4}, "payload");
+        require_finite(payload.data(), payload.size(), "payload");
+        for (int k = 0; k < n_; ++k)
+            if (payload(k, 0) < 0)
+                throw std::invalid_argument("payload: pose " + std::to_string(k) + " has mass " +
+                                            number_text(payload(k, 0)) + " kg; expected >= 0");
+    }
+    if (temperatures.size() != 0) {
+        require_rows(temperatures, n_, {1, kLegs}, "temperatures");
+        require_finite(temperatures.data(), temperatures.size(), "temperatures");
+    } else if (effects_.thermal) {
+        throw std::invalid_argument(
+            "temperatures: the thermal effect (the legs' thermal expansion) needs each pose's "
+            "temperature: one per pose or one per leg, degrees C");
+    }
+    if (weights.size() != 0) {
+        require_rows(weights, n_, {kLegs}, "weights");
+        require_finite(weights.data(), weights.size(), "weights");
+        for (Eigen::Index i = 0; i < weights.size(); ++i)
+            if (weights.data()[i] < 0)
+                throw std::invalid_argument("weights: entry " + std::to_string(i) + " is " +
+                                            number_text(weights.data()[i]) + "; weights must be >= 0");
+    }
+    if (whitening.size() != 0) {
+        if (weights.size() != 0)
+            throw std::invalid_argument(
+                "weights, whitening: give one or the other (fold the weights into the whitening)");
+        require_rows(whitening, n_, {kLegs * kLegs}, "whitening");
+        require_finite(whitening.data(), whitening.size(), "whitening");
+        for (int k = 0; k < n_; ++k)
+            for (int i = 0; i < kLegs; ++i)
+                for (int j = i + 1; j < kLegs; ++j)
+                    if (whitening(k, kLegs * i + j) != 0.0)
+                        throw std::invalid_argument(
+                            "whitening: pose " + std::to_string(k) + ", entry (" + std::to_string(i) +
+                            ", " + std::to_string(j) + ") is not 0; the whitening of a pose must be "
+                            "lower triangular");
+        whitened_ = true;
+    }
+    int nq = 30;  // 0R5 9, 0P5 3, readings 6, wrench 6, T - T_ref 6
+    if (weights.size() != 0) off_w_ = nq, nq += kLegs;
+    if (whitened_) off_wh_ = nq, nq += kLegs * (kLegs + 1) / 2;
+    for (int i = 0; i < nj; ++i) {
+        q_off_.push_back(nq);
+        prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
+        nq += geometry_.is_prismatic(i) ? 1 : 2;
+    }
+    stride_ = nq;
+    carriage_ = detail::CarriageNominal(geometry_);
+    data_.assign(static_cast<std::size_t>(n_) * static_cast<std::size_t>(stride_), 0.0);
+    for (int k = 0; k < n_; ++k) {
+        double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
+        const Mat3 r = euler_zyx(poses(k, 3), poses(k, 4), poses(k, 5));
+        for (int e = 0; e < 9; ++e) d[e] = r(e / 3, e % 3);
+        for (int e = 0; e < 3; ++e) d[9 + e] = poses(k, e);
+        for (int j = 0; j < kLegs; ++j) d[12 + j] = legs(k, j);
+        if (effects_.compliance) {
+            // The gravity wrench about the platform origin, in {0}: the platform, then the payload
+            // (the order of iwr.effects.model.leg_forces).
+            const Vec3 g = effects_.gravity;
+            Vec3 force = effects_.platform_mass * g;
+            Vec3 moment = (r * effects_.platform_centre).cross(Vec3(effects_.platform_mass * g));
+            if (payload.size() != 0) {
+                const Vec3 wp = payload(k, 0) * g;
+                force += wp;
+                moment += (r * Vec3(payload(k, 1), payload(k, 2), payload(k, 3))).cross(wp);
+            }
+            for (int e = 0; e < 3; ++e) d[18 + e] = force(e), d[21 + e] = moment(e);
+        }
+        if (effects_.thermal)
+            for (int j = 0; j < kLegs; ++j)
+                d[24 + j] = temperatures(k, temperatures.cols() == 1 ? 0 : j) - effects_.reference;
+        if (off_w_ >= 0)
+            for (int j = 0; j < kLegs; ++j) d[off_w_ + j] = std::sqrt(weights(k, j));
+        if (off_wh_ >= 0) {
+            int e = off_wh_;
+            for (int i = 0; i < kLegs; ++i)
+                for (int j = 0; j <= i; ++j) d[e++] = whitening(k, kLegs * i + j);
+        }
+        for (int i = 0; i < nj; ++i) {
+            const int o = q_off_[static_cast<std::size_t>(i)];
+            if (prismatic_[static_cast<std::size_t>(i)]) {
+                d[o] = q(k, i);
+            } else {
+                d[o] = std::cos(q(k, i));
+                d[o + 1] = std::sin(q(k, i));
+            }
+        }
+    }
+}
+
+EffectObjective::Workspace EffectObjective::make_workspace() const {
+    Workspace ws;
+    ws.buf.assign(static_cast<std::size_t>(15) * static_cast<std::size_t>(geometry_.n_joints()) + 1, 0.0);
+    return ws;
+}
+
+double EffectObjective::evaluate(const double* x, double* jbuf, double* res, double* forces,
+                                 char* singular) const {
+    detail::EvalConsts ec;
+    carriage_.consts(geometry_, x, ec, jbuf);
+    const EffectModel& m = effects_;
+    const int nj = geometry_.n_joints(), n_prefix = carriage_.n_prefix();
+    double c[kLegs], alpha[kLegs];  // mm/N and 1/K
+    for (int j = 0; j < kLegs; ++j) {
+        c[j] = m.compliance ? (m.compliance_values[j] + x[m.compliance_index + (m.compliance_per_leg ? j : 0)]) * 1e-3
+                            : 0.0;
+        alpha[j] = m.alpha_values[j];
+        if (m.thermal_index >= 0) alpha[j] += x[m.thermal_index + (m.thermal_per_leg ? j : 0)];
+        alpha[j] *= 1e-6;
+    }
+    double acc = 0;
+    for (int k = 0; k < n_; ++k) {
+        const double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
+        // 0T4 by the DH chain (as the SIMD kernel's carriage(), one pose).
+        double t[12];
+        for (int e = 0; e < 9; ++e) t[e] = ec.rc[e];
+        for (int e = 0; e < 3; ++e) t[9 + e] = ec.pc[e];
+        for (int i = 0; i < n_prefix; ++i) {
+            const double qi = d[q_off_[static_cast<std::size_t>(i)]];
+            for (int e = 0; e < 3; ++e) t[9 + e] += qi * ec.z[3 * i + e];
+        }
+        for (int i = n_prefix; i < nj; ++i) {
+            const double* jc = ec.joint + 6 * i;
+            const double* qd = d + q_off_[static_cast<std::size_t>(i)];
+            double cs, sn, dk = jc[5];
+            if (prismatic_[static_cast<std::size_t>(i)]) {
+                cs = jc[2], sn = jc[3], dk = jc[5] + qd[0];
+            } else {
+                cs = jc[2] * qd[0] - jc[3] * qd[1], sn = jc[3] * qd[0] + jc[2] * qd[1];
+            }
+            for (int r = 0; r < 3; ++r) {
+                const double t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
+                const double u = t0 * cs + t1 * sn, v = t1 * cs - t0 * sn;
+                t[3 * r] = u;
+                t[3 * r + 1] = jc[0] * v + jc[1] * w;
+                t[3 * r + 2] = jc[0] * w - jc[1] * v;
+                t[9 + r] += jc[4] * u + dk * w;
+            }
+        }
+        // The legs in {0}: r_j = 0R5 b_j, v_j = 0P5 + r_j - 0P4 - 0R4 a_j.
+        double len[kLegs], g[36], w[6];
+        double radius = 0;  // the largest |r_j| (its square first)
+        for (int j = 0; j < kLegs; ++j) {
+            double rj[3], v[3];
+            for (int e = 0; e < 3; ++e) {
+                rj[e] = d[3 * e] * ec.b[j][0] + d[3 * e + 1] * ec.b[j][1] + d[3 * e + 2] * ec.b[j][2];
+                const double aj = t[3 * e] * ec.a[j][0] + t[3 * e + 1] * ec.a[j][1] + t[3 * e + 2] * ec.a[j][2];
+                v[e] = (d[9 + e] + rj[e]) - (t[9 + e] + aj);
+            }
+            len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            if (m.compliance) {
+                const double inv = 1.0 / len[j];
+                const double u[3] = {v[0] * inv, v[1] * inv, v[2] * inv};
+                g[j] = u[0], g[6 + j] = u[1], g[12 + j] = u[2];
+                g[18 + j] = rj[1] * u[2] - rj[2] * u[1];
+                g[24 + j] = rj[2] * u[0] - rj[0] * u[2];
+                g[30 + j] = rj[0] * u[1] - rj[1] * u[0];
+                radius = std::max(radius, rj[0] * rj[0] + rj[1] * rj[1] + rj[2] * rj[2]);
+            }
+        }
+        radius = std::sqrt(radius);
+        bool failed = false;
+        if (m.compliance) {
+            // G f = w with the moment rows scaled by 1/radius (entries of order 1: the pivot test is
+            // then a test of the hexapod's singularity, independent of its size).
+            const double s = radius > 0 ? 1.0 / radius : 1.0;
+            for (int e = 18; e < 36; ++e) g[e] *= s;
+            for (int e = 0; e < 3; ++e) w[e] = d[18 + e], w[3 + e] = d[21 + e] * s;
+            failed = !solve6(g, w, 1e-12);
+        } else {
+            for (double& v : w) v = 0.0;
+        }
+        if (singular) singular[k] = failed ? 1 : 0;
+        if (forces)
+            for (int j = 0; j < kLegs; ++j) forces[kLegs * k + j] = failed ? 0.0 : w[j];
+        double raw[kLegs];
+        for (int j = 0; j < kLegs; ++j) {
+            const double pred = ((len[j] - ec.l0[j]) - c[j] * w[j]) - (alpha[j] * len[j]) * d[24 + j];
+            raw[j] = failed ? kFailedResidual : pred - d[12 + j];
+            if (off_w_ >= 0 && !failed) raw[j] *= d[off_w_ + j];
+        }
+        double* out = res ? res + kLegs * k : nullptr;
+        if (off_wh_ >= 0 && !failed) {
+            const double* wh = d + off_wh_;
+            for (int i = 0; i < kLegs; ++i) {
+                double r = 0;
+                for (int j = 0; j <= i; ++j) r += *wh++ * raw[j];
+                if (out) out[i] = r;
+                acc += r * r;
+            }
+        } else {
+            for (int j = 0; j < kLegs; ++j) {
+                if (out) out[j] = raw[j];
+                acc += raw[j] * raw[j];
+            }
+        }
+    }
+    return acc;
+}
+
+double EffectObjective::cost(const double* x, Workspace& ws) const {
+    return evaluate(x, ws.buf.data(), nullptr, nullptr, nullptr);
+}
+
+void EffectObjective::check_x(const Eigen::Ref<const VectorXd>& x) const {
+    if (x.size() != n_params())
+        throw std::invalid_argument("x: " + std::to_string(x.size()) + " values given; expected " +
+                                    std::to_string(n_params()) + " (" +
+                                    std::to_string(geometry_.n_params()) + " geometric errors, then " +
+                                    std::to_string(effects_.n_params) + " effect parameters)");
+    require_finite(x.data(), x.size(), "x");
+}
+
+double EffectObjective::cost(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    Workspace ws = make_workspace();
+    return cost(x.data(), ws);
+}
+
+VectorXd EffectObjective::residuals(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    VectorXd r(n_residuals());
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws.buf.data(), r.data(), nullptr, nullptr);
+    return r;
+}
+
+RowMatrixXd EffectObjective::forces(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    RowMatrixXd f(n_, kLegs);
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws.buf.data(), nullptr, f.data(), nullptr);
+    return f;
+}
+
+std::vector<std::pair<int, std::string>> EffectObjective::failures(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    std::vector<char> singular(static_cast<std::size_t>(n_), 0);
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws.buf.data(), nullptr, nullptr, singular.data());
+    std::vector<std::pair<int, std::string>> out;
+    for (int k = 0; k < n_; ++k)
+        if (singular[static_cast<std::size_t>(k)])
+            out.emplace_back(k, "the hexapod is singular there: its legs cannot hold the load "
+                                "(no leg forces)");
+    return out;
+}
+
+void EffectObjective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {
+    batch_costs(*this, X, static_cast<std::size_t>(m), out, pool);
+}
+
+}  // namespace iwr
