@@ -39,6 +39,7 @@ from typing import Any  # noqa: E402
 
 import numpy as np  # noqa: E402
 from _load import OtherLoad  # noqa: E402
+
 # iwr is imported in main(): the --worker process loads another build's _core alone.
 
 

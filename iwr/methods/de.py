@@ -45,8 +45,8 @@ import numpy as np
 from scipy.optimize import Bounds, OptimizeResult
 
 from .. import _core
-from ..result import IdentificationResult
 from ..problem import effect_inputs
+from ..result import IdentificationResult
 from ._run import call_back, check_budget, int_arg
 from .lm import levenberg_marquardt
 from .reduced import ReducedProblem
