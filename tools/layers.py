@@ -29,7 +29,8 @@ from typing import NamedTuple
 #: ``__init__`` is listed by the package's own name).
 LAYERS: list[tuple[str, list[str]]] = [
     ("base: compiled core, noise, rotations, files, misclosures", [
-        "iwr._core", "iwr._blas", "iwr._io", "iwr._hooks", "iwr._startup", "iwr.noise",
+        "iwr._core", "iwr._blas", "iwr._io", "iwr._hooks", "iwr._registry", "iwr._startup",
+        "iwr.noise",
         "iwr.transforms", "iwr.misclosures", "iwr.effects", "iwr.effects.builtin",
         "iwr.effects.model"]),
     ("kinds: the measurement-kind protocol and registry", ["iwr.kinds"]),
