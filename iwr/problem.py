@@ -10,23 +10,11 @@ from . import _core
 from ._hooks import hook
 from .effects import refuse as _refuse_effects
 from .measurements import Measurements, as_matrix
+from .problem_base import ProblemBase
+from .problem_base import check_joint_types as _check_joint_types  # noqa: F401 (estimation)
 from .robot import Robot
 
 __all__ = ["Problem", "gls_whitening", "predict_legs"]
-
-
-def _check_joint_types(robot: Robot, measurements: Measurements) -> None:
-    if measurements.n_joints != robot.n_joints:
-        raise ValueError(
-            f"measurements: {measurements.n_joints} joint readings per pose, but robot "
-            f"{robot.name!r} has {robot.n_joints} joints ({robot.joint_types!r})"
-        )
-    jt = measurements.joint_types
-    if jt is not None and jt != robot.joint_types:
-        raise ValueError(
-            f"measurements: joint types {jt!r} (from the units of the q columns) do not match "
-            f"robot {robot.name!r}, {robot.joint_types!r}"
-        )
 
 
 def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
@@ -117,8 +105,9 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
     return w
 
 
-class Problem:
-    """The identification problem of eq. (10) for a robot and a data set.
+class Problem(ProblemBase):
+    """The identification problem of eq. (10) for a robot and a data set (a
+    :class:`iwr.problem_base.ProblemBase`: the kinds' problems share their interface).
 
     Parameters
     ----------
@@ -145,37 +134,14 @@ class Problem:
     BOBYQA) minimises the cost of the problem it is given.
     """
 
+    data_type = Measurements
+    data_name = "iwr.Measurements"
+    effects_what = "iwr.Problem"  # issue 23: iwr.effects.problem.EffectProblem
+
     def __init__(self, robot: Robot, measurements: Measurements, bounds: Any = None, *,
                  noise: Any = None, whitening: Any = None) -> None:
-        if not isinstance(robot, Robot):
-            raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-        if not isinstance(measurements, Measurements):
-            raise TypeError(
-                f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
-            )
-        _check_joint_types(robot, measurements)
-        _refuse_effects(robot, "iwr.Problem")  # issue 23: iwr.effects.problem.EffectProblem
-        self.robot = robot
-        self.measurements = measurements
-        if bounds is None or isinstance(bounds, str):
-            lower, upper = robot.default_bounds(bounds or "default")
-        else:
-            try:
-                lower, upper = (np.array(b, dtype=float) for b in bounds)
-            except (TypeError, ValueError):
-                raise ValueError(
-                    "bounds: expected None, 'default', 'paper' or a pair (lower, upper)"
-                ) from None
-            lower = np.broadcast_to(lower, (robot.n_params,)).copy()
-            upper = np.broadcast_to(upper, (robot.n_params,)).copy()
-        for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
-            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-                raise ValueError(
-                    f"bounds: parameter {i} ({robot.parameter_names[i]}) has lower {lo}, "
-                    f"upper {hi}; bounds must be finite with lower < upper"
-                )
-        self.lower = lower
-        self.upper = upper
+        self._accept(robot, measurements)
+        self._set_bounds(bounds)
         if noise is not None and whitening is not None:
             raise ValueError("noise, whitening: give one or the other")
         self.noise = noise
@@ -186,7 +152,7 @@ class Problem:
             if wh.shape != (len(measurements), 6, 6):
                 raise ValueError(f"whitening: shape {wh.shape}; expected ({len(measurements)}, "
                                  "6, 6)")
-            self.whitening: np.ndarray | None = wh
+            self.whitening = wh
             # Measurement weights are folded into the whitening (gls_whitening does).
             weights = np.zeros((0, 0))
         else:
@@ -205,36 +171,9 @@ class Problem:
         return np.ascontiguousarray(self.whitening.reshape(len(self.measurements), 36))
 
     @property
-    def weighted(self) -> bool:
-        """Whether the residuals are whitened (generalised least squares)."""
-        return self.whitening is not None
-
-    @property
-    def n_params(self) -> int:
-        return self.robot.n_params
-
-    @property
-    def n_poses(self) -> int:
-        return len(self.measurements)
-
-    @property
     def n_residuals(self) -> int:
         """Six leg readings per pose."""
         return 6 * self.n_poses
-
-    #: The residuals that carry data (as :attr:`iwr.tracker.TrackerProblem.n_observations`):
-    #: every leg reading.
-    n_observations = n_residuals
-
-    @property
-    def parameter_names(self) -> list[str]:
-        return self.robot.parameter_names
-
-    def _x(self, x: Any) -> np.ndarray:
-        arr = np.ascontiguousarray(x, dtype=float)
-        if arr.shape != (self.n_params,):
-            raise ValueError(f"x: shape {arr.shape}; expected ({self.n_params},)")
-        return arr
 
     def cost(self, x: Any) -> float:
         """The cost of eq. (10) at error vector ``x`` (mm^2; whitened: dimensionless)."""
@@ -253,15 +192,9 @@ class Problem:
         """Both at once (one pass)."""
         return self._objective.jacobian(self._x(x))
 
-    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
-        """Costs of the rows of ``X`` (M, n_params), evaluated across ``workers`` threads
-        (``None``: all cores). The result does not depend on the number of threads."""
-        arr = np.ascontiguousarray(X, dtype=float)
-        if arr.ndim != 2 or arr.shape[1] != self.n_params:
-            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
-        if workers is not None and workers < 1:
-            raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
-        return self._objective.cost_batch(arr, 0 if workers is None else int(workers))
+    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
+        """In C++, across ``workers`` threads (the result does not depend on their number)."""
+        return self._objective.cost_batch(X, 0 if workers is None else int(workers))
 
     def __repr__(self) -> str:
         return (f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, "
