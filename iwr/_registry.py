@@ -57,7 +57,7 @@ class Registry(Generic[T]):
                             f"{type(spec).__name__}")
         if not isinstance(spec, str) and getattr(spec, "name", name) != name:
             raise ValueError(f"{self.what}: {getattr(spec, '__name__', type(spec).__name__)} "
-                             f"is named {getattr(spec, 'name')!r}, not {name!r}")
+                             f"is named {spec.name!r}, not {name!r}")  # type: ignore[attr-defined]
         with self._lock:
             if name in self._specs:
                 raise ValueError(f"{self.what}: {name!r} is already registered")

@@ -15,8 +15,8 @@ import numpy as np
 
 from ._io import NotRegularFileError, atomic_write_text, available_memory, open_regular
 
-__all__ = ["Measurements", "MeasurementFileError", "RobotReadings", "as_matrix", "joint_readings", "MAX_LENGTH_MM",
-           "MAX_ANGLE_RAD", "PLAN_MARKER"]
+__all__ = ["Measurements", "MeasurementFileError", "RobotReadings", "as_matrix", "joint_readings",
+           "MAX_LENGTH_MM", "MAX_ANGLE_RAD", "PLAN_MARKER"]
 
 _POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
 _LEG_COLUMNS = tuple(f"s{j}_mm" for j in range(1, 7))

@@ -39,8 +39,8 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.tracker.setup", "iwr.tracker.data", "iwr.tracker.files", "iwr.tracker.sa_export",
         "iwr.ballbar.setup", "iwr.ballbar.data", "iwr.ballbar.files"]),
     ("problems: the objective, the implicit loop, the result type", [
-        "iwr.implicit_loop", "iwr.problem_base", "iwr.problem", "iwr.tracker.problem", "iwr.tracker.registration",
-        "iwr.tracker.gauge", "iwr.tracker.start", "iwr.ballbar.problem",
+        "iwr.implicit_loop", "iwr.problem_base", "iwr.problem", "iwr.tracker.problem",
+        "iwr.tracker.registration", "iwr.tracker.gauge", "iwr.tracker.start", "iwr.ballbar.problem",
         "iwr.methods.reduced", "iwr.result", "iwr.effects.problem"]),
     ("the problem file (iwr-engine's input and result)", ["iwr.problem_file"]),
     ("solvers, the efficient estimator and the fit test", [
