@@ -141,28 +141,9 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
                 "other means to use the robot in a world frame (docs/ballbar.md).")
 
     def to_dict(self) -> dict[str, Any]:
-        out: dict[str, Any] = {
-            "format": "iwr-calibration-summary", "version": 1, "data_kind": "ballbar",
-            "robot": self.robot_name or self.robot.name, "data": self.data_name,
-            "n_identification": len(self.identification),
-            "n_validation": len(self.validation) if self.held_out else 0,
-            "method": self.result.get("method", ""), "nfev": int(self.result.nfev),
-            "wall_time": float(self.result.get("wall_time", math.nan)),
+        return self._summary("ballbar", {
             "cost_mm2": self.costs(), "distance_residuals_mm": self.residuals(),
-            "accuracy": self.accuracy.to_dict(),
-            "accuracy_on": "validation poses" if self.held_out else "identification poses",
-            "setups": self.setup.with_parameters(self._x()[self.n_robot:]).to_dict(),
-            "parameters": self.parameter_rows(),
-        }
-        ns = self.identifiability
-        if ns is not None:
-            out["identifiability"] = {"rank": int(ns.rank), "n_params": len(ns.parameter_names),
-                                      "left_out": list(ns.left_out)}
-        if self.uncertainty is not None:
-            out["noise_sigma_mm"] = float(self.uncertainty.sigma)
-            out["noise_sigma_source"] = self.uncertainty.source
-        self._add_fit(out)
-        return jsonable(out, finite_only=True)
+            "setups": self.setup.with_parameters(self._x()[self.n_robot:]).to_dict()})
 
     # -- text -----------------------------------------------------------------------------------
     def _method_text(self) -> str:
@@ -284,10 +265,7 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         page.heading("Identified parameters")
         if self.uncertainty is not None:
             page.paragraph(f"Standard deviations: {self.uncertainty.describe()}.")
-        page.table((["parameter", "value", "std", "unit", "status"],
-                    [[row["name"], f"{row['value']:.6g}",
-                      "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
-                      row["status"]] for row in self.parameter_rows()]), "params")
+        page.table(self.parameter_table(), "params")
         if self.identifiability is not None:
             page.heading("What a ballbar cannot see")
             page.paragraph(self.null_sentence())
@@ -317,10 +295,7 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
                *_table(["", "nominal (mm)", "identified correction (mm)", "identified (mm)"],
                        self.ball_rows()),
                "", "## Identified parameters", "",
-               *_table(["parameter", "value", "std", "unit", "status"],
-                       [[row["name"], f"{row['value']:.6g}",
-                         "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
-                         row["status"]] for row in self.parameter_rows()])]
+               *_table(*self.parameter_table())]
         if self.identifiability is not None:
             md += ["", "## What a ballbar cannot see", "", self.null_sentence(), "", "```",
                    self.null_text(), "```"]

@@ -23,6 +23,40 @@ class SetupParameters:
     uncertainty: Any
     setup: Any
 
+    def _summary(self, kind: str, figures: dict[str, Any]) -> dict[str, Any]:
+        """``summary.json``: what every run says (robot, data, method, accuracy, parameters,
+        identifiability, noise, fit), with the kind's own ``figures``."""
+        from .._io import jsonable
+
+        out: dict[str, Any] = {
+            "format": "iwr-calibration-summary", "version": 1, "data_kind": kind,
+            "robot": self.robot_name or self.robot.name, "data": self.data_name,  # type: ignore[attr-defined]
+            "n_identification": len(self.identification),  # type: ignore[attr-defined]
+            "n_validation": len(self.validation) if self.held_out else 0,  # type: ignore[attr-defined]
+            "method": self.result.get("method", ""), "nfev": int(self.result.nfev),
+            "wall_time": float(self.result.get("wall_time", float("nan"))),
+            "accuracy": self.accuracy.to_dict(),  # type: ignore[attr-defined]
+            "accuracy_on": ("validation poses" if self.held_out  # type: ignore[attr-defined]
+                            else "identification poses"),
+            **figures, "parameters": self.parameter_rows(),
+        }
+        ns = self.identifiability
+        if ns is not None:
+            out["identifiability"] = {"rank": int(ns.rank), "n_params": len(ns.parameter_names),
+                                      "left_out": list(ns.left_out)}
+        if self.uncertainty is not None:
+            out["noise_sigma_mm"] = float(self.uncertainty.sigma)
+            out["noise_sigma_source"] = self.uncertainty.source
+        self._add_fit(out)  # type: ignore[attr-defined]
+        return jsonable(out, finite_only=True)
+
+    def parameter_table(self) -> tuple[list[str], list[list[str]]]:
+        """The identified parameters as a table: head and rows."""
+        return (["parameter", "value", "std", "unit", "status"],
+                [[row["name"], f"{row['value']:.6g}",
+                  "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
+                  row["status"]] for row in self.parameter_rows()])
+
     @property
     def n_robot(self) -> int:
         return self.robot.n_params

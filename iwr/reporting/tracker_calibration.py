@@ -202,31 +202,12 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         hidden, total = self.hidden_counts()
         reg = self.registration_rows()
         d_nom, a_nom, d_guess, a_guess = self.registration_change()
-        out: dict[str, Any] = {
-            "format": "iwr-calibration-summary", "version": 1, "data_kind": self.setup.kind,
-            "robot": self.robot_name or self.robot.name, "data": self.data_name,
-            "n_identification": len(self.identification),
-            "n_validation": len(self.validation) if self.held_out else 0,
-            "method": self.result.get("method", ""), "nfev": int(self.result.nfev),
-            "wall_time": float(self.result.get("wall_time", math.nan)),
+        return self._summary(self.setup.kind, {
             "cost_mm2": self.costs(), "point_residuals_mm": self.residuals(),
             "points_hidden": hidden, "points_expected": total,
-            "accuracy": self.accuracy.to_dict(),
-            "accuracy_on": "validation poses" if self.held_out else "identification poses",
             "registration": {label: pose.tolist() for label, pose in reg},
             "registration_change": {"from_nominal_mm": d_nom, "from_nominal_deg": a_nom,
-                                    "from_guess_mm": d_guess, "from_guess_deg": a_guess},
-            "parameters": self.parameter_rows(),
-        }
-        ns = self.identifiability
-        if ns is not None:
-            out["identifiability"] = {"rank": int(ns.rank), "n_params": len(ns.parameter_names),
-                                      "left_out": list(ns.left_out)}
-        if self.uncertainty is not None:
-            out["noise_sigma_mm"] = float(self.uncertainty.sigma)
-            out["noise_sigma_source"] = self.uncertainty.source
-        self._add_fit(out)
-        return jsonable(out, finite_only=True)
+                                    "from_guess_mm": d_guess, "from_guess_deg": a_guess}})
 
     # -- text -----------------------------------------------------------------------------------
     def _accuracy_line(self, label: str, e: Any) -> str:
@@ -386,10 +367,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         unc = self.uncertainty
         if unc is not None:
             page.paragraph(f"Standard deviations: {unc.describe()}.")
-        page.table((["parameter", "value", "std", "unit", "status"],
-                    [[row["name"], f"{row['value']:.6g}",
-                      "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
-                      row["status"]] for row in self.parameter_rows()]), "params")
+        page.table(self.parameter_table(), "params")
         ns = self.identifiability
         if ns is not None:
             page.heading("Identifiability")
@@ -434,10 +412,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         if "residuals.png" in figures:
             md += ["", "![Point residuals per reflector](residuals.png)"]
         md += ["", "## Identified parameters", "",
-               *table(["parameter", "value", "std", "unit", "status"],
-                      [[row["name"], f"{row['value']:.6g}",
-                        "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
-                        row["status"]] for row in self.parameter_rows()])]
+               *table(*self.parameter_table())]
         if self.identifiability is not None:
             md += ["", "## Identifiability", "", self.null_sentence(), "", "```",
                    self.null_text(), "```"]
