@@ -15,8 +15,8 @@ import numpy as np
 
 from ._io import NotRegularFileError, atomic_write_text, available_memory, open_regular
 
-__all__ = ["Measurements", "MeasurementFileError", "as_matrix", "joint_readings", "MAX_LENGTH_MM",
-           "MAX_ANGLE_RAD", "PLAN_MARKER"]
+__all__ = ["Measurements", "MeasurementFileError", "RobotReadings", "as_matrix", "joint_readings",
+           "MAX_LENGTH_MM", "MAX_ANGLE_RAD", "PLAN_MARKER"]
 
 _POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
 _LEG_COLUMNS = tuple(f"s{j}_mm" for j in range(1, 7))
@@ -147,7 +147,68 @@ def joint_readings(q: Any, joint_types: str | None, n: int) -> np.ndarray:
     return out
 
 
-class Measurements:
+class RobotReadings:
+    """The robot's own readings at N poses, which every kind of data holds beside its
+    instrument's: the carriage joint readings ``q`` (N, n_joints), the leg sensor readings
+    ``legs`` (N, 6), the joint types their units were read with (or None), and where each pose
+    comes from (``lines`` of the file ``source``), with what every kind's data type does with
+    them: its length, :meth:`where` (for messages), the rows of a subset."""
+
+    q: np.ndarray
+    legs: np.ndarray
+    joint_types: str | None
+    lines: np.ndarray | None
+    source: str | None
+
+    def _set_readings(self, q: Any, legs: Any, joint_types: str | None, lines: Any,
+                      source: str | None) -> int:
+        """Check and keep the readings (the legs give N; no pose is an error), the lines and
+        the source; returns N."""
+        self.legs = as_matrix(legs, 6, "legs")
+        n = self.legs.shape[0]
+        if n == 0:
+            raise ValueError("legs: no measurements (0 rows)")
+        self.q = joint_readings(q, joint_types, n)
+        self.joint_types = joint_types
+        self._set_lines(lines, source, n)
+        return n
+
+    def _set_lines(self, lines: Any, source: str | None, n: int) -> None:
+        self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
+        self.source = None if source is None else str(source)
+
+    def __len__(self) -> int:
+        return int(self.legs.shape[0])
+
+    @property
+    def n_poses(self) -> int:
+        return len(self)
+
+    @property
+    def n_joints(self) -> int:
+        return int(self.q.shape[1])
+
+    def where(self, k: int) -> str:
+        """Where pose ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
+        loc = self._loc(k)
+        return f"{self.source}, {loc}" if self.source and self.lines is not None else loc
+
+    def _loc(self, k: int) -> str:
+        return f"pose {k}" if self.lines is None else f"line {int(self.lines[k])}"
+
+    def _rows(self, rows: Any) -> np.ndarray:
+        """The indices of ``rows`` (indices or a boolean mask), in that order; ValueError when
+        none is selected."""
+        out = np.arange(len(self))[_row_index(rows)]
+        if out.size == 0:
+            raise ValueError("rows: no measurements selected")
+        return out
+
+    def _lines_at(self, rows: np.ndarray) -> np.ndarray | None:
+        return None if self.lines is None else self.lines[rows]
+
+
+class Measurements(RobotReadings):
     """A calibration data set of N measurement poses.
 
     Parameters
@@ -214,17 +275,8 @@ class Measurements:
         self.weights = None
         if weights is not None:
             self.weights = normalised_weights(as_matrix(weights, 6, "weights", rows=n))
-        self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
-        self.source = None if source is None else str(source)
+        self._set_lines(lines, source, n)
         self.payload, self.temperatures = _effect_inputs(payload, temperatures, n)
-
-    def where(self, k: int) -> str:
-        """Where measurement ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
-        loc = self._loc(k)
-        return f"{self.source}, {loc}" if self.source and self.lines is not None else loc
-
-    def _loc(self, k: int) -> str:
-        return f"pose {k}" if self.lines is None else f"line {int(self.lines[k])}"
 
     def _lines_of(self, rows: Any) -> str:
         rows = [int(k) for k in rows]
@@ -238,13 +290,6 @@ class Measurements:
         if self.source:
             return MeasurementFileError(f"{self.source}: {message}")
         return ValueError(message)
-
-    def __len__(self) -> int:
-        return self.poses.shape[0]
-
-    @property
-    def n_joints(self) -> int:
-        return self.q.shape[1]
 
     def subset(self, rows: Any) -> Measurements:
         """The measurements at the given row indices (or boolean mask)."""

@@ -5,16 +5,32 @@ layer of iwr: every other module may use them (docs/kinds.md)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, fields
 from typing import Any
 
 import numpy as np
 
-__all__ = ["MIN_SIGMA", "Noise", "TrackerNoise"]
+__all__ = ["MIN_SIGMA", "Noise", "TrackerNoise", "check_sigmas"]
 
 #: The smallest non-zero standard deviation of a noise model (mm, rad, mm per m): far below any
 #: instrument's, and far above what breaks the weighting (1 / sigma^2 overflows near 1e-155).
 MIN_SIGMA = 1e-9
+
+
+def check_sigmas(model: Any) -> None:
+    """ValueError unless every field of the noise model ``model`` (a dataclass of standard
+    deviations: :class:`Noise`, :class:`TrackerNoise`, a kind's own) is a finite number, 0 (no
+    noise) or at least :data:`MIN_SIGMA`; the message names the class, the field and its
+    value."""
+    for f in fields(model):
+        v = getattr(model, f.name)
+        where = f"{type(model).__name__}.{f.name}"
+        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
+                                       and v >= 0):
+            raise ValueError(f"{where}: {v!r}; expected a finite number >= 0")
+        if 0 < v < MIN_SIGMA:
+            raise ValueError(f"{where}: {v!r} is below any instrument's noise; expected 0 "
+                             f"(none) or at least {MIN_SIGMA:g}")
 
 
 @dataclass(frozen=True)
@@ -43,13 +59,7 @@ class Noise:
     orientation: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("legs", "joint_lengths", "joint_angles", "position", "orientation"):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and np.isfinite(v) and v >= 0):
-                raise ValueError(f"Noise.{name}: {v!r}; expected a finite number >= 0")
-            if 0 < v < MIN_SIGMA:
-                raise ValueError(f"Noise.{name}: {v!r} is below any instrument's noise; "
-                                 f"expected 0 (none) or at least {MIN_SIGMA:g}")
+        check_sigmas(self)
 
     @classmethod
     def realistic(cls) -> Noise:
@@ -91,15 +101,7 @@ class TrackerNoise:
     orientation: float = math.radians(0.005)
 
     def __post_init__(self) -> None:
-        for name in ("distance", "distance_per_m", "transverse", "transverse_per_m",
-                     "orientation"):
-            v = getattr(self, name)
-            if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
-                                           and v >= 0):
-                raise ValueError(f"TrackerNoise.{name}: {v!r}; expected a finite number >= 0")
-            if 0 < v < MIN_SIGMA:
-                raise ValueError(f"TrackerNoise.{name}: {v!r} is below any instrument's noise; "
-                                 f"expected 0 (none) or at least {MIN_SIGMA:g}")
+        check_sigmas(self)
 
     @classmethod
     def leica(cls) -> TrackerNoise:

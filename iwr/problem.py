@@ -13,6 +13,8 @@ from .effects import parameter_names as effect_names
 from .effects import refuse as _refuse_effects
 from .effects.model import check_inputs as check_effect_inputs
 from .measurements import Measurements, as_matrix
+from .problem_base import ProblemBase
+from .problem_base import check_joint_types as _check_joint_types  # noqa: F401 (estimation)
 from .robot import Robot
 
 __all__ = ["Problem", "gls_whitening", "predict_legs"]
@@ -30,20 +32,6 @@ def effect_inputs(robot: Robot, measurements: Measurements) -> dict[str, Any]:
 
     return dict(effects=[(e.name, e.to_dict()) for e in robot.effects],
                 payload=arr(measurements.payload), temperatures=arr(measurements.temperatures))
-
-
-def _check_joint_types(robot: Robot, measurements: Measurements) -> None:
-    if measurements.n_joints != robot.n_joints:
-        raise ValueError(
-            f"measurements: {measurements.n_joints} joint readings per pose, but robot "
-            f"{robot.name!r} has {robot.n_joints} joints ({robot.joint_types!r})"
-        )
-    jt = measurements.joint_types
-    if jt is not None and jt != robot.joint_types:
-        raise ValueError(
-            f"measurements: joint types {jt!r} (from the units of the q columns) do not match "
-            f"robot {robot.name!r}, {robot.joint_types!r}"
-        )
 
 
 def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
@@ -141,8 +129,9 @@ def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
     return w
 
 
-class Problem:
-    """The identification problem of eq. (10) for a robot and a data set.
+class Problem(ProblemBase):
+    """The identification problem of eq. (10) for a robot and a data set (a
+    :class:`iwr.problem_base.ProblemBase`: the kinds' problems share their interface).
 
     Parameters
     ----------
@@ -169,53 +158,38 @@ class Problem:
     BOBYQA) minimises the cost of the problem it is given.
     """
 
+    data_type = Measurements
+    data_name = "iwr.Measurements"
+    effects_what = "iwr.Problem"
+    #: Issue 23: a robot's effects are modelled (their parameters follow the geometric errors).
+    takes_effects = True
+
     def __init__(self, robot: Robot, measurements: Measurements, bounds: Any = None, *,
                  noise: Any = None, whitening: Any = None) -> None:
-        if not isinstance(robot, Robot):
-            raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-        if not isinstance(measurements, Measurements):
-            raise TypeError(
-                f"measurements: expected an iwr.Measurements, got {type(measurements).__name__}"
-            )
-        _check_joint_types(robot, measurements)
-        self.robot = robot
-        self.measurements = measurements
-        # Issue 23: the effects' parameters after the geometric ones, with their own bounds.
-        n_geo = robot.n_params
-        names = robot.parameter_names + effect_names(robot.effects)
-        lo_e, hi_e = effect_bounds(robot.effects)
+        self._accept(robot, measurements)
         if robot.effects:
             check_effect_inputs(robot, measurements)
-        if bounds is None or isinstance(bounds, str):
-            lower, upper = robot.default_bounds(bounds or "default")
-            lower, upper = np.concatenate([lower, lo_e]), np.concatenate([upper, hi_e])
-        else:
-            try:
-                lower, upper = (np.array(b, dtype=float) for b in bounds)
-            except (TypeError, ValueError):
-                raise ValueError(
-                    "bounds: expected None, 'default', 'paper' or a pair (lower, upper)"
-                ) from None
-            if robot.effects and lower.size == n_geo and upper.size == n_geo:
-                lower, upper = np.concatenate([lower, lo_e]), np.concatenate([upper, hi_e])
-            lower = np.broadcast_to(lower, (len(names),)).copy()
-            upper = np.broadcast_to(upper, (len(names),)).copy()
-        for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
-            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-                raise ValueError(
-                    f"bounds: parameter {i} ({names[i]}) has lower {lo}, "
-                    f"upper {hi}; bounds must be finite with lower < upper"
-                )
-        self.lower = lower
-        self.upper = upper
+            lo_e, hi_e = effect_bounds(robot.effects)
+            if bounds is None or isinstance(bounds, str):
+                lo_r, hi_r = robot.default_bounds(bounds or "default")
+                bounds = (np.concatenate([lo_r, lo_e]), np.concatenate([hi_r, hi_e]))
+            else:  # a pair of the geometric errors' bounds: the effects' own after them
+                try:
+                    lower, upper = (np.atleast_1d(np.array(b, dtype=float)) for b in bounds)
+                except (TypeError, ValueError):
+                    raise ValueError("bounds: expected None, 'default', 'paper' or a pair "
+                                     "(lower, upper)") from None
+                if lower.size == robot.n_params and upper.size == robot.n_params:
+                    bounds = (np.concatenate([lower, lo_e]), np.concatenate([upper, hi_e]))
+        self._set_bounds(bounds)
         if noise is not None and whitening is not None:
             raise ValueError("noise, whitening: give one or the other")
         if noise is not None and robot.effects:
             raise ValueError(
                 f"noise: robot {robot.name!r} has effects on ("
                 + ", ".join(e.name for e in robot.effects) + "); the noise weighting "
-                "(gls_whitening) does not model them yet: give noise=None, or a whitening= of "
-                "your own (docs/effects.md)")
+                "(gls_whitening) of the C++ objective does not model them yet: give noise=None, "
+                "or a whitening= of your own (docs/effects.md)")
         self.noise = noise
         if noise is not None:
             whitening = gls_whitening(robot, measurements, noise)
@@ -224,7 +198,7 @@ class Problem:
             if wh.shape != (len(measurements), 6, 6):
                 raise ValueError(f"whitening: shape {wh.shape}; expected ({len(measurements)}, "
                                  "6, 6)")
-            self.whitening: np.ndarray | None = wh
+            self.whitening = wh
             # Measurement weights are folded into the whitening (gls_whitening does).
             weights = np.zeros((0, 0))
         else:
@@ -249,37 +223,23 @@ class Problem:
         return np.ascontiguousarray(self.whitening.reshape(len(self.measurements), 36))
 
     @property
-    def weighted(self) -> bool:
-        """Whether the residuals are whitened (generalised least squares)."""
-        return self.whitening is not None
-
-    @property
-    def n_params(self) -> int:
-        """The robot's geometric errors, then its effects' parameters (if any)."""
-        return self.robot.n_params + len(effect_names(self.robot.effects))
-
-    @property
-    def n_poses(self) -> int:
-        return len(self.measurements)
-
-    @property
-    def n_residuals(self) -> int:
-        """Six leg readings per pose."""
-        return 6 * self.n_poses
-
-    #: The residuals that carry data (as :attr:`iwr.tracker.TrackerProblem.n_observations`):
-    #: every leg reading.
-    n_observations = n_residuals
+    def n_setup_params(self) -> int:
+        """The effects' parameters (issue 23), after the robot's geometric errors."""
+        return len(effect_names(self.robot.effects))
 
     @property
     def parameter_names(self) -> list[str]:
         return self.robot.parameter_names + effect_names(self.robot.effects)
 
-    def _x(self, x: Any) -> np.ndarray:
-        arr = np.ascontiguousarray(x, dtype=float)
-        if arr.shape != (self.n_params,):
-            raise ValueError(f"x: shape {arr.shape}; expected ({self.n_params},)")
-        return arr
+    @property
+    def angle_parameters(self) -> np.ndarray:
+        return np.concatenate([np.asarray(self.robot.angle_parameters, dtype=bool),
+                               np.zeros(self.n_setup_params, dtype=bool)])
+
+    @property
+    def n_residuals(self) -> int:
+        """Six leg readings per pose."""
+        return 6 * self.n_poses
 
     def cost(self, x: Any) -> float:
         """The cost of eq. (10) at error vector ``x`` (mm^2; whitened: dimensionless)."""
@@ -314,15 +274,10 @@ class Problem:
             jac = jac * np.sqrt(m.weights)[..., None]
         return self._objective.residuals(x), jac.reshape(-1, self.n_params)
 
-    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
-        """Costs of the rows of ``X`` (M, n_params), evaluated across ``workers`` threads
-        (``None``: all cores). The result does not depend on the number of threads."""
-        arr = np.ascontiguousarray(X, dtype=float)
-        if arr.ndim != 2 or arr.shape[1] != self.n_params:
-            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
-        if workers is not None and workers < 1:
-            raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
-        return self._objective.cost_batch(arr, 0 if workers is None else int(workers))
+
+    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
+        """In C++, across ``workers`` threads (the result does not depend on their number)."""
+        return self._objective.cost_batch(X, 0 if workers is None else int(workers))
 
     def __repr__(self) -> str:
         return (f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, "

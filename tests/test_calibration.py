@@ -130,26 +130,63 @@ def _ballbar_robot() -> iwr.Robot:
     })
 
 
-def test_the_job_takes_a_new_kind_the_commands_refuse_it_by_name(tmp_path):
-    """Ballbar data (a kind added as a plug-in) go through iwr.calibrate unchanged; the commands,
-    which have no report for them yet, refuse them before any work with a message naming the
-    kind (not an internal error after the identification)."""
+def test_ballbar_data_through_the_job_both_commands_and_their_report(tmp_path):
+    """Ballbar data (a kind added as a plug-in) go through iwr.calibrate, and through
+    `iwr calibrate` and `iwr report`, whose report is the kind's (BallbarCalibrationReport): the
+    per-set-up distance residuals agree with the problem's own residuals, the calibrated robot
+    file (its [ballbar] set-ups moved by the identified corrections, the robot by its errors)
+    predicts at zero errors what the result predicts, and the null directions are named."""
+    import json
     import subprocess
     import sys
 
+    from iwr.ballbar import BallbarNoise, ballbar_problem
+    from iwr.reporting.ballbar_calibration import BallbarCalibrationReport
+
     robot = _ballbar_robot()
-    data, _ = iwr.simulate(robot, 120, seed=5)
+    noise = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), BallbarNoise(0.001))
+    data, _ = iwr.simulate(robot, 150, seed=5, noise=noise)
     cal = iwr.calibrate(robot, data, "lm", seed=1)
     before, after, sentence, what = cal.improvement()
-    assert cal.success and after < 1e-6 * before and what == "the distance residuals"
-    with pytest.raises(TypeError, match="no calibration report"):
-        render(cal)
+    assert cal.success and after < 1e-2 * before and what == "the distance residuals"
+    report = render(cal)
+    assert isinstance(report, BallbarCalibrationReport)
+    res = report.residuals()
+    problem, _ = ballbar_problem(robot, cal.validation)
+    r = problem.residuals(cal.result.x)
+    for bar in ("A", "B"):
+        sel = np.asarray(cal.validation.setup) == bar
+        assert res["validation"][bar]["poses"] == int(sel.sum())
+        assert res["validation"][bar]["calibrated"]["rms"] == pytest.approx(
+            float(np.sqrt(np.mean(r[sel] ** 2))), rel=1e-12)
+    text = report.text()
+    assert "16 null directions" in text and "A: length offset" in text
+
     robot.to_toml(tmp_path / "robot.toml")
     data.to_csv(tmp_path / "bb.csv")
-    proc = subprocess.run([sys.executable, "-m", "iwr", "calibrate", "robot.toml", "bb.csv"],
-                          cwd=tmp_path, capture_output=True, text=True, timeout=600)
-    assert proc.returncode == 2 and "ballbar data" in proc.stderr, proc.stderr
-    assert "internal error" not in proc.stderr and not (tmp_path / "iwr-calibration").exists()
+    proc = subprocess.run([sys.executable, "-m", "iwr", "calibrate", "robot.toml", "bb.csv",
+                           "--out", "cal"], cwd=tmp_path, capture_output=True, text=True,
+                          timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    out = tmp_path / "cal"
+    for name in ("calibrated.toml", "result.json", "accuracy.json", "summary.json",
+                 "report.html", "report.md", "residuals.png", "accuracy.png"):
+        assert (out / name).is_file(), name
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["data_kind"] == "ballbar" and summary["identifiability"]["rank"] == 56
+    assert "What a ballbar cannot see" in (out / "report.html").read_text()
+    result = iwr.load_result(out / "result.json")
+    calibrated = iwr.Robot.from_toml(out / "calibrated.toml")
+    zero = np.zeros(len(result.x))
+    p_cal, _ = ballbar_problem(calibrated, data)
+    p_nom, _ = ballbar_problem(robot, data)
+    np.testing.assert_allclose(p_cal.predicted(zero), p_nom.predicted(result.x), atol=1e-9)
+
+    proc = subprocess.run([sys.executable, "-m", "iwr", "report", "cal/result.json",
+                           "robot.toml", "bb.csv", "--out", "rep"], cwd=tmp_path,
+                          capture_output=True, text=True, timeout=600)
+    assert proc.returncode == 0, proc.stderr
+    assert json.loads((tmp_path / "rep" / "summary.json").read_text())["data_kind"] == "ballbar"
 
 
 def test_identifiability_describes_the_poses_left_after_the_gross_error_screen():

@@ -193,6 +193,36 @@ def test_tracker_calibration_page_opens_cleanly(tmp_path: Path, kind: str) -> No
     assert_opens_cleanly(out / "report.html", tmp_path, 2)
 
 
+def test_ballbar_calibration_page_opens_cleanly(tmp_path: Path) -> None:
+    """Ballbar data get their report through the kind's report hook: the distance residuals per
+    set-up, the ball centres and offsets, what a ballbar cannot see; the page opens cleanly."""
+    chromium()
+    robot = iwr.Robot.default().with_instrument("ballbar", {
+        "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
+        "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400],
+              "range": [300, 700]}})
+    data, _ = iwr.simulate(robot, 120, seed=4, noise=(
+        iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6),
+        iwr.ballbar.BallbarNoise(0.001)))
+    robot.to_toml(tmp_path / "robot.toml")
+    data.to_csv(tmp_path / "bb.csv")
+    out = tmp_path / "cal"
+    proc = run_iwr("calibrate", str(tmp_path / "robot.toml"), str(tmp_path / "bb.csv"),
+                   "--out", str(out))
+    assert proc.returncode == 0, proc.stderr
+    page = (out / "report.html").read_text(encoding="utf-8")
+    sections = ["<h2>Summary</h2>", "<h2>Distance residuals per set-up</h2>",
+                "<h2>Ball centres and length offsets</h2>", "<h2>Identified parameters</h2>",
+                "<h2>What a ballbar cannot see</h2>", "<h2>Settings</h2>", "<h2>Provenance</h2>"]
+    order = [page.index(h) for h in sections]
+    assert order == sorted(order)
+    assert 'class="verdict good"' in page and "16 null directions" in page
+    assert "A: platform ball in {5}" in page and "B: length offset" in page
+    assert page.count("held (null direction") == 16
+    assert (out / "report.md").read_text().startswith("# Calibration report: double-ballbar")
+    assert_opens_cleanly(out / "report.html", tmp_path, 2)
+
+
 def test_an_output_folder_is_written_as_a_whole(tmp_path):
     """Issue 26: a kill or a full disk while the report was written left a folder mixing two
     runs. write_folder makes the files elsewhere first; a failure leaves the earlier run whole."""

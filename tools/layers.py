@@ -29,7 +29,8 @@ from typing import NamedTuple
 #: ``__init__`` is listed by the package's own name).
 LAYERS: list[tuple[str, list[str]]] = [
     ("base: compiled core, noise, rotations, files, misclosures", [
-        "iwr._core", "iwr._blas", "iwr._io", "iwr._hooks", "iwr._startup", "iwr.noise",
+        "iwr._core", "iwr._blas", "iwr._io", "iwr._hooks", "iwr._registry", "iwr._startup",
+        "iwr.noise",
         "iwr.transforms", "iwr.misclosures", "iwr.effects", "iwr.effects.builtin",
         "iwr.effects.model"]),
     ("kinds: the measurement-kind protocol and registry", ["iwr.kinds"]),
@@ -38,8 +39,8 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.tracker.setup", "iwr.tracker.data", "iwr.tracker.files", "iwr.tracker.sa_export",
         "iwr.ballbar.setup", "iwr.ballbar.data", "iwr.ballbar.files"]),
     ("problems: the objective, the implicit loop, the result type", [
-        "iwr.implicit_loop", "iwr.problem", "iwr.tracker.problem", "iwr.tracker.registration",
-        "iwr.tracker.gauge", "iwr.tracker.start", "iwr.ballbar.problem",
+        "iwr.implicit_loop", "iwr.problem_base", "iwr.problem", "iwr.tracker.problem",
+        "iwr.tracker.registration", "iwr.tracker.gauge", "iwr.tracker.start", "iwr.ballbar.problem",
         "iwr.methods.reduced", "iwr.result", "iwr.effects.problem", "iwr.effects.loop"]),
     ("the problem file (iwr-engine's input and result)", ["iwr.problem_file"]),
     ("solvers, the efficient estimator and the fit test", [

@@ -6,7 +6,6 @@ set-ups (a ``[ballbar]`` table, ``Robot.with_instrument("ballbar", ...)``) and t
 from __future__ import annotations
 
 import math
-import time
 from collections.abc import Callable
 from typing import Any
 
@@ -115,9 +114,8 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     and the fit gets a chi-square test of the weighted cost. ``active="base"``: one parameter
     per null direction held at ``x0`` (:func:`ballbar_identifiability`). DE runs on
     :meth:`BallbarProblem.cost_batch` and is polished by LM."""
-    from ..methods import METHODS, _check_fit
-    from ..methods.reduced import ReducedProblem, active_mask
-    from ..tracker.api import _de_on_batch
+    from ..methods import run_method, settle
+    from ..methods.reduced import active_mask
 
     if method == "efficient":
         raise ValueError("method 'efficient': the efficient estimator's loop model does not "
@@ -139,39 +137,16 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     if isinstance(active, str) and active == "base":
         active = null_space(problem, start, NULL_RTOL).active
     mask = active_mask(problem, active)
-    reduced = ReducedProblem(problem, mask, start)
-    t0 = time.perf_counter()
-    if method == "de":
-        result = _de_on_batch(reduced, max_evaluations=max_evaluations, seed=seed,
-                              callback=callback, progress=progress, **options)
-    else:
-        if method not in METHODS:
-            raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
-        if max_evaluations is not None:
-            options["max_evaluations"] = max_evaluations
-        result = METHODS[method](reduced, seed=seed, callback=callback, progress=progress,
-                                 **options)
-    if not np.isfinite(result.wall_time):
-        result["wall_time"] = time.perf_counter() - t0
-    result["method"] = method
-    result["parameter_names"] = problem.parameter_names
-    result["active"] = mask
-    result["fun"] = problem.cost(result.x)
+    result = run_method(problem, method, mask, start, max_evaluations=max_evaluations,
+                        seed=seed, callback=callback, progress=progress, batch_de=True,
+                        **options)
     if weighted:
         result["settings"] = {**dict(result.settings),
                               "objective": {"weighted": True,
                                             **kinds.of(measurements).noise_record(noise)}}
-    bad = problem.failures(result.x)
-    if bad:
-        k, msg = bad[0]
-        result.update(success=False, status="failed",
-                      message=f"{result.message}; {len(bad)} poses have no forward kinematics at "
-                      f"the result ({measurements.where(k)}: {msg})")
-    result.check_finite()
-    if result.status != "interrupted" and np.all(np.isfinite(result.x)):
-        _check_fit(result, problem, None, mask)
-        if weighted:
-            _chi2(result, problem, mask)
+    settle(result, problem, None, mask)
+    if weighted and result.status != "interrupted" and np.all(np.isfinite(result.x)):
+        _chi2(result, problem, mask)
     return result
 
 

@@ -7,13 +7,13 @@ from typing import Any
 import numpy as np
 
 from .._hooks import hook
-from ..measurements import MAX_LENGTH_MM, _row_index, as_matrix, joint_readings
+from ..measurements import MAX_LENGTH_MM, RobotReadings, as_matrix
 from .setup import BallbarSetup
 
 __all__ = ["BallbarMeasurements"]
 
 
-class BallbarMeasurements:
+class BallbarMeasurements(RobotReadings):
     """A calibration data set measured with a double ballbar, N poses (docs/ballbar.md).
 
     Parameters
@@ -36,12 +36,7 @@ class BallbarMeasurements:
     def __init__(self, q: Any, legs: Any, setup: Any, distance: Any, *,
                  joint_types: str | None = None, lines: Any = None,
                  source: str | None = None) -> None:
-        self.legs = as_matrix(legs, 6, "legs")
-        n = self.legs.shape[0]
-        if n == 0:
-            raise ValueError("legs: no measurements (0 rows)")
-        self.q = joint_readings(q, joint_types, n)
-        self.joint_types = joint_types
+        n = self._set_readings(q, legs, joint_types, lines, source)
         d = as_matrix(np.asarray(distance, dtype=float).reshape(-1, 1)
                       if np.ndim(distance) == 1 else distance, 1, "distance", rows=n)[:, 0]
         bad = np.flatnonzero(~((d > 0) & (d < MAX_LENGTH_MM)))
@@ -55,34 +50,13 @@ class BallbarMeasurements:
         if names.shape != (n,):
             raise ValueError(f"setup: {names.size} names; expected {n}, one per pose")
         self.setup = names
-        self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
-        self.source = None if source is None else str(source)
-
-    def __len__(self) -> int:
-        return int(self.legs.shape[0])
-
-    @property
-    def n_poses(self) -> int:
-        return len(self)
-
-    @property
-    def n_joints(self) -> int:
-        return int(self.q.shape[1])
-
-    def where(self, k: int) -> str:
-        """Where pose ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
-        loc = f"pose {k}" if self.lines is None else f"line {int(self.lines[k])}"
-        return f"{self.source}, {loc}" if self.source and self.lines is not None else loc
 
     def subset(self, rows: Any) -> BallbarMeasurements:
         """The poses ``rows`` (indices or a mask), in that order, lines and source kept."""
-        rows = np.arange(len(self))[_row_index(rows)]
-        if rows.size == 0:
-            raise ValueError("rows: no measurements selected")
+        rows = self._rows(rows)
         return BallbarMeasurements(self.q[rows], self.legs[rows], self.setup[rows],
                                    self.distance[rows], joint_types=self.joint_types,
-                                   lines=None if self.lines is None else self.lines[rows],
-                                   source=self.source)
+                                   lines=self._lines_at(rows), source=self.source)
 
     def to_csv(self, path: Any) -> None:
         """Write the data file (docs/ballbar.md), atomically: :func:`iwr.ballbar.write_ballbar`."""

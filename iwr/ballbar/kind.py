@@ -40,9 +40,9 @@ class BallbarKind(MeasurementKind):
     description = "a ballbar's distance"
     frame = "{0}"
     determines_world_frame = False
-    #: No command report yet (the report classes are written for leg and point residuals):
-    #: ``iwr calibrate`` refuses ballbar data before any work; ``iwr.calibrate`` takes them.
-    report = ""
+    #: The report of a calibration (``iwr calibrate``, ``iwr report``): the distance residuals
+    #: per set-up, the balls and offsets, what a ballbar cannot see.
+    report = "iwr.reporting.ballbar_calibration:BallbarCalibrationReport"
 
     def owns(self, data: Any) -> bool:
         return isinstance(data, BallbarMeasurements)

@@ -7,22 +7,18 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from ..effects import refuse as refuse_effects
+from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
 from .data import BallbarMeasurements
 from .setup import BallbarSetup
 
 __all__ = ["BallbarProblem", "FAILED_RESIDUAL"]
 
-#: The residual (mm) of a pose whose forward kinematics fails (as the tracker problem's).
-FAILED_RESIDUAL = 1e3
 
-
-class BallbarProblem:
-    """The least-squares problem of ballbar data: the surface of :class:`iwr.Problem`
-    (``n_params``, ``parameter_names``, ``lower``, ``upper``, ``cost``, ``residuals``,
-    ``jacobian``, ``residuals_and_jacobian``, ``cost_batch``), so that every method runs on it
-    through :class:`iwr.ReducedProblem`.
+class BallbarProblem(ProblemBase):
+    """The least-squares problem of ballbar data: a :class:`iwr.problem_base.ProblemBase` (its
+    checks, bounds, names, batch costs and failed poses), so that every method runs on it
+    through :class:`iwr.ReducedProblem`; what it adds is its residual model.
 
     Residual k is ``(|T_05,k P_s - F_s| + o_s - d_k) * w_k`` (mm): the predicted reading minus
     the measured one, for pose k measured in set-up s, with ``T_05,k`` the platform pose by
@@ -40,49 +36,20 @@ class BallbarProblem:
     its weight) and a zero Jacobian row, so every method sees a huge but finite cost.
     """
 
+    data_type = BallbarMeasurements
+    data_name = "iwr.ballbar.BallbarMeasurements"
+    setup_type = BallbarSetup
+    setup_name = "iwr.ballbar.BallbarSetup"
+    setup_owner = "set-ups'"
+    # issue 23: the effects are modelled on pose data only so far (docs/effects.md)
+    effects_what = "ballbar data (BallbarProblem)"
+
     def __init__(self, robot: Robot, setup: BallbarSetup, measurements: BallbarMeasurements,
                  bounds: Any = None, *, reference: Any = None, weights: Any = None) -> None:
-        if not isinstance(robot, Robot):
-            raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-        # issue 23: the effects are modelled on pose data only so far (docs/effects.md)
-        refuse_effects(robot, "ballbar data (BallbarProblem)")
-        if not isinstance(setup, BallbarSetup):
-            raise TypeError(f"setup: expected an iwr.ballbar.BallbarSetup, got "
-                            f"{type(setup).__name__}")
-        if not isinstance(measurements, BallbarMeasurements):
-            raise TypeError(f"measurements: expected an iwr.ballbar.BallbarMeasurements, got "
-                            f"{type(measurements).__name__}")
-        if measurements.n_joints != robot.n_joints:
-            raise ValueError(f"measurements: {measurements.n_joints} joint readings per pose, "
-                             f"but robot {robot.name!r} has {robot.n_joints} joints")
-        jt = measurements.joint_types
-        if jt is not None and jt != robot.joint_types:
-            raise ValueError(f"measurements: joint types {jt!r} do not match robot "
-                             f"{robot.name!r}, {robot.joint_types!r}")
-        self.robot, self.setup, self.measurements = robot, setup, measurements
+        self._accept(robot, measurements, setup)
         self.bar = measurements.setup_index(setup)
-        n = self.n_params
-        if bounds is None:
-            lo_r, hi_r = robot.default_bounds()
-            lo_s, hi_s = setup.default_bounds()
-            lower, upper = np.concatenate([lo_r, lo_s]), np.concatenate([hi_r, hi_s])
-        else:
-            try:
-                lower, upper = (np.broadcast_to(np.array(b, dtype=float), (n,)).copy()
-                                for b in bounds)
-            except (TypeError, ValueError):
-                raise ValueError(f"bounds: expected None or a pair (lower, upper) of {n} "
-                                 "values") from None
-        names = self.parameter_names
-        for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
-            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-                raise ValueError(f"bounds: parameter {i} ({names[i]}) has lower {lo}, upper "
-                                 f"{hi}; bounds must be finite with lower < upper")
-        self.lower, self.upper = lower, upper
-        ref = np.zeros(robot.n_params) if reference is None else np.asarray(reference, float)
-        if ref.shape != (robot.n_params,):
-            raise ValueError(f"reference: shape {ref.shape}; expected ({robot.n_params},)")
-        self.reference = ref
+        self._set_bounds(bounds)
+        ref = self._set_reference(reference)
         w = np.ones(len(measurements)) if weights is None else np.array(weights, dtype=float)
         if w.shape != (len(measurements),) or not np.all(np.isfinite(w) & (w > 0)):
             raise ValueError(f"weights: expected {len(measurements)} finite values > 0, one per "
@@ -92,15 +59,9 @@ class BallbarProblem:
             self._kernel = _core.TrackerObjective(
                 robot._geometry, "probe", np.zeros(6), np.zeros((1, 3)), np.zeros(6), 1.0,
                 measurements.q, measurements.legs, np.zeros((len(measurements), 12)),
-                np.ascontiguousarray(ref), robot.home_pose)
+                ref, robot.home_pose)
         except _core.ForwardKinematicsError as exc:
-            k = getattr(exc, "pose", None)
-            where = measurements.where(k) if isinstance(k, int) else "a pose"
-            err = _core.ForwardKinematicsError(
-                f"{where}: the leg readings have no forward kinematics for the robot at the "
-                f"reference parameters ({exc})")
-            err.pose = k
-            raise err from None
+            raise reference_error(exc, measurements) from None
 
     def with_weights(self, weights: Any) -> BallbarProblem:
         """The same problem with residual k multiplied by ``weights[k]`` (e.g. ``1 / sigma_k``)."""
@@ -109,41 +70,12 @@ class BallbarProblem:
 
     # -- sizes and names ----------------------------------------------------------------------
     @property
-    def n_params(self) -> int:
-        return self.robot.n_params + self.setup.n_params
-
-    @property
-    def n_robot_params(self) -> int:
-        return self.robot.n_params
-
-    @property
-    def n_poses(self) -> int:
-        return len(self.measurements)
-
-    @property
     def n_residuals(self) -> int:
         return len(self.measurements)
-
-    n_observations = n_residuals
-
-    @property
-    def parameter_names(self) -> list[str]:
-        return self.robot.parameter_names + self.setup.parameter_names
-
-    @property
-    def angle_parameters(self) -> np.ndarray:
-        return np.concatenate([self.robot.angle_parameters, np.zeros(self.setup.n_params, bool)])
 
     def x0(self) -> np.ndarray:
         """The nominal robot and the nominal set-ups: zeros."""
         return np.zeros(self.n_params)
-
-    def _x(self, x: Any) -> np.ndarray:
-        arr = np.ascontiguousarray(x, dtype=float)
-        if arr.shape != (self.n_params,):
-            raise ValueError(f"x: shape {arr.shape}; expected ({self.n_params},): the robot's "
-                             f"{self.robot.n_params} then the set-ups' {self.setup.n_params}")
-        return arr
 
     def _kernel_x(self, x: np.ndarray) -> np.ndarray:
         return np.concatenate([x[: self.robot.n_params], np.zeros(12)])
@@ -176,10 +108,6 @@ class BallbarProblem:
         """Predicted minus measured readings, weighted, (N,)."""
         r = self.predicted(x) - self.measurements.distance
         return self.weights * np.where(np.isnan(r), FAILED_RESIDUAL, r)
-
-    def cost(self, x: Any) -> float:
-        r = self.residuals(x)
-        return float(r @ r)
 
     def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
         """Residuals and their exact Jacobian (N, n_params)."""
@@ -214,38 +142,10 @@ class BallbarProblem:
         jac[bad] = 0.0
         return self.weights * r, jac * self.weights[:, None]
 
-    def jacobian(self, x: Any) -> np.ndarray:
-        return self.residuals_and_jacobian(x)[1]
-
-    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
-        """Costs of the rows of ``X`` (M, n_params): one forward kinematics of every pose per
-        row (C++), the distances in NumPy; ``workers`` is accepted for the interface and not
-        used (the rows are evaluated one after the other, so the result does not depend on
-        it)."""
-        arr = np.ascontiguousarray(X, dtype=float)
-        if arr.ndim != 2 or arr.shape[1] != self.n_params:
-            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
-        if workers is not None and workers < 1:
-            raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
-        return np.array([self.cost(row) for row in arr])
-
     # -- diagnostics --------------------------------------------------------------------------
     def failures(self, x: Any) -> list[tuple[int, str]]:
         """Poses whose forward kinematics fails at ``x``: ``[(pose index, message)]``."""
         return [(int(k), str(m)) for k, m in self._kernel.failures(self._kernel_x(self._x(x)))]
-
-    def check(self, x: Any) -> None:
-        """Raise :class:`iwr.ForwardKinematicsError` naming the first pose (and its line) whose
-        forward kinematics fails at ``x``, if any."""
-        bad = self.failures(x)
-        if bad:
-            k, msg = bad[0]
-            err = _core.ForwardKinematicsError(
-                f"{self.measurements.where(k)}: {msg} ({len(bad)} of {self.n_poses} poses fail "
-                f"at this parameter vector; their residuals are the penalty "
-                f"{FAILED_RESIDUAL:g} mm)")
-            err.pose = k
-            raise err
 
     def platform_frames(self, x: Any) -> np.ndarray:
         """4x4 transforms (N, 4, 4) of {5} in {0} by forward kinematics; NaN where it fails."""

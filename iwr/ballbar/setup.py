@@ -142,6 +142,11 @@ class BallbarSetup:
     def parameter_names(self) -> list[str]:
         return [f"ballbar.{b.name}.{f}" for b in self.bars for f in _FIELDS]
 
+    @property
+    def angle_parameters(self) -> np.ndarray:
+        """Which set-up parameters are angles: none (centres and offsets in mm)."""
+        return np.zeros(self.n_params, dtype=bool)
+
     def default_bounds(self) -> tuple[np.ndarray, np.ndarray]:
         """+-2 mm for each ball's centre, +-1 mm for the length offset, about the nominal."""
         half = np.tile([BALL_BOUND_MM] * 6 + [OFFSET_BOUND_MM], self.n_setups)

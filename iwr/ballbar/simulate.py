@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
 
-from ..noise import MIN_SIGMA
+from ..noise import check_sigmas
 from ..robot import Robot
 from ..simulation import Noise, UnreachableError, sample_poses
 from ..transforms import pose_matrix
@@ -27,13 +26,7 @@ class BallbarNoise:
     distance: float = 0.001
 
     def __post_init__(self) -> None:
-        v = self.distance
-        if isinstance(v, bool) or not (isinstance(v, (int, float)) and math.isfinite(v)
-                                       and v >= 0):
-            raise ValueError(f"BallbarNoise.distance: {v!r}; expected a finite number >= 0 (mm)")
-        if 0 < v < MIN_SIGMA:
-            raise ValueError(f"BallbarNoise.distance: {v!r} is below any instrument's noise; "
-                             f"expected 0 (none) or at least {MIN_SIGMA:g}")
+        check_sigmas(self)
 
     @property
     def is_zero(self) -> bool:

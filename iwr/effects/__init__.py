@@ -18,19 +18,20 @@ Like the geometric errors, they are corrections to the values the robot file hol
 (:meth:`Effect.values`), so that a calibrated robot file holds the identified values.
 
 A new effect is a class implementing :class:`Effect` in its own module and one
-:func:`register` line. This module imports nothing of iwr (the implementations are imported
-on first use), so that the robot description may use it.
+:func:`register` line (:class:`iwr._registry.Registry`, the kinds' registry type). This module
+imports nothing of iwr but that registry (the implementations are imported on first use), so
+that the robot description may use it.
 """
 
 from __future__ import annotations
 
 import abc
-import importlib
-import threading
 from collections.abc import Mapping, Sequence
 from typing import Any, ClassVar
 
 import numpy as np
+
+from .._registry import Registry
 
 __all__ = [
     "Effect",
@@ -139,23 +140,16 @@ class Effect(abc.ABC):
 
 # -- the registry ---------------------------------------------------------------------------
 
-_SPECS: dict[str, str | type[Effect]] = {}
-_LOADED: dict[str, type[Effect]] = {}
-_LOCK = threading.RLock()
+#: The effects' classes by name, imported on first use (one registry type with the kinds').
+_EFFECTS: Registry[type[Effect]] = Registry(
+    "effect", lambda obj: isinstance(obj, type) and issubclass(obj, Effect),
+    "an Effect subclass")
 
 
 def register(name: str, effect: str | type[Effect]) -> None:
     """Make effect ``name`` known: ``effect`` an :class:`Effect` subclass, or
     ``"package.module:Class"`` imported on first use."""
-    if not isinstance(name, str) or not name.isidentifier():
-        raise ValueError(f"name: {name!r}; expected an identifier")
-    if not isinstance(effect, str) and not (isinstance(effect, type)
-                                            and issubclass(effect, Effect)):
-        raise TypeError(f"effect: expected an Effect subclass or 'module:Class', got {effect!r}")
-    with _LOCK:
-        if name in _SPECS:
-            raise ValueError(f"effect: {name!r} is already registered")
-        _SPECS[name] = effect
+    _EFFECTS.register(name, effect)
 
 
 register("compliance", "iwr.effects.builtin:LegCompliance")
@@ -164,25 +158,12 @@ register("thermal", "iwr.effects.builtin:LegThermal")
 
 def available() -> list[str]:
     """The registered effects' names."""
-    return list(_SPECS)
+    return _EFFECTS.names()
 
 
 def named(name: str) -> type[Effect]:
     """The class of the registered effect ``name``; ValueError naming the registered ones."""
-    if not isinstance(name, str) or name not in _SPECS:
-        raise ValueError(f"effect: {name!r} is not registered; registered: "
-                         + ", ".join(_SPECS))
-    with _LOCK:
-        if name not in _LOADED:
-            spec = _SPECS[name]
-            if isinstance(spec, str):
-                module, _, cls = spec.partition(":")
-                spec = getattr(importlib.import_module(module), cls)
-            if not (isinstance(spec, type) and issubclass(spec, Effect)) or spec.name != name:
-                raise TypeError(f"effect {name!r}: {_SPECS[name]!r} is not an Effect named "
-                                f"{name!r}")
-            _LOADED[name] = spec
-        return _LOADED[name]
+    return _EFFECTS.get(name)
 
 
 def read_table(effects: Any, where: str = "effects") -> tuple[Effect, ...]:
@@ -193,9 +174,9 @@ def read_table(effects: Any, where: str = "effects") -> tuple[Effect, ...]:
     if isinstance(effects, Mapping):
         out = []
         for name, table in effects.items():
-            if name not in _SPECS:
+            if name not in _EFFECTS:
                 raise ValueError(f"{where}.{name}: unknown effect; known: "
-                                 + ", ".join(_SPECS))
+                                 + ", ".join(_EFFECTS.names()))
             if isinstance(table, Effect):
                 out.append(table)
                 continue

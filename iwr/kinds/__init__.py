@@ -26,13 +26,13 @@ from __future__ import annotations
 import abc
 import contextlib
 import contextvars
-import importlib
 import numbers
 import os
-import threading
 from typing import Any, ClassVar
 
 import numpy as np
+
+from .._registry import Registry
 
 __all__ = [
     "MeasurementKind",
@@ -515,27 +515,16 @@ def data_fingerprint(kind: str, robot: Any, data: Any, *, poses: Any = None, wei
 
 # -- the registry -----------------------------------------------------------------------------
 
-_SPECS: dict[str, str | MeasurementKind] = {}
-_LOADED: dict[str, MeasurementKind] = {}
-_LOCK = threading.RLock()  # one instance per kind, whichever thread asks first
+#: The kinds by name, one instance each, made on first use (docs/kinds.md).
+_KINDS: Registry[MeasurementKind] = Registry(
+    "kind", lambda obj: isinstance(obj, MeasurementKind), "a MeasurementKind",
+    make=lambda cls: cls())
 
 
 def register(name: str, kind: str | MeasurementKind) -> None:
     """Make kind ``name`` known: ``kind`` is an instance, or ``"package.module:Class"`` imported
     (and instantiated) on first use. Data of the kind carry ``kind == name``."""
-    if not isinstance(name, str) or not name.isidentifier():
-        raise ValueError(f"name: {name!r}; expected an identifier")
-    if name in _SPECS:
-        raise ValueError(f"kind: {name!r} is already registered")
-    if not isinstance(kind, (str, MeasurementKind)):
-        raise TypeError(f"kind: expected a MeasurementKind or 'module:Class', got "
-                        f"{type(kind).__name__}")
-    if isinstance(kind, MeasurementKind) and kind.name != name:
-        raise ValueError(f"kind: {type(kind).__name__} is named {kind.name!r}, not {name!r}")
-    with _LOCK:
-        if name in _SPECS:
-            raise ValueError(f"kind: {name!r} is already registered")
-        _SPECS[name] = kind
+    _KINDS.register(name, kind)
 
 
 register("pose", "iwr.kinds.pose:PoseKind")
@@ -544,43 +533,23 @@ register("probe", "iwr.tracker.kind:ProbeKind")
 register("ballbar", "iwr.ballbar.kind:BallbarKind")
 
 
-def _load(name: str) -> MeasurementKind:
-    kind = _LOADED.get(name)
-    if kind is not None:
-        return kind
-    with _LOCK:
-        if name not in _LOADED:
-            spec = _SPECS[name]
-            if isinstance(spec, str):
-                module, _, cls = spec.partition(":")
-                spec = getattr(importlib.import_module(module), cls)()
-            if not isinstance(spec, MeasurementKind) or spec.name != name:
-                raise TypeError(f"kind {name!r}: {_SPECS[name]!r} is not a MeasurementKind "
-                                f"named {name!r}")
-            _LOADED[name] = spec
-        return _LOADED[name]
-
-
 def named(name: str) -> MeasurementKind:
     """The registered kind named ``name``; ValueError naming the registered ones otherwise."""
-    if not isinstance(name, str) or name not in _SPECS:
-        raise ValueError(f"kind: {name!r} is not registered; registered: "
-                         + ", ".join(list(_SPECS)))
-    return _load(name)
+    return _KINDS.get(name)
 
 
 def available() -> list[str]:
     """The registered kinds' names."""
-    return list(_SPECS)
+    return _KINDS.names()
 
 
 def of(data: Any) -> MeasurementKind:
     """The kind of ``data`` (its ``kind`` attribute); TypeError naming the type otherwise."""
     name = getattr(data, "kind", None)
-    kind = _load(name) if isinstance(name, str) and name in _SPECS else None
+    kind = _KINDS.get(name) if name in _KINDS else None
     if kind is None or not kind.owns(data):
         raise TypeError(f"measurements: expected an iwr.Measurements or another registered kind "
-                        f"of data ({', '.join(list(_SPECS))}), got {type(data).__name__}"
+                        f"of data ({', '.join(_KINDS.names())}), got {type(data).__name__}"
                         + (f" of unregistered kind {name!r}" if isinstance(name, str)
                            and kind is None else ""))
     return kind
@@ -589,7 +558,7 @@ def of(data: Any) -> MeasurementKind:
 def for_robot(robot: Any) -> MeasurementKind:
     """The kind of data ``robot``'s description measures (its ``[tracker]`` table, if any); a
     fallback kind (the pose in {0}) only when no other applies."""
-    loaded = [_load(name) for name in list(_SPECS)]
+    loaded = [_KINDS.get(name) for name in _KINDS.names()]
     for kind in sorted(loaded, key=lambda k: k.fallback):
         if kind.applies_to(robot):
             return kind

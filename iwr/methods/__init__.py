@@ -53,6 +53,7 @@ from ..problem import Problem
 from ..result import STATUSES, IdentificationResult, ResultFileError, load_result
 from ..robot import Robot
 from .de import de_method
+from .de_batch import de_on_batch
 from .efficient import efficient_method
 from .lm import levenberg_marquardt
 from .nlopt import bobyqa, crs2
@@ -214,20 +215,10 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
 
         active = identifiability(robot, measurements, x0_arr).active
     mask = active_mask(problem, active)
-    if max_evaluations is not None:
-        options["max_evaluations"] = max_evaluations
     if method == "efficient":
         options["noise"] = noise
-    start = time.perf_counter()
-    result = METHODS[method](
-        ReducedProblem(problem, mask, x0_arr), seed=seed, callback=callback, progress=progress,
-        **options,
-    )
-    if not np.isfinite(result.wall_time):
-        result["wall_time"] = time.perf_counter() - start
-    result["method"] = method
-    result["parameter_names"] = problem.parameter_names
-    result["active"] = mask
+    result = run_method(problem, method, mask, x0_arr, max_evaluations=max_evaluations,
+                        seed=seed, callback=callback, progress=progress, **options)
     if method == "efficient":  # its own objective and its own fit test
         result.check_finite()
         return result
@@ -245,10 +236,64 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
     except KeyboardInterrupt:
         result.update(success=False, status="interrupted",
                       message=f"{result.message}; interrupted (Ctrl-C)")
+    _conclude(result, problem, noise, mask)
+    return result
+
+
+def run_method(problem: Any, method: str, active: np.ndarray, x0: np.ndarray, *,
+               max_evaluations: int | None = None, seed: int | None = None,
+               callback: Callable[..., Any] | None = None, progress: bool | None = None,
+               batch_de: bool = False, **options: Any) -> IdentificationResult:
+    """Run ``method`` (a name of :data:`METHODS`) on ``problem`` (any kind's,
+    :class:`iwr.problem_base.LeastSquaresProblem`) restricted to the ``active`` parameters,
+    the others held at ``x0``, and stamp what every result carries: ``method``,
+    ``parameter_names``, ``active``, and ``wall_time`` where the method did not measure it.
+    ``batch_de``: ``"de"`` runs on the problem's ``cost_batch``, polished by LM
+    (:func:`iwr.methods.de_batch.de_on_batch`: the kinds whose problems have no DE engine of
+    their own)."""
+    reduced = ReducedProblem(problem, active, x0)
+    start = time.perf_counter()
+    if batch_de and method == "de":
+        result = de_on_batch(reduced, max_evaluations=max_evaluations, seed=seed,
+                             callback=callback, progress=progress, **options)
+    else:
+        if method not in METHODS:
+            raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+        if max_evaluations is not None:
+            options["max_evaluations"] = max_evaluations
+        result = METHODS[method](reduced, seed=seed, callback=callback, progress=progress,
+                                 **options)
+    if not np.isfinite(result.wall_time):
+        result["wall_time"] = time.perf_counter() - start
+    result["method"] = method
+    result["parameter_names"] = problem.parameter_names
+    result["active"] = active
+    return result
+
+
+def settle(result: IdentificationResult, problem: Any, noise: Any, active: np.ndarray) -> None:
+    """What a result on a kind's problem is (after :func:`run_method`): ``fun`` re-evaluated at
+    ``x`` (``problem.cost``), "failed" where a pose's model cannot be evaluated there
+    (``problem.failures``, naming the first pose's line), finite, and "converged" only when
+    the fit is sane (:func:`_check_fit` with ``noise``, the chi-square test's model, or None)."""
+    result["fun"] = problem.cost(result.x)
+    bad = problem.failures(result.x)
+    if bad:
+        k, msg = bad[0]
+        result.update(success=False, status="failed",
+                      message=f"{result.message}; {len(bad)} poses have no forward kinematics at "
+                      f"the result ({problem.measurements.where(k)}: {msg})")
+    _conclude(result, problem, noise, active)
+
+
+def _conclude(result: IdentificationResult, problem: Any, noise: Any,
+              active: np.ndarray) -> None:
+    """Refuse a non-finite result; then, unless interrupted, the fit check."""
     result.check_finite()
     if result.status != "interrupted" and np.all(np.isfinite(result.x)):
-        _check_fit(result, problem, noise, mask)
-    return result
+        # "converged" only when the fit is sane: the identified errors within their plausible
+        # size modulo the null directions (iwr.estimation.fit_check), and the noise's test.
+        _check_fit(result, problem, noise, active)
 
 
 def _check_fit(result: IdentificationResult, problem: Any, noise: Any,

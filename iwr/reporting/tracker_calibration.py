@@ -16,6 +16,7 @@ from .._io import atomic_write_text, jsonable
 from .calibration import CalibrationReport, _src
 from .figures import histogram, new_figure
 from .html import Page
+from .setup_parameters import SetupParameters
 
 __all__ = ["TrackerCalibrationReport"]
 
@@ -32,7 +33,7 @@ def _fmt(v: float, spec: str) -> str:
     return format(v, spec) if math.isfinite(v) else "-"
 
 
-class TrackerCalibrationReport(CalibrationReport):
+class TrackerCalibrationReport(SetupParameters, CalibrationReport):
     """A calibration run on laser-tracker data (docs/tracker.md): the same report as for leg
     data, with what belongs to tracker data.
 
@@ -51,14 +52,6 @@ class TrackerCalibrationReport(CalibrationReport):
     @property
     def setup(self) -> Any:
         return self.robot.tracker
-
-    @property
-    def n_robot(self) -> int:
-        return self.robot.n_params
-
-    @property
-    def parameter_names(self) -> list[str]:
-        return self.robot.parameter_names + self.setup.parameter_names
 
     def _problem(self, data: Any) -> tuple[Any, np.ndarray]:
         """The problem of ``data`` and its "before" point: the nominal robot with the data's own
@@ -191,35 +184,6 @@ class TrackerCalibrationReport(CalibrationReport):
                          f"{math.degrees(float(np.linalg.norm(off[3:]))):.5f}"])
         return rows
 
-    def _std(self) -> np.ndarray | None:
-        unc = self.uncertainty
-        if unc is None:
-            return None
-        std = np.asarray(unc.std, dtype=float)
-        return std if std.shape == (len(self.parameter_names),) else None
-
-    def parameter_rows(self) -> list[dict[str, Any]]:
-        active = self.result.active
-        n = len(self.parameter_names)
-        active = np.ones(n, bool) if active is None else np.asarray(active, dtype=bool)
-        left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
-        std = self._std()
-        angles = np.concatenate([self.robot.angle_parameters, self.setup.angle_parameters])
-        x = np.asarray(self.result.x, dtype=float)
-        rows = []
-        for i, name in enumerate(self.parameter_names):
-            if not active[i]:
-                status = ("held (null direction: not identifiable)" if name in left_out
-                          else "held fixed")
-            elif name in left_out:
-                status = "identified, but on a null direction: arbitrary"
-            else:
-                status = "identified"
-            sd = None if std is None or not np.isfinite(std[i]) else float(std[i])
-            rows.append({"name": name, "value": float(x[i]), "std": sd,
-                         "unit": "rad" if angles[i] else "mm", "status": status})
-        return rows
-
     def null_sentence(self) -> str:
         ns = self.identifiability
         if ns is None:
@@ -234,50 +198,16 @@ class TrackerCalibrationReport(CalibrationReport):
                 "the tool pose in the tracker frame does not depend on the choice "
                 "(docs/tracker.md).")
 
-    def null_text(self, terms: int = 4) -> str:
-        """The null directions, one line each: the held parameter and the largest terms of its
-        combination (in units of the column scaling, so that mm and rad compare)."""
-        ns = self.identifiability
-        lines = [f"rank {ns.rank} of {len(ns.parameter_names)}: {len(ns.left_out)} null "
-                 "directions, each a combination of parameters that changes nothing measured"]
-        for k, name in enumerate(ns.left_out):
-            v = ns.vectors[:, k]
-            scaled = np.abs(v * ns.scale)
-            order = [int(i) for i in np.argsort(-scaled) if scaled[i] > 1e-6 * scaled.max()]
-            shown = " ".join(f"{v[i]:+.3g} {ns.parameter_names[i]}" for i in order[:terms])
-            more = f" (+{len(order) - terms} more)" if len(order) > terms else ""
-            lines.append(f"  {name:<15} {shown}{more}")
-        return "\n".join(lines)
-
     def to_dict(self) -> dict[str, Any]:
         hidden, total = self.hidden_counts()
         reg = self.registration_rows()
         d_nom, a_nom, d_guess, a_guess = self.registration_change()
-        out: dict[str, Any] = {
-            "format": "iwr-calibration-summary", "version": 1, "data_kind": self.setup.kind,
-            "robot": self.robot_name or self.robot.name, "data": self.data_name,
-            "n_identification": len(self.identification),
-            "n_validation": len(self.validation) if self.held_out else 0,
-            "method": self.result.method, "nfev": int(self.result.nfev),
-            "wall_time": float(self.result.wall_time),
+        return self._summary(self.setup.kind, {
             "cost_mm2": self.costs(), "point_residuals_mm": self.residuals(),
             "points_hidden": hidden, "points_expected": total,
-            "accuracy": self.accuracy.to_dict(),
-            "accuracy_on": "validation poses" if self.held_out else "identification poses",
             "registration": {label: pose.tolist() for label, pose in reg},
             "registration_change": {"from_nominal_mm": d_nom, "from_nominal_deg": a_nom,
-                                    "from_guess_mm": d_guess, "from_guess_deg": a_guess},
-            "parameters": self.parameter_rows(),
-        }
-        ns = self.identifiability
-        if ns is not None:
-            out["identifiability"] = {"rank": int(ns.rank), "n_params": len(ns.parameter_names),
-                                      "left_out": list(ns.left_out)}
-        if self.uncertainty is not None:
-            out["noise_sigma_mm"] = float(self.uncertainty.sigma)
-            out["noise_sigma_source"] = self.uncertainty.source
-        self._add_fit(out)
-        return jsonable(out, finite_only=True)
+                                    "from_guess_mm": d_guess, "from_guess_deg": a_guess}})
 
     # -- text -----------------------------------------------------------------------------------
     def _accuracy_line(self, label: str, e: Any) -> str:
@@ -437,10 +367,7 @@ class TrackerCalibrationReport(CalibrationReport):
         unc = self.uncertainty
         if unc is not None:
             page.paragraph(f"Standard deviations: {unc.describe()}.")
-        page.table((["parameter", "value", "std", "unit", "status"],
-                    [[row["name"], f"{row['value']:.6g}",
-                      "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
-                      row["status"]] for row in self.parameter_rows()]), "params")
+        page.table(self.parameter_table(), "params")
         ns = self.identifiability
         if ns is not None:
             page.heading("Identifiability")
@@ -485,10 +412,7 @@ class TrackerCalibrationReport(CalibrationReport):
         if "residuals.png" in figures:
             md += ["", "![Point residuals per reflector](residuals.png)"]
         md += ["", "## Identified parameters", "",
-               *table(["parameter", "value", "std", "unit", "status"],
-                      [[row["name"], f"{row['value']:.6g}",
-                        "" if row["std"] is None else f"{row['std']:.3g}", row["unit"],
-                        row["status"]] for row in self.parameter_rows()])]
+               *table(*self.parameter_table())]
         if self.identifiability is not None:
             md += ["", "## Identifiability", "", self.null_sentence(), "", "```",
                    self.null_text(), "```"]

@@ -5,12 +5,10 @@ robot carries a tracker setup (``Robot.with_tracker``) and the data are
 
 from __future__ import annotations
 
-import time
 from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from scipy.optimize import OptimizeResult
 
 from .. import kinds
 from ..analysis.accuracy import Accuracy, PoseErrors
@@ -49,49 +47,6 @@ def tracker_simulate(robot: Robot, n_poses: int, *, seed: int | None, x: Any = N
                             tracker_noise=tracker, hidden=hidden)
 
 
-def _de_on_batch(reduced: Any, *, max_evaluations: int | None, seed: int | None,
-                 callback: Callable[..., Any] | None, progress: bool | None,
-                 polish: bool = True, **options: Any) -> Any:
-    """DE (any strategy) on the tracker objective's ``cost_batch`` (one Python call per
-    generation, the population evaluated in C++ across threads), polished by LM."""
-    from ..methods.de import _STATUS, differential_evolution
-    from ..methods.lm import levenberg_marquardt
-    from ..methods.reduced import ReducedProblem
-    from ..result import IdentificationResult
-
-    start = time.perf_counter()
-    box = np.column_stack([reduced.lower, reduced.upper])
-    if max_evaluations is not None:
-        options["max_evaluations"] = int(max_evaluations)
-    if callback is not None:
-        user = callback
-
-        def callback(res: Any) -> Any:  # the user sees full vectors, as from every method
-            return user(OptimizeResult(x=reduced.full(res.x), fun=res.fun,
-                                       nfev=res.get("nfev", 0), nit=res.get("nit", 0)))
-    raw = differential_evolution(reduced.cost_batch, box, seed=seed, callback=callback,
-                                 progress=progress, **options)
-    x = reduced.full(raw.x)
-    fun, nfev = float(raw.fun), int(raw.nfev)
-    success, status = bool(raw.success), _STATUS.get(str(raw.reason), "failed")
-    message = str(raw.message)
-    interrupted = status in ("interrupted", "callback")
-    if polish and not interrupted:
-        lm = levenberg_marquardt(ReducedProblem(reduced.problem, reduced.active, x),
-                                 progress=progress)
-        nfev += int(lm.nfev)
-        success, status = bool(lm.success), str(lm.status)
-        message = f"{message}; polished by Levenberg-Marquardt: {lm.message}"
-        if lm.fun <= fun:
-            x, fun = lm.x, float(lm.fun)
-    return IdentificationResult(x=x, fun=fun, nfev=nfev, nit=int(raw.get("nit", 0)),
-                                success=success, status=status, message=message,
-                                history={k: np.asarray(v) for k, v in raw.history.items()},
-                                wall_time=time.perf_counter() - start,
-                                settings={**dict(raw.get("settings") or {}),
-                                          "polish": bool(polish), "objective": "cost_batch"})
-
-
 def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: str = "lm", *,
                      noise: Any = None, weighted: bool | None = None, bounds: Any = None,
                      x0: Any = None, active: Any = None, max_evaluations: int | None = None,
@@ -112,8 +67,8 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     chi-square test of the fit (:func:`iwr.estimation.fit_check`: the noise-weighted statistic
     minimised to first order around ``x``) to "converged", on reflector points; probe data take
     a noise model in the efficient estimator only."""
-    from ..methods import METHODS, _check_fit
-    from ..methods.reduced import ReducedProblem, active_mask
+    from ..methods import METHODS, run_method, settle
+    from ..methods.reduced import active_mask
 
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
@@ -155,39 +110,16 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
         ns = null_space(problem, start_x)
         active = [n not in set(ns.left_out) for n in problem.parameter_names]
     mask = active_mask(problem, active)
-    reduced = ReducedProblem(problem, mask, start_x)
-    t0 = time.perf_counter()
-    if method == "de":
-        result = _de_on_batch(reduced, max_evaluations=max_evaluations, seed=seed,
-                              callback=callback, progress=progress, **options)
-    else:
-        if max_evaluations is not None:
-            options["max_evaluations"] = max_evaluations
-        result = METHODS[method](reduced, seed=seed, callback=callback, progress=progress,
-                                 **options)
-    if not np.isfinite(result.wall_time):
-        result["wall_time"] = time.perf_counter() - t0
-    result["method"] = method
-    result["parameter_names"] = problem.parameter_names
-    result["active"] = mask
-    result["fun"] = problem.cost(result.x)
+    result = run_method(problem, method, mask, start_x, max_evaluations=max_evaluations,
+                        seed=seed, callback=callback, progress=progress, batch_de=True,
+                        **options)
     if weighted:
         result["cost_eq10"] = problem.cost_unweighted(result.x)
         # Said in the settings too, so that a saved result's fun is not read as unweighted.
         result["settings"] = {**dict(result.settings), "objective": {
             "weighted": True, "cost_eq10": float(result["cost_eq10"]),
             **kinds.of(measurements).noise_record(problem.noise)}}
-    bad = problem.failures(result.x)
-    if bad:
-        k, msg = bad[0]
-        result.update(success=False, status="failed",
-                      message=f"{result.message}; {len(bad)} poses have no forward kinematics at "
-                      f"the result ({measurements.where(k)}: {msg})")
-    result.check_finite()
-    if result.status != "interrupted" and np.all(np.isfinite(result.x)):
-        # "converged" only when the fit is sane, as for leg data: the identified errors within
-        # their plausible size modulo the null directions (iwr.estimation.fit_check).
-        _check_fit(result, problem, noise, mask)
+    settle(result, problem, noise, mask)
     return result
 
 

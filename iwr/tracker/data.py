@@ -7,14 +7,14 @@ from typing import Any
 
 import numpy as np
 
-from ..measurements import _row_index, as_matrix, joint_readings
+from ..measurements import RobotReadings, as_matrix
 from ..transforms import euler_zyx
 from .setup import TrackerSetup
 
 __all__ = ["TrackerMeasurements"]
 
 
-class TrackerMeasurements:
+class TrackerMeasurements(RobotReadings):
     """A calibration data set measured with a laser tracker, N poses.
 
     Parameters
@@ -45,12 +45,7 @@ class TrackerMeasurements:
                  source: str | None = None, point_sigma: Any = None) -> None:
         if (points is None) == (probe is None):
             raise ValueError("TrackerMeasurements: give either points (N, K, 3) or probe (N, 6)")
-        self.legs = as_matrix(legs, 6, "legs")
-        n = self.legs.shape[0]
-        if n == 0:
-            raise ValueError("legs: no measurements (0 rows)")
-        self.q = joint_readings(q, joint_types, n)
-        self.joint_types = joint_types
+        n = self._set_readings(q, legs, joint_types, lines, source)
         self.points: np.ndarray | None = None
         self.probe: np.ndarray | None = None
         if points is not None:
@@ -74,8 +69,6 @@ class TrackerMeasurements:
         else:
             self.kind = "probe"
             self.probe = as_matrix(probe, 6, "probe", rows=n)
-        self.lines = None if lines is None else np.asarray(lines, dtype=int).reshape(n)
-        self.source = None if source is None else str(source)
         self.point_sigma: np.ndarray | None = None
         if point_sigma is not None:
             self.point_sigma = self._check_sigma(point_sigma)
@@ -103,8 +96,8 @@ class TrackerMeasurements:
     def subset(self, rows: Any) -> TrackerMeasurements:
         """The measurements of the poses ``rows`` (indices or a mask), in that order, lines,
         source and uncertainties kept."""
-        rows = np.arange(len(self))[_row_index(rows)]
-        lines = None if self.lines is None else self.lines[rows]
+        rows = self._rows(rows)
+        lines = self._lines_at(rows)
         sig = None if self.point_sigma is None else self.point_sigma[rows]
         if self.points is not None:
             return TrackerMeasurements(self.q[rows], self.legs[rows], points=self.points[rows],
@@ -113,17 +106,6 @@ class TrackerMeasurements:
         assert self.probe is not None
         return TrackerMeasurements(self.q[rows], self.legs[rows], probe=self.probe[rows],
                                    joint_types=self.joint_types, lines=lines, source=self.source)
-
-    def __len__(self) -> int:
-        return int(self.legs.shape[0])
-
-    @property
-    def n_poses(self) -> int:
-        return len(self)
-
-    @property
-    def n_joints(self) -> int:
-        return int(self.q.shape[1])
 
     @property
     def n_reflectors(self) -> int:
@@ -136,11 +118,6 @@ class TrackerMeasurements:
         if self.points is None:
             return np.ones((len(self), 1), dtype=bool)
         return ~np.isnan(self.points[:, :, 0])
-
-    def where(self, k: int) -> str:
-        """Where pose ``k`` comes from: ``"data.csv, line 12"``, or ``"pose 3"``."""
-        loc = f"pose {k}" if self.lines is None else f"line {int(self.lines[k])}"
-        return f"{self.source}, {loc}" if self.source and self.lines is not None else loc
 
     def check_setup(self, setup: TrackerSetup) -> None:
         """Raise ValueError unless these data are of ``setup``'s kind and number of reflectors."""

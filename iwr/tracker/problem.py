@@ -8,23 +8,19 @@ import numpy as np
 
 from .. import _core
 from .._hooks import hook
-from ..effects import refuse as refuse_effects
+from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
 
 __all__ = ["TrackerProblem", "FAILED_RESIDUAL", "point_covariances"]
 
-#: The residual (mm) of every seen coordinate of a pose whose forward kinematics fails.
-FAILED_RESIDUAL = 1e3
 
-
-class TrackerProblem:
+class TrackerProblem(ProblemBase):
     """The identification problem for reflector points or probe poses in the tracker frame.
 
-    The same surface as :class:`iwr.Problem` (``n_params``, ``parameter_names``, ``lower``,
-    ``upper``, ``cost``, ``residuals``, ``jacobian``, ``residuals_and_jacobian``,
-    ``cost_batch``), so every method runs on it through :class:`iwr.ReducedProblem`.
+    A :class:`iwr.problem_base.ProblemBase`, as :class:`iwr.Problem`: every method runs on it
+    through :class:`iwr.ReducedProblem`.
 
     Parameters
     ----------
@@ -69,57 +65,27 @@ class TrackerProblem:
     :meth:`failures` names those poses and :meth:`check` raises on them.
     """
 
+    data_type = TrackerMeasurements
+    data_name = "iwr.tracker.TrackerMeasurements"
+    setup_type = TrackerSetup
+    setup_name = "iwr.tracker.TrackerSetup"
+    # issue 23: the effects are modelled on pose data only so far (docs/effects.md)
+    effects_what = "tracker data (TrackerProblem)"
+
     def __init__(self, robot: Robot, setup: TrackerSetup, measurements: TrackerMeasurements,
                  bounds: Any = None, *, center: Any = None, reference: Any = None,
                  noise: Any = None, weights_at: Any = None, whitening: Any = None) -> None:
-        if not isinstance(robot, Robot):
-            raise TypeError(f"robot: expected an iwr.Robot, got {type(robot).__name__}")
-        # issue 23: the effects are modelled on pose data only so far (docs/effects.md)
-        refuse_effects(robot, "tracker data (TrackerProblem)")
-        if not isinstance(setup, TrackerSetup):
-            raise TypeError(f"setup: expected an iwr.tracker.TrackerSetup, got "
-                            f"{type(setup).__name__}")
-        if not isinstance(measurements, TrackerMeasurements):
-            raise TypeError(f"measurements: expected an iwr.tracker.TrackerMeasurements, got "
-                            f"{type(measurements).__name__}")
-        if measurements.n_joints != robot.n_joints:
-            raise ValueError(f"measurements: {measurements.n_joints} joint readings per pose, "
-                             f"but robot {robot.name!r} has {robot.n_joints} joints")
-        jt = measurements.joint_types
-        if jt is not None and jt != robot.joint_types:
-            raise ValueError(f"measurements: joint types {jt!r} do not match robot "
-                             f"{robot.name!r}, {robot.joint_types!r}")
+        self._accept(robot, measurements, setup)
         measurements.check_setup(setup)
-        self.robot = robot
-        self.setup = setup
-        self.measurements = measurements
-        n = robot.n_params + setup.n_params
-        if bounds is None:
-            lo_r, hi_r = robot.default_bounds()
+        setup_bounds = None
+        if bounds is None or isinstance(bounds, str):
             lo_s, hi_s = setup.default_bounds()
             c = np.zeros(setup.n_params) if center is None else np.asarray(center, dtype=float)
             if c.shape != (setup.n_params,) or not np.all(np.isfinite(c)):
                 raise ValueError(f"center: expected {setup.n_params} finite values")
-            lower = np.concatenate([lo_r, lo_s + c])
-            upper = np.concatenate([hi_r, hi_s + c])
-        else:
-            try:
-                lower, upper = (np.broadcast_to(np.array(b, dtype=float), (n,)).copy()
-                                for b in bounds)
-            except (TypeError, ValueError):
-                raise ValueError(f"bounds: expected None or a pair (lower, upper) of {n} "
-                                 "values") from None
-        names = self.parameter_names
-        for i, (lo, hi) in enumerate(zip(lower, upper, strict=True)):
-            if not (np.isfinite(lo) and np.isfinite(hi) and lo < hi):
-                raise ValueError(f"bounds: parameter {i} ({names[i]}) has lower {lo}, upper "
-                                 f"{hi}; bounds must be finite with lower < upper")
-        self.lower, self.upper = lower, upper
-        ref = np.zeros(robot.n_params) if reference is None else np.asarray(reference, float)
-        if ref.shape != (robot.n_params,):
-            raise ValueError(f"reference: shape {ref.shape}; expected ({robot.n_params},)")
-        #: Where forward kinematics is solved once per pose (each evaluation starts there).
-        self.reference = ref
+            setup_bounds = (lo_s + c, hi_s + c)
+        self._set_bounds(bounds, setup_bounds)
+        ref = self._set_reference(reference)
         try:
             self._objective = _core.TrackerObjective(
                 robot._geometry, setup.kind,
@@ -128,20 +94,14 @@ class TrackerProblem:
                 setup.probe if setup.probe is not None else np.zeros(6),
                 setup.probe_length,
                 measurements.q, measurements.legs, measurements.tracker_points(setup),
-                np.ascontiguousarray(ref), robot.home_pose,
+                ref, robot.home_pose,
             )
         except _core.ForwardKinematicsError as exc:
             # The reference solve (at `reference`, from the home pose) failed: name the data row.
-            k = getattr(exc, "pose", None)
-            where = measurements.where(k) if isinstance(k, int) else "a pose"
-            err = _core.ForwardKinematicsError(
-                f"{where}: the leg readings have no forward kinematics for the robot at the "
-                f"reference parameters ({exc})")
-            err.pose = k
-            raise err from None
+            raise reference_error(exc, measurements) from None
         #: The per-pose whitening (N, 3 K, 3 K), lower triangular on the seen coordinates (zero
         #: rows and columns for unseen points), or None: unweighted.
-        self.whitening: np.ndarray | None = None
+        self.whitening = None
         self.noise = noise
         if whitening is not None:
             if noise is not None:
@@ -163,19 +123,6 @@ class TrackerProblem:
 
     # -- sizes and names ------------------------------------------------------------------------
     @property
-    def n_params(self) -> int:
-        return self.robot.n_params + self.setup.n_params
-
-    @property
-    def n_robot_params(self) -> int:
-        """The robot's ``4 n + 42``; the setup's parameters follow."""
-        return self.robot.n_params
-
-    @property
-    def n_poses(self) -> int:
-        return len(self.measurements)
-
-    @property
     def n_residuals(self) -> int:
         """``3 N n_points`` (unseen points included, as zeros)."""
         return int(self._objective.n_residuals)
@@ -192,14 +139,6 @@ class TrackerProblem:
         pts = self.measurements.tracker_points(self.setup).reshape(self.n_poses, -1, 3)
         return np.repeat(~np.isnan(pts[:, :, 0]).ravel(), 3)
 
-    @property
-    def parameter_names(self) -> list[str]:
-        return self.robot.parameter_names + self.setup.parameter_names
-
-    @property
-    def angle_parameters(self) -> np.ndarray:
-        return np.concatenate([self.robot.angle_parameters, self.setup.angle_parameters])
-
     def x0(self, guess: Any = None) -> np.ndarray:
         """A starting point: the nominal robot (zeros), the setup's parameters of a
         :class:`RegistrationGuess` (or zeros: the nominal setup)."""
@@ -208,24 +147,7 @@ class TrackerProblem:
             raise ValueError(f"guess: {xs.size} setup parameters; expected {self.setup.n_params}")
         return np.concatenate([np.zeros(self.robot.n_params), xs])
 
-    def split(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
-        """``(x_robot, x_setup)``."""
-        arr = self._x(x)
-        return arr[: self.robot.n_params], arr[self.robot.n_params:]
-
-    def _x(self, x: Any) -> np.ndarray:
-        arr = np.ascontiguousarray(x, dtype=float)
-        if arr.shape != (self.n_params,):
-            raise ValueError(f"x: shape {arr.shape}; expected ({self.n_params},): the robot's "
-                             f"{self.robot.n_params} then the setup's {self.setup.n_params}")
-        return arr
-
     # -- the objective --------------------------------------------------------------------------
-    @property
-    def weighted(self) -> bool:
-        """Whether the residuals are whitened by the noise (generalised least squares)."""
-        return self.whitening is not None
-
     def _whiten(self, r: np.ndarray) -> np.ndarray:
         """``W_k r_k`` per pose of residuals (or Jacobian rows) ``r`` (n_residuals, ...)."""
         if self.whitening is None:
@@ -258,37 +180,17 @@ class TrackerProblem:
         r, jac = self._objective.jacobian(self._x(x))
         return self._whiten(r), self._whiten(jac)
 
-    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
-        """Costs of the rows of ``X`` (M, n_params) across ``workers`` threads (``None``: all
-        cores), in C++; the result does not depend on the number of threads. Weighted: row by
-        row (the C++ objective carries no weights yet; ``workers`` unused)."""
-        arr = np.ascontiguousarray(X, dtype=float)
-        if arr.ndim != 2 or arr.shape[1] != self.n_params:
-            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
-        if workers is not None and workers < 1:
-            raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
+    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
+        """In C++ across ``workers`` threads; weighted: row by row (the C++ objective carries no
+        weights yet; ``workers`` unused)."""
         if self.whitening is not None:
-            return np.array([self.cost(row) for row in arr])
-        return self._objective.cost_batch(arr, 0 if workers is None else int(workers))
+            return np.array([self.cost(row) for row in X])
+        return self._objective.cost_batch(X, 0 if workers is None else int(workers))
 
     # -- diagnostics ----------------------------------------------------------------------------
     def failures(self, x: Any) -> list[tuple[int, str]]:
         """Poses whose forward kinematics fails at ``x``: ``[(pose index, message)]``."""
         return [(int(k), str(m)) for k, m in self._objective.failures(self._x(x))]
-
-    def check(self, x: Any) -> None:
-        """Raise :class:`iwr.ForwardKinematicsError` naming the first pose (and its line in the
-        data file) whose forward kinematics fails at ``x``, if any: a result whose cost holds a
-        penalty is not a calibration."""
-        bad = self.failures(x)
-        if bad:
-            k, msg = bad[0]
-            err = _core.ForwardKinematicsError(
-                f"{self.measurements.where(k)}: {msg} ({len(bad)} of {self.n_poses} poses fail "
-                "at this parameter vector; their residuals are the penalty "
-                f"{FAILED_RESIDUAL:g} mm)")
-            err.pose = k
-            raise err
 
     def platform_poses(self, x: Any) -> np.ndarray:
         """World poses of {5} (N, 6) by forward kinematics at ``x``; NaN rows where it fails."""
