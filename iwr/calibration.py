@@ -423,7 +423,7 @@ def from_result(
     if robot.effects:
         from .effects.job import check_job
 
-        check_job(robot, data, str(result.method or "lm"), None)
+        check_job(robot, data, None, None)  # the data it models; the method ran elsewhere
     x = np.asarray(result.x, dtype=float)
     if x.shape != (len(names),):
         raise ValueError(f"{x.size} parameters, but robot {robot.name!r} "

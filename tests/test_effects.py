@@ -226,8 +226,8 @@ def test_what_does_not_model_the_effects_refuses(with_effects, data):
     with pytest.raises(ValueError, match="thermal effect.*T_C"):
         EffectProblem(with_effects, Measurements(m.q, m.poses, m.legs,
                                                  joint_types=m.joint_types, payload=m.payload))
-    with pytest.raises(ValueError, match="no problem file"):
-        EffectProblem(with_effects, m).save("unused.iwrp")
+    with pytest.raises(ValueError, match="noise-weighted problem with effects has no problem"):
+        EffectProblem(with_effects, m, noise=iwr.Noise.realistic()).save("unused.iwrp")
     # iwr.accuracy models them (tests/test_effects_job.py): the effects' parameters are needed.
     with pytest.raises(ValueError, match="x: shape.*effect parameters"):
         iwr.accuracy(with_effects, m, x[:with_effects.n_params])

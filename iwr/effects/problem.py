@@ -170,9 +170,14 @@ class EffectProblem:
         return np.array([self.cost(x) for x in arr])
 
     def save(self, path: Any, **options: Any) -> None:
-        """The problem file of :meth:`iwr.Problem.save` (the same robot, data and bounds)."""
+        """The problem file of :meth:`iwr.Problem.save` (the same robot, data and bounds). A
+        noise-weighted problem is refused: the file's objective with effects is eq. (10)'s."""
         from ..problem import Problem
 
+        if self.whitening is not None:
+            raise ValueError("save: a noise-weighted problem with effects has no problem file "
+                             "(iwr-engine's objective with effects is eq. (10)'s, unweighted); "
+                             "save the problem without noise=")
         Problem(self.robot, self.measurements, (self.lower, self.upper)).save(path, **options)
 
     def __repr__(self) -> str:
