@@ -324,3 +324,30 @@ def test_monte_carlo_actual_accuracy_is_the_predicted_one():
     assert 0.9 < out["ratio"] < 1.1, out["ratio"]
     assert 0.8 < out["maha"].mean() < 1.25
     assert out["chi2_p"].min() > 1e-3
+
+
+def test_iwr_simulate_then_calibrate_a_ballbar_robot(tmp_path):
+    """`iwr simulate --robot` with a ballbar robot and the default (realistic) noise: the leg
+    and joint readings' noise with the bar's default (it refused the pose noise of
+    Noise.realistic()); its data go through `iwr calibrate`."""
+    import subprocess
+    import sys
+
+    robot = iwr.Robot.default().with_instrument("ballbar", {
+        "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
+        "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400],
+              "range": [300, 700]}})
+    robot.to_toml(tmp_path / "bb.toml")
+
+    def run(*args):
+        return subprocess.run([sys.executable, "-m", "iwr", *args], cwd=tmp_path,
+                              capture_output=True, text=True, timeout=900)
+
+    sim = run("simulate", "--robot", "bb.toml", "--poses", "120", "--seed", "3", "--out", "s")
+    assert sim.returncode == 0, sim.stdout + sim.stderr
+    assert "legs 0.002, joint_lengths 0.005, joint_angles 5e-06, ballbar distance 0.001" \
+        in sim.stdout, sim.stdout
+    cal = run("calibrate", "s/robot.toml", "s/measurements.csv", "--method", "lm", "--out", "c",
+              "--no-plots", "--no-progress")
+    assert cal.returncode == 0, cal.stdout + cal.stderr
+    assert (tmp_path / "c" / "report.html").is_file()

@@ -88,6 +88,17 @@ class BallbarKind(MeasurementKind):
             raise TypeError(f"--{given[0]}: not an option of ballbar data")
         return read_ballbar(path, robot.joint_types, ballbar_setup(robot))
 
+    def reading_noise(self, noise: Any) -> Any:
+        """An :class:`iwr.Noise` (``--noise realistic``, a robot's ``[noise]`` table) is the leg
+        and joint readings' noise (a ballbar measures no pose: its position and orientation
+        noise does not apply) with the bar's default noise, none when ``noise`` is zero; a pair
+        or a :class:`BallbarNoise` as it is."""
+        if isinstance(noise, Noise):
+            readings = Noise(legs=noise.legs, joint_lengths=noise.joint_lengths,
+                             joint_angles=noise.joint_angles)
+            return readings, BallbarNoise(0.0) if noise.is_zero else BallbarNoise()
+        return noise
+
     def noise_record(self, noise: Any) -> dict[str, Any]:
         readings, bar = split_noise(noise)
         return {"noise": None if readings is None else asdict(readings),
