@@ -73,3 +73,14 @@ class KindCase:
 def kind(request: pytest.FixtureRequest) -> KindCase:
     """Each kind of data in turn: a test written once for every kind."""
     return KindCase(request.param)
+
+
+@pytest.fixture(scope="module")
+def with_effects() -> Any:
+    """The default IWR robot with the realistic effects (docs/effects.md: the legs' compliance
+    under load and their thermal expansion), for the effects' test files."""
+    import iwr
+    from iwr.effects import api
+
+    robot = iwr.Robot.default()
+    return robot.with_effects(*api.realistic(robot))

@@ -27,11 +27,6 @@ def robot():
 
 
 @pytest.fixture(scope="module")
-def with_effects(robot):
-    return robot.with_effects(*api.realistic(robot))
-
-
-@pytest.fixture(scope="module")
 def data(with_effects):
     return api.simulate(with_effects, 40, seed=5)
 

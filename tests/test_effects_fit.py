@@ -19,11 +19,6 @@ def robot():
     return iwr.Robot.default()
 
 
-@pytest.fixture(scope="module")
-def with_effects(robot):
-    return robot.with_effects(*api.realistic(robot))
-
-
 def _central(f, x, i, h):
     xp, xm = x.copy(), x.copy()
     xp[i] += h

@@ -30,11 +30,6 @@ def robot():
     return iwr.Robot.default()
 
 
-@pytest.fixture(scope="module")
-def with_effects(robot):
-    return robot.with_effects(*api.realistic(robot))
-
-
 def _legs_noise():
     return iwr.Noise(legs=0.001)
 
