@@ -152,11 +152,12 @@ class Calibration:
         calibration (issue 26: 2 poses copied 30 times, or 3 tracker poses, were
         "calibrated")."""
         r = self.result
-        if r.interrupted or self.fit_ok is False:
+        if r.interrupted:
             return
-        # Degenerate data whether or not the method converged: more budget would not help.
+        # Degenerate data whether or not the method converged or its fit passed: more budget
+        # would not help, and a fit test of too few readings says nothing.
         reason = self.degenerate()
-        if reason is None and not r.success:
+        if reason is None and (not r.success or self.fit_ok is False):
             return
         if reason is None:
             before, after, change, what = self.improvement()
@@ -340,6 +341,7 @@ def calibrate(
             if len(ident) != before:
                 # The report describes the poses the result was identified from.
                 report = identifiability(robot, ident)
+        result = effects_in_range(robot, result)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
         result["settings"] = {**dict(result.settings), "data_file": data_name,
@@ -375,6 +377,45 @@ def calibrate(
             diagnosis=_diagnosis(robot, ident, result, noise, notes))
         cal._settle()
     return cal
+
+
+def effects_in_range(robot: Any, result: IdentificationResult) -> IdentificationResult:
+    """``result``, its fit failed when an effect's identified value is outside its plausible
+    range (:meth:`iwr.effects.Effect.bounds`: a compliance in 0 .. max, a negative one is no
+    machine): the methods that do not bound their search (LM) can leave it, and the size test
+    of the fit, measured from zero, allowed ten times the range (the review found exit 0,
+    "converged", with a compliance of -0.048 and +0.123 um/N of at most 0.05)."""
+    from dataclasses import replace
+
+    from .effects import bounds as effect_bounds
+    from .result import FitTest
+
+    x = np.asarray(result.x, dtype=float)
+    if not robot.effects or result.interrupted or not np.all(np.isfinite(x)):
+        return result
+    lo, hi = effect_bounds(robot.effects)
+    names = effect_parameter_names(robot.effects)
+    units = [u for e in robot.effects for u in e.units()]
+    values = np.concatenate([e.values() for e in robot.effects])
+    xe = x[robot.n_params:robot.n_params + lo.size]
+    span = 1e-9 * np.maximum(hi - lo, 1e-12)
+    bad = [i for i in range(lo.size) if xe[i] < lo[i] - span[i] or xe[i] > hi[i] + span[i]]
+    if not bad:
+        return result
+    causes = [f"{names[i]} = {values[i] + xe[i]:.4g} {units[i]}, outside its plausible range "
+              f"{values[i] + lo[i]:.4g} .. {values[i] + hi[i]:.4g} {units[i]}" for i in bad]
+    causes.append("the data do not determine these effects (too few loads or temperatures: "
+                  "iwr.identifiability), or the model lacks another effect (docs/effects.md)")
+    verdict = "THE MODEL DOES NOT FIT THE DATA: an effect's identified value is not plausible"
+    fit = result.fit or FitTest(math.nan, 0, math.nan, 1e-3, True, "", [], [])
+    implausible = list(fit.implausible) + [
+        (names[i], float(xe[i]), float(hi[i] if xe[i] > hi[i] else lo[i])) for i in bad]
+    out = IdentificationResult(**dict(result))
+    out["fit"] = replace(fit, fit_ok=False, verdict=verdict if fit.fit_ok else fit.verdict,
+                         causes=list(fit.causes) + causes, implausible=implausible)
+    if out.success or out.status == "converged":
+        out.update(success=False, status="failed", message=f"{verdict}: {causes[0]}")
+    return out
 
 
 def _diagnosis(robot: Any, data: Any, result: Any, noise: Any, notes: list[str]) -> Any:
@@ -466,7 +507,7 @@ def from_result(
         except ValueError:  # too few points for a registration guess of their own
             start = None
         report = identifiability(robot, data)
-        result = _weighted_fit(robot, data, result, report)
+        result = effects_in_range(robot, _weighted_fit(robot, data, result, report))
         if (result.gross_errors is None and not job
                 and degenerate(robot, data, report) is None):
             # Never screened (iwr-calibrate's engine, iwr.identify): tested here, not re-fitted
@@ -535,11 +576,6 @@ def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, no
     else the objective's the method minimised (weighted by ``noise`` when it was) over the
     result's active parameters, or ``report``'s identifiable ones. None, with a note, where
     they do not exist."""
-    if robot.effects:  # issue 23: iwr.uncertainty with effects is another helper's (effects-fit)
-        names = ", ".join(e.name for e in robot.effects)
-        notes.append(f"note: no standard deviations: the robot has effects on ({names}), which "
-                     "iwr.uncertainty does not model yet (docs/effects.md)")
-        return None
     try:
         unc = Uncertainty.from_result(result) if own_covariance else None
         if unc is None:

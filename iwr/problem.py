@@ -179,8 +179,12 @@ class Problem(ProblemBase):
                 except (TypeError, ValueError):
                     raise ValueError("bounds: expected None, 'default', 'paper' or a pair "
                                      "(lower, upper)") from None
-                if lower.size == robot.n_params and upper.size == robot.n_params:
-                    bounds = (np.concatenate([lower, lo_e]), np.concatenate([upper, hi_e]))
+                if lower.size in (1, robot.n_params) and upper.size in (1, robot.n_params):
+                    # The geometric errors' bounds (scalars broadcast over them: mm and rad,
+                    # not the effects' units), the effects' own after them.
+                    n = robot.n_params
+                    bounds = (np.concatenate([np.broadcast_to(lower, (n,)), lo_e]),
+                              np.concatenate([np.broadcast_to(upper, (n,)), hi_e]))
         self._set_bounds(bounds)
         if noise is not None and whitening is not None:
             raise ValueError("noise, whitening: give one or the other")

@@ -81,7 +81,10 @@ def test_calibration_job_with_effects(with_effects, job, tmp_path):
     assert after < before / 20 and after < 3 * floor + 1e-3
     # The gross-error screen ran (Pope's test with the effects' misclosures).
     assert "tau test" in cal.result["gross_errors"]
-    assert any("no standard deviations" in n for n in cal.notes)
+    # Standard deviations with the effects (iwr.uncertainty models them; the job said "no
+    # standard deviations" before the merge of the estimation side).
+    assert cal.uncertainty is not None
+    assert np.all(np.isfinite(cal.uncertainty.std[with_effects.n_params:]))
     report = render(cal)
     rows = report.effect_rows()
     assert [r["name"] for r in rows] == [f"leg{j}.compliance" for j in range(1, 7)] + [
@@ -336,3 +339,43 @@ def test_cli_calibrate_report_and_plan_with_effects(with_effects, job, tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "payloads:" in proc.stdout and "temperatures:" in proc.stdout
     assert "payload_kg" in (tmp_path / "plan.csv").read_text()
+
+
+def test_an_effect_outside_its_plausible_range_fails_the_fit(with_effects):
+    """The review's case: LM (unbounded) left a compliance at -0.048 and +0.123 um/N (plausible
+    0 .. 0.05) and the job said "converged", exit 0. Such a result now fails its fit, naming the
+    effect and its range; one within the range is left as it is."""
+    from iwr.calibration import effects_in_range
+    from iwr.effects import bounds, parameter_names
+    from iwr.result import IdentificationResult
+
+    robot = with_effects
+    names = robot.parameter_names + parameter_names(robot.effects)
+    lo, hi = bounds(robot.effects)
+    x = np.zeros(len(names))
+    ok = IdentificationResult(x=x, fun=1.0, nfev=1, success=True, message="converged",
+                              parameter_names=names)
+    assert effects_in_range(robot, ok) is ok
+    x = x.copy()
+    k = names.index("leg4.compliance")
+    x[k] = lo[k - robot.n_params] - 0.03  # a negative compliance
+    bad = effects_in_range(robot, IdentificationResult(
+        x=x, fun=1.0, nfev=1, success=True, message="converged", parameter_names=names))
+    assert not bad.success and bad.status == "failed" and bad.fit_ok is False
+    assert "leg4.compliance = -0.03 um/N, outside its plausible range 0 .. 0.05 um/N" in \
+        bad.fit.causes[0]
+    assert [name for name, _, _ in bad.fit.implausible] == ["leg4.compliance"]
+
+
+def test_scalar_bounds_are_the_geometrys_the_effects_keep_their_own(with_effects):
+    """The review's case: bounds=(-0.5, 0.5) gave the compliances +-0.5 um/N and alpha +-0.5
+    ppm/K (mixed units), and a false "does not fit"; scalars bound the geometric errors."""
+    from iwr.effects import bounds
+
+    m, _ = api.simulate(with_effects, 12, seed=1)
+    p = iwr.Problem(with_effects, m, (-0.5, 0.5))
+    n = with_effects.n_params
+    lo, hi = bounds(with_effects.effects)
+    assert np.all(p.lower[:n] == -0.5) and np.all(p.upper[:n] == 0.5)
+    np.testing.assert_array_equal(p.lower[n:], lo)
+    np.testing.assert_array_equal(p.upper[n:], hi)

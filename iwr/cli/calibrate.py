@@ -223,7 +223,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     args.out = str(_out_folder(args))
     robot = load_robot(args.robot)
-    if robot.effects and args.noise_from not in (None, "--noise"):
+    if robot.effects and args.noise_from and args.noise_from != "--noise":
         # Issue 23: the job with effects is eq. (10) by LM, without a noise model so far; the
         # robot file's [noise] is set aside (--noise with effects is refused by iwr.calibrate).
         print(f"noise model of {args.noise_from}: not used: robot {robot.name!r} has effects "
@@ -332,7 +332,7 @@ def _exit_code(cal: Any, prog: str = "iwr calibrate", *, converged: bool = True)
     before converging is not an error, as for ``iwr report`` of a DE run)."""
     from ..calibration import NOT_CALIBRATED
 
-    if cal.fit_ok is False:
+    if cal.fit_ok is False and cal.status != NOT_CALIBRATED:  # degenerate data: no fit to test
         print(f"{prog}: the model does not fit the data (exit {EXIT_NO_FIT}); the files "
               "are written, see the report", file=sys.stderr)
         return EXIT_NO_FIT
