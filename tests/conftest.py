@@ -84,3 +84,24 @@ def with_effects() -> Any:
 
     robot = iwr.Robot.default()
     return robot.with_effects(*api.realistic(robot))
+
+
+@pytest.fixture(scope="session")
+def carriage_only_poses() -> Any:
+    """``(robot, n, seed) -> (q, poses)``: poses that move only the carriage's slides (the
+    hexapod at its home pose in one orientation to gravity), so that each leg's force is the
+    same at every pose under one payload: where one payload cannot separate the compliances."""
+    import numpy as np
+
+    from iwr.transforms import pose_from_matrix, pose_matrix
+
+    def poses(robot: Any, n: int, seed: int) -> tuple[Any, Any]:
+        rng = np.random.default_rng(seed)
+        q = np.zeros((n, robot.n_joints))
+        q[:, 0] = rng.uniform(0, 2000, n)
+        q[:, 1] = rng.uniform(0, 1000, n)
+        local = pose_matrix(robot.home_pose)
+        return q, np.array([pose_from_matrix(robot.carriage_transform(qk) @ local)
+                            for qk in q])
+
+    return poses

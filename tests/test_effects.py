@@ -160,29 +160,19 @@ def test_compensated_commands_reach_the_target_on_the_true_robot(robot, with_eff
     assert np.abs(reached[:, 3:] - targets.poses[:, 3:]).max() < 1e-9
 
 
-def _carriage_only_poses(robot, n, seed):
-    """Poses that move only the carriage's slides: the hexapod at one pose in one orientation
-    to gravity, so that each leg's force is the same at every pose under one payload."""
-    rng = np.random.default_rng(seed)
-    q = np.zeros((n, robot.n_joints))
-    q[:, 0] = rng.uniform(0, 2000, n)
-    q[:, 1] = rng.uniform(0, 1000, n)
-    local = pose_matrix(robot.home_pose)
-    return q, np.array([pose_from_matrix(robot.carriage_transform(qk) @ local) for qk in q])
-
-
 @pytest.mark.parametrize("payloads,separable", [
     ([[80.0, 50.0, 0.0, 150.0]], False),
     ([[0.0, 0.0, 0.0, 0.0], [80.0, 50.0, 0.0, 150.0]], True),
 ])
-def test_one_payload_leaves_the_compliances_in_the_geometry(robot, payloads, separable):
+def test_one_payload_leaves_the_compliances_in_the_geometry(robot, payloads, separable,
+                                                            carriage_only_poses):
     """With one payload and a constant leg-force pattern the compliances go into the leg
     offsets; a second payload at the same poses separates them. The rank of the analytic
     Jacobian is checked against that of a finite-difference one."""
     comp, thermal = api.realistic(robot, identify_alpha=False)
     rigid = robot.with_effects(comp.with_values(np.zeros(6)), thermal)
     n = 40
-    q, poses = _carriage_only_poses(robot, n, 2)
+    q, poses = carriage_only_poses(robot, n, 2)
     payload = np.asarray(payloads)[np.arange(n) % len(payloads)]
     m = Measurements(q, poses, np.zeros((n, 6)), joint_types=robot.joint_types, payload=payload,
                      temperatures=np.full(n, 20.0))

@@ -22,7 +22,6 @@ from iwr.effects.problem import EffectProblem
 from iwr.implicit_loop import loop_jacobians
 from iwr.measurements import Measurements
 from iwr.reporting.calibration import render
-from iwr.transforms import pose_from_matrix, pose_matrix
 
 
 @pytest.fixture(scope="module")
@@ -139,15 +138,6 @@ def test_gross_error_with_effects_is_named_and_left_out(with_effects):
     assert cal.success
 
 
-def _carriage_only_poses(robot, n, seed):
-    rng = np.random.default_rng(seed)
-    q = np.zeros((n, robot.n_joints))
-    q[:, 0] = rng.uniform(0, 2000, n)
-    q[:, 1] = rng.uniform(0, 1000, n)
-    local = pose_matrix(robot.home_pose)
-    return q, np.array([pose_from_matrix(robot.carriage_transform(qk) @ local) for qk in q])
-
-
 def _central(f, x, i, h):
     xp, xm = x.copy(), x.copy()
     xp[i] += h
@@ -156,7 +146,8 @@ def _central(f, x, i, h):
 
 
 @pytest.mark.parametrize("n_payloads", [1, 2])
-def test_report_names_the_compliances_one_payload_cannot_separate(robot, n_payloads):
+def test_report_names_the_compliances_one_payload_cannot_separate(robot, n_payloads,
+                                                                 carriage_only_poses):
     """Issue 23's check: one payload at every pose of a constant leg-force pattern: the report
     names the six compliances (held at the file's value); two payloads: all identified. The
     rank is checked against a finite-difference Jacobian's. (Poses that keep the leg-force
@@ -166,7 +157,7 @@ def test_report_names_the_compliances_one_payload_cannot_separate(robot, n_paylo
     # The file's compliance 0 (a first calibration): at nominal, the geometric columns carry
     # no compliance-times-force-derivative term (c df/dx), which mixes them with the effects'.
     model = robot.with_effects(comp.with_values(np.zeros(6)))
-    q, poses = _carriage_only_poses(robot, 60, 3)
+    q, poses = carriage_only_poses(robot, 60, 3)
     payloads = api.DEFAULT_PAYLOADS[-n_payloads:]
     pay = payloads[np.arange(60) % n_payloads]
     plain = Measurements(q, poses, np.zeros((60, 6)), joint_types=robot.joint_types,
@@ -275,13 +266,13 @@ def test_no_diagnosis_without_the_columns_or_with_effects(robot, with_effects, j
 # -- planning with payloads -------------------------------------------------------------------
 
 
-def test_plan_picks_a_second_payload_where_one_cannot_separate(robot):
+def test_plan_picks_a_second_payload_where_one_cannot_separate(robot, carriage_only_poses):
     """Candidates whose leg-force pattern is the same at every pose (the carriage's slides
     only): under one payload the compliances are inseparable; offered none and the head, the
     plan takes both, and its poses identify the compliances."""
     comp, _ = api.realistic(robot)
     model = robot.with_effects(comp.with_values(np.zeros(6)))  # see the test above
-    q, poses = _carriage_only_poses(robot, 50, 5)
+    q, poses = carriage_only_poses(robot, 50, 5)
     plan = iwr.plan_poses(model, (q, poses), 20, payloads=api.DEFAULT_PAYLOADS)
     chosen = plan.measurements.payload[:, 0]
     assert 0 < np.sum(chosen == 0.0) < 20
@@ -291,10 +282,10 @@ def test_plan_picks_a_second_payload_where_one_cannot_separate(robot):
     assert not iwr.identifiability(model, one.measurements).effects_identifiable
 
 
-def test_plan_file_with_payloads_round_trip(robot, tmp_path):
+def test_plan_file_with_payloads_round_trip(robot, carriage_only_poses, tmp_path):
     comp, _ = api.realistic(robot)
     model = robot.with_effects(comp)
-    q, poses = _carriage_only_poses(robot, 30, 6)
+    q, poses = carriage_only_poses(robot, 30, 6)
     plan = iwr.plan_poses(model, (q, poses), 12, payloads=api.DEFAULT_PAYLOADS)
     path = tmp_path / "plan.csv"
     plan.to_csv(path)
