@@ -303,18 +303,30 @@ def plan_poses(
     n_cand = len(cand)
     # The information of the kind of data the robot measures (laser-tracker data,
     # docs/tracker.md: the tracker problem's, the registration and the offsets included).
-    problem, x, base, rows, what = kinds.for_robot(robot).design(robot, cand, x, report)
-    r = base.size
-    k_min = -(-r // rows)
-    if (isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer))
-            or not k_min <= n_poses <= n_cand):
+    kind = kinds.for_robot(robot)
+    problem, x, base, rows, what = kind.design(robot, cand, x, report)
+    n_all = len(problem.parameter_names)
+    if report is not None and np.shape(report.active) != (n_all,):
         raise ValueError(
-            f"n_poses: {n_poses!r}; expected an integer from {k_min} (to determine {r} base "
-            f"parameters from {rows} {what} per pose) to {n_cand} (the number of candidates)"
-        )
-    k = int(n_poses)
+            f"report: the identifiability of {np.size(report.active)} parameters, but robot "
+            f"{robot.name!r} measured by {kind.description} has {n_all} (the report of data of "
+            "another kind? iwr.identifiability of data of the robot's kind gives the right one)")
+    r = base.size
     jac = problem.jacobian(x)[:, base]
     js = (jac / column_scale(jac)).reshape(n_cand, rows, r)
+    # The readings of a pose that carry independent information: a probe's points are one rigid
+    # pose (6 of its 12 coordinates), so counting its rows would plan too few poses (singular).
+    per_pose = int(np.max(np.linalg.matrix_rank(js)))
+    k_min = -(-r // max(per_pose, 1))
+    if (isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer))
+            or not k_min <= n_poses <= n_cand):
+        independent = f"{per_pose} independent of the {rows}" if per_pose < rows else f"{rows}"
+        raise ValueError(
+            f"n_poses: {n_poses!r}; expected an integer from {k_min} (to determine {r} base "
+            f"parameters from {independent} {what} per pose) to {n_cand} (the number of "
+            "candidates)"
+        )
+    k = int(n_poses)
     info = np.einsum("kij,kil->kjl", js, js)  # per-pose information, (M, r, r)
     rng = np.random.default_rng(seed) if seed is not None else None
     eps = 1e-9 * float(np.trace(info.sum(axis=0))) / r
@@ -395,7 +407,7 @@ def plan_poses(
         n_exchanges=n_exchanges,
         base_indices=base,
         measurements=cand.subset(idx),
-        data_kind=kinds.for_robot(robot).name,
+        data_kind=kind.name,
     )
 
 

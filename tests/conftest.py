@@ -75,6 +75,13 @@ def kind(request: pytest.FixtureRequest) -> KindCase:
     return KindCase(request.param)
 
 
+@pytest.fixture(scope="session")
+def kind_case() -> type[KindCase]:
+    """:class:`KindCase` itself, for a test that chooses its kinds (``kind_case("points")``:
+    the robot of that kind and its data)."""
+    return KindCase
+
+
 @pytest.fixture(scope="module")
 def with_effects() -> Any:
     """The default IWR robot with the realistic effects (docs/effects.md: the legs' compliance

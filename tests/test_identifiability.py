@@ -1,4 +1,4 @@
-"""Identifiability, parameter error, uncertainty and pose planning, checked against independent
+"""Identifiability, parameter error and uncertainty of pose data, checked against independent
 computations: central finite differences of ``iwr.predict_legs``, exact rigid motions written out
 here, Monte-Carlo noise draws."""
 
@@ -11,7 +11,6 @@ import iwr
 from iwr import transforms
 from iwr.analysis.uncertainty import measurement_jacobians
 from iwr.planning import measure
-from iwr.simulation import sample_poses
 
 N_POSES = 30
 
@@ -305,67 +304,3 @@ def test_uncertainty_refuses_rank_deficient_active_set(robot, data) -> None:
     m, truth = data
     with pytest.raises(ValueError, match="rank deficient"):
         iwr.uncertainty(robot, m, truth, noise=0.01, active=np.ones(robot.n_params, dtype=bool))
-
-
-# -- 4. pose planning --------------------------------------------------------------------------
-
-
-@pytest.fixture(scope="module")
-def candidates(robot):
-    q, poses, _ = sample_poses(robot, 200, np.random.default_rng(0))
-    return q, poses
-
-
-def test_plan_is_optimal_on_a_small_case(robot, candidates) -> None:
-    """Against exhaustive search: 11 candidates, 9 poses (55 subsets)."""
-    from itertools import combinations
-
-    q, poses = candidates[0][:11], candidates[1][:11]
-    for crit in ("O1", "O3"):
-        plan = iwr.plan_poses(robot, (q, poses), 9, crit)
-        m = iwr.Measurements(q, poses, np.zeros((11, 6)), joint_types=robot.joint_types)
-        jac = iwr.Problem(robot, m).jacobian(np.zeros(robot.n_params))[:, plan.base_indices]
-        js = (jac / np.linalg.norm(jac, axis=0)).reshape(11, 6, -1)
-        best = 0.0
-        for sub in combinations(range(11), 9):
-            s = np.linalg.svd(js[list(sub)].reshape(54, -1), compute_uv=False)
-            val = np.exp(np.mean(np.log(s))) / 3 if crit == "O1" else s[-1]
-            best = max(best, val)
-        assert plan.value == pytest.approx(best, rel=1e-9)
-
-
-def test_planned_poses_beat_random_ones(robot, candidates) -> None:
-    """With realistic noise, K = 15 planned poses (O1) predict fresh poses' readings better than
-    15 random candidates, on average over 6 seeds (true errors, noise and random subsets)."""
-    q, poses = candidates
-    k = 15
-    plan = iwr.plan_poses(robot, (q, poses), k, "O1")
-    assert plan.value >= plan.greedy_value > 0
-    mask = np.zeros(robot.n_params, dtype=bool)
-    mask[plan.base_indices] = True
-    qv, pv, _ = sample_poses(robot, 100, np.random.default_rng(99))
-    noise = iwr.Noise.realistic()
-
-    def validation_rms(idx, truth, seed):
-        m = measure(robot, truth, q[idx], poses[idx], noise, seed)
-        x = iwr.identify(robot, m, "lm", active=mask).x
-        d = iwr.predict_legs(robot, x, qv, pv) - iwr.predict_legs(robot, truth, qv, pv)
-        return np.sqrt(np.mean(d**2))
-
-    planned, random = [], []
-    for s in range(6):
-        truth = iwr.simulate(robot, 1, seed=100 + s)[1]
-        planned.append(validation_rms(plan.indices, truth, s))
-        ridx = np.random.default_rng(1000 + s).choice(len(q), k, replace=False)
-        random.append(validation_rms(ridx, truth, s))
-    assert np.mean(planned) < 0.8 * np.mean(random), (np.mean(planned), np.mean(random))
-
-
-def test_plan_arguments(robot, candidates) -> None:
-    with pytest.raises(ValueError, match="criterion"):
-        iwr.plan_poses(robot, candidates, 15, "O5")
-    with pytest.raises(ValueError, match="n_poses: 3"):
-        iwr.plan_poses(robot, candidates, 3)
-    a = iwr.plan_poses(robot, candidates, 12, "O1", seed=1)
-    b = iwr.plan_poses(robot, candidates, 12, "O1", seed=1)
-    np.testing.assert_array_equal(a.indices, b.indices)
