@@ -70,20 +70,6 @@ def test_loop_jacobians_match_central_differences(size: float) -> None:
     assert np.max(np.abs(legs - expected)) < 1e-9
 
 
-def test_noise_free_data_recover_the_truth() -> None:
-    m, truth = iwr.simulate(ROBOT, 60, seed=2)
-    res = est.efficient(ROBOT, m, NOISE)
-    assert res.success and res.fit_ok, res.message
-    assert res.status == "converged" and res.solver_status > 0
-    pos, ori = _tool_errors(res.x, truth, seed=3)
-    assert pos < 1e-9  # mm
-    assert math.radians(ori) < 1e-9
-    assert res.outliers == []
-    assert res.fit.statistic < 1e-12
-    # The chi-square test's note: far below its expectation, the noise model is pessimistic.
-    assert any("pessimistic" in c for c in res.fit.causes)
-
-
 @pytest.mark.slow
 def test_fit_statistic_follows_its_chi_square_law(base_mask: np.ndarray) -> None:
     values, dof = [], None
@@ -297,25 +283,6 @@ def test_predicted_covariance_matches_monte_carlo(base_mask: np.ndarray) -> None
     # (held at 0 while the truth is not) leave the tool pose unchanged.
     actual = math.sqrt(float(np.mean(np.array(errs) ** 2)))
     assert 0.85 < actual / pa.position_rms < 1.15, (actual, pa.position_rms)
-
-
-def test_callback_follows_scipy_and_stops() -> None:
-    m, _ = iwr.simulate(ROBOT, 30, seed=6, noise=NOISE)
-    seen = []
-
-    def cb(r):
-        seen.append((r.nit, r.fun, r.x.shape))
-        return np.True_
-
-    res = est.efficient(ROBOT, m, NOISE, callback=cb)
-    assert len(seen) == 1 and seen[0][2] == (ROBOT.n_params,)
-    assert not res.success and res.status == "callback" and "callback" in res.message
-
-    def stop(r):
-        raise StopIteration
-
-    res = est.efficient(ROBOT, m, NOISE, callback=stop)
-    assert not res.success and res.status == "callback"
 
 
 def test_result_carries_the_identification_result_fields() -> None:
