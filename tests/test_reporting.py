@@ -98,28 +98,6 @@ def sim(tmp_path_factory: pytest.TempPathFactory) -> Path:
     return out
 
 
-def test_calibration_and_report_pages_open_cleanly(sim: Path, tmp_path: Path) -> None:
-    chromium()
-    out = tmp_path / "cal"
-    proc = run_iwr("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"),
-                   "--method", "lm", "--out", str(out))
-    assert proc.returncode == 0, proc.stderr
-    page = (out / "report.html").read_text(encoding="utf-8")
-    # summary first, then parameters, identifiability, residuals, settings, provenance
-    order = [page.index(h) for h in ("<h2>Summary</h2>", "<h2>Identified parameters</h2>",
-                                     "<h2>Identifiability</h2>", "<h2>Leg residuals</h2>",
-                                     "<h2>Settings</h2>", "<h2>Provenance</h2>")]
-    assert order == sorted(order)
-    assert 'class="verdict good"' in page
-    assert f"iwr {iwr.__version__}" in page or iwr.__version__ in page
-    assert_opens_cleanly(out / "report.html", tmp_path, 2)
-    rep = tmp_path / "rep"
-    proc = run_iwr("report", str(out / "result.json"), str(sim / "robot.toml"),
-                   str(sim / "measurements.csv"), "--out", str(rep))
-    assert proc.returncode == 0, proc.stderr
-    assert_opens_cleanly(rep / "report.html", tmp_path, 2)
-
-
 def test_compare_page_opens_cleanly(tmp_path: Path) -> None:
     chromium()
     iwr.compare_methods(n_poses=15, seeds=[0], methods=["lm", "crs2"], budget=200, start="both",
@@ -146,81 +124,62 @@ def test_a_broken_image_and_a_console_error_are_seen(tmp_path: Path) -> None:
     assert res["errors"] and res["console"]
 
 
-@pytest.mark.parametrize("kind", ["points", "probe"])
-def test_tracker_calibration_page_opens_cleanly(tmp_path: Path, kind: str) -> None:
-    """Tracker data get the same HTML report, with what belongs to them: the registration found,
-    the offsets, the point residuals per reflector, the hidden points, the null directions."""
+#: Each kind's report sections, in their order, and what its page says of the kind's own parts.
+_SECTIONS = {
+    "pose": (["Summary", "Identified parameters", "Identifiability", "Leg residuals",
+              "Settings", "Provenance"], [], "# Calibration report"),
+    "points": (["Summary", "Registration", "Reflector offsets", "Point residuals",
+                "Identified parameters", "Identifiability", "Settings", "Provenance"],
+               ["closed-form guess (Kabsch)", "16 null directions", "reflector 1", "reflector 3",
+                "0 of 120 points not seen"], "# Calibration report: laser-tracker data"),
+    "probe": (["Summary", "Registration", "Probe offset", "Point residuals",
+               "Identified parameters", "Identifiability", "Settings", "Provenance"],
+              ["closed-form guess (Kabsch)", "16 null directions", "probe origin",
+               "probe orientation (deg)", "0 of 40 probe poses not seen"],
+              "# Calibration report: laser-tracker data"),
+    "ballbar": (["Summary", "Distance residuals per set-up", "Ball centres and length offsets",
+                 "Identified parameters", "What a ballbar cannot see", "Settings", "Provenance"],
+                ["16 null directions", "A: platform ball in {5}", "B: length offset"],
+                "# Calibration report: double-ballbar"),
+}
+
+
+def test_calibration_and_report_pages_open_cleanly(kind: Any, tmp_path: Path) -> None:
+    """Every kind's calibration, through the command line from its own files with realistic
+    noise: the report's sections in order (the common ones and the kind's own), a good verdict,
+    the page opens cleanly in a real browser (no console error, every image loads); then
+    ``iwr report`` of that run, on the same files, opens cleanly too."""
     chromium()
-    repo = Path(__file__).resolve().parents[1]
-    if kind == "points":
-        robot_file = repo / "examples" / "iwr_tracker.toml"
-        data_file = repo / "examples" / "iwr_tracker_points.csv"
-    else:
-        import math
-
-        robot = iwr.Robot.default().with_tracker(
-            registration=(2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0), probe=(0, 0, 60, 0, 0, 0))
-        sim = tmp_path / "sim"
-        robot.to_toml(tmp_path / "nominal.toml")
-        proc = run_iwr("simulate", "--robot", str(tmp_path / "nominal.toml"), "--poses", "40",
-                       "--seed", "4", "-o", str(sim))
-        assert proc.returncode == 0, proc.stderr
-        robot_file, data_file = sim / "robot.toml", sim / "measurements.csv"
+    name = kind.name
+    n = {"ballbar": 120}.get(name, 40)
+    noise = kind.kind.experiment_noise(kind.robot, iwr.Noise.realistic())
+    data, _ = iwr.simulate(kind.robot, n, seed=4, noise=noise)
+    kind.robot.to_toml(tmp_path / "robot.toml")
+    kind.kind.write(kind.robot, data, tmp_path / "data.csv")
     out = tmp_path / "cal"
-    proc = run_iwr("calibrate", str(robot_file), str(data_file), "--out", str(out))
-    assert proc.returncode == 0, proc.stderr
-    page = (out / "report.html").read_text(encoding="utf-8")
-    sections = ["<h2>Summary</h2>", "<h2>Registration</h2>",
-                "<h2>Reflector offsets</h2>" if kind == "points" else "<h2>Probe offset</h2>",
-                "<h2>Point residuals</h2>", "<h2>Identified parameters</h2>",
-                "<h2>Identifiability</h2>", "<h2>Settings</h2>", "<h2>Provenance</h2>"]
-    order = [page.index(h) for h in sections]
-    assert order == sorted(order)
-    assert 'class="verdict good"' in page
-    assert "closed-form guess (Kabsch)" in page and "16 null directions" in page
-    if kind == "points":  # the shipped example hides one reflector at 6 poses
-        assert "6 of 180 points not seen" in page
-        assert "reflector 1" in page and "reflector 3" in page
-    else:
-        assert "probe origin" in page and "probe orientation (deg)" in page
-        # a probe's pose is seen whole or not: counted as poses, not points
-        assert "0 of 40 probe poses not seen" in page and "points not seen" not in page
-    # every parameter held by identify(active="base") is reported as held on a null direction
-    assert "held fixed" not in page and page.count("held (null direction") == 16
-    summary = json.loads((out / "summary.json").read_text())
-    assert summary["data_kind"] == kind and summary["fit"]["fit_ok"] is True
-    assert (out / "report.md").read_text().startswith("# Calibration report: laser-tracker data")
-    assert_opens_cleanly(out / "report.html", tmp_path, 2)
-
-
-def test_ballbar_calibration_page_opens_cleanly(tmp_path: Path) -> None:
-    """Ballbar data get their report through the kind's report hook: the distance residuals per
-    set-up, the ball centres and offsets, what a ballbar cannot see; the page opens cleanly."""
-    chromium()
-    robot = iwr.Robot.default().with_instrument("ballbar", {
-        "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
-        "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400],
-              "range": [300, 700]}})
-    data, _ = iwr.simulate(robot, 120, seed=4, noise=(
-        iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6),
-        iwr.ballbar.BallbarNoise(0.001)))
-    robot.to_toml(tmp_path / "robot.toml")
-    data.to_csv(tmp_path / "bb.csv")
-    out = tmp_path / "cal"
-    proc = run_iwr("calibrate", str(tmp_path / "robot.toml"), str(tmp_path / "bb.csv"),
+    proc = run_iwr("calibrate", str(tmp_path / "robot.toml"), str(tmp_path / "data.csv"),
                    "--out", str(out))
     assert proc.returncode == 0, proc.stderr
     page = (out / "report.html").read_text(encoding="utf-8")
-    sections = ["<h2>Summary</h2>", "<h2>Distance residuals per set-up</h2>",
-                "<h2>Ball centres and length offsets</h2>", "<h2>Identified parameters</h2>",
-                "<h2>What a ballbar cannot see</h2>", "<h2>Settings</h2>", "<h2>Provenance</h2>"]
-    order = [page.index(h) for h in sections]
+    sections, says, title = _SECTIONS[name]
+    order = [page.index(f"<h2>{h}</h2>") for h in sections]
     assert order == sorted(order)
-    assert 'class="verdict good"' in page and "16 null directions" in page
-    assert "A: platform ball in {5}" in page and "B: length offset" in page
-    assert page.count("held (null direction") == 16
-    assert (out / "report.md").read_text().startswith("# Calibration report: double-ballbar")
+    assert 'class="verdict good"' in page and iwr.__version__ in page
+    for text in says:
+        assert text in page, text
+    if name != "pose":  # every parameter held by active="base" is held on a null direction
+        assert "held fixed" not in page and page.count("held (null direction") == 16
+    if name == "probe":  # a probe's pose is seen whole or not: counted as poses, not points
+        assert "points not seen" not in page
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["data_kind"] == name and summary["fit"]["fit_ok"] is True
+    assert (out / "report.md").read_text().startswith(title)
     assert_opens_cleanly(out / "report.html", tmp_path, 2)
+    rep = tmp_path / "rep"
+    proc = run_iwr("report", str(out / "result.json"), str(tmp_path / "robot.toml"),
+                   str(tmp_path / "data.csv"), "--out", str(rep))
+    assert proc.returncode == 0, proc.stderr
+    assert_opens_cleanly(rep / "report.html", tmp_path, 2)
 
 
 def test_an_output_folder_is_written_as_a_whole(tmp_path):

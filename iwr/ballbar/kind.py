@@ -16,6 +16,7 @@ import numpy as np
 from ..kinds import MeasurementKind
 from ..noise import Noise
 from .api import (
+    NULL_RTOL,
     ballbar_accuracy,
     ballbar_identifiability,
     ballbar_identify,
@@ -99,6 +100,26 @@ class BallbarKind(MeasurementKind):
             return readings, BallbarNoise(0.0) if noise.is_zero else BallbarNoise()
         return noise
 
+    def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
+        """Uniform within the set-ups' default bounds about the nominal (as :func:`iwr.simulate`
+        draws them): an experiment identifies the ball centres and offsets from a wrong start."""
+        lo, hi = ballbar_setup(robot).default_bounds()
+        return lo + (hi - lo) * rng.random(lo.size)
+
+    def experiment_noise(self, robot: Any, noise: Any) -> Any:
+        """An :class:`iwr.Noise` (an experiment's noise level,
+        :func:`iwr.experiments.harness.noise_at`) keeps its leg and joint noise, and its
+        ``position`` sets the bar's: :class:`BallbarNoise`'s default scaled by ``position / 0.02``
+        (``Noise.realistic().position``), so that the realistic level is the bar's 1 um; a pair or
+        a :class:`BallbarNoise` as it is. (As it was, every noisy run of a study was refused.)"""
+        if not isinstance(noise, Noise):
+            split_noise(noise)  # its types checked
+            return noise
+        readings = Noise(legs=noise.legs, joint_lengths=noise.joint_lengths,
+                         joint_angles=noise.joint_angles)
+        scale = noise.position / Noise.realistic().position
+        return readings, BallbarNoise(BallbarNoise().distance * scale)
+
     def noise_record(self, noise: Any) -> dict[str, Any]:
         readings, bar = split_noise(noise)
         return {"noise": None if readings is None else asdict(readings),
@@ -119,6 +140,7 @@ class BallbarKind(MeasurementKind):
 
     engine = False  # no problem file (iwr-calibrate): iwr calibrate, iwr.identify
     weighted_objective = True  # each distance by its propagated variance (ballbar_identify)
+    null_rtol = NULL_RTOL  # structural null directions sit at ~5e-14, above NumPy's threshold
 
     def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
                 noise: Any = None) -> tuple[Any, np.ndarray]:

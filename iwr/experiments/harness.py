@@ -185,15 +185,17 @@ _IDENTIFIABLE: dict[str, int] = {}
 _READINGS: dict[str, float] = {}
 
 
-def _scaled_null_basis(problem: Any, x: np.ndarray) -> tuple[int, np.ndarray]:
+def _scaled_null_basis(problem: Any, x: np.ndarray, kind: Any) -> tuple[int, np.ndarray]:
     """``(rank, basis)`` of the column-scaled Jacobian of ``problem`` at ``x`` (each column
-    divided by its norm; rank threshold numpy's, as :func:`iwr.identifiability`): an
+    divided by its norm; rank threshold numpy's, or the ``kind``'s
+    :attr:`iwr.kinds.MeasurementKind.null_rtol`, as :func:`iwr.identifiability`): an
     orthonormal basis of its null space in the scaled metric, (n_params, n_null)."""
     jac = problem.jacobian(x)
     d = np.linalg.norm(jac, axis=0)
     d = np.where(d > 0, d, 1.0)
     _, s, vt = np.linalg.svd(jac / d, full_matrices=True)
-    rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * s[0]))
+    rtol = max(max(jac.shape) * np.finfo(float).eps, kind.null_rtol or 0.0)
+    rank = int(np.sum(s > rtol * s[0]))
     return rank, vt[rank:].T
 
 
@@ -206,7 +208,7 @@ def _identifiable(robot: Robot) -> int:
         kind = kinds.for_robot(robot)
         data, x = simulate(robot, max(60, kind.n_params(robot)), seed=0)
         problem, _ = kind.problem(robot, data, x0=x)
-        _IDENTIFIABLE[key] = _scaled_null_basis(problem, x)[0]
+        _IDENTIFIABLE[key] = _scaled_null_basis(problem, x, kind)[0]
         _READINGS[key] = kind.readings_per_pose(robot, data)
     return _IDENTIFIABLE[key]
 
@@ -464,10 +466,11 @@ def unidentifiable_mask(robot: Robot, data: Any, x: np.ndarray) -> np.ndarray:
     """The parameters (the robot's, then its kind's set-up) that take part in an unidentifiable
     combination at ``x`` on ``data``'s poses (a nonzero coefficient in the null space of the
     column-scaled Jacobian): they cannot be judged one by one."""
-    problem, _ = kinds.of(data).problem(robot, data, x0=x)
+    kind = kinds.of(data)
+    problem, _ = kind.problem(robot, data, x0=x)
     # An orthonormal basis of the null space in the scaled metric: its rows measure each
     # parameter's part in it.
-    _, basis = _scaled_null_basis(problem, np.asarray(x, dtype=float))
+    _, basis = _scaled_null_basis(problem, np.asarray(x, dtype=float), kind)
     return np.linalg.norm(basis, axis=1) > 1e-6
 
 

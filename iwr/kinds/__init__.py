@@ -74,6 +74,9 @@ class MeasurementKind(abc.ABC):
     #: Whether the methods other than the efficient estimator minimise an objective weighted by
     #: a noise model on these data (:func:`iwr.identify` with ``noise=``).
     weighted_objective: ClassVar[bool] = False
+    #: The relative rank threshold of the column-scaled Jacobian below which a singular value
+    #: is a null direction of these data, or None: NumPy's ``max(shape) * eps``.
+    null_rtol: ClassVar[float | None] = None
     #: Whether ``iwr-calibrate`` (the C++ engine) takes these data: their problem has a problem
     #: file (``problem.save``).
     engine: ClassVar[bool] = True

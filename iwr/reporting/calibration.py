@@ -122,6 +122,7 @@ class CalibrationReport(Calibration):
         out: dict[str, Any] = {
             "format": "iwr-calibration-summary",
             "version": 1,
+            "data_kind": "pose",  # every kind's summary names its kind (setup_parameters.py)
             "robot": self.robot_name or self.robot.name,
             "data": self.data_name,
             "n_identification": len(self.identification),
