@@ -5,7 +5,7 @@ layer of iwr: every other module may use them (docs/kinds.md)."""
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
 from typing import Any
 
 import numpy as np
@@ -171,6 +171,16 @@ class TrackerNoise:
         sr, st = self.sigmas(np.linalg.norm(p, axis=-1, keepdims=True))
         return (p + sr * z[..., :1] * b[..., 0, :]
                 + st * (z[..., 1:2] * b[..., 1, :] + z[..., 2:3] * b[..., 2, :]))
+
+
+def instrument_level(noise: Noise) -> tuple[Noise, float]:
+    """An experiment's noise level (an :class:`iwr.Noise`, e.g.
+    :func:`iwr.experiments.harness.noise_at`) for an instrument that measures no pose in {0}: the
+    leg and joint readings' noise (no position or orientation noise), and the level's
+    ``position`` noise as a multiple of :meth:`Noise.realistic`'s, by which the instrument's own
+    realistic noise is scaled."""
+    return (replace(noise, position=0.0, orientation=0.0),
+            noise.position / Noise.realistic().position)
 
 
 def axis_whitening(points: Any, sigmas: Any) -> np.ndarray:

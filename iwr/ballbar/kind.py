@@ -14,7 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..kinds import MeasurementKind
-from ..noise import Noise
+from ..noise import Noise, instrument_level
 from .api import (
     NULL_RTOL,
     ballbar_accuracy,
@@ -115,9 +115,7 @@ class BallbarKind(MeasurementKind):
         if not isinstance(noise, Noise):
             split_noise(noise)  # its types checked
             return noise
-        readings = Noise(legs=noise.legs, joint_lengths=noise.joint_lengths,
-                         joint_angles=noise.joint_angles)
-        scale = noise.position / Noise.realistic().position
+        readings, scale = instrument_level(noise)
         return readings, BallbarNoise(BallbarNoise().distance * scale)
 
     def noise_record(self, noise: Any) -> dict[str, Any]:

@@ -5,7 +5,7 @@ offsets are identified beside the robot, and the data do not fix {0}."""
 from __future__ import annotations
 
 import os
-from dataclasses import asdict, replace
+from dataclasses import asdict
 from typing import Any
 
 import numpy as np
@@ -16,7 +16,7 @@ from ..fit_test import tracker_readings
 from ..forward import forward_kinematics
 from ..kinds import MeasurementKind, _where, data_fingerprint, position_rms
 from ..measurements import Measurements
-from ..noise import Noise, TrackerNoise, split_noise
+from ..noise import Noise, TrackerNoise, instrument_level, split_noise
 from ..planning import measure_tracker, tracker_design
 from .api import (
     registration_guess,
@@ -158,8 +158,7 @@ class _TrackerKind(MeasurementKind):
         if not isinstance(noise, Noise):
             raise TypeError(f"noise: expected an iwr.Noise or a pair (iwr.Noise, "
                             f"iwr.tracker.TrackerNoise), got {type(noise).__name__}")
-        readings = replace(noise, position=0.0, orientation=0.0)
-        scale = noise.position / Noise.realistic().position
+        readings, scale = instrument_level(noise)
         leica = TrackerNoise.leica()
         tracker = TrackerNoise(**{k: v * scale for k, v in asdict(leica).items()})
         return readings, tracker
