@@ -14,6 +14,7 @@ import pytest
 
 import iwr
 from iwr import kinds
+from iwr.analysis.identifiability import parameter_error_on
 from iwr.cli import main as cli_main
 from iwr.experiments.harness import (
     Cell,
@@ -27,7 +28,6 @@ from iwr.experiments.harness import (
 from iwr.tracker import TrackerNoise
 from iwr.tracker.analysis import null_space
 from iwr.tracker.data import TrackerMeasurements
-from iwr.tracker.kind import parameter_error_on
 from iwr.tracker.problem import TrackerProblem, point_covariances
 
 REPO = Path(__file__).resolve().parents[1]

@@ -40,6 +40,7 @@ __all__ = [
     "identifiability",
     "identifiable_count",
     "parameter_error",
+    "parameter_error_on",
     "column_scale",
 ]
 
@@ -609,3 +610,57 @@ def _nearest_equivalent(problem: Problem, x: np.ndarray, rtol: float | None) -> 
         u = (jac / d) @ vt[:rank].T / s[:rank]  # U_r, without a second SVD
         y -= (vt[:rank].T @ ((u.T @ r) / s[:rank])) / d
     return y
+
+
+def parameter_error_on(problem: Any, x: Any, truth: Any, angles: Any,
+                       rtol: float | None = None) -> ParameterError:
+    """``x - truth`` modulo the null directions of ``problem`` (:func:`iwr.parameter_error`'s
+    nonlinear method on any problem whose residuals vanish at ``truth``: exact readings of the
+    truth): ``y``, the vector nearest to ``x`` (column-scaled metric) with the truth's readings,
+    by Gauss-Newton with minimum-norm steps, then ``x - y`` projected onto the row space of the
+    Jacobian at ``y``. ``angles`` marks the angle parameters (rad); ``rtol`` the relative rank
+    threshold (default NumPy's). ValueError when the
+    residuals do not vanish at ``truth`` (noisy data: no vector predicts them)."""
+    x = np.asarray(x, dtype=float)
+    truth = np.asarray(truth, dtype=float)
+    ang = np.asarray(angles, dtype=bool)
+    r_truth = np.max(np.abs(problem.residuals(truth)), initial=0.0)
+    if not r_truth < 1e-6:
+        raise ValueError(f"data: residuals up to {r_truth:.3g} mm at the truth; the parameter "
+                         "error needs exact readings of the truth (noise-free poses)")
+    y = _nearest_equivalent(problem, x, rtol)
+    converged = bool(np.max(np.abs(problem.residuals(y)), initial=0.0) < 1e-9)
+    d, _, vt, rank = _row_space(problem.jacobian(y), rtol)
+    vr = vt[:rank].T
+    projected = (vr @ (vr.T @ (d * (x - y)))) / d
+    raw = x - truth
+
+    def rms(v: np.ndarray) -> float:
+        return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
+
+    def maxabs(v: np.ndarray) -> float:
+        return float(np.max(np.abs(v))) if v.size else float("nan")
+
+    return ParameterError(
+        projected=projected, raw=raw, null_component=raw - projected,
+        rms_length=rms(projected[~ang]), rms_angle=rms(projected[ang]),
+        max_abs_length=maxabs(projected[~ang]), max_abs_angle=maxabs(projected[ang]),
+        raw_rms_length=rms(raw[~ang]), raw_rms_angle=rms(raw[ang]),
+        reading_rms=rms(problem.residuals(x)), rank=rank,
+        parameter_names=list(problem.parameter_names), converged=converged)
+
+
+
+def kind_parameter_error(kind: Any, robot: Robot, data: Any, x: Any, truth: Any) -> ParameterError:
+    """``x - truth`` over the robot's and the setup's parameters modulo the null directions of
+    ``kind``'s problem on ``data`` (exact readings of the truth; the gauge among them; the rank
+    threshold the kind's :attr:`~iwr.kinds.MeasurementKind.null_rtol`): what the experiments
+    report for a kind with setup parameters. ValueError when no vector with the truth's readings
+    is reached from ``x``."""
+    problem, _ = kind.problem(robot, data, x0=truth)
+    error = parameter_error_on(problem, x, truth, kind.angle_parameters(robot), kind.null_rtol)
+    if not error.converged:
+        raise ValueError("no parameter vector with the truth's readings was reached from x "
+                         f"(readings RMS {error.reading_rms:.3g} mm off at x): x is too far from "
+                         "the truth for its error to be split into seen and unseen parts")
+    return error

@@ -13,6 +13,7 @@ from typing import Any
 
 import numpy as np
 
+from ..analysis.identifiability import kind_parameter_error
 from ..kinds import MeasurementKind
 from ..noise import Noise, instrument_level
 from .api import (
@@ -99,6 +100,11 @@ class BallbarKind(MeasurementKind):
                              joint_angles=noise.joint_angles)
             return readings, BallbarNoise(0.0) if noise.is_zero else BallbarNoise()
         return noise
+
+    def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        """Over the robot's and the set-ups' parameters, modulo the null directions of the
+        distances on ``data`` (what a ballbar cannot see, docs/ballbar.md)."""
+        return kind_parameter_error(self, robot, data, x, truth)
 
     def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
         """Uniform within the set-ups' default bounds about the nominal (as :func:`iwr.simulate`

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..analysis.identifiability import ParameterError, _nearest_equivalent, _row_space
+from ..analysis.identifiability import kind_parameter_error
 from ..analysis.uncertainty import _tracker_uncertainty
 from ..fit_test import tracker_readings
 from ..forward import forward_kinematics
@@ -31,7 +31,7 @@ from .estimation import TrackerSpec, tracker_misclosures
 from .files import read_tracker_data, tracker_file_format
 from .problem import TrackerProblem, _whitening, point_covariances
 
-__all__ = ["PointsKind", "ProbeKind", "parameter_error_on"]
+__all__ = ["PointsKind", "ProbeKind"]
 
 _GAUGE = ("Tracker data do not fix {0} nor {5} (docs/tracker.md): every figure here is "
           "gauge-invariant (the residuals, the tool pose aligned with the truth's and the "
@@ -177,14 +177,8 @@ class _TrackerKind(MeasurementKind):
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """Over the robot's and the setup's parameters, modulo the null directions of the point
-        (probe) objective on ``data`` (the gauge among them): :func:`parameter_error_on`."""
-        problem, _ = tracker_problem(robot, data, x0=truth)
-        error = parameter_error_on(problem, x, truth, self.angle_parameters(robot))
-        if not error.converged:
-            raise ValueError("no parameter vector with the truth's points was reached from x "
-                             f"(points RMS {error.reading_rms:.3g} mm off at x): x is too far "
-                             "from the truth for its error to be split into seen and unseen parts")
-        return error
+        (probe) objective on ``data`` (the gauge among them)."""
+        return kind_parameter_error(self, robot, data, x, truth)
 
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
         return tracker_identify(robot, data, method, **options)
@@ -324,39 +318,3 @@ class ProbeKind(_TrackerKind):
     def readings_per_pose(self, robot: Any, data: Any) -> float:
         """Six: a pose (its four points are twelve coordinates of one rigid pose)."""
         return 6.0
-
-
-def parameter_error_on(problem: Any, x: Any, truth: Any, angles: Any) -> ParameterError:
-    """``x - truth`` modulo the null directions of ``problem`` (:func:`iwr.parameter_error`'s
-    nonlinear method on any problem whose residuals vanish at ``truth``: exact readings of the
-    truth): ``y``, the vector nearest to ``x`` (column-scaled metric) with the truth's readings,
-    by Gauss-Newton with minimum-norm steps, then ``x - y`` projected onto the row space of the
-    Jacobian at ``y``. ``angles`` marks the angle parameters (rad). ValueError when the
-    residuals do not vanish at ``truth`` (noisy data: no vector predicts them)."""
-    x = np.asarray(x, dtype=float)
-    truth = np.asarray(truth, dtype=float)
-    ang = np.asarray(angles, dtype=bool)
-    r_truth = np.max(np.abs(problem.residuals(truth)), initial=0.0)
-    if not r_truth < 1e-6:
-        raise ValueError(f"data: residuals up to {r_truth:.3g} mm at the truth; the parameter "
-                         "error needs exact readings of the truth (noise-free poses)")
-    y = _nearest_equivalent(problem, x, None)
-    converged = bool(np.max(np.abs(problem.residuals(y)), initial=0.0) < 1e-9)
-    d, _, vt, rank = _row_space(problem.jacobian(y), None)
-    vr = vt[:rank].T
-    projected = (vr @ (vr.T @ (d * (x - y)))) / d
-    raw = x - truth
-
-    def rms(v: np.ndarray) -> float:
-        return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
-
-    def maxabs(v: np.ndarray) -> float:
-        return float(np.max(np.abs(v))) if v.size else float("nan")
-
-    return ParameterError(
-        projected=projected, raw=raw, null_component=raw - projected,
-        rms_length=rms(projected[~ang]), rms_angle=rms(projected[ang]),
-        max_abs_length=maxabs(projected[~ang]), max_abs_angle=maxabs(projected[ang]),
-        raw_rms_length=rms(raw[~ang]), raw_rms_angle=rms(raw[ang]),
-        reading_rms=rms(problem.residuals(x)), rank=rank,
-        parameter_names=list(problem.parameter_names), converged=converged)
