@@ -94,6 +94,8 @@ def test_noise_free_lm_recovers_what_the_data_see(kind):
     assert row["at_floor"] and row["success"]
     assert row["val_rms"] < 1e-6 and row["val_rms_nominal"] > 0.1
     assert row["tool_position_rms"] < 1e-5 and row["tool_position_rms_nominal"] > 0.1
+    # the tool's pose, orientation included (a ballbar's "tool" figure was its distance residual)
+    assert row["tool_orientation_rms"] < 1e-8
     assert row["param_error_length"] < 1e-5 and row["param_error_angle"] < 1e-8
     n = kinds.for_robot(robot).n_params(robot)
     assert len(row["x"]) == len(row["truth"]) == len(row["unidentifiable"]) == n

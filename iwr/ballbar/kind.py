@@ -45,6 +45,26 @@ class BallbarKind(MeasurementKind):
     #: The report of a calibration (``iwr calibrate``, ``iwr report``): the distance residuals
     #: per set-up, the balls and offsets, what a ballbar cannot see.
     report = "iwr.reporting.ballbar_calibration:BallbarCalibrationReport"
+    #: The figures of iwr compare and iwr study on ballbar data (MeasurementKind.experiment_text).
+    experiment_text = {
+        **MeasurementKind.experiment_text,
+        "cost": "the sum of squared distance residuals, predicted minus measured (mm^2)",
+        "cost_label": "distance residuals",
+        "readings_short": "distance",
+        "tool_short": " modulo the gauge",
+        "readings": "bar distances predicted with the recovered parameters (robot, ball centres "
+                    "and length offsets) against their exact values (mm; the nominal robot's "
+                    "with the nominal set-ups)",
+        "gauge": "Ballbar data fix neither {0} nor {5} (docs/ballbar.md): the tool pose error is "
+                 "modulo the rigid motions of both, the parameter error modulo the distances' "
+                 "null directions.",
+        "tool": "tool pose error against the truth at the same readings, after the rigid motions "
+                "of {0} and {5} that best align the model's platform frames with the truth's "
+                "(iwr.ballbar.api.gauge_aligned); the nominal robot's with the nominal set-ups",
+        "parameters": "x minus the parameter vector nearest to x that predicts exactly the "
+                      "truth's distances at the validation poses, projected onto the directions "
+                      "the distances see (ball centres and offsets included)",
+    }
 
     def owns(self, data: Any) -> bool:
         return isinstance(data, BallbarMeasurements)
@@ -100,6 +120,12 @@ class BallbarKind(MeasurementKind):
                              joint_angles=noise.joint_angles)
             return readings, BallbarNoise(0.0) if noise.is_zero else BallbarNoise()
         return noise
+
+    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        """The tool pose errors against the truth at the same readings, modulo the rigid motions
+        of {0} and {5} a ballbar cannot see (:func:`ballbar_accuracy` with ``truth``; without
+        it, the experiments' "tool" figures were the distance residuals)."""
+        return ballbar_accuracy(robot, data, x, truth=truth)
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """Over the robot's and the set-ups' parameters, modulo the null directions of the
