@@ -109,20 +109,39 @@ def check_calibration(robot: Robot, *, allow_unverified: bool = False,
     return f"warning: {where} {what}; used because --allow-unverified was given"
 
 
-def determined_frame(robot: Robot) -> str:
+def determined_frame(robot: Robot) -> str | None:
     """The frame a robot's calibration data determine, as its kind of data says
     (:attr:`iwr.kinds.MeasurementKind.frame`): ``"T"`` for a robot with a ``[tracker]`` table
-    (tracker data), ``"0"`` for pose data."""
-    return kinds.for_robot(robot).frame.strip("{}")
+    (tracker data), ``"0"`` for pose data; None for data that determine no frame (a ballbar's
+    distances: neither {0} nor {5}, docs/ballbar.md)."""
+    kind = kinds.for_robot(robot)
+    if kind.frame == "{0}" and not kind.determines_world_frame:
+        return None
+    return kind.frame.strip("{}")
+
+
+def gauge_note(robot: Robot, where: str) -> str:
+    """What leg commands in {0} mean after a calibration from data that determine no frame."""
+    return (f"{where} was calibrated from {kinds.for_robot(robot).description} data, which "
+            "determine neither the world frame {0} nor the platform frame {5} (docs/ballbar.md): "
+            "the calibration keeps both where the nominal robot has them, so the leg commands "
+            "are right relative to one another, but off by whatever the actual base and tool "
+            "placement differ from the nominal (register them by other means)")
 
 
 def _check_frame(robot: Robot, frame: str | None, where: str) -> str:
-    if frame is None:
-        return determined_frame(robot)
-    if frame not in FRAMES:
+    own = determined_frame(robot)
+    if frame is None and own is not None:
+        return own
+    if frame is not None and frame not in FRAMES:
         raise FrameError(f"frame {frame!r}: expected one of {', '.join(FRAMES)} "
                          f"({'; '.join(f'{k}: {v}' for k, v in FRAMES.items())})")
-    own = determined_frame(robot)
+    if own is None:
+        if frame == "0":  # given explicitly: the nominal placement of {0} and {5} accepted
+            return frame
+        raise FrameError(
+            f"targets in {FRAMES['0' if frame is None else frame]}: {gauge_note(robot, where)}. "
+            "Give --frame 0 (frame='0') to accept the nominal placement of {0} and {5}")
     if frame == own:
         return frame
     if frame == "0":
@@ -239,6 +258,8 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
         The frame of the targets; default (and the only one allowed) the frame the robot's
         calibration data determine (:func:`determined_frame`): {0} for pose data, the tracker
         frame {T} for tracker data. Another raises :class:`FrameError` saying which to give.
+        After a calibration from data that determine no frame (ballbar data), only an explicit
+        ``"0"``: the nominal placement of {0} and {5} accepted (:func:`gauge_note`).
     tool : array_like (6,), optional
         The tool frame's pose in the platform frame {5} (mm, rad); default {5} itself. For
         tracker data, {5} is the frame the calibration file fixes (its reflectors at their

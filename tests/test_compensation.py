@@ -206,6 +206,38 @@ def test_pose_data_targets_are_in_world_frame_and_tracker_frame_refused(tmp_path
         leg_commands(cal, data.q, data.poses, frame="T")
 
 
+def test_after_a_ballbar_calibration_world_targets_need_the_nominal_placement_accepted(
+        kind_case, tmp_path):
+    """Ballbar data determine neither {0} nor {5}: leg commands for targets in {0} are refused
+    unless the frame is given explicitly (the nominal placement accepted), then they are the
+    geometry's own (the same as a robot without the instrument); the command says what they mean."""
+    case = kind_case("ballbar", n_poses=5)
+    cal = case.robot.with_errors(case.truth[:case.robot.n_params])
+    data, _ = iwr.simulate(iwr.Robot.default(), n_poses=5, seed=11)
+    with pytest.raises(FrameError, match="determine neither the world frame .0. nor the "
+                                         "platform frame .5.*Give --frame 0"):
+        leg_commands(cal, data.q, data.poses)
+    with pytest.raises(FrameError, match="determine neither"):
+        leg_commands(cal, data.q, data.poses, frame="T")
+    cmd = leg_commands(cal, data.q, data.poses, frame="0")
+    plain = iwr.Robot.default().with_errors(case.truth[:case.robot.n_params])
+    np.testing.assert_array_equal(cmd.legs, leg_commands(plain, data.q, data.poses).legs)
+    cal.to_toml(tmp_path / "cal.toml")
+    head = "q1_mm,q2_mm,q3_rad,q4_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad"
+    (tmp_path / "t.csv").write_text(head + "\n" + "\n".join(
+        ",".join(repr(float(v)) for v in (*qk, *p)) for qk, p in zip(data.q, data.poses,
+                                                                      strict=True)) + "\n")
+    args = ("legs", str(tmp_path / "cal.toml"), str(tmp_path / "t.csv"), "-o",
+            str(tmp_path / "legs.csv"), "--allow-unverified")
+    proc = run(*args)
+    assert proc.returncode == 2 and "Give --frame 0" in proc.stderr, proc.stderr
+    proc = run(*args, "--frame", "0")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "right relative to one another" in proc.stdout
+    np.testing.assert_allclose(read_legs(tmp_path / "legs.csv")[1][:, 10:16], cmd.legs,
+                               rtol=0, atol=1e-12)
+
+
 def test_out_of_stroke_and_workspace_flagged_counted_and_exit_5(tmp_path):
     robot = iwr.Robot.default()
     data, truth = iwr.simulate(robot, n_poses=6, seed=11, noise=iwr.Noise())

@@ -46,7 +46,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--frame", choices=("0", "T"), default=None,
                    help="the frame of the target poses: 0 (world frame, pose data) or T "
                    "(tracker frame, tracker data); default and only allowed: the one the "
-                   "calibration's data determine (T for a robot with a [tracker] table)")
+                   "calibration's data determine (T for a robot with a [tracker] table); "
+                   "ballbar data determine none: 0 given explicitly accepts the nominal "
+                   "placement of {0} and {5}")
     p.add_argument("--user-frame", metavar="POINTS.csv", default=None,
                    help="the targets are in a user frame given by three points measured in the "
                    "calibration's frame (columns point,x_mm,y_mm,z_mm; rows origin, x: a point "
@@ -201,6 +203,8 @@ def cmd_legs(args: argparse.Namespace) -> int:
         FrameError,
         TargetError,
         check_calibration,
+        determined_frame,
+        gauge_note,
         leg_commands,
     )
     from ._base import check_output
@@ -233,6 +237,8 @@ def cmd_legs(args: argparse.Namespace) -> int:
                            f"{exc.detail}") from None
     if note:
         print(note)
+    if determined_frame(robot) is None:
+        print(f"note: {gauge_note(robot, str(args.robot))}")
     stroke, workspace = cmd.unreachable, cmd.out_of_workspace
     buf = io.StringIO()
     name = " ".join(f"{robot.name} ({args.robot})".splitlines())
