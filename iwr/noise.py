@@ -201,23 +201,32 @@ def axis_whitening(points: Any, sigmas: Any) -> np.ndarray:
     return np.linalg.solve(np.linalg.cholesky(cov), b)
 
 
+def split_instrument_noise(noise: Any, instrument: type, data: str, example: str
+                           ) -> tuple[Noise | None, Any]:
+    """The readings' and the instrument's parts of ``noise`` for data of an instrument that
+    measures no pose in {0} (``None``, an :class:`Noise` of the leg and joint readings, an
+    ``instrument`` noise model, or a pair of both), as :func:`iwr.simulate` takes it. ``data``
+    and ``example`` (the instrument's noise written out) are for the messages."""
+    if noise is None:
+        return None, None
+    if isinstance(noise, instrument):
+        return None, noise
+    pair = (noise, None) if isinstance(noise, Noise) else noise
+    if not (isinstance(pair, tuple) and len(pair) == 2
+            and isinstance(pair[0], (Noise, type(None)))
+            and isinstance(pair[1], (instrument, type(None)))):
+        raise TypeError(f"noise: {noise!r}; for {data} expected None, an iwr.Noise (readings), "
+                        f"a {instrument.__name__} or a pair (Noise, {instrument.__name__})")
+    if pair[0] is not None and (pair[0].position or pair[0].orientation):
+        raise ValueError("noise: an iwr.Noise with position or orientation noise describes a "
+                         f"pose measured in {{0}}; for {data} give noise=(iwr.Noise(legs=..., "
+                         f"joint_lengths=..., joint_angles=...), {example})")
+    return pair
+
+
 def split_noise(noise: Any) -> tuple[Noise | None, TrackerNoise | None]:
     """The readings' and the tracker's parts of ``noise`` for a robot with a tracker (``None``,
     an :class:`Noise` of the readings, a :class:`TrackerNoise`, or a pair of both), as
     :func:`iwr.simulate` takes it."""
-    if noise is None:
-        return None, None
-    if isinstance(noise, TrackerNoise):
-        return None, noise
-    if isinstance(noise, Noise):
-        if noise.position or noise.orientation:
-            raise ValueError(
-                "noise: an iwr.Noise with position or orientation noise describes a pose "
-                "measured in {0}; for a robot with a tracker give noise=(iwr.Noise(legs=..., "
-                "joint_lengths=..., joint_angles=...), iwr.tracker.TrackerNoise.leica())")
-        return noise, None
-    if (isinstance(noise, tuple) and len(noise) == 2 and isinstance(noise[0], (Noise, type(None)))
-            and isinstance(noise[1], (TrackerNoise, type(None)))):
-        return noise
-    raise TypeError(f"noise: {noise!r}; for a robot with a tracker expected None, an iwr.Noise "
-                    "(readings), an iwr.tracker.TrackerNoise, or a pair (Noise, TrackerNoise)")
+    return split_instrument_noise(noise, TrackerNoise, "a robot with a tracker",
+                                  "iwr.tracker.TrackerNoise.leica()")

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..noise import check_sigmas
+from ..noise import check_sigmas, split_instrument_noise
 from ..robot import Robot
 from ..simulation import Noise, UnreachableError, sample_poses
 from ..transforms import pose_matrix
@@ -37,22 +37,8 @@ def split_noise(noise: Any) -> tuple[Noise | None, BallbarNoise | None]:
     """``noise`` for ballbar data: None, an :class:`iwr.Noise` (the leg and joint readings'; its
     ``position`` and ``orientation``, a pose measured in {0}, must be 0), a
     :class:`BallbarNoise`, or a pair ``(Noise, BallbarNoise)``."""
-    if noise is None:
-        return None, None
-    if isinstance(noise, BallbarNoise):
-        return None, noise
-    pair = (noise, None) if isinstance(noise, Noise) else noise
-    if not (isinstance(pair, tuple) and len(pair) == 2
-            and isinstance(pair[0], (Noise, type(None)))
-            and isinstance(pair[1], (BallbarNoise, type(None)))):
-        raise TypeError(f"noise: {noise!r}; for ballbar data expected None, an iwr.Noise "
-                        "(readings), an iwr.ballbar.BallbarNoise or a pair (Noise, BallbarNoise)")
-    if pair[0] is not None and (pair[0].position or pair[0].orientation):
-        raise ValueError("noise: an iwr.Noise with position or orientation noise describes a "
-                         "pose measured in {0}; a ballbar measures a distance: give noise="
-                         "(iwr.Noise(legs=..., joint_lengths=..., joint_angles=...), "
-                         "iwr.ballbar.BallbarNoise(distance=...))")
-    return pair
+    return split_instrument_noise(noise, BallbarNoise, "ballbar data",
+                                  "iwr.ballbar.BallbarNoise(distance=...)")
 
 
 def true_distances(setup: BallbarSetup, x_setup: Any, bar: np.ndarray,
