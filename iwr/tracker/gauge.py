@@ -63,12 +63,13 @@ class NullSpace:
         return np.array([n not in out for n in self.parameter_names], dtype=bool)
 
     def describe(self, k: int, tol: float = 1e-6) -> str:
-        """``"tracker.rz = -1 * joint1.dtheta"``-style text of null direction k: its nonzero
-        components, largest scaled first."""
+        """``"+1 joint1.dtheta -1 tracker.rz"``-style text of null direction k (as the pose
+        data's :class:`iwr.analysis.identifiability.NullDirection`): its nonzero components,
+        largest scaled first."""
         v = self.vectors[:, k]
         scaled = np.abs(v * self.scale)
         order = [int(i) for i in np.argsort(-scaled) if scaled[i] > tol * scaled.max()]
-        return " + ".join(f"{v[i]:+.4g} {self.parameter_names[i]}" for i in order)
+        return " ".join(f"{v[i]:+.4g} {self.parameter_names[i]}" for i in order)
 
     def __str__(self) -> str:
         lines = [f"rank {self.rank} of {len(self.parameter_names)} "
