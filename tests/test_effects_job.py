@@ -17,9 +17,8 @@ from scipy import stats
 import iwr
 from iwr.effects import api
 from iwr.effects.builtin import LegThermal
-from iwr.effects.job import diagnose, misclosures
+from iwr.effects.job import diagnose
 from iwr.effects.problem import EffectProblem
-from iwr.implicit_loop import loop_jacobians
 from iwr.measurements import Measurements
 from iwr.reporting.calibration import render
 
@@ -45,21 +44,39 @@ def test_accuracy_with_effects_is_the_forward_kinematics_under_the_load(with_eff
     assert geometric.calibrated.position.max() > 5e-3
 
 
-def test_misclosures_reading_derivatives_are_the_loop_closures(robot):
-    """The gross-error screen's derivatives in the readings (central differences of the
-    readings with the effects) follow loop_jacobians' convention: with the effects' values at
-    zero they are its exact ones."""
-    comp, thermal = api.realistic(robot, identify_alpha=True)
-    zero = robot.with_effects(comp.with_values(np.zeros(6)), thermal.with_values(np.zeros(1)))
-    m, x = api.simulate(zero, 8, seed=2, x=np.concatenate([np.zeros(robot.n_params),
-                                                           np.zeros(7)]))
-    x = np.zeros(robot.n_params + 7)
-    mis = misclosures(zero, m, x)
-    _, jx, jy = loop_jacobians(robot, x[: robot.n_params], m.q, m.poses)
-    assert np.abs(mis.b[:, :, 6:] - jy).max() < 1e-6 * np.abs(jy).max()
-    assert np.abs(mis.a[:, :, : robot.n_params] - jx).max() < 1e-9 * np.abs(jx).max()
-    with pytest.raises(ValueError, match="noise"):
-        misclosures(zero, m, x, iwr.Noise.realistic())
+def test_misclosures_reading_derivatives_are_the_loop_closures(with_effects):
+    """The gross-error screen's linearised model with the effects (iwr.estimation.
+    pose_misclosures: loop_jacobians' exact derivatives under each pose's load and temperature)
+    against central differences of the predicted readings with the effects, which move the leg
+    forces and the thermal growth too; with a noise model, the readings' covariance."""
+    from iwr.effects.model import predicted_readings
+    from iwr.estimation import pose_misclosures
+    from iwr.transforms import pose_from_matrix, pose_matrix, rotvec_matrix
+
+    m, x = api.simulate(with_effects, 8, seed=2)
+    mis = pose_misclosures(with_effects, m, x)
+    nj = with_effects.n_joints
+    t5 = pose_matrix(m.poses)
+    for c, h in enumerate([1e-6] * nj + [1e-4] * 3 + [1e-7] * 3):
+        side = []
+        for sign in (1.0, -1.0):
+            q, t = m.q.copy(), t5.copy()
+            if c < nj:
+                q[:, c] += sign * h
+            elif c < nj + 3:
+                t[:, c - nj, 3] += sign * h
+            else:
+                w = np.zeros((len(m), 3))
+                w[:, c - nj - 3] = sign * h
+                t[:, :3, :3] = t[:, :3, :3] @ rotvec_matrix(w)
+            side.append(predicted_readings(with_effects, x, q, pose_from_matrix(t), m))
+        fd = (side[0] - side[1]) / (2 * h)
+        np.testing.assert_allclose(mis.b[:, :, 6 + c], fd, atol=1e-6 * np.abs(fd).max() + 1e-9)
+    np.testing.assert_array_equal(mis.b[:, :, :6], np.broadcast_to(-np.eye(6), (8, 6, 6)))
+    np.testing.assert_allclose(mis.r, predicted_readings(with_effects, x, m.q, m.poses, m)
+                               - m.legs, atol=1e-9)
+    noisy = pose_misclosures(with_effects, m, x, iwr.Noise.realistic())
+    assert noisy.reading_cov is not None and noisy.reading_cov.shape == (8, 12 + nj, 12 + nj)
 
 
 @pytest.fixture(scope="module")

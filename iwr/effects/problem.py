@@ -11,16 +11,18 @@ from . import bounds as effect_bounds
 from . import parameter_names as effect_names
 from .model import check_inputs, predicted_readings
 
-__all__ = ["EffectProblem", "METHODS", "check_method"]
+__all__ = ["EffectProblem", "METHODS", "RANGE_FAILED", "check_method", "out_of_range",
+           "range_cause"]
 
 #: The identification methods that minimise the objective with effects: Levenberg-Marquardt on
 #: eq. (10) or its noise-weighted form (this numpy model), the efficient estimator (its numpy
-#: solver, :mod:`iwr.effects.solver`), and DE, CRS2 and BOBYQA on eq. (10) (the C++ objective
-#: with effects: :class:`iwr.Problem`, ``cpp/src/effects.cpp``).
+#: solver, :mod:`iwr.effects.solver`), and DE, CRS2 and BOBYQA on eq. (10) or its
+#: noise-weighted form (the C++ objective with effects and the whitening of
+#: :func:`iwr.problem.gls_whitening`: :class:`iwr.Problem`, ``cpp/src/effects.cpp``).
 METHODS = ("lm", "efficient", "de", "crs2", "bobyqa")
 
 
-def check_method(robot: Any, method: str, noise: Any, weighted: Any) -> None:
+def check_method(robot: Any, method: str) -> None:
     """ValueError unless ``method`` models ``robot``'s effects."""
     names = ", ".join(e.name for e in robot.effects)
     if method not in METHODS:
@@ -28,11 +30,56 @@ def check_method(robot: Any, method: str, noise: Any, weighted: Any) -> None:
             f"method {method!r}: robot {robot.name!r} has effects on ({names}), which method "
             f"{method!r} does not model yet; the methods that do: {', '.join(METHODS)} "
             "(docs/effects.md)")
-    if method not in ("lm", "efficient") and (noise is not None or weighted):
-        raise ValueError(
-            f"noise: robot {robot.name!r} has effects on ({names}); method {method!r} runs the "
-            "C++ objective with the effects, which is eq. (10)'s, not its noise-weighted form: "
-            "give noise=None, or use method 'lm' or 'efficient' (docs/effects.md)")
+
+
+#: What failed, in a fit's verdict, when an effect's identified value is outside its range.
+RANGE_FAILED = "an effect's identified value outside its plausible range"
+
+
+def out_of_range(robot: Any, x: Any, names: Any = None) -> list[tuple[str, float, float]]:
+    """The effects' parameters of ``x`` outside their plausible range
+    (:meth:`iwr.effects.Effect.bounds`: a compliance in 0 .. max, a negative one is no
+    machine), each ``(name, identified correction, the bound it passes)``: the effects' part of
+    the fit check's size test, on the values themselves (an effect the data cannot separate from
+    the geometry is held at the robot file's value, so an identified one has no null direction
+    to be judged modulo). ``names``: the names of ``x``'s entries (default the robot's geometric
+    errors then the effects'), where the effects' parameters are found by name. The methods that
+    do not bound their search (LM, the efficient estimator) can leave the range; the size test
+    of the geometric errors (ten times their bounds) is no yardstick for an effect's."""
+    effects = getattr(robot, "effects", ())
+    if not effects:
+        return []
+    x = np.asarray(x, dtype=float)
+    names = list(robot.parameter_names + effect_names(effects) if names is None else names)
+    lo, hi = effect_bounds(effects)
+    out = []
+    for i, name in enumerate(effect_names(effects)):
+        if name not in names:
+            continue
+        v = float(x[names.index(name)])
+        span = 1e-9 * max(hi[i] - lo[i], 1e-12)  # round-off at a bound is in the range
+        if np.isfinite(v) and (v < lo[i] - span or v > hi[i] + span):
+            out.append((name, v, float(hi[i] if v > hi[i] else lo[i])))
+    return out
+
+
+def range_cause(robot: Any, entries: list[tuple[str, float, float]]) -> str:
+    """The fit's cause for ``entries`` of :func:`out_of_range`: each effect's value (the robot
+    file's plus the correction) and its plausible range, in its unit, and what to do."""
+    effects = robot.effects
+    names = effect_names(effects)
+    units = [u for e in effects for u in e.units()]
+    values = np.concatenate([np.asarray(e.values(), dtype=float) for e in effects])
+    lo, hi = effect_bounds(effects)
+    parts = []
+    for name, v, _ in entries:
+        i = names.index(name)
+        parts.append(f"{name} = {values[i] + v:.4g} {units[i]}, outside its plausible range "
+                     f"{values[i] + lo[i]:.4g} .. {values[i] + hi[i]:.4g} {units[i]}")
+    return (f"{len(entries)} effect parameter(s) outside their plausible range: "
+            + "; ".join(parts) + ". The data do not determine these effects (too few loads or "
+            "temperatures: iwr.identifiability), or the model lacks another effect "
+            "(docs/effects.md)")
 
 
 class EffectProblem:
@@ -170,15 +217,12 @@ class EffectProblem:
         return np.array([self.cost(x) for x in arr])
 
     def save(self, path: Any, **options: Any) -> None:
-        """The problem file of :meth:`iwr.Problem.save` (the same robot, data and bounds). A
-        noise-weighted problem is refused: the file's objective with effects is eq. (10)'s."""
+        """The problem file of :meth:`iwr.Problem.save` (the same robot, data, bounds and noise
+        weighting: the engine's C++ objective with effects takes the whitening)."""
         from ..problem import Problem
 
-        if self.whitening is not None:
-            raise ValueError("save: a noise-weighted problem with effects has no problem file "
-                             "(iwr-engine's objective with effects is eq. (10)'s, unweighted); "
-                             "save the problem without noise=")
-        Problem(self.robot, self.measurements, (self.lower, self.upper)).save(path, **options)
+        Problem(self.robot, self.measurements, (self.lower, self.upper),
+                noise=self.noise).save(path, **options)
 
     def __repr__(self) -> str:
         return (f"EffectProblem(robot={self.robot.name!r}, n_poses={self.n_poses}, "
