@@ -374,7 +374,8 @@ def calibrate(
     return cal
 
 
-def effects_in_range(robot: Any, result: IdentificationResult) -> IdentificationResult:
+def effects_in_range(robot: Any, data: Any, result: IdentificationResult
+                     ) -> IdentificationResult:
     """``result``, its fit failed when an effect's identified value is outside its plausible
     range and its fit test did not say so: a result identified elsewhere (``iwr-calibrate``'s
     engine, whose DE bounds its search but whose result file may be edited or come from
@@ -393,6 +394,17 @@ def effects_in_range(robot: Any, result: IdentificationResult) -> Identification
     seen = set() if fit is None else {t[0] for t in fit.implausible}
     bad = [t for t in out_of_range(robot, x, list(result.parameter_names) or None)
            if t[0] not in seen]
+    if bad:  # by more than the noise explains (the leg noise estimated from the residuals)?
+        from .effects.problem import parameter_sd
+
+        active = (np.ones(x.size, dtype=bool) if result.active is None
+                  else np.asarray(result.active, dtype=bool))
+        try:
+            sd = parameter_sd(robot, data, x, active)
+        except (ValueError, np.linalg.LinAlgError):
+            sd = None
+        bad = [t for t in out_of_range(robot, x, list(result.parameter_names) or None, sd)
+               if t[0] not in seen]
     if not bad:
         return result
     cause = range_cause(robot, bad)
@@ -401,7 +413,7 @@ def effects_in_range(robot: Any, result: IdentificationResult) -> Identification
     out = IdentificationResult(**dict(result))
     out["fit"] = replace(fit, fit_ok=False, verdict=verdict if fit.fit_ok else fit.verdict,
                          causes=list(fit.causes) + [cause],
-                         implausible=list(fit.implausible) + bad)
+                         implausible=list(fit.implausible) + [t[:3] for t in bad])
     if out.success or out.status == "converged":
         out.update(success=False, status="failed", message=f"{verdict}: {cause}")
     return out
@@ -496,7 +508,7 @@ def from_result(
         except ValueError:  # too few points for a registration guess of their own
             start = None
         report = identifiability(robot, data)
-        result = effects_in_range(robot, _weighted_fit(robot, data, result, report))
+        result = effects_in_range(robot, data, _weighted_fit(robot, data, result, report))
         if (result.gross_errors is None and not job
                 and degenerate(robot, data, report) is None):
             # Never screened (iwr-calibrate's engine, iwr.identify): tested here, not re-fitted

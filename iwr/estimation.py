@@ -545,8 +545,11 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
     converged = int(out["status"]) > 0 and not stopped["flag"] and not interrupted
     causes: list[str] = []
     names = spec.parameter_names
+    sd = np.full(mask.size, np.nan)  # the effects' range test weighs departures by them
+    sd[mask] = np.sqrt(np.clip(np.diag(np.asarray(out["covariance"], dtype=float)), 0, None))
     implausible, size_causes, size_failed = size_test(
-        getattr(spec, "robot", None), names, x, spec.implausible(x, used), plausible)
+        getattr(spec, "robot", None), names, x, spec.implausible(x, used), plausible, sd,
+        fit_alpha)
     rank_ok = float(out["reciprocal_condition"]) > 1e-13
     if not rank_ok:
         causes.append(

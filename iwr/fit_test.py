@@ -135,14 +135,17 @@ def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: f
 
 
 def size_test(robot: Any, names: list[str], x: Any, implausible: list[tuple[str, float, float]],
-              plausible: float) -> tuple[list[tuple[str, float, float]], list[str], list[str]]:
+              plausible: float, sd: Any = None, alpha: float = 1e-3
+              ) -> tuple[list[tuple[str, float, float]], list[str], list[str]]:
     """The size test's answer on ``x`` (the fit check's and the efficient estimator's):
     ``(implausible, causes, failed)``. The geometric (and set-up) errors beyond ``plausible``
     times their size modulo the null directions (``implausible``, from
     :func:`_nearest_plausible`), and a robot's effects' parameters outside their own plausible
     range instead (:func:`iwr.effects.problem.out_of_range`: a compliance in 0 .. max; ten times
-    that range would let a negative compliance pass); ``failed`` says what failed, for the
-    verdict."""
+    that range would let a negative compliance pass), by more than the noise explains at level
+    ``alpha`` when ``sd`` (the standard deviations of ``x``'s entries, or a function giving
+    them, called only when an effect is outside its range) is given; ``failed`` says what
+    failed, for the verdict."""
     causes: list[str] = []
     failed: list[str] = []
     ranges: list[tuple[str, float, float]] = []
@@ -153,13 +156,15 @@ def size_test(robot: Any, names: list[str], x: Any, implausible: list[tuple[str,
         own = set(effect_parameter_names(robot.effects))
         implausible = [t for t in implausible if t[0] not in own]
         ranges = out_of_range(robot, x, names)
+        if ranges and sd is not None:  # outside: by more than the noise explains?
+            ranges = out_of_range(robot, x, names, sd() if callable(sd) else sd, alpha)
     if implausible:
         causes.append(_implausible_cause(implausible, plausible))
         failed.append("identified errors beyond their plausible size")
     if ranges:
         causes.append(range_cause(robot, ranges))
         failed.append(RANGE_FAILED)
-    return list(implausible) + ranges, causes, failed
+    return list(implausible) + [t[:3] for t in ranges], causes, failed
 
 
 def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
@@ -244,7 +249,21 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     x_plain = _nearest_plausible(readings, x, limit, centre)
     implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
                    if abs(x_plain[i]) > limit[i]]
-    implausible, size_causes, size_failed = size_test(robot, names, x, implausible, plausible)
+
+    def sd() -> Any:
+        """The effects' standard deviations for their range test (with effects only)."""
+        from .effects.problem import parameter_sd
+
+        if not isinstance(measurements, Measurements):
+            return None  # the range itself
+        try:
+            return parameter_sd(robot, measurements, x, mask,
+                                noise if weighted is None else None)
+        except (ValueError, np.linalg.LinAlgError):
+            return None  # then the range itself
+
+    implausible, size_causes, size_failed = size_test(robot, names, x, implausible, plausible,
+                                                      sd if robot.effects else None, fit_alpha)
     causes: list[str] = []
     statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
     if noise is not None and weighted is not None:

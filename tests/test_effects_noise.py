@@ -197,6 +197,24 @@ def test_an_effect_outside_its_range_fails_every_method_and_the_job(with_effects
     assert want.search(cal.result.message)
 
 
+def test_a_machine_at_the_bound_of_an_effects_range_passes(with_effects):
+    """The range is tested as a hypothesis: legs with no compliance (the bound of 0 .. 0.05),
+    realistic noise; the compliances identified below 0 by the noise (some are) are within
+    what the noise explains, and LM, the efficient estimator and the job pass."""
+    n = with_effects.n_params
+    x = np.zeros(n + 7)
+    x[n: n + 6] = -0.01  # 0.01 in the file: no compliance
+    m, _ = api.simulate(with_effects, 60, seed=12, x=x, noise=NOISE)
+    lm = iwr.identify(with_effects, m, "lm")
+    eff = iwr.identify(with_effects, m, "efficient", noise=NOISE)
+    for r in (lm, eff):
+        assert np.any(r.x[n: n + 6] < -0.01), r.x[n: n + 6]  # below the range: the noise
+        assert r.success, r.message
+        assert not any("outside their plausible range" in c for c in r.fit.causes)
+    cal = iwr.calibrate(with_effects, m, noise=NOISE, validation_fraction=0)
+    assert cal.success, cal.result.message
+
+
 def test_job_with_a_noise_model_and_effects(with_effects):
     """iwr.calibrate(noise=) on a robot with effects: the efficient estimator by default (its
     outlier test names a 0.3 mm leg typo), or weighted LM with the gross-error screen's
