@@ -312,3 +312,35 @@ def test_report_of_a_weighted_iwr_calibrate_run_with_effects(with_effects, noisy
     summary = json.loads((rep / "summary.json").read_text())
     assert summary["fit"]["statistic"] == pytest.approx(saved.fun, rel=1e-9)
     assert proc.returncode == (0 if summary["fit"]["fit_ok"] else 3), proc.stdout + proc.stderr
+
+
+def test_report_of_a_weighted_tracker_run_tests_gross_errors_under_its_noise(tmp_path):
+    """Laser-tracker points: `iwr-calibrate --noise realistic` records its noise model (the
+    readings' and the tracker's), and `iwr report` tests each pose under it (the chi-square
+    test, as `iwr calibrate --noise` does), not by Pope's test with the noise estimated from
+    the residuals; its standard deviations are the weighted objective's."""
+    robot = iwr.Robot.default().with_tracker(
+        registration=(2000.0, 0.0, 0.0, np.pi / 2, 0.0, 0.0),
+        reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)])
+    nominal = tmp_path / "nominal.toml"
+    robot.to_toml(nominal)
+    sim = tmp_path / "sim"
+    proc = _iwr("simulate", "--robot", nominal, "--poses", "40", "--seed", "3", "-o", sim)
+    assert proc.returncode == 0, proc.stderr
+    run = tmp_path / "run.json"
+    proc = _run(_launcher(), sim / "robot.toml", sim / "measurements.csv", "--noise",
+                "realistic", "--output", run, "--population-size", 40, "--generations", 100,
+                "--seed", 2, "--quiet")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    saved = iwr.load_result(run)
+    objective = saved.settings["objective"]
+    assert objective["weighted"] is True and objective["tracker_noise"] is not None
+    rep = tmp_path / "rep"
+    proc = _iwr("report", run, sim / "robot.toml", sim / "measurements.csv", "--out", rep,
+                "--no-plots")
+    assert "Traceback" not in proc.stderr, proc.stderr
+    md = (rep / "report.md").read_text()
+    assert "chi-square test under the noise model" in md and "Pope" not in md, md
+    summary = json.loads((rep / "summary.json").read_text())
+    assert summary["fit"]["statistic"] == pytest.approx(saved.fun, rel=1e-9)
+    assert proc.returncode == (0 if summary["fit"]["fit_ok"] else 3), proc.stdout
