@@ -289,25 +289,34 @@ def test_cli_calibrate_with_the_robot_files_noise_and_effects(with_effects, nois
     assert "Traceback" not in proc.stderr
 
 
-def test_report_of_a_weighted_iwr_calibrate_run_with_effects(with_effects, noisy, tmp_path):
-    """`iwr-calibrate --noise robot` (DE on the C++ objective with effects, whitened) then `iwr
-    report`: the run records its noise model, and the report tests the fit (chi-square), the
-    gross errors (each pose's chi-square test under that model, not Pope's) and gives the
-    effects; exit 0."""
+@pytest.mark.parametrize("weighted", [True, False], ids=["noise", "unweighted"])
+def test_report_of_an_iwr_calibrate_run_with_effects(with_effects, noisy, tmp_path, weighted):
+    """`iwr-calibrate` (DE on the C++ objective with effects; with `--noise robot` whitened)
+    then `iwr report`: a weighted run records its noise model, and the report tests the fit
+    (chi-square), the gross errors (each pose's chi-square test under that model, not Pope's)
+    and gives the effects; an unweighted run is reported with Pope's test and the effects."""
     m, _ = noisy
     robot_file, data_file = _cli_files(with_effects, m, tmp_path)
     run = tmp_path / "run.json"
-    proc = _run(_launcher(), robot_file, data_file, "--noise", "robot", "--output", run,
-                "--population-size", 40, "--generations", 150, "--seed", 2, "--quiet")
+    proc = _run(_launcher(), robot_file, data_file, *(["--noise", "robot"] if weighted else []),
+                "--output", run, "--population-size", 40, "--generations", 150, "--seed", 2,
+                "--quiet")
     assert proc.returncode == 0, proc.stdout + proc.stderr
     saved = iwr.load_result(run)
-    assert saved.settings["objective"]["weighted"] is True
-    assert saved.settings["objective"]["noise"] == vars(NOISE)
+    assert saved.parameter_names[-1] == "legs.alpha"
     rep = tmp_path / "rep"
     proc = _iwr("report", run, robot_file, data_file, "--out", rep, "--no-plots")
+    assert "Traceback" not in proc.stderr, proc.stderr
     md = (rep / "report.md").read_text()
+    assert "## Effects" in md
+    if not weighted:
+        assert "objective" not in saved.settings and "Pope's tau test" in md
+        assert proc.returncode in (0, 3, 5), proc.stdout + proc.stderr
+        return
+    assert saved.settings["objective"]["weighted"] is True
+    assert saved.settings["objective"]["noise"] == vars(NOISE)
     assert "chi-square test under the noise model" in md and "Pope" not in md
-    assert "chi2 =" in md and "## Effects" in md
+    assert "chi2 =" in md
     # A short DE run need not fit; the exit status is the verdict's (0 fits, 3 does not).
     summary = json.loads((rep / "summary.json").read_text())
     assert summary["fit"]["statistic"] == pytest.approx(saved.fun, rel=1e-9)
