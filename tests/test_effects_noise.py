@@ -20,7 +20,6 @@ import pytest
 
 import iwr
 from iwr.effects import api
-from iwr.effects.model import predicted_readings
 from iwr.effects.problem import EffectProblem
 from iwr.measurements import Measurements
 

@@ -14,8 +14,8 @@ from typing import Any
 import numpy as np
 
 from ..transforms import pose_matrix
-from .api import DEFAULT_PAYLOADS, forward_kinematics, realistic, simulate
 from . import parameter_names
+from .api import DEFAULT_PAYLOADS, forward_kinematics, realistic, simulate
 from .problem import out_of_range
 
 __all__ = ["FRESH_PAYLOADS", "Trial", "trial"]
