@@ -294,9 +294,10 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     causes += size_causes
     fit_ok = chi_ok and not implausible
     if not tested:
+        beyond = "identified errors beyond their plausible size"  # size_test's wording
         head = ("no noise model: the cost is not tested (give one for the chi-square test); "
-                + ("; ".join(size_failed) if size_failed
-                   else "identified errors within their plausible size"))
+                "identified errors " + ("NOT within" if beyond in size_failed else "within")
+                + " their plausible size" + "".join(f"; {f}" for f in size_failed if f != beyond))
         verdict = head if fit_ok else "THE MODEL DOES NOT FIT THE DATA: " + head
     else:
         verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "implausible parameters",
