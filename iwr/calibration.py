@@ -595,7 +595,8 @@ def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, no
             active = result.active if report is None else report
             recorded = _recorded_noise(kinds.of(data), result)
             if recorded is not None:
-                # A result read back: the noise model it recorded.
+                # The weighted objective: the noise model given (the job), else the one the
+                # result recorded (a result read back).
                 unc = uncertainty(robot, data, result.x, recorded if noise is None else noise,
                                   active=active, weighted=True)
             else:

@@ -254,12 +254,10 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
         """The effects' standard deviations for their range test (with effects only)."""
         from .effects.problem import parameter_sd
 
-        if not isinstance(measurements, Measurements):
-            return None  # the range itself
         try:
             return parameter_sd(robot, measurements, x, mask,
                                 noise if weighted is None else None)
-        except (ValueError, np.linalg.LinAlgError):
+        except (ValueError, np.linalg.LinAlgError):  # not pose data, or no such Jacobian
             return None  # then the range itself
 
     implausible, size_causes, size_failed = size_test(robot, names, x, implausible, plausible,

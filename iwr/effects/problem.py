@@ -107,8 +107,12 @@ def parameter_sd(robot: Any, data: Any, x: Any, active: Any, noise: Any = None) 
     ``noise`` (an :class:`iwr.Noise`: the residuals whitened by it, unit variance), else with
     the leg noise estimated from the residuals (``r.r / (m - rank)``). What the fit check's
     range test (:func:`out_of_range`) weighs an effect's departure from its range by."""
+    from ..measurements import Measurements
     from ..noise import Noise
 
+    if not isinstance(data, Measurements):
+        raise ValueError(f"data: {type(data).__name__}; the standard deviations of eq. (10) "
+                         "with the effects are for pose data (iwr.Measurements)")
     p = EffectProblem(robot, data, noise=noise if isinstance(noise, Noise) else None)
     r, jac = p.residuals_and_jacobian(np.asarray(x, dtype=float))
     rows = (np.ones(r.size, dtype=bool) if data.weights is None
