@@ -78,6 +78,12 @@ def main() -> None:
           f"ratio of the RMS over the seeds {math.sqrt(np.mean(geo**2) / np.mean(ext**2)):.2f}")
     print(f"extended model's fit test passed: {sum(bool(r.extended_fit_ok) for r in main_runs)}"
           f"/{len(main_runs)}")
+    for what, key in (("failed by its fit check's range test (beyond the noise)",
+                       "extended_out_of_range"),
+                      ("outside the range at all (within the noise)", "extended_past_bound")):
+        ranged = [(r.seed, getattr(r, key)) for r in main_runs if getattr(r, key)]
+        print(f"extended model's effects {what}: {len(ranged)}/{len(main_runs)} seeds"
+              + "".join(f"; seed {s}: {', '.join(n)}" for s, n in ranged))
     act = ext / pred
     print("\n(c) extended model: actual / predicted tool position RMS on the fresh poses")
     print(f"over the seeds (RMS of the actual / RMS of the predicted): "

@@ -280,10 +280,10 @@ def calibrate(
         Ctrl-C during the identification ends the job with the best point so far
         (``status == "interrupted"``, ``success`` false).
     """
-    if robot.effects:  # issue 23: eq. (10) with the effects by LM, without a noise model so far
+    if robot.effects:  # issue 23: pose data; the methods say which of them model the effects
         from .effects.job import check_job
 
-        method = check_job(robot, data, method, noise)
+        check_job(robot, data)
     kind = kinds.of(data)
     kind.check(robot, data)
     if parameters not in ("base", "all"):
@@ -341,7 +341,6 @@ def calibrate(
             if len(ident) != before:
                 # The report describes the poses the result was identified from.
                 report = identifiability(robot, ident)
-        result = effects_in_range(robot, result)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
         result["settings"] = {**dict(result.settings), "data_file": data_name,
@@ -355,11 +354,7 @@ def calibrate(
         truth_acc = perr = None
         if truth is not None:
             truth_acc = accuracy(robot, val, truth)
-            if robot.effects:
-                notes.append("note: no parameter error against the truth: iwr.parameter_error "
-                             "does not model the effects yet (issue 23)")
-            else:
-                perr = parameter_error(robot, ident, result.x, truth)
+            perr = parameter_error(robot, ident, result.x, truth)
         predicted = None
         if result.covariance is not None and not result.interrupted:
             try:
@@ -379,42 +374,48 @@ def calibrate(
     return cal
 
 
-def effects_in_range(robot: Any, result: IdentificationResult) -> IdentificationResult:
+def effects_in_range(robot: Any, data: Any, result: IdentificationResult
+                     ) -> IdentificationResult:
     """``result``, its fit failed when an effect's identified value is outside its plausible
-    range (:meth:`iwr.effects.Effect.bounds`: a compliance in 0 .. max, a negative one is no
-    machine): the methods that do not bound their search (LM) can leave it, and the size test
-    of the fit, measured from zero, allowed ten times the range (the review found exit 0,
-    "converged", with a compliance of -0.048 and +0.123 um/N of at most 0.05)."""
+    range and its fit test did not say so: a result identified elsewhere (``iwr-calibrate``'s
+    engine, whose DE bounds its search but whose result file may be edited or come from
+    another robot file). Every method's own fit check tests the range
+    (:func:`iwr.fit_test.size_test`, :func:`iwr.effects.problem.out_of_range`), with the same
+    cause."""
     from dataclasses import replace
 
-    from .effects import bounds as effect_bounds
+    from .effects.problem import RANGE_FAILED, out_of_range, range_cause
     from .result import FitTest
 
     x = np.asarray(result.x, dtype=float)
     if not robot.effects or result.interrupted or not np.all(np.isfinite(x)):
         return result
-    lo, hi = effect_bounds(robot.effects)
-    names = effect_parameter_names(robot.effects)
-    units = [u for e in robot.effects for u in e.units()]
-    values = np.concatenate([e.values() for e in robot.effects])
-    xe = x[robot.n_params:robot.n_params + lo.size]
-    span = 1e-9 * np.maximum(hi - lo, 1e-12)
-    bad = [i for i in range(lo.size) if xe[i] < lo[i] - span[i] or xe[i] > hi[i] + span[i]]
+    fit = result.fit
+    seen = set() if fit is None else {t[0] for t in fit.implausible}
+    bad = [t for t in out_of_range(robot, x, list(result.parameter_names) or None)
+           if t[0] not in seen]
+    if bad:  # by more than the noise explains (the leg noise estimated from the residuals)?
+        from .effects.problem import parameter_sd
+
+        active = (np.ones(x.size, dtype=bool) if result.active is None
+                  else np.asarray(result.active, dtype=bool))
+        try:
+            sd = parameter_sd(robot, data, x, active)
+        except (ValueError, np.linalg.LinAlgError):
+            sd = None
+        bad = [t for t in out_of_range(robot, x, list(result.parameter_names) or None, sd)
+               if t[0] not in seen]
     if not bad:
         return result
-    causes = [f"{names[i]} = {values[i] + xe[i]:.4g} {units[i]}, outside its plausible range "
-              f"{values[i] + lo[i]:.4g} .. {values[i] + hi[i]:.4g} {units[i]}" for i in bad]
-    causes.append("the data do not determine these effects (too few loads or temperatures: "
-                  "iwr.identifiability), or the model lacks another effect (docs/effects.md)")
-    verdict = "THE MODEL DOES NOT FIT THE DATA: an effect's identified value is not plausible"
-    fit = result.fit or FitTest(math.nan, 0, math.nan, 1e-3, True, "", [], [])
-    implausible = list(fit.implausible) + [
-        (names[i], float(xe[i]), float(hi[i] if xe[i] > hi[i] else lo[i])) for i in bad]
+    cause = range_cause(robot, bad)
+    verdict = f"THE MODEL DOES NOT FIT THE DATA: {RANGE_FAILED}"
+    fit = fit or FitTest(math.nan, 0, math.nan, 1e-3, True, "", [], [])
     out = IdentificationResult(**dict(result))
     out["fit"] = replace(fit, fit_ok=False, verdict=verdict if fit.fit_ok else fit.verdict,
-                         causes=list(fit.causes) + causes, implausible=implausible)
+                         causes=list(fit.causes) + [cause],
+                         implausible=list(fit.implausible) + [t[:3] for t in bad])
     if out.success or out.status == "converged":
-        out.update(success=False, status="failed", message=f"{verdict}: {causes[0]}")
+        out.update(success=False, status="failed", message=f"{verdict}: {cause}")
     return out
 
 
@@ -464,7 +465,7 @@ def from_result(
     if robot.effects:
         from .effects.job import check_job
 
-        check_job(robot, data, None, None)  # the data it models; the method ran elsewhere
+        check_job(robot, data)  # the data it models; the method ran elsewhere
     x = np.asarray(result.x, dtype=float)
     if x.shape != (len(names),):
         raise ValueError(f"{x.size} parameters, but robot {robot.name!r} "
@@ -507,12 +508,15 @@ def from_result(
         except ValueError:  # too few points for a registration guess of their own
             start = None
         report = identifiability(robot, data)
-        result = effects_in_range(robot, _weighted_fit(robot, data, result, report))
+        result = effects_in_range(robot, data, _weighted_fit(robot, data, result, report))
         if (result.gross_errors is None and not job
                 and degenerate(robot, data, report) is None):
             # Never screened (iwr-calibrate's engine, iwr.identify): tested here, not re-fitted
             # (issue 22). A job's result was screened by its run (an older one: not recorded).
+            # Under the noise model a weighted run recorded (iwr-calibrate --noise), as the job
+            # tests a weighted fit's poses; else Pope's test.
             result, val = check_gross_errors(robot, data, val, result,
+                                             noise=_recorded_noise(kind, result),
                                              held_out=validation is not None)
         unc = _uncertainty(robot, data, result, report if result.active is None else None,
                            None, notes, own_covariance=False)
@@ -531,6 +535,15 @@ def from_result(
             problems=problems, diagnosis=_diagnosis(robot, data, result, None, notes))
         cal._settle()
     return cal
+
+
+def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
+    """The noise model a weighted result recorded (its settings' ``objective``, written by
+    :func:`iwr.identify` and ``iwr-calibrate --noise``), in the kind's form; None without one."""
+    objective = dict(result.settings).get("objective")
+    if isinstance(objective, dict) and objective.get("weighted"):
+        return kind.noise_from_record(objective)
+    return None
 
 
 def _extras(robot: Any, kind: Any) -> str:
@@ -580,11 +593,12 @@ def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, no
         unc = Uncertainty.from_result(result) if own_covariance else None
         if unc is None:
             active = result.active if report is None else report
-            objective = dict(result.settings).get("objective")
-            if isinstance(objective, dict) and objective.get("weighted"):
-                if noise is None:  # a result read back: the noise model it recorded
-                    noise = kinds.of(data).noise_from_record(objective)
-                unc = uncertainty(robot, data, result.x, noise, active=active, weighted=True)
+            recorded = _recorded_noise(kinds.of(data), result)
+            if recorded is not None:
+                # The weighted objective: the noise model given (the job), else the one the
+                # result recorded (a result read back).
+                unc = uncertainty(robot, data, result.x, recorded if noise is None else noise,
+                                  active=active, weighted=True)
             else:
                 unc = uncertainty(robot, data, result.x, active=active)
     except (ValueError, TypeError, KeyError) as exc:

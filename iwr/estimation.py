@@ -42,11 +42,11 @@ from .fit_test import (
     FitTest,
     _chi2_cause,
     _chi2_verdict,
-    _implausible_cause,
     _nearest_plausible,
     _plausible_limit,
     fit_check,
     leg_readings,
+    size_test,
 )
 from .implicit_loop import (
     _check_noise,
@@ -545,7 +545,11 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
     converged = int(out["status"]) > 0 and not stopped["flag"] and not interrupted
     causes: list[str] = []
     names = spec.parameter_names
-    implausible = spec.implausible(x, used)
+    sd = np.full(mask.size, np.nan)  # the effects' range test weighs departures by them
+    sd[mask] = np.sqrt(np.clip(np.diag(np.asarray(out["covariance"], dtype=float)), 0, None))
+    implausible, size_causes, size_failed = size_test(
+        getattr(spec, "robot", None), names, x, spec.implausible(x, used), plausible, sd,
+        fit_alpha)
     rank_ok = float(out["reciprocal_condition"]) > 1e-13
     if not rank_ok:
         causes.append(
@@ -558,8 +562,7 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
                       "measure more poses")
     elif not chi_ok:
         causes.append(_chi2_cause(statistic, dof, p_value))
-    if implausible:
-        causes.append(_implausible_cause(implausible, plausible))
+    causes += size_causes
     if too_many:
         causes.append(
             f"{len(found)} poses fail the outlier test (more than {max_outlier_fraction:.0%} of "
@@ -579,7 +582,7 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
                      "only what the estimate leaves free")
     failed = [what for what, bad in (
         ("the active parameters are not all identifiable", not rank_ok),
-        ("identified errors beyond their plausible size", bool(implausible)),
+        *((what, True) for what in size_failed),
         ("too many poses fail the outlier test", bool(too_many))) if bad] if chi_ok else None
     verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "no degrees of freedom", failed)
     fit = FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict,

@@ -134,6 +134,39 @@ def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: f
             "or reflector offset left out, leg or pose columns swapped, a wrong nominal geometry")
 
 
+def size_test(robot: Any, names: list[str], x: Any, implausible: list[tuple[str, float, float]],
+              plausible: float, sd: Any = None, alpha: float = 1e-3
+              ) -> tuple[list[tuple[str, float, float]], list[str], list[str]]:
+    """The size test's answer on ``x`` (the fit check's and the efficient estimator's):
+    ``(implausible, causes, failed)``. The geometric (and set-up) errors beyond ``plausible``
+    times their size modulo the null directions (``implausible``, from
+    :func:`_nearest_plausible`), and a robot's effects' parameters outside their own plausible
+    range instead (:func:`iwr.effects.problem.out_of_range`: a compliance in 0 .. max; ten times
+    that range would let a negative compliance pass), by more than the noise explains at level
+    ``alpha`` when ``sd`` (the standard deviations of ``x``'s entries, or a function giving
+    them, called only when an effect is outside its range) is given; ``failed`` says what
+    failed, for the verdict."""
+    causes: list[str] = []
+    failed: list[str] = []
+    ranges: list[tuple[str, float, float]] = []
+    if getattr(robot, "effects", ()):
+        from .effects import parameter_names as effect_parameter_names
+        from .effects.problem import RANGE_FAILED, out_of_range, range_cause
+
+        own = set(effect_parameter_names(robot.effects))
+        implausible = [t for t in implausible if t[0] not in own]
+        ranges = out_of_range(robot, x, names)
+        if ranges and sd is not None:  # outside: by more than the noise explains?
+            ranges = out_of_range(robot, x, names, sd() if callable(sd) else sd, alpha)
+    if implausible:
+        causes.append(_implausible_cause(implausible, plausible))
+        failed.append("identified errors beyond their plausible size")
+    if ranges:
+        causes.append(range_cause(robot, ranges))
+        failed.append(RANGE_FAILED)
+    return list(implausible) + [t[:3] for t in ranges], causes, failed
+
+
 def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
                   without_dof: str, failed: list[str] | None = None) -> str:
     """The fit test's one-line verdict (``without_dof`` when it failed with no redundancy;
@@ -216,6 +249,19 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     x_plain = _nearest_plausible(readings, x, limit, centre)
     implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
                    if abs(x_plain[i]) > limit[i]]
+
+    def sd() -> Any:
+        """The effects' standard deviations for their range test (with effects only)."""
+        from .effects.problem import parameter_sd
+
+        try:
+            return parameter_sd(robot, measurements, x, mask,
+                                noise if weighted is None else None)
+        except (ValueError, np.linalg.LinAlgError):  # not pose data, or no such Jacobian
+            return None  # then the range itself
+
+    implausible, size_causes, size_failed = size_test(robot, names, x, implausible, plausible,
+                                                      sd if robot.effects else None, fit_alpha)
     causes: list[str] = []
     statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
     if noise is not None and weighted is not None:
@@ -243,17 +289,16 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
                           "more poses")
         elif not chi_ok:
             causes.append(_chi2_cause(statistic, dof, p_value))
-    if implausible:
-        causes.append(_implausible_cause(implausible, plausible))
+    causes += size_causes
     fit_ok = chi_ok and not implausible
     if not tested:
+        beyond = "identified errors beyond their plausible size"  # size_test's wording
         head = ("no noise model: the cost is not tested (give one for the chi-square test); "
-                "identified errors " + ("within" if not implausible else "NOT within")
-                + " their plausible size")
+                "identified errors " + ("NOT within" if beyond in size_failed else "within")
+                + " their plausible size" + "".join(f"; {f}" for f in size_failed if f != beyond))
         verdict = head if fit_ok else "THE MODEL DOES NOT FIT THE DATA: " + head
     else:
         verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "implausible parameters",
-                                ["identified errors beyond their plausible size"]
-                                if chi_ok and implausible else None)
+                                size_failed if chi_ok and size_failed else None)
     return FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict, causes,
                    implausible)

@@ -467,12 +467,13 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
 
 
 def check_result(robot: Any, identification: Any, validation: Any, result: Any, *,
-                 held_out: bool = True, alpha: float = 1e-3,
+                 noise: Any = None, held_out: bool = True, alpha: float = 1e-3,
                  max_outlier_fraction: float = 0.2) -> tuple[Any, Any]:
     """Gross errors in a result identified elsewhere and never screened (``iwr report`` of an
     ``iwr-calibrate`` run): ``(result, validation)`` after them, ``result`` a copy. The tests of
-    :func:`screen` without a noise model (Pope's tau test: the noise level estimated from the
-    residuals), but nothing is re-fitted: an identification pose that fails is named and kept
+    :func:`screen` (each pose's chi-square test under ``noise``, the noise model a weighted run
+    recorded; without one Pope's tau test, the noise level estimated from the residuals), but
+    nothing is re-fitted: an identification pose that fails is named and kept
     (``removed`` False), and the fit fails with the lines to check, since the result was fitted
     to it; a held-out pose that fails is left out of the returned validation set (the accuracy
     figures), unless more than ``max_outlier_fraction`` fail (then the fit fails too)."""
@@ -480,7 +481,7 @@ def check_result(robot: Any, identification: Any, validation: Any, result: Any, 
     if result.interrupted or not np.all(np.isfinite(result.x)):
         return result, validation
     try:
-        found = find_gross_errors(robot, identification, result.x, None,
+        found = find_gross_errors(robot, identification, result.x, noise,
                                   validation=validation if held_out else None,
                                   used=result.used, active=result.active, alpha=alpha)
     except NoRedundancy as exc:

@@ -10,7 +10,6 @@ from . import _core
 from ._hooks import hook
 from .effects import bounds as effect_bounds
 from .effects import parameter_names as effect_names
-from .effects import refuse as _refuse_effects
 from .effects.model import check_inputs as check_effect_inputs
 from .measurements import Measurements, as_matrix
 from .problem_base import ProblemBase
@@ -34,7 +33,7 @@ def effect_inputs(robot: Robot, measurements: Measurements) -> dict[str, Any]:
                 payload=arr(measurements.payload), temperatures=arr(measurements.temperatures))
 
 
-def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
+def predict_legs(robot: Robot, x: Any, q: Any, poses: Any, *, data: Any = None) -> np.ndarray:
     """Predicted leg sensor readings, ``||0P5 + 0R5 b_j - 0P4 - 0R4 a_j|| - l0_j``.
 
     Parameters
@@ -42,23 +41,47 @@ def predict_legs(robot: Robot, x: Any, q: Any, poses: Any) -> np.ndarray:
     robot : Robot
     x : array_like, shape (n_params,), or None
         Error parameters added to the robot's nominal geometry (None or zeros: the nominal
-        robot).
+        robot); with effects, the geometric errors then the effects' parameters.
     q : array_like, shape (N, n_joints)
         Carriage joint readings (mm, rad).
     poses : array_like, shape (N, 6)
         Platform poses in the world frame, rows ``(x, y, z, alpha, beta, gamma)`` (mm, rad).
+    data : Measurements, optional
+        A robot with effects (docs/effects.md): each pose's load and temperature (its
+        ``payload`` and ``temperatures``, N poses), the readings less the effects' change of
+        each leg (:func:`iwr.effects.model.predicted_readings`). Not without effects.
 
     Returns
     -------
     ndarray, shape (N, 6)
     """
-    _refuse_effects(robot, "predict_legs")  # issue 23: iwr.effects.model.predicted_readings
     poses = as_matrix(poses, 6, "poses")
     q = as_matrix(q, robot.n_joints, "q", rows=poses.shape[0])
+    if robot.effects:  # issue 23: the legs under each pose's load and temperature
+        return _predict_legs_with_effects(robot, x, q, poses, data)
+    if data is not None:
+        raise ValueError(f"data: robot {robot.name!r} has no effect on; the predicted readings "
+                         "need no loads or temperatures (leave data out)")
     x = np.zeros(robot.n_params) if x is None else np.ascontiguousarray(x, dtype=float)
     if x.shape != (robot.n_params,):
         raise ValueError(f"x: shape {x.shape}; expected ({robot.n_params},)")
     return _core.predict_legs(robot._geometry, x, q, poses)
+
+
+def _predict_legs_with_effects(robot: Robot, x: Any, q: np.ndarray, poses: np.ndarray,
+                               data: Any) -> np.ndarray:
+    from .effects.model import predicted_readings
+
+    names = ", ".join(e.name for e in robot.effects)
+    if data is None:
+        raise ValueError(f"data: robot {robot.name!r} has effects on ({names}); give each "
+                         "pose's load and temperature (data=an iwr.Measurements with the "
+                         "payload and temperature columns its effects need)")
+    if len(data) != len(poses):
+        raise ValueError(f"data: {len(data)} poses, but poses has {len(poses)} rows")
+    n_all = robot.n_params + len(effect_names(robot.effects))
+    x = np.zeros(n_all) if x is None else np.ascontiguousarray(x, dtype=float)
+    return predicted_readings(robot, x, q, poses, data)
 
 
 def gls_whitening(robot: Robot, measurements: Measurements, noise: Any,
@@ -188,12 +211,6 @@ class Problem(ProblemBase):
         self._set_bounds(bounds)
         if noise is not None and whitening is not None:
             raise ValueError("noise, whitening: give one or the other")
-        if noise is not None and robot.effects:
-            raise ValueError(
-                f"noise: robot {robot.name!r} has effects on ("
-                + ", ".join(e.name for e in robot.effects) + "); the noise weighting "
-                "(gls_whitening) of the C++ objective does not model them yet: give noise=None, "
-                "or a whitening= of your own (docs/effects.md)")
         self.noise = noise
         if noise is not None:
             whitening = gls_whitening(robot, measurements, noise)

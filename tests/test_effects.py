@@ -202,17 +202,13 @@ def test_realistic_poses_separate_compliances_with_one_payload(robot, with_effec
 
 def test_what_does_not_model_the_effects_refuses(with_effects, data):
     m, x = data
-    with pytest.raises(ValueError, match="noise: robot 'IWR' has effects on.*gls_whitening"):
-        iwr.Problem(with_effects, m, noise=iwr.Noise.realistic())
-    with pytest.raises(ValueError, match="method 'de' runs the C\\+\\+ objective"):
-        iwr.identify(with_effects, m, "de", noise=iwr.Noise.realistic())
-    with pytest.raises(ValueError, match="effects on.*predict_legs"):
+    # iwr.Problem(noise=), the global methods with a noise model and predict_legs(data=) model
+    # them (tests/test_effects_noise.py); predict_legs needs the loads.
+    with pytest.raises(ValueError, match="data: robot 'IWR' has effects on"):
         predict_legs(with_effects, None, m.q, m.poses)
     with pytest.raises(ValueError, match="thermal effect.*T_C"):
         EffectProblem(with_effects, Measurements(m.q, m.poses, m.legs,
                                                  joint_types=m.joint_types, payload=m.payload))
-    with pytest.raises(ValueError, match="noise-weighted problem with effects has no problem"):
-        EffectProblem(with_effects, m, noise=iwr.Noise.realistic()).save("unused.iwrp")
     # iwr.accuracy models them (tests/test_effects_job.py): the effects' parameters are needed.
     with pytest.raises(ValueError, match="x: shape.*effect parameters"):
         iwr.accuracy(with_effects, m, x[:with_effects.n_params])

@@ -437,7 +437,9 @@ class ParameterError:
     projected : ndarray, shape (n_params,)
         ``x - truth`` with its unidentifiable component removed: the orthogonal projection (in the
         column-scaled metric) onto the row space of the Jacobian. Two vectors that differ only
-        along null directions have (to first order) the same projected error.
+        along null directions have (to first order) the same projected error. A robot with
+        effects: the geometric errors then the effects' parameters (:meth:`named`); the RMS and
+        maxima below are the geometric errors'.
     raw : ndarray
         ``x - truth`` as it is.
     null_component : ndarray
@@ -496,8 +498,13 @@ def _maxabs(v: np.ndarray) -> float:
 
 
 def _readings_problem(robot: Robot, measurements: Measurements, truth: np.ndarray) -> Problem:
-    """A problem whose residuals are ``predict_legs(y) - predict_legs(truth)``, unweighted."""
+    """A problem whose residuals are ``predict_legs(y) - predict_legs(truth)``, unweighted
+    (with effects: under each pose's load and temperature)."""
     m = measurements
+    if robot.effects:
+        legs = predict_legs(robot, truth, m.q, m.poses, data=m)
+        return Problem(robot, Measurements(m.q, m.poses, legs, joint_types=robot.joint_types,
+                                           payload=m.payload, temperatures=m.temperatures))
     legs = predict_legs(robot, truth, m.q, m.poses)
     return Problem(robot, Measurements(m.q, m.poses, legs, joint_types=robot.joint_types))
 
@@ -556,8 +563,21 @@ def parameter_error(
     the set of parameter vectors indistinguishable from the truth at these poses: the part of the
     error that the readings can see.
     """
-    x = _x_or_zeros(robot, x, "x")
-    truth = _x_or_zeros(robot, truth, "truth")
+    if robot.effects:  # issue 23: the effects' parameters after the geometric errors
+        from ..effects import parameter_names as effect_names
+
+        n_all = robot.n_params + len(effect_names(robot.effects))
+        for name, v in (("x", x), ("truth", truth)):
+            if np.shape(v) != (n_all,):
+                raise ValueError(f"{name}: shape {np.shape(v)}; expected ({n_all},): "
+                                 f"{robot.n_params} geometric errors, then "
+                                 + ", ".join(effect_names(robot.effects)))
+        x, truth = np.array(x, dtype=float), np.array(truth, dtype=float)
+    else:
+        x = _x_or_zeros(robot, x, "x")
+        truth = _x_or_zeros(robot, truth, "truth")
+    if not (np.all(np.isfinite(x)) and np.all(np.isfinite(truth))):
+        raise ValueError("x, truth: expected finite values")
     if method not in ("nonlinear", "linear"):
         raise ValueError(f"method: {method!r}; expected 'nonlinear' or 'linear'")
     problem = _readings_problem(robot, measurements, truth)
@@ -575,8 +595,11 @@ def parameter_error(
         d, _, vt, rank = _row_space(jac, rtol)
         vr = vt[:rank].T
         projected = (vr @ (vr.T @ (d * (x - y)))) / d
+    # The geometric errors' lengths and angles (the effects' parameters have units of their own:
+    # by name in the result).
     ang = robot.angle_parameters
-    lengths, angles = projected[~ang], projected[ang]
+    n = robot.n_params
+    lengths, angles = projected[:n][~ang], projected[:n][ang]
     return ParameterError(
         projected=projected,
         raw=raw,
@@ -585,11 +608,11 @@ def parameter_error(
         rms_angle=_rms(angles),
         max_abs_length=_maxabs(lengths),
         max_abs_angle=_maxabs(angles),
-        raw_rms_length=_rms(raw[~ang]),
-        raw_rms_angle=_rms(raw[ang]),
+        raw_rms_length=_rms(raw[:n][~ang]),
+        raw_rms_angle=_rms(raw[:n][ang]),
         reading_rms=_rms(problem.residuals(x)),
         rank=rank,
-        parameter_names=robot.parameter_names,
+        parameter_names=problem.parameter_names,
         converged=converged,
     )
 

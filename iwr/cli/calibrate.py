@@ -223,17 +223,6 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     args.out = str(_out_folder(args))
     robot = load_robot(args.robot)
-    if robot.effects and args.noise_from and args.noise_from != "--noise":
-        # Issue 23: the job with effects is eq. (10) by LM, without a noise model so far; the
-        # robot file's [noise] is set aside (--noise with effects is refused by iwr.calibrate).
-        print(f"noise model of {args.noise_from}: not used: robot {robot.name!r} has effects "
-              "on, which the noise-weighted objective and the efficient estimator do not model "
-              "yet (docs/effects.md)", flush=True)
-        kwargs.pop("noise", None)
-        args.noise_from, args.noise_note = None, ""
-        if not args.method and method == "efficient":
-            method = "lm"
-            kwargs = _method_kwargs(method, args)
     kind = for_robot(robot)
     if not kind.report:
         raise UsageError(f"{args.robot}: {kind.name} data ({kind.description}): iwr calibrate "

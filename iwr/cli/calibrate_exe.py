@@ -202,10 +202,18 @@ def _lock_checkpoint(checkpoint: str, kind: str = "lock", holder: str = ENGINE) 
     return fd
 
 
-def _export(checkpoint: str, problem: str | None, output: str) -> None:
+def _export(checkpoint: str, problem: str | None, output: str,
+            objective: dict[str, Any] | None = None) -> None:
+    """The engine's result written to ``output``; ``objective``: the noise model of a weighted
+    run (``--noise``), recorded as :func:`iwr.identify` records its own (the settings'
+    ``objective``), so that ``iwr report`` tests the run's gross errors, its fit and its
+    uncertainty under it."""
     from ..problem_file import engine_result
 
-    engine_result(checkpoint, problem).save(output)
+    result = engine_result(checkpoint, problem)
+    if objective is not None:
+        result["settings"] = {**dict(result.settings), "objective": objective}
+    result.save(output)
 
 
 def _same_value(a: Any, b: Any) -> bool:
@@ -475,6 +483,7 @@ def _launch(engine: str, positional: list[str], own: dict[str, str], engine_args
             flags: set[str], robot_path: str | None, data_path: str | None,
             problem_in: str | None, problem_path: str, output: str, checkpoint: str,
             resume: str | None, log: str | None) -> int:
+    objective = None  # the noise model of a weighted run, for its result
     if problem_in is None:
         assert robot_path is not None and data_path is not None
         # The engine's lock first: a run going on with this checkpoint keeps its problem file
@@ -488,6 +497,11 @@ def _launch(engine: str, positional: list[str], own: dict[str, str], engine_args
             if resume is not None:
                 _keep_the_run_problem(problem, problem_path, robot_path, data_path, x0)
             problem.save(problem_path, sources=sources, x0=x0)
+            if problem.noise is not None:
+                from ..kinds import of
+
+                objective = {"weighted": True,
+                             **of(problem.measurements).noise_record(problem.noise)}
         finally:
             os.close(lock)
     elif "--readings" in own:
@@ -499,7 +513,7 @@ def _launch(engine: str, positional: list[str], own: dict[str, str], engine_args
                                 "--resume-command", hint])
     if code in (EXIT_OK, 128 + signal.SIGHUP, 128 + signal.SIGINT, 128 + signal.SIGTERM) and \
             Path(checkpoint).is_file():
-        _export(checkpoint, problem_path, output)
+        _export(checkpoint, problem_path, output, objective)
         if "--quiet" not in flags and "-q" not in flags:
             print(f"{PROG}: result in {output}", file=sys.stderr)
     return code

@@ -213,14 +213,15 @@ def bounds(effects: Sequence[Effect]) -> tuple[np.ndarray, np.ndarray]:
 
 
 #: The methods and functions that model the effects (the others refuse a robot with effects).
-SUPPORTED = ("iwr.identify with method 'lm' (eq. (10) or noise-weighted) or 'efficient' on "
-             "pose data", "iwr.identify with method 'de', 'crs2' or 'bobyqa' (eq. (10)) on pose "
-             "data", "iwr.Problem and its problem file, iwr-engine, iwr-calibrate",
-             "iwr.simulate", "iwr.identifiability", "iwr.uncertainty",
-             "iwr.estimation.predicted_accuracy", "iwr.implicit_loop.loop_jacobians",
-             "iwr.accuracy",
-             "iwr.calibrate, iwr calibrate and iwr report with method 'lm' without a noise model",
-             "iwr.effects.api.leg_commands", "iwr.effects.api.forward_kinematics")
+SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or "
+             "noise-weighted) or 'efficient' on pose data",
+             "iwr.Problem (noise= too) and its problem file, iwr-engine, iwr-calibrate",
+             "iwr.simulate", "iwr.identifiability", "iwr.uncertainty", "iwr.parameter_error",
+             "iwr.predict_legs (data=)", "iwr.estimation.predicted_accuracy",
+             "iwr.implicit_loop.loop_jacobians", "iwr.accuracy",
+             "iwr.calibrate, iwr calibrate and iwr report (any of those methods, with or without "
+             "a noise model)", "iwr.effects.api.leg_commands",
+             "iwr.effects.api.forward_kinematics")
 
 
 def refuse(robot: Any, what: str) -> None:

@@ -3,9 +3,7 @@ the job side; docs/effects.md).
 
 - :func:`accuracy`: :func:`iwr.accuracy` of a robot with effects, the tool pose by the forward
   kinematics under each pose's load and temperature (:func:`iwr.effects.api.forward_kinematics`).
-- :func:`misclosures`: the linearised leg residuals that the gross-error screen
-  (:mod:`iwr.gross_errors`) tests, with the effects.
-- :func:`check_job`: what :func:`iwr.calibrate` with effects runs, and what it refuses.
+- :func:`check_job`: the data :func:`iwr.calibrate` models the effects on.
 - :func:`diagnose`: whether the residuals of a geometric-only fit correlate with the leg forces
   (the payload columns) or the temperatures (the temperature columns), by the F test of the
   residuals' regression on them beside the geometry, and the effect to switch on.
@@ -21,37 +19,28 @@ import numpy as np
 from scipy import special
 
 from .builtin import LegCompliance
-from .model import leg_state, predicted_readings, split
+from .model import leg_state, split
 
-__all__ = ["Diagnosis", "EffectTest", "accuracy", "check_job", "diagnose", "misclosures",
-           "DIAGNOSIS_ALPHA"]
+__all__ = ["Diagnosis", "EffectTest", "accuracy", "check_job", "diagnose", "DIAGNOSIS_ALPHA"]
 
 #: The probability that the diagnosis names an effect on data that have none (the family's level:
 #: Bonferroni over the effects tested).
 DIAGNOSIS_ALPHA = 0.01
 
 
-def check_job(robot: Any, data: Any, method: str | None, noise: Any) -> str:
-    """The method :func:`iwr.calibrate` runs on a robot with effects (``"lm"``, eq. (10) with the
-    effects); ValueError naming what is not modelled yet: the other methods, a noise model."""
+def check_job(robot: Any, data: Any) -> None:
+    """ValueError unless :func:`iwr.calibrate` models ``robot``'s effects on ``data``: pose data
+    (:class:`iwr.Measurements`); every method that models them (:data:`iwr.effects.problem.METHODS`,
+    with or without a noise model: :func:`iwr.identify` says which) runs in the job, with the
+    gross-error screen (:func:`misclosures`), the fit test, the uncertainty and the predicted
+    accuracy with the effects."""
     from ..measurements import Measurements
 
-    names = ", ".join(e.name for e in robot.effects)
     if not isinstance(data, Measurements):
+        names = ", ".join(e.name for e in robot.effects)
         raise ValueError(f"robot {robot.name!r} has effects on ({names}): the calibration job "
                          f"models them on pose data (iwr.Measurements) only, not on "
                          f"{type(data).__name__} (docs/effects.md)")
-    if method is not None and method != "lm":
-        raise ValueError(f"method {method!r}: robot {robot.name!r} has effects on ({names}); "
-                         "the calibration job with effects runs 'lm' (eq. (10) with the "
-                         "effects and its exact Jacobian); the other methods do not model "
-                         "them yet (docs/effects.md)")
-    if noise is not None:
-        raise ValueError(f"noise: robot {robot.name!r} has effects on ({names}); the "
-                         "noise-weighted objective, the efficient estimator and their "
-                         "chi-square fit test do not model them yet: calibrate without a noise "
-                         "model (eq. (10), method 'lm'; docs/effects.md)")
-    return "lm"
 
 
 # -- accuracy ---------------------------------------------------------------------------------
@@ -93,54 +82,6 @@ def accuracy(robot: Any, measurements: Any, x: Any, *, tool: Any = None,
         pos, ori = pose_errors(poses, measurements.poses, tool)
         out[label] = PoseErrors(position=pos, orientation=ori, poses=poses)
     return Accuracy(nominal=out["nominal"], calibrated=out["calibrated"])
-
-
-# -- the gross-error screen's linearised model ---------------------------------------------------
-
-def misclosures(robot: Any, measurements: Any, x: Any, noise: Any = None) -> Any:
-    """:func:`iwr.estimation.pose_misclosures` of a robot with effects: the six leg residuals of
-    eq. (10) with the effects per pose, their exact derivatives in the parameters, and their
-    derivatives in every reading (the legs: -1; the joints, the measured position and the
-    orientation's rotation vector in {5}, as :func:`iwr.implicit_loop.loop_jacobians` orders
-    them: central differences of the predicted readings, which move the leg forces too).
-    Without a noise model only (the metric of eq. (10): ``1 / w`` per leg)."""
-    from ..estimation import reading_names
-    from ..misclosures import Misclosures
-    from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
-
-    if noise is not None:
-        names = ", ".join(e.name for e in robot.effects)
-        raise ValueError(f"noise: robot {robot.name!r} has effects on ({names}); the gross-error "
-                         "test under a noise model does not model them yet (docs/effects.md)")
-    m = measurements
-    s, jx = predicted_readings(robot, x, m.q, m.poses, m, derivatives=True)
-    n, nj = len(m), robot.n_joints
-    r = s - m.legs
-    t5 = pose_matrix(m.poses)
-    jy = np.empty((n, 6, nj + 6))
-    steps = [1e-6] * nj + [1e-4] * 3 + [1e-7] * 3
-    for c, h in enumerate(steps):
-        side = []
-        for sign in (1.0, -1.0):
-            q, t = m.q.copy(), t5.copy()
-            if c < nj:
-                q[:, c] += sign * h
-            elif c < nj + 3:
-                t[:, c - nj, 3] += sign * h
-            else:
-                w = np.zeros((n, 3))
-                w[:, c - nj - 3] = sign * h
-                t[:, :3, :3] = t[:, :3, :3] @ rotvec_matrix(w)
-            side.append(predicted_readings(robot, x, q, pose_from_matrix(t), m))
-        jy[:, :, c] = (side[0] - side[1]) / (2 * h)
-    b = np.concatenate([np.broadcast_to(-np.eye(6), (n, 6, 6)), jy], axis=2)
-    w = m.weights
-    metric = None
-    if w is not None:
-        r = np.where(w > 0, r, np.nan)
-        metric = np.einsum("ki,ij->kij", 1.0 / np.where(w > 0, w, 1.0), np.eye(6))
-    names = reading_names(robot.with_effects())
-    return Misclosures(r, jx, b, names, names[:6], metric=metric)
 
 
 # -- the diagnosis of a geometric fit -----------------------------------------------------------

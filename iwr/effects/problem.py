@@ -11,16 +11,18 @@ from . import bounds as effect_bounds
 from . import parameter_names as effect_names
 from .model import check_inputs, predicted_readings
 
-__all__ = ["EffectProblem", "METHODS", "check_method"]
+__all__ = ["EffectProblem", "METHODS", "RANGE_FAILED", "check_method", "out_of_range",
+           "parameter_sd", "range_cause"]
 
 #: The identification methods that minimise the objective with effects: Levenberg-Marquardt on
 #: eq. (10) or its noise-weighted form (this numpy model), the efficient estimator (its numpy
-#: solver, :mod:`iwr.effects.solver`), and DE, CRS2 and BOBYQA on eq. (10) (the C++ objective
-#: with effects: :class:`iwr.Problem`, ``cpp/src/effects.cpp``).
+#: solver, :mod:`iwr.effects.solver`), and DE, CRS2 and BOBYQA on eq. (10) or its
+#: noise-weighted form (the C++ objective with effects and the whitening of
+#: :func:`iwr.problem.gls_whitening`: :class:`iwr.Problem`, ``cpp/src/effects.cpp``).
 METHODS = ("lm", "efficient", "de", "crs2", "bobyqa")
 
 
-def check_method(robot: Any, method: str, noise: Any, weighted: Any) -> None:
+def check_method(robot: Any, method: str) -> None:
     """ValueError unless ``method`` models ``robot``'s effects."""
     names = ", ".join(e.name for e in robot.effects)
     if method not in METHODS:
@@ -28,11 +30,106 @@ def check_method(robot: Any, method: str, noise: Any, weighted: Any) -> None:
             f"method {method!r}: robot {robot.name!r} has effects on ({names}), which method "
             f"{method!r} does not model yet; the methods that do: {', '.join(METHODS)} "
             "(docs/effects.md)")
-    if method not in ("lm", "efficient") and (noise is not None or weighted):
-        raise ValueError(
-            f"noise: robot {robot.name!r} has effects on ({names}); method {method!r} runs the "
-            "C++ objective with the effects, which is eq. (10)'s, not its noise-weighted form: "
-            "give noise=None, or use method 'lm' or 'efficient' (docs/effects.md)")
+
+
+#: What failed, in a fit's verdict, when an effect's identified value is outside its range.
+RANGE_FAILED = "an effect's identified value outside its plausible range"
+
+
+def out_of_range(robot: Any, x: Any, names: Any = None, sd: Any = None, alpha: float = 1e-3
+                 ) -> list[tuple[str, float, float, float]]:
+    """The effects' parameters of ``x`` outside their plausible range
+    (:meth:`iwr.effects.Effect.bounds`: a compliance in 0 .. max, a negative one is no
+    machine), each ``(name, identified correction, the bound it passes, its standard
+    deviation)``: the effects' part of the fit check's size test, on the values themselves (an
+    effect the data cannot separate from the geometry is held at the robot file's value, so an
+    identified one has no null direction to be judged modulo). ``names``: the names of ``x``'s
+    entries (default the robot's geometric errors then the effects'), where the effects'
+    parameters are found by name.
+
+    ``sd``: the standard deviations of ``x``'s entries (nan where not known). The range is then
+    tested as a hypothesis, as the chi-square test tests the noise model: an effect fails when
+    its value is outside the range by more than ``z`` standard deviations, ``z`` the normal
+    quantile of ``1 - alpha / k`` over the ``k`` effect parameters with one (Bonferroni: a
+    machine at a bound fails with probability at most ``alpha``); a value outside by less is
+    what the noise does to a machine near its bound (a compliance of 0.007 um/N identified at
+    -0.0003 +- 0.004). Without one (nan, or ``sd`` None), any departure beyond round-off
+    fails. The methods that do not bound their search (LM, the efficient estimator) can leave
+    the range; ten times its width, the geometric errors' yardstick, is none for an effect's."""
+    from scipy import special
+
+    effects = getattr(robot, "effects", ())
+    if not effects:
+        return []
+    x = np.asarray(x, dtype=float)
+    names = list(robot.parameter_names + effect_names(effects) if names is None else names)
+    sds = np.full(x.size, np.nan) if sd is None else np.asarray(sd, dtype=float)
+    lo, hi = effect_bounds(effects)
+    where = [(i, names.index(name)) for i, name in enumerate(effect_names(effects))
+             if name in names]
+    k = sum(1 for _, c in where if np.isfinite(sds[c]) and sds[c] > 0)
+    z = float(special.ndtri(1.0 - alpha / max(k, 1)))
+    out = []
+    for i, c in where:
+        v, s = float(x[c]), float(sds[c])
+        span = 1e-9 * max(hi[i] - lo[i], 1e-12)  # round-off at a bound is in the range
+        allowed = span + (z * s if np.isfinite(s) and s > 0 else 0.0)
+        if np.isfinite(v) and (v < lo[i] - allowed or v > hi[i] + allowed):
+            out.append((names[c], v, float(hi[i] if v > hi[i] else lo[i]), s))
+    return out
+
+
+def range_cause(robot: Any, entries: list[tuple[str, float, float, float]]) -> str:
+    """The fit's cause for ``entries`` of :func:`out_of_range`: each effect's value (the robot
+    file's plus the correction), its standard deviation where known, and its plausible range,
+    in its unit, and what to do."""
+    effects = robot.effects
+    names = effect_names(effects)
+    units = [u for e in effects for u in e.units()]
+    values = np.concatenate([np.asarray(e.values(), dtype=float) for e in effects])
+    lo, hi = effect_bounds(effects)
+    parts = []
+    for name, v, bound, s in entries:
+        i = names.index(name)
+        sd = (f" (sd {s:.2g}: {abs(v - bound) / s:.3g} sd beyond it)"
+              if np.isfinite(s) and s > 0 else "")
+        parts.append(f"{name} = {values[i] + v:.4g} {units[i]}, outside its plausible range "
+                     f"{values[i] + lo[i]:.4g} .. {values[i] + hi[i]:.4g} {units[i]}{sd}")
+    return (f"{len(entries)} effect parameter(s) outside their plausible range: "
+            + "; ".join(parts) + ". The data do not determine these effects (too few loads or "
+            "temperatures: iwr.identifiability), or the model lacks another effect "
+            "(docs/effects.md)")
+
+
+def parameter_sd(robot: Any, data: Any, x: Any, active: Any, noise: Any = None) -> np.ndarray:
+    """First-order standard deviations of ``x``'s entries (nan where not active) from the
+    Jacobian of eq. (10) with the effects at ``x`` over the ``active`` parameters: weighted by
+    ``noise`` (an :class:`iwr.Noise`: the residuals whitened by it, unit variance), else with
+    the leg noise estimated from the residuals (``r.r / (m - rank)``). What the fit check's
+    range test (:func:`out_of_range`) weighs an effect's departure from its range by."""
+    from ..measurements import Measurements
+    from ..noise import Noise
+
+    if not isinstance(data, Measurements):
+        raise ValueError(f"data: {type(data).__name__}; the standard deviations of eq. (10) "
+                         "with the effects are for pose data (iwr.Measurements)")
+    p = EffectProblem(robot, data, noise=noise if isinstance(noise, Noise) else None)
+    r, jac = p.residuals_and_jacobian(np.asarray(x, dtype=float))
+    rows = (np.ones(r.size, dtype=bool) if data.weights is None
+            else (np.asarray(data.weights) > 0).reshape(-1))  # a leg weighted 0 does not count
+    act = np.asarray(active, dtype=bool)
+    ja = jac[rows][:, act]
+    d = np.linalg.norm(ja, axis=0)
+    d = np.where(d > 0, d, 1.0)
+    _, s, vt = np.linalg.svd(ja / d, full_matrices=False)
+    rank = int(np.sum(s > max(ja.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
+    var = np.sum((vt[:rank] / s[:rank, None]) ** 2, axis=0) / d**2
+    if not isinstance(noise, Noise):
+        m = int(np.sum(rows))
+        var = var * (float(r[rows] @ r[rows]) / (m - rank) if m > rank else np.nan)
+    out = np.full(act.size, np.nan)
+    out[act] = np.sqrt(var)
+    return out
 
 
 class EffectProblem:
@@ -170,15 +267,12 @@ class EffectProblem:
         return np.array([self.cost(x) for x in arr])
 
     def save(self, path: Any, **options: Any) -> None:
-        """The problem file of :meth:`iwr.Problem.save` (the same robot, data and bounds). A
-        noise-weighted problem is refused: the file's objective with effects is eq. (10)'s."""
+        """The problem file of :meth:`iwr.Problem.save` (the same robot, data, bounds and noise
+        weighting: the engine's C++ objective with effects takes the whitening)."""
         from ..problem import Problem
 
-        if self.whitening is not None:
-            raise ValueError("save: a noise-weighted problem with effects has no problem file "
-                             "(iwr-engine's objective with effects is eq. (10)'s, unweighted); "
-                             "save the problem without noise=")
-        Problem(self.robot, self.measurements, (self.lower, self.upper)).save(path, **options)
+        Problem(self.robot, self.measurements, (self.lower, self.upper),
+                noise=self.noise).save(path, **options)
 
     def __repr__(self) -> str:
         return (f"EffectProblem(robot={self.robot.name!r}, n_poses={self.n_poses}, "

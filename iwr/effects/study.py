@@ -14,7 +14,9 @@ from typing import Any
 import numpy as np
 
 from ..transforms import pose_matrix
+from . import parameter_names
 from .api import DEFAULT_PAYLOADS, forward_kinematics, realistic, simulate
+from .problem import out_of_range
 
 __all__ = ["FRESH_PAYLOADS", "Trial", "trial"]
 
@@ -39,6 +41,12 @@ class Trial:
     extended_predicted_rms: float | None = None
     effects_rms: float = 0.0  # how much the effects change the calibration's readings (RMS)
     geometric_outliers: int = 0  # poses the geometric calibration left out as gross errors
+    #: The extended calibration's effect parameters its fit check failed as outside their
+    #: plausible range by more than the noise explains (:func:`iwr.effects.problem.out_of_range`
+    #: with the estimator's standard deviations), by name ...
+    extended_out_of_range: list[str] = dataclasses.field(default_factory=list)
+    #: ... and those outside it at all (within the noise: not failed), by name.
+    extended_past_bound: list[str] = dataclasses.field(default_factory=list)
 
 
 def _tool_rms(robot: Any, x: np.ndarray, fresh: Any, truth: np.ndarray, tool: np.ndarray
@@ -98,6 +106,9 @@ def trial(robot: Any, seed: int, *, scale: float = 1.0, n_poses: int = 80, n_fre
         out.extended_p_value = float(ext.fit.p_value)
         out.extended_tool_rms = _tool_rms(model, ext.x, fresh, truth, tool)
         out.extended_predicted_rms = _predicted(model, fresh, ext, tool)
+        own = set(parameter_names(model.effects))
+        out.extended_out_of_range = [t[0] for t in ext.fit.implausible if t[0] in own]
+        out.extended_past_bound = [t[0] for t in out_of_range(model, ext.x)]
     return out
 
 

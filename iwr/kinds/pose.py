@@ -165,10 +165,8 @@ class PoseKind(MeasurementKind):
         return rw, jw, rw.size
 
     def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
-        if robot.effects:  # issue 23: the gross-error screen of a calibration with effects
-            from ..effects.job import misclosures as effect_misclosures
-
-            return effect_misclosures(robot, data, x, noise)
+        # With effects (issue 23) too: loop_jacobians' exact derivatives under each pose's load
+        # and temperature.
         return pose_misclosures(robot, data, x, noise)
 
     def candidate_poses(self, robot: Any, data: Any) -> Any:

@@ -192,15 +192,14 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
         raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
     if method == "efficient":
         weighted = False  # its own weighting (iwr.estimation); Problem stays eq. (10)
-    if robot.effects:  # issue 23: the effects' objective (iwr/effects/problem.py), LM only
+    if robot.effects:  # issue 23: the effects' objective (iwr/effects/problem.py)
         from ..effects.problem import EffectProblem, check_method
 
-        check_method(robot, method, noise, weighted)
-        # LM on the numpy model (eq. (10) or noise-weighted); DE, CRS2, BOBYQA on the C++
-        # objective with effects (eq. (10)); the efficient estimator its own (iwr.effects).
-        problem: Any = (Problem(robot, measurements, bounds) if method in ("de", "crs2", "bobyqa")
-                        else EffectProblem(robot, measurements, bounds,
-                                           noise=noise if weighted else None))
+        check_method(robot, method)
+        # LM on the numpy model, DE, CRS2, BOBYQA on the C++ objective with effects (each eq.
+        # (10) or noise-weighted); the efficient estimator its own (iwr.effects).
+        problem: Any = (Problem if method in ("de", "crs2", "bobyqa") else EffectProblem)(
+            robot, measurements, bounds, noise=noise if weighted else None)
     else:
         problem = Problem(robot, measurements, bounds, noise=noise if weighted else None)
     x0_arr = np.zeros(problem.n_params) if x0 is None else np.array(x0, dtype=float)
