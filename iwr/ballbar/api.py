@@ -97,6 +97,14 @@ def reading_sigmas(problem: BallbarProblem, x: Any, noise: Any) -> np.ndarray:
     return np.sqrt(var)
 
 
+def plausible_limits(problem: BallbarProblem, plausible: float
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Each parameter's plausible size and centre for the plausibility test of a fit:
+    ``plausible`` times the half-width of the problem's bounds, about their middle."""
+    centre = 0.5 * (problem.lower + problem.upper)
+    return plausible * 0.5 * (problem.upper - problem.lower), centre
+
+
 def weighted_problem(problem: BallbarProblem, x0: np.ndarray, noise: Any) -> BallbarProblem:
     """``problem`` weighted by ``noise``: each distance by its standard deviation at ``x0``."""
     return problem.with_weights(1.0 / reading_sigmas(problem, x0, noise))
@@ -107,9 +115,11 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
                      x0: Any = None, active: Any = None, max_evaluations: int | None = None,
                      seed: int | None = None, callback: Callable[..., Any] | None = None,
                      progress: bool | None = None, **options: Any) -> Any:
-    """:func:`iwr.identify` on ballbar data: every method but the efficient estimator on the
-    distance objective, from the nominal robot and set-ups (default ``x0``). With a noise model
-    (``(iwr.Noise, BallbarNoise)``, or either alone) the residuals are weighted by their
+    """:func:`iwr.identify` on ballbar data: ``"efficient"``, the implicit-loop estimator
+    (:mod:`iwr.ballbar.estimation`, through :func:`iwr.estimation.efficient`; ``noise`` the
+    pair or ``"estimate"``), or another method on the distance objective, from the nominal robot
+    and set-ups (default ``x0``). With a noise model (``(iwr.Noise, BallbarNoise)``, or either
+    alone) the residuals are weighted by their
     first-order standard deviations at ``x0`` (:func:`reading_sigmas`; ``weighted=False``: not),
     and the fit gets a chi-square test of the weighted cost. ``active="base"``: one parameter
     per null direction held at ``x0`` (:func:`ballbar_identifiability`). DE runs on
@@ -118,10 +128,28 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     from ..methods.reduced import active_mask
 
     if method == "efficient":
-        raise ValueError("method 'efficient': the efficient estimator's loop model does not "
-                         "take ballbar data; give a method ('lm', 'de', 'crs2', 'bobyqa') with "
-                         "noise=(iwr.Noise(...), iwr.ballbar.BallbarNoise(...)): the "
-                         "noise-weighted objective (docs/ballbar.md)")
+        # Every reading weighted by its noise, the platform poses and true joint readings as
+        # nuisance unknowns (docs/ballbar.md, "The efficient estimator"): its own start (the
+        # weighted LM), base parameters and fit test.
+        from ..estimation import efficient
+
+        if noise is None:
+            raise ValueError("method 'efficient' weighs every reading by its noise: give "
+                             "noise=(iwr.Noise(...), iwr.ballbar.BallbarNoise(...)) or "
+                             "noise='estimate'")
+        if weighted is False:
+            raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
+        if max_evaluations is not None:
+            options.setdefault("max_iterations", int(max_evaluations))
+        if isinstance(active, str) and active == "base":
+            active = None
+        if active is not None:
+            problem, _ = ballbar_problem(robot, measurements, bounds, x0)
+            active = active_mask(problem, active)
+        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
+                           bounds=bounds, **options)
+        result.check_finite()
+        return result
     if isinstance(noise, str):
         raise ValueError(f"noise: {noise!r}; ballbar data take no estimated noise model: give "
                          "(iwr.Noise(...), iwr.ballbar.BallbarNoise(...))")

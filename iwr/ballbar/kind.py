@@ -22,6 +22,7 @@ from .api import (
     ballbar_problem,
     ballbar_setup,
     ballbar_uncertainty,
+    plausible_limits,
     weighted_problem,
 )
 from .data import BallbarMeasurements
@@ -148,16 +149,23 @@ class BallbarKind(MeasurementKind):
                                    weighted=bool(options.get("weighted")))
 
     def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
-        raise ValueError("ballbar data: the efficient estimator's loop model does not take a "
-                         "ballbar's distances; identify with a method ('lm', 'de', 'crs2', "
-                         "'bobyqa') and noise=(iwr.Noise(...), iwr.ballbar.BallbarNoise(...)): "
-                         "the noise-weighted objective (docs/ballbar.md)")
+        from .estimation import BallbarSpec
+
+        return BallbarSpec(robot, data, noise, options["x0"], options["active"],
+                           options["estimate"], options["bounds"], options["plausible"])
+
+    def predicted_accuracy(self, robot: Any, data: Any, x: Any, covariance: Any, active: Any,
+                           seed: int) -> Any:
+        """The tool pose error modulo what a ballbar cannot see
+        (:func:`iwr.ballbar.estimation.ballbar_predicted_accuracy`)."""
+        from .estimation import ballbar_predicted_accuracy
+
+        return ballbar_predicted_accuracy(robot, data, x, covariance, active, seed=seed)
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
                      ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:
         problem, _ = ballbar_problem(robot, data, bounds)
-        centre = 0.5 * (problem.lower + problem.upper)
-        limit = plausible * 0.5 * (problem.upper - problem.lower)
+        limit, centre = plausible_limits(problem, plausible)
         return (problem.parameter_names, limit, centre,
                 lambda x: problem.residuals_and_jacobian(x))
 
