@@ -24,7 +24,8 @@ from .problem import BallbarProblem
 from .setup import BallbarSetup
 from .simulate import split_noise
 
-__all__ = ["ballbar_setup", "ballbar_problem", "reading_sigmas", "ballbar_identify",
+__all__ = ["ballbar_setup", "ballbar_problem", "reading_sensitivities", "reading_sigmas",
+           "ballbar_misclosures", "ballbar_reading_names", "ballbar_identify",
            "ballbar_accuracy", "ballbar_identifiability", "ballbar_uncertainty",
            "gauge_aligned", "reading_std"]
 
@@ -72,29 +73,77 @@ def ballbar_problem(robot: Robot, measurements: BallbarMeasurements, bounds: Any
     return problem, _full_x(robot, setup, x0, "x0")
 
 
+def reading_sensitivities(problem: BallbarProblem, jac: np.ndarray) -> np.ndarray:
+    """Each pose's residual's derivatives (N, 6 + n_joints) in its leg readings, then its joint
+    readings, from the unweighted Jacobian ``jac``: a leg reading adds to the leg length as the
+    leg offset ``dl0`` does, a joint reading to ``d`` (prismatic) or ``theta`` (revolute) as the
+    joint's error does, so they are those columns (exact, no finite differences)."""
+    names = problem.robot.parameter_names
+    cols = [names.index(f"leg{j + 1}.dl0") for j in range(6)]
+    cols += [names.index(f"joint{i + 1}.{'dd' if t == 'P' else 'dtheta'}")
+             for i, t in enumerate(problem.robot.joint_types)]
+    return jac[:, cols]
+
+
+def ballbar_reading_names(robot: Robot) -> list[str]:
+    """Names of the readings of one pose: ``leg1 .. leg6``, ``q1 .. qn``, ``distance`` (the
+    bar)."""
+    return ([f"leg{j + 1}" for j in range(6)] + [f"q{i + 1}" for i in range(robot.n_joints)]
+            + ["distance"])
+
+
+def _reading_variances(robot: Robot, noise: Any) -> np.ndarray:
+    """The variances (6 + n_joints + 1,) of a pose's leg, joint and bar readings under
+    ``noise`` (:func:`split_noise`; a part not given: 0)."""
+    readings, bar = split_noise(noise)
+    var = np.zeros(7 + robot.n_joints)
+    if readings is not None:
+        var[:6] = readings.legs**2
+        var[6:-1] = [(readings.joint_lengths if t == "P" else readings.joint_angles) ** 2
+                     for t in robot.joint_types]
+    var[-1] = 0.0 if bar is None else bar.distance**2
+    return var
+
+
 def reading_sigmas(problem: BallbarProblem, x: Any, noise: Any) -> np.ndarray:
     """Each pose's residual standard deviation (mm) at ``x``, to first order: the bar's sigma
-    and the leg and joint readings' propagated through the model. A leg reading adds to the leg
-    length as the leg offset ``dl0`` does, a joint reading to ``d`` (prismatic) or ``theta``
-    (revolute) as the joint's error does, so their sensitivities are those columns of the
-    unweighted Jacobian (exact, no finite differences)."""
-    readings, bar = split_noise(noise)
+    and the leg and joint readings' propagated through the model
+    (:func:`reading_sensitivities`)."""
     unweighted = problem.with_weights(None) if np.any(problem.weights != 1) else problem
-    jac = unweighted.jacobian(x)
-    robot = problem.robot
-    var = np.full(problem.n_poses, 0.0 if bar is None else bar.distance**2)
-    if readings is not None:
-        names = robot.parameter_names
-        for j in range(6):
-            var += readings.legs**2 * jac[:, names.index(f"leg{j + 1}.dl0")] ** 2
-        for i, t in enumerate(robot.joint_types):
-            col = names.index(f"joint{i + 1}.{'dd' if t == 'P' else 'dtheta'}")
-            sigma = readings.joint_lengths if t == "P" else readings.joint_angles
-            var += sigma**2 * jac[:, col] ** 2
+    var_readings = _reading_variances(problem.robot, noise)
+    sens = reading_sensitivities(problem, unweighted.jacobian(x))
+    var = var_readings[-1] + sens**2 @ var_readings[:-1]
     if not np.all(var > 0):
         raise ValueError(f"noise: {noise!r} gives a reading of zero variance; the bar's noise "
                          "must be > 0 (iwr.ballbar.BallbarNoise(distance=...))")
     return np.sqrt(var)
+
+
+def ballbar_misclosures(robot: Robot, measurements: BallbarMeasurements, x: Any,
+                        noise: Any = None) -> Any:
+    """:class:`iwr.misclosures.Misclosures` of ballbar data at ``x`` (robot then set-ups), for
+    the gross-error test: one component per pose, the predicted minus measured bar reading (NaN
+    where the forward kinematics fails), its derivatives in the parameters and in every reading
+    (the legs and joints, :func:`reading_sensitivities`; the bar's, -1); with ``noise``
+    (:func:`split_noise`) the readings' covariance, without it the unit metric (the noise then
+    estimated from the residuals)."""
+    from ..misclosures import Misclosures
+
+    problem, x = ballbar_problem(robot, measurements, x0=x)
+    r, jac = problem.residuals_and_jacobian(x)
+    failed = np.zeros(len(measurements), dtype=bool)
+    failed[[k for k, _ in problem.failures(x)]] = True
+    r = np.where(failed, np.nan, r)
+    b = np.concatenate([reading_sensitivities(problem, jac),
+                        -np.ones((len(measurements), 1))], axis=1)[:, None, :]
+    names = ballbar_reading_names(robot)
+    if noise is None:
+        return Misclosures(r[:, None], jac[:, None, :], b, names, ["distance"])
+    var = _reading_variances(robot, noise)
+    if not var[-1] > 0 and not var[:-1].any():
+        raise ValueError(f"noise: {noise!r}; every reading's variance is 0")
+    cov = np.broadcast_to(np.diag(var), (len(measurements), var.size, var.size))
+    return Misclosures(r[:, None], jac[:, None, :], b, names, ["distance"], reading_cov=cov)
 
 
 def plausible_limits(problem: BallbarProblem, plausible: float

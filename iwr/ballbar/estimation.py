@@ -39,6 +39,7 @@ from ..transforms import pose_from_matrix, rotvec_matrix
 from .api import (
     NULL_RTOL,
     ballbar_problem,
+    ballbar_reading_names,
     ballbar_setup,
     plausible_limits,
     weighted_problem,
@@ -56,11 +57,6 @@ __all__ = ["BALLBAR_COMPONENTS", "BallbarSpec", "ballbar_loop_model",
 BALLBAR_COMPONENTS = ("legs", "joint_lengths", "joint_angles", "ballbar_distance")
 
 
-def ballbar_reading_names(robot: Robot) -> list[str]:
-    """Names of the normalised residuals of one pose: ``leg1 .. leg6``, ``q1 .. qn``,
-    ``distance`` (the bar)."""
-    return ([f"leg{j + 1}" for j in range(6)] + [f"q{i + 1}" for i in range(robot.n_joints)]
-            + ["distance"])
 
 
 def _noise(noise: Any) -> tuple[Noise, BallbarNoise, tuple[str, ...]]:

@@ -16,9 +16,11 @@ import numpy as np
 from ..kinds import MeasurementKind
 from ..noise import Noise
 from .api import (
+    NULL_RTOL,
     ballbar_accuracy,
     ballbar_identifiability,
     ballbar_identify,
+    ballbar_misclosures,
     ballbar_problem,
     ballbar_setup,
     ballbar_uncertainty,
@@ -161,6 +163,76 @@ class BallbarKind(MeasurementKind):
         from .estimation import ballbar_predicted_accuracy
 
         return ballbar_predicted_accuracy(robot, data, x, covariance, active, seed=seed)
+
+    def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        return ballbar_misclosures(robot, data, x, noise)
+
+    # -- the experiments (iwr compare, iwr study) ---------------------------------------------
+
+    #: The figures of iwr compare and iwr study on ballbar data (MeasurementKind.experiment_text).
+    experiment_text = {
+        "cost": "the sum of squared bar-reading residuals, predicted minus measured (mm^2)",
+        "cost_label": "bar-reading residuals",
+        "readings_short": "bar",
+        "tool_short": " modulo the gauge",
+        "readings": "bar readings predicted with the recovered parameters (robot, balls and "
+                    "offsets) against their exact values (mm; the nominal robot's with the "
+                    "nominal set-ups)",
+        "gauge": "Ballbar data do not fix {0} nor {5} (docs/ballbar.md, 'What a ballbar cannot "
+                 "see'): the bar readings and the tool pose aligned with the truth's and the "
+                 "projected parameter error do not move along the null directions; the raw "
+                 "parameter error does.",
+        "tool": "tool pose error against the truth by forward kinematics of the readings, "
+                "modulo the gauge (iwr.accuracy with truth=: the model's frames moved by the "
+                "rigid motions of {0} and {5} that best align them with the truth's over the "
+                "validation poses, iwr.ballbar.gauge_aligned)",
+        "parameters": "x minus the parameter vector nearest to x that predicts exactly the "
+                      "truth's bar readings at the validation poses, projected onto the "
+                      "directions the readings see (the balls and offsets included; the gauge "
+                      "and the robot's unidentifiable combinations removed)",
+        "noise_level": "the leg and joint readings' noise scaled from iwr.Noise.realistic() and "
+                       "the bar's from BallbarNoise() (1 um), both by level / 0.02 (level 0.02 "
+                       "is the realistic model)",
+    }
+
+    def experiment_noise(self, robot: Any, noise: Any) -> Any:
+        """``(Noise, BallbarNoise)``: a pair as it is; an :class:`iwr.Noise` (an experiment's
+        noise level) keeps its leg and joint noise, and its ``position`` scales the bar's:
+        ``BallbarNoise()`` times ``position / 0.02`` (``Noise.realistic().position``), so
+        that the realistic level is a 1 um bar."""
+        if isinstance(noise, tuple):
+            split_noise(noise)  # its types checked
+            return noise
+        if not isinstance(noise, Noise):
+            raise TypeError(f"noise: expected an iwr.Noise or a pair (iwr.Noise, "
+                            f"iwr.ballbar.BallbarNoise), got {type(noise).__name__}")
+        readings = Noise(legs=noise.legs, joint_lengths=noise.joint_lengths,
+                         joint_angles=noise.joint_angles)
+        scale = noise.position / Noise.realistic().position
+        return readings, BallbarNoise(BallbarNoise().distance * scale)
+
+    def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
+        """Uniform within the set-ups' default bounds about the nominal ones (as
+        :func:`iwr.simulate` draws them)."""
+        lo, hi = ballbar_setup(robot).default_bounds()
+        return lo + (hi - lo) * rng.random(lo.size)
+
+    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        return ballbar_accuracy(robot, data, x, truth=truth)
+
+    def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+        """Over the robot's and the set-ups' parameters, modulo the null directions of the bar
+        readings of ``data`` (the gauge among them):
+        :func:`iwr.tracker.kind.parameter_error_on`."""
+        from ..tracker.kind import parameter_error_on
+
+        problem, _ = ballbar_problem(robot, data, x0=truth)
+        error = parameter_error_on(problem, x, truth, self.angle_parameters(robot), NULL_RTOL)
+        if not error.converged:
+            raise ValueError("no parameter vector with the truth's bar readings was reached from "
+                             f"x (readings RMS {error.reading_rms:.3g} mm off at x): x is too far "
+                             "from the truth for its error to be split into seen and unseen parts")
+        return error
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
                      ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:

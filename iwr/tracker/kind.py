@@ -327,13 +327,15 @@ class ProbeKind(_TrackerKind):
         return 6.0
 
 
-def parameter_error_on(problem: Any, x: Any, truth: Any, angles: Any) -> ParameterError:
+def parameter_error_on(problem: Any, x: Any, truth: Any, angles: Any,
+                       rtol: float | None = None) -> ParameterError:
     """``x - truth`` modulo the null directions of ``problem`` (:func:`iwr.parameter_error`'s
     nonlinear method on any problem whose residuals vanish at ``truth``: exact readings of the
     truth): ``y``, the vector nearest to ``x`` (column-scaled metric) with the truth's readings,
     by Gauss-Newton with minimum-norm steps, then ``x - y`` projected onto the row space of the
     Jacobian at ``y``. ``angles`` marks the angle parameters (rad). ValueError when the
-    residuals do not vanish at ``truth`` (noisy data: no vector predicts them)."""
+    residuals do not vanish at ``truth`` (noisy data: no vector predicts them). ``rtol``: the
+    relative rank threshold of the Jacobian (default NumPy's; ballbar data need theirs)."""
     x = np.asarray(x, dtype=float)
     truth = np.asarray(truth, dtype=float)
     ang = np.asarray(angles, dtype=bool)
@@ -341,9 +343,9 @@ def parameter_error_on(problem: Any, x: Any, truth: Any, angles: Any) -> Paramet
     if not r_truth < 1e-6:
         raise ValueError(f"data: residuals up to {r_truth:.3g} mm at the truth; the parameter "
                          "error needs exact readings of the truth (noise-free poses)")
-    y = _nearest_equivalent(problem, x, None)
+    y = _nearest_equivalent(problem, x, rtol)
     converged = bool(np.max(np.abs(problem.residuals(y)), initial=0.0) < 1e-9)
-    d, _, vt, rank = _row_space(problem.jacobian(y), None)
+    d, _, vt, rank = _row_space(problem.jacobian(y), rtol)
     vr = vt[:rank].T
     projected = (vr @ (vr.T @ (d * (x - y)))) / d
     raw = x - truth
