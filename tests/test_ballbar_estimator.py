@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 import iwr
+from iwr import kinds
 from iwr.ballbar import BallbarMeasurements, BallbarNoise, ballbar_problem
 from iwr.ballbar.estimation import ballbar_loop_model, ballbar_predicted_accuracy
 from iwr.transforms import pose_from_matrix
@@ -244,3 +245,50 @@ def test_twenty_seed_monte_carlo_within_ten_percent():
         ratio = np.sqrt(np.mean(r[:, a] ** 2) / np.mean(r[:, p] ** 2))
         assert 0.9 < ratio < 1.1, (a, ratio)
     assert out["success"] == 20
+
+
+def test_iwr_calibrate_with_the_efficient_estimator_on_ballbar_data(sim, tmp_path):
+    """`iwr calibrate --method efficient --noise realistic` on ballbar data: the job (the held-out
+    poses' gross-error test under the noise model, the ballbar's report with the predicted
+    accuracy modulo the gauge); a bar reading 0.2 mm off is found and left out."""
+    import json
+    import subprocess
+    import sys
+
+    robot, clean, truth = sim
+    data = _noisy(robot, clean, 9)
+    d = data.distance.copy()
+    d[40] += 0.2
+    BallbarMeasurements(data.q, data.legs, data.setup, d,
+                        joint_types=data.joint_types).to_csv(tmp_path / "bar.csv")
+    robot.to_toml(tmp_path / "bb.toml")
+    cal = subprocess.run([sys.executable, "-m", "iwr", "calibrate", "bb.toml", "bar.csv",
+                          "--method", "efficient", "--noise", "realistic", "--out", "c",
+                          "--no-plots", "--no-progress"], cwd=tmp_path, capture_output=True,
+                         text=True, timeout=900)
+    assert cal.returncode == 0, cal.stdout + cal.stderr
+    assert "ballbar distance 0.001" in cal.stdout and "tracker" not in cal.stdout
+    assert "modulo what a ballbar cannot see" in cal.stdout
+    summary = json.loads((tmp_path / "c" / "summary.json").read_text())
+    assert summary["method"] == "efficient" and summary["predicted_accuracy"], summary
+    result = json.loads((tmp_path / "c" / "result.json").read_text())
+    line = kinds.for_robot(robot).read(tmp_path / "bar.csv", robot).lines[40]
+    assert [o["line"] for o in result["outliers"] if o["removed"]] == [line], result["outliers"]
+    assert (tmp_path / "c" / "report.html").is_file()
+
+
+def test_compare_runs_the_efficient_estimator_on_a_ballbar_robot():
+    """iwr compare (the library's compare_methods) on a ballbar robot: LM and the efficient
+    estimator, their validation on the bar readings, the tool pose modulo the gauge and the
+    parameter error modulo the null directions, all finite and at the noise's scale."""
+    from iwr.experiments.compare import compare_methods
+
+    robot = iwr.Robot.default().with_instrument("ballbar", BARS)
+    out = compare_methods(robot, 120, "realistic", seeds=[0], methods=["lm", "efficient"],
+                          start="near", budget=2000, out=None, n_validation=60, progress=False)
+    assert {r["method"] for r in out.runs} == {"lm", "efficient"}
+    for r in out.runs:
+        assert r["success"] and not r.get("notes"), r.get("notes")
+        assert 1e-4 < r["val_rms"] < 0.05 and 1e-4 < r["tool_position_rms"] < 0.05
+        assert 1e-3 < r["param_error_length"] < 1.0
+    assert out.settings["noise"] and "bar" in out.settings["kind"]["readings"]
