@@ -93,7 +93,8 @@ def main() -> None:
     r, bound = out["rows"], out["bound"]
     readings, bar = NOISE
     print(f"efficient estimator on ballbar data: IWR, set-ups {', '.join(out['names'])}, N = {n}, "
-          f"{seeds} seeds from {out['first']}, {out['n_base']} base parameters of {out['n_params']}; noise legs "
+          f"{seeds} seeds from {out['first']}, {out['n_base']} base parameters of "
+          f"{out['n_params']}; noise legs "
           f"{readings.legs} mm, joints {readings.joint_lengths} mm / {readings.joint_angles} rad, "
           f"bar {bar.distance} mm; 100 fresh noise-free poses")
     rng = np.random.default_rng(0)
@@ -114,7 +115,8 @@ def main() -> None:
               f"{per.std(ddof=1):.3f}, {per.min():.3f}-{per.max():.3f} | {b_text} | {b_ratio} |")
     maha, p_values = out["maha"], out["chi2_p"]
     print(f"\nbase parameters: Mahalanobis distance / p from the noise-free solution: mean "
-          f"{maha.mean():.3f} (1 expected; std of the mean {maha.std(ddof=1) / np.sqrt(seeds):.3f})")
+          f"{maha.mean():.3f} (1 expected; std of the mean "
+          f"{maha.std(ddof=1) / np.sqrt(seeds):.3f})")
     print(f"chi-square ({out['dof']} dof): p-values min {p_values.min():.3f}, median "
           f"{np.median(p_values):.3f}, KS against uniform p = "
           f"{stats.kstest(p_values, 'uniform').pvalue:.2f}; {out['success']} of {seeds} success; "

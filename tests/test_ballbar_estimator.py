@@ -15,6 +15,7 @@ import iwr
 from iwr import kinds
 from iwr.ballbar import BallbarMeasurements, BallbarNoise, ballbar_problem
 from iwr.ballbar.estimation import ballbar_loop_model, ballbar_predicted_accuracy
+from iwr.estimation import summary
 from iwr.transforms import pose_from_matrix
 
 BARS = {
@@ -71,11 +72,13 @@ def test_loop_model_derivatives_are_exact(sim):
             if arg == "x":
                 e = np.zeros_like(x)
                 e[i] = h
-                fd[:, :, i] = (model(x + e, corr, False)[0] - model(x - e, corr, False)[0]) / (2 * h)
+                plus, minus = model(x + e, corr, False)[0], model(x - e, corr, False)[0]
+                fd[:, :, i] = (plus - minus) / (2 * h)
             else:
                 e = np.zeros_like(corr)
                 e[:, i] = h
-                fd[:, :, i] = (model(x, corr + e, False)[0] - model(x, corr - e, False)[0]) / (2 * h)
+                plus, minus = model(x, corr + e, False)[0], model(x, corr - e, False)[0]
+                fd[:, :, i] = (plus - minus) / (2 * h)
         # the residuals are ~1e5 over their sigma: central differences carry ~1e-4 of round-off
         assert np.abs(fd - jac).max() < 1e-8 * np.abs(jac).max(), arg
     # the bar row sees the set-up's balls and offset, the leg rows the robot only
@@ -207,6 +210,7 @@ def test_the_estimator_is_the_default_with_a_noise_model_and_checks_it(sim):
     assert res.method == "efficient" and res.reading_names[-1] == "distance"
     # the noise model's prediction (the residuals here are zero: noise-free data)
     assert res.predicted is not None and 1e-4 < res.predicted.position_rms < 0.05
+    assert summary(res)["noise"]["ballbar"] == {"distance": 0.001}
     with pytest.raises(ValueError, match="BallbarNoise"):
         iwr.identify(robot, data, "efficient", noise=READINGS)
     with pytest.raises(ValueError, match="weighs every reading"):
