@@ -16,6 +16,7 @@ from iwr import kinds
 from iwr.ballbar import BallbarMeasurements, BallbarNoise, ballbar_problem
 from iwr.ballbar.estimation import ballbar_loop_model, ballbar_predicted_accuracy
 from iwr.estimation import summary
+from iwr.result import pose_key
 from iwr.transforms import pose_from_matrix
 
 BARS = {
@@ -296,3 +297,23 @@ def test_compare_runs_the_efficient_estimator_on_a_ballbar_robot():
         assert 1e-4 < r["val_rms"] < 0.05 and 1e-4 < r["tool_position_rms"] < 0.05
         assert 1e-3 < r["param_error_length"] < 1.0
     assert out.settings["noise"] and "bar" in out.settings["kind"]["readings"]
+
+
+def test_the_job_screens_ballbar_data_under_a_noise_model(sim):
+    """iwr.calibrate with the weighted LM and a noise model: the gross-error screen tests each
+    pose's bar residual under the noise propagated from every reading (it stopped: "the
+    gross-error test of ballbar data has no noise model"), and leaves the bad pose out."""
+    robot, clean, _ = sim
+    data = _noisy(robot, clean, 11)
+    d = data.distance.copy()
+    d[5] -= 0.2
+    bad = BallbarMeasurements(data.q, data.legs, data.setup, d, joint_types=data.joint_types)
+    job = iwr.calibrate(robot, bad, "lm", noise=NOISE, validation_fraction=0.2, seed=1)
+    removed = [o.key for o in job.result.outliers if o.removed]
+    assert removed == [pose_key(bad, 5)], job.result.outliers
+    assert job.result.fit.fit_ok, job.result.fit.verdict
+    m = kinds.of(bad).misclosures(robot, bad, job.result.x, NOISE)
+    assert m.r.shape == (len(bad), 1) and m.reading_cov is not None
+    # the bar residual's variance: the bar's, plus the legs' and joints' propagated
+    var = np.array([m.covariance(k, np.array([True]))[0, 0] for k in range(len(bad))])
+    assert np.all(var > NOISE[1].distance ** 2)
