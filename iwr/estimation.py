@@ -686,7 +686,9 @@ def summary(result: IdentificationResult) -> dict[str, Any]:
         "outliers": [asdict(o) for o in result.outliers or []],
         "n_poses_used": int(np.sum(result.used)),
         "noise": (asdict(noise) if isinstance(noise, Noise) else
-                  {"readings": asdict(noise[0]), "tracker": asdict(noise[1])}),
+                  # the instrument's own noise by its name: "tracker", "ballbar"
+                  {"readings": asdict(noise[0]),
+                   type(noise[1]).__name__.removesuffix("Noise").lower(): asdict(noise[1])}),
         "variance_components": [asdict(c) for c in result.variance_components or []],
         "predicted": None if pred is None else {
             "position_rms_mm": pred.position_rms, "position_95_mm": pred.position_95,

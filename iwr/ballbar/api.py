@@ -24,7 +24,8 @@ from .problem import BallbarProblem
 from .setup import BallbarSetup
 from .simulate import split_noise
 
-__all__ = ["ballbar_setup", "ballbar_problem", "reading_sigmas", "ballbar_identify",
+__all__ = ["ballbar_setup", "ballbar_problem", "reading_sensitivities", "reading_sigmas",
+           "ballbar_misclosures", "ballbar_reading_names", "ballbar_identify",
            "ballbar_accuracy", "ballbar_identifiability", "ballbar_uncertainty",
            "gauge_aligned", "reading_std"]
 
@@ -72,29 +73,85 @@ def ballbar_problem(robot: Robot, measurements: BallbarMeasurements, bounds: Any
     return problem, _full_x(robot, setup, x0, "x0")
 
 
+def reading_sensitivities(problem: BallbarProblem, jac: np.ndarray) -> np.ndarray:
+    """Each pose's residual's derivatives (N, 6 + n_joints) in its leg readings, then its joint
+    readings, from the unweighted Jacobian ``jac``: a leg reading adds to the leg length as the
+    leg offset ``dl0`` does, a joint reading to ``d`` (prismatic) or ``theta`` (revolute) as the
+    joint's error does, so they are those columns (exact, no finite differences)."""
+    names = problem.robot.parameter_names
+    cols = [names.index(f"leg{j + 1}.dl0") for j in range(6)]
+    cols += [names.index(f"joint{i + 1}.{'dd' if t == 'P' else 'dtheta'}")
+             for i, t in enumerate(problem.robot.joint_types)]
+    return jac[:, cols]
+
+
+def ballbar_reading_names(robot: Robot) -> list[str]:
+    """Names of the readings of one pose: ``leg1 .. leg6``, ``q1 .. qn``, ``distance`` (the
+    bar)."""
+    return ([f"leg{j + 1}" for j in range(6)] + [f"q{i + 1}" for i in range(robot.n_joints)]
+            + ["distance"])
+
+
+def _reading_variances(robot: Robot, noise: Any) -> np.ndarray:
+    """The variances (6 + n_joints + 1,) of a pose's leg, joint and bar readings under
+    ``noise`` (:func:`split_noise`; a part not given: 0)."""
+    readings, bar = split_noise(noise)
+    var = np.zeros(7 + robot.n_joints)
+    if readings is not None:
+        var[:6] = readings.legs**2
+        var[6:-1] = [(readings.joint_lengths if t == "P" else readings.joint_angles) ** 2
+                     for t in robot.joint_types]
+    var[-1] = 0.0 if bar is None else bar.distance**2
+    return var
+
+
 def reading_sigmas(problem: BallbarProblem, x: Any, noise: Any) -> np.ndarray:
     """Each pose's residual standard deviation (mm) at ``x``, to first order: the bar's sigma
-    and the leg and joint readings' propagated through the model. A leg reading adds to the leg
-    length as the leg offset ``dl0`` does, a joint reading to ``d`` (prismatic) or ``theta``
-    (revolute) as the joint's error does, so their sensitivities are those columns of the
-    unweighted Jacobian (exact, no finite differences)."""
-    readings, bar = split_noise(noise)
+    and the leg and joint readings' propagated through the model
+    (:func:`reading_sensitivities`)."""
     unweighted = problem.with_weights(None) if np.any(problem.weights != 1) else problem
-    jac = unweighted.jacobian(x)
-    robot = problem.robot
-    var = np.full(problem.n_poses, 0.0 if bar is None else bar.distance**2)
-    if readings is not None:
-        names = robot.parameter_names
-        for j in range(6):
-            var += readings.legs**2 * jac[:, names.index(f"leg{j + 1}.dl0")] ** 2
-        for i, t in enumerate(robot.joint_types):
-            col = names.index(f"joint{i + 1}.{'dd' if t == 'P' else 'dtheta'}")
-            sigma = readings.joint_lengths if t == "P" else readings.joint_angles
-            var += sigma**2 * jac[:, col] ** 2
+    var_readings = _reading_variances(problem.robot, noise)
+    sens = reading_sensitivities(problem, unweighted.jacobian(x))
+    var = var_readings[-1] + sens**2 @ var_readings[:-1]
     if not np.all(var > 0):
         raise ValueError(f"noise: {noise!r} gives a reading of zero variance; the bar's noise "
                          "must be > 0 (iwr.ballbar.BallbarNoise(distance=...))")
     return np.sqrt(var)
+
+
+def ballbar_misclosures(robot: Robot, measurements: BallbarMeasurements, x: Any,
+                        noise: Any = None) -> Any:
+    """:class:`iwr.misclosures.Misclosures` of ballbar data at ``x`` (robot then set-ups), for
+    the gross-error test: one component per pose, the predicted minus measured bar reading (NaN
+    where the forward kinematics fails), its derivatives in the parameters and in every reading
+    (the legs and joints, :func:`reading_sensitivities`; the bar's, -1); with ``noise``
+    (:func:`split_noise`) the readings' covariance, without it the unit metric (the noise then
+    estimated from the residuals)."""
+    from ..misclosures import Misclosures
+
+    problem, x = ballbar_problem(robot, measurements, x0=x)
+    r, jac = problem.residuals_and_jacobian(x)
+    failed = np.zeros(len(measurements), dtype=bool)
+    failed[[k for k, _ in problem.failures(x)]] = True
+    r = np.where(failed, np.nan, r)
+    b = np.concatenate([reading_sensitivities(problem, jac),
+                        -np.ones((len(measurements), 1))], axis=1)[:, None, :]
+    names = ballbar_reading_names(robot)
+    if noise is None:
+        return Misclosures(r[:, None], jac[:, None, :], b, names, ["distance"])
+    var = _reading_variances(robot, noise)
+    if not var[-1] > 0 and not var[:-1].any():
+        raise ValueError(f"noise: {noise!r}; every reading's variance is 0")
+    cov = np.broadcast_to(np.diag(var), (len(measurements), var.size, var.size))
+    return Misclosures(r[:, None], jac[:, None, :], b, names, ["distance"], reading_cov=cov)
+
+
+def plausible_limits(problem: BallbarProblem, plausible: float
+                     ) -> tuple[np.ndarray, np.ndarray]:
+    """Each parameter's plausible size and centre for the plausibility test of a fit:
+    ``plausible`` times the half-width of the problem's bounds, about their middle."""
+    centre = 0.5 * (problem.lower + problem.upper)
+    return plausible * 0.5 * (problem.upper - problem.lower), centre
 
 
 def weighted_problem(problem: BallbarProblem, x0: np.ndarray, noise: Any) -> BallbarProblem:
@@ -107,9 +164,11 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
                      x0: Any = None, active: Any = None, max_evaluations: int | None = None,
                      seed: int | None = None, callback: Callable[..., Any] | None = None,
                      progress: bool | None = None, **options: Any) -> Any:
-    """:func:`iwr.identify` on ballbar data: every method but the efficient estimator on the
-    distance objective, from the nominal robot and set-ups (default ``x0``). With a noise model
-    (``(iwr.Noise, BallbarNoise)``, or either alone) the residuals are weighted by their
+    """:func:`iwr.identify` on ballbar data: ``"efficient"``, the implicit-loop estimator
+    (:mod:`iwr.ballbar.estimation`, through :func:`iwr.estimation.efficient`; ``noise`` the
+    pair or ``"estimate"``), or another method on the distance objective, from the nominal robot
+    and set-ups (default ``x0``). With a noise model (``(iwr.Noise, BallbarNoise)``, or either
+    alone) the residuals are weighted by their
     first-order standard deviations at ``x0`` (:func:`reading_sigmas`; ``weighted=False``: not),
     and the fit gets a chi-square test of the weighted cost. ``active="base"``: one parameter
     per null direction held at ``x0`` (:func:`ballbar_identifiability`). DE runs on
@@ -118,10 +177,28 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     from ..methods.reduced import active_mask
 
     if method == "efficient":
-        raise ValueError("method 'efficient': the efficient estimator's loop model does not "
-                         "take ballbar data; give a method ('lm', 'de', 'crs2', 'bobyqa') with "
-                         "noise=(iwr.Noise(...), iwr.ballbar.BallbarNoise(...)): the "
-                         "noise-weighted objective (docs/ballbar.md)")
+        # Every reading weighted by its noise, the platform poses and true joint readings as
+        # nuisance unknowns (docs/ballbar.md, "The efficient estimator"): its own start (the
+        # weighted LM), base parameters and fit test.
+        from ..estimation import efficient
+
+        if noise is None:
+            raise ValueError("method 'efficient' weighs every reading by its noise: give "
+                             "noise=(iwr.Noise(...), iwr.ballbar.BallbarNoise(...)) or "
+                             "noise='estimate'")
+        if weighted is False:
+            raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
+        if max_evaluations is not None:
+            options.setdefault("max_iterations", int(max_evaluations))
+        if isinstance(active, str) and active == "base":
+            active = None
+        if active is not None:
+            problem, _ = ballbar_problem(robot, measurements, bounds, x0)
+            active = active_mask(problem, active)
+        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
+                           bounds=bounds, **options)
+        result.check_finite()
+        return result
     if isinstance(noise, str):
         raise ValueError(f"noise: {noise!r}; ballbar data take no estimated noise model: give "
                          "(iwr.Noise(...), iwr.ballbar.BallbarNoise(...))")

@@ -21,9 +21,11 @@ from .api import (
     ballbar_accuracy,
     ballbar_identifiability,
     ballbar_identify,
+    ballbar_misclosures,
     ballbar_problem,
     ballbar_setup,
     ballbar_uncertainty,
+    plausible_limits,
     weighted_problem,
 )
 from .data import BallbarMeasurements
@@ -64,6 +66,9 @@ class BallbarKind(MeasurementKind):
         "parameters": "x minus the parameter vector nearest to x that predicts exactly the "
                       "truth's distances at the validation poses, projected onto the directions "
                       "the distances see (ball centres and offsets included)",
+        "noise_level": "the leg and joint readings' noise scaled from iwr.Noise.realistic() and "
+                       "the bar's from BallbarNoise() (1 um), both by level / 0.02 (level 0.02 "
+                       "is the realistic model)",
     }
 
     def owns(self, data: Any) -> bool:
@@ -200,16 +205,26 @@ class BallbarKind(MeasurementKind):
                                    weighted=bool(options.get("weighted")))
 
     def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
-        raise ValueError("ballbar data: the efficient estimator's loop model does not take a "
-                         "ballbar's distances; identify with a method ('lm', 'de', 'crs2', "
-                         "'bobyqa') and noise=(iwr.Noise(...), iwr.ballbar.BallbarNoise(...)): "
-                         "the noise-weighted objective (docs/ballbar.md)")
+        from .estimation import BallbarSpec
+
+        return BallbarSpec(robot, data, noise, options["x0"], options["active"],
+                           options["estimate"], options["bounds"], options["plausible"])
+
+    def predicted_accuracy(self, robot: Any, data: Any, x: Any, covariance: Any, active: Any,
+                           seed: int) -> Any:
+        """The tool pose error modulo what a ballbar cannot see
+        (:func:`iwr.ballbar.estimation.ballbar_predicted_accuracy`)."""
+        from .estimation import ballbar_predicted_accuracy
+
+        return ballbar_predicted_accuracy(robot, data, x, covariance, active, seed=seed)
+
+    def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        return ballbar_misclosures(robot, data, x, noise)
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
                      ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:
         problem, _ = ballbar_problem(robot, data, bounds)
-        centre = 0.5 * (problem.lower + problem.upper)
-        limit = plausible * 0.5 * (problem.upper - problem.lower)
+        limit, centre = plausible_limits(problem, plausible)
         return (problem.parameter_names, limit, centre,
                 lambda x: problem.residuals_and_jacobian(x))
 

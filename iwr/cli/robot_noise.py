@@ -47,7 +47,8 @@ def simulation_noise(noise: Any, robot: Any, path: str | None) -> tuple[Any, str
 
 def describe(noise: Any) -> str:
     """A noise model in one line: ``legs 0.002, ...`` (``iwr.Noise``), and for a robot with a
-    tracker ``...; tracker distance 0.005, ...``; ``estimate`` as is."""
+    tracker ``...; tracker distance 0.005, ...`` (a ballbar's ``ballbar distance``);
+    ``estimate`` as is."""
     import dataclasses
 
     if isinstance(noise, str):
@@ -56,7 +57,8 @@ def describe(noise: Any) -> str:
 
     parts = noise if isinstance(noise, tuple) else (noise,)
     return "; ".join(
-        ("tracker " if i else "")
+        # the instrument's own noise named after it: "tracker ", "ballbar "
+        (type(p).__name__.removesuffix("Noise").lower() + " " if i else "")
         + ", ".join(f"{k} {v:g}" for k, v in dataclasses.asdict(p).items())
         + (" (TrackerNoise.leica())" if i and p == TrackerNoise.leica() else "")
         for i, p in enumerate(parts) if p is not None)

@@ -222,6 +222,23 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         lines.extend(self.notes)
         return "\n".join(lines)
 
+    def predicted_line(self) -> str:
+        """The efficient estimator's predicted accuracy: of the tool pose modulo what a ballbar
+        cannot see (iwr.ballbar.estimation.ballbar_predicted_accuracy), not of the readings."""
+        pr = self.predicted
+        if pr is None:
+            return ""
+        where = "validation" if self.held_out else "identification"
+        return (f"predicted by the estimator's covariance on the {where} poses: the tool pose "
+                "against the truth modulo what a ballbar cannot see (the best rigid motions of "
+                "{0} and {5} removed, docs/ballbar.md; not the bar readings above): position "
+                f"RMS {pr.position_rms:.4g} mm (95 %: {pr.position_95:.4g} mm), orientation RMS "
+                f"{pr.orientation_rms:.4g} deg (95 %: {pr.orientation_95:.4g} deg)")
+
+    def predicted_text(self) -> str:
+        line = self.predicted_line()
+        return line[:1].upper() + line[1:] + "."
+
     def html(self, figures: dict[str, bytes] | None = None) -> Page:
         figures = figures or {}
         c = self.costs()
