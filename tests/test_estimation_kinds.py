@@ -16,14 +16,16 @@ from scipy import stats
 
 import iwr
 
-#: The kinds the efficient estimator takes.
-ESTIMABLE = ("pose", "points", "probe")
+#: The kinds the efficient estimator takes: all of them.
+ESTIMABLE = ("pose", "points", "probe", "ballbar")
 
 
 @pytest.fixture(scope="module", params=ESTIMABLE)
 def estimable(request: pytest.FixtureRequest, kind_case: Any) -> Any:
-    case = kind_case(request.param, n_poses=60, seed=1)
+    # one reading a pose for a ballbar: more poses than its 56 identifiable parameters
+    case = kind_case(request.param, n_poses=160 if request.param == "ballbar" else 60, seed=1)
     case.noise = case.kind.experiment_noise(case.robot, iwr.Noise.realistic())
+    case.n_law = 120 if request.param == "ballbar" else 40  # poses of the law's data sets
     return case
 
 
@@ -63,7 +65,7 @@ def test_a_callback_stops_the_estimator(estimable: Any) -> None:
 
 
 def test_the_fit_statistic_is_weighted_lms_and_follows_its_law(estimable: Any) -> None:
-    """20 seeds, 40 poses each, realistic noise, every pose kept (no outlier test: a clean pose
+    """20 seeds, 40 poses each (120 of a ballbar's single readings), realistic noise, every pose kept (no outlier test: a clean pose
     is flagged at alpha = 1e-3 per pose now and then): LM's linearised statistic at its weighted
     minimum is the estimator's to 1e-3 with the same degrees of freedom (kinds with a weighted
     objective: a probe's four points move rigidly, their covariance is singular); over the seeds
@@ -72,13 +74,16 @@ def test_the_fit_statistic_is_weighted_lms_and_follows_its_law(estimable: Any) -
     robot, noise = estimable.robot, estimable.noise
     ratios, p_values, dof = [], [], None
     for seed in range(20):
-        m, _ = iwr.simulate(robot, 40, seed=100 + seed, noise=noise)
+        m, _ = iwr.simulate(robot, estimable.n_law, seed=100 + seed, noise=noise)
         eff = iwr.identify(robot, m, "efficient", noise=noise, outliers="off")
         assert eff.success == (eff.fit.p_value >= eff.fit.alpha) and eff.fit.dof > 0
         if estimable.kind.weighted_objective:
             lm = iwr.identify(robot, m, "lm", noise=noise)
             assert lm.fit.dof == eff.fit.dof, (lm.fit.verdict, eff.fit.verdict)
-            assert lm.fit.statistic == pytest.approx(eff.fit.statistic, rel=1e-3)
+            # a ballbar's weighted objective whitens by the sigmas at its start, not at the
+            # minimum: the same statistic to first order only
+            rel = 1e-2 if estimable.name == "ballbar" else 1e-3
+            assert lm.fit.statistic == pytest.approx(eff.fit.statistic, rel=rel)
             assert lm.success == (lm.fit.p_value >= lm.fit.alpha)
         ratios.append(eff.fit.statistic / eff.fit.dof)
         p_values.append(eff.fit.p_value)

@@ -16,6 +16,7 @@ from scipy.optimize import least_squares
 from .. import kinds
 from ..analysis.accuracy import Accuracy, PoseErrors, pose_errors
 from ..analysis.uncertainty import Uncertainty
+from ..fit_test import _chi2_cause, _chi2_verdict
 from ..robot import Robot
 from ..tracker.analysis import NullSpace, null_space
 from ..transforms import pose_from_matrix, rotvec_matrix
@@ -235,20 +236,23 @@ def _chi2(result: Any, problem: BallbarProblem, mask: np.ndarray,
     jac = problem.jacobian(result.x)[:, mask]
     d = np.linalg.norm(jac, axis=0)
     s = np.linalg.svd(jac / np.where(d > 0, d, 1.0), compute_uv=False)
-    rank = int(np.sum(s > s[0] * max(jac.shape) * np.finfo(float).eps)) if s.size else 0
+    # the ballbar's rank threshold (NULL_RTOL): NumPy's counts its null directions at ~2e-14
+    # (at 120 poses one more parameter, one degree of freedom less than the estimator's)
+    rtol = max(NULL_RTOL, max(jac.shape) * np.finfo(float).eps)
+    rank = int(np.sum(s > s[0] * rtol)) if s.size else 0
     dof = problem.n_residuals - rank
     stat = float(result["fun"])
     p_value = float(special.chdtrc(dof, stat)) if dof > 0 else math.nan
     ok = bool(dof > 0 and p_value >= alpha)
     causes = list(fit.causes)
+    without_dof = (f"no redundancy: {problem.n_residuals} readings for {rank} identifiable "
+                   "parameters")
     if not ok:
-        causes.append(f"chi-square {stat:.4g} for {dof} degrees of freedom (p = {p_value:.3g} < "
-                      f"{alpha:g}): the residuals are larger than the noise model allows"
-                      if dof > 0 else f"no redundancy: {problem.n_residuals} readings for "
-                      f"{rank} identifiable parameters")
+        causes.append(_chi2_cause(stat, dof, p_value) if dof > 0 else without_dof)
     fit_ok = bool(fit.fit_ok and ok)
-    verdict = (f"the model fits the data (chi-square {stat:.4g}, {dof} dof, p = {p_value:.3g})"
-               if fit_ok else "THE MODEL DOES NOT FIT THE DATA: " + "; ".join(causes))
+    # the fit check's own verdict when only it failed (the size of the errors)
+    verdict = _chi2_verdict(stat, dof, p_value, fit_ok, without_dof) if ok == fit_ok else (
+        fit.verdict)
     result["fit"] = type(fit)(stat, dof, p_value, alpha, fit_ok, verdict, causes,
                               fit.implausible)
     if result.success and not fit_ok:
