@@ -30,10 +30,10 @@ DEFAULT_TEMPERATURE_SPREAD = (-3.0, 5.0)
 
 #: The realistic carriage's loads and compliances (docs/effects.md, "Realistic magnitudes"): a
 #: hexapod of 400 kg (base, legs, what the last link carries) with its centre 150 mm above {4}'s
-#: origin; revolute joints of 2e7 N m/rad (0.05 urad/(N m)), prismatic drives of 200 N/um
+#: origin; revolute joints of 5e7 N m/rad (0.02 urad/(N m)), prismatic drives of 200 N/um
 #: (0.005 um/N).
 REALISTIC_CARRIAGE = {"hexapod_mass": 400.0, "hexapod_centre": (0.0, 0.0, 150.0),
-                      "R": 0.05, "P": 0.005}
+                      "R": 0.02, "P": 0.005}
 
 
 def realistic(robot: Any, *, per_leg: bool = True, identify_alpha: bool = True,

@@ -142,7 +142,7 @@ class CarriageCompliance(Effect):
             unit = UNIT_SCALE[t][0]
             hi = self._max(t)
             if not -hi <= v <= hi:
-                raise ValueError(f"{where}.compliance[{i}]: {v!r} {unit} (joint {joints[i]}, "
+                raise ValueError(f"{where}.compliance[{i}]: {float(v)!r} {unit} (joint {joints[i]}, "
                                  f"{'revolute' if t == 'R' else 'prismatic'}); expected "
                                  f"{-hi:g} <= value <= {hi:g}")
         out = copy.copy(self)

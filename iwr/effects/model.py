@@ -64,13 +64,14 @@ def joint_columns(robot: Any) -> list[int]:
 
 def joint_loads(robot: Any, xg: np.ndarray, q: np.ndarray, moment: np.ndarray,
                 mass: np.ndarray, loaded: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(loads, d_dh, d_moment)``: the gravity load of each carriage joint (N, n_joints) at
-    readings ``q`` (:class:`iwr.effects.JointState`: N mm about a revolute axis, N along a
-    prismatic one), its derivatives in the carriage's 4 n error parameters (N, n_joints, 4 n)
-    and in ``moment`` (N, n_joints, 3).
+    """``(loads, d_geometric, d_moment)``: the gravity load of each carriage joint (N, n_joints)
+    at readings ``q`` (:class:`iwr.effects.JointState`: N mm about a revolute axis, N along a
+    prismatic one), its derivatives in the carriage's 4 n error parameters and the base joints'
+    18 (N, n_joints, 4 n + 18) and in ``moment`` (N, n_joints, 3).
 
     The distal bodies are the hexapod (``loaded.hexapod_mass`` kg, centre
-    ``loaded.hexapod_centre`` mm in {4}) and the bodies the platform carries, given by their
+    ``loaded.hexapod_centre`` mm from the centre of its base joints, in {4}'s axes) and the
+    bodies the platform carries, given by their
     total ``mass`` (N,) kg and first moment ``moment`` (N, 3) kg mm in {0} (sum of mass times
     centre). With ``P`` the first moment of all of them and ``M`` their mass, joint i's axis
     ``z`` through ``o`` (frame {i-1} of the DH chain): the torque about the axis is
@@ -90,13 +91,20 @@ def joint_loads(robot: Any, xg: np.ndarray, q: np.ndarray, moment: np.ndarray,
         d_frame = d_frame @ mats[i]
         d_frame[4 * i: 4 * i + 4] = frame[None] @ ders[i]
         frame = frame @ mats[i]
-    ch = np.asarray(loaded.hexapod_centre, dtype=float)
+    # The hexapod's centre: given from the centre of its base joints (with their errors), so
+    # that the geometry's null directions (frame {4} moved, the base joints moved back in it)
+    # leave it where it is.
+    base = robot.base_joints + xg[nc: nc + 18].reshape(6, 3)
+    ch = np.asarray(loaded.hexapod_centre, dtype=float) + base.mean(axis=0)
     mh = float(loaded.hexapod_mass)
     p_all = mh * (frame[:, :3, :3] @ ch + frame[:, :3, 3]) + moment
-    d_p = mh * (d_frame[:, :, :3, :3] @ ch + d_frame[:, :, :3, 3])  # (4 n, N, 3)
+    d_p = np.concatenate([mh * (d_frame[:, :, :3, :3] @ ch + d_frame[:, :, :3, 3]),
+                          np.tile(np.moveaxis(mh / 6 * frame[:, :3, :3], 2, 0), (6, 1, 1))])
+    d_origins = [np.concatenate([d, np.zeros((18,) + d.shape[1:])]) for d in d_origins]
+    d_axes = [np.concatenate([d, np.zeros((18,) + d.shape[1:])]) for d in d_axes]
     m_all = mh + mass
     out = np.zeros((n, nj))
-    d_dh = np.zeros((n, nj, nc))
+    d_dh = np.zeros((n, nj, nc + 18))
     d_mom = np.zeros((n, nj, 3))
     for i, kind in enumerate(robot.joint_types):
         if kind == "R":
@@ -321,7 +329,7 @@ def joint_changes(robot: Any, xg: np.ndarray, xe: np.ndarray, q: np.ndarray, t5:
     torques, d_dh, d_mom = joint_loads(robot, xg, q, moment, mass, loaded)
     n_z = ng if rotation_vectors is None else ng + nj + 6
     d_loads = np.zeros((n, nj, n_z))
-    d_loads[..., :nc] = d_dh
+    d_loads[..., : nc + 18] = d_dh
     if rotation_vectors is not None:
         from .loop import _skew, right_jacobian
 
