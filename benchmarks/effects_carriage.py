@@ -36,9 +36,13 @@ def second_order(robot: iwr.Robot) -> None:
         xg = np.zeros(robot.n_params)
         moment, mass, _ = model.platform_moment(carriage, m, pose_matrix(m.poses))
 
-        def deflected(q: np.ndarray) -> np.ndarray:
+        def deflected(q: np.ndarray, r: iwr.Robot = r, xg: np.ndarray = xg,
+                      moment: np.ndarray = moment, mass: np.ndarray = mass,
+                      carriage: object = carriage, reading: np.ndarray = m.q,
+                      c4: float = c4) -> np.ndarray:
+            """The readings plus joint 4's deflection under the loads at ``q``."""
             loads, _, _ = model.joint_loads(r, xg, q, moment, mass, carriage)
-            out = m.q.copy()
+            out = reading.copy()
             out[:, 3] += c4 * 1e-9 * loads[:, 3]
             return out
 

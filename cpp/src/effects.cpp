@@ -379,6 +379,23 @@ EffectObjective::Workspace EffectObjective::make_workspace() const {
     return ws;
 }
 
+void EffectObjective::hexapod_centre(const detail::EvalConsts& ec, double* out) const {
+    // The frame the base joints define (iwr.effects.model.base_frame): origin their centre, z the
+    // normal of their polygon (sum a_j x a_j+1), x towards the midpoint of joints 1 and 2.
+    Vec3 a[kLegs], centre = Vec3::Zero(), n = Vec3::Zero();
+    for (int j = 0; j < kLegs; ++j) a[j] = Vec3(ec.a[j][0], ec.a[j][1], ec.a[j][2]), centre += a[j];
+    centre /= kLegs;
+    for (int j = 0; j < kLegs; ++j) n += a[j].cross(a[(j + 1) % kLegs]);
+    const Vec3 z = n / n.norm();
+    const Vec3 mid = 0.5 * (a[0] + a[1]) - centre;
+    const Vec3 xs = mid - mid.dot(z) * z;
+    const Vec3 x = xs / xs.norm();
+    const Vec3 y = z.cross(x);
+    const Vec3& c = effects_.hexapod_centre;
+    const Vec3 p = centre + c(0) * x + c(1) * y + c(2) * z;
+    for (int e = 0; e < 3; ++e) out[e] = p(e);
+}
+
 void EffectObjective::chain(const detail::EvalConsts& ec, const double* d, const double* delta, double* t,
                             double* axes, double* origins) const {
     // 0T4 by the DH chain (as the SIMD kernel's carriage(), one pose).
@@ -436,7 +453,9 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
         alpha[j] *= 1e-6;
     }
     double ccomp[kMaxChainJoints];  // per joint: its compliance in the model's units (0: rigid)
+    double ch[3] = {0, 0, 0};       // the hexapod's centre in {4}
     if (off_cc_ >= 0) {
+        hexapod_centre(ec, ch);
         for (int i = 0; i < nj; ++i) ccomp[i] = 0.0;
         for (std::size_t u = 0; u < m.carriage_joints.size(); ++u) {
             const int i = m.carriage_joints[u];
@@ -455,14 +474,7 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
             chain(ec, d, nullptr, t, axes, origins);
             const double* pl = d + off_cc_;
             const double mh = m.hexapod_mass, mass = mh + pl[3];
-            // The hexapod's centre: from the centre of its base joints (with their errors), in
-            // {4}'s axes (as iwr.effects.model.joint_loads).
-            double ch[3], p[3];
-            for (int e = 0; e < 3; ++e) {
-                double sum = 0;
-                for (int j = 0; j < kLegs; ++j) sum += ec.a[j][e];
-                ch[e] = m.hexapod_centre(e) + sum / kLegs;
-            }
+            double p[3];
             for (int e = 0; e < 3; ++e)
                 p[e] = mh * (t[3 * e] * ch[0] + t[3 * e + 1] * ch[1] + t[3 * e + 2] * ch[2] + t[9 + e]) + pl[e];
             const Vec3& g = m.carriage_gravity;

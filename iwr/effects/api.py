@@ -10,10 +10,10 @@ from typing import Any
 
 import numpy as np
 
+from ..transforms import pose_matrix as pose_matrix_of
 from . import bounds as effect_bounds
 from . import parameter_names as effect_names
 from .builtin import STANDARD_GRAVITY, LegCompliance, LegThermal
-from ..transforms import pose_matrix as pose_matrix_of
 from .model import check_inputs, predicted_readings, split
 
 __all__ = ["EffectIdentifiability", "apply", "forward_kinematics", "identifiability",
@@ -163,11 +163,6 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
                         payload=plain.payload, temperatures=plain.temperatures), x
 
 
-#: The relative rank threshold of :func:`identifiability` with an effect on the joints (the
-#: column-scaled Jacobian's singular values below it times the largest are not identifiable).
-JOINT_EFFECT_RTOL = 1e-5
-
-
 @dataclasses.dataclass
 class EffectIdentifiability:
     """What leg readings at a set of poses, loads and temperatures identify of a robot with
@@ -232,20 +227,10 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *, rtol: float
     Jacobian of eq. (10) with the effects (:class:`iwr.effects.problem.EffectProblem`) at ``x``
     (default the nominal robot), the effect parameters that cannot be separated from the
     geometry, and the base parameters (:func:`iwr.identifiability`'s ordered rule: the
-    hexapod's, the effects', then the carriage's).
-
-    With an effect on the carriage's joints the default relative rank threshold is
-    :data:`JOINT_EFFECT_RTOL`: the joints' loads depend on where the geometry puts the axes and
-    the hexapod, which lifts directions the geometry alone cannot see to singular values of
-    about 1e-7 of the largest (docs/effects.md, "The carriage's joints"): real, but thousands of
-    times weaker than the weakest geometric one, and an estimator that took them would wander
-    along them."""
+    hexapod's, the effects', then the carriage's)."""
     from ..analysis.identifiability import _base_parameters, _rank_threshold, _scaled_svd
-    from .model import joint_effects
     from .problem import EffectProblem
 
-    if rtol is None and joint_effects(robot):
-        rtol = JOINT_EFFECT_RTOL
     problem = EffectProblem(robot, measurements)
     x = np.zeros(problem.n_params) if x is None else np.asarray(x, dtype=float)
     jac = problem.jacobian(x)

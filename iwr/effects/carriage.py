@@ -64,7 +64,8 @@ class CarriageCompliance(Effect):
     _KEYS = {"joints": "joint numbers from 1", "compliance":
              "one per listed joint: urad/(N m) revolute, um/N prismatic",
              "max_urad_per_Nm": "urad/(N m), revolute joints",
-             "max_um_per_N": "um/N, prismatic joints", "gravity_m_s2": "m/s^2 in {0}, three numbers",
+             "max_um_per_N": "um/N, prismatic joints",
+             "gravity_m_s2": "m/s^2 in {0}, three numbers",
              "hexapod_mass_kg": "kg", "hexapod_centre_mm": "mm in {4}, three numbers",
              "platform_mass_kg": "kg", "platform_centre_mm": "mm in {5}, three numbers"}
 
@@ -142,9 +143,9 @@ class CarriageCompliance(Effect):
             unit = UNIT_SCALE[t][0]
             hi = self._max(t)
             if not -hi <= v <= hi:
-                raise ValueError(f"{where}.compliance[{i}]: {float(v)!r} {unit} (joint {joints[i]}, "
-                                 f"{'revolute' if t == 'R' else 'prismatic'}); expected "
-                                 f"{-hi:g} <= value <= {hi:g}")
+                kind = "revolute" if t == "R" else "prismatic"
+                raise ValueError(f"{where}.compliance[{i}]: {float(v)!r} {unit} (joint "
+                                 f"{joints[i]}, {kind}); expected {-hi:g} <= value <= {hi:g}")
         out = copy.copy(self)
         out.joints, out.joint_types, out.compliance = tuple(joints), types, values
         return out

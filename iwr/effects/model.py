@@ -91,15 +91,15 @@ def joint_loads(robot: Any, xg: np.ndarray, q: np.ndarray, moment: np.ndarray,
         d_frame = d_frame @ mats[i]
         d_frame[4 * i: 4 * i + 4] = frame[None] @ ders[i]
         frame = frame @ mats[i]
-    # The hexapod's centre: given from the centre of its base joints (with their errors), so
-    # that the geometry's null directions (frame {4} moved, the base joints moved back in it)
-    # leave it where it is.
-    base = robot.base_joints + xg[nc: nc + 18].reshape(6, 3)
-    ch = np.asarray(loaded.hexapod_centre, dtype=float) + base.mean(axis=0)
+    # The hexapod's centre: given in the frame its base joints define (base_frame), so that
+    # the geometry's null directions (frame {4} moved or turned, the base joints moved back in
+    # it) leave it where it is.
+    ch, d_ch = base_centre(robot.base_joints + xg[nc: nc + 18].reshape(6, 3),
+                           np.asarray(loaded.hexapod_centre, dtype=float))
     mh = float(loaded.hexapod_mass)
     p_all = mh * (frame[:, :3, :3] @ ch + frame[:, :3, 3]) + moment
     d_p = np.concatenate([mh * (d_frame[:, :, :3, :3] @ ch + d_frame[:, :, :3, 3]),
-                          np.tile(np.moveaxis(mh / 6 * frame[:, :3, :3], 2, 0), (6, 1, 1))])
+                          mh * np.einsum("kab,bp->pka", frame[:, :3, :3], d_ch)])
     d_origins = [np.concatenate([d, np.zeros((18,) + d.shape[1:])]) for d in d_origins]
     d_axes = [np.concatenate([d, np.zeros((18,) + d.shape[1:])]) for d in d_axes]
     m_all = mh + mass
@@ -119,6 +119,56 @@ def joint_loads(robot: Any, xg: np.ndarray, q: np.ndarray, moment: np.ndarray,
             out[:, i] = m_all * (axes[i] @ g)
             d_dh[:, i] = (m_all * (d_axes[i] @ g)).T
     return out, d_dh, d_mom
+
+
+def base_frame(base: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(centre, axes, d_centre, d_axes)``: the frame the six base joints ``base`` (6, 3, in
+    {4}) define, and its derivatives in them (3, 18) and (3, 3, 18): its origin their centre,
+    its z axis the normal of their polygon (``sum a_j x a_j+1``, right-handed with their order),
+    its x axis towards the midpoint of joints 1 and 2, in the polygon's plane. ``axes`` holds
+    the unit vectors as columns (a rotation); on the IWR it is {4} itself."""
+    eye = np.eye(3)
+    centre = base.mean(axis=0)
+    d_centre = np.tile(eye / 6, (1, 6))
+    nxt = np.roll(base, -1, axis=0)
+    big_n = np.cross(base, nxt).sum(axis=0)
+    d_big_n = np.zeros((3, 18))
+    for j in range(6):  # d (a_j x a_j+1) / d a_j = -[a_j+1]x, / d a_j+1 = [a_j]x
+        d_big_n[:, 3 * j: 3 * j + 3] += -_skew3(nxt[j])
+        k = (j + 1) % 6
+        d_big_n[:, 3 * k: 3 * k + 3] += _skew3(base[j])
+    z, d_z = _unit(big_n, d_big_n)
+    m = 0.5 * (base[0] + base[1]) - centre
+    d_m = -d_centre
+    d_m[:, 0:3] += 0.5 * eye
+    d_m[:, 3:6] += 0.5 * eye
+    big_x = m - (m @ z) * z
+    d_big_x = d_m - np.outer(z, z @ d_m + m @ d_z) - (m @ z) * d_z
+    x, d_x = _unit(big_x, d_big_x)
+    y = np.cross(z, x)
+    d_y = np.cross(d_z.T, x).T + np.cross(z, d_x.T).T
+    return centre, np.column_stack([x, y, z]), d_centre, np.stack([d_x, d_y, d_z], axis=1)
+
+
+def _skew3(v: np.ndarray) -> np.ndarray:
+    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+
+
+def _unit(v: np.ndarray, dv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``v / |v|`` and its derivative, from ``v``'s (3, p)."""
+    norm = float(np.linalg.norm(v))
+    if not norm > 0:
+        raise ValueError("base joints: they span no plane (the hexapod's base frame is "
+                         "undefined)")
+    u = v / norm
+    return u, (dv - np.outer(u, u @ dv)) / norm
+
+
+def base_centre(base: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The hexapod's centre of mass in {4} (3,) at ``offset`` in the base joints' frame
+    (:func:`base_frame`), and its derivatives in the base joints (3, 18)."""
+    centre, axes, d_centre, d_axes = base_frame(base)
+    return centre + axes @ offset, d_centre + np.einsum("acp,c->ap", d_axes, offset)
 
 
 def platform_moment(loaded: Any, data: Any, t5: np.ndarray) -> tuple[np.ndarray, np.ndarray,
