@@ -24,6 +24,7 @@ from ..transforms import pose_matrix, rotvec_matrix
 from . import LegState
 from .model import (
     _compliance,
+    _skew,
     check_inputs,
     joint_changes,
     joint_effects,
@@ -34,14 +35,6 @@ from .model import (
 )
 
 __all__ = ["loop_jacobians", "right_jacobian"]
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[v]x`` (..., 3, 3) of vectors (..., 3)."""
-    k = np.zeros(v.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return k
 
 
 def right_jacobian(w: np.ndarray) -> np.ndarray:
@@ -79,7 +72,8 @@ def loop_jacobians(robot: Any, x: Any, q: np.ndarray, poses: np.ndarray, data: A
         w = corr[:, nj + 3:]
         t5[:, :3, :3] = t5[:, :3, :3] @ rotvec_matrix(w)
         t5[:, :3, 3] += corr[:, nj: nj + 3]
-        dq, dq_z, dq_e = joint_changes(robot, xg, xe, q + corr[:, :nj], t5, data, w)
+        dq, dq_z, dq_e = joint_changes(robot, xg, xe, q + corr[:, :nj], t5, data,
+                                       right_jacobian(w))
         corr = corr.copy()
         corr[:, :nj] += dq
         corrections = corr

@@ -134,9 +134,9 @@ def base_frame(base: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     big_n = np.cross(base, nxt).sum(axis=0)
     d_big_n = np.zeros((3, 18))
     for j in range(6):  # d (a_j x a_j+1) / d a_j = -[a_j+1]x, / d a_j+1 = [a_j]x
-        d_big_n[:, 3 * j: 3 * j + 3] += -_skew3(nxt[j])
+        d_big_n[:, 3 * j: 3 * j + 3] += -_skew(nxt[j])
         k = (j + 1) % 6
-        d_big_n[:, 3 * k: 3 * k + 3] += _skew3(base[j])
+        d_big_n[:, 3 * k: 3 * k + 3] += _skew(base[j])
     z, d_z = _unit(big_n, d_big_n)
     m = 0.5 * (base[0] + base[1]) - centre
     d_m = -d_centre
@@ -150,8 +150,12 @@ def base_frame(base: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     return centre, np.column_stack([x, y, z]), d_centre, np.stack([d_x, d_y, d_z], axis=1)
 
 
-def _skew3(v: np.ndarray) -> np.ndarray:
-    return np.array([[0.0, -v[2], v[1]], [v[2], 0.0, -v[0]], [-v[1], v[0], 0.0]])
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` (..., 3, 3) of vectors (..., 3)."""
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return k
 
 
 def _unit(v: np.ndarray, dv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -364,30 +368,28 @@ def _loaded(robot: Any) -> Any:
 
 
 def joint_changes(robot: Any, xg: np.ndarray, xe: np.ndarray, q: np.ndarray, t5: np.ndarray,
-                  data: Any, rotation_vectors: Any = None
+                  data: Any, right_jacobians: Any = None
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(change, d_z, d_own)``: the effects' change of the carriage's joint values (N,
     n_joints) at readings ``q`` and platform transforms ``t5`` under ``data``'s loads, its
     derivatives in ``z`` (N, n_joints, n_z) and in the effects' parameters (N, n_joints,
     len(xe); zero for the effects on the legs). ``z`` is the geometric errors, then, when
-    ``rotation_vectors`` (N, 3) are given (the implicit loop: ``t5`` is the measured pose turned
-    by them and moved), the corrections ``(dq, dp, w)``."""
+    ``right_jacobians`` (N, 3, 3) are given (the implicit loop: ``t5`` is the measured pose
+    turned by rotation vectors ``w`` and moved; they are ``J_r(w)``,
+    :func:`iwr.effects.loop.right_jacobian`), the corrections ``(dq, dp, w)``."""
     n, nj, ng = len(q), robot.n_joints, robot.n_params
     nc = 4 * nj
     loaded = _loaded(robot)
     moment, mass, c5 = platform_moment(loaded, data, t5)
     torques, d_dh, d_mom = joint_loads(robot, xg, q, moment, mass, loaded)
-    n_z = ng if rotation_vectors is None else ng + nj + 6
+    n_z = ng if right_jacobians is None else ng + nj + 6
     d_loads = np.zeros((n, nj, n_z))
     d_loads[..., : nc + 18] = d_dh
-    if rotation_vectors is not None:
-        from .loop import _skew, right_jacobian
-
+    if right_jacobians is not None:
         d_loads[..., ng: ng + nj] = d_dh[..., joint_columns(robot)]
         d_loads[..., ng + nj: ng + nj + 3] = d_mom * mass[:, None, None]
         # d (R exp([w]x) c) / dw = -R exp([w]x) [c]x J_r(w), R exp([w]x) the rotation of t5.
-        d_w = -np.einsum("kab,kbc,kcd->kad", t5[:, :3, :3], _skew(c5),
-                         right_jacobian(np.asarray(rotation_vectors, dtype=float)))
+        d_w = -np.einsum("kab,kbc,kcd->kad", t5[:, :3, :3], _skew(c5), right_jacobians)
         d_loads[..., ng + nj + 3:] = np.einsum("kia,kad->kid", d_mom, d_w)
     state = JointState(torques, d_loads, robot.joint_types)
     change = np.zeros((n, nj))
