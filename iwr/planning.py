@@ -212,9 +212,10 @@ def _with_conditions(robot: Robot, cand: Measurements, payloads: Any, temperatur
             temps = np.full(len(cand), float(temps))
     pay = cand.payload
     if payloads is not None:
-        if not any("forces" in e.needs for e in robot.effects):
+        if not any(e.needs & {"forces", "loads"} for e in robot.effects):
             raise ValueError(f"payloads: robot {robot.name!r} has no effect of the load "
-                             "([effects.compliance]); the payloads change nothing it models")
+                             "([effects.compliance] or [effects.carriage_compliance]); the "
+                             "payloads change nothing it models")
         p = np.asarray(payloads, dtype=float)
         if p.ndim != 2 or p.shape[1] != 4 or len(p) == 0:
             raise ValueError(f"payloads: shape {p.shape}; expected (P, 4): mass kg, centre of "

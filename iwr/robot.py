@@ -180,7 +180,7 @@ class Robot:
         self.instruments = _instruments(instruments or {}, tracker)
         #: The non-geometric effects switched on (issue 23): a tuple of iwr.effects.Effect,
         #: empty for the geometry alone. Their parameters are not in :attr:`n_params`.
-        self.effects = _effects.read_table(effects)
+        self.effects = _effects.read_table(effects, robot=self)
         if np.any(self.workspace < 0):
             raise ValueError(f"workspace: half-widths must be >= 0, got {self.workspace}")
         self._geometry = _core.Geometry(
@@ -266,7 +266,8 @@ class Robot:
         ``with_effects()`` switches every effect off (docs/effects.md)."""
         out = copy.copy(self)
         out.effects = _effects.read_table(
-            effects[0] if len(effects) == 1 and isinstance(effects[0], Mapping) else effects)
+            effects[0] if len(effects) == 1 and isinstance(effects[0], Mapping) else effects,
+            robot=out)
         return out
 
     def with_instrument(self, name: str, setup: Any) -> Robot:

@@ -15,6 +15,7 @@ namespace iwr {
 namespace {
 
 constexpr double kStandardGravity = 9.80665;  // m/s^2, as iwr/effects/builtin.py
+constexpr int kMaxChainJoints = 64;           // the carriage compliance's per-joint buffers
 
 [[noreturn]] void bad(const std::string& where, const std::string& what) {
     throw std::invalid_argument(where + ": " + what);
@@ -42,6 +43,11 @@ public:
             for (std::size_t j = 0; j < i; ++j)
                 if (t.entries[j].first == key) bad(where_ + "." + key, "given twice");
         }
+    }
+    bool has(const std::string& key) const {
+        for (const auto& e : table_.entries)
+            if (e.first == key) return true;
+        return false;
     }
     const EffectValue& get(const std::string& key) const {
         for (const auto& e : table_.entries)
@@ -179,10 +185,56 @@ EffectModel EffectModel::parse(const std::vector<EffectTable>& tables, int n_geo
                 m.thermal_index = next;
                 next += static_cast<int>(n);
             }
+        } else if (table.name == "carriage_compliance") {
+            const Keys k(table, {"joints", "compliance", "max_urad_per_Nm", "max_um_per_N", "gravity_m_s2",
+                                 "hexapod_mass_kg", "hexapod_centre_mm", "platform_mass_kg",
+                                 "platform_centre_mm"});
+            m.carriage = true;
+            const int nj = (n_geometric - 42) / 4;
+            if (k.has("joints")) {
+                const EffectValue& v = k.get("joints");
+                if (v.type == EffectValue::Type::Bool || v.numbers.empty())
+                    bad(k.where() + ".joints", "expected joint numbers from 1");
+                for (std::size_t i = 0; i < v.numbers.size(); ++i) {
+                    const double j = v.numbers[i];
+                    if (!(j >= 1 && j <= nj && j == std::floor(j)))
+                        bad(k.where() + ".joints[" + std::to_string(i) + "]",
+                            number_text(j) + "; expected a joint number from 1 to " + std::to_string(nj));
+                    for (std::size_t u = 0; u < i; ++u)
+                        if (v.numbers[u] == j) bad(k.where() + ".joints", "joint " + number_text(j) + " given twice");
+                    m.carriage_joints.push_back(static_cast<int>(j) - 1);
+                }
+            } else {
+                for (int j = 0; j < nj; ++j) m.carriage_joints.push_back(j);
+            }
+            const std::size_t n = m.carriage_joints.size();
+            m.carriage_values = k.numbers("compliance", n, -1e3, 1e3, "urad/(N m) or um/N", true);
+            (void)k.number("max_urad_per_Nm", 1e-9, 1e3, "urad/(N m)");  // as max_um_per_N above
+            (void)k.number("max_um_per_N", 1e-9, 10, "um/N");
+            m.hexapod_mass = k.number("hexapod_mass_kg", 0, 1e6, "kg");
+            const std::vector<double> hc = k.numbers("hexapod_centre_mm", 3, -1e5, 1e5, "mm in {4}", false);
+            m.hexapod_centre = Vec3(hc[0], hc[1], hc[2]);
+            m.carriage_platform_mass = k.number("platform_mass_kg", 0, 1e6, "kg");
+            const std::vector<double> pc = k.numbers("platform_centre_mm", 3, -1e5, 1e5, "mm in {5}", false);
+            m.carriage_platform_centre = Vec3(pc[0], pc[1], pc[2]);
+            const std::vector<double> g = k.numbers("gravity_m_s2", 3, -20, 20, "m/s^2 in {0}", false);
+            m.carriage_gravity = Vec3(g[0], g[1], g[2]);
+            if (!(std::fabs(m.carriage_gravity.norm() / kStandardGravity - 1.0) <= 0.01))
+                bad(k.where() + ".gravity_m_s2", "norm " + number_text(m.carriage_gravity.norm()) +
+                                                     " m/s^2; expected 9.80665 within 1 %");
+            m.carriage_index = next;
+            next += static_cast<int>(n);
         } else {
-            bad("effects." + table.name, "no model of this effect in the C++ core; known: compliance, thermal");
+            bad("effects." + table.name,
+                "no model of this effect in the C++ core; known: compliance, thermal, carriage_compliance");
         }
     }
+    if (m.compliance && m.carriage &&
+        (m.gravity != m.carriage_gravity || m.platform_mass != m.carriage_platform_mass ||
+         m.platform_centre != m.carriage_platform_centre))
+        bad("effects.carriage_compliance",
+            "its gravity and platform differ from effects.compliance's: the effects of the load must "
+            "describe the same gravity and platform");
     m.n_params = next - n_geometric;
     return m;
 }
@@ -246,6 +298,19 @@ EffectObjective::EffectObjective(Geometry geometry, EffectModel effects, const R
     }
     int nq = 30;  // 0R5 9, 0P5 3, readings 6, wrench 6, T - T_ref 6
     if (weights.size() != 0) off_w_ = nq, nq += kLegs;
+    if (effects_.carriage) {
+        if (nj > kMaxChainJoints)
+            throw std::invalid_argument("effects.carriage_compliance: the robot has " + std::to_string(nj) +
+                                        " joints; at most " + std::to_string(kMaxChainJoints));
+        off_cc_ = nq, nq += 4;
+        cc_scale_.assign(static_cast<std::size_t>(nj), 0.0);
+        for (int jt : effects_.carriage_joints) {
+            if (jt >= nj)
+                throw std::invalid_argument("effects.carriage_compliance.joints: joint " + std::to_string(jt + 1) +
+                                            "; the robot has " + std::to_string(nj) + " joints");
+            cc_scale_[static_cast<std::size_t>(jt)] = geometry_.is_prismatic(jt) ? 1e-3 : 1e-9;
+        }
+    }
     if (whitened_) off_wh_ = nq, nq += kLegs * (kLegs + 1) / 2;
     for (int i = 0; i < nj; ++i) {
         q_off_.push_back(nq);
@@ -273,6 +338,18 @@ EffectObjective::EffectObjective(Geometry geometry, EffectModel effects, const R
                 moment += (r * Vec3(payload(k, 1), payload(k, 2), payload(k, 3))).cross(wp);
             }
             for (int e = 0; e < 3; ++e) d[18 + e] = force(e), d[21 + e] = moment(e);
+        }
+        if (effects_.carriage) {
+            // The first moment (kg mm, in {0}) and the mass of the platform and the payload.
+            double mass = effects_.carriage_platform_mass;
+            Vec3 first = mass * (r * effects_.carriage_platform_centre + Vec3(poses(k, 0), poses(k, 1), poses(k, 2)));
+            if (payload.size() != 0) {
+                first += payload(k, 0) * (r * Vec3(payload(k, 1), payload(k, 2), payload(k, 3)) +
+                                          Vec3(poses(k, 0), poses(k, 1), poses(k, 2)));
+                mass += payload(k, 0);
+            }
+            for (int e = 0; e < 3; ++e) d[off_cc_ + e] = first(e);
+            d[off_cc_ + 3] = mass;
         }
         if (effects_.thermal)
             for (int j = 0; j < kLegs; ++j)
@@ -302,12 +379,71 @@ EffectObjective::Workspace EffectObjective::make_workspace() const {
     return ws;
 }
 
+void EffectObjective::hexapod_centre(const detail::EvalConsts& ec, double* out) const {
+    // The frame the base joints define (iwr.effects.model.base_frame): origin their centre, z the
+    // normal of their polygon (sum a_j x a_j+1), x towards the midpoint of joints 1 and 2.
+    Vec3 a[kLegs], centre = Vec3::Zero(), n = Vec3::Zero();
+    for (int j = 0; j < kLegs; ++j) a[j] = Vec3(ec.a[j][0], ec.a[j][1], ec.a[j][2]), centre += a[j];
+    centre /= kLegs;
+    for (int j = 0; j < kLegs; ++j) n += a[j].cross(a[(j + 1) % kLegs]);
+    const Vec3 z = n / n.norm();
+    const Vec3 mid = 0.5 * (a[0] + a[1]) - centre;
+    const Vec3 xs = mid - mid.dot(z) * z;
+    const Vec3 x = xs / xs.norm();
+    const Vec3 y = z.cross(x);
+    const Vec3& c = effects_.hexapod_centre;
+    const Vec3 p = centre + c(0) * x + c(1) * y + c(2) * z;
+    for (int e = 0; e < 3; ++e) out[e] = p(e);
+}
+
+void EffectObjective::chain(const detail::EvalConsts& ec, const double* d, const double* delta, double* t,
+                            double* axes, double* origins) const {
+    // 0T4 by the DH chain (as the SIMD kernel's carriage(), one pose).
+    const int nj = geometry_.n_joints(), n_prefix = carriage_.n_prefix();
+    for (int e = 0; e < 9; ++e) t[e] = ec.rc[e];
+    for (int e = 0; e < 3; ++e) t[9 + e] = ec.pc[e];
+    for (int i = 0; i < n_prefix; ++i) {
+        double qi = d[q_off_[static_cast<std::size_t>(i)]];
+        if (delta) qi += delta[i];
+        if (axes)  // a prefix joint is prismatic: its axis is all its load needs
+            for (int e = 0; e < 3; ++e) axes[3 * i + e] = ec.z[3 * i + e], origins[3 * i + e] = t[9 + e];
+        for (int e = 0; e < 3; ++e) t[9 + e] += qi * ec.z[3 * i + e];
+    }
+    for (int i = n_prefix; i < nj; ++i) {
+        const double* jc = ec.joint + 6 * i;
+        const double* qd = d + q_off_[static_cast<std::size_t>(i)];
+        double cs, sn, dk = jc[5];
+        if (prismatic_[static_cast<std::size_t>(i)]) {
+            cs = jc[2], sn = jc[3], dk = jc[5] + qd[0];
+            if (delta) dk += delta[i];
+        } else {
+            double cq = qd[0], sq = qd[1];
+            if (delta) {  // cos, sin of q + delta
+                const double cd = std::cos(delta[i]), sd = std::sin(delta[i]);
+                const double c0 = cq;
+                cq = c0 * cd - sq * sd, sq = sq * cd + c0 * sd;
+            }
+            cs = jc[2] * cq - jc[3] * sq, sn = jc[3] * cq + jc[2] * sq;
+        }
+        if (axes)
+            for (int e = 0; e < 3; ++e) axes[3 * i + e] = t[3 * e + 2], origins[3 * i + e] = t[9 + e];
+        for (int r = 0; r < 3; ++r) {
+            const double t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
+            const double u = t0 * cs + t1 * sn, v = t1 * cs - t0 * sn;
+            t[3 * r] = u;
+            t[3 * r + 1] = jc[0] * v + jc[1] * w;
+            t[3 * r + 2] = jc[0] * w - jc[1] * v;
+            t[9 + r] += jc[4] * u + dk * w;
+        }
+    }
+}
+
 double EffectObjective::evaluate(const double* x, double* jbuf, double* res, double* forces,
                                  char* singular) const {
     detail::EvalConsts ec;
     carriage_.consts(geometry_, x, ec, jbuf);
     const EffectModel& m = effects_;
-    const int nj = geometry_.n_joints(), n_prefix = carriage_.n_prefix();
+    const int nj = geometry_.n_joints();
     double c[kLegs], alpha[kLegs];  // mm/N and 1/K
     for (int j = 0; j < kLegs; ++j) {
         c[j] = m.compliance ? (m.compliance_values[j] + x[m.compliance_index + (m.compliance_per_leg ? j : 0)]) * 1e-3
@@ -316,34 +452,49 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
         if (m.thermal_index >= 0) alpha[j] += x[m.thermal_index + (m.thermal_per_leg ? j : 0)];
         alpha[j] *= 1e-6;
     }
+    double ccomp[kMaxChainJoints];  // per joint: its compliance in the model's units (0: rigid)
+    double ch[3] = {0, 0, 0};       // the hexapod's centre in {4}
+    if (off_cc_ >= 0) {
+        hexapod_centre(ec, ch);
+        for (int i = 0; i < nj; ++i) ccomp[i] = 0.0;
+        for (std::size_t u = 0; u < m.carriage_joints.size(); ++u) {
+            const int i = m.carriage_joints[u];
+            ccomp[i] = (m.carriage_values[u] + x[m.carriage_index + static_cast<int>(u)]) *
+                       cc_scale_[static_cast<std::size_t>(i)];
+        }
+    }
     double acc = 0;
     for (int k = 0; k < n_; ++k) {
         const double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
-        // 0T4 by the DH chain (as the SIMD kernel's carriage(), one pose).
         double t[12];
-        for (int e = 0; e < 9; ++e) t[e] = ec.rc[e];
-        for (int e = 0; e < 3; ++e) t[9 + e] = ec.pc[e];
-        for (int i = 0; i < n_prefix; ++i) {
-            const double qi = d[q_off_[static_cast<std::size_t>(i)]];
-            for (int e = 0; e < 3; ++e) t[9 + e] += qi * ec.z[3 * i + e];
-        }
-        for (int i = n_prefix; i < nj; ++i) {
-            const double* jc = ec.joint + 6 * i;
-            const double* qd = d + q_off_[static_cast<std::size_t>(i)];
-            double cs, sn, dk = jc[5];
-            if (prismatic_[static_cast<std::size_t>(i)]) {
-                cs = jc[2], sn = jc[3], dk = jc[5] + qd[0];
-            } else {
-                cs = jc[2] * qd[0] - jc[3] * qd[1], sn = jc[3] * qd[0] + jc[2] * qd[1];
+        if (off_cc_ >= 0) {
+            // The carriage compliance: each joint's gravity load at the readings (the chain's
+            // frames before it), its change c L, then 0T4 at the changed joint values.
+            double axes[3 * kMaxChainJoints], origins[3 * kMaxChainJoints], delta[kMaxChainJoints];
+            chain(ec, d, nullptr, t, axes, origins);
+            const double* pl = d + off_cc_;
+            const double mh = m.hexapod_mass, mass = mh + pl[3];
+            double p[3];
+            for (int e = 0; e < 3; ++e)
+                p[e] = mh * (t[3 * e] * ch[0] + t[3 * e + 1] * ch[1] + t[3 * e + 2] * ch[2] + t[9 + e]) + pl[e];
+            const Vec3& g = m.carriage_gravity;
+            for (int i = 0; i < nj; ++i) {
+                const double* z = axes + 3 * i;
+                double load;
+                if (prismatic_[static_cast<std::size_t>(i)]) {
+                    load = mass * (g(0) * z[0] + g(1) * z[1] + g(2) * z[2]);
+                } else {  // (P - M o) . (g x z)
+                    const double* o = origins + 3 * i;
+                    const double gz[3] = {g(1) * z[2] - g(2) * z[1], g(2) * z[0] - g(0) * z[2],
+                                          g(0) * z[1] - g(1) * z[0]};
+                    load = (p[0] - mass * o[0]) * gz[0] + (p[1] - mass * o[1]) * gz[1] +
+                           (p[2] - mass * o[2]) * gz[2];
+                }
+                delta[i] = ccomp[i] * load;
             }
-            for (int r = 0; r < 3; ++r) {
-                const double t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
-                const double u = t0 * cs + t1 * sn, v = t1 * cs - t0 * sn;
-                t[3 * r] = u;
-                t[3 * r + 1] = jc[0] * v + jc[1] * w;
-                t[3 * r + 2] = jc[0] * w - jc[1] * v;
-                t[9 + r] += jc[4] * u + dk * w;
-            }
+            chain(ec, d, delta, t, nullptr, nullptr);
+        } else {
+            chain(ec, d, nullptr, t, nullptr, nullptr);
         }
         // The legs in {0}: r_j = 0R5 b_j, v_j = 0P5 + r_j - 0P4 - 0R4 a_j.
         double len[kLegs], g[36], w[6];

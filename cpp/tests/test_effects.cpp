@@ -2,6 +2,7 @@
 // against the virtual work of gravity, the thermal growth and the geometry against the objective
 // of the geometry alone, the tables' checks, the thread independence of the batches, singular
 // poses, and the problem file's effects (version 4).
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <functional>
@@ -356,6 +357,87 @@ IWR_TEST(problem_file_with_effects) {
     }
     std::printf("effects fuzz: %d of 300 refused, the rest read\n", refused);
     CHECK(refused > 0);
+}
+
+// The carriage's compliance against an independent computation: each joint's load is the work of
+// gravity on the hexapod, platform and payload per unit of that joint's motion (the bodies moved
+// rigidly with carriage_transform; central differences), its change c L, and the objective's
+// residuals are then the geometry's at the changed joints (predict_legs). The default IWR's base
+// joints are centred on {4}'s origin in its xy plane, joints 1 and 2 about +x: their frame is {4}.
+IWR_TEST(carriage_compliance_matches_the_virtual_work_of_gravity) {
+    const iwr::Geometry g = iwr_test::default_iwr(true);
+    const iwr::Vec3 gravity = 9.80665 * iwr::Vec3(-0.9, 0.3, 0.3).normalized();
+    const double c[4] = {0.005, 0.004, 0.05, 0.04};  // um/N (slides), urad/(N m) (revolute)
+    const iwr::Vec3 hexapod(20, -10, 150), platform(5, -3, 40);
+    const EffectTable table{"carriage_compliance",
+                            {{"joints", nums({1, 2, 3, 4})},
+                             {"compliance", nums({c[0], c[1], c[2], c[3]})},
+                             {"max_urad_per_Nm", num(0.5)},
+                             {"max_um_per_N", num(0.05)},
+                             {"gravity_m_s2", nums({gravity(0), gravity(1), gravity(2)})},
+                             {"hexapod_mass_kg", num(400)},
+                             {"hexapod_centre_mm", nums({hexapod(0), hexapod(1), hexapod(2)})},
+                             {"platform_mass_kg", num(120)},
+                             {"platform_centre_mm", nums({platform(0), platform(1), platform(2)})}}};
+    const iwr::EffectModel model = iwr::EffectModel::parse({table}, g.n_params());
+    CHECK(model.n_params == 4 && model.carriage_index == g.n_params());
+    const Data d = sample(g, 8, 3);
+    const iwr::EffectObjective obj(g, model, d.q, d.poses, d.legs, d.payload, RowMatrixXd());
+    const VectorXd x = VectorXd::Zero(obj.n_params()), xg = VectorXd::Zero(g.n_params());
+    const VectorXd res = obj.residuals(x);
+    double worst = 0, moved = 0;
+    for (int k = 0; k < d.poses.rows(); ++k) {
+        const double* qk = d.q.row(k).data();
+        const iwr::Mat4 t4 = iwr::carriage_transform(g, xg.data(), qk);
+        const iwr::Mat3 r5 = iwr::euler_zyx(d.poses(k, 3), d.poses(k, 4), d.poses(k, 5));
+        const iwr::Vec3 p5(d.poses(k, 0), d.poses(k, 1), d.poses(k, 2));
+        const iwr::Vec3 centres[3] = {
+            t4.topLeftCorner<3, 3>() * hexapod + t4.topRightCorner<3, 1>(), r5 * platform + p5,
+            r5 * iwr::Vec3(d.payload(k, 1), d.payload(k, 2), d.payload(k, 3)) + p5};
+        const double masses[3] = {400, 120, d.payload(k, 0)};
+        const auto work = [&](const std::vector<double>& q) {
+            const iwr::Mat4 m = iwr::carriage_transform(g, xg.data(), q.data()) * t4.inverse();
+            double w = 0;
+            for (int b = 0; b < 3; ++b)
+                w += masses[b] * gravity.dot(m.topLeftCorner<3, 3>() * centres[b] + m.topRightCorner<3, 1>());
+            return w;
+        };
+        RowMatrixXd changed(1, 4);
+        for (int i = 0; i < 4; ++i) {
+            const double h = g.is_prismatic(i) ? 0.1 : 1e-4;
+            std::vector<double> plus(qk, qk + 4), minus(qk, qk + 4);
+            plus[static_cast<std::size_t>(i)] += h, minus[static_cast<std::size_t>(i)] -= h;
+            const double load = (work(plus) - work(minus)) / (2 * h);  // N, or N mm per rad
+            changed(0, i) = qk[i] + c[i] * (g.is_prismatic(i) ? 1e-3 : 1e-9) * load;
+            moved = std::max(moved, std::fabs(changed(0, i) - qk[i]));
+        }
+        const RowMatrixXd legs = iwr::predict_legs(g, xg, changed, d.poses.row(k));
+        for (int j = 0; j < 6; ++j) worst = std::max(worst, std::fabs(legs(0, j) - d.legs(k, j) - res(6 * k + j)));
+    }
+    std::printf("carriage compliance: joints moved up to %.3g, residuals within %.3g mm\n", moved, worst);
+    CHECK(moved > 1e-3);  // mm on a slide: the effect is there
+    CHECK(worst < 1e-9);
+    // With the compliances at 0 the objective is the geometry's, the same bits.
+    EffectTable rigid = table;
+    rigid.entries[1].second = nums({0, 0, 0, 0});
+    const iwr::EffectObjective zero(g, iwr::EffectModel::parse({rigid}, g.n_params()), d.q, d.poses, d.legs,
+                                    d.payload, RowMatrixXd());
+    const iwr::EffectObjective none(g, iwr::EffectModel::parse({}, g.n_params()), d.q, d.poses, d.legs,
+                                    d.payload, RowMatrixXd());
+    CHECK(zero.cost(x) == none.cost(VectorXd::Zero(none.n_params())));
+    // The table's checks.
+    const auto parse = [&](EffectTable t, std::vector<EffectTable> more = {}) {
+        more.push_back(std::move(t));
+        return refusal([&] { (void)iwr::EffectModel::parse(more, g.n_params()); });
+    };
+    EffectTable bad = table;
+    bad.entries[0].second = nums({1, 5});
+    CHECK(contains(parse(bad), "effects.carriage_compliance.joints[1]: 5; expected a joint number from 1 to 4"));
+    bad = table;
+    bad.entries[1].second = nums({0.01, 0.01});
+    CHECK(contains(parse(bad), "effects.carriage_compliance.compliance: 2 number(s); expected 4 numbers"));
+    CHECK(contains(parse(table, {compliance_table(true, 0.01, iwr::Vec3(0, 0, -9.80665))}),
+                   "its gravity and platform differ from effects.compliance's"));
 }
 
 IWR_TEST_MAIN

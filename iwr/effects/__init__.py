@@ -4,8 +4,13 @@ protocol (:class:`Effect`), parallel to the measurement kinds (:mod:`iwr.kinds`)
 An effect changes the true length of each leg at each pose by an amount its own parameters
 describe: the axial compliance of the legs under the load they carry
 (:class:`iwr.effects.builtin.LegCompliance`, ``"compliance"``) and the thermal expansion of
-the legs with their temperature (:class:`iwr.effects.builtin.LegThermal`, ``"thermal"``).
-The true leg length between the joint centres is
+the legs with their temperature (:class:`iwr.effects.builtin.LegThermal`, ``"thermal"``);
+or it changes the true values of the carriage's joints (:attr:`Effect.changes`
+``{"joints"}``, :meth:`Effect.joint_change`): the compliance of the carriage's joints under the
+gravity load of what they carry (:class:`iwr.effects.carriage.CarriageCompliance`,
+``"carriage_compliance"``). The joint changes come first: the legs, their forces and their
+effects are those of the carriage at its true joint values. The true leg length between the
+joint centres is
 
     D = s + l0 + sum over the effects of their change  (e.g. c f + alpha D (T - T_ref)),
 
@@ -35,6 +40,7 @@ from .._registry import Registry
 
 __all__ = [
     "Effect",
+    "JointState",
     "LegState",
     "available",
     "bounds",
@@ -74,13 +80,38 @@ class LegState:
         self.temperatures = temperatures
 
 
+class JointState:
+    """What an effect on the carriage's joints needs to know at the poses of a data set, at one
+    geometric error vector: filled by :func:`iwr.effects.model.joint_state`.
+
+    Attributes
+    ----------
+    loads : ndarray (N, n_joints)
+        The gravity load each joint holds of everything distal to it (the hexapod, the platform
+        and the payload), at the joint readings: the torque about a revolute joint's axis (N mm,
+        positive about the axis: the direction the joint's value increases) or the force along a
+        prismatic joint's axis (N, positive along it).
+    d_loads : ndarray (N, n_joints, n_z)
+        Their derivatives in the variables the caller differentiates in (the geometric errors,
+        then, for the implicit loop, the readings' corrections).
+    joint_types : str
+        ``"P"`` or ``"R"`` per joint.
+    """
+
+    def __init__(self, loads: np.ndarray, d_loads: np.ndarray, joint_types: str) -> None:
+        self.loads = loads
+        self.d_loads = d_loads
+        self.joint_types = joint_types
+
+
 class Effect(abc.ABC):
     """The protocol of a non-geometric effect on the legs (one instance per robot: it holds the
     effect's settings and the current values of its parameters).
 
     An effect with ``k`` parameters (:meth:`parameter_names`, possibly none: a coefficient
-    given, not identified) changes the true leg lengths by :meth:`leg_change` and says what it
-    needs of the data (:attr:`needs`)."""
+    given, not identified) changes the true leg lengths by :meth:`leg_change`, or the carriage's
+    true joint values by :meth:`joint_change` (:attr:`changes`), and says what it needs of the
+    data (:attr:`needs`)."""
 
     #: The effect's name: its table in the robot TOML (``[effects.<name>]``) and its registry key.
     name: ClassVar[str]
@@ -89,6 +120,10 @@ class Effect(abc.ABC):
     #: What :meth:`leg_change` needs in its :class:`LegState`: ``"forces"`` (the statics of
     #: the payload, platform and gravity), ``"temperatures"`` (the data's temperature columns).
     needs: ClassVar[frozenset[str]] = frozenset()
+    #: What it changes: ``"legs"`` (:meth:`leg_change`, the leg lengths) or ``"joints"``
+    #: (:meth:`joint_change`, the carriage's joint values, before the legs are computed).
+    #: An effect on the joints needs ``"loads"`` (the payload column of the data).
+    changes: ClassVar[frozenset[str]] = frozenset({"legs"})
 
     @abc.abstractmethod
     def parameter_names(self) -> list[str]:
@@ -112,12 +147,26 @@ class Effect(abc.ABC):
     def with_values(self, values: np.ndarray) -> Effect:
         """This effect with its parameters' values replaced by ``values`` (checked)."""
 
-    @abc.abstractmethod
     def leg_change(self, state: LegState, values: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """``(change, d_geometric, d_own)``: the change of the true leg lengths (N, 6) (mm),
         at parameter values ``values``, its derivatives in the geometric errors
-        (N, 6, n_geometric) and in its own parameters (N, 6, k)."""
+        (N, 6, n_geometric) and in its own parameters (N, 6, k). Called when ``"legs"`` is in
+        :attr:`changes`."""
+        raise NotImplementedError(f"effect {self.name!r} does not change the legs")
+
+    def joint_change(self, state: JointState, values: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """``(change, d_z, d_own)``: the change of the carriage's true joint values (N,
+        n_joints) (mm or rad: the true value is the reading plus it), at parameter values
+        ``values``, its derivatives in the state's variables (N, n_joints, n_z) and in its own
+        parameters (N, n_joints, k). Called when ``"joints"`` is in :attr:`changes`."""
+        raise NotImplementedError(f"effect {self.name!r} does not change the joints")
+
+    def for_robot(self, robot: Any) -> Effect:
+        """This effect checked against (and told of) the robot it is switched on for: the
+        robot calls it when it takes its effects. Default: itself."""
+        return self
 
     @abc.abstractmethod
     def to_dict(self) -> dict[str, Any]:
@@ -154,6 +203,7 @@ def register(name: str, effect: str | type[Effect]) -> None:
 
 register("compliance", "iwr.effects.builtin:LegCompliance")
 register("thermal", "iwr.effects.builtin:LegThermal")
+register("carriage_compliance", "iwr.effects.carriage:CarriageCompliance")
 
 
 def available() -> list[str]:
@@ -166,9 +216,10 @@ def named(name: str) -> type[Effect]:
     return _EFFECTS.get(name)
 
 
-def read_table(effects: Any, where: str = "effects") -> tuple[Effect, ...]:
+def read_table(effects: Any, where: str = "effects", robot: Any = None) -> tuple[Effect, ...]:
     """The robot's effects from the ``[effects]`` table (a mapping of effect name to its
-    table), or from a sequence of :class:`Effect` objects; each at most once."""
+    table), or from a sequence of :class:`Effect` objects; each at most once; checked against
+    ``robot`` (:meth:`Effect.for_robot`) when it is given."""
     if effects is None:
         return ()
     if isinstance(effects, Mapping):
@@ -197,7 +248,29 @@ def read_table(effects: Any, where: str = "effects") -> tuple[Effect, ...]:
     for name in names:
         if names.count(name) > 1:
             raise ValueError(f"{where}: effect {name!r} given twice")
+    _same_loads(out, where)
+    if robot is not None:
+        out = [e.for_robot(robot) for e in out]
     return tuple(out)
+
+
+#: What the effects of the load say of it (each must say the same: one gravity, one platform).
+_LOAD_KEYS = (("gravity", "gravity_m_s2"), ("platform_mass", "platform_mass_kg"),
+              ("platform_centre", "platform_centre_mm"))
+
+
+def _same_loads(effects: Sequence[Effect], where: str) -> None:
+    """ValueError when two effects of the load (the leg and the carriage compliance) describe
+    gravity or the platform differently."""
+    loaded = [e for e in effects if hasattr(e, "gravity")]
+    for e in loaded[1:]:
+        for attr, key in _LOAD_KEYS:
+            a, b = np.asarray(getattr(loaded[0], attr)), np.asarray(getattr(e, attr))
+            if a.shape != b.shape or not np.array_equal(a, b):
+                raise ValueError(
+                    f"{where}.{e.name}.{key}: {b.tolist()}; {where}.{loaded[0].name}.{key} says "
+                    f"{a.tolist()}: the effects of the load must describe the same gravity and "
+                    "platform")
 
 
 def parameter_names(effects: Sequence[Effect]) -> list[str]:

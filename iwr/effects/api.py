@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..transforms import pose_matrix as pose_matrix_of
 from . import bounds as effect_bounds
 from . import parameter_names as effect_names
 from .builtin import STANDARD_GRAVITY, LegCompliance, LegThermal
@@ -27,16 +28,69 @@ DEFAULT_PAYLOADS = np.array([[0.0, 0.0, 0.0, 0.0], [80.0, 50.0, 0.0, 150.0]])
 DEFAULT_TEMPERATURE_SPREAD = (-3.0, 5.0)
 
 
-def realistic(robot: Any, *, per_leg: bool = True, identify_alpha: bool = True) -> tuple[Any, ...]:
+#: The realistic carriage's loads and compliances (docs/effects.md, "Realistic magnitudes"): a
+#: hexapod of 400 kg (base, legs, what the last link carries) with its centre 150 mm above {4}'s
+#: origin; revolute joints of 5e7 N m/rad (0.02 urad/(N m)), prismatic drives of 200 N/um
+#: (0.005 um/N).
+REALISTIC_CARRIAGE = {"hexapod_mass": 400.0, "hexapod_centre": (0.0, 0.0, 150.0),
+                      "R": 0.02, "P": 0.005}
+
+
+def realistic(robot: Any, *, per_leg: bool = True, identify_alpha: bool = True,
+              carriage: bool = False) -> tuple[Any, ...]:
     """Realistic effects for ``robot`` (docs/effects.md): legs of 100 N/um axial stiffness
     (0.01 um/N), a 120 kg platform with its centre 40 mm above {5}'s origin, gravity opposite
     the hexapod's z axis at the centre of the carriage's joint ranges; steel legs (11.5 ppm/K)
-    about 20 C, the coefficient identified (one shared) when ``identify_alpha``."""
+    about 20 C, the coefficient identified (one shared) when ``identify_alpha``; with
+    ``carriage``, also the compliance of every carriage joint (:data:`REALISTIC_CARRIAGE`)."""
     t4 = robot.carriage_transform(robot.joint_limits.mean(axis=1)) if robot.n_joints else np.eye(4)
     gravity = -STANDARD_GRAVITY * t4[:3, 2]
     gravity[np.abs(gravity) < 1e-12] = 0.0  # round-off of the DH angles, not a tilt
-    return (LegCompliance(120.0, [0.0, 0.0, 40.0], gravity, 0.01, per_leg=per_leg),
-            LegThermal(11.5, 20.0, identify=identify_alpha))
+    out: tuple[Any, ...] = (LegCompliance(120.0, [0.0, 0.0, 40.0], gravity, 0.01,
+                                          per_leg=per_leg),
+                            LegThermal(11.5, 20.0, identify=identify_alpha))
+    if carriage:
+        out += (_realistic_carriage(robot, gravity),)
+    return out
+
+
+def _realistic_carriage(robot: Any, gravity: np.ndarray) -> Any:
+    """:data:`REALISTIC_CARRIAGE` for the joints of ``robot`` that carry a gravity load
+    somewhere in their ranges (at the corners and the centre of the joint ranges, the hexapod at
+    its home pose): a joint that never does (a horizontal slide, a vertical axis) has no
+    compliance the data could tell."""
+    import itertools
+
+    from ..transforms import pose_from_matrix
+    from .carriage import CarriageCompliance
+    from .model import joint_loads, platform_moment
+
+    rc = REALISTIC_CARRIAGE
+
+    def make(joints: Any) -> Any:
+        return CarriageCompliance(rc["hexapod_mass"], rc["hexapod_centre"], 120.0,
+                                  [0.0, 0.0, 40.0], gravity, joints,
+                                  [rc[robot.joint_types[j - 1]] for j in joints])
+
+    nj = robot.n_joints
+    if not nj:
+        raise ValueError(f"robot {robot.name!r} has no carriage joints: no carriage compliance")
+    every = make(list(range(1, nj + 1))).for_robot(robot)
+    lim = robot.joint_limits
+    q = np.array([lim.mean(axis=1)] + [lim[np.arange(nj), c]
+                                       for c in itertools.product((0, 1), repeat=nj)])
+    home = pose_matrix_of(robot.home_pose)
+    t5 = np.array([robot.carriage_transform(qk) @ home for qk in q])
+    poses = np.array([pose_from_matrix(t) for t in t5])
+    data = types.SimpleNamespace(payload=None)
+    moment, mass, _ = platform_moment(every, data, pose_matrix_of(poses))
+    loads, _, _ = joint_loads(robot, np.zeros(robot.n_params), q, moment, mass, every)
+    size = np.abs(loads).max(axis=0)
+    # A load (N mm or N) below 1e-9 of the largest is round-off of the axes' directions.
+    loaded = [i + 1 for i in range(nj) if size[i] > 1e-9 * size.max()]
+    if not loaded:
+        raise ValueError(f"robot {robot.name!r}: no carriage joint carries a gravity load")
+    return make(loaded).for_robot(robot)
 
 
 def apply(robot: Any, x: Any) -> Any:
@@ -88,7 +142,7 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
                              f"{x.shape}")
     n = int(n_poses)
     q, poses, _ = sample_poses(geometric, n, rng, x[: robot.n_params])
-    loaded = any("forces" in e.needs for e in robot.effects)
+    loaded = any(e.needs & {"forces", "loads"} for e in robot.effects)
     pay = None
     if payloads is not None or loaded:
         pay = DEFAULT_PAYLOADS if payloads is None else np.asarray(payloads, dtype=float)

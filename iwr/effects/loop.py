@@ -22,17 +22,19 @@ import numpy as np
 from .. import _core
 from ..transforms import pose_matrix, rotvec_matrix
 from . import LegState
-from .model import _compliance, check_inputs, leg_forces, leg_vectors_at, loads, split
+from .model import (
+    _compliance,
+    _skew,
+    check_inputs,
+    joint_changes,
+    joint_effects,
+    leg_forces,
+    leg_vectors_at,
+    loads,
+    split,
+)
 
 __all__ = ["loop_jacobians", "right_jacobian"]
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[v]x`` (..., 3, 3) of vectors (..., 3)."""
-    k = np.zeros(v.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return k
 
 
 def right_jacobian(w: np.ndarray) -> np.ndarray:
@@ -62,6 +64,19 @@ def loop_jacobians(robot: Any, x: Any, q: np.ndarray, poses: np.ndarray, data: A
     ny = nj + 6
     corr = np.zeros((n, ny)) if corrections is None else np.asarray(corrections, dtype=float)
     check_inputs(robot, data)
+    on_joints = bool(joint_effects(robot))
+    if on_joints:
+        # The carriage at its true joint values: its joints' change under the load at the
+        # corrected readings, added to the joint corrections (everything below then follows).
+        t5 = pose_matrix(poses)
+        w = corr[:, nj + 3:]
+        t5[:, :3, :3] = t5[:, :3, :3] @ rotvec_matrix(w)
+        t5[:, :3, 3] += corr[:, nj: nj + 3]
+        dq, dq_z, dq_e = joint_changes(robot, xg, xe, q + corr[:, :nj], t5, data,
+                                       right_jacobian(w))
+        corr = corr.copy()
+        corr[:, :nj] += dq
+        corrections = corr
     # The geometry: legs = D - l0 and its derivatives, from the C++ core.
     legs, jx_g, jy = _core.loop_jacobians(robot._geometry, xg, q, poses,
                                           np.zeros((0, 0)) if corrections is None else corr)
@@ -89,12 +104,18 @@ def loop_jacobians(robot: Any, x: Any, q: np.ndarray, poses: np.ndarray, data: A
     col = 0
     for e in robot.effects:
         k = len(e.parameter_names())
-        change, d_z, d_own = e.leg_change(state, e.values() + xe[col: col + k])
-        legs -= change
-        jx[..., :ng] -= d_z[..., :ng]
-        jy -= d_z[..., ng:]
-        jx[..., ng + col: ng + col + k] -= d_own
+        if "legs" in e.changes:
+            change, d_z, d_own = e.leg_change(state, e.values() + xe[col: col + k])
+            legs -= change
+            jx[..., :ng] -= d_z[..., :ng]
+            jy -= d_z[..., ng:]
+            jx[..., ng + col: ng + col + k] -= d_own
         col += k
+    if on_joints:  # the chain rule through the joints' change
+        jq = jy[..., :nj].copy()
+        jx[..., :ng] += np.einsum("kji,kip->kjp", jq, dq_z[..., :ng])
+        jx[..., ng:] += np.einsum("kji,kip->kjp", jq, dq_e)
+        jy += np.einsum("kji,kip->kjp", jq, dq_z[..., ng:])
     return legs, jx, jy
 
 

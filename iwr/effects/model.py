@@ -12,10 +12,10 @@ from typing import Any
 import numpy as np
 
 from ..transforms import pose_matrix
-from . import LegState
+from . import JointState, LegState
 
-__all__ = ["carriage_and_derivatives", "leg_forces", "leg_state", "leg_vectors",
-           "leg_vectors_at", "predicted_readings", "split"]
+__all__ = ["carriage_and_derivatives", "joint_changes", "joint_loads", "leg_forces",
+           "leg_state", "leg_vectors", "leg_vectors_at", "predicted_readings", "split"]
 
 
 def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray
@@ -41,11 +41,9 @@ def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray
     return t, dt
 
 
-def carriage_and_derivatives(robot: Any, x: np.ndarray, q: np.ndarray
-                             ) -> tuple[np.ndarray, np.ndarray]:
-    """``0T4`` at each pose (N, 4, 4) and its derivatives in the carriage's 4 n error parameters
-    (4 n, N, 4, 4), errors ``x`` (the geometric ones) added as :meth:`iwr.Robot.with_errors`
-    does and the joint readings to ``d`` (prismatic) or ``theta`` (revolute)."""
+def _links(robot: Any, x: np.ndarray, q: np.ndarray) -> tuple[list[Any], list[Any]]:
+    """Each carriage joint's DH transform (N, 4, 4) and its derivatives in its (alpha, a, d,
+    theta) (4, N, 4, 4), errors ``x`` added and the readings ``q`` to d or theta."""
     n_poses, nj = q.shape[0], robot.n_joints
     dh = robot.dh + x[: 4 * nj].reshape(nj, 4)
     mats, ders = [], []
@@ -55,6 +53,148 @@ def carriage_and_derivatives(robot: Any, x: np.ndarray, q: np.ndarray
         t, dt = _dh(col[:, 0], col[:, 1], col[:, 2], col[:, 3])
         mats.append(t)
         ders.append(dt)
+    return mats, ders
+
+
+def joint_columns(robot: Any) -> list[int]:
+    """The geometric error columns a joint reading adds to: d (prismatic) or theta (revolute)
+    of each joint, so that a derivative in the reading is the one in that column."""
+    return [4 * i + (2 if kind == "P" else 3) for i, kind in enumerate(robot.joint_types)]
+
+
+def joint_loads(robot: Any, xg: np.ndarray, q: np.ndarray, moment: np.ndarray,
+                mass: np.ndarray, loaded: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(loads, d_geometric, d_moment)``: the gravity load of each carriage joint (N, n_joints)
+    at readings ``q`` (:class:`iwr.effects.JointState`: N mm about a revolute axis, N along a
+    prismatic one), its derivatives in the carriage's 4 n error parameters and the base joints'
+    18 (N, n_joints, 4 n + 18) and in ``moment`` (N, n_joints, 3).
+
+    The distal bodies are the hexapod (``loaded.hexapod_mass`` kg, centre
+    ``loaded.hexapod_centre`` mm from the centre of its base joints, in {4}'s axes) and the
+    bodies the platform carries, given by their
+    total ``mass`` (N,) kg and first moment ``moment`` (N, 3) kg mm in {0} (sum of mass times
+    centre). With ``P`` the first moment of all of them and ``M`` their mass, joint i's axis
+    ``z`` through ``o`` (frame {i-1} of the DH chain): the torque about the axis is
+    ``z . ((P - M o) x M g) / M = (P - M o) . (g x z)``, the axial force ``M g . z``."""
+    n, nj = q.shape[0], robot.n_joints
+    nc = 4 * nj
+    g = np.asarray(loaded.gravity, dtype=float)
+    mats, ders = _links(robot, xg, q)
+    frame = np.broadcast_to(np.eye(4), (n, 4, 4)).copy()
+    d_frame = np.zeros((nc, n, 4, 4))
+    axes, d_axes, origins, d_origins = [], [], [], []
+    for i in range(nj):
+        axes.append(frame[:, :3, 2].copy())
+        origins.append(frame[:, :3, 3].copy())
+        d_axes.append(d_frame[:, :, :3, 2].copy())
+        d_origins.append(d_frame[:, :, :3, 3].copy())
+        d_frame = d_frame @ mats[i]
+        d_frame[4 * i: 4 * i + 4] = frame[None] @ ders[i]
+        frame = frame @ mats[i]
+    # The hexapod's centre: given in the frame its base joints define (base_frame), so that
+    # the geometry's null directions (frame {4} moved or turned, the base joints moved back in
+    # it) leave it where it is.
+    ch, d_ch = base_centre(robot.base_joints + xg[nc: nc + 18].reshape(6, 3),
+                           np.asarray(loaded.hexapod_centre, dtype=float))
+    mh = float(loaded.hexapod_mass)
+    p_all = mh * (frame[:, :3, :3] @ ch + frame[:, :3, 3]) + moment
+    d_p = np.concatenate([mh * (d_frame[:, :, :3, :3] @ ch + d_frame[:, :, :3, 3]),
+                          mh * np.einsum("kab,bp->pka", frame[:, :3, :3], d_ch)])
+    d_origins = [np.concatenate([d, np.zeros((18,) + d.shape[1:])]) for d in d_origins]
+    d_axes = [np.concatenate([d, np.zeros((18,) + d.shape[1:])]) for d in d_axes]
+    m_all = mh + mass
+    out = np.zeros((n, nj))
+    d_dh = np.zeros((n, nj, nc + 18))
+    d_mom = np.zeros((n, nj, 3))
+    for i, kind in enumerate(robot.joint_types):
+        if kind == "R":
+            gz = np.cross(g, axes[i])
+            arm = p_all - m_all[:, None] * origins[i]
+            out[:, i] = np.sum(arm * gz, axis=1)
+            d_arm = d_p - m_all[None, :, None] * d_origins[i]
+            d_dh[:, i] = (np.sum(d_arm * gz, axis=2)
+                          + np.sum(arm * np.cross(g, d_axes[i]), axis=2)).T
+            d_mom[:, i] = gz
+        else:
+            out[:, i] = m_all * (axes[i] @ g)
+            d_dh[:, i] = (m_all * (d_axes[i] @ g)).T
+    return out, d_dh, d_mom
+
+
+def base_frame(base: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(centre, axes, d_centre, d_axes)``: the frame the six base joints ``base`` (6, 3, in
+    {4}) define, and its derivatives in them (3, 18) and (3, 3, 18): its origin their centre,
+    its z axis the normal of their polygon (``sum a_j x a_j+1``, right-handed with their order),
+    its x axis towards the midpoint of joints 1 and 2, in the polygon's plane. ``axes`` holds
+    the unit vectors as columns (a rotation); on the IWR it is {4} itself."""
+    eye = np.eye(3)
+    centre = base.mean(axis=0)
+    d_centre = np.tile(eye / 6, (1, 6))
+    nxt = np.roll(base, -1, axis=0)
+    big_n = np.cross(base, nxt).sum(axis=0)
+    d_big_n = np.zeros((3, 18))
+    for j in range(6):  # d (a_j x a_j+1) / d a_j = -[a_j+1]x, / d a_j+1 = [a_j]x
+        d_big_n[:, 3 * j: 3 * j + 3] += -_skew(nxt[j])
+        k = (j + 1) % 6
+        d_big_n[:, 3 * k: 3 * k + 3] += _skew(base[j])
+    z, d_z = _unit(big_n, d_big_n)
+    m = 0.5 * (base[0] + base[1]) - centre
+    d_m = -d_centre
+    d_m[:, 0:3] += 0.5 * eye
+    d_m[:, 3:6] += 0.5 * eye
+    big_x = m - (m @ z) * z
+    d_big_x = d_m - np.outer(z, z @ d_m + m @ d_z) - (m @ z) * d_z
+    x, d_x = _unit(big_x, d_big_x)
+    y = np.cross(z, x)
+    d_y = np.cross(d_z.T, x).T + np.cross(z, d_x.T).T
+    return centre, np.column_stack([x, y, z]), d_centre, np.stack([d_x, d_y, d_z], axis=1)
+
+
+def _skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` (..., 3, 3) of vectors (..., 3)."""
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return k
+
+
+def _unit(v: np.ndarray, dv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``v / |v|`` and its derivative, from ``v``'s (3, p)."""
+    norm = float(np.linalg.norm(v))
+    if not norm > 0:
+        raise ValueError("base joints: they span no plane (the hexapod's base frame is "
+                         "undefined)")
+    u = v / norm
+    return u, (dv - np.outer(u, u @ dv)) / norm
+
+
+def base_centre(base: np.ndarray, offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The hexapod's centre of mass in {4} (3,) at ``offset`` in the base joints' frame
+    (:func:`base_frame`), and its derivatives in the base joints (3, 18)."""
+    centre, axes, d_centre, d_axes = base_frame(base)
+    return centre + axes @ offset, d_centre + np.einsum("acp,c->ap", d_axes, offset)
+
+
+def platform_moment(loaded: Any, data: Any, t5: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+                                                                        np.ndarray]:
+    """``(moment, mass, centre_moment)``: the first moment in {0} (N, 3) kg mm and the mass
+    (N,) kg of the bodies the platform carries (the platform of ``loaded``, ``data``'s payload)
+    at platform transforms ``t5``, and their first moment in {5} (N, 3) (the derivative of
+    the first one in the platform's orientation is ``R [that]x``)."""
+    masses, centres = loads(loaded, data, len(t5))
+    c5 = np.einsum("kb,kba->ka", masses, centres)
+    mass = masses.sum(axis=1)
+    moment = np.einsum("kab,kb->ka", t5[:, :3, :3], c5) + mass[:, None] * t5[:, :3, 3]
+    return moment, mass, c5
+
+
+def carriage_and_derivatives(robot: Any, x: np.ndarray, q: np.ndarray
+                             ) -> tuple[np.ndarray, np.ndarray]:
+    """``0T4`` at each pose (N, 4, 4) and its derivatives in the carriage's 4 n error parameters
+    (4 n, N, 4, 4), errors ``x`` (the geometric ones) added as :meth:`iwr.Robot.with_errors`
+    does and the joint readings to ``d`` (prismatic) or ``theta`` (revolute)."""
+    n_poses, nj = q.shape[0], robot.n_joints
+    mats, ders = _links(robot, x, q)
     eye = np.broadcast_to(np.eye(4), (n_poses, 4, 4))
     prefix = [eye]
     for t in mats:
@@ -214,6 +354,59 @@ def check_inputs(robot: Any, data: Any, where: str = "measurements") -> None:
                 "degrees C (docs/effects.md)")
 
 
+def joint_effects(robot: Any) -> list[Any]:
+    """The robot's effects that change the carriage's joints."""
+    return [e for e in robot.effects if "joints" in e.changes]
+
+
+def _loaded(robot: Any) -> Any:
+    """The robot's effect on the joints that describes the loads (gravity, the hexapod)."""
+    for e in joint_effects(robot):
+        if hasattr(e, "hexapod_mass"):
+            return e
+    raise ValueError(f"robot {robot.name!r}: no effect describes the carriage's loads")
+
+
+def joint_changes(robot: Any, xg: np.ndarray, xe: np.ndarray, q: np.ndarray, t5: np.ndarray,
+                  data: Any, right_jacobians: Any = None
+                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(change, d_z, d_own)``: the effects' change of the carriage's joint values (N,
+    n_joints) at readings ``q`` and platform transforms ``t5`` under ``data``'s loads, its
+    derivatives in ``z`` (N, n_joints, n_z) and in the effects' parameters (N, n_joints,
+    len(xe); zero for the effects on the legs). ``z`` is the geometric errors, then, when
+    ``right_jacobians`` (N, 3, 3) are given (the implicit loop: ``t5`` is the measured pose
+    turned by rotation vectors ``w`` and moved; they are ``J_r(w)``,
+    :func:`iwr.effects.loop.right_jacobian`), the corrections ``(dq, dp, w)``."""
+    n, nj, ng = len(q), robot.n_joints, robot.n_params
+    nc = 4 * nj
+    loaded = _loaded(robot)
+    moment, mass, c5 = platform_moment(loaded, data, t5)
+    torques, d_dh, d_mom = joint_loads(robot, xg, q, moment, mass, loaded)
+    n_z = ng if right_jacobians is None else ng + nj + 6
+    d_loads = np.zeros((n, nj, n_z))
+    d_loads[..., : nc + 18] = d_dh
+    if right_jacobians is not None:
+        d_loads[..., ng: ng + nj] = d_dh[..., joint_columns(robot)]
+        d_loads[..., ng + nj: ng + nj + 3] = d_mom * mass[:, None, None]
+        # d (R exp([w]x) c) / dw = -R exp([w]x) [c]x J_r(w), R exp([w]x) the rotation of t5.
+        d_w = -np.einsum("kab,kbc,kcd->kad", t5[:, :3, :3], _skew(c5), right_jacobians)
+        d_loads[..., ng + nj + 3:] = np.einsum("kia,kad->kid", d_mom, d_w)
+    state = JointState(torques, d_loads, robot.joint_types)
+    change = np.zeros((n, nj))
+    d_z = np.zeros((n, nj, n_z))
+    d_own = np.zeros((n, nj, xe.size))
+    col = 0
+    for e in robot.effects:
+        k = len(e.parameter_names())
+        if "joints" in e.changes:
+            c, dz, do = e.joint_change(state, e.values() + xe[col: col + k])
+            change += c
+            d_z += dz
+            d_own[..., col: col + k] += do
+        col += k
+    return change, d_z, d_own
+
+
 def predicted_readings(robot: Any, x: Any, q: Any, poses: Any, data: Any,
                        derivatives: bool = False) -> Any:
     """The leg sensor readings (N, 6) that the robot with geometric errors and effect
@@ -224,6 +417,10 @@ def predicted_readings(robot: Any, x: Any, q: Any, poses: Any, data: Any,
     q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
     poses = np.asarray(poses, dtype=float)
     check_inputs(robot, data)
+    on_joints = bool(joint_effects(robot))
+    if on_joints:  # the carriage at its true joint values: the legs and their effects follow
+        dq, dq_g, dq_e = joint_changes(robot, xg, xe, q, pose_matrix(poses), data)
+        q = q + dq
     needs: set[str] = set()
     for e in robot.effects:
         needs |= e.needs
@@ -237,10 +434,15 @@ def predicted_readings(robot: Any, x: Any, q: Any, poses: Any, data: Any,
     col = robot.n_params
     for e in robot.effects:
         k = len(e.parameter_names())
-        change, d_geo, d_own = e.leg_change(state, e.values() + xe[col - robot.n_params:
-                                                                   col - robot.n_params + k])
-        s = s - change
-        jac[..., : robot.n_params] -= d_geo
-        jac[..., col: col + k] -= d_own
+        if "legs" in e.changes:
+            change, d_geo, d_own = e.leg_change(state, e.values() + xe[col - robot.n_params:
+                                                                       col - robot.n_params + k])
+            s = s - change
+            jac[..., : robot.n_params] -= d_geo
+            jac[..., col: col + k] -= d_own
         col += k
+    if on_joints:  # the chain rule through the joints' change: d s / d q is its DH column's
+        jq = jac[..., joint_columns(robot)]
+        jac[..., : robot.n_params] += np.einsum("kji,kip->kjp", jq, dq_g)
+        jac[..., robot.n_params:] += np.einsum("kji,kip->kjp", jq, dq_e)
     return (s, jac) if derivatives else s

@@ -64,8 +64,20 @@ struct EffectModel {
     bool thermal_per_leg = false;
     double alpha_values[6] = {};        // ppm/K
     double reference = 20;              // degrees C
+    // [effects.carriage_compliance]: joint carriage_joints[m] (0-based) moves by
+    // (carriage_values[m] + x[carriage_index + m]) * (1e-9 rad/(N mm) per urad/(N m) when revolute,
+    // 1e-3 mm/N per um/N when prismatic) times its gravity load at the readings.
+    bool carriage = false;
+    int carriage_index = -1;
+    std::vector<int> carriage_joints;
+    std::vector<double> carriage_values;
+    double hexapod_mass = 0;            // kg
+    Vec3 hexapod_centre = Vec3::Zero(); // mm in {4}
+    double carriage_platform_mass = 0;  // kg (the compliance effect's, when both are on)
+    Vec3 carriage_platform_centre = Vec3::Zero();
+    Vec3 carriage_gravity = Vec3::Zero();
 
-    bool any() const { return compliance || thermal; }
+    bool any() const { return compliance || thermal || carriage; }
     /// Reads the tables (the parameters numbered from n_geometric, in the tables' order). Throws
     /// std::invalid_argument naming "effects.<name>.<key>", the value and what was expected.
     static EffectModel parse(const std::vector<EffectTable>& tables, int n_geometric);
@@ -130,6 +142,17 @@ private:
     // q (prismatic) or cos q, sin q (revolute).
     std::vector<double> data_;
     int stride_ = 0, off_w_ = -1, off_wh_ = -1;
+    // The carriage compliance: per pose the first moment (kg mm, in {0}) and the mass (kg) of the
+    // bodies the platform carries (4 doubles at off_cc_); per joint its unit scale (0: rigid).
+    int off_cc_ = -1;
+    std::vector<double> cc_scale_;
+    // 0T4 at readings q plus delta (per joint; null: none), and each joint's axis and origin in {0}
+    // before it (axes/origins, 3 per joint; null: not wanted).
+    // The hexapod's centre of mass in {4} at the base joints of ec (its offset is given in the
+    // frame they define).
+    void hexapod_centre(const detail::EvalConsts& ec, double* out) const;
+    void chain(const detail::EvalConsts& ec, const double* d, const double* delta, double* t,
+               double* axes, double* origins) const;
     bool whitened_ = false;
     std::vector<int> q_off_;
     std::vector<char> prismatic_;
