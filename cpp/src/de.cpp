@@ -393,21 +393,21 @@ void archive_trim(State& st) {
     }
 }
 
-// Sums of squared deviations from the mean of columns [j0, j0 + nc) of the row-major np x sd
-// population into v, each column summed row by row in slot order. NC > 0: nc == NC columns, a
-// constant, so that the partial sums stay in registers; NC == 0: nc <= kLogColumns of them.
+// Sums of squared deviations from the mean of columns [j0, j0 + nc) of the np x sd population
+// (row i at rows[i]) into v, each column summed row by row in slot order. NC > 0: nc == NC columns,
+// a constant, so that the partial sums stay in registers; NC == 0: nc <= kLogColumns of them.
 constexpr int kLogColumns = 16;
 template <int NC>
-void column_deviations(const double* pop, int np, std::size_t sd, int j0, int nc, double* v) {
+void column_deviations(const double* const* rows, int np, int j0, int nc, double* v) {
     const int n = NC > 0 ? NC : nc;
     double s1[kLogColumns] = {}, s2[kLogColumns] = {};
     for (int i = 0; i < np; ++i) {
-        const double* x = pop + static_cast<std::size_t>(i) * sd + j0;
+        const double* x = rows[i] + j0;
         for (int k = 0; k < n; ++k) s1[k] += x[k];
     }
     for (int k = 0; k < n; ++k) s1[k] /= np;
     for (int i = 0; i < np; ++i) {
-        const double* x = pop + static_cast<std::size_t>(i) * sd + j0;
+        const double* x = rows[i] + j0;
         for (int k = 0; k < n; ++k) {
             const double t = x[k] - s1[k];
             s2[k] += t * t;
@@ -416,9 +416,15 @@ void column_deviations(const double* pop, int np, std::size_t sd, int j0, int nc
     for (int k = 0; k < n; ++k) v[j0 + k] = s2[k];
 }
 
-// The log row of the current population. The column sums run on the pool's threads, each column
-// on one thread (the same bits with any number of threads).
-void append_log(State& st, ThreadPool& pool) {
+// The log row of the current population, and st.elapsed (+= the time since t0, the log
+// included). The column sums run on the pool's threads, each column on one thread (the same bits
+// with any number of threads). trials, taken (or null): the selection's accepted trials, row i of
+// trials where taken[i], not yet copied into the population: this pass reads them where they are
+// and copies them, each thread the rows of its share of the columns' blocks (a copied row is read
+// from trials only, a row read from the population is not written: no two threads meet), so that
+// the copies are not serial.
+void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
+                const RowMatrixXd* trials = nullptr, const std::vector<char>* taken = nullptr) {
     LogEntry e;
     e.generation = st.generation;
     e.nfev = st.nfev;
@@ -429,19 +435,29 @@ void append_log(State& st, ThreadPool& pool) {
     for (int i = 0; i < np; ++i) sum += st.costs(i);
     e.mean = sum / np;
     std::vector<double> v(static_cast<std::size_t>(d));
-    const double* pop = st.population.data();
-    const auto sd = static_cast<std::size_t>(d);
+    std::vector<const double*> rows(static_cast<std::size_t>(np));
+    for (int i = 0; i < np; ++i)
+        rows[static_cast<std::size_t>(i)] = trials && (*taken)[static_cast<std::size_t>(i)]
+                                                ? trials->row(i).data()
+                                                : st.population.row(i).data();
     const int blocks = (d + kLogColumns - 1) / kLogColumns;
     pool.parallel_for(static_cast<std::size_t>(blocks), [&](std::size_t b, std::size_t end, int) {
         for (std::size_t k = b; k < end; ++k) {
             const int j0 = static_cast<int>(k) * kLogColumns;
             const int nc = std::min(kLogColumns, d - j0);
             if (nc == kLogColumns) {
-                column_deviations<kLogColumns>(pop, np, sd, j0, nc, v.data());
+                column_deviations<kLogColumns>(rows.data(), np, j0, nc, v.data());
             } else {
-                column_deviations<0>(pop, np, sd, j0, nc, v.data());
+                column_deviations<0>(rows.data(), np, j0, nc, v.data());
             }
         }
+        if (!trials) return;
+        const auto first = static_cast<std::size_t>(np) * b / static_cast<std::size_t>(blocks);
+        const auto last = static_cast<std::size_t>(np) * end / static_cast<std::size_t>(blocks);
+        for (std::size_t i = first; i < last; ++i)
+            if ((*taken)[i])
+                st.population.row(static_cast<Eigen::Index>(i)) =
+                    trials->row(static_cast<Eigen::Index>(i));
     });
     double acc = 0;
     for (int j = 0; j < d; ++j) {
@@ -450,6 +466,7 @@ void append_log(State& st, ThreadPool& pool) {
         acc += v[static_cast<std::size_t>(j)] / np / (w * w);
     }
     e.spread = std::sqrt(acc / d);
+    st.elapsed += seconds_since(t0);
     e.elapsed = st.elapsed;
     st.log.push_back(e);
 }
@@ -852,8 +869,8 @@ State init(const Settings& settings, BatchFunction& f, ThreadPool& pool) {
         st.mem_CR.assign(static_cast<std::size_t>(s.memory_size), s.CR);
         if (s.strategy == Strategy::jso) st.mem_F.back() = st.mem_CR.back() = 0.9;
     }
-    st.elapsed = seconds_since(t0);
-    append_log(st, pool);
+    st.elapsed = 0;
+    append_log(st, pool, t0);
     return st;
 }
 
@@ -922,8 +939,12 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     st.nfev += ne;
 
     // Selection, eq. (14), serially in slot order (the archive and the memories depend on order).
+    // The accepted trials' rows are copied into the population by the log's pass of the pool
+    // (append_log), but where the population is reduced (which reads the rows) first.
     Success succ;
     const bool archive = uses_archive(s.strategy);
+    const bool defer = !reduces_population(s.strategy);
+    std::vector<char> taken(static_cast<std::size_t>(np), 0);
     for (int i = 0; i < ne; ++i) {
         if (!(tcost(i) <= st.costs(i))) continue;
         if (tcost(i) < st.costs(i)) {
@@ -932,7 +953,11 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
             succ.w.push_back(st.costs(i) - tcost(i));
             if (archive) archive_push(st, st.population.row(i).data());
         }
-        st.population.row(i) = trials.row(i);
+        if (defer) {
+            taken[static_cast<std::size_t>(i)] = 1;
+        } else {
+            st.population.row(i) = trials.row(i);
+        }
         st.costs(i) = tcost(i);
         if (s.strategy == Strategy::jde) {
             st.ind_F[static_cast<std::size_t>(i)] = tF[static_cast<std::size_t>(i)];
@@ -942,8 +967,11 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     update_memories(st, succ);
     if (reduces_population(s.strategy)) reduce_population(st);
     ++st.generation;
-    st.elapsed += seconds_since(t0);
-    append_log(st, pool);
+    if (defer) {
+        append_log(st, pool, t0, &trials, &taken);
+    } else {
+        append_log(st, pool, t0);
+    }
 }
 
 void require_budget_for_init(const Settings& resolved, const Stop& stop) {
