@@ -1,0 +1,246 @@
+"""The non-geometric effects on laser-tracker data (issue 23, docs/effects.md, "Tracker data"):
+gravity through the registration, the point/probe objective with the effects and its exact
+Jacobian, the gauge, the noise-free recovery, the files."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr.effects import tracker as et
+from iwr.effects.model import predicted_readings
+
+#: Three payloads whose centres of mass are not on one line with the platform's: what fixes the
+#: platform frame {5} relative to the loads (docs/effects.md, "Tracker data").
+PAYLOADS = np.array([[0.0, 0.0, 0.0, 0.0], [80.0, 50.0, 0.0, 150.0], [60.0, -40.0, 90.0, 120.0]])
+#: Other loads for the fresh poses.
+FRESH_PAYLOADS = np.array([[40.0, 80.0, -60.0, 100.0], [120.0, 0.0, 250.0, 60.0]])
+
+
+@pytest.fixture(scope="module", params=["points", "probe"])
+def case(request, measured_with_effects):
+    robot = measured_with_effects(request.param)
+    data, truth = iwr.simulate(robot, 40, seed=11) if request.param == "probe" else \
+        et.simulate(robot, 40, seed=11, payloads=PAYLOADS)
+    return robot, data, truth
+
+
+def _step(name: str) -> float:
+    """A central-difference step per parameter: its unit's scale over 1e6 or so."""
+    if name.endswith("compliance"):
+        return 1e-4  # um/N
+    if name.endswith("alpha") and name.startswith("legs"):
+        return 1e-2  # ppm/K
+    if name.split(".")[-1] in ("dalpha", "dtheta", "rx", "ry", "rz"):
+        return 1e-7  # rad
+    return 1e-5  # mm
+
+
+def test_gravity_comes_through_the_registration(measured_with_effects):
+    _robot = measured_with_effects
+    robot = _robot("points")
+    setup = robot.tracker
+    np.testing.assert_array_equal(setup.gravity, [0.0, 0.0, -9.80665])  # levelled by default
+    xs = np.random.default_rng(1).uniform(-0.02, 0.02, setup.n_params)
+    g0, d = et.registration_gravity(setup, xs)
+    np.testing.assert_allclose(g0, setup.registration_matrix(xs)[:3, :3].T @ setup.gravity)
+    for i in range(setup.n_params):
+        e = np.zeros(setup.n_params)
+        e[i] = 1e-6
+        fd = (et.registration_gravity(setup, xs + e)[0]
+              - et.registration_gravity(setup, xs - e)[0]) / 2e-6
+        np.testing.assert_allclose(d[:, i], fd, atol=1e-8)
+    assert np.abs(d[:, 3:5]).max() > 1.0  # the tilts turn it; the translations do not
+    assert np.all(d[:, :3] == 0) and np.all(d[:, 6:] == 0)
+
+
+def test_gravity_jacobian_of_the_readings_matches_finite_differences(case):
+    robot, data, truth = case
+    model = et.TrackerEffectModel(robot, robot.tracker, data)
+    xr, xs = model.split(truth)
+    poses = model.forward(truth)[0][:10]
+    sub = data.subset(np.arange(10))
+    g0 = et.registration_gravity(robot.tracker, xs)[0]
+    jg = et.gravity_jacobian(et.with_gravity(robot, g0), xr, sub.q, poses, sub)
+    assert np.abs(jg).max() > 1e-4  # mm per m/s^2: compliance under the loads
+    for c in range(3):  # the readings are linear in gravity: a large step is exact
+        e = np.zeros(3)
+        e[c] = 1.0
+        fd = (predicted_readings(et.with_gravity(robot, g0 + e), xr, sub.q, poses, sub)
+              - predicted_readings(et.with_gravity(robot, g0 - e), xr, sub.q, poses, sub)) / 2
+        np.testing.assert_allclose(jg[..., c], fd, rtol=1e-7, atol=1e-12)
+
+
+def test_objective_jacobian_matches_central_differences(case):
+    robot, data, truth = case
+    problem, start = et.effect_tracker_problem(robot, data)
+    x = 0.5 * (start + truth)  # away from the solution: non-zero residuals
+    r, jac = problem.residuals_and_jacobian(x)
+    np.testing.assert_array_equal(r, problem.residuals(x))
+    assert jac.shape == (problem.n_residuals, problem.n_params)
+    for i, name in enumerate(problem.parameter_names):
+        h = _step(name)
+        e = np.zeros(problem.n_params)
+        e[i] = h
+        fd = (problem.residuals(x + e) - problem.residuals(x - e)) / (2 * h)
+        scale = max(np.abs(jac[:, i]).max(), 1e-12)
+        err = np.abs(fd - jac[:, i]).max()
+        assert err <= 1e-5 * scale + 1e-9, (name, err, scale)
+
+
+def test_the_registration_gauge_is_exact_only_with_gravity_through_it(monkeypatch,
+                                                                     measured_with_effects):
+    """The 4 motions the registration absorbs (a turn about the first joint's axis, the
+    translations) stay exact null directions with the effects when gravity is given in {T};
+    with gravity held in {0} the turn loads the legs differently."""
+    _robot = measured_with_effects
+    robot = _robot("points")
+    data, truth = et.simulate(robot, 30, seed=5, payloads=PAYLOADS)
+    ns = iwr.identifiability(robot, data, truth)
+    # 10 null directions: the 6 of leg data and the registration's 4; no effect parameter and
+    # none of the platform frame's (the loads' centres in {5} fix it, weakly).
+    assert len(ns.left_out) == 10
+    assert not [n for n in ns.left_out if n.startswith(("leg", "reflector", "legs"))]
+    # Without effects the platform frame's 6 directions are null too (16, docs/tracker.md).
+    geometric = robot.with_effects()
+    plain, x_plain = iwr.simulate(geometric, 30, seed=5)
+    assert len(iwr.identifiability(geometric, plain, x_plain).left_out) == 16
+    problem, _ = et.effect_tracker_problem(robot, data)
+    # The turn about the first joint's axis: the null direction with the most tracker.rz.
+    rz = problem.parameter_names.index("tracker.rz")
+    coef = np.linalg.lstsq(ns.vectors, np.eye(problem.n_params)[rz], rcond=None)[0]
+    turn = ns.vectors @ coef
+    turn /= turn[rz]
+    assert abs(turn[problem.parameter_names.index("joint1.dtheta")] + 1) < 0.05
+    eps = 1e-4
+    through = problem.residuals(truth + eps * turn) - problem.residuals(truth - eps * turn)
+    assert np.abs(through).max() < 1e-9
+    g_fixed = et.registration_gravity(robot.tracker, truth[-robot.tracker.n_params:])[0]
+    monkeypatch.setattr(et, "registration_gravity",
+                        lambda setup, xs: (g_fixed, np.zeros((3, setup.n_params))))
+    held = problem.residuals(truth + eps * turn) - problem.residuals(truth - eps * turn)
+    assert np.abs(held).max() > 1e3 * max(np.abs(through).max(), 1e-12)
+
+
+def test_one_line_of_centres_leaves_a_turn_of_the_platform_frame(measured_with_effects):
+    _robot = measured_with_effects
+    """With the platform's and the payloads' centres of mass on one line, a turn of {5} about it
+    moves no load: one direction of the platform frame stays null (the design rule)."""
+    robot = _robot("points")
+    data, truth = iwr.simulate(robot, 30, seed=5)  # none and the 80 kg head: one line
+    ns = iwr.identifiability(robot, data, truth)
+    assert len(ns.left_out) == 11
+    frame = [n for n in ns.left_out if n.startswith(("leg", "reflector"))]
+    assert len(frame) == 1
+
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_noise_free_recovery_on_fresh_poses_with_other_loads(kind, measured_with_effects):
+    """Issue 23's check on tracker data: geometric, effect and setup parameters recovered from
+    noise-free data so that tool poses and leg commands on 50 fresh poses with other loads and
+    temperatures agree with the truth to 1e-6 mm."""
+    _robot = measured_with_effects
+    robot = _robot(kind)
+    data, truth = et.simulate(robot, 40, seed=3, payloads=PAYLOADS)
+    res = iwr.identify(robot, data, "lm", active="base")
+    assert res.success, res.message
+    ng = robot.n_params
+    n_eff = 7
+    np.testing.assert_allclose(res.x[ng: ng + n_eff], truth[ng: ng + n_eff], atol=1e-8)
+    fresh, _ = et.simulate(robot, 50, seed=99, x=truth, payloads=FRESH_PAYLOADS,
+                           temperatures=np.linspace(14.0, 30.0, 50))
+    a = et.tool_frames(robot, res.x, fresh)
+    b = et.tool_frames(robot, truth, fresh)
+    assert np.abs(a[:, :3, 3] - b[:, :3, 3]).max() < 1e-6
+    assert np.abs(a[:, :3, :3] - b[:, :3, :3]).max() < 1e-9
+    legs = et.leg_commands(robot, res.x, b, fresh.q, fresh)
+    assert np.abs(legs - fresh.legs).max() < 1e-6
+    # The geometric model misses by micrometres: the effects are there to be found.
+    geometric_legs = et.leg_commands(robot, np.concatenate(
+        [res.x[:ng], -np.array([e.values() for e in robot.effects if e.parameter_names()][0]),
+         np.zeros(1), res.x[ng + n_eff:]]), b, fresh.q, fresh)
+    assert np.abs(geometric_legs - fresh.legs).max() > 1e-3
+    accuracy = iwr.accuracy(robot, fresh, res.x, truth=truth)
+    assert accuracy.calibrated.position.max() < 1e-6
+
+
+def test_leg_commands_invert_the_forward_kinematics(measured_with_effects):
+    _robot = measured_with_effects
+    robot = _robot("probe")
+    data, truth = iwr.simulate(robot, 12, seed=2)
+    frames = et.tool_frames(robot, truth, data)
+    np.testing.assert_allclose(et.leg_commands(robot, truth, frames, data.q, data), data.legs,
+                               atol=1e-9)
+
+
+def test_methods_that_do_not_model_them_refuse(measured_with_effects):
+    _robot = measured_with_effects
+    robot = _robot("points")
+    data, _ = iwr.simulate(robot, 20, seed=1)
+    for method in ("de", "crs2", "bobyqa"):
+        with pytest.raises(ValueError, match="C\\+\\+ tracker objective with the effects"):
+            iwr.identify(robot, data, method)
+    with pytest.raises(ValueError, match="noise=None"):
+        iwr.identify(robot, data, "lm", noise=(iwr.Noise.realistic(), None))
+    # The C++ point objective refuses a robot with effects, naming what models them.
+    with pytest.raises(ValueError, match="effects on"):
+        iwr.tracker.TrackerProblem(robot, robot.tracker, data)
+
+
+def test_the_thermal_effect_needs_temperatures(measured_with_effects):
+    _robot = measured_with_effects
+    robot = _robot("points")
+    data, _ = iwr.simulate(robot, 10, seed=1)
+    bare = iwr.tracker.TrackerMeasurements(data.q, data.legs, points=data.points,
+                                           joint_types=data.joint_types, payload=data.payload)
+    with pytest.raises(ValueError, match="T_C"):
+        iwr.identify(robot, bare, "lm")
+
+
+def test_files_carry_the_payload_and_temperature_columns(tmp_path, measured_with_effects):
+    _robot = measured_with_effects
+    from iwr.measurements import MeasurementFileError
+    from iwr.tracker.files import read_tracker_data, write_tracker_long, write_tracker_wide
+
+    for kind in ("points", "probe"):
+        robot = _robot(kind)
+        data, _ = iwr.simulate(robot, 6, seed=1)
+        data = data.subset(np.arange(6))
+        data.temperatures = np.column_stack([data.temperatures[:, 0] + j for j in range(6)])
+        write_tracker_wide(tmp_path / f"{kind}.csv", robot.tracker, data)
+        back = read_tracker_data(tmp_path / f"{kind}.csv", robot.tracker)
+        np.testing.assert_array_equal(back.payload, data.payload)
+        np.testing.assert_array_equal(back.temperatures, data.temperatures)
+        np.testing.assert_array_equal(back.legs, data.legs)
+    write_tracker_long(tmp_path / "p.csv", tmp_path / "r.csv", _robot("points").tracker, iwr.simulate(_robot("points"), 5, seed=2)[0])
+    robot = _robot("points")
+    data, _ = iwr.simulate(robot, 5, seed=2)
+    back = read_tracker_data(tmp_path / "p.csv", robot.tracker, tmp_path / "r.csv")
+    np.testing.assert_array_equal(back.payload, data.payload)
+    np.testing.assert_array_equal(back.temperatures, data.temperatures)
+    # Without effects nothing is written: the files as before.
+    plain = robot.with_effects()
+    pdata, _ = iwr.simulate(plain, 5, seed=2)
+    write_tracker_wide(tmp_path / "plain.csv", plain.tracker, pdata)
+    assert "payload" not in (tmp_path / "plain.csv").read_text()
+    # A temperature in kelvin is named by its line.
+    lines = (tmp_path / "points.csv").read_text().splitlines()
+    lines[4] = lines[4].rsplit(",", 1)[0] + ",300"
+    (tmp_path / "bad.csv").write_text("\n".join(lines) + "\n")
+    with pytest.raises(MeasurementFileError, match=r"bad.csv, line 5: temperatures: column 5"):
+        read_tracker_data(tmp_path / "bad.csv", _robot("points").tracker)
+
+
+def test_tracker_gravity_in_the_robot_file():
+    from iwr.tracker.setup import TrackerSetup
+
+    reflectors = [(120.0, 0.0, 40.0)]
+    tilted = TrackerSetup((0, 0, 0, 0, 0, 0), reflectors=reflectors, gravity=[0.1, 0.0, -9.80])
+    assert tilted.to_dict()["gravity_m_s2"] == [0.1, 0.0, -9.8]
+    assert TrackerSetup.from_dict(tilted.to_dict()) == tilted
+    level = TrackerSetup((0, 0, 0, 0, 0, 0), reflectors=reflectors)
+    assert "gravity_m_s2" not in level.to_dict()  # files as before
+    assert tilted.with_parameters(np.zeros(tilted.n_params)).gravity.tolist() == [0.1, 0, -9.8]
+    with pytest.raises(ValueError, match="gravity_m_s2.*norm 1"):
+        TrackerSetup((0, 0, 0, 0, 0, 0), reflectors=reflectors, gravity=[0.0, 0.0, -1.0])
