@@ -557,7 +557,7 @@ def _probe_frames(setup: Any, xs: np.ndarray, pts: np.ndarray) -> np.ndarray:
 # -- what the tracker kinds do with a robot with effects (iwr.tracker.kind) -------------------
 
 #: The methods that model the effects on tracker data.
-TRACKER_METHODS = ("lm",)
+TRACKER_METHODS = ("lm", "efficient")
 
 
 def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
@@ -577,13 +577,34 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
         raise ValueError(
             f"method {method!r}: robot {robot.name!r} has effects on ({names}); on tracker data "
             f"the methods that model them are {', '.join(TRACKER_METHODS)} (the point objective "
-            "with the effects in numpy); DE, CRS2 and BOBYQA would need the C++ tracker "
-            "objective with the effects, which does not exist (docs/effects.md)")
+            "and the efficient estimator with the effects, in numpy); DE, CRS2 and BOBYQA would "
+            "need the C++ tracker objective with the effects, which does not exist "
+            "(docs/effects.md)")
+    if method == "efficient":
+        from ..estimation import efficient
+
+        if noise is None:
+            raise ValueError("method 'efficient' weighs every instrument by its noise: give "
+                             "noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...)) or "
+                             "noise='estimate'")
+        if weighted is False:
+            raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
+        if max_evaluations is not None:
+            options.setdefault("max_iterations", int(max_evaluations))
+        if isinstance(active, str) and active == "base":
+            active = None
+        if active is not None:
+            problem, _ = effect_tracker_problem(robot, measurements, bounds, x0)
+            active = active_mask(problem, active)
+        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
+                           bounds=bounds, **options)
+        result.check_finite()
+        return result
     if noise is not None or weighted:
         raise ValueError(
             f"noise: robot {robot.name!r} has effects on ({names}); on tracker data method "
             f"{method!r} minimises the unweighted point objective with the effects: give "
-            "noise=None (docs/effects.md)")
+            "noise=None, or use method 'efficient' (docs/effects.md)")
     problem, start = effect_tracker_problem(robot, measurements, bounds, x0)
     if isinstance(active, str) and active == "base":
         active = identifiability(robot, measurements, start).active
@@ -700,3 +721,198 @@ def leg_commands(robot: Any, x: Any, targets: Any, q: Any, data: Any) -> np.ndar
         _joint_frame(robot, xr))
     true = with_gravity(robot, registration_gravity(robot.tracker, xs)[0])
     return predicted_readings(true, xr, np.asarray(q, dtype=float), pose_from_matrix(world), data)
+
+
+# -- the efficient estimator (iwr.estimation.efficient) on tracker data with effects ----------
+
+def loop_model(robot: Any, setup: Any, data: Any, reference: np.ndarray, measured: np.ndarray,
+               whitening: np.ndarray, sigma: np.ndarray) -> Any:
+    """The tracker estimator's normalised residuals for a robot with effects, a
+    :data:`iwr.effects.solver.LoopModel`: per pose the legs ``(predicted - measured) / sigma``
+    with the effects at the corrected readings (joints ``q + dq``, platform ``reference (+)
+    (dp, w)``) under the pose's load and temperature (:func:`iwr.effects.loop.loop_jacobians`,
+    gravity through the registration), the joints' corrections over their sigma, and the
+    whitened points (or the probe's position and orientation) as the C++ tracker model has them
+    (``_core.tracker_loop_jacobians``: the points do not depend on the effects at a given
+    pose). ``x = (x_geometric, x_effects, x_setup)``."""
+    ng, nj = robot.n_params, robot.n_joints
+    ne = len(effect_names(robot.effects))
+    n, ny = len(data), nj + 6
+    q = np.ascontiguousarray(data.q)
+    legs = np.ascontiguousarray(data.legs)
+    sl = sigma[:, :6]
+
+    def model(x: np.ndarray, corr: np.ndarray, jacobians: bool) -> tuple[np.ndarray, Any, Any]:
+        xr, xs = x[: ng + ne], x[ng + ne:]
+        r, jx_c, jy_c = _core.tracker_loop_jacobians(
+            robot._geometry, setup.kind, setup.registration,
+            setup.reflectors if setup.reflectors is not None else np.zeros((1, 3)),
+            setup.probe if setup.probe is not None else np.zeros(6), setup.probe_length,
+            measured, whitening, reference, np.concatenate([xr[:ng], xs]), q, legs,
+            np.ascontiguousarray(sigma), np.ascontiguousarray(corr))
+        g0, dg0 = registration_gravity(setup, xs)
+        rg = with_gravity(robot, g0)
+        pred, jx, jy = loop_jacobians(rg, xr, q, reference, data, corr)
+        r = r.copy()
+        r[:, :6] = (pred - legs) / sl
+        if not jacobians:
+            return r, None, None
+        nr = r.shape[1]
+        jx_c = jx_c.reshape(n, nr, ng + setup.n_params)
+        rx = np.zeros((n, nr, x.size))
+        rx[:, 6:, :ng] = jx_c[:, 6:, :ng]
+        rx[:, 6:, ng + ne:] = jx_c[:, 6:, ng:]
+        rx[:, :6, : ng + ne] = jx / sl[..., None]
+        jg = gravity_jacobian(rg, xr, q, reference, data, corr)
+        rx[:, :6, ng + ne:] = (jg @ dg0) / sl[..., None]
+        ry = jy_c.reshape(n, nr, ny).copy()
+        ry[:, :6] = jy / sl[..., None]
+        return r, rx, ry
+
+    return model
+
+
+def predicted_accuracy(robot: Any, x: Any, covariance: Any, active: Any, data: Any, *,
+                       tool: Any = None, n_samples: int = 500, seed: int = 0,
+                       step: float = 1e-6) -> Any:
+    """:func:`iwr.tracker.estimation.tracker_predicted_accuracy` for a robot with effects: the
+    tool pose error modulo the gauge that the covariance of the active parameters predicts at
+    ``data``'s readings under their loads and temperatures; the platform pose's derivative in
+    every parameter by implicit differentiation of the loop closure with the effects (gravity
+    through the registration), the frame's composition by central differences as there."""
+    from ..accuracy_prediction import accuracy_from_covariances
+    from ..tracker.estimation import _aligned_errors, _frames
+
+    setup = robot.tracker
+    model = TrackerEffectModel(robot, setup, data)
+    x = np.asarray(x, dtype=float)
+    xr, xs = model.split(x)
+    ng, nj = robot.n_params, robot.n_joints
+    ne = model.n_effects
+    poses, ok = model.forward(x)
+    if not ok.all():
+        k = int(np.flatnonzero(~ok)[0])
+        raise ValueError(f"{data.where(k)}: no forward kinematics with the effects at x")
+    g0, dg0 = registration_gravity(setup, xs)
+    rg = with_gravity(robot, g0)
+    _, jx, jy = loop_jacobians(rg, xr, data.q, poses, data)
+    jg = gravity_jacobian(rg, xr, data.q, poses, data)
+    g_pose = -np.linalg.solve(jy[:, :, nj:], np.concatenate([jx, jg @ dg0], axis=2))
+    t05 = pose_matrix(poses)
+    frame_x = np.concatenate([xr[:ng], xs])  # what the frames are made of: joints, registration
+    zero = np.zeros((len(poses), 6))
+    t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+    base = _frames(robot, frame_x, t05, zero)
+    cols = []
+    for i in np.flatnonzero(np.asarray(active, dtype=bool)):
+        e = np.zeros_like(frame_x)
+        if i < ng:
+            e[i] = step
+        elif i >= ng + ne:
+            e[i - ne] = step
+        d = g_pose[:, :, i] * step
+        cols.append((_aligned_errors(_frames(robot, frame_x + e, t05, d), base, t)
+                     - _aligned_errors(_frames(robot, frame_x - e, t05, -d), base, t))
+                    / (2 * step))
+    g = np.stack(cols, axis=2)
+    cov = np.asarray(covariance, dtype=float)
+    cp = np.einsum("kip,pq,kjq->kij", g[:, :3], cov, g[:, :3])
+    co = np.einsum("kip,pq,kjq->kij", g[:, 3:], cov, g[:, 3:])
+    return accuracy_from_covariances(cp, co, n_samples=n_samples, seed=seed)
+
+
+def estimator(robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+    """The tracker kinds' estimation spec for a robot with effects (:class:`EffectTrackerSpec`)."""
+    return EffectTrackerSpec(robot, data, noise, options["x0"], options["active"],
+                             options["estimate"], options["bounds"], options["plausible"])
+
+
+def _spec_base() -> Any:
+    from ..tracker.estimation import TrackerSpec
+
+    return TrackerSpec
+
+
+class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
+    """:class:`iwr.tracker.estimation.TrackerSpec` for a robot with effects: the parameters are
+    the geometric errors, the effects', then the setup's; the start is LM on the point (probe)
+    objective with the effects, the reference poses its forward kinematics with the effects, and
+    the solve is :func:`iwr.effects.solver.solve_loop` on :func:`loop_model` (the C++ tracker
+    solver's method in numpy). The variance components, outlier test, chi-square test and
+    result are :func:`iwr.estimation.efficient`'s."""
+
+    def __init__(self, robot: Any, measurements: Any, noise: Any, x0: Any, active: Any,
+                 estimate: Any, bounds: Any, plausible: float) -> None:
+        from ..estimation import _active_mask
+        from ..methods.lm import levenberg_marquardt
+        from ..methods.reduced import ReducedProblem
+
+        # The readings, their whitening and variance components: the geometric spec's.
+        self._readings(robot, measurements, noise, estimate)
+        problem, start = effect_tracker_problem(robot, measurements, bounds, x0)
+        self.problem = problem
+        self.mask = _active_mask(active, problem.n_params,
+                                 lambda: identifiability(robot, measurements, start).active)
+        lm = levenberg_marquardt(ReducedProblem(problem, self.mask, start), progress=False)
+        self.x_start = np.array(lm.x, dtype=float)
+        ref, ok = problem.model.forward(self.x_start)
+        if not ok.all():
+            raise _core.ForwardKinematicsError(
+                f"{measurements.where(int(np.flatnonzero(~ok)[0]))}: the leg readings have no "
+                f"forward kinematics with the effects at the starting point")
+        self.reference = np.ascontiguousarray(ref)
+        self.parameter_names = problem.parameter_names
+        ng, ne = robot.n_params, problem.model.n_effects
+        self.center = np.concatenate([np.zeros(ng + ne), start[ng + ne:]])
+        lo, hi = problem.lower, problem.upper
+        self.limit = plausible * np.maximum(np.abs(lo - self.center), np.abs(hi - self.center))
+        if measurements.points is not None and not measurements.seen.all():
+            self._unseen = ~np.repeat(measurements.seen, 3, axis=1)
+        else:
+            self._unseen = None
+
+    def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
+              corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:
+        from .solver import solve_loop
+
+        s, w = self.scaled(scale)
+        rows_used = np.flatnonzero(used)
+        sub = self.measurements.subset(rows_used) if not used.all() else self.measurements
+        nu, nj = rows_used.size, self.robot.n_joints
+        model = loop_model(self.robot, self.setup, sub, self.reference[used],
+                           np.ascontiguousarray(self.measured[used]),
+                           np.ascontiguousarray(w[used].reshape(nu, -1)), s[used])
+        joints = np.flatnonzero(s[0, 6:] > 0)  # the same at every pose (one sigma per joint)
+        free = np.concatenate([joints, nj + np.arange(6)])
+        n_tracker = self.measured.shape[1] if self.setup.kind == "points" else 6
+        rows = np.concatenate([np.arange(6), 6 + joints, 6 + nj + np.arange(n_tracker)])
+        start = np.array(corr, dtype=float)
+        start[:, np.setdiff1d(np.arange(nj), joints)] = 0.0  # an exact reading: no correction
+        out = solve_loop(model, x, idx, start, rows, free, max_iterations=int(max_iterations),
+                         callback=cb)
+        if self._unseen is not None:  # a point not seen: rows of zeros, not readings
+            unseen = self._unseen[used]
+            out["pose_dof"] = out["pose_dof"] - unseen.sum(axis=1)
+            out["dof"] = int(out["dof"] - unseen.sum())
+            out["redundancy"][:, 6 + nj:][unseen] = 0.0
+        return out
+
+    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
+        from ..fit_test import _nearest_plausible
+
+        sub = self.measurements.subset(np.flatnonzero(used)) if not used.all() \
+            else self.measurements
+        problem = TrackerEffectProblem(self.robot, self.setup, sub,
+                                       (self.problem.lower, self.problem.upper))
+        x_plain = _nearest_plausible(problem.residuals_and_jacobian, x, self.limit, self.center)
+        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
+                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+
+    def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray, tool: Any) -> Any:
+        sub = self.measurements.subset(np.flatnonzero(used)) if not used.all() \
+            else self.measurements
+        return predicted_accuracy(self.robot, x, cov, self.mask, sub, tool=tool)
+
+    def cost_eq10(self, x: np.ndarray) -> float:
+        """The unweighted point objective with the effects (mm^2)."""
+        return self.problem.cost(x)

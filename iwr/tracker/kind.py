@@ -218,6 +218,10 @@ class _TrackerKind(MeasurementKind):
         return _tracker_uncertainty(robot, data, x, noise, options.get("active"))
 
     def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the loop closure with the effects (numpy solver)
+            from ..effects.tracker import estimator as effect_estimator
+
+            return effect_estimator(robot, data, noise, **options)
         return TrackerSpec(robot, data, noise, options["x0"], options["active"],
                            options["estimate"], options["bounds"], options["plausible"])
 
