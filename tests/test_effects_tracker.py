@@ -143,7 +143,8 @@ def test_noise_free_recovery_on_fresh_poses_with_other_loads(kind, measured_with
     _robot = measured_with_effects
     robot = _robot(kind)
     data, truth = et.simulate(robot, 40, seed=3, payloads=PAYLOADS)
-    res = iwr.identify(robot, data, "lm", active="base")
+    # Every parameter free (LM's default): the loads fix the platform frame, weakly but exactly.
+    res = iwr.identify(robot, data, "lm")
     assert res.success, res.message
     ng = robot.n_params
     n_eff = 7
@@ -244,3 +245,71 @@ def test_tracker_gravity_in_the_robot_file():
     assert tilted.with_parameters(np.zeros(tilted.n_params)).gravity.tolist() == [0.1, 0, -9.8]
     with pytest.raises(ValueError, match="gravity_m_s2.*norm 1"):
         TrackerSetup((0, 0, 0, 0, 0, 0), reflectors=reflectors, gravity=[0.0, 0.0, -1.0])
+
+
+def test_base_parameters_hold_the_platform_frame(measured_with_effects):
+    """By default the 16 null directions of the geometry's point objective are held (the
+    platform frame among them: the loads fix it too weakly for noisy data), the effects kept;
+    an effect parameter whose column adds no direction is held too."""
+    robot = measured_with_effects("points")
+    data, truth = et.simulate(robot, 30, seed=5, payloads=PAYLOADS)
+    mask = et.base_parameters(robot, data)
+    ng = robot.n_params
+    assert (~mask).sum() == 16 and mask[ng: ng + 7].all()
+    # Every pose at the reference temperature: the expansion coefficient changes nothing.
+    flat, _ = et.simulate(robot, 30, seed=5, payloads=PAYLOADS, temperatures=np.full(30, 20.0))
+    mask = et.base_parameters(robot, flat)
+    assert mask[ng: ng + 6].all() and not mask[ng + 6]
+
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_numpy_estimator_is_the_cpp_one_on_the_geometry(kind, measured_with_effects):
+    """An effect that changes nothing (a given expansion coefficient of 0): the estimator with
+    effects (numpy loop model and solver) gives the C++ tracker estimator's solution, cost,
+    covariance, redundancy numbers and pose tests, unseen points included."""
+    from iwr.effects.builtin import LegThermal
+    from iwr.tracker import TrackerNoise
+
+    plain = measured_with_effects(kind).with_effects()
+    null = plain.with_effects(LegThermal(0.0, 20.0, identify=False))
+    noise = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), TrackerNoise.leica())
+    data, _ = iwr.tracker.api.tracker_simulate(plain, 40, seed=4, noise=noise,
+                                               hidden=0.2 if kind == "points" else 0.0)
+    data = iwr.tracker.TrackerMeasurements(
+        data.q, data.legs, points=data.points, probe=data.probe, joint_types=data.joint_types,
+        temperatures=np.full(len(data), 25.0))
+    a = iwr.identify(plain, data, "efficient", noise=noise)
+    b = iwr.identify(null, data, "efficient", noise=noise, active=a.active)
+    assert a.success and b.success
+    np.testing.assert_allclose(b.fun, a.fun, rtol=1e-9)
+    np.testing.assert_allclose(b.x, a.x, atol=1e-4)
+    np.testing.assert_allclose(b.covariance, a.covariance, atol=1e-6 * np.abs(a.covariance).max())
+    np.testing.assert_allclose(b.redundancy, a.redundancy, atol=1e-6)
+    np.testing.assert_allclose(b.pose_statistic, a.pose_statistic, rtol=1e-4, atol=1e-6)
+    assert a.fit.dof == b.fit.dof
+
+
+def test_efficient_estimator_with_effects_on_noisy_points(measured_with_effects):
+    """Realistic noise, realistic effects: the fit passes its chi-square test, the effects'
+    parameters are within 4 standard deviations of the truth, and the predicted tool accuracy
+    is near the actual one on fresh poses with other loads and temperatures."""
+    from iwr.tracker import TrackerNoise
+
+    robot = measured_with_effects("points")
+    noise = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), TrackerNoise.leica())
+    data, truth = et.simulate(robot, 60, seed=1, noise=noise, payloads=PAYLOADS, hidden=0.1)
+    res = iwr.identify(robot, data, "efficient", noise=noise)
+    assert res.success, res.message
+    assert res.fit.p_value > 1e-3
+    ng = robot.n_params
+    names = res.parameter_names
+    for i in range(ng, ng + 7):
+        k = list(np.flatnonzero(res.active)).index(i)
+        sd = np.sqrt(res.covariance[k, k])
+        assert abs(res.x[i] - truth[i]) < 4 * sd, (names[i], res.x[i], truth[i], sd)
+    fresh, _ = et.simulate(robot, 50, seed=1001, x=truth, payloads=FRESH_PAYLOADS,
+                           temperatures=np.linspace(14.0, 30.0, 50))
+    actual = np.sqrt(np.mean(iwr.accuracy(robot, fresh, res.x, truth=truth)
+                             .calibrated.position ** 2))
+    ratio = actual / res.predicted.position_rms
+    assert 0.5 < ratio < 2.0, ratio

@@ -43,6 +43,12 @@ from .model import _compliance, check_inputs, leg_forces, leg_vectors_at, loads
 __all__ = ["TrackerEffectProblem", "effect_tracker_problem", "forward_kinematics",
            "registration_gravity", "simulate", "with_gravity"]
 
+#: The relative rank threshold of the objective with effects (of its column-scaled Jacobian's
+#: largest singular value): the Jacobian rests on forward kinematics solved to
+#: :data:`FK_TOLERANCE_MM`, so directions the geometry cannot see show singular values up to
+#: about 1e-11 instead of round-off's 1e-15; the weakest the data do see are above 1e-7 (the
+#: platform frame relative to the loads, docs/effects.md).
+RANK_RTOL = 1e-9
 #: Newton's method for the forward kinematics with effects: the largest leg residual (mm) at
 #: which a pose is solved, and the iterations allowed.
 FK_TOLERANCE_MM = 1e-11
@@ -607,7 +613,7 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
             "noise=None, or use method 'efficient' (docs/effects.md)")
     problem, start = effect_tracker_problem(robot, measurements, bounds, x0)
     if isinstance(active, str) and active == "base":
-        active = identifiability(robot, measurements, start).active
+        active = base_parameters(robot, measurements, start)
     mask = active_mask(problem, active)
     result = run_method(problem, method, mask, start, max_evaluations=max_evaluations,
                         seed=seed, callback=callback, progress=progress, **options)
@@ -621,11 +627,50 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *,
     directions of the point (probe) objective with the effects at ``x`` (default the nominal
     robot and effects with the registration guess), one per left-out parameter
     (:class:`iwr.tracker.NullSpace`); an effect parameter among ``left_out`` cannot be
-    separated from the geometry at these poses and loads."""
+    separated from the geometry at these poses and loads. ``rtol`` default
+    :data:`RANK_RTOL`. The loads fix the platform frame {5} weakly: its directions count as
+    identifiable here (with noise they are not: :func:`base_parameters` holds them)."""
     from ..tracker.gauge import null_space
 
     problem, start = effect_tracker_problem(robot, measurements)
-    return null_space(problem, start if x is None else x, rtol)
+    return null_space(problem, start if x is None else x, RANK_RTOL if rtol is None else rtol)
+
+
+def base_parameters(robot: Any, measurements: Any, x: Any = None) -> np.ndarray:
+    """The parameters identified by default (``active="base"``, and the efficient estimator's):
+    the base parameters of the geometry's point (probe) objective, which leave out its 16 null
+    directions (docs/tracker.md: the 6 of leg data, the registration's 4, the platform frame's
+    6), and the effects' parameters but those the data cannot separate from the geometry (a
+    parameter whose column does not raise the rank).
+
+    The effects fix the platform frame {5} relative to the loads (their centres of mass are
+    given in {5}), but only at a part in 1e5 or less of the geometry's signal: with noise those
+    directions would wander by tens of millimetres. So {5} stays where the left-out parameters
+    put it, as without effects, and the loads are read in that frame (docs/effects.md)."""
+    from ..analysis.identifiability import _rank_threshold, _scaled_svd
+    from ..tracker.gauge import null_space
+    from ..tracker.start import tracker_problem
+
+    problem, start = effect_tracker_problem(robot, measurements)
+    x = start if x is None else np.asarray(x, dtype=float)
+    ng, ne = robot.n_params, problem.model.n_effects
+    geometric, _ = tracker_problem(robot.with_effects(), measurements)
+    geo_mask = null_space(geometric, np.concatenate([x[:ng], x[ng + ne:]]), RANK_RTOL).active
+    mask = np.concatenate([geo_mask[:ng], np.zeros(ne, dtype=bool), geo_mask[ng:]])
+    jac = problem.jacobian(x)
+
+    def rank(m: np.ndarray) -> int:
+        _, s, _ = _scaled_svd(jac[:, m])
+        return int(np.sum(s > _rank_threshold(s, (jac.shape[0], int(m.sum())), RANK_RTOL)[0]))
+
+    current = rank(mask)
+    for i in range(ng, ng + ne):  # each effect parameter kept if its column adds a direction
+        trial = mask.copy()
+        trial[i] = True
+        r = rank(trial)
+        if r > current:
+            mask, current = trial, r
+    return mask
 
 
 def plausibility(robot: Any, measurements: Any, bounds: Any, plausible: float
@@ -852,7 +897,7 @@ class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
         problem, start = effect_tracker_problem(robot, measurements, bounds, x0)
         self.problem = problem
         self.mask = _active_mask(active, problem.n_params,
-                                 lambda: identifiability(robot, measurements, start).active)
+                                 lambda: base_parameters(robot, measurements, start))
         lm = levenberg_marquardt(ReducedProblem(problem, self.mask, start), progress=False)
         self.x_start = np.array(lm.x, dtype=float)
         ref, ok = problem.model.forward(self.x_start)
