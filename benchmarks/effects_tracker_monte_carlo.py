@@ -15,8 +15,8 @@ noise-free readings, against the truth's (iwr.accuracy with truth=).
 
 Prints per seed the extended model's actual and predicted tool accuracy (RMS over the fresh
 poses; predicted there, under their loads and temperatures, by
-iwr.effects.tracker.predicted_accuracy from the estimator's covariance) and their ratio, its fit test, the geometric-only model's fit test and actual error, and
-the summary over the seeds.
+iwr.effects.tracker.predicted_accuracy from the estimator's covariance) and their ratio, its fit
+test, the geometric-only model's fit test and actual error, and the summary over the seeds.
 """
 
 from __future__ import annotations

@@ -58,8 +58,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 def write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: Any,
                 n_poses: int) -> None:
     """The true errors of a simulation as JSON (atomically): the robot's parameters (the
-    geometry's, then its effects'), then its instrument's set-up parameters, and the noise model in the kind's form
-    (:meth:`iwr.kinds.MeasurementKind.noise_record`)."""
+    geometry's, then its effects'), then its instrument's set-up parameters, and the noise
+    model in the kind's form (:meth:`iwr.kinds.MeasurementKind.noise_record`)."""
     from .._io import atomic_write_text
 
     kind = for_robot(robot)

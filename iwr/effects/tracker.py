@@ -40,8 +40,10 @@ from . import parameter_names as effect_names
 from .loop import _skew, loop_jacobians, right_jacobian
 from .model import _compliance, check_inputs, leg_forces, leg_vectors_at, loads
 
-__all__ = ["TrackerEffectProblem", "effect_tracker_problem", "forward_kinematics",
-           "registration_gravity", "simulate", "with_gravity"]
+__all__ = ["EffectTrackerSpec", "TrackerEffectModel", "TrackerEffectProblem", "accuracy",
+           "base_parameters", "effect_tracker_problem", "gravity_jacobian", "identifiability",
+           "identify", "leg_commands", "loop_model", "predicted_accuracy",
+           "registration_gravity", "simulate", "tool_frames", "with_gravity"]
 
 #: The relative rank threshold of the objective with effects (of its column-scaled Jacobian's
 #: largest singular value): the Jacobian rests on forward kinematics solved to
