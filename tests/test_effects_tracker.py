@@ -164,6 +164,9 @@ def test_noise_free_recovery_on_fresh_poses_with_other_loads(kind, measured_with
     assert np.abs(geometric_legs - fresh.legs).max() > 1e-3
     accuracy = iwr.accuracy(robot, fresh, res.x, truth=truth)
     assert accuracy.calibrated.position.max() < 1e-6
+    # Without a truth: the points predicted against the measured ones, before and after.
+    points = iwr.accuracy(robot, fresh, res.x)
+    assert points.calibrated.position.max() < 1e-6 < points.nominal.position.min()
 
 
 def test_leg_commands_invert_the_forward_kinematics(measured_with_effects):

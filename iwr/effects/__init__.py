@@ -220,7 +220,9 @@ SUPPORTED = ("iwr.identify with method 'lm' (eq. (10) or noise-weighted) or 'eff
              "iwr.estimation.predicted_accuracy", "iwr.implicit_loop.loop_jacobians",
              "iwr.accuracy",
              "iwr.calibrate, iwr calibrate and iwr report with method 'lm' without a noise model",
-             "iwr.effects.api.leg_commands", "iwr.effects.api.forward_kinematics")
+             "iwr.effects.api.leg_commands", "iwr.effects.api.forward_kinematics",
+             "iwr.simulate, iwr.identify with method 'lm' or 'efficient', iwr.identifiability "
+             "and iwr.accuracy on tracker data (iwr.effects.tracker)")
 
 
 def refuse(robot: Any, what: str) -> None:
