@@ -9,13 +9,12 @@ import pytest
 
 import iwr
 from iwr.effects import tracker as et
+from iwr.effects import tracker_study
 from iwr.effects.model import predicted_readings
 
-#: Three payloads whose centres of mass are not on one line with the platform's: what fixes the
-#: platform frame {5} relative to the loads (docs/effects.md, "Tracker data").
-PAYLOADS = np.array([[0.0, 0.0, 0.0, 0.0], [80.0, 50.0, 0.0, 150.0], [60.0, -40.0, 90.0, 120.0]])
-#: Other loads for the fresh poses.
-FRESH_PAYLOADS = np.array([[40.0, 80.0, -60.0, 100.0], [120.0, 0.0, 250.0, 60.0]])
+#: Three payloads whose centres of mass are not on one line with the platform's (what fixes the
+#: platform frame {5} relative to the loads), and other loads for the fresh poses.
+PAYLOADS, FRESH_PAYLOADS = tracker_study.PAYLOADS, tracker_study.FRESH_PAYLOADS
 
 
 @pytest.fixture(scope="module", params=["points", "probe"])
@@ -371,3 +370,18 @@ def test_iwr_simulate_writes_tracker_data_with_effects(tmp_path, measured_with_e
     assert proc.returncode != 0 and "Traceback" not in proc.stderr + proc.stdout
     errors = [ln for ln in proc.stderr.splitlines() if ln.startswith("iwr: error: ")]
     assert len(errors) == 1 and "effects on" in errors[0], proc.stderr
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_monte_carlo_extended_against_geometric_on_tracker_data(kind, measured_with_effects):
+    """Four seeds of benchmarks/effects_tracker_monte_carlo.py (docs/effects.md has 20): the
+    extended calibration passes its fit test, the geometric-only one's tool error on fresh poses
+    with other loads is at least twice the extended one's, and the extended model's actual tool
+    accuracy is near its prediction over the seeds."""
+    runs = [tracker_study.trial(measured_with_effects(kind), seed) for seed in range(4)]
+    assert all(r["extended_fit_ok"] for r in runs)
+    assert all(r["geometric_tool_rms"] > 2 * r["extended_tool_rms"] for r in runs)
+    act = np.sqrt(np.mean([r["extended_tool_rms"] ** 2 for r in runs]))
+    pred = np.sqrt(np.mean([r["extended_predicted_rms"] ** 2 for r in runs]))
+    assert 0.7 < act / pred < 1.4, (act, pred)
