@@ -35,13 +35,13 @@ def trial(robot: Any, seed: int, n_poses: int = 60, n_fresh: int = 50) -> dict[s
     poses' 14 .. 30 C. Noise: legs 2 um, joints 5 um and 5 urad, Leica's tracker model;
     reflector points have one hidden at 10 % of the poses. Returns the figures (mm, um/N,
     ppm/K)."""
-    import iwr
-
-    from ..tracker import TrackerNoise
+    from ..analysis.accuracy import accuracy
+    from ..methods import identify
+    from ..noise import Noise, TrackerNoise
     from ..tracker.analysis import tool_frames as geometric_frames
     from ..tracker.gauge import _align
 
-    noise = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), TrackerNoise.leica())
+    noise = (Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), TrackerNoise.leica())
     rng = np.random.default_rng(seed)
     setup = robot.tracker
     comp = robot.effects[0]
@@ -58,11 +58,11 @@ def trial(robot: Any, seed: int, n_poses: int = 60, n_fresh: int = 50) -> dict[s
     fresh, _ = et.simulate(robot, n_fresh, seed=int(seeds[1]), x=truth,
                            payloads=FRESH_PAYLOADS, temperatures=14.0 + 16.0 * rng.random(n_fresh))
     out: dict[str, Any] = {"seed": seed}
-    ext = iwr.identify(robot, data, "efficient", noise=noise)
+    ext = identify(robot, data, "efficient", noise=noise)
     out["extended_fit_ok"] = bool(ext.success)
     out["extended_p_value"] = float(ext.fit.p_value)
     out["extended_outliers"] = int(len(data) - np.sum(ext.used))
-    out["extended_tool_rms"] = _rms(iwr.accuracy(robot, fresh, ext.x, truth=truth)
+    out["extended_tool_rms"] = _rms(accuracy(robot, fresh, ext.x, truth=truth)
                                     .calibrated.position)
     # Predicted where the actual error is measured: at the fresh poses, under their loads and
     # temperatures (the estimator's own prediction is at the calibration poses).
@@ -76,7 +76,7 @@ def trial(robot: Any, seed: int, n_poses: int = 60, n_fresh: int = 50) -> dict[s
     out["alpha_sd"] = float(np.sqrt(ext.covariance[k, k]))
     # Geometric-only on the same data (the payload and temperature columns unused).
     plain = robot.with_effects()
-    geo = iwr.identify(plain, data, "efficient", noise=noise)
+    geo = identify(plain, data, "efficient", noise=noise)
     out["geometric_fit_ok"] = bool(geo.success)
     out["geometric_p_value"] = float(geo.fit.p_value)
     b = et.tool_frames(robot, truth, fresh)
