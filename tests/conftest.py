@@ -112,3 +112,16 @@ def carriage_only_poses() -> Any:
                             for qk in q])
 
     return poses
+
+
+@pytest.fixture(scope="session")
+def measured_with_effects() -> Any:
+    """``kind name -> robot``: the default IWR with that instrument (:func:`robot_measured_by`)
+    and the realistic effects (tracker data with effects, tests/test_effects_tracker.py)."""
+    from iwr.effects import api
+
+    def robot(name: str) -> Any:
+        plain = robot_measured_by(name)
+        return plain.with_effects(*api.realistic(plain))
+
+    return robot

@@ -212,15 +212,18 @@ def test_what_does_not_model_the_effects_refuses(with_effects, data):
     # iwr.accuracy models them (tests/test_effects_job.py): the effects' parameters are needed.
     with pytest.raises(ValueError, match="x: shape.*effect parameters"):
         iwr.accuracy(with_effects, m, x[:with_effects.n_params])
-    # Tracker data model the geometry only so far: refused, not run without the effects.
+    # Tracker data model them (tests/test_effects_tracker.py): data without the temperatures
+    # are refused by the thermal effect; the C++ point objective refuses the effects.
     tracked = with_effects.with_tracker(registration=(2000.0, 0.0, 300.0, 1.5708, 0.0, 0.0),
                                         reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),
                                                     (-60.0, -104.0, 40.0)])
     tm, _ = iwr.simulate(tracked.with_effects(), 20, seed=1)
     for call in (lambda: iwr.identify(tracked, tm, "lm"),
                  lambda: iwr.identifiability(tracked, tm)):
-        with pytest.raises(ValueError, match="effects on.*tracker data"):
+        with pytest.raises(ValueError, match="thermal effect.*T_C"):
             call()
+    with pytest.raises(ValueError, match="effects on.*tracker data"):
+        iwr.tracker.TrackerProblem(tracked, tracked.tracker, tm)
 
 
 def test_robot_file_round_trip_and_checks(tmp_path, robot, with_effects):

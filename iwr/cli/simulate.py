@@ -57,9 +57,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 def write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: Any,
                 n_poses: int) -> None:
-    """The true errors of a simulation as JSON (atomically): the robot's parameters, then its
-    instrument's set-up parameters, and the noise model in the kind's form
-    (:meth:`iwr.kinds.MeasurementKind.noise_record`)."""
+    """The true errors of a simulation as JSON (atomically): the robot's parameters (the
+    geometry's, then its effects'), then its instrument's set-up parameters, and the noise
+    model in the kind's form (:meth:`iwr.kinds.MeasurementKind.noise_record`)."""
     from .._io import atomic_write_text
 
     kind = for_robot(robot)
@@ -70,9 +70,10 @@ def write_truth(path: Path, robot: Any, truth: np.ndarray, seed: int, noise: Any
         "seed": seed,
         "n_poses": n_poses,
         **kind.noise_record(noise),
-        # the robot's, then its instrument's set-up parameters (a ballbar's balls and offsets)
-        "parameter_names": robot.parameter_names + kind.setup_parameter_names(robot)
-        + effect_parameter_names(robot.effects),  # issue 23: then the effects' (docs/effects.md)
+        # the robot's (its geometry's, then its effects': issue 23, docs/effects.md), then its
+        # instrument's set-up parameters (a tracker's registration, a ballbar's balls)
+        "parameter_names": robot.parameter_names + effect_parameter_names(robot.effects)
+        + kind.setup_parameter_names(robot),
         "errors": [float(v) for v in truth],
     }
     atomic_write_text(path, json.dumps(doc, indent=1) + "\n")

@@ -294,7 +294,9 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "iwr.implicit_loop.loop_jacobians", "iwr.accuracy",
              "iwr.calibrate, iwr calibrate and iwr report (any of those methods, with or without "
              "a noise model)", "iwr.effects.api.leg_commands",
-             "iwr.effects.api.forward_kinematics")
+             "iwr.effects.api.forward_kinematics",
+             "iwr.simulate, iwr.identify with method 'lm' or 'efficient', iwr.identifiability "
+             "and iwr.accuracy on tracker data (iwr.effects.tracker)")
 
 
 def refuse(robot: Any, what: str) -> None:

@@ -7,7 +7,7 @@ from typing import Any
 
 import numpy as np
 
-from ..measurements import RobotReadings, as_matrix
+from ..measurements import RobotReadings, _effect_inputs, as_matrix
 from ..transforms import euler_zyx
 from .setup import TrackerSetup
 
@@ -38,11 +38,18 @@ class TrackerMeasurements(RobotReadings):
         as tracker software exports them; NaN where the point was not seen, > 0 where it was.
         The efficient estimator weighs each point by them instead of the
         :class:`~iwr.tracker.TrackerNoise` model (docs/data.md).
+    payload : array_like, shape (N, 4), optional
+        The payload at each pose, mass (kg) and centre of mass in {5} (mm), as
+        :class:`iwr.Measurements` has it: what the compliance effect needs (docs/effects.md).
+    temperatures : array_like, shape (N,), (N, 1) or (N, 6), optional
+        The temperature at each pose, one or one per leg (degrees C): what the thermal effect
+        needs.
     """
 
     def __init__(self, q: Any, legs: Any, *, points: Any = None, probe: Any = None,
                  joint_types: str | None = None, lines: Any = None,
-                 source: str | None = None, point_sigma: Any = None) -> None:
+                 source: str | None = None, point_sigma: Any = None, payload: Any = None,
+                 temperatures: Any = None) -> None:
         if (points is None) == (probe is None):
             raise ValueError("TrackerMeasurements: give either points (N, K, 3) or probe (N, 6)")
         n = self._set_readings(q, legs, joint_types, lines, source)
@@ -72,6 +79,8 @@ class TrackerMeasurements(RobotReadings):
         self.point_sigma: np.ndarray | None = None
         if point_sigma is not None:
             self.point_sigma = self._check_sigma(point_sigma)
+        # Issue 23: the loads and temperatures of the non-geometric effects (docs/effects.md).
+        self.payload, self.temperatures = _effect_inputs(payload, temperatures, n)
 
     def _check_sigma(self, point_sigma: Any) -> np.ndarray:
         if self.points is None:
@@ -99,13 +108,16 @@ class TrackerMeasurements(RobotReadings):
         rows = self._rows(rows)
         lines = self._lines_at(rows)
         sig = None if self.point_sigma is None else self.point_sigma[rows]
+        effects = {"payload": None if self.payload is None else self.payload[rows],
+                   "temperatures": None if self.temperatures is None else self.temperatures[rows]}
         if self.points is not None:
             return TrackerMeasurements(self.q[rows], self.legs[rows], points=self.points[rows],
                                        joint_types=self.joint_types, lines=lines,
-                                       source=self.source, point_sigma=sig)
+                                       source=self.source, point_sigma=sig, **effects)
         assert self.probe is not None
         return TrackerMeasurements(self.q[rows], self.legs[rows], probe=self.probe[rows],
-                                   joint_types=self.joint_types, lines=lines, source=self.source)
+                                   joint_types=self.joint_types, lines=lines, source=self.source,
+                                   **effects)
 
     @property
     def n_reflectors(self) -> int:

@@ -78,23 +78,15 @@ class TrackerSpec:
 
     def __init__(self, robot: Robot, measurements: TrackerMeasurements, noise: Any, x0: Any,
                  active: Any, estimate: Any, bounds: Any, plausible: float) -> None:
-        from ..estimation import _active_mask, _check_estimate
-        from ..implicit_loop import _check_noise
+        from ..estimation import _active_mask
         from ..methods.lm import levenberg_marquardt
         from ..methods.reduced import ReducedProblem
 
-        setup = _setup(robot)
-        readings, tnoise, est = _noise(noise)
-        extra = ("tracker_orientation",) if setup.kind == "probe" else ()
-        aliases = {"tracker": ("tracker_distance", "tracker_transverse") + extra}
-        est = _check_estimate(estimate, est, TRACKER_COMPONENTS, aliases)
-        _check_noise(readings)
-        self.robot, self.setup, self.measurements = robot, setup, measurements
-        self.noise0 = (readings, tnoise)
+        self._readings(robot, measurements, noise, estimate)
+        setup = self.setup
         problem, start = tracker_problem(robot, measurements, bounds, x0)
         self.problem = problem
-        self.n = len(measurements)
-        nr, nj = robot.n_params, robot.n_joints
+        nr = robot.n_params
         self.mask = _active_mask(active, problem.n_params,
                                  lambda: null_space(problem, start).active)
         # The start: eq. (10)'s analogue on points (LM, unweighted), from the nominal robot and
@@ -109,6 +101,33 @@ class TrackerSpec:
                 f"{measurements.where(int(bad[0]))}: the leg readings have no forward kinematics "
                 f"at the starting point ({bad.size} poses)")
         self.reference = np.ascontiguousarray(ref)
+        self.parameter_names = problem.parameter_names
+        # Plausible size: about the nominal robot and the setup's start (the registration guess).
+        self.center = np.concatenate([np.zeros(nr), start[nr:]])
+        if bounds is None or isinstance(bounds, str):
+            half = np.concatenate([robot.default_bounds("default")[1], setup.default_bounds()[1]])
+        else:
+            lo, hi = (np.asarray(b, dtype=float) for b in (problem.lower, problem.upper))
+            half = np.maximum(np.abs(lo - self.center), np.abs(hi - self.center))
+        self.limit = plausible * half
+
+    def _readings(self, robot: Robot, measurements: TrackerMeasurements, noise: Any,
+                  estimate: Any) -> None:
+        """The readings' part: the noise model, the legs' and joints' sigmas, the tracker's
+        whitening per block, the variance components and the readings' names."""
+        from ..estimation import _check_estimate
+        from ..implicit_loop import _check_noise
+
+        setup = _setup(robot)
+        readings, tnoise, est = _noise(noise)
+        extra = ("tracker_orientation",) if setup.kind == "probe" else ()
+        aliases = {"tracker": ("tracker_distance", "tracker_transverse") + extra}
+        est = _check_estimate(estimate, est, TRACKER_COMPONENTS, aliases)
+        _check_noise(readings)
+        self.robot, self.setup, self.measurements = robot, setup, measurements
+        self.noise0 = (readings, tnoise)
+        self.n = len(measurements)
+        nj = robot.n_joints
         # Readings: sigma of the legs and joints.
         prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
         self.sigma_all = np.empty((self.n, 6 + nj))
@@ -152,16 +171,7 @@ class TrackerSpec:
         }
         self.est = tuple(c for c in est if self.cols[c].size and self.start_sigma(c) > 0)
         self.names = tracker_reading_names(robot)
-        self.parameter_names = problem.parameter_names
         self.ny = nj + 6
-        # Plausible size: about the nominal robot and the setup's start (the registration guess).
-        self.center = np.concatenate([np.zeros(nr), start[nr:]])
-        if bounds is None or isinstance(bounds, str):
-            half = np.concatenate([robot.default_bounds("default")[1], setup.default_bounds()[1]])
-        else:
-            lo, hi = (np.asarray(b, dtype=float) for b in (problem.lower, problem.upper))
-            half = np.maximum(np.abs(lo - self.center), np.abs(hi - self.center))
-        self.limit = plausible * half
 
     def start_sigma(self, c: str) -> float:
         readings, tn = self.noise0
@@ -178,8 +188,9 @@ class TrackerSpec:
     def key(self, k: int) -> str:
         return pose_key(self.measurements, k)
 
-    def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
-              corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:
+    def scaled(self, scale: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
+        """The readings' sigmas (N, 6 + n_joints) and the tracker's whitening (N, blocks, 3, 3)
+        with the variance components' factors ``scale`` applied."""
         s = self.sigma_all.copy()
         w = self.whitening_all.copy()
         nj = self.robot.n_joints
@@ -190,6 +201,11 @@ class TrackerSpec:
                     w[:, b, row, :] /= f
             else:
                 s[:, self.cols[c]] *= f
+        return s, w
+
+    def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
+              corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:
+        s, w = self.scaled(scale)
         m, st = self.measurements, self.setup
         return _core.implicit_loop_tracker(
             self.robot._geometry, st.kind, st.registration,

@@ -31,10 +31,15 @@ from .._io import atomic_write_text
 from ..measurements import (
     _JOINT_RE,
     _LEG_COLUMNS,
+    _PAYLOAD_COLUMNS,
+    _TEMPERATURE_COLUMNS,
     MeasurementFileError,
+    _effect_inputs,
     _limit_problem,
+    _strip_effect_columns,
     _summarise,
     csv_rows,
+    effect_inputs,
     read_csv_text,
 )
 from .data import TrackerMeasurements
@@ -228,15 +233,18 @@ def read_tracker_data(path: str | os.PathLike[str], setup: TrackerSetup,
         extra = [f"reflector{n}_{c}_mm" for n in setup.names for c in _XYZ]
     else:
         extra = list(_PROBE_COLUMNS)
-    _check_columns(header[i:], list(_LEG_COLUMNS) + extra, where, i)
+    columns, n_effect = _effect_header(header[i:])
+    _check_columns(columns, list(_LEG_COLUMNS) + extra, where, i)
     problems: list[tuple[int, str]] = []
     good = _readings(header, rows, types, problems)
+    loads = _effect_values(header, rows, n_effect, problems)
     nr = len(types) + 6
     ids, q, legs, meas, lines = [], [], [], [], []
     units = ["mm"] * len(extra) if setup.kind == "points" else ["mm"] * 3 + ["rad"] * 3
     for lineno, fields in rows:
         vals = [_value(f, u, lineno, n, problems, allow_empty=setup.kind == "points")
-                for f, u, n in zip(fields[1 + nr:], units, extra, strict=True)]
+                for f, u, n in zip(fields[1 + nr: 1 + nr + len(extra)], units, extra,
+                                   strict=True)]
         if lineno not in good or any(v is None for v in vals):
             continue
         arr = np.array(vals, dtype=float)
@@ -261,11 +269,75 @@ def read_tracker_data(path: str | os.PathLike[str], setup: TrackerSetup,
         lines.append(lineno)
     if problems:
         raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad row')}")
-    return _build(setup, types, q, legs, meas, lines, str(path), ids)
+    return _build(setup, types, q, legs, meas, lines, str(path), ids,
+                  _effect_table(header, n_effect, loads, lines, str(path)))
+
+
+def _effect_header(columns: list[str]) -> tuple[list[str], int]:
+    """The columns without the optional payload and temperature columns at the end (issue 23,
+    docs/effects.md), and how many there are."""
+    stripped, (_, n_effect) = _strip_effect_columns(list(columns))
+    return stripped, n_effect
+
+
+def _effect_values(header: list[str], rows: list[tuple[int, list[str]]], n_effect: int,
+                   problems: list[tuple[int, str]]) -> dict[int, list[float]]:
+    """The payload and temperature values of each row (the last ``n_effect`` fields), by line;
+    a bad value is a problem named by line and column."""
+    out: dict[int, list[float]] = {}
+    if not n_effect:
+        return out
+    names = header[len(header) - n_effect:]
+    for lineno, fields in rows:
+        vals = []
+        for f, name in zip(fields[len(fields) - n_effect:], names, strict=True):
+            try:
+                v = float(f)
+            except ValueError:
+                problems.append((lineno, f"line {lineno}, column {name}: {f!r} is not a number"))
+                break
+            if not math.isfinite(v):
+                problems.append((lineno, f"line {lineno}, column {name}: {f!r} is not finite"))
+                break
+            vals.append(v)
+        else:
+            out[lineno] = vals
+    return out
+
+
+def _effect_table(header: list[str], n_effect: int, values: dict[int, list[float]],
+                  lines: list[int], source: str) -> dict[str, Any]:
+    """``payload`` and ``temperatures`` of :class:`TrackerMeasurements` from the effect columns'
+    values of the poses at ``lines`` (none: both None); a value out of range names its line."""
+    if not n_effect:
+        return {}
+    names = header[len(header) - n_effect:]
+    cols = {name: np.array([values[ln][c] for ln in lines]) for c, name in enumerate(names)}
+    table = effect_inputs(cols, source)
+    for k, ln in enumerate(lines):  # the range checks, line by line
+        try:
+            _effect_inputs(*(None if v is None else v[k:k + 1] for v in table.values()), 1)
+        except ValueError as exc:
+            raise MeasurementFileError(f"{source}, line {ln}: "
+                                       + str(exc).replace("row 0, ", "")) from None
+    return table
+
+
+def _effect_columns(data: TrackerMeasurements) -> tuple[list[str], np.ndarray | None]:
+    """The payload and temperature columns of ``data`` (issue 23), and their values."""
+    parts = [a for a in (data.payload, data.temperatures) if a is not None]
+    if not parts:
+        return [], None
+    cols = list(_PAYLOAD_COLUMNS) if data.payload is not None else []
+    if data.temperatures is not None:
+        cols += list(_TEMPERATURE_COLUMNS[data.temperatures.shape[1]])
+    return cols, np.hstack(parts)
 
 
 def _build(setup: TrackerSetup, types: str, q: list[Any], legs: list[Any], meas: list[Any],
-           lines: list[int], source: str, ids: list[str]) -> TrackerMeasurements:
+           lines: list[int], source: str, ids: list[str],
+           loads: dict[str, Any] | None = None) -> TrackerMeasurements:
+    loads = loads or {}
     n = len(legs)
     q_arr = np.array(q, dtype=float).reshape(n, len(types))
     _refuse_repeats(np.hstack([q_arr, np.array(legs, dtype=float).reshape(n, 6),
@@ -273,10 +345,10 @@ def _build(setup: TrackerSetup, types: str, q: list[Any], legs: list[Any], meas:
     try:
         if setup.kind == "points":
             out = TrackerMeasurements(q_arr, legs, points=np.array(meas).reshape(n, -1, 3),
-                                      joint_types=types, lines=lines, source=source)
+                                      joint_types=types, lines=lines, source=source, **loads)
         else:
             out = TrackerMeasurements(q_arr, legs, probe=meas, joint_types=types, lines=lines,
-                                      source=source)
+                                      source=source, **loads)
     except ValueError as exc:
         raise MeasurementFileError(f"{source}: {exc}") from None
     out.pose_ids = list(ids)  # type: ignore[attr-defined]
@@ -353,9 +425,11 @@ def _join_points(path: Path, entries: list[tuple[int, str, str, Callable[[], Any
     rheader, rline, _, rrows = _read_rows(readings)
     rwhere = f"{readings}, line {rline}"
     types, i = _joint_header(rheader, rwhere)
-    _check_columns(rheader[i:], list(_LEG_COLUMNS), rwhere, i)
+    columns, n_effect = _effect_header(rheader[i:])
+    _check_columns(columns, list(_LEG_COLUMNS), rwhere, i)
     rproblems: list[tuple[int, str]] = []
     good = _readings(rheader, rrows, types, rproblems)
+    loads = _effect_values(rheader, rrows, n_effect, rproblems)
     if rproblems:
         raise MeasurementFileError(f"{readings}, {_summarise(rproblems, 'bad row')}")
     by_id = {pose: (lineno, vals) for lineno, (pose, vals) in good.items()}
@@ -391,9 +465,11 @@ def _join_points(path: Path, entries: list[tuple[int, str, str, Callable[[], Any
             f"{readings}, {_summarise([(ln, f'line {ln}: pose {p!r} has no point in {path}') for ln, p in sorted(unseen)], 'bad row')}")  # noqa: E501
     order = sorted(by_id.items(), key=lambda item: item[1][0])
     nj = len(types)
+    rlines = [ln for _, (ln, _) in order]
     out = _build(setup, types, [v[:nj] for _, (_, v) in order],
                  [v[nj:] for _, (_, v) in order], [points[p] for p, _ in order],
-                 [ln for _, (ln, _) in order], f"{readings} + {path}", [p for p, _ in order])
+                 rlines, f"{readings} + {path}", [p for p, _ in order],
+                 _effect_table(rheader, n_effect, loads, rlines, str(readings)))
     if sigmas:
         try:
             out.point_sigma = out._check_sigma([sigmas.get(p, np.full((k_refl, 3), np.nan))
@@ -426,6 +502,10 @@ def write_tracker_wide(path: str | os.PathLike[str], setup: TrackerSetup,
     else:
         cols += list(_PROBE_COLUMNS)
         extra = data.probe
+    effect_cols, effect_vals = _effect_columns(data)
+    if effect_vals is not None:
+        cols += effect_cols
+        extra = np.hstack([extra, effect_vals])
     buf = io.StringIO()
     buf.write(HEADER_COMMENT)
     buf.write("# then the points measured in the tracker frame {T} (empty: not seen), or the "
@@ -448,9 +528,11 @@ def write_tracker_long(points_path: str | os.PathLike[str],
     buf = io.StringIO()
     buf.write(HEADER_COMMENT)
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(_reading_columns(data))
+    effect_cols, effect_vals = _effect_columns(data)
+    w.writerow(_reading_columns(data) + effect_cols)
     for k in range(len(data)):
-        w.writerow([str(k + 1), *[_fmt(v) for v in data.q[k]], *[_fmt(v) for v in data.legs[k]]])
+        w.writerow([str(k + 1), *[_fmt(v) for v in data.q[k]], *[_fmt(v) for v in data.legs[k]],
+                    *([] if effect_vals is None else [_fmt(v) for v in effect_vals[k]])])
     readings_text = buf.getvalue()
     buf = io.StringIO()
     buf.write("# iwr laser-tracker points in the tracker frame {T} (mm), one row per point seen; "

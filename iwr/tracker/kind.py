@@ -132,6 +132,10 @@ class _TrackerKind(MeasurementKind):
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:
+        if robot.effects:  # issue 23: loads, temperatures, gravity through the registration
+            from ..effects.tracker import simulate as simulate_effects
+
+            return simulate_effects(robot, n_poses, seed=seed, x=x, noise=noise)
         return tracker_simulate(robot, n_poses, seed=seed, x=x, noise=noise)
 
     def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
@@ -181,25 +185,47 @@ class _TrackerKind(MeasurementKind):
         return kind_parameter_error(self, robot, data, x, truth)
 
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the point objective with the effects (numpy)
+            from ..effects.tracker import identify as identify_effects
+
+            return identify_effects(robot, data, method, **options)
         return tracker_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: forward kinematics under each pose's load and temperature
+            from ..effects.tracker import accuracy as accuracy_effects
+
+            return accuracy_effects(robot, data, x, truth=options.get("truth"),
+                                    tool=options.get("tool"))
         return tracker_accuracy(robot, data, x, truth=options.get("truth"),
                                 tool=options.get("tool"))
 
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the null directions of the objective with the effects
+            from ..effects.tracker import identifiability as identifiability_effects
+
+            return identifiability_effects(robot, data, x, rtol=options.get("rtol"))
         return tracker_identifiability(robot, data, x, rtol=options.get("rtol"))
 
     def uncertainty(self, robot: Any, data: Any, x: Any, noise: Any, **options: Any) -> Any:
         return _tracker_uncertainty(robot, data, x, noise, options.get("active"))
 
     def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the loop closure with the effects (numpy solver)
+            from ..effects.tracker import estimator as effect_estimator
+
+            return effect_estimator(robot, data, noise, **options)
         return TrackerSpec(robot, data, noise, options["x0"], options["active"],
                            options["estimate"], options["bounds"], options["plausible"])
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
                      ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:
         from .registration import RegistrationError
+
+        if robot.effects:  # issue 23: the effects' parameters beside the robot's and the setup's
+            from ..effects.tracker import plausibility as plausibility_effects
+
+            return plausibility_effects(robot, data, bounds, plausible)
 
         given = not (bounds is None or isinstance(bounds, str))
         try:  # the problem identify searched, its setup bounds about the registration guess

@@ -69,8 +69,10 @@ class TrackerProblem(ProblemBase):
     data_name = "iwr.tracker.TrackerMeasurements"
     setup_type = TrackerSetup
     setup_name = "iwr.tracker.TrackerSetup"
-    # issue 23: the effects are modelled on pose data only so far (docs/effects.md)
-    effects_what = "tracker data (TrackerProblem)"
+    # issue 23: the C++ point objective models the geometry only; tracker data with effects run
+    # on iwr.effects.tracker.TrackerEffectProblem (numpy; docs/effects.md)
+    effects_what = ("the C++ point objective of tracker data (TrackerProblem, which DE, CRS2, "
+                    "BOBYQA, the uncertainty, pose planning and the calibration job use)")
 
     def __init__(self, robot: Robot, setup: TrackerSetup, measurements: TrackerMeasurements,
                  bounds: Any = None, *, center: Any = None, reference: Any = None,

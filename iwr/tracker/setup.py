@@ -10,6 +10,7 @@ from typing import Any
 import numpy as np
 from scipy.spatial.transform import Rotation
 
+from ..effects.builtin import STANDARD_GRAVITY
 from ..measurements import MAX_LENGTH_MM
 from ..transforms import euler_zyx, pose_from_matrix, pose_matrix
 
@@ -100,6 +101,24 @@ def _reflectors(value: Any) -> np.ndarray:
                      for k, row in enumerate(rows, 1)])
 
 
+#: Gravity in a levelled tracker's frame {T} (m/s^2): along its -z axis, standard gravity.
+LEVEL_GRAVITY = np.array([0.0, 0.0, -STANDARD_GRAVITY])
+
+
+def _gravity(value: Any) -> np.ndarray:
+    """Gravity in {T} (m/s^2), default :data:`LEVEL_GRAVITY`; its norm within 1 % of standard
+    gravity (a wrong direction is a sign or an axis, not a scale)."""
+    if value is None:
+        return LEVEL_GRAVITY.copy()
+    g = _numbers(value, 3, "gravity_m_s2", "m/s^2 in the tracker frame {T}")
+    norm = float(np.linalg.norm(g))
+    if abs(norm / STANDARD_GRAVITY - 1.0) > 0.01:
+        raise ValueError(f"gravity_m_s2: {g.tolist()} has norm {norm:.6g} m/s^2; expected "
+                         f"{STANDARD_GRAVITY} within 1 % (gravity in the tracker frame {{T}}, "
+                         "m/s^2; a levelled tracker's is [0, 0, -9.80665])")
+    return g
+
+
 class TrackerSetup:
     """A laser tracker's measurement setup, nominal values (docs/tracker.md).
 
@@ -120,6 +139,11 @@ class TrackerSetup:
         four virtual points, the probe's origin and points this far along its three axes.
     names : list of str, optional
         Reflector names (as the tracker software exports them); default ``"1", "2", ...``.
+    gravity : array_like, shape (3,), optional
+        The acceleration of gravity in the tracker frame {T} (m/s^2; its norm within 1 % of
+        9.80665), what the effects' leg forces take on tracker data (docs/effects.md, "Tracker
+        data"): it reaches the robot through the identified registration. Default
+        ``(0, 0, -9.80665)``: a levelled tracker, gravity along -z of {T}.
 
     Exactly one of ``reflectors`` and ``probe`` is given.
 
@@ -142,8 +166,10 @@ class TrackerSetup:
         probe: Any = None,
         probe_length: float = 100.0,
         names: Any = None,
+        gravity: Any = None,
     ) -> None:
         self.registration = _pose(registration, "registration")
+        self.gravity = _gravity(gravity)
         if (reflectors is None) == (probe is None):
             raise ValueError("TrackerSetup: give either reflectors=[(x, y, z), ...] or probe="
                              "(x, y, z, alpha, beta, gamma), not both or neither")
@@ -251,7 +277,8 @@ class TrackerSetup:
             reg = pose_from_matrix(reg)
         return TrackerSetup(reg, reflectors=self.reflectors, probe=self.probe,
                             probe_length=self.probe_length,
-                            names=self.names if self.kind == "points" else None)
+                            names=self.names if self.kind == "points" else None,
+                            gravity=self.gravity)
 
     def with_parameters(self, x_setup: Any) -> TrackerSetup:
         """The setup whose nominal values are this one's corrected by ``x_setup`` (the setup's
@@ -261,12 +288,14 @@ class TrackerSetup:
         reg = pose_from_matrix(self.registration_matrix(xs))
         if self.kind == "points":
             return TrackerSetup(reg, reflectors=self.platform_points(xs),
-                                probe_length=self.probe_length, names=self.names)
+                                probe_length=self.probe_length, names=self.names,
+                                gravity=self.gravity)
         assert self.probe is not None
         t = np.eye(4)
         t[:3, :3] = Rotation.from_rotvec(xs[9:12]).as_matrix() @ euler_zyx(*self.probe[3:])
         t[:3, 3] = self.probe[:3] + xs[6:9]
-        return TrackerSetup(reg, probe=pose_from_matrix(t), probe_length=self.probe_length)
+        return TrackerSetup(reg, probe=pose_from_matrix(t), probe_length=self.probe_length,
+                            gravity=self.gravity)
 
     # -- TOML -----------------------------------------------------------------------------------
     def to_dict(self) -> dict[str, Any]:
@@ -281,6 +310,8 @@ class TrackerSetup:
             assert self.probe is not None
             d["probe"] = [float(v) for v in self.probe]
             d["probe_length"] = self.probe_length
+        if not np.array_equal(self.gravity, LEVEL_GRAVITY):  # written only when not levelled
+            d["gravity_m_s2"] = [float(v) for v in self.gravity]
         return d
 
     @classmethod
@@ -288,7 +319,7 @@ class TrackerSetup:
         """Read :meth:`to_dict`'s table; errors name the key (``where.key``)."""
         if not isinstance(table, Mapping):
             raise ValueError(f"{where}: expected a table, got {type(table).__name__}")
-        known = {"registration", "reflectors", "names", "probe", "probe_length"}
+        known = {"registration", "reflectors", "names", "probe", "probe_length", "gravity_m_s2"}
         unknown = sorted(set(table) - known)
         if unknown:
             raise ValueError(f"{where}: unknown key(s) {', '.join(unknown)}; expected "
@@ -301,7 +332,7 @@ class TrackerSetup:
         try:
             return cls(table["registration"], reflectors=table.get("reflectors"),
                        probe=table.get("probe"), probe_length=table.get("probe_length", 100.0),
-                       names=table.get("names"))
+                       names=table.get("names"), gravity=table.get("gravity_m_s2"))
         except ValueError as exc:
             raise ValueError(f"{where}: {exc}") from None
 

@@ -141,12 +141,13 @@ def perturb_measurements(robot: Robot, clean: TrackerMeasurements, noise: Noise,
                        noise.joint_angles)
     q = clean.q + sigma_q * rng.standard_normal(clean.q.shape)
     legs = clean.legs + noise.legs * rng.standard_normal(clean.legs.shape)
+    loads = {"payload": clean.payload, "temperatures": clean.temperatures}  # issue 23: kept
     if clean.points is not None:
         return TrackerMeasurements(q, legs, points=tracker_noise.perturb(clean.points, rng),
-                                   joint_types=clean.joint_types)
+                                   joint_types=clean.joint_types, **loads)
     t = pose_matrix(clean.probe)
     t[:, :3, 3] = tracker_noise.perturb(t[:, :3, 3], rng)
     turn = Rotation.from_rotvec(tracker_noise.orientation * rng.standard_normal((len(clean), 3)))
     t[:, :3, :3] = turn.as_matrix() @ t[:, :3, :3]
     return TrackerMeasurements(q, legs, probe=np.array([pose_from_matrix(m) for m in t]),
-                               joint_types=clean.joint_types)
+                               joint_types=clean.joint_types, **loads)

@@ -1,0 +1,965 @@
+"""Laser-tracker data (reflector points or a probe in the tracker frame {T}) for a robot with
+non-geometric effects (issue 23, docs/effects.md, "Tracker data").
+
+The platform pose in {0} is not measured: it follows from the joint and leg readings by forward
+kinematics *with the effects* (each leg's true length is its reading plus the leg offset plus
+the effects' change, which depends on the pose through the leg forces and lengths), and the
+points are ``T_T0 0T5 r_i`` as without effects (:mod:`iwr.tracker`).
+
+**Gravity comes through the registration.** The leg forces need gravity relative to the robot.
+Tracker data do not fix {0}: a turn of the whole robot about its first joint's axis, and its
+translations, are absorbed by the registration (the gauge of docs/tracker.md). A gravity vector
+given in {0} would turn with that gauge, so that two parameter vectors the points cannot tell
+apart would load the legs differently: the gauge would be decided by the compliance alone,
+through a signal a million times smaller than the geometry's. Gravity is therefore given where
+it is known, in the tracker frame (:attr:`iwr.tracker.TrackerSetup.gravity`, a levelled tracker's
+``-z`` by default), and carried into {0} by the identified registration:
+``g_0 = R_T0(x_setup)^T g_T`` (:func:`registration_gravity`). Every gauge motion then moves
+{0} and gravity in it together, and the objective is exactly invariant along it (a test checks
+it); the registration's two tilts, which the geometry identifies (docs/tracker.md), fix gravity
+relative to the robot. The compliance effect's own ``gravity_m_s2`` (in {0}) is for pose data,
+which measure in {0}; on tracker data it is not used.
+
+Unknowns: the robot's geometric errors, the effects' parameters, then the setup's (registration
+and reflector or probe offsets): ``x = (x_geometric, x_effects, x_setup)``.
+"""
+
+from __future__ import annotations
+
+import copy
+from typing import Any
+
+import numpy as np
+
+from .. import _core
+from ..problem_base import FAILED_RESIDUAL, check_joint_types
+from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
+from . import LegState
+from . import bounds as effect_bounds
+from . import parameter_names as effect_names
+from .loop import _skew, loop_jacobians, right_jacobian
+from .model import _compliance, check_inputs, leg_forces, leg_vectors_at, loads
+
+__all__ = ["EffectTrackerSpec", "TrackerEffectModel", "TrackerEffectProblem", "accuracy",
+           "base_parameters", "effect_tracker_problem", "gravity_jacobian", "identifiability",
+           "identify", "leg_commands", "loop_model", "predicted_accuracy",
+           "registration_gravity", "simulate", "tool_frames", "with_gravity"]
+
+#: The relative rank threshold of the objective with effects (of its column-scaled Jacobian's
+#: largest singular value): the Jacobian rests on forward kinematics solved to
+#: :data:`FK_TOLERANCE_MM`, so directions the geometry cannot see show singular values up to
+#: about 1e-11 instead of round-off's 1e-15; the weakest the data do see are above 1e-7 (the
+#: platform frame relative to the loads, docs/effects.md).
+RANK_RTOL = 1e-9
+#: Newton's method for the forward kinematics with effects: the largest leg residual (mm) at
+#: which a pose is solved, and the iterations allowed.
+FK_TOLERANCE_MM = 1e-11
+FK_MAX_ITERATIONS = 30
+
+
+def registration_gravity(setup: Any, x_setup: Any) -> tuple[np.ndarray, np.ndarray]:
+    """Gravity in {0} (3,) (m/s^2) at the setup's parameters ``x_setup``, ``R_T0^T g_T``, and its
+    derivative in them (3, setup.n_params): with ``R_T0 = R_nom Exp(r)``,
+    ``d g_0 / d r = [g_0]x J_r(r)`` (only the registration's rotation moves it)."""
+    xs = np.asarray(x_setup, dtype=float)
+    rot = setup.registration_matrix(xs)[:3, :3]
+    g0 = rot.T @ setup.gravity
+    d = np.zeros((3, setup.n_params))
+    d[:, 3:6] = _skew(g0) @ right_jacobian(xs[3:6])
+    return g0, d
+
+
+def with_gravity(robot: Any, gravity: np.ndarray) -> Any:
+    """``robot`` whose effects that load the legs under gravity take ``gravity`` (in {0})."""
+    effects = []
+    for e in robot.effects:
+        if hasattr(e, "gravity"):
+            e = copy.copy(e)
+            e.gravity = np.array(gravity, dtype=float)
+        effects.append(e)
+    return robot.with_effects(*effects)
+
+
+def _needs(robot: Any) -> set[str]:
+    out: set[str] = set()
+    for e in robot.effects:
+        out |= e.needs
+    return out
+
+
+def _corrected(poses: np.ndarray, corr: np.ndarray | None, nj: int) -> np.ndarray:
+    """The platform transforms (N, 4, 4) at poses moved by corrections ``(dq, dp, w)``."""
+    t5 = pose_matrix(poses)
+    if corr is not None:
+        t5[:, :3, :3] = t5[:, :3, :3] @ rotvec_matrix(corr[:, nj + 3:])
+        t5[:, :3, 3] += corr[:, nj: nj + 3]
+    return t5
+
+
+def gravity_jacobian(robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, data: Any,
+                     corrections: Any = None) -> np.ndarray:
+    """The derivative (N, 6, 3) of the predicted leg readings in the gravity vector (in {0}),
+    at the same point as :func:`iwr.effects.loop.loop_jacobians`: the forces are linear in
+    gravity, ``f = sum_c g_c f(e_c)``, and each effect's change is differentiated through its
+    :class:`LegState` in the three components (:meth:`iwr.effects.Effect.leg_change`)."""
+    n, nj, ng = len(poses), robot.n_joints, robot.n_params
+    out = np.zeros((n, 6, 3))
+    if "forces" not in _needs(robot):
+        return out
+    xg, xe = x[:ng], x[ng:]
+    corr = None if corrections is None else np.asarray(corrections, dtype=float)
+    q_c = q if corr is None else q + corr[:, :nj]
+    t5 = _corrected(poses, corr, nj)
+    v, _, r = leg_vectors_at(robot, xg, q_c, t5)
+    comp = _compliance(robot)
+    masses, centres = loads(comp, data, n)
+    rot = t5[:, :3, :3]
+    unit = np.stack([leg_forces(v, None, r, None, rot, masses, centres, e)[0]
+                     for e in np.eye(3)], axis=2)  # (N, 6, 3)
+    length = np.linalg.norm(v, axis=2)
+    temps = None
+    if "temperatures" in _needs(robot):
+        temps = np.broadcast_to(data.temperatures, (n, 6))
+    state = LegState(length, np.zeros((n, 6, 3)), unit @ comp.gravity, unit, temps)
+    col = 0
+    for e in robot.effects:
+        k = len(e.parameter_names())
+        _, d_g, _ = e.leg_change(state, e.values() + xe[col: col + k])
+        out -= d_g
+        col += k
+    return out
+
+
+def _readings(robot: Any, xr: np.ndarray, q: np.ndarray, poses: np.ndarray, data: Any
+              ) -> tuple[np.ndarray, np.ndarray]:
+    """The leg readings (N, 6) the robot with ``xr`` (geometric, effects) predicts at platform
+    poses ``poses`` under ``data``'s loads and temperatures, without their derivatives in the
+    parameters, and the geometry's derivative in the pose corrections ``(dp, w)`` (N, 6, 6)."""
+    ng, nj = robot.n_params, robot.n_joints
+    xg, xe = np.ascontiguousarray(xr[:ng]), xr[ng:]
+    legs, _, jy = _core.loop_jacobians(robot._geometry, xg, q, poses, np.zeros((0, 0)))
+    n = len(poses)
+    lengths = legs + robot.leg_offsets + xg[4 * nj + 36: 4 * nj + 42]
+    needs = _needs(robot)
+    forces = temps = None
+    if "forces" in needs:
+        t5 = pose_matrix(poses)
+        v, _, r = leg_vectors_at(robot, xg, q, t5)
+        comp = _compliance(robot)
+        masses, centres = loads(comp, data, n)
+        forces = leg_forces(v, None, r, None, t5[:, :3, :3], masses, centres, comp.gravity)[0]
+    if "temperatures" in needs:
+        temps = np.broadcast_to(data.temperatures, (n, 6))
+    state = LegState(lengths, np.zeros((n, 6, 0)), forces, np.zeros((n, 6, 0)), temps)
+    out = legs.copy()
+    col = 0
+    for e in robot.effects:
+        k = len(e.parameter_names())
+        out -= e.leg_change(state, e.values() + xe[col: col + k])[0]
+        col += k
+    return out, jy.reshape(n, 6, nj + 6)[:, :, nj:]
+
+
+def _platform_points(setup: Any, xs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The points in {5} (P, 3) and their derivatives in the setup's parameters (P, 3, ns)."""
+    local = setup.platform_points(xs)
+    d = np.zeros((len(local), 3, setup.n_params))
+    if setup.kind == "points":
+        for i in range(len(local)):
+            d[i, :, 6 + 3 * i: 9 + 3 * i] = np.eye(3)
+        return local, d
+    d[:, :, 6:9] = np.eye(3)
+    # R_probe = Exp(r) R_nom: d (Exp(r) v) / dr = -[Exp(r) v]x J_l(r), J_l(r) = J_r(-r).
+    jl = right_jacobian(-xs[9:12])
+    for i in range(1, 4):
+        d[i, :, 9:12] = -_skew(local[i] - local[0]) @ jl
+    return local, d
+
+
+class TrackerEffectModel:
+    """The model of tracker data for a robot with effects: forward kinematics with the effects
+    from the readings, the predicted points in {T}, and their exact derivatives in
+    ``x = (x_geometric, x_effects, x_setup)`` (implicit differentiation of the loop closure with
+    the effects, gravity through the registration)."""
+
+    def __init__(self, robot: Any, setup: Any, data: Any) -> None:
+        self.robot, self.setup, self.data = robot, setup, data
+        self.n_geometric = robot.n_params
+        self.n_effects = len(effect_names(robot.effects))
+        self.n_params = self.n_geometric + self.n_effects + setup.n_params
+        self.geometric = robot.with_effects()
+
+    def split(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``x`` as (robot's geometric and effect parameters, setup's)."""
+        x = np.asarray(x, dtype=float)
+        if x.shape != (self.n_params,):
+            raise ValueError(
+                f"x: shape {x.shape}; expected ({self.n_params},): {self.n_geometric} geometric "
+                f"errors, {self.n_effects} effect parameters ("
+                + ", ".join(effect_names(self.robot.effects)) + f"), then the tracker setup's "
+                f"{self.setup.n_params}")
+        return x[: self.n_geometric + self.n_effects], x[self.n_geometric + self.n_effects:]
+
+    def forward(self, x: Any, q: Any = None, legs: Any = None, data: Any = None
+                ) -> tuple[np.ndarray, np.ndarray]:
+        """The platform poses in {0} (N, 6) at which the robot with ``x`` gives the readings
+        (default the data's) under the loads and temperatures of ``data`` (default the data's),
+        and a mask of the poses solved (the others NaN): Newton's method with the exact pose
+        Jacobian of the loop closure, from the geometric forward kinematics of the C++ core."""
+        xr, xs = self.split(x)
+        data = self.data if data is None else data
+        q = np.ascontiguousarray(data.q if q is None else q, dtype=float)
+        legs = np.asarray(data.legs if legs is None else legs, dtype=float)
+        robot = with_gravity(self.robot, registration_gravity(self.setup, xs)[0])
+        nj, ng = robot.n_joints, robot.n_params
+        n = len(legs)
+        poses = np.full((n, 6), np.nan)
+        for k in range(n):  # pose by pose, so that one failure is not fatal
+            try:
+                poses[k] = _core.forward_kinematics(
+                    robot._geometry, np.ascontiguousarray(xr[:ng]), q[k:k + 1],
+                    np.ascontiguousarray(legs[k:k + 1]), np.zeros((0, 6)), robot.home_pose)[0][0]
+            except _core.ForwardKinematicsError:
+                pass
+        ok = np.all(np.isfinite(poses), axis=1)
+        live = np.flatnonzero(ok)
+        sub = data.subset(live) if live.size < n and live.size else data
+        # Newton's method with the geometry's pose Jacobian (the effects change it by a part
+        # in 1e5: the convergence is linear at that rate), the readings with the effects.
+        h = np.full((live.size, 6), np.inf)
+        for _ in range(FK_MAX_ITERATIONS + 1):
+            if not live.size:
+                break
+            pred, jy = _readings(robot, xr, q[live], poses[live], sub)
+            h = pred - legs[live]
+            if np.abs(h).max() <= FK_TOLERANCE_MM:
+                break
+            try:
+                step = -np.linalg.solve(jy, h[..., None])[..., 0]
+            except np.linalg.LinAlgError:
+                break
+            t5 = _corrected(poses[live], np.concatenate([np.zeros((live.size, nj)), step],
+                                                        axis=1), nj)
+            poses[live] = pose_from_matrix(t5)
+        if live.size:
+            bad = ~(np.abs(h).max(axis=1) <= 1e3 * FK_TOLERANCE_MM)
+            ok[live[bad]] = False
+            poses[live[bad]] = np.nan
+        return poses, ok
+
+    def points(self, x: Any, jacobian: bool = False) -> tuple[np.ndarray, Any, np.ndarray]:
+        """The predicted points in {T} (N, P, 3), their derivatives in ``x`` (N, P, 3, n_params)
+        when ``jacobian``, and the mask of the poses whose forward kinematics was solved (the
+        others NaN, zero derivatives)."""
+        xr, xs = self.split(x)
+        data, setup = self.data, self.setup
+        poses, ok = self.forward(x)
+        g0, dg0 = registration_gravity(setup, xs)
+        robot = with_gravity(self.robot, g0)
+        local, dlocal = _platform_points(setup, xs)
+        reg = setup.registration_matrix(xs)
+        t5 = pose_matrix(np.where(ok[:, None], poses, 0.0))
+        world = np.einsum("kab,pb->kpa", t5[:, :3, :3], local) + t5[:, None, :3, 3]  # in {0}
+        pts = world @ reg[:3, :3].T + reg[:3, 3]
+        pts[~ok] = np.nan
+        if not jacobian:
+            return pts, None, ok
+        n, npt, nj = len(data), len(local), robot.n_joints
+        nr = xr.size
+        jac = np.zeros((n, npt, 3, self.n_params))
+        live = np.flatnonzero(ok)
+        if not live.size:
+            return pts, jac, ok
+        sub = data.subset(live) if live.size < n else data
+        _, jx, jy = loop_jacobians(robot, xr, data.q[live], poses[live], sub)
+        jg = gravity_jacobian(robot, xr, data.q[live], poses[live], sub)
+        # The loop closure legs(x, pose (+) d) = readings: d d / d x = -J_pose^-1 d legs / d x.
+        rhs = np.concatenate([jx, jg @ dg0], axis=2)  # (n, 6, nr + ns)
+        d_pose = -np.linalg.solve(jy[:, :, nj:], rhs)  # (n, 6, nr + ns): (dp, w)
+        r_reg = reg[:3, :3]
+        rot = t5[live, :3, :3]
+        # A point moves with the pose: R_T0 (dp + R [w]x r) = R_T0 (dp - R [r]x w).
+        d_pt = np.zeros((live.size, npt, 3, 6))
+        d_pt[..., :3] = r_reg
+        d_pt[..., 3:] = -np.einsum("ab,kbc,pcd->kpad", r_reg, rot, _skew(local))
+        jac[live] = np.einsum("kpad,kdx->kpax", d_pt, d_pose)
+        # The setup's own: T_T0 = T_nom [Exp(r), t] (t in the nominal frame's axes), the points
+        # in {5} (offsets).
+        r_nom = pose_matrix(setup.registration)[:3, :3]
+        c_rot = r_nom.T @ r_reg  # Exp(r)
+        ns = slice(nr, self.n_params)
+        jac[live, :, :, nr: nr + 3] += r_nom
+        jac[live, :, :, nr + 3: nr + 6] -= np.einsum(
+            "ab,bc,kpcd,de->kpae", r_nom, c_rot, _skew(world[live]), right_jacobian(xs[3:6]))
+        jac[live, :, :, ns] += np.einsum("ab,kbc,pcx->kpax", r_reg, rot, dlocal)
+        return pts, jac, ok
+
+
+class TrackerEffectProblem:
+    """The point (or probe) objective of tracker data for a robot with effects, a
+    :class:`iwr.problem_base.LeastSquaresProblem`: residual ``3 (K k + i) + c`` is predicted minus
+    measured point ``i`` of pose ``k`` in {T} (mm), zero where a point was not seen, as
+    :class:`iwr.tracker.TrackerProblem`'s; the predicted points follow from forward kinematics
+    with the effects (:class:`TrackerEffectModel`), and the Jacobian is exact (implicit
+    differentiation; checked against central differences). In numpy: LM, the identifiability
+    analysis and the fit check run on it; the C++ global methods do not (DE, CRS2, BOBYQA are
+    refused on tracker data with effects).
+
+    ``bounds``: None or ``"default"`` (the robot's default bounds, the effects' own, the setup's
+    about ``center``), ``"paper"``, or a pair over every parameter."""
+
+    def __init__(self, robot: Any, setup: Any, measurements: Any, bounds: Any = None, *,
+                 center: Any = None) -> None:
+        from ..tracker.data import TrackerMeasurements
+
+        if not robot.effects:
+            raise ValueError(f"robot {robot.name!r}: no effect on; use iwr.tracker.TrackerProblem")
+        if not isinstance(measurements, TrackerMeasurements):
+            raise TypeError(f"measurements: expected an iwr.tracker.TrackerMeasurements, got "
+                            f"{type(measurements).__name__}")
+        measurements.check_setup(setup)
+        check_joint_types(robot, measurements)
+        check_inputs(robot, measurements)
+        self.robot, self.setup, self.measurements = robot, setup, measurements
+        self.model = TrackerEffectModel(robot, setup, measurements)
+        n_all = self.model.n_params
+        if bounds is None or isinstance(bounds, str):
+            lo_r, hi_r = robot.default_bounds(bounds or "default")
+            lo_e, hi_e = effect_bounds(robot.effects)
+            lo_s, hi_s = setup.default_bounds()
+            c = np.zeros(setup.n_params) if center is None else np.asarray(center, dtype=float)
+            if c.shape != (setup.n_params,) or not np.all(np.isfinite(c)):
+                raise ValueError(f"center: expected {setup.n_params} finite values")
+            self.lower = np.concatenate([lo_r, lo_e, lo_s + c])
+            self.upper = np.concatenate([hi_r, hi_e, hi_s + c])
+        else:
+            lo, hi = (np.broadcast_to(np.asarray(b, dtype=float), (n_all,)).copy()
+                      for b in bounds)
+            for i in range(n_all):
+                if not (np.isfinite(lo[i]) and np.isfinite(hi[i]) and lo[i] < hi[i]):
+                    raise ValueError(f"bounds: parameter {i} ({self.parameter_names[i]}) has "
+                                     f"lower {lo[i]}, upper {hi[i]}")
+            self.lower, self.upper = lo, hi
+        meas = measurements.tracker_points(setup)
+        self._measured = meas.reshape(len(measurements), -1, 3)
+        self._seen = ~np.isnan(self._measured[:, :, 0])
+        self.whitening = None
+        self.noise = None
+
+    # -- sizes and names ----------------------------------------------------------------------
+    @property
+    def n_params(self) -> int:
+        return self.model.n_params
+
+    @property
+    def n_poses(self) -> int:
+        return len(self.measurements)
+
+    @property
+    def n_residuals(self) -> int:
+        return int(self._measured[:, :, 0].size * 3)
+
+    @property
+    def n_observations(self) -> int:
+        return 3 * int(self._seen.sum())
+
+    @property
+    def seen(self) -> np.ndarray:
+        return np.repeat(self._seen.ravel(), 3)
+
+    @property
+    def parameter_names(self) -> list[str]:
+        return (self.robot.parameter_names + effect_names(self.robot.effects)
+                + list(self.setup.parameter_names))
+
+    def _x(self, x: Any) -> np.ndarray:
+        self.model.split(x)
+        return np.asarray(x, dtype=float)
+
+    def x0(self, guess: Any = None) -> np.ndarray:
+        """The nominal robot and effects (zeros), the setup's parameters of a registration
+        guess (or zeros)."""
+        xs = np.zeros(self.setup.n_params) if guess is None else np.asarray(guess.x_setup, float)
+        return np.concatenate([np.zeros(self.n_params - self.setup.n_params), xs])
+
+    # -- the objective ------------------------------------------------------------------------
+    def _residuals(self, pts: np.ndarray, ok: np.ndarray) -> np.ndarray:
+        r = pts - self._measured
+        r[~ok] = FAILED_RESIDUAL
+        r[~self._seen] = 0.0
+        return r.reshape(-1)
+
+    def residuals(self, x: Any) -> np.ndarray:
+        pts, _, ok = self.model.points(self._x(x))
+        return self._residuals(pts, ok)
+
+    def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        pts, jac, ok = self.model.points(self._x(x), jacobian=True)
+        jac[~self._seen] = 0.0
+        return self._residuals(pts, ok), jac.reshape(-1, self.n_params)
+
+    def jacobian(self, x: Any) -> np.ndarray:
+        return self.residuals_and_jacobian(x)[1]
+
+    def cost(self, x: Any) -> float:
+        r = self.residuals(x)
+        return float(r @ r)
+
+    cost_unweighted = cost
+
+    def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
+        """The costs of the rows of ``X``, one by one in numpy (``workers`` unused)."""
+        arr = np.asarray(X, dtype=float)
+        if arr.ndim != 2 or arr.shape[1] != self.n_params:
+            raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
+        return np.array([self.cost(x) for x in arr])
+
+    # -- diagnostics --------------------------------------------------------------------------
+    def failures(self, x: Any) -> list[tuple[int, str]]:
+        """Poses whose forward kinematics with the effects fails at ``x``."""
+        _, ok = self.model.forward(self._x(x))
+        return [(int(k), "no forward kinematics with the effects (the legs do not close at "
+                 "these readings)") for k in np.flatnonzero(~ok)]
+
+    def check(self, x: Any) -> None:
+        bad = self.failures(x)
+        if bad:
+            k, msg = bad[0]
+            raise ValueError(f"{self.measurements.where(k)}: {msg} ({len(bad)} poses)")
+
+    def platform_poses(self, x: Any) -> np.ndarray:
+        """World poses of {5} (N, 6) by forward kinematics with the effects; NaN where it
+        fails."""
+        return self.model.forward(self._x(x))[0]
+
+    def predicted_points(self, x: Any) -> np.ndarray:
+        return self.model.points(self._x(x))[0]
+
+    def __repr__(self) -> str:
+        return (f"TrackerEffectProblem(robot={self.robot.name!r}, kind={self.setup.kind!r}, "
+                f"n_poses={self.n_poses}, n_params={self.n_params})")
+
+
+def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0: Any = None
+                           ) -> tuple[TrackerEffectProblem, np.ndarray]:
+    """The problem of tracker data for a robot with effects and its start: the nominal robot and
+    effects with the closed-form registration guess (of the geometry alone: the effects move
+    the points by micrometres), the setup's bounds about it; or ``x0``."""
+    from ..tracker.start import _bounds, _setup, registration_guess
+
+    setup = _setup(robot)
+    n_eff = len(effect_names(robot.effects))
+    n = robot.n_params + n_eff + setup.n_params
+    center = None
+    if x0 is None:
+        guess = registration_guess(robot.with_effects(), measurements)
+        center = guess.x_setup
+        start = np.concatenate([np.zeros(robot.n_params + n_eff), guess.x_setup])
+    else:
+        start = np.array(x0, dtype=float)
+        if start.shape != (n,) or not np.all(np.isfinite(start)):
+            raise ValueError(f"x0: expected {n} finite values (the robot's {robot.n_params}, "
+                             f"{n_eff} effect parameters, then the tracker setup's "
+                             f"{setup.n_params}), got shape {start.shape}")
+    if isinstance(bounds, str) and bounds == "paper":
+        lo, hi = _bounds(robot, setup, bounds, np.zeros(setup.n_params) if center is None
+                         else center)
+        lo_e, hi_e = effect_bounds(robot.effects)
+        ng = robot.n_params
+        bounds = (np.concatenate([lo[:ng], lo_e, lo[ng:]]),
+                  np.concatenate([hi[:ng], hi_e, hi[ng:]]))
+    return TrackerEffectProblem(robot, setup, measurements, bounds, center=center), start
+
+
+def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise: Any = None,
+             payloads: Any = None, temperatures: Any = None, hidden: float = 0.0
+             ) -> tuple[Any, np.ndarray]:
+    """:func:`iwr.simulate` on tracker data for a robot with effects: ``x_true`` (geometric
+    errors, the effects' parameters, the setup's; default uniform within their bounds), random
+    poses of the true robot each with a payload and temperatures (as
+    :func:`iwr.effects.api.simulate`: ``payloads`` taken in turn, default none and the 80 kg
+    head alternating when the compliance effect is on; temperatures one per pose over a day's
+    drift with the thermal effect on), the leg readings the true robot gives there under them
+    (gravity in {0} through the true registration), the points in {T}, and ``noise`` as
+    :func:`iwr.tracker.api.tracker_simulate` takes it. Returns ``(measurements, x_true)``."""
+    from ..noise import Noise, TrackerNoise, split_noise
+    from ..simulation import sample_poses
+    from ..tracker.data import TrackerMeasurements
+    from ..tracker.simulate import perturb_measurements, true_points
+    from ..tracker.start import _setup
+    from .api import DEFAULT_PAYLOADS, DEFAULT_TEMPERATURE_SPREAD
+    from .builtin import LegThermal
+    from .model import predicted_readings
+
+    setup = _setup(robot)
+    if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
+        raise ValueError(f"n_poses: {n_poses!r}; expected a positive integer")
+    readings, tracker = split_noise(noise)
+    readings = Noise() if readings is None else readings
+    tracker = TrackerNoise.none() if tracker is None else tracker
+    if readings.position or readings.orientation:
+        raise ValueError("noise: position and orientation are the noise of a pose measured in "
+                         "{0}; for tracker data give (iwr.Noise(legs=..., joint_...), "
+                         "iwr.tracker.TrackerNoise(...))")
+    if isinstance(hidden, bool) or not (isinstance(hidden, (int, float)) and 0 <= hidden <= 1):
+        raise ValueError(f"hidden: {hidden!r}; expected a fraction in [0, 1]")
+    if hidden and setup.kind == "probe":
+        raise ValueError("hidden: a probe pose is measured whole or not at all")
+    rng = np.random.default_rng(seed)
+    ng = robot.n_params
+    lo_e, hi_e = effect_bounds(robot.effects)
+    n_all = ng + lo_e.size + setup.n_params
+    if x is None:
+        lo_g, hi_g = robot.default_bounds()
+        lo_s, hi_s = setup.default_bounds()
+        lo, hi = np.concatenate([lo_g, lo_e, lo_s]), np.concatenate([hi_g, hi_e, hi_s])
+        x = lo + (hi - lo) * rng.random(n_all)
+    else:
+        x = np.array(x, dtype=float)
+        if x.shape != (n_all,) or not np.all(np.isfinite(x)):
+            raise ValueError(f"x: expected {n_all} finite values ({ng} geometric, "
+                             f"{lo_e.size} effect parameters, then the tracker setup's "
+                             f"{setup.n_params}), got shape {x.shape}")
+    n = int(n_poses)
+    xr, xs = x[: ng + lo_e.size], x[ng + lo_e.size:]
+    q, poses, _ = sample_poses(robot.with_effects(), n, rng, x[:ng])
+    pay = None
+    if payloads is not None or "forces" in _needs(robot):
+        pay = DEFAULT_PAYLOADS if payloads is None else np.asarray(payloads, dtype=float)
+        if pay.ndim != 2 or pay.shape[1] != 4 or len(pay) == 0:
+            raise ValueError(f"payloads: shape {pay.shape}; expected (P, 4): mass kg, centre "
+                             "in {5} mm")
+        pay = pay if len(pay) == n else pay[np.arange(n) % len(pay)]
+    thermal = [e for e in robot.effects if isinstance(e, LegThermal)]
+    if temperatures is None and thermal:
+        lo_t, hi_t = DEFAULT_TEMPERATURE_SPREAD
+        temperatures = thermal[0].reference + lo_t + (hi_t - lo_t) * rng.random(n)
+    pts = true_points(robot, setup, np.concatenate([x[:ng], xs]), poses)
+    hide = rng.random(n) < hidden
+    which = rng.integers(0, setup.n_points, size=n)
+    pts[hide, which[hide]] = np.nan
+    if setup.kind == "points":
+        clean = TrackerMeasurements(q, np.zeros((n, 6)), points=pts, joint_types=robot.joint_types,
+                                    payload=pay, temperatures=temperatures)
+    else:
+        probe = np.array([pose_from_matrix(m) for m in _probe_frames(setup, xs, pts)])
+        clean = TrackerMeasurements(q, np.zeros((n, 6)), probe=probe,
+                                    joint_types=robot.joint_types, payload=pay,
+                                    temperatures=temperatures)
+    true = with_gravity(robot, registration_gravity(setup, xs)[0])
+    clean.legs = predicted_readings(true, xr, q, poses, clean)
+    if readings.is_zero and tracker.is_zero:
+        return clean, x
+    return perturb_measurements(robot, clean, readings, tracker, rng), x
+
+
+def _probe_frames(setup: Any, xs: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """The probe frames (N, 4, 4) in {T} of its four virtual points (origin, then along its
+    axes), as :func:`iwr.tracker.simulate.simulate_tracker` makes them."""
+    origin, axes = pts[:, 0], (pts[:, 1:] - pts[:, :1]) / setup.probe_length
+    mats = np.tile(np.eye(4), (len(pts), 1, 1))
+    mats[:, :3, :3], mats[:, :3, 3] = np.swapaxes(axes, 1, 2), origin
+    return mats
+
+
+# -- what the tracker kinds do with a robot with effects (iwr.tracker.kind) -------------------
+
+#: The methods that model the effects on tracker data.
+TRACKER_METHODS = ("lm", "efficient")
+
+
+def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
+             weighted: Any = None, bounds: Any = None, x0: Any = None, active: Any = None,
+             max_evaluations: int | None = None, seed: int | None = None, callback: Any = None,
+             progress: Any = None, **options: Any) -> Any:
+    """:func:`iwr.identify` on tracker data for a robot with effects: LM on the point (probe)
+    objective with the effects (:class:`TrackerEffectProblem`) from the nominal robot and
+    effects with the registration guess; ``active="base"`` the base parameters of its null
+    space (:func:`identifiability`). Other methods are refused, naming what models the
+    effects."""
+    from ..methods import run_method, settle
+    from ..methods.reduced import active_mask
+
+    names = ", ".join(e.name for e in robot.effects)
+    if method not in TRACKER_METHODS:
+        raise ValueError(
+            f"method {method!r}: robot {robot.name!r} has effects on ({names}); on tracker data "
+            f"the methods that model them are {', '.join(TRACKER_METHODS)} (the point objective "
+            "and the efficient estimator with the effects, in numpy); DE, CRS2 and BOBYQA would "
+            "need the C++ tracker objective with the effects, which does not exist "
+            "(docs/effects.md)")
+    if method == "efficient":
+        from ..estimation import efficient
+
+        if noise is None:
+            raise ValueError("method 'efficient' weighs every instrument by its noise: give "
+                             "noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...)) or "
+                             "noise='estimate'")
+        if weighted is False:
+            raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
+        if max_evaluations is not None:
+            options.setdefault("max_iterations", int(max_evaluations))
+        if isinstance(active, str) and active == "base":
+            active = None
+        if active is not None:
+            problem, _ = effect_tracker_problem(robot, measurements, bounds, x0)
+            active = active_mask(problem, active)
+        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
+                           bounds=bounds, **options)
+        result.check_finite()
+        return result
+    if noise is not None or weighted:
+        raise ValueError(
+            f"noise: robot {robot.name!r} has effects on ({names}); on tracker data method "
+            f"{method!r} minimises the unweighted point objective with the effects: give "
+            "noise=None, or use method 'efficient' (docs/effects.md)")
+    problem, start = effect_tracker_problem(robot, measurements, bounds, x0)
+    if isinstance(active, str) and active == "base":
+        active = base_parameters(robot, measurements, start)
+    mask = active_mask(problem, active)
+    result = run_method(problem, method, mask, start, max_evaluations=max_evaluations,
+                        seed=seed, callback=callback, progress=progress, **options)
+    settle(result, problem, None, mask)
+    return result
+
+
+def identifiability(robot: Any, measurements: Any, x: Any = None, *,
+                    rtol: float | None = None) -> Any:
+    """:func:`iwr.identifiability` on tracker data for a robot with effects: the null
+    directions of the point (probe) objective with the effects at ``x`` (default the nominal
+    robot and effects with the registration guess), one per left-out parameter
+    (:class:`iwr.tracker.NullSpace`); an effect parameter among ``left_out`` cannot be
+    separated from the geometry at these poses and loads. ``rtol`` default
+    :data:`RANK_RTOL`. The loads fix the platform frame {5} weakly: its directions count as
+    identifiable here (with noise they are not: :func:`base_parameters` holds them)."""
+    from ..tracker.gauge import null_space
+
+    problem, start = effect_tracker_problem(robot, measurements)
+    return null_space(problem, start if x is None else x, RANK_RTOL if rtol is None else rtol)
+
+
+def base_parameters(robot: Any, measurements: Any, x: Any = None) -> np.ndarray:
+    """The parameters identified by default (``active="base"``, and the efficient estimator's):
+    the base parameters of the geometry's point (probe) objective, which leave out its 16 null
+    directions (docs/tracker.md: the 6 of leg data, the registration's 4, the platform frame's
+    6), and the effects' parameters but those the data cannot separate from the geometry (a
+    parameter whose column does not raise the rank).
+
+    The effects fix the platform frame {5} relative to the loads (their centres of mass are
+    given in {5}), but only at a part in 1e5 or less of the geometry's signal: with noise those
+    directions would wander by tens of millimetres. So {5} stays where the left-out parameters
+    put it, as without effects, and the loads are read in that frame (docs/effects.md)."""
+    from ..analysis.identifiability import _rank_threshold, _scaled_svd
+    from ..tracker.gauge import null_space
+    from ..tracker.start import tracker_problem
+
+    problem, start = effect_tracker_problem(robot, measurements)
+    x = start if x is None else np.asarray(x, dtype=float)
+    ng, ne = robot.n_params, problem.model.n_effects
+    geometric, _ = tracker_problem(robot.with_effects(), measurements)
+    geo_mask = null_space(geometric, np.concatenate([x[:ng], x[ng + ne:]]), RANK_RTOL).active
+    mask = np.concatenate([geo_mask[:ng], np.zeros(ne, dtype=bool), geo_mask[ng:]])
+    jac = problem.jacobian(x)
+
+    def rank(m: np.ndarray) -> int:
+        _, s, _ = _scaled_svd(jac[:, m])
+        return int(np.sum(s > _rank_threshold(s, (jac.shape[0], int(m.sum())), RANK_RTOL)[0]))
+
+    current = rank(mask)
+    for i in range(ng, ng + ne):  # each effect parameter kept if its column adds a direction
+        trial = mask.copy()
+        trial[i] = True
+        r = rank(trial)
+        if r > current:
+            mask, current = trial, r
+    return mask
+
+
+def plausibility(robot: Any, measurements: Any, bounds: Any, plausible: float
+                 ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:
+    """The tracker kinds' plausibility (:meth:`iwr.kinds.MeasurementKind.plausibility`) with the
+    effects: every parameter measured from the centre of its bounds (the registration guess for
+    the registration) against ``plausible`` times their half-width, modulo the null directions
+    of the objective with the effects."""
+    from ..tracker.registration import RegistrationError
+
+    given = not (bounds is None or isinstance(bounds, str))
+    try:
+        problem, _ = effect_tracker_problem(robot, measurements, None if given else bounds)
+    except RegistrationError:  # too few data for a guess: about the nominal setup
+        problem = TrackerEffectProblem(robot, robot.tracker, measurements)
+    lower, upper = ((np.asarray(bounds[0], dtype=float), np.asarray(bounds[1], dtype=float))
+                    if given else (problem.lower, problem.upper))
+    return (problem.parameter_names, plausible * 0.5 * (upper - lower), 0.5 * (lower + upper),
+            lambda x: problem.residuals_and_jacobian(x))
+
+
+def _joint_frame(robot: Any, xr: np.ndarray) -> np.ndarray:
+    """The platform frame as its six spherical joints fix it, in {5} (4, 4): the frame in which
+    the joints ``b_j(x)`` best match their nominal positions (Kabsch), as
+    :func:`iwr.tracker.analysis.tool_frames` fixes it."""
+    from ..tracker.registration import kabsch
+
+    nj = robot.n_joints
+    b = robot.platform_joints + xr[4 * nj + 18: 4 * nj + 36].reshape(6, 3)
+    r, c = kabsch(robot.platform_joints, b)
+    k4 = np.eye(4)
+    k4[:3, :3], k4[:3, 3] = r, c
+    return k4
+
+
+def tool_frames(robot: Any, x: Any, data: Any) -> np.ndarray:
+    """The platform frames (N, 4, 4) in {T} by forward kinematics with the effects of ``data``'s
+    readings under its loads and temperatures, with the full ``x``; {5} fixed by the six
+    spherical joints (as :func:`iwr.tracker.analysis.tool_frames`)."""
+    model = TrackerEffectModel(robot, robot.tracker, data)
+    xr, xs = model.split(x)
+    poses, ok = model.forward(x)
+    if not ok.all():
+        k = int(np.flatnonzero(~ok)[0])
+        raise ValueError(f"{data.where(k)}: no forward kinematics with the effects at x")
+    return robot.tracker.registration_matrix(xs) @ pose_matrix(poses) @ _joint_frame(robot, xr)
+
+
+def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: Any = None
+             ) -> Any:
+    """:func:`iwr.accuracy` on tracker data for a robot with effects: before (the nominal robot
+    and effects with the registration guess) and after (``x``). With ``truth``: the tool pose
+    errors in {T} by forward kinematics with the effects under each pose's load and
+    temperature, modulo the gauge (the model's frame moved by the one rigid transform that best
+    aligns it with the truth's, as ``gauge="fit"`` of :func:`iwr.tracker.tool_pose_errors`).
+    Without: per pose the largest point distance and the angle of the points' best rotation."""
+    from ..analysis.accuracy import Accuracy, PoseErrors
+    from ..tracker.api import _point_errors
+    from ..tracker.gauge import _align
+    from ..transforms import rotation_angle
+
+    problem, start = effect_tracker_problem(robot, measurements)
+    x = problem._x(x)
+    if truth is None:
+        return Accuracy(_point_errors(problem, start), _point_errors(problem, x))
+    b = tool_frames(robot, truth, measurements)
+    p = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+
+    def errors(xx: np.ndarray) -> Any:
+        a = tool_frames(robot, xx, measurements)
+        a = a @ _align(a, b)
+        pos = np.linalg.norm((a[:, :3, :3] - b[:, :3, :3]) @ p + a[:, :3, 3] - b[:, :3, 3],
+                             axis=1)
+        ang = np.degrees(rotation_angle(np.swapaxes(a[:, :3, :3], 1, 2) @ b[:, :3, :3]))
+        return PoseErrors(pos, ang, np.array([pose_from_matrix(m) for m in a]))
+
+    return Accuracy(errors(start), errors(x))
+
+
+def leg_commands(robot: Any, x: Any, targets: Any, q: Any, data: Any) -> np.ndarray:
+    """The leg readings (N, 6) that put the platform at ``targets`` (N, 4, 4) in the tracker
+    frame {T} (the platform frame fixed by its joints, as :func:`tool_frames` gives it) with the
+    model ``x`` (robot, effects, setup), at carriage readings ``q``, under ``data``'s loads and
+    temperatures (an object with ``payload`` and ``temperatures``): the target in {0} through
+    the identified registration, the legs with the effects under the load (gravity in {0}
+    through the same registration)."""
+    from .model import predicted_readings
+
+    model = TrackerEffectModel(robot, robot.tracker, data)
+    xr, xs = model.split(x)
+    reg = robot.tracker.registration_matrix(xs)
+    world = np.linalg.solve(reg, np.asarray(targets, dtype=float)) @ np.linalg.inv(
+        _joint_frame(robot, xr))
+    true = with_gravity(robot, registration_gravity(robot.tracker, xs)[0])
+    return predicted_readings(true, xr, np.asarray(q, dtype=float), pose_from_matrix(world), data)
+
+
+# -- the efficient estimator (iwr.estimation.efficient) on tracker data with effects ----------
+
+def loop_model(robot: Any, setup: Any, data: Any, reference: np.ndarray, measured: np.ndarray,
+               whitening: np.ndarray, sigma: np.ndarray) -> Any:
+    """The tracker estimator's normalised residuals for a robot with effects, a
+    :data:`iwr.effects.solver.LoopModel`: per pose the legs ``(predicted - measured) / sigma``
+    with the effects at the corrected readings (joints ``q + dq``, platform ``reference (+)
+    (dp, w)``) under the pose's load and temperature (:func:`iwr.effects.loop.loop_jacobians`,
+    gravity through the registration), the joints' corrections over their sigma, and the
+    whitened points (or the probe's position and orientation) as the C++ tracker model has them
+    (``_core.tracker_loop_jacobians``: the points do not depend on the effects at a given
+    pose). ``x = (x_geometric, x_effects, x_setup)``."""
+    ng, nj = robot.n_params, robot.n_joints
+    ne = len(effect_names(robot.effects))
+    n, ny = len(data), nj + 6
+    q = np.ascontiguousarray(data.q)
+    legs = np.ascontiguousarray(data.legs)
+    sl = sigma[:, :6]
+
+    def model(x: np.ndarray, corr: np.ndarray, jacobians: bool) -> tuple[np.ndarray, Any, Any]:
+        xr, xs = x[: ng + ne], x[ng + ne:]
+        r, jx_c, jy_c = _core.tracker_loop_jacobians(
+            robot._geometry, setup.kind, setup.registration,
+            setup.reflectors if setup.reflectors is not None else np.zeros((1, 3)),
+            setup.probe if setup.probe is not None else np.zeros(6), setup.probe_length,
+            measured, whitening, reference, np.concatenate([xr[:ng], xs]), q, legs,
+            np.ascontiguousarray(sigma), np.ascontiguousarray(corr))
+        g0, dg0 = registration_gravity(setup, xs)
+        rg = with_gravity(robot, g0)
+        pred, jx, jy = loop_jacobians(rg, xr, q, reference, data, corr)
+        r = r.copy()
+        r[:, :6] = (pred - legs) / sl
+        if not jacobians:
+            return r, None, None
+        nr = r.shape[1]
+        jx_c = jx_c.reshape(n, nr, ng + setup.n_params)
+        rx = np.zeros((n, nr, x.size))
+        rx[:, 6:, :ng] = jx_c[:, 6:, :ng]
+        rx[:, 6:, ng + ne:] = jx_c[:, 6:, ng:]
+        rx[:, :6, : ng + ne] = jx / sl[..., None]
+        jg = gravity_jacobian(rg, xr, q, reference, data, corr)
+        rx[:, :6, ng + ne:] = (jg @ dg0) / sl[..., None]
+        ry = jy_c.reshape(n, nr, ny).copy()
+        ry[:, :6] = jy / sl[..., None]
+        return r, rx, ry
+
+    return model
+
+
+def predicted_accuracy(robot: Any, x: Any, covariance: Any, active: Any, data: Any, *,
+                       tool: Any = None, n_samples: int = 500, seed: int = 0,
+                       step: float = 1e-6) -> Any:
+    """:func:`iwr.tracker.estimation.tracker_predicted_accuracy` for a robot with effects: the
+    tool pose error modulo the gauge that the covariance of the active parameters predicts at
+    ``data``'s readings under their loads and temperatures; the platform pose's derivative in
+    every parameter by implicit differentiation of the loop closure with the effects (gravity
+    through the registration), the frame's composition by central differences as there."""
+    from ..accuracy_prediction import accuracy_from_covariances
+    from ..tracker.estimation import _aligned_errors, _frames
+
+    setup = robot.tracker
+    model = TrackerEffectModel(robot, setup, data)
+    x = np.asarray(x, dtype=float)
+    xr, xs = model.split(x)
+    ng, nj = robot.n_params, robot.n_joints
+    ne = model.n_effects
+    poses, ok = model.forward(x)
+    if not ok.all():
+        k = int(np.flatnonzero(~ok)[0])
+        raise ValueError(f"{data.where(k)}: no forward kinematics with the effects at x")
+    g0, dg0 = registration_gravity(setup, xs)
+    rg = with_gravity(robot, g0)
+    _, jx, jy = loop_jacobians(rg, xr, data.q, poses, data)
+    jg = gravity_jacobian(rg, xr, data.q, poses, data)
+    g_pose = -np.linalg.solve(jy[:, :, nj:], np.concatenate([jx, jg @ dg0], axis=2))
+    t05 = pose_matrix(poses)
+    frame_x = np.concatenate([xr[:ng], xs])  # what the frames are made of: joints, registration
+    zero = np.zeros((len(poses), 6))
+    t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+    base = _frames(robot, frame_x, t05, zero)
+    cols = []
+    for i in np.flatnonzero(np.asarray(active, dtype=bool)):
+        e = np.zeros_like(frame_x)
+        if i < ng:
+            e[i] = step
+        elif i >= ng + ne:
+            e[i - ne] = step
+        d = g_pose[:, :, i] * step
+        cols.append((_aligned_errors(_frames(robot, frame_x + e, t05, d), base, t)
+                     - _aligned_errors(_frames(robot, frame_x - e, t05, -d), base, t))
+                    / (2 * step))
+    g = np.stack(cols, axis=2)
+    cov = np.asarray(covariance, dtype=float)
+    cp = np.einsum("kip,pq,kjq->kij", g[:, :3], cov, g[:, :3])
+    co = np.einsum("kip,pq,kjq->kij", g[:, 3:], cov, g[:, 3:])
+    return accuracy_from_covariances(cp, co, n_samples=n_samples, seed=seed)
+
+
+def estimator(robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+    """The tracker kinds' estimation spec for a robot with effects (:class:`EffectTrackerSpec`)."""
+    return EffectTrackerSpec(robot, data, noise, options["x0"], options["active"],
+                             options["estimate"], options["bounds"], options["plausible"])
+
+
+def _spec_base() -> Any:
+    from ..tracker.estimation import TrackerSpec
+
+    return TrackerSpec
+
+
+class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
+    """:class:`iwr.tracker.estimation.TrackerSpec` for a robot with effects: the parameters are
+    the geometric errors, the effects', then the setup's; the start is LM on the point (probe)
+    objective with the effects, the reference poses its forward kinematics with the effects, and
+    the solve is :func:`iwr.effects.solver.solve_loop` on :func:`loop_model` (the C++ tracker
+    solver's method in numpy). The variance components, outlier test, chi-square test and
+    result are :func:`iwr.estimation.efficient`'s."""
+
+    def __init__(self, robot: Any, measurements: Any, noise: Any, x0: Any, active: Any,
+                 estimate: Any, bounds: Any, plausible: float) -> None:
+        from ..estimation import _active_mask
+        from ..methods.lm import levenberg_marquardt
+        from ..methods.reduced import ReducedProblem
+
+        # The readings, their whitening and variance components: the geometric spec's.
+        self._readings(robot, measurements, noise, estimate)
+        problem, start = effect_tracker_problem(robot, measurements, bounds, x0)
+        self.problem = problem
+        self.mask = _active_mask(active, problem.n_params,
+                                 lambda: base_parameters(robot, measurements, start))
+        lm = levenberg_marquardt(ReducedProblem(problem, self.mask, start), progress=False)
+        self.x_start = np.array(lm.x, dtype=float)
+        ref, ok = problem.model.forward(self.x_start)
+        if not ok.all():
+            raise _core.ForwardKinematicsError(
+                f"{measurements.where(int(np.flatnonzero(~ok)[0]))}: the leg readings have no "
+                f"forward kinematics with the effects at the starting point")
+        self.reference = np.ascontiguousarray(ref)
+        self.parameter_names = problem.parameter_names
+        ng, ne = robot.n_params, problem.model.n_effects
+        self.center = np.concatenate([np.zeros(ng + ne), start[ng + ne:]])
+        lo, hi = problem.lower, problem.upper
+        self.limit = plausible * np.maximum(np.abs(lo - self.center), np.abs(hi - self.center))
+        if measurements.points is not None and not measurements.seen.all():
+            self._unseen = ~np.repeat(measurements.seen, 3, axis=1)
+        else:
+            self._unseen = None
+
+    def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
+              corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:
+        from .solver import solve_loop
+
+        s, w = self.scaled(scale)
+        rows_used = np.flatnonzero(used)
+        sub = self.measurements.subset(rows_used) if not used.all() else self.measurements
+        nu, nj = rows_used.size, self.robot.n_joints
+        model = loop_model(self.robot, self.setup, sub, self.reference[used],
+                           np.ascontiguousarray(self.measured[used]),
+                           np.ascontiguousarray(w[used].reshape(nu, -1)), s[used])
+        joints = np.flatnonzero(s[0, 6:] > 0)  # the same at every pose (one sigma per joint)
+        free = np.concatenate([joints, nj + np.arange(6)])
+        n_tracker = self.measured.shape[1] if self.setup.kind == "points" else 6
+        rows = np.concatenate([np.arange(6), 6 + joints, 6 + nj + np.arange(n_tracker)])
+        start = np.array(corr, dtype=float)
+        start[:, np.setdiff1d(np.arange(nj), joints)] = 0.0  # an exact reading: no correction
+        out = solve_loop(model, x, idx, start, rows, free, max_iterations=int(max_iterations),
+                         callback=cb)
+        if self._unseen is not None:  # a point not seen: rows of zeros, not readings
+            unseen = self._unseen[used]
+            out["pose_dof"] = out["pose_dof"] - unseen.sum(axis=1)
+            out["dof"] = int(out["dof"] - unseen.sum())
+            out["redundancy"][:, 6 + nj:][unseen] = 0.0
+        return out
+
+    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
+        from ..fit_test import _nearest_plausible
+
+        sub = self.measurements.subset(np.flatnonzero(used)) if not used.all() \
+            else self.measurements
+        problem = TrackerEffectProblem(self.robot, self.setup, sub,
+                                       (self.problem.lower, self.problem.upper))
+        x_plain = _nearest_plausible(problem.residuals_and_jacobian, x, self.limit, self.center)
+        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
+                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+
+    def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray, tool: Any) -> Any:
+        sub = self.measurements.subset(np.flatnonzero(used)) if not used.all() \
+            else self.measurements
+        return predicted_accuracy(self.robot, x, cov, self.mask, sub, tool=tool)
+
+    def cost_eq10(self, x: np.ndarray) -> float:
+        """The unweighted point objective with the effects (mm^2)."""
+        return self.problem.cost(x)
