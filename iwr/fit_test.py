@@ -256,8 +256,8 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
 
         try:
             return parameter_sd(robot, measurements, x, mask,
-                                noise if weighted is None else None)
-        except (ValueError, np.linalg.LinAlgError):  # not pose data, or no such Jacobian
+                                noise if weighted is None else None, readings=readings)
+        except (ValueError, np.linalg.LinAlgError):  # no such Jacobian
             return None  # then the range itself
 
     implausible, size_causes, size_failed = size_test(robot, names, x, implausible, plausible,

@@ -14,6 +14,7 @@ from typing import Any
 import numpy as np
 
 from ..analysis.identifiability import kind_parameter_error
+from ..effects import refuse as refuse_effects
 from ..kinds import MeasurementKind
 from ..noise import Noise, instrument_level
 from .api import (
@@ -170,6 +171,7 @@ class BallbarKind(MeasurementKind):
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:
+        refuse_effects(robot, "ballbar data (iwr.simulate of a ballbar robot)")
         return simulate_ballbar(robot, ballbar_setup(robot), n_poses, seed=seed, x=x,
                                 noise=noise)
 

@@ -296,7 +296,7 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "a noise model)", "iwr.effects.api.leg_commands",
              "iwr.effects.api.forward_kinematics",
              "iwr.simulate, iwr.identify with method 'lm' or 'efficient', iwr.identifiability "
-             "and iwr.accuracy on tracker data (iwr.effects.tracker)")
+             "and iwr.accuracy on tracker data (iwr.effects.tracker; the legs' effects)")
 
 
 def refuse(robot: Any, what: str) -> None:

@@ -101,22 +101,32 @@ def range_cause(robot: Any, entries: list[tuple[str, float, float, float]]) -> s
             "(docs/effects.md)")
 
 
-def parameter_sd(robot: Any, data: Any, x: Any, active: Any, noise: Any = None) -> np.ndarray:
+def parameter_sd(robot: Any, data: Any, x: Any, active: Any, noise: Any = None,
+                 readings: Any = None) -> np.ndarray:
     """First-order standard deviations of ``x``'s entries (nan where not active) from the
     Jacobian of eq. (10) with the effects at ``x`` over the ``active`` parameters: weighted by
     ``noise`` (an :class:`iwr.Noise`: the residuals whitened by it, unit variance), else with
-    the leg noise estimated from the residuals (``r.r / (m - rank)``). What the fit check's
-    range test (:func:`out_of_range`) weighs an effect's departure from its range by."""
+    the leg noise estimated from the residuals (``r.r / (m - rank)``). Data of another kind
+    (tracker data) need ``readings``, their kind's residuals and Jacobian at ``x`` (what
+    :meth:`iwr.kinds.MeasurementKind.plausibility` gives; unweighted: the readings' noise
+    estimated from them, rows without data left out). What the fit check's range test
+    (:func:`out_of_range`) weighs an effect's departure from its range by."""
     from ..measurements import Measurements
     from ..noise import Noise
 
-    if not isinstance(data, Measurements):
-        raise ValueError(f"data: {type(data).__name__}; the standard deviations of eq. (10) "
-                         "with the effects are for pose data (iwr.Measurements)")
-    p = EffectProblem(robot, data, noise=noise if isinstance(noise, Noise) else None)
-    r, jac = p.residuals_and_jacobian(np.asarray(x, dtype=float))
-    rows = (np.ones(r.size, dtype=bool) if data.weights is None
-            else (np.asarray(data.weights) > 0).reshape(-1))  # a leg weighted 0 does not count
+    if isinstance(data, Measurements):
+        p = EffectProblem(robot, data, noise=noise if isinstance(noise, Noise) else None)
+        r, jac = p.residuals_and_jacobian(np.asarray(x, dtype=float))
+        rows = (np.ones(r.size, dtype=bool) if data.weights is None
+                else (np.asarray(data.weights) > 0).reshape(-1))  # a leg weighted 0: not counted
+    elif readings is not None:
+        r, jac = readings(np.asarray(x, dtype=float))
+        r, jac = np.asarray(r, dtype=float), np.asarray(jac, dtype=float)
+        rows = np.any(jac != 0, axis=1)  # an unseen point: zero residual, zero derivatives
+        noise = None
+    else:
+        raise ValueError(f"data: {type(data).__name__}; give their readings' residuals and "
+                         "Jacobian (readings=) for the standard deviations of the effects")
     act = np.asarray(active, dtype=bool)
     ja = jac[rows][:, act]
     d = np.linalg.norm(ja, axis=0)

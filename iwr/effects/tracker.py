@@ -80,6 +80,29 @@ def with_gravity(robot: Any, gravity: np.ndarray) -> Any:
     return robot.with_effects(*effects)
 
 
+def in_world_gravity(robot: Any) -> Any:
+    """``robot`` whose effects take gravity as its data give it: for a robot with a tracker,
+    the tracker's gravity (in {T}) carried into {0} by the robot file's registration (the
+    effects' own ``gravity_m_s2`` in {0} is not used on tracker data); else ``robot``.
+    ValueError for an effect tracker data do not model (:func:`refuse_joint_effects`)."""
+    if robot.tracker is None or not robot.effects:
+        return robot
+    refuse_joint_effects(robot)
+    return with_gravity(robot, registration_gravity(robot.tracker,
+                                                    np.zeros(robot.tracker.n_params))[0])
+
+
+def refuse_joint_effects(robot: Any) -> None:
+    """ValueError naming the effects that change the carriage's joints (the carriage's
+    compliance): the tracker data's forward kinematics with the effects moves the legs only."""
+    names = [e.name for e in robot.effects if "joints" in e.changes]
+    if names:
+        raise ValueError(
+            f"robot {robot.name!r}: effect {', '.join(names)} (it changes the carriage's joints) "
+            "is not modelled on tracker data yet; it is on pose data (docs/effects.md). Leave it "
+            "out of the [effects] table to calibrate from tracker data")
+
+
 def _needs(robot: Any) -> set[str]:
     out: set[str] = set()
     for e in robot.effects:
@@ -183,6 +206,7 @@ class TrackerEffectModel:
     the effects, gravity through the registration)."""
 
     def __init__(self, robot: Any, setup: Any, data: Any) -> None:
+        refuse_joint_effects(robot)
         self.robot, self.setup, self.data = robot, setup, data
         self.n_geometric = robot.n_params
         self.n_effects = len(effect_names(robot.effects))
@@ -492,6 +516,7 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
     from .model import predicted_readings
 
     setup = _setup(robot)
+    refuse_joint_effects(robot)
     if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ValueError(f"n_poses: {n_poses!r}; expected a positive integer")
     readings, tracker = split_noise(noise)
