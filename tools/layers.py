@@ -42,7 +42,8 @@ LAYERS: list[tuple[str, list[str]]] = [
     ("problems: the objective, the implicit loop, the result type", [
         "iwr.implicit_loop", "iwr.problem_base", "iwr.problem", "iwr.tracker.problem",
         "iwr.tracker.registration", "iwr.tracker.gauge", "iwr.tracker.start", "iwr.ballbar.problem",
-        "iwr.methods.reduced", "iwr.result", "iwr.effects.problem", "iwr.effects.loop"]),
+        "iwr.methods.reduced", "iwr.result", "iwr.effects.problem", "iwr.effects.loop",
+        "iwr.effects.gravity"]),
     ("the problem file (iwr-engine's input and result)", ["iwr.problem_file"]),
     ("solvers, the efficient estimator and the fit test", [
         "iwr.methods.*", "iwr.estimation", "iwr.fit_test", "iwr.accuracy_prediction",

@@ -313,7 +313,7 @@ def leg_commands(robot: Any, q: Any, poses: Any, *, payload: Any = None,
     (or (N, 6), one per leg), degrees C, needed by the thermal effect."""
     from ..compensation import leg_commands as geometric_commands
     from ..measurements import Measurements
-    from .tracker import in_world_gravity
+    from .gravity import in_world_gravity
 
     robot = in_world_gravity(robot)  # tracker data's gravity: in {T}, through the registration
     base = geometric_commands(robot.with_effects(), q, poses, **options)
