@@ -181,25 +181,13 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
         # Every reading weighted by its noise, the platform poses and true joint readings as
         # nuisance unknowns (docs/ballbar.md, "The efficient estimator"): its own start (the
         # weighted LM), base parameters and fit test.
-        from ..estimation import efficient
+        from ..estimation import efficient_on
 
-        if noise is None:
-            raise ValueError("method 'efficient' weighs every reading by its noise: give "
-                             "noise=(iwr.Noise(...), iwr.ballbar.BallbarNoise(...)) or "
-                             "noise='estimate'")
-        if weighted is False:
-            raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
-        if max_evaluations is not None:
-            options.setdefault("max_iterations", int(max_evaluations))
-        if isinstance(active, str) and active == "base":
-            active = None
-        if active is not None:
-            problem, _ = ballbar_problem(robot, measurements, bounds, x0)
-            active = active_mask(problem, active)
-        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
-                           bounds=bounds, **options)
-        result.check_finite()
-        return result
+        return efficient_on(robot, measurements, noise,
+                            lambda: ballbar_problem(robot, measurements, bounds, x0)[0],
+                            noise_hint="(iwr.Noise(...), iwr.ballbar.BallbarNoise(...))",
+                            x0=x0, active=active, bounds=bounds, callback=callback,
+                            weighted=weighted, max_evaluations=max_evaluations, **options)
     if isinstance(noise, str):
         raise ValueError(f"noise: {noise!r}; ballbar data take no estimated noise model: give "
                          "(iwr.Noise(...), iwr.ballbar.BallbarNoise(...))")

@@ -568,25 +568,13 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
             "need the C++ tracker objective with the effects, which does not exist "
             "(docs/effects.md)")
     if method == "efficient":
-        from ..estimation import efficient
+        from ..estimation import efficient_on
 
-        if noise is None:
-            raise ValueError("method 'efficient' weighs every instrument by its noise: give "
-                             "noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...)) or "
-                             "noise='estimate'")
-        if weighted is False:
-            raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
-        if max_evaluations is not None:
-            options.setdefault("max_iterations", int(max_evaluations))
-        if isinstance(active, str) and active == "base":
-            active = None
-        if active is not None:
-            problem, _ = effect_tracker_problem(robot, measurements, bounds, x0)
-            active = active_mask(problem, active)
-        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
-                           bounds=bounds, **options)
-        result.check_finite()
-        return result
+        return efficient_on(robot, measurements, noise,
+                            lambda: effect_tracker_problem(robot, measurements, bounds, x0)[0],
+                            noise_hint="(iwr.Noise(...), iwr.tracker.TrackerNoise(...))",
+                            x0=x0, active=active, bounds=bounds, callback=callback,
+                            weighted=weighted, max_evaluations=max_evaluations, **options)
     if noise is not None or weighted:
         raise ValueError(
             f"noise: robot {robot.name!r} has effects on ({names}); on tracker data method "

@@ -75,25 +75,13 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     if method == "efficient":
         # Every instrument weighted by its noise (docs/estimation.md, "Tracker data"): its own
         # start (LM on the points from the registration guess), base parameters and fit test.
-        from ..estimation import efficient
+        from ..estimation import efficient_on
 
-        if noise is None:
-            raise ValueError("method 'efficient' weighs every instrument by its noise: give "
-                             "noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...)) or "
-                             "noise='estimate'")
-        if max_evaluations is not None:
-            options.setdefault("max_iterations", int(max_evaluations))
-        if weighted is False:
-            raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
-        if isinstance(active, str) and active == "base":
-            active = None
-        if active is not None:
-            problem, _ = tracker_problem(robot, measurements, bounds, x0)
-            active = active_mask(problem, active)
-        result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
-                           bounds=bounds, **options)
-        result.check_finite()
-        return result
+        return efficient_on(robot, measurements, noise,
+                            lambda: tracker_problem(robot, measurements, bounds, x0)[0],
+                            noise_hint="(iwr.Noise(...), iwr.tracker.TrackerNoise(...))",
+                            x0=x0, active=active, bounds=bounds, callback=callback,
+                            weighted=weighted, max_evaluations=max_evaluations, **options)
     if weighted is None:
         weighted = noise is not None
     if weighted and noise is None:
