@@ -181,7 +181,7 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
         # Every reading weighted by its noise, the platform poses and true joint readings as
         # nuisance unknowns (docs/ballbar.md, "The efficient estimator"): its own start (the
         # weighted LM), base parameters and fit test.
-        from ..estimation import efficient_on
+        from ..methods.efficient import efficient_on
 
         return efficient_on(robot, measurements, noise,
                             lambda: ballbar_problem(robot, measurements, bounds, x0)[0],

@@ -568,7 +568,7 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
             "need the C++ tracker objective with the effects, which does not exist "
             "(docs/effects.md)")
     if method == "efficient":
-        from ..estimation import efficient_on
+        from ..methods.efficient import efficient_on
 
         return efficient_on(robot, measurements, noise,
                             lambda: effect_tracker_problem(robot, measurements, bounds, x0)[0],

@@ -42,3 +42,32 @@ def efficient_method(
     options.setdefault("bounds", (p.lower, p.upper))
     return efficient(p.robot, p.measurements, noise, x0=problem.x0, active=problem.active,
                      callback=callback, **options)
+
+
+def efficient_on(robot: Any, measurements: Any, noise: Any, problem_of: Callable[[], Any], *,
+                 noise_hint: str, x0: Any = None, active: Any = None, bounds: Any = None,
+                 callback: Any = None, weighted: Any = None, max_evaluations: Any = None,
+                 **options: Any) -> IdentificationResult:
+    """:func:`iwr.identify`'s ``method="efficient"`` for a kind with its own identify (tracker and
+    ballbar data, with or without effects): the argument checks they share (``noise_hint`` is
+    how to give their noise model), ``active="base"`` left to the estimator (its own base
+    parameters), another ``active`` resolved on ``problem_of()``'s parameters, then
+    :func:`iwr.estimation.efficient`."""
+    from ..estimation import efficient
+    from .reduced import active_mask
+
+    if noise is None:
+        raise ValueError(f"method 'efficient' weighs every reading by its noise: give "
+                         f"noise={noise_hint} or noise='estimate'")
+    if weighted is False:
+        raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
+    if max_evaluations is not None:
+        options.setdefault("max_iterations", int(max_evaluations))
+    if isinstance(active, str) and active == "base":
+        active = None
+    if active is not None:
+        active = active_mask(problem_of(), active)
+    result = efficient(robot, measurements, noise, x0=x0, active=active, callback=callback,
+                       bounds=bounds, **options)
+    result.check_finite()
+    return result

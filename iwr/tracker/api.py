@@ -75,7 +75,7 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     if method == "efficient":
         # Every instrument weighted by its noise (docs/estimation.md, "Tracker data"): its own
         # start (LM on the points from the registration guess), base parameters and fit test.
-        from ..estimation import efficient_on
+        from ..methods.efficient import efficient_on
 
         return efficient_on(robot, measurements, noise,
                             lambda: tracker_problem(robot, measurements, bounds, x0)[0],
