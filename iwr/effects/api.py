@@ -106,6 +106,28 @@ def apply(robot: Any, x: Any) -> Any:
     return out.with_effects(*effects)
 
 
+def draw_conditions(robot: Any, n: int, rng: np.random.Generator, payloads: Any,
+                    temperatures: Any) -> tuple[Any, Any]:
+    """The loads and temperatures of ``n`` simulated poses (:func:`simulate`, and the tracker
+    data's :func:`iwr.effects.tracker.simulate`): ``payloads`` (P, 4) taken in turn (default
+    :data:`DEFAULT_PAYLOADS` when an effect of the load is on, else none); ``temperatures`` as
+    given, else drawn from ``rng`` over :data:`DEFAULT_TEMPERATURE_SPREAD` about the thermal
+    effect's reference when it is on (else none)."""
+    loaded = any(e.needs & {"forces", "loads"} for e in robot.effects)
+    pay = None
+    if payloads is not None or loaded:
+        pay = DEFAULT_PAYLOADS if payloads is None else np.asarray(payloads, dtype=float)
+        if pay.ndim != 2 or pay.shape[1] != 4 or len(pay) == 0:
+            raise ValueError(f"payloads: shape {pay.shape}; expected (P, 4): mass kg, centre "
+                             "in {5} mm")
+        pay = pay if len(pay) == n else pay[np.arange(n) % len(pay)]
+    thermal = [e for e in robot.effects if isinstance(e, LegThermal)]
+    if temperatures is None and thermal:
+        lo, hi = DEFAULT_TEMPERATURE_SPREAD
+        temperatures = thermal[0].reference + lo + (hi - lo) * rng.random(n)
+    return pay, temperatures
+
+
 def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise: Any = None,
              payloads: Any = None, temperatures: Any = None) -> tuple[Any, np.ndarray]:
     """:func:`iwr.simulate` for a robot with effects: random reachable poses of the actual robot
@@ -142,19 +164,7 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
                              f"{x.shape}")
     n = int(n_poses)
     q, poses, _ = sample_poses(geometric, n, rng, x[: robot.n_params])
-    loaded = any(e.needs & {"forces", "loads"} for e in robot.effects)
-    pay = None
-    if payloads is not None or loaded:
-        pay = DEFAULT_PAYLOADS if payloads is None else np.asarray(payloads, dtype=float)
-        if pay.ndim != 2 or pay.shape[1] != 4 or len(pay) == 0:
-            raise ValueError(f"payloads: shape {pay.shape}; expected (P, 4): mass kg, centre "
-                             "in {5} mm")
-        pay = pay if len(pay) == n else pay[np.arange(n) % len(pay)]
-    thermal = [e for e in robot.effects if isinstance(e, LegThermal)]
-    if temperatures is None and thermal:
-        ref = thermal[0].reference
-        lo, hi = DEFAULT_TEMPERATURE_SPREAD
-        temperatures = ref + lo + (hi - lo) * rng.random(n)
+    pay, temperatures = draw_conditions(robot, n, rng, payloads, temperatures)
     plain = Measurements(q, poses, np.zeros((n, 6)), joint_types=robot.joint_types,
                          payload=pay, temperatures=temperatures)
     legs = predicted_readings(robot, x, q, poses, plain)

@@ -465,8 +465,7 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
     from ..tracker.data import TrackerMeasurements
     from ..tracker.simulate import perturb_measurements, true_points
     from ..tracker.start import _setup
-    from .api import DEFAULT_PAYLOADS, DEFAULT_TEMPERATURE_SPREAD
-    from .builtin import LegThermal
+    from .api import draw_conditions
     from .model import predicted_readings
 
     setup = _setup(robot)
@@ -502,17 +501,7 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
     n = int(n_poses)
     xr, xs = x[: ng + lo_e.size], x[ng + lo_e.size:]
     q, poses, _ = sample_poses(robot.with_effects(), n, rng, x[:ng])
-    pay = None
-    if payloads is not None or "forces" in _needs(robot):
-        pay = DEFAULT_PAYLOADS if payloads is None else np.asarray(payloads, dtype=float)
-        if pay.ndim != 2 or pay.shape[1] != 4 or len(pay) == 0:
-            raise ValueError(f"payloads: shape {pay.shape}; expected (P, 4): mass kg, centre "
-                             "in {5} mm")
-        pay = pay if len(pay) == n else pay[np.arange(n) % len(pay)]
-    thermal = [e for e in robot.effects if isinstance(e, LegThermal)]
-    if temperatures is None and thermal:
-        lo_t, hi_t = DEFAULT_TEMPERATURE_SPREAD
-        temperatures = thermal[0].reference + lo_t + (hi_t - lo_t) * rng.random(n)
+    pay, temperatures = draw_conditions(robot, n, rng, payloads, temperatures)
     pts = true_points(robot, setup, np.concatenate([x[:ng], xs]), poses)
     hide = rng.random(n) < hidden
     which = rng.integers(0, setup.n_points, size=n)
