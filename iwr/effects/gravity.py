@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from .. import kinds
 from .loop import _skew, right_jacobian
 
 __all__ = ["in_world_gravity", "refuse_joint_effects", "registration_gravity", "with_gravity"]
@@ -39,15 +40,14 @@ def with_gravity(robot: Any, gravity: np.ndarray) -> Any:
 
 
 def in_world_gravity(robot: Any) -> Any:
-    """``robot`` whose effects take gravity as its data give it: for a robot with a tracker,
-    the tracker's gravity (in {T}) carried into {0} by the robot file's registration (the
-    effects' own ``gravity_m_s2`` in {0} is not used on tracker data); else ``robot``.
-    ValueError for an effect tracker data do not model (:func:`refuse_joint_effects`)."""
-    if robot.tracker is None or not robot.effects:
+    """``robot`` whose effects take gravity as its data give it
+    (:meth:`iwr.kinds.MeasurementKind.world_gravity` of the kind ``robot`` measures: for a
+    robot with a tracker, the tracker's gravity in {T} carried into {0} by the robot file's
+    registration); ``robot`` itself when its effects' own gravity in {0} stands."""
+    if not robot.effects:
         return robot
-    refuse_joint_effects(robot)
-    return with_gravity(robot, registration_gravity(robot.tracker,
-                                                    np.zeros(robot.tracker.n_params))[0])
+    gravity = kinds.for_robot(robot).world_gravity(robot)
+    return robot if gravity is None else with_gravity(robot, gravity)
 
 
 def refuse_joint_effects(robot: Any) -> None:

@@ -285,6 +285,12 @@ class MeasurementKind(abc.ABC):
         robot's) for data in {T}."""
         return np.eye(4)
 
+    def world_gravity(self, robot: Any) -> np.ndarray | None:
+        """Gravity in {0} (m/s^2) as the instrument of ``robot``'s description gives it, for the
+        effects that load the robot (issue 23), or None when the effects' own ``gravity_m_s2``
+        in {0} stands (data in {0}). ValueError for an effect these data do not model."""
+        return None
+
     def reading_noise(self, noise: Any) -> Any:
         """``noise`` (an :class:`iwr.Noise`, ``"estimate"``, or the kind's own form) in the form
         this kind's estimator takes."""
