@@ -61,7 +61,33 @@ def _plain(values: np.ndarray) -> Any:
     return float(values[0]) if values.size == 1 else [float(v) for v in values]
 
 
-class LegCompliance(Effect):
+class _GravityLoad:
+    """What the effects under gravity read alike: the platform's own mass and centre (in {5})
+    and the gravity vector in {0} (:class:`LegCompliance`, and the carriage's compliance)."""
+
+    #: Their keys in an ``[effects.X]`` table.
+    _LOAD_KEYS = {"gravity_m_s2": "m/s^2 in {0}, three numbers", "platform_mass_kg": "kg",
+                  "platform_centre_mm": "mm in {5}, three numbers"}
+
+    def _read_load(self, platform_mass: Any, platform_centre: Any, gravity: Any,
+                   where: str) -> None:
+        self.platform_mass = _number(platform_mass, f"{where}.platform_mass_kg", 0.0, 1e6, "kg")
+        self.platform_centre = _vector(platform_centre, 3, f"{where}.platform_centre_mm",
+                                       -1e5, 1e5, "mm")
+        self.gravity = _vector(gravity, 3, f"{where}.gravity_m_s2", -20.0, 20.0, "m/s^2")
+        g = float(np.linalg.norm(self.gravity))
+        if abs(g / STANDARD_GRAVITY - 1.0) > 0.01:
+            raise ValueError(f"{where}.gravity_m_s2: {self.gravity.tolist()} has norm {g:.6g} "
+                             f"m/s^2; expected {STANDARD_GRAVITY} within 1 % (the vector of "
+                             "gravity in {0}, m/s^2)")
+
+    def _load_dict(self) -> dict[str, Any]:
+        return {"gravity_m_s2": [float(v) for v in self.gravity],
+                "platform_mass_kg": self.platform_mass,
+                "platform_centre_mm": [float(v) for v in self.platform_centre]}
+
+
+class LegCompliance(_GravityLoad, Effect):
     """Axial compliance of the legs (actuator, joints, structure): a leg carrying the axial force
     ``f`` (N, tension positive) is ``c f`` longer than its reading says, ``c`` in um/N, one per
     leg or one shared. The forces are those that hold the platform and the payload under
@@ -90,22 +116,13 @@ class LegCompliance(Effect):
     description = "the legs' axial compliance under load"
     needs = frozenset({"forces"})
     _KEYS = {"per_leg": "true or false", "compliance_um_per_N": "um/N, one or six",
-             "max_um_per_N": "um/N", "gravity_m_s2": "m/s^2 in {0}, three numbers",
-             "platform_mass_kg": "kg", "platform_centre_mm": "mm in {5}, three numbers"}
+             "max_um_per_N": "um/N", **_GravityLoad._LOAD_KEYS}
 
     def __init__(self, platform_mass: float, platform_centre: Any, gravity: Any,
                  compliance: Any = 0.0, *, per_leg: bool = True,
                  max_compliance: float = 0.05, where: str = "effects.compliance") -> None:
         self.per_leg = _bool(per_leg, f"{where}.per_leg")
-        self.platform_mass = _number(platform_mass, f"{where}.platform_mass_kg", 0.0, 1e6, "kg")
-        self.platform_centre = _vector(platform_centre, 3, f"{where}.platform_centre_mm",
-                                       -1e5, 1e5, "mm")
-        self.gravity = _vector(gravity, 3, f"{where}.gravity_m_s2", -20.0, 20.0, "m/s^2")
-        g = float(np.linalg.norm(self.gravity))
-        if abs(g / STANDARD_GRAVITY - 1.0) > 0.01:
-            raise ValueError(f"{where}.gravity_m_s2: {self.gravity.tolist()} has norm {g:.6g} "
-                             f"m/s^2; expected {STANDARD_GRAVITY} within 1 % (the vector of "
-                             "gravity in {0}, m/s^2)")
+        self._read_load(platform_mass, platform_centre, gravity, where)
         self.max_compliance = _number(max_compliance, f"{where}.max_um_per_N", 1e-6, 10.0,
                                       "um/N")
         self.compliance = _vector(compliance, 6 if self.per_leg else 1,
@@ -149,15 +166,11 @@ class LegCompliance(Effect):
 
     def to_dict(self) -> dict[str, Any]:
         return {"per_leg": self.per_leg, "compliance_um_per_N": _plain(self.compliance),
-                "max_um_per_N": self.max_compliance,
-                "gravity_m_s2": [float(v) for v in self.gravity],
-                "platform_mass_kg": self.platform_mass,
-                "platform_centre_mm": [float(v) for v in self.platform_centre]}
+                "max_um_per_N": self.max_compliance, **self._load_dict()}
 
     @classmethod
     def from_dict(cls, table: Mapping[str, Any], where: str) -> LegCompliance:
-        _check_keys(table, cls._KEYS, {"gravity_m_s2", "platform_mass_kg",
-                                       "platform_centre_mm"}, where)
+        _check_keys(table, cls._KEYS, set(cls._LOAD_KEYS), where)
         return cls(table["platform_mass_kg"], table["platform_centre_mm"],
                    table["gravity_m_s2"], table.get("compliance_um_per_N", 0.0),
                    per_leg=table.get("per_leg", True),

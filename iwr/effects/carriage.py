@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from . import Effect, JointState
-from .builtin import STANDARD_GRAVITY, _check_keys, _number, _plain, _vector
+from .builtin import _check_keys, _GravityLoad, _number, _plain, _vector
 
 __all__ = ["CarriageCompliance", "UNIT_SCALE"]
 
@@ -25,7 +25,7 @@ __all__ = ["CarriageCompliance", "UNIT_SCALE"]
 UNIT_SCALE = {"R": ("urad/(N m)", 1e-9), "P": ("um/N", 1e-3)}
 
 
-class CarriageCompliance(Effect):
+class CarriageCompliance(_GravityLoad, Effect):
     """Compliance of the carriage's joints (drive, gearbox, bearings, the link's bending folded
     into the joint): joint ``i`` is ``c_i L_i`` beyond its reading, ``L_i`` the gravity load it
     holds of everything distal to it (:class:`iwr.effects.JointState`: the torque about a
@@ -65,9 +65,8 @@ class CarriageCompliance(Effect):
              "one per listed joint: urad/(N m) revolute, um/N prismatic",
              "max_urad_per_Nm": "urad/(N m), revolute joints",
              "max_um_per_N": "um/N, prismatic joints",
-             "gravity_m_s2": "m/s^2 in {0}, three numbers",
              "hexapod_mass_kg": "kg", "hexapod_centre_mm": "mm in {4}, three numbers",
-             "platform_mass_kg": "kg", "platform_centre_mm": "mm in {5}, three numbers"}
+             **_GravityLoad._LOAD_KEYS}
 
     def __init__(self, hexapod_mass: float, hexapod_centre: Any, platform_mass: float,
                  platform_centre: Any, gravity: Any, joints: Any = None, compliance: Any = 0.0,
@@ -77,15 +76,7 @@ class CarriageCompliance(Effect):
         self.hexapod_mass = _number(hexapod_mass, f"{where}.hexapod_mass_kg", 0.0, 1e6, "kg")
         self.hexapod_centre = _vector(hexapod_centre, 3, f"{where}.hexapod_centre_mm", -1e5, 1e5,
                                       "mm")
-        self.platform_mass = _number(platform_mass, f"{where}.platform_mass_kg", 0.0, 1e6, "kg")
-        self.platform_centre = _vector(platform_centre, 3, f"{where}.platform_centre_mm", -1e5,
-                                       1e5, "mm")
-        self.gravity = _vector(gravity, 3, f"{where}.gravity_m_s2", -20.0, 20.0, "m/s^2")
-        g = float(np.linalg.norm(self.gravity))
-        if abs(g / STANDARD_GRAVITY - 1.0) > 0.01:
-            raise ValueError(f"{where}.gravity_m_s2: {self.gravity.tolist()} has norm {g:.6g} "
-                             f"m/s^2; expected {STANDARD_GRAVITY} within 1 % (the vector of "
-                             "gravity in {0}, m/s^2)")
+        self._read_load(platform_mass, platform_centre, gravity, where)
         self.max_revolute = _number(max_revolute, f"{where}.max_urad_per_Nm", 1e-9, 1e3,
                                     "urad/(N m)")
         self.max_prismatic = _number(max_prismatic, f"{where}.max_um_per_N", 1e-9, 10.0, "um/N")
@@ -207,17 +198,15 @@ class CarriageCompliance(Effect):
         given = self.compliance if self.compliance is not None else np.atleast_1d(self._given)
         out.update({"compliance": _plain(np.asarray(given, dtype=float)),
                     "max_urad_per_Nm": self.max_revolute, "max_um_per_N": self.max_prismatic,
-                    "gravity_m_s2": [float(v) for v in self.gravity],
                     "hexapod_mass_kg": self.hexapod_mass,
                     "hexapod_centre_mm": [float(v) for v in self.hexapod_centre],
-                    "platform_mass_kg": self.platform_mass,
-                    "platform_centre_mm": [float(v) for v in self.platform_centre]})
+                    **self._load_dict()})
         return out
 
     @classmethod
     def from_dict(cls, table: Mapping[str, Any], where: str) -> CarriageCompliance:
-        _check_keys(table, cls._KEYS, {"gravity_m_s2", "hexapod_mass_kg", "hexapod_centre_mm",
-                                       "platform_mass_kg", "platform_centre_mm"}, where)
+        _check_keys(table, cls._KEYS, {"hexapod_mass_kg", "hexapod_centre_mm",
+                                       *cls._LOAD_KEYS}, where)
         return cls(table["hexapod_mass_kg"], table["hexapod_centre_mm"],
                    table["platform_mass_kg"], table["platform_centre_mm"],
                    table["gravity_m_s2"], table.get("joints"), table.get("compliance", 0.0),
