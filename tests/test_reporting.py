@@ -173,7 +173,10 @@ def test_calibration_and_report_pages_open_cleanly(kind: Any, tmp_path: Path) ->
         assert "points not seen" not in page
     summary = json.loads((out / "summary.json").read_text())
     assert summary["data_kind"] == name and summary["fit"]["fit_ok"] is True
-    assert (out / "report.md").read_text().startswith(title)
+    md = (out / "report.md").read_text()
+    assert md.startswith(title)
+    for h in ("Files", "Notes", "Provenance"):  # the Markdown's tail is the page's
+        assert (f"<h2>{h}</h2>" in page) == (f"\n## {h}\n" in md), h
     assert_opens_cleanly(out / "report.html", tmp_path, 2)
     rep = tmp_path / "rep"
     proc = run_iwr("report", str(out / "result.json"), str(tmp_path / "robot.toml"),
@@ -277,3 +280,22 @@ def test_effects_and_diagnosis_sections_open_cleanly(tmp_path: Path) -> None:
                                      "per_leg = true", "<h2>Identified parameters</h2>")]
     assert order == sorted(order)
     assert_opens_cleanly(out / "report.html", tmp_path, 2)
+
+
+def test_the_notes_are_in_the_page_and_the_markdown_for_every_kind(kind: Any,
+                                                                   tmp_path: Path) -> None:
+    """A job's notes end both of its reports, whatever the kind (the tracker's Markdown report
+    once left them out)."""
+    import dataclasses
+
+    from iwr.reporting.calibration import render
+
+    n = {"ballbar": 120}.get(kind.name, 30)
+    data, _ = iwr.simulate(kind.robot, n, seed=3)
+    cal = iwr.calibrate(kind.robot, data, "lm", seed=1)
+    cal = dataclasses.replace(cal, notes=[*cal.notes, "note: a note of this test"])
+    render(cal).write(tmp_path, plots=False)
+    page = (tmp_path / "report.html").read_text(encoding="utf-8")
+    md = (tmp_path / "report.md").read_text(encoding="utf-8")
+    assert "a note of this test" in page
+    assert "\n## Notes\n" in md and "- note: a note of this test" in md

@@ -316,11 +316,8 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         if self.identifiability is not None:
             md += ["", "## What a ballbar cannot see", "", self.null_sentence(), "", "```",
                    self.null_text(), "```"]
-        md += ["", "## Files", "", "- `calibrated.toml`, `result.json`, `accuracy.json`, "
-               "`summary.json`, `report.html`", *[f"- `{f}`" for f in figures]]
-        if self.notes:
-            md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
-        md += self._provenance_md()
+        md += self._tail_md(["- `calibrated.toml`, `result.json`, `accuracy.json`, "
+                             "`summary.json`, `report.html`"], figures)
         return "\n".join(md) + "\n"
 
     # -- figures --------------------------------------------------------------------------------

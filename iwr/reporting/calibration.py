@@ -717,6 +717,14 @@ class CalibrationReport(Calibration):
             page.provenance(self.provenance)
         return page
 
+    def _tail_md(self, files: list[str], figures: list[str]) -> list[str]:
+        """The Markdown report's last sections, the same for every kind: the files written
+        (``files``, then the ``figures``), the notes, the provenance."""
+        md = ["", "## Files", "", *files, *[f"- `{f}`" for f in figures]]
+        if self.notes:
+            md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
+        return md + self._provenance_md()
+
     def _provenance_md(self) -> list[str]:
         """The Markdown report's provenance section (none without provenance)."""
         p = self.provenance
@@ -823,15 +831,11 @@ class CalibrationReport(Calibration):
             md += [f"| {r['name']} | {r['value']:.5g} | {r['file_value']:.5g} | {r['unit']} | "
                    f"{r['bounds'][0]:.3g} .. {r['bounds'][1]:.3g} | {r['status']} |"
                    for r in self.effect_rows()]
-        md += ["", "## Files", "",
-               "- `calibrated.toml`: the calibrated robot (nominal plus identified errors"
-               + (", with the identified effects' values)" if self.robot.effects else ")"),
-               "- `result.json`: the identification result (`iwr.load_result`)",
-               "- `summary.json`: the figures of this report"]
-        md += [f"- `{f}`" for f in figures]
-        if self.notes:
-            md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
-        md += self._provenance_md()
+        md += self._tail_md([
+            "- `calibrated.toml`: the calibrated robot (nominal plus identified errors"
+            + (", with the identified effects' values)" if self.robot.effects else ")"),
+            "- `result.json`: the identification result (`iwr.load_result`)",
+            "- `summary.json`: the figures of this report"], figures)
         return "\n".join(md) + "\n"
 
     def _plot_residuals(self) -> Any:

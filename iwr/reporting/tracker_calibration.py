@@ -416,9 +416,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         if self.identifiability is not None:
             md += ["", "## Identifiability", "", self.null_sentence(), "", "```",
                    self.null_text(), "```"]
-        md += ["", "## Files", "", "- `calibrated.toml`, `result.json`, `accuracy.json`, "
-               "`summary.json`, `report.html`", *[f"- `{f}`" for f in figures]]
-        md += self._provenance_md()
+        md += self._tail_md(["- `calibrated.toml`, `result.json`, `accuracy.json`, "
+                             "`summary.json`, `report.html`"], figures)
         return "\n".join(md) + "\n"
 
     # -- figures --------------------------------------------------------------------------------
