@@ -420,22 +420,18 @@ def effects_in_range(robot: Any, data: Any, result: IdentificationResult
 
 
 def _diagnosis(robot: Any, data: Any, result: Any, noise: Any, notes: list[str]) -> Any:
-    """:func:`iwr.effects.job.diagnose` of a geometric-only result on pose data with payload or
-    temperature columns (issue 23), with the noise the fit was weighted by; None otherwise (a
-    note when it cannot be computed)."""
-    from .effects.job import diagnose
-    from .measurements import Measurements
+    """The kind's :meth:`~iwr.kinds.MeasurementKind.diagnose` of a geometric-only result on
+    data with payload or temperature columns (issue 23), with the noise the fit was weighted
+    by; None otherwise (a note when it cannot be computed)."""
     from .noise import Noise
 
-    if robot.effects or not isinstance(data, Measurements) or result.interrupted:
-        return None
-    if data.payload is None and data.temperatures is None:
+    if robot.effects or result.interrupted:
         return None
     if result.method == "efficient" and result.noise is not None:
         noise = result.noise
     try:
-        return diagnose(robot, data, result.x, active=result.active,
-                        noise=noise if isinstance(noise, Noise) else None)
+        return kinds.of(data).diagnose(robot, data, result.x, active=result.active,
+                                       noise=noise if isinstance(noise, Noise) else None)
     except (ValueError, np.linalg.LinAlgError) as exc:
         notes.append(f"note: no diagnosis of the residuals against the loads and temperatures: "
                      f"{_one_line(exc)}")

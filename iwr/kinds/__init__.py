@@ -285,6 +285,16 @@ class MeasurementKind(abc.ABC):
         robot's) for data in {T}."""
         return np.eye(4)
 
+    def diagnose(self, robot: Any, data: Any, x: Any, *, active: Any = None,
+                 noise: Any = None) -> Any:
+        """Whether the residuals of a geometric fit ``x`` correlate with the loads or the
+        temperatures the data carry (:class:`iwr.effects.job.Diagnosis`), or None when they carry
+        neither. A kind that models no diagnosis says so (ValueError: the job notes it)."""
+        if getattr(data, "payload", None) is None and getattr(data, "temperatures", None) is None:
+            return None
+        raise ValueError(f"{self.name} data: the residuals are tested against the loads and "
+                         "temperatures on pose data only (docs/effects.md)")
+
     def world_gravity(self, robot: Any) -> np.ndarray | None:
         """Gravity in {0} (m/s^2) as the instrument of ``robot``'s description gives it, for the
         effects that load the robot (issue 23), or None when the effects' own ``gravity_m_s2``

@@ -12,6 +12,7 @@ from ..accuracy_prediction import predicted_accuracy
 from ..analysis.accuracy import pose_accuracy
 from ..analysis.identifiability import parameter_error, pose_identifiability
 from ..analysis.uncertainty import pose_uncertainty
+from ..effects.job import diagnose
 from ..estimation import _PoseSpec, pose_misclosures
 from ..fit_test import _plausible_limit, leg_readings
 from ..implicit_loop import _check_noise, loop_jacobians, sigma_matrix
@@ -187,6 +188,10 @@ class PoseKind(MeasurementKind):
     def measure(self, robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
                 rng: np.random.Generator) -> Any:
         return measure_poses(robot, x, q, poses, noise, rng)
+
+    def diagnose(self, robot: Any, data: Any, x: Any, *, active: Any = None,
+                 noise: Any = None) -> Any:
+        return diagnose(robot, data, x, active=active, noise=noise)
 
     def frame_check(self, robot: Any, data: Any) -> Any:
         return check_pose_frame(robot, data)
