@@ -201,7 +201,7 @@ def test_ballbar_candidates_are_pairs_within_the_bars_range(kind_case: Any) -> N
             if bar.range[0] <= d <= bar.range[1]:
                 pairs.append((k, bar.name))
     assert [(int(np.flatnonzero((poses == p).all(axis=1))[0]), s)
-            for p, s in zip(cand.poses, cand.setup)] == pairs
+            for p, s in zip(cand.poses, cand.setup, strict=True)] == pairs
     assert 0 < len(pairs) < 2 * len(poses)
     # the pairs given: kept as they are (measured data: in their own set-ups)
     data, _ = iwr.simulate(robot, 30, seed=2)
