@@ -58,7 +58,9 @@ class PosePlan:
     base_indices : ndarray of int
         The base parameters the information is computed for.
     measurements : Measurements
-        The chosen candidate rows.
+        The chosen candidate rows (for a ballbar robot an
+        :class:`iwr.ballbar.planning.BallbarCandidates`, whose ``setup`` names the set-up of
+        each pose).
     """
 
     indices: np.ndarray
@@ -68,8 +70,9 @@ class PosePlan:
     n_exchanges: int
     base_indices: np.ndarray
     measurements: Measurements
-    #: ``"pose"`` (a pose measured in {0}) or the tracker setup's kind (``"points"``,
-    #: ``"probe"``): what is measured at each pose, for the plan file's instructions.
+    #: ``"pose"`` (a pose measured in {0}), the tracker setup's kind (``"points"``,
+    #: ``"probe"``) or ``"ballbar"``: what is measured at each pose, for the plan file's
+    #: instructions.
     data_kind: str = "pose"
 
     def __str__(self) -> str:
