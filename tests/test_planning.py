@@ -211,6 +211,13 @@ def test_ballbar_candidates_are_pairs_within_the_bars_range(kind_case: Any) -> N
     with pytest.raises(ValueError, match=r"n_poses: 55; expected an integer from 56 \(to "
                        r"determine 56 base parameters from 1 distance"):
         iwr.plan_poses(robot, cand, 55)
+    # one set-up makes the robot's identifiable part identifiable (docs/ballbar.md): 42 + 7
+    # base parameters, determined by as many planned distances
+    one = robot.with_instrument("ballbar", {"A": setup.to_dict()["A"]})
+    plan = iwr.plan_poses(one, (q, poses), 49, seed=0)
+    assert plan.base_indices.size == 49 and set(plan.measurements.setup) == {"A"}
+    problem, x, base, _, _ = kind.design(one, plan.measurements, None, None)
+    assert np.linalg.matrix_rank(problem.jacobian(x)[:, plan.base_indices]) == 49
     # a set-up whose bar reaches no candidate, or too few
     far = robot.with_instrument("ballbar", {
         **setup.to_dict(), "C": {"platform_ball": [0, 0, -60], "fixed_ball": [0, 0, 9000],
