@@ -38,11 +38,11 @@ from . import _core, kinds
 from ._blas import single_thread
 from ._io import jsonable
 from .accuracy_prediction import PredictedAccuracy, predicted_accuracy
+from .estimator_spec import EstimatorSpec
 from .fit_test import (
     FitTest,
     _chi2_cause,
     _chi2_verdict,
-    _nearest_plausible,
     _plausible_limit,
     fit_check,
     leg_readings,
@@ -58,7 +58,7 @@ from .implicit_loop import (
 from .measurements import Measurements
 from .noise import Noise
 from .problem import Problem, _check_joint_types
-from .result import IdentificationResult, Outlier, pose_key, source_line
+from .result import IdentificationResult, Outlier
 from .robot import Robot
 
 __all__ = [
@@ -290,10 +290,11 @@ def _check_estimate(estimate: Sequence[str] | None, est: tuple[str, ...],
     return tuple(dict.fromkeys(out))
 
 
-class _PoseSpec:
+class _PoseSpec(EstimatorSpec):
     """What the estimation loop (:func:`_estimate`) needs to know of pose-in-{0} data: the
     solve, the readings' names and variance components, the plausibility test, the predicted
-    accuracy. (The tracker kinds have theirs in :mod:`iwr.tracker.estimation`.)"""
+    accuracy (:class:`iwr.estimator_spec.EstimatorSpec` holds what every kind's spec shares;
+    the tracker kinds have theirs in :mod:`iwr.tracker.estimation`)."""
 
     kind = "pose"
 
@@ -324,19 +325,6 @@ class _PoseSpec:
     def start_sigma(self, c: str) -> float:
         return float(getattr(self.noise0, c))
 
-    def where(self, k: int) -> str:
-        return self.measurements.where(k)
-
-    def line(self, k: int) -> int | None:
-        return source_line(self.measurements, k)
-
-    def key(self, k: int) -> str:
-        return pose_key(self.measurements, k)
-
-    def subset(self, used: np.ndarray) -> Measurements:
-        return self.measurements.subset(np.flatnonzero(used)) if not used.all() \
-            else self.measurements
-
     def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
               corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:
         s = self.sigma_all.copy()
@@ -347,17 +335,11 @@ class _PoseSpec:
             self.robot._geometry, x, idx, m.q, m.poses, m.legs, np.ascontiguousarray(s[used]),
             np.ascontiguousarray(corr), max_iterations=int(max_iterations), callback=cb)
 
-    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        x_plain = _nearest_plausible(leg_readings(self.robot, self.subset(used)), x,
-                                     self.limit)
-        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
-                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+    def plausibility_model(self, used: np.ndarray) -> Any:
+        return leg_readings(self.robot, self.subset(used))
 
     def noise_used(self, sigmas: dict[str, float]) -> Any:
         return replace(self.noise0, **sigmas)
-
-    def noise_dict(self, noise: Any) -> dict[str, Any]:
-        return asdict(noise)
 
     def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray,
                   tool: Any) -> PredictedAccuracy:

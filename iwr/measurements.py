@@ -613,8 +613,10 @@ def read_csv_text(path: Path) -> str:
         raise MeasurementFileError(
             f"{path}: a pose plan written by 'iwr plan' (the poses to measure), not "
             "measurements: drive the robot to each of its poses, record the joint readings, "
-            "the six leg readings and the platform pose measured by the tracker, and "
-            "calibrate with that file (format: docs/data.md)"
+            "the six leg readings and what its comment lines say the instrument measures (the "
+            "platform pose, reflector points or a probe pose measured by the tracker, or a "
+            "ballbar's distance in the pose's set-up), and calibrate with that file (formats: "
+            "docs/data.md, docs/tracker.md, docs/ballbar.md)"
         )
     return text
 

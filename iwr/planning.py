@@ -58,7 +58,9 @@ class PosePlan:
     base_indices : ndarray of int
         The base parameters the information is computed for.
     measurements : Measurements
-        The chosen candidate rows.
+        The chosen candidate rows (for a ballbar robot an
+        :class:`iwr.ballbar.planning.BallbarCandidates`, whose ``setup`` names the set-up of
+        each pose).
     """
 
     indices: np.ndarray
@@ -68,8 +70,9 @@ class PosePlan:
     n_exchanges: int
     base_indices: np.ndarray
     measurements: Measurements
-    #: ``"pose"`` (a pose measured in {0}) or the tracker setup's kind (``"points"``,
-    #: ``"probe"``): what is measured at each pose, for the plan file's instructions.
+    #: ``"pose"`` (a pose measured in {0}), the tracker setup's kind (``"points"``,
+    #: ``"probe"``) or ``"ballbar"``: what is measured at each pose, for the plan file's
+    #: instructions.
     data_kind: str = "pose"
 
     def __str__(self) -> str:
@@ -87,12 +90,17 @@ class PosePlan:
         cols = m.columns()[: m.n_joints + 6]
         # Issue 23: with payloads planned, the payload to mount at each pose (docs/effects.md).
         pay = [] if m.payload is None else list(_PAYLOAD_COLUMNS)
+        # Ballbar data (docs/ballbar.md): the set-up to mount the bar in at each pose.
+        setups = getattr(m, "setup", None)
         buf = io.StringIO()
         origin = f" from {source}" if source else ""
         what = {"points": "the reflector points measured by the tracker, in its frame",
-                "probe": "the probe pose measured by the tracker, in its frame"}.get(
+                "probe": "the probe pose measured by the tracker, in its frame",
+                "ballbar": "the bar's reading, the ballbar mounted in the\n# set-up of the "
+                           "pose's setup column (a [ballbar.NAME] of the robot)"}.get(
                     self.data_kind, "the platform pose measured by the tracker")
-        doc = "docs/tracker.md" if self.data_kind in ("points", "probe") else "docs/data.md"
+        doc = {"points": "docs/tracker.md", "probe": "docs/tracker.md",
+               "ballbar": "docs/ballbar.md"}.get(self.data_kind, "docs/data.md")
         buf.write(
             f"{PLAN_MARKER} {len(self.indices)} poses chosen for {self.criterion}{origin}.\n"
             "# Not measurements: drive the robot to each pose below, record the joint readings,\n"
@@ -103,19 +111,24 @@ class PosePlan:
             "# poses are {5} in the world frame {0} of the nominal robot.\n"
         )
         writer = csv.writer(buf, lineterminator="\n")
-        writer.writerow(cols + pay)
-        for row in np.hstack([m.q, m.poses] + ([m.payload] if pay else [])):
-            writer.writerow([repr(float(v)) for v in row])
+        writer.writerow(cols + pay + ([] if setups is None else ["setup"]))
+        for k, row in enumerate(np.hstack([m.q, m.poses] + ([m.payload] if pay else []))):
+            writer.writerow([repr(float(v)) for v in row]
+                            + ([] if setups is None else [str(setups[k])]))
         atomic_write_text(path, buf.getvalue())
 
 
-def read_plan(path: str | os.PathLike[str], *, payload: bool = False) -> Any:
+def read_plan(path: str | os.PathLike[str], *, payload: bool = False,
+              setup: bool = False) -> Any:
     """The poses of a plan written by :meth:`PosePlan.to_csv` (``iwr plan``): ``(q, poses)``,
     joint readings (N, n_joints) and world platform poses (N, 6), a pair that
     :func:`plan_poses` also takes as candidates. ``payload``: ``(q, poses, payload)``, the
     payload planned at each pose ((N, 4): mass kg, centre in {5} mm; None when the plan has no
-    ``payload_*`` columns: issue 23). A plan with payloads read without ``payload`` is refused
-    (its payloads are part of what to measure).
+    ``payload_*`` columns: issue 23). ``setup``: the set-up name of each pose appended
+    (an array of str; None when the plan has no ``setup`` column), what a ballbar plan names
+    (docs/ballbar.md); the triple ``(q, poses, setup)`` is a ballbar robot's candidates too. A
+    plan with payloads read without ``payload``, or with set-ups read without ``setup``, is
+    refused (they are part of what to measure).
 
     Raises
     ------
@@ -130,13 +143,19 @@ def read_plan(path: str | os.PathLike[str], *, payload: bool = False) -> Any:
     if not text.lstrip().startswith(PLAN_MARKER):
         raise MeasurementFileError(f"{path}: not a pose plan (no first line '{PLAN_MARKER} ...')")
     header: list[str] | None = None
-    rows = []
+    rows, names = [], []
     for lineno, line in enumerate(text.splitlines(), start=1):
         if not line.strip() or line.lstrip().startswith("#"):
             continue
         fields = [f.strip() for f in next(csv.reader([line]))]
         if header is None:
             header = fields
+            n_set = 1 if header[-1:] == ["setup"] else 0
+            if n_set and not setup:
+                raise MeasurementFileError(
+                    f"{path}, line {lineno}: the plan names a ballbar set-up per pose (column "
+                    "setup); read it with read_plan(path, setup=True)")
+            header = header[: len(header) - n_set]
             n_pay = 4 if tuple(header[-4:]) == _PAYLOAD_COLUMNS else 0
             if n_pay and not payload:
                 raise MeasurementFileError(
@@ -148,6 +167,12 @@ def read_plan(path: str | os.PathLike[str], *, payload: bool = False) -> Any:
                     "x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad"]:
                 raise MeasurementFileError(f"{path}, line {lineno}: not a plan's header")
             continue
+        if n_set:
+            if len(fields) != len(header) + 1 or not fields[-1]:
+                raise MeasurementFileError(f"{path}, line {lineno}: expected {len(header)} "
+                                           "finite numbers and a set-up name")
+            names.append(fields[-1])
+            fields = fields[:-1]
         try:
             values = [float(f) for f in fields]
         except ValueError:
@@ -160,10 +185,12 @@ def read_plan(path: str | os.PathLike[str], *, payload: bool = False) -> Any:
     if header is None or not rows:
         raise MeasurementFileError(f"{path}: no poses")
     data = np.array(rows)
+    out: tuple[Any, ...] = (data[:, :n_joints], data[:, n_joints: n_joints + 6])
     if payload:
-        return (data[:, :n_joints], data[:, n_joints: n_joints + 6],
-                data[:, n_joints + 6:] if n_pay else None)
-    return data[:, :n_joints], data[:, n_joints:]
+        out += (data[:, n_joints + 6:] if n_pay else None,)
+    if setup:
+        out += (np.array(names, dtype=str) if n_set else None,)
+    return out
 
 
 def _criterion(eig: np.ndarray, name: str, k: int) -> np.ndarray:
@@ -183,21 +210,26 @@ def _criterion(eig: np.ndarray, name: str, k: int) -> np.ndarray:
     return np.nan_to_num(out)
 
 
-def _as_candidates(robot: Robot, candidates: Any) -> Measurements:
+def _as_candidates(robot: Robot, candidates: Any) -> tuple[Measurements, Any]:
+    """``(candidate poses, set-up names or None)``: the set-ups of a triple ``(q, poses,
+    setup)`` (a ballbar plan read back, :func:`read_plan`)."""
     if isinstance(getattr(candidates, "kind", None), str):
         # Data of any kind: their platform poses in {0} (tracker data hold none: the nominal
         # robot's forward kinematics gives them).
-        return kinds.of(candidates).candidate_poses(robot, candidates)
+        return kinds.of(candidates).candidate_poses(robot, candidates), None
     try:
-        q, poses = candidates
+        q, poses, *rest = candidates
+        if len(rest) > 1:
+            raise ValueError
     except (TypeError, ValueError):
         raise TypeError(
-            "candidates: expected an iwr.Measurements or a pair (q, poses)"
+            "candidates: expected an iwr.Measurements, a pair (q, poses) or, for a ballbar "
+            "robot, a triple (q, poses, setup)"
         ) from None
     poses = np.asarray(poses, dtype=float)
     q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
     legs = predict_legs(robot.with_effects(), np.zeros(robot.n_params), q, poses)
-    return Measurements(q, poses, legs, joint_types=robot.joint_types)
+    return Measurements(q, poses, legs, joint_types=robot.joint_types), (rest or [None])[0]
 
 
 def _with_conditions(robot: Robot, cand: Measurements, payloads: Any, temperatures: Any
@@ -251,17 +283,26 @@ def plan_poses(
     ----------
     robot : Robot
         The nominal robot.
-    candidates : Measurements or (q, poses)
+    candidates : Measurements or (q, poses) or (q, poses, setup)
         M candidate poses: joint readings (M, n_joints) and platform poses in the world frame
         (M, 6). Leg readings, if any, are not used. For a robot with a tracker
         (``robot.tracker``) the information is the tracker problem's (docs/tracker.md: points or
         probe poses in {T} as the nominal setup measures them at these poses; the registration
         and offsets among the parameters, one parameter per null direction left out), and
         :class:`iwr.tracker.TrackerMeasurements` are candidates too (their poses by forward
-        kinematics of the nominal robot).
+        kinematics of the nominal robot). For a robot measured by a double ballbar
+        (docs/ballbar.md) the candidates are (pose, set-up) pairs: each candidate pose once per
+        set-up whose bar reaches it (the nominal centre distance within the set-up's
+        ``range``), or the pairs given (``setup``, one set-up name per pose, as
+        ``read_plan(path, setup=True)`` gives them; :class:`iwr.ballbar.BallbarMeasurements`
+        in their own set-ups); the information is the distance's, the balls and offsets of
+        every set-up included, and ``plan.measurements.setup`` says where to mount the bar. A
+        set-up with fewer candidates than its 7 unknowns is refused by name.
     n_poses : int
-        Number of poses to choose, at least ``ceil(rank / 6)`` so the base parameters can be
-        determined.
+        Number of poses to choose, at least ``ceil(rank / r)`` so the base parameters can be
+        determined, ``r`` the independent readings of one pose (the rank of one pose's
+        information: 6 for a pose in {0} or a probe's, 3 per reflector, 1 for a ballbar's
+        distance).
     criterion : {"O1", "O2", "O3", "O4"}
         The index to maximise (see :func:`iwr.identifiability`). O1 (D-optimal) is the usual
         choice; O3 and O4 guard the weakest direction.
@@ -295,16 +336,18 @@ def plan_poses(
     """
     if criterion not in CRITERIA:
         raise ValueError(f"criterion: {criterion!r}; expected one of {', '.join(CRITERIA)}")
-    cand = _as_candidates(robot, candidates)
+    cand, setup = _as_candidates(robot, candidates)
     if robot.effects:  # issue 23: the loads (and temperatures) are part of each candidate
         cand = _with_conditions(robot, cand, payloads, temperatures)
     elif payloads is not None or temperatures is not None:
         raise ValueError(f"payloads, temperatures: robot {robot.name!r} has no effect on; they "
                          "change nothing its geometry models (docs/effects.md)")
-    n_cand = len(cand)
     # The information of the kind of data the robot measures (laser-tracker data,
-    # docs/tracker.md: the tracker problem's, the registration and the offsets included).
+    # docs/tracker.md: the tracker problem's, the registration and the offsets included; ballbar
+    # data, docs/ballbar.md: (pose, set-up) pairs within the bar's range).
     kind = kinds.for_robot(robot)
+    cand = kind.plan_candidates(robot, cand, setup)
+    n_cand = len(cand)
     problem, x, base, rows, what = kind.design(robot, cand, x, report)
     n_all = len(problem.parameter_names)
     if report is not None and np.shape(report.active) != (n_all,):
@@ -481,6 +524,8 @@ def measure(
     poses: Any,
     noise: Noise | None = None,
     seed: int | np.random.Generator | None = None,
+    *,
+    setup: Any = None,
 ) -> Measurements:
     """Simulated readings at given poses: the actual robot (nominal + ``x``) at joint readings
     ``q`` and world platform poses ``poses``, with the noise model of :func:`iwr.simulate`.
@@ -490,13 +535,23 @@ def measure(
     For a robot with a tracker (``robot.tracker``), ``x`` holds the robot's then the setup's true
     parameters and the result is :class:`iwr.tracker.TrackerMeasurements` (the points or probe
     poses in {T}); ``noise`` is then None, an iwr.Noise (readings), an
-    :class:`iwr.tracker.TrackerNoise` or a pair of both.
+    :class:`iwr.tracker.TrackerNoise` or a pair of both. For a ballbar robot (docs/ballbar.md),
+    ``setup`` names the set-up each pose is measured in (``plan.measurements.setup``), ``x``
+    holds the robot's then the set-ups' true parameters, and the result is
+    :class:`iwr.ballbar.BallbarMeasurements` (``noise``: None, an iwr.Noise, a
+    :class:`iwr.ballbar.BallbarNoise` or a pair).
     """
     poses = np.asarray(poses, dtype=float)
     q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
     x = np.asarray(x, dtype=float)
     rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
-    return kinds.for_robot(robot).measure(robot, x, q, poses, noise, rng)
+    kind = kinds.for_robot(robot)
+    if kind.setups_per_pose:
+        return kind.measure(robot, x, q, poses, noise, rng, setup=setup)
+    if setup is not None:
+        raise ValueError(f"setup: robot {robot.name!r} is measured by {kind.description}, whose "
+                         "readings belong to no set-up; give setup=None")
+    return kind.measure(robot, x, q, poses, noise, rng)
 
 
 def measure_poses(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,

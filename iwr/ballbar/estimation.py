@@ -24,15 +24,15 @@ removes, to first order.
 
 from __future__ import annotations
 
-from dataclasses import asdict, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from ..accuracy_prediction import PredictedAccuracy, accuracy_from_covariances
+from ..estimator_spec import EstimatorSpec
 from ..implicit_loop import _core_rotations, loop_jacobians
 from ..noise import Noise
-from ..result import pose_key, source_line
 from ..robot import Robot
 from ..tracker.estimation import _skew
 from ..transforms import pose_from_matrix, rotvec_matrix
@@ -147,13 +147,15 @@ def ballbar_loop_model(robot: Robot, problem: BallbarProblem, reference: np.ndar
     return model
 
 
-class BallbarSpec:
+class BallbarSpec(EstimatorSpec):
     """The ballbar's part of the estimation loop of :func:`iwr.estimation.efficient` (the pose
     kind's is ``iwr.estimation._PoseSpec``, the tracker kinds' ``iwr.tracker.estimation.
-    TrackerSpec``; the same methods). The start: the noise-weighted LM on the distances (the
-    base parameters), from ``x0`` (default the nominal robot and set-ups)."""
+    TrackerSpec``; the same base, :class:`iwr.estimator_spec.EstimatorSpec`). The start: the
+    noise-weighted LM on the distances (the base parameters), from ``x0`` (default the nominal
+    robot and set-ups)."""
 
     kind = "ballbar"
+    instrument = "ballbar"
 
     def __init__(self, robot: Robot, measurements: BallbarMeasurements, noise: Any, x0: Any,
                  active: Any, estimate: Any, bounds: Any, plausible: float) -> None:
@@ -202,20 +204,10 @@ class BallbarSpec:
         readings, bar = self.noise0
         return float(bar.distance if c == "ballbar_distance" else getattr(readings, c))
 
-    def where(self, k: int) -> str:
-        return self.measurements.where(k)
-
-    def line(self, k: int) -> int | None:
-        return source_line(self.measurements, k)
-
-    def key(self, k: int) -> str:
-        return pose_key(self.measurements, k)
-
     def _problem(self, used: np.ndarray) -> BallbarProblem:
         if used.all():
             return self.problem
-        return BallbarProblem(self.robot, self.setup,
-                              self.measurements.subset(np.flatnonzero(used)),
+        return BallbarProblem(self.robot, self.setup, self.subset(used),
                               (self.problem.lower, self.problem.upper),
                               reference=self.problem.reference)
 
@@ -234,13 +226,8 @@ class BallbarSpec:
         return solve_loop(model, x, idx, np.where(np.isin(np.arange(nj + 6), free), corr, 0.0),
                           rows, free, max_iterations=int(max_iterations), callback=cb)
 
-    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        from ..fit_test import _nearest_plausible
-
-        x_plain = _nearest_plausible(self._problem(used).residuals_and_jacobian, x, self.limit,
-                                     self.center)
-        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
-                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+    def plausibility_model(self, used: np.ndarray) -> Any:
+        return self._problem(used).residuals_and_jacobian
 
     def noise_used(self, sigmas: dict[str, float]) -> tuple[Noise, BallbarNoise]:
         readings, bar = self.noise0
@@ -248,18 +235,11 @@ class BallbarSpec:
                                         if c != "ballbar_distance"})
         return readings, BallbarNoise(sigmas.get("ballbar_distance", bar.distance))
 
-    @staticmethod
-    def noise_dict(noise: tuple[Noise, BallbarNoise]) -> dict[str, Any]:
-        return {"readings": asdict(noise[0]), "ballbar": asdict(noise[1])}
-
     def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray,
                   tool: Any) -> PredictedAccuracy:
         return ballbar_predicted_accuracy(self.robot, self._problem(used).measurements, x, cov,
                                           self.mask, tool=tool)
 
-    def cost_eq10(self, x: np.ndarray) -> float:
-        """The unweighted distance objective (mm^2), eq. (10)'s analogue on ballbar data."""
-        return self.problem.cost(x)
 
 
 def _gauge_basis(t05: np.ndarray) -> np.ndarray:

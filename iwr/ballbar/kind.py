@@ -15,6 +15,7 @@ import numpy as np
 
 from ..analysis.identifiability import kind_parameter_error
 from ..effects import refuse as refuse_effects
+from ..forward import forward_kinematics
 from ..kinds import MeasurementKind
 from ..noise import Noise, instrument_level
 from .api import (
@@ -31,6 +32,7 @@ from .api import (
 )
 from .data import BallbarMeasurements
 from .files import is_ballbar_file, read_ballbar
+from .planning import BallbarCandidates, ballbar_candidates, ballbar_design, measure_ballbar
 from .setup import BallbarSetup
 from .simulate import BallbarNoise, simulate_ballbar, split_noise
 
@@ -230,17 +232,24 @@ class BallbarKind(MeasurementKind):
         return (problem.parameter_names, limit, centre,
                 lambda x: problem.residuals_and_jacobian(x))
 
-    def _no_planning(self) -> ValueError:
-        return ValueError("pose planning (iwr.plan_poses) does not take ballbar set-ups yet: a "
-                          "candidate pose belongs to no set-up (docs/ballbar.md)")
+    # -- pose planning (iwr.plan_poses): (pose, set-up) pairs within the bar's range ---------
+    setups_per_pose = True
 
     def candidate_poses(self, robot: Any, data: Any) -> Any:
-        raise self._no_planning()
+        # Ballbar data hold no world pose: the nominal robot's forward kinematics gives it; each
+        # pose stays a candidate in the set-up it was measured in.
+        poses = forward_kinematics(robot, np.zeros(robot.n_params), data.q, data.legs)
+        return BallbarCandidates(data.q, poses, data.legs, data.setup,
+                                 joint_types=robot.joint_types, lines=data.lines,
+                                 source=data.source)
+
+    def plan_candidates(self, robot: Any, candidates: Any, setup: Any) -> Any:
+        return ballbar_candidates(robot, candidates, setup)
 
     def design(self, robot: Any, candidates: Any, x: Any, report: Any
                ) -> tuple[Any, np.ndarray, np.ndarray, int, str]:
-        raise self._no_planning()
+        return ballbar_design(robot, candidates, x, report)
 
     def measure(self, robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
-                rng: np.random.Generator) -> Any:
-        raise self._no_planning()
+                rng: np.random.Generator, setup: Any = None) -> Any:
+        return measure_ballbar(robot, x, q, poses, noise, rng, setup)

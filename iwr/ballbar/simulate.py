@@ -71,7 +71,7 @@ def simulate_ballbar(robot: Robot, setup: BallbarSetup, n_poses: int = 100, *,
         raise TypeError(f"setup: expected a BallbarSetup, got {type(setup).__name__}")
     if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ValueError(f"n_poses: {n_poses!r}; expected a positive integer")
-    readings, bar_noise = split_noise(noise)
+    split_noise(noise)  # its types checked before anything is drawn
     rng = np.random.default_rng(seed)
     n_all = robot.n_params + setup.n_params
     if x is None:
@@ -110,7 +110,19 @@ def simulate_ballbar(robot: Robot, setup: BallbarSetup, n_poses: int = 100, *,
             bars.append(np.full(ok.size, i))
             have += ok.size
     q, poses, legs, bar_idx = np.vstack(qs), np.vstack(ps), np.vstack(ls), np.concatenate(bars)
-    distance = true_distances(setup, xs, bar_idx, poses)
+    return measured(robot, setup, xs, bar_idx, q, poses, legs, noise, rng), x_true
+
+
+def measured(robot: Robot, setup: BallbarSetup, x_setup: Any, bar: np.ndarray, q: np.ndarray,
+             poses: np.ndarray, legs: np.ndarray, noise: Any,
+             rng: np.random.Generator) -> BallbarMeasurements:
+    """The readings at exact joint readings ``q``, platform poses in {0} and leg readings
+    ``legs``, in set-ups ``bar`` (indices) whose parameters are ``x_setup``: the bar's
+    :func:`true_distances`, then the leg and joint readings' noise and the bar's
+    (:func:`split_noise`), drawn from ``rng`` in that order (:func:`simulate_ballbar`,
+    :func:`iwr.planning.measure`)."""
+    readings, bar_noise = split_noise(noise)
+    distance = true_distances(setup, x_setup, bar, poses)
     if readings is not None and not readings.is_zero:
         sigma_q = np.where(np.array([c == "P" for c in robot.joint_types], dtype=bool),
                            readings.joint_lengths, readings.joint_angles)
@@ -118,6 +130,5 @@ def simulate_ballbar(robot: Robot, setup: BallbarSetup, n_poses: int = 100, *,
         legs = legs + readings.legs * rng.standard_normal(legs.shape)
     if bar_noise is not None and not bar_noise.is_zero:
         distance = distance + bar_noise.distance * rng.standard_normal(distance.shape)
-    names = np.array(setup.names, dtype=object)[bar_idx]
-    return (BallbarMeasurements(q, legs, names, distance, joint_types=robot.joint_types),
-            x_true)
+    names = np.array(setup.names, dtype=object)[bar]
+    return BallbarMeasurements(q, legs, names, distance, joint_types=robot.joint_types)

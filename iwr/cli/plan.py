@@ -104,9 +104,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         temperatures = np.random.default_rng(args.seed).uniform(lo, hi, len(cand))
         print(f"temperatures: the {thermal[0].name} effect needs them at the candidates; drawn "
               f"uniformly in {lo:g} .. {hi:g} C (seed {args.seed})")
-    n_cand = len(cand) * (1 if payloads is None else len(payloads))
-    if args.poses > n_cand:
-        raise CommandError(f"--poses {args.poses}: more than the {n_cand} candidates")
+    # plan_poses refuses a --poses above the candidates' number (each pose once per payload;
+    # a ballbar's (pose, set-up) pairs within the bar's range), naming it.
     try:
         plan = plan_poses(robot, cand, args.poses, criterion=args.criterion, seed=args.seed,
                           **({"payloads": payloads, "temperatures": temperatures}
@@ -122,6 +121,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
         counts = ", ".join(f"{int(np.sum(np.all(chosen == p, axis=1)))} with {p[0]:g} kg"
                            for p in payloads)
         print(f"payloads: {counts}")
-    print(f"wrote {args.out}: the chosen poses to measure (joint readings and platform poses); "
-          "measure them, then calibrate with the measured file")
+    setups = getattr(plan.measurements, "setup", None)
+    if setups is not None:  # a ballbar's: where to mount the bar at each pose (docs/ballbar.md)
+        names, counts = np.unique(setups.astype(str), return_counts=True)
+        print("set-ups: " + ", ".join(f"{c} poses in {n}" for n, c in zip(names, counts,
+                                                                         strict=True)))
+    print(f"wrote {args.out}: the chosen poses to measure (joint readings and platform poses"
+          f"{', and the set-up of each' if setups is not None else ''}); measure them, then "
+          "calibrate with the measured file")
     return EXIT_OK

@@ -18,7 +18,6 @@ from ..estimation import (
     _check_estimate,
     _PoseSpec,
 )
-from ..fit_test import _nearest_plausible
 from ..implicit_loop import (
     _check_noise,
     _component_columns,
@@ -104,11 +103,8 @@ class EffectPoseSpec(_PoseSpec):
         return solve_in_stages(lambda sig: loop_residuals(self.robot, m, sig), x, idx, s[used],
                                corr, max_iterations=int(max_iterations), callback=cb)
 
-    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        problem = EffectProblem(self.robot, self.subset(used))
-        x_plain = _nearest_plausible(problem.residuals_and_jacobian, x, self.limit)
-        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
-                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+    def plausibility_model(self, used: np.ndarray) -> Any:
+        return EffectProblem(self.robot, self.subset(used)).residuals_and_jacobian
 
     def cost_eq10(self, x: np.ndarray) -> float:
         return self.problem.cost(x)

@@ -258,6 +258,21 @@ class MeasurementKind(abc.ABC):
         """For :func:`iwr.plan_poses`: the candidates as :class:`iwr.Measurements` with their
         platform poses in {0} (measured, or the nominal robot's forward kinematics)."""
 
+    #: Whether each reading belongs to one of the instrument's set-ups (a ballbar's): then
+    #: :func:`iwr.plan_poses` chooses (pose, set-up) pairs (:meth:`plan_candidates`) and
+    #: :func:`iwr.planning.measure` takes each pose's set-up (``setup=``).
+    setups_per_pose = False
+
+    def plan_candidates(self, robot: Any, candidates: Any, setup: Any) -> Any:
+        """For :func:`iwr.plan_poses`: the rows to choose from, made of the candidate poses
+        (:meth:`candidate_poses`' form) and ``setup``, a set-up name per pose or None. Default:
+        the candidates as they are; set-up names refused (this kind has none)."""
+        if setup is not None:
+            raise ValueError(f"candidates: set-up names given, but robot "
+                             f"{getattr(robot, 'name', robot)!r} is measured by "
+                             f"{self.description}, whose readings belong to no set-up")
+        return candidates
+
     @abc.abstractmethod
     def design(self, robot: Any, candidates: Any, x: Any, report: Any
                ) -> tuple[Any, np.ndarray, np.ndarray, int, str]:
@@ -269,7 +284,8 @@ class MeasurementKind(abc.ABC):
     def measure(self, robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
                 rng: np.random.Generator) -> Any:
         """For :func:`iwr.planning.measure`: this kind's readings of the actual robot ``x`` at
-        joint readings ``q`` and platform poses ``poses`` in {0}, with ``noise``."""
+        joint readings ``q`` and platform poses ``poses`` in {0}, with ``noise`` (a kind with
+        :attr:`setups_per_pose` also takes ``setup=``, each pose's set-up)."""
 
     # -- the calibration job's per-kind part (iwr.calibrate) --------------------------------
 

@@ -13,14 +13,14 @@ errors-in-variables adjustment.
 
 from __future__ import annotations
 
-from dataclasses import asdict, replace
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from .. import _core
+from ..estimator_spec import EstimatorSpec
 from ..noise import Noise, TrackerNoise, axis_whitening, split_noise
-from ..result import pose_key, source_line
 from ..robot import Robot
 from .data import TrackerMeasurements
 from .gauge import _align, _fk, null_space
@@ -70,11 +70,12 @@ def _noise(noise: Any) -> tuple[Noise, TrackerNoise, tuple[str, ...]]:
     return readings, tracker, ()
 
 
-class TrackerSpec:
+class TrackerSpec(EstimatorSpec):
     """The tracker kinds' part of the estimation loop (the pose kind's is
-    ``iwr.estimation._PoseSpec``; the same methods)."""
+    ``iwr.estimation._PoseSpec``; the same base, :class:`iwr.estimator_spec.EstimatorSpec`)."""
 
     kind = "tracker"
+    instrument = "tracker"
 
     def __init__(self, robot: Robot, measurements: TrackerMeasurements, noise: Any, x0: Any,
                  active: Any, estimate: Any, bounds: Any, plausible: float) -> None:
@@ -179,15 +180,6 @@ class TrackerSpec:
             return float(getattr(tn, c[len("tracker_"):]))
         return float(getattr(readings, c))
 
-    def where(self, k: int) -> str:
-        return self.measurements.where(k)
-
-    def line(self, k: int) -> int | None:
-        return source_line(self.measurements, k)
-
-    def key(self, k: int) -> str:
-        return pose_key(self.measurements, k)
-
     def scaled(self, scale: dict[str, float]) -> tuple[np.ndarray, np.ndarray]:
         """The readings' sigmas (N, 6 + n_joints) and the tracker's whitening (N, blocks, 3, 3)
         with the variance components' factors ``scale`` applied."""
@@ -218,12 +210,12 @@ class TrackerSpec:
             np.ascontiguousarray(s[used]), np.ascontiguousarray(corr),
             max_iterations=int(max_iterations), callback=cb)
 
-    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        from ..fit_test import _nearest_plausible, tracker_readings
+    def plausibility_model(self, used: np.ndarray) -> Any:
+        # All the poses, the rejected ones too (as it always was: the ballbar's and the pose
+        # kind's take the poses in use).
+        from ..fit_test import tracker_readings
 
-        x_plain = _nearest_plausible(tracker_readings(self.problem), x, self.limit, self.center)
-        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
-                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+        return tracker_readings(self.problem)
 
     def noise_used(self, sigmas: dict[str, float]) -> tuple[Noise, TrackerNoise]:
         readings, tn = self.noise0
@@ -236,18 +228,11 @@ class TrackerSpec:
                      orientation=tn.orientation * f.get("tracker_orientation", 1.0))
         return readings, tn
 
-    @staticmethod
-    def noise_dict(noise: tuple[Noise, TrackerNoise]) -> dict[str, Any]:
-        return {"readings": asdict(noise[0]), "tracker": asdict(noise[1])}
-
     def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray, tool: Any) -> Any:
         m = self.measurements
         return tracker_predicted_accuracy(self.robot, x, cov, self.mask, m.q[used], m.legs[used],
                                           tool=tool)
 
-    def cost_eq10(self, x: np.ndarray) -> float:
-        """The unweighted point objective (mm^2), eq. (10)'s analogue on tracker data."""
-        return self.problem.cost(x)
 
 
 def _aligned_errors(a: np.ndarray, b: np.ndarray, tool: np.ndarray) -> np.ndarray:
