@@ -15,6 +15,7 @@
 
 #include <unistd.h>
 
+#include "iwr/ballbar.hpp"
 #include "iwr/effects.hpp"
 #include "iwr/model.hpp"
 #include "iwr/parallel.hpp"
@@ -106,4 +107,9 @@ void bind_effects(py::module_& m);
 // (bind_effects.cpp).
 std::vector<EffectTable> effect_tables(const py::object& effects);
 py::list effect_tables_py(const std::vector<EffectTable>& tables);
+void bind_ballbar(py::module_& m);
+// The ballbar set-ups from Python's [(name, platform_ball, fixed_ball, offset, range or None)],
+// and back (bind_ballbar.cpp).
+std::vector<BarSetup> bar_setups(const py::object& bars);
+py::list bar_setups_py(const std::vector<BarSetup>& bars);
 }  // namespace iwr::python
