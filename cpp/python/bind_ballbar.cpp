@@ -1,5 +1,8 @@
 // Bindings of the double ballbar's objective (iwr/ballbar.hpp). Private: iwr.ballbar is the public
-// API (BallbarProblem's cost and batch costs run on it).
+// API (BallbarProblem's cost and batch costs run on it). The set-ups travel as a dict of arrays
+// (bar_names, platform_balls (S, 3), fixed_balls (S, 3), offsets (S,), ranges (S, 2), NaN: none),
+// as the problem file's fields do.
+#include <cmath>
 #include <memory>
 
 #include "common.hpp"
@@ -7,44 +10,54 @@
 
 namespace iwr::python {
 
-std::vector<BarSetup> bar_setups(const py::object& bars) {
+std::vector<BarSetup> bar_setups(const py::dict& d) {
+    const auto names = d["bar_names"].cast<std::vector<std::string>>();
+    const auto p = d["platform_balls"].cast<RowMatrixXd>(), f = d["fixed_balls"].cast<RowMatrixXd>();
+    const auto o = d["offsets"].cast<VectorXd>();
+    const auto r = d["ranges"].cast<RowMatrixXd>();
+    const Eigen::Index s = static_cast<Eigen::Index>(names.size());
+    if (p.rows() != s || p.cols() != 3 || f.rows() != s || f.cols() != 3 || o.size() != s || r.rows() != s ||
+        r.cols() != 2)
+        throw std::invalid_argument("ballbar set-ups: expected " + std::to_string(s) +
+                                    " names, platform_balls and fixed_balls (S, 3), offsets (S,), ranges (S, 2)");
     std::vector<BarSetup> out;
-    for (const py::handle item : bars) {
-        const auto t = item.cast<py::tuple>();
-        if (t.size() != 5)
-            throw std::invalid_argument("bars: expected (name, platform_ball, fixed_ball, offset, range or None)");
+    for (Eigen::Index i = 0; i < s; ++i) {
         BarSetup b;
-        b.name = t[0].cast<std::string>();
-        const auto p = t[1].cast<VectorXd>(), f = t[2].cast<VectorXd>();
-        if (p.size() != 3 || f.size() != 3)
-            throw std::invalid_argument("bars: set-up '" + b.name + "': expected 3 coordinates per ball");
-        b.platform_ball = p;
-        b.fixed_ball = f;
-        b.offset = t[3].cast<double>();
-        if (!t[4].is_none()) {
-            const auto r = t[4].cast<std::vector<double>>();
-            if (r.size() != 2) throw std::invalid_argument("bars: set-up '" + b.name + "': range: expected 2 values");
-            b.has_range = true;
-            b.range_min = r[0], b.range_max = r[1];
-        }
+        b.name = names[static_cast<std::size_t>(i)];
+        b.platform_ball = p.row(i).transpose();
+        b.fixed_ball = f.row(i).transpose();
+        b.offset = o(i);
+        b.has_range = !std::isnan(r(i, 0));  // NaN: no range
+        if (b.has_range) b.range_min = r(i, 0), b.range_max = r(i, 1);
         out.push_back(std::move(b));
     }
     return out;
 }
 
-py::list bar_setups_py(const std::vector<BarSetup>& bars) {
-    py::list out;
-    for (const BarSetup& b : bars)
-        out.append(py::make_tuple(b.name, VectorXd(b.platform_ball), VectorXd(b.fixed_ball), b.offset,
-                                  b.has_range ? py::object(py::make_tuple(b.range_min, b.range_max))
-                                              : py::object(py::none())));
-    return out;
+void bar_setups_py(py::dict& d, const std::vector<BarSetup>& bars) {
+    const Eigen::Index s = static_cast<Eigen::Index>(bars.size());
+    std::vector<std::string> names;
+    RowMatrixXd p(s, 3), f(s, 3), r(s, 2);
+    VectorXd o(s);
+    for (Eigen::Index i = 0; i < s; ++i) {
+        const BarSetup& b = bars[static_cast<std::size_t>(i)];
+        names.push_back(b.name);
+        p.row(i) = b.platform_ball.transpose();
+        f.row(i) = b.fixed_ball.transpose();
+        o(i) = b.offset;
+        r.row(i) << (b.has_range ? b.range_min : NAN), (b.has_range ? b.range_max : NAN);
+    }
+    d["bar_names"] = names;
+    d["platform_balls"] = p;
+    d["fixed_balls"] = f;
+    d["offsets"] = o;
+    d["ranges"] = r;
 }
 
 void bind_ballbar(py::module_& m) {
     using PyBallbarObjective = Pooled<BallbarObjective>;
     py::class_<PyBallbarObjective>(m, "BallbarObjective")
-        .def(py::init([](const Geometry& g, const py::object& bars, const RowMatrixXd& q, const RowMatrixXd& legs,
+        .def(py::init([](const Geometry& g, const py::dict& bars, const RowMatrixXd& q, const RowMatrixXd& legs,
                          const std::vector<int>& bar, const VectorXd& distance, const VectorXd& reference,
                          const Vector6d& home, const RowMatrixXd& whitening, double tolerance) {
                  std::vector<BarSetup> setups = bar_setups(bars);

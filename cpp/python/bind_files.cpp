@@ -69,7 +69,7 @@ void bind_files(py::module_& m) {
             const auto q = get("q").cast<RowMatrixXd>();
             p.q = q.cols() == static_cast<Eigen::Index>(p.joint_types.size()) ? q : RowMatrixXd(p.legs.rows(), 0);
             if (p.ballbar()) {  // the set-ups, each pose's set-up and the bar's readings
-                p.bars = bar_setups(get("bars"));
+                p.bars = bar_setups(d);
                 p.bar = get("bar").cast<std::vector<int>>();
                 p.distance = get("distance").cast<VectorXd>();
                 p.reference = get("reference").cast<VectorXd>();
@@ -237,7 +237,7 @@ py::dict problem_dict(const ProblemData& p) {
     d["q"] = p.q;
     d["legs"] = p.legs;
     if (p.ballbar()) {
-        d["bars"] = bar_setups_py(p.bars);
+        bar_setups_py(d, p.bars);
         d["bar"] = p.bar;
         d["distance"] = p.distance;
         d["reference"] = p.reference;

@@ -108,8 +108,8 @@ void bind_effects(py::module_& m);
 std::vector<EffectTable> effect_tables(const py::object& effects);
 py::list effect_tables_py(const std::vector<EffectTable>& tables);
 void bind_ballbar(py::module_& m);
-// The ballbar set-ups from Python's [(name, platform_ball, fixed_ball, offset, range or None)],
-// and back (bind_ballbar.cpp).
-std::vector<BarSetup> bar_setups(const py::object& bars);
-py::list bar_setups_py(const std::vector<BarSetup>& bars);
+// The ballbar set-ups from a dict's bar_names, platform_balls, fixed_balls, offsets and ranges
+// (NaN: none), and into one (bind_ballbar.cpp).
+std::vector<BarSetup> bar_setups(const py::dict& d);
+void bar_setups_py(py::dict& d, const std::vector<BarSetup>& bars);
 }  // namespace iwr::python
