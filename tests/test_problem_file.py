@@ -163,7 +163,7 @@ def test_the_writer_refuses_what_the_reader_would(problem: iwr.Problem) -> None:
         _core._encode_problem({**args, "legs": legs})
     with pytest.raises(ValueError, match="parameter names: 57; expected 58"):
         _core._encode_problem({**args, "parameter_names": problem.parameter_names[:-1]})
-    with pytest.raises(ValueError, match="kind: 'legs'; expected pose, points or probe"):
+    with pytest.raises(ValueError, match="kind: 'legs'; expected pose, points, probe or ballbar"):
         _core._encode_problem({**args, "kind": "legs"})
     with pytest.raises(ValueError, match="x0: missing"):
         _core._encode_problem({k: v for k, v in args.items() if k != "x0"})

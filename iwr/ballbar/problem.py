@@ -135,7 +135,42 @@ class BallbarProblem(ProblemBase):
         return cls(robot.with_instrument("ballbar", setup), setup, m, bounds,
                    reference=d["reference"], weights=weights, noise=noise)
 
-    # -- the objective ----------------------------------------------------------------------------
+    # -- sizes and names ----------------------------------------------------------------------
+    @property
+    def n_residuals(self) -> int:
+        return len(self.measurements)
+
+    def x0(self) -> np.ndarray:
+        """The nominal robot and the nominal set-ups: zeros."""
+        return np.zeros(self.n_params)
+
+    def _kernel_x(self, x: np.ndarray) -> np.ndarray:
+        return np.concatenate([x[: self.robot.n_params], np.zeros(12)])
+
+    # -- the model ----------------------------------------------------------------------------
+    def _frames(self, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Origins (N, 3) and rotations (N, 3, 3) of {5} in {0}; NaN where FK fails."""
+        pts = self._kernel.predicted_points(self._kernel_x(x)).reshape(self.n_poses, 4, 3)
+        origin = pts[:, 0]
+        rot = np.swapaxes(pts[:, 1:] - origin[:, None, :], 1, 2)  # columns: the axes
+        return origin, rot
+
+    def ball_vectors(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``(P - F, |P - F|)`` per pose: the platform ball's centre minus the fixed ball's, in
+        {0} (N, 3), and their distance (N,); NaN where forward kinematics fails."""
+        x = self._x(x)
+        p, f, _ = self.setup.split(x[self.robot.n_params:])
+        origin, rot = self._frames(x)
+        v = origin + np.einsum("nij,nj->ni", rot, p[self.bar]) - f[self.bar]
+        return v, np.linalg.norm(v, axis=1)
+
+    def predicted(self, x: Any) -> np.ndarray:
+        """The predicted bar readings (N,), mm: centre distance plus length offset; NaN where
+        forward kinematics fails."""
+        x = self._x(x)
+        _, _, o = self.setup.split(x[self.robot.n_params:])
+        return self.ball_vectors(x)[1] + o[self.bar]
+
     def cost(self, x: Any) -> float:
         """Sum of squared (weighted) residuals: the C++ objective's."""
         return float(self.objective.cost(self._x(x)))
