@@ -183,6 +183,7 @@ class Problem(ProblemBase):
 
     data_type = Measurements
     data_name = "iwr.Measurements"
+    file_holds = "leg data (poses in {0})"
     effects_what = "iwr.Problem"
     #: Issue 23: a robot's effects are modelled (their parameters follow the geometric errors).
     takes_effects = True
@@ -314,16 +315,16 @@ class Problem(ProblemBase):
         ``sources`` maps a role (``"robot"``, ``"data"``) to the file it came from, recorded with
         its SHA-256; ``x0``
         (default zeros: where the inactive parameters stay) and ``active`` (default all) are the
-        search's starting point and active set. :meth:`load` reads it back; tracker data are
-        saved by :meth:`iwr.tracker.TrackerProblem.save`, to the same format.
+        search's starting point and active set. :meth:`load` reads it back; tracker and ballbar
+        data are saved by :meth:`iwr.tracker.TrackerProblem.save` and
+        :meth:`iwr.ballbar.BallbarProblem.save`, to the same format.
         """
-        save_problem = hook("save_problem")  # iwr.problem_file, a layer up
-
-        save_problem(self, path, sources, x0=x0, active=active)
+        super().save(path, sources=sources, x0=x0, active=active)
 
     @classmethod
     def load(cls, path: Any) -> Any:
         """Read a problem file written by :meth:`save` (``iwr._core.FormatError``, a ValueError
         naming the file and field, if it is malformed, truncated or of another version). A file
-        of tracker data gives an :class:`iwr.tracker.TrackerProblem`."""
+        of tracker data gives an :class:`iwr.tracker.TrackerProblem`, one of ballbar data an
+        :class:`iwr.ballbar.BallbarProblem`."""
         return hook("load_problem")(path)  # iwr.problem_file, a layer up

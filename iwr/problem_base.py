@@ -18,6 +18,7 @@ from typing import Any, ClassVar, Protocol, runtime_checkable
 import numpy as np
 
 from . import _core
+from ._hooks import hook
 from .effects import refuse as refuse_effects
 from .robot import Robot
 
@@ -143,6 +144,8 @@ class ProblemBase(abc.ABC):
     takes_effects: ClassVar[bool] = False
     #: The residual of a reading of a pose whose forward kinematics fails (:meth:`failures`).
     failed_residual: ClassVar[float] = FAILED_RESIDUAL
+    #: What a problem file of this problem holds, in words (:meth:`load`'s refusal of another).
+    file_holds: ClassVar[str] = "data"
 
     robot: Robot
     measurements: Any
@@ -297,6 +300,27 @@ class ProblemBase(abc.ABC):
         """The costs of checked rows ``X``; default one :meth:`cost` after the other (``workers``
         unused)."""
         return np.array([self.cost(row) for row in X])
+
+    # -- the problem file (iwr-engine's input) -------------------------------------------------
+    def save(self, path: Any, *, sources: dict[str, Any] | None = None, x0: Any = None,
+             active: Any = None) -> None:
+        """Write the problem file that ``iwr-engine`` runs from, atomically (as
+        :meth:`iwr.Problem.save`; ``docs/iwr-calibrate.md`` gives the layout): the robot, the
+        kind's setup and data, the reference, the noise weighting if any, the bounds, and the
+        search's starting point ``x0`` (default zeros: where the inactive parameters stay) and
+        ``active`` set (default all). :meth:`load` reads it back."""
+        hook("save_problem")(self, path, sources, x0=x0, active=active)  # a layer up
+
+    @classmethod
+    def load(cls, path: Any) -> Any:
+        """Read a problem file written by :meth:`save` (``iwr._core.FormatError``, a ValueError
+        naming the file and field, if it is malformed, truncated, of another version, or holds
+        another kind of data than this class's)."""
+        problem = hook("load_problem")(path)  # iwr.problem_file, a layer up
+        if not isinstance(problem, cls):
+            raise _core.FormatError(f"{path}: holds {problem.file_holds}, not {cls.file_holds}; "
+                                    "read it with iwr.Problem.load")
+        return problem
 
     # -- diagnostics --------------------------------------------------------------------------
     def failures(self, x: Any) -> list[tuple[int, str]]:

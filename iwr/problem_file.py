@@ -2,8 +2,9 @@
 
 A problem file holds everything the C++ engine (``iwr-engine``) needs after every Python check: the
 robot (geometry, limits, workspace), the measurements (leg data with poses in {0} and their
-weights, or laser-tracker data: points or probe poses in the tracker frame, with the nominal
-tracker setup and the reference of the forward kinematics), the noise weighting if any (the
+weights; laser-tracker data: points or probe poses in the tracker frame, with the nominal
+tracker setup and the reference of the forward kinematics; or a double ballbar's distances with
+the bar's set-ups and the reference), the noise weighting if any (the
 per-pose whitening of the residuals, ``Problem.whitening``), the search bounds, the
 starting point ``x0`` and the active set, the parameter names, and where the data came from
 (paths and SHA-256 of the TOML and CSV files). It is a versioned, checksummed little-endian
@@ -96,10 +97,11 @@ def _weighting(problem: Any) -> tuple[str, np.ndarray] | None:
 
 def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | None = None, *,
                    x0: Any = None, active: Any = None) -> bytes:
-    """The bytes of ``problem``'s file (an :class:`iwr.Problem` or an
-    :class:`iwr.tracker.TrackerProblem`); ``sources`` maps a role (``"robot"``, ``"data"``) to the
-    file it was read from (recorded with its SHA-256); ``x0`` (default zeros) and ``active``
-    (default all) are the search's starting point and active set."""
+    """The bytes of ``problem``'s file (an :class:`iwr.Problem`, an
+    :class:`iwr.tracker.TrackerProblem` or an :class:`iwr.ballbar.BallbarProblem`); ``sources``
+    maps a role (``"robot"``, ``"data"``) to the file it was read from (recorded with its
+    SHA-256); ``x0`` (default zeros) and ``active`` (default all) are the search's starting
+    point and active set."""
     robot, m = problem.robot, problem.measurements
     srcs = []
     for role, path in (sources or {}).items():
@@ -130,7 +132,10 @@ def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | No
         weighting=_weighting(problem),
     )
     setup = getattr(problem, "setup", None)
-    if setup is None:
+    own = getattr(problem, "file_fields", None)
+    if own is not None:  # a kind with its own section (ballbar data: kind 3)
+        fields.update(own())
+    elif setup is None:
         # The effects (issue 23, version 4): their tables, the payload and the temperatures.
         fields.update(kind="pose", poses=m.poses, weights=m.weights,
                       effects=[(e.name, e.to_dict()) for e in robot.effects],
@@ -157,8 +162,10 @@ def save_problem(problem: Any, path: str | os.PathLike[str],
 def read_problem(path: str | os.PathLike[str]) -> dict[str, Any]:
     """The fields of a problem file, checked; raises :class:`FormatError` naming the file and
     field. ``kind`` is ``"pose"`` (leg data, poses in {0}), ``"points"`` or ``"probe"`` (tracker
-    data); ``x0`` and ``active`` are the search's starting point and active set; ``weighting`` is
-    None (unweighted, and every file of version 2) or ``(text, whitening)``: what the noise
+    data) or ``"ballbar"`` (the set-ups ``bar_names``, ``platform_balls``, ``fixed_balls``,
+    ``offsets``, ``ranges``, each pose's set-up ``bar`` and reading ``distance``); ``x0`` and
+    ``active`` are the search's starting point and active set; ``weighting`` is None
+    (unweighted, and every file of version 2) or ``(text, whitening)``: what the noise
     weighting was made from and the whitening, (N, m^2) with m the residuals of a pose;
     ``effects`` is a list of ``(name, table)`` (empty: none, and every file before version 4),
     ``payload`` (N, 4) and ``temperatures`` (N, 1 or 6) are None when absent."""
@@ -167,7 +174,8 @@ def read_problem(path: str | os.PathLike[str]) -> dict[str, Any]:
 
 def load_problem(path: str | os.PathLike[str]) -> Any:
     """The problem of a problem file (see :meth:`iwr.Problem.load`): an :class:`iwr.Problem` for
-    leg data, an :class:`iwr.tracker.TrackerProblem` for tracker data. The search's ``x0`` and
+    leg data, an :class:`iwr.tracker.TrackerProblem` for tracker data, an
+    :class:`iwr.ballbar.BallbarProblem` for ballbar data. The search's ``x0`` and
     ``active`` are in :func:`read_problem`'s fields."""
     from .problem import Problem  # problem.py imports this module lazily: no cycle at import
 
@@ -183,6 +191,13 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
         flat = d["weighting"][1]
         m_res = int(round(np.sqrt(flat.shape[1])))
         whitening = flat.reshape(n, m_res, m_res)
+    if d["kind"] == "ballbar":  # iwr.ballbar's section
+        from .ballbar.problem import BallbarProblem
+
+        try:
+            return BallbarProblem.from_file_fields(d, robot, bounds, whitening, os.fspath(path))
+        except ValueError as exc:  # what the Python checks refuse and the reader did not
+            raise FormatError(f"{path}: {exc}") from None
     if d["kind"] == "pose":
         if d["effects"]:  # issue 23: the robot's effects, from their tables (checked again)
             from .effects import read_table

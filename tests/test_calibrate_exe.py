@@ -944,19 +944,3 @@ def test_a_second_launcher_is_refused_before_the_first_ones_engine_runs(
         first.send_signal(signal.SIGINT)
         _, err = first.communicate(timeout=120)
     assert first.returncode == 130, err  # stopped in its wrapper's wait: nothing to export
-
-
-def test_iwr_calibrate_refuses_a_kind_the_engine_does_not_take(tmp_path):
-    """Ballbar data (no problem file) are refused by name before any work (they used to be read
-    as pose data and stop on a missing column); the robot's kind reads and builds the problem."""
-    robot = iwr.Robot.default().with_instrument("ballbar", {
-        "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
-    })
-    data, _ = iwr.simulate(robot, 20, seed=5)
-    robot.to_toml(tmp_path / "robot.toml")
-    data.to_csv(tmp_path / "bb.csv")
-    proc = run_cal(tmp_path / "robot.toml", tmp_path / "bb.csv", "--output",
-                   tmp_path / "r.json")
-    msg = one_line_error(proc, "iwr-calibrate")
-    assert proc.returncode == 2 and "ballbar data" in msg and "no problem of them" in msg, msg
-    assert not (tmp_path / "r.json").exists()

@@ -56,14 +56,13 @@ def test_kind_of_data_and_robot(kind):
 
 def test_fingerprint_is_the_problem_files(kind):
     """The kind's fingerprint, computed from the data alone, is the one the problem file (and
-    so iwr-engine's result) records, for the kinds the engine takes; another data set, or one
-    reading changed, has another."""
+    so iwr-engine's result) records, for every kind (the engine takes each); another data set,
+    or one reading changed, has another."""
     robot, data = kind.robot, kind.data
     k = kinds.of(data)
     fp = k.fingerprint(robot, data)
     assert len(fp) == 16
-    if k.engine:
-        assert fp == _file_fingerprint(robot, data)
+    assert k.engine and fp == _file_fingerprint(robot, data)
     assert k.fingerprint(robot, k.subset(data, range(1, len(data)))) != fp
     legs = data.legs.copy()
     legs[3, 2] += 1e-9

@@ -30,14 +30,11 @@ def problem() -> iwr.Problem:
 
 
 def test_round_trip_is_exact(kind: Any, tmp_path: Path) -> None:
-    """Every kind the engine takes: the problem read back is the same problem (its kind, rows,
-    measured values, bounds and names; its objective bit for bit), and saving it again writes
-    the same bytes; the search start is part of the robot's fingerprint. A kind the engine does
-    not take (ballbar data) has no problem file."""
+    """Every kind (the engine takes each): the problem read back is the same problem (its kind,
+    rows, measured values, bounds and names; its objective bit for bit), and saving it again
+    writes the same bytes; the search start is part of the robot's fingerprint."""
+    assert kind.kind.engine
     problem, x0 = kind.kind.problem(kind.robot, kind.data)
-    if not kind.kind.engine:
-        assert not callable(getattr(problem, "save", None))
-        return
     active = np.ones(problem.n_params, dtype=bool)
     active[[5, problem.n_params - 1]] = False
     path = tmp_path / "p.iwrp"
@@ -110,11 +107,9 @@ def test_save_is_atomic_and_leaves_no_temporary(problem: iwr.Problem, tmp_path: 
 
 
 def test_damaged_files_are_refused_naming_file_and_field(kind: Any, tmp_path: Path) -> None:
-    """Every kind the engine takes: a truncated file, a flipped bit anywhere, an unknown format
-    version, not a file, no file: each refused naming the file and the fault."""
+    """Every kind: a truncated file, a flipped bit anywhere, an unknown format version, not a
+    file, no file: each refused naming the file and the fault."""
     problem, x0 = kind.kind.problem(kind.robot, kind.data)
-    if not kind.kind.engine:  # ballbar data: no problem file (test_round_trip_is_exact)
-        return
     path = tmp_path / "p.iwrp"
     problem.save(path, x0=x0)
     good = path.read_bytes()
@@ -168,7 +163,7 @@ def test_the_writer_refuses_what_the_reader_would(problem: iwr.Problem) -> None:
         _core._encode_problem({**args, "legs": legs})
     with pytest.raises(ValueError, match="parameter names: 57; expected 58"):
         _core._encode_problem({**args, "parameter_names": problem.parameter_names[:-1]})
-    with pytest.raises(ValueError, match="kind: 'legs'; expected pose, points or probe"):
+    with pytest.raises(ValueError, match="kind: 'legs'; expected pose, points, probe or ballbar"):
         _core._encode_problem({**args, "kind": "legs"})
     with pytest.raises(ValueError, match="x0: missing"):
         _core._encode_problem({k: v for k, v in args.items() if k != "x0"})

@@ -146,8 +146,9 @@ and settings give the same result as iwr.identify(robot, measurements, method="d
 whatever the number of threads.
 
 positional arguments:
-  PROBLEM.iwrp             the problem: robot, measurements (leg data, or laser-tracker points
-                           or probe poses with the nominal tracker setup), weights or the
+  PROBLEM.iwrp             the problem: robot, measurements (leg data, laser-tracker points
+                           or probe poses with the nominal tracker setup, or ballbar
+                           distances with the bar's set-ups), weights or the
                            noise weighting (the objective is then whitened), search
                            bounds, x0 and active set, as iwr.Problem.save or
                            iwr.tracker.TrackerProblem.save writes it (iwr-calibrate ROBOT.toml
@@ -695,6 +696,7 @@ const char* kind_text(iwr::MeasurementKind k) {
     switch (k) {
         case iwr::MeasurementKind::Points: return " (points in the tracker frame)";
         case iwr::MeasurementKind::Probe: return " (probe poses in the tracker frame)";
+        case iwr::MeasurementKind::Ballbar: return " (ballbar distances)";
         default: return "";
     }
 }
@@ -793,7 +795,7 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
         const iwr::Checkpoint& c = *saved;
         if (c.robot_fingerprint != info.robot_fp)
             throw InputError(path + ": made for another robot (problem " + c.problem_file + "); the geometry" +
-                             (problem.tracker() ? ", the tracker setup" : "") +
+                             (problem.tracker() ? ", the tracker setup" : problem.ballbar() ? ", the ballbar set-ups" : "") +
                              (problem.weighted() ? ", the noise weighting" : "") + " or the search's x0 and active set in " +
                              problem_path + " differ");
         if (c.data_fingerprint != info.data_fp) {
@@ -917,9 +919,10 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
         const std::string active = problem.n_active() == problem.n_params()
                                        ? ""
                                        : " (" + std::to_string(problem.n_active()) + " active)";
-        const std::string setup = problem.tracker() ? ", " + std::to_string(problem.n_params() - problem.n_robot_params()) +
-                                                          " of them the tracker setup's"
-                                                    : "";
+        const std::string setup = problem.tracker() || problem.ballbar()
+                                      ? ", " + std::to_string(problem.n_params() - problem.n_robot_params()) +
+                                            (problem.ballbar() ? " of them the ballbar set-ups'" : " of them the tracker setup's")
+                                      : "";
         progress.message(std::to_string(problem.n_params()) + " parameters" + setup + active + ", " +
                          std::to_string(problem.n_poses()) + " poses" + kind_text(problem.kind) +
                          (problem.weighted() ? ", weighted by the noise (" + problem.weighting + ")" : "") + "; " + de::to_string(state->settings.strategy) + ", NP " +

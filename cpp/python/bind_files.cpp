@@ -63,11 +63,17 @@ void bind_files(py::module_& m) {
             if (kind == "pose") p.kind = MeasurementKind::Pose;
             else if (kind == "points") p.kind = MeasurementKind::Points;
             else if (kind == "probe") p.kind = MeasurementKind::Probe;
-            else throw std::invalid_argument("kind: '" + kind + "'; expected pose, points or probe");
+            else if (kind == "ballbar") p.kind = MeasurementKind::Ballbar;
+            else throw std::invalid_argument("kind: '" + kind + "'; expected pose, points, probe or ballbar");
             p.legs = get("legs").cast<RowMatrixXd>();
             const auto q = get("q").cast<RowMatrixXd>();
             p.q = q.cols() == static_cast<Eigen::Index>(p.joint_types.size()) ? q : RowMatrixXd(p.legs.rows(), 0);
-            if (!p.tracker()) {
+            if (p.ballbar()) {  // the set-ups, each pose's set-up and the bar's readings
+                p.bars = bar_setups(d);
+                p.bar = get("bar").cast<std::vector<int>>();
+                p.distance = get("distance").cast<VectorXd>();
+                p.reference = get("reference").cast<VectorXd>();
+            } else if (!p.tracker()) {
                 p.poses = get("poses").cast<RowMatrixXd>();
                 const py::object weights = get("weights");
                 if (!weights.is_none()) p.weights = weights.cast<RowMatrixXd>();
@@ -129,19 +135,33 @@ void bind_files(py::module_& m) {
         [](const std::string& kind, const std::string& joint_types, const py::object& measurement_joint_types,
            const RowMatrixXd& q, const RowMatrixXd& legs, const RowMatrixXd& poses, const py::object& weights,
            const RowMatrixXd& probe_poses, const RowMatrixXd& points, const RowMatrixXd& payload,
-           const RowMatrixXd& temperatures) {
+           const RowMatrixXd& temperatures, const std::vector<std::string>& bar_names, const std::vector<int>& bar,
+           const VectorXd& distance) {
             ProblemData p;
             if (kind == "pose") p.kind = MeasurementKind::Pose;
             else if (kind == "points") p.kind = MeasurementKind::Points;
             else if (kind == "probe") p.kind = MeasurementKind::Probe;
-            else throw std::invalid_argument("kind: '" + kind + "'; expected pose, points or probe");
+            else if (kind == "ballbar") p.kind = MeasurementKind::Ballbar;
+            else throw std::invalid_argument("kind: '" + kind + "'; expected pose, points, probe or ballbar");
             p.joint_types = joint_types;
             p.has_measurement_joint_types = !measurement_joint_types.is_none();
             if (p.has_measurement_joint_types) p.measurement_joint_types = measurement_joint_types.cast<std::string>();
             p.legs = legs;
             // As _encode_problem stores it: no joint columns when the robot has no joints.
             p.q = q.cols() == static_cast<Eigen::Index>(joint_types.size()) ? q : RowMatrixXd(legs.rows(), 0);
-            if (!p.tracker()) {
+            if (p.ballbar()) {  // as decode_problem leaves them; the set-ups by name only
+                p.poses.resize(0, 6);
+                for (const std::string& name : bar_names) {
+                    BarSetup b;
+                    b.name = name;
+                    p.bars.push_back(std::move(b));
+                }
+                p.bar = bar;
+                p.distance = distance;
+                for (int s : bar)
+                    if (s < 0 || s >= static_cast<int>(bar_names.size()))
+                        throw std::invalid_argument("bar: set-up index " + std::to_string(s) + " out of range");
+            } else if (!p.tracker()) {
                 p.poses = poses;
                 if (!weights.is_none()) p.weights = weights.cast<RowMatrixXd>();
                 p.payload = payload;
@@ -155,7 +175,9 @@ void bind_files(py::module_& m) {
         },
         py::arg("kind"), py::arg("joint_types"), py::arg("measurement_joint_types"), py::arg("q"),
         py::arg("legs"), py::arg("poses"), py::arg("weights"), py::arg("probe_poses"), py::arg("points"),
-        py::arg("payload") = RowMatrixXd(), py::arg("temperatures") = RowMatrixXd());
+        py::arg("payload") = RowMatrixXd(), py::arg("temperatures") = RowMatrixXd(),
+        py::arg("bar_names") = std::vector<std::string>(), py::arg("bar") = std::vector<int>(),
+        py::arg("distance") = VectorXd());
     m.def(
         "_read_problem",
         [](const std::string& path) {
@@ -208,10 +230,18 @@ py::dict problem_dict(const ProblemData& p) {
     d["workspace"] = VectorXd(p.workspace);
     d["measurement_joint_types"] =
         p.has_measurement_joint_types ? py::cast(p.measurement_joint_types) : py::none();
-    d["kind"] = p.kind == MeasurementKind::Points ? "points" : p.kind == MeasurementKind::Probe ? "probe" : "pose";
+    d["kind"] = p.kind == MeasurementKind::Points    ? "points"
+                : p.kind == MeasurementKind::Probe   ? "probe"
+                : p.kind == MeasurementKind::Ballbar ? "ballbar"
+                                                     : "pose";
     d["q"] = p.q;
     d["legs"] = p.legs;
-    if (!p.tracker()) {
+    if (p.ballbar()) {
+        bar_setups_py(d, p.bars);
+        d["bar"] = p.bar;
+        d["distance"] = p.distance;
+        d["reference"] = p.reference;
+    } else if (!p.tracker()) {
         d["poses"] = p.poses;
         d["weights"] = p.weights.size() ? py::cast(p.weights) : py::none();
     } else {

@@ -15,6 +15,7 @@
 
 #include <unistd.h>
 
+#include "iwr/ballbar.hpp"
 #include "iwr/effects.hpp"
 #include "iwr/model.hpp"
 #include "iwr/parallel.hpp"
@@ -106,4 +107,9 @@ void bind_effects(py::module_& m);
 // (bind_effects.cpp).
 std::vector<EffectTable> effect_tables(const py::object& effects);
 py::list effect_tables_py(const std::vector<EffectTable>& tables);
+void bind_ballbar(py::module_& m);
+// The ballbar set-ups from a dict's bar_names, platform_balls, fixed_balls, offsets and ranges
+// (NaN: none), and into one (bind_ballbar.cpp).
+std::vector<BarSetup> bar_setups(const py::dict& d);
+void bar_setups_py(py::dict& d, const std::vector<BarSetup>& bars);
 }  // namespace iwr::python

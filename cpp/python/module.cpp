@@ -10,4 +10,5 @@ PYBIND11_MODULE(_core, m) {
     iwr::python::bind_tracker(m);
     iwr::python::bind_implicit_loop(m);
     iwr::python::bind_effects(m);
+    iwr::python::bind_ballbar(m);
 }

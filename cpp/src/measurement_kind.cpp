@@ -23,6 +23,12 @@ AnyObjective make_objective(const ProblemData& problem) {
             std::get<TrackerObjective>(out).set_whitening(problem.whitening);
             return out;
         }
+        case MeasurementKind::Ballbar: {  // the double ballbar's distances (iwr/ballbar.hpp)
+            AnyObjective out(std::in_place_type<BallbarObjective>, problem.geometry(), problem.bars, problem.q,
+                             problem.legs, problem.bar, problem.distance, problem.reference, problem.home_pose);
+            std::get<BallbarObjective>(out).set_whitening(problem.whitening);
+            return out;
+        }
     }
     throw std::invalid_argument("measurement kind: " + std::to_string(static_cast<int>(problem.kind)) +
                                 " has no objective");

@@ -89,6 +89,7 @@ void read_effects(io::Reader& r, ProblemData& p) {
     if (ne > kMaxEffects) r.fail("effects: " + std::to_string(ne) + "; at most " + std::to_string(kMaxEffects));
     if (ne && p.tracker())
         r.fail("effects: tracker data with effects have no objective in the C++ core (leg data only)");
+    if (ne && p.ballbar()) r.fail("effects: ballbar data with effects have no objective in the C++ core");
     for (std::size_t e = 0; e < ne; ++e) {
         EffectTable t;
         t.name = r.text("effect name", 64, false);
@@ -148,6 +149,7 @@ int ProblemData::n_params() const {
     switch (kind) {
         case MeasurementKind::Points: return n_robot_params() + 6 + 3 * static_cast<int>(reflectors.rows());
         case MeasurementKind::Probe: return n_robot_params() + 12;
+        case MeasurementKind::Ballbar: return n_robot_params() + kBarParams * static_cast<int>(bars.size());
         default: return n_robot_params() + (effects.empty() ? 0 : effect_model().n_params);
     }
 }
@@ -156,6 +158,7 @@ int ProblemData::residuals_per_pose() const {
     switch (kind) {
         case MeasurementKind::Points: return 3 * static_cast<int>(reflectors.rows());
         case MeasurementKind::Probe: return 12;
+        case MeasurementKind::Ballbar: return 1;
         default: return kLegs;
     }
 }
@@ -183,6 +186,7 @@ std::uint64_t ProblemData::robot_fingerprint() const {
         h.doubles(probe.data(), 6).f64(probe_length);
         h.doubles(reference.data(), static_cast<std::size_t>(reference.size()));
     }
+    if (ballbar()) hash_ballbar_setups(h, *this);
     // The weighting makes another objective of the same data (unweighted: hashed as before).
     if (weighted()) {
         h.str("whitening").u64(static_cast<std::uint64_t>(whitening.rows()))
@@ -221,6 +225,7 @@ std::uint64_t ProblemData::data_fingerprint() const {
             h.u64(static_cast<std::uint64_t>(a->rows())).u64(static_cast<std::uint64_t>(a->cols()));
             h.doubles(a->data(), static_cast<std::size_t>(a->size()));
         }
+    if (ballbar()) hash_ballbar_data(h, *this);
     // The loads and temperatures the effects read are data (none: hashed as before).
     if (payload.size() || temperatures.size())
         for (const RowMatrixXd* a : {&payload, &temperatures}) {
@@ -255,7 +260,9 @@ std::string encode_problem(const ProblemData& p) {
     w.u64(static_cast<std::uint64_t>(p.legs.rows()));
     put(w, p.q);
     put(w, p.legs);
-    if (!p.tracker()) {
+    if (p.ballbar()) {
+        write_ballbar_section(w, p);
+    } else if (!p.tracker()) {
         put(w, p.poses);
         w.u8(p.weights.size() ? 1 : 0);
         put(w, p.weights);
@@ -337,19 +344,23 @@ ProblemData decode_problem(const std::string& bytes, const std::string& context)
     if (!p.has_measurement_joint_types && !p.measurement_joint_types.empty())
         r.fail("measurement joint types: set without its flag");
     const std::uint8_t kind = r.u8("measurement kind");
-    if (kind > 2) r.fail("measurement kind: " + std::to_string(kind) + "; expected 0 (pose in {0}), 1 (points in {T}) or 2 (probe pose in {T})");
+    if (kind > 3 || (kind == 3 && p.version < 4))
+        r.fail("measurement kind: " + std::to_string(kind) + "; expected 0 (pose in {0}), 1 (points in {T}), 2 (probe pose in {T}) or, from version 4, 3 (ballbar distances)");
     p.kind = static_cast<MeasurementKind>(kind);
     const std::uint64_t N = r.u64("number of poses");
-    // Each pose takes at least 12 (6 + 6) doubles below: a count the file cannot hold is refused
-    // before anything is allocated.
+    // Each pose takes at least 12 (6 + 6) doubles below (8 for ballbar data: 6 legs, a set-up
+    // index and a distance): a count the file cannot hold is refused before anything is allocated.
     if (N == 0) r.fail("number of poses: 0; a problem needs measurements");
-    if (N > kMaxPoses || N > r.remaining() / (12 * 8))
+    if (N > kMaxPoses || N > r.remaining() / ((p.ballbar() ? 8 : 12) * 8))
         r.fail("truncated or corrupt: number of poses " + std::to_string(N) + " does not fit in the " +
                std::to_string(r.remaining()) + " bytes left");
     const Eigen::Index rows = static_cast<Eigen::Index>(N);
     get(r, "q", p.q, rows, n);
     get(r, "legs", p.legs, rows, 6);
-    if (!p.tracker()) {
+    if (p.ballbar()) {
+        p.poses.resize(0, 6);
+        read_ballbar_section(r, p);
+    } else if (!p.tracker()) {
         get(r, "poses", p.poses, rows, 6);
         if (r.flag("has weights")) {
             // Any finite weight: their scale is the user's (the cost scales with it).

@@ -567,6 +567,10 @@ RowMatrixXd TrackerObjective::predicted_points(const Eigen::Ref<const VectorXd>&
     return pred;
 }
 
+void TrackerObjective::predicted_points(const double* x, Workspace& ws, RowMatrixXd& out) const {
+    evaluate(x, ws, nullptr, nullptr, nullptr, &out);
+}
+
 void TrackerObjective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residuals,
                                 RowMatrixXd* jac) const {
     check_x(x);

@@ -372,7 +372,7 @@ IWR_TEST(tracker_problem_refuses_bad_values) {
     CHECK(refused_with(points, [](auto& p) { p.active.pop_back(); }, "active: 64 flags; expected 65"));
     CHECK(refused_with(points, [](auto& p) { p.lower.pop_back(), p.upper.pop_back(); }, "lower bounds"));
     CHECK(refused_with(probe, [](auto& p) { p.parameter_names.pop_back(); }, "parameter names: 61; expected 62"));
-    // A file whose kind byte is not 0, 1 or 2.
+    // A file whose kind byte is not 0, 1, 2 or 3.
     const std::string good = iwr::encode_problem(sample_tracker_problem(points));
     io::Reader r(good.data() + 32, good.size() - 32, "");
     (void)r.text("", 4096), (void)r.str("", 64);
@@ -381,7 +381,8 @@ IWR_TEST(tracker_problem_refuses_bad_values) {
     std::string payload = good.substr(32);
     payload[r.position()] = 7;
     CHECK(contains(refusal([&] { iwr::decode_problem(reseal(good, payload), "t.iwrp: "); }),
-                   "t.iwrp: measurement kind: 7; expected 0 (pose in {0}), 1 (points in {T}) or 2"));
+                   "t.iwrp: measurement kind: 7; expected 0 (pose in {0}), 1 (points in {T}), 2 (probe pose in "
+                   "{T}) or, from version 4, 3 (ballbar distances)"));
 }
 
 IWR_TEST(problem_refuses_bad_values) {

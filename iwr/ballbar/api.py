@@ -157,7 +157,7 @@ def plausible_limits(problem: BallbarProblem, plausible: float
 
 def weighted_problem(problem: BallbarProblem, x0: np.ndarray, noise: Any) -> BallbarProblem:
     """``problem`` weighted by ``noise``: each distance by its standard deviation at ``x0``."""
-    return problem.with_weights(1.0 / reading_sigmas(problem, x0, noise))
+    return problem.with_weights(1.0 / reading_sigmas(problem, x0, noise), noise=noise)
 
 
 def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: str, *,

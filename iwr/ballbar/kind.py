@@ -5,7 +5,6 @@ frame."""
 
 from __future__ import annotations
 
-import hashlib
 import os
 from collections.abc import Mapping
 from dataclasses import asdict
@@ -16,7 +15,7 @@ import numpy as np
 from ..analysis.identifiability import kind_parameter_error
 from ..effects import refuse as refuse_effects
 from ..forward import forward_kinematics
-from ..kinds import MeasurementKind
+from ..kinds import MeasurementKind, data_fingerprint
 from ..noise import Noise, instrument_level
 from .api import (
     NULL_RTOL,
@@ -97,15 +96,14 @@ class BallbarKind(MeasurementKind):
         return ballbar_setup(robot).parameter_names
 
     def fingerprint(self, robot: Any, data: Any) -> str:
-        """SHA-256 of the kind, the joint types and every reading and set-up name, as 16 hex
-        digits (no problem file holds ballbar data yet, so no C++ fingerprint either)."""
+        """The problem file's data fingerprint (C++ ``ProblemData::data_fingerprint``: the joint
+        and leg readings, each pose's set-up by name and the bar's readings), so that ``iwr
+        report`` checks an ``iwr-calibrate`` run's data file as every kind's."""
         self.check(robot, data)
-        h = hashlib.sha256()
-        h.update(f"ballbar\0{robot.joint_types}\0{data.joint_types}\0{len(data)}\0".encode())
-        for arr in (data.q, data.legs, data.distance):
-            h.update(np.ascontiguousarray(arr, dtype="<f8").tobytes())
-        h.update("\0".join(str(s) for s in data.setup).encode())
-        return h.hexdigest()[:16]
+        setup = ballbar_setup(robot)
+        return data_fingerprint(self.name, robot, data, bar_names=list(setup.names),
+                                bar=data.setup_index(setup).tolist(),
+                                distance=np.ascontiguousarray(data.distance, dtype=float))
 
     def measured(self, data: Any) -> np.ndarray:
         # The bar's reading and its set-up: one robot pose in two set-ups is two rows of data.
@@ -177,7 +175,7 @@ class BallbarKind(MeasurementKind):
         return simulate_ballbar(robot, ballbar_setup(robot), n_poses, seed=seed, x=x,
                                 noise=noise)
 
-    engine = False  # no problem file (iwr-calibrate): iwr calibrate, iwr.identify
+    engine = True  # a problem file (kind 3) and a C++ objective: iwr-calibrate, iwr-engine
     weighted_objective = True  # each distance by its propagated variance (ballbar_identify)
     null_rtol = NULL_RTOL  # structural null directions sit at ~5e-14, above NumPy's threshold
 

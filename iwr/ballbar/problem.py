@@ -26,6 +26,11 @@ class BallbarProblem(ProblemBase):
     in {0}, ``o_s`` the length offset, and ``w_k`` the pose's weight (1 unweighted; ``1 /
     sigma_k`` for the noise-weighted objective, :meth:`with_weights`).
 
+    The cost and the batch costs (what DE, CRS2 and BOBYQA evaluate) are the C++ ballbar
+    objective's (``cpp/include/iwr/ballbar.hpp``, the objective ``iwr-engine`` runs on the
+    problem file, threaded across a population); the residuals and the Jacobian are NumPy, on
+    the same kinematics (they agree with the C++ residuals to ~1e-13 relative).
+
     The platform pose and its exact derivative with respect to the robot's parameters come from
     the C++ tracker kernel (``_core.TrackerObjective``) used as a kinematics kernel: a "probe"
     at the origin of {5} in a tracker frame equal to {0}, whose four virtual points (the origin
@@ -38,6 +43,7 @@ class BallbarProblem(ProblemBase):
 
     data_type = BallbarMeasurements
     data_name = "iwr.ballbar.BallbarMeasurements"
+    file_holds = "ballbar data"
     setup_type = BallbarSetup
     setup_name = "iwr.ballbar.BallbarSetup"
     setup_owner = "set-ups'"
@@ -45,7 +51,8 @@ class BallbarProblem(ProblemBase):
     effects_what = "ballbar data (BallbarProblem)"
 
     def __init__(self, robot: Robot, setup: BallbarSetup, measurements: BallbarMeasurements,
-                 bounds: Any = None, *, reference: Any = None, weights: Any = None) -> None:
+                 bounds: Any = None, *, reference: Any = None, weights: Any = None,
+                 noise: Any = None) -> None:
         self._accept(robot, measurements, setup)
         self.bar = measurements.setup_index(setup)
         self._set_bounds(bounds)
@@ -55,6 +62,11 @@ class BallbarProblem(ProblemBase):
             raise ValueError(f"weights: expected {len(measurements)} finite values > 0, one per "
                              "pose")
         self.weights = w
+        #: The noise weighting as the other kinds hold it (None: unweighted): per pose the 1 x 1
+        #: whitening ``w_k`` of its one residual, and the noise model it was made from, if known.
+        self.whitening = None if weights is None else w.reshape(-1, 1, 1)
+        self.noise = noise
+        self._objective: Any = None  # the C++ objective, made on first use
         try:
             self._kernel = _core.TrackerObjective(
                 robot._geometry, "probe", np.zeros(6), np.zeros((1, 3)), np.zeros(6), 1.0,
@@ -63,10 +75,65 @@ class BallbarProblem(ProblemBase):
         except _core.ForwardKinematicsError as exc:
             raise reference_error(exc, measurements) from None
 
-    def with_weights(self, weights: Any) -> BallbarProblem:
-        """The same problem with residual k multiplied by ``weights[k]`` (e.g. ``1 / sigma_k``)."""
+    def with_weights(self, weights: Any, noise: Any = None) -> BallbarProblem:
+        """The same problem with residual k multiplied by ``weights[k]`` (e.g. ``1 / sigma_k``;
+        None: unweighted); ``noise``: the noise model the weights were made from (recorded in
+        the problem file)."""
         return BallbarProblem(self.robot, self.setup, self.measurements,
-                              (self.lower, self.upper), reference=self.reference, weights=weights)
+                              (self.lower, self.upper), reference=self.reference, weights=weights,
+                              noise=noise)
+
+    # -- the C++ objective and the problem file -------------------------------------------------
+    def setup_fields(self) -> dict[str, Any]:
+        """The set-ups as the problem file and the C++ objective take them: ``bar_names``,
+        ``platform_balls`` (S, 3), ``fixed_balls`` (S, 3), ``offsets`` (S,), ``ranges`` (S, 2;
+        NaN rows: no range)."""
+        p, f, o = self.setup.split(None)
+        ranges = np.array([b.range if b.range is not None else (np.nan, np.nan)
+                           for b in self.setup.bars], dtype=float).reshape(-1, 2)
+        return dict(bar_names=list(self.setup.names), platform_balls=p, fixed_balls=f,
+                    offsets=o, ranges=ranges)
+
+    @property
+    def objective(self) -> Any:
+        """The C++ ballbar objective of this problem (``iwr._core.BallbarObjective``): what
+        ``iwr-engine`` runs on the problem file, weighted alike."""
+        if self._objective is None:
+            m = self.measurements
+            wh = np.zeros((0, 0)) if self.whitening is None else self.weights.reshape(-1, 1)
+            self._objective = _core.BallbarObjective(
+                self.robot._geometry, self.setup_fields(), m.q, m.legs, self.bar.tolist(),
+                m.distance, np.ascontiguousarray(self.reference), self.robot.home_pose, wh)
+        return self._objective
+
+    def file_fields(self) -> dict[str, Any]:
+        """The fields of this kind's section of the problem file (``iwr.problem_file``)."""
+        return dict(kind="ballbar", **self.setup_fields(), bar=self.bar.tolist(),
+                    distance=self.measurements.distance, reference=self.reference)
+
+    @classmethod
+    def from_file_fields(cls, d: dict[str, Any], robot: Robot, bounds: Any,
+                         whitening: Any, source: str) -> BallbarProblem:
+        """The problem of a problem file's fields ``d`` (:func:`iwr.problem_file.read_problem`)
+        for ``robot`` (its geometry, read from the file), ``bounds`` and ``whitening`` (None or
+        (N, 1, 1)); ValueError on what the Python checks refuse."""
+        from .setup import BarSetup
+
+        ranges = np.asarray(d["ranges"], dtype=float)
+        setup = BallbarSetup([
+            BarSetup(name, tuple(map(float, d["platform_balls"][i])),  # type: ignore[arg-type]
+                     tuple(map(float, d["fixed_balls"][i])),  # type: ignore[arg-type]
+                     None if np.isnan(ranges[i, 0]) else (float(ranges[i, 0]), float(ranges[i, 1])),
+                     float(d["offsets"][i]))
+            for i, name in enumerate(d["bar_names"])])
+        names = np.array(d["bar_names"], dtype=object)
+        m = BallbarMeasurements(d["q"], d["legs"], names[np.asarray(d["bar"], dtype=np.intp)],
+                                d["distance"], joint_types=d["measurement_joint_types"],
+                                source=source)
+        weights = None if whitening is None else np.asarray(whitening)[:, 0, 0]
+        noise = None if d["weighting"] is None else d["weighting"][0]
+        return cls(robot.with_instrument("ballbar", setup), setup, m, bounds,
+                   reference=d["reference"], weights=weights, noise=noise)
 
     # -- sizes and names ----------------------------------------------------------------------
     @property
@@ -103,6 +170,14 @@ class BallbarProblem(ProblemBase):
         x = self._x(x)
         _, _, o = self.setup.split(x[self.robot.n_params:])
         return self.ball_vectors(x)[1] + o[self.bar]
+
+    def cost(self, x: Any) -> float:
+        """Sum of squared (weighted) residuals: the C++ objective's."""
+        return float(self.objective.cost(self._x(x)))
+
+    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
+        """In C++ across ``workers`` threads (None: all cores), weighted or not."""
+        return self.objective.cost_batch(X, 0 if workers is None else int(workers))
 
     def residuals(self, x: Any) -> np.ndarray:
         """Predicted minus measured readings, weighted, (N,)."""

@@ -2,8 +2,9 @@
 
 The launcher of the C++ engine ``iwr-engine``. It reads and checks the robot TOML and the
 measurement CSV with the package's readers (the same checks and messages as ``iwr calibrate``;
-leg data, or laser-tracker points or probe poses for a robot with a ``[tracker]`` table, searched
-from the nominal robot and the closed-form registration guess as ``iwr.identify`` does),
+leg data, laser-tracker points or probe poses for a robot with a ``[tracker]`` table, searched
+from the nominal robot and the closed-form registration guess as ``iwr.identify`` does, or a
+double ballbar's distances for a robot with a ``[ballbar]`` table),
 writes the problem file ``RESULT.iwrp`` next to the result, runs the engine on it (the engine needs
 no Python: the problem file and the ``iwr-engine`` program can be copied to a compute node), and
 turns the engine's final checkpoint into the JSON result that :func:`iwr.load_result` reads (the one
@@ -57,7 +58,9 @@ Long differential-evolution runs with checkpoints and resume. Reads ROBOT.toml a
 the checks of `iwr calibrate` (or a problem file written by iwr.Problem.save), leg data or, for a
 robot with a [tracker] table, laser-tracker points or probe poses in the tracker frame (the
 registration and the reflector or probe offsets are identified too, searched about the closed-form
-registration guess, as iwr.identify does; docs/tracker.md), writes the problem
+registration guess, as iwr.identify does; docs/tracker.md), or, for a robot with a [ballbar]
+table, a double ballbar's distances (the set-ups' balls and length offsets identified too, from
+their nominal values; docs/ballbar.md), writes the problem
 file (default RESULT.iwrp), runs the engine iwr-engine on it, and writes the JSON result that
 iwr.load_result reads. The engine needs no Python: to run on a compute node, copy iwr-engine and
 the problem file there, run `iwr-engine PROBLEM.iwrp ...`, bring its checkpoint back and
@@ -76,8 +79,10 @@ options of iwr-calibrate (the others are the engine's, below):
                            readings' noise, with TrackerNoise.leica() for the tracker), robot
                            (the [noise] and [tracker.noise] tables of ROBOT.toml), or none
                            (default: eq. (10) or the point residuals unweighted). Reflector
-                           points and leg data only (a probe's covariance is singular). The
-                           weighting goes into the problem file; only with ROBOT.toml DATA.csv
+                           points, ballbar distances (each by its standard deviation: the
+                           bar's 1 um and the leg and joint readings' propagated) and leg
+                           data only (a probe's covariance is singular). The weighting goes
+                           into the problem file; only with ROBOT.toml DATA.csv
   --readings READINGS.csv  with tracker data given as a long table of points (pose, reflector,
                            x_mm, y_mm, z_mm): the robot's log of joint and leg readings
   --output RESULT          the JSON result (default iwr-result.json; with --resume CKPT, CKPT

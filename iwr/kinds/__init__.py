@@ -531,9 +531,11 @@ def observed(problem: Any) -> np.ndarray:
 
 
 def data_fingerprint(kind: str, robot: Any, data: Any, *, poses: Any = None, weights: Any = None,
-                     probe_poses: Any = None, points: Any = None) -> str:
+                     probe_poses: Any = None, points: Any = None, **own: Any) -> str:
     """The problem file's data fingerprint of these arrays (C++ ``ProblemData::data_fingerprint``
-    through ``iwr._core._data_fingerprint``), for the kinds' :meth:`MeasurementKind.fingerprint`."""
+    through ``iwr._core._data_fingerprint``), for the kinds' :meth:`MeasurementKind.fingerprint`;
+    ``own``: a kind's own fields of the file, as ``_data_fingerprint`` names them (ballbar data:
+    ``bar_names``, ``bar``, ``distance``)."""
     from .. import _core
 
     empty = np.zeros((0, 0))
@@ -545,7 +547,7 @@ def data_fingerprint(kind: str, robot: Any, data: Any, *, poses: Any = None, wei
         kind, str(robot.joint_types), data.joint_types, arr(data.q), arr(data.legs), arr(poses),
         None if weights is None else arr(weights), arr(probe_poses), arr(points),
         # the loads and temperatures of the effects (issue 23), when the data carry them
-        arr(getattr(data, "payload", None)), arr(getattr(data, "temperatures", None))))
+        arr(getattr(data, "payload", None)), arr(getattr(data, "temperatures", None)), **own))
 
 
 # -- the registry -----------------------------------------------------------------------------

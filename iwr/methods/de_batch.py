@@ -22,7 +22,7 @@ def de_on_batch(reduced: ReducedProblem, *, max_evaluations: int | None, seed: i
                  callback: Callable[..., Any] | None, progress: bool | None,
                  polish: bool = True, **options: Any) -> Any:
     """DE (any strategy) on the problem's ``cost_batch`` (one Python call per generation; the
-    tracker's evaluates the population in C++ across threads), polished by LM
+    tracker's and the ballbar's evaluate the population in C++ across threads), polished by LM
     (``polish=False``: DE alone). :func:`iwr.methods.de.de_method` is wired to the pose
     objective's own engine; the other kinds' problems run DE through this."""
     start = time.perf_counter()

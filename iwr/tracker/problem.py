@@ -7,7 +7,6 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from .._hooks import hook
 from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
 from .data import TrackerMeasurements
@@ -67,6 +66,7 @@ class TrackerProblem(ProblemBase):
 
     data_type = TrackerMeasurements
     data_name = "iwr.tracker.TrackerMeasurements"
+    file_holds = "tracker data"
     setup_type = TrackerSetup
     setup_name = "iwr.tracker.TrackerSetup"
     # issue 23: the C++ point objective models the geometry only; tracker data with effects run
@@ -201,28 +201,6 @@ class TrackerProblem(ProblemBase):
     def predicted_points(self, x: Any) -> np.ndarray:
         """Predicted points in {T}, shape (N, n_points, 3); NaN rows where it fails."""
         return self._objective.predicted_points(self._x(x)).reshape(self.n_poses, -1, 3)
-
-    def save(self, path: Any, *, sources: dict[str, Any] | None = None, x0: Any = None,
-             active: Any = None) -> None:
-        """Write the problem file that ``iwr-engine`` runs from, atomically (as
-        :meth:`iwr.Problem.save`): the robot, the nominal tracker setup, the data, the reference,
-        the noise weighting (the whitening) if any, the bounds, and the search's starting point
-        ``x0`` (default zeros: where the inactive parameters stay) and ``active`` set (default
-        all). :meth:`load` reads it back."""
-        save_problem = hook("save_problem")  # iwr.problem_file, a layer up
-
-        save_problem(self, path, sources, x0=x0, active=active)
-
-    @classmethod
-    def load(cls, path: Any) -> TrackerProblem:
-        """Read a problem file of tracker data written by :meth:`save`
-        (``iwr._core.FormatError``, a ValueError naming the file and field, if it is malformed,
-        truncated, of another version, or holds leg data)."""
-        problem = hook("load_problem")(path)  # iwr.problem_file, a layer up
-        if not isinstance(problem, cls):
-            raise _core.FormatError(f"{path}: holds leg data (poses in {{0}}), not tracker "
-                                    "data; read it with iwr.Problem.load")
-        return problem
 
     def __repr__(self) -> str:
         return (f"TrackerProblem(robot={self.robot.name!r}, kind={self.setup.kind!r}, "

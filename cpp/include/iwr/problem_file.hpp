@@ -10,7 +10,7 @@
 //        (6 x 3), leg offsets (6), leg stroke (6 x 2), home pose (6), workspace (6)
 //   u8   has measurement joint types; str measurement joint types
 //   u8   measurement kind: 0 pose of {5} in {0} (the paper's), 1 points in the tracker frame {T},
-//        2 probe pose in {T}
+//        2 probe pose in {T}, 3 a double ballbar's distances (version 4 files only)
 //   u64  poses N; f64s q (N x n), legs (N x 6)
 //   kind 0: f64s poses (N x 6); u8 has weights; f64s weights (N x 6)
 //   kind 1, 2 (the tracker setup, then the data):
@@ -21,9 +21,13 @@
 //                f64s the probe's virtual points as the objective takes them (N x 12, computed
 //                from the probe poses by the writer)
 //        f64s reference (4 n + 42: the robot error vector where forward kinematics is solved once)
+//   kind 3 (the ballbar set-ups, then the data; iwr/ballbar.hpp): u64 set-ups S; each: str name,
+//        f64s platform ball (3, in {5}), f64s fixed ball (3, in {0}), f64 offset (mm), u8 has
+//        range; f64s range (2) when 1; then N u64 set-up indices, f64s distance (N), f64s reference
 //   (version 3) u8 weighted; when 1: str what the weighting was made from (a noise model, in
 //        words); f64s whitening (N x m^2: per pose a row-major m x m lower-triangular W_k, m the
-//        residuals of a pose: 6 legs, 3 K point coordinates, or 12 for a probe's four points).
+//        residuals of a pose: 6 legs, 3 K point coordinates, 12 for a probe's four points, or 1
+//        for a ballbar's distance).
 //        The objective is then sum_k |W_k r_k|^2 (generalised least squares with fixed weights;
 //        the leg weights of kind 0, if any, are folded into W_k and not used besides)
 //   (version 4) u64 effects E (0: the geometry alone; only with kind 0); each: str name
@@ -37,7 +41,8 @@
 //        flags (at least one 1)
 //   u64  parameter names; each a str
 //   u64  sources; each: str role ("robot", "data", ...), str path, str SHA-256 (hex, or empty)
-// n_params is 4 n + 42, plus 6 + 3 K (points) or 12 (probe), or the effects' parameters. Every
+// n_params is 4 n + 42, plus 6 + 3 K (points), 12 (probe), 7 S (ballbar), or the effects'
+// parameters. Every
 // value is checked as if a user had typed it: sizes against the file, finite numbers (NaN only
 // for unseen reflectors), lower < upper, non-negative weights, names of printable ASCII.
 // Versions 3 (without the effects: none on) and 2 (without the weighting either: every file
@@ -49,6 +54,7 @@
 #include <string>
 #include <vector>
 
+#include "iwr/ballbar.hpp"
 #include "iwr/effects.hpp"
 #include "iwr/model.hpp"
 #include "iwr/tracker.hpp"
@@ -63,7 +69,7 @@ constexpr int kMaxJoints = 64;
 constexpr std::uint64_t kMaxPoses = 100'000'000;
 
 /// What the measurements are (the problem file's "measurement kind").
-enum class MeasurementKind : std::uint8_t { Pose = 0, Points = 1, Probe = 2 };
+enum class MeasurementKind : std::uint8_t { Pose = 0, Points = 1, Probe = 2, Ballbar = 3 };
 
 struct ProblemSource {
     std::string role, path, sha256;
@@ -90,7 +96,11 @@ struct ProblemData {
     double probe_length = 0;
     RowMatrixXd probe_poses;               // Probe: N x 6 as measured
     RowMatrixXd points;                    // N x 3 K (Points) or N x 12 (Probe): the objective's
-    VectorXd reference;                    // 4 n + 42
+    VectorXd reference;                    // 4 n + 42 (tracker and ballbar data)
+    // Ballbar: the set-ups, each pose's set-up (an index into bars) and the bar's reading (mm).
+    std::vector<BarSetup> bars;
+    std::vector<int> bar;
+    VectorXd distance;
     // The noise weighting (version 3; empty: unweighted, eq. (10) or the plain point residuals).
     std::string weighting;                 // what it was made from, in words
     RowMatrixXd whitening;                 // N x m^2 (m = residuals_per_pose()) or empty
@@ -106,15 +116,18 @@ struct ProblemData {
     std::vector<std::string> parameter_names;
     std::vector<ProblemSource> sources;
 
-    bool tracker() const { return kind != MeasurementKind::Pose; }
+    bool tracker() const { return kind == MeasurementKind::Points || kind == MeasurementKind::Probe; }
+    bool ballbar() const { return kind == MeasurementKind::Ballbar; }
     int n_robot_params() const { return 4 * static_cast<int>(joint_types.size()) + 42; }
     /// The effects' model (their parameters after the robot's); throws std::invalid_argument.
     EffectModel effect_model() const { return EffectModel::parse(effects, n_robot_params()); }
-    /// The robot's, then the tracker setup's (6 + 3 K or 12) or the effects'.
+    /// The robot's, then the tracker setup's (6 + 3 K or 12), the ballbar set-ups' (7 S) or the
+    /// effects'.
     int n_params() const;
     int n_active() const;
     int n_poses() const { return static_cast<int>(legs.rows()); }
-    /// Residuals of one pose: 6 legs, 3 K point coordinates, 12 (a probe's four points).
+    /// Residuals of one pose: 6 legs, 3 K point coordinates, 12 (a probe's four points), 1 (a
+    /// ballbar's distance).
     int residuals_per_pose() const;
     bool weighted() const { return whitening.size() != 0; }
     Geometry geometry() const;

@@ -146,6 +146,9 @@ public:
     /// poses are NaN.
     RowMatrixXd platform_poses(const Eigen::Ref<const VectorXd>& x) const;
     RowMatrixXd predicted_points(const Eigen::Ref<const VectorXd>& x) const;
+    /// The same into `out` (N x 3 n_points, sized by the caller) at x (n_params entries,
+    /// unchecked): the hot path of an objective built on these kinematics (iwr/ballbar.hpp).
+    void predicted_points(const double* x, Workspace& ws, RowMatrixXd& out) const;
 
 private:
     struct Hexapod {
