@@ -1,7 +1,8 @@
 // The SIMD body of the tracker point objective (tracker.cpp), written once for a block of 8 poses
 // with the Pack type of objective_kernel_body.inl and included after it, in each instruction set's
 // namespace (objective_kernel.cpp): every variant performs the same IEEE operations in the same
-// order on each lane, so all variants give the same bits.
+// order on each lane, so the variants that fuse multiply-adds (AVX2, AVX-512) give the same bits, the
+// SSE2 baseline (fma as a multiply and an add) the same to rounding.
 // (No include guard: included several times on purpose.)
 
 IWR_FORCE_INLINE Pack operator/(const Pack& a, const Pack& b) {
@@ -10,12 +11,6 @@ IWR_FORCE_INLINE Pack operator/(const Pack& a, const Pack& b) {
     return p;
 }
 
-// a * b + c with one rounding (FMA): fewer operations on the adder, the same bits in every variant.
-IWR_FORCE_INLINE Pack fma(const Pack& a, const Pack& b, const Pack& c) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_fma(a.v[k], b.v[k], c.v[k]);
-    return p;
-}
 IWR_FORCE_INLINE Pack zero_pack() { return splat(0.0); }
 
 // A mask of the 8 lanes; false for NaN in the comparisons.
