@@ -60,6 +60,7 @@ IWR_FORCE_INLINE R r_div(R a, R b) { return _mm_div_pd(a, b); }
 // variants fuse them, so this variant differs from those at the level of rounding.
 IWR_FORCE_INLINE R r_fma(R a, R b, R c) { return _mm_add_pd(_mm_mul_pd(a, b), c); }
 IWR_FORCE_INLINE R r_fms(R a, R b, R c) { return _mm_sub_pd(_mm_mul_pd(a, b), c); }
+constexpr bool kFused = false;
 // Lane masks (the tracker kernel): all ones or all zeros per lane.
 using M = __m128d;
 IWR_FORCE_INLINE M m_le(R a, R b) { return _mm_cmple_pd(a, b); }
@@ -93,6 +94,7 @@ IWR_FORCE_INLINE R r_sqrt(R a) { return _mm256_sqrt_pd(a); }
 IWR_FORCE_INLINE R r_div(R a, R b) { return _mm256_div_pd(a, b); }
 IWR_FORCE_INLINE R r_fma(R a, R b, R c) { return _mm256_fmadd_pd(a, b, c); }
 IWR_FORCE_INLINE R r_fms(R a, R b, R c) { return _mm256_fmsub_pd(a, b, c); }
+constexpr bool kFused = true;
 using M = __m256d;
 IWR_FORCE_INLINE M m_le(R a, R b) { return _mm256_cmp_pd(a, b, _CMP_LE_OQ); }
 IWR_FORCE_INLINE M m_lt(R a, R b) { return _mm256_cmp_pd(a, b, _CMP_LT_OQ); }
@@ -136,6 +138,7 @@ IWR_FORCE_INLINE R r_sqrt(R a) { return _mm512_sqrt_pd(a); }
 IWR_FORCE_INLINE R r_div(R a, R b) { return _mm512_div_pd(a, b); }
 IWR_FORCE_INLINE R r_fma(R a, R b, R c) { return _mm512_fmadd_pd(a, b, c); }
 IWR_FORCE_INLINE R r_fms(R a, R b, R c) { return _mm512_fmsub_pd(a, b, c); }
+constexpr bool kFused = true;
 using M = __mmask8;
 IWR_FORCE_INLINE M m_le(R a, R b) { return _mm512_cmp_pd_mask(a, b, _CMP_LE_OQ); }
 IWR_FORCE_INLINE M m_lt(R a, R b) { return _mm512_cmp_pd_mask(a, b, _CMP_LT_OQ); }
@@ -173,6 +176,7 @@ inline R r_sqrt(R a) { return std::sqrt(a); }
 inline R r_div(R a, R b) { return a / b; }
 inline R r_fma(R a, R b, R c) { return std::fma(a, b, c); }
 inline R r_fms(R a, R b, R c) { return std::fma(a, b, -c); }
+constexpr bool kFused = true;
 using M = bool;
 inline M m_le(R a, R b) { return a <= b; }
 inline M m_lt(R a, R b) { return a < b; }

@@ -1,7 +1,8 @@
 // The body of the SIMD kernel, written once for a block of 8 lanes. objective_kernel.cpp includes it
 // once per instruction set, inside that set's namespace and target region, after defining the
 // register type R, the number K of registers per block (K * lanes of R == 8) and the register
-// operations r_splat, r_load, r_store, r_add, r_sub, r_mul, r_sqrt, r_fma, r_fms. Each Pack operation
+// operations r_splat, r_load, r_store, r_add, r_sub, r_mul, r_sqrt, r_fma, r_fms and kFused (whether
+// r_fma, r_fms round once). Each Pack operation
 // is applied register by register, so every lane sees exactly the same IEEE operations in the same
 // order for any R: the variants whose r_fma fuses (AVX2, AVX-512) are bit-identical; the SSE2
 // baseline's r_fma rounds twice (see objective_kernel.cpp).
@@ -80,6 +81,22 @@ IWR_FORCE_INLINE PackN<KK> fms(const PackN<KK>& a, const PackN<KK>& b, const Pac
     for (int k = 0; k < KK; ++k) p.v[k] = r_fms(a.v[k], b.v[k], c.v[k]);
     return p;
 }
+// Where the shortest fused form is not the baseline's earlier order of operations, the two forms
+// (kFused: the variant's r_fma fuses): the baseline keeps the bits and the speed it had before the
+// FMA variants (a fused chain's order, unfused, made its leg objective 3-5 % slower).
+// t + (a x + b y):
+template <class P>
+IWR_FORCE_INLINE P plus_two_products(const P& t, const P& a, const P& x, const P& b, const P& y) {
+    if constexpr (kFused) return fma(a, x, fma(b, y, t));
+    return t + fma(a, x, b * y);
+}
+// (a0 x0 + a1 x1 + a2 x2) + t:
+template <class P>
+IWR_FORCE_INLINE P dot3_plus(const P& a0, const P& x0, const P& a1, const P& x1, const P& a2,
+                             const P& x2, const P& t) {
+    if constexpr (kFused) return fma(a2, x2, fma(a1, x1, fma(a0, x0, t)));
+    return fma(a2, x2, fma(a1, x1, a0 * x0)) + t;
+}
 
 // 0T4 of a block's 8 poses by the DH chain (eq. 1-2): the prismatic prefix (the same rotation at
 // every pose), then joint by joint. t: rotation row-major (0..8), position (9..11).
@@ -126,7 +143,7 @@ IWR_FORCE_INLINE void carriage(const PoseData& pd, const EvalConsts& ec, const d
             t[3 * r] = u;
             t[3 * r + 1] = fma(ca, v, sa * w);
             t[3 * r + 2] = fms(ca, w, sa * v);
-            t[9 + r] = fma(a, u, fma(dk, w, t[9 + r]));
+            t[9 + r] = plus_two_products(t[9 + r], a, u, dk, w);
         }
     }
 }
@@ -164,9 +181,9 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
     P acc = bcast<P>(0.0), raw[6], len[6];
     for (int j = 0; j < 6; ++j) {  // the six lengths first: their square roots overlap
         const P b0 = bcast<P>(ec.b[j][0]), b1 = bcast<P>(ec.b[j][1]), b2 = bcast<P>(ec.b[j][2]);
-        const P vx = fma(m[2], b2, fma(m[1], b1, fma(m[0], b0, m[9] - bcast<P>(ec.a[j][0]))));
-        const P vy = fma(m[5], b2, fma(m[4], b1, fma(m[3], b0, m[10] - bcast<P>(ec.a[j][1]))));
-        const P vz = fma(m[8], b2, fma(m[7], b1, fma(m[6], b0, m[11] - bcast<P>(ec.a[j][2]))));
+        const P vx = dot3_plus(m[0], b0, m[1], b1, m[2], b2, m[9] - bcast<P>(ec.a[j][0]));
+        const P vy = dot3_plus(m[3], b0, m[4], b1, m[5], b2, m[10] - bcast<P>(ec.a[j][1]));
+        const P vz = dot3_plus(m[6], b0, m[7], b1, m[8], b2, m[11] - bcast<P>(ec.a[j][2]));
         len[j] = sqrt(fma(vz, vz, fma(vy, vy, vx * vx)));
     }
     for (int j = 0; j < 6; ++j) {
