@@ -11,6 +11,16 @@ Usage::
 
     cd /tmp && python /path/to/benchmarks/bench_engine.py \\
         --build old=/work/venvs/perf-old/bin --build new=/work/venvs/perf/bin
+
+``--scaling`` (builds with ``iwr-engine`` only): robust to a shared machine's neighbours, as
+``bench_regression.py --scaling`` for ``iwr.identify``. Each generation's wall time comes from the
+engine's own log (``--log``: its ``elapsed`` column, taken in C++); over ``--runs`` runs of the same
+seed (the same work generation by generation) the minimum of each generation, then the median of
+these minima over generations 50..; beside it ``Problem.cost_batch`` of NP = 600 random vectors
+within the bounds on the same threads in that build's Python (the same C++ objective), the minimum
+over rounds spread over ``--seconds``. The issue's targets: 2 threads at least 1.8x the generations/s
+of 1, a generation at most 1.1x one cost_batch on the same threads. It also checks that the logs'
+best and mean columns are the same bits whatever the thread count.
 """
 
 from __future__ import annotations
@@ -35,7 +45,7 @@ class Engine:
     def __init__(self, name: str, bin_dir: str, tmp: Path) -> None:
         self.name, self.tmp, self.output = name, tmp / name, True
         self.tmp.mkdir()
-        b = Path(bin_dir)
+        b = self.bin = Path(bin_dir)
         if (b / "iwr-engine").exists():  # the engine reads a problem file its Python writes
             self.cmd = [str(b / "iwr-engine"), str(self.tmp / "leg.iwrp")]
             self.output = False  # the engine writes its checkpoint only
@@ -47,6 +57,37 @@ class Engine:
                            check=True, cwd=self.tmp)
         else:  # aa02662: the C++ program read the robot and data files
             self.cmd = [str(b / "iwr-calibrate"), str(ROBOT), str(DATA)]
+
+    def logged(self, generations: int, threads: int) -> tuple[list[float], list[str]]:
+        """One run: each generation's wall time (ms) from the engine's log, and its best and mean
+        columns as written (17 significant digits: the bits)."""
+        log = self.tmp / "r.csv"
+        subprocess.run([*self.cmd, *SETTINGS, "--generations", str(generations), "--threads",
+                        str(threads), "--log", str(log), "--checkpoint", str(self.tmp / "r.ckpt")],
+                       check=True, cwd=self.tmp, stdout=subprocess.DEVNULL)
+        rows = [line.split(",") for line in log.read_text().splitlines()[1:]]
+        elapsed = [float(r[5]) for r in rows]
+        return ([1e3 * (b - a) for a, b in zip(elapsed, elapsed[1:])],
+                [r[2] + "," + r[3] for r in rows])
+
+    def batch(self, threads: list[int], seconds: float) -> dict[int, float]:
+        """cost_batch of 600 random vectors on each thread count (ms, wall): the minimum over
+        rounds spread over `seconds`, the thread counts alternated."""
+        code = (
+            "import sys, time, numpy as np, iwr\n"
+            "p = iwr.Problem.load(sys.argv[1])\n"
+            "X = p.lower + (p.upper - p.lower) * np.random.default_rng(1).random((600, p.n_params))\n"
+            "ts = [int(t) for t in sys.argv[2].split(',')]; best = {t: 1e9 for t in ts}\n"
+            "t0 = time.perf_counter()\n"
+            "while time.perf_counter() - t0 < float(sys.argv[3]):\n"
+            "    for t in ts:\n"
+            "        a = time.perf_counter(); p.cost_batch(X, workers=t)\n"
+            "        best[t] = min(best[t], 1e3 * (time.perf_counter() - a))\n"
+            "print(' '.join(f'{t}={best[t]!r}' for t in ts))\n")
+        out = subprocess.run([str(self.bin / "python"), "-c", code, str(self.tmp / "leg.iwrp"),
+                              ",".join(map(str, threads)), str(seconds)], check=True, cwd=self.tmp,
+                             capture_output=True, text=True).stdout.split()
+        return {int(k): float(v) for k, v in (w.split("=") for w in out)}
 
     def wall(self, generations: int, threads: int) -> float:
         out = self.tmp / "r.json"
@@ -64,7 +105,15 @@ def main() -> None:
     ap.add_argument("--generations", default="100,1100", help="G1,G2")
     ap.add_argument("--threads", default="1,2")
     ap.add_argument("--repeat", type=int, default=3)
+    ap.add_argument("--scaling", action="store_true",
+                    help="per-generation times from the engine's log (see above)")
+    ap.add_argument("--runs", type=int, default=7, help="--scaling: runs per build and thread count")
+    ap.add_argument("--scaling-generations", type=int, default=400)
+    ap.add_argument("--seconds", type=float, default=15.0, help="--scaling: cost_batch rounds")
     args = ap.parse_args()
+    if args.scaling:
+        scaling(args)
+        return
     g1, g2 = (int(g) for g in args.generations.split(","))
     threads = [int(t) for t in args.threads.split(",")]
     specs = args.build or [f"this={Path(sys.executable).parent}"]
@@ -86,6 +135,46 @@ def main() -> None:
         if 1 in threads and 2 in threads:
             ratio = max(rates[(e.name, 2)]) / max(rates[(e.name, 1)])
             print(f"{e.name}: 2 threads / 1: {ratio:.2f}x")
+    print(f"load average {os.getloadavg()[0]:.2f} at the end")
+
+
+def scaling(args: argparse.Namespace) -> None:
+    threads = [int(t) for t in args.threads.split(",")]
+    specs = args.build or [f"this={Path(sys.executable).parent}"]
+    gens = args.scaling_generations
+    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at start; iwr-engine, NP 600, "
+          f"{gens} generations x {args.runs} runs: per generation the minimum over the runs, then the "
+          "median over generations 50..; cost_batch of 600 vectors, wall time, the minimum over "
+          f"rounds spread over {args.seconds:g} s")
+    with tempfile.TemporaryDirectory() as tmp:
+        engines = [Engine(*s.split("=", 1), Path(tmp)) for s in specs]
+        if any(e.output for e in engines):
+            raise SystemExit("--scaling: every build needs iwr-engine (aa02662 has none)")
+        times: dict = {}
+        bits: dict = {e.name: set() for e in engines}
+        for r in range(args.runs):
+            for e in engines if r % 2 == 0 else engines[::-1]:
+                for t in threads if r % 2 == 0 else threads[::-1]:
+                    ms, log = e.logged(gens, t)
+                    times.setdefault((e.name, t), []).append(ms)
+                    bits[e.name].add(tuple(log))
+        batch = {e.name: e.batch(threads, args.seconds) for e in engines}
+        print("| build | threads | ms/generation | cost_batch (ms) | generation / batch |")
+        print("|---|---|---|---|---|")
+        per = {}
+        for e in engines:
+            for t in threads:
+                m = sorted([min(g) for g in zip(*times[(e.name, t)], strict=True)][50:])
+                per[(e.name, t)] = m[len(m) // 2]
+                b = batch[e.name][t]
+                print(f"| {e.name} | {t} | {per[(e.name, t)]:.3f} | {b:.3f} | "
+                      f"{per[(e.name, t)] / b:.2f}x |")
+        for e in engines:
+            if 1 in threads and 2 in threads:
+                print(f"{e.name}: generations/s on 2 threads / on 1: "
+                      f"{per[(e.name, 1)] / per[(e.name, 2)]:.2f}x")
+            print(f"{e.name}: the logs' best and mean the same bits on every thread count and run: "
+                  f"{len(bits[e.name]) == 1}")
     print(f"load average {os.getloadavg()[0]:.2f} at the end")
 
 

@@ -48,7 +48,9 @@ def test_whitened_residuals_cost_and_batch_are_w_times_eq10(data40) -> None:
     np.testing.assert_array_equal(one, [white.cost(x) for x in X])
 
 
-def test_every_instruction_set_gives_the_same_whitened_bits(data40) -> None:
+def test_the_fma_variants_give_the_same_whitened_bits(data40) -> None:
+    # AVX2 and AVX-512 bit for bit; the baseline (no fused multiply-add) to rounding (measured: at
+    # most 6.1e-15 relative in the costs, 1.9e-12 mm in the residuals here).
     m, _ = data40
     rng = np.random.default_rng(2)
     white = Problem(ROBOT, m, whitening=random_whitening(len(m), rng))
@@ -61,9 +63,13 @@ def test_every_instruction_set_gives_the_same_whitened_bits(data40) -> None:
             got[v] = (white.cost_batch(X, workers=1), white.residuals(X[0]))
     finally:
         _core._select_kernel(before)
-    for v, (c, r) in got.items():
-        np.testing.assert_array_equal(c, got["baseline"][0], err_msg=v)
-        np.testing.assert_array_equal(r, got["baseline"][1], err_msg=v)
+    fused = [v for v in got if v != "baseline"]
+    for v in fused:
+        c, r = got[v]
+        np.testing.assert_array_equal(c, got[fused[0]][0], err_msg=v)
+        np.testing.assert_array_equal(r, got[fused[0]][1], err_msg=v)
+        np.testing.assert_allclose(c, got["baseline"][0], rtol=1e-13, atol=0, err_msg=v)
+        np.testing.assert_allclose(r, got["baseline"][1], rtol=0, atol=1e-10, err_msg=v)
 
 
 def test_weighted_jacobian_matches_central_differences(data40) -> None:

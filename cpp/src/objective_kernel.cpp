@@ -5,12 +5,14 @@
 // SSE2 (any x86-64 CPU), AVX2 and AVX-512 (in target regions, selected at run time from CPUID), or
 // portable scalar code elsewhere. Explicit SIMD registers rather than auto-vectorisation: GCC's
 // vectoriser picked narrower vectors than the target allows for the leg loop and was ~25% slower.
-// The variants are bit-identical: each performs the same IEEE operations, lane by lane, in the same
-// order; -ffp-contract=off (CMakeLists.txt) keeps the compiler from fusing a*b+c into FMAs (which
-// would round differently from the non-FMA baseline); sqrt is correctly rounded everywhere.
-// The tracker point objective's body (tracker_kernel_body.inl) is compiled alongside, with the same
-// register operations plus explicit fused multiply-adds (r_fma: one rounding in every variant; the
-// AVX2 variant therefore also requires FMA, which every AVX2 CPU has).
+// The AVX2 and AVX-512 variants are bit-identical: each performs the same IEEE operations, lane by
+// lane, in the same order, with fused multiply-adds where the body says so (fma, fms: r_fma, r_fms,
+// the FMA instructions; the AVX2 variant therefore requires FMA, which every AVX2 CPU has);
+// -ffp-contract=off (CMakeLists.txt) keeps the compiler from fusing anything else. The SSE2 baseline
+// (x86-64 CPUs without FMA, before about 2013) runs the same body with each fused operation as a
+// multiply and an add: it differs from the other two at the level of rounding (a few units in the
+// last place of a leg length; tests/test_objective_kernel.py measures it). sqrt is correctly rounded
+// everywhere. The tracker point objective's body (tracker_kernel_body.inl) is compiled alongside.
 #include "objective_kernel.hpp"
 
 #include <atomic>
@@ -53,14 +55,12 @@ IWR_FORCE_INLINE R r_sub(R a, R b) { return _mm_sub_pd(a, b); }
 IWR_FORCE_INLINE R r_mul(R a, R b) { return _mm_mul_pd(a, b); }
 IWR_FORCE_INLINE R r_sqrt(R a) { return _mm_sqrt_pd(a); }
 IWR_FORCE_INLINE R r_div(R a, R b) { return _mm_div_pd(a, b); }
-// a * b + c rounded once (the tracker kernel): no FMA instruction in the baseline, so glibc's
-// correctly rounded fma() lane by lane, the same bits as the FMA instructions of the other variants.
-IWR_FORCE_INLINE R r_fma(R a, R b, R c) {
-    alignas(16) double x[2], y[2], z[2];
-    _mm_store_pd(x, a), _mm_store_pd(y, b), _mm_store_pd(z, c);
-    for (int i = 0; i < 2; ++i) x[i] = std::fma(x[i], y[i], z[i]);
-    return _mm_load_pd(x);
-}
+// a * b + c, a * b - c: the baseline has no FMA instruction, so a multiply then an add, rounded
+// twice (glibc's correctly rounded fma() lane by lane would be 10-20x slower); the AVX2 and AVX-512
+// variants fuse them, so this variant differs from those at the level of rounding.
+IWR_FORCE_INLINE R r_fma(R a, R b, R c) { return _mm_add_pd(_mm_mul_pd(a, b), c); }
+IWR_FORCE_INLINE R r_fms(R a, R b, R c) { return _mm_sub_pd(_mm_mul_pd(a, b), c); }
+constexpr bool kFused = false;
 // Lane masks (the tracker kernel): all ones or all zeros per lane.
 using M = __m128d;
 IWR_FORCE_INLINE M m_le(R a, R b) { return _mm_cmple_pd(a, b); }
@@ -93,6 +93,8 @@ IWR_FORCE_INLINE R r_mul(R a, R b) { return _mm256_mul_pd(a, b); }
 IWR_FORCE_INLINE R r_sqrt(R a) { return _mm256_sqrt_pd(a); }
 IWR_FORCE_INLINE R r_div(R a, R b) { return _mm256_div_pd(a, b); }
 IWR_FORCE_INLINE R r_fma(R a, R b, R c) { return _mm256_fmadd_pd(a, b, c); }
+IWR_FORCE_INLINE R r_fms(R a, R b, R c) { return _mm256_fmsub_pd(a, b, c); }
+constexpr bool kFused = true;
 using M = __m256d;
 IWR_FORCE_INLINE M m_le(R a, R b) { return _mm256_cmp_pd(a, b, _CMP_LE_OQ); }
 IWR_FORCE_INLINE M m_lt(R a, R b) { return _mm256_cmp_pd(a, b, _CMP_LT_OQ); }
@@ -135,6 +137,8 @@ IWR_FORCE_INLINE R r_mul(R a, R b) { return _mm512_mul_pd(a, b); }
 IWR_FORCE_INLINE R r_sqrt(R a) { return _mm512_sqrt_pd(a); }
 IWR_FORCE_INLINE R r_div(R a, R b) { return _mm512_div_pd(a, b); }
 IWR_FORCE_INLINE R r_fma(R a, R b, R c) { return _mm512_fmadd_pd(a, b, c); }
+IWR_FORCE_INLINE R r_fms(R a, R b, R c) { return _mm512_fmsub_pd(a, b, c); }
+constexpr bool kFused = true;
 using M = __mmask8;
 IWR_FORCE_INLINE M m_le(R a, R b) { return _mm512_cmp_pd_mask(a, b, _CMP_LE_OQ); }
 IWR_FORCE_INLINE M m_lt(R a, R b) { return _mm512_cmp_pd_mask(a, b, _CMP_LT_OQ); }
@@ -171,6 +175,8 @@ inline R r_mul(R a, R b) { return a * b; }
 inline R r_sqrt(R a) { return std::sqrt(a); }
 inline R r_div(R a, R b) { return a / b; }
 inline R r_fma(R a, R b, R c) { return std::fma(a, b, c); }
+inline R r_fms(R a, R b, R c) { return std::fma(a, b, -c); }
+constexpr bool kFused = true;
 using M = bool;
 inline M m_le(R a, R b) { return a <= b; }
 inline M m_lt(R a, R b) { return a < b; }

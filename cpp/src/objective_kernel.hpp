@@ -4,8 +4,9 @@
 // quantities of one block are contiguous, so one block's data is a few cache lines and the
 // per-pose arithmetic maps one-to-one onto SIMD lanes. The kernel is compiled several times for
 // different instruction sets (baseline x86-64 SSE2, AVX2, AVX-512) and picked at run time. Every
-// variant performs the same IEEE operations in the same order on each lane (no FMA contraction, no
-// reassociation), so all variants give bit-identical results.
+// variant performs the same IEEE operations in the same order on each lane (no reassociation); the
+// AVX2 and AVX-512 variants fuse the multiply-adds the body writes as fma/fms and give bit-identical
+// results, the SSE2 baseline rounds those twice and differs from them at the level of rounding.
 #pragma once
 
 #include <string>

@@ -1,9 +1,11 @@
 // The body of the SIMD kernel, written once for a block of 8 lanes. objective_kernel.cpp includes it
 // once per instruction set, inside that set's namespace and target region, after defining the
 // register type R, the number K of registers per block (K * lanes of R == 8) and the register
-// operations r_splat, r_load, r_store, r_add, r_sub, r_mul, r_sqrt. Each Pack operation is applied
-// register by register, so every lane sees exactly the same IEEE operations in the same order for
-// any R: the variants are bit-identical.
+// operations r_splat, r_load, r_store, r_add, r_sub, r_mul, r_sqrt, r_fma, r_fms and kFused (whether
+// r_fma, r_fms round once). Each Pack operation
+// is applied register by register, so every lane sees exactly the same IEEE operations in the same
+// order for any R: the variants whose r_fma fuses (AVX2, AVX-512) are bit-identical; the SSE2
+// baseline's r_fma rounds twice (see objective_kernel.cpp).
 // (No include guard: included several times on purpose.)
 
 // A pack of KK registers. Pack: a block's 8 lanes (K registers). Sub: one register's lanes, what
@@ -62,6 +64,39 @@ IWR_FORCE_INLINE PackN<KK> sqrt(const PackN<KK>& a) {
     for (int k = 0; k < KK; ++k) p.v[k] = r_sqrt(a.v[k]);
     return p;
 }
+// a * b + c and a * b - c: one rounding where the variant has fused multiply-adds (AVX2, AVX-512:
+// r_fma, r_fms are the FMA instructions), two in the SSE2 baseline, which has none (a multiply, then
+// the add). Written out rather than left to the compiler (-ffp-contract=off): the same contractions
+// in the same order in the AVX2 and AVX-512 variants, so those two give the same bits, and the
+// baseline differs from them at the level of rounding.
+template <int KK>
+IWR_FORCE_INLINE PackN<KK> fma(const PackN<KK>& a, const PackN<KK>& b, const PackN<KK>& c) {
+    PackN<KK> p;
+    for (int k = 0; k < KK; ++k) p.v[k] = r_fma(a.v[k], b.v[k], c.v[k]);
+    return p;
+}
+template <int KK>
+IWR_FORCE_INLINE PackN<KK> fms(const PackN<KK>& a, const PackN<KK>& b, const PackN<KK>& c) {
+    PackN<KK> p;
+    for (int k = 0; k < KK; ++k) p.v[k] = r_fms(a.v[k], b.v[k], c.v[k]);
+    return p;
+}
+// Where the shortest fused form is not the baseline's earlier order of operations, the two forms
+// (kFused: the variant's r_fma fuses): the baseline keeps the bits and the speed it had before the
+// FMA variants (a fused chain's order, unfused, made its leg objective 3-5 % slower).
+// t + (a x + b y):
+template <class P>
+IWR_FORCE_INLINE P plus_two_products(const P& t, const P& a, const P& x, const P& b, const P& y) {
+    if constexpr (kFused) return fma(a, x, fma(b, y, t));
+    return t + fma(a, x, b * y);
+}
+// (a0 x0 + a1 x1 + a2 x2) + t:
+template <class P>
+IWR_FORCE_INLINE P dot3_plus(const P& a0, const P& x0, const P& a1, const P& x1, const P& a2,
+                             const P& x2, const P& t) {
+    if constexpr (kFused) return fma(a2, x2, fma(a1, x1, fma(a0, x0, t)));
+    return fma(a2, x2, fma(a1, x1, a0 * x0)) + t;
+}
 
 // 0T4 of a block's 8 poses by the DH chain (eq. 1-2): the prismatic prefix (the same rotation at
 // every pose), then joint by joint. t: rotation row-major (0..8), position (9..11).
@@ -83,7 +118,7 @@ IWR_FORCE_INLINE void carriage(const PoseData& pd, const EvalConsts& ec, const d
     for (int i = 0; i < n_prefix; ++i) {
         const P q = ld<P>(blk + pd.q_off[i] * B);
         const double* z = ec.z + 3 * i;
-        for (int r = 0; r < 3; ++r) t[9 + r] = t[9 + r] + q * bcast<P>(z[r]);
+        for (int r = 0; r < 3; ++r) t[9 + r] = fma(q, bcast<P>(z[r]), t[9 + r]);
     }
 #pragma GCC unroll 8
     for (int i = n_prefix; i < n_joints; ++i) {
@@ -97,18 +132,18 @@ IWR_FORCE_INLINE void carriage(const PoseData& pd, const EvalConsts& ec, const d
             c = ct, s = st, dk = d + ld<P>(q);
         } else {  // angle-sum identity on the per-data-set cos q, sin q
             const P cq = ld<P>(q), sq = ld<P>(q + B);
-            c = ct * cq - st * sq, s = st * cq + ct * sq, dk = d;
+            c = fms(ct, cq, st * sq), s = fma(st, cq, ct * sq), dk = d;
         }
         // T <- T A_i row by row: u = T0 c + T1 s, v = T1 c - T0 s; the new row is
         // (u, ca v + sa T2, ca T2 - sa v) and the position gains a u + d_k T2.
         for (int r = 0; r < 3; ++r) {
             const P t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
-            const P u = t0 * c + t1 * s;
-            const P v = t1 * c - t0 * s;
+            const P u = fma(t0, c, t1 * s);
+            const P v = fms(t1, c, t0 * s);
             t[3 * r] = u;
-            t[3 * r + 1] = ca * v + sa * w;
-            t[3 * r + 2] = ca * w - sa * v;
-            t[9 + r] = t[9 + r] + (a * u + dk * w);
+            t[3 * r + 1] = fma(ca, v, sa * w);
+            t[3 * r + 2] = fms(ca, w, sa * v);
+            t[9 + r] = plus_two_products(t[9 + r], a, u, dk, w);
         }
     }
 }
@@ -132,11 +167,11 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
         const double* r5 = blk + pd.off_r5 * B;
         const P d0 = ld<P>(p5) - t[9], d1 = ld<P>(p5 + B) - t[10], d2 = ld<P>(p5 + 2 * B) - t[11];
         for (int r = 0; r < 3; ++r)  // w = R4^T (p5 - p4): column r of R4 . d
-            m[9 + r] = t[r] * d0 + t[3 + r] * d1 + t[6 + r] * d2;
+            m[9 + r] = fma(t[6 + r], d2, fma(t[3 + r], d1, t[r] * d0));
         for (int c = 0; c < 3; ++c) {  // column c of R5 (fewer live registers than all nine)
             const P f0 = ld<P>(r5 + c * B), f1 = ld<P>(r5 + (3 + c) * B),
                     f2 = ld<P>(r5 + (6 + c) * B);
-            for (int r = 0; r < 3; ++r) m[3 * r + c] = t[r] * f0 + t[3 + r] * f1 + t[6 + r] * f2;
+            for (int r = 0; r < 3; ++r) m[3 * r + c] = fma(t[6 + r], f2, fma(t[3 + r], f1, t[r] * f0));
         }
     }
 
@@ -146,10 +181,10 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
     P acc = bcast<P>(0.0), raw[6], len[6];
     for (int j = 0; j < 6; ++j) {  // the six lengths first: their square roots overlap
         const P b0 = bcast<P>(ec.b[j][0]), b1 = bcast<P>(ec.b[j][1]), b2 = bcast<P>(ec.b[j][2]);
-        const P vx = (m[0] * b0 + m[1] * b1 + m[2] * b2) + (m[9] - bcast<P>(ec.a[j][0]));
-        const P vy = (m[3] * b0 + m[4] * b1 + m[5] * b2) + (m[10] - bcast<P>(ec.a[j][1]));
-        const P vz = (m[6] * b0 + m[7] * b1 + m[8] * b2) + (m[11] - bcast<P>(ec.a[j][2]));
-        len[j] = sqrt(vx * vx + vy * vy + vz * vz);
+        const P vx = dot3_plus(m[0], b0, m[1], b1, m[2], b2, m[9] - bcast<P>(ec.a[j][0]));
+        const P vy = dot3_plus(m[3], b0, m[4], b1, m[5], b2, m[10] - bcast<P>(ec.a[j][1]));
+        const P vz = dot3_plus(m[6], b0, m[7], b1, m[8], b2, m[11] - bcast<P>(ec.a[j][2]));
+        len[j] = sqrt(fma(vz, vz, fma(vy, vy, vx * vx)));
     }
     for (int j = 0; j < 6; ++j) {
         P r = (len[j] - bcast<P>(ec.l0[j])) - ld<P>(blk + (pd.off_s + j) * B);
@@ -158,7 +193,7 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
             raw[j] = r;
         } else {
             if (Residuals) res[j] = r;
-            acc = acc + r * r;
+            acc = fma(r, r, acc);
         }
     }
     if (Weighted == 2) {
@@ -166,9 +201,9 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
         for (int i = 0; i < 6; ++i) {
             P r = ld<P>(w) * raw[0];
             w += B;
-            for (int j = 1; j <= i; ++j, w += B) r = r + ld<P>(w) * raw[j];
+            for (int j = 1; j <= i; ++j, w += B) r = fma(ld<P>(w), raw[j], r);
             if (Residuals) res[i] = r;
-            acc = acc + r * r;
+            acc = fma(r, r, acc);
         }
     }
     return acc;

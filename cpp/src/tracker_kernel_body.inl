@@ -1,7 +1,8 @@
 // The SIMD body of the tracker point objective (tracker.cpp), written once for a block of 8 poses
 // with the Pack type of objective_kernel_body.inl and included after it, in each instruction set's
 // namespace (objective_kernel.cpp): every variant performs the same IEEE operations in the same
-// order on each lane, so all variants give the same bits.
+// order on each lane, so the variants that fuse multiply-adds (AVX2, AVX-512) give the same bits, the
+// SSE2 baseline (fma as a multiply and an add) the same to rounding.
 // (No include guard: included several times on purpose.)
 
 IWR_FORCE_INLINE Pack operator/(const Pack& a, const Pack& b) {
@@ -10,12 +11,6 @@ IWR_FORCE_INLINE Pack operator/(const Pack& a, const Pack& b) {
     return p;
 }
 
-// a * b + c with one rounding (FMA): fewer operations on the adder, the same bits in every variant.
-IWR_FORCE_INLINE Pack fma(const Pack& a, const Pack& b, const Pack& c) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_fma(a.v[k], b.v[k], c.v[k]);
-    return p;
-}
 IWR_FORCE_INLINE Pack zero_pack() { return splat(0.0); }
 
 // A mask of the 8 lanes; false for NaN in the comparisons.
@@ -61,6 +56,29 @@ IWR_FORCE_INLINE Pack select(const Mask& m, const Pack& a, const Pack& b) {
     Pack p;
     for (int k = 0; k < K; ++k) p.v[k] = m_select(m.v[k], a.v[k], b.v[k]);
     return p;
+}
+
+// J_ref^-1 v for the block's lanes (inv: the 6 x 6 matrix row by row, v: 6 values, each 8 lanes),
+// one register's lanes at a time, v in registers: each row's product reads only the matrix (with
+// AVX2 the whole block's v would take 12 of the 16 registers, and reading it from memory made the
+// product wait on loads: 4-5 % of the AVX2 tracker objective). With AVX-512 (K = 1: one register
+// a block) v is read from memory in every row, as before (1.5 % faster than in registers).
+// set(h, s[m].v[h], row m's product) stores the result of register h. The same operations on each
+// lane either way.
+template <class Set>
+IWR_FORCE_INLINE void inverse_times(const double* inv, const double* v, Pack (&s)[6], Set set) {
+    constexpr int B = kBlock, W = kSubLanes;
+    for (int h = 0; h < K; ++h) {
+        R vh[6];
+        for (int n = 0; n < 6; ++n) vh[n] = r_load(v + n * B + h * W);
+        auto vn = [&](int n) IWR_FORCE_INLINE_LAMBDA { return K == 1 ? r_load(v + n * B) : vh[n]; };
+        for (int m = 0; m < 6; ++m) {
+            const double* row = inv + 6 * m * B + h * W;
+            R acc = r_mul(r_load(row), vn(0));
+            for (int n = 1; n < 6; ++n) acc = r_fma(r_load(row + n * B), vn(n), acc);
+            set(h, s[m].v[h], acc);
+        }
+    }
 }
 
 // The forward kinematics of the block's 8 poses, one per lane, from the reference solves stored in
@@ -135,12 +153,9 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
         if (bits(act) == 0) break;
         prev = select(act, err, prev);
         Pack s[6];
-        for (int m = 0; m < 6; ++m) {
-            const double* row = inv + 6 * m * B;
-            Pack acc = load(row) * load(f);
-            for (int n = 1; n < 6; ++n) acc = fma(load(row + n * B), load(f + n * B), acc);
-            s[m] = select(act, zero - acc, zero);
-        }
+        inverse_times(inv, f, s, [&](int h, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
+            sm = m_select(act.v[h], r_sub(zero.v[h], acc), zero.v[h]);
+        });
         const Mask refine = act & (refine_above < err);
         if (it > 0 && bits(refine) != 0) {
             // g = J s0 + f, then s = s0 - J_ref^-1 g in the lanes that refine (the others keep s0).
@@ -157,12 +172,9 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
                 const Pack h = load(hinv + j * B);
                 store(g + j * B, fma(h + h, dot, load(f + j * B)));
             }
-            for (int m = 0; m < 6; ++m) {
-                const double* row = inv + 6 * m * B;
-                Pack acc = load(row) * load(g);
-                for (int n = 1; n < 6; ++n) acc = fma(load(row + n * B), load(g + n * B), acc);
-                s[m] = select(refine, s[m] - acc, s[m]);
-            }
+            inverse_times(inv, g, s, [&](int h, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
+                sm = m_select(refine.v[h], r_sub(sm, acc), sm);
+            });
         }
         for (int c = 0; c < 3; ++c) p[c] = p[c] + s[c];
         const Pack half = splat(0.5), one = splat(1.0);

@@ -52,9 +52,9 @@ private:
 
 /// SIMD variants of the cost kernels (the leg objective's and the tracker point objective's) that
 /// this CPU can run, baseline first: "baseline" (x86-64 SSE2, or the compiler's default
-/// elsewhere), "avx2" (with FMA), "avx512". All variants give bit-identical results: the same
-/// operation order on every lane, no FMA contraction, and the tracker kernel's explicit fused
-/// multiply-adds rounded once in every variant (glibc's fma() in the baseline).
+/// elsewhere), "avx2" (with FMA), "avx512". The same operation order on every lane and the kernels'
+/// explicit fused multiply-adds (no other contraction): "avx2" and "avx512" give bit-identical
+/// results; "baseline" (no FMA on x86-64: a multiply and an add) the same to rounding.
 std::vector<std::string> supported_kernels();
 /// The variant in use: the widest one the CPU supports, unless select_kernel chose another.
 std::string active_kernel();
