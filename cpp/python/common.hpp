@@ -18,6 +18,7 @@
 #include "iwr/effects.hpp"
 #include "iwr/model.hpp"
 #include "iwr/parallel.hpp"
+#include "iwr/tracker.hpp"
 
 namespace py = pybind11;
 
@@ -106,4 +107,7 @@ void bind_effects(py::module_& m);
 // (bind_effects.cpp).
 std::vector<EffectTable> effect_tables(const py::object& effects);
 py::list effect_tables_py(const std::vector<EffectTable>& tables);
+// The nominal tracker setup of kind "points" or "probe" (bind_tracker.cpp).
+TrackerSetup make_setup(const std::string& kind, const Vector6d& registration,
+                        const RowMatrixXd& reflectors, const Vector6d& probe, double length);
 }  // namespace iwr::python
