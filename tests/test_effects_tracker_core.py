@@ -4,10 +4,7 @@ carried by the problem file and run by iwr-engine and iwr-calibrate (issue 23)."
 
 from __future__ import annotations
 
-import shutil
 import subprocess
-import sys
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -81,7 +78,8 @@ def test_failures_and_bad_inputs(measured_with_effects):
     far = iwr.tracker.TrackerMeasurements(data.q, legs, points=data.points,
                                           joint_types=data.joint_types, payload=data.payload,
                                           temperatures=data.temperatures)
-    with pytest.raises(iwr.ForwardKinematicsError):  # the reference solve names the row
+    with pytest.raises(iwr.ForwardKinematicsError, match="no forward kinematics for the robot "
+                                                         "at the reference"):
         et.TrackerEffectProblem(robot, robot.tracker, far).cost(truth)
     geometry, tables = robot._geometry, [(e.name, e.to_dict()) for e in robot.effects]
     args = dict(kind="points", registration=robot.tracker.registration,
@@ -93,7 +91,8 @@ def test_failures_and_bad_inputs(measured_with_effects):
         ({"temperatures": np.zeros((0, 0))}, "temperatures: the thermal effect"),
         ({"payload": data.payload[:, :3]}, r"payload: shape \(6, 3\); expected \(6, 4\)"),
         ({"gravity": np.array([0.0, 0.0, -5.0])}, "gravity: norm 5 m/s\\^2 in the tracker frame"),
-        ({"effects": [("carriage_compliance", {})]}, "effects.carriage_compliance"),
+        ({"effects": [(e.name, e.to_dict()) for e in api.realistic(robot, carriage=True)]},
+         "effects.carriage_compliance: the carriage's compliance .* not modelled on tracker"),
     ]:
         with pytest.raises(ValueError, match=message):
             _core.TrackerEffectObjective(geometry, **{"effects": tables, **args, **change})
@@ -105,6 +104,13 @@ def test_failures_and_bad_inputs(measured_with_effects):
     with pytest.raises(ValueError, match="x"):
         cpp.cost(x)
     assert cpp.failures(truth) == []
+    # Leg 1 shorter than nothing at every pose: no forward kinematics, the finite penalty on
+    # every seen coordinate (1000 mm), each pose named; never NaN.
+    x = truth.copy()
+    x[problem.parameter_names.index("leg1.dl0")] -= 5000.0
+    assert [k for k, _ in cpp.failures(x)] == list(range(6))
+    np.testing.assert_array_equal(cpp.residuals(x), np.full(6 * 9, 1e3))
+    assert problem.cost_batch(x[None])[0] == cpp.cost(x) == 6 * 9 * 1e6
 
 
 # --- the problem file --------------------------------------------------------------------------
@@ -146,8 +152,10 @@ def test_problem_file_carries_tracker_data_with_effects(tmp_path, measured_with_
         hot = read_problem(tmp_path / "hot.iwrp")
         assert hot["data_fingerprint"] != d["data_fingerprint"]
         assert hot["robot_fingerprint"] == d["robot_fingerprint"]
-        tilted_setup = robot.tracker.with_parameters(np.zeros(robot.tracker.n_params))
-        tilted_setup.gravity = np.array([0.2, 0.0, -9.80])
+        s = robot.tracker
+        tilted_setup = iwr.tracker.TrackerSetup(
+            s.registration, reflectors=s.reflectors, probe=s.probe, probe_length=s.probe_length,
+            names=s.names if kind == "points" else None, gravity=[0.2, 0.0, -9.80])
         tilted = robot.with_tracker(setup=tilted_setup)
         et.TrackerEffectProblem(tilted, tilted_setup, data, (problem.lower, problem.upper)
                                 ).save(tmp_path / "tilted.iwrp", x0=start)
@@ -196,15 +204,8 @@ def test_de_and_lm_recover_tool_poses_and_leg_commands(measured_with_effects, ki
 # --- iwr-engine and iwr-calibrate ----------------------------------------------------------------
 
 
-def _find(name: str) -> str:
-    cand = Path(sys.executable).parent / name
-    exe = str(cand) if cand.exists() else shutil.which(name)
-    if exe is None:
-        pytest.fail(f"{name} is not installed: `pip install .` puts it next to python")
-    return exe
-
-
-def test_launcher_on_tracker_data_with_effects_equals_identify(tmp_path, measured_with_effects):
+def test_launcher_on_tracker_data_with_effects_equals_identify(tmp_path, measured_with_effects,
+                                                              installed_command):
     """iwr-calibrate ROBOT.toml DATA.csv on point data with effects (payload and temperature
     columns): the engine's DE run is iwr.identify's, bit for bit, and its cost the problem's."""
     from iwr.tracker.files import read_tracker_data, write_tracker_wide
@@ -215,7 +216,7 @@ def test_launcher_on_tracker_data_with_effects_equals_identify(tmp_path, measure
     write_tracker_wide(tmp_path / "data.csv", robot.tracker, data)
     settings = ["--population-size", 20, "--generations", 12, "--seed", 4, "--F", 0.7,
                 "--CR", 0.9, "--threads", 2, "--quiet"]
-    proc = subprocess.run([_find("iwr-calibrate"), tmp_path / "robot.toml",
+    proc = subprocess.run([installed_command("iwr-calibrate"), tmp_path / "robot.toml",
                            tmp_path / "data.csv", "--output", tmp_path / "run.json",
                            *map(str, settings)], capture_output=True, text=True, timeout=300,
                           check=False)

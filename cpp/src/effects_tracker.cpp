@@ -155,6 +155,7 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
         throw std::invalid_argument("tolerance: " + std::to_string(tolerance) + "; expected a finite number > 0 (mm)");
     geometry_.check_errors(reference.data(), reference.size(), "reference");
     require_finite(home.data(), 6, "home");
+    n_seen_ = detail::seen_points(points, kp);
 
     int nq = kOffPoints + 4 * kp;
     for (int i = 0; i < nj; ++i) {
@@ -194,18 +195,7 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
         for (int e = 0; e < 3; ++e) d[kOffRefP + e] = ref(e);
         for (int e = 0; e < 9; ++e) d[kOffRefR + e] = rr(e / 3, e % 3);
         for (int i = 0; i < kp; ++i) {
-            const int nan = std::isnan(points(k, 3 * i)) + std::isnan(points(k, 3 * i + 1)) +
-                            std::isnan(points(k, 3 * i + 2));
-            bool finite = true;
-            for (int c = 0; c < 3; ++c) finite = finite && !std::isinf(points(k, 3 * i + c));
-            if ((nan != 0 && nan != 3) || !finite) {
-                std::ostringstream msg;
-                msg << "points: pose " << k << ", point " << i + 1
-                    << " has a non-finite coordinate; a point not seen has all three NaN";
-                throw std::invalid_argument(msg.str());
-            }
-            const bool seen = nan == 0;
-            n_seen_ += seen ? 1 : 0;
+            const bool seen = !std::isnan(points(k, 3 * i));
             for (int c = 0; c < 3; ++c) d[kOffPoints + 3 * i + c] = seen ? points(k, 3 * i + c) : 0.0;
             d[kOffPoints + 3 * kp + i] = seen ? 1.0 : 0.0;
         }
@@ -227,17 +217,7 @@ void TrackerEffectObjective::set_whitening(const RowMatrixXd& whitening) {
         return;
     }
     const Eigen::Index m = 3 * setup_.n_points();
-    require_shape(whitening, n_, m * m, "whitening");
-    require_finite(whitening.data(), whitening.size(), "whitening");
-    for (Eigen::Index k = 0; k < n_; ++k)
-        for (Eigen::Index i = 0; i < m; ++i)
-            for (Eigen::Index j = i + 1; j < m; ++j)
-                if (whitening(k, i * m + j) != 0.0) {
-                    std::ostringstream msg;
-                    msg << "whitening: pose " << k << ", entry (" << i << ", " << j << ") is " << whitening(k, i * m + j)
-                        << "; the whitening of a pose must be lower triangular";
-                    throw std::invalid_argument(msg.str());
-                }
+    detail::check_whitening(whitening, n_, m);
     whitening_ = whitening;
 }
 
@@ -283,9 +263,10 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
         if (!ok) {
             // From the geometry's own forward kinematics at x (damped Newton-Raphson from the
             // reference pose), then Newton with the effects again.
-            try {
-                LegVector len;
-                for (int j = 0; j < kLegs; ++j) len(j) = d[j] + ec.l0[j];
+            LegVector len;
+            bool positive = true;  // hexapod_forward refuses a leg length <= 0 (none exists)
+            for (int j = 0; j < kLegs; ++j) len(j) = d[j] + ec.l0[j], positive = positive && len(j) > 0 && std::isfinite(len(j));
+            if (positive) try {
                 LegMatrix a, b;
                 for (int j = 0; j < kLegs; ++j)
                     for (int c = 0; c < 3; ++c) a(j, c) = ec.a[j][c], b(j, c) = ec.b[j][c];
