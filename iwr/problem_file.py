@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from ._hooks import hook
 from ._io import atomic_write
 from .measurements import Measurements
 from .result import IdentificationResult, status_from_message
@@ -229,10 +230,8 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
         if not np.array_equal(tm.tracker_points(setup), d["points"]):
             raise FormatError(f"{path}: points: not the virtual points of the probe poses")
     if robot.effects:  # issue 23: the point objective with the effects (C++ and numpy)
-        from .effects.tracker import TrackerEffectProblem
-
-        problem = TrackerEffectProblem(robot.with_tracker(setup=setup), setup, tm, bounds,
-                                       reference=d["reference"])
+        problem = hook("tracker_effect_problem")(robot.with_tracker(setup=setup), setup, tm,
+                                                 bounds, reference=d["reference"])
         problem.whitening = whitening
         return problem
     return TrackerProblem(robot.with_tracker(setup=setup), setup, tm, bounds,
