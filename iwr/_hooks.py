@@ -21,6 +21,8 @@ HOOKS: dict[str, str] = {
     # iwr.Problem and iwr.tracker.TrackerProblem: .save() and .load()
     "save_problem": "iwr.problem_file:save_problem",
     "load_problem": "iwr.problem_file:load_problem",
+    # iwr.problem_file.load_problem: a file of tracker data with effects (issue 23)
+    "tracker_effect_problem": "iwr.effects.tracker:TrackerEffectProblem",
     # iwr.ballbar.BallbarMeasurements.to_csv()
     "write_ballbar": "iwr.ballbar.files:write_ballbar",
     # iwr.compare_methods(out=...) and Comparison.summary_markdown()

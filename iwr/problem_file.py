@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from . import _core
+from ._hooks import hook
 from ._io import atomic_write
 from .measurements import Measurements
 from .result import IdentificationResult, status_from_message
@@ -55,8 +56,16 @@ def _bounds_kind(problem: Any) -> str:
     setup = getattr(problem, "setup", None)
     if setup is not None:
         lo_s, hi_s = setup.default_bounds()
+        ns = setup.n_params
         # The setup's bounds are centred on a registration guess: their widths are the test.
-        if not np.allclose(upper[nr:] - lower[nr:], hi_s - lo_s, rtol=1e-12, atol=0):
+        if not np.allclose(upper[-ns:] - lower[-ns:], hi_s - lo_s, rtol=1e-12, atol=0):
+            return "custom"
+    if robot.effects:  # the effects' own bounds between the robot's and the setup's (if any)
+        from .effects import bounds as effect_bounds
+
+        lo_e, hi_e = effect_bounds(robot.effects)
+        if not (np.array_equal(lo_e, lower[nr: nr + lo_e.size])
+                and np.array_equal(hi_e, upper[nr: nr + hi_e.size])):
             return "custom"
     for kind in ("default", "paper"):
         lo, hi = robot.default_bounds(kind)
@@ -143,6 +152,10 @@ def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | No
     else:
         fields.update(kind=setup.kind, registration=setup.registration,
                       points=m.tracker_points(setup), reference=problem.reference)
+        # issue 23: the effects on tracker data, their loads and temperatures, gravity in {T}
+        fields.update(effects=[(e.name, e.to_dict()) for e in robot.effects],
+                      payload=m.payload, temperatures=m.temperatures,
+                      tracker_gravity=np.asarray(setup.gravity, dtype=float))
         if setup.kind == "points":
             fields.update(reflectors=setup.reflectors, reflector_names=list(setup.names))
         else:
@@ -191,21 +204,21 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
         flat = d["weighting"][1]
         m_res = int(round(np.sqrt(flat.shape[1])))
         whitening = flat.reshape(n, m_res, m_res)
-    if d["kind"] == "ballbar":  # iwr.ballbar's section
+    if d["kind"] == "ballbar":  # iwr.ballbar's section (the reader refuses it with effects)
         from .ballbar.problem import BallbarProblem
 
         try:
             return BallbarProblem.from_file_fields(d, robot, bounds, whitening, os.fspath(path))
         except ValueError as exc:  # what the Python checks refuse and the reader did not
             raise FormatError(f"{path}: {exc}") from None
-    if d["kind"] == "pose":
-        if d["effects"]:  # issue 23: the robot's effects, from their tables (checked again)
-            from .effects import read_table
+    if d["effects"]:  # issue 23: the robot's effects, from their tables (checked again)
+        from .effects import read_table
 
-            try:
-                robot = robot.with_effects(*read_table(dict(d["effects"]), f"{path}: effects"))
-            except ValueError as exc:
-                raise FormatError(str(exc)) from None
+        try:
+            robot = robot.with_effects(*read_table(dict(d["effects"]), f"{path}: effects"))
+        except ValueError as exc:
+            raise FormatError(str(exc)) from None
+    if d["kind"] == "pose":
         m = Measurements(d["q"], d["poses"], d["legs"], joint_types=d["measurement_joint_types"],
                          weights=d["weights"], payload=d["payload"],
                          temperatures=d["temperatures"], source=os.fspath(path))
@@ -214,18 +227,28 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
     from .tracker.problem import TrackerProblem
     from .tracker.setup import TrackerSetup
 
+    loads = {"payload": d["payload"], "temperatures": d["temperatures"]}
+    gravity = d["tracker_gravity"]  # tracker data with effects: gravity in {T}
     if d["kind"] == "points":
         setup = TrackerSetup(d["registration"], reflectors=d["reflectors"],
-                             names=d["reflector_names"])
+                             names=d["reflector_names"], gravity=gravity)
         tm = TrackerMeasurements(d["q"], d["legs"], points=d["points"].reshape(n, -1, 3),
-                                 joint_types=d["measurement_joint_types"], source=os.fspath(path))
+                                 joint_types=d["measurement_joint_types"], source=os.fspath(path),
+                                 **loads)
     else:
-        setup = TrackerSetup(d["registration"], probe=d["probe"], probe_length=d["probe_length"])
+        setup = TrackerSetup(d["registration"], probe=d["probe"], probe_length=d["probe_length"],
+                             gravity=gravity)
         tm = TrackerMeasurements(d["q"], d["legs"], probe=d["probe_poses"],
-                                 joint_types=d["measurement_joint_types"], source=os.fspath(path))
+                                 joint_types=d["measurement_joint_types"], source=os.fspath(path),
+                                 **loads)
         # The engine runs on the stored virtual points: they must be those of the probe poses.
         if not np.array_equal(tm.tracker_points(setup), d["points"]):
             raise FormatError(f"{path}: points: not the virtual points of the probe poses")
+    if robot.effects:  # issue 23: the point objective with the effects (C++ and numpy)
+        problem = hook("tracker_effect_problem")(robot.with_tracker(setup=setup), setup, tm,
+                                                 bounds, reference=d["reference"])
+        problem.whitening = whitening
+        return problem
     return TrackerProblem(robot.with_tracker(setup=setup), setup, tm, bounds,
                           reference=d["reference"], whitening=whitening)
 

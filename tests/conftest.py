@@ -125,3 +125,21 @@ def measured_with_effects() -> Any:
         return plain.with_effects(*api.realistic(plain))
 
     return robot
+
+
+@pytest.fixture(scope="session")
+def installed_command() -> Any:
+    """``name -> path`` of a command ``pip install .`` puts next to this Python (``iwr``,
+    ``iwr-calibrate``, ``iwr-engine``); the test fails naming it when it is not installed."""
+    import shutil
+    import sys
+    from pathlib import Path
+
+    def find(name: str) -> str:
+        cand = Path(sys.executable).parent / name
+        exe = str(cand) if cand.exists() else shutil.which(name)
+        if exe is None:
+            pytest.fail(f"{name} is not installed: `pip install .` puts it next to python")
+        return exe
+
+    return find

@@ -43,7 +43,7 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.implicit_loop", "iwr.problem_base", "iwr.problem", "iwr.tracker.problem",
         "iwr.tracker.registration", "iwr.tracker.gauge", "iwr.tracker.start", "iwr.ballbar.problem",
         "iwr.methods.reduced", "iwr.result", "iwr.effects.problem", "iwr.effects.loop",
-        "iwr.effects.gravity"]),
+        "iwr.effects.gravity", "iwr.effects.tracker_objective"]),
     ("the problem file (iwr-engine's input and result)", ["iwr.problem_file"]),
     ("solvers, the efficient estimator and the fit test", [
         "iwr.methods.*", "iwr.estimator_spec", "iwr.estimation", "iwr.fit_test", "iwr.accuracy_prediction",

@@ -919,10 +919,12 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
         const std::string active = problem.n_active() == problem.n_params()
                                        ? ""
                                        : " (" + std::to_string(problem.n_active()) + " active)";
-        const std::string setup = problem.tracker() || problem.ballbar()
-                                      ? ", " + std::to_string(problem.n_params() - problem.n_robot_params()) +
-                                            (problem.ballbar() ? " of them the ballbar set-ups'" : " of them the tracker setup's")
-                                      : "";
+        const int n_effects = problem.n_effect_params();
+        std::string setup = n_effects ? ", " + std::to_string(n_effects) + " of them the effects'" : "";
+        if (problem.tracker() || problem.ballbar())
+            setup += ", " + std::to_string(problem.n_params() - problem.n_robot_params() - n_effects) +
+                     (n_effects ? "" : " of them") +
+                     (problem.ballbar() ? " the ballbar set-ups'" : " the tracker setup's");
         progress.message(std::to_string(problem.n_params()) + " parameters" + setup + active + ", " +
                          std::to_string(problem.n_poses()) + " poses" + kind_text(problem.kind) +
                          (problem.weighted() ? ", weighted by the noise (" + problem.weighting + ")" : "") + "; " + de::to_string(state->settings.strategy) + ", NP " +

@@ -2,11 +2,14 @@
 // effects' tables between Python (a list of (name, table): Effect.to_dict()) and C++.
 #include "common.hpp"
 #include "iwr/effects.hpp"
+#include "iwr/effects_tracker.hpp"
+#include "iwr/tracker.hpp"
 
 namespace iwr::python {
 
 namespace {
 using PyEffectObjective = Pooled<EffectObjective>;
+using PyTrackerEffectObjective = Pooled<TrackerEffectObjective>;
 }  // namespace
 
 std::vector<EffectTable> effect_tables(const py::object& effects) {
@@ -91,6 +94,55 @@ void bind_effects(py::module_& m) {
         .def("failures", [](const PyEffectObjective& o, const VecRef& x) { return o.obj_->failures(x); },
              py::arg("x"))
         .def("cost_batch", &PyEffectObjective::cost_batch, py::arg("X"), py::arg("threads") = 0);
+
+    // Tracker data with the effects (iwr/effects_tracker.hpp), for iwr.effects.tracker's problem.
+    using T = PyTrackerEffectObjective;
+    py::class_<T>(m, "TrackerEffectObjective")
+        .def(py::init([](const Geometry& g, const py::object& effects, const std::string& kind,
+                         const Vector6d& registration, const RowMatrixXd& reflectors, const Vector6d& probe,
+                         double probe_length, const Vec3& gravity, const RowMatrixXd& q, const RowMatrixXd& legs,
+                         const RowMatrixXd& points, const RowMatrixXd& payload, const RowMatrixXd& temperatures,
+                         const VectorXd& reference, const Vector6d& home, const RowMatrixXd& whitening,
+                         double tolerance) {
+                 EffectModel model = EffectModel::parse(effect_tables(effects), g.n_params());
+                 TrackerSetup s = make_setup(kind, registration, reflectors, probe, probe_length);
+                 std::shared_ptr<TrackerEffectObjective> obj;
+                 {
+                     py::gil_scoped_release release;
+                     obj = std::make_shared<TrackerEffectObjective>(g, model, s, gravity, q, legs, points, payload,
+                                                                    temperatures, reference, home, tolerance);
+                     obj->set_whitening(whitening);
+                 }
+                 return std::make_unique<T>(std::move(obj));
+             }),
+             py::arg("geometry"), py::arg("effects"), py::arg("kind"), py::arg("registration"),
+             py::arg("reflectors"), py::arg("probe"), py::arg("probe_length"), py::arg("gravity"), py::arg("q"),
+             py::arg("legs"), py::arg("points"), py::arg("payload"), py::arg("temperatures"),
+             py::arg("reference"), py::arg("home"), py::arg("whitening") = RowMatrixXd(),
+             py::arg("tolerance") = 1e-11)
+        .def_property_readonly("n_params", [](const T& o) { return o.obj_->n_params(); })
+        .def_property_readonly("n_poses", [](const T& o) { return o.obj_->n_poses(); })
+        .def_property_readonly("n_residuals", [](const T& o) { return o.obj_->n_residuals(); })
+        .def_property_readonly("n_seen", [](const T& o) { return o.obj_->n_seen(); })
+        .def_property_readonly("whitened", [](const T& o) { return o.obj_->whitened(); })
+        .def("cost",
+             [](const T& o, const VecRef& x) {
+                 py::gil_scoped_release release;
+                 return o.obj_->cost(x);
+             },
+             py::arg("x"))
+        .def("residuals",
+             [](const T& o, const VecRef& x) {
+                 py::gil_scoped_release release;
+                 return o.obj_->residuals(x);
+             },
+             py::arg("x"))
+        .def("failures", [](const T& o, const VecRef& x) { return o.obj_->failures(x); }, py::arg("x"))
+        .def("platform_poses", [](const T& o, const VecRef& x) { return o.obj_->platform_poses(x); },
+             py::arg("x"))
+        .def("predicted_points", [](const T& o, const VecRef& x) { return o.obj_->predicted_points(x); },
+             py::arg("x"))
+        .def("cost_batch", &T::cost_batch, py::arg("X"), py::arg("threads") = 0);
 }
 
 }  // namespace iwr::python

@@ -114,6 +114,12 @@ void bind_files(py::module_& m) {
                 const py::object payload = get("payload"), temperatures = get("temperatures");
                 if (!payload.is_none()) p.payload = payload.cast<RowMatrixXd>();
                 if (!temperatures.is_none()) p.temperatures = temperatures.cast<RowMatrixXd>();
+                // Tracker data with effects: gravity in {T} (the tracker setup's).
+                if (p.tracker() && !p.effects.empty()) {
+                    const auto gravity = get("tracker_gravity").cast<VectorXd>();
+                    if (gravity.size() != 3) throw std::invalid_argument("tracker_gravity: expected 3 values");
+                    p.tracker_gravity = gravity;
+                }
             }
             p.lower = get("lower").cast<std::vector<double>>();
             p.upper = get("upper").cast<std::vector<double>>();
@@ -164,13 +170,13 @@ void bind_files(py::module_& m) {
             } else if (!p.tracker()) {
                 p.poses = poses;
                 if (!weights.is_none()) p.weights = weights.cast<RowMatrixXd>();
-                p.payload = payload;
-                p.temperatures = temperatures;
             } else {
                 p.poses.resize(0, 6);  // as decode_problem leaves them for tracker data
                 if (p.kind == MeasurementKind::Probe) p.probe_poses = probe_poses;
                 p.points = points;
             }
+            p.payload = payload;  // the loads and temperatures, of every kind (issue 23)
+            p.temperatures = temperatures;
             return io::hex64(p.data_fingerprint());
         },
         py::arg("kind"), py::arg("joint_types"), py::arg("measurement_joint_types"), py::arg("q"),
@@ -262,6 +268,7 @@ py::dict problem_dict(const ProblemData& p) {
     d["effects"] = effect_tables_py(p.effects);
     d["payload"] = p.payload.size() ? py::cast(p.payload) : py::none();
     d["temperatures"] = p.temperatures.size() ? py::cast(p.temperatures) : py::none();
+    d["tracker_gravity"] = p.tracker() && !p.effects.empty() ? py::cast(VectorXd(p.tracker_gravity)) : py::none();
     d["lower"] = p.lower;
     d["upper"] = p.upper;
     d["bounds_kind"] = p.bounds_kind;

@@ -11,14 +11,14 @@ namespace {
 
 using PyTrackerObjective = Pooled<TrackerObjective>;
 
+}  // namespace
+
 TrackerSetup make_setup(const std::string& kind, const Vector6d& registration,
                         const RowMatrixXd& reflectors, const Vector6d& probe, double length) {
     if (kind == "points") return TrackerSetup::points(registration, reflectors);
     if (kind == "probe") return TrackerSetup::probe(registration, probe, length);
     throw std::invalid_argument("kind: '" + kind + "'; expected 'points' or 'probe'");
 }
-
-}  // namespace
 
 void bind_tracker(py::module_& m) {
     m.def("rotvec_matrix", &rotvec_matrix, py::arg("w"));

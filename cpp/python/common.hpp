@@ -19,6 +19,7 @@
 #include "iwr/effects.hpp"
 #include "iwr/model.hpp"
 #include "iwr/parallel.hpp"
+#include "iwr/tracker.hpp"
 
 namespace py = pybind11;
 
@@ -112,4 +113,7 @@ void bind_ballbar(py::module_& m);
 // (NaN: none), and into one (bind_ballbar.cpp).
 std::vector<BarSetup> bar_setups(const py::dict& d);
 void bar_setups_py(py::dict& d, const std::vector<BarSetup>& bars);
+// The nominal tracker setup of kind "points" or "probe" (bind_tracker.cpp).
+TrackerSetup make_setup(const std::string& kind, const Vector6d& registration,
+                        const RowMatrixXd& reflectors, const Vector6d& probe, double length);
 }  // namespace iwr::python

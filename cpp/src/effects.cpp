@@ -8,7 +8,7 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "objective_kernel.hpp"  // detail::EvalConsts: the carriage's per-evaluation constants
+#include "effects_kernel.hpp"  // the pieces shared with the tracker objective with effects
 
 namespace iwr {
 
@@ -99,35 +99,6 @@ private:
     std::vector<std::string> known_;
 };
 
-// Solves the 6 x 6 system a f = w in place (Gaussian elimination with partial pivoting; one
-// division per pivot, its inverse multiplies). a is row-major; false when a pivot falls below
-// `tiny` (a singular hexapod).
-bool solve6(double (&a)[36], double (&w)[6], double tiny) {
-    double inv[6];
-    for (int c = 0; c < 6; ++c) {
-        int p = c;
-        for (int r = c + 1; r < 6; ++r)
-            if (std::fabs(a[6 * r + c]) > std::fabs(a[6 * p + c])) p = r;
-        if (!(std::fabs(a[6 * p + c]) > tiny)) return false;
-        if (p != c) {
-            for (int k = c; k < 6; ++k) std::swap(a[6 * c + k], a[6 * p + k]);
-            std::swap(w[c], w[p]);
-        }
-        inv[c] = 1.0 / a[6 * c + c];
-        for (int r = c + 1; r < 6; ++r) {
-            const double m = a[6 * r + c] * inv[c];
-            for (int k = c + 1; k < 6; ++k) a[6 * r + k] -= m * a[6 * c + k];
-            w[r] -= m * w[c];
-        }
-    }
-    for (int r = 5; r >= 0; --r) {
-        double s = w[r];
-        for (int k = r + 1; k < 6; ++k) s -= a[6 * r + k] * w[k];
-        w[r] = s * inv[r];
-    }
-    return true;
-}
-
 void require_rows(const RowMatrixXd& m, Eigen::Index rows, std::initializer_list<Eigen::Index> cols,
                   const char* what) {
     bool ok = m.rows() == rows;
@@ -143,6 +114,148 @@ void require_rows(const RowMatrixXd& m, Eigen::Index rows, std::initializer_list
 }
 
 }  // namespace
+
+namespace detail {
+
+LegEffects leg_effects(const EffectModel& m, const double* x) {
+    LegEffects le;
+    for (int j = 0; j < kLegs; ++j) {
+        le.c[j] = m.compliance ? (m.compliance_values[j] + x[m.compliance_index + (m.compliance_per_leg ? j : 0)]) * 1e-3
+                               : 0.0;
+        le.alpha[j] = m.alpha_values[j];
+        if (m.thermal_index >= 0) le.alpha[j] += x[m.thermal_index + (m.thermal_per_leg ? j : 0)];
+        le.alpha[j] *= 1e-6;
+    }
+    return le;
+}
+
+void check_loads(const EffectModel& m, int n, const RowMatrixXd& payload, const RowMatrixXd& temperatures) {
+    if (payload.size() != 0) {
+        require_rows(payload, n, {4}, "payload");
+        require_finite(payload.data(), payload.size(), "payload");
+        for (int k = 0; k < n; ++k)
+            if (payload(k, 0) < 0)
+                throw std::invalid_argument("payload: pose " + std::to_string(k) + " has mass " +
+                                            number_text(payload(k, 0)) + " kg; expected >= 0");
+    }
+    if (temperatures.size() != 0) {
+        require_rows(temperatures, n, {1, kLegs}, "temperatures");
+        require_finite(temperatures.data(), temperatures.size(), "temperatures");
+    } else if (m.thermal) {
+        throw std::invalid_argument(
+            "temperatures: the thermal effect (the legs' thermal expansion) needs each pose's "
+            "temperature: one per pose or one per leg, degrees C");
+    }
+}
+
+void carriage_chain(const PoseData& layout, const EvalConsts& ec, const double* d, const double* delta,
+                    double* t, double* axes, double* origins) {
+    const int nj = layout.n_joints, n_prefix = layout.n_prefix;
+    for (int e = 0; e < 9; ++e) t[e] = ec.rc[e];
+    for (int e = 0; e < 3; ++e) t[9 + e] = ec.pc[e];
+    for (int i = 0; i < n_prefix; ++i) {
+        double qi = d[layout.q_off[i]];
+        if (delta) qi += delta[i];
+        if (axes)  // a prefix joint is prismatic: its axis is all its load needs
+            for (int e = 0; e < 3; ++e) axes[3 * i + e] = ec.z[3 * i + e], origins[3 * i + e] = t[9 + e];
+        for (int e = 0; e < 3; ++e) t[9 + e] += qi * ec.z[3 * i + e];
+    }
+    for (int i = n_prefix; i < nj; ++i) {
+        const double* jc = ec.joint + 6 * i;
+        const double* qd = d + layout.q_off[i];
+        double cs, sn, dk = jc[5];
+        if (layout.prismatic[i]) {
+            cs = jc[2], sn = jc[3], dk = jc[5] + qd[0];
+            if (delta) dk += delta[i];
+        } else {
+            double cq = qd[0], sq = qd[1];
+            if (delta) {  // cos, sin of q + delta
+                const double cd = std::cos(delta[i]), sd = std::sin(delta[i]);
+                const double c0 = cq;
+                cq = c0 * cd - sq * sd, sq = sq * cd + c0 * sd;
+            }
+            cs = jc[2] * cq - jc[3] * sq, sn = jc[3] * cq + jc[2] * sq;
+        }
+        if (axes)
+            for (int e = 0; e < 3; ++e) axes[3 * i + e] = t[3 * e + 2], origins[3 * i + e] = t[9 + e];
+        for (int r = 0; r < 3; ++r) {
+            const double t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
+            const double u = t0 * cs + t1 * sn, v = t1 * cs - t0 * sn;
+            t[3 * r] = u;
+            t[3 * r + 1] = jc[0] * v + jc[1] * w;
+            t[3 * r + 2] = jc[0] * w - jc[1] * v;
+            t[9 + r] += jc[4] * u + dk * w;
+        }
+    }
+}
+
+bool statics_factor(const double (&u)[kLegs][3], const double (&r)[kLegs][3], Statics& st) {
+    double* a = st.a;
+    double radius = 0;  // the largest |r_j| (its square first)
+    for (int j = 0; j < kLegs; ++j) {
+        a[j] = u[j][0], a[6 + j] = u[j][1], a[12 + j] = u[j][2];
+        a[18 + j] = r[j][1] * u[j][2] - r[j][2] * u[j][1];
+        a[24 + j] = r[j][2] * u[j][0] - r[j][0] * u[j][2];
+        a[30 + j] = r[j][0] * u[j][1] - r[j][1] * u[j][0];
+        radius = std::max(radius, r[j][0] * r[j][0] + r[j][1] * r[j][1] + r[j][2] * r[j][2]);
+    }
+    radius = std::sqrt(radius);
+    st.s = radius > 0 ? 1.0 / radius : 1.0;
+    for (int e = 18; e < 36; ++e) a[e] *= st.s;
+    // Elimination with partial pivoting; a swap moves the columns from the pivot's on (the
+    // multipliers of earlier steps stay where they were made: statics_forces replays the steps).
+    constexpr double tiny = 1e-12;
+    for (int c = 0; c < 6; ++c) {
+        int p = c;
+        for (int rr = c + 1; rr < 6; ++rr)
+            if (std::fabs(a[6 * rr + c]) > std::fabs(a[6 * p + c])) p = rr;
+        if (!(std::fabs(a[6 * p + c]) > tiny)) return false;
+        st.piv[c] = p;
+        if (p != c)
+            for (int k = c; k < 6; ++k) std::swap(a[6 * c + k], a[6 * p + k]);
+        st.inv[c] = 1.0 / a[6 * c + c];
+        for (int rr = c + 1; rr < 6; ++rr) {
+            const double m = a[6 * rr + c] * st.inv[c];
+            for (int k = c + 1; k < 6; ++k) a[6 * rr + k] -= m * a[6 * c + k];
+            a[6 * rr + c] = m;
+        }
+    }
+    return true;
+}
+
+void statics_forces(const Statics& st, double (&w)[6]) {
+    const double* a = st.a;
+    for (int e = 3; e < 6; ++e) w[e] *= st.s;
+    for (int c = 0; c < 6; ++c) {
+        if (st.piv[c] != c) std::swap(w[c], w[st.piv[c]]);
+        for (int rr = c + 1; rr < 6; ++rr) w[rr] -= a[6 * rr + c] * w[c];
+    }
+    for (int rr = 5; rr >= 0; --rr) {
+        double s = w[rr];
+        for (int k = rr + 1; k < 6; ++k) s -= a[6 * rr + k] * w[k];
+        w[rr] = s * st.inv[rr];
+    }
+}
+
+void statics_transposed(const Statics& st, double (&b)[6]) {
+    // S G = M_0^-1 P_0 ... (the steps) U, so (S G)^T y = b is U^T z = b, then the steps' transposes
+    // in reverse; G^T x = b has x = S y (S scales the moment rows).
+    const double* a = st.a;
+    for (int rr = 0; rr < 6; ++rr) {
+        double s = b[rr];
+        for (int k = 0; k < rr; ++k) s -= a[6 * k + rr] * b[k];
+        b[rr] = s * st.inv[rr];
+    }
+    for (int c = 5; c >= 0; --c) {
+        double s = b[c];
+        for (int rr = c + 1; rr < 6; ++rr) s -= a[6 * rr + c] * b[rr];
+        b[c] = s;
+        if (st.piv[c] != c) std::swap(b[c], b[st.piv[c]]);
+    }
+    for (int e = 3; e < 6; ++e) b[e] *= st.s;
+}
+
+}  // namespace detail
 
 EffectModel EffectModel::parse(const std::vector<EffectTable>& tables, int n_geometric) {
     EffectModel m;
@@ -256,22 +369,7 @@ EffectObjective::EffectObjective(Geometry geometry, EffectModel effects, const R
     require_finite(q.data(), q.size(), "q");
     require_finite(poses.data(), poses.size(), "poses");
     require_finite(legs.data(), legs.size(), "legs");
-    if (payload.size() != 0) {
-        require_rows(payload, n_, {4}, "payload");
-        require_finite(payload.data(), payload.size(), "payload");
-        for (int k = 0; k < n_; ++k)
-            if (payload(k, 0) < 0)
-                throw std::invalid_argument("payload: pose " + std::to_string(k) + " has mass " +
-                                            number_text(payload(k, 0)) + " kg; expected >= 0");
-    }
-    if (temperatures.size() != 0) {
-        require_rows(temperatures, n_, {1, kLegs}, "temperatures");
-        require_finite(temperatures.data(), temperatures.size(), "temperatures");
-    } else if (effects_.thermal) {
-        throw std::invalid_argument(
-            "temperatures: the thermal effect (the legs' thermal expansion) needs each pose's "
-            "temperature: one per pose or one per leg, degrees C");
-    }
+    detail::check_loads(effects_, n_, payload, temperatures);
     if (weights.size() != 0) {
         require_rows(weights, n_, {kLegs}, "weights");
         require_finite(weights.data(), weights.size(), "weights");
@@ -396,62 +494,17 @@ void EffectObjective::hexapod_centre(const detail::EvalConsts& ec, double* out) 
     for (int e = 0; e < 3; ++e) out[e] = p(e);
 }
 
-void EffectObjective::chain(const detail::EvalConsts& ec, const double* d, const double* delta, double* t,
-                            double* axes, double* origins) const {
-    // 0T4 by the DH chain (as the SIMD kernel's carriage(), one pose).
-    const int nj = geometry_.n_joints(), n_prefix = carriage_.n_prefix();
-    for (int e = 0; e < 9; ++e) t[e] = ec.rc[e];
-    for (int e = 0; e < 3; ++e) t[9 + e] = ec.pc[e];
-    for (int i = 0; i < n_prefix; ++i) {
-        double qi = d[q_off_[static_cast<std::size_t>(i)]];
-        if (delta) qi += delta[i];
-        if (axes)  // a prefix joint is prismatic: its axis is all its load needs
-            for (int e = 0; e < 3; ++e) axes[3 * i + e] = ec.z[3 * i + e], origins[3 * i + e] = t[9 + e];
-        for (int e = 0; e < 3; ++e) t[9 + e] += qi * ec.z[3 * i + e];
-    }
-    for (int i = n_prefix; i < nj; ++i) {
-        const double* jc = ec.joint + 6 * i;
-        const double* qd = d + q_off_[static_cast<std::size_t>(i)];
-        double cs, sn, dk = jc[5];
-        if (prismatic_[static_cast<std::size_t>(i)]) {
-            cs = jc[2], sn = jc[3], dk = jc[5] + qd[0];
-            if (delta) dk += delta[i];
-        } else {
-            double cq = qd[0], sq = qd[1];
-            if (delta) {  // cos, sin of q + delta
-                const double cd = std::cos(delta[i]), sd = std::sin(delta[i]);
-                const double c0 = cq;
-                cq = c0 * cd - sq * sd, sq = sq * cd + c0 * sd;
-            }
-            cs = jc[2] * cq - jc[3] * sq, sn = jc[3] * cq + jc[2] * sq;
-        }
-        if (axes)
-            for (int e = 0; e < 3; ++e) axes[3 * i + e] = t[3 * e + 2], origins[3 * i + e] = t[9 + e];
-        for (int r = 0; r < 3; ++r) {
-            const double t0 = t[3 * r], t1 = t[3 * r + 1], w = t[3 * r + 2];
-            const double u = t0 * cs + t1 * sn, v = t1 * cs - t0 * sn;
-            t[3 * r] = u;
-            t[3 * r + 1] = jc[0] * v + jc[1] * w;
-            t[3 * r + 2] = jc[0] * w - jc[1] * v;
-            t[9 + r] += jc[4] * u + dk * w;
-        }
-    }
-}
-
 double EffectObjective::evaluate(const double* x, double* jbuf, double* res, double* forces,
                                  char* singular) const {
     detail::EvalConsts ec;
     carriage_.consts(geometry_, x, ec, jbuf);
     const EffectModel& m = effects_;
     const int nj = geometry_.n_joints();
-    double c[kLegs], alpha[kLegs];  // mm/N and 1/K
-    for (int j = 0; j < kLegs; ++j) {
-        c[j] = m.compliance ? (m.compliance_values[j] + x[m.compliance_index + (m.compliance_per_leg ? j : 0)]) * 1e-3
-                            : 0.0;
-        alpha[j] = m.alpha_values[j];
-        if (m.thermal_index >= 0) alpha[j] += x[m.thermal_index + (m.thermal_per_leg ? j : 0)];
-        alpha[j] *= 1e-6;
-    }
+    const detail::LegEffects le = detail::leg_effects(m, x);
+    const double *c = le.c, *alpha = le.alpha;  // mm/N and 1/K
+    detail::PoseData layout;  // the carriage chain's
+    layout.n_joints = nj, layout.n_prefix = carriage_.n_prefix();
+    layout.q_off = q_off_.data(), layout.prismatic = prismatic_.data();
     double ccomp[kMaxChainJoints];  // per joint: its compliance in the model's units (0: rigid)
     double ch[3] = {0, 0, 0};       // the hexapod's centre in {4}
     if (off_cc_ >= 0) {
@@ -471,7 +524,7 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
             // The carriage compliance: each joint's gravity load at the readings (the chain's
             // frames before it), its change c L, then 0T4 at the changed joint values.
             double axes[3 * kMaxChainJoints], origins[3 * kMaxChainJoints], delta[kMaxChainJoints];
-            chain(ec, d, nullptr, t, axes, origins);
+            detail::carriage_chain(layout, ec, d, nullptr, t, axes, origins);
             const double* pl = d + off_cc_;
             const double mh = m.hexapod_mass, mass = mh + pl[3];
             double p[3];
@@ -492,40 +545,31 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
                 }
                 delta[i] = ccomp[i] * load;
             }
-            chain(ec, d, delta, t, nullptr, nullptr);
+            detail::carriage_chain(layout, ec, d, delta, t, nullptr, nullptr);
         } else {
-            chain(ec, d, nullptr, t, nullptr, nullptr);
+            detail::carriage_chain(layout, ec, d, nullptr, t, nullptr, nullptr);
         }
         // The legs in {0}: r_j = 0R5 b_j, v_j = 0P5 + r_j - 0P4 - 0R4 a_j.
-        double len[kLegs], g[36], w[6];
-        double radius = 0;  // the largest |r_j| (its square first)
+        double len[kLegs], u[kLegs][3], rj[kLegs][3], w[6];
         for (int j = 0; j < kLegs; ++j) {
-            double rj[3], v[3];
+            double v[3];
             for (int e = 0; e < 3; ++e) {
-                rj[e] = d[3 * e] * ec.b[j][0] + d[3 * e + 1] * ec.b[j][1] + d[3 * e + 2] * ec.b[j][2];
+                rj[j][e] = d[3 * e] * ec.b[j][0] + d[3 * e + 1] * ec.b[j][1] + d[3 * e + 2] * ec.b[j][2];
                 const double aj = t[3 * e] * ec.a[j][0] + t[3 * e + 1] * ec.a[j][1] + t[3 * e + 2] * ec.a[j][2];
-                v[e] = (d[9 + e] + rj[e]) - (t[9 + e] + aj);
+                v[e] = (d[9 + e] + rj[j][e]) - (t[9 + e] + aj);
             }
             len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
             if (m.compliance) {
                 const double inv = 1.0 / len[j];
-                const double u[3] = {v[0] * inv, v[1] * inv, v[2] * inv};
-                g[j] = u[0], g[6 + j] = u[1], g[12 + j] = u[2];
-                g[18 + j] = rj[1] * u[2] - rj[2] * u[1];
-                g[24 + j] = rj[2] * u[0] - rj[0] * u[2];
-                g[30 + j] = rj[0] * u[1] - rj[1] * u[0];
-                radius = std::max(radius, rj[0] * rj[0] + rj[1] * rj[1] + rj[2] * rj[2]);
+                for (int e = 0; e < 3; ++e) u[j][e] = v[e] * inv;
             }
         }
-        radius = std::sqrt(radius);
         bool failed = false;
-        if (m.compliance) {
-            // G f = w with the moment rows scaled by 1/radius (entries of order 1: the pivot test is
-            // then a test of the hexapod's singularity, independent of its size).
-            const double s = radius > 0 ? 1.0 / radius : 1.0;
-            for (int e = 18; e < 36; ++e) g[e] *= s;
-            for (int e = 0; e < 3; ++e) w[e] = d[18 + e], w[3 + e] = d[21 + e] * s;
-            failed = !solve6(g, w, 1e-12);
+        if (m.compliance) {  // G f = w (the statics, effects_kernel.hpp)
+            detail::Statics st;
+            failed = !detail::statics_factor(u, rj, st);
+            for (int e = 0; e < 3; ++e) w[e] = d[18 + e], w[3 + e] = d[21 + e];
+            if (!failed) detail::statics_forces(st, w);
         } else {
             for (double& v : w) v = 0.0;
         }
@@ -534,7 +578,7 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
             for (int j = 0; j < kLegs; ++j) forces[kLegs * k + j] = failed ? 0.0 : w[j];
         double raw[kLegs];
         for (int j = 0; j < kLegs; ++j) {
-            const double pred = ((len[j] - ec.l0[j]) - c[j] * w[j]) - (alpha[j] * len[j]) * d[24 + j];
+            const double pred = detail::predicted_reading(len[j], ec.l0[j], c[j], w[j], alpha[j], d[24 + j]);
             raw[j] = failed ? kFailedResidual : pred - d[12 + j];
             if (off_w_ >= 0 && !failed) raw[j] *= d[off_w_ + j];
         }

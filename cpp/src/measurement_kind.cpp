@@ -18,6 +18,14 @@ AnyObjective make_objective(const ProblemData& problem) {
                                 problem.whitening);
         case MeasurementKind::Points:
         case MeasurementKind::Probe: {
+            if (!problem.effects.empty()) {  // the legs' compliance and temperature (issue 23)
+                AnyObjective out(std::in_place_type<TrackerEffectObjective>, problem.geometry(),
+                                 problem.effect_model(), problem.tracker_setup(), problem.tracker_gravity,
+                                 problem.q, problem.legs, problem.points, problem.payload,
+                                 problem.temperatures, problem.reference, problem.home_pose);
+                std::get<TrackerEffectObjective>(out).set_whitening(problem.whitening);
+                return out;
+            }
             AnyObjective out(std::in_place_type<TrackerObjective>, problem.geometry(), problem.tracker_setup(),
                              problem.q, problem.legs, problem.points, problem.reference, problem.home_pose);
             std::get<TrackerObjective>(out).set_whitening(problem.whitening);

@@ -80,6 +80,7 @@ void write_effects(io::Writer& w, const ProblemData& p) {
     put(w, p.payload);
     w.u64(static_cast<std::uint64_t>(p.temperatures.cols()));
     put(w, p.temperatures);
+    if (p.tracker() && !p.effects.empty()) put(w, p.tracker_gravity);
 }
 
 // The effects of a version 4 file and the payload and temperature columns (checked: the tables by
@@ -87,8 +88,6 @@ void write_effects(io::Writer& w, const ProblemData& p) {
 void read_effects(io::Reader& r, ProblemData& p) {
     const std::size_t ne = r.count("effects", 16);
     if (ne > kMaxEffects) r.fail("effects: " + std::to_string(ne) + "; at most " + std::to_string(kMaxEffects));
-    if (ne && p.tracker())
-        r.fail("effects: tracker data with effects have no objective in the C++ core (leg data only)");
     if (ne && p.ballbar()) r.fail("effects: ballbar data with effects have no objective in the C++ core");
     for (std::size_t e = 0; e < ne; ++e) {
         EffectTable t;
@@ -139,6 +138,15 @@ void read_effects(io::Reader& r, ProblemData& p) {
     get(r, "temperatures", p.temperatures, tc ? rows : 0, static_cast<Eigen::Index>(tc), 1e4);
     if (p.effect_model().thermal && tc == 0)
         r.fail("temperatures: the thermal effect is on and the file has no temperatures");
+    if (p.tracker() && ne) {
+        // Tracker data: gravity in {T}, carried into {0} by the identified registration.
+        if (p.effect_model().carriage)
+            r.fail("effects.carriage_compliance: the carriage's compliance is not modelled on tracker data");
+        get(r, "tracker gravity", p.tracker_gravity, 3, 1, 20.0);
+        const double norm = p.tracker_gravity.norm();
+        if (!(std::fabs(norm / 9.80665 - 1.0) <= 0.01))
+            r.fail("tracker gravity: norm " + std::to_string(norm) + " m/s^2 in {T}; expected 9.80665 within 1 %");
+    }
 }
 
 }  // namespace
@@ -147,10 +155,10 @@ Geometry ProblemData::geometry() const { return Geometry(joint_types, dh, base, 
 
 int ProblemData::n_params() const {
     switch (kind) {
-        case MeasurementKind::Points: return n_robot_params() + 6 + 3 * static_cast<int>(reflectors.rows());
-        case MeasurementKind::Probe: return n_robot_params() + 12;
+        case MeasurementKind::Points: return n_robot_params() + n_effect_params() + 6 + 3 * static_cast<int>(reflectors.rows());
+        case MeasurementKind::Probe: return n_robot_params() + n_effect_params() + 12;
         case MeasurementKind::Ballbar: return n_robot_params() + kBarParams * static_cast<int>(bars.size());
-        default: return n_robot_params() + (effects.empty() ? 0 : effect_model().n_params);
+        default: return n_robot_params() + n_effect_params();
     }
 }
 
@@ -202,6 +210,7 @@ std::uint64_t ProblemData::robot_fingerprint() const {
                 h.str(key).u64(static_cast<std::uint64_t>(value.type)).u64(value.numbers.size())
                     .doubles(value.numbers.data(), value.numbers.size());
         }
+        if (tracker()) h.str("tracker gravity").doubles(tracker_gravity.data(), 3);
     }
     const bool plain = std::all_of(x0.begin(), x0.end(), [](double v) { return v == 0; }) &&
                        std::all_of(active.begin(), active.end(), [](bool a) { return a; });

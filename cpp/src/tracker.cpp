@@ -172,21 +172,7 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
                                     "; expected a finite number > 0 (mm)");
     geometry_.check_errors(reference.data(), reference.size(), "reference");
     require_finite(home.data(), 6, "home");
-    for (int p = 0; p < n_; ++p) {
-        for (int i = 0; i < k; ++i) {
-            const int nan = std::isnan(points(p, 3 * i)) + std::isnan(points(p, 3 * i + 1)) +
-                            std::isnan(points(p, 3 * i + 2));
-            bool finite = true;
-            for (int c = 0; c < 3; ++c) finite = finite && !std::isinf(points(p, 3 * i + c));
-            if ((nan != 0 && nan != 3) || !finite) {
-                std::ostringstream msg;
-                msg << "points: pose " << p << ", point " << i + 1
-                    << " has a non-finite coordinate; a point not seen has all three NaN";
-                throw std::invalid_argument(msg.str());
-            }
-            if (nan == 0) ++n_seen_;
-        }
-    }
+    n_seen_ = detail::seen_points(points, k);
     cq_.resize(n_, nj);
     sq_.resize(n_, nj);
     for (int p = 0; p < n_; ++p)
@@ -466,15 +452,32 @@ void TrackerObjective::check_x(const Eigen::Ref<const VectorXd>& x) const {
     require_finite(x.data(), x.size(), "x");
 }
 
-void TrackerObjective::set_whitening(const RowMatrixXd& whitening) {
-    if (whitening.size() == 0) {
-        whitening_.resize(0, 0);
-        return;
+namespace detail {
+
+int seen_points(const RowMatrixXd& points, int n_points) {
+    int seen = 0;
+    for (Eigen::Index p = 0; p < points.rows(); ++p) {
+        for (int i = 0; i < n_points; ++i) {
+            const int nan = std::isnan(points(p, 3 * i)) + std::isnan(points(p, 3 * i + 1)) +
+                            std::isnan(points(p, 3 * i + 2));
+            bool finite = true;
+            for (int c = 0; c < 3; ++c) finite = finite && !std::isinf(points(p, 3 * i + c));
+            if ((nan != 0 && nan != 3) || !finite) {
+                std::ostringstream msg;
+                msg << "points: pose " << p << ", point " << i + 1
+                    << " has a non-finite coordinate; a point not seen has all three NaN";
+                throw std::invalid_argument(msg.str());
+            }
+            if (nan == 0) ++seen;
+        }
     }
-    const Eigen::Index m = 3 * setup_.n_points();
-    require_rows(whitening, n_, m * m, "whitening");
+    return seen;
+}
+
+void check_whitening(const RowMatrixXd& whitening, Eigen::Index n, Eigen::Index m) {
+    require_rows(whitening, n, m * m, "whitening");
     require_finite(whitening.data(), whitening.size(), "whitening");
-    for (Eigen::Index k = 0; k < n_; ++k)
+    for (Eigen::Index k = 0; k < n; ++k)
         for (Eigen::Index i = 0; i < m; ++i)
             for (Eigen::Index j = i + 1; j < m; ++j)
                 if (whitening(k, i * m + j) != 0.0) {
@@ -483,6 +486,16 @@ void TrackerObjective::set_whitening(const RowMatrixXd& whitening) {
                         << whitening(k, i * m + j) << "; the whitening of a pose must be lower triangular";
                     throw std::invalid_argument(msg.str());
                 }
+}
+
+}  // namespace detail
+
+void TrackerObjective::set_whitening(const RowMatrixXd& whitening) {
+    if (whitening.size() == 0) {
+        whitening_.resize(0, 0);
+        return;
+    }
+    detail::check_whitening(whitening, n_, 3 * setup_.n_points());
     whitening_ = whitening;
 }
 

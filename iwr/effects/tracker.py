@@ -279,15 +279,19 @@ class TrackerEffectProblem:
     measured point ``i`` of pose ``k`` in {T} (mm), zero where a point was not seen, as
     :class:`iwr.tracker.TrackerProblem`'s; the predicted points follow from forward kinematics
     with the effects (:class:`TrackerEffectModel`), and the Jacobian is exact (implicit
-    differentiation; checked against central differences). In numpy: LM, the identifiability
-    analysis and the fit check run on it; the C++ global methods do not (DE, CRS2, BOBYQA are
-    refused on tracker data with effects).
+    differentiation; checked against central differences). The residuals and the Jacobian in
+    numpy (LM, the identifiability analysis and the fit check); :meth:`cost` and
+    :meth:`cost_batch` on the C++ objective with the effects
+    (:func:`iwr.effects.tracker_objective.cpp_objective`, which DE, CRS2, BOBYQA and
+    ``iwr-engine`` minimise; it agrees with the numpy model to round-off).
 
     ``bounds``: None or ``"default"`` (the robot's default bounds, the effects' own, the setup's
-    about ``center``), ``"paper"``, or a pair over every parameter."""
+    about ``center``), ``"paper"``, or a pair over every parameter. ``reference``: the robot's
+    geometric errors at which the C++ objective solves each pose's forward kinematics once
+    (default zeros), as :class:`iwr.tracker.TrackerProblem`'s."""
 
     def __init__(self, robot: Any, setup: Any, measurements: Any, bounds: Any = None, *,
-                 center: Any = None) -> None:
+                 center: Any = None, reference: Any = None) -> None:
         from ..tracker.data import TrackerMeasurements
 
         if not robot.effects:
@@ -323,6 +327,12 @@ class TrackerEffectProblem:
         self._seen = ~np.isnan(self._measured[:, :, 0])
         self.whitening = None
         self.noise = None
+        ref = np.zeros(robot.n_params) if reference is None else np.asarray(reference, float)
+        if ref.shape != (robot.n_params,) or not np.all(np.isfinite(ref)):
+            raise ValueError(f"reference: shape {ref.shape}; expected {robot.n_params} finite "
+                             "geometric errors")
+        self.reference = ref
+        self._cpp: Any = None  # the C++ objective, made on first use (cpp_objective)
 
     # -- sizes and names ----------------------------------------------------------------------
     @property
@@ -379,18 +389,39 @@ class TrackerEffectProblem:
     def jacobian(self, x: Any) -> np.ndarray:
         return self.residuals_and_jacobian(x)[1]
 
+    def _objective(self) -> Any:
+        """The C++ objective with the effects (made once, with the whitening if any)."""
+        if self._cpp is None:
+            from .tracker_objective import cpp_objective
+
+            self._cpp = cpp_objective(self.robot, self.setup, self.measurements, self.reference,
+                                      self.whitening)
+        return self._cpp
+
     def cost(self, x: Any) -> float:
-        r = self.residuals(x)
-        return float(r @ r)
+        """The sum of squared point residuals (mm^2) in C++ (the cost DE minimises)."""
+        return float(self._objective().cost(self._x(x)))
 
     cost_unweighted = cost
 
     def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
-        """The costs of the rows of ``X``, one by one in numpy (``workers`` unused)."""
-        arr = np.asarray(X, dtype=float)
+        """The costs of the rows of ``X`` in C++ across ``workers`` threads (None: all cores);
+        the same bits whatever their number."""
+        arr = np.ascontiguousarray(X, dtype=float)
         if arr.ndim != 2 or arr.shape[1] != self.n_params:
             raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
-        return np.array([self.cost(x) for x in arr])
+        if workers is not None and workers < 1:
+            raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
+        return self._objective().cost_batch(arr, 0 if workers is None else int(workers))
+
+    def save(self, path: Any, *, sources: dict[str, Any] | None = None, x0: Any = None,
+             active: Any = None) -> None:
+        """Write the problem file that ``iwr-engine`` runs from, atomically (as
+        :meth:`iwr.tracker.TrackerProblem.save`, with the effects' tables, the loads and
+        temperatures, and gravity in {T}); :meth:`iwr.Problem.load` reads it back."""
+        from .._hooks import hook
+
+        hook("save_problem")(self, path, sources, x0=x0, active=active)
 
     # -- diagnostics --------------------------------------------------------------------------
     def failures(self, x: Any) -> list[tuple[int, str]]:
@@ -532,17 +563,19 @@ def _probe_frames(setup: Any, xs: np.ndarray, pts: np.ndarray) -> np.ndarray:
 
 # -- what the tracker kinds do with a robot with effects (iwr.tracker.kind) -------------------
 
-#: The methods that model the effects on tracker data.
-TRACKER_METHODS = ("lm", "efficient")
+#: The methods that model the effects on tracker data: LM and the efficient estimator in numpy,
+#: DE, CRS2 and BOBYQA on the C++ objective with the effects.
+TRACKER_METHODS = ("lm", "efficient", "de", "crs2", "bobyqa")
 
 
 def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
              weighted: Any = None, bounds: Any = None, x0: Any = None, active: Any = None,
              max_evaluations: int | None = None, seed: int | None = None, callback: Any = None,
              progress: Any = None, **options: Any) -> Any:
-    """:func:`iwr.identify` on tracker data for a robot with effects: LM on the point (probe)
-    objective with the effects (:class:`TrackerEffectProblem`) from the nominal robot and
-    effects with the registration guess; ``active="base"`` the base parameters of its null
+    """:func:`iwr.identify` on tracker data for a robot with effects: LM, DE (polished by LM),
+    CRS2 or BOBYQA on the point (probe) objective with the effects
+    (:class:`TrackerEffectProblem`: DE, CRS2 and BOBYQA on its C++ cost) from the nominal robot
+    and effects with the registration guess; ``active="base"`` the base parameters of its null
     space (:func:`identifiability`). Other methods are refused, naming what models the
     effects."""
     from ..methods import run_method, settle
@@ -552,10 +585,7 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
     if method not in TRACKER_METHODS:
         raise ValueError(
             f"method {method!r}: robot {robot.name!r} has effects on ({names}); on tracker data "
-            f"the methods that model them are {', '.join(TRACKER_METHODS)} (the point objective "
-            "and the efficient estimator with the effects, in numpy); DE, CRS2 and BOBYQA would "
-            "need the C++ tracker objective with the effects, which does not exist "
-            "(docs/effects.md)")
+            f"the methods that model them are {', '.join(TRACKER_METHODS)} (docs/effects.md)")
     if method == "efficient":
         from ..methods.efficient import efficient_on
 
@@ -574,7 +604,7 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
         active = base_parameters(robot, measurements, start)
     mask = active_mask(problem, active)
     result = run_method(problem, method, mask, start, max_evaluations=max_evaluations,
-                        seed=seed, callback=callback, progress=progress, **options)
+                        seed=seed, callback=callback, progress=progress, batch_de=True, **options)
     settle(result, problem, None, mask)
     return result
 

@@ -145,6 +145,14 @@ class _TrackerKind(MeasurementKind):
             raise ValueError(f"noise: {self.name} data have no noise-weighted objective (a "
                              "probe's four points move rigidly: their covariance is singular); "
                              "the efficient estimator weighs them by their noise")
+        if robot.effects:  # issue 23: the point objective with the effects (C++ for the engine)
+            if noise is not None:
+                raise ValueError(f"noise: robot {robot.name!r} has effects on; on tracker data "
+                                 "the engine minimises the unweighted point objective with the "
+                                 "effects (docs/effects.md)")
+            from ..effects.tracker import effect_tracker_problem
+
+            return effect_tracker_problem(robot, data, bounds, x0)
         return tracker_problem(robot, data, bounds, x0, noise=noise)
 
     def registration(self, robot: Any, x_setup: Any = None) -> np.ndarray:

@@ -146,13 +146,9 @@ private:
     // bodies the platform carries (4 doubles at off_cc_); per joint its unit scale (0: rigid).
     int off_cc_ = -1;
     std::vector<double> cc_scale_;
-    // 0T4 at readings q plus delta (per joint; null: none), and each joint's axis and origin in {0}
-    // before it (axes/origins, 3 per joint; null: not wanted).
     // The hexapod's centre of mass in {4} at the base joints of ec (its offset is given in the
     // frame they define).
     void hexapod_centre(const detail::EvalConsts& ec, double* out) const;
-    void chain(const detail::EvalConsts& ec, const double* d, const double* delta, double* t,
-               double* axes, double* origins) const;
     bool whitened_ = false;
     std::vector<int> q_off_;
     std::vector<char> prismatic_;

@@ -30,19 +30,21 @@
 //        for a ballbar's distance).
 //        The objective is then sum_k |W_k r_k|^2 (generalised least squares with fixed weights;
 //        the leg weights of kind 0, if any, are folded into W_k and not used besides)
-//   (version 4) u64 effects E (0: the geometry alone; only with kind 0); each: str name
+//   (version 4) u64 effects E (0: the geometry alone); each: str name
 //        ("compliance", "thermal"), u64 keys, each: str key, u8 type (0 true/false, 1 a number,
 //        2 numbers), then u8 (type 0), f64 (type 1) or u64 count and f64s (type 2): the effect's
 //        table as the robot TOML's [effects.<name>] (iwr/effects.hpp); then u8 has payload;
 //        f64s payload (N x 4: kg, centre of mass in {5} mm); u64 temperature columns (0, 1 or
-//        6); f64s temperatures (N x that, degrees C)
+//        6); f64s temperatures (N x that, degrees C); kinds 1, 2 with effects: f64s gravity (3: m/s^2
+//        in the tracker frame {T}, carried into {0} by the identified registration; the
+//        carriage's compliance is refused on tracker data)
 //   f64s lower, upper (n_params each); str bounds kind ("default", "paper" or "custom")
 //   f64s x0 (n_params: where the inactive parameters stay); u64 n_params + that many u8 active
 //        flags (at least one 1)
 //   u64  parameter names; each a str
 //   u64  sources; each: str role ("robot", "data", ...), str path, str SHA-256 (hex, or empty)
-// n_params is 4 n + 42, plus 6 + 3 K (points), 12 (probe), 7 S (ballbar), or the effects'
-// parameters. Every
+// n_params is 4 n + 42, then the effects' parameters (if any), then for tracker data the setup's
+// 6 + 3 K (points) or 12 (probe), for ballbar data the set-ups' 7 S. Every
 // value is checked as if a user had typed it: sizes against the file, finite numbers (NaN only
 // for unseen reflectors), lower < upper, non-negative weights, names of printable ASCII.
 // Versions 3 (without the effects: none on) and 2 (without the weighting either: every file
@@ -108,6 +110,7 @@ struct ProblemData {
     // read: the payload (N x 4 or empty: none) and the temperatures (N x 1, N x 6 or empty).
     std::vector<EffectTable> effects;
     RowMatrixXd payload, temperatures;
+    Vec3 tracker_gravity = Vec3(0, 0, -9.80665);  // tracker data with effects: gravity in {T}
     std::uint32_t version = kProblemVersion;  // the version of the file read
     std::vector<double> lower, upper;
     std::string bounds_kind;
@@ -121,8 +124,9 @@ struct ProblemData {
     int n_robot_params() const { return 4 * static_cast<int>(joint_types.size()) + 42; }
     /// The effects' model (their parameters after the robot's); throws std::invalid_argument.
     EffectModel effect_model() const { return EffectModel::parse(effects, n_robot_params()); }
-    /// The robot's, then the tracker setup's (6 + 3 K or 12), the ballbar set-ups' (7 S) or the
-    /// effects'.
+    int n_effect_params() const { return effects.empty() ? 0 : effect_model().n_params; }
+    /// The robot's, the effects', then the tracker setup's (6 + 3 K or 12) or the ballbar
+    /// set-ups' (7 S).
     int n_params() const;
     int n_active() const;
     int n_poses() const { return static_cast<int>(legs.rows()); }

@@ -48,6 +48,12 @@ enum class TrackerKind { Points, Probe };
 
 namespace detail {
 struct TrackerConsts;
+/// The points seen in points (N, 3 K; a point not seen: its three entries NaN); throws
+/// std::invalid_argument naming the pose and point of a partial NaN or an infinite coordinate.
+int seen_points(const RowMatrixXd& points, int n_points);
+/// Checks a per-pose whitening (n, m^2: row-major lower-triangular m x m, finite), throwing
+/// std::invalid_argument naming the entry at fault.
+void check_whitening(const RowMatrixXd& whitening, Eigen::Index n, Eigen::Index m);
 }  // namespace detail
 
 /// The nominal measurement setup. Poses are (x, y, z, alpha, beta, gamma), Z-Y-X Euler (eq. 6).

@@ -1,0 +1,391 @@
+// Tracker data for a robot with the legs' effects (see iwr/effects_tracker.hpp): forward kinematics
+// with the effects pose by pose (Newton's method, the statics shared with the leg objective with
+// effects through effects_kernel.hpp), then the points in {T}.
+#include "iwr/effects_tracker.hpp"
+
+#include <algorithm>
+#include <cmath>
+#include <limits>
+#include <sstream>
+#include <stdexcept>
+
+#include "effects_kernel.hpp"
+
+namespace iwr {
+
+namespace {
+
+// Newton iterations per solve before the fallback (from the damped Newton-Raphson of
+// hexapod_forward) and, after it, before the pose is declared failed (the geometry converges
+// quadratically, the compliance linearly at a part in 1e5: a few iterations from the reference).
+constexpr int kMaxNewton = 25;
+// A leg residual beyond this (mm) is divergence, not a step on the way.
+constexpr double kDiverged = 1e3;
+
+constexpr int kOffDt = 6, kOffLoad = 12, kOffRefP = 16, kOffRefR = 19, kOffPoints = 28;
+
+void require_shape(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, const char* what) {
+    if (m.rows() != rows || m.cols() != cols) {
+        std::ostringstream msg;
+        msg << what << ": shape (" << m.rows() << ", " << m.cols() << "); expected (" << rows << ", " << cols << ")";
+        throw std::invalid_argument(msg.str());
+    }
+}
+
+struct Hexapod {
+    LegMatrix a, b;
+    LegVector l0;
+};
+
+Hexapod hexapod_at(const Geometry& g, const double* x) {
+    Hexapod h;
+    for (int j = 0; j < kLegs; ++j) {
+        for (int c = 0; c < 3; ++c) {
+            h.a(j, c) = g.base()(j, c) + x[g.idx_base(j, c)];
+            h.b(j, c) = g.platform()(j, c) + x[g.idx_platform(j, c)];
+        }
+        h.l0(j) = g.leg_offsets()(j) + x[g.idx_offset(j)];
+    }
+    return h;
+}
+
+// One pose's forward kinematics with the effects: Newton's method on the predicted readings from
+// (p, r) (the local pose of {5} in {4}; r row-major), in place. The Jacobian is the geometry's,
+// G^T (the statics' matrix transposed: d len_j = u_j . dP + (r_j x u_j) . omega), each row scaled
+// by the leg's thermal growth 1 - alpha_j dT_j; the compliance's own derivative (a part in 1e5)
+// is left out. Converged when the largest residual is at most tol, after which the step already
+// computed is taken too (no further evaluation). False when a leg has no length, the hexapod is
+// singular, the residual diverges or kMaxNewton iterations do not converge.
+struct PoseSolver {
+    const detail::EvalConsts& ec;
+    const detail::LegEffects& le;
+    bool compliance;
+    double tol;
+
+    bool solve(const double* d, const double (&g4)[3], double (&p)[3], double (&r)[9]) const {
+        const double mass = d[kOffLoad];
+        const double* c5 = d + kOffLoad + 1;  // first moment in {5}
+        for (int it = 0; it < kMaxNewton; ++it) {
+            double u[kLegs][3], rj[kLegs][3], len[kLegs];
+            for (int j = 0; j < kLegs; ++j) {
+                double v[3];
+                for (int e = 0; e < 3; ++e) {
+                    rj[j][e] = r[3 * e] * ec.b[j][0] + r[3 * e + 1] * ec.b[j][1] + r[3 * e + 2] * ec.b[j][2];
+                    v[e] = (p[e] + rj[j][e]) - ec.a[j][e];
+                }
+                len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+                if (!(len[j] > 0)) return false;
+                const double inv = 1.0 / len[j];
+                for (int e = 0; e < 3; ++e) u[j][e] = v[e] * inv;
+            }
+            detail::Statics st;
+            if (!detail::statics_factor(u, rj, st)) return false;
+            double f[6] = {0, 0, 0, 0, 0, 0};
+            if (compliance) {
+                // The weight of the platform and payload: force M g, moment (R c) x g with c their
+                // first moment in {5} (kg mm: N mm), about the platform origin, in {4}.
+                double rc[3];
+                for (int e = 0; e < 3; ++e) rc[e] = r[3 * e] * c5[0] + r[3 * e + 1] * c5[1] + r[3 * e + 2] * c5[2];
+                for (int e = 0; e < 3; ++e) f[e] = mass * g4[e];
+                f[3] = rc[1] * g4[2] - rc[2] * g4[1];
+                f[4] = rc[2] * g4[0] - rc[0] * g4[2];
+                f[5] = rc[0] * g4[1] - rc[1] * g4[0];
+                detail::statics_forces(st, f);
+            }
+            double step[6], worst = 0;
+            for (int j = 0; j < kLegs; ++j) {
+                const double dt = d[kOffDt + j];
+                const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
+                worst = std::max(worst, std::fabs(h));
+                step[j] = -h / (1.0 - le.alpha[j] * dt);
+            }
+            if (!(worst <= kDiverged)) return false;  // NaN too
+            detail::statics_transposed(st, step);
+            for (int e = 0; e < 3; ++e) p[e] += step[e];
+            const Mat3 turn = rotvec_matrix(Vec3(step[3], step[4], step[5]));
+            double nr[9];
+            for (int a = 0; a < 3; ++a)
+                for (int b = 0; b < 3; ++b)
+                    nr[3 * a + b] = turn(a, 0) * r[b] + turn(a, 1) * r[3 + b] + turn(a, 2) * r[6 + b];
+            for (int e = 0; e < 9; ++e) r[e] = nr[e];
+            if (worst <= tol) return true;
+        }
+        return false;
+    }
+};
+
+}  // namespace
+
+TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel effects, TrackerSetup setup,
+                                               const Vec3& gravity, const RowMatrixXd& q, const RowMatrixXd& legs,
+                                               const RowMatrixXd& points, const RowMatrixXd& payload,
+                                               const RowMatrixXd& temperatures, const VectorXd& reference,
+                                               const Vector6d& home, double tolerance)
+    : geometry_(std::move(geometry)),
+      effects_(std::move(effects)),
+      setup_(std::move(setup)),
+      gravity_(gravity),
+      n_(static_cast<int>(legs.rows())),
+      tolerance_(tolerance) {
+    const int nj = geometry_.n_joints(), kp = setup_.n_points();
+    if (effects_.n_geometric != geometry_.n_params())
+        throw std::invalid_argument("effects: parsed for " + std::to_string(effects_.n_geometric) +
+                                    " geometric parameters; the robot has " + std::to_string(geometry_.n_params()));
+    if (!effects_.any())
+        throw std::invalid_argument("effects: none on; tracker data without effects run on TrackerObjective");
+    if (effects_.carriage)
+        throw std::invalid_argument(
+            "effects.carriage_compliance: the carriage's compliance (it changes the joints) is not modelled on "
+            "tracker data; it is on pose data (docs/effects.md)");
+    if (n_ == 0) throw std::invalid_argument("legs: no measurements (0 rows)");
+    require_shape(legs, n_, kLegs, "legs");
+    require_shape(q, n_, nj, "q");
+    require_shape(points, n_, 3 * kp, "points");
+    require_finite(q.data(), q.size(), "q");
+    require_finite(legs.data(), legs.size(), "legs");
+    detail::check_loads(effects_, n_, payload, temperatures);
+    require_finite(gravity_.data(), 3, "gravity");
+    if (!(std::fabs(gravity_.norm() / 9.80665 - 1.0) <= 0.01)) {
+        std::ostringstream msg;
+        msg.precision(17);
+        msg << "gravity: norm " << gravity_.norm() << " m/s^2 in the tracker frame {T}; expected 9.80665 within 1 %";
+        throw std::invalid_argument(msg.str());
+    }
+    if (!(std::isfinite(tolerance) && tolerance > 0))
+        throw std::invalid_argument("tolerance: " + std::to_string(tolerance) + "; expected a finite number > 0 (mm)");
+    geometry_.check_errors(reference.data(), reference.size(), "reference");
+    require_finite(home.data(), 6, "home");
+    n_seen_ = detail::seen_points(points, kp);
+
+    int nq = kOffPoints + 4 * kp;
+    for (int i = 0; i < nj; ++i) {
+        q_off_.push_back(nq);
+        prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
+        nq += geometry_.is_prismatic(i) ? 1 : 2;
+    }
+    stride_ = nq;
+    off_pts_ = kOffPoints;
+    carriage_ = detail::CarriageNominal(geometry_);
+    data_.assign(static_cast<std::size_t>(n_) * static_cast<std::size_t>(stride_), 0.0);
+    const Hexapod h = hexapod_at(geometry_, reference.data());
+    ForwardOptions opt;
+    opt.tolerance = tolerance_;
+    ref_euler_.resize(static_cast<std::size_t>(n_));
+    const double platform_mass = effects_.compliance ? effects_.platform_mass : 0.0;
+    for (int k = 0; k < n_; ++k) {
+        double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
+        for (int j = 0; j < kLegs; ++j) d[j] = legs(k, j);
+        if (effects_.thermal)
+            for (int j = 0; j < kLegs; ++j)
+                d[kOffDt + j] = temperatures(k, temperatures.cols() == 1 ? 0 : j) - effects_.reference;
+        if (effects_.compliance) {
+            Vec3 first = platform_mass * effects_.platform_centre;
+            double mass = platform_mass;
+            if (payload.size() != 0) {
+                first += payload(k, 0) * Vec3(payload(k, 1), payload(k, 2), payload(k, 3));
+                mass += payload(k, 0);
+            }
+            d[kOffLoad] = mass;
+            for (int e = 0; e < 3; ++e) d[kOffLoad + 1 + e] = first(e);
+        }
+        const LegVector len = legs.row(k).transpose() + h.l0;
+        ref_euler_[static_cast<std::size_t>(k)] = hexapod_forward(h.a, h.b, len, home, opt, k).pose;
+        const Vector6d& ref = ref_euler_[static_cast<std::size_t>(k)];
+        const Mat3 rr = euler_zyx(ref(3), ref(4), ref(5));
+        for (int e = 0; e < 3; ++e) d[kOffRefP + e] = ref(e);
+        for (int e = 0; e < 9; ++e) d[kOffRefR + e] = rr(e / 3, e % 3);
+        for (int i = 0; i < kp; ++i) {
+            const bool seen = !std::isnan(points(k, 3 * i));
+            for (int c = 0; c < 3; ++c) d[kOffPoints + 3 * i + c] = seen ? points(k, 3 * i + c) : 0.0;
+            d[kOffPoints + 3 * kp + i] = seen ? 1.0 : 0.0;
+        }
+        for (int i = 0; i < nj; ++i) {
+            const int o = q_off_[static_cast<std::size_t>(i)];
+            if (prismatic_[static_cast<std::size_t>(i)]) {
+                d[o] = q(k, i);
+            } else {
+                d[o] = std::cos(q(k, i));
+                d[o + 1] = std::sin(q(k, i));
+            }
+        }
+    }
+}
+
+void TrackerEffectObjective::set_whitening(const RowMatrixXd& whitening) {
+    if (whitening.size() == 0) {
+        whitening_.resize(0, 0);
+        return;
+    }
+    const Eigen::Index m = 3 * setup_.n_points();
+    detail::check_whitening(whitening, n_, m);
+    whitening_ = whitening;
+}
+
+TrackerEffectObjective::Workspace TrackerEffectObjective::make_workspace() const {
+    Workspace ws;
+    ws.jbuf.assign(static_cast<std::size_t>(15 * geometry_.n_joints() + 1), 0.0);
+    ws.r.resize(static_cast<std::size_t>(setup_.n_points()));
+    ws.res.resize(static_cast<std::size_t>(3 * setup_.n_points()));
+    return ws;
+}
+
+double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* res, RowMatrixXd* poses,
+                                        RowMatrixXd* predicted,
+                                        std::vector<std::pair<int, std::string>>* failed) const {
+    const Geometry& g = geometry_;
+    const int nj = g.n_joints(), kp = setup_.n_points(), m = 3 * kp;
+    detail::EvalConsts ec;
+    carriage_.consts(g, x, ec, ws.jbuf.data());
+    const detail::LegEffects le = detail::leg_effects(effects_, x);
+    const double* xs = x + g.n_params() + effects_.n_params;
+    Mat3 rt;
+    Vec3 tt;
+    setup_.registration_transform(xs, rt, tt);
+    setup_.platform_points(xs + 6, ws.r.data());
+    const Vec3 g0 = rt.transpose() * gravity_;  // gravity in {0} through the registration
+    detail::PoseData layout;
+    layout.n_joints = nj, layout.n_prefix = carriage_.n_prefix();
+    layout.q_off = q_off_.data(), layout.prismatic = prismatic_.data();
+    const PoseSolver solver{ec, le, effects_.compliance, tolerance_};
+    const bool whiten = whitened();
+    double* out = ws.res.data();
+    double acc = 0;
+    for (int k = 0; k < n_; ++k) {
+        const double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
+        double t[12];  // 0T4
+        detail::carriage_chain(layout, ec, d, nullptr, t, nullptr, nullptr);
+        double g4[3];  // gravity in {4}: 0R4^T g_0
+        for (int e = 0; e < 3; ++e) g4[e] = t[e] * g0(0) + t[3 + e] * g0(1) + t[6 + e] * g0(2);
+        double p[3], r[9];
+        for (int e = 0; e < 3; ++e) p[e] = d[kOffRefP + e];
+        for (int e = 0; e < 9; ++e) r[e] = d[kOffRefR + e];
+        bool ok = solver.solve(d, g4, p, r);
+        if (!ok) {
+            // From the geometry's own forward kinematics at x (damped Newton-Raphson from the
+            // reference pose), then Newton with the effects again.
+            LegVector len;
+            bool positive = true;  // hexapod_forward refuses a leg length <= 0 (none exists)
+            for (int j = 0; j < kLegs; ++j) len(j) = d[j] + ec.l0[j], positive = positive && len(j) > 0 && std::isfinite(len(j));
+            if (positive) try {
+                LegMatrix a, b;
+                for (int j = 0; j < kLegs; ++j)
+                    for (int c = 0; c < 3; ++c) a(j, c) = ec.a[j][c], b(j, c) = ec.b[j][c];
+                ForwardOptions opt;
+                opt.tolerance = tolerance_;
+                const Vector6d sol = hexapod_forward(a, b, len, ref_euler_[static_cast<std::size_t>(k)], opt, k).pose;
+                const Mat3 rs = euler_zyx(sol(3), sol(4), sol(5));
+                for (int e = 0; e < 3; ++e) p[e] = sol(e);
+                for (int e = 0; e < 9; ++e) r[e] = rs(e / 3, e % 3);
+                ok = solver.solve(d, g4, p, r);
+            } catch (const ForwardKinematicsError&) {
+                ok = false;
+            }
+            if (!ok && failed)
+                failed->emplace_back(k, "forward kinematics with the effects: pose " + std::to_string(k) +
+                                            ": the legs do not close at these readings under the pose's load "
+                                            "and temperature (no Newton convergence)");
+        }
+        // The point y = T_T0 0T4 (P + R r_i), and its residual.
+        double w0[12];  // 0T5
+        for (int a = 0; a < 3; ++a) {
+            for (int b = 0; b < 3; ++b)
+                w0[3 * a + b] = t[3 * a] * r[b] + t[3 * a + 1] * r[3 + b] + t[3 * a + 2] * r[6 + b];
+            w0[9 + a] = t[9 + a] + t[3 * a] * p[0] + t[3 * a + 1] * p[1] + t[3 * a + 2] * p[2];
+        }
+        const double* meas = d + kOffPoints;
+        const double* seen = meas + m;
+        for (int i = 0; i < kp; ++i) {
+            const Vec3& ri = ws.r[static_cast<std::size_t>(i)];
+            double z[3], y[3];
+            for (int a = 0; a < 3; ++a) z[a] = w0[9 + a] + w0[3 * a] * ri(0) + w0[3 * a + 1] * ri(1) + w0[3 * a + 2] * ri(2);
+            for (int a = 0; a < 3; ++a) y[a] = tt(a) + rt(a, 0) * z[0] + rt(a, 1) * z[1] + rt(a, 2) * z[2];
+            for (int c = 0; c < 3; ++c) {
+                out[3 * i + c] = seen[i] == 0.0 ? 0.0 : !ok ? kFailedResidual : y[c] - meas[3 * i + c];
+                if (predicted) (*predicted)(k, 3 * i + c) = ok ? y[c] : std::numeric_limits<double>::quiet_NaN();
+            }
+        }
+        if (poses) {
+            if (ok) {
+                const Mat3 rw = Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>>(w0);
+                for (int e = 0; e < 3; ++e) (*poses)(k, e) = w0[9 + e];
+                poses->block<1, 3>(k, 3) = euler_from_matrix(rw).transpose();
+            } else {
+                poses->row(k).setConstant(std::numeric_limits<double>::quiet_NaN());
+            }
+        }
+        if (whiten) {
+            const double* wk = whitening_.row(k).data();
+            for (int i = 0; i < m; ++i) {
+                double s = 0;
+                for (int j = 0; j <= i; ++j) s += wk[i * m + j] * out[j];
+                if (res) res[static_cast<std::ptrdiff_t>(m) * k + i] = s;
+                acc += s * s;
+            }
+        } else {
+            for (int i = 0; i < m; ++i) {
+                if (res) res[static_cast<std::ptrdiff_t>(m) * k + i] = out[i];
+                acc += out[i] * out[i];
+            }
+        }
+    }
+    return acc;
+}
+
+double TrackerEffectObjective::cost(const double* x, Workspace& ws) const {
+    return evaluate(x, ws, nullptr, nullptr, nullptr, nullptr);
+}
+
+void TrackerEffectObjective::check_x(const Eigen::Ref<const VectorXd>& x) const {
+    if (x.size() != n_params()) {
+        std::ostringstream msg;
+        msg << "x: " << x.size() << " values given but this problem has " << n_params() << " parameters ("
+            << geometry_.n_params() << " of the robot, " << effects_.n_params << " of the effects, "
+            << setup_.n_params() << " of the tracker setup)";
+        throw std::invalid_argument(msg.str());
+    }
+    require_finite(x.data(), x.size(), "x");
+}
+
+double TrackerEffectObjective::cost(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    Workspace ws = make_workspace();
+    return cost(x.data(), ws);
+}
+
+VectorXd TrackerEffectObjective::residuals(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    VectorXd r(n_residuals());
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws, r.data(), nullptr, nullptr, nullptr);
+    return r;
+}
+
+std::vector<std::pair<int, std::string>> TrackerEffectObjective::failures(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    std::vector<std::pair<int, std::string>> out;
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws, nullptr, nullptr, nullptr, &out);
+    return out;
+}
+
+RowMatrixXd TrackerEffectObjective::platform_poses(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    RowMatrixXd poses(n_, 6);
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws, nullptr, &poses, nullptr, nullptr);
+    return poses;
+}
+
+RowMatrixXd TrackerEffectObjective::predicted_points(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    RowMatrixXd pred(n_, 3 * setup_.n_points());
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws, nullptr, nullptr, &pred, nullptr);
+    return pred;
+}
+
+void TrackerEffectObjective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {
+    batch_costs(*this, X, static_cast<std::size_t>(m), out, pool);
+}
+
+}  // namespace iwr
