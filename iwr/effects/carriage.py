@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from . import Effect, JointState
-from .builtin import STANDARD_GRAVITY, _check_keys, _number, _plain, _vector
+from .builtin import STANDARD_GRAVITY, PlatformCentre, _check_keys, _number, _plain, _vector
 
 __all__ = ["CarriageCompliance", "UNIT_SCALE"]
 
@@ -25,7 +25,7 @@ __all__ = ["CarriageCompliance", "UNIT_SCALE"]
 UNIT_SCALE = {"R": ("urad/(N m)", 1e-9), "P": ("um/N", 1e-3)}
 
 
-class CarriageCompliance(Effect):
+class CarriageCompliance(PlatformCentre, Effect):
     """Compliance of the carriage's joints (drive, gearbox, bearings, the link's bending folded
     into the joint): joint ``i`` is ``c_i L_i`` beyond its reading, ``L_i`` the gravity load it
     holds of everything distal to it (:class:`iwr.effects.JointState`: the torque about a

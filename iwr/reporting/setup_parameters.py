@@ -59,11 +59,17 @@ class SetupParameters:
 
     @property
     def n_robot(self) -> int:
-        return self.robot.n_params
+        """The robot's parameters in ``x``: its errors, then its effects' (issue 23)."""
+        from ..effects import parameter_names as effect_names
+
+        return self.robot.n_params + len(effect_names(self.robot.effects))
 
     @property
     def parameter_names(self) -> list[str]:
-        return self.robot.parameter_names + self.setup.parameter_names
+        from ..effects import parameter_names as effect_names
+
+        return (self.robot.parameter_names + effect_names(self.robot.effects)
+                + self.setup.parameter_names)
 
     def _std(self) -> np.ndarray | None:
         unc = self.uncertainty
@@ -78,7 +84,15 @@ class SetupParameters:
         active = np.ones(n, bool) if active is None else np.asarray(active, dtype=bool)
         left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
         std = self._std()
-        angles = np.concatenate([self.robot.angle_parameters, self.setup.angle_parameters])
+        from ..effects import parameter_names as effect_names
+
+        n_effects = len(effect_names(self.robot.effects))
+        angles = np.concatenate([self.robot.angle_parameters, np.zeros(n_effects, bool),
+                                 self.setup.angle_parameters])
+        # The effects' own units (issue 23: um/N, ppm/K), between the robot's and the setup's.
+        units = {n: u for n, u in zip(effect_names(self.robot.effects),
+                                      [u for e in self.robot.effects for u in e.units()],
+                                      strict=True)}
         x = np.asarray(self.result.x, dtype=float)
         rows = []
         for i, name in enumerate(self.parameter_names):
@@ -91,7 +105,8 @@ class SetupParameters:
                 status = "identified"
             sd = None if std is None or not np.isfinite(std[i]) else float(std[i])
             rows.append({"name": name, "value": float(x[i]), "std": sd,
-                         "unit": "rad" if angles[i] else "mm", "status": status})
+                         "unit": units.get(name, "rad" if angles[i] else "mm"),
+                         "status": status})
         return rows
 
     def null_text(self, terms: int = 4) -> str:

@@ -57,13 +57,12 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         """The problem of ``data`` and its "before" point: the nominal robot with the data's own
         registration guess (or, for data too few for one, with the identified setup)."""
         from ..tracker.registration import RegistrationError
-        from ..tracker.start import tracker_problem
 
-        try:
-            return tracker_problem(self.robot, data)
+        try:  # the kind's problem: with the effects, if any (issue 23)
+            return self.kind.problem(self.robot, data)
         except RegistrationError:
             x = np.asarray(self.result.x, dtype=float)
-            problem, _ = tracker_problem(self.robot, data, x0=x)
+            problem, _ = self.kind.problem(self.robot, data, x0=x)
             return problem, np.concatenate([np.zeros(self.n_robot), x[self.n_robot:]])
 
     def costs(self) -> dict[str, float]:
@@ -479,13 +478,12 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         """``calibrated.toml`` (the calibrated robot with its calibrated ``[tracker]`` table),
         ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the report
         (``report.html``, ``report.md``) into ``out``; returns the paths written."""
-        from ..tracker.analysis import fix_platform_frame
+        from ..tracker.analysis import calibrated_robot
 
         # The same model with {5} moved to the frame the measured points fix (the data do not
-        # fix {5}): a pose of {5} in {T} then means what a user measures (iwr legs).
-        x, frame = fix_platform_frame(self.robot, self.setup, self.result.x)
-        calibrated = self.robot.with_errors(x[:self.n_robot]).with_tracker(
-            setup=self.setup.with_parameters(x[self.n_robot:]))
+        # fix {5}): a pose of {5} in {T} then means what a user measures (iwr legs); with
+        # effects, their identified values and the platform's centre of mass moved with {5}.
+        calibrated, frame = calibrated_robot(self.robot, self.result.x)
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
         calibrated.to_toml(written[0], provenance=self.file_provenance(platform_frame=frame))
         self.result.save(written[1])
