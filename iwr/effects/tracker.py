@@ -705,12 +705,28 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *,
 
     from ..tracker.gauge import null_space
 
+    from scipy.linalg import qr
+
     problem, start = effect_tracker_problem(robot, measurements)
     x = start if x is None else np.asarray(x, dtype=float)
     ns = null_space(problem, x, RANK_RTOL if rtol is None else rtol)
     keep = base_parameters(robot, measurements, x)
-    held = [n for n, a, k in zip(ns.parameter_names, ns.active, keep, strict=True) if a and not k]
-    return EffectNullSpace(**asdict(ns), held=held)
+    # One left-out parameter per null direction among those held by default (the base
+    # parameters' columns are independent, so the null directions have independent parts
+    # there); the other held ones are the weakly fixed directions.
+    cand = np.flatnonzero(~keep)
+    k = ns.vectors.shape[1]
+    fields = asdict(ns)
+    if k:
+        scaled = (ns.vectors * ns.scale[:, None]).T  # (k, n): in the column-scaled metric
+        _, _, piv = qr(scaled[:, cand], pivoting=True, mode="economic")
+        out = np.sort(cand[piv[:k]])
+        basis = ns.vectors @ np.linalg.solve(ns.vectors[out], np.eye(k))
+        basis[out] = np.eye(k)
+        fields.update(left_out=[ns.parameter_names[i] for i in out], vectors=basis)
+    held = [ns.parameter_names[i] for i in cand if ns.parameter_names[i] not in
+            fields["left_out"]]
+    return EffectNullSpace(**fields, held=held)
 
 
 def _null_space_type() -> Any:

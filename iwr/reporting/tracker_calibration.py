@@ -33,6 +33,14 @@ def _fmt(v: float, spec: str) -> str:
     return format(v, spec) if math.isfinite(v) else "-"
 
 
+#: What the effects are identified with on tracker data (issue 23), in the report's words.
+_EFFECTS_OBJECTIVE = ("the point objective with the effects: forward kinematics under each "
+                      "pose's load and temperature, gravity given in {T} and carried into {0} by "
+                      "the identified registration; calibrated.toml's platform frame {5} is the "
+                      "one the measured points fix, the platform's centre of mass moved with it, "
+                      "and the data's payload centres are read in that frame")
+
+
 class TrackerCalibrationReport(SetupParameters, CalibrationReport):
     """A calibration run on laser-tracker data (docs/tracker.md): the same report as for leg
     data, with what belongs to tracker data.
@@ -183,10 +191,21 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
                          f"{math.degrees(float(np.linalg.norm(off[3:]))):.5f}"])
         return rows
 
+    def _held(self) -> str:
+        """With effects (issue 23): the parameters the objective determines, weakly, but the
+        calibration held (:class:`iwr.effects.tracker.EffectNullSpace`'s ``held``)."""
+        held = list(getattr(self.identifiability, "held", None) or [])
+        if not held:
+            return ""
+        return (f"; {len(held)} more held: the directions of the platform frame {{5}} that "
+                "only the loads' centres of mass fix, too weakly for noisy data "
+                "(docs/effects.md, \"Tracker data\")")
+
     def null_sentence(self) -> str:
         ns = self.identifiability
         if ns is None:
             return ""
+        held = self._held()
         return (f"Tracker data determine {ns.rank} of the {len(ns.parameter_names)} parameters: "
                 f"{len(ns.left_out)} directions are null, because the registration absorbs a "
                 "rigid motion of the whole robot that its own parameters can also make (a turn "
@@ -195,7 +214,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
                 "reflectors together on the platform changes nothing measured), and leg data "
                 "have six null directions of their own. One parameter per direction is held; "
                 "the tool pose in the tracker frame does not depend on the choice "
-                "(docs/tracker.md).")
+                "(docs/tracker.md)." + (f" With the effects, {held.removeprefix('; ')}."
+                                        if held else ""))
 
     def to_dict(self) -> dict[str, Any]:
         hidden, total = self.hidden_counts()
@@ -250,7 +270,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         ]
         if ns is not None:
             lines.append(f"identifiability: rank {ns.rank} of {len(ns.parameter_names)}, "
-                         f"{len(ns.left_out)} null directions (docs/tracker.md)")
+                         f"{len(ns.left_out)} null directions (docs/tracker.md)" + self._held())
+        lines += self.effect_lines()
         lines += [
             f"accuracy on {acc.n_poses} {where} poses: largest predicted-minus-measured point "
             "distance per pose, and the rotation between predicted and measured points:",
@@ -367,6 +388,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         if unc is not None:
             page.paragraph(f"Standard deviations: {unc.describe()}.")
         page.table(self.parameter_table(), "params")
+        self._effects_html(page, _EFFECTS_OBJECTIVE)
         ns = self.identifiability
         if ns is not None:
             page.heading("Identifiability")
@@ -412,6 +434,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
             md += ["", "![Point residuals per reflector](residuals.png)"]
         md += ["", "## Identified parameters", "",
                *table(*self.parameter_table())]
+        md += self._effects_md()
         if self.identifiability is not None:
             md += ["", "## Identifiability", "", self.null_sentence(), "", "```",
                    self.null_text(), "```"]
