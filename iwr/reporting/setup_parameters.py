@@ -83,6 +83,8 @@ class SetupParameters:
         n = len(self.parameter_names)
         active = np.ones(n, bool) if active is None else np.asarray(active, dtype=bool)
         left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
+        # With effects on tracker data (issue 23): the platform frame's weak directions.
+        held = set(getattr(self.identifiability, "held", None) or [])
         std = self._std()
         from ..effects import parameter_names as effect_names
 
@@ -98,7 +100,8 @@ class SetupParameters:
         for i, name in enumerate(self.parameter_names):
             if not active[i]:
                 status = ("held (null direction: not identifiable)" if name in left_out
-                          else "held fixed")
+                          else "held (the platform frame, fixed by the loads too weakly)"
+                          if name in held else "held fixed")
             elif name in left_out:
                 status = "identified, but on a null direction: arbitrary"
             else:
