@@ -184,7 +184,11 @@ def test_methods_that_do_not_model_them_refuse(measured_with_effects):
     for method in ("de", "crs2", "bobyqa"):
         with pytest.raises(ValueError, match="C\\+\\+ tracker objective with the effects"):
             iwr.identify(robot, data, method)
+    # LM takes a noise model (the weighted point objective: tests/test_effects_tracker_job.py),
+    # the tracker's part of it required, and no noise of a pose measured in {0}.
     with pytest.raises(ValueError, match="needs the tracker's noise"):
+        iwr.identify(robot, data, "lm", noise=(iwr.Noise(legs=0.002), None))
+    with pytest.raises(ValueError, match="position or orientation noise"):
         iwr.identify(robot, data, "lm", noise=(iwr.Noise.realistic(), None))
     # The C++ point objective refuses a robot with effects, naming what models them.
     with pytest.raises(ValueError, match="effects on"):
