@@ -1083,8 +1083,9 @@ class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
 def uncertainty(robot: Any, measurements: Any, x: Any, noise: Any, active: Any = None,
                 weighted: bool = False) -> Any:
     """:func:`iwr.uncertainty` on tracker data for a robot with effects: the covariance of the
-    active parameters (geometry, effects, setup) as :func:`iwr.analysis.uncertainty.
-    tracker_covariance` computes it on the point (probe) objective with the effects, the
+    active parameters (geometry, effects, setup) as
+    :func:`iwr.analysis.uncertainty.tracker_covariance` computes it on the point (probe)
+    objective with the effects, the
     readings' noise propagated to the points through the loop closure with the effects (exact
     derivatives, :func:`iwr.tracker.problem.reading_jacobian`); ``weighted``: ``x`` minimises
     the noise-weighted point objective (the weights :func:`iwr.identify` used: at the nominal
