@@ -703,9 +703,9 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *,
     calibration job identify) holds them too (``held``: :func:`base_parameters`)."""
     from dataclasses import asdict
 
-    from ..tracker.gauge import null_space
-
     from scipy.linalg import qr
+
+    from ..tracker.gauge import null_space
 
     problem, start = effect_tracker_problem(robot, measurements)
     x = start if x is None else np.asarray(x, dtype=float)
@@ -1098,8 +1098,9 @@ def uncertainty(robot: Any, measurements: Any, x: Any, noise: Any, active: Any =
     x = problem._x(x)
     wp = effect_tracker_problem(robot, measurements, noise=noise)[0] if weighted else None
     mask = base_parameters(robot, measurements, x) if active is None else active
-    return tracker_covariance(problem, x, noise, mask, weighted=wp,
-                              gradients=lambda: reading_jacobian(problem, x, "x: the parameters given"))
+    return tracker_covariance(
+        problem, x, noise, mask, weighted=wp,
+        gradients=lambda: reading_jacobian(problem, x, "x: the parameters given"))
 
 
 def misclosures(robot: Any, measurements: Any, x: Any, noise: Any = None) -> Any:
