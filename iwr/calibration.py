@@ -24,7 +24,7 @@ import numpy as np
 
 from . import kinds
 from .analysis.accuracy import Accuracy, accuracy
-from .analysis.identifiability import identifiability, identifiable_count, parameter_error
+from .analysis.identifiability import identifiability, identifiable_count
 from .analysis.uncertainty import Uncertainty, uncertainty
 from .effects import parameter_names as effect_parameter_names
 from .gross_errors import LeftOutError, without_left_out
@@ -354,7 +354,10 @@ def calibrate(
         truth_acc = perr = None
         if truth is not None:
             truth_acc = accuracy(robot, val, truth)
-            perr = parameter_error(robot, ident, result.x, truth)
+            try:  # the kind's: tracker data need exact readings of the truth
+                perr = kind.parameter_error(robot, ident, result.x, truth)
+            except ValueError as exc:
+                notes.append(f"note: no parameter error against the truth: {_one_line(exc)}")
         predicted = None
         if result.covariance is not None and not result.interrupted:
             try:
@@ -456,8 +459,8 @@ def from_result(
     ValueError when the result's parameters are not those of ``robot`` and the data's kind."""
     kind = kinds.of(data)
     kind.check(robot, data)
-    names = (robot.parameter_names + kind.setup_parameter_names(robot)
-             + effect_parameter_names(robot.effects))
+    names = (robot.parameter_names + effect_parameter_names(robot.effects)
+             + kind.setup_parameter_names(robot))
     if robot.effects:
         from .effects.job import check_job
 
@@ -544,8 +547,8 @@ def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
 
 def _extras(robot: Any, kind: Any) -> str:
     """What a result's parameters hold beyond the robot's geometric errors, for messages."""
-    parts = (["its tracker setup"] if kind.setup_parameter_names(robot) else []) + (
-        ["its effects"] if robot.effects else [])
+    parts = (["its effects"] if robot.effects else []) + (
+        ["its tracker setup"] if kind.setup_parameter_names(robot) else [])
     return f"with {' and '.join(parts)} " if parts else ""
 
 

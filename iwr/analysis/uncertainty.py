@@ -325,7 +325,7 @@ def _propagated(
 
 # -- laser-tracker data ---------------------------------------------------------------------------
 def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
-                         active: Any) -> Uncertainty:
+                         active: Any, weighted: bool = False) -> Uncertainty:
     """:func:`uncertainty` on tracker data (docs/tracker.md): the covariance of the unweighted
     least-squares estimate (what :func:`iwr.identify` computes on these data) of the active
     parameters, robot's and setup's, ``A Cov(r) A^T`` with ``A = (J^T J)^-1 J^T`` and ``J`` the
@@ -337,12 +337,29 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
     from the tracker's origin; a probe's orientation noise on its axis points), an
     :class:`iwr.Noise` (reading noise: legs and carriage joints, propagated to the points through
     the forward kinematics) or a pair of both. ``active``: a mask, a NullSpace, or None (one
-    parameter per null direction held: :func:`iwr.tracker.null_space` at ``x``)."""
-    from ..noise import split_noise
-    from ..tracker.analysis import NullSpace, null_space
+    parameter per null direction held: :func:`iwr.tracker.null_space` at ``x``). ``weighted``:
+    ``x`` minimises the noise-weighted point objective (``iwr.identify(..., noise=)`` on
+    reflector points): ``(J_w^T J_w)^-1`` of its whitened Jacobian, ``noise`` the pair it was
+    weighted by."""
     from ..tracker.start import tracker_problem
 
     problem, _ = tracker_problem(robot, measurements, x0=x)
+    wp = tracker_problem(robot, measurements, noise=noise)[0] if weighted else None
+    return tracker_covariance(problem, x, noise, active, weighted=wp)
+
+
+def tracker_covariance(problem: Any, x: Any, noise: Any, active: Any, *, weighted: Any = None,
+                       gradients: Any = None) -> Uncertainty:
+    """:func:`_tracker_uncertainty` on ``problem`` (any tracker problem: the geometry's, or
+    :class:`iwr.effects.tracker.TrackerEffectProblem` with the effects' parameters between the
+    robot's and the setup's): ``active`` a mask, a NullSpace, or None (:func:`null_space` of
+    ``problem`` at ``x``); ``weighted`` the noise-weighted problem ``x`` minimises (its
+    whitened Jacobian's ``(J_w^T J_w)^-1``), or None; ``gradients`` the derivatives (N, 3 K,
+    n_joints + 6) of the predicted points in the joint and leg readings (default: central
+    differences of the geometric forward kinematics)."""
+    from ..noise import split_noise
+    from ..tracker.analysis import NullSpace, null_space
+
     x = np.array(x, dtype=float)
     n = problem.n_params
     if active is None:
@@ -352,10 +369,9 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
     else:
         mask = np.asarray(active, dtype=bool)
         if mask.shape != (n,):
-            raise ValueError(f"active: boolean mask of shape {mask.shape}; expected ({n},) (the "
-                             f"robot's {robot.n_params}, then the setup's "
-                             f"{n - robot.n_params})")
-    r, jac = problem.residuals_and_jacobian(x)
+            raise ValueError(f"active: boolean mask of shape {mask.shape}; expected ({n},) ("
+                             + ", ".join(_parts(problem)) + ")")
+    r, jac = (weighted if weighted is not None else problem).residuals_and_jacobian(x)
     jb = jac[:, mask]
     m, p = problem.n_observations, int(mask.sum())
     dof = m - p
@@ -367,7 +383,10 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
                          "rank deficient; hold one parameter per null direction "
                          "(active=iwr.identifiability(robot, data).active)")
     a = (vt.T / s) @ u.T / d[:, None]  # (p, 3 N P); zero columns for unseen points
-    if noise is None or isinstance(noise, (int, float)) and not isinstance(noise, bool):
+    if weighted is not None:  # whitened residuals have unit variance
+        cov = a @ a.T
+        sigma, source = float("nan"), "weighted"
+    elif noise is None or isinstance(noise, (int, float)) and not isinstance(noise, bool):
         if noise is None:
             if dof <= 0:
                 raise ValueError(f"measurements: {m} point coordinates for {p} parameters; "
@@ -381,7 +400,7 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
         cov = sigma**2 * (a @ a.T)
     else:
         readings, tracker = split_noise(noise)
-        c = _point_covariance(problem, x, readings, tracker)  # (N, 3P, 3P)
+        c = _point_covariance(problem, x, readings, tracker, gradients)  # (N, 3P, 3P)
         ak = a.reshape(p, problem.n_poses, -1)
         cov = np.einsum("pki,kij,qkj->pq", ak, c, ak)
         sigma, source = float("nan"), "tracker noise"
@@ -390,11 +409,22 @@ def _tracker_uncertainty(robot: Robot, measurements: Any, x: Any, noise: Any,
     return Uncertainty(problem.parameter_names, mask, cov, std, sigma, source, dof)
 
 
+def _parts(problem: Any) -> list[str]:
+    """What a tracker problem's parameters are, for messages."""
+    robot, ns = problem.robot, problem.setup.n_params
+    n_effects = problem.n_params - robot.n_params - ns
+    return ([f"the robot's {robot.n_params}"]
+            + ([f"{n_effects} effect parameters"] if n_effects else [])
+            + [f"then the setup's {ns}"])
+
+
 def _point_covariance(problem: Any, x: np.ndarray, readings: Noise | None,
-                      tracker: Any) -> np.ndarray:
+                      tracker: Any, gradients: Any = None) -> np.ndarray:
     """Per pose, the covariance (3P, 3P) of the residuals (predicted minus measured points) from
     the tracker's noise (on the measured points) and the readings' (through the predicted ones;
-    central differences of the forward kinematics, as :func:`measurement_jacobians`)."""
+    ``gradients``, a function giving their derivatives (N, 3P, n_joints + 6) in the joint and
+    leg readings, default central differences of the forward kinematics, as
+    :func:`measurement_jacobians`)."""
     from ..tracker.data import TrackerMeasurements
     from ..tracker.problem import TrackerProblem
 
@@ -440,8 +470,8 @@ def _point_covariance(problem: Any, x: np.ndarray, readings: Noise | None,
                               np.full(6, readings.legs)])
         h = 1e-4
         base_q, base_legs = m.q, m.legs
-        grads = np.zeros((n, 3 * npts, sig.size))
-        for j in range(sig.size):
+        grads = np.zeros((n, 3 * npts, sig.size)) if gradients is None else gradients()
+        for j in range(sig.size if gradients is None else 0):
             if sig[j] == 0:
                 continue
             pred = []

@@ -163,6 +163,14 @@ class Effect(abc.ABC):
         parameters (N, n_joints, k). Called when ``"joints"`` is in :attr:`changes`."""
         raise NotImplementedError(f"effect {self.name!r} does not change the joints")
 
+    def in_platform_frame(self, rotation: np.ndarray, shift: np.ndarray) -> Effect:
+        """This effect with what it holds in the platform frame {5} (a centre of mass)
+        expressed in another platform frame, in which a point of {5} at ``c`` is at
+        ``rotation @ c + shift``: what moves with the frame when a calibration chooses {5}
+        (:func:`iwr.tracker.calibrated_robot`: tracker data do not fix it). Default: itself
+        (nothing in {5})."""
+        return self
+
     def for_robot(self, robot: Any) -> Effect:
         """This effect checked against (and told of) the robot it is switched on for: the
         robot calls it when it takes its effects. Default: itself."""

@@ -12,7 +12,7 @@ import numpy as np
 
 from . import Effect, LegState
 
-__all__ = ["LegCompliance", "LegThermal", "STANDARD_GRAVITY", "STEEL_ALPHA"]
+__all__ = ["LegCompliance", "LegThermal", "PlatformCentre", "STANDARD_GRAVITY", "STEEL_ALPHA"]
 
 #: Standard gravity (m/s^2), ISO 80000-3.
 STANDARD_GRAVITY = 9.80665
@@ -61,7 +61,21 @@ def _plain(values: np.ndarray) -> Any:
     return float(values[0]) if values.size == 1 else [float(v) for v in values]
 
 
-class _GravityLoad:
+class PlatformCentre:
+    """What an effect that holds the platform's centre of mass in {5} (``platform_centre``, mm)
+    does when {5} moves (:meth:`iwr.effects.Effect.in_platform_frame`): the centre moves with
+    it."""
+
+    platform_centre: np.ndarray
+
+    def in_platform_frame(self, rotation: np.ndarray, shift: np.ndarray) -> Any:
+        out = copy.copy(self)
+        out.platform_centre = (np.asarray(rotation, dtype=float) @ self.platform_centre
+                               + np.asarray(shift, dtype=float))
+        return out
+
+
+class _GravityLoad(PlatformCentre):
     """What the effects under gravity read alike: the platform's own mass and centre (in {5})
     and the gravity vector in {0} (:class:`LegCompliance`, and the carriage's compliance)."""
 

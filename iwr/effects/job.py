@@ -29,18 +29,21 @@ DIAGNOSIS_ALPHA = 0.01
 
 
 def check_job(robot: Any, data: Any) -> None:
-    """ValueError unless :func:`iwr.calibrate` models ``robot``'s effects on ``data``: pose data
-    (:class:`iwr.Measurements`); every method that models them (:data:`iwr.effects.problem.METHODS`,
-    with or without a noise model: :func:`iwr.identify` says which) runs in the job, with the
-    gross-error screen (:func:`misclosures`), the fit test, the uncertainty and the predicted
-    accuracy with the effects."""
-    from ..measurements import Measurements
+    """ValueError unless :func:`iwr.calibrate` models ``robot``'s effects on ``data``: a kind
+    whose job models them (:attr:`iwr.kinds.MeasurementKind.models_effects`: pose data, tracker
+    points and probe); every method that models them (:func:`iwr.identify` says which) runs in
+    the job, with the gross-error screen (the kind's misclosures), the fit test, the
+    uncertainty and the predicted accuracy with the effects."""
+    from .. import kinds
 
-    if not isinstance(data, Measurements):
+    kind = kinds.of(data)
+    if not kind.models_effects:
         names = ", ".join(e.name for e in robot.effects)
+        modelled = [k.description for k in map(kinds.named, kinds.available())
+                    if k.models_effects]
         raise ValueError(f"robot {robot.name!r} has effects on ({names}): the calibration job "
-                         f"models them on pose data (iwr.Measurements) only, not on "
-                         f"{type(data).__name__} (docs/effects.md)")
+                         f"models them on {', '.join(modelled)} data, not on "
+                         f"{kind.description} ({kind.name} data; docs/effects.md)")
 
 
 # -- accuracy ---------------------------------------------------------------------------------

@@ -26,12 +26,14 @@ and reflector or probe offsets): ``x = (x_geometric, x_effects, x_setup)``.
 
 from __future__ import annotations
 
+from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .. import _core
 from ..problem_base import FAILED_RESIDUAL, check_joint_types
+from ..tracker.problem import whiten
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 from . import LegState
 from . import bounds as effect_bounds
@@ -40,10 +42,10 @@ from .gravity import refuse_joint_effects, registration_gravity, with_gravity
 from .loop import _skew, loop_jacobians, right_jacobian
 from .model import _compliance, check_inputs, leg_forces, leg_vectors_at, loads
 
-__all__ = ["EffectTrackerSpec", "TrackerEffectModel", "TrackerEffectProblem", "accuracy",
-           "base_parameters", "effect_tracker_problem", "gravity_jacobian", "identifiability",
-           "identify", "leg_commands", "loop_model", "predicted_accuracy",
-           "simulate", "tool_frames"]
+__all__ = ["EffectNullSpace", "EffectTrackerSpec", "TrackerEffectModel", "TrackerEffectProblem",
+           "accuracy", "base_parameters", "design", "effect_tracker_problem", "gravity_jacobian",
+           "identifiability", "identify", "leg_commands", "loop_model", "misclosures",
+           "predicted_accuracy", "simulate", "tool_frames", "uncertainty"]
 
 #: The relative rank threshold of the objective with effects (of its column-scaled Jacobian's
 #: largest singular value): the Jacobian rests on forward kinematics solved to
@@ -288,10 +290,20 @@ class TrackerEffectProblem:
     ``bounds``: None or ``"default"`` (the robot's default bounds, the effects' own, the setup's
     about ``center``), ``"paper"``, or a pair over every parameter. ``reference``: the robot's
     geometric errors at which the C++ objective solves each pose's forward kinematics once
-    (default zeros), as :class:`iwr.tracker.TrackerProblem`'s."""
+    (default zeros), as :class:`iwr.tracker.TrackerProblem`'s.
+
+    ``noise`` ``(iwr.Noise or None, TrackerNoise)``: the noise-weighted objective, as
+    :class:`iwr.tracker.TrackerProblem`'s (reflector points only): each pose's point residuals
+    whitened by their covariance (:func:`iwr.tracker.problem.point_covariances`: the tracker's
+    noise of each point, plus the leg and joint readings' noise propagated through the loop
+    closure *with the effects*, :meth:`loop_jacobian`), evaluated at the nominal robot and
+    effects with the setup at ``weights_at`` (default ``center``) and then held fixed; ``cost``
+    (in C++, the same whitening) is then a chi-square statistic, ``cost_unweighted`` the sum of
+    squared point residuals."""
 
     def __init__(self, robot: Any, setup: Any, measurements: Any, bounds: Any = None, *,
-                 center: Any = None, reference: Any = None) -> None:
+                 center: Any = None, reference: Any = None, noise: Any = None,
+                 weights_at: Any = None) -> None:
         from ..tracker.data import TrackerMeasurements
 
         if not robot.effects:
@@ -325,6 +337,7 @@ class TrackerEffectProblem:
         meas = measurements.tracker_points(setup)
         self._measured = meas.reshape(len(measurements), -1, 3)
         self._seen = ~np.isnan(self._measured[:, :, 0])
+        #: The per-pose whitening (N, 3 K, 3 K) or None (unweighted), and the noise it is of.
         self.whitening = None
         self.noise = None
         ref = np.zeros(robot.n_params) if reference is None else np.asarray(reference, float)
@@ -333,6 +346,23 @@ class TrackerEffectProblem:
                              "geometric errors")
         self.reference = ref
         self._cpp: Any = None  # the C++ objective, made on first use (cpp_objective)
+        if noise is not None:
+            from ..tracker.problem import _whitening, point_covariances
+
+            if setup.kind != "points":
+                raise ValueError("noise: the weighted objective is for reflector points; a "
+                                 "probe's four points move rigidly, so their covariance is "
+                                 "singular: use the efficient estimator (method='efficient') "
+                                 "on probe data")
+            readings, tracker = noise
+            at = weights_at if weights_at is not None else center
+            xs = np.zeros(setup.n_params) if at is None else np.asarray(at, dtype=float)
+            if xs.shape != (setup.n_params,):
+                raise ValueError(f"weights_at: expected {setup.n_params} setup parameters")
+            x_at = np.concatenate([np.zeros(n_all - setup.n_params), xs])
+            self.whitening = _whitening(point_covariances(self, x_at, readings, tracker),
+                                        self.seen, measurements)
+            self.noise = (readings, tracker)
 
     # -- sizes and names ----------------------------------------------------------------------
     @property
@@ -378,13 +408,15 @@ class TrackerEffectProblem:
         return r.reshape(-1)
 
     def residuals(self, x: Any) -> np.ndarray:
+        """Predicted minus measured points in {T} (weighted: whitened per pose), pose-major."""
         pts, _, ok = self.model.points(self._x(x))
-        return self._residuals(pts, ok)
+        return whiten(self.whitening, self._residuals(pts, ok))
 
     def residuals_and_jacobian(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
         pts, jac, ok = self.model.points(self._x(x), jacobian=True)
         jac[~self._seen] = 0.0
-        return self._residuals(pts, ok), jac.reshape(-1, self.n_params)
+        return (whiten(self.whitening, self._residuals(pts, ok)),
+                whiten(self.whitening, jac.reshape(-1, self.n_params)))
 
     def jacobian(self, x: Any) -> np.ndarray:
         return self.residuals_and_jacobian(x)[1]
@@ -399,10 +431,26 @@ class TrackerEffectProblem:
         return self._cpp
 
     def cost(self, x: Any) -> float:
-        """The sum of squared point residuals (mm^2) in C++ (the cost DE minimises)."""
+        """Sum of squared residuals in C++ (the cost DE minimises; mm^2, weighted:
+        dimensionless, whitened as :meth:`residuals`)."""
         return float(self._objective().cost(self._x(x)))
 
-    cost_unweighted = cost
+    def cost_unweighted(self, x: Any) -> float:
+        """Sum of squared point residuals (mm^2), weighted or not."""
+        pts, _, ok = self.model.points(self._x(x))
+        r = self._residuals(pts, ok)
+        return float(r @ r)
+
+    def loop_jacobian(self, x: Any, poses: np.ndarray) -> np.ndarray:
+        """The derivative (N, 6, n_joints + 6) of the predicted leg readings with the effects in
+        the joint readings and the platform pose's correction ``(dp, w)`` at ``poses`` (gravity
+        through the registration of ``x``; :func:`iwr.effects.loop.loop_jacobians`): what the
+        readings' noise is propagated through (the weights, the uncertainty, the gross-error
+        screen), as :meth:`iwr.tracker.TrackerProblem.loop_jacobian`."""
+        xr, xs = self.model.split(x)
+        robot = with_gravity(self.robot, registration_gravity(self.setup, xs)[0])
+        return loop_jacobians(robot, xr, self.measurements.q, np.asarray(poses, dtype=float),
+                              self.measurements)[2]
 
     def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
         """The costs of the rows of ``X`` in C++ across ``workers`` threads (None: all cores);
@@ -449,19 +497,36 @@ class TrackerEffectProblem:
                 f"n_poses={self.n_poses}, n_params={self.n_params})")
 
 
-def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0: Any = None
-                           ) -> tuple[TrackerEffectProblem, np.ndarray]:
+def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0: Any = None,
+                           noise: Any = None) -> tuple[TrackerEffectProblem, np.ndarray]:
     """The problem of tracker data for a robot with effects and its start: the nominal robot and
     effects with the closed-form registration guess (of the geometry alone: the effects move
-    the points by micrometres), the setup's bounds about it; or ``x0``."""
+    the points by micrometres), the setup's bounds about it; or ``x0``. With a ``noise`` model
+    ``(iwr.Noise, TrackerNoise)`` the problem is weighted by it (:class:`TrackerEffectProblem`'s
+    ``noise``), its weights evaluated at the nominal robot and effects with the start's setup.
+    Inside :func:`iwr.kinds.reuse` (one calibration job) the guess and the unweighted problem
+    are made once per data set, as :func:`iwr.tracker.start.tracker_problem` makes them."""
+    from ..kinds import memo
+    from ..noise import split_noise
     from ..tracker.start import _bounds, _setup, registration_guess
 
     setup = _setup(robot)
     n_eff = len(effect_names(robot.effects))
     n = robot.n_params + n_eff + setup.n_params
+    if isinstance(bounds, str) and bounds == "default":
+        bounds = None
+    weights = None
+    if noise is not None:
+        readings, tracker = split_noise(noise)
+        if tracker is None and measurements.point_sigma is None:
+            raise ValueError("noise: the weighted objective on tracker data needs the tracker's "
+                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
+        weights = (readings, tracker)
     center = None
     if x0 is None:
-        guess = registration_guess(robot.with_effects(), measurements)
+        # The geometry's guess (the effects move the points by micrometres), made once per data
+        # set with the kind's start (iwr.kinds.MeasurementKind.start).
+        guess = registration_guess(robot, measurements)
         center = guess.x_setup
         start = np.concatenate([np.zeros(robot.n_params + n_eff), guess.x_setup])
     else:
@@ -470,14 +535,30 @@ def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0
             raise ValueError(f"x0: expected {n} finite values (the robot's {robot.n_params}, "
                              f"{n_eff} effect parameters, then the tracker setup's "
                              f"{setup.n_params}), got shape {start.shape}")
+    problem_bounds = bounds
     if isinstance(bounds, str) and bounds == "paper":
         lo, hi = _bounds(robot, setup, bounds, np.zeros(setup.n_params) if center is None
                          else center)
         lo_e, hi_e = effect_bounds(robot.effects)
         ng = robot.n_params
-        bounds = (np.concatenate([lo[:ng], lo_e, lo[ng:]]),
-                  np.concatenate([hi[:ng], hi_e, hi[ng:]]))
-    return TrackerEffectProblem(robot, setup, measurements, bounds, center=center), start
+        problem_bounds = (np.concatenate([lo[:ng], lo_e, lo[ng:]]),
+                          np.concatenate([hi[:ng], hi_e, hi[ng:]]))
+
+    def build() -> TrackerEffectProblem:
+        return TrackerEffectProblem(robot, setup, measurements, problem_bounds, center=center,
+                                    noise=weights, weights_at=None if weights is None or x0 is None
+                                    else start[n - setup.n_params:])
+
+    if weights is not None:  # weighted: its own problem
+        return build(), start
+    given = not (bounds is None or isinstance(bounds, str))
+    held = (robot, measurements, bounds) if given else (robot, measurements)
+    key = ("effects tracker problem", "given" if given else bounds)
+    if x0 is None:
+        return memo((*key, "guess"), held, build), start
+    # With x0: the problem already made for the data (its bounds about the guess), else one
+    # about the nominal setup.
+    return memo((*key, "guess"), held, None) or memo((*key, "nominal"), held, build), start
 
 
 def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise: Any = None,
@@ -493,11 +574,9 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
     :func:`iwr.tracker.api.tracker_simulate` takes it. Returns ``(measurements, x_true)``."""
     from ..noise import Noise, TrackerNoise, split_noise
     from ..simulation import sample_poses
-    from ..tracker.data import TrackerMeasurements
     from ..tracker.simulate import perturb_measurements, true_points
     from ..tracker.start import _setup
     from .api import draw_conditions
-    from .model import predicted_readings
 
     setup = _setup(robot)
     refuse_joint_effects(robot)
@@ -530,26 +609,42 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
                              f"{lo_e.size} effect parameters, then the tracker setup's "
                              f"{setup.n_params}), got shape {x.shape}")
     n = int(n_poses)
-    xr, xs = x[: ng + lo_e.size], x[ng + lo_e.size:]
+    xs = x[ng + lo_e.size:]
     q, poses, _ = sample_poses(robot.with_effects(), n, rng, x[:ng])
     pay, temperatures = draw_conditions(robot, n, rng, payloads, temperatures)
     pts = true_points(robot, setup, np.concatenate([x[:ng], xs]), poses)
     hide = rng.random(n) < hidden
     which = rng.integers(0, setup.n_points, size=n)
     pts[hide, which[hide]] = np.nan
-    if setup.kind == "points":
-        clean = TrackerMeasurements(q, np.zeros((n, 6)), points=pts, joint_types=robot.joint_types,
-                                    payload=pay, temperatures=temperatures)
-    else:
-        probe = np.array([pose_from_matrix(m) for m in _probe_frames(setup, xs, pts)])
-        clean = TrackerMeasurements(q, np.zeros((n, 6)), probe=probe,
-                                    joint_types=robot.joint_types, payload=pay,
-                                    temperatures=temperatures)
-    true = with_gravity(robot, registration_gravity(setup, xs)[0])
-    clean.legs = predicted_readings(true, xr, q, poses, clean)
+    clean = _exact(robot, x, q, poses, pts, pay, temperatures)
     if readings.is_zero and tracker.is_zero:
         return clean, x
     return perturb_measurements(robot, clean, readings, tracker, rng), x
+
+
+def _exact(robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, pts: np.ndarray,
+           payload: Any, temperatures: Any) -> Any:
+    """The noise-free tracker data of the robot ``x`` (geometry, effects, setup) at joint
+    readings ``q`` and platform poses ``poses`` in {0} under the loads and temperatures given:
+    the points ``pts`` (N, P, 3) in {T} (a probe's pose from its four points), and the leg
+    readings with the effects (gravity in {0} through the registration of ``x``)."""
+    from ..tracker.data import TrackerMeasurements
+    from .model import predicted_readings
+
+    setup = robot.tracker
+    n, ns = len(q), setup.n_params
+    xr, xs = x[: x.size - ns], x[x.size - ns:]
+    if setup.kind == "points":
+        clean = TrackerMeasurements(q, np.zeros((n, 6)), points=pts, joint_types=robot.joint_types,
+                                    payload=payload, temperatures=temperatures)
+    else:
+        probe = np.array([pose_from_matrix(m) for m in _probe_frames(setup, xs, pts)])
+        clean = TrackerMeasurements(q, np.zeros((n, 6)), probe=probe,
+                                    joint_types=robot.joint_types, payload=payload,
+                                    temperatures=temperatures)
+    true = with_gravity(robot, registration_gravity(setup, xs)[0])
+    clean.legs = predicted_readings(true, xr, q, poses, clean)
+    return clean
 
 
 def _probe_frames(setup: Any, xs: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -576,7 +671,11 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
     CRS2 or BOBYQA on the point (probe) objective with the effects
     (:class:`TrackerEffectProblem`: DE, CRS2 and BOBYQA on its C++ cost) from the nominal robot
     and effects with the registration guess; ``active="base"`` the base parameters of its null
-    space (:func:`identifiability`). Other methods are refused, naming what models the
+    space (:func:`identifiability`). With a ``noise`` model ``(iwr.Noise, TrackerNoise)`` they
+    minimise the noise-weighted point objective (``weighted``, default True with a noise
+    model; reflector points only) and the fit check adds the chi-square test, as
+    :func:`iwr.tracker.api.tracker_identify` does without effects. The efficient estimator
+    weighs every instrument by its noise. Other methods are refused, naming what models the
     effects."""
     from ..methods import run_method, settle
     from ..methods.reduced import active_mask
@@ -594,18 +693,33 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
                             noise_hint="(iwr.Noise(...), iwr.tracker.TrackerNoise(...))",
                             x0=x0, active=active, bounds=bounds, callback=callback,
                             weighted=weighted, max_evaluations=max_evaluations, **options)
-    if noise is not None or weighted:
-        raise ValueError(
-            f"noise: robot {robot.name!r} has effects on ({names}); on tracker data method "
-            f"{method!r} minimises the unweighted point objective with the effects: give "
-            "noise=None, or use method 'efficient' (docs/effects.md)")
-    problem, start = effect_tracker_problem(robot, measurements, bounds, x0)
+    from .. import kinds
+
+    if weighted is None:
+        weighted = noise is not None
+    if weighted and noise is None:
+        raise ValueError("weighted=True needs a noise model: noise=(iwr.Noise(...), "
+                         "iwr.tracker.TrackerNoise(...))")
+    kind = kinds.of(measurements)
+    if not weighted and noise is not None and not kind.chi2_fit_test:
+        raise ValueError(f"noise with weighted=False: method {method!r} on the unweighted "
+                         f"{kind.description} objective does not use a noise model (no "
+                         "chi-square test of these data); leave the noise out, or use the "
+                         "efficient estimator")
+    problem, start = effect_tracker_problem(robot, measurements, bounds, x0,
+                                            noise=noise if weighted else None)
     if isinstance(active, str) and active == "base":
         active = base_parameters(robot, measurements, start)
     mask = active_mask(problem, active)
     result = run_method(problem, method, mask, start, max_evaluations=max_evaluations,
                         seed=seed, callback=callback, progress=progress, batch_de=True, **options)
-    settle(result, problem, None, mask)
+    if weighted:
+        result["cost_eq10"] = problem.cost_unweighted(result.x)
+        # Said in the settings too, so that a saved result's fun is not read as unweighted.
+        result["settings"] = {**dict(result.settings), "objective": {
+            "weighted": True, "cost_eq10": float(result["cost_eq10"]),
+            **kind.noise_record(problem.noise)}}
+    settle(result, problem, noise, mask)
     return result
 
 
@@ -614,14 +728,59 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *,
     """:func:`iwr.identifiability` on tracker data for a robot with effects: the null
     directions of the point (probe) objective with the effects at ``x`` (default the nominal
     robot and effects with the registration guess), one per left-out parameter
-    (:class:`iwr.tracker.NullSpace`); an effect parameter among ``left_out`` cannot be
-    separated from the geometry at these poses and loads. ``rtol`` default
-    :data:`RANK_RTOL`. The loads fix the platform frame {5} weakly: its directions count as
-    identifiable here (with noise they are not: :func:`base_parameters` holds them)."""
+    (:class:`EffectNullSpace`); an effect parameter among ``left_out`` cannot be separated from
+    the geometry at these poses and loads. ``rtol`` default :data:`RANK_RTOL`. The loads fix the
+    platform frame {5} weakly: its directions count as identifiable here (``rank``), but with
+    noise they are not, and the report's ``active`` (what :func:`iwr.identify` and the
+    calibration job identify) holds them too (``held``: :func:`base_parameters`)."""
+    from dataclasses import asdict
+
+    from scipy.linalg import qr
+
     from ..tracker.gauge import null_space
 
     problem, start = effect_tracker_problem(robot, measurements)
-    return null_space(problem, start if x is None else x, RANK_RTOL if rtol is None else rtol)
+    x = start if x is None else np.asarray(x, dtype=float)
+    ns = null_space(problem, x, RANK_RTOL if rtol is None else rtol)
+    keep = base_parameters(robot, measurements, x)
+    # One left-out parameter per null direction among those held by default (the base
+    # parameters' columns are independent, so the null directions have independent parts
+    # there); the other held ones are the weakly fixed directions.
+    cand = np.flatnonzero(~keep)
+    k = ns.vectors.shape[1]
+    fields = asdict(ns)
+    if k:
+        scaled = (ns.vectors * ns.scale[:, None]).T  # (k, n): in the column-scaled metric
+        _, _, piv = qr(scaled[:, cand], pivoting=True, mode="economic")
+        out = np.sort(cand[piv[:k]])
+        basis = ns.vectors @ np.linalg.solve(ns.vectors[out], np.eye(k))
+        basis[out] = np.eye(k)
+        fields.update(left_out=[ns.parameter_names[i] for i in out], vectors=basis)
+    held = [ns.parameter_names[i] for i in cand if ns.parameter_names[i] not in
+            fields["left_out"]]
+    return EffectNullSpace(**fields, held=held)
+
+
+def _null_space_type() -> Any:
+    from ..tracker.gauge import NullSpace
+
+    return NullSpace
+
+
+@dataclass(frozen=True)
+class EffectNullSpace(_null_space_type()):  # type: ignore[misc]
+    """:class:`iwr.tracker.NullSpace` of the point (probe) objective with the effects, and
+    ``held``: the parameters its rank counts but iwr holds by default (:func:`base_parameters`):
+    one per direction of the platform frame {5} that only the loads fix (a part in 1e5 of the
+    geometry's signal: with noise it would wander), and any effect parameter whose column adds
+    no direction to the geometry's. ``active`` leaves out both."""
+
+    held: list[str] = field(default_factory=list)
+
+    @property
+    def active(self) -> np.ndarray:
+        out = set(self.left_out) | set(self.held)
+        return np.array([n not in out for n in self.parameter_names], dtype=bool)
 
 
 def base_parameters(robot: Any, measurements: Any, x: Any = None) -> np.ndarray:
@@ -949,3 +1108,69 @@ class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
     def cost_eq10(self, x: np.ndarray) -> float:
         """The unweighted point objective with the effects (mm^2)."""
         return self.problem.cost(x)
+
+
+# -- the calibration job's other steps on tracker data with effects (iwr.tracker.kind) ---------
+
+def uncertainty(robot: Any, measurements: Any, x: Any, noise: Any, active: Any = None,
+                weighted: bool = False) -> Any:
+    """:func:`iwr.uncertainty` on tracker data for a robot with effects: the covariance of the
+    active parameters (geometry, effects, setup) as
+    :func:`iwr.analysis.uncertainty.tracker_covariance` computes it on the point (probe)
+    objective with the effects, the
+    readings' noise propagated to the points through the loop closure with the effects (exact
+    derivatives, :func:`iwr.tracker.problem.reading_jacobian`); ``weighted``: ``x`` minimises
+    the noise-weighted point objective (the weights :func:`iwr.identify` used: at the nominal
+    robot and effects with the registration guess). ``active`` default: the parameters
+    identified by default (:func:`base_parameters` at ``x``)."""
+    from ..analysis.uncertainty import tracker_covariance
+    from ..tracker.problem import reading_jacobian
+
+    problem, _ = effect_tracker_problem(robot, measurements, x0=x)
+    x = problem._x(x)
+    wp = effect_tracker_problem(robot, measurements, noise=noise)[0] if weighted else None
+    mask = base_parameters(robot, measurements, x) if active is None else active
+    return tracker_covariance(
+        problem, x, noise, mask, weighted=wp,
+        gradients=lambda: reading_jacobian(problem, x, "x: the parameters given"))
+
+
+def misclosures(robot: Any, measurements: Any, x: Any, noise: Any = None) -> Any:
+    """:func:`iwr.tracker.estimation.tracker_misclosures` (the gross-error screen's linearised
+    readings model) on the point (probe) objective with the effects: the points' derivatives in
+    the parameters and in every reading through the loop closure with the effects."""
+    from ..tracker.estimation import tracker_misclosures
+
+    problem, _ = effect_tracker_problem(robot, measurements, x0=x)
+    return tracker_misclosures(robot, measurements, x, noise, problem=problem)
+
+
+def design(robot: Any, candidates: Any, x: Any, report: Any
+           ) -> tuple[TrackerEffectProblem, np.ndarray, np.ndarray, int, str]:
+    """:func:`iwr.plan_poses`'s problem for tracker data with effects: the candidates (joint
+    readings, platform poses in {0}, and each one's payload and temperatures) measured by the
+    nominal setup, the leg readings of the nominal robot with its effects under each load
+    (gravity through the nominal registration), the information of the point (probe) objective
+    with the effects at ``x`` (default the nominal robot, effects and setup; the robot's and
+    effects' part alone: the nominal setup) over the parameters identified by default
+    (:func:`base_parameters`, or ``report``'s active ones)."""
+    from ..tracker.simulate import true_points
+
+    setup = robot.tracker
+    refuse_joint_effects(robot)
+    ng, ne, ns = robot.n_params, len(effect_names(robot.effects)), setup.n_params
+    xf = np.zeros(ng + ne + ns) if x is None else np.asarray(x, dtype=float)
+    if xf.shape == (ng + ne,):
+        xf = np.concatenate([xf, np.zeros(ns)])
+    if xf.shape != (ng + ne + ns,) or not np.all(np.isfinite(xf)):
+        raise ValueError(f"x: expected {ng + ne + ns} finite values (the robot's {ng}, {ne} "
+                         f"effect parameters, then the tracker setup's {ns}), got shape "
+                         f"{xf.shape}")
+    nominal = np.zeros(ng + ne + ns)
+    pts = true_points(robot, setup, np.zeros(ng + ns), candidates.poses)
+    data = _exact(robot, nominal, candidates.q, candidates.poses, pts, candidates.payload,
+                  candidates.temperatures)
+    problem = TrackerEffectProblem(robot, setup, data)
+    mask = base_parameters(robot, data, xf) if report is None else np.asarray(report.active)
+    what = "point coordinates" if setup.kind == "points" else "probe coordinates"
+    return problem, xf, np.flatnonzero(mask), 3 * setup.n_points, what

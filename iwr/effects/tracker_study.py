@@ -13,7 +13,7 @@ import numpy as np
 
 from . import tracker as et
 
-__all__ = ["FRESH_PAYLOADS", "PAYLOADS", "trial"]
+__all__ = ["FRESH_PAYLOADS", "PAYLOADS", "job_trial", "trial"]
 
 #: The calibration's payloads (kg, centre of mass in {5} mm), taken in turn: none, an 80 kg head
 #: and a 60 kg tool off-axis, their centres not on one line with the platform's (so that the
@@ -27,6 +27,72 @@ def _rms(v: Any) -> float:
     return float(np.sqrt(np.mean(np.square(v))))
 
 
+def _noise() -> Any:
+    """The instruments' noise of the study: legs 2 um, joints 5 um and 5 urad, Leica's
+    tracker."""
+    from ..noise import Noise, TrackerNoise
+
+    return (Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), TrackerNoise.leica())
+
+
+def _case(robot: Any, seed: int, n_poses: int, n_fresh: int) -> tuple[np.ndarray, Any, Any]:
+    """Seed ``seed``'s true machine (:func:`_truth`), its calibration data with every
+    instrument's noise under :data:`PAYLOADS` (one reflector hidden at 10 % of the poses), and
+    its fresh poses without noise under :data:`FRESH_PAYLOADS` at 14 .. 30 C."""
+    rng = np.random.default_rng(seed)
+    truth = _truth(robot, rng)
+    seeds = rng.integers(2**31, size=2)
+    hidden = 0.1 if robot.tracker.kind == "points" else 0.0
+    data, _ = et.simulate(robot, n_poses, seed=int(seeds[0]), x=truth, noise=_noise(),
+                          payloads=PAYLOADS, hidden=hidden)
+    fresh, _ = et.simulate(robot, n_fresh, seed=int(seeds[1]), x=truth,
+                           payloads=FRESH_PAYLOADS, temperatures=14.0 + 16.0 * rng.random(n_fresh))
+    return truth, data, fresh
+
+
+def _truth(robot: Any, rng: np.random.Generator) -> np.ndarray:
+    """A true machine: geometric errors and setup uniform within their default bounds, leg
+    compliances of the file's value +-30 % per leg, the file's expansion coefficient."""
+    setup = robot.tracker
+    comp = robot.effects[0]
+    lo_g, hi_g = robot.default_bounds()
+    lo_s, hi_s = setup.default_bounds()
+    compliance = comp.compliance * (1.0 + 0.3 * (2.0 * rng.random(6) - 1.0))
+    return np.concatenate([lo_g + (hi_g - lo_g) * rng.random(robot.n_params),
+                           compliance - comp.compliance, [0.0],
+                           lo_s + (hi_s - lo_s) * rng.random(setup.n_params)])
+
+
+def job_trial(robot: Any, seed: int, method: str = "efficient", n_poses: int = 60,
+              n_fresh: int = 50) -> dict[str, Any]:
+    """One seed of the calibration job (:func:`iwr.calibrate` with the noise model, a fifth of
+    the poses held out) on clean data (no gross error) of a true machine as :func:`trial`
+    draws it: whether the job calibrated (fit test, the effects' range, the gross-error
+    screen), how many poses its outlier tests flagged (false alarms: the data have none), and
+    the tool position error on fresh poses with other loads and temperatures against the
+    truth, actual and predicted there by the job's covariance (the estimator's; for LM the
+    weighted objective's, :func:`iwr.uncertainty` with ``weighted=True``). Returns the figures
+    (mm)."""
+    from ..analysis.accuracy import accuracy
+    from ..calibration import calibrate
+
+    truth, data, fresh = _case(robot, seed, n_poses, n_fresh)
+    cal = calibrate(robot, data, method, noise=_noise(), seed=seed)
+    r = cal.result
+    unc = cal.uncertainty
+    cov = r.covariance if r.covariance is not None else unc.covariance
+    active = r.active if r.covariance is not None else unc.active
+    return {
+        "seed": seed, "method": method, "success": bool(cal.success),
+        "fit_ok": bool(cal.fit_ok), "p_value": float(r.fit.p_value),
+        "flagged": len(r.outliers or []),
+        "tool_rms": _rms(accuracy(robot, fresh, r.x, truth=truth).calibrated.position),
+        "predicted_rms": float(et.predicted_accuracy(robot, r.x, cov, active, fresh)
+                               .position_rms),
+        "validation_rms": _rms(cal.accuracy.calibrated.position),
+    }
+
+
 def trial(robot: Any, seed: int, n_poses: int = 60, n_fresh: int = 50) -> dict[str, Any]:
     """One seed: ``robot`` the nominal robot with a tracker and the realistic effects
     (:func:`iwr.effects.api.realistic`); the truth has random geometric errors and setup
@@ -37,26 +103,12 @@ def trial(robot: Any, seed: int, n_poses: int = 60, n_fresh: int = 50) -> dict[s
     ppm/K)."""
     from ..analysis.accuracy import accuracy
     from ..methods import identify
-    from ..noise import Noise, TrackerNoise
     from ..tracker.analysis import tool_frames as geometric_frames
     from ..tracker.gauge import _align
 
-    noise = (Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), TrackerNoise.leica())
-    rng = np.random.default_rng(seed)
+    noise = _noise()
     setup = robot.tracker
-    comp = robot.effects[0]
-    lo_g, hi_g = robot.default_bounds()
-    lo_s, hi_s = setup.default_bounds()
-    compliance = comp.compliance * (1.0 + 0.3 * (2.0 * rng.random(6) - 1.0))
-    truth = np.concatenate([lo_g + (hi_g - lo_g) * rng.random(robot.n_params),
-                            compliance - comp.compliance, [0.0],
-                            lo_s + (hi_s - lo_s) * rng.random(setup.n_params)])
-    seeds = rng.integers(2**31, size=2)
-    hidden = 0.1 if setup.kind == "points" else 0.0
-    data, _ = et.simulate(robot, n_poses, seed=int(seeds[0]), x=truth, noise=noise,
-                          payloads=PAYLOADS, hidden=hidden)
-    fresh, _ = et.simulate(robot, n_fresh, seed=int(seeds[1]), x=truth,
-                           payloads=FRESH_PAYLOADS, temperatures=14.0 + 16.0 * rng.random(n_fresh))
+    truth, data, fresh = _case(robot, seed, n_poses, n_fresh)
     out: dict[str, Any] = {"seed": seed}
     ext = identify(robot, data, "efficient", noise=noise)
     out["extended_fit_ok"] = bool(ext.success)

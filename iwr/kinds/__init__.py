@@ -80,6 +80,9 @@ class MeasurementKind(abc.ABC):
     #: Whether ``iwr-calibrate`` (the C++ engine) takes these data: their problem has a problem
     #: file (``problem.save``).
     engine: ClassVar[bool] = True
+    #: Whether the calibration job (:func:`iwr.calibrate`, ``iwr report``) models a robot's
+    #: non-geometric effects on these data (issue 23: every step of it, with the effects).
+    models_effects: ClassVar[bool] = False
     #: The report of a calibration on these data, ``"module:Class"`` (a subclass of
     #: :class:`iwr.reporting.calibration.CalibrationReport`), imported by the report layer.
     report: ClassVar[str] = "iwr.reporting.calibration:CalibrationReport"

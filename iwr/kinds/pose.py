@@ -39,6 +39,7 @@ class PoseKind(MeasurementKind):
     chi2_fit_test = True
     fallback = True
     weighted_objective = True
+    models_effects = True
     #: The figures of iwr compare and iwr study on pose data (MeasurementKind.experiment_text).
     experiment_text = {
         "cost": "eq. (10), the sum of squared leg residuals (mm^2)",

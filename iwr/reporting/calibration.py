@@ -675,14 +675,26 @@ class CalibrationReport(Calibration):
             "summary.json: the figures of this report", "report.md: this report as Markdown",
             *figures])
 
-    def _effects_html(self, page: Page) -> None:
-        """The effects' section (issue 23): the identified values with units and bounds."""
+    def _effects_md(self) -> list[str]:
+        """The effects' section of the Markdown report (issue 23; none without effects)."""
+        if not self.robot.effects:
+            return []
+        md = ["", "## Effects", "", *(f"- {ln.strip()}" for ln in self.effect_lines()[:1]),
+              "", "| parameter | value | file value | unit | range | status |",
+              "|---|---|---|---|---|---|"]
+        return md + [f"| {r['name']} | {r['value']:.5g} | {r['file_value']:.5g} | {r['unit']} | "
+                     f"{r['bounds'][0]:.3g} .. {r['bounds'][1]:.3g} | {r['status']} |"
+                     for r in self.effect_rows()]
+
+    def _effects_html(self, page: Page, objective: str = "eq. (10) with the effects") -> None:
+        """The effects' section (issue 23): the identified values with units and bounds,
+        identified on ``objective`` (the kind's words)."""
         if not self.robot.effects:
             return
         page.heading("Effects")
         page.paragraph("Non-geometric effects on: " + "; ".join(
             f"{e.name} ({e.description})" for e in self.robot.effects) + ". Identified with the "
-            "geometry (eq. (10) with the effects); calibrated.toml holds their values. The "
+            f"geometry ({objective}); calibrated.toml holds their values. The "
             "range is the plausible one of the robot file.")
         page.table((["parameter", "value", "file value", "unit", "range", "status"],
                     [[r["name"], f"{r['value']:.5g}", f"{r['file_value']:.5g}", r["unit"],
@@ -824,13 +836,7 @@ class CalibrationReport(Calibration):
             sd = "" if row["std"] is None else f"{row['std']:.3g}"
             md.append(f"| {row['name']} | {row['value']:.6g} | {sd} | {row['unit']} | "
                       f"{row['status']} |")
-        if self.robot.effects:
-            md += ["", "## Effects", "", *(f"- {ln.strip()}" for ln in self.effect_lines()[:1]),
-                   "", "| parameter | value | file value | unit | range | status |",
-                   "|---|---|---|---|---|---|"]
-            md += [f"| {r['name']} | {r['value']:.5g} | {r['file_value']:.5g} | {r['unit']} | "
-                   f"{r['bounds'][0]:.3g} .. {r['bounds'][1]:.3g} | {r['status']} |"
-                   for r in self.effect_rows()]
+        md += self._effects_md()
         md += self._tail_md([
             "- `calibrated.toml`: the calibrated robot (nominal plus identified errors"
             + (", with the identified effects' values)" if self.robot.effects else ")"),

@@ -59,11 +59,17 @@ class SetupParameters:
 
     @property
     def n_robot(self) -> int:
-        return self.robot.n_params
+        """The robot's parameters in ``x``: its errors, then its effects' (issue 23)."""
+        from ..effects import parameter_names as effect_names
+
+        return self.robot.n_params + len(effect_names(self.robot.effects))
 
     @property
     def parameter_names(self) -> list[str]:
-        return self.robot.parameter_names + self.setup.parameter_names
+        from ..effects import parameter_names as effect_names
+
+        return (self.robot.parameter_names + effect_names(self.robot.effects)
+                + self.setup.parameter_names)
 
     def _std(self) -> np.ndarray | None:
         unc = self.uncertainty
@@ -77,21 +83,33 @@ class SetupParameters:
         n = len(self.parameter_names)
         active = np.ones(n, bool) if active is None else np.asarray(active, dtype=bool)
         left_out = set(self.identifiability.left_out) if self.identifiability is not None else set()
+        # With effects on tracker data (issue 23): the platform frame's weak directions.
+        held = set(getattr(self.identifiability, "held", None) or [])
         std = self._std()
-        angles = np.concatenate([self.robot.angle_parameters, self.setup.angle_parameters])
+        from ..effects import parameter_names as effect_names
+
+        n_effects = len(effect_names(self.robot.effects))
+        angles = np.concatenate([self.robot.angle_parameters, np.zeros(n_effects, bool),
+                                 self.setup.angle_parameters])
+        # The effects' own units (issue 23: um/N, ppm/K), between the robot's and the setup's.
+        units = {n: u for n, u in zip(effect_names(self.robot.effects),
+                                      [u for e in self.robot.effects for u in e.units()],
+                                      strict=True)}
         x = np.asarray(self.result.x, dtype=float)
         rows = []
         for i, name in enumerate(self.parameter_names):
             if not active[i]:
                 status = ("held (null direction: not identifiable)" if name in left_out
-                          else "held fixed")
+                          else "held (the platform frame, fixed by the loads too weakly)"
+                          if name in held else "held fixed")
             elif name in left_out:
                 status = "identified, but on a null direction: arbitrary"
             else:
                 status = "identified"
             sd = None if std is None or not np.isfinite(std[i]) else float(std[i])
             rows.append({"name": name, "value": float(x[i]), "std": sd,
-                         "unit": "rad" if angles[i] else "mm", "status": status})
+                         "unit": units.get(name, "rad" if angles[i] else "mm"),
+                         "status": status})
         return rows
 
     def null_text(self, terms: int = 4) -> str:

@@ -33,6 +33,14 @@ def _fmt(v: float, spec: str) -> str:
     return format(v, spec) if math.isfinite(v) else "-"
 
 
+#: What the effects are identified with on tracker data (issue 23), in the report's words.
+_EFFECTS_OBJECTIVE = ("the point objective with the effects: forward kinematics under each "
+                      "pose's load and temperature, gravity given in {T} and carried into {0} by "
+                      "the identified registration; calibrated.toml's platform frame {5} is the "
+                      "one the measured points fix, the platform's centre of mass moved with it, "
+                      "and the data's payload centres are read in that frame")
+
+
 class TrackerCalibrationReport(SetupParameters, CalibrationReport):
     """A calibration run on laser-tracker data (docs/tracker.md): the same report as for leg
     data, with what belongs to tracker data.
@@ -57,13 +65,12 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         """The problem of ``data`` and its "before" point: the nominal robot with the data's own
         registration guess (or, for data too few for one, with the identified setup)."""
         from ..tracker.registration import RegistrationError
-        from ..tracker.start import tracker_problem
 
-        try:
-            return tracker_problem(self.robot, data)
+        try:  # the kind's problem: with the effects, if any (issue 23)
+            return self.kind.problem(self.robot, data)
         except RegistrationError:
             x = np.asarray(self.result.x, dtype=float)
-            problem, _ = tracker_problem(self.robot, data, x0=x)
+            problem, _ = self.kind.problem(self.robot, data, x0=x)
             return problem, np.concatenate([np.zeros(self.n_robot), x[self.n_robot:]])
 
     def costs(self) -> dict[str, float]:
@@ -184,10 +191,21 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
                          f"{math.degrees(float(np.linalg.norm(off[3:]))):.5f}"])
         return rows
 
+    def _held(self) -> str:
+        """With effects (issue 23): the parameters the objective determines, weakly, but the
+        calibration held (:class:`iwr.effects.tracker.EffectNullSpace`'s ``held``)."""
+        held = list(getattr(self.identifiability, "held", None) or [])
+        if not held:
+            return ""
+        return (f"; {len(held)} more held: the directions of the platform frame {{5}} that "
+                "only the loads' centres of mass fix, too weakly for noisy data "
+                "(docs/effects.md, \"Tracker data\")")
+
     def null_sentence(self) -> str:
         ns = self.identifiability
         if ns is None:
             return ""
+        held = self._held()
         return (f"Tracker data determine {ns.rank} of the {len(ns.parameter_names)} parameters: "
                 f"{len(ns.left_out)} directions are null, because the registration absorbs a "
                 "rigid motion of the whole robot that its own parameters can also make (a turn "
@@ -196,7 +214,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
                 "reflectors together on the platform changes nothing measured), and leg data "
                 "have six null directions of their own. One parameter per direction is held; "
                 "the tool pose in the tracker frame does not depend on the choice "
-                "(docs/tracker.md).")
+                "(docs/tracker.md)." + (f" With the effects, {held.removeprefix('; ')}."
+                                        if held else ""))
 
     def to_dict(self) -> dict[str, Any]:
         hidden, total = self.hidden_counts()
@@ -251,7 +270,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         ]
         if ns is not None:
             lines.append(f"identifiability: rank {ns.rank} of {len(ns.parameter_names)}, "
-                         f"{len(ns.left_out)} null directions (docs/tracker.md)")
+                         f"{len(ns.left_out)} null directions (docs/tracker.md)" + self._held())
+        lines += self.effect_lines()
         lines += [
             f"accuracy on {acc.n_poses} {where} poses: largest predicted-minus-measured point "
             "distance per pose, and the rotation between predicted and measured points:",
@@ -368,6 +388,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         if unc is not None:
             page.paragraph(f"Standard deviations: {unc.describe()}.")
         page.table(self.parameter_table(), "params")
+        self._effects_html(page, _EFFECTS_OBJECTIVE)
         ns = self.identifiability
         if ns is not None:
             page.heading("Identifiability")
@@ -413,6 +434,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
             md += ["", "![Point residuals per reflector](residuals.png)"]
         md += ["", "## Identified parameters", "",
                *table(*self.parameter_table())]
+        md += self._effects_md()
         if self.identifiability is not None:
             md += ["", "## Identifiability", "", self.null_sentence(), "", "```",
                    self.null_text(), "```"]
@@ -478,13 +500,12 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         """``calibrated.toml`` (the calibrated robot with its calibrated ``[tracker]`` table),
         ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the report
         (``report.html``, ``report.md``) into ``out``; returns the paths written."""
-        from ..tracker.analysis import fix_platform_frame
+        from ..tracker.analysis import calibrated_robot
 
         # The same model with {5} moved to the frame the measured points fix (the data do not
-        # fix {5}): a pose of {5} in {T} then means what a user measures (iwr legs).
-        x, frame = fix_platform_frame(self.robot, self.setup, self.result.x)
-        calibrated = self.robot.with_errors(x[:self.n_robot]).with_tracker(
-            setup=self.setup.with_parameters(x[self.n_robot:]))
+        # fix {5}): a pose of {5} in {T} then means what a user measures (iwr legs); with
+        # effects, their identified values and the platform's centre of mass moved with {5}.
+        calibrated, frame = calibrated_robot(self.robot, self.result.x)
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
         calibrated.to_toml(written[0], provenance=self.file_provenance(platform_frame=frame))
         self.result.save(written[1])

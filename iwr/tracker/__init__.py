@@ -15,7 +15,14 @@ from typing import TYPE_CHECKING
 from .._hooks import lazy_package
 
 if TYPE_CHECKING:  # the same names for type checkers (and for tools/layers.py)
-    from .analysis import NullSpace, fix_platform_frame, null_space, tool_frames, tool_pose_errors
+    from .analysis import (
+        NullSpace,
+        calibrated_robot,
+        fix_platform_frame,
+        null_space,
+        tool_frames,
+        tool_pose_errors,
+    )
     from .api import (
         tracker_accuracy,
         tracker_forward_kinematics,
@@ -36,6 +43,7 @@ if TYPE_CHECKING:  # the same names for type checkers (and for tools/layers.py)
 _LAZY = {
     "NullSpace": ".analysis",
     "fix_platform_frame": ".analysis",
+    "calibrated_robot": ".analysis",
     "null_space": ".analysis",
     "tool_frames": ".analysis",
     "tool_pose_errors": ".analysis",
@@ -81,6 +89,7 @@ __all__ = [
     "TrackerProblem",
     "TrackerSetup",
     "fix_platform_frame",
+    "calibrated_robot",
     "guess_registration",
     "is_tracker_file",
     "read_tracker_data",

@@ -15,7 +15,8 @@ from .gauge import NullSpace, _align, _fk, null_space
 from .registration import kabsch
 from .setup import TrackerSetup
 
-__all__ = ["tool_frames", "tool_pose_errors", "NullSpace", "null_space", "fix_platform_frame"]
+__all__ = ["tool_frames", "tool_pose_errors", "NullSpace", "null_space", "fix_platform_frame",
+           "calibrated_robot"]
 
 
 def tool_frames(robot: Robot, setup: TrackerSetup, x: Any, q: Any, legs: Any,
@@ -60,6 +61,14 @@ def fix_platform_frame(robot: Robot, setup: TrackerSetup, x: Any) -> tuple[np.nd
     - ``"joints"``: with fewer than 3 reflectors (or all on one line), which fix no frame, the
       frame in which the spherical joints best fit their nominal positions.
     """
+    x, kind, _ = _moved_platform_frame(robot, setup, x)
+    return x, kind
+
+
+def _moved_platform_frame(robot: Robot, setup: TrackerSetup, x: Any
+                          ) -> tuple[np.ndarray, str, np.ndarray]:
+    """:func:`fix_platform_frame`, and the move (4, 4): a point of the old {5} at ``c`` is at
+    ``move[:3, :3] @ c + move[:3, 3]`` in the new one."""
     x = np.array(x, dtype=float, copy=True)
     nr, n = robot.n_params, robot.n_joints
     joints = slice(4 * n + 18, 4 * n + 36)
@@ -87,7 +96,35 @@ def fix_platform_frame(robot: Robot, setup: TrackerSetup, x: Any) -> tuple[np.nd
         x[nr + 6:nr + 12] = 0.0  # the probe at its nominal pose in the new frame
     else:
         x[nr + 6:] = (setup.platform_points(xs) @ rot.T + shift - setup.reflectors).ravel()
-    return x, kind
+    return x, kind, g
+
+
+def calibrated_robot(robot: Robot, x: Any) -> tuple[Robot, str]:
+    """The calibrated robot of ``x`` (the robot's errors, its effects' parameters if it has
+    effects, then the tracker setup's), as ``calibrated.toml`` holds it, and the name of its
+    platform frame: {5} moved to the frame the measured points fix (:func:`fix_platform_frame`),
+    and what each effect holds in {5} (the platform's centre of mass) moved with it
+    (:meth:`iwr.effects.Effect.in_platform_frame`), so that the written robot predicts what
+    ``x`` predicts. The loads' centres of the data (``payload_*`` columns) are in the frame the
+    robot file's {5} is: with the calibrated robot, in the new one (a centre ``c`` given in the
+    frame ``x`` was identified in is at ``R c + t`` there, ``(R, t)`` the move)."""
+    from ..effects import parameter_names as effect_names
+
+    setup = robot.tracker
+    assert setup is not None
+    x = np.asarray(x, dtype=float)
+    nr, ne = robot.n_params, len(effect_names(robot.effects))
+    xf, kind, g = _moved_platform_frame(robot, setup, np.concatenate([x[:nr], x[nr + ne:]]))
+    out = robot.with_errors(xf[:nr]).with_tracker(setup=setup.with_parameters(xf[nr:]))
+    if robot.effects:
+        effects, k = [], nr
+        for e in robot.effects:
+            m = len(e.parameter_names())
+            e = e.with_values(e.values() + x[k: k + m]) if m else e
+            effects.append(e.in_platform_frame(g[:3, :3], g[:3, 3]))
+            k += m
+        out = out.with_effects(*effects)
+    return out, kind
 
 
 def tool_pose_errors(robot: Robot, setup: TrackerSetup, x: Any, truth: Any, q: Any, legs: Any,

@@ -308,7 +308,7 @@ def tracker_predicted_accuracy(robot: Robot, x: Any, covariance: Any, active: An
 
 
 def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
-                        noise: Any = None) -> Any:
+                        noise: Any = None, problem: Any = None) -> Any:
     """:class:`iwr.misclosures.Misclosures` of tracker data at ``x`` (robot then setup
     parameters): per pose the predicted minus measured points in {T} (the reflectors, or the
     probe's four virtual points; NaN where unseen or where the forward kinematics fails), their
@@ -318,15 +318,20 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
     y, z in {T} (a probe's position and its rotation about the axes of {T}). With ``noise`` (the
     pair ``(Noise, TrackerNoise)``) the readings' covariance: the legs and joints, each point's
     anisotropic covariance (:meth:`TrackerNoise.whitening`, or the file's own uncertainties);
-    without, the unweighted point objective's identity metric."""
-    from ..implicit_loop import _core_rotations, loop_jacobians
+    without, the unweighted point objective's identity metric. ``problem``: the tracker
+    problem of ``measurements`` (default :func:`tracker_problem`'s; a robot with effects:
+    :class:`iwr.effects.tracker.TrackerEffectProblem`, ``x`` its robot's, effects' then setup's
+    parameters)."""
+    from ..implicit_loop import _core_rotations
     from ..misclosures import Misclosures
 
     setup = _setup(robot)
     x = np.asarray(x, dtype=float)
-    nr, nj, n = robot.n_params, robot.n_joints, len(measurements)
-    # The problem identify evaluated (within a calibration job: the same object, iwr.kinds.reuse).
-    problem, _ = tracker_problem(robot, measurements, x0=x)
+    if problem is None:
+        # The problem identify evaluated (within a calibration job: the same object,
+        # iwr.kinds.reuse).
+        problem, _ = tracker_problem(robot, measurements, x0=x)
+    nr, nj, n = problem.n_params - setup.n_params, robot.n_joints, len(measurements)
     m = problem.n_residuals // n
     measured = measurements.tracker_points(setup).reshape(n, m)
     r = problem.residuals(x).reshape(n, m)
@@ -335,7 +340,7 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
     ok = np.all(np.isfinite(poses), axis=1)
     r = np.where(np.isfinite(measured) & ok[:, None], r, np.nan)
     safe = np.where(ok[:, None], poses, robot.home_pose)
-    _, _, jy = loop_jacobians(robot, x[:nr], measurements.q, safe)
+    jy = problem.loop_jacobian(x, safe)
     g_legs = np.linalg.inv(jy[:, :, nj:])  # d (dp, w) / d legs
     g_q = -g_legs @ jy[:, :, :nj]
     reg = setup.registration_matrix(x[nr:])

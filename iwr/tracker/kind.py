@@ -43,6 +43,7 @@ _GAUGE = ("Tracker data do not fix {0} nor {5} (docs/tracker.md): every figure h
 class _TrackerKind(MeasurementKind):
     frame = "{T}"
     determines_world_frame = False
+    models_effects = True  # issue 23: the point (probe) objective with the effects (numpy)
     report = "iwr.reporting.tracker_calibration:TrackerCalibrationReport"
     #: The figures of iwr compare and iwr study on tracker data (MeasurementKind.experiment_text).
     experiment_text = {
@@ -145,14 +146,10 @@ class _TrackerKind(MeasurementKind):
             raise ValueError(f"noise: {self.name} data have no noise-weighted objective (a "
                              "probe's four points move rigidly: their covariance is singular); "
                              "the efficient estimator weighs them by their noise")
-        if robot.effects:  # issue 23: the point objective with the effects (C++ for the engine)
-            if noise is not None:
-                raise ValueError(f"noise: robot {robot.name!r} has effects on; on tracker data "
-                                 "the engine minimises the unweighted point objective with the "
-                                 "effects (docs/effects.md)")
+        if robot.effects:  # issue 23: the point objective with the effects (numpy)
             from ..effects.tracker import effect_tracker_problem
 
-            return effect_tracker_problem(robot, data, bounds, x0)
+            return effect_tracker_problem(robot, data, bounds, x0, noise=noise)
         return tracker_problem(robot, data, bounds, x0, noise=noise)
 
     def registration(self, robot: Any, x_setup: Any = None) -> np.ndarray:
@@ -191,7 +188,12 @@ class _TrackerKind(MeasurementKind):
         return lo + (hi - lo) * rng.random(lo.size)
 
     def angle_parameters(self, robot: Any) -> np.ndarray:
-        return np.concatenate([robot.angle_parameters, robot.tracker.angle_parameters])
+        from ..effects import parameter_names as effect_names
+
+        # The effects' parameters (issue 23) between the robot's and the setup's: none an angle.
+        return np.concatenate([robot.angle_parameters,
+                               np.zeros(len(effect_names(robot.effects)), dtype=bool),
+                               robot.tracker.angle_parameters])
 
     def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         return tracker_accuracy(robot, data, x, truth=truth)
@@ -225,7 +227,13 @@ class _TrackerKind(MeasurementKind):
         return tracker_identifiability(robot, data, x, rtol=options.get("rtol"))
 
     def uncertainty(self, robot: Any, data: Any, x: Any, noise: Any, **options: Any) -> Any:
-        return _tracker_uncertainty(robot, data, x, noise, options.get("active"))
+        if robot.effects:  # issue 23: the loop closure with the effects
+            from ..effects.tracker import uncertainty as uncertainty_effects
+
+            return uncertainty_effects(robot, data, x, noise, options.get("active"),
+                                       bool(options.get("weighted")))
+        return _tracker_uncertainty(robot, data, x, noise, options.get("active"),
+                                    bool(options.get("weighted")))
 
     def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
         if robot.effects:  # issue 23: the loop closure with the effects (numpy solver)
@@ -256,15 +264,26 @@ class _TrackerKind(MeasurementKind):
         return tp.parameter_names, limit, centre, tracker_readings(tp)
 
     def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        if robot.effects:  # issue 23: the loop closure with the effects
+            from ..effects.tracker import misclosures as misclosures_effects
+
+            return misclosures_effects(robot, data, x, noise)
         return tracker_misclosures(robot, data, x, noise)
 
     def candidate_poses(self, robot: Any, data: Any) -> Any:
-        # Tracker data hold no world pose: the nominal robot's forward kinematics gives it.
-        poses = forward_kinematics(robot, np.zeros(robot.n_params), data.q, data.legs)
-        return Measurements(data.q, poses, data.legs, joint_types=robot.joint_types)
+        # Tracker data hold no world pose: the nominal robot's forward kinematics gives it (the
+        # geometry's; with effects the loads and temperatures kept for the design).
+        poses = forward_kinematics(robot.with_effects(), np.zeros(robot.n_params), data.q,
+                                   data.legs)
+        return Measurements(data.q, poses, data.legs, joint_types=robot.joint_types,
+                            payload=data.payload, temperatures=data.temperatures)
 
     def design(self, robot: Any, candidates: Any, x: Any, report: Any
                ) -> tuple[Any, np.ndarray, np.ndarray, int, str]:
+        if robot.effects:  # issue 23: the point objective with the effects, under the loads
+            from ..effects.tracker import design as design_effects
+
+            return design_effects(robot, candidates, x, report)
         return tracker_design(robot, candidates, x, report)
 
     def measure(self, robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, noise: Any,
@@ -291,12 +310,16 @@ class _TrackerKind(MeasurementKind):
         return registration_guess(robot, data)
 
     def job_lines(self, robot: Any, data: Any, n_identification: int, method: str) -> list[str]:
+        from ..effects import parameter_names as effect_names
+
         setup = robot.tracker
+        n_effects = len(effect_names(robot.effects))
         return [f"tracker data: {len(data)} poses, {setup.kind}"
                 + (f" (K = {setup.n_reflectors})" if setup.kind == "points" else "")
-                + f"; identifying {robot.n_params} robot + {setup.n_params} setup parameters "
-                f"with {method} ({n_identification} poses), from the nominal robot and the "
-                "closed-form registration guess"]
+                + f"; identifying {robot.n_params} robot + "
+                + (f"{n_effects} effect + " if n_effects else "")
+                + f"{setup.n_params} setup parameters with {method} ({n_identification} poses), "
+                "from the nominal robot and the closed-form registration guess"]
 
     def weighting_note(self, data: Any, method: str, data_name: str) -> str:
         if data.point_sigma is None or method != "efficient":
@@ -307,6 +330,11 @@ class _TrackerKind(MeasurementKind):
     def predicted_accuracy(self, robot: Any, data: Any, x: Any, covariance: Any, active: Any,
                            seed: int) -> Any:
         from .estimation import tracker_predicted_accuracy
+
+        if robot.effects:  # issue 23: under each pose's load and temperature
+            from ..effects.tracker import predicted_accuracy as predicted_effects
+
+            return predicted_effects(robot, x, covariance, active, data, seed=seed)
 
         return tracker_predicted_accuracy(robot, x, covariance, active, data.q, data.legs,
                                           seed=seed)
@@ -338,7 +366,7 @@ class PointsKind(_TrackerKind):
             raise ValueError("noise: the chi-square test on tracker data needs the tracker's "
                              "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
         x = np.asarray(x, dtype=float)
-        tp, _ = tracker_problem(robot, data, None, x)
+        tp, _ = self.problem(robot, data, None, x)  # with the effects, if any (issue 23)
         n = tp.n_poses
         w = _whitening(point_covariances(tp, x, readings, tracker), tp.seen, data)
         r, jac = tp.residuals_and_jacobian(x)

@@ -152,11 +152,7 @@ class TrackerProblem(ProblemBase):
     # -- the objective --------------------------------------------------------------------------
     def _whiten(self, r: np.ndarray) -> np.ndarray:
         """``W_k r_k`` per pose of residuals (or Jacobian rows) ``r`` (n_residuals, ...)."""
-        if self.whitening is None:
-            return r
-        n = self.n_poses
-        blocks = r.reshape(n, -1, *r.shape[1:])
-        return np.einsum("kij,kj...->ki...", self.whitening, blocks).reshape(r.shape)
+        return whiten(self.whitening, r)
 
     def cost(self, x: Any) -> float:
         """Sum of squared residuals (mm^2; weighted: dimensionless)."""
@@ -190,6 +186,16 @@ class TrackerProblem(ProblemBase):
         return self._objective.cost_batch(X, 0 if workers is None else int(workers))
 
     # -- diagnostics ----------------------------------------------------------------------------
+    def loop_jacobian(self, x: Any, poses: np.ndarray) -> np.ndarray:
+        """The derivative (N, 6, n_joints + 6) of the predicted leg readings in the joint
+        readings and the platform pose's correction ``(dp, w)`` at ``poses`` (the loop closure,
+        :func:`iwr.implicit_loop.loop_jacobians`): what the readings' noise is propagated
+        through (:func:`point_covariances`, the gross-error screen's misclosures)."""
+        from ..implicit_loop import loop_jacobians
+
+        x = self._x(x)
+        return loop_jacobians(self.robot, x[:self.robot.n_params], self.measurements.q, poses)[2]
+
     def failures(self, x: Any) -> list[tuple[int, str]]:
         """Poses whose forward kinematics fails at ``x``: ``[(pose index, message)]``."""
         return [(int(k), str(m)) for k, m in self._objective.failures(self._x(x))]
@@ -216,13 +222,13 @@ def point_covariances(problem: TrackerProblem, x: Any, readings: Any, tracker: A
     (``readings``, an :class:`iwr.Noise`, or None for none) propagated into the predicted points:
     ``G diag(sigma_q^2, sigma_legs^2) G^T``, ``G`` the derivative of the predicted points with
     respect to the joint and leg readings by implicit differentiation of the loop closure
-    (:func:`iwr.estimation.loop_jacobians`). Rows and columns of unseen points are zero."""
-    from ..implicit_loop import loop_jacobians
-    from ..transforms import pose_matrix
-
+    (:func:`iwr.estimation.loop_jacobians`). Rows and columns of unseen points are zero.
+    ``problem``: any tracker problem with ``loop_jacobian`` (a robot with effects:
+    :class:`iwr.effects.tracker.TrackerEffectProblem`, ``x`` its robot's, effects' then setup's
+    parameters)."""
     robot, setup, m = problem.robot, problem.setup, problem.measurements
     x = problem._x(x)
-    nr, nj, n = robot.n_params, robot.n_joints, problem.n_poses
+    nr, n = problem.n_params - setup.n_params, problem.n_poses
     local = setup.platform_points(x[nr:])
     npt = len(local)
     cov = np.zeros((n, 3 * npt, 3 * npt))
@@ -236,29 +242,55 @@ def point_covariances(problem: TrackerProblem, x: Any, readings: Any, tracker: A
         elif tracker is not None:
             cov[seen[:, i], block, block] = tracker.covariance(pts[seen[:, i], i])
     if readings is not None and not readings.is_zero:
-        poses = problem.platform_poses(x)
-        bad = np.flatnonzero(~np.all(np.isfinite(poses), axis=1))
-        if bad.size:
-            raise ValueError(f"noise: {m.where(int(bad[0]))}: no forward kinematics at the "
-                             "point where the weights are evaluated")
-        _, _, jy = loop_jacobians(robot, x[:nr], m.q, poses)
-        # Loop closure f(q + dq, pose (+) (dp, w)) = legs: the pose's change per reading.
-        rhs = np.concatenate([-jy[:, :, :nj], np.broadcast_to(np.eye(6), (n, 6, 6))], axis=2)
-        d_pose = np.linalg.solve(jy[:, :, nj:], rhs)  # (N, 6, nj + 6): d (dp, w) / d (q, legs)
-        r0 = setup.registration_matrix(x[nr:])[:3, :3]
-        rot = pose_matrix(poses)[:, :3, :3]
-        d_pts = np.zeros((n, 3 * npt, 6))
-        for i, r in enumerate(local):
-            skew = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
-            d_pts[:, 3 * i:3 * i + 3, :3] = r0
-            d_pts[:, 3 * i:3 * i + 3, 3:] = -r0 @ rot @ skew  # R exp([w]x) r = R r - R [r]x w
-        g = d_pts @ d_pose
+        g = reading_jacobian(problem, x)
         prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
         var = np.concatenate([np.where(prism, readings.joint_lengths, readings.joint_angles),
                               np.full(6, readings.legs)]) ** 2
         mask = np.repeat(seen, 3, axis=1).astype(float)
         cov += np.einsum("kip,p,kjp->kij", g, var, g) * mask[:, :, None] * mask[:, None, :]
     return cov
+
+
+def reading_jacobian(problem: Any, x: Any,
+                     what: str = "noise: the point where the weights are evaluated") -> np.ndarray:
+    """The derivative (N, 3 K, n_joints + 6) of the predicted points of ``problem`` (a tracker
+    problem with ``loop_jacobian``) at ``x`` in the joint readings, then the leg readings: the
+    platform pose's change per reading by implicit differentiation of the loop closure
+    ``f(q + dq, pose (+) (dp, w)) = legs``, moving the points in {5} into {T}. ValueError
+    naming the first pose whose forward kinematics fails at ``x`` (``what``: the argument at
+    fault and what ``x`` is)."""
+    from ..transforms import pose_matrix
+
+    robot, setup, m = problem.robot, problem.setup, problem.measurements
+    x = problem._x(x)
+    nr, nj, n = problem.n_params - setup.n_params, robot.n_joints, problem.n_poses
+    local = setup.platform_points(x[nr:])
+    poses = problem.platform_poses(x)
+    bad = np.flatnonzero(~np.all(np.isfinite(poses), axis=1))
+    if bad.size:
+        head, _, at = what.partition(": ")
+        raise ValueError(f"{head}: {m.where(int(bad[0]))}: no forward kinematics at {at}")
+    jy = problem.loop_jacobian(x, poses)
+    # Loop closure f(q + dq, pose (+) (dp, w)) = legs: the pose's change per reading.
+    rhs = np.concatenate([-jy[:, :, :nj], np.broadcast_to(np.eye(6), (n, 6, 6))], axis=2)
+    d_pose = np.linalg.solve(jy[:, :, nj:], rhs)  # (N, 6, nj + 6): d (dp, w) / d (q, legs)
+    r0 = setup.registration_matrix(x[nr:])[:3, :3]
+    rot = pose_matrix(poses)[:, :3, :3]
+    d_pts = np.zeros((n, 3 * len(local), 6))
+    for i, r in enumerate(local):
+        skew = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
+        d_pts[:, 3 * i:3 * i + 3, :3] = r0
+        d_pts[:, 3 * i:3 * i + 3, 3:] = -r0 @ rot @ skew  # R exp([w]x) r = R r - R [r]x w
+    return d_pts @ d_pose
+
+
+def whiten(whitening: np.ndarray | None, r: np.ndarray) -> np.ndarray:
+    """``W_k r_k`` per pose of residuals (or Jacobian rows) ``r`` (n_residuals, ...), pose-major,
+    with ``whitening`` (N, m, m); ``r`` itself when None (unweighted)."""
+    if whitening is None:
+        return r
+    blocks = r.reshape(len(whitening), -1, *r.shape[1:])
+    return np.einsum("kij,kj...->ki...", whitening, blocks).reshape(r.shape)
 
 
 def _given_whitening(whitening: Any, n: int, m: int) -> np.ndarray:
