@@ -133,17 +133,34 @@ def _studentize_p(test: str, value: float, f: int, in_fit: bool) -> float:
 
 
 class _Whitened:
-    """Per pose: the rows that carry data, the Cholesky factor of their covariance, and the
-    whitened misclosures, parameter derivatives and reading columns."""
+    """Per pose: the rows that carry data, and the misclosures, parameter derivatives and
+    reading columns whitened by their covariance: by its Cholesky factor, one whitened
+    component per row; or, when the covariance is singular (a probe's twelve point misclosures
+    move as one rigid pose: rank 6), by its eigenvectors of non-zero variance, one component
+    per direction the noise reaches (the misclosures have nothing in the others)."""
+
+    #: A covariance whose smallest eigenvalue is below this fraction of its largest is singular.
+    SINGULAR = 1e-10
 
     def __init__(self, mis: Misclosures, k: int, active: np.ndarray) -> None:
         self.rows = np.isfinite(mis.r[k])
         c = mis.covariance(k, self.rows)
-        self.chol = np.linalg.cholesky(c)
-        solve = np.linalg.solve
-        self.r = solve(self.chol, mis.r[k][self.rows])
-        self.a = solve(self.chol, mis.a[k][self.rows][:, active])
-        self.b = solve(self.chol, mis.b[k][self.rows])
+        vals, vecs = np.linalg.eigh(c)
+        self.full_rank = bool(vals[0] > self.SINGULAR * vals[-1])
+        if self.full_rank:
+            chol = np.linalg.cholesky(c)
+
+            def whiten(v: np.ndarray) -> np.ndarray:
+                return np.linalg.solve(chol, v)
+        else:
+            keep = vals > self.SINGULAR * vals[-1]
+            w = (vecs[:, keep] / np.sqrt(vals[keep])).T
+
+            def whiten(v: np.ndarray) -> np.ndarray:
+                return w @ v
+        self.r = whiten(mis.r[k][self.rows])
+        self.a = whiten(mis.a[k][self.rows][:, active])
+        self.b = whiten(mis.b[k][self.rows])
 
 
 def _normal_pinv(blocks: list[_Whitened]) -> tuple[np.ndarray, int]:
@@ -205,6 +222,10 @@ def find_gross_errors(robot: Any, identification: Any, x: Any, noise: Any = None
     mis = kind.misclosures(robot, identification, x, noise)
     rows = [k for k in np.flatnonzero(used_mask) if np.any(np.isfinite(mis.r[k]))]
     blocks = {int(k): _Whitened(mis, int(k), act) for k in rows}
+    if test == "tau" and not all(b.full_rank for b in blocks.values()):
+        raise ValueError(f"{kind.description} misclosures: a singular metric without a noise "
+                         "model; Pope's test needs one variance per component (give a noise "
+                         "model)")
     n_inv, rank = _normal_pinv(list(blocks.values()))
     m_total = sum(b.r.size for b in blocks.values())
     f = m_total - rank
