@@ -18,7 +18,8 @@ engine's own log (``--log``: its ``elapsed`` column, taken in C++); over ``--run
 seed (the same work generation by generation) the minimum of each generation, then the median of
 these minima over generations 50..; beside it ``Problem.cost_batch`` of NP = 600 random vectors
 within the bounds on the same threads in that build's Python (the same C++ objective), the minimum
-over rounds spread over ``--seconds``. The issue's targets: 2 threads at least 1.8x the generations/s
+over rounds spread over ``--seconds``. The issue's targets: 2 threads at least 1.8x the
+generations/s
 of 1, a generation at most 1.1x one cost_batch on the same threads. It also checks that the logs'
 best and mean columns are the same bits whatever the thread count.
 """
@@ -67,7 +68,7 @@ class Engine:
                        check=True, cwd=self.tmp, stdout=subprocess.DEVNULL)
         rows = [line.split(",") for line in log.read_text().splitlines()[1:]]
         elapsed = [float(r[5]) for r in rows]
-        return ([1e3 * (b - a) for a, b in zip(elapsed, elapsed[1:])],
+        return ([1e3 * (b - a) for a, b in zip(elapsed, elapsed[1:], strict=False)],
                 [r[2] + "," + r[3] for r in rows])
 
     def batch(self, threads: list[int], seconds: float) -> dict[int, float]:
@@ -76,7 +77,8 @@ class Engine:
         code = (
             "import sys, time, numpy as np, iwr\n"
             "p = iwr.Problem.load(sys.argv[1])\n"
-            "X = p.lower + (p.upper - p.lower) * np.random.default_rng(1).random((600, p.n_params))\n"
+            "X = p.lower + (p.upper - p.lower) * "
+            "np.random.default_rng(1).random((600, p.n_params))\n"
             "ts = [int(t) for t in sys.argv[2].split(',')]; best = {t: 1e9 for t in ts}\n"
             "t0 = time.perf_counter()\n"
             "while time.perf_counter() - t0 < float(sys.argv[3]):\n"
@@ -107,7 +109,8 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3)
     ap.add_argument("--scaling", action="store_true",
                     help="per-generation times from the engine's log (see above)")
-    ap.add_argument("--runs", type=int, default=7, help="--scaling: runs per build and thread count")
+    ap.add_argument("--runs", type=int, default=7,
+                    help="--scaling: runs per build and thread count")
     ap.add_argument("--scaling-generations", type=int, default=400)
     ap.add_argument("--seconds", type=float, default=15.0, help="--scaling: cost_batch rounds")
     args = ap.parse_args()
@@ -142,8 +145,9 @@ def scaling(args: argparse.Namespace) -> None:
     threads = [int(t) for t in args.threads.split(",")]
     specs = args.build or [f"this={Path(sys.executable).parent}"]
     gens = args.scaling_generations
-    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at start; iwr-engine, NP 600, "
-          f"{gens} generations x {args.runs} runs: per generation the minimum over the runs, then the "
+    print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at start; iwr-engine, "
+          f"NP 600, {gens} generations x {args.runs} runs: per generation the minimum over the "
+          "runs, then the "
           "median over generations 50..; cost_batch of 600 vectors, wall time, the minimum over "
           f"rounds spread over {args.seconds:g} s")
     with tempfile.TemporaryDirectory() as tmp:

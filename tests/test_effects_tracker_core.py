@@ -11,9 +11,8 @@ import pytest
 
 import iwr
 from iwr import _core, kinds
-from iwr.effects import api
+from iwr.effects import api, tracker_study
 from iwr.effects import tracker as et
-from iwr.effects import tracker_study
 from iwr.effects.builtin import LegCompliance, LegThermal
 from iwr.problem_file import encode_problem, read_problem
 

@@ -162,11 +162,11 @@ def test_cost_matches_numpy_and_residuals(joint_types, n, weighted):
         np.testing.assert_array_equal(res2, res)
 
 
-# The AVX2 and AVX-512 variants fuse the multiply-adds the kernel writes as fma/fms; the SSE2 baseline
-# (CPUs without FMA) rounds them twice, in the order of operations it had before the FMA variants
-# (its bits unchanged). Measured over CASES (this module's random data, 18 vectors each across the
-# default, paper and wide bounds): the costs differ by at most 2.4e-15 relative (1.2e-14 over 600
-# DE vectors at N = 100), the residuals by at most 1.8e-12 mm.
+# The AVX2 and AVX-512 variants fuse the multiply-adds the kernel writes as fma/fms; the SSE2
+# baseline (CPUs without FMA) rounds them twice, in the order of operations it had before the FMA
+# variants (its bits unchanged). Measured over CASES (this module's random data, 18 vectors each
+# across the default, paper and wide bounds): the costs differ by at most 2.4e-15 relative
+# (1.2e-14 over 600 DE vectors at N = 100), the residuals by at most 1.8e-12 mm.
 BASELINE_COST_RTOL = 1e-13
 BASELINE_RESIDUAL_ATOL = 1e-10  # mm
 
@@ -175,7 +175,8 @@ def assert_same_to_rounding(got, base, err_msg):
     """The baseline against an FMA variant: (costs, costs, costs, residuals) of the test below."""
     for a, b in zip(got[:3], base[:3], strict=True):
         np.testing.assert_allclose(a, b, rtol=BASELINE_COST_RTOL, atol=0, err_msg=err_msg)
-    np.testing.assert_allclose(got[3], base[3], rtol=0, atol=BASELINE_RESIDUAL_ATOL, err_msg=err_msg)
+    np.testing.assert_allclose(got[3], base[3], rtol=0, atol=BASELINE_RESIDUAL_ATOL,
+                               err_msg=err_msg)
 
 
 @pytest.mark.parametrize(("joint_types", "n", "weighted"), CASES[::3])

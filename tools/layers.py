@@ -46,7 +46,8 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.effects.gravity", "iwr.effects.tracker_objective"]),
     ("the problem file (iwr-engine's input and result)", ["iwr.problem_file"]),
     ("solvers, the efficient estimator and the fit test", [
-        "iwr.methods.*", "iwr.estimator_spec", "iwr.estimation", "iwr.fit_test", "iwr.accuracy_prediction",
+        "iwr.methods.*", "iwr.estimator_spec", "iwr.estimation", "iwr.fit_test",
+        "iwr.accuracy_prediction",
         "iwr.tracker.estimation", "iwr.effects.solver"]),
     ("public functions: identify, accuracy, identifiability, uncertainty, planning, simulate", [
         "iwr.methods", "iwr.analysis", "iwr.analysis.*", "iwr.planning", "iwr.simulation",

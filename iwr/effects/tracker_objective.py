@@ -32,7 +32,8 @@ def cpp_objective(robot: Any, setup: Any, measurements: Any, reference: np.ndarr
     the data row (:class:`iwr.ForwardKinematicsError`)."""
     from ..problem import effect_inputs
 
-    wh = None if whitening is None else np.asarray(whitening, dtype=float).reshape(len(measurements), -1)
+    wh = (None if whitening is None
+          else np.asarray(whitening, dtype=float).reshape(len(measurements), -1))
     try:
         return _core.TrackerEffectObjective(
             robot._geometry, kind=setup.kind, registration=setup.registration,
