@@ -139,8 +139,9 @@ class _Whitened:
     move as one rigid pose: rank 6), by its eigenvectors of non-zero variance, one component
     per direction the noise reaches (the misclosures have nothing in the others)."""
 
-    #: A covariance whose smallest eigenvalue is below this fraction of its largest is singular.
-    SINGULAR = 1e-10
+    #: A covariance whose smallest eigenvalue is below this fraction of its largest is singular
+    #: (a probe's: 0.05 to 1 in its six directions, below 1e-15 in the others).
+    SINGULAR = 1e-8
 
     def __init__(self, mis: Misclosures, k: int, active: np.ndarray) -> None:
         self.rows = np.isfinite(mis.r[k])

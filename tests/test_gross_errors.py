@@ -421,3 +421,27 @@ def test_the_job_on_probe_data_with_a_noise_model_finds_a_gross_error():
     assert cal.success and cal.fit_ok, cal.result.message
     found = [o for o in cal.result.outliers if o.removed]
     assert [o.key for o in found] == [pose_key(bad, 9)], found
+
+
+def test_a_clean_probe_pose_is_tested_in_six_directions():
+    """The probe's twelve misclosures move with the probe reading and with the robot's readings
+    as rigid motions of the same four points: six directions, whatever the misclosure. (Their
+    columns once took the arms of the measured and of the predicted points: the covariance had a
+    seventh direction at 1e-10 of the largest, kept on about 1 pose in 100, whose chi-square
+    statistic then averaged 17.6 for 7 degrees of freedom.) Held out, the statistics follow
+    chi2(6)."""
+    from scipy import stats
+
+    from iwr.gross_errors import _Whitened
+
+    robot = _robot("probe")
+    data, truth = iwr.simulate(robot, 60, seed=5, noise=TRACKER_NOISE)
+    val, _ = iwr.simulate(robot, 200, seed=105, noise=TRACKER_NOISE, x=truth)
+    eff = iwr.identify(robot, data, "efficient", noise=TRACKER_NOISE, outliers="off")
+    mis = kinds.of(val).misclosures(robot, val, eff.x, TRACKER_NOISE)
+    assert {_Whitened(mis, k, eff.active).r.size for k in range(len(val))} == {6}
+    found = find_gross_errors(robot, data, eff.x, TRACKER_NOISE, validation=val,
+                              active=eff.active, alpha=1 - 1e-12, test_identification=False)
+    chi2 = [o.statistic for o in found.outliers]
+    assert len(chi2) == len(val) and {o.dof for o in found.outliers} == {6}
+    assert stats.kstest(chi2, stats.chi2(6).cdf).pvalue > 1e-3

@@ -363,7 +363,10 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
         b_t = np.broadcast_to(-np.eye(m), (n, m, m))
     else:
         names = head + [f"probe.{c}" for c in "xyz"] + [f"probe.r{c}" for c in "xyz"]
-        arms = measured.reshape(n, npts, 3) - measured.reshape(n, npts, 3)[:, :1]
+        # The arms of the predicted points, as the readings' columns above take them: the two
+        # rigid motions then span the same six directions (the measured points' arms tilted
+        # them apart by misclosure / arm, and the covariance had a seventh direction at 1e-10).
+        arms = pred - pred[:, :1]
         b_t = np.zeros((n, npts, 3, 6))
         b_t[..., :3] = -np.eye(3)
         # m_j = p + exp([w]x) (m_j - p): d r = -d m_j = [m_j - p]x w
