@@ -72,8 +72,9 @@ def main() -> None:
           f"outlier tests flagged {flagged} of {len(runs) * a.poses} poses; fit test p-values "
           f"median {np.median([r['p_value'] for r in runs]):.3f}")
     if a.json:
-        with open(a.json, "w", encoding="utf-8") as f:
-            json.dump(runs, f, indent=1)
+        from iwr._io import atomic_write_text
+
+        atomic_write_text(a.json, json.dumps(runs, indent=1))
 
 
 if __name__ == "__main__":

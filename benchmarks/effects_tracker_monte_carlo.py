@@ -86,10 +86,11 @@ def main() -> None:
           f"geometric / extended per seed median {np.median(geo / act):.2f} "
           f"(min {np.min(geo / act):.2f}, max {np.max(geo / act):.2f})")
     if a.json:
-        with open(a.json, "w", encoding="utf-8") as f:
-            json.dump({"kind": a.kind, "poses": a.poses, "fresh": a.fresh, "runs": runs}, f,
-                      indent=1, default=lambda v: None if isinstance(v, float) and
-                      not math.isfinite(v) else v)
+        from iwr._io import atomic_write_text
+
+        atomic_write_text(a.json, json.dumps(
+            {"kind": a.kind, "poses": a.poses, "fresh": a.fresh, "runs": runs}, indent=1,
+            default=lambda v: None if isinstance(v, float) and not math.isfinite(v) else v))
 
 
 if __name__ == "__main__":

@@ -387,3 +387,22 @@ def test_the_diagnosis_is_the_kinds(kind_case, measured_with_effects):
     plain = kind_case("points", n_poses=20)  # no load columns: no diagnosis, no note
     cal = iwr.calibrate(plain.robot, plain.data, "lm")
     assert cal.diagnosis is None and not any("diagnosis" in n for n in cal.notes)
+
+
+def test_an_exact_fit_is_not_calibrated(kind_case):
+    """As many readings as identifiable parameters (a minimal ballbar plan, the review's case):
+    the fit is exact, its "errors" are the noise's, and nothing tests the model: 'not
+    calibrated' (exit 5), not "does not fit"."""
+    case = kind_case("ballbar", n_poses=10)
+    robot = case.robot
+    noise = case.kind.experiment_noise(robot, iwr.Noise.realistic())
+    data, _ = iwr.simulate(robot, 120, seed=8, noise=noise)
+    rank = iwr.identifiability(robot, data).rank
+    plan = iwr.plan_poses(robot, data, rank, seed=1)  # the fewest poses: full rank
+    rest = np.setdiff1d(np.arange(120), plan.indices)
+    ident, val = case.kind.subset(data, plan.indices), case.kind.subset(data, rest)
+    assert iwr.identifiability(robot, ident).rank == rank
+    cal = iwr.calibrate(robot, ident, "lm", noise=noise, validation=val)
+    assert cal.result.fit.dof == 0
+    assert not cal.success and cal.status == NOT_CALIBRATED
+    assert "no redundancy" in str(cal.result.message)

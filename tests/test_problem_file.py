@@ -89,6 +89,16 @@ def test_without_weights_and_without_carriage(tmp_path: Path) -> None:
     np.testing.assert_array_equal(back.lower, np.full(42, -0.1))
 
 
+def test_text_beyond_ascii_goes_through(tmp_path: Path) -> None:
+    """Names are UTF-8 text: a robot named in another script reads back as it was (the reader
+    checks the text is UTF-8 and refuses a stray byte: cpp/tests/test_binary_io.cpp)."""
+    robot = iwr.Robot.hexapod()
+    robot.name = "Hexapod ü, 六脚"
+    m, _ = iwr.simulate(robot, 4, seed=1)
+    iwr.Problem(robot, m).save(tmp_path / "u.iwrp")
+    assert iwr.Problem.load(tmp_path / "u.iwrp").robot.name == "Hexapod ü, 六脚"
+
+
 def test_sources_are_recorded_with_their_sha256(problem: iwr.Problem, tmp_path: Path) -> None:
     problem.robot.to_toml(tmp_path / "r.toml")
     problem.save(tmp_path / "p.iwrp", sources={"robot": tmp_path / "r.toml"})

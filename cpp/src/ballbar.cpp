@@ -233,10 +233,12 @@ void read_ballbar_section(io::Reader& r, ProblemData& p) {
     }
     p.distance.resize(n);
     finite_doubles(r, "distance", p.distance.data(), static_cast<std::size_t>(n));
+    // The limit of iwr.measurements.MAX_LENGTH_MM (100 m), which the Python reader applies too.
+    constexpr double kMaxLengthMm = 1e5;
     for (int k = 0; k < n; ++k)
-        if (!(p.distance(k) > 0))
+        if (!(p.distance(k) > 0 && p.distance(k) < kMaxLengthMm))
             r.fail("distance: pose " + std::to_string(k) + " is " + std::to_string(p.distance(k)) +
-                   "; a bar reading is a length > 0 (mm)");
+                   "; a bar reading is a length in mm, > 0 and below 1e+05");
     p.reference.resize(p.n_robot_params());
     finite_doubles(r, "reference", p.reference.data(), static_cast<std::size_t>(p.n_robot_params()));
 }

@@ -58,6 +58,22 @@ std::string Reader::text(const char* field, std::size_t max_len, bool allow_empt
     std::string s = str(field, max_len);
     for (unsigned char c : s)
         if (c < 0x20 || c == 0x7f) fail(std::string(field) + ": holds a control character");
+    // Well-formed UTF-8 (what Python decodes the text as): lead byte, continuation bytes, no
+    // overlong forms, no surrogates, nothing beyond U+10FFFF.
+    for (std::size_t i = 0; i < s.size();) {
+        const auto c = static_cast<unsigned char>(s[i]);
+        std::size_t len = c < 0x80 ? 1 : (c >> 5) == 0x6 ? 2 : (c >> 4) == 0xE ? 3 : (c >> 3) == 0x1E ? 4 : 0;
+        bool ok = len != 0 && i + len <= s.size();
+        for (std::size_t j = 1; ok && j < len; ++j) ok = (static_cast<unsigned char>(s[i + j]) >> 6) == 0x2;
+        if (ok && len > 1) {
+            std::uint32_t cp = c & (0x7F >> len);
+            for (std::size_t j = 1; j < len; ++j) cp = (cp << 6) | (static_cast<unsigned char>(s[i + j]) & 0x3F);
+            const std::uint32_t least[5] = {0, 0, 0x80, 0x800, 0x10000};
+            ok = cp >= least[len] && cp <= 0x10FFFF && !(cp >= 0xD800 && cp <= 0xDFFF);
+        }
+        if (!ok) fail(std::string(field) + ": not valid UTF-8 text (byte " + std::to_string(i) + ")");
+        i += len;
+    }
     if (!allow_empty && s.empty()) fail(std::string(field) + ": empty");
     return s;
 }

@@ -397,6 +397,12 @@ IWR_TEST(problem_refuses_bad_values) {
     CHECK(refused_with([](auto& p) { p.joint_types = "PX"; }, "joint types: 'X'"));
     CHECK(refused_with([](auto& p) { p.bounds_kind = "wide"; }, "bounds kind: 'wide'"));
     CHECK(refused_with([](auto& p) { p.parameter_names[0] = "a\nb"; }, "parameter name: holds a control character"));
+    // Text is UTF-8 (Python decodes it so): a stray byte, an overlong form, a surrogate, a cut
+    // sequence are refused naming the field.
+    CHECK(refused_with([](auto& p) { p.parameter_names[0] = "a\xcd"; }, "parameter name: not valid UTF-8 text (byte 1)"));
+    CHECK(refused_with([](auto& p) { p.parameter_names[0] = "\xc0\xaf"; }, "parameter name: not valid UTF-8"));
+    CHECK(refused_with([](auto& p) { p.parameter_names[0] = "\xed\xa0\x80"; }, "parameter name: not valid UTF-8"));
+    CHECK(refused_with([](auto& p) { p.parameter_names[0] = "x\xe2\x82"; }, "parameter name: not valid UTF-8"));
     CHECK(refused_with([](auto& p) { p.leg_stroke(2, 0) = 500; }, "leg stroke: leg 3"));
     CHECK(refused_with([](auto& p) { p.measurement_joint_types = "RR"; }, "do not match the robot's"));
     CHECK(refused_with([](auto& p) { p.sources[0].sha256 = "xyz"; }, "source sha256"));

@@ -303,8 +303,10 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "iwr.calibrate, iwr calibrate and iwr report (any of those methods, with or without "
              "a noise model)", "iwr.effects.api.leg_commands",
              "iwr.effects.api.forward_kinematics",
-             "iwr.simulate, iwr.identify with method 'lm' or 'efficient', iwr.identifiability "
-             "and iwr.accuracy on tracker data (iwr.effects.tracker; the legs' effects)")
+             "on tracker data (iwr.effects.tracker; the legs' effects): iwr.simulate, "
+             "iwr.identify with every method (noise-weighted on reflector points), "
+             "iwr.identifiability, iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem "
+             "file, iwr-engine, iwr-calibrate, and the calibration job")
 
 
 def refuse(robot: Any, what: str) -> None:

@@ -146,7 +146,7 @@ class _TrackerKind(MeasurementKind):
             raise ValueError(f"noise: {self.name} data have no noise-weighted objective (a "
                              "probe's four points move rigidly: their covariance is singular); "
                              "the efficient estimator weighs them by their noise")
-        if robot.effects:  # issue 23: the point objective with the effects (numpy)
+        if robot.effects:  # issue 23: the point objective with the effects (its cost in C++)
             from ..effects.tracker import effect_tracker_problem
 
             return effect_tracker_problem(robot, data, bounds, x0, noise=noise)
@@ -155,9 +155,6 @@ class _TrackerKind(MeasurementKind):
     def registration(self, robot: Any, x_setup: Any = None) -> np.ndarray:
         return robot.tracker.registration_matrix(x_setup)
 
-    # -- the experiments ------------------------------------------------------------------------
-
-
     def world_gravity(self, robot: Any) -> np.ndarray:
         """The tracker's gravity (``[tracker] gravity``, in {T}) carried into {0} by the robot
         file's registration (the effects' own ``gravity_m_s2`` in {0} is not used on tracker
@@ -165,6 +162,9 @@ class _TrackerKind(MeasurementKind):
         (:func:`iwr.effects.gravity.refuse_joint_effects`)."""
         refuse_joint_effects(robot)
         return registration_gravity(robot.tracker, np.zeros(robot.tracker.n_params))[0]
+
+    # -- the experiments ------------------------------------------------------------------------
+
     def experiment_noise(self, robot: Any, noise: Any) -> Any:
         """``(Noise, TrackerNoise)``: a pair as it is; an :class:`iwr.Noise` (an experiment's
         noise level, :func:`iwr.experiments.harness.noise_at`) keeps its leg and joint noise, and
@@ -204,7 +204,7 @@ class _TrackerKind(MeasurementKind):
         return kind_parameter_error(self, robot, data, x, truth)
 
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
-        if robot.effects:  # issue 23: the point objective with the effects (numpy)
+        if robot.effects:  # issue 23: the point objective with the effects (its cost in C++)
             from ..effects.tracker import identify as identify_effects
 
             return identify_effects(robot, data, method, **options)
