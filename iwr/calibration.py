@@ -157,12 +157,10 @@ class Calibration:
         # Degenerate data whether or not the method converged or its fit passed: more budget
         # would not help, and a fit test of too few readings says nothing.
         reason = self.degenerate()
-        fit = r.fit
-        if reason is None and fit is not None and fit.dof is not None and fit.dof <= 0:
-            # An exact fit: as many readings as identified parameters fit the noise too (its
-            # "errors" are noise), and nothing is left to test the model with.
-            reason = next((c for c in fit.causes if c.startswith("no redundancy")),
-                          "no redundancy: the data cannot test the model: measure more poses")
+        if reason is None and r.fit is not None:
+            # An exact fit (the chi-square test found no redundancy): as many readings as
+            # identified parameters fit the noise too, and nothing is left to test the model.
+            reason = next((c for c in r.fit.causes if c.startswith("no redundancy")), None)
         if reason is None and (not r.success or self.fit_ok is False):
             return
         if reason is None:
