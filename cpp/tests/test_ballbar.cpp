@@ -256,6 +256,8 @@ IWR_TEST(ballbar_problem_file_round_trip) {
     iwr::ProblemData q2 = back;
     q2.distance(4) = -1;
     CHECK(refused(q2, "distance: pose 4 is -1"));
+    q2.distance(4) = 1e11;  // a length beyond 100 m, as iwr.measurements.MAX_LENGTH_MM refuses
+    CHECK(refused(q2, "distance: pose 4 is 100000000000"));
     iwr::ProblemData q3 = back;
     q3.bars[1].name = "A";
     CHECK(refused(q3, "ballbar set-up name: 'A' given twice"));
