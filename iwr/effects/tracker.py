@@ -677,50 +677,20 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
     :func:`iwr.tracker.api.tracker_identify` does without effects. The efficient estimator
     weighs every instrument by its noise. Other methods are refused, naming what models the
     effects."""
-    from ..methods import run_method, settle
-    from ..methods.reduced import active_mask
+    from ..tracker.api import identify_with
 
     names = ", ".join(e.name for e in robot.effects)
     if method not in TRACKER_METHODS:
         raise ValueError(
             f"method {method!r}: robot {robot.name!r} has effects on ({names}); on tracker data "
             f"the methods that model them are {', '.join(TRACKER_METHODS)} (docs/effects.md)")
-    if method == "efficient":
-        from ..methods.efficient import efficient_on
-
-        return efficient_on(robot, measurements, noise,
-                            lambda: effect_tracker_problem(robot, measurements, bounds, x0)[0],
-                            noise_hint="(iwr.Noise(...), iwr.tracker.TrackerNoise(...))",
-                            x0=x0, active=active, bounds=bounds, callback=callback,
-                            weighted=weighted, max_evaluations=max_evaluations, **options)
-    from .. import kinds
-
-    if weighted is None:
-        weighted = noise is not None
-    if weighted and noise is None:
-        raise ValueError("weighted=True needs a noise model: noise=(iwr.Noise(...), "
-                         "iwr.tracker.TrackerNoise(...))")
-    kind = kinds.of(measurements)
-    if not weighted and noise is not None and not kind.chi2_fit_test:
-        raise ValueError(f"noise with weighted=False: method {method!r} on the unweighted "
-                         f"{kind.description} objective does not use a noise model (no "
-                         "chi-square test of these data); leave the noise out, or use the "
-                         "efficient estimator")
-    problem, start = effect_tracker_problem(robot, measurements, bounds, x0,
-                                            noise=noise if weighted else None)
-    if isinstance(active, str) and active == "base":
-        active = base_parameters(robot, measurements, start)
-    mask = active_mask(problem, active)
-    result = run_method(problem, method, mask, start, max_evaluations=max_evaluations,
-                        seed=seed, callback=callback, progress=progress, batch_de=True, **options)
-    if weighted:
-        result["cost_eq10"] = problem.cost_unweighted(result.x)
-        # Said in the settings too, so that a saved result's fun is not read as unweighted.
-        result["settings"] = {**dict(result.settings), "objective": {
-            "weighted": True, "cost_eq10": float(result["cost_eq10"]),
-            **kind.noise_record(problem.noise)}}
-    settle(result, problem, noise, mask)
-    return result
+    return identify_with(
+        robot, measurements, method,
+        lambda noise: effect_tracker_problem(robot, measurements, bounds, x0, noise=noise),
+        lambda problem, start: base_parameters(robot, measurements, start),
+        noise=noise, weighted=weighted, x0=x0, active=active, bounds=bounds,
+        max_evaluations=max_evaluations, seed=seed, callback=callback, progress=progress,
+        **options)
 
 
 def identifiability(robot: Any, measurements: Any, x: Any = None, *,

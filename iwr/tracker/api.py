@@ -67,18 +67,43 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     chi-square test of the fit (:func:`iwr.estimation.fit_check`: the noise-weighted statistic
     minimised to first order around ``x``) to "converged", on reflector points; probe data take
     a noise model in the efficient estimator only."""
-    from ..methods import METHODS, run_method, settle
-    from ..methods.reduced import active_mask
+    from ..methods import METHODS
 
     if method not in METHODS:
         raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+
+    def base(problem: Any, start: Any) -> list[bool]:
+        left_out = set(null_space(problem, start).left_out)
+        return [n not in left_out for n in problem.parameter_names]
+
+    return identify_with(
+        robot, measurements, method,
+        lambda noise: tracker_problem(robot, measurements, bounds, x0, noise=noise), base,
+        noise=noise, weighted=weighted, x0=x0, active=active, bounds=bounds,
+        max_evaluations=max_evaluations, seed=seed, callback=callback, progress=progress,
+        **options)
+
+
+def identify_with(robot: Any, measurements: Any, method: str,
+                  problem_of: Callable[[Any], tuple[Any, Any]],
+                  base_of: Callable[[Any, Any], Any], *, noise: Any, weighted: bool | None,
+                  x0: Any, active: Any, bounds: Any, max_evaluations: int | None,
+                  seed: int | None, callback: Any, progress: Any, **options: Any) -> Any:
+    """:func:`iwr.identify` on tracker data with ``method`` (checked by the caller) on the
+    problem ``problem_of(noise)`` makes (``(problem, start)``; the noise-weighted one for a
+    noise model, :func:`tracker_identify`'s docstring; ``problem_of(None)`` the unweighted one,
+    the efficient estimator's start); ``active="base"`` the active parameters
+    ``base_of(problem, start)`` gives. The robot with or without effects
+    (:func:`iwr.effects.tracker.identify`) differ only in those two."""
+    from ..methods import run_method, settle
+    from ..methods.reduced import active_mask
+
     if method == "efficient":
         # Every instrument weighted by its noise (docs/estimation.md, "Tracker data"): its own
         # start (LM on the points from the registration guess), base parameters and fit test.
         from ..methods.efficient import efficient_on
 
-        return efficient_on(robot, measurements, noise,
-                            lambda: tracker_problem(robot, measurements, bounds, x0)[0],
+        return efficient_on(robot, measurements, noise, lambda: problem_of(None)[0],
                             noise_hint="(iwr.Noise(...), iwr.tracker.TrackerNoise(...))",
                             x0=x0, active=active, bounds=bounds, callback=callback,
                             weighted=weighted, max_evaluations=max_evaluations, **options)
@@ -87,16 +112,15 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
     if weighted and noise is None:
         raise ValueError("weighted=True needs a noise model: noise=(iwr.Noise(...), "
                          "iwr.tracker.TrackerNoise(...))")
-    if not weighted and noise is not None and not kinds.of(measurements).chi2_fit_test:
+    kind = kinds.of(measurements)
+    if not weighted and noise is not None and not kind.chi2_fit_test:
         raise ValueError(f"noise with weighted=False: method {method!r} on the unweighted "
-                         f"{kinds.of(measurements).description} objective does not use a noise "
-                         "model (no chi-square test of these data); leave the noise out, or use "
-                         "the efficient estimator")
-    problem, start_x = tracker_problem(robot, measurements, bounds, x0,
-                                       noise=noise if weighted else None)
+                         f"{kind.description} objective does not use a noise model (no "
+                         "chi-square test of these data); leave the noise out, or use the "
+                         "efficient estimator")
+    problem, start_x = problem_of(noise if weighted else None)
     if isinstance(active, str) and active == "base":
-        ns = null_space(problem, start_x)
-        active = [n not in set(ns.left_out) for n in problem.parameter_names]
+        active = base_of(problem, start_x)
     mask = active_mask(problem, active)
     result = run_method(problem, method, mask, start_x, max_evaluations=max_evaluations,
                         seed=seed, callback=callback, progress=progress, batch_de=True,
@@ -106,7 +130,7 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
         # Said in the settings too, so that a saved result's fun is not read as unweighted.
         result["settings"] = {**dict(result.settings), "objective": {
             "weighted": True, "cost_eq10": float(result["cost_eq10"]),
-            **kinds.of(measurements).noise_record(problem.noise)}}
+            **kind.noise_record(problem.noise)}}
     settle(result, problem, noise, mask)
     return result
 
