@@ -507,21 +507,14 @@ def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0
     Inside :func:`iwr.kinds.reuse` (one calibration job) the guess and the unweighted problem
     are made once per data set, as :func:`iwr.tracker.start.tracker_problem` makes them."""
     from ..kinds import memo
-    from ..noise import split_noise
-    from ..tracker.start import _bounds, _setup, registration_guess
+    from ..tracker.start import _bounds, _setup, objective_noise, registration_guess
 
     setup = _setup(robot)
     n_eff = len(effect_names(robot.effects))
     n = robot.n_params + n_eff + setup.n_params
     if isinstance(bounds, str) and bounds == "default":
         bounds = None
-    weights = None
-    if noise is not None:
-        readings, tracker = split_noise(noise)
-        if tracker is None and measurements.point_sigma is None:
-            raise ValueError("noise: the weighted objective on tracker data needs the tracker's "
-                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
-        weights = (readings, tracker)
+    weights = objective_noise(noise, measurements)
     center = None
     if x0 is None:
         # The geometry's guess (the effects move the points by micrometres), made once per data

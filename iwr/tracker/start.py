@@ -45,6 +45,19 @@ def _bounds(robot: Robot, setup: TrackerSetup, bounds: Any, center: np.ndarray) 
     return bounds
 
 
+def objective_noise(noise: Any, measurements: Any) -> tuple[Any, Any] | None:
+    """``noise`` as the noise-weighted point objective takes it, ``(readings, tracker)``
+    (:func:`iwr.noise.split_noise`), or None without one; ValueError when neither the tracker's
+    noise nor the data's own point sigmas weigh the points."""
+    if noise is None:
+        return None
+    readings, tracker = split_noise(noise)
+    if tracker is None and measurements.point_sigma is None:
+        raise ValueError("noise: the weighted objective on tracker data needs the tracker's "
+                         "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
+    return readings, tracker
+
+
 def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
                     x0: Any = None, noise: Any = None) -> tuple[TrackerProblem, np.ndarray]:
     """The problem for these data and its starting point: the nominal robot with the closed-form
@@ -67,13 +80,7 @@ def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any
             raise ValueError(f"x0: expected {n} finite values (the robot's "
                              f"{robot.n_params}, then the tracker setup's {setup.n_params}), "
                              f"got shape {start.shape}")
-    weights = None
-    if noise is not None:
-        readings, tracker = split_noise(noise)
-        if tracker is None and measurements.point_sigma is None:
-            raise ValueError("noise: the weighted objective on tracker data needs the tracker's "
-                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
-        weights = (readings, tracker)
+    weights = objective_noise(noise, measurements)
     given = not (bounds is None or isinstance(bounds, str))
     held = (robot, measurements, bounds) if given else (robot, measurements)
     key = ("tracker problem", "given" if given else bounds)
