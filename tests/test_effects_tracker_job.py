@@ -38,8 +38,7 @@ def test_weighted_lm_statistic_is_the_efficient_estimators(noisy, fits):
     """LM on the noise-weighted point objective with the effects reaches the estimator's
     minimum: its fit statistic (the weighted residuals minimised to first order) is the
     efficient estimator's to 1e-6 (measured 3e-9), with the same degrees of freedom; its
-    weighted cost is that statistic (the weights held at the start move it by a few 1e-3);
-    the probe has no weighted objective (its four points move rigidly)."""
+    weighted cost is that statistic (the weights held at the start move it by a few 1e-3)."""
     robot, data, _ = noisy
     lm, eff = fits
     assert lm.success and eff.success, (lm.message, eff.message)
@@ -52,11 +51,22 @@ def test_weighted_lm_statistic_is_the_efficient_estimators(noisy, fits):
     # The unweighted LM's minimum is another one: its statistic is larger.
     plain = iwr.identify(robot, data, "lm", noise=NOISE, weighted=False, active="base")
     assert plain.fit.statistic > lm.fit.statistic
+
+
+def test_weighted_lm_statistic_on_probe_data_is_the_efficient_estimators(noisy):
+    """The probe's four points whitened by the pseudo-inverse of their rank-6 covariance (one
+    rigid pose): LM's statistic with the effects is the estimator's to 1e-3 with the same
+    degrees of freedom (six readings a pose)."""
+    robot, _, _ = noisy
     probe = robot.with_tracker(registration=robot.tracker.registration,
                                probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
-    pdata, _ = et.simulate(probe, 20, seed=1)
-    with pytest.raises(ValueError, match="probe's four points move rigidly"):
-        iwr.identify(probe, pdata, "lm", noise=NOISE)
+    data, _ = et.simulate(probe, 30, seed=1, noise=NOISE, payloads=PAYLOADS)
+    lm = iwr.identify(probe, data, "lm", noise=NOISE, active="base")
+    eff = iwr.identify(probe, data, "efficient", noise=NOISE, outliers="off")
+    assert lm.success and eff.success, (lm.message, eff.message)
+    assert lm.settings["objective"]["weighted"]
+    assert lm.fit.dof == eff.fit.dof
+    assert lm.fit.statistic == pytest.approx(eff.fit.statistic, rel=1e-3)
 
 
 def test_reading_jacobian_matches_central_differences(noisy):

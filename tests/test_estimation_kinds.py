@@ -68,9 +68,9 @@ def test_the_fit_statistic_is_weighted_lms_and_follows_its_law(estimable: Any) -
     """20 seeds, 40 poses each (120 of a ballbar's single readings), realistic noise, every pose
     kept (no outlier test: a clean pose is flagged at alpha = 1e-3 per pose now and then): LM's
     linearised statistic at its weighted minimum is the estimator's to 1e-3 (a ballbar's to
-    1e-2: its weights are its start's) with the same degrees of freedom (kinds with a weighted
-    objective: a probe's four points move rigidly, their covariance is singular); over the seeds
-    the estimator's statistic / dof
+    1e-2: its weights are its start's) with the same degrees of freedom (a probe's: six readings
+    a pose, its four points whitened by the pseudo-inverse of their rank-6 covariance); over
+    the seeds the estimator's statistic / dof
     averages 1 within 4 standard errors and the p-values are uniform (Kolmogorov-Smirnov)."""
     robot, noise = estimable.robot, estimable.noise
     ratios, p_values, dof = [], [], None

@@ -71,9 +71,21 @@ def points() -> tuple[TrackerProblem, np.ndarray]:
 
 
 @pytest.fixture(scope="module")
+def probe_noise() -> tuple[TrackerProblem, np.ndarray]:
+    """A probe weighted by the noise model: its four points' covariance has rank 6 (one rigid
+    pose), the whitening six rows a pose that are not zero."""
+    robot = iwr.Robot.default().with_tracker(registration=REGISTRATION,
+                                             probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
+    noise = (READINGS, TrackerNoise.leica())
+    m, _ = tracker_simulate(robot, 30, seed=3, noise=noise)
+    problem, x0 = tracker_problem(robot, m, noise=noise)
+    assert problem.n_observations == 6 * len(m)
+    return problem, x0
+
+
+@pytest.fixture(scope="module")
 def probe() -> tuple[TrackerProblem, np.ndarray]:
-    """A probe weighted by a whitening of one's own (the noise model refuses a probe: its four
-    points' covariance is singular)."""
+    """A probe weighted by a whitening of one's own (full rank)."""
     robot = iwr.Robot.default().with_tracker(registration=REGISTRATION,
                                              probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
     m, _ = tracker_simulate(robot, 30, seed=3)
@@ -98,7 +110,7 @@ def test_engine_cost_is_the_python_weighted_cost_for_poses(pose, tmp_path: Path)
     assert not np.allclose(engine, [plain.cost(x) for x in X], rtol=1e-3)
 
 
-@pytest.mark.parametrize("name", ["points", "probe"])
+@pytest.mark.parametrize("name", ["points", "probe", "probe_noise"])
 def test_engine_cost_is_the_python_weighted_cost_for_tracker_data(name: str, request: Any,
                                                                   tmp_path: Path) -> None:
     problem, x0 = request.getfixturevalue(name)
@@ -244,12 +256,14 @@ def test_resuming_a_run_whose_problem_file_is_of_version_2(tmp_path: Path) -> No
         _keep_the_run_problem(weighted, str(DATA / "pose_v2.iwrp"), "robot.toml", "data.csv")
 
 
-def _tracker_files(tmp_path: Path) -> tuple[Path, Path]:
-    robot = iwr.Robot.default().with_tracker(registration=REGISTRATION, reflectors=REFLECTORS)
+def _tracker_files(tmp_path: Path, kind: str = "points") -> tuple[Path, Path]:
+    target = ({"reflectors": REFLECTORS} if kind == "points"
+              else {"probe": (10.0, -5.0, 60.0, 0.1, 0.0, 0.2)})
+    robot = iwr.Robot.default().with_tracker(registration=REGISTRATION, **target)
     m, _ = iwr.simulate(robot, 20, seed=4, noise=(READINGS, TrackerNoise.leica()))
     from iwr.tracker.files import write_tracker_wide
 
-    robot_path, data_path = tmp_path / "robot.toml", tmp_path / "points.csv"
+    robot_path, data_path = tmp_path / "robot.toml", tmp_path / f"{kind}.csv"
     robot.to_toml(robot_path)
     write_tracker_wide(data_path, robot.tracker, m)
     return robot_path, data_path
@@ -262,15 +276,17 @@ def _calibrate(*args: Any, cwd: Path) -> subprocess.CompletedProcess[str]:
                           cwd=cwd, timeout=600, check=False)
 
 
-def test_iwr_calibrate_runs_the_weighted_objective_on_tracker_points(tmp_path: Path) -> None:
-    robot_path, data_path = _tracker_files(tmp_path)
+@pytest.mark.parametrize("kind", ["points", "probe"])
+def test_iwr_calibrate_runs_the_weighted_objective_on_tracker_data(kind: str,
+                                                                   tmp_path: Path) -> None:
+    robot_path, data_path = _tracker_files(tmp_path, kind)
     out = tmp_path / "run.json"
     proc = _calibrate(robot_path, data_path, "--noise", "realistic", "--output", out,
                       "--population-size", 20, "--generations", 3, "--threads", 2, "--quiet",
                       cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
     d = read_problem(tmp_path / "run.json.iwrp")
-    assert d["kind"] == "points" and d["weighting"] is not None
+    assert d["kind"] == kind and d["weighting"] is not None
     # The weighted problem iwr calibrate --noise realistic means on these data.
     robot = iwr.Robot.from_toml(robot_path)
     data = iwr.kinds.for_robot(robot).read(data_path, robot)
@@ -297,12 +313,6 @@ def test_iwr_calibrate_noise_is_checked(tmp_path: Path) -> None:
     proc = _calibrate(robot_path, data_path, "--noise", "legs=x", "--output", "r.json",
                       cwd=tmp_path)
     assert proc.returncode == 2 and "--noise: " in proc.stderr and "not a number" in proc.stderr
-    probe = iwr.Robot.default().with_tracker(registration=REGISTRATION,
-                                             probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
-    probe.to_toml(tmp_path / "probe.toml")
-    proc = _calibrate(tmp_path / "probe.toml", data_path, "--noise", "realistic", "--output",
-                      "r.json", cwd=tmp_path)
-    assert proc.returncode == 2 and "have no noise-weighted objective" in proc.stderr
     (tmp_path / "p.iwrp").write_bytes(b"")
     proc = _calibrate(tmp_path / "p.iwrp", "--noise", "realistic", cwd=tmp_path)
     assert proc.returncode == 2 and "--noise: the noise weighting of a problem file" in proc.stderr

@@ -199,9 +199,10 @@ def test_tracker_data_with_a_robot_without_tracker_is_refused(sim, tmp_path):
     assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr
 
 
-def test_a_method_with_a_noise_model_is_weighted_on_points_refused_on_a_probe(sim, tmp_path):
-    """LM with --noise on point data minimises the noise-weighted point objective; on probe data,
-    whose points move rigidly (a singular covariance), it is a usage error before any work."""
+def test_a_method_with_a_noise_model_is_weighted_on_points_and_on_a_probe(sim, tmp_path):
+    """LM with --noise minimises the noise-weighted point objective: on reflector points, and on
+    a probe's four points (whitened by the pseudo-inverse of their rank-6 covariance: six
+    readings a pose)."""
     proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--method",
                "lm", "--noise", "realistic", "-o", str(tmp_path / "pts"), "--no-plots")
     assert proc.returncode == 0, proc.stdout + proc.stderr
@@ -211,11 +212,21 @@ def test_a_method_with_a_noise_model_is_weighted_on_points_refused_on_a_probe(si
     probe = iwr.Robot.default().with_tracker(registration=(2000.0, -150.0, 300.0, 1.5, 0, 0),
                                              probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
     probe.to_toml(tmp_path / "probe.toml")
-    proc = run("calibrate", str(tmp_path / "probe.toml"), str(sim / "measurements.csv"),
-               "--method", "lm", "--noise", "realistic", "-o", str(tmp_path / "prb"))
-    assert proc.returncode == 2, proc.stdout + proc.stderr
-    assert "--method lm with --noise" in proc.stderr and "Traceback" not in proc.stderr
-    assert not (tmp_path / "prb").exists()
+    kind = iwr.kinds.for_robot(probe)
+    data, _ = iwr.simulate(probe, 40, seed=3,
+                           noise=kind.experiment_noise(probe, iwr.Noise.realistic()))
+    kind.write(probe, data, tmp_path / "probe.csv")
+    proc = run("calibrate", str(tmp_path / "probe.toml"), str(tmp_path / "probe.csv"),
+               "--method", "lm", "--noise", "realistic", "-o", str(tmp_path / "prb"),
+               "--no-plots")
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "on the objective weighted by the noise model" in proc.stdout
+    result = iwr.load_result(tmp_path / "prb" / "result.json")
+    assert result["method"] == "lm" and result["settings"]["objective"]["weighted"]
+    # six readings a pose (one rigid pose), not twelve: the identification poses (the job holds
+    # out a fifth) less the identifiable parameters
+    rank = iwr.identifiability(probe, data).rank
+    assert result["fit"].dof == 6 * (40 - 40 // 5) - rank and result["fit"].fit_ok
 
 
 def test_leg_data_with_a_tracker_robot_is_named_as_such(sim, tmp_path):

@@ -31,14 +31,14 @@ def _robot(probe: bool = False) -> iwr.Robot:
     return base.with_tracker(registration=REGISTRATION, reflectors=REFLECTORS)
 
 
-@pytest.mark.parametrize("method", ["lm", "bobyqa"])
-def test_noise_model_too_small_is_rejected(method):
+@pytest.mark.parametrize("method, probe", [("lm", False), ("bobyqa", False), ("lm", True)])
+def test_noise_model_too_small_is_rejected(method, probe):
     """Data four times noisier than the model: the fit test fails, so no method says
     "converged" (before this test, weighted LM on points skipped the chi-square test)."""
-    robot = _robot()
+    robot = _robot(probe)
     loud = (iwr.Noise(legs=0.008, joint_lengths=0.02, joint_angles=2e-5),
             TrackerNoise(distance=0.02, distance_per_m=0.0006, transverse=0.03,
-                         transverse_per_m=0.012, orientation=TrackerNoise.leica().orientation))
+                         transverse_per_m=0.012, orientation=4 * TrackerNoise.leica().orientation))
     m, truth = iwr.simulate(robot, 40, seed=3, noise=loud)
     options = {} if method == "lm" else {"max_evaluations": 3000}
     res = iwr.identify(robot, m, method, noise=NOISE, **options)
@@ -49,11 +49,16 @@ def test_noise_model_too_small_is_rejected(method):
     assert not plain.success and plain.fit.p_value < 1e-3
 
 
-def test_probe_data_take_a_noise_model_only_in_the_estimator():
+def test_unweighted_lm_on_probe_data_is_tested_by_the_noise_model():
+    """A probe's unweighted minimum with a noise model gets the chi-square test of its fit: six
+    readings a pose (one rigid pose), not its four points' twelve coordinates."""
     robot = _robot(probe=True)
-    m, _ = iwr.simulate(robot, 12, seed=1, noise=NOISE)
-    with pytest.raises(ValueError, match="weighted=False.*probe"):
-        iwr.identify(robot, m, "lm", noise=NOISE, weighted=False)
+    m, _ = iwr.simulate(robot, 30, seed=1, noise=NOISE)
+    plain = iwr.identify(robot, m, "lm")
+    tested = iwr.identify(robot, m, "lm", noise=NOISE, weighted=False)
+    assert tested.fun == pytest.approx(plain.fun, rel=1e-9)
+    assert tested.fit.dof == 6 * len(m) - iwr.identifiability(robot, m).rank
+    assert tested.success and tested.fit.fit_ok, tested.fit.verdict
 
 
 def test_cli_weighted_lm_on_tracker_example_tests_the_fit():

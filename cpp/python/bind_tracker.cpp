@@ -72,7 +72,12 @@ void bind_tracker(py::module_& m) {
              [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->predicted_points(x); },
              py::arg("x"))
         .def("cost_batch", &PyTrackerObjective::cost_batch,
-            py::arg("X"), py::arg("threads") = 0);
+            py::arg("X"), py::arg("threads") = 0)
+        .def("set_whitening",
+             [](PyTrackerObjective& o, const RowMatrixXd& whitening) { o.obj_->set_whitening(whitening); },
+             py::arg("whitening"),
+             "Whiten the residuals (and the cost, the Jacobian) per pose: (N, m^2), each row a\n"
+             "row-major lower-triangular m x m matrix, m = 3 n_points; an empty array: unweighted.");
 }
 
 }  // namespace iwr::python

@@ -304,7 +304,7 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "a noise model)", "iwr.effects.api.leg_commands",
              "iwr.effects.api.forward_kinematics",
              "on tracker data (iwr.effects.tracker; the legs' effects): iwr.simulate, "
-             "iwr.identify with every method (noise-weighted on reflector points), "
+             "iwr.identify with every method (noise-weighted too), "
              "iwr.identifiability, iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem "
              "file, iwr-engine, iwr-calibrate, and the calibration job")
 

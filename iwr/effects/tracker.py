@@ -293,8 +293,8 @@ class TrackerEffectProblem:
     (default zeros), as :class:`iwr.tracker.TrackerProblem`'s.
 
     ``noise`` ``(iwr.Noise or None, TrackerNoise)``: the noise-weighted objective, as
-    :class:`iwr.tracker.TrackerProblem`'s (reflector points only): each pose's point residuals
-    whitened by their covariance (:func:`iwr.tracker.problem.point_covariances`: the tracker's
+    :class:`iwr.tracker.TrackerProblem`'s: each pose's point residuals whitened by their
+    covariance (:func:`iwr.tracker.problem.noise_whitening`, a probe's of rank 6: the tracker's
     noise of each point, plus the leg and joint readings' noise propagated through the loop
     closure *with the effects*, :meth:`loop_jacobian`), evaluated at the nominal robot and
     effects with the setup at ``weights_at`` (default ``center``) and then held fixed; ``cost``
@@ -347,21 +347,15 @@ class TrackerEffectProblem:
         self.reference = ref
         self._cpp: Any = None  # the C++ objective, made on first use (cpp_objective)
         if noise is not None:
-            from ..tracker.problem import _whitening, point_covariances
+            from ..tracker.problem import noise_whitening
 
-            if setup.kind != "points":
-                raise ValueError("noise: the weighted objective is for reflector points; a "
-                                 "probe's four points move rigidly, so their covariance is "
-                                 "singular: use the efficient estimator (method='efficient') "
-                                 "on probe data")
             readings, tracker = noise
             at = weights_at if weights_at is not None else center
             xs = np.zeros(setup.n_params) if at is None else np.asarray(at, dtype=float)
             if xs.shape != (setup.n_params,):
                 raise ValueError(f"weights_at: expected {setup.n_params} setup parameters")
             x_at = np.concatenate([np.zeros(n_all - setup.n_params), xs])
-            self.whitening = _whitening(point_covariances(self, x_at, readings, tracker),
-                                        self.seen, measurements)
+            self.whitening = noise_whitening(self, x_at, readings, tracker)
             self.noise = (readings, tracker)
 
     # -- sizes and names ----------------------------------------------------------------------
@@ -379,7 +373,9 @@ class TrackerEffectProblem:
 
     @property
     def n_observations(self) -> int:
-        return 3 * int(self._seen.sum())
+        from ..tracker.problem import observations
+
+        return observations(self.whitening, 3 * int(self._seen.sum()))
 
     @property
     def seen(self) -> np.ndarray:
@@ -666,7 +662,7 @@ def identify(robot: Any, measurements: Any, method: str, *, noise: Any = None,
     and effects with the registration guess; ``active="base"`` the base parameters of its null
     space (:func:`identifiability`). With a ``noise`` model ``(iwr.Noise, TrackerNoise)`` they
     minimise the noise-weighted point objective (``weighted``, default True with a noise
-    model; reflector points only) and the fit check adds the chi-square test, as
+    model) and the fit check adds the chi-square test, as
     :func:`iwr.tracker.api.tracker_identify` does without effects. The efficient estimator
     weighs every instrument by its noise. Other methods are refused, naming what models the
     effects."""

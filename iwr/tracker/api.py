@@ -61,12 +61,12 @@ def tracker_identify(robot: Robot, measurements: TrackerMeasurements, method: st
 
     With a ``noise`` model ``(iwr.Noise, TrackerNoise)`` a method other than ``"efficient"``
     minimises the noise-weighted point objective (``weighted``, default True with a noise
-    model; :class:`TrackerProblem`'s ``noise``, reflector points only): ``fun`` is then that
+    model; :class:`TrackerProblem`'s ``noise``: a probe's four points by the pseudo-inverse of
+    their rank-6 covariance): ``fun`` is then that
     weighted cost, ``cost_eq10`` the unweighted one at ``x``. ``weighted=False`` with a noise
     model minimises the unweighted point objective. Either way a noise model adds the
     chi-square test of the fit (:func:`iwr.estimation.fit_check`: the noise-weighted statistic
-    minimised to first order around ``x``) to "converged", on reflector points; probe data take
-    a noise model in the efficient estimator only."""
+    minimised to first order around ``x``) to "converged"."""
     from ..methods import METHODS
 
     if method not in METHODS:

@@ -30,7 +30,7 @@ from .api import (
 from .data import TrackerMeasurements
 from .estimation import TrackerSpec, tracker_misclosures
 from .files import read_tracker_data, tracker_file_format
-from .problem import TrackerProblem, _whitening, point_covariances
+from .problem import TrackerProblem, noise_whitening, observations
 
 __all__ = ["PointsKind", "ProbeKind"]
 
@@ -44,6 +44,8 @@ class _TrackerKind(MeasurementKind):
     frame = "{T}"
     determines_world_frame = False
     models_effects = True  # issue 23: the point (probe) objective with the effects (numpy)
+    weighted_objective = True  # the points' covariance (a probe's: rank 6), noise_whitening
+    chi2_fit_test = True
     report = "iwr.reporting.tracker_calibration:TrackerCalibrationReport"
     #: The figures of iwr compare and iwr study on tracker data (MeasurementKind.experiment_text).
     experiment_text = {
@@ -142,10 +144,6 @@ class _TrackerKind(MeasurementKind):
 
     def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
                 noise: Any = None) -> tuple[Any, np.ndarray]:
-        if noise is not None and not self.weighted_objective:
-            raise ValueError(f"noise: {self.name} data have no noise-weighted objective (a "
-                             "probe's four points move rigidly: their covariance is singular); "
-                             "the efficient estimator weighs them by their noise")
         if robot.effects:  # issue 23: the point objective with the effects (its cost in C++)
             from ..effects.tracker import effect_tracker_problem
 
@@ -162,6 +160,26 @@ class _TrackerKind(MeasurementKind):
         (:func:`iwr.effects.gravity.refuse_joint_effects`)."""
         refuse_joint_effects(robot)
         return registration_gravity(robot.tracker, np.zeros(robot.tracker.n_params))[0]
+
+    def whitened(self, robot: Any, data: Any, x: Any, noise: Any
+                 ) -> tuple[np.ndarray, np.ndarray, int]:
+        """The point residuals of each pose and their Jacobian, whitened by their covariance at
+        ``x`` (:func:`iwr.tracker.problem.noise_whitening`: the tracker's noise of each point,
+        or of the probe's pose, plus the leg and joint readings' propagated through the loop
+        closure); the readings that carry data are the seen points' coordinates (a probe's:
+        six per pose)."""
+        readings, tracker = split_noise(noise)
+        if tracker is None and data.point_sigma is None:
+            raise ValueError("noise: the chi-square test on tracker data needs the tracker's "
+                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
+        x = np.asarray(x, dtype=float)
+        tp, _ = self.problem(robot, data, None, x)  # with the effects, if any (issue 23)
+        n = tp.n_poses
+        w = noise_whitening(tp, x, readings, tracker)
+        r, jac = tp.residuals_and_jacobian(x)
+        rw = np.einsum("kij,kj->ki", w, r.reshape(n, -1)).reshape(-1)
+        jw = np.einsum("kij,kjp->kip", w, jac.reshape(n, -1, jac.shape[1]))
+        return rw, jw.reshape(-1, jac.shape[1]), observations(w, tp.n_observations)
 
     # -- the experiments ------------------------------------------------------------------------
 
@@ -352,27 +370,6 @@ class PointsKind(_TrackerKind):
 
     name = "points"
     description = "reflector points"
-    weighted_objective = True  # the points' covariance (TrackerProblem's noise)
-    chi2_fit_test = True
-
-    def whitened(self, robot: Any, data: Any, x: Any, noise: Any
-                 ) -> tuple[np.ndarray, np.ndarray, int]:
-        """The point residuals of each pose and their Jacobian, whitened by their covariance at
-        ``x`` (:func:`iwr.tracker.problem.point_covariances`: the tracker's noise of each point
-        plus the leg and joint readings' propagated through the loop closure); the readings
-        that carry data are the seen points' coordinates."""
-        readings, tracker = split_noise(noise)
-        if tracker is None and data.point_sigma is None:
-            raise ValueError("noise: the chi-square test on tracker data needs the tracker's "
-                             "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
-        x = np.asarray(x, dtype=float)
-        tp, _ = self.problem(robot, data, None, x)  # with the effects, if any (issue 23)
-        n = tp.n_poses
-        w = _whitening(point_covariances(tp, x, readings, tracker), tp.seen, data)
-        r, jac = tp.residuals_and_jacobian(x)
-        rw = np.einsum("kij,kj->ki", w, r.reshape(n, -1)).reshape(-1)
-        jw = np.einsum("kij,kjp->kip", w, jac.reshape(n, -1, jac.shape[1]))
-        return rw, jw.reshape(-1, jac.shape[1]), tp.n_observations
 
 
 class ProbeKind(_TrackerKind):

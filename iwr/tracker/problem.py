@@ -12,7 +12,7 @@ from ..robot import Robot
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
 
-__all__ = ["TrackerProblem", "FAILED_RESIDUAL", "point_covariances"]
+__all__ = ["TrackerProblem", "FAILED_RESIDUAL", "noise_whitening", "point_covariances"]
 
 
 class TrackerProblem(ProblemBase):
@@ -45,8 +45,9 @@ class TrackerProblem(ProblemBase):
         predicted points), evaluated at the nominal robot with the setup at ``weights_at``
         (default ``center``, else the nominal setup) and then held fixed. ``cost`` is then
         dimensionless (a chi-square statistic), ``cost_unweighted`` the sum of squared point
-        residuals. Reflector points only (a probe's four points move rigidly: their covariance
-        is singular). Without it: unweighted (mm).
+        residuals. A probe's four points move as one rigid pose: their covariance has rank 6
+        and they are whitened by its pseudo-inverse (:func:`noise_whitening`; six whitened
+        residuals per pose carry data). Without it: unweighted (mm).
     weights_at : array_like, shape (setup.n_params,), optional
         The setup's parameters at which the weights are evaluated (see ``noise``).
     whitening : array_like, shape (N, 3 n_points, 3 n_points), optional
@@ -89,21 +90,14 @@ class TrackerProblem(ProblemBase):
         self._set_bounds(bounds, setup_bounds)
         ref = self._set_reference(reference)
         try:
-            self._objective = _core.TrackerObjective(
-                robot._geometry, setup.kind,
-                setup.registration,
-                setup.reflectors if setup.reflectors is not None else np.zeros((1, 3)),
-                setup.probe if setup.probe is not None else np.zeros(6),
-                setup.probe_length,
-                measurements.q, measurements.legs, measurements.tracker_points(setup),
-                ref, robot.home_pose,
-            )
+            self._objective = self._kernel(ref)
         except _core.ForwardKinematicsError as exc:
             # The reference solve (at `reference`, from the home pose) failed: name the data row.
             raise reference_error(exc, measurements) from None
         #: The per-pose whitening (N, 3 K, 3 K), lower triangular on the seen coordinates (zero
         #: rows and columns for unseen points), or None: unweighted.
         self.whitening = None
+        self._weighted: Any = None  # the C++ objective with the whitening, made on first use
         self.noise = noise
         if whitening is not None:
             if noise is not None:
@@ -111,17 +105,25 @@ class TrackerProblem(ProblemBase):
             self.whitening = _given_whitening(whitening, self.n_poses, self.n_residuals // max(
                 self.n_poses, 1))
         if noise is not None:
-            if setup.kind != "points":
-                raise ValueError("noise: the weighted objective is for reflector points; a probe's "
-                                 "four points move rigidly, so their covariance is singular: use "
-                                 "the efficient estimator (method='efficient') on probe data")
             at = weights_at if weights_at is not None else center
             xs = np.zeros(setup.n_params) if at is None else np.asarray(at, dtype=float)
             if xs.shape != (setup.n_params,):
                 raise ValueError(f"weights_at: expected {setup.n_params} setup parameters")
-            self.whitening = _whitening(point_covariances(
-                self, np.concatenate([np.zeros(robot.n_params), xs]), *noise), self.seen,
-                measurements)
+            self.whitening = noise_whitening(
+                self, np.concatenate([np.zeros(robot.n_params), xs]), *noise)
+
+    def _kernel(self, reference: np.ndarray) -> Any:
+        """The C++ objective of these data (unweighted), its solves started at ``reference``."""
+        setup, m = self.setup, self.measurements
+        return _core.TrackerObjective(
+            self.robot._geometry, setup.kind,
+            setup.registration,
+            setup.reflectors if setup.reflectors is not None else np.zeros((1, 3)),
+            setup.probe if setup.probe is not None else np.zeros(6),
+            setup.probe_length,
+            m.q, m.legs, m.tracker_points(setup),
+            reference, self.robot.home_pose,
+        )
 
     # -- sizes and names ------------------------------------------------------------------------
     @property
@@ -131,8 +133,9 @@ class TrackerProblem(ProblemBase):
 
     @property
     def n_observations(self) -> int:
-        """Residuals that carry data: 3 per seen point."""
-        return 3 * int(self._objective.n_seen)
+        """Residuals that carry data: 3 per seen point; weighted, the whitening's rows that are
+        not zero (a probe's: 6 per pose, one rigid pose)."""
+        return observations(self.whitening, 3 * int(self._objective.n_seen))
 
     @property
     def seen(self) -> np.ndarray:
@@ -179,11 +182,17 @@ class TrackerProblem(ProblemBase):
         return self._whiten(r), self._whiten(jac)
 
     def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
-        """In C++ across ``workers`` threads; weighted: row by row (the C++ objective carries no
-        weights yet; ``workers`` unused)."""
-        if self.whitening is not None:
-            return np.array([self.cost(row) for row in X])
-        return self._objective.cost_batch(X, 0 if workers is None else int(workers))
+        """In C++ across ``workers`` threads; weighted, by a second C++ objective that carries
+        the whitening (the engine's weighted cost: the residuals whitened per pose in C++)."""
+        threads = 0 if workers is None else int(workers)
+        if self.whitening is None:
+            return self._objective.cost_batch(X, threads)
+        if self._weighted is None:
+            n, m = self.whitening.shape[:2]
+            kernel = self._kernel(self.reference)
+            kernel.set_whitening(np.ascontiguousarray(self.whitening.reshape(n, m * m)))
+            self._weighted = kernel
+        return self._weighted.cost_batch(X, threads)
 
     # -- diagnostics ----------------------------------------------------------------------------
     def loop_jacobian(self, x: Any, poses: np.ndarray) -> np.ndarray:
@@ -223,6 +232,11 @@ def point_covariances(problem: TrackerProblem, x: Any, readings: Any, tracker: A
     ``G diag(sigma_q^2, sigma_legs^2) G^T``, ``G`` the derivative of the predicted points with
     respect to the joint and leg readings by implicit differentiation of the loop closure
     (:func:`iwr.estimation.loop_jacobians`). Rows and columns of unseen points are zero.
+
+    A probe's four points are one reading, its pose: the tracker's part is its position's
+    covariance (at the measured origin) and its orientation's (``tracker.orientation`` about
+    each axis of {T}) carried to the four points as one rigid motion about the origin, with the
+    predicted points' arms (as the readings' part moves them): the covariance has rank 6.
     ``problem``: any tracker problem with ``loop_jacobian`` (a robot with effects:
     :class:`iwr.effects.tracker.TrackerEffectProblem`, ``x`` its robot's, effects' then setup's
     parameters)."""
@@ -234,13 +248,17 @@ def point_covariances(problem: TrackerProblem, x: Any, readings: Any, tracker: A
     cov = np.zeros((n, 3 * npt, 3 * npt))
     pts = m.tracker_points(setup).reshape(n, npt, 3)
     seen = ~np.isnan(pts[:, :, 0])
-    for i in range(npt):
-        block = slice(3 * i, 3 * i + 3)
-        if m.point_sigma is not None:
-            cov[seen[:, i], block, block] = np.einsum(
-                "ki,ij->kij", np.square(m.point_sigma[seen[:, i], i]), np.eye(3))
-        elif tracker is not None:
-            cov[seen[:, i], block, block] = tracker.covariance(pts[seen[:, i], i])
+    if setup.kind == "probe":
+        if tracker is not None:
+            cov += _probe_covariance(problem, x, tracker)
+    else:
+        for i in range(npt):
+            block = slice(3 * i, 3 * i + 3)
+            if m.point_sigma is not None:
+                cov[seen[:, i], block, block] = np.einsum(
+                    "ki,ij->kij", np.square(m.point_sigma[seen[:, i], i]), np.eye(3))
+            elif tracker is not None:
+                cov[seen[:, i], block, block] = tracker.covariance(pts[seen[:, i], i])
     if readings is not None and not readings.is_zero:
         g = reading_jacobian(problem, x)
         prism = np.array([c == "P" for c in robot.joint_types], dtype=bool)
@@ -249,6 +267,53 @@ def point_covariances(problem: TrackerProblem, x: Any, readings: Any, tracker: A
         mask = np.repeat(seen, 3, axis=1).astype(float)
         cov += np.einsum("kip,p,kjp->kij", g, var, g) * mask[:, :, None] * mask[:, None, :]
     return cov
+
+
+def _probe_covariance(problem: Any, x: np.ndarray, tracker: Any) -> np.ndarray:
+    """The probe reading's covariance (N, 12, 12) carried to its four points: ``T C T^T`` with
+    ``C`` its position's (``tracker.covariance`` at the measured origin) and orientation's
+    (``tracker.orientation^2`` about each axis of {T}) and ``T`` the points' change under a
+    rigid motion ``(dp, w)`` about the origin, ``dp + w x arm``, the arms the predicted points'
+    (ValueError naming a pose whose forward kinematics fails at ``x``)."""
+    m = problem.measurements
+    pred = np.asarray(problem.predicted_points(x), dtype=float)
+    bad = np.flatnonzero(~np.all(np.isfinite(pred.reshape(len(pred), -1)), axis=1))
+    if bad.size:
+        raise ValueError(f"noise: {m.where(int(bad[0]))}: no forward kinematics at the point "
+                         "where the weights are evaluated")
+    n, npt = pred.shape[:2]
+    arms = pred - pred[:, :1]
+    t = np.zeros((n, npt, 3, 6))
+    t[..., :3] = np.eye(3)
+    # (dp + w x a) = dp - [a]x w
+    t[..., 0, 4], t[..., 0, 5] = arms[..., 2], -arms[..., 1]
+    t[..., 1, 3], t[..., 1, 5] = -arms[..., 2], arms[..., 0]
+    t[..., 2, 3], t[..., 2, 4] = arms[..., 1], -arms[..., 0]
+    t = t.reshape(n, 3 * npt, 6)
+    c = np.zeros((n, 6, 6))
+    c[:, :3, :3] = tracker.covariance(m.probe[:, :3])
+    c[:, 3:, 3:] = tracker.orientation ** 2 * np.eye(3)
+    return np.einsum("kip,kpq,kjq->kij", t, c, t)
+
+
+def noise_whitening(problem: Any, x: Any, readings: Any, tracker: Any) -> np.ndarray:
+    """The per-pose whitening (N, 3 K, 3 K) of ``problem``'s point residuals by their
+    covariance at ``x`` (:func:`point_covariances`): reflector points by the inverse of its
+    Cholesky factor on the seen coordinates; a probe's four points, whose covariance has rank 6
+    (one rigid pose), by a factor of its pseudo-inverse with six rows, ``W^T W = C^+``, lower
+    triangular as every whitening is (six rows that carry data per pose)."""
+    cov = point_covariances(problem, x, readings, tracker)
+    if problem.setup.kind == "probe":
+        return _rank_whitening(cov, 6, problem.measurements)
+    return _whitening(cov, problem.seen, problem.measurements)
+
+
+def observations(whitening: np.ndarray | None, unweighted: int) -> int:
+    """The residuals that carry data: ``unweighted`` without a whitening, else its rows that
+    are not zero (a probe's whitening has six per pose)."""
+    if whitening is None:
+        return unweighted
+    return int(np.count_nonzero(np.any(whitening != 0, axis=2)))
 
 
 def reading_jacobian(problem: Any, x: Any,
@@ -325,4 +390,31 @@ def _whitening(cov: np.ndarray, seen: np.ndarray, measurements: Any) -> np.ndarr
                 "singular (a tracker without noise and no reading noise to spread it?): give the "
                 "tracker a sigma > 0") from None
         w[k][np.ix_(idx, idx)] = np.tril(np.linalg.solve(chol, np.eye(idx.size)))
+    return w
+
+
+#: A covariance whose ``rank``-th largest eigenvalue is below this fraction of its largest has
+#: lost a direction the noise should reach (a tracker without noise?).
+_SINGULAR = 1e-8
+
+
+def _rank_whitening(cov: np.ndarray, rank: int, measurements: Any) -> np.ndarray:
+    """Per pose a lower-triangular ``W_k`` (m x m, its first ``m - rank`` rows zero) with
+    ``W_k^T W_k`` the pseudo-inverse of the rank-``rank`` covariance ``cov[k]`` (its ``rank``
+    eigen-directions of largest variance): ``B = diag(lambda)^-1/2 U^T`` (rank x m) made lower
+    trapezoidal by an orthogonal change of its rows (a QR factorisation of ``B`` with rows and
+    columns reversed), which changes no ``|W r|``. ValueError naming a pose whose covariance
+    has fewer than ``rank`` directions of noise."""
+    n, m = cov.shape[:2]
+    vals, vecs = np.linalg.eigh(cov)  # ascending
+    lost = np.flatnonzero(~(vals[:, m - rank] > _SINGULAR * vals[:, -1]))
+    if lost.size:
+        raise ValueError(
+            f"noise: {measurements.where(int(lost[0]))}: the covariance of its probe residuals "
+            f"has fewer than {rank} directions of noise (a tracker without noise and no reading "
+            "noise to spread it?): give the tracker a sigma > 0 and an orientation > 0")
+    b = np.swapaxes(vecs[:, :, m - rank:] / np.sqrt(vals[:, None, m - rank:]), 1, 2)
+    r = np.linalg.qr(b[:, ::-1, ::-1], mode="r")  # (n, rank, m), upper trapezoidal
+    w = np.zeros_like(cov)
+    w[:, m - rank:, :] = np.tril(r[:, ::-1, ::-1], m - rank)
     return w
