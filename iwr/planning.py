@@ -74,6 +74,26 @@ class PosePlan:
     #: ``"probe"``) or ``"ballbar"``: what is measured at each pose, for the plan file's
     #: instructions.
     data_kind: str = "pose"
+    #: The independent readings a pose gives of the base parameters (6 for a pose in {0} or a
+    #: probe, 3 per reflector, 1 for a ballbar): the rank of a pose's rows of the design.
+    readings_per_pose: int = 0
+
+    def redundancy(self, validation_fraction: float = 0.2, n_poses: int | None = None) -> int:
+        """The readings beyond the base parameters once a calibration job holds out
+        ``validation_fraction`` of the ``n_poses`` (default the plan's) for validation
+        (:func:`iwr.kinds.split_rows`'s rule): at most 0, the fit has no degree of freedom to be
+        tested with (the job then says "not calibrated: no redundancy")."""
+        n = len(self.indices) if n_poses is None else int(n_poses)
+        n_ident = n - (kinds.split_rows(n, validation_fraction, 0)[1].size if n > 1 else 0)
+        return n_ident * self.readings_per_pose - int(self.base_indices.size)
+
+    def poses_for_redundancy(self, validation_fraction: float = 0.2) -> int:
+        """The fewest poses whose readings, once the job holds out ``validation_fraction`` of
+        them, exceed the base parameters (:meth:`redundancy` > 0)."""
+        n = max(2, len(self.indices))
+        while self.redundancy(validation_fraction, n) <= 0:
+            n += 1
+        return n
 
     def __str__(self) -> str:
         return (
@@ -452,6 +472,7 @@ def plan_poses(
         base_indices=base,
         measurements=cand.subset(idx),
         data_kind=kind.name,
+        readings_per_pose=per_pose,
     )
 
 

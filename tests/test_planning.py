@@ -251,6 +251,12 @@ def test_iwr_plan_writes_a_plan_of_the_robots_kind(name: str, kind_case: Any, tm
                            str(tmp_path / "plan.csv")], capture_output=True, text=True,
                           cwd=tempfile.gettempdir(), env=environ, timeout=600)
     assert proc.returncode == 0, proc.stderr
+    # 60 ballbar poses less the job's 12 held out give 48 distances for 56 base parameters:
+    # told, with the fewest poses that leave some (71: 57 distances); the others have plenty.
+    told = ("none to test the fit with" in proc.stdout
+            and "48 readings for 56 base parameters" in proc.stdout
+            and "plan 71 poses or more" in proc.stdout)
+    assert told == (name == "ballbar"), proc.stdout
     text = (tmp_path / "plan.csv").read_text()
     if name == "points":
         assert "reflector points measured by the tracker" in text and "docs/tracker.md" in text
