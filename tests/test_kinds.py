@@ -325,3 +325,31 @@ def test_each_kind_recognises_its_own_files(kind, tmp_path):
     expected = set() if kind.kind.fallback else tracker if kind.name in tracker else {kind.name}
     assert claims == expected
     assert not kind.kind.recognises(tmp_path / "missing.csv")
+
+
+def test_a_kind_without_a_weighted_objective_is_refused_or_noted_by_iwr_calibrate(capsys):
+    """Every built-in kind has a noise-weighted objective; a kind of one's own may not: then
+    ``--method lm --noise ...`` is a usage error, and the robot file's noise model is set aside
+    with a note (it is the efficient estimator's)."""
+    import argparse
+
+    from iwr.cli._base import UsageError
+    from iwr.cli.calibrate import _reading_noise
+    from iwr.kinds.pose import PoseKind
+
+    class Unweighted(PoseKind):
+        weighted_objective = False
+
+    assert all(kinds.named(name).weighted_objective
+               for name in ("pose", "points", "probe", "ballbar"))
+    args = argparse.Namespace(noise_from="--noise")
+    with pytest.raises(UsageError, match="--method lm with --noise: on .* data only the "
+                                         "efficient estimator"):
+        _reading_noise(Unweighted(), iwr.Noise.realistic(), "lm", args)
+    args = argparse.Namespace(noise_from="robot.toml [noise]")
+    assert _reading_noise(Unweighted(), iwr.Noise.realistic(), "lm", args) is None
+    assert "noise model of robot.toml [noise]: not used by method lm" in capsys.readouterr().out
+    assert args.noise_from is None
+    # the efficient estimator takes it
+    args = argparse.Namespace(noise_from="--noise")
+    assert _reading_noise(Unweighted(), iwr.Noise.realistic(), "efficient", args) is not None

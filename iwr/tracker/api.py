@@ -112,12 +112,6 @@ def identify_with(robot: Any, measurements: Any, method: str,
     if weighted and noise is None:
         raise ValueError("weighted=True needs a noise model: noise=(iwr.Noise(...), "
                          "iwr.tracker.TrackerNoise(...))")
-    kind = kinds.of(measurements)
-    if not weighted and noise is not None and not kind.chi2_fit_test:
-        raise ValueError(f"noise with weighted=False: method {method!r} on the unweighted "
-                         f"{kind.description} objective does not use a noise model (no "
-                         "chi-square test of these data); leave the noise out, or use the "
-                         "efficient estimator")
     problem, start_x = problem_of(noise if weighted else None)
     if isinstance(active, str) and active == "base":
         active = base_of(problem, start_x)
@@ -130,7 +124,7 @@ def identify_with(robot: Any, measurements: Any, method: str,
         # Said in the settings too, so that a saved result's fun is not read as unweighted.
         result["settings"] = {**dict(result.settings), "objective": {
             "weighted": True, "cost_eq10": float(result["cost_eq10"]),
-            **kind.noise_record(problem.noise)}}
+            **kinds.of(measurements).noise_record(problem.noise)}}
     settle(result, problem, noise, mask)
     return result
 
