@@ -1,0 +1,273 @@
+"""The carriage's compliance on laser-tracker data (issue 23, docs/effects.md, "Tracker data"):
+the carriage's joints change under the gravity load of what they carry, gravity given in {T}
+and carried into {0} by the identified registration; the numpy model and its exact Jacobian,
+the C++ objective, the noise-free recovery, what one payload cannot separate, and the job."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+import iwr
+from iwr.effects import api, tracker_study
+from iwr.effects import tracker as et
+from iwr.effects.carriage import CarriageCompliance
+from iwr.effects.model import predicted_readings
+
+PAYLOADS, FRESH_PAYLOADS = tracker_study.PAYLOADS, tracker_study.FRESH_PAYLOADS
+#: Gravity in {T} tilted so that every joint of the test IWR's carriage carries a load in {0}
+#: (the slides too: a levelled tracker puts gravity along {0}'s -z there).
+TILTED = (2.5, -1.5, -9.4)
+#: Realistic compliances of the four joints (docs/effects.md, "Realistic magnitudes"), larger for
+#: the slides so that their part shows above round-off in a few poses.
+CARRIAGE = (0.01, 0.01, 0.02, 0.02)
+
+
+def carriage_robot(plain, *, legs=True, thermal=True, gravity=TILTED, joints=(1, 2, 3, 4),
+                   compliance=CARRIAGE):
+    """``plain`` (a tracker robot) with its tracker's gravity ``gravity`` in {T}, the carriage's
+    compliance of ``joints`` (400 kg hexapod, 120 kg platform, as api.realistic) and, when asked,
+    the legs' realistic compliance and thermal growth."""
+    s = plain.tracker
+    setup = iwr.tracker.TrackerSetup(s.registration, reflectors=s.reflectors, probe=s.probe,
+                                     probe_length=s.probe_length,
+                                     names=s.names if s.kind == "points" else None,
+                                     gravity=list(gravity))
+    plain = plain.with_effects().with_tracker(setup=setup)
+    comp, thermal_effect = api.realistic(plain)
+    carriage = CarriageCompliance(400.0, [0.0, 0.0, 150.0], 120.0, [0.0, 0.0, 40.0],
+                                  comp.gravity, list(joints),
+                                  [compliance[j - 1] for j in joints])
+    effects = ((comp,) if legs else ()) + ((thermal_effect,) if thermal else ()) + (carriage,)
+    return plain.with_effects(*effects)
+
+
+@pytest.fixture(scope="module", params=["points", "probe"])
+def case(request, measured_with_effects):
+    robot = carriage_robot(measured_with_effects(request.param))
+    data, truth = et.simulate(robot, 6, seed=11, payloads=PAYLOADS)
+    return robot, data, truth
+
+
+def _step(name: str) -> float:
+    """A central-difference step per parameter: its unit's scale over 1e6 or so."""
+    if name.endswith("compliance"):
+        return 1e-4  # um/N, urad/(N m)
+    if name == "legs.alpha":
+        return 1e-2  # ppm/K
+    if name.split(".")[-1] in ("dalpha", "dtheta", "rx", "ry", "rz"):
+        return 1e-7  # rad
+    return 1e-5  # mm
+
+
+def test_every_joint_carries_a_load_in_the_tests(case):
+    """The premise of the checks below: under the tilted gravity every joint is loaded, so
+    every compliance changes the points."""
+    from iwr.effects.model import joint_changes, split
+
+    robot, data, truth = case
+    model = et.TrackerEffectModel(robot, robot.tracker, data)
+    xr, xs = model.split(truth)
+    poses = model.forward(truth)[0]
+    rg = et.with_gravity(robot, et.registration_gravity(robot.tracker, xs)[0])
+    xg, xe = split(robot, xr)
+    change = joint_changes(rg, xg, xe, data.q, iwr.transforms.pose_matrix(poses), data)[0]
+    assert np.all(np.abs(change).min(axis=0) > 1e-6)  # mm (slides) or rad (revolute joints)
+
+
+def test_gravity_jacobian_with_the_carriage_matches_finite_differences(case):
+    """The readings' derivative in gravity (in {0}) now has the carriage's part: its joints'
+    loads are linear in gravity, the legs are not linear in the joints (central differences,
+    relative 1e-6)."""
+    robot, data, truth = case
+    model = et.TrackerEffectModel(robot, robot.tracker, data)
+    xr, xs = model.split(truth)
+    poses = model.forward(truth)[0]
+    g0 = et.registration_gravity(robot.tracker, xs)[0]
+    jg = et.gravity_jacobian(et.with_gravity(robot, g0), xr, data.q, poses, data)
+    plain = robot.with_effects(*robot.effects[:-1])
+    n_carriage = len(robot.effects[-1].parameter_names())
+    jg_legs = et.gravity_jacobian(et.with_gravity(plain, g0), xr[:-n_carriage], data.q, poses,
+                                  data)
+    assert np.abs(jg - jg_legs).max() > 1e-5  # mm per m/s^2: the carriage's part
+    for c in range(3):
+        e = np.zeros(3)
+        e[c] = 1e-3
+        fd = (predicted_readings(et.with_gravity(robot, g0 + e), xr, data.q, poses, data)
+              - predicted_readings(et.with_gravity(robot, g0 - e), xr, data.q, poses, data)) / 2e-3
+        np.testing.assert_allclose(jg[..., c], fd, rtol=1e-6, atol=1e-10)
+
+
+def test_objective_jacobian_with_the_carriage_matches_central_differences(case):
+    """The points' (probe's) Jacobian in every parameter, geometric, effects' and setup's (the
+    registration's tilts through gravity too), against central differences (relative 1e-5), at
+    a point away from the solution; the forward kinematics closes the legs with the carriage's
+    change."""
+    robot, data, truth = case
+    problem, start = et.effect_tracker_problem(robot, data)
+    x = 0.5 * (start + truth)
+    r, jac = problem.residuals_and_jacobian(x)
+    np.testing.assert_array_equal(r, problem.residuals(x))
+    names = problem.parameter_names
+    assert names[robot.n_params + 7:robot.n_params + 11] == [
+        f"joint{j}.compliance" for j in range(1, 5)]
+    for i, name in enumerate(names):
+        h = _step(name)
+        e = np.zeros(problem.n_params)
+        e[i] = h
+        fd = (problem.residuals(x + e) - problem.residuals(x - e)) / (2 * h)
+        scale = max(np.abs(jac[:, i]).max(), 1e-12)
+        err = np.abs(fd - jac[:, i]).max()
+        assert err <= 1e-5 * scale + 1e-9, (name, err, scale)
+    # The carriage's compliances move the points by more than round-off.
+    ng = robot.n_params
+    assert np.abs(jac[:, ng + 7: ng + 11]).max(axis=0).min() > 1e-4  # mm per unit
+    # The legs close: the readings with the carriage's change at the solved poses.
+    model = problem.model
+    poses, ok = model.forward(x)
+    xr, xs = model.split(x)
+    rg = et.with_gravity(robot, et.registration_gravity(robot.tracker, xs)[0])
+    assert ok.all()
+    assert np.abs(predicted_readings(rg, xr, data.q, poses, data) - data.legs).max() < 1e-10
+
+
+def test_loop_model_jacobians_with_the_carriage(case):
+    """The efficient estimator's loop model (legs at corrected readings with the carriage's
+    change, points): its derivatives in the parameters (the setup's through gravity) and in
+    the corrections against central differences."""
+    robot, data, truth = case
+    setup = robot.tracker
+    problem, start = et.effect_tracker_problem(robot, data)
+    x = 0.5 * (start + truth)
+    ref = problem.model.forward(x)[0]
+    n, nj = len(data), robot.n_joints
+    measured = data.tracker_points(setup) if setup.kind == "points" else data.probe
+    blocks = setup.n_points if setup.kind == "points" else 2  # 3 x 3 whitening per block
+    sigma = np.hstack([np.full((n, 6), 0.002), np.full((n, nj), 1e-3)])
+    model = et.loop_model(robot, setup, data, ref, np.ascontiguousarray(measured),
+                          np.tile(np.eye(3).ravel() / 0.01, (n, blocks)), sigma)
+    corr = np.random.default_rng(4).normal(0, 1e-3, (n, nj + 6))
+    r, rx, ry = model(x, corr, True)
+    names = problem.parameter_names
+    for i in [names.index(k) for k in ("joint4.dtheta", "joint3.compliance", "joint1.compliance",
+                                       "leg2.compliance", "tracker.rx", "tracker.ry")]:
+        h = _step(names[i])
+        e = np.zeros(x.size)
+        e[i] = h
+        fd = (model(x + e, corr, False)[0] - model(x - e, corr, False)[0]) / (2 * h)
+        np.testing.assert_allclose(rx[..., i], fd, rtol=0,
+                                   atol=1e-5 * np.abs(rx[..., i]).max() + 1e-7)
+    for c in range(nj + 6):
+        e = np.zeros_like(corr)
+        e[:, c] = 1e-6
+        fd = (model(x, corr + e, False)[0] - model(x, corr - e, False)[0]) / 2e-6
+        np.testing.assert_allclose(ry[..., c], fd, rtol=0,
+                                   atol=1e-5 * np.abs(ry[..., c]).max() + 1e-7)
+
+
+def test_the_paths_that_refused_it_model_it(measured_with_effects):
+    """The carriage's compliance was refused on tracker data by name (simulate, identify,
+    identifiability, accuracy); each now models it: the data simulated with it fit the model
+    with it exactly, and without it they do not."""
+    plain = measured_with_effects("points")
+    robot = plain.with_effects(*api.realistic(plain.with_effects(), carriage=True))
+    assert any("joints" in e.changes for e in robot.effects)
+    data, truth = et.simulate(robot, 10, seed=1)
+    problem, _ = et.effect_tracker_problem(robot, data)
+    assert problem.cost(truth) < 1e-20 and float(problem.residuals(truth) @ problem.residuals(
+        truth)) < 1e-20
+    ns = iwr.identifiability(robot, data, truth)
+    assert len(ns.left_out) >= 10
+    assert iwr.accuracy(robot, data, truth).calibrated.position.max() < 1e-9
+    rigid = truth.copy()
+    ng, ne = robot.n_params, len(iwr.effects.parameter_names(robot.effects))
+    carriage = [i for i, n in enumerate(problem.parameter_names) if n.startswith("joint")
+                and n.endswith(".compliance")]
+    assert carriage and carriage[-1] < ng + ne
+    rigid[carriage] = -robot.effects[-1].values()
+    assert problem.cost(rigid) > 1e-6  # mm^2: the carriage's compliance is in the data
+
+
+# -- the C++ objective (cpp/src/effects_tracker.cpp) ---------------------------------------------
+
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+@pytest.mark.parametrize("name", ["with the legs' effects", "the carriage alone",
+                                  "the carriage and the thermal effect", "joints 3 and 4"])
+def test_cpp_objective_with_the_carriage_agrees_with_the_numpy_model(monkeypatch,
+                                                                     measured_with_effects,
+                                                                     kind, name):
+    """The C++ residuals against the numpy model's (its forward kinematics solved to 1e-13 mm)
+    at the truth, the start and random points within the bounds (the carriage's compliances up
+    to their bound, 0.5 urad/(N m)): within 1e-11 mm; the costs the residuals' squares, the
+    batch the same bits on 1 and 2 threads; the platform poses numpy's."""
+    plain = measured_with_effects(kind)
+    robot = carriage_robot(plain, legs=name == "with the legs' effects",
+                           thermal=name != "the carriage alone",
+                           joints=(3, 4) if name == "joints 3 and 4" else (1, 2, 3, 4))
+    data, truth = et.simulate(robot, 8, seed=7, payloads=PAYLOADS,
+                              hidden=0.2 if kind == "points" else 0.0)
+    problem, start = et.effect_tracker_problem(robot, data)
+    monkeypatch.setattr(et, "FK_TOLERANCE_MM", 1e-13)
+    rng = np.random.default_rng(3)
+    lo, hi = problem.lower, problem.upper
+    X = np.vstack([truth, start, lo + (hi - lo) * rng.random((3, problem.n_params)), hi])
+    cpp = problem._objective()
+    worst = 0.0
+    for x in X:
+        rn = problem.residuals(x)
+        rc = cpp.residuals(x)
+        assert np.all(np.isfinite(rc)) and not problem.failures(x)
+        worst = max(worst, np.abs(rc - rn).max())
+        assert problem.cost(x) == pytest.approx(float(rn @ rn), rel=1e-11)
+    assert worst < 1e-11, worst
+    assert problem.cost(truth) < 1e-20
+    costs = problem.cost_batch(X, workers=1)
+    np.testing.assert_array_equal(costs, problem.cost_batch(X, workers=2))
+    np.testing.assert_array_equal(costs, [problem.cost(x) for x in X])
+    np.testing.assert_allclose(cpp.platform_poses(X[2]), problem.platform_poses(X[2]),
+                               rtol=0, atol=1e-11)
+
+
+def test_weighted_cpp_objective_with_the_carriage(measured_with_effects):
+    """The noise-weighted point objective with the carriage's compliance: the C++ cost is the
+    sum of the numpy model's whitened residuals (the readings' noise propagated through the loop
+    closure with the carriage's change), the same bits on 1 and 2 threads."""
+    robot = carriage_robot(measured_with_effects("points"))
+    noise = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6),
+             iwr.tracker.TrackerNoise.leica())
+    data, truth = et.simulate(robot, 8, seed=5, payloads=PAYLOADS, noise=noise)
+    problem, start = et.effect_tracker_problem(robot, data, noise=noise)
+    assert problem.whitening is not None
+    X = np.vstack([truth, start, 0.5 * (start + truth)])
+    for x in X:
+        r = problem.residuals(x)
+        assert problem.cost(x) == pytest.approx(float(r @ r), rel=1e-10)
+        assert problem.cost_unweighted(x) != pytest.approx(problem.cost(x), rel=1e-3)
+    np.testing.assert_array_equal(problem.cost_batch(X, workers=1),
+                                  problem.cost_batch(X, workers=2))
+
+
+def test_problem_file_and_engine_with_the_carriage(tmp_path, measured_with_effects):
+    """The problem file carries the carriage's table on tracker data (the reader refused it);
+    the round trip is bit for bit and iwr-engine's objective gives the same costs."""
+    from iwr import _core
+    from iwr.problem_file import encode_problem, read_problem
+
+    for kind in ("points", "probe"):
+        robot = carriage_robot(measured_with_effects(kind))
+        data, truth = et.simulate(robot, 8, seed=4, payloads=PAYLOADS)
+        problem, start = et.effect_tracker_problem(robot, data)
+        path = tmp_path / f"{kind}.iwrp"
+        problem.save(path, x0=start)
+        d = read_problem(path)
+        assert [name for name, _ in d["effects"]] == ["compliance", "thermal",
+                                                      "carriage_compliance"]
+        np.testing.assert_array_equal(d["tracker_gravity"], TILTED)
+        back = iwr.Problem.load(path)
+        assert isinstance(back, et.TrackerEffectProblem) and back.robot.effects == robot.effects
+        assert encode_problem(back, x0=start) == encode_problem(problem, x0=start)
+        X = np.vstack([truth, start, problem.lower + 0.3 * (problem.upper - problem.lower)])
+        costs = problem.cost_batch(X)
+        np.testing.assert_array_equal(back.cost_batch(X), costs)
+        np.testing.assert_array_equal(_core._engine_costs(str(path), X), costs)
