@@ -302,3 +302,45 @@ def test_noise_free_recovery_with_the_carriage(kind, measured_with_effects):
     rigid[ng + 7: ng + 11] = -robot.effects[-1].values()
     assert np.abs(et.leg_commands(robot, rigid, b, fresh.q, fresh) - fresh.legs).max() > 1e-3
     assert iwr.accuracy(robot, fresh, res.x, truth=truth).calibrated.position.max() < 1e-6
+
+
+@pytest.mark.parametrize("payloads, inseparable", [
+    (PAYLOADS[1:2], ["joint1.compliance", "joint2.compliance"]),  # the 80 kg head throughout
+    (PAYLOADS[:2], []),                                            # none and the head
+])
+def test_one_payload_leaves_the_slides_in_the_geometry_on_tracker_data(
+        measured_with_effects, payloads, inseparable):
+    """The design rule on tracker data: a slide whose axis keeps its direction to gravity
+    carries the same force at every pose under one payload, so its change is a translation of
+    everything after it, which the geometry and the registration absorb (iwr.identifiability
+    names it among the left-out parameters; the default parameters leave it out); a second
+    payload separates it. The revolute joints' torques vary with the pose: one payload
+    separates them. The rank of the analytic Jacobian (over the base parameters and the four
+    compliances) is that of a central-difference one: a rank gap of 2 (one payload) or 0 (two)
+    at 1e-7 of the largest singular value, where the gap is below 1e-16 (analytic) and 1e-8
+    (differences) and the base parameters' weakest is 3e-4."""
+    # At the file's compliances 0 (as the pose data's test, tests/test_effects_carriage.py).
+    robot = carriage_robot(measured_with_effects("points"), legs=False, thermal=False,
+                           compliance=(0.0, 0.0, 0.0, 0.0))
+    x = np.zeros(robot.n_params + 4 + robot.tracker.n_params)
+    data, _ = et.simulate(robot, 30, seed=6, x=x, payloads=payloads)
+    report = iwr.identifiability(robot, data, x)
+    assert [n for n in report.left_out if n.endswith(".compliance")] == inseparable
+    problem, _ = et.effect_tracker_problem(robot, data)
+    names = problem.parameter_names
+    base = et.base_parameters(robot, data, x)
+    compliances = np.array([n.endswith(".compliance") for n in names])
+    assert [n for n, b in zip(names, base & compliances) if b] == [
+        f"joint{j}.compliance" for j in range(1, 5) if f"joint{j}.compliance" not in inseparable]
+    cols = np.flatnonzero(base | compliances)
+    steps = np.where(compliances, 1e-3, 1e-5)
+    fd = np.column_stack([(problem.residuals(x + steps[i] * np.eye(x.size)[i])
+                           - problem.residuals(x - steps[i] * np.eye(x.size)[i])) / (2 * steps[i])
+                          for i in cols])
+
+    def rank(m):
+        s = np.linalg.svd(m / np.linalg.norm(m, axis=0), compute_uv=False)
+        return int(np.sum(s > 1e-7 * s[0]))
+
+    assert rank(problem.jacobian(x)[:, cols]) == rank(fd) == cols.size - len(inseparable)
+    assert report.rank == len(names) - len(report.left_out)
