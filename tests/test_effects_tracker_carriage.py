@@ -330,7 +330,7 @@ def test_one_payload_leaves_the_slides_in_the_geometry_on_tracker_data(
     names = problem.parameter_names
     base = et.base_parameters(robot, data, x)
     compliances = np.array([n.endswith(".compliance") for n in names])
-    assert [n for n, b in zip(names, base & compliances) if b] == [
+    assert [n for n, b in zip(names, base & compliances, strict=True) if b] == [
         f"joint{j}.compliance" for j in range(1, 5) if f"joint{j}.compliance" not in inseparable]
     cols = np.flatnonzero(base | compliances)
     steps = np.where(compliances, 1e-3, 1e-5)
