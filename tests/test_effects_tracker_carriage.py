@@ -447,3 +447,37 @@ def test_iwr_calibrate_launcher_with_the_carriage_equals_identify(tmp_path, meas
     problem = iwr.Problem.load(tmp_path / "run.json.iwrp")
     assert exe.fun == problem.cost(exe.x) == py.fun
     assert exe.parameter_names[65:69] == [f"joint{j}.compliance" for j in range(1, 5)]
+
+
+def test_the_job_steps_with_the_carriage(measured_with_effects):
+    """iwr.calibrate (noise-weighted LM) on reflector points with the carriage's compliance and
+    a 1 mm gross error in one reflector: the screen (the misclosures' derivatives in every
+    reading through the loop closure with the carriage's change) finds it, the fit passes, the
+    uncertainty has the carriage's compliances; iwr.plan_poses chooses poses and payloads with
+    it; iwr legs' commands (targets in {T}) are the model's."""
+    from iwr.transforms import pose_from_matrix
+
+    robot = carriage_robot(measured_with_effects("points"))
+    ng, ne = robot.n_params, 11
+    _, truth = et.simulate(robot, 1, seed=3)
+    truth[ng: ng + ne] = 0.0  # the file's (realistic) effects: see the test above
+    data, _ = et.simulate(robot, 30, seed=1, x=truth, noise=NOISE, payloads=PAYLOADS)
+    bad = data.subset(np.arange(len(data)))
+    bad.points[7, 1] += [1.0, 0.0, 0.0]
+    cal = iwr.calibrate(robot, bad, "lm", noise=NOISE, seed=3)
+    assert cal.success and cal.fit_ok, cal.result.message
+    found = cal.result.outliers
+    assert len(found) == 1 and found[0].instrument.startswith("reflector2"), found
+    assert np.all(np.isfinite(np.asarray(cal.uncertainty.std)[ng + 7: ng + 11]))
+    plan = iwr.plan_poses(robot, data, 12, payloads=PAYLOADS, seed=0)
+    assert len(plan.measurements) == 12 and plan.value > 0
+    frames = et.tool_frames(robot, truth, data)
+    nominal = np.zeros_like(truth)
+    cmd = api.leg_commands(robot, data.q, np.array([pose_from_matrix(f) for f in
+                                                    et.tool_frames(robot, nominal, data)]),
+                           payload=data.payload, temperatures=data.temperatures, frame="T")
+    model = et.leg_commands(robot, nominal, et.tool_frames(robot, nominal, data), data.q, data)
+    np.testing.assert_allclose(cmd.legs, model, rtol=0, atol=1e-9)
+    # The commands invert the forward kinematics with the carriage's change.
+    np.testing.assert_allclose(et.leg_commands(robot, truth, frames, data.q, data), data.legs,
+                               rtol=0, atol=1e-9)
