@@ -481,3 +481,15 @@ def test_the_job_steps_with_the_carriage(measured_with_effects):
     # The commands invert the forward kinematics with the carriage's change.
     np.testing.assert_allclose(et.leg_commands(robot, truth, frames, data.q, data), data.legs,
                                rtol=0, atol=1e-9)
+
+
+def test_realistic_lists_the_joints_the_trackers_gravity_loads(measured_with_effects):
+    """api.realistic(carriage=True) chooses the joints that carry a load under gravity as the
+    data give it: on tracker data the tracker's through the registration. The tests' levelled
+    tracker puts gravity along {0}'s -z, where the first slide carries the whole weight; the
+    effect's own gravity in {0} (-x, pose data's) loads joint 4 only."""
+    plain = measured_with_effects("points").with_effects()
+    g0 = iwr.kinds.for_robot(plain).world_gravity(plain)
+    assert g0[2] < -9.7
+    assert api.realistic(plain, carriage=True)[-1].joints[0] == 1
+    assert api.realistic(iwr.Robot.default(), carriage=True)[-1].joints == (4,)
