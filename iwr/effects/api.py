@@ -65,7 +65,6 @@ def _realistic_carriage(robot: Any, gravity: np.ndarray) -> Any:
     import itertools
 
     from .. import kinds
-
     from ..transforms import pose_from_matrix
     from .carriage import CarriageCompliance
     from .model import joint_loads, platform_moment
