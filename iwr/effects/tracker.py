@@ -3,8 +3,10 @@ non-geometric effects (issue 23, docs/effects.md, "Tracker data").
 
 The platform pose in {0} is not measured: it follows from the joint and leg readings by forward
 kinematics *with the effects* (each leg's true length is its reading plus the leg offset plus
-the effects' change, which depends on the pose through the leg forces and lengths), and the
-points are ``T_T0 0T5 r_i`` as without effects (:mod:`iwr.tracker`).
+the effects' change, which depends on the pose through the leg forces and lengths; the carriage's
+joints are first changed by the effects on them, the carriage's compliance under the load of the
+hexapod and of the platform's bodies where the pose puts them), and the points are
+``T_T0 0T5 r_i`` as without effects (:mod:`iwr.tracker`).
 
 **Gravity comes through the registration.** The leg forces need gravity relative to the robot.
 Tracker data do not fix {0}: a turn of the whole robot about its first joint's axis, and its
@@ -17,8 +19,9 @@ it is known, in the tracker frame (:attr:`iwr.tracker.TrackerSetup.gravity`, a l
 ``g_0 = R_T0(x_setup)^T g_T`` (:func:`registration_gravity`). Every gauge motion then moves
 {0} and gravity in it together, and the objective is exactly invariant along it (a test checks
 it); the registration's two tilts, which the geometry identifies (docs/tracker.md), fix gravity
-relative to the robot. The compliance effect's own ``gravity_m_s2`` (in {0}) is for pose data,
-which measure in {0}; on tracker data it is not used.
+relative to the robot. The same gravity loads the carriage's joints. The effects' own
+``gravity_m_s2`` (in {0}) is for pose data, which measure in {0}; on tracker data it is not
+used.
 
 Unknowns: the robot's geometric errors, the effects' parameters, then the setup's (registration
 and reflector or probe offsets): ``x = (x_geometric, x_effects, x_setup)``.
@@ -919,8 +922,9 @@ def loop_model(robot: Any, setup: Any, data: Any, reference: np.ndarray, measure
                whitening: np.ndarray, sigma: np.ndarray) -> Any:
     """The tracker estimator's normalised residuals for a robot with effects, a
     :data:`iwr.effects.solver.LoopModel`: per pose the legs ``(predicted - measured) / sigma``
-    with the effects at the corrected readings (joints ``q + dq``, platform ``reference (+)
-    (dp, w)``) under the pose's load and temperature (:func:`iwr.effects.loop.loop_jacobians`,
+    with the effects at the corrected readings (joints ``q + dq``, changed by the carriage's
+    compliance when it is on; platform ``reference (+) (dp, w)``) under the pose's load and
+    temperature (:func:`iwr.effects.loop.loop_jacobians`,
     gravity through the registration), the joints' corrections over their sigma, and the
     whitened points (or the probe's position and orientation) as the C++ tracker model has them
     (``_core.tracker_loop_jacobians``: the points do not depend on the effects at a given
