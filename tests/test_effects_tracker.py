@@ -391,22 +391,6 @@ def test_monte_carlo_extended_against_geometric_on_tracker_data(kind, measured_w
 # -- found by the review of the merged branches ------------------------------------------------
 
 
-def test_the_carriages_compliance_is_refused_on_tracker_data(measured_with_effects):
-    """An effect on the carriage's joints is not in the tracker data's forward kinematics: every
-    path refuses it by name (LM raised NotImplementedError, `iwr analyze` named the legs)."""
-    from iwr.effects import api
-
-    plain = measured_with_effects("points")
-    data, _ = iwr.simulate(plain, 20, seed=1)
-    robot = plain.with_effects(*api.realistic(plain.with_effects(), carriage=True))
-    assert any("joints" in e.changes for e in robot.effects)
-    for call in (lambda: et.simulate(robot, 10, seed=1), lambda: iwr.identify(robot, data, "lm"),
-                 lambda: iwr.identifiability(robot, data), lambda: iwr.accuracy(robot, data, None)):
-        with pytest.raises(ValueError, match="carriage_compliance .it changes the carriage's "
-                                             "joints. is not modelled on tracker data"):
-            call()
-
-
 def test_a_rigid_leg_at_its_bound_passes_the_range_test_on_tracker_data(measured_with_effects):
     """True compliances 0 (at the bound), realistic noise: LM's range test weighs a departure
     below 0 by its standard deviation on tracker data too (it failed every seed: no standard

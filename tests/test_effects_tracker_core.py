@@ -90,8 +90,9 @@ def test_failures_and_bad_inputs(measured_with_effects):
         ({"temperatures": np.zeros((0, 0))}, "temperatures: the thermal effect"),
         ({"payload": data.payload[:, :3]}, r"payload: shape \(6, 3\); expected \(6, 4\)"),
         ({"gravity": np.array([0.0, 0.0, -5.0])}, "gravity: norm 5 m/s\\^2 in the tracker frame"),
-        ({"effects": [(e.name, e.to_dict()) for e in api.realistic(robot, carriage=True)]},
-         "effects.carriage_compliance: the carriage's compliance .* not modelled on tracker"),
+        ({"effects": [(e.name, {**e.to_dict(), "joints": [5]} if "joints" in e.changes
+                       else e.to_dict()) for e in api.realistic(robot, carriage=True)]},
+         r"effects.carriage_compliance.joints\[0\]: 5; expected a joint number from 1 to 4"),
     ]:
         with pytest.raises(ValueError, match=message):
             _core.TrackerEffectObjective(geometry, **{"effects": tables, **args, **change})

@@ -15,7 +15,7 @@ namespace iwr {
 namespace {
 
 constexpr double kStandardGravity = 9.80665;  // m/s^2, as iwr/effects/builtin.py
-constexpr int kMaxChainJoints = 64;           // the carriage compliance's per-joint buffers
+using detail::kMaxChainJoints;
 
 [[noreturn]] void bad(const std::string& where, const std::string& what) {
     throw std::invalid_argument(where + ": " + what);
@@ -186,6 +186,65 @@ void carriage_chain(const PoseData& layout, const EvalConsts& ec, const double* 
             t[3 * r + 2] = jc[0] * w - jc[1] * v;
             t[9 + r] += jc[4] * u + dk * w;
         }
+    }
+}
+
+std::vector<double> carriage_scales(const EffectModel& m, const Geometry& g) {
+    const int nj = g.n_joints();
+    if (nj > kMaxChainJoints)
+        throw std::invalid_argument("effects.carriage_compliance: the robot has " + std::to_string(nj) +
+                                    " joints; at most " + std::to_string(kMaxChainJoints));
+    std::vector<double> scale(static_cast<std::size_t>(nj), 0.0);
+    for (int jt : m.carriage_joints) {
+        if (jt >= nj)
+            throw std::invalid_argument("effects.carriage_compliance.joints: joint " + std::to_string(jt + 1) +
+                                        "; the robot has " + std::to_string(nj) + " joints");
+        scale[static_cast<std::size_t>(jt)] = g.is_prismatic(jt) ? 1e-3 : 1e-9;
+    }
+    return scale;
+}
+
+void carriage_compliances(const EffectModel& m, const std::vector<double>& scale, const double* x, double* out) {
+    for (std::size_t i = 0; i < scale.size(); ++i) out[i] = 0.0;
+    for (std::size_t u = 0; u < m.carriage_joints.size(); ++u) {
+        const int i = m.carriage_joints[u];
+        out[i] = (m.carriage_values[u] + x[m.carriage_index + static_cast<int>(u)]) * scale[static_cast<std::size_t>(i)];
+    }
+}
+
+void hexapod_centre(const EffectModel& m, const EvalConsts& ec, double* out) {
+    Vec3 a[kLegs], centre = Vec3::Zero(), n = Vec3::Zero();
+    for (int j = 0; j < kLegs; ++j) a[j] = Vec3(ec.a[j][0], ec.a[j][1], ec.a[j][2]), centre += a[j];
+    centre /= kLegs;
+    for (int j = 0; j < kLegs; ++j) n += a[j].cross(a[(j + 1) % kLegs]);
+    const Vec3 z = n / n.norm();
+    const Vec3 mid = 0.5 * (a[0] + a[1]) - centre;
+    const Vec3 xs = mid - mid.dot(z) * z;
+    const Vec3 x = xs / xs.norm();
+    const Vec3 y = z.cross(x);
+    const Vec3& c = m.hexapod_centre;
+    const Vec3 p = centre + c(0) * x + c(1) * y + c(2) * z;
+    for (int e = 0; e < 3; ++e) out[e] = p(e);
+}
+
+void carriage_deflection(const EffectModel& m, const PoseData& layout, const double* axes, const double* origins,
+                         const double* t, const double* ch, const double* first, double mass_carried, const Vec3& g,
+                         const double* ccomp, double* delta) {
+    const double mh = m.hexapod_mass, mass = mh + mass_carried;
+    double p[3];
+    for (int e = 0; e < 3; ++e)
+        p[e] = mh * (t[3 * e] * ch[0] + t[3 * e + 1] * ch[1] + t[3 * e + 2] * ch[2] + t[9 + e]) + first[e];
+    for (int i = 0; i < layout.n_joints; ++i) {
+        const double* z = axes + 3 * i;
+        double load;
+        if (layout.prismatic[i]) {
+            load = mass * (g(0) * z[0] + g(1) * z[1] + g(2) * z[2]);
+        } else {  // (P - M o) . (g x z)
+            const double* o = origins + 3 * i;
+            const double gz[3] = {g(1) * z[2] - g(2) * z[1], g(2) * z[0] - g(0) * z[2], g(0) * z[1] - g(1) * z[0]};
+            load = (p[0] - mass * o[0]) * gz[0] + (p[1] - mass * o[1]) * gz[1] + (p[2] - mass * o[2]) * gz[2];
+        }
+        delta[i] = ccomp[i] * load;
     }
 }
 
@@ -397,17 +456,8 @@ EffectObjective::EffectObjective(Geometry geometry, EffectModel effects, const R
     int nq = 30;  // 0R5 9, 0P5 3, readings 6, wrench 6, T - T_ref 6
     if (weights.size() != 0) off_w_ = nq, nq += kLegs;
     if (effects_.carriage) {
-        if (nj > kMaxChainJoints)
-            throw std::invalid_argument("effects.carriage_compliance: the robot has " + std::to_string(nj) +
-                                        " joints; at most " + std::to_string(kMaxChainJoints));
         off_cc_ = nq, nq += 4;
-        cc_scale_.assign(static_cast<std::size_t>(nj), 0.0);
-        for (int jt : effects_.carriage_joints) {
-            if (jt >= nj)
-                throw std::invalid_argument("effects.carriage_compliance.joints: joint " + std::to_string(jt + 1) +
-                                            "; the robot has " + std::to_string(nj) + " joints");
-            cc_scale_[static_cast<std::size_t>(jt)] = geometry_.is_prismatic(jt) ? 1e-3 : 1e-9;
-        }
+        cc_scale_ = detail::carriage_scales(effects_, geometry_);
     }
     if (whitened_) off_wh_ = nq, nq += kLegs * (kLegs + 1) / 2;
     for (int i = 0; i < nj; ++i) {
@@ -477,23 +527,6 @@ EffectObjective::Workspace EffectObjective::make_workspace() const {
     return ws;
 }
 
-void EffectObjective::hexapod_centre(const detail::EvalConsts& ec, double* out) const {
-    // The frame the base joints define (iwr.effects.model.base_frame): origin their centre, z the
-    // normal of their polygon (sum a_j x a_j+1), x towards the midpoint of joints 1 and 2.
-    Vec3 a[kLegs], centre = Vec3::Zero(), n = Vec3::Zero();
-    for (int j = 0; j < kLegs; ++j) a[j] = Vec3(ec.a[j][0], ec.a[j][1], ec.a[j][2]), centre += a[j];
-    centre /= kLegs;
-    for (int j = 0; j < kLegs; ++j) n += a[j].cross(a[(j + 1) % kLegs]);
-    const Vec3 z = n / n.norm();
-    const Vec3 mid = 0.5 * (a[0] + a[1]) - centre;
-    const Vec3 xs = mid - mid.dot(z) * z;
-    const Vec3 x = xs / xs.norm();
-    const Vec3 y = z.cross(x);
-    const Vec3& c = effects_.hexapod_centre;
-    const Vec3 p = centre + c(0) * x + c(1) * y + c(2) * z;
-    for (int e = 0; e < 3; ++e) out[e] = p(e);
-}
-
 double EffectObjective::evaluate(const double* x, double* jbuf, double* res, double* forces,
                                  char* singular) const {
     detail::EvalConsts ec;
@@ -508,13 +541,8 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
     double ccomp[kMaxChainJoints];  // per joint: its compliance in the model's units (0: rigid)
     double ch[3] = {0, 0, 0};       // the hexapod's centre in {4}
     if (off_cc_ >= 0) {
-        hexapod_centre(ec, ch);
-        for (int i = 0; i < nj; ++i) ccomp[i] = 0.0;
-        for (std::size_t u = 0; u < m.carriage_joints.size(); ++u) {
-            const int i = m.carriage_joints[u];
-            ccomp[i] = (m.carriage_values[u] + x[m.carriage_index + static_cast<int>(u)]) *
-                       cc_scale_[static_cast<std::size_t>(i)];
-        }
+        detail::hexapod_centre(m, ec, ch);
+        detail::carriage_compliances(m, cc_scale_, x, ccomp);
     }
     double acc = 0;
     for (int k = 0; k < n_; ++k) {
@@ -526,25 +554,7 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
             double axes[3 * kMaxChainJoints], origins[3 * kMaxChainJoints], delta[kMaxChainJoints];
             detail::carriage_chain(layout, ec, d, nullptr, t, axes, origins);
             const double* pl = d + off_cc_;
-            const double mh = m.hexapod_mass, mass = mh + pl[3];
-            double p[3];
-            for (int e = 0; e < 3; ++e)
-                p[e] = mh * (t[3 * e] * ch[0] + t[3 * e + 1] * ch[1] + t[3 * e + 2] * ch[2] + t[9 + e]) + pl[e];
-            const Vec3& g = m.carriage_gravity;
-            for (int i = 0; i < nj; ++i) {
-                const double* z = axes + 3 * i;
-                double load;
-                if (prismatic_[static_cast<std::size_t>(i)]) {
-                    load = mass * (g(0) * z[0] + g(1) * z[1] + g(2) * z[2]);
-                } else {  // (P - M o) . (g x z)
-                    const double* o = origins + 3 * i;
-                    const double gz[3] = {g(1) * z[2] - g(2) * z[1], g(2) * z[0] - g(0) * z[2],
-                                          g(0) * z[1] - g(1) * z[0]};
-                    load = (p[0] - mass * o[0]) * gz[0] + (p[1] - mass * o[1]) * gz[1] +
-                           (p[2] - mass * o[2]) * gz[2];
-                }
-                delta[i] = ccomp[i] * load;
-            }
+            detail::carriage_deflection(m, layout, axes, origins, t, ch, pl, pl[3], m.carriage_gravity, ccomp, delta);
             detail::carriage_chain(layout, ec, d, delta, t, nullptr, nullptr);
         } else {
             detail::carriage_chain(layout, ec, d, nullptr, t, nullptr, nullptr);

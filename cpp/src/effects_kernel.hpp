@@ -5,6 +5,8 @@
 // forces and, transposed, for a Newton step of the legs) and the predicted reading.
 #pragma once
 
+#include <vector>
+
 #include "iwr/effects.hpp"
 #include "objective_kernel.hpp"  // detail::EvalConsts, PoseData
 
@@ -34,6 +36,32 @@ inline double predicted_reading(double len, double l0, double c, double f, doubl
 /// null): each joint's axis and a point of it in {0}, the frame before it.
 void carriage_chain(const PoseData& layout, const EvalConsts& ec, const double* d, const double* delta,
                     double* t, double* axes, double* origins);
+
+/// The carriage's compliance (EffectModel::carriage): at most this many joints (its per-joint
+/// buffers live on the stack).
+constexpr int kMaxChainJoints = 64;
+
+/// Per joint of the carriage its compliance's unit scale: 1e-9 rad/(N mm) per urad/(N m) for a
+/// revolute joint, 1e-3 mm/N per um/N for a prismatic one, 0 for a joint not listed (rigid).
+/// Throws std::invalid_argument naming effects.carriage_compliance.joints for a joint the robot
+/// does not have or a chain longer than kMaxChainJoints.
+std::vector<double> carriage_scales(const EffectModel& m, const Geometry& g);
+/// Per joint its compliance at x in the model's units (0: rigid): the table's value plus x's
+/// correction, times scale (carriage_scales).
+void carriage_compliances(const EffectModel& m, const std::vector<double>& scale, const double* x, double* out);
+/// The hexapod's centre of mass in {4} at the base joints of ec: m.hexapod_centre is given in the
+/// frame they define (iwr.effects.model.base_frame: origin their centre, z the normal of their
+/// polygon, x towards the midpoint of joints 1 and 2).
+void hexapod_centre(const EffectModel& m, const EvalConsts& ec, double* out);
+/// The carriage compliance's change of the joints, delta_i = ccomp_i L_i, with L_i joint i's
+/// gravity load (iwr.effects.model.joint_loads) at the readings: the torque (P - M o_i) . (g x z_i)
+/// about a revolute axis, the force M g . z_i along a prismatic one (axes z_i and points o_i of
+/// them, 3 per joint, in {0}: carriage_chain's at the readings). The bodies: the hexapod (mass
+/// m.hexapod_mass, centre ch in {4}, t = 0T4 at the readings) and those the platform carries
+/// (first moment `first` in {0}, kg mm, and mass `mass`, kg); g (m/s^2) in {0}.
+void carriage_deflection(const EffectModel& m, const PoseData& layout, const double* axes, const double* origins,
+                         const double* t, const double* ch, const double* first, double mass, const Vec3& g,
+                         const double* ccomp, double* delta);
 
 /// The hexapod's statics at one pose: G (column j the leg's unit vector u_j and its moment
 /// r_j x u_j about the platform origin) with the moment rows scaled by 1 / the platform's radius

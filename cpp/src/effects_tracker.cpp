@@ -50,28 +50,36 @@ Hexapod hexapod_at(const Geometry& g, const double* x) {
 }
 
 // One pose's forward kinematics with the effects: Newton's method on the predicted readings from
-// (p, r) (the local pose of {5} in {4}; r row-major), in place. The Jacobian is the geometry's,
-// G^T (the statics' matrix transposed: d len_j = u_j . dP + (r_j x u_j) . omega), each row scaled
-// by the leg's thermal growth 1 - alpha_j dT_j; the compliance's own derivative (a part in 1e5)
-// is left out. Converged when the largest residual is at most tol, after which the step already
-// computed is taken too (no further evaluation). False when a leg has no length, the hexapod is
-// singular, the residual diverges or kMaxNewton iterations do not converge.
+// (p, r) (the platform's pose in the solver's frame; r row-major), in place. Before each iteration
+// frame(p, r, a, g) gives the base joints a and gravity g in that frame: {4} at the readings without
+// the carriage's compliance (a and g fixed), {0} with it (the carriage's joints change with the
+// platform's load, so {4} moves with the pose solved). The Jacobian is the geometry's, G^T (the
+// statics' matrix transposed: d len_j = u_j . dP + (r_j x u_j) . omega), each row scaled by the leg's
+// thermal growth 1 - alpha_j dT_j; the compliances' own derivatives (a part in 1e5 of the legs', 1e3
+// for a carriage at its bound) are left out: the convergence is linear at that rate in them.
+// Converged when the largest residual is at most tol, after which the step already computed is
+// taken too (no further evaluation). False when a leg has no length, the hexapod is singular, the
+// residual diverges or kMaxNewton iterations do not converge.
 struct PoseSolver {
     const detail::EvalConsts& ec;
     const detail::LegEffects& le;
     bool compliance;
     double tol;
 
-    bool solve(const double* d, const double (&g4)[3], double (&p)[3], double (&r)[9]) const {
+    template <class Frame>
+    bool solve(const double* d, Frame&& frame, double (&p)[3], double (&r)[9]) const {
         const double mass = d[kOffLoad];
         const double* c5 = d + kOffLoad + 1;  // first moment in {5}
         for (int it = 0; it < kMaxNewton; ++it) {
+            const double(*base)[3] = nullptr;
+            const double* g4 = nullptr;
+            frame(p, r, base, g4);
             double u[kLegs][3], rj[kLegs][3], len[kLegs];
             for (int j = 0; j < kLegs; ++j) {
                 double v[3];
                 for (int e = 0; e < 3; ++e) {
                     rj[j][e] = r[3 * e] * ec.b[j][0] + r[3 * e + 1] * ec.b[j][1] + r[3 * e + 2] * ec.b[j][2];
-                    v[e] = (p[e] + rj[j][e]) - ec.a[j][e];
+                    v[e] = (p[e] + rj[j][e]) - base[j][e];
                 }
                 len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
                 if (!(len[j] > 0)) return false;
@@ -83,7 +91,7 @@ struct PoseSolver {
             double f[6] = {0, 0, 0, 0, 0, 0};
             if (compliance) {
                 // The weight of the platform and payload: force M g, moment (R c) x g with c their
-                // first moment in {5} (kg mm: N mm), about the platform origin, in {4}.
+                // first moment in {5} (kg mm: N mm), about the platform origin, in the frame.
                 double rc[3];
                 for (int e = 0; e < 3; ++e) rc[e] = r[3 * e] * c5[0] + r[3 * e + 1] * c5[1] + r[3 * e + 2] * c5[2];
                 for (int e = 0; e < 3; ++e) f[e] = mass * g4[e];
@@ -114,6 +122,17 @@ struct PoseSolver {
     }
 };
 
+// (p, r) <- t (p, r): a pose in the frame t (0T4, rotation row-major then position) into {0}.
+void to_world(const double* t, double (&p)[3], double (&r)[9]) {
+    double np[3], nr[9];
+    for (int a = 0; a < 3; ++a) {
+        for (int b = 0; b < 3; ++b) nr[3 * a + b] = t[3 * a] * r[b] + t[3 * a + 1] * r[3 + b] + t[3 * a + 2] * r[6 + b];
+        np[a] = t[9 + a] + t[3 * a] * p[0] + t[3 * a + 1] * p[1] + t[3 * a + 2] * p[2];
+    }
+    for (int e = 0; e < 3; ++e) p[e] = np[e];
+    for (int e = 0; e < 9; ++e) r[e] = nr[e];
+}
+
 }  // namespace
 
 TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel effects, TrackerSetup setup,
@@ -133,10 +152,6 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
                                     " geometric parameters; the robot has " + std::to_string(geometry_.n_params()));
     if (!effects_.any())
         throw std::invalid_argument("effects: none on; tracker data without effects run on TrackerObjective");
-    if (effects_.carriage)
-        throw std::invalid_argument(
-            "effects.carriage_compliance: the carriage's compliance (it changes the joints) is not modelled on "
-            "tracker data; it is on pose data (docs/effects.md)");
     if (n_ == 0) throw std::invalid_argument("legs: no measurements (0 rows)");
     require_shape(legs, n_, kLegs, "legs");
     require_shape(q, n_, nj, "q");
@@ -166,20 +181,27 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
     stride_ = nq;
     off_pts_ = kOffPoints;
     carriage_ = detail::CarriageNominal(geometry_);
+    if (effects_.carriage) cc_scale_ = detail::carriage_scales(effects_, geometry_);
     data_.assign(static_cast<std::size_t>(n_) * static_cast<std::size_t>(stride_), 0.0);
     const Hexapod h = hexapod_at(geometry_, reference.data());
     ForwardOptions opt;
     opt.tolerance = tolerance_;
     ref_euler_.resize(static_cast<std::size_t>(n_));
-    const double platform_mass = effects_.compliance ? effects_.platform_mass : 0.0;
+    // The platform's mass and centre: the leg compliance's, else the carriage compliance's (the
+    // same when both are on: EffectModel::parse).
+    const bool loaded = effects_.compliance || effects_.carriage;
+    const double platform_mass = effects_.compliance ? effects_.platform_mass
+                                 : effects_.carriage ? effects_.carriage_platform_mass
+                                                     : 0.0;
+    const Vec3 platform_centre = effects_.compliance ? effects_.platform_centre : effects_.carriage_platform_centre;
     for (int k = 0; k < n_; ++k) {
         double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
         for (int j = 0; j < kLegs; ++j) d[j] = legs(k, j);
         if (effects_.thermal)
             for (int j = 0; j < kLegs; ++j)
                 d[kOffDt + j] = temperatures(k, temperatures.cols() == 1 ? 0 : j) - effects_.reference;
-        if (effects_.compliance) {
-            Vec3 first = platform_mass * effects_.platform_centre;
+        if (loaded) {
+            Vec3 first = platform_mass * platform_centre;
             double mass = platform_mass;
             if (payload.size() != 0) {
                 first += payload(k, 0) * Vec3(payload(k, 1), payload(k, 2), payload(k, 3));
@@ -248,18 +270,53 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
     layout.q_off = q_off_.data(), layout.prismatic = prismatic_.data();
     const PoseSolver solver{ec, le, effects_.compliance, tolerance_};
     const bool whiten = whitened();
+    // The carriage's compliance: per joint its compliance at x, the hexapod's centre in {4}.
+    const bool cc = effects_.carriage;
+    double ccomp[detail::kMaxChainJoints], ch[3] = {0, 0, 0};
+    if (cc) {
+        detail::hexapod_centre(effects_, ec, ch);
+        detail::carriage_compliances(effects_, cc_scale_, x, ccomp);
+    }
     double* out = ws.res.data();
     double acc = 0;
     for (int k = 0; k < n_; ++k) {
         const double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
-        double t[12];  // 0T4
-        detail::carriage_chain(layout, ec, d, nullptr, t, nullptr, nullptr);
+        double t[12];  // 0T4 at the readings
+        double axes[3 * detail::kMaxChainJoints], origins[3 * detail::kMaxChainJoints];
+        detail::carriage_chain(layout, ec, d, nullptr, t, cc ? axes : nullptr, cc ? origins : nullptr);
         double g4[3];  // gravity in {4}: 0R4^T g_0
         for (int e = 0; e < 3; ++e) g4[e] = t[e] * g0(0) + t[3 + e] * g0(1) + t[6 + e] * g0(2);
+        // Without the carriage's compliance the pose is solved in {4} at the readings (its base
+        // joints and gravity fixed); with it in {0}: each iteration the joints' change under the
+        // load of the hexapod and of the platform's bodies where the pose puts them (the loads at
+        // the readings' axes, iwr.effects.model.joint_loads), then the base joints of the changed
+        // carriage.
+        const auto fixed = [&](const double(&)[3], const double(&)[9], const double(*&base)[3], const double*& g) {
+            base = ec.a, g = g4;
+        };
+        double changed[12], base_world[kLegs][3];
+        const auto moving = [&](const double(&pw)[3], const double(&rw)[9], const double(*&base)[3], const double*& g) {
+            const double* c5 = d + kOffLoad + 1;
+            double first[3], delta[detail::kMaxChainJoints];
+            for (int e = 0; e < 3; ++e)
+                first[e] = d[kOffLoad] * pw[e] + (rw[3 * e] * c5[0] + rw[3 * e + 1] * c5[1] + rw[3 * e + 2] * c5[2]);
+            detail::carriage_deflection(effects_, layout, axes, origins, t, ch, first, d[kOffLoad], g0, ccomp, delta);
+            detail::carriage_chain(layout, ec, d, delta, changed, nullptr, nullptr);
+            for (int j = 0; j < kLegs; ++j)
+                for (int e = 0; e < 3; ++e)
+                    base_world[j][e] = changed[9 + e] + changed[3 * e] * ec.a[j][0] + changed[3 * e + 1] * ec.a[j][1] +
+                                       changed[3 * e + 2] * ec.a[j][2];
+            base = base_world, g = g0.data();
+        };
+        const auto solve = [&](double(&pp)[3], double(&rr)[9]) {
+            if (!cc) return solver.solve(d, fixed, pp, rr);
+            to_world(t, pp, rr);
+            return solver.solve(d, moving, pp, rr);
+        };
         double p[3], r[9];
         for (int e = 0; e < 3; ++e) p[e] = d[kOffRefP + e];
         for (int e = 0; e < 9; ++e) r[e] = d[kOffRefR + e];
-        bool ok = solver.solve(d, g4, p, r);
+        bool ok = solve(p, r);
         if (!ok) {
             // From the geometry's own forward kinematics at x (damped Newton-Raphson from the
             // reference pose), then Newton with the effects again.
@@ -276,7 +333,7 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
                 const Mat3 rs = euler_zyx(sol(3), sol(4), sol(5));
                 for (int e = 0; e < 3; ++e) p[e] = sol(e);
                 for (int e = 0; e < 9; ++e) r[e] = rs(e / 3, e % 3);
-                ok = solver.solve(d, g4, p, r);
+                ok = solve(p, r);
             } catch (const ForwardKinematicsError&) {
                 ok = false;
             }
@@ -285,12 +342,18 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
                                             ": the legs do not close at these readings under the pose's load "
                                             "and temperature (no Newton convergence)");
         }
-        // The point y = T_T0 0T4 (P + R r_i), and its residual.
+        // The point y = T_T0 0T4 (P + R r_i) (with the carriage's compliance (P, R) is 0T5
+        // already), and its residual.
         double w0[12];  // 0T5
-        for (int a = 0; a < 3; ++a) {
-            for (int b = 0; b < 3; ++b)
-                w0[3 * a + b] = t[3 * a] * r[b] + t[3 * a + 1] * r[3 + b] + t[3 * a + 2] * r[6 + b];
-            w0[9 + a] = t[9 + a] + t[3 * a] * p[0] + t[3 * a + 1] * p[1] + t[3 * a + 2] * p[2];
+        if (cc) {
+            for (int e = 0; e < 9; ++e) w0[e] = r[e];
+            for (int e = 0; e < 3; ++e) w0[9 + e] = p[e];
+        } else {
+            for (int a = 0; a < 3; ++a) {
+                for (int b = 0; b < 3; ++b)
+                    w0[3 * a + b] = t[3 * a] * r[b] + t[3 * a + 1] * r[3 + b] + t[3 * a + 2] * r[6 + b];
+                w0[9 + a] = t[9 + a] + t[3 * a] * p[0] + t[3 * a + 1] * p[1] + t[3 * a + 2] * p[2];
+            }
         }
         const double* meas = d + kOffPoints;
         const double* seen = meas + m;

@@ -140,8 +140,6 @@ void read_effects(io::Reader& r, ProblemData& p) {
         r.fail("temperatures: the thermal effect is on and the file has no temperatures");
     if (p.tracker() && ne) {
         // Tracker data: gravity in {T}, carried into {0} by the identified registration.
-        if (p.effect_model().carriage)
-            r.fail("effects.carriage_compliance: the carriage's compliance is not modelled on tracker data");
         get(r, "tracker gravity", p.tracker_gravity, 3, 1, 20.0);
         const double norm = p.tracker_gravity.norm();
         if (!(std::fabs(norm / 9.80665 - 1.0) <= 0.01))

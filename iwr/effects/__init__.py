@@ -303,7 +303,8 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "iwr.calibrate, iwr calibrate and iwr report (any of those methods, with or without "
              "a noise model)", "iwr.effects.api.leg_commands",
              "iwr.effects.api.forward_kinematics",
-             "on tracker data (iwr.effects.tracker; the legs' effects): iwr.simulate, "
+             "on tracker data (iwr.effects.tracker; the legs' effects and the carriage's "
+             "compliance): iwr.simulate, "
              "iwr.identify with every method (noise-weighted too), "
              "iwr.identifiability, iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem "
              "file, iwr-engine, iwr-calibrate, and the calibration job")

@@ -58,9 +58,13 @@ def _realistic_carriage(robot: Any, gravity: np.ndarray) -> Any:
     """:data:`REALISTIC_CARRIAGE` for the joints of ``robot`` that carry a gravity load
     somewhere in their ranges (at the corners and the centre of the joint ranges, the hexapod at
     its home pose): a joint that never does (a horizontal slide, a vertical axis) has no
-    compliance the data could tell."""
+    compliance the data could tell. The loads are those under gravity as the robot's data give
+    it (:meth:`iwr.kinds.MeasurementKind.world_gravity`: on tracker data the tracker's, through
+    the robot file's registration), ``gravity`` (the effect's own, in {0}) otherwise."""
+    import copy
     import itertools
 
+    from .. import kinds
     from ..transforms import pose_from_matrix
     from .carriage import CarriageCompliance
     from .model import joint_loads, platform_moment
@@ -76,6 +80,10 @@ def _realistic_carriage(robot: Any, gravity: np.ndarray) -> Any:
     if not nj:
         raise ValueError(f"robot {robot.name!r} has no carriage joints: no carriage compliance")
     every = make(list(range(1, nj + 1))).for_robot(robot)
+    world = kinds.for_robot(robot).world_gravity(robot)
+    if world is not None:
+        every = copy.copy(every)
+        every.gravity = np.asarray(world, dtype=float)
     lim = robot.joint_limits
     q = np.array([lim.mean(axis=1)] + [lim[np.arange(nj), c]
                                        for c in itertools.product((0, 1), repeat=nj)])

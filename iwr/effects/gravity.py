@@ -1,6 +1,6 @@
 """Gravity for the effects on data that fix no direction in {0} (laser-tracker data): given in
 the instrument's frame and carried into {0} by the identified registration (docs/effects.md,
-"Tracker data"), and the effects those data do not model. Below :mod:`iwr.effects.tracker` and
+"Tracker data"). Below :mod:`iwr.effects.tracker` and
 :mod:`iwr.effects.api`, which both use it."""
 
 from __future__ import annotations
@@ -13,7 +13,7 @@ import numpy as np
 from .. import kinds
 from .loop import _skew, right_jacobian
 
-__all__ = ["in_world_gravity", "refuse_joint_effects", "registration_gravity", "with_gravity"]
+__all__ = ["in_world_gravity", "registration_gravity", "with_gravity"]
 
 
 def registration_gravity(setup: Any, x_setup: Any) -> tuple[np.ndarray, np.ndarray]:
@@ -29,7 +29,8 @@ def registration_gravity(setup: Any, x_setup: Any) -> tuple[np.ndarray, np.ndarr
 
 
 def with_gravity(robot: Any, gravity: np.ndarray) -> Any:
-    """``robot`` whose effects that load the legs under gravity take ``gravity`` (in {0})."""
+    """``robot`` whose effects of the load (the legs' and the carriage's compliance) take
+    ``gravity`` (in {0})."""
     effects = []
     for e in robot.effects:
         if hasattr(e, "gravity"):
@@ -48,14 +49,3 @@ def in_world_gravity(robot: Any) -> Any:
         return robot
     gravity = kinds.for_robot(robot).world_gravity(robot)
     return robot if gravity is None else with_gravity(robot, gravity)
-
-
-def refuse_joint_effects(robot: Any) -> None:
-    """ValueError naming the effects that change the carriage's joints (the carriage's
-    compliance): the tracker data's forward kinematics with the effects moves the legs only."""
-    names = [e.name for e in robot.effects if "joints" in e.changes]
-    if names:
-        raise ValueError(
-            f"robot {robot.name!r}: effect {', '.join(names)} (it changes the carriage's joints) "
-            "is not modelled on tracker data yet; it is on pose data (docs/effects.md). Leave it "
-            "out of the [effects] table to calibrate from tracker data")

@@ -52,12 +52,15 @@ def right_jacobian(w: np.ndarray) -> np.ndarray:
 
 
 def loop_jacobians(robot: Any, x: Any, q: np.ndarray, poses: np.ndarray, data: Any,
-                   corrections: Any = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   corrections: Any = None, *, joint_derivative: bool = False) -> Any:
     """:func:`iwr.implicit_loop.loop_jacobians` for a robot with effects: the predicted leg
     readings (N, 6) at corrected readings under ``data``'s loads and temperatures (an object
     with ``payload`` and ``temperatures`` as :class:`iwr.Measurements` has), their derivatives
     in ``x`` (N, 6, n_params + the effects' parameters) and in the corrections ``(dq, dp, w)``
-    (N, 6, n_joints + 6)."""
+    (N, 6, n_joints + 6). With ``joint_derivative``, also the readings' derivative in the
+    carriage's *true* joint values (N, 6, n_joints): the one in the corrections ``dq`` before the
+    chain rule through the effects' joint change (the same when no effect changes the joints);
+    what a derivative of that change in anything else goes through."""
     xg, xe = split(robot, x)
     xg = np.ascontiguousarray(xg)
     n, nj, ng = len(poses), robot.n_joints, robot.n_params
@@ -111,12 +114,12 @@ def loop_jacobians(robot: Any, x: Any, q: np.ndarray, poses: np.ndarray, data: A
             jy -= d_z[..., ng:]
             jx[..., ng + col: ng + col + k] -= d_own
         col += k
+    jq = jy[..., :nj].copy()
     if on_joints:  # the chain rule through the joints' change
-        jq = jy[..., :nj].copy()
         jx[..., :ng] += np.einsum("kji,kip->kjp", jq, dq_z[..., :ng])
         jx[..., ng:] += np.einsum("kji,kip->kjp", jq, dq_e)
         jy += np.einsum("kji,kip->kjp", jq, dq_z[..., ng:])
-    return legs, jx, jy
+    return (legs, jx, jy, jq) if joint_derivative else (legs, jx, jy)
 
 
 def _forces(robot: Any, xg: np.ndarray, q: np.ndarray, poses: np.ndarray, corr: np.ndarray,

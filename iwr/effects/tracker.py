@@ -3,8 +3,10 @@ non-geometric effects (issue 23, docs/effects.md, "Tracker data").
 
 The platform pose in {0} is not measured: it follows from the joint and leg readings by forward
 kinematics *with the effects* (each leg's true length is its reading plus the leg offset plus
-the effects' change, which depends on the pose through the leg forces and lengths), and the
-points are ``T_T0 0T5 r_i`` as without effects (:mod:`iwr.tracker`).
+the effects' change, which depends on the pose through the leg forces and lengths; the carriage's
+joints are first changed by the effects on them, the carriage's compliance under the load of the
+hexapod and of the platform's bodies where the pose puts them), and the points are
+``T_T0 0T5 r_i`` as without effects (:mod:`iwr.tracker`).
 
 **Gravity comes through the registration.** The leg forces need gravity relative to the robot.
 Tracker data do not fix {0}: a turn of the whole robot about its first joint's axis, and its
@@ -17,8 +19,9 @@ it is known, in the tracker frame (:attr:`iwr.tracker.TrackerSetup.gravity`, a l
 ``g_0 = R_T0(x_setup)^T g_T`` (:func:`registration_gravity`). Every gauge motion then moves
 {0} and gravity in it together, and the objective is exactly invariant along it (a test checks
 it); the registration's two tilts, which the geometry identifies (docs/tracker.md), fix gravity
-relative to the robot. The compliance effect's own ``gravity_m_s2`` (in {0}) is for pose data,
-which measure in {0}; on tracker data it is not used.
+relative to the robot. The same gravity loads the carriage's joints. The effects' own
+``gravity_m_s2`` (in {0}) is for pose data, which measure in {0}; on tracker data it is not
+used.
 
 Unknowns: the robot's geometric errors, the effects' parameters, then the setup's (registration
 and reflector or probe offsets): ``x = (x_geometric, x_effects, x_setup)``.
@@ -38,9 +41,17 @@ from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 from . import LegState
 from . import bounds as effect_bounds
 from . import parameter_names as effect_names
-from .gravity import refuse_joint_effects, registration_gravity, with_gravity
+from .gravity import registration_gravity, with_gravity
 from .loop import _skew, loop_jacobians, right_jacobian
-from .model import _compliance, check_inputs, leg_forces, leg_vectors_at, loads
+from .model import (
+    _compliance,
+    check_inputs,
+    joint_changes,
+    joint_effects,
+    leg_forces,
+    leg_vectors_at,
+    loads,
+)
 
 __all__ = ["EffectNullSpace", "EffectTrackerSpec", "TrackerEffectModel", "TrackerEffectProblem",
            "accuracy", "base_parameters", "design", "effect_tracker_problem", "gravity_jacobian",
@@ -76,19 +87,33 @@ def _corrected(poses: np.ndarray, corr: np.ndarray | None, nj: int) -> np.ndarra
 
 
 def gravity_jacobian(robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray, data: Any,
-                     corrections: Any = None) -> np.ndarray:
+                     corrections: Any = None, joint_derivative: Any = None) -> np.ndarray:
     """The derivative (N, 6, 3) of the predicted leg readings in the gravity vector (in {0}),
-    at the same point as :func:`iwr.effects.loop.loop_jacobians`: the forces are linear in
-    gravity, ``f = sum_c g_c f(e_c)``, and each effect's change is differentiated through its
-    :class:`LegState` in the three components (:meth:`iwr.effects.Effect.leg_change`)."""
+    at the same point as :func:`iwr.effects.loop.loop_jacobians`. The loads are linear in
+    gravity: the leg forces ``f = sum_c g_c f(e_c)``, each leg effect's change differentiated
+    through its :class:`LegState` in the three components
+    (:meth:`iwr.effects.Effect.leg_change`); the carriage's joint loads likewise, so the joints'
+    change (:meth:`iwr.effects.Effect.joint_change`, linear in its loads) under gravity ``e_c``
+    is its derivative in ``g_c``, which reaches the readings through their derivative in the true
+    joint values (``joint_derivative`` (N, 6, n_joints), :func:`iwr.effects.loop.loop_jacobians`'
+    with ``joint_derivative=True``; computed when not given). The leg forces' part is taken at
+    the true joint values."""
     n, nj, ng = len(poses), robot.n_joints, robot.n_params
     out = np.zeros((n, 6, 3))
-    if "forces" not in _needs(robot):
-        return out
     xg, xe = x[:ng], x[ng:]
     corr = None if corrections is None else np.asarray(corrections, dtype=float)
     q_c = q if corr is None else q + corr[:, :nj]
     t5 = _corrected(poses, corr, nj)
+    if joint_effects(robot):
+        jq = joint_derivative
+        if jq is None:
+            jq = loop_jacobians(robot, x, q, poses, data, corr, joint_derivative=True)[3]
+        for c, e in enumerate(np.eye(3)):  # the joints' change under gravity e_c
+            change = joint_changes(with_gravity(robot, e), xg, xe, q_c, t5, data)[0]
+            out[..., c] = np.einsum("kji,ki->kj", jq, change)
+        q_c = q_c + joint_changes(robot, xg, xe, q_c, t5, data)[0]
+    if "forces" not in _needs(robot):
+        return out
     v, _, r = leg_vectors_at(robot, xg, q_c, t5)
     comp = _compliance(robot)
     masses, centres = loads(comp, data, n)
@@ -103,19 +128,37 @@ def gravity_jacobian(robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray
     col = 0
     for e in robot.effects:
         k = len(e.parameter_names())
-        _, d_g, _ = e.leg_change(state, e.values() + xe[col: col + k])
-        out -= d_g
+        if "legs" in e.changes:
+            _, d_g, _ = e.leg_change(state, e.values() + xe[col: col + k])
+            out -= d_g
         col += k
     return out
+
+
+def _loop(robot: Any, xr: np.ndarray, xs: np.ndarray, setup: Any, q: np.ndarray,
+          poses: np.ndarray, data: Any, corrections: Any = None
+          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """:func:`iwr.effects.loop.loop_jacobians` on tracker data: the predicted leg readings
+    (N, 6) with the effects under gravity through the registration of ``xs``, their
+    derivatives in ``x = (xr, xs)`` (N, 6, len(xr) + setup.n_params: the setup's through
+    gravity, :func:`gravity_jacobian`) and in the corrections ``(dq, dp, w)``."""
+    g0, dg0 = registration_gravity(setup, xs)
+    rg = with_gravity(robot, g0)
+    legs, jx, jy, jq = loop_jacobians(rg, xr, q, poses, data, corrections, joint_derivative=True)
+    jg = gravity_jacobian(rg, xr, q, poses, data, corrections, jq)
+    return legs, np.concatenate([jx, jg @ dg0], axis=2), jy
 
 
 def _readings(robot: Any, xr: np.ndarray, q: np.ndarray, poses: np.ndarray, data: Any
               ) -> tuple[np.ndarray, np.ndarray]:
     """The leg readings (N, 6) the robot with ``xr`` (geometric, effects) predicts at platform
-    poses ``poses`` under ``data``'s loads and temperatures, without their derivatives in the
-    parameters, and the geometry's derivative in the pose corrections ``(dp, w)`` (N, 6, 6)."""
+    poses ``poses`` under ``data``'s loads and temperatures (the carriage's joints changed by
+    the effects on them first), without their derivatives in the parameters, and the geometry's
+    derivative in the pose corrections ``(dp, w)`` (N, 6, 6)."""
     ng, nj = robot.n_params, robot.n_joints
     xg, xe = np.ascontiguousarray(xr[:ng]), xr[ng:]
+    if joint_effects(robot):  # the carriage at its true joint values (loads at the readings)
+        q = np.ascontiguousarray(q + joint_changes(robot, xg, xe, q, pose_matrix(poses), data)[0])
     legs, _, jy = _core.loop_jacobians(robot._geometry, xg, q, poses, np.zeros((0, 0)))
     n = len(poses)
     lengths = legs + robot.leg_offsets + xg[4 * nj + 36: 4 * nj + 42]
@@ -134,7 +177,8 @@ def _readings(robot: Any, xr: np.ndarray, q: np.ndarray, poses: np.ndarray, data
     col = 0
     for e in robot.effects:
         k = len(e.parameter_names())
-        out -= e.leg_change(state, e.values() + xe[col: col + k])[0]
+        if "legs" in e.changes:
+            out -= e.leg_change(state, e.values() + xe[col: col + k])[0]
         col += k
     return out, jy.reshape(n, 6, nj + 6)[:, :, nj:]
 
@@ -162,7 +206,6 @@ class TrackerEffectModel:
     the effects, gravity through the registration)."""
 
     def __init__(self, robot: Any, setup: Any, data: Any) -> None:
-        refuse_joint_effects(robot)
         self.robot, self.setup, self.data = robot, setup, data
         self.n_geometric = robot.n_params
         self.n_effects = len(effect_names(robot.effects))
@@ -234,8 +277,6 @@ class TrackerEffectModel:
         xr, xs = self.split(x)
         data, setup = self.data, self.setup
         poses, ok = self.forward(x)
-        g0, dg0 = registration_gravity(setup, xs)
-        robot = with_gravity(self.robot, g0)
         local, dlocal = _platform_points(setup, xs)
         reg = setup.registration_matrix(xs)
         t5 = pose_matrix(np.where(ok[:, None], poses, 0.0))
@@ -244,18 +285,16 @@ class TrackerEffectModel:
         pts[~ok] = np.nan
         if not jacobian:
             return pts, None, ok
-        n, npt, nj = len(data), len(local), robot.n_joints
+        n, npt, nj = len(data), len(local), self.robot.n_joints
         nr = xr.size
         jac = np.zeros((n, npt, 3, self.n_params))
         live = np.flatnonzero(ok)
         if not live.size:
             return pts, jac, ok
         sub = data.subset(live) if live.size < n else data
-        _, jx, jy = loop_jacobians(robot, xr, data.q[live], poses[live], sub)
-        jg = gravity_jacobian(robot, xr, data.q[live], poses[live], sub)
+        _, jx, jy = _loop(self.robot, xr, xs, setup, data.q[live], poses[live], sub)
         # The loop closure legs(x, pose (+) d) = readings: d d / d x = -J_pose^-1 d legs / d x.
-        rhs = np.concatenate([jx, jg @ dg0], axis=2)  # (n, 6, nr + ns)
-        d_pose = -np.linalg.solve(jy[:, :, nj:], rhs)  # (n, 6, nr + ns): (dp, w)
+        d_pose = -np.linalg.solve(jy[:, :, nj:], jx)  # (n, 6, nr + ns): (dp, w)
         r_reg = reg[:3, :3]
         rot = t5[live, :3, :3]
         # A point moves with the pose: R_T0 (dp + R [w]x r) = R_T0 (dp - R [r]x w).
@@ -568,7 +607,6 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
     from .api import draw_conditions
 
     setup = _setup(robot)
-    refuse_joint_effects(robot)
     if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
         raise ValueError(f"n_poses: {n_poses!r}; expected a positive integer")
     readings, tracker = split_noise(noise)
@@ -880,8 +918,9 @@ def loop_model(robot: Any, setup: Any, data: Any, reference: np.ndarray, measure
                whitening: np.ndarray, sigma: np.ndarray) -> Any:
     """The tracker estimator's normalised residuals for a robot with effects, a
     :data:`iwr.effects.solver.LoopModel`: per pose the legs ``(predicted - measured) / sigma``
-    with the effects at the corrected readings (joints ``q + dq``, platform ``reference (+)
-    (dp, w)``) under the pose's load and temperature (:func:`iwr.effects.loop.loop_jacobians`,
+    with the effects at the corrected readings (joints ``q + dq``, changed by the carriage's
+    compliance when it is on; platform ``reference (+) (dp, w)``) under the pose's load and
+    temperature (:func:`iwr.effects.loop.loop_jacobians`,
     gravity through the registration), the joints' corrections over their sigma, and the
     whitened points (or the probe's position and orientation) as the C++ tracker model has them
     (``_core.tracker_loop_jacobians``: the points do not depend on the effects at a given
@@ -901,9 +940,7 @@ def loop_model(robot: Any, setup: Any, data: Any, reference: np.ndarray, measure
             setup.probe if setup.probe is not None else np.zeros(6), setup.probe_length,
             measured, whitening, reference, np.concatenate([xr[:ng], xs]), q, legs,
             np.ascontiguousarray(sigma), np.ascontiguousarray(corr))
-        g0, dg0 = registration_gravity(setup, xs)
-        rg = with_gravity(robot, g0)
-        pred, jx, jy = loop_jacobians(rg, xr, q, reference, data, corr)
+        pred, jx, jy = _loop(robot, xr, xs, setup, q, reference, data, corr)
         r = r.copy()
         r[:, :6] = (pred - legs) / sl
         if not jacobians:
@@ -913,9 +950,7 @@ def loop_model(robot: Any, setup: Any, data: Any, reference: np.ndarray, measure
         rx = np.zeros((n, nr, x.size))
         rx[:, 6:, :ng] = jx_c[:, 6:, :ng]
         rx[:, 6:, ng + ne:] = jx_c[:, 6:, ng:]
-        rx[:, :6, : ng + ne] = jx / sl[..., None]
-        jg = gravity_jacobian(rg, xr, q, reference, data, corr)
-        rx[:, :6, ng + ne:] = (jg @ dg0) / sl[..., None]
+        rx[:, :6] = jx / sl[..., None]
         ry = jy_c.reshape(n, nr, ny).copy()
         ry[:, :6] = jy / sl[..., None]
         return r, rx, ry
@@ -944,11 +979,8 @@ def predicted_accuracy(robot: Any, x: Any, covariance: Any, active: Any, data: A
     if not ok.all():
         k = int(np.flatnonzero(~ok)[0])
         raise ValueError(f"{data.where(k)}: no forward kinematics with the effects at x")
-    g0, dg0 = registration_gravity(setup, xs)
-    rg = with_gravity(robot, g0)
-    _, jx, jy = loop_jacobians(rg, xr, data.q, poses, data)
-    jg = gravity_jacobian(rg, xr, data.q, poses, data)
-    g_pose = -np.linalg.solve(jy[:, :, nj:], np.concatenate([jx, jg @ dg0], axis=2))
+    _, jx, jy = _loop(robot, xr, xs, setup, data.q, poses, data)
+    g_pose = -np.linalg.solve(jy[:, :, nj:], jx)
     t05 = pose_matrix(poses)
     frame_x = np.concatenate([xr[:ng], xs])  # what the frames are made of: joints, registration
     zero = np.zeros((len(poses), 6))
@@ -1116,7 +1148,6 @@ def design(robot: Any, candidates: Any, x: Any, report: Any
     from ..tracker.simulate import true_points
 
     setup = robot.tracker
-    refuse_joint_effects(robot)
     ng, ne, ns = robot.n_params, len(effect_names(robot.effects)), setup.n_params
     xf = np.zeros(ng + ne + ns) if x is None else np.asarray(x, dtype=float)
     if xf.shape == (ng + ne,):

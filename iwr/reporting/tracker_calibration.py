@@ -35,8 +35,10 @@ def _fmt(v: float, spec: str) -> str:
 
 #: What the effects are identified with on tracker data (issue 23), in the report's words.
 _EFFECTS_OBJECTIVE = ("the point objective with the effects: forward kinematics under each "
-                      "pose's load and temperature, gravity given in {T} and carried into {0} by "
-                      "the identified registration; calibrated.toml's platform frame {5} is the "
+                      "pose's load and temperature (the carriage's joints changed first when its "
+                      "compliance is on, then the legs), gravity given in {T} and carried into "
+                      "{0} by the identified registration; calibrated.toml's platform frame {5} "
+                      "is the "
                       "one the measured points fix, the platform's centre of mass moved with it, "
                       "and the data's payload centres are read in that frame")
 

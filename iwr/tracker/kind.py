@@ -12,7 +12,7 @@ import numpy as np
 
 from ..analysis.identifiability import kind_parameter_error
 from ..analysis.uncertainty import _tracker_uncertainty
-from ..effects.gravity import refuse_joint_effects, registration_gravity
+from ..effects.gravity import registration_gravity
 from ..fit_test import tracker_readings
 from ..forward import forward_kinematics
 from ..kinds import MeasurementKind, _where, data_fingerprint, position_rms
@@ -156,9 +156,7 @@ class _TrackerKind(MeasurementKind):
     def world_gravity(self, robot: Any) -> np.ndarray:
         """The tracker's gravity (``[tracker] gravity``, in {T}) carried into {0} by the robot
         file's registration (the effects' own ``gravity_m_s2`` in {0} is not used on tracker
-        data). ValueError for an effect tracker data do not model
-        (:func:`iwr.effects.gravity.refuse_joint_effects`)."""
-        refuse_joint_effects(robot)
+        data): the statics of the legs and the carriage's joint loads alike."""
         return registration_gravity(robot.tracker, np.zeros(robot.tracker.n_params))[0]
 
     def whitened(self, robot: Any, data: Any, x: Any, noise: Any

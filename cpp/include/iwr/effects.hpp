@@ -146,9 +146,6 @@ private:
     // bodies the platform carries (4 doubles at off_cc_); per joint its unit scale (0: rigid).
     int off_cc_ = -1;
     std::vector<double> cc_scale_;
-    // The hexapod's centre of mass in {4} at the base joints of ec (its offset is given in the
-    // frame they define).
-    void hexapod_centre(const detail::EvalConsts& ec, double* out) const;
     bool whitened_ = false;
     std::vector<int> q_off_;
     std::vector<char> prismatic_;

@@ -17,9 +17,14 @@
 // registration, g_0 = R_T0(x)^T g_T: the registration's gauge then moves {0} and gravity together
 // (the compliance table's own gravity, in {0}, is for pose data and is not used here).
 //
+// With the carriage's compliance the carriage's joints change by c_i L_i under their gravity load
+// L_i (iwr/effects.hpp) of the hexapod and of the platform's bodies where the solved pose puts them,
+// gravity through the registration too: the pose is then solved in {0}, each Newton iteration with
+// the joints' change at the current pose and the base joints of the changed carriage (the change's
+// own derivative in the pose, a part in 1e5 to 1e3 of the legs', left out as the compliance's).
+//
 // Parameters: the robot's 4 n + 42, the effects' (their tables' order), then the tracker setup's
-// (registration 6, then 3 K reflector offsets or 6 of the probe). The carriage's compliance is
-// refused (it changes the joints; not modelled on tracker data).
+// (registration 6, then 3 K reflector offsets or 6 of the probe).
 //
 // Portable scalar code, one pose after another (no SIMD lanes: every pose runs its own Newton
 // iterations, each with the statics' 6 x 6 factorisation); a robot without effects runs
@@ -109,7 +114,7 @@ private:
     int n_ = 0, n_seen_ = 0;
     double tolerance_;
     // Per pose, stride_ doubles: the readings (6), T - T_ref per leg (6), the mass (kg) and first
-    // moment in {5} (kg mm) of the platform and payload (4), the reference's local pose P (3) and
+    // moment in {5} (kg mm) of the platform and payload (4; with the leg or the carriage compliance), the reference's local pose P (3) and
     // R (9, row-major), the measured points (3 K; 0 where not seen) and a flag per point (1 seen),
     // then per joint q (prismatic) or cos q, sin q (revolute).
     std::vector<double> data_;
@@ -118,6 +123,7 @@ private:
     std::vector<char> prismatic_;
     std::vector<Vector6d> ref_euler_;  // the reference local poses (the fallback's start)
     detail::CarriageNominal carriage_;
+    std::vector<double> cc_scale_;  // the carriage compliance's unit scale per joint (0: rigid)
     RowMatrixXd whitening_;
 };
 

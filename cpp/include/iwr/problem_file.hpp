@@ -36,8 +36,8 @@
 //        table as the robot TOML's [effects.<name>] (iwr/effects.hpp); then u8 has payload;
 //        f64s payload (N x 4: kg, centre of mass in {5} mm); u64 temperature columns (0, 1 or
 //        6); f64s temperatures (N x that, degrees C); kinds 1, 2 with effects: f64s gravity (3: m/s^2
-//        in the tracker frame {T}, carried into {0} by the identified registration; the
-//        carriage's compliance is refused on tracker data)
+//        in the tracker frame {T}, carried into {0} by the identified registration, for the
+//        legs' statics and the carriage's joint loads alike)
 //   f64s lower, upper (n_params each); str bounds kind ("default", "paper" or "custom")
 //   f64s x0 (n_params: where the inactive parameters stay); u64 n_params + that many u8 active
 //        flags (at least one 1)
