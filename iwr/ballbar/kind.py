@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 
 from ..analysis.identifiability import kind_parameter_error
-from ..effects import refuse as refuse_effects
 from ..forward import forward_kinematics
 from ..kinds import MeasurementKind, data_fingerprint
 from ..noise import Noise, instrument_level
@@ -131,12 +130,21 @@ class BallbarKind(MeasurementKind):
         """The tool pose errors against the truth at the same readings, modulo the rigid motions
         of {0} and {5} a ballbar cannot see (:func:`ballbar_accuracy` with ``truth``; without
         it, the experiments' "tool" figures were the distance residuals)."""
-        return ballbar_accuracy(robot, data, x, truth=truth)
+        return self.accuracy(robot, data, x, truth=truth)
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """Over the robot's and the set-ups' parameters, modulo the null directions of the
         distances on ``data`` (what a ballbar cannot see, docs/ballbar.md)."""
         return kind_parameter_error(self, robot, data, x, truth)
+
+    def angle_parameters(self, robot: Any) -> np.ndarray:
+        from ..effects import parameter_names as effect_names
+
+        # The effects' parameters (issue 23) between the robot's and the set-ups': none an
+        # angle (the set-ups' are lengths).
+        return np.concatenate([np.asarray(robot.angle_parameters, dtype=bool),
+                               np.zeros(len(effect_names(robot.effects)), dtype=bool),
+                               ballbar_setup(robot).angle_parameters])
 
     def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
         """Uniform within the set-ups' default bounds about the nominal (as :func:`iwr.simulate`
@@ -171,7 +179,10 @@ class BallbarKind(MeasurementKind):
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:
-        refuse_effects(robot, "ballbar data (iwr.simulate of a ballbar robot)")
+        if robot.effects:  # issue 23: loads, temperatures, the legs with the effects
+            from .effects import simulate as simulate_effects
+
+            return simulate_effects(robot, n_poses, seed=seed, x=x, noise=noise)
         return simulate_ballbar(robot, ballbar_setup(robot), n_poses, seed=seed, x=x,
                                 noise=noise)
 
@@ -181,13 +192,25 @@ class BallbarKind(MeasurementKind):
 
     def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
                 noise: Any = None) -> tuple[Any, np.ndarray]:
+        if robot.effects:  # issue 23: the distances by forward kinematics with the effects
+            from .effects import effect_problem
+
+            return effect_problem(robot, data, bounds, x0, noise)
         problem, start = ballbar_problem(robot, data, bounds, x0)
         return (problem if noise is None else weighted_problem(problem, start, noise)), start
 
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the distance objective with the effects
+            from .effects import identify as identify_effects
+
+            return identify_effects(robot, data, method, **options)
         return ballbar_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: forward kinematics under each pose's load and temperature
+            from .effects import accuracy as accuracy_effects
+
+            return accuracy_effects(robot, data, x, **options)
         return ballbar_accuracy(robot, data, x, **options)
 
     def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
@@ -200,6 +223,10 @@ class BallbarKind(MeasurementKind):
         return before, after, change, "the distance residuals"
 
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the null directions of the objective with the effects
+            from .effects import identifiability as identifiability_effects
+
+            return identifiability_effects(robot, data, x, rtol=options.get("rtol"))
         return ballbar_identifiability(robot, data, x, rtol=options.get("rtol"))
 
     def uncertainty(self, robot: Any, data: Any, x: Any, noise: Any, **options: Any) -> Any:
@@ -225,6 +252,10 @@ class BallbarKind(MeasurementKind):
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
                      ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:
+        if robot.effects:  # issue 23: the effects' parameters beside the robot's and set-ups'
+            from .effects import plausibility as plausibility_effects
+
+            return plausibility_effects(robot, data, bounds, plausible)
         problem, _ = ballbar_problem(robot, data, bounds)
         limit, centre = plausible_limits(problem, plausible)
         return (problem.parameter_names, limit, centre,
