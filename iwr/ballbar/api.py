@@ -128,9 +128,16 @@ def ballbar_misclosures(robot: Robot, measurements: BallbarMeasurements, x: Any,
     (the legs and joints, :func:`reading_sensitivities`; the bar's, -1); with ``noise``
     (:func:`split_noise`) the readings' covariance, without it the unit metric (the noise then
     estimated from the residuals)."""
+    problem, x = ballbar_problem(robot, measurements, x0=x)
+    return misclosures_on(problem, x, noise)
+
+
+def misclosures_on(problem: Any, x: np.ndarray, noise: Any) -> Any:
+    """:func:`ballbar_misclosures` of ``problem`` (a :class:`BallbarProblem`, or the objective
+    with the effects, :class:`iwr.ballbar.effects.BallbarEffectProblem`) at ``x``."""
     from ..misclosures import Misclosures
 
-    problem, x = ballbar_problem(robot, measurements, x0=x)
+    robot, measurements = problem.robot, problem.measurements
     r, jac = problem.residuals_and_jacobian(x)
     failed = np.zeros(len(measurements), dtype=bool)
     failed[[k for k, _ in problem.failures(x)]] = True
@@ -346,13 +353,22 @@ def ballbar_uncertainty(robot: Robot, measurements: BallbarMeasurements, x: Any,
     noise-weighted objective, whose covariance is ``(J_w^T J_w)^-1``. ``active``: a mask, a
     NullSpace, or None (one parameter per null direction held)."""
     problem, x = ballbar_problem(robot, measurements, x0=x)
+    return uncertainty_on(problem, x, noise, active=active, weighted=weighted,
+                          base=lambda p, xx: null_space(p, xx, NULL_RTOL).active)
+
+
+def uncertainty_on(problem: Any, x: np.ndarray, noise: Any, *, active: Any, weighted: bool,
+                   base: Callable[[Any, np.ndarray], np.ndarray]) -> Uncertainty:
+    """:func:`ballbar_uncertainty` of ``problem`` (a :class:`BallbarProblem`, or the objective
+    with the effects, :class:`iwr.ballbar.effects.BallbarEffectProblem`) at ``x``; ``active``
+    None: ``base(problem, x)``, the base parameters' mask."""
     if weighted and noise is None:
         raise ValueError("weighted=True needs a noise model")
     if weighted:
         problem = weighted_problem(problem, np.zeros(problem.n_params), noise)
     n = problem.n_params
     if active is None:
-        mask = null_space(problem, x, NULL_RTOL).active
+        mask = base(problem, x)
     elif isinstance(active, NullSpace):
         mask = active.active
     else:

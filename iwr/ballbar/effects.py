@@ -47,7 +47,8 @@ from .setup import BallbarSetup
 
 __all__ = ["BallbarEffectNullSpace", "BallbarEffectProblem", "FK_MAX_ITERATIONS",
            "FK_TOLERANCE_MM", "RANK_RTOL", "accuracy", "base_parameters", "effect_problem",
-           "identifiability", "identify", "leg_commands", "plausibility", "simulate"]
+           "estimator", "design", "identifiability", "identify", "leg_commands", "measure",
+           "misclosures", "plausibility", "predicted_accuracy", "simulate", "uncertainty"]
 
 #: Newton's method for the forward kinematics with the effects: the largest leg residual (mm)
 #: at which a pose is solved, and the iterations allowed.
@@ -206,6 +207,18 @@ class BallbarEffectProblem(ProblemBase):
         t = np.full((len(poses), 4, 4), np.nan)
         t[ok] = pose_matrix(poses[ok])
         return t
+
+    def pose_derivatives(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``(frames, d_pose)``: the platform frames (N, 4, 4) by forward kinematics with the
+        effects (NaN where it fails) and the derivatives of each frame's correction ``(dp, w)``
+        in every parameter (N, 6, n_params; the set-ups' move no frame), as
+        :meth:`iwr.ballbar.BallbarProblem.pose_derivatives`."""
+        poses, ok, d_pose = self.forward(x, jacobians=True)
+        t = np.full((len(poses), 4, 4), np.nan)
+        t[ok] = pose_matrix(poses[ok])
+        g = np.zeros((len(poses), 6, self.n_params))
+        g[:, :, : d_pose.shape[2]] = d_pose
+        return t, g
 
     def failures(self, x: Any) -> list[tuple[int, str]]:
         """Poses whose forward kinematics with the effects fails at ``x``."""
@@ -449,10 +462,12 @@ class BallbarEffectNullSpace(_report_type()):  # type: ignore[misc]
     but iwr holds by default (:func:`base_parameters`: the directions of {0} and {5} that only
     the loads fix), and ``inseparable``: the effects' parameters whose columns add no direction
     to the geometry's at these poses, loads and temperatures (held at the robot file's value;
-    e.g. a slide's compliance under one payload, docs/effects.md). ``active`` leaves out
+    e.g. a slide's compliance under one payload, docs/effects.md), each with its share of the
+    null directions (the norm of its row of their column-scaled basis), as
+    :class:`iwr.effects.api.EffectIdentifiability` has them. ``active`` leaves out
     ``left_out`` and ``held``."""
 
-    inseparable: list[str] = field(default_factory=list)
+    inseparable: list[tuple[str, float]] = field(default_factory=list)
 
     @property
     def effects_identifiable(self) -> bool:
@@ -464,8 +479,8 @@ class BallbarEffectNullSpace(_report_type()):  # type: ignore[misc]
                 f"{len(self.held)} held (fixed by the loads alone)")
         if self.inseparable:
             return (text + "\nEffect parameters NOT separable from the geometry at these poses "
-                    "and loads: " + ", ".join(self.inseparable) + "; measure with a second "
-                    "payload (docs/effects.md)")
+                    "and loads: " + ", ".join(n for n, _ in self.inseparable) + "; measure with "
+                    "a second payload (docs/effects.md)")
         return text + "\nEvery effect parameter is separable from the geometry."
 
 
@@ -505,7 +520,8 @@ def identifiability(robot: Robot, measurements: BallbarMeasurements, x: Any = No
     ns = _null_space_type()(s, rank, thr, names, [names[i] for i in left], basis, d)
     return BallbarEffectNullSpace(
         **asdict(ns), held=[names[i] for i in cand if i not in set(left.tolist())],
-        inseparable=[names[i] for i in range(ng, ng + ne) if not keep[i]])
+        inseparable=[(names[i], float(np.linalg.norm(null[:, i])))
+                     for i in range(ng, ng + ne) if not keep[i]])
 
 
 def _null_space_type() -> Any:
@@ -554,3 +570,110 @@ def leg_commands(robot: Robot, x: Any, targets: Any, q: Any, data: Any) -> np.nd
     xr = np.asarray(x, dtype=float)[:n_re]
     return predicted_readings(robot, xr, np.asarray(q, dtype=float),
                               pose_from_matrix(np.asarray(targets, dtype=float)), data)
+
+
+def uncertainty(robot: Robot, measurements: BallbarMeasurements, x: Any, noise: Any, *,
+                active: Any = None, weighted: bool = False) -> Any:
+    """:func:`iwr.ballbar.api.ballbar_uncertainty` for a robot with effects: the covariance of
+    the geometric, effect and set-up parameters from the exact Jacobian of the distances with
+    the effects at ``x``; ``active`` default :func:`base_parameters`."""
+    from ..analysis.uncertainty import Uncertainty  # noqa: F401  (the result's type)
+    from ..tracker.analysis import NullSpace
+    from .api import uncertainty_on
+
+    problem, _ = effect_problem(robot, measurements)
+    x = _full(problem, x, "x")
+    if isinstance(active, NullSpace):
+        active = active.active
+    return uncertainty_on(problem, x, noise, active=active, weighted=weighted,
+                          base=lambda p, xx: _base_mask(problem, xx, problem.jacobian(xx)))
+
+
+def misclosures(robot: Robot, measurements: BallbarMeasurements, x: Any, noise: Any = None
+                ) -> Any:
+    """:func:`iwr.ballbar.api.ballbar_misclosures` for a robot with effects: each pose's
+    distance residual at ``x``, its derivatives in the parameters and in every reading (a leg
+    reading's is its offset's column, a joint reading's its DH column's: exact with the effects
+    too, which see the readings only through those sums)."""
+    from .api import misclosures_on
+
+    problem, _ = effect_problem(robot, measurements)
+    return misclosures_on(problem, _full(problem, x, "x"), noise)
+
+
+def predicted_accuracy(robot: Robot, measurements: BallbarMeasurements, x: Any, covariance: Any,
+                       active: Any, *, tool: Any = None, n_samples: int = 500, seed: int = 0
+                       ) -> Any:
+    """:func:`iwr.ballbar.estimation.ballbar_predicted_accuracy` for a robot with effects: the
+    tool pose error modulo the gauge that the covariance of the active parameters predicts at
+    the poses of ``measurements`` under their loads and temperatures (the platform poses'
+    derivatives by implicit differentiation of the loop closure with the effects)."""
+    from .estimation import predicted_accuracy_on
+
+    problem, _ = effect_problem(robot, measurements)
+    return predicted_accuracy_on(problem, x, covariance, active, tool=tool,
+                                 n_samples=n_samples, seed=seed)
+
+
+def _spec_base() -> Any:
+    from .estimation import BallbarSpec
+
+    return BallbarSpec
+
+
+class EffectBallbarSpec(_spec_base()):  # type: ignore[misc]
+    """:class:`iwr.ballbar.estimation.BallbarSpec` for a robot with effects: the parameters are
+    the geometric errors, the effects', then the set-ups'; the start is the noise-weighted LM on
+    the distances with the effects over :func:`base_parameters`, the reference poses its
+    forward kinematics with the effects, and the loop model's legs carry the effects under each
+    pose's load and temperature (:func:`iwr.ballbar.estimation.ballbar_loop_model`)."""
+
+    def _problem_and_start(self, bounds: Any, x0: Any) -> tuple[Any, np.ndarray]:
+        return effect_problem(self.robot, self.measurements, bounds, x0)
+
+    def _base(self, problem: Any, start: np.ndarray) -> np.ndarray:
+        return _base_mask(problem, start, problem.jacobian(start))
+
+
+def estimator(robot: Robot, data: BallbarMeasurements, noise: Any, **options: Any) -> Any:
+    """The ballbar kind's estimation spec for a robot with effects (:class:`EffectBallbarSpec`)."""
+    return EffectBallbarSpec(robot, data, noise, options["x0"], options["active"],
+                             options["estimate"], options["bounds"], options["plausible"])
+
+
+def design(robot: Robot, data: BallbarMeasurements, x: Any, report: Any
+           ) -> tuple[BallbarEffectProblem, np.ndarray, np.ndarray, int]:
+    """:func:`iwr.plan_poses`' problem for ballbar data with effects: the (pose, set-up) pairs
+    as the nominal robot with its effects and the nominal set-ups measure them under each
+    pair's load and temperature (``data``), ``x`` (default zeros; the robot's and effects' part
+    alone: the nominal set-ups), the parameters identified by default (:func:`base_parameters`,
+    or ``report``'s active ones), one reading per pair."""
+    problem, _ = effect_problem(robot, data)
+    ns = problem.setup.n_params
+    if x is not None and np.shape(x) == (problem.n_params - ns,):
+        x = np.concatenate([np.asarray(x, dtype=float), np.zeros(ns)])
+    xf = _full(problem, x, "x")
+    mask = _base_mask(problem, xf, problem.jacobian(xf)) if report is None else \
+        np.asarray(report.active)
+    return problem, xf, np.flatnonzero(mask), 1
+
+
+def measure(robot: Robot, x: Any, pairs: Any, noise: Any = None, seed: Any = None
+            ) -> BallbarMeasurements:
+    """The readings of the actual robot, effects and set-ups ``x`` at planned (pose, set-up)
+    pairs (``plan.measurements``: joint readings, platform poses in {0}, set-ups, and each
+    pair's payload and temperatures): the legs with the effects under each load, the bar's
+    distances, then the noise as :func:`simulate` adds it (``seed`` or a generator)."""
+    from .simulate import measured
+
+    setup = _setup(robot)
+    index = np.array([setup.index(str(s)) for s in pairs.setup], dtype=np.intp)
+    problem = BallbarEffectProblem(robot, setup, BallbarMeasurements(
+        pairs.q, pairs.legs, pairs.setup, np.ones(len(pairs)), joint_types=robot.joint_types,
+        payload=pairs.payload, temperatures=pairs.temperatures))
+    x = _full(problem, x, "x")
+    n_re = problem.n_params - setup.n_params
+    legs = predicted_readings(robot, x[:n_re], pairs.q, pairs.poses, problem.measurements)
+    rng = seed if isinstance(seed, np.random.Generator) else np.random.default_rng(seed)
+    return measured(robot, setup, x[n_re:], index, pairs.q, pairs.poses, legs, noise, rng,
+                    payload=pairs.payload, temperatures=pairs.temperatures)

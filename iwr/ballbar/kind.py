@@ -187,6 +187,9 @@ class BallbarKind(MeasurementKind):
                                 noise=noise)
 
     engine = True  # a problem file (kind 3) and a C++ objective: iwr-calibrate, iwr-engine
+    #: Issue 23: the calibration job models a robot's effects on ballbar data (the distances by
+    #: forward kinematics with the effects, iwr.ballbar.effects; no problem file of them yet).
+    models_effects = True
     weighted_objective = True  # each distance by its propagated variance (ballbar_identify)
     null_rtol = NULL_RTOL  # structural null directions sit at ~5e-14, above NumPy's threshold
 
@@ -230,10 +233,19 @@ class BallbarKind(MeasurementKind):
         return ballbar_identifiability(robot, data, x, rtol=options.get("rtol"))
 
     def uncertainty(self, robot: Any, data: Any, x: Any, noise: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the Jacobian of the distances with the effects
+            from .effects import uncertainty as uncertainty_effects
+
+            return uncertainty_effects(robot, data, x, noise, active=options.get("active"),
+                                       weighted=bool(options.get("weighted")))
         return ballbar_uncertainty(robot, data, x, noise, active=options.get("active"),
                                    weighted=bool(options.get("weighted")))
 
     def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the loop closure with the effects (numpy solver)
+            from .effects import estimator as estimator_effects
+
+            return estimator_effects(robot, data, noise, **options)
         from .estimation import BallbarSpec
 
         return BallbarSpec(robot, data, noise, options["x0"], options["active"],
@@ -243,11 +255,19 @@ class BallbarKind(MeasurementKind):
                            seed: int) -> Any:
         """The tool pose error modulo what a ballbar cannot see
         (:func:`iwr.ballbar.estimation.ballbar_predicted_accuracy`)."""
+        if robot.effects:  # issue 23: under each pose's load and temperature
+            from .effects import predicted_accuracy as predicted_effects
+
+            return predicted_effects(robot, data, x, covariance, active, seed=seed)
         from .estimation import ballbar_predicted_accuracy
 
         return ballbar_predicted_accuracy(robot, data, x, covariance, active, seed=seed)
 
     def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        if robot.effects:  # issue 23: the distances with the effects, exact derivatives
+            from .effects import misclosures as misclosures_effects
+
+            return misclosures_effects(robot, data, x, noise)
         return ballbar_misclosures(robot, data, x, noise)
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
@@ -267,10 +287,13 @@ class BallbarKind(MeasurementKind):
     def candidate_poses(self, robot: Any, data: Any) -> Any:
         # Ballbar data hold no world pose: the nominal robot's forward kinematics gives it; each
         # pose stays a candidate in the set-up it was measured in.
-        poses = forward_kinematics(robot, np.zeros(robot.n_params), data.q, data.legs)
+        # With effects (issue 23) the geometry's poses, the loads and temperatures kept.
+        geometric = robot.with_effects() if robot.effects else robot
+        poses = forward_kinematics(geometric, np.zeros(robot.n_params), data.q, data.legs)
         return BallbarCandidates(data.q, poses, data.legs, data.setup,
                                  joint_types=robot.joint_types, lines=data.lines,
-                                 source=data.source)
+                                 source=data.source, payload=data.payload,
+                                 temperatures=data.temperatures)
 
     def plan_candidates(self, robot: Any, candidates: Any, setup: Any) -> Any:
         return ballbar_candidates(robot, candidates, setup)
