@@ -85,6 +85,21 @@ def test_jacobian_matches_central_differences(case):
         assert worst[1e-4] < 1e-5, worst
 
 
+def test_the_cheaper_cost_solves_the_same_forward_kinematics():
+    """Without the carriage's compliance the residuals (what DE, CRS2, BOBYQA and LM's trial
+    steps evaluate) solve the forward kinematics with the geometry's pose Jacobian: the same
+    poses as the exact Newton's method of the Jacobian's evaluation, to its tolerance."""
+    robot = _robot()
+    data, truth = be.simulate(robot, 12, seed=8, payloads=PAYLOADS)
+    problem, _ = be.effect_problem(robot, data)
+    rng = np.random.default_rng(2)
+    for x in (truth, problem.lower + (problem.upper - problem.lower) * rng.random(truth.size)):
+        cheap = problem.residuals(x)
+        exact = problem.residuals_and_jacobian(x)[0]
+        assert np.abs(cheap - exact).max() < 1e-9
+        assert problem.cost_batch(x[None])[0] == pytest.approx(float(exact @ exact), rel=1e-9)
+
+
 def test_files_carry_the_payload_and_temperature_columns(tmp_path, case):
     robot, data, _ = case
     path = tmp_path / "bar.csv"
@@ -313,3 +328,36 @@ def test_plan_poses_and_payloads_with_effects():
     assert np.abs(problem.residuals(truth)).max() < 0.05  # the noise's size, not the errors'
     with pytest.raises(ValueError, match="iwr.ballbar.effects.measure"):
         iwr.planning.measure(robot, truth, m.q, m.poses, NOISE, setup=m.setup)
+
+
+def test_leg_commands_of_the_calibrated_robot(case):
+    """The library's compensation (iwr.effects.api.leg_commands, what iwr legs runs) on the
+    robot file a ballbar calibration with effects writes (iwr.effects.api.apply), targets in
+    {0} (frame "0": a ballbar registers no frame), gives the readings of the truth under each
+    pose's load and temperature; the ballbar module's leg commands agree."""
+    robot, data, truth = case
+    problem, _ = be.effect_problem(robot, data)
+    frames = problem.platform_frames(truth)
+    n_re = problem.n_params - problem.setup.n_params
+    calibrated = api.apply(robot, truth[:n_re])
+    cmd = api.leg_commands(calibrated, data.q, iwr.transforms.pose_from_matrix(frames),
+                           payload=data.payload, temperatures=data.temperatures[:, 0],
+                           frame="0")
+    assert np.abs(cmd.legs - data.legs).max() < 1e-9
+    assert np.abs(be.leg_commands(robot, truth, frames, data.q, data) - data.legs).max() < 1e-9
+
+
+def test_a_run_read_again_tests_the_range_as_the_run_did(noisy):
+    """iwr report re-checks an effect's range on a run read back
+    (iwr.calibration.effects_in_range) with the standard deviations the run's fit check used:
+    an effect outside its range by less than the noise explains passes both (on data other
+    than poses in {0} the re-check took none, and failed it)."""
+    from iwr.calibration import effects_in_range
+    from iwr.effects.problem import out_of_range
+
+    robot, data, _ = noisy
+    res = iwr.identify(robot, data, "lm", active="base")
+    assert out_of_range(robot, res.x, res.parameter_names)  # outside its range: not vacuous
+    assert res.fit.fit_ok, res.fit.causes
+    again = effects_in_range(robot, data, res)
+    assert again.fit.fit_ok and again.success == res.success

@@ -37,7 +37,7 @@ import numpy as np
 from ..effects import bounds as effect_bounds
 from ..effects import parameter_names as effect_names
 from ..effects.loop import _skew, loop_jacobians
-from ..effects.model import check_inputs, predicted_readings
+from ..effects.model import check_inputs, joint_effects, predicted_readings
 from ..problem_base import FAILED_RESIDUAL, ProblemBase
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
@@ -162,9 +162,16 @@ class BallbarEffectProblem(ProblemBase):
         solved pose's correction ``(dp, w)`` (``p + dp``, ``R exp([w]x)``) in the robot's
         geometric and effect parameters (N, 6, n_geometric + n_effects; zero where not
         solved). Newton's method with the exact pose Jacobian of the loop closure with the
-        effects, from the geometric forward kinematics."""
+        effects, from the geometric forward kinematics; without ``jacobians``, for a robot whose
+        effects change the legs only, the cheaper readings without their parameter derivatives
+        and the geometry's pose Jacobian (:func:`iwr.effects.tracker._readings`: the effects
+        change it by a part in 1e5, so the convergence is linear at that rate), to the same
+        tolerance."""
+        from ..effects.tracker import _readings
+
         xr, _ = self.split(x)
         robot, data = self.robot, self.measurements
+        fast = not jacobians and not joint_effects(robot)
         ng, nj, n = robot.n_params, robot.n_joints, len(data)
         frames = self.geometric.platform_frames(
             np.concatenate([xr[:ng], np.zeros(self.setup.n_params)]))
@@ -178,12 +185,16 @@ class BallbarEffectProblem(ProblemBase):
         for _ in range(FK_MAX_ITERATIONS + 1):
             if not live.size:
                 break
-            pred, jx, jy = loop_jacobians(robot, xr, sub.q, poses[live], sub)
+            if fast:
+                pred, jp = _readings(robot, xr, sub.q, poses[live], sub)
+            else:
+                pred, jx, jy = loop_jacobians(robot, xr, sub.q, poses[live], sub)
+                jp = jy[:, :, nj:]
             h = pred - sub.legs
             if np.abs(h).max() <= FK_TOLERANCE_MM:
                 break
             try:
-                step = -np.linalg.solve(jy[:, :, nj:], h[..., None])[..., 0]
+                step = -np.linalg.solve(jp, h[..., None])[..., 0]
             except np.linalg.LinAlgError:
                 break
             poses[live] = _corrected(poses[live], step)
