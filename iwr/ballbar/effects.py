@@ -588,7 +588,6 @@ def uncertainty(robot: Robot, measurements: BallbarMeasurements, x: Any, noise: 
     """:func:`iwr.ballbar.api.ballbar_uncertainty` for a robot with effects: the covariance of
     the geometric, effect and set-up parameters from the exact Jacobian of the distances with
     the effects at ``x``; ``active`` default :func:`base_parameters`."""
-    from ..analysis.uncertainty import Uncertainty  # noqa: F401  (the result's type)
     from ..tracker.analysis import NullSpace
     from .api import uncertainty_on
 

@@ -154,9 +154,10 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
                     "the loads' centres of mass): they are held as well (" + ", ".join(held)
                     + "; docs/effects.md).")
         if inseparable:
+            names = ", ".join(n for n, _ in inseparable)
             out += (" Effect parameters these poses and loads cannot separate from the "
-                    "geometry, held at the robot file's value: " + ", ".join(n for n, _ in inseparable)
-                    + " (measure with a second payload).")
+                    f"geometry, held at the robot file's value: {names} (measure with a second "
+                    "payload).")
         return out
 
     def to_dict(self) -> dict[str, Any]:
