@@ -407,7 +407,10 @@ def effects_in_range(robot: Any, data: Any, result: IdentificationResult
         active = (np.ones(x.size, dtype=bool) if result.active is None
                   else np.asarray(result.active, dtype=bool))
         try:
-            sd = parameter_sd(robot, data, x, active)
+            # Data of another kind than poses in {0} need their residuals and Jacobian (as the
+            # fit check gives them): without them the range was tested without the noise.
+            readings = kinds.of(data).plausibility(robot, data, None, 1.0)[3]
+            sd = parameter_sd(robot, data, x, active, readings=readings)
         except (ValueError, np.linalg.LinAlgError):
             sd = None
         bad = [t for t in out_of_range(robot, x, list(result.parameter_names) or None, sd)

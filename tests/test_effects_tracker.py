@@ -433,13 +433,3 @@ def test_iwr_legs_on_a_tracker_robot_takes_gravity_through_the_registration(
     np.testing.assert_allclose(cmd.legs, model, rtol=0, atol=1e-9)
     own = [e.gravity for e in robot.effects if hasattr(e, "gravity")][0]
     assert not np.allclose(own, et.registration_gravity(setup, np.zeros(setup.n_params))[0])
-
-
-def test_a_ballbar_robot_with_effects_is_refused_by_simulate(kind_case):
-    from iwr.effects import api
-
-    plain = kind_case("ballbar", n_poses=1).robot
-    robot = plain.with_effects(*api.realistic(plain))
-    with pytest.raises(ValueError, match="ballbar data .iwr.simulate of a ballbar robot. models "
-                                         "the geometry only"):
-        iwr.simulate(robot, 30, seed=1)

@@ -48,7 +48,7 @@ _LAZY = {
 }
 
 _SUBMODULES = (
-    "api", "data", "estimation", "files", "kind", "problem", "setup", "simulate",
+    "api", "data", "effects", "estimation", "files", "kind", "problem", "setup", "simulate",
 )
 
 __getattr__, __dir__ = lazy_package(__name__, _LAZY, _SUBMODULES)

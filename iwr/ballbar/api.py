@@ -128,9 +128,16 @@ def ballbar_misclosures(robot: Robot, measurements: BallbarMeasurements, x: Any,
     (the legs and joints, :func:`reading_sensitivities`; the bar's, -1); with ``noise``
     (:func:`split_noise`) the readings' covariance, without it the unit metric (the noise then
     estimated from the residuals)."""
+    problem, x = ballbar_problem(robot, measurements, x0=x)
+    return misclosures_on(problem, x, noise)
+
+
+def misclosures_on(problem: Any, x: np.ndarray, noise: Any) -> Any:
+    """:func:`ballbar_misclosures` of ``problem`` (a :class:`BallbarProblem`, or the objective
+    with the effects, :class:`iwr.ballbar.effects.BallbarEffectProblem`) at ``x``."""
     from ..misclosures import Misclosures
 
-    problem, x = ballbar_problem(robot, measurements, x0=x)
+    robot, measurements = problem.robot, problem.measurements
     r, jac = problem.residuals_and_jacobian(x)
     failed = np.zeros(len(measurements), dtype=bool)
     failed[[k for k, _ in problem.failures(x)]] = True
@@ -174,6 +181,24 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     and the fit gets a chi-square test of the weighted cost. ``active="base"``: one parameter
     per null direction held at ``x0`` (:func:`ballbar_identifiability`). DE runs on
     :meth:`BallbarProblem.cost_batch` and is polished by LM."""
+    return ballbar_identify_with(
+        robot, measurements, method, lambda: ballbar_problem(robot, measurements, bounds, x0),
+        lambda problem, start: null_space(problem, start, NULL_RTOL).active, noise=noise,
+        weighted=weighted, bounds=bounds, x0=x0, active=active,
+        max_evaluations=max_evaluations, seed=seed, callback=callback, progress=progress,
+        **options)
+
+
+def ballbar_identify_with(robot: Robot, measurements: BallbarMeasurements, method: str,
+                          make: Callable[[], Any], base: Callable[[Any, np.ndarray], np.ndarray],
+                          *, noise: Any, weighted: bool | None, bounds: Any, x0: Any,
+                          active: Any, max_evaluations: int | None, seed: int | None,
+                          callback: Callable[..., Any] | None, progress: bool | None,
+                          **options: Any) -> Any:
+    """:func:`ballbar_identify` on the distance objective that ``make()`` gives with its start
+    (:func:`ballbar_problem`, or the objective with the effects,
+    :func:`iwr.ballbar.effects.effect_problem`); ``active="base"``: ``base(problem, start)``,
+    the base parameters' mask."""
     from ..methods import run_method, settle
     from ..methods.reduced import active_mask
 
@@ -183,8 +208,7 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
         # weighted LM), base parameters and fit test.
         from ..methods.efficient import efficient_on
 
-        return efficient_on(robot, measurements, noise,
-                            lambda: ballbar_problem(robot, measurements, bounds, x0)[0],
+        return efficient_on(robot, measurements, noise, lambda: make()[0],
                             noise_hint="(iwr.Noise(...), iwr.ballbar.BallbarNoise(...))",
                             x0=x0, active=active, bounds=bounds, callback=callback,
                             weighted=weighted, max_evaluations=max_evaluations, **options)
@@ -197,11 +221,11 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     elif weighted and noise is None:
         raise ValueError("weighted=True needs a noise model: noise=(iwr.Noise(...), "
                          "iwr.ballbar.BallbarNoise(...))")
-    problem, start = ballbar_problem(robot, measurements, bounds, x0)
+    problem, start = make()
     if weighted:
         problem = weighted_problem(problem, start, noise)
     if isinstance(active, str) and active == "base":
-        active = null_space(problem, start, NULL_RTOL).active
+        active = base(problem, start)
     mask = active_mask(problem, active)
     result = run_method(problem, method, mask, start, max_evaluations=max_evaluations,
                         seed=seed, callback=callback, progress=progress, batch_de=True,
@@ -283,7 +307,15 @@ def ballbar_accuracy(robot: Robot, measurements: BallbarMeasurements, x: Any, *,
     (:func:`gauge_aligned`), which ballbar data cannot determine."""
     setup = ballbar_setup(robot)
     x = _full_x(robot, setup, x)
-    problem = BallbarProblem(robot, setup, measurements)
+    truth = None if truth is None else _full_x(robot, setup, truth, "truth")
+    return accuracy_on(BallbarProblem(robot, setup, measurements), x, truth, tool)
+
+
+def accuracy_on(problem: Any, x: Any, truth: Any, tool: Any) -> Accuracy:
+    """:func:`ballbar_accuracy` on ``problem`` (a :class:`BallbarProblem`, or the objective with
+    the effects, :class:`iwr.ballbar.effects.BallbarEffectProblem`: its ``residuals`` and
+    ``platform_frames``), from its start (zeros) to ``x``; ``x`` and ``truth`` (or None)
+    checked."""
     start = np.zeros(problem.n_params)
     if truth is None:
         def errors(xe: np.ndarray) -> PoseErrors:
@@ -292,7 +324,7 @@ def ballbar_accuracy(robot: Robot, measurements: BallbarMeasurements, x: Any, *,
                               pose_from_matrix(problem.platform_frames(xe)))
 
         return Accuracy(errors(start), errors(x))
-    true = problem.platform_frames(_full_x(robot, setup, truth, "truth"))
+    true = problem.platform_frames(truth)
     out = []
     for xe in (start, x):
         model = gauge_aligned(problem.platform_frames(xe), true)
@@ -321,13 +353,22 @@ def ballbar_uncertainty(robot: Robot, measurements: BallbarMeasurements, x: Any,
     noise-weighted objective, whose covariance is ``(J_w^T J_w)^-1``. ``active``: a mask, a
     NullSpace, or None (one parameter per null direction held)."""
     problem, x = ballbar_problem(robot, measurements, x0=x)
+    return uncertainty_on(problem, x, noise, active=active, weighted=weighted,
+                          base=lambda p, xx: null_space(p, xx, NULL_RTOL).active)
+
+
+def uncertainty_on(problem: Any, x: np.ndarray, noise: Any, *, active: Any, weighted: bool,
+                   base: Callable[[Any, np.ndarray], np.ndarray]) -> Uncertainty:
+    """:func:`ballbar_uncertainty` of ``problem`` (a :class:`BallbarProblem`, or the objective
+    with the effects, :class:`iwr.ballbar.effects.BallbarEffectProblem`) at ``x``; ``active``
+    None: ``base(problem, x)``, the base parameters' mask."""
     if weighted and noise is None:
         raise ValueError("weighted=True needs a noise model")
     if weighted:
         problem = weighted_problem(problem, np.zeros(problem.n_params), noise)
     n = problem.n_params
     if active is None:
-        mask = null_space(problem, x, NULL_RTOL).active
+        mask = base(problem, x)
     elif isinstance(active, NullSpace):
         mask = active.active
     else:

@@ -7,7 +7,7 @@ from typing import Any
 import numpy as np
 
 from .._hooks import hook
-from ..measurements import MAX_LENGTH_MM, RobotReadings, as_matrix
+from ..measurements import MAX_LENGTH_MM, RobotReadings, _effect_inputs, as_matrix
 from .setup import BallbarSetup
 
 __all__ = ["BallbarMeasurements"]
@@ -29,13 +29,19 @@ class BallbarMeasurements(RobotReadings):
         offset (mm).
     joint_types, lines, source : optional
         As :class:`iwr.Measurements`.
+    payload : array_like, shape (N, 4), optional
+        The payload at each pose, mass (kg) and centre of mass in {5} (mm), as
+        :class:`iwr.Measurements` holds it (issue 23, docs/effects.md). None: no payload.
+    temperatures : array_like, shape (N,), (N, 1) or (N, 6), optional
+        Degrees C, one per pose or one per leg (docs/effects.md). None: not measured.
     """
 
     kind = "ballbar"
 
     def __init__(self, q: Any, legs: Any, setup: Any, distance: Any, *,
                  joint_types: str | None = None, lines: Any = None,
-                 source: str | None = None) -> None:
+                 source: str | None = None, payload: Any = None,
+                 temperatures: Any = None) -> None:
         n = self._set_readings(q, legs, joint_types, lines, source)
         d = as_matrix(np.asarray(distance, dtype=float).reshape(-1, 1)
                       if np.ndim(distance) == 1 else distance, 1, "distance", rows=n)[:, 0]
@@ -50,13 +56,17 @@ class BallbarMeasurements(RobotReadings):
         if names.shape != (n,):
             raise ValueError(f"setup: {names.size} names; expected {n}, one per pose")
         self.setup = names
+        # Issue 23: the loads and temperatures of the non-geometric effects (docs/effects.md).
+        self.payload, self.temperatures = _effect_inputs(payload, temperatures, n)
 
     def subset(self, rows: Any) -> BallbarMeasurements:
         """The poses ``rows`` (indices or a mask), in that order, lines and source kept."""
         rows = self._rows(rows)
-        return BallbarMeasurements(self.q[rows], self.legs[rows], self.setup[rows],
-                                   self.distance[rows], joint_types=self.joint_types,
-                                   lines=self._lines_at(rows), source=self.source)
+        return BallbarMeasurements(
+            self.q[rows], self.legs[rows], self.setup[rows], self.distance[rows],
+            joint_types=self.joint_types, lines=self._lines_at(rows), source=self.source,
+            payload=None if self.payload is None else self.payload[rows],
+            temperatures=None if self.temperatures is None else self.temperatures[rows])
 
     def to_csv(self, path: Any) -> None:
         """Write the data file (docs/ballbar.md), atomically: :func:`iwr.ballbar.write_ballbar`."""

@@ -49,7 +49,7 @@ from .problem import BallbarProblem
 from .simulate import BallbarNoise, split_noise
 
 __all__ = ["BALLBAR_COMPONENTS", "BallbarSpec", "ballbar_loop_model",
-           "ballbar_predicted_accuracy", "ballbar_reading_names"]
+           "ballbar_predicted_accuracy", "ballbar_reading_names", "predicted_accuracy_on"]
 
 #: The variance components on ballbar data: the leg and joint readings' (as :class:`iwr.Noise`'s
 #: fields) and the bar's (``ballbar_distance``, :class:`BallbarNoise`'s ``distance``;
@@ -106,9 +106,12 @@ def ballbar_loop_model(robot: Robot, problem: BallbarProblem, reference: np.ndar
     ``reference`` (N, 6): the platform poses the corrections ``(dq, dp, w)`` move (``p + dp``,
     ``R exp([w]x)``, as :func:`iwr.implicit_loop.loop_jacobians`); ``sigma`` (N, 7 + n_joints):
     the standard deviations of the legs, the joints (0: exact) and the bar, in the columns of
-    :func:`ballbar_reading_names`. ``x`` holds the robot's parameters then the set-ups'."""
+    :func:`ballbar_reading_names`. ``x`` holds the robot's parameters (a robot with effects:
+    the geometric errors then the effects', the legs under each pose's load and temperature,
+    :func:`iwr.implicit_loop.loop_jacobians`) then the set-ups'."""
     data = problem.measurements
-    n, nj, nr = len(data), robot.n_joints, robot.n_params
+    n, nj = len(data), robot.n_joints
+    nr = problem.n_params - problem.setup.n_params
     sl, sq, sd = sigma[:, :6], sigma[:, 6:6 + nj], sigma[:, 6 + nj]
     inv_q = np.where(sq > 0, 1.0 / np.where(sq > 0, sq, 1.0), 0.0)
     r_ref = _core_rotations(reference)
@@ -116,7 +119,7 @@ def ballbar_loop_model(robot: Robot, problem: BallbarProblem, reference: np.ndar
     rows = np.arange(n)
 
     def model(x: np.ndarray, corr: np.ndarray, jacobians: bool) -> tuple[np.ndarray, Any, Any]:
-        legs, jx, jy = loop_jacobians(robot, x[:nr], data.q, reference, corr)
+        legs, jx, jy = loop_jacobians(robot, x[:nr], data.q, reference, corr, data=data)
         p, f, o = problem.setup.split(x[nr:])
         w = corr[:, nj + 3:]
         rot = r_ref @ rotvec_matrix(w)
@@ -162,7 +165,6 @@ class BallbarSpec(EstimatorSpec):
         from ..estimation import _active_mask, _check_estimate
         from ..methods.lm import levenberg_marquardt
         from ..methods.reduced import ReducedProblem
-        from ..tracker.analysis import null_space
 
         readings, bar, est = _noise(noise)
         est = _check_estimate(estimate, est, BALLBAR_COMPONENTS,
@@ -170,12 +172,11 @@ class BallbarSpec(EstimatorSpec):
         self.robot, self.measurements = robot, measurements
         self.setup = ballbar_setup(robot)
         self.noise0 = (readings, bar)
-        problem, start = ballbar_problem(robot, measurements, bounds, x0)
+        problem, start = self._problem_and_start(bounds, x0)
         self.problem = problem
         self.n = len(measurements)
         nj = robot.n_joints
-        self.mask = _active_mask(active, problem.n_params,
-                                 lambda: null_space(problem, start, NULL_RTOL).active)
+        self.mask = _active_mask(active, problem.n_params, lambda: self._base(problem, start))
         lm = levenberg_marquardt(ReducedProblem(weighted_problem(problem, start, self.noise0),
                                                 self.mask, start), progress=False)
         self.x_start = np.array(lm.x, dtype=float)
@@ -200,16 +201,26 @@ class BallbarSpec(EstimatorSpec):
         self.ny = nj + 6
         self.limit, self.center = plausible_limits(problem, plausible)
 
+    def _problem_and_start(self, bounds: Any, x0: Any) -> tuple[Any, np.ndarray]:
+        """The distance objective of the data and its start (:func:`ballbar_problem`)."""
+        return ballbar_problem(self.robot, self.measurements, bounds, x0)
+
+    def _base(self, problem: Any, start: np.ndarray) -> np.ndarray:
+        """The base parameters' mask (one parameter held per null direction)."""
+        from ..tracker.analysis import null_space
+
+        return null_space(problem, start, NULL_RTOL).active
+
     def start_sigma(self, c: str) -> float:
         readings, bar = self.noise0
         return float(bar.distance if c == "ballbar_distance" else getattr(readings, c))
 
-    def _problem(self, used: np.ndarray) -> BallbarProblem:
+    def _problem(self, used: np.ndarray) -> Any:
         if used.all():
             return self.problem
-        return BallbarProblem(self.robot, self.setup, self.subset(used),
-                              (self.problem.lower, self.problem.upper),
-                              reference=self.problem.reference)
+        return type(self.problem)(self.robot, self.setup, self.subset(used),
+                                  (self.problem.lower, self.problem.upper),
+                                  reference=self.problem.reference)
 
     def solve(self, x: np.ndarray, idx: list[int], used: np.ndarray, scale: dict[str, float],
               corr: np.ndarray, max_iterations: int, cb: Any) -> dict[str, Any]:
@@ -237,8 +248,7 @@ class BallbarSpec(EstimatorSpec):
 
     def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray,
                   tool: Any) -> PredictedAccuracy:
-        return ballbar_predicted_accuracy(self.robot, self._problem(used).measurements, x, cov,
-                                          self.mask, tool=tool)
+        return predicted_accuracy_on(self._problem(used), x, cov, self.mask, tool=tool)
 
 
 
@@ -285,9 +295,18 @@ def ballbar_predicted_accuracy(robot: Robot, measurements: BallbarMeasurements, 
     its projection on their 12 directions in the alignment's metric (the frames' origins and axis
     tips), which couples the poses; the tool point's error follows. RMS and 95th percentiles by
     :func:`iwr.accuracy_prediction.accuracy_from_covariances`."""
-    setup = ballbar_setup(robot)
-    problem = BallbarProblem(robot, setup, measurements)
+    return predicted_accuracy_on(BallbarProblem(robot, ballbar_setup(robot), measurements), x,
+                                 covariance, active, tool=tool, n_samples=n_samples, seed=seed)
+
+
+def predicted_accuracy_on(problem: Any, x: Any, covariance: Any, active: Any, *,
+                          tool: Any = None, n_samples: int = 500, seed: int = 0
+                          ) -> PredictedAccuracy:
+    """:func:`ballbar_predicted_accuracy` at the poses of ``problem`` (a :class:`BallbarProblem`,
+    or the objective with the effects, :class:`iwr.ballbar.effects.BallbarEffectProblem`: the
+    platform frames and their derivatives from its ``pose_derivatives``)."""
     x = problem._x(x)
+    measurements = problem.measurements
     mask = np.asarray(active, dtype=bool)
     cov = np.asarray(covariance, dtype=float)
     p = int(mask.sum())
@@ -297,16 +316,12 @@ def ballbar_predicted_accuracy(robot: Robot, measurements: BallbarMeasurements, 
         raise ValueError(f"covariance: shape {cov.shape}; expected ({p}, {p}) for {p} active "
                          "parameters")
     t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
-    nr, nj, n = robot.n_params, robot.n_joints, len(measurements)
-    t05 = problem.platform_frames(x)
+    n = len(measurements)
+    t05, g = problem.pose_derivatives(x)
     bad = np.flatnonzero(~np.all(np.isfinite(t05.reshape(n, -1)), axis=1))
     if bad.size:
         raise ValueError(f"{measurements.where(int(bad[0]))}: the readings have no forward "
                          "kinematics at x")
-    poses = pose_from_matrix(t05)
-    _, jx, jy = loop_jacobians(robot, x[:nr], measurements.q, poses)
-    g = np.zeros((n, 6, problem.n_params))
-    g[:, :, :nr] = -np.linalg.solve(jy[:, :, nj:], jx)  # d (dp, w) / d x_robot
     g = g[:, :, mask]
     m = _gauge_basis(t05)
     a = _frame_metric(t05)

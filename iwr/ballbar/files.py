@@ -12,7 +12,14 @@ import numpy as np
 
 from .._io import atomic_write_text
 from ..measurements import _JOINT_RE, _LEG_COLUMNS, MeasurementFileError, _summarise
-from ..tracker.files import _read_rows, _value
+from ..tracker.files import (
+    _effect_columns,
+    _effect_header,
+    _effect_table,
+    _effect_values,
+    _read_rows,
+    _value,
+)
 from .data import BallbarMeasurements
 from .setup import BallbarSetup
 
@@ -23,6 +30,11 @@ HEADER_COMMENT = """\
 # q<i>_<unit>: carriage joint readings; s1_mm .. s6_mm: leg sensor readings;
 # setup: the bar set-up (a [ballbar.NAME] of the robot); distance_mm: the bar's reading
 #   (the balls' centre distance plus the set-up's length offset).
+"""
+#: What the header says of the optional columns, when the data have them (issue 23).
+EFFECTS_COMMENT = """\
+# payload_kg .. payload_z_mm, T_C or T1_C .. T6_C: the payload (mass, centre of mass in {5})
+#   and the temperatures of the non-geometric effects (docs/effects.md).
 """
 
 
@@ -38,7 +50,7 @@ def is_ballbar_file(path: str | os.PathLike[str]) -> bool:
         header, _, _, _ = _read_rows(Path(path))
     except (MeasurementFileError, OSError):
         return False
-    return header[-2:] == ["setup", "distance_mm"]
+    return _effect_header(header)[0][-2:] == ["setup", "distance_mm"]
 
 
 def read_ballbar(path: str | os.PathLike[str], joint_types: str,
@@ -46,7 +58,9 @@ def read_ballbar(path: str | os.PathLike[str], joint_types: str,
     """Read a ballbar CSV for a robot with ``joint_types`` and ``setup``; errors name the file,
     the line and the column (every bad cell of the file, summarised)."""
     path = Path(path)
-    header, header_line, _, rows = _read_rows(path)
+    full, header_line, _, rows = _read_rows(path)
+    # The optional payload and temperature columns (issue 23) after the bar's reading.
+    header, n_effect = _effect_header(full)
     expected = _columns(joint_types)
     where = f"{path}, line {header_line}"
     order = "expected columns, in this order: " + ", ".join(expected) + " (docs/ballbar.md)"
@@ -80,12 +94,14 @@ def read_ballbar(path: str | os.PathLike[str], joint_types: str,
         values.append([*row, d])
         names.append(name)
         lines.append(lineno)
+    loads = _effect_values(full, rows, n_effect, problems)
     if problems:
         raise MeasurementFileError(f"{path}, {_summarise(problems, 'bad value')}")
     arr = np.array(values, dtype=float)
     return BallbarMeasurements(arr[:, :n_joints], arr[:, n_joints:n_joints + 6], names,
                                arr[:, -1], joint_types=joint_types, lines=lines,
-                               source=str(path))
+                               source=str(path),
+                               **_effect_table(full, n_effect, loads, lines, str(path)))
 
 
 def write_ballbar(path: str | os.PathLike[str], data: BallbarMeasurements) -> None:
@@ -94,9 +110,13 @@ def write_ballbar(path: str | os.PathLike[str], data: BallbarMeasurements) -> No
         raise ValueError("joint_types: unknown, so the joint units cannot be written")
     buf = io.StringIO()
     buf.write(HEADER_COMMENT)
+    effect_cols, effect_vals = _effect_columns(data)
+    if effect_cols:
+        buf.write(EFFECTS_COMMENT)
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow(_columns(data.joint_types))
+    w.writerow(_columns(data.joint_types) + effect_cols)
     for k in range(len(data)):
+        extra = [] if effect_vals is None else [repr(float(v)) for v in effect_vals[k]]
         w.writerow([*(repr(float(v)) for v in data.q[k]), *(repr(float(v)) for v in data.legs[k]),
-                    str(data.setup[k]), repr(float(data.distance[k]))])
+                    str(data.setup[k]), repr(float(data.distance[k])), *extra])
     atomic_write_text(path, buf.getvalue())

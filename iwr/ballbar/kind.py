@@ -13,7 +13,6 @@ from typing import Any
 import numpy as np
 
 from ..analysis.identifiability import kind_parameter_error
-from ..effects import refuse as refuse_effects
 from ..forward import forward_kinematics
 from ..kinds import MeasurementKind, data_fingerprint
 from ..noise import Noise, instrument_level
@@ -131,12 +130,21 @@ class BallbarKind(MeasurementKind):
         """The tool pose errors against the truth at the same readings, modulo the rigid motions
         of {0} and {5} a ballbar cannot see (:func:`ballbar_accuracy` with ``truth``; without
         it, the experiments' "tool" figures were the distance residuals)."""
-        return ballbar_accuracy(robot, data, x, truth=truth)
+        return self.accuracy(robot, data, x, truth=truth)
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """Over the robot's and the set-ups' parameters, modulo the null directions of the
         distances on ``data`` (what a ballbar cannot see, docs/ballbar.md)."""
         return kind_parameter_error(self, robot, data, x, truth)
+
+    def angle_parameters(self, robot: Any) -> np.ndarray:
+        from ..effects import parameter_names as effect_names
+
+        # The effects' parameters (issue 23) between the robot's and the set-ups': none an
+        # angle (the set-ups' are lengths).
+        return np.concatenate([np.asarray(robot.angle_parameters, dtype=bool),
+                               np.zeros(len(effect_names(robot.effects)), dtype=bool),
+                               ballbar_setup(robot).angle_parameters])
 
     def draw_setup(self, robot: Any, rng: np.random.Generator) -> np.ndarray:
         """Uniform within the set-ups' default bounds about the nominal (as :func:`iwr.simulate`
@@ -171,23 +179,41 @@ class BallbarKind(MeasurementKind):
 
     def simulate(self, robot: Any, n_poses: int, *, seed: int | None, x: Any = None,
                  noise: Any = None) -> tuple[Any, np.ndarray]:
-        refuse_effects(robot, "ballbar data (iwr.simulate of a ballbar robot)")
+        if robot.effects:  # issue 23: loads, temperatures, the legs with the effects
+            from .effects import simulate as simulate_effects
+
+            return simulate_effects(robot, n_poses, seed=seed, x=x, noise=noise)
         return simulate_ballbar(robot, ballbar_setup(robot), n_poses, seed=seed, x=x,
                                 noise=noise)
 
     engine = True  # a problem file (kind 3) and a C++ objective: iwr-calibrate, iwr-engine
+    #: Issue 23: the calibration job models a robot's effects on ballbar data (the distances by
+    #: forward kinematics with the effects, iwr.ballbar.effects; no problem file of them yet).
+    models_effects = True
     weighted_objective = True  # each distance by its propagated variance (ballbar_identify)
     null_rtol = NULL_RTOL  # structural null directions sit at ~5e-14, above NumPy's threshold
 
     def problem(self, robot: Any, data: Any, bounds: Any = None, x0: Any = None,
                 noise: Any = None) -> tuple[Any, np.ndarray]:
+        if robot.effects:  # issue 23: the distances by forward kinematics with the effects
+            from .effects import effect_problem
+
+            return effect_problem(robot, data, bounds, x0, noise)
         problem, start = ballbar_problem(robot, data, bounds, x0)
         return (problem if noise is None else weighted_problem(problem, start, noise)), start
 
     def identify(self, robot: Any, data: Any, method: str, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the distance objective with the effects
+            from .effects import identify as identify_effects
+
+            return identify_effects(robot, data, method, **options)
         return ballbar_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: forward kinematics under each pose's load and temperature
+            from .effects import accuracy as accuracy_effects
+
+            return accuracy_effects(robot, data, x, **options)
         return ballbar_accuracy(robot, data, x, **options)
 
     def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
@@ -200,13 +226,26 @@ class BallbarKind(MeasurementKind):
         return before, after, change, "the distance residuals"
 
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the null directions of the objective with the effects
+            from .effects import identifiability as identifiability_effects
+
+            return identifiability_effects(robot, data, x, rtol=options.get("rtol"))
         return ballbar_identifiability(robot, data, x, rtol=options.get("rtol"))
 
     def uncertainty(self, robot: Any, data: Any, x: Any, noise: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the Jacobian of the distances with the effects
+            from .effects import uncertainty as uncertainty_effects
+
+            return uncertainty_effects(robot, data, x, noise, active=options.get("active"),
+                                       weighted=bool(options.get("weighted")))
         return ballbar_uncertainty(robot, data, x, noise, active=options.get("active"),
                                    weighted=bool(options.get("weighted")))
 
     def estimator(self, robot: Any, data: Any, noise: Any, **options: Any) -> Any:
+        if robot.effects:  # issue 23: the loop closure with the effects (numpy solver)
+            from .effects import estimator as estimator_effects
+
+            return estimator_effects(robot, data, noise, **options)
         from .estimation import BallbarSpec
 
         return BallbarSpec(robot, data, noise, options["x0"], options["active"],
@@ -216,15 +255,27 @@ class BallbarKind(MeasurementKind):
                            seed: int) -> Any:
         """The tool pose error modulo what a ballbar cannot see
         (:func:`iwr.ballbar.estimation.ballbar_predicted_accuracy`)."""
+        if robot.effects:  # issue 23: under each pose's load and temperature
+            from .effects import predicted_accuracy as predicted_effects
+
+            return predicted_effects(robot, data, x, covariance, active, seed=seed)
         from .estimation import ballbar_predicted_accuracy
 
         return ballbar_predicted_accuracy(robot, data, x, covariance, active, seed=seed)
 
     def misclosures(self, robot: Any, data: Any, x: Any, noise: Any = None) -> Any:
+        if robot.effects:  # issue 23: the distances with the effects, exact derivatives
+            from .effects import misclosures as misclosures_effects
+
+            return misclosures_effects(robot, data, x, noise)
         return ballbar_misclosures(robot, data, x, noise)
 
     def plausibility(self, robot: Any, data: Any, bounds: Any, plausible: float
                      ) -> tuple[list[str], np.ndarray, np.ndarray, Any]:
+        if robot.effects:  # issue 23: the effects' parameters beside the robot's and set-ups'
+            from .effects import plausibility as plausibility_effects
+
+            return plausibility_effects(robot, data, bounds, plausible)
         problem, _ = ballbar_problem(robot, data, bounds)
         limit, centre = plausible_limits(problem, plausible)
         return (problem.parameter_names, limit, centre,
@@ -236,10 +287,13 @@ class BallbarKind(MeasurementKind):
     def candidate_poses(self, robot: Any, data: Any) -> Any:
         # Ballbar data hold no world pose: the nominal robot's forward kinematics gives it; each
         # pose stays a candidate in the set-up it was measured in.
-        poses = forward_kinematics(robot, np.zeros(robot.n_params), data.q, data.legs)
+        # With effects (issue 23) the geometry's poses, the loads and temperatures kept.
+        geometric = robot.with_effects() if robot.effects else robot
+        poses = forward_kinematics(geometric, np.zeros(robot.n_params), data.q, data.legs)
         return BallbarCandidates(data.q, poses, data.legs, data.setup,
                                  joint_types=robot.joint_types, lines=data.lines,
-                                 source=data.source)
+                                 source=data.source, payload=data.payload,
+                                 temperatures=data.temperatures)
 
     def plan_candidates(self, robot: Any, candidates: Any, setup: Any) -> Any:
         return ballbar_candidates(robot, candidates, setup)

@@ -39,8 +39,10 @@ class BallbarCandidates(Measurements):
 
     def __init__(self, q: Any, poses: Any, legs: Any, setup: Any, *,
                  joint_types: str | None = None, lines: Any = None,
-                 source: str | None = None) -> None:
-        super().__init__(q, poses, legs, joint_types=joint_types, lines=lines, source=source)
+                 source: str | None = None, payload: Any = None,
+                 temperatures: Any = None) -> None:
+        super().__init__(q, poses, legs, joint_types=joint_types, lines=lines, source=source,
+                         payload=payload, temperatures=temperatures)
         if isinstance(setup, str):
             raise ValueError("setup: expected one set-up name per pose, got one string")
         names = np.array([str(s) for s in setup], dtype=object)
@@ -52,7 +54,7 @@ class BallbarCandidates(Measurements):
         idx = self._rows(rows)
         return BallbarCandidates(self.q[idx], self.poses[idx], self.legs[idx], self.setup[idx],
                                  joint_types=self.joint_types, lines=self._lines_at(idx),
-                                 source=self.source)
+                                 source=self.source, **_conditions(self, idx))
 
     def __repr__(self) -> str:
         return (f"BallbarCandidates(n_poses={len(self)}, set-ups="
@@ -111,7 +113,15 @@ def ballbar_candidates(robot: Robot, candidates: Measurements, setup: Any = None
     c = candidates
     return BallbarCandidates(c.q[rows], c.poses[rows], c.legs[rows], names,
                              joint_types=robot.joint_types,
-                             lines=None if c.lines is None else c.lines[rows], source=c.source)
+                             lines=None if c.lines is None else c.lines[rows], source=c.source,
+                             **_conditions(c, rows))
+
+
+def _conditions(data: Any, rows: np.ndarray) -> dict[str, Any]:
+    """The payload and temperatures of ``data`` at ``rows`` (issue 23; None where it has
+    none)."""
+    return {key: None if getattr(data, key, None) is None else getattr(data, key)[rows]
+            for key in ("payload", "temperatures")}
 
 
 def setup_names(robot: Robot, setup: Any, m: int) -> np.ndarray:
@@ -140,8 +150,15 @@ def _nominal_data(robot: Robot, cand: BallbarCandidates) -> BallbarMeasurements:
         raise ValueError(f"candidates: pose {int(bad[0])} puts the balls of set-up "
                          f"{cand.setup[bad[0]]!r} at a nominal reading of "
                          f"{float(distance[bad[0]])!r} mm; a bar reading is > 0")
-    return BallbarMeasurements(cand.q, cand.legs, cand.setup, distance,
-                               joint_types=robot.joint_types)
+    legs = cand.legs
+    if robot.effects:  # issue 23: the nominal robot's legs with its effects under each load
+        from ..effects import parameter_names as effect_names
+        from ..effects.model import predicted_readings
+
+        legs = predicted_readings(robot, np.zeros(robot.n_params + len(effect_names(
+            robot.effects))), cand.q, cand.poses, cand)
+    return BallbarMeasurements(cand.q, legs, cand.setup, distance, joint_types=robot.joint_types,
+                               payload=cand.payload, temperatures=cand.temperatures)
 
 
 def ballbar_design(robot: Robot, cand: BallbarCandidates, x: Any, report: Any
@@ -151,6 +168,10 @@ def ballbar_design(robot: Robot, cand: BallbarCandidates, x: Any, report: Any
     robot's alone: the nominal set-ups; default zeros), the base parameters of ``report`` (by
     default the null space of the candidates' distances, :func:`iwr.identifiability`'s)."""
     setup = ballbar_setup(robot)
+    if robot.effects:  # issue 23: the distances with the effects, under each pair's load
+        from .effects import design
+
+        return (*design(robot, _nominal_data(robot, cand), x, report), READING)
     if x is not None and np.shape(x) == (robot.n_params,):
         x = np.concatenate([np.asarray(x, dtype=float), np.zeros(setup.n_params)])
     xf = _full_x(robot, setup, x)
@@ -168,6 +189,11 @@ def measure_ballbar(robot: Robot, x: np.ndarray, q: np.ndarray, poses: np.ndarra
     noise, then the bar's, as :func:`iwr.simulate` adds them
     (:func:`iwr.ballbar.simulate.measured`)."""
     bars = ballbar_setup(robot)
+    if robot.effects:
+        raise ValueError(f"robot {robot.name!r} has effects on: measuring a plan needs each "
+                         "pose's payload and temperatures; simulate the plan's poses with "
+                         "iwr.ballbar.effects.measure(robot, x, plan.measurements, noise, seed) "
+                         "(docs/effects.md)")
     nr, n_all = robot.n_params, robot.n_params + bars.n_params
     if setup is None:
         raise ValueError("setup: a ballbar reads the distance of one set-up's balls; give each "

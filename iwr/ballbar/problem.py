@@ -229,6 +229,26 @@ class BallbarProblem(ProblemBase):
         t[:, :3, :3], t[:, :3, 3] = rot, origin
         return t
 
+    def pose_derivatives(self, x: Any) -> tuple[np.ndarray, np.ndarray]:
+        """``(frames, d_pose)``: the platform frames (N, 4, 4) in {0} by forward kinematics at
+        ``x`` (NaN where it fails) and the derivatives of each frame's correction ``(dp, w)``
+        (``p + dp``, ``R exp([w]x)``) in every parameter (N, 6, n_params; the set-ups' move
+        no frame): the implicit function theorem on the loop closure,
+        :func:`iwr.implicit_loop.loop_jacobians`."""
+        from ..implicit_loop import loop_jacobians
+        from ..transforms import pose_from_matrix
+
+        x = self._x(x)
+        nr, nj, n = self.robot.n_params, self.robot.n_joints, self.n_poses
+        t05 = self.platform_frames(x)
+        g = np.zeros((n, 6, self.n_params))
+        ok = np.all(np.isfinite(t05.reshape(n, -1)), axis=1)
+        if ok.any():
+            _, jx, jy = loop_jacobians(self.robot, x[:nr], self.measurements.q[ok],
+                                       pose_from_matrix(t05[ok]))
+            g[ok, :, :nr] = -np.linalg.solve(jy[:, :, nj:], jx)
+        return t05, g
+
     def __repr__(self) -> str:
         return (f"BallbarProblem(robot={self.robot.name!r}, set-ups={self.setup.n_setups}, "
                 f"n_poses={self.n_poses}, n_params={self.n_params})")

@@ -14,7 +14,8 @@ from ..transforms import pose_matrix
 from .data import BallbarMeasurements
 from .setup import BallbarSetup
 
-__all__ = ["BallbarNoise", "simulate_ballbar", "true_distances", "split_noise"]
+__all__ = ["BallbarNoise", "sample_setup_poses", "simulate_ballbar", "true_distances",
+           "split_noise"]
 
 
 @dataclass(frozen=True)
@@ -85,7 +86,20 @@ def simulate_ballbar(robot: Robot, setup: BallbarSetup, n_poses: int = 100, *,
             raise ValueError(f"x: expected {n_all} finite values (the robot's {robot.n_params} "
                              f"then the set-ups' {setup.n_params}), got shape {x_true.shape}")
     xr, xs = x_true[: robot.n_params], x_true[robot.n_params:]
-    n, s_count = int(n_poses), setup.n_setups
+    q, poses, legs, bar_idx = sample_setup_poses(robot, setup, xr, xs, int(n_poses), rng,
+                                                 max_batches)
+    return measured(robot, setup, xs, bar_idx, q, poses, legs, noise, rng), x_true
+
+
+def sample_setup_poses(robot: Robot, setup: BallbarSetup, xr: np.ndarray, xs: np.ndarray,
+                       n: int, rng: np.random.Generator, max_batches: int = 200
+                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(q, poses, legs, bar)``: ``n`` random reachable poses of the robot with geometric errors
+    ``xr`` shared out among the set-ups in order (the first ``n % S`` set-ups get one more), each
+    set-up's within its ``range`` at the set-ups' parameters ``xs`` (:func:`simulate_ballbar`);
+    exact joint readings, platform poses in {0}, the geometry's leg readings and each pose's
+    set-up index, drawn from ``rng``."""
+    s_count = setup.n_setups
     counts = [n // s_count + (1 if i < n % s_count else 0) for i in range(s_count)]
     offsets = setup.split(xs)[2]
     qs, ps, ls, bars = [], [], [], []
@@ -109,18 +123,18 @@ def simulate_ballbar(robot: Robot, setup: BallbarSetup, n_poses: int = 100, *,
             ls.append(legs[ok])
             bars.append(np.full(ok.size, i))
             have += ok.size
-    q, poses, legs, bar_idx = np.vstack(qs), np.vstack(ps), np.vstack(ls), np.concatenate(bars)
-    return measured(robot, setup, xs, bar_idx, q, poses, legs, noise, rng), x_true
+    return np.vstack(qs), np.vstack(ps), np.vstack(ls), np.concatenate(bars)
 
 
 def measured(robot: Robot, setup: BallbarSetup, x_setup: Any, bar: np.ndarray, q: np.ndarray,
              poses: np.ndarray, legs: np.ndarray, noise: Any,
-             rng: np.random.Generator) -> BallbarMeasurements:
+             rng: np.random.Generator, **conditions: Any) -> BallbarMeasurements:
     """The readings at exact joint readings ``q``, platform poses in {0} and leg readings
     ``legs``, in set-ups ``bar`` (indices) whose parameters are ``x_setup``: the bar's
     :func:`true_distances`, then the leg and joint readings' noise and the bar's
     (:func:`split_noise`), drawn from ``rng`` in that order (:func:`simulate_ballbar`,
-    :func:`iwr.planning.measure`)."""
+    :func:`iwr.planning.measure`). ``conditions``: the ``payload`` and ``temperatures`` the
+    data carry (issue 23: the legs given are then those of the robot with its effects)."""
     readings, bar_noise = split_noise(noise)
     distance = true_distances(setup, x_setup, bar, poses)
     if readings is not None and not readings.is_zero:
@@ -131,4 +145,5 @@ def measured(robot: Robot, setup: BallbarSetup, x_setup: Any, bar: np.ndarray, q
     if bar_noise is not None and not bar_noise.is_zero:
         distance = distance + bar_noise.distance * rng.standard_normal(distance.shape)
     names = np.array(setup.names, dtype=object)[bar]
-    return BallbarMeasurements(q, legs, names, distance, joint_types=robot.joint_types)
+    return BallbarMeasurements(q, legs, names, distance, joint_types=robot.joint_types,
+                               **conditions)

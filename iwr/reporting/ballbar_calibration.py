@@ -64,9 +64,10 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
     def _residuals_of(self, data: Any) -> dict[str, np.ndarray]:
         """Predicted minus measured bar readings (mm), unweighted, per pose:
         ``{"nominal": ..., "calibrated": ...}`` (NaN where forward kinematics fails)."""
-        from ..ballbar.api import ballbar_problem
+        from .. import kinds
 
-        problem, start = ballbar_problem(self.robot, data)
+        # The kind's problem: with the robot's effects (issue 23) when it has them.
+        problem, start = kinds.of(data).problem(self.robot, data)
         out = {}
         for label, x in (("nominal", start), ("calibrated", self._x())):
             out[label] = problem.predicted(x) - data.distance
@@ -138,12 +139,33 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
                 "it), beside the leg data's own null directions. One parameter per direction "
                 "is held; predicted bar readings do not depend on the choice, and tool poses "
                 "are determined modulo a rigid motion of {0} and one of {5}: register them by "
-                "other means to use the robot in a world frame (docs/ballbar.md).")
+                "other means to use the robot in a world frame (docs/ballbar.md)."
+                + self._effects_sentence(ns))
+
+    @staticmethod
+    def _effects_sentence(ns: Any) -> str:
+        """What the effects (issue 23) add to the null directions: the directions only the
+        loads fix, held too, and the effects' parameters the data cannot separate."""
+        held, inseparable = getattr(ns, "held", []), getattr(ns, "inseparable", [])
+        out = ""
+        if held:
+            out += (f" With the effects, {len(held)} more directions are fixed by the loads "
+                    "alone, weakly (the world frame turned against gravity, {5} moved against "
+                    "the loads' centres of mass): they are held as well (" + ", ".join(held)
+                    + "; docs/effects.md).")
+        if inseparable:
+            names = ", ".join(n for n, _ in inseparable)
+            out += (" Effect parameters these poses and loads cannot separate from the "
+                    f"geometry, held at the robot file's value: {names} (measure with a second "
+                    "payload).")
+        return out
 
     def to_dict(self) -> dict[str, Any]:
-        return self._summary("ballbar", {
-            "cost_mm2": self.costs(), "distance_residuals_mm": self.residuals(),
-            "setups": self.setup.with_parameters(self._x()[self.n_robot:]).to_dict()})
+        figures = {"cost_mm2": self.costs(), "distance_residuals_mm": self.residuals(),
+                   "setups": self.setup.with_parameters(self._x()[self.n_robot:]).to_dict()}
+        if self.robot.effects:  # issue 23
+            figures["effects"] = self.effect_rows()
+        return self._summary("ballbar", figures)
 
     # -- text -----------------------------------------------------------------------------------
     def _method_text(self) -> str:
@@ -207,6 +229,7 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         lines += ["", "ball centres and length offsets (mm): nominal | identified correction "
                   "(std) | identified"]
         lines += [f"  {r[0]:<32} {r[1]:>26} | {r[2]} | {r[3]}" for r in self.ball_rows()]
+        lines += self.effect_lines()  # issue 23 (none without effects)
         lines += ["", f"accuracy on {self.accuracy.n_poses} {where}: each pose's "
                   "|predicted - measured| bar reading (mm):"]
         lines += [f"  {label:<28} RMS {rms} mm, max {mx} mm"
@@ -283,6 +306,7 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         if self.uncertainty is not None:
             page.paragraph(f"Standard deviations: {self.uncertainty.describe()}.")
         page.table(self.parameter_table(), "params")
+        self._effects_html(page, "the bar's distances with the effects")
         if self.identifiability is not None:
             page.heading("What a ballbar cannot see")
             page.paragraph(self.null_sentence())
@@ -313,6 +337,7 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
                        self.ball_rows()),
                "", "## Identified parameters", "",
                *_table(*self.parameter_table())]
+        md += self._effects_md()
         if self.identifiability is not None:
             md += ["", "## What a ballbar cannot see", "", self.null_sentence(), "", "```",
                    self.null_text(), "```"]
@@ -366,8 +391,13 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         set-ups), ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the
         report into ``out``; returns the paths written."""
         x = self._x()
-        calibrated = self.robot.with_errors(x[:self.n_robot]).with_instrument(
-            "ballbar", self.setup.with_parameters(x[self.n_robot:]))
+        if self.robot.effects:  # issue 23: written with the identified effect values
+            from ..effects.api import apply
+
+            robot = apply(self.robot, x[:self.n_robot])
+        else:
+            robot = self.robot.with_errors(x[:self.n_robot])
+        calibrated = robot.with_instrument("ballbar", self.setup.with_parameters(x[self.n_robot:]))
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
         calibrated.to_toml(written[0], provenance=self.file_provenance())
         self.result.save(written[1])
