@@ -352,6 +352,16 @@ def calibrate(
         note = kind.weighting_note(data, method, data_name)
         if note:
             notes.append(note)
+        if robot.effects and np.all(np.isfinite(result.x)):
+            from .effects.api import widened_ranges
+
+            widened = widened_ranges(robot, np.asarray(result.x)[:robot.n_params + len(
+                effect_parameter_names(robot.effects))])
+            if widened:
+                notes.append("note: calibrated.toml widens the plausible range of an effect to "
+                             "hold the value identified beyond it (the fit's range test "
+                             "weighs the departure by its standard deviation): "
+                             + "; ".join(widened))
         unc = _uncertainty(robot, ident, result, report if parameters == "all" else None,
                            noise, notes)
         acc = accuracy(robot, val, result.x)

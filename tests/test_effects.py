@@ -256,6 +256,37 @@ def test_robot_file_round_trip_and_checks(tmp_path, robot, with_effects):
     assert cal.with_errors(np.zeros(robot.n_params)).effects == cal.effects
 
 
+def test_a_value_identified_beyond_its_plausible_range_reads_back(tmp_path, robot):
+    """A calibration can identify an effect a little beyond its plausible range (the fit's range
+    test weighs the departure by its standard deviation and passes it): the calibrated robot
+    widens that range to hold the value, so that calibrated.toml reads back (it was written
+    with the old range, and iwr refused to read it). The other ranges stay as they were."""
+    with_all = robot.with_effects(*api.realistic(robot, carriage=True))
+    names = effects.parameter_names(with_all.effects)
+    x = np.zeros(robot.n_params + len(names))
+    # leg 3 at 1.5 times max_um_per_N (0.05), the shared alpha at 40 ppm/K (max 30), joint 4
+    # (revolute) at twice its max; the slides stay within theirs
+    x[robot.n_params + names.index("leg3.compliance")] = 0.075 - 0.01
+    x[robot.n_params + names.index("legs.alpha")] = 40.0 - 11.5
+    carriage = with_all.effects[2]
+    j4 = names.index("joint4.compliance")
+    x[robot.n_params + j4] = 2 * carriage.max_revolute - carriage.values()[-1]
+    widened = api.widened_ranges(with_all, x)
+    assert widened == [
+        "[effects.compliance] max_um_per_N 0.05 -> 0.075",
+        "[effects.thermal] max_ppm_per_K 30 -> 40",
+        f"[effects.carriage_compliance] max_urad_per_Nm {carriage.max_revolute:g} -> "
+        f"{2 * carriage.max_revolute:.4g}"], widened
+    cal = api.apply(with_all, x)
+    cal.to_toml(tmp_path / "calibrated.toml")
+    back = iwr.Robot.from_toml(tmp_path / "calibrated.toml")
+    assert back.effects == cal.effects
+    assert back.effects[0].compliance[2] == pytest.approx(0.075)
+    assert back.effects[2].max_prismatic == carriage.max_prismatic
+    # Within the ranges nothing is widened.
+    assert api.widened_ranges(with_all, np.zeros_like(x)) == []
+
+
 def test_measurement_columns_round_trip_and_checks(tmp_path, data):
     m, _ = data
     path = tmp_path / "m.csv"

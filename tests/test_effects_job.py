@@ -85,6 +85,27 @@ def job(with_effects):
     return m, x, iwr.calibrate(with_effects, m, seed=1, truth=x)
 
 
+def test_a_calibrated_file_holds_a_value_identified_beyond_its_range(with_effects, job,
+                                                                     tmp_path):
+    """The robot file says alpha is at most 0.5 ppm/K below the truth's: the job identifies it
+    beyond that range, says so in a note, and writes a calibrated.toml whose range holds the
+    value, which reads back (it was refused: "expected ... <= value <= ...")."""
+    m, x, _ = job
+    compliance, thermal = with_effects.effects
+    alpha = float(thermal.alpha[0] + x[-1]) - 0.5  # the file's value and its range's end
+    narrow = with_effects.with_effects(compliance, LegThermal(alpha, thermal.reference,
+                                                              identify=True, max_alpha=alpha))
+    cal = iwr.calibrate(narrow, m, seed=1)
+    identified = alpha + float(cal.result.x[-1])
+    assert identified > alpha + 0.4
+    note = [n for n in cal.notes if "widens the plausible range" in n]
+    assert note and f"max_ppm_per_K {alpha:g} -> {identified:.4g}" in note[0], cal.notes
+    render(cal).write(tmp_path / "out")
+    back = iwr.Robot.from_toml(tmp_path / "out" / "calibrated.toml")
+    assert back.effects[1].alpha[0] == pytest.approx(identified, rel=1e-12)
+    assert back.effects[1].max_alpha == pytest.approx(identified, rel=1e-12)
+
+
 def test_calibration_job_with_effects(with_effects, job, tmp_path):
     m, x, cal = job
     assert cal.success, cal.result.message

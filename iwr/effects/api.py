@@ -114,6 +114,20 @@ def apply(robot: Any, x: Any) -> Any:
     return out.with_effects(*effects)
 
 
+def widened_ranges(robot: Any, x: Any) -> list[str]:
+    """What :func:`apply` widens: each effect's plausible range (``max_*`` in the robot file)
+    that an identified value in ``x`` lies beyond, raised to hold it (a robot file holds its own
+    values), as sentences naming the key, its old and new value."""
+    calibrated = apply(robot, x)
+    out = []
+    for old, new in zip(robot.effects, calibrated.effects, strict=True):
+        before, after = old.to_dict(), new.to_dict()
+        for key, value in after.items():
+            if key.startswith("max_") and value != before.get(key):
+                out.append(f"[effects.{old.name}] {key} {before[key]:g} -> {value:.4g}")
+    return out
+
+
 def draw_conditions(robot: Any, n: int, rng: np.random.Generator, payloads: Any,
                     temperatures: Any) -> tuple[Any, Any]:
     """The loads and temperatures of ``n`` simulated poses (:func:`simulate`, and the tracker

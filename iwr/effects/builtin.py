@@ -163,6 +163,9 @@ class LegCompliance(_GravityLoad, Effect):
         out = copy.copy(self)
         out.compliance = _vector(np.asarray(values, dtype=float).tolist(), len(self.compliance),
                                  "compliance", -10.0, 10.0, "um/N")
+        # A value identified beyond the plausible range (passed by the fit's range test within
+        # its standard deviation) widens it: a robot file must hold its own values.
+        out.max_compliance = max(self.max_compliance, float(np.max(np.abs(out.compliance))))
         return out
 
     def leg_change(self, state: LegState, values: np.ndarray
@@ -253,6 +256,8 @@ class LegThermal(Effect):
         if self.identify:
             out.alpha = _vector(np.asarray(values, dtype=float).tolist(), len(self.alpha),
                                 "alpha", -1000.0, 1000.0, "ppm/K")
+            # beyond the plausible range: widened to hold it (LegCompliance.with_values)
+            out.max_alpha = max(self.max_alpha, float(np.max(np.abs(out.alpha))))
         return out
 
     def leg_change(self, state: LegState, values: np.ndarray

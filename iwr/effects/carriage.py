@@ -173,6 +173,12 @@ class CarriageCompliance(_GravityLoad, Effect):
         out.compliance = _vector(np.asarray(values, dtype=float).tolist(), len(c), "compliance",
                                  -1e3, 1e3, "urad/(N m) or um/N")
         out._given = out.compliance.tolist()
+        # beyond the plausible range: widened to hold it (LegCompliance.with_values)
+        size = np.abs(out.compliance)
+        types = np.array(list(self._bound()[1]))
+        for kind, attr in (("R", "max_revolute"), ("P", "max_prismatic")):
+            if np.any(types == kind):
+                setattr(out, attr, max(getattr(self, attr), float(np.max(size[types == kind]))))
         return out
 
     def joint_change(self, state: JointState, values: np.ndarray
