@@ -18,11 +18,11 @@ engine's own log (``--log``: its ``elapsed`` column, taken in C++); over ``--run
 seed (the same work generation by generation) the minimum of each generation, then the median of
 these minima over generations 50..; beside it ``Problem.cost_batch`` of NP = 600 random vectors
 within the bounds on the same threads in that build's Python (the same C++ objective), the minimum
-over rounds spread over ``--seconds``; beside them each run's mean time per generation over the same
-generations (the median and the worst run: what a neighbour's load costs). The issue's targets: 2 threads at least 1.8x the
-generations/s
-of 1, a generation at most 1.1x one cost_batch on the same threads. It also checks that the logs'
-best and mean columns are the same bits whatever the thread count.
+over rounds spread over ``--seconds``; beside them each run's mean time per generation over the
+same generations (the median and the worst run: what a neighbour's load costs). The issue's
+targets: 2 threads at least 1.8x the generations/s of 1, a generation at most 1.1x one cost_batch
+on the same threads. It also checks that the logs' best and mean columns are the same bits
+whatever the thread count.
 """
 
 from __future__ import annotations
