@@ -186,8 +186,8 @@ void ThreadPool::parallel_for(std::size_t n,
     if (theirs) std::rethrow_exception(theirs);
 }
 
-void ThreadPool::parallel_for_dynamic(std::size_t n, std::size_t grain,
-                                      const std::function<void(std::size_t, std::size_t, int)>& fn) {
+void ThreadPool::parallel_for_dynamic(
+    std::size_t n, std::size_t grain, const std::function<void(std::size_t, std::size_t, int)>& fn) {
     const std::size_t t = static_cast<std::size_t>(size());
     if (t == 1 || n < 2 || !usable_here()) return parallel_for(n, fn);  // serial, or its error
     grain = std::max<std::size_t>(grain, 1);

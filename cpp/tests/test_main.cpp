@@ -216,7 +216,8 @@ IWR_TEST(pool_dynamic_chunks_cover_every_item_once) {
                     for (std::size_t i = b; i < e && i < n; ++i) ++seen[i];
                 });
                 CHECK(sane);
-                CHECK(std::all_of(seen.begin(), seen.end(), [](const std::atomic<int>& v) { return v == 1; }));
+                CHECK(std::all_of(seen.begin(), seen.end(),
+                                  [](const std::atomic<int>& v) { return v == 1; }));
             }
         }
         bool thrown = false;
