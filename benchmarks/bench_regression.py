@@ -19,10 +19,11 @@ What is timed (per build, per kernel variant forced with ``iwr._core._select_ker
   floor": N x 370 flops (``bench_objective.py``'s count) at the peak of one core measured with the
   same instruction set and separate multiplies and adds (``_bench.measure_peak_gflops``), divided
   by the time. ``--objectives`` adds the weighted leg objective (a weight per leg reading: 376
-  flops a pose), the whitened one (``noise=Noise.realistic()``: 406) and the tracker point
+  flops a pose), the whitened one (``noise=Noise.realistic()``: 406), the tracker point
   objective (``TrackerProblem``, K = 3 reflectors, N = 100 poses of ``simulate_tracker``, seed 1:
-  FLOPS_TRACKER a pose, see there); a build without one of them (``aa02662`` has neither the
-  weights nor the tracker) prints "n/a".
+  FLOPS_TRACKER a pose, see there) and the same weighted by the readings' and the tracker's noise
+  (``noise=(Noise(...), TrackerNoise.leica())``: FLOPS_TRACKER + 81); a build without one of
+  them (``aa02662`` has neither the weights nor the tracker) prints "n/a".
 - batch: ``Problem.cost_batch(X, workers=T)`` of the same 600 vectors on T threads, wall time, the
   minimum: what one DE generation's objective costs on T threads.
 - DE: ``iwr.identify(method="de", population_size=600, F=0.9, CR=1, seed=1, workers=T,
@@ -78,8 +79,10 @@ FLOPS_PER_POSE = 370  # bench_objective.py's count for the IWR (PPRR carriage), 
 # three points (45 each): 1775.
 FLOPS_TRACKER = 1775
 # flops a pose of each objective of --objectives
+# (the weighted tracker: the 9 x 9 lower-triangular whitening of a pose's residuals, 45 multiplies
+# and 36 adds, as the whitened leg objective's 6 x 6 adds 36.)
 FLOPS = {"leg": FLOPS_PER_POSE, "weighted": FLOPS_PER_POSE + 6, "whitened": FLOPS_PER_POSE + 36,
-         "tracker": FLOPS_TRACKER}
+         "tracker": FLOPS_TRACKER, "tracker weighted": FLOPS_TRACKER + 81}
 
 
 # ---- the worker: one build, in its own process ---------------------------------------------------
@@ -144,6 +147,15 @@ class Worker:
             make["tracker"] = lambda: TrackerProblem(robot, setup, td)
         except ImportError:
             make["tracker"] = None
+        try:  # the tracker point objective weighted by the readings' and the tracker's noise
+            from iwr.tracker import TrackerNoise
+
+            readings = iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6)
+            TrackerProblem(robot, setup, td, noise=(readings, TrackerNoise.leica()))
+            make["tracker weighted"] = lambda: TrackerProblem(
+                robot, setup, td, noise=(readings, TrackerNoise.leica()))
+        except (ImportError, TypeError, AttributeError):
+            make["tracker weighted"] = None
         out: dict = {}
         self.pads = []
         for k, f in make.items():

@@ -922,7 +922,10 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
             // One pass of the pool: each thread builds its slots' trials and evaluates them
             // (while they are in its cache); one hand-over per generation instead of two.
             const auto nev = static_cast<std::size_t>(ne);
-            pool.parallel_for(static_cast<std::size_t>(np), [&](std::size_t b, std::size_t e, int id) {
+            // The chunks claimed as the threads go (a slot's trial and cost depend on the slot
+            // alone): a thread that shares its core with another process takes fewer slots.
+            pool.parallel_for_dynamic(static_cast<std::size_t>(np), ThreadPool::kGrain,
+                                      [&](std::size_t b, std::size_t e, int id) {
                 make_trials(b, e);
                 if (b < std::min(e, nev)) f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
             });

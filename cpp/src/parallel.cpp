@@ -186,4 +186,25 @@ void ThreadPool::parallel_for(std::size_t n,
     if (theirs) std::rethrow_exception(theirs);
 }
 
+void ThreadPool::parallel_for_dynamic(
+    std::size_t n, std::size_t grain, const std::function<void(std::size_t, std::size_t, int)>& fn) {
+    const std::size_t t = static_cast<std::size_t>(size());
+    if (t == 1 || n < 2 || !usable_here()) return parallel_for(n, fn);  // serial, or its error
+    grain = std::max<std::size_t>(grain, 1);
+    // The next unclaimed item, alone on its cache line (the threads' claims write it).
+    struct alignas(64) Next {
+        std::atomic<std::size_t> i{0};
+    } next;
+    parallel_for(t, [&](std::size_t, std::size_t, int id) {  // one call per thread
+        for (;;) {
+            const std::size_t seen = next.i.load(std::memory_order_relaxed);
+            if (seen >= n) return;
+            const std::size_t want = std::max(grain, (n - seen) / (2 * t));
+            const std::size_t b = next.i.fetch_add(want, std::memory_order_relaxed);
+            if (b >= n) return;
+            fn(b, std::min(n, b + want), id);
+        }
+    });
+}
+
 }  // namespace iwr

@@ -58,6 +58,17 @@ IWR_FORCE_INLINE Pack select(const Mask& m, const Pack& a, const Pack& b) {
     return p;
 }
 
+// p itself, its value hidden from the optimiser: what is read through it is read again, not kept in
+// registers from an earlier read. GCC kept the chord's J_ref^-1 (loop-invariant: 36 packs) from one
+// iteration to the next; with AVX2 (16 registers) that meant a copy of it on the stack, a store for
+// every load. No operation on the values changes.
+IWR_FORCE_INLINE const double* reread(const double* p) {
+#if defined(__GNUC__) || defined(__clang__)
+    __asm__ volatile("" : "+r"(p));
+#endif
+    return p;
+}
+
 // J_ref^-1 v for the block's lanes (inv: the 6 x 6 matrix row by row, v: 6 values, each 8 lanes),
 // one register's lanes at a time, v in registers: each row's product reads only the matrix (with
 // AVX2 the whole block's v would take 12 of the 16 registers, and reading it from memory made the
@@ -68,6 +79,7 @@ IWR_FORCE_INLINE Pack select(const Mask& m, const Pack& a, const Pack& b) {
 template <class Set>
 IWR_FORCE_INLINE void inverse_times(const double* inv, const double* v, Pack (&s)[6], Set set) {
     constexpr int B = kBlock, W = kSubLanes;
+    inv = reread(inv);
     for (int h = 0; h < K; ++h) {
         R vh[6];
         for (int n = 0; n < 6; ++n) vh[n] = r_load(v + n * B + h * W);

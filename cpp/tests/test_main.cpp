@@ -201,6 +201,37 @@ IWR_TEST(pool_sizes_and_lifetimes) {
     }
 }
 
+IWR_TEST(pool_dynamic_chunks_cover_every_item_once) {
+    // parallel_for_dynamic: every item exactly once, in ranges within [0, n) that the threads
+    // claim; any grain (0 counts as 1), n below the grain, pools larger than the machine.
+    const int hw = iwr::ThreadPool::resolve(0);
+    for (int threads : {1, 2, hw + 3}) {
+        iwr::ThreadPool pool(threads);
+        for (std::size_t n : {0, 1, 2, 7, 600, 1001}) {
+            for (std::size_t grain : {0, 1, 8, 5000}) {
+                std::vector<std::atomic<int>> seen(n);
+                std::atomic<bool> sane{true};
+                pool.parallel_for_dynamic(n, grain, [&](std::size_t b, std::size_t e, int id) {
+                    if (!(b < e && e <= n && id >= 0 && id < pool.size())) sane = false;
+                    for (std::size_t i = b; i < e && i < n; ++i) ++seen[i];
+                });
+                CHECK(sane);
+                CHECK(std::all_of(seen.begin(), seen.end(),
+                                  [](const std::atomic<int>& v) { return v == 1; }));
+            }
+        }
+        bool thrown = false;
+        try {
+            pool.parallel_for_dynamic(100, 1, [](std::size_t, std::size_t e, int) {
+                if (e > 50) throw std::runtime_error("boom");  // the chunk holding item 50
+            });
+        } catch (const std::runtime_error&) {
+            thrown = true;
+        }
+        CHECK(thrown);
+    }
+}
+
 IWR_TEST(pool_refuses_too_many_threads) {
     const int cap = iwr::ThreadPool::max_threads();
     CHECK(cap >= iwr::ThreadPool::kMinMaxThreads);

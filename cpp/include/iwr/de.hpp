@@ -124,7 +124,7 @@ public:
     int dim() const override { return static_cast<int>(index_.size()); }
     void evaluate(const double* X, std::size_t m, double* out, ThreadPool& pool) override {
         prepare(pool.size());
-        pool.parallel_for(m, [&](std::size_t b, std::size_t e, int id) {
+        pool.parallel_for_dynamic(m, ThreadPool::kGrain, [&](std::size_t b, std::size_t e, int id) {
             evaluate_rows(X, b, e, out, id);
         });
     }

@@ -1,4 +1,5 @@
-// A small persistent thread pool with static, contiguous partitioning.
+// A small persistent thread pool with static, contiguous partitioning (parallel_for) or chunks
+// claimed as the threads go (parallel_for_dynamic).
 //
 // Work item i always runs the same code on the same data whatever the number of threads, so results
 // that depend only on i are bit-identical for 1 or many threads. Nothing random lives here.
@@ -41,6 +42,14 @@ public:
     /// thread takes chunk 0. Rethrows the first exception thrown by any chunk.
     void parallel_for(std::size_t n, const std::function<void(std::size_t, std::size_t, int)>& fn);
 
+    /// Like parallel_for, but the threads claim chunks of [0, n) as they go (guided: a chunk is the
+    /// rest divided by twice the threads, at least `grain` items), so a thread that another
+    /// process slows down takes fewer items instead of holding up the others. fn may be called
+    /// several times on one thread (disjoint ranges, each in ascending order) and the partition
+    /// differs from run to run: use it only where item i's result depends on i alone.
+    void parallel_for_dynamic(std::size_t n, std::size_t grain,
+                              const std::function<void(std::size_t, std::size_t, int)>& fn);
+
     /// Resolves a user's thread count: <= 0 means all the CPUs this process may run on (its
     /// affinity mask on Linux, else std::thread::hardware_concurrency). CPU quotas (cgroup
     /// cpu.max) are not taken into account.
@@ -60,6 +69,9 @@ public:
 
     /// How long a thread spins waiting for work (or for the workers) before it sleeps.
     static constexpr int kSpinMicroseconds = 100;
+
+    /// The smallest chunk of parallel_for_dynamic that the objectives' batches use (rows).
+    static constexpr std::size_t kGrain = 8;
 
 private:
     void worker_loop(int id);
@@ -91,7 +103,7 @@ void batch_costs(const Objective& obj, const double* X, std::size_t m, double* o
     std::vector<typename Objective::Workspace> ws(static_cast<std::size_t>(pool.size()));
     for (auto& w : ws) w = obj.make_workspace();
     const std::size_t np = static_cast<std::size_t>(obj.n_params());
-    pool.parallel_for(m, [&](std::size_t b, std::size_t e, int id) {
+    pool.parallel_for_dynamic(m, ThreadPool::kGrain, [&](std::size_t b, std::size_t e, int id) {
         auto& w = ws[static_cast<std::size_t>(id)];
         for (std::size_t i = b; i < e; ++i) out[i] = obj.cost(X + i * np, w);
     });
