@@ -585,7 +585,10 @@ def _weighted_fit(robot: Any, data: Any, result: IdentificationResult, report: A
     if (not settings.get("weighting") or result.fit is not None or result.interrupted
             or not (np.all(np.isfinite(x)) and math.isfinite(float(result.fun)))):
         return result
-    problem, _ = kinds.of(data).problem(robot, data)
+    # The readings the weighted objective has: a probe's whitening has six rows a pose that
+    # carry data, not its four points' twelve coordinates (the unweighted problem's).
+    kind = kinds.of(data)
+    problem, _ = kind.problem(robot, data, noise=_recorded_noise(kind, result))
     active = result.active
     mask = np.ones(x.size, dtype=bool) if active is None else np.asarray(active, dtype=bool)
     fit = fit_check(robot, data, x, active=mask,

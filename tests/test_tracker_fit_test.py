@@ -61,6 +61,33 @@ def test_unweighted_lm_on_probe_data_is_tested_by_the_noise_model():
     assert tested.success and tested.fit.fit_ok, tested.fit.verdict
 
 
+
+def test_a_weighted_probe_result_read_back_is_tested_with_six_readings_a_pose():
+    """A weighted result on probe data identified elsewhere (iwr-calibrate --noise: its
+    ``weighting`` setting, no fit test of its own) is tested by iwr report
+    (iwr.calibration.from_result) against chi2 with six readings a pose, as the job tests it;
+    the unweighted problem's twelve coordinates a pose gave 12 N - rank degrees of freedom, under
+    which a statistic 1.8 times too large passed. The standard deviations of the weighted
+    objective say the same degrees of freedom."""
+    from iwr.calibration import from_result
+
+    robot = _robot(probe=True)
+    m, _ = iwr.simulate(robot, 40, seed=4, noise=NOISE)
+    active = iwr.identifiability(robot, m).active
+    job = iwr.identify(robot, m, "lm", noise=NOISE, active=active)
+    dof = 6 * len(m) - int(np.sum(active))
+    assert job.fit.dof == dof and job.fit.fit_ok, job.fit.verdict
+    elsewhere = iwr.IdentificationResult(**dict(job))
+    elsewhere.update(fit=None, settings={**job.settings, "weighting": "the noise model"})
+    fit = from_result(robot, m, elsewhere).result.fit
+    assert fit.dof == dof and fit.statistic == pytest.approx(job.fun, rel=1e-12), fit.verdict
+    assert fit.fit_ok, fit.verdict
+    elsewhere.update(fun=1.8 * job.fun)  # chi2 / dof about 1.6: p about 1e-8
+    assert not from_result(robot, m, elsewhere).result.fit.fit_ok
+    unc = iwr.uncertainty(robot, m, job.x, NOISE, active=active, weighted=True)
+    assert unc.dof == dof
+
+
 def test_cli_weighted_lm_on_tracker_example_tests_the_fit():
     """`iwr calibrate` on the tracker example with --noise and --method lm prints the chi-square
     verdict (it used to say "no noise model")."""

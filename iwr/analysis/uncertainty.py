@@ -373,7 +373,9 @@ def tracker_covariance(problem: Any, x: Any, noise: Any, active: Any, *, weighte
                              + ", ".join(_parts(problem)) + ")")
     r, jac = (weighted if weighted is not None else problem).residuals_and_jacobian(x)
     jb = jac[:, mask]
-    m, p = problem.n_observations, int(mask.sum())
+    # Weighted: the whitened residuals that carry data (a probe's: six a pose).
+    m = (weighted if weighted is not None else problem).n_observations
+    p = int(mask.sum())
     dof = m - p
     d = np.linalg.norm(jb, axis=0)
     d = np.where(d > 0, d, 1.0)
