@@ -352,16 +352,7 @@ def calibrate(
         note = kind.weighting_note(data, method, data_name)
         if note:
             notes.append(note)
-        if robot.effects and np.all(np.isfinite(result.x)):
-            from .effects.api import widened_ranges
-
-            widened = widened_ranges(robot, np.asarray(result.x)[:robot.n_params + len(
-                effect_parameter_names(robot.effects))])
-            if widened:
-                notes.append("note: calibrated.toml widens the plausible range of an effect to "
-                             "hold the value identified beyond it (the fit's range test "
-                             "weighs the departure by its standard deviation): "
-                             + "; ".join(widened))
+        _note_widened(robot, result, notes)
         unc = _uncertainty(robot, ident, result, report if parameters == "all" else None,
                            noise, notes)
         acc = accuracy(robot, val, result.x)
@@ -389,6 +380,22 @@ def calibrate(
             diagnosis=_diagnosis(robot, ident, result, noise, notes))
         cal._settle()
     return cal
+
+
+def _note_widened(robot: Any, result: IdentificationResult, notes: list[str]) -> None:
+    """A note naming the effects' plausible ranges calibrated.toml widens to hold a value
+    identified beyond them (:func:`iwr.effects.api.widened_ranges`)."""
+    x = np.asarray(result.x, dtype=float)[:robot.n_params + len(
+        effect_parameter_names(robot.effects))]
+    if not robot.effects or not np.all(np.isfinite(x)):
+        return
+    from .effects.api import widened_ranges
+
+    widened = widened_ranges(robot, x)
+    if widened:
+        notes.append("note: calibrated.toml widens the plausible range of an effect to hold the "
+                     "value identified beyond it (the fit's range test weighs the departure by "
+                     "its standard deviation): " + "; ".join(widened))
 
 
 def effects_in_range(robot: Any, data: Any, result: IdentificationResult
@@ -542,6 +549,7 @@ def from_result(
                          "result, not the efficient estimator's covariance (which `iwr "
                          "calibrate` reports; a result file does not keep it); they can differ "
                          "by up to 2x")
+        _note_widened(robot, result, notes)
         cal = Calibration(
             robot=robot, identification=data, validation=val, held_out=validation is not None,
             result=result, accuracy=accuracy(robot, val, x), data_name=data_name,

@@ -226,12 +226,11 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     robot's then the setup's parameters): the same size test, modulo the null directions of the
     point (probe) objective, each parameter measured from the centre of its bounds (the
     registration guess for the registration's correction) against ``plausible`` times their
-    half-width. Reflector points with a ``noise`` model ``(iwr.Noise or None, TrackerNoise)``:
-    the same chi-square test on the point residuals, each pose's whitened by their covariance at
-    ``x`` (:func:`iwr.tracker.problem.point_covariances`: the tracker's noise plus the readings'
-    propagated through the loop closure), ``dof`` the seen coordinates minus the rank. Probe
-    data have no chi-square test here (``noise`` must be None; the efficient estimator tests
-    their fit). Each kind gives its whitened residuals
+    half-width. With a ``noise`` model ``(iwr.Noise or None, TrackerNoise)``: the same
+    chi-square test on the point residuals, each pose's whitened by their covariance at ``x``
+    (:func:`iwr.tracker.problem.noise_whitening`: the tracker's noise plus the readings'
+    propagated through the loop closure), ``dof`` the seen coordinates (a probe's: six a pose,
+    its four points one rigid pose) minus the rank. Each kind gives its whitened residuals
     (:meth:`iwr.kinds.MeasurementKind.whitened`).
     """
     x = np.asarray(x, dtype=float)

@@ -285,6 +285,24 @@ def test_a_value_identified_beyond_its_plausible_range_reads_back(tmp_path, robo
     assert back.effects[2].max_prismatic == carriage.max_prismatic
     # Within the ranges nothing is widened.
     assert api.widened_ranges(with_all, np.zeros_like(x)) == []
+    # A slide's compliance: widened up to the robot file's cap (10 um/N), refused beyond it by
+    # name (the file could not hold it).
+    from iwr.effects.carriage import CarriageCompliance
+
+    leg, thermal = with_all.effects[:2]
+    slides = with_all.with_effects(leg, thermal, CarriageCompliance(
+        400.0, (0.0, 0.0, 150.0), leg.platform_mass, leg.platform_centre, leg.gravity,
+        joints=[2], compliance=0.005))
+    x = np.zeros(robot.n_params + 8)
+    x[-1] = 5.0
+    assert api.widened_ranges(slides, x) == [
+        "[effects.carriage_compliance] max_um_per_N 0.05 -> 5.005"]
+    api.apply(slides, x).to_toml(tmp_path / "slides.toml")
+    assert iwr.Robot.from_toml(tmp_path / "slides.toml").effects[2].max_prismatic == 5.005
+    x[-1] = 15.0
+    with pytest.raises(ValueError, match=r"joint2.compliance 15.005 um/N; expected -10 <= value "
+                                         r"<= 10"):
+        api.apply(slides, x)
 
 
 def test_measurement_columns_round_trip_and_checks(tmp_path, data):

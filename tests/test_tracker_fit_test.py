@@ -1,8 +1,9 @@
-"""The chi-square test of the fit on reflector-point data for every method, not only the
-efficient estimator (iwr.estimation.fit_check through iwr.kinds.MeasurementKind.whitened).
+"""The chi-square test of the fit on tracker data (reflector points, a probe) for every method, not
+only the efficient estimator (iwr.estimation.fit_check through
+iwr.kinds.MeasurementKind.whitened).
 
-Here: a noise model four times too small, which the test must reject; probe data, which take a
-noise model only in the estimator; the command line. The statistic's law over seeds and its
+Here: a noise model four times too small, which the test must reject; probe data, six readings a
+pose; the command line. The statistic's law over seeds and its
 equality with the efficient estimator's, for every kind, are in tests/test_estimation_kinds.py."""
 
 from __future__ import annotations

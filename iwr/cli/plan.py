@@ -131,8 +131,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         base = plan.base_indices.size
         print(f"note: iwr calibrate holds out a fifth of the poses for validation "
               f"(--validation-fraction 0.2): the others give {spare + base} readings for {base} "
-              "base parameters, none to test the fit with (the job would say \"not calibrated: "
-              f"no redundancy\"); plan {plan.poses_for_redundancy()} poses or more, or "
+              "base parameters, none to test the fit with (with a noise model the job says \"not "
+              f"calibrated: no redundancy\"); plan {plan.poses_for_redundancy()} poses or more, or "
               "calibrate with a validation file of its own (--validation)")
     print(f"wrote {args.out}: the chosen poses to measure (joint readings and platform poses"
           f"{', and the set-up of each' if setups is not None else ''}); measure them, then "

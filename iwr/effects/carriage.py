@@ -25,6 +25,10 @@ __all__ = ["CarriageCompliance", "UNIT_SCALE"]
 UNIT_SCALE = {"R": ("urad/(N m)", 1e-9), "P": ("um/N", 1e-3)}
 
 
+#: The largest plausible compliance of a prismatic joint a robot file takes (um/N; the C++
+#: reader's too).
+_MAX_PRISMATIC = 10.0
+
 class CarriageCompliance(_GravityLoad, Effect):
     """Compliance of the carriage's joints (drive, gearbox, bearings, the link's bending folded
     into the joint): joint ``i`` is ``c_i L_i`` beyond its reading, ``L_i`` the gravity load it
@@ -79,7 +83,8 @@ class CarriageCompliance(_GravityLoad, Effect):
         self._read_load(platform_mass, platform_centre, gravity, where)
         self.max_revolute = _number(max_revolute, f"{where}.max_urad_per_Nm", 1e-9, 1e3,
                                     "urad/(N m)")
-        self.max_prismatic = _number(max_prismatic, f"{where}.max_um_per_N", 1e-9, 10.0, "um/N")
+        self.max_prismatic = _number(max_prismatic, f"{where}.max_um_per_N", 1e-9, _MAX_PRISMATIC,
+                                     "um/N")
         if joints is None:
             self.joints: tuple[int, ...] | None = None
         else:
@@ -172,6 +177,12 @@ class CarriageCompliance(_GravityLoad, Effect):
         out = copy.copy(self)
         out.compliance = _vector(np.asarray(values, dtype=float).tolist(), len(c), "compliance",
                                  -1e3, 1e3, "urad/(N m) or um/N")
+        joints, types_text, _ = self._bound()
+        for i, (v, t) in enumerate(zip(out.compliance, types_text, strict=True)):
+            if t == "P" and not abs(v) <= _MAX_PRISMATIC:  # the robot file's cap (C++ too)
+                raise ValueError(f"{self.where}: joint{joints[i]}.compliance {float(v)!r} um/N; "
+                                 f"expected {-_MAX_PRISMATIC:g} <= value <= {_MAX_PRISMATIC:g} "
+                                 "(a prismatic joint's compliance a robot file can hold)")
         out._given = out.compliance.tolist()
         # beyond the plausible range: widened to hold it (LegCompliance.with_values)
         size = np.abs(out.compliance)
