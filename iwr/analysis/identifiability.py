@@ -42,6 +42,7 @@ __all__ = [
     "parameter_error",
     "parameter_error_on",
     "column_scale",
+    "grow_active",
 ]
 
 
@@ -251,6 +252,26 @@ def _scaled_svd(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     if s.size < js.shape[1]:  # fewer readings than parameters: pad with zeros
         s = np.concatenate([s, np.zeros(js.shape[1] - s.size)])
     return d, s, vt
+
+
+def grow_active(jac: np.ndarray, mask: np.ndarray, columns: Any, rtol: float) -> np.ndarray:
+    """``mask`` with each of ``columns`` (in order) added where its column of ``jac`` raises the
+    rank of the active columns (column-scaled, at the relative threshold ``rtol``): the
+    parameters the data separate from those already active (the effects' from the geometry's
+    base parameters, issue 23)."""
+    def rank(m: np.ndarray) -> int:
+        _, s, _ = _scaled_svd(jac[:, m])
+        return int(np.sum(s > _rank_threshold(s, (jac.shape[0], int(m.sum())), rtol)[0]))
+
+    mask = np.array(mask, dtype=bool)
+    current = rank(mask)
+    for i in columns:
+        trial = mask.copy()
+        trial[i] = True
+        r = rank(trial)
+        if r > current:
+            mask, current = trial, r
+    return mask
 
 
 def identifiability(

@@ -42,7 +42,7 @@ from ..problem_base import FAILED_RESIDUAL, ProblemBase
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 from .data import BallbarMeasurements
-from .problem import BallbarProblem
+from .problem import BallbarProblem, pose_weights
 from .setup import BallbarSetup
 
 __all__ = ["BallbarEffectNullSpace", "BallbarEffectProblem", "FK_MAX_ITERATIONS",
@@ -110,11 +110,7 @@ class BallbarEffectProblem(ProblemBase):
         lo_e, hi_e = effect_bounds(robot.effects)
         lo_s, hi_s = setup.default_bounds()
         self._set_bounds(bounds, (np.concatenate([lo_e, lo_s]), np.concatenate([hi_e, hi_s])))
-        w = np.ones(len(measurements)) if weights is None else np.array(weights, dtype=float)
-        if w.shape != (len(measurements),) or not np.all(np.isfinite(w) & (w > 0)):
-            raise ValueError(f"weights: expected {len(measurements)} finite values > 0, one per "
-                             "pose")
-        self.weights = w
+        self.weights = w = pose_weights(weights, len(measurements))
         self.whitening = None if weights is None else w.reshape(-1, 1, 1)
         self.noise = noise
 
@@ -349,7 +345,7 @@ def simulate(robot: Robot, n_poses: int, *, seed: int | None, x: Any = None, noi
     ``noise`` as :func:`simulate_ballbar` takes it. Draws from one generator in this order: x
     (when not given), the poses, the temperatures (when drawn), the reading noise, the bar's.
     Returns ``(measurements, x_true)``."""
-    from ..effects.api import draw_conditions
+    from ..effects.api import draw_conditions, true_parameters
     from .simulate import measured, sample_setup_poses, split_noise
 
     if not isinstance(robot, Robot):
@@ -359,21 +355,9 @@ def simulate(robot: Robot, n_poses: int, *, seed: int | None, x: Any = None, noi
     setup = _setup(robot)
     split_noise(noise)  # its types checked before anything is drawn
     rng = np.random.default_rng(seed)
-    ng = robot.n_params
-    lo_e, hi_e = effect_bounds(robot.effects)
-    ne = lo_e.size
-    n_all = ng + ne + setup.n_params
-    if x is None:
-        lo_g, hi_g = robot.default_bounds()
-        lo_s, hi_s = setup.default_bounds()
-        lo, hi = np.concatenate([lo_g, lo_e, lo_s]), np.concatenate([hi_g, hi_e, hi_s])
-        x = lo + (hi - lo) * rng.random(n_all)
-    else:
-        x = np.array(x, dtype=float)
-        if x.shape != (n_all,) or not np.all(np.isfinite(x)):
-            raise ValueError(f"x: expected {n_all} finite values ({ng} geometric, {ne} effect "
-                             f"parameters ({', '.join(effect_names(robot.effects))}), then the "
-                             f"ballbar set-ups' {setup.n_params}), got shape {x.shape}")
+    ng, ne = robot.n_params, len(effect_names(robot.effects))
+    x = true_parameters(robot, rng, x, setup.default_bounds(),
+                        f", then the ballbar set-ups' {setup.n_params}")
     n = int(n_poses)
     xs = x[ng + ne:]
     q, poses, _, bar = sample_setup_poses(robot.with_effects(), setup, x[:ng], xs, n, rng,
@@ -436,7 +420,7 @@ def base_parameters(robot: Robot, measurements: BallbarMeasurements, x: Any = No
 
 def _base_mask(problem: BallbarEffectProblem, x: np.ndarray, jac: np.ndarray) -> np.ndarray:
     """:func:`base_parameters` of ``problem`` at ``x``, its Jacobian there ``jac``."""
-    from ..analysis.identifiability import _rank_threshold, _scaled_svd
+    from ..analysis.identifiability import grow_active
     from ..tracker.analysis import null_space
     from .api import NULL_RTOL
 
@@ -444,19 +428,8 @@ def _base_mask(problem: BallbarEffectProblem, x: np.ndarray, jac: np.ndarray) ->
     geo_mask = null_space(problem.geometric, np.concatenate([x[:ng], x[ng + ne:]]),
                           NULL_RTOL).active
     mask = np.concatenate([geo_mask[:ng], np.zeros(ne, dtype=bool), geo_mask[ng:]])
-
-    def rank(m: np.ndarray) -> int:
-        _, s, _ = _scaled_svd(jac[:, m])
-        return int(np.sum(s > _rank_threshold(s, (jac.shape[0], int(m.sum())), RANK_RTOL)[0]))
-
-    current = rank(mask)
-    for i in range(ng, ng + ne):  # each effect parameter kept if its column adds a direction
-        trial = mask.copy()
-        trial[i] = True
-        r = rank(trial)
-        if r > current:
-            mask, current = trial, r
-    return mask
+    # each effect parameter kept if its column adds a direction
+    return grow_active(jac, mask, range(ng, ng + ne), RANK_RTOL)
 
 
 def _report_type() -> Any:

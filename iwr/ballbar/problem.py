@@ -15,6 +15,14 @@ from .setup import BallbarSetup
 __all__ = ["BallbarProblem", "FAILED_RESIDUAL"]
 
 
+
+def pose_weights(weights: Any, n: int) -> np.ndarray:
+    """The weight of each of ``n`` poses' one residual (all 1 when None), checked: finite, > 0."""
+    w = np.ones(n) if weights is None else np.array(weights, dtype=float)
+    if w.shape != (n,) or not np.all(np.isfinite(w) & (w > 0)):
+        raise ValueError(f"weights: expected {n} finite values > 0, one per pose")
+    return w
+
 class BallbarProblem(ProblemBase):
     """The least-squares problem of ballbar data: a :class:`iwr.problem_base.ProblemBase` (its
     checks, bounds, names, batch costs and failed poses), so that every method runs on it
@@ -57,11 +65,7 @@ class BallbarProblem(ProblemBase):
         self.bar = measurements.setup_index(setup)
         self._set_bounds(bounds)
         ref = self._set_reference(reference)
-        w = np.ones(len(measurements)) if weights is None else np.array(weights, dtype=float)
-        if w.shape != (len(measurements),) or not np.all(np.isfinite(w) & (w > 0)):
-            raise ValueError(f"weights: expected {len(measurements)} finite values > 0, one per "
-                             "pose")
-        self.weights = w
+        self.weights = w = pose_weights(weights, len(measurements))
         #: The noise weighting as the other kinds hold it (None: unweighted): per pose the 1 x 1
         #: whitening ``w_k`` of its one residual, and the noise model it was made from, if known.
         self.whitening = None if weights is None else w.reshape(-1, 1, 1)

@@ -150,6 +150,26 @@ def draw_conditions(robot: Any, n: int, rng: np.random.Generator, payloads: Any,
     return pay, temperatures
 
 
+def true_parameters(robot: Any, rng: np.random.Generator, x: Any, setup_bounds: Any = None,
+                    setup_text: str = "") -> np.ndarray:
+    """The true parameters of a simulation with the effects: ``x`` as given, checked (the
+    robot's geometric errors, its effects' parameters, then the set-up's, ``setup_bounds``
+    ``(lower, upper)``, if any: ``setup_text`` names them), or drawn uniformly within the
+    default bounds by one call of ``rng`` (the same stream for every kind of data)."""
+    lo_g, hi_g = robot.default_bounds()
+    lo_e, hi_e = effect_bounds(robot.effects)
+    lo_s, hi_s = (np.zeros(0), np.zeros(0)) if setup_bounds is None else setup_bounds
+    lo, hi = np.concatenate([lo_g, lo_e, lo_s]), np.concatenate([hi_g, hi_e, hi_s])
+    if x is None:
+        return lo + (hi - lo) * rng.random(lo.size)
+    x = np.array(x, dtype=float)
+    if x.shape != (lo.size,) or not np.all(np.isfinite(x)):
+        raise ValueError(f"x: expected {lo.size} finite values ({robot.n_params} geometric, "
+                         f"then {', '.join(effect_names(robot.effects))}{setup_text}), got "
+                         f"shape {x.shape}")
+    return x
+
+
 def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise: Any = None,
              payloads: Any = None, temperatures: Any = None) -> tuple[Any, np.ndarray]:
     """:func:`iwr.simulate` for a robot with effects: random reachable poses of the actual robot
@@ -172,18 +192,7 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
         raise TypeError(f"noise: expected an iwr.Noise, got {type(noise).__name__}")
     geometric = robot.with_effects()
     rng = np.random.default_rng(seed)
-    lo_g, hi_g = robot.default_bounds()
-    lo_e, hi_e = effect_bounds(robot.effects)
-    n_all = robot.n_params + lo_e.size
-    if x is None:
-        x = np.concatenate([lo_g + (hi_g - lo_g) * rng.random(robot.n_params),
-                            lo_e + (hi_e - lo_e) * rng.random(lo_e.size)])
-    else:
-        x = np.array(x, dtype=float)
-        if x.shape != (n_all,) or not np.all(np.isfinite(x)):
-            raise ValueError(f"x: expected {n_all} finite values ({robot.n_params} geometric, "
-                             f"then {', '.join(effect_names(robot.effects))}), got shape "
-                             f"{x.shape}")
+    x = true_parameters(robot, rng, x)
     n = int(n_poses)
     q, poses, _ = sample_poses(geometric, n, rng, x[: robot.n_params])
     pay, temperatures = draw_conditions(robot, n, rng, payloads, temperatures)

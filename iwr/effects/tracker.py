@@ -604,7 +604,7 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
     from ..simulation import sample_poses
     from ..tracker.simulate import perturb_measurements, true_points
     from ..tracker.start import _setup
-    from .api import draw_conditions
+    from .api import draw_conditions, true_parameters
 
     setup = _setup(robot)
     if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
@@ -622,21 +622,10 @@ def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise
         raise ValueError("hidden: a probe pose is measured whole or not at all")
     rng = np.random.default_rng(seed)
     ng = robot.n_params
-    lo_e, hi_e = effect_bounds(robot.effects)
-    n_all = ng + lo_e.size + setup.n_params
-    if x is None:
-        lo_g, hi_g = robot.default_bounds()
-        lo_s, hi_s = setup.default_bounds()
-        lo, hi = np.concatenate([lo_g, lo_e, lo_s]), np.concatenate([hi_g, hi_e, hi_s])
-        x = lo + (hi - lo) * rng.random(n_all)
-    else:
-        x = np.array(x, dtype=float)
-        if x.shape != (n_all,) or not np.all(np.isfinite(x)):
-            raise ValueError(f"x: expected {n_all} finite values ({ng} geometric, "
-                             f"{lo_e.size} effect parameters, then the tracker setup's "
-                             f"{setup.n_params}), got shape {x.shape}")
+    x = true_parameters(robot, rng, x, setup.default_bounds(),
+                        f", then the tracker setup's {setup.n_params}")
     n = int(n_poses)
-    xs = x[ng + lo_e.size:]
+    xs = x[ng + len(effect_names(robot.effects)):]
     q, poses, _ = sample_poses(robot.with_effects(), n, rng, x[:ng])
     pay, temperatures = draw_conditions(robot, n, rng, payloads, temperatures)
     pts = true_points(robot, setup, np.concatenate([x[:ng], xs]), poses)
@@ -791,7 +780,7 @@ def base_parameters(robot: Any, measurements: Any, x: Any = None) -> np.ndarray:
     given in {5}), but only at a part in 1e5 or less of the geometry's signal: with noise those
     directions would wander by tens of millimetres. So {5} stays where the left-out parameters
     put it, as without effects, and the loads are read in that frame (docs/effects.md)."""
-    from ..analysis.identifiability import _rank_threshold, _scaled_svd
+    from ..analysis.identifiability import grow_active
     from ..tracker.gauge import null_space
     from ..tracker.start import tracker_problem
 
@@ -802,19 +791,8 @@ def base_parameters(robot: Any, measurements: Any, x: Any = None) -> np.ndarray:
     geo_mask = null_space(geometric, np.concatenate([x[:ng], x[ng + ne:]]), RANK_RTOL).active
     mask = np.concatenate([geo_mask[:ng], np.zeros(ne, dtype=bool), geo_mask[ng:]])
     jac = problem.jacobian(x)
-
-    def rank(m: np.ndarray) -> int:
-        _, s, _ = _scaled_svd(jac[:, m])
-        return int(np.sum(s > _rank_threshold(s, (jac.shape[0], int(m.sum())), RANK_RTOL)[0]))
-
-    current = rank(mask)
-    for i in range(ng, ng + ne):  # each effect parameter kept if its column adds a direction
-        trial = mask.copy()
-        trial[i] = True
-        r = rank(trial)
-        if r > current:
-            mask, current = trial, r
-    return mask
+    # each effect parameter kept if its column adds a direction
+    return grow_active(jac, mask, range(ng, ng + ne), RANK_RTOL)
 
 
 def plausibility(robot: Any, measurements: Any, bounds: Any, plausible: float
