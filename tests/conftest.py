@@ -143,3 +143,41 @@ def installed_command() -> Any:
         return exe
 
     return find
+
+
+@pytest.fixture(scope="session")
+def engine_equals_identify(installed_command: Any) -> Any:
+    """``(robot, data, folder, population, generations) -> (engine result, iwr.identify's, the
+    run's problem)``: ``iwr-calibrate`` on the robot and its tracker data written to ``folder``
+    (DE/rand/1/bin, 2 threads) and ``iwr.identify``'s DE with the same settings on the data read
+    back (1 thread), checked equal bit for bit (x, the best cost's history, the cost)."""
+    import subprocess
+
+    import numpy as np
+
+    import iwr
+    from iwr.tracker.files import read_tracker_data, write_tracker_wide
+
+    def run(robot: Any, data: Any, folder: Any, population: int, generations: int) -> Any:
+        robot.to_toml(folder / "robot.toml")
+        write_tracker_wide(folder / "data.csv", robot.tracker, data)
+        settings = ["--population-size", population, "--generations", generations, "--seed", 4,
+                    "--F", 0.7, "--CR", 0.9, "--threads", 2, "--quiet"]
+        proc = subprocess.run([installed_command("iwr-calibrate"), folder / "robot.toml",
+                               folder / "data.csv", "--output", folder / "run.json",
+                               *map(str, settings)], capture_output=True, text=True,
+                              timeout=300, check=False)
+        assert proc.returncode == 0, proc.stderr
+        exe = iwr.load_result(folder / "run.json")
+        robot = iwr.Robot.from_toml(folder / "robot.toml")
+        back = read_tracker_data(folder / "data.csv", robot.tracker)
+        py = iwr.identify(robot, back, "de", strategy="rand1bin", population_size=population,
+                          generations=generations, seed=4, F=0.7, CR=0.9, workers=1,
+                          polish=False, progress=False)
+        np.testing.assert_array_equal(exe.x, py.x)
+        np.testing.assert_array_equal(exe.history["best"], py.history["best"])
+        problem = iwr.Problem.load(folder / "run.json.iwrp")
+        assert exe.fun == problem.cost(exe.x) == py.fun
+        return exe, py, problem
+
+    return run

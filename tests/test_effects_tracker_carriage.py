@@ -447,35 +447,13 @@ def test_iwr_calibrate_on_a_tracker_robot_with_the_carriage(tmp_path, measured_w
 
 
 def test_iwr_calibrate_launcher_with_the_carriage_equals_identify(tmp_path, measured_with_effects,
-                                                                 installed_command):
+                                                                 engine_equals_identify):
     """iwr-calibrate ROBOT.toml DATA.csv on point data of a robot with the carriage's compliance:
     the engine's DE run is iwr.identify's, bit for bit (2 threads against 1), and its cost the
     problem's."""
-    import subprocess
-
-    from iwr.tracker.files import read_tracker_data, write_tracker_wide
-
     robot = carriage_robot(measured_with_effects("points"))
     data, _ = et.simulate(robot, 8, seed=8, payloads=PAYLOADS)
-    robot.to_toml(tmp_path / "robot.toml")
-    write_tracker_wide(tmp_path / "data.csv", robot.tracker, data)
-    settings = ["--population-size", 16, "--generations", 8, "--seed", 4, "--F", 0.7,
-                "--CR", 0.9, "--threads", 2, "--quiet"]
-    proc = subprocess.run([installed_command("iwr-calibrate"), tmp_path / "robot.toml",
-                           tmp_path / "data.csv", "--output", tmp_path / "run.json",
-                           *map(str, settings)], capture_output=True, text=True, timeout=300,
-                          check=False)
-    assert proc.returncode == 0, proc.stderr
-    exe = iwr.load_result(tmp_path / "run.json")
-    robot = iwr.Robot.from_toml(tmp_path / "robot.toml")
-    back = read_tracker_data(tmp_path / "data.csv", robot.tracker)
-    py = iwr.identify(robot, back, "de", strategy="rand1bin", population_size=16,
-                      generations=8, seed=4, F=0.7, CR=0.9, workers=1, polish=False,
-                      progress=False)
-    np.testing.assert_array_equal(exe.x, py.x)
-    np.testing.assert_array_equal(exe.history["best"], py.history["best"])
-    problem = iwr.Problem.load(tmp_path / "run.json.iwrp")
-    assert exe.fun == problem.cost(exe.x) == py.fun
+    exe, _, _ = engine_equals_identify(robot, data, tmp_path, 16, 8)
     assert exe.parameter_names[65:69] == [f"joint{j}.compliance" for j in range(1, 5)]
 
 

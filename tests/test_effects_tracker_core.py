@@ -4,8 +4,6 @@ carried by the problem file and run by iwr-engine and iwr-calibrate (issue 23)."
 
 from __future__ import annotations
 
-import subprocess
-
 import numpy as np
 import pytest
 
@@ -205,33 +203,13 @@ def test_de_and_lm_recover_tool_poses_and_leg_commands(measured_with_effects, ki
 
 
 def test_launcher_on_tracker_data_with_effects_equals_identify(tmp_path, measured_with_effects,
-                                                              installed_command):
+                                                              engine_equals_identify):
     """iwr-calibrate ROBOT.toml DATA.csv on point data with effects (payload and temperature
     columns): the engine's DE run is iwr.identify's, bit for bit, and its cost the problem's."""
-    from iwr.tracker.files import read_tracker_data, write_tracker_wide
-
     robot = _variant(measured_with_effects("points").with_effects(), "realistic")
     data, _ = et.simulate(robot, 10, seed=8, payloads=PAYLOADS)
-    robot.to_toml(tmp_path / "robot.toml")
-    write_tracker_wide(tmp_path / "data.csv", robot.tracker, data)
-    settings = ["--population-size", 20, "--generations", 12, "--seed", 4, "--F", 0.7,
-                "--CR", 0.9, "--threads", 2, "--quiet"]
-    proc = subprocess.run([installed_command("iwr-calibrate"), tmp_path / "robot.toml",
-                           tmp_path / "data.csv", "--output", tmp_path / "run.json",
-                           *map(str, settings)], capture_output=True, text=True, timeout=300,
-                          check=False)
-    assert proc.returncode == 0, proc.stderr
-    exe = iwr.load_result(tmp_path / "run.json")
-    robot = iwr.Robot.from_toml(tmp_path / "robot.toml")
-    back = read_tracker_data(tmp_path / "data.csv", robot.tracker)
-    py = iwr.identify(robot, back, "de", strategy="rand1bin", population_size=20,
-                      generations=12, seed=4, F=0.7, CR=0.9, workers=1, polish=False,
-                      progress=False)
-    np.testing.assert_array_equal(exe.x, py.x)
-    np.testing.assert_array_equal(exe.history["best"], py.history["best"])
-    problem = iwr.Problem.load(tmp_path / "run.json.iwrp")
+    exe, py, problem = engine_equals_identify(robot, data, tmp_path, 20, 12)
     assert isinstance(problem, et.TrackerEffectProblem)
-    assert exe.fun == problem.cost(exe.x) == py.fun
     assert exe.parameter_names == problem.parameter_names == py.parameter_names
     assert exe.parameter_names[58:65] == [f"leg{j}.compliance" for j in range(1, 7)] + [
         "legs.alpha"]
