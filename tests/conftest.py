@@ -181,3 +181,38 @@ def engine_equals_identify(installed_command: Any) -> Any:
         return exe, py, problem
 
     return run
+
+
+@pytest.fixture(scope="session")
+def reading_jacobian_matches_differences() -> Any:
+    """``(robot, data, truth) -> None``: the derivatives of tracker data's predicted points with
+    effects in the joint and leg readings (:func:`iwr.tracker.problem.reading_jacobian`, what
+    the weights, the uncertainty and the gross-error screen propagate the readings' noise by)
+    checked against central differences of the forward kinematics with the effects."""
+    import numpy as np
+
+    import iwr
+    from iwr.effects import tracker as et
+    from iwr.tracker.problem import reading_jacobian
+
+    def check(robot: Any, data: Any, truth: Any) -> None:
+        problem, _ = et.effect_tracker_problem(robot, data, x0=truth)
+        g = reading_jacobian(problem, truth)
+        nj = robot.n_joints
+        for j in range(nj + 6):
+            h = 1e-6 if j < nj and robot.joint_types[j] == "R" else 1e-4
+            pts = []
+            for sign in (1.0, -1.0):
+                q, legs = data.q.copy(), data.legs.copy()
+                if j < nj:
+                    q[:, j] += sign * h
+                else:
+                    legs[:, j - nj] += sign * h
+                moved = iwr.tracker.TrackerMeasurements(
+                    q, legs, points=data.points, probe=data.probe, joint_types=data.joint_types,
+                    payload=data.payload, temperatures=data.temperatures)
+                pts.append(et.TrackerEffectModel(robot, robot.tracker, moved).points(truth)[0])
+            fd = ((pts[0] - pts[1]) / (2 * h)).reshape(len(data), -1)
+            np.testing.assert_allclose(g[:, :, j], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+
+    return check

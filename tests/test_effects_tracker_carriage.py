@@ -248,34 +248,13 @@ def test_weighted_cpp_objective_with_the_carriage(measured_with_effects):
                                   problem.cost_batch(X, workers=2))
 
 
-def test_reading_jacobian_with_the_carriage(case):
+def test_reading_jacobian_with_the_carriage(case, reading_jacobian_matches_differences):
     """The points' derivatives in the joint and leg readings through the loop closure with the
     carriage's change (it depends on the joint readings: the loads are taken there), what the
     weights, the uncertainty and the gross-error screen propagate the readings' noise by,
     against central differences of the forward kinematics with the effects."""
-    from iwr.tracker.problem import reading_jacobian
-
     robot, data, truth = case
-    problem, _ = et.effect_tracker_problem(robot, data, x0=truth)
-    g = reading_jacobian(problem, truth)
-    nj = robot.n_joints
-    for j in range(nj + 6):
-        h = 1e-6 if j < nj and robot.joint_types[j] == "R" else 1e-4
-        pts = []
-        for sign in (1.0, -1.0):
-            q, legs = data.q.copy(), data.legs.copy()
-            if j < nj:
-                q[:, j] += sign * h
-            else:
-                legs[:, j - nj] += sign * h
-            moved = iwr.tracker.TrackerMeasurements(q, legs, points=data.points,
-                                                    probe=data.probe,
-                                                    joint_types=data.joint_types,
-                                                    payload=data.payload,
-                                                    temperatures=data.temperatures)
-            pts.append(et.TrackerEffectModel(robot, robot.tracker, moved).points(truth)[0])
-        fd = ((pts[0] - pts[1]) / (2 * h)).reshape(len(data), -1)
-        np.testing.assert_allclose(g[:, :, j], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+    reading_jacobian_matches_differences(robot, data, truth)
 
 
 def test_problem_file_and_engine_with_the_carriage(tmp_path, measured_with_effects):

@@ -69,34 +69,12 @@ def test_weighted_lm_statistic_on_probe_data_is_the_efficient_estimators(noisy):
     assert lm.fit.statistic == pytest.approx(eff.fit.statistic, rel=1e-3)
 
 
-def test_reading_jacobian_matches_central_differences(noisy):
+def test_reading_jacobian_matches_central_differences(noisy,
+                                                      reading_jacobian_matches_differences):
     """The points' derivatives in the joint and leg readings through the loop closure with the
-    effects (what the weights, the uncertainty and the gross-error screen propagate the
-    readings' noise by) against central differences of the forward kinematics with the
-    effects."""
-    from iwr.tracker.problem import reading_jacobian
-
+    effects against central differences of the forward kinematics with the effects."""
     robot, data, truth = noisy
-    sub = data.subset(np.arange(6))
-    problem, _ = et.effect_tracker_problem(robot, sub, x0=truth)
-    g = reading_jacobian(problem, truth)
-    nj = robot.n_joints
-    for j in range(nj + 6):
-        h = 1e-6 if j < nj and robot.joint_types[j] == "R" else 1e-4
-        pts = []
-        for sign in (1.0, -1.0):
-            q, legs = sub.q.copy(), sub.legs.copy()
-            if j < nj:
-                q[:, j] += sign * h
-            else:
-                legs[:, j - nj] += sign * h
-            moved = iwr.tracker.TrackerMeasurements(q, legs, points=sub.points,
-                                                    joint_types=sub.joint_types,
-                                                    payload=sub.payload,
-                                                    temperatures=sub.temperatures)
-            pts.append(et.TrackerEffectModel(robot, robot.tracker, moved).points(truth)[0])
-        fd = ((pts[0] - pts[1]) / (2 * h)).reshape(len(sub), -1)
-        np.testing.assert_allclose(g[:, :, j], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
+    reading_jacobian_matches_differences(robot, data.subset(np.arange(6)), truth)
 
 
 def test_uncertainty_of_weighted_lm_is_the_estimators_covariance(noisy, fits):
