@@ -42,7 +42,7 @@ from ..problem_base import FAILED_RESIDUAL, ProblemBase
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 from .data import BallbarMeasurements
-from .problem import BallbarProblem, pose_weights
+from .problem import BallbarProblem, pose_weights, setup_columns
 from .setup import BallbarSetup
 
 __all__ = ["BallbarEffectNullSpace", "BallbarEffectProblem", "FK_MAX_ITERATIONS",
@@ -258,13 +258,8 @@ class BallbarEffectProblem(ProblemBase):
         d_ball[:, :, 3:] = -rot @ _skew(ball)
         jac = np.zeros((n, self.n_params))
         jac[:, :nre] = np.einsum("nc,ncd,ndp->np", u, d_ball, d_pose)
-        cols = nre + 7 * self.bar
-        rows = np.arange(n)
         rot_u = np.einsum("nji,nj->ni", rot, u)  # R^T u: d dist / d platform ball
-        for c in range(3):
-            jac[rows, cols + c] = rot_u[:, c]
-            jac[rows, cols + 3 + c] = -u[:, c]
-        jac[rows, cols + 6] = 1.0
+        setup_columns(jac, nre + 7 * self.bar, rot_u, u)
         jac[~ok] = 0.0
         return pred, jac
 

@@ -16,6 +16,17 @@ __all__ = ["BallbarProblem", "FAILED_RESIDUAL"]
 
 
 
+def setup_columns(jac: np.ndarray, first: np.ndarray, rot_u: np.ndarray, u: np.ndarray) -> None:
+    """Fill in the distance Jacobian ``jac`` (N, n_params) the columns of each pose's set-up,
+    seven from ``first[k]``: its platform ball in {5} (``R^T u``, ``rot_u``), its fixed ball in
+    {0} (``-u``) and its bar's length offset (1), ``u`` the unit vector from the fixed ball to
+    the platform ball."""
+    rows = np.arange(len(jac))
+    for c in range(3):
+        jac[rows, first + c] = rot_u[:, c]
+        jac[rows, first + 3 + c] = -u[:, c]
+    jac[rows, first + 6] = 1.0
+
 def pose_weights(weights: Any, n: int) -> np.ndarray:
     """The weight of each of ``n`` poses' one residual (all 1 when None), checked: finite, > 0."""
     w = np.ones(n) if weights is None else np.array(weights, dtype=float)
@@ -209,13 +220,8 @@ class BallbarProblem(ProblemBase):
         dball = dpts[:, 0] + np.einsum("nj,njcp->ncp", ball, dpts[:, 1:] - dpts[:, :1])
         jac = np.zeros((n, self.n_params))
         jac[:, :nr] = np.einsum("nc,ncp->np", u, dball)
-        cols = nr + 7 * self.bar
-        rows = np.arange(n)
         rot_u = np.einsum("njc,nc->nj", axes, u)  # R^T u: d dist / d platform ball
-        for c in range(3):
-            jac[rows, cols + c] = rot_u[:, c]
-            jac[rows, cols + 3 + c] = -u[:, c]
-        jac[rows, cols + 6] = 1.0
+        setup_columns(jac, nr + 7 * self.bar, rot_u, u)
         r = dist + o[self.bar] - self.measurements.distance
         r[bad] = FAILED_RESIDUAL
         jac[bad] = 0.0
