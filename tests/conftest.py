@@ -23,6 +23,17 @@ def sigint_handler():
 
 
 
+@pytest.fixture(scope="session")
+def default_sigint() -> Any:
+    """A ``preexec_fn`` for a child that is sent SIGINT: the signal's default action. A shell
+    without job control starts background commands with SIGINT ignored, an ignored signal stays
+    ignored in children, and Python then installs no KeyboardInterrupt handler."""
+    def preexec() -> None:
+        signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+    return preexec
+
+
 # -- the measurement kinds (issue 21: tests parametrised over the kinds, not twin files) ---------
 
 #: Every registered kind of data a robot can be measured by, as the ``kind`` fixture gives them.

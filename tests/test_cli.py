@@ -361,7 +361,7 @@ def test_legs_bad_targets(tmp_path, content, pattern):
     assert_fails(proc, 1, pattern)
 
 
-def test_ctrl_c_writes_the_best_point_so_far_and_exits_130(sim, tmp_path):
+def test_ctrl_c_writes_the_best_point_so_far_and_exits_130(sim, tmp_path, default_sigint):
     """SIGINT during the identification: exit 130, the files written, success = false."""
     import signal
     import time
@@ -373,7 +373,7 @@ def test_ctrl_c_writes_the_best_point_so_far_and_exits_130(sim, tmp_path):
          str(sim / "measurements.csv"), "--method", "de", "--generations", "100000",
          "--workers", "1", "--out", str(out), "--no-plots"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, env=environ,
-        cwd=tempfile.gettempdir(),
+        cwd=tempfile.gettempdir(), preexec_fn=default_sigint,  # noqa: PLW1509
     )
     try:
         for line in proc.stdout:  # wait until the identification runs
