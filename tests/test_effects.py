@@ -367,6 +367,7 @@ def test_iwr_legs_compensates_with_the_targets_load_and_temperature(tmp_path, wi
     (tmp_path / "targets.csv").write_text("\n".join(lines) + "\n")
     done = subprocess.run(run, capture_output=True, text=True, cwd=tmp_path)
     assert done.returncode != 0 and "T_C" in done.stderr and "Traceback" not in done.stderr
+    assert f"{tmp_path / 'targets.csv'}: the thermal effect" in done.stderr, done.stderr
 
 
 @pytest.mark.parametrize("variant", ["thermal given", "shared compliance"])

@@ -224,10 +224,17 @@ def cmd_legs(args: argparse.Namespace) -> int:
         options = dict(frame=args.frame, tool=args.tool, user_frame=user,
                        joint_columns=q_cols, where=str(args.robot))
         if robot.effects:  # issue 23: the move's load and temperature (docs/effects.md)
-            from ..effects.api import leg_commands as effect_commands
+            import types
 
-            cmd = effect_commands(robot, q, poses, **effect_inputs(extra, args.targets),
-                                  **options)
+            from ..effects.api import leg_commands as effect_commands
+            from ..effects.model import check_inputs
+
+            inputs = effect_inputs(extra, args.targets)
+            try:  # a column the effects need, missing from the targets file: named there
+                check_inputs(robot, types.SimpleNamespace(**inputs), where=str(args.targets))
+            except ValueError as exc:
+                raise CommandError(str(exc)) from None
+            cmd = effect_commands(robot, q, poses, **inputs, **options)
         else:
             cmd = leg_commands(robot, q, poses, **options)
     except FrameError as exc:
