@@ -5,7 +5,16 @@ from __future__ import annotations
 import numpy as np
 
 __all__ = ["euler_zyx", "euler_from_matrix", "pose_matrix", "pose_from_matrix", "rotation_angle",
-           "rotvec_matrix"]
+           "rotvec_matrix", "skew"]
+
+
+def skew(v: np.ndarray) -> np.ndarray:
+    """``[v]x`` (..., 3, 3) of vectors (..., 3): ``[v]x u = v x u``."""
+    v = np.asarray(v, dtype=float)
+    k = np.zeros(v.shape[:-1] + (3, 3))
+    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
+    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
+    return k
 
 
 def euler_zyx(alpha, beta, gamma) -> np.ndarray:

@@ -12,6 +12,7 @@ from typing import Any
 import numpy as np
 
 from ..transforms import pose_matrix
+from ..transforms import skew as _skew
 from . import JointState, LegState
 
 __all__ = ["carriage_and_derivatives", "joint_changes", "joint_loads", "leg_forces",
@@ -148,14 +149,6 @@ def base_frame(base: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np
     y = np.cross(z, x)
     d_y = np.cross(d_z.T, x).T + np.cross(z, d_x.T).T
     return centre, np.column_stack([x, y, z]), d_centre, np.stack([d_x, d_y, d_z], axis=1)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[v]x`` (..., 3, 3) of vectors (..., 3)."""
-    k = np.zeros(v.shape[:-1] + (3, 3))
-    k[..., 0, 1], k[..., 0, 2], k[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    k[..., 1, 0], k[..., 2, 0], k[..., 2, 1] = v[..., 2], -v[..., 1], v[..., 0]
-    return k
 
 
 def _unit(v: np.ndarray, dv: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -22,6 +22,7 @@ from .. import _core
 from ..estimator_spec import EstimatorSpec
 from ..noise import Noise, TrackerNoise, axis_whitening, split_noise
 from ..robot import Robot
+from ..transforms import skew as _skew
 from .data import TrackerMeasurements
 from .gauge import _align, _fk, null_space
 from .start import _setup, tracker_problem
@@ -418,10 +419,3 @@ def tracker_misclosures(robot: Robot, measurements: TrackerMeasurements, x: Any,
         cov[:, base:base + 3, base:base + 3] = np.linalg.inv(np.swapaxes(wp, -1, -2) @ wp)
         cov[:, base + 3:base + 6, base + 3:base + 6] = tnoise.orientation ** 2 * np.eye(3)
     return Misclosures(r, a, b, names, components, reading_cov=cov, groups=groups)
-
-
-def _skew(v: np.ndarray) -> np.ndarray:
-    """``[v]x`` for the last axis of ``v`` (..., 3) -> (..., 3, 3)."""
-    s = np.zeros(v.shape + (3,))
-    s[..., 0, 1], s[..., 0, 2], s[..., 1, 2] = -v[..., 2], v[..., 1], -v[..., 0]
-    return s - np.swapaxes(s, -1, -2)

@@ -9,6 +9,7 @@ import numpy as np
 from .. import _core
 from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
+from ..transforms import pose_matrix, skew
 from .data import TrackerMeasurements
 from .setup import TrackerSetup
 
@@ -285,10 +286,7 @@ def _probe_covariance(problem: Any, x: np.ndarray, tracker: Any) -> np.ndarray:
     arms = pred - pred[:, :1]
     t = np.zeros((n, npt, 3, 6))
     t[..., :3] = np.eye(3)
-    # (dp + w x a) = dp - [a]x w
-    t[..., 0, 4], t[..., 0, 5] = arms[..., 2], -arms[..., 1]
-    t[..., 1, 3], t[..., 1, 5] = -arms[..., 2], arms[..., 0]
-    t[..., 2, 3], t[..., 2, 4] = arms[..., 1], -arms[..., 0]
+    t[..., 3:] = -skew(arms)  # dp + w x a = dp - [a]x w
     t = t.reshape(n, 3 * npt, 6)
     c = np.zeros((n, 6, 6))
     c[:, :3, :3] = tracker.covariance(m.probe[:, :3])
@@ -324,8 +322,6 @@ def reading_jacobian(problem: Any, x: Any,
     ``f(q + dq, pose (+) (dp, w)) = legs``, moving the points in {5} into {T}. ValueError
     naming the first pose whose forward kinematics fails at ``x`` (``what``: the argument at
     fault and what ``x`` is)."""
-    from ..transforms import pose_matrix
-
     robot, setup, m = problem.robot, problem.setup, problem.measurements
     x = problem._x(x)
     nr, nj, n = problem.n_params - setup.n_params, robot.n_joints, problem.n_poses
@@ -343,9 +339,8 @@ def reading_jacobian(problem: Any, x: Any,
     rot = pose_matrix(poses)[:, :3, :3]
     d_pts = np.zeros((n, 3 * len(local), 6))
     for i, r in enumerate(local):
-        skew = np.array([[0.0, -r[2], r[1]], [r[2], 0.0, -r[0]], [-r[1], r[0], 0.0]])
         d_pts[:, 3 * i:3 * i + 3, :3] = r0
-        d_pts[:, 3 * i:3 * i + 3, 3:] = -r0 @ rot @ skew  # R exp([w]x) r = R r - R [r]x w
+        d_pts[:, 3 * i:3 * i + 3, 3:] = -r0 @ rot @ skew(r)  # R exp([w]x) r = R r - R [r]x w
     return d_pts @ d_pose
 
 
