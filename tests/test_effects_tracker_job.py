@@ -5,6 +5,8 @@ the written calibrated.toml, and pose planning with payloads."""
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -165,6 +167,9 @@ def test_the_job_on_tracker_data_with_effects(tmp_path, noisy, method):
     assert {p.name for p in written} >= {"calibrated.toml", "result.json", "report.html"}
     text = rep.text()
     assert "effects on: compliance" in text and "more held" in text
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert [r["name"] for r in summary["effects"]] == names[ng: ng + 7]
+    assert [r["correction"] for r in summary["effects"]] == pytest.approx(cal.result.x[ng: ng + 7])
     back = iwr.Robot.from_toml(tmp_path / "run" / "calibrated.toml")
     assert back.effects[0].platform_centre.tolist() != robot.effects[0].platform_centre.tolist()
     _written_robot_predicts_the_result(robot, cal.identification, np.asarray(cal.result.x),

@@ -163,8 +163,6 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
     def to_dict(self) -> dict[str, Any]:
         figures = {"cost_mm2": self.costs(), "distance_residuals_mm": self.residuals(),
                    "setups": self.setup.with_parameters(self._x()[self.n_robot:]).to_dict()}
-        if self.robot.effects:  # issue 23
-            figures["effects"] = self.effect_rows()
         return self._summary("ballbar", figures)
 
     # -- text -----------------------------------------------------------------------------------

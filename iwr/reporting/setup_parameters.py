@@ -40,6 +40,8 @@ class SetupParameters:
                             else "identification poses"),
             **figures, "parameters": self.parameter_rows(),
         }
+        if self.robot.effects:  # issue 23
+            out["effects"] = self.effect_rows()  # type: ignore[attr-defined]
         ns = self.identifiability
         if ns is not None:
             out["identifiability"] = {"rank": int(ns.rank), "n_params": len(ns.parameter_names),
