@@ -285,6 +285,16 @@ def test_a_value_identified_beyond_its_plausible_range_reads_back(tmp_path, robo
     assert back.effects[2].max_prismatic == carriage.max_prismatic
     # Within the ranges nothing is widened.
     assert api.widened_ranges(with_all, np.zeros_like(x)) == []
+    # A negative value (within its standard deviation of 0) moves the range's lower end, not
+    # max_um_per_N, and the note says so.
+    below = np.zeros_like(x)
+    below[robot.n_params + names.index("leg1.compliance")] = -0.03 - 0.01
+    assert api.widened_ranges(with_all, below) == [
+        "[effects.compliance] leg1.compliance -0.03 um/N, below the plausible range's lower "
+        "end 0: the range starts at it"]
+    low = api.apply(with_all, below).effects[0]
+    assert low.max_compliance == with_all.effects[0].max_compliance
+    assert (low.values() + low.bounds()[0])[0] == pytest.approx(-0.03)
     # A slide's compliance: widened up to the robot file's cap (10 um/N), refused beyond it by
     # name (the file could not hold it).
     from iwr.effects.carriage import CarriageCompliance

@@ -125,6 +125,14 @@ def widened_ranges(robot: Any, x: Any) -> list[str]:
         for key, value in after.items():
             if key.startswith("max_") and value != before.get(key):
                 out.append(f"[effects.{old.name}] {key} {before[key]:g} -> {value:.4g}")
+        # Below the range's lower end (a negative compliance or coefficient): the calibrated
+        # effect's range starts at the value (its bounds()), with no key to name.
+        lowest = old.values() + old.bounds()[0]
+        for name, unit, value, low in zip(new.parameter_names(), new.units(), new.values(),
+                                          lowest, strict=True):
+            if value < low:
+                out.append(f"[effects.{old.name}] {name} {value:.4g} {unit}, below the plausible "
+                           f"range's lower end {low:g}: the range starts at it")
     return out
 
 
