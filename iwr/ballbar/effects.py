@@ -416,8 +416,9 @@ def simulate(robot: Robot, n_poses: int, *, seed: int | None, x: Any = None, noi
 
 # -- what the ballbar kind does with a robot with effects (iwr.ballbar.kind) -------------------
 
-#: The methods that model the effects on ballbar data: LM and the efficient estimator, and DE,
-#: CRS2 and BOBYQA, all on the numpy objective (:class:`BallbarEffectProblem`).
+#: The methods that model the effects on ballbar data: LM and the efficient estimator (numpy
+#: residuals and Jacobian), and DE, CRS2 and BOBYQA (the C++ cost of
+#: :class:`BallbarEffectProblem`).
 BALLBAR_METHODS = ("lm", "efficient", "de", "crs2", "bobyqa")
 
 
