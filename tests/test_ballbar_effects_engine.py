@@ -193,3 +193,36 @@ def test_iwr_calibrate_equals_identify(case, tmp_path: Path, noise: str | None) 
     assert (problem.whitening is None) == (noise is None)
     assert exe.fun == problem.cost(exe.x) and exe.parameter_names == problem.parameter_names
     assert exe.settings["measurements"] == "ballbar"
+
+
+# --- iwr compare and iwr study on a ballbar robot with effects -----------------------------------
+
+def test_compare_methods_draws_and_identifies_the_effects() -> None:
+    """iwr.compare_methods on a ballbar robot with effects (it failed on every robot with effects,
+    pose, tracker and ballbar data: its actual robot lacked the effects' parameters): the truth has the geometric errors, the
+    effects' parameters (within their bounds) and the set-ups'; DE runs on the C++ objective with
+    the effects, and the comparison's parameter names are the runs' layout."""
+    from iwr.effects import bounds as effect_bounds
+    from iwr.experiments.harness import Scenario
+
+    robot = _robot(False)
+    ng, ne = robot.n_params, len(effect_names(robot.effects))
+    truth = Scenario(80, None, kind="near").truth(robot)
+    assert truth.size == ng + ne + 14
+    lo, hi = effect_bounds(robot.effects)
+    assert np.all((lo <= truth[ng: ng + ne]) & (truth[ng: ng + ne] <= hi))
+    assert np.any(truth[ng: ng + ne] != 0)
+    comp = iwr.compare_methods(robot, n_poses=80, noise="none", seeds=[0], methods=["de"],
+                               budget=1600, start="near", out=None, n_validation=5,
+                               progress=False)
+    names = comp.settings["kind"]["parameter_names"]
+    assert comp.settings["n_params"] == len(names) == ng + ne + 14
+    assert names[ng: ng + ne] == effect_names(robot.effects)
+    (run,) = comp.runs
+    assert run["status"] == "ok", run["message"]
+    assert len(run["x"]) == len(names) and np.isfinite(run["val_rms"])
+    # The effects' draws come after the geometric errors': those are the same with or without.
+    plain = Scenario(80, None, kind="near").truth(iwr.Robot.default().with_instrument("ballbar",
+                                                                                      BARS))
+    assert plain.size == ng + 14
+    np.testing.assert_array_equal(plain[:ng], truth[:ng])
