@@ -89,7 +89,9 @@ private:
 /// TrackerEffectObjective with the effects, iwr/effects_ballbar.hpp) made with a probe at the
 /// origin of {5} (pose zero, length 1 mm) in a tracker frame equal to {0} (registration zero), whose
 /// four predicted points are {5}'s origin and unit axis tips: its parameters are the
-/// kinematics' but the probe setup's 12 (which stay zero), then the set-ups' 7 S.
+/// kinematics' but the probe setup's 12 (which stay zero), then the set-ups' 7 S. Kin provides
+/// geometry(), setup(), n_params(), n_poses(), make_workspace(), failures(x) and the hot path
+/// predicted_points(x, ws, out).
 template <class Kin>
 class BallbarOn {
 public:
@@ -154,7 +156,7 @@ protected:
         : kin_(std::move(kin)),
           bars_(std::move(bars), std::move(bar), std::move(distance), kin_.n_poses()),
           n_(kin_.n_poses()),
-          n_model_(kin_.n_params() - 12) {}
+          n_model_(kin_.n_params() - kin_.setup().n_params()) {}
     const Kin& kin() const { return kin_; }
 
 private:
