@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .. import _core
+from .._hooks import hook
 from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
 from .data import BallbarMeasurements
@@ -158,10 +159,8 @@ class BallbarProblem(ProblemBase):
         weights = None if whitening is None else np.asarray(whitening)[:, 0, 0]
         noise = None if d["weighting"] is None else d["weighting"][0]
         if d["effects"]:  # issue 23: the robot's effects, the data's loads and temperatures
-            from .effects import BallbarEffectProblem
-
-            return BallbarEffectProblem.from_file_fields(d, robot, setup, m, bounds, weights,
-                                                         noise, source)
+            return hook("ballbar_effect_problem").from_file_fields(d, robot, setup, m, bounds,
+                                                                    weights, noise, source)
         return cls(robot.with_instrument("ballbar", setup), setup, m, bounds,
                    reference=d["reference"], weights=weights, noise=noise)
 
