@@ -23,6 +23,8 @@ HOOKS: dict[str, str] = {
     "load_problem": "iwr.problem_file:load_problem",
     # iwr.problem_file.load_problem: a file of tracker data with effects (issue 23)
     "tracker_effect_problem": "iwr.effects.tracker:TrackerEffectProblem",
+    # iwr.ballbar.BallbarProblem.from_file_fields: a file of ballbar data with effects (issue 23)
+    "ballbar_effect_problem": "iwr.ballbar.effects:BallbarEffectProblem",
     # iwr.ballbar.BallbarMeasurements.to_csv()
     "write_ballbar": "iwr.ballbar.files:write_ballbar",
     # iwr.compare_methods(out=...) and Comparison.summary_markdown()

@@ -204,7 +204,7 @@ def load_problem(path: str | os.PathLike[str]) -> Any:
         flat = d["weighting"][1]
         m_res = int(round(np.sqrt(flat.shape[1])))
         whitening = flat.reshape(n, m_res, m_res)
-    if d["kind"] == "ballbar":  # iwr.ballbar's section (the reader refuses it with effects)
+    if d["kind"] == "ballbar":  # iwr.ballbar's section, with the effects if any (issue 23)
         from .ballbar.problem import BallbarProblem
 
         try:

@@ -23,11 +23,10 @@ TrackerObjective kinematics(Geometry geometry, const RowMatrixXd& q, const RowMa
 
 }  // namespace
 
-BallbarObjective::BallbarObjective(Geometry geometry, std::vector<BarSetup> bars, const RowMatrixXd& q,
-                                   const RowMatrixXd& legs, std::vector<int> bar, VectorXd distance,
-                                   const VectorXd& reference, const Vector6d& home, double tolerance)
-    : kin_(kinematics(std::move(geometry), q, legs, reference, home, tolerance)), bars_(std::move(bars)),
-      n_(static_cast<int>(legs.rows())), bar_(std::move(bar)), distance_(std::move(distance)) {
+namespace detail {
+
+BarReadings::BarReadings(std::vector<BarSetup> bars, std::vector<int> bar, VectorXd distance, int n)
+    : bars_(std::move(bars)), n_(n), bar_(std::move(bar)), distance_(std::move(distance)) {
     if (bars_.empty()) throw std::invalid_argument("ballbar set-ups: none; expected at least one");
     for (const BarSetup& b : bars_) {
         require_finite(b.platform_ball.data(), 3, "ballbar set-up platform ball");
@@ -50,7 +49,7 @@ BallbarObjective::BallbarObjective(Geometry geometry, std::vector<BarSetup> bars
         }
 }
 
-void BallbarObjective::set_whitening(const RowMatrixXd& whitening) {
+void BarReadings::set_whitening(const RowMatrixXd& whitening) {
     if (whitening.size() == 0) {
         weights_.resize(0);
         return;
@@ -65,27 +64,16 @@ void BallbarObjective::set_whitening(const RowMatrixXd& whitening) {
     weights_ = whitening.col(0);
 }
 
-BallbarObjective::Workspace BallbarObjective::make_workspace() const {
-    Workspace ws;
-    ws.kin = kin_.make_workspace();
-    ws.kx.assign(static_cast<std::size_t>(kin_.n_params()), 0.0);
-    ws.points.resize(n_, 12);
-    return ws;
-}
-
-double BallbarObjective::evaluate(const double* x, Workspace& ws, double* res) const {
-    const int nr = geometry().n_params();
-    for (int i = 0; i < nr; ++i) ws.kx[static_cast<std::size_t>(i)] = x[i];
-    kin_.predicted_points(ws.kx.data(), ws.kin, ws.points);
+double BarReadings::evaluate(const double* xs_all, const RowMatrixXd& frames, double* res) const {
     double cost = 0;
     for (int k = 0; k < n_; ++k) {
         const int s = bar_[static_cast<std::size_t>(k)];
         const BarSetup& b = bars_[static_cast<std::size_t>(s)];
-        const double* xs = x + nr + kBarParams * s;
-        const double* pt = ws.points.row(k).data();  // origin, then the tips of the unit axes
+        const double* xs = xs_all + kBarParams * s;
+        const double* pt = frames.row(k).data();  // origin, then the tips of the unit axes
         double r;
         if (std::isnan(pt[0])) {
-            r = kFailedResidual;
+            r = TrackerObjective::kFailedResidual;
         } else {
             double p[3], v[3];
             for (int c = 0; c < 3; ++c) p[c] = b.platform_ball(c) + xs[c];
@@ -105,43 +93,13 @@ double BallbarObjective::evaluate(const double* x, Workspace& ws, double* res) c
     return cost;
 }
 
-double BallbarObjective::cost(const double* x, Workspace& ws) const { return evaluate(x, ws, nullptr); }
+}  // namespace detail
 
-void BallbarObjective::check_x(const Eigen::Ref<const VectorXd>& x) const {
-    if (x.size() != n_params()) {
-        std::ostringstream msg;
-        msg << "x: " << x.size() << " values given but this problem has " << n_params() << " parameters ("
-            << geometry().n_params() << " of the robot, " << kBarParams * n_setups() << " of the "
-            << n_setups() << " ballbar set-up(s))";
-        throw std::invalid_argument(msg.str());
-    }
-    require_finite(x.data(), x.size(), "x");
-}
-
-double BallbarObjective::cost(const Eigen::Ref<const VectorXd>& x) const {
-    check_x(x);
-    Workspace ws = make_workspace();
-    return evaluate(x.data(), ws, nullptr);
-}
-
-VectorXd BallbarObjective::residuals(const Eigen::Ref<const VectorXd>& x) const {
-    check_x(x);
-    Workspace ws = make_workspace();
-    VectorXd r(n_);
-    evaluate(x.data(), ws, r.data());
-    return r;
-}
-
-void BallbarObjective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {
-    batch_costs(*this, X, static_cast<std::size_t>(m), out, pool);
-}
-
-std::vector<std::pair<int, std::string>> BallbarObjective::failures(const Eigen::Ref<const VectorXd>& x) const {
-    check_x(x);
-    VectorXd kx = VectorXd::Zero(kin_.n_params());
-    kx.head(geometry().n_params()) = x.head(geometry().n_params());
-    return kin_.failures(kx);
-}
+BallbarObjective::BallbarObjective(Geometry geometry, std::vector<BarSetup> bars, const RowMatrixXd& q,
+                                   const RowMatrixXd& legs, std::vector<int> bar, VectorXd distance,
+                                   const VectorXd& reference, const Vector6d& home, double tolerance)
+    : BallbarOn(kinematics(std::move(geometry), q, legs, reference, home, tolerance), std::move(bars),
+                std::move(bar), std::move(distance)) {}
 
 // ----- the problem file's ballbar section (iwr/problem_file.hpp) ---------------------------------
 

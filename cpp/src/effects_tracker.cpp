@@ -447,6 +447,10 @@ RowMatrixXd TrackerEffectObjective::predicted_points(const Eigen::Ref<const Vect
     return pred;
 }
 
+void TrackerEffectObjective::predicted_points(const double* x, Workspace& ws, RowMatrixXd& out) const {
+    evaluate(x, ws, nullptr, nullptr, &out, nullptr);
+}
+
 void TrackerEffectObjective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {
     batch_costs(*this, X, static_cast<std::size_t>(m), out, pool);
 }

@@ -32,6 +32,14 @@ AnyObjective make_objective(const ProblemData& problem) {
             return out;
         }
         case MeasurementKind::Ballbar: {  // the double ballbar's distances (iwr/ballbar.hpp)
+            if (!problem.effects.empty()) {  // with the effects, gravity theirs in {0} (issue 23)
+                AnyObjective out(std::in_place_type<BallbarEffectObjective>, problem.geometry(),
+                                 problem.effect_model(), problem.bars, problem.q, problem.legs, problem.bar,
+                                 problem.distance, problem.payload, problem.temperatures, problem.reference,
+                                 problem.home_pose);
+                std::get<BallbarEffectObjective>(out).set_whitening(problem.whitening);
+                return out;
+            }
             AnyObjective out(std::in_place_type<BallbarObjective>, problem.geometry(), problem.bars, problem.q,
                              problem.legs, problem.bar, problem.distance, problem.reference, problem.home_pose);
             std::get<BallbarObjective>(out).set_whitening(problem.whitening);

@@ -88,7 +88,6 @@ void write_effects(io::Writer& w, const ProblemData& p) {
 void read_effects(io::Reader& r, ProblemData& p) {
     const std::size_t ne = r.count("effects", 16);
     if (ne > kMaxEffects) r.fail("effects: " + std::to_string(ne) + "; at most " + std::to_string(kMaxEffects));
-    if (ne && p.ballbar()) r.fail("effects: ballbar data with effects have no objective in the C++ core");
     for (std::size_t e = 0; e < ne; ++e) {
         EffectTable t;
         t.name = r.text("effect name", 64, false);
@@ -155,7 +154,7 @@ int ProblemData::n_params() const {
     switch (kind) {
         case MeasurementKind::Points: return n_robot_params() + n_effect_params() + 6 + 3 * static_cast<int>(reflectors.rows());
         case MeasurementKind::Probe: return n_robot_params() + n_effect_params() + 12;
-        case MeasurementKind::Ballbar: return n_robot_params() + kBarParams * static_cast<int>(bars.size());
+        case MeasurementKind::Ballbar: return n_robot_params() + n_effect_params() + kBarParams * static_cast<int>(bars.size());
         default: return n_robot_params() + n_effect_params();
     }
 }

@@ -12,6 +12,7 @@
 #include <vector>
 
 #include "check.hpp"
+#include "effect_fixtures.hpp"
 #include "fixtures.hpp"
 #include "iwr/binary_io.hpp"
 #include "iwr/effects.hpp"
@@ -27,28 +28,13 @@ using iwr::EffectValue;
 using iwr::RowMatrixXd;
 using iwr::VectorXd;
 
-EffectValue num(double v) { return {EffectValue::Type::Number, {v}}; }
-EffectValue flag(bool v) { return {EffectValue::Type::Bool, {v ? 1.0 : 0.0}}; }
-EffectValue nums(std::vector<double> v) { return {EffectValue::Type::Numbers, std::move(v)}; }
-
-// Python's LegCompliance(...).to_dict() and LegThermal(...).to_dict().
-EffectTable compliance_table(bool per_leg, double c, iwr::Vec3 gravity) {
-    return {"compliance",
-            {{"per_leg", flag(per_leg)},
-             {"compliance_um_per_N", per_leg ? nums(std::vector<double>(6, c)) : num(c)},
-             {"max_um_per_N", num(0.05)},
-             {"gravity_m_s2", nums({gravity(0), gravity(1), gravity(2)})},
-             {"platform_mass_kg", num(120)},
-             {"platform_centre_mm", nums({5, -3, 40})}}};
-}
-EffectTable thermal_table(bool identify, bool per_leg, double alpha) {
-    return {"thermal",
-            {{"alpha_ppm_per_K", num(alpha)},
-             {"reference_C", num(20)},
-             {"identify", flag(identify)},
-             {"per_leg", flag(per_leg)},
-             {"max_ppm_per_K", num(30)}}};
-}
+using iwr_test::compliance_table;
+using iwr_test::contains;
+using iwr_test::flag;
+using iwr_test::num;
+using iwr_test::nums;
+using iwr_test::refusal;
+using iwr_test::thermal_table;
 
 // Poses of the platform about its home (the hexapod alone, or the IWR at random carriage readings
 // with the platform 700 mm out along the carriage's z), a payload at every other pose, and
@@ -83,18 +69,6 @@ Data sample(const iwr::Geometry& g, int n, std::uint64_t seed) {
     }
     return d;
 }
-
-std::string refusal(const std::function<void()>& f) {
-    try {
-        f();
-    } catch (const std::invalid_argument& e) {
-        return e.what();
-    } catch (const iwr::io::FormatError& e) {
-        return e.what();
-    }
-    return "";
-}
-bool contains(const std::string& s, const std::string& part) { return s.find(part) != std::string::npos; }
 
 }  // namespace
 
@@ -339,22 +313,7 @@ IWR_TEST(problem_file_with_effects) {
     CHECK(contains(refusal([&] { (void)iwr::encode_problem(other); }), "temperature columns: 3"));
     // Damaged files: refused with a FormatError, never a crash (a short fuzz of the effects' bytes).
     std::mt19937_64 rng(7);
-    int refused = 0;
-    for (int t = 0; t < 300; ++t) {
-        std::string payload = bytes.substr(32);
-        const std::size_t at = payload.size() / 2 + rng() % (payload.size() / 2);
-        payload[at] = static_cast<char>(rng());
-        iwr::io::Writer w;
-        w.raw(bytes.substr(0, 16));
-        w.u64(payload.size());
-        w.u64(iwr::io::hash64(payload.data(), payload.size()));
-        w.raw(payload);
-        try {
-            (void)iwr::decode_problem(w.data(), "fuzz: ");
-        } catch (const iwr::io::FormatError&) {
-            ++refused;
-        }
-    }
+    const int refused = iwr_test::fuzz_refusals(bytes, 300, rng);
     std::printf("effects fuzz: %d of 300 refused, the rest read\n", refused);
     CHECK(refused > 0);
 }

@@ -38,11 +38,12 @@ from ..effects import bounds as effect_bounds
 from ..effects import parameter_names as effect_names
 from ..effects.loop import _skew, loop_jacobians
 from ..effects.model import check_inputs, joint_effects, predicted_readings
-from ..problem_base import FAILED_RESIDUAL, ProblemBase
+from .. import _core
+from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
 from .data import BallbarMeasurements
-from .problem import BallbarProblem, pose_weights, setup_columns
+from .problem import BallbarProblem, cpp_objective, pose_weights, setup_columns
 from .setup import BallbarSetup
 
 __all__ = ["BallbarEffectNullSpace", "BallbarEffectProblem", "FK_MAX_ITERATIONS",
@@ -74,8 +75,10 @@ class BallbarEffectProblem(ProblemBase):
     ``(|T_05,k P_s - F_s| + o_s - d_k) w_k`` (mm) as :class:`BallbarProblem`'s, with ``T_05,k``
     the platform pose by forward kinematics *with the effects* under pose k's load and
     temperature, and its exact Jacobian (implicit differentiation of the loop closure with the
-    effects; checked against central differences). Everything in numpy: :meth:`cost_batch`
-    evaluates one row after the other (DE, CRS2 and BOBYQA run on it, slowly; no C++ objective).
+    effects; checked against central differences). The residuals and the Jacobian are numpy;
+    the cost and the batch costs (what DE, CRS2 and BOBYQA evaluate) are the C++ objective's
+    (:attr:`objective`, ``cpp/include/iwr/effects_ballbar.hpp``: the one ``iwr-engine`` runs on
+    the problem file, threaded across a population), checked against the numpy residuals.
 
     ``bounds``: None, ``"default"`` or ``"paper"`` (the robot's, the effects' own
     (:func:`iwr.effects.bounds`), the set-ups' default ones) or a pair over every parameter.
@@ -113,12 +116,65 @@ class BallbarEffectProblem(ProblemBase):
         self.weights = w = pose_weights(weights, len(measurements))
         self.whitening = None if weights is None else w.reshape(-1, 1, 1)
         self.noise = noise
+        self._objective: Any = None  # the C++ objective, made on first use
 
     def with_weights(self, weights: Any, noise: Any = None) -> BallbarEffectProblem:
         """The same problem with residual k multiplied by ``weights[k]`` (None: unweighted)."""
         return BallbarEffectProblem(self.robot, self.setup, self.measurements,
                                     (self.lower, self.upper), reference=self.reference,
                                     weights=weights, noise=noise)
+
+    # -- the C++ objective and the problem file -------------------------------------------------
+    @property
+    def objective(self) -> Any:
+        """The C++ objective of this problem (``iwr._core.BallbarEffectObjective``): what
+        ``iwr-engine`` runs on the problem file, weighted alike."""
+        if self._objective is None:
+            from ..problem import effect_inputs
+
+            try:
+                self._objective = cpp_objective(
+                    _core.BallbarEffectObjective, self, self.geometric.setup_fields(),
+                    **effect_inputs(self.robot, self.measurements))
+            except _core.ForwardKinematicsError as exc:
+                raise reference_error(exc, self.measurements) from None
+        return self._objective
+
+    def cost(self, x: Any) -> float:
+        """Sum of squared (weighted) residuals: the C++ objective's."""
+        return float(self.objective.cost(self._x(x)))
+
+    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
+        """In C++ across ``workers`` threads (None: all cores), weighted or not; the same bits
+        whatever their number."""
+        return self.objective.cost_batch(X, 0 if workers is None else int(workers))
+
+    def file_fields(self) -> dict[str, Any]:
+        """The fields of the problem file (``iwr.problem_file``): the ballbar section
+        (:meth:`BallbarProblem.file_fields`), then the effects' tables, the payload and the
+        temperatures (gravity is the effects' own, in {0}: no field of its own)."""
+        m = self.measurements
+        return dict(self.geometric.file_fields(),
+                    effects=[(e.name, e.to_dict()) for e in self.robot.effects],
+                    payload=m.payload, temperatures=m.temperatures)
+
+    @classmethod
+    def from_file_fields(cls, d: dict[str, Any], robot: Robot, setup: BallbarSetup,
+                         measurements: BallbarMeasurements, bounds: Any, weights: Any,
+                         noise: Any, source: str) -> BallbarEffectProblem:
+        """The problem of a problem file's fields ``d`` with effects
+        (:meth:`BallbarProblem.from_file_fields` reads the ballbar section and dispatches here):
+        the robot's effects from their tables, the data's loads and temperatures; ValueError on
+        what the Python checks refuse."""
+        from ..effects import read_table
+
+        robot = robot.with_effects(*read_table(dict(d["effects"]), "effects"))
+        m = BallbarMeasurements(measurements.q, measurements.legs, measurements.setup,
+                                measurements.distance, joint_types=measurements.joint_types,
+                                source=source, payload=d["payload"],
+                                temperatures=d["temperatures"])
+        return cls(robot.with_instrument("ballbar", setup), setup, m, bounds,
+                   reference=d["reference"], weights=weights, noise=noise)
 
     # -- sizes and names ----------------------------------------------------------------------
     @property
@@ -279,14 +335,6 @@ class BallbarEffectProblem(ProblemBase):
         r = np.where(np.isnan(r), FAILED_RESIDUAL, r)
         return self.weights * r, jac * self.weights[:, None]
 
-    def save(self, path: Any, **_: Any) -> None:
-        """No problem file for ballbar data with effects: ``iwr-engine`` has no objective of
-        them (docs/effects.md)."""
-        raise ValueError(f"{path}: ballbar data for a robot with effects have no problem file "
-                         "(iwr-engine, iwr-calibrate): no C++ objective models the effects on "
-                         "them yet; calibrate with iwr calibrate or iwr.identify "
-                         "(docs/effects.md)")
-
     def __repr__(self) -> str:
         return (f"BallbarEffectProblem(robot={self.robot.name!r}, "
                 f"set-ups={self.setup.n_setups}, n_poses={self.n_poses}, "
@@ -368,8 +416,9 @@ def simulate(robot: Robot, n_poses: int, *, seed: int | None, x: Any = None, noi
 
 # -- what the ballbar kind does with a robot with effects (iwr.ballbar.kind) -------------------
 
-#: The methods that model the effects on ballbar data: LM and the efficient estimator, and DE,
-#: CRS2 and BOBYQA, all on the numpy objective (:class:`BallbarEffectProblem`).
+#: The methods that model the effects on ballbar data: LM and the efficient estimator (numpy
+#: residuals and Jacobian), and DE, CRS2 and BOBYQA (the C++ cost of
+#: :class:`BallbarEffectProblem`).
 BALLBAR_METHODS = ("lm", "efficient", "de", "crs2", "bobyqa")
 
 

@@ -188,7 +188,8 @@ class BallbarKind(MeasurementKind):
 
     engine = True  # a problem file (kind 3) and a C++ objective: iwr-calibrate, iwr-engine
     #: Issue 23: the calibration job models a robot's effects on ballbar data (the distances by
-    #: forward kinematics with the effects, iwr.ballbar.effects; no problem file of them yet).
+    #: forward kinematics with the effects, iwr.ballbar.effects; their problem file and C++
+    #: objective, iwr-engine and iwr-calibrate too).
     models_effects = True
     weighted_objective = True  # each distance by its propagated variance (ballbar_identify)
     null_rtol = NULL_RTOL  # structural null directions sit at ~5e-14, above NumPy's threshold

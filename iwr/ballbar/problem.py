@@ -7,6 +7,7 @@ from typing import Any
 import numpy as np
 
 from .. import _core
+from .._hooks import hook
 from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
 from .data import BallbarMeasurements
@@ -33,6 +34,19 @@ def pose_weights(weights: Any, n: int) -> np.ndarray:
     if w.shape != (n,) or not np.all(np.isfinite(w) & (w > 0)):
         raise ValueError(f"weights: expected {n} finite values > 0, one per pose")
     return w
+
+def cpp_objective(core_type: Any, problem: Any, bars: dict[str, Any], **more: Any) -> Any:
+    """The C++ ballbar objective ``core_type`` (``_core.BallbarObjective``, or with the effects
+    ``_core.BallbarEffectObjective``, whose inputs ``more`` adds) of ``problem``'s robot, data,
+    set-ups ``bars`` (:meth:`BallbarProblem.setup_fields`), reference and weights."""
+    m = problem.measurements
+    wh = np.zeros((0, 0)) if problem.whitening is None else problem.weights.reshape(-1, 1)
+    return core_type(problem.robot._geometry, bars=bars, q=np.ascontiguousarray(m.q, dtype=float),
+                     legs=np.ascontiguousarray(m.legs, dtype=float), bar=problem.bar.tolist(),
+                     distance=np.ascontiguousarray(m.distance, dtype=float),
+                     reference=np.ascontiguousarray(problem.reference, dtype=float),
+                     home=problem.robot.home_pose, whitening=wh, **more)
+
 
 class BallbarProblem(ProblemBase):
     """The least-squares problem of ballbar data: a :class:`iwr.problem_base.ProblemBase` (its
@@ -114,11 +128,7 @@ class BallbarProblem(ProblemBase):
         """The C++ ballbar objective of this problem (``iwr._core.BallbarObjective``): what
         ``iwr-engine`` runs on the problem file, weighted alike."""
         if self._objective is None:
-            m = self.measurements
-            wh = np.zeros((0, 0)) if self.whitening is None else self.weights.reshape(-1, 1)
-            self._objective = _core.BallbarObjective(
-                self.robot._geometry, self.setup_fields(), m.q, m.legs, self.bar.tolist(),
-                m.distance, np.ascontiguousarray(self.reference), self.robot.home_pose, wh)
+            self._objective = cpp_objective(_core.BallbarObjective, self, self.setup_fields())
         return self._objective
 
     def file_fields(self) -> dict[str, Any]:
@@ -131,7 +141,8 @@ class BallbarProblem(ProblemBase):
                          whitening: Any, source: str) -> BallbarProblem:
         """The problem of a problem file's fields ``d`` (:func:`iwr.problem_file.read_problem`)
         for ``robot`` (its geometry, read from the file), ``bounds`` and ``whitening`` (None or
-        (N, 1, 1)); ValueError on what the Python checks refuse."""
+        (N, 1, 1)): a :class:`iwr.ballbar.effects.BallbarEffectProblem` when the file has
+        effects; ValueError on what the Python checks refuse."""
         from .setup import BarSetup
 
         ranges = np.asarray(d["ranges"], dtype=float)
@@ -147,6 +158,9 @@ class BallbarProblem(ProblemBase):
                                 source=source)
         weights = None if whitening is None else np.asarray(whitening)[:, 0, 0]
         noise = None if d["weighting"] is None else d["weighting"][0]
+        if d["effects"]:  # issue 23: the robot's effects, the data's loads and temperatures
+            return hook("ballbar_effect_problem").from_file_fields(d, robot, setup, m, bounds,
+                                                                    weights, noise, source)
         return cls(robot.with_instrument("ballbar", setup), setup, m, bounds,
                    reference=d["reference"], weights=weights, noise=noise)
 

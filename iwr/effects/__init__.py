@@ -309,9 +309,10 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "iwr.identifiability, iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem "
              "file, iwr-engine, iwr-calibrate, and the calibration job",
              "on ballbar data (iwr.ballbar.effects; the legs' effects and the carriage's "
-             "compliance): iwr.simulate, iwr.identify with every method (on the numpy "
-             "objective), iwr.identifiability, iwr.accuracy, iwr.uncertainty, iwr.plan_poses and "
-             "the calibration job (no problem file: iwr-engine and iwr-calibrate refuse them)")
+             "compliance): iwr.simulate, iwr.identify with every method (DE, CRS2 and BOBYQA "
+             "on the C++ objective), iwr.identifiability, iwr.accuracy, iwr.uncertainty, "
+             "iwr.plan_poses, the problem file, iwr-engine, iwr-calibrate, and the calibration "
+             "job")
 
 
 def refuse(robot: Any, what: str) -> None:

@@ -328,14 +328,19 @@ def compare_methods(
         raise ValueError(f"out: {str(out_path)!r} exists and is not a folder")
     show = sys.stderr.isatty() if progress is None else bool(progress)
 
+    from ..effects import parameter_names as effect_names
+
+    # The robot's, its effects' (issue 23), then the set-up's: the layout of every run's x.
+    parameter_names = (robot.parameter_names + effect_names(robot.effects)
+                       + kind.setup_parameter_names(robot))
     settings = {
         "robot": robot.name,
-        "n_params": kind.n_params(robot),
+        "n_params": len(parameter_names),
         "n_poses": n_poses,
         "n_validation": n_validation,
         "noise": _noise_settings(kind.experiment_noise(robot, noise)),
         "kind": {"name": kind.name, "description": kind.description, "frame": kind.frame,
-                 "parameter_names": robot.parameter_names + kind.setup_parameter_names(robot),
+                 "parameter_names": parameter_names,
                  "chi2_fit_test": kind.chi2_fit_test, **kind.experiment_text},
         "seeds": seeds,
         "methods": names,

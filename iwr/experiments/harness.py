@@ -299,6 +299,11 @@ class Scenario:
         rng = np.random.default_rng(stream_seed(self.base_seed, _ERRORS, self.draw))
         lower, upper = robot.default_bounds(_BOUNDS[self.kind])
         errors = lower + (upper - lower) * rng.random(robot.n_params)
+        if robot.effects:  # issue 23: the effects' parameters, uniform within their bounds
+            from ..effects import bounds as effect_bounds
+
+            lo_e, hi_e = effect_bounds(robot.effects)
+            errors = np.concatenate([errors, lo_e + (hi_e - lo_e) * rng.random(lo_e.size)])
         return np.concatenate([errors, kinds.for_robot(robot).draw_setup(robot, rng)])
 
     def build(self, robot: Robot) -> ScenarioData:

@@ -98,6 +98,10 @@ public:
     /// poses are NaN.
     RowMatrixXd platform_poses(const Eigen::Ref<const VectorXd>& x) const;
     RowMatrixXd predicted_points(const Eigen::Ref<const VectorXd>& x) const;
+    /// The same into out (n_poses() x 3 n_points(), sized by the caller) at x (unchecked, as
+    /// cost(x, ws)): the hot path of the objectives built on these kinematics
+    /// (BallbarEffectObjective, iwr/effects_ballbar.hpp).
+    void predicted_points(const double* x, Workspace& ws, RowMatrixXd& out) const;
 
 private:
     void check_x(const Eigen::Ref<const VectorXd>& x) const;

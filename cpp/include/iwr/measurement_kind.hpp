@@ -29,6 +29,7 @@
 
 #include "iwr/ballbar.hpp"
 #include "iwr/effects.hpp"
+#include "iwr/effects_ballbar.hpp"
 #include "iwr/effects_tracker.hpp"
 #include "iwr/implicit_loop.hpp"
 #include "iwr/model.hpp"
@@ -97,11 +98,12 @@ std::vector<std::pair<int, std::string>> objective_failures(const Obj& objective
     }
 }
 
-/// The objective of each kind a problem file holds, one alternative per objective type: leg data
-/// and tracker data with non-geometric effects on (iwr/effects.hpp, iwr/effects_tracker.hpp) have
-/// their own, so that the SIMD kernels of the geometry alone run unchanged without them.
-using AnyObjective =
-    std::variant<Objective, TrackerObjective, EffectObjective, TrackerEffectObjective, BallbarObjective>;
+/// The objective of each kind a problem file holds, one alternative per objective type: leg data,
+/// tracker data and ballbar data with non-geometric effects on (iwr/effects.hpp,
+/// iwr/effects_tracker.hpp, iwr/effects_ballbar.hpp) have their own, so that the SIMD kernels of the
+/// geometry alone run unchanged without them.
+using AnyObjective = std::variant<Objective, TrackerObjective, EffectObjective, TrackerEffectObjective,
+                                  BallbarObjective, BallbarEffectObjective>;
 
 /// The objective of a problem file's measurements, as iwr-engine runs it (and the Python
 /// bindings, to check it against iwr.Problem): eq. (10) on leg readings or the tracker residuals,

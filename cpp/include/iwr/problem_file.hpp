@@ -37,7 +37,10 @@
 //        f64s payload (N x 4: kg, centre of mass in {5} mm); u64 temperature columns (0, 1 or
 //        6); f64s temperatures (N x that, degrees C); kinds 1, 2 with effects: f64s gravity (3: m/s^2
 //        in the tracker frame {T}, carried into {0} by the identified registration, for the
-//        legs' statics and the carriage's joint loads alike)
+//        legs' statics and the carriage's joint loads alike); kinds 0 and 3 with effects: no
+//        gravity field (the effects' own gravity_m_s2, in {0}: ballbar data register no {0}).
+//        Kind 3 with effects is read from this release on (iwr/effects_ballbar.hpp); an older
+//        reader refuses such a file by name ("ballbar data with effects have no objective")
 //   f64s lower, upper (n_params each); str bounds kind ("default", "paper" or "custom")
 //   f64s x0 (n_params: where the inactive parameters stay); u64 n_params + that many u8 active
 //        flags (at least one 1)
