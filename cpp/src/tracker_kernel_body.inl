@@ -231,11 +231,16 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
 // seen); seen (K x 8) and bad (8): 1 or 0; all_seen: every point of the block seen. A point not seen
 // contributes 0, a lane whose forward kinematics failed kFailedResidual on every seen
 // coordinate, whatever its prediction. tout, yout may be null (the cost alone).
-template <int NP, int NR>
+// Whitened (MW >= 0; wh: the block's whitening, TrackerConsts::wh_rows): the lane's m = 3 K
+// residuals v (MW of them in registers, or through vbuf, m x 8, when MW is 0) are whitened in the
+// block, s_i = sum_{j <= i} W_ij v_j over the rows that are not zero at every pose, and s_i^2
+// summed: per lane the scalar path's operations (s from 0, j in order) but for the fused
+// multiply-adds (the baseline's are a multiply and an add: the same bits as the scalar loop's).
+template <int NP, int NR, int MW>
 IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, const double* pin,
                                    const double* rin, const double* meas, const double* seen,
-                                   const double* bad, bool all_seen, double* tout, double* yout,
-                                   double* acc) {
+                                   const double* bad, bool all_seen, const double* wh,
+                                   double* vbuf, double* tout, double* yout, double* acc) {
     constexpr int B = kBlock, W = kSubLanes;
     // Lanes chosen by masks, not by multiplying with 0 or 1: a prediction that overflows to inf
     // (an absurd but finite x) must give the penalty in a failed lane and 0 for a point not seen,
@@ -243,6 +248,7 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
     // Every point seen and every pose solved (the rule): the residual is y - measured.
     const bool plain = all_seen && bits(zero_pack() < load(bad)) == 0;
     const R penalty = r_splat(tc.failed_residual), zero = r_splat(0.0);
+    const int n_points = MW > 0 ? MW / 3 : tc.n_points;
     // The block as K passes of one register each, as the leg kernel's (objective_kernel_body.inl):
     // 0T4, P and R are 24 values, more than the 16 registers of SSE2 and AVX2 hold when each is
     // K registers. Each lane sees the same operations in the same order.
@@ -257,7 +263,8 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
         for (int e = 0; e < 9; ++e) r[e] = r_load(rin + e * B + o);
         const M failed = m_lt(zero, r_load(bad + o));
         R total = r_load(acc + o);
-        for (int i = 0; i < tc.n_points; ++i) {
+        R v[MW > 0 ? MW : 1];
+        for (int i = 0; i < n_points; ++i) {
             const R x0 = r_splat(tc.refl[3 * i]), x1 = r_splat(tc.refl[3 * i + 1]),
                     x2 = r_splat(tc.refl[3 * i + 2]);
             const R z0 = r_fma(r[2], x2, r_fma(r[1], x1, r_fma(r[0], x0, p[0])));
@@ -269,8 +276,36 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
                                   r_fma(t[3 * c + 1].v[0], z1, r_fma(t[3 * c].v[0], z0, t[9 + c].v[0])));
                 if (yout) r_store(yout + (3 * i + c) * B + o, y);
                 const R e = r_sub(y, r_load(meas + (3 * i + c) * B + o));
-                const R v = plain ? e : m_select(on, m_select(failed, penalty, e), zero);
-                total = r_fma(v, v, total);
+                const R vc = plain ? e : m_select(on, m_select(failed, penalty, e), zero);
+                if constexpr (MW < 0)
+                    total = r_fma(vc, vc, total);
+                else if constexpr (MW > 0)
+                    v[3 * i + c] = vc;
+                else
+                    r_store(vbuf + (3 * i + c) * B + o, vc);
+            }
+        }
+        if constexpr (MW >= 0) {
+            // The whitening's stored rows, each j = 0..i, 8 lanes an entry, row after row.
+            const double* w = wh + o;
+            if constexpr (MW > 0) {
+#pragma GCC unroll 16
+                for (int i = 0; i < MW; ++i) {
+                    if (!tc.wh_rows[i]) continue;
+                    R s = zero;
+#pragma GCC unroll 16
+                    for (int j = 0; j <= i; ++j) s = r_fma(r_load(w + j * B), v[j], s);
+                    w += (i + 1) * B;
+                    total = r_fma(s, s, total);
+                }
+            } else {
+                for (int i = 0; i < 3 * n_points; ++i) {
+                    if (!tc.wh_rows[i]) continue;
+                    R s = zero;
+                    for (int j = 0; j <= i; ++j) s = r_fma(r_load(w + j * B), r_load(vbuf + j * B + o), s);
+                    w += (i + 1) * B;
+                    total = r_fma(s, s, total);
+                }
             }
         }
         r_store(acc + o, total);
@@ -279,9 +314,26 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
 
 void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
                     const double* rin, const double* meas, const double* seen, const double* bad,
-                    bool all_seen, double* tout, double* yout, double* acc) {
-    if (chain_is(tc.pd, 2, 2))  // the IWR's carriage unrolled, as the leg kernel's
-        points_chain<2, 2>(blk, tc, pin, rin, meas, seen, bad, all_seen, tout, yout, acc);
-    else
-        points_chain<-1, 0>(blk, tc, pin, rin, meas, seen, bad, all_seen, tout, yout, acc);
+                    bool all_seen, const double* wh, double* vbuf, double* tout, double* yout,
+                    double* acc) {
+#define IWR_POINTS(NP, NR, MW) \
+    points_chain<NP, NR, MW>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout, acc)
+    // The IWR's carriage unrolled, as the leg kernel's; the whitening of 3 reflectors (m = 9) and
+    // of a probe (m = 12) with its residuals in registers.
+    const int m = 3 * tc.n_points;
+    if (chain_is(tc.pd, 2, 2)) {
+        if (!wh)
+            IWR_POINTS(2, 2, -1);
+        else if (m == 9)
+            IWR_POINTS(2, 2, 9);
+        else if (m == 12)
+            IWR_POINTS(2, 2, 12);
+        else
+            IWR_POINTS(2, 2, 0);
+    } else if (!wh) {
+        IWR_POINTS(-1, 0, -1);
+    } else {
+        IWR_POINTS(-1, 0, 0);
+    }
+#undef IWR_POINTS
 }
