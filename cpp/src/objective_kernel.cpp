@@ -29,8 +29,10 @@
 
 #if defined(__GNUC__) || defined(__clang__)
 #define IWR_FORCE_INLINE __attribute__((always_inline)) inline
+#define IWR_NOINLINE __attribute__((noinline))
 #else
 #define IWR_FORCE_INLINE inline
+#define IWR_NOINLINE
 #endif
 #if defined(__GNUC__) && !defined(__clang__)
 #define IWR_FORCE_INLINE_LAMBDA __attribute__((always_inline))

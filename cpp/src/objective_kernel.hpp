@@ -63,6 +63,7 @@ struct TrackerConsts {
     // some pose (its entries j = 0..i stored, TrackerObjective::set_whitening), 0 when it is zero at
     // every pose (skipped: a probe's first six rows).
     const char* wh_rows = nullptr;
+    int wh_first = -1;  // the rows stored are wh_first.. (every one), or -1: another pattern
 };
 /// The two halves of a block of the tracker objective (tracker_kernel_body.inl): the forward
 /// kinematics by chord iterations, and the carriage, the points and the squared residuals

@@ -305,6 +305,7 @@ void TrackerObjective::prepare(const double* x, Workspace& ws, detail::TrackerCo
     tc.refl = ws.refl.data();
     tc.failed_residual = kFailedResidual;
     tc.wh_rows = wh_rows_.data();
+    tc.wh_first = wh_first_;
 }
 
 void TrackerObjective::solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r,
@@ -502,6 +503,7 @@ void TrackerObjective::set_whitening(const RowMatrixXd& whitening) {
         wh_blocks_.clear();
         wh_rows_.clear();
         wh_stride_ = 0;
+        wh_first_ = -1;
         return;
     }
     detail::check_whitening(whitening, n_, m);
@@ -515,6 +517,8 @@ void TrackerObjective::set_whitening(const RowMatrixXd& whitening) {
                 if (whitening(k, i * m + j) != 0.0) wh_rows_[static_cast<size_t>(i)] = 1;
         if (wh_rows_[static_cast<size_t>(i)]) entries += i + 1;
     }
+    wh_first_ = static_cast<int>(std::find(wh_rows_.begin(), wh_rows_.end(), 1) - wh_rows_.begin());
+    if (std::find(wh_rows_.begin() + wh_first_, wh_rows_.end(), 0) != wh_rows_.end()) wh_first_ = -1;
     const int n_blocks = (n_ + kLanes - 1) / kLanes;
     wh_stride_ = entries * kLanes;
     // At least one double: a whitening zero at every pose still passes a whitening (cost 0).

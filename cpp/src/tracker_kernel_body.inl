@@ -232,11 +232,10 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
 // contributes 0, a lane whose forward kinematics failed kFailedResidual on every seen
 // coordinate, whatever its prediction. tout, yout may be null (the cost alone).
 // Whitened (MW >= 0; wh: the block's whitening, TrackerConsts::wh_rows): the lane's m = 3 K
-// residuals v (MW of them in registers, or through vbuf, m x 8, when MW is 0) are whitened in the
-// block, s_i = sum_{j <= i} W_ij v_j over the rows that are not zero at every pose, and s_i^2
-// summed: per lane the scalar path's operations (s from 0, j in order) but for the fused
-// multiply-adds (the baseline's are a multiply and an add: the same bits as the scalar loop's).
-template <int NP, int NR, int MW>
+// residuals v are whitened in the block, s_i = sum_{j <= i} W_ij v_j over the rows that are not
+// zero at every pose, and s_i^2 summed. MW > 0: m = MW, the rows R0..MW-1 stored, v in registers;
+// MW = 0: any m and rows, v through vbuf (m x 8).
+template <int NP, int NR, int MW, int R0 = 0>
 IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, const double* pin,
                                    const double* rin, const double* meas, const double* seen,
                                    const double* bad, bool all_seen, const double* wh,
@@ -286,54 +285,74 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
             }
         }
         if constexpr (MW >= 0) {
-            // The whitening's stored rows, each j = 0..i, 8 lanes an entry, row after row.
+            // The whitening's stored rows, each j = 0..i, 8 lanes an entry, row after row. Each row
+            // in two chains (even and odd j) and the squares of the rows of even and odd i in two
+            // sums: the FMA's latency, not its throughput, held a row of 9 terms back.
             const double* w = wh + o;
-            if constexpr (MW > 0) {
+            R tw[2] = {total, zero};  // rows of even i, of odd i
+            auto row = [&](int i, auto vj) IWR_FORCE_INLINE_LAMBDA {
+                R se = r_mul(r_load(w), vj(0)), so = zero;
+                if (i >= 1) so = r_mul(r_load(w + B), vj(1));
 #pragma GCC unroll 16
-                for (int i = 0; i < MW; ++i) {
-                    if (!tc.wh_rows[i]) continue;
-                    R s = zero;
-#pragma GCC unroll 16
-                    for (int j = 0; j <= i; ++j) s = r_fma(r_load(w + j * B), v[j], s);
-                    w += (i + 1) * B;
-                    total = r_fma(s, s, total);
+                for (int j = 2; j <= i; ++j) {
+                    R& sj = j % 2 == 0 ? se : so;
+                    sj = r_fma(r_load(w + j * B), vj(j), sj);
                 }
+                w += (i + 1) * B;
+                const R sum = r_add(se, so);
+                R& t = tw[i % 2];
+                t = r_fma(sum, sum, t);
+            };
+            if constexpr (MW > 0) {  // rows R0..MW-1 stored (no runtime test: no spills)
+#pragma GCC unroll 16
+                for (int i = R0; i < MW; ++i) row(i, [&](int j) IWR_FORCE_INLINE_LAMBDA { return v[j]; });
             } else {
-                for (int i = 0; i < 3 * n_points; ++i) {
-                    if (!tc.wh_rows[i]) continue;
-                    R s = zero;
-                    for (int j = 0; j <= i; ++j) s = r_fma(r_load(w + j * B), r_load(vbuf + j * B + o), s);
-                    w += (i + 1) * B;
-                    total = r_fma(s, s, total);
-                }
+                for (int i = 0; i < 3 * n_points; ++i)
+                    if (tc.wh_rows[i])
+                        row(i, [&](int j) IWR_FORCE_INLINE_LAMBDA { return r_load(vbuf + j * B + o); });
             }
+            total = r_add(tw[0], tw[1]);
         }
         r_store(acc + o, total);
     }
+}
+
+// The whitened objective's chains, each a function of its own: inlined beside the unweighted ones
+// they made GCC compile tracker_points differently and the unweighted AVX-512 objective 4-6 %
+// slower.
+template <int NP, int NR, int MW, int R0 = 0>
+IWR_NOINLINE void points_whitened(const double* blk, const TrackerConsts& tc, const double* pin,
+                                  const double* rin, const double* meas, const double* seen,
+                                  const double* bad, bool all_seen, const double* wh, double* vbuf,
+                                  double* tout, double* yout, double* acc) {
+    points_chain<NP, NR, MW, R0>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout,
+                                 acc);
 }
 
 void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
                     const double* rin, const double* meas, const double* seen, const double* bad,
                     bool all_seen, const double* wh, double* vbuf, double* tout, double* yout,
                     double* acc) {
-#define IWR_POINTS(NP, NR, MW) \
-    points_chain<NP, NR, MW>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout, acc)
-    // The IWR's carriage unrolled, as the leg kernel's; the whitening of 3 reflectors (m = 9) and
-    // of a probe (m = 12) with its residuals in registers.
-    const int m = 3 * tc.n_points;
-    if (chain_is(tc.pd, 2, 2)) {
-        if (!wh)
-            IWR_POINTS(2, 2, -1);
-        else if (m == 9)
-            IWR_POINTS(2, 2, 9);
-        else if (m == 12)
-            IWR_POINTS(2, 2, 12);
+#define IWR_POINTS(F, ...) F<__VA_ARGS__>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout, acc)
+    const bool iwr = chain_is(tc.pd, 2, 2);  // the IWR's carriage unrolled, as the leg kernel's
+    if (wh) {
+        // The whitening of 3 reflectors (m = 9, every row) and of a probe (m = 12, rows 6.. or
+        // every row) with its residuals in registers; any other through memory.
+        const int m = 3 * tc.n_points, r0 = tc.wh_first;
+        if (iwr && m == 9 && r0 == 0)
+            IWR_POINTS(points_whitened, 2, 2, 9, 0);
+        else if (iwr && m == 12 && r0 == 6)
+            IWR_POINTS(points_whitened, 2, 2, 12, 6);
+        else if (iwr && m == 12 && r0 == 0)
+            IWR_POINTS(points_whitened, 2, 2, 12, 0);
+        else if (iwr)
+            IWR_POINTS(points_whitened, 2, 2, 0);
         else
-            IWR_POINTS(2, 2, 0);
-    } else if (!wh) {
-        IWR_POINTS(-1, 0, -1);
+            IWR_POINTS(points_whitened, -1, 0, 0);
+    } else if (iwr) {
+        IWR_POINTS(points_chain, 2, 2, -1);
     } else {
-        IWR_POINTS(-1, 0, 0);
+        IWR_POINTS(points_chain, -1, 0, -1);
     }
 #undef IWR_POINTS
 }

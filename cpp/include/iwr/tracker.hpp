@@ -213,6 +213,7 @@ private:
     std::vector<double, detail::AlignedAllocator<double>> wh_blocks_;
     std::vector<char> wh_rows_;  // per row of a pose's whitening: 1 stored, 0 zero at every pose
     int wh_stride_ = 0;
+    int wh_first_ = -1;  // the rows stored are wh_first_.. (every one), or -1 (TrackerConsts)
     // W_k times the m rows of pose k, for every pose, of a (n_residuals x cols) row-major array.
     void whiten_rows(double* rows, Eigen::Index cols) const;
 };
