@@ -166,7 +166,7 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
         prev = select(act, err, prev);
         Pack s[6];
         inverse_times(inv, f, s, [&](int h, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
-            sm = m_select(act.v[h], r_sub(zero.v[h], acc), zero.v[h]);
+            sm = m_keep(act.v[h], r_sub(zero.v[h], acc));
         });
         const Mask refine = act & (refine_above < err);
         if (it > 0 && bits(refine) != 0) {
@@ -185,7 +185,7 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
                 store(g + j * B, fma(h + h, dot, load(f + j * B)));
             }
             inverse_times(inv, g, s, [&](int h, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
-                sm = m_select(refine.v[h], r_sub(sm, acc), sm);
+                sm = r_sub(sm, m_keep(refine.v[h], acc));
             });
         }
         for (int c = 0; c < 3; ++c) p[c] = p[c] + s[c];
