@@ -133,10 +133,10 @@ def test_the_kernel_whitening_is_the_numpy_one_in_every_variant(name, make, rest
         np.testing.assert_array_equal(results[v], results[fused[0]], err_msg=v)
 
 
-def test_a_pose_whitened_alone_gives_the_same_bits_as_in_a_block(restore_kernel):
-    # A pose's whitened cost must not depend on which poses share its block (nor on a padding
-    # lane's): each pose alone (N = 1) against the 13 poses together, summed the kernel's way
-    # per lane, compared through the weighted costs of the poses alone, to rounding of the sum.
+def test_the_poses_whitened_alone_cost_what_they_cost_together(restore_kernel):
+    # A pose's whitened cost must not depend on which poses share its block of 8 (nor on the
+    # padding lanes): the 13 poses' weighted cost against the sum of each pose's alone (N = 1,
+    # its block its own copies), equal but for the order of the sum.
     robot = _robot("points")
     m, _ = tracker_simulate(robot, 13, seed=21, noise=NOISE, hidden=0.3)
     full, _ = tracker_problem(robot, m, noise=NOISE)

@@ -59,9 +59,9 @@ struct TrackerConsts {
     int n_points = 0;
     const double* refl = nullptr;  // the points in {5} (3 per point)
     double failed_residual = 0;
-    // Whitened: per residual row of a pose (3 n_points), 1 when the whitening's row is not zero at
-    // some pose (its entries j = 0..i stored, TrackerObjective::set_whitening), 0 when it is zero at
-    // every pose (skipped: a probe's first six rows).
+    // Whitened: per residual row of a pose (3 n_points), 1 when the whitening's row is not zero
+    // at some pose (its entries j = 0..i stored, TrackerObjective::set_whitening), 0 when it is
+    // zero at every pose (skipped: a probe's first six rows).
     const char* wh_rows = nullptr;
     int wh_first = -1;  // the rows stored are wh_first.. (every one), or -1: another pattern
 };

@@ -517,18 +517,21 @@ void TrackerObjective::set_whitening(const RowMatrixXd& whitening) {
                 if (whitening(k, i * m + j) != 0.0) wh_rows_[static_cast<size_t>(i)] = 1;
         if (wh_rows_[static_cast<size_t>(i)]) entries += i + 1;
     }
-    wh_first_ = static_cast<int>(std::find(wh_rows_.begin(), wh_rows_.end(), 1) - wh_rows_.begin());
-    if (std::find(wh_rows_.begin() + wh_first_, wh_rows_.end(), 0) != wh_rows_.end()) wh_first_ = -1;
-    const int n_blocks = (n_ + kLanes - 1) / kLanes;
+    const auto first = std::find(wh_rows_.begin(), wh_rows_.end(), 1);
+    wh_first_ = static_cast<int>(first - wh_rows_.begin());
+    if (std::find(first, wh_rows_.end(), 0) != wh_rows_.end()) wh_first_ = -1;
+    const size_t n_blocks = static_cast<size_t>((n_ + kLanes - 1) / kLanes);
     wh_stride_ = entries * kLanes;
     // At least one double: a whitening zero at every pose still passes a whitening (cost 0).
-    wh_blocks_.assign(std::max<size_t>(static_cast<size_t>(n_blocks) * static_cast<size_t>(wh_stride_), 1), 0.0);
+    wh_blocks_.assign(std::max<size_t>(n_blocks * static_cast<size_t>(wh_stride_), 1), 0.0);
     for (int k = 0; k < n_; ++k) {
-        double* blk = wh_blocks_.data() + static_cast<size_t>(k / kLanes) * static_cast<size_t>(wh_stride_);
+        double* blk = wh_blocks_.data() +
+                      static_cast<size_t>(k / kLanes) * static_cast<size_t>(wh_stride_);
         int e = 0;
         for (int i = 0; i < m; ++i) {
             if (!wh_rows_[static_cast<size_t>(i)]) continue;
-            for (int j = 0; j <= i; ++j, ++e) blk[e * kLanes + k % kLanes] = whitening(k, i * m + j);
+            for (int j = 0; j <= i; ++j, ++e)
+                blk[e * kLanes + k % kLanes] = whitening(k, i * m + j);
         }
     }
 }

@@ -305,11 +305,12 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
             };
             if constexpr (MW > 0) {  // rows R0..MW-1 stored (no runtime test: no spills)
 #pragma GCC unroll 16
-                for (int i = R0; i < MW; ++i) row(i, [&](int j) IWR_FORCE_INLINE_LAMBDA { return v[j]; });
+                for (int i = R0; i < MW; ++i)
+                    row(i, [&](int j) IWR_FORCE_INLINE_LAMBDA { return v[j]; });
             } else {
+                auto vj = [&](int j) IWR_FORCE_INLINE_LAMBDA { return r_load(vbuf + j * B + o); };
                 for (int i = 0; i < 3 * n_points; ++i)
-                    if (tc.wh_rows[i])
-                        row(i, [&](int j) IWR_FORCE_INLINE_LAMBDA { return r_load(vbuf + j * B + o); });
+                    if (tc.wh_rows[i]) row(i, vj);
             }
             total = r_add(tw[0], tw[1]);
         }
@@ -333,7 +334,8 @@ void tracker_points(const double* blk, const TrackerConsts& tc, const double* pi
                     const double* rin, const double* meas, const double* seen, const double* bad,
                     bool all_seen, const double* wh, double* vbuf, double* tout, double* yout,
                     double* acc) {
-#define IWR_POINTS(F, ...) F<__VA_ARGS__>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout, acc)
+#define IWR_POINTS(F, ...) \
+    F<__VA_ARGS__>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout, acc)
     const bool iwr = chain_is(tc.pd, 2, 2);  // the IWR's carriage unrolled, as the leg kernel's
     if (wh) {
         // The whitening of 3 reflectors (m = 9, every row) and of a probe (m = 12, rows 6.. or
