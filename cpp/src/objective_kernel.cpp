@@ -29,8 +29,10 @@
 
 #if defined(__GNUC__) || defined(__clang__)
 #define IWR_FORCE_INLINE __attribute__((always_inline)) inline
+#define IWR_NOINLINE __attribute__((noinline))
 #else
 #define IWR_FORCE_INLINE inline
+#define IWR_NOINLINE
 #endif
 #if defined(__GNUC__) && !defined(__clang__)
 #define IWR_FORCE_INLINE_LAMBDA __attribute__((always_inline))
@@ -71,6 +73,7 @@ IWR_FORCE_INLINE M m_or(M a, M b) { return _mm_or_pd(a, b); }
 IWR_FORCE_INLINE M m_all(bool on) { return _mm_castsi128_pd(_mm_set1_epi64x(on ? -1 : 0)); }
 IWR_FORCE_INLINE int m_bits(M a) { return _mm_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm_or_pd(_mm_and_pd(m, a), _mm_andnot_pd(m, b)); }
+IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm_and_pd(m, a); }  // a where m, +0 elsewhere
 #include "objective_kernel_body.inl"
 #include "tracker_kernel_body.inl"
 }  // namespace sse2
@@ -104,6 +107,7 @@ IWR_FORCE_INLINE M m_or(M a, M b) { return _mm256_or_pd(a, b); }
 IWR_FORCE_INLINE M m_all(bool on) { return _mm256_castsi256_pd(_mm256_set1_epi64x(on ? -1 : 0)); }
 IWR_FORCE_INLINE int m_bits(M a) { return _mm256_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm256_blendv_pd(b, a, m); }
+IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm256_and_pd(m, a); }
 #include "objective_kernel_body.inl"
 #include "tracker_kernel_body.inl"
 }  // namespace avx2
@@ -148,6 +152,7 @@ IWR_FORCE_INLINE M m_or(M a, M b) { return static_cast<M>(a | b); }
 IWR_FORCE_INLINE M m_all(bool on) { return static_cast<M>(on ? 0xff : 0); }
 IWR_FORCE_INLINE int m_bits(M a) { return a; }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm512_mask_blend_pd(m, b, a); }
+IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm512_maskz_mov_pd(m, a); }
 // A last block of at most 4 poses runs as the AVX2 variant's 4-lane pass (objective_kernel_body.inl).
 #define IWR_HALF_PASS avx2
 #include "objective_kernel_body.inl"
@@ -186,6 +191,7 @@ inline M m_or(M a, M b) { return a || b; }
 inline M m_all(bool on) { return on; }
 inline int m_bits(M a) { return a ? 1 : 0; }
 inline R m_select(M m, R a, R b) { return m ? a : b; }
+inline R m_keep(M m, R a) { return m ? a : 0.0; }
 #include "objective_kernel_body.inl"
 #include "tracker_kernel_body.inl"
 }  // namespace portable

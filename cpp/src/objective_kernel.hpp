@@ -59,14 +59,21 @@ struct TrackerConsts {
     int n_points = 0;
     const double* refl = nullptr;  // the points in {5} (3 per point)
     double failed_residual = 0;
+    // Whitened: per residual row of a pose (3 n_points), 1 when the whitening's row is not zero
+    // at some pose (its entries j = 0..i stored, TrackerObjective::set_whitening), 0 when it is
+    // zero at every pose (skipped: a probe's first six rows).
+    const char* wh_rows = nullptr;
+    int wh_first = -1;  // the rows stored are wh_first.. (every one), or -1: another pattern
 };
 /// The two halves of a block of the tracker objective (tracker_kernel_body.inl): the forward
-/// kinematics by chord iterations, and the carriage, the points and the squared residuals.
+/// kinematics by chord iterations, and the carriage, the points and the squared residuals
+/// (whitened when wh, the block's whitening, is given; vbuf: 3 n_points x 8 doubles of scratch,
+/// 64-byte aligned).
 struct TrackerKernels {
     void (*chord)(const double* blk, const TrackerConsts& tc, double* p, double* r, int* status);
     void (*points)(const double* blk, const TrackerConsts& tc, const double* p, const double* r,
                    const double* meas, const double* seen, const double* bad, bool all_seen,
-                   double* t, double* y, double* acc);
+                   const double* wh, double* vbuf, double* t, double* y, double* acc);
 };
 /// The variant of the same instruction set as active_kernel().
 TrackerKernels active_tracker_kernels();

@@ -258,6 +258,7 @@ TrackerObjective::Workspace TrackerObjective::make_workspace() const {
     ws.r.resize(static_cast<size_t>(setup_.n_points()));
     ws.refl.resize(static_cast<size_t>(3 * setup_.n_points()));
     ws.y.resize(static_cast<size_t>(3 * setup_.n_points() * kLanes));
+    ws.v.resize(static_cast<size_t>(3 * setup_.n_points() * kLanes));
     return ws;
 }
 
@@ -303,6 +304,8 @@ void TrackerObjective::prepare(const double* x, Workspace& ws, detail::TrackerCo
         for (int c = 0; c < 3; ++c) ws.refl[static_cast<size_t>(3 * i + c)] = ws.r[static_cast<size_t>(i)](c);
     tc.refl = ws.refl.data();
     tc.failed_residual = kFailedResidual;
+    tc.wh_rows = wh_rows_.data();
+    tc.wh_first = wh_first_;
 }
 
 void TrackerObjective::solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r,
@@ -397,9 +400,12 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
             for (int e = 0; e < 9; ++e) rr[e * W + l] = r(e / 3, e % 3);
         }
         const double* meas = data + (kChordQuantities + 2 * nj) * W;
+        const double* wh = whitened()
+            ? wh_blocks_.data() + static_cast<size_t>(blk) * static_cast<size_t>(wh_stride_)
+            : nullptr;
         kernel.points(data, tc, pp, rr, meas, meas + 3 * kp * W, bad,
-                      all_seen_[static_cast<size_t>(blk)] != 0, scalar ? t : nullptr,
-                      scalar ? y : nullptr, acc);
+                      all_seen_[static_cast<size_t>(blk)] != 0, wh, ws.v.data(),
+                      scalar ? t : nullptr, scalar ? y : nullptr, acc);
         if (!scalar) continue;
         for (int l = 0; l < W && blk * W + l < n_; ++l) {
             const int k = blk * W + l;
@@ -491,27 +497,43 @@ void check_whitening(const RowMatrixXd& whitening, Eigen::Index n, Eigen::Index 
 }  // namespace detail
 
 void TrackerObjective::set_whitening(const RowMatrixXd& whitening) {
+    const int m = 3 * setup_.n_points();
     if (whitening.size() == 0) {
         whitening_.resize(0, 0);
+        wh_blocks_.clear();
+        wh_rows_.clear();
+        wh_stride_ = 0;
+        wh_first_ = -1;
         return;
     }
-    detail::check_whitening(whitening, n_, 3 * setup_.n_points());
+    detail::check_whitening(whitening, n_, m);
     whitening_ = whitening;
-}
-
-double TrackerObjective::whitened_cost(const double* res) const {
-    const int m = 3 * setup_.n_points();
-    double cost = 0;
+    // The kernel's copy (tracker_kernel_body.inl, points_chain): the rows not zero at every pose.
+    wh_rows_.assign(static_cast<size_t>(m), 0);
+    int entries = 0;
+    for (int i = 0; i < m; ++i) {
+        for (int k = 0; k < n_ && !wh_rows_[static_cast<size_t>(i)]; ++k)
+            for (int j = 0; j <= i; ++j)
+                if (whitening(k, i * m + j) != 0.0) wh_rows_[static_cast<size_t>(i)] = 1;
+        if (wh_rows_[static_cast<size_t>(i)]) entries += i + 1;
+    }
+    const auto first = std::find(wh_rows_.begin(), wh_rows_.end(), 1);
+    wh_first_ = static_cast<int>(first - wh_rows_.begin());
+    if (std::find(first, wh_rows_.end(), 0) != wh_rows_.end()) wh_first_ = -1;
+    const size_t n_blocks = static_cast<size_t>((n_ + kLanes - 1) / kLanes);
+    wh_stride_ = entries * kLanes;
+    // At least one double: a whitening zero at every pose still passes a whitening (cost 0).
+    wh_blocks_.assign(std::max<size_t>(n_blocks * static_cast<size_t>(wh_stride_), 1), 0.0);
     for (int k = 0; k < n_; ++k) {
-        const double* w = whitening_.row(k).data();
-        const double* r = res + static_cast<std::ptrdiff_t>(m) * k;
+        double* blk = wh_blocks_.data() +
+                      static_cast<size_t>(k / kLanes) * static_cast<size_t>(wh_stride_);
+        int e = 0;
         for (int i = 0; i < m; ++i) {
-            double s = 0;
-            for (int j = 0; j <= i; ++j) s += w[i * m + j] * r[j];
-            cost += s * s;
+            if (!wh_rows_[static_cast<size_t>(i)]) continue;
+            for (int j = 0; j <= i; ++j, ++e)
+                blk[e * kLanes + k % kLanes] = whitening(k, i * m + j);
         }
     }
-    return cost;
 }
 
 void TrackerObjective::whiten_rows(double* rows, Eigen::Index cols) const {
@@ -526,10 +548,8 @@ void TrackerObjective::whiten_rows(double* rows, Eigen::Index cols) const {
 }
 
 double TrackerObjective::cost(const double* x, Workspace& ws) const {
-    if (!whitened()) return evaluate(x, ws, nullptr, nullptr, nullptr, nullptr);
-    ws.res.resize(static_cast<size_t>(n_residuals()));
-    evaluate(x, ws, ws.res.data(), nullptr, nullptr, nullptr);
-    return whitened_cost(ws.res.data());
+    // Whitened or not: the kernel's sums (points_chain whitens each lane's residuals).
+    return evaluate(x, ws, nullptr, nullptr, nullptr, nullptr);
 }
 
 double TrackerObjective::cost(const Eigen::Ref<const VectorXd>& x) const {

@@ -166,7 +166,7 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
         prev = select(act, err, prev);
         Pack s[6];
         inverse_times(inv, f, s, [&](int h, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
-            sm = m_select(act.v[h], r_sub(zero.v[h], acc), zero.v[h]);
+            sm = m_keep(act.v[h], r_sub(zero.v[h], acc));
         });
         const Mask refine = act & (refine_above < err);
         if (it > 0 && bits(refine) != 0) {
@@ -185,7 +185,7 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
                 store(g + j * B, fma(h + h, dot, load(f + j * B)));
             }
             inverse_times(inv, g, s, [&](int h, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
-                sm = m_select(refine.v[h], r_sub(sm, acc), sm);
+                sm = r_sub(sm, m_keep(refine.v[h], acc));
             });
         }
         for (int c = 0; c < 3; ++c) p[c] = p[c] + s[c];
@@ -231,11 +231,15 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
 // seen); seen (K x 8) and bad (8): 1 or 0; all_seen: every point of the block seen. A point not seen
 // contributes 0, a lane whose forward kinematics failed kFailedResidual on every seen
 // coordinate, whatever its prediction. tout, yout may be null (the cost alone).
-template <int NP, int NR>
+// Whitened (MW >= 0; wh: the block's whitening, TrackerConsts::wh_rows): the lane's m = 3 K
+// residuals v are whitened in the block, s_i = sum_{j <= i} W_ij v_j over the rows that are not
+// zero at every pose, and s_i^2 summed. MW > 0: m = MW, the rows R0..MW-1 stored, v in registers;
+// MW = 0: any m and rows, v through vbuf (m x 8).
+template <int NP, int NR, int MW, int R0 = 0>
 IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, const double* pin,
                                    const double* rin, const double* meas, const double* seen,
-                                   const double* bad, bool all_seen, double* tout, double* yout,
-                                   double* acc) {
+                                   const double* bad, bool all_seen, const double* wh,
+                                   double* vbuf, double* tout, double* yout, double* acc) {
     constexpr int B = kBlock, W = kSubLanes;
     // Lanes chosen by masks, not by multiplying with 0 or 1: a prediction that overflows to inf
     // (an absurd but finite x) must give the penalty in a failed lane and 0 for a point not seen,
@@ -243,6 +247,7 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
     // Every point seen and every pose solved (the rule): the residual is y - measured.
     const bool plain = all_seen && bits(zero_pack() < load(bad)) == 0;
     const R penalty = r_splat(tc.failed_residual), zero = r_splat(0.0);
+    const int n_points = MW > 0 ? MW / 3 : tc.n_points;
     // The block as K passes of one register each, as the leg kernel's (objective_kernel_body.inl):
     // 0T4, P and R are 24 values, more than the 16 registers of SSE2 and AVX2 hold when each is
     // K registers. Each lane sees the same operations in the same order.
@@ -257,7 +262,8 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
         for (int e = 0; e < 9; ++e) r[e] = r_load(rin + e * B + o);
         const M failed = m_lt(zero, r_load(bad + o));
         R total = r_load(acc + o);
-        for (int i = 0; i < tc.n_points; ++i) {
+        R v[MW > 0 ? MW : 1];
+        for (int i = 0; i < n_points; ++i) {
             const R x0 = r_splat(tc.refl[3 * i]), x1 = r_splat(tc.refl[3 * i + 1]),
                     x2 = r_splat(tc.refl[3 * i + 2]);
             const R z0 = r_fma(r[2], x2, r_fma(r[1], x1, r_fma(r[0], x0, p[0])));
@@ -269,19 +275,86 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
                                   r_fma(t[3 * c + 1].v[0], z1, r_fma(t[3 * c].v[0], z0, t[9 + c].v[0])));
                 if (yout) r_store(yout + (3 * i + c) * B + o, y);
                 const R e = r_sub(y, r_load(meas + (3 * i + c) * B + o));
-                const R v = plain ? e : m_select(on, m_select(failed, penalty, e), zero);
-                total = r_fma(v, v, total);
+                const R vc = plain ? e : m_select(on, m_select(failed, penalty, e), zero);
+                if constexpr (MW < 0)
+                    total = r_fma(vc, vc, total);
+                else if constexpr (MW > 0)
+                    v[3 * i + c] = vc;
+                else
+                    r_store(vbuf + (3 * i + c) * B + o, vc);
             }
+        }
+        if constexpr (MW >= 0) {
+            // The whitening's stored rows, each j = 0..i, 8 lanes an entry, row after row. Each row
+            // in two chains (even and odd j) and the squares of the rows of even and odd i in two
+            // sums: the FMA's latency, not its throughput, held a row of 9 terms back.
+            const double* w = wh + o;
+            R tw[2] = {total, zero};  // rows of even i, of odd i
+            auto row = [&](int i, auto vj) IWR_FORCE_INLINE_LAMBDA {
+                R se = r_mul(r_load(w), vj(0)), so = zero;
+                if (i >= 1) so = r_mul(r_load(w + B), vj(1));
+#pragma GCC unroll 16
+                for (int j = 2; j <= i; ++j) {
+                    R& sj = j % 2 == 0 ? se : so;
+                    sj = r_fma(r_load(w + j * B), vj(j), sj);
+                }
+                w += (i + 1) * B;
+                const R sum = r_add(se, so);
+                R& t = tw[i % 2];
+                t = r_fma(sum, sum, t);
+            };
+            if constexpr (MW > 0) {  // rows R0..MW-1 stored (no runtime test: no spills)
+#pragma GCC unroll 16
+                for (int i = R0; i < MW; ++i)
+                    row(i, [&](int j) IWR_FORCE_INLINE_LAMBDA { return v[j]; });
+            } else {
+                auto vj = [&](int j) IWR_FORCE_INLINE_LAMBDA { return r_load(vbuf + j * B + o); };
+                for (int i = 0; i < 3 * n_points; ++i)
+                    if (tc.wh_rows[i]) row(i, vj);
+            }
+            total = r_add(tw[0], tw[1]);
         }
         r_store(acc + o, total);
     }
 }
 
+// The whitened objective's chains, each a function of its own: inlined beside the unweighted ones
+// they made GCC compile tracker_points differently and the unweighted AVX-512 objective 4-6 %
+// slower.
+template <int NP, int NR, int MW, int R0 = 0>
+IWR_NOINLINE void points_whitened(const double* blk, const TrackerConsts& tc, const double* pin,
+                                  const double* rin, const double* meas, const double* seen,
+                                  const double* bad, bool all_seen, const double* wh, double* vbuf,
+                                  double* tout, double* yout, double* acc) {
+    points_chain<NP, NR, MW, R0>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout,
+                                 acc);
+}
+
 void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
                     const double* rin, const double* meas, const double* seen, const double* bad,
-                    bool all_seen, double* tout, double* yout, double* acc) {
-    if (chain_is(tc.pd, 2, 2))  // the IWR's carriage unrolled, as the leg kernel's
-        points_chain<2, 2>(blk, tc, pin, rin, meas, seen, bad, all_seen, tout, yout, acc);
-    else
-        points_chain<-1, 0>(blk, tc, pin, rin, meas, seen, bad, all_seen, tout, yout, acc);
+                    bool all_seen, const double* wh, double* vbuf, double* tout, double* yout,
+                    double* acc) {
+#define IWR_POINTS(F, ...) \
+    F<__VA_ARGS__>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout, acc)
+    const bool iwr = chain_is(tc.pd, 2, 2);  // the IWR's carriage unrolled, as the leg kernel's
+    if (wh) {
+        // The whitening of 3 reflectors (m = 9, every row) and of a probe (m = 12, rows 6.. or
+        // every row) with its residuals in registers; any other through memory.
+        const int m = 3 * tc.n_points, r0 = tc.wh_first;
+        if (iwr && m == 9 && r0 == 0)
+            IWR_POINTS(points_whitened, 2, 2, 9, 0);
+        else if (iwr && m == 12 && r0 == 6)
+            IWR_POINTS(points_whitened, 2, 2, 12, 6);
+        else if (iwr && m == 12 && r0 == 0)
+            IWR_POINTS(points_whitened, 2, 2, 12, 0);
+        else if (iwr)
+            IWR_POINTS(points_whitened, 2, 2, 0);
+        else
+            IWR_POINTS(points_whitened, -1, 0, 0);
+    } else if (iwr) {
+        IWR_POINTS(points_chain, 2, 2, -1);
+    } else {
+        IWR_POINTS(points_chain, -1, 0, -1);
+    }
+#undef IWR_POINTS
 }

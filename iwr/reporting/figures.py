@@ -69,7 +69,9 @@ def histogram(ax: Any, values: Any, color: str) -> None:
     v = np.asarray(values, dtype=float)
     ax.hist(v, bins=min(30, max(5, v.size // 3)), color=color)
     ax.xaxis.set_major_locator(MaxNLocator(nbins=6))
-    fmt = ScalarFormatter(useMathText=True)
+    # The power of ten as plain text ("1e5"): with useMathText every tick label goes through
+    # matplotlib's mathtext parser, 0.15 s of CPU (7 %) of `iwr calibrate` on the example.
+    fmt = ScalarFormatter(useMathText=False)
     fmt.set_powerlimits((-3, 4))
     ax.xaxis.set_major_formatter(fmt)
     ax.yaxis.set_major_locator(MaxNLocator(integer=True))

@@ -132,7 +132,7 @@ public:
         std::vector<Vec3> r;        // points in {5}
         std::vector<double> refl;   // the same, flat
         std::vector<double, detail::AlignedAllocator<double>> y;  // a block's points (3 K x lanes)
-        std::vector<double> res;    // the residuals before whitening (whitened objective only)
+        std::vector<double, detail::AlignedAllocator<double>> v;  // a block's residuals (whitened)
     };
     Workspace make_workspace() const;
 
@@ -178,7 +178,8 @@ private:
     // Local pose of pose k alone (its block solved, the lane taken): as in evaluate().
     void solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const;
     void check_x(const Eigen::Ref<const VectorXd>& x) const;
-    // Residuals into res (n_residuals, may be null); returns the cost; failed poses into failed.
+    // Residuals into res (n_residuals, may be null; not whitened); returns the cost (whitened when
+    // whitened()); failed poses into failed.
     double evaluate(const double* x, Workspace& ws, double* res, std::vector<int>* failed,
                     RowMatrixXd* poses, RowMatrixXd* predicted) const;
 
@@ -206,8 +207,13 @@ private:
     int pair_[2] = {0, 1};  // the platform joints the kernel recovers the rotation from
     std::vector<Vector6d> ref_euler_;  // the reference as a local pose (the fallback's start)
     RowMatrixXd whitening_;  // (N, m^2) or empty: see set_whitening
-    // The whitened cost of unwhitened residuals res (n_residuals).
-    double whitened_cost(const double* res) const;
+    // The whitening for the kernel, in blocks of kLanes poses as blocks_ (quantity e of lane l at
+    // e * kLanes + l): row after row of the rows not zero at every pose (wh_rows_ 1), entries
+    // j = 0..i of row i; the padding lanes 0. wh_stride_ doubles a block.
+    std::vector<double, detail::AlignedAllocator<double>> wh_blocks_;
+    std::vector<char> wh_rows_;  // per row of a pose's whitening: 1 stored, 0 zero at every pose
+    int wh_stride_ = 0;
+    int wh_first_ = -1;  // the rows stored are wh_first_.. (every one), or -1 (TrackerConsts)
     // W_k times the m rows of pose k, for every pose, of a (n_residuals x cols) row-major array.
     void whiten_rows(double* rows, Eigen::Index cols) const;
 };
