@@ -227,3 +227,25 @@ def reading_jacobian_matches_differences() -> Any:
             np.testing.assert_allclose(g[:, :, j], fd, rtol=1e-5, atol=1e-6 * np.abs(fd).max())
 
     return check
+
+
+@pytest.fixture
+def singular_at(monkeypatch):
+    """``singular_at(n, pose)``: the statics of the forward kinematics with the effects
+    (``iwr.effects.model.leg_forces`` as the tracker's and the loop's code call it) raise
+    ``SingularPoseError`` at ``pose`` whenever all ``n`` poses are in the call: a robot whose
+    hexapod is singular at that pose, as a search from a bad start can try."""
+    from iwr.effects import loop, model, tracker
+
+    real = model.leg_forces
+
+    def patch(n: int, pose: int) -> None:
+        def leg_forces(v, *args, **kwargs):
+            if len(v) == n:
+                raise model.SingularPoseError(f"pose {pose}: singular (a test)", pose)
+            return real(v, *args, **kwargs)
+
+        for module in (loop, tracker):
+            monkeypatch.setattr(module, "leg_forces", leg_forces)
+
+    return patch

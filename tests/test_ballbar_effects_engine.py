@@ -93,6 +93,20 @@ def test_failed_poses_are_the_penalty_in_both(case) -> None:
     assert len(problem.failures(x)) == len(data)
 
 
+def test_a_singular_pose_is_a_failed_pose_not_an_abort(case, singular_at) -> None:
+    """A robot at which the hexapod is singular at one pose (LM from iwr compare's bad start:
+    ValueError "the legs cannot hold a load" stopped it): that pose gets the penalty, as in
+    the C++ objective, the other residuals are unchanged, and failures() names it."""
+    robot, data, truth = case
+    problem, _ = be.effect_problem(robot, data)
+    before = problem.residuals(truth)
+    singular_at(len(data), 5)
+    after = problem.residuals(truth)
+    assert after[5] == 1e3
+    np.testing.assert_array_equal(np.delete(after, 5), np.delete(before, 5))
+    assert [k for k, _ in problem.failures(truth)] == [5]
+
+
 def test_problem_file_round_trip(case, tmp_path: Path) -> None:
     """Saved and loaded (weighted and not): the same problem (robot, effects, set-ups, loads,
     temperatures, weights), its cost bit for bit, the engine's objective (make_objective) too;
@@ -198,10 +212,11 @@ def test_iwr_calibrate_equals_identify(case, tmp_path: Path, noise: str | None) 
 # --- iwr compare and iwr study on a ballbar robot with effects -----------------------------------
 
 def test_compare_methods_draws_and_identifies_the_effects() -> None:
-    """iwr.compare_methods on a ballbar robot with effects (it failed on every robot with effects,
-    pose, tracker and ballbar data: its actual robot lacked the effects' parameters): the truth has the geometric errors, the
-    effects' parameters (within their bounds) and the set-ups'; DE runs on the C++ objective with
-    the effects, and the comparison's parameter names are the runs' layout."""
+    """iwr.compare_methods on a ballbar robot with effects (it failed on every robot with
+    effects, pose, tracker and ballbar data: its actual robot lacked the effects' parameters):
+    the truth has the geometric errors, the effects' parameters (within their bounds) and the
+    set-ups'; DE runs on the C++ objective with the effects, and the comparison's parameter
+    names are the runs' layout."""
     from iwr.effects import bounds as effect_bounds
     from iwr.experiments.harness import Scenario
 

@@ -433,3 +433,19 @@ def test_iwr_legs_on_a_tracker_robot_takes_gravity_through_the_registration(
     np.testing.assert_allclose(cmd.legs, model, rtol=0, atol=1e-9)
     own = [e.gravity for e in robot.effects if hasattr(e, "gravity")][0]
     assert not np.allclose(own, et.registration_gravity(setup, np.zeros(setup.n_params))[0])
+
+
+
+def test_a_singular_pose_is_a_failed_pose_not_an_abort(case, singular_at):
+    """A robot at which the hexapod is singular at one pose (LM's trial step from a bad start:
+    ValueError "the legs cannot hold a load" stopped the search): that pose has no forward
+    kinematics with the effects, as in the C++ objective (the penalty), and the other poses'
+    residuals are unchanged."""
+    robot, data, truth = case
+    problem, _ = et.effect_tracker_problem(robot, data)
+    before = problem.residuals(truth).reshape(len(data), -1)
+    singular_at(len(data), 5)
+    after = problem.residuals(truth).reshape(len(data), -1)
+    seen = np.isfinite(before) & (before != 0)
+    assert seen[5].any() and np.all(after[5][seen[5]] == 1e3)
+    np.testing.assert_array_equal(np.delete(after, 5, axis=0), np.delete(before, 5, axis=0))

@@ -34,11 +34,11 @@ from typing import Any
 
 import numpy as np
 
+from .. import _core
 from ..effects import bounds as effect_bounds
 from ..effects import parameter_names as effect_names
 from ..effects.loop import _skew, loop_jacobians
-from ..effects.model import check_inputs, joint_effects, predicted_readings
-from .. import _core
+from ..effects.model import check_inputs, joint_effects, predicted_readings, without_singular
 from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
@@ -234,13 +234,29 @@ class BallbarEffectProblem(ProblemBase):
         sub = data.subset(live) if 0 < live.size < n else data
         h = np.full((live.size, 6), np.inf)
         jx = jy = None
+        def readings(idx: np.ndarray) -> tuple[np.ndarray, Any, Any]:
+            s = sub if idx is live else data.subset(idx)
+            if fast:
+                pred, jp = _readings(robot, xr, s.q, poses[idx], s)
+                return pred, jp, None
+            pred, jx, jy = loop_jacobians(robot, xr, s.q, poses[idx], s)
+            return pred, jx, jy
+
         for _ in range(FK_MAX_ITERATIONS + 1):
             if not live.size:
                 break
+            out, kept = without_singular(readings, live)
+            if kept.size < live.size:  # a singular hexapod: no forward kinematics there
+                gone = np.setdiff1d(live, kept)
+                ok[gone], poses[gone] = False, np.nan
+                live = kept
+                sub = data.subset(live) if 0 < live.size < n else data
+                if not live.size:
+                    break
             if fast:
-                pred, jp = _readings(robot, xr, sub.q, poses[live], sub)
+                pred, jp, _ = out
             else:
-                pred, jx, jy = loop_jacobians(robot, xr, sub.q, poses[live], sub)
+                pred, jx, jy = out
                 jp = jy[:, :, nj:]
             h = pred - sub.legs
             if np.abs(h).max() <= FK_TOLERANCE_MM:

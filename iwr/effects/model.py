@@ -15,8 +15,9 @@ from ..transforms import pose_matrix
 from ..transforms import skew as _skew
 from . import JointState, LegState
 
-__all__ = ["carriage_and_derivatives", "joint_changes", "joint_loads", "leg_forces",
-           "leg_state", "leg_vectors", "leg_vectors_at", "predicted_readings", "split"]
+__all__ = ["SingularPoseError", "carriage_and_derivatives", "joint_changes", "joint_loads",
+           "leg_forces", "leg_state", "leg_vectors", "leg_vectors_at", "predicted_readings",
+           "split", "without_singular"]
 
 
 def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray
@@ -240,6 +241,28 @@ def leg_vectors_at(robot: Any, xg: np.ndarray, q: np.ndarray, t5: np.ndarray
     return v, dv, r
 
 
+class SingularPoseError(ValueError):
+    """:func:`leg_forces` at a pose where the hexapod is singular (its legs cannot hold a load):
+    ``pose``, the pose's index among those of the call."""
+
+    def __init__(self, message: str, pose: int) -> None:
+        super().__init__(message)
+        self.pose = pose
+
+
+def without_singular(evaluate: Any, live: np.ndarray) -> tuple[Any, np.ndarray]:
+    """``(evaluate(kept), kept)``: ``evaluate`` of the poses ``live`` (indices), leaving out one
+    by one those at which the hexapod is singular (:class:`SingularPoseError`): the forward
+    kinematics with the effects fails there, as the C++ objectives' does, instead of stopping
+    the search that tried such a robot. ``(None, empty)`` when none is left."""
+    while live.size:
+        try:
+            return evaluate(live), live
+        except SingularPoseError as err:
+            live = np.delete(live, err.pose)
+    return None, live
+
+
 def leg_forces(v: np.ndarray, dv: np.ndarray | None, r: np.ndarray, dr: np.ndarray | None,
                rotations: np.ndarray, masses: np.ndarray, centres: np.ndarray,
                gravity: np.ndarray, d_rotations: np.ndarray | None = None
@@ -266,8 +289,9 @@ def leg_forces(v: np.ndarray, dv: np.ndarray | None, r: np.ndarray, dr: np.ndarr
     cond = np.linalg.cond(g_mat)
     if not np.all(np.isfinite(cond)) or np.any(cond > 1e12):
         k = int(np.argmax(np.where(np.isfinite(cond), cond, np.inf)))
-        raise ValueError(f"pose {k}: the hexapod is singular there (leg Jacobian condition "
-                         f"number {cond[k]:.3g}): the legs cannot hold a load")
+        raise SingularPoseError(f"pose {k}: the hexapod is singular there (leg Jacobian "
+                                f"condition number {cond[k]:.3g}): the legs cannot hold a load",
+                                k)
     f = np.linalg.solve(g_mat, wrench[..., None])[..., 0]
     if dv is None:
         return f, None

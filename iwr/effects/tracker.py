@@ -51,6 +51,7 @@ from .model import (
     leg_forces,
     leg_vectors_at,
     loads,
+    without_singular,
 )
 
 __all__ = ["EffectNullSpace", "EffectTrackerSpec", "TrackerEffectModel", "TrackerEffectProblem",
@@ -250,10 +251,23 @@ class TrackerEffectModel:
         # Newton's method with the geometry's pose Jacobian (the effects change it by a part
         # in 1e5: the convergence is linear at that rate), the readings with the effects.
         h = np.full((live.size, 6), np.inf)
+
+        def readings(idx: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+            return _readings(robot, xr, q[idx], poses[idx],
+                             sub if idx is live else data.subset(idx))
+
         for _ in range(FK_MAX_ITERATIONS + 1):
             if not live.size:
                 break
-            pred, jy = _readings(robot, xr, q[live], poses[live], sub)
+            out, kept = without_singular(readings, live)
+            if kept.size < live.size:  # a singular hexapod: no forward kinematics there
+                gone = np.setdiff1d(live, kept)
+                ok[gone], poses[gone] = False, np.nan
+                live = kept
+                sub = data.subset(live) if live.size < n and live.size else data
+                if not live.size:
+                    break
+            pred, jy = out
             h = pred - legs[live]
             if np.abs(h).max() <= FK_TOLERANCE_MM:
                 break
