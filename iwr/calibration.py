@@ -572,8 +572,9 @@ def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
 
 def _extras(robot: Any, kind: Any) -> str:
     """What a result's parameters hold beyond the robot's geometric errors, for messages."""
+    setup = "its ballbar set-ups" if kind.name == "ballbar" else "its tracker setup"
     parts = (["its effects"] if robot.effects else []) + (
-        ["its tracker setup"] if kind.setup_parameter_names(robot) else [])
+        [setup] if kind.setup_parameter_names(robot) else [])
     return f"with {' and '.join(parts)} " if parts else ""
 
 

@@ -209,6 +209,20 @@ def test_iwr_calibrate_equals_identify(case, tmp_path: Path, noise: str | None) 
     assert exe.settings["measurements"] == "ballbar"
 
 
+def test_a_result_of_another_size_is_refused_naming_the_ballbar_set_ups(case) -> None:
+    """iwr report of a run whose parameters are not the robot's: the message counts the effects'
+    and the ballbar set-ups' parameters, and names them so (it said "its tracker setup")."""
+    from types import SimpleNamespace
+
+    from iwr.calibration import from_result
+
+    robot, data, _ = case
+    n = 58 + len(effect_names(robot.effects)) + 14
+    with pytest.raises(ValueError, match=rf"^3 parameters, but robot 'IWR' with its effects and "
+                                         rf"its ballbar set-ups has {n}$"):
+        from_result(robot, data, SimpleNamespace(x=np.zeros(3), parameter_names=[]))
+
+
 # --- iwr compare and iwr study on a ballbar robot with effects -----------------------------------
 
 def test_compare_methods_draws_and_identifies_the_effects() -> None:

@@ -295,6 +295,24 @@ def test_a_value_identified_beyond_its_plausible_range_reads_back(tmp_path, robo
     low = api.apply(with_all, below).effects[0]
     assert low.max_compliance == with_all.effects[0].max_compliance
     assert (low.values() + low.bounds()[0])[0] == pytest.approx(-0.03)
+    # A negative value beyond -max_* (the robot file holds values within +-max_*): the range
+    # widens to hold it, both notes, and the calibrated robot file reads back with the values
+    # (it was written with -0.07 under max_um_per_N 0.05 and refused by the reader).
+    deep = np.zeros_like(x)
+    deep[robot.n_params + names.index("leg1.compliance")] = -0.07 - 0.01
+    deep[robot.n_params + names.index("legs.alpha")] = -35.0 - 11.5
+    deep[robot.n_params + j4] = -2 * carriage.max_revolute - carriage.values()[-1]
+    notes = api.widened_ranges(with_all, deep)
+    assert "[effects.compliance] max_um_per_N 0.05 -> 0.07" in notes, notes
+    assert "[effects.thermal] max_ppm_per_K 30 -> 35" in notes, notes
+    assert any(n.startswith("[effects.compliance] leg1.compliance -0.07 um/N, below") for n in notes)
+    cal = api.apply(with_all, deep)
+    cal.to_toml(tmp_path / "negative.toml")
+    back = iwr.Robot.from_toml(tmp_path / "negative.toml")
+    assert back.effects == cal.effects
+    assert back.effects[0].compliance[0] == pytest.approx(-0.07)
+    assert back.effects[1].alpha[0] == pytest.approx(-35.0)
+    assert back.effects[2].values()[-1] == pytest.approx(-2 * carriage.max_revolute)
     # A slide's compliance: widened up to the robot file's cap (10 um/N), refused beyond it by
     # name (the file could not hold it).
     from iwr.effects.carriage import CarriageCompliance

@@ -165,8 +165,9 @@ class LegCompliance(_GravityLoad, Effect):
                                  "compliance", -10.0, 10.0, "um/N")
         # A value identified beyond the plausible range (passed by the fit's range test within
         # its standard deviation) widens it: a robot file must hold its own values.
-        # (A negative value moves the lower end instead: bounds() starts the range at it.)
-        out.max_compliance = max(self.max_compliance, float(np.max(out.compliance)))
+        # A negative value moves the lower end (bounds() starts the range at it); one below
+        # -max_compliance widens max_compliance too: a robot file holds values within +-max.
+        out.max_compliance = max(self.max_compliance, float(np.max(np.abs(out.compliance))))
         return out
 
     def leg_change(self, state: LegState, values: np.ndarray
@@ -257,8 +258,9 @@ class LegThermal(Effect):
         if self.identify:
             out.alpha = _vector(np.asarray(values, dtype=float).tolist(), len(self.alpha),
                                 "alpha", -1000.0, 1000.0, "ppm/K")
-            # beyond the plausible range: widened to hold it (LegCompliance.with_values)
-            out.max_alpha = max(self.max_alpha, float(np.max(out.alpha)))
+            # beyond the plausible range (or below -max_alpha): widened to hold it
+            # (LegCompliance.with_values)
+            out.max_alpha = max(self.max_alpha, float(np.max(np.abs(out.alpha))))
         return out
 
     def leg_change(self, state: LegState, values: np.ndarray

@@ -185,13 +185,14 @@ class CarriageCompliance(_GravityLoad, Effect):
                                  "(a prismatic joint's compliance a robot file can hold)")
         out._given = out.compliance.tolist()
         # beyond the plausible range: widened to hold it (LegCompliance.with_values)
-        # (a negative value moves the lower end instead: bounds() starts the range at it; one
+        # (a negative value moves the lower end: bounds() starts the range at it; one below
+        # -max_* widens max_* too, as a robot file holds values within +-max_*; one
         # max_um_per_N serves every slide, so a slide beyond it widens the others' range too)
+        size = np.abs(out.compliance)
         types = np.array(list(self._bound()[1]))
         for kind, attr in (("R", "max_revolute"), ("P", "max_prismatic")):
             if np.any(types == kind):
-                setattr(out, attr, max(getattr(self, attr),
-                                       float(np.max(out.compliance[types == kind]))))
+                setattr(out, attr, max(getattr(self, attr), float(np.max(size[types == kind]))))
         return out
 
     def joint_change(self, state: JointState, values: np.ndarray
