@@ -305,7 +305,8 @@ def test_a_value_identified_beyond_its_plausible_range_reads_back(tmp_path, robo
     notes = api.widened_ranges(with_all, deep)
     assert "[effects.compliance] max_um_per_N 0.05 -> 0.07" in notes, notes
     assert "[effects.thermal] max_ppm_per_K 30 -> 35" in notes, notes
-    assert any(n.startswith("[effects.compliance] leg1.compliance -0.07 um/N, below") for n in notes)
+    assert any(n.startswith("[effects.compliance] leg1.compliance -0.07 um/N, below")
+               for n in notes)
     cal = api.apply(with_all, deep)
     cal.to_toml(tmp_path / "negative.toml")
     back = iwr.Robot.from_toml(tmp_path / "negative.toml")
