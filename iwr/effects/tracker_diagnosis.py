@@ -91,12 +91,14 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
     r, jac = r.reshape(n, m), jac.reshape(n, m, -1)
     geo = np.concatenate([np.arange(ng), ng + ne + np.arange(ns)])[mask]
     a = jac[:, :, geo]
+    # The residuals are predicted (no effect) minus measured (with it): -J_e c to first order,
+    # so the regressors are -J_e for the coefficients to estimate the effect's size c.
     cols = {}
     first = ng
     for e in probe.effects:
         k = len(e.parameter_names())
         cols["compliance" if isinstance(e, LegCompliance) else "thermal"] = \
-            jac[:, :, first: first + k]
+            -jac[:, :, first: first + k]
         first += k
     weights = objective_noise(noise, data) if noise is not None else None
     if weights is not None:
