@@ -84,7 +84,7 @@ def test_probe_diagnosis_counts_six_whitened_rows_a_pose(measured_with_effects):
 def test_the_job_reports_the_diagnosis_on_tracker_data(points):
     """iwr.calibrate with a geometric robot on points data with load columns (unweighted LM:
     the cluster-robust test): the report's "Diagnosis" section, the effect named, its table
-    suggested; without load columns, no diagnosis."""
+    suggested; the efficient estimator with the tracker's noise model: whitened by it."""
     data = _data(points, "compliance", 50, seed=3)
     cal = iwr.calibrate(points, data, "lm")
     assert cal.diagnosis is not None and cal.diagnosis.weighting == "unweighted"
@@ -93,3 +93,7 @@ def test_the_job_reports_the_diagnosis_on_tracker_data(points):
     assert "## Diagnosis: loads and temperatures" in md
     assert "point residuals (unweighted)" in md and "[effects.compliance]" in md
     assert not any("no diagnosis" in n for n in cal.notes), cal.notes
+    # With a noise model (a (Noise, TrackerNoise) pair) the job whitens by it.
+    weighted = iwr.calibrate(points, data, noise=NOISE, seed=1)
+    assert weighted.diagnosis.weighting == "whitened by the noise model"
+    assert weighted.diagnosis.suggested == ["compliance"]
