@@ -450,15 +450,16 @@ def _diagnosis(robot: Any, data: Any, result: Any, noise: Any, notes: list[str])
     """The kind's :meth:`~iwr.kinds.MeasurementKind.diagnose` of a geometric-only result on
     data with payload or temperature columns (issue 23), with the noise the fit was weighted
     by; None otherwise (a note when it cannot be computed)."""
-    from .noise import Noise
+    from .noise import Noise, TrackerNoise
 
     if robot.effects or result.interrupted:
         return None
     if result.method == "efficient" and result.noise is not None:
         noise = result.noise
+    if not isinstance(noise, (Noise, TrackerNoise, tuple)):
+        noise = None  # "estimate" and the like: not a model to whiten by
     try:
-        return kinds.of(data).diagnose(robot, data, result.x, active=result.active,
-                                       noise=noise if isinstance(noise, Noise) else None)
+        return kinds.of(data).diagnose(robot, data, result.x, active=result.active, noise=noise)
     except (ValueError, np.linalg.LinAlgError) as exc:
         notes.append(f"note: no diagnosis of the residuals against the loads and temperatures: "
                      f"{_one_line(exc)}")

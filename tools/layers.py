@@ -54,7 +54,7 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.forward", "iwr.pose_frame", "iwr.compensation", "iwr.gross_errors",
         "iwr.tracker", "iwr.tracker.*", "iwr.ballbar", "iwr.ballbar.*", "iwr.export",
         "iwr.export.*", "iwr.effects.api", "iwr.effects.estimation", "iwr.effects.job",
-        "iwr.effects.tracker"]),
+        "iwr.effects.tracker", "iwr.effects.tracker_diagnosis"]),
     ("kind implementations (reached through the kinds' registry)", [
         "iwr.kinds.pose", "iwr.tracker.kind", "iwr.ballbar.kind"]),
     ("the calibration job", ["iwr.calibration"]),

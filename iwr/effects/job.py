@@ -136,6 +136,8 @@ class Diagnosis:
     n_residuals: int = 0
     #: The statics the leg forces were computed with, as ``[effects.compliance]`` lines.
     statics: list[str] = field(default_factory=list)
+    #: What the residuals are ("leg" on pose data, "point" on tracker data).
+    residuals: str = "leg"
 
     @property
     def suggested(self) -> list[str]:
@@ -144,9 +146,10 @@ class Diagnosis:
 
     def describe(self) -> str:
         """The test in one sentence, with its false-alarm rate."""
-        return (f"the {self.n_residuals} leg residuals ({self.weighting}) regressed on the "
-                "geometry's Jacobian and each effect's change of the readings (leg forces "
-                "from the statics of the payload columns; leg length times the temperature's "
+        return (f"the {self.n_residuals} {self.residuals} residuals ({self.weighting}) "
+                "regressed on the geometry's Jacobian and each effect's change of the "
+                "readings (leg forces from the statics of the payload columns; leg length "
+                "times the temperature's "
                 "departure from its mean); each effect's F test at "
                 f"{self.alpha / max(len(self.tests), 1):.3g} (Bonferroni: data without any "
                 f"effect name one with probability at most {self.alpha:g})")
@@ -342,8 +345,27 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
         rows = sw > 0
     rw = whiten(r[..., None])[..., 0][rows]
     cluster = np.broadcast_to(np.arange(n)[:, None], (n, 6))[rows]
-    aw = whiten(a)[rows]
     zw = {k: whiten(v)[rows] for k, v in cols.items()}
+    return effect_tests(rw, whiten(a)[rows], zw, cluster, exact=isinstance(noise, Noise),
+                        alpha=alpha, weighting=weighting, assumptions=assumptions, table=table)
+
+
+#: Each effect's regressors and the unit of its coefficient, as the diagnosis names them.
+_REGRESSORS = {"compliance": ("the six leg forces", "um/N"),
+               "thermal": ("leg length times temperature", "ppm/K")}
+
+
+def effect_tests(rw: np.ndarray, aw: np.ndarray, zw: dict[str, np.ndarray],
+                 cluster: np.ndarray, *, exact: bool, alpha: float, weighting: str,
+                 assumptions: list[str], table: list[str], residuals: str = "leg") -> Diagnosis:
+    """The statistics of :func:`diagnose` (and of the tracker kinds' diagnosis,
+    :func:`iwr.effects.tracker_diagnosis.diagnose`) once the residuals are built: ``rw`` the
+    residuals that carry data (whitened, or weighted), ``aw`` (rows, n) the geometry's
+    Jacobian in the active parameters, ``zw`` each candidate effect's regressors (rows, k), in
+    the same rows and whitening, ``cluster`` the pose of each row. Each effect is tested given
+    the geometry and the others, at ``alpha`` divided by the number tested: with ``exact``
+    (whitened by a noise model) by the F test of the nested regressions, else by the
+    cluster-robust (per pose) Wald test (:func:`_cluster_wald`)."""
     every = np.concatenate([aw] + list(zw.values()), axis=1)
     rss1, rank1, coef = _residual_ss(every, rw)
     f_dof = rw.size - rank1
@@ -358,7 +380,7 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
         dof = f_dof
         if p < 1 or f_dof < 1:
             stat, pv = math.nan, 1.0
-        elif isinstance(noise, Noise):
+        elif exact:
             # Whitened by the noise model: the exact F test of the nested regressions.
             stat = ((rss0 - rss1) / p) / (rss1 / f_dof)
             pv = float(special.fdtrc(p, f_dof, max(stat, 0.0)))
@@ -368,8 +390,7 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
         k = list(zw).index(name)
         first = start + sum(v.shape[1] for v in list(zw.values())[:k])
         est = coef[first: first + z.shape[1]]
-        tests.append(EffectTest(
-            name, "the six leg forces" if name == "compliance" else
-            "leg length times temperature", float(stat), (int(p), int(dof)), pv, level,
-            np.asarray(est, dtype=float), "um/N" if name == "compliance" else "ppm/K"))
-    return Diagnosis(tests, alpha, weighting, assumptions, int(rw.size), table)
+        what, unit = _REGRESSORS[name]
+        tests.append(EffectTest(name, what, float(stat), (int(p), int(dof)), pv, level,
+                                np.asarray(est, dtype=float), unit))
+    return Diagnosis(tests, alpha, weighting, assumptions, int(rw.size), table, residuals)

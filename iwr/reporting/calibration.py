@@ -716,6 +716,17 @@ class CalibrationReport(Calibration):
             page.paragraph("Add to the robot file and calibrate again:")
             page.pre(d.suggestion())
 
+    def _diagnosis_md(self) -> list[str]:
+        """The diagnosis's Markdown section (none without a diagnosis)."""
+        d = self.diagnosis
+        if d is None:
+            return []
+        md = ["", "## Diagnosis: loads and temperatures", "", "```", *d.lines(), "```"]
+        if d.suggested:
+            md += ["", "Add to the robot file and calibrate again:", "", "```toml",
+                   d.suggestion(), "```"]
+        return md
+
     def _html_tail(self, page: Page, files: list[str]) -> Page:
         """The end of the HTML report: settings, notes, the files written, provenance."""
         page.heading("Settings")
@@ -791,12 +802,7 @@ class CalibrationReport(Calibration):
         fit_lines = self.fit_lines()
         if fit_lines:
             md += ["", "## Fit test and outliers", "", "```", *fit_lines, "```"]
-        if self.diagnosis is not None:
-            md += ["", "## Diagnosis: loads and temperatures", "", "```",
-                   *self.diagnosis.lines(), "```"]
-            if self.diagnosis.suggested:
-                md += ["", "Add to the robot file and calibrate again:", "", "```toml",
-                       self.diagnosis.suggestion(), "```"]
+        md += self._diagnosis_md()
         if "accuracy.png" in figures:
             md += ["", "![Tool pose errors before and after calibration](accuracy.png)"]
         md += ["", "## Leg residuals", "",

@@ -283,6 +283,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         fit = self.fit_lines()
         if fit:
             lines += fit
+        if self.diagnosis is not None:
+            lines += self.diagnosis.lines()
         if self._fit_failed():
             lines.append("VERDICT: THE MODEL DOES NOT FIT THE DATA; the figures above are not a "
                          "calibration (causes listed above)")
@@ -364,6 +366,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
             + (" (see the fit test)." if self._fit_failed()
                else f": {str(r.message).strip().rstrip('.')}."))
         self._fit_section(page, "Fit test")
+        if self.diagnosis is not None:
+            self._diagnosis_html(page)
         if "accuracy.png" in figures:
             page.figure(figures["accuracy.png"], "Point residuals per pose before and after "
                         "calibration", "accuracy.png")
@@ -425,6 +429,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
               "```", self.summary(), "```"]
         if self.predicted is not None:
             md += ["", self.predicted_text()]
+        md += self._diagnosis_md()
         if "accuracy.png" in figures:
             md += ["", "![Point residuals per pose](accuracy.png)"]
         md += ["", "## Registration", "", *table(*self._registration_table()), "",

@@ -110,6 +110,12 @@ class _TrackerKind(MeasurementKind):
                            "readings)")
         return written
 
+    def diagnose(self, robot: Any, data: Any, x: Any, *, active: Any = None,
+                 noise: Any = None) -> Any:
+        from ..effects.tracker_diagnosis import diagnose
+
+        return diagnose(robot, data, x, active=active, noise=noise)
+
     def noise_record(self, noise: Any) -> dict[str, Any]:
         readings, tracker = split_noise(noise)
         return {"noise": None if readings is None else asdict(readings),
