@@ -245,10 +245,8 @@ class BallbarEffectProblem(ProblemBase):
         for _ in range(FK_MAX_ITERATIONS + 1):
             if not live.size:
                 break
-            out, kept = without_singular(readings, live)
-            if kept.size < live.size:  # a singular hexapod: no forward kinematics there
-                gone = np.setdiff1d(live, kept)
-                ok[gone], poses[gone] = False, np.nan
+            out, kept = without_singular(readings, live, ok, poses)
+            if kept is not live:  # a singular hexapod: no forward kinematics there
                 live = kept
                 sub = data.subset(live) if 0 < live.size < n else data
                 if not live.size:

@@ -250,17 +250,21 @@ class SingularPoseError(ValueError):
         self.pose = pose
 
 
-def without_singular(evaluate: Any, live: np.ndarray) -> tuple[Any, np.ndarray]:
+def without_singular(evaluate: Any, live: np.ndarray, ok: np.ndarray, poses: np.ndarray
+                     ) -> tuple[Any, np.ndarray]:
     """``(evaluate(kept), kept)``: ``evaluate`` of the poses ``live`` (indices), leaving out one
     by one those at which the hexapod is singular (:class:`SingularPoseError`): the forward
     kinematics with the effects fails there, as the C++ objectives' does, instead of stopping
-    the search that tried such a robot. ``(None, empty)`` when none is left."""
-    while live.size:
+    the search that tried such a robot; each pose left out is marked so in ``ok`` (False) and
+    ``poses`` (NaN). ``(None, empty)`` when none is left."""
+    kept = live
+    while kept.size:
         try:
-            return evaluate(live), live
+            return evaluate(kept), kept
         except SingularPoseError as err:
-            live = np.delete(live, err.pose)
-    return None, live
+            ok[kept[err.pose]], poses[kept[err.pose]] = False, np.nan
+            kept = np.delete(kept, err.pose)
+    return None, kept
 
 
 def leg_forces(v: np.ndarray, dv: np.ndarray | None, r: np.ndarray, dr: np.ndarray | None,

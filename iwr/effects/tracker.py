@@ -259,10 +259,8 @@ class TrackerEffectModel:
         for _ in range(FK_MAX_ITERATIONS + 1):
             if not live.size:
                 break
-            out, kept = without_singular(readings, live)
-            if kept.size < live.size:  # a singular hexapod: no forward kinematics there
-                gone = np.setdiff1d(live, kept)
-                ok[gone], poses[gone] = False, np.nan
+            out, kept = without_singular(readings, live, ok, poses)
+            if kept is not live:  # a singular hexapod: no forward kinematics there
                 live = kept
                 sub = data.subset(live) if live.size < n and live.size else data
                 if not live.size:
