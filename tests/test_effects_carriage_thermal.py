@@ -274,3 +274,77 @@ def test_ballbar_cpp_agrees_with_the_numpy_model():
         np.testing.assert_allclose(problem.objective.residuals(x), py, rtol=0, atol=1e-9)
     assert problem.parameter_names[robot.n_params: robot.n_params + 2] == [
         "joint1.alpha", "joint2.alpha"]
+
+
+def test_a_coefficient_of_zero_changes_no_bit(measured_with_effects):
+    """The slides' expansion at a coefficient of 0 beside the other effects: the readings, their
+    Jacobian (numpy) and the C++ costs (pose and tracker data) are those without it, bit for
+    bit (the effects' sum adds zeros)."""
+    robot = _robot(others=True, identify=False, alpha=(0.0, 0.0))
+    without = robot.with_effects(*robot.effects[:-1])
+    m, x = api.simulate(without, 12, seed=5)
+    a = model.predicted_readings(robot, 0.5 * x, m.q, m.poses, m, derivatives=True)
+    b = model.predicted_readings(without, 0.5 * x, m.q, m.poses, m, derivatives=True)
+    for u, v in zip(a, b, strict=True):
+        np.testing.assert_array_equal(u, v)
+    X = np.vstack([x, 0.5 * x])
+    np.testing.assert_array_equal(iwr.Problem(robot, m).cost_batch(X),
+                                  iwr.Problem(without, m).cost_batch(X))
+    base = measured_with_effects("points")
+    with_ct = base.with_effects(*base.effects, CarriageThermal(0.0, 20.0))
+    data, truth = et.simulate(base, 6, seed=2)
+    p1, _ = et.effect_tracker_problem(with_ct, data)
+    p0, _ = et.effect_tracker_problem(base, data)
+    np.testing.assert_array_equal(p1._objective().residuals(truth),
+                                  p0._objective().residuals(truth))
+
+
+@pytest.mark.parametrize("temperatures, inseparable", [
+    ("drawn", []),                                    # a day's drift: identified
+    (25.0, []),                                       # one temperature, not the reference
+    (20.0, ["joint1.alpha", "joint2.alpha"]),         # every pose at the reference: no growth
+])
+def test_what_the_temperatures_identify(temperatures, inseparable):
+    """The geometry has no scale error of a slide, so the growth alpha dT q is separable from it
+    whenever some pose is away from the reference temperature, one temperature throughout
+    included (it is then a scale error of the slide at that temperature); at the reference
+    there is nothing to see. The rank against a central-difference Jacobian's."""
+    robot = _robot()
+    m0, _ = api.simulate(robot, 25, seed=6, x=np.zeros(robot.n_params + 2))
+    t = m0.temperatures if temperatures == "drawn" else np.full(25, temperatures)
+    m = Measurements(m0.q, m0.poses, m0.legs, joint_types=robot.joint_types, temperatures=t)
+    with np.errstate(invalid="ignore"):  # a zero column at the reference
+        report = iwr.identifiability(robot, m)
+    assert report.rank == report.geometric_rank + 2 - len(inseparable)
+    assert [name for name, _ in report.inseparable] == inseparable
+    problem = EffectProblem(robot, m)
+    x = np.zeros(problem.n_params)
+    steps = np.where(np.arange(len(x)) < robot.n_params, 1e-5, 1e-2)
+    fd = np.column_stack([_central(problem.residuals, x, i, steps[i])
+                          for i in range(problem.n_params)])
+    norms = np.linalg.norm(fd, axis=0)
+    s = np.linalg.svd(fd / np.where(norms > 0, norms, 1), compute_uv=False)
+    assert int(np.sum(s > 1e-7 * s[0])) == report.rank
+
+
+def test_efficient_estimator_uncertainty_and_plan():
+    """With realistic instrument noise the efficient estimator converges, passes its fit test
+    and finds the slides' coefficient within 4 of its standard deviations (which
+    iwr.uncertainty states alike); iwr.plan_poses plans with the machine's temperatures."""
+    robot = _robot(per_joint=False)
+    noise = iwr.Noise.realistic()
+    noisy, x_true = api.simulate(robot, 40, seed=5, noise=noise)
+    result = iwr.identify(robot, noisy, "efficient", noise=noise)
+    assert result.success, result.message
+    assert result.parameter_names[-1] == "carriage.alpha"
+    assert abs(result.x[-1] - x_true[-1]) < 4 * result.std[-1]
+    assert result.std[-1] < 10.0  # ppm/K over a day's 8 K at 40 poses
+    weighted = iwr.uncertainty(robot, noisy, result.x, noise, weighted=True)
+    assert weighted.parameter_names[-1] == "carriage.alpha"
+    assert weighted.std[-1] == pytest.approx(result.std[-1], rel=0.3)
+    cand, _ = api.simulate(robot, 40, seed=9)
+    plan = iwr.plan_poses(robot, cand, 20, seed=1)
+    assert len(plan.indices) == 20
+    with pytest.raises(ValueError, match="carriage_thermal effect .* column T_C"):
+        iwr.plan_poses(robot, Measurements(cand.q, cand.poses, cand.legs,
+                                           joint_types=robot.joint_types), 20, seed=1)
