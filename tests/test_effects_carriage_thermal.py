@@ -194,14 +194,19 @@ def _fresh(truth, n, seed):
                         temperatures=rng.uniform(5, 40, n))[0]
 
 
-def test_noise_free_recovery_and_compensation():
-    """Issue 23's check: from noise-free pose data at a day's temperatures LM recovers the
-    geometry and both slides' coefficients so that tool poses and leg commands on 50 fresh
+@pytest.mark.parametrize("method, options", [
+    ("lm", {}),
+    # DE on the C++ objective with the slides' growth (cpp/src/effects.cpp), polished by LM.
+    ("de", {"max_evaluations": 20000, "seed": 1}),
+])
+def test_noise_free_recovery_and_compensation(method, options):
+    """Issue 23's check: from noise-free pose data at a day's temperatures LM (and DE) recovers
+    the geometry and both slides' coefficients so that tool poses and leg commands on 50 fresh
     poses at other temperatures agree with the truth to 1e-6 mm; commands that leave the
     slides' expansion out miss by micrometres."""
     robot = _robot()
     m, x_true = api.simulate(robot, 40, seed=4)
-    result = iwr.identify(robot, m, "lm")
+    result = iwr.identify(robot, m, method, **options)
     assert result.success, result.message
     assert np.abs(result.x[-2:] - x_true[-2:]).max() < 1e-6
     truth, calibrated = api.apply(robot, x_true), api.apply(robot, result.x)
