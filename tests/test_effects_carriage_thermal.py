@@ -353,3 +353,30 @@ def test_efficient_estimator_uncertainty_and_plan():
     with pytest.raises(ValueError, match="carriage_thermal effect .* column T_C"):
         iwr.plan_poses(robot, Measurements(cand.q, cand.poses, cand.legs,
                                            joint_types=robot.joint_types), 20, seed=1)
+
+
+def test_tracker_jacobian_with_the_carriage_compliance(measured_with_effects):
+    """Tracker points with the legs' effects, the carriage's compliance (gravity through the
+    registration: its joint change is linear in gravity, the slides' growth is not) and the
+    slides' growth per joint: the Jacobian in every parameter against central differences."""
+    plain = measured_with_effects("points").with_effects()
+    robot = plain.with_effects(*api.realistic(plain, carriage=True),
+                               CarriageThermal([11.5, 12.5], 20.0, identify=True,
+                                               per_joint=True))
+    data, truth = et.simulate(robot, 5, seed=11)
+    problem, start = et.effect_tracker_problem(robot, data)
+    x = 0.5 * (start + truth)
+    _, jac = problem.residuals_and_jacobian(x)
+    names = problem.parameter_names
+    ng = robot.n_params + len(effects.parameter_names(robot.effects))
+    assert names[ng - 2: ng] == ["joint1.alpha", "joint2.alpha"]
+    for i, name in enumerate(names):
+        h = (1e-2 if name.endswith(".alpha") else 1e-4 if name.endswith("compliance")
+             else 1e-7 if name.split(".")[-1] in ("dalpha", "dtheta", "rx", "ry", "rz")
+             else 1e-5)
+        e = np.zeros(problem.n_params)
+        e[i] = h
+        fd = (problem.residuals(x + e) - problem.residuals(x - e)) / (2 * h)
+        scale = max(np.abs(jac[:, i]).max(), 1e-12)
+        assert np.abs(fd - jac[:, i]).max() <= 1e-5 * scale + 1e-9, name
+    assert np.abs(jac[:, ng - 2: ng]).max(axis=0).min() > 1e-3  # mm per ppm/K

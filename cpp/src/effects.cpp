@@ -199,7 +199,7 @@ void carriage_chain(const PoseData& layout, const EvalConsts& ec, const double* 
             if (delta) dk += delta[i];
         } else {
             double cq = qd[0], sq = qd[1];
-            if (delta) {  // cos, sin of q + delta
+            if (delta && delta[i] != 0.0) {  // cos, sin of q + delta (0: the same bits, skipped)
                 const double cd = std::cos(delta[i]), sd = std::sin(delta[i]);
                 const double c0 = cq;
                 cq = c0 * cd - sq * sd, sq = sq * cd + c0 * sd;

@@ -321,13 +321,13 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "iwr.calibrate, iwr calibrate and iwr report (any of those methods, with or without "
              "a noise model)", "iwr.effects.api.leg_commands",
              "iwr.effects.api.forward_kinematics",
-             "on tracker data (iwr.effects.tracker; the legs' effects and the carriage's "
-             "compliance): iwr.simulate, "
+             "on tracker data (iwr.effects.tracker; the legs' effects, the carriage's "
+             "compliance and its slides' expansion): iwr.simulate, "
              "iwr.identify with every method (noise-weighted too), "
              "iwr.identifiability, iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem "
              "file, iwr-engine, iwr-calibrate, and the calibration job",
-             "on ballbar data (iwr.ballbar.effects; the legs' effects and the carriage's "
-             "compliance): iwr.simulate, iwr.identify with every method (DE, CRS2 and BOBYQA "
+             "on ballbar data (iwr.ballbar.effects; the legs' effects, the carriage's "
+             "compliance and its slides' expansion): iwr.simulate, iwr.identify with every method (DE, CRS2 and BOBYQA "
              "on the C++ objective), iwr.identifiability, iwr.accuracy, iwr.uncertainty, "
              "iwr.plan_poses, the problem file, iwr-engine, iwr-calibrate, and the calibration "
              "job")
