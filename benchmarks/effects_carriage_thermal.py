@@ -5,7 +5,8 @@ pays for it.
 1. Monte Carlo (``--seeds``, default 10): per seed a true IWR with random geometric errors
    (within the default bounds), steel legs (11.5 ppm/K, given) and slides whose scales expand
    by a shared coefficient of 11.5 +- 2 ppm/K (uniform), calibration poses at a day's
-   temperatures (20 - 3 .. + 5 C; ``--scale`` scales the spreads), every instrument's noise (``iwr.Noise.realistic()``); two
+   temperatures (20 - 3 .. + 5 C; ``--scale`` scales the spreads), every instrument's noise
+   (``iwr.Noise.realistic()``); two
    calibrations by the efficient estimator: the model of main (the legs' expansion only) and
    the extended one (the slides' coefficient identified too). Each is judged on 50 fresh poses
    at 14 .. 30 C: the tool position (200 mm along z of {5}) that its forward kinematics gives

@@ -9,8 +9,9 @@ or it changes the true values of the carriage's joints (:attr:`Effect.changes`
 ``{"joints"}``, :meth:`Effect.joint_change`): the compliance of the carriage's joints under the
 gravity load of what they carry (:class:`iwr.effects.carriage.CarriageCompliance`,
 ``"carriage_compliance"``) and the thermal expansion of its prismatic axes with the machine's
-temperature (:class:`iwr.effects.carriage_thermal.CarriageThermal`, ``"carriage_thermal"``). The joint changes come first: the legs, their forces and their
-effects are those of the carriage at its true joint values. The true leg length between the
+temperature (:class:`iwr.effects.carriage_thermal.CarriageThermal`,
+``"carriage_thermal"``). The joint changes come first: the legs, their forces and their effects
+are those of the carriage at its true joint values. The true leg length between the
 joint centres is
 
     D = s + l0 + sum over the effects of their change  (e.g. c f + alpha D (T - T_ref)),
@@ -327,10 +328,10 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "iwr.identifiability, iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem "
              "file, iwr-engine, iwr-calibrate, and the calibration job",
              "on ballbar data (iwr.ballbar.effects; the legs' effects, the carriage's "
-             "compliance and its slides' expansion): iwr.simulate, iwr.identify with every method (DE, CRS2 and BOBYQA "
-             "on the C++ objective), iwr.identifiability, iwr.accuracy, iwr.uncertainty, "
-             "iwr.plan_poses, the problem file, iwr-engine, iwr-calibrate, and the calibration "
-             "job")
+             "compliance and its slides' expansion): iwr.simulate, iwr.identify with every "
+             "method (DE, CRS2 and BOBYQA on the C++ objective), iwr.identifiability, "
+             "iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem file, iwr-engine, "
+             "iwr-calibrate, and the calibration job")
 
 
 def refuse(robot: Any, what: str) -> None:

@@ -90,7 +90,8 @@ class CarriageThermal(Effect):
         if isinstance(given, list):
             if len(given) != n:
                 raise ValueError(f"{self.where}.alpha_ppm_per_K: {len(given)} values; expected "
-                                 f"{n}, one per joint of {self.where}.joints ({list(joints or ())})")
+                                 f"{n}, one per joint of {self.where}.joints "
+                                 f"({list(joints or ())})")
             return np.array(given, dtype=float)
         return np.full(n, float(given))
 
