@@ -380,3 +380,50 @@ def test_tracker_jacobian_with_the_carriage_compliance(measured_with_effects):
         scale = max(np.abs(jac[:, i]).max(), 1e-12)
         assert np.abs(fd - jac[:, i]).max() <= 1e-5 * scale + 1e-9, name
     assert np.abs(jac[:, ng - 2: ng]).max(axis=0).min() > 1e-3  # mm per ppm/K
+
+
+def test_cli_legs_and_plan(tmp_path):
+    """`iwr legs` compensates the slides' growth at each target's T_C (the library's commands)
+    and refuses targets with the legs' temperatures only, naming the file and the column;
+    `iwr plan` draws the machine's temperatures for it. Subprocesses: the command line end to
+    end (about 1 s each)."""
+    import os
+    import subprocess
+    import sys
+
+    robot = _robot(per_joint=False, identify=False)
+    robot.to_toml(tmp_path / "robot.toml")
+    m, _ = api.simulate(robot, 4, seed=7, x=np.zeros(robot.n_params))  # the file's robot
+    cols = [f"q{i + 1}_{'mm' if t == 'P' else 'rad'}" for i, t in enumerate(robot.joint_types)]
+    head = cols + ["x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad"]
+    rows = np.hstack([m.q, m.poses])
+    for name, extra, values in (("targets.csv", ["T_C"], m.temperatures),
+                                ("per_leg.csv", [f"T{j}_C" for j in range(1, 7)],
+                                 np.repeat(m.temperatures, 6, axis=1))):
+        lines = [",".join(head + extra)] + [",".join(repr(float(v)) for v in row)
+                                            for row in np.hstack([rows, values])]
+        (tmp_path / name).write_text("\n".join(lines) + "\n")
+
+    def run(*args):
+        env = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+        return subprocess.run([sys.executable, "-m", "iwr", *args], capture_output=True,
+                              text=True, cwd=tmp_path, env=env, timeout=600)
+
+    proc = run("legs", "robot.toml", "targets.csv", "-o", "legs.csv")
+    assert proc.returncode == 0, proc.stderr
+    text = [line.split(",") for line in (tmp_path / "legs.csv").read_text().splitlines()
+            if not line.startswith("#")]
+    at = [text[0].index(f"s{j}_mm") for j in range(1, 7)]
+    legs = np.array([[float(row[c]) for c in at] for row in text[1:]])
+    expected = api.leg_commands(robot, m.q, m.poses, temperatures=m.temperatures).legs
+    np.testing.assert_allclose(legs, expected, rtol=0, atol=1e-9)
+    assert np.abs(legs - m.legs).max() < 1e-9  # the simulated robot's own readings
+    plain = api.leg_commands(robot.with_effects(), m.q, m.poses).legs
+    assert np.abs(legs - plain).max() > 1e-3  # the slides' growth is in the commands
+    proc = run("legs", "robot.toml", "per_leg.csv", "-o", "bad.csv")
+    assert proc.returncode != 0 and "per_leg.csv: the carriage_thermal effect" in proc.stderr
+    assert "column T_C" in proc.stderr and "Traceback" not in proc.stderr
+    proc = run("plan", "robot.toml", "--n-candidates", "30", "--poses", "15", "--out",
+               "plan.csv")
+    assert proc.returncode == 0, proc.stderr
+    assert "temperatures: the carriage_thermal effect needs them" in proc.stdout
