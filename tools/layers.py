@@ -32,7 +32,7 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr._core", "iwr._blas", "iwr._io", "iwr._hooks", "iwr._registry", "iwr._startup",
         "iwr.noise",
         "iwr.transforms", "iwr.misclosures", "iwr.effects", "iwr.effects.builtin",
-        "iwr.effects.carriage",
+        "iwr.effects.carriage", "iwr.effects.carriage_thermal",
         "iwr.effects.model"]),
     ("kinds: the measurement-kind protocol and registry", ["iwr.kinds"]),
     ("data and the robot model", [

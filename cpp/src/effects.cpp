@@ -146,6 +146,36 @@ void check_loads(const EffectModel& m, int n, const RowMatrixXd& payload, const 
             "temperatures: the thermal effect (the legs' thermal expansion) needs each pose's "
             "temperature: one per pose or one per leg, degrees C");
     }
+    if (m.carriage_thermal && temperatures.cols() != 1)
+        throw std::invalid_argument(
+            "temperatures: the carriage_thermal effect (the thermal expansion of the carriage's "
+            "prismatic axes) needs the machine's temperature at each pose (one column, T_C); the "
+            "data have " + std::string(temperatures.size() == 0 ? "none" : "one per leg"));
+}
+
+void check_carriage_thermal(const EffectModel& m, const Geometry& g) {
+    const int nj = g.n_joints();
+    if (nj > kMaxChainJoints)
+        throw std::invalid_argument("effects.carriage_thermal: the robot has " + std::to_string(nj) +
+                                    " joints; at most " + std::to_string(kMaxChainJoints));
+    for (std::size_t u = 0; u < m.ct_joints.size(); ++u) {
+        const int jt = m.ct_joints[u];
+        const std::string where = "effects.carriage_thermal.joints[" + std::to_string(u) + "]: joint " +
+                                  std::to_string(jt + 1);
+        if (jt >= nj) throw std::invalid_argument(where + "; the robot has " + std::to_string(nj) + " joints");
+        if (!g.is_prismatic(jt))
+            throw std::invalid_argument(where + " is revolute; the thermal expansion of a scale applies "
+                                                "to prismatic joints only");
+    }
+}
+
+void carriage_alphas(const EffectModel& m, int n_joints, const double* x, double* out) {
+    for (int i = 0; i < n_joints; ++i) out[i] = 0.0;
+    for (std::size_t u = 0; u < m.ct_joints.size(); ++u) {
+        double a = m.ct_values[u];
+        if (m.ct_index >= 0) a += x[m.ct_index + (m.ct_per_joint ? static_cast<int>(u) : 0)];
+        out[m.ct_joints[u]] = 1e-6 * a;
+    }
 }
 
 void carriage_chain(const PoseData& layout, const EvalConsts& ec, const double* d, const double* delta,
@@ -169,7 +199,7 @@ void carriage_chain(const PoseData& layout, const EvalConsts& ec, const double* 
             if (delta) dk += delta[i];
         } else {
             double cq = qd[0], sq = qd[1];
-            if (delta) {  // cos, sin of q + delta
+            if (delta && delta[i] != 0.0) {  // cos, sin of q + delta (0: the same bits, skipped)
                 const double cd = std::cos(delta[i]), sd = std::sin(delta[i]);
                 const double c0 = cq;
                 cq = c0 * cd - sq * sd, sq = sq * cd + c0 * sd;
@@ -396,9 +426,38 @@ EffectModel EffectModel::parse(const std::vector<EffectTable>& tables, int n_geo
                                                      " m/s^2; expected 9.80665 within 1 %");
             m.carriage_index = next;
             next += static_cast<int>(n);
+        } else if (table.name == "carriage_thermal") {
+            const Keys k(table, {"joints", "alpha_ppm_per_K", "reference_C", "identify", "per_joint",
+                                 "max_ppm_per_K"});
+            m.carriage_thermal = true;
+            const int nj = (n_geometric - 42) / 4;
+            const EffectValue& v = k.get("joints");  // Python writes the joints it resolved
+            if (v.type == EffectValue::Type::Bool || v.numbers.empty())
+                bad(k.where() + ".joints", "expected prismatic joint numbers from 1");
+            for (std::size_t i = 0; i < v.numbers.size(); ++i) {
+                const double j = v.numbers[i];
+                if (!(j >= 1 && j <= nj && j == std::floor(j)))
+                    bad(k.where() + ".joints[" + std::to_string(i) + "]",
+                        number_text(j) + "; expected a joint number from 1 to " + std::to_string(nj));
+                for (std::size_t u = 0; u < i; ++u)
+                    if (v.numbers[u] == j) bad(k.where() + ".joints", "joint " + number_text(j) + " given twice");
+                m.ct_joints.push_back(static_cast<int>(j) - 1);
+            }
+            m.ct_per_joint = k.flag("per_joint");
+            const bool identify = k.flag("identify");
+            const std::size_t n = m.ct_per_joint ? m.ct_joints.size() : 1;
+            const std::vector<double> a = k.numbers("alpha_ppm_per_K", n, -1000, 1000, "ppm/K", true);
+            for (std::size_t u = 0; u < m.ct_joints.size(); ++u) m.ct_values.push_back(a[m.ct_per_joint ? u : 0]);
+            m.ct_reference = k.number("reference_C", -50, 150, "degrees C");
+            (void)k.number("max_ppm_per_K", 1e-3, 1000, "ppm/K");  // as the thermal effect's
+            if (identify) {
+                m.ct_index = next;
+                next += static_cast<int>(n);
+            }
         } else {
             bad("effects." + table.name,
-                "no model of this effect in the C++ core; known: compliance, thermal, carriage_compliance");
+                "no model of this effect in the C++ core; known: compliance, thermal, carriage_compliance, "
+                "carriage_thermal");
         }
     }
     if (m.compliance && m.carriage &&
@@ -459,6 +518,10 @@ EffectObjective::EffectObjective(Geometry geometry, EffectModel effects, const R
         off_cc_ = nq, nq += 4;
         cc_scale_ = detail::carriage_scales(effects_, geometry_);
     }
+    if (effects_.carriage_thermal) {
+        off_ct_ = nq, nq += 1;
+        detail::check_carriage_thermal(effects_, geometry_);
+    }
     if (whitened_) off_wh_ = nq, nq += kLegs * (kLegs + 1) / 2;
     for (int i = 0; i < nj; ++i) {
         q_off_.push_back(nq);
@@ -502,6 +565,7 @@ EffectObjective::EffectObjective(Geometry geometry, EffectModel effects, const R
         if (effects_.thermal)
             for (int j = 0; j < kLegs; ++j)
                 d[24 + j] = temperatures(k, temperatures.cols() == 1 ? 0 : j) - effects_.reference;
+        if (off_ct_ >= 0) d[off_ct_] = temperatures(k, 0) - effects_.ct_reference;
         if (off_w_ >= 0)
             for (int j = 0; j < kLegs; ++j) d[off_w_ + j] = std::sqrt(weights(k, j));
         if (off_wh_ >= 0) {
@@ -544,6 +608,8 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
         detail::hexapod_centre(m, ec, ch);
         detail::carriage_compliances(m, cc_scale_, x, ccomp);
     }
+    double calpha[kMaxChainJoints];  // per joint its scale's expansion coefficient (1/K; 0: none)
+    if (off_ct_ >= 0) detail::carriage_alphas(m, nj, x, calpha);
     double acc = 0;
     for (int k = 0; k < n_; ++k) {
         const double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
@@ -555,6 +621,11 @@ double EffectObjective::evaluate(const double* x, double* jbuf, double* res, dou
             detail::carriage_chain(layout, ec, d, nullptr, t, axes, origins);
             const double* pl = d + off_cc_;
             detail::carriage_deflection(m, layout, axes, origins, t, ch, pl, pl[3], m.carriage_gravity, ccomp, delta);
+            if (off_ct_ >= 0) detail::carriage_growth(layout, d, d[off_ct_], calpha, delta, true);
+            detail::carriage_chain(layout, ec, d, delta, t, nullptr, nullptr);
+        } else if (off_ct_ >= 0) {  // the scales' growth alone
+            double delta[kMaxChainJoints];
+            detail::carriage_growth(layout, d, d[off_ct_], calpha, delta, false);
             detail::carriage_chain(layout, ec, d, delta, t, nullptr, nullptr);
         } else {
             detail::carriage_chain(layout, ec, d, nullptr, t, nullptr, nullptr);

@@ -63,6 +63,22 @@ void carriage_deflection(const EffectModel& m, const PoseData& layout, const dou
                          const double* t, const double* ch, const double* first, double mass, const Vec3& g,
                          const double* ccomp, double* delta);
 
+/// The carriage's thermal expansion (EffectModel::carriage_thermal): throws std::invalid_argument
+/// naming effects.carriage_thermal.joints for a joint the robot does not have or a revolute one.
+void check_carriage_thermal(const EffectModel& m, const Geometry& g);
+/// Per joint of the carriage its scale's expansion coefficient at x (1/K; 0 for a joint not
+/// listed): the table's value plus x's correction when identified, times 1e-6.
+void carriage_alphas(const EffectModel& m, int n_joints, const double* x, double* out);
+/// The scales' growth: delta_i (+)= alpha_i dt q_i for the prismatic joints (q_i the reading at
+/// layout.q_off[i], dt the machine's T - T_ref at the pose); revolute joints untouched.
+inline void carriage_growth(const PoseData& layout, const double* d, double dt, const double* alpha,
+                            double* delta, bool add) {
+    for (int i = 0; i < layout.n_joints; ++i) {
+        const double g = layout.prismatic[i] ? alpha[i] * dt * d[layout.q_off[i]] : 0.0;
+        delta[i] = add ? delta[i] + g : g;
+    }
+}
+
 /// The hexapod's statics at one pose: G (column j the leg's unit vector u_j and its moment
 /// r_j x u_j about the platform origin) with the moment rows scaled by 1 / the platform's radius
 /// (entries of order 1: the pivot test is then a test of the hexapod's singularity, whatever its

@@ -173,6 +173,10 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
     n_seen_ = detail::seen_points(points, kp);
 
     int nq = kOffPoints + 4 * kp;
+    if (effects_.carriage_thermal) {
+        off_ct_ = nq++;
+        detail::check_carriage_thermal(effects_, geometry_);
+    }
     for (int i = 0; i < nj; ++i) {
         q_off_.push_back(nq);
         prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
@@ -200,6 +204,7 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
         if (effects_.thermal)
             for (int j = 0; j < kLegs; ++j)
                 d[kOffDt + j] = temperatures(k, temperatures.cols() == 1 ? 0 : j) - effects_.reference;
+        if (off_ct_ >= 0) d[off_ct_] = temperatures(k, 0) - effects_.ct_reference;
         if (loaded) {
             Vec3 first = platform_mass * platform_centre;
             double mass = platform_mass;
@@ -277,13 +282,19 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
         detail::hexapod_centre(effects_, ec, ch);
         detail::carriage_compliances(effects_, cc_scale_, x, ccomp);
     }
+    // The carriage's thermal expansion: per joint its scale's coefficient at x (1/K; 0: none).
+    const bool ct = off_ct_ >= 0;
+    double calpha[detail::kMaxChainJoints], growth[detail::kMaxChainJoints];
+    if (ct) detail::carriage_alphas(effects_, nj, x, calpha);
     double* out = ws.res.data();
     double acc = 0;
     for (int k = 0; k < n_; ++k) {
         const double* d = data_.data() + static_cast<std::size_t>(k) * static_cast<std::size_t>(stride_);
-        double t[12];  // 0T4 at the readings
+        double t[12];  // 0T4 at the readings (with the scales' growth when the compliance is off)
         double axes[3 * detail::kMaxChainJoints], origins[3 * detail::kMaxChainJoints];
-        detail::carriage_chain(layout, ec, d, nullptr, t, cc ? axes : nullptr, cc ? origins : nullptr);
+        if (ct) detail::carriage_growth(layout, d, d[off_ct_], calpha, growth, false);
+        detail::carriage_chain(layout, ec, d, ct && !cc ? growth : nullptr, t, cc ? axes : nullptr,
+                               cc ? origins : nullptr);
         double g4[3];  // gravity in {4}: 0R4^T g_0
         for (int e = 0; e < 3; ++e) g4[e] = t[e] * g0(0) + t[3 + e] * g0(1) + t[6 + e] * g0(2);
         // Without the carriage's compliance the pose is solved in {4} at the readings (its base
@@ -301,6 +312,8 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
             for (int e = 0; e < 3; ++e)
                 first[e] = d[kOffLoad] * pw[e] + (rw[3 * e] * c5[0] + rw[3 * e + 1] * c5[1] + rw[3 * e + 2] * c5[2]);
             detail::carriage_deflection(effects_, layout, axes, origins, t, ch, first, d[kOffLoad], g0, ccomp, delta);
+            if (ct)
+                for (int i = 0; i < nj; ++i) delta[i] += growth[i];
             detail::carriage_chain(layout, ec, d, delta, changed, nullptr, nullptr);
             for (int j = 0; j < kLegs; ++j)
                 for (int e = 0; e < 3; ++e)

@@ -137,6 +137,9 @@ void read_effects(io::Reader& r, ProblemData& p) {
     get(r, "temperatures", p.temperatures, tc ? rows : 0, static_cast<Eigen::Index>(tc), 1e4);
     if (p.effect_model().thermal && tc == 0)
         r.fail("temperatures: the thermal effect is on and the file has no temperatures");
+    if (p.effect_model().carriage_thermal && tc != 1)
+        r.fail("temperatures: the carriage_thermal effect is on and the file has " +
+               std::string(tc == 0 ? "no temperatures" : "one per leg") + "; it needs the machine's, one per pose");
     if (p.tracker() && ne) {
         // Tracker data: gravity in {T}, carried into {0} by the identified registration.
         get(r, "tracker gravity", p.tracker_gravity, 3, 1, 20.0);

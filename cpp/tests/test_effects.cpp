@@ -399,4 +399,68 @@ IWR_TEST(carriage_compliance_matches_the_virtual_work_of_gravity) {
                    "its gravity and platform differ from effects.compliance's"));
 }
 
+// The carriage's slides' thermal expansion: the objective's residuals are the geometry's at the
+// readings grown by 1e-6 alpha (T - T_ref) q on the listed slides (predict_legs); a coefficient of
+// 0 gives the geometry's cost, the same bits; a revolute joint, per-leg temperatures only and no
+// temperatures are refused by name.
+IWR_TEST(carriage_thermal_is_the_scales_growth) {
+    const iwr::Geometry g = iwr_test::default_iwr(true);
+    const double alpha[2] = {11.5, 13.0};
+    const EffectTable table{"carriage_thermal",
+                            {{"joints", nums({1, 2})},
+                             {"alpha_ppm_per_K", nums({alpha[0], alpha[1]})},
+                             {"reference_C", num(20)},
+                             {"identify", flag(true)},
+                             {"per_joint", flag(true)},
+                             {"max_ppm_per_K", num(30)}}};
+    const iwr::EffectModel model = iwr::EffectModel::parse({table}, g.n_params());
+    CHECK(model.n_params == 2 && model.ct_index == g.n_params() && model.any());
+    const Data d = sample(g, 8, 4);
+    const RowMatrixXd machine = d.temperatures.col(0);
+    const iwr::EffectObjective obj(g, model, d.q, d.poses, d.legs, RowMatrixXd(), machine);
+    VectorXd x = VectorXd::Zero(obj.n_params());
+    x(g.n_params() + 1) = 1.5;  // joint 2's coefficient corrected to 14.5 ppm/K
+    const VectorXd res = obj.residuals(x);
+    const VectorXd xg = VectorXd::Zero(g.n_params());
+    double worst = 0, moved = 0;
+    for (int k = 0; k < d.poses.rows(); ++k) {
+        RowMatrixXd changed = d.q.row(k);
+        const double dt = machine(k, 0) - 20;
+        changed(0, 0) += 1e-6 * alpha[0] * dt * d.q(k, 0);
+        changed(0, 1) += 1e-6 * (alpha[1] + 1.5) * dt * d.q(k, 1);
+        moved = std::max(moved, std::fabs(changed(0, 0) - d.q(k, 0)));
+        const RowMatrixXd legs = iwr::predict_legs(g, xg, changed, d.poses.row(k));
+        for (int j = 0; j < 6; ++j) worst = std::max(worst, std::fabs(legs(0, j) - d.legs(k, j) - res(6 * k + j)));
+    }
+    std::printf("carriage thermal: slides moved up to %.3g mm, residuals within %.3g mm\n", moved, worst);
+    CHECK(moved > 1e-4);
+    CHECK(worst < 1e-9);
+    // A coefficient of 0: the geometry's cost, the same bits.
+    EffectTable cold = table;
+    cold.entries[1].second = nums({0, 0});
+    cold.entries[3].second = flag(false);
+    const iwr::EffectObjective zero(g, iwr::EffectModel::parse({cold}, g.n_params()), d.q, d.poses, d.legs,
+                                    RowMatrixXd(), machine);
+    const iwr::EffectObjective none(g, iwr::EffectModel::parse({}, g.n_params()), d.q, d.poses, d.legs,
+                                    RowMatrixXd(), RowMatrixXd());
+    CHECK(zero.cost(VectorXd::Zero(zero.n_params())) == none.cost(VectorXd::Zero(none.n_params())));
+    // Refusals, by name.
+    const auto build = [&](const EffectTable& t, const RowMatrixXd& temps) {
+        return refusal([&] {
+            (void)iwr::EffectObjective(g, iwr::EffectModel::parse({t}, g.n_params()), d.q, d.poses, d.legs,
+                                       RowMatrixXd(), temps);
+        });
+    };
+    EffectTable bad = table;
+    bad.entries[0].second = nums({1, 3});
+    CHECK(contains(build(bad, machine), "effects.carriage_thermal.joints[1]: joint 3 is revolute"));
+    CHECK(contains(build(table, d.temperatures), "the carriage_thermal effect"));
+    CHECK(contains(build(table, d.temperatures), "the data have one per leg"));
+    CHECK(contains(build(table, RowMatrixXd()), "the data have none"));
+    bad = table;
+    bad.entries[1].second = nums({11.5, 11.5, 11.5});
+    CHECK(contains(refusal([&] { (void)iwr::EffectModel::parse({bad}, g.n_params()); }),
+                   "effects.carriage_thermal.alpha_ppm_per_K: 3 number(s); expected 2 numbers"));
+}
+
 IWR_TEST_MAIN

@@ -94,7 +94,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             raise CommandError(f"--payload: robot {robot.name!r} has no [effects.compliance] "
                                "table; payloads change nothing its geometry models")
         payloads = np.array(args.payload)
-    thermal = [e for e in robot.effects if "temperatures" in e.needs]
+    thermal = [e for e in robot.effects if e.needs & {"temperatures", "machine_temperature"}]
     if thermal and cand.temperatures is None:
         # The temperatures are not chosen but met: a day's drift about the reference, as
         # iwr.simulate draws them (docs/effects.md).

@@ -8,8 +8,10 @@ the legs with their temperature (:class:`iwr.effects.builtin.LegThermal`, ``"the
 or it changes the true values of the carriage's joints (:attr:`Effect.changes`
 ``{"joints"}``, :meth:`Effect.joint_change`): the compliance of the carriage's joints under the
 gravity load of what they carry (:class:`iwr.effects.carriage.CarriageCompliance`,
-``"carriage_compliance"``). The joint changes come first: the legs, their forces and their
-effects are those of the carriage at its true joint values. The true leg length between the
+``"carriage_compliance"``) and the thermal expansion of its prismatic axes with the machine's
+temperature (:class:`iwr.effects.carriage_thermal.CarriageThermal`,
+``"carriage_thermal"``). The joint changes come first: the legs, their forces and their effects
+are those of the carriage at its true joint values. The true leg length between the
 joint centres is
 
     D = s + l0 + sum over the effects of their change  (e.g. c f + alpha D (T - T_ref)),
@@ -96,12 +98,26 @@ class JointState:
         then, for the implicit loop, the readings' corrections).
     joint_types : str
         ``"P"`` or ``"R"`` per joint.
+    readings : ndarray (N, n_joints)
+        The joint readings (mm or rad) the changes are taken at.
+    d_readings : ndarray (N, n_joints, n_z)
+        Their derivatives in the same variables as ``d_loads`` (zero in the geometric errors,
+        one in the implicit loop's correction of the same joint).
+    temperatures : ndarray (N,) or None
+        The machine's temperature at each pose (degrees C, the data's ``T_C`` column), when an
+        effect needs it (``"machine_temperature"``).
+
+    ``loads`` and ``d_loads`` are zero when no effect on the joints needs ``"loads"``.
     """
 
-    def __init__(self, loads: np.ndarray, d_loads: np.ndarray, joint_types: str) -> None:
+    def __init__(self, loads: np.ndarray, d_loads: np.ndarray, joint_types: str,
+                 readings: Any = None, d_readings: Any = None, temperatures: Any = None) -> None:
         self.loads = loads
         self.d_loads = d_loads
         self.joint_types = joint_types
+        self.readings = readings
+        self.d_readings = d_readings
+        self.temperatures = temperatures
 
 
 class Effect(abc.ABC):
@@ -118,7 +134,9 @@ class Effect(abc.ABC):
     #: What it is, for messages and reports.
     description: ClassVar[str]
     #: What :meth:`leg_change` needs in its :class:`LegState`: ``"forces"`` (the statics of
-    #: the payload, platform and gravity), ``"temperatures"`` (the data's temperature columns).
+    #: the payload, platform and gravity), ``"temperatures"`` (the data's temperature columns),
+    #: ``"machine_temperature"`` (the machine's one temperature per pose, the ``T_C`` column),
+    #: ``"loads"`` (an effect on the joints: their gravity loads, the data's payload).
     needs: ClassVar[frozenset[str]] = frozenset()
     #: What it changes: ``"legs"`` (:meth:`leg_change`, the leg lengths) or ``"joints"``
     #: (:meth:`joint_change`, the carriage's joint values, before the legs are computed).
@@ -212,6 +230,7 @@ def register(name: str, effect: str | type[Effect]) -> None:
 register("compliance", "iwr.effects.builtin:LegCompliance")
 register("thermal", "iwr.effects.builtin:LegThermal")
 register("carriage_compliance", "iwr.effects.carriage:CarriageCompliance")
+register("carriage_thermal", "iwr.effects.carriage_thermal:CarriageThermal")
 
 
 def available() -> list[str]:
@@ -303,16 +322,16 @@ SUPPORTED = ("iwr.identify with method 'lm', 'de', 'crs2', 'bobyqa' (eq. (10) or
              "iwr.calibrate, iwr calibrate and iwr report (any of those methods, with or without "
              "a noise model)", "iwr.effects.api.leg_commands",
              "iwr.effects.api.forward_kinematics",
-             "on tracker data (iwr.effects.tracker; the legs' effects and the carriage's "
-             "compliance): iwr.simulate, "
+             "on tracker data (iwr.effects.tracker; the legs' effects, the carriage's "
+             "compliance and its slides' expansion): iwr.simulate, "
              "iwr.identify with every method (noise-weighted too), "
              "iwr.identifiability, iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem "
              "file, iwr-engine, iwr-calibrate, and the calibration job",
-             "on ballbar data (iwr.ballbar.effects; the legs' effects and the carriage's "
-             "compliance): iwr.simulate, iwr.identify with every method (DE, CRS2 and BOBYQA "
-             "on the C++ objective), iwr.identifiability, iwr.accuracy, iwr.uncertainty, "
-             "iwr.plan_poses, the problem file, iwr-engine, iwr-calibrate, and the calibration "
-             "job")
+             "on ballbar data (iwr.ballbar.effects; the legs' effects, the carriage's "
+             "compliance and its slides' expansion): iwr.simulate, iwr.identify with every "
+             "method (DE, CRS2 and BOBYQA on the C++ objective), iwr.identifiability, "
+             "iwr.accuracy, iwr.uncertainty, iwr.plan_poses, the problem file, iwr-engine, "
+             "iwr-calibrate, and the calibration job")
 
 
 def refuse(robot: Any, what: str) -> None:

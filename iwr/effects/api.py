@@ -142,7 +142,7 @@ def draw_conditions(robot: Any, n: int, rng: np.random.Generator, payloads: Any,
     data's :func:`iwr.effects.tracker.simulate`): ``payloads`` (P, 4) taken in turn (default
     :data:`DEFAULT_PAYLOADS` when an effect of the load is on, else none); ``temperatures`` as
     given, else drawn from ``rng`` over :data:`DEFAULT_TEMPERATURE_SPREAD` about the thermal
-    effect's reference when it is on (else none)."""
+    effect's reference when it is on (the legs' or the carriage's, the first listed; else none)."""
     loaded = any(e.needs & {"forces", "loads"} for e in robot.effects)
     pay = None
     if payloads is not None or loaded:
@@ -151,7 +151,7 @@ def draw_conditions(robot: Any, n: int, rng: np.random.Generator, payloads: Any,
             raise ValueError(f"payloads: shape {pay.shape}; expected (P, 4): mass kg, centre "
                              "in {5} mm")
         pay = pay if len(pay) == n else pay[np.arange(n) % len(pay)]
-    thermal = [e for e in robot.effects if isinstance(e, LegThermal)]
+    thermal = [e for e in robot.effects if e.needs & {"temperatures", "machine_temperature"}]
     if temperatures is None and thermal:
         lo, hi = DEFAULT_TEMPERATURE_SPREAD
         temperatures = thermal[0].reference + lo + (hi - lo) * rng.random(n)

@@ -56,6 +56,22 @@ def _bool(value: Any, where: str) -> bool:
     return value
 
 
+def _joint_numbers(joints: Any, where: str) -> tuple[int, ...]:
+    """Distinct joint numbers from 1 (ValueError naming ``where``): an effect's ``joints``."""
+    if isinstance(joints, (str, bytes)) or not isinstance(joints, (list, tuple, np.ndarray)):
+        raise ValueError(f"{where}: expected a list of joint numbers (from 1), got "
+                         f"{joints!r:.60}")
+    out = []
+    for i, j in enumerate(joints):
+        if (isinstance(j, bool) or not isinstance(j, (int, float, np.integer))
+                or not float(j).is_integer() or j < 1):
+            raise ValueError(f"{where}[{i}]: {j!r}; expected a joint number from 1")
+        out.append(int(j))
+    if not out or len(set(out)) != len(out):
+        raise ValueError(f"{where}: {out}; expected distinct joint numbers, at least one")
+    return tuple(out)
+
+
 def _plain(values: np.ndarray) -> Any:
     """One number when every entry is equal and there is one, else a list (for the TOML)."""
     return float(values[0]) if values.size == 1 else [float(v) for v in values]

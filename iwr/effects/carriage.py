@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 
 from . import Effect, JointState
-from .builtin import _check_keys, _GravityLoad, _number, _plain, _vector
+from .builtin import _check_keys, _GravityLoad, _joint_numbers, _number, _plain, _vector
 
 __all__ = ["CarriageCompliance", "UNIT_SCALE"]
 
@@ -85,24 +85,8 @@ class CarriageCompliance(_GravityLoad, Effect):
                                     "urad/(N m)")
         self.max_prismatic = _number(max_prismatic, f"{where}.max_um_per_N", 1e-9, _MAX_PRISMATIC,
                                      "um/N")
-        if joints is None:
-            self.joints: tuple[int, ...] | None = None
-        else:
-            if isinstance(joints, (str, bytes)) or not isinstance(joints, (list, tuple,
-                                                                           np.ndarray)):
-                raise ValueError(f"{where}.joints: expected a list of joint numbers (from 1), "
-                                 f"got {joints!r:.60}")
-            out = []
-            for i, j in enumerate(joints):
-                if (isinstance(j, bool) or not isinstance(j, (int, float, np.integer))
-                        or not float(j).is_integer() or j < 1):
-                    raise ValueError(f"{where}.joints[{i}]: {j!r}; expected a joint number "
-                                     "from 1")
-                out.append(int(j))
-            if not out or len(set(out)) != len(out):
-                raise ValueError(f"{where}.joints: {out}; expected distinct joint numbers, at "
-                                 "least one")
-            self.joints = tuple(out)
+        self.joints: tuple[int, ...] | None = None if joints is None else _joint_numbers(
+            joints, f"{where}.joints")
         if isinstance(compliance, (list, tuple, np.ndarray)):
             self._given = [_number(v, f"{where}.compliance[{i}]", -1e3, 1e3, "urad/(N m) or um/N")
                            for i, v in enumerate(compliance)]

@@ -366,13 +366,22 @@ def _compliance(robot: Any) -> Any:
 
 
 def check_inputs(robot: Any, data: Any, where: str = "measurements") -> None:
-    """ValueError unless ``data`` holds what the robot's effects need (temperatures)."""
+    """ValueError unless ``data`` holds what the robot's effects need (temperatures: the
+    machine's one per pose for an effect that needs ``"machine_temperature"``)."""
+    temps = getattr(data, "temperatures", None)
     for e in robot.effects:
-        if "temperatures" in e.needs and getattr(data, "temperatures", None) is None:
+        if "temperatures" in e.needs and temps is None:
             raise ValueError(
                 f"{where}: the {e.name} effect ({e.description}) needs each pose's "
                 "temperature: columns T_C (one per pose) or T1_C .. T6_C (one per leg), "
                 "degrees C (docs/effects.md)")
+        if "machine_temperature" in e.needs and (temps is None or np.shape(temps)[1:] != (1,)):
+            found = ("none" if temps is None else
+                     "one per leg (T1_C .. T6_C), not the machine's")
+            raise ValueError(
+                f"{where}: the {e.name} effect ({e.description}) needs the machine's "
+                f"temperature at each pose: column T_C, degrees C (docs/effects.md); the data "
+                f"have {found}")
 
 
 def joint_effects(robot: Any) -> list[Any]:
@@ -381,45 +390,60 @@ def joint_effects(robot: Any) -> list[Any]:
 
 
 def _loaded(robot: Any) -> Any:
-    """The robot's effect on the joints that describes the loads (gravity, the hexapod)."""
+    """The robot's effect on the joints that describes the loads (gravity, the hexapod), or None
+    when no effect on the joints needs them."""
     for e in joint_effects(robot):
         if hasattr(e, "hexapod_mass"):
             return e
-    raise ValueError(f"robot {robot.name!r}: no effect describes the carriage's loads")
+    if any("loads" in e.needs for e in joint_effects(robot)):
+        raise ValueError(f"robot {robot.name!r}: no effect describes the carriage's loads")
+    return None
 
 
 def joint_changes(robot: Any, xg: np.ndarray, xe: np.ndarray, q: np.ndarray, t5: np.ndarray,
-                  data: Any, right_jacobians: Any = None
+                  data: Any, right_jacobians: Any = None, *, loads_only: bool = False
                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """``(change, d_z, d_own)``: the effects' change of the carriage's joint values (N,
-    n_joints) at readings ``q`` and platform transforms ``t5`` under ``data``'s loads, its
-    derivatives in ``z`` (N, n_joints, n_z) and in the effects' parameters (N, n_joints,
-    len(xe); zero for the effects on the legs). ``z`` is the geometric errors, then, when
-    ``right_jacobians`` (N, 3, 3) are given (the implicit loop: ``t5`` is the measured pose
-    turned by rotation vectors ``w`` and moved; they are ``J_r(w)``,
-    :func:`iwr.effects.loop.right_jacobian`), the corrections ``(dq, dp, w)``."""
+    n_joints) at readings ``q`` and platform transforms ``t5`` under ``data``'s loads (and the
+    machine's temperatures), its derivatives in ``z`` (N, n_joints, n_z) and in the effects'
+    parameters (N, n_joints, len(xe); zero for the effects on the legs). ``z`` is the geometric
+    errors, then, when ``right_jacobians`` (N, 3, 3) are given (the implicit loop: ``t5`` is the
+    measured pose turned by rotation vectors ``w`` and moved; they are ``J_r(w)``,
+    :func:`iwr.effects.loop.right_jacobian`), the corrections ``(dq, dp, w)``. With
+    ``loads_only``, the change of the effects of the loads alone (those that need ``"loads"``:
+    what is linear in gravity)."""
     n, nj, ng = len(q), robot.n_joints, robot.n_params
     nc = 4 * nj
-    loaded = _loaded(robot)
-    moment, mass, c5 = platform_moment(loaded, data, t5)
-    torques, d_dh, d_mom = joint_loads(robot, xg, q, moment, mass, loaded)
     n_z = ng if right_jacobians is None else ng + nj + 6
     d_loads = np.zeros((n, nj, n_z))
-    d_loads[..., : nc + 18] = d_dh
+    torques = np.zeros((n, nj))
+    loaded = _loaded(robot)
+    if loaded is not None:
+        moment, mass, c5 = platform_moment(loaded, data, t5)
+        torques, d_dh, d_mom = joint_loads(robot, xg, q, moment, mass, loaded)
+        d_loads[..., : nc + 18] = d_dh
+        if right_jacobians is not None:
+            d_loads[..., ng: ng + nj] = d_dh[..., joint_columns(robot)]
+            d_loads[..., ng + nj: ng + nj + 3] = d_mom * mass[:, None, None]
+            # d (R exp([w]x) c) / dw = -R exp([w]x) [c]x J_r(w), R exp([w]x) the rotation of t5.
+            d_w = -np.einsum("kab,kbc,kcd->kad", t5[:, :3, :3], _skew(c5), right_jacobians)
+            d_loads[..., ng + nj + 3:] = np.einsum("kia,kad->kid", d_mom, d_w)
+    d_q = np.zeros((n, nj, n_z))
     if right_jacobians is not None:
-        d_loads[..., ng: ng + nj] = d_dh[..., joint_columns(robot)]
-        d_loads[..., ng + nj: ng + nj + 3] = d_mom * mass[:, None, None]
-        # d (R exp([w]x) c) / dw = -R exp([w]x) [c]x J_r(w), R exp([w]x) the rotation of t5.
-        d_w = -np.einsum("kab,kbc,kcd->kad", t5[:, :3, :3], _skew(c5), right_jacobians)
-        d_loads[..., ng + nj + 3:] = np.einsum("kia,kad->kid", d_mom, d_w)
-    state = JointState(torques, d_loads, robot.joint_types)
+        d_q[..., ng: ng + nj] = np.eye(nj)
+    temps = getattr(data, "temperatures", None)
+    if temps is not None and np.shape(temps)[1:] == (1,):
+        temps = np.asarray(temps, dtype=float)[:, 0]
+    else:
+        temps = None
+    state = JointState(torques, d_loads, robot.joint_types, q, d_q, temps)
     change = np.zeros((n, nj))
     d_z = np.zeros((n, nj, n_z))
     d_own = np.zeros((n, nj, xe.size))
     col = 0
     for e in robot.effects:
         k = len(e.parameter_names())
-        if "joints" in e.changes:
+        if "joints" in e.changes and (not loads_only or "loads" in e.needs):
             c, dz, do = e.joint_change(state, e.values() + xe[col: col + k])
             change += c
             d_z += dz

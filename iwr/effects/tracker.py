@@ -110,7 +110,8 @@ def gravity_jacobian(robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray
         if jq is None:
             jq = loop_jacobians(robot, x, q, poses, data, corr, joint_derivative=True)[3]
         for c, e in enumerate(np.eye(3)):  # the joints' change under gravity e_c
-            change = joint_changes(with_gravity(robot, e), xg, xe, q_c, t5, data)[0]
+            change = joint_changes(with_gravity(robot, e), xg, xe, q_c, t5, data,
+                                   loads_only=True)[0]
             out[..., c] = np.einsum("kji,ki->kj", jq, change)
         q_c = q_c + joint_changes(robot, xg, xe, q_c, t5, data)[0]
     if "forces" not in _needs(robot):

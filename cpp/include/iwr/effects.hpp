@@ -76,8 +76,17 @@ struct EffectModel {
     double carriage_platform_mass = 0;  // kg (the compliance effect's, when both are on)
     Vec3 carriage_platform_centre = Vec3::Zero();
     Vec3 carriage_gravity = Vec3::Zero();
+    // [effects.carriage_thermal]: prismatic joint ct_joints[m] (0-based) moves by
+    // 1e-6 (ct_values[m] + x[ct_index + (ct_per_joint ? m : 0)]) (T - ct_reference) q, its scale's
+    // expansion with the machine's temperature T (the data's one column); ct_index -1: given.
+    bool carriage_thermal = false;
+    int ct_index = -1;
+    bool ct_per_joint = false;
+    std::vector<int> ct_joints;
+    std::vector<double> ct_values;      // ppm/K, one per listed joint
+    double ct_reference = 20;           // degrees C
 
-    bool any() const { return compliance || thermal || carriage; }
+    bool any() const { return compliance || thermal || carriage || carriage_thermal; }
     /// Reads the tables (the parameters numbered from n_geometric, in the tables' order). Throws
     /// std::invalid_argument naming "effects.<name>.<key>", the value and what was expected.
     static EffectModel parse(const std::vector<EffectTable>& tables, int n_geometric);
@@ -145,6 +154,8 @@ private:
     // The carriage compliance: per pose the first moment (kg mm, in {0}) and the mass (kg) of the
     // bodies the platform carries (4 doubles at off_cc_); per joint its unit scale (0: rigid).
     int off_cc_ = -1;
+    // The carriage's thermal expansion: per pose the machine's T - T_ref (1 double at off_ct_).
+    int off_ct_ = -1;
     std::vector<double> cc_scale_;
     bool whitened_ = false;
     std::vector<int> q_off_;

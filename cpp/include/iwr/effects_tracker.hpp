@@ -128,6 +128,7 @@ private:
     std::vector<Vector6d> ref_euler_;  // the reference local poses (the fallback's start)
     detail::CarriageNominal carriage_;
     std::vector<double> cc_scale_;  // the carriage compliance's unit scale per joint (0: rigid)
+    int off_ct_ = -1;  // the carriage's thermal expansion: the machine's T - T_ref per pose
     RowMatrixXd whitening_;
 };
 
