@@ -31,6 +31,7 @@ from .gross_errors import LeftOutError, without_left_out
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
 from .methods import IdentificationResult, identify
+from .robot_fingerprint import record as robot_model_record
 
 __all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "LeftOutError", "calibrate", "from_result"]
 
@@ -347,8 +348,12 @@ def calibrate(
                 report = identifiability(robot, ident)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
+        # And its robot file against the model of the robot identified for (the fingerprint
+        # of what determines the numbers: geometry, parameters, effects, set-up).
         result["settings"] = {**dict(result.settings), "data_file": data_name,
-                              "data_fingerprint": kind.fingerprint(robot, data)}
+                              "data_fingerprint": kind.fingerprint(robot, data),
+                              **({"robot_file": robot_name} if robot_name else {}),
+                              "robot_model": robot_model_record(robot)}
         note = kind.weighting_note(data, method, data_name)
         if note:
             notes.append(note)
@@ -573,9 +578,8 @@ def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
 
 def _extras(robot: Any, kind: Any) -> str:
     """What a result's parameters hold beyond the robot's geometric errors, for messages."""
-    setup = "its ballbar set-ups" if kind.name == "ballbar" else "its tracker setup"
     parts = (["its effects"] if robot.effects else []) + (
-        [setup] if kind.setup_parameter_names(robot) else [])
+        [kind.setup_words] if kind.setup_parameter_names(robot) else [])
     return f"with {' and '.join(parts)} " if parts else ""
 
 

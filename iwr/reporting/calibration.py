@@ -18,6 +18,7 @@ from ..kinds import reuse
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
+from ..robot_fingerprint import fingerprint as robot_fingerprint
 from .figures import histogram, new_figure, png_bytes
 from .html import Page, write_page
 
@@ -124,6 +125,7 @@ class CalibrationReport(Calibration):
             "version": 1,
             "data_kind": "pose",  # every kind's summary names its kind (setup_parameters.py)
             "robot": self.robot_name or self.robot.name,
+            "robot_model": robot_fingerprint(self.robot),
             "data": self.data_name,
             "n_identification": len(self.identification),
             "n_validation": len(self.validation) if self.held_out else 0,
