@@ -118,6 +118,9 @@ def differences(recorded: Mapping[str, Any], robot: Any, *, limit: int = 3) -> l
             found: list[str] = []
             if s == "parameters":
                 _names(mine["model"][s], list(theirs[s]), found)
+            elif s == "setup" and mine["model"][s].get("kind") != theirs[s].get("kind"):
+                found.append(f"{mine['model'][s].get('kind')} data, the run's robot measured "
+                             f"{theirs[s].get('kind')} data")  # the rest differs with it
             else:
                 _diff(mine["model"][s], _plain(theirs[s]), s, found)
             if not found:

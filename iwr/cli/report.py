@@ -139,15 +139,16 @@ def cmd_report(args: argparse.Namespace) -> int:
         args.run, args.robot, args.data, args.validation, args.readings])
     result = load_result(args.run)
     robot = load_robot(args.robot)
-    warning = _check_robot(args, result, robot)
-    if warning:
-        print(f"iwr report: {warning}", file=sys.stderr)
     kind = for_robot(robot)
     if not kind.report:
         raise UsageError(f"{args.robot}: {kind.name} data ({kind.description}): no report for "
                          "them yet (docs/kinds.md)", "iwr report")
     data = read_data(args.data, robot, args.readings, targets=target_format(args),
                      prog="iwr report")
+    # The robot first: the data's fingerprint depends on its set-up (the tracker's points).
+    warning = _check_robot(args, result, robot)
+    if warning:
+        print(f"iwr report: {warning}", file=sys.stderr)
     note = _check_data(args, result, robot, data)
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
