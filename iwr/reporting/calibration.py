@@ -235,6 +235,8 @@ class CalibrationReport(Calibration):
             rate = self.result.gross_errors
             if rate:
                 lines.append(f"  - {rate}")
+        elif self.result.gross_errors:  # not tested, and why
+            lines.append(str(self.result.gross_errors))
         return lines
 
     def _fit_section(self, page: Page, title: str) -> None:
