@@ -547,6 +547,7 @@ def from_result(
             result, val = check_gross_errors(robot, data, val, result,
                                              noise=_recorded_noise(kind, result),
                                              held_out=validation is not None)
+        result = _stopped_first(result)
         unc = _uncertainty(robot, data, result, report if result.active is None else None,
                            None, notes, own_covariance=False)
         if unc is not None and result.method == "efficient":
@@ -565,6 +566,29 @@ def from_result(
             problems=problems, diagnosis=_diagnosis(robot, data, result, None, notes))
         cal._settle()
     return cal
+
+
+#: The first cause of a failed fit test of a result a limit stopped before it converged.
+STOPPED_CAUSE = (
+    "the method stopped before it converged (status stopped): the residuals of its best point "
+    "so far hold what it has not fitted yet, which the fit test and the outlier test blame on "
+    "the model and on the poses; run it to convergence (more generations, or a polish) before "
+    "changing the model or the data")
+
+
+def _stopped_first(result: IdentificationResult) -> IdentificationResult:
+    """``result``, its failed fit test's causes led by :data:`STOPPED_CAUSE` when a limit
+    stopped the method before it converged (a DE run of ``iwr-calibrate`` reaching its last
+    generation far from the solution: the test says the result does not fit, and the outlier
+    test names clean poses; the engineer should first run longer)."""
+    from dataclasses import replace
+
+    fit = result.fit
+    if result.status != "stopped" or fit is None or fit.fit_ok or STOPPED_CAUSE in fit.causes:
+        return result
+    out = IdentificationResult(**dict(result))
+    out["fit"] = replace(fit, causes=[STOPPED_CAUSE, *fit.causes])
+    return out
 
 
 def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:

@@ -502,14 +502,6 @@ def check_result(robot: Any, identification: Any, validation: Any, result: Any, 
     result = copy.copy(result)
     if result.interrupted or not np.all(np.isfinite(result.x)):
         return result, validation
-    if result.status == "stopped":
-        # A limit ended the method before it converged: the residuals of its best point hold
-        # what it has not fitted yet, which a test of each pose would blame on clean poses.
-        result["gross_errors"] = (
-            "gross errors: not tested (the method stopped before it converged: the residuals "
-            "of its best point so far hold what it has not fitted yet, not the poses' gross "
-            "errors; run it to convergence, e.g. more generations, then report again)")
-        return result, validation
     try:
         found = find_gross_errors(robot, identification, result.x, noise,
                                   validation=validation if held_out else None,

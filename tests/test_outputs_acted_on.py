@@ -3,34 +3,35 @@
 
 from __future__ import annotations
 
-import numpy as np
-
 import iwr
-from iwr.calibration import from_result
-from iwr.result import IdentificationResult
+from iwr.calibration import STOPPED_CAUSE, from_result
+from iwr.reporting.calibration import render
+
+NOISE = iwr.Noise.realistic()
 
 
-def test_a_stopped_run_is_not_screened_for_gross_errors():
-    """A DE run that a limit stopped before it converged: the residuals of its best point hold
-    what it has not fitted yet, and the test of each pose blamed clean poses for them (a
-    ballbar run with effects stopped at 30 generations: 2 clean poses named, "THE MODEL DOES
-    NOT FIT THE DATA", exit 3). Not tested, and said so; the verdict is "not converged"."""
+def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first():
+    """A weighted DE run that its last generation stopped far from the solution: the report
+    said "the model does not fit the data" and nothing else (the fit test and the outlier test
+    of its best point blame the model and clean poses: on a simulated ballbar run of 30
+    generations, 2 clean poses named). Its first cause is now that the run did not converge, and
+    the method line says so; a converged result that does not fit keeps the old words."""
     robot = iwr.Robot.default()
-    data, truth = iwr.simulate(robot, 20, seed=3, noise=iwr.Noise.realistic())
-    res = IdentificationResult(
-        x=0.5 * truth, fun=1.0, nfev=100, nit=10, success=False, status="stopped",
-        message="the maximum number of generations (30) was reached", method="de",
-        parameter_names=robot.parameter_names, settings={}, history={})
-    cal = from_result(robot, data, res)
-    assert cal.result.outliers is None and cal.fit_ok is None
-    assert cal.result.gross_errors.startswith("gross errors: not tested (the method stopped "
-                                              "before it converged")
-    from iwr.reporting.calibration import render
-
+    data, _ = iwr.simulate(robot, 20, seed=3, noise=NOISE)
+    job = iwr.identify(robot, data, "lm", noise=NOISE,
+                       active=iwr.identifiability(robot, data).active)
+    stopped = iwr.IdentificationResult(**dict(job))
+    stopped.update(fit=None, success=False, status="stopped", fun=50 * job.fun,
+                   message="the maximum number of generations (30) was reached",
+                   settings={**job.settings, "weighting": "the noise model"})
+    cal = from_result(robot, data, stopped)
+    assert cal.fit_ok is False and cal.result.fit.causes[0] == STOPPED_CAUSE
     report = render(cal)
-    assert "gross errors: not tested (the method stopped" in report.text()
-    assert report.status_text() == "not converged (status stopped)"
-    # A converged result at the same point is tested.
-    done = IdentificationResult(**{**dict(res), "success": True, "status": "converged",
-                                   "message": "converged", "x": np.asarray(truth)})
-    assert from_result(robot, data, done).result.outliers is not None
+    assert report.status_text() == ("not converged (status stopped), and its best point does not "
+                                    "fit the data")
+    assert "run it to convergence" in report.text()
+    converged = iwr.IdentificationResult(**dict(stopped))
+    converged.update(success=True, status="converged", message="converged")
+    cal = from_result(robot, data, converged)
+    assert cal.fit_ok is False and STOPPED_CAUSE not in cal.result.fit.causes
+    assert render(cal).status_text() == "the model does not fit the data"

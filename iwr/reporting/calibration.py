@@ -192,6 +192,8 @@ class CalibrationReport(Calibration):
             return NOT_CALIBRATED
         fit = r.fit
         if fit is not None and not fit.fit_ok:
+            if r.status == "stopped":  # iwr.calibration.STOPPED_CAUSE: first run longer
+                return "not converged (status stopped), and its best point does not fit the data"
             return "the model does not fit the data"
         return f"not converged (status {r.get('status', '?')})"
 
@@ -235,8 +237,6 @@ class CalibrationReport(Calibration):
             rate = self.result.gross_errors
             if rate:
                 lines.append(f"  - {rate}")
-        elif self.result.gross_errors:  # not tested, and why
-            lines.append(str(self.result.gross_errors))
         return lines
 
     def _fit_section(self, page: Page, title: str) -> None:
