@@ -3,6 +3,8 @@
 
 from __future__ import annotations
 
+import numpy as np
+
 import iwr
 from iwr.calibration import STOPPED_CAUSE, from_result
 from iwr.reporting.calibration import render
@@ -35,3 +37,28 @@ def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first():
     cal = from_result(robot, data, converged)
     assert cal.fit_ok is False and STOPPED_CAUSE not in cal.result.fit.causes
     assert render(cal).status_text() == "the model does not fit the data"
+
+
+def test_every_kind_says_which_parameters_are_angles_with_effects(kind_case):
+    """The pose kind's angle mask left out the effects' parameters (58 for a layout of 65): `iwr
+    compare` and `iwr study` of a robot with effects on pose data stopped with an internal
+    IndexError. Every kind's mask has the layout of x: the robot's, the effects', the set-up's."""
+    from iwr.effects import api
+    from iwr.effects import parameter_names as effect_names
+    from iwr.experiments.compare import compare_methods
+
+    for name in ("pose", "points", "ballbar"):
+        case = kind_case(name, n_poses=1)
+        robot = case.robot.with_effects(*api.realistic(case.robot))
+        mask = case.kind.angle_parameters(robot)
+        n_eff = len(effect_names(robot.effects))
+        assert mask.shape == (case.kind.n_params(robot) + n_eff,)
+        assert not mask[robot.n_params: robot.n_params + n_eff].any()
+        assert (mask[:robot.n_params] == robot.angle_parameters).all()
+    robot = iwr.Robot.default()
+    robot = robot.with_effects(*api.realistic(robot))
+    comp = compare_methods(robot, 16, seeds=[0], methods=["lm"], budget=200, start="near",
+                           out=None, n_validation=5, progress=False)
+    row = comp.runs[0]
+    assert row["status"] != "failed", row.get("message")
+    assert np.isfinite(row["raw_error_length"]) and np.isfinite(row["raw_error_angle"])

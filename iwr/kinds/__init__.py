@@ -400,9 +400,11 @@ class MeasurementKind(abc.ABC):
         return np.zeros(len(self.setup_parameter_names(robot)))
 
     def angle_parameters(self, robot: Any) -> np.ndarray:
-        """Which parameters of ``x`` are angles (rad): the robot's, then the setup's (default:
-        none of the setup's)."""
-        n = len(self.setup_parameter_names(robot))
+        """Which parameters of ``x`` are angles (rad): the robot's, its effects' (issue 23:
+        none), then the setup's (default: none of the setup's)."""
+        from ..effects import parameter_names as effect_names
+
+        n = len(effect_names(robot.effects)) + len(self.setup_parameter_names(robot))
         return np.concatenate([np.asarray(robot.angle_parameters, dtype=bool),
                                np.zeros(n, dtype=bool)])
 
