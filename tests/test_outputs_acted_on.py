@@ -62,3 +62,29 @@ def test_every_kind_says_which_parameters_are_angles_with_effects(kind_case):
     row = comp.runs[0]
     assert row["status"] != "failed", row.get("message")
     assert np.isfinite(row["raw_error_length"]) and np.isfinite(row["raw_error_angle"])
+
+
+def test_compare_takes_a_ballbar_robot_files_noise_as_calibrate_does(kind_case, tmp_path,
+                                                                    monkeypatch):
+    """`iwr compare --robot BALLBAR.toml` with a [noise] table (a ballbar's: position 0) passed
+    the file's iwr.Noise on, read as an experiment's level: the bar exact, and every efficient
+    run refused ("BallbarNoise.distance: 0"). The file's model is now the one iwr calibrate and
+    iwr simulate take: the readings' noise and the bar's default."""
+    from iwr.ballbar import BallbarNoise
+    from iwr.cli import compare as cli_compare
+    from iwr.cli import main as cli_main
+
+    robot = kind_case("ballbar", n_poses=1).robot.with_noise(
+        iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6))
+    robot.to_toml(tmp_path / "robot.toml")
+    seen = {}
+
+    def fake(**kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt  # the run itself is not this test's
+
+    monkeypatch.setattr(cli_compare, "compare_methods", fake)
+    cli_main(["compare", "--robot", str(tmp_path / "robot.toml"), "--poses", "60",
+              "--methods", "efficient", "--no-progress", "-o", str(tmp_path / "c")])
+    readings, bar = seen["noise"]
+    assert readings.legs == 0.002 and bar == BallbarNoise()
