@@ -88,3 +88,29 @@ def test_compare_takes_a_ballbar_robot_files_noise_as_calibrate_does(kind_case, 
               "--methods", "efficient", "--no-progress", "-o", str(tmp_path / "c")])
     readings, bar = seen["noise"]
     assert readings.legs == 0.002 and bar == BallbarNoise()
+
+
+def test_export_refuses_an_unverified_calibration_as_legs_does(kind_case, tmp_path, capsys):
+    """`iwr export` wrote a controller's files (genhexkins.hal, the leg corrections) from a
+    calibration whose fit failed, silently; `iwr legs` refuses it. Now the same rule, and after
+    a ballbar calibration the same note on the frames it does not determine."""
+    from iwr.cli import main as cli_main
+
+    failed = iwr.Robot.default()
+    failed.provenance = {"method": "lm", "status": "failed fit test",
+                         "status_detail": "THE MODEL DOES NOT FIT THE DATA"}
+    failed.to_toml(tmp_path / "failed.toml")
+    capsys.readouterr()
+    assert cli_main(["export", str(tmp_path / "failed.toml"), "-o", str(tmp_path / "e")]) == 1
+    assert "records status 'failed fit test'" in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()
+    assert cli_main(["export", str(tmp_path / "failed.toml"), "-o", str(tmp_path / "e"),
+                     "--allow-unverified"]) == 0
+    assert "used because --allow-unverified was given" in capsys.readouterr().out
+    assert (tmp_path / "e" / "genhexkins.hal").is_file()
+    ballbar = kind_case("ballbar", n_poses=1).robot
+    ballbar.provenance = {"method": "lm", "status": "success"}
+    ballbar.to_toml(tmp_path / "ballbar.toml")
+    assert cli_main(["export", str(tmp_path / "ballbar.toml"), "-o", str(tmp_path / "b")]) == 0
+    assert "determine neither the world frame {0} nor the platform frame {5}" \
+        in capsys.readouterr().out
