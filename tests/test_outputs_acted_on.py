@@ -31,12 +31,18 @@ def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first():
     report = render(cal)
     assert report.status_text() == ("not converged (status stopped), and its best point does not "
                                     "fit the data")
-    assert "run it to convergence" in report.text()
+    text = report.text()
+    assert "run it to convergence" in text
+    assert ("VERDICT: NOT CONVERGED, AND ITS BEST POINT DOES NOT FIT THE DATA; the accuracy "
+            "figures above are not a calibration") in text
+    assert report.verdict()[0].startswith("Not converged, and its best point does not fit")
     converged = iwr.IdentificationResult(**dict(stopped))
     converged.update(success=True, status="converged", message="converged")
     cal = from_result(robot, data, converged)
     assert cal.fit_ok is False and STOPPED_CAUSE not in cal.result.fit.causes
-    assert render(cal).status_text() == "the model does not fit the data"
+    report = render(cal)
+    assert report.status_text() == "the model does not fit the data"
+    assert "VERDICT: THE MODEL DOES NOT FIT THE DATA" in report.text()
 
 
 def test_every_kind_says_which_parameters_are_angles_with_effects(kind_case):
