@@ -12,7 +12,7 @@ from iwr.reporting.calibration import render
 NOISE = iwr.Noise.realistic()
 
 
-def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first():
+def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first(capsys):
     """A weighted DE run that its last generation stopped far from the solution: the report
     said "the model does not fit the data" and nothing else (the fit test and the outlier test
     of its best point blame the model and clean poses: on a simulated ballbar run of 30
@@ -36,6 +36,12 @@ def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first():
     assert ("VERDICT: NOT CONVERGED, AND ITS BEST POINT DOES NOT FIT THE DATA; the accuracy "
             "figures above are not a calibration") in text
     assert report.verdict()[0].startswith("Not converged, and its best point does not fit")
+    from iwr.cli.calibrate import _exit_code
+
+    capsys.readouterr()
+    assert _exit_code(cal, "iwr report", converged=False) == 3  # the fit failed: exit 3
+    assert "iwr report: not converged, and its best point does not fit the data (run it longer " \
+        "first) (exit 3)" in capsys.readouterr().err
     converged = iwr.IdentificationResult(**dict(stopped))
     converged.update(success=True, status="converged", message="converged")
     cal = from_result(robot, data, converged)
