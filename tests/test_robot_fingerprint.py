@@ -72,7 +72,8 @@ def test_differences_name_the_section_and_the_values(robot_measured_by):
     on = robot.with_effects(*api.realistic(robot))
     lines = differences(record(robot), on)
     assert "effects: compliance is on, the run's robot had it off" in lines
-    assert any(line.startswith("parameters: 80 parameters, the run's robot had 73") for line in lines)
+    assert any(line.startswith("parameters: 80 parameters, the run's robot had 73")
+               for line in lines)
     # A record of the fingerprints only names the sections.
     only = {k: v for k, v in record(robot).items() if k != "model"}
     assert differences(only, on) == [
