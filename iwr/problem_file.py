@@ -276,7 +276,10 @@ def engine_result(checkpoint: str | os.PathLike[str],
         names = list(p["parameter_names"])
         # The model of the robot the engine ran on, as every job records it (iwr report checks
         # its robot file against it); the problem file holds all of it.
-        settings["robot_model"] = robot_model_record(load_problem(problem).robot)
+        try:
+            settings["robot_model"] = robot_model_record(load_problem(problem).robot)
+        except ValueError:  # a file the Python checks refuse: no record (iwr report warns)
+            pass
         settings["bounds"] = p["bounds_kind"]
         settings["n_poses"] = len(p["legs"])
         settings["measurements"] = p["kind"]

@@ -116,8 +116,10 @@ def differences(recorded: Mapping[str, Any], robot: Any, *, limit: int = 3) -> l
     for s in SECTIONS:
         if isinstance(theirs, Mapping) and s in theirs:
             found: list[str] = []
-            if s == "parameters":
-                _names(mine["model"][s], list(theirs[s]), found)
+            if not isinstance(theirs[s], type(mine["model"][s])):  # an edited record
+                found.append("differs (the run's record of it is not a model's)")
+            elif s == "parameters":
+                _names(mine["model"][s], [str(n) for n in theirs[s]], found)
             elif s == "setup" and mine["model"][s].get("kind") != theirs[s].get("kind"):
                 found.append(f"{mine['model'][s].get('kind')} data, the run's robot measured "
                              f"{theirs[s].get('kind')} data")  # the rest differs with it

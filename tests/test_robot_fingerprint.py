@@ -162,3 +162,14 @@ def test_an_engine_run_records_its_robot(tmp_path):
     assert result.settings["robot_model"]["fingerprint"] == fingerprint(robot)
     again = engine_result(tmp_path / "eng.json.ckpt", tmp_path / "eng.json.iwrp")
     assert again.settings["robot_model"] == result.settings["robot_model"]
+
+
+def test_an_edited_record_is_a_difference_not_a_crash(robot_measured_by):
+    robot = robot_measured_by("probe")
+    rec = record(robot)
+    rec["model"]["setup"] = ["not", "a", "table"]
+    rec["model"]["parameters"] = "x0"
+    rec["fingerprint"] = "0" * 16
+    assert differences(rec, robot) == [
+        "parameters: differs (the run's record of it is not a model's)",
+        "setup: differs (the run's record of it is not a model's)"]

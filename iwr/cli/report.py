@@ -147,8 +147,6 @@ def cmd_report(args: argparse.Namespace) -> int:
                      prog="iwr report")
     # The robot first: the data's fingerprint depends on its set-up (the tracker's points).
     warning = _check_robot(args, result, robot)
-    if warning:
-        print(f"iwr report: {warning}", file=sys.stderr)
     note = _check_data(args, result, robot, data)
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
@@ -166,6 +164,8 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.data}: {one_line(exc)} ({args.run})", "iwr report") from None
     except ValueError as exc:  # the result's parameters are not this robot's
         raise CommandError(f"{args.run}: {one_line(exc)} ({args.robot})") from None
+    if warning:  # said once the report is made (a refusal above says what it is about)
+        print(f"iwr report: {warning}", file=sys.stderr)
     for line in (note, warning):
         if line:
             cal.notes.insert(0, line)
