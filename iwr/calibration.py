@@ -31,6 +31,7 @@ from .gross_errors import LeftOutError, without_left_out
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
 from .methods import IdentificationResult, identify
+from .robot_fingerprint import record as robot_model_record
 
 __all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "LeftOutError", "calibrate", "from_result"]
 
@@ -347,8 +348,12 @@ def calibrate(
                 report = identifiability(robot, ident)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
+        # And its robot file against the model of the robot identified for (the fingerprint
+        # of what determines the numbers: geometry, parameters, effects, set-up).
         result["settings"] = {**dict(result.settings), "data_file": data_name,
-                              "data_fingerprint": kind.fingerprint(robot, data)}
+                              "data_fingerprint": kind.fingerprint(robot, data),
+                              **({"robot_file": robot_name} if robot_name else {}),
+                              "robot_model": robot_model_record(robot)}
         note = kind.weighting_note(data, method, data_name)
         if note:
             notes.append(note)
@@ -542,6 +547,7 @@ def from_result(
             result, val = check_gross_errors(robot, data, val, result,
                                              noise=_recorded_noise(kind, result),
                                              held_out=validation is not None)
+        result = _stopped_first(result)
         unc = _uncertainty(robot, data, result, report if result.active is None else None,
                            None, notes, own_covariance=False)
         if unc is not None and result.method == "efficient":
@@ -562,6 +568,29 @@ def from_result(
     return cal
 
 
+#: The first cause of a failed fit test of a result a limit stopped before it converged.
+STOPPED_CAUSE = (
+    "the method stopped before it converged (status stopped): the residuals of its best point "
+    "so far hold what it has not fitted yet, which the fit test and the outlier test blame on "
+    "the model and on the poses; run it to convergence (more generations, or a polish) before "
+    "changing the model or the data")
+
+
+def _stopped_first(result: IdentificationResult) -> IdentificationResult:
+    """``result``, its failed fit test's causes led by :data:`STOPPED_CAUSE` when a limit
+    stopped the method before it converged (a DE run of ``iwr-calibrate`` reaching its last
+    generation far from the solution: the test says the result does not fit, and the outlier
+    test names clean poses; the engineer should first run longer)."""
+    from dataclasses import replace
+
+    fit = result.fit
+    if result.status != "stopped" or fit is None or fit.fit_ok or STOPPED_CAUSE in fit.causes:
+        return result
+    out = IdentificationResult(**dict(result))
+    out["fit"] = replace(fit, causes=[STOPPED_CAUSE, *fit.causes])
+    return out
+
+
 def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
     """The noise model a weighted result recorded (its settings' ``objective``, written by
     :func:`iwr.identify` and ``iwr-calibrate --noise``), in the kind's form; None without one."""
@@ -573,9 +602,8 @@ def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
 
 def _extras(robot: Any, kind: Any) -> str:
     """What a result's parameters hold beyond the robot's geometric errors, for messages."""
-    setup = "its ballbar set-ups" if kind.name == "ballbar" else "its tracker setup"
     parts = (["its effects"] if robot.effects else []) + (
-        [setup] if kind.setup_parameter_names(robot) else [])
+        [kind.setup_words] if kind.setup_parameter_names(robot) else [])
     return f"with {' and '.join(parts)} " if parts else ""
 
 

@@ -40,6 +40,9 @@ CALIBRATION_STATUSES = {
     "failed fit test": "the model does not fit the data (chi-square test or implausible errors)",
     "interrupted": "Ctrl-C (or a signal) ended the identification: its best point so far",
     "not converged": "a limit (evaluations, generations, time) ended the identification first",
+    "not calibrated": "the method converged, but the data cannot identify the robot's errors "
+                      "(degenerate data) or the calibrated robot is no better than the nominal "
+                      "one: more budget would not help; measure more, and more varied, poses",
     "failed": "the identification failed, or its result is not finite",
 }
 
@@ -69,11 +72,12 @@ class TargetError(ValueError):
 
 def calibration_status(result: IdentificationResult) -> str:
     """The status a calibration file records for an identification ``result``
-    (:data:`CALIBRATION_STATUSES`): interrupted, then a failed fit test, then not converged or
-    failed, else success."""
+    (:data:`CALIBRATION_STATUSES`): interrupted, then not calibrated (the job's verdict on
+    degenerate data, whose fit test says nothing, or on no improvement), then a failed fit
+    test, then not converged or failed, else success."""
     status = result.status
-    if status == "interrupted":
-        return "interrupted"
+    if status in ("interrupted", "not calibrated"):  # iwr.calibration.NOT_CALIBRATED
+        return str(status)
     fit = result.fit
     if fit is not None and not fit.fit_ok:
         return "failed fit test"

@@ -32,6 +32,7 @@ from ._io import atomic_write
 from .measurements import Measurements
 from .result import IdentificationResult, status_from_message
 from .robot import Robot
+from .robot_fingerprint import record as robot_model_record
 
 __all__ = ["save_problem", "load_problem", "engine_result", "sha256_of", "FormatError"]
 
@@ -273,10 +274,17 @@ def engine_result(checkpoint: str | os.PathLike[str],
                                                              c["data_fingerprint"]):
             raise FormatError(f"{checkpoint}: made for another problem than {problem}")
         names = list(p["parameter_names"])
+        # The model of the robot the engine ran on, as every job records it (iwr report checks
+        # its robot file against it); the problem file holds all of it.
+        try:
+            settings["robot_model"] = robot_model_record(load_problem(problem).robot)
+        except ValueError:  # a file the Python checks refuse: no record (iwr report warns)
+            pass
         settings["bounds"] = p["bounds_kind"]
         settings["n_poses"] = len(p["legs"])
         settings["measurements"] = p["kind"]
         settings["sources"] = {role: path for role, path, _ in p["sources"]}
+        settings["sources_sha256"] = {role: sha for role, _, sha in p["sources"] if sha}
         if p["weighting"] is not None:
             settings["weighting"] = p["weighting"][0]
     settings.update(

@@ -433,6 +433,7 @@ def test_too_few_poses_and_a_method_not_converged_say_the_data_are_the_cause(sim
     assert proc.returncode == 5, proc.stdout + proc.stderr
     assert "iwr calibrate: not calibrated (exit 5): degenerate data: the 3 distinct" in proc.stderr
     assert iwr.load_result(out / "result.json").success is False
+    assert iwr.Robot.from_toml(out / "calibrated.toml").provenance["status"] == "not calibrated"
     assert "**Not calibrated: degenerate data" in (out / "report.md").read_text()
 
 

@@ -383,6 +383,10 @@ def test_calibration_status_order():
     assert calibration_status(result(False, "interrupted", fit_ok=False)) == "interrupted"
     assert calibration_status(result(False, "stopped")) == "not converged"
     assert calibration_status(result(False, "failed")) == "failed"
+    # The job's verdict on degenerate data (the fit test of too few readings says nothing): it
+    # was written "not converged", as if more budget would help.
+    assert calibration_status(result(False, "not calibrated")) == "not calibrated"
+    assert calibration_status(result(False, "not calibrated", fit_ok=False)) == "not calibrated"
 
 
 def test_a_successful_pose_calibration_records_success_and_legs_use_it(sim, tmp_path):

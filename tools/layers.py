@@ -36,7 +36,7 @@ LAYERS: list[tuple[str, list[str]]] = [
         "iwr.effects.model"]),
     ("kinds: the measurement-kind protocol and registry", ["iwr.kinds"]),
     ("data and the robot model", [
-        "iwr.measurements", "iwr.robot", "iwr.robot_file",
+        "iwr.measurements", "iwr.robot", "iwr.robot_file", "iwr.robot_fingerprint",
         "iwr.tracker.setup", "iwr.tracker.data", "iwr.tracker.files", "iwr.tracker.sa_export",
         "iwr.ballbar.setup", "iwr.ballbar.data", "iwr.ballbar.files"]),
     ("problems: the objective, the implicit loop, the result type", [

@@ -48,6 +48,7 @@ class BallbarKind(MeasurementKind):
     #: The report of a calibration (``iwr calibrate``, ``iwr report``): the distance residuals
     #: per set-up, the balls and offsets, what a ballbar cannot see.
     report = "iwr.reporting.ballbar_calibration:BallbarCalibrationReport"
+    setup_words = "its ballbar set-ups"
     #: The figures of iwr compare and iwr study on ballbar data (MeasurementKind.experiment_text).
     experiment_text = {
         **MeasurementKind.experiment_text,

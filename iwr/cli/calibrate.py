@@ -322,8 +322,10 @@ def _exit_code(cal: Any, prog: str = "iwr calibrate", *, converged: bool = True)
     from ..calibration import NOT_CALIBRATED
 
     if cal.fit_ok is False and cal.status != NOT_CALIBRATED:  # degenerate data: no fit to test
-        print(f"{prog}: the model does not fit the data (exit {EXIT_NO_FIT}); the files "
-              "are written, see the report", file=sys.stderr)
+        what = ("not converged, and its best point does not fit the data (run it longer first)"
+                if cal.status == "stopped" else "the model does not fit the data")
+        print(f"{prog}: {what} (exit {EXIT_NO_FIT}); the files are written, see the report",
+              file=sys.stderr)
         return EXIT_NO_FIT
     if cal.status == NOT_CALIBRATED:
         reason = str(cal.result.message).removeprefix(f"{NOT_CALIBRATED}: ")

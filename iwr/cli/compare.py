@@ -16,6 +16,7 @@ from ..experiments.compare import (
     default_methods,
 )
 from ..experiments.harness import check_n_poses, check_robot
+from ..kinds import for_robot
 from ..noise import Noise
 from ..robot import Robot
 from ._base import LazyHelp
@@ -121,6 +122,10 @@ def run_compare(args: argparse.Namespace) -> int:
         noise, source = simulation_noise(
             None if args.noise is None else _parse_noise(args.noise), robot, args.robot)
         if source is not None:
+            # The file's model as iwr calibrate and iwr simulate take it (its instrument's
+            # noise beside the readings': a ballbar's bar; a position of 0, a robot file's for a
+            # ballbar, made the bar exact and the efficient estimator refuse the runs).
+            noise = for_robot(robot).reading_noise(noise)
             print(f"noise model: {describe(noise)} (from {source})")
         comp = compare_methods(
             robot=robot,

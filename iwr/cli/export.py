@@ -8,7 +8,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ._base import EXIT_OK, UsageError, add_common, load_robot, positive_int
+from ._base import EXIT_OK, CommandError, UsageError, add_common, load_robot, positive_int
 
 DEFAULT_OUT = "iwr-export"
 #: Poses per coordinate of the leg-correction grid by default (3^6 = 729 poses).
@@ -39,6 +39,10 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--grid", type=positive_int, default=DEFAULT_GRID, metavar="N",
                    help="poses per coordinate of the correction table, evenly over home_pose +- "
                    f"workspace (N^6 poses; default %(default)s, at most {MAX_GRID})")
+    p.add_argument("--allow-unverified", action="store_true",
+                   help="export a calibration whose [provenance] status is not 'success' (a "
+                   "failed fit test, degenerate data, an interrupted or unconverged run), as "
+                   "iwr legs uses one")
     add_common(p)
     p.set_defaults(func=cmd_export)
     return p
@@ -55,7 +59,19 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.grid > MAX_GRID:
         raise UsageError(f"--grid {args.grid}: at most {MAX_GRID} poses per coordinate "
                          f"({args.grid}^6 poses is too large a table)", "iwr export")
+    from ..compensation import (
+        CalibrationStatusError,
+        check_calibration,
+        determined_frame,
+        gauge_note,
+    )
+
     robot = load_robot(args.robot)
+    try:  # as iwr legs: a controller's files only from a verified calibration
+        note = check_calibration(robot, allow_unverified=args.allow_unverified,
+                                 where=str(args.robot))
+    except CalibrationStatusError as exc:
+        raise CommandError(str(exc)) from None
     nominal = load_robot(args.nominal) if args.nominal else None
     if nominal is not None and nominal.joint_types != robot.joint_types:
         raise UsageError(f"--nominal {args.nominal}: joints {nominal.joint_types!r}, but "
@@ -84,6 +100,10 @@ def cmd_export(args: argparse.Namespace) -> int:
     print(f"wrote {out}/:")
     for line in written:
         print(f"  {line}")
+    if note:
+        print(note)
+    if determined_frame(robot) is None:  # a ballbar's calibration: {0} and {5} nominal
+        print(f"note: {gauge_note(robot, str(args.robot))}")
     if robot.effects:
         names = ", ".join(e.name for e in robot.effects)
         print(f"note: {args.robot} has non-geometric effects ({names}): genhexkins.hal, "

@@ -5,6 +5,7 @@ report, as ``iwr calibrate`` writes them."""
 from __future__ import annotations
 
 import argparse
+import sys
 from pathlib import Path
 from typing import Any
 
@@ -91,6 +92,40 @@ def _check_data(args: argparse.Namespace, result: Any, robot: Any, data: Any) ->
     return ""
 
 
+def _check_robot(args: argparse.Namespace, result: Any, robot: Any) -> str:
+    """Refuse a ROBOT.toml that is not the robot the result was identified for (exit 2),
+    naming what differs (:func:`iwr.robot_fingerprint.differences`); a warning when the result
+    records no model of its robot (written by an older iwr, or saved by the API)."""
+    from collections.abc import Mapping
+
+    from ..robot_fingerprint import differences
+
+    settings = dict(result.settings)
+    recorded = settings.get("robot_model")
+    if not isinstance(recorded, Mapping) or not recorded.get("fingerprint"):
+        return (f"warning: {args.run} records no model of the robot it was identified for "
+                f"(written by an older iwr, or saved by the API), so {args.robot} could not be "
+                "checked to be that robot: if it is another one, the figures of this report are "
+                "wrong")
+    found = differences(recorded, robot)
+    if found:
+        made_from = (settings.get("sources") or {}).get("robot") or settings.get("robot_file")
+        raise UsageError(
+            f"{args.robot} is not the robot {args.run} was identified for"
+            + (f" (made from {made_from})" if made_from else "") + ": "
+            + "; ".join(found) + "; give the robot file of the run", "iwr report")
+    return ""
+
+
+def _shown_settings(result: Any) -> dict[str, Any]:
+    """The result's settings as the report shows them: the robot's model by its fingerprint."""
+    settings = {"method": result.method, **dict(result.settings)}
+    model = settings.get("robot_model")
+    if isinstance(model, dict) and "fingerprint" in model:
+        settings["robot_model"] = model["fingerprint"]
+    return settings
+
+
 def cmd_report(args: argparse.Namespace) -> int:
     from ..calibration import LeftOutError, from_result
     from ..kinds import for_robot
@@ -110,6 +145,8 @@ def cmd_report(args: argparse.Namespace) -> int:
                          "them yet (docs/kinds.md)", "iwr report")
     data = read_data(args.data, robot, args.readings, targets=target_format(args),
                      prog="iwr report")
+    # The robot first: the data's fingerprint depends on its set-up (the tracker's points).
+    warning = _check_robot(args, result, robot)
     note = _check_data(args, result, robot, data)
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
@@ -121,15 +158,17 @@ def cmd_report(args: argparse.Namespace) -> int:
             robot, data, result, validation=validation, data_name=str(args.data),
             robot_name=str(args.robot),
             sources={"readings": str(args.readings)} if args.readings else None,
-            settings={"method": result.method,
-                      **dict(result.settings)},
+            settings=_shown_settings(result),
             provenance=provenance(inputs))
     except LeftOutError as exc:  # a pose the run left out is not in DATA: other data
         raise UsageError(f"{args.data}: {one_line(exc)} ({args.run})", "iwr report") from None
     except ValueError as exc:  # the result's parameters are not this robot's
         raise CommandError(f"{args.run}: {one_line(exc)} ({args.robot})") from None
-    if note:
-        cal.notes.insert(0, note)
+    if warning:  # said once the report is made (a refusal above says what it is about)
+        print(f"iwr report: {warning}", file=sys.stderr)
+    for line in (note, warning):
+        if line:
+            cal.notes.insert(0, line)
     report = render(cal)
     print(report.text())
     out = Path(args.out)

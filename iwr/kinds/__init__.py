@@ -68,6 +68,9 @@ class MeasurementKind(abc.ABC):
     #: Whether :func:`iwr.estimation.fit_check` can test an eq. (10)-type solution's cost with a
     #: noise model (else only the efficient estimator tests the fit of these data).
     chi2_fit_test: ClassVar[bool] = False
+    #: What the setup parameters (:meth:`setup_parameter_names`) belong to, as a result's
+    #: parameters are described in messages ("with its effects and {setup_words}").
+    setup_words: ClassVar[str] = "its instrument's setup"
     #: Whether :func:`for_robot` chooses this kind only when no other applies (the pose in {0}:
     #: a robot describes no instrument for it).
     fallback: ClassVar[bool] = False
@@ -397,9 +400,11 @@ class MeasurementKind(abc.ABC):
         return np.zeros(len(self.setup_parameter_names(robot)))
 
     def angle_parameters(self, robot: Any) -> np.ndarray:
-        """Which parameters of ``x`` are angles (rad): the robot's, then the setup's (default:
-        none of the setup's)."""
-        n = len(self.setup_parameter_names(robot))
+        """Which parameters of ``x`` are angles (rad): the robot's, its effects' (issue 23:
+        none), then the setup's (default: none of the setup's)."""
+        from ..effects import parameter_names as effect_names
+
+        n = len(effect_names(robot.effects)) + len(self.setup_parameter_names(robot))
         return np.concatenate([np.asarray(robot.angle_parameters, dtype=bool),
                                np.zeros(n, dtype=bool)])
 

@@ -18,6 +18,7 @@ from ..kinds import reuse
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
+from ..robot_fingerprint import fingerprint as robot_fingerprint
 from .figures import histogram, new_figure, png_bytes
 from .html import Page, write_page
 
@@ -124,6 +125,7 @@ class CalibrationReport(Calibration):
             "version": 1,
             "data_kind": "pose",  # every kind's summary names its kind (setup_parameters.py)
             "robot": self.robot_name or self.robot.name,
+            "robot_model": robot_fingerprint(self.robot),
             "data": self.data_name,
             "n_identification": len(self.identification),
             "n_validation": len(self.validation) if self.held_out else 0,
@@ -190,6 +192,8 @@ class CalibrationReport(Calibration):
             return NOT_CALIBRATED
         fit = r.fit
         if fit is not None and not fit.fit_ok:
+            if r.status == "stopped":  # iwr.calibration.STOPPED_CAUSE: first run longer
+                return "not converged (status stopped), and its best point does not fit the data"
             return "the model does not fit the data"
         return f"not converged (status {r.get('status', '?')})"
 
@@ -411,8 +415,7 @@ class CalibrationReport(Calibration):
             lines.extend(self.diagnosis.lines())
         fit_test = r.fit
         if fit_test is not None and not fit_test.fit_ok:
-            lines.append("VERDICT: THE MODEL DOES NOT FIT THE DATA; the accuracy figures above "
-                         "are not a calibration (causes listed above)")
+            lines.append(self.no_fit_verdict("the accuracy figures above"))
         lines.extend(self.notes)
         return "\n".join(lines)
 
@@ -562,6 +565,14 @@ class CalibrationReport(Calibration):
             text += " " + self.diagnosis.sentence()
         return text, grade
 
+    def no_fit_verdict(self, figures: str) -> str:
+        """The summary's last line when the fit test failed: the model does not fit, or (a
+        limit stopped the method before it converged, :data:`iwr.calibration.STOPPED_CAUSE`)
+        its best point does not."""
+        head = ("NOT CONVERGED, AND ITS BEST POINT DOES NOT FIT THE DATA"
+                if self.result.status == "stopped" else "THE MODEL DOES NOT FIT THE DATA")
+        return f"VERDICT: {head}; {figures} are not a calibration (causes listed above)"
+
     def _graded(self, before: float, after: float, change: str, what: str) -> tuple[str, str]:
         """The verdict from the result's status and fit and the error ``before`` and ``after``
         calibration (``change`` says them in words, ``what`` names them)."""
@@ -571,7 +582,9 @@ class CalibrationReport(Calibration):
                     "bad")
         fit = r.fit
         if fit is not None and not fit.fit_ok:
-            return ("The model does not fit the data: " + fit.verdict.removeprefix(
+            head = ("Not converged, and its best point does not fit the data: "
+                    if r.status == "stopped" else "The model does not fit the data: ")
+            return (head + fit.verdict.removeprefix(
                 "THE MODEL DOES NOT FIT THE DATA: ") + ". Likely causes: " + " ".join(
                     c.rstrip(".") + "." for c in fit.causes) + f" ({change}.)", "bad")
         if r.status == NOT_CALIBRATED:

@@ -8,6 +8,8 @@ from typing import Any
 
 import numpy as np
 
+from ..robot_fingerprint import fingerprint as robot_fingerprint
+
 __all__ = ["SetupParameters"]
 
 
@@ -31,6 +33,7 @@ class SetupParameters:
         out: dict[str, Any] = {
             "format": "iwr-calibration-summary", "version": 1, "data_kind": kind,
             "robot": self.robot_name or self.robot.name, "data": self.data_name,  # type: ignore[attr-defined]
+            "robot_model": robot_fingerprint(self.robot),  # type: ignore[attr-defined]
             "n_identification": len(self.identification),  # type: ignore[attr-defined]
             "n_validation": len(self.validation) if self.held_out else 0,  # type: ignore[attr-defined]
             "method": self.result.method, "nfev": int(self.result.nfev),

@@ -286,8 +286,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         if self.diagnosis is not None:
             lines += self.diagnosis.lines()
         if self._fit_failed():
-            lines.append("VERDICT: THE MODEL DOES NOT FIT THE DATA; the figures above are not a "
-                         "calibration (causes listed above)")
+            lines.append(self.no_fit_verdict("the figures above"))
         lines.extend(self.notes)
         return "\n".join(lines)
 

@@ -47,6 +47,7 @@ class _TrackerKind(MeasurementKind):
     weighted_objective = True  # the points' covariance (a probe's: rank 6), noise_whitening
     chi2_fit_test = True
     report = "iwr.reporting.tracker_calibration:TrackerCalibrationReport"
+    setup_words = "its tracker setup"
     #: The figures of iwr compare and iwr study on tracker data (MeasurementKind.experiment_text).
     experiment_text = {
         "cost": "the sum of squared point residuals in {T}, predicted minus measured (mm^2)",

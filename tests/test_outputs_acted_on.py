@@ -1,0 +1,128 @@
+"""Outputs a calibration engineer acts on: what a report says of a result identified elsewhere
+(``iwr report`` of an ``iwr-calibrate`` run), the status a calibration file records."""
+
+from __future__ import annotations
+
+import numpy as np
+
+import iwr
+from iwr.calibration import STOPPED_CAUSE, from_result
+from iwr.reporting.calibration import render
+
+NOISE = iwr.Noise.realistic()
+
+
+def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first(capsys):
+    """A weighted DE run that its last generation stopped far from the solution: the report
+    said "the model does not fit the data" and nothing else (the fit test and the outlier test
+    of its best point blame the model and clean poses: on a simulated ballbar run of 30
+    generations, 2 clean poses named). Its first cause is now that the run did not converge, and
+    the method line says so; a converged result that does not fit keeps the old words."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 20, seed=3, noise=NOISE)
+    job = iwr.identify(robot, data, "lm", noise=NOISE,
+                       active=iwr.identifiability(robot, data).active)
+    stopped = iwr.IdentificationResult(**dict(job))
+    stopped.update(fit=None, success=False, status="stopped", fun=50 * job.fun,
+                   message="the maximum number of generations (30) was reached",
+                   settings={**job.settings, "weighting": "the noise model"})
+    cal = from_result(robot, data, stopped)
+    assert cal.fit_ok is False and cal.result.fit.causes[0] == STOPPED_CAUSE
+    report = render(cal)
+    assert report.status_text() == ("not converged (status stopped), and its best point does not "
+                                    "fit the data")
+    text = report.text()
+    assert "run it to convergence" in text
+    assert ("VERDICT: NOT CONVERGED, AND ITS BEST POINT DOES NOT FIT THE DATA; the accuracy "
+            "figures above are not a calibration") in text
+    assert report.verdict()[0].startswith("Not converged, and its best point does not fit")
+    from iwr.cli.calibrate import _exit_code
+
+    capsys.readouterr()
+    assert _exit_code(cal, "iwr report", converged=False) == 3  # the fit failed: exit 3
+    assert "iwr report: not converged, and its best point does not fit the data (run it longer " \
+        "first) (exit 3)" in capsys.readouterr().err
+    converged = iwr.IdentificationResult(**dict(stopped))
+    converged.update(success=True, status="converged", message="converged")
+    cal = from_result(robot, data, converged)
+    assert cal.fit_ok is False and STOPPED_CAUSE not in cal.result.fit.causes
+    report = render(cal)
+    assert report.status_text() == "the model does not fit the data"
+    assert "VERDICT: THE MODEL DOES NOT FIT THE DATA" in report.text()
+
+
+def test_every_kind_says_which_parameters_are_angles_with_effects(kind_case):
+    """The pose kind's angle mask left out the effects' parameters (58 for a layout of 65): `iwr
+    compare` and `iwr study` of a robot with effects on pose data stopped with an internal
+    IndexError. Every kind's mask has the layout of x: the robot's, the effects', the set-up's."""
+    from iwr.effects import api
+    from iwr.effects import parameter_names as effect_names
+    from iwr.experiments.compare import compare_methods
+
+    for name in ("pose", "points", "ballbar"):
+        case = kind_case(name, n_poses=1)
+        robot = case.robot.with_effects(*api.realistic(case.robot))
+        mask = case.kind.angle_parameters(robot)
+        n_eff = len(effect_names(robot.effects))
+        assert mask.shape == (case.kind.n_params(robot) + n_eff,)
+        assert not mask[robot.n_params: robot.n_params + n_eff].any()
+        assert (mask[:robot.n_params] == robot.angle_parameters).all()
+    robot = iwr.Robot.default()
+    robot = robot.with_effects(*api.realistic(robot))
+    comp = compare_methods(robot, 16, seeds=[0], methods=["lm"], budget=200, start="near",
+                           out=None, n_validation=5, progress=False)
+    row = comp.runs[0]
+    assert row["status"] != "failed", row.get("message")
+    assert np.isfinite(row["raw_error_length"]) and np.isfinite(row["raw_error_angle"])
+
+
+def test_compare_takes_a_ballbar_robot_files_noise_as_calibrate_does(kind_case, tmp_path,
+                                                                    monkeypatch):
+    """`iwr compare --robot BALLBAR.toml` with a [noise] table (a ballbar's: position 0) passed
+    the file's iwr.Noise on, read as an experiment's level: the bar exact, and every efficient
+    run refused ("BallbarNoise.distance: 0"). The file's model is now the one iwr calibrate and
+    iwr simulate take: the readings' noise and the bar's default."""
+    from iwr.ballbar import BallbarNoise
+    from iwr.cli import compare as cli_compare
+    from iwr.cli import main as cli_main
+
+    robot = kind_case("ballbar", n_poses=1).robot.with_noise(
+        iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6))
+    robot.to_toml(tmp_path / "robot.toml")
+    seen = {}
+
+    def fake(**kwargs):
+        seen.update(kwargs)
+        raise KeyboardInterrupt  # the run itself is not this test's
+
+    monkeypatch.setattr(cli_compare, "compare_methods", fake)
+    cli_main(["compare", "--robot", str(tmp_path / "robot.toml"), "--poses", "60",
+              "--methods", "efficient", "--no-progress", "-o", str(tmp_path / "c")])
+    readings, bar = seen["noise"]
+    assert readings.legs == 0.002 and bar == BallbarNoise()
+
+
+def test_export_refuses_an_unverified_calibration_as_legs_does(kind_case, tmp_path, capsys):
+    """`iwr export` wrote a controller's files (genhexkins.hal, the leg corrections) from a
+    calibration whose fit failed, silently; `iwr legs` refuses it. Now the same rule, and after
+    a ballbar calibration the same note on the frames it does not determine."""
+    from iwr.cli import main as cli_main
+
+    failed = iwr.Robot.default()
+    failed.provenance = {"method": "lm", "status": "failed fit test",
+                         "status_detail": "THE MODEL DOES NOT FIT THE DATA"}
+    failed.to_toml(tmp_path / "failed.toml")
+    capsys.readouterr()
+    assert cli_main(["export", str(tmp_path / "failed.toml"), "-o", str(tmp_path / "e")]) == 1
+    assert "records status 'failed fit test'" in capsys.readouterr().err
+    assert not (tmp_path / "e").exists()
+    assert cli_main(["export", str(tmp_path / "failed.toml"), "-o", str(tmp_path / "e"),
+                     "--allow-unverified"]) == 0
+    assert "used because --allow-unverified was given" in capsys.readouterr().out
+    assert (tmp_path / "e" / "genhexkins.hal").is_file()
+    ballbar = kind_case("ballbar", n_poses=1).robot
+    ballbar.provenance = {"method": "lm", "status": "success"}
+    ballbar.to_toml(tmp_path / "ballbar.toml")
+    assert cli_main(["export", str(tmp_path / "ballbar.toml"), "-o", str(tmp_path / "b")]) == 0
+    assert "determine neither the world frame {0} nor the platform frame {5}" \
+        in capsys.readouterr().out
