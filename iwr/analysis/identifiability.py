@@ -412,7 +412,10 @@ def _base_parameters(
             for j in _preference(robot):
                 if j in kept:
                     continue
-                v = js[:, j] / np.linalg.norm(js[:, j])
+                size = np.linalg.norm(js[:, j])
+                if size == 0:  # a parameter the data do not see at all: never a base one
+                    continue
+                v = js[:, j] / size
                 for _ in range(2):
                     for b in basis:
                         v = v - (b @ v) * b
