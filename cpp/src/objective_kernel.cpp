@@ -226,11 +226,11 @@ bool has_avx512() {
 
 const Variant kVariants[] = {
 #if IWR_X86_DISPATCH
-    {"baseline", sse2::kernel, {sse2::tracker_chord, sse2::tracker_chord2, sse2::tracker_points}, always},
-    {"avx2", avx2::kernel, {avx2::tracker_chord, avx2::tracker_chord2, avx2::tracker_points}, has_avx2},
-    {"avx512", avx512::kernel, {avx512::tracker_chord, avx512::tracker_chord2, avx512::tracker_points}, has_avx512},
+    {"baseline", sse2::kernel, {sse2::tracker_chord, sse2::chord_pair, sse2::tracker_points}, always},
+    {"avx2", avx2::kernel, {avx2::tracker_chord, avx2::chord_pair, avx2::tracker_points}, has_avx2},
+    {"avx512", avx512::kernel, {avx512::tracker_chord, avx512::chord_pair, avx512::tracker_points}, has_avx512},
 #else
-    {"baseline", portable::kernel, {portable::tracker_chord, portable::tracker_chord2, portable::tracker_points}, always},
+    {"baseline", portable::kernel, {portable::tracker_chord, portable::chord_pair, portable::tracker_points}, always},
 #endif
 };
 constexpr int kNumVariants = static_cast<int>(sizeof(kVariants) / sizeof(kVariants[0]));

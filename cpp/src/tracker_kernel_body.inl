@@ -269,18 +269,16 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
     chord_blocks<1>(b, tc, pout, rout, status);
 }
 
-// Two blocks (blk1 after blk0: out as tracker_chord's, block 1's after block 0's), at once where
-// that is faster (kChordPair), else one after the other: the same values either way.
-void tracker_chord2(const double* blk0, const double* blk1, const TrackerConsts& tc, double* pout,
-                    double* rout, int* status) {
-    if constexpr (kChordPair) {
-        const double* const b[2] = {blk0, blk1};
-        chord_blocks<2>(b, tc, pout, rout, status);
-    } else {
-        tracker_chord(blk0, tc, pout, rout, status);
-        tracker_chord(blk1, tc, pout + 3 * kBlock, rout + 9 * kBlock, status + kBlock);
-    }
+// Two blocks at once (blk1 after blk0: out as tracker_chord's, block 1's after block 0's), the
+// same values as tracker_chord on each. chord_pair: it where the variant runs it (kChordPair: where
+// it is faster), else null and the caller runs tracker_chord block by block (as one call deeper on
+// the stack, the SSE2 chord ran 3-4 % slower).
+[[maybe_unused]] void tracker_chord2(const double* blk0, const double* blk1, const TrackerConsts& tc,
+                                    double* pout, double* rout, int* status) {
+    const double* const b[2] = {blk0, blk1};
+    chord_blocks<2>(b, tc, pout, rout, status);
 }
+constexpr auto chord_pair = kChordPair ? &tracker_chord2 : nullptr;
 
 // The transform T_T4 = T_T0 0T4 of the block's poses (the registration is folded into the carriage's
 // constants; tout: rotation row-major 0..8, position 9..11, each 8 lanes), the points in {T}
