@@ -110,10 +110,8 @@ IWR_FORCE_INLINE int m_bits(M a) { return _mm256_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm256_blendv_pd(b, a, m); }
 IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm256_and_pd(m, a); }
 #include "objective_kernel_body.inl"
-#ifndef IWR_AVX2_PAIR
-#define IWR_AVX2_PAIR false
-#endif
-constexpr bool kChordPair = IWR_AVX2_PAIR;  // tracker_chord2: two blocks at once
+// Not two blocks at once: four registers a value spill, 20 % slower (BENCHMARKS.md, "Tenth round").
+constexpr bool kChordPair = false;  // tracker_chord2: two blocks at once
 #include "tracker_kernel_body.inl"
 }  // namespace avx2
 #if defined(__clang__)
@@ -162,7 +160,7 @@ IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm512_maskz_mov_pd(m, a); }
 #define IWR_HALF_PASS avx2
 #include "objective_kernel_body.inl"
 #undef IWR_HALF_PASS
-constexpr bool kChordPair = true;  // tracker_chord2: two blocks at once
+constexpr bool kChordPair = true;  // tracker_chord2: two blocks at once (2-4 % faster)
 #include "tracker_kernel_body.inl"
 }  // namespace avx512
 #if defined(__clang__)
