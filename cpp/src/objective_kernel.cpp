@@ -75,6 +75,7 @@ IWR_FORCE_INLINE int m_bits(M a) { return _mm_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm_or_pd(_mm_and_pd(m, a), _mm_andnot_pd(m, b)); }
 IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm_and_pd(m, a); }  // a where m, +0 elsewhere
 #include "objective_kernel_body.inl"
+constexpr bool kChordPair = false;  // tracker_chord2: two blocks at once
 #include "tracker_kernel_body.inl"
 }  // namespace sse2
 
@@ -109,6 +110,8 @@ IWR_FORCE_INLINE int m_bits(M a) { return _mm256_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm256_blendv_pd(b, a, m); }
 IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm256_and_pd(m, a); }
 #include "objective_kernel_body.inl"
+// Not two blocks at once: four registers a value spill, 20 % slower (BENCHMARKS.md, "Tenth round").
+constexpr bool kChordPair = false;  // tracker_chord2: two blocks at once
 #include "tracker_kernel_body.inl"
 }  // namespace avx2
 #if defined(__clang__)
@@ -157,6 +160,7 @@ IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm512_maskz_mov_pd(m, a); }
 #define IWR_HALF_PASS avx2
 #include "objective_kernel_body.inl"
 #undef IWR_HALF_PASS
+constexpr bool kChordPair = true;  // tracker_chord2: two blocks at once (2-4 % faster)
 #include "tracker_kernel_body.inl"
 }  // namespace avx512
 #if defined(__clang__)
@@ -193,6 +197,7 @@ inline int m_bits(M a) { return a ? 1 : 0; }
 inline R m_select(M m, R a, R b) { return m ? a : b; }
 inline R m_keep(M m, R a) { return m ? a : 0.0; }
 #include "objective_kernel_body.inl"
+constexpr bool kChordPair = false;  // tracker_chord2: two blocks at once
 #include "tracker_kernel_body.inl"
 }  // namespace portable
 
@@ -219,11 +224,11 @@ bool has_avx512() {
 
 const Variant kVariants[] = {
 #if IWR_X86_DISPATCH
-    {"baseline", sse2::kernel, {sse2::tracker_chord, sse2::tracker_points}, always},
-    {"avx2", avx2::kernel, {avx2::tracker_chord, avx2::tracker_points}, has_avx2},
-    {"avx512", avx512::kernel, {avx512::tracker_chord, avx512::tracker_points}, has_avx512},
+    {"baseline", sse2::kernel, {sse2::tracker_chord, sse2::chord_pair, sse2::tracker_points}, always},
+    {"avx2", avx2::kernel, {avx2::tracker_chord, avx2::chord_pair, avx2::tracker_points}, has_avx2},
+    {"avx512", avx512::kernel, {avx512::tracker_chord, avx512::chord_pair, avx512::tracker_points}, has_avx512},
 #else
-    {"baseline", portable::kernel, {portable::tracker_chord, portable::tracker_points}, always},
+    {"baseline", portable::kernel, {portable::tracker_chord, portable::chord_pair, portable::tracker_points}, always},
 #endif
 };
 constexpr int kNumVariants = static_cast<int>(sizeof(kVariants) / sizeof(kVariants[0]));

@@ -71,6 +71,10 @@ struct TrackerConsts {
 /// 64-byte aligned).
 struct TrackerKernels {
     void (*chord)(const double* blk, const TrackerConsts& tc, double* p, double* r, int* status);
+    // Two blocks: p, r, status of blk1 after blk0's (3 x 8, 9 x 8, 8 each); the same values as
+    // chord on each. Null where the variant runs chord block by block.
+    void (*chord2)(const double* blk0, const double* blk1, const TrackerConsts& tc, double* p,
+                   double* r, int* status);
     void (*points)(const double* blk, const TrackerConsts& tc, const double* p, const double* r,
                    const double* meas, const double* seen, const double* bad, bool all_seen,
                    const double* wh, double* vbuf, double* t, double* y, double* acc);

@@ -370,12 +370,23 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
     Hexapod h;
     bool have_h = false;
     double* y = ws.y.data();
-    alignas(64) double pp[3 * W], rr[9 * W], t[12 * W], bad[W], acc[W] = {};
-    int status[W];
+    // The forward kinematics of two blocks at once where the variant does so (chord2), else
+    // block by block; then each block's points.
+    alignas(64) double pp2[2 * 3 * W], rr2[2 * 9 * W], t[12 * W], bad[W], acc[W] = {};
+    int status2[2 * W];
     const bool scalar = res || failed || poses || predicted;
     for (int blk = 0; blk * W < n_; ++blk) {
         const double* data = block_data(blk);
-        kernel.chord(data, tc, pp, rr, status);
+        const int half = kernel.chord2 ? blk % 2 : 0;
+        if (!kernel.chord2)
+            kernel.chord(data, tc, pp2, rr2, status2);
+        else if (half == 0 && (blk + 1) * W < n_)
+            kernel.chord2(data, block_data(blk + 1), tc, pp2, rr2, status2);
+        else if (half == 0)
+            kernel.chord(data, tc, pp2, rr2, status2);
+        double* pp = pp2 + half * 3 * W;
+        double* rr = rr2 + half * 9 * W;
+        const int* status = status2 + half * W;
         for (int l = 0; l < W; ++l) {
             const int k = blk * W + l;
             bad[l] = 0.0;

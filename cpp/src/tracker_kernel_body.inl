@@ -5,56 +5,67 @@
 // SSE2 baseline (fma as a multiply and an add) the same to rounding.
 // (No include guard: included several times on purpose.)
 
-IWR_FORCE_INLINE Pack operator/(const Pack& a, const Pack& b) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = r_div(a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE PackN<KK> operator/(const PackN<KK>& a, const PackN<KK>& b) {
+    PackN<KK> p;
+    for (int k = 0; k < KK; ++k) p.v[k] = r_div(a.v[k], b.v[k]);
     return p;
 }
 
 IWR_FORCE_INLINE Pack zero_pack() { return splat(0.0); }
 
-// A mask of the 8 lanes; false for NaN in the comparisons.
-struct Mask {
-    M v[K];
+// A mask of the lanes of KK registers (Mask: a block's 8); false for NaN in the comparisons.
+template <int KK>
+struct MaskN {
+    M v[KK];
 };
-IWR_FORCE_INLINE Mask operator<=(const Pack& a, const Pack& b) {
-    Mask m;
-    for (int k = 0; k < K; ++k) m.v[k] = m_le(a.v[k], b.v[k]);
+using Mask = MaskN<K>;
+template <int KK>
+IWR_FORCE_INLINE MaskN<KK> operator<=(const PackN<KK>& a, const PackN<KK>& b) {
+    MaskN<KK> m;
+    for (int k = 0; k < KK; ++k) m.v[k] = m_le(a.v[k], b.v[k]);
     return m;
 }
-IWR_FORCE_INLINE Mask operator<(const Pack& a, const Pack& b) {
-    Mask m;
-    for (int k = 0; k < K; ++k) m.v[k] = m_lt(a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE MaskN<KK> operator<(const PackN<KK>& a, const PackN<KK>& b) {
+    MaskN<KK> m;
+    for (int k = 0; k < KK; ++k) m.v[k] = m_lt(a.v[k], b.v[k]);
     return m;
 }
-IWR_FORCE_INLINE Mask operator&(const Mask& a, const Mask& b) {
-    Mask m;
-    for (int k = 0; k < K; ++k) m.v[k] = m_and(a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE MaskN<KK> operator&(const MaskN<KK>& a, const MaskN<KK>& b) {
+    MaskN<KK> m;
+    for (int k = 0; k < KK; ++k) m.v[k] = m_and(a.v[k], b.v[k]);
     return m;
 }
-IWR_FORCE_INLINE Mask operator|(const Mask& a, const Mask& b) {
-    Mask m;
-    for (int k = 0; k < K; ++k) m.v[k] = m_or(a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE MaskN<KK> operator|(const MaskN<KK>& a, const MaskN<KK>& b) {
+    MaskN<KK> m;
+    for (int k = 0; k < KK; ++k) m.v[k] = m_or(a.v[k], b.v[k]);
     return m;
 }
-IWR_FORCE_INLINE Mask and_not(const Mask& a, const Mask& b) {  // a and not b
-    Mask m;
-    for (int k = 0; k < K; ++k) m.v[k] = m_andnot(a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE MaskN<KK> and_not(const MaskN<KK>& a, const MaskN<KK>& b) {  // a and not b
+    MaskN<KK> m;
+    for (int k = 0; k < KK; ++k) m.v[k] = m_andnot(a.v[k], b.v[k]);
     return m;
 }
-IWR_FORCE_INLINE Mask all_lanes(bool on) {
-    Mask m;
-    for (int k = 0; k < K; ++k) m.v[k] = m_all(on);
+template <int KK = K>
+IWR_FORCE_INLINE MaskN<KK> all_lanes(bool on) {
+    MaskN<KK> m;
+    for (int k = 0; k < KK; ++k) m.v[k] = m_all(on);
     return m;
 }
-IWR_FORCE_INLINE int bits(const Mask& m) {  // bit l: lane l
+template <int KK>
+IWR_FORCE_INLINE int bits(const MaskN<KK>& m) {  // bit l: lane l
     int b = 0;
-    for (int k = 0; k < K; ++k) b |= m_bits(m.v[k]) << (k * (kBlock / K));
+    for (int k = 0; k < KK; ++k) b |= m_bits(m.v[k]) << (k * kSubLanes);
     return b;
 }
-IWR_FORCE_INLINE Pack select(const Mask& m, const Pack& a, const Pack& b) {
-    Pack p;
-    for (int k = 0; k < K; ++k) p.v[k] = m_select(m.v[k], a.v[k], b.v[k]);
+template <int KK>
+IWR_FORCE_INLINE PackN<KK> select(const MaskN<KK>& m, const PackN<KK>& a, const PackN<KK>& b) {
+    PackN<KK> p;
+    for (int k = 0; k < KK; ++k) p.v[k] = m_select(m.v[k], a.v[k], b.v[k]);
     return p;
 }
 
@@ -69,26 +80,32 @@ IWR_FORCE_INLINE const double* reread(const double* p) {
     return p;
 }
 
-// J_ref^-1 v for the block's lanes (inv: the 6 x 6 matrix row by row, v: 6 values, each 8 lanes),
-// one register's lanes at a time, v in registers: each row's product reads only the matrix (with
-// AVX2 the whole block's v would take 12 of the 16 registers, and reading it from memory made the
-// product wait on loads: 4-5 % of the AVX2 tracker objective). With AVX-512 (K = 1: one register
-// a block) v is read from memory in every row, as before (1.5 % faster than in registers).
-// set(h, s[m].v[h], row m's product) stores the result of register h. The same operations on each
-// lane either way.
-template <class Set>
-IWR_FORCE_INLINE void inverse_times(const double* inv, const double* v, Pack (&s)[6], Set set) {
-    constexpr int B = kBlock, W = kSubLanes;
-    inv = reread(inv);
-    for (int h = 0; h < K; ++h) {
-        R vh[6];
-        for (int n = 0; n < 6; ++n) vh[n] = r_load(v + n * B + h * W);
-        auto vn = [&](int n) IWR_FORCE_INLINE_LAMBDA { return K == 1 ? r_load(v + n * B) : vh[n]; };
-        for (int m = 0; m < 6; ++m) {
-            const double* row = inv + 6 * m * B + h * W;
-            R acc = r_mul(r_load(row), vn(0));
-            for (int n = 1; n < 6; ++n) acc = r_fma(r_load(row + n * B), vn(n), acc);
-            set(h, s[m].v[h], acc);
+// J_ref^-1 v for the lanes of NB blocks (inv[b]: block b's 6 x 6 matrix row by row; v: 6 values,
+// each 8 NB lanes, block after block), one register's lanes at a time, v in registers: each row's
+// product reads only the matrix (with AVX2 the whole block's v would take 12 of the 16 registers,
+// and reading it from memory made the product wait on loads: 4-5 % of the AVX2 tracker objective).
+// With AVX-512 (K = 1: one register a block) v is read from memory in every row, as before (1.5 %
+// faster than in registers). set(r, s[m].v[r], row m's product) stores the result of register r
+// (block r / K, its register r % K). The same operations on each lane either way.
+template <int NB, class Set>
+IWR_FORCE_INLINE void inverse_times(const double* const (&inv)[NB], const double* v,
+                                    PackN<K * NB> (&s)[6], Set set) {
+    constexpr int B = kBlock, W = kSubLanes, L = kBlock * NB;
+    for (int b = 0; b < NB; ++b) {
+        const double* ib = reread(inv[b]);
+        for (int h = 0; h < K; ++h) {
+            const int r = b * K + h;
+            R vh[6];
+            for (int n = 0; n < 6; ++n) vh[n] = r_load(v + n * L + r * W);
+            auto vn = [&](int n) IWR_FORCE_INLINE_LAMBDA {
+                return K == 1 ? r_load(v + n * L + r * W) : vh[n];
+            };
+            for (int m = 0; m < 6; ++m) {
+                const double* row = ib + 6 * m * B + h * W;
+                R acc = r_mul(r_load(row), vn(0));
+                for (int n = 1; n < 6; ++n) acc = r_fma(r_load(row + n * B), vn(n), acc);
+                set(r, s[m].v[r], acc);
+            }
         }
     }
 }
@@ -115,114 +132,153 @@ IWR_FORCE_INLINE void inverse_times(const double* inv, const double* v, Pack (&s
 // alone needs five or six.
 // status per lane: 0 solved, 1 not contracting (the caller's damped Newton fallback), 2 a leg
 // length <= 0. Out: P (3 x 8) and R (9 x 8, row-major) of each lane.
-void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, double* rout,
-                   int* status) {
-    constexpr int B = kBlock;
-    const double* inv = blk;
+// NB blocks at once (blk[b]; out: block b's P at pout + 24 b, R at rout + 72 b, status at
+// status + 8 b): each lane computes exactly what it would in a block of its own (the same
+// operations; a lane that has converged takes zero steps until the last of the NB blocks' lanes
+// has), more independent chains in flight where the register file holds them.
+template <int NB>
+IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const TrackerConsts& tc,
+                                   double* pout, double* rout, int* status) {
+    constexpr int B = kBlock, W = kSubLanes, L = kBlock * NB, KN = K * NB;
+    using P = PackN<KN>;
+    using MK = MaskN<KN>;
+    // Quantity q of every block (register b K + h: block b's register h).
+    auto in = [&](int q) IWR_FORCE_INLINE_LAMBDA {
+        P x;
+        for (int b = 0; b < NB; ++b)
+            for (int h = 0; h < K; ++h) x.v[b * K + h] = r_load(blk[b] + q * B + h * W);
+        return x;
+    };
+    auto out = [&](double* base, int per_block, int q, const P& x) IWR_FORCE_INLINE_LAMBDA {
+        for (int b = 0; b < NB; ++b)
+            for (int h = 0; h < K; ++h) r_store(base + b * per_block + q * B + h * W, x.v[b * K + h]);
+    };
+    auto sp = [](double x) IWR_FORCE_INLINE_LAMBDA { return bcast<P>(x); };
+    auto ldl = [](const double* ptr) IWR_FORCE_INLINE_LAMBDA { return ld<P>(ptr); };
     // Per-lane constants, residuals and the platform joints live in memory (loads are cheap and
-    // the registers few), the position in registers.
-    alignas(64) double d[18 * B], nl2[6 * B], f[6 * B], g[6 * B];
-    const double* hinv = blk + 54 * B;  // 1 / (2 L_j) at the reference
-    Pack p[3];
-    for (int c = 0; c < 3; ++c) p[c] = load(blk + (36 + c) * B);
+    // the registers few), the position in registers. In memory the NB blocks' lanes of a
+    // quantity follow each other (L doubles).
+    alignas(64) double d[18 * L], nl2[6 * L], f[6 * L], g[6 * L];
+    // 1 / (2 L_j) at the reference: quantity 54 + j of each block.
+    const double* inv[NB];
+    for (int b = 0; b < NB; ++b) inv[b] = blk[b];
+    P p[3];
+    for (int c = 0; c < 3; ++c) p[c] = in(36 + c);
     for (int j = 0; j < 6; ++j) {
-        const Pack b0 = splat(tc.ec.b[j][0]), b1 = splat(tc.ec.b[j][1]), b2 = splat(tc.ec.b[j][2]);
+        const P b0 = sp(tc.ec.b[j][0]), b1 = sp(tc.ec.b[j][1]), b2 = sp(tc.ec.b[j][2]);
         for (int c = 0; c < 3; ++c) {
-            const double* rr = blk + (39 + 3 * c) * B;
-            store(d + (3 * j + c) * B, load(rr) * b0 + load(rr + B) * b1 + load(rr + 2 * B) * b2);
+            const int rr = 39 + 3 * c;
+            store(d + (3 * j + c) * L, in(rr) * b0 + in(rr + 1) * b1 + in(rr + 2) * b2);
         }
     }
-    Mask act = all_lanes(true);
+    MK act = all_lanes<KN>(true);
     for (int j = 0; j < 6; ++j) {
-        const Pack len = load(blk + (48 + j) * B) + splat(tc.ec.l0[j]);
-        store(nl2 + j * B, splat(0.0) - len * len);
-        act = act & (splat(0.0) < len);  // false for a length <= 0 (or NaN)
+        const P len = in(48 + j) + sp(tc.ec.l0[j]);
+        store(nl2 + j * L, sp(0.0) - len * len);
+        act = act & (sp(0.0) < len);  // false for a length <= 0 (or NaN)
     }
-    const Mask short_leg = and_not(all_lanes(true), act);
-    Mask stalled_lanes = all_lanes(false);
+    const MK short_leg = and_not(all_lanes<KN>(true), act);
+    MK stalled_lanes = all_lanes<KN>(false);
     // Refined steps while a lane's |f| is above 300 tol: the plain chord, some 400-fold a step,
     // might not reach tol in one more.
-    const Pack tol2 = splat(tc.tol * tc.tol), quarter = splat(0.25), zero = splat(0.0);
-    const Pack refine_above = splat(9e4 * tc.tol * tc.tol);
-    Pack prev = splat(std::numeric_limits<double>::infinity());
+    const P tol2 = sp(tc.tol * tc.tol), quarter = sp(0.25), zero = sp(0.0);
+    const P refine_above = sp(9e4 * tc.tol * tc.tol);
+    P prev = sp(std::numeric_limits<double>::infinity());
     for (int it = 0;; ++it) {
-        Pack err = zero;  // |f|^2, NaN when a residual is: not converged
+        P err = zero;  // |f|^2, NaN when a residual is: not converged
 #pragma GCC unroll 1
         for (int j = 0; j < 6; ++j) {
-            const double* dj = d + 3 * j * B;
-            const Pack vx = (p[0] - splat(tc.ec.a[j][0])) + load(dj);
-            const Pack vy = (p[1] - splat(tc.ec.a[j][1])) + load(dj + B);
-            const Pack vz = (p[2] - splat(tc.ec.a[j][2])) + load(dj + 2 * B);
-            const Pack fj = fma(vz, vz, fma(vy, vy, fma(vx, vx, load(nl2 + j * B)))) * load(hinv + j * B);
-            store(f + j * B, fj);
+            const double* dj = d + 3 * j * L;
+            const P vx = (p[0] - sp(tc.ec.a[j][0])) + ldl(dj);
+            const P vy = (p[1] - sp(tc.ec.a[j][1])) + ldl(dj + L);
+            const P vz = (p[2] - sp(tc.ec.a[j][2])) + ldl(dj + 2 * L);
+            const P fj = fma(vz, vz, fma(vy, vy, fma(vx, vx, ldl(nl2 + j * L)))) * in(54 + j);
+            store(f + j * L, fj);
             err = fma(fj, fj, err);
         }
         // Per lane: converged, not contracting (the damped Newton fallback), or on to a step.
-        const Mask live = and_not(act, err <= tol2);
-        const Mask stalled = it == tc.max_iter ? live : and_not(live, err < quarter * prev);
+        const MK live = and_not(act, err <= tol2);
+        const MK stalled = it == tc.max_iter ? live : and_not(live, err < quarter * prev);
         stalled_lanes = stalled_lanes | stalled;
         act = and_not(live, stalled);
         if (bits(act) == 0) break;
         prev = select(act, err, prev);
-        Pack s[6];
-        inverse_times(inv, f, s, [&](int h, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
-            sm = m_keep(act.v[h], r_sub(zero.v[h], acc));
+        P s[6];
+        inverse_times<NB>(inv, f, s, [&](int r, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
+            sm = m_keep(act.v[r], r_sub(zero.v[r], acc));
         });
-        const Mask refine = act & (refine_above < err);
+        const MK refine = act & (refine_above < err);
         if (it > 0 && bits(refine) != 0) {
             // g = J s0 + f, then s = s0 - J_ref^-1 g in the lanes that refine (the others keep s0).
 #pragma GCC unroll 1
             for (int j = 0; j < 6; ++j) {
-                const double* dj = d + 3 * j * B;
-                const Pack dx = load(dj), dy = load(dj + B), dz = load(dj + 2 * B);
-                const Pack ex = s[0] + (s[4] * dz - s[5] * dy);
-                const Pack ey = s[1] + (s[5] * dx - s[3] * dz);
-                const Pack ez = s[2] + (s[3] * dy - s[4] * dx);
-                const Pack dot = fma((p[2] - splat(tc.ec.a[j][2])) + dz, ez,
-                                     fma((p[1] - splat(tc.ec.a[j][1])) + dy, ey,
-                                         ((p[0] - splat(tc.ec.a[j][0])) + dx) * ex));
-                const Pack h = load(hinv + j * B);
-                store(g + j * B, fma(h + h, dot, load(f + j * B)));
+                const double* dj = d + 3 * j * L;
+                const P dx = ldl(dj), dy = ldl(dj + L), dz = ldl(dj + 2 * L);
+                const P ex = s[0] + (s[4] * dz - s[5] * dy);
+                const P ey = s[1] + (s[5] * dx - s[3] * dz);
+                const P ez = s[2] + (s[3] * dy - s[4] * dx);
+                const P dot = fma((p[2] - sp(tc.ec.a[j][2])) + dz, ez,
+                                  fma((p[1] - sp(tc.ec.a[j][1])) + dy, ey,
+                                      ((p[0] - sp(tc.ec.a[j][0])) + dx) * ex));
+                const P h = in(54 + j);
+                store(g + j * L, fma(h + h, dot, ldl(f + j * L)));
             }
-            inverse_times(inv, g, s, [&](int h, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
-                sm = r_sub(sm, m_keep(refine.v[h], acc));
+            inverse_times<NB>(inv, g, s, [&](int r, R& sm, R acc) IWR_FORCE_INLINE_LAMBDA {
+                sm = r_sub(sm, m_keep(refine.v[r], acc));
             });
         }
         for (int c = 0; c < 3; ++c) p[c] = p[c] + s[c];
-        const Pack half = splat(0.5), one = splat(1.0);
-        const Pack hx = half * s[3], hy = half * s[4], hz = half * s[5];
-        const Pack xx = hx * hx, yy = hy * hy, zz = hz * hz, xy = hx * hy, xz = hx * hz, yz = hy * hz;
-        const Pack h2 = xx + yy + zz, k = splat(2.0) / (one + h2);
-        const Pack c00 = one + k * (xx - h2), c01 = k * (xy - hz), c02 = k * (xz + hy);
-        const Pack c10 = k * (xy + hz), c11 = one + k * (yy - h2), c12 = k * (yz - hx);
-        const Pack c20 = k * (xz - hy), c21 = k * (yz + hx), c22 = one + k * (zz - h2);
+        const P half = sp(0.5), one = sp(1.0);
+        const P hx = half * s[3], hy = half * s[4], hz = half * s[5];
+        const P xx = hx * hx, yy = hy * hy, zz = hz * hz, xy = hx * hy, xz = hx * hz, yz = hy * hz;
+        const P h2 = xx + yy + zz, k = sp(2.0) / (one + h2);
+        const P c00 = one + k * (xx - h2), c01 = k * (xy - hz), c02 = k * (xz + hy);
+        const P c10 = k * (xy + hz), c11 = one + k * (yy - h2), c12 = k * (yz - hx);
+        const P c20 = k * (xz - hy), c21 = k * (yz + hx), c22 = one + k * (zz - h2);
 #pragma GCC unroll 1
         for (int j = 0; j < 6; ++j) {
-            double* dj = d + 3 * j * B;
-            const Pack d0 = load(dj), d1 = load(dj + B), d2 = load(dj + 2 * B);
+            double* dj = d + 3 * j * L;
+            const P d0 = ldl(dj), d1 = ldl(dj + L), d2 = ldl(dj + 2 * L);
             store(dj, fma(c02, d2, fma(c01, d1, c00 * d0)));
-            store(dj + B, fma(c12, d2, fma(c11, d1, c10 * d0)));
-            store(dj + 2 * B, fma(c22, d2, fma(c21, d1, c20 * d0)));
+            store(dj + L, fma(c12, d2, fma(c11, d1, c10 * d0)));
+            store(dj + 2 * L, fma(c22, d2, fma(c21, d1, c20 * d0)));
         }
     }
-    for (int c = 0; c < 3; ++c) store(pout + c * B, p[c]);
+    for (int c = 0; c < 3; ++c) out(pout, 3 * B, c, p[c]);
     {
-        const double* di = d + 3 * tc.pair[0] * B;
-        const double* dk = d + 3 * tc.pair[1] * B;
-        const Pack ix = load(di), iy = load(di + B), iz = load(di + 2 * B);
-        const Pack kx = load(dk), ky = load(dk + B), kz = load(dk + 2 * B);
-        const Pack col[3][3] = {{ix, kx, iy * kz - iz * ky},
-                                {iy, ky, iz * kx - ix * kz},
-                                {iz, kz, ix * ky - iy * kx}};
+        const double* di = d + 3 * tc.pair[0] * L;
+        const double* dk = d + 3 * tc.pair[1] * L;
+        const P ix = ldl(di), iy = ldl(di + L), iz = ldl(di + 2 * L);
+        const P kx = ldl(dk), ky = ldl(dk + L), kz = ldl(dk + 2 * L);
+        const P col[3][3] = {{ix, kx, iy * kz - iz * ky},
+                             {iy, ky, iz * kx - ix * kz},
+                             {iz, kz, ix * ky - iy * kx}};
         for (int row = 0; row < 3; ++row)
             for (int c = 0; c < 3; ++c)
-                store(rout + (3 * row + c) * B, col[row][0] * splat(tc.binv[c]) +
-                                                    col[row][1] * splat(tc.binv[3 + c]) +
-                                                    col[row][2] * splat(tc.binv[6 + c]));
+                out(rout, 9 * B, 3 * row + c,
+                    col[row][0] * sp(tc.binv[c]) + col[row][1] * sp(tc.binv[3 + c]) +
+                        col[row][2] * sp(tc.binv[6 + c]));
     }
     const int two = bits(short_leg), one = bits(stalled_lanes);
-    for (int l = 0; l < B; ++l) status[l] = (two >> l & 1) ? 2 : (one >> l & 1) ? 1 : 0;
+    for (int l = 0; l < L; ++l) status[l] = (two >> l & 1) ? 2 : (one >> l & 1) ? 1 : 0;
 }
+
+void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, double* rout,
+                   int* status) {
+    const double* const b[1] = {blk};
+    chord_blocks<1>(b, tc, pout, rout, status);
+}
+
+// Two blocks at once (blk1 after blk0: out as tracker_chord's, block 1's after block 0's), the
+// same values as tracker_chord on each. chord_pair: it where the variant runs it (kChordPair: where
+// it is faster), else null and the caller runs tracker_chord block by block (as one call deeper on
+// the stack, the SSE2 chord ran 3-4 % slower).
+[[maybe_unused]] void tracker_chord2(const double* blk0, const double* blk1, const TrackerConsts& tc,
+                                    double* pout, double* rout, int* status) {
+    const double* const b[2] = {blk0, blk1};
+    chord_blocks<2>(b, tc, pout, rout, status);
+}
+constexpr auto chord_pair = kChordPair ? &tracker_chord2 : nullptr;
 
 // The transform T_T4 = T_T0 0T4 of the block's poses (the registration is folded into the carriage's
 // constants; tout: rotation row-major 0..8, position 9..11, each 8 lanes), the points in {T}
