@@ -11,9 +11,9 @@ from typing import Any
 
 import numpy as np
 
-from .job import DIAGNOSIS_ALPHA, Diagnosis, candidates, problem_diagnosis
+from .job import DIAGNOSIS_ALPHA, Candidates, Diagnosis, candidates, problem_diagnosis
 
-__all__ = ["diagnose"]
+__all__ = ["candidate_effects", "diagnose"]
 
 
 def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = None,
@@ -40,21 +40,12 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
     (said in the assumptions)."""
     from ..tracker.problem import noise_whitening
     from ..tracker.start import _setup, objective_noise
-    from .gravity import registration_gravity
     from .tracker import TrackerEffectProblem
 
     geometric = robot.with_effects()
     setup = _setup(geometric)
     ng = geometric.n_params
-    xs = np.asarray(x, dtype=float)[ng:]
-    g = ", ".join(f"{v:.6g}" for v in setup.gravity)
-    # The carriage joints loaded under the tracker's gravity in {0} (at the fit's registration).
-    world = (registration_gravity(setup, xs)[0] if xs.shape == (setup.n_params,)
-             and np.all(np.isfinite(xs)) else None)
-    cands = candidates(robot, data, gravity_text=(
-        f"gravity [{g}] m/s^2 in the tracker frame (the tracker set-up's) carried into {{0}} "
-        "by the registration"), gravity_note="# in {0}: tracker data use the tracker's",
-        load_gravity=world)
+    cands = candidate_effects(robot, data, x)
     if cands is None:
         return None
     problem = TrackerEffectProblem(geometric.with_effects(*cands.effects), setup, data)
@@ -71,3 +62,22 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
 
     return problem_diagnosis(problem, data, x, ng, cands, whitening, active=active, alpha=alpha,
                              residuals="probe-point" if setup.kind == "probe" else "point")
+
+
+def candidate_effects(robot: Any, data: Any, x: Any) -> Candidates | None:
+    """The effects :func:`diagnose` tests on tracker data at the geometric fit ``x``
+    (:func:`iwr.effects.job.candidates`): the carriage's joints those loaded under the tracker's
+    gravity carried into {0} by the registration of ``x``."""
+    from ..tracker.start import _setup
+    from .gravity import registration_gravity
+
+    geometric = robot.with_effects()
+    setup = _setup(geometric)
+    xs = np.asarray(x, dtype=float)[geometric.n_params:]
+    g = ", ".join(f"{v:.6g}" for v in setup.gravity)
+    world = (registration_gravity(setup, xs)[0] if xs.shape == (setup.n_params,)
+             and np.all(np.isfinite(xs)) else None)
+    return candidates(robot, data, gravity_text=(
+        f"gravity [{g}] m/s^2 in the tracker frame (the tracker set-up's) carried into {{0}} "
+        "by the registration"), gravity_note="# in {0}: tracker data use the tracker's",
+        load_gravity=world)
