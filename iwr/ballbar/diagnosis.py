@@ -37,8 +37,11 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
     With a ``noise`` model (an :class:`iwr.Noise`, or ``(iwr.Noise, iwr.ballbar.BallbarNoise)``)
     each distance is whitened by its first-order standard deviation
     (:func:`iwr.ballbar.api.reading_sigmas`: the bar's noise and the leg and joint readings'
-    propagated through the model) and each effect tested by the exact F test; without one, by
-    the heteroskedasticity-robust (one residual per pose) Wald test."""
+    propagated through the model); without one, unweighted. Each effect is tested by the F test
+    in both cases: one residual per pose, independent, leaves the cluster-robust test of the
+    other kinds nothing to guard against but unequal variances (a factor of about 2 across a
+    ballbar's poses), and with one residual per cluster it rejected too often
+    (docs/effects.md)."""
     from .. import kinds
     from .api import reading_sigmas
     from .effects import BallbarEffectProblem, _setup

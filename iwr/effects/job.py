@@ -584,15 +584,16 @@ def effect_tests(rw: np.ndarray, aw: np.ndarray, zw: dict[str, np.ndarray],
     Jacobian in the active parameters, ``zw`` each candidate effect's regressors (rows, k), in
     the same rows and whitening, ``cluster`` the pose of each row. Each effect is tested given
     the geometry and the others, at ``alpha`` divided by the number tested: with ``exact``
-    (whitened by a noise model) by the F test of the nested regressions, else by the
-    cluster-robust (per pose) Wald test (:func:`_cluster_wald`). An effect whose regressors add
-    no rank to the others' is not tested (:attr:`EffectTest.testable`), and the level is
-    divided among those that are. ``labels``: each effect's regressors, unit and per
+    (whitened by a noise model), or one row per pose, by the F test of the nested regressions,
+    else by the cluster-robust (per pose) Wald test (:func:`_cluster_wald`). An effect whose
+    regressors add no rank to the others' is not tested (:attr:`EffectTest.testable`), and the
+    level is divided among those that are. ``labels``: each effect's regressors, unit and per
     coefficient names and units (:func:`_label`; default :data:`_REGRESSORS`'s); ``carriage``: the carriage table's lines
     (:attr:`Diagnosis.carriage`)."""
     every = np.concatenate([aw] + list(zw.values()), axis=1)
     rss1, rank1, coef = _residual_ss(every, rw)
     f_dof = rw.size - rank1
+    singletons = np.unique(cluster).size == cluster.size
     reduced = {}
     for name in zw:
         rest = np.concatenate([aw] + [v for k, v in zw.items() if k != name], axis=1)
@@ -606,8 +607,12 @@ def effect_tests(rw: np.ndarray, aw: np.ndarray, zw: dict[str, np.ndarray],
         dof = f_dof
         if p < 1 or f_dof < 1:
             stat, pv = math.nan, 1.0
-        elif exact:
-            # Whitened by the noise model: the exact F test of the nested regressions.
+        elif exact or singletons:
+            # Whitened by the noise model: the exact F test of the nested regressions. One
+            # residual per pose (ballbar data): independent residuals, nothing for the cluster-
+            # robust test to guard against but unequal variances (a factor of about 2 on a
+            # ballbar), and with one row per cluster and most of the rows' degrees of freedom
+            # spent on the geometry it rejected too often (docs/effects.md): the F test too.
             stat = ((rss0 - rss1) / p) / (rss1 / f_dof)
             pv = float(special.fdtrc(p, f_dof, max(stat, 0.0)))
         else:
