@@ -117,6 +117,9 @@ class EffectTest:
     #: Per coefficient, when they differ in unit (the carriage's joints): name and unit.
     names: tuple[str, ...] = ()
     units: tuple[str, ...] = ()
+    #: The share of its regressors' variation beyond the geometry that the other effects do
+    #: not share (:func:`_own_share`): the power its test keeps beside them.
+    own: float = 1.0
 
     @property
     def significant(self) -> bool:
@@ -137,11 +140,13 @@ class EffectTest:
         if self.names:
             est = ", ".join(f"{n} {v:.3g} {u}" for n, v, u in zip(
                 self.names, self.estimate, self.units, strict=True))
+        weak = (f"; the other effects share {1.0 - self.own:.0%} of its change beyond the "
+                "geometry, so only a large one shows" if self.own < 0.5 else "")
         return (f"{self.effect} ({self.regressors}): F = {self.statistic:.4g} with "
                 f"({self.dof[0]}, {self.dof[1]}) degrees of freedom, p-value "
                 f"{self.p_value:.3g} against {self.alpha:.3g}: "
                 + ("the residuals CORRELATE" if self.significant else "no correlation found")
-                + f" (regression coefficient {est})")
+                + f" (regression coefficient {est}{weak})")
 
 
 #: What the residuals of each kind are (:attr:`Diagnosis.residuals`), as the diagnosis names
@@ -254,6 +259,7 @@ class Diagnosis:
                 "tests": [{"effect": t.effect,
                            "F": t.statistic if math.isfinite(t.statistic) else None,
                            "dof": list(t.dof), "p_value": t.p_value, "alpha": t.alpha,
+                           "own_share": t.own,
                            "estimate": t.estimate.tolist(), "unit": t.unit,
                            **({"names": list(t.names), "units": list(t.units)}
                               if t.names else {})}
@@ -447,6 +453,30 @@ def _residual_ss(m: np.ndarray, r: np.ndarray) -> tuple[float, int, np.ndarray]:
     return float(res @ res), rank, coef
 
 
+def _basis(m: np.ndarray) -> np.ndarray:
+    """An orthonormal basis of the column space of ``m`` (scaled, so that units do not set the
+    rank, at :func:`_residual_ss`'s threshold)."""
+    d = np.linalg.norm(m, axis=0)
+    u, s, _ = np.linalg.svd(m / np.where(d > 0, d, 1.0), full_matrices=False)
+    return u[:, s > max(m.shape) * np.finfo(float).eps * 1e3 * (s[0] if s.size else 0)]
+
+
+def _own_share(aw: np.ndarray, rest: np.ndarray, z: np.ndarray) -> float:
+    """The share of ``z``'s variation beyond the geometry ``aw`` that is not also the other
+    effects' (``rest``: the geometry and their regressors): per column ``|M_rest z|^2 /
+    |M_aw z|^2`` (``M``: the residual maker), averaged over the columns that vary beyond the
+    geometry. Its test's noncentrality is this share of what it would be without the others: 1
+    when the effects' patterns are apart, near 0 when the others can mimic it."""
+    ua, ur = _basis(aw), _basis(rest)
+    za = z - ua @ (ua.T @ z)
+    zr = z - ur @ (ur.T @ z)
+    na = np.sum(za**2, axis=0)
+    keep = na > 1e-18 * max(float(np.sum(z**2)), 1e-300)
+    if not np.any(keep):
+        return 0.0
+    return float(np.mean(np.sum(zr**2, axis=0)[keep] / na[keep]))
+
+
 def _cluster_wald(rest: np.ndarray, z: np.ndarray, r: np.ndarray, cluster: np.ndarray
                   ) -> tuple[float, int]:
     """The Wald test of ``z``'s coefficients in the regression of ``r`` on ``[rest, z]`` with
@@ -458,12 +488,7 @@ def _cluster_wald(rest: np.ndarray, z: np.ndarray, r: np.ndarray, cluster: np.nd
     (p (G - 1))``), the small-sample corrections without which the test rejects too often with
     tens of poses and six regressors. By Frisch-Waugh-Lovell, ``z`` and ``r`` are first
     cleared of ``rest``."""
-    def basis(m: np.ndarray) -> np.ndarray:
-        d = np.linalg.norm(m, axis=0)
-        u, s, _ = np.linalg.svd(m / np.where(d > 0, d, 1.0), full_matrices=False)
-        return u[:, s > max(m.shape) * np.finfo(float).eps * 1e3 * (s[0] if s.size else 0)]
-
-    u = basis(rest)
+    u = _basis(rest)
     zt = z - u @ (u.T @ z)
     rt = r - u @ (u.T @ r)
     dz = np.linalg.norm(zt, axis=0)
@@ -471,7 +496,7 @@ def _cluster_wald(rest: np.ndarray, z: np.ndarray, r: np.ndarray, cluster: np.nd
     bread = np.linalg.pinv(zt.T @ zt, rcond=1e-10, hermitian=True)
     beta = bread @ (zt.T @ rt)
     res = rt - zt @ beta  # the residuals of the whole regression
-    full = np.hstack([u, basis(zt)])  # an orthonormal basis of [rest, z]
+    full = np.hstack([u, _basis(zt)])  # an orthonormal basis of [rest, z]
     groups = np.unique(cluster, return_inverse=True)[1]
     g = int(groups.max()) + 1
     scores = np.zeros((g, zt.shape[1]))
@@ -622,7 +647,8 @@ def effect_tests(rw: np.ndarray, aw: np.ndarray, zw: dict[str, np.ndarray],
         first = start + sum(v.shape[1] for v in list(zw.values())[:k])
         est = coef[first: first + z.shape[1]]
         what, unit, names, units = (labels or {}).get(name) or (*_REGRESSORS[name], (), ())
+        own = _own_share(aw, rest, z) if p >= 1 else 0.0
         tests.append(EffectTest(name, what, float(stat), (int(p), int(dof)), pv, level,
-                                np.asarray(est, dtype=float), unit, names, units))
+                                np.asarray(est, dtype=float), unit, names, units, own))
     return Diagnosis(tests, alpha, weighting, assumptions, int(rw.size), table, residuals,
                      list(carriage or []))
