@@ -24,8 +24,8 @@ from iwr.effects import api, tracker_study
 from iwr.effects import tracker as et
 from iwr.effects.builtin import LegCompliance, LegThermal
 from iwr.effects.job import candidates, diagnose, effect_tests
-from iwr.effects.tracker_diagnosis import candidate_effects
 from iwr.effects.model import predicted_readings
+from iwr.effects.tracker_diagnosis import candidate_effects
 from iwr.reporting.calibration import render
 
 BARS = {

@@ -5,8 +5,10 @@ the job side; docs/effects.md).
   kinematics under each pose's load and temperature (:func:`iwr.effects.api.forward_kinematics`).
 - :func:`check_job`: the data :func:`iwr.calibrate` models the effects on.
 - :func:`diagnose`: whether the residuals of a geometric-only fit correlate with the leg forces
-  (the payload columns) or the temperatures (the temperature columns), by the F test of the
-  residuals' regression on them beside the geometry, and the effect to switch on.
+  or the carriage joints' loads (the payload columns) or the temperatures (the temperature
+  columns), by the F test of the residuals' regression on them beside the geometry, and the
+  effect to switch on; :func:`problem_diagnosis` the same on an instrument's objective (tracker
+  and ballbar data), every kind's candidate effects :func:`candidates`.
 """
 
 from __future__ import annotations
@@ -22,7 +24,9 @@ from . import parameter_names as effect_names
 from .builtin import LegCompliance
 from .model import split
 
-__all__ = ["Diagnosis", "EffectTest", "accuracy", "check_job", "diagnose", "DIAGNOSIS_ALPHA"]
+__all__ = ["Candidates", "Diagnosis", "EffectTest", "accuracy", "candidates", "check_job",
+           "diagnose", "effect_tests", "problem_diagnosis", "regression_tests",
+           "DIAGNOSIS_ALPHA"]
 
 #: The probability that the diagnosis names an effect on data that have none (the family's level:
 #: Bonferroni over the effects tested).
@@ -377,11 +381,11 @@ def regression_tests(r: np.ndarray, jac: np.ndarray, geo: np.ndarray, first: int
     ``cands`` at zero, and their exact Jacobian ``jac`` (N, m, n) in the parameters of the
     problem with those effects: the geometry's regressors its columns ``geo`` (the active
     geometric and set-up parameters), each effect's the negative of its columns from ``first``
-    on, in the order of ``effects`` (``cands.effects`` bound to the robot; the residuals are predicted without the effect minus
-    measured with it: ``-J_e c`` to first order, so that the coefficient estimates the effect's
-    size ``c``). ``whitening`` (N, m', m): each pose's whitening (identity, weights, or the
-    noise model's); ``rows`` (N, m'): the whitened rows that carry data. Each pose is a
-    cluster."""
+    on, in the order of ``effects`` (``cands.effects`` bound to the robot; the residuals are
+    predicted without the effect minus measured with it: ``-J_e c`` to first order, so that the
+    coefficient estimates the effect's size ``c``). ``whitening`` (N, m', m): each pose's
+    whitening (identity, weights, or the noise model's); ``rows`` (N, m'): the whitened rows
+    that carry data. Each pose is a cluster."""
     cols: dict[str, np.ndarray] = {}
     labels: dict[str, tuple[str, str, tuple[str, ...], tuple[str, ...]]] = {}
     k = first
@@ -613,8 +617,8 @@ def effect_tests(rw: np.ndarray, aw: np.ndarray, zw: dict[str, np.ndarray],
     else by the cluster-robust (per pose) Wald test (:func:`_cluster_wald`). An effect whose
     regressors add no rank to the others' is not tested (:attr:`EffectTest.testable`), and the
     level is divided among those that are. ``labels``: each effect's regressors, unit and per
-    coefficient names and units (:func:`_label`; default :data:`_REGRESSORS`'s); ``carriage``: the carriage table's lines
-    (:attr:`Diagnosis.carriage`)."""
+    coefficient names and units (:func:`_label`; default :data:`_REGRESSORS`'s); ``carriage``:
+    the carriage table's lines (:attr:`Diagnosis.carriage`)."""
     every = np.concatenate([aw] + list(zw.values()), axis=1)
     rss1, rank1, coef = _residual_ss(every, rw)
     f_dof = rw.size - rank1
