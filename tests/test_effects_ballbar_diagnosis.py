@@ -177,6 +177,8 @@ def test_ballbar_diagnosis_names_the_effect_the_data_carry(effect, soft_carriage
     assert d.residuals == "distance" and d.weighting == "whitened by the noise model"
     assert d.suggested == ([effect] if effect else []), [t.line() for t in d.tests]
     assert "bar distances" in d.describe() and "leg length" not in d.describe()
+    # gravity the effects' own, in {0}: the assumption says so
+    assert "m/s^2 in {0} (the effects' own: a ballbar has no registration" in d.assumptions[0]
     test = {t.effect: t for t in d.tests}
     assert {e: t.dof[0] for e, t in test.items()} == {
         "compliance": 6, "thermal": 1, "carriage_compliance": 1}

@@ -11,7 +11,7 @@ from typing import Any
 
 import numpy as np
 
-from ..effects.job import DIAGNOSIS_ALPHA, Diagnosis, candidates, problem_diagnosis
+from ..effects.job import DIAGNOSIS_ALPHA, Diagnosis, _statics, candidates, problem_diagnosis
 
 __all__ = ["diagnose"]
 
@@ -47,7 +47,11 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
     from .effects import BallbarEffectProblem, _setup
 
     geometric = robot.with_effects()
-    cands = candidates(robot, data)
+    g = ", ".join(f"{v:.6g}" for v in _statics(robot).gravity)
+    cands = candidates(robot, data, gravity_text=(
+        f"gravity [{g}] m/s^2 in {{0}} (the effects' own: a ballbar has no registration, and {{0}} "
+        "is where the geometric fit holds the ballbar's gauge, the nominal base's direction to "
+        "gravity)"))
     if cands is None:
         return None
     problem = BallbarEffectProblem(geometric.with_effects(*cands.effects), _setup(geometric),
