@@ -2,7 +2,8 @@
 "Diagnosis of a geometric calibration"; iwr/effects/tracker_diagnosis.py): the point residuals
 of a geometric fit tested against the change of the points the leg forces and the temperatures
 would make, with the pose data's statistics. One fixed seed per case: the false-alarm rate and
-the power over seeds are measured in the docs' table (benchmarks/effects_diagnosis_tracker.py)."""
+the power over seeds are measured in the docs' table
+(benchmarks/effects_diagnosis_instruments.py)."""
 
 from __future__ import annotations
 
