@@ -3,7 +3,8 @@ docs/effects.md, "Diagnosis of a geometric calibration"): how often it names eac
 
 For each seed: a simulated IWR data set (``N_POSES``, default 60; ``iwr.Noise.realistic()``) of
 SCENARIO ``clean`` (geometry only), ``compliance`` (``iwr.effects.api.realistic``'s compliance,
-values drawn within its bounds) or ``thermal`` (steel legs, coefficient drawn), with the payload
+values drawn within its bounds), ``thermal`` (steel legs, coefficient drawn) or ``carriage``
+(``realistic(carriage=True)``'s compliance of the loaded carriage joints +-30 %), with the payload
 and temperature columns it lacks added (payloads none/80 kg alternating, temperatures uniform in
 17 .. 25 C); calibrated geometric-only, WEIGHTING ``noise`` (the efficient estimator with the
 true noise model) or ``none`` (``lm``, base parameters); then ``iwr.effects.job.diagnose``.
@@ -31,7 +32,8 @@ from iwr.measurements import Measurements
 scenario, nseeds, weighting = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 n_poses = int(sys.argv[4]) if len(sys.argv) > 4 else 60
 robot = iwr.Robot.default()
-comp, _ = api.realistic(robot)
+comp, _, carriage = api.realistic(robot, carriage=True)
+EFFECTS = ("compliance", "thermal", "carriage_compliance")
 noise = iwr.Noise.realistic()
 rows = []
 t0 = time.time()
@@ -42,6 +44,14 @@ for seed in range(nseeds):
     elif scenario == "compliance":
         truthbot = robot.with_effects(comp)
         m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise)
+    elif scenario == "carriage":  # the realistic compliance +-30 % per joint, not its bounds'
+        truthbot = robot.with_effects(carriage)
+        lo, hi = robot.default_bounds()
+        cc = carriage.values()
+        x = np.concatenate([lo + (hi - lo) * rng.random(robot.n_params),
+                            cc * 0.3 * (2.0 * rng.random(cc.size) - 1.0)])
+        m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise, x=x,
+                            payloads=api.DEFAULT_PAYLOADS)
     else:
         truthbot = robot.with_effects(LegThermal(11.5, 20.0, identify=True))
         m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise)
@@ -60,18 +70,18 @@ for seed in range(nseeds):
         fit = res.get("fit")
     p = {t.effect: t.p_value for t in d.tests}
     est = {t.effect: t.estimate for t in d.tests}
-    rows.append((p["compliance"], p["thermal"], d.suggested, None if fit is None else fit.fit_ok))
-    print(seed, f"p_c={p['compliance']:.3g} p_t={p['thermal']:.3g}", d.suggested,
+    rows.append(([p.get(e, np.nan) for e in EFFECTS], d.suggested,
+                 None if fit is None else fit.fit_ok))
+    print(seed, " ".join(f"p_{e}={p.get(e, np.nan):.3g}" for e in EFFECTS), d.suggested,
           "fit_ok", None if fit is None else fit.fit_ok,
-          "est_c", np.round(est["compliance"], 4), "est_t", np.round(est["thermal"], 2), flush=True)
-pc = np.array([r[0] for r in rows])
-pt = np.array([r[1] for r in rows])
-named = [r[2] for r in rows]
-print(f"scenario {scenario} weighting {weighting} seeds {nseeds} poses {n_poses}: "
-      f"named compliance {sum('compliance' in s for s in named)}, thermal "
-      f"{sum('thermal' in s for s in named)}, none {sum(not s for s in named)}; "
-      f"fit failed {sum(r[3] is False for r in rows)}; {time.time()-t0:.0f} s")
+          {e: np.round(v, 4).tolist() for e, v in est.items()}, flush=True)
+named = [r[1] for r in rows]
+print(f"scenario {scenario} weighting {weighting} seeds {nseeds} poses {n_poses}: named "
+      + ", ".join(f"{e} {sum(e in s for s in named)}" for e in EFFECTS)
+      + f", any {sum(bool(s) for s in named)}, none {sum(not s for s in named)}; "
+      f"fit failed {sum(r[2] is False for r in rows)}; {time.time()-t0:.0f} s")
 if scenario == "clean":
-    print("KS uniform p-values: compliance", stats.kstest(pc, "uniform").pvalue,
-          "thermal", stats.kstest(pt, "uniform").pvalue)
-    print("fraction p<0.05: compliance", np.mean(pc < 0.05), "thermal", np.mean(pt < 0.05))
+    for i, effect in enumerate(EFFECTS):
+        pv = np.array([r[0][i] for r in rows])
+        print(f"{effect}: KS p-value against U(0, 1) {stats.kstest(pv, 'uniform').pvalue:.3g}; "
+              f"fraction below 0.05 {np.mean(pv < 0.05):.3g}")

@@ -374,8 +374,8 @@ def test_report_of_a_weighted_result_has_its_standard_deviations(name, tmp_path)
 
 def test_the_diagnosis_is_the_kinds(kind_case, measured_with_effects):
     """The job asks the data's kind for the diagnosis of a geometric fit against the loads and
-    temperatures: pose and tracker data with those columns get one (ballbar data a note that it
-    is not modelled there, tests/test_ballbar*)."""
+    temperatures: pose and tracker data with those columns get one (ballbar data too,
+    tests/test_effects_ballbar_diagnosis.py)."""
     pose = measured_with_effects("pose")
     data, _ = iwr.simulate(pose, 40, seed=2)
     assert iwr.calibrate(pose.with_effects(), data, "lm").diagnosis is not None

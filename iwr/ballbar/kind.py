@@ -127,6 +127,14 @@ class BallbarKind(MeasurementKind):
             return readings, BallbarNoise(0.0) if noise.is_zero else BallbarNoise()
         return noise
 
+    def diagnose(self, robot: Any, data: Any, x: Any, *, active: Any = None,
+                 noise: Any = None) -> Any:
+        """Issue 23: the distance residuals of a geometric fit against the loads and
+        temperatures (:func:`iwr.ballbar.diagnosis.diagnose`)."""
+        from .diagnosis import diagnose
+
+        return diagnose(robot, data, x, active=active, noise=noise)
+
     def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """The tool pose errors against the truth at the same readings, modulo the rigid motions
         of {0} and {5} a ballbar cannot see (:func:`ballbar_accuracy` with ``truth``; without

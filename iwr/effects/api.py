@@ -56,34 +56,45 @@ def realistic(robot: Any, *, per_leg: bool = True, identify_alpha: bool = True,
 
 def _realistic_carriage(robot: Any, gravity: np.ndarray) -> Any:
     """:data:`REALISTIC_CARRIAGE` for the joints of ``robot`` that carry a gravity load
-    somewhere in their ranges (at the corners and the centre of the joint ranges, the hexapod at
-    its home pose): a joint that never does (a horizontal slide, a vertical axis) has no
-    compliance the data could tell. The loads are those under gravity as the robot's data give
-    it (:meth:`iwr.kinds.MeasurementKind.world_gravity`: on tracker data the tracker's, through
-    the robot file's registration), ``gravity`` (the effect's own, in {0}) otherwise."""
-    import copy
+    somewhere in their ranges (:func:`loaded_joints`): a joint that never does (a horizontal
+    slide, a vertical axis) has no compliance the data could tell. The loads are those under
+    gravity as the robot's data give it (:meth:`iwr.kinds.MeasurementKind.world_gravity`: on
+    tracker data the tracker's, through the robot file's registration), ``gravity`` (the
+    effect's own, in {0}) otherwise."""
+    from .. import kinds
+    from .carriage import CarriageCompliance
+
+    rc = REALISTIC_CARRIAGE
+    if not robot.n_joints:
+        raise ValueError(f"robot {robot.name!r} has no carriage joints: no carriage compliance")
+    world = kinds.for_robot(robot).world_gravity(robot)
+    loaded = loaded_joints(robot, gravity if world is None else world)
+    if not loaded:
+        raise ValueError(f"robot {robot.name!r}: no carriage joint carries a gravity load")
+    return CarriageCompliance(rc["hexapod_mass"], rc["hexapod_centre"], 120.0, [0.0, 0.0, 40.0],
+                              gravity, loaded,
+                              [rc[robot.joint_types[j - 1]] for j in loaded]).for_robot(robot)
+
+
+def loaded_joints(robot: Any, gravity: Any) -> list[int]:
+    """The carriage joints of ``robot`` (numbers from 1) that carry a gravity load somewhere in
+    their ranges under ``gravity`` (in {0}, m/s^2): the loads of the realistic hexapod and
+    platform (:data:`REALISTIC_CARRIAGE`) at the corners and the centre of the joint ranges,
+    the hexapod at its home pose, the nominal geometry; a load below 1e-9 of the largest is
+    round-off of the axes' directions. Empty for a robot without carriage joints."""
     import itertools
 
-    from .. import kinds
     from ..transforms import pose_from_matrix
     from .carriage import CarriageCompliance
     from .model import joint_loads, platform_moment
 
-    rc = REALISTIC_CARRIAGE
-
-    def make(joints: Any) -> Any:
-        return CarriageCompliance(rc["hexapod_mass"], rc["hexapod_centre"], 120.0,
-                                  [0.0, 0.0, 40.0], gravity, joints,
-                                  [rc[robot.joint_types[j - 1]] for j in joints])
-
     nj = robot.n_joints
     if not nj:
-        raise ValueError(f"robot {robot.name!r} has no carriage joints: no carriage compliance")
-    every = make(list(range(1, nj + 1))).for_robot(robot)
-    world = kinds.for_robot(robot).world_gravity(robot)
-    if world is not None:
-        every = copy.copy(every)
-        every.gravity = np.asarray(world, dtype=float)
+        return []
+    rc = REALISTIC_CARRIAGE
+    every = CarriageCompliance(rc["hexapod_mass"], rc["hexapod_centre"], 120.0,
+                               [0.0, 0.0, 40.0], np.asarray(gravity, dtype=float),
+                               list(range(1, nj + 1)), 0.0).for_robot(robot)
     lim = robot.joint_limits
     q = np.array([lim.mean(axis=1)] + [lim[np.arange(nj), c]
                                        for c in itertools.product((0, 1), repeat=nj)])
@@ -94,11 +105,7 @@ def _realistic_carriage(robot: Any, gravity: np.ndarray) -> Any:
     moment, mass, _ = platform_moment(every, data, pose_matrix_of(poses))
     loads, _, _ = joint_loads(robot, np.zeros(robot.n_params), q, moment, mass, every)
     size = np.abs(loads).max(axis=0)
-    # A load (N mm or N) below 1e-9 of the largest is round-off of the axes' directions.
-    loaded = [i + 1 for i in range(nj) if size[i] > 1e-9 * size.max()]
-    if not loaded:
-        raise ValueError(f"robot {robot.name!r}: no carriage joint carries a gravity load")
-    return make(loaded).for_robot(robot)
+    return [i + 1 for i in range(nj) if size[i] > 1e-9 * size.max()]
 
 
 def apply(robot: Any, x: Any) -> Any:

@@ -315,7 +315,7 @@ class MeasurementKind(abc.ABC):
         if getattr(data, "payload", None) is None and getattr(data, "temperatures", None) is None:
             return None
         raise ValueError(f"{self.name} data: the residuals are tested against the loads and "
-                         "temperatures on pose and tracker data only (docs/effects.md)")
+                         "temperatures on pose, tracker and ballbar data only (docs/effects.md)")
 
     def world_gravity(self, robot: Any) -> np.ndarray | None:
         """Gravity in {0} (m/s^2) as the instrument of ``robot``'s description gives it, for the

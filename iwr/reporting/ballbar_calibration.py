@@ -237,6 +237,8 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         fit = self.fit_lines()
         if fit:
             lines += [""] + fit
+        if self.diagnosis is not None:  # issue 23: a geometric fit against the loads
+            lines += self.diagnosis.lines()
         if self._fit_failed():
             lines.append(self.no_fit_verdict("the figures above"))
         lines.extend(self.notes)
@@ -284,6 +286,8 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
             f"{c['nominal']:.6g}, calibrated {c['calibrated']:.6g}. " + self._method_text()
             .capitalize() + ".")
         self._fit_section(page, "Fit test")
+        if self.diagnosis is not None:
+            self._diagnosis_html(page)
         if "accuracy.png" in figures:
             page.figure(figures["accuracy.png"], "Distance residuals per pose before and after "
                         "calibration", "accuracy.png")
@@ -324,6 +328,7 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
               self.summary(), "```"]
         if self.predicted is not None:
             md += ["", self.predicted_text()]
+        md += self._diagnosis_md()
         if "accuracy.png" in figures:
             md += ["", "![Distance residuals per pose](accuracy.png)"]
         md += ["", "## Distance residuals per set-up", "", *_table(*self._residual_rows())]

@@ -49,6 +49,8 @@ class SetupParameters:
         if ns is not None:
             out["identifiability"] = {"rank": int(ns.rank), "n_params": len(ns.parameter_names),
                                       "left_out": list(ns.left_out)}
+        if self.diagnosis is not None:  # issue 23: a geometric fit against the loads
+            out["diagnosis"] = self.diagnosis.to_dict()  # type: ignore[attr-defined]
         if self.uncertainty is not None:
             out["noise_sigma_mm"] = float(self.uncertainty.sigma)
             out["noise_sigma_source"] = self.uncertainty.source
