@@ -3,8 +3,10 @@ docs/effects.md, "Diagnosis of a geometric calibration"): how often it names eac
 
 For each seed: a simulated IWR data set (``N_POSES``, default 60; ``iwr.Noise.realistic()``) of
 SCENARIO ``clean`` (geometry only), ``compliance`` (``iwr.effects.api.realistic``'s compliance,
-values drawn within its bounds), ``thermal`` (steel legs, coefficient drawn) or ``carriage``
-(``realistic(carriage=True)``'s compliance of the loaded carriage joints +-30 %), with the payload
+values drawn within its bounds), ``thermal`` (steel legs, coefficient drawn), ``carriage``
+(``realistic(carriage=True)``'s compliance of the loaded carriage joints +-30 %) or ``slides``
+(the slides' scales expanding by a shared 11.5 +- 2 ppm/K, the machine's temperature over a
+day's drift about 20 C as ``iwr simulate`` draws it, 17 .. 25 C), with the payload
 and temperature columns it lacks added (payloads none/80 kg alternating, temperatures uniform in
 17 .. 25 C); calibrated geometric-only, WEIGHTING ``noise`` (the efficient estimator with the
 true noise model) or ``none`` (``lm``, base parameters); then ``iwr.effects.job.diagnose``.
@@ -26,6 +28,7 @@ from scipy import stats
 import iwr
 from iwr.effects import api
 from iwr.effects.builtin import LegThermal
+from iwr.effects.carriage_thermal import CarriageThermal
 from iwr.effects.job import diagnose
 from iwr.measurements import Measurements
 
@@ -33,7 +36,7 @@ scenario, nseeds, weighting = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 n_poses = int(sys.argv[4]) if len(sys.argv) > 4 else 60
 robot = iwr.Robot.default()
 comp, _, carriage = api.realistic(robot, carriage=True)
-EFFECTS = ("compliance", "thermal", "carriage_compliance")
+EFFECTS = ("compliance", "thermal", "carriage_compliance", "carriage_thermal")
 noise = iwr.Noise.realistic()
 rows = []
 t0 = time.time()
@@ -52,7 +55,14 @@ for seed in range(nseeds):
                             cc * 0.3 * (2.0 * rng.random(cc.size) - 1.0)])
         m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise, x=x,
                             payloads=api.DEFAULT_PAYLOADS)
+    elif scenario == "slides":  # steel scales, 11.5 +- 2 ppm/K (shared)
+        truthbot = robot.with_effects(CarriageThermal(11.5, 20.0, identify=True))
+        lo, hi = robot.default_bounds()
+        x = np.concatenate([lo + (hi - lo) * rng.random(robot.n_params),
+                            [2.0 * (2.0 * rng.random() - 1.0)]])
+        m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise, x=x)
     else:
+        assert scenario == "thermal", scenario
         truthbot = robot.with_effects(LegThermal(11.5, 20.0, identify=True))
         m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise)
     n = len(m)
