@@ -42,7 +42,11 @@ rows = []
 t0 = time.time()
 for seed in range(nseeds):
     rng = np.random.default_rng(1000 + seed)
-    if scenario == "clean":
+    share = np.array([r[3] for r in rows])
+print("own share (mean, min .. max over the seeds): " + ", ".join(
+    f"{e} {np.mean(share[:, i]):.3f} ({np.min(share[:, i]):.3f} .. {np.max(share[:, i]):.3f})"
+    for i, e in enumerate(EFFECTS) if not np.all(np.isnan(share[:, i]))))
+if scenario == "clean":
         m, _ = iwr.simulate(robot, n_poses, seed=seed, noise=noise)
     elif scenario == "compliance":
         truthbot = robot.with_effects(comp)
@@ -80,8 +84,9 @@ for seed in range(nseeds):
         fit = res.get("fit")
     p = {t.effect: t.p_value for t in d.tests}
     est = {t.effect: t.estimate for t in d.tests}
+    own = {t.effect: t.own for t in d.tests}
     rows.append(([p.get(e, np.nan) for e in EFFECTS], d.suggested,
-                 None if fit is None else fit.fit_ok))
+                 None if fit is None else fit.fit_ok, [own.get(e, np.nan) for e in EFFECTS]))
     print(seed, " ".join(f"p_{e}={p.get(e, np.nan):.3g}" for e in EFFECTS), d.suggested,
           "fit_ok", None if fit is None else fit.fit_ok,
           {e: np.round(v, 4).tolist() for e, v in est.items()}, flush=True)
@@ -90,6 +95,10 @@ print(f"scenario {scenario} weighting {weighting} seeds {nseeds} poses {n_poses}
       + ", ".join(f"{e} {sum(e in s for s in named)}" for e in EFFECTS)
       + f", any {sum(bool(s) for s in named)}, none {sum(not s for s in named)}; "
       f"fit failed {sum(r[2] is False for r in rows)}; {time.time()-t0:.0f} s")
+share = np.array([r[3] for r in rows])
+print("own share (mean, min .. max over the seeds): " + ", ".join(
+    f"{e} {np.mean(share[:, i]):.3f} ({np.min(share[:, i]):.3f} .. {np.max(share[:, i]):.3f})"
+    for i, e in enumerate(EFFECTS) if not np.all(np.isnan(share[:, i]))))
 if scenario == "clean":
     for i, effect in enumerate(EFFECTS):
         pv = np.array([r[0][i] for r in rows])
