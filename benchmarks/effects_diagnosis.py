@@ -42,10 +42,6 @@ rows = []
 t0 = time.time()
 for seed in range(nseeds):
     rng = np.random.default_rng(1000 + seed)
-    share = np.array([r[3] for r in rows])
-print("own share (mean, min .. max over the seeds): " + ", ".join(
-    f"{e} {np.mean(share[:, i]):.3f} ({np.min(share[:, i]):.3f} .. {np.max(share[:, i]):.3f})"
-    for i, e in enumerate(EFFECTS) if not np.all(np.isnan(share[:, i]))))
 if scenario == "clean":
         m, _ = iwr.simulate(robot, n_poses, seed=seed, noise=noise)
     elif scenario == "compliance":
