@@ -42,7 +42,7 @@ rows = []
 t0 = time.time()
 for seed in range(nseeds):
     rng = np.random.default_rng(1000 + seed)
-if scenario == "clean":
+    if scenario == "clean":
         m, _ = iwr.simulate(robot, n_poses, seed=seed, noise=noise)
     elif scenario == "compliance":
         truthbot = robot.with_effects(comp)
