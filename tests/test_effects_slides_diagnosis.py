@@ -22,7 +22,7 @@ def test_slides_named_alone_and_the_table_read_back(tmp_path):
     """Pose data (60 poses, iwr.Noise.realistic(), a day's drift of the machine's temperature
     as simulate draws it) whose slides grow by 11.5 ppm/K, a geometric fit by the efficient
     estimator: the diagnosis names the slides' expansion alone, its coefficient near 11.5 (sd
-    about 1.5 ppm/K here), the report's line in ppm/K, and the suggested
+    about 1.7 ppm/K over seeds), the report's line in ppm/K, and the suggested
     ``[effects.carriage_thermal]`` table makes a robot file that reads back with the IWR's
     slides."""
     plain = iwr.Robot.default()
@@ -40,15 +40,16 @@ def test_slides_named_alone_and_the_table_read_back(tmp_path):
     assert list(test) == ["thermal", "carriage_thermal"]
     slides = test["carriage_thermal"]
     assert slides.dof[0] == 1 and slides.unit == "ppm/K"
-    assert slides.estimate[0] == pytest.approx(11.5, abs=5.0)
+    assert slides.estimate[0] == pytest.approx(11.5, abs=4.0)
     assert "ppm/K" in slides.line() and "slide reading times machine temperature" in slides.line()
     assert d.lines()[0].startswith(
         "diagnosis: the residuals of the geometric model correlate with the slides' travel "
         "times the machine's temperature; switch on [effects.carriage_thermal]")
-    # the two thermal effects read one temperature column: how much of the slides' change
-    # beyond the geometry the legs' expansion shares is measured (docs: a few per cent on
-    # pose data) and reported
-    assert 0.0 < slides.own <= 1.0
+    # The two thermal effects read one temperature column, yet their patterns stay apart: the
+    # legs' expansion shares about 2 % of the slides' change beyond the geometry on pose data
+    # (docs: 0.92 .. 0.997 kept over 500 seeds), and with two one-column effects the share each
+    # keeps is the same (one minus their squared correlation beyond the geometry).
+    assert slides.own > 0.9 and test["thermal"].own == pytest.approx(slides.own, rel=1e-9)
     assert d.to_dict()["tests"][1]["own_share"] == pytest.approx(slides.own)
     path = tmp_path / "robot.toml"
     plain.to_toml(path)
