@@ -6,8 +6,8 @@ the job side; docs/effects.md).
 - :func:`check_job`: the data :func:`iwr.calibrate` models the effects on.
 - :func:`diagnose`: whether the residuals of a geometric-only fit correlate with the leg forces
   or the carriage joints' loads (the payload columns) or the temperatures (the temperature
-  columns), by the F test of the residuals' regression on them beside the geometry, and the
-  effect to switch on; :func:`problem_diagnosis` the same on an instrument's objective (tracker
+  columns: the legs' expansion, and the slides' with the machine's ``T_C``), by the F test of
+  the residuals' regression on them beside the geometry, and the effect to switch on; :func:`problem_diagnosis` the same on an instrument's objective (tracker
   and ballbar data), every kind's candidate effects :func:`candidates`.
 """
 
@@ -181,8 +181,8 @@ def _and(items: list[str]) -> str:
 @dataclass(frozen=True)
 class Diagnosis:
     """Whether the residuals of a geometric-only fit correlate with the leg forces, the legs'
-    temperatures or the carriage joints' loads (:func:`diagnose`), and the effects to switch
-    on."""
+    temperatures, the carriage joints' loads or the slides' travel times the machine's
+    temperature (:func:`diagnose`), and the effects to switch on."""
 
     tests: list[EffectTest]
     alpha: float
