@@ -7,8 +7,9 @@ the job side; docs/effects.md).
 - :func:`diagnose`: whether the residuals of a geometric-only fit correlate with the leg forces
   or the carriage joints' loads (the payload columns) or the temperatures (the temperature
   columns: the legs' expansion, and the slides' with the machine's ``T_C``), by the F test of
-  the residuals' regression on them beside the geometry, and the effect to switch on; :func:`problem_diagnosis` the same on an instrument's objective (tracker
-  and ballbar data), every kind's candidate effects :func:`candidates`.
+  the residuals' regression on them beside the geometry, and the effect to switch on;
+  :func:`problem_diagnosis` the same on an instrument's objective (tracker and ballbar data),
+  every kind's candidate effects :func:`candidates`.
 """
 
 from __future__ import annotations
