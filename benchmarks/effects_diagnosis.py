@@ -3,8 +3,11 @@ docs/effects.md, "Diagnosis of a geometric calibration"): how often it names eac
 
 For each seed: a simulated IWR data set (``N_POSES``, default 60; ``iwr.Noise.realistic()``) of
 SCENARIO ``clean`` (geometry only), ``compliance`` (``iwr.effects.api.realistic``'s compliance,
-values drawn within its bounds), ``thermal`` (steel legs, coefficient drawn) or ``carriage``
-(``realistic(carriage=True)``'s compliance of the loaded carriage joints +-30 %), with the payload
+values drawn within its bounds), ``thermal`` (steel legs, coefficient drawn), ``carriage``
+(``realistic(carriage=True)``'s compliance of the loaded carriage joints +-30 %) or ``slides``
+(the slides' scales expanding by a shared 11.5 +- 2 ppm/K times SCALE (default 1), the
+machine's temperature over a day's drift about 20 C as ``iwr simulate`` draws it, 17 .. 25 C:
+a SCALE of 0.5 is half the growth, as half the drift would make), with the payload
 and temperature columns it lacks added (payloads none/80 kg alternating, temperatures uniform in
 17 .. 25 C); calibrated geometric-only, WEIGHTING ``noise`` (the efficient estimator with the
 true noise model) or ``none`` (``lm``, base parameters); then ``iwr.effects.job.diagnose``.
@@ -13,7 +16,7 @@ Kolmogorov-Smirnov test of the p-values against U(0, 1).
 
 Usage::
 
-    python benchmarks/effects_diagnosis.py SCENARIO N_SEEDS WEIGHTING [N_POSES]
+    python benchmarks/effects_diagnosis.py SCENARIO N_SEEDS WEIGHTING [N_POSES [SCALE]]
 """
 from __future__ import annotations
 
@@ -26,14 +29,16 @@ from scipy import stats
 import iwr
 from iwr.effects import api
 from iwr.effects.builtin import LegThermal
+from iwr.effects.carriage_thermal import CarriageThermal
 from iwr.effects.job import diagnose
 from iwr.measurements import Measurements
 
 scenario, nseeds, weighting = sys.argv[1], int(sys.argv[2]), sys.argv[3]
 n_poses = int(sys.argv[4]) if len(sys.argv) > 4 else 60
+scale = float(sys.argv[5]) if len(sys.argv) > 5 else 1.0
 robot = iwr.Robot.default()
 comp, _, carriage = api.realistic(robot, carriage=True)
-EFFECTS = ("compliance", "thermal", "carriage_compliance")
+EFFECTS = ("compliance", "thermal", "carriage_compliance", "carriage_thermal")
 noise = iwr.Noise.realistic()
 rows = []
 t0 = time.time()
@@ -52,7 +57,14 @@ for seed in range(nseeds):
                             cc * 0.3 * (2.0 * rng.random(cc.size) - 1.0)])
         m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise, x=x,
                             payloads=api.DEFAULT_PAYLOADS)
+    elif scenario == "slides":  # steel scales, 11.5 +- 2 ppm/K (shared), times the scale
+        truthbot = robot.with_effects(CarriageThermal(11.5 * scale, 20.0, identify=True))
+        lo, hi = robot.default_bounds()
+        x = np.concatenate([lo + (hi - lo) * rng.random(robot.n_params),
+                            [scale * 2.0 * (2.0 * rng.random() - 1.0)]])
+        m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise, x=x)
     else:
+        assert scenario == "thermal", scenario
         truthbot = robot.with_effects(LegThermal(11.5, 20.0, identify=True))
         m, _ = api.simulate(truthbot, n_poses, seed=seed, noise=noise)
     n = len(m)
@@ -70,16 +82,22 @@ for seed in range(nseeds):
         fit = res.get("fit")
     p = {t.effect: t.p_value for t in d.tests}
     est = {t.effect: t.estimate for t in d.tests}
+    own = {t.effect: t.own for t in d.tests}
     rows.append(([p.get(e, np.nan) for e in EFFECTS], d.suggested,
-                 None if fit is None else fit.fit_ok))
+                 None if fit is None else fit.fit_ok, [own.get(e, np.nan) for e in EFFECTS]))
     print(seed, " ".join(f"p_{e}={p.get(e, np.nan):.3g}" for e in EFFECTS), d.suggested,
           "fit_ok", None if fit is None else fit.fit_ok,
           {e: np.round(v, 4).tolist() for e, v in est.items()}, flush=True)
 named = [r[1] for r in rows]
-print(f"scenario {scenario} weighting {weighting} seeds {nseeds} poses {n_poses}: named "
+print(f"scenario {scenario} weighting {weighting} seeds {nseeds} poses {n_poses} scale "
+      f"{scale:g}: named "
       + ", ".join(f"{e} {sum(e in s for s in named)}" for e in EFFECTS)
       + f", any {sum(bool(s) for s in named)}, none {sum(not s for s in named)}; "
       f"fit failed {sum(r[2] is False for r in rows)}; {time.time()-t0:.0f} s")
+share = np.array([r[3] for r in rows])
+print("own share (mean, min .. max over the seeds): " + ", ".join(
+    f"{e} {np.mean(share[:, i]):.3f} ({np.min(share[:, i]):.3f} .. {np.max(share[:, i]):.3f})"
+    for i, e in enumerate(EFFECTS) if not np.all(np.isnan(share[:, i]))))
 if scenario == "clean":
     for i, effect in enumerate(EFFECTS):
         pv = np.array([r[0][i] for r in rows])

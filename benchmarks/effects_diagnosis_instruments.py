@@ -9,8 +9,9 @@ at 10 % of the poses; ``probe``; ``ballbar``: set-ups A and B of the tests, a 1 
 (legs 2 um, joints 5 um and 5 urad, Leica's tracker or the bar's 1 um); the truth's geometric
 errors and set-up uniform within their default bounds, and SCENARIO ``clean`` (every effect 0:
 the columns carry none), ``compliance`` (``iwr.effects.api.realistic``'s 0.01 um/N per leg
-+-30 %), ``thermal`` (steel's 11.5 ppm/K) or ``carriage`` (``realistic(carriage=True)``'s
-compliance of the loaded carriage joints, +-30 % per joint), the others 0. Calibrated
++-30 %), ``thermal`` (steel's 11.5 ppm/K), ``carriage`` (``realistic(carriage=True)``'s
+compliance of the loaded carriage joints, +-30 % per joint) or ``slides`` (the slides' scales
+expanding by a shared 11.5 +- 2 ppm/K with the machine's temperature), the others 0. Calibrated
 geometric-only, WEIGHTING ``noise`` (the efficient estimator with the true noise model) or
 ``none`` (``lm``, unweighted); then the kind's diagnosis. Prints each seed's p-values and
 named effects, the counts, and on clean data the Kolmogorov-Smirnov test of each effect's
@@ -35,8 +36,9 @@ from iwr.ballbar import effects as be
 from iwr.effects import api, tracker_study
 from iwr.effects import tracker as et
 from iwr.effects.builtin import LegCompliance, LegThermal
+from iwr.effects.carriage_thermal import CarriageThermal
 
-EFFECTS = ("compliance", "thermal", "carriage_compliance")
+EFFECTS = ("compliance", "thermal", "carriage_compliance", "carriage_thermal")
 kind, scenario, nseeds, weighting = sys.argv[1], sys.argv[2], int(sys.argv[3]), sys.argv[4]
 n_poses = int(sys.argv[5]) if len(sys.argv) > 5 else 50
 plain = iwr.Robot.default()
@@ -62,7 +64,8 @@ alpha = 11.5 if scenario == "thermal" else 0.0
 cc = carriage.values() if scenario == "carriage" else np.zeros(len(carriage.values()))
 truthbot = plain.with_effects(
     LegCompliance(comp.platform_mass, comp.platform_centre, comp.gravity, c, per_leg=True),
-    LegThermal(alpha, 20.0, identify=True), carriage.with_values(cc))
+    LegThermal(alpha, 20.0, identify=True), carriage.with_values(cc),
+    CarriageThermal(11.5 if scenario == "slides" else 0.0, 20.0, identify=True))
 setup = plain.tracker if kind != "ballbar" else be._setup(plain)
 rows = []
 t0 = time.time()
@@ -72,8 +75,11 @@ for seed in range(nseeds):
     lo_s, hi_s = setup.default_bounds()
     dc = c * 0.3 * (2.0 * rng.random(6) - 1.0)  # +-30 % per leg (0 unless compliance)
     dj = cc * 0.3 * (2.0 * rng.random(cc.size) - 1.0)  # +-30 % per joint (0 unless carriage)
-    truth = np.concatenate([lo_g + (hi_g - lo_g) * rng.random(plain.n_params), dc, [0.0], dj,
-                            lo_s + (hi_s - lo_s) * rng.random(setup.n_params)])
+    xg = lo_g + (hi_g - lo_g) * rng.random(plain.n_params)
+    xs = lo_s + (hi_s - lo_s) * rng.random(setup.n_params)
+    # the slides' 11.5 +- 2 ppm/K (drawn after the rest: the other scenarios' truths as before)
+    da = 2.0 * (2.0 * rng.random() - 1.0) if scenario == "slides" else 0.0
+    truth = np.concatenate([xg, dc, [0.0], dj, [da], xs])
     if kind == "ballbar":
         data, _ = be.simulate(truthbot, n_poses, seed=seed, x=truth, noise=noise,
                               payloads=tracker_study.PAYLOADS)
@@ -90,8 +96,9 @@ for seed in range(nseeds):
     fit = res.get("fit")
     p = {t.effect: t.p_value for t in d.tests}
     est = {t.effect: t.estimate for t in d.tests}
+    own = {t.effect: t.own for t in d.tests}
     rows.append(([p.get(e, np.nan) for e in EFFECTS], d.suggested,
-                 None if fit is None else fit.fit_ok))
+                 None if fit is None else fit.fit_ok, [own.get(e, np.nan) for e in EFFECTS]))
     print(seed, " ".join(f"p_{e}={p.get(e, np.nan):.3g}" for e in EFFECTS), d.suggested,
           "dof", {t.effect: t.dof for t in d.tests}, "fit_ok", None if fit is None
           else fit.fit_ok, {e: np.round(v, 4).tolist() for e, v in est.items()}, flush=True)
@@ -100,6 +107,10 @@ counts = ", ".join(f"{e} {sum(e in s for s in named)}" for e in EFFECTS)
 print(f"{kind} scenario {scenario} weighting {weighting} seeds {nseeds} poses {n_poses}: named "
       f"{counts}, any {sum(bool(s) for s in named)}, none {sum(not s for s in named)}; fit "
       f"failed {sum(r[2] is False for r in rows)}; {time.time() - t0:.0f} s")
+share = np.array([r[3] for r in rows])
+print("own share (mean, min .. max over the seeds): " + ", ".join(
+    f"{e} {np.mean(share[:, i]):.3f} ({np.min(share[:, i]):.3f} .. {np.max(share[:, i]):.3f})"
+    for i, e in enumerate(EFFECTS) if not np.all(np.isnan(share[:, i]))))
 if scenario == "clean":
     for i, effect in enumerate(EFFECTS):
         pv = np.array([r[0][i] for r in rows])

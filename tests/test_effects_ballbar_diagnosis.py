@@ -23,6 +23,7 @@ from iwr.ballbar import effects as be
 from iwr.effects import api, tracker_study
 from iwr.effects import tracker as et
 from iwr.effects.builtin import LegCompliance, LegThermal
+from iwr.effects.carriage_thermal import CarriageThermal
 from iwr.effects.job import candidates, diagnose, effect_tests
 from iwr.effects.model import predicted_readings
 from iwr.effects.tracker_diagnosis import candidate_effects
@@ -51,15 +52,17 @@ def _plain(kind: str) -> iwr.Robot:
 
 def _truth(plain: iwr.Robot, on: tuple[str, ...], scale: float = 1.0) -> iwr.Robot:
     """``plain`` with the legs' compliance (0.01 um/N), the legs' expansion (11.5 ppm/K about
-    20 C) and the carriage's compliance (``realistic(carriage=True)``'s joints and values),
-    each at ``scale`` times its realistic value when named in ``on``, else 0."""
+    20 C), the carriage's compliance (``realistic(carriage=True)``'s joints and values) and the
+    slides' expansion (11.5 ppm/K about 20 C, shared by joints 1 and 2), each at ``scale`` times
+    its realistic value when named in ``on``, else 0."""
     comp, _, carriage = api.realistic(plain, carriage=True)
     cc = carriage.values() if "carriage_compliance" in on else np.zeros(carriage.values().size)
     return plain.with_effects(
         LegCompliance(comp.platform_mass, comp.platform_centre, comp.gravity,
                       0.01 * scale if "compliance" in on else 0.0),
         LegThermal(11.5 * scale if "thermal" in on else 0.0, 20.0, identify=True),
-        carriage.with_values(scale * cc))
+        carriage.with_values(scale * cc),
+        CarriageThermal(11.5 * scale if "carriage_thermal" in on else 0.0, 20.0, identify=True))
 
 
 def _simulate(plain, on, n, seed, noise=None, temperatures=None, scale=1.0):
@@ -70,7 +73,7 @@ def _simulate(plain, on, n, seed, noise=None, temperatures=None, scale=1.0):
     rng = np.random.default_rng(seed)
     lo, hi = plain.default_bounds()
     xg = lo + (hi - lo) * rng.random(plain.n_params)
-    ne = 7 + len(truthbot.effects[2].values())
+    ne = 8 + len(truthbot.effects[2].values())
     if plain.instruments.get("ballbar") is not None:
         lo_s, hi_s = be._setup(plain).default_bounds()
         xs = lo_s + (hi_s - lo_s) * rng.random(lo_s.size)
@@ -96,14 +99,15 @@ def test_regressors_are_the_exact_derivative_of_the_residuals(kind, n):
     """Noise-free data with every effect on (a tenth of its realistic size; the temperatures'
     mean at the reference, 20 C), the diagnosis at the true geometry: the residuals are minus
     the effects' change of the readings, which the regressors must reproduce to first order, so
-    that each coefficient is the effect's true size (0.01 um/N per leg, 11.5 ppm/K, the
-    carriage's joints' 0.005 um/N (slides) and 0.02 urad/(N m) (joint 4), all times 0.1). The
-    rest is the second order: at the realistic size it moves a slide's coefficient on tracker
-    data (weakly determined by three payloads) by 4 %, at a tenth by 0.4 %. And the carriage's
-    columns against central differences of the residuals of the objective with the candidate
-    effects."""
+    that each coefficient is the effect's true size (0.01 um/N per leg, 11.5 ppm/K the legs'
+    and the slides', the carriage's joints' 0.005 um/N (slides) and 0.02 urad/(N m) (joint 4),
+    all times 0.1). The rest is the second order: at the realistic size it moves a slide's
+    coefficient on tracker data (weakly determined by three payloads) by 4 %, at a tenth by
+    0.4 %. And the columns of the carriage's compliance and of the slides' expansion against
+    central differences of the residuals of the objective with the candidate effects."""
     plain = _plain(kind)
-    data, x = _simulate(plain, ("compliance", "thermal", "carriage_compliance"), n, seed=11,
+    data, x = _simulate(plain, ("compliance", "thermal", "carriage_compliance",
+                                "carriage_thermal"), n, seed=11,
                         temperatures=np.linspace(16.0, 24.0, n), scale=0.1)
     d = kinds.of(data).diagnose(plain, data, x)
     est = {t.effect: t for t in d.tests}
@@ -114,17 +118,22 @@ def test_regressors_are_the_exact_derivative_of_the_residuals(kind, n):
     np.testing.assert_allclose(est["thermal"].estimate, 1.15, rtol=1e-2)
     np.testing.assert_allclose(est["carriage_compliance"].estimate, 0.1 * carriage.values(),
                                rtol=1e-2)
-    # The carriage's columns: central differences of the residuals in its parameters.
+    np.testing.assert_allclose(est["carriage_thermal"].estimate, 1.15, rtol=1e-2)
+    assert est["carriage_thermal"].unit == "ppm/K"
+    # The carriage's and the slides' columns: central differences of the residuals in their
+    # parameters.
     geometric = plain.with_effects()
     cands = (candidate_effects(plain, data, x) if kind == "points"
              else candidates(plain, data))
     probe = geometric.with_effects(*cands.effects)
     ng = plain.n_params
-    at = [e.name for e in probe.effects].index("carriage_compliance")
+    names = [e.name for e in probe.effects]
+    assert names[-1] == "carriage_thermal"  # the data's T_C, the IWR's slides
+    at = names.index("carriage_compliance")
     first = ng + sum(len(e.parameter_names()) for e in probe.effects[:at])
     k = len(carriage.values())
     if kind == "pose":
-        xf = np.concatenate([x, np.zeros(7 + k)])
+        xf = np.concatenate([x, np.zeros(8 + k)])
 
         def residuals(v):
             return (predicted_readings(probe, v, data.q, data.poses, data, derivatives=True)[0]
@@ -135,15 +144,17 @@ def test_regressors_are_the_exact_derivative_of_the_residuals(kind, n):
     else:
         problem = (be.BallbarEffectProblem(probe, be._setup(geometric), data) if kind ==
                    "ballbar" else et.TrackerEffectProblem(probe, geometric.tracker, data))
-        xf = np.concatenate([x[:ng], np.zeros(7 + k), x[ng:]])
+        xf = np.concatenate([x[:ng], np.zeros(8 + k), x[ng:]])
         residuals = problem.residuals
         jac = problem.jacobian(xf)
-    for j in range(first, first + k):
+    # urad/(N m) or um/N: micrometres of change; the slides' (the last effect's) ppm/K: a 2 m
+    # slide at 4 K from the mean moves by 0.8 um
+    for j, step in [(j, 1e-3) for j in range(first, first + k)] + [(first + k, 1e-1)]:
         h = np.zeros(xf.size)
-        h[j] = 1e-3  # urad/(N m) or um/N: micrometres of change
-        fd = (residuals(xf + h) - residuals(xf - h)) / 2e-3
+        h[j] = step
+        fd = (residuals(xf + h) - residuals(xf - h)) / (2 * step)
         np.testing.assert_allclose(jac[:, j], fd, atol=1e-6 * np.abs(fd).max())
-        assert np.abs(fd).max() > 1e-3  # a joint that carries a load: a column that moves
+        assert np.abs(fd).max() > 1e-3  # a column that moves
 
 
 #: A carriage as stiff as an industrial arm's main axis (docs/effects.md, "Realistic
@@ -181,7 +192,7 @@ def test_ballbar_diagnosis_names_the_effect_the_data_carry(effect, soft_carriage
     assert "m/s^2 in {0} (the effects' own: a ballbar has no registration" in d.assumptions[0]
     test = {t.effect: t for t in d.tests}
     assert {e: t.dof[0] for e, t in test.items()} == {
-        "compliance": 6, "thermal": 1, "carriage_compliance": 1}
+        "compliance": 6, "thermal": 1, "carriage_compliance": 1, "carriage_thermal": 1}
     if effect == "compliance":  # the mean of six: its sd about 0.003 um/N at 160 poses
         assert test["compliance"].estimate.mean() == pytest.approx(0.01, abs=0.006)
     elif effect == "carriage_compliance":

@@ -61,10 +61,11 @@ def test_tracker_diagnosis_names_the_effect_the_data_carry(points, effect):
     seen = 3 * int(np.sum(~np.isnan(data.points[..., 0])))
     assert d.n_residuals == seen  # the hidden points left out
     test = {t.effect: t for t in d.tests}
-    # the legs' 6 compliances, 1 expansion coefficient, and the carriage's joints (all four:
-    # the tracker's gravity through the registration loads the slides too)
+    # the legs' 6 compliances, 1 expansion coefficient, the carriage's joints (all four: the
+    # tracker's gravity through the registration loads the slides too) and the slides' 1
+    # expansion coefficient (the data's T_C)
     assert test["carriage_compliance"].names == ("joint1", "joint2", "joint3", "joint4")
-    assert test["compliance"].dof == (6, seen - int(res.active.sum()) - 11)
+    assert test["compliance"].dof == (6, seen - int(res.active.sum()) - 12)
     if effect == "compliance":
         assert test["compliance"].estimate.mean() == pytest.approx(0.01, rel=0.3)
     elif effect == "thermal":
@@ -81,7 +82,7 @@ def test_probe_diagnosis_counts_six_whitened_rows_a_pose(measured_with_effects):
     assert d.n_residuals == 6 * len(data)
     assert d.residuals == "probe-point"
     assert {t.effect: t.dof for t in d.tests}["thermal"] == (
-        1, 6 * len(data) - int(res.active.sum()) - 11)
+        1, 6 * len(data) - int(res.active.sum()) - 12)
     assert d.suggested == ["compliance"]
 
 

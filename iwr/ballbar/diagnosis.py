@@ -1,7 +1,8 @@
 """The diagnosis of a geometric calibration on double-ballbar data (issue 23, docs/effects.md,
 "Diagnosis of a geometric calibration"): whether the distance residuals of a geometric fit
 correlate with the change of the distances the leg forces of the data's payloads, the carriage
-joints' loads or the legs' temperatures would make. The statistics and the regressors are those
+joints' loads, the legs' temperatures or the slides' expansion with the machine's temperature
+would make. The statistics and the regressors are those
 of every instrument's objective with the effects (:func:`iwr.effects.job.problem_diagnosis`);
 only the problem and the whitening are the ballbar's."""
 

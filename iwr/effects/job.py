@@ -6,9 +6,10 @@ the job side; docs/effects.md).
 - :func:`check_job`: the data :func:`iwr.calibrate` models the effects on.
 - :func:`diagnose`: whether the residuals of a geometric-only fit correlate with the leg forces
   or the carriage joints' loads (the payload columns) or the temperatures (the temperature
-  columns), by the F test of the residuals' regression on them beside the geometry, and the
-  effect to switch on; :func:`problem_diagnosis` the same on an instrument's objective (tracker
-  and ballbar data), every kind's candidate effects :func:`candidates`.
+  columns: the legs' expansion, and the slides' with the machine's ``T_C``), by the F test of
+  the residuals' regression on them beside the geometry, and the effect to switch on;
+  :func:`problem_diagnosis` the same on an instrument's objective (tracker and ballbar data),
+  every kind's candidate effects :func:`candidates`.
 """
 
 from __future__ import annotations
@@ -164,10 +165,13 @@ _MECHANISM = {
     "thermal": "the legs' expansion: each leg's length times its temperature's departure from "
                "the data's mean",
     "carriage_compliance": "the carriage's compliance: each joint tested turned (or moved) by "
-                           "the gravity load it carries"}
+                           "the gravity load it carries",
+    "carriage_thermal": "the slides' expansion: each prismatic joint's reading times the "
+                        "machine's temperature's departure from the data's mean"}
 #: How the report names what each effect correlates with.
 _CAUSE = {"compliance": "the leg forces (payload)", "thermal": "the legs' temperatures",
-          "carriage_compliance": "the carriage joints' gravity loads (payload)"}
+          "carriage_compliance": "the carriage joints' gravity loads (payload)",
+          "carriage_thermal": "the slides' travel times the machine's temperature"}
 
 
 def _and(items: list[str]) -> str:
@@ -178,8 +182,8 @@ def _and(items: list[str]) -> str:
 @dataclass(frozen=True)
 class Diagnosis:
     """Whether the residuals of a geometric-only fit correlate with the leg forces, the legs'
-    temperatures or the carriage joints' loads (:func:`diagnose`), and the effects to switch
-    on."""
+    temperatures, the carriage joints' loads or the slides' travel times the machine's
+    temperature (:func:`diagnose`), and the effects to switch on."""
 
     tests: list[EffectTest]
     alpha: float
@@ -193,6 +197,8 @@ class Diagnosis:
     residuals: str = "leg"
     #: The ``[effects.carriage_compliance]`` table's own lines (the joints, the hexapod).
     carriage: list[str] = field(default_factory=list)
+    #: The ``[effects.carriage_thermal]`` table's joints line (the slides tested).
+    slides: list[str] = field(default_factory=list)
 
     @property
     def suggested(self) -> list[str]:
@@ -231,6 +237,10 @@ class Diagnosis:
                         "reference_C = 20.0                 # the temperature of the geometry"]
             elif t.effect == "carriage_compliance":
                 out += ["[effects.carriage_compliance]", *self.carriage, *self.statics]
+            elif t.effect == "carriage_thermal":
+                out += ["[effects.carriage_thermal]", *self.slides, "identify = true",
+                        "reference_C = 20.0                 # the temperature at which the "
+                        "scales read true"]
         return "\n".join(out)
 
     def lines(self) -> list[str]:
@@ -269,7 +279,7 @@ class Diagnosis:
                               if t.names else {})}
                           for t in self.tests],
                 "assumptions": list(self.assumptions), "statics": list(self.statics),
-                "carriage": list(self.carriage)}
+                "carriage": list(self.carriage), "slides": list(self.slides)}
 
 
 def _statics(robot: Any) -> LegCompliance:
@@ -290,14 +300,17 @@ class Candidates:
     them."""
 
     #: Switched on together on the geometric robot, at zero: the legs' compliance (per leg),
-    #: the legs' expansion (one coefficient, about the data's mean temperature), the carriage's
-    #: compliance (the joints that carry a load).
+    #: the carriage's compliance (the joints that carry a load), the legs' expansion (one
+    #: coefficient, about the data's mean temperature), the slides' expansion (one coefficient
+    #: shared by the prismatic joints, about the data's mean machine temperature).
     effects: tuple[Any, ...]
     assumptions: list[str]
     #: The statics' lines of ``[effects.compliance]`` and ``[effects.carriage_compliance]``.
     statics: list[str]
     #: The ``[effects.carriage_compliance]`` table's own lines.
     carriage: list[str]
+    #: The ``[effects.carriage_thermal]`` table's joints line.
+    slides: list[str] = field(default_factory=list)
 
 
 def candidates(robot: Any, data: Any, *, gravity_text: str | None = None,
@@ -308,7 +321,10 @@ def candidates(robot: Any, data: Any, *, gravity_text: str | None = None,
     compliance, and the carriage's compliance for the carriage joints that carry a gravity load
     somewhere in their ranges under ``load_gravity`` (in {0}; default the statics' gravity;
     :func:`iwr.effects.api.loaded_joints`), none on a robot without such joints; with
-    temperature columns, the legs' expansion. The platform's mass and centre and gravity: the
+    temperature columns, the legs' expansion, and with the machine's one temperature per pose
+    (``T_C``; not the legs' ``T1_C .. T6_C``: said in the assumptions) the slides' expansion on
+    a robot with prismatic carriage joints (one coefficient shared by them, about the data's
+    mean temperature). The platform's mass and centre and gravity: the
     robot's ``[effects.compliance]`` table's when it has one, else
     :func:`iwr.effects.api.realistic`'s; the hexapod's mass and centre the robot's
     ``[effects.carriage_compliance]`` table's, else :data:`iwr.effects.api.REALISTIC_CARRIAGE`'s
@@ -316,6 +332,7 @@ def candidates(robot: Any, data: Any, *, gravity_text: str | None = None,
     statics' own, in {0}), ``gravity_note`` the comment on the suggested table's gravity."""
     from .builtin import LegThermal
     from .carriage import CarriageCompliance
+    from .carriage_thermal import CarriageThermal
 
     has_payload = getattr(data, "payload", None) is not None
     has_temps = getattr(data, "temperatures", None) is not None
@@ -368,10 +385,25 @@ def candidates(robot: Any, data: Any, *, gravity_text: str | None = None,
                 + ("the robot's [effects.carriage_compliance]" if own is not None else
                    "iwr.effects.api.REALISTIC_CARRIAGE: the robot file has no "
                    "[effects.carriage_compliance] table") + ")")
+    slides: list[str] = []
     if has_temps:
-        temps = np.broadcast_to(np.asarray(data.temperatures, dtype=float), (len(data), 6))
+        raw = np.asarray(data.temperatures, dtype=float)
+        temps = np.broadcast_to(raw, (len(data), 6))
         effects.append(LegThermal(0.0, float(temps.mean()), identify=True))
-    return Candidates(tuple(effects), assumptions, statics_lines, carriage)
+        prismatic = [i + 1 for i, t in enumerate(geometric.joint_types) if t == "P"]
+        machine = raw.ndim == 1 or raw.shape[1] == 1
+        if prismatic and machine:
+            # One coefficient shared by the slides, as the effect's default (per_joint false):
+            # one degree of freedom, the most power for scales of one material.
+            effects.append(CarriageThermal(0.0, float(raw.mean()), prismatic, identify=True))
+            slides = [f"joints = {prismatic}                    # the slides tested"]
+        elif prismatic:
+            assumptions.append(
+                "the slides' expansion (joint" + ("s " if len(prismatic) > 1 else " ")
+                + _and([str(j) for j in prismatic]) + ") is not tested: it needs the machine's "
+                "temperature at each pose (column T_C), and the data have the legs' only "
+                "(T1_C .. T6_C)")
+    return Candidates(tuple(effects), assumptions, statics_lines, carriage, slides)
 
 
 def regression_tests(r: np.ndarray, jac: np.ndarray, geo: np.ndarray, first: int,
@@ -404,7 +436,8 @@ def regression_tests(r: np.ndarray, jac: np.ndarray, geo: np.ndarray, first: int
     return effect_tests(whiten(r)[rows], whiten(jac[:, :, geo])[rows], zw, cluster,
                         exact=exact, alpha=alpha, weighting=weighting,
                         assumptions=cands.assumptions, table=cands.statics,
-                        residuals=residuals, labels=labels, carriage=cands.carriage)
+                        residuals=residuals, labels=labels, carriage=cands.carriage,
+                        slides=cands.slides)
 
 
 def problem_diagnosis(problem: Any, data: Any, x: Any, n_geometric: int, cands: Candidates,
@@ -539,7 +572,10 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
       leg length; coefficient: the expansion coefficient, ppm/K);
     - **carriage_compliance** (payload columns, a carriage joint that carries a load): one
       column per such joint, the change of the legs at the measured pose when the joint turns
-      (moves) by its gravity load (coefficient: its compliance, urad/(N m) or um/N).
+      (moves) by its gravity load (coefficient: its compliance, urad/(N m) or um/N);
+    - **carriage_thermal** (the machine's temperature ``T_C``, a prismatic carriage joint): one
+      column, the change of the legs when each slide moves by ``1e-6 (T_k - mean T) q_ki``
+      (coefficient: the scales' expansion coefficient, ppm/K, shared by the slides).
 
     Each effect is tested by the F test of its columns given the geometry and the other
     effects' (:class:`EffectTest`), at ``alpha`` divided by the number tested, so that data
@@ -585,7 +621,8 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
 _REGRESSORS = {"compliance": ("the six leg forces", "um/N"),
                "thermal": ("leg length times temperature", "ppm/K"),
                "carriage_compliance": ("each loaded carriage joint's gravity load",
-                                       "urad/(N m)")}
+                                       "urad/(N m)"),
+               "carriage_thermal": ("slide reading times machine temperature", "ppm/K")}
 
 
 def _label(effect: Any) -> tuple[str, str, tuple[str, ...], tuple[str, ...]]:
@@ -606,7 +643,8 @@ def effect_tests(rw: np.ndarray, aw: np.ndarray, zw: dict[str, np.ndarray],
                  assumptions: list[str], table: list[str], residuals: str = "leg",
                  labels: dict[str, tuple[str, str, tuple[str, ...], tuple[str, ...]]]
                  | None = None,
-                 carriage: list[str] | None = None) -> Diagnosis:
+                 carriage: list[str] | None = None,
+                 slides: list[str] | None = None) -> Diagnosis:
     """The statistics of :func:`diagnose` (and of the tracker kinds' diagnosis,
     :func:`iwr.effects.tracker_diagnosis.diagnose`) once the residuals are built: ``rw`` the
     residuals that carry data (whitened, or weighted), ``aw`` (rows, n) the geometry's
@@ -618,7 +656,8 @@ def effect_tests(rw: np.ndarray, aw: np.ndarray, zw: dict[str, np.ndarray],
     regressors add no rank to the others' is not tested (:attr:`EffectTest.testable`), and the
     level is divided among those that are. ``labels``: each effect's regressors, unit and per
     coefficient names and units (:func:`_label`; default :data:`_REGRESSORS`'s); ``carriage``:
-    the carriage table's lines (:attr:`Diagnosis.carriage`)."""
+    the carriage table's lines (:attr:`Diagnosis.carriage`); ``slides``: the slides' table's
+    (:attr:`Diagnosis.slides`)."""
     every = np.concatenate([aw] + list(zw.values()), axis=1)
     rss1, rank1, coef = _residual_ss(every, rw)
     f_dof = rw.size - rank1
@@ -655,4 +694,4 @@ def effect_tests(rw: np.ndarray, aw: np.ndarray, zw: dict[str, np.ndarray],
         tests.append(EffectTest(name, what, float(stat), (int(p), int(dof)), pv, level,
                                 np.asarray(est, dtype=float), unit, names, units, own))
     return Diagnosis(tests, alpha, weighting, assumptions, int(rw.size), table, residuals,
-                     list(carriage or []))
+                     list(carriage or []), list(slides or []))

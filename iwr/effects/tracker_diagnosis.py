@@ -1,7 +1,8 @@
 """The diagnosis of a geometric calibration on laser-tracker data (issue 23, docs/effects.md,
 "Diagnosis of a geometric calibration"): whether the point (probe) residuals of a geometric fit
 correlate with the change of the points the leg forces of the data's payloads, the carriage
-joints' loads or the legs' temperatures would make. The statistics and the regressors are those
+joints' loads, the legs' temperatures or the slides' expansion with the machine's temperature
+would make. The statistics and the regressors are those
 of every instrument's objective with the effects (:func:`iwr.effects.job.problem_diagnosis`);
 only the problem, gravity and the whitening are the tracker's."""
 
@@ -31,7 +32,8 @@ def diagnose(robot: Any, data: Any, x: Any, *, active: Any = None, noise: Any = 
     (:class:`iwr.effects.tracker.TrackerEffectProblem`, gravity the tracker's through the
     registration of ``x``) in the effect's parameters where the effect is zero (the legs' six
     compliances, um/N; the loaded carriage joints' compliances, urad/(N m) or um/N; one
-    expansion coefficient, ppm/K, about the data's mean temperature). With a ``noise`` model
+    expansion coefficient, ppm/K, about the data's mean temperature; with the machine's
+    temperature ``T_C``, the slides' one expansion coefficient, ppm/K). With a ``noise`` model
     (``(iwr.Noise, iwr.tracker.TrackerNoise)``) the residuals and regressors are whitened per
     pose by the points' covariance (:func:`iwr.tracker.problem.noise_whitening`; a probe's has
     six rows per pose) and each effect tested by the exact F test; without one, by the
