@@ -427,3 +427,50 @@ def test_cli_legs_and_plan(tmp_path):
                "plan.csv")
     assert proc.returncode == 0, proc.stderr
     assert "temperatures: the carriage_thermal effect needs them" in proc.stdout
+
+
+def test_data_without_the_machines_temperature_refused_by_file_before_the_work(tmp_path,
+                                                                              capsys):
+    """Data (or a validation file, or plan candidates) without the column the slides need were
+    refused as "measurements: ..." (no file named) and only once the work had run: a validation
+    file's after the whole identification. Now by its file, before any identification."""
+    from iwr.cli import main as cli_main
+
+    robot = _robot(per_joint=False)
+    robot.to_toml(tmp_path / "robot.toml")
+    m, _ = api.simulate(robot, 12, seed=3)
+    m.to_csv(tmp_path / "data.csv")
+    Measurements(m.q, m.poses, m.legs, joint_types=robot.joint_types).to_csv(
+        tmp_path / "none.csv")
+    Measurements(m.q, m.poses, m.legs, joint_types=robot.joint_types,
+                 temperatures=np.repeat(m.temperatures, 6, axis=1)).to_csv(
+        tmp_path / "per_leg.csv")
+    robot_file, data = str(tmp_path / "robot.toml"), str(tmp_path / "data.csv")
+    none, per_leg = str(tmp_path / "none.csv"), str(tmp_path / "per_leg.csv")
+    for argv, bad in (
+            (["calibrate", robot_file, none], none),
+            (["calibrate", robot_file, data, "--validation", per_leg], per_leg),
+            (["analyze", robot_file, per_leg], per_leg),
+            (["plan", robot_file, "--candidates", per_leg, "--poses", "5"], per_leg)):
+        capsys.readouterr()
+        code = cli_main([*argv, "--method", "lm", "-o", str(tmp_path / "out")]
+                        if argv[0] == "calibrate" else
+                        argv + (["--out", str(tmp_path / "plan.csv")] if argv[0] == "plan"
+                                else []))
+        out, err = capsys.readouterr()
+        assert code == 1, (argv, err)
+        assert f"iwr: error: {bad}: the carriage_thermal effect" in err, (argv, err)
+        assert "column T_C" in err and "identifying" not in out, (argv, out)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "plan.csv").exists()
+    # The library's job names the data set, before the identification.
+    legs_only = Measurements.from_csv(per_leg, robot=robot)
+
+    def never(*args, **kwargs):
+        raise AssertionError("identified before the data were checked")
+
+    import iwr.calibration as job
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(job, "identify", never)
+        with pytest.raises(ValueError, match="^validation: the carriage_thermal effect"):
+            iwr.calibrate(robot, m, validation=legs_only)
