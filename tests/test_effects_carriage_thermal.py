@@ -18,7 +18,6 @@ from iwr.effects.builtin import LegCompliance, LegThermal
 from iwr.effects.carriage import CarriageCompliance
 from iwr.effects.carriage_thermal import CarriageThermal
 from iwr.effects.problem import EffectProblem
-from iwr.implicit_loop import loop_jacobians
 from iwr.measurements import Measurements
 from iwr.transforms import pose_matrix
 
@@ -130,37 +129,14 @@ def test_per_leg_temperatures_are_refused(tmp_path):
                               legs_only.temperatures)
 
 
-def test_objective_and_loop_jacobians_match_central_differences(robot, data):
+def test_objective_and_loop_jacobians_match_central_differences(robot, data,
+                                                                check_effect_jacobians):
     """With every effect on (the carriage's compliance too: both change the joints), the exact
     Jacobians against central differences, in every parameter and the loop's corrections."""
     m, x_true = data
-    problem = EffectProblem(robot, m)
-    names = problem.parameter_names
-    assert names[-2:] == ["joint1.alpha", "joint2.alpha"]
-    x = 0.5 * x_true
-    _, jac = problem.residuals_and_jacobian(x)
-    steps = np.where(np.arange(len(x)) < robot.n_params, 1e-6,
-                     1e-4 * (problem.upper - problem.lower))
-    for i in range(problem.n_params):
-        fd = _central(problem.residuals, x, i, steps[i])
-        assert np.abs(fd - jac[:, i]).max() < 1e-5 * max(1.0, np.abs(jac[:, i]).max()), names[i]
-    rng = np.random.default_rng(5)
-    corr = rng.normal(0, 1, (len(m), robot.n_joints + 6)) * ([1e-2] * 2 + [1e-5] * 2
-                                                             + [1e-2] * 3 + [1e-5] * 3)
-    legs, jx, jy = loop_jacobians(robot, x, m.q, m.poses, corr, data=m)
-    for i in list(range(0, robot.n_params, 3)) + list(range(robot.n_params, len(x))):
-        fd = _central(lambda y: loop_jacobians(robot, y, m.q, m.poses, corr, data=m)[0], x, i,
-                      steps[i])
-        assert np.abs(fd - jx[..., i]).max() < 1e-5 * max(1.0, np.abs(jx[..., i]).max()), \
-            names[i]
-    for c in range(robot.n_joints + 6):
-        h = 1e-4 if c in (0, 1, 4, 5, 6) else 1e-7
-        fd = _central(lambda y: loop_jacobians(robot, x, m.q, m.poses, y.reshape(corr.shape),
-                                               data=m)[0].ravel(), corr.ravel().copy(),
-                      np.ravel_multi_index((3, c), corr.shape), h).reshape(legs.shape)
-        assert np.abs(fd[3] - jy[3, :, c]).max() < 1e-5 * max(1.0, np.abs(jy[3, :, c]).max()), c
-    s = model.predicted_readings(robot, x, m.q, m.poses, m)
-    assert np.abs(loop_jacobians(robot, x, m.q, m.poses, data=m)[0] - s).max() < 1e-9
+    assert EffectProblem(robot, m).parameter_names[-2:] == ["joint1.alpha", "joint2.alpha"]
+    check_effect_jacobians(robot, m, 0.5 * x_true, list(range(0, robot.n_params, 3))
+                           + list(range(robot.n_params, len(x_true))))
 
 
 def test_cpp_objective_agrees_with_the_numpy_model(robot, data, tmp_path):
@@ -199,7 +175,7 @@ def _fresh(truth, n, seed):
     # DE on the C++ objective with the slides' growth (cpp/src/effects.cpp), polished by LM.
     ("de", {"max_evaluations": 20000, "seed": 1}),
 ])
-def test_noise_free_recovery_and_compensation(method, options):
+def test_noise_free_recovery_and_compensation(method, options, fresh_tool_error):
     """Issue 23's check: from noise-free pose data at a day's temperatures LM (and DE) recovers
     the geometry and both slides' coefficients so that tool poses and leg commands on 50 fresh
     poses at other temperatures agree with the truth to 1e-6 mm; commands that leave the
@@ -211,16 +187,7 @@ def test_noise_free_recovery_and_compensation(method, options):
     assert np.abs(result.x[-2:] - x_true[-2:]).max() < 1e-6
     truth, calibrated = api.apply(robot, x_true), api.apply(robot, result.x)
     fresh = _fresh(truth, 50, seed=11)
-    zero = np.zeros(len(x_true))
-    guess = fresh.poses + np.array([0.5, -0.5, 0.5, 1e-3, -1e-3, 1e-3])
-    poses = api.forward_kinematics(calibrated, zero, fresh.q, fresh.legs, fresh, guess)
-    tool = np.array([0.0, 0.0, 200.0])
-
-    def points(p):
-        t = pose_matrix(p)
-        return t[:, :3, 3] + t[:, :3, :3] @ tool
-
-    assert np.abs(points(poses) - points(fresh.poses)).max() < 1e-6
+    assert fresh_tool_error(calibrated, fresh) < 1e-6
     cmd = api.leg_commands(calibrated, fresh.q, fresh.poses, temperatures=fresh.temperatures)
     assert np.abs(cmd.legs - fresh.legs).max() < 1e-6
     plain = api.leg_commands(calibrated.with_effects(), fresh.q, fresh.poses)
