@@ -130,6 +130,16 @@ def test_report_refuses_another_robot(run, tmp_path, capsys):
             f"identified for (made from {run / 'robot.toml'}): setup: ballbar.B.fixed_ball = "
             "[950, -200, 2400], the run's robot had [900, -200, 2400]") in err
     assert not (tmp_path / "r").exists()
+    # The run's own calibrated.toml given back (a calibration, not the nominal robot): refused,
+    # and the message says which file iwr report takes.
+    code = cli_main(["report", str(run / "cal" / "result.json"),
+                     str(run / "cal" / "calibrated.toml"), str(run / "data.csv"), "--out",
+                     str(tmp_path / "r"), "--no-plots"])
+    err = capsys.readouterr().err
+    assert code == 2 and not (tmp_path / "r").exists()
+    assert (f"; {run / 'cal' / 'calibrated.toml'} is a calibrated robot ([provenance] method "
+            f"'lm', from {run / 'robot.toml'}): iwr report takes the nominal robot the run "
+            f"identified the errors of, {run / 'robot.toml'}") in err
 
 
 def test_report_warns_of_a_run_without_a_model(run, tmp_path, capsys):

@@ -110,10 +110,18 @@ def _check_robot(args: argparse.Namespace, result: Any, robot: Any) -> str:
     found = differences(recorded, robot)
     if found:
         made_from = (settings.get("sources") or {}).get("robot") or settings.get("robot_file")
+        prov = getattr(robot, "provenance", None) or {}
+        what = "give the robot file of the run"
+        if prov.get("method") is not None:  # a calibration's output, e.g. calibrated.toml
+            what = (f"{args.robot} is a calibrated robot ([provenance] method "
+                    f"{prov['method']!r}" + (f", from {prov['robot']}" if prov.get("robot")
+                                             else "") + "): iwr report takes the nominal "
+                    "robot the run identified the errors of"
+                    + (f", {made_from}" if made_from else ""))
         raise UsageError(
             f"{args.robot} is not the robot {args.run} was identified for"
             + (f" (made from {made_from})" if made_from else "") + ": "
-            + "; ".join(found) + "; give the robot file of the run", "iwr report")
+            + "; ".join(found) + "; " + what, "iwr report")
     return ""
 
 
