@@ -61,6 +61,23 @@ def test_a_reformatted_file_is_the_same_model(robot_measured_by, tmp_path):
     assert differences(record(robot), other) == []
 
 
+def test_round_off_is_the_same_model_and_a_difference_is_shown_apart(robot_measured_by):
+    """A file that writes pi/2 with 15 significant digits (another writer) was refused, its
+    message showing the same value twice ("alpha = 1.57079632679 rad, the run's robot had
+    1.57079632679 rad"). Values apart by round-off are the same model; a real difference in the
+    last of the 12 digits shown is shown with the digits that tell the two apart."""
+    robot = robot_measured_by("points")
+    d = robot.to_dict()
+    d["carriage"]["joints"][0]["alpha"] = float(f"{robot.dh[0, 0]:.15g}")
+    d["tracker"]["reflectors"][0][0] = float(f"{120.0 * (1 + 3e-16):.17g}")
+    assert float(f"{robot.dh[0, 0]:.15g}") != robot.dh[0, 0]
+    assert differences(record(robot), iwr.Robot.from_dict(d)) == []
+    d["carriage"]["joints"][0]["alpha"] = robot.dh[0, 0] - 4e-12  # 2.5e-12 of it
+    assert differences(record(robot), iwr.Robot.from_dict(d)) == [
+        "geometry: carriage joint 1 alpha = 1.5707963267908966 rad, the run's robot had "
+        "1.5707963267948966 rad"]
+
+
 def test_differences_name_the_section_and_the_values(robot_measured_by):
     robot = robot_measured_by("points")
     d = robot.to_dict()
