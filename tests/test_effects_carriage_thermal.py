@@ -429,6 +429,24 @@ def test_data_without_the_machines_temperature_refused_by_file_before_the_work(t
         assert f"iwr: error: {bad}: the carriage_thermal effect" in err, (argv, err)
         assert "column T_C" in err and "identifying" not in out, (argv, out)
     assert not (tmp_path / "out").exists() and not (tmp_path / "plan.csv").exists()
+    # iwr report: a run of the robot without the effect, given the robot with it, is told the
+    # robot differs (not that its data lack T_C); given the right robot and data without T_C,
+    # the data file is named.
+    robot.with_effects().to_toml(tmp_path / "plain.toml")
+    cli_main(["calibrate", str(tmp_path / "plain.toml"), none, "--method", "lm", "-o",
+              str(tmp_path / "plain"), "--no-plots", "--validation-fraction", "0"])
+    capsys.readouterr()
+    run = str(tmp_path / "plain" / "result.json")
+    assert cli_main(["report", run, robot_file, none, "--out", str(tmp_path / "r")]) == 2
+    assert "effects: carriage_thermal is on, the run's robot had it off" in \
+        capsys.readouterr().err
+    cli_main(["calibrate", robot_file, data, "--method", "lm", "-o", str(tmp_path / "own"),
+              "--no-plots", "--validation-fraction", "0"])
+    capsys.readouterr()
+    assert cli_main(["report", str(tmp_path / "own" / "result.json"), robot_file, data,
+                     "--validation", per_leg, "--out", str(tmp_path / "r")]) == 1
+    assert f"iwr: error: {per_leg}: the carriage_thermal effect" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
     # The library's job names the data set, before the identification.
     legs_only = Measurements.from_csv(per_leg, robot=robot)
 

@@ -15,6 +15,7 @@ from ._base import (
     CommandError,
     UsageError,
     add_common,
+    check_effect_inputs,
     check_output,
     load_robot,
     one_line,
@@ -152,9 +153,11 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.robot}: {kind.name} data ({kind.description}): no report for "
                          "them yet (docs/kinds.md)", "iwr report")
     data = read_data(args.data, robot, args.readings, targets=target_format(args),
-                     prog="iwr report")
-    # The robot first: the data's fingerprint depends on its set-up (the tracker's points).
+                     prog="iwr report", effects=False)
+    # The robot first: the data's fingerprint depends on its set-up (the tracker's points), and
+    # the columns the data need on the robot's effects (another robot's effects: its message).
     warning = _check_robot(args, result, robot)
+    check_effect_inputs(robot, data, args.data)
     note = _check_data(args, result, robot, data)
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
