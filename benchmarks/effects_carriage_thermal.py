@@ -35,6 +35,7 @@ import sys  # noqa: E402
 import time  # noqa: E402
 
 import numpy as np  # noqa: E402
+from bench_effects import per_eval_us  # noqa: E402  (benchmarks/ is on sys.path)
 from tqdm import tqdm  # noqa: E402
 
 import iwr  # noqa: E402
@@ -98,16 +99,6 @@ def monte_carlo(seeds: int, n_poses: int, n_fresh: int, scale: float) -> None:
     print(f"carriage.alpha: error RMS {math.sqrt(np.mean(col['alpha_error']**2)):.2f} ppm/K, "
           f"sd mean {col['alpha_sd'].mean():.2f} ppm/K, error / sd RMS "
           f"{math.sqrt(np.mean(z**2)):.2f}")
-
-
-def per_eval_us(fn, X: np.ndarray, repeat: int) -> float:
-    fn(X[:8])
-    best = math.inf
-    for _ in range(repeat):
-        t = time.thread_time()
-        fn(X)
-        best = min(best, (time.thread_time() - t) / X.shape[0] * 1e6)
-    return best
 
 
 def hot_path(repeat: int) -> None:

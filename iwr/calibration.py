@@ -287,8 +287,14 @@ def calibrate(
     """
     if robot.effects:  # issue 23: pose data; the methods say which of them model the effects
         from .effects.job import check_job
+        from .effects.model import check_inputs
 
         check_job(robot, data)
+        # The columns the effects need (temperatures), in both data sets before any work: the
+        # validation set's were found only after the identification, as "measurements".
+        check_inputs(robot, data, "data")
+        if validation is not None:
+            check_inputs(robot, validation, "validation")
     kind = kinds.of(data)
     kind.check(robot, data)
     if parameters not in ("base", "all"):

@@ -21,7 +21,9 @@ differs and how:
 What does not change the numbers is left out: the robot's name, comments and layout of its
 file, its ``[provenance]`` and ``[noise]`` tables (a run records the noise model it weighted
 by), its joint limits, leg stroke and workspace. Numbers are compared as floats, so ``1200``,
-``1200.0`` and ``1.2e3`` are the same value, and a reformatted file the same model.
+``1200.0`` and ``1.2e3`` are the same value, and a reformatted file the same model; values that
+differ by round-off only (:data:`RELATIVE_TOLERANCE`: pi/2 written with 15 significant digits)
+are the same too.
 """
 
 from __future__ import annotations
@@ -37,12 +39,17 @@ import numpy as np
 from . import kinds
 from .effects import parameter_names as effect_parameter_names
 
-__all__ = ["FORMAT", "SECTIONS", "differences", "fingerprint", "model", "record"]
+__all__ = ["FORMAT", "RELATIVE_TOLERANCE", "SECTIONS", "differences", "fingerprint", "model",
+           "record"]
 
 #: The record's format (the settings' ``robot_model.format``).
 FORMAT = "iwr-robot-model-1"
 #: The sections of the model, in the order messages name them.
 SECTIONS = ("geometry", "parameters", "effects", "setup")
+#: Two numbers within this of each other relative to the larger (and to 1: mm, rad, ppm/K, ...)
+#: are the same value: a file that writes a value with fewer digits (15 significant ones, 2e-16
+#: of pi/2 off its double) is the same model; 1e-12 of a 2 m slide is 2 pm.
+RELATIVE_TOLERANCE = 1e-12
 #: Units of the geometry's values, by key, for messages.
 _UNITS = {"alpha": "rad", "theta": "rad", "a": "mm", "d": "mm", "base_joints": "mm",
           "platform_joints": "mm", "leg_offsets": "mm"}
@@ -133,10 +140,11 @@ def differences(recorded: Mapping[str, Any], robot: Any, *, limit: int = 3) -> l
                 out.append(f"{s}: and {more} other difference(s)")
         elif s in sections and sections[s] != mine["sections"][s]:
             out.append(f"{s}: differs (the run recorded only its fingerprint)")
-    if not out:  # the same sections, another fingerprint: a record of another format
+    whole = isinstance(theirs, Mapping) and all(s in theirs for s in SECTIONS)
+    if not out and not whole:  # the same sections' fingerprints: a record of another format
         out.append(f"fingerprint {mine['fingerprint']}, the run's robot had "
                    f"{recorded.get('fingerprint')}")
-    return out
+    return out  # empty with the whole model compared: the same values, within round-off
 
 
 def _names(mine: list[str], theirs: list[str], out: list[str]) -> None:
@@ -162,14 +170,15 @@ def _where(path: str) -> str:
     return path
 
 
-def _show(value: Any, key: str) -> str:
+def _show(value: Any, key: str, digits: int = 12) -> str:
     if isinstance(value, float):
         unit = _UNITS.get(key, "")
-        text = f"{value:.12g}"
+        text = f"{value:.{digits}g}"
         return f"{text} {unit}" if unit and math.isfinite(value) else text
     if isinstance(value, list) and len(value) <= 6 and all(isinstance(v, float) for v in value):
         unit = _UNITS.get(key, "")
-        return "[" + ", ".join(f"{v:.12g}" for v in value) + "]" + (f" {unit}" if unit else "")
+        return ("[" + ", ".join(f"{v:.{digits}g}" for v in value) + "]"
+                + (f" {unit}" if unit else ""))
     if isinstance(value, dict):
         return "a table"
     if isinstance(value, list):
@@ -203,12 +212,16 @@ def _diff(a: Any, b: Any, path: str, out: list[str], key: str = "") -> None:
     if isinstance(a, list) and isinstance(b, list) and len(a) != len(b):
         out.append(f"{_where(path)}: {len(a)} entries, the run's robot had {len(b)}")
         return
-    out.append(f"{_where(path)} = {_show(a, key)}, the run's robot had {_show(b, key)}")
+    mine, theirs = _show(a, key), _show(b, key)
+    if mine == theirs:  # apart in the last digits only: as many as tell them apart
+        mine, theirs = _show(a, key, 17), _show(b, key, 17)
+    out.append(f"{_where(path)} = {mine}, the run's robot had {theirs}")
 
 
 def _same(a: Any, b: Any) -> bool:
     if isinstance(a, float) and isinstance(b, float):
-        return a == b or (math.isnan(a) and math.isnan(b))
+        return (a == b or (math.isnan(a) and math.isnan(b))
+                or abs(a - b) <= RELATIVE_TOLERANCE * max(abs(a), abs(b), 1.0))
     if isinstance(a, list) and isinstance(b, list):
         return len(a) == len(b) and all(_same(u, v) for u, v in zip(a, b, strict=True))
     return bool(a == b)

@@ -249,3 +249,82 @@ def singular_at(monkeypatch):
             monkeypatch.setattr(module, "leg_forces", leg_forces)
 
     return patch
+
+
+@pytest.fixture(scope="session")
+def fresh_tool_error() -> Any:
+    """``(calibrated, fresh) -> mm``: issue 23's check of a calibration with effects on fresh
+    poses. The largest distance between the tool point 200 mm along z of {5} where
+    ``calibrated``'s forward kinematics with its effects puts it from ``fresh``'s true readings
+    under their loads and temperatures (:func:`iwr.effects.api.forward_kinematics` at the file's
+    values, started 0.5 mm and 1 mrad off) and where ``fresh``'s true poses have it."""
+    import numpy as np
+
+    from iwr.effects import api
+    from iwr.effects import parameter_names as effect_names
+    from iwr.transforms import pose_matrix
+
+    tool = np.array([0.0, 0.0, 200.0])
+
+    def points(poses: Any) -> Any:
+        t = pose_matrix(poses)
+        return t[:, :3, 3] + t[:, :3, :3] @ tool
+
+    def error(calibrated: Any, fresh: Any) -> float:
+        zero = np.zeros(calibrated.n_params + len(effect_names(calibrated.effects)))
+        guess = fresh.poses + np.array([0.5, -0.5, 0.5, 1e-3, -1e-3, 1e-3])
+        poses = api.forward_kinematics(calibrated, zero, fresh.q, fresh.legs, fresh, guess)
+        return float(np.abs(points(poses) - points(fresh.poses)).max())
+
+    return error
+
+
+@pytest.fixture(scope="session")
+def check_effect_jacobians() -> Any:
+    """``(robot, data, x, loop_columns)``: the exact Jacobians of a robot with effects against
+    central differences (relative 1e-5): eq. (10)'s (:class:`iwr.effects.problem.EffectProblem`)
+    in every parameter, the implicit loop's (:func:`iwr.implicit_loop.loop_jacobians`, at random
+    corrections) in the parameters ``loop_columns`` and in every correction of pose 3's
+    readings; the loop at zero corrections is eq. (10)'s prediction (1e-9 mm). Steps: 1e-6 for a
+    geometric error, 1e-4 of its range for an effect's parameter."""
+    import numpy as np
+
+    from iwr.effects import model
+    from iwr.effects.problem import EffectProblem
+    from iwr.implicit_loop import loop_jacobians
+
+    def central(f: Any, x: Any, i: int, h: float) -> Any:
+        xp, xm = x.copy(), x.copy()
+        xp[i] += h
+        xm[i] -= h
+        return (f(xp) - f(xm)) / (2 * h)
+
+    def close(fd: Any, exact: Any, what: Any) -> None:
+        assert np.abs(fd - exact).max() < 1e-5 * max(1.0, np.abs(exact).max()), what
+
+    def check(robot: Any, m: Any, x: Any, loop_columns: Any) -> None:
+        problem = EffectProblem(robot, m)
+        names = problem.parameter_names
+        _, jac = problem.residuals_and_jacobian(x)
+        steps = np.where(np.arange(len(x)) < robot.n_params, 1e-6,
+                         1e-4 * (problem.upper - problem.lower))
+        for i in range(problem.n_params):
+            close(central(problem.residuals, x, i, steps[i]), jac[:, i], names[i])
+        rng = np.random.default_rng(5)
+        corr = rng.normal(0, 1, (len(m), robot.n_joints + 6)) * ([1e-2] * 2 + [1e-5] * 2
+                                                                 + [1e-2] * 3 + [1e-5] * 3)
+        legs, jx, jy = loop_jacobians(robot, x, m.q, m.poses, corr, data=m)
+        for i in loop_columns:
+            fd = central(lambda y: loop_jacobians(robot, y, m.q, m.poses, corr, data=m)[0], x,
+                         i, steps[i])
+            close(fd, jx[..., i], names[i])
+        for c in range(robot.n_joints + 6):
+            h = 1e-4 if c in (0, 1, 4, 5, 6) else 1e-7
+            fd = central(lambda y: loop_jacobians(robot, x, m.q, m.poses, y.reshape(corr.shape),
+                                                  data=m)[0].ravel(), corr.ravel().copy(),
+                         np.ravel_multi_index((3, c), corr.shape), h).reshape(legs.shape)
+            close(fd[3], jy[3, :, c], c)
+        s = model.predicted_readings(robot, x, m.q, m.poses, m)
+        assert np.abs(loop_jacobians(robot, x, m.q, m.poses, data=m)[0] - s).max() < 1e-9
+
+    return check

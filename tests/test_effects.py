@@ -112,7 +112,8 @@ def _fresh(truth_robot, n, seed):
     # DE on the C++ objective with effects (cpp/src/effects.cpp), polished by LM.
     ("de", {"max_evaluations": 20000, "seed": 1}),
 ])
-def test_noise_free_recovery_of_geometry_and_effects(robot, with_effects, data, method, options):
+def test_noise_free_recovery_of_geometry_and_effects(robot, with_effects, data, method, options,
+                                                     fresh_tool_error):
     """Issue 23's check: from noise-free data with compliance and temperature drift, LM (and DE
     polished by LM) recovers the geometric and effect parameters so that tool poses and leg
     commands on 50 fresh poses with other loads and temperatures agree with the truth to 1e-6
@@ -127,14 +128,7 @@ def test_noise_free_recovery_of_geometry_and_effects(robot, with_effects, data, 
     assert calibrated.effects[1].alpha[0] == pytest.approx(11.5 + x_true[-1], abs=1e-8)
     fresh = _fresh(truth, 50, seed=11)
     # Tool poses: the calibrated model's forward kinematics of the true readings.
-    zero = np.zeros(len(x_true))
-    guess = fresh.poses + np.array([0.5, -0.5, 0.5, 1e-3, -1e-3, 1e-3])
-    poses = api.forward_kinematics(calibrated, zero, fresh.q, fresh.legs, fresh, guess)
-    tool = np.array([0.0, 0.0, 200.0])
-    def points(p):
-        t = pose_matrix(p)
-        return t[:, :3, 3] + t[:, :3, :3] @ tool
-    assert np.abs(points(poses) - points(fresh.poses)).max() < 1e-6
+    assert fresh_tool_error(calibrated, fresh) < 1e-6
     # Leg commands: the calibrated robot's at the true poses, under their loads and temperatures.
     cmd = api.leg_commands(calibrated, fresh.q, fresh.poses, payload=fresh.payload,
                            temperatures=fresh.temperatures)

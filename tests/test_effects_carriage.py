@@ -15,7 +15,6 @@ from iwr.effects import api, model
 from iwr.effects.builtin import STANDARD_GRAVITY, LegCompliance, LegThermal
 from iwr.effects.carriage import CarriageCompliance
 from iwr.effects.problem import EffectProblem
-from iwr.implicit_loop import loop_jacobians
 from iwr.measurements import Measurements
 from iwr.transforms import pose_matrix
 
@@ -121,37 +120,14 @@ def test_the_iwr_loads_joint_4_only():
     assert carriage.units() == ["urad/(N m)"] and carriage.values() == pytest.approx([0.02])
 
 
-def test_objective_and_loop_jacobians_match_central_differences(robot, data):
+def test_objective_and_loop_jacobians_match_central_differences(robot, data,
+                                                                check_effect_jacobians):
+    """Eq. (10)'s Jacobian in every parameter; the implicit loop's in every other parameter and
+    every correction of the readings; the loop at zero corrections is eq. (10)'s prediction."""
     m, x_true = data
-    problem = EffectProblem(robot, m)
-    names = problem.parameter_names
+    names = EffectProblem(robot, m).parameter_names
     assert names[-4:] == [f"joint{i}.compliance" for i in range(1, 5)]
-    x = 0.5 * x_true
-    _, jac = problem.residuals_and_jacobian(x)
-    steps = np.where(np.arange(len(x)) < robot.n_params, 1e-6,
-                     1e-4 * (problem.upper - problem.lower))
-    for i in range(problem.n_params):
-        fd = _central(problem.residuals, x, i, steps[i])
-        assert np.abs(fd - jac[:, i]).max() < 1e-5 * max(1.0, np.abs(jac[:, i]).max()), names[i]
-    # The implicit loop: in every parameter and every correction of the readings.
-    rng = np.random.default_rng(5)
-    corr = rng.normal(0, 1, (len(m), robot.n_joints + 6)) * ([1e-2] * 2 + [1e-5] * 2
-                                                             + [1e-2] * 3 + [1e-5] * 3)
-    legs, jx, jy = loop_jacobians(robot, x, m.q, m.poses, corr, data=m)
-    for i in range(0, problem.n_params, 2):
-        fd = _central(lambda y: loop_jacobians(robot, y, m.q, m.poses, corr, data=m)[0], x, i,
-                      steps[i])
-        assert np.abs(fd - jx[..., i]).max() < 1e-5 * max(1.0, np.abs(jx[..., i]).max()), \
-            names[i]
-    for c in range(robot.n_joints + 6):
-        h = 1e-4 if c in (0, 1, 4, 5, 6) else 1e-7
-        fd = _central(lambda y: loop_jacobians(robot, x, m.q, m.poses, y.reshape(corr.shape),
-                                               data=m)[0].ravel(), corr.ravel().copy(),
-                      np.ravel_multi_index((3, c), corr.shape), h).reshape(legs.shape)
-        assert np.abs(fd[3] - jy[3, :, c]).max() < 1e-5 * max(1.0, np.abs(jy[3, :, c]).max()), c
-    # The loop at zero corrections is eq. (10)'s prediction.
-    s = model.predicted_readings(robot, x, m.q, m.poses, m)
-    assert np.abs(loop_jacobians(robot, x, m.q, m.poses, data=m)[0] - s).max() < 1e-9
+    check_effect_jacobians(robot, m, 0.5 * x_true, range(0, len(names), 2))
 
 
 def test_cpp_objective_agrees_with_the_numpy_model(robot, data):
@@ -183,7 +159,8 @@ def _fresh(truth, n, seed):
     # DE on the C++ objective with the carriage's compliance (cpp/src/effects.cpp), polished by LM.
     ("de", {"max_evaluations": 20000, "seed": 1}),
 ])
-def test_noise_free_recovery_and_compensation(robot, data, method, options):
+def test_noise_free_recovery_and_compensation(robot, data, method, options,
+                                               fresh_tool_error):
     """Issue 23's check with the carriage's compliance: from noise-free data (two payloads) LM
     (and DE polished by LM) recovers the geometric and every effect parameter so that tool poses
     and leg commands on 50 fresh poses with other loads and temperatures agree with the truth to
@@ -194,16 +171,8 @@ def test_noise_free_recovery_and_compensation(robot, data, method, options):
     assert np.abs(result.x[-4:] - x_true[-4:]).max() < 1e-8
     truth, calibrated = api.apply(robot, x_true), api.apply(robot, result.x)
     fresh = _fresh(truth, 50, seed=11)
+    assert fresh_tool_error(calibrated, fresh) < 1e-6
     zero = np.zeros(len(x_true))
-    guess = fresh.poses + np.array([0.5, -0.5, 0.5, 1e-3, -1e-3, 1e-3])
-    poses = api.forward_kinematics(calibrated, zero, fresh.q, fresh.legs, fresh, guess)
-    tool = np.array([0.0, 0.0, 200.0])
-
-    def points(p):
-        t = pose_matrix(p)
-        return t[:, :3, 3] + t[:, :3, :3] @ tool
-
-    assert np.abs(points(poses) - points(fresh.poses)).max() < 1e-6
     cmd = api.leg_commands(calibrated, fresh.q, fresh.poses, payload=fresh.payload,
                            temperatures=fresh.temperatures)
     assert np.abs(cmd.legs - fresh.legs).max() < 1e-6

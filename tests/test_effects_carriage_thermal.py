@@ -18,7 +18,6 @@ from iwr.effects.builtin import LegCompliance, LegThermal
 from iwr.effects.carriage import CarriageCompliance
 from iwr.effects.carriage_thermal import CarriageThermal
 from iwr.effects.problem import EffectProblem
-from iwr.implicit_loop import loop_jacobians
 from iwr.measurements import Measurements
 from iwr.transforms import pose_matrix
 
@@ -130,37 +129,14 @@ def test_per_leg_temperatures_are_refused(tmp_path):
                               legs_only.temperatures)
 
 
-def test_objective_and_loop_jacobians_match_central_differences(robot, data):
+def test_objective_and_loop_jacobians_match_central_differences(robot, data,
+                                                                check_effect_jacobians):
     """With every effect on (the carriage's compliance too: both change the joints), the exact
     Jacobians against central differences, in every parameter and the loop's corrections."""
     m, x_true = data
-    problem = EffectProblem(robot, m)
-    names = problem.parameter_names
-    assert names[-2:] == ["joint1.alpha", "joint2.alpha"]
-    x = 0.5 * x_true
-    _, jac = problem.residuals_and_jacobian(x)
-    steps = np.where(np.arange(len(x)) < robot.n_params, 1e-6,
-                     1e-4 * (problem.upper - problem.lower))
-    for i in range(problem.n_params):
-        fd = _central(problem.residuals, x, i, steps[i])
-        assert np.abs(fd - jac[:, i]).max() < 1e-5 * max(1.0, np.abs(jac[:, i]).max()), names[i]
-    rng = np.random.default_rng(5)
-    corr = rng.normal(0, 1, (len(m), robot.n_joints + 6)) * ([1e-2] * 2 + [1e-5] * 2
-                                                             + [1e-2] * 3 + [1e-5] * 3)
-    legs, jx, jy = loop_jacobians(robot, x, m.q, m.poses, corr, data=m)
-    for i in list(range(0, robot.n_params, 3)) + list(range(robot.n_params, len(x))):
-        fd = _central(lambda y: loop_jacobians(robot, y, m.q, m.poses, corr, data=m)[0], x, i,
-                      steps[i])
-        assert np.abs(fd - jx[..., i]).max() < 1e-5 * max(1.0, np.abs(jx[..., i]).max()), \
-            names[i]
-    for c in range(robot.n_joints + 6):
-        h = 1e-4 if c in (0, 1, 4, 5, 6) else 1e-7
-        fd = _central(lambda y: loop_jacobians(robot, x, m.q, m.poses, y.reshape(corr.shape),
-                                               data=m)[0].ravel(), corr.ravel().copy(),
-                      np.ravel_multi_index((3, c), corr.shape), h).reshape(legs.shape)
-        assert np.abs(fd[3] - jy[3, :, c]).max() < 1e-5 * max(1.0, np.abs(jy[3, :, c]).max()), c
-    s = model.predicted_readings(robot, x, m.q, m.poses, m)
-    assert np.abs(loop_jacobians(robot, x, m.q, m.poses, data=m)[0] - s).max() < 1e-9
+    assert EffectProblem(robot, m).parameter_names[-2:] == ["joint1.alpha", "joint2.alpha"]
+    check_effect_jacobians(robot, m, 0.5 * x_true, list(range(0, robot.n_params, 3))
+                           + list(range(robot.n_params, len(x_true))))
 
 
 def test_cpp_objective_agrees_with_the_numpy_model(robot, data, tmp_path):
@@ -199,7 +175,7 @@ def _fresh(truth, n, seed):
     # DE on the C++ objective with the slides' growth (cpp/src/effects.cpp), polished by LM.
     ("de", {"max_evaluations": 20000, "seed": 1}),
 ])
-def test_noise_free_recovery_and_compensation(method, options):
+def test_noise_free_recovery_and_compensation(method, options, fresh_tool_error):
     """Issue 23's check: from noise-free pose data at a day's temperatures LM (and DE) recovers
     the geometry and both slides' coefficients so that tool poses and leg commands on 50 fresh
     poses at other temperatures agree with the truth to 1e-6 mm; commands that leave the
@@ -211,16 +187,7 @@ def test_noise_free_recovery_and_compensation(method, options):
     assert np.abs(result.x[-2:] - x_true[-2:]).max() < 1e-6
     truth, calibrated = api.apply(robot, x_true), api.apply(robot, result.x)
     fresh = _fresh(truth, 50, seed=11)
-    zero = np.zeros(len(x_true))
-    guess = fresh.poses + np.array([0.5, -0.5, 0.5, 1e-3, -1e-3, 1e-3])
-    poses = api.forward_kinematics(calibrated, zero, fresh.q, fresh.legs, fresh, guess)
-    tool = np.array([0.0, 0.0, 200.0])
-
-    def points(p):
-        t = pose_matrix(p)
-        return t[:, :3, 3] + t[:, :3, :3] @ tool
-
-    assert np.abs(points(poses) - points(fresh.poses)).max() < 1e-6
+    assert fresh_tool_error(calibrated, fresh) < 1e-6
     cmd = api.leg_commands(calibrated, fresh.q, fresh.poses, temperatures=fresh.temperatures)
     assert np.abs(cmd.legs - fresh.legs).max() < 1e-6
     plain = api.leg_commands(calibrated.with_effects(), fresh.q, fresh.poses)
@@ -427,3 +394,68 @@ def test_cli_legs_and_plan(tmp_path):
                "plan.csv")
     assert proc.returncode == 0, proc.stderr
     assert "temperatures: the carriage_thermal effect needs them" in proc.stdout
+
+
+def test_data_without_the_machines_temperature_refused_by_file_before_the_work(tmp_path,
+                                                                              capsys):
+    """Data (or a validation file, or plan candidates) without the column the slides need were
+    refused as "measurements: ..." (no file named) and only once the work had run: a validation
+    file's after the whole identification. Now by its file, before any identification."""
+    from iwr.cli import main as cli_main
+
+    robot = _robot(per_joint=False)
+    robot.to_toml(tmp_path / "robot.toml")
+    m, _ = api.simulate(robot, 12, seed=3)
+    m.to_csv(tmp_path / "data.csv")
+    Measurements(m.q, m.poses, m.legs, joint_types=robot.joint_types).to_csv(
+        tmp_path / "none.csv")
+    Measurements(m.q, m.poses, m.legs, joint_types=robot.joint_types,
+                 temperatures=np.repeat(m.temperatures, 6, axis=1)).to_csv(
+        tmp_path / "per_leg.csv")
+    robot_file, data = str(tmp_path / "robot.toml"), str(tmp_path / "data.csv")
+    none, per_leg = str(tmp_path / "none.csv"), str(tmp_path / "per_leg.csv")
+    for argv, bad in (
+            (["calibrate", robot_file, none], none),
+            (["calibrate", robot_file, data, "--validation", per_leg], per_leg),
+            (["analyze", robot_file, per_leg], per_leg),
+            (["plan", robot_file, "--candidates", per_leg, "--poses", "5"], per_leg)):
+        capsys.readouterr()
+        code = cli_main([*argv, "--method", "lm", "-o", str(tmp_path / "out")]
+                        if argv[0] == "calibrate" else
+                        argv + (["--out", str(tmp_path / "plan.csv")] if argv[0] == "plan"
+                                else []))
+        out, err = capsys.readouterr()
+        assert code == 1, (argv, err)
+        assert f"iwr: error: {bad}: the carriage_thermal effect" in err, (argv, err)
+        assert "column T_C" in err and "identifying" not in out, (argv, out)
+    assert not (tmp_path / "out").exists() and not (tmp_path / "plan.csv").exists()
+    # iwr report: a run of the robot without the effect, given the robot with it, is told the
+    # robot differs (not that its data lack T_C); given the right robot and data without T_C,
+    # the data file is named.
+    robot.with_effects().to_toml(tmp_path / "plain.toml")
+    cli_main(["calibrate", str(tmp_path / "plain.toml"), none, "--method", "lm", "-o",
+              str(tmp_path / "plain"), "--no-plots", "--validation-fraction", "0"])
+    capsys.readouterr()
+    run = str(tmp_path / "plain" / "result.json")
+    assert cli_main(["report", run, robot_file, none, "--out", str(tmp_path / "r")]) == 2
+    assert "effects: carriage_thermal is on, the run's robot had it off" in \
+        capsys.readouterr().err
+    cli_main(["calibrate", robot_file, data, "--method", "lm", "-o", str(tmp_path / "own"),
+              "--no-plots", "--validation-fraction", "0"])
+    capsys.readouterr()
+    assert cli_main(["report", str(tmp_path / "own" / "result.json"), robot_file, data,
+                     "--validation", per_leg, "--out", str(tmp_path / "r")]) == 1
+    assert f"iwr: error: {per_leg}: the carriage_thermal effect" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()
+    # The library's job names the data set, before the identification.
+    legs_only = Measurements.from_csv(per_leg, robot=robot)
+
+    def never(*args, **kwargs):
+        raise AssertionError("identified before the data were checked")
+
+    import iwr.calibration as job
+
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(job, "identify", never)
+        with pytest.raises(ValueError, match="^validation: the carriage_thermal effect"):
+            iwr.calibrate(robot, m, validation=legs_only)

@@ -61,6 +61,23 @@ def test_a_reformatted_file_is_the_same_model(robot_measured_by, tmp_path):
     assert differences(record(robot), other) == []
 
 
+def test_round_off_is_the_same_model_and_a_difference_is_shown_apart(robot_measured_by):
+    """A file that writes pi/2 with 15 significant digits (another writer) was refused, its
+    message showing the same value twice ("alpha = 1.57079632679 rad, the run's robot had
+    1.57079632679 rad"). Values apart by round-off are the same model; a real difference in the
+    last of the 12 digits shown is shown with the digits that tell the two apart."""
+    robot = robot_measured_by("points")
+    d = robot.to_dict()
+    d["carriage"]["joints"][0]["alpha"] = float(f"{robot.dh[0, 0]:.15g}")
+    d["tracker"]["reflectors"][0][0] = float(f"{120.0 * (1 + 3e-16):.17g}")
+    assert float(f"{robot.dh[0, 0]:.15g}") != robot.dh[0, 0]
+    assert differences(record(robot), iwr.Robot.from_dict(d)) == []
+    d["carriage"]["joints"][0]["alpha"] = robot.dh[0, 0] - 4e-12  # 2.5e-12 of it
+    assert differences(record(robot), iwr.Robot.from_dict(d)) == [
+        "geometry: carriage joint 1 alpha = 1.5707963267908966 rad, the run's robot had "
+        "1.5707963267948966 rad"]
+
+
 def test_differences_name_the_section_and_the_values(robot_measured_by):
     robot = robot_measured_by("points")
     d = robot.to_dict()
@@ -130,6 +147,16 @@ def test_report_refuses_another_robot(run, tmp_path, capsys):
             f"identified for (made from {run / 'robot.toml'}): setup: ballbar.B.fixed_ball = "
             "[950, -200, 2400], the run's robot had [900, -200, 2400]") in err
     assert not (tmp_path / "r").exists()
+    # The run's own calibrated.toml given back (a calibration, not the nominal robot): refused,
+    # and the message says which file iwr report takes.
+    code = cli_main(["report", str(run / "cal" / "result.json"),
+                     str(run / "cal" / "calibrated.toml"), str(run / "data.csv"), "--out",
+                     str(tmp_path / "r"), "--no-plots"])
+    err = capsys.readouterr().err
+    assert code == 2 and not (tmp_path / "r").exists()
+    assert (f"; {run / 'cal' / 'calibrated.toml'} is a calibrated robot ([provenance] method "
+            f"'lm', from {run / 'robot.toml'}): iwr report takes the nominal robot the run "
+            f"identified the errors of, {run / 'robot.toml'}") in err
 
 
 def test_report_warns_of_a_run_without_a_model(run, tmp_path, capsys):

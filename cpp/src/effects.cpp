@@ -86,6 +86,24 @@ public:
         for (std::size_t i = 0; i < out.size(); ++i) check(key + "[" + std::to_string(i) + "]", out[i], lo, hi, unit);
         return out;
     }
+    // Distinct joint numbers from 1 to n_joints (an array, or one number), returned from 0; what:
+    // the joints expected, for the message ("joint numbers", "prismatic joint numbers").
+    std::vector<int> joints(const std::string& key, int n_joints, const char* what) const {
+        const EffectValue& v = get(key);
+        if (v.type == EffectValue::Type::Bool || v.numbers.empty())
+            bad(where_ + "." + key, std::string("expected ") + what + " from 1");
+        std::vector<int> out;
+        for (std::size_t i = 0; i < v.numbers.size(); ++i) {
+            const double j = v.numbers[i];
+            if (!(j >= 1 && j <= n_joints && j == std::floor(j)))
+                bad(where_ + "." + key + "[" + std::to_string(i) + "]",
+                    number_text(j) + "; expected a joint number from 1 to " + std::to_string(n_joints));
+            for (std::size_t u = 0; u < i; ++u)
+                if (v.numbers[u] == j) bad(where_ + "." + key, "joint " + number_text(j) + " given twice");
+            out.push_back(static_cast<int>(j) - 1);
+        }
+        return out;
+    }
     const std::string& where() const { return where_; }
 
 private:
@@ -394,18 +412,7 @@ EffectModel EffectModel::parse(const std::vector<EffectTable>& tables, int n_geo
             m.carriage = true;
             const int nj = (n_geometric - 42) / 4;
             if (k.has("joints")) {
-                const EffectValue& v = k.get("joints");
-                if (v.type == EffectValue::Type::Bool || v.numbers.empty())
-                    bad(k.where() + ".joints", "expected joint numbers from 1");
-                for (std::size_t i = 0; i < v.numbers.size(); ++i) {
-                    const double j = v.numbers[i];
-                    if (!(j >= 1 && j <= nj && j == std::floor(j)))
-                        bad(k.where() + ".joints[" + std::to_string(i) + "]",
-                            number_text(j) + "; expected a joint number from 1 to " + std::to_string(nj));
-                    for (std::size_t u = 0; u < i; ++u)
-                        if (v.numbers[u] == j) bad(k.where() + ".joints", "joint " + number_text(j) + " given twice");
-                    m.carriage_joints.push_back(static_cast<int>(j) - 1);
-                }
+                m.carriage_joints = k.joints("joints", nj, "joint numbers");
             } else {
                 for (int j = 0; j < nj; ++j) m.carriage_joints.push_back(j);
             }
@@ -431,18 +438,8 @@ EffectModel EffectModel::parse(const std::vector<EffectTable>& tables, int n_geo
                                  "max_ppm_per_K"});
             m.carriage_thermal = true;
             const int nj = (n_geometric - 42) / 4;
-            const EffectValue& v = k.get("joints");  // Python writes the joints it resolved
-            if (v.type == EffectValue::Type::Bool || v.numbers.empty())
-                bad(k.where() + ".joints", "expected prismatic joint numbers from 1");
-            for (std::size_t i = 0; i < v.numbers.size(); ++i) {
-                const double j = v.numbers[i];
-                if (!(j >= 1 && j <= nj && j == std::floor(j)))
-                    bad(k.where() + ".joints[" + std::to_string(i) + "]",
-                        number_text(j) + "; expected a joint number from 1 to " + std::to_string(nj));
-                for (std::size_t u = 0; u < i; ++u)
-                    if (v.numbers[u] == j) bad(k.where() + ".joints", "joint " + number_text(j) + " given twice");
-                m.ct_joints.push_back(static_cast<int>(j) - 1);
-            }
+            // Python writes the joints it resolved (default: every prismatic joint).
+            m.ct_joints = k.joints("joints", nj, "prismatic joint numbers");
             m.ct_per_joint = k.flag("per_joint");
             const bool identify = k.flag("identify");
             const std::size_t n = m.ct_per_joint ? m.ct_joints.size() : 1;

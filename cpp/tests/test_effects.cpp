@@ -454,6 +454,12 @@ IWR_TEST(carriage_thermal_is_the_scales_growth) {
     EffectTable bad = table;
     bad.entries[0].second = nums({1, 3});
     CHECK(contains(build(bad, machine), "effects.carriage_thermal.joints[1]: joint 3 is revolute"));
+    bad.entries[0].second = nums({1, 5});  // the joints' checks, shared with carriage_compliance
+    CHECK(contains(build(bad, machine), "effects.carriage_thermal.joints[1]: 5; expected a joint number from 1 to 4"));
+    bad.entries[0].second = nums({2, 2});
+    CHECK(contains(build(bad, machine), "effects.carriage_thermal.joints: joint 2 given twice"));
+    bad.entries[0].second = flag(true);
+    CHECK(contains(build(bad, machine), "effects.carriage_thermal.joints: expected prismatic joint numbers from 1"));
     CHECK(contains(build(table, d.temperatures), "the carriage_thermal effect"));
     CHECK(contains(build(table, d.temperatures), "the data have one per leg"));
     CHECK(contains(build(table, RowMatrixXd()), "the data have none"));

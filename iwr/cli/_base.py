@@ -164,19 +164,39 @@ def load_data(path: str, robot: Any) -> Any:
 
 
 def read_data(path: str, robot: Any, readings: str | None = None, *, targets: Any = None,
-              prog: str = "iwr calibrate") -> Any:
+              prog: str = "iwr calibrate", effects: bool = True) -> Any:
     """The data of the kind ``robot`` measures (:func:`iwr.kinds.for_robot`: poses in {0}, or
     the tracker data of its ``[tracker]`` table), read with every check of that kind's reader;
     ``readings`` (``--readings``) for tracker data given as a long table of points, ``targets``
-    (``--target-*``) for a tracker software's target list."""
+    (``--target-*``) for a tracker software's target list. With ``effects``, data without the
+    columns the robot's effects need (a thermal effect's temperatures) are refused naming
+    ``path``, before any work (:func:`check_effect_inputs`)."""
     from ..kinds import for_robot
 
     try:
-        return for_robot(robot).read(path, robot, readings=readings, targets=targets)
+        data = for_robot(robot).read(path, robot, readings=readings, targets=targets)
     except TypeError as exc:  # an option this kind's files do not take
         msg = one_line(exc)
         raise UsageError(msg if "docs/tracker.md" in msg else f"{msg} (docs/tracker.md)",
                          prog) from None
+    if effects:
+        check_effect_inputs(robot, data, path)
+    return data
+
+
+def check_effect_inputs(robot: Any, data: Any, path: str | os.PathLike[str]) -> None:
+    """CommandError naming ``path`` unless ``data`` hold what ``robot``'s effects need
+    (:func:`iwr.effects.model.check_inputs`: the legs' expansion needs temperatures, the
+    slides' the machine's ``T_C``); said before the work starts, not as "measurements: ..."
+    once an identification has run (a validation file's only after the identification)."""
+    if not getattr(robot, "effects", None):
+        return
+    from ..effects.model import check_inputs
+
+    try:
+        check_inputs(robot, data, where=str(path))
+    except ValueError as exc:
+        raise CommandError(one_line(exc)) from None
 
 
 def _same_file(a: str | os.PathLike[str], b: str | os.PathLike[str]) -> bool:

@@ -77,7 +77,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
             # forward kinematics); the pose reader would stop at their columns.
             from ._base import read_data
 
-            cand = read_data(args.candidates, robot, prog="iwr plan")
+            cand = read_data(args.candidates, robot, prog="iwr plan", effects=False)
         else:
             cand = Measurements.from_csv(args.candidates, robot=robot)
         source = str(args.candidates)
@@ -104,6 +104,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         temperatures = np.random.default_rng(args.seed).uniform(lo, hi, len(cand))
         print(f"temperatures: the {thermal[0].name} effect needs them at the candidates; drawn "
               f"uniformly in {lo:g} .. {hi:g} C (seed {args.seed})")
+    elif thermal and args.candidates:  # the file's own: the columns the effects need, named
+        from ._base import check_effect_inputs
+
+        check_effect_inputs(robot, cand, args.candidates)
     # plan_poses refuses a --poses above the candidates' number (each pose once per payload;
     # a ballbar's (pose, set-up) pairs within the bar's range), naming it.
     try:

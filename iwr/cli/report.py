@@ -15,6 +15,7 @@ from ._base import (
     CommandError,
     UsageError,
     add_common,
+    check_effect_inputs,
     check_output,
     load_robot,
     one_line,
@@ -110,10 +111,18 @@ def _check_robot(args: argparse.Namespace, result: Any, robot: Any) -> str:
     found = differences(recorded, robot)
     if found:
         made_from = (settings.get("sources") or {}).get("robot") or settings.get("robot_file")
+        prov = getattr(robot, "provenance", None) or {}
+        what = "give the robot file of the run"
+        if prov.get("method") is not None:  # a calibration's output, e.g. calibrated.toml
+            what = (f"{args.robot} is a calibrated robot ([provenance] method "
+                    f"{prov['method']!r}" + (f", from {prov['robot']}" if prov.get("robot")
+                                             else "") + "): iwr report takes the nominal "
+                    "robot the run identified the errors of"
+                    + (f", {made_from}" if made_from else ""))
         raise UsageError(
             f"{args.robot} is not the robot {args.run} was identified for"
             + (f" (made from {made_from})" if made_from else "") + ": "
-            + "; ".join(found) + "; give the robot file of the run", "iwr report")
+            + "; ".join(found) + "; " + what, "iwr report")
     return ""
 
 
@@ -144,9 +153,11 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.robot}: {kind.name} data ({kind.description}): no report for "
                          "them yet (docs/kinds.md)", "iwr report")
     data = read_data(args.data, robot, args.readings, targets=target_format(args),
-                     prog="iwr report")
-    # The robot first: the data's fingerprint depends on its set-up (the tracker's points).
+                     prog="iwr report", effects=False)
+    # The robot first: the data's fingerprint depends on its set-up (the tracker's points), and
+    # the columns the data need on the robot's effects (another robot's effects: its message).
     warning = _check_robot(args, result, robot)
+    check_effect_inputs(robot, data, args.data)
     note = _check_data(args, result, robot, data)
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
