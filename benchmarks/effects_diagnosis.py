@@ -24,7 +24,7 @@ import sys
 import time
 
 import numpy as np
-from scipy import stats
+from _diagnosis_summary import record, summarise
 
 import iwr
 from iwr.effects import api
@@ -80,26 +80,6 @@ for seed in range(nseeds):
         res = iwr.identify(robot, data, "lm", active="base")
         d = diagnose(robot, data, res.x, active=res.get("active"))
         fit = res.get("fit")
-    p = {t.effect: t.p_value for t in d.tests}
-    est = {t.effect: t.estimate for t in d.tests}
-    own = {t.effect: t.own for t in d.tests}
-    rows.append(([p.get(e, np.nan) for e in EFFECTS], d.suggested,
-                 None if fit is None else fit.fit_ok, [own.get(e, np.nan) for e in EFFECTS]))
-    print(seed, " ".join(f"p_{e}={p.get(e, np.nan):.3g}" for e in EFFECTS), d.suggested,
-          "fit_ok", None if fit is None else fit.fit_ok,
-          {e: np.round(v, 4).tolist() for e, v in est.items()}, flush=True)
-named = [r[1] for r in rows]
-print(f"scenario {scenario} weighting {weighting} seeds {nseeds} poses {n_poses} scale "
-      f"{scale:g}: named "
-      + ", ".join(f"{e} {sum(e in s for s in named)}" for e in EFFECTS)
-      + f", any {sum(bool(s) for s in named)}, none {sum(not s for s in named)}; "
-      f"fit failed {sum(r[2] is False for r in rows)}; {time.time()-t0:.0f} s")
-share = np.array([r[3] for r in rows])
-print("own share (mean, min .. max over the seeds): " + ", ".join(
-    f"{e} {np.mean(share[:, i]):.3f} ({np.min(share[:, i]):.3f} .. {np.max(share[:, i]):.3f})"
-    for i, e in enumerate(EFFECTS) if not np.all(np.isnan(share[:, i]))))
-if scenario == "clean":
-    for i, effect in enumerate(EFFECTS):
-        pv = np.array([r[0][i] for r in rows])
-        print(f"{effect}: KS p-value against U(0, 1) {stats.kstest(pv, 'uniform').pvalue:.3g}; "
-              f"fraction below 0.05 {np.mean(pv < 0.05):.3g}")
+    record(rows, seed, d, fit, EFFECTS)
+summarise(rows, EFFECTS, (f"scenario {scenario} weighting {weighting} seeds {nseeds} poses "
+                          f"{n_poses} scale {scale:g}"), scenario == "clean", t0)
