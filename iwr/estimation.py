@@ -543,7 +543,7 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
         causes.append(f"no redundancy: {dof + p} independent readings for {p} parameters; "
                       "measure more poses")
     elif not chi_ok:
-        causes.append(_chi2_cause(statistic, dof, p_value))
+        causes.append(_chi2_cause(statistic, dof, p_value, spec.misfit_causes))
     causes += size_causes
     if too_many:
         causes.append(

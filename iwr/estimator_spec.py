@@ -35,6 +35,9 @@ class EstimatorSpec:
     instrument: str | None = None
     #: The plausible parameters' centre (None: zero, the nominal robot).
     center: np.ndarray | None = None
+    #: What makes the model not fit this kind's data, most likely first (None: pose and tracker
+    #: data's, :data:`iwr.fit_test.MISFIT_CAUSES`).
+    misfit_causes: str | None = None
 
     measurements: Any
     problem: Any

@@ -181,13 +181,19 @@ def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
     return "THE MODEL DOES NOT FIT THE DATA: " + (chi if dof > 0 else without_dof)
 
 
-def _chi2_cause(statistic: float, dof: int, p_value: float) -> str:
+#: What makes a model not fit pose or tracker data, most likely first (a kind whose data have
+#: other causes gives its own: :attr:`iwr.estimator_spec.EstimatorSpec.misfit_causes`).
+MISFIT_CAUSES = ("the poses are not expressed in the robot's world frame (tracker frame not "
+                 "registered), a tool or reflector offset left out of the model, columns "
+                 "swapped or in the wrong unit, noise larger than stated, or a local minimum "
+                 "(try another method or start)")
+
+
+def _chi2_cause(statistic: float, dof: int, p_value: float,
+                likely: str | None = None) -> str:
     return (f"the weighted residual sum {statistic:.4g} is {statistic / dof:.3g} times its "
             f"expectation ({dof} degrees of freedom, p = {p_value:.2g}): the model does not fit "
-            "the data. Likely causes: the poses are not expressed in the robot's world frame "
-            "(tracker frame not registered), a tool or reflector offset left out of the model, "
-            "columns swapped or in the wrong unit, noise larger than stated, or a local minimum "
-            "(try another method or start)")
+            f"the data. Likely causes: {likely or MISFIT_CAUSES}")
 
 
 def _plausible_limit(robot: Robot, plausible: float, bounds: Any) -> np.ndarray:

@@ -249,6 +249,9 @@ def test_ballbar_job_reports_the_diagnosis(soft_carriage):
     assert "## Diagnosis: loads and temperatures" in md
     assert "distance residuals (whitened by the noise model)" in md
     assert "[effects.carriage_compliance]" in md
+    # the fit test's causes are the ballbar's, not the tracker's, and said once in the verdict
+    assert "length offset far from their nominal values" in md, md
+    assert "tracker frame" not in md and "Likely causes: the weighted" not in md
     assert "Diagnosis: loads and temperatures" in report.html().render()
     assert "switch on [effects.carriage_compliance]" in report.summary()
     summary = json.loads(json.dumps(report.to_dict(), allow_nan=False))

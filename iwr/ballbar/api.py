@@ -22,7 +22,7 @@ from ..tracker.analysis import NullSpace, null_space
 from ..transforms import pose_from_matrix, rotvec_matrix
 from .data import BallbarMeasurements
 from .problem import BallbarProblem
-from .setup import BallbarSetup
+from .setup import MISFIT_CAUSES, BallbarSetup
 from .simulate import split_noise
 
 __all__ = ["ballbar_setup", "ballbar_problem", "reading_sensitivities", "reading_sigmas",
@@ -260,7 +260,7 @@ def _chi2(result: Any, problem: BallbarProblem, mask: np.ndarray,
     without_dof = (f"no redundancy: {problem.n_residuals} readings for {rank} identifiable "
                    "parameters")
     if not ok:
-        causes.append(_chi2_cause(stat, dof, p_value) if dof > 0 else without_dof)
+        causes.append(_chi2_cause(stat, dof, p_value, MISFIT_CAUSES) if dof > 0 else without_dof)
     fit_ok = bool(fit.fit_ok and ok)
     # the fit check's own verdict when only it failed (the size of the errors)
     verdict = _chi2_verdict(stat, dof, p_value, fit_ok, without_dof) if ok == fit_ok else (

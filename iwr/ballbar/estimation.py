@@ -46,6 +46,7 @@ from .api import (
 )
 from .data import BallbarMeasurements
 from .problem import BallbarProblem
+from .setup import MISFIT_CAUSES
 from .simulate import BallbarNoise, split_noise
 
 __all__ = ["BALLBAR_COMPONENTS", "BallbarSpec", "ballbar_loop_model",
@@ -159,6 +160,7 @@ class BallbarSpec(EstimatorSpec):
 
     kind = "ballbar"
     instrument = "ballbar"
+    misfit_causes = MISFIT_CAUSES
 
     def __init__(self, robot: Robot, measurements: BallbarMeasurements, noise: Any, x0: Any,
                  active: Any, estimate: Any, bounds: Any, plausible: float) -> None:

@@ -12,7 +12,14 @@ import numpy as np
 
 from ..tracker.setup import _numbers
 
-__all__ = ["BallbarSetup", "BarSetup"]
+__all__ = ["BallbarSetup", "BarSetup", "MISFIT_CAUSES"]
+
+#: What makes a model not fit ballbar data, most likely first (the fit test's causes: pose and
+#: tracker data have theirs, :data:`iwr.fit_test.MISFIT_CAUSES`).
+MISFIT_CAUSES = ("a set-up's balls or the bar's length offset far from their nominal values (a "
+                 "set-up's rows labelled with another's name), columns swapped or in the wrong "
+                 "unit, noise larger than stated, an effect of the loads or temperatures the "
+                 "model leaves out, or a local minimum (try another method or start)")
 
 #: Default half-widths of the search bounds of a set-up's parameters: the balls' centres (mm)
 #: and the bar's length offset (mm).

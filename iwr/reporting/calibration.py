@@ -585,7 +585,7 @@ class CalibrationReport(Calibration):
             head = ("Not converged, and its best point does not fit the data: "
                     if r.status == "stopped" else "The model does not fit the data: ")
             return (head + fit.verdict.removeprefix(
-                "THE MODEL DOES NOT FIT THE DATA: ") + ". Likely causes: " + " ".join(
+                "THE MODEL DOES NOT FIT THE DATA: ") + ". " + " ".join(
                     c.rstrip(".") + "." for c in fit.causes) + f" ({change}.)", "bad")
         if r.status == NOT_CALIBRATED:
             message = str(r.message).strip().rstrip(".").removeprefix(f"{NOT_CALIBRATED}: ")
