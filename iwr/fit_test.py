@@ -189,9 +189,14 @@ MISFIT_CAUSES = ("the poses are not expressed in the robot's world frame (tracke
                  "(try another method or start)")
 
 
+#: How the chi-square test's cause (:func:`_chi2_cause`) begins, so that a report whose own
+#: diagnosis names the cause can leave the generic list out.
+CHI2_CAUSE_HEAD = "the weighted residual sum "
+
+
 def _chi2_cause(statistic: float, dof: int, p_value: float,
                 likely: str | None = None) -> str:
-    return (f"the weighted residual sum {statistic:.4g} is {statistic / dof:.3g} times its "
+    return (f"{CHI2_CAUSE_HEAD}{statistic:.4g} is {statistic / dof:.3g} times its "
             f"expectation ({dof} degrees of freedom, p = {p_value:.2g}): the model does not fit "
             f"the data. Likely causes: {likely or MISFIT_CAUSES}")
 

@@ -274,7 +274,12 @@ def test_diagnosis_names_the_effect_the_data_carry(robot, effect, tmp_path):
     robot.to_toml(path)
     path.write_text(path.read_text() + "\n" + report.diagnosis.suggestion() + "\n")
     assert [e.name for e in iwr.Robot.from_toml(path).effects] == [effect]
-    assert f"switch on [effects.{effect}]" in report.verdict()[0].lower()
+    verdict = report.verdict()[0]
+    assert f"switch on [effects.{effect}]" in verdict.lower()
+    # The diagnosis leads the verdict, in place of the fit test's generic causes (a frame not
+    # registered, columns swapped, ...), and is said once.
+    assert "likely causes" not in verdict.lower()
+    assert verdict.count(cal.diagnosis.sentence()) == 1
     test = next(t for t in cal.diagnosis.tests if t.effect == effect)
     # The regression's coefficient, a first guess of the size: the mean compliance (0.01 + x)
     # within 25 %, alpha within 2 ppm/K (one data set; the realistic noise of the poses).

@@ -14,6 +14,7 @@ import numpy as np
 from .._io import atomic_write_bytes, atomic_write_text, jsonable, write_folder
 from ..calibration import NOT_CALIBRATED, WORSE, Calibration
 from ..effects import parameter_names as effect_parameter_names
+from ..fit_test import CHI2_CAUSE_HEAD
 from ..kinds import reuse
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
@@ -561,8 +562,9 @@ class CalibrationReport(Calibration):
         """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``); with the
         diagnosis's suggestion when it names an effect (issue 23)."""
         text, grade = self._graded(*self.improvement())
-        if self.diagnosis is not None and self.diagnosis.suggested:
-            text += " " + self.diagnosis.sentence()
+        d = self.diagnosis
+        if d is not None and d.suggested and d.sentence() not in text:
+            text += " " + d.sentence()
         return text, grade
 
     def no_fit_verdict(self, figures: str) -> str:
@@ -584,9 +586,14 @@ class CalibrationReport(Calibration):
         if fit is not None and not fit.fit_ok:
             head = ("Not converged, and its best point does not fit the data: "
                     if r.status == "stopped" else "The model does not fit the data: ")
-            return (head + fit.verdict.removeprefix(
-                "THE MODEL DOES NOT FIT THE DATA: ") + ". " + " ".join(
-                    c.rstrip(".") + "." for c in fit.causes) + f" ({change}.)", "bad")
+            causes = [c.rstrip(".") + "." for c in fit.causes]
+            d = self.diagnosis
+            if d is not None and d.suggested:
+                # The diagnosis names what the geometric model lacks: it leads, in place of the
+                # chi-square test's generic list of causes (whose figures the head gives).
+                causes = [d.sentence()] + [c for c in causes if not c.startswith(CHI2_CAUSE_HEAD)]
+            return (head + fit.verdict.removeprefix("THE MODEL DOES NOT FIT THE DATA: ") + ". "
+                    + " ".join(c[:1].upper() + c[1:] for c in causes) + f" ({change}.)", "bad")
         if r.status == NOT_CALIBRATED:
             message = str(r.message).strip().rstrip(".").removeprefix(f"{NOT_CALIBRATED}: ")
             if message.startswith("the calibration did not improve"):
