@@ -2,8 +2,10 @@
 
 Two entry points share one engine (``cpp/src/de.cpp``, documented in ``cpp/include/iwr/de.hpp``):
 
-- ``iwr.identify(robot, measurements, method="de", ...)``: the calibration of eq. (10), evaluated in
-  C++ with no Python in the loop;
+- ``iwr.identify(robot, measurements, method="de", ...)``: the calibration on any kind of data,
+  the engine running on the problem's own C++ objective (``problem.engine_objective()``: eq.
+  (10), the tracker's points or probe, the ballbar's distances, with effects, weighted or not)
+  with no Python in the loop, as ``iwr-engine`` runs it on the problem's file;
 - :func:`differential_evolution`: any function that takes an (M, D) population and returns M costs,
   called once per generation; its result is shaped like ``scipy.optimize.differential_evolution``'s.
 
