@@ -496,17 +496,18 @@ def test_callback_errors_propagate():
         iwr.differential_evolution(func, [(-5, 5)] * 3, generations=100, seed=0)
 
 
-def test_ctrl_c_returns_the_best_so_far(iwr_data, sigint_handler):
-    """SIGINT while the C++ engine runs on the IWR objective: the run stops and returns."""
-    robot, measurements, _ = iwr_data
+def test_ctrl_c_returns_the_best_so_far(kind, sigint_handler):
+    """SIGINT while the C++ engine runs on each kind's objective: the run stops and returns the
+    best point so far, interrupted, not polished."""
     timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()
     try:
-        res = iwr.identify(robot, measurements, "de", population_size=20, generations=10**6,
+        res = iwr.identify(kind.robot, kind.data, "de", population_size=20, generations=10**6,
                            seed=0, progress=False)
     finally:
         timer.cancel()
     assert res.reason == "interrupted" and not res.success and "Ctrl-C" in res.message
+    assert res.status == "interrupted" and "polish_result" not in res.settings
     assert 0 < res.nit < 10**6 and res.fun == pytest.approx(res.history["best"][-1])
 
 
