@@ -31,6 +31,11 @@ What is timed (per build, per kernel variant forced with ``iwr._core._select_ker
   generations (wall time; the set-up cancels), the best of ``--de-repeat`` pairs. "DE's own" is the
   time per generation minus the batch time on the same threads: trial generation, bound repairs,
   selection, the log, the thread hand-overs, the reduced-to-full mapping.
+- ``--scaling``: DE's time per generation against one ``cost_batch`` of its trials, on 1 and 2
+  threads (``scaling_table``); ``--data tracker`` or ``--data ballbar`` runs it on the tracker
+  point objective (K = 3, as ``--objectives``') or the ballbar's distances (two set-ups) instead
+  of the leg objective: ``iwr.identify(method="de")`` on that kind's data, ``cost_batch`` of 600
+  vectors within the bounds of the problem it runs on.
 
 Usage::
 
@@ -81,6 +86,10 @@ FLOPS_TRACKER = 1775
 # flops a pose of each objective of --objectives
 # (the weighted tracker: the 9 x 9 lower-triangular whitening of a pose's residuals, 45 multiplies
 # and 36 adds, as the whitened leg objective's 6 x 6 adds 36.)
+#: --data ballbar's two set-ups (tests/conftest.py's).
+BALLBAR_SETUPS = {
+    "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
+    "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400], "range": [300, 700]}}
 FLOPS = {"leg": FLOPS_PER_POSE, "weighted": FLOPS_PER_POSE + 6, "whitened": FLOPS_PER_POSE + 36,
          "tracker": FLOPS_TRACKER, "tracker weighted": FLOPS_TRACKER + 81}
 
@@ -112,6 +121,45 @@ class Worker:
         # minimum and 2-4 % at the 10th percentile (code, data and predictors to reload).
         self.last: tuple | None = None
         self.turn: dict = {}  # per objective: the copy timed last
+        self.kinds: dict = {}  # --data: per kind, (robot, data, problem DE runs on, its X)
+
+    def kind(self, data: str) -> tuple:
+        """``--data``'s robot, data, the problem ``iwr.identify(method="de")`` runs on (with
+        effects off: the geometry's C++ objective) and NP random vectors within its bounds:
+        "leg" (poses in {0}, the tables' default), "tracker" (the point objective of
+        --objectives: K = 3 reflectors, ``simulate_tracker`` seed 1, the problem made from the
+        registration guess as identify makes it) or "ballbar" (two set-ups, ``iwr.simulate``
+        seed 1)."""
+        if data in self.kinds:
+            return self.kinds[data]
+        np, iwr = self.np, self.iwr
+        robot = self.robot
+        if data == "leg":
+            got = (robot, self.data, self.problem, self.X)
+        else:
+            if data == "tracker":
+                from iwr.tracker import TrackerSetup, simulate_tracker
+                from iwr.tracker.start import tracker_problem
+
+                setup = TrackerSetup((2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0),
+                                     reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),
+                                                 (-60.0, -104.0, 40.0)])
+                measured, _ = simulate_tracker(robot, setup, N, seed=1)
+                robot = robot.with_tracker(setup=setup)
+                problem, _ = tracker_problem(robot, measured)
+            elif data == "ballbar":
+                from iwr.ballbar.api import ballbar_problem
+
+                robot = robot.with_instrument("ballbar", BALLBAR_SETUPS)
+                measured, _ = iwr.simulate(robot, N, seed=1)
+                problem, _ = ballbar_problem(robot, measured)
+            else:
+                raise ValueError(f"--data: {data!r}; expected leg, tracker or ballbar")
+            rng = np.random.default_rng(0)
+            X = problem.lower + (problem.upper - problem.lower) * rng.random((NP, problem.n_params))
+            got = (robot, measured, problem, np.ascontiguousarray(X))
+        self.kinds[data] = got
+        return got
 
     def _objectives(self) -> dict:
         """Every objective of FLOPS as (its problem built COPIES times, X); None where this build
@@ -210,11 +258,13 @@ class Worker:
                 return t
         return best
 
-    def batch(self, kernel: str, threads: int) -> float:
-        """One repetition: wall time of cost_batch of the population on `threads` (ms)."""
+    def batch(self, kernel: str, threads: int, data: str = "leg") -> float:
+        """One repetition: wall time of cost_batch of the population on `threads` (ms), on the
+        problem of `data` (:meth:`kind`)."""
+        _, _, problem, X = self.kind(data)
         self.core._select_kernel(kernel)
         t0 = time.perf_counter()
-        self.problem.cost_batch(self.X, workers=threads)
+        problem.cost_batch(X, workers=threads)
         return (time.perf_counter() - t0) * 1e3
 
     def de(self, kernel: str, threads: int, generations: int) -> dict:
@@ -227,11 +277,14 @@ class Worker:
         return {"wall": time.perf_counter() - w0, "cpu": time.process_time() - c0,
                 "fun": float(res.fun).hex()}
 
-    def de_generations(self, kernel: str, threads: int, generations: int) -> dict:
-        """One DE run: the wall time of each generation (ms), from the run's own log (its
-        ``elapsed`` column, taken in C++: no Python callback in the loop), and the result's bits."""
+    def de_generations(self, kernel: str, threads: int, generations: int,
+                       data: str = "leg") -> dict:
+        """One DE run on `data` (:meth:`kind`): the wall time of each generation (ms), from the
+        run's own log (its ``elapsed`` column, taken in C++: no Python callback in the loop),
+        and the result's bits."""
+        robot, measured, _, _ = self.kind(data)
         self.core._select_kernel(kernel)
-        res = self.iwr.identify(self.robot, self.data, method="de", population_size=NP, F=0.9,
+        res = self.iwr.identify(robot, measured, method="de", population_size=NP, F=0.9,
                                 CR=1.0, generations=generations, seed=1, workers=threads,
                                 polish=False, progress=False)
         e = self.np.asarray(res.history["elapsed"], dtype=float)
@@ -391,6 +444,9 @@ def main() -> None:
                     help="only DE per generation against cost_batch, 2 threads against 1, from "
                          "the minimum of each generation over --runs runs (scaling_table)")
     ap.add_argument("--runs", type=int, default=7, help="DE runs of --scaling (default 7)")
+    ap.add_argument("--data", default="leg", choices=("leg", "tracker", "ballbar"),
+                    help="--scaling's data: poses in {0} (default), the tracker's points (K = 3) "
+                         "or the ballbar's distances")
     ap.add_argument("--quick", action="store_true", help="a smoke test")
     args = ap.parse_args()
     if args.worker:
@@ -426,7 +482,7 @@ def main() -> None:
         flops = FLOPS_PER_POSE * N
         if args.scaling:
             scaling_table(builds, kernels, threads, 2 if args.quick else args.runs,
-                          60 if args.quick else 400, reps, secs)
+                          60 if args.quick else 400, reps, secs, args.data)
             return
 
         print(f"\nleg objective, Problem.cost_batch(X, workers=1), {NP} vectors, N = {N}, "
@@ -572,7 +628,7 @@ def bits_verdict(bits: dict[str, set]) -> str:
 
 
 def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], runs: int,
-                  generations: int, reps: int, seconds: float) -> None:
+                  generations: int, reps: int, seconds: float, data: str = "leg") -> None:
     """DE's generation against one cost_batch, and 2 threads against 1, robust to neighbours.
 
     A generation takes 0.3-2 ms; the neighbours of a shared machine take a core now and then for
@@ -580,9 +636,10 @@ def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], r
     same seed (the same work generation by generation) the minimum of each generation is the
     generation undisturbed, and the median of these minima over generations 50.. is the
     figure (the first generations, with most mutants out of bounds, are slower). cost_batch of the
-    600 vectors: the minimum over rounds spread over `seconds`, as the objective tables."""
+    600 vectors: the minimum over rounds spread over `seconds`, as the objective tables. `data`:
+    the kind of data (:meth:`Worker.kind`)."""
     names = [b.name for b in builds]
-    print(f"\nDE/rand/1/bin, NP {NP}, N {N}, iwr.identify(method='de', polish=False), "
+    print(f"\n{data} data: DE/rand/1/bin, NP {NP}, N {N}, iwr.identify(method='de', polish=False), "
           f"{generations} generations x {runs} runs: per generation the minimum over the runs, "
           "then the median over generations 50..; cost_batch(X, workers=T) of the 600 vectors, "
           f"wall time, the minimum over rounds spread over {seconds:g} s:")
@@ -597,7 +654,7 @@ def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], r
         for r in range(runs):
             for c in cells:
                 for b in (builds if r % 2 == 0 else builds[::-1]):
-                    a = b.ask("de_generations", c[0], c[1], generations)
+                    a = b.ask("de_generations", c[0], c[1], generations, data)
                     gen[c][b.name].append(a["ms"])
                     bits[b.name].setdefault(c[0], set()).add(a["fun"])
         t0 = time.perf_counter()
@@ -605,7 +662,7 @@ def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], r
         while r < reps or time.perf_counter() - t0 < seconds:
             for c in cells[r % len(cells):] + cells[:r % len(cells)]:
                 for b in (builds if r % 2 == 0 else builds[::-1]):
-                    batch[c][b.name].append(b.ask("batch", c[0], c[1]))
+                    batch[c][b.name].append(b.ask("batch", c[0], c[1], data))
             r += 1
         per: dict = {}
         for c in cells:

@@ -20,7 +20,7 @@ __all__ = ["Problem", "gls_whitening", "predict_legs"]
 
 
 def effect_inputs(robot: Robot, measurements: Measurements) -> dict[str, Any]:
-    """What the C++ objective with effects (``_core.EffectObjective``, ``_core.de_objective``)
+    """What the C++ objective with effects (``_core.EffectObjective``)
     takes of a robot's effects and the data's loads and temperatures: the effects' tables
     (:meth:`iwr.effects.Effect.to_dict`, in order), the payload (N, 4) and the temperatures
     (N, 1 or 6), each ``(0, 0)`` when absent."""
@@ -296,10 +296,10 @@ class Problem(ProblemBase):
             jac = jac * np.sqrt(m.weights)[..., None]
         return self._objective.residuals(x), jac.reshape(-1, self.n_params)
 
-
-    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
-        """In C++, across ``workers`` threads (the result does not depend on their number)."""
-        return self._objective.cost_batch(X, 0 if workers is None else int(workers))
+    def engine_objective(self) -> Any:
+        """The C++ objective of eq. (10) (``iwr._core.Objective``; with effects
+        ``iwr._core.EffectObjective``), weighted or whitened as the problem is."""
+        return self._objective
 
     def __repr__(self) -> str:
         return (f"Problem(robot={self.robot.name!r}, n_poses={self.n_poses}, "

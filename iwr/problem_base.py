@@ -83,6 +83,12 @@ class LeastSquaresProblem(Protocol):
         """The costs of the rows of ``X`` (M, n_params); the answer does not depend on
         ``workers`` (threads; None: all cores)."""
 
+    def engine_objective(self) -> Any:
+        """The C++ objective (an ``iwr._core`` objective: ``Objective``, ``TrackerObjective``,
+        ...) whose costs :meth:`cost_batch` returns, or None for a problem without one. DE runs
+        the engine on it (:func:`iwr.methods.de.de_method`), as ``iwr-engine`` does on the
+        problem's file."""
+
     def failures(self, x: Any) -> list[tuple[int, str]]:
         """The poses whose model cannot be evaluated at ``x``: ``[(pose, message)]``; a result
         with failures is never a success."""
@@ -126,7 +132,8 @@ class ProblemBase(abc.ABC):
     ``angle_parameters``); in its ``__init__`` it calls :meth:`_accept`, :meth:`_set_bounds`
     and (with forward kinematics from a reference) :meth:`_set_reference`; it writes its
     residual model: :attr:`n_residuals`, :meth:`residuals_and_jacobian`, and, where they are
-    cheaper than that, :meth:`residuals`, :meth:`cost`, :meth:`_costs` and :meth:`failures`.
+    cheaper than that, :meth:`residuals`, :meth:`cost`, :meth:`failures`, and the C++
+    objective its costs are evaluated on (:meth:`engine_objective`: DE runs on it).
     """
 
     #: The data type the problem takes, and how messages name it.
@@ -285,21 +292,28 @@ class ProblemBase(abc.ABC):
         r = self.residuals(x)
         return float(r @ r)
 
+    def engine_objective(self) -> Any:
+        """The C++ objective whose costs :meth:`cost` and :meth:`cost_batch` are (an
+        ``iwr._core`` objective: ``Objective``, ``TrackerObjective``, ``BallbarObjective``, ...,
+        weighted as the problem is), or None: a problem without one (then :meth:`cost_batch`
+        calls :meth:`cost` row by row, and DE calls :meth:`cost_batch` once per generation).
+        DE runs the engine on it with no Python in the loop (:func:`iwr.methods.de.de_method`),
+        as ``iwr-engine`` runs the one it builds from the problem's file. Default: None."""
+        return None
+
     def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
         """Costs of the rows of ``X`` (M, n_params) across ``workers`` threads (``None``: all
-        cores) where the problem has a batch kernel (:meth:`_costs`); the result does not
-        depend on the number of threads."""
+        cores) on the problem's C++ objective (:meth:`engine_objective`; without one,
+        :meth:`cost` row by row); the result does not depend on the number of threads."""
         arr = np.ascontiguousarray(X, dtype=float)
         if arr.ndim != 2 or arr.shape[1] != self.n_params:
             raise ValueError(f"X: shape {arr.shape}; expected (M, {self.n_params})")
         if workers is not None and workers < 1:
             raise ValueError(f"workers: {workers}; expected a positive number of threads or None")
-        return self._costs(arr, workers)
-
-    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
-        """The costs of checked rows ``X``; default one :meth:`cost` after the other (``workers``
-        unused)."""
-        return np.array([self.cost(row) for row in X])
+        objective = self.engine_objective()
+        if objective is None:
+            return np.array([self.cost(row) for row in arr])
+        return objective.cost_batch(arr, 0 if workers is None else int(workers))
 
     # -- the problem file (iwr-engine's input) -------------------------------------------------
     def save(self, path: Any, *, sources: dict[str, Any] | None = None, x0: Any = None,

@@ -1,4 +1,8 @@
 // Bindings of the differential evolution engine (iwr/de.hpp). Private: iwr.de is the public API.
+// Two entries: de_kernel runs the engine on a bound C++ objective of any measurement kind (what
+// iwr.identify(method="de") runs, as iwr-engine does: no Python in the loop), de_function on a
+// Python function of the population (iwr.differential_evolution, and a problem with no C++
+// objective).
 //
 // The engine runs with the GIL released. The GIL is taken back only (a) to call a Python objective,
 // once per generation with the whole population, (b) to call the Python monitor, every generation
@@ -10,11 +14,14 @@
 #include <cstring>
 #include <memory>
 #include <sstream>
+#include <string>
+#include <variant>
 
 #include "common.hpp"
 #include "iwr/binary_io.hpp"
 #include "iwr/checkpoint.hpp"
 #include "iwr/de.hpp"
+#include "iwr/measurement_kind.hpp"
 
 namespace iwr::python {
 
@@ -205,8 +212,45 @@ py::dict run_de(de::BatchFunction& f, Session& session, const de::Settings& sett
             throw e;
         }
     }
-    return result_dict(st, r, session, return_state);
+    py::dict d = result_dict(st, r, session, return_state);
+    d["threads"] = pool.size();  // the engine's threads, the calling one included
+    return d;
 }
+
+// The bound C++ objectives DE runs on: Pooled<T> for each objective type T of AnyObjective (the
+// one list of the kinds' objectives, iwr/measurement_kind.hpp), so a new kind's objective is run
+// here once it is an alternative there and bound.
+template <class Variant>
+struct BoundObjectives;
+template <class... T>
+struct BoundObjectives<std::variant<T...>> {
+    /// Calls f(std::shared_ptr<const U>) for the type U of `kernel`; false when it is none of them.
+    template <class F>
+    static bool visit(const py::handle& kernel, F&& f) {
+        return (visit_one<T>(kernel, f) || ...);
+    }
+    /// "iwr._core.Objective, iwr._core.TrackerObjective, ...": the types accepted, for messages.
+    static std::string names() {
+        std::string out;
+        ((out += (out.empty() ? "" : ", ") + type_name<T>()), ...);
+        return out;
+    }
+
+private:
+    template <class U, class F>
+    static bool visit_one(const py::handle& kernel, F& f) {
+        if (!py::isinstance<Pooled<U>>(kernel)) return false;
+        f(std::shared_ptr<const U>(kernel.cast<Pooled<U>&>().obj_));
+        return true;
+    }
+    template <class U>
+    static std::string type_name() {
+        const py::type t = py::type::of<Pooled<U>>();
+        return py::cast<std::string>(t.attr("__module__")) + "." +
+               py::cast<std::string>(t.attr("__qualname__"));
+    }
+};
+using KernelTypes = BoundObjectives<AnyObjective>;
 
 de::Settings make_settings(const std::string& strategy, const VectorXd& lower, const VectorXd& upper,
                            std::uint64_t seed, int population_size, double F, double CR,
@@ -306,48 +350,49 @@ void bind_de(py::module_& m) {
         py::arg("return_state"));
 
     m.def(
-        "de_objective",
-        [](const Geometry& g, const RowMatrixXd& q, const RowMatrixXd& poses,
-           const RowMatrixXd& legs, const RowMatrixXd& weights, const std::vector<bool>& active,
-           const VectorXd& x0, const std::string& strategy, const VectorXd& lower,
-           const VectorXd& upper, std::uint64_t seed, int population_size, double F, double CR,
+        "de_kernel",
+        [](const py::object& kernel, const std::vector<bool>& active, const VectorXd& x0,
+           const std::string& strategy, const VectorXd& lower, const VectorXd& upper,
+           std::uint64_t seed, int population_size, double F, double CR,
            const std::string& bound_rule, const py::dict& extra, std::int64_t max_generations,
            std::int64_t max_evaluations, double target_cost, double tol, double atol,
            std::int64_t stagnation_generations, double stagnation_tol, double max_seconds,
            int threads, py::object monitor, bool every_generation, double interval,
-           py::object resume, bool return_state, const RowMatrixXd& whitening,
-           const py::object& effects, const RowMatrixXd& payload, const RowMatrixXd& temperatures) {
+           py::object resume, bool return_state) {
             const de::Settings s = make_settings(strategy, lower, upper, seed, population_size, F,
                                                  CR, bound_rule, extra);
             const de::Stop stop = make_stop(max_generations, max_evaluations, target_cost, tol,
                                             atol, stagnation_generations, stagnation_tol,
                                             max_seconds);
-            // The C++ objective is built from the same data as iwr.Problem's (its whitening too:
-            // DE on the noise-weighted objective).
             Session session;
-            const std::vector<EffectTable> tables = effect_tables(effects);
-            if (!tables.empty()) {  // the legs' compliance and temperature (iwr/effects.hpp)
-                const EffectObjective obj(g, EffectModel::parse(tables, g.n_params()), q, poses, legs,
-                                          payload, temperatures, weights, whitening);
-                de::ReducedObjective<EffectObjective> f(obj, active, x0);
-                return run_de(f, session, s, stop, threads, monitor, every_generation, interval,
-                              resume, return_state);
-            }
-            const Objective obj(g, q, poses, legs, weights, whitening);
-            de::ObjectiveFunction f(obj, active, x0);
-            return run_de(f, session, s, stop, threads, monitor, every_generation, interval,
-                          resume, return_state);
+            py::dict out;
+            // The objective is shared with the Python object while the engine runs without the
+            // GIL (kept alive by the shared pointer; its cost is const, each thread has its own
+            // workspace), and evaluated as iwr-engine evaluates it: de::ReducedObjective<T>, the
+            // trials built and evaluated in one pass of the pool.
+            const bool known = KernelTypes::visit(kernel, [&](auto obj) {
+                using Obj = typename decltype(obj)::element_type;
+                de::ReducedObjective<Obj> f(*obj, active, x0);
+                out = run_de(f, session, s, stop, threads, monitor, every_generation, interval,
+                             resume, return_state);
+            });
+            if (!known)
+                throw py::type_error("kernel: " +
+                                     py::cast<std::string>(py::type::of(kernel).attr("__name__")) +
+                                     " is not a C++ objective; expected one of " +
+                                     KernelTypes::names());
+            return out;
         },
-        py::arg("geometry"), py::arg("q"), py::arg("poses"), py::arg("legs"), py::arg("weights"),
-        py::arg("active"), py::arg("x0"), py::arg("strategy"), py::arg("lower"), py::arg("upper"),
-        py::arg("seed"), py::arg("population_size"), py::arg("F"), py::arg("CR"),
-        py::arg("bound_rule"), py::arg("extra"), py::arg("max_generations"),
+        py::arg("kernel"), py::arg("active"), py::arg("x0"), py::arg("strategy"), py::arg("lower"),
+        py::arg("upper"), py::arg("seed"), py::arg("population_size"), py::arg("F"),
+        py::arg("CR"), py::arg("bound_rule"), py::arg("extra"), py::arg("max_generations"),
         py::arg("max_evaluations"), py::arg("target_cost"), py::arg("tol"), py::arg("atol"),
         py::arg("stagnation_generations"), py::arg("stagnation_tol"), py::arg("max_seconds"),
         py::arg("threads"), py::arg("monitor"), py::arg("every_generation"), py::arg("interval"),
-        py::arg("resume"), py::arg("return_state"), py::arg("whitening") = RowMatrixXd(),
-        py::arg("effects") = py::none(), py::arg("payload") = RowMatrixXd(),
-        py::arg("temperatures") = RowMatrixXd());
+        py::arg("resume"), py::arg("return_state"),
+        "DE on a bound C++ objective (any kind's: iwr._core.Objective, TrackerObjective, ...) over "
+        "its active parameters, the others held at x0: the engine of iwr-engine, no Python in the "
+        "loop. TypeError for any other object.");
 
     // The engine's checkpoint (and result) for iwr.problem_file.engine_result: the one reader of
     // iwr/checkpoint.hpp, so Python refuses exactly what the engine refuses.

@@ -179,8 +179,9 @@ def ballbar_identify(robot: Robot, measurements: BallbarMeasurements, method: st
     alone) the residuals are weighted by their
     first-order standard deviations at ``x0`` (:func:`reading_sigmas`; ``weighted=False``: not),
     and the fit gets a chi-square test of the weighted cost. ``active="base"``: one parameter
-    per null direction held at ``x0`` (:func:`ballbar_identifiability`). DE runs on
-    :meth:`BallbarProblem.cost_batch` and is polished by LM."""
+    per null direction held at ``x0`` (:func:`ballbar_identifiability`). DE runs on the
+    problem's C++ objective (:attr:`BallbarProblem.objective`, the engine's) and is polished by
+    LM."""
     return ballbar_identify_with(
         robot, measurements, method, lambda: ballbar_problem(robot, measurements, bounds, x0),
         lambda problem, start: null_space(problem, start, NULL_RTOL).active, noise=noise,
@@ -228,7 +229,7 @@ def ballbar_identify_with(robot: Robot, measurements: BallbarMeasurements, metho
         active = base(problem, start)
     mask = active_mask(problem, active)
     result = run_method(problem, method, mask, start, max_evaluations=max_evaluations,
-                        seed=seed, callback=callback, progress=progress, batch_de=True,
+                        seed=seed, callback=callback, progress=progress,
                         **options)
     if weighted:
         result["settings"] = {**dict(result.settings),

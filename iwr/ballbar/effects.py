@@ -144,10 +144,9 @@ class BallbarEffectProblem(ProblemBase):
         """Sum of squared (weighted) residuals: the C++ objective's."""
         return float(self.objective.cost(self._x(x)))
 
-    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
-        """In C++ across ``workers`` threads (None: all cores), weighted or not; the same bits
-        whatever their number."""
-        return self.objective.cost_batch(X, 0 if workers is None else int(workers))
+    def engine_objective(self) -> Any:
+        """:attr:`objective` (weighted or not)."""
+        return self.objective
 
     def file_fields(self) -> dict[str, Any]:
         """The fields of the problem file (``iwr.problem_file``): the ballbar section

@@ -204,9 +204,9 @@ class BallbarProblem(ProblemBase):
         """Sum of squared (weighted) residuals: the C++ objective's."""
         return float(self.objective.cost(self._x(x)))
 
-    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
-        """In C++ across ``workers`` threads (None: all cores), weighted or not."""
-        return self.objective.cost_batch(X, 0 if workers is None else int(workers))
+    def engine_objective(self) -> Any:
+        """:attr:`objective` (weighted or not)."""
+        return self.objective
 
     def residuals(self, x: Any) -> np.ndarray:
         """Predicted minus measured readings, weighted, (N,)."""

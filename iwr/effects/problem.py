@@ -268,6 +268,11 @@ class EffectProblem:
         r = self.residuals(x)
         return float(r @ r)
 
+    def engine_objective(self) -> None:
+        """None: the numpy model has no C++ objective (DE on a robot with effects runs on
+        :class:`iwr.Problem`'s, ``iwr._core.EffectObjective``)."""
+        return None
+
     def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
         """The costs of the rows of ``X`` (M, n_params), one by one in numpy (``workers``
         unused): the reference for :meth:`iwr.Problem.cost_batch`, not a fast path."""

@@ -500,6 +500,11 @@ class TrackerEffectProblem:
         return loop_jacobians(robot, xr, self.measurements.q, np.asarray(poses, dtype=float),
                               self.measurements)[2]
 
+    def engine_objective(self) -> Any:
+        """The C++ objective with the effects (``iwr._core.TrackerEffectObjective``, weighted as
+        the problem is): what DE runs on."""
+        return self._objective()
+
     def cost_batch(self, X: Any, workers: int | None = None) -> np.ndarray:
         """The costs of the rows of ``X`` in C++ across ``workers`` threads (None: all cores);
         the same bits whatever their number."""

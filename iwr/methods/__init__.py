@@ -53,7 +53,6 @@ from ..problem import Problem
 from ..result import STATUSES, IdentificationResult, ResultFileError, load_result
 from ..robot import Robot
 from .de import de_method
-from .de_batch import de_on_batch
 from .efficient import efficient_method
 from .lm import levenberg_marquardt
 from .nlopt import bobyqa, crs2
@@ -242,26 +241,20 @@ def pose_identify(robot: Robot, measurements: Measurements, method: str, *, nois
 def run_method(problem: Any, method: str, active: np.ndarray, x0: np.ndarray, *,
                max_evaluations: int | None = None, seed: int | None = None,
                callback: Callable[..., Any] | None = None, progress: bool | None = None,
-               batch_de: bool = False, **options: Any) -> IdentificationResult:
+               **options: Any) -> IdentificationResult:
     """Run ``method`` (a name of :data:`METHODS`) on ``problem`` (any kind's,
     :class:`iwr.problem_base.LeastSquaresProblem`) restricted to the ``active`` parameters,
     the others held at ``x0``, and stamp what every result carries: ``method``,
     ``parameter_names``, ``active``, and ``wall_time`` where the method did not measure it.
-    ``batch_de``: ``"de"`` runs on the problem's ``cost_batch``, polished by LM
-    (:func:`iwr.methods.de_batch.de_on_batch`: the kinds whose problems have no DE engine of
-    their own)."""
+    Every method runs the same way on every kind (``"de"`` on the problem's C++ objective,
+    :meth:`~iwr.problem_base.ProblemBase.engine_objective`)."""
     reduced = ReducedProblem(problem, active, x0)
     start = time.perf_counter()
-    if batch_de and method == "de":
-        result = de_on_batch(reduced, max_evaluations=max_evaluations, seed=seed,
-                             callback=callback, progress=progress, **options)
-    else:
-        if method not in METHODS:
-            raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
-        if max_evaluations is not None:
-            options["max_evaluations"] = max_evaluations
-        result = METHODS[method](reduced, seed=seed, callback=callback, progress=progress,
-                                 **options)
+    if method not in METHODS:
+        raise ValueError(f"method: {method!r}; available: {', '.join(sorted(METHODS))}")
+    if max_evaluations is not None:
+        options["max_evaluations"] = max_evaluations
+    result = METHODS[method](reduced, seed=seed, callback=callback, progress=progress, **options)
     if not np.isfinite(result.wall_time):
         result["wall_time"] = time.perf_counter() - start
     result["method"] = method

@@ -2,8 +2,10 @@
 
 Two entry points share one engine (``cpp/src/de.cpp``, documented in ``cpp/include/iwr/de.hpp``):
 
-- ``iwr.identify(robot, measurements, method="de", ...)``: the calibration of eq. (10), evaluated in
-  C++ with no Python in the loop;
+- ``iwr.identify(robot, measurements, method="de", ...)``: the calibration on any kind of data,
+  the engine running on the problem's own C++ objective (``problem.engine_objective()``: eq.
+  (10), the tracker's points or probe, the ballbar's distances, with effects, weighted or not)
+  with no Python in the loop, as ``iwr-engine`` runs it on the problem's file;
 - :func:`differential_evolution`: any function that takes an (M, D) population and returns M costs,
   called once per generation; its result is shaped like ``scipy.optimize.differential_evolution``'s.
 
@@ -45,7 +47,6 @@ import numpy as np
 from scipy.optimize import Bounds, OptimizeResult
 
 from .. import _core
-from ..problem import effect_inputs
 from ..result import IdentificationResult
 from ._run import call_back, check_budget, int_arg
 from .lm import levenberg_marquardt
@@ -234,6 +235,11 @@ class _Run:
             "workers": self.threads or None,
         }
 
+    def settings(self, raw: dict[str, Any]) -> dict[str, Any]:
+        """A run's settings: the engine's resolved ones, the stopping criteria, ``workers`` as
+        given and ``threads``, the engine's (the calling thread included)."""
+        return {**raw["settings"], **self.stop_settings(), "threads": int(raw["threads"])}
+
     def execute(
         self,
         core: Callable[..., dict[str, Any]],
@@ -381,7 +387,7 @@ def differential_evolution(
         population=np.asarray(raw["population"]),
         population_energies=np.asarray(raw["population_costs"]),
         history={k: np.asarray(v) for k, v in raw["history"].items()},
-        settings={**raw["settings"], **run.stop_settings()},
+        settings=run.settings(raw),
         reason=raw["reason"],
         wall_time=time.perf_counter() - start,
     )
@@ -415,16 +421,21 @@ def de_method(
     polish: bool = True,
     **options: Any,
 ) -> IdentificationResult:
-    """``iwr.identify(..., method="de")``: differential evolution on the objective of eq. (10),
-    polished by Levenberg-Marquardt.
+    """``iwr.identify(..., method="de")``: differential evolution on the problem's objective
+    (any kind's: eq. (10), the tracker's points or probe, the ballbar's distances; with effects,
+    weighted or not), polished by Levenberg-Marquardt.
 
     The active parameters are searched within the problem's bounds (``identify(bounds=...)``);
-    the others stay at ``x0``. The objective is evaluated in C++ on ``workers`` threads with no
-    Python in the loop.
+    the others stay at ``x0``. The engine runs on the problem's C++ objective
+    (``problem.engine_objective()``, the one ``iwr-engine`` runs on the problem's file) on
+    ``workers`` threads with no Python in the loop; a problem without one has its
+    ``cost_batch`` called once per generation (on ``workers`` threads too).
 
     Parameters
     ----------
     problem : ReducedProblem
+        The problem (a :class:`iwr.problem_base.LeastSquaresProblem` of any kind) over its
+        active parameters.
     max_evaluations : int, optional
         Evaluation budget of the evolution (the last generation may be partial). Without it (and
         without ``generations``), 1000 generations; ``lshade`` and ``jso`` plan their schedules
@@ -455,8 +466,9 @@ def de_method(
     -------
     IdentificationResult
         ``history`` is the per-generation log (``generation``, ``nfev``, ``best``, ``mean``,
-        ``spread``, ``elapsed``); ``settings`` holds every resolved setting, the seed included;
-        ``reason`` the engine's stop reason. Ctrl-C (in the evolution or the polish) returns the
+        ``spread``, ``elapsed``); ``settings`` holds every resolved setting, the seed included,
+        and ``threads``, the engine's (the calling thread included); ``reason`` the engine's
+        stop reason. Ctrl-C (in the evolution or the polish) returns the
         best point so far, ``status`` "interrupted".
     """
     if preset is not None:
@@ -479,28 +491,21 @@ def de_method(
         reduced.n, strategy=strategy, population_size=population_size, F=F, CR=CR,
         generations=generations, seed=seed, workers=workers, options=options,
     )
-    m = reduced.problem.measurements
-    weights = m.weights if m.weights is not None else np.zeros((0, 0))
     start = time.perf_counter()
-    raw = run.execute(
-        _core.de_objective,
-        {
-            "geometry": reduced.problem.robot._geometry,
-            "q": m.q,
-            "poses": m.poses,
-            "legs": m.legs,
-            "weights": weights,
-            "whitening": reduced.problem.whitening_matrix(),
-            # issue 23: the effects' tables, loads and temperatures (none: the SIMD kernels)
-            **(effect_inputs(reduced.problem.robot, m) if reduced.problem.robot.effects else {}),
-            "active": [bool(a) for a in reduced.active],
-            "x0": np.ascontiguousarray(reduced.x0, dtype=float),
-            **run.core_args(
-                np.ascontiguousarray(reduced.lower), np.ascontiguousarray(reduced.upper)
-            ),
-        },
-        reduced.full, callback, progress,
-    )
+    box = run.core_args(np.ascontiguousarray(reduced.lower), np.ascontiguousarray(reduced.upper))
+    objective = reduced.problem.engine_objective()
+    if objective is not None:
+        # The problem's own C++ objective, whatever its kind: the engine evaluates each thread's
+        # trials as it builds them, on `workers` threads, with no Python in the loop.
+        raw = run.execute(_core.de_kernel, {
+            "kernel": objective, "active": [bool(a) for a in reduced.active],
+            "x0": np.ascontiguousarray(reduced.x0, dtype=float), **box,
+        }, reduced.full, callback, progress)
+    else:  # a problem without one: its cost_batch once per generation, on the same threads
+        threads = run.threads or None
+        raw = run.execute(_core.de_function, {
+            "func": lambda z: reduced.cost_batch(z, threads), **box,
+        }, reduced.full, callback, progress)
     x = reduced.full(raw["x"])
     fun = float(raw["fun"])
     nfev = int(raw["nfev"])
@@ -509,7 +514,7 @@ def de_method(
     success = bool(raw["success"])
     message = str(raw["message"])
     settings: dict[str, Any] = {
-        **raw["settings"], **run.stop_settings(), "preset": preset, "polish": bool(polish),
+        **run.settings(raw), "preset": preset, "polish": bool(polish),
     }
     # No polish after Ctrl-C or a callback's stop: both ask for the run to end now.
     if polish and status not in ("interrupted", "callback"):

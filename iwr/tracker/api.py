@@ -117,7 +117,7 @@ def identify_with(robot: Any, measurements: Any, method: str,
         active = base_of(problem, start_x)
     mask = active_mask(problem, active)
     result = run_method(problem, method, mask, start_x, max_evaluations=max_evaluations,
-                        seed=seed, callback=callback, progress=progress, batch_de=True,
+                        seed=seed, callback=callback, progress=progress,
                         **options)
     if weighted:
         result["cost_eq10"] = problem.cost_unweighted(result.x)

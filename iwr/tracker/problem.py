@@ -182,18 +182,18 @@ class TrackerProblem(ProblemBase):
         r, jac = self._objective.jacobian(self._x(x))
         return self._whiten(r), self._whiten(jac)
 
-    def _costs(self, X: np.ndarray, workers: int | None) -> np.ndarray:
-        """In C++ across ``workers`` threads; weighted, by a second C++ objective that carries
-        the whitening (the engine's weighted cost: the residuals whitened per pose in C++)."""
-        threads = 0 if workers is None else int(workers)
+    def engine_objective(self) -> Any:
+        """The C++ point objective (``iwr._core.TrackerObjective``); weighted, a second one that
+        carries the whitening (made on first use: the residuals whitened per pose in C++, the
+        engine's weighted cost)."""
         if self.whitening is None:
-            return self._objective.cost_batch(X, threads)
+            return self._objective
         if self._weighted is None:
             n, m = self.whitening.shape[:2]
             kernel = self._kernel(self.reference)
             kernel.set_whitening(np.ascontiguousarray(self.whitening.reshape(n, m * m)))
             self._weighted = kernel
-        return self._weighted.cost_batch(X, threads)
+        return self._weighted
 
     # -- diagnostics ----------------------------------------------------------------------------
     def loop_jacobian(self, x: Any, poses: np.ndarray) -> np.ndarray:

@@ -269,6 +269,148 @@ def test_one_pass_and_two_pass_generations_agree(iwr_data, strategy, bound_rule)
         assert np.array_equal(one.history[k], two.history[k]), k
 
 
+# --- every kind of data on its C++ objective (issue 24, item 2) --------------------------------
+
+#: A short jade run (its adaptive memories and archive make a parted trajectory show at once).
+KIND_DE = dict(strategy="jade", population_size=24, generations=12, seed=9, polish=False,
+               progress=False)
+
+
+def _kind_problem(kind):
+    """The kind's problem and start, two parameters held (one off its start): the reduced
+    mapping is part of what each path must get right."""
+    problem, start = kind.kind.problem(kind.robot, kind.data)
+    active = np.ones(problem.n_params, dtype=bool)
+    active[[3, problem.n_params - 2]] = False
+    x0 = np.array(start, dtype=float)
+    x0[3] += 1e-3
+    return problem, active, x0
+
+
+def _same_run(a, b, x_b=None):
+    assert np.array_equal(a.x, b.x if x_b is None else x_b) and a.fun == b.fun
+    assert (a.nfev, a.nit) == (b.nfev, b.nit)
+    for k in ("generation", "nfev", "best", "mean", "spread"):
+        assert np.array_equal(a.history[k], b.history[k]), k
+
+
+def test_every_kind_same_bits_on_1_and_2_threads_and_workers_honoured(kind):
+    """DE on each kind's C++ objective (``engine_objective``): the same seed gives the same run
+    bit for bit on 1 and 2 threads, and the engine ran on the threads asked for (its own count,
+    not a timing: tracker and ballbar data ran on every core whatever ``workers`` said)."""
+    from iwr.methods import run_method
+
+    problem, active, x0 = _kind_problem(kind)
+    assert problem.engine_objective() is not None
+    one = run_method(problem, "de", active, x0, workers=1, **KIND_DE)
+    two = run_method(problem, "de", active, x0, workers=2, **KIND_DE)
+    assert one.settings["threads"] == 1 and one.settings["workers"] == 1
+    assert two.settings["threads"] == 2
+    _same_run(one, two)
+    assert np.all(one.x[~active] == x0[~active])
+    other = run_method(problem, "de", active, x0, workers=2, **{**KIND_DE, "seed": 10})
+    assert not np.array_equal(one.x, other.x)
+
+
+def test_every_kind_same_run_as_de_on_its_cost_batch(kind):
+    """The engine on the C++ objective evaluates what the problem's ``cost_batch`` does: the
+    same run, bit for bit, as :func:`iwr.differential_evolution` on the reduced ``cost_batch``
+    (the path tracker and ballbar data took before), with the same seed and settings."""
+    from iwr.methods import ReducedProblem, run_method
+
+    problem, active, x0 = _kind_problem(kind)
+    reduced = ReducedProblem(problem, active, x0)
+    new = run_method(problem, "de", active, x0, workers=2, **KIND_DE)
+    kw = {k: v for k, v in KIND_DE.items() if k not in ("polish", "progress")}
+    old = iwr.differential_evolution(lambda z: reduced.cost_batch(z, 1),
+                                     np.column_stack([reduced.lower, reduced.upper]), workers=2,
+                                     **kw)
+    _same_run(new, old, reduced.full(old.x))
+
+
+def test_a_problem_without_a_cpp_objective_runs_on_its_cost_batch(kind):
+    """A problem whose ``engine_objective()`` is None: DE calls its ``cost_batch`` once per
+    generation, with the ``workers`` given (it was called with None, all cores, before); the
+    same run as on the C++ objective (its rows' costs are that objective's, one by one)."""
+    from iwr.methods import run_method
+
+    problem, active, x0 = _kind_problem(kind)
+    ref = run_method(problem, "de", active, x0, workers=1, **KIND_DE)
+    batch, asked = problem.cost_batch, []
+
+    def cost_batch(X, workers=None):
+        asked.append(workers)
+        return batch(X, workers)
+
+    problem.engine_objective = lambda: None
+    problem.cost_batch = cost_batch
+    res = run_method(problem, "de", active, x0, workers=1, **KIND_DE)
+    assert len(asked) == KIND_DE["generations"] + 1 and set(asked) == {1}
+    assert res.settings["threads"] == 1
+    _same_run(res, ref)
+
+
+def test_every_kind_resumes_bit_identically(kind):
+    """``return_state`` and ``resume`` on every kind (tracker and ballbar runs dropped their
+    state before): 5 generations, then resumed to 12, is the run of 12."""
+    from iwr.methods import run_method
+
+    problem, active, x0 = _kind_problem(kind)
+    whole = run_method(problem, "de", active, x0, workers=2, **KIND_DE)
+    half = run_method(problem, "de", active, x0, workers=2, return_state=True,
+                      **{**KIND_DE, "generations": 5})
+    assert half.nit == 5 and isinstance(half.state, bytes)
+    rest = run_method(problem, "de", active, x0, workers=1, resume=half.state, **KIND_DE)
+    _same_run(rest, whole)
+
+
+@pytest.mark.parametrize("wrong", ["geometry", "text", "tracker kinematics"])
+def test_what_is_not_a_cpp_objective_is_refused_by_name(iwr_data, wrong):
+    """``_core.de_kernel`` takes the C++ objectives of AnyObjective only; anything else (a
+    problem's ``engine_objective`` returning the wrong thing) is a TypeError naming its type and
+    the types accepted, before any work."""
+    from iwr import _core
+    from iwr.methods import run_method
+
+    robot, measurements, _ = iwr_data
+    problem = iwr.Problem(robot, measurements)
+    obj = {"geometry": robot._geometry, "text": "Objective",
+           "tracker kinematics": None}[wrong]
+    if obj is None:  # a Python class named like a C++ objective is not one either
+        obj = type("TrackerObjective", (), {"cost_batch": lambda self, X, t: np.zeros(len(X))})()
+    problem.engine_objective = lambda: obj
+    name = type(obj).__name__
+    with pytest.raises(TypeError, match=rf"kernel: {name} is not a C\+\+ objective; expected one "
+                                        r"of iwr\._core\.Objective, iwr\._core\.TrackerObjective, "
+                                        r"iwr\._core\.EffectObjective, .*BallbarEffectObjective"):
+        run_method(problem, "de", np.ones(problem.n_params, dtype=bool),
+                   np.zeros(problem.n_params), workers=1, **KIND_DE)
+    assert hasattr(_core, "de_kernel") and not hasattr(_core, "de_objective")
+
+
+def test_every_kind_same_run_as_iwr_engine_on_its_problem_file(kind, installed_command,
+                                                                 tmp_path):
+    """``iwr-engine`` on the problem's file (two parameters held, one off its start) runs the
+    same search as ``iwr.identify``'s DE: the same x, cost and log, bit for bit (the engine on
+    2 threads, Python on 1)."""
+    import subprocess
+
+    from iwr.methods import run_method
+    from iwr.problem_file import engine_result
+
+    problem, active, x0 = _kind_problem(kind)
+    path, ckpt = tmp_path / "p.iwrp", tmp_path / "p.ckpt"
+    problem.save(path, x0=x0, active=active)
+    proc = subprocess.run(
+        [installed_command("iwr-engine"), str(path), "--strategy", "jade", "--population-size",
+         "24", "--generations", "12", "--seed", "9", "--threads", "2", "--checkpoint", str(ckpt)],
+        capture_output=True, text=True, timeout=300, check=False, cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    exe = engine_result(ckpt, path)
+    py = run_method(problem, "de", active, x0, workers=1, **KIND_DE)
+    _same_run(exe, py)
+
+
 def test_history(iwr_data):
     robot, measurements, _ = iwr_data
     res = iwr.identify(robot, measurements, "de", population_size=30, generations=20, seed=1,
@@ -354,17 +496,18 @@ def test_callback_errors_propagate():
         iwr.differential_evolution(func, [(-5, 5)] * 3, generations=100, seed=0)
 
 
-def test_ctrl_c_returns_the_best_so_far(iwr_data, sigint_handler):
-    """SIGINT while the C++ engine runs on the IWR objective: the run stops and returns."""
-    robot, measurements, _ = iwr_data
+def test_ctrl_c_returns_the_best_so_far(kind, sigint_handler):
+    """SIGINT while the C++ engine runs on each kind's objective: the run stops and returns the
+    best point so far, interrupted, not polished."""
     timer = threading.Timer(0.5, lambda: os.kill(os.getpid(), signal.SIGINT))
     timer.start()
     try:
-        res = iwr.identify(robot, measurements, "de", population_size=20, generations=10**6,
+        res = iwr.identify(kind.robot, kind.data, "de", population_size=20, generations=10**6,
                            seed=0, progress=False)
     finally:
         timer.cancel()
     assert res.reason == "interrupted" and not res.success and "Ctrl-C" in res.message
+    assert res.status == "interrupted" and "polish_result" not in res.settings
     assert 0 < res.nit < 10**6 and res.fun == pytest.approx(res.history["best"][-1])
 
 
