@@ -98,6 +98,18 @@ IWR_FORCE_INLINE P dot3_plus(const P& a0, const P& x0, const P& a1, const P& x1,
     return fma(a2, x2, fma(a1, x1, a0 * x0)) + t;
 }
 
+// p itself, its value hidden from the optimiser: what is read through it is read again, not kept in
+// registers from an earlier read. GCC kept the chord's J_ref^-1 (loop-invariant: 36 packs) from one
+// iteration to the next; with AVX2 (16 registers) that meant a copy of it on the stack, a store for
+// every load. No operation on the values changes.
+template <class T>
+IWR_FORCE_INLINE const T* reread(const T* p) {
+#if defined(__GNUC__) || defined(__clang__)
+    __asm__ volatile("" : "+r"(p));
+#endif
+    return p;
+}
+
 // 0T4 of a block's 8 poses by the DH chain (eq. 1-2): the prismatic prefix (the same rotation at
 // every pose), then joint by joint. t: rotation row-major (0..8), position (9..11).
 // P: Pack (the whole block) or Sub (one register's lanes; blk then points at its first lane).
@@ -239,7 +251,8 @@ IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* ou
     // One register of block b (its lanes h W ...); valid: the block's poses, the rest padding.
     auto pass = [&](int b, int h, int valid) IWR_FORCE_INLINE_LAMBDA {
         const double* blk = pd.data + static_cast<long>(b) * pd.stride;
-        const Sub acc = block<Weighted, Residuals, NP, NR>(pd, ec, blk + h * W, res);
+        const Sub acc = block<Weighted, Residuals, NP, NR>(pd, kRereadConsts ? *reread(&ec) : ec,
+                                                           blk + h * W, res);
         if (valid == B) {
             lanes[h] = lanes[h] + acc;
         } else {
