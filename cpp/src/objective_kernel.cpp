@@ -111,6 +111,7 @@ IWR_FORCE_INLINE M m_all(bool on) { return _mm256_castsi256_pd(_mm256_set1_epi64
 IWR_FORCE_INLINE int m_bits(M a) { return _mm256_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm256_blendv_pd(b, a, m); }
 IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm256_and_pd(m, a); }
+// Not re-read: 3 % slower with 16 registers (18 % with SSE2; BENCHMARKS.md, "Eleventh round").
 constexpr bool kRereadConsts = false;  // the leg kernel's constants read in every block
 constexpr bool kLegPipe = false;  // the leg kernel software-pipelined
 #include "objective_kernel_body.inl"
@@ -162,6 +163,9 @@ IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm512_mask_blend_pd(m, b, a
 IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm512_maskz_mov_pd(m, a); }
 // A last block of at most 4 poses runs as the AVX2 variant's 4-lane pass (objective_kernel_body.inl).
 #define IWR_HALF_PASS avx2
+// Re-read: GCC hoisted them into 40-odd zmm copies on the stack at every call (the weighted
+// objective 6-10 % faster without); pipelined: the whitened one 3-5 % faster (BENCHMARKS.md,
+// "Eleventh round").
 constexpr bool kRereadConsts = true;  // the leg kernel's constants read in every block
 constexpr bool kLegPipe = true;  // the leg kernel software-pipelined
 #include "objective_kernel_body.inl"

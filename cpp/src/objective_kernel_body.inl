@@ -2,7 +2,9 @@
 // once per instruction set, inside that set's namespace and target region, after defining the
 // register type R, the number K of registers per block (K * lanes of R == 8) and the register
 // operations r_splat, r_load, r_store, r_add, r_sub, r_mul, r_sqrt, r_fma, r_fms and kFused (whether
-// r_fma, r_fms round once). Each Pack operation
+// r_fma, r_fms round once), and the leg kernel's options kRereadConsts (the per-evaluation
+// constants read again in every block: see reread) and kLegPipe (the blocks software-pipelined:
+// see run; needs K == 1). Each Pack operation
 // is applied register by register, so every lane sees exactly the same IEEE operations in the same
 // order for any R: the variants whose r_fma fuses (AVX2, AVX-512) are bit-identical; the SSE2
 // baseline's r_fma rounds twice (see objective_kernel.cpp).
@@ -101,7 +103,8 @@ IWR_FORCE_INLINE P dot3_plus(const P& a0, const P& x0, const P& a1, const P& x1,
 // p itself, its value hidden from the optimiser: what is read through it is read again, not kept in
 // registers from an earlier read. GCC kept the chord's J_ref^-1 (loop-invariant: 36 packs) from one
 // iteration to the next; with AVX2 (16 registers) that meant a copy of it on the stack, a store for
-// every load. No operation on the values changes.
+// every load. Likewise the leg kernel's EvalConsts (kRereadConsts). No operation on the values
+// changes.
 template <class T>
 IWR_FORCE_INLINE const T* reread(const T* p) {
 #if defined(__GNUC__) || defined(__clang__)
