@@ -13,6 +13,19 @@
 #include <ostream>
 #include <sstream>
 #include <stdexcept>
+#include <utility>
+
+// The loops over the D components of a trial and over the population's columns (the log) compiled
+// for AVX-512 and AVX2 as well as the x86-64 baseline, the widest the CPU runs picked when the
+// library loads (GCC's target_clones): separate multiplies and adds (-ffp-contract=off), so the
+// same values whatever the instruction set, in wider registers.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+#define IWR_DE_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#define IWR_DE_INLINE __attribute__((always_inline)) inline
+#else
+#define IWR_DE_CLONES
+#define IWR_DE_INLINE inline
+#endif
 
 namespace iwr::de {
 
@@ -394,13 +407,13 @@ void archive_trim(State& st) {
 }
 
 // Sums of squared deviations from the mean of columns [j0, j0 + nc) of the np x sd population
-// (row i at rows[i]) into v, each column summed row by row in slot order. NC > 0: nc == NC columns,
-// a constant, so that the partial sums stay in registers; NC == 0: nc <= kLogColumns of them.
+// (row i at rows[i]) into v, each column summed row by row in slot order. NC columns, a constant,
+// so that the partial sums stay in registers.
 constexpr int kLogColumns = 16;
 template <int NC>
-void column_deviations(const double* const* rows, int np, int j0, int nc, double* v) {
-    const int n = NC > 0 ? NC : nc;
-    double s1[kLogColumns] = {}, s2[kLogColumns] = {};
+IWR_DE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
+    constexpr int n = NC;
+    double s1[n] = {}, s2[n] = {};
     for (int i = 0; i < np; ++i) {
         const double* x = rows[i] + j0;
         for (int k = 0; k < n; ++k) s1[k] += x[k];
@@ -414,6 +427,17 @@ void column_deviations(const double* const* rows, int np, int j0, int nc, double
         }
     }
     for (int k = 0; k < n; ++k) v[j0 + k] = s2[k];
+}
+
+// Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the count a constant in each case, so
+// that the sums of a group narrower than kLogColumns (the last) stay in vector registers too.
+template <int... N>
+IWR_DE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows, int np,
+                                int j0, int nc, double* v) {
+    ((nc == N + 1 ? column_deviations<N + 1>(rows, np, j0, v) : void()), ...);
+}
+IWR_DE_CLONES void column_block(const double* const* rows, int np, int j0, int nc, double* v) {
+    column_cases(std::make_integer_sequence<int, kLogColumns>(), rows, np, j0, nc, v);
 }
 
 // The log row of the current population, and st.elapsed (+= the time since t0, the log
@@ -444,12 +468,7 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
     pool.parallel_for(static_cast<std::size_t>(blocks), [&](std::size_t b, std::size_t end, int) {
         for (std::size_t k = b; k < end; ++k) {
             const int j0 = static_cast<int>(k) * kLogColumns;
-            const int nc = std::min(kLogColumns, d - j0);
-            if (nc == kLogColumns) {
-                column_deviations<kLogColumns>(rows.data(), np, j0, nc, v.data());
-            } else {
-                column_deviations<0>(rows.data(), np, j0, nc, v.data());
-            }
+            column_block(rows.data(), np, j0, std::min(kLogColumns, d - j0), v.data());
         }
         if (!trials) return;
         const auto first = static_cast<std::size_t>(np) * b / static_cast<std::size_t>(blocks);
@@ -512,7 +531,7 @@ struct Generation {
 // (a mutant component leaves the bounds at random, so a branch would be mispredicted often): the
 // same values as the general loop of make_trial (xi, the parent, is within the bounds).
 template <bool Mid>
-void repair_simple(double* __restrict u, const double* __restrict xi, const double* __restrict lo,
+IWR_DE_INLINE void repair_simple(double* __restrict u, const double* __restrict xi, const double* __restrict lo,
                    const double* __restrict hi, int d) {
     for (int j = 0; j < d; ++j) {
         const double l = lo[j], h = hi[j], v = u[j];
@@ -526,7 +545,7 @@ void repair_simple(double* __restrict u, const double* __restrict xi, const doub
 }
 
 // Builds the trial of slot i into u; returns its F and CR in Fi, CRi.
-void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi) {
+IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi) {
     const State& st = *gen.st;
     const Settings& s = st.settings;
     Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];

@@ -74,6 +74,8 @@ IWR_FORCE_INLINE M m_all(bool on) { return _mm_castsi128_pd(_mm_set1_epi64x(on ?
 IWR_FORCE_INLINE int m_bits(M a) { return _mm_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm_or_pd(_mm_and_pd(m, a), _mm_andnot_pd(m, b)); }
 IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm_and_pd(m, a); }  // a where m, +0 elsewhere
+constexpr bool kRereadConsts = false;  // the leg kernel's constants read in every block
+constexpr bool kLegPipe = false;  // the leg kernel software-pipelined
 #include "objective_kernel_body.inl"
 constexpr bool kChordPair = false;  // tracker_chord2: two blocks at once
 #include "tracker_kernel_body.inl"
@@ -109,6 +111,9 @@ IWR_FORCE_INLINE M m_all(bool on) { return _mm256_castsi256_pd(_mm256_set1_epi64
 IWR_FORCE_INLINE int m_bits(M a) { return _mm256_movemask_pd(a); }
 IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm256_blendv_pd(b, a, m); }
 IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm256_and_pd(m, a); }
+// Not re-read: 3 % slower with 16 registers (18 % with SSE2; BENCHMARKS.md, "Eleventh round").
+constexpr bool kRereadConsts = false;  // the leg kernel's constants read in every block
+constexpr bool kLegPipe = false;  // the leg kernel software-pipelined
 #include "objective_kernel_body.inl"
 // Not two blocks at once: four registers a value spill, 20 % slower (BENCHMARKS.md, "Tenth round").
 constexpr bool kChordPair = false;  // tracker_chord2: two blocks at once
@@ -158,6 +163,11 @@ IWR_FORCE_INLINE R m_select(M m, R a, R b) { return _mm512_mask_blend_pd(m, b, a
 IWR_FORCE_INLINE R m_keep(M m, R a) { return _mm512_maskz_mov_pd(m, a); }
 // A last block of at most 4 poses runs as the AVX2 variant's 4-lane pass (objective_kernel_body.inl).
 #define IWR_HALF_PASS avx2
+// Re-read: GCC hoisted them into 40-odd zmm copies on the stack at every call (the weighted
+// objective 6-10 % faster without); pipelined: the whitened one 3-5 % faster (BENCHMARKS.md,
+// "Eleventh round").
+constexpr bool kRereadConsts = true;  // the leg kernel's constants read in every block
+constexpr bool kLegPipe = true;  // the leg kernel software-pipelined
 #include "objective_kernel_body.inl"
 #undef IWR_HALF_PASS
 constexpr bool kChordPair = true;  // tracker_chord2: two blocks at once (2-4 % faster)
@@ -196,6 +206,8 @@ inline M m_all(bool on) { return on; }
 inline int m_bits(M a) { return a ? 1 : 0; }
 inline R m_select(M m, R a, R b) { return m ? a : b; }
 inline R m_keep(M m, R a) { return m ? a : 0.0; }
+constexpr bool kRereadConsts = false;  // the leg kernel's constants read in every block
+constexpr bool kLegPipe = false;  // the leg kernel software-pipelined
 #include "objective_kernel_body.inl"
 constexpr bool kChordPair = false;  // tracker_chord2: two blocks at once
 #include "tracker_kernel_body.inl"

@@ -2,7 +2,9 @@
 // once per instruction set, inside that set's namespace and target region, after defining the
 // register type R, the number K of registers per block (K * lanes of R == 8) and the register
 // operations r_splat, r_load, r_store, r_add, r_sub, r_mul, r_sqrt, r_fma, r_fms and kFused (whether
-// r_fma, r_fms round once). Each Pack operation
+// r_fma, r_fms round once), and the leg kernel's options kRereadConsts (the per-evaluation
+// constants read again in every block: see reread) and kLegPipe (the blocks software-pipelined:
+// see run; needs K == 1). Each Pack operation
 // is applied register by register, so every lane sees exactly the same IEEE operations in the same
 // order for any R: the variants whose r_fma fuses (AVX2, AVX-512) are bit-identical; the SSE2
 // baseline's r_fma rounds twice (see objective_kernel.cpp).
@@ -98,6 +100,19 @@ IWR_FORCE_INLINE P dot3_plus(const P& a0, const P& x0, const P& a1, const P& x1,
     return fma(a2, x2, fma(a1, x1, a0 * x0)) + t;
 }
 
+// p itself, its value hidden from the optimiser: what is read through it is read again, not kept in
+// registers from an earlier read. GCC kept the chord's J_ref^-1 (loop-invariant: 36 packs) from one
+// iteration to the next; with AVX2 (16 registers) that meant a copy of it on the stack, a store for
+// every load. Likewise the leg kernel's EvalConsts (kRereadConsts). No operation on the values
+// changes.
+template <class T>
+IWR_FORCE_INLINE const T* reread(const T* p) {
+#if defined(__GNUC__) || defined(__clang__)
+    __asm__ volatile("" : "+r"(p));
+#endif
+    return p;
+}
+
 // 0T4 of a block's 8 poses by the DH chain (eq. 1-2): the prismatic prefix (the same rotation at
 // every pose), then joint by joint. t: rotation row-major (0..8), position (9..11).
 // P: Pack (the whole block) or Sub (one register's lanes; blk then points at its first lane).
@@ -150,11 +165,11 @@ IWR_FORCE_INLINE void carriage(const PoseData& pd, const EvalConsts& ec, const d
 
 // One register's lanes of a block of 8 poses (blk points at the first of them): 0T4 (carriage),
 // then M = 4R0 0R5 and w = 4R0 (0P5 - 0P4), the platform pose in frame {4}; leg j is
-// v = M b_j + w - a_j (eq. 8 expressed in {4}), its length |v| and its residual
-// sqrt(w_kj) (|v| - l0_j - s_kj). Returns the per-lane sums of squares.
-template <int Weighted, bool Residuals, int NP, int NR>
-IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const double* blk,
-                           Sub (&res)[6]) {
+// v = M b_j + w - a_j (eq. 8 expressed in {4}) and sq[j] = |v|^2, or |v| (Root: each square root
+// right after its square).
+template <int NP, int NR, bool Root = false>
+IWR_FORCE_INLINE void leg_squares(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                                  Sub (&sq)[6]) {
     constexpr int B = kBlock;
     using P = Sub;
     P t[12];  // 0T4: rotation row-major (0..8), position (9..11)
@@ -174,18 +189,26 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
             for (int r = 0; r < 3; ++r) m[3 * r + c] = fma(t[6 + r], f2, fma(t[3 + r], f1, t[r] * f0));
         }
     }
-
-    // --- the six legs --------------------------------------------------------------------------------
-    // Weighted: 0 none, 1 a weight per leg, 2 a whitening per pose (the raw residuals of the six
-    // legs first, then W r row by row, the lower triangle only).
-    P acc = bcast<P>(0.0), raw[6], len[6];
     for (int j = 0; j < 6; ++j) {  // the six lengths first: their square roots overlap
         const P b0 = bcast<P>(ec.b[j][0]), b1 = bcast<P>(ec.b[j][1]), b2 = bcast<P>(ec.b[j][2]);
         const P vx = dot3_plus(m[0], b0, m[1], b1, m[2], b2, m[9] - bcast<P>(ec.a[j][0]));
         const P vy = dot3_plus(m[3], b0, m[4], b1, m[5], b2, m[10] - bcast<P>(ec.a[j][1]));
         const P vz = dot3_plus(m[6], b0, m[7], b1, m[8], b2, m[11] - bcast<P>(ec.a[j][2]));
-        len[j] = sqrt(fma(vz, vz, fma(vy, vy, vx * vx)));
+        sq[j] = fma(vz, vz, fma(vy, vy, vx * vx));
+        if (Root) sq[j] = sqrt(sq[j]);
     }
+}
+
+// The residuals sqrt(w_kj) (|v| - l0_j - s_kj) of one register's lanes from the legs' lengths
+// len (blk: the first lane); returns the per-lane sums of squares.
+// Weighted: 0 none, 1 a weight per leg, 2 a whitening per pose (the raw residuals of the six
+// legs first, then W r row by row, the lower triangle only).
+template <int Weighted, bool Residuals>
+IWR_FORCE_INLINE Sub leg_residuals(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                                   const Sub (&len)[6], Sub (&res)[6]) {
+    constexpr int B = kBlock;
+    using P = Sub;
+    P acc = bcast<P>(0.0), raw[6];
     for (int j = 0; j < 6; ++j) {
         P r = (len[j] - bcast<P>(ec.l0[j])) - ld<P>(blk + (pd.off_s + j) * B);
         if (Weighted == 1) r = r * ld<P>(blk + (pd.off_w + j) * B);
@@ -209,6 +232,15 @@ IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const doubl
     return acc;
 }
 
+// One register's lanes of a block: the legs' lengths, then the residuals.
+template <int Weighted, bool Residuals, int NP, int NR>
+IWR_FORCE_INLINE Sub block(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                           Sub (&res)[6]) {
+    Sub len[6];
+    leg_squares<NP, NR, true>(pd, ec, blk, len);
+    return leg_residuals<Weighted, Residuals>(pd, ec, blk, len, res);
+}
+
 #ifdef IWR_HALF_PASS
 // Defined as the namespace of a variant with registers of 4 lanes (the AVX-512 variant: avx2): a
 // block of at most 4 poses (the last one, padded: at N = 100 the 13th holds 4) runs as that
@@ -228,6 +260,7 @@ template <int Weighted, int NP, int NR>
 void half_pass(const PoseData&, const EvalConsts&, const double*, double*) {}
 #endif
 
+static_assert(!kLegPipe || K == 1, "kLegPipe: one register a block");
 template <int Weighted, bool Residuals, int NP, int NR>
 IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* out) {
     constexpr int B = kBlock, W = kSubLanes;
@@ -239,7 +272,8 @@ IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* ou
     // One register of block b (its lanes h W ...); valid: the block's poses, the rest padding.
     auto pass = [&](int b, int h, int valid) IWR_FORCE_INLINE_LAMBDA {
         const double* blk = pd.data + static_cast<long>(b) * pd.stride;
-        const Sub acc = block<Weighted, Residuals, NP, NR>(pd, ec, blk + h * W, res);
+        const Sub acc = block<Weighted, Residuals, NP, NR>(pd, kRereadConsts ? *reread(&ec) : ec,
+                                                           blk + h * W, res);
         if (valid == B) {
             lanes[h] = lanes[h] + acc;
         } else {
@@ -257,8 +291,33 @@ IWR_FORCE_INLINE double run(const PoseData& pd, const EvalConsts& ec, double* ou
         }
     };
     const int full = pd.n / B;
-    for (int b = 0; b < full; ++b)
-        for (int h = 0; h < K; ++h) pass(b, h, B);  // the block's registers one at a time
+    if constexpr (kLegPipe) {
+        // The full blocks software-pipelined (one register a block: K == 1): block b's square
+        // roots, then block b + 1's squared lengths (multiplies and adds that do not wait for
+        // them), then block b's residuals. The same operations on each lane, the sums added block
+        // after block.
+        Sub sq[6], len[6];
+        auto at = [&](int b) IWR_FORCE_INLINE_LAMBDA {
+            return pd.data + static_cast<long>(b) * pd.stride;
+        };
+        if (full > 0) leg_squares<NP, NR>(pd, ec, at(0), sq);
+        for (int b = 0; b < full; ++b) {
+            for (int j = 0; j < 6; ++j) len[j] = sqrt(sq[j]);
+            const EvalConsts& e = kRereadConsts ? *reread(&ec) : ec;
+            if (b + 1 < full) leg_squares<NP, NR>(pd, e, at(b + 1), sq);
+            const Sub acc = leg_residuals<Weighted, Residuals>(pd, e, at(b), len, res);
+            lanes[0] = lanes[0] + acc;
+            if (Residuals) {
+                for (int j = 0; j < 6; ++j) {
+                    store(tmp, res[j]);
+                    for (int l = 0; l < B; ++l) out[(static_cast<long>(b) * B + l) * 6 + j] = tmp[l];
+                }
+            }
+        }
+    } else {
+        for (int b = 0; b < full; ++b)
+            for (int h = 0; h < K; ++h) pass(b, h, B);  // the block's registers one at a time
+    }
     if (full < pd.n_blocks) {  // the last block, padded
         const int valid = pd.n - full * B;
         bool done = false;

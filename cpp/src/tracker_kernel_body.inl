@@ -69,17 +69,6 @@ IWR_FORCE_INLINE PackN<KK> select(const MaskN<KK>& m, const PackN<KK>& a, const 
     return p;
 }
 
-// p itself, its value hidden from the optimiser: what is read through it is read again, not kept in
-// registers from an earlier read. GCC kept the chord's J_ref^-1 (loop-invariant: 36 packs) from one
-// iteration to the next; with AVX2 (16 registers) that meant a copy of it on the stack, a store for
-// every load. No operation on the values changes.
-IWR_FORCE_INLINE const double* reread(const double* p) {
-#if defined(__GNUC__) || defined(__clang__)
-    __asm__ volatile("" : "+r"(p));
-#endif
-    return p;
-}
-
 // J_ref^-1 v for the lanes of NB blocks (inv[b]: block b's 6 x 6 matrix row by row; v: 6 values,
 // each 8 NB lanes, block after block), one register's lanes at a time, v in registers: each row's
 // product reads only the matrix (with AVX2 the whole block's v would take 12 of the 16 registers,
