@@ -537,6 +537,36 @@ def test_a_run_at_its_limit_says_how_to_go_on_and_that_works(files: dict[str, Pa
     assert iwr.load_result(tmp_path / "done.json").success
 
 
+@pytest.mark.parametrize("strategy, mean_end, want", [
+    ("rand1bin", 0.95, "fell 5 % and the best 0.9 %; run it longer, from where it stopped: "
+                       "CMD --generations 2000"),
+    ("rand1bin", 0.9995, "fell 0.05 % and the best 0.9 % (it has all but settled: more "
+                         "generations will change the cost little); run it longer, from where "
+                         "it stopped: CMD --generations 400"),
+    ("jso", 0.95, "fell 5 % and the best 0.9 %; jso plans its schedules over its budget: run it "
+                  "again with a larger one (e.g. --max-evaluations 2000)"),
+])
+def test_the_advice_follows_the_runs_last_tenth(strategy, mean_end, want) -> None:
+    """How far the population still moved over its last tenth sets the advice: ten times the
+    generations while it moves (1 % or more), twice once it has settled; lshade and jso get a
+    new run with a larger budget. A converged run gets none."""
+    from iwr.cli.calibrate_exe import longer_run
+
+    g = np.arange(201.0)
+    mean = np.where(g <= 180, 1.0, 1.0 - (1.0 - mean_end) * (g - 180) / 20)
+    best = np.where(g <= 180, 0.5, 0.5 * (1.0 - 0.009 * (g - 180) / 20))
+    stopped = iwr.IdentificationResult(
+        x=np.zeros(2), fun=best[-1], nfev=200, nit=200, success=False, status="stopped",
+        message="the maximum number of generations (200) was reached",
+        history={"generation": g, "nfev": g, "best": best, "mean": mean},
+        settings={"strategy": strategy, "max_evaluations": 200 if strategy == "jso" else None})
+    text = longer_run(stopped, "CMD")
+    assert text.startswith("over its last 20 generations the population's mean cost ")
+    assert text.endswith(want), text
+    stopped["status"], stopped["success"] = "converged", True
+    assert longer_run(stopped, "CMD") == ""
+
+
 def test_launcher_result_matches_identify(files: dict[str, Path]) -> None:
     d = files["dir"]
     robot = iwr.Robot.from_toml(files["robot"])

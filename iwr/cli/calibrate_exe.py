@@ -227,6 +227,9 @@ def _export(checkpoint: str, problem: str | None, output: str,
     return hint
 
 
+#: A run whose population's mean or best cost fell by at least this much (%) over its last
+#: tenth is still moving: :func:`longer_run` offers ten times its generations, else twice.
+MOVING_PERCENT = 1.0
 #: Strategies whose population and parameter schedules run to the evaluation budget: a longer
 #: run of theirs is a new run with a larger budget, not a resumed one.
 _BUDGETED = ("lshade", "jso")
@@ -235,17 +238,18 @@ _BUDGETED = ("lshade", "jso")
 def longer_run(result: Any, resume: str) -> str:
     """For a run that ended at its generation or evaluation limit (status ``stopped``, no
     signal: DE has no convergence test by default, so every run without ``--target-cost``
-    ends so), what to change: how much the best cost fell over the last tenth of the run, and
-    the command that goes on exactly where it stopped with ten times the generations (``resume``
-    plus ``--generations``; the evaluations for a limit by ``--max-evaluations``), or for lshade
-    and jso, whose schedules end at their budget, a new run with a larger one. "" otherwise."""
+    ends so), what to change: how much the population's mean cost and the best cost fell over
+    the last tenth of the run, and the command that goes on exactly where it stopped with ten
+    times the generations, twice when neither fell by :data:`MOVING_PERCENT` (``resume`` plus
+    ``--generations``; the evaluations for a limit by ``--max-evaluations``), or for lshade and
+    jso, whose schedules end at their budget, a new run with a larger one. "" otherwise."""
 
     settings = dict(result.settings)
     if result.status != "stopped" or "reached" not in str(result.message):
         return ""  # a signal (the engine gave its resume command), a failure, a success
     history = {k: np.asarray(result.history.get(k, []), dtype=float)
                for k in ("generation", "best", "mean")}
-    trend = ""
+    trend, factor = "", 10
     if len({v.size for v in history.values()}) == 1 and history["best"].size > 10:
         # The mean too: rand/1/bin's best can stand still for generations while its
         # population closes in.
@@ -255,15 +259,19 @@ def longer_run(result: Any, resume: str) -> str:
                 and v[-1 - back] > 0}
         if len(fell) == 2:
             span = int(history["generation"][-1] - history["generation"][-1 - back])
+            moving = max(fell.values()) >= MOVING_PERCENT
+            factor = 10 if moving else 2
             trend = (f"over its last {span} generations the population's mean cost fell "
-                     f"{fell['mean']:.2g} % and the best {fell['best']:.2g} %; ")
+                     f"{fell['mean']:.2g} % and the best {fell['best']:.2g} %"
+                     + ("; " if moving else " (it has all but settled: more generations "
+                        "will change the cost little); "))
     if settings.get("strategy") in _BUDGETED:
         budget = settings.get("max_evaluations") or result.nfev
         return (f"{trend}{settings['strategy']} plans its schedules over its budget: run it "
-                f"again with a larger one (e.g. --max-evaluations {10 * int(budget)})")
+                f"again with a larger one (e.g. --max-evaluations {factor * int(budget)})")
     by_evaluations = "evaluations" in str(result.message)
-    more = (f"--max-evaluations {10 * int(result.nfev)}" if by_evaluations
-            else f"--generations {10 * int(result.nit)}")
+    more = (f"--max-evaluations {factor * int(result.nfev)}" if by_evaluations
+            else f"--generations {factor * int(result.nit)}")
     return (f"{trend}run it longer, from where it stopped: {resume} {more}" if resume
             else f"{trend}run it longer ({more})")
 
