@@ -173,14 +173,29 @@ class TrackerNoise:
                 + st * (z[..., 1:2] * b[..., 1, :] + z[..., 2:3] * b[..., 2, :]))
 
 
-def instrument_level(noise: Noise) -> tuple[Noise, float]:
+def instrument_level(noise: Noise, instrument: str = "the instrument",
+                     realistic: str = "its realistic noise") -> tuple[Noise, float]:
     """An experiment's noise level (an :class:`iwr.Noise`, e.g.
     :func:`iwr.experiments.harness.noise_at`) for an instrument that measures no pose in {0}: the
     leg and joint readings' noise (no position or orientation noise), and the level's
     ``position`` noise as a multiple of :meth:`Noise.realistic`'s, by which the instrument's own
-    realistic noise is scaled."""
-    return (replace(noise, position=0.0, orientation=0.0),
-            noise.position / Noise.realistic().position)
+    realistic noise is scaled.
+
+    A level whose readings are noisy and whose ``position`` is 0 is refused (ValueError naming
+    ``instrument``, e.g. "the bar", and ``realistic``, what ``position=0.02`` gives it): it would
+    make the instrument exact beside noisy readings, which no instrument is (``iwr compare
+    --noise legs=0.002`` on ballbar data made the bar exact without a word)."""
+    readings = replace(noise, position=0.0, orientation=0.0)
+    if noise.position == 0 and not readings.is_zero:
+        given = ",".join(f"{f.name}={getattr(noise, f.name):g}" for f in fields(noise)
+                         if getattr(noise, f.name))
+        raise ValueError(
+            f"noise: {given} without position: here position is the noise level of "
+            f"{instrument} ({realistic} x position / 0.02; the readings' sds as given), and "
+            f"position=0 would make {instrument} exact beside noisy readings; add "
+            f"position=0.02 for {realistic} (or another level), give a pair (iwr.Noise, "
+            f"{instrument}'s noise model), or 'none' for noise-free data")
+    return readings, noise.position / Noise.realistic().position
 
 
 def axis_whitening(points: Any, sigmas: Any) -> np.ndarray:

@@ -53,11 +53,9 @@ def robot_measured_by(name: str) -> Any:
         return robot.with_tracker(registration=_REGISTRATION,
                                   probe=(10.0, -5.0, 60.0, 0.1, 0.0, 0.2))
     if name == "ballbar":
-        return robot.with_instrument("ballbar", {
-            "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500],
-                  "range": [300, 700]},
-            "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400],
-                  "range": [300, 700]}})
+        from _ballbar import ballbar_robot  # the ballbar tests' set-ups A and B
+
+        return ballbar_robot(base=robot)
     assert name == "pose", name
     return robot
 

@@ -9,6 +9,8 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _ballbar import BAR_C, NOISE, ballbar_robot
+from _ballbar import BARS as AB
 from scipy.spatial.transform import Rotation
 
 import iwr
@@ -26,22 +28,11 @@ from iwr.ballbar import (
 from iwr.measurements import MeasurementFileError
 from iwr.robot import RobotFileError
 
-# Fixed balls on the table within reach of the IWR's platform, platform balls below it; the
-# bar telescopes from 300 to 700 mm.
-BARS = {
-    "A": {"platform_ball": [0.0, 0.0, -60.0], "fixed_ball": [800.0, -800.0, 1500.0],
-          "range": [300.0, 700.0]},
-    "B": {"platform_ball": [100.0, 50.0, -60.0], "fixed_ball": [900.0, -200.0, 2400.0],
-          "range": [300.0, 700.0]},
-    "C": {"platform_ball": [-80.0, 60.0, -40.0], "fixed_ball": [700.0, -1500.0, 1200.0],
-          "range": [300.0, 700.0]},
-}
-NOISE = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), BallbarNoise(0.001))
+BARS = {**AB, "C": BAR_C}
 
 
 def _robot(names: str = "AB", base: iwr.Robot | None = None) -> iwr.Robot:
-    base = iwr.Robot.default() if base is None else base
-    return base.with_instrument("ballbar", {n: BARS[n] for n in names})
+    return ballbar_robot({n: BARS[n] for n in names}, base)
 
 
 @pytest.fixture(scope="module")

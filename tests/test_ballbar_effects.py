@@ -7,6 +7,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _ballbar import NOISE, ballbar_robot
 
 import iwr
 from iwr.ballbar import effects as be
@@ -18,18 +19,12 @@ from iwr.effects.builtin import STANDARD_GRAVITY
 from iwr.effects.model import predicted_readings
 from iwr.effects.tracker_study import FRESH_PAYLOADS, PAYLOADS
 
-BARS = {
-    "A": {"platform_ball": [0.0, 0.0, -60.0], "fixed_ball": [800.0, -800.0, 1500.0],
-          "range": [300.0, 700.0]},
-    "B": {"platform_ball": [100.0, 50.0, -60.0], "fixed_ball": [900.0, -200.0, 2400.0],
-          "range": [300.0, 700.0]},
-}
 #: Gravity tilted against every axis of the IWR's carriage (as tests/test_effects_carriage.py's).
 TILTED = STANDARD_GRAVITY * np.array([-0.9, 0.3, 0.3]) / np.linalg.norm([-0.9, 0.3, 0.3])
 
 
 def _robot(carriage: bool = False) -> iwr.Robot:
-    plain = iwr.Robot.default().with_instrument("ballbar", BARS)
+    plain = ballbar_robot()
     return plain.with_effects(*api.realistic(plain, carriage=carriage))
 
 
@@ -190,7 +185,7 @@ def test_one_payload_leaves_the_slides_in_the_geometry(payloads, inseparable):
     one, over every parameter and over the active ones."""
     from iwr.effects.carriage import CarriageCompliance
 
-    plain = iwr.Robot.default().with_instrument("ballbar", BARS)
+    plain = ballbar_robot()
     # At the file's compliances 0 (as the pose data's test): the rank then has no directions
     # that only the loads fix.
     robot = plain.with_effects(CarriageCompliance(400.0, [20.0, -10.0, 150.0], 120.0,
@@ -211,10 +206,6 @@ def test_one_payload_leaves_the_slides_in_the_geometry(payloads, inseparable):
         s = np.linalg.svd(scaled[:, cols], compute_uv=False)
         assert int(np.sum(s > 1e-7 * s[0])) == (report.rank if cols.all() else cols.sum())
     assert not [n for n in inseparable if report.active[problem.parameter_names.index(n)]]
-
-
-NOISE = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6),
-         iwr.ballbar.BallbarNoise(0.001))
 
 
 @pytest.fixture(scope="module")

@@ -15,28 +15,23 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _ballbar import NOISE, ballbar_robot, with_offset
 
 import iwr
 from iwr import _core, kinds
-from iwr.ballbar import BallbarNoise, write_ballbar
 from iwr.ballbar import effects as be
+from iwr.ballbar import write_ballbar
 from iwr.effects import api
 from iwr.effects import parameter_names as effect_names
 from iwr.effects.tracker_study import PAYLOADS
 from iwr.problem_file import read_problem
 
-BARS = {
-    "A": {"platform_ball": [0.0, 0.0, -60.0], "fixed_ball": [800.0, -800.0, 1500.0],
-          "range": [300.0, 700.0]},
-    "B": {"platform_ball": [100.0, 50.0, -60.0], "fixed_ball": [900.0, -200.0, 2400.0],
-          "range": [300.0, 700.0], "offset": 0.3},
-}
-NOISE = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), BallbarNoise(0.001))
+BARS = with_offset(0.3)
 BIN = Path(sys.executable).parent
 
 
 def _robot(carriage: bool) -> iwr.Robot:
-    plain = iwr.Robot.default().with_instrument("ballbar", BARS)
+    plain = ballbar_robot(BARS)
     return plain.with_effects(*api.realistic(plain, carriage=carriage))
 
 
@@ -251,7 +246,6 @@ def test_compare_methods_draws_and_identifies_the_effects() -> None:
     assert run["status"] == "ok", run["message"]
     assert len(run["x"]) == len(names) and np.isfinite(run["val_rms"])
     # The effects' draws come after the geometric errors': those are the same with or without.
-    plain = Scenario(80, None, kind="near").truth(iwr.Robot.default().with_instrument("ballbar",
-                                                                                      BARS))
+    plain = Scenario(80, None, kind="near").truth(ballbar_robot(BARS))
     assert plain.size == ng + 14
     np.testing.assert_array_equal(plain[:ng], truth[:ng])

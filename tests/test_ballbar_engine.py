@@ -14,26 +14,22 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _ballbar import NOISE, ballbar_robot, with_offset
 
 import iwr
 from iwr import _core, kinds
-from iwr.ballbar import BallbarNoise, BallbarProblem
+from iwr.ballbar import BallbarProblem
 from iwr.ballbar.api import ballbar_problem, weighted_problem
 from iwr.problem_file import engine_result, read_problem
 
-SETUPS = {
-    "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
-    "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400],
-          "range": [300, 700], "offset": 0.3},
-}
-NOISE = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), BallbarNoise(0.001))
+SETUPS = with_offset(0.3)
 BIN = Path(sys.executable).parent
 
 
 @pytest.fixture(scope="module")
 def case() -> tuple[iwr.Robot, object, np.ndarray]:
     """Two set-ups, 24 noisy poses, the truth."""
-    robot = iwr.Robot.default().with_instrument("ballbar", SETUPS)
+    robot = ballbar_robot(SETUPS)
     data, truth = iwr.simulate(robot, 24, seed=3, noise=NOISE)
     return robot, data, truth
 
@@ -140,7 +136,7 @@ def test_the_data_fingerprint_ignores_the_order_of_the_set_ups(case) -> None:
     file listing its set-ups in another order; a moved reading changes it."""
     robot, data, _ = case
     kind = kinds.of(data)
-    swapped = iwr.Robot.default().with_instrument("ballbar", dict(reversed(SETUPS.items())))
+    swapped = ballbar_robot(dict(reversed(SETUPS.items())))
     assert kind.fingerprint(swapped, data) == kind.fingerprint(robot, data)
     moved = iwr.ballbar.BallbarMeasurements(data.q, data.legs, data.setup,
                                             data.distance + np.eye(len(data))[4] * 1e-6,

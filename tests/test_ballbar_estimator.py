@@ -10,6 +10,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from _ballbar import NOISE, READINGS, ballbar_robot
 
 import iwr
 from iwr import kinds
@@ -19,19 +20,10 @@ from iwr.estimation import summary
 from iwr.result import pose_key
 from iwr.transforms import pose_from_matrix
 
-BARS = {
-    "A": {"platform_ball": [0.0, 0.0, -60.0], "fixed_ball": [800.0, -800.0, 1500.0],
-          "range": [300.0, 700.0]},
-    "B": {"platform_ball": [100.0, 50.0, -60.0], "fixed_ball": [900.0, -200.0, 2400.0],
-          "range": [300.0, 700.0]},
-}
-READINGS = iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6)
-NOISE = (READINGS, BallbarNoise(0.001))
-
 
 @pytest.fixture(scope="module")
 def sim() -> tuple[iwr.Robot, BallbarMeasurements, np.ndarray]:
-    robot = iwr.Robot.default().with_instrument("ballbar", BARS)
+    robot = ballbar_robot()
     data, truth = iwr.simulate(robot, 160, seed=3)
     return robot, data, truth
 
@@ -256,7 +248,7 @@ def test_compare_runs_the_efficient_estimator_on_a_ballbar_robot():
     parameter error modulo the null directions, all finite and at the noise's scale."""
     from iwr.experiments.compare import compare_methods
 
-    robot = iwr.Robot.default().with_instrument("ballbar", BARS)
+    robot = ballbar_robot()
     out = compare_methods(robot, 120, "realistic", seeds=[0], methods=["lm", "efficient"],
                           start="near", budget=2000, out=None, n_validation=60, progress=False)
     assert {r["method"] for r in out.runs} == {"lm", "efficient"}

@@ -14,6 +14,7 @@ from __future__ import annotations
 import fcntl
 import json
 import os
+import re
 import resource
 import shlex
 import shutil
@@ -73,9 +74,10 @@ def run_engine(*args: object, env: dict[str, str] | None = None,
                           timeout=timeout, check=False, env=env)
 
 
-def run_cal(*args: object, timeout: float = 120) -> subprocess.CompletedProcess[str]:
+def run_cal(*args: object, timeout: float = 120,
+            cwd: Path | None = None) -> subprocess.CompletedProcess[str]:
     return subprocess.run([LAUNCHER, *map(str, args)], capture_output=True, text=True,
-                          timeout=timeout, check=False)
+                          timeout=timeout, check=False, cwd=cwd)
 
 
 def one_line_error(proc: subprocess.CompletedProcess[str], prog: str = "iwr-engine") -> str:
@@ -500,6 +502,69 @@ def test_a_result_that_is_not_finite_is_never_a_success_and_loads(tmp_path: Path
 
 
 # --- the launcher ------------------------------------------------------------------------------
+
+
+def test_a_run_at_its_limit_says_how_to_go_on_and_that_works(files: dict[str, Path],
+                                                              tmp_path: Path) -> None:
+    """DE has no convergence test by default: a run of iwr-calibrate ends at its generation
+    limit, "not converged" in the report (its message). The launcher says how far the population
+    still moved over the last tenth of the run, and the command that goes on from where it
+    stopped with ten times the generations, on standard error and in the result's message; that
+    command, run in a shell, gives the run of that many generations made at once."""
+    args = [files["robot"], files["data"], *COMMON, "--threads", 1]
+    short = run_cal(*args, "--generations", 30, "--output", tmp_path / "short.json", cwd=tmp_path)
+    assert short.returncode == 0, short.stderr
+    lines = [ln for ln in short.stderr.splitlines() if "run it longer" in ln]
+    assert len(lines) == 1, short.stderr
+    assert re.search(r"over its last 3 generations the population's mean cost fell [-0-9.e+]+ % "
+                     r"and the best [-0-9.e+]+ %; run it longer, from where it stopped: ", lines[0])
+    command = lines[0].split("from where it stopped: ", 1)[1]
+    assert command.endswith(f"--resume {tmp_path / 'short.json.ckpt'} --generations 300")
+    result = iwr.load_result(tmp_path / "short.json")
+    assert result.status == "stopped" and result.message.endswith(command)
+    env = {**os.environ, "PATH": f"{Path(LAUNCHER).parent}{os.pathsep}{os.environ['PATH']}"}
+    longer = subprocess.run(command, shell=True, cwd=tmp_path, env=env, capture_output=True,
+                            text=True, timeout=120, check=False)
+    assert longer.returncode == 0, longer.stderr
+    whole = run_cal(*args, "--generations", 300, "--output", tmp_path / "whole.json", "--quiet")
+    assert whole.returncode == 0 and whole.stderr == "", whole.stderr  # --quiet: no hint
+    _same_run(iwr.load_result(tmp_path / "short.json"), iwr.load_result(tmp_path / "whole.json"))
+    assert "--generations 3000" in iwr.load_result(tmp_path / "whole.json").message
+    # A run that converged (its target reached) is told nothing.
+    done = run_cal(*args, "--generations", 300, "--target-cost", 1e9, "--output",
+                   tmp_path / "done.json")
+    assert done.returncode == 0 and "run it longer" not in done.stderr, done.stderr
+    assert iwr.load_result(tmp_path / "done.json").success
+
+
+@pytest.mark.parametrize("strategy, mean_end, want", [
+    ("rand1bin", 0.95, "fell 5 % and the best 0.9 %; run it longer, from where it stopped: "
+                       "CMD --generations 2000"),
+    ("rand1bin", 0.9995, "fell 0.05 % and the best 0.9 % (it has all but settled: more "
+                         "generations will change the cost little); run it longer, from where "
+                         "it stopped: CMD --generations 400"),
+    ("jso", 0.95, "fell 5 % and the best 0.9 %; jso plans its schedules over its budget: run it "
+                  "again with a larger one (e.g. --max-evaluations 2000)"),
+])
+def test_the_advice_follows_the_runs_last_tenth(strategy, mean_end, want) -> None:
+    """How far the population still moved over its last tenth sets the advice: ten times the
+    generations while it moves (1 % or more), twice once it has settled; lshade and jso get a
+    new run with a larger budget. A converged run gets none."""
+    from iwr.cli.calibrate_exe import longer_run
+
+    g = np.arange(201.0)
+    mean = np.where(g <= 180, 1.0, 1.0 - (1.0 - mean_end) * (g - 180) / 20)
+    best = np.where(g <= 180, 0.5, 0.5 * (1.0 - 0.009 * (g - 180) / 20))
+    stopped = iwr.IdentificationResult(
+        x=np.zeros(2), fun=best[-1], nfev=200, nit=200, success=False, status="stopped",
+        message="the maximum number of generations (200) was reached",
+        history={"generation": g, "nfev": g, "best": best, "mean": mean},
+        settings={"strategy": strategy, "max_evaluations": 200 if strategy == "jso" else None})
+    text = longer_run(stopped, "CMD")
+    assert text.startswith("over its last 20 generations the population's mean cost ")
+    assert text.endswith(want), text
+    stopped["status"], stopped["success"] = "converged", True
+    assert longer_run(stopped, "CMD") == ""
 
 
 def test_launcher_result_matches_identify(files: dict[str, Path]) -> None:

@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 import pytest
+from _ballbar import NOISE, ballbar_robot
 
 import iwr
 from iwr import kinds
@@ -122,14 +123,6 @@ def test_calibrate_checks_its_arguments(job):
         iwr.calibrate(robot, data, "lm", validation_fraction=1.5)
 
 
-def _ballbar_robot() -> iwr.Robot:
-    return iwr.Robot.default().with_instrument("ballbar", {
-        "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
-        "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400],
-              "range": [300, 700]},
-    })
-
-
 def test_ballbar_data_through_the_job_both_commands_and_their_report(tmp_path):
     """Ballbar data (a kind added as a plug-in) go through iwr.calibrate, and through
     `iwr calibrate` and `iwr report`, whose report is the kind's (BallbarCalibrationReport): the
@@ -140,11 +133,11 @@ def test_ballbar_data_through_the_job_both_commands_and_their_report(tmp_path):
     import subprocess
     import sys
 
-    from iwr.ballbar import BallbarNoise, ballbar_problem
+    from iwr.ballbar import ballbar_problem
     from iwr.reporting.ballbar_calibration import BallbarCalibrationReport
 
-    robot = _ballbar_robot()
-    noise = (iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6), BallbarNoise(0.001))
+    robot = ballbar_robot()
+    noise = NOISE
     data, _ = iwr.simulate(robot, 150, seed=5, noise=noise)
     cal = iwr.calibrate(robot, data, "lm", seed=1)
     before, after, sentence, what = cal.improvement()

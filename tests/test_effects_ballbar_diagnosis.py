@@ -15,10 +15,11 @@ import math
 
 import numpy as np
 import pytest
+from _ballbar import NOISE, READINGS, ballbar_robot
 
 import iwr
 from iwr import kinds
-from iwr.ballbar import BallbarMeasurements, BallbarNoise
+from iwr.ballbar import BallbarMeasurements
 from iwr.ballbar import effects as be
 from iwr.effects import api, tracker_study
 from iwr.effects import tracker as et
@@ -29,20 +30,11 @@ from iwr.effects.model import predicted_readings
 from iwr.effects.tracker_diagnosis import candidate_effects
 from iwr.reporting.calibration import render
 
-BARS = {
-    "A": {"platform_ball": [0.0, 0.0, -60.0], "fixed_ball": [800.0, -800.0, 1500.0],
-          "range": [300.0, 700.0]},
-    "B": {"platform_ball": [100.0, 50.0, -60.0], "fixed_ball": [900.0, -200.0, 2400.0],
-          "range": [300.0, 700.0]},
-}
-READINGS = iwr.Noise(legs=0.002, joint_lengths=0.005, joint_angles=5e-6)
-NOISE = (READINGS, BallbarNoise(0.001))
-
 
 def _plain(kind: str) -> iwr.Robot:
     robot = iwr.Robot.default()
     if kind == "ballbar":
-        return robot.with_instrument("ballbar", BARS)
+        return ballbar_robot(base=robot)
     if kind == "points":
         return robot.with_tracker(registration=(2000.0, -150.0, 300.0, 1.5, 0.01, -0.02),
                                   reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),

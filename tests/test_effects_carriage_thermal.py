@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from _ballbar import ballbar_robot, with_offset
 
 import iwr
 from iwr import effects
@@ -232,11 +233,7 @@ def test_ballbar_cpp_agrees_with_the_numpy_model():
     ones, and LM on noise-free data recovers the slides' coefficient."""
     from iwr.ballbar import effects as be
 
-    bars = {"A": {"platform_ball": [0.0, 0.0, -60.0], "fixed_ball": [800.0, -800.0, 1500.0],
-                  "range": [300.0, 700.0]},
-            "B": {"platform_ball": [100.0, 50.0, -60.0], "fixed_ball": [900.0, -200.0, 2400.0],
-                  "range": [300.0, 700.0], "offset": 0.3}}
-    plain = iwr.Robot.default().with_instrument("ballbar", bars)
+    plain = ballbar_robot(with_offset(0.3))
     robot = plain.with_effects(LegThermal(11.5, 20.0),
                                CarriageThermal(11.5, 20.0, identify=True, per_joint=True))
     data, truth = be.simulate(robot, 14, seed=3)

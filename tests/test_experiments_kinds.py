@@ -198,6 +198,37 @@ def test_a_noise_level_scales_the_instruments_noise(robots):
     assert len(data) == 10
 
 
+@pytest.mark.parametrize("name, instrument", [("ballbar", "the bar"),
+                                              ("points", "the tracker")])
+def test_noisy_readings_without_a_level_do_not_make_the_instrument_exact(
+        robots, tmp_path, capsys, name, instrument):
+    """``iwr compare --noise legs=...`` on ballbar data made the bar exact (no bar noise) without
+    a word, on tracker data the tracker: ``position`` is the instrument's noise level there
+    (--help), so noisy readings without it are refused, naming the key and the instrument; with
+    it the instrument has its noise, named after it in the settings."""
+    robot = robots(name)
+    k = kinds.for_robot(robot)
+    with pytest.raises(ValueError, match=f"without position.*{instrument} exact"):
+        k.experiment_noise(robot, iwr.Noise(legs=0.002, joint_lengths=0.005))
+    assert k.experiment_noise(robot, iwr.Noise())[1].is_zero  # noise-free: both exact
+    robot.to_toml(tmp_path / "robot.toml")
+    args = ["compare", "--robot", str(tmp_path / "robot.toml"), "--poses", "70", "--seeds", "0",
+            "--methods", "lm", "--budget", "60", "--start", "near", "--validation-poses", "5",
+            "--no-progress", "-o", str(tmp_path / "c")]
+    assert cli_main([*args, "--noise", "legs=0.002"]) == 1
+    err = capsys.readouterr().err
+    assert "iwr compare: error: noise: legs=0.002 without position" in err and instrument in err
+    assert not (tmp_path / "c").exists()
+    assert cli_main([*args, "--noise", "legs=0.002,position=0.01"]) == 0, capsys.readouterr().err
+    noise = json.loads((tmp_path / "c" / "results.json").read_text())["settings"]["noise"]
+    model = noise["ballbar" if name == "ballbar" else "tracker"]
+    if name == "ballbar":
+        assert model == {"distance": pytest.approx(0.0005)}
+    else:
+        assert model["transverse"] == pytest.approx(0.5 * TrackerNoise.leica().transverse)
+    assert noise["readings"]["legs"] == 0.002
+
+
 def test_cli_compare_and_study_on_the_tracker_example(tmp_path, capsys):
     code = cli_main(["compare", "--robot", str(TRACKER_TOML), "--poses", "10", "--seeds", "0",
                      "--methods", "lm,bobyqa", "--budget", "60", "--start", "near",

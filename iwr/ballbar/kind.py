@@ -166,11 +166,14 @@ class BallbarKind(MeasurementKind):
         :func:`iwr.experiments.harness.noise_at`) keeps its leg and joint noise, and its
         ``position`` sets the bar's: :class:`BallbarNoise`'s default scaled by ``position / 0.02``
         (``Noise.realistic().position``), so that the realistic level is the bar's 1 um; a pair or
-        a :class:`BallbarNoise` as it is. (As it was, every noisy run of a study was refused.)"""
+        a :class:`BallbarNoise` as it is. (As it was, every noisy run of a study was refused.)
+        Noisy readings with ``position`` 0 are refused (:func:`iwr.noise.instrument_level`): the
+        bar would be exact."""
         if not isinstance(noise, Noise):
             split_noise(noise)  # its types checked
             return noise
-        readings, scale = instrument_level(noise)
+        readings, scale = instrument_level(noise, "the bar",
+                                           f"its {BallbarNoise().distance * 1000:g} um")
         return readings, BallbarNoise(BallbarNoise().distance * scale)
 
     def noise_record(self, noise: Any) -> dict[str, Any]:

@@ -208,17 +208,72 @@ def _lock_checkpoint(checkpoint: str, kind: str = "lock", holder: str = ENGINE) 
 
 
 def _export(checkpoint: str, problem: str | None, output: str,
-            objective: dict[str, Any] | None = None) -> None:
+            objective: dict[str, Any] | None = None, resume: str | None = None) -> str:
     """The engine's result written to ``output``; ``objective``: the noise model of a weighted
     run (``--noise``), recorded as :func:`iwr.identify` records its own (the settings'
     ``objective``), so that ``iwr report`` tests the run's gross errors, its fit and its
-    uncertainty under it."""
+    uncertainty under it. ``resume``: the command that continues the run, for a run that ended
+    at its generation or evaluation limit (:func:`longer_run`, appended to the result's message
+    and returned; else "")."""
     from ..problem_file import engine_result
 
     result = engine_result(checkpoint, problem)
     if objective is not None:
         result["settings"] = {**dict(result.settings), "objective": objective}
+    hint = longer_run(result, resume) if resume is not None else ""
+    if hint:
+        result["message"] = f"{result.message}; {hint}"
     result.save(output)
+    return hint
+
+
+#: A run whose population's mean or best cost fell by at least this much (%) over its last
+#: tenth is still moving: :func:`longer_run` offers ten times its generations, else twice.
+MOVING_PERCENT = 1.0
+#: Strategies whose population and parameter schedules run to the evaluation budget: a longer
+#: run of theirs is a new run with a larger budget, not a resumed one.
+_BUDGETED = ("lshade", "jso")
+
+
+def longer_run(result: Any, resume: str) -> str:
+    """For a run that ended at its generation or evaluation limit (status ``stopped``, no
+    signal: DE has no convergence test by default, so every run without ``--target-cost``
+    ends so), what to change: how much the population's mean cost and the best cost fell over
+    the last tenth of the run, and the command that goes on exactly where it stopped with ten
+    times the generations, twice when neither fell by :data:`MOVING_PERCENT` (``resume`` plus
+    ``--generations``; the evaluations for a limit by ``--max-evaluations``), or for lshade and
+    jso, whose schedules end at their budget, a new run with a larger one. "" otherwise."""
+
+    settings = dict(result.settings)
+    if result.status != "stopped" or "reached" not in str(result.message):
+        return ""  # a signal (the engine gave its resume command), a failure, a success
+    history = {k: np.asarray(result.history.get(k, []), dtype=float)
+               for k in ("generation", "best", "mean")}
+    trend, factor = "", 10
+    if len({v.size for v in history.values()}) == 1 and history["best"].size > 10:
+        # The mean too: rand/1/bin's best can stand still for generations while its
+        # population closes in.
+        back = (history["best"].size - 1) // 10
+        fell = {k: 100 * (v[-1 - back] - v[-1]) / v[-1 - back] for k, v in history.items()
+                if k != "generation" and np.isfinite(v[-1]) and np.isfinite(v[-1 - back])
+                and v[-1 - back] > 0}
+        if len(fell) == 2:
+            span = int(history["generation"][-1] - history["generation"][-1 - back])
+            moving = max(fell.values()) >= MOVING_PERCENT
+            factor = 10 if moving else 2
+            trend = (f"over its last {span} generations the population's mean cost fell "
+                     f"{fell['mean']:.2g} % and the best {fell['best']:.2g} %"
+                     + ("; " if moving else " (it has all but settled: more generations "
+                        "will change the cost little); "))
+    if settings.get("strategy") in _BUDGETED:
+        budget = settings.get("max_evaluations") or result.nfev
+        return (f"{trend}{settings['strategy']} plans its schedules over its budget: run it "
+                f"again with a larger one (e.g. --max-evaluations {factor * int(budget)})")
+    by_evaluations = "evaluations" in str(result.message)
+    more = (f"--max-evaluations {factor * int(result.nfev)}" if by_evaluations
+            else f"--generations {factor * int(result.nit)}")
+    return (f"{trend}run it longer, from where it stopped: {resume} {more}" if resume
+            else f"{trend}run it longer ({more})")
 
 
 def _same_value(a: Any, b: Any) -> bool:
@@ -518,8 +573,13 @@ def _launch(engine: str, positional: list[str], own: dict[str, str], engine_args
                                 "--resume-command", hint])
     if code in (EXIT_OK, 128 + signal.SIGHUP, 128 + signal.SIGINT, 128 + signal.SIGTERM) and \
             Path(checkpoint).is_file():
-        _export(checkpoint, problem_path, output, objective)
+        # A run that reached its limit: the result says how to go on (a signal's resume
+        # command is the engine's own message).
+        longer = _export(checkpoint, problem_path, output, objective,
+                         hint if code == EXIT_OK else None)
         if "--quiet" not in flags and "-q" not in flags:
+            if longer:
+                print(f"{PROG}: {longer}", file=sys.stderr)
             print(f"{PROG}: result in {output}", file=sys.stderr)
     return code
 

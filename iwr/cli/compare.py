@@ -84,10 +84,14 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
                    help="measurement poses per identification (default: %(default)s)")
     p.add_argument("--noise", default=None,
                    help="'none', 'realistic' or key=value pairs, e.g. "
-                        "'legs=0.002,position=0.02' (mm, rad); for a robot with a tracker, "
-                        "position scales the tracker's noise (TrackerNoise.leica() x position / "
-                        "0.02); default: the --robot file's [noise] (and [tracker.noise]) table, "
-                        "else 'realistic'")
+                        "'legs=0.002,position=0.02' (mm, rad). Pose data: each key the sd of "
+                        "its reading. A robot with a tracker or a ballbar: legs and joint_* are "
+                        "the readings' sd, and position the instrument's noise level, scaling "
+                        "its realistic noise by position / 0.02 (the tracker's "
+                        "TrackerNoise.leica(), the bar's 1 um; orientation is not used); noisy "
+                        "readings without position are refused (the instrument would be exact). "
+                        "Default: the --robot file's [noise] (and [tracker.noise]) table, else "
+                        "'realistic'")
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)),
                    help="seeds, '0,1,2' or '0..4' (default: %(default)s)")
     p.add_argument("--methods", default=None, help=LazyHelp(lambda: (

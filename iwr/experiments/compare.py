@@ -395,12 +395,16 @@ def compare_methods(
 
 def _noise_settings(noise: Any) -> dict[str, Any]:
     """The noise model as the settings say it: an iwr.Noise's fields, or a pair's as
-    ``{"readings": {...}, "tracker": {...}}``, with ``legs`` (the leg sigma) on top."""
+    ``{"readings": {...}, "tracker": {...}}`` (``"ballbar"`` for a bar's: the instrument named
+    after its noise class, as :func:`iwr.cli.robot_noise.describe` names it; a ballbar's report
+    said "tracker"), with ``legs`` (the leg sigma) on top."""
     import dataclasses
 
     if isinstance(noise, tuple):
         readings, other = (dataclasses.asdict(p) if p is not None else {} for p in noise)
-        return {"legs": leg_sigma(noise), "readings": readings, "tracker": other}
+        name = ("tracker" if noise[1] is None
+                else type(noise[1]).__name__.removesuffix("Noise").lower())
+        return {"legs": leg_sigma(noise), "readings": readings, name: other}
     return {k: getattr(noise, k) for k in
             ("legs", "joint_lengths", "joint_angles", "position", "orientation")}
 

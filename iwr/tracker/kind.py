@@ -199,7 +199,7 @@ class _TrackerKind(MeasurementKind):
         if not isinstance(noise, Noise):
             raise TypeError(f"noise: expected an iwr.Noise or a pair (iwr.Noise, "
                             f"iwr.tracker.TrackerNoise), got {type(noise).__name__}")
-        readings, scale = instrument_level(noise)
+        readings, scale = instrument_level(noise, "the tracker", "TrackerNoise.leica()")
         leica = TrackerNoise.leica()
         tracker = TrackerNoise(**{k: v * scale for k, v in asdict(leica).items()})
         return readings, tracker
