@@ -325,7 +325,8 @@ def test_the_loads_are_named_where_neither_compliance_alone_shows(robot, truth, 
         if d.loads_only:
             assert d.suggested == ["compliance", "carriage_compliance"]
             head = d.lines()[0]
-            assert "the loads (payload)" in head and "cannot tell which" in head
+            assert "the loads (payload) through" in head
+            assert "(these data cannot tell which)" in head
             assert "switch on [effects.compliance], [effects.carriage_compliance]" in head
             assert d.to_dict()["loads"]["significant"] is True
             path = tmp_path / f"robot{seed}.toml"

@@ -74,7 +74,13 @@ void bind_tracker(py::module_& m) {
         .def("cost_batch", &PyTrackerObjective::cost_batch,
             py::arg("X"), py::arg("threads") = 0)
         .def("set_whitening",
-             [](PyTrackerObjective& o, const RowMatrixXd& whitening) { o.obj_->set_whitening(whitening); },
+             [](PyTrackerObjective& o, const RowMatrixXd& whitening) {
+                 // Copy on write: a DE run (iwr._core.de_kernel, the GIL released) may be reading
+                 // the current object through its own shared_ptr; it keeps that one.
+                 auto next = std::make_shared<TrackerObjective>(*o.obj_);
+                 next->set_whitening(whitening);
+                 o.obj_ = std::move(next);
+             },
              py::arg("whitening"),
              "Whiten the residuals (and the cost, the Jacobian) per pose: (N, m^2), each row a\n"
              "row-major lower-triangular m x m matrix, m = 3 n_points; an empty array: unweighted.");

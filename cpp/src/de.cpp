@@ -19,7 +19,9 @@
 // for AVX-512 and AVX2 as well as the x86-64 baseline, the widest the CPU runs picked when the
 // library loads (GCC's target_clones): separate multiplies and adds (-ffp-contract=off), so the
 // same values whatever the instruction set, in wider registers.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__)
+// glibc only: target_clones needs ifunc, which musl does not have.
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && \
+    defined(__GLIBC__)
 #define IWR_DE_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 #define IWR_DE_INLINE __attribute__((always_inline)) inline
 #else

@@ -186,8 +186,8 @@ _MECHANISM = {
 _CAUSE = {"compliance": "the leg forces (payload)", "thermal": "the legs' temperatures",
           "carriage_compliance": "the carriage joints' gravity loads (payload)",
           "carriage_thermal": "the slides' travel times the machine's temperature",
-          "loads": "the loads (payload), through the legs' or the carriage's compliance: these "
-                   "data cannot tell which"}
+          "loads": "the loads (payload) through the legs' or the carriage's compliance (these "
+                   "data cannot tell which)"}
 
 
 def _and(items: list[str]) -> str:
