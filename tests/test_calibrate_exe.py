@@ -567,6 +567,23 @@ def test_the_advice_follows_the_runs_last_tenth(strategy, mean_end, want) -> Non
     assert longer_run(stopped, "CMD") == ""
 
 
+def test_the_advice_raises_both_limits_of_a_run_that_had_both() -> None:
+    """A resumed run keeps the checkpoint's limits: a run stopped at its generations with an
+    evaluation cap too is told to raise both, or the continued run would stop at the cap."""
+    from iwr.cli.calibrate_exe import longer_run
+
+    g = np.arange(201.0)
+    res = iwr.IdentificationResult(
+        x=np.zeros(2), fun=0.5, nfev=4000, nit=200, success=False, status="stopped",
+        message="the maximum number of generations (200) was reached",
+        history={"generation": g, "nfev": 20 * g, "best": 1.0 - 0.001 * g,
+                 "mean": 2.0 - 0.001 * g},
+        settings={"strategy": "rand1bin", "generations": 200, "max_evaluations": 4100})
+    assert longer_run(res, "CMD").endswith("CMD --generations 2000 --max-evaluations 40000")
+    res["message"] = "the maximum number of evaluations (4100) was reached"
+    assert longer_run(res, "CMD").endswith("CMD --max-evaluations 40000 --generations 2000")
+
+
 def test_launcher_result_matches_identify(files: dict[str, Path]) -> None:
     d = files["dir"]
     robot = iwr.Robot.from_toml(files["robot"])

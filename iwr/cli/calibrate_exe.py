@@ -272,6 +272,11 @@ def longer_run(result: Any, resume: str) -> str:
     by_evaluations = "evaluations" in str(result.message)
     more = (f"--max-evaluations {factor * int(result.nfev)}" if by_evaluations
             else f"--generations {factor * int(result.nit)}")
+    # A resumed run keeps the checkpoint's other limit: raise it too, or the run stops at once.
+    if by_evaluations and settings.get("generations"):
+        more += f" --generations {factor * int(result.nit)}"
+    elif not by_evaluations and settings.get("max_evaluations"):
+        more += f" --max-evaluations {factor * int(result.nfev)}"
     return (f"{trend}run it longer, from where it stopped: {resume} {more}" if resume
             else f"{trend}run it longer ({more})")
 
