@@ -16,14 +16,15 @@ What is timed (per build, per kernel variant forced with ``iwr._core._select_ker
   rounds over every variant (and objective) for at least ``--seconds`` (default 20 s), the builds
   alternated, a call during which the thread was switched out taken again (``spread()`` says
   why: a variant's repetitions in a row made the tables bimodal on a shared machine). "of the
-  floor": N x 370 flops (issue 24's floor: the kernel's count before the carriage was folded;
-  it does 328 since) at the peak of one core measured with the same instruction set and separate
-  multiplies and adds (``_bench.measure_peak_gflops``), divided by the time. ``--objectives`` adds the weighted leg objective (a weight per leg reading: 376
-  flops a pose), the whitened one (``noise=Noise.realistic()``: 406), the tracker point
-  objective (``TrackerProblem``, K = 3 reflectors, N = 100 poses of ``simulate_tracker``, seed 1:
-  FLOPS_TRACKER a pose, see there) and the same weighted by the readings' and the tracker's noise
-  (``noise=(Noise(...), TrackerNoise.leica())``: FLOPS_TRACKER + 81); a build without one of
-  them (``aa02662`` has neither the weights nor the tracker) prints "n/a".
+  floor": N x 370 flops (issue 24's floor: the kernel's count before the carriage was folded; it
+  does 328 since) at the peak of one core measured with the same instruction set and separate
+  multiplies and adds (``_bench.measure_peak_gflops``), divided by the time. ``--objectives`` adds
+  the weighted leg objective (a weight per leg reading: 376 flops a pose), the whitened one
+  (``noise=Noise.realistic()``: 406), the tracker point objective (``TrackerProblem``, K = 3
+  reflectors, N = 100 poses of ``simulate_tracker``, seed 1: FLOPS_TRACKER a pose, see there) and
+  the same weighted by the readings' and the tracker's noise (``noise=(Noise(...),
+  TrackerNoise.leica())``: FLOPS_TRACKER + 81); a build without one of them (``aa02662`` has
+  neither the weights nor the tracker) prints "n/a".
 - batch: ``Problem.cost_batch(X, workers=T)`` of the same 600 vectors on T threads, wall time, the
   minimum: what one DE generation's objective costs on T threads.
 - DE: ``iwr.identify(method="de", population_size=600, F=0.9, CR=1, seed=1, workers=T,
