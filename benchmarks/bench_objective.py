@@ -23,17 +23,22 @@ from /proc/stat): a figure measured beside a busy neighbour is not this code's.
 The floor
 ---------
 Flops per pose of iwr's kernel, counted from its source (``cpp/src/objective_kernel_body.inl``), for
-the IWR's PPRR carriage (every + - * / sqrt counts 1):
-  prismatic prefix: 6 per joint (position += q z)                                   2 x 6  =  12
-  revolute joint: 6 (angle-sum cos/sin) + 3 rows x 16 (T <- T A_i)                   2 x 54 = 108
-  platform pose in {4}: p5 - p4 (3), M = R4^T R5 (45), w = R4^T (p5 - p4) (15)               63
+the IWR's PPRR carriage, folded into per-evaluation constants (``carriage_folded``: every + - * /
+sqrt counts 1, an FMA 2):
+  rotation after the first revolute joint, S = s0 + c s1 + s s2: 9 x 2 FMAs              36
+  R' = S Rz(q2): 3 rows x (2 multiplies + 2 FMAs)                                         18
+  position p' = p0 + sum q_i z_i + c pc + s ps: 3 rows x 4 FMAs                           24
+  platform pose in {4'}: p5 - p' (3), M = R'^T R5 (45), w = R'^T (p5 - p') (15)             63
   each leg: v = M b + (w - a) (21), |v|^2 (5), sqrt (1), - l0 - s (2), r^2, sum (2)  6 x 31 = 186
   lane sum                                                                                    1
-  total                                                                                     370
-(+1 per leg when weighted; a generic prismatic joint after a revolute one costs 49). The
-per-evaluation set-up (sin/cos of the 8 DH angles by a series, the prefix rotation, ~300 flops) is
-not counted.
-The floor is N x 370 flops at the measured peak of one core with the same instruction set and the
+  total                                                                                     328
+(+1 per leg when weighted). Before the folding (issue 24's floor, 37,000 flops at N = 100, which
+``bench_regression.py`` keeps) the chain joint by joint took 370: a prismatic prefix joint 6, a
+revolute joint 54 (6 for the angle-sum cos/sin, 3 rows x 16 for T <- T A_i), in place of the 78
+above; other carriages still run that chain (a generic prismatic joint after a revolute one
+costs 49). The per-evaluation set-up (sin/cos of the 8 DH angles by a series, the prefix
+rotation, the folded constants, ~450 flops) is not counted.
+The floor is N x 328 flops at the measured peak of one core with the same instruction set and the
 same operations (separate multiplies and adds: the kernel does not fuse them, so that every
 instruction set gives the same bits); the FMA peak is shown too.
 
@@ -114,11 +119,15 @@ def machine_info() -> dict:
 
 
 def flops_per_pose(joint_types: str, weighted: bool) -> int:
-    """Flops of the kernel per pose (see the module docstring)."""
+    """Flops of the kernel per pose (see the module docstring): a prismatic prefix then two
+    revolute joints folded, any other carriage joint by joint."""
     n_prefix = len(joint_types) - len(joint_types.lstrip("P"))
-    f = 6 * n_prefix
-    for c in joint_types[n_prefix:]:
-        f += 54 if c == "R" else 49
+    if joint_types[n_prefix:] == "RR":
+        f = 36 + 18 + 3 * 2 * (n_prefix + 2)
+    else:
+        f = 6 * n_prefix
+        for c in joint_types[n_prefix:]:
+            f += 54 if c == "R" else 49
     return f + 63 + 6 * (31 + (1 if weighted else 0)) + 1
 
 

@@ -289,7 +289,9 @@ def engine_result(checkpoint: str | os.PathLike[str],
             settings["weighting"] = p["weighting"][0]
     settings.update(
         lower=c["lower"].tolist(), upper=c["upper"].tolist(), generations=c["generations"],
-        max_evaluations=c["max_evaluations"], target_cost=c["target_cost"], preset=c["preset"],
+        max_evaluations=c["max_evaluations"], target_cost=c["target_cost"], tol=c["tol"],
+        atol=c["atol"], stagnation_generations=c["stagnation_generations"],
+        stagnation_tol=c["stagnation_tol"], preset=c["preset"],
         checkpoint=os.fspath(checkpoint), checkpoint_every=c["checkpoint_every"],
         resumed_from=c["resumed_from"], problem=c["problem_file"],
         robot_fingerprint=c["robot_fingerprint"], data_fingerprint=c["data_fingerprint"],

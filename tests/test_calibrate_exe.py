@@ -621,6 +621,60 @@ def test_launcher_result_matches_identify(files: dict[str, Path]) -> None:
     _same_run(iwr.load_result(d / "cmp2.json"), exe)
 
 
+STOP_RULES = [
+    {"tol": 0.2},  # SciPy's test: std(costs) <= atol + tol |mean(costs)|
+    {"stagnation_generations": 20, "stagnation_tol": 1e-3},
+]
+
+
+@pytest.mark.parametrize("rule", STOP_RULES, ids=["tol", "stagnation"])
+def test_the_engine_stops_by_identify_s_convergence_tests(files: dict[str, Path], tmp_path: Path,
+                                                          rule: dict) -> None:
+    """--tol/--atol and --stagnation-generations/--stagnation-tol are iwr.identify's tests: the
+    same run, stopped at the same generation as a success; a resumed run keeps them."""
+    robot = iwr.Robot.from_toml(files["robot"])
+    m = iwr.Measurements.from_csv(files["data"])
+    common = dict(strategy="rand1bin", population_size=NP, F=0.8, CR=0.95, seed=9)
+    py = iwr.identify(robot, m, method="de", workers=1, progress=False, polish=False,
+                      generations=400, **common, **rule)
+    assert py.status == "converged" and 20 < py.nit < 400
+    opts = [a for k, v in rule.items() for a in (f"--{k.replace('_', '-')}", v)]
+    args = [a for k, v in common.items() for a in (f"--{k.replace('_', '-')}", v)]
+    proc = run_cal(files["robot"], files["data"], *args, *opts, "--generations", 400,
+                   "--threads", 2, "--output", tmp_path / "s.json", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    exe = iwr.load_result(tmp_path / "s.json")
+    assert exe.success and exe.status == "converged" and exe.message == py.message
+    np.testing.assert_array_equal(exe.x, py.x)
+    assert (exe.fun, exe.nit, exe.nfev) == (py.fun, py.nit, py.nfev)
+    for k, v in rule.items():
+        assert exe.settings[k] == v
+    # Stopped short of the test by its generations, then resumed without the options: the
+    # checkpoint's tests apply, and the run ends where the whole one did.
+    proc = run_cal(files["robot"], files["data"], *args, *opts, "--generations", 15,
+                   "--output", tmp_path / "r.json", "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    part = iwr.load_result(tmp_path / "r.json")
+    assert part.status == "stopped" and part.nit == 15
+    proc = run_cal(files["robot"], files["data"], "--resume", tmp_path / "r.json.ckpt",
+                   "--generations", 400, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    _same_run(iwr.load_result(tmp_path / "r.json"), exe)
+
+
+@pytest.mark.parametrize(("option", "value", "expected"), [
+    ("--tol", "-0.1", "--tol: -0.1 is negative"),
+    ("--atol", "nan", "--atol: nan is not finite"),
+    ("--stagnation-generations", "0", "--stagnation-generations: 0 is out of range"),
+    ("--stagnation-tol", "x", "--stagnation-tol: 'x' is not a number"),
+])
+def test_bad_stop_rules_are_refused_by_name(files: dict[str, Path], tmp_path: Path, option: str,
+                                            value: str, expected: str) -> None:
+    proc = run_cal(files["problem"], option, value, "--output", tmp_path / "b.json")
+    assert proc.returncode == 2
+    assert expected in proc.stderr, proc.stderr
+
+
 def test_launcher_paper_bounds(files: dict[str, Path], tmp_path: Path) -> None:
     proc = run_cal(files["robot"], files["data"], "--bounds", "paper", "--population-size", NP,
                    "--generations", 2, "--output", tmp_path / "p.json", "--quiet")

@@ -181,6 +181,13 @@ resuming, to extend a run):
                            10000 D), hence part of their trajectory
   --target-cost C          stop as soon as the best cost is <= C (mm^2; the paper reached 1e-4;
                            a problem weighted by a noise model: the dimensionless chi-square)
+  --tol T, --atol A        stop when the population's costs have converged: their standard
+                           deviation <= A + T |mean| (SciPy's test; default off)
+  --stagnation-generations G
+                           stop when the best cost improved by no more than --stagnation-tol
+                           times |best| (default 0: not at all) over the last G generations
+                           (default off). These and --tol end a run as a success ("converged");
+                           the options of iwr.identify(method="de") of the same names
 
 running:
   --threads T              threads evaluating the population (default 0: all the CPUs this
@@ -243,6 +250,8 @@ struct Options {
     // Stopping criteria.
     std::optional<std::int64_t> generations, max_evaluations;
     std::optional<double> target_cost;
+    std::optional<double> tol, atol, stagnation_tol;
+    std::optional<std::int64_t> stagnation_generations;
     // Running.
     std::optional<int> threads;
     std::optional<std::string> log, checkpoint, resume, resume_command;
@@ -268,6 +277,12 @@ double parse_real(const std::string& opt, const std::string& v) {
     if (v.empty() || end != v.c_str() + v.size() || v.find_first_of("xX") != std::string::npos)
         throw UsageError(opt + ": '" + v + "' is not a number");
     if (!std::isfinite(x)) throw UsageError(opt + ": " + v + " is not finite");
+    return x;
+}
+
+double parse_tolerance(const std::string& opt, const std::string& v) {
+    const double x = parse_real(opt, v);
+    if (x < 0) throw UsageError(opt + ": " + v + " is negative; expected a number >= 0");
     return x;
 }
 
@@ -306,7 +321,8 @@ Options parse_args(int argc, char** argv) {
         }
         static const char* const kValued[] = {
             "--strategy", "--population-size", "--F", "--CR", "--bound-rule", "--seed", "--preset",
-            "--generations", "--max-evaluations", "--target-cost", "--threads", "--log",
+            "--generations", "--max-evaluations", "--target-cost", "--tol", "--atol",
+            "--stagnation-generations", "--stagnation-tol", "--threads", "--log",
             "--checkpoint", "--checkpoint-every", "--resume", "--resume-command"};
         bool known = false;
         for (const char* k : kValued) known = known || name == k;
@@ -341,6 +357,11 @@ Options parse_args(int argc, char** argv) {
         } else if (name == "--generations") o.generations = parse_int(name, value, 0, INT64_MAX);
         else if (name == "--max-evaluations") o.max_evaluations = parse_int(name, value, 1, INT64_MAX);
         else if (name == "--target-cost") o.target_cost = parse_real(name, value);
+        else if (name == "--tol") o.tol = parse_tolerance(name, value);
+        else if (name == "--atol") o.atol = parse_tolerance(name, value);
+        else if (name == "--stagnation-generations")
+            o.stagnation_generations = parse_int(name, value, 1, INT64_MAX);
+        else if (name == "--stagnation-tol") o.stagnation_tol = parse_tolerance(name, value);
         else if (name == "--threads") {
             const int cap = iwr::ThreadPool::max_threads();
             const std::int64_t t = parse_int(name, value, 0, INT32_MAX);
@@ -522,6 +543,8 @@ struct RunInfo {
     int threads = 0;
     std::optional<std::int64_t> generations, max_evaluations;
     std::optional<double> target_cost;
+    double tol = 0, atol = 0, stagnation_tol = 0;
+    std::int64_t stagnation_generations = 0;
     std::string log, checkpoint, resumed_from;
     std::int64_t checkpoint_every = 0;
     std::uint64_t robot_fp = 0, data_fp = 0;
@@ -547,6 +570,10 @@ void write_checkpoint_file(const de::State& st, const RunInfo& info, const Outco
     c.generations = info.generations;
     c.max_evaluations = info.max_evaluations;
     c.target_cost = info.target_cost;
+    c.tol = info.tol;
+    c.atol = info.atol;
+    c.stagnation_generations = info.stagnation_generations;
+    c.stagnation_tol = info.stagnation_tol;
     c.checkpoint_every = info.checkpoint_every;
     c.preset_paper = info.preset_paper;
     c.had_log = !info.log.empty();
@@ -862,6 +889,14 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
     else if (saved) info.max_evaluations = saved->max_evaluations;
     if (o.target_cost) info.target_cost = *o.target_cost;
     else if (saved) info.target_cost = saved->target_cost;
+    if (o.tol) info.tol = *o.tol;
+    else if (saved) info.tol = saved->tol;
+    if (o.atol) info.atol = *o.atol;
+    else if (saved) info.atol = saved->atol;
+    if (o.stagnation_generations) info.stagnation_generations = *o.stagnation_generations;
+    else if (saved) info.stagnation_generations = saved->stagnation_generations;
+    if (o.stagnation_tol) info.stagnation_tol = *o.stagnation_tol;
+    else if (saved) info.stagnation_tol = saved->stagnation_tol;
     // The defaults of iwr.identify(method="de"): the paper's 60000 generations with its preset;
     // lshade and jso run to their evaluation budget (10000 D unless given); others 1000 generations.
     const bool budget = budgeted(state->settings.strategy);
@@ -878,6 +913,10 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
     if (info.generations) stop.max_generations = *info.generations;
     if (info.max_evaluations) stop.max_evaluations = *info.max_evaluations;
     if (info.target_cost) stop.target_cost = *info.target_cost;
+    stop.tol = info.tol;
+    stop.atol = info.atol;
+    stop.stagnation_generations = info.stagnation_generations;
+    stop.stagnation_tol = info.stagnation_tol;
     if (!o.resume) {
         try {
             de::require_budget_for_init(state->settings, stop);

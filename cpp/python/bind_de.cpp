@@ -422,6 +422,11 @@ void bind_de(py::module_& m) {
             d["generations"] = c.generations ? py::cast(*c.generations) : py::none();
             d["max_evaluations"] = c.max_evaluations ? py::cast(*c.max_evaluations) : py::none();
             d["target_cost"] = c.target_cost ? py::cast(*c.target_cost) : py::none();
+            d["tol"] = c.tol;
+            d["atol"] = c.atol;
+            d["stagnation_generations"] =
+                c.stagnation_generations > 0 ? py::cast(c.stagnation_generations) : py::none();
+            d["stagnation_tol"] = c.stagnation_tol;
             d["checkpoint_every"] = c.checkpoint_every;
             d["preset"] = c.preset_paper ? py::cast("paper") : py::none();
             d["resumed_from"] = c.resumed_from.empty() ? py::none() : py::cast(c.resumed_from);

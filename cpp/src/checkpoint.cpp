@@ -25,6 +25,10 @@ std::string encode_checkpoint(const Checkpoint& c, const de::State& state) {
     w.i64(c.generations ? *c.generations : -1);
     w.i64(c.max_evaluations ? *c.max_evaluations : -1);
     w.f64(c.target_cost ? *c.target_cost : std::numeric_limits<double>::quiet_NaN());
+    w.f64(c.tol);
+    w.f64(c.atol);
+    w.i64(c.stagnation_generations);
+    w.f64(c.stagnation_tol);
     w.i64(c.checkpoint_every);
     w.u8(c.preset_paper ? 1 : 0);
     w.u8(c.had_log ? 1 : 0);
@@ -61,6 +65,15 @@ Checkpoint decode_checkpoint(const std::string& bytes, const std::string& contex
     const double t = r.f64("target cost");
     if (std::isinf(t)) r.fail("target cost is not finite");
     if (!std::isnan(t)) c.target_cost = t;
+    auto tolerance = [&](const char* what) {
+        const double v = r.f64(what);
+        if (!(v >= 0 && std::isfinite(v))) r.fail(std::string(what) + " is not a finite number >= 0");
+        return v;
+    };
+    c.tol = tolerance("tol");
+    c.atol = tolerance("atol");
+    c.stagnation_generations = r.i64_in("stagnation generations", 0, kInt64Max);
+    c.stagnation_tol = tolerance("stagnation tol");
     c.checkpoint_every = r.i64_in("checkpoint every", 0, kInt64Max);
     c.preset_paper = r.flag("preset");
     c.had_log = r.flag("had a log");

@@ -5,6 +5,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "clones.hpp"
 #include "objective_kernel.hpp"
 
 namespace iwr {
@@ -45,15 +46,21 @@ constexpr SinCosSeries kSeries = sincos_series();
 // angle-sum identity and the Taylor series of cos delta and sin delta to degree 18 and 17
 // (truncation error < 2e-19), else by the C library. Several times cheaper than libm's sin and cos
 // (the loops over e vectorise), and no less accurate than cos(fl(nominal + delta)), which rounds the
-// angle first.
-void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
-                   const double* delta, double* c, double* s) {
+// angle first. The series by Estrin's scheme (pairs of terms, then pairs of pairs, with d^4, d^8,
+// d^16): a chain of 4 multiply-add levels where Horner's has 9, which was most of the leg
+// objective's fixed cost per evaluation (BENCHMARKS.md, "Twelfth round").
+IWR_CLONES void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
+                              const double* delta, double* c, double* s) {
+    const double* kc = kSeries.cos;
+    const double* ks = kSeries.sin;
     for (int e = 0; e < n; ++e) {
-        const double d = delta[e], d2 = d * d;
-        double cd = kSeries.cos[9], sd = kSeries.sin[8];
-        for (int k = 8; k >= 0; --k) cd = cd * d2 + kSeries.cos[k];
-        for (int k = 7; k >= 0; --k) sd = sd * d2 + kSeries.sin[k];
-        sd *= d;
+        const double d = delta[e], y = d * d, y2 = y * y, y4 = y2 * y2, y8 = y4 * y4;
+        const double c01 = kc[0] + kc[1] * y, c23 = kc[2] + kc[3] * y, c45 = kc[4] + kc[5] * y,
+                     c67 = kc[6] + kc[7] * y, c89 = kc[8] + kc[9] * y;
+        const double s01 = ks[0] + ks[1] * y, s23 = ks[2] + ks[3] * y, s45 = ks[4] + ks[5] * y,
+                     s67 = ks[6] + ks[7] * y;
+        const double cd = ((c01 + c23 * y2) + (c45 + c67 * y2) * y4) + c89 * y8;
+        const double sd = (((s01 + s23 * y2) + (s45 + s67 * y2) * y4) + ks[8] * y8) * d;
         c[e] = cn[e] * cd - sn[e] * sd;
         s[e] = sn[e] * cd + cn[e] * sd;
     }
@@ -193,7 +200,12 @@ void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalCon
     // The prismatic prefix: with rotations independent of the readings, 0T_m has the same rotation
     // at every pose and a position affine in the readings, p = pc + sum_i q_i z_i. Each joint
     // multiplies by Rz(theta) Trans_z(d + q) Trans_x(a) Rx(alpha) (eq. 1).
-    double r[9] = {1, 0, 0, 0, 1, 0, 0, 0, 1}, p[3] = {0, 0, 0};
+    // Written in place: a local copy, copied by GCC in 16-byte moves, made loads wait on the
+    // 8-byte stores they straddle (a store-forwarding stall, about a fifth of the fixed cost).
+    double* r = ec.rc;
+    double* p = ec.pc;
+    for (int e = 0; e < 9; ++e) r[e] = e % 4 == 0 ? 1.0 : 0.0;
+    for (int c = 0; c < 3; ++c) p[c] = 0.0;
     for (int i = 0; i < n_prefix_; ++i) {
         const double* jc = joint + 6 * i;
         const double ca = jc[0], sa = jc[1], ct = jc[2], st = jc[3], a = jc[4], d = jc[5];
@@ -209,8 +221,6 @@ void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalCon
             t[2] = ca * w - sa * v;
         }
     }
-    for (int e = 0; e < 9; ++e) ec.rc[e] = r[e];
-    for (int c = 0; c < 3; ++c) ec.pc[c] = p[c];
     const int base = 4 * nj;
     for (int j = 0; j < kLegs; ++j) {
         for (int c = 0; c < 3; ++c) {
@@ -223,8 +233,49 @@ void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalCon
     ec.joint = joint;
 }
 
+void detail::fold_carriage(EvalConsts& ec, int n_prefix, int n_joints, const char* prismatic) {
+    ec.folded = false;
+    if (n_joints != n_prefix + 2 || prismatic[n_prefix] || prismatic[n_prefix + 1]) return;
+    FoldedCarriage& f = ec.fold;
+    const double* j1 = ec.joint + 6 * n_prefix;  // cos/sin alpha, cos/sin theta, a, d
+    const double* j2 = j1 + 6;
+    // G = Rc Rz(theta1) and H = Rx(alpha1) Rz(theta2). With Rz(q) = E0 + c E1 + s E2 (E0 = e_z
+    // e_z^T, E1 = e_x e_x^T + e_y e_y^T, E2 = e_y e_x^T - e_x e_y^T), S = G Rz(q) H is s0 + c s1 +
+    // s s2: s0 = G_col2 H_row2, s1 = G_col0 H_row0 + G_col1 H_row1, s2 = G_col1 H_row0 - G_col0
+    // H_row1. Scalars, not arrays: copies of small arrays became 16-byte loads of 8-byte stores
+    // (store-forwarding stalls).
+    const double ct1 = j1[2], st1 = j1[3], ca1 = j1[0], sa1 = j1[1], ct2 = j2[2], st2 = j2[3];
+    const double a1 = j1[4], d1 = j1[5], d2 = j2[5];
+    const double h00 = ct2, h01 = -st2, h10 = ca1 * st2, h11 = ca1 * ct2, h12 = -sa1,
+                 h20 = sa1 * st2, h21 = sa1 * ct2, h22 = ca1;
+    for (int r = 0; r < 3; ++r) {
+        const double* rc = ec.rc + 3 * r;
+        const double g0 = rc[0] * ct1 + rc[1] * st1, g1 = rc[1] * ct1 - rc[0] * st1, g2 = rc[2];
+        double* s0 = f.s0 + 3 * r;
+        double* s1 = f.s1 + 3 * r;
+        double* s2 = f.s2 + 3 * r;
+        s0[0] = g2 * h20, s0[1] = g2 * h21, s0[2] = g2 * h22;
+        s1[0] = g0 * h00 + g1 * h10, s1[1] = g0 * h01 + g1 * h11, s1[2] = g1 * h12;
+        s2[0] = g1 * h00 - g0 * h10, s2[1] = g1 * h01 - g0 * h11, s2[2] = -(g0 * h12);
+        // p4 = pc + sum q_i z_i + d1 Rc e_z + a1 (c G_col0 + s G_col1) + d2 S e_z + a2 R' e_x.
+        f.p0[r] = (ec.pc[r] + d1 * g2) + d2 * s0[2];
+        f.pc[r] = a1 * g0 + d2 * s1[2];
+        f.ps[r] = a1 * g1 + d2 * s2[2];
+    }
+    // The legs in {4'} = {4} Rx(alpha2)^T: a_j' = Rx(alpha2) a_j. And a2 R' e_x, the last term of
+    // p4, is a2 e_x in {4'} (R'^T R' = I): moved onto a_j' too.
+    const double a2 = j2[4], ca2 = j2[0], sa2 = j2[1];
+    for (int j = 0; j < 6; ++j) {
+        f.a[j][0] = ec.a[j][0] + a2;
+        f.a[j][1] = ca2 * ec.a[j][1] - sa2 * ec.a[j][2];
+        f.a[j][2] = sa2 * ec.a[j][1] + ca2 * ec.a[j][2];
+    }
+    ec.folded = true;
+}
+
 void Objective::prepare(const double* x, detail::EvalConsts& ec, double* jbuf) const {
     carriage_.consts(geometry_, x, ec, jbuf);
+    detail::fold_carriage(ec, carriage_.n_prefix(), geometry_.n_joints(), prismatic_.data());
 }
 
 double Objective::evaluate(const double* x, double* jbuf, double* res) const {

@@ -34,6 +34,20 @@ struct PoseData {
     const char* prismatic = nullptr;  // per joint: 1 prismatic, 0 revolute
 };
 
+/// The leg kernel's carriage of a prismatic prefix and two revolute joints (the IWR's PPRR), folded
+/// into per-evaluation constants (fold_carriage). With c, s the cosine and sine of the first
+/// revolute reading, the rotation S = Rc Rz(theta1 + q) Rx(alpha1) Rz(theta2) is s0 + c s1 + s s2,
+/// entry by entry; per pose R' = S Rz(q2) and p' = p0 + sum_i q_i z_i + c pc + s ps, and 0T4 =
+/// [R' Rx(alpha2), p' + a2 R' e_x]. A leg's length is the same in the frame {4'} = {4}
+/// Rx(alpha2)^T, where the base joint is a_j' = Rx(alpha2) a_j + a2 e_x (a2 R' e_x is a2 e_x there):
+/// v_j = R'^T (R5 b_j + p5 - p') - a_j'. 32 fewer multiplies and FMAs a pose than the chain joint
+/// by joint (156 against 188 with the legs and the residuals), the same lengths to rounding.
+struct FoldedCarriage {
+    double s0[9], s1[9], s2[9];  // row-major
+    double p0[3], pc[3], ps[3];
+    double a[6][3];              // a_j'
+};
+
 /// Per-evaluation constants that depend on the parameters only (computed once per cost call).
 struct EvalConsts {
     double rc[9];              // rotation after the prismatic prefix (row-major)
@@ -41,7 +55,13 @@ struct EvalConsts {
     double a[6][3], b[6][3], l0[6];
     const double* z = nullptr;      // per prefix joint: 3, position += q * z
     const double* joint = nullptr;  // per joint (index >= n_prefix): 6: cos/sin alpha, cos/sin theta, a, d
+    bool folded = false;  // fold holds the carriage folded (fold_carriage; the leg kernel's PPRR)
+    FoldedCarriage fold;
 };
+
+/// ec.fold from ec's rc, pc and joint constants when the carriage is n_prefix prismatic joints then
+/// two revolute ones (n_joints == n_prefix + 2); ec.folded says whether it did.
+void fold_carriage(EvalConsts& ec, int n_prefix, int n_joints, const char* prismatic);
 
 /// Sum of squared (weighted) residuals; when residuals != nullptr also writes them (N*6, pose-major).
 using KernelFn = double (*)(const PoseData&, const EvalConsts&, double* residuals);

@@ -163,6 +163,35 @@ IWR_FORCE_INLINE void carriage(const PoseData& pd, const EvalConsts& ec, const d
     }
 }
 
+// The carriage of NP prismatic joints then two revolute ones folded (FoldedCarriage,
+// fold_carriage): t holds R' and p' (not 0T4: see FoldedCarriage), for the legs to the base joints
+// EvalConsts::fold.a. Per pose 18 + 12 + 12 multiplies and FMAs, against 74 joint by joint.
+template <int NP, class P>
+IWR_FORCE_INLINE void carriage_folded(const PoseData& pd, const EvalConsts& ec, const double* blk,
+                                      P (&t)[12]) {
+    constexpr int B = kBlock;
+    const FoldedCarriage& f = ec.fold;
+    const double* q1 = blk + pd.q_off[NP] * B;
+    const double* q2 = blk + pd.q_off[NP + 1] * B;
+    const P c = ld<P>(q1), s = ld<P>(q1 + B), c2 = ld<P>(q2), s2 = ld<P>(q2 + B);
+    for (int r = 0; r < 3; ++r) {
+        P sr[3];  // row r of S = s0 + c s1 + s s2
+        for (int k = 0; k < 3; ++k) {
+            const int e = 3 * r + k;
+            sr[k] = fma(bcast<P>(f.s2[e]), s, fma(bcast<P>(f.s1[e]), c, bcast<P>(f.s0[e])));
+        }
+        const P u = fma(sr[0], c2, sr[1] * s2);  // R' = S Rz(q2)
+        t[3 * r] = u;
+        t[3 * r + 1] = fms(sr[1], c2, sr[0] * s2);
+        t[3 * r + 2] = sr[2];
+        P pos = bcast<P>(f.p0[r]);
+#pragma GCC unroll 8
+        for (int i = 0; i < NP; ++i)
+            pos = fma(ld<P>(blk + pd.q_off[i] * B), bcast<P>(ec.z[3 * i + r]), pos);
+        t[9 + r] = fma(bcast<P>(f.ps[r]), s, fma(bcast<P>(f.pc[r]), c, pos));
+    }
+}
+
 // One register's lanes of a block of 8 poses (blk points at the first of them): 0T4 (carriage),
 // then M = 4R0 0R5 and w = 4R0 (0P5 - 0P4), the platform pose in frame {4}; leg j is
 // v = M b_j + w - a_j (eq. 8 expressed in {4}) and sq[j] = |v|^2, or |v| (Root: each square root
@@ -173,7 +202,13 @@ IWR_FORCE_INLINE void leg_squares(const PoseData& pd, const EvalConsts& ec, cons
     constexpr int B = kBlock;
     using P = Sub;
     P t[12];  // 0T4: rotation row-major (0..8), position (9..11)
-    carriage<NP, NR>(pd, ec, blk, t);
+    // NP >= 0, NR == 2: folded (R', p' for 0T4, and the base joints in {4'}: FoldedCarriage).
+    constexpr bool kFold = NP >= 0 && NR == 2;
+    const double(*base)[3] = kFold ? ec.fold.a : ec.a;
+    if constexpr (kFold)
+        carriage_folded<NP>(pd, ec, blk, t);
+    else
+        carriage<NP, NR>(pd, ec, blk, t);
 
     // --- platform pose in {4}: M = R4^T R5, w = R4^T (p5 - p4) -------------------------------------
     P m[12];
@@ -191,9 +226,9 @@ IWR_FORCE_INLINE void leg_squares(const PoseData& pd, const EvalConsts& ec, cons
     }
     for (int j = 0; j < 6; ++j) {  // the six lengths first: their square roots overlap
         const P b0 = bcast<P>(ec.b[j][0]), b1 = bcast<P>(ec.b[j][1]), b2 = bcast<P>(ec.b[j][2]);
-        const P vx = dot3_plus(m[0], b0, m[1], b1, m[2], b2, m[9] - bcast<P>(ec.a[j][0]));
-        const P vy = dot3_plus(m[3], b0, m[4], b1, m[5], b2, m[10] - bcast<P>(ec.a[j][1]));
-        const P vz = dot3_plus(m[6], b0, m[7], b1, m[8], b2, m[11] - bcast<P>(ec.a[j][2]));
+        const P vx = dot3_plus(m[0], b0, m[1], b1, m[2], b2, m[9] - bcast<P>(base[j][0]));
+        const P vy = dot3_plus(m[3], b0, m[4], b1, m[5], b2, m[10] - bcast<P>(base[j][1]));
+        const P vz = dot3_plus(m[6], b0, m[7], b1, m[8], b2, m[11] - bcast<P>(base[j][2]));
         sq[j] = fma(vz, vz, fma(vy, vy, vx * vx));
         if (Root) sq[j] = sqrt(sq[j]);
     }
@@ -354,8 +389,9 @@ inline bool chain_is(const PoseData& pd, int np, int nr) {
     return true;
 }
 
-// The chains compiled in: the IWR's (PPRR); any other through the general loops.
+// The chains compiled in: the IWR's (PPRR), folded (fold_carriage); any other through the general
+// loops.
 double kernel(const PoseData& pd, const EvalConsts& ec, double* out) {
-    if (chain_is(pd, 2, 2)) return kernel_chain<2, 2>(pd, ec, out);
+    if (chain_is(pd, 2, 2) && ec.folded) return kernel_chain<2, 2>(pd, ec, out);
     return kernel_chain<-1, 0>(pd, ec, out);
 }

@@ -588,6 +588,9 @@ iwr::Checkpoint sample_checkpoint() {
     c.problem_file = "p.iwrp";
     c.generations = 10;
     c.target_cost = 1e-4;
+    c.tol = 0.01;
+    c.stagnation_generations = 20;
+    c.stagnation_tol = 1e-6;
     c.checkpoint_every = 5;
     c.success = false;
     c.message = "checkpoint";
@@ -607,6 +610,8 @@ IWR_TEST(checkpoint_round_trip_and_damage) {
     const iwr::Checkpoint back = iwr::decode_checkpoint(bytes, "c.ckpt: ");
     CHECK(back.robot_fingerprint == 1 && back.data_fingerprint == 2 && back.settings_fingerprint == 3);
     CHECK(back.generations == 10 && !back.max_evaluations && back.target_cost == 1e-4);
+    CHECK(back.tol == 0.01 && back.atol == 0 && back.stagnation_generations == 20 &&
+          back.stagnation_tol == 1e-6);
     CHECK(back.x == c.x && back.fun == c.fun && back.message == "checkpoint" && !back.success);
     CHECK(back.active == c.active);
     CHECK(back.state.generation == 3 && back.state.population == c.state.population);
@@ -628,6 +633,10 @@ IWR_TEST(checkpoint_fields_are_range_checked) {
     CHECK(refused_with([](auto& c) { c.generations = -5; }, "c.ckpt: generations is -5, outside [-1,"));
     CHECK(refused_with([](auto& c) { c.checkpoint_every = -1; }, "checkpoint every is -1"));
     CHECK(refused_with([](auto& c) { c.target_cost = INFINITY; }, "target cost is not finite"));
+    CHECK(refused_with([](auto& c) { c.tol = -1; }, "c.ckpt: tol is not a finite number >= 0"));
+    CHECK(refused_with([](auto& c) { c.atol = NAN; }, "atol is not a finite number >= 0"));
+    CHECK(refused_with([](auto& c) { c.stagnation_generations = -3; }, "stagnation generations is -3"));
+    CHECK(refused_with([](auto& c) { c.stagnation_tol = INFINITY; }, "stagnation tol is not a finite"));
     CHECK(refused_with([](auto& c) { c.active.push_back(6); }, "active: 6 parameters; the engine state has 5"));
     CHECK(refused_with([](auto& c) { c.active[2] = 7; }, "active is 7, outside [2, 6]"));
     CHECK(refused_with([](auto& c) { c.active[3] = 1; }, "active is 1, outside [3, 6]"));  // not increasing

@@ -42,7 +42,8 @@ EXIT_OK, EXIT_ERROR, EXIT_USAGE = 0, 1, 2
 # arguments from option values. The engine itself checks every one of them.
 _ENGINE_VALUED = {
     "--strategy", "--population-size", "--F", "--CR", "--bound-rule", "--seed", "--preset",
-    "--generations", "--max-evaluations", "--target-cost", "--threads", "--log", "--checkpoint",
+    "--generations", "--max-evaluations", "--target-cost", "--tol", "--atol",
+    "--stagnation-generations", "--stagnation-tol", "--threads", "--log", "--checkpoint",
     "--checkpoint-every", "--resume",
 }
 _OWN_VALUED = {"--bounds", "--output", "--problem", "--export", "--readings", "--noise"}
@@ -236,13 +237,14 @@ _BUDGETED = ("lshade", "jso")
 
 
 def longer_run(result: Any, resume: str) -> str:
-    """For a run that ended at its generation or evaluation limit (status ``stopped``, no
-    signal: DE has no convergence test by default, so every run without ``--target-cost``
-    ends so), what to change: how much the population's mean cost and the best cost fell over
-    the last tenth of the run, and the command that goes on exactly where it stopped with ten
-    times the generations, twice when neither fell by :data:`MOVING_PERCENT` (``resume`` plus
-    ``--generations``; the evaluations for a limit by ``--max-evaluations``), or for lshade and
-    jso, whose schedules end at their budget, a new run with a larger one. "" otherwise."""
+    """For a run that ended at its generation or evaluation limit (status ``stopped``, no signal:
+    DE has no convergence test by default, so every run without ``--target-cost``, ``--tol`` or
+    ``--stagnation-generations`` ends so), what to change: how much the population's mean cost and
+    the best cost fell over the last tenth of the run, and the command that goes on exactly where
+    it stopped with ten times the generations, twice when neither fell by :data:`MOVING_PERCENT`
+    (``resume`` plus ``--generations``; the evaluations for a limit by ``--max-evaluations``), or
+    for lshade and jso, whose schedules end at their budget, a new run with a larger one. ""
+    otherwise."""
 
     settings = dict(result.settings)
     if result.status != "stopped" or "reached" not in str(result.message):

@@ -4,6 +4,7 @@
 //   u64  robot, data and settings fingerprints (of the problem file and of the DE settings)
 //   str  problem file (its path when the run started, for messages only)
 //   i64  generations (-1: none), max evaluations (-1: none); f64 target cost (NaN: none)
+//   f64  tol, atol (0: off); i64 stagnation generations (0: off); f64 stagnation tol
 //   i64  checkpoint every; u8 preset (0 none, 1 paper); u8 had a log
 //   u8   success; str message; f64 cost at x; f64s x   (the run's result so far: every parameter)
 //   u64  D; D i64s: the increasing positions in x of the engine state's D (active) parameters
@@ -23,7 +24,7 @@
 
 namespace iwr {
 
-constexpr std::uint32_t kCheckpointVersion = 3;
+constexpr std::uint32_t kCheckpointVersion = 4;  // 4: the convergence and stagnation tests
 
 struct Checkpoint {
     std::string program;
@@ -31,6 +32,12 @@ struct Checkpoint {
     std::string problem_file;
     std::optional<std::int64_t> generations, max_evaluations;
     std::optional<double> target_cost;
+    // The convergence test (std of the costs <= atol + tol |mean|; both 0: off) and the
+    // stagnation test (the best improved by no more than stagnation_tol |best| over
+    // stagnation_generations generations; 0: off): de::Stop's.
+    double tol = 0, atol = 0;
+    std::int64_t stagnation_generations = 0;
+    double stagnation_tol = 0;
     std::int64_t checkpoint_every = 0;
     bool preset_paper = false;
     bool had_log = false;

@@ -1,0 +1,13 @@
+// Internal: IWR_CLONES, a function compiled for AVX-512 and AVX2 as well as the x86-64 baseline,
+// the widest the CPU runs picked when the library loads (GCC's target_clones). Separate multiplies
+// and adds in every clone (-ffp-contract=off, CMakeLists.txt) and no reassociation: the same values
+// whatever the instruction set, in wider registers. GCC on x86-64 glibc only (target_clones needs
+// ifunc, which musl does not have); elsewhere an ordinary function.
+#pragma once
+
+#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && \
+    defined(__GLIBC__)
+#define IWR_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#else
+#define IWR_CLONES
+#endif
