@@ -444,7 +444,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"\n{PROG}: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, OSError, RuntimeError) as exc:
+    except (ValueError, OSError, RuntimeError, ImportError) as exc:
+        if _startup.interrupted_by(exc):  # Ctrl-C in a module's initialisation: an ImportError
+            print(f"\n{PROG}: interrupted", file=sys.stderr)
+            return 130
         return _error(str(exc), EXIT_ERROR)
 
 
