@@ -18,6 +18,7 @@
 #include <string>
 #include <sys/wait.h>
 
+#include "de_fixtures.hpp"
 #include "iwr/de.hpp"
 
 namespace {
@@ -25,24 +26,7 @@ namespace {
 using iwr::de::BoundRule;
 using iwr::de::Strategy;
 
-class Quadratic : public iwr::de::BatchFunction {
-public:
-    explicit Quadratic(int d) : d_(d) {}
-    int dim() const override { return d_; }
-    void evaluate(const double* X, std::size_t m, double* out, iwr::ThreadPool& pool) override {
-        pool.parallel_for(m, [&](std::size_t b, std::size_t e, int) {
-            for (std::size_t i = b; i < e; ++i) {
-                const double* x = X + i * static_cast<std::size_t>(d_);
-                double s = 0;
-                for (int j = 0; j < d_; ++j) s += (x[j] - 0.7) * (x[j] - 0.7) * (1 + 0.1 * j);
-                out[i] = s;
-            }
-        });
-    }
-
-private:
-    int d_;
-};
+using iwr_test::TestFunction;
 
 std::uint64_t fnv1a(const std::string& bytes) {
     std::uint64_t h = 0xcbf29ce484222325ULL;
@@ -64,7 +48,7 @@ std::string digests() {
     for (Strategy s : kAll)
         for (BoundRule rule : kRules)
             for (int d : {13, 37}) {
-                Quadratic f(d);
+                TestFunction f(d);
                 iwr::de::Settings set;
                 set.strategy = s;
                 set.bound_rule = rule;
