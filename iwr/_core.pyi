@@ -5,7 +5,6 @@ import numpy
 import numpy.typing
 import typing
 _bench: typing.Any  # benchmark-only submodule
-__all__: list[str] = ['FormatError', 'ForwardKinematicsError', 'Geometry', 'Objective', 'TrackerObjective', 'carriage_transform', 'de_function', 'de_kernel', 'de_resolve', 'dh_transform', 'euler_zyx', 'forward_kinematics', 'hexapod_leg_lengths', 'implicit_loop', 'loop_jacobians', 'predict_legs', 'rotvec_matrix', 'so3_left_jacobian']
 class Geometry:
     def __init__(self, joint_types: str, dh: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], base: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 3]"], platform: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 3]"], leg_offsets: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"]) -> None:
         ...
@@ -115,6 +114,11 @@ class TrackerObjective:
         ...
     def residuals(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
         ...
+    def set_whitening(self, whitening: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"]) -> None:
+        """
+        Whiten the residuals (and the cost, the Jacobian) per pose: (N, m^2), each row a
+        row-major lower-triangular m x m matrix, m = 3 n_points; an empty array: unweighted.
+        """
     @property
     def n_params(self) -> int:
         ...
@@ -130,6 +134,50 @@ class TrackerObjective:
     @property
     def n_seen(self) -> int:
         ...
+class BallbarObjective:
+    def __init__(self, geometry: Geometry, bars: dict, q: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], legs: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], bar: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], distance: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], reference: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], home: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], whitening: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"] = ..., tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-10) -> None:
+        ...
+    def cost(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> float:
+        ...
+    def cost_batch(self, X: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], threads: typing.SupportsInt | typing.SupportsIndex = 0) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
+        ...
+    def failures(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> list[tuple[int, str]]:
+        """
+        Poses whose forward kinematics fails at x: [(index, message)].
+        """
+    def residuals(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
+        ...
+    @property
+    def n_params(self) -> int:
+        ...
+    @property
+    def n_poses(self) -> int:
+        ...
+    @property
+    def whitened(self) -> bool:
+        ...
+class BallbarEffectObjective:
+    def __init__(self, geometry: Geometry, effects: typing.Any, bars: dict, q: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], legs: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], bar: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], distance: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], payload: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], temperatures: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], reference: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], home: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], whitening: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"] = ..., tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-11) -> None:
+        ...
+    def cost(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> float:
+        ...
+    def cost_batch(self, X: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], threads: typing.SupportsInt | typing.SupportsIndex = 0) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
+        ...
+    def failures(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> list[tuple[int, str]]:
+        """
+        Poses whose forward kinematics fails at x: [(index, message)].
+        """
+    def residuals(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
+        ...
+    @property
+    def n_params(self) -> int:
+        ...
+    @property
+    def n_poses(self) -> int:
+        ...
+    @property
+    def whitened(self) -> bool:
+        ...
 class ForwardKinematicsError(RuntimeError):
     pass
 class FormatError(ValueError, RuntimeError):
@@ -142,7 +190,7 @@ def _decode_problem(data: bytes, context: str) -> dict:
     ...
 def _engine_costs(path: str, X: numpy.ndarray) -> numpy.ndarray:
     ...
-def _data_fingerprint(kind: str, joint_types: str, measurement_joint_types: str | None, q: numpy.ndarray, legs: numpy.ndarray, poses: numpy.ndarray, weights: numpy.ndarray | None, probe_poses: numpy.ndarray, points: numpy.ndarray, payload: numpy.ndarray = ..., temperatures: numpy.ndarray = ...) -> str:
+def _data_fingerprint(kind: str, joint_types: str, measurement_joint_types: str | None, q: numpy.ndarray, legs: numpy.ndarray, poses: numpy.ndarray, weights: numpy.ndarray | None, probe_poses: numpy.ndarray, points: numpy.ndarray, payload: numpy.ndarray = ..., temperatures: numpy.ndarray = ..., bar_names: collections.abc.Sequence[str] = ..., bar: collections.abc.Sequence[int] = ..., distance: numpy.ndarray = ...) -> str:
     ...
 def _read_checkpoint(path: str) -> dict:
     ...
@@ -185,6 +233,14 @@ def implicit_loop(geometry: Geometry, x0: typing.Annotated[numpy.typing.ArrayLik
 def loop_jacobians(geometry: Geometry, x: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], q: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], poses: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], corrections: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"]) -> tuple:
     """
     Predicted legs (N, 6) at corrected readings and their exact derivatives: (6 N, n_params) with respect to x and (6 N, n_joints + 6) with respect to the corrections (dq, dp, w).
+    """
+def implicit_loop_tracker(geometry: Geometry, kind: str, registration: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], reflectors: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], probe: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], probe_length: typing.SupportsFloat | typing.SupportsIndex, measured: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], whitening: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], reference: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], x0: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], active: collections.abc.Sequence[typing.SupportsInt | typing.SupportsIndex], q: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], legs: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], sigma: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], corrections0: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], max_iterations: typing.SupportsInt | typing.SupportsIndex = 200, ftol: typing.SupportsFloat | typing.SupportsIndex = 1e-12, xtol: typing.SupportsFloat | typing.SupportsIndex = 1e-12, gtol: typing.SupportsFloat | typing.SupportsIndex = 1e-12, callback: typing.Any = None) -> dict:
+    """
+    The efficient estimator on laser-tracker data; see cpp/include/iwr/implicit_loop.hpp.
+    """
+def tracker_loop_jacobians(geometry: Geometry, kind: str, registration: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], reflectors: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], probe: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], probe_length: typing.SupportsFloat | typing.SupportsIndex, measured: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], whitening: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], reference: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], q: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], legs: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], sigma: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], corrections: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"]) -> tuple[typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"], typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]]:
+    """
+    The tracker estimator"s normalised residuals (N, nr) and their exact derivatives (N nr, n_params), (N nr, n_joints + 6); see implicit_loop.hpp.
     """
 def predict_legs(geometry: Geometry, errors: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"], q: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], poses: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"]) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]"]:
     ...

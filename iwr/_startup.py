@@ -9,6 +9,17 @@ with ``PROG: interrupted`` and exit status 130 until the command's ``main`` take
 (:func:`release`). A program that imports iwr keeps Python's ``KeyboardInterrupt``; a SIGINT
 ignored at start (a background job, ``nohup``) stays ignored.
 
+From :func:`release` on, SIGINT raises :class:`Interrupted`, a ``KeyboardInterrupt`` that the
+command's ``main`` catches (one line, status 130), and not Python's own ``KeyboardInterrupt``.
+The reason is CPython's exit: when a ``KeyboardInterrupt`` of exactly that type ends a string
+``exec``/``eval`` (``collections.namedtuple`` and ``dataclasses`` run one per class they make, and
+the commands import SciPy and Matplotlib lazily, after :func:`release`), CPython records it as
+unhandled (``run_eval_code_obj`` in ``Python/pythonrun.c``) even though a caller catches it, and
+``python -m`` (``Py_RunMain``) then ends the process by SIGINT instead of with the status ``main``
+returned: ``iwr: interrupted`` and exit -2 rather than 130, seen under load. The check is on the
+exact type (bpo-41602, gh-128130), so a subclass is never recorded. (The installed scripts exit
+through ``Py_Exit`` and never read the record.)
+
 Before Python has set its own handler (the first milliseconds of the interpreter's start) SIGINT
 kills the process as it does any program: no message, and a shell says status 130.
 """
@@ -39,6 +50,31 @@ def _command() -> str | None:
     return None
 
 
+class Interrupted(KeyboardInterrupt):
+    """Ctrl-C in one of the commands, after their ``main`` took over (see the module's notes)."""
+
+
+def _keyboard_interrupt(signum: int, frame: object) -> None:
+    raise Interrupted
+
+
+def interrupted_by(exc: BaseException) -> bool:
+    """Whether ``exc`` is, or was raised while handling or because of, a ``KeyboardInterrupt``.
+
+    A Ctrl-C that lands in an extension module's initialisation reaches the command as the
+    module's ``ImportError`` (pybind11's ``initialization failed``, the ``KeyboardInterrupt`` its
+    cause): SciPy and Matplotlib import some lazily, after :func:`release`. The commands report
+    it as the interruption it is (one line, status 130), not as an internal error (status 1)."""
+    seen: set[int] = set()
+    e: BaseException | None = exc
+    while e is not None and id(e) not in seen:
+        if isinstance(e, KeyboardInterrupt):
+            return True
+        seen.add(id(e))
+        e = e.__cause__ or e.__context__
+    return False
+
+
 def _interrupted(signum: int, frame: object) -> None:
     try:
         os.write(2, f"\n{_command() or 'iwr'}: interrupted\n".encode())
@@ -58,9 +94,10 @@ def guard() -> None:
 
 
 def release() -> None:
-    """The command's ``main`` takes over: ``KeyboardInterrupt`` again, if :func:`guard` set it."""
+    """The command's ``main`` takes over, if :func:`guard` set the handler: SIGINT raises
+    :class:`Interrupted`, a ``KeyboardInterrupt``, which ``main`` catches."""
     if _signal.getsignal(_signal.SIGINT) is _interrupted:
-        _signal.signal(_signal.SIGINT, _signal.default_int_handler)
+        _signal.signal(_signal.SIGINT, _keyboard_interrupt)
 
 
 guard()

@@ -352,7 +352,6 @@ def test_command_line(tmp_path, capsys):
     [
         (["--budget", "0"], "budget"),
         (["--seeds", "a,b"], "--seeds"),
-        (["--noise", "legs=x"], "--noise"),
         (["--methods", "nope"], "methods"),
         (["--methods", "lm,de:nope"], "'de:nope'"),
         (["--robot", "/nonexistent/robot.toml"], "robot.toml"),
@@ -365,6 +364,17 @@ def test_command_line_errors(argv, name, capsys):
     err = capsys.readouterr().err
     assert err.startswith("iwr compare: error:") and name in err
     assert "Traceback" not in err and err.count("\n") == 1
+
+
+def test_a_bad_noise_is_a_usage_error_as_in_every_command(capsys):
+    """--noise is parsed as iwr simulate and iwr calibrate parse it (iwr.cli._base.noise_spec):
+    a bad spec is a usage error, exit 2, naming the option and the value."""
+    for command in ("compare", "simulate"):
+        assert cli_main([command, "--noise", "legs=x", "-o",
+                         "/nonexistent-dir-never-written"]) == 2
+        err = capsys.readouterr().err
+        assert err == (f"iwr: error: argument --noise: legs='x' is not a number (see 'iwr "
+                       f"{command} --help')\n")
 
 
 def test_subcommand_wiring():
@@ -436,6 +446,8 @@ def test_command_line_takes_the_robot_files_noise_model(tmp_path, capsys):
     settings = json.loads((tmp_path / "a" / "results.json").read_text())["settings"]
     assert settings["noise"]["legs"] == 0.004 and settings["noise"]["position"] == 0.03
     assert cli_main([*argv, "--noise", "none", "-o", str(tmp_path / "b")]) == 0
-    assert "noise model:" not in capsys.readouterr().out
+    # The model used is printed, whatever gives it.
+    assert "noise model: legs 0, joint_lengths 0, joint_angles 0, position 0, orientation 0 " \
+        "(from --noise)" in capsys.readouterr().out
     settings = json.loads((tmp_path / "b" / "results.json").read_text())["settings"]
     assert settings["noise"]["legs"] == 0.0

@@ -342,14 +342,15 @@ def test_a_kind_without_a_weighted_objective_is_refused_or_noted_by_iwr_calibrat
 
     assert all(kinds.named(name).weighted_objective
                for name in ("pose", "points", "probe", "ballbar"))
+    robot = iwr.Robot.default()
     args = argparse.Namespace(noise_from="--noise")
     with pytest.raises(UsageError, match="--method lm with --noise: on .* data only the "
                                          "efficient estimator"):
-        _reading_noise(Unweighted(), iwr.Noise.realistic(), "lm", args)
+        _reading_noise(Unweighted(), robot, iwr.Noise.realistic(), "lm", args)
     args = argparse.Namespace(noise_from="robot.toml [noise]")
-    assert _reading_noise(Unweighted(), iwr.Noise.realistic(), "lm", args) is None
+    assert _reading_noise(Unweighted(), robot, iwr.Noise.realistic(), "lm", args) is None
     assert "noise model of robot.toml [noise]: not used by method lm" in capsys.readouterr().out
     assert args.noise_from is None
     # the efficient estimator takes it
     args = argparse.Namespace(noise_from="--noise")
-    assert _reading_noise(Unweighted(), iwr.Noise.realistic(), "efficient", args) is not None
+    assert _reading_noise(Unweighted(), robot, iwr.Noise.realistic(), "efficient", args) is not None

@@ -75,15 +75,16 @@ def test_calibrate_takes_tracker_files(sim, tmp_path, form):
 
 
 def test_calibrate_with_a_noise_model_reports_the_estimators_covariance(sim, tmp_path):
-    """--noise on tracker data: the noise model used is said (a position sigma, for a pose in
-    {0}, is named as not used), and the report's standard deviations are the efficient
-    estimator's covariance, not the unweighted point objective's."""
+    """--noise on tracker data: the noise model used is said (without position, the tracker's
+    realistic noise; an orientation sigma, for a pose in {0}, is named as not used), and the
+    report's standard deviations are the efficient estimator's covariance, not the unweighted
+    point objective's."""
     proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--noise",
-               "legs=0.002,joint_lengths=0.005,joint_angles=5e-6,position=0.5", "-o",
+               "legs=0.002,joint_lengths=0.005,joint_angles=5e-6,orientation=0.5", "-o",
                str(tmp_path), "--no-plots")
     assert proc.returncode == 0, proc.stderr
     assert "(TrackerNoise.leica())" in proc.stdout
-    assert "position=0.5: a pose measured in {0}, not used" in proc.stdout
+    assert "orientation=0.5: a pose measured in {0}, not used" in proc.stdout
     html = (tmp_path / "report.html").read_text()
     assert "efficient estimator&#x27;s covariance" in html
     assert "point noise estimated from the residuals" not in html
@@ -105,12 +106,12 @@ def test_the_report_shows_the_predicted_accuracy_once_readably(sim, tmp_path):
     assert "Predicted by the estimator's covariance" in md
     # Against the estimator's own prediction, from the API (computed on its side).
     from iwr import kinds
-    from iwr.cli.tracker import tracker_noise_of
+    from iwr.cli.robot_noise import option_noise
 
     robot = iwr.Robot.from_toml(sim / "robot.toml")
     data = kinds.for_robot(robot).read(sim / "measurements.csv", robot)
     res = iwr.identify(robot, data, method="efficient",
-                       noise=tracker_noise_of(iwr.Noise.realistic()), active="base")
+                       noise=option_noise(iwr.Noise.realistic(), robot), active="base")
     assert float(m.group(1)) == pytest.approx(res["predicted"].position_rms, rel=1e-3)
     settings = re.search(r"<td>noise</td><td>([^<]*)</td>", html)
     assert settings and "Noise(" not in settings.group(1)

@@ -20,7 +20,19 @@
 // library loads (GCC's target_clones): separate multiplies and adds (-ffp-contract=off), so the
 // same values whatever the instruction set, in wider registers.
 // glibc only: target_clones needs ifunc, which musl does not have.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && \
+// IWR_DE_ISA_AVX512F, _AVX2 or _BASELINE (the C++ tests' iwr_de_isa_* programs, CMakeLists.txt)
+// compile one variant alone, the one a CPU of that kind runs: the CPU picks the clone, so only
+// such a build runs the others (cpp/tests/test_de_isa.cpp compares their bits).
+#if defined(IWR_DE_ISA_AVX512F)
+#define IWR_DE_CLONES __attribute__((target("avx512f")))
+#define IWR_DE_INLINE __attribute__((always_inline)) inline
+#elif defined(IWR_DE_ISA_AVX2)
+#define IWR_DE_CLONES __attribute__((target("avx2")))
+#define IWR_DE_INLINE __attribute__((always_inline)) inline
+#elif defined(IWR_DE_ISA_BASELINE)
+#define IWR_DE_CLONES
+#define IWR_DE_INLINE __attribute__((always_inline)) inline
+#elif defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && \
     defined(__GLIBC__)
 #define IWR_DE_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 #define IWR_DE_INLINE __attribute__((always_inline)) inline

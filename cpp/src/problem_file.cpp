@@ -100,10 +100,13 @@ void read_effects(io::Reader& r, ProblemData& p) {
             const std::uint8_t type = r.u8("effect value type");
             if (type == 0) {
                 v.type = EffectValue::Type::Bool;
-                v.numbers = {r.flag("effect flag") ? 1.0 : 0.0};
+                // One value by count, not `= {x}`: GCC 12 at -O2/-O3 warns on a one-element
+                // initializer_list assigned to an empty vector (-Wnonnull, a false positive of
+                // vector::_M_assign_aux's memmove; it fails the -DIWR_WERROR=ON Release build).
+                v.numbers.assign(1, r.flag("effect flag") ? 1.0 : 0.0);
             } else if (type == 1) {
                 v.type = EffectValue::Type::Number;
-                v.numbers = {r.f64("effect number")};
+                v.numbers.assign(1, r.f64("effect number"));
             } else if (type == 2) {
                 v.type = EffectValue::Type::Numbers;
                 v.numbers = r.doubles("effect numbers");

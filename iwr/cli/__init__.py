@@ -77,6 +77,11 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
+def _interrupted() -> int:
+    print("\niwr: interrupted", file=sys.stderr)
+    return EXIT_INTERRUPTED
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """Run the command line; returns the exit code (``iwr`` script: ``iwr.cli:main``)."""
     argv = list(sys.argv[1:] if argv is None else argv)
@@ -92,9 +97,10 @@ def main(argv: Sequence[str] | None = None) -> int:
         code = func(args)
         return EXIT_OK if code is None else int(code)
     except KeyboardInterrupt:
-        print("\niwr: interrupted", file=sys.stderr)
-        return EXIT_INTERRUPTED
+        return _interrupted()
     except Exception as exc:  # one line, never a traceback unless --debug
+        if _startup.interrupted_by(exc):  # Ctrl-C in a module's initialisation: an ImportError
+            return _interrupted()
         if debug:
             traceback.print_exc()
         code, prefix = EXIT_ERROR, "internal error: " + type(exc).__name__ + ": "

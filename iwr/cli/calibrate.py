@@ -35,7 +35,7 @@ from ._base import (
     progress_enabled,
     read_data,
 )
-from .robot_noise import calibration_noise, describe
+from .robot_noise import OPTION_HELP, calibration_noise, describe, option_noise
 from .simulate import write_truth
 from .tracker import add_arguments as add_tracker_arguments
 from .tracker import target_format
@@ -107,12 +107,11 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="identification method: efficient, lm, de, crs2, bobyqa (default: "
                    "$IWR_METHOD, else efficient when a noise model is known, else lm)")
     p.add_argument("--noise", type=_noise_arg, default=None, metavar="SPEC",
-                   help="the instruments' noise: 'realistic' (iwr.Noise.realistic()), "
-                   "KEY=SIGMA,... with KEY among legs, joint_lengths, joint_angles, position, "
-                   "orientation (mm, rad; others 0, legs > 0), 'estimate' (estimated from the "
-                   "data), or 'none' (no noise model). Default: the [noise] table of ROBOT.toml "
-                   "(and [tracker.noise]) when it has one, else none; realistic for the "
-                   "built-in example. With a noise model the fit is tested (chi-square)")
+                   help="the instruments' noise: " + OPTION_HELP + " (legs > 0); or 'estimate' "
+                   "(estimated from the data), or 'none' (no noise model). Default: the [noise] "
+                   "table of ROBOT.toml (and [tracker.noise]) when it has one, else none; "
+                   "realistic for the built-in example. With a noise model the fit is tested "
+                   "(chi-square)")
     p.add_argument("--budget", type=positive_int, default=None, metavar="N",
                    help="largest number of objective evaluations (method's default if not given)")
     p.add_argument("--generations", type=positive_int, default=None, metavar="G",
@@ -229,7 +228,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                          "has no report for them yet; calibrate them from Python with "
                          "iwr.calibrate (docs/kinds.md)")
     if "noise" in kwargs:
-        kwargs["noise"] = _reading_noise(kind, kwargs["noise"], method, args)
+        kwargs["noise"] = _reading_noise(kind, robot, kwargs["noise"], method, args)
     data = read_data(args.data, robot, args.readings, targets=target_format(args))
     validation = read_data(args.validation, robot) if args.validation else None
     if validation is None and args.validation_fraction > 0:
@@ -247,11 +246,13 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     return _exit_code(cal)
 
 
-def _reading_noise(kind: Any, noise: Any, method: str, args: argparse.Namespace) -> Any:
-    """The noise model in the form the data's kind takes (:meth:`MeasurementKind.reading_noise`),
-    and what is set aside: a noise model a kind cannot weigh method ``method`` by (refused when
-    --noise gives it, set aside with a note when the robot file does), the readings a pose
-    measured in {0} has and these data have not."""
+def _reading_noise(kind: Any, robot: Any, noise: Any, method: str,
+                   args: argparse.Namespace) -> Any:
+    """The noise model in the form the data's kind takes (``--noise`` as
+    :func:`~iwr.cli.robot_noise.option_noise` reads it for every command, the robot file's by
+    :meth:`MeasurementKind.reading_noise`), and what is set aside: a noise model a kind cannot
+    weigh method ``method`` by (refused when --noise gives it, set aside with a note when the
+    robot file does), the orientation a pose measured in {0} has and these data have not."""
     from ..noise import Noise
 
     if method != "efficient" and not kind.weighted_objective:
@@ -265,16 +266,15 @@ def _reading_noise(kind: Any, noise: Any, method: str, args: argparse.Namespace)
               f"{kind.description} data (only by the efficient estimator)")
         args.noise_from = None
         return None
-    converted = kind.reading_noise(noise)
+    option = getattr(args, "noise_from", None) == "--noise"
+    converted = option_noise(noise, robot) if option else kind.reading_noise(noise)
     readings = converted[0] if isinstance(converted, tuple) else converted
-    if (isinstance(noise, Noise) and isinstance(readings, Noise) and noise != Noise.realistic()
-            and getattr(args, "noise_from", None) == "--noise"):
-        # A position or orientation sigma given for a pose measured in {0} has no reading here.
-        dropped = [f"{k}={getattr(noise, k):g}" for k in ("position", "orientation")
-                   if getattr(noise, k) and not getattr(readings, k)]
-        if dropped:
-            print(f"--noise {', '.join(dropped)}: a pose measured in {{0}}, not used with "
-                  f"{kind.description} data", flush=True)
+    if (option and isinstance(noise, Noise) and isinstance(readings, Noise)
+            and noise != Noise.realistic() and noise.orientation and not readings.orientation):
+        # An orientation sigma given for a pose measured in {0} has no reading here (position
+        # is the instrument's noise level).
+        print(f"--noise orientation={noise.orientation:g}: a pose measured in {{0}}, not used "
+              f"with {kind.description} data", flush=True)
     return converted
 
 

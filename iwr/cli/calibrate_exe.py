@@ -76,8 +76,10 @@ options of iwr-calibrate (the others are the engine's, below):
                            squares with fixed weights, as iwr.Problem(..., noise=...); the cost
                            is then the dimensionless chi-square statistic): realistic,
                            KEY=SIGMA,... over legs, joint_lengths, joint_angles, position,
-                           orientation (mm, rad; as iwr calibrate --noise; for tracker data the
-                           readings' noise, with TrackerNoise.leica() for the tracker), robot
+                           orientation (mm, rad; as iwr calibrate --noise: for tracker data
+                           the readings' noise, and position the tracker's noise level,
+                           TrackerNoise.leica() x position / 0.02, without it the file's
+                           [tracker.noise] or TrackerNoise.leica()), robot
                            (the [noise] and [tracker.noise] tables of ROBOT.toml), or none
                            (default: eq. (10) or the point residuals unweighted). Reflector
                            points, ballbar distances (each by its standard deviation: the
@@ -323,6 +325,7 @@ def _noise(text: str | None, robot: Any, robot_path: str) -> Any:
 
     from ..kinds import for_robot
     from ._base import noise_spec
+    from .robot_noise import option_noise
 
     if text is None or text.strip().lower() in ("none", "0", "zero"):
         return None
@@ -345,7 +348,12 @@ def _noise(text: str | None, robot: Any, robot_path: str) -> Any:
         raise _Usage(f"--noise: {robot_path} measures {kind.description} ({kind.name} data), "
                      "which have no noise-weighted objective: leave --noise out, or use the "
                      "efficient estimator (iwr calibrate --noise ...)")
-    return kind.reading_noise(noise)
+    if spec == "robot":
+        return kind.reading_noise(noise)
+    try:  # the option as every command reads it
+        return option_noise(noise, robot)
+    except ValueError as exc:
+        raise _Usage(f"--noise: {exc}") from None
 
 
 def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
@@ -446,7 +454,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print(f"\n{PROG}: interrupted", file=sys.stderr)
         return 130
-    except (ValueError, OSError, RuntimeError) as exc:
+    except (ValueError, OSError, RuntimeError, ImportError) as exc:
+        if _startup.interrupted_by(exc):  # Ctrl-C in a module's initialisation: an ImportError
+            print(f"\n{PROG}: interrupted", file=sys.stderr)
+            return 130
         return _error(str(exc), EXIT_ERROR)
 
 

@@ -11,16 +11,13 @@ from ..experiments.compare import (
     DEFAULT_BUDGET,
     DEFAULT_OUT,
     DEFAULT_SEEDS,
-    _check_noise,
     compare_methods,
     default_methods,
 )
 from ..experiments.harness import check_n_poses, check_robot
-from ..kinds import for_robot
-from ..noise import Noise
 from ..robot import Robot
-from ._base import LazyHelp
-from .robot_noise import describe, simulation_noise
+from ._base import LazyHelp, noise_spec
+from .robot_noise import OPTION_HELP, describe, simulation_noise
 
 __all__ = ["add_compare_parser", "run_compare"]
 
@@ -29,25 +26,6 @@ def _methods() -> Any:
     from ..methods import METHODS
 
     return METHODS
-
-
-def _parse_noise(text: str) -> Noise:
-    if text in ("none", "realistic"):
-        return _check_noise(text)
-    values: dict[str, float] = {}
-    for item in text.split(","):
-        key, sep, val = item.partition("=")
-        key = key.strip()
-        if not sep or key not in Noise.__dataclass_fields__:
-            raise ValueError(
-                f"--noise: {text!r}; expected 'none', 'realistic' or key=value pairs with keys "
-                + ", ".join(Noise.__dataclass_fields__)
-            )
-        try:
-            values[key] = float(val)
-        except ValueError:
-            raise ValueError(f"--noise: {key}={val!r} is not a number") from None
-    return Noise(**values)
 
 
 def _parse_ints(text: str, name: str) -> list[int]:
@@ -82,16 +60,10 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", metavar="TOML", help="robot description (default: the built-in IWR)")
     p.add_argument("--poses", type=int, default=100, metavar="N",
                    help="measurement poses per identification (default: %(default)s)")
-    p.add_argument("--noise", default=None,
-                   help="'none', 'realistic' or key=value pairs, e.g. "
-                        "'legs=0.002,position=0.02' (mm, rad). Pose data: each key the sd of "
-                        "its reading. A robot with a tracker or a ballbar: legs and joint_* are "
-                        "the readings' sd, and position the instrument's noise level, scaling "
-                        "its realistic noise by position / 0.02 (the tracker's "
-                        "TrackerNoise.leica(), the bar's 1 um; orientation is not used); noisy "
-                        "readings without position are refused (the instrument would be exact). "
-                        "Default: the --robot file's [noise] (and [tracker.noise]) table, else "
-                        "'realistic'")
+    p.add_argument("--noise", type=noise_spec, default=None, metavar="SPEC",
+                   help="measurement noise of the simulated problems: " + OPTION_HELP
+                        + ". Default: the --robot file's [noise] (and [tracker.noise]) table, "
+                        "else 'realistic'")
     p.add_argument("--seeds", default=",".join(map(str, DEFAULT_SEEDS)),
                    help="seeds, '0,1,2' or '0..4' (default: %(default)s)")
     p.add_argument("--methods", default=None, help=LazyHelp(lambda: (
@@ -122,15 +94,11 @@ def run_compare(args: argparse.Namespace) -> int:
         check_n_poses(robot, args.poses, "--poses")  # named as the command line spells it
         methods = None if args.methods is None else [
             m.strip() for m in args.methods.split(",") if m.strip()]
-        # As iwr simulate: --noise, else the robot file's model, else realistic.
-        noise, source = simulation_noise(
-            None if args.noise is None else _parse_noise(args.noise), robot, args.robot)
-        if source is not None:
-            # The file's model as iwr calibrate and iwr simulate take it (its instrument's
-            # noise beside the readings': a ballbar's bar; a position of 0, a robot file's for a
-            # ballbar, made the bar exact and the efficient estimator refuse the runs).
-            noise = for_robot(robot).reading_noise(noise)
-            print(f"noise model: {describe(noise)} (from {source})")
+        # As iwr simulate: --noise (read as robot_noise.option_noise reads it for every
+        # command), else the robot file's model, else realistic; in the form the kind takes.
+        noise, source = simulation_noise(args.noise, robot, args.robot)
+        given = "--noise" if args.noise is not None else "the default, realistic"
+        print(f"noise model: {describe(noise)} (from {source or given})")
         comp = compare_methods(
             robot=robot,
             n_poses=args.poses,

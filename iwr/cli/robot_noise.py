@@ -1,5 +1,7 @@
-"""The instruments' noise model of a robot file (its ``[noise]`` and ``[tracker.noise]`` tables,
-docs/data.md) as ``iwr calibrate`` and ``iwr simulate`` use it when ``--noise`` is not given."""
+"""The instruments' noise model of the command line: what ``--noise`` means for a robot's data
+(:func:`option_noise`, the one reading of ``iwr simulate``, ``iwr calibrate``, ``iwr compare`` and
+``iwr-calibrate``), and a robot file's ``[noise]`` and ``[tracker.noise]`` tables (docs/data.md)
+as the commands use them when ``--noise`` is not given."""
 
 from __future__ import annotations
 
@@ -32,17 +34,60 @@ def calibration_noise(path: str) -> tuple[Any, str]:
     return noise, noise_source(robot, path)
 
 
+OPTION_HELP = (
+    "'realistic' (iwr.Noise.realistic()), 'none', or KEY=SIGMA,... over legs, joint_lengths, "
+    "joint_angles, position, orientation (mm, rad), e.g. 'legs=0.002,joint_lengths=0.005'. Pose "
+    "data: each the sd of its reading (omitted: 0). Tracker and ballbar data (they measure no "
+    "pose in {0}): legs and joint_* the readings' sds, and position the instrument's noise level, "
+    "its realistic noise (TrackerNoise.leica(), the bar's 1 um) x position / 0.02; without "
+    "position the instrument keeps its own noise (the robot file's [tracker.noise], else the "
+    "realistic one); orientation is not used")
+
+
+def option_noise(noise: Any, robot: Any) -> Any:
+    """What ``--noise`` (an :class:`iwr.Noise` from :func:`iwr.cli._base.noise_spec`) means for
+    ``robot``'s data, in the form its kind takes: the one reading of ``iwr simulate``, ``iwr
+    calibrate``, ``iwr compare`` and ``iwr-calibrate`` (they read it two ways before: simulate and
+    calibrate dropped ``position`` on tracker and ballbar data, compare refused noisy readings
+    without it).
+
+    Pose data: the :class:`iwr.Noise` as it is, each field its reading's sd. An instrument that
+    measures no pose in {0} (a laser tracker, a ballbar): the legs' and joints' sds are the
+    readings', and ``position`` is the instrument's noise level, as in ``iwr study``
+    (:meth:`iwr.kinds.MeasurementKind.experiment_noise`: its realistic noise scaled by
+    ``position / 0.02``, so ``realistic`` is the realistic instrument and ``none`` an exact one);
+    with readings' noise and no ``position`` the instrument keeps its own noise, the robot
+    file's (``[tracker.noise]``) if it has one, else its realistic one
+    (:meth:`~iwr.kinds.MeasurementKind.reading_noise`): a user who gives their sensors' noise is
+    not asked for the instrument's, and one who gives ``position`` has it used. ``orientation``
+    is not used there. Anything but an :class:`iwr.Noise` (``estimate``, a pair) as it is."""
+    from ..kinds import for_robot
+    from ..noise import Noise
+
+    if not isinstance(noise, Noise):
+        return noise
+    kind = for_robot(robot)
+    if noise.position > 0 or noise.is_zero:
+        return kind.experiment_noise(robot, noise)
+    model = kind.reading_noise(noise)
+    own = robot.noise_model
+    if isinstance(model, tuple) and isinstance(own, tuple) and own[1] is not None:
+        model = (model[0], own[1])  # the file's instrument table
+    return model
+
+
 def simulation_noise(noise: Any, robot: Any, path: str | None) -> tuple[Any, str | None]:
-    """``(noise, source)`` for ``iwr simulate``: ``--noise`` when given (source None), else the
-    robot file's noise model (source: the file and table), else ``iwr.Noise.realistic()``
-    (source None)."""
+    """``(noise, source)`` for ``iwr simulate`` and ``iwr compare``, in the form the robot's kind
+    takes: ``--noise`` when given (:func:`option_noise`; source None), else the robot file's
+    noise model (source: the file and table), else ``iwr.Noise.realistic()`` (source None)."""
+    from ..kinds import for_robot
     from ..noise import Noise
 
     if noise is not None:
-        return noise, None
+        return option_noise(noise, robot), None
     if path is not None and robot.noise_model is not None:
-        return robot.noise_model, noise_source(robot, path)
-    return Noise.realistic(), None
+        return for_robot(robot).reading_noise(robot.noise_model), noise_source(robot, path)
+    return option_noise(Noise.realistic(), robot), None
 
 
 def describe(noise: Any) -> str:

@@ -20,6 +20,7 @@ from ._base import (
     nonneg_int,
     positive_int,
 )
+from .robot_noise import OPTION_HELP, simulation_noise
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -37,11 +38,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("--seed", type=nonneg_int, default=1,
                    help="random seed: the same seed writes the same files (default: %(default)s)")
     p.add_argument("--noise", type=noise_spec, default=None, metavar="SPEC",
-                   help="measurement noise: 'realistic' (iwr.Noise.realistic(): legs 0.002 mm, "
-                   "joints 0.005 mm and 5e-6 rad, tracker 0.02 mm and 2e-5 rad), 'none' (the "
-                   "paper's simulation), or standard deviations KEY=SIGMA,... with KEY among legs, "
-                   "joint_lengths, joint_angles, position, orientation (mm, rad; others 0) "
-                   "(default: the --robot file's [noise] table if it has one, else realistic)")
+                   help="measurement noise: " + OPTION_HELP + " (default: the --robot file's "
+                   "[noise] table if it has one, else realistic)")
     p.add_argument("-o", "--out", default=".", metavar="DIR",
                    help="folder of the files written (created if needed; default: current)")
     p.add_argument("--robot-file", default="robot.toml", metavar="NAME",
@@ -96,13 +94,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
         args.robot_file, args.data_file, args.truth_file, f"{stem}_long.csv",
         f"{stem}_readings.csv"])
     robot = load_robot(args.robot) if args.robot else Robot.default()
-    from .robot_noise import simulation_noise
-
-    args.noise, args.noise_from = simulation_noise(args.noise, robot, args.robot)
-    kind = for_robot(robot)
     # What --noise means for the robot's instrument (a tracker's: its readings' noise and the
-    # tracker's own, iwr.kinds.MeasurementKind.reading_noise).
-    noise = kind.reading_noise(args.noise)
+    # tracker's own): robot_noise.option_noise, as iwr calibrate and iwr compare read it.
+    noise, args.noise_from = simulation_noise(args.noise, robot, args.robot)
+    kind = for_robot(robot)
     data, truth = simulate(robot, n_poses=args.poses, seed=args.seed, noise=noise)
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)

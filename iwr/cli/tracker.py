@@ -47,12 +47,3 @@ def target_format(args: argparse.Namespace) -> Any:
         return TargetFormat(**kw)
     except ValueError as exc:
         raise UsageError(str(exc).replace("target ", "--target-", 1)) from None
-
-
-def tracker_noise_of(noise: Any) -> Any:
-    """What ``--noise`` means for a robot with a tracker, in ``iwr simulate`` and ``iwr
-    calibrate`` alike (:meth:`iwr.tracker.kind.PointsKind.reading_noise`): the reading noise of
-    the :class:`iwr.Noise` and ``TrackerNoise.leica()`` (none when the whole noise is zero)."""
-    from ..kinds import named
-
-    return named("points").reading_noise(noise)
