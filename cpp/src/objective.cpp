@@ -47,8 +47,9 @@ constexpr SinCosSeries kSeries = sincos_series();
 // (truncation error < 2e-19), else by the C library. Several times cheaper than libm's sin and cos
 // (the loops over e vectorise), and no less accurate than cos(fl(nominal + delta)), which rounds the
 // angle first. The series by Estrin's scheme (pairs of terms, then pairs of pairs, with d^4, d^8,
-// d^16): a chain of 4 multiply-add levels where Horner's has 9, which was most of the leg
-// objective's fixed cost per evaluation (BENCHMARKS.md, "Thirteenth round").
+// d^16): a chain of 4 multiply-add levels where Horner's has 9 (the carriage's constants, this
+// series among them, were about a third of the leg objective's fixed cost per evaluation:
+// BENCHMARKS.md, "Thirteenth round").
 IWR_CLONES void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
                               const double* delta, double* c, double* s) {
     const double* kc = kSeries.cos;
