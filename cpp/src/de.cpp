@@ -409,34 +409,88 @@ void archive_trim(State& st) {
 }
 
 // Sums of squared deviations from the mean of columns [j0, j0 + nc) of the np x sd population
-// (row i at rows[i]) into v, each column summed row by row in slot order. NC columns, a constant,
-// so that the partial sums stay in registers.
-constexpr int kLogColumns = 16;
-template <int NC>
-IWR_DE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
-    constexpr int n = NC;
-    double s1[n] = {}, s2[n] = {};
-    for (int i = 0; i < np; ++i) {
-        const double* x = rows[i] + j0;
-        for (int k = 0; k < n; ++k) s1[k] += x[k];
+// (row i at rows[i]) into v, each column summed row by row in slot order. The columns as NV
+// vectors of kLane doubles (one AVX-512 register, two AVX2, four SSE2) and a last vector of T <
+// kLane columns, all in one pass over the rows, the counts constants: a pass is as long as one
+// column's chain of np dependent adds, whatever the count. Written with vectors because the
+// compiler, left to group a count such as 10 or 26 itself, turned the last columns into scalar
+// adds fed by loads gathered across rows.
+constexpr int kLane = 8;
+constexpr int kLogColumns = 4 * kLane;
+#if defined(__GNUC__)
+using Lanes = double __attribute__((vector_size(kLane * sizeof(double))));
+#else
+struct Lanes {
+    double v[kLane];
+    double& operator[](int k) { return v[k]; }
+    double operator[](int k) const { return v[k]; }
+    Lanes& operator+=(const Lanes& o) {
+        for (int k = 0; k < kLane; ++k) v[k] += o.v[k];
+        return *this;
     }
-    for (int k = 0; k < n; ++k) s1[k] /= np;
+    Lanes operator-(const Lanes& o) const {
+        Lanes r;
+        for (int k = 0; k < kLane; ++k) r.v[k] = v[k] - o.v[k];
+        return r;
+    }
+    Lanes operator*(const Lanes& o) const {
+        Lanes r;
+        for (int k = 0; k < kLane; ++k) r.v[k] = v[k] * o.v[k];
+        return r;
+    }
+};
+#endif
+// The first n <= kLane doubles at x into r, its other lanes 0. (A reference, not a return value:
+// a vector returned by value has another ABI with AVX-512, which GCC warns of.)
+template <int n>
+IWR_DE_INLINE void load_lanes(const double* x, Lanes& r) {
+    if (n == kLane) {
+        std::memcpy(&r, x, sizeof r);
+    } else {
+        r = Lanes{};
+        for (int k = 0; k < n; ++k) r[k] = x[k];
+    }
+}
+template <int NV, int T>
+IWR_DE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
+    constexpr int nv = NV + (T > 0 ? 1 : 0);
+    Lanes s1[nv] = {}, s2[nv] = {}, t = {};
     for (int i = 0; i < np; ++i) {
         const double* x = rows[i] + j0;
-        for (int k = 0; k < n; ++k) {
-            const double t = x[k] - s1[k];
-            s2[k] += t * t;
+        for (int g = 0; g < NV; ++g) {
+            load_lanes<kLane>(x + g * kLane, t);
+            s1[g] += t;
+        }
+        if (T > 0) {
+            load_lanes<T>(x + NV * kLane, t);
+            s1[nv - 1] += t;
         }
     }
-    for (int k = 0; k < n; ++k) v[j0 + k] = s2[k];
+    for (int g = 0; g < nv; ++g)
+        for (int k = 0; k < kLane; ++k) s1[g][k] /= np;
+    for (int i = 0; i < np; ++i) {
+        const double* x = rows[i] + j0;
+        for (int g = 0; g < NV; ++g) {
+            load_lanes<kLane>(x + g * kLane, t);
+            t = t - s1[g];
+            s2[g] += t * t;
+        }
+        if (T > 0) {
+            load_lanes<T>(x + NV * kLane, t);
+            t = t - s1[nv - 1];
+            s2[nv - 1] += t * t;
+        }
+    }
+    for (int k = 0; k < NV * kLane + T; ++k) v[j0 + k] = s2[k / kLane][k % kLane];
 }
 
-// Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the count a constant in each case, so
+// Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the counts constants in each case, so
 // that the sums of a group narrower than kLogColumns (the last) stay in vector registers too.
 template <int... N>
 IWR_DE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows, int np,
                                 int j0, int nc, double* v) {
-    ((nc == N + 1 ? column_deviations<N + 1>(rows, np, j0, v) : void()), ...);
+    ((nc == N + 1 ? column_deviations<(N + 1) / kLane, (N + 1) % kLane>(rows, np, j0, v) : void()),
+     ...);
 }
 IWR_DE_CLONES void column_block(const double* const* rows, int np, int j0, int nc, double* v) {
     column_cases(std::make_integer_sequence<int, kLogColumns>(), rows, np, j0, nc, v);
