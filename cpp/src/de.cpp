@@ -42,9 +42,26 @@ std::uint64_t splitmix64(std::uint64_t& x) {
     return z ^ (z >> 31);
 }
 
-inline std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+IWR_DE_INLINE std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
 
 constexpr double kPi = 3.14159265358979323846;
+
+// One step of xoshiro256** on s, inlined where the trials are drawn (Rng::next, an out-of-line
+// call there: the target_clones copies of the trial loop did not inline it).
+IWR_DE_INLINE std::uint64_t xoshiro_next(std::uint64_t* s) {
+    const std::uint64_t result = rotl(s[1] * 5, 7) * 9;
+    const std::uint64_t t = s[1] << 17;
+    s[2] ^= s[0];
+    s[3] ^= s[1];
+    s[1] ^= s[2];
+    s[0] ^= s[3];
+    s[2] ^= t;
+    s[3] = rotl(s[3], 45);
+    return result;
+}
+
+// Rng::uniform, inlined.
+IWR_DE_INLINE double uniform_of(Rng& g) { return static_cast<double>(xoshiro_next(g.s) >> 11) * 0x1.0p-53; }
 
 }  // namespace
 
@@ -56,17 +73,7 @@ Rng Rng::seeded(std::uint64_t seed) {
     return r;
 }
 
-std::uint64_t Rng::next() {
-    const std::uint64_t result = rotl(s[1] * 5, 7) * 9;
-    const std::uint64_t t = s[1] << 17;
-    s[2] ^= s[0];
-    s[3] ^= s[1];
-    s[1] ^= s[2];
-    s[0] ^= s[3];
-    s[2] ^= t;
-    s[3] = rotl(s[3], 45);
-    return result;
-}
+std::uint64_t Rng::next() { return xoshiro_next(s); }
 
 void Rng::jump() {
     static const std::uint64_t kJump[] = {0x180ec6d33cfd0abaULL, 0xd5a61266f0c9392cULL,
@@ -83,7 +90,7 @@ void Rng::jump() {
     for (int k = 0; k < 4; ++k) s[k] = t[k];
 }
 
-double Rng::uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
+double Rng::uniform() { return uniform_of(*this); }
 
 double Rng::uniform(double a, double b) { return a + (b - a) * uniform(); }
 
@@ -568,7 +575,7 @@ struct Below {
     explicit Below(std::uint64_t n_) : n(n_), threshold((0 - n_) % n_) {}
     std::uint64_t operator()(Rng& g) const {
         for (;;) {
-            const std::uint64_t r = g.next();
+            const std::uint64_t r = xoshiro_next(g.s);
             if (r >= threshold) return r % n;
         }
     }
@@ -585,7 +592,7 @@ struct Generation {
 
 // The out-of-bounds components of u repaired by the midpoint (Mid) or the clip rule, branch-free
 // (a mutant component leaves the bounds at random, so a branch would be mispredicted often): the
-// same values as the general loop of make_trial (xi, the parent, is within the bounds).
+// same values as the general loop of build_trial (xi, the parent, is within the bounds).
 template <bool Mid>
 IWR_DE_INLINE void repair_simple(double* __restrict u, const double* __restrict xi, const double* __restrict lo,
                    const double* __restrict hi, int d) {
@@ -600,8 +607,20 @@ IWR_DE_INLINE void repair_simple(double* __restrict u, const double* __restrict 
     }
 }
 
-// Builds the trial of slot i into u; returns its F and CR in Fi, CRi.
-IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi) {
+// What slot i's trial draws before it reads the population: the rows its mutant combines and its
+// F and CR. make_trials draws the plans of the next slots ahead of building a trial, so that their
+// rows are on their way to the cache (prefetched) when the trial reads them: a trial otherwise
+// waited on the three random rows it reads, from L2.
+struct Plan {
+    const double* base = nullptr;
+    const double *d1 = nullptr, *d2 = nullptr;  // difference vector d1 - d2
+    const double* pbest = nullptr;
+    double Fi = 0, CRi = 0;
+    double Fw = 0;  // weight of (pbest - xi)
+};
+
+// The first draws of slot i's trial, from its stream, in the order of the strategy's rule.
+IWR_DE_INLINE void plan_trial(const Generation& gen, int i, Plan& plan) {
     const State& st = *gen.st;
     const Settings& s = st.settings;
     Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];
@@ -618,11 +637,13 @@ IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& F
         } while (r == a || r == b || r == c);
         return r;
     };
-    // Mutant components are computed into u; crossover then keeps some of xi.
-    const double* base = nullptr;
-    const double *d1 = nullptr, *d2 = nullptr;  // difference vector d1 - d2
-    const double* pbest = nullptr;
-    double Fw = 0;  // weight of (pbest - xi)
+    const double*& base = plan.base;
+    const double*& d1 = plan.d1;
+    const double*& d2 = plan.d2;
+    const double*& pbest = plan.pbest;
+    double& Fi = plan.Fi;
+    double& CRi = plan.CRi;
+    double& Fw = plan.Fw;
     switch (s.strategy) {
         case Strategy::rand1bin:
         case Strategy::jde: {
@@ -705,6 +726,35 @@ IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& F
             break;
         }
     }
+}
+
+// The rows a plan reads, prefetched into the cache.
+IWR_DE_INLINE void prefetch_plan(const Plan& plan, int d) {
+#if defined(__GNUC__)
+    const std::size_t bytes = static_cast<std::size_t>(d) * sizeof(double);
+    for (const double* r : {plan.base, plan.d1, plan.d2, plan.pbest}) {
+        if (!r) continue;
+        const char* c = reinterpret_cast<const char*>(r);
+        __builtin_prefetch(c);
+        __builtin_prefetch(c + bytes / 2);
+        __builtin_prefetch(c + bytes - 1);
+    }
+#else
+    (void)plan, (void)d;
+#endif
+}
+
+// Builds the trial of slot i into u from its plan (the rest of its draws from its stream).
+IWR_DE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan, double* u) {
+    const State& st = *gen.st;
+    const Settings& s = st.settings;
+    Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];
+    const int d = st.dim();
+    const double* xi = st.population.row(i).data();
+    const double* base = plan.base;
+    const double *d1 = plan.d1, *d2 = plan.d2;
+    const double* pbest = plan.pbest;
+    const double Fi = plan.Fi, CRi = plan.CRi, Fw = plan.Fw;
     const bool simple_bounds = s.bound_rule == BoundRule::midpoint || s.bound_rule == BoundRule::clip;
     const bool mid = s.bound_rule == BoundRule::midpoint;
     const double* lower = s.lower.data();
@@ -720,7 +770,7 @@ IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& F
     const int jr = static_cast<int>(gen.below_d(g));
     if (CRi < 1) {
         for (int j = 0; j < d; ++j) {
-            const bool take = g.uniform() < CRi || j == jr;
+            const bool take = uniform_of(g) < CRi || j == jr;
             u[j] = take ? u[j] : xi[j];
         }
     }
@@ -753,6 +803,31 @@ IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& F
         }
         if (!(v >= lo && v <= hi)) v = std::clamp(std::isnan(v) ? xi[j] : v, lo, hi);
         u[j] = v;
+    }
+}
+
+// The trials of slots [b, e) into the rows of trials (d each), their F and CR into tF, tCR; each
+// slot's plan drawn kAhead slots before its trial is built (slot i's draws come from stream 1 + i
+// alone, in the same order: the same trials as drawn one slot at a time).
+constexpr int kAhead = 4;
+IWR_DE_CLONES void make_trials(const Generation& gen, int b, int e, double* trials, double* tF,
+                               double* tCR) {
+    const int d = gen.st->dim();
+    Plan plans[kAhead];
+    for (int k = b; k < std::min(b + kAhead, e); ++k) {
+        plan_trial(gen, k, plans[k % kAhead]);
+        prefetch_plan(plans[k % kAhead], d);
+    }
+    for (int i = b; i < e; ++i) {
+        const Plan plan = plans[i % kAhead];
+        if (i + kAhead < e) {
+            Plan& next = plans[(i + kAhead) % kAhead];
+            plan_trial(gen, i + kAhead, next);
+            prefetch_plan(next, d);
+        }
+        build_trial(gen, i, plan, trials + static_cast<std::size_t>(i) * static_cast<std::size_t>(d));
+        tF[i] = plan.Fi;
+        tCR[i] = plan.CRi;
     }
 }
 
@@ -987,10 +1062,8 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     RowMatrixXd trials(np, d);
     std::vector<double> tF(static_cast<std::size_t>(np)), tCR(static_cast<std::size_t>(np));
     VectorXd tcost(np);
-    const auto make_trials = [&](std::size_t b, std::size_t e) {
-        for (std::size_t i = b; i < e; ++i)
-            make_trial(gen, static_cast<int>(i), trials.row(static_cast<Eigen::Index>(i)).data(),
-                       tF[i], tCR[i]);
+    const auto make_trials_of = [&](std::size_t b, std::size_t e) {
+        make_trials(gen, static_cast<int>(b), static_cast<int>(e), trials.data(), tF.data(), tCR.data());
     };
     try {
         if (f.prepare(pool.size())) {
@@ -1001,12 +1074,12 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
             // alone): a thread that shares its core with another process takes fewer slots.
             pool.parallel_for_dynamic(static_cast<std::size_t>(np), ThreadPool::kGrain,
                                       [&](std::size_t b, std::size_t e, int id) {
-                make_trials(b, e);
+                make_trials_of(b, e);
                 if (b < std::min(e, nev)) f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
             });
         } else {
             pool.parallel_for(static_cast<std::size_t>(np),
-                              [&](std::size_t b, std::size_t e, int) { make_trials(b, e); });
+                              [&](std::size_t b, std::size_t e, int) { make_trials_of(b, e); });
             f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
         }
     } catch (...) {
