@@ -431,8 +431,8 @@ def test_history_spread_is_the_populations(dim):
     any width) against NumPy's from the final population: the root mean square over parameters of
     each column's standard deviation, in units of its bound width."""
     half = np.linspace(1.0, 3.0, dim)
-    res = iwr.differential_evolution(sphere, list(zip(-half, half)), population_size=40,
-                                     generations=3, seed=dim, workers=2)
+    res = iwr.differential_evolution(sphere, list(zip(-half, half, strict=True)),
+                                     population_size=40, generations=3, seed=dim, workers=2)
     rel = res.population.var(axis=0) / (2 * half) ** 2
     assert res.history["spread"][-1] == pytest.approx(np.sqrt(rel.mean()), rel=1e-12)
 
