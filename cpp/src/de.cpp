@@ -15,17 +15,14 @@
 #include <stdexcept>
 #include <utility>
 
-// The loops over the D components of a trial and over the population's columns (the log) compiled
-// for AVX-512 and AVX2 as well as the x86-64 baseline, the widest the CPU runs picked when the
-// library loads (GCC's target_clones): separate multiplies and adds (-ffp-contract=off), so the
-// same values whatever the instruction set, in wider registers.
-// glibc only: target_clones needs ifunc, which musl does not have.
-#if defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && \
-    defined(__GLIBC__)
-#define IWR_DE_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#include "clones.hpp"
+
+// The trial loop and the log's column sums are IWR_CLONES (clones.hpp): compiled for AVX-512 and
+// AVX2 as well as the baseline, the same values on each. What they call is always inlined, so
+// that each clone compiles it for its own instruction set.
+#if defined(__GNUC__)
 #define IWR_DE_INLINE __attribute__((always_inline)) inline
 #else
-#define IWR_DE_CLONES
 #define IWR_DE_INLINE inline
 #endif
 
@@ -499,7 +496,7 @@ IWR_DE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* 
     ((nc == N + 1 ? column_deviations<(N + 1) / kLane, (N + 1) % kLane>(rows, np, j0, v) : void()),
      ...);
 }
-IWR_DE_CLONES void column_block(const double* const* rows, int np, int j0, int nc, double* v) {
+IWR_CLONES void column_block(const double* const* rows, int np, int j0, int nc, double* v) {
     column_cases(std::make_integer_sequence<int, kLogColumns>(), rows, np, j0, nc, v);
 }
 
@@ -810,7 +807,7 @@ IWR_DE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan, d
 // slot's plan drawn kAhead slots before its trial is built (slot i's draws come from stream 1 + i
 // alone, in the same order: the same trials as drawn one slot at a time).
 constexpr int kAhead = 4;
-IWR_DE_CLONES void make_trials(const Generation& gen, int b, int e, double* trials, double* tF,
+IWR_CLONES void make_trials(const Generation& gen, int b, int e, double* trials, double* tF,
                                double* tCR) {
     const int d = gen.st->dim();
     Plan plans[kAhead];
