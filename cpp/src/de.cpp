@@ -15,29 +15,27 @@
 #include <stdexcept>
 #include <utility>
 
-// The loops over the D components of a trial and over the population's columns (the log) compiled
-// for AVX-512 and AVX2 as well as the x86-64 baseline, the widest the CPU runs picked when the
-// library loads (GCC's target_clones): separate multiplies and adds (-ffp-contract=off), so the
-// same values whatever the instruction set, in wider registers.
-// glibc only: target_clones needs ifunc, which musl does not have.
+#include "clones.hpp"
+
+// The trial loop and the log's column sums are IWR_CLONES (clones.hpp): compiled for AVX-512 and
+// AVX2 as well as the baseline, the same values on each. What they call is always inlined, so
+// that each clone compiles it for its own instruction set.
 // IWR_DE_ISA_AVX512F, _AVX2 or _BASELINE (the C++ tests' iwr_de_isa_* programs, CMakeLists.txt)
 // compile one variant alone, the one a CPU of that kind runs: the CPU picks the clone, so only
 // such a build runs the others (cpp/tests/test_de_isa.cpp compares their bits).
 #if defined(IWR_DE_ISA_AVX512F)
-#define IWR_DE_CLONES __attribute__((target("avx512f")))
-#define IWR_DE_INLINE __attribute__((always_inline)) inline
+#undef IWR_CLONES
+#define IWR_CLONES __attribute__((target("avx512f")))
 #elif defined(IWR_DE_ISA_AVX2)
-#define IWR_DE_CLONES __attribute__((target("avx2")))
-#define IWR_DE_INLINE __attribute__((always_inline)) inline
+#undef IWR_CLONES
+#define IWR_CLONES __attribute__((target("avx2")))
 #elif defined(IWR_DE_ISA_BASELINE)
-#define IWR_DE_CLONES
-#define IWR_DE_INLINE __attribute__((always_inline)) inline
-#elif defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && \
-    defined(__GLIBC__)
-#define IWR_DE_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
+#undef IWR_CLONES
+#define IWR_CLONES
+#endif
+#if defined(__GNUC__)
 #define IWR_DE_INLINE __attribute__((always_inline)) inline
 #else
-#define IWR_DE_CLONES
 #define IWR_DE_INLINE inline
 #endif
 
@@ -54,9 +52,26 @@ std::uint64_t splitmix64(std::uint64_t& x) {
     return z ^ (z >> 31);
 }
 
-inline std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+IWR_DE_INLINE std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
 
 constexpr double kPi = 3.14159265358979323846;
+
+// One step of xoshiro256** on s, inlined where the trials are drawn (Rng::next, an out-of-line
+// call there: the target_clones copies of the trial loop did not inline it).
+IWR_DE_INLINE std::uint64_t xoshiro_next(std::uint64_t* s) {
+    const std::uint64_t result = rotl(s[1] * 5, 7) * 9;
+    const std::uint64_t t = s[1] << 17;
+    s[2] ^= s[0];
+    s[3] ^= s[1];
+    s[1] ^= s[2];
+    s[0] ^= s[3];
+    s[2] ^= t;
+    s[3] = rotl(s[3], 45);
+    return result;
+}
+
+// Rng::uniform, inlined.
+IWR_DE_INLINE double uniform_of(Rng& g) { return static_cast<double>(xoshiro_next(g.s) >> 11) * 0x1.0p-53; }
 
 }  // namespace
 
@@ -68,17 +83,7 @@ Rng Rng::seeded(std::uint64_t seed) {
     return r;
 }
 
-std::uint64_t Rng::next() {
-    const std::uint64_t result = rotl(s[1] * 5, 7) * 9;
-    const std::uint64_t t = s[1] << 17;
-    s[2] ^= s[0];
-    s[3] ^= s[1];
-    s[1] ^= s[2];
-    s[0] ^= s[3];
-    s[2] ^= t;
-    s[3] = rotl(s[3], 45);
-    return result;
-}
+std::uint64_t Rng::next() { return xoshiro_next(s); }
 
 void Rng::jump() {
     static const std::uint64_t kJump[] = {0x180ec6d33cfd0abaULL, 0xd5a61266f0c9392cULL,
@@ -95,7 +100,7 @@ void Rng::jump() {
     for (int k = 0; k < 4; ++k) s[k] = t[k];
 }
 
-double Rng::uniform() { return static_cast<double>(next() >> 11) * 0x1.0p-53; }
+double Rng::uniform() { return uniform_of(*this); }
 
 double Rng::uniform(double a, double b) { return a + (b - a) * uniform(); }
 
@@ -421,36 +426,90 @@ void archive_trim(State& st) {
 }
 
 // Sums of squared deviations from the mean of columns [j0, j0 + nc) of the np x sd population
-// (row i at rows[i]) into v, each column summed row by row in slot order. NC columns, a constant,
-// so that the partial sums stay in registers.
-constexpr int kLogColumns = 16;
-template <int NC>
-IWR_DE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
-    constexpr int n = NC;
-    double s1[n] = {}, s2[n] = {};
-    for (int i = 0; i < np; ++i) {
-        const double* x = rows[i] + j0;
-        for (int k = 0; k < n; ++k) s1[k] += x[k];
+// (row i at rows[i]) into v, each column summed row by row in slot order. The columns as NV
+// vectors of kLane doubles (one AVX-512 register, two AVX2, four SSE2) and a last vector of T <
+// kLane columns, all in one pass over the rows, the counts constants: a pass is as long as one
+// column's chain of np dependent adds, whatever the count. Written with vectors because the
+// compiler, left to group a count such as 10 or 26 itself, turned the last columns into scalar
+// adds fed by loads gathered across rows.
+constexpr int kLane = 8;
+constexpr int kLogColumns = 4 * kLane;
+#if defined(__GNUC__)
+using Lanes = double __attribute__((vector_size(kLane * sizeof(double))));
+#else
+struct Lanes {
+    double v[kLane];
+    double& operator[](int k) { return v[k]; }
+    double operator[](int k) const { return v[k]; }
+    Lanes& operator+=(const Lanes& o) {
+        for (int k = 0; k < kLane; ++k) v[k] += o.v[k];
+        return *this;
     }
-    for (int k = 0; k < n; ++k) s1[k] /= np;
+    Lanes operator-(const Lanes& o) const {
+        Lanes r;
+        for (int k = 0; k < kLane; ++k) r.v[k] = v[k] - o.v[k];
+        return r;
+    }
+    Lanes operator*(const Lanes& o) const {
+        Lanes r;
+        for (int k = 0; k < kLane; ++k) r.v[k] = v[k] * o.v[k];
+        return r;
+    }
+};
+#endif
+// The first n <= kLane doubles at x into r, its other lanes 0. (A reference, not a return value:
+// a vector returned by value has another ABI with AVX-512, which GCC warns of.)
+template <int n>
+IWR_DE_INLINE void load_lanes(const double* x, Lanes& r) {
+    if (n == kLane) {
+        std::memcpy(&r, x, sizeof r);
+    } else {
+        r = Lanes{};
+        for (int k = 0; k < n; ++k) r[k] = x[k];
+    }
+}
+template <int NV, int T>
+IWR_DE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
+    constexpr int nv = NV + (T > 0 ? 1 : 0);
+    Lanes s1[nv] = {}, s2[nv] = {}, t = {};
     for (int i = 0; i < np; ++i) {
         const double* x = rows[i] + j0;
-        for (int k = 0; k < n; ++k) {
-            const double t = x[k] - s1[k];
-            s2[k] += t * t;
+        for (int g = 0; g < NV; ++g) {
+            load_lanes<kLane>(x + g * kLane, t);
+            s1[g] += t;
+        }
+        if (T > 0) {
+            load_lanes<T>(x + NV * kLane, t);
+            s1[nv - 1] += t;
         }
     }
-    for (int k = 0; k < n; ++k) v[j0 + k] = s2[k];
+    for (int g = 0; g < nv; ++g)
+        for (int k = 0; k < kLane; ++k) s1[g][k] /= np;
+    for (int i = 0; i < np; ++i) {
+        const double* x = rows[i] + j0;
+        for (int g = 0; g < NV; ++g) {
+            load_lanes<kLane>(x + g * kLane, t);
+            t = t - s1[g];
+            s2[g] += t * t;
+        }
+        if (T > 0) {
+            load_lanes<T>(x + NV * kLane, t);
+            t = t - s1[nv - 1];
+            s2[nv - 1] += t * t;
+        }
+    }
+    for (int k = 0; k < NV * kLane + T; ++k) v[j0 + k] = s2[k / kLane][k % kLane];
 }
 
-// Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the count a constant in each case, so
+// Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the counts constants in each case, so
 // that the sums of a group narrower than kLogColumns (the last) stay in vector registers too.
 template <int... N>
 IWR_DE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows, int np,
                                 int j0, int nc, double* v) {
-    ((nc == N + 1 ? column_deviations<N + 1>(rows, np, j0, v) : void()), ...);
+    ((nc == N + 1 ? column_deviations<(N + 1) / kLane, (N + 1) % kLane>(rows, np, j0, v) : void()),
+     ...);
 }
-IWR_DE_CLONES void column_block(const double* const* rows, int np, int j0, int nc, double* v) {
+IWR_CLONES void column_block(const double* const* rows, int np, int j0, int nc, double* v) {
     column_cases(std::make_integer_sequence<int, kLogColumns>(), rows, np, j0, nc, v);
 }
 
@@ -526,7 +585,7 @@ struct Below {
     explicit Below(std::uint64_t n_) : n(n_), threshold((0 - n_) % n_) {}
     std::uint64_t operator()(Rng& g) const {
         for (;;) {
-            const std::uint64_t r = g.next();
+            const std::uint64_t r = xoshiro_next(g.s);
             if (r >= threshold) return r % n;
         }
     }
@@ -543,7 +602,7 @@ struct Generation {
 
 // The out-of-bounds components of u repaired by the midpoint (Mid) or the clip rule, branch-free
 // (a mutant component leaves the bounds at random, so a branch would be mispredicted often): the
-// same values as the general loop of make_trial (xi, the parent, is within the bounds).
+// same values as the general loop of build_trial (xi, the parent, is within the bounds).
 template <bool Mid>
 IWR_DE_INLINE void repair_simple(double* __restrict u, const double* __restrict xi, const double* __restrict lo,
                    const double* __restrict hi, int d) {
@@ -558,8 +617,20 @@ IWR_DE_INLINE void repair_simple(double* __restrict u, const double* __restrict 
     }
 }
 
-// Builds the trial of slot i into u; returns its F and CR in Fi, CRi.
-IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& Fi, double& CRi) {
+// What slot i's trial draws before it reads the population: the rows its mutant combines and its
+// F and CR. make_trials draws the plans of the next slots ahead of building a trial, so that their
+// rows are on their way to the cache (prefetched) when the trial reads them: a trial otherwise
+// waited on the three random rows it reads, from L2.
+struct Plan {
+    const double* base = nullptr;
+    const double *d1 = nullptr, *d2 = nullptr;  // difference vector d1 - d2
+    const double* pbest = nullptr;
+    double Fi = 0, CRi = 0;
+    double Fw = 0;  // weight of (pbest - xi)
+};
+
+// The first draws of slot i's trial, from its stream, in the order of the strategy's rule.
+IWR_DE_INLINE void plan_trial(const Generation& gen, int i, Plan& plan) {
     const State& st = *gen.st;
     const Settings& s = st.settings;
     Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];
@@ -576,11 +647,13 @@ IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& F
         } while (r == a || r == b || r == c);
         return r;
     };
-    // Mutant components are computed into u; crossover then keeps some of xi.
-    const double* base = nullptr;
-    const double *d1 = nullptr, *d2 = nullptr;  // difference vector d1 - d2
-    const double* pbest = nullptr;
-    double Fw = 0;  // weight of (pbest - xi)
+    const double*& base = plan.base;
+    const double*& d1 = plan.d1;
+    const double*& d2 = plan.d2;
+    const double*& pbest = plan.pbest;
+    double& Fi = plan.Fi;
+    double& CRi = plan.CRi;
+    double& Fw = plan.Fw;
     switch (s.strategy) {
         case Strategy::rand1bin:
         case Strategy::jde: {
@@ -663,6 +736,35 @@ IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& F
             break;
         }
     }
+}
+
+// The rows a plan reads, prefetched into the cache.
+IWR_DE_INLINE void prefetch_plan(const Plan& plan, int d) {
+#if defined(__GNUC__)
+    const std::size_t bytes = static_cast<std::size_t>(d) * sizeof(double);
+    for (const double* r : {plan.base, plan.d1, plan.d2, plan.pbest}) {
+        if (!r) continue;
+        const char* c = reinterpret_cast<const char*>(r);
+        __builtin_prefetch(c);
+        __builtin_prefetch(c + bytes / 2);
+        __builtin_prefetch(c + bytes - 1);
+    }
+#else
+    (void)plan, (void)d;
+#endif
+}
+
+// Builds the trial of slot i into u from its plan (the rest of its draws from its stream).
+IWR_DE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan, double* u) {
+    const State& st = *gen.st;
+    const Settings& s = st.settings;
+    Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];
+    const int d = st.dim();
+    const double* xi = st.population.row(i).data();
+    const double* base = plan.base;
+    const double *d1 = plan.d1, *d2 = plan.d2;
+    const double* pbest = plan.pbest;
+    const double Fi = plan.Fi, CRi = plan.CRi, Fw = plan.Fw;
     const bool simple_bounds = s.bound_rule == BoundRule::midpoint || s.bound_rule == BoundRule::clip;
     const bool mid = s.bound_rule == BoundRule::midpoint;
     const double* lower = s.lower.data();
@@ -678,7 +780,7 @@ IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& F
     const int jr = static_cast<int>(gen.below_d(g));
     if (CRi < 1) {
         for (int j = 0; j < d; ++j) {
-            const bool take = g.uniform() < CRi || j == jr;
+            const bool take = uniform_of(g) < CRi || j == jr;
             u[j] = take ? u[j] : xi[j];
         }
     }
@@ -711,6 +813,31 @@ IWR_DE_CLONES void make_trial(const Generation& gen, int i, double* u, double& F
         }
         if (!(v >= lo && v <= hi)) v = std::clamp(std::isnan(v) ? xi[j] : v, lo, hi);
         u[j] = v;
+    }
+}
+
+// The trials of slots [b, e) into the rows of trials (d each), their F and CR into tF, tCR; each
+// slot's plan drawn kAhead slots before its trial is built (slot i's draws come from stream 1 + i
+// alone, in the same order: the same trials as drawn one slot at a time).
+constexpr int kAhead = 4;
+IWR_CLONES void make_trials(const Generation& gen, int b, int e, double* trials, double* tF,
+                               double* tCR) {
+    const int d = gen.st->dim();
+    Plan plans[kAhead];
+    for (int k = b; k < std::min(b + kAhead, e); ++k) {
+        plan_trial(gen, k, plans[k % kAhead]);
+        prefetch_plan(plans[k % kAhead], d);
+    }
+    for (int i = b; i < e; ++i) {
+        const Plan plan = plans[i % kAhead];
+        if (i + kAhead < e) {
+            Plan& next = plans[(i + kAhead) % kAhead];
+            plan_trial(gen, i + kAhead, next);
+            prefetch_plan(next, d);
+        }
+        build_trial(gen, i, plan, trials + static_cast<std::size_t>(i) * static_cast<std::size_t>(d));
+        tF[i] = plan.Fi;
+        tCR[i] = plan.CRi;
     }
 }
 
@@ -945,10 +1072,8 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     RowMatrixXd trials(np, d);
     std::vector<double> tF(static_cast<std::size_t>(np)), tCR(static_cast<std::size_t>(np));
     VectorXd tcost(np);
-    const auto make_trials = [&](std::size_t b, std::size_t e) {
-        for (std::size_t i = b; i < e; ++i)
-            make_trial(gen, static_cast<int>(i), trials.row(static_cast<Eigen::Index>(i)).data(),
-                       tF[i], tCR[i]);
+    const auto make_trials_of = [&](std::size_t b, std::size_t e) {
+        make_trials(gen, static_cast<int>(b), static_cast<int>(e), trials.data(), tF.data(), tCR.data());
     };
     try {
         if (f.prepare(pool.size())) {
@@ -959,12 +1084,12 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
             // alone): a thread that shares its core with another process takes fewer slots.
             pool.parallel_for_dynamic(static_cast<std::size_t>(np), ThreadPool::kGrain,
                                       [&](std::size_t b, std::size_t e, int id) {
-                make_trials(b, e);
+                make_trials_of(b, e);
                 if (b < std::min(e, nev)) f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
             });
         } else {
             pool.parallel_for(static_cast<std::size_t>(np),
-                              [&](std::size_t b, std::size_t e, int) { make_trials(b, e); });
+                              [&](std::size_t b, std::size_t e, int) { make_trials_of(b, e); });
             f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
         }
     } catch (...) {

@@ -425,6 +425,18 @@ def test_history(iwr_data):
     assert res.settings["seed"] == 1 and res.settings["strategy"] == "rand1bin"
 
 
+@pytest.mark.parametrize("dim", [1, 7, 8, 13, 32, 33, 58, 71])
+def test_history_spread_is_the_populations(dim):
+    """The log's spread (the engine sums the columns in groups of vectors of 8, the last group of
+    any width) against NumPy's from the final population: the root mean square over parameters of
+    each column's standard deviation, in units of its bound width."""
+    half = np.linspace(1.0, 3.0, dim)
+    res = iwr.differential_evolution(sphere, list(zip(-half, half, strict=True)),
+                                     population_size=40, generations=3, seed=dim, workers=2)
+    rel = res.population.var(axis=0) / (2 * half) ** 2
+    assert res.history["spread"][-1] == pytest.approx(np.sqrt(rel.mean()), rel=1e-12)
+
+
 def test_result_file_round_trip(iwr_data, tmp_path):
     robot, measurements, _ = iwr_data
     res = iwr.identify(robot, measurements, "de", strategy="jade", generations=5, seed=3,
