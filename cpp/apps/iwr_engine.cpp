@@ -560,6 +560,15 @@ struct Outcome {
     iwr::VectorXd x;
 };
 
+// A setting that a resumed run may change: the command line's, else the checkpoint's (else `to`
+// is left as it is).
+template <class T, class V>
+void take(T& to, const std::optional<V>& given, const std::optional<iwr::Checkpoint>& saved,
+          T iwr::Checkpoint::*field) {
+    if (given) to = *given;
+    else if (saved) to = (*saved).*field;
+}
+
 void write_checkpoint_file(const de::State& st, const RunInfo& info, const Outcome& out) {
     iwr::Checkpoint c;
     c.program = std::string(kProgram) + " " + IWR_VERSION;
@@ -883,20 +892,14 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
     }
 
     // Stopping criteria: the command line, else the checkpoint's, else the defaults.
-    if (o.generations) info.generations = *o.generations;
-    else if (saved) info.generations = saved->generations;
-    if (o.max_evaluations) info.max_evaluations = *o.max_evaluations;
-    else if (saved) info.max_evaluations = saved->max_evaluations;
-    if (o.target_cost) info.target_cost = *o.target_cost;
-    else if (saved) info.target_cost = saved->target_cost;
-    if (o.tol) info.tol = *o.tol;
-    else if (saved) info.tol = saved->tol;
-    if (o.atol) info.atol = *o.atol;
-    else if (saved) info.atol = saved->atol;
-    if (o.stagnation_generations) info.stagnation_generations = *o.stagnation_generations;
-    else if (saved) info.stagnation_generations = saved->stagnation_generations;
-    if (o.stagnation_tol) info.stagnation_tol = *o.stagnation_tol;
-    else if (saved) info.stagnation_tol = saved->stagnation_tol;
+    take(info.generations, o.generations, saved, &iwr::Checkpoint::generations);
+    take(info.max_evaluations, o.max_evaluations, saved, &iwr::Checkpoint::max_evaluations);
+    take(info.target_cost, o.target_cost, saved, &iwr::Checkpoint::target_cost);
+    take(info.tol, o.tol, saved, &iwr::Checkpoint::tol);
+    take(info.atol, o.atol, saved, &iwr::Checkpoint::atol);
+    take(info.stagnation_generations, o.stagnation_generations, saved,
+         &iwr::Checkpoint::stagnation_generations);
+    take(info.stagnation_tol, o.stagnation_tol, saved, &iwr::Checkpoint::stagnation_tol);
     // The defaults of iwr.identify(method="de"): the paper's 60000 generations with its preset;
     // lshade and jso run to their evaluation budget (10000 D unless given); others 1000 generations.
     const bool budget = budgeted(state->settings.strategy);
@@ -906,8 +909,7 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
         if (!info.generations && !info.max_evaluations) info.generations = kDefaultGenerations;
     }
     info.checkpoint_every = kDefaultCheckpointEvery;
-    if (o.checkpoint_every) info.checkpoint_every = *o.checkpoint_every;
-    else if (saved) info.checkpoint_every = saved->checkpoint_every;
+    take(info.checkpoint_every, o.checkpoint_every, saved, &iwr::Checkpoint::checkpoint_every);
 
     de::Stop stop;
     if (info.generations) stop.max_generations = *info.generations;
