@@ -37,10 +37,11 @@ sqrt counts 1, an FMA 2):
 revolute joint 54 (6 for the angle-sum cos/sin, 3 rows x 16 for T <- T A_i), in place of the 78
 above; other carriages still run that chain (a generic prismatic joint after a revolute one
 costs 49). The per-evaluation set-up (sin/cos of the 8 DH angles by a series, the prefix
-rotation, the folded constants, ~450 flops) is not counted.
-The floor is N x 328 flops at the measured peak of one core with the same instruction set and the
-same operations (separate multiplies and adds: the kernel does not fuse them, so that every
-instruction set gives the same bits); the FMA peak is shown too.
+rotation, the folded constants: several hundred flops, not counted here) is not counted.
+The floor is N x 328 flops at the measured peak of one core with the same instruction set, with
+separate multiplies and adds (the AVX2 and AVX-512 variants fuse the multiply-adds the kernel
+writes as such, the same ones in both, so that they give the same bits; an FMA counts 2 flops);
+the FMA peak is shown too.
 
 Usage::
 
@@ -119,11 +120,11 @@ def machine_info() -> dict:
 
 
 def flops_per_pose(joint_types: str, weighted: bool) -> int:
-    """Flops of the kernel per pose (see the module docstring): a prismatic prefix then two
-    revolute joints folded, any other carriage joint by joint."""
+    """Flops of the kernel per pose (see the module docstring): the IWR's PPRR folded, any other
+    carriage joint by joint."""
     n_prefix = len(joint_types) - len(joint_types.lstrip("P"))
-    if joint_types[n_prefix:] == "RR":
-        f = 36 + 18 + 3 * 2 * (n_prefix + 2)
+    if joint_types == "PPRR":  # the chain the kernel compiles in (kernel(): chain_is(pd, 2, 2))
+        f = 36 + 18 + 3 * 2 * 4
     else:
         f = 6 * n_prefix
         for c in joint_types[n_prefix:]:

@@ -16,6 +16,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <algorithm>
+#include <string>
 #include <vector>
 #include "iwr/de.hpp"
 #include "iwr/measurement_kind.hpp"
@@ -68,9 +69,17 @@ double median_gen_ms(F& f, const de::Settings& s, iwr::ThreadPool& pool, int gen
 }
 
 int main(int argc, char** argv) {
+    if (argc < 2) {
+        std::fprintf(stderr, "usage: %s PROBLEM.iwrp [THREADS [GENERATIONS > 50 [MODE [RUNS]]]]\n", argv[0]);
+        return 2;
+    }
     const std::string path = argv[1];
     const int threads = argc > 2 ? std::atoi(argv[2]) : 1;
     const int gens = argc > 3 ? std::atoi(argv[3]) : 400;
+    if (gens <= 50) {
+        std::fprintf(stderr, "GENERATIONS: %d; more than 50 (the median is over generations 50..)\n", gens);
+        return 2;
+    }
     const std::string mode = argc > 4 ? argv[4] : "both";
     const int runs = argc > 5 ? std::atoi(argv[5]) : 5;
     const iwr::ProblemData p = iwr::read_problem(path);

@@ -660,12 +660,23 @@ def test_the_engine_stops_by_identify_s_convergence_tests(files: dict[str, Path]
                    "--generations", 400, "--quiet")
     assert proc.returncode == 0, proc.stderr
     _same_run(iwr.load_result(tmp_path / "r.json"), exe)
+    # Resumed again with the same test, it stops at once; with the test off, it runs on to the
+    # limit, as the same run without the test would.
+    off = ["--tol", 0, "--atol", 0] if "tol" in rule else ["--stagnation-generations", 0]
+    proc = run_cal(files["robot"], files["data"], "--resume", tmp_path / "r.json.ckpt",
+                   "--generations", 60 + exe.nit, *off, "--quiet")
+    assert proc.returncode == 0, proc.stderr
+    longer = iwr.load_result(tmp_path / "r.json")
+    assert longer.status == "stopped" and longer.nit == 60 + exe.nit
+    whole = iwr.identify(robot, m, method="de", workers=1, progress=False, polish=False,
+                         generations=60 + exe.nit, **common)
+    np.testing.assert_array_equal(longer.x, whole.x)
 
 
 @pytest.mark.parametrize(("option", "value", "expected"), [
     ("--tol", "-0.1", "--tol: -0.1 is negative"),
     ("--atol", "nan", "--atol: nan is not finite"),
-    ("--stagnation-generations", "0", "--stagnation-generations: 0 is out of range"),
+    ("--stagnation-generations", "-1", "--stagnation-generations: -1 is out of range"),
     ("--stagnation-tol", "x", "--stagnation-tol: 'x' is not a number"),
 ])
 def test_bad_stop_rules_are_refused_by_name(files: dict[str, Path], tmp_path: Path, option: str,

@@ -182,12 +182,17 @@ resuming, to extend a run):
   --target-cost C          stop as soon as the best cost is <= C (mm^2; the paper reached 1e-4;
                            a problem weighted by a noise model: the dimensionless chi-square)
   --tol T, --atol A        stop when the population's costs have converged: their standard
-                           deviation <= A + T |mean| (SciPy's test; default off)
+                           deviation <= A + T |mean| (SciPy's test; default 0 and 0: off)
   --stagnation-generations G
-                           stop when the best cost improved by no more than --stagnation-tol
-                           times |best| (default 0: not at all) over the last G generations
-                           (default off). These and --tol end a run as a success ("converged");
-                           the options of iwr.identify(method="de") of the same names
+                           stop when the best cost improved by no more than R |best| over the
+                           last G generations (default 0: off)
+  --stagnation-tol R       R of the stagnation test (default 0: no improvement at all); without
+                           --stagnation-generations it does nothing
+                           --target-cost, --tol/--atol and the stagnation test end a run as a
+                           success ("converged"); they are iwr.identify(method="de")'s options of
+                           the same names. A run one of them stopped stops again at once when
+                           resumed with it: to extend such a run, resume it with the test off
+                           (--tol 0 --atol 0, --stagnation-generations 0) or changed
 
 running:
   --threads T              threads evaluating the population (default 0: all the CPUs this
@@ -222,7 +227,8 @@ next start. kill -9 loses at most the work since the last checkpoint. Progress g
 error, every 0.5 s on a terminal and every 10 s otherwise.
 
 exit status:
-  0    the run ended (generations done or target reached; see "success" in the result)
+  0    the run ended (its limit reached, or a test: --target-cost, --tol, the stagnation test;
+       see "success" in the result)
   1    an error in the problem file, a checkpoint (missing, truncated, corrupt, locked, made for
        other data or settings), while writing, or when the system refuses a thread; the message
        names the file or the number of threads
@@ -360,7 +366,7 @@ Options parse_args(int argc, char** argv) {
         else if (name == "--tol") o.tol = parse_tolerance(name, value);
         else if (name == "--atol") o.atol = parse_tolerance(name, value);
         else if (name == "--stagnation-generations")
-            o.stagnation_generations = parse_int(name, value, 1, INT64_MAX);
+            o.stagnation_generations = parse_int(name, value, 0, INT64_MAX);
         else if (name == "--stagnation-tol") o.stagnation_tol = parse_tolerance(name, value);
         else if (name == "--threads") {
             const int cap = iwr::ThreadPool::max_threads();

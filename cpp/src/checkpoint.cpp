@@ -48,8 +48,9 @@ std::string encode_checkpoint(const Checkpoint& c, const de::State& state) {
 }
 
 Checkpoint decode_checkpoint(const std::string& bytes, const std::string& context) {
-    const std::string payload =
-        io::unseal(bytes, kMagic, kCheckpointVersion, context, "an iwr-engine checkpoint");
+    std::uint32_t version = 0;
+    const std::string payload = io::unseal(bytes, kMagic, kOldestCheckpointVersion, kCheckpointVersion,
+                                           &version, context, "an iwr-engine checkpoint");
     io::Reader r(payload.data(), payload.size(), context);
     Checkpoint c;
     c.program = r.text("program", 256);
@@ -70,10 +71,12 @@ Checkpoint decode_checkpoint(const std::string& bytes, const std::string& contex
         if (!(v >= 0 && std::isfinite(v))) r.fail(std::string(what) + " is not a finite number >= 0");
         return v;
     };
-    c.tol = tolerance("tol");
-    c.atol = tolerance("atol");
-    c.stagnation_generations = r.i64_in("stagnation generations", 0, kInt64Max);
-    c.stagnation_tol = tolerance("stagnation tol");
+    if (version >= 4) {  // version 3 had no convergence tests: off
+        c.tol = tolerance("tol");
+        c.atol = tolerance("atol");
+        c.stagnation_generations = r.i64_in("stagnation generations", 0, kInt64Max);
+        c.stagnation_tol = tolerance("stagnation tol");
+    }
     c.checkpoint_every = r.i64_in("checkpoint every", 0, kInt64Max);
     c.preset_paper = r.flag("preset");
     c.had_log = r.flag("had a log");

@@ -1,4 +1,6 @@
-// Internal: IWR_CLONES, a function compiled for AVX-512 and AVX2 as well as the x86-64 baseline,
+// Internal: IWR_CLONES, a function compiled for AVX-512 and AVX2 as well as the x86-64 baseline
+// (DE's trial loop and log sums, tested for equal bits by cpp/tests/test_de_isa.cpp; the integer
+// finiteness check of model.cpp),
 // the widest the CPU runs picked when the library loads (GCC's target_clones). Separate multiplies
 // and adds in every clone (-ffp-contract=off, CMakeLists.txt) and no reassociation: the same values
 // whatever the instruction set, in wider registers. GCC on x86-64 glibc only (target_clones needs

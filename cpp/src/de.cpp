@@ -18,8 +18,9 @@
 #include "clones.hpp"
 
 // The trial loop and the log's column sums are IWR_CLONES (clones.hpp): compiled for AVX-512 and
-// AVX2 as well as the baseline, the same values on each. What they call is always inlined, so
-// that each clone compiles it for its own instruction set.
+// AVX2 as well as the baseline, the same values on each. The helpers they call in their loops are
+// always inlined, so that each clone compiles them for its own instruction set (the random
+// streams' out-of-line methods aside: integer arithmetic).
 // IWR_DE_ISA_AVX512F, _AVX2 or _BASELINE (the C++ tests' iwr_de_isa_* programs, CMakeLists.txt)
 // compile one variant alone, the one a CPU of that kind runs: the CPU picks the clone, so only
 // such a build runs the others (cpp/tests/test_de_isa.cpp compares their bits).

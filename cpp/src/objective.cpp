@@ -5,7 +5,6 @@
 #include <sstream>
 #include <stdexcept>
 
-#include "clones.hpp"
 #include "objective_kernel.hpp"
 
 namespace iwr {
@@ -47,10 +46,12 @@ constexpr SinCosSeries kSeries = sincos_series();
 // (truncation error < 2e-19), else by the C library. Several times cheaper than libm's sin and cos
 // (the loops over e vectorise), and no less accurate than cos(fl(nominal + delta)), which rounds the
 // angle first. The series by Estrin's scheme (pairs of terms, then pairs of pairs, with d^4, d^8,
-// d^16): a chain of 4 multiply-add levels where Horner's has 9 (the carriage's constants, this
-// series among them, were about a third of the leg objective's fixed cost per evaluation:
-// BENCHMARKS.md, "Thirteenth round").
-IWR_CLONES void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
+// d^16): a critical path of 5 dependent multiplies and an add where Horner's has 18 operations
+// (the carriage's constants, this series among them, were about a third of the leg objective's
+// fixed cost per evaluation: BENCHMARKS.md, "Thirteenth round"). Not cloned per instruction set:
+// GCC has emitted fused operations in a target region despite -ffp-contract=off (BENCHMARKS.md,
+// fourth round), and these values must be the same on every CPU.
+void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
                               const double* delta, double* c, double* s) {
     const double* kc = kSeries.cos;
     const double* ks = kSeries.sin;
@@ -202,7 +203,7 @@ void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalCon
     // at every pose and a position affine in the readings, p = pc + sum_i q_i z_i. Each joint
     // multiplies by Rz(theta) Trans_z(d + q) Trans_x(a) Rx(alpha) (eq. 1).
     // Written in place: a local copy, copied by GCC in 16-byte moves, made loads wait on the
-    // 8-byte stores they straddle (a store-forwarding stall, about a fifth of the fixed cost).
+    // 8-byte stores they straddle (store-forwarding stalls: BENCHMARKS.md, thirteenth round).
     double* r = ec.rc;
     double* p = ec.pc;
     for (int e = 0; e < 9; ++e) r[e] = e % 4 == 0 ? 1.0 : 0.0;
@@ -236,7 +237,8 @@ void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalCon
 
 void detail::fold_carriage(EvalConsts& ec, int n_prefix, int n_joints, const char* prismatic) {
     ec.folded = false;
-    if (n_joints != n_prefix + 2 || prismatic[n_prefix] || prismatic[n_prefix + 1]) return;
+    // The chain the kernel has compiled in (kernel(): chain_is(pd, 2, 2)): the IWR's PPRR.
+    if (n_prefix != 2 || n_joints != 4 || prismatic[2] || prismatic[3]) return;
     FoldedCarriage& f = ec.fold;
     const double* j1 = ec.joint + 6 * n_prefix;  // cos/sin alpha, cos/sin theta, a, d
     const double* j2 = j1 + 6;

@@ -59,8 +59,8 @@ struct EvalConsts {
     FoldedCarriage fold;
 };
 
-/// ec.fold from ec's rc, pc and joint constants when the carriage is n_prefix prismatic joints then
-/// two revolute ones (n_joints == n_prefix + 2); ec.folded says whether it did.
+/// ec.fold from ec's rc, pc and joint constants when the carriage is two prismatic joints then two
+/// revolute ones (the chain the leg kernel compiles in); ec.folded says whether it did.
 void fold_carriage(EvalConsts& ec, int n_prefix, int n_joints, const char* prismatic);
 
 /// Sum of squared (weighted) residuals; when residuals != nullptr also writes them (N*6, pose-major).

@@ -621,6 +621,37 @@ IWR_TEST(checkpoint_round_trip_and_damage) {
     CHECK(refused == total);
 }
 
+IWR_TEST(checkpoint_of_version_3_is_read_with_the_tests_off) {
+    // A version 3 checkpoint: version 4's payload without its four convergence fields (found as
+    // the bytes where two checkpoints that differ only in them differ), sealed as version 3.
+    iwr::Checkpoint c = sample_checkpoint();
+    const std::string with = iwr::encode_checkpoint(c, c.state);
+    c.tol = 0.5, c.atol = 0.25, c.stagnation_generations = 7, c.stagnation_tol = 0.125;
+    const std::string other = iwr::encode_checkpoint(c, c.state);
+    const std::size_t header = 32;
+    std::size_t at = header;
+    while (at < with.size() && with[at] == other[at]) ++at;  // tol's lowest byte (0.01 against 0.5)
+    std::string payload = with.substr(header);
+    const std::size_t from = at - header;
+    CHECK(from + 32 <= payload.size());
+    payload.erase(from, 32);
+    io::Writer w;
+    w.raw(with.substr(0, 8));
+    w.u32(3);
+    w.u32(0);
+    w.u64(payload.size());
+    w.u64(io::hash64(payload.data(), payload.size()));
+    w.raw(payload);
+    const iwr::Checkpoint back = iwr::decode_checkpoint(w.data(), "v3.ckpt: ");
+    CHECK(back.tol == 0 && back.atol == 0 && back.stagnation_generations == 0 && back.stagnation_tol == 0);
+    CHECK(back.generations == 10 && back.target_cost == 1e-4 && back.checkpoint_every == 5);
+    CHECK(back.x == sample_checkpoint().x && back.state.generation == 3);
+    // Version 2 is refused by its version.
+    std::string v2 = w.data();
+    v2[8] = 2;
+    CHECK(contains(refusal([&] { iwr::decode_checkpoint(v2, "v2.ckpt: "); }), "version"));
+}
+
 IWR_TEST(checkpoint_fields_are_range_checked) {
     // Crafted checkpoints, checksums recomputed: each field as if a user had typed it.
     auto refused_with = [](auto edit, const std::string& needle) {

@@ -1,4 +1,4 @@
-// DE's trial generation (make_trial) and the log's column sums (column_block) are compiled for
+// DE's trial generation (make_trials) and the log's column sums (column_block) are compiled for
 // AVX-512, AVX2 and the x86-64 baseline (GCC's target_clones, de.cpp), and the CPU running the
 // library picks one: the others never run on it, so no test compared their bits. This program is
 // built once per variant with de.cpp compiled for that variant alone (IWR_DE_ISA_AVX512F, _AVX2,

@@ -4,7 +4,8 @@
 //   u64  robot, data and settings fingerprints (of the problem file and of the DE settings)
 //   str  problem file (its path when the run started, for messages only)
 //   i64  generations (-1: none), max evaluations (-1: none); f64 target cost (NaN: none)
-//   f64  tol, atol (0: off); i64 stagnation generations (0: off); f64 stagnation tol
+//   f64  tol, atol (0: off); i64 stagnation generations (0: off); f64 stagnation tol (version 4
+//        on; a version 3 checkpoint, without them, is read with the tests off)
 //   i64  checkpoint every; u8 preset (0 none, 1 paper); u8 had a log
 //   u8   success; str message; f64 cost at x; f64s x   (the run's result so far: every parameter)
 //   u64  D; D i64s: the increasing positions in x of the engine state's D (active) parameters
@@ -25,6 +26,7 @@
 namespace iwr {
 
 constexpr std::uint32_t kCheckpointVersion = 4;  // 4: the convergence and stagnation tests
+constexpr std::uint32_t kOldestCheckpointVersion = 3;  // read with the tests off
 
 struct Checkpoint {
     std::string program;
