@@ -76,12 +76,17 @@ def np_cost(robot: iwr.Robot, x: np.ndarray, m: iwr.Measurements) -> tuple[float
 
 
 def make_robot(joint_types: str) -> iwr.Robot:
+    """"PPRR": the IWR; "PPRR*": a PPRR carriage with random DH values (the kernel folds every
+    PPRR carriage into per-evaluation constants: objective_kernel.hpp, FoldedCarriage); other
+    strings: carriages of those joint types with random DH values."""
     if joint_types == "PPRR":
         return iwr.Robot.default()
+    seed_key = joint_types
+    joint_types = joint_types.rstrip("*")
     if joint_types == "":
         return iwr.Robot.hexapod()
     hexapod = iwr.Robot.hexapod()
-    rng = np.random.default_rng(len(joint_types) + 10 * joint_types.count("R"))
+    rng = np.random.default_rng(len(seed_key) + 10 * seed_key.count("R") + 7 * seed_key.count("*"))
     n = len(joint_types)
     dh = np.column_stack(
         [
@@ -130,7 +135,7 @@ def random_x(problem: iwr.Problem, rng: np.random.Generator, angles: str) -> np.
 
 CASES = [
     (jt, n, weighted)
-    for jt in ["PPRR", "", "RPRP", "RRPP", "PRRRP"]
+    for jt in ["PPRR", "PPRR*", "", "RPRP", "RRPP", "PRRRP"]
     for n in [1, 7, 13, 100]
     for weighted in [False, True]
 ]
