@@ -52,7 +52,7 @@ constexpr SinCosSeries kSeries = sincos_series();
 // GCC has emitted fused operations in a target region despite -ffp-contract=off (BENCHMARKS.md,
 // fourth round), and these values must be the same on every CPU.
 void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
-                              const double* delta, double* c, double* s) {
+                   const double* delta, double* c, double* s) {
     const double* kc = kSeries.cos;
     const double* ks = kSeries.sin;
     for (int e = 0; e < n; ++e) {
