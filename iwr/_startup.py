@@ -50,6 +50,14 @@ def _command() -> str | None:
     return None
 
 
+def command_kernel() -> None:
+    """The commands' reading of IWR_KERNEL, the objective's SIMD variant (``import iwr`` reads it
+    for any other program): raises ValueError naming the variable and its value."""
+    from . import _core
+
+    _core._select_kernel_from_environment()
+
+
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C in one of the commands, after their ``main`` took over (see the module's notes)."""
 

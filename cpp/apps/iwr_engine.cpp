@@ -226,6 +226,13 @@ in the same folder, flushed to disk, then renamed; those a kill left behind are 
 next start. kill -9 loses at most the work since the last checkpoint. Progress goes to standard
 error, every 0.5 s on a terminal and every 10 s otherwise.
 
+environment:
+  IWR_KERNEL               the objective's SIMD variant: baseline, avx2, avx512 (those this CPU
+                           runs; --version lists them) or auto, the widest (the default). avx2
+                           and avx512 give the same bits; baseline differs to rounding, so a run
+                           with the same seed follows another path: set IWR_KERNEL=baseline to
+                           repeat a run made on a CPU without AVX2
+
 exit status:
   0    the run ended (its limit reached, or a test: --target-cost, --tol, the stagnation test;
        see "success" in the result)
@@ -233,7 +240,7 @@ exit status:
        other data or settings), while writing, or when the system refuses a thread; the message
        names the file or the number of threads
   2    a usage error: unknown option, bad value, missing argument, an output that is an input,
-       a population too large for the memory available
+       a population too large for the memory available, a bad IWR_KERNEL
   129, 130, 143
        stopped by SIGHUP, SIGINT (Ctrl-C) or SIGTERM at the end of a generation, after writing a
        final checkpoint with the best result so far (128 + the signal number). A signal ignored
@@ -1068,8 +1075,17 @@ int main(int argc, char** argv) {
             std::fputs(kHelp, stdout);
             return kExitOk;
         }
+        try {
+            iwr::select_kernel_from_environment();
+        } catch (const std::invalid_argument& e) {
+            std::fprintf(stderr, "%s: error: %s\n", kProgram, one_line(e.what()).c_str());
+            return kExitUsage;
+        }
         if (o.version) {
-            std::printf("%s %s\n", kProgram, IWR_VERSION);
+            std::string runs;
+            for (const std::string& k : iwr::supported_kernels()) runs += (runs.empty() ? "" : ", ") + k;
+            std::printf("%s %s (kernel %s; this CPU runs %s)\n", kProgram, IWR_VERSION,
+                        iwr::active_kernel().c_str(), runs.c_str());
             return kExitOk;
         }
         return run(o);

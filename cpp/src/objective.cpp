@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <sstream>
 #include <stdexcept>
 
@@ -388,6 +389,28 @@ void Objective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residual
 std::vector<std::string> supported_kernels() { return detail::supported_kernels(); }
 std::string active_kernel() { return detail::active_kernel_name(); }
 void select_kernel(const std::string& name) { detail::select_kernel(name); }
+
+void select_kernel_from_environment() {
+    const char* value = std::getenv("IWR_KERNEL");
+    const std::string name = value ? value : "";
+    const std::vector<std::string> runs = supported_kernels();
+    if (name.empty() || name == "auto") {
+        detail::select_kernel(runs.back());
+        return;
+    }
+    if (std::find(runs.begin(), runs.end(), name) != runs.end()) {
+        detail::select_kernel(name);
+        return;
+    }
+    const std::vector<std::string> built = detail::compiled_kernels();
+    std::string list;
+    for (const std::string& k : runs) list += (list.empty() ? "" : ", ") + k;
+    const bool known = std::find(built.begin(), built.end(), name) != built.end();
+    throw std::invalid_argument("environment variable IWR_KERNEL='" + name + "': " +
+                                (known ? "this CPU cannot run that kernel variant"
+                                       : "not a kernel variant") +
+                                "; expected one this CPU runs (" + list + ") or auto");
+}
 
 void Objective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {
     batch_costs(*this, X, static_cast<std::size_t>(m), out, pool);

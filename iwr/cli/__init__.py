@@ -43,9 +43,11 @@ class _Version(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
                  values: object, option_string: str | None = None) -> None:
+        from .. import _core
         from ..reporting.html import iwr_version
 
-        print(f"iwr {iwr_version()}")
+        print(f"iwr {iwr_version()} (kernel {_core._active_kernel()}; this CPU runs "
+              f"{', '.join(_core._supported_kernels())})")
         parser.exit()
 
 
@@ -61,7 +63,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Units: mm and rad everywhere. File formats: docs/data.md. Exit codes: 0 success, "
         "1 bad data or failed computation, 2 bad usage, 3 the model does not fit the data, "
         "4 not converged and 5 not calibrated (iwr calibrate), 6 a target out of stroke or "
-        "workspace (iwr legs), 130 interrupted.",
+        "workspace (iwr legs), 130 interrupted. Environment: IWR_KERNEL picks the objective's "
+        "SIMD variant (baseline, avx2, avx512 or auto; --version lists those this CPU runs).",
     )
     parser.add_argument("--version", action=_Version)
     parser.add_argument("--debug", action="store_true",
@@ -92,6 +95,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     ]
     try:
         _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
+        try:
+            _startup.command_kernel()
+        except ValueError as exc:
+            raise UsageError(str(exc), "iwr") from None
         args = build_parser().parse_args(argv)
         func: Callable[[argparse.Namespace], int | None] = args.func
         code = func(args)

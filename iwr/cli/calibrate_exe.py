@@ -448,6 +448,10 @@ def main(argv: Sequence[str] | None = None) -> int:
     argv = list(sys.argv[1:] if argv is None else argv)
     try:
         _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
+        try:
+            _startup.command_kernel()
+        except ValueError as exc:
+            raise _Usage(str(exc)) from None
         return _main(argv)
     except _Usage as exc:
         return _error(str(exc), EXIT_USAGE)
