@@ -59,6 +59,18 @@ def test_import_iwr_refuses_an_unknown_variant_by_name(value: str) -> None:
                     f"variant; expected one this CPU runs ({', '.join(SUPPORTED)}) or auto")
 
 
+def test_a_process_with_a_commands_argv_runs_the_variant_too() -> None:
+    """Dask's spawned workers of `iwr study` carry the command's argv: importing iwr there
+    applies IWR_KERNEL as anywhere (a bad value is left to the command's main, which refused it
+    before any worker started)."""
+    code = ("import sys; sys.argv[0] = '/somewhere/bin/iwr'; import iwr; "
+            "print(iwr._core._active_kernel())")
+    proc = _run([sys.executable, "-c", code], "baseline")
+    assert proc.returncode == 0 and proc.stdout.strip() == "baseline", proc.stderr
+    proc = _run([sys.executable, "-c", code], "sse9")
+    assert proc.returncode == 0 and proc.stdout.strip() == WIDEST, proc.stderr
+
+
 @pytest.mark.parametrize("prog", ["iwr", "iwr-calibrate", "iwr-engine"])
 def test_the_commands_name_the_variant_and_refuse_a_bad_one_in_one_line(prog: str) -> None:
     exe = str(BIN / prog)
