@@ -435,10 +435,8 @@ def test_too_few_poses_and_a_method_not_converged_say_the_data_are_the_cause(sim
     assert iwr.load_result(out / "result.json").success is False
     prov = iwr.Robot.from_toml(out / "calibrated.toml").provenance
     assert prov["status"] == "not calibrated"
-    # The SIMD variant that ran (IWR_KERNEL, else the widest this CPU runs) is recorded.
-    kernels = iwr._core._supported_kernels()
-    assert prov["kernel"] == (os.environ.get("IWR_KERNEL", "auto").replace("auto", "")
-                              or kernels[-1])
+    # The SIMD variant that ran is recorded: the widest this CPU runs (run() clears IWR_*).
+    assert prov["kernel"] == iwr._core._supported_kernels()[-1]
     assert "**Not calibrated: degenerate data" in (out / "report.md").read_text()
     assert f", kernel {prov['kernel']}, " in (out / "report.md").read_text()
 

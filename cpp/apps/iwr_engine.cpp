@@ -230,8 +230,9 @@ environment:
   IWR_KERNEL               the objective's SIMD variant: baseline, avx2, avx512 (those this CPU
                            runs; --version lists them) or auto, the widest (the default). avx2
                            and avx512 give the same bits; baseline differs to rounding, so a run
-                           with the same seed follows another path: set IWR_KERNEL=baseline to
-                           repeat a run made on a CPU without AVX2
+                           with the same seed follows another path. The checkpoint does not
+                           record it: resume with the same IWR_KERNEL (an interrupted run's
+                           resume command sets it)
 
 exit status:
   0    the run ended (its limit reached, or a test: --target-cost, --tol, the stagnation test;
@@ -1033,7 +1034,8 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
     if (interrupted) {
         const std::string command =
             o.resume_command ? *o.resume_command
-                             : std::string(kProgram) + " " + shell_quote(problem_path) + " --resume " +
+                             : iwr::kernel_environment_prefix() + kProgram + " " +
+                                   shell_quote(problem_path) + " --resume " +
                                    shell_quote(info.checkpoint) +
                                    (info.log.empty() ? "" : " --log " + shell_quote(info.log));
         message = std::string("interrupted by ") + signal_name(sig) + " at generation " +
@@ -1078,14 +1080,10 @@ int main(int argc, char** argv) {
         try {
             iwr::select_kernel_from_environment();
         } catch (const std::invalid_argument& e) {
-            std::fprintf(stderr, "%s: error: %s\n", kProgram, one_line(e.what()).c_str());
-            return kExitUsage;
+            throw UsageError(e.what());
         }
         if (o.version) {
-            std::string runs;
-            for (const std::string& k : iwr::supported_kernels()) runs += (runs.empty() ? "" : ", ") + k;
-            std::printf("%s %s (kernel %s; this CPU runs %s)\n", kProgram, IWR_VERSION,
-                        iwr::active_kernel().c_str(), runs.c_str());
+            std::printf("%s %s (%s)\n", kProgram, IWR_VERSION, iwr::kernel_summary().c_str());
             return kExitOk;
         }
         return run(o);

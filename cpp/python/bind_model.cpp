@@ -27,6 +27,8 @@ void bind_model(py::module_& m) {
     m.def("_active_kernel", &active_kernel);
     m.def("_select_kernel", &select_kernel, py::arg("name"));
     m.def("_select_kernel_from_environment", &select_kernel_from_environment);
+    m.def("_kernel_summary", &kernel_summary);
+    m.def("_kernel_environment_prefix", &kernel_environment_prefix);
 
     m.def("euler_zyx", &euler_zyx, py::arg("alpha"), py::arg("beta"), py::arg("gamma"));
     m.def("dh_transform", &dh_transform, py::arg("alpha"), py::arg("a"), py::arg("d"),

@@ -390,9 +390,40 @@ std::vector<std::string> supported_kernels() { return detail::supported_kernels(
 std::string active_kernel() { return detail::active_kernel_name(); }
 void select_kernel(const std::string& name) { detail::select_kernel(name); }
 
-void select_kernel_from_environment() {
+namespace {
+
+std::string joined(const std::vector<std::string>& names) {
+    std::string out;
+    for (const std::string& k : names) out += (out.empty() ? "" : ", ") + k;
+    return out;
+}
+
+// A value as the message shows it: printable ASCII as is, any other byte as \xHH (a message must
+// stay one line of valid UTF-8 whatever the environment holds).
+std::string shown(const std::string& value) {
+    std::string out;
+    for (const unsigned char c : value) {
+        if (c >= 0x20 && c < 0x7f && c != '\\') {
+            out += static_cast<char>(c);
+        } else {
+            static const char* hex = "0123456789abcdef";
+            out += "\\x";
+            out += hex[c >> 4];
+            out += hex[c & 15];
+        }
+    }
+    return out;
+}
+
+std::string kernel_variable() {
     const char* value = std::getenv("IWR_KERNEL");
-    const std::string name = value ? value : "";
+    return value ? value : "";
+}
+
+}  // namespace
+
+void select_kernel_from_environment() {
+    const std::string name = kernel_variable();
     const std::vector<std::string> runs = supported_kernels();
     if (name.empty() || name == "auto") {
         detail::select_kernel(runs.back());
@@ -403,13 +434,20 @@ void select_kernel_from_environment() {
         return;
     }
     const std::vector<std::string> built = detail::compiled_kernels();
-    std::string list;
-    for (const std::string& k : runs) list += (list.empty() ? "" : ", ") + k;
     const bool known = std::find(built.begin(), built.end(), name) != built.end();
-    throw std::invalid_argument("environment variable IWR_KERNEL='" + name + "': " +
+    throw std::invalid_argument("environment variable IWR_KERNEL='" + shown(name) + "': " +
                                 (known ? "this CPU cannot run that kernel variant"
                                        : "not a kernel variant") +
-                                "; expected one this CPU runs (" + list + ") or auto");
+                                "; expected one this CPU runs (" + joined(runs) + ") or auto");
+}
+
+std::string kernel_summary() {
+    return "kernel " + active_kernel() + "; this CPU runs " + joined(supported_kernels());
+}
+
+std::string kernel_environment_prefix() {
+    const std::string name = kernel_variable();
+    return name.empty() || name == "auto" ? "" : "IWR_KERNEL=" + name + " ";
 }
 
 void Objective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {

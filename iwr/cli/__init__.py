@@ -46,9 +46,17 @@ class _Version(argparse.Action):
         from .. import _core
         from ..reporting.html import iwr_version
 
-        print(f"iwr {iwr_version()} (kernel {_core._active_kernel()}; this CPU runs "
-              f"{', '.join(_core._supported_kernels())})")
+        _command_kernel()
+        print(f"iwr {iwr_version()} ({_core._kernel_summary()})")
         parser.exit()
+
+
+def _command_kernel() -> None:
+    """IWR_KERNEL applied; a bad value is a usage error (exit status 2)."""
+    try:
+        _startup.command_kernel()
+    except ValueError as exc:
+        raise UsageError(str(exc), "iwr") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -95,11 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ]
     try:
         _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
-        try:
-            _startup.command_kernel()
-        except ValueError as exc:
-            raise UsageError(str(exc), "iwr") from None
-        args = build_parser().parse_args(argv)
+        args = build_parser().parse_args(argv)  # --help whatever IWR_KERNEL holds
+        _command_kernel()
         func: Callable[[argparse.Namespace], int | None] = args.func
         code = func(args)
         return EXIT_OK if code is None else int(code)

@@ -67,6 +67,11 @@ void select_kernel(const std::string& name);
 /// std::invalid_argument naming the variable and its value if the name is unknown or the CPU
 /// cannot run it.
 void select_kernel_from_environment();
+/// "kernel K; this CPU runs A, B, C": the variant in use and those this CPU runs (--version).
+std::string kernel_summary();
+/// "IWR_KERNEL=K " when the environment names a variant (not auto), else "": the prefix of a
+/// command that repeats or resumes a run with the same variant.
+std::string kernel_environment_prefix();
 
 class Objective {
 public:
