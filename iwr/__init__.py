@@ -26,6 +26,16 @@ except ImportError as _exc:  # pragma: no cover - exercised by a subprocess test
         "package, or install in place with pip install -e . (see README.md)"
     ) from _exc
 
+# IWR_KERNEL, the objective's SIMD variant (docs/de.md, "Across machines"), for every process that
+# imports iwr: also the workers a command starts (Dask's spawned processes carry the command's
+# argv). A bad value is an ImportError, but in the commands, whose main reports it in one line with
+# exit status 2 (_startup.command_kernel).
+try:
+    _core._select_kernel_from_environment()
+except ValueError as _exc:
+    if _startup._command() is None:
+        raise ImportError(f"iwr: {_exc}") from None
+
 # What every use needs (no module of iwr is named like a function here: tools/layers.py checks).
 # None of these imports SciPy.
 from .analysis.accuracy import Accuracy, PoseErrors, accuracy, pose_errors

@@ -50,6 +50,17 @@ def _command() -> str | None:
     return None
 
 
+def command_kernel() -> None:
+    """The commands' check of IWR_KERNEL, the objective's SIMD variant, which ``import iwr``
+    applied where it could: raises ValueError naming the variable and its value. Unset or auto,
+    nothing changes (a variant chosen in this process, as the tests do, stays)."""
+    if os.environ.get("IWR_KERNEL", "") in ("", "auto"):
+        return
+    from . import _core
+
+    _core._select_kernel_from_environment()
+
+
 class Interrupted(KeyboardInterrupt):
     """Ctrl-C in one of the commands, after their ``main`` took over (see the module's notes)."""
 

@@ -75,7 +75,7 @@ def test_every_command_has_help():
 
 def test_version():
     proc = run("--version")
-    assert proc.returncode == 0 and proc.stdout.strip() == f"iwr {iwr.__version__}"
+    assert proc.returncode == 0 and proc.stdout.startswith(f"iwr {iwr.__version__} (kernel ")
 
 
 @pytest.mark.parametrize(
@@ -433,8 +433,12 @@ def test_too_few_poses_and_a_method_not_converged_say_the_data_are_the_cause(sim
     assert proc.returncode == 5, proc.stdout + proc.stderr
     assert "iwr calibrate: not calibrated (exit 5): degenerate data: the 3 distinct" in proc.stderr
     assert iwr.load_result(out / "result.json").success is False
-    assert iwr.Robot.from_toml(out / "calibrated.toml").provenance["status"] == "not calibrated"
+    prov = iwr.Robot.from_toml(out / "calibrated.toml").provenance
+    assert prov["status"] == "not calibrated"
+    # The SIMD variant that ran is recorded: the widest this CPU runs (run() clears IWR_*).
+    assert prov["kernel"] == iwr._core._supported_kernels()[-1]
     assert "**Not calibrated: degenerate data" in (out / "report.md").read_text()
+    assert f", kernel {prov['kernel']}, " in (out / "report.md").read_text()
 
 
 def test_recalibration_with_the_default_folder_keeps_its_input(sim, tmp_path):

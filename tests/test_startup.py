@@ -85,4 +85,6 @@ def test_version_option_prints_the_version(capsys):
         main(["--version"])
     except SystemExit as exc:
         assert exc.code in (0, None)
-    assert capsys.readouterr().out.strip() == f"iwr {iwr.__version__}"
+    kernels = ", ".join(iwr._core._supported_kernels())
+    assert capsys.readouterr().out.strip() == (
+        f"iwr {iwr.__version__} (kernel {iwr._core._active_kernel()}; this CPU runs {kernels})")

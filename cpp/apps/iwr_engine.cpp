@@ -226,6 +226,14 @@ in the same folder, flushed to disk, then renamed; those a kill left behind are 
 next start. kill -9 loses at most the work since the last checkpoint. Progress goes to standard
 error, every 0.5 s on a terminal and every 10 s otherwise.
 
+environment:
+  IWR_KERNEL               the objective's SIMD variant: baseline, avx2, avx512 (those this CPU
+                           runs; --version lists them) or auto, the widest (the default). avx2
+                           and avx512 give the same bits; baseline differs to rounding, so a run
+                           with the same seed follows another path. The checkpoint does not
+                           record it: resume with the same IWR_KERNEL (an interrupted run's
+                           resume command sets it)
+
 exit status:
   0    the run ended (its limit reached, or a test: --target-cost, --tol, the stagnation test;
        see "success" in the result)
@@ -233,7 +241,7 @@ exit status:
        other data or settings), while writing, or when the system refuses a thread; the message
        names the file or the number of threads
   2    a usage error: unknown option, bad value, missing argument, an output that is an input,
-       a population too large for the memory available
+       a population too large for the memory available, a bad IWR_KERNEL
   129, 130, 143
        stopped by SIGHUP, SIGINT (Ctrl-C) or SIGTERM at the end of a generation, after writing a
        final checkpoint with the best result so far (128 + the signal number). A signal ignored
@@ -1026,7 +1034,8 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
     if (interrupted) {
         const std::string command =
             o.resume_command ? *o.resume_command
-                             : std::string(kProgram) + " " + shell_quote(problem_path) + " --resume " +
+                             : iwr::kernel_environment_prefix() + kProgram + " " +
+                                   shell_quote(problem_path) + " --resume " +
                                    shell_quote(info.checkpoint) +
                                    (info.log.empty() ? "" : " --log " + shell_quote(info.log));
         message = std::string("interrupted by ") + signal_name(sig) + " at generation " +
@@ -1068,8 +1077,13 @@ int main(int argc, char** argv) {
             std::fputs(kHelp, stdout);
             return kExitOk;
         }
+        try {
+            iwr::select_kernel_from_environment();
+        } catch (const std::invalid_argument& e) {
+            throw UsageError(e.what());
+        }
         if (o.version) {
-            std::printf("%s %s\n", kProgram, IWR_VERSION);
+            std::printf("%s %s (%s)\n", kProgram, IWR_VERSION, iwr::kernel_summary().c_str());
             return kExitOk;
         }
         return run(o);

@@ -21,10 +21,14 @@ void bind_model(py::module_& m) {
         .def_property_readonly("n_params", &Geometry::n_params)
         .def_property_readonly("joint_types", &Geometry::joint_types);
 
-    // Private: SIMD variant of the cost kernel (tests check that all variants agree bit for bit).
+    // Private: SIMD variant of the cost kernel (tests check that all variants agree bit for bit);
+    // IWR_KERNEL read by iwr's import and the commands (iwr._kernel).
     m.def("_supported_kernels", &supported_kernels);
     m.def("_active_kernel", &active_kernel);
     m.def("_select_kernel", &select_kernel, py::arg("name"));
+    m.def("_select_kernel_from_environment", &select_kernel_from_environment);
+    m.def("_kernel_summary", &kernel_summary);
+    m.def("_kernel_environment_prefix", &kernel_environment_prefix);
 
     m.def("euler_zyx", &euler_zyx, py::arg("alpha"), py::arg("beta"), py::arg("gamma"));
     m.def("dh_transform", &dh_transform, py::arg("alpha"), py::arg("a"), py::arg("d"),

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstdlib>
 #include <sstream>
 #include <stdexcept>
 
@@ -388,6 +389,66 @@ void Objective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residual
 std::vector<std::string> supported_kernels() { return detail::supported_kernels(); }
 std::string active_kernel() { return detail::active_kernel_name(); }
 void select_kernel(const std::string& name) { detail::select_kernel(name); }
+
+namespace {
+
+std::string joined(const std::vector<std::string>& names) {
+    std::string out;
+    for (const std::string& k : names) out += (out.empty() ? "" : ", ") + k;
+    return out;
+}
+
+// A value as the message shows it: printable ASCII as is, any other byte as \xHH (a message must
+// stay one line of valid UTF-8 whatever the environment holds).
+std::string shown(const std::string& value) {
+    std::string out;
+    for (const unsigned char c : value) {
+        if (c >= 0x20 && c < 0x7f && c != '\\') {
+            out += static_cast<char>(c);
+        } else {
+            static const char* hex = "0123456789abcdef";
+            out += "\\x";
+            out += hex[c >> 4];
+            out += hex[c & 15];
+        }
+    }
+    return out;
+}
+
+std::string kernel_variable() {
+    const char* value = std::getenv("IWR_KERNEL");
+    return value ? value : "";
+}
+
+}  // namespace
+
+void select_kernel_from_environment() {
+    const std::string name = kernel_variable();
+    const std::vector<std::string> runs = supported_kernels();
+    if (name.empty() || name == "auto") {
+        detail::select_kernel(runs.back());
+        return;
+    }
+    if (std::find(runs.begin(), runs.end(), name) != runs.end()) {
+        detail::select_kernel(name);
+        return;
+    }
+    const std::vector<std::string> built = detail::compiled_kernels();
+    const bool known = std::find(built.begin(), built.end(), name) != built.end();
+    throw std::invalid_argument("environment variable IWR_KERNEL='" + shown(name) + "': " +
+                                (known ? "this CPU cannot run that kernel variant"
+                                       : "not a kernel variant") +
+                                "; expected one this CPU runs (" + joined(runs) + ") or auto");
+}
+
+std::string kernel_summary() {
+    return "kernel " + active_kernel() + "; this CPU runs " + joined(supported_kernels());
+}
+
+std::string kernel_environment_prefix() {
+    const std::string name = kernel_variable();
+    return name.empty() || name == "auto" ? "" : "IWR_KERNEL=" + name + " ";
+}
 
 void Objective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {
     batch_costs(*this, X, static_cast<std::size_t>(m), out, pool);

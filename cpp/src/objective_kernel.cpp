@@ -268,6 +268,12 @@ const char* active_kernel_name() {
     return kVariants[active_index().load(std::memory_order_relaxed)].name;
 }
 
+std::vector<std::string> compiled_kernels() {
+    std::vector<std::string> out;
+    for (const Variant& v : kVariants) out.emplace_back(v.name);
+    return out;
+}
+
 std::vector<std::string> supported_kernels() {
     std::vector<std::string> out;
     for (const Variant& v : kVariants)

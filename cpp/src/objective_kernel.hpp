@@ -107,6 +107,8 @@ KernelFn active_kernel();
 const char* active_kernel_name();
 /// Names of the variants compiled in that this CPU can run, baseline first.
 std::vector<std::string> supported_kernels();
+/// Names of every variant compiled in, baseline first.
+std::vector<std::string> compiled_kernels();
 /// Forces a variant (tests and benchmarks); throws std::invalid_argument when unknown/unsupported.
 void select_kernel(const std::string& name);
 

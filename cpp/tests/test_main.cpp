@@ -4,6 +4,7 @@
 #include <atomic>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <random>
 #include <stdexcept>
 #include <string>
@@ -160,6 +161,45 @@ IWR_TEST(kernel_variants) {
         thrown = std::string(e.what()).find("'nope' is unknown") != std::string::npos;
     }
     CHECK(thrown);
+}
+
+// IWR_KERNEL (what iwr-engine and the Python front ends read at start): a variant this CPU runs,
+// auto or empty (the widest), or an error that names the variable and its value.
+IWR_TEST(kernel_from_environment) {
+    const std::string before = iwr::active_kernel();
+    const std::vector<std::string> runs = iwr::supported_kernels();
+    const char* saved = std::getenv("IWR_KERNEL");
+    const std::string saved_value = saved ? saved : "";
+    for (const std::string& k : runs) {
+        setenv("IWR_KERNEL", k.c_str(), 1);
+        iwr::select_kernel_from_environment();
+        CHECK(iwr::active_kernel() == k);
+        for (const char* widest : {"auto", ""}) {
+            setenv("IWR_KERNEL", widest, 1);
+            iwr::select_kernel_from_environment();
+            CHECK(iwr::active_kernel() == runs.back());
+            iwr::select_kernel(k);
+        }
+    }
+    unsetenv("IWR_KERNEL");
+    iwr::select_kernel(runs.front());
+    iwr::select_kernel_from_environment();
+    CHECK(iwr::active_kernel() == runs.back());
+    for (const char* bad : {"sse9", "AVX2", "avx2 "}) {
+        setenv("IWR_KERNEL", bad, 1);
+        std::string msg;
+        try {
+            iwr::select_kernel_from_environment();
+        } catch (const std::invalid_argument& e) {
+            msg = e.what();
+        }
+        CHECK(msg.find("environment variable IWR_KERNEL='" + std::string(bad) +
+                       "': not a kernel variant; expected one this CPU runs") == 0);
+        CHECK(iwr::active_kernel() == runs.back());  // unchanged by a refused value
+    }
+    if (saved) setenv("IWR_KERNEL", saved_value.c_str(), 1);
+    else unsetenv("IWR_KERNEL");
+    iwr::select_kernel(before);
 }
 
 IWR_TEST(pool_propagates_exceptions) {

@@ -43,10 +43,20 @@ class _Version(argparse.Action):
 
     def __call__(self, parser: argparse.ArgumentParser, namespace: argparse.Namespace,
                  values: object, option_string: str | None = None) -> None:
+        from .. import _core
         from ..reporting.html import iwr_version
 
-        print(f"iwr {iwr_version()}")
+        _command_kernel()
+        print(f"iwr {iwr_version()} ({_core._kernel_summary()})")
         parser.exit()
+
+
+def _command_kernel() -> None:
+    """IWR_KERNEL applied; a bad value is a usage error (exit status 2)."""
+    try:
+        _startup.command_kernel()
+    except ValueError as exc:
+        raise UsageError(str(exc), "iwr") from None
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -61,7 +71,8 @@ def build_parser() -> argparse.ArgumentParser:
         epilog="Units: mm and rad everywhere. File formats: docs/data.md. Exit codes: 0 success, "
         "1 bad data or failed computation, 2 bad usage, 3 the model does not fit the data, "
         "4 not converged and 5 not calibrated (iwr calibrate), 6 a target out of stroke or "
-        "workspace (iwr legs), 130 interrupted.",
+        "workspace (iwr legs), 130 interrupted. Environment: IWR_KERNEL picks the objective's "
+        "SIMD variant (baseline, avx2, avx512 or auto; --version lists those this CPU runs).",
     )
     parser.add_argument("--version", action=_Version)
     parser.add_argument("--debug", action="store_true",
@@ -92,7 +103,8 @@ def main(argv: Sequence[str] | None = None) -> int:
     ]
     try:
         _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
-        args = build_parser().parse_args(argv)
+        args = build_parser().parse_args(argv)  # --help whatever IWR_KERNEL holds
+        _command_kernel()
         func: Callable[[argparse.Namespace], int | None] = args.func
         code = func(args)
         return EXIT_OK if code is None else int(code)

@@ -398,9 +398,14 @@ def _resume_command(positional: list[str], own: dict[str, str], output: str, che
     words += ["--resume", checkpoint]
     if log:
         words += ["--log", log]  # the engine rewrites the log from the checkpoint's history
+    # IWR_KERNEL=K first where the run's variant came from the environment: the same variant on
+    # resume, or the run would not end where an uninterrupted one does.
+    from .. import _core
+
+    env = _core._kernel_environment_prefix()
     if any(p.startswith("-") and len(p) > 1 for p in positional):  # a file named -x.csv
-        return shlex.join([PROG, *words, "--", *positional])
-    return shlex.join([PROG, *positional, *words])
+        return env + shlex.join([PROG, *words, "--", *positional])
+    return env + shlex.join([PROG, *positional, *words])
 
 
 def _run_engine(engine: str, args: list[str]) -> int:
@@ -467,6 +472,10 @@ def _main(argv: list[str]) -> int:
         sys.stdout.write(HELP)
         sys.stdout.flush()
         return subprocess.call([PROG, "--help"], executable=engine_path())
+    try:  # the engine, started with this environment, reads it too
+        _startup.command_kernel()
+    except ValueError as exc:
+        raise _Usage(str(exc)) from None
     if "--version" in flags:
         return subprocess.call([PROG, "--version"], executable=engine_path())
     if "--export" in own:

@@ -537,6 +537,7 @@ class CalibrationReport(Calibration):
         }
         if self.provenance is not None:
             prov["iwr_version"] = str(self.provenance.get("iwr_version", ""))
+            prov["kernel"] = str(self.provenance.get("kernel", ""))
             prov["date"] = str(self.provenance.get("date", ""))
         prov.update(extra)
         return {k: v for k, v in prov.items() if v != ""}
@@ -773,7 +774,8 @@ class CalibrationReport(Calibration):
         p = self.provenance
         if p is None:
             return []
-        return (["", "## Provenance", "", f"- iwr {p['iwr_version']}, {p['date']}",
+        kernel = f", kernel {p['kernel']}" if p.get("kernel") else ""
+        return (["", "## Provenance", "", f"- iwr {p['iwr_version']}{kernel}, {p['date']}",
                  f"- command: `{' '.join(p['command'])}`"]
                 + [f"- {label}: `{f['path']}`, SHA-256 `{f['sha256']}`"
                    for label, f in p["inputs"].items()])

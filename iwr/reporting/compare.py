@@ -346,7 +346,8 @@ def write_report(comp: Any, out: str | Path, robot: Robot) -> dict[str, Path]:
         md += [f"![{cap}]({name})", ""]
     md += ["Raw numbers: `runs.csv` (one row per run), `summary.csv`, `results.json` (everything, "
            "with the recovered parameters and the convergence histories).", ""]
-    md += ["## Provenance", "", f"iwr {prov['iwr_version']}, {prov['date']}: "
+    kernel = f", kernel {prov['kernel']}" if prov.get("kernel") else ""
+    md += ["## Provenance", "", f"iwr {prov['iwr_version']}{kernel}, {prov['date']}: "
            f"`{' '.join(prov['command'])}`", ""]
     atomic_write_text(out / "report.md", "\n".join(md))
     files["report.md"] = out / "report.md"

@@ -62,8 +62,12 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
 
 def provenance(inputs: Mapping[str, str | os.PathLike[str] | None] | None = None,
                command: Sequence[str] | None = None) -> dict[str, Any]:
-    """Where a report comes from: the iwr version, the command line, the date (UTC) and the
-    SHA-256 of each input file (``{label: path}``; None: not a file, e.g. a built-in robot)."""
+    """Where a report comes from: the iwr version, the objective's SIMD kernel variant (``avx2``
+    and ``avx512`` give the same bits, ``baseline`` another path for the same seed: the
+    environment variable IWR_KERNEL repeats it), the command line, the date (UTC) and the SHA-256
+    of each input file (``{label: path}``; None: not a file, e.g. a built-in robot)."""
+    from .. import _core
+
     files = {}
     for label, path in (inputs or {}).items():
         if path is None:
@@ -74,6 +78,7 @@ def provenance(inputs: Mapping[str, str | os.PathLike[str] | None] | None = None
         argv[0] = "iwr"
     return {
         "iwr_version": iwr_version(),
+        "kernel": _core._active_kernel(),
         "python": sys.version.split()[0],
         "command": argv,
         "date": datetime.datetime.now(datetime.timezone.utc).strftime("%Y-%m-%d %H:%M:%S UTC"),
@@ -132,6 +137,7 @@ class Page:
         self.heading("Provenance")
         rows = [
             ["iwr version", str(prov.get("iwr_version", ""))],
+            ["SIMD kernel (IWR_KERNEL)", str(prov.get("kernel", "not recorded"))],
             ["Python", str(prov.get("python", ""))],
             ["command", " ".join(_quote(a) for a in prov.get("command", []))],
             ["date", str(prov.get("date", ""))],

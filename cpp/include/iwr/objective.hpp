@@ -61,6 +61,17 @@ std::string active_kernel();
 /// Uses the named variant from now on, process-wide (for tests and benchmarks). Throws
 /// std::invalid_argument if the name is unknown or the CPU cannot run it.
 void select_kernel(const std::string& name);
+/// The variant the environment variable IWR_KERNEL names (a name of supported_kernels(), or
+/// "auto": the widest this CPU runs, as when it is not set or empty), selected process-wide. The
+/// front ends (import iwr, the iwr and iwr-calibrate commands, iwr-engine) call it at start. Throws
+/// std::invalid_argument naming the variable and its value if the name is unknown or the CPU
+/// cannot run it.
+void select_kernel_from_environment();
+/// "kernel K; this CPU runs A, B, C": the variant in use and those this CPU runs (--version).
+std::string kernel_summary();
+/// "IWR_KERNEL=K " when the environment names a variant (not auto), else "": the prefix of a
+/// command that repeats or resumes a run with the same variant.
+std::string kernel_environment_prefix();
 
 class Objective {
 public:
