@@ -22,7 +22,8 @@ void bind_model(py::module_& m) {
         .def_property_readonly("joint_types", &Geometry::joint_types);
 
     // Private: SIMD variant of the cost kernel (tests check that all variants agree bit for bit);
-    // IWR_KERNEL read by iwr's import and the commands (iwr._kernel).
+    // IWR_KERNEL applied by iwr's import (iwr/__init__.py) and checked by the commands
+    // (iwr._startup.command_kernel).
     m.def("_supported_kernels", &supported_kernels);
     m.def("_active_kernel", &active_kernel);
     m.def("_select_kernel", &select_kernel, py::arg("name"));

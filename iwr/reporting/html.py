@@ -62,10 +62,10 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
 
 def provenance(inputs: Mapping[str, str | os.PathLike[str] | None] | None = None,
                command: Sequence[str] | None = None) -> dict[str, Any]:
-    """Where a report comes from: the iwr version, the objective's SIMD kernel variant (``avx2``
-    and ``avx512`` give the same bits, ``baseline`` another path for the same seed: the
-    environment variable IWR_KERNEL repeats it), the command line, the date (UTC) and the SHA-256
-    of each input file (``{label: path}``; None: not a file, e.g. a built-in robot)."""
+    """Where a report comes from: the iwr version, the objective's SIMD kernel variant of this
+    process (``avx2`` and ``avx512`` give the same bits, ``baseline`` another path for the same
+    seed; the environment variable IWR_KERNEL selects one), the command line, the date (UTC) and
+    the SHA-256 of each input file (``{label: path}``; None: not a file, e.g. a built-in robot)."""
     from .. import _core
 
     files = {}
