@@ -24,23 +24,24 @@ import argparse
 import json
 import subprocess
 import sys
+from pathlib import Path
 
 from _load import OtherLoad  # benchmarks/ is on sys.path when this script runs
 
 SIZES = (8, 96, 100, 800)
 
 WORKER = r"""
-import json, math, sys, time
+import json, sys, time
 import numpy as np
 import iwr
 from iwr import _core
 robot = iwr.Robot.default()
 repeat, data = int(sys.argv[1]), sys.argv[2]
 if data == "tracker":
-    from iwr.tracker import TrackerProblem, TrackerSetup, simulate_tracker
-    setup = TrackerSetup((2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0),
-                         reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),
-                                     (-60.0, -104.0, 40.0)])
+    sys.path.insert(0, sys.argv[3])  # benchmarks/
+    from bench_regression import tracker_setup
+    from iwr.tracker import TrackerProblem, simulate_tracker
+    setup = tracker_setup()
 out = {}
 for n in (8, 96, 100, 800):
     if data == "tracker":
@@ -78,8 +79,9 @@ def main() -> int:
         for r in range(args.rounds):
             order = builds if r % 2 == 0 else builds[::-1]
             for name, exe in order:
-                res = json.loads(subprocess.run([exe, "-c", WORKER, str(args.repeat), args.data],
-                                                check=True, capture_output=True, text=True).stdout)
+                cmd = [exe, "-c", WORKER, str(args.repeat), args.data, str(Path(__file__).parent)]
+                res = json.loads(subprocess.run(cmd, check=True, capture_output=True,
+                                                text=True).stdout)
                 for k, v in res.items():
                     best[name][k] = min(best[name].get(k, v), v)
     variants = sorted({k.split()[0] for b in best.values() for k in b},

@@ -94,8 +94,19 @@ FLOPS_TRACKER = 1775
 BALLBAR_SETUPS = {
     "A": {"platform_ball": [0, 0, -60], "fixed_ball": [800, -800, 1500], "range": [300, 700]},
     "B": {"platform_ball": [100, 50, -60], "fixed_ball": [900, -200, 2400], "range": [300, 700]}}
+#: The tracker set-up of --objectives and --data tracker (bench_fixed_cost.py's --data tracker
+#: too): the tracker 2 m from the robot, three reflectors on the platform.
+TRACKER_REGISTRATION = (2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0)
+TRACKER_REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
 FLOPS = {"leg": FLOPS_PER_POSE, "weighted": FLOPS_PER_POSE + 6, "whitened": FLOPS_PER_POSE + 36,
          "tracker": FLOPS_TRACKER, "tracker weighted": FLOPS_TRACKER + 81}
+
+
+def tracker_setup():
+    """The benchmarks' TrackerSetup (ImportError in a build without iwr.tracker)."""
+    from iwr.tracker import TrackerSetup
+
+    return TrackerSetup(TRACKER_REGISTRATION, reflectors=TRACKER_REFLECTORS)
 
 
 # ---- the worker: one build, in its own process ---------------------------------------------------
@@ -142,12 +153,10 @@ class Worker:
             got = (robot, self.data, self.problem, self.X)
         else:
             if data == "tracker":
-                from iwr.tracker import TrackerSetup, simulate_tracker
+                from iwr.tracker import simulate_tracker
                 from iwr.tracker.start import tracker_problem
 
-                setup = TrackerSetup((2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0),
-                                     reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),
-                                                 (-60.0, -104.0, 40.0)])
+                setup = tracker_setup()
                 measured, _ = simulate_tracker(robot, setup, N, seed=1)
                 robot = robot.with_tracker(setup=setup)
                 problem, _ = tracker_problem(robot, measured)
@@ -190,11 +199,9 @@ class Worker:
         except (TypeError, AttributeError):
             make["whitened"] = None
         try:
-            from iwr.tracker import TrackerProblem, TrackerSetup, simulate_tracker
+            from iwr.tracker import TrackerProblem, simulate_tracker
 
-            setup = TrackerSetup((2000.0, 0.0, 0.0, math.pi / 2, 0.0, 0.0),
-                                 reflectors=[(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0),
-                                             (-60.0, -104.0, 40.0)])
+            setup = tracker_setup()
             td, _ = simulate_tracker(robot, setup, N, seed=1)
             make["tracker"] = lambda: TrackerProblem(robot, setup, td)
         except ImportError:
