@@ -54,11 +54,10 @@ def command_kernel() -> None:
     """The commands' check of IWR_KERNEL, the objective's SIMD variant, which ``import iwr``
     applied where it could: raises ValueError naming the variable and its value. Unset or auto,
     nothing changes (a variant chosen in this process, as the tests do, stays)."""
-    if os.environ.get("IWR_KERNEL", "") in ("", "auto"):
-        return
     from . import _core
 
-    _core._select_kernel_from_environment()
+    if _core._kernel_environment_prefix():  # IWR_KERNEL names a variant (the rule: in C++)
+        _core._select_kernel_from_environment()
 
 
 class Interrupted(KeyboardInterrupt):

@@ -415,9 +415,11 @@ std::string shown(const std::string& value) {
     return out;
 }
 
+// The variant IWR_KERNEL names; "" when it names none (unset, empty or auto: the widest).
 std::string kernel_variable() {
     const char* value = std::getenv("IWR_KERNEL");
-    return value ? value : "";
+    const std::string name = value ? value : "";
+    return name == "auto" ? "" : name;
 }
 
 }  // namespace
@@ -425,7 +427,7 @@ std::string kernel_variable() {
 void select_kernel_from_environment() {
     const std::string name = kernel_variable();
     const std::vector<std::string> runs = supported_kernels();
-    if (name.empty() || name == "auto") {
+    if (name.empty()) {
         detail::select_kernel(runs.back());
         return;
     }
@@ -447,7 +449,7 @@ std::string kernel_summary() {
 
 std::string kernel_environment_prefix() {
     const std::string name = kernel_variable();
-    return name.empty() || name == "auto" ? "" : "IWR_KERNEL=" + name + " ";
+    return name.empty() ? "" : "IWR_KERNEL=" + name + " ";
 }
 
 void Objective::cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const {
