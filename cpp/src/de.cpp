@@ -427,12 +427,16 @@ void archive_trim(State& st) {
 }
 
 // Sums of squared deviations from the mean of columns [j0, j0 + nc) of the np x sd population
-// (row i at rows[i]) into v, each column summed row by row in slot order. The columns as NV
-// vectors of kLane doubles (one AVX-512 register, two AVX2, four SSE2) and a last vector of T <
-// kLane columns, all in one pass over the rows, the counts constants: a pass is as long as one
-// column's chain of np dependent adds, whatever the count. Written with vectors because the
-// compiler, left to group a count such as 10 or 26 itself, turned the last columns into scalar
-// adds fed by loads gathered across rows.
+// (row i at rows[i]) into v, each column summed row by row in slot order, in one pass over the
+// rows: with y = x - c, c the column's value in row 0, sum (x - mean)^2 = sum y^2 - (sum y)^2 / np
+// (the shifted-data formula; two passes, the mean first, read the population twice from L2:
+// BENCHMARKS.md, fifteenth round). Any shift within the sample is well conditioned: a sample lies
+// within sqrt(np) standard deviations of its mean, so the cancellation loses at most a factor np
+// of the relative precision (a few units in 1e-13 at np = 600). The columns as NV vectors of kLane
+// doubles (one AVX-512 register, two AVX2, four SSE2) and a last vector of T < kLane columns, all
+// in the one pass, the counts constants: a pass is as long as one column's chain of np dependent
+// adds, whatever the count. Written with vectors because the compiler, left to group a count such
+// as 10 or 26 itself, turned the last columns into scalar adds fed by loads gathered across rows.
 constexpr int kLane = 8;
 constexpr int kLogColumns = 4 * kLane;
 #if defined(__GNUC__)
@@ -472,34 +476,28 @@ IWR_DE_INLINE void load_lanes(const double* x, Lanes& r) {
 template <int NV, int T>
 IWR_DE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
     constexpr int nv = NV + (T > 0 ? 1 : 0);
-    Lanes s1[nv] = {}, s2[nv] = {}, t = {};
+    Lanes c[nv], s1[nv] = {}, s2[nv] = {}, t = {};
+    for (int g = 0; g < NV; ++g) load_lanes<kLane>(rows[0] + j0 + g * kLane, c[g]);
+    if (T > 0) load_lanes<T>(rows[0] + j0 + NV * kLane, c[nv - 1]);
     for (int i = 0; i < np; ++i) {
         const double* x = rows[i] + j0;
         for (int g = 0; g < NV; ++g) {
             load_lanes<kLane>(x + g * kLane, t);
+            t = t - c[g];
             s1[g] += t;
-        }
-        if (T > 0) {
-            load_lanes<T>(x + NV * kLane, t);
-            s1[nv - 1] += t;
-        }
-    }
-    for (int g = 0; g < nv; ++g)
-        for (int k = 0; k < kLane; ++k) s1[g][k] /= np;
-    for (int i = 0; i < np; ++i) {
-        const double* x = rows[i] + j0;
-        for (int g = 0; g < NV; ++g) {
-            load_lanes<kLane>(x + g * kLane, t);
-            t = t - s1[g];
             s2[g] += t * t;
         }
         if (T > 0) {
             load_lanes<T>(x + NV * kLane, t);
-            t = t - s1[nv - 1];
+            t = t - c[nv - 1];
+            s1[nv - 1] += t;
             s2[nv - 1] += t * t;
         }
     }
-    for (int k = 0; k < NV * kLane + T; ++k) v[j0 + k] = s2[k / kLane][k % kLane];
+    for (int k = 0; k < NV * kLane + T; ++k) {
+        const double sum = s1[k / kLane][k % kLane];
+        v[j0 + k] = std::max(0.0, s2[k / kLane][k % kLane] - sum * sum / np);
+    }
 }
 
 // Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the counts constants in each case, so
