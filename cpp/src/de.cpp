@@ -16,6 +16,7 @@
 #include <utility>
 
 #include "clones.hpp"
+#include "inline.hpp"
 
 // The trial loop and the log's column sums are IWR_CLONES (clones.hpp): compiled for AVX-512 and
 // AVX2 as well as the baseline, the same values on each. The helpers they call in their loops are
@@ -34,11 +35,6 @@
 #undef IWR_CLONES
 #define IWR_CLONES
 #endif
-#if defined(__GNUC__)
-#define IWR_DE_INLINE __attribute__((always_inline)) inline
-#else
-#define IWR_DE_INLINE inline
-#endif
 
 namespace iwr::de {
 
@@ -53,13 +49,13 @@ std::uint64_t splitmix64(std::uint64_t& x) {
     return z ^ (z >> 31);
 }
 
-IWR_DE_INLINE std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
+IWR_FORCE_INLINE std::uint64_t rotl(std::uint64_t x, int k) { return (x << k) | (x >> (64 - k)); }
 
 constexpr double kPi = 3.14159265358979323846;
 
 // One step of xoshiro256** on s, inlined where the trials are drawn (Rng::next, an out-of-line
 // call there: the target_clones copies of the trial loop did not inline it).
-IWR_DE_INLINE std::uint64_t xoshiro_next(std::uint64_t* s) {
+IWR_FORCE_INLINE std::uint64_t xoshiro_next(std::uint64_t* s) {
     const std::uint64_t result = rotl(s[1] * 5, 7) * 9;
     const std::uint64_t t = s[1] << 17;
     s[2] ^= s[0];
@@ -72,7 +68,7 @@ IWR_DE_INLINE std::uint64_t xoshiro_next(std::uint64_t* s) {
 }
 
 // Rng::uniform, inlined.
-IWR_DE_INLINE double uniform_of(Rng& g) { return static_cast<double>(xoshiro_next(g.s) >> 11) * 0x1.0p-53; }
+IWR_FORCE_INLINE double uniform_of(Rng& g) { return static_cast<double>(xoshiro_next(g.s) >> 11) * 0x1.0p-53; }
 
 }  // namespace
 
@@ -465,7 +461,7 @@ struct Lanes {
 // The first n <= kLane doubles at x into r, its other lanes 0. (A reference, not a return value:
 // a vector returned by value has another ABI with AVX-512, which GCC warns of.)
 template <int n>
-IWR_DE_INLINE void load_lanes(const double* x, Lanes& r) {
+IWR_FORCE_INLINE void load_lanes(const double* x, Lanes& r) {
     if (n == kLane) {
         std::memcpy(&r, x, sizeof r);
     } else {
@@ -474,7 +470,7 @@ IWR_DE_INLINE void load_lanes(const double* x, Lanes& r) {
     }
 }
 template <int NV, int T>
-IWR_DE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
+IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
     constexpr int nv = NV + (T > 0 ? 1 : 0);
     Lanes c[nv], s1[nv] = {}, s2[nv] = {}, t = {};
     for (int g = 0; g < NV; ++g) load_lanes<kLane>(rows[0] + j0 + g * kLane, c[g]);
@@ -503,7 +499,7 @@ IWR_DE_INLINE void column_deviations(const double* const* rows, int np, int j0, 
 // Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the counts constants in each case, so
 // that the sums of a group narrower than kLogColumns (the last) stay in vector registers too.
 template <int... N>
-IWR_DE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows, int np,
+IWR_FORCE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows, int np,
                                 int j0, int nc, double* v) {
     ((nc == N + 1 ? column_deviations<(N + 1) / kLane, (N + 1) % kLane>(rows, np, j0, v) : void()),
      ...);
@@ -603,7 +599,7 @@ struct Generation {
 // (a mutant component leaves the bounds at random, so a branch would be mispredicted often): the
 // same values as the general loop of build_trial (xi, the parent, is within the bounds).
 template <bool Mid>
-IWR_DE_INLINE void repair_simple(double* __restrict u, const double* __restrict xi, const double* __restrict lo,
+IWR_FORCE_INLINE void repair_simple(double* __restrict u, const double* __restrict xi, const double* __restrict lo,
                    const double* __restrict hi, int d) {
     for (int j = 0; j < d; ++j) {
         const double l = lo[j], h = hi[j], v = u[j];
@@ -629,7 +625,7 @@ struct Plan {
 };
 
 // The first draws of slot i's trial, from its stream, in the order of the strategy's rule.
-IWR_DE_INLINE void plan_trial(const Generation& gen, int i, Plan& plan) {
+IWR_FORCE_INLINE void plan_trial(const Generation& gen, int i, Plan& plan) {
     const State& st = *gen.st;
     const Settings& s = st.settings;
     Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];
@@ -738,7 +734,7 @@ IWR_DE_INLINE void plan_trial(const Generation& gen, int i, Plan& plan) {
 }
 
 // The rows a plan reads, prefetched into the cache.
-IWR_DE_INLINE void prefetch_plan(const Plan& plan, int d) {
+IWR_FORCE_INLINE void prefetch_plan(const Plan& plan, int d) {
 #if defined(__GNUC__)
     const std::size_t bytes = static_cast<std::size_t>(d) * sizeof(double);
     for (const double* r : {plan.base, plan.d1, plan.d2, plan.pbest}) {
@@ -754,7 +750,7 @@ IWR_DE_INLINE void prefetch_plan(const Plan& plan, int d) {
 }
 
 // Builds the trial of slot i into u from its plan (the rest of its draws from its stream).
-IWR_DE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan, double* u) {
+IWR_FORCE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan, double* u) {
     const State& st = *gen.st;
     const Settings& s = st.settings;
     Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];

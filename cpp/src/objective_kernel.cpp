@@ -27,18 +27,7 @@
 #define IWR_X86_DISPATCH 0
 #endif
 
-#if defined(__GNUC__) || defined(__clang__)
-#define IWR_FORCE_INLINE __attribute__((always_inline)) inline
-#define IWR_NOINLINE __attribute__((noinline))
-#else
-#define IWR_FORCE_INLINE inline
-#define IWR_NOINLINE
-#endif
-#if defined(__GNUC__) && !defined(__clang__)
-#define IWR_FORCE_INLINE_LAMBDA __attribute__((always_inline))
-#else
-#define IWR_FORCE_INLINE_LAMBDA
-#endif
+#include "inline.hpp"
 
 namespace iwr::detail {
 
