@@ -6,6 +6,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "inline.hpp"
 #include "objective_kernel.hpp"
 
 namespace iwr {
@@ -52,8 +53,8 @@ constexpr SinCosSeries kSeries = sincos_series();
 // fixed cost per evaluation: BENCHMARKS.md, "Thirteenth round"). Not cloned per instruction set:
 // GCC has emitted fused operations in a target region despite -ffp-contract=off (BENCHMARKS.md,
 // fourth round), and these values must be the same on every CPU.
-void sincos_offset(int n, const double* nominal, const double* cn, const double* sn,
-                   const double* delta, double* c, double* s) {
+IWR_FORCE_INLINE void sincos_offset(int n, const double* nominal, const double* cn,
+                                    const double* sn, const double* delta, double* c, double* s) {
     const double* kc = kSeries.cos;
     const double* ks = kSeries.sin;
     for (int e = 0; e < n; ++e) {
@@ -183,17 +184,29 @@ detail::CarriageNominal::CarriageNominal(const Geometry& g) {
     }
 }
 
-void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalConsts& ec,
-                                     double* jbuf) const {
-    const int nj = g.n_joints();
+namespace {
+
+// CarriageNominal::consts for NJ joints, NP of them a prismatic prefix, the counts constants (the
+// loops unrolled, the angles' offsets and their sines and cosines on the stack: for the IWR's
+// PPRR carriage 35 ns a call where the counts at run time took 43, BENCHMARKS.md, fifteenth
+// round), or NJ = 0: the counts nj_rt, np_rt at run time. The same operations in the same order
+// either way: the same bits.
+template <int NJ, int NP>
+IWR_FORCE_INLINE void carriage_consts(const Geometry& g, const double* nominal, int nj_rt,
+                                      int np_rt, const double* x, detail::EvalConsts& ec,
+                                      double* jbuf) {
+    const int nj = NJ > 0 ? NJ : nj_rt;
+    const int n_prefix = NJ > 0 ? NP : np_rt;
     double* z = jbuf;               // 3 per prefix joint
     double* joint = jbuf + 3 * nj;  // 6 per joint: cos/sin alpha, cos/sin theta, a, d
-    double* delta = jbuf + 9 * nj;  // 2 per joint: the errors of alpha and theta, then c, s
+    // The errors of alpha and theta, then c, s (2 per joint): on the stack for constant counts
+    // (no stores that the compiler must assume reach ec or x), else in jbuf.
+    double local[NJ > 0 ? 6 * NJ : 1];
+    double* delta = NJ > 0 ? local : jbuf + 9 * nj;
     double* c = delta + 2 * nj;
     double* s = c + 2 * nj;
     for (int i = 0; i < nj; ++i) delta[2 * i] = x[4 * i], delta[2 * i + 1] = x[4 * i + 3];
-    sincos_offset(2 * nj, nominal_.data(), nominal_.data() + 2 * nj, nominal_.data() + 4 * nj,
-                  delta, c, s);
+    sincos_offset(2 * nj, nominal, nominal + 2 * nj, nominal + 4 * nj, delta, c, s);
     for (int i = 0; i < nj; ++i) {
         double* jc = joint + 6 * i;
         jc[0] = c[2 * i], jc[1] = s[2 * i], jc[2] = c[2 * i + 1], jc[3] = s[2 * i + 1];
@@ -208,8 +221,8 @@ void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalCon
     double* r = ec.rc;
     double* p = ec.pc;
     for (int e = 0; e < 9; ++e) r[e] = e % 4 == 0 ? 1.0 : 0.0;
-    for (int c = 0; c < 3; ++c) p[c] = 0.0;
-    for (int i = 0; i < n_prefix_; ++i) {
+    for (int k = 0; k < 3; ++k) p[k] = 0.0;
+    for (int i = 0; i < n_prefix; ++i) {
         const double* jc = joint + 6 * i;
         const double ca = jc[0], sa = jc[1], ct = jc[2], st = jc[3], a = jc[4], d = jc[5];
         for (int row = 0; row < 3; ++row) {
@@ -226,14 +239,25 @@ void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalCon
     }
     const int base = 4 * nj;
     for (int j = 0; j < kLegs; ++j) {
-        for (int c = 0; c < 3; ++c) {
-            ec.a[j][c] = g.base()(j, c) + x[base + 3 * j + c];
-            ec.b[j][c] = g.platform()(j, c) + x[base + 18 + 3 * j + c];
+        for (int k = 0; k < 3; ++k) {
+            ec.a[j][k] = g.base()(j, k) + x[base + 3 * j + k];
+            ec.b[j][k] = g.platform()(j, k) + x[base + 18 + 3 * j + k];
         }
         ec.l0[j] = g.leg_offsets()(j) + x[base + 36 + j];
     }
     ec.z = z;
     ec.joint = joint;
+}
+
+}  // namespace
+
+void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalConsts& ec,
+                                     double* jbuf) const {
+    const int nj = g.n_joints();
+    if (nj == 4 && n_prefix_ == 2)
+        carriage_consts<4, 2>(g, nominal_.data(), nj, n_prefix_, x, ec, jbuf);
+    else
+        carriage_consts<0, 0>(g, nominal_.data(), nj, n_prefix_, x, ec, jbuf);
 }
 
 void detail::fold_carriage(EvalConsts& ec, int n_prefix, int n_joints, const char* prismatic) {
