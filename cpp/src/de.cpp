@@ -424,15 +424,18 @@ void archive_trim(State& st) {
 
 // Sums of squared deviations from the mean of columns [j0, j0 + nc) of the np x sd population
 // (row i at rows[i]) into v, each column summed row by row in slot order, in one pass over the
-// rows: with y = x - c, c the column's value in row 0, sum (x - mean)^2 = sum y^2 - (sum y)^2 / np
-// (the shifted-data formula; two passes, the mean first, read the population twice from L2:
-// BENCHMARKS.md, fifteenth round). Any shift within the sample is well conditioned: a sample lies
-// within sqrt(np) standard deviations of its mean, so the cancellation loses at most a factor np
-// of the relative precision (a few units in 1e-13 at np = 600). The columns as NV vectors of kLane
-// doubles (one AVX-512 register, two AVX2, four SSE2) and a last vector of T < kLane columns, all
-// in the one pass, the counts constants: a pass is as long as one column's chain of np dependent
-// adds, whatever the count. Written with vectors because the compiler, left to group a count such
-// as 10 or 26 itself, turned the last columns into scalar adds fed by loads gathered across rows.
+// rows: with y = x - c, c the column's value in the row `shift` (the best individual's), sum (x -
+// mean)^2 = sum y^2 - (sum y) (sum y / np) (the shifted-data formula; two passes, the mean first,
+// read the population twice from L2: BENCHMARKS.md, fifteenth round). The cancellation loses a
+// factor (1 + k^2) of the sums' precision, k the shift's distance from the mean in standard
+// deviations: the best individual is within the converged cluster, where the rounded mean of two
+// passes lost everything (a spread of 1e-16 for identical rows); a shift that is itself an outlier
+// (k up to sqrt(np)) would lose a factor np (1e-13 relative at np = 600). A negative difference
+// (rounding) is 0; NaN stays NaN. The columns as NV vectors of kLane doubles (one AVX-512
+// register, two AVX2, four SSE2) and a last vector of T < kLane columns, all in the one pass, the
+// counts constants: a pass is as long as one column's chain of np dependent adds, whatever the
+// count. Written with vectors because the compiler, left to group a count such as 10 or 26
+// itself, turned the last columns into scalar adds fed by loads gathered across rows.
 constexpr int kLane = 8;
 constexpr int kLogColumns = 4 * kLane;
 #if defined(__GNUC__)
@@ -470,11 +473,12 @@ IWR_FORCE_INLINE void load_lanes(const double* x, Lanes& r) {
     }
 }
 template <int NV, int T>
-IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, int j0, double* v) {
+IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, const double* shift,
+                                        int j0, double* v) {
     constexpr int nv = NV + (T > 0 ? 1 : 0);
     Lanes c[nv], s1[nv] = {}, s2[nv] = {}, t = {};
-    for (int g = 0; g < NV; ++g) load_lanes<kLane>(rows[0] + j0 + g * kLane, c[g]);
-    if (T > 0) load_lanes<T>(rows[0] + j0 + NV * kLane, c[nv - 1]);
+    for (int g = 0; g < NV; ++g) load_lanes<kLane>(shift + j0 + g * kLane, c[g]);
+    if (T > 0) load_lanes<T>(shift + j0 + NV * kLane, c[nv - 1]);
     for (int i = 0; i < np; ++i) {
         const double* x = rows[i] + j0;
         for (int g = 0; g < NV; ++g) {
@@ -492,20 +496,24 @@ IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, int j
     }
     for (int k = 0; k < NV * kLane + T; ++k) {
         const double sum = s1[k / kLane][k % kLane];
-        v[j0 + k] = std::max(0.0, s2[k / kLane][k % kLane] - sum * sum / np);
+        const double d = s2[k / kLane][k % kLane] - sum * (sum / np);
+        v[j0 + k] = d < 0 ? 0.0 : d;
     }
 }
 
 // Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the counts constants in each case, so
 // that the sums of a group narrower than kLogColumns (the last) stay in vector registers too.
 template <int... N>
-IWR_FORCE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows, int np,
-                                int j0, int nc, double* v) {
-    ((nc == N + 1 ? column_deviations<(N + 1) / kLane, (N + 1) % kLane>(rows, np, j0, v) : void()),
+IWR_FORCE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows,
+                                   int np, const double* shift, int j0, int nc, double* v) {
+    ((nc == N + 1
+          ? column_deviations<(N + 1) / kLane, (N + 1) % kLane>(rows, np, shift, j0, v)
+          : void()),
      ...);
 }
-IWR_CLONES void column_block(const double* const* rows, int np, int j0, int nc, double* v) {
-    column_cases(std::make_integer_sequence<int, kLogColumns>(), rows, np, j0, nc, v);
+IWR_CLONES void column_block(const double* const* rows, int np, const double* shift, int j0,
+                             int nc, double* v) {
+    column_cases(std::make_integer_sequence<int, kLogColumns>(), rows, np, shift, j0, nc, v);
 }
 
 // The log row of the current population, and st.elapsed (+= the time since t0, the log
@@ -522,7 +530,8 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
     e.nfev = st.nfev;
     const int np = st.np;
     const int d = st.dim();
-    e.best = st.costs.minCoeff();
+    Eigen::Index best = 0;  // the first of the best: the deviations' shift
+    e.best = st.costs.minCoeff(&best);
     double sum = 0;
     for (int i = 0; i < np; ++i) sum += st.costs(i);
     e.mean = sum / np;
@@ -536,7 +545,8 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
     pool.parallel_for(static_cast<std::size_t>(blocks), [&](std::size_t b, std::size_t end, int) {
         for (std::size_t k = b; k < end; ++k) {
             const int j0 = static_cast<int>(k) * kLogColumns;
-            column_block(rows.data(), np, j0, std::min(kLogColumns, d - j0), v.data());
+            column_block(rows.data(), np, rows[static_cast<std::size_t>(best)], j0,
+                         std::min(kLogColumns, d - j0), v.data());
         }
         if (!trials) return;
         const auto first = static_cast<std::size_t>(np) * b / static_cast<std::size_t>(blocks);
@@ -599,8 +609,9 @@ struct Generation {
 // (a mutant component leaves the bounds at random, so a branch would be mispredicted often): the
 // same values as the general loop of build_trial (xi, the parent, is within the bounds).
 template <bool Mid>
-IWR_FORCE_INLINE void repair_simple(double* __restrict u, const double* __restrict xi, const double* __restrict lo,
-                   const double* __restrict hi, int d) {
+IWR_FORCE_INLINE void repair_simple(double* __restrict u, const double* __restrict xi,
+                                    const double* __restrict lo, const double* __restrict hi,
+                                    int d) {
     for (int j = 0; j < d; ++j) {
         const double l = lo[j], h = hi[j], v = u[j];
         const double bound = v < l ? l : h;

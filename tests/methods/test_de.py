@@ -465,6 +465,24 @@ def test_history_spread_of_a_converged_population_is_exact(generations):
     assert res.history["spread"][-1] == pytest.approx(exact, rel=1e-12, abs=0)
 
 
+def test_history_spread_with_huge_bounds_is_right_or_nan():
+    """Bounds of +-1e153: the sums of squares stay finite and the spread is NumPy's (a draft of the
+    one-pass sums overflowed its (sum y)^2 np times sooner and logged 0, "collapsed"); +-1e154:
+    (2e154)^2 overflows, and the spread is NaN, never 0."""
+    def sphere_scaled(x):
+        return np.sum((x * 1e-150) ** 2, axis=1)
+
+    for bound, finite in ((1e153, True), (1e154, False)):
+        res = iwr.differential_evolution(sphere_scaled, [(-bound, bound)] * 3, population_size=40,
+                                         generations=3, seed=1, workers=1)
+        spread = res.history["spread"]
+        if finite:
+            rel = (res.population / (2 * bound)).var(axis=0)
+            assert spread[-1] == pytest.approx(np.sqrt(rel.mean()), rel=1e-12)
+        else:
+            assert np.all(np.isnan(spread))
+
+
 def test_result_file_round_trip(iwr_data, tmp_path):
     robot, measurements, _ = iwr_data
     res = iwr.identify(robot, measurements, "de", strategy="jade", generations=5, seed=3,
