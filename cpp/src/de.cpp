@@ -429,13 +429,13 @@ void archive_trim(State& st) {
 // read the population twice from L2: BENCHMARKS.md, fifteenth round). The cancellation loses a
 // factor (1 + k^2) of the sums' precision, k the shift's distance from the mean in standard
 // deviations: the best individual is within the converged cluster, where the rounded mean of two
-// passes lost everything (a spread of 1e-16 for identical rows); a shift that is itself an outlier
-// (k up to sqrt(np)) would lose a factor np (1e-13 relative at np = 600). A negative difference
-// (rounding) is 0; NaN stays NaN. The columns as NV vectors of kLane doubles (one AVX-512
-// register, two AVX2, four SSE2) and a last vector of T < kLane columns, all in the one pass, the
-// counts constants: a pass is as long as one column's chain of np dependent adds, whatever the
-// count. Written with vectors because the compiler, left to group a count such as 10 or 26
-// itself, turned the last columns into scalar adds fed by loads gathered across rows.
+// passes lost everything (a spread of 1e-16 for identical rows); a shift that is itself an
+// outlier (k up to sqrt(np)) loses a factor np (3e-12 relative at np = 600, emulated). A negative
+// difference (rounding) is 0; NaN stays NaN. The columns as NV vectors of kLane doubles (one
+// AVX-512 register, two AVX2, four SSE2) and a last vector of T < kLane columns, all in the one
+// pass, the counts constants: a pass is as long as one column's chain of np dependent adds,
+// whatever the count. Written with vectors because the compiler, left to group a count such as
+// 10 or 26 itself, turned the last columns into scalar adds fed by loads gathered across rows.
 constexpr int kLane = 8;
 constexpr int kLogColumns = 4 * kLane;
 #if defined(__GNUC__)
