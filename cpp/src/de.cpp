@@ -477,8 +477,15 @@ IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, const
                                         int j0, double* v) {
     constexpr int nv = NV + (T > 0 ? 1 : 0);
     Lanes c[nv], s1[nv] = {}, s2[nv] = {}, t = {};
-    for (int g = 0; g < NV; ++g) load_lanes<kLane>(shift + j0 + g * kLane, c[g]);
-    if (T > 0) load_lanes<T>(shift + j0 + NV * kLane, c[nv - 1]);
+    for (int g = 0; g < NV; ++g) {
+        // Through t: in CI's -O0 sanitizer build GCC took a memcpy into c[g] for an overflow.
+        load_lanes<kLane>(shift + j0 + g * kLane, t);
+        c[g] = t;
+    }
+    if (T > 0) {
+        load_lanes<T>(shift + j0 + NV * kLane, t);
+        c[nv - 1] = t;
+    }
     for (int i = 0; i < np; ++i) {
         const double* x = rows[i] + j0;
         for (int g = 0; g < NV; ++g) {
