@@ -612,9 +612,10 @@ struct Generation {
     Below below_np, below_d;  // draws in [0, np) and [0, D)
 };
 
-// The out-of-bounds components of u repaired by the midpoint (Mid) or the clip rule, branch-free
-// (a mutant component leaves the bounds at random, so a branch would be mispredicted often): the
-// same values as the general loop of build_trial (xi, the parent, is within the bounds).
+// A trial's component v repaired by the midpoint (Mid) or the clip rule where it is out of the
+// bounds, branch-free (a mutant component leaves the bounds at random, so a branch would be
+// mispredicted often): the same values as the general loop of build_trial (xi, the parent's
+// component, is within the bounds). repair_simple: every component of u.
 template <bool Mid>
 IWR_FORCE_INLINE double repaired(double v, double xi, double l, double h) {
     const double bound = v < l ? l : h;
@@ -634,7 +635,7 @@ IWR_FORCE_INLINE void repair_simple(double* __restrict u, const double* __restri
 // The mutant of the rows a trial combines (eq. 12, or the strategy's rule with the
 // current-to-pbest term where PBest) into u, each component repaired by the midpoint (Mid) or the
 // clip rule where Repair (a trial without crossover): one pass over the components instead of
-// two, the same values as the mutant followed by repair_simple (DE's own work 3-5 % less,
+// two, the same values as the mutant followed by repair_simple (DE's own work 3-8 % less,
 // BENCHMARKS.md, sixteenth round).
 template <bool PBest, bool Repair, bool Mid = false>
 IWR_FORCE_INLINE void mutant(double* __restrict u, const double* __restrict xi,
