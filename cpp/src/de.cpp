@@ -635,8 +635,8 @@ IWR_FORCE_INLINE void repair_simple(double* __restrict u, const double* __restri
 // The mutant of the rows a trial combines (eq. 12, or the strategy's rule with the
 // current-to-pbest term where PBest) into u, each component repaired by the midpoint (Mid) or the
 // clip rule where Repair (a trial without crossover): one pass over the components instead of
-// two, the same values as the mutant followed by repair_simple (DE's own work 3-8 % less,
-// BENCHMARKS.md, sixteenth round).
+// two, the same values as the mutant followed by repair_simple (BENCHMARKS.md, sixteenth
+// round).
 template <bool PBest, bool Repair, bool Mid = false>
 IWR_FORCE_INLINE void mutant(double* __restrict u, const double* __restrict xi,
                              const double* __restrict base, const double* __restrict pbest,
@@ -802,11 +802,9 @@ IWR_FORCE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan
     const bool mid = s.bound_rule == BoundRule::midpoint;
     const double* lower = s.lower.data();
     const double* upper = s.upper.data();
-    // Binomial crossover, eq. (13), with the forced index j_r. With CR = 1 every component comes
-    // from the mutant whatever the draws, so none are made (the paper's setting); j_r is drawn
-    // whatever CR (the same stream).
+    // The forced index j_r of the binomial crossover (eq. 13), drawn whatever CR.
     const int jr = static_cast<int>(gen.below_d(g));
-    if (CRi >= 1 && simple_bounds) {  // the mutant repaired in the same pass: the trial
+    if (CRi >= 1 && simple_bounds) {  // no crossover: the mutant repaired in the same pass
         if (mid && pbest) mutant<true, true, true>(u, xi, base, pbest, d1, d2, Fi, Fw, lower, upper, d);
         else if (mid) mutant<false, true, true>(u, xi, base, pbest, d1, d2, Fi, Fw, lower, upper, d);
         else if (pbest) mutant<true, true>(u, xi, base, pbest, d1, d2, Fi, Fw, lower, upper, d);
@@ -819,6 +817,8 @@ IWR_FORCE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan
     } else {
         mutant<false, false>(u, xi, base, pbest, d1, d2, Fi, Fw, lower, upper, d);
     }
+    // Binomial crossover, eq. (13). With CR = 1 every component comes from the mutant whatever the
+    // draws, so none are made (the paper's setting).
     if (CRi < 1) {
         for (int j = 0; j < d; ++j) {
             const bool take = uniform_of(g) < CRi || j == jr;

@@ -3,7 +3,8 @@
 // library picks one: the others never run on it, so no test compared their bits. This program is
 // built once per variant with de.cpp compiled for that variant alone (IWR_DE_ISA_AVX512F, _AVX2,
 // _BASELINE; CMakeLists.txt), and once with the library's clones. Without arguments it prints one
-// line per run: every strategy and bound rule, two dimensions (a remainder of the vector width
+// line per run: every strategy and bound rule, the default CR and CR = 1 (the trials without
+// crossover, built in one pass), two dimensions (a remainder of the vector width
 // and several log blocks), two threads, each run's whole state after its generations (population,
 // costs, archive, memories, random streams, log: State::serialize, the wall-clock times
 // zeroed) as a 64-bit FNV-1a digest.
@@ -47,6 +48,7 @@ std::string digests() {
     iwr::ThreadPool pool(2);
     for (Strategy s : kAll)
         for (BoundRule rule : kRules)
+            for (double cr : {-1.0, 1.0})  // the strategy's default CR, and 1 (no crossover)
             for (int d : {13, 37}) {
                 TestFunction f(d);
                 iwr::de::Settings set;
@@ -57,6 +59,7 @@ std::string digests() {
                 set.seed = 2026;
                 set.population_size = 24;
                 set.max_evaluations = 24 * 40;
+                if (cr > 0) set.CR = cr;
                 auto st = iwr::de::init(set, f, pool);
                 for (int g = 0; g < 30; ++g) iwr::de::step(st, f, pool);
                 st.elapsed = 0;  // the wall clock: the one part of a state that is not reproducible
@@ -64,8 +67,9 @@ std::string digests() {
                 std::ostringstream bytes;
                 st.serialize(bytes);
                 char line[160];
-                std::snprintf(line, sizeof line, "%s %s D=%d generation %d best %.17g %016llx\n",
-                              iwr::de::to_string(s).c_str(), iwr::de::to_string(rule).c_str(), d,
+                std::snprintf(line, sizeof line, "%s %s CR %g D=%d generation %d best %.17g %016llx\n",
+                              iwr::de::to_string(s).c_str(), iwr::de::to_string(rule).c_str(),
+                              cr > 0 ? cr : set.CR, d,
                               static_cast<int>(st.generation), st.log.back().best,
                               static_cast<unsigned long long>(fnv1a(bytes.str())));
                 out << line;

@@ -162,14 +162,16 @@ def test_midpoint_bound_rule_keeps_the_box():
     assert res.fun == pytest.approx(5, abs=1e-8)
 
 
+@pytest.mark.parametrize("strategy", ["rand1bin", "best1bin"])
 @pytest.mark.parametrize("bound_rule", ["midpoint", "clip"])
-def test_trials_without_crossover_are_the_repaired_mutants(bound_rule):
+def test_trials_without_crossover_are_the_repaired_mutants(strategy, bound_rule):
     """With CR = 1 (the paper's setting) a trial is the mutant x_r1 + F (x_r2 - x_r3), with r1,
-    r2, r3 distinct and not i (eq. 12), each component outside the box repaired by the rule
-    (midpoint: halfway between the parent's component and the bound crossed; clip: the bound).
-    Checked bit for bit against NumPy for every trial of a short run: the population followed
-    through the selection (eq. 14) from the costs returned, each trial's r1, r2, r3 found among
-    all the triples. The C++ builds such a trial and repairs it in one pass (de.cpp)."""
+    r2, r3 distinct and not i (eq. 12; best1bin: x_best + F (x_r1 - x_r2), the best the first of
+    the lowest costs), each component outside the box repaired by the rule (midpoint: halfway
+    between the parent's component and the bound crossed; clip: the bound). Checked bit for bit
+    against NumPy for every trial of a short run: the population followed through the selection
+    (eq. 14) from the costs returned, each trial's rows found among all the candidates. The C++
+    builds such a trial and repairs it in one pass (de.cpp)."""
     lo = np.array([-1.0, -2.0, 0.0, -0.5, 10.0, 3.0, -7.0])
     hi = lo + np.array([2.0, 1.0, 3.0, 1.0, 0.5, 1e-3, 4.0])
     n, F = 7, 0.9
@@ -182,22 +184,27 @@ def test_trials_without_crossover_are_the_repaired_mutants(bound_rule):
         calls.append(np.array(X, copy=True))
         return value(X)
 
-    iwr.differential_evolution(cost, list(zip(lo, hi, strict=True)), population_size=n, F=F,
-                               CR=1.0, generations=6, seed=3, bound_rule=bound_rule, workers=1)
+    iwr.differential_evolution(cost, list(zip(lo, hi, strict=True)), strategy=strategy,
+                               population_size=n, F=F, CR=1.0, generations=6, seed=3,
+                               bound_rule=bound_rule, workers=1)
     assert len(calls) == 7 and all(X.shape == (n, len(lo)) for X in calls)
     pop, fx = calls[0], value(calls[0])
-    triples = np.array([t for t in itertools.permutations(range(n), 3)])
+    picks = np.array(list(itertools.permutations(range(n), 3 if strategy == "rand1bin" else 2)))
     repaired = 0
     for X in calls[1:]:
         for i in range(n):
-            r = triples[(triples != i).all(1)]
-            v = pop[r[:, 0]] + F * (pop[r[:, 1]] - pop[r[:, 2]])  # each candidate mutant
+            r = picks[(picks != i).all(1)]
+            if strategy == "rand1bin":
+                v = pop[r[:, 0]] + F * (pop[r[:, 1]] - pop[r[:, 2]])  # each candidate mutant
+            else:
+                v = pop[np.argmin(fx)] + F * (pop[r[:, 0]] - pop[r[:, 1]])
             bound = np.where(v < lo, lo, hi)
             fix = 0.5 * (pop[i] + bound) if bound_rule == "midpoint" else bound
             fix = np.minimum(np.maximum(fix, lo), hi)
             trial = np.where((v >= lo) & (v <= hi), v, fix)
-            assert (trial == X[i]).all(1).any(), (i, X[i])
-            repaired += int(((v < lo) | (v > hi))[(trial == X[i]).all(1)][0].sum())
+            same = (trial.view(np.uint64) == X[i].view(np.uint64)).all(1)
+            assert same.any(), (i, X[i])
+            repaired += int(((v < lo) | (v > hi))[same][0].sum())
         tx = value(X)
         take = tx <= fx
         pop, fx = np.where(take[:, None], X, pop), np.where(take, tx, fx)
