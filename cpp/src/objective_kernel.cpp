@@ -225,11 +225,11 @@ bool has_avx512() {
 
 const Variant kVariants[] = {
 #if IWR_X86_DISPATCH
-    {"baseline", sse2::kernel, {sse2::tracker_chord, sse2::chord_pair, sse2::tracker_points}, always},
-    {"avx2", avx2::kernel, {avx2::tracker_chord, avx2::chord_pair, avx2::tracker_points}, has_avx2},
-    {"avx512", avx512::kernel, {avx512::tracker_chord, avx512::chord_pair, avx512::tracker_points}, has_avx512},
+    {"baseline", sse2::kernel, {sse2::tracker_chord, sse2::chord_pair, sse2::tracker_chord_lanes, sse2::tracker_points}, always},
+    {"avx2", avx2::kernel, {avx2::tracker_chord, avx2::chord_pair, avx2::tracker_chord_lanes, avx2::tracker_points}, has_avx2},
+    {"avx512", avx512::kernel, {avx512::tracker_chord, avx512::chord_pair, avx512::tracker_chord_lanes, avx512::tracker_points}, has_avx512},
 #else
-    {"baseline", portable::kernel, {portable::tracker_chord, portable::chord_pair, portable::tracker_points}, always},
+    {"baseline", portable::kernel, {portable::tracker_chord, portable::chord_pair, portable::tracker_chord_lanes, portable::tracker_points}, always},
 #endif
 };
 constexpr int kNumVariants = static_cast<int>(sizeof(kVariants) / sizeof(kVariants[0]));
@@ -268,6 +268,31 @@ std::vector<std::string> supported_kernels() {
     for (const Variant& v : kVariants)
         if (v.supported()) out.emplace_back(v.name);
     return out;
+}
+
+namespace {
+template <int N>  // lanes l0..l0 + N (a fixed count: each quantity one broadcast and a store)
+void set_lanes(LaneConsts& lc, const TrackerConsts& tc, int l0) {
+    auto put = [&](int q, double x) {
+        double* o = lc.v + q * kBlock + l0;
+        for (int l = 0; l < N; ++l) o[l] = x;
+    };
+    for (int j = 0; j < 6; ++j) {
+        for (int c = 0; c < 3; ++c)
+            put(LaneConsts::kA + 3 * j + c, tc.ec.a[j][c]), put(LaneConsts::kB + 3 * j + c, tc.ec.b[j][c]);
+        put(LaneConsts::kL0 + j, tc.ec.l0[j]);
+    }
+    for (int e = 0; e < 9; ++e) put(LaneConsts::kBinv + e, tc.binv[e]);
+}
+}  // namespace
+
+void LaneConsts::set(const TrackerConsts& tc, int l0, int l1) {
+    if (l1 - l0 == kBlock)
+        set_lanes<kBlock>(*this, tc, l0);
+    else if (l1 - l0 == kBlock / 2)
+        set_lanes<kBlock / 2>(*this, tc, l0);
+    else
+        for (int l = l0; l < l1; ++l) set_lanes<1>(*this, tc, l);
 }
 
 void select_kernel(const std::string& name) {

@@ -85,6 +85,17 @@ struct TrackerConsts {
     const char* wh_rows = nullptr;
     int wh_first = -1;  // the rows stored are wh_first.. (every one), or -1: another pattern
 };
+/// The hexapod's constants of TrackerConsts (ec.a, ec.b, ec.l0, binv) lane by lane, for a block of
+/// the chord whose lanes belong to different parameter vectors: quantity q of lane l at
+/// v[q * kBlock + l], leg j's coordinate c of a at kA + 3 j + c, of b at kB + 3 j + c, l0 at
+/// kL0 + j, B^-1's entry e (row-major) at kBinv + e.
+struct alignas(64) LaneConsts {
+    static constexpr int kA = 0, kB = 18, kL0 = 36, kBinv = 42, kQuantities = 51;
+    double v[kQuantities * kBlock];
+    /// Lanes [l0, l1) from tc.
+    void set(const TrackerConsts& tc, int l0, int l1);
+};
+
 /// The two halves of a block of the tracker objective (tracker_kernel_body.inl): the forward
 /// kinematics by chord iterations, and the carriage, the points and the squared residuals
 /// (whitened when wh, the block's whitening, is given; vbuf: 3 n_points x 8 doubles of scratch,
@@ -95,6 +106,11 @@ struct TrackerKernels {
     // chord on each. Null where the variant runs chord block by block.
     void (*chord2)(const double* blk0, const double* blk1, const TrackerConsts& tc, double* p,
                    double* r, int* status);
+    // nb (1 or 2) blocks blk[0..nb) whose lanes take the hexapod's constants from lc[0..nb) (tol,
+    // max_iter and pair from tc): p, r, status as chord2's; each lane the same values as chord's on
+    // a block of that lane's parameter vector.
+    void (*chord_lanes)(const double* const* blk, const LaneConsts* lc, int nb,
+                        const TrackerConsts& tc, double* p, double* r, int* status);
     void (*points)(const double* blk, const TrackerConsts& tc, const double* p, const double* r,
                    const double* meas, const double* seen, const double* bad, bool all_seen,
                    const double* wh, double* vbuf, double* t, double* y, double* acc);

@@ -237,6 +237,14 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
             if (!seen) all_seen_.back() = 0;
         }
     }
+    const int tail = n_ - (n_blocks - 1) * kLanes;
+    if (tail <= kLanes / 2) {
+        const double* last = block_data(n_blocks - 1);
+        last2_.resize(static_cast<size_t>(kChordQuantities * kLanes));
+        for (int e = 0; e < kChordQuantities; ++e)
+            for (int l = 0; l < kLanes; ++l)
+                last2_[static_cast<size_t>(e * kLanes + l)] = last[e * kLanes + l % (kLanes / 2)];
+    }
 }
 
 TrackerObjective::Hexapod TrackerObjective::hexapod(const double* x) const {
@@ -254,9 +262,11 @@ TrackerObjective::Hexapod TrackerObjective::hexapod(const double* x) const {
 
 TrackerObjective::Workspace TrackerObjective::make_workspace() const {
     Workspace ws;
-    ws.jbuf.assign(static_cast<size_t>(15 * geometry_.n_joints() + 1), 0.0);
-    ws.r.resize(static_cast<size_t>(setup_.n_points()));
-    ws.refl.resize(static_cast<size_t>(3 * setup_.n_points()));
+    for (auto& sl : ws.slot) {
+        sl.jbuf.assign(static_cast<size_t>(15 * geometry_.n_joints() + 1), 0.0);
+        sl.r.resize(static_cast<size_t>(setup_.n_points()));
+        sl.refl.resize(static_cast<size_t>(3 * setup_.n_points()));
+    }
     ws.y.resize(static_cast<size_t>(3 * setup_.n_points() * kLanes));
     ws.v.resize(static_cast<size_t>(3 * setup_.n_points() * kLanes));
     return ws;
@@ -275,9 +285,11 @@ void TrackerObjective::fk_consts(detail::TrackerConsts& tc) const {
     tc.max_iter = kMaxChord;
 }
 
-void TrackerObjective::prepare(const double* x, Workspace& ws, detail::TrackerConsts& tc) const {
+void TrackerObjective::prepare(const double* x, Workspace& ws, detail::TrackerConsts& tc,
+                               int slot) const {
     const Geometry& g = geometry_;
-    carriage_.consts(g, x, tc.ec, ws.jbuf.data());
+    Workspace::Slot& sl = ws.slot[slot];
+    carriage_.consts(g, x, tc.ec, sl.jbuf.data());
     fk_consts(tc);
     tc.pd.n_joints = g.n_joints();
     tc.pd.n_prefix = carriage_.n_prefix();
@@ -286,23 +298,23 @@ void TrackerObjective::prepare(const double* x, Workspace& ws, detail::TrackerCo
     Mat3 rt;
     Vec3 tt;
     setup_.registration_transform(x + g.n_params(), rt, tt);
-    setup_.platform_points(x + g.n_params() + 6, ws.r.data());
+    setup_.platform_points(x + g.n_params() + 6, sl.r.data());
     for (int e = 0; e < 9; ++e) tc.rt[e] = rt(e / 3, e % 3);
     for (int c = 0; c < 3; ++c) tc.tt[c] = tt(c);
     // The registration folded into the carriage: the kernel's chain starts from T_T0 and ends at
-    // T_T4. ec.z points into ws.jbuf (one direction per prismatic prefix joint).
+    // T_T4. ec.z points into the slot's jbuf (one direction per prismatic prefix joint).
     Eigen::Map<Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> rc(tc.ec.rc);
     Eigen::Map<Vec3> pc(tc.ec.pc);
     rc = (rt * rc).eval();
     pc = rt * pc + tt;
     for (int i = 0; i < tc.pd.n_prefix; ++i) {
-        Eigen::Map<Vec3> z(ws.jbuf.data() + 3 * i);
+        Eigen::Map<Vec3> z(sl.jbuf.data() + 3 * i);
         z = (rt * z).eval();
     }
     tc.n_points = setup_.n_points();
     for (int i = 0; i < tc.n_points; ++i)
-        for (int c = 0; c < 3; ++c) ws.refl[static_cast<size_t>(3 * i + c)] = ws.r[static_cast<size_t>(i)](c);
-    tc.refl = ws.refl.data();
+        for (int c = 0; c < 3; ++c) sl.refl[static_cast<size_t>(3 * i + c)] = sl.r[static_cast<size_t>(i)](c);
+    tc.refl = sl.refl.data();
     tc.failed_residual = kFailedResidual;
     tc.wh_rows = wh_rows_.data();
     tc.wh_first = wh_first_;
@@ -360,10 +372,68 @@ void TrackerObjective::solve(const Hexapod& h, int k, Vec3& p, Mat3& r) const {
 double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
                                   std::vector<int>* failed, RowMatrixXd* poses,
                                   RowMatrixXd* predicted) const {
-    constexpr int W = kLanes;
-    const int kp = setup_.n_points(), nj = geometry_.n_joints();
     detail::TrackerConsts tc;
     prepare(x, ws, tc);
+    return evaluate(x, tc, ws, res, failed, poses, predicted, nullptr);
+}
+
+void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
+                                 Workspace& ws) const {
+    constexpr int W = kLanes;
+    const detail::TrackerKernels kernel = detail::active_tracker_kernels();
+    const int nb = (n_ + W - 1) / W, tail = n_ - (nb - 1) * W;
+    // The last block is solved alone unless it is the second of a pair (evaluate). Such blocks of
+    // several vectors are solved together: two vectors in a block when the last block is at most
+    // half full (last2_), and two blocks in a call where the variant solves pairs.
+    const bool alone = !kernel.chord2 || nb % 2 == 1;
+    const int share = tail <= W / 2 ? 2 : 1, calls = kernel.chord2 ? 2 : 1;
+    const int group = alone ? share * calls : 1, part = W / share;
+    int i = 0;
+    if (group > 1) {
+        const double* data = share == 2 ? last2_.data() : block_data(nb - 1);
+        const double* const blk[2] = {data, data};
+        for (; i + group <= m; i += group) {
+            detail::TrackerConsts tc[kMaxGroup];
+            detail::LaneConsts lc[2];
+            for (int g = 0; g < group; ++g) {
+                prepare(xs[i + g], ws, tc[g], g);
+                lc[g / share].set(tc[g], (g % share) * part, (g % share + 1) * part);
+            }
+            alignas(64) double pp[2 * 3 * W], rr[2 * 9 * W];
+            int st[2 * W];
+            kernel.chord_lanes(blk, lc, calls, tc[0], pp, rr, st);
+            for (int g = 0; g < group; ++g) {
+                // Vector g's lanes: block g / share, from lane (g % share) part; with two vectors
+                // to a block, moved to lanes 0.. and its lanes part.. (padding, which sees no
+                // point) the reference pose, as evaluate's padding lanes that do not converge.
+                const int b = g / share, o = (g % share) * part;
+                double *pb = pp + 3 * W * b, *rb = rr + 9 * W * b;
+                const int* sb = st + W * b;
+                alignas(64) double p1[3 * W], r1[9 * W];
+                int s1[W];
+                if (share == 2) {
+                    for (int q = 0; q < 12; ++q) {
+                        double* to = q < 3 ? p1 + q * W : r1 + (q - 3) * W;
+                        const double* from = q < 3 ? pb + q * W : rb + (q - 3) * W;
+                        for (int l = 0; l < W; ++l)
+                            to[l] = l < part ? from[o + l] : data[(36 + q) * W + l];
+                    }
+                    for (int l = 0; l < W; ++l) s1[l] = l < part ? sb[o + l] : 0;
+                    pb = p1, rb = r1, sb = s1;
+                }
+                const Solved last{pb, rb, sb};
+                out[i + g] = evaluate(xs[i + g], tc[g], ws, nullptr, nullptr, nullptr, nullptr, &last);
+            }
+        }
+    }
+    for (; i < m; ++i) out[i] = evaluate(xs[i], ws, nullptr, nullptr, nullptr, nullptr);
+}
+
+double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& tc, Workspace& ws,
+                                  double* res, std::vector<int>* failed, RowMatrixXd* poses,
+                                  RowMatrixXd* predicted, const Solved* last) const {
+    constexpr int W = kLanes;
+    const int kp = setup_.n_points(), nj = geometry_.n_joints();
     const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> rt(tc.rt);
     const Eigen::Map<const Vec3> tt(tc.tt);
     const detail::TrackerKernels kernel = detail::active_tracker_kernels();
@@ -378,18 +448,22 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
     for (int blk = 0; blk * W < n_; ++blk) {
         const double* data = block_data(blk);
         const int half = kernel.chord2 ? blk % 2 : 0;
-        if (!kernel.chord2)
-            kernel.chord(data, tc, pp2, rr2, status2);
-        else if (half == 0 && (blk + 1) * W < n_)
-            kernel.chord2(data, block_data(blk + 1), tc, pp2, rr2, status2);
-        else if (half == 0)
-            kernel.chord(data, tc, pp2, rr2, status2);
-        double* pp = pp2 + half * 3 * W;
-        double* rr = rr2 + half * 9 * W;
-        const int* status = status2 + half * W;
-        for (int l = 0; l < W; ++l) {
+        const bool given = last && (blk + 1) * W >= n_;  // the last block, solved by the caller
+        if (!given) {
+            if (!kernel.chord2)
+                kernel.chord(data, tc, pp2, rr2, status2);
+            else if (half == 0 && (blk + 1) * W < n_)
+                kernel.chord2(data, block_data(blk + 1), tc, pp2, rr2, status2);
+            else if (half == 0)
+                kernel.chord(data, tc, pp2, rr2, status2);
+        }
+        double* pp = given ? last->p : pp2 + half * 3 * W;
+        double* rr = given ? last->r : rr2 + half * 9 * W;
+        const int* status = given ? last->status : status2 + half * W;
+        int unsolved = 0;  // some lane's status not 0 (rare: look at the lanes only then)
+        for (int l = 0; l < W; ++l) unsolved |= status[l], bad[l] = 0.0;
+        for (int l = 0; l < W && unsolved != 0; ++l) {
             const int k = blk * W + l;
-            bad[l] = 0.0;
             if (status[l] == 0) continue;
             Vec3 p;
             Mat3 r;
@@ -642,7 +716,7 @@ void TrackerObjective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* r
     const Vec3 wc(xt[3], xt[4], xt[5]);
     const Mat3 rc = rotvec_matrix(wc), jl = so3_left_jacobian(wc);
     RowMatrixXd djo;  // d r_i / d offsets
-    setup_.platform_points(xt + 6, ws.r.data(), &djo);
+    setup_.platform_points(xt + 6, ws.slot[0].r.data(), &djo);
     std::vector<Mat4> frames(static_cast<size_t>(nj) + 1);
     size_t next_failed = 0;
     for (int k = 0; k < n_; ++k) {
@@ -675,7 +749,7 @@ void TrackerObjective::jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* r
         const Mat3 m = rt * r4;
         for (int i = 0; i < kp; ++i) {
             if (std::isnan(points_(k, 3 * i))) continue;
-            const Vec3 ri = r * ws.r[static_cast<size_t>(i)];  // R r_i
+            const Vec3 ri = r * ws.slot[0].r[static_cast<size_t>(i)];  // R r_i
             const Vec3 z = p + ri;                             // point in {4}
             const Vec3 w = p4 + r4 * z;                        // point in {0}
             auto rows = jac->middleRows(3 * (kp * k + i), 3);

@@ -125,9 +125,13 @@ IWR_FORCE_INLINE void inverse_times(const double* const (&inv)[NB], const double
 // status + 8 b): each lane computes exactly what it would in a block of its own (the same
 // operations; a lane that has converged takes zero steps until the last of the NB blocks' lanes
 // has), more independent chains in flight where the register file holds them.
-template <int NB>
+// Lanes: the hexapod's constants (a, b, l0, B^-1) per lane from lc[b] (LaneConsts: block b's lanes
+// may belong to different parameter vectors), else tc's in every lane; each lane computes the same
+// either way.
+template <int NB, bool Lanes = false>
 IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const TrackerConsts& tc,
-                                   double* pout, double* rout, int* status) {
+                                   double* pout, double* rout, int* status,
+                                   const LaneConsts* lc = nullptr) {
     constexpr int B = kBlock, W = kSubLanes, L = kBlock * NB, KN = K * NB;
     using P = PackN<KN>;
     using MK = MaskN<KN>;
@@ -144,6 +148,25 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
     };
     auto sp = [](double x) IWR_FORCE_INLINE_LAMBDA { return bcast<P>(x); };
     auto ldl = [](const double* ptr) IWR_FORCE_INLINE_LAMBDA { return ld<P>(ptr); };
+    // The hexapod's constant q of LaneConsts (s: its value in tc).
+    auto hex = [&](int q, double s) IWR_FORCE_INLINE_LAMBDA {
+        if constexpr (Lanes) {
+            P x;
+            for (int b = 0; b < NB; ++b)
+                for (int h = 0; h < K; ++h) x.v[b * K + h] = r_load(lc[b].v + q * B + h * W);
+            return x;
+        } else {
+            (void)q;
+            return sp(s);
+        }
+    };
+    auto ha = [&](int j, int c) IWR_FORCE_INLINE_LAMBDA {
+        return hex(LaneConsts::kA + 3 * j + c, tc.ec.a[j][c]);
+    };
+    auto hb = [&](int j, int c) IWR_FORCE_INLINE_LAMBDA {
+        return hex(LaneConsts::kB + 3 * j + c, tc.ec.b[j][c]);
+    };
+    auto bi = [&](int e) IWR_FORCE_INLINE_LAMBDA { return hex(LaneConsts::kBinv + e, tc.binv[e]); };
     // Per-lane constants, residuals and the platform joints live in memory (loads are cheap and
     // the registers few), the position in registers. In memory the NB blocks' lanes of a
     // quantity follow each other (L doubles).
@@ -154,7 +177,7 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
     P p[3];
     for (int c = 0; c < 3; ++c) p[c] = in(36 + c);
     for (int j = 0; j < 6; ++j) {
-        const P b0 = sp(tc.ec.b[j][0]), b1 = sp(tc.ec.b[j][1]), b2 = sp(tc.ec.b[j][2]);
+        const P b0 = hb(j, 0), b1 = hb(j, 1), b2 = hb(j, 2);
         for (int c = 0; c < 3; ++c) {
             const int rr = 39 + 3 * c;
             store(d + (3 * j + c) * L, in(rr) * b0 + in(rr + 1) * b1 + in(rr + 2) * b2);
@@ -162,7 +185,7 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
     }
     MK act = all_lanes<KN>(true);
     for (int j = 0; j < 6; ++j) {
-        const P len = in(48 + j) + sp(tc.ec.l0[j]);
+        const P len = in(48 + j) + hex(LaneConsts::kL0 + j, tc.ec.l0[j]);
         store(nl2 + j * L, sp(0.0) - len * len);
         act = act & (sp(0.0) < len);  // false for a length <= 0 (or NaN)
     }
@@ -178,9 +201,9 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
 #pragma GCC unroll 1
         for (int j = 0; j < 6; ++j) {
             const double* dj = d + 3 * j * L;
-            const P vx = (p[0] - sp(tc.ec.a[j][0])) + ldl(dj);
-            const P vy = (p[1] - sp(tc.ec.a[j][1])) + ldl(dj + L);
-            const P vz = (p[2] - sp(tc.ec.a[j][2])) + ldl(dj + 2 * L);
+            const P vx = (p[0] - ha(j, 0)) + ldl(dj);
+            const P vy = (p[1] - ha(j, 1)) + ldl(dj + L);
+            const P vz = (p[2] - ha(j, 2)) + ldl(dj + 2 * L);
             const P fj = fma(vz, vz, fma(vy, vy, fma(vx, vx, ldl(nl2 + j * L)))) * in(54 + j);
             store(f + j * L, fj);
             err = fma(fj, fj, err);
@@ -206,9 +229,9 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
                 const P ex = s[0] + (s[4] * dz - s[5] * dy);
                 const P ey = s[1] + (s[5] * dx - s[3] * dz);
                 const P ez = s[2] + (s[3] * dy - s[4] * dx);
-                const P dot = fma((p[2] - sp(tc.ec.a[j][2])) + dz, ez,
-                                  fma((p[1] - sp(tc.ec.a[j][1])) + dy, ey,
-                                      ((p[0] - sp(tc.ec.a[j][0])) + dx) * ex));
+                const P dot = fma((p[2] - ha(j, 2)) + dz, ez,
+                                  fma((p[1] - ha(j, 1)) + dy, ey,
+                                      ((p[0] - ha(j, 0)) + dx) * ex));
                 const P h = in(54 + j);
                 store(g + j * L, fma(h + h, dot, ldl(f + j * L)));
             }
@@ -245,8 +268,7 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
         for (int row = 0; row < 3; ++row)
             for (int c = 0; c < 3; ++c)
                 out(rout, 9 * B, 3 * row + c,
-                    col[row][0] * sp(tc.binv[c]) + col[row][1] * sp(tc.binv[3 + c]) +
-                        col[row][2] * sp(tc.binv[6 + c]));
+                    col[row][0] * bi(c) + col[row][1] * bi(3 + c) + col[row][2] * bi(6 + c));
     }
     const int two = bits(short_leg), one = bits(stalled_lanes);
     for (int l = 0; l < L; ++l) status[l] = (two >> l & 1) ? 2 : (one >> l & 1) ? 1 : 0;
@@ -268,6 +290,22 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
     chord_blocks<2>(b, tc, pout, rout, status);
 }
 constexpr auto chord_pair = kChordPair ? &tracker_chord2 : nullptr;
+
+// nb (1 or 2) blocks with per-lane constants (lc[b] for blk[b]): out as tracker_chord2's. Two at
+// once where the variant runs pairs (kChordPair), else one after the other.
+void tracker_chord_lanes(const double* const* blk, const LaneConsts* lc, int nb,
+                         const TrackerConsts& tc, double* pout, double* rout, int* status) {
+    if (kChordPair && nb == 2) {
+        const double* const b[2] = {blk[0], blk[1]};
+        chord_blocks<2, true>(b, tc, pout, rout, status, lc);
+        return;
+    }
+    for (int i = 0; i < nb; ++i) {
+        const double* const b[1] = {blk[i]};
+        chord_blocks<1, true>(b, tc, pout + 3 * kBlock * i, rout + 9 * kBlock * i,
+                              status + kBlock * i, lc + i);
+    }
+}
 
 // The transform T_T4 = T_T0 0T4 of the block's poses (the registration is folded into the carriage's
 // constants; tout: rotation row-major 0..8, position 9..11, each 8 lanes), the points in {T}

@@ -129,26 +129,27 @@ public:
         });
     }
     bool prepare(int threads) override {
+        // A thread's full vectors: one, or detail::kCostRows where the objective takes rows at once.
+        const Eigen::Index rows = iwr::detail::has_cost_rows_v<Obj> ? iwr::detail::kCostRows : 1;
         while (workspaces_.size() < static_cast<std::size_t>(threads)) {
             workspaces_.push_back(objective_.make_workspace());
-            buffers_.push_back(x0_);
+            buffers_.push_back(x0_.replicate(rows, 1));
         }
         return true;
     }
     void evaluate_rows(const double* X, std::size_t b, std::size_t e, double* out, int id) override {
         auto& ws = workspaces_[static_cast<std::size_t>(id)];
         double* x = buffers_[static_cast<std::size_t>(id)].data();
-        const std::size_t d = index_.size();
+        const std::size_t d = index_.size(), n = static_cast<std::size_t>(x0_.size());
         const bool all = static_cast<int>(d) == objective_.n_params();
-        for (std::size_t i = b; i < e; ++i) {
+        // Row i as a full vector: X's row itself, or its active entries over x0 in buffer k.
+        iwr::detail::row_costs(objective_, b, e, out, ws, [&](std::size_t i, std::size_t k) {
             const double* z = X + i * d;
-            if (all) {
-                out[i] = objective_.cost(z, ws);
-            } else {
-                for (std::size_t k = 0; k < d; ++k) x[index_[k]] = z[k];
-                out[i] = objective_.cost(x, ws);
-            }
-        }
+            if (all) return z;
+            double* xk = x + k * n;
+            for (std::size_t j = 0; j < d; ++j) xk[index_[j]] = z[j];
+            return static_cast<const double*>(xk);
+        });
     }
     /// The full n_params vector for a reduced one (dim() entries).
     VectorXd full(const double* z) const {

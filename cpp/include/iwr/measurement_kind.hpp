@@ -55,7 +55,10 @@ namespace iwr {
 //
 // and, optionally, `std::vector<std::pair<int, std::string>> failures(const Eigen::Ref<const
 // VectorXd>& x) const`: the poses whose model cannot be evaluated at x (their residuals carry a
-// finite penalty); a result with failures is never reported as a success (objective_failures).
+// finite penalty); a result with failures is never reported as a success (objective_failures),
+// and `void cost_rows(const double* const* xs, int m, double* out, Workspace&) const`: the costs
+// of m vectors at once, each bit for bit its cost (detail::row_costs in iwr/parallel.hpp hands
+// batch_costs' and ReducedObjective's rows to it, up to kCostRows at a time).
 // A row's cost must depend on that row only (not on the thread or the other rows), which makes
 // every search reproducible whatever the number of threads. Weighting by the instruments' noise
 // lives inside the objective (a whitening per pose, fixed): the searches see one cost.

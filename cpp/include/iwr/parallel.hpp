@@ -21,6 +21,8 @@
 #include <memory>
 #include <mutex>
 #include <thread>
+#include <type_traits>
+#include <utility>
 #include <vector>
 
 namespace iwr {
@@ -94,9 +96,43 @@ private:
     std::exception_ptr error_;  // guarded by sync_->mutex
 };
 
+namespace detail {
+/// Whether an objective has `cost_rows(const double* const* xs, int m, double* out, Workspace&)`:
+/// the costs of m parameter vectors at once, each the same as `cost` of it (an objective that
+/// solves several vectors' work together, iwr::TrackerObjective).
+template <class T, class = void>
+struct has_cost_rows : std::false_type {};
+template <class T>
+struct has_cost_rows<T, std::void_t<decltype(std::declval<const T&>().cost_rows(
+                            std::declval<const double* const*>(), 0, std::declval<double*>(),
+                            std::declval<typename T::Workspace&>()))>> : std::true_type {};
+template <class T>
+inline constexpr bool has_cost_rows_v = has_cost_rows<T>::value;
+/// Rows handed to cost_rows at a time.
+constexpr std::size_t kCostRows = 16;
+
+/// The costs of rows [b, e) of X (np doubles each) into out[b..e): cost_rows where the objective
+/// has it, kCostRows rows at a time, else cost row by row; row(i) gives row i's parameter vector.
+template <class Objective, class Row>
+void row_costs(const Objective& obj, std::size_t b, std::size_t e, double* out,
+               typename Objective::Workspace& ws, Row row) {
+    if constexpr (has_cost_rows_v<Objective>) {
+        const double* xs[kCostRows];
+        for (std::size_t i = b; i < e; i += kCostRows) {
+            const std::size_t n = e - i < kCostRows ? e - i : kCostRows;
+            for (std::size_t k = 0; k < n; ++k) xs[k] = row(i + k, k);
+            obj.cost_rows(xs, static_cast<int>(n), out + i, ws);
+        }
+    } else {
+        for (std::size_t i = b; i < e; ++i) out[i] = obj.cost(row(i, 0), ws);
+    }
+}
+}  // namespace detail
+
 /// The costs of the m rows of X (each obj.n_params() long) into out, across the pool's threads,
 /// one workspace per thread: a row's cost never depends on the thread or the other rows. Serves
-/// every objective with `make_workspace()` and `cost(const double*, Workspace&)`.
+/// every objective with `make_workspace()` and `cost(const double*, Workspace&)` (and uses its
+/// `cost_rows` where it has one).
 template <class Objective>
 void batch_costs(const Objective& obj, const double* X, std::size_t m, double* out,
                  ThreadPool& pool) {
@@ -104,8 +140,8 @@ void batch_costs(const Objective& obj, const double* X, std::size_t m, double* o
     for (auto& w : ws) w = obj.make_workspace();
     const std::size_t np = static_cast<std::size_t>(obj.n_params());
     pool.parallel_for_dynamic(m, ThreadPool::kGrain, [&](std::size_t b, std::size_t e, int id) {
-        auto& w = ws[static_cast<std::size_t>(id)];
-        for (std::size_t i = b; i < e; ++i) out[i] = obj.cost(X + i * np, w);
+        detail::row_costs(obj, b, e, out, ws[static_cast<std::size_t>(id)],
+                          [&](std::size_t i, std::size_t) { return X + i * np; });
     });
 }
 

@@ -126,11 +126,17 @@ public:
     /// Whether the residuals are whitened.
     bool whitened() const { return whitening_.size() != 0; }
 
+    /// The most parameter vectors cost_rows solves together.
+    static constexpr int kMaxGroup = 4;
+
     class Workspace {
         friend class TrackerObjective;
-        std::vector<double> jbuf;   // the carriage's per-joint constants (CarriageNominal)
-        std::vector<Vec3> r;        // points in {5}
-        std::vector<double> refl;   // the same, flat
+        struct Slot {                 // one parameter vector's (cost_rows: kMaxGroup at once)
+            std::vector<double> jbuf;  // the carriage's per-joint constants (CarriageNominal)
+            std::vector<Vec3> r;       // points in {5}
+            std::vector<double> refl;  // the same, flat
+        };
+        Slot slot[kMaxGroup];
         std::vector<double, detail::AlignedAllocator<double>> y;  // a block's points (3 K x lanes)
         std::vector<double, detail::AlignedAllocator<double>> v;  // a block's residuals (whitened)
     };
@@ -145,6 +151,12 @@ public:
     void jacobian(const Eigen::Ref<const VectorXd>& x, VectorXd* residuals, RowMatrixXd* jac) const;
     /// Costs of the rows of X (M, n_params) across the pool's threads; thread-count independent.
     void cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const;
+    /// Costs of the m parameter vectors xs[0..m) (n_params entries each, unchecked) into out[0..m):
+    /// cost() of each, bit for bit. Where the last block of poses is solved alone (it is not the
+    /// second of a pair), the last blocks of up to kMaxGroup vectors are solved together: each
+    /// lane computes what it would in its own vector's block, and half-filled blocks (N mod 8 in
+    /// 1..4) share a block two vectors at once (batch_costs and the DE engine call it).
+    void cost_rows(const double* const* xs, int m, double* out, Workspace& ws) const;
 
     /// Poses whose forward kinematics fails at x, with the solver's message.
     std::vector<std::pair<int, std::string>> failures(const Eigen::Ref<const VectorXd>& x) const;
@@ -163,7 +175,7 @@ private:
     };
     Hexapod hexapod(const double* x) const;
     // The kernel's constants at x.
-    void prepare(const double* x, Workspace& ws, detail::TrackerConsts& tc) const;
+    void prepare(const double* x, Workspace& ws, detail::TrackerConsts& tc, int slot = 0) const;
     // The forward kinematics' constants beyond the hexapod's a, b, l0 (already in tc).
     void fk_consts(detail::TrackerConsts& tc) const;
     const double* block_data(int block) const {
@@ -182,6 +194,18 @@ private:
     // whitened()); failed poses into failed.
     double evaluate(const double* x, Workspace& ws, double* res, std::vector<int>* failed,
                     RowMatrixXd* poses, RowMatrixXd* predicted) const;
+    // The forward kinematics of one block's lanes, solved by the caller (cost_rows): P (3 x 8),
+    // R (9 x 8), status (8) as the chord's.
+    struct Solved {
+        double* p;
+        double* r;
+        const int* status;
+    };
+    // evaluate() at x with its constants tc (prepare); the last block's chord from last (solved
+    // with the other vectors' in cost_rows) when not null.
+    double evaluate(const double* x, const detail::TrackerConsts& tc, Workspace& ws, double* res,
+                    std::vector<int>* failed, RowMatrixXd* poses, RowMatrixXd* predicted,
+                    const Solved* last) const;
 
     Geometry geometry_;
     TrackerSetup setup_;
@@ -200,6 +224,9 @@ private:
     static constexpr int kChordQuantities = 60;
     int stride_ = 0;  // doubles per block
     std::vector<double, detail::AlignedAllocator<double>> blocks_;  // 64-byte aligned
+    // When N mod kLanes is 1..kLanes / 2: the last block's chord quantities (kChordQuantities)
+    // with lanes kLanes / 2.. a copy of lanes 0.. (cost_rows: two vectors' last poses in a block).
+    std::vector<double, detail::AlignedAllocator<double>> last2_;
     std::vector<char> prismatic_;
     std::vector<int> q_off_;  // per joint: its first quantity in a block
     std::vector<char> all_seen_;  // per block: every point of its (real) poses seen
