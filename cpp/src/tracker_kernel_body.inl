@@ -75,7 +75,9 @@ IWR_FORCE_INLINE PackN<KK> select(const MaskN<KK>& m, const PackN<KK>& a, const 
 // and reading it from memory made the product wait on loads: 4-5 % of the AVX2 tracker objective).
 // With AVX-512 (K = 1: one register a block) v is read from memory in every row, as before (1.5 %
 // faster than in registers). set(r, s[m].v[r], row m's product) stores the result of register r
-// (block r / K, its register r % K). The same operations on each lane either way.
+// (block r / K, its register r % K). The same operations on each lane either way. Each row's
+// product in two chains of three (n = 0..2 and 3..5) added at the end: a chain of six fused
+// multiply-adds made each product wait 23 cycles on its last.
 template <int NB, class Set>
 IWR_FORCE_INLINE void inverse_times(const double* const (&inv)[NB], const double* v,
                                     PackN<K * NB> (&s)[6], Set set) {
@@ -91,9 +93,12 @@ IWR_FORCE_INLINE void inverse_times(const double* const (&inv)[NB], const double
             };
             for (int m = 0; m < 6; ++m) {
                 const double* row = ib + 6 * m * B + h * W;
-                R acc = r_mul(r_load(row), vn(0));
-                for (int n = 1; n < 6; ++n) acc = r_fma(r_load(row + n * B), vn(n), acc);
-                set(r, s[m].v[r], acc);
+                R acc = r_mul(r_load(row), vn(0)), acc2 = r_mul(r_load(row + 3 * B), vn(3));
+                for (int n = 1; n < 3; ++n) {
+                    acc = r_fma(r_load(row + n * B), vn(n), acc);
+                    acc2 = r_fma(r_load(row + (n + 3) * B), vn(n + 3), acc2);
+                }
+                set(r, s[m].v[r], r_add(acc, acc2));
             }
         }
     }
@@ -180,7 +185,7 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
         const P b0 = hb(j, 0), b1 = hb(j, 1), b2 = hb(j, 2);
         for (int c = 0; c < 3; ++c) {
             const int rr = 39 + 3 * c;
-            store(d + (3 * j + c) * L, in(rr) * b0 + in(rr + 1) * b1 + in(rr + 2) * b2);
+            store(d + (3 * j + c) * L, fma(in(rr + 2), b2, fma(in(rr + 1), b1, in(rr) * b0)));
         }
     }
     MK act = all_lanes<KN>(true);
@@ -226,9 +231,9 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
             for (int j = 0; j < 6; ++j) {
                 const double* dj = d + 3 * j * L;
                 const P dx = ldl(dj), dy = ldl(dj + L), dz = ldl(dj + 2 * L);
-                const P ex = s[0] + (s[4] * dz - s[5] * dy);
-                const P ey = s[1] + (s[5] * dx - s[3] * dz);
-                const P ez = s[2] + (s[3] * dy - s[4] * dx);
+                const P ex = s[0] + fms(s[4], dz, s[5] * dy);
+                const P ey = s[1] + fms(s[5], dx, s[3] * dz);
+                const P ez = s[2] + fms(s[3], dy, s[4] * dx);
                 const P dot = fma((p[2] - ha(j, 2)) + dz, ez,
                                   fma((p[1] - ha(j, 1)) + dy, ey,
                                       ((p[0] - ha(j, 0)) + dx) * ex));
@@ -244,9 +249,9 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
         const P hx = half * s[3], hy = half * s[4], hz = half * s[5];
         const P xx = hx * hx, yy = hy * hy, zz = hz * hz, xy = hx * hy, xz = hx * hz, yz = hy * hz;
         const P h2 = xx + yy + zz, k = sp(2.0) / (one + h2);
-        const P c00 = one + k * (xx - h2), c01 = k * (xy - hz), c02 = k * (xz + hy);
-        const P c10 = k * (xy + hz), c11 = one + k * (yy - h2), c12 = k * (yz - hx);
-        const P c20 = k * (xz - hy), c21 = k * (yz + hx), c22 = one + k * (zz - h2);
+        const P c00 = fma(k, xx - h2, one), c01 = k * (xy - hz), c02 = k * (xz + hy);
+        const P c10 = k * (xy + hz), c11 = fma(k, yy - h2, one), c12 = k * (yz - hx);
+        const P c20 = k * (xz - hy), c21 = k * (yz + hx), c22 = fma(k, zz - h2, one);
 #pragma GCC unroll 1
         for (int j = 0; j < 6; ++j) {
             double* dj = d + 3 * j * L;
@@ -262,13 +267,13 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
         const double* dk = d + 3 * tc.pair[1] * L;
         const P ix = ldl(di), iy = ldl(di + L), iz = ldl(di + 2 * L);
         const P kx = ldl(dk), ky = ldl(dk + L), kz = ldl(dk + 2 * L);
-        const P col[3][3] = {{ix, kx, iy * kz - iz * ky},
-                             {iy, ky, iz * kx - ix * kz},
-                             {iz, kz, ix * ky - iy * kx}};
+        const P col[3][3] = {{ix, kx, fms(iy, kz, iz * ky)},
+                             {iy, ky, fms(iz, kx, ix * kz)},
+                             {iz, kz, fms(ix, ky, iy * kx)}};
         for (int row = 0; row < 3; ++row)
             for (int c = 0; c < 3; ++c)
                 out(rout, 9 * B, 3 * row + c,
-                    col[row][0] * bi(c) + col[row][1] * bi(3 + c) + col[row][2] * bi(6 + c));
+                    fma(col[row][2], bi(6 + c), fma(col[row][1], bi(3 + c), col[row][0] * bi(c))));
     }
     const int two = bits(short_leg), one = bits(stalled_lanes);
     for (int l = 0; l < L; ++l) status[l] = (two >> l & 1) ? 2 : (one >> l & 1) ? 1 : 0;
