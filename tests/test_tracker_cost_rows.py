@@ -41,8 +41,8 @@ def _problem(n: int, weighted: bool, seed: int = 3):
 
 
 def _rows(problem, count: int, seed: int) -> np.ndarray:
-    """count vectors across the search box, with one far outside it (the damped Newton fallback
-    for some poses) and one where every pose fails, inside the first groups."""
+    """count vectors across the search box, with one far outside it and one where every pose
+    fails, inside the first groups."""
     rng = np.random.default_rng(seed)
     lo, hi = problem.lower, problem.upper
     X = lo + (hi - lo) * rng.random((count, problem.n_params))
@@ -52,9 +52,9 @@ def _rows(problem, count: int, seed: int) -> np.ndarray:
     return X
 
 
-# N = 8 (b - 1) + t: t poses in the last block, b blocks (odd: the last block alone on AVX-512;
-# even: the second of a pair there, alone on AVX2 and the baseline).
-SIZES = [1, 3, 4, 5, 8, 9, 12, 15, 16, 19, 20, 21, 28, 29, 32]
+# N = 8 (b - 1) + t: t poses in the last block (1-8), b blocks (odd: the last block alone on
+# AVX-512; even: the second of a pair there; alone on AVX2 and the baseline, which do not pair).
+SIZES = [1, 2, 3, 4, 5, 6, 7, 8, 9, 12, 14, 15, 16, 19, 20, 21, 22, 23, 24, 28, 29, 31, 32]
 
 
 @pytest.mark.parametrize("n", SIZES)
@@ -62,7 +62,10 @@ def test_every_row_costs_what_it_costs_alone_bit_for_bit(n, restore_kernel):
     # The C++ objective's own cost of one vector (a weighted problem's Python cost is NumPy's).
     problem = _problem(n, weighted=n % 2 == 1)
     obj = problem.engine_objective()
-    X = _rows(problem, 11, seed=n)  # groups of 2 and of 4, and leftovers
+    # 37 rows: more than the 16 that batch_costs hands over at a time on one thread, groups of 2
+    # and of 4, and leftovers.
+    X = _rows(problem, 37, seed=n)
+    assert len(obj.failures(X[5])) == n  # every pose of that vector fails
     for v in _core._supported_kernels():
         _core._select_kernel(v)
         alone = np.array([obj.cost(x) for x in X])
@@ -71,7 +74,7 @@ def test_every_row_costs_what_it_costs_alone_bit_for_bit(n, restore_kernel):
             got = obj.cost_batch(X, threads)
             assert got.view(np.uint64).tolist() == alone.view(np.uint64).tolist(), (v, threads)
         # Every count of rows: the groups filled and not.
-        for m in range(1, 7):
+        for m in range(1, 8):
             got = obj.cost_batch(X[:m], 1)
             assert got.view(np.uint64).tolist() == alone[:m].view(np.uint64).tolist(), (v, m)
 
@@ -88,7 +91,8 @@ def test_de_population_costs_are_their_vectors_costs(n, restore_kernel):
     active[[3, problem.n_params - 2]] = False
     x0 = np.zeros(problem.n_params)
     x0[3] = 1e-3
-    run = _Run(int(active.sum()), strategy="jade", population_size=22, F=None, CR=None,
+    # 70 vectors a generation: chunks of the pool past the 16 full vectors a thread keeps.
+    run = _Run(int(active.sum()), strategy="jade", population_size=70, F=None, CR=None,
                generations=4, seed=5, workers=2, options={})
     box = run.core_args(np.ascontiguousarray(problem.lower[active]),
                         np.ascontiguousarray(problem.upper[active]))

@@ -206,8 +206,16 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
         q_off_.push_back(kChordQuantities + 2 * i);
     }
     carriage_ = detail::CarriageNominal(geometry_);
+    // A padding lane (kk >= n_) copies a pose of its block: when the last block is at most half
+    // full, lane l copies lane l mod kLanes / 2 (the last pose if that is padding too), so that its
+    // lanes kLanes / 2.. repeat its first half (cost_rows solves two vectors' last poses in one
+    // such block); else the last pose.
+    const int last_first = (n_blocks - 1) * kLanes;
+    const bool half_full = n_ - last_first <= kLanes / 2;
     for (int kk = 0; kk < n_blocks * kLanes; ++kk) {
-        const int p = std::min(kk, n_ - 1);
+        const int p = kk < n_ ? kk
+                      : half_full ? std::min(last_first + kk % (kLanes / 2), n_ - 1)
+                                  : n_ - 1;
         const size_t s = static_cast<size_t>(p);
         if (kk < n_) {
             const LegVector len = legs_.row(p).transpose() + h.l0;
@@ -236,14 +244,6 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
             put(e0 + 3 * k + i, seen ? 1.0 : 0.0);
             if (!seen) all_seen_.back() = 0;
         }
-    }
-    const int tail = n_ - (n_blocks - 1) * kLanes;
-    if (tail <= kLanes / 2) {
-        const double* last = block_data(n_blocks - 1);
-        last2_.resize(static_cast<size_t>(kChordQuantities * kLanes));
-        for (int e = 0; e < kChordQuantities; ++e)
-            for (int l = 0; l < kLanes; ++l)
-                last2_[static_cast<size_t>(e * kLanes + l)] = last[e * kLanes + l % (kLanes / 2)];
     }
 }
 
@@ -374,7 +374,8 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
                                   RowMatrixXd* predicted) const {
     detail::TrackerConsts tc;
     prepare(x, ws, tc);
-    return evaluate(x, tc, ws, res, failed, poses, predicted, nullptr);
+    return evaluate(x, tc, detail::active_tracker_kernels(), ws, res, failed, poses, predicted,
+                    nullptr);
 }
 
 void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
@@ -383,60 +384,68 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
     const detail::TrackerKernels kernel = detail::active_tracker_kernels();
     const int nb = (n_ + W - 1) / W, tail = n_ - (nb - 1) * W;
     // The last block is solved alone unless it is the second of a pair (evaluate). Such blocks of
-    // several vectors are solved together: two vectors in a block when the last block is at most
-    // half full (last2_), and two blocks in a call where the variant solves pairs.
+    // several vectors are solved together: two vectors in a block when it is at most half full
+    // (its lanes W / 2.. repeat its first half: the constructor's padding), and two blocks in a
+    // call where the variant solves pairs.
     const bool alone = !kernel.chord2 || nb % 2 == 1;
-    const int share = tail <= W / 2 ? 2 : 1, calls = kernel.chord2 ? 2 : 1;
-    const int group = alone ? share * calls : 1, part = W / share;
+    const int share = tail <= W / 2 ? 2 : 1, part = W / share;
+    const int most = alone ? share * (kernel.chord2 ? 2 : 1) : 1;  // vectors a call solves
+    static_assert(kMaxGroup >= 4, "two vectors to a block, two blocks to a call");
+    const double* data = block_data(nb - 1);
+    const double* const blk[2] = {data, data};
     int i = 0;
-    if (group > 1) {
-        const double* data = share == 2 ? last2_.data() : block_data(nb - 1);
-        const double* const blk[2] = {data, data};
-        for (; i + group <= m; i += group) {
-            detail::TrackerConsts tc[kMaxGroup];
-            detail::LaneConsts lc[2];
-            for (int g = 0; g < group; ++g) {
-                prepare(xs[i + g], ws, tc[g], g);
-                lc[g / share].set(tc[g], (g % share) * part, (g % share + 1) * part);
-            }
-            alignas(64) double pp[2 * 3 * W], rr[2 * 9 * W];
-            int st[2 * W];
-            kernel.chord_lanes(blk, lc, calls, tc[0], pp, rr, st);
-            for (int g = 0; g < group; ++g) {
-                // Vector g's lanes: block g / share, from lane (g % share) part; with two vectors
-                // to a block, moved to lanes 0.. and its lanes part.. (padding, which sees no
-                // point) the reference pose, as evaluate's padding lanes that do not converge.
-                const int b = g / share, o = (g % share) * part;
-                double *pb = pp + 3 * W * b, *rb = rr + 9 * W * b;
-                const int* sb = st + W * b;
-                alignas(64) double p1[3 * W], r1[9 * W];
-                int s1[W];
-                if (share == 2) {
-                    for (int q = 0; q < 12; ++q) {
-                        double* to = q < 3 ? p1 + q * W : r1 + (q - 3) * W;
-                        const double* from = q < 3 ? pb + q * W : rb + (q - 3) * W;
-                        for (int l = 0; l < W; ++l)
-                            to[l] = l < part ? from[o + l] : data[(36 + q) * W + l];
-                    }
-                    for (int l = 0; l < W; ++l) s1[l] = l < part ? sb[o + l] : 0;
-                    pb = p1, rb = r1, sb = s1;
-                }
-                const Solved last{pb, rb, sb};
-                out[i + g] = evaluate(xs[i + g], tc[g], ws, nullptr, nullptr, nullptr, nullptr, &last);
-            }
+    while (i < m) {
+        const int group = std::min(most, m - i) / share * share;  // whole blocks only
+        if (group <= 1) {
+            out[i] = evaluate(xs[i], ws, nullptr, nullptr, nullptr, nullptr);
+            ++i;
+            continue;
         }
+        detail::TrackerConsts tc[kMaxGroup];
+        detail::LaneConsts lc[2];
+        for (int g = 0; g < group; ++g) {
+            prepare(xs[i + g], ws, tc[g], g);
+            lc[g / share].set(tc[g], (g % share) * part, (g % share + 1) * part);
+        }
+        alignas(64) double pp[2 * 3 * W], rr[2 * 9 * W];
+        int st[2 * W];
+        kernel.chord_lanes(blk, lc, group / share, tc[0], pp, rr, st);
+        for (int g = 0; g < group; ++g) {
+            // Vector g's lanes: block g / share, from lane (g % share) part. With two vectors to a
+            // block they move to lanes 0..part (a copy: evaluate may write a padding lane's pose
+            // into its block), and its lanes part.. (padding: they see no point, so their pose
+            // does not matter) take the block's reference pose.
+            const int b = g / share, o = (g % share) * part;
+            double *pb = pp + 3 * W * b, *rb = rr + 9 * W * b;
+            const int* sb = st + W * b;
+            alignas(64) double p1[3 * W], r1[9 * W];
+            int s1[W];
+            if (share == 2) {
+                for (int q = 0; q < 12; ++q) {
+                    double* to = q < 3 ? p1 + q * W : r1 + (q - 3) * W;
+                    const double* from = q < 3 ? pb + q * W : rb + (q - 3) * W;
+                    for (int l = 0; l < W; ++l)
+                        to[l] = l < part ? from[o + l] : data[(36 + q) * W + l];
+                }
+                for (int l = 0; l < W; ++l) s1[l] = l < part ? sb[o + l] : 0;
+                pb = p1, rb = r1, sb = s1;
+            }
+            const Solved last{pb, rb, sb};
+            out[i + g] = evaluate(xs[i + g], tc[g], kernel, ws, nullptr, nullptr, nullptr, nullptr,
+                                  &last);
+        }
+        i += group;
     }
-    for (; i < m; ++i) out[i] = evaluate(xs[i], ws, nullptr, nullptr, nullptr, nullptr);
 }
 
-double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& tc, Workspace& ws,
-                                  double* res, std::vector<int>* failed, RowMatrixXd* poses,
+double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& tc,
+                                  const detail::TrackerKernels& kernel, Workspace& ws, double* res,
+                                  std::vector<int>* failed, RowMatrixXd* poses,
                                   RowMatrixXd* predicted, const Solved* last) const {
     constexpr int W = kLanes;
     const int kp = setup_.n_points(), nj = geometry_.n_joints();
     const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> rt(tc.rt);
     const Eigen::Map<const Vec3> tt(tc.tt);
-    const detail::TrackerKernels kernel = detail::active_tracker_kernels();
     Hexapod h;
     bool have_h = false;
     double* y = ws.y.data();
@@ -784,5 +793,7 @@ void TrackerObjective::cost_batch(const double* X, Eigen::Index m, double* out,
                                   ThreadPool& pool) const {
     batch_costs(*this, X, static_cast<std::size_t>(m), out, pool);
 }
+// batch_costs and de::ReducedObjective hand their rows to cost_rows (detail::row_costs).
+static_assert(detail::has_cost_rows_v<TrackerObjective>, "TrackerObjective::cost_rows not seen");
 
 }  // namespace iwr

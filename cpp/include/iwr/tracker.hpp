@@ -48,6 +48,7 @@ enum class TrackerKind { Points, Probe };
 
 namespace detail {
 struct TrackerConsts;
+struct TrackerKernels;
 /// The points seen in points (N, 3 K; a point not seen: its three entries NaN); throws
 /// std::invalid_argument naming the pose and point of a partial NaN or an infinite coordinate.
 int seen_points(const RowMatrixXd& points, int n_points);
@@ -201,9 +202,11 @@ private:
         double* r;
         const int* status;
     };
-    // evaluate() at x with its constants tc (prepare); the last block's chord from last (solved
-    // with the other vectors' in cost_rows) when not null.
-    double evaluate(const double* x, const detail::TrackerConsts& tc, Workspace& ws, double* res,
+    // evaluate() at x with its constants tc (prepare) and the kernels of one variant; the last
+    // block's chord from last when not null (cost_rows: only where that block is solved alone,
+    // with the other vectors' last blocks).
+    double evaluate(const double* x, const detail::TrackerConsts& tc,
+                    const detail::TrackerKernels& kernel, Workspace& ws, double* res,
                     std::vector<int>* failed, RowMatrixXd* poses, RowMatrixXd* predicted,
                     const Solved* last) const;
 
@@ -218,15 +221,12 @@ private:
     // position (3) and rotation (9, row-major), the leg readings (6), 1 / (2 L) with L the leg
     // lengths at the reference (6), then per joint q and 0
     // (prismatic) or cos q and sin q (revolute), then the measured points (3 K, 0 where not seen)
-    // and a flag per point (1 seen, 0 not). The last block is padded with copies of the last pose,
-    // which see no point.
+    // and a flag per point (1 seen, 0 not). The last block is padded with copies of its poses
+    // (the constructor says which), which see no point.
     static constexpr int kLanes = 8;
     static constexpr int kChordQuantities = 60;
     int stride_ = 0;  // doubles per block
     std::vector<double, detail::AlignedAllocator<double>> blocks_;  // 64-byte aligned
-    // When N mod kLanes is 1..kLanes / 2: the last block's chord quantities (kChordQuantities)
-    // with lanes kLanes / 2.. a copy of lanes 0.. (cost_rows: two vectors' last poses in a block).
-    std::vector<double, detail::AlignedAllocator<double>> last2_;
     std::vector<char> prismatic_;
     std::vector<int> q_off_;  // per joint: its first quantity in a block
     std::vector<char> all_seen_;  // per block: every point of its (real) poses seen
