@@ -211,7 +211,7 @@ TrackerObjective::TrackerObjective(Geometry geometry, TrackerSetup setup, const 
     // lanes kLanes / 2.. repeat its first half (cost_rows solves two vectors' last poses in one
     // such block); else the last pose.
     const int last_first = (n_blocks - 1) * kLanes;
-    const bool half_full = n_ - last_first <= kLanes / 2;
+    const bool half_full = last_block_half_full();
     for (int kk = 0; kk < n_blocks * kLanes; ++kk) {
         const int p = kk < n_ ? kk
                       : half_full ? std::min(last_first + kk % (kLanes / 2), n_ - 1)
@@ -382,13 +382,13 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
                                  Workspace& ws) const {
     constexpr int W = kLanes;
     const detail::TrackerKernels kernel = detail::active_tracker_kernels();
-    const int nb = (n_ + W - 1) / W, tail = n_ - (nb - 1) * W;
+    const int nb = (n_ + W - 1) / W;
     // The last block is solved alone unless it is the second of a pair (evaluate). Such blocks of
     // several vectors are solved together: two vectors in a block when it is at most half full
     // (its lanes W / 2.. repeat its first half: the constructor's padding), and two blocks in a
     // call where the variant solves pairs.
     const bool alone = !kernel.chord2 || nb % 2 == 1;
-    const int share = tail <= W / 2 ? 2 : 1, part = W / share;
+    const int share = last_block_half_full() ? 2 : 1, part = W / share;
     const int most = alone ? share * (kernel.chord2 ? 2 : 1) : 1;  // vectors a call solves
     static_assert(kMaxGroup >= 4, "two vectors to a block, two blocks to a call");
     const double* data = block_data(nb - 1);

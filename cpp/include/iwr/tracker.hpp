@@ -179,6 +179,11 @@ private:
     void prepare(const double* x, Workspace& ws, detail::TrackerConsts& tc, int slot = 0) const;
     // The forward kinematics' constants beyond the hexapod's a, b, l0 (already in tc).
     void fk_consts(detail::TrackerConsts& tc) const;
+    // Whether the last block of poses is at most half full: then its padding lanes kLanes / 2..
+    // repeat its first half (the constructor) and cost_rows puts two vectors' poses in it.
+    bool last_block_half_full() const {
+        return n_ - (n_ - 1) / kLanes * kLanes <= kLanes / 2;  // its poses: 1..kLanes
+    }
     const double* block_data(int block) const {
         return blocks_.data() + static_cast<size_t>(block) * static_cast<size_t>(stride_);
     }
