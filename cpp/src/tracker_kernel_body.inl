@@ -111,8 +111,9 @@ IWR_FORCE_INLINE void inverse_times(const double* const (&inv)[NB], const double
 // (bit for bit, but for the sign of an exact zero).
 //
 // The unknowns are the platform position P in {4} and the six platform joints d_j = R b_j relative
-// to it, rotated together (d_j <- C(omega) d_j, C Cayley's rotation: exactly orthogonal, Exp(omega)
-// to second order); R itself is needed only at the end: R = [d_i, d_k, d_i x d_k] B^-1 with
+// to it, rotated together (d_j <- C(omega) d_j, C Cayley's rotation: orthogonal to rounding,
+// Exp(omega) to second order; its factor 2 / (1 + |omega / 2|^2) by a series where that is exact to
+// rounding, below); R itself is needed only at the end: R = [d_i, d_k, d_i x d_k] B^-1 with
 // B = [b_i, b_k, b_i x b_k] for the pair (i, k) of platform joints that spans the platform best.
 // Leg j's residual is f_j = (|v_j|^2 - L_j^2) / (2 L'_j), v_j = P + d_j - a_j, L'_j the leg's
 // length at the reference parameters (within a millimetre of L_j): the root of |v_j| - L_j, nearly
@@ -181,7 +182,13 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
     for (int b = 0; b < NB; ++b) inv[b] = blk[b];
     P p[3];
     for (int c = 0; c < 3; ++c) p[c] = in(36 + c);
-    for (int j = 0; j < 6; ++j) {
+    // Pairs (AVX-512) move the joints in the residuals' pass over them: d_j = R_ref b_j in the
+    // first, and in each later one the previous step's rotation (its C in cm), where a block alone
+    // has passes of their own for them (AVX2 ran 2.5 % slower joined; BENCHMARKS.md, eighteenth
+    // round). The same operations on each lane either way.
+    constexpr bool kJoined = NB == 2;
+    alignas(64) double cm[9 * L];
+    for (int j = 0; j < 6 && !kJoined; ++j) {
         const P b0 = hb(j, 0), b1 = hb(j, 1), b2 = hb(j, 2);
         for (int c = 0; c < 3; ++c) {
             const int rr = 39 + 3 * c;
@@ -205,10 +212,31 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
         P err = zero;  // |f|^2, NaN when a residual is: not converged
 #pragma GCC unroll 1
         for (int j = 0; j < 6; ++j) {
-            const double* dj = d + 3 * j * L;
-            const P vx = (p[0] - ha(j, 0)) + ldl(dj);
-            const P vy = (p[1] - ha(j, 1)) + ldl(dj + L);
-            const P vz = (p[2] - ha(j, 2)) + ldl(dj + 2 * L);
+            double* dj = d + 3 * j * L;
+            P dx, dy, dz;
+            if (kJoined && it == 0) {  // R_ref b_j
+                const P b0 = hb(j, 0), b1 = hb(j, 1), b2 = hb(j, 2);
+                dx = fma(in(41), b2, fma(in(40), b1, in(39) * b0));
+                dy = fma(in(44), b2, fma(in(43), b1, in(42) * b0));
+                dz = fma(in(47), b2, fma(in(46), b1, in(45) * b0));
+            } else {
+                dx = ldl(dj), dy = ldl(dj + L), dz = ldl(dj + 2 * L);
+            }
+            if (kJoined && it > 0) {  // C d_j
+                const P d0 = dx, d1 = dy, d2 = dz;
+                auto c = [&](int e) IWR_FORCE_INLINE_LAMBDA { return ldl(cm + e * L); };
+                dx = fma(c(2), d2, fma(c(1), d1, c(0) * d0));
+                dy = fma(c(5), d2, fma(c(4), d1, c(3) * d0));
+                dz = fma(c(8), d2, fma(c(7), d1, c(6) * d0));
+            }
+            if (kJoined) {
+                store(dj, dx);
+                store(dj + L, dy);
+                store(dj + 2 * L, dz);
+            }
+            const P vx = (p[0] - ha(j, 0)) + dx;
+            const P vy = (p[1] - ha(j, 1)) + dy;
+            const P vz = (p[2] - ha(j, 2)) + dz;
             const P fj = fma(vz, vz, fma(vy, vy, fma(vx, vx, ldl(nl2 + j * L)))) * in(54 + j);
             store(f + j * L, fj);
             err = fma(fj, fj, err);
@@ -248,10 +276,24 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
         const P half = sp(0.5), one = sp(1.0);
         const P hx = half * s[3], hy = half * s[4], hz = half * s[5];
         const P xx = hx * hx, yy = hy * hy, zz = hz * hz, xy = hx * hy, xz = hx * hz, yz = hy * hz;
-        const P h2 = xx + yy + zz, k = sp(2.0) / (one + h2);
+        // k = 2 / (1 + |h|^2); where |h|^2 < 1e-4 (every step of these data) its series
+        // 2 (1 - |h|^2 + |h|^4 - |h|^6), without the division: k (1 + |h|^2) / 2 = 1 - |h|^8, and
+        // C^T C - I = 2 (1 - k (1 + |h|^2) / 2) k [h]^2 is then at most 4 |h|^10 < 4e-20 in norm,
+        // far below rounding. A lane's choice rests on its own |h|^2: its value is the same
+        // whatever its neighbours; the division is skipped where no lane needs it.
+        const P h2 = xx + yy + zz;
+        const MK small = h2 < sp(1e-4);
+        const P k_series = fma(h2, fma(h2, fma(sp(-2.0), h2, sp(2.0)), sp(-2.0)), sp(2.0));
+        const P k = bits(small) == (1 << L) - 1 ? k_series
+                                                : select(small, k_series, sp(2.0) / (one + h2));
         const P c00 = fma(k, xx - h2, one), c01 = k * (xy - hz), c02 = k * (xz + hy);
         const P c10 = k * (xy + hz), c11 = fma(k, yy - h2, one), c12 = k * (yz - hx);
         const P c20 = k * (xz - hy), c21 = k * (yz + hx), c22 = fma(k, zz - h2, one);
+        if (kJoined) {  // the joints turn in the next residuals' pass
+            const P cc[9] = {c00, c01, c02, c10, c11, c12, c20, c21, c22};
+            for (int e = 0; e < 9; ++e) store(cm + e * L, cc[e]);
+            continue;
+        }
 #pragma GCC unroll 1
         for (int j = 0; j < 6; ++j) {
             double* dj = d + 3 * j * L;
@@ -322,8 +364,9 @@ void tracker_chord_lanes(const double* const* blk, const LaneConsts* lc, int nb,
 // Whitened (MW >= 0; wh: the block's whitening, TrackerConsts::wh_rows): the lane's m = 3 K
 // residuals v are whitened in the block, s_i = sum_{j <= i} W_ij v_j over the rows that are not
 // zero at every pose, and s_i^2 summed. MW > 0: m = MW, the rows R0..MW-1 stored, v in registers;
-// MW = 0: any m and rows, v through vbuf (m x 8).
-template <int NP, int NR, int MW, int R0 = 0>
+// MW = 0: any m and rows, v through vbuf (m x 8). NPT > 0: the unwhitened chain's number of points
+// as a constant (its loop unrolled), else tc.n_points.
+template <int NP, int NR, int MW, int R0 = 0, int NPT = 0>
 IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, const double* pin,
                                    const double* rin, const double* meas, const double* seen,
                                    const double* bad, bool all_seen, const double* wh,
@@ -335,7 +378,7 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
     // Every point seen and every pose solved (the rule): the residual is y - measured.
     const bool plain = all_seen && bits(zero_pack() < load(bad)) == 0;
     const R penalty = r_splat(tc.failed_residual), zero = r_splat(0.0);
-    const int n_points = MW > 0 ? MW / 3 : tc.n_points;
+    const int n_points = MW > 0 ? MW / 3 : NPT > 0 ? NPT : tc.n_points;
     // The block as K passes of one register each, as the leg kernel's (objective_kernel_body.inl):
     // 0T4, P and R are 24 values, more than the 16 registers of SSE2 and AVX2 hold when each is
     // K registers. Each lane sees the same operations in the same order.
@@ -439,6 +482,8 @@ void tracker_points(const double* blk, const TrackerConsts& tc, const double* pi
             IWR_POINTS(points_whitened, 2, 2, 0);
         else
             IWR_POINTS(points_whitened, -1, 0, 0);
+    } else if (iwr && tc.n_points == 3 && K == 1) {  // AVX-512 (the baseline ran 2-8 % slower)
+        IWR_POINTS(points_chain, 2, 2, -1, 0, 3);
     } else if (iwr) {
         IWR_POINTS(points_chain, 2, 2, -1);
     } else {
