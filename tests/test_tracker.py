@@ -502,6 +502,55 @@ def test_the_fma_variants_give_the_same_tracker_bits_and_the_baseline_the_same_t
     assert base[0][-1] == pytest.approx(np.count_nonzero(r) * FAILED_RESIDUAL**2)
 
 
+def _turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The angle (rad) between the rotations of the poses a and b (rows x, y, z, Euler ZYX)."""
+    out = []
+    for pa, pb in zip(a, b, strict=True):
+        r = pose_matrix(pa)[:3, :3].T @ pose_matrix(pb)[:3, :3]
+        out.append(math.acos(min(1.0, max(-1.0, (np.trace(r) - 1) / 2))))
+    return np.array(out)
+
+
+def test_a_pose_turned_past_the_series_gives_the_same_bits_alone(robot, restore_kernel):
+    # The chord's Cayley factor 2 / (1 + |h|^2) is a series where a lane's step turns the platform
+    # by less than 0.02 rad (|h|^2 < 1e-4) and a division elsewhere, lane by lane; pairs of blocks
+    # (AVX-512) turn the joints in the residuals' pass. A block of 8 whose first steps turn some
+    # poses by more than 0.02 rad and others by less (hexapod errors only: the first step turns
+    # each pose by about its angle from the reference solve) must give each pose the bits it has
+    # alone (a block of its own copies), and the damped Newton solver's pose.
+    _core = restore_kernel
+    setup = points_setup()
+    data, _ = simulate_tracker(robot, setup, 16, seed=31)
+    full = TrackerProblem(robot, setup, data)
+    names = full.parameter_names
+    home = full.platform_poses(np.zeros(full.n_params))
+    pattern = np.array([1.0, -0.8, 0.6, -0.4, 0.9, -0.2])
+    found = None
+    for scale in np.linspace(1.5, 3.5, 81):
+        x = np.zeros(full.n_params)
+        for j in range(6):
+            x[names.index(f"leg{j + 1}.dl0")] = scale * pattern[j]
+        turn = _turn(home, full.platform_poses(x))[:8]
+        # 2 % clear of the bound on either side (the first step's turn is within a few 1e-3 of
+        # the solution's)
+        if (turn > 0.0204).any() and (turn < 0.0196).any() and \
+                not ((turn > 0.0196) & (turn < 0.0204)).any():
+            found = x
+            break
+    assert found is not None, "no block with poses on both sides of the series' bound"
+    alone = [TrackerProblem(robot, setup, TrackerMeasurements(
+        data.q[k:k + 1], data.legs[k:k + 1], points=data.points[k:k + 1])) for k in range(16)]
+    newton = iwr.forward_kinematics(robot, found[: robot.n_params], data.q, data.legs)
+    for v in _core._supported_kernels():
+        _core._select_kernel(v)
+        rows = full.residuals(found).reshape(16, -1)
+        for k in range(16):
+            assert np.array_equal(alone[k].residuals(found), rows[k]), (v, k)
+        kernel = full.platform_poses(found)
+        assert np.max(np.abs(kernel[:, :3] - newton[:, :3])) < 1e-8, v
+        assert np.max(np.abs(kernel[:, 3:] - newton[:, 3:])) < 1e-10, v
+
+
 def test_kernel_forward_kinematics_agrees_with_the_damped_newton_solver(robot):
     # The kernel's chord-and-refinement solve against iwr.forward_kinematics (forward.cpp's damped
     # Newton-Raphson, an independent implementation), across DE's search box and 40 mm beyond it.

@@ -112,8 +112,8 @@ IWR_FORCE_INLINE void inverse_times(const double* const (&inv)[NB], const double
 //
 // The unknowns are the platform position P in {4} and the six platform joints d_j = R b_j relative
 // to it, rotated together (d_j <- C(omega) d_j, C Cayley's rotation: orthogonal to rounding,
-// Exp(omega) to second order; its factor 2 / (1 + |omega / 2|^2) by a series where that is exact to
-// rounding, below); R itself is needed only at the end: R = [d_i, d_k, d_i x d_k] B^-1 with
+// Exp(omega) to second order; its factor 2 / (1 + |omega / 2|^2) by a series where that is within an
+// ulp of it, below); R itself is needed only at the end: R = [d_i, d_k, d_i x d_k] B^-1 with
 // B = [b_i, b_k, b_i x b_k] for the pair (i, k) of platform joints that spans the platform best.
 // Leg j's residual is f_j = (|v_j|^2 - L_j^2) / (2 L'_j), v_j = P + d_j - a_j, L'_j the leg's
 // length at the reference parameters (within a millimetre of L_j): the root of |v_j| - L_j, nearly
@@ -483,7 +483,7 @@ void tracker_points(const double* blk, const TrackerConsts& tc, const double* pi
             IWR_POINTS(points_whitened, 2, 2, 0);
         else
             IWR_POINTS(points_whitened, -1, 0, 0);
-    } else if (iwr && tc.n_points == 3 && K == 1) {  // AVX-512 (the baseline ran 2-8 % slower)
+    } else if (iwr && tc.n_points == 3 && K == 1) {  // AVX-512 (SSE2 ran 2-8 % slower; AVX2 not tried)
         IWR_POINTS(points_chain, 2, 2, -1, 0, 3);
     } else if (iwr) {
         IWR_POINTS(points_chain, 2, 2, -1);
