@@ -328,12 +328,24 @@ def fresh_copy(python: str) -> str:
     byte-identical extensions ran the AVX2 leg objective 35 % apart until the slow one was copied
     so (BENCHMARKS.md, eighteenth round): a copy per run makes that spread show between runs
     instead of hiding in one build's column."""
-    path = subprocess.run([python, "-c", "import iwr._core as c; print(c.__file__)"],
-                          capture_output=True, text=True, check=True, cwd="/tmp").stdout.strip()
+    try:
+        found = subprocess.run([python, "-c", "import iwr._core as c; print(c.__file__)"],
+                               capture_output=True, text=True, cwd="/tmp")
+    except OSError as exc:
+        raise SystemExit(f"--fresh-copies: {python}: {exc}") from None
+    if found.returncode != 0:
+        last = (found.stderr.strip().splitlines() or ["no message"])[-1]
+        raise SystemExit(f"--fresh-copies: {python} cannot import iwr._core: {last}")
+    path = found.stdout.strip()
     tmp = path + ".fresh-copy"
-    shutil.copyfile(path, tmp)
-    shutil.copymode(path, tmp)
-    os.replace(tmp, path)
+    try:
+        shutil.copyfile(path, tmp)
+        shutil.copymode(path, tmp)
+        os.replace(tmp, path)
+    except OSError as exc:
+        if os.path.exists(tmp):
+            os.remove(tmp)
+        raise SystemExit(f"--fresh-copies: {path}: {exc}") from None
     return path
 
 
