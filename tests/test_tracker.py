@@ -27,7 +27,7 @@ from iwr.tracker import (
     tool_pose_errors,
     true_points,
 )
-from iwr.transforms import pose_matrix
+from iwr.transforms import pose_matrix, rotation_angle
 
 REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
 # 2 m from the robot's origin and turned 90 degrees.
@@ -502,15 +502,6 @@ def test_the_fma_variants_give_the_same_tracker_bits_and_the_baseline_the_same_t
     assert base[0][-1] == pytest.approx(np.count_nonzero(r) * FAILED_RESIDUAL**2)
 
 
-def _turn(a: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """The angle (rad) between the rotations of the poses a and b (rows x, y, z, Euler ZYX)."""
-    out = []
-    for pa, pb in zip(a, b, strict=True):
-        r = pose_matrix(pa)[:3, :3].T @ pose_matrix(pb)[:3, :3]
-        out.append(math.acos(min(1.0, max(-1.0, (np.trace(r) - 1) / 2))))
-    return np.array(out)
-
-
 def test_a_pose_turned_past_the_series_gives_the_same_bits_alone(robot, restore_kernel):
     # The chord's Cayley factor 2 / (1 + |h|^2) is a series where a lane's step turns the platform
     # by less than 0.02 rad (|h|^2 < 1e-4) and a division elsewhere, lane by lane; pairs of blocks
@@ -530,7 +521,8 @@ def test_a_pose_turned_past_the_series_gives_the_same_bits_alone(robot, restore_
         x = np.zeros(full.n_params)
         for j in range(6):
             x[names.index(f"leg{j + 1}.dl0")] = scale * pattern[j]
-        turn = _turn(home, full.platform_poses(x))[:8]
+        ra, rb = pose_matrix(home)[:8, :3, :3], pose_matrix(full.platform_poses(x))[:8, :3, :3]
+        turn = rotation_angle(np.swapaxes(ra, -1, -2) @ rb)
         # 2 % clear of the bound on either side (the first step's turn is within a few 1e-3 of
         # the solution's)
         if (turn > 0.0204).any() and (turn < 0.0196).any() and \
