@@ -188,12 +188,19 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
     // round). The same operations on each lane either way.
     constexpr bool kJoined = NB == 2;
     alignas(64) double cm[9 * L];
+    // A row of a 3 x 3 matrix times a vector, as every joint is moved (R_ref b_j, C d_j).
+    auto row_times = [](const P& a0, const P& a1, const P& a2, const P& x0, const P& x1,
+                        const P& x2) IWR_FORCE_INLINE_LAMBDA {
+        return fma(a2, x2, fma(a1, x1, a0 * x0));
+    };
+    // Row c of R_ref times b_j.
+    auto reference_row = [&](int c, const P& b0, const P& b1, const P& b2) IWR_FORCE_INLINE_LAMBDA {
+        const int rr = 39 + 3 * c;
+        return row_times(in(rr), in(rr + 1), in(rr + 2), b0, b1, b2);
+    };
     for (int j = 0; j < 6 && !kJoined; ++j) {
         const P b0 = hb(j, 0), b1 = hb(j, 1), b2 = hb(j, 2);
-        for (int c = 0; c < 3; ++c) {
-            const int rr = 39 + 3 * c;
-            store(d + (3 * j + c) * L, fma(in(rr + 2), b2, fma(in(rr + 1), b1, in(rr) * b0)));
-        }
+        for (int c = 0; c < 3; ++c) store(d + (3 * j + c) * L, reference_row(c, b0, b1, b2));
     }
     MK act = all_lanes<KN>(true);
     for (int j = 0; j < 6; ++j) {
@@ -216,18 +223,18 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
             P dx, dy, dz;
             if (kJoined && it == 0) {  // R_ref b_j
                 const P b0 = hb(j, 0), b1 = hb(j, 1), b2 = hb(j, 2);
-                dx = fma(in(41), b2, fma(in(40), b1, in(39) * b0));
-                dy = fma(in(44), b2, fma(in(43), b1, in(42) * b0));
-                dz = fma(in(47), b2, fma(in(46), b1, in(45) * b0));
+                dx = reference_row(0, b0, b1, b2);
+                dy = reference_row(1, b0, b1, b2);
+                dz = reference_row(2, b0, b1, b2);
             } else {
                 dx = ldl(dj), dy = ldl(dj + L), dz = ldl(dj + 2 * L);
             }
             if (kJoined && it > 0) {  // C d_j
                 const P d0 = dx, d1 = dy, d2 = dz;
                 auto c = [&](int e) IWR_FORCE_INLINE_LAMBDA { return ldl(cm + e * L); };
-                dx = fma(c(2), d2, fma(c(1), d1, c(0) * d0));
-                dy = fma(c(5), d2, fma(c(4), d1, c(3) * d0));
-                dz = fma(c(8), d2, fma(c(7), d1, c(6) * d0));
+                dx = row_times(c(0), c(1), c(2), d0, d1, d2);
+                dy = row_times(c(3), c(4), c(5), d0, d1, d2);
+                dz = row_times(c(6), c(7), c(8), d0, d1, d2);
             }
             if (kJoined) {
                 store(dj, dx);
@@ -299,9 +306,9 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
         for (int j = 0; j < 6; ++j) {
             double* dj = d + 3 * j * L;
             const P d0 = ldl(dj), d1 = ldl(dj + L), d2 = ldl(dj + 2 * L);
-            store(dj, fma(c02, d2, fma(c01, d1, c00 * d0)));
-            store(dj + L, fma(c12, d2, fma(c11, d1, c10 * d0)));
-            store(dj + 2 * L, fma(c22, d2, fma(c21, d1, c20 * d0)));
+            store(dj, row_times(c00, c01, c02, d0, d1, d2));
+            store(dj + L, row_times(c10, c11, c12, d0, d1, d2));
+            store(dj + 2 * L, row_times(c20, c21, c22, d0, d1, d2));
         }
     }
     for (int c = 0; c < 3; ++c) out(pout, 3 * B, c, p[c]);
