@@ -186,6 +186,27 @@ def test_residuals_match_a_numpy_prediction_and_the_jacobian_central_differences
     assert problem.cost(x) == pytest.approx(float(r @ r), rel=1e-12)
 
 
+@pytest.mark.parametrize("which", [0, 2])
+def test_predicted_points_match_numpy_where_the_kernel_falls_back(robot, which):
+    # Far outside the search box the chord stops contracting in some lanes and the damped Newton
+    # solver finishes them (TrackerObjective::finish), whose rotation the kernel's points take as
+    # F = R B: the points predicted there, and the platform poses, against NumPy's points through
+    # Newton's poses (iwr.forward_kinematics, an independent solver).
+    setup = _setups()[which]
+    data, _ = simulate_tracker(robot, setup, 30, seed=12, hidden=0.0)
+    problem = TrackerProblem(robot, setup, data)
+    rng = np.random.default_rng(4)
+    far = problem.lower + (problem.upper - problem.lower) * rng.random(problem.n_params)
+    far[: robot.n_params] *= np.where(robot.angle_parameters, 1.0, 80.0)
+    assert not problem.failures(far)
+    newton = iwr.forward_kinematics(robot, far[: robot.n_params], data.q, data.legs)
+    np.testing.assert_allclose(problem.predicted_points(far),
+                               true_points(robot, setup, far, newton), atol=1e-8)
+    poses = problem.platform_poses(far)
+    assert np.max(np.abs(poses[:, :3] - newton[:, :3])) < 1e-8
+    assert np.max(np.abs(poses[:, 3:] - newton[:, 3:])) < 1e-10
+
+
 def test_hidden_reflectors_have_zero_residuals(robot):
     setup = points_setup()
     data, truth = simulate_tracker(robot, setup, 30, seed=4, hidden=0.5)

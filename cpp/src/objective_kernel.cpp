@@ -282,7 +282,6 @@ void set_lanes(LaneConsts& lc, const TrackerConsts& tc, int l0) {
             put(LaneConsts::kA + 3 * j + c, tc.ec.a[j][c]), put(LaneConsts::kB + 3 * j + c, tc.ec.b[j][c]);
         put(LaneConsts::kL0 + j, tc.ec.l0[j]);
     }
-    for (int e = 0; e < 9; ++e) put(LaneConsts::kBinv + e, tc.binv[e]);
 }
 }  // namespace
 

@@ -77,7 +77,9 @@ struct TrackerConsts {
     int max_iter = 0; // chord steps before the fallback
     double rt[9], tt[3];  // the registration T_T0 at x (rotation row-major)
     int n_points = 0;
-    const double* refl = nullptr;  // the points in {5} (3 per point)
+    // The points in the platform joints' frame: point i of {5} is B c_i, so that R r_i = F c_i
+    // with F = [d_i, d_k, d_i x d_k] = R B, the chord's output (3 per point).
+    const double* refl = nullptr;
     double failed_residual = 0;
     // Whitened: per residual row of a pose (3 n_points), 1 when the whitening's row is not zero
     // at some pose (its entries j = 0..i stored, TrackerObjective::set_whitening), 0 when it is
@@ -85,12 +87,12 @@ struct TrackerConsts {
     const char* wh_rows = nullptr;
     int wh_first = -1;  // the rows stored are wh_first.. (every one), or -1: another pattern
 };
-/// The hexapod's constants of TrackerConsts (ec.a, ec.b, ec.l0, binv) lane by lane, for a block of
-/// the chord whose lanes belong to different parameter vectors: quantity q of lane l at
+/// The hexapod's constants of TrackerConsts (ec.a, ec.b, ec.l0) lane by lane, for a block of the
+/// chord whose lanes belong to different parameter vectors: quantity q of lane l at
 /// v[q * kBlock + l], leg j's coordinate c of a at kA + 3 j + c, of b at kB + 3 j + c, l0 at
-/// kL0 + j, B^-1's entry e (row-major) at kBinv + e.
+/// kL0 + j.
 struct alignas(64) LaneConsts {
-    static constexpr int kA = 0, kB = 18, kL0 = 36, kBinv = 42, kQuantities = 51;
+    static constexpr int kA = 0, kB = 18, kL0 = 36, kQuantities = 42;
     double v[kQuantities * kBlock];
     /// Lanes [l0, l1) from tc.
     void set(const TrackerConsts& tc, int l0, int l1);
@@ -100,18 +102,21 @@ struct alignas(64) LaneConsts {
 /// kinematics by chord iterations, and the carriage, the points and the squared residuals
 /// (whitened when wh, the block's whitening, is given; vbuf: 3 n_points x 8 doubles of scratch,
 /// 64-byte aligned).
+/// A platform pose is given as P (3 x 8) and F = R B = [d_i, d_k, d_i x d_k] (9 x 8, row-major;
+/// the rotation R = F B^-1, TrackerConsts::binv): the points need R r_i = F c_i alone
+/// (TrackerConsts::refl), so the chord does not form R.
 struct TrackerKernels {
-    void (*chord)(const double* blk, const TrackerConsts& tc, double* p, double* r, int* status);
-    // Two blocks: p, r, status of blk1 after blk0's (3 x 8, 9 x 8, 8 each); the same values as
+    void (*chord)(const double* blk, const TrackerConsts& tc, double* p, double* f, int* status);
+    // Two blocks: p, f, status of blk1 after blk0's (3 x 8, 9 x 8, 8 each); the same values as
     // chord on each. Null where the variant runs chord block by block.
     void (*chord2)(const double* blk0, const double* blk1, const TrackerConsts& tc, double* p,
-                   double* r, int* status);
+                   double* f, int* status);
     // nb (1 or 2) blocks blk[0..nb) whose lanes take the hexapod's constants from lc[0..nb) (tol,
-    // max_iter and pair from tc): p, r, status as chord2's; each lane the same values as chord's on
+    // max_iter and pair from tc): p, f, status as chord2's; each lane the same values as chord's on
     // a block of that lane's parameter vector.
     void (*chord_lanes)(const double* const* blk, const LaneConsts* lc, int nb,
-                        const TrackerConsts& tc, double* p, double* r, int* status);
-    void (*points)(const double* blk, const TrackerConsts& tc, const double* p, const double* r,
+                        const TrackerConsts& tc, double* p, double* f, int* status);
+    void (*points)(const double* blk, const TrackerConsts& tc, const double* p, const double* f,
                    const double* meas, const double* seen, const double* bad, bool all_seen,
                    const double* wh, double* vbuf, double* t, double* y, double* acc);
 };

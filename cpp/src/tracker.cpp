@@ -20,6 +20,24 @@ Mat3 skew(const Vec3& v) {
     return m;
 }
 
+// B = [b_i, b_k, b_i x b_k] of the kernel's pair (i, k) of platform joints (TrackerConsts::binv
+// its inverse): the kernels give a platform rotation R as F = R B (TrackerKernels).
+Mat3 joint_frame(const detail::TrackerConsts& tc) {
+    const Vec3 bi(tc.ec.b[tc.pair[0]][0], tc.ec.b[tc.pair[0]][1], tc.ec.b[tc.pair[0]][2]);
+    const Vec3 bk(tc.ec.b[tc.pair[1]][0], tc.ec.b[tc.pair[1]][1], tc.ec.b[tc.pair[1]][2]);
+    Mat3 bm;
+    bm << bi, bk, bi.cross(bk);
+    return bm;
+}
+
+// R = F B^-1 of lane l of a block's F (9 x W, row-major).
+Mat3 rotation_of(const double* f, int l, const detail::TrackerConsts& tc) {
+    Mat3 fm;
+    for (int e = 0; e < 9; ++e) fm(e / 3, e % 3) = f[e * detail::kBlock + l];
+    const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> binv(tc.binv);
+    return fm * binv;
+}
+
 // Steps of the kernel's forward kinematics (tracker_kernel_body.inl: chord steps with the
 // reference's inverse Jacobian, refined while the residual is large) before falling back to the
 // damped Newton-Raphson of hexapod_forward. Three steps reach 1e-10 mm from the reference across
@@ -274,13 +292,9 @@ TrackerObjective::Workspace TrackerObjective::make_workspace() const {
 
 void TrackerObjective::fk_consts(detail::TrackerConsts& tc) const {
     // The rotation from the platform joints (tracker_chord): B^-1 with B = [b_i, b_k, b_i x b_k].
-    const Vec3 bi(tc.ec.b[pair_[0]][0], tc.ec.b[pair_[0]][1], tc.ec.b[pair_[0]][2]);
-    const Vec3 bk(tc.ec.b[pair_[1]][0], tc.ec.b[pair_[1]][1], tc.ec.b[pair_[1]][2]);
-    Mat3 bm;
-    bm << bi, bk, bi.cross(bk);
-    const Mat3 binv = bm.inverse();
-    for (int e = 0; e < 9; ++e) tc.binv[e] = binv(e / 3, e % 3);
     tc.pair[0] = pair_[0], tc.pair[1] = pair_[1];
+    const Mat3 binv = joint_frame(tc).inverse();
+    for (int e = 0; e < 9; ++e) tc.binv[e] = binv(e / 3, e % 3);
     tc.tol = tolerance_;
     tc.max_iter = kMaxChord;
 }
@@ -311,9 +325,11 @@ void TrackerObjective::prepare(const double* x, Workspace& ws, detail::TrackerCo
         Eigen::Map<Vec3> z(sl.jbuf.data() + 3 * i);
         z = (rt * z).eval();
     }
+    // The points in the joints' frame: c_i = B^-1 r_i (the kernel's R r_i is F c_i).
     tc.n_points = setup_.n_points();
+    const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> binv(tc.binv);
     for (int i = 0; i < tc.n_points; ++i)
-        for (int c = 0; c < 3; ++c) sl.refl[static_cast<size_t>(3 * i + c)] = sl.r[static_cast<size_t>(i)](c);
+        Eigen::Map<Vec3>(sl.refl.data() + 3 * i) = binv * sl.r[static_cast<size_t>(i)];
     tc.refl = sl.refl.data();
     tc.failed_residual = kFailedResidual;
     tc.wh_rows = wh_rows_.data();
@@ -330,11 +346,11 @@ void TrackerObjective::solve_block(const Hexapod& h, int block, Vec3* p, Mat3* r
         tc.ec.l0[j] = h.l0(j);
     }
     fk_consts(tc);
-    alignas(64) double pp[3 * W], rr[9 * W];
-    detail::active_tracker_kernels().chord(block_data(block), tc, pp, rr, status);
+    alignas(64) double pp[3 * W], ff[9 * W];
+    detail::active_tracker_kernels().chord(block_data(block), tc, pp, ff, status);
     for (int l = 0; l < W; ++l) {
         p[l] = Vec3(pp[l], pp[W + l], pp[2 * W + l]);
-        for (int e = 0; e < 9; ++e) r[l](e / 3, e % 3) = rr[e * W + l];
+        r[l] = rotation_of(ff, l, tc);
     }
 }
 
@@ -407,30 +423,30 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
             prepare(xs[i + g], ws, tc[g], g);
             lc[g / share].set(tc[g], (g % share) * part, (g % share + 1) * part);
         }
-        alignas(64) double pp[2 * 3 * W], rr[2 * 9 * W];
+        alignas(64) double pp[2 * 3 * W], ff[2 * 9 * W];
         int st[2 * W];
-        kernel.chord_lanes(blk, lc, group / share, tc[0], pp, rr, st);
+        kernel.chord_lanes(blk, lc, group / share, tc[0], pp, ff, st);
         for (int g = 0; g < group; ++g) {
             // Vector g's lanes: block g / share, from lane (g % share) part. With two vectors to a
             // block they move to lanes 0..part (a copy: evaluate may write a padding lane's pose
             // into its block), and its lanes part.. (padding: they see no point, so their pose
-            // does not matter) take the block's reference pose.
+            // does not matter) take the block's reference P and R for P and F.
             const int b = g / share, o = (g % share) * part;
-            double *pb = pp + 3 * W * b, *rb = rr + 9 * W * b;
+            double *pb = pp + 3 * W * b, *fb = ff + 9 * W * b;
             const int* sb = st + W * b;
-            alignas(64) double p1[3 * W], r1[9 * W];
+            alignas(64) double p1[3 * W], f1[9 * W];
             int s1[W];
             if (share == 2) {
                 for (int q = 0; q < 12; ++q) {
-                    double* to = q < 3 ? p1 + q * W : r1 + (q - 3) * W;
-                    const double* from = q < 3 ? pb + q * W : rb + (q - 3) * W;
+                    double* to = q < 3 ? p1 + q * W : f1 + (q - 3) * W;
+                    const double* from = q < 3 ? pb + q * W : fb + (q - 3) * W;
                     for (int l = 0; l < W; ++l)
                         to[l] = l < part ? from[o + l] : data[(36 + q) * W + l];
                 }
                 for (int l = 0; l < W; ++l) s1[l] = l < part ? sb[o + l] : 0;
-                pb = p1, rb = r1, sb = s1;
+                pb = p1, fb = f1, sb = s1;
             }
-            const Solved last{pb, rb, sb};
+            const Solved last{pb, fb, sb};
             out[i + g] = evaluate(xs[i + g], tc[g], kernel, ws, nullptr, nullptr, nullptr, nullptr,
                                   &last);
         }
@@ -451,7 +467,7 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
     double* y = ws.y.data();
     // The forward kinematics of two blocks at once where the variant does so (chord2), else
     // block by block; then each block's points.
-    alignas(64) double pp2[2 * 3 * W], rr2[2 * 9 * W], t[12 * W], bad[W], acc[W] = {};
+    alignas(64) double pp2[2 * 3 * W], ff2[2 * 9 * W], t[12 * W], bad[W], acc[W] = {};
     int status2[2 * W];
     const bool scalar = res || failed || poses || predicted;
     for (int blk = 0; blk * W < n_; ++blk) {
@@ -460,14 +476,14 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
         const bool given = last && (blk + 1) * W >= n_;  // the last block, solved by the caller
         if (!given) {
             if (!kernel.chord2)
-                kernel.chord(data, tc, pp2, rr2, status2);
+                kernel.chord(data, tc, pp2, ff2, status2);
             else if (half == 0 && (blk + 1) * W < n_)
-                kernel.chord2(data, block_data(blk + 1), tc, pp2, rr2, status2);
+                kernel.chord2(data, block_data(blk + 1), tc, pp2, ff2, status2);
             else if (half == 0)
-                kernel.chord(data, tc, pp2, rr2, status2);
+                kernel.chord(data, tc, pp2, ff2, status2);
         }
         double* pp = given ? last->p : pp2 + half * 3 * W;
-        double* rr = given ? last->r : rr2 + half * 9 * W;
+        double* ff = given ? last->f : ff2 + half * 9 * W;
         const int* status = given ? last->status : status2 + half * W;
         int unsolved = 0;  // some lane's status not 0 (rare: look at the lanes only then)
         for (int l = 0; l < W; ++l) unsolved |= status[l], bad[l] = 0.0;
@@ -490,14 +506,15 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
                 for (int c = 0; c < 3; ++c) p(c) = data[(36 + c) * W + l];
                 for (int e = 0; e < 9; ++e) r(e / 3, e % 3) = data[(39 + e) * W + l];
             }
+            const Mat3 f = r * joint_frame(tc);  // the kernels' F = R B
             for (int c = 0; c < 3; ++c) pp[c * W + l] = p(c);
-            for (int e = 0; e < 9; ++e) rr[e * W + l] = r(e / 3, e % 3);
+            for (int e = 0; e < 9; ++e) ff[e * W + l] = f(e / 3, e % 3);
         }
         const double* meas = data + (kChordQuantities + 2 * nj) * W;
         const double* wh = whitened()
             ? wh_blocks_.data() + static_cast<size_t>(blk) * static_cast<size_t>(wh_stride_)
             : nullptr;
-        kernel.points(data, tc, pp, rr, meas, meas + 3 * kp * W, bad,
+        kernel.points(data, tc, pp, ff, meas, meas + 3 * kp * W, bad,
                       all_seen_[static_cast<size_t>(blk)] != 0, wh, ws.v.data(),
                       scalar ? t : nullptr, scalar ? y : nullptr, acc);
         if (!scalar) continue;
@@ -512,10 +529,8 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
                 if (poses) {
                     Mat3 r4, r;
                     Vec3 p4, p;
-                    for (int e = 0; e < 9; ++e) {
-                        r4(e / 3, e % 3) = t[e * W + l];
-                        r(e / 3, e % 3) = rr[e * W + l];
-                    }
+                    for (int e = 0; e < 9; ++e) r4(e / 3, e % 3) = t[e * W + l];
+                    r = rotation_of(ff, l, tc);
                     for (int c = 0; c < 3; ++c) p4(c) = t[(9 + c) * W + l], p(c) = pp[c * W + l];
                     // t is T_T4: back to {0}.
                     r4 = (rt.transpose() * r4).eval();

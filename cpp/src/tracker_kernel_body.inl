@@ -113,8 +113,10 @@ IWR_FORCE_INLINE void inverse_times(const double* const (&inv)[NB], const double
 // The unknowns are the platform position P in {4} and the six platform joints d_j = R b_j relative
 // to it, rotated together (d_j <- C(omega) d_j, C Cayley's rotation: orthogonal to rounding,
 // Exp(omega) to second order; its factor 2 / (1 + |omega / 2|^2) by a series where that is within an
-// ulp of it, below); R itself is needed only at the end: R = [d_i, d_k, d_i x d_k] B^-1 with
-// B = [b_i, b_k, b_i x b_k] for the pair (i, k) of platform joints that spans the platform best.
+// ulp of it, below); R itself is not formed: the output is F = R B = [d_i, d_k, d_i x d_k] with
+// B = [b_i, b_k, b_i x b_k] for the pair (i, k) of platform joints that spans the platform best,
+// and the points take R r = F (B^-1 r) (B^-1 r per point once per vector: 27 multiply-adds and 9
+// broadcasts a pose fewer than forming R).
 // Leg j's residual is f_j = (|v_j|^2 - L_j^2) / (2 L'_j), v_j = P + d_j - a_j, L'_j the leg's
 // length at the reference parameters (within a millimetre of L_j): the root of |v_j| - L_j, nearly
 // the same derivative there (v_j . dv_j / L'_j), no square root, no division. Converged when
@@ -126,17 +128,17 @@ IWR_FORCE_INLINE void inverse_times(const double* const (&inv)[NB], const double
 // refined step about 1e5-fold (from 3e-3 mm to 1e-8 mm): four residual evaluations where the chord
 // alone needs five or six.
 // status per lane: 0 solved, 1 not contracting (the caller's damped Newton fallback), 2 a leg
-// length <= 0. Out: P (3 x 8) and R (9 x 8, row-major) of each lane.
-// NB blocks at once (blk[b]; out: block b's P at pout + 24 b, R at rout + 72 b, status at
+// length <= 0. Out: P (3 x 8) and F (9 x 8, row-major) of each lane.
+// NB blocks at once (blk[b]; out: block b's P at pout + 24 b, F at fout + 72 b, status at
 // status + 8 b): each lane computes exactly what it would in a block of its own (the same
 // operations; a lane that has converged takes zero steps until the last of the NB blocks' lanes
 // has), more independent chains in flight where the register file holds them.
-// Lanes: the hexapod's constants (a, b, l0, B^-1) per lane from lc[b] (LaneConsts: block b's lanes
+// Lanes: the hexapod's constants (a, b, l0) per lane from lc[b] (LaneConsts: block b's lanes
 // may belong to different parameter vectors), else tc's in every lane; each lane computes the same
 // either way.
 template <int NB, bool Lanes = false>
 IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const TrackerConsts& tc,
-                                   double* pout, double* rout, int* status,
+                                   double* pout, double* fout, int* status,
                                    const LaneConsts* lc = nullptr) {
     constexpr int B = kBlock, W = kSubLanes, L = kBlock * NB, KN = K * NB;
     using P = PackN<KN>;
@@ -172,7 +174,6 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
     auto hb = [&](int j, int c) IWR_FORCE_INLINE_LAMBDA {
         return hex(LaneConsts::kB + 3 * j + c, tc.ec.b[j][c]);
     };
-    auto bi = [&](int e) IWR_FORCE_INLINE_LAMBDA { return hex(LaneConsts::kBinv + e, tc.binv[e]); };
     // Per-lane constants, residuals and the platform joints live in memory (loads are cheap and
     // the registers few), the position in registers. In memory the NB blocks' lanes of a
     // quantity follow each other (L doubles).
@@ -317,22 +318,18 @@ IWR_FORCE_INLINE void chord_blocks(const double* const (&blk)[NB], const Tracker
         const double* dk = d + 3 * tc.pair[1] * L;
         const P ix = ldl(di), iy = ldl(di + L), iz = ldl(di + 2 * L);
         const P kx = ldl(dk), ky = ldl(dk + L), kz = ldl(dk + 2 * L);
-        const P col[3][3] = {{ix, kx, fms(iy, kz, iz * ky)},
-                             {iy, ky, fms(iz, kx, ix * kz)},
-                             {iz, kz, fms(ix, ky, iy * kx)}};
-        for (int row = 0; row < 3; ++row)
-            for (int c = 0; c < 3; ++c)
-                out(rout, 9 * B, 3 * row + c,
-                    fma(col[row][2], bi(6 + c), fma(col[row][1], bi(3 + c), col[row][0] * bi(c))));
+        const P fm[9] = {ix, kx, fms(iy, kz, iz * ky), iy, ky, fms(iz, kx, ix * kz),
+                         iz, kz, fms(ix, ky, iy * kx)};
+        for (int e = 0; e < 9; ++e) out(fout, 9 * B, e, fm[e]);
     }
     const int two = bits(short_leg), one = bits(stalled_lanes);
     for (int l = 0; l < L; ++l) status[l] = (two >> l & 1) ? 2 : (one >> l & 1) ? 1 : 0;
 }
 
-void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, double* rout,
+void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, double* fout,
                    int* status) {
     const double* const b[1] = {blk};
-    chord_blocks<1>(b, tc, pout, rout, status);
+    chord_blocks<1>(b, tc, pout, fout, status);
 }
 
 // Two blocks at once (blk1 after blk0: out as tracker_chord's, block 1's after block 0's), the
@@ -340,31 +337,32 @@ void tracker_chord(const double* blk, const TrackerConsts& tc, double* pout, dou
 // it is faster), else null and the caller runs tracker_chord block by block (as one call deeper on
 // the stack, the SSE2 chord ran 3-4 % slower).
 [[maybe_unused]] void tracker_chord2(const double* blk0, const double* blk1, const TrackerConsts& tc,
-                                    double* pout, double* rout, int* status) {
+                                    double* pout, double* fout, int* status) {
     const double* const b[2] = {blk0, blk1};
-    chord_blocks<2>(b, tc, pout, rout, status);
+    chord_blocks<2>(b, tc, pout, fout, status);
 }
 constexpr auto chord_pair = kChordPair ? &tracker_chord2 : nullptr;
 
 // nb (1 or 2) blocks with per-lane constants (lc[b] for blk[b]): out as tracker_chord2's. Two at
 // once where the variant runs pairs (kChordPair), else one after the other.
 void tracker_chord_lanes(const double* const* blk, const LaneConsts* lc, int nb,
-                         const TrackerConsts& tc, double* pout, double* rout, int* status) {
+                         const TrackerConsts& tc, double* pout, double* fout, int* status) {
     if (kChordPair && nb == 2) {
         const double* const b[2] = {blk[0], blk[1]};
-        chord_blocks<2, true>(b, tc, pout, rout, status, lc);
+        chord_blocks<2, true>(b, tc, pout, fout, status, lc);
         return;
     }
     for (int i = 0; i < nb; ++i) {
         const double* const b[1] = {blk[i]};
-        chord_blocks<1, true>(b, tc, pout + 3 * kBlock * i, rout + 9 * kBlock * i,
+        chord_blocks<1, true>(b, tc, pout + 3 * kBlock * i, fout + 9 * kBlock * i,
                               status + kBlock * i, lc + i);
     }
 }
 
 // The transform T_T4 = T_T0 0T4 of the block's poses (the registration is folded into the carriage's
 // constants; tout: rotation row-major 0..8, position 9..11, each 8 lanes), the points in {T}
-// (3 K x 8: yout) from the platform poses (P, R) in {4}, y = T_T4 (P + R r_i), and each
+// (3 K x 8: yout) from the platform poses (P, F = R B) in {4}, y = T_T4 (P + F c_i) with
+// c_i = B^-1 r_i (TrackerConsts::refl), and each
 // lane's sum of squared residuals added to acc (8). meas: the measured points (3 K x 8, 0 where not
 // seen); seen (K x 8) and bad (8): 1 or 0; all_seen: every point of the block seen. A point not seen
 // contributes 0, a lane whose forward kinematics failed kFailedResidual on every seen
@@ -376,7 +374,7 @@ void tracker_chord_lanes(const double* const* blk, const LaneConsts* lc, int nb,
 // as a constant (its loop unrolled), else tc.n_points.
 template <int NP, int NR, int MW, int R0 = 0, int NPT = 0>
 IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, const double* pin,
-                                   const double* rin, const double* meas, const double* seen,
+                                   const double* fin, const double* meas, const double* seen,
                                    const double* bad, bool all_seen, const double* wh,
                                    double* vbuf, double* tout, double* yout, double* acc) {
     constexpr int B = kBlock, W = kSubLanes;
@@ -398,7 +396,7 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
             for (int e = 0; e < 12; ++e) r_store(tout + e * B + o, t[e].v[0]);
         R p[3], r[9];
         for (int c = 0; c < 3; ++c) p[c] = r_load(pin + c * B + o);
-        for (int e = 0; e < 9; ++e) r[e] = r_load(rin + e * B + o);
+        for (int e = 0; e < 9; ++e) r[e] = r_load(fin + e * B + o);  // F
         const M failed = m_lt(zero, r_load(bad + o));
         R total = r_load(acc + o);
         R v[MW > 0 ? MW : 1];
@@ -462,19 +460,19 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
 // slower.
 template <int NP, int NR, int MW, int R0 = 0>
 IWR_NOINLINE void points_whitened(const double* blk, const TrackerConsts& tc, const double* pin,
-                                  const double* rin, const double* meas, const double* seen,
+                                  const double* fin, const double* meas, const double* seen,
                                   const double* bad, bool all_seen, const double* wh, double* vbuf,
                                   double* tout, double* yout, double* acc) {
-    points_chain<NP, NR, MW, R0>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout,
+    points_chain<NP, NR, MW, R0>(blk, tc, pin, fin, meas, seen, bad, all_seen, wh, vbuf, tout, yout,
                                  acc);
 }
 
 void tracker_points(const double* blk, const TrackerConsts& tc, const double* pin,
-                    const double* rin, const double* meas, const double* seen, const double* bad,
+                    const double* fin, const double* meas, const double* seen, const double* bad,
                     bool all_seen, const double* wh, double* vbuf, double* tout, double* yout,
                     double* acc) {
 #define IWR_POINTS(F, ...) \
-    F<__VA_ARGS__>(blk, tc, pin, rin, meas, seen, bad, all_seen, wh, vbuf, tout, yout, acc)
+    F<__VA_ARGS__>(blk, tc, pin, fin, meas, seen, bad, all_seen, wh, vbuf, tout, yout, acc)
     const bool iwr = chain_is(tc.pd, 2, 2);  // the IWR's carriage unrolled, as the leg kernel's
     if (wh) {
         // The whitening of 3 reflectors (m = 9, every row) and of a probe (m = 12, rows 6.. or

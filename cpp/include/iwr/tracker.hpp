@@ -135,7 +135,7 @@ public:
         struct Slot {                 // one parameter vector's (cost_rows: kMaxGroup at once)
             std::vector<double> jbuf;  // the carriage's per-joint constants (CarriageNominal)
             std::vector<Vec3> r;       // points in {5}
-            std::vector<double> refl;  // the same, flat
+            std::vector<double> refl;  // the same as B^-1 r_i, flat (TrackerConsts::refl)
         };
         Slot slot[kMaxGroup];
         std::vector<double, detail::AlignedAllocator<double>> y;  // a block's points (3 K x lanes)
@@ -201,10 +201,10 @@ private:
     double evaluate(const double* x, Workspace& ws, double* res, std::vector<int>* failed,
                     RowMatrixXd* poses, RowMatrixXd* predicted) const;
     // The forward kinematics of one block's lanes, solved by the caller (cost_rows): P (3 x 8),
-    // R (9 x 8), status (8) as the chord's.
+    // F (9 x 8), status (8) as the chord's.
     struct Solved {
         double* p;
-        double* r;
+        double* f;  // F = R B (detail::TrackerKernels)
         const int* status;
     };
     // evaluate() at x with its constants tc (prepare) and the kernels of one variant; the last
