@@ -1,6 +1,6 @@
 // Internal: IWR_CLONES, a function compiled for AVX-512 and AVX2 as well as the x86-64 baseline
-// (DE's trial loop and log sums, tested for equal bits by cpp/tests/test_de_isa.cpp; the integer
-// finiteness check of model.cpp),
+// (DE's trial loop and log sums and the carriage's per-evaluation constants, tested for equal bits
+// by cpp/tests/test_de_isa.cpp; the integer finiteness check of model.cpp),
 // the widest the CPU runs picked when the library loads (GCC's target_clones). Separate multiplies
 // and adds in every clone (-ffp-contract=off, CMakeLists.txt) and no reassociation: the same values
 // whatever the instruction set, in wider registers. GCC on x86-64 glibc only (target_clones needs
@@ -11,5 +11,18 @@
     defined(__GLIBC__)
 #define IWR_CLONES __attribute__((target_clones("avx512f", "avx2", "default")))
 #else
+#define IWR_CLONES
+#endif
+
+// One variant alone, the one a CPU of that kind runs (the test programs iwr_de_isa_*, which
+// compile de.cpp and objective.cpp so: CMakeLists.txt).
+#if defined(IWR_DE_ISA_AVX512F)
+#undef IWR_CLONES
+#define IWR_CLONES __attribute__((target("avx512f")))
+#elif defined(IWR_DE_ISA_AVX2)
+#undef IWR_CLONES
+#define IWR_CLONES __attribute__((target("avx2")))
+#elif defined(IWR_DE_ISA_BASELINE)
+#undef IWR_CLONES
 #define IWR_CLONES
 #endif

@@ -22,19 +22,9 @@
 // AVX2 as well as the baseline, the same values on each. The helpers they call in their loops are
 // always inlined, so that each clone compiles them for its own instruction set (the random
 // streams' out-of-line methods aside: integer arithmetic).
-// IWR_DE_ISA_AVX512F, _AVX2 or _BASELINE (the C++ tests' iwr_de_isa_* programs, CMakeLists.txt)
-// compile one variant alone, the one a CPU of that kind runs: the CPU picks the clone, so only
-// such a build runs the others (cpp/tests/test_de_isa.cpp compares their bits).
-#if defined(IWR_DE_ISA_AVX512F)
-#undef IWR_CLONES
-#define IWR_CLONES __attribute__((target("avx512f")))
-#elif defined(IWR_DE_ISA_AVX2)
-#undef IWR_CLONES
-#define IWR_CLONES __attribute__((target("avx2")))
-#elif defined(IWR_DE_ISA_BASELINE)
-#undef IWR_CLONES
-#define IWR_CLONES
-#endif
+// IWR_DE_ISA_AVX512F, _AVX2 or _BASELINE (clones.hpp) compile one variant alone, the one a CPU of
+// that kind runs: the CPU picks the clone, so only such a build runs the others
+// (cpp/tests/test_de_isa.cpp compares their bits).
 
 namespace iwr::de {
 

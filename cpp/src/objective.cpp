@@ -6,6 +6,7 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "clones.hpp"
 #include "inline.hpp"
 #include "objective_kernel.hpp"
 
@@ -251,7 +252,7 @@ IWR_FORCE_INLINE void carriage_consts(const Geometry& g, const double* nominal, 
 
 }  // namespace
 
-void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalConsts& ec,
+IWR_CLONES void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalConsts& ec,
                                      double* jbuf) const {
     const int nj = g.n_joints();
     if (nj == 4 && n_prefix_ == 2)

@@ -1,13 +1,15 @@
-// DE's trial generation (make_trials) and the log's column sums (column_block) are compiled for
-// AVX-512, AVX2 and the x86-64 baseline (GCC's target_clones, de.cpp), and the CPU running the
-// library picks one: the others never run on it, so no test compared their bits. This program is
-// built once per variant with de.cpp compiled for that variant alone (IWR_DE_ISA_AVX512F, _AVX2,
-// _BASELINE; CMakeLists.txt), and once with the library's clones. Without arguments it prints one
-// line per run: every strategy and bound rule, the default CR and CR = 1 (the trials without
-// crossover, built in one pass), two dimensions (a remainder of the vector width
-// and several log blocks), two threads, each run's whole state after its generations (population,
-// costs, archive, memories, random streams, log: State::serialize, the wall-clock times
-// zeroed) as a 64-bit FNV-1a digest.
+// DE's trial generation (make_trials), the log's column sums (column_block) and the carriage's
+// per-evaluation constants (CarriageNominal::consts) are compiled for AVX-512, AVX2 and the x86-64
+// baseline (GCC's target_clones, de.cpp and objective.cpp), and the CPU running the library picks
+// one: the others never run on it, so no test compared their bits. This program is built once
+// per variant with de.cpp and objective.cpp compiled for that variant alone (IWR_DE_ISA_AVX512F,
+// _AVX2, _BASELINE; clones.hpp, CMakeLists.txt), and once with the library's clones. Without
+// arguments it prints one line per run: every strategy and bound rule, the default CR and CR = 1
+// (the trials without crossover, built in one pass), two dimensions (a remainder of the vector
+// width and several log blocks), two threads, each run's whole state after its generations
+// (population, costs, archive, memories, random streams, log: State::serialize, the wall-clock
+// times zeroed) as a 64-bit FNV-1a digest; and a line of the leg objective's costs at random
+// error vectors (the carriage's constants in every one).
 // With --compare PROGRAM... it compares its own lines with each program's: exit 0 when all that
 // could run agree (and at least one other did), 1 on a difference (the lines named), 77 (skipped)
 // when the CPU runs none of the others. A variant the CPU lacks exits 77 and is left out.
@@ -15,12 +17,17 @@
 #include <cstdint>
 #include <cstdio>
 #include <cstring>
+#include <random>
 #include <sstream>
 #include <string>
 #include <sys/wait.h>
+#include <vector>
 
 #include "de_fixtures.hpp"
+#include "fixtures.hpp"
 #include "iwr/de.hpp"
+#include "iwr/model.hpp"
+#include "iwr/objective.hpp"
 
 namespace {
 
@@ -36,6 +43,44 @@ std::uint64_t fnv1a(const std::string& bytes) {
         h *= 0x100000001b3ULL;
     }
     return h;
+}
+
+// The leg objective's costs near two error vectors (the kernel variant the CPU picks, the same in
+// every program): each goes through CarriageNominal::consts, whose sines and cosines of the joint
+// angles take a series within 0.8 rad of the nominal and libm beyond (the second vector's).
+// The legs are predicted at the vector, so that the costs are small and each moves with the
+// last bits of the constants.
+std::string carriage_digest() {
+    const iwr::Geometry g = iwr_test::default_iwr();
+    const int n = 21, m = 32, d = g.n_params();
+    std::mt19937_64 rng(7);
+    std::uniform_real_distribution<double> u(-1.0, 1.0);
+    iwr::RowMatrixXd q(n, 4), poses(n, 6);
+    for (int k = 0; k < n; ++k) {
+        q.row(k) << 100 * u(rng), 100 * u(rng), 0.5 * u(rng), 0.5 * u(rng);
+        poses.row(k) << 400 + 50 * u(rng), 300 + 50 * u(rng), 900 + 50 * u(rng), 0.1 * u(rng),
+            0.1 * u(rng), 0.1 * u(rng);
+    }
+    std::string out;
+    for (double scale : {0.01, 2.0}) {
+        iwr::VectorXd x0(d);
+        for (int e = 0; e < d; ++e) x0(e) = scale * u(rng);
+        const iwr::Objective obj(g, q, poses, iwr::predict_legs(g, x0, q, poses));
+        std::vector<double> x(static_cast<std::size_t>(m * d)), cost(static_cast<std::size_t>(m));
+        for (int i = 0; i < m; ++i)
+            for (int e = 0; e < d; ++e)
+                x[static_cast<std::size_t>(i * d + e)] = x0(e) + (i == 0 ? 0.0 : 1e-6 * u(rng));
+        iwr::ThreadPool pool(1);
+        obj.cost_batch(x.data(), m, cost.data(), pool);
+        const std::string bytes(reinterpret_cast<const char*>(cost.data()),
+                                cost.size() * sizeof(double));
+        char line[160];
+        std::snprintf(line, sizeof line,
+                      "leg objective near errors of %g: %d costs, the first %.17g, %016llx\n", scale,
+                      m, cost[0], static_cast<unsigned long long>(fnv1a(bytes)));
+        out += line;
+    }
+    return out;
 }
 
 std::string digests() {
@@ -74,6 +119,7 @@ std::string digests() {
                               static_cast<unsigned long long>(fnv1a(bytes.str())));
                 out << line;
             }
+    out << carriage_digest();
     return out.str();
 }
 
