@@ -188,6 +188,31 @@ def test_identifiability_names_the_null_directions_of_point_data(robot):
     assert res.success and np.array_equal(res.active, ns.active)
 
 
+def test_the_parameters_left_out_do_not_depend_on_round_off(robot):
+    # The registration's translation and the carriage's base make exactly dependent columns
+    # (tracker.x with joint1.da, tracker.z with joint1.dd, ...: docs/tracker.md); QR with column
+    # pivoting chose between them by round-off, and so did the gauge of a calibration file (the
+    # same data, another build: the registration held at the guess instead of identified). The
+    # same 60 poses in 6 orders: the same parameters left out; 6 subsets of 48: the same ones
+    # of the carriage and the registration (the platform frame's choice may follow the data),
+    # the carriage's and not the registration's translation.
+    data, _ = iwr.simulate(robot, 60, seed=3)
+    rng = np.random.default_rng(1)
+    every, base = set(), set()
+    for trial in range(12):
+        idx = rng.permutation(60)[: 60 if trial < 6 else 48]
+        sub = TrackerMeasurements(data.q[idx], data.legs[idx], points=data.points[idx])
+        left_out = iwr.identifiability(robot, sub).left_out
+        if trial < 6:
+            every.add(tuple(left_out))
+        base.add(tuple(n for n in left_out if n.startswith(("joint", "tracker"))))
+    assert len(every) == 1, every
+    assert len(base) == 1, base
+    left_out = set(base.pop())
+    assert {"joint1.da", "joint1.dd", "joint2.dd"} <= left_out
+    assert not left_out & {"tracker.x", "tracker.y", "tracker.z"}
+
+
 @pytest.mark.parametrize("method", ["de", "crs2", "bobyqa"])
 def test_every_method_runs_through_identify(robot, method):
     from iwr.tracker import tracker_problem

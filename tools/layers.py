@@ -30,7 +30,7 @@ from typing import NamedTuple
 LAYERS: list[tuple[str, list[str]]] = [
     ("base: compiled core, noise, rotations, files, misclosures", [
         "iwr._core", "iwr._blas", "iwr._io", "iwr._hooks", "iwr._registry", "iwr._startup",
-        "iwr.noise",
+        "iwr.noise", "iwr.base_parameters",
         "iwr.transforms", "iwr.misclosures", "iwr.effects", "iwr.effects.builtin",
         "iwr.effects.carriage", "iwr.effects.carriage_thermal",
         "iwr.effects.model"]),

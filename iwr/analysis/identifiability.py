@@ -29,6 +29,7 @@ from typing import Any
 import numpy as np
 
 from .. import kinds
+from ..base_parameters import ordered_base
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
@@ -384,7 +385,8 @@ def identifiable_count(robot: Robot) -> int:
 
 
 def _preference(robot: Robot) -> np.ndarray:
-    """Order of preference for keeping a parameter: hexapod (a_i, b_i, l0_i), then joints 1..n."""
+    """Order of preference for keeping a parameter: hexapod (a_i, b_i, l0_i) and whatever
+    follows the robot's own (effects), then joints 1..n."""
     nc = 4 * robot.n_joints
     return np.concatenate([np.arange(nc, robot.n_params), np.arange(nc)])
 
@@ -393,39 +395,12 @@ def _base_parameters(
     js: np.ndarray, s: np.ndarray, thr: float, rank: int, robot: Robot, selection: str
 ) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the base parameters and of those left out (both sorted)."""
-    n = js.shape[1]
     if selection not in ("ordered", "pivoted"):
         raise ValueError(f"selection: {selection!r}; expected 'ordered' or 'pivoted'")
-    if selection == "ordered" and 0 < rank < n:
-        # Distance of each column (unit norm) from the span of the kept ones, by Gram-Schmidt
-        # applied twice (one pass loses orthogonality at round-off level). Two passes over the
-        # parameters in order of preference: the first keeps only columns at distance >= 0.1 from
-        # the span (well away from it), so that a column that is *nearly* dependent (joint2.da is
-        # parallel to joint1.dd up to the angle errors, ~1e-3) cannot take the place of a clearly
-        # independent one; the second keeps whatever else is independent at all: dependent columns
-        # are at round-off distance (~1e-13), independent ones at least ~s_r, and the cut is
-        # their geometric midpoint.
-        cut = np.sqrt(max(thr, 1e-300) * s[rank - 1])
-        basis: list[np.ndarray] = []
-        kept: list[int] = []
-        for limit in (0.1, cut):
-            for j in _preference(robot):
-                if j in kept:
-                    continue
-                size = np.linalg.norm(js[:, j])
-                if size == 0:  # a parameter the data do not see at all: never a base one
-                    continue
-                v = js[:, j] / size
-                for _ in range(2):
-                    for b in basis:
-                        v = v - (b @ v) * b
-                dist = np.linalg.norm(v)
-                if dist > limit:
-                    basis.append(v / dist)
-                    kept.append(j)
-        if len(kept) == rank:
-            base = np.sort(np.array(kept, dtype=int))
-            return base, np.setdiff1d(np.arange(n), base)
+    if selection == "ordered":
+        chosen = ordered_base(js, s, thr, rank, _preference(robot))
+        if chosen is not None:
+            return chosen
     import scipy.linalg  # here, not at the top: scipy.linalg costs every short command
 
     _, _, piv = scipy.linalg.qr(js, mode="economic", pivoting=True)

@@ -8,9 +8,9 @@ from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
-from scipy.linalg import qr
 
 from .. import _core
+from ..base_parameters import pivoted_columns, preference
 from ..robot import Robot
 from .problem import TrackerProblem
 
@@ -95,9 +95,11 @@ def null_space(problem: TrackerProblem, x: Any = None, rtol: float | None = None
     names = problem.parameter_names
     if ns.shape[1] == 0:
         return NullSpace(s, rank, thr, names, [], ns, d)
-    # One direction per left-out parameter: the best-conditioned rows of the scaled null basis.
-    _, _, piv = qr((vt[rank:]).copy(), pivoting=True, mode="economic")
-    out = np.sort(piv[: ns.shape[1]])
+    # One direction per left-out parameter: the best-conditioned rows of the scaled null basis
+    # (QR with column pivoting), ties between exactly dependent parameters broken by a fixed
+    # preference (the carriage's left out before the set-up's, the hexapod's last), not by
+    # round-off: the same gauge whatever the instruction set or the objective's last bits.
+    out = pivoted_columns(vt[rank:], preference(names))
     basis = ns @ np.linalg.solve(ns[out], np.eye(out.size))
     basis[out] = np.eye(out.size)
     return NullSpace(s, rank, thr, names, [names[i] for i in out], basis, d)

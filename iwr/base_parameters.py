@@ -1,0 +1,100 @@
+"""Which parameters to keep where some are exactly dependent (the null directions of a
+column-scaled Jacobian): one rule for every kind of data (pose, tracker, ballbar, with effects).
+
+QR with column pivoting picks the best-conditioned subset, but between columns that are exactly
+dependent (equal scaled norms: ``joint1.da`` and ``joint3.dd``, ``tracker.x`` and ``joint1.da``)
+its choice falls to round-off, so it changes with the instruction set, the data's order or the
+last bits of an objective's rounding, and with it the gauge a calibration file is written in.
+:func:`ordered_base` goes through the parameters in a fixed order of preference instead
+(:func:`preference`) and keeps each one independent of those kept so far."""
+
+from __future__ import annotations
+
+import re
+from collections.abc import Sequence
+
+import numpy as np
+
+__all__ = ["ordered_base", "pivoted_columns", "preference"]
+
+# The geometric parameters' names (an effect's, such as leg1.compliance, is neither).
+_HEXAPOD = re.compile(r"leg\d+\.(d[ab]_[xyz]|dl0)$")
+_CARRIAGE = re.compile(r"joint\d+\.d(alpha|a|d|theta)$")
+
+
+def preference(names: Sequence[str]) -> np.ndarray:
+    """Indices of ``names`` in order of preference for keeping: the hexapod's geometric
+    parameters, then every other parameter but the carriage's geometric ones (a tracker's
+    registration and reflectors or probe, a ballbar's set-up, effects), then the carriage's
+    joints 1, 2, ... Each group in its own order (for pose data the order of
+    :func:`iwr.identifiability`'s ordered rule). Where a null direction ties the carriage with
+    the instrument's set-up, the carriage is left out: the registration found is the one paired
+    with the nominal carriage base, and the same data give the same calibration file whatever
+    the rounding."""
+    hexapod = [i for i, n in enumerate(names) if _HEXAPOD.match(n)]
+    carriage = [i for i, n in enumerate(names) if _CARRIAGE.match(n)]
+    other = [i for i, n in enumerate(names) if not (_HEXAPOD.match(n) or _CARRIAGE.match(n))]
+    return np.array(hexapod + other + carriage, dtype=int)
+
+
+def ordered_base(js: np.ndarray, s: np.ndarray, thr: float, rank: int,
+                 order: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
+    """Indices of the kept and of the left-out columns of the column-scaled Jacobian ``js``
+    (both sorted), going through the columns in ``order``; ``s`` its singular values, ``thr``
+    the rank threshold on them, ``rank`` the number above it. None when the ordered passes do
+    not find ``rank`` columns (the caller falls back to pivoting).
+
+    Distance of each column (unit norm) from the span of the kept ones, by Gram-Schmidt applied
+    twice (one pass loses orthogonality at round-off level). Two passes in order of preference:
+    the first keeps only columns at distance >= 0.1 from the span (well away from it), so that
+    a column that is *nearly* dependent (joint2.da is parallel to joint1.dd up to the angle
+    errors, ~1e-3) cannot take the place of a clearly independent one; the second keeps whatever
+    else is independent at all: dependent columns are at round-off distance (~1e-13),
+    independent ones at least ~s_r, and the cut is their geometric midpoint."""
+    n = js.shape[1]
+    if not 0 < rank < n:
+        return None
+    cut = np.sqrt(max(thr, 1e-300) * s[rank - 1])
+    basis: list[np.ndarray] = []
+    kept: list[int] = []
+    for limit in (0.1, cut):
+        for j in order:
+            if j in kept:
+                continue
+            size = np.linalg.norm(js[:, j])
+            if size == 0:  # a parameter the data do not see at all: never a base one
+                continue
+            v = js[:, j] / size
+            for _ in range(2):
+                for b in basis:
+                    v = v - (b @ v) * b
+            dist = np.linalg.norm(v)
+            if dist > limit:
+                basis.append(v / dist)
+                kept.append(int(j))
+    if len(kept) != rank:
+        return None
+    base = np.sort(np.array(kept, dtype=int))
+    return base, np.setdiff1d(np.arange(n), base)
+
+
+def pivoted_columns(v: np.ndarray, order: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
+    """The k columns of ``v`` (k x n, orthonormal rows: a null basis) that QR with column
+    pivoting takes first (sorted): each step the column of the largest norm left after the
+    chosen ones are projected out, but among columns within ``rtol`` of that norm the last in
+    ``order`` (the one least preferred to keep), so that exactly dependent parameters, whose
+    norms tie, are chosen by the rule and not by round-off."""
+    r = np.array(v, dtype=float, copy=True)
+    k, n = r.shape
+    rank_of = np.empty(n, dtype=int)
+    rank_of[np.asarray(order, dtype=int)] = np.arange(n)
+    chosen: list[int] = []
+    for _ in range(k):
+        norms = np.linalg.norm(r, axis=0)
+        norms[chosen] = -1.0
+        tied = np.flatnonzero(norms >= (1 - rtol) * norms.max())
+        j = int(tied[np.argmax(rank_of[tied])])
+        chosen.append(j)
+        q = r[:, j] / norms[j]
+        r -= np.outer(q, q @ r)
+    return np.sort(np.array(chosen, dtype=int))
