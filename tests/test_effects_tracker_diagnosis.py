@@ -52,7 +52,8 @@ def test_tracker_diagnosis_names_the_effect_the_data_carry(points, effect):
     """Points simulated with one effect (and both columns), calibrated geometric-only by the
     efficient estimator with the true noise model: the diagnosis names that effect and not the
     other; on data with neither effect, none. The regression's coefficient estimates the
-    effect's size (compliance 0.01 um/N within 30 %, alpha 11.5 ppm/K within 3)."""
+    effect's size (compliance 0.01 um/N within 50 %, alpha 11.5 ppm/K within 3: one seed's
+    compliance lies within 0.0072-0.0138, sd 0.0018, over 20 seeds; the next test)."""
     data = _data(points, effect, 50, seed=3)
     res = iwr.identify(points, data, "efficient", noise=NOISE, outliers="off")
     d = kinds.of(data).diagnose(points, data, res.x, active=res.active, noise=NOISE)
@@ -67,9 +68,25 @@ def test_tracker_diagnosis_names_the_effect_the_data_carry(points, effect):
     assert test["carriage_compliance"].names == ("joint1", "joint2", "joint3", "joint4")
     assert test["compliance"].dof == (6, seen - int(res.active.sum()) - 12)
     if effect == "compliance":
-        assert test["compliance"].estimate.mean() == pytest.approx(0.01, rel=0.3)
+        assert test["compliance"].estimate.mean() == pytest.approx(0.01, rel=0.5)
     elif effect == "thermal":
         assert test["thermal"].estimate[0] == pytest.approx(11.5, abs=3.0)
+
+
+def test_the_compliance_estimate_over_seeds(points):
+    """The diagnosis' first guess of the legs' compliance (0.01 um/N, the previous test's data)
+    over 20 seeds: its mean within 4 standard errors of the truth (measured: 0.0108, a standard
+    error of 0.0004) and its scatter under a third of the truth (measured: 0.0018). One seed
+    alone cannot tell an estimate from one 30 % off: seed 3's is 0.0130."""
+    est = []
+    for seed in range(1, 21):
+        data = _data(points, "compliance", 50, seed=seed)
+        res = iwr.identify(points, data, "efficient", noise=NOISE, outliers="off")
+        d = kinds.of(data).diagnose(points, data, res.x, active=res.active, noise=NOISE)
+        est.append({t.effect: t for t in d.tests}["compliance"].estimate.mean())
+    mean, sd = float(np.mean(est)), float(np.std(est, ddof=1))
+    assert abs(mean - 0.01) < 4 * sd / np.sqrt(len(est)), (mean, sd)
+    assert sd < 0.003, sd
 
 
 def test_probe_diagnosis_counts_six_whitened_rows_a_pose(measured_with_effects):
