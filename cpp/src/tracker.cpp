@@ -71,14 +71,13 @@ void require_rows(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, co
 
 }  // namespace
 
-namespace {
-
 // sin(t)/t, (1 - cos t)/t^2 and (t - sin t)/t^3 at t^2 = t2 (SO(3)'s exponential and its left
-// Jacobian). Below t = 0.1 (a registration's or a probe's correction) their Taylor series to t^8:
-// the first term left out is at most t^10 / 11! < 2.6e-18, a quarter of an ulp of the smallest (1/6),
-// and no libm call. Within 0.53 ulp of the exact values there (mpmath, 22,000 t), where
-// (1 - cos t) / t^2 in doubles cancels to 1e-6 relative at t = 1e-4.
-void so3_coefficients(double t2, double& s, double& c, double& d) {
+// Jacobian). Below t = 0.1 (a registration's or a probe's correction within the default bounds:
+// |r| < 0.061) their Taylor series to t^8: the first term left out is at most t^10 / 11! < 2.6e-18,
+// a tenth of an ulp of the smallest (1/6), and no libm call. Within 0.52, 0.50 and 0.83 ulp of
+// the exact values there (mpmath, 22,000 t), where libm's (1 - cos t) / t^2 in doubles cancels to
+// 1e-8 relative at t = 1e-4 (which put so3_left_jacobian 4e-13 off).
+void detail::so3_coefficients(double t2, double& s, double& c, double& d) {
     if (t2 < 1e-2) {
         s = 1 + t2 * (-1.0 / 6 + t2 * (1.0 / 120 + t2 * (-1.0 / 5040 + t2 * (1.0 / 362880))));
         c = 0.5 + t2 * (-1.0 / 24 + t2 * (1.0 / 720 + t2 * (-1.0 / 40320 + t2 * (1.0 / 3628800))));
@@ -92,12 +91,10 @@ void so3_coefficients(double t2, double& s, double& c, double& d) {
     }
 }
 
-}  // namespace
-
 Mat3 rotvec_matrix(const Vec3& w) {
     const double x = w(0), y = w(1), z = w(2), xx = x * x, yy = y * y, zz = z * z;
-    double s, c, d;  // sin(t)/t, (1 - cos t)/t^2
-    so3_coefficients(xx + yy + zz, s, c, d);
+    double s, c, d;  // sin(t)/t, (1 - cos t)/t^2 (d unused)
+    detail::so3_coefficients(xx + yy + zz, s, c, d);
     // I + s K + c K^2 with K = [w]x, K^2 = w w^T - |w|^2 I, written out.
     const double cxy = c * (x * y), cxz = c * (x * z), cyz = c * (y * z);
     const double sx = s * x, sy = s * y, sz = s * z;
@@ -109,8 +106,8 @@ Mat3 rotvec_matrix(const Vec3& w) {
 }
 
 Mat3 so3_left_jacobian(const Vec3& w) {
-    double s, c, d;  // (1 - cos t)/t^2, (t - sin t)/t^3
-    so3_coefficients(w.squaredNorm(), s, c, d);
+    double s, c, d;  // (1 - cos t)/t^2, (t - sin t)/t^3 (s unused)
+    detail::so3_coefficients(w.squaredNorm(), s, c, d);
     const Mat3 k = skew(w);
     return Mat3::Identity() + c * k + d * k * k;
 }

@@ -386,7 +386,7 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
     const R penalty = r_splat(tc.failed_residual), zero = r_splat(0.0);
     const int n_points = MW > 0 ? MW / 3 : NPT > 0 ? NPT : tc.n_points;
     // The block as K passes of one register each, as the leg kernel's (objective_kernel_body.inl):
-    // 0T4, P and R are 24 values, more than the 16 registers of SSE2 and AVX2 hold when each is
+    // 0T4, P and F are 24 values, more than the 16 registers of SSE2 and AVX2 hold when each is
     // K registers. Each lane sees the same operations in the same order.
     for (int h = 0; h < K; ++h) {
         const int o = h * W;  // the pass's first lane
@@ -394,18 +394,18 @@ IWR_FORCE_INLINE void points_chain(const double* blk, const TrackerConsts& tc, c
         carriage<NP, NR>(tc.pd, tc.ec, blk + o, t);
         if (tout)
             for (int e = 0; e < 12; ++e) r_store(tout + e * B + o, t[e].v[0]);
-        R p[3], r[9];
+        R p[3], f[9];
         for (int c = 0; c < 3; ++c) p[c] = r_load(pin + c * B + o);
-        for (int e = 0; e < 9; ++e) r[e] = r_load(fin + e * B + o);  // F
+        for (int e = 0; e < 9; ++e) f[e] = r_load(fin + e * B + o);
         const M failed = m_lt(zero, r_load(bad + o));
         R total = r_load(acc + o);
         R v[MW > 0 ? MW : 1];
         for (int i = 0; i < n_points; ++i) {
             const R x0 = r_splat(tc.refl[3 * i]), x1 = r_splat(tc.refl[3 * i + 1]),
                     x2 = r_splat(tc.refl[3 * i + 2]);
-            const R z0 = r_fma(r[2], x2, r_fma(r[1], x1, r_fma(r[0], x0, p[0])));
-            const R z1 = r_fma(r[5], x2, r_fma(r[4], x1, r_fma(r[3], x0, p[1])));
-            const R z2 = r_fma(r[8], x2, r_fma(r[7], x1, r_fma(r[6], x0, p[2])));
+            const R z0 = r_fma(f[2], x2, r_fma(f[1], x1, r_fma(f[0], x0, p[0])));
+            const R z1 = r_fma(f[5], x2, r_fma(f[4], x1, r_fma(f[3], x0, p[1])));
+            const R z2 = r_fma(f[8], x2, r_fma(f[7], x1, r_fma(f[6], x0, p[2])));
             const M on = plain ? m_all(true) : m_lt(zero, r_load(seen + i * B + o));
             for (int c = 0; c < 3; ++c) {
                 const R y = r_fma(t[3 * c + 2].v[0], z2,

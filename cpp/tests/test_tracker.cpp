@@ -97,6 +97,37 @@ IWR_TEST(so3_exponential_and_left_jacobian_against_their_power_series) {
     CHECK(worst_jac < 1e-15);
 }
 
+// The coefficients themselves below t = 0.1, where they are series: within an ulp of the same
+// series summed to t^40 in long double (their last terms' coefficients checked too).
+IWR_TEST(so3_coefficients_within_an_ulp_below_the_bound) {
+    double worst[3] = {0, 0, 0};
+    for (int i = 0; i <= 4000; ++i) {
+        const double t = i == 0 ? 0.0 : 0.1 * std::pow(1e-6, (4000 - i) / 4000.0) * (1 - 1e-12);
+        const double t2 = t * t;
+        double got[3];
+        iwr::detail::so3_coefficients(t2, got[0], got[1], got[2]);
+        // sum (-t2)^k / (2k + 1)!, / (2k + 2)!, / (2k + 3)!
+        long double want[3] = {0, 0, 0}, p = 1;
+        for (int k = 0; k < 20; ++k) {
+            long double f1 = 1;  // (2k + 1)!
+            for (int m = 2; m <= 2 * k + 1; ++m) f1 *= m;
+            want[0] += p / f1;
+            want[1] += p / (f1 * (2 * k + 2));
+            want[2] += p / (f1 * (2 * k + 2) * (2 * k + 3));
+            p *= -static_cast<long double>(t2);
+        }
+        for (int q = 0; q < 3; ++q) {
+            const double w = static_cast<double>(want[q]);
+            const double ulp = std::nextafter(w, HUGE_VAL) - w;
+            worst[q] = std::max(worst[q], std::abs(static_cast<double>(got[q] - want[q])) /
+                                              std::abs(ulp));
+        }
+    }
+    std::printf("so3_coefficients below t = 0.1: within %.2f, %.2f, %.2f ulp\n", worst[0],
+                worst[1], worst[2]);
+    CHECK(worst[0] <= 1 && worst[1] <= 1 && worst[2] <= 1);
+}
+
 IWR_TEST(points_jacobian) {
     std::mt19937_64 rng(7);
     const iwr::Geometry g = iwr_test::default_iwr();

@@ -55,6 +55,8 @@ int seen_points(const RowMatrixXd& points, int n_points);
 /// Checks a per-pose whitening (n, m^2: row-major lower-triangular m x m, finite), throwing
 /// std::invalid_argument naming the entry at fault.
 void check_whitening(const RowMatrixXd& whitening, Eigen::Index n, Eigen::Index m);
+/// sin(t)/t, (1 - cos t)/t^2 and (t - sin t)/t^3 at t^2 = t2 (rotvec_matrix, so3_left_jacobian).
+void so3_coefficients(double t2, double& s, double& c, double& d);
 }  // namespace detail
 
 /// The nominal measurement setup. Poses are (x, y, z, alpha, beta, gamma), Z-Y-X Euler (eq. 6).
