@@ -1,12 +1,14 @@
 """Which parameters to keep where some are exactly dependent (the null directions of a
-column-scaled Jacobian): one rule for every kind of data (pose, tracker, ballbar, with effects).
+column-scaled Jacobian), for every kind of data (pose, tracker, ballbar, with effects).
 
 QR with column pivoting picks the best-conditioned subset, but between columns that are exactly
 dependent (equal scaled norms: ``joint1.da`` and ``joint3.dd``, ``tracker.x`` and ``joint1.da``)
 its choice falls to round-off, so it changes with the instruction set, the data's order or the
 last bits of an objective's rounding, and with it the gauge a calibration file is written in.
-:func:`ordered_base` goes through the parameters in a fixed order of preference instead
-(:func:`preference`) and keeps each one independent of those kept so far."""
+Pose data go through the parameters in a fixed order of preference (:func:`ordered_base`,
+:func:`iwr.identifiability`'s default); the null directions of tracker, ballbar and effects
+problems keep QR's pivoting but break its ties by a fixed preference (:func:`pivoted_columns`,
+:func:`preference`)."""
 
 from __future__ import annotations
 
@@ -15,7 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["ordered_base", "pivoted_columns", "preference"]
+__all__ = ["candidate_order", "ordered_base", "pivoted_columns", "preference"]
 
 # The geometric parameters' names (an effect's, such as leg1.compliance, is neither).
 _HEXAPOD = re.compile(r"leg\d+\.(d[ab]_[xyz]|dl0)$")
@@ -79,15 +81,20 @@ def ordered_base(js: np.ndarray, s: np.ndarray, thr: float, rank: int,
 
 
 def pivoted_columns(v: np.ndarray, order: np.ndarray, rtol: float = 1e-6) -> np.ndarray:
-    """The k columns of ``v`` (k x n, orthonormal rows: a null basis) that QR with column
-    pivoting takes first (sorted): each step the column of the largest norm left after the
-    chosen ones are projected out, but among columns within ``rtol`` of that norm the last in
-    ``order`` (the one least preferred to keep), so that exactly dependent parameters, whose
-    norms tie, are chosen by the rule and not by round-off."""
+    """The k columns of ``v`` (k x n: a null basis, or its columns of the candidates) that QR
+    with column pivoting takes first (sorted): each step the column of the largest norm left
+    after the chosen ones are projected out, but among columns within ``rtol`` of that norm the
+    last in ``order`` (a permutation of the n columns: the one least preferred to keep), so that
+    exactly dependent parameters, whose norms tie, are chosen by the rule and not by round-off.
+    Norms further apart than ``rtol`` are chosen as QR would (a null basis from the SVD is
+    accurate to about 1e-13, far inside the tolerance)."""
     r = np.array(v, dtype=float, copy=True)
     k, n = r.shape
+    order = np.asarray(order, dtype=int)
+    if not np.array_equal(np.sort(order), np.arange(n)):
+        raise ValueError(f"order: not a permutation of the {n} columns")
     rank_of = np.empty(n, dtype=int)
-    rank_of[np.asarray(order, dtype=int)] = np.arange(n)
+    rank_of[order] = np.arange(n)
     chosen: list[int] = []
     for _ in range(k):
         norms = np.linalg.norm(r, axis=0)
@@ -98,3 +105,11 @@ def pivoted_columns(v: np.ndarray, order: np.ndarray, rtol: float = 1e-6) -> np.
         q = r[:, j] / norms[j]
         r -= np.outer(q, q @ r)
     return np.sort(np.array(chosen, dtype=int))
+
+
+def candidate_order(names: Sequence[str], cand: np.ndarray) -> np.ndarray:
+    """:func:`preference` restricted to the candidates ``cand`` (indices into ``names``), as
+    positions in ``cand``: the ``order`` of :func:`pivoted_columns` on ``v[:, cand]``."""
+    rank_of = np.empty(len(names), dtype=int)
+    rank_of[preference(names)] = np.arange(len(names))
+    return np.argsort(rank_of[np.asarray(cand, dtype=int)], kind="stable")

@@ -28,7 +28,7 @@ from typing import NamedTuple
 #: that package not listed by name; every module of iwr must match one (its package's
 #: ``__init__`` is listed by the package's own name).
 LAYERS: list[tuple[str, list[str]]] = [
-    ("base: compiled core, noise, rotations, files, misclosures", [
+    ("base: compiled core, noise, rotations, files, misclosures, base parameters", [
         "iwr._core", "iwr._blas", "iwr._io", "iwr._hooks", "iwr._registry", "iwr._startup",
         "iwr.noise", "iwr.base_parameters",
         "iwr.transforms", "iwr.misclosures", "iwr.effects", "iwr.effects.builtin",

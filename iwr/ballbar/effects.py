@@ -534,7 +534,7 @@ def identifiability(robot: Robot, measurements: BallbarMeasurements, x: Any = No
     parameters the data cannot separate from the geometry (:class:`BallbarEffectNullSpace`)."""
     from dataclasses import asdict
 
-    from scipy.linalg import qr
+    from ..base_parameters import candidate_order, pivoted_columns
 
     problem, start = effect_problem(robot, measurements)
     x = start if x is None else _full(problem, x, "x")
@@ -553,8 +553,8 @@ def identifiability(robot: Robot, measurements: BallbarMeasurements, x: Any = No
     if null.shape[0]:
         # One left-out parameter per null direction among the held ones (their columns span
         # what the base parameters' do not).
-        _, _, piv = qr(null[:, cand], pivoting=True, mode="economic")
-        left = np.sort(cand[piv[: null.shape[0]]])
+        # QR's pivoting, its ties broken by the fixed preference (iwr.base_parameters).
+        left = cand[pivoted_columns(null[:, cand], candidate_order(names, cand))]
         basis = basis @ np.linalg.solve(basis[left], np.eye(left.size))
         basis[left] = np.eye(left.size)
     ng, ne = robot.n_params, problem.n_effects

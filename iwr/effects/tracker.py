@@ -739,8 +739,7 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *,
     calibration job identify) holds them too (``held``: :func:`base_parameters`)."""
     from dataclasses import asdict
 
-    from scipy.linalg import qr
-
+    from ..base_parameters import candidate_order, pivoted_columns
     from ..tracker.gauge import null_space
 
     problem, start = effect_tracker_problem(robot, measurements)
@@ -755,8 +754,8 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *,
     fields = asdict(ns)
     if k:
         scaled = (ns.vectors * ns.scale[:, None]).T  # (k, n): in the column-scaled metric
-        _, _, piv = qr(scaled[:, cand], pivoting=True, mode="economic")
-        out = np.sort(cand[piv[:k]])
+        # QR's pivoting, its ties broken by the fixed preference (iwr.base_parameters).
+        out = cand[pivoted_columns(scaled[:, cand], candidate_order(ns.parameter_names, cand))]
         basis = ns.vectors @ np.linalg.solve(ns.vectors[out], np.eye(k))
         basis[out] = np.eye(k)
         fields.update(left_out=[ns.parameter_names[i] for i in out], vectors=basis)
