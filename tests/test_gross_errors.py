@@ -19,6 +19,7 @@ import pytest
 import iwr
 from iwr import kinds
 from iwr.gross_errors import find_gross_errors, screen
+from iwr.reporting.calibration import render
 from iwr.result import IdentificationResult, pose_key
 from iwr.tracker import TrackerNoise
 from iwr.tracker.data import TrackerMeasurements
@@ -421,6 +422,36 @@ def test_the_job_on_probe_data_with_a_noise_model_finds_a_gross_error():
     assert cal.success and cal.fit_ok, cal.result.message
     found = [o for o in cal.result.outliers if o.removed]
     assert [o.key for o in found] == [pose_key(bad, 9)], found
+    # The estimator keeps the pose in its identification set (result["used"] marks it), so the
+    # summary's cost over that set says it includes it.
+    assert len(cal.identification) == 40 - len(cal.validation)
+    assert "poses, the 1 pose the fit did not use included): " in render(cal).summary()
+
+
+@pytest.mark.parametrize("method", ["efficient", "lm"])
+def test_the_cost_says_whether_it_includes_a_pose_the_fit_left_out(method):
+    """Pose data with one leg reading 1 mm off: the efficient estimator leaves the pose out of
+    its fit but keeps it in the identification set (result["used"]), so the summary's and the
+    reports' cost over that set says it includes it; LM's screen drops the pose from the set,
+    and the cost says nothing of the kind (a newcomer read "100 poses" beside a fit on 99)."""
+    robot = _robot("pose")
+    data, _ = iwr.simulate(robot, 40, seed=11, noise=REAL)
+    legs = np.array(data.legs, dtype=float)
+    legs[5, 2] += 1.0
+    bad = _rebuild(data, legs=legs)
+    cal = iwr.calibrate(robot, bad, method, noise=REAL if method == "efficient" else None,
+                        seed=3)
+    removed = [o for o in cal.result.outliers if o.removed]
+    assert [o.key for o in removed] == [pose_key(bad, 5)], [str(o) for o in removed]
+    text = "the 1 pose the fit did not use included"
+    rep = render(cal)
+    if method == "efficient":
+        assert len(cal.identification) == 40 - len(cal.validation)
+        assert f"poses, {text}): " in rep.summary()
+        assert text in rep.markdown([]) and text in rep.html().render()
+    else:
+        assert len(cal.identification) == 40 - len(cal.validation) - 1
+        assert text not in rep.summary() and text not in rep.markdown([])
 
 
 def test_a_clean_probe_pose_is_tested_in_six_directions():

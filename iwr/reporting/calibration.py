@@ -101,6 +101,19 @@ class CalibrationReport(Calibration):
         # chi-square statistic, and a result file does not keep eq. (10)'s cost beside it.
         return {"nominal": nominal, "calibrated": p.cost(np.asarray(self.result.x, dtype=float))}
 
+    def unused_included(self) -> str:
+        """``", the 1 pose the fit did not use included"``, or ``""``: the identification set
+        holds poses the result did not use (the efficient estimator tests its own poses and
+        marks the outliers it leaves out in ``result["used"]``; the other methods' screen drops
+        them from the set), and the cost and residual figures of the set include them."""
+        used = self.result.get("used")
+        if used is None or np.size(used) != len(self.identification):
+            return ""
+        k = int(np.size(used) - np.count_nonzero(used))
+        if k == 0:
+            return ""
+        return f", the {k} pose{'s' if k > 1 else ''} the fit did not use included"
+
     def residuals(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
         """Per-leg residual statistics, ``[set][nominal|calibrated]``."""
         sets = {"identification": self.identification}
@@ -374,7 +387,8 @@ class CalibrationReport(Calibration):
         ]
         c = self.costs()
         lines.append(
-            f"cost (eq. 10, sum of squared leg residuals, mm^2, {n_id} poses): "
+            f"cost (eq. 10, sum of squared leg residuals, mm^2, {n_id} poses"
+            f"{self.unused_included()}): "
             f"nominal {c['nominal']:.4g} -> calibrated {c['calibrated']:.4g}"
             + self._before_polish()
         )
@@ -639,7 +653,8 @@ class CalibrationReport(Calibration):
         c = self.costs()
         page.paragraph(
             f"Tool pose by forward kinematics from the joint and leg readings against the measured "
-            f"pose. Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated "
+            f"pose. Cost (eq. 10, mm^2{self.unused_included()}): nominal {c['nominal']:.6g}, "
+            "calibrated "
             f"{c['calibrated']:.6g}{self._before_polish()}. Method {r.get('method', '?')}: "
             f"{int(r.nfev)} evaluations, {float(r.get('wall_time', math.nan)):.2f} s, "
             f"{self.status_text()}: "
@@ -797,7 +812,8 @@ class CalibrationReport(Calibration):
             f"- Method: `{r.get('method', '?')}`, {int(r.nfev)} evaluations, "
             f"{float(r.get('wall_time', math.nan)):.2f} s, "
             f"{self.status_text()}: {str(r.message).strip()}",
-            f"- Cost (eq. 10, mm^2): nominal {c['nominal']:.6g}, calibrated {c['calibrated']:.6g}"
+            f"- Cost (eq. 10, mm^2{self.unused_included()}): nominal {c['nominal']:.6g}, "
+            f"calibrated {c['calibrated']:.6g}"
             + self._before_polish(),
             "",
             "## Accuracy",

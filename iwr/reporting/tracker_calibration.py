@@ -262,7 +262,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
             f"method {r.get('method', '?')}: {int(r.nfev)} evaluations, "
             f"{float(r.get('wall_time', math.nan)):.2f} s, {self.status_text()} "
             f"({str(r.message).strip() if not self._fit_failed() else 'see the fit test below'})",
-            f"cost (sum of squared point residuals, mm^2, {len(self.identification)} poses): "
+            f"cost (sum of squared point residuals, mm^2, {len(self.identification)} poses"
+            f"{self.unused_included()}): "
             f"nominal robot + registration guess {c['nominal']:.6g} -> calibrated "
             f"{c['calibrated']:.6g}",
             self.hidden_text(),
