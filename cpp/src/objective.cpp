@@ -252,8 +252,8 @@ IWR_FORCE_INLINE void carriage_consts(const Geometry& g, const double* nominal, 
 
 }  // namespace
 
-IWR_CLONES void detail::CarriageNominal::consts(const Geometry& g, const double* x, EvalConsts& ec,
-                                     double* jbuf) const {
+IWR_CLONES void detail::CarriageNominal::consts(const Geometry& g, const double* x,
+                                                EvalConsts& ec, double* jbuf) const {
     const int nj = g.n_joints();
     if (nj == 4 && n_prefix_ == 2)
         carriage_consts<4, 2>(g, nominal_.data(), nj, n_prefix_, x, ec, jbuf);

@@ -488,7 +488,9 @@ void tracker_points(const double* blk, const TrackerConsts& tc, const double* pi
             IWR_POINTS(points_whitened, 2, 2, 0);
         else
             IWR_POINTS(points_whitened, -1, 0, 0);
-    } else if (iwr && tc.n_points == 3 && K == 1) {  // AVX-512 (SSE2 ran 2-8 % slower; AVX2 not tried)
+    } else if (iwr && tc.n_points == 3 && K == 1) {
+        // AVX-512 only: SSE2 ran 2-8 % slower unrolled, AVX2 1.00x in bench_regression.py
+        // (BENCHMARKS.md, eighteenth round).
         IWR_POINTS(points_chain, 2, 2, -1, 0, 3);
     } else if (iwr) {
         IWR_POINTS(points_chain, 2, 2, -1);
