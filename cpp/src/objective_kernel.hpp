@@ -117,7 +117,7 @@ struct TrackerKernels {
     void (*chord_lanes)(const double* const* blk, const LaneConsts* lc, int nb,
                         const TrackerConsts& tc, double* p, double* f, int* status);
     void (*points)(const double* blk, const TrackerConsts& tc, const double* p, const double* f,
-                   const double* meas, const double* seen, const double* bad, bool all_seen,
+                   const double* meas, const double* seen, const double* bad, bool plain,
                    const double* wh, double* vbuf, double* t, double* y, double* acc);
 };
 /// The variant of the same instruction set as active_kernel().

@@ -497,6 +497,7 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
         double* ff = given ? last->f : ff2 + half * 9 * W;
         const int* status = given ? last->status : status2 + half * W;
         int unsolved = 0;  // some lane's status not 0 (rare: look at the lanes only then)
+        bool any_bad = false;
         for (int l = 0; l < W; ++l) unsolved |= status[l], bad[l] = 0.0;
         for (int l = 0; l < W && unsolved != 0; ++l) {
             const int k = blk * W + l;
@@ -510,7 +511,7 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
                     finish(h, k, status[l], p, r);
                     solved = true;
                 } catch (const ForwardKinematicsError&) {
-                    bad[l] = 1.0;
+                    bad[l] = 1.0, any_bad = true;
                 }
             }
             if (!solved) {  // a failed pose or a padding lane: the reference pose, finite
@@ -526,7 +527,7 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
             ? wh_blocks_.data() + static_cast<size_t>(blk) * static_cast<size_t>(wh_stride_)
             : nullptr;
         kernel.points(data, tc, pp, ff, meas, meas + 3 * kp * W, bad,
-                      all_seen_[static_cast<size_t>(blk)] != 0, wh, ws.v.data(),
+                      all_seen_[static_cast<size_t>(blk)] != 0 && !any_bad, wh, ws.v.data(),
                       scalar ? t : nullptr, scalar ? y : nullptr, acc);
         if (!scalar) continue;
         for (int l = 0; l < W && blk * W + l < n_; ++l) {
