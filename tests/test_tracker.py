@@ -192,7 +192,7 @@ def test_predicted_points_match_numpy_where_the_kernel_falls_back(robot, which):
     # solver finishes them (TrackerObjective::finish), whose rotation the kernel's points take as
     # F = R B: the points predicted there, and the platform poses, against NumPy's points through
     # Newton's poses (iwr.forward_kinematics, an independent solver). (A fallback that entered R
-    # for F put 83 % of these points off, by up to 128 mm: most lanes fall back here.)
+    # for F put 83 % of these points off, by up to 128 mm.)
     setup = _setups()[which]
     data, _ = simulate_tracker(robot, setup, 30, seed=12, hidden=0.0)
     problem = TrackerProblem(robot, setup, data)
@@ -200,6 +200,10 @@ def test_predicted_points_match_numpy_where_the_kernel_falls_back(robot, which):
     far = problem.lower + (problem.upper - problem.lower) * rng.random(problem.n_params)
     far[: robot.n_params] *= np.where(robot.angle_parameters, 1.0, 80.0)
     assert not problem.failures(far)
+    # The premise: most poses here are finished by the fallback, some by the kernel alone.
+    status = problem._objective.chord_status(far)
+    assert 15 <= np.count_nonzero(status == 1) < 30 and np.all(status != 2)
+    assert not problem._objective.chord_status(np.zeros(problem.n_params)).any()
     newton = iwr.forward_kinematics(robot, far[: robot.n_params], data.q, data.legs)
     np.testing.assert_allclose(problem.predicted_points(far),
                                true_points(robot, setup, far, newton), atol=1e-8)

@@ -68,6 +68,11 @@ void bind_tracker(py::module_& m) {
         .def("platform_poses",
              [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->platform_poses(x); },
              py::arg("x"))
+        .def("chord_status",
+             [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->chord_status(x); },
+             py::arg("x"),
+             "Per pose, how the kernel's iterations ended at x: 0 solved, 1 finished by the\n"
+             "damped Newton solver, 2 a leg length <= 0.")
         .def("predicted_points",
              [](const PyTrackerObjective& o, const VecRef& x) { return o.obj_->predicted_points(x); },
              py::arg("x"))

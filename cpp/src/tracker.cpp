@@ -705,6 +705,20 @@ std::vector<std::pair<int, std::string>> TrackerObjective::failures(
     return out;
 }
 
+Eigen::VectorXi TrackerObjective::chord_status(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    const Hexapod h = hexapod(x.data());
+    Eigen::VectorXi out(n_);
+    Vec3 p[kLanes];
+    Mat3 r[kLanes];
+    int status[kLanes];
+    for (int blk = 0; blk * kLanes < n_; ++blk) {
+        solve_block(h, blk, p, r, status);
+        for (int l = 0; l < kLanes && blk * kLanes + l < n_; ++l) out(blk * kLanes + l) = status[l];
+    }
+    return out;
+}
+
 RowMatrixXd TrackerObjective::platform_poses(const Eigen::Ref<const VectorXd>& x) const {
     check_x(x);
     RowMatrixXd poses(n_, 6);

@@ -163,6 +163,10 @@ public:
 
     /// Poses whose forward kinematics fails at x, with the solver's message.
     std::vector<std::pair<int, std::string>> failures(const Eigen::Ref<const VectorXd>& x) const;
+    /// How the kernel's own iterations ended for each pose at x (N): 0 solved by them, 1 not
+    /// contracting (the damped Newton solver finishes the pose), 2 a leg length <= 0. A
+    /// diagnostic: what the cost and the points use is the same either way, to the tolerance.
+    Eigen::VectorXi chord_status(const Eigen::Ref<const VectorXd>& x) const;
     /// World poses of {5} (N, 6) at x, and the predicted points in {T} (N, 3 K); rows of failed
     /// poses are NaN.
     RowMatrixXd platform_poses(const Eigen::Ref<const VectorXd>& x) const;
