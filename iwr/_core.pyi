@@ -96,6 +96,11 @@ class TrackerEffectObjective:
 class TrackerObjective:
     def __init__(self, geometry: Geometry, kind: str, registration: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], reflectors: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], probe: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], probe_length: typing.SupportsFloat | typing.SupportsIndex, q: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], legs: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], points: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, n]"], reference: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[m, 1]"], home: typing.Annotated[numpy.typing.ArrayLike, numpy.float64, "[6, 1]"], tolerance: typing.SupportsFloat | typing.SupportsIndex = 1e-10) -> None:
         ...
+    def chord_status(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> typing.Annotated[numpy.typing.NDArray[numpy.int32], "[m, 1]"]:
+        """
+        Per pose, how the kernel's iterations ended at x: 0 solved, 1 finished by the
+        damped Newton solver, 2 a leg length <= 0.
+        """
     def cost(self, x: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]) -> float:
         ...
     def cost_batch(self, X: typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, n]", "flags.c_contiguous"], threads: typing.SupportsInt | typing.SupportsIndex = 0) -> typing.Annotated[numpy.typing.NDArray[numpy.float64], "[m, 1]"]:
