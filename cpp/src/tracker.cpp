@@ -1,5 +1,6 @@
 #include "iwr/tracker.hpp"
 
+#include "inline.hpp"
 #include "objective_kernel.hpp"
 
 #include <algorithm>
@@ -437,32 +438,100 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
         alignas(64) double pp[2 * 3 * W], ff[2 * 9 * W];
         int st[2 * W];
         kernel.chord_lanes(blk, lc, group / share, tc[0], pp, ff, st);
+        // Each vector's last block: lanes of block g / share, from lane (g % share) part. With
+        // two vectors to a block they move to lanes 0..part (evaluate may write a padding lane's
+        // pose into its block), and its lanes part.. (padding: they see no point, so their pose
+        // does not matter) take the block's reference P and R for P and F.
+        alignas(64) double lp[kMaxGroup][3 * W], lf[kMaxGroup][9 * W];
+        int ls[kMaxGroup][W];
         for (int g = 0; g < group; ++g) {
-            // Vector g's lanes: block g / share, from lane (g % share) part. With two vectors to a
-            // block they move to lanes 0..part (a copy: evaluate may write a padding lane's pose
-            // into its block), and its lanes part.. (padding: they see no point, so their pose
-            // does not matter) take the block's reference P and R for P and F.
             const int b = g / share, o = (g % share) * part;
-            double *pb = pp + 3 * W * b, *fb = ff + 9 * W * b;
-            const int* sb = st + W * b;
-            alignas(64) double p1[3 * W], f1[9 * W];
-            int s1[W];
-            if (share == 2) {
-                for (int q = 0; q < 12; ++q) {
-                    double* to = q < 3 ? p1 + q * W : f1 + (q - 3) * W;
-                    const double* from = q < 3 ? pb + q * W : fb + (q - 3) * W;
-                    for (int l = 0; l < W; ++l)
-                        to[l] = l < part ? from[o + l] : data[(36 + q) * W + l];
-                }
-                for (int l = 0; l < W; ++l) s1[l] = l < part ? sb[o + l] : 0;
-                pb = p1, fb = f1, sb = s1;
+            for (int q = 0; q < 12; ++q) {
+                double* to = q < 3 ? lp[g] + q * W : lf[g] + (q - 3) * W;
+                const double* from = q < 3 ? pp + 3 * W * b + q * W : ff + 9 * W * b + (q - 3) * W;
+                for (int l = 0; l < W; ++l)
+                    to[l] = l < part ? from[o + l] : data[(36 + q) * W + l];
             }
-            const Solved last{pb, fb, sb};
-            out[i + g] = evaluate(xs[i + g], tc[g], kernel, ws, nullptr, nullptr, nullptr, nullptr,
-                                  &last);
+            for (int l = 0; l < W; ++l) ls[g][l] = l < part ? st[W * b + o + l] : 0;
+        }
+        if (!kernel.chord2) {
+            // Block by block (AVX2, the baseline): vector after vector, as interleaved (below)
+            // AVX2 ran 0.5-1.6 % slower (BENCHMARKS.md, twentieth round).
+            for (int g = 0; g < group; ++g) {
+                const Solved last{lp[g], lf[g], ls[g]};
+                out[i + g] = evaluate(xs[i + g], tc[g], kernel, ws, nullptr, nullptr, nullptr,
+                                      nullptr, &last);
+            }
+            i += group;
+            continue;
+        }
+        // The other blocks a pair at a time, vector after vector: each pair's data (its poses,
+        // the whitening) read by every vector of the group while it is in the cache (AVX-512
+        // 1.3 % faster, weighted or not). Each vector's blocks in the same order as evaluate's,
+        // so the same sums.
+        Hexapod h[kMaxGroup];
+        bool have_h[kMaxGroup] = {};
+        alignas(64) double acc[kMaxGroup][W] = {}, bad[W];
+        for (int b = 0; b + 1 < nb; b += 2) {
+            for (int g = 0; g < group; ++g) {
+                kernel.chord2(block_data(b), block_data(b + 1), tc[g], pp, ff, st);
+                for (int k = 0; k < 2; ++k)
+                    block_points(xs[i + g], tc[g], kernel, ws, b + k, pp + 3 * W * k,
+                                 ff + 9 * W * k, st + W * k, h[g], have_h[g], bad, nullptr,
+                                 nullptr, acc[g]);
+            }
+        }
+        for (int g = 0; g < group; ++g) {
+            block_points(xs[i + g], tc[g], kernel, ws, nb - 1, lp[g], lf[g], ls[g], h[g],
+                         have_h[g], bad, nullptr, nullptr, acc[g]);
+            const double* a = acc[g];
+            out[i + g] = ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
         }
         i += group;
     }
+}
+
+IWR_FORCE_INLINE void TrackerObjective::block_points(const double* x, const detail::TrackerConsts& tc,
+                                    const detail::TrackerKernels& kernel, Workspace& ws, int blk,
+                                    double* pp, double* ff, const int* status, Hexapod& h,
+                                    bool& have_h, double* bad, double* t, double* y,
+                                    double* acc) const {
+    constexpr int W = kLanes;
+    const int kp = setup_.n_points(), nj = geometry_.n_joints();
+    const double* data = block_data(blk);
+    int unsolved = 0;  // some lane's status not 0 (rare: look at the lanes only then)
+    bool any_bad = false;
+    for (int l = 0; l < W; ++l) unsolved |= status[l], bad[l] = 0.0;
+    for (int l = 0; l < W && unsolved != 0; ++l) {
+        const int k = blk * W + l;
+        if (status[l] == 0) continue;
+        Vec3 p;
+        Mat3 r;
+        bool solved = false;
+        if (k < n_) {
+            if (!have_h) h = hexapod(x), have_h = true;
+            try {
+                finish(h, k, status[l], p, r);
+                solved = true;
+            } catch (const ForwardKinematicsError&) {
+                bad[l] = 1.0, any_bad = true;
+            }
+        }
+        if (!solved) {  // a failed pose or a padding lane: the reference pose, finite
+            for (int c = 0; c < 3; ++c) p(c) = data[(36 + c) * W + l];
+            for (int e = 0; e < 9; ++e) r(e / 3, e % 3) = data[(39 + e) * W + l];
+        }
+        const Mat3 f = r * joint_frame(tc);  // the kernels' F = R B
+        for (int c = 0; c < 3; ++c) pp[c * W + l] = p(c);
+        for (int e = 0; e < 9; ++e) ff[e * W + l] = f(e / 3, e % 3);
+    }
+    const double* meas = data + (kChordQuantities + 2 * nj) * W;
+    const double* wh = whitened()
+        ? wh_blocks_.data() + static_cast<size_t>(blk) * static_cast<size_t>(wh_stride_)
+        : nullptr;
+    kernel.points(data, tc, pp, ff, meas, meas + 3 * kp * W, bad,
+                  all_seen_[static_cast<size_t>(blk)] != 0 && !any_bad, wh, ws.v.data(), t, y,
+                  acc);
 }
 
 double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& tc,
@@ -470,7 +539,7 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
                                   std::vector<int>* failed, RowMatrixXd* poses,
                                   RowMatrixXd* predicted, const Solved* last) const {
     constexpr int W = kLanes;
-    const int kp = setup_.n_points(), nj = geometry_.n_joints();
+    const int kp = setup_.n_points();
     const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> rt(tc.rt);
     const Eigen::Map<const Vec3> tt(tc.tt);
     Hexapod h;
@@ -496,39 +565,8 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
         double* pp = given ? last->p : pp2 + half * 3 * W;
         double* ff = given ? last->f : ff2 + half * 9 * W;
         const int* status = given ? last->status : status2 + half * W;
-        int unsolved = 0;  // some lane's status not 0 (rare: look at the lanes only then)
-        bool any_bad = false;
-        for (int l = 0; l < W; ++l) unsolved |= status[l], bad[l] = 0.0;
-        for (int l = 0; l < W && unsolved != 0; ++l) {
-            const int k = blk * W + l;
-            if (status[l] == 0) continue;
-            Vec3 p;
-            Mat3 r;
-            bool solved = false;
-            if (k < n_) {
-                if (!have_h) h = hexapod(x), have_h = true;
-                try {
-                    finish(h, k, status[l], p, r);
-                    solved = true;
-                } catch (const ForwardKinematicsError&) {
-                    bad[l] = 1.0, any_bad = true;
-                }
-            }
-            if (!solved) {  // a failed pose or a padding lane: the reference pose, finite
-                for (int c = 0; c < 3; ++c) p(c) = data[(36 + c) * W + l];
-                for (int e = 0; e < 9; ++e) r(e / 3, e % 3) = data[(39 + e) * W + l];
-            }
-            const Mat3 f = r * joint_frame(tc);  // the kernels' F = R B
-            for (int c = 0; c < 3; ++c) pp[c * W + l] = p(c);
-            for (int e = 0; e < 9; ++e) ff[e * W + l] = f(e / 3, e % 3);
-        }
-        const double* meas = data + (kChordQuantities + 2 * nj) * W;
-        const double* wh = whitened()
-            ? wh_blocks_.data() + static_cast<size_t>(blk) * static_cast<size_t>(wh_stride_)
-            : nullptr;
-        kernel.points(data, tc, pp, ff, meas, meas + 3 * kp * W, bad,
-                      all_seen_[static_cast<size_t>(blk)] != 0 && !any_bad, wh, ws.v.data(),
-                      scalar ? t : nullptr, scalar ? y : nullptr, acc);
+        block_points(x, tc, kernel, ws, blk, pp, ff, status, h, have_h, bad, scalar ? t : nullptr,
+                     scalar ? y : nullptr, acc);
         if (!scalar) continue;
         for (int l = 0; l < W && blk * W + l < n_; ++l) {
             const int k = blk * W + l;

@@ -213,6 +213,14 @@ private:
         double* f;  // F = R B (detail::TrackerKernels)
         const int* status;
     };
+    // Block blk of the vector x (constants tc) after its chord (pp, ff, status: a lane that
+    // fell back is finished here, its pose written into pp and ff; h, have_h: the hexapod at x,
+    // made at the first such lane): the points and their squared residuals added to acc (W),
+    // the failed lanes 1 in bad (W); t and y as the kernels' points (may be null).
+    void block_points(const double* x, const detail::TrackerConsts& tc,
+                      const detail::TrackerKernels& kernel, Workspace& ws, int blk, double* pp,
+                      double* ff, const int* status, Hexapod& h, bool& have_h, double* bad,
+                      double* t, double* y, double* acc) const;
     // evaluate() at x with its constants tc (prepare) and the kernels of one variant; the last
     // block's chord from last when not null (cost_rows: only where that block is solved alone,
     // with the other vectors' last blocks).
