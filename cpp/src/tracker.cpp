@@ -438,10 +438,11 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
         alignas(64) double pp[2 * 3 * W], ff[2 * 9 * W];
         int st[2 * W];
         kernel.chord_lanes(blk, lc, group / share, tc[0], pp, ff, st);
-        // Each vector's last block: lanes of block g / share, from lane (g % share) part. With
-        // two vectors to a block they move to lanes 0..part (evaluate may write a padding lane's
-        // pose into its block), and its lanes part.. (padding: they see no point, so their pose
-        // does not matter) take the block's reference P and R for P and F.
+        // Each vector's last block: lanes of block g / share, from lane (g % share) part, copied
+        // (the other blocks' chords below reuse pp, ff and st; block_points may write a padding
+        // lane's pose). With two vectors to a block they move to lanes 0..part, and its lanes
+        // part.. (padding: they see no point, so their pose does not matter) take the block's
+        // reference P and R for P and F.
         alignas(64) double lp[kMaxGroup][3 * W], lf[kMaxGroup][9 * W];
         int ls[kMaxGroup][W];
         for (int g = 0; g < group; ++g) {
@@ -456,7 +457,8 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
         }
         if (!kernel.chord2) {
             // Block by block (AVX2, the baseline): vector after vector, as interleaved (below)
-            // AVX2 ran 0.5-1.6 % slower (BENCHMARKS.md, twentieth round).
+            // they ran slower: AVX2 0.5-0.8 %, the baseline 2-3 % (BENCHMARKS.md, twentieth
+            // round).
             for (int g = 0; g < group; ++g) {
                 const Solved last{lp[g], lf[g], ls[g]};
                 out[i + g] = evaluate(xs[i + g], tc[g], kernel, ws, nullptr, nullptr, nullptr,
@@ -467,7 +469,7 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
         }
         // The other blocks a pair at a time, vector after vector: each pair's data (its poses,
         // the whitening) read by every vector of the group while it is in the cache (AVX-512
-        // 1.3 % faster, weighted or not). Each vector's blocks in the same order as evaluate's,
+        // 2-3 % faster, weighted or not). Each vector's blocks in the same order as evaluate's,
         // so the same sums.
         Hexapod h[kMaxGroup];
         bool have_h[kMaxGroup] = {};

@@ -158,7 +158,9 @@ public:
     /// cost() of each, bit for bit. Where the last block of poses is solved alone (it is not the
     /// second of a pair), the last blocks of up to kMaxGroup vectors are solved together: each
     /// lane computes what it would in its own vector's block, and half-filled blocks (N mod 8 in
-    /// 1..4) share a block two vectors at once (batch_costs and the DE engine call it).
+    /// 1..4) share a block two vectors at once (batch_costs and the DE engine call it). Where the
+    /// variant solves blocks in pairs (AVX-512), such a group's other blocks are then run a pair
+    /// at a time, vector after vector (each pair's data read by the group while it is cached).
     void cost_rows(const double* const* xs, int m, double* out, Workspace& ws) const;
 
     /// Poses whose forward kinematics fails at x, with the solver's message.
@@ -215,15 +217,17 @@ private:
     };
     // Block blk of the vector x (constants tc) after its chord (pp, ff, status: a lane that
     // fell back is finished here, its pose written into pp and ff; h, have_h: the hexapod at x,
-    // made at the first such lane): the points and their squared residuals added to acc (W),
-    // the failed lanes 1 in bad (W); t and y as the kernels' points (may be null).
-    void block_points(const double* x, const detail::TrackerConsts& tc,
+    // made at the first such lane; a padding lane that did not finish gets the block's reference
+    // pose): the points and their squared residuals added to acc (W), the failed lanes 1 in bad
+    // (W); t and y as the kernels' points (may be null). Inline: defined in tracker.cpp, its only
+    // user (evaluate and cost_rows).
+    inline void block_points(const double* x, const detail::TrackerConsts& tc,
                       const detail::TrackerKernels& kernel, Workspace& ws, int blk, double* pp,
                       double* ff, const int* status, Hexapod& h, bool& have_h, double* bad,
                       double* t, double* y, double* acc) const;
     // evaluate() at x with its constants tc (prepare) and the kernels of one variant; the last
-    // block's chord from last when not null (cost_rows: only where that block is solved alone,
-    // with the other vectors' last blocks).
+    // block's chord from last when not null (cost_rows, on the variants that solve one block at
+    // a time: where that block is solved with the other vectors' last blocks).
     double evaluate(const double* x, const detail::TrackerConsts& tc,
                     const detail::TrackerKernels& kernel, Workspace& ws, double* res,
                     std::vector<int>* failed, RowMatrixXd* poses, RowMatrixXd* predicted,
