@@ -70,6 +70,13 @@ void require_rows(const RowMatrixXd& m, Eigen::Index rows, Eigen::Index cols, co
     }
 }
 
+// A vector's cost from its 8 lanes' sums (evaluate, cost_rows), in a fixed order: the same bits
+// whatever the thread, the instruction set or the path that summed the lanes.
+double lane_sum(const double* acc) {
+    static_assert(detail::kBlock == 8, "eight lanes");
+    return ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
+}
+
 }  // namespace
 
 // sin(t)/t, (1 - cos t)/t^2 and (t - sin t)/t^3 at t^2 = t2 (SO(3)'s exponential and its left
@@ -486,8 +493,7 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
         for (int g = 0; g < group; ++g) {
             block_points(xs[i + g], tc[g], kernel, ws, nb - 1, lp[g], lf[g], ls[g], h[g],
                          have_h[g], bad, nullptr, nullptr, acc[g]);
-            const double* a = acc[g];
-            out[i + g] = ((a[0] + a[4]) + (a[1] + a[5])) + ((a[2] + a[6]) + (a[3] + a[7]));
+            out[i + g] = lane_sum(acc[g]);
         }
         i += group;
     }
@@ -604,8 +610,7 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
             }
         }
     }
-    // The lanes' sums in a fixed order: the same bits whatever the thread or the instruction set.
-    return ((acc[0] + acc[4]) + (acc[1] + acc[5])) + ((acc[2] + acc[6]) + (acc[3] + acc[7]));
+    return lane_sum(acc);
 }
 
 void TrackerObjective::check_x(const Eigen::Ref<const VectorXd>& x) const {
