@@ -17,7 +17,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["candidate_order", "ordered_base", "pivoted_columns", "preference"]
+__all__ = ["candidate_order", "left_out_directions", "ordered_base", "pivoted_columns",
+           "preference"]
 
 # The geometric parameters' names (an effect's, such as leg1.compliance, is neither).
 _HEXAPOD = re.compile(r"leg\d+\.(d[ab]_[xyz]|dl0)$")
@@ -113,3 +114,23 @@ def candidate_order(names: Sequence[str], cand: np.ndarray) -> np.ndarray:
     rank_of = np.empty(len(names), dtype=int)
     rank_of[preference(names)] = np.arange(len(names))
     return np.argsort(rank_of[np.asarray(cand, dtype=int)], kind="stable")
+
+
+def left_out_directions(scaled: np.ndarray, physical: np.ndarray, names: Sequence[str],
+                        cand: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
+    """One null direction per left-out parameter: ``(left, basis)``, ``left`` the k indices
+    (sorted) of the parameters left out, ``basis`` (n x k) the null space re-expressed so that
+    direction i moves parameter ``left[i]`` by 1 and the other left-out ones not at all
+    (``basis[left]`` is the identity), in the units of ``physical``.
+
+    ``scaled`` (k x n) spans the null space in the column-scaled metric (rows of the SVD's V^T,
+    or any basis of them), ``physical`` (n x k) the same space in the parameters' units; the
+    left-out parameters are QR's pivots among the candidates ``cand`` (indices, default every
+    parameter: :func:`pivoted_columns`), their ties broken by :func:`preference`. The tracker's
+    gauge, the effects' and the ballbar's null spaces use it alike."""
+    k, n = scaled.shape
+    cand = np.arange(n) if cand is None else np.asarray(cand, dtype=int)
+    left = cand[pivoted_columns(scaled[:, cand], candidate_order(names, cand))]
+    basis = physical @ np.linalg.solve(physical[left], np.eye(k))
+    basis[left] = np.eye(k)
+    return left, basis

@@ -10,7 +10,7 @@ import pytest
 import scipy.linalg
 
 import iwr
-from iwr.base_parameters import candidate_order, pivoted_columns, preference
+from iwr.base_parameters import candidate_order, left_out_directions, pivoted_columns, preference
 
 
 def test_preference_groups_every_geometric_name_and_no_other():
@@ -56,3 +56,30 @@ def test_candidate_order_is_the_preference_among_the_candidates():
     # preference: leg1.da_x, leg2.dl0, tracker.x, joint1.da, joint2.dd -> among cand:
     # leg2.dl0 (position 3), tracker.x (1), joint1.da (0), joint2.dd (2)
     assert list(candidate_order(names, cand)) == [3, 1, 0, 2]
+
+
+def test_left_out_directions_span_the_null_space_one_parameter_each():
+    """For a Jacobian with known null directions (columns made dependent at random): the
+    left-out parameters are SciPy's QR pivots among the candidates, and the basis spans the
+    null space (J basis = 0, rank k) with each direction moving its own left-out parameter by 1
+    and no other left-out one; in the units of ``physical`` (columns scaled back)."""
+    rng = np.random.default_rng(7)
+    names = [f"leg{i + 1}.dl0" for i in range(6)] + ["tracker.x", "tracker.y", "joint1.da",
+                                                      "joint2.dd"]
+    n = len(names)
+    for trial in range(20):
+        k = int(rng.integers(1, 4))
+        jac = rng.standard_normal((30, n - k)) @ rng.standard_normal((n - k, n))
+        d = np.linalg.norm(jac, axis=0) * rng.uniform(0.5, 2.0)  # any column scale
+        _, s, vt = np.linalg.svd(jac / d)
+        scaled = vt[n - k:]
+        physical = scaled.T / d[:, None]
+        cand = None if trial % 2 else np.sort(rng.choice(n, size=k + 3, replace=False))
+        left, basis = left_out_directions(scaled, physical, names, cand)
+        pool = np.arange(n) if cand is None else cand
+        _, _, piv = scipy.linalg.qr(scaled[:, pool], pivoting=True, mode="economic")
+        assert np.array_equal(left, np.sort(pool[piv[:k]]))
+        assert np.allclose(basis[left], np.eye(k), atol=0)
+        assert np.abs(jac @ basis).max() < 1e-9 * np.abs(jac).max() * np.abs(basis).max()
+        assert np.linalg.matrix_rank(basis) == k
+

@@ -534,7 +534,7 @@ def identifiability(robot: Robot, measurements: BallbarMeasurements, x: Any = No
     parameters the data cannot separate from the geometry (:class:`BallbarEffectNullSpace`)."""
     from dataclasses import asdict
 
-    from ..base_parameters import candidate_order, pivoted_columns
+    from ..base_parameters import left_out_directions
 
     problem, start = effect_problem(robot, measurements)
     x = start if x is None else _full(problem, x, "x")
@@ -554,9 +554,7 @@ def identifiability(robot: Robot, measurements: BallbarMeasurements, x: Any = No
         # One left-out parameter per null direction among the held ones (their columns span
         # what the base parameters' do not).
         # QR's pivoting, its ties broken by the fixed preference (iwr.base_parameters).
-        left = cand[pivoted_columns(null[:, cand], candidate_order(names, cand))]
-        basis = basis @ np.linalg.solve(basis[left], np.eye(left.size))
-        basis[left] = np.eye(left.size)
+        left, basis = left_out_directions(null, basis, names, cand)
     ng, ne = robot.n_params, problem.n_effects
     ns = _null_space_type()(s, rank, thr, names, [names[i] for i in left], basis, d)
     return BallbarEffectNullSpace(

@@ -739,7 +739,7 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *,
     calibration job identify) holds them too (``held``: :func:`base_parameters`)."""
     from dataclasses import asdict
 
-    from ..base_parameters import candidate_order, pivoted_columns
+    from ..base_parameters import left_out_directions
     from ..tracker.gauge import null_space
 
     problem, start = effect_tracker_problem(robot, measurements)
@@ -755,9 +755,7 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *,
     if k:
         scaled = (ns.vectors * ns.scale[:, None]).T  # (k, n): in the column-scaled metric
         # QR's pivoting, its ties broken by the fixed preference (iwr.base_parameters).
-        out = cand[pivoted_columns(scaled[:, cand], candidate_order(ns.parameter_names, cand))]
-        basis = ns.vectors @ np.linalg.solve(ns.vectors[out], np.eye(k))
-        basis[out] = np.eye(k)
+        out, basis = left_out_directions(scaled, ns.vectors, ns.parameter_names, cand)
         fields.update(left_out=[ns.parameter_names[i] for i in out], vectors=basis)
     held = [ns.parameter_names[i] for i in cand if ns.parameter_names[i] not in
             fields["left_out"]]

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from ..base_parameters import pivoted_columns, preference
+from ..base_parameters import left_out_directions
 from ..robot import Robot
 from .problem import TrackerProblem
 
@@ -99,7 +99,5 @@ def null_space(problem: TrackerProblem, x: Any = None, rtol: float | None = None
     # (QR with column pivoting), ties between exactly dependent parameters broken by a fixed
     # preference (the carriage's left out before the set-up's, the hexapod's last), not by
     # round-off: the same gauge whatever the instruction set or the objective's last bits.
-    out = pivoted_columns(vt[rank:], preference(names))
-    basis = ns @ np.linalg.solve(ns[out], np.eye(out.size))
-    basis[out] = np.eye(out.size)
+    out, basis = left_out_directions(vt[rank:], ns, names)
     return NullSpace(s, rank, thr, names, [names[i] for i in out], basis, d)
