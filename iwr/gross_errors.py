@@ -352,13 +352,37 @@ def _refit(robot: Any, data: Any, result: Any, noise: Any, options: dict[str, An
                     **kw)
 
 
+#: The efficient estimator's arrays of one row per identification pose (``result["used"]``).
+_PER_POSE = ("used", "corrections", "residuals", "redundancy", "pose_statistic")
+
+
+def _fitted_poses(result: Any, identification: Any, kind: Any) -> Any:
+    """The efficient estimator's identification poses without those its own test left out of
+    the fit (``result["used"]`` False), and its per-pose arrays (:data:`_PER_POSE`, changed in
+    ``result``) cut to them: what the other methods' screen returns, so that the job's cost,
+    residual and accuracy figures are over the poses the result was fitted to whatever the
+    method (with nothing held out the accuracy was once over a 1 mm typo the fit had left out,
+    and ``iwr report`` of the same run, which drops recorded outliers, said otherwise)."""
+    used = result.get("used")
+    if used is None or np.size(used) != len(identification) or np.all(used):
+        return identification
+    rows = np.flatnonzero(np.asarray(used, dtype=bool))
+    for name in _PER_POSE:
+        value = result.get(name)
+        if value is not None and np.ndim(value) >= 1 and len(value) == len(identification):
+            result[name] = np.asarray(value)[rows]
+    return kind.subset(identification, rows)
+
+
 def screen(robot: Any, identification: Any, validation: Any, result: Any, noise: Any = None, *,
            held_out: bool = True, alpha: float = 1e-3, max_outlier_fraction: float = 0.2,
            **options: Any) -> tuple[Any, Any, Any]:
     """Gross errors in a calibration job: ``(result, identification, validation)`` after them.
 
     - The efficient estimator (``result.method == "efficient"``) has tested and snooped its
-      identification poses; only the held-out poses are tested here, with the noise it used.
+      identification poses: those it left out of its fit (``result["used"]``) are left out of
+      the returned set, as the other methods' (its per-pose arrays cut to match: ``used`` is
+      then all True); only the held-out poses are tested here, with the noise it used.
     - Any other method: data snooping with :func:`find_gross_errors` (the chi-square test with
       ``noise``, Pope's test without): while an identification pose fails, the worst (smallest
       p-value) is left out and the parameters re-fitted by
@@ -368,22 +392,27 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
 
     Every failing pose is appended to ``result["outliers"]`` (:class:`iwr.estimation.Outlier`,
     with its data set; ``pose`` is its row in the set given here, ``where`` its line);
-    identification poses left out are out of the returned identification set (the estimator's
-    own: out of its ``result["used"]``), failing held-out poses out of the returned validation set
-    (so the accuracy figures are not those of a typo). More failing identification poses than
-    ``max_outlier_fraction`` is no longer a few gross errors: the fit is then reported as not
-    fitting (``fit_ok`` False), nothing more removed; so with more than that fraction of the
-    held-out poses failing (kept, then). An interrupted result is returned as is.
+    identification poses left out are out of the returned identification set, failing held-out
+    poses out of the returned validation set (so the accuracy figures are not those of a
+    typo). More failing identification poses than ``max_outlier_fraction`` is no longer a few
+    gross errors: the fit is then reported as not fitting (``fit_ok`` False), nothing more
+    removed; so with more than that fraction of the held-out poses failing (kept, then). An
+    interrupted result is returned as is (the efficient estimator's without the poses its last
+    completed solve left out).
     The test's description (:meth:`GrossErrors.describe`) goes to ``result["gross_errors"]``."""
-    if result.interrupted or not np.all(np.isfinite(result.x)):
-        return result, identification, validation
     kind = kinds.of(identification)
     efficient = result.method == "efficient"
+    n = len(identification)
+    if efficient and np.all(np.isfinite(result.x)):  # an interrupted one's last solve too
+        identification = _fitted_poses(result, identification, kind)
+        if not held_out:
+            validation = identification
+    if result.interrupted or not np.all(np.isfinite(result.x)):
+        return result, identification, validation
     if efficient:
         noise = noise if result.noise is None else result.noise
     elif isinstance(noise, str):
         noise = None  # "estimate" without the estimator: no model to test with
-    n = len(identification)
     cap = int(math.floor(max_outlier_fraction * n))
     keep = np.ones(n, dtype=bool)
     removed: list[Any] = []

@@ -103,9 +103,10 @@ class CalibrationReport(Calibration):
 
     def unused_included(self) -> str:
         """``", the 1 pose the fit did not use included"``, or ``""``: the identification set
-        holds poses the result did not use (the efficient estimator tests its own poses and
-        marks the outliers it leaves out in ``result["used"]``; the other methods' screen drops
-        them from the set), and the cost and residual figures of the set include them."""
+        holds poses the result did not use (``result["used"]`` False: the efficient estimator
+        leaves its outliers out of its fit), and the cost and residual figures of the set
+        include them. The job's screen takes such poses out of the set for every method
+        (:func:`iwr.gross_errors.screen`); a calibration assembled otherwise says so here."""
         used = self.result.get("used")
         if used is None or np.size(used) != len(self.identification):
             return ""
