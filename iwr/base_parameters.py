@@ -5,10 +5,10 @@ QR with column pivoting picks the best-conditioned subset, but between columns t
 dependent (equal scaled norms: ``joint1.da`` and ``joint3.dd``, ``tracker.x`` and ``joint1.da``)
 its choice falls to round-off, so it changes with the instruction set, the data's order or the
 last bits of an objective's rounding, and with it the gauge a calibration file is written in.
-Pose data go through the parameters in a fixed order of preference (:func:`ordered_base`,
+Pose data go through the parameters in the order of :func:`preference` (:func:`ordered_base`,
 :func:`iwr.identifiability`'s default); the null directions of tracker, ballbar and effects
-problems keep QR's pivoting but break its ties by a fixed preference (:func:`pivoted_columns`,
-:func:`preference`)."""
+problems keep QR's pivoting but break its ties by the same preference (:func:`pivoted_columns`,
+:func:`left_out_directions`)."""
 
 from __future__ import annotations
 

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from .. import kinds
-from ..base_parameters import ordered_base
+from ..base_parameters import ordered_base, preference
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
@@ -384,13 +384,6 @@ def identifiable_count(robot: Robot) -> int:
     return int(identifiability(robot, data).rank)
 
 
-def _preference(robot: Robot) -> np.ndarray:
-    """Order of preference for keeping a parameter: hexapod (a_i, b_i, l0_i) and whatever
-    follows the robot's own (effects), then joints 1..n."""
-    nc = 4 * robot.n_joints
-    return np.concatenate([np.arange(nc, robot.n_params), np.arange(nc)])
-
-
 def _base_parameters(
     js: np.ndarray, s: np.ndarray, thr: float, rank: int, robot: Robot, selection: str
 ) -> tuple[np.ndarray, np.ndarray]:
@@ -398,7 +391,9 @@ def _base_parameters(
     if selection not in ("ordered", "pivoted"):
         raise ValueError(f"selection: {selection!r}; expected 'ordered' or 'pivoted'")
     if selection == "ordered":
-        chosen = ordered_base(js, s, thr, rank, _preference(robot))
+        # The hexapod's parameters first, the carriage's joints 1..n last: the order every
+        # kind's null directions break their ties by (iwr.base_parameters.preference).
+        chosen = ordered_base(js, s, thr, rank, preference(robot.parameter_names))
         if chosen is not None:
             return chosen
     import scipy.linalg  # here, not at the top: scipy.linalg costs every short command
