@@ -125,12 +125,15 @@ def left_out_directions(scaled: np.ndarray, physical: np.ndarray, names: Sequenc
 
     ``scaled`` (k x n) spans the null space in the column-scaled metric (rows of the SVD's V^T,
     or any basis of them), ``physical`` (n x k) the same space in the parameters' units; the
-    left-out parameters are QR's pivots among the candidates ``cand`` (indices, default every
-    parameter: :func:`pivoted_columns`), their ties broken by :func:`preference`. The tracker's
-    gauge, the effects' and the ballbar's null spaces use it alike."""
-    k, n = scaled.shape
-    cand = np.arange(n) if cand is None else np.asarray(cand, dtype=int)
-    left = cand[pivoted_columns(scaled[:, cand], candidate_order(names, cand))]
+    left-out parameters are QR's pivots among the candidates ``cand`` (sorted indices, default
+    every parameter: :func:`pivoted_columns`), their ties broken by :func:`preference`. The
+    tracker's gauge, the effects' and the ballbar's null spaces use it alike."""
+    k = scaled.shape[0]
+    if cand is None:  # ``scaled`` itself (a column selection would copy it in another layout)
+        left = pivoted_columns(scaled, preference(names))
+    else:
+        cand = np.asarray(cand, dtype=int)
+        left = cand[pivoted_columns(scaled[:, cand], candidate_order(names, cand))]
     basis = physical @ np.linalg.solve(physical[left], np.eye(k))
     basis[left] = np.eye(k)
     return left, basis

@@ -27,7 +27,7 @@ from .analysis.accuracy import Accuracy, accuracy
 from .analysis.identifiability import identifiability, identifiable_count
 from .analysis.uncertainty import Uncertainty, uncertainty
 from .effects import parameter_names as effect_parameter_names
-from .gross_errors import LeftOutError, without_left_out
+from .gross_errors import LeftOutError, cut_to_used, fitted_poses, without_left_out
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
 from .methods import IdentificationResult, identify
@@ -340,17 +340,15 @@ def calibrate(
         except KeyboardInterrupt:
             result = _best_so_far(robot, ident, kind, method, best, options.get("active"),
                                   bounds)
-        # The diagnosis below regresses the residuals of every identification pose, those the
-        # screen leaves out among them: under a missing effect the poses it moves most are the
-        # ones the outlier test fails (tests/test_effects_job.py's thermal data, the efficient
-        # estimator: 10 of 64 poses out; the expansion coefficient 26.3 ppm/K without them, 29.8
-        # with them, 29.2 true), and so it was measured (benchmarks/effects_diagnosis.py).
-        fitted = ident
         # Gross errors in every pose, held-out ones too, with or without a noise model (issue 22):
         # named, and left out of the identification (re-fitted) and of the accuracy. Not on
-        # degenerate data: those are "not calibrated" (below), whatever their residuals say.
+        # degenerate data: those are "not calibrated" (below), whatever their residuals say (the
+        # poses the efficient estimator left out of its fit leave the set all the same).
         if degenerate(robot, ident, report) is not None:
             result["gross_errors"] = "gross errors: not tested (degenerate data)"
+            ident = fitted_poses(result, ident)
+            if not held_out:
+                val = ident
         else:
             before = len(ident)
             result, ident, val = screen_gross_errors(robot, ident, val, result, noise,
@@ -394,7 +392,7 @@ def calibrate(
             truth_accuracy=truth_acc, notes=notes, settings=dict(settings or {"method": method}),
             provenance=provenance, predicted=predicted, start=start,
             sources=dict(sources or {}), kind=kind, problems=problems,
-            diagnosis=_diagnosis(robot, fitted, result, noise, notes))
+            diagnosis=_diagnosis(robot, ident, result, noise, notes))
         cal._settle()
     return cal
 
@@ -525,7 +523,16 @@ def from_result(
     # A pose is found by its content: a held-out pose of a separate validation file is never one
     # of DATA's, and a file with other line numbers (comments, another layout) is the same data.
     # Held-out poses may have come from a separate file: not required to be in DATA.
+    n_given = len(data)
     data, gone = without_left_out(data, result, ("identification",))
+    used = result.get("used")
+    if (used is not None and len(data) < n_given and np.size(used) == n_given
+            and np.count_nonzero(used) == len(data)):
+        # The efficient estimator's result on DATA (iwr.identify, not a job's): its per-pose
+        # arrays cut to the poses left, as the job's screen cuts them (its check of them refused
+        # the longer `used`).
+        result = IdentificationResult(**dict(result))
+        cut_to_used(result)
     if validation is None:
         data, gone_val = without_left_out(data, result, ("validation",), required=False)
     else:

@@ -60,7 +60,8 @@ from .misclosures import Misclosures
 from .noise import MIN_SIGMA
 from .result import FitTest, Outlier, pose_key, pose_keys, source_line
 
-__all__ = ["GrossErrors", "Misclosures", "NoRedundancy", "find_gross_errors", "screen"]
+__all__ = ["GrossErrors", "Misclosures", "NoRedundancy", "cut_to_used", "find_gross_errors",
+           "fitted_poses", "screen"]
 
 
 class NoRedundancy(ValueError):
@@ -356,22 +357,32 @@ def _refit(robot: Any, data: Any, result: Any, noise: Any, options: dict[str, An
 _PER_POSE = ("used", "corrections", "residuals", "redundancy", "pose_statistic")
 
 
-def _fitted_poses(result: Any, identification: Any, kind: Any) -> Any:
-    """The efficient estimator's identification poses without those its own test left out of
-    the fit (``result["used"]`` False), and its per-pose arrays (:data:`_PER_POSE`, changed in
-    ``result``) cut to them: what the other methods' screen returns, so that the job's cost,
-    residual and accuracy figures are over the poses the result was fitted to whatever the
-    method (with nothing held out the accuracy was once over a 1 mm typo the fit had left out,
-    and ``iwr report`` of the same run, which drops recorded outliers, said otherwise)."""
+def cut_to_used(result: Any) -> None:
+    """``result``'s per-pose arrays (:data:`_PER_POSE`) cut to the rows ``result["used"]`` holds
+    (``used`` then all True), in place."""
+    used = np.asarray(result["used"], dtype=bool)
+    rows = np.flatnonzero(used)
+    for name in _PER_POSE:
+        value = result.get(name)
+        if value is not None and np.ndim(value) >= 1 and len(value) == used.size:
+            result[name] = np.asarray(value)[rows]
+
+
+def fitted_poses(result: Any, identification: Any) -> Any:
+    """The identification poses ``result`` was fitted to: without those the efficient
+    estimator's own test left out of its fit (``result["used"]`` False), its per-pose arrays
+    (``used``, ``corrections``, ``residuals``, ``redundancy``, ``pose_statistic``) cut to them in
+    ``result``; ``identification`` itself for any other result. What the other methods' screen
+    returns, so that a job's cost, residual, accuracy and diagnosis figures are over the poses
+    fitted whatever the method (with nothing held out the accuracy was once over a 1 mm typo the
+    fit had left out, and ``iwr report`` of the same run, which drops recorded outliers, said
+    otherwise)."""
     used = result.get("used")
     if used is None or np.size(used) != len(identification) or np.all(used):
         return identification
     rows = np.flatnonzero(np.asarray(used, dtype=bool))
-    for name in _PER_POSE:
-        value = result.get(name)
-        if value is not None and np.ndim(value) >= 1 and len(value) == len(identification):
-            result[name] = np.asarray(value)[rows]
-    return kind.subset(identification, rows)
+    cut_to_used(result)
+    return kinds.of(identification).subset(identification, rows)
 
 
 def screen(robot: Any, identification: Any, validation: Any, result: Any, noise: Any = None, *,
@@ -404,7 +415,7 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
     efficient = result.method == "efficient"
     n = len(identification)
     if efficient and np.all(np.isfinite(result.x)):  # an interrupted one's last solve too
-        identification = _fitted_poses(result, identification, kind)
+        identification = fitted_poses(result, identification)
         if not held_out:
             validation = identification
     if result.interrupted or not np.all(np.isfinite(result.x)):

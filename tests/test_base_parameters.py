@@ -82,4 +82,19 @@ def test_left_out_directions_span_the_null_space_one_parameter_each():
         assert np.allclose(basis[left], np.eye(k), atol=0)
         assert np.abs(jac @ basis).max() < 1e-9 * np.abs(jac).max() * np.abs(basis).max()
         assert np.linalg.matrix_rank(basis) == k
+    # An exact tie (two equal columns: equal scaled norms in the null direction): the parameter
+    # later in the preference is left out, whichever column it is, with or without candidates.
+    rank_of = list(preference(names))
+    for first, second in ((8, 6), (6, 8), (0, 9)):
+        jac = rng.standard_normal((30, n))
+        jac[:, second] = jac[:, first]
+        d = np.linalg.norm(jac, axis=0)
+        _, s, vt = np.linalg.svd(jac / d)
+        scaled, physical = vt[n - 1:], vt[n - 1:].T / d[:, None]
+        loser = max(first, second, key=rank_of.index)
+        for cand in (None, np.array(sorted({first, second, 2}))):
+            left, basis = left_out_directions(scaled, physical, names, cand)
+            assert list(left) == [loser], (first, second, cand, left)
+            assert basis[loser, 0] == 1.0
+            assert basis[first + second - loser, 0] == pytest.approx(-1.0, abs=1e-12)
 

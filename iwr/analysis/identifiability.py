@@ -334,7 +334,7 @@ def pose_identifiability(robot: Robot, measurements: Measurements, x: Any = None
     rank = int(np.sum(s > thr))
     names = robot.parameter_names
 
-    base, out = _base_parameters(jac / d, s, thr, rank, robot, selection)
+    base, out = _base_parameters(jac / d, s, thr, rank, names, selection)
 
     # Null space in scaled coordinates, then back to physical units; then the "echelon" basis:
     # one direction per left-out parameter, coefficient 1 there and 0 on the other left-out ones.
@@ -385,15 +385,16 @@ def identifiable_count(robot: Robot) -> int:
 
 
 def _base_parameters(
-    js: np.ndarray, s: np.ndarray, thr: float, rank: int, robot: Robot, selection: str
+    js: np.ndarray, s: np.ndarray, thr: float, rank: int, names: list[str], selection: str
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Indices of the base parameters and of those left out (both sorted)."""
+    """Indices of the base parameters and of those left out (both sorted); ``names``: the
+    parameters of the columns of ``js``."""
     if selection not in ("ordered", "pivoted"):
         raise ValueError(f"selection: {selection!r}; expected 'ordered' or 'pivoted'")
     if selection == "ordered":
         # The hexapod's parameters first, the carriage's joints 1..n last: the order every
         # kind's null directions break their ties by (iwr.base_parameters.preference).
-        chosen = ordered_base(js, s, thr, rank, preference(robot.parameter_names))
+        chosen = ordered_base(js, s, thr, rank, preference(names))
         if chosen is not None:
             return chosen
     import scipy.linalg  # here, not at the top: scipy.linalg costs every short command

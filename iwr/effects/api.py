@@ -310,9 +310,8 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *, rtol: float
         _, s_i, _ = _scaled_svd(np.delete(jac, ng + i, axis=1))
         if int(np.sum(s_i > thr)) == rank:
             inseparable.append((names[ng + i], float(v)))
-    # The ordered rule of iwr.identifiability with the effects' parameters after the hexapod's.
-    shim = types.SimpleNamespace(n_joints=robot.n_joints, n_params=len(names))
-    base, _ = _base_parameters(jac / d, s, thr, rank, shim, "ordered")
+    # The ordered rule of iwr.identifiability (the effects' parameters after the hexapod's).
+    base, _ = _base_parameters(jac / d, s, thr, rank, names, "ordered")
     active = np.zeros(len(names), dtype=bool)
     active[base] = True
     return EffectIdentifiability(names, s, rank, int(np.sum(sg > thr_g)), thr, null / d[:, None],

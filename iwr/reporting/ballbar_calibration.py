@@ -208,7 +208,7 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         lines = [
             f"robot {self.robot.name!r}{_src(self.robot_name)}; ballbar data{_src(self.data_name)}"
             f": {len(self.identification)} poses for identification in "
-            f"{self.setup.n_setups} set-up(s), "
+            f"{self.setup.n_setups} set-up(s){self.left_out_text()}, "
             + (f"{len(self.validation)} held out" if self.held_out else "none held out"),
             self._method_text(),
             f"cost (sum of squared distance residuals, mm^2, {len(self.identification)} poses): "

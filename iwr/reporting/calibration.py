@@ -115,6 +115,15 @@ class CalibrationReport(Calibration):
             return ""
         return f", the {k} pose{'s' if k > 1 else ''} the fit did not use included"
 
+    def left_out_text(self) -> str:
+        """``" (1 more left out as a gross error)"``, or ``""``: the identification poses the
+        gross-error screen left out of the fit (``result.left_out``), which the identification
+        count beside it does not include."""
+        k = sum(1 for o in self.result.left_out if o.data_set == "identification")
+        if k == 0:
+            return ""
+        return f" ({k} more left out as gross error{'s' if k > 1 else ''})"
+
     def residuals(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
         """Per-leg residual statistics, ``[set][nominal|calibrated]``."""
         sets = {"identification": self.identification}
@@ -377,7 +386,7 @@ class CalibrationReport(Calibration):
             f"robot {self.robot.name!r} ({self.robot.joint_types or 'hexapod alone'}, "
             f"{self.robot.n_params} error parameters){_src(self.robot_name)}; "
             f"data{_src(self.data_name)}",
-            f"poses: {n_id} for identification, "
+            f"poses: {n_id} for identification{self.left_out_text()}, "
             + (f"{n_val} held out for validation" if self.held_out else
                "none held out (accuracy below is on the identification poses: optimistic)"),
             f"method {r.get('method', '?')}: {int(r.nfev)} evaluations, "
@@ -635,7 +644,7 @@ class CalibrationReport(Calibration):
         page = Page("Calibration report")
         page.paragraph(
             f"Robot {self.robot.name}{_src(self.robot_name)}, data{_src(self.data_name)}: "
-            f"{len(self.identification)} poses for identification, "
+            f"{len(self.identification)} poses for identification{self.left_out_text()}, "
             + (f"{len(self.validation)} held out for validation." if self.held_out else
                "none held out."), "muted")
         page.heading("Summary")
@@ -807,7 +816,8 @@ class CalibrationReport(Calibration):
             "",
             f"- Robot: `{self.robot.name}`{_src(self.robot_name)}, joints "
             f"`{self.robot.joint_types or '-'}`, {self.robot.n_params} error parameters",
-            f"- Data{_src(self.data_name)}: {len(self.identification)} poses for identification, "
+            f"- Data{_src(self.data_name)}: {len(self.identification)} poses for identification"
+            f"{self.left_out_text()}, "
             + (f"{len(self.validation)} held out for validation" if self.held_out
                else "none held out (accuracy is on the identification poses: optimistic)"),
             f"- Method: `{r.get('method', '?')}`, {int(r.nfev)} evaluations, "

@@ -419,7 +419,8 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
               f"- Robot: `{self.robot.name}`{_src(self.robot_name)}",
               f"- Data{_src(self.data_name)}"
               + (f" + readings{_src(self.readings_name)}" if self.readings_name else "")
-              + f": {self.setup.kind}, {len(self.identification)} poses for identification, "
+              + f": {self.setup.kind}, {len(self.identification)} poses for identification"
+              + f"{self.left_out_text()}, "
               + (f"{len(self.validation)} held out" if self.held_out else "none held out")
               + "; " + self.hidden_text(),
               f"- Method: `{r.get('method', '?')}`, {int(r.nfev)} evaluations, "
