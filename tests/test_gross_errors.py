@@ -429,6 +429,15 @@ def test_the_job_on_probe_data_with_a_noise_model_finds_a_gross_error():
     assert "did not use included" not in render(cal).summary()
 
 
+def _leg_typo():
+    """The robot and 40 poses of pose data with realistic noise, leg 3 of pose 5 1 mm off."""
+    robot = _robot("pose")
+    data, _ = iwr.simulate(robot, 40, seed=11, noise=REAL)
+    legs = np.array(data.legs, dtype=float)
+    legs[5, 2] += 1.0
+    return robot, _rebuild(data, legs=legs)
+
+
 @pytest.mark.parametrize("held_out", [True, False])
 @pytest.mark.parametrize("method", ["efficient", "lm"])
 def test_every_method_leaves_its_outlier_out_of_the_figures(method, held_out):
@@ -438,11 +447,7 @@ def test_every_method_leaves_its_outlier_out_of_the_figures(method, held_out):
     (``result["used"]``); the job once kept it in the set, so that with nothing held out the
     accuracy it reported was over the typo (max 1.07 mm where LM's was 0.06 mm, 60 poses), and
     ``iwr report`` of the same run (which drops the recorded outliers) said otherwise."""
-    robot = _robot("pose")
-    data, _ = iwr.simulate(robot, 40, seed=11, noise=REAL)
-    legs = np.array(data.legs, dtype=float)
-    legs[5, 2] += 1.0
-    bad = _rebuild(data, legs=legs)
+    robot, bad = _leg_typo()
     cal = iwr.calibrate(robot, bad, method, noise=REAL if method == "efficient" else None,
                         seed=3, validation_fraction=0.2 if held_out else 0.0)
     removed = [o for o in cal.result.outliers if o.removed]
@@ -506,11 +511,7 @@ def test_the_report_of_an_estimators_result_on_its_data():
     """``from_result`` of the efficient estimator's result on the data it identified (not a
     job's): the recorded outlier is dropped from the data and the result's per-pose arrays are
     cut alike (it refused the result: ``used: shape (40,); expected (39,)``)."""
-    robot = _robot("pose")
-    data, _ = iwr.simulate(robot, 40, seed=11, noise=REAL)
-    legs = np.array(data.legs, dtype=float)
-    legs[5, 2] += 1.0
-    bad = _rebuild(data, legs=legs)
+    robot, bad = _leg_typo()
     res = iwr.identify(robot, bad, "efficient", noise=REAL, progress=False)
     assert not res.used[5] and res.used.size == 40
     cal = iwr.calibration.from_result(robot, bad, res)
@@ -524,11 +525,7 @@ def test_an_interrupted_efficient_run_leaves_out_what_its_last_solve_left_out():
     """screen on an interrupted result of the efficient estimator (Ctrl-C after a solve that
     left a pose out): nothing re-tested, but the identification set and the per-pose arrays
     are those of the poses the last completed solve used, as a finished run's."""
-    robot = _robot("pose")
-    data, _ = iwr.simulate(robot, 40, seed=11, noise=REAL)
-    legs = np.array(data.legs, dtype=float)
-    legs[5, 2] += 1.0
-    bad = _rebuild(data, legs=legs)
+    robot, bad = _leg_typo()
     res = iwr.identify(robot, bad, "efficient", noise=REAL, progress=False)
     assert not res.used[5] and res.used.sum() == 39
     res["status"] = "interrupted"
