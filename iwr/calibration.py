@@ -344,18 +344,18 @@ def calibrate(
         # named, and left out of the identification (re-fitted) and of the accuracy. Not on
         # degenerate data: those are "not calibrated" (below), whatever their residuals say (the
         # poses the efficient estimator left out of its fit leave the set all the same).
+        before = len(ident)
         if degenerate(robot, ident, report) is not None:
             result["gross_errors"] = "gross errors: not tested (degenerate data)"
             ident = fitted_poses(result, ident)
             if not held_out:
                 val = ident
         else:
-            before = len(ident)
             result, ident, val = screen_gross_errors(robot, ident, val, result, noise,
                                                      held_out=held_out, bounds=bounds)
-            if len(ident) != before:
-                # The report describes the poses the result was identified from.
-                report = identifiability(robot, ident)
+        if len(ident) != before:
+            # The report describes the poses the result was identified from.
+            report = identifiability(robot, ident)
         # What `iwr report` checks its data against: the whole data set's fingerprint, as the
         # engine's problem file records it.
         # And its robot file against the model of the robot identified for (the fingerprint

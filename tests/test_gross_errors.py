@@ -521,6 +521,28 @@ def test_the_report_of_an_estimators_result_on_its_data():
     assert cal.accuracy.calibrated.summary()["position_mm"]["max"] < 0.2
 
 
+def test_degenerate_data_lose_the_estimators_outlier_too():
+    """Data that cannot identify the robot (8 distinct poses, each measured 5 times with its own
+    leg noise) are not screened ("not calibrated"), but the pose the efficient estimator left
+    out of its own fit leaves the identification set all the same, and the identifiability
+    report is over the poses left."""
+    from iwr.measurements import Measurements
+
+    robot = _robot("pose")
+    d8, _ = iwr.simulate(robot, 8, seed=3, noise=REAL)
+    rows = np.repeat(np.arange(8), 5)
+    legs = np.array(d8.legs, dtype=float)[rows]
+    legs += np.random.default_rng(1).normal(0, 0.002, legs.shape)
+    legs[7, 1] += 1.0
+    bad = Measurements(np.array(d8.q)[rows], np.array(d8.poses)[rows], legs,
+                       joint_types=robot.joint_types)
+    cal = iwr.calibrate(robot, bad, "efficient", noise=REAL, validation_fraction=0.0, seed=1)
+    assert cal.degenerate() is not None and cal.result.status == "not calibrated"
+    assert [o.pose for o in cal.result.left_out] == [7]
+    assert len(cal.identification) == 39 and cal.result.used.size == 39
+    assert cal.validation is cal.identification and cal.identifiability.n_poses == 39
+
+
 def test_an_interrupted_efficient_run_leaves_out_what_its_last_solve_left_out():
     """screen on an interrupted result of the efficient estimator (Ctrl-C after a solve that
     left a pose out): nothing re-tested, but the identification set and the per-pose arrays
