@@ -116,7 +116,7 @@ class CalibrationReport(Calibration):
         return f", the {k} pose{'s' if k > 1 else ''} the fit did not use included"
 
     def left_out_text(self) -> str:
-        """``" (1 more left out as a gross error)"``, or ``""``: the identification poses the
+        """``" (1 more left out as gross error)"``, or ``""``: the identification poses the
         gross-error screen left out of the fit (``result.left_out``), which the identification
         count beside it does not include."""
         k = sum(1 for o in self.result.left_out if o.data_set == "identification")
