@@ -167,6 +167,8 @@ def test_calibration_and_report_pages_open_cleanly(kind: Any, tmp_path: Path) ->
     assert 'class="verdict good"' in page and iwr.__version__ in page
     for text in says:
         assert text in page, text
+    # The settings' seed says what it seeds (the example's data have a seed of their own).
+    assert "<td>seed (validation split and stochastic methods)</td>" in page
     if name != "pose":  # every parameter held by active="base" is held on a null direction
         assert "held fixed" not in page and page.count("held (null direction") == 16
     if name == "probe":  # a probe's pose is seen whole or not: counted as poses, not points

@@ -30,6 +30,11 @@ OUTPUT_FILES = ("calibrated.toml", "result.json", "accuracy.json", "summary.json
                 "residuals.png", "accuracy.png", "report.md", "report.html")
 
 
+#: The settings table's label of a setting whose name alone is ambiguous (``summary.json`` keeps
+#: the name).
+_SETTING_LABELS = {"seed": "seed (validation split and stochastic methods)"}
+
+
 def leg_residual_stats(robot: Robot, errors: Any, data: Measurements) -> dict[str, np.ndarray]:
     """Per-leg statistics of the unweighted residuals ``predicted - measured`` (mm).
 
@@ -456,8 +461,8 @@ class CalibrationReport(Calibration):
             return []
         n = _n_all(self.robot)
         lines = [
-            f"identifiability (iwr.identifiability at the start, {rep.n_poses} poses): rank "
-            f"{rep.rank} of {n}, condition number {rep.condition_number:.4g} (column-scaled "
+            f"identifiability at the starting point (iwr.identifiability, {rep.n_poses} poses): "
+            f"rank {rep.rank} of {n}, condition number {rep.condition_number:.4g} (column-scaled "
             "Jacobian)"
         ]
         rows = self.parameter_rows()
@@ -776,7 +781,8 @@ class CalibrationReport(Calibration):
     def _html_tail(self, page: Page, files: list[str]) -> Page:
         """The end of the HTML report: settings, notes, the files written, provenance."""
         page.heading("Settings")
-        page.table((["setting", "value"], [[k, str(v)] for k, v in self.settings.items()]
+        page.table((["setting", "value"], [[_SETTING_LABELS.get(k, k), str(v)]
+                                           for k, v in self.settings.items()]
                     + [["result", str(self.result.message).strip()]]), "left")
         if self.notes:
             page.heading("Notes").items([n.strip() for n in self.notes])
