@@ -30,8 +30,9 @@ if TYPE_CHECKING:  # scipy.optimize's OptimizeResult: not for `import iwr`
     from .result import IdentificationResult
 
 __all__ = ["CALIBRATION_STATUSES", "FRAMES", "CalibrationStatusError", "FrameError",
-           "LegCommands", "TargetError", "calibration_status", "check_calibration",
-           "determined_frame", "leg_commands"]
+           "LegCommands", "NominalMismatchError", "TargetError", "calibration_status",
+           "check_calibration", "check_nominal", "determined_frame", "implied_errors",
+           "leg_commands"]
 
 #: What ``[provenance] status`` of a calibration file can say; only ``success`` is used without
 #: being told to (``allow_unverified``).
@@ -111,6 +112,69 @@ def check_calibration(robot: Robot, *, allow_unverified: bool = False,
             "calibration (its report says why), or use it anyway with --allow-unverified "
             "(allow_unverified=True in Python)")
     return f"warning: {where} {what}; used because --allow-unverified was given"
+
+
+class NominalMismatchError(ValueError):
+    """The robot given as a calibration's nominal model is not one it can be relative to."""
+
+
+#: How far (times the default bounds' half-widths, as the fit test's size check) a calibrated
+#: robot's geometry may sit from the nominal robot it is compared with.
+NOMINAL_PLAUSIBLE = 10.0
+
+
+def implied_errors(nominal: Robot, calibrated: Robot) -> np.ndarray:
+    """The error vector ``x`` with ``nominal.with_errors(x)`` of ``calibrated``'s geometry (the
+    same joint types)."""
+    if nominal.joint_types != calibrated.joint_types:
+        raise NominalMismatchError(f"joints {nominal.joint_types!r} and "
+                                   f"{calibrated.joint_types!r}: not the same robot")
+    return np.concatenate([
+        (calibrated.dh - nominal.dh).ravel(),
+        (calibrated.base_joints - nominal.base_joints).ravel(),
+        (calibrated.platform_joints - nominal.platform_joints).ravel(),
+        calibrated.leg_offsets - nominal.leg_offsets])
+
+
+def check_nominal(calibrated: Robot, nominal: Robot, *, where: str = "calibrated",
+                  nominal_where: str = "nominal") -> str:
+    """Check that ``nominal`` can be the model a calibration's corrections are relative to.
+
+    Returns a note ("" when there is nothing to say). Raises :class:`NominalMismatchError` when
+    ``nominal`` is another robot (its geometry differs from the calibrated one by more than
+    :data:`NOMINAL_PLAUSIBLE` times the default bounds in some parameter: no calibration moves
+    a parameter that far) or the calibrated robot itself (the same geometry, while the
+    calibration records another nominal: every correction would be zero). A calibration file
+    records the fingerprint of its nominal geometry (``[provenance] nominal_geometry``); a
+    plausible nominal that is not that one (the controller's own model, say) gives a note.
+    """
+    x = implied_errors(nominal, calibrated)
+    prov = calibrated.provenance
+    recorded = prov.get("nominal_geometry")
+    from .robot_fingerprint import geometry_fingerprint
+
+    if recorded is not None and recorded == geometry_fingerprint(nominal):
+        return ""
+    made_from = f" ({where} was calibrated from {prov['robot']})" if prov.get("robot") else ""
+    limit = NOMINAL_PLAUSIBLE * nominal.default_bounds("default")[1]
+    ratio = np.abs(x) / limit
+    worst = int(np.argmax(ratio))
+    if ratio[worst] > 1.0:
+        name = nominal.parameter_names[worst]
+        unit = "rad" if nominal.angle_parameters[worst] else "mm"
+        raise NominalMismatchError(
+            f"{nominal_where} is not the nominal robot of {where}{made_from}: "
+            f"{name} differs by {x[worst]:.6g} {unit} between them, more than "
+            f"{limit[worst]:.3g} {unit} ({NOMINAL_PLAUSIBLE:g} times the default bounds), which "
+            "no calibration moves")
+    if not np.any(x) and prov.get("method") is not None and recorded is not None:
+        raise NominalMismatchError(
+            f"{nominal_where} has the geometry of {where} itself, not of the nominal robot it "
+            f"was calibrated from{made_from}: every correction would be zero")
+    if recorded is None:
+        return ""
+    return (f"note: {nominal_where} is not the robot file {where} was calibrated from"
+            f"{made_from}: the corrections are relative to {nominal_where}'s geometry")
 
 
 def determined_frame(robot: Robot) -> str | None:

@@ -101,6 +101,13 @@ def fingerprint(robot: Any) -> str:
     return _digest(model(robot))
 
 
+def geometry_fingerprint(robot: Any) -> str:
+    """16 hex digits: the fingerprint of ``robot``'s nominal geometry alone (the ``geometry``
+    section): what a calibration file records of the robot its errors are relative to
+    (``[provenance] nominal_geometry``), for ``iwr export --nominal``'s check."""
+    return _digest(model(robot)["geometry"])
+
+
 def record(robot: Any) -> dict[str, Any]:
     """What a run records of its robot (the settings' ``robot_model``): the fingerprint, each
     section's, and the model itself (for :func:`differences`' message)."""

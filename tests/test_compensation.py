@@ -155,6 +155,13 @@ def test_tracker_targets_in_the_tracker_frame_give_the_true_robots_legs(tracker_
     cal = iwr.Robot.from_toml(d / "cal" / "calibrated.toml")
     assert cal.provenance["status"] == "success"
     assert cal.provenance["platform_frame"] == "reflectors"
+    # It records the nominal geometry its errors are relative to (iwr export --nominal's check).
+    from iwr.compensation import check_nominal
+    from iwr.robot_fingerprint import geometry_fingerprint
+
+    nominal = iwr.Robot.from_toml(d / "robot.toml")
+    assert cal.provenance["nominal_geometry"] == geometry_fingerprint(nominal)
+    assert check_nominal(cal, nominal) == ""
     proc = run("legs", str(d / "cal" / "calibrated.toml"), str(d / "targets.csv"), "-o",
                str(tmp_path / "legs.csv"))
     assert proc.returncode == 0, proc.stdout + proc.stderr

@@ -194,6 +194,52 @@ def test_cli_export_refuses_a_nominal_of_another_robot(tmp_path, capsys):
                  str(tmp_path / "e")]) == 2
 
 
+def test_cli_export_refuses_a_nominal_the_calibration_is_not_relative_to(calibrated, tmp_path,
+                                                                         capsys):
+    """A leg-correction table against the wrong nominal robot is a wrong command for every
+    pose: a nominal with one leg offset 50 mm off (another robot of the same joints) gave
+    corrections of 50 mm, and the calibrated robot itself given as its own nominal gave zeros.
+    Both are refused, naming what differs; the nominal the calibration records passes, and a
+    nominal within a calibration's reach of it (the controller's own model) gets a note."""
+    from iwr.compensation import NominalMismatchError
+    from iwr.export.hexapod import leg_corrections_csv
+    from iwr.robot_fingerprint import geometry_fingerprint
+
+    nominal, _, cal = calibrated
+    nominal.to_toml(tmp_path / "robot.toml")
+    cal.to_toml(tmp_path / "calibrated.toml", provenance={
+        "status": "success", "method": "lm", "robot": "robot.toml",
+        "nominal_geometry": geometry_fingerprint(nominal)})
+    other = iwr.Robot.default()
+    other.leg_offsets[0] += 50.0
+    other.to_toml(tmp_path / "other.toml")
+    near = iwr.Robot.default()
+    near.leg_offsets[2] += 0.2
+    near.to_toml(tmp_path / "near.toml")
+
+    def export(nom: str) -> tuple[int, str, str]:
+        code = main(["export", str(tmp_path / "calibrated.toml"), "--nominal",
+                     str(tmp_path / nom), "-o", str(tmp_path / nom.replace(".", "_")),
+                     "--grid", "2"])
+        said = capsys.readouterr()
+        return code, said.out, said.err
+
+    code, _, err = export("other.toml")
+    assert code == 2 and "not the nominal robot of" in err and "leg1.dl0 differs by" in err
+    assert "calibrated from robot.toml" in err
+    assert not (tmp_path / "other_toml").exists()  # refused before anything is written
+    code, _, err = export("calibrated.toml")
+    assert code == 2 and "every correction would be zero" in err
+    code, out, _ = export("robot.toml")
+    assert code == 0 and "note:" not in out
+    code, out, _ = export("near.toml")
+    assert code == 0 and "is not the robot file" in out
+    # The library's table refuses too.
+    loaded = iwr.Robot.from_toml(tmp_path / "calibrated.toml")
+    with pytest.raises(NominalMismatchError, match=r"leg1\.dl0 differs by -(49|50)\.\d+ mm"):
+        leg_corrections_csv(loaded, iwr.Robot.from_toml(tmp_path / "other.toml"), 2)
+
+
 def test_a_robot_with_effects_exports_them_and_says_what_holds_the_geometry_only(
         calibrated, tmp_path, capsys):
     """The effects are not dropped silently: hexapod.json records them, and the command says

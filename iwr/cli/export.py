@@ -61,7 +61,9 @@ def cmd_export(args: argparse.Namespace) -> int:
                          f"({args.grid}^6 poses is too large a table)", "iwr export")
     from ..compensation import (
         CalibrationStatusError,
+        NominalMismatchError,
         check_calibration,
+        check_nominal,
         determined_frame,
         gauge_note,
     )
@@ -77,6 +79,13 @@ def cmd_export(args: argparse.Namespace) -> int:
         raise UsageError(f"--nominal {args.nominal}: joints {nominal.joint_types!r}, but "
                          f"{args.robot} has {robot.joint_types!r}: not the same robot",
                          "iwr export")
+    nominal_note = ""
+    if nominal is not None:
+        try:
+            nominal_note = check_nominal(robot, nominal, where=str(args.robot),
+                                         nominal_where=f"--nominal {args.nominal}")
+        except NominalMismatchError as exc:
+            raise UsageError(str(exc), "iwr export") from None
     out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     written = []
@@ -100,8 +109,9 @@ def cmd_export(args: argparse.Namespace) -> int:
     print(f"wrote {out}/:")
     for line in written:
         print(f"  {line}")
-    if note:
-        print(note)
+    for line in (note, nominal_note):
+        if line:
+            print(line)
     if determined_frame(robot) is None:  # a ballbar's calibration: {0} and {5} nominal
         print(f"note: {gauge_note(robot, str(args.robot))}")
     if robot.effects:

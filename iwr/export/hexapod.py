@@ -156,7 +156,13 @@ def leg_correction_table(calibrated: Robot, nominal: Robot, n_per_axis: int = 3
 
 def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
                         source: str | None = None, nominal_source: str | None = None) -> str:
-    """The text of the leg-correction table (CSV with ``#`` comments stating the frame)."""
+    """The text of the leg-correction table (CSV with ``#`` comments stating the frame).
+    Raises :class:`iwr.compensation.NominalMismatchError` for a ``nominal`` that is not a model
+    the calibration can be relative to (:func:`iwr.compensation.check_nominal`)."""
+    from ..compensation import check_nominal
+
+    check_nominal(calibrated, nominal, where=source or "calibrated",
+                  nominal_where=nominal_source or "nominal")
     poses, s_nom, s_cal = leg_correction_table(calibrated, nominal, n_per_axis)
     lo, hi = calibrated.leg_stroke[:, 0], calibrated.leg_stroke[:, 1]
     inside = np.all((s_cal >= lo) & (s_cal <= hi), axis=1)

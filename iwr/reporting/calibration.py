@@ -552,6 +552,7 @@ class CalibrationReport(Calibration):
         :data:`iwr.compensation.CALIBRATION_STATUSES`; ``iwr legs`` refuses any but
         ``success``), how it was made, and from what."""
         from ..compensation import calibration_status
+        from ..robot_fingerprint import geometry_fingerprint
 
         r = self.result
         fit = r.fit
@@ -561,6 +562,8 @@ class CalibrationReport(Calibration):
             "fit_test": ("not run" if fit is None else "passed" if fit.fit_ok else "failed"),
             "method": str(r.method),
             "robot": self.robot_name,
+            # the nominal geometry the errors are relative to (iwr export --nominal checks it)
+            "nominal_geometry": geometry_fingerprint(self.robot),
             "data": self.data_name,
             "cost_mm2": self.costs()["calibrated"],
         }
