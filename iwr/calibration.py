@@ -91,6 +91,9 @@ class Calibration:
         A robot without effects on data with payload or temperature columns: whether the
         residuals correlate with the leg forces or the temperatures, and the effect to switch
         on (:func:`iwr.effects.job.diagnose`; issue 23).
+    weightless : int
+        The poses of the data left out before anything else because every reading of theirs
+        has weight 0 (:func:`iwr.kinds.without_weightless`): in no set, no figure.
     """
 
     robot: Any
@@ -113,6 +116,7 @@ class Calibration:
     sources: dict[str, str] = field(default_factory=dict)
     kind: Any = None
     diagnosis: Any = None
+    weightless: int = 0
     problems: dict[Any, Any] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -300,6 +304,12 @@ def calibrate(
     if parameters not in ("base", "all"):
         raise ValueError(f"parameters: {parameters!r}; expected 'base' or 'all'")
     say = log or _quiet
+    notes: list[str] = []
+    # Poses with weight 0 for every reading count in no figure, before the split.
+    given = data
+    data, weightless = kinds.without_weightless(data)
+    if validation is not None:
+        validation = _validation_weighted(validation, notes)
     if validation is not None:
         if kinds.of(validation) is not kind:
             raise TypeError(f"validation: {kinds.of(validation).name} data, but data are "
@@ -321,7 +331,6 @@ def calibrate(
     if method is None:
         method = "efficient" if noise is not None else "lm"
     problems: dict[Any, Any] = {}
-    notes: list[str] = []
     with kinds.reuse(problems):
         for line in kind.job_lines(robot, data, len(ident), method):
             say(line)
@@ -361,10 +370,10 @@ def calibrate(
         # And its robot file against the model of the robot identified for (the fingerprint
         # of what determines the numbers: geometry, parameters, effects, set-up).
         result["settings"] = {**dict(result.settings), "data_file": data_name,
-                              "data_fingerprint": kind.fingerprint(robot, data),
+                              "data_fingerprint": kind.fingerprint(robot, given),
                               **({"robot_file": robot_name} if robot_name else {}),
                               "robot_model": robot_model_record(robot)}
-        note = kind.weighting_note(data, method, data_name)
+        note = kind.weighting_note(given, method, data_name)
         if note:
             notes.append(note)
         _note_widened(robot, result, notes)
@@ -391,10 +400,20 @@ def calibrate(
             identifiability=report, uncertainty=unc, parameter_error=perr,
             truth_accuracy=truth_acc, notes=notes, settings=dict(settings or {"method": method}),
             provenance=provenance, predicted=predicted, start=start,
-            sources=dict(sources or {}), kind=kind, problems=problems,
+            sources=dict(sources or {}), kind=kind, problems=problems, weightless=weightless,
             diagnosis=_diagnosis(robot, ident, result, noise, notes))
         cal._settle()
     return cal
+
+
+def _validation_weighted(validation: Any, notes: list[str]) -> Any:
+    """``validation`` without its poses of weight 0 for every reading, with a note naming how
+    many (:func:`iwr.kinds.without_weightless`)."""
+    validation, k = kinds.without_weightless(validation, "validation")
+    if k:
+        notes.append(f"note: {k} pose(s) of the validation data have weight 0 for every reading: "
+                     "left out of the accuracy figures")
+    return validation
 
 
 def _note_widened(robot: Any, result: IdentificationResult, notes: list[str]) -> None:
@@ -518,6 +537,10 @@ def from_result(
         raise TypeError(f"validation: {kinds.of(validation).name} data, but data are "
                         f"{kind.name} data")
     notes: list[str] = []
+    # As the job: poses of weight 0 for every reading count in no figure.
+    data, weightless = kinds.without_weightless(data)
+    if validation is not None:
+        validation = _validation_weighted(validation, notes)
     # The poses the run's gross-error screen left out (recorded with their lines) are left out
     # here too: the result was not fitted to them, and its accuracy figures are without them.
     # A pose is found by its content: a held-out pose of a separate validation file is never one
@@ -582,7 +605,8 @@ def from_result(
             robot_name=robot_name, identifiability=report, uncertainty=unc, notes=notes,
             settings=dict(settings or {"method": result.method}),
             provenance=provenance, start=start, sources=dict(sources or {}), kind=kind,
-            problems=problems, diagnosis=_diagnosis(robot, data, result, None, notes))
+            problems=problems, weightless=weightless,
+            diagnosis=_diagnosis(robot, data, result, None, notes))
         cal._settle()
     return cal
 

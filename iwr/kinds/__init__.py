@@ -611,6 +611,23 @@ def for_robot(robot: Any) -> MeasurementKind:
                      "applies to it")
 
 
+def without_weightless(data: Any, name: str = "data") -> tuple[Any, int]:
+    """``data`` without the poses whose every reading has weight 0 (docs/data.md: how a file
+    leaves a pose out and keeps its row visible), and how many there were; ``data`` itself
+    when none (or when the kind has no weights). Such a pose counts in no fit, so it counts in
+    no figure either: the calibration job and ``iwr report`` take them out before anything
+    else. ValueError when no pose is left (``name`` the data set)."""
+    w = getattr(data, "weights", None)
+    if w is None or len(data) == 0:
+        return data, 0
+    keep = (np.asarray(w, dtype=float).reshape(len(data), -1) > 0).any(axis=1)
+    if keep.all():
+        return data, 0
+    if not keep.any():
+        raise ValueError(f"{name}: every pose has weight 0 for every reading, so none counts")
+    return of(data).subset(data, np.flatnonzero(keep)), int(np.count_nonzero(~keep))
+
+
 def split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
     """``(identification, validation)``: ``round(fraction * N)`` poses (at least one) drawn by
     ``seed`` for validation, each part in file order (:func:`split_rows`); the same rule for

@@ -125,9 +125,10 @@ class CalibrationReport(Calibration):
         gross-error screen left out of the fit (``result.left_out``), which the identification
         count beside it does not include."""
         k = sum(1 for o in self.result.left_out if o.data_set == "identification")
-        if k == 0:
-            return ""
-        return f" ({k} more left out as gross error{'s' if k > 1 else ''})"
+        w = self.weightless
+        parts = ([f"{k} more left out as gross error{'s' if k > 1 else ''}"] if k else []) + (
+            [f"{w}{'' if k else ' more'} with weight 0 for every reading, left out"] if w else [])
+        return f" ({', '.join(parts)})" if parts else ""
 
     def residuals(self) -> dict[str, dict[str, dict[str, np.ndarray]]]:
         """Per-leg residual statistics, ``[set][nominal|calibrated]``."""
