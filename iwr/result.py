@@ -352,6 +352,7 @@ class IdentificationResult(OptimizeResult):
             "nfev": int(self.nfev),
             "nit": int(self.nit),
             "success": bool(self.success),
+            "status": str(self.status),
             "message": str(self.message),
             "wall_time": jsonable(float(self.wall_time), finite_only=True),
             "settings": jsonable(self.settings),
@@ -463,7 +464,7 @@ def _recorded(data: dict[str, Any]) -> dict[str, Any]:
 
 
 def status_from_message(success: bool, message: str) -> str:
-    """The status of a file, which keeps only ``success`` and ``message``."""
+    """The status of a file that keeps only ``success`` and ``message`` (an older iwr's)."""
     if success:
         return "converged"
     text = message.lower()
@@ -476,6 +477,16 @@ def status_from_message(success: bool, message: str) -> str:
     if "callback" in text:
         return "callback"
     return "stopped"
+
+
+def _status(data: dict[str, Any], success: bool, message: str) -> str:
+    """The status a result file records (since it records one); else read from its message
+    (:func:`status_from_message`: a file of an older iwr, which read a converged run whose model
+    did not fit as "stopped"). A success is "converged" whatever the file says."""
+    status = data.get("status")
+    if success or status not in STATUSES:
+        return status_from_message(success, message)
+    return str(status)
 
 
 def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
@@ -506,7 +517,7 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
             nfev=int(data["nfev"]),
             nit=int(data.get("nit", 0)),
             success=success,
-            status=status_from_message(success, message),
+            status=_status(data, success, message),
             message=message,
             method=str(data.get("method", "")),
             wall_time=math.nan if wall is None else float(wall),

@@ -52,7 +52,8 @@ def test_file_round_trip_keeps_the_keys(tmp_path):
     r.save(tmp_path / "r.json")
     data = json.loads((tmp_path / "r.json").read_text())
     assert set(data) == {"format", "version", "method", "x", "parameter_names", "fun", "nfev",
-                         "nit", "success", "message", "wall_time", "settings", "history"}
+                         "nit", "success", "status", "message", "wall_time", "settings",
+                         "history"}
     back = iwr.load_result(tmp_path / "r.json")
     np.testing.assert_array_equal(back.x, r.x)
     assert (back.fun, back.nfev, back.nit, back.success, back.status, back.method) == \
@@ -83,8 +84,24 @@ def test_a_cost_that_is_not_finite_is_written_null_and_loads(tmp_path):
     ("the maximum number of generations (5) was reached", "stopped"),
 ])
 def test_status_of_a_loaded_unsuccessful_result(tmp_path, message, status):
+    """A file of an older iwr records no status: it is read from the message."""
     result(success=False, message=message).save(tmp_path / "r.json")
+    data = json.loads((tmp_path / "r.json").read_text())
+    del data["status"]
+    (tmp_path / "r.json").write_text(json.dumps(data))
     assert iwr.load_result(tmp_path / "r.json").status == status
+
+
+@pytest.mark.parametrize("status", sorted(set(STATUSES) - {"converged"}) + ["converged"])
+def test_a_file_keeps_the_status_of_an_unsuccessful_result(tmp_path, status):
+    """A run that converged to a point whose model does not fit the data (success False,
+    status "converged") was read back as "stopped", so ``iwr report`` of an ``iwr calibrate``
+    run that had said "the model does not fit the data" said "not converged ... (run it longer
+    first)". The file records the status now; every status reads back as written."""
+    result(success=False, status=status,
+           message="the model does not fit the data").save(tmp_path / "r.json")
+    back = iwr.load_result(tmp_path / "r.json")
+    assert (back.status, back.success) == (status, False)
 
 
 def test_bad_files_are_named(tmp_path):
