@@ -309,11 +309,11 @@ def calibrate(
     given = data
     data, weightless = kinds.without_weightless(data)
     if validation is not None:
-        validation = _validation_weighted(validation, notes)
-    if validation is not None:
         if kinds.of(validation) is not kind:
             raise TypeError(f"validation: {kinds.of(validation).name} data, but data are "
                             f"{kind.name} data")
+        validation = _validation_weighted(validation, notes)
+        _check_held_out(data, validation, notes)
         ident, val, held_out = data, validation, True
     elif validation_fraction:
         ident, val = kinds.split(data, validation_fraction, seed)
@@ -404,6 +404,24 @@ def calibrate(
             diagnosis=_diagnosis(robot, ident, result, noise, notes))
         cal._settle()
     return cal
+
+
+def _check_held_out(data: Any, validation: Any, notes: list[str]) -> None:
+    """A validation set given apart from the data holds no pose of theirs: ValueError when every
+    one of its poses is also in the data (the data file given twice), a note naming how many
+    when some are (their accuracy is not a held-out one)."""
+    from .result import pose_keys
+
+    mine = set(pose_keys(data))
+    shared = sum(1 for k in pose_keys(validation) if k in mine)
+    if shared and shared == len(validation):
+        raise ValueError("validation: every one of its poses is also in the data (the same "
+                         "measurements given twice?): accuracy on held-out poses needs poses "
+                         "the identification did not use; give other poses, or none to hold "
+                         "out a fraction of the data")
+    if shared:
+        notes.append(f"note: {shared} of the {len(validation)} validation poses are also in the "
+                     "data: their accuracy is not a held-out one")
 
 
 def _validation_weighted(validation: Any, notes: list[str]) -> Any:
@@ -541,6 +559,7 @@ def from_result(
     data, weightless = kinds.without_weightless(data)
     if validation is not None:
         validation = _validation_weighted(validation, notes)
+        _check_held_out(data, validation, notes)
     # The poses the run's gross-error screen left out (recorded with their lines) are left out
     # here too: the result was not fitted to them, and its accuracy figures are without them.
     # A pose is found by its content: a held-out pose of a separate validation file is never one

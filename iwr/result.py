@@ -231,7 +231,9 @@ class IdentificationResult(OptimizeResult):
         finite (never for a result that is not).
     status : str
         Why the run ended: one of :data:`STATUSES` (``"converged"``, ``"stopped"``,
-        ``"callback"``, ``"interrupted"``, ``"failed"``).
+        ``"callback"``, ``"interrupted"``, ``"failed"``); not given, ``"converged"`` for a
+        success, else read from ``message`` (:func:`status_from_message`: ``"stopped"`` unless
+        it names an interruption, a callback, ...).
     message : str
         The same in words, with the method's details.
     interrupted : bool
@@ -272,8 +274,8 @@ class IdentificationResult(OptimizeResult):
         settings: dict[str, Any] | None = None,
         **extra: Any,
     ) -> None:
-        if status is None:
-            status = "converged" if success else "stopped"
+        if status is None:  # as a result file of an older iwr is read (its message says)
+            status = status_from_message(bool(success), str(message))
         if status not in STATUSES:
             raise ValueError(f"status: {status!r}; expected one of {', '.join(STATUSES)}")
         super().__init__(
@@ -479,6 +481,10 @@ def status_from_message(success: bool, message: str) -> str:
     return "stopped"
 
 
+#: The largest result file read (a result of 10^5 parameters with its history is a few MB).
+MAX_RESULT_BYTES = 1 << 30
+
+
 def _status(data: dict[str, Any], success: bool, message: str) -> str:
     """The status a result file records (since it records one); else read from its message
     (:func:`status_from_message`: a file of an older iwr, which read a converged run whose model
@@ -493,11 +499,16 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     """Read a result written by :meth:`IdentificationResult.save` or by ``iwr-calibrate``.
 
     A value written null (not finite) reads as NaN; such a result is never a success."""
+    from ._io import NotRegularFileError, open_regular
+
     path = Path(path)
     try:
-        data = json.loads(path.read_text(encoding="utf-8"))
+        with open_regular(path) as fh:  # a named pipe or a device: refused, not read for ever
+            data = json.loads(fh.read(MAX_RESULT_BYTES + 1).decode("utf-8"))
     except FileNotFoundError:
         raise ResultFileError(f"{path}: no such file") from None
+    except NotRegularFileError as exc:
+        raise ResultFileError(str(exc)) from None
     except (OSError, UnicodeDecodeError, json.JSONDecodeError) as exc:
         raise ResultFileError(f"{path}: not a readable JSON result ({exc})") from None
     if not isinstance(data, dict) or data.get("format") != RESULT_FORMAT:

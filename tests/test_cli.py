@@ -148,10 +148,20 @@ def test_calibrate_files(sim, tmp_path):
 
 def test_calibrate_with_a_validation_file_and_without_hold_out(sim, tmp_path):
     robot, data = sim / "robot.toml", sim / "measurements.csv"
+    # The data file itself as --validation was taken, and called "60 held out" (a QA run).
     proc = run("calibrate", str(robot), str(data), "--validation", str(data), "--method", "lm",
                "--out", str(tmp_path / "a"), "--no-plots")
+    assert_fails(proc, 2, r"--validation .*measurements.csv: is the data file .* itself")
+    half = tmp_path / "half.csv"
+    lines = data.read_text().splitlines(keepends=True)
+    head = [ln for ln in lines if ln.startswith("#")]
+    body = [ln for ln in lines if not ln.startswith("#")]
+    half.write_text("".join(head + body[:41]))  # the header and the first 40 poses
+    proc = run("calibrate", str(robot), str(half), "--validation", str(data), "--method", "lm",
+               "--out", str(tmp_path / "a"), "--no-plots")
     assert proc.returncode == 0, proc.stderr
-    assert "poses: 60 for identification, 60 held out" in proc.stdout
+    assert "poses: 40 for identification, 60 held out" in proc.stdout
+    assert "note: 40 of the 60 validation poses are also in the data" in proc.stdout
     proc = run("calibrate", str(robot), str(data), "--validation-fraction", "0", "--method",
                "lm", "--out", str(tmp_path / "b"), "--no-plots")
     assert proc.returncode == 0, proc.stderr
@@ -505,12 +515,49 @@ def test_no_command_writes_over_its_inputs(sim, tmp_path):
          r"--out .*rep: would overwrite .*result.json"),
         (["simulate", "--robot", str(robot), "--out", str(sim)],
          r"--out .*: would overwrite .*robot.toml"),
+        # Files of another command or of the bench named by mistake (a QA run: `iwr plan --out
+        # measurements.csv` replaced the measurements with a plan, exit 0).
+        (["plan", str(robot), "--out", str(data), "--n-candidates", "50", "--poses", "5"],
+         r"--out .*measurements.csv: exists and is not a file iwr plan wrote"),
+        (["legs", str(robot), str(targets), "-o", str(data)],
+         r"-o .*measurements.csv: exists and is not a file iwr legs wrote"),
+        (["simulate", "--out", str(tmp_path / "s"), "--robot-file", "a.csv", "--data-file",
+          "a.csv"], r"--robot-file and --data-file are both 'a.csv'"),
     ]
     for args, pattern in cases:
         proc = run(*args)
         assert_fails(proc, 2, pattern)
     for p, content in saved.items():
         assert p.read_bytes() == content, p
+    assert not (tmp_path / "s").exists()
+    # A file the command wrote itself is written over, as before.
+    out = tmp_path / "plan.csv"
+    for _ in range(2):
+        proc = run("plan", str(robot), "--out", str(out), "--n-candidates", "50", "--poses", "10")
+        assert proc.returncode == 0, proc.stderr
+
+
+def test_inputs_that_are_no_regular_file_are_refused_not_read(sim, tmp_path):
+    """A named pipe as ``iwr legs``' targets or user frame, or as a result file of ``iwr
+    report`` and ``iwr analyze --result``, blocked for ever (a QA run); /dev/zero ran out of
+    memory ("internal error: MemoryError"). Refused by name, as data and robot files are."""
+    robot, data = sim / "robot.toml", sim / "measurements.csv"
+    fifo = tmp_path / "pipe.csv"
+    os.mkfifo(fifo)
+    targets = tmp_path / "t.csv"
+    targets.write_text("q1_mm,q2_mm,q3_rad,q4_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad\n"
+                       "100,50,0.1,0.05,0,0,800,0,0,0\n")
+    for bad, what in ((fifo, r"pipe.csv: a named pipe \(FIFO\), not a regular file"),
+                      ("/dev/zero", r"/dev/zero: a device, not a regular file")):
+        for args in (["legs", str(robot), str(bad), "-o", str(tmp_path / "l.csv")],
+                     ["legs", str(robot), str(targets), "--user-frame", str(bad), "-o",
+                      str(tmp_path / "l.csv")],
+                     ["report", str(bad), str(robot), str(data), "--out", str(tmp_path / "r")],
+                     ["analyze", str(robot), str(data), "--result", str(bad)]):
+            proc = run(*args)
+            assert proc.returncode in (1, 2), (args, proc.stderr)
+            assert re.search(what, proc.stderr), (args, proc.stderr)
+            assert "Traceback" not in proc.stderr
 
 
 def test_weighted_poses_all_held_out_are_named_as_such(sim, tmp_path):

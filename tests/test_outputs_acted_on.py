@@ -158,3 +158,18 @@ def test_poses_of_weight_zero_count_in_no_figure():
     held = iwr.calibrate(robot, clean.subset(np.arange(30)), "lm", validation=data, seed=1)
     assert len(held.validation) == 49
     assert any("11 pose(s) of the validation data have weight 0" in n for n in held.notes)
+
+
+def test_a_validation_set_must_be_held_out():
+    """``--validation`` naming the data file itself was taken, and its accuracy was reported as
+    on "100 held out for validation" poses (a QA run). Every validation pose among the data:
+    refused, by the job and by ``iwr report``'s ``from_result``; some: a note says how many."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 40, seed=9, noise=NOISE)
+    first = data.subset(np.arange(30))
+    with pytest.raises(ValueError, match="every one of its poses is also in the data"):
+        iwr.calibrate(robot, data, "lm", validation=data.subset(np.arange(5, 12)))
+    cal = iwr.calibrate(robot, first, "lm", validation=data.subset(np.arange(25, 40)))
+    assert any("5 of the 15 validation poses are also in the data" in n for n in cal.notes)
+    with pytest.raises(ValueError, match="every one of its poses is also in the data"):
+        from_result(robot, first, cal.result, validation=first)

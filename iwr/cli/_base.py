@@ -219,14 +219,29 @@ def overwritten_input(outputs: Iterable[str | os.PathLike[str]],
 
 
 def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[Any] = (),
-                 files: Iterable[str] | None = None, prog: str = "iwr calibrate") -> None:
+                 files: Iterable[str] | None = None, prog: str = "iwr calibrate",
+                 own: str | None = None) -> None:
     """Refuse, before any work, an output that cannot be written or would overwrite an input:
-    ``path`` is a file, or with ``files`` (the names written in it) a folder."""
+    ``path`` is a file, or with ``files`` (the names written in it) a folder. ``own``: the
+    first characters of the files this command writes (``"# iwr plan:"``); an existing file
+    that does not start so is not overwritten (a measurement file named by mistake)."""
     path = Path(path)
     if files is None:
         clash = overwritten_input([path], inputs)
         if path.is_dir():
             raise UsageError(f"{option} {path}: is a folder; expected a file name", prog)
+        if own is not None and clash is None and path.exists():
+            if not path.is_file():  # a named pipe would block the read below
+                raise UsageError(f"{option} {path}: exists and is not a regular file", prog)
+            try:
+                with open(path, "rb") as f:
+                    head = f.read(len(own.encode()))
+            except OSError:
+                head = b""
+            if head != own.encode():
+                raise UsageError(f"{option} {path}: exists and is not a file {prog} wrote (it "
+                                 f"does not start with {own!r}); remove it first, or give "
+                                 f"another {option}", prog)
     else:
         clash = overwritten_input([path / name for name in files], inputs)
         if path.exists() and not path.is_dir():
@@ -242,6 +257,23 @@ def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[
     if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
         raise UsageError(f"{option} {path}: cannot write there: {folder} is not a writable "
                          "folder", prog)
+
+
+def check_validation_file(validation: Any, data: Any, prog: str) -> None:
+    """``--validation`` naming DATA itself (by any spelling or link): refused (exit 2), for
+    accuracy on those poses would be called held out. (Poses shared in two files are refused
+    or noted by :func:`iwr.calibrate`.)"""
+    if validation is None:
+        return
+    try:
+        same = os.path.samefile(validation, data)
+    except OSError:
+        return  # not there: the read names it
+    if same:
+        raise UsageError(f"--validation {validation}: is the data file {data} itself; held-out "
+                         "poses must be poses not used for identification (give another file, "
+                         "or leave --validation out to hold out --validation-fraction of the "
+                         "data)", prog)
 
 
 def one_line(exc: BaseException) -> str:

@@ -24,6 +24,7 @@ from ._base import (
     UsageError,
     add_common,
     check_output,
+    check_validation_file,
     check_validation_split,
     default_method,
     fraction,
@@ -229,6 +230,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                          "iwr.calibrate (docs/kinds.md)")
     if "noise" in kwargs:
         kwargs["noise"] = _reading_noise(kind, robot, kwargs["noise"], method, args)
+    check_validation_file(args.validation, args.data, "iwr calibrate")
     data = read_data(args.data, robot, args.readings, targets=target_format(args))
     validation = read_data(args.validation, robot) if args.validation else None
     if validation is None and args.validation_fraction > 0:

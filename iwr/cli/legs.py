@@ -8,7 +8,6 @@ import argparse
 import csv
 import io
 import math
-from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -89,10 +88,7 @@ def read_targets(path: str, robot: Any, optional: Any = ()
     temperature) of a targets file. Lines starting with ``#`` are comments. Errors name the
     file, line and column."""
     q_cols = _joint_columns(robot)
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise CommandError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    text = _read_text(path)
     rows = [(n, line) for n, line in enumerate(text.splitlines(), 1)
             if line.strip() and not line.lstrip().startswith("#")]
     if not rows:
@@ -141,10 +137,7 @@ def read_user_frame(path: str) -> np.ndarray:
     (:func:`iwr.compensation.frame_from_points`); errors name the file, line and column."""
     from ..compensation import frame_from_points
 
-    try:
-        text = Path(path).read_text(encoding="utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise CommandError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+    text = _read_text(path)
     rows = [(n, line) for n, line in enumerate(text.splitlines(), 1)
             if line.strip() and not line.lstrip().startswith("#")]
     need = ["point", "x_mm", "y_mm", "z_mm"]
@@ -190,6 +183,26 @@ def read_user_frame(path: str) -> np.ndarray:
         raise CommandError(f"{path}: {exc}") from None
 
 
+def _read_text(path: str) -> str:
+    """A targets or points file's text: a regular file (a named pipe or a device is refused, not
+    read for ever), bounded as a data file, UTF-8 (a byte order mark accepted)."""
+    from .._io import NotRegularFileError, open_regular
+    from ..measurements import MAX_CSV_BYTES
+
+    try:
+        with open_regular(path) as fh:
+            raw = fh.read(MAX_CSV_BYTES + 1)
+    except NotRegularFileError as exc:
+        raise CommandError(str(exc)) from None
+    if len(raw) > MAX_CSV_BYTES:
+        raise CommandError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MB; is this the right "
+                           "file?")
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        raise CommandError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+
 def _joint_columns(robot: Any) -> list[str]:
     units = {"P": "mm", "R": "rad"}
     return [f"q{i + 1}_{units[t]}" for i, t in enumerate(robot.joint_types)]
@@ -210,7 +223,7 @@ def cmd_legs(args: argparse.Namespace) -> int:
     from ._base import check_output
 
     check_output(args.out, "-o", inputs=[args.robot, args.targets, args.user_frame],
-                 prog="iwr legs")
+                 prog="iwr legs", own="# iwr legs:")
     robot = load_robot(args.robot)
     try:
         note = check_calibration(robot, allow_unverified=args.allow_unverified,

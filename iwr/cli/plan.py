@@ -67,7 +67,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from ..planning import plan_poses
     from ..simulation import sample_poses
 
-    check_output(args.out, "--out", inputs=[args.robot, args.candidates], prog="iwr plan")
+    check_output(args.out, "--out", inputs=[args.robot, args.candidates], prog="iwr plan",
+                 own="# iwr plan:")
     robot = load_robot(args.robot)
     if args.candidates:
         from ..kinds import for_robot

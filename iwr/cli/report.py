@@ -17,6 +17,7 @@ from ._base import (
     add_common,
     check_effect_inputs,
     check_output,
+    check_validation_file,
     load_robot,
     one_line,
     read_data,
@@ -159,6 +160,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     warning = _check_robot(args, result, robot)
     check_effect_inputs(robot, data, args.data)
     note = _check_data(args, result, robot, data)
+    check_validation_file(args.validation, args.data, "iwr report")
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
     for key in ("readings", "validation"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 from pathlib import Path
 from typing import Any
 
@@ -13,6 +14,7 @@ from ..effects import parameter_names as effect_parameter_names
 from ..kinds import for_robot
 from ._base import (
     EXIT_OK,
+    UsageError,
     add_common,
     check_output,
     load_robot,
@@ -90,6 +92,14 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     from ..simulation import simulate
 
     stem = Path(args.data_file).with_suffix("")
+    names = {"--robot-file": args.robot_file, "--data-file": args.data_file,
+             "--truth-file": args.truth_file}
+    seen: dict[str, str] = {}
+    for option, name in names.items():
+        other = seen.setdefault(os.path.normcase(os.path.normpath(name)), option)
+        if other != option:
+            raise UsageError(f"{other} and {option} are both {name!r}: each file needs a name "
+                             "of its own (one would overwrite the other)", "iwr simulate")
     check_output(args.out, "--out", inputs=[args.robot], prog="iwr simulate", files=[
         args.robot_file, args.data_file, args.truth_file, f"{stem}_long.csv",
         f"{stem}_readings.csv"])
