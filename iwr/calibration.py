@@ -379,10 +379,10 @@ def calibrate(
         _note_widened(robot, result, notes)
         unc = _uncertainty(robot, ident, result, report if parameters == "all" else None,
                            noise, notes)
-        acc = accuracy(robot, val, result.x)
+        acc = accuracy(robot, val, result.x, start=start)
         truth_acc = perr = None
         if truth is not None:
-            truth_acc = accuracy(robot, val, truth)
+            truth_acc = accuracy(robot, val, truth, start=start)
             try:  # the kind's: tracker data need exact readings of the truth
                 perr = kind.parameter_error(robot, ident, result.x, truth)
             except ValueError as exc:
@@ -620,7 +620,7 @@ def from_result(
         _note_widened(robot, result, notes)
         cal = Calibration(
             robot=robot, identification=data, validation=val, held_out=validation is not None,
-            result=result, accuracy=accuracy(robot, val, x), data_name=data_name,
+            result=result, accuracy=accuracy(robot, val, x, start=start), data_name=data_name,
             robot_name=robot_name, identifiability=report, uncertainty=unc, notes=notes,
             settings=dict(settings or {"method": result.method}),
             provenance=provenance, start=start, sources=dict(sources or {}), kind=kind,

@@ -134,6 +134,7 @@ def accuracy(
     truth: Any = None,
     tolerance: float = 1e-9,
     max_iterations: int = 50,
+    start: Any = None,
 ) -> Accuracy:
     """How accurately the nominal and the calibrated robot know where their tool is.
 
@@ -158,6 +159,12 @@ def accuracy(
         against it (else point residuals). See docs/tracker.md.
     tolerance, max_iterations
         Of the forward kinematics.
+    start : optional
+        What the identification started from beyond the nominal robot
+        (:meth:`iwr.kinds.MeasurementKind.start` of the identification data: tracker data's
+        registration guess). The "before" figure is the nominal robot in it; default the
+        kind's start on ``measurements`` themselves (tracker data: a registration fitted to
+        the validation poses, which flatters the nominal robot).
 
     Returns
     -------
@@ -174,7 +181,8 @@ def accuracy(
     # What accuracy means is the kind's (tracker data: tool pose errors against `truth` when
     # known, else point residuals).
     return kinds.of(measurements).accuracy(robot, measurements, x, tool=tool, truth=truth,
-                                           tolerance=tolerance, max_iterations=max_iterations)
+                                           tolerance=tolerance, max_iterations=max_iterations,
+                                           start=start)
 
 
 def pose_accuracy(robot: Robot, measurements: Measurements, x: Any, *, tool: Any = None,

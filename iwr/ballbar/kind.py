@@ -223,6 +223,7 @@ class BallbarKind(MeasurementKind):
         return ballbar_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        options.pop("start", None)  # a ballbar's "before" is the nominal robot and ball centres
         if robot.effects:  # issue 23: forward kinematics under each pose's load and temperature
             from .effects import accuracy as accuracy_effects
 

@@ -856,20 +856,25 @@ def tool_frames(robot: Any, x: Any, data: Any) -> np.ndarray:
     return robot.tracker.registration_matrix(xs) @ pose_matrix(poses) @ _joint_frame(robot, xr)
 
 
-def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: Any = None
-             ) -> Any:
+def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: Any = None,
+             start: Any = None) -> Any:
     """:func:`iwr.accuracy` on tracker data for a robot with effects: before (the nominal robot
     and effects with the registration guess) and after (``x``). With ``truth``: the tool pose
     errors in {T} by forward kinematics with the effects under each pose's load and
     temperature, modulo the gauge (the model's frame moved by the one rigid transform that best
     aligns it with the truth's, as ``gauge="fit"`` of :func:`iwr.tracker.tool_pose_errors`).
-    Without: per pose the largest point distance and the angle of the points' best rotation."""
+    Without: per pose the largest point distance and the angle of the points' best rotation.
+    ``start``: the registration guess "before" is in (as :func:`iwr.tracker.tracker_accuracy`)."""
     from ..analysis.accuracy import Accuracy, PoseErrors
     from ..tracker.api import _point_errors
     from ..tracker.gauge import _align
     from ..transforms import rotation_angle
 
+    guess = start  # the registration guess the identification started from, or None
     problem, start = effect_tracker_problem(robot, measurements)
+    if guess is not None:
+        start = start.copy()
+        start[start.size - guess.x_setup.size:] = guess.x_setup
     x = problem._x(x)
     if truth is None:
         return Accuracy(_point_errors(problem, start), _point_errors(problem, x))

@@ -208,7 +208,9 @@ class MeasurementKind(abc.ABC):
 
     @abc.abstractmethod
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
-        """:func:`iwr.accuracy`: what accuracy means for this kind."""
+        """:func:`iwr.accuracy`: what accuracy means for this kind. ``options``: ``tool``,
+        ``truth``, ``tolerance``, ``max_iterations`` and ``start`` (:meth:`start` of the
+        identification data, or None: what the "before" figure starts from)."""
 
     @abc.abstractmethod
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:

@@ -109,6 +109,7 @@ class PoseKind(MeasurementKind):
         return pose_identify(robot, data, method, **options)
 
     def accuracy(self, robot: Any, data: Any, x: Any, **options: Any) -> Any:
+        options.pop("start", None)  # pose data's "before" is the nominal robot
         if robot.effects:  # issue 23: the forward kinematics under each pose's load and temperature
             from ..effects.job import accuracy as effect_accuracy
 

@@ -149,10 +149,13 @@ def _point_errors(problem: TrackerProblem, x: np.ndarray) -> PoseErrors:
 
 
 def tracker_accuracy(robot: Robot, measurements: TrackerMeasurements, x: Any, *,
-                     truth: Any = None, tool: Any = None) -> Accuracy:
+                     truth: Any = None, tool: Any = None, start: Any = None) -> Accuracy:
     """:func:`iwr.accuracy` on tracker data, before (the nominal robot with the registration
-    guess on these data; with fewer than 3 points not on one line, the nominal robot with the
-    registration and offsets of ``x``) and after (``x``, robot then setup parameters).
+    guess ``start``, the :class:`iwr.tracker.registration.RegistrationGuess` the identification
+    started from; default the guess on these data, and with fewer than 3 points not on one line
+    the nominal robot with the registration and offsets of ``x``) and after (``x``, robot then
+    setup parameters). A guess fitted to validation poses flatters the nominal robot: a correct
+    re-calibration of a calibrated robot was judged "not calibrated" against it.
 
     With ``truth`` (the simulation's true vector): tool pose errors against the truth by forward
     kinematics of the readings, in {T} modulo the gauge (:func:`tool_pose_errors`). Without it:
@@ -166,8 +169,13 @@ def tracker_accuracy(robot: Robot, measurements: TrackerMeasurements, x: Any, *,
     if x.shape != (n,):
         raise ValueError(f"x: shape {x.shape}; expected ({n},): the robot's {robot.n_params} "
                          f"then the tracker setup's {setup.n_params}")
+    given = None if start is None else np.asarray(start.x_setup, dtype=float)
     try:
-        problem, start = tracker_problem(robot, measurements)
+        if given is not None:
+            problem, start = tracker_problem(
+                robot, measurements, x0=np.concatenate([np.zeros(robot.n_params), given]))
+        else:
+            problem, start = tracker_problem(robot, measurements)
     except RegistrationError:
         # Too few validation points for a registration guess of their own (fewer than 3, or
         # on one line): "before" is then the nominal robot in the identified registration.

@@ -238,9 +238,9 @@ class _TrackerKind(MeasurementKind):
             from ..effects.tracker import accuracy as accuracy_effects
 
             return accuracy_effects(robot, data, x, truth=options.get("truth"),
-                                    tool=options.get("tool"))
+                                    tool=options.get("tool"), start=options.get("start"))
         return tracker_accuracy(robot, data, x, truth=options.get("truth"),
-                                tool=options.get("tool"))
+                                tool=options.get("tool"), start=options.get("start"))
 
     def identifiability(self, robot: Any, data: Any, x: Any = None, **options: Any) -> Any:
         if robot.effects:  # issue 23: the null directions of the objective with the effects
@@ -365,7 +365,8 @@ class _TrackerKind(MeasurementKind):
     def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
         before, after = position_rms(accuracy)
         change = (f"the largest point residual per pose has an RMS of {before:.4g} mm before "
-                  f"(nominal robot with the registration guess) and {after:.4g} mm after, on "
+                  f"(nominal robot in the registration guess the identification started from) "
+                  f"and {after:.4g} mm after, on "
                   f"{_where(accuracy.n_poses, held_out)}")
         return before, after, change, "the point residuals"
 
