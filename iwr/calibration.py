@@ -369,7 +369,12 @@ def calibrate(
         # engine's problem file records it.
         # And its robot file against the model of the robot identified for (the fingerprint
         # of what determines the numbers: geometry, parameters, effects, set-up).
+        # And the validation split, which `iwr report` makes again for the same figures.
+        split = ({"from": "validation data"} if validation is not None else
+                 {"from": "data", "fraction": float(validation_fraction), "seed": int(seed)}
+                 if validation_fraction else {"from": "none"})
         result["settings"] = {**dict(result.settings), "data_file": data_name,
+                              "validation_split": split,
                               "data_fingerprint": kind.fingerprint(robot, given),
                               **({"robot_file": robot_name} if robot_name else {}),
                               "robot_model": robot_model_record(robot)}
@@ -404,6 +409,30 @@ def calibrate(
             diagnosis=_diagnosis(robot, ident, result, noise, notes))
         cal._settle()
     return cal
+
+
+def _recorded_split(data: Any, result: IdentificationResult, notes: list[str]
+                    ) -> tuple[Any, Any]:
+    """``(identification, validation)`` of ``data`` as the job that identified ``result`` split
+    them (its settings' ``validation_split``: the fraction and seed of :func:`iwr.kinds.split`),
+    so that ``iwr report`` of the run gives the job's figures; ``(data, None)`` when the job
+    held out nothing or recorded no split (a note when it held out a separate file)."""
+    split = dict(result.settings).get("validation_split")
+    if not isinstance(split, dict):
+        return data, None
+    if split.get("from") == "validation data":
+        notes.append("note: the run held out the poses of a separate validation file; give it "
+                     "(--validation) for the run's accuracy figures: these are on the "
+                     "identification poses (optimistic)")
+        return data, None
+    if split.get("from") != "data":
+        return data, None
+    fraction, seed = split.get("fraction"), split.get("seed")
+    if not (isinstance(fraction, float) and 0 < fraction < 1 and isinstance(seed, int)
+            and not isinstance(seed, bool) and seed >= 0):
+        raise ValueError(f"its validation_split {split!r}: expected a fraction in (0, 1) and a "
+                         "seed >= 0")
+    return kinds.split(data, fraction, seed)
 
 
 def _check_held_out(data: Any, validation: Any, notes: list[str]) -> None:
@@ -560,6 +589,8 @@ def from_result(
     if validation is not None:
         validation = _validation_weighted(validation, notes)
         _check_held_out(data, validation, notes)
+    else:
+        data, validation = _recorded_split(data, result, notes)
     # The poses the run's gross-error screen left out (recorded with their lines) are left out
     # here too: the result was not fitted to them, and its accuracy figures are without them.
     # A pose is found by its content: a held-out pose of a separate validation file is never one

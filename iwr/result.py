@@ -365,6 +365,10 @@ class IdentificationResult(OptimizeResult):
                if self.outliers is not None else {}),
             **({"gross_errors": self.gross_errors} if isinstance(self.gross_errors, str)
                else {}),
+            # which parameters were identified (the others held at their start): a report of
+            # the file tells "held at nominal" from "identified, but arbitrary"
+            **({"active": [bool(a) for a in np.asarray(self.active).ravel()]}
+               if self.get("active") is not None else {}),
         }
 
     def save(self, path: str | os.PathLike[str]) -> None:
@@ -402,6 +406,17 @@ def _typed(value: Any, kind: str, where: str) -> Any:
                     "float": "a number or null"}[kind]
         raise ValueError(f"{where}: expected {expected}, got {value!r:.40}")
     return math.nan if kind == "float" and value is None else value
+
+
+def _active(data: dict[str, Any], n: int) -> np.ndarray | None:
+    """The ``active`` mask a result file records (a bool per parameter), or None."""
+    active = data.get("active")
+    if active is None:
+        return None
+    if (not isinstance(active, list) or len(active) != n
+            or not all(isinstance(a, bool) for a in active)):
+        raise ValueError(f"active: expected {n} true/false values, one per parameter")
+    return np.array(active, dtype=bool)
 
 
 def _recorded(data: dict[str, Any]) -> dict[str, Any]:
@@ -534,6 +549,7 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
             wall_time=math.nan if wall is None else float(wall),
             parameter_names=list(data.get("parameter_names", [])),
             settings=data.get("settings", {}),
+            active=_active(data, x.size),
             history={k: _floats(v, f"history.{k}") if k != "nfev" and k != "generation"
                      else np.asarray(v) for k, v in data.get("history", {}).items()},
             **_recorded(data),

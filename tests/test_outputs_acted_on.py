@@ -196,3 +196,34 @@ def test_a_tracker_recalibration_is_not_judged_against_a_flattered_nominal():
     before, after, _, _ = again.improvement()
     assert again.status == "converged", again.result.message
     assert after == pytest.approx(before, rel=1e-6)
+
+
+def test_a_report_of_a_job_result_file_gives_the_jobs_figures(tmp_path):
+    """``iwr report`` of an ``iwr calibrate`` run read "50 for identification, none held out"
+    where the run held 10 out, and called the 6 parameters the run held at nominal "identified,
+    but not identifiable: arbitrary" (a QA run): the result file kept neither the split nor the
+    active parameters. It keeps both now, and the report of the file gives the job's sets,
+    figures and parameter statuses."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 50, seed=2, noise=NOISE)
+    cal = iwr.calibrate(robot, data, noise=NOISE, seed=4)
+    assert cal.held_out and len(cal.validation) == 10
+    cal.result.save(tmp_path / "result.json")
+    loaded = iwr.load_result(tmp_path / "result.json")
+    np.testing.assert_array_equal(loaded.active, cal.result.active)
+    again = from_result(robot, data, loaded)
+    assert again.held_out
+    assert iwr.result.pose_keys(again.validation) == iwr.result.pose_keys(cal.validation)
+    assert iwr.result.pose_keys(again.identification) == iwr.result.pose_keys(cal.identification)
+    a = cal.accuracy.calibrated.summary()["position_mm"]
+    b = again.accuracy.calibrated.summary()["position_mm"]
+    assert a == pytest.approx(b, rel=1e-9, abs=1e-12), (a, b)
+    status = [r["status"] for r in render(cal).parameter_rows()]
+    assert [r["status"] for r in render(again).parameter_rows()] == status
+    assert status.count("held at nominal (not identifiable)") == 6
+    # A run that held out a file of its own: the report says to give it.
+    held = iwr.calibrate(robot, data.subset(np.arange(40)), "lm",
+                         validation=data.subset(np.arange(40, 50)))
+    other = from_result(robot, data.subset(np.arange(40)), held.result)
+    assert not other.held_out
+    assert any("give it (--validation)" in n for n in other.notes)
