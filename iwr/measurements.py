@@ -74,6 +74,17 @@ def _limit_problem(value: float, unit: str) -> str | None:
     return f"{value!r} {unit} is beyond any robot or instrument (|value| <= {limit:g} {unit})"
 
 
+class CellError(ValueError):
+    """A value of an array at fault: the array's ``name``, its ``row`` and ``column`` (0-based)
+    and ``detail``, what is wrong (the message after the place). The message names the array's
+    row and column; a file reader names the file's line and column instead."""
+
+    def __init__(self, name: str, row: int, column: int, detail: str,
+                 message: str | None = None) -> None:
+        self.name, self.row, self.column, self.detail = name, row, column, detail
+        super().__init__(message or f"{name}: row {row}, column {column}{detail}")
+
+
 def _check_limits(arr: np.ndarray, units: list[str], name: str) -> None:
     """Every column of ``arr`` within the physical limit of its unit, else a ValueError naming the
     first row and column beyond it."""
@@ -82,7 +93,7 @@ def _check_limits(arr: np.ndarray, units: list[str], name: str) -> None:
     if bad.size:
         r, c = (int(i) for i in bad[0])
         why = _limit_problem(float(arr[r, c]), units[c])
-        raise ValueError(f"{name}: row {r}, column {c}: {why}")
+        raise CellError(name, r, c, f": {why}")
 
 
 def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray:
@@ -93,8 +104,8 @@ def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray
     5e-324, and a weight far below the others cannot underflow the cost to zero."""
     if np.any(weights < 0):
         r, c = (int(i) for i in np.argwhere(weights < 0)[0])
-        raise ValueError(f"{name}: row {r}, column {c} is negative ({float(weights[r, c])!r}); "
-                         "weights must be >= 0")
+        raise CellError(name, r, c, f" is negative ({float(weights[r, c])!r}); weights must be "
+                        ">= 0")
     top = float(weights.max())
     if not top > 0:
         raise ValueError(f"{name}: every weight is zero, so no reading counts; weights are "
@@ -127,7 +138,7 @@ def as_matrix(value: Any, cols: int, name: str, rows: int | None = None) -> np.n
     bad = np.argwhere(~np.isfinite(arr))
     if bad.size:
         r, c = (int(i) for i in bad[0])
-        raise ValueError(f"{name}: row {r}, column {c} is {arr[r, c]}; every value must be finite")
+        raise CellError(name, r, c, f" is {arr[r, c]}; every value must be finite")
     return np.ascontiguousarray(arr)
 
 
@@ -427,6 +438,14 @@ class Measurements(RobotReadings):
                 temperatures=(data[:, end + n_payload : end + n_extra]
                               if n_extra > n_payload else None),
             )
+        except CellError as exc:
+            # The file's line and column, not the array's row and column.
+            first = {"weights": nj + 12, "payload": end, "payload centre": end + 1,
+                     "temperatures": end + n_payload}.get(exc.name)
+            if first is None or not 0 <= exc.row < len(lines):
+                raise MeasurementFileError(f"{path}: {exc}") from None
+            raise MeasurementFileError(f"{path}, line {lines[exc.row]}, column "
+                                       f"{header[first + exc.column]}{exc.detail}") from None
         except ValueError as exc:
             raise MeasurementFileError(f"{path}: {exc}") from None
         out._check_alone()
@@ -668,8 +687,9 @@ def _effect_inputs(payload: Any, temperatures: Any, n: int) -> tuple[Any, Any]:
         bad = np.flatnonzero((payload[:, 0] < 0) | (payload[:, 0] > MAX_PAYLOAD_KG))
         if bad.size:
             mass = float(payload[bad[0], 0])
-            raise ValueError(f"payload: row {int(bad[0])}, mass {mass!r} kg; "
-                             f"expected 0 <= mass <= {MAX_PAYLOAD_KG:g} kg")
+            expected = f"expected 0 <= mass <= {MAX_PAYLOAD_KG:g} kg"
+            raise CellError("payload", int(bad[0]), 0, f" is {mass!r} kg; {expected}",
+                            f"payload: row {int(bad[0])}, mass {mass!r} kg; {expected}")
         _check_limits(payload[:, 1:], ["mm"] * 3, "payload centre")
     if temperatures is not None:
         t = np.array(temperatures, dtype=float)
@@ -684,8 +704,8 @@ def _effect_inputs(payload: Any, temperatures: Any, n: int) -> tuple[Any, Any]:
         if bad.size:
             r, c = (int(i) for i in bad[0])
             value = float(temperatures[r, c])
-            raise ValueError(f"temperatures: row {r}, column {c} is {value!r} degrees C; "
-                             f"expected {lo:g} .. {hi:g} (degrees C, not K or F)")
+            raise CellError("temperatures", r, c, f" is {value!r} degrees C; expected {lo:g} .. "
+                            f"{hi:g} (degrees C, not K or F)")
     return payload, temperatures
 
 

@@ -394,7 +394,9 @@ def test_cli_report_leaves_out_what_the_run_left_out(tmp_path):
     assert rep.returncode == 0, rep.stdout + rep.stderr
     assert f"left out here too (sim/measurements.csv, line {line})" in rep.stdout, rep.stdout
     summary = json.loads((tmp_path / "rep" / "summary.json").read_text())
-    assert summary["n_identification"] == 39
+    assert summary["n_identification"] == 31  # the run's split: 8 of 40 held out, 1 typo
+    assert "poses: 31 for identification (1 more left out as gross error), 8 held out" in \
+        out.stdout and "poses: 31 for identification" in rep.stdout
     # As the engine writes it: no record of a screen; the report tests and names the line.
     bare = iwr.result.IdentificationResult(
         x=run.x, fun=run.fun, nfev=run.nfev, success=True, message="converged", method="de",

@@ -304,3 +304,26 @@ def test_joint_readings_are_checked_alike_for_every_kind_of_data(kind, q, match)
             iwr.Measurements(q, np.zeros((5, 6)), legs, joint_types="PPRR")
         else:
             TrackerMeasurements(q, legs, probe=np.zeros((5, 6)), joint_types="PPRR")
+
+
+
+def test_a_bad_value_in_a_checked_column_is_named_by_line_and_column(tmp_path, data, robot):
+    """A negative weight, a temperature in K and a negative payload mass were named by the
+    array's 0-based row and column ("weights: row 3, column 5"), not the file's line and the
+    column's name (a QA run)."""
+    loaded = iwr.Measurements(data.q, data.poses, data.legs, joint_types=robot.joint_types,
+                              weights=np.ones((len(data), 6)),
+                              temperatures=np.full(len(data), 21.0),
+                              payload=np.ones((len(data), 4)))
+    for column, value, said in (("w6", "-1", r"is negative \(-1.0\); weights must be >= 0"),
+                                ("T_C", "295.9", "is 295.9 degrees C; expected -60 .. 200"),
+                                ("payload_kg", "-5", "is -5.0 kg; expected 0 <= mass")):
+        path, lines, header = write(tmp_path, loaded)
+        names = lines[header].split(",")
+        row = lines[header + 5].split(",")  # data row 4: line header + 6
+        row[names.index(column)] = value
+        lines[header + 5] = ",".join(row)
+        path.write_text("\n".join(lines) + "\n")
+        with pytest.raises(iwr.MeasurementFileError,
+                           match=rf"data.csv, line {header + 6}, column {column} {said}"):
+            iwr.Measurements.from_csv(path, robot=robot)
