@@ -114,7 +114,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    "realistic for the built-in example. With a noise model the fit is tested "
                    "(chi-square)")
     p.add_argument("--budget", type=positive_int, default=None, metavar="N",
-                   help="largest number of objective evaluations (method's default if not given)")
+                   help="largest number of objective evaluations of the method's run (a Jacobian "
+                   "counts as one; the efficient estimator: iterations of each of its solves; "
+                   "the outlier screen's re-fit is not counted); method's default if not given")
     p.add_argument("--generations", type=positive_int, default=None, metavar="G",
                    help="generations of an evolutionary method (de)")
     p.add_argument("--preset", default=None,
