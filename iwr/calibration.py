@@ -316,13 +316,9 @@ def calibrate(
         _check_held_out(data, validation, notes)
         ident, val, held_out = data, validation, True
     elif validation_fraction:
+        # (Every pose left has a weight > 0: both parts count.)
         ident, val = kinds.split(data, validation_fraction, seed)
         held_out = True
-        weights = getattr(ident, "weights", None)
-        if weights is not None and not (np.asarray(weights) > 0).any():
-            raise ValueError(f"validation_fraction {validation_fraction} (seed {seed}): every "
-                             "pose with a weight > 0 was held out; no identification reading "
-                             "counts")
     else:
         ident = val = data
         held_out = False
@@ -371,7 +367,8 @@ def calibrate(
         # of what determines the numbers: geometry, parameters, effects, set-up).
         # And the validation split, which `iwr report` makes again for the same figures.
         split = ({"from": "validation data"} if validation is not None else
-                 {"from": "data", "fraction": float(validation_fraction), "seed": int(seed)}
+                 {"from": "data", "fraction": float(validation_fraction),
+                  "seed": None if seed is None else int(seed)}
                  if validation_fraction else {"from": "none"})
         result["settings"] = {**dict(result.settings), "data_file": data_name,
                               "validation_split": split,
@@ -428,21 +425,32 @@ def _recorded_split(data: Any, result: IdentificationResult, notes: list[str]
     if split.get("from") != "data":
         return data, None
     fraction, seed = split.get("fraction"), split.get("seed")
+    if seed is None and isinstance(fraction, float):
+        notes.append("note: the run split its data without a seed (seed=None), so its "
+                     "validation poses cannot be found again: these figures are on every pose "
+                     "(optimistic)")
+        return data, None
     if not (isinstance(fraction, float) and 0 < fraction < 1 and isinstance(seed, int)
             and not isinstance(seed, bool) and seed >= 0):
-        raise ValueError(f"its validation_split {split!r}: expected a fraction in (0, 1) and a "
-                         "seed >= 0")
+        raise ValueError(f"result: its settings' validation_split {split!r}: expected a "
+                         "fraction in (0, 1) and a seed >= 0")
     return kinds.split(data, fraction, seed)
+
+
+def shared_poses(data: Any, validation: Any) -> int:
+    """How many poses of ``validation`` are also in ``data`` (by content:
+    :func:`iwr.result.pose_keys`)."""
+    from .result import pose_keys
+
+    mine = set(pose_keys(data))
+    return sum(1 for k in pose_keys(validation) if k in mine)
 
 
 def _check_held_out(data: Any, validation: Any, notes: list[str]) -> None:
     """A validation set given apart from the data holds no pose of theirs: ValueError when every
     one of its poses is also in the data (the data file given twice), a note naming how many
     when some are (their accuracy is not a held-out one)."""
-    from .result import pose_keys
-
-    mine = set(pose_keys(data))
-    shared = sum(1 for k in pose_keys(validation) if k in mine)
+    shared = shared_poses(data, validation)
     if shared and shared == len(validation):
         raise ValueError("validation: every one of its poses is also in the data (the same "
                          "measurements given twice?): accuracy on held-out poses needs poses "
@@ -561,7 +569,9 @@ def from_result(
 ) -> Calibration:
     """The :class:`Calibration` of a result identified elsewhere (``iwr-calibrate``'s run, a
     saved result) from ``data``: everything :func:`calibrate` computes after the
-    identification, on ``validation`` (default the data themselves: an optimistic accuracy).
+    identification, on ``validation`` (default: the split the job recorded
+    (``settings["validation_split"]``) made again, so the job's sets and figures; a result that
+    records none, the data themselves: an optimistic accuracy).
     ValueError when the result's parameters are not those of ``robot`` and the data's kind."""
     kind = kinds.of(data)
     kind.check(robot, data)
@@ -597,6 +607,7 @@ def from_result(
     # of DATA's, and a file with other line numbers (comments, another layout) is the same data.
     # Held-out poses may have come from a separate file: not required to be in DATA.
     n_given = len(data)
+    screened = data  # the identification poses before the screen, as the job's start saw them
     data, gone = without_left_out(data, result, ("identification",))
     used = result.get("used")
     if (used is not None and len(data) < n_given and np.size(used) == n_given
@@ -624,8 +635,8 @@ def from_result(
     val = data if validation is None else validation
     problems: dict[Any, Any] = {}
     with kinds.reuse(problems):
-        try:
-            start = kind.start(robot, data)
+        try:  # as the job: from the identification poses before its screen
+            start = kind.start(robot, screened)
         except ValueError:  # too few points for a registration guess of their own
             start = None
         report = identifiability(robot, data)

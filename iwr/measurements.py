@@ -604,10 +604,11 @@ def data_file_limit() -> tuple[int, str]:
     return MAX_CSV_BYTES, "is this the right file? (docs/data.md)"
 
 
-def read_csv_text(path: Path) -> str:
+def read_csv_text(path: Path, *, plans: bool = False) -> str:
     """The text of a CSV file people wrote: a bounded read (a device or a dump is refused), a byte
     order mark accepted (spreadsheets write one for "CSV UTF-8"), a plan file of ``iwr plan``
-    refused with what to do instead."""
+    refused with what to do instead (unless ``plans``: ``iwr legs`` takes a plan's poses as
+    targets)."""
     try:
         with open_regular(path) as fh:
             # Before reading: what the memory available can process (a file growing meanwhile
@@ -628,7 +629,7 @@ def read_csv_text(path: Path) -> str:
         raise MeasurementFileError(str(exc)) from None
     except (OSError, UnicodeDecodeError) as exc:
         raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
-    if text.lstrip().startswith(PLAN_MARKER):
+    if not plans and text.lstrip().startswith(PLAN_MARKER):
         raise MeasurementFileError(
             f"{path}: a pose plan written by 'iwr plan' (the poses to measure), not "
             "measurements: drive the robot to each of its poses, record the joint readings, "

@@ -519,7 +519,11 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     path = Path(path)
     try:
         with open_regular(path) as fh:  # a named pipe or a device: refused, not read for ever
-            data = json.loads(fh.read(MAX_RESULT_BYTES + 1).decode("utf-8"))
+            raw = fh.read(MAX_RESULT_BYTES + 1)
+        if len(raw) > MAX_RESULT_BYTES:
+            raise ResultFileError(f"{path}: larger than {MAX_RESULT_BYTES >> 20} MB: not a "
+                                  "result file")
+        data = json.loads(raw.decode("utf-8"))
     except FileNotFoundError:
         raise ResultFileError(f"{path}: no such file") from None
     except NotRegularFileError as exc:

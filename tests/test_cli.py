@@ -152,6 +152,11 @@ def test_calibrate_with_a_validation_file_and_without_hold_out(sim, tmp_path):
     proc = run("calibrate", str(robot), str(data), "--validation", str(data), "--method", "lm",
                "--out", str(tmp_path / "a"), "--no-plots")
     assert_fails(proc, 2, r"--validation .*measurements.csv: is the data file .* itself")
+    copy = tmp_path / "copy.csv"
+    copy.write_bytes(data.read_bytes())
+    proc = run("calibrate", str(robot), str(data), "--validation", str(copy), "--method", "lm",
+               "--out", str(tmp_path / "a"), "--no-plots")
+    assert_fails(proc, 2, r"--validation .*copy.csv: every one of its 60 poses is also in")
     half = tmp_path / "half.csv"
     lines = data.read_text().splitlines(keepends=True)
     head = [ln for ln in lines if ln.startswith("#")]
@@ -525,6 +530,8 @@ def test_no_command_writes_over_its_inputs(sim, tmp_path):
          r"-o .*measurements.csv: exists and is not a file iwr legs wrote"),
         (["simulate", "--out", str(tmp_path / "s"), "--robot-file", "a.csv", "--data-file",
           "a.csv"], r"--robot-file and --data-file are both 'a.csv'"),
+        (["simulate", "--out", str(tmp_path / "s"), "--data-file", "m.csv", "--truth-file",
+          "m_long.csv"], r"--truth-file and --data-file's long form are both 'm_long.csv'"),
     ]
     for args, pattern in cases:
         proc = run(*args)
@@ -564,7 +571,8 @@ def test_inputs_that_are_no_regular_file_are_refused_not_read(sim, tmp_path):
 
 def test_weighted_poses_all_held_out_are_named_as_such(sim, tmp_path):
     """Issue 26: "every weight is zero" when the only weighted poses all fell in the validation
-    split; the message now says what happened and what to do."""
+    split. The poses of weight 0 are now out before the split, so a split leaves weighted poses
+    on both sides or is refused: one weighted pose cannot be split, and the message says why."""
     robot = iwr.Robot.from_toml(sim / "robot.toml")
     data = iwr.Measurements.from_csv(sim / "measurements.csv", robot=robot).subset(range(20))
     # One weighted pose: with 50 % held out, some seed puts it among them.
@@ -577,8 +585,9 @@ def test_weighted_poses_all_held_out_are_named_as_such(sim, tmp_path):
     weighted.to_csv(tmp_path / "w.csv")
     proc = run("calibrate", str(sim / "robot.toml"), str(tmp_path / "w.csv"), "--method", "lm",
                "--validation-fraction", "0.5", "--seed", str(seed), "--out", str(tmp_path / "o"))
-    assert_fails(proc, 1, r"--validation-fraction 0.5 \(--seed \d+\): every pose with a weight "
-                          r"> 0 fell in the 10 held-out poses")
+    assert_fails(proc, 1, r"--validation-fraction 0.5: leaves no pose for identification out of "
+                          r"1 \(the poses with a weight > 0; 19 more have weight 0 for every "
+                          r"reading")
 
 
 def test_report_md_carries_no_raw_html_from_names(sim, tmp_path):

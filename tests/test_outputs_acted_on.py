@@ -154,10 +154,18 @@ def test_poses_of_weight_zero_count_in_no_figure():
     a = cal.accuracy.calibrated.summary()["position_mm"]
     b = again.accuracy.calibrated.summary()["position_mm"]
     assert a == pytest.approx(b, rel=1e-9, abs=1e-12), (a, b)
-    # A validation set's such poses: out of the accuracy figures, with a note.
-    held = iwr.calibrate(robot, clean.subset(np.arange(30)), "lm", validation=data, seed=1)
-    assert len(held.validation) == 49
+    # A validation set's such poses (none of them in the identification set): out of the
+    # accuracy figures, with a note.
+    held = iwr.calibrate(robot, clean.subset(np.arange(30, 60)), "lm",
+                         validation=data.subset(np.arange(30)), seed=1)
+    assert len(held.validation) == 19
     assert any("11 pose(s) of the validation data have weight 0" in n for n in held.notes)
+    assert not any("also in the data" in n for n in held.notes)
+    # And with a split: the weight-0 poses are out before it, so both parts count.
+    split = iwr.calibrate(robot, data, "lm", validation_fraction=0.5, seed=3)
+    assert (len(split.identification), len(split.validation), split.weightless) == (25, 24, 11)
+    assert all((np.asarray(s.weights) > 0).any(axis=1).all()
+               for s in (split.identification, split.validation))
 
 
 def test_a_validation_set_must_be_held_out():
@@ -221,9 +229,36 @@ def test_a_report_of_a_job_result_file_gives_the_jobs_figures(tmp_path):
     status = [r["status"] for r in render(cal).parameter_rows()]
     assert [r["status"] for r in render(again).parameter_rows()] == status
     assert status.count("held at nominal (not identifiable)") == 6
+    # A run whose split had no seed: not made again, and said so.
+    unseeded = iwr.calibrate(robot, data, "lm", seed=None)
+    assert unseeded.result.settings["validation_split"]["seed"] is None
+    plain = from_result(robot, data, unseeded.result)
+    assert not plain.held_out and any("without a seed" in n for n in plain.notes)
     # A run that held out a file of its own: the report says to give it.
     held = iwr.calibrate(robot, data.subset(np.arange(40)), "lm",
                          validation=data.subset(np.arange(40, 50)))
     other = from_result(robot, data.subset(np.arange(40)), held.result)
     assert not other.held_out
     assert any("give it (--validation)" in n for n in other.notes)
+
+
+def test_a_report_of_a_tracker_run_with_gross_errors_gives_the_jobs_before(tmp_path):
+    """The job's "before" is the nominal robot in the registration guess of its identification
+    poses before the screen; ``from_result`` took the guess after leaving the run's gross errors
+    out, so ``iwr report`` of a run with a typo said 7.71 mm where the job said 7.79 (the
+    review's case: one reflector 8 mm off in two poses)."""
+    from pathlib import Path
+
+    robot = iwr.Robot.from_toml(Path(__file__).resolve().parents[1] / "examples"
+                                / "iwr_tracker.toml")
+    noise = iwr.kinds.for_robot(robot).experiment_noise(robot, NOISE)
+    data, _ = iwr.simulate(robot, 40, seed=5, noise=noise)
+    data.points[[4, 9], 0, 0] += 8.0
+    cal = iwr.calibrate(robot, data, seed=0, progress=False)
+    assert any(o.removed for o in cal.result.left_out)
+    cal.result.save(tmp_path / "result.json")
+    again = from_result(robot, data, iwr.load_result(tmp_path / "result.json"))
+    for which in ("nominal", "calibrated"):
+        a = getattr(cal.accuracy, which).summary()["position_mm"]
+        b = getattr(again.accuracy, which).summary()["position_mm"]
+        assert a == pytest.approx(b, rel=1e-9, abs=1e-12), (which, a, b)

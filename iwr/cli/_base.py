@@ -259,21 +259,29 @@ def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[
                          "folder", prog)
 
 
-def check_validation_file(validation: Any, data: Any, prog: str) -> None:
-    """``--validation`` naming DATA itself (by any spelling or link): refused (exit 2), for
-    accuracy on those poses would be called held out. (Poses shared in two files are refused
-    or noted by :func:`iwr.calibrate`.)"""
+def check_validation_file(validation: Any, data: Any, prog: str, instead: str,
+                          validation_data: Any = None, data_data: Any = None) -> None:
+    """``--validation`` naming DATA itself (by any spelling or link), or (given what both files
+    hold) a file whose every pose is in DATA: refused (exit 2), for accuracy on those poses
+    would be called held out. ``instead``: what to do instead, for the message. (Some poses
+    shared: :func:`iwr.calibrate` notes how many.)"""
     if validation is None:
         return
+    why = ""
     try:
-        same = os.path.samefile(validation, data)
+        if os.path.samefile(validation, data):
+            why = f"is the data file {data} itself"
     except OSError:
-        return  # not there: the read names it
-    if same:
-        raise UsageError(f"--validation {validation}: is the data file {data} itself; held-out "
-                         "poses must be poses not used for identification (give another file, "
-                         "or leave --validation out to hold out --validation-fraction of the "
-                         "data)", prog)
+        pass  # not there: the read names it
+    if not why and validation_data is not None and data_data is not None:
+        from ..calibration import shared_poses
+
+        n = shared_poses(data_data, validation_data)
+        if n and n == len(validation_data):
+            why = f"every one of its {n} poses is also in {data}"
+    if why:
+        raise UsageError(f"--validation {validation}: {why}; held-out poses must be poses not "
+                         f"used for identification ({instead})", prog)
 
 
 def one_line(exc: BaseException) -> str:
@@ -287,17 +295,16 @@ def one_line(exc: BaseException) -> str:
 
 def check_validation_split(data: Any, fraction: float, seed: int) -> None:
     """``--validation-fraction``, checked before the job: the split of :func:`iwr.kinds.split`
-    (one rule for every kind) exists, and leaves the identification part a weight > 0; a
-    command error naming the option otherwise."""
-    from ..kinds import split_rows
+    (one rule for every kind) of the poses that count (:func:`iwr.kinds.without_weightless`:
+    the job splits them, so every part has a weight > 0) exists; a command error naming the
+    option otherwise."""
+    from ..kinds import split_rows, without_weightless
 
+    counted, _ = without_weightless(data)
     try:
-        ident, val = split_rows(len(data), fraction, seed)
+        split_rows(len(counted), fraction, seed)
     except ValueError as exc:
-        raise CommandError(f"--validation-{one_line(exc)}") from None
-    weights = getattr(data, "weights", None)
-    if weights is not None and not (weights[ident] > 0).any():
-        raise CommandError(
-            f"--validation-fraction {fraction} (--seed {seed}): every pose with a weight > 0 fell "
-            f"in the {len(val)} held-out poses, so no identification reading counts; use another "
-            "--seed, a smaller --validation-fraction, or --validation VALID.csv")
+        left = len(data) - len(counted)
+        raise CommandError(f"--validation-{one_line(exc)}" + (
+            f" (the poses with a weight > 0; {left} more have weight 0 for every reading and "
+            "count in no set)" if left else "")) from None

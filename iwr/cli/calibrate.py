@@ -232,9 +232,11 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                          "iwr.calibrate (docs/kinds.md)")
     if "noise" in kwargs:
         kwargs["noise"] = _reading_noise(kind, robot, kwargs["noise"], method, args)
-    check_validation_file(args.validation, args.data, "iwr calibrate")
     data = read_data(args.data, robot, args.readings, targets=target_format(args))
     validation = read_data(args.validation, robot) if args.validation else None
+    check_validation_file(args.validation, args.data, "iwr calibrate",
+                          "give another file, or leave --validation out to hold out "
+                          "--validation-fraction of the data", validation, data)
     if validation is None and args.validation_fraction > 0:
         check_validation_split(data, args.validation_fraction, args.seed)
     for path, m in ((args.data, data), (args.validation, validation)):

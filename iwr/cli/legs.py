@@ -8,6 +8,7 @@ import argparse
 import csv
 import io
 import math
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -16,6 +17,8 @@ from ..measurements import effect_columns, effect_inputs
 from ._base import EXIT_OK, CommandError, UsageError, add_common, load_robot
 
 DEFAULT_OUT = "legs.csv"
+#: The first characters of a file ``iwr legs`` writes (``-o`` writes over no other file).
+LEGS_MARKER = "# iwr legs:"
 _POSE_COLUMNS = ("x_mm", "y_mm", "z_mm", "alpha_rad", "beta_rad", "gamma_rad")
 _LEG_COLUMNS = tuple(f"s{j}_mm" for j in range(1, 7))
 _FLAG_COLUMNS = ("out_of_stroke", "out_of_workspace")
@@ -184,23 +187,15 @@ def read_user_frame(path: str) -> np.ndarray:
 
 
 def _read_text(path: str) -> str:
-    """A targets or points file's text: a regular file (a named pipe or a device is refused, not
-    read for ever), bounded as a data file, UTF-8 (a byte order mark accepted)."""
-    from .._io import NotRegularFileError, open_regular
-    from ..measurements import MAX_CSV_BYTES
+    """A targets or points file's text, read as a data file is
+    (:func:`iwr.measurements.read_csv_text`: a named pipe or a device refused, bounded, UTF-8;
+    a plan of ``iwr plan`` taken: its poses are targets)."""
+    from ..measurements import MeasurementFileError, read_csv_text
 
     try:
-        with open_regular(path) as fh:
-            raw = fh.read(MAX_CSV_BYTES + 1)
-    except NotRegularFileError as exc:
+        return read_csv_text(Path(path), plans=True)
+    except MeasurementFileError as exc:
         raise CommandError(str(exc)) from None
-    if len(raw) > MAX_CSV_BYTES:
-        raise CommandError(f"{path}: larger than {MAX_CSV_BYTES // 2**20} MB; is this the right "
-                           "file?")
-    try:
-        return raw.decode("utf-8-sig")
-    except UnicodeDecodeError as exc:
-        raise CommandError(f"{path}: not UTF-8 text ({exc.reason} at byte {exc.start})") from None
 
 
 def _joint_columns(robot: Any) -> list[str]:
@@ -223,7 +218,7 @@ def cmd_legs(args: argparse.Namespace) -> int:
     from ._base import check_output
 
     check_output(args.out, "-o", inputs=[args.robot, args.targets, args.user_frame],
-                 prog="iwr legs", own="# iwr legs:")
+                 prog="iwr legs", own=LEGS_MARKER)
     robot = load_robot(args.robot)
     try:
         note = check_calibration(robot, allow_unverified=args.allow_unverified,
@@ -267,7 +262,7 @@ def cmd_legs(args: argparse.Namespace) -> int:
     tool = "" if args.tool is None else (
         "; targets are the poses of the tool frame at "
         + ",".join(repr(float(v)) for v in args.tool) + " in {5}")
-    buf.write(f"# iwr legs: leg sensor readings s1..s6 (mm; leg length = reading + l0) that put "
+    buf.write(f"{LEGS_MARKER} leg sensor readings s1..s6 (mm; leg length = reading + l0) that put "
               f"the platform at each target pose, by the inverse kinematics of {name}; targets "
               f"in {frame_text}{tool}; flags 1 where a leg is outside its stroke or the "
               "target outside the workspace (joint limits, home_pose +- workspace)\n")

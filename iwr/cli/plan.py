@@ -7,6 +7,7 @@ from typing import Any
 
 import numpy as np
 
+from ..measurements import PLAN_MARKER
 from ._base import (
     EXIT_OK,
     CommandError,
@@ -68,7 +69,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from ..simulation import sample_poses
 
     check_output(args.out, "--out", inputs=[args.robot, args.candidates], prog="iwr plan",
-                 own="# iwr plan:")
+                 own=PLAN_MARKER)
     robot = load_robot(args.robot)
     if args.candidates:
         from ..kinds import for_robot

@@ -42,8 +42,9 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     p.add_argument("robot", metavar="ROBOT.toml", help="the nominal robot it was identified for")
     p.add_argument("data", metavar="DATA.csv", help="the measurements it was identified from")
     p.add_argument("--validation", metavar="VALID.csv",
-                   help="held-out poses for the accuracy figure (default: DATA.csv itself, an "
-                   "optimistic figure)")
+                   help="the run's held-out poses, when it held out a file of its own (default: "
+                   "the split an iwr calibrate run records, made again; else DATA.csv itself, "
+                   "an optimistic figure)")
     add_tracker_arguments(p)  # --readings: tracker data as a long table (docs/tracker.md)
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help="output folder (created if needed; default: %(default)s)")
@@ -160,8 +161,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     warning = _check_robot(args, result, robot)
     check_effect_inputs(robot, data, args.data)
     note = _check_data(args, result, robot, data)
-    check_validation_file(args.validation, args.data, "iwr report")
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
+    check_validation_file(args.validation, args.data, "iwr report",
+                          "give the run's validation file, or leave --validation out: the run's "
+                          "own split is made again", validation, data)
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
     for key in ("readings", "validation"):
         if getattr(args, key):

@@ -93,7 +93,10 @@ def cmd_simulate(args: argparse.Namespace) -> int:
 
     stem = Path(args.data_file).with_suffix("")
     names = {"--robot-file": args.robot_file, "--data-file": args.data_file,
-             "--truth-file": args.truth_file}
+             "--truth-file": args.truth_file,
+             # tracker data's long form and readings, named after --data-file
+             "--data-file's long form": f"{stem}_long.csv",
+             "--data-file's readings": f"{stem}_readings.csv"}
     seen: dict[str, str] = {}
     for option, name in names.items():
         other = seen.setdefault(os.path.normcase(os.path.normpath(name)), option)

@@ -870,11 +870,12 @@ def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: 
     from ..tracker.gauge import _align
     from ..transforms import rotation_angle
 
-    guess = start  # the registration guess the identification started from, or None
-    problem, start = effect_tracker_problem(robot, measurements)
-    if guess is not None:
-        start = start.copy()
-        start[start.size - guess.x_setup.size:] = guess.x_setup
+    if start is None:  # the registration guess on these data
+        problem, start = effect_tracker_problem(robot, measurements)
+    else:  # the guess the identification started from: none made on these data
+        n = robot.n_params + len(effect_names(robot.effects))
+        problem, start = effect_tracker_problem(
+            robot, measurements, x0=np.concatenate([np.zeros(n), start.x_setup]))
     x = problem._x(x)
     if truth is None:
         return Accuracy(_point_errors(problem, start), _point_errors(problem, x))

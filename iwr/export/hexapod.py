@@ -155,14 +155,17 @@ def leg_correction_table(calibrated: Robot, nominal: Robot, n_per_axis: int = 3
 
 
 def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
-                        source: str | None = None, nominal_source: str | None = None) -> str:
+                        source: str | None = None, nominal_source: str | None = None, *,
+                        check: bool = True) -> str:
     """The text of the leg-correction table (CSV with ``#`` comments stating the frame).
     Raises :class:`iwr.compensation.NominalMismatchError` for a ``nominal`` that is not a model
-    the calibration can be relative to (:func:`iwr.compensation.check_nominal`)."""
-    from ..compensation import check_nominal
+    the calibration can be relative to (:func:`iwr.compensation.check_nominal`; ``check``
+    False: the caller has checked it)."""
+    if check:
+        from ..compensation import check_nominal
 
-    check_nominal(calibrated, nominal, where=source or "calibrated",
-                  nominal_where=nominal_source or "nominal")
+        check_nominal(calibrated, nominal, where=source or "calibrated",
+                      nominal_where=nominal_source or "nominal")
     poses, s_nom, s_cal = leg_correction_table(calibrated, nominal, n_per_axis)
     lo, hi = calibrated.leg_stroke[:, 0], calibrated.leg_stroke[:, 1]
     inside = np.all((s_cal >= lo) & (s_cal <= hi), axis=1)
@@ -205,8 +208,9 @@ def write_hexapod_json(path: str | os.PathLike[str], robot: Robot,
 
 def write_leg_corrections(path: str | os.PathLike[str], calibrated: Robot, nominal: Robot,
                           n_per_axis: int = 3, source: str | None = None,
-                          nominal_source: str | None = None) -> int:
+                          nominal_source: str | None = None, *, check: bool = True) -> int:
     """Write :func:`leg_corrections_csv` atomically; returns the number of poses."""
-    text = leg_corrections_csv(calibrated, nominal, n_per_axis, source, nominal_source)
+    text = leg_corrections_csv(calibrated, nominal, n_per_axis, source, nominal_source,
+                               check=check)
     atomic_write_text(path, text)
     return len(pose_grid(calibrated, n_per_axis))

@@ -159,6 +159,7 @@ class CalibrationReport(Calibration):
             "data": self.data_name,
             "n_identification": len(self.identification),
             "n_validation": len(self.validation) if self.held_out else 0,
+            "n_weightless": self.weightless,  # weight 0 for every reading: in no set
             "method": self.result.method,
             "nfev": int(self.result.nfev),
             "wall_time": float(self.result.wall_time),
