@@ -657,8 +657,8 @@ def from_result(
             # A result file does not keep the estimator's covariance: say whose these are.
             notes.append("note: the standard deviations are eq. (10)'s first-order ones at the "
                          "result, not the efficient estimator's covariance (which `iwr "
-                         "calibrate` reports; a result file does not keep it); they can differ "
-                         "by up to 2x")
+                         "calibrate` reports; a result file does not keep it): they differ from "
+                         "them, several-fold for some parameters (3.3x on the built-in example)")
         _note_widened(robot, result, notes)
         cal = Calibration(
             robot=robot, identification=data, validation=val, held_out=validation is not None,
@@ -746,7 +746,8 @@ def _weighted_fit(robot: Any, data: Any, result: IdentificationResult, report: A
 def _uncertainty(robot: Any, data: Any, result: Any, report: Any, noise: Any, notes: list[str],
                  *, own_covariance: bool = True) -> Uncertainty | None:
     """The standard deviations of the identified parameters: the efficient estimator's own
-    covariance when it has one (eq. (10)'s first-order covariance differs from it by up to 2x),
+    covariance when it has one (eq. (10)'s first-order covariance differs from it, several-fold
+    for some parameters),
     else the objective's the method minimised (weighted by ``noise`` when it was) over the
     result's active parameters, or ``report``'s identifiable ones. None, with a note, where
     they do not exist."""

@@ -183,6 +183,9 @@ def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
         "reading adds to it.",
         "Leg length = reading + leg offset l0 (each model's own). within_stroke: 1 if every "
         "calibrated reading is within the stroke.",
+        "Frame {4} is the calibrated carriage's: what the data cannot tell apart between the "
+        "carriage's last joint and the base joints sits in one or the other, so use this table "
+        "with the calibrated carriage (carriage.urdf of the same export), not the nominal one.",
     ):
         buf.write(f"# {line}\n")
     w = csv.writer(buf, lineterminator="\n")
