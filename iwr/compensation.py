@@ -140,13 +140,15 @@ def check_nominal(calibrated: Robot, nominal: Robot, *, where: str = "calibrated
                   nominal_where: str = "nominal") -> str:
     """Check that ``nominal`` can be the model a calibration's corrections are relative to.
 
-    Returns a note ("" when there is nothing to say). Raises :class:`NominalMismatchError` when
-    ``nominal`` is another robot (its geometry differs from the calibrated one by more than
-    :data:`NOMINAL_PLAUSIBLE` times the default bounds in some parameter: no calibration moves
-    a parameter that far) or the calibrated robot itself (the same geometry, while the
-    calibration records another nominal: every correction would be zero). A calibration file
-    records the fingerprint of its nominal geometry (``[provenance] nominal_geometry``); a
-    plausible nominal that is not that one (the controller's own model, say) gives a note.
+    Returns a note ("" when there is nothing to say). A calibration file records the fingerprint
+    of its nominal geometry (``[provenance] nominal_geometry``); that nominal passes. Raises
+    :class:`NominalMismatchError` for the calibrated robot itself (the same geometry: every
+    correction would be zero) and, after a calibration from data that determine {0} (pose
+    data), for another robot: a geometry more than :data:`NOMINAL_PLAUSIBLE` times the default
+    bounds from the calibrated one in some parameter, which no calibration moves. Tracker and
+    ballbar data leave {0} or {5} to a gauge choice that moves the base or platform joints by
+    millimetres (7 mm in a tracker calibration's base joint z, seen), so there such a difference
+    gives a note only. Another plausible nominal (the controller's own model) gives a note.
     """
     x = implied_errors(nominal, calibrated)
     prov = calibrated.provenance
@@ -156,25 +158,30 @@ def check_nominal(calibrated: Robot, nominal: Robot, *, where: str = "calibrated
     if recorded is not None and recorded == geometry_fingerprint(nominal):
         return ""
     made_from = f" ({where} was calibrated from {prov['robot']})" if prov.get("robot") else ""
+    lead = (f"note: {nominal_where} is not the robot file {where} was calibrated from{made_from}"
+            if recorded is not None else
+            f"note: {where} records no fingerprint of its nominal robot (an older iwr wrote it), "
+            f"so {nominal_where} could not be checked to be it")
+    if not np.any(x) and prov.get("method") is not None:
+        raise NominalMismatchError(
+            f"{nominal_where} has the geometry of {where} itself, not of the nominal robot it "
+            f"was calibrated from{made_from}: every correction would be zero")
     limit = NOMINAL_PLAUSIBLE * nominal.default_bounds("default")[1]
     ratio = np.abs(x) / limit
     worst = int(np.argmax(ratio))
     if ratio[worst] > 1.0:
         name = nominal.parameter_names[worst]
         unit = "rad" if nominal.angle_parameters[worst] else "mm"
-        raise NominalMismatchError(
-            f"{nominal_where} is not the nominal robot of {where}{made_from}: "
-            f"{name} differs by {x[worst]:.6g} {unit} between them, more than "
-            f"{limit[worst]:.3g} {unit} ({NOMINAL_PLAUSIBLE:g} times the default bounds), which "
-            "no calibration moves")
-    if not np.any(x) and prov.get("method") is not None and recorded is not None:
-        raise NominalMismatchError(
-            f"{nominal_where} has the geometry of {where} itself, not of the nominal robot it "
-            f"was calibrated from{made_from}: every correction would be zero")
+        differs = (f"{name} differs by {x[worst]:.6g} {unit} between them, more than "
+                   f"{limit[worst]:.3g} {unit} ({NOMINAL_PLAUSIBLE:g} times the default bounds)")
+        if determined_frame(calibrated) == "0":
+            raise NominalMismatchError(f"{nominal_where} is not the nominal robot of {where}"
+                                       f"{made_from}: {differs}, which no calibration moves")
+        return (f"{lead}: {differs}, which its data's gauge allows; check that it is the model "
+                "your controller uses for this robot")
     if recorded is None:
         return ""
-    return (f"note: {nominal_where} is not the robot file {where} was calibrated from"
-            f"{made_from}: the corrections are relative to {nominal_where}'s geometry")
+    return f"{lead}: the corrections are relative to {nominal_where}'s geometry"
 
 
 def determined_frame(robot: Robot) -> str | None:

@@ -240,6 +240,43 @@ def test_cli_export_refuses_a_nominal_the_calibration_is_not_relative_to(calibra
         leg_corrections_csv(loaded, iwr.Robot.from_toml(tmp_path / "other.toml"), 2)
 
 
+def test_a_tracker_calibrations_gauge_is_not_taken_for_another_robot():
+    """Tracker data leave {0} to a gauge choice: a tracker calibration's base joints sit
+    millimetres from the nominal ones (7.2 mm in z, seen), beyond the 10x-bounds size that
+    refuses another robot after a pose-data calibration. Its recorded nominal passes; another
+    nominal (or a file that records none) gets a note, not a refusal; the same difference after
+    a pose-data calibration is refused; the calibrated robot itself is refused either way."""
+    from iwr.compensation import NominalMismatchError, check_nominal
+    from iwr.robot_fingerprint import geometry_fingerprint
+
+    refl = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
+    for tracker in (True, False):
+        nominal = iwr.Robot.default()
+        if tracker:
+            nominal = nominal.with_tracker(registration=(2000, 0, 0, 1.5708, 0, 0),
+                                           reflectors=refl)
+        x = np.zeros(nominal.n_params)
+        x[nominal.parameter_names.index("leg2.da_z")] = 7.2
+        cal = nominal.with_errors(x)
+        other = iwr.Robot.default()
+        other.leg_offsets[0] += 0.3  # the controller's own model, say
+        for recorded in (geometry_fingerprint(nominal), None):
+            prov = {"status": "success", "method": "lm", "robot": "robot.toml"}
+            if recorded:
+                prov["nominal_geometry"] = recorded
+            calibrated = iwr.Robot.from_dict({**cal.to_dict(), "provenance": prov})
+            if recorded:
+                assert check_nominal(calibrated, nominal) == ""
+            if tracker:
+                note = check_nominal(calibrated, other)
+                assert "leg2.da_z differs by 7.2 mm" in note and "gauge allows" in note
+            else:
+                with pytest.raises(NominalMismatchError, match="leg2.da_z differs by 7.2 mm"):
+                    check_nominal(calibrated, other)
+            with pytest.raises(NominalMismatchError, match="every correction would be zero"):
+                check_nominal(calibrated, calibrated)
+
+
 def test_a_robot_with_effects_exports_them_and_says_what_holds_the_geometry_only(
         calibrated, tmp_path, capsys):
     """The effects are not dropped silently: hexapod.json records them, and the command says
