@@ -88,6 +88,10 @@ def test_version():
         (("calibrate", "--method", "nope"), r"--method 'nope': available methods: .*lm"),
         (("calibrate", "--method", "lm", "--generations", "5"),
          r"--generations is not an option of method 'lm'"),
+        # a QA run: DE's named choices exited 1 naming "strategy:", not the option
+        (("calibrate", "--method", "de", "--strategy", "foo"),
+         r"--strategy 'foo': expected one of rand1bin, .*jso"),
+        (("calibrate", "--method", "de", "--preset", "foo"), r"--preset 'foo': expected 'paper'"),
         (("calibrate", "--validation-fraction", "1.5"), r"--validation-fraction: 1.5 must be"),
         (("simulate", "--poses", "0"), r"--poses: 0 must be a positive integer"),
         (("simulate", "--noise", "legs=abc"), r"legs='abc' is not a number"),

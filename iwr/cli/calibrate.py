@@ -193,6 +193,14 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
         if name is None:
             raise UsageError(f"--{option} is not an option of method {method!r}")
         kwargs[name] = value
+    if method == "de":  # its named choices: a usage error naming the option (exit 2)
+        from ..methods.de import STRATEGIES
+
+        if kwargs.get("strategy") not in (None, *STRATEGIES):
+            raise UsageError(f"--strategy {kwargs['strategy']!r}: expected one of "
+                             f"{', '.join(STRATEGIES)}")
+        if kwargs.get("preset") not in (None, "paper"):
+            raise UsageError(f"--preset {kwargs['preset']!r}: expected 'paper'")
     return kwargs
 
 
