@@ -33,7 +33,8 @@ from .gross_errors import screen as screen_gross_errors
 from .methods import IdentificationResult, identify
 from .robot_fingerprint import record as robot_model_record
 
-__all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "LeftOutError", "calibrate", "from_result"]
+__all__ = ["NOT_CALIBRATED", "WORSE", "Calibration", "LeftOutError", "NotHeldOutError",
+           "calibrate", "from_result"]
 
 #: The status (and message prefix) of a run whose method converged but whose data cannot
 #: identify the errors, or whose calibrated robot is no better than the nominal one.
@@ -437,25 +438,28 @@ def _recorded_split(data: Any, result: IdentificationResult, notes: list[str]
     return kinds.split(data, fraction, seed)
 
 
-def shared_poses(data: Any, validation: Any) -> int:
-    """How many poses of ``validation`` are also in ``data`` (by content:
-    :func:`iwr.result.pose_keys`)."""
-    from .result import pose_keys
+class NotHeldOutError(ValueError):
+    """A validation set whose every pose is also in the data (``shared`` of them)."""
 
-    mine = set(pose_keys(data))
-    return sum(1 for k in pose_keys(validation) if k in mine)
+    def __init__(self, shared: int) -> None:
+        self.shared = shared
+        super().__init__("validation: every one of its poses is also in the data (the same "
+                         "measurements given twice?): accuracy on held-out poses needs poses the "
+                         "identification did not use; give other poses, or none to hold out a "
+                         "fraction of the data")
 
 
 def _check_held_out(data: Any, validation: Any, notes: list[str]) -> None:
-    """A validation set given apart from the data holds no pose of theirs: ValueError when every
-    one of its poses is also in the data (the data file given twice), a note naming how many
-    when some are (their accuracy is not a held-out one)."""
-    shared = shared_poses(data, validation)
+    """A validation set given apart from the data holds no pose of theirs:
+    :class:`NotHeldOutError` when every one of its poses is also in the data (the data file
+    given twice), a note naming how many when some are (their accuracy is not a held-out one).
+    Poses are compared by content (:func:`iwr.result.pose_keys`)."""
+    from .result import pose_keys
+
+    mine = set(pose_keys(data))
+    shared = sum(1 for k in pose_keys(validation) if k in mine)
     if shared and shared == len(validation):
-        raise ValueError("validation: every one of its poses is also in the data (the same "
-                         "measurements given twice?): accuracy on held-out poses needs poses "
-                         "the identification did not use; give other poses, or none to hold "
-                         "out a fraction of the data")
+        raise NotHeldOutError(shared)
     if shared:
         notes.append(f"note: {shared} of the {len(validation)} validation poses are also in the "
                      "data: their accuracy is not a held-out one")

@@ -259,29 +259,29 @@ def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[
                          "folder", prog)
 
 
-def check_validation_file(validation: Any, data: Any, prog: str, instead: str,
-                          validation_data: Any = None, data_data: Any = None) -> None:
-    """``--validation`` naming DATA itself (by any spelling or link), or (given what both files
-    hold) a file whose every pose is in DATA: refused (exit 2), for accuracy on those poses
-    would be called held out. ``instead``: what to do instead, for the message. (Some poses
-    shared: :func:`iwr.calibrate` notes how many.)"""
+def not_held_out(validation: Any, data: Any, prog: str, instead: str,
+                 shared: int | None = None) -> UsageError:
+    """The usage error (exit 2) of a ``--validation`` file that is DATA itself (by any spelling
+    or link), or, given ``shared`` (:class:`iwr.calibration.NotHeldOutError`), whose every pose
+    is in DATA: accuracy on those poses would be called held out. ``instead``: what to do
+    instead, for the message."""
+    why = (f"every one of its {shared} poses is also in {data}" if shared is not None
+           else f"is the data file {data} itself")
+    return UsageError(f"--validation {validation}: {why}; held-out poses must be poses not used "
+                      f"for identification ({instead})", prog)
+
+
+def check_validation_file(validation: Any, data: Any, prog: str, instead: str) -> None:
+    """``--validation`` naming DATA itself, refused before anything is read (:func:`not_held_out`;
+    a file of DATA's poses under another name: :func:`iwr.calibrate` finds it)."""
     if validation is None:
         return
-    why = ""
     try:
-        if os.path.samefile(validation, data):
-            why = f"is the data file {data} itself"
+        same = os.path.samefile(validation, data)
     except OSError:
-        pass  # not there: the read names it
-    if not why and validation_data is not None and data_data is not None:
-        from ..calibration import shared_poses
-
-        n = shared_poses(data_data, validation_data)
-        if n and n == len(validation_data):
-            why = f"every one of its {n} poses is also in {data}"
-    if why:
-        raise UsageError(f"--validation {validation}: {why}; held-out poses must be poses not "
-                         f"used for identification ({instead})", prog)
+        return  # not there: the read names it
+    if same:
+        raise not_held_out(validation, data, prog, instead)
 
 
 def one_line(exc: BaseException) -> str:

@@ -31,6 +31,7 @@ from ._base import (
     load_robot,
     noise_spec,
     nonneg_int,
+    not_held_out,
     overwritten_input,
     positive_int,
     progress_enabled,
@@ -240,11 +241,9 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
                          "iwr.calibrate (docs/kinds.md)")
     if "noise" in kwargs:
         kwargs["noise"] = _reading_noise(kind, robot, kwargs["noise"], method, args)
+    check_validation_file(args.validation, args.data, "iwr calibrate", _HOLD_OUT_INSTEAD)
     data = read_data(args.data, robot, args.readings, targets=target_format(args))
     validation = read_data(args.validation, robot) if args.validation else None
-    check_validation_file(args.validation, args.data, "iwr calibrate",
-                          "give another file, or leave --validation out to hold out "
-                          "--validation-fraction of the data", validation, data)
     if validation is None and args.validation_fraction > 0:
         check_validation_split(data, args.validation_fraction, args.seed)
     for path, m in ((args.data, data), (args.validation, validation)):
@@ -400,7 +399,7 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
                truth: np.ndarray | None = None, sources: dict[str, str] | None = None) -> Any:
     """The job (:func:`iwr.calibration.calibrate`), printed as it goes and written as its
     report (:func:`iwr.reporting.calibration.render`)."""
-    from ..calibration import calibrate
+    from ..calibration import NotHeldOutError, calibrate
     from ..reporting.calibration import render
 
     noise = kwargs.get("noise")
@@ -421,13 +420,18 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     if getattr(args, "validation", None):
         inputs["validation"] = str(args.validation)
     options = {k: v for k, v in kwargs.items() if k != "noise"}
-    cal = calibrate(
-        robot, data, method, noise=noise, validation=validation,
-        validation_fraction=args.validation_fraction, seed=args.seed,
-        parameters=args.parameters, bounds=args.bounds, truth=truth,
-        progress=progress_enabled(args), log=lambda line: print(line, flush=True),
-        data_name=data_name, robot_name=robot_name, sources=sources,
-        settings=run_settings(args, method, kwargs), provenance=provenance(inputs), **options)
+    try:
+        cal = calibrate(
+            robot, data, method, noise=noise, validation=validation,
+            validation_fraction=args.validation_fraction, seed=args.seed,
+            parameters=args.parameters, bounds=args.bounds, truth=truth,
+            progress=progress_enabled(args), log=lambda line: print(line, flush=True),
+            data_name=data_name, robot_name=robot_name, sources=sources,
+            settings=run_settings(args, method, kwargs), provenance=provenance(inputs),
+            **options)
+    except NotHeldOutError as exc:  # before any work
+        raise not_held_out(args.validation, args.data, "iwr calibrate", _HOLD_OUT_INSTEAD,
+                           exc.shared) from None
     report = render(cal)
     print(report.text())
     written = report.write(out, plots=not args.no_plots)
@@ -437,6 +441,10 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
               "(success = false)", file=sys.stderr)
         raise _Interrupted
     return cal
+
+
+_HOLD_OUT_INSTEAD = ("give another file, or leave --validation out to hold out "
+                     "--validation-fraction of the data")
 
 
 class _Interrupted(Exception):

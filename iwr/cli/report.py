@@ -19,6 +19,7 @@ from ._base import (
     check_output,
     check_validation_file,
     load_robot,
+    not_held_out,
     one_line,
     read_data,
 )
@@ -138,7 +139,7 @@ def _shown_settings(result: Any) -> dict[str, Any]:
 
 
 def cmd_report(args: argparse.Namespace) -> int:
-    from ..calibration import LeftOutError, from_result
+    from ..calibration import LeftOutError, NotHeldOutError, from_result
     from ..kinds import for_robot
     from ..methods import load_result
     from ..reporting.calibration import OUTPUT_FILES, render
@@ -161,10 +162,10 @@ def cmd_report(args: argparse.Namespace) -> int:
     warning = _check_robot(args, result, robot)
     check_effect_inputs(robot, data, args.data)
     note = _check_data(args, result, robot, data)
+    instead = ("give the run's validation file, or leave --validation out: the run's own split "
+               "is made again")
+    check_validation_file(args.validation, args.data, "iwr report", instead)
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
-    check_validation_file(args.validation, args.data, "iwr report",
-                          "give the run's validation file, or leave --validation out: the run's "
-                          "own split is made again", validation, data)
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
     for key in ("readings", "validation"):
         if getattr(args, key):
@@ -176,6 +177,9 @@ def cmd_report(args: argparse.Namespace) -> int:
             sources={"readings": str(args.readings)} if args.readings else None,
             settings=_shown_settings(result),
             provenance=provenance(inputs))
+    except NotHeldOutError as exc:  # every --validation pose is in DATA
+        raise not_held_out(args.validation, args.data, "iwr report", instead,
+                           exc.shared) from None
     except LeftOutError as exc:  # a pose the run left out is not in DATA: other data
         raise UsageError(f"{args.data}: {one_line(exc)} ({args.run})", "iwr report") from None
     except ValueError as exc:  # the result's parameters are not this robot's
