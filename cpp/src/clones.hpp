@@ -26,3 +26,33 @@
 #undef IWR_CLONES
 #define IWR_CLONES
 #endif
+
+namespace iwr {
+
+// The vector width in doubles of the IWR_CLONES variant this CPU runs (8 AVX-512, 4 AVX2, 2 the
+// baseline's SSE2): for work split into register-sized groups outside a clone (DE's log columns),
+// where a group sized for the widest registers spills in narrower ones.
+inline int clone_lanes() {
+#if defined(IWR_DE_ISA_AVX512F)
+    return 8;
+#elif defined(IWR_DE_ISA_AVX2)
+    return 4;
+#elif defined(IWR_DE_ISA_BASELINE)
+    return 2;
+#elif defined(__GNUC__) && !defined(__clang__) && defined(__x86_64__) && defined(__linux__) && \
+    defined(__GLIBC__)
+    // The test target_clones' resolver makes (GCC's ifunc picks the clone by the same builtin).
+    static const int lanes = __builtin_cpu_supports("avx512f") ? 8
+                             : __builtin_cpu_supports("avx2") ? 4
+                                                               : 2;
+    return lanes;
+#elif defined(__AVX512F__)
+    return 8;
+#elif defined(__AVX2__) || defined(__AVX__)
+    return 4;
+#else
+    return 2;
+#endif
+}
+
+}  // namespace iwr

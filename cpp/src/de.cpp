@@ -421,96 +421,117 @@ void archive_trim(State& st) {
 // deviations: the best individual is within the converged cluster, where the rounded mean of two
 // passes lost everything (a spread of 1e-16 for identical rows); a shift that is itself an
 // outlier (k up to sqrt(np)) loses a factor np (3e-12 relative at np = 600, emulated). A negative
-// difference (rounding) is 0; NaN stays NaN. The columns as NV vectors of kLane doubles (one
-// AVX-512 register, two AVX2, four SSE2) and a last vector of T < kLane columns, all in the one
-// pass, the counts constants: a pass is as long as one column's chain of np dependent adds,
-// whatever the count. Written with vectors because the compiler, left to group a count such as
-// 10 or 26 itself, turned the last columns into scalar adds fed by loads gathered across rows.
-constexpr int kLane = 8;
-constexpr int kLogColumns = 4 * kLane;
+// difference (rounding) is 0; NaN stays NaN. The columns as NV vectors of L doubles and a last
+// vector of T < L columns, all in the one pass, the counts constants: a pass is as long as one
+// column's chain of np dependent adds, whatever the count. Written with vectors because the
+// compiler, left to group a count such as 10 or 26 itself, turned the last columns into scalar adds
+// fed by loads gathered across rows. L is the width of the registers of the clone the CPU runs
+// (clone_lanes: 8 AVX-512, 4 AVX2, 2 SSE2) and a pass takes 4 L columns (log_window), so that
+// the shift and the two sums of a pass (12 registers) stay in the registers: one width for every
+// clone (8, and 32 columns a pass) spilled them to the stack row by row in AVX2's and SSE2's 16
+// registers and moved lanes through general registers; the log was 45 % of DE's own work on a
+// Zen 3 (BENCHMARKS.md, twenty-third round). The grouping does not change a column's sums.
+inline int log_window() { return 4 * clone_lanes(); }
 #if defined(__GNUC__)
-using Lanes = double __attribute__((vector_size(kLane * sizeof(double))));
+template <int L>
+struct LanesOf {  // (an alias template drops the attribute)
+    typedef double type __attribute__((vector_size(L * sizeof(double))));
+};
+template <int L>
+using Lanes = typename LanesOf<L>::type;
 #else
+template <int L>
 struct Lanes {
-    double v[kLane];
+    double v[L];
     double& operator[](int k) { return v[k]; }
     double operator[](int k) const { return v[k]; }
     Lanes& operator+=(const Lanes& o) {
-        for (int k = 0; k < kLane; ++k) v[k] += o.v[k];
+        for (int k = 0; k < L; ++k) v[k] += o.v[k];
         return *this;
     }
     Lanes operator-(const Lanes& o) const {
         Lanes r;
-        for (int k = 0; k < kLane; ++k) r.v[k] = v[k] - o.v[k];
+        for (int k = 0; k < L; ++k) r.v[k] = v[k] - o.v[k];
         return r;
     }
     Lanes operator*(const Lanes& o) const {
         Lanes r;
-        for (int k = 0; k < kLane; ++k) r.v[k] = v[k] * o.v[k];
+        for (int k = 0; k < L; ++k) r.v[k] = v[k] * o.v[k];
         return r;
     }
 };
 #endif
-// The first n <= kLane doubles at x into r, its other lanes 0. (A reference, not a return value:
+// The first n <= L doubles at x into r, its other lanes 0. (A reference, not a return value:
 // a vector returned by value has another ABI with AVX-512, which GCC warns of.)
-template <int n>
-IWR_FORCE_INLINE void load_lanes(const double* x, Lanes& r) {
-    if (n == kLane) {
+template <int L, int n>
+IWR_FORCE_INLINE void load_lanes(const double* x, Lanes<L>& r) {
+    if (n == L) {
         std::memcpy(&r, x, sizeof r);
     } else {
-        r = Lanes{};
+        r = Lanes<L>{};
         for (int k = 0; k < n; ++k) r[k] = x[k];
     }
 }
-template <int NV, int T>
+template <int L, int NV, int T>
 IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, const double* shift,
-                                        int j0, double* v) {
+                                        int j0, int skip, double* v) {
     constexpr int nv = NV + (T > 0 ? 1 : 0);
-    Lanes c[nv], s1[nv] = {}, s2[nv] = {}, t = {};
+    Lanes<L> c[nv], s1[nv] = {}, s2[nv] = {}, t = {};
     for (int g = 0; g < NV; ++g) {
         // Through t: in CI's -O0 sanitizer build GCC took a memcpy into c[g] for an overflow.
-        load_lanes<kLane>(shift + j0 + g * kLane, t);
+        load_lanes<L, L>(shift + j0 + g * L, t);
         c[g] = t;
     }
     if (T > 0) {
-        load_lanes<T>(shift + j0 + NV * kLane, t);
+        load_lanes<L, T>(shift + j0 + NV * L, t);
         c[nv - 1] = t;
     }
     for (int i = 0; i < np; ++i) {
         const double* x = rows[i] + j0;
         for (int g = 0; g < NV; ++g) {
-            load_lanes<kLane>(x + g * kLane, t);
+            load_lanes<L, L>(x + g * L, t);
             t = t - c[g];
             s1[g] += t;
             s2[g] += t * t;
         }
         if (T > 0) {
-            load_lanes<T>(x + NV * kLane, t);
+            load_lanes<L, T>(x + NV * L, t);
             t = t - c[nv - 1];
             s1[nv - 1] += t;
             s2[nv - 1] += t * t;
         }
     }
-    for (int k = 0; k < NV * kLane + T; ++k) {
-        const double sum = s1[k / kLane][k % kLane];
-        const double d = s2[k / kLane][k % kLane] - sum * (sum / np);
+    for (int k = skip; k < NV * L + T; ++k) {
+        const double sum = s1[k / L][k % L];
+        const double d = s2[k / L][k % L] - sum * (sum / np);
         v[j0 + k] = d < 0 ? 0.0 : d;
     }
 }
 
-// Columns [j0, j0 + nc) of the log, 1 <= nc <= kLogColumns: the counts constants in each case, so
-// that the sums of a group narrower than kLogColumns (the last) stay in vector registers too.
-template <int... N>
+// Columns [j0, j0 + nc) of the log, 1 <= nc <= 4 L, written from column j0 + skip on: the counts
+// constants in each case, so that the sums of a pass narrower than 4 L stay in vector registers
+// too.
+template <int L, int... N>
 IWR_FORCE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows,
-                                   int np, const double* shift, int j0, int nc, double* v) {
+                                   int np, const double* shift, int j0, int nc, int skip,
+                                   double* v) {
     ((nc == N + 1
-          ? column_deviations<(N + 1) / kLane, (N + 1) % kLane>(rows, np, shift, j0, v)
+          ? column_deviations<L, (N + 1) / L, (N + 1) % L>(rows, np, shift, j0, skip, v)
           : void()),
      ...);
 }
 IWR_CLONES void column_block(const double* const* rows, int np, const double* shift, int j0,
-                             int nc, double* v) {
-    column_cases(std::make_integer_sequence<int, kLogColumns>(), rows, np, shift, j0, nc, v);
+                             int nc, int skip, double* v) {
+    switch (clone_lanes()) {
+        case 8:
+            column_cases<8>(std::make_integer_sequence<int, 32>(), rows, np, shift, j0, nc, skip, v);
+            break;
+        case 4:
+            column_cases<4>(std::make_integer_sequence<int, 16>(), rows, np, shift, j0, nc, skip, v);
+            break;
+        default:
+            column_cases<2>(std::make_integer_sequence<int, 8>(), rows, np, shift, j0, nc, skip, v);
+    }
 }
 
 // The log row of the current population, and st.elapsed (+= the time since t0, the log
@@ -538,12 +559,17 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
         rows[static_cast<std::size_t>(i)] = trials && (*taken)[static_cast<std::size_t>(i)]
                                                 ? trials->row(i).data()
                                                 : st.population.row(i).data();
-    const int blocks = (d + kLogColumns - 1) / kLogColumns;
+    // Passes of `window` columns; where d is not a multiple, the last pass is moved back to end at
+    // column d (its first columns, computed again with the same arithmetic, are not written), so
+    // that every pass but one of a narrower problem is full width: no lanes loaded one by one.
+    const int window = std::min(log_window(), d);
+    const int blocks = (d + window - 1) / window;
     pool.parallel_for(static_cast<std::size_t>(blocks), [&](std::size_t b, std::size_t end, int) {
         for (std::size_t k = b; k < end; ++k) {
-            const int j0 = static_cast<int>(k) * kLogColumns;
-            column_block(rows.data(), np, rows[static_cast<std::size_t>(best)], j0,
-                         std::min(kLogColumns, d - j0), v.data());
+            const int first = static_cast<int>(k) * window;
+            const int j0 = std::min(first, d - window);
+            column_block(rows.data(), np, rows[static_cast<std::size_t>(best)], j0, window,
+                         first - j0, v.data());
         }
         if (!trials) return;
         const auto first = static_cast<std::size_t>(np) * b / static_cast<std::size_t>(blocks);
