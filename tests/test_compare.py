@@ -350,19 +350,31 @@ def test_command_line(tmp_path, capsys):
 @pytest.mark.parametrize(
     "argv, name",
     [
-        (["--budget", "0"], "budget"),
-        (["--seeds", "a,b"], "--seeds"),
-        (["--methods", "nope"], "methods"),
-        (["--methods", "lm,de:nope"], "'de:nope'"),
-        (["--robot", "/nonexistent/robot.toml"], "robot.toml"),
+        (["--budget", "0"], "--budget: 0; expected an integer >= 2"),
+        (["--seeds", "a,b"], "--seeds: 'a,b'"),
+        (["--seeds", "1,1"], "--seeds: [1, 1] has duplicates"),
+        (["--methods", "nope"], "--methods: 'nope' is not registered"),
+        (["--methods", "lm,de:nope"], "--methods: 'de:nope'"),
         (["--poses", "3"], "--poses: 3 poses are too few"),
+        (["--validation-poses", "0"], "--validation-poses: 0"),
     ],
 )
-def test_command_line_errors(argv, name, capsys):
+def test_a_bad_option_value_is_a_usage_error_naming_the_option(argv, name, capsys):
+    """As in every command: exit 2, the option named as the command line spells it (the
+    library's ArgumentError names its argument: n_poses, n_validation, ...)."""
     assert cli_main(["compare", *argv, "--no-progress", "-o",
+                     "/nonexistent-dir-never-written"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith(f"iwr: error: {name}"), err
+    assert "(see 'iwr compare --help')" in err
+    assert "Traceback" not in err and err.count("\n") == 1
+
+
+def test_a_missing_robot_file_is_an_input_error(capsys):
+    assert cli_main(["compare", "--robot", "/nonexistent/robot.toml", "--no-progress", "-o",
                      "/nonexistent-dir-never-written"]) == 1
     err = capsys.readouterr().err
-    assert err.startswith("iwr compare: error:") and name in err
+    assert err.startswith("iwr compare: error:") and "robot.toml" in err
     assert "Traceback" not in err and err.count("\n") == 1
 
 

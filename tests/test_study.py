@@ -356,20 +356,29 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
         "iwr: error: argument --poses: 'ten': expected a comma-separated list of integers "
         "(see 'iwr study --help')"
     ]
+    # A bad option's value: a usage error naming the option, exit 2, as in every command (the
+    # library's ArgumentError names its argument: budgets, options, ...).
     for args, text in (
-        (["--methods", "nope"], "methods: 'nope'"),
-        (["--option", "lm"], "METHOD.NAME=VALUE"),
-        (["--budget", "lm=5,x"], "--budget"),
-        (["--budget", "nope=5"], "budgets: method 'nope'"),
-        (["--poses", "0"], "poses: 0"),
+        (["--methods", "nope"], "--methods: 'nope'"),
+        (["--option", "lm"], "--option: 'lm'; expected METHOD.NAME=VALUE"),
+        (["--option", "nope.x=1"], "--option: method 'nope' is not one of the study's"),
+        (["--budget", "lm=5,x"], "--budget: "),
+        (["--budget", "nope=5"], "--budget: method 'nope'"),
+        (["--poses", "0"], "--poses: 0"),
         (["--poses", "20,3"], "--poses: 3 poses are too few: the 52 identifiable parameters"),
-        (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "workers: only for the local"),
-        (["--report-only", "--out", str(tmp_path / "missing")], "no such file"),
+        (["--draws", "0"], "--draws: 0"),
+        (["--validation-poses", "0"], "--validation-poses: 0"),
+        (["--workers", "2", "--scheduler", "tcp://127.0.0.1:1"], "--workers: only for the local"),
     ):
         assert main([*args, "--scheduler", "synchronous"] if "--scheduler" not in args
-                    else args) == 1, args
+                    else args) == 2, args
         err = capsys.readouterr().err.strip().splitlines()
-        assert len(err) == 1 and text in err[0] and err[0].startswith("iwr study: error:"), err
+        assert len(err) == 1 and err[0].startswith(f"iwr: error: {text}"), (args, err)
+        assert err[0].endswith("(see 'iwr study --help')"), err
+    # A missing folder is an input error: exit 1.
+    assert main(["--report-only", "--out", str(tmp_path / "missing")]) == 1
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "no such file" in err[0] and err[0].startswith("iwr study: error:")
     p = run_cli("--methods", "lm", "--poses", "12,16", "--noise", "0.01", "--draws", "1",
                 "--seeds", "2", "--out", "s", "--scheduler", "synchronous",
                 "--validation-poses", "10", cwd=tmp_path)
@@ -389,7 +398,8 @@ def test_iwr_cli_has_study(tmp_path: Path) -> None:
                         "synchronous", "--out", "s"], cwd=tmp_path, capture_output=True,
                        text=True, timeout=120)
     lines = p.stderr.strip().splitlines()
-    assert p.returncode == 1 and len(lines) == 1 and "methods: 'nope'" in lines[0], p.stderr
+    assert p.returncode == 2 and len(lines) == 1, p.stderr
+    assert lines[0].startswith("iwr: error: --methods: 'nope'"), lines[0]
 
 
 def test_add_study_parser_hook() -> None:

@@ -11,8 +11,8 @@ from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
 
-__all__ = ["UsageError", "CommandError", "Parser", "EXIT_OK", "EXIT_ERROR", "EXIT_USAGE",
-           "EXIT_INTERRUPTED", "one_line"]
+__all__ = ["UsageError", "CommandError", "option_error", "Parser", "EXIT_OK", "EXIT_ERROR",
+           "EXIT_USAGE", "EXIT_INTERRUPTED", "one_line"]
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -27,6 +27,16 @@ class UsageError(Exception):
 
     def __init__(self, message: str, prog: str = "iwr calibrate") -> None:
         super().__init__(f"{message} (see '{prog} --help')")
+
+
+def option_error(exc: Any, options: dict[str, str], prog: str) -> UsageError:
+    """A library's :class:`iwr.experiments.ArgumentError` as the command line's usage error
+    (exit 2), its message naming the option (``options``: argument name -> option) instead of
+    the argument."""
+    text = str(exc)
+    name = exc.name
+    option = name if name.startswith("-") else options.get(name, "--" + name.replace("_", "-"))
+    return UsageError(option + text[len(name):], prog)
 
 
 class CommandError(Exception):

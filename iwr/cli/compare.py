@@ -14,9 +14,9 @@ from ..experiments.compare import (
     compare_methods,
     default_methods,
 )
-from ..experiments.harness import check_n_poses, check_robot
+from ..experiments.harness import ArgumentError, check_n_poses, check_robot
 from ..robot import Robot
-from ._base import LazyHelp, noise_spec
+from ._base import LazyHelp, UsageError, noise_spec, option_error
 from .robot_noise import OPTION_HELP, describe, simulation_noise
 
 __all__ = ["add_compare_parser", "run_compare"]
@@ -28,6 +28,10 @@ def _methods() -> Any:
     return METHODS
 
 
+# compare_methods' arguments -> the options that give them
+_OPTIONS = {"n_poses": "--poses", "n_validation": "--validation-poses", "out": "--out"}
+
+
 def _parse_ints(text: str, name: str) -> list[int]:
     try:
         if ".." in text:
@@ -35,7 +39,8 @@ def _parse_ints(text: str, name: str) -> list[int]:
             return list(range(int(a), int(b) + 1))
         return [int(s) for s in text.split(",") if s.strip()]
     except ValueError:
-        raise ValueError(f"{name}: {text!r}; expected integers like '0,1,2' or '0..4'") from None
+        raise UsageError(f"{name}: {text!r}; expected integers like '0,1,2' or '0..4'",
+                         "iwr compare") from None
 
 
 def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -87,7 +92,8 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
 
 def run_compare(args: argparse.Namespace) -> int:
     """Run ``iwr compare`` with parsed arguments; print the summary table; return the exit code
-    (0 ok, 1 an input or run error, 130 interrupted)."""
+    (0 ok, 1 an input file or run error, 130 interrupted; a bad option's value raises
+    :class:`UsageError`, exit 2)."""
     try:
         robot = Robot.from_toml(args.robot) if args.robot else Robot.default()
         check_robot(robot)
@@ -115,6 +121,8 @@ def run_compare(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         print("iwr compare: interrupted", file=sys.stderr)
         return 130
+    except ArgumentError as exc:  # an option's value, before anything ran: exit 2
+        raise option_error(exc, _OPTIONS, "iwr compare") from None
     except (ValueError, TypeError, OSError, RuntimeError) as exc:
         print(f"iwr compare: error: {exc}", file=sys.stderr)
         return 1

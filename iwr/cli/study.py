@@ -9,10 +9,10 @@ from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
-from ..experiments.harness import check_n_poses, check_robot
+from ..experiments.harness import ArgumentError, check_n_poses, check_robot
 from ..experiments.monte_carlo import study
 from ..robot import Robot
-from ._base import LazyHelp
+from ._base import LazyHelp, UsageError, option_error
 
 __all__ = ["add_study_parser", "run_study"]
 
@@ -62,8 +62,8 @@ def _parse_options(items: list[str]) -> dict[str, dict[str, Any]]:
         name, sep, value = item.partition("=")
         method, dot, option = name.partition(".")
         if not sep or not dot or not method or not option:
-            raise ValueError(
-                f"--option: {item!r}; expected METHOD.NAME=VALUE, e.g. de.strategy=jde"
+            raise UsageError(
+                f"--option: {item!r}; expected METHOD.NAME=VALUE, e.g. de.strategy=jde", "iwr study"
             )
         out.setdefault(method, {})[option] = _option_value(value)
     return out
@@ -83,13 +83,14 @@ def _parse_budgets(items: list[str]) -> Any:
             if any(v != f for v, f in zip(parsed, _floats(values), strict=True)):
                 raise argparse.ArgumentTypeError(f"{values!r}: expected whole numbers")
         except (argparse.ArgumentTypeError, OverflowError, ValueError) as exc:
-            raise ValueError(f"--budget: {exc}") from None
+            raise UsageError(f"--budget: {exc}", "iwr study") from None
         if sep:
             per_method[method] = parsed
         else:
             common = parsed
     if common is not None and per_method:
-        raise ValueError("--budget: give either one list for every method or METHOD=LIST items")
+        raise UsageError("--budget: give either one list for every method or METHOD=LIST items",
+                         "iwr study")
     return common if common is not None else per_method
 
 
@@ -156,10 +157,15 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="progress bar (default: when standard error is a terminal)")
 
 
+# study()'s arguments -> the options that give them
+_OPTIONS = {"budgets": "--budget", "options": "--option"}
+
+
 def run_study(args: argparse.Namespace) -> int:
     """Run the ``study`` command from parsed arguments; returns the exit code.
 
-    Bad input, a failed study or a scheduler that cannot be reached: a one-line message
+    A bad option's value: :class:`UsageError` (exit 2, ``iwr: error: --OPTION: ...``). A bad
+    input file, a failed study or a scheduler that cannot be reached: a one-line message
     ``iwr study: error: ...`` on standard error and exit code 1 (``--debug``: the traceback).
     """
     try:
@@ -168,6 +174,8 @@ def run_study(args: argparse.Namespace) -> int:
         print("iwr study: interrupted; finished cells are kept in the study folder",
               file=sys.stderr)
         return 130
+    except ArgumentError as exc:  # an option's value, before anything ran: exit 2
+        raise option_error(exc, _OPTIONS, "iwr study") from None
     except (ValueError, OSError, RuntimeError, ImportError) as exc:
         if getattr(args, "debug", False):
             raise

@@ -5,10 +5,11 @@
 from __future__ import annotations
 
 from .compare import Comparison, compare_methods
-from .harness import Cell, Scenario, evaluate, noise_at
+from .harness import ArgumentError, Cell, Scenario, evaluate, noise_at
 from .monte_carlo import StudyError, StudyResult, read_table, study
 
 __all__ = [
+    "ArgumentError",
     "Cell",
     "Comparison",
     "Scenario",

@@ -33,6 +33,7 @@ from .harness import (
     FLOOR_ATOL,
     FLOOR_RTOL,
     SCENARIOS,
+    ArgumentError,
     Cell,
     budget_option,
     canonical,
@@ -101,7 +102,7 @@ class Comparison:
 
 def _check_int(name: str, value: Any, minimum: int) -> int:
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or value < minimum:
-        raise ValueError(f"{name}: {value!r}; expected an integer >= {minimum}")
+        raise ArgumentError(f"{name}: {value!r}; expected an integer >= {minimum}")
     return int(value)
 
 
@@ -114,7 +115,7 @@ def _check_noise(noise: Any) -> Any:
         return noise
     if isinstance(noise, str) and noise == "realistic":
         return Noise.realistic()
-    raise ValueError(f"noise: {noise!r}; expected an iwr.Noise, a pair (iwr.Noise, "
+    raise ArgumentError(f"noise: {noise!r}; expected an iwr.Noise, a pair (iwr.Noise, "
                      "iwr.tracker.TrackerNoise) for a robot with a tracker, 'realistic', 'none' "
                      "or None")
 
@@ -124,7 +125,7 @@ def _check_starts(start: Any) -> list[str]:
     if start == "both":
         starts = list(SCENARIOS)
     if not starts or any(s not in SCENARIOS for s in starts) or len(set(starts)) != len(starts):
-        raise ValueError(
+        raise ArgumentError(
             f"start: {start!r}; expected 'near', 'bad', 'both' or a sequence of distinct ones"
         )
     return starts
@@ -151,15 +152,16 @@ def _check_methods(methods: Any, noise: Noise) -> list[str]:
         return default_methods(noise)
     names = [methods] if isinstance(methods, str) else list(methods)
     if not names:
-        raise ValueError(f"methods: empty; expected one or more of: {_available()}")
+        raise ArgumentError(f"methods: empty; expected one or more of: {_available()}")
     for m in names:
         split_method(m)
     if len(set(names)) != len(names):
-        raise ValueError(f"methods: {names!r} has duplicates")
+        raise ArgumentError(f"methods: {names!r} has duplicates")
     if "efficient" in names and not _weighted(noise):
-        raise ValueError("methods: 'efficient' weighs every instrument by the data's noise model, "
-                         f"and this noise has no leg noise (legs = {leg_sigma(noise)}); give a "
-                         "noise model with legs > 0 (e.g. 'realistic') or leave 'efficient' out")
+        raise ArgumentError("methods: 'efficient' weighs every instrument by the data's noise "
+                            "model, and this noise has no leg noise (legs = "
+                            f"{leg_sigma(noise)}); give a noise model with legs > 0 (e.g. "
+                            "'realistic') or leave 'efficient' out")
     return names
 
 
@@ -169,16 +171,16 @@ def _check_seeds(seeds: Any) -> list[int]:
     try:
         out = list(seeds)
     except TypeError:
-        raise ValueError(
+        raise ArgumentError(
             f"seeds: {seeds!r}; expected a sequence of non-negative integers"
         ) from None
     if not out:
-        raise ValueError("seeds: empty; expected one or more non-negative integers")
+        raise ArgumentError("seeds: empty; expected one or more non-negative integers")
     for s in out:
         if isinstance(s, bool) or not isinstance(s, (int, np.integer)) or s < 0:
-            raise ValueError(f"seeds: {s!r} is not a non-negative integer")
+            raise ArgumentError(f"seeds: {s!r} is not a non-negative integer")
     if len(set(out)) != len(out):
-        raise ValueError(f"seeds: {out!r} has duplicates")
+        raise ArgumentError(f"seeds: {out!r} has duplicates")
     return [int(s) for s in out]
 
 
@@ -308,11 +310,11 @@ def compare_methods(
     starts = _check_starts(start)
     for label, v in (("success_rtol", success_rtol), ("success_atol", success_atol)):
         if not (isinstance(v, (int, float)) and math.isfinite(v) and v >= 0):
-            raise ValueError(f"{label}: {v!r}; expected a finite number >= 0")
+            raise ArgumentError(f"{label}: {v!r}; expected a finite number >= 0")
     extra = dict(method_options or {})
     for k, v in extra.items():
         if k not in names or not isinstance(v, dict):
-            raise ValueError(
+            raise ArgumentError(
                 f"method_options: {k!r}; expected a dict of options per compared method (keyed "
                 "by its label, e.g. 'de:jso')"
             )
@@ -321,11 +323,11 @@ def compare_methods(
             # The label says which strategy ran: 'de' is rand1bin, 'de:jso' is jso.
             named = fixed.get("strategy", "rand1bin")
             if v["strategy"] != named:
-                raise ValueError(f"method_options: {k!r} sets strategy {v['strategy']!r}; "
+                raise ArgumentError(f"method_options: {k!r} sets strategy {v['strategy']!r}; "
                                  f"use the label 'de:{v['strategy']}' instead")
     out_path = None if out is None else Path(out)
     if out_path is not None and out_path.exists() and not out_path.is_dir():
-        raise ValueError(f"out: {str(out_path)!r} exists and is not a folder")
+        raise ArgumentError(f"out: {str(out_path)!r} exists and is not a folder")
     show = sys.stderr.isatty() if progress is None else bool(progress)
 
     from ..effects import parameter_names as effect_names

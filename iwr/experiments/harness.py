@@ -38,6 +38,7 @@ from ..robot import Robot
 from ..simulation import Noise, simulate
 
 __all__ = [
+    "ArgumentError",
     "Cell",
     "Scenario",
     "check_n_poses",
@@ -58,6 +59,17 @@ __all__ = [
 
 #: Version of the cells' settings: part of every cell's key.
 CELL_FORMAT = 1
+
+
+class ArgumentError(ValueError):
+    """A bad argument of an experiment (:func:`iwr.compare_methods`, :func:`iwr.study`), found
+    before anything runs. The message starts with the argument's name and a colon (``seeds:
+    ...``); :attr:`name` is that name, so that a command line can name its own option instead
+    (``iwr compare --seeds``: a usage error, exit 2)."""
+
+    @property
+    def name(self) -> str:
+        return str(self).split(":", 1)[0].split(".", 1)[0].strip()
 
 #: Scenarios: where the truth is drawn, the bounds searched, and where the methods start.
 SCENARIOS: dict[str, str] = {
@@ -124,7 +136,7 @@ def noise_at(level: float) -> Noise:
     """
     level = float(level)
     if not (math.isfinite(level) and level >= 0):
-        raise ValueError(f"noise: {level!r}; expected a finite level >= 0 (mm)")
+        raise ArgumentError(f"noise: {level!r}; expected a finite level >= 0 (mm)")
     ref = Noise.realistic()
     scale = level / ref.position
     return Noise(
@@ -161,7 +173,7 @@ def split_method(spec: Any) -> tuple[str, dict[str, Any]]:
     (``"lm"`` -> ``("lm", {})``), or ``"de:STRATEGY"``, differential evolution with that strategy
     (``"de:jso"`` -> ``("de", {"strategy": "jso"})``). Raises ValueError naming a bad spec."""
     if not isinstance(spec, str):
-        raise ValueError(f"methods: {spec!r}; expected a method name; available: "
+        raise ArgumentError(f"methods: {spec!r}; expected a method name; available: "
                          f"{available_methods()}")
     if spec in registered_methods():
         return spec, {}
@@ -169,12 +181,12 @@ def split_method(spec: Any) -> tuple[str, dict[str, Any]]:
     if sep and base == "de":
         strategies = _de_strategies()
         if variant not in strategies:
-            raise ValueError(f"methods: {spec!r}: unknown DE strategy {variant!r}; available: "
+            raise ArgumentError(f"methods: {spec!r}: unknown DE strategy {variant!r}; available: "
                              + ", ".join(strategies))
         return "de", {"strategy": variant}
     if sep and base in registered_methods():
-        raise ValueError(f"methods: {spec!r}: only de takes a variant (de:STRATEGY)")
-    raise ValueError(f"methods: {spec!r} is not registered; available: {available_methods()}")
+        raise ArgumentError(f"methods: {spec!r}: only de takes a variant (de:STRATEGY)")
+    raise ArgumentError(f"methods: {spec!r} is not registered; available: {available_methods()}")
 
 
 # -- how many poses -----------------------------------------------------------------------------
@@ -234,10 +246,10 @@ def check_n_poses(robot: Robot, n_poses: Any, name: str = "n_poses") -> int:
     """``n_poses`` as an int, or ValueError naming ``name``, the value and the minimum
     (:func:`min_poses`)."""
     if isinstance(n_poses, bool) or not isinstance(n_poses, (int, np.integer)) or n_poses < 1:
-        raise ValueError(f"{name}: {n_poses!r}; expected an integer >= 1")
+        raise ArgumentError(f"{name}: {n_poses!r}; expected an integer >= 1")
     need = min_poses(robot)
     if n_poses < need:
-        raise ValueError(
+        raise ArgumentError(
             f"{name}: {int(n_poses)} poses are too few: the {_identifiable(robot)} identifiable "
             f"parameters of robot {robot.name!r} need at least {need} poses "
             f"({_READINGS[robot_hash(robot)]:g} independent readings each, "

@@ -52,6 +52,7 @@ from .harness import (
     FIGURE_COLUMNS,
     SETTING_COLUMNS,
     TIMING_COLUMNS,
+    ArgumentError,
     Cell,
     accepts,
     budget_option,
@@ -110,33 +111,35 @@ def _json_value(value: Any, where: str) -> Any:
         return int(value)
     if isinstance(value, (float, np.floating)):
         if not math.isfinite(value):
-            raise ValueError(f"{where}: {value!r} is not finite")
+            raise ArgumentError(f"{where}: {value!r} is not finite")
         return float(value)
     if isinstance(value, (list, tuple)):
         return [_json_value(v, where) for v in value]
     if isinstance(value, Mapping):
         return {str(k): _json_value(v, f"{where}.{k}") for k, v in value.items()}
-    raise ValueError(f"{where}: {value!r} is not a number, string, boolean, list or table")
+    raise ArgumentError(f"{where}: {value!r} is not a number, string, boolean, list or table")
 
 
 def _int_list(value: Any, name: str, minimum: int) -> list[int]:
     if isinstance(value, (int, np.integer)) and not isinstance(value, bool):
         if name in ("draws", "seeds"):
             if value < 1:
-                raise ValueError(f"{name}: {value!r}; expected a count >= 1 or a list of indices")
+                raise ArgumentError(
+                    f"{name}: {value!r}; expected a count >= 1 or a list of indices")
             return list(range(int(value)))
         value = [value]
     try:
         items = list(value)
     except TypeError:
-        raise ValueError(f"{name}: {value!r}; expected an integer or a list of integers") from None
+        raise ArgumentError(
+            f"{name}: {value!r}; expected an integer or a list of integers") from None
     out: list[int] = []
     for v in items:
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < minimum:
-            raise ValueError(f"{name}: {v!r}; expected integers >= {minimum}")
+            raise ArgumentError(f"{name}: {v!r}; expected integers >= {minimum}")
         out.append(int(v))
     if not out:
-        raise ValueError(f"{name}: empty")
+        raise ArgumentError(f"{name}: empty")
     return list(dict.fromkeys(out))
 
 
@@ -377,11 +380,11 @@ def study(
         methods = [m.strip() for m in methods.split(",") if m.strip()]
     methods = list(dict.fromkeys(methods))
     if not methods:
-        raise ValueError("methods: empty")
+        raise ArgumentError("methods: empty")
     registered = registered_methods()
     for m in methods:
         if m not in registered:
-            raise ValueError(f"methods: {m!r}; available: {', '.join(sorted(registered))}")
+            raise ArgumentError(f"methods: {m!r}; available: {', '.join(sorted(registered))}")
     poses_l = _int_list(poses, "poses", 1)
     draws_l = _int_list(draws, "draws", 0)
     seeds_l = _int_list(seeds, "seeds", 0)
@@ -390,17 +393,18 @@ def study(
         try:
             level = float(v)
         except (TypeError, ValueError):
-            raise ValueError(f"noise: {v!r}; expected numbers >= 0 (mm)") from None
+            raise ArgumentError(f"noise: {v!r}; expected numbers >= 0 (mm)") from None
         noise_at(level)
         noise_l.append(level)
     noise_l = list(dict.fromkeys(noise_l))
     if not noise_l:
-        raise ValueError("noise: empty")
+        raise ArgumentError("noise: empty")
     budgets_d = _budgets(budgets, methods)
     options_d: dict[str, dict[str, Any]] = {}
     for m, opts in (options or {}).items():
         if m not in methods:
-            raise ValueError(f"options: method {m!r} is not one of the study's methods {methods}")
+            raise ArgumentError(
+                f"options: method {m!r} is not one of the study's methods {methods}")
         options_d[m] = _json_value(dict(opts), f"options.{m}")
     for m, opts in options_d.items():
         params = inspect.signature(registered[m]).parameters
@@ -409,24 +413,24 @@ def study(
                      and n not in ("x0", "active", "seed", "callback", "progress")]
             for name in opts:
                 if name not in known:
-                    raise ValueError(
+                    raise ArgumentError(
                         f"options.{m}.{name}: not an option of method {m!r} "
                         f"(options: {', '.join(known)})"
                     )
         option, values = budgets_d.get(m, (None, [None]))
         option = option or (budget_option(m) if values != [None] else None)
         if option is not None and option in opts:
-            raise ValueError(f"options.{m}.{option}: set by the budget axis too")
+            raise ArgumentError(f"options.{m}.{option}: set by the budget axis too")
     if isinstance(validation_poses, bool) or not isinstance(validation_poses, int) or \
             validation_poses < 1:
-        raise ValueError(f"validation_poses: {validation_poses!r}; expected an integer >= 1")
+        raise ArgumentError(f"validation_poses: {validation_poses!r}; expected an integer >= 1")
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
-        raise ValueError(f"retries: {retries!r}; expected an integer >= 0")
+        raise ArgumentError(f"retries: {retries!r}; expected an integer >= 0")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
-        raise ValueError(f"workers: {workers!r}; expected an integer >= 1")
+        raise ArgumentError(f"workers: {workers!r}; expected an integer >= 1")
     if workers is not None and scheduler is not None:
-        raise ValueError("workers: only for the local cluster; an existing cluster has its own")
+        raise ArgumentError("workers: only for the local cluster; an existing cluster has its own")
     if robot is None:
         robot = Robot.default()
     elif not isinstance(robot, Robot):
@@ -522,9 +526,10 @@ def _budgets(budgets: Any, methods: list[str]) -> dict[str, tuple[str | None, li
     for name, values in items.items():
         m, _, option = str(name).partition(".")
         if m not in methods:
-            raise ValueError(f"budgets: method {m!r} is not one of the study's methods {methods}")
+            raise ArgumentError(
+                f"budgets: method {m!r} is not one of the study's methods {methods}")
         if m in out:
-            raise ValueError(f"budgets: two budget axes for method {m!r}")
+            raise ArgumentError(f"budgets: two budget axes for method {m!r}")
         vals: list[int | None] = []
         for v in np.atleast_1d(np.asarray(values, dtype=object)).tolist():
             if isinstance(v, float) and v.is_integer():
@@ -532,17 +537,17 @@ def _budgets(budgets: Any, methods: list[str]) -> dict[str, tuple[str | None, li
             if v is None:
                 vals.append(None)
             elif isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-                raise ValueError(f"budgets: {v!r} for method {m!r}; expected integers >= 1")
+                raise ArgumentError(f"budgets: {v!r} for method {m!r}; expected integers >= 1")
             else:
                 vals.append(int(v))
         if not vals:
-            raise ValueError(f"budgets: empty for method {m!r}")
+            raise ArgumentError(f"budgets: empty for method {m!r}")
         if option:
             if not accepts(m, option) and not any(
                 p.kind is inspect.Parameter.VAR_KEYWORD
                 for p in inspect.signature(registered_methods()[m]).parameters.values()
             ):
-                raise ValueError(f"budgets: {option!r} is not an option of method {m!r}")
+                raise ArgumentError(f"budgets: {option!r} is not an option of method {m!r}")
             if option == budget_option(m):
                 option = ""
         elif vals != [None]:
