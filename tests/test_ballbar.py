@@ -280,6 +280,29 @@ def test_file_round_trip_and_errors(sim, tmp_path):
         kinds.of(data).read(path, robot, readings="x.csv")
 
 
+@pytest.mark.parametrize("factor, units", [(1e-3, "metres"), (1 / 25.4, "inches"),
+                                           (10.0, None)])
+def test_readings_in_other_units_are_refused_by_name(sim, tmp_path, factor, units):
+    """A bar's readings 1000 times too small (a file in metres) reached the identification,
+    which reported the leg readings as having no forward kinematics; the kind's check compares
+    them with the distances the nominal robot predicts and names the column and the likely
+    unit. The right file passes the same check."""
+    robot, data, _ = sim
+    kind = kinds.for_robot(robot)
+    path = tmp_path / "bar.csv"
+    write_ballbar(path, data)
+    kind.check(robot, kind.read(path, robot))  # mm: accepted
+    scaled = BallbarMeasurements(data.q, data.legs, data.setup, data.distance * factor,
+                                 joint_types=robot.joint_types)
+    write_ballbar(path, scaled)
+    hint = f"a file in {units}\\? " if units else r"mm\): the readings are in mm"
+    with pytest.raises(ValueError, match=r"bar.csv: column distance_mm: the bar's readings are "
+                       rf"{factor:.3g} times the distances the nominal robot predicts.*{hint}"):
+        kind.check(robot, kind.read(path, robot))
+    with pytest.raises(ValueError, match="column distance_mm"):
+        iwr.calibrate(robot, kind.read(path, robot), method="lm", progress=False)
+
+
 def test_data_type_checks():
     with pytest.raises(ValueError, match="distance: pose 1 is 0.0"):
         BallbarMeasurements(np.zeros((2, 4)), np.zeros((2, 6)), ["A", "A"], [1.0, 0.0])

@@ -79,6 +79,33 @@ class BallbarKind(MeasurementKind):
     def applies_to(self, robot: Any) -> bool:
         return "ballbar" in getattr(robot, "instruments", {})
 
+    def check(self, robot: Any, data: Any) -> None:
+        """As every kind's, and the bar's readings on the scale of the distances the nominal
+        robot predicts at the same joint and leg readings: a file in metres or inches (its
+        column says mm) is refused by name, not left to an identification that fails
+        elsewhere (it reported the leg readings as having no forward kinematics)."""
+        super().check(robot, data)
+        problem, x0 = self.problem(robot, data)  # with the effects where the robot has them
+        measured = np.asarray(data.distance, dtype=float)
+        with np.errstate(invalid="ignore"):
+            predicted = np.asarray(problem.residuals(x0), dtype=float) + measured
+        ok = np.isfinite(predicted) & (predicted > 0)
+        if not ok.any():
+            return  # no forward kinematics anywhere: the identification says so, by pose
+        ratio = float(np.median(measured[ok] / predicted[ok]))
+        if not 0.5 <= ratio <= 2.0:
+            source = getattr(data, "source", None)
+            units = next((f": a file in {u}? " for u, f in
+                          (("metres", 1e-3), ("centimetres", 0.1), ("inches", 1 / 25.4))
+                          if abs(ratio / f - 1) < 0.2), ": ")
+            raise ValueError(
+                f"{source or 'measurements'}: column distance_mm: the bar's readings are "
+                f"{ratio:.3g} times the distances the nominal robot predicts at the same joint "
+                f"and leg readings (median over {int(ok.sum())} poses: "
+                f"{float(np.median(measured[ok])):.4g} against "
+                f"{float(np.median(predicted[ok])):.4g} mm){units}the readings are in mm, the "
+                "centre distance plus the set-up's length offset (docs/ballbar.md)")
+
     def _setup_hint(self) -> str:
         return ("describe the bar's set-ups with a [ballbar] table in the robot's TOML file or "
                 "robot.with_instrument('ballbar', iwr.ballbar.BallbarSetup(...)) "
