@@ -95,7 +95,8 @@ class Judgement:
 
     def evidence(self) -> str:
         """The ratio and the test in words: ``after/before 1.12, paired t-test p = 0.3``."""
-        ratio = f"after/before {self.ratio:.3g}"
+        r = self.ratio
+        ratio = f"after/before {r:.2f}" if r < 1000 else f"after/before {r:.3g}"
         if self.tested:
             return f"{ratio}, paired t-test p = {self.p:.2g}"
         if self.n:

@@ -494,7 +494,7 @@ def test_a_recalibration_that_the_poses_cannot_tell_worse_is_unchanged(name, see
     text, grade = render(cal).verdict()
     assert text.startswith(f"Unchanged within what {len(cal.validation)} validation poses can "
                            "tell: ") and grade == "fair"
-    assert f"(after/before {j.ratio:.3g}, paired t-test p = {j.p:.2g}" in text
+    assert f"(after/before {j.ratio:.2f}, paired t-test p = {j.p:.2g}" in text
     assert _exit_code(cal) == 0
     cal.result.save(tmp_path / "result.json")
     again = from_result(cal.robot, fresh, iwr.load_result(tmp_path / "result.json"))
