@@ -34,7 +34,7 @@ from .methods import IdentificationResult, identify
 from .robot_fingerprint import record as robot_model_record
 
 __all__ = ["LEVEL", "NOT_CALIBRATED", "WORSE", "Calibration", "Judgement", "LeftOutError",
-           "NotHeldOutError", "calibrate", "from_result", "judge"]
+           "NotHeldOutError", "calibrate", "from_result", "judge", "paired_test"]
 
 #: The status (and message prefix) of a run whose method converged but whose data cannot
 #: identify the errors, or whose calibrated robot is worse than the nominal one.
@@ -57,8 +57,8 @@ class Judgement:
         The kind's :meth:`~iwr.kinds.MeasurementKind.improvement`: the error (RMS) before and
         after, in words, and what it is.
     n : int
-        The poses the paired test compared (those with a finite error before and after); 0
-        when the kind has no per-pose errors.
+        The poses the paired test compared (those with a finite error > 0 before and
+        after); 0 when the kind has no per-pose errors.
     p : float
         The test's one-sided p-value (after larger than before); NaN when there was no test
         (no per-pose errors, or fewer than 2 poses).
@@ -141,10 +141,12 @@ def judge(kind: Any, accuracy: Any, held_out: bool) -> Judgement:
     (:meth:`~iwr.kinds.MeasurementKind.per_pose_errors`, :func:`paired_test`) finds it larger
     at :data:`LEVEL`. A robot calibrated before, re-calibrated on fresh data, is at the noise
     level before and after, and the ratio of two such errors on a few validation poses is
-    random (up to 1.2 on 8 poses): the ratio alone refused such calibrations. A kind without
+    random (up to 1.6 on 8 poses): the ratio alone refused such calibrations. A kind without
     per-pose errors, or fewer than 2 poses, has no test: the ratio alone decides, as before."""
     before, after, change, what = kind.improvement(accuracy, held_out)
     errors = kind.per_pose_errors(accuracy)
+    # A kind without per-pose errors (None), or fewer than 2 poses: no test (p NaN), and the
+    # ratio alone decides, the rule before the test.
     n, p = (0, math.nan) if errors is None else paired_test(*errors)
     finite = math.isfinite(after) and math.isfinite(before)
     worse = not finite or (after > WORSE * before and (not math.isfinite(p) or p < LEVEL))
