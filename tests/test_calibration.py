@@ -400,3 +400,147 @@ def test_an_exact_fit_is_not_calibrated(kind_case):
     assert cal.result.fit.dof == 0
     assert not cal.success and cal.status == NOT_CALIBRATED
     assert "no redundancy" in str(cal.result.message)
+
+
+# -- "not calibrated" only when the validation poses can tell it is worse --------------------
+
+def _accuracy(before: Any, after: Any) -> iwr.Accuracy:
+    from iwr.analysis.accuracy import PoseErrors
+
+    def errors(v: Any) -> PoseErrors:
+        v = np.asarray(v, dtype=float)
+        return PoseErrors(v, np.full(v.size, np.nan), np.zeros((v.size, 6)))
+
+    return iwr.Accuracy(errors(before), errors(after))
+
+
+@pytest.mark.parametrize("name", ["pose", "points", "probe", "ballbar"])
+def test_worse_only_when_the_validation_poses_can_tell(name):
+    """Every kind's per-pose errors are those whose RMS it is judged by, and the rule is the
+    ratio and the paired test: 1.15 times larger at the noise level on 8 poses (some better,
+    some worse) is not "did not improve" (the old rule, the ratio alone, refused it); twice as
+    large at every pose is; a NaN before or after is, as before."""
+    from scipy import stats
+
+    from iwr.calibration import LEVEL, WORSE, judge
+
+    kind = kinds.named(name)
+    rng = np.random.default_rng(3)
+    before = np.abs(rng.normal(0.04, 0.02, 8))
+    after = before * np.exp(rng.normal(0.0, 0.6, 8))
+    after *= 1.15 * np.sqrt(np.mean(before**2) / np.mean(after**2))  # RMS 1.15 times larger
+    acc = _accuracy(before, after)
+    b, a = kind.per_pose_errors(acc)
+    rms = np.sqrt(np.mean(b**2)), np.sqrt(np.mean(a**2))
+    assert kind.improvement(acc, True)[:2] == pytest.approx(rms, rel=1e-12)
+    j = judge(kind, acc, True)
+    assert j.ratio == pytest.approx(1.15) and j.ratio > WORSE and j.beyond_ratio
+    assert j.n == 8 and j.p >= LEVEL and not j.worse
+    p = stats.ttest_1samp(np.log(after / before), 0, alternative="greater").pvalue
+    assert j.p == pytest.approx(p, rel=1e-9)
+    assert f"after/before 1.15, paired t-test p = {j.p:.2g}" == j.evidence()
+    worse = judge(kind, _accuracy(before, 2 * before * np.exp(rng.normal(0, 0.1, 8))), True)
+    assert worse.worse and worse.p < LEVEL
+    assert judge(kind, _accuracy(before, np.full(8, np.nan)), True).worse
+    # One pose: no test, the ratio alone (as a kind without per-pose errors).
+    one = judge(kind, _accuracy(before[:1], 1.2 * before[:1]), True)
+    assert one.worse and not one.tested and "too few for a paired test" in one.evidence()
+
+
+def test_a_kind_without_per_pose_errors_keeps_the_ratio_alone():
+    from iwr.calibration import judge
+
+    class Plain:  # the protocol's two calls: a figure of its own, no per-pose errors
+        def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
+            return 1.0, 1.1, "1 before, 1.1 after", "the figure"
+
+        per_pose_errors = kinds.MeasurementKind.per_pose_errors
+
+    j = judge(Plain(), object(), True)
+    assert j.worse and j.n == 0 and "no per-pose errors" in j.evidence()
+
+
+def _recalibration(robot: iwr.Robot, n: int, seed: int) -> tuple[iwr.Calibration, Any]:
+    """A robot calibrated on ``n`` poses, calibrated again (as its calibrated.toml) on ``n``
+    fresh poses of the same true robot (0.2 held out): before and after are both at the noise
+    level."""
+    from iwr.ballbar.api import ballbar_setup
+    from iwr.tracker.analysis import calibrated_robot
+
+    kind = kinds.for_robot(robot)
+    noise = kind.experiment_noise(robot, iwr.Noise.realistic())
+    data, truth = iwr.simulate(robot, n, seed=seed, noise=noise)
+    first = iwr.calibrate(robot, data, noise=noise, seed=seed, progress=False)
+    assert first.success, first.result.message
+    x, m = first.result.x, robot.n_params
+    if robot.tracker is not None:
+        again = calibrated_robot(robot, x)[0]
+    elif kind.name == "ballbar":
+        again = robot.with_errors(x[:m]).with_instrument(
+            "ballbar", ballbar_setup(robot).with_parameters(x[m:]))
+    else:
+        again = robot.with_errors(x)
+    fresh, _ = iwr.simulate(robot, n, seed=10_000 + seed, x=truth, noise=noise)
+    return iwr.calibrate(again, fresh, noise=noise, seed=seed, progress=False), fresh
+
+
+@pytest.mark.parametrize("name, n", [("pose", 40), ("points", 40), ("ballbar", 150)])
+def test_a_recalibration_that_the_poses_cannot_tell_worse_is_unchanged(name, n, tmp_path):
+    """A calibrated robot calibrated again on fresh data: after/before on 8 validation poses is
+    random, and the ratio alone judged such jobs "not calibrated" (exit 5, refused by ``iwr
+    legs``) in 2 of 12 seeds; 1.20 here (pose data, seed 0; 1.11 tracker points, 1.15 ballbar
+    on 30 validation readings). Now "Unchanged within what N validation poses can tell" (fair),
+    and ``iwr report`` of its result file says the same."""
+    from iwr.cli.calibrate import _exit_code
+
+    robot = {"pose": iwr.Robot.default, "ballbar": ballbar_robot,
+             "points": lambda: iwr.Robot.from_toml(
+                 iwr_root() / "examples" / "iwr_tracker.toml")}[name]()
+    cal, fresh = _recalibration(robot, n, 0)
+    before, after, _, _ = cal.improvement()
+    assert after > 1.05 * before  # the ratio alone: "not calibrated"
+    assert cal.status == "converged" and cal.success, cal.result.message
+    j = cal.judgement()
+    assert j.beyond_ratio and not j.worse, j  # larger after, but not significantly
+    text, grade = render(cal).verdict()
+    assert text.startswith(f"Unchanged within what {len(cal.validation)} validation poses can "
+                           "tell: ") and grade == "fair"
+    assert f"(after/before {j.ratio:.2f}, paired t-test p = {j.p:.2g}" in text
+    assert _exit_code(cal) == 0
+    cal.result.save(tmp_path / "result.json")
+    again = from_result(cal.robot, fresh, iwr.load_result(tmp_path / "result.json"))
+    assert again.status == "converged" and render(again).verdict() == (text, grade)
+
+
+def test_a_calibration_clearly_worse_on_the_validation_poses_is_still_refused(tmp_path):
+    """The nominal robot is the true one, identified from 14 poses of 3 times the noise: after
+    is 2.98 times before on 8 validation poses, and the test tells (p = 0.0076): "not
+    calibrated", as by the ratio alone, in the job and in ``iwr report`` of its result file."""
+    from iwr.cli.calibrate import _exit_code
+    from iwr.experiments.harness import noise_at
+
+    robot = iwr.Robot.default()
+    noise, loud = iwr.Noise.realistic(), noise_at(0.06)
+    truth = iwr.simulate(robot, 40, seed=0, noise=noise)[1]
+    ident, _ = iwr.simulate(robot, 14, seed=40_000, x=truth, noise=loud)
+    held, _ = iwr.simulate(robot, 8, seed=50_000, x=truth, noise=noise)
+    true_robot = robot.with_errors(truth)
+    cal = iwr.calibrate(true_robot, ident, noise=loud, validation=held, progress=False)
+    j = cal.judgement()
+    assert j.worse and j.ratio > 2.5 and j.p < 0.01, j
+    assert cal.status == NOT_CALIBRATED and _exit_code(cal) == 5
+    assert str(cal.result.message).startswith(
+        "not calibrated: the calibration did not improve the accuracy: ")
+    assert f"paired t-test p = {j.p:.2g})" in str(cal.result.message)
+    text, grade = render(cal).verdict()
+    assert text.startswith("The calibration did not improve the accuracy") and grade == "bad"
+    cal.result.save(tmp_path / "result.json")
+    again = from_result(true_robot, ident, iwr.load_result(tmp_path / "result.json"),
+                        validation=held)
+    assert again.status == NOT_CALIBRATED and render(again).verdict() == (text, grade)
+
+
+def iwr_root() -> Any:
+    from pathlib import Path
+
+    return Path(__file__).resolve().parents[1]

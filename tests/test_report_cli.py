@@ -153,3 +153,31 @@ def test_report_on_a_tracker_result(tmp_path):
     proc = run("report", str(res), str(plain), str(wide), "--readings", str(wide), "--out",
                str(tmp_path / "bad"))
     assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr
+
+
+def test_a_recalibration_is_unchanged_in_the_run_and_in_its_report(tmp_path):
+    """A calibrated robot calibrated again on fresh data of the same robot, 8 poses held out:
+    after/before 1.20, which the ratio alone called "not calibrated" (exit 5, and ``iwr legs``
+    refused the file); the paired test cannot tell it (p = 0.35). ``iwr calibrate`` and ``iwr
+    report`` of its result file both say "Unchanged within what 8 validation poses can tell",
+    exit 0."""
+    noise = iwr.Noise.realistic()
+    robot = iwr.Robot.default()
+    data, truth = iwr.simulate(robot, 40, seed=0, noise=noise)
+    first = iwr.calibrate(robot, data, noise=noise, seed=0, progress=False)
+    robot.with_errors(first.result.x).to_toml(tmp_path / "cal.toml")
+    fresh, _ = iwr.simulate(robot, 40, seed=10_000, x=truth, noise=noise)
+    fresh.to_csv(tmp_path / "fresh.csv")
+    files = [str(tmp_path / "cal.toml"), str(tmp_path / "fresh.csv")]
+    proc = run("calibrate", *files, "--noise", "realistic", "--seed", "0", "--no-plots",
+               "-o", str(tmp_path / "run"))
+    assert proc.returncode == 0, proc.stderr
+    head = "**Unchanged within what 8 validation poses can tell: "
+    verdict = next(line for line in (tmp_path / "run" / "report.md").read_text().splitlines()
+                   if line.startswith("**"))
+    assert verdict.startswith(head) and "(after/before 1.20, paired t-test p = 0.35" in verdict
+    assert json.loads((tmp_path / "run" / "result.json").read_text())["status"] == "converged"
+    proc = run("report", str(tmp_path / "run" / "result.json"), *files, "--no-plots",
+               "--out", str(tmp_path / "rep"))
+    assert proc.returncode == 0, proc.stderr
+    assert verdict in (tmp_path / "rep" / "report.md").read_text().splitlines()

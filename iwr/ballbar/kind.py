@@ -260,6 +260,8 @@ class BallbarKind(MeasurementKind):
     def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
         from ..kinds import _where, position_rms
 
+        # The RMS of the per-reading distance residuals: the default per_pose_errors are
+        # these residuals, which the job's paired test compares reading by reading.
         before, after = position_rms(accuracy)
         change = (f"the distance residual has an RMS of {before:.4g} mm before (nominal robot "
                   f"and ball centres) and {after:.4g} mm after, on "

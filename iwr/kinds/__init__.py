@@ -361,6 +361,24 @@ class MeasurementKind(abc.ABC):
         change = (f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on "
                   f"{_where(accuracy.n_poses, held_out)}")
         return before, after, change, "the accuracy"
+
+    def per_pose_errors(self, accuracy: Any) -> tuple[np.ndarray, np.ndarray] | None:
+        """``(before, after)``: the per-pose errors whose RMS are :meth:`improvement`'s
+        ``before`` and ``after``, one each per validation pose (NaN where a pose has none), for
+        the paired test of whether the calibration made them worse
+        (:func:`iwr.calibration.judge`); None when the kind has no such figures (the job then
+        judges by the ratio of the two RMS alone). The default: an :class:`iwr.Accuracy`'s
+        per-pose ``position`` of the nominal and of the calibrated robot, which the default
+        :meth:`improvement` and the tracker's and ballbar's (:func:`position_rms`) take the RMS
+        of. A kind that judges by another figure overrides both."""
+        try:
+            before = np.asarray(accuracy.nominal.position, dtype=float)
+            after = np.asarray(accuracy.calibrated.position, dtype=float)
+        except AttributeError:
+            return None
+        if before.ndim != 1 or before.shape != after.shape:
+            return None
+        return before, after
     # -- the experiments (iwr compare, iwr study) ---------------------------------------------
     # What a simulated calibration needs of the kind beyond the calibration steps: its noise at
     # an experiment's noise level, the actual set-up, and its yardsticks on fresh poses. Each

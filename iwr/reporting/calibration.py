@@ -12,7 +12,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write_bytes, atomic_write_text, jsonable, write_folder
-from ..calibration import NOT_CALIBRATED, WORSE, Calibration
+from ..calibration import LEVEL, NOT_CALIBRATED, WORSE, Calibration, Judgement
 from ..effects import parameter_names as effect_parameter_names
 from ..fit_test import CHI2_CAUSE_HEAD
 from ..kinds import reuse
@@ -435,8 +435,11 @@ class CalibrationReport(Calibration):
         before = self.accuracy.nominal.summary()["position_mm"]["rms"]
         after = self.accuracy.calibrated.summary()["position_mm"]["rms"]
         if after > 0 and not self._fit_failed():
+            worse = self.judgement().worse  # larger by more than the poses can tell?
             change = (f"{before / after:.1f} times smaller" if after < before else
-                      f"WORSE, {after / before:.2f} times larger" if before > 0 else "")
+                      f"WORSE, {after / before:.2f} times larger" if before > 0 and worse else
+                      f"{after / before:.2f} times larger: unchanged (the verdict)"
+                      if before > 0 else "")
             lines.append(f"position RMS error {before:.4g} mm -> {after:.4g} mm ({change})")
         fit = self.fit_lines()
         if fit:
@@ -596,7 +599,7 @@ class CalibrationReport(Calibration):
     def verdict(self) -> tuple[str, str]:
         """One sentence on the outcome, and its grade (``good``, ``fair`` or ``bad``); with the
         diagnosis's suggestion when it names an effect (issue 23)."""
-        text, grade = self._graded(*self.improvement())
+        text, grade = self._graded(self.judgement())
         d = self.diagnosis
         if d is not None and d.suggested and d.sentence() not in text:
             text += " " + d.sentence()
@@ -610,9 +613,10 @@ class CalibrationReport(Calibration):
                 if self.result.status == "stopped" else "THE MODEL DOES NOT FIT THE DATA")
         return f"VERDICT: {head}; {figures} are not a calibration (causes listed above)"
 
-    def _graded(self, before: float, after: float, change: str, what: str) -> tuple[str, str]:
-        """The verdict from the result's status and fit and the error ``before`` and ``after``
-        calibration (``change`` says them in words, ``what`` names them)."""
+    def _graded(self, j: Judgement) -> tuple[str, str]:
+        """The verdict from the result's status and fit and the error before and after
+        calibration (``j``, :func:`iwr.calibration.judge`: the job's rule)."""
+        before, after, change, what = j.before, j.after, j.change, j.what
         r = self.result
         if r.interrupted:
             return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
@@ -632,12 +636,18 @@ class CalibrationReport(Calibration):
         if r.status == NOT_CALIBRATED:
             message = str(r.message).strip().rstrip(".").removeprefix(f"{NOT_CALIBRATED}: ")
             if message.startswith("the calibration did not improve"):
-                return f"The calibration did not improve {what}: {change}.", "bad"
+                return f"The calibration did not improve {what}: {change} ({j.evidence()}).", "bad"
             return f"Not calibrated: {message} ({change}).", "bad"
         if not r.success:
             return f"Not converged ({str(r.message).strip().rstrip('.')}); {change}.", "bad"
-        if not (math.isfinite(after) and math.isfinite(before)) or after > WORSE * before:
-            return f"The calibration did not improve {what}: {change}.", "bad"
+        if j.worse:
+            return f"The calibration did not improve {what}: {change} ({j.evidence()}).", "bad"
+        if j.beyond_ratio:  # larger after, but not by more than these poses can tell
+            poses = "validation poses" if self.held_out else "poses"
+            return (f"Unchanged within what {j.n} {poses} can tell: {change} "
+                    f"({j.evidence()}, not significant at {LEVEL:.0%}): the robot given is "
+                    "already about as accurate as these data tell (a robot calibrated "
+                    "before?); more validation poses tell more.", "fair")
         ratio = before / after if after > 0 else math.inf
         if ratio >= 5:
             return f"Calibrated: {change}: {ratio:.3g} times smaller.", "good"

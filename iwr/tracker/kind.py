@@ -363,6 +363,8 @@ class _TrackerKind(MeasurementKind):
                                           seed=seed)
 
     def improvement(self, accuracy: Any, held_out: bool) -> tuple[float, float, str, str]:
+        # The RMS of the per-pose largest point residuals: the default per_pose_errors are
+        # these residuals, which the job's paired test compares pose by pose.
         before, after = position_rms(accuracy)
         change = (f"the largest point residual per pose has an RMS of {before:.4g} mm before "
                   f"(nominal robot in the registration guess the identification started from) "
