@@ -52,6 +52,23 @@ def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first(capsys):
     assert "VERDICT: THE MODEL DOES NOT FIT THE DATA" in report.text()
 
 
+def test_too_few_identification_poses_are_not_called_a_model_that_does_not_fit():
+    """Most poses held out (``--validation-fraction 0.9``): 5 identification poses, no
+    redundancy for the fit test. The job says "not calibrated: degenerate data ... measure more
+    poses" (exit 5), and the summary's last line said "VERDICT: THE MODEL DOES NOT FIT THE DATA",
+    which sends an engineer looking for a missing effect; it now says what the job says."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 50, seed=3, noise=NOISE)
+    cal = iwr.calibrate(robot, data, "lm", noise=NOISE, validation_fraction=0.9, seed=0,
+                        progress=False)
+    assert cal.status == "not calibrated" and "degenerate data" in str(cal.result.message)
+    assert cal.fit_ok is False
+    text = render(cal).text()
+    assert "VERDICT: NOT CALIBRATED (degenerate data); the accuracy figures above are not a " \
+        "calibration" in text, text
+    assert "VERDICT: THE MODEL DOES NOT FIT THE DATA" not in text
+
+
 def test_every_kind_says_which_parameters_are_angles_with_effects(kind_case):
     """The pose kind's angle mask left out the effects' parameters (58 for a layout of 65): `iwr
     compare` and `iwr study` of a robot with effects on pose data stopped with an internal
@@ -262,3 +279,16 @@ def test_a_report_of_a_tracker_run_with_gross_errors_gives_the_jobs_before(tmp_p
         a = getattr(cal.accuracy, which).summary()["position_mm"]
         b = getattr(again.accuracy, which).summary()["position_mm"]
         assert a == pytest.approx(b, rel=1e-9, abs=1e-12), (which, a, b)
+
+
+def test_the_before_panels_share_the_after_panels_units_for_a_calibrated_robot():
+    """The accuracy figures' "before" panels are in mm and degrees (an uncalibrated robot's
+    errors); for a robot already calibrated (a re-calibration) they said "0.0374 mm" beside the
+    "after" panel's "44.9 um": now um and arcsec there too."""
+    from iwr.reporting.figures import before_units
+
+    assert before_units([17.0, 18.0], [0.8, 1.2]) == (("mm", 1.0), ("deg", 1.0))
+    assert before_units([0.03, 0.05, np.nan], [0.002, 0.004]) == (("um", 1000.0),
+                                                                 ("arcsec", 3600.0))
+    assert before_units([0.03], None)[1] == ("deg", 1.0)
+    assert before_units([np.nan])[0] == ("mm", 1.0)  # nothing to judge by: as before

@@ -15,7 +15,7 @@ import numpy as np
 
 from .._io import atomic_write_text, jsonable
 from .calibration import CalibrationReport, _src
-from .figures import histogram, new_figure
+from .figures import before_units, histogram, new_figure
 from .html import Page
 from .setup_parameters import SetupParameters
 
@@ -373,8 +373,10 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         a = self.accuracy
         fig = new_figure(10, 3.6)
         axes = fig.subplots(1, 2)
+        (pu, pf), _ = before_units(a.nominal.position)
         for ax, v, unit, title, colour in (
-                (axes[0], a.nominal.position, "mm", "nominal robot and set-ups", "C0"),
+                (axes[0], np.asarray(a.nominal.position, dtype=float) * pf, pu,
+                 "nominal robot and set-ups", "C0"),
                 (axes[1], a.calibrated.position * 1000.0, "um", "calibrated", "C2")):
             v = np.asarray(v, dtype=float)
             v = v[np.isfinite(v)]

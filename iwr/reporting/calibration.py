@@ -20,7 +20,7 @@ from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
 from ..robot_fingerprint import fingerprint as robot_fingerprint
-from .figures import histogram, new_figure, png_bytes
+from .figures import before_units, histogram, new_figure, png_bytes
 from .html import Page, write_page
 
 __all__ = ["CalibrationReport", "leg_residual_stats", "render", "NOT_CALIBRATED", "OUTPUT_FILES"]
@@ -611,6 +611,12 @@ class CalibrationReport(Calibration):
         its best point does not."""
         head = ("NOT CONVERGED, AND ITS BEST POINT DOES NOT FIT THE DATA"
                 if self.result.status == "stopped" else "THE MODEL DOES NOT FIT THE DATA")
+        if self.result.status == NOT_CALIBRATED:
+            # Degenerate data or no redundancy: the fit test failed for want of readings, not
+            # because the model misses something (it said "does not fit" while the job's exit
+            # line said "degenerate data: measure more poses").
+            why = str(self.result.message).removeprefix(f"{NOT_CALIBRATED}: ").split(":", 1)[0]
+            head = f"NOT CALIBRATED ({why.strip().rstrip('.')})"
         return f"VERDICT: {head}; {figures} are not a calibration (causes listed above)"
 
     def _graded(self, j: Judgement) -> tuple[str, str]:
@@ -945,11 +951,12 @@ class CalibrationReport(Calibration):
         fig = new_figure(10, 6.5)
         axes = fig.subplots(2, 2)
         a = self.accuracy
+        (pu, pf), (ou, of) = before_units(a.nominal.position, a.nominal.orientation)
         panels = [
-            (axes[0, 0], a.nominal.position, "mm", "position error", "nominal robot"),
+            (axes[0, 0], a.nominal.position * pf, pu, "position error", "nominal robot"),
             (axes[0, 1], a.calibrated.position * 1000.0, "um", "position error",
              "calibrated robot"),
-            (axes[1, 0], a.nominal.orientation, "deg", "orientation error", "nominal robot"),
+            (axes[1, 0], a.nominal.orientation * of, ou, "orientation error", "nominal robot"),
             (axes[1, 1], a.calibrated.orientation * 3600.0, "arcsec", "orientation error",
              "calibrated robot"),
         ]

@@ -59,6 +59,26 @@ def method_colors(names: Sequence[str]) -> dict[str, str]:
     return out
 
 
+def before_units(nominal_mm: Any, nominal_deg: Any = None
+                 ) -> tuple[tuple[str, float], tuple[str, float]]:
+    """The units of the accuracy figures' "before" panels, ``((position unit, factor from mm),
+    (orientation unit, factor from degrees))``: mm and degrees, as an uncalibrated robot's
+    errors are; um and arcsec, as the "after" panels', where the robot given is already that
+    accurate (RMS below 1 mm, 0.1 degree: a robot calibrated before), so that the two panels of
+    a re-calibration are read in one unit (they said 0.0374 mm beside 44.9 um)."""
+    import numpy as np
+
+    def rms(v: Any) -> float:
+        a = np.asarray(v, dtype=float)
+        a = a[np.isfinite(a)]
+        return float(np.sqrt(np.mean(a**2))) if a.size else float("nan")
+
+    pos = ("um", 1000.0) if rms(nominal_mm) < 1.0 else ("mm", 1.0)
+    ori = (("arcsec", 3600.0) if nominal_deg is not None and rms(nominal_deg) < 0.1
+           else ("deg", 1.0))
+    return pos, ori
+
+
 def histogram(ax: Any, values: Any, color: str) -> None:
     """A histogram of ``values`` on ``ax`` whose axes stay readable: at most 6 ticks on the value
     axis, large or small values with a common power of ten (not "100000150000200000"), whole

@@ -14,7 +14,7 @@ import numpy as np
 
 from .._io import atomic_write_text, jsonable
 from .calibration import CalibrationReport, _src
-from .figures import histogram, new_figure
+from .figures import before_units, histogram, new_figure
 from .html import Page
 from .setup_parameters import SetupParameters
 
@@ -478,12 +478,14 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         a = self.accuracy
         fig = new_figure(10, 6.5)
         axes = fig.subplots(2, 2)
+        (pu, pf), (ou, of) = before_units(a.nominal.position, a.nominal.orientation)
         panels = [
-            (axes[0, 0], a.nominal.position, "mm", "largest point residual",
-             "nominal + registration guess"),
+            (axes[0, 0], np.asarray(a.nominal.position, dtype=float) * pf, pu,
+             "largest point residual", "nominal + registration guess"),
             (axes[0, 1], a.calibrated.position * 1000.0, "um", "largest point residual",
              "calibrated"),
-            (axes[1, 0], a.nominal.orientation, "deg", "rotation", "nominal + registration guess"),
+            (axes[1, 0], np.asarray(a.nominal.orientation, dtype=float) * of, ou, "rotation",
+             "nominal + registration guess"),
             (axes[1, 1], a.calibrated.orientation * 3600.0, "arcsec", "rotation", "calibrated"),
         ]
         for ax, v, unit, what, title in panels:
