@@ -489,15 +489,17 @@ class MeasurementKind(abc.ABC):
         return f"<measurement kind {self.name!r}: {self.description} in {self.frame}>"
 
 
+def finite_rms(v: Any) -> float:
+    """The RMS of the finite values of ``v`` (NaN where there are none)."""
+    a = np.asarray(v, dtype=float)
+    a = a[np.isfinite(a)]
+    return float(np.sqrt(np.mean(a**2))) if a.size else float("nan")
+
+
 def position_rms(accuracy: Any) -> tuple[float, float]:
     """The RMS of an :class:`iwr.Accuracy`'s per-pose ``position`` figures, before and after
     (NaN ignored): what a kind whose accuracy is a residual per pose is judged by."""
-    def rms(v: Any) -> float:
-        v = np.asarray(v, dtype=float)
-        v = v[np.isfinite(v)]
-        return float(np.sqrt(np.mean(v**2))) if v.size else float("nan")
-
-    return rms(accuracy.nominal.position), rms(accuracy.calibrated.position)
+    return finite_rms(accuracy.nominal.position), finite_rms(accuracy.calibrated.position)
 
 
 def _where(n_poses: int, held_out: bool) -> str:

@@ -66,15 +66,10 @@ def before_units(nominal_mm: Any, nominal_deg: Any = None
     errors are; um and arcsec, as the "after" panels', where the robot given is already that
     accurate (RMS below 1 mm, 0.1 degree: a robot calibrated before), so that the two panels of
     a re-calibration are read in one unit (they said 0.0374 mm beside 44.9 um)."""
-    import numpy as np
+    from ..kinds import finite_rms
 
-    def rms(v: Any) -> float:
-        a = np.asarray(v, dtype=float)
-        a = a[np.isfinite(a)]
-        return float(np.sqrt(np.mean(a**2))) if a.size else float("nan")
-
-    pos = ("um", 1000.0) if rms(nominal_mm) < 1.0 else ("mm", 1.0)
-    ori = (("arcsec", 3600.0) if nominal_deg is not None and rms(nominal_deg) < 0.1
+    pos = ("um", 1000.0) if finite_rms(nominal_mm) < 1.0 else ("mm", 1.0)
+    ori = (("arcsec", 3600.0) if nominal_deg is not None and finite_rms(nominal_deg) < 0.1
            else ("deg", 1.0))
     return pos, ori
 
