@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .fit_test import _nearest_plausible
+from .fit_test import beyond_plausible
 from .result import pose_key, source_line
 
 __all__ = ["EstimatorSpec"]
@@ -67,10 +67,9 @@ class EstimatorSpec:
 
     def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
         """``(name, value, limit)`` of each parameter beyond its plausible size in the smallest
-        ``x`` that predicts the same readings (:func:`iwr.fit_test._nearest_plausible`)."""
-        x_plain = _nearest_plausible(self.plausibility_model(used), x, self.limit, self.center)
-        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
-                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+        ``x`` that predicts the same readings (:func:`iwr.fit_test.beyond_plausible`)."""
+        return beyond_plausible(self.plausibility_model(used), x, self.limit, self.center,
+                                self.parameter_names)
 
     def noise_dict(self, noise: Any) -> dict[str, Any]:
         """The noise model as the result's JSON fields."""

@@ -7,7 +7,7 @@ every method but the efficient estimator, which tests its own fit with the same 
 from __future__ import annotations
 
 import math
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from typing import Any
 
 import numpy as np
@@ -50,12 +50,30 @@ def tracker_readings(problem: Any) -> Callable[[np.ndarray], tuple[np.ndarray, n
     return lambda x: (problem.residuals(x), problem.jacobian(x))
 
 
+def beyond_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+                     x: np.ndarray, limit: np.ndarray, centre: np.ndarray | None,
+                     names: Sequence[str]) -> list[tuple[str, float, float]]:
+    """``(name, value, limit)`` of each parameter of ``x`` beyond its plausible size ``limit``
+    (measured from ``centre``) modulo the directions the readings ``model`` cannot see: the
+    entries of its smallest equivalent vector (:func:`_nearest_plausible`) beyond their limit.
+    None when ``x`` itself, or an equivalent on the way to the smallest, is within every limit:
+    a plausible robot then predicts the same readings, and the search stops there (a ballbar's
+    fit took 50 steps of it, two thirds of an identification's time, to shrink a vector already
+    at half its limits)."""
+    x_plain = _nearest_plausible(model, x, limit, centre, stop_within=True)
+    return [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x_plain.size)
+            if abs(x_plain[i]) > limit[i]]
+
+
 def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
                        x: np.ndarray, limit: np.ndarray,
-                       centre: np.ndarray | None = None) -> np.ndarray:
+                       centre: np.ndarray | None = None, *,
+                       stop_within: bool = False) -> np.ndarray:
     """The vector equivalent to ``x`` (the same predictions ``model(x)[0]`` of the readings, with
     their Jacobian ``model(x)[1]``) that is smallest in units of ``limit``, measured from
-    ``centre`` (default zero); returned measured from ``centre``.
+    ``centre`` (default zero); returned measured from ``centre``. With ``stop_within``, the
+    first equivalent within every limit instead, where there is one on the way (``x`` itself
+    first): what :func:`beyond_plausible` needs.
 
     Holding the unidentifiable parameters fixed makes the base parameters absorb their true values
     (joint 4's rotation about its axis moves two base joints by 694 mm per radian), so a plausible
@@ -106,6 +124,8 @@ def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
     y = (np.asarray(x, dtype=float) - c) / limit
     with single_thread():
         for _ in range(50):
+            if stop_within and np.max(np.abs(y), initial=0.0) <= 1.0:
+                break
             null, ident = split(jac)
             if null.shape[1] == 0:
                 break
@@ -256,9 +276,7 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
                          "here (the efficient estimator tests their fit); only the size of the "
                          "identified errors is tested")
     names, limit, centre, readings = kind.plausibility(robot, measurements, bounds, plausible)
-    x_plain = _nearest_plausible(readings, x, limit, centre)
-    implausible = [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x.size)
-                   if abs(x_plain[i]) > limit[i]]
+    implausible = beyond_plausible(readings, x, limit, centre, names)
 
     def sd() -> Any:
         """The effects' standard deviations for their range test (with effects only)."""

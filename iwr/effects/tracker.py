@@ -1080,15 +1080,14 @@ class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
         return out
 
     def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        from ..fit_test import _nearest_plausible
+        from ..fit_test import beyond_plausible
 
         sub = self.measurements.subset(np.flatnonzero(used)) if not used.all() \
             else self.measurements
         problem = TrackerEffectProblem(self.robot, self.setup, sub,
                                        (self.problem.lower, self.problem.upper))
-        x_plain = _nearest_plausible(problem.residuals_and_jacobian, x, self.limit, self.center)
-        return [(self.parameter_names[i], float(x_plain[i]), float(self.limit[i]))
-                for i in range(x.size) if abs(x_plain[i]) > self.limit[i]]
+        return beyond_plausible(problem.residuals_and_jacobian, x, self.limit, self.center,
+                                self.parameter_names)
 
     def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray, tool: Any) -> Any:
         sub = self.measurements.subset(np.flatnonzero(used)) if not used.all() \
