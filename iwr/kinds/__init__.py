@@ -109,14 +109,20 @@ class MeasurementKind(abc.ABC):
         return int(robot.n_params) + len(self.setup_parameter_names(robot))
 
     def check(self, robot: Any, data: Any) -> None:
-        """ValueError unless ``data`` can be calibrated with ``robot`` (its setup measures this
-        kind)."""
+        """ValueError unless ``data`` can be calibrated with ``robot``: its setup measures this
+        kind, and the data's joint and leg readings are the robot's (``check_readings``: joint
+        types, ranges, revolute joints in radians)."""
         if not self.applies_to(robot):
             measured = for_robot(robot)
             raise ValueError(
                 f"measurements: {self.description} in {self.frame} ({self.name} data), but robot "
                 f"{getattr(robot, 'name', '?')!r} measures {measured.description} in "
                 f"{measured.frame} ({measured.name} data): " + self._setup_hint())
+        # Every kind's data hold the robot's joint and leg readings (RobotReadings): within the
+        # robot's ranges, revolute joints in radians.
+        check_readings = getattr(data, "check_readings", None)
+        if check_readings is not None:
+            check_readings(robot)
 
     def _setup_hint(self) -> str:
         return "describe the instrument in the robot's TOML file (docs/data.md, docs/tracker.md)"
