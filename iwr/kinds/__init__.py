@@ -368,6 +368,11 @@ class MeasurementKind(abc.ABC):
                   f"{_where(accuracy.n_poses, held_out)}")
         return before, after, change, "the accuracy"
 
+    #: The components of one per-pose error of :meth:`per_pose_errors` (3: a tool position or
+    #: a reflector point; 1: a distance residual): how many validation poses the verdict's
+    #: paired test needs (:func:`iwr.calibration.validation_poses_needed`, ``iwr plan``).
+    verdict_error_dims: int = 3
+
     def per_pose_errors(self, accuracy: Any) -> tuple[np.ndarray, np.ndarray] | None:
         """``(before, after)``: the per-pose errors whose RMS are :meth:`improvement`'s
         ``before`` and ``after``, one each per validation pose (NaN where a pose has none), for
