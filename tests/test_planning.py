@@ -340,6 +340,7 @@ def test_validation_poses_needed_has_the_power_it_claims(dims, ratio, needed):
         draws = 4000
         before = np.linalg.norm(rng.normal(size=(draws, n, dims)), axis=2)
         after = ratio * np.linalg.norm(rng.normal(size=(draws, n, dims)), axis=2)
-        return float(np.mean([paired_test(b, a)[1] < LEVEL for b, a in zip(before, after)]))
+        return float(np.mean([paired_test(b, a)[1] < LEVEL
+                              for b, a in zip(before, after, strict=True)]))
 
     assert refused(needed) >= POWER - 0.01 and refused(round(0.7 * needed)) < POWER
