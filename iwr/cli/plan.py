@@ -8,8 +8,6 @@ from typing import Any
 
 import numpy as np
 
-from .. import kinds
-from ..calibration import DETECT_RATIO, LEVEL, POWER, validation_poses_needed
 from ..measurements import PLAN_MARKER
 from ._base import (
     EXIT_OK,
@@ -154,6 +152,10 @@ def _warn_few_validation_poses(robot: Any, n_poses: int, fraction: float = 0.2) 
     """Warn when the poses ``iwr calibrate`` holds out of the plan (a fifth by default) are
     too few for the verdict to tell a calibration twice as bad from chance (docs/kinds.md,
     "The verdict")."""
+    # Here, as plan_poses is: `iwr --help` loads no command's SciPy (tests/test_startup.py).
+    from .. import kinds
+    from ..calibration import DETECT_RATIO, LEVEL, POWER, validation_poses_needed
+
     needed = validation_poses_needed(kinds.for_robot(robot).verdict_error_dims)
     held = kinds.split_rows(n_poses, fraction, 0)[1].size if n_poses > 1 else 0
     if held >= needed:
