@@ -48,6 +48,11 @@ WORSE = 1.05
 #: calibrations 1.5-3 times worse passed on 8 validation poses, at 5 % 2 of them, for 7 of 120
 #: correct re-calibrations refused instead of 1 (docs/kinds.md, "The verdict").
 LEVEL = 0.05
+#: What the validation poses should be able to tell (``iwr plan`` warns when a plan holds out
+#: fewer poses than :func:`validation_poses_needed`): a calibration this many times worse at
+#: every pose refused with at least :data:`POWER` probability by the paired test at LEVEL.
+DETECT_RATIO = 2.0
+POWER = 0.8
 
 
 @dataclass(frozen=True)
@@ -132,6 +137,29 @@ def paired_test(before: Any, after: Any) -> tuple[int, float]:
         return n, 0.0 if mean > 0 else 1.0
     t = mean / (sd / math.sqrt(n))
     return n, float(special.stdtr(n - 1, -t))
+
+
+def validation_poses_needed(error_dims: int = 3, ratio: float = DETECT_RATIO,
+                            power: float = POWER, level: float = LEVEL) -> int:
+    """The fewest validation poses with which :func:`paired_test` at ``level`` finds a
+    calibration ``ratio`` times worse at every pose with probability ``power``.
+
+    Each per-pose error is taken as the length of an error of ``error_dims`` independent
+    Gaussian components of one standard deviation (3: a tool position, a reflector point; 1: a
+    ballbar's distance residual), before and after independent: ``log(after / before)`` then
+    has mean ``log(ratio)`` and standard deviation ``sqrt(trigamma(error_dims / 2) / 2)``
+    (0.68 for 3 components, 1.57 for 1), and the power at n poses is the noncentral t's,
+    ``1 - F(t_crit; n - 1, sqrt(n) log(ratio) / sd)``. With the defaults: 8 poses for 3
+    components (power 0.82; 7 give 0.76), 34 for 1 (docs/kinds.md, "The verdict")."""
+    from scipy import special
+
+    sd = math.sqrt(float(special.polygamma(1, error_dims / 2)) / 2)
+    effect = math.log(ratio) / sd
+    n = 2
+    while 1 - special.nctdtr(n - 1, math.sqrt(n) * effect,
+                             special.stdtrit(n - 1, 1 - level)) < power:
+        n += 1
+    return n
 
 
 def judge(kind: Any, accuracy: Any, held_out: bool) -> Judgement:

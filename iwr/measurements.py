@@ -36,6 +36,9 @@ METRE_SUSPICION = 5.0
 #: value is a mistake (a wrong unit, a corrupted file), refused where it is read.
 MAX_LENGTH_MM = 1e5
 MAX_ANGLE_RAD = 1e3
+#: The largest magnitude of a measured orientation angle (rad): Euler angles lie within +-pi, and
+#: one beyond 2 pi was written in degrees.
+MAX_POSE_ANGLE_RAD = 2 * math.pi
 #: The largest measurement file read (a million poses take about 300 MB), whatever the memory.
 MAX_CSV_BYTES = 1_000_000_000
 #: The peak memory of ``iwr calibrate`` per byte of its data file, rounded up: measured 87 for
@@ -218,6 +221,82 @@ class RobotReadings:
     def _lines_at(self, rows: np.ndarray) -> np.ndarray | None:
         return None if self.lines is None else self.lines[rows]
 
+    def _lines_of(self, rows: Any) -> str:
+        rows = [int(k) for k in rows]
+        if self.lines is None:
+            what = "poses " if len(rows) > 1 else "pose "
+            return what + _enumerate([str(k) for k in rows])
+        what = "lines " if len(rows) > 1 else "line "
+        return what + _enumerate([str(int(self.lines[k])) for k in rows])
+
+    def _error(self, message: str) -> ValueError:
+        if self.source:
+            return MeasurementFileError(f"{self.source}: {message}")
+        return ValueError(message)
+
+    def check_readings(self, robot: Any, tolerance: float = 0.01) -> None:
+        """Check the robot's readings against ``robot``, as every kind's data need: the joint
+        types; revolute joint readings in degrees (most outside the joint limits, all inside
+        them once converted to radians), named by column; every joint reading within
+        ``robot.joint_limits`` and leg reading within ``robot.leg_stroke``, each widened by
+        ``tolerance`` times the range, for noise (an unreachable pose). Raises
+        :class:`MeasurementFileError` (data from a file) or ValueError naming every offending
+        line."""
+        self._check_joint_types(robot)
+        self._raise_unreachable(robot, self._reading_problems(robot, tolerance))
+
+    def _check_joint_types(self, robot: Any) -> None:
+        if self.n_joints != robot.n_joints or (
+            self.joint_types is not None and self.joint_types != robot.joint_types
+        ):
+            have = self.joint_types if self.joint_types is not None else f"{self.n_joints} joints"
+            raise self._error(
+                f"joint types {have!r} (from the units of the q columns: _mm prismatic, _rad "
+                f"revolute) do not match robot {robot.name!r}, {robot.joint_types!r}"
+            )
+
+    def _reading_problems(self, robot: Any, tolerance: float) -> list[tuple[int, str]]:
+        """(pose, message) for every joint and leg reading outside the robot's range; a
+        revolute joint's column in degrees is an error of its own."""
+        problems: list[tuple[int, str]] = []
+        for i in range(robot.n_joints):
+            lo, hi = robot.joint_limits[i]
+            slack = tolerance * (hi - lo)
+            unit = robot.joint_units[i]
+            q = self.q[:, i]
+            outside = np.flatnonzero((q < lo - slack) | (q > hi + slack))
+            # Most of the column outside, and all of it inside once converted: not one reading
+            # out of range (that is an unreachable pose), a column in degrees.
+            if 2 * outside.size > len(q) and unit == "rad" and np.all(
+                    (np.radians(q) >= lo - slack) & (np.radians(q) <= hi + slack)):
+                k = int(outside[np.argmax(np.abs(q[outside]))])
+                raise self._error(
+                    f"column q{i + 1}_rad: joint {i + 1}'s readings look like degrees: "
+                    f"{outside.size} of them ({self._lines_of(outside[:3])}"
+                    f"{', ...' if outside.size > 3 else ''}) are outside its limits "
+                    f"[{lo:.6g}, {hi:.6g}] rad (at {self._loc(k)}: {q[k]:.6g}), and every one is "
+                    "within them in degrees; iwr reads radians (multiply by pi / 180)")
+            for k in outside:
+                problems.append((k, f"{self._loc(k)}: joint {i + 1} reading {q[k]:.6g} "
+                                    f"{unit} is outside the joint limits [{lo:.6g}, {hi:.6g}]"))
+        for j in range(6):
+            lo, hi = robot.leg_stroke[j]
+            slack = tolerance * (hi - lo)
+            outside = (self.legs[:, j] < lo - slack) | (self.legs[:, j] > hi + slack)
+            for k in np.flatnonzero(outside):
+                problems.append((k, f"{self._loc(k)}: leg {j + 1} reading {self.legs[k, j]:.6g} mm "
+                                    f"is outside the stroke [{lo:.6g}, {hi:.6g}]"))
+        return problems
+
+    def _raise_unreachable(self, robot: Any, problems: list[tuple[int, str]]) -> None:
+        if problems:
+            problems.sort(key=lambda p: p[0])
+            rows = sorted({k for k, _ in problems})
+            raise self._error(
+                f"{len(rows)} unreachable pose(s) for robot {robot.name!r} "
+                f"({self._lines_of(rows)}; nothing dropped); first: {problems[0][1]}"
+            )
+
 
 class Measurements(RobotReadings):
     """A calibration data set of N measurement poses.
@@ -288,19 +367,6 @@ class Measurements(RobotReadings):
             self.weights = normalised_weights(as_matrix(weights, 6, "weights", rows=n))
         self._set_lines(lines, source, n)
         self.payload, self.temperatures = _effect_inputs(payload, temperatures, n)
-
-    def _lines_of(self, rows: Any) -> str:
-        rows = [int(k) for k in rows]
-        if self.lines is None:
-            what = "poses " if len(rows) > 1 else "pose "
-            return what + _enumerate([str(k) for k in rows])
-        what = "lines " if len(rows) > 1 else "line "
-        return what + _enumerate([str(int(self.lines[k])) for k in rows])
-
-    def _error(self, message: str) -> ValueError:
-        if self.source:
-            return MeasurementFileError(f"{self.source}: {message}")
-        return ValueError(message)
 
     def subset(self, rows: Any) -> Measurements:
         """The measurements at the given row indices (or boolean mask)."""
@@ -471,8 +537,8 @@ class Measurements(RobotReadings):
                 "readings and measured pose; remove the copies (or average repeated measurements)"
             )
         ang = np.abs(self.poses[:, 3:])
-        if np.any(ang > 2 * math.pi):
-            rows = np.flatnonzero(np.any(ang > 2 * math.pi, axis=1))
+        if np.any(ang > MAX_POSE_ANGLE_RAD):
+            rows = np.flatnonzero(np.any(ang > MAX_POSE_ANGLE_RAD, axis=1))
             raise self._error(
                 f"pose angles larger than 2 pi at {self._lines_of(rows)}: angles must be in "
                 "radians, not degrees"
@@ -490,23 +556,16 @@ class Measurements(RobotReadings):
 
         Checked: the joint types (from the units of the q columns); lengths that look like
         metres for a robot whose dimensions are in millimetres (every position, leg reading or
-        prismatic joint reading below 5 while the robot's are in the hundreds); joint readings
-        outside ``robot.joint_limits`` and leg readings outside ``robot.leg_stroke`` (an
-        unreachable pose), each widened by ``tolerance`` times the range, for noise.
+        prismatic joint reading below 5 while the robot's are in the hundreds); the readings
+        (:meth:`RobotReadings.check_readings`: within the robot's joint limits and leg stroke,
+        revolute joints not in degrees); the platform within reach.
 
         Raises
         ------
         MeasurementFileError or ValueError
             ``MeasurementFileError`` (a ``ValueError``) when the data come from a file.
         """
-        if self.n_joints != robot.n_joints or (
-            self.joint_types is not None and self.joint_types != robot.joint_types
-        ):
-            have = self.joint_types if self.joint_types is not None else f"{self.n_joints} joints"
-            raise self._error(
-                f"joint types {have!r} (from the units of the q columns: _mm prismatic, _rad "
-                f"revolute) do not match robot {robot.name!r}, {robot.joint_types!r}"
-            )
+        self._check_joint_types(robot)
         # -- scale: metres where millimetres are expected --------------------------------------
         t4 = robot.carriage_transform(robot.joint_limits.mean(axis=1))
         p_home = t4[:3, 3] + t4[:3, :3] @ robot.home_pose[:3]
@@ -529,21 +588,7 @@ class Measurements(RobotReadings):
                     "size: these look like metres; iwr expects millimetres"
                 )
         # -- reachability --------------------------------------------------------------------
-        problems: list[tuple[int, str]] = []
-        for i in range(robot.n_joints):
-            lo, hi = robot.joint_limits[i]
-            slack = tolerance * (hi - lo)
-            unit = robot.joint_units[i]
-            for k in np.flatnonzero((self.q[:, i] < lo - slack) | (self.q[:, i] > hi + slack)):
-                problems.append((k, f"{self._loc(k)}: joint {i + 1} reading {self.q[k, i]:.6g} "
-                                    f"{unit} is outside the joint limits [{lo:.6g}, {hi:.6g}]"))
-        for j in range(6):
-            lo, hi = robot.leg_stroke[j]
-            slack = tolerance * (hi - lo)
-            outside = (self.legs[:, j] < lo - slack) | (self.legs[:, j] > hi + slack)
-            for k in np.flatnonzero(outside):
-                problems.append((k, f"{self._loc(k)}: leg {j + 1} reading {self.legs[k, j]:.6g} mm "
-                                    f"is outside the stroke [{lo:.6g}, {hi:.6g}]"))
+        problems = self._reading_problems(robot, tolerance)
         # A measured platform farther from the hexapod's base frame {4} than ten times what its
         # joints and longest legs reach: a typo or a unit (issue 26: x_mm = 99999.9 was taken,
         # and reported only after the identification). A frame off by metres is within it: the
@@ -558,13 +603,7 @@ class Measurements(RobotReadings):
             problems.append((k, f"{self._loc(k)}: the measured platform position is "
                                 f"{far[k]:.6g} mm from the hexapod's base, beyond its reach "
                                 f"({reach:.6g} mm with the longest legs)"))
-        if problems:
-            problems.sort(key=lambda p: p[0])
-            rows = sorted({k for k, _ in problems})
-            raise self._error(
-                f"{len(rows)} unreachable pose(s) for robot {robot.name!r} "
-                f"({self._lines_of(rows)}; nothing dropped); first: {problems[0][1]}"
-            )
+        self._raise_unreachable(robot, problems)
 
     def __repr__(self) -> str:
         return f"Measurements(n_poses={len(self)}, joint_types={self.joint_types!r})"

@@ -10,18 +10,22 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["MIN_SIGMA", "Noise", "TrackerNoise", "check_sigmas"]
+__all__ = ["MAX_SIGMA", "MIN_SIGMA", "Noise", "TrackerNoise", "check_sigmas"]
 
 #: The smallest non-zero standard deviation of a noise model (mm, rad, mm per m): far below any
 #: instrument's, and far above what breaks the weighting (1 / sigma^2 overflows near 1e-155).
 MIN_SIGMA = 1e-9
+#: The largest standard deviation of a noise model (mm, rad, mm per m): a tenth of a metre, or
+#: radians by the hundred, is no instrument's noise but a wrong unit or a typo (``legs=1e9``), and
+#: readings simulated with more leave every robot's range (|length| <= 1e5 mm).
+MAX_SIGMA = 100.0
 
 
 def check_sigmas(model: Any) -> None:
     """ValueError unless every field of the noise model ``model`` (a dataclass of standard
     deviations: :class:`Noise`, :class:`TrackerNoise`, a kind's own) is a finite number, 0 (no
-    noise) or at least :data:`MIN_SIGMA`; the message names the class, the field and its
-    value."""
+    noise) or within :data:`MIN_SIGMA` .. :data:`MAX_SIGMA`; the message names the class, the
+    field and its value."""
     for f in fields(model):
         v = getattr(model, f.name)
         where = f"{type(model).__name__}.{f.name}"
@@ -31,6 +35,9 @@ def check_sigmas(model: Any) -> None:
         if 0 < v < MIN_SIGMA:
             raise ValueError(f"{where}: {v!r} is below any instrument's noise; expected 0 "
                              f"(none) or at least {MIN_SIGMA:g}")
+        if v > MAX_SIGMA:
+            raise ValueError(f"{where}: {v!r} is beyond any instrument's noise; expected at "
+                             f"most {MAX_SIGMA:g} (mm, rad, mm per m)")
 
 
 @dataclass(frozen=True)

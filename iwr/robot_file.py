@@ -19,7 +19,7 @@ import numpy as np
 
 from . import kinds
 from ._io import NotRegularFileError, atomic_write_text, open_regular
-from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM
+from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM, METRE_SUSPICION
 from .noise import MIN_SIGMA, Noise, TrackerNoise
 
 if sys.version_info >= (3, 11):
@@ -350,20 +350,75 @@ def robot_arguments(data: Mapping[str, Any]) -> tuple[tuple[Any, ...], dict[str,
                 f"{missing}: missing; a robot with a [tracker] table and a {given} table "
                 "needs both: [noise] the leg and joint readings' (legs, joint_lengths, "
                 "joint_angles), [tracker.noise] the tracker's (docs/data.md)")
+    base = _matrix(hexa["base_joints"], 6, 3, "hexapod.base_joints")
+    platform = _matrix(hexa["platform_joints"], 6, 3, "hexapod.platform_joints")
+    offsets = _numbers(hexa["leg_offsets"], 6, "hexapod.leg_offsets", ["mm"] * 6)
+    stroke = _stroke(hexa["leg_stroke"])
+    _check_hexapod(np.array(base), np.array(platform), np.array(offsets), np.array(stroke))
     return _arguments(
         types,
         np.array(dh, dtype=float).reshape(len(types), 4),
         np.array(limits, dtype=float).reshape(len(types), 2),
-        _matrix(hexa["base_joints"], 6, 3, "hexapod.base_joints"),
-        _matrix(hexa["platform_joints"], 6, 3, "hexapod.platform_joints"),
-        _numbers(hexa["leg_offsets"], 6, "hexapod.leg_offsets", ["mm"] * 6),
-        _stroke(hexa["leg_stroke"]),
+        base,
+        platform,
+        offsets,
+        stroke,
         name=name,
         provenance=_provenance(data.get("provenance", {}), "provenance"),
         instruments={name: data[name] for name in tables},
         effects=data.get("effects"),
         **kwargs,
     )
+
+
+#: Joints closer than this fraction of the hexapod's size to a line (or two legs' joints to
+#: each other's) make it singular everywhere: no real design is within 0.1 % of that.
+DEGENERATE_FRACTION = 1e-3
+
+
+def _check_hexapod(base: np.ndarray, platform: np.ndarray, offsets: np.ndarray,
+                   stroke: np.ndarray) -> None:
+    """The hexapod's physical sense, each error naming the key and value: lengths in mm, not
+    metres; every leg longer than 0 at its shortest (``leg_offsets + leg_stroke`` lower); no two
+    legs joining the same points; neither the base nor the platform joints on one line (the six
+    leg lines then all meet that line: a singular hexapod at every pose). A stroke's lower >=
+    upper is :class:`iwr.Robot`'s own check."""
+    stroke = np.tile(stroke, (6, 1)) if stroke.shape == (2,) else stroke
+    lengths = {"base_joints": base, "platform_joints": platform, "leg_offsets": offsets,
+               "leg_stroke": stroke}
+    largest = max(lengths, key=lambda k: float(np.abs(lengths[k]).max()))
+    size = float(np.abs(lengths[largest]).max())
+    if size < METRE_SUSPICION:
+        raise ValueError(
+            f"hexapod: every length (base_joints, platform_joints, leg_offsets, leg_stroke) is "
+            f"below {METRE_SUSPICION:g} mm in magnitude (largest hexapod.{largest}: {size:g}): "
+            "these look like metres; iwr reads millimetres (multiply them by 1000)")
+    shortest = offsets + stroke[:, 0]
+    for j in np.flatnonzero(~(shortest > 0)):
+        raise ValueError(
+            f"hexapod.leg_offsets[{j}]: {offsets[j]:g} mm with hexapod.leg_stroke's lower "
+            f"{stroke[j, 0]:g} mm makes leg {j + 1} {shortest[j]:g} mm long at its shortest; a "
+            "leg's length (reading + offset) must be > 0 over its stroke")
+    tol = DEGENERATE_FRACTION * max(float(np.ptp(base, axis=0).max()),
+                                    float(np.ptp(platform, axis=0).max()))
+    for i in range(6):
+        for j in range(i + 1, 6):
+            if (np.linalg.norm(base[i] - base[j]) <= tol
+                    and np.linalg.norm(platform[i] - platform[j]) <= tol):
+                raise ValueError(
+                    f"hexapod.base_joints[{j}] and platform_joints[{j}]: legs {i + 1} and "
+                    f"{j + 1} join the same points ({base[j].tolist()} to "
+                    f"{platform[j].tolist()}): a copied row? Six distinct legs are needed")
+    for key, joints in (("base_joints", base), ("platform_joints", platform)):
+        centred = joints - joints.mean(axis=0)
+        vt = np.linalg.svd(centred)[2]
+        off_line = float(np.linalg.norm(centred - np.outer(centred @ vt[0], vt[0]),
+                                        axis=1).max())
+        if off_line <= tol:
+            raise ValueError(
+                f"hexapod.{key}: the six joints lie on one line or coincide (within "
+                f"{off_line:.3g} mm; {joints.tolist()}): every leg then meets that line and the "
+                "hexapod is singular at every pose; give the six joint centres")
 
 
 def write_toml(robot: Any, path: str | os.PathLike[str],

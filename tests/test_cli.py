@@ -459,7 +459,7 @@ def test_too_few_poses_and_a_method_not_converged_say_the_data_are_the_cause(sim
     # The SIMD variant that ran is recorded: the widest this CPU runs (run() clears IWR_*).
     assert prov["kernel"] == iwr._core._supported_kernels()[-1]
     assert "**Not calibrated: degenerate data" in (out / "report.md").read_text()
-    assert f", kernel {prov['kernel']}, " in (out / "report.md").read_text()
+    assert f"| SIMD kernel (IWR_KERNEL) | {prov['kernel']} |" in (out / "report.md").read_text()
 
 
 def test_recalibration_with_the_default_folder_keeps_its_input(sim, tmp_path):

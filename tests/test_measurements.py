@@ -327,3 +327,14 @@ def test_a_bad_value_in_a_checked_column_is_named_by_line_and_column(tmp_path, d
         with pytest.raises(iwr.MeasurementFileError,
                            match=rf"data.csv, line {header + 6}, column {column} {said}"):
             iwr.Measurements.from_csv(path, robot=robot)
+
+
+def test_revolute_joint_readings_in_degrees_are_named_by_column(tmp_path, data, robot):
+    # Before, "98 unreachable pose(s) ... joint 3 reading 89.3 rad is outside the joint limits":
+    # the unit was left for the user to guess.
+    q = data.q.copy()
+    q[:, 2] = np.degrees(q[:, 2])
+    path, _, _ = write(tmp_path, iwr.Measurements(q, data.poses, data.legs, joint_types="PPRR"))
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=r"data.csv: column q3_rad: joint 3's readings look like degrees"):
+        iwr.Measurements.from_csv(path, robot=robot)

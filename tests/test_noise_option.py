@@ -100,3 +100,14 @@ def test_iwr_calibrate_exe_reads_the_option_alike(robots, tmp_path):
     robot = robots["points"]
     for spec in ("realistic", "legs=0.002", "legs=0.002,position=0.01"):
         assert _noise(spec, robot, "robot.toml") == option_noise(noise_spec(spec), robot)
+
+
+@pytest.mark.parametrize("spec", ["legs=1e9", "position=1e6", "orientation=500"])
+def test_an_absurd_noise_is_a_usage_error_naming_the_option(tmp_path, capsys, spec):
+    # Before, legs=1e9 ran the simulation and failed with "legs: row 0, column 0: 134622092.8 mm
+    # is beyond any robot or instrument", exit 1, --noise not named.
+    assert cli_main(["simulate", "--noise", spec, "--poses", "10", "-o", str(tmp_path / "s")]) == 2
+    err = capsys.readouterr().err
+    assert "argument --noise: Noise." in err and "is beyond any instrument's noise" in err
+    with pytest.raises(ValueError, match=r"Noise.legs: 1000.0 is beyond any instrument's noise"):
+        iwr.Noise(legs=1e3)

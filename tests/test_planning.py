@@ -257,6 +257,12 @@ def test_iwr_plan_writes_a_plan_of_the_robots_kind(name: str, kind_case: Any, tm
             and "48 readings for 56 base parameters" in proc.stdout
             and "plan 71 poses or more" in proc.stdout)
     assert told == (name == "ballbar"), proc.stdout
+    # The job holds out 4 of 20 poses (12 of 60 readings): fewer than the verdict's paired test
+    # needs to refuse a calibration twice as bad (8 poses; a ballbar's 1-D residuals: 34).
+    needed, enough = (34, 168) if name == "ballbar" else (8, 38)
+    assert (f"warning: iwr calibrate holds out {k // 5} of these {k} poses for validation"
+            in proc.stderr), proc.stderr
+    assert f"needs {needed} to refuse" in proc.stderr and f"plan {enough} poses" in proc.stderr
     text = (tmp_path / "plan.csv").read_text()
     if name == "points":
         assert "reflector points measured by the tracker" in text and "docs/tracker.md" in text
@@ -316,3 +322,25 @@ def test_measurements_are_not_a_plan(tmp_path):
     m.to_csv(tmp_path / "m.csv")
     with pytest.raises(iwr.MeasurementFileError, match="not a pose plan"):
         iwr.read_plan(tmp_path / "m.csv")
+
+
+@pytest.mark.parametrize("dims, ratio, needed", [(3, 2.0, 8), (1, 2.0, 34), (3, 1.5, 20)])
+def test_validation_poses_needed_has_the_power_it_claims(dims, ratio, needed):
+    """Against a Monte-Carlo of the verdict's own test: per-pose errors the lengths of
+    ``dims``-component Gaussian errors, ``ratio`` times larger after; the paired test at LEVEL
+    refuses at least POWER of them at the number given (the noncentral t is a little
+    conservative for these log ratios: 0.81 already one pose fewer in two cases), and fewer
+    than POWER at 70 % of it."""
+    from iwr.calibration import LEVEL, POWER, paired_test, validation_poses_needed
+
+    assert validation_poses_needed(dims, ratio) == needed
+    rng = np.random.default_rng(5)
+
+    def refused(n: int) -> float:
+        draws = 4000
+        before = np.linalg.norm(rng.normal(size=(draws, n, dims)), axis=2)
+        after = ratio * np.linalg.norm(rng.normal(size=(draws, n, dims)), axis=2)
+        return float(np.mean([paired_test(b, a)[1] < LEVEL
+                              for b, a in zip(before, after, strict=True)]))
+
+    assert refused(needed) >= POWER - 0.01 and refused(round(0.7 * needed)) < POWER

@@ -301,3 +301,20 @@ def test_the_notes_are_in_the_page_and_the_markdown_for_every_kind(kind: Any,
     md = (tmp_path / "report.md").read_text(encoding="utf-8")
     assert "a note of this test" in page
     assert "\n## Notes\n" in md and "- note: a note of this test" in md
+    # The page's settings and provenance tables are the Markdown's too (it had no settings,
+    # and its provenance left out the Python version).
+    import html
+    import re
+
+    assert "<h2>Settings</h2>" in page
+    for section in ("Settings", "Provenance"):  # provenance: only from the command line
+        if f"<h2>{section}</h2>" not in page:
+            assert f"## {section}" not in md
+            continue
+        table = page.split(f"<h2>{section}</h2>", 1)[1].split("</table>", 1)[0]
+        rows = re.findall(r"<tr>(.*?)</tr>", table, flags=re.S)[1:]
+        assert rows, section
+        for row in rows:
+            cells = [html.unescape(c) for c in re.findall(r"<td>(.*?)</td>", row, flags=re.S)]
+            assert "| " + " | ".join(cells) + " |" in md, (section, cells)
+        assert f"\n## {section}\n" in md

@@ -119,3 +119,64 @@ def test_dots_in_values_strings_and_comments_are_not_key_parts(tmp_path):
     # Past the scan: the only complaint is the unknown key, not the dots.
     with pytest.raises(iwr.RobotFileError, match=r"r.toml: tracker: unknown key\(s\) \.{40};"):
         iwr.Robot.from_toml(tmp_path / "r.toml")
+
+
+def _hexapod_changed(change) -> dict:
+    d = iwr.Robot.default().to_dict()
+    change(d["hexapod"])
+    return d
+
+
+def _copy_leg(h):
+    h["base_joints"][3] = list(h["base_joints"][2])
+    h["platform_joints"][3] = list(h["platform_joints"][2])
+
+
+def _on_a_line(key):
+    def change(h):
+        h[key] = [[100.0 * k, 50.0 * k, 0.0] for k in range(6)]
+    return change
+
+
+@pytest.mark.parametrize("change, match", [
+    (lambda h: h.update(leg_offsets=[600.0, 600.0, -600.0, 600.0, 600.0, 600.0]),
+     r"hexapod.leg_offsets\[2\]: -600 mm .* makes leg 3 -600 mm long at its shortest"),
+    (lambda h: h.update(leg_offsets=[50.0] * 6, leg_stroke=[-100.0, 300.0]),
+     r"hexapod.leg_offsets\[0\]: 50 mm with hexapod.leg_stroke's lower -100 mm"),
+    (_copy_leg, r"legs 3 and 4 join the same points .* a copied row"),
+    (_on_a_line("base_joints"), r"hexapod.base_joints: the six joints lie on one line"),
+    (_on_a_line("platform_joints"), r"hexapod.platform_joints: the six joints lie on one line"),
+    (lambda h: h.update(platform_joints=[[0.0, 0.0, 0.0]] * 6),
+     r"hexapod.platform_joints: the six joints lie on one line or coincide"),
+])
+def test_a_hexapod_without_physical_sense_is_refused_by_key(change, match):
+    # Before, a negative offset was taken and the job failed in the forward kinematics ("pose
+    # 0: leg 1 has length -372.569 mm"), a zero one in iwr simulate ("only 0 of 60 random poses
+    # were reachable"); coinciding or collinear joints were taken as they were.
+    with pytest.raises(ValueError, match=match):
+        iwr.Robot.from_dict(_hexapod_changed(change))
+
+
+def test_a_hexapod_in_metres_is_refused_naming_the_file(tmp_path):
+    robot = iwr.Robot.default()
+    metres = iwr.Robot(robot.joint_types, robot.dh, robot.joint_limits, robot.base_joints / 1e3,
+                       robot.platform_joints / 1e3, robot.leg_offsets / 1e3,
+                       robot.leg_stroke / 1e3, home_pose=(0, 0, 0.75, 0, 0, 0),
+                       workspace=(0.1, 0.1, 0.06, 0.1, 0.1, 0.1))
+    metres.to_toml(tmp_path / "m.toml")
+    with pytest.raises(iwr.RobotFileError,
+                       match=r"m.toml: hexapod: every length .* below 5 mm .*\(largest "
+                             r"hexapod.leg_offsets: 0.6\): these look like metres"):
+        iwr.Robot.from_toml(tmp_path / "m.toml")
+
+
+@pytest.mark.parametrize("robot", [iwr.Robot.default(), iwr.Robot.hexapod()])
+def test_real_hexapods_pass_the_physical_checks(tmp_path, robot):
+    # A calibrated robot (errors of up to a few mm) and the shipped examples read back.
+    x = np.random.default_rng(3).uniform(-3.0, 3.0, robot.n_params)
+    robot.with_errors(x).to_toml(tmp_path / "r.toml")
+    iwr.Robot.from_toml(tmp_path / "r.toml")
+    # A 3-3 design shares joint centres pairwise: distinct legs all the same.
+    d = robot.to_dict()
+    d["hexapod"]["base_joints"][1] = list(d["hexapod"]["base_joints"][0])
+    iwr.Robot.from_dict(d)

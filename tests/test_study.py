@@ -362,6 +362,11 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
         (["--methods", "nope"], "--methods: 'nope'"),
         (["--option", "lm"], "--option: 'lm'; expected METHOD.NAME=VALUE"),
         (["--option", "nope.x=1"], "--option: method 'nope' is not one of the study's"),
+        # An entry of --option as it is typed (it read "--option.lm.nope: ...").
+        (["--methods", "lm", "--option", "lm.nope=1"],
+         "--option lm.nope: not an option of method 'lm'"),
+        (["--methods", "lm", "--option", "lm.max_evaluations=5", "--budget", "10"],
+         "--option lm.max_evaluations: set by the budget axis too"),
         (["--budget", "lm=5,x"], "--budget: "),
         (["--budget", "nope=5"], "--budget: method 'nope'"),
         (["--poses", "0"], "--poses: 0"),

@@ -230,3 +230,48 @@ def test_a_data_file_beyond_the_memory_available_is_refused_before_reading(
     with pytest.raises(iwr.MeasurementFileError, match=r"big.csv: 20.0 MB; the 1,000 MB"):
         iwr.Measurements.from_csv(big)
     assert meas.data_file_limit()[0] == 10_000_000
+
+
+def _in_degrees(path, columns) -> None:
+    """Rewrite ``columns`` of the wide CSV at ``path`` in degrees, as a user's export would."""
+    lines = path.read_text().splitlines()
+    header = next(k for k, ln in enumerate(lines) if not ln.startswith("#"))
+    names = lines[header].split(",")
+    for k in range(header + 1, len(lines)):
+        values = lines[k].split(",")
+        for c in columns:
+            values[names.index(c)] = repr(math.degrees(float(values[names.index(c)])))
+        lines[k] = ",".join(values)
+    path.write_text("\n".join(lines) + "\n")
+
+
+def test_probe_angles_in_degrees_are_refused_by_column(tmp_path):
+    # They were read as radians, and the registration guess failed on a 114 mm RMS with "check
+    # units" and no column named.
+    robot = iwr.Robot.default().with_tracker(registration=REGISTRATION, probe=(0, 0, 60, 0, 0, 0))
+    d, _ = iwr.simulate(robot, 10, seed=4)
+    path = tmp_path / "probe.csv"
+    write_tracker_wide(path, robot.tracker, d)
+    _in_degrees(path, ["probe_alpha_rad", "probe_beta_rad", "probe_gamma_rad"])
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=r"probe.csv, line \d+, column probe_\w+_rad: .* looks like degrees"):
+        read_tracker_data(path, robot.tracker)
+
+
+def test_revolute_joints_in_degrees_are_refused_by_column(robot, data, tmp_path):
+    # Tracker data's joint readings were never checked against the robot's limits: q3 in degrees
+    # went on to a registration guess that failed with an RMS of metres.
+    path = tmp_path / "points.csv"
+    write_tracker_wide(path, robot.tracker, data)
+    _in_degrees(path, ["q3_rad"])
+    kind = iwr.kinds.of(data)
+    read = kind.read(path, robot)  # the file alone cannot tell: the robot's limits can
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=r"points.csv: column q3_rad: joint 3's readings look like degrees"):
+        kind.check(robot, read)
+    write_tracker_wide(path, robot.tracker, data)
+    kind.check(robot, kind.read(path, robot))  # in radians: accepted
+    outside = kind.read(path, robot)
+    outside.legs[2, 4] = robot.leg_stroke[4, 1] + 50.0
+    with pytest.raises(iwr.MeasurementFileError, match=r"1 unreachable pose.*leg 5 reading"):
+        kind.check(robot, outside)

@@ -42,6 +42,7 @@ class BallbarKind(MeasurementKind):
     pose, in set-ups of the robot's ``[ballbar]`` table."""
 
     name = "ballbar"
+    verdict_error_dims = 1  # a distance residual per reading
     description = "a ballbar's distance"
     frame = "{0}"
     determines_world_frame = False

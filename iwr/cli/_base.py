@@ -36,7 +36,10 @@ def option_error(exc: Any, options: dict[str, str], prog: str) -> UsageError:
     text = str(exc)
     name = exc.name
     option = name if name.startswith("-") else options.get(name, "--" + name.replace("_", "-"))
-    return UsageError(option + text[len(name):], prog)
+    rest = text[len(name):]
+    # An entry of the argument ("options.lm.max_evaluations: ..."), as the option takes it on
+    # the command line: "--option lm.max_evaluations: ...".
+    return UsageError(option + (" " + rest[1:] if rest.startswith(".") else rest), prog)
 
 
 class CommandError(Exception):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import argparse
+import sys
 from typing import Any
 
 import numpy as np
@@ -140,7 +141,31 @@ def cmd_plan(args: argparse.Namespace) -> int:
               "base parameters, none to test the fit with (with a noise model the job says \"not "
               f"calibrated: no redundancy\"); plan {plan.poses_for_redundancy()} poses or more, or "
               "calibrate with a validation file of its own (--validation)")
+    _warn_few_validation_poses(robot, len(plan.indices))
     print(f"wrote {args.out}: the chosen poses to measure (joint readings and platform poses"
           f"{', and the set-up of each' if setups is not None else ''}); measure them, then "
           "calibrate with the measured file")
     return EXIT_OK
+
+
+def _warn_few_validation_poses(robot: Any, n_poses: int, fraction: float = 0.2) -> None:
+    """Warn when the poses ``iwr calibrate`` holds out of the plan (a fifth by default) are
+    too few for the verdict to tell a calibration twice as bad from chance (docs/kinds.md,
+    "The verdict")."""
+    # Here, as plan_poses is: `iwr --help` loads no command's SciPy (tests/test_startup.py).
+    from .. import kinds
+    from ..calibration import DETECT_RATIO, LEVEL, POWER, validation_poses_needed
+
+    needed = validation_poses_needed(kinds.for_robot(robot).verdict_error_dims)
+    held = kinds.split_rows(n_poses, fraction, 0)[1].size if n_poses > 1 else 0
+    if held >= needed:
+        return
+    enough = n_poses
+    while kinds.split_rows(enough, fraction, 0)[1].size < needed:
+        enough += 1
+    print(f"warning: iwr calibrate holds out {held} of these {n_poses} poses for validation "
+          f"(a fifth, --validation-fraction {fraction:g}); its verdict's paired t-test needs "
+          f"{needed} to refuse a calibration {DETECT_RATIO:g} times worse with "
+          f"{POWER:.0%} probability (at {LEVEL:.0%}), and with fewer lets more bad calibrations "
+          f"through as 'Unchanged'; plan {enough} poses or more, or calibrate with validation "
+          "poses measured apart (--validation)", file=sys.stderr)

@@ -109,14 +109,20 @@ class MeasurementKind(abc.ABC):
         return int(robot.n_params) + len(self.setup_parameter_names(robot))
 
     def check(self, robot: Any, data: Any) -> None:
-        """ValueError unless ``data`` can be calibrated with ``robot`` (its setup measures this
-        kind)."""
+        """ValueError unless ``data`` can be calibrated with ``robot``: its setup measures this
+        kind, and the data's joint and leg readings are the robot's (``check_readings``: joint
+        types, ranges, revolute joints in radians)."""
         if not self.applies_to(robot):
             measured = for_robot(robot)
             raise ValueError(
                 f"measurements: {self.description} in {self.frame} ({self.name} data), but robot "
                 f"{getattr(robot, 'name', '?')!r} measures {measured.description} in "
                 f"{measured.frame} ({measured.name} data): " + self._setup_hint())
+        # Every kind's data hold the robot's joint and leg readings (RobotReadings): within the
+        # robot's ranges, revolute joints in radians.
+        check_readings = getattr(data, "check_readings", None)
+        if check_readings is not None:
+            check_readings(robot)
 
     def _setup_hint(self) -> str:
         return "describe the instrument in the robot's TOML file (docs/data.md, docs/tracker.md)"
@@ -361,6 +367,11 @@ class MeasurementKind(abc.ABC):
         change = (f"tool position RMS error {before:.4g} mm before, {after:.4g} mm after, on "
                   f"{_where(accuracy.n_poses, held_out)}")
         return before, after, change, "the accuracy"
+
+    #: The components of one per-pose error of :meth:`per_pose_errors` (3: a tool position or
+    #: a reflector point; 1: a distance residual): how many validation poses the verdict's
+    #: paired test needs (:func:`iwr.calibration.validation_poses_needed`, ``iwr plan``).
+    verdict_error_dims: int = 3
 
     def per_pose_errors(self, accuracy: Any) -> tuple[np.ndarray, np.ndarray] | None:
         """``(before, after)``: the per-pose errors whose RMS are :meth:`improvement`'s

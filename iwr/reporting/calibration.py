@@ -21,7 +21,8 @@ from ..problem import Problem, predict_legs
 from ..robot import Robot
 from ..robot_fingerprint import fingerprint as robot_fingerprint
 from .figures import before_units, histogram, new_figure, png_bytes
-from .html import Page, write_page
+from .html import Page, provenance_table, write_page
+from .tables import Table, markdown_table
 
 __all__ = ["CalibrationReport", "leg_residual_stats", "render", "NOT_CALIBRATED", "OUTPUT_FILES"]
 
@@ -802,9 +803,7 @@ class CalibrationReport(Calibration):
     def _html_tail(self, page: Page, files: list[str]) -> Page:
         """The end of the HTML report: settings, notes, the files written, provenance."""
         page.heading("Settings")
-        page.table((["setting", "value"], [[_SETTING_LABELS.get(k, k), str(v)]
-                                           for k, v in self.settings.items()]
-                    + [["result", str(self.result.message).strip()]]), "left")
+        page.table(self.settings_table(), "left")
         if self.notes:
             page.heading("Notes").items([n.strip() for n in self.notes])
         page.heading("Files")
@@ -813,24 +812,30 @@ class CalibrationReport(Calibration):
             page.provenance(self.provenance)
         return page
 
+    def settings_table(self) -> Table:
+        """The job's settings and the method's result message: the HTML and Markdown reports'
+        "Settings" section, for every kind."""
+        return (["setting", "value"], [[_SETTING_LABELS.get(k, k), str(v)]
+                                       for k, v in self.settings.items()]
+                + [["result", str(self.result.message).strip()]])
+
     def _tail_md(self, files: list[str], figures: list[str]) -> list[str]:
-        """The Markdown report's last sections, the same for every kind: the files written
-        (``files``, then the ``figures``), the notes, the provenance."""
-        md = ["", "## Files", "", *files, *[f"- `{f}`" for f in figures]]
+        """The Markdown report's last sections, the same for every kind and in the HTML
+        report's order (:meth:`_html_tail`): the settings, the notes, the files written
+        (``files``, then the ``figures``), the provenance."""
+        md = ["", "## Settings", "", markdown_table(self.settings_table()).rstrip("\n")]
         if self.notes:
             md += ["", "## Notes", ""] + [f"- {n.strip()}" for n in self.notes]
+        md += ["", "## Files", "", *files, *[f"- `{f}`" for f in figures]]
         return md + self._provenance_md()
 
     def _provenance_md(self) -> list[str]:
-        """The Markdown report's provenance section (none without provenance)."""
-        p = self.provenance
-        if p is None:
+        """The Markdown report's provenance section (none without provenance): the HTML
+        report's table (:func:`iwr.reporting.html.provenance_table`)."""
+        if self.provenance is None:
             return []
-        kernel = f", kernel {p['kernel']}" if p.get("kernel") else ""
-        return (["", "## Provenance", "", f"- iwr {p['iwr_version']}{kernel}, {p['date']}",
-                 f"- command: `{' '.join(p['command'])}`"]
-                + [f"- {label}: `{f['path']}`, SHA-256 `{f['sha256']}`"
-                   for label, f in p["inputs"].items()])
+        return ["", "## Provenance", "",
+                markdown_table(provenance_table(self.provenance)).rstrip("\n")]
 
     def markdown(self, figures: list[str]) -> str:
         """The report as Markdown (figures referenced by file name)."""

@@ -60,6 +60,20 @@ def sha256_file(path: str | os.PathLike[str]) -> str:
     return h.hexdigest()
 
 
+def provenance_table(prov: Mapping[str, Any]) -> Table:
+    """The provenance (:func:`provenance`) as the reports show it, HTML and Markdown alike."""
+    rows = [
+        ["iwr version", str(prov.get("iwr_version", ""))],
+        ["SIMD kernel (IWR_KERNEL)", str(prov.get("kernel", "not recorded"))],
+        ["Python", str(prov.get("python", ""))],
+        ["command", " ".join(_quote(a) for a in prov.get("command", []))],
+        ["date", str(prov.get("date", ""))],
+    ]
+    for label, f in prov.get("inputs", {}).items():
+        rows.append([f"{label}: {f['path']}", f"SHA-256 {f['sha256']}"])
+    return ["what", "value"], rows
+
+
 def provenance(inputs: Mapping[str, str | os.PathLike[str] | None] | None = None,
                command: Sequence[str] | None = None) -> dict[str, Any]:
     """Where a report comes from: the iwr version, the objective's SIMD kernel variant of this
@@ -135,16 +149,7 @@ class Page:
     def provenance(self, prov: Mapping[str, Any]) -> Page:
         """The provenance section (:func:`provenance`)."""
         self.heading("Provenance")
-        rows = [
-            ["iwr version", str(prov.get("iwr_version", ""))],
-            ["SIMD kernel (IWR_KERNEL)", str(prov.get("kernel", "not recorded"))],
-            ["Python", str(prov.get("python", ""))],
-            ["command", " ".join(_quote(a) for a in prov.get("command", []))],
-            ["date", str(prov.get("date", ""))],
-        ]
-        for label, f in prov.get("inputs", {}).items():
-            rows.append([f"{label}: {f['path']}", f"SHA-256 {f['sha256']}"])
-        return self.table((["what", "value"], rows), "left")
+        return self.table(provenance_table(prov), "left")
 
     def render(self) -> str:
         return "\n".join([

@@ -33,6 +33,7 @@ from ..measurements import (
     _LEG_COLUMNS,
     _PAYLOAD_COLUMNS,
     _TEMPERATURE_COLUMNS,
+    MAX_POSE_ANGLE_RAD,
     MeasurementFileError,
     _effect_inputs,
     _limit_problem,
@@ -135,6 +136,20 @@ def _value(field: str, unit: str, lineno: int, name: str, problems: list[tuple[i
         problems.append((lineno, f"line {lineno}, column {name}: {beyond}"))
         return None
     return v
+
+
+def _probe_degrees(probe: np.ndarray, lineno: int, problems: list[tuple[int, str]]) -> bool:
+    """Whether the probe pose of line ``lineno`` has an Euler angle beyond 2 pi, which was
+    written in degrees (a problem naming the column); as the pose data's reader refuses."""
+    big = np.flatnonzero(np.abs(probe[3:]) > MAX_POSE_ANGLE_RAD)
+    if not big.size:
+        return False
+    c = int(big[0])
+    problems.append((lineno, f"line {lineno}, column {_PROBE_COLUMNS[3 + c]}: "
+                             f"{probe[3 + c]:g} is beyond 2 pi: angles are in radians, and this "
+                             f"looks like degrees ({probe[3 + c]:g} deg = "
+                             f"{math.radians(probe[3 + c]):.4f} rad); convert the angle columns"))
+    return True
 
 
 def _check_columns(got: list[str], expected: list[str], where: str, start: int = 0) -> None:
@@ -248,6 +263,8 @@ def read_tracker_data(path: str | os.PathLike[str], setup: TrackerSetup,
         if lineno not in good or any(v is None for v in vals):
             continue
         arr = np.array(vals, dtype=float)
+        if setup.kind == "probe" and _probe_degrees(arr, lineno, problems):
+            continue
         if setup.kind == "points":
             pts = arr.reshape(-1, 3)
             partial = np.isnan(pts).any(axis=1) & ~np.isnan(pts).all(axis=1)
