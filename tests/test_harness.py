@@ -119,6 +119,40 @@ def test_bad_scenario_plausibility_follows_the_curved_null_directions():
     assert res.fun > 1e3 and not res.success and len(res.fit.implausible) > 10
 
 
+def test_the_size_test_stops_at_a_plausible_equivalent_and_names_the_smallest_otherwise():
+    """beyond_plausible: an x within every limit is plausible at once (the readings model called
+    once, for the readings to hold); a vector pushed far along the null directions (the bad
+    scenario's noise-free LM answer, 270 mm from the truth) is plausible on the way to its
+    smallest equivalent; and LM's local minimum names exactly what the full minimisation
+    (``_nearest_plausible`` without the stop) names, with its values."""
+    from iwr.fit_test import _nearest_plausible, beyond_plausible, leg_readings
+
+    names = ROBOT.parameter_names
+    limit = 10 * ROBOT.default_bounds("paper")[1]
+    sc = Scenario(30, noise_at(0.0), draw=0, kind="bad").build(ROBOT)
+    calls = []
+
+    def counted(v):
+        calls.append(1)
+        return leg_readings(ROBOT, sc.data)(v)
+
+    assert np.max(np.abs(sc.truth / limit)) <= 1
+    assert beyond_plausible(counted, sc.truth, limit, None, names) == [] and len(calls) == 1
+    far = iwr.identify(ROBOT, sc.data, "lm", bounds="paper", x0=sc.x0, seed=0, progress=False).x
+    assert np.max(np.abs(far / limit)) > 1  # beyond at the start: the search runs
+    assert beyond_plausible(counted, far, limit, None, names) == [] and len(calls) > 2
+
+    stuck = Scenario(30, noise_at(0.0), draw=2, kind="bad").build(ROBOT)
+    x = iwr.identify(ROBOT, stuck.data, "lm", bounds="paper", x0=stuck.x0, seed=0,
+                     progress=False).x
+    model = leg_readings(ROBOT, stuck.data)
+    smallest = _nearest_plausible(model, x, limit)
+    named = beyond_plausible(model, x, limit, None, names)
+    assert len(named) > 10
+    assert named == [(names[i], float(smallest[i]), float(limit[i]))
+                     for i in np.flatnonzero(np.abs(smallest) > limit)]
+
+
 def test_min_poses_is_what_the_identifiable_parameters_need():
     """9 poses (54 leg readings) determine the IWR's 52 identifiable parameters, 8 (48) cannot:
     checked on the rank of the Jacobian at random poses, independently of min_poses."""
