@@ -319,6 +319,11 @@ def test_bad_arguments_name_the_argument(kwargs, name):
         # the initial population alone would exceed the budget
         ({"methods": ["de:jso"], "budget": 500}, "'de:jso'.*773"),
         ({"methods": ["de"], "budget": 500}, "'de'.*580"),
+        # an option's value, by the method's own checks, for every method
+        ({"methods": ["lm"], "method_options": {"lm": {"max_evaluations": -5}}},
+         "method_options: method 'lm': max_evaluations: -5"),
+        ({"methods": ["crs2"], "method_options": {"crs2": {"max_evaluations": "abc"}}},
+         "method_options: method 'crs2': max_evaluations: 'abc'"),
     ],
 )
 def test_bad_de_specs_are_refused(kwargs, match):

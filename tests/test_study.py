@@ -239,21 +239,24 @@ def test_lost_result_file_is_recomputed_and_figures_make_sense(tmp_path: Path) -
 
 
 def test_deterministic_failure_is_recorded_not_retried(tmp_path: Path) -> None:
-    # DE/rand/1/bin needs 4 individuals: every DE cell fails the same way, LM's cells do not.
+    # A budget below DE's initial population (580): every DE cell fails the same way, LM's cells
+    # do not. (A bad option's value, population_size 3, is refused before any cell runs.)
     grid = dict(methods=["lm", "de"], poses=[12], noise=0.0, draws=1, seeds=[0, 1],
-                options={"de": {"population_size": 3}}, out=tmp_path, scheduler="synchronous",
+                budgets={"de.max_evaluations": [100]}, out=tmp_path, scheduler="synchronous",
                 report=False, validation_poses=10)
     res = iwr.study(**grid)
     status = {(r["method"], r["seed"]): r for r in res.rows}
     for seed in (0, 1):
         assert status[("de", seed)]["status"] == "failed"
-        assert "ValueError: population_size: 3" in status[("de", seed)]["message"]
+        assert "ValueError: max_evaluations: 100" in status[("de", seed)]["message"]
         assert status[("lm", seed)]["status"] == "ok"
     assert res.failed == 2
     again = iwr.study(**grid)
     assert again.executed == 0 and again.failed == 2
     with pytest.raises(ValueError, match="options.lm.nope: not an option of method 'lm'"):
         iwr.study(**{**grid, "options": {"lm": {"nope": 1}}})
+    with pytest.raises(ValueError, match="options.de.population_size: 3"):
+        iwr.study(**{**grid, "options": {"de": {"population_size": 3}}})
 
 
 def test_keys_and_seeds() -> None:
@@ -367,6 +370,11 @@ def test_command_line(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> Non
          "--option lm.nope: not an option of method 'lm'"),
         (["--methods", "lm", "--option", "lm.max_evaluations=5", "--budget", "10"],
          "--option lm.max_evaluations: set by the budget axis too"),
+        # an option's value, by the method's own checks, before any cell runs
+        (["--methods", "lm", "--option", "lm.max_evaluations=-5"],
+         "--option lm.max_evaluations: -5; expected an integer >= 2"),
+        (["--methods", "lm", "--option", "lm.max_evaluations=abc"],
+         "--option lm.max_evaluations: 'abc'; expected an integer >= 2"),
         (["--budget", "lm=5,x"], "--budget: "),
         (["--budget", "nope=5"], "--budget: method 'nope'"),
         (["--poses", "0"], "--poses: 0"),

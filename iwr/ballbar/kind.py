@@ -163,11 +163,11 @@ class BallbarKind(MeasurementKind):
 
         return diagnose(robot, data, x, active=active, noise=noise)
 
-    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any, start: Any = None) -> Any:
         """The tool pose errors against the truth at the same readings, modulo the rigid motions
         of {0} and {5} a ballbar cannot see (:func:`ballbar_accuracy` with ``truth``; without
         it, the experiments' "tool" figures were the distance residuals)."""
-        return self.accuracy(robot, data, x, truth=truth)
+        return self.accuracy(robot, data, x, truth=truth, start=start)
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """Over the robot's and the set-ups' parameters, modulo the null directions of the

@@ -203,22 +203,24 @@ def _method_options(
 def _check_de_budget(robot: Robot, names: list[str], budget: int,
                      extra: dict[str, dict[str, Any]]) -> dict[str, dict[str, Any]]:
     """The resolved settings of every DE spec (strategy, NP, F, CR, ...), from a dry run of its
-    initial population: bad options fail here, before the comparison, and so does a budget
-    smaller than the initial population (the DE engine refuses it; the message here adds how to
-    fix it)."""
+    initial population (the other methods' stopped at their first evaluation): bad options fail
+    here, by the method's own checks, before the comparison (ArgumentError naming
+    ``method_options``), and so does a budget smaller than DE's initial population (the DE
+    engine refuses it; the message here names ``budget`` and adds how to fix it)."""
     out: dict[str, dict[str, Any]] = {}
     for spec in names:
         method, opts = _method_options(spec, budget, extra)
-        if method != "de":
-            continue
         try:
             st = dry_run(robot, method, opts)
         except (ValueError, TypeError) as exc:
-            hint = ""
-            if str(exc).startswith("max_evaluations:"):  # the budget: here, the only source of it
-                hint = (f"; raise the budget or give a smaller population_size in "
-                        f"method_options={{{spec!r}: {{...}}}}")
-            raise ValueError(f"method {spec!r}: {exc}{hint}") from None
+            if str(exc).startswith("max_evaluations:") and "max_evaluations" not in \
+                    extra.get(spec, {}):  # the budget: the only source of it here
+                raise ArgumentError(
+                    f"budget: method {spec!r}: {exc}; raise the budget or give a smaller "
+                    f"population_size in method_options={{{spec!r}: {{...}}}}") from None
+            raise ArgumentError(f"method_options: method {spec!r}: {exc}") from None
+        if method != "de":
+            continue
         keys = ["strategy", "population_size", "F", "CR"]
         if st.get("min_population_size"):
             keys.append("min_population_size")

@@ -9,9 +9,11 @@ import json
 from collections.abc import Callable, Mapping, Sequence
 from typing import Any
 
+from .. import kinds
+from ..noise import Noise
 from ..robot import Robot
 from ..simulation import simulate
-from .harness import Cell, canonical, evaluate
+from .harness import Cell, canonical, evaluate, registered_methods
 
 __all__ = ["ExecutorError", "dry_run", "run_dask", "run_in_process"]
 
@@ -194,11 +196,21 @@ def _connect(client_class: Any, address: Any, timeout: float) -> Any:
 
 def dry_run(robot: Robot, method: str, options: Mapping[str, Any]) -> dict[str, Any]:
     """The settings a method resolves from ``options`` (for DE: strategy, NP, F, CR, ...), from a
-    run of its initial population alone on a small noise-free problem, so that bad options fail
-    before an experiment starts. ValueError or TypeError names a bad option."""
+    run stopped before it searches (DE: its initial population alone; the others: stopped by their
+    callback at the first evaluation) on a small noise-free problem, so that bad options fail before
+    an experiment starts, by the method's own checks (the efficient estimator given the realistic
+    noise model, in the robot's kind's form, unless ``options`` name one). ValueError or TypeError
+    names a bad option. A method registered from outside the package is not run (``{}``): a call of
+    it may have side effects (files written, its process ended); its options' values are checked
+    when its cells run."""
     from ..methods import identify
 
+    if registered_methods()[method].__module__.partition(".")[0] != "iwr":
+        return {}
     data, _ = simulate(robot, 12, seed=0)
-    res = identify(robot, data, method, seed=0, progress=False,
-                   **{**options, "generations": 0})
+    stop: dict[str, Any] = ({"generations": 0} if method == "de" else
+                            {"callback": lambda _: True})
+    if method == "efficient" and "noise" not in options:  # as evaluate gives it, in the kind's form
+        stop["noise"] = kinds.for_robot(robot).experiment_noise(robot, Noise.realistic())
+    res = identify(robot, data, method, seed=0, progress=False, **{**options, **stop})
     return dict(res.settings)

@@ -507,14 +507,15 @@ def evaluate(
     Deterministic: the same cell gives the same row (``wall_time`` aside), in any process.
     ``runtime_options`` are options that change the speed only (``workers``): given to the method
     when it takes them. The figures on the validation poses (what each measures for the robot's
-    kind: :attr:`iwr.kinds.MeasurementKind.experiment_text`): ``val_rms``, ``val_max`` (the
-    readings predicted by the calibrated model against the exact ones, mm) and
-    ``val_rms_nominal`` (the nominal model's); the parameter error modulo the unidentifiable
-    directions (:meth:`iwr.kinds.MeasurementKind.parameter_error`, :func:`iwr.parameter_error`
-    for poses in {0}, with the validation poses as the yardstick of what is identifiable: the
-    same generic set for every pose count, so that small calibration sets do not hide errors in
-    directions they happen not to see) and raw; the tool pose error by forward kinematics
-    against the truth (:meth:`iwr.kinds.MeasurementKind.tool_accuracy`).
+    kind: :attr:`iwr.kinds.MeasurementKind.experiment_text`): ``val_rms``, ``val_max`` (the readings
+    predicted by the calibrated model against the exact ones, mm) and ``val_rms_nominal`` (the
+    nominal model's, in the identification's start: the same "before" as :func:`iwr.calibrate`'s,
+    :meth:`iwr.kinds.MeasurementKind.before`); the parameter error modulo the unidentifiable
+    directions (:meth:`iwr.kinds.MeasurementKind.parameter_error`, :func:`iwr.parameter_error` for
+    poses in {0}, with the validation poses as the yardstick of what is identifiable: the same
+    generic set for every pose count, so that small calibration sets do not hide errors in
+    directions they happen not to see) and raw; the tool pose error by forward kinematics against
+    the truth (:meth:`iwr.kinds.MeasurementKind.tool_accuracy`).
     """
     row = cell.columns()
     try:
@@ -618,7 +619,9 @@ def _validate(kind: kinds.MeasurementKind, robot: Robot, x: np.ndarray,
         out["param_error_angle"] = float(pe.rms_angle)
     except (*RECORDED_ERRORS, NotImplementedError) as exc:
         notes.append(f"parameter_error: {type(exc).__name__}: {exc}")
-    figures = kind.validate(robot, val, x, sc.truth)
+    # "Before" is the nominal robot in the identification's start, as iwr.calibrate's: a
+    # set-up guessed on the validation poses themselves would flatter it.
+    figures = kind.validate(robot, val, x, sc.truth, kind.start(robot, sc.data))
     if figures.get("notes"):
         notes.append(figures.pop("notes"))
     out.update(figures)

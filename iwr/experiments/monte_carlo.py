@@ -46,7 +46,7 @@ import numpy as np
 from .._hooks import hook
 from .._io import atomic_write_text
 from ..robot import Robot
-from .executors import ExecutorError, run_dask, run_in_process
+from .executors import ExecutorError, dry_run, run_dask, run_in_process
 from .harness import (
     COLUMNS,
     FIGURE_COLUMNS,
@@ -438,6 +438,11 @@ def study(
     kind = check_robot(robot)
     for n in poses_l:
         check_n_poses(robot, n, "poses")
+    for m, opts in options_d.items():
+        try:  # the options' values, by the method's own checks, before any cell runs
+            dry_run(robot, m, opts)
+        except (ValueError, TypeError) as exc:
+            raise ArgumentError(f"options.{m}.{exc}") from None
 
     out = Path(out)
     runs = out / RUNS_FOLDER

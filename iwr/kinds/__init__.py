@@ -447,20 +447,30 @@ class MeasurementKind(abc.ABC):
         n = getattr(problem, "n_observations", None)
         return float(problem.n_residuals if n is None else n) / len(data)
 
-    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
+    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any, start: Any = None) -> Any:
         """The tool pose errors (:class:`iwr.Accuracy`: nominal and calibrated) of ``x`` on
-        ``data``, exact readings of the actual robot ``truth``. Default: :meth:`accuracy`
-        (measured poses of exact data are the truth's)."""
-        return self.accuracy(robot, data, x)
+        ``data``, exact readings of the actual robot ``truth``; "nominal" in ``start``
+        (:meth:`start` of the identification data, as :meth:`accuracy`). Default:
+        :meth:`accuracy` (measured poses of exact data are the truth's)."""
+        return self.accuracy(robot, data, x, start=start)
 
-    def validate(self, robot: Any, data: Any, x: Any, truth: Any) -> dict[str, float]:
+    def before(self, robot: Any, data: Any, start: Any = None) -> tuple[Any, np.ndarray]:
+        """The problem of ``data`` and the vector the "before" figures are at: the nominal robot
+        in the identification's ``start`` (:meth:`start` of the identification data, what
+        :meth:`accuracy`'s "before" starts from; None: the start of :meth:`problem` on
+        ``data``). Default: the start of :meth:`problem` (the nominal robot)."""
+        return self.problem(robot, data)
+
+    def validate(self, robot: Any, data: Any, x: Any, truth: Any, start: Any = None
+                 ) -> dict[str, float]:
         """The validation figures of ``x`` on ``data`` (fresh poses of the actual robot ``truth``,
         read without noise): ``val_rms``, ``val_max`` (the readings' residuals at ``x``, mm),
-        ``val_rms_nominal`` (at the start of :meth:`problem`: the nominal robot, with this
-        kind's setup guess; nan when there is none); then ``tool_position_rms``,
-        ``tool_orientation_rms`` (degrees) and ``tool_position_rms_nominal`` from
-        :meth:`tool_accuracy` (nan, with ``notes`` saying why, where it fails). The residuals
-        do not depend on the gauge: null directions leave them unchanged."""
+        ``val_rms_nominal`` (at :meth:`before`: the nominal robot in ``start``, the
+        identification's :meth:`start`, as :func:`iwr.calibrate`'s "before"; nan when there is
+        none); then ``tool_position_rms``, ``tool_orientation_rms`` (degrees) and
+        ``tool_position_rms_nominal`` from :meth:`tool_accuracy` with the same ``start`` (nan,
+        with ``notes`` saying why, where it fails). The residuals do not depend on the gauge:
+        null directions leave them unchanged."""
         problem, _ = self.problem(robot, data, x0=x)
         seen = observed(problem)
         err = np.asarray(problem.residuals(x))[seen]
@@ -472,12 +482,12 @@ class MeasurementKind(abc.ABC):
         }
         notes = []
         try:
-            nominal, start = self.problem(robot, data)
-            out["val_rms_nominal"] = _rms(np.asarray(nominal.residuals(start))[seen])
+            nominal, x_before = self.before(robot, data, start)
+            out["val_rms_nominal"] = _rms(np.asarray(nominal.residuals(x_before))[seen])
         except _FAILURES as exc:  # e.g. no set-up guess for a nominal robot far from the data
             notes.append(f"nominal: {type(exc).__name__}: {exc}")
         try:
-            acc = self.tool_accuracy(robot, data, x, truth)
+            acc = self.tool_accuracy(robot, data, x, truth, start)
         except _FAILURES as exc:  # e.g. forward kinematics of a poor model diverges
             notes.append(f"accuracy: {type(exc).__name__}: {exc}")
         else:

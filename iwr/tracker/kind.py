@@ -55,13 +55,15 @@ class _TrackerKind(MeasurementKind):
         "readings_short": "point ({T})",
         "tool_short": " modulo the gauge",
         "readings": "points in {T} predicted with the recovered parameters (robot, registration "
-                    "and offsets) against their exact values (mm; the nominal robot's with the "
-                    "closed-form registration guess from these points)",
+                    "and offsets) against their exact values (mm; the nominal robot's in the "
+                    "closed-form registration guess the identification started from, as "
+                    "iwr calibrate's 'before')",
         "gauge": _GAUGE,
         "tool": "tool pose error against the truth by forward kinematics of the readings, in {T}, "
                 "modulo the gauge (iwr.tracker.tool_pose_errors, gauge='fit': the model's platform "
                 "frame moved by the one rigid transform that best aligns it with the truth's over "
-                "the validation poses); the nominal robot's with the registration guess",
+                "the validation poses); the nominal robot's in the registration guess the "
+                "identification started from",
         "parameters": "x minus the parameter vector nearest to x that predicts exactly the truth's "
                       "points at the validation poses, projected onto the directions the points "
                       "see (the registration and the offsets included; the gauge and the robot's "
@@ -218,8 +220,20 @@ class _TrackerKind(MeasurementKind):
                                np.zeros(len(effect_names(robot.effects)), dtype=bool),
                                robot.tracker.angle_parameters])
 
-    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
-        return tracker_accuracy(robot, data, x, truth=truth)
+    def tool_accuracy(self, robot: Any, data: Any, x: Any, truth: Any, start: Any = None) -> Any:
+        return self.accuracy(robot, data, x, truth=truth, start=start)
+
+    def before(self, robot: Any, data: Any, start: Any = None) -> tuple[Any, np.ndarray]:
+        """The nominal robot (and effects) in the registration guess ``start`` (a
+        :class:`iwr.tracker.registration.RegistrationGuess`, no guess made on ``data``: one
+        fitted to validation poses flatters the nominal robot, :func:`tracker_accuracy`), or in
+        the guess on ``data`` when None."""
+        if start is None:
+            return self.problem(robot, data)
+        from ..effects import parameter_names as effect_names
+
+        n = robot.n_params + len(effect_names(robot.effects))
+        return self.problem(robot, data, x0=np.concatenate([np.zeros(n), start.x_setup]))
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """Over the robot's and the setup's parameters, modulo the null directions of the point
@@ -389,7 +403,7 @@ class ProbeKind(_TrackerKind):
                        "readings": (
         "the probe's four points in {T} (its origin and one probe_length along each axis) "
         "predicted with the recovered parameters against their exact values (mm; the nominal "
-        "robot's with the closed-form registration guess from these poses)")}
+        "robot's in the closed-form registration guess the identification started from)")}
 
     def readings_per_pose(self, robot: Any, data: Any) -> float:
         """Six: a pose (its four points are twelve coordinates of one rigid pose)."""
