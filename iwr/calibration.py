@@ -382,7 +382,7 @@ def calibrate(
     *,
     noise: Any = None,
     validation: Any = None,
-    validation_fraction: float = 0.2,
+    validation_fraction: float = kinds.VALIDATION_FRACTION,
     seed: int = 0,
     parameters: str = "base",
     bounds: Any = None,

@@ -78,7 +78,8 @@ class PosePlan:
     #: probe, 3 per reflector, 1 for a ballbar): the rank of a pose's rows of the design.
     readings_per_pose: int = 0
 
-    def redundancy(self, validation_fraction: float = 0.2, n_poses: int | None = None) -> int:
+    def redundancy(self, validation_fraction: float = kinds.VALIDATION_FRACTION,
+                   n_poses: int | None = None) -> int:
         """The readings beyond the base parameters once a calibration job holds out
         ``validation_fraction`` of the ``n_poses`` (default the plan's) for validation
         (:func:`iwr.kinds.split_rows`'s rule): at most 0, the fit has no degree of freedom to be
@@ -87,7 +88,8 @@ class PosePlan:
         n_ident = n - (kinds.split_rows(n, validation_fraction, 0)[1].size if n > 1 else 0)
         return n_ident * self.readings_per_pose - int(self.base_indices.size)
 
-    def poses_for_redundancy(self, validation_fraction: float = 0.2) -> int:
+    def poses_for_redundancy(self, validation_fraction: float = kinds.VALIDATION_FRACTION
+                             ) -> int:
         """The fewest poses whose readings, once the job holds out ``validation_fraction`` of
         them, exceed the base parameters (:meth:`redundancy` > 0)."""
         n = max(2, len(self.indices))

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ..kinds import for_robot
+from ..kinds import VALIDATION_FRACTION, for_robot
 from ..reporting.html import provenance
 from ._base import (
     EXIT_INTERRUPTED,
@@ -138,7 +138,8 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
                    help="search bounds: +-0.5 mm and +-0.5 degree (default), or Table 2 literally "
                    "(+-0.5 for every parameter)")
     val = p.add_mutually_exclusive_group()
-    val.add_argument("--validation-fraction", type=fraction, default=0.2, metavar="F",
+    val.add_argument("--validation-fraction", type=fraction, default=VALIDATION_FRACTION,
+                     metavar="F",
                      help="fraction of the poses held out (at random, by --seed) for the accuracy "
                      "figure (default: %(default)s; 0: none, the accuracy is then optimistic)")
     val.add_argument("--validation", metavar="VALID.csv",

@@ -148,7 +148,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     return EXIT_OK
 
 
-def _warn_few_validation_poses(robot: Any, n_poses: int, fraction: float = 0.2) -> None:
+def _warn_few_validation_poses(robot: Any, n_poses: int) -> None:
     """Warn when the poses ``iwr calibrate`` holds out of the plan (a fifth by default) are
     too few for the verdict to tell a calibration twice as bad from chance (docs/kinds.md,
     "The verdict")."""
@@ -156,6 +156,7 @@ def _warn_few_validation_poses(robot: Any, n_poses: int, fraction: float = 0.2) 
     from .. import kinds
     from ..calibration import DETECT_RATIO, LEVEL, POWER, validation_poses_needed
 
+    fraction = kinds.VALIDATION_FRACTION
     needed = validation_poses_needed(kinds.for_robot(robot).verdict_error_dims)
     held = kinds.split_rows(n_poses, fraction, 0)[1].size if n_poses > 1 else 0
     if held >= needed:

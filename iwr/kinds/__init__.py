@@ -680,6 +680,11 @@ def split(data: Any, fraction: float, seed: int) -> tuple[Any, Any]:
     return kind.subset(data, ident), kind.subset(data, val)
 
 
+#: The fraction of a data set ``iwr calibrate`` holds out for validation unless told otherwise
+#: (:func:`iwr.calibrate`'s and ``--validation-fraction``'s default; ``iwr plan`` warns by it).
+VALIDATION_FRACTION = 0.2
+
+
 def split_rows(n: int, fraction: float, seed: int) -> tuple[np.ndarray, np.ndarray]:
     """The rows of :func:`split`: ``(identification, validation)`` indices of ``n`` poses."""
     if not (isinstance(fraction, numbers.Real) and not isinstance(fraction, bool)
