@@ -259,6 +259,32 @@ def test_deterministic_failure_is_recorded_not_retried(tmp_path: Path) -> None:
         iwr.study(**{**grid, "options": {"de": {"population_size": 3}}})
 
 
+def test_rows_of_an_older_computation_are_computed_again(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A study made by a version whose cells computed their figures differently (an older
+    # CELL_FORMAT): resumed by this one, no row of it is reused, and the table holds the new rows
+    # alone (a tracker study resumed across the change of its nominal figures kept the old ones).
+    grid = dict(methods="lm", poses=[12], noise=[0.0, 0.01], draws=1, seeds=1, out=tmp_path,
+                scheduler="synchronous", validation_poses=10, report=False)
+    from iwr.experiments import harness
+
+    monkeypatch.setattr(harness, "CELL_FORMAT", harness.CELL_FORMAT - 1)
+    old = iwr.study(**grid)
+    assert (old.executed, old.reused) == (2, 0)
+    for r in old.rows:  # what the older computation gave, marked so it can be told apart
+        path = tmp_path / "runs" / f"{r['key']}.json"
+        row = json.loads(path.read_text())
+        path.write_text(json.dumps({**row, "val_rms_nominal": -1.0}))
+    monkeypatch.undo()
+    new = iwr.study(**grid)
+    assert (new.executed, new.reused) == (2, 0)
+    assert len(new.rows) == 2 and all(r["val_rms_nominal"] > 1.0 for r in new.rows)
+    assert {r["key"] for r in new.rows}.isdisjoint(r["key"] for r in old.rows)
+    again = iwr.study(**grid)
+    assert (again.executed, again.reused) == (0, 2)
+
+
 def test_keys_and_seeds() -> None:
     robot = iwr.Robot.default()
     rh = robot_hash(robot)
@@ -268,7 +294,7 @@ def test_keys_and_seeds() -> None:
     # The key is the hash of the cell's settings written as canonical JSON (computed here anew).
     c = cells[0]
     settings = {
-        "format": 1, "method": "lm", "options": {}, "budget": None, "n_poses": 10, "noise": 0.0,
+        "format": 2, "method": "lm", "options": {}, "budget": None, "n_poses": 10, "noise": 0.0,
         "noise_model": "tracker position sd (mm), realistic proportions", "draw": 0, "seed": 0,
         "base_seed": 7, "validation_poses": 30, "robot": rh,
     }

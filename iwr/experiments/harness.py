@@ -57,8 +57,11 @@ __all__ = [
     "stream_seed",
 ]
 
-#: Version of the cells' settings: part of every cell's key.
-CELL_FORMAT = 1
+#: Version of what a cell computes: part of every cell's key, so that a study resumed by a
+#: version that computes a cell's figures differently computes its cells again instead of
+#: reusing the rows of the old computation. Raise it with any such change. 2: the nominal
+#: figures on tracker data in the identification's start (:meth:`iwr.kinds.MeasurementKind.before`).
+CELL_FORMAT = 2
 
 
 class ArgumentError(ValueError):
