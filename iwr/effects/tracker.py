@@ -868,14 +868,11 @@ def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: 
     from ..analysis.accuracy import Accuracy, PoseErrors
     from ..tracker.api import _point_errors
     from ..tracker.gauge import _align
+    from ..tracker.start import before_x0
     from ..transforms import rotation_angle
 
-    if start is None:  # the registration guess on these data
-        problem, start = effect_tracker_problem(robot, measurements)
-    else:  # the guess the identification started from: none made on these data
-        n = robot.n_params + len(effect_names(robot.effects))
-        problem, start = effect_tracker_problem(
-            robot, measurements, x0=np.concatenate([np.zeros(n), start.x_setup]))
+    n = robot.n_params + len(effect_names(robot.effects))
+    problem, start = effect_tracker_problem(robot, measurements, x0=before_x0(n, start))
     x = problem._x(x)
     if truth is None:
         return Accuracy(_point_errors(problem, start), _point_errors(problem, x))

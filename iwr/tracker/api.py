@@ -21,7 +21,7 @@ from .data import TrackerMeasurements
 from .problem import TrackerProblem
 from .registration import kabsch
 from .simulate import simulate_tracker
-from .start import _setup, registration_guess, tracker_problem
+from .start import _setup, before_x0, registration_guess, tracker_problem
 
 __all__ = [
     "tracker_accuracy",
@@ -169,13 +169,9 @@ def tracker_accuracy(robot: Robot, measurements: TrackerMeasurements, x: Any, *,
     if x.shape != (n,):
         raise ValueError(f"x: shape {x.shape}; expected ({n},): the robot's {robot.n_params} "
                          f"then the tracker setup's {setup.n_params}")
-    given = None if start is None else np.asarray(start.x_setup, dtype=float)
     try:
-        if given is not None:
-            problem, start = tracker_problem(
-                robot, measurements, x0=np.concatenate([np.zeros(robot.n_params), given]))
-        else:
-            problem, start = tracker_problem(robot, measurements)
+        problem, start = tracker_problem(robot, measurements,
+                                         x0=before_x0(robot.n_params, start))
     except RegistrationError:
         # Too few validation points for a registration guess of their own (fewer than 3, or
         # on one line): "before" is then the nominal robot in the identified registration.

@@ -31,6 +31,7 @@ from .data import TrackerMeasurements
 from .estimation import TrackerSpec, tracker_misclosures
 from .files import read_tracker_data, tracker_file_format
 from .problem import TrackerProblem, noise_whitening, observations
+from .start import before_x0
 
 __all__ = ["PointsKind", "ProbeKind"]
 
@@ -228,12 +229,10 @@ class _TrackerKind(MeasurementKind):
         :class:`iwr.tracker.registration.RegistrationGuess`, no guess made on ``data``: one
         fitted to validation poses flatters the nominal robot, :func:`tracker_accuracy`), or in
         the guess on ``data`` when None."""
-        if start is None:
-            return self.problem(robot, data)
         from ..effects import parameter_names as effect_names
 
         n = robot.n_params + len(effect_names(robot.effects))
-        return self.problem(robot, data, x0=np.concatenate([np.zeros(n), start.x_setup]))
+        return self.problem(robot, data, x0=before_x0(n, start))
 
     def parameter_error(self, robot: Any, data: Any, x: Any, truth: Any) -> Any:
         """Over the robot's and the setup's parameters, modulo the null directions of the point

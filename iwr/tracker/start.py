@@ -17,7 +17,7 @@ from .data import TrackerMeasurements
 from .problem import TrackerProblem
 from .setup import TrackerSetup
 
-__all__ = ["registration_guess", "tracker_problem"]
+__all__ = ["before_x0", "registration_guess", "tracker_problem"]
 
 
 def _setup(robot: Robot) -> TrackerSetup:
@@ -56,6 +56,19 @@ def objective_noise(noise: Any, measurements: Any) -> tuple[Any, Any] | None:
         raise ValueError("noise: the weighted objective on tracker data needs the tracker's "
                          "noise: give noise=(iwr.Noise(...), iwr.tracker.TrackerNoise(...))")
     return readings, tracker
+
+
+def before_x0(n_model: int, start: Any) -> np.ndarray | None:
+    """Where "before" (the nominal robot's figures) is evaluated on tracker data: the nominal
+    model (``n_model`` zeros: the robot's parameters, and its effects' when it has some) in the
+    registration guess ``start`` the identification started from (a
+    :class:`iwr.tracker.registration.RegistrationGuess`), or None without one: the guess on the
+    data at hand (the problems' ``x0=None``). A guess fitted to validation poses flatters the
+    nominal robot. The one rule of :func:`iwr.calibrate`'s "before", compare/study's
+    (:meth:`iwr.kinds.MeasurementKind.before`) and the accuracy functions'."""
+    if start is None:
+        return None
+    return np.concatenate([np.zeros(n_model), np.asarray(start.x_setup, dtype=float)])
 
 
 def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
