@@ -135,11 +135,14 @@ def cmd_plan(args: argparse.Namespace) -> int:
                                                                          strict=True)))
     spare = plan.redundancy()  # with the calibration job's default hold-out of a fifth
     if spare <= 0:
+        from ..kinds import VALIDATION_FRACTION
+
         base = plan.base_indices.size
         print(f"note: iwr calibrate holds out a fifth of the poses for validation "
-              f"(--validation-fraction 0.2): the others give {spare + base} readings for {base} "
-              "base parameters, none to test the fit with (with a noise model the job says \"not "
-              f"calibrated: no redundancy\"); plan {plan.poses_for_redundancy()} poses or more, or "
+              f"(--validation-fraction {VALIDATION_FRACTION:g}): the others give "
+              f"{spare + base} readings for {base} base parameters, none to test the fit with "
+              "(with a noise model the job says \"not calibrated: no redundancy\"); plan "
+              f"{plan.poses_for_redundancy()} poses or more, or "
               "calibrate with a validation file of its own (--validation)")
     _warn_few_validation_poses(robot, len(plan.indices))
     print(f"wrote {args.out}: the chosen poses to measure (joint readings and platform poses"
