@@ -468,3 +468,22 @@ def test_command_line_takes_the_robot_files_noise_model(tmp_path, capsys):
         "(from --noise)" in capsys.readouterr().out
     settings = json.loads((tmp_path / "b" / "results.json").read_text())["settings"]
     assert settings["noise"]["legs"] == 0.0
+
+
+def test_metrics_figure_of_a_scenario_where_every_run_failed() -> None:
+    # A comparison whose every run of a scenario failed (LM alone from the 'bad' start on a
+    # tracker robot, seed 0: no validation figures, nan) raised matplotlib's "Data cannot be
+    # log-scaled" from the metrics figure, and no report was written. The axis now says so.
+    from types import SimpleNamespace
+
+    from iwr.reporting.compare import _plot_metrics
+
+    runs = [
+        {"scenario": "near", "method": "lm", "success": True, "cost": 0.236, "val_rms": 0.0048,
+         "val_rms_nominal": 3.85, "noise_floor": 0.25},
+        {"scenario": "bad", "method": "lm", "success": False, "cost": 7.8e8,
+         "val_rms": math.nan, "val_rms_nominal": math.nan, "noise_floor": 0.25},
+    ]
+    comp = SimpleNamespace(settings={"methods": ["lm"], "scenarios": ["near", "bad"]}, runs=runs)
+    png = _plot_metrics(comp)
+    assert png[:8] == b"\x89PNG\r\n\x1a\n"

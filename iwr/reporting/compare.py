@@ -173,12 +173,16 @@ def _plot_metrics(comp: Any) -> bytes:
         for i, (key, label) in enumerate([("cost", "final cost (mm$^2$)"),
                                           ("val_rms", "validation RMS (mm)")]):
             ax = fig.add_subplot(2, len(scenarios), i * len(scenarios) + j + 1)
+            missing = 0  # runs without the figure (a failed run's validation RMS is nan)
             for k, method in enumerate(names):
                 vals = [r[key] for r in comp.runs
                         if r["scenario"] == scenario and r["method"] == method]
                 ok = [r["success"] for r in comp.runs
                       if r["scenario"] == scenario and r["method"] == method]
                 for v, s in zip(vals, ok, strict=True):
+                    if not np.isfinite(v):
+                        missing += 1
+                        continue
                     ax.plot(k, max(v, 1e-30), "o" if s else "x", color=colors[method], ms=6)
             if key == "cost":
                 fl = [r["noise_floor"] for r in comp.runs if r["scenario"] == scenario]
@@ -186,12 +190,21 @@ def _plot_metrics(comp: Any) -> bytes:
                     ax.axhline(float(np.median(fl)), color="k", ls="--", lw=1)
             else:
                 nv = [r["val_rms_nominal"] for r in comp.runs
-                      if r["scenario"] == scenario]
+                      if r["scenario"] == scenario and np.isfinite(r["val_rms_nominal"])]
                 if nv:
                     ax.axhline(float(np.median(nv)), color="0.5", ls=":", lw=1)
-            ax.set_yscale("log")
+            # A log axis needs a positive value: one with none (every run failed) stays linear,
+            # empty but for its note (it raised a ValueError and no report was written).
+            if ax.lines and any(np.any(np.asarray(ln.get_ydata(), dtype=float) > 0)
+                                for ln in ax.lines):
+                ax.set_yscale("log")
+            else:
+                ax.text(0.5, 0.5, "no run has a value", transform=ax.transAxes, ha="center",
+                        va="center", fontsize=9, color="0.4")
             ax.set_xticks(range(len(names)), names)
-            ax.set_title(f"{scenario}: {label}", fontsize=10)
+            ax.set_xlim(-0.5, len(names) - 0.5)
+            note = f" ({missing} without: failed)" if missing else ""
+            ax.set_title(f"{scenario}: {label}{note}", fontsize=10)
             ax.grid(True, axis="y", alpha=0.3)
     fig.suptitle("Per run: o success (the method's), x not; dashed: noise floor; dotted: the "
                  "nominal robot's validation RMS", fontsize=9)
