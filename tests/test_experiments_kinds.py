@@ -187,6 +187,22 @@ def test_the_bad_start_on_tracker_data_is_a_failed_run_not_an_abort(tmp_path):
                             start="bad", out=None, n_validation=6, progress=False)
 
 
+def test_a_run_from_the_bad_start_that_reaches_the_floor_is_a_success_without_a_before():
+    """The 'bad' scenario's nominal robot is hundreds of mm from its truth: no registration guess
+    (the kind's start) exists on its data, so there is no "before". A run that reaches the floor
+    from the bad start (LM, seed 1: cost 0.213 against a floor of 0.233) is a success with its
+    calibrated figures, its nominal ones nan and a note saying why; the cell failed on the missing
+    guess (a RegistrationError from the validation), however good the identification."""
+    robot = iwr.Robot.from_toml(TRACKER_TOML)
+    comp = iwr.compare_methods(robot, seeds=[1], methods=["lm"], start="bad", out=None,
+                               n_validation=20, progress=False)
+    (run,) = comp.runs
+    assert run["status"] == "ok" and run["success"] and run["cost"] < run["noise_floor"]
+    assert run["val_rms"] < 0.01 and run["tool_position_rms"] < 0.01  # mm: at the noise
+    assert math.isnan(run["val_rms_nominal"]) and math.isnan(run["tool_position_rms_nominal"])
+    assert "nominal: no start of the kind's own: RegistrationError" in run["notes"]
+
+
 def test_study_on_tracker_data_says_what_it_measures(tmp_path):
     robot = iwr.Robot.from_toml(TRACKER_TOML)
     res = iwr.study(methods="lm", poses=[10], noise=[0.0, 0.02], draws=1, seeds=1,

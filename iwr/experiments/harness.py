@@ -623,8 +623,16 @@ def _validate(kind: kinds.MeasurementKind, robot: Robot, x: np.ndarray,
     except (*RECORDED_ERRORS, NotImplementedError) as exc:
         notes.append(f"parameter_error: {type(exc).__name__}: {exc}")
     # "Before" is the nominal robot in the identification's start, as iwr.calibrate's: a
-    # set-up guessed on the validation poses themselves would flatter it.
-    figures = kind.validate(robot, val, x, sc.truth, kind.start(robot, sc.data))
+    # set-up guessed on the validation poses themselves would flatter it. Where the kind has no
+    # start on these data (the 'bad' scenario's nominal robot, hundreds of mm from the truth,
+    # has no registration guess), there is no "before": its figures nan, the calibrated ones
+    # computed (the cell failed on it, whatever the identification did).
+    try:
+        start, nominal = kind.start(robot, sc.data), True
+    except RECORDED_ERRORS as exc:
+        start, nominal = None, False
+        notes.append(f"nominal: no start of the kind's own: {type(exc).__name__}: {exc}")
+    figures = kind.validate(robot, val, x, sc.truth, start, nominal=nominal)
     if figures.get("notes"):
         notes.append(figures.pop("notes"))
     out.update(figures)

@@ -461,16 +461,19 @@ class MeasurementKind(abc.ABC):
         ``data``). Default: the start of :meth:`problem` (the nominal robot)."""
         return self.problem(robot, data)
 
-    def validate(self, robot: Any, data: Any, x: Any, truth: Any, start: Any = None
-                 ) -> dict[str, float]:
+    def validate(self, robot: Any, data: Any, x: Any, truth: Any, start: Any = None, *,
+                 nominal: bool = True) -> dict[str, float]:
         """The validation figures of ``x`` on ``data`` (fresh poses of the actual robot ``truth``,
         read without noise): ``val_rms``, ``val_max`` (the readings' residuals at ``x``, mm),
         ``val_rms_nominal`` (at :meth:`before`: the nominal robot in ``start``, the
         identification's :meth:`start`, as :func:`iwr.calibrate`'s "before"; nan when there is
         none); then ``tool_position_rms``, ``tool_orientation_rms`` (degrees) and
         ``tool_position_rms_nominal`` from :meth:`tool_accuracy` with the same ``start`` (nan,
-        with ``notes`` saying why, where it fails). The residuals do not depend on the gauge:
-        null directions leave them unchanged."""
+        with ``notes`` saying why, where it fails). ``nominal=False``: no "before" (the
+        identification had no start of the kind's own, e.g. no registration guess for a nominal
+        robot far from the data): the nominal figures nan, none guessed on ``data`` (which would
+        flatter the nominal robot). The residuals do not depend on the gauge: null directions
+        leave them unchanged."""
         problem, _ = self.problem(robot, data, x0=x)
         seen = observed(problem)
         err = np.asarray(problem.residuals(x))[seen]
@@ -482,8 +485,9 @@ class MeasurementKind(abc.ABC):
         }
         notes = []
         try:
-            nominal, x_before = self.before(robot, data, start)
-            out["val_rms_nominal"] = _rms(np.asarray(nominal.residuals(x_before))[seen])
+            if nominal:
+                before, x_before = self.before(robot, data, start)
+                out["val_rms_nominal"] = _rms(np.asarray(before.residuals(x_before))[seen])
         except _FAILURES as exc:  # e.g. no set-up guess for a nominal robot far from the data
             notes.append(f"nominal: {type(exc).__name__}: {exc}")
         try:
@@ -493,7 +497,8 @@ class MeasurementKind(abc.ABC):
         else:
             out.update(tool_position_rms=_rms(acc.calibrated.position),
                        tool_orientation_rms=_rms(acc.calibrated.orientation),
-                       tool_position_rms_nominal=_rms(acc.nominal.position))
+                       tool_position_rms_nominal=(_rms(acc.nominal.position) if nominal
+                                                  else float("nan")))
         if notes:
             out["notes"] = "; ".join(notes)
         return out
