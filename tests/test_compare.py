@@ -470,12 +470,13 @@ def test_command_line_takes_the_robot_files_noise_model(tmp_path, capsys):
     assert settings["noise"]["legs"] == 0.0
 
 
-def test_metrics_figure_of_a_scenario_where_every_run_failed() -> None:
+def test_metrics_figure_of_a_scenario_where_every_run_failed(monkeypatch) -> None:
     # A comparison whose every run of a scenario failed (LM alone from the 'bad' start on a
     # tracker robot, seed 0: no validation figures, nan) raised matplotlib's "Data cannot be
     # log-scaled" from the metrics figure, and no report was written. The axis now says so.
     from types import SimpleNamespace
 
+    from iwr.reporting import compare as report_compare
     from iwr.reporting.compare import _plot_metrics
 
     runs = [
@@ -485,5 +486,16 @@ def test_metrics_figure_of_a_scenario_where_every_run_failed() -> None:
          "val_rms": math.nan, "val_rms_nominal": math.nan, "noise_floor": 0.25},
     ]
     comp = SimpleNamespace(settings={"methods": ["lm"], "scenarios": ["near", "bad"]}, runs=runs)
+    figures = []
+    real = report_compare.png_bytes
+    monkeypatch.setattr(report_compare, "png_bytes", lambda fig: figures.append(fig) or real(fig))
     png = _plot_metrics(comp)
     assert png[:8] == b"\x89PNG\r\n\x1a\n"
+    axes = {ax.get_title(): ax for ax in figures[0].axes}
+    bad = axes["bad: validation RMS (mm) (1 without a value)"]
+    assert bad.get_yscale() == "linear"
+    assert [t.get_text() for t in bad.texts] == ["no run has a value"]
+    # The failed run's cost is a value: plotted (an x), on a log axis.
+    assert axes["bad: final cost (mm$^2$)"].get_yscale() == "log"
+    near = axes["near: validation RMS (mm)"]
+    assert near.get_yscale() == "log" and not near.texts

@@ -138,8 +138,8 @@ def cmd_plan(args: argparse.Namespace) -> int:
         from ..kinds import VALIDATION_FRACTION
 
         base = plan.base_indices.size
-        print(f"note: iwr calibrate holds out a fifth of the poses for validation "
-              f"(--validation-fraction {VALIDATION_FRACTION:g}): the others give "
+        print(f"note: iwr calibrate holds out {VALIDATION_FRACTION:.0%} of the poses for "
+              f"validation (--validation-fraction {VALIDATION_FRACTION:g}): the others give "
               f"{spare + base} readings for {base} base parameters, none to test the fit with "
               "(with a noise model the job says \"not calibrated: no redundancy\"); plan "
               f"{plan.poses_for_redundancy()} poses or more, or "

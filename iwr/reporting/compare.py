@@ -173,7 +173,7 @@ def _plot_metrics(comp: Any) -> bytes:
         for i, (key, label) in enumerate([("cost", "final cost (mm$^2$)"),
                                           ("val_rms", "validation RMS (mm)")]):
             ax = fig.add_subplot(2, len(scenarios), i * len(scenarios) + j + 1)
-            missing = 0  # runs without the figure (a failed run's validation RMS is nan)
+            missing = plotted = 0  # runs without the figure (a failed run's is nan), with it
             for k, method in enumerate(names):
                 vals = [r[key] for r in comp.runs
                         if r["scenario"] == scenario and r["method"] == method]
@@ -184,6 +184,7 @@ def _plot_metrics(comp: Any) -> bytes:
                         missing += 1
                         continue
                     ax.plot(k, max(v, 1e-30), "o" if s else "x", color=colors[method], ms=6)
+                    plotted += 1
             if key == "cost":
                 fl = [r["noise_floor"] for r in comp.runs if r["scenario"] == scenario]
                 if fl and np.median(fl) > 0:
@@ -193,17 +194,16 @@ def _plot_metrics(comp: Any) -> bytes:
                       if r["scenario"] == scenario and np.isfinite(r["val_rms_nominal"])]
                 if nv:
                     ax.axhline(float(np.median(nv)), color="0.5", ls=":", lw=1)
-            # A log axis needs a positive value: one with none (every run failed) stays linear,
-            # empty but for its note (it raised a ValueError and no report was written).
-            if ax.lines and any(np.any(np.asarray(ln.get_ydata(), dtype=float) > 0)
-                                for ln in ax.lines):
+            # Log scales; an axis without a run's value (every run failed) says so and stays
+            # linear (a log axis of nothing but nan raised a ValueError: no report was written).
+            if plotted:
                 ax.set_yscale("log")
             else:
                 ax.text(0.5, 0.5, "no run has a value", transform=ax.transAxes, ha="center",
                         va="center", fontsize=9, color="0.4")
             ax.set_xticks(range(len(names)), names)
             ax.set_xlim(-0.5, len(names) - 0.5)
-            note = f" ({missing} without: failed)" if missing else ""
+            note = f" ({missing} without a value)" if missing else ""
             ax.set_title(f"{scenario}: {label}{note}", fontsize=10)
             ax.grid(True, axis="y", alpha=0.3)
     fig.suptitle("Per run: o success (the method's), x not; dashed: noise floor; dotted: the "
