@@ -449,3 +449,31 @@ def test_a_singular_pose_is_a_failed_pose_not_an_abort(case, singular_at):
     seen = np.isfinite(before) & (before != 0)
     assert seen[5].any() and np.all(after[5][seen[5]] == 1e3)
     np.testing.assert_array_equal(np.delete(after, 5, axis=0), np.delete(before, 5, axis=0))
+
+
+@pytest.mark.parametrize("name", ["points", "probe"])
+def test_a_nominal_robot_without_a_registration_guess_keeps_the_calibrated_figures(
+        measured_with_effects, name):
+    """The 'bad' scenario of compare/study: the nominal robot is hundreds of mm from the data, so
+    no registration guess exists and there is no "before". The accuracy with the effects then
+    takes its "before" in the identified registration, as iwr.tracker.tracker_accuracy does: the
+    calibrated tool figures are computed (the truth's: zero), not lost to the missing guess
+    (nan with an 'accuracy: RegistrationError' note, as they were)."""
+    from iwr import kinds
+    from iwr.experiments.harness import Scenario
+    from iwr.tracker import RegistrationError
+
+    robot = measured_with_effects(name)
+    kind = kinds.for_robot(robot)
+    sd = Scenario(n_poses=30, noise=iwr.Noise(), kind="bad", validation_poses=12).build(robot)
+    with pytest.raises(RegistrationError, match="max_rms = 20 mm"):
+        kind.start(robot, sd.validation)
+    out = kind.validate(robot, sd.validation, sd.truth, sd.truth, None, nominal=False)
+    assert "notes" not in out, out["notes"]
+    assert out["val_rms"] < 1e-9 and out["tool_position_rms"] < 1e-9
+    assert out["tool_orientation_rms"] < 1e-9
+    assert np.isnan(out["tool_position_rms_nominal"]) and np.isnan(out["val_rms_nominal"])
+    # The "before" in the identified registration: the nominal robot and effects, far off.
+    acc = et.accuracy(robot, sd.validation, sd.truth, truth=sd.truth)
+    assert np.sqrt(np.mean(acc.nominal.position**2)) > 50.0  # mm
+    assert np.sqrt(np.mean(acc.calibrated.position**2)) < 1e-9

@@ -30,6 +30,7 @@ and reflector or probe offsets): ``x = (x_geometric, x_effects, x_setup)``.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -868,11 +869,13 @@ def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: 
     from ..analysis.accuracy import Accuracy, PoseErrors
     from ..tracker.api import _point_errors
     from ..tracker.gauge import _align
-    from ..tracker.start import before_x0
+    from ..tracker.start import before_problem
     from ..transforms import rotation_angle
 
     n = robot.n_params + len(effect_names(robot.effects))
-    problem, start = effect_tracker_problem(robot, measurements, x0=before_x0(n, start))
+    x = np.asarray(x, dtype=float)
+    problem, start = before_problem(partial(effect_tracker_problem, robot, measurements), n,
+                                    start, x)
     x = problem._x(x)
     if truth is None:
         return Accuracy(_point_errors(problem, start), _point_errors(problem, x))

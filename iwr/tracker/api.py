@@ -6,6 +6,7 @@ robot carries a tracker setup (``Robot.with_tracker``) and the data are
 from __future__ import annotations
 
 from collections.abc import Callable
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,7 @@ from .data import TrackerMeasurements
 from .problem import TrackerProblem
 from .registration import kabsch
 from .simulate import simulate_tracker
-from .start import _setup, before_x0, registration_guess, tracker_problem
+from .start import _setup, before_problem, registration_guess, tracker_problem
 
 __all__ = [
     "tracker_accuracy",
@@ -161,22 +162,16 @@ def tracker_accuracy(robot: Robot, measurements: TrackerMeasurements, x: Any, *,
     kinematics of the readings, in {T} modulo the gauge (:func:`tool_pose_errors`). Without it:
     per validation pose, the largest distance between predicted and measured points (mm) and
     the angle of their best rigid rotation (degrees; NaN with fewer than 3 points)."""
-    from .registration import RegistrationError
-
     setup = _setup(robot)
     x = np.asarray(x, dtype=float)
     n = robot.n_params + setup.n_params
     if x.shape != (n,):
         raise ValueError(f"x: shape {x.shape}; expected ({n},): the robot's {robot.n_params} "
                          f"then the tracker setup's {setup.n_params}")
-    try:
-        problem, start = tracker_problem(robot, measurements,
-                                         x0=before_x0(robot.n_params, start))
-    except RegistrationError:
-        # Too few validation points for a registration guess of their own (fewer than 3, or
-        # on one line): "before" is then the nominal robot in the identified registration.
-        problem, _ = tracker_problem(robot, measurements, x0=x)
-        start = np.concatenate([np.zeros(robot.n_params), x[robot.n_params:]])
+    # Without a guess of their own (fewer than 3 validation points, or on one line, or a nominal
+    # robot too far from them), "before" is the nominal robot in the identified registration.
+    problem, start = before_problem(partial(tracker_problem, robot, measurements),
+                                    robot.n_params, start, x)
     if truth is not None:
         setup, m = problem.setup, measurements
         return Accuracy(

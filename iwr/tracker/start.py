@@ -17,7 +17,7 @@ from .data import TrackerMeasurements
 from .problem import TrackerProblem
 from .setup import TrackerSetup
 
-__all__ = ["before_x0", "registration_guess", "tracker_problem"]
+__all__ = ["before_problem", "before_x0", "registration_guess", "tracker_problem"]
 
 
 def _setup(robot: Robot) -> TrackerSetup:
@@ -69,6 +69,20 @@ def before_x0(n_model: int, start: Any) -> np.ndarray | None:
     if start is None:
         return None
     return np.concatenate([np.zeros(n_model), np.asarray(start.x_setup, dtype=float)])
+
+
+def before_problem(make: Any, n_model: int, start: Any, x: np.ndarray) -> tuple[Any, np.ndarray]:
+    """The problem of the accuracy functions' data and the vector their "before" is at:
+    ``make(x0=before_x0(n_model, start))`` (a problem function such as :func:`tracker_problem`
+    with its data bound) and its start; where that needs a registration guess the nominal model
+    is too poor for (or the data too few for one), the problem at ``x`` and the nominal model
+    (``n_model`` zeros) in ``x``'s identified registration, so that the calibrated figures never
+    depend on whether the nominal robot has a guess of its own."""
+    try:
+        return make(x0=before_x0(n_model, start))
+    except registration.RegistrationError:
+        problem, _ = make(x0=x)
+        return problem, np.concatenate([np.zeros(n_model), np.asarray(x, dtype=float)[n_model:]])
 
 
 def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
