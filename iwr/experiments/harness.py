@@ -59,8 +59,10 @@ __all__ = [
 
 #: Version of what a cell computes: part of every cell's key, so that a study resumed by a
 #: version that computes a cell's figures differently computes its cells again instead of
-#: reusing the rows of the old computation. Raise it with any such change. 2: the nominal
-#: figures on tracker data in the identification's start (:meth:`iwr.kinds.MeasurementKind.before`).
+#: reusing the rows of the old computation. Raise it with any such change in a release. 2: the
+#: nominal figures on tracker data in the identification's start
+#: (:meth:`iwr.kinds.MeasurementKind.before`), none without one, and the calibrated figures of a
+#: robot with effects on tracker data without a registration guess (all since the last release).
 CELL_FORMAT = 2
 
 
