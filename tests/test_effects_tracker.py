@@ -457,8 +457,8 @@ def test_a_nominal_robot_without_a_registration_guess_keeps_the_calibrated_figur
     """The 'bad' scenario of compare/study: the nominal robot is hundreds of mm from the data, so
     no registration guess exists and there is no "before". The accuracy with the effects then
     takes its "before" in the identified registration, as iwr.tracker.tracker_accuracy does: the
-    calibrated tool figures are computed (the truth's: zero), not lost to the missing guess
-    (nan with an 'accuracy: RegistrationError' note, as they were)."""
+    calibrated tool figures are computed, not lost to the missing guess (nan with an 'accuracy:
+    RegistrationError' note, as they were)."""
     from iwr import kinds
     from iwr.experiments.harness import Scenario
     from iwr.tracker import RegistrationError
@@ -466,14 +466,27 @@ def test_a_nominal_robot_without_a_registration_guess_keeps_the_calibrated_figur
     robot = measured_with_effects(name)
     kind = kinds.for_robot(robot)
     sd = Scenario(n_poses=30, noise=iwr.Noise(), kind="bad", validation_poses=12).build(robot)
-    with pytest.raises(RegistrationError, match="max_rms = 20 mm"):
+    with pytest.raises(RegistrationError):  # the precondition: no guess on these data
         kind.start(robot, sd.validation)
     out = kind.validate(robot, sd.validation, sd.truth, sd.truth, None, nominal=False)
     assert "notes" not in out, out["notes"]
     assert out["val_rms"] < 1e-9 and out["tool_position_rms"] < 1e-9
     assert out["tool_orientation_rms"] < 1e-9
     assert np.isnan(out["tool_position_rms_nominal"]) and np.isnan(out["val_rms_nominal"])
-    # The "before" in the identified registration: the nominal robot and effects, far off.
-    acc = et.accuracy(robot, sd.validation, sd.truth, truth=sd.truth)
-    assert np.sqrt(np.mean(acc.nominal.position**2)) > 50.0  # mm
-    assert np.sqrt(np.mean(acc.calibrated.position**2)) < 1e-9
+    # A calibration short of the truth: its own figures, and "before" the nominal robot and
+    # effects in its registration (exactly the figures of that vector), far off.
+    n = robot.n_params + len(et.effect_names(robot.effects))
+    x = sd.truth.copy()
+    x[:robot.n_params] += 1e-4 * np.random.default_rng(4).standard_normal(robot.n_params)
+    before = np.concatenate([np.zeros(n), x[n:]])
+    for truth in (sd.truth, None):  # tool pose errors; point distances
+        acc = et.accuracy(robot, sd.validation, x, truth=truth)
+        assert 1e-4 < np.sqrt(np.mean(acc.calibrated.position**2)) < 1.0  # mm
+        assert np.sqrt(np.mean(acc.nominal.position**2)) > 50.0
+        ref = et.accuracy(robot, sd.validation, before, truth=truth).calibrated
+        np.testing.assert_allclose(acc.nominal.position, ref.position, rtol=1e-12)
+        np.testing.assert_allclose(acc.nominal.orientation, ref.orientation, rtol=1e-12)
+    with pytest.raises(ValueError, match=r"^x: shape \(1, "):
+        et.accuracy(robot, sd.validation, x[None], truth=sd.truth)
+    with pytest.raises(ValueError, match=r"^x: entry 3 is nan"):
+        et.accuracy(robot, sd.validation, np.where(np.arange(x.size) == 3, np.nan, x))

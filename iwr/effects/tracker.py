@@ -860,7 +860,9 @@ def tool_frames(robot: Any, x: Any, data: Any) -> np.ndarray:
 def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: Any = None,
              start: Any = None) -> Any:
     """:func:`iwr.accuracy` on tracker data for a robot with effects: before (the nominal robot
-    and effects with the registration guess) and after (``x``). With ``truth``: the tool pose
+    and effects with the registration guess; where the data have none, in ``x``'s identified
+    registration, as :func:`iwr.tracker.tracker_accuracy`) and after (``x``: the robot's, the
+    effects' then the setup's parameters). With ``truth``: the tool pose
     errors in {T} by forward kinematics with the effects under each pose's load and
     temperature, modulo the gauge (the model's frame moved by the one rigid transform that best
     aligns it with the truth's, as ``gauge="fit"`` of :func:`iwr.tracker.tool_pose_errors`).
@@ -869,11 +871,16 @@ def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: 
     from ..analysis.accuracy import Accuracy, PoseErrors
     from ..tracker.api import _point_errors
     from ..tracker.gauge import _align
-    from ..tracker.start import before_problem
+    from ..tracker.start import _setup, before_problem
     from ..transforms import rotation_angle
 
     n = robot.n_params + len(effect_names(robot.effects))
     x = np.asarray(x, dtype=float)
+    n_setup = _setup(robot).n_params
+    if x.shape != (n + n_setup,):
+        raise ValueError(f"x: shape {x.shape}; expected ({n + n_setup},): the robot's "
+                         f"{robot.n_params}, the effects' {n - robot.n_params} then the tracker "
+                         f"setup's {n_setup}")
     problem, start = before_problem(partial(effect_tracker_problem, robot, measurements), n,
                                     start, x)
     x = problem._x(x)

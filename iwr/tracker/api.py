@@ -153,10 +153,11 @@ def tracker_accuracy(robot: Robot, measurements: TrackerMeasurements, x: Any, *,
                      truth: Any = None, tool: Any = None, start: Any = None) -> Accuracy:
     """:func:`iwr.accuracy` on tracker data, before (the nominal robot with the registration
     guess ``start``, the :class:`iwr.tracker.registration.RegistrationGuess` the identification
-    started from; default the guess on these data, and with fewer than 3 points not on one line
-    the nominal robot with the registration and offsets of ``x``) and after (``x``, robot then
-    setup parameters). A guess fitted to validation poses flatters the nominal robot: a correct
-    re-calibration of a calibrated robot was judged "not calibrated" against it.
+    started from; default the guess on these data, and where they have none (fewer than 3
+    points, or on one line, or a nominal robot too far from them) the nominal robot with the
+    registration and offsets of ``x``) and after (``x``, robot then setup parameters). A guess
+    fitted to validation poses flatters the nominal robot: a correct re-calibration of a
+    calibrated robot was judged "not calibrated" against it.
 
     With ``truth`` (the simulation's true vector): tool pose errors against the truth by forward
     kinematics of the readings, in {T} modulo the gauge (:func:`tool_pose_errors`). Without it:

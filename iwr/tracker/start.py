@@ -5,6 +5,7 @@ setup, the problem's bounds, the closed-form registration guess (made once per d
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
@@ -71,18 +72,25 @@ def before_x0(n_model: int, start: Any) -> np.ndarray | None:
     return np.concatenate([np.zeros(n_model), np.asarray(start.x_setup, dtype=float)])
 
 
-def before_problem(make: Any, n_model: int, start: Any, x: np.ndarray) -> tuple[Any, np.ndarray]:
+def before_problem(make: Callable[..., tuple[Any, np.ndarray]], n_model: int, start: Any,
+                   x: Any) -> tuple[Any, np.ndarray]:
     """The problem of the accuracy functions' data and the vector their "before" is at:
     ``make(x0=before_x0(n_model, start))`` (a problem function such as :func:`tracker_problem`
     with its data bound) and its start; where that needs a registration guess the nominal model
     is too poor for (or the data too few for one), the problem at ``x`` and the nominal model
     (``n_model`` zeros) in ``x``'s identified registration, so that the calibrated figures never
-    depend on whether the nominal robot has a guess of its own."""
+    depend on whether the nominal robot has a guess of its own. ``x``: the calibrated vector
+    (model then setup; its length checked by the caller), ValueError naming it where it is not
+    finite."""
+    x = np.asarray(x, dtype=float)
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        raise ValueError(f"x: entry {bad[0]} is {x.flat[bad[0]]}; expected finite values")
     try:
         return make(x0=before_x0(n_model, start))
     except registration.RegistrationError:
         problem, _ = make(x0=x)
-        return problem, np.concatenate([np.zeros(n_model), np.asarray(x, dtype=float)[n_model:]])
+        return problem, np.concatenate([np.zeros(n_model), x[n_model:]])
 
 
 def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any = None,
