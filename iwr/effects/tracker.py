@@ -883,7 +883,6 @@ def accuracy(robot: Any, measurements: Any, x: Any, *, truth: Any = None, tool: 
                          f"setup's {n_setup}")
     problem, start = before_problem(partial(effect_tracker_problem, robot, measurements), n,
                                     start, x)
-    x = problem._x(x)
     if truth is None:
         return Accuracy(_point_errors(problem, start), _point_errors(problem, x))
     b = tool_frames(robot, truth, measurements)
