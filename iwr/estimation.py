@@ -527,11 +527,14 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
     converged = int(out["status"]) > 0 and not stopped["flag"] and not interrupted
     causes: list[str] = []
     names = spec.parameter_names
-    sd = np.full(mask.size, np.nan)  # the effects' range test weighs departures by them
-    sd[mask] = np.sqrt(np.clip(np.diag(np.asarray(out["covariance"], dtype=float)), 0, None))
-    implausible, size_causes, size_failed = size_test(
-        getattr(spec, "robot", None), names, x, spec.implausible(x, used), plausible, sd,
-        fit_alpha)
+    # the size test weighs departures from the plausible size by the estimate's spread
+    covariance = np.zeros((mask.size, mask.size))
+    covariance[np.ix_(mask, mask)] = np.asarray(out["covariance"], dtype=float)
+    sd = np.sqrt(np.clip(np.diag(covariance), 0, None))
+    sd[~mask] = np.nan
+    implausible, size_causes, size_failed, size_notes = size_test(
+        getattr(spec, "robot", None), names, x,
+        spec.implausible(x, used, covariance, fit_alpha), plausible, sd, fit_alpha)
     rank_ok = float(out["reciprocal_condition"]) > 1e-13
     if not rank_ok:
         causes.append(
@@ -562,6 +565,7 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
     if est:
         notes.append("noise estimated for " + ", ".join(est) + ": the chi-square test checks "
                      "only what the estimate leaves free")
+    notes += size_notes
     failed = [what for what, bad in (
         ("the active parameters are not all identifiable", not rank_ok),
         *((what, True) for what in size_failed),

@@ -18,7 +18,7 @@ from typing import Any
 
 import numpy as np
 
-from .fit_test import beyond_plausible
+from .fit_test import Beyond, beyond_plausible
 from .result import pose_key, source_line
 
 __all__ = ["EstimatorSpec"]
@@ -65,11 +65,13 @@ class EstimatorSpec:
         (``x -> (r, J)``): what :meth:`implausible` holds fixed."""
         raise NotImplementedError
 
-    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
-        """``(name, value, limit)`` of each parameter beyond its plausible size in the smallest
-        ``x`` that predicts the same readings (:func:`iwr.fit_test.beyond_plausible`)."""
+    def implausible(self, x: np.ndarray, used: np.ndarray, covariance: Any = None,
+                    alpha: float = 1e-3) -> list[Beyond]:
+        """Each parameter beyond its plausible size in the smallest ``x`` that predicts the same
+        readings, tested against the spread ``covariance`` gives it at level ``alpha``
+        (:func:`iwr.fit_test.beyond_plausible`)."""
         return beyond_plausible(self.plausibility_model(used), x, self.limit, self.center,
-                                self.parameter_names)
+                                self.parameter_names, covariance, alpha)
 
     def noise_dict(self, noise: Any) -> dict[str, Any]:
         """The noise model as the result's JSON fields."""

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable, Sequence
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -50,19 +50,87 @@ def tracker_readings(problem: Any) -> Callable[[np.ndarray], tuple[np.ndarray, n
     return lambda x: (problem.residuals(x), problem.jacobian(x))
 
 
+class Beyond(NamedTuple):
+    """A parameter of the smallest equivalent vector beyond its plausible size
+    (:func:`beyond_plausible`)."""
+
+    name: str
+    value: float  # in the smallest equivalent vector, measured from the centre
+    limit: float
+    sd: float  # its standard deviation there (nan: not known)
+    significant: bool  # beyond by more than the noise explains (always, without an sd)
+
+
 def beyond_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
                      x: np.ndarray, limit: np.ndarray, centre: np.ndarray | None,
-                     names: Sequence[str]) -> list[tuple[str, float, float]]:
-    """``(name, value, limit)`` of each parameter of ``x`` beyond its plausible size ``limit``
-    (measured from ``centre``) modulo the directions the readings ``model`` cannot see: the
-    entries of its smallest equivalent vector (:func:`_nearest_plausible`) beyond their limit.
-    None when ``x`` itself, or an equivalent on the way to the smallest, is within every limit:
-    a plausible robot then predicts the same readings, and the search stops there (a ballbar's
-    fit took 50 steps of it, two thirds of an identification's time, to shrink a vector already
-    at half its limits)."""
+                     names: Sequence[str], covariance: Any = None,
+                     alpha: float = 1e-3) -> list[Beyond]:
+    """Each parameter of ``x`` beyond its plausible size ``limit`` (measured from ``centre``)
+    modulo the directions the readings ``model`` cannot see: the entries of its smallest
+    equivalent vector (:func:`_nearest_plausible`) beyond their limit. None when ``x`` itself,
+    or an equivalent on the way to the smallest, is within every limit: a plausible robot then
+    predicts the same readings, and the search stops there (a ballbar's fit took 50 steps of it,
+    two thirds of an identification's time, to shrink a vector already at half its limits).
+
+    ``covariance``: the covariance of ``x``'s entries (zero rows and columns for the parameters
+    held fixed), or a function giving it (called only when an entry is beyond). The size is
+    then tested as a hypothesis, as the effects' range is
+    (:func:`iwr.effects.problem.out_of_range`): an entry is ``significant`` when it is beyond
+    its limit by more than ``z`` standard deviations of that entry of the smallest equivalent
+    vector (the covariance projected off the null directions, to first order), ``z`` the normal
+    quantile of ``1 - alpha / k`` over the ``k`` entries with one (Bonferroni: a robot whose
+    errors are within their plausible size fails with probability at most ``alpha``). An entry
+    beyond by less is what the noise does to a parameter the data determine poorly (a leg's
+    offset identified at -5.9 +- 3.4 mm with a 5 mm limit: noise ten times the realistic one on
+    60 poses), not a model that absorbed something it does not describe. Without a covariance
+    every entry beyond its limit is significant."""
     x_plain = _nearest_plausible(model, x, limit, centre, stop_within=True)
-    return [(names[i], float(x_plain[i]), float(limit[i])) for i in range(x_plain.size)
-            if abs(x_plain[i]) > limit[i]]
+    beyond = [i for i in range(x_plain.size) if abs(x_plain[i]) > limit[i]]
+    if not beyond:
+        return []
+    sd = np.full(x_plain.size, np.nan)
+    if covariance is not None:
+        cov = covariance() if callable(covariance) else covariance
+        sd = _plain_sd(model, x_plain, limit, centre, np.asarray(cov, dtype=float))
+    k = int(np.sum(np.isfinite(sd) & (sd > 0)))
+    z = float(special.ndtri(1.0 - alpha / max(k, 1)))
+    out = []
+    for i in beyond:
+        v, s = float(x_plain[i]), float(sd[i])
+        known = bool(np.isfinite(s) and s > 0)
+        out.append(Beyond(names[i], v, float(limit[i]), s if known else math.nan,
+                          not known or abs(v) - limit[i] > z * s))
+    return out
+
+
+def _plain_sd(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
+              x_plain: np.ndarray, limit: np.ndarray, centre: np.ndarray | None,
+              covariance: np.ndarray) -> np.ndarray:
+    """The standard deviations of the smallest equivalent vector ``x_plain`` (measured from
+    ``centre``) given the covariance of the vector it came from: to first order it moves as
+    that vector projected off the null directions of the readings' Jacobian at ``x_plain``, in
+    units of ``limit`` (the metric in which it is smallest)."""
+    c = np.zeros_like(x_plain) if centre is None else np.asarray(centre, dtype=float)
+    if covariance.shape != (x_plain.size, x_plain.size):
+        raise ValueError(f"covariance: shape {covariance.shape}; expected "
+                         f"({x_plain.size}, {x_plain.size})")
+    with single_thread():
+        null, _ = _null_split(model(c + x_plain)[1] * limit)
+        cov = covariance / np.outer(limit, limit)
+        proj = np.eye(x_plain.size) - null @ null.T
+        var = np.einsum("ij,jk,ik->i", proj, cov, proj)
+    return limit * np.sqrt(np.clip(var, 0.0, None))
+
+
+def _null_split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Orthonormal bases of the null directions of ``jac`` and of their complement (in the
+    units of its columns)."""
+    d = np.linalg.norm(jac, axis=0)
+    d = np.where(d > 0, d, 1.0)  # the scaled columns: the rank does not depend on units
+    _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
+    rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
+    basis, _ = np.linalg.qr(vt[rank:].T / d[:, None], mode="complete")
+    return basis[:, : jac.shape[1] - rank], basis[:, jac.shape[1] - rank:]
 
 
 def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
@@ -100,15 +168,6 @@ def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
     target, jac = readings((np.asarray(x, dtype=float) - c) / limit)
     tol = 1e-10 * (1.0 + float(np.sqrt(np.mean(target**2))))  # mm RMS: round-off of the readings
 
-    def split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Orthonormal bases of the null directions and of their complement (units of limit)."""
-        d = np.linalg.norm(jac, axis=0)
-        d = np.where(d > 0, d, 1.0)  # the scaled columns: the rank does not depend on units
-        _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
-        rank = int(np.sum(s > max(jac.shape) * np.finfo(float).eps * (s[0] if s.size else 0.0)))
-        basis, _ = np.linalg.qr(vt[rank:].T / d[:, None], mode="complete")
-        return basis[:, : jac.shape[1] - rank], basis[:, jac.shape[1] - rank:]
-
     def restore(y: np.ndarray, ident: np.ndarray) -> np.ndarray | None:
         """Gauss-Newton onto the readings of ``x`` within the identifiable directions."""
         for _ in range(20):
@@ -126,7 +185,7 @@ def _nearest_plausible(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarra
         for _ in range(50):
             if stop_within and np.max(np.abs(y), initial=0.0) <= 1.0:
                 break
-            null, ident = split(jac)
+            null, ident = _null_split(jac)
             if null.shape[1] == 0:
                 break
             along = -null @ (null.T @ y)  # the straight removal of the null component
@@ -154,37 +213,54 @@ def _implausible_cause(implausible: list[tuple[str, float, float]], plausible: f
             "or reflector offset left out, leg or pose columns swapped, a wrong nominal geometry")
 
 
-def size_test(robot: Any, names: list[str], x: Any, implausible: list[tuple[str, float, float]],
+def size_test(robot: Any, names: list[str], x: Any, beyond: list[Beyond],
               plausible: float, sd: Any = None, alpha: float = 1e-3
-              ) -> tuple[list[tuple[str, float, float]], list[str], list[str]]:
+              ) -> tuple[list[tuple[str, float, float]], list[str], list[str], list[str]]:
     """The size test's answer on ``x`` (the fit check's and the efficient estimator's):
-    ``(implausible, causes, failed)``. The geometric (and set-up) errors beyond ``plausible``
-    times their size modulo the null directions (``implausible``, from
-    :func:`_nearest_plausible`), and a robot's effects' parameters outside their own plausible
-    range instead (:func:`iwr.effects.problem.out_of_range`: a compliance in 0 .. max; ten times
-    that range would let a negative compliance pass), by more than the noise explains at level
-    ``alpha`` when ``sd`` (the standard deviations of ``x``'s entries, or a function giving
-    them, called only when an effect is outside its range) is given; ``failed`` says what
-    failed, for the verdict."""
+    ``(implausible, causes, failed, notes)``. The geometric (and set-up) errors beyond
+    ``plausible`` times their size modulo the null directions by more than the noise explains
+    (``beyond``, from :func:`beyond_plausible`: the ``significant`` ones are ``implausible``, the
+    others ``notes``: poorly determined, not wrong), and a robot's effects' parameters outside
+    their own plausible range instead (:func:`iwr.effects.problem.out_of_range`: a compliance
+    in 0 .. max; ten times that range would let a negative compliance pass), by more than the
+    noise explains at level ``alpha`` when ``sd`` (the standard deviations of ``x``'s entries,
+    or a function giving them, called only when an effect is outside its range) is given;
+    ``failed`` says what failed, for the verdict."""
     causes: list[str] = []
     failed: list[str] = []
-    ranges: list[tuple[str, float, float]] = []
+    notes: list[str] = []
+    ranges: list[tuple[str, float, float, float]] = []
     if getattr(robot, "effects", ()):
         from .effects import parameter_names as effect_parameter_names
         from .effects.problem import RANGE_FAILED, out_of_range, range_cause
 
         own = set(effect_parameter_names(robot.effects))
-        implausible = [t for t in implausible if t[0] not in own]
+        beyond = [b for b in beyond if b.name not in own]
         ranges = out_of_range(robot, x, names)
         if ranges and sd is not None:  # outside: by more than the noise explains?
             ranges = out_of_range(robot, x, names, sd() if callable(sd) else sd, alpha)
+    implausible = [(b.name, b.value, b.limit) for b in beyond if b.significant]
     if implausible:
         causes.append(_implausible_cause(implausible, plausible))
         failed.append("identified errors beyond their plausible size")
+    poor = [b for b in beyond if not b.significant]
+    if poor:
+        notes.append(_poorly_determined(poor, plausible))
     if ranges:
         causes.append(range_cause(robot, ranges))
         failed.append(RANGE_FAILED)
-    return list(implausible) + [t[:3] for t in ranges], causes, failed
+    return implausible + [t[:3] for t in ranges], causes, failed, notes
+
+
+def _poorly_determined(poor: list[Beyond], plausible: float) -> str:
+    worst = sorted(poor, key=lambda b: -abs(b.value) / b.limit)
+    shown = ", ".join(f"{b.name} = {b.value:.4g} +- {b.sd:.2g} (limit {b.limit:.3g})"
+                      for b in worst[:6])
+    more = f" and {len(poor) - 6} more" if len(poor) > 6 else ""
+    return (f"{len(poor)} identified error(s) beyond {plausible:g} times their plausible size "
+            f"(modulo the unidentifiable directions) but within what the noise explains: "
+            f"{shown}{more}. Not a sign of a model that does not fit: these data determine "
+            "them poorly (more poses, or poses chosen for them: iwr plan)")
 
 
 def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
@@ -276,7 +352,31 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
                          "here (the efficient estimator tests their fit); only the size of the "
                          "identified errors is tested")
     names, limit, centre, readings = kind.plausibility(robot, measurements, bounds, plausible)
-    implausible = beyond_plausible(readings, x, limit, centre, names)
+    if noise is not None and weighted is not None:
+        raise ValueError("fit_check: give noise or weighted, not both")
+    statistic, covariance = math.nan, None
+    if noise is not None:
+        # The kind's whitened residuals and Jacobian at x (iwr.kinds.MeasurementKind.whitened).
+        rw, jw, n_readings = kind.whitened(robot, measurements, x, noise)
+        jw = jw[:, mask]
+        scale = np.linalg.norm(jw, axis=0)
+        scale = np.where(scale > 0, scale, 1.0)
+        with single_thread():
+            step, _, rank, _ = np.linalg.lstsq(jw / scale, rw, rcond=None)
+        statistic = float(np.sum((rw - (jw / scale) @ step) ** 2))
+
+        def covariance() -> np.ndarray:
+            """The covariance of the weighted (efficient) estimate to first order, for the size
+            test: a method less efficient than that spreads more, so the test errs towards
+            "implausible" for it."""
+            with single_thread():
+                _, sv, vt = np.linalg.svd(jw / scale, full_matrices=False)
+            v = vt[:rank].T / sv[:rank]
+            cov = np.zeros((x.size, x.size))
+            cov[np.ix_(mask, mask)] = (v @ v.T) / np.outer(scale, scale)
+            return cov
+
+    over = beyond_plausible(readings, x, limit, centre, names, covariance, fit_alpha)
 
     def sd() -> Any:
         """The effects' standard deviations for their range test (with effects only)."""
@@ -288,22 +388,11 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
         except (ValueError, np.linalg.LinAlgError):  # no such Jacobian
             return None  # then the range itself
 
-    implausible, size_causes, size_failed = size_test(robot, names, x, implausible, plausible,
-                                                      sd if robot.effects else None, fit_alpha)
+    implausible, size_causes, size_failed, size_notes = size_test(
+        robot, names, x, over, plausible, sd if robot.effects else None, fit_alpha)
     causes: list[str] = []
-    statistic, dof, p_value, chi_ok = math.nan, 0, math.nan, True
-    if noise is not None and weighted is not None:
-        raise ValueError("fit_check: give noise or weighted, not both")
-    if noise is not None:
-        # The kind's whitened residuals and Jacobian at x (iwr.kinds.MeasurementKind.whitened).
-        rw, jw, n_readings = kind.whitened(robot, measurements, x, noise)
-        jw = jw[:, mask]
-        scale = np.linalg.norm(jw, axis=0)
-        scale = np.where(scale > 0, scale, 1.0)
-        with single_thread():
-            step, _, rank, _ = np.linalg.lstsq(jw / scale, rw, rcond=None)
-        statistic = float(np.sum((rw - (jw / scale) @ step) ** 2))
-    elif weighted is not None:
+    dof, p_value, chi_ok = 0, math.nan, True
+    if weighted is not None:
         statistic, n_readings, rank = float(weighted[0]), int(weighted[1]), int(weighted[2])
     tested = noise is not None or weighted is not None
     if tested:
@@ -328,5 +417,5 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     else:
         verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "implausible parameters",
                                 size_failed if chi_ok and size_failed else None)
-    return FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict, causes,
-                   implausible)
+    return FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict,
+                   causes if not fit_ok else size_notes, implausible)

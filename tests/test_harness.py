@@ -149,8 +149,11 @@ def test_the_size_test_stops_at_a_plausible_equivalent_and_names_the_smallest_ot
     smallest = _nearest_plausible(model, x, limit)
     named = beyond_plausible(model, x, limit, None, names)
     assert len(named) > 10
-    assert named == [(names[i], float(smallest[i]), float(limit[i]))
-                     for i in np.flatnonzero(np.abs(smallest) > limit)]
+    # without a covariance each one is significant, with no standard deviation
+    assert [(b.name, b.value, b.limit) for b in named] == [
+        (names[i], float(smallest[i]), float(limit[i]))
+        for i in np.flatnonzero(np.abs(smallest) > limit)]
+    assert all(b.significant and np.isnan(b.sd) for b in named)
 
 
 def test_min_poses_is_what_the_identifiable_parameters_need():

@@ -1085,7 +1085,8 @@ class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
             out["redundancy"][:, 6 + nj:][unseen] = 0.0
         return out
 
-    def implausible(self, x: np.ndarray, used: np.ndarray) -> list[tuple[str, float, float]]:
+    def implausible(self, x: np.ndarray, used: np.ndarray, covariance: Any = None,
+                    alpha: float = 1e-3) -> list[Any]:
         from ..fit_test import beyond_plausible
 
         sub = self.measurements.subset(np.flatnonzero(used)) if not used.all() \
@@ -1093,7 +1094,7 @@ class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
         problem = TrackerEffectProblem(self.robot, self.setup, sub,
                                        (self.problem.lower, self.problem.upper))
         return beyond_plausible(problem.residuals_and_jacobian, x, self.limit, self.center,
-                                self.parameter_names)
+                                self.parameter_names, covariance, alpha)
 
     def predicted(self, x: np.ndarray, cov: np.ndarray, used: np.ndarray, tool: Any) -> Any:
         sub = self.measurements.subset(np.flatnonzero(used)) if not used.all() \
