@@ -24,7 +24,7 @@ import numpy as np
 
 from . import kinds
 from .analysis.accuracy import Accuracy, accuracy
-from .analysis.identifiability import identifiability, identifiable_count
+from .analysis.identifiability import degenerate, identifiability
 from .analysis.uncertainty import Uncertainty, uncertainty
 from .effects import parameter_names as effect_parameter_names
 from .gross_errors import LeftOutError, cut_to_used, fitted_poses, without_left_out
@@ -323,34 +323,6 @@ class Calibration:
             r["status"] = NOT_CALIBRATED
             # The prefix keeps the status in a result file (iwr.result.status_from_message).
             r["message"] = f"{NOT_CALIBRATED}: {reason}"
-
-
-def degenerate(robot: Any, identification: Any, report: Any) -> str | None:
-    """Why ``identification`` cannot identify the robot's errors, else None: their information
-    matrix (``report``, :func:`iwr.identifiability`) has a lower rank than varied poses give
-    this robot (too few distinct poses, copies, poses that do not move some joint)."""
-    if report is None:
-        return None
-    # With effects: the geometry's rank (effect parameters the data cannot separate from the
-    # geometry are named by the report and held at the robot file's values, not a degeneracy).
-    rank = getattr(report, "geometric_rank", report.rank)
-    need = identifiable_count(robot.with_effects() if robot.effects else robot)
-    if rank >= need:
-        return None
-    distinct = distinct_poses(identification)
-    n = len(identification)
-    copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
-    return (f"degenerate data: the {distinct} distinct identification poses{copies} "
-            f"identify {rank} of the {need} parameters that varied poses identify "
-            f"for this robot; the other {need - report.rank} would be left at nominal: "
-            "measure more, and more varied, poses")
-
-
-def distinct_poses(data: Any) -> int:
-    """The number of distinct poses (rows of readings and measurements,
-    :meth:`iwr.kinds.MeasurementKind.rows`) in ``data``."""
-    key = kinds.of(data).rows(data)
-    return len(np.unique(np.where(np.isnan(key), np.inf, key), axis=0))
 
 
 class _Best:

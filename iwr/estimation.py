@@ -43,6 +43,7 @@ from .fit_test import (
     FitTest,
     _chi2_cause,
     _chi2_verdict,
+    _degenerate,
     _plausible_limit,
     fit_check,
     leg_readings,
@@ -557,7 +558,12 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
             causes.append(f"the noise of {c.name} is estimated at {c.sigma:.3g}, "
                           f"{c.sigma / c.start:.0f} times the stated {c.start:.3g}: the model may "
                           "not fit, or that instrument is much worse than stated")
-    fit_ok = chi_ok and rank_ok and not implausible and not too_many
+    # Data that cannot identify the robot (copies of a few poses): no fit says anything.
+    degenerate = (_degenerate(spec.robot, spec.subset(used)) if hasattr(spec, "robot")
+                  else None)
+    if degenerate is not None:
+        causes.insert(0, degenerate)
+    fit_ok = chi_ok and rank_ok and not implausible and not too_many and degenerate is None
     notes: list[str] = []
     if dof > 0 and chi_ok and special.chdtr(dof, statistic) < fit_alpha:
         notes.append(f"the weighted residual sum {statistic:.4g} is far below its expectation "
@@ -570,7 +576,8 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
         ("the active parameters are not all identifiable", not rank_ok),
         *((what, True) for what in size_failed),
         ("too many poses fail the outlier test", bool(too_many))) if bad] if chi_ok else None
-    verdict = _chi2_verdict(statistic, dof, p_value, fit_ok, "no degrees of freedom", failed)
+    verdict = ("THE DATA CANNOT IDENTIFY THE ROBOT" if degenerate is not None else
+               _chi2_verdict(statistic, dof, p_value, fit_ok, "no degrees of freedom", failed))
     fit = FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict,
                   causes if not fit_ok else notes, implausible)
 
@@ -589,6 +596,8 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
             message += "; the model does not fit the data" + (
                 f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"
                 if dof > 0 else "")
+    elif degenerate is not None:
+        status, message = "failed", f"solved, but the data cannot identify the robot: {degenerate}"
     elif not fit_ok:
         status, message = "failed", "solved, but the model does not fit the data" + (
             f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"

@@ -122,6 +122,22 @@ def _plain_sd(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     return limit * np.sqrt(np.clip(var, 0.0, None))
 
 
+def _degenerate(robot: Robot, measurements: Any) -> str | None:
+    """Why ``measurements`` cannot identify ``robot``'s errors
+    (:func:`iwr.analysis.identifiability.degenerate`: the rank of their information matrix at
+    the nominal robot, as :func:`iwr.calibrate` judges it), else None; None too where that rank
+    cannot be had (tracker data too far from the nominal robot for a registration guess:
+    ``ValueError``)."""
+    from .analysis.identifiability import degenerate, identifiability
+
+    with single_thread():
+        try:
+            report = identifiability(robot, measurements)
+        except ValueError:
+            return None
+        return degenerate(robot, measurements, report)
+
+
 def _null_split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Orthonormal bases of the null directions of ``jac`` and of their complement (in the
     units of its columns)."""
@@ -407,8 +423,16 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
         elif not chi_ok:
             causes.append(_chi2_cause(statistic, dof, p_value))
     causes += size_causes
-    fit_ok = chi_ok and not implausible
-    if not tested:
+    # Data that cannot identify the robot (too few distinct poses, copies): whatever the fit
+    # looks like, it says nothing (one pose's six readings fit 58 parameters exactly), as
+    # iwr.calibrate's "not calibrated" says.
+    degenerate = _degenerate(robot, measurements)
+    if degenerate is not None:
+        causes.insert(0, degenerate)
+    fit_ok = chi_ok and not implausible and degenerate is None
+    if degenerate is not None:
+        verdict = "THE DATA CANNOT IDENTIFY THE ROBOT"  # why: the first cause
+    elif not tested:
         beyond = "identified errors beyond their plausible size"  # size_test's wording
         head = ("no noise model: the cost is not tested (give one for the chi-square test); "
                 "identified errors " + ("NOT within" if beyond in size_failed else "within")

@@ -373,15 +373,61 @@ def pose_identifiability(robot: Robot, measurements: Measurements, x: Any = None
 GENERIC_POSES = 60
 
 
+#: identifiable_count's answers, per robot model (its fingerprint) and sampled workspace.
+_COUNTS: dict[tuple, int] = {}  # key: also what the sampled poses depend on
+
+
 def identifiable_count(robot: Robot) -> int:
     """How many error parameters (with a tracker: robot and setup) varied poses identify for
     ``robot``: the rank of the information matrix on :data:`GENERIC_POSES` random poses of its
     workspace (:func:`iwr.simulate`, a fixed seed, no noise). Data of a lower rank cannot
-    identify the robot's errors, whatever the method (too few distinct poses, copies)."""
+    identify the robot's errors, whatever the method (too few distinct poses, copies).
+    Remembered per robot model (every identification's fit check asks); raises
+    :class:`iwr.simulation.UnreachableError` where the workspace yields no poses to sample."""
+    from ..robot_fingerprint import fingerprint
     from ..simulation import simulate
 
-    data, _ = simulate(robot, GENERIC_POSES, seed=0)
-    return int(identifiability(robot, data).rank)
+    key = (fingerprint(robot), *(np.asarray(v, dtype=float).tobytes() for v in (
+        robot.joint_limits, robot.home_pose, robot.workspace, robot.leg_stroke)))
+    if key not in _COUNTS:
+        data, _ = simulate(robot, GENERIC_POSES, seed=0)
+        _COUNTS[key] = int(identifiability(robot, data).rank)
+    return _COUNTS[key]
+
+
+def degenerate(robot: Any, identification: Any, report: Any) -> str | None:
+    """Why ``identification`` cannot identify the robot's errors, else None: their information
+    matrix (``report``, :func:`iwr.identifiability`) has a lower rank than varied poses give
+    this robot (too few distinct poses, copies, poses that do not move some joint)."""
+    if report is None:
+        return None
+    # With effects: the geometry's rank (effect parameters the data cannot separate from the
+    # geometry are named by the report and held at the robot file's values, not a degeneracy).
+    rank = getattr(report, "geometric_rank", report.rank)
+    from ..simulation import UnreachableError
+
+    try:
+        need = identifiable_count(robot.with_effects() if robot.effects else robot)
+    except UnreachableError:
+        # A workspace the robot file describes too narrowly to sample (its home pose out of
+        # reach): the measured poses are what they are; nothing to compare their rank with.
+        return None
+    if rank >= need:
+        return None
+    distinct = distinct_poses(identification)
+    n = len(identification)
+    copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
+    return (f"degenerate data: the {distinct} distinct identification poses{copies} "
+            f"identify {rank} of the {need} parameters that varied poses identify "
+            f"for this robot; the other {need - report.rank} would be left at nominal: "
+            "measure more, and more varied, poses")
+
+
+def distinct_poses(data: Any) -> int:
+    """The number of distinct poses (rows of readings and measurements,
+    :meth:`iwr.kinds.MeasurementKind.rows`) in ``data``."""
+    key = kinds.of(data).rows(data)
+    return len(np.unique(np.where(np.isnan(key), np.inf, key), axis=0))
 
 
 def _base_parameters(

@@ -182,8 +182,8 @@ class MeasurementKind(abc.ABC):
     def rows(self, data: Any) -> np.ndarray:
         """Each pose's readings and measurements as one row (N, k), NaN where nothing was seen:
         two equal rows are the same pose measured twice
-        (:func:`iwr.calibration.distinct_poses`). Default: the joint and leg readings, then the
-        data's ``measured`` columns."""
+        (:func:`iwr.analysis.identifiability.distinct_poses`). Default: the joint and leg
+        readings, then the data's ``measured`` columns."""
         n = len(data)
         return np.hstack([np.asarray(data.q, dtype=float).reshape(n, -1),
                           np.asarray(data.legs, dtype=float).reshape(n, -1),

@@ -125,6 +125,19 @@ def test_budget_is_respected(robot, data, method, budget, monkeypatch):
     for name in ("cost", "residuals", "jacobian", "residuals_and_jacobian"):
         counting(name)
     counting("cost_batch", lambda args: len(args[0]))
+    # The fit check's rank of the data (one Jacobian at the nominal robot) is not the method's.
+    check = {"n": 0}
+    degenerate = iwr.fit_test._degenerate
+
+    def counted_apart(*args, **kw):
+        before = calls["n"]
+        try:
+            return degenerate(*args, **kw)
+        finally:
+            check["n"] += calls["n"] - before
+            calls["n"] = before
+
+    monkeypatch.setattr(iwr.fit_test, "_degenerate", counted_apart)
     options = {"population_size": 5, "polish": False} if method == "de" else {}
     res = iwr.identify(robot, m, method, max_evaluations=budget, seed=1, progress=False,
                        callback=lambda r: seen.append(r.fun), **options)
@@ -135,6 +148,7 @@ def test_budget_is_respected(robot, data, method, budget, monkeypatch):
         # (the method's and identify()'s), never more.
         assert calls["n"] <= budget + 3
         assert len(seen) <= budget
+        assert check["n"] <= 2  # the data's Jacobian (and the varied poses', once a robot)
     assert res.status == "stopped" or res.nfev < budget
     assert not res.success or res.nfev < budget
 
@@ -236,3 +250,26 @@ def test_ctrl_c_while_identify_re_evaluates_the_cost_keeps_the_result(robot, dat
     res = iwr.identify(robot, m, "lm", progress=False)
     assert res.interrupted and not res.success and len(calls) == 2
     assert res.fun == original(iwr.Problem(robot, m), res.x)
+
+
+@pytest.mark.parametrize("method", sorted(QUICK))
+@pytest.mark.parametrize("rows", ["one pose", "one pose 30 times", "eight poses"])
+def test_data_that_cannot_identify_the_robot_are_no_success(method: str, rows: str) -> None:
+    """One pose's six readings fit the 58 parameters exactly (LM said "converged", success True,
+    and the "calibrated" robot was worse than the nominal on other poses); copies of it add no
+    information (the efficient estimator said "converged" on 30 copies); eight poses identify 48
+    of the 52 identifiable parameters. Each method's result is a failure that says why, as
+    iwr.calibrate's "not calibrated" does; twelve varied poses pass (LM)."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 30, seed=1, noise=iwr.Noise.realistic())
+    sub = {"one pose": [0], "one pose 30 times": [0] * 30, "eight poses": list(range(8))}[rows]
+    res = iwr.identify(robot, data.subset(sub), method, seed=0, progress=False, **QUICK[method])
+    assert not res.success and not res.fit.fit_ok
+    assert res.fit.verdict == "THE DATA CANNOT IDENTIFY THE ROBOT"
+    distinct = 8 if rows == "eight poses" else 1
+    assert res.fit.causes[0].startswith(f"degenerate data: the {distinct} distinct "
+                                        "identification poses"), res.fit.causes
+    if res.status != "stopped":  # a global method's QUICK budget: stopped, whatever the data
+        assert res.status == "failed" and "degenerate data" in res.message, res.message
+    if method == "lm" and rows == "eight poses":
+        assert iwr.identify(robot, data.subset(range(12)), "lm", progress=False).success
