@@ -827,7 +827,9 @@ def test_a_second_launcher_leaves_the_running_jobs_record(files: dict[str, Path]
     problem". The launcher now takes the lock first and writes nothing."""
     out = tmp_path / "r.json"
     problem = tmp_path / "r.json.iwrp"
-    problem.write_bytes(b"the running job's record")
+    # The running job's record, a problem file (another file there is refused before the lock).
+    record = files["other_problem"].read_bytes()
+    problem.write_bytes(record)
     with open(tmp_path / ".r.json.ckpt.lock", "w") as fh:
         fcntl.flock(fh, fcntl.LOCK_EX)  # as the running engine holds it
         proc = run_cal(files["robot"], files["other"], "--output", out, "--generations", 2)
@@ -835,7 +837,7 @@ def test_a_second_launcher_leaves_the_running_jobs_record(files: dict[str, Path]
     msg = one_line_error(proc, "iwr-calibrate")
     assert "r.json.ckpt: in use by another iwr-engine process" in msg
     assert "nothing was written" in msg
-    assert problem.read_bytes() == b"the running job's record" and not out.exists()
+    assert problem.read_bytes() == record and not out.exists()
 
 
 def test_export_onto_the_problem_read_is_refused(files: dict[str, Path], tmp_path: Path) -> None:
@@ -846,6 +848,62 @@ def test_export_onto_the_problem_read_is_refused(files: dict[str, Path], tmp_pat
     assert "is the problem file read; an output may not overwrite an input" in one_line_error(
         proc, "iwr-calibrate")
     assert problem.read_bytes() == files["problem"].read_bytes()
+
+
+def test_no_output_over_the_run_s_files_a_folder_or_a_file_iwr_did_not_write(
+        files: dict[str, Path], tmp_path: Path) -> None:
+    """A QA run: `--export CKPT --output robot.toml`, `PROBLEM.iwrp --resume CKPT --output
+    data.csv` and `--log` onto a CSV of the user's exited 0 with the file replaced, and
+    `--output DIR` failed only after the whole run ("Is a directory"). Refused now, exit 2,
+    before any work; iwr's own files (a result, a checkpoint, a log) are written over as before."""
+    robot, data = tmp_path / "robot.toml", tmp_path / "data.csv"
+    robot.write_bytes(files["robot"].read_bytes())
+    data.write_bytes(files["data"].read_bytes())
+    run = run_cal(robot, data, "--population-size", 10, "--generations", 2, "--output", "r.json",
+                  "--log", "r.log", "--quiet", cwd=tmp_path)
+    assert run.returncode == 0, run.stderr
+    mine = tmp_path / "mine.csv"
+    mine.write_text("the user's own file\n")
+    (tmp_path / "d").mkdir()
+    saved = {p: p.read_bytes() for p in (robot, data, mine)}
+    cases = [
+        (("--export", "r.json.ckpt", "--output", "robot.toml"),
+         "--output: robot.toml exists and is not a file iwr wrote (not an iwr result)"),
+        (("--export", "r.json.ckpt", "--problem", "r.json.iwrp", "--output", "data.csv"),
+         "--output: data.csv is the data file the problem was made from"),
+        (("r.json.iwrp", "--resume", "r.json.ckpt", "--generations", 4, "--output", "data.csv"),
+         "--output: data.csv is the data file the problem was made from"),
+        (("r.json.iwrp", "--generations", 4, "--output", "r2.json", "--log", "robot.toml"),
+         "--log: robot.toml is the robot file the problem was made from"),
+        ((robot, data, "--generations", 2, "--output", "r2.json", "--log", "mine.csv"),
+         "--log: mine.csv exists and is not a file iwr wrote (not an iwr-engine log)"),
+        ((robot, data, "--generations", 2, "--output", "r2.json", "--problem", "mine.csv"),
+         "--problem: mine.csv exists and is not a file iwr wrote"),
+        ((robot, data, "--generations", 2, "--output", "r2.json", "--checkpoint", "mine.csv"),
+         "--checkpoint: mine.csv exists and is not a file iwr wrote"),
+        ((robot, data, "--generations", 2, "--output", "mine.csv"),
+         "--output: mine.csv exists and is not a file iwr wrote"),
+        ((robot, data, "--generations", 2, "--output", "d"), "--output: d is a folder"),
+        ((robot, data, "--generations", 2, "--output", "."), "--output: . is a folder"),
+        ((robot, data, "--generations", 2, "--output", "r2.json", "--checkpoint", "d"),
+         "--checkpoint: d is a folder"),
+        (("--export", "r.json.ckpt", "--output", "d"), "--output: d is a folder"),
+    ]
+    for args, needle in cases:
+        proc = run_cal(*args, cwd=tmp_path)
+        assert proc.returncode == 2, (args, proc.stderr)
+        assert needle in one_line_error(proc, "iwr-calibrate"), (args, proc.stderr)
+    assert saved == {p: p.read_bytes() for p in saved}
+    assert not any(p.name.startswith(("r2.json", "..", ".d.")) for p in tmp_path.iterdir())
+    # iwr's own files are written over: the result, problem file, checkpoint and log of a run.
+    for args in ((robot, data, "--population-size", 10, "--generations", 2, "--output",
+                  "r.json", "--log", "r.log", "--quiet"),
+                 ("r.json.iwrp", "--resume", "r.json.ckpt", "--generations", 3, "--output",
+                  "r.json", "--log", "r.log", "--quiet"),
+                 ("--export", "r.json.ckpt", "--problem", "r.json.iwrp", "--output", "r.json")):
+        proc = run_cal(*args, cwd=tmp_path)
+        assert proc.returncode == 0, (args, proc.stderr)
+    assert iwr.load_result(tmp_path / "r.json").nit == 3
 
 
 def test_launcher_resume_keeps_the_run_problem(files: dict[str, Path], tmp_path: Path) -> None:

@@ -250,10 +250,11 @@ def _bad_files(sim: Path, tmp: Path, case: str) -> tuple[Path, Path]:
         ("missing data", r"nope\.csv: no such file"),
         ("malformed toml", r"bad\.toml: not valid TOML"),
         ("unknown key", r"bad\.toml: colour: unknown key"),
-        ("nan row", r"bad\.csv, line 12, column s3_mm: 'nan' is not finite"),
+        # (line numbers in a file of iwr simulate: its "# iwr simulate:" line first)
+        ("nan row", r"bad\.csv, line 13, column s3_mm: 'nan' is not finite"),
         ("metres", r"bad\.csv: every one of the leg readings is below 5.*look like metres"),
-        ("duplicated pose", r"bad\.csv: 1 repeated pose\(s\): lines 10 and 68"),
-        ("unreachable pose", r"bad\.csv: 1 unreachable pose\(s\).*line 14: leg 2 reading 650 mm "
+        ("duplicated pose", r"bad\.csv: 1 repeated pose\(s\): lines 11 and 69"),
+        ("unreachable pose", r"bad\.csv: 1 unreachable pose\(s\).*line 15: leg 2 reading 650 mm "
                              r"is outside the stroke"),
     ],
 )
@@ -548,6 +549,53 @@ def test_no_command_writes_over_its_inputs(sim, tmp_path):
     for _ in range(2):
         proc = run("plan", str(robot), "--out", str(out), "--n-candidates", "50", "--poses", "10")
         assert proc.returncode == 0, proc.stderr
+
+
+def test_simulate_writes_over_no_file_it_did_not_write(sim, tmp_path):
+    """A QA run: `iwr simulate` in a folder holding the user's measurements.csv replaced it
+    (exit 0), as --robot-file and --data-file did any file they named; `--data-file .` and
+    `--robot-file ''` failed with exit 1 and no option named. Refused now (exit 2), as `iwr plan
+    --out` refuses; the files iwr simulate wrote itself it writes over, as before."""
+    out = tmp_path / "ow"
+    out.mkdir()
+    mine = {out / "measurements.csv": "real data\n", tmp_path / "x.toml": "x = 1\n",
+            out / "true_errors.json": "{}\n"}
+    for p, text in mine.items():
+        p.write_text(text)
+    (out / "d.csv").mkdir()
+    # Files written by iwr, but not by iwr simulate: a calibrated robot, the library's data.
+    iwr.Robot.default().to_toml(out / "calibrated.toml")
+    iwr.Measurements.from_csv(sim / "measurements.csv").to_csv(out / "data.csv")
+    saved = {p: p.read_bytes() for p in (*mine, out / "calibrated.toml", out / "data.csv")}
+    cases = [
+        ((), r"--data-file .*measurements.csv: exists and is not a file iwr simulate wrote"),
+        (("--robot-file", "../x.toml"), r"--robot-file .*x.toml: exists and is not a file iwr "
+                                        r"simulate wrote"),
+        (("--data-file", "../x.toml"), r"--data-file .*x.toml: exists and is not a file"),
+        (("--data-file", "m.csv"), r"--truth-file .*true_errors.json: exists and is not a "
+                                   r"file iwr simulate wrote \(not a true-error file"),
+        (("--data-file", "m.csv", "--truth-file", "t.json", "--robot-file",
+          "calibrated.toml"), r"--robot-file .*calibrated.toml: exists and is not a file"),
+        (("--data-file", "data.csv", "--truth-file", "t.json"),
+         r"--data-file .*data.csv: exists and is not a file iwr simulate wrote"),
+        (("--data-file", "d.csv"), r"--data-file .*d.csv: is a folder; expected a file name"),
+        (("--data-file", "."), r"--data-file '\.': not a file name"),
+        (("--robot-file", ""), r"--robot-file '': not a file name"),
+        (("--truth-file", "sub/"), r"--truth-file 'sub/': not a file name"),
+    ]
+    for args, pattern in cases:
+        assert_fails(run("simulate", "--poses", "5", *args, cwd=out), 2, pattern)
+    assert saved == {p: p.read_bytes() for p in saved}
+    assert sorted(p.name for p in out.iterdir()) == ["calibrated.toml", "d.csv", "data.csv",
+                                                     "measurements.csv", "true_errors.json"]
+    # Its own files, again: written over (the same seed, the same bytes).
+    new = tmp_path / "new"
+    for _ in range(2):
+        proc = run("simulate", "--poses", "5", "--out", str(new), "--robot-file", "../r.toml")
+        assert proc.returncode == 0, proc.stderr
+    assert (new / "measurements.csv").read_text().startswith("# iwr simulate: ")
+    assert iwr.Robot.from_toml(tmp_path / "r.toml") == iwr.Robot.default()
+    assert len(iwr.Measurements.from_csv(new / "measurements.csv")) == 5
 
 
 def test_inputs_that_are_no_regular_file_are_refused_not_read(sim, tmp_path):

@@ -231,13 +231,29 @@ def overwritten_input(outputs: Iterable[str | os.PathLike[str]],
     return None
 
 
+def written_by(path: str | os.PathLike[str], own: str) -> bool:
+    """Whether the regular file ``path`` starts with ``own``, the first characters of every file
+    a command writes (``"# iwr plan:"``, a checkpoint's magic): how a file it wrote, which it
+    may write over, is told from one it did not (a measurement file named by mistake). False
+    for a file that cannot be read or is not a regular file (a named pipe is not waited on)."""
+    from .._io import open_regular
+
+    try:
+        with open_regular(path) as f:
+            head = f.read(len(own.encode()))
+    except OSError:
+        return False
+    return head == own.encode()
+
+
 def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[Any] = (),
                  files: Iterable[str] | None = None, prog: str = "iwr calibrate",
-                 own: str | None = None) -> None:
+                 own: str | None = None, own_what: str | None = None) -> None:
     """Refuse, before any work, an output that cannot be written or would overwrite an input:
     ``path`` is a file, or with ``files`` (the names written in it) a folder. ``own``: the
     first characters of the files this command writes (``"# iwr plan:"``); an existing file
-    that does not start so is not overwritten (a measurement file named by mistake)."""
+    that does not start so is not overwritten (a measurement file named by mistake).
+    ``own_what``: what such a file is, for the message (default: its first characters)."""
     path = Path(path)
     if files is None:
         clash = overwritten_input([path], inputs)
@@ -246,15 +262,10 @@ def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[
         if own is not None and clash is None and path.exists():
             if not path.is_file():  # a named pipe would block the read below
                 raise UsageError(f"{option} {path}: exists and is not a regular file", prog)
-            try:
-                with open(path, "rb") as f:
-                    head = f.read(len(own.encode()))
-            except OSError:
-                head = b""
-            if head != own.encode():
-                raise UsageError(f"{option} {path}: exists and is not a file {prog} wrote (it "
-                                 f"does not start with {own!r}); remove it first, or give "
-                                 f"another {option}", prog)
+            if not written_by(path, own):
+                why = f"not {own_what}" if own_what else f"it does not start with {own!r}"
+                raise UsageError(f"{option} {path}: exists and is not a file {prog} wrote "
+                                 f"({why}); remove it first, or give another {option}", prog)
     else:
         clash = overwritten_input([path / name for name in files], inputs)
         if path.exists() and not path.is_dir():

@@ -94,8 +94,10 @@ options of iwr-calibrate (the others are the engine's, below):
   --problem PATH           where the problem file goes (default RESULT.iwrp)
   --export CHECKPOINT      write the result that CHECKPOINT holds to --output, and stop
 
-No output (result, problem file, checkpoint, log) may be one of the run's inputs: refused with
-exit status 2.
+No output (result, problem file, checkpoint, log) may be one of the run's inputs (ROBOT.toml,
+DATA.csv, READINGS.csv, PROBLEM.iwrp, the checkpoint resumed, or the files a problem file was made
+from), a folder, or an existing file that iwr did not write (an iwr result, problem file,
+checkpoint or iwr-engine log may be written over): refused with exit status 2 before any work.
 
 The engine's help follows; its exit statuses are iwr-calibrate's.
 
@@ -104,6 +106,61 @@ The engine's help follows; its exit statuses are iwr-calibrate's.
 
 class _Usage(Exception):
     pass
+
+
+#: The first characters of each kind of file iwr-calibrate writes, by the option naming it, and
+#: what it is: the JSON result (:meth:`iwr.IdentificationResult.save` writes its format first),
+#: the engine's checkpoint and the problem file (their magic), the engine's log (its header). An
+#: existing file that does not start so is not written over: a robot or measurement file named
+#: by mistake would be lost (a QA run: ``--output iwr_example.csv`` replaced the data, exit 0).
+_OWN = {
+    "--output": ('{\n "format": "iwr-result"', "an iwr result"),
+    "--checkpoint": ("IWRCKPT\x1a", "an iwr-engine checkpoint"),
+    "--problem": ("IWRPROB\x1a", "an iwr problem file"),
+    "--log": ("generation,nfev,best,mean,spread,elapsed\n", "an iwr-engine log"),
+}
+
+
+def _recorded_sources(problem: str | None) -> list[tuple[str, str]]:
+    """The files a problem file records it was made from (ROBOT.toml, DATA.csv), as inputs of a
+    run on it, as the engine counts them; none when the file cannot be read (the engine, or the
+    export, then says why)."""
+    if problem is None:
+        return []
+    from ..problem_file import read_problem
+
+    try:
+        sources = read_problem(problem)["sources"]
+    except (ValueError, OSError, RuntimeError):
+        return []
+    return [(path, f"the {role} file the problem was made from") for role, path, _ in sources
+            if path]
+
+
+def _check_outputs(outputs: list[tuple[str, str]], inputs: list[tuple[str, str]],
+                   resume: str | None = None) -> None:
+    """Refuse, before any work, an output that is an input (by any spelling or link), a folder,
+    or an existing file iwr did not write (:data:`_OWN`). The checkpoint resumed is written
+    back by design: the engine refuses it, before writing anything, if it is no checkpoint."""
+    from ._base import written_by
+
+    for opt, out in outputs:
+        resumed = opt == "--checkpoint" and resume is not None and _same(out, resume)
+        for path, what in inputs:
+            if resumed and what == "the checkpoint resumed":
+                continue
+            if _same(out, path):
+                raise _Usage(f"{opt}: {out} is {what}; an output may not overwrite an input")
+        if os.path.isdir(out):
+            raise _Usage(f"{opt}: {out} is a folder; expected a file name")
+        if resumed or not os.path.exists(out):
+            continue
+        if not os.path.isfile(out):  # a named pipe, a device
+            raise _Usage(f"{opt}: {out} exists and is not a regular file")
+        own, what = _OWN[opt]
+        if not written_by(out, own):
+            raise _Usage(f"{opt}: {out} exists and is not a file iwr wrote (not {what}); remove "
+                         f"it first, or give another {opt}")
 
 
 def _error(msg: str, code: int) -> int:
@@ -483,11 +540,13 @@ def _main(argv: list[str]) -> int:
             raise _Usage(f"--export: unexpected argument '{positional[0]}'")
         if "--output" not in own:
             raise _Usage("--export: give the JSON result's name with --output")
-        for opt, what in (("--export", "the checkpoint exported"),
-                          ("--problem", "the problem file read")):
-            if opt in own and _same(own["--output"], own[opt]):
-                raise _Usage(f"--output: {own['--output']} is {what}; an output may not "
-                             "overwrite an input")
+        if not own["--output"] or own["--output"].endswith("/"):
+            raise _Usage(f"--output: '{own['--output']}' is not a file name")
+        inputs = [(own[opt], what) for opt, what in (("--export", "the checkpoint exported"),
+                                                     ("--problem", "the problem file read"))
+                  if opt in own]
+        _check_outputs([("--output", own["--output"])],
+                       inputs + _recorded_sources(own.get("--problem")))
         _export(own["--export"], own.get("--problem"), own["--output"])
         return EXIT_OK
 
@@ -534,17 +593,15 @@ def _main(argv: list[str]) -> int:
                                          (own.get("--readings"), "the readings file"),
                                          (problem_in, "the problem file"),
                                          (resume, "the checkpoint resumed")) if p]
+    # A problem file's ROBOT.toml and DATA.csv are the run's inputs too: the engine refuses its
+    # checkpoint and log over them, the launcher the result it writes.
+    inputs += _recorded_sources(problem_in)
     outputs = [("--output", output), ("--checkpoint", checkpoint)]
     if problem_in is None:
         outputs.append(("--problem", problem_path))
     if log:
         outputs.append(("--log", log))
-    for opt, out in outputs:
-        for path, what in inputs:
-            if opt == "--checkpoint" and what == "the checkpoint resumed":
-                continue  # a resumed run writes its checkpoint back: by design
-            if _same(out, path):
-                raise _Usage(f"{opt}: {out} is {what}; an output may not overwrite an input")
+    _check_outputs(outputs, inputs, resume)
     for k, (opt_a, a) in enumerate(outputs):
         for opt_b, b in outputs[k + 1:]:
             if _same(a, b):

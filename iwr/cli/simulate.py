@@ -21,8 +21,18 @@ from ._base import (
     noise_spec,
     nonneg_int,
     positive_int,
+    written_by,
 )
 from .robot_noise import OPTION_HELP, simulation_noise
+
+#: The first line of the robot and data files ``iwr simulate`` writes: how a file it wrote, which
+#: it may write over, is told from one it did not (``iwr plan --out`` does so with "# iwr
+#: plan:"). The readers' own header ("# iwr measurements:") is no such mark: ``iwr calibrate``'s
+#: robot files and real data saved by the library start with it too (a QA run: ``iwr simulate``
+#: in a folder replaced the measurements.csv a user had written, exit 0).
+SIMULATE_MARKER = "# iwr simulate:"
+#: The first characters of the true-error file (JSON, no comments: :func:`write_truth`'s format).
+TRUTH_START = '{\n "format": "iwr-true-errors"'
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -87,10 +97,26 @@ def _describe(record: dict[str, Any]) -> str:
     return ", ".join(parts) or "none"
 
 
+def _mark(path: Path, seed: int, n_poses: int) -> None:
+    """Put :data:`SIMULATE_MARKER`'s line first in the file ``path`` just written (a comment to
+    every reader), saying it holds simulated data, not measurements."""
+    from .._io import atomic_write_text
+
+    text = path.read_text(encoding="utf-8")
+    atomic_write_text(path, f"{SIMULATE_MARKER} written by a simulation (seed {seed}, {n_poses} "
+                            "poses), not measured; iwr simulate may write over this file\n"
+                            + text)
+
+
 def cmd_simulate(args: argparse.Namespace) -> int:
     from ..robot import Robot
     from ..simulation import simulate
 
+    for option in ("--robot-file", "--data-file", "--truth-file"):
+        name = getattr(args, option[2:].replace("-", "_"))
+        if Path(name).name in ("", ".", "..") or name.endswith(("/", os.sep)):
+            raise UsageError(f"{option} {name!r}: not a file name (the name of the file "
+                             "written in --out)", "iwr simulate")
     stem = Path(args.data_file).with_suffix("")
     names = {"--robot-file": args.robot_file, "--data-file": args.data_file,
              "--truth-file": args.truth_file,
@@ -106,18 +132,32 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", inputs=[args.robot], prog="iwr simulate", files=[
         args.robot_file, args.data_file, args.truth_file, f"{stem}_long.csv",
         f"{stem}_readings.csv"])
+    # Each file: not a folder, and written over only if this command wrote it (its first line).
+    out = Path(args.out)
+    texts = {"--robot-file": out / args.robot_file, "--data-file": out / args.data_file,
+             "--data-file's long form": out / f"{stem}_long.csv",
+             "--data-file's readings": out / f"{stem}_readings.csv"}
+    for option, path in texts.items():
+        check_output(path, option.split("'")[0], inputs=[args.robot], prog="iwr simulate",
+                     own=SIMULATE_MARKER)
+    check_output(out / args.truth_file, "--truth-file", inputs=[args.robot], prog="iwr simulate",
+                 own=TRUTH_START, own_what="a true-error file of iwr simulate")
     robot = load_robot(args.robot) if args.robot else Robot.default()
     # What --noise means for the robot's instrument (a tracker's: its readings' noise and the
     # tracker's own): robot_noise.option_noise, as iwr calibrate and iwr compare read it.
     noise, args.noise_from = simulation_noise(args.noise, robot, args.robot)
     kind = for_robot(robot)
     data, truth = simulate(robot, n_poses=args.poses, seed=args.seed, noise=noise)
-    out = Path(args.out)
     out.mkdir(parents=True, exist_ok=True)
     robot_path, data_path = out / args.robot_file, out / args.data_file
     truth_path = out / args.truth_file
     robot.to_toml(robot_path)
     written = kind.write(robot, data, data_path)
+    # A file without the mark now was written just above (one there before had it, or was
+    # refused); the long pair of tracker points only for such data.
+    for path in texts.values():
+        if path.is_file() and not written_by(path, SIMULATE_MARKER):
+            _mark(path, args.seed, len(data))
     write_truth(truth_path, robot, truth, args.seed, noise, len(data))
     print(f"simulated {len(data)} poses of robot {robot.name!r}: {kind.description} measured in "
           f"{kind.frame} (seed {args.seed}, noise: {_describe(kind.noise_record(noise))}"
