@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import kinds
-from .measurements import MAX_LENGTH_MM
+from .measurements import MAX_LENGTH_MM, as_matrix
 from .problem import predict_legs
 from .robot import Robot
 from .transforms import pose_from_matrix, pose_matrix
@@ -315,6 +315,18 @@ def frame_from_points(origin: Any, on_x: Any, in_xy: Any) -> np.ndarray:
     return out
 
 
+def rigid_transform(value: Any, name: str) -> np.ndarray:
+    """``value`` as a 4x4 rigid transform (a rotation, not a reflection, and the bottom row
+    ``[0, 0, 0, 1]``), else a ValueError naming ``name``."""
+    m = as_matrix(value, 4, name, rows=4)
+    r = m[:3, :3]
+    if not (np.allclose(r @ r.T, np.eye(3), atol=1e-9) and np.linalg.det(r) > 0
+            and np.allclose(m[3], [0.0, 0.0, 0.0, 1.0], rtol=0.0, atol=1e-12)):
+        raise ValueError(f"{name}: expected a 4x4 rigid transform (an orthonormal rotation "
+                         "with determinant +1, not a reflection, and the bottom row 0 0 0 1)")
+    return m
+
+
 def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
                  tool: Any = None, user_frame: Any = None, joint_columns: list[str] | None = None,
                  where: str = "robot") -> LegCommands:
@@ -350,20 +362,22 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
     ------
     FrameError, TargetError (a value no target can have: a pose angle beyond 2 pi, ...)
     """
-    poses = np.asarray(poses, dtype=float).reshape(-1, 6)
-    q = np.asarray(q, dtype=float).reshape(len(poses), robot.n_joints)
+    # One target may be given as a single row; anything else must have the documented shape
+    # (a (4, N) q reshaped to (N, 4) would command other poses).
+    poses = as_matrix(np.atleast_2d(poses), 6, "poses")
+    q = as_matrix(np.atleast_2d(q) if np.ndim(q) == 1 else q, robot.n_joints, "q",
+                  rows=poses.shape[0])
+    if not len(poses):
+        raise ValueError("poses: no target poses")
     cols = joint_columns or [f"q{i + 1}" for i in range(robot.n_joints)]
     _check_targets(q, poses, cols)
     frame = _check_frame(robot, frame, where)
     target = pose_matrix(poses)
     if user_frame is not None:
-        user = np.asarray(user_frame, dtype=float)
-        if user.shape != (4, 4) or not np.allclose(user[:3, :3] @ user[:3, :3].T, np.eye(3),
-                                                   atol=1e-9):
-            raise ValueError("user_frame: expected a 4x4 rigid transform")
-        target = user @ target
+        target = rigid_transform(user_frame, "user_frame") @ target
     if tool is not None:
-        tool_m = pose_matrix(np.asarray(tool, dtype=float).reshape(6))
+        tool_m = pose_matrix(as_matrix(np.reshape(tool, (1, -1)) if np.ndim(tool) == 1
+                                       else tool, 6, "tool", rows=1)[0])
         target = target @ np.linalg.inv(tool_m)
     if frame == "T":  # the frame the robot's instrument gives its data in (_check_frame)
         target = np.linalg.solve(kinds.for_robot(robot).registration(robot), target)

@@ -40,6 +40,7 @@ from ._io import jsonable
 from .accuracy_prediction import PredictedAccuracy, predicted_accuracy
 from .estimator_spec import EstimatorSpec
 from .fit_test import (
+    CANNOT_IDENTIFY,
     FitTest,
     _chi2_cause,
     _chi2_verdict,
@@ -263,6 +264,10 @@ def efficient(
                     ("max_variance_iterations", max_variance_iterations)):
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name}: {v!r}; expected a positive integer")
+    if tool is not None:  # checked before the solve, which a bad one would only end
+        from .analysis.accuracy import tool_point
+
+        tool = tool_point(tool)
     # The kind's model of its readings, their noise and the nuisance unknowns per pose.
     spec = kind.estimator(robot, measurements, noise, x0=x0, active=active, estimate=estimate,
                           bounds=bounds, plausible=plausible)
@@ -576,7 +581,7 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
         ("the active parameters are not all identifiable", not rank_ok),
         *((what, True) for what in size_failed),
         ("too many poses fail the outlier test", bool(too_many))) if bad] if chi_ok else None
-    verdict = ("THE DATA CANNOT IDENTIFY THE ROBOT" if degenerate is not None else
+    verdict = (CANNOT_IDENTIFY if degenerate is not None else
                _chi2_verdict(statistic, dof, p_value, fit_ok, "no degrees of freedom", failed))
     fit = FitTest(statistic, dof, p_value, float(fit_alpha), bool(fit_ok), verdict,
                   causes if not fit_ok else notes, implausible)

@@ -293,6 +293,10 @@ def _chi2_verdict(statistic: float, dof: int, p_value: float, fit_ok: bool,
     return "THE MODEL DOES NOT FIT THE DATA: " + (chi if dof > 0 else without_dof)
 
 
+#: The verdict of data that cannot identify the robot (:func:`_degenerate`): not a misfit.
+CANNOT_IDENTIFY = "THE DATA CANNOT IDENTIFY THE ROBOT"
+
+
 #: What makes a model not fit pose or tracker data, most likely first (a kind whose data have
 #: other causes gives its own: :attr:`iwr.estimator_spec.EstimatorSpec.misfit_causes`).
 MISFIT_CAUSES = ("the poses are not expressed in the robot's world frame (tracker frame not "
@@ -431,7 +435,7 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
         causes.insert(0, degenerate)
     fit_ok = chi_ok and not implausible and degenerate is None
     if degenerate is not None:
-        verdict = "THE DATA CANNOT IDENTIFY THE ROBOT"  # why: the first cause
+        verdict = CANNOT_IDENTIFY  # why: the first cause
     elif not tested:
         beyond = "identified errors beyond their plausible size"  # size_test's wording
         head = ("no noise model: the cost is not tested (give one for the chi-square test); "

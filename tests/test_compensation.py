@@ -543,3 +543,34 @@ def test_targets_in_a_user_frame_of_three_measured_points(tracker_case, tmp_path
                "--user-frame", str(tmp_path / "bad.csv"), "-o", str(tmp_path / "l3.csv"))
     assert proc.returncode == 1 and "bad.csv, line 4, column 'point'" in proc.stderr
     assert not (tmp_path / "l2.csv").exists() and not (tmp_path / "l3.csv").exists()
+
+
+def test_targets_of_another_shape_and_improper_frames_are_refused() -> None:
+    """The leg commands' inputs are taken only in their documented shapes: ``q`` given
+    transposed was reshaped into other joint readings (legs 2276 mm off, every target then
+    flagged, no error), a reflection passed as a user frame, a NaN tool named another
+    argument, and no targets made a broadcasting error. One target as a flat row still works,
+    and gives the same commands as in a matrix."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 12, seed=1)
+    q, poses = data.q, data.poses
+    with pytest.raises(ValueError, match=r"^q: shape \(4, 12\); expected \(12, 4\)"):
+        leg_commands(robot, q.T, poses)
+    with pytest.raises(ValueError, match=r"^poses: shape \(6, 12\); expected \(N, 6\)"):
+        leg_commands(robot, q, poses.T)
+    with pytest.raises(ValueError, match="^poses: no target poses"):
+        leg_commands(robot, np.zeros((0, 4)), np.zeros((0, 6)))
+    with pytest.raises(ValueError, match=r"^tool: row 0, column 2 is nan"):
+        leg_commands(robot, q, poses, tool=[0, 0, np.nan, 0, 0, 0])
+    for bad in (np.diag([1.0, 1.0, -1.0, 1.0]),  # a reflection: det -1
+                np.vstack([np.eye(4)[:3], [5.0, 0.0, 0.0, 1.0]])):  # not a rigid transform
+        with pytest.raises(ValueError, match="^user_frame: expected a 4x4 rigid transform"):
+            leg_commands(robot, q, poses, user_frame=bad)
+    one = leg_commands(robot, q[3], poses[3])
+    np.testing.assert_array_equal(one.legs, leg_commands(robot, q, poses).legs[3:4])
+    with pytest.raises(ValueError, match=r"^reference: shape \(1, 6\); expected \(12, 6\)"):
+        iwr.pose_errors(poses, poses[:1])
+    with pytest.raises(ValueError, match=r"^poses: shape \(6, 12\); expected \(N, 6\)"):
+        iwr.pose_errors(poses.T, poses.T)
+    with pytest.raises(ValueError, match=r"^tool: row 0, column 0 is nan"):
+        iwr.estimation.efficient(robot, data, iwr.Noise.realistic(), tool=[np.nan, 0, 0])

@@ -11,11 +11,20 @@ import numpy as np
 from .. import kinds
 from ..effects import refuse as refuse_effects
 from ..forward import ForwardKinematicsError, forward_kinematics
-from ..measurements import Measurements
+from ..measurements import Measurements, as_matrix
 from ..robot import Robot
 from ..transforms import pose_matrix, rotation_angle
 
 __all__ = ["accuracy", "Accuracy", "PoseErrors", "pose_errors"]
+
+
+def tool_point(tool: Any, name: str = "tool") -> np.ndarray:
+    """``tool`` (None: the origin of {5}) as a point of three finite numbers (mm), else a
+    ValueError naming ``name``."""
+    if tool is None:
+        return np.zeros(3)
+    return as_matrix(np.reshape(tool, (1, -1)) if np.ndim(tool) == 1 else tool, 3, name,
+                     rows=1)[0]
 
 
 def pose_errors(poses: Any, reference: Any, tool: Any = None) -> tuple[np.ndarray, np.ndarray]:
@@ -36,8 +45,10 @@ def pose_errors(poses: Any, reference: Any, tool: Any = None) -> tuple[np.ndarra
         Angle of the rotation between the two orientations (degrees), computed from the matrices,
         so independent of the Euler angles' gimbal lock.
     """
-    a, b = pose_matrix(np.atleast_2d(poses)), pose_matrix(np.atleast_2d(reference))
-    t = np.zeros(3) if tool is None else np.asarray(tool, dtype=float).reshape(3)
+    poses = as_matrix(np.atleast_2d(poses), 6, "poses")
+    reference = as_matrix(np.atleast_2d(reference), 6, "reference", rows=poses.shape[0])
+    a, b = pose_matrix(poses), pose_matrix(reference)
+    t = tool_point(tool)
     pa = a[:, :3, 3] + a[:, :3, :3] @ t
     pb = b[:, :3, 3] + b[:, :3, :3] @ t
     position = np.linalg.norm(pa - pb, axis=1)

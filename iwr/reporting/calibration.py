@@ -14,7 +14,7 @@ import numpy as np
 from .._io import atomic_write_bytes, atomic_write_text, jsonable, write_folder
 from ..calibration import LEVEL, NOT_CALIBRATED, WORSE, Calibration, Judgement
 from ..effects import parameter_names as effect_parameter_names
-from ..fit_test import CHI2_CAUSE_HEAD
+from ..fit_test import CANNOT_IDENTIFY, CHI2_CAUSE_HEAD
 from ..kinds import reuse
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
@@ -629,7 +629,8 @@ class CalibrationReport(Calibration):
             return (f"Interrupted: the best point so far, not a converged calibration; {change}.",
                     "bad")
         fit = r.fit
-        if fit is not None and not fit.fit_ok:
+        # Data that cannot identify the robot: "not calibrated" (below), not a misfit.
+        if fit is not None and not fit.fit_ok and fit.verdict != CANNOT_IDENTIFY:
             head = ("Not converged, and its best point does not fit the data: "
                     if r.status == "stopped" else "The model does not fit the data: ")
             causes = [c.rstrip(".") + "." for c in fit.causes]
