@@ -696,21 +696,11 @@ def from_result(
     ValueError when the result's parameters are not those of ``robot`` and the data's kind."""
     kind = kinds.of(data)
     kind.check(robot, data)
-    names = (robot.parameter_names + effect_parameter_names(robot.effects)
-             + kind.setup_parameter_names(robot))
     if robot.effects:
         from .effects.job import check_job
 
         check_job(robot, data)  # the data it models; the method ran elsewhere
-    x = np.asarray(result.x, dtype=float)
-    if x.shape != (len(names),):
-        raise ValueError(f"{x.size} parameters, but robot {robot.name!r} "
-                         + _extras(robot, kind) + f"has {len(names)}")
-    saved = list(result.parameter_names)
-    if saved and saved != names:
-        first = next(a for a, b in zip(saved, names, strict=True) if a != b)
-        raise ValueError(f"its parameters are not those of robot {robot.name!r}"
-                         + f" {_extras(robot, kind)}".rstrip() + f": first difference {first!r}")
+    x = check_result(robot, kind, result)
     if validation is not None and kinds.of(validation) is not kind:
         raise TypeError(f"validation: {kinds.of(validation).name} data, but data are "
                         f"{kind.name} data")
@@ -823,6 +813,61 @@ def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
     if isinstance(objective, dict) and objective.get("weighted"):
         return kind.noise_from_record(objective)
     return None
+
+
+def check_result(robot: Any, kind: Any, result: Any) -> np.ndarray:
+    """``result.x``, checked to be a vector of errors of ``robot`` on ``kind``'s data (its
+    geometric errors, its effects' parameters, then the kind's set-up's): one finite value per
+    parameter, the parameters the result names (``parameter_names``, when it names them) these,
+    in this order, and a calibrated geometry within the physical limits (what a corrupted or
+    hand-edited result file breaks). ValueError naming the entry at fault (``x[5]
+    (joint2.da)``); what :func:`from_result`, ``iwr report`` and ``iwr analyze --result`` check
+    a result with."""
+    names = (robot.parameter_names + effect_parameter_names(robot.effects)
+             + kind.setup_parameter_names(robot))
+    x = np.asarray(result.x, dtype=float)
+    if x.ndim != 1:
+        raise ValueError(f"x: expected a list of numbers, one per parameter, got an array of "
+                         f"shape {x.shape}")
+    if x.shape != (len(names),):
+        raise ValueError(f"{x.size} parameters, but robot {robot.name!r} "
+                         + _extras(robot, kind) + f"has {len(names)}")
+    saved = list(result.parameter_names)
+    if saved and saved != names:
+        first = next(a for a, b in zip(saved, names, strict=True) if a != b)
+        k = saved.index(first)
+        raise ValueError(f"its parameters are not those of robot {robot.name!r}"
+                         + f" {_extras(robot, kind)}".rstrip() + f": first difference "
+                         f"parameter_names[{k}] {first!r}, the robot's {names[k]!r}")
+    bad = np.flatnonzero(~np.isfinite(x))
+    if bad.size:
+        k = int(bad[0])
+        more = f" (and {bad.size - 1} more)" if bad.size > 1 else ""
+        raise ValueError(f"x[{k}] ({names[k]}) is {x[k]}{more}: a result that is not finite "
+                         "is no robot's errors")
+    n = robot.n_params
+    try:
+        robot.with_errors(x[:n])
+    except ValueError as exc:  # the calibrated geometry beyond any robot: the entry at fault
+        k = next((j for j in np.argsort(-np.abs(x[:n]), kind="stable")
+                  if not _within_limits(robot, j, x[j])), None)
+        if k is None:
+            raise
+        unit = "rad" if robot.angle_parameters[k] else "mm"
+        raise ValueError(f"x[{k}] ({names[k]}) is {x[k]:g} {unit}: the calibrated robot's "
+                         f"{exc}") from None
+    return x
+
+
+def _within_limits(robot: Any, k: int, value: float) -> bool:
+    """Whether the robot with the error ``value`` on its parameter ``k`` alone is one."""
+    e = np.zeros(robot.n_params)
+    e[k] = value
+    try:
+        robot.with_errors(e)
+    except ValueError:
+        return False
+    return True
 
 
 def _extras(robot: Any, kind: Any) -> str:

@@ -380,15 +380,6 @@ class IdentificationResult(OptimizeResult):
         return dict(zip(self.parameter_names, map(float, self.x), strict=True))
 
 
-def _floats(value: Any, where: str) -> np.ndarray:
-    """A JSON number or list of numbers, null read as NaN (a value that was not finite)."""
-    try:
-        arr = np.array(value, dtype=object)
-        return np.where(arr == None, math.nan, arr).astype(float)  # noqa: E711 (elementwise)
-    except (TypeError, ValueError):
-        raise ValueError(f"{where}: expected numbers, got {value!r:.60}") from None
-
-
 def _typed(value: Any, kind: str, where: str) -> Any:
     """A recorded value of the expected JSON type, else ValueError naming it: ``"int"``,
     ``"bool"``, ``"str"``, ``"float"`` (a number, or null for a value that was not finite),
@@ -501,13 +492,96 @@ MAX_RESULT_BYTES = 1 << 30
 
 
 def _status(data: dict[str, Any], success: bool, message: str) -> str:
-    """The status a result file records (since it records one); else read from its message
-    (:func:`status_from_message`: a file of an older iwr, which read a converged run whose model
-    did not fit as "stopped"). A success is "converged" whatever the file says."""
-    status = data.get("status")
-    if success or status not in STATUSES:
+    """The status a result file records (since it records one), one of :data:`STATUSES`; else
+    read from its message (:func:`status_from_message`: a file of an older iwr, which read a
+    converged run whose model did not fit as "stopped"). ``success`` true is refused with a
+    status other than "converged" (a success is a converged run, never a stopped or failed one:
+    the file contradicts itself)."""
+    if data.get("status") is None:
         return status_from_message(success, message)
-    return str(status)
+    status = _typed(data["status"], "str", "status")
+    if status not in STATUSES:
+        raise ValueError(f"status: {status!r:.40}; expected one of {', '.join(STATUSES)}")
+    if success and status != "converged":
+        raise ValueError(f"success: true, but status {status!r}: only a converged run is a "
+                         "success")
+    return status
+
+
+def _numbers(value: Any, where: str, kind: str = "float") -> list[Any]:
+    """A recorded list of numbers (``kind`` "float": a number or null each, null read as NaN;
+    "int": an integer each), flat, else ValueError naming the entry at fault."""
+    if not isinstance(value, list):
+        raise ValueError(f"{where}: expected a list of numbers, got {value!r:.60}")
+    return [_typed(v, kind, f"{where}[{i}]") for i, v in enumerate(value)]
+
+
+#: The settings a result file records that iwr reads back (``iwr report``), and their JSON type:
+#: any other setting is kept as written, for the record.
+SETTINGS_TYPES: dict[str, str] = {
+    "data_fingerprint": "str?", "data_file": "str?", "robot_file": "str?", "weighting": "str?",
+    "sources": "object?", "robot_model": "object?", "validation_split": "object?",
+    "objective": "object?", "polish_result": "object?",
+}
+
+
+def _settings(data: dict[str, Any]) -> dict[str, Any]:
+    """The ``settings`` object of a result file, the settings iwr reads of their type."""
+    settings = data.get("settings")
+    if settings is None:
+        return {}
+    if not isinstance(settings, dict):
+        raise ValueError(f"settings: expected an object, got {settings!r:.60}")
+    for key, kind in SETTINGS_TYPES.items():
+        value = settings.get(key)
+        if value is None:
+            continue
+        if kind == "object?":
+            if not isinstance(value, dict):
+                raise ValueError(f"settings.{key}: expected an object, got {value!r:.60}")
+        else:
+            _typed(value, kind, f"settings.{key}")
+    for role, path in (settings.get("sources") or {}).items():
+        _typed(path, "str?", f"settings.sources.{role}")
+    return settings
+
+
+def _history(data: dict[str, Any]) -> dict[str, np.ndarray]:
+    """The ``history`` object of a result file: a list of numbers per key (integers for the
+    evaluation and generation counts)."""
+    history = data.get("history")
+    if history is None:
+        return {}
+    if not isinstance(history, dict):
+        raise ValueError(f"history: expected an object of lists of numbers, got {history!r:.60}")
+    return {k: np.array(_numbers(v, f"history.{k}",
+                                 "int" if k in ("nfev", "generation") else "float"),
+                        dtype=int if k in ("nfev", "generation") else float)
+            for k, v in history.items()}
+
+
+def _parameters(data: dict[str, Any]) -> tuple[np.ndarray, list[str]]:
+    """``x`` (a number or null per parameter, null read as NaN: a value that was not finite)
+    and ``parameter_names`` (a string per parameter, or none recorded) of a result file."""
+    names = data.get("parameter_names")
+    names = [] if names is None else names
+    if not isinstance(names, list):
+        raise ValueError(f"parameter_names: expected a list of strings, got {names!r:.60}")
+    names = [_typed(n, "str", f"parameter_names[{i}]") for i, n in enumerate(names)]
+    if len(set(names)) < len(names):
+        twice = next(n for i, n in enumerate(names) if n in names[:i])
+        raise ValueError(f"parameter_names: {twice!r} is named twice")
+    x = data["x"]
+    if not isinstance(x, list):
+        raise ValueError(f"x: expected a list of numbers, one per parameter, got {x!r:.60}")
+    for i, v in enumerate(x):
+        if v is not None and (not isinstance(v, (int, float)) or isinstance(v, bool)):
+            what = f" ({names[i]})" if i < len(names) else ""
+            raise ValueError(f"x[{i}]{what}: expected a number or null, got {v!r:.40}")
+    if names and len(names) != len(x):
+        raise ValueError(f"x: {len(x)} values, but parameter_names names {len(names)} "
+                         "parameters")
+    return np.array([math.nan if v is None else float(v) for v in x], dtype=float), names
 
 
 def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
@@ -536,26 +610,33 @@ def load_result(path: str | os.PathLike[str]) -> IdentificationResult:
     if missing:
         raise ResultFileError(f"{path}: missing keys {missing}")
     try:
-        x = _floats(data["x"], "x")
-        fun = float(_floats(data["fun"], "fun"))
-        wall = data.get("wall_time")
-        success = bool(data["success"])
-        message = str(data["message"])
+        version = data.get("version", RESULT_VERSION)
+        if _typed(version, "int", "version") > RESULT_VERSION or version < 1:
+            raise ValueError(f"version: {version}; this iwr reads versions 1 to "
+                             f"{RESULT_VERSION} (a newer iwr wrote it?)")
+        x, names = _parameters(data)
+        fun = float(_typed(data["fun"], "float", "fun"))
+        success = _typed(data["success"], "bool", "success")
+        message = _typed(data["message"], "str", "message")
+        nfev = _typed(data["nfev"], "int", "nfev")
+        nit = _typed(data.get("nit", 0), "int", "nit")
+        for key, count in (("nfev", nfev), ("nit", nit)):
+            if count < 0:
+                raise ValueError(f"{key}: {count}; expected a count >= 0")
         return IdentificationResult(
             x=x,
             fun=fun,
-            nfev=int(data["nfev"]),
-            nit=int(data.get("nit", 0)),
+            nfev=nfev,
+            nit=nit,
             success=success,
             status=_status(data, success, message),
             message=message,
-            method=str(data.get("method", "")),
-            wall_time=math.nan if wall is None else float(wall),
-            parameter_names=list(data.get("parameter_names", [])),
-            settings=data.get("settings", {}),
+            method=_typed(data.get("method", ""), "str", "method"),
+            wall_time=float(_typed(data.get("wall_time"), "float", "wall_time")),
+            parameter_names=names,
+            settings=_settings(data),
             active=_active(data, x.size),
-            history={k: _floats(v, f"history.{k}") if k != "nfev" and k != "generation"
-                     else np.asarray(v) for k, v in data.get("history", {}).items()},
+            history=_history(data),
             **_recorded(data),
         )
     except KeyError as exc:

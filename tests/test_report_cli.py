@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import json
 import os
+import re
 import shutil
 import subprocess
 import sys
@@ -181,3 +182,82 @@ def test_a_recalibration_is_unchanged_in_the_run_and_in_its_report(tmp_path):
                "--out", str(tmp_path / "rep"))
     assert proc.returncode == 0, proc.stderr
     assert verdict in (tmp_path / "rep" / "report.md").read_text().splitlines()
+
+
+@pytest.fixture(scope="module")
+def calibrated(sims: tuple[Path, Path], tmp_path_factory: pytest.TempPathFactory) -> Path:
+    """The result.json of an ``iwr calibrate`` run on the first simulation."""
+    out = tmp_path_factory.mktemp("cal") / "cal"
+    proc = run("calibrate", str(sims[0] / "robot.toml"), str(sims[0] / "measurements.csv"),
+               "--method", "lm", "-o", str(out), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    return out / "result.json"
+
+
+def _reversed(d: dict) -> None:
+    d["parameter_names"].reverse()
+
+
+def _large(d: dict) -> None:
+    d["x"][5] = 1e6
+
+
+@pytest.mark.parametrize("edit, message", [
+    (lambda d: d.update(history=5), r"history: expected an object of lists of numbers, got 5"),
+    (lambda d: d.update(settings=[1, 2]), r"settings: expected an object, got \[1, 2\]"),
+    (lambda d: d.update(x=[[v] for v in d["x"]]),
+     r"x\[0\] \(joint1\.dalpha\): expected a number or null, got \["),
+    (lambda d: d.update(success="false"), r"success: expected true or false, got 'false'"),
+    (lambda d: d.update(success=True, status="not converged"), r"status: 'not converged'"),
+    (lambda d: d["x"].__setitem__(0, float("nan")),
+     r"x\[0\] \(joint1\.dalpha\) is nan: a result that is not finite is no robot's errors"),
+    (_large, r"x\[5\] \(joint2\.da\) is 1e\+06 mm: the calibrated robot's dh: entry \(1, 1\)"),
+    (_reversed, r"its parameters are not those of robot 'IWR': first difference "
+                r"parameter_names\[0\] 'leg6\.dl0', the robot's 'joint1\.dalpha'"),
+])
+@pytest.mark.parametrize("command", ["report", "analyze"])
+def test_report_and_analyze_refuse_a_bad_result_file_by_name(sims, calibrated, tmp_path, edit,
+                                                              message, command):
+    """A QA audit: a result file with one field changed gave internal errors (``history``: an
+    AttributeError), messages that named neither the file nor the parameter (``x[5] = 1e6``:
+    "dh: entry (1, 1) is 1000000.0 mm", after the report was printed), that contradicted
+    themselves ("58 parameters, but robot has 58") or nothing at all: ``iwr analyze --result``
+    took reversed ``parameter_names`` (the values on the wrong parameters) and ``x[5] = 1e6``,
+    and ``iwr report`` wrote "Calibrated" for ``success: "false"``. Both commands now make one
+    check of the file (iwr.load_result) and of the result against the robot
+    (iwr.calibration.check_result): one line naming the file and the field, exit 1 (a malformed
+    file, docs/cli.md), nothing written."""
+    doc = json.loads(calibrated.read_text())
+    edit(doc)
+    bad = tmp_path / "bad.json"
+    bad.write_text(json.dumps(doc))
+    robot, data = str(sims[0] / "robot.toml"), str(sims[0] / "measurements.csv")
+    args = (["report", str(bad), robot, data, "--out", str(tmp_path / "r"), "--no-plots"]
+            if command == "report" else ["analyze", robot, data, "--result", str(bad)])
+    proc = run(*args)
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "Traceback" not in proc.stderr and not proc.stdout
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith(f"iwr: error: {bad}: "), proc.stderr
+    assert re.search(message, lines[0]), lines[0]
+    assert not (tmp_path / "r").exists()
+
+
+def test_analyze_takes_the_result_of_a_robot_with_effects(tmp_path):
+    """``iwr analyze --result`` refused the result of a robot with effects ("60 parameters, but
+    robot 'IWR' has 58 on pose data"): its ``x`` holds the effects' parameters, which the
+    identifiability with effects takes. iwr report's check takes it as the robot's."""
+    from iwr.effects import api
+    from iwr.effects.carriage_thermal import CarriageThermal
+
+    robot = iwr.Robot.default().with_effects(CarriageThermal([11.5, 12.0], 20.0, identify=True,
+                                                             per_joint=True))
+    robot.to_toml(tmp_path / "robot.toml")
+    data, _ = api.simulate(robot, 40, seed=3)
+    data.to_csv(tmp_path / "data.csv")
+    files = [str(tmp_path / "robot.toml"), str(tmp_path / "data.csv")]
+    proc = run("calibrate", *files, "--method", "lm", "-o", str(tmp_path / "o"), "--no-plots")
+    assert proc.returncode == 0, proc.stderr
+    proc = run("analyze", *files, "--result", str(tmp_path / "o" / "result.json"))
+    assert proc.returncode == 0, proc.stderr
+    assert "rank 54 of 60 parameters" in proc.stdout

@@ -5,9 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-import numpy as np
-
-from ._base import EXIT_OK, CommandError, add_common, load_robot, read_data
+from ._base import EXIT_OK, add_common, load_robot, read_data
 from .tracker import add_arguments as add_tracker_arguments
 from .tracker import target_format
 
@@ -42,11 +40,11 @@ def cmd_analyze(args: argparse.Namespace) -> int:
                      prog="iwr analyze")
     x = None
     if args.result:
-        x = np.asarray(load_result(args.result).x, dtype=float)
-        kind = for_robot(robot)
-        n = kind.n_params(robot)
-        if x.shape != (n,):
-            raise CommandError(f"{args.result}: {x.size} parameters, but robot {robot.name!r} "
-                               f"({args.robot}) has {n} on {kind.name} data")
+        from .report import check_result_file
+
+        # iwr report's check: the robot's parameters (its effects' and set-up's included), in
+        # order, finite, a calibrated robot within the physical limits.
+        x = check_result_file(args.result, load_result(args.result), args.robot, robot,
+                              for_robot(robot))
     print(identifiability(robot, data, x))
     return EXIT_OK

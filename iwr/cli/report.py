@@ -129,6 +129,21 @@ def _check_robot(args: argparse.Namespace, result: Any, robot: Any) -> str:
     return ""
 
 
+def check_result_file(path: Any, result: Any, robot_path: Any, robot: Any, kind: Any
+                      ) -> np.ndarray:
+    """The error vector of ``result`` (read from ``path``), checked to be one of ``robot``
+    (read from ``robot_path``) on ``kind``'s data (:func:`iwr.calibration.check_result`: its
+    length, its parameters' names and order, finite values, a calibrated robot within the
+    physical limits); else CommandError (exit 1) naming both files and the entry at fault. The
+    one check of ``iwr report`` and ``iwr analyze --result``."""
+    from ..calibration import check_result
+
+    try:
+        return check_result(robot, kind, result)
+    except ValueError as exc:
+        raise CommandError(f"{path}: {one_line(exc)} ({robot_path})") from None
+
+
 def _shown_settings(result: Any) -> dict[str, Any]:
     """The result's settings as the report shows them: the robot's model by its fingerprint."""
     settings = {"method": result.method, **dict(result.settings)}
@@ -160,6 +175,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     # The robot first: the data's fingerprint depends on its set-up (the tracker's points), and
     # the columns the data need on the robot's effects (another robot's effects: its message).
     warning = _check_robot(args, result, robot)
+    check_result_file(args.run, result, args.robot, robot, kind)  # as iwr analyze --result
     check_effect_inputs(robot, data, args.data)
     note = _check_data(args, result, robot, data)
     instead = ("give the run's validation file, or leave --validation out: the run's own split "

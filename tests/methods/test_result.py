@@ -72,7 +72,7 @@ def test_a_cost_that_is_not_finite_is_written_null_and_loads(tmp_path):
     back = iwr.load_result(tmp_path / "r.json")
     assert np.isnan(back.fun) and not back.success and back.status == "failed"
     data = json.loads(text)
-    data.update(success=True, x=[None, 1.0, 2.0], fun=0.5)
+    data.update(success=True, status="converged", x=[None, 1.0, 2.0], fun=0.5)
     (tmp_path / "c.json").write_text(json.dumps(data))
     back = iwr.load_result(tmp_path / "c.json")
     assert np.isnan(back.x[0]) and not back.success
@@ -107,7 +107,8 @@ def test_a_file_keeps_the_status_of_an_unsuccessful_result(tmp_path, status):
 def test_bad_files_are_named(tmp_path):
     (tmp_path / "r.json").write_text('{"format": "iwr-result", "x": [1, "a"], "fun": 1, '
                                      '"nfev": 1, "success": true, "message": ""}')
-    with pytest.raises(iwr.ResultFileError, match=r"r.json: x: expected numbers"):
+    with pytest.raises(iwr.ResultFileError,
+                       match=r"r.json: x\[1\]: expected a number or null, got 'a'"):
         iwr.load_result(tmp_path / "r.json")
     with pytest.raises(iwr.ResultFileError, match="no such file"):
         iwr.load_result(tmp_path / "missing.json")
@@ -191,3 +192,53 @@ def test_recorded_values_of_the_wrong_type_are_named(tmp_path, edit, message):
     (tmp_path / "bad.json").write_text(json.dumps(data))
     with pytest.raises(iwr.ResultFileError, match=message):
         iwr.load_result(tmp_path / "bad.json")
+
+
+@pytest.mark.parametrize("edit, message", [
+    # A QA audit: "false" read as True, an unknown status as "converged": the report said
+    # "Calibrated" of a run that had not converged.
+    (lambda d: d.update(success="false"), r"success: expected true or false, got 'false'"),
+    (lambda d: d.update(status="not converged"), r"status: 'not converged'; expected one of"),
+    (lambda d: d.update(status="stopped"),
+     r"success: true, but status 'stopped': only a converged run is a success"),
+    (lambda d: d.update(status=3), r"status: expected a string, got 3"),
+    (lambda d: d.update(message=None), r"message: expected a string, got None"),
+    (lambda d: d.update(method=["lm"]), r"method: expected a string"),
+    (lambda d: d.update(fun="1.5"), r"fun: expected a number or null, got '1.5'"),
+    (lambda d: d.update(nfev=10.5), r"nfev: expected an integer, got 10.5"),
+    (lambda d: d.update(nit=-1), r"nit: -1; expected a count >= 0"),
+    (lambda d: d.update(wall_time="fast"), r"wall_time: expected a number or null"),
+    (lambda d: d.update(version=99), r"version: 99; this iwr reads versions 1 to 1"),
+    (lambda d: d.update(x=5), r"x: expected a list of numbers, one per parameter, got 5"),
+    (lambda d: d.update(x=[[0.0], [1.0], [2.0]]),
+     r"x\[0\] \(a\): expected a number or null, got \[0.0\]"),
+    (lambda d: d.update(x=[0.0, True, 2.0]), r"x\[1\] \(b\): expected a number or null, got True"),
+    (lambda d: d.update(x=[0.0, 1.0]), r"x: 2 values, but parameter_names names 3 parameters"),
+    (lambda d: d.update(parameter_names="abc"), r"parameter_names: expected a list of strings"),
+    (lambda d: d.update(parameter_names=["a", 2, "c"]), r"parameter_names\[1\]: expected a str"),
+    (lambda d: d.update(parameter_names=["a", "b", "a"]), r"parameter_names: 'a' is named twice"),
+    (lambda d: d.update(history=5), r"history: expected an object of lists of numbers, got 5"),
+    (lambda d: d.update(history={"best": 1.5}), r"history.best: expected a list of numbers"),
+    (lambda d: d.update(history={"best": [1.0, "x"]}), r"history.best\[1\]: expected a number"),
+    (lambda d: d.update(history={"nfev": [1, 2.5]}), r"history.nfev\[1\]: expected an integer"),
+    (lambda d: d.update(settings=[1, 2]), r"settings: expected an object, got \[1, 2\]"),
+    (lambda d: d["settings"].update(sources=["a.csv"]),
+     r"settings.sources: expected an object, got \['a.csv'\]"),
+    (lambda d: d["settings"].update(sources={"data": 3}),
+     r"settings.sources.data: expected a string, got 3"),
+    (lambda d: d["settings"].update(data_fingerprint=12),
+     r"settings.data_fingerprint: expected a string, got 12"),
+    (lambda d: d["settings"].update(robot_model="abc"),
+     r"settings.robot_model: expected an object, got 'abc'"),
+])
+def test_every_field_of_a_result_file_is_typed(tmp_path, edit, message):
+    """Every field a result file holds is of its JSON type, and a file that contradicts itself
+    (success true, status "stopped") is refused: each named with its file, never read as
+    something else nor failing later with an internal error."""
+    result(settings={"seed": 3, "data_fingerprint": "ab"}).save(tmp_path / "r.json")
+    data = json.loads((tmp_path / "r.json").read_text())
+    edit(data)
+    (tmp_path / "bad.json").write_text(json.dumps(data))
+    with pytest.raises(iwr.ResultFileError, match=r"bad.json: " + message):
+        iwr.load_result(tmp_path / "bad.json")
+    assert iwr.load_result(tmp_path / "r.json").success  # the file before the edit reads
