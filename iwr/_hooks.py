@@ -31,6 +31,8 @@ HOOKS: dict[str, str] = {
     "compare_report": "iwr.reporting.compare:write_report",
     "compare_summary_table": "iwr.reporting.compare:summary_table",
     "markdown_table": "iwr.reporting.tables:markdown_table",
+    # iwr.fit_test's check of data that cannot identify the robot (iwr.calibrate's rule)
+    "degenerate_data": "iwr.analysis.identifiability:degenerate_data",
     # iwr.study(report=True)
     "study_report": "iwr.reporting.study:report",
 }

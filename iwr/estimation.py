@@ -57,7 +57,7 @@ from .implicit_loop import (
     reading_names,
     sigma_matrix,
 )
-from .measurements import Measurements
+from .measurements import Measurements, tool_point
 from .noise import Noise
 from .problem import Problem, _check_joint_types
 from .result import IdentificationResult, Outlier
@@ -265,8 +265,6 @@ def efficient(
         if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
             raise ValueError(f"{name}: {v!r}; expected a positive integer")
     if tool is not None:  # checked before the solve, which a bad one would only end
-        from .analysis.accuracy import tool_point
-
         tool = tool_point(tool)
     # The kind's model of its readings, their noise and the nuisance unknowns per pose.
     spec = kind.estimator(robot, measurements, noise, x0=x0, active=active, estimate=estimate,

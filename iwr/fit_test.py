@@ -124,18 +124,12 @@ def _plain_sd(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
 
 def _degenerate(robot: Robot, measurements: Any) -> str | None:
     """Why ``measurements`` cannot identify ``robot``'s errors
-    (:func:`iwr.analysis.identifiability.degenerate`: the rank of their information matrix at
-    the nominal robot, as :func:`iwr.calibrate` judges it), else None; None too where that rank
-    cannot be had (tracker data too far from the nominal robot for a registration guess:
-    ``ValueError``)."""
-    from .analysis.identifiability import degenerate, identifiability
+    (:func:`iwr.analysis.identifiability.degenerate_data`: the rank of their information matrix
+    at the nominal robot, as :func:`iwr.calibrate` judges it), else None."""
+    from ._hooks import hook
 
     with single_thread():
-        try:
-            report = identifiability(robot, measurements)
-        except ValueError:
-            return None
-        return degenerate(robot, measurements, report)
+        return hook("degenerate_data")(robot, measurements)
 
 
 def _null_split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -145,6 +145,15 @@ def as_matrix(value: Any, cols: int, name: str, rows: int | None = None) -> np.n
     return np.ascontiguousarray(arr)
 
 
+def tool_point(tool: Any, name: str = "tool") -> np.ndarray:
+    """``tool`` (None: the origin of {5}) as a point of three finite numbers (mm), else a
+    ValueError naming ``name``."""
+    if tool is None:
+        return np.zeros(3)
+    return as_matrix(np.reshape(tool, (1, -1)) if np.ndim(tool) == 1 else tool, 3, name,
+                     rows=1)[0]
+
+
 def joint_readings(q: Any, joint_types: str | None, n: int) -> np.ndarray:
     """The carriage joint readings ``q`` as an (n, n_joints) matrix (:func:`as_matrix`), the
     number of joints from ``q``'s columns (from ``joint_types`` when ``q`` is empty), checked

@@ -1149,3 +1149,22 @@ def test_a_second_launcher_is_refused_before_the_first_ones_engine_runs(
         first.send_signal(signal.SIGINT)
         _, err = first.communicate(timeout=120)
     assert first.returncode == 130, err  # stopped in its wrapper's wait: nothing to export
+
+
+def test_a_weighted_run_s_fit_is_tested_before_it_is_written(tmp_path: Path) -> None:
+    """``--noise``: the cost is the fit's chi-square statistic. A run that its stagnation test
+    stopped far above the noise floor was written "converged", success true, until ``iwr
+    report`` refused it; the result now says failed, with the fit test's verdict, and the
+    launcher says so."""
+    robot = iwr.Robot.default()
+    robot.to_toml(tmp_path / "robot.toml")
+    m, _ = iwr.simulate(robot, 30, seed=4, noise=iwr.Noise.realistic())
+    m.to_csv(tmp_path / "data.csv")
+    proc = run_cal(tmp_path / "robot.toml", tmp_path / "data.csv", "--noise", "realistic",
+                   "--population-size", 30, "--generations", 400, "--stagnation-generations", 5,
+                   "--stagnation-tol", 0.5, "--seed", 1, "--output", tmp_path / "r.json")
+    assert proc.returncode == 0, proc.stderr
+    res = iwr.load_result(tmp_path / "r.json")
+    assert res.fit is not None and res.fit.p_value < 1e-3 and res.fun > 1e3
+    assert not res.success and res.status == "failed", res.message
+    assert "THE MODEL DOES NOT FIT THE DATA" in proc.stderr

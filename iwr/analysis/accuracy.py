@@ -11,20 +11,11 @@ import numpy as np
 from .. import kinds
 from ..effects import refuse as refuse_effects
 from ..forward import ForwardKinematicsError, forward_kinematics
-from ..measurements import Measurements, as_matrix
+from ..measurements import Measurements, as_matrix, tool_point
 from ..robot import Robot
 from ..transforms import pose_matrix, rotation_angle
 
 __all__ = ["accuracy", "Accuracy", "PoseErrors", "pose_errors"]
-
-
-def tool_point(tool: Any, name: str = "tool") -> np.ndarray:
-    """``tool`` (None: the origin of {5}) as a point of three finite numbers (mm), else a
-    ValueError naming ``name``."""
-    if tool is None:
-        return np.zeros(3)
-    return as_matrix(np.reshape(tool, (1, -1)) if np.ndim(tool) == 1 else tool, 3, name,
-                     rows=1)[0]
 
 
 def pose_errors(poses: Any, reference: Any, tool: Any = None) -> tuple[np.ndarray, np.ndarray]:

@@ -423,6 +423,16 @@ def degenerate(robot: Any, identification: Any, report: Any) -> str | None:
             "measure more, and more varied, poses")
 
 
+def degenerate_data(robot: Any, data: Any) -> str | None:
+    """:func:`degenerate` of ``data`` with their identifiability at the nominal robot (what
+    :func:`iwr.calibrate` judges), for the fit check of every method; None where that cannot be
+    had (tracker data too far from the nominal robot for a registration guess: ValueError)."""
+    try:
+        report = identifiability(robot, data)
+    except ValueError:
+        return None
+    return degenerate(robot, data, report)
+
 def distinct_poses(data: Any) -> int:
     """The number of distinct poses (rows of readings and measurements,
     :meth:`iwr.kinds.MeasurementKind.rows`) in ``data``."""

@@ -274,17 +274,40 @@ def _export(checkpoint: str, problem: str | None, output: str,
     ``objective``), so that ``iwr report`` tests the run's gross errors, its fit and its
     uncertainty under it. ``resume``: the command that continues the run, for a run that ended
     at its generation or evaluation limit (:func:`longer_run`, appended to the result's message
-    and returned; else "")."""
+    and returned; else ""), and a weighted run's failed fit test (returned: the line to print).
+    """
     from ..problem_file import engine_result
 
     result = engine_result(checkpoint, problem)
     if objective is not None:
         result["settings"] = {**dict(result.settings), "objective": objective}
+        result = _fit_tested(result, problem)
     hint = longer_run(result, resume) if resume is not None else ""
     if hint:
         result["message"] = f"{result.message}; {hint}"
     result.save(output)
+    if result.fit is not None and not result.fit.fit_ok:
+        hint = (f"{hint}; " if hint else "") + f"{result.fit.verdict}: not a calibration"
     return hint
+
+
+def _fit_tested(result: Any, problem: str | None) -> Any:
+    """A weighted run's result with its fit tested, as ``iwr report`` tests it
+    (:func:`iwr.calibration._weighted_fit`: its cost is the chi-square statistic): a DE run
+    stopped far above the noise floor was written "converged", success true (chi2 2.25e5 for 308
+    degrees of freedom), until ``iwr report`` refused it. Untested where the problem file cannot
+    be read back (the engine read it; ``iwr report`` then tests the result)."""
+    from ..analysis.identifiability import identifiability
+    from ..calibration import _weighted_fit
+    from ..problem_file import load_problem
+
+    if problem is None:
+        return result
+    try:
+        p = load_problem(problem)
+    except (ValueError, OSError):
+        return result
+    return _weighted_fit(p.robot, p.measurements, result, identifiability(p.robot, p.measurements))
 
 
 #: A run whose population's mean or best cost fell by at least this much (%) over its last
