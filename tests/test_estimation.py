@@ -217,7 +217,7 @@ def test_a_poorly_determined_parameter_beyond_its_size_is_no_misfit(base_mask: n
     """Noise ten times the realistic one on 60 poses: leg 1's offset, the truth 0.1 mm, is
     identified at 7.2 +- 3.3 mm, beyond its 5 mm plausible size but within what the noise
     explains. The fit passes with a note (it failed: "THE MODEL DOES NOT FIT"; 66 of 200 seeds
-    did, none now, BENCHMARKS/the closing note), and a 12 mm shift of the frame along z0,
+    did, none now: benchmarks/size_test_mc.py), and a 12 mm shift of the frame along z0,
     absorbed by joint 1's d and joint 2's a (6 mm each, well determined), still fails it."""
     from iwr.fit_test import _plausible_limit, beyond_plausible, leg_readings
 
