@@ -12,8 +12,8 @@ change), and on the shifted data the same and the chi-square test's failures.
 
 Usage::
 
-    cd /tmp && python benchmarks/size_test_mc.py --noise-factor 1 3 10 --poses 60 --seeds 200 \\
-        --shift 12
+    cd /tmp && python /path/to/iwr/benchmarks/size_test_mc.py --noise-factor 1 3 10 \\
+        --poses 60 --seeds 200 --shift 12
 """
 
 from __future__ import annotations

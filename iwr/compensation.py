@@ -365,8 +365,8 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
     # One target may be given as a single row; anything else must have the documented shape
     # (a (4, N) q reshaped to (N, 4) would command other poses).
     poses = as_matrix(np.atleast_2d(poses), 6, "poses")
-    q = as_matrix(np.atleast_2d(q) if np.ndim(q) == 1 else q, robot.n_joints, "q",
-                  rows=poses.shape[0])
+    q = as_matrix(np.atleast_2d(q) if np.ndim(q) == 1 and robot.n_joints else q,
+                  robot.n_joints, "q", rows=poses.shape[0])  # a hexapod alone: q = []
     if not len(poses):
         raise ValueError("poses: no target poses")
     cols = joint_columns or [f"q{i + 1}" for i in range(robot.n_joints)]

@@ -562,8 +562,8 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
                           f"{c.sigma / c.start:.0f} times the stated {c.start:.3g}: the model may "
                           "not fit, or that instrument is much worse than stated")
     # Data that cannot identify the robot (copies of a few poses): no fit says anything.
-    degenerate = (_degenerate(spec.robot, spec.subset(used)) if hasattr(spec, "robot")
-                  else None)
+    degenerate = (_degenerate(spec.robot, spec.subset(used), mask)
+                  if hasattr(spec, "robot") else None)
     if degenerate is not None:
         causes.insert(0, degenerate)
     fit_ok = chi_ok and rank_ok and not implausible and not too_many and degenerate is None

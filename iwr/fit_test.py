@@ -122,14 +122,16 @@ def _plain_sd(model: Callable[[np.ndarray], tuple[np.ndarray, np.ndarray]],
     return limit * np.sqrt(np.clip(var, 0.0, None))
 
 
-def _degenerate(robot: Robot, measurements: Any) -> str | None:
+def _degenerate(robot: Robot, measurements: Any, active: np.ndarray | None = None
+                ) -> str | None:
     """Why ``measurements`` cannot identify ``robot``'s errors
     (:func:`iwr.analysis.identifiability.degenerate_data`: the rank of their information matrix
-    at the nominal robot, as :func:`iwr.calibrate` judges it), else None."""
+    at the nominal robot, as :func:`iwr.calibrate` judges it; not for a subset of the
+    parameters the caller chose, ``active``), else None."""
     from ._hooks import hook
 
     with single_thread():
-        return hook("degenerate_data")(robot, measurements)
+        return hook("degenerate_data")(robot, measurements, active)
 
 
 def _null_split(jac: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -424,7 +426,7 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     # Data that cannot identify the robot (too few distinct poses, copies): whatever the fit
     # looks like, it says nothing (one pose's six readings fit 58 parameters exactly), as
     # iwr.calibrate's "not calibrated" says.
-    degenerate = _degenerate(robot, measurements)
+    degenerate = _degenerate(robot, measurements, mask)
     if degenerate is not None:
         causes.insert(0, degenerate)
     fit_ok = chi_ok and not implausible and degenerate is None

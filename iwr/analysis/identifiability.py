@@ -419,19 +419,32 @@ def degenerate(robot: Any, identification: Any, report: Any) -> str | None:
     copies = f" ({n} poses, {n - distinct} of them copies)" if distinct < n else ""
     return (f"degenerate data: the {distinct} distinct identification poses{copies} "
             f"identify {rank} of the {need} parameters that varied poses identify "
-            f"for this robot; the other {need - report.rank} would be left at nominal: "
+            f"for this robot; the other {need - rank} would be left at nominal: "
             "measure more, and more varied, poses")
 
 
-def degenerate_data(robot: Any, data: Any) -> str | None:
+def degenerate_data(robot: Any, data: Any, active: Any = None) -> str | None:
     """:func:`degenerate` of ``data`` with their identifiability at the nominal robot (what
-    :func:`iwr.calibrate` judges), for the fit check of every method; None where that cannot be
-    had (tracker data too far from the nominal robot for a registration guess: ValueError)."""
+    :func:`iwr.calibrate` judges), for the fit check of every method. ``active``: the parameters
+    the method identified; a subset of fewer than varied poses identify, other than the data's
+    own base parameters, is the caller's choice (six leg offsets from six poses) and is not
+    judged so (the data's base parameters are the default of the efficient estimator: 30
+    copies of one pose give six, and are judged). None too where the rank cannot be had
+    (tracker data too far from the nominal robot for a registration guess, a nominal pose out
+    of reach: ValueError, RuntimeError)."""
     try:
         report = identifiability(robot, data)
-    except ValueError:
+        if active is not None:
+            mask = np.asarray(active, dtype=bool)
+            own = np.asarray(report.active, dtype=bool)
+            if not (mask.shape == own.shape and np.array_equal(mask, own)):
+                need = identifiable_count(robot.with_effects() if robot.effects else robot)
+                if int(mask.sum()) < need:
+                    return None
+        return degenerate(robot, data, report)
+    except (ValueError, RuntimeError):
         return None
-    return degenerate(robot, data, report)
+
 
 def distinct_poses(data: Any) -> int:
     """The number of distinct poses (rows of readings and measurements,

@@ -305,9 +305,13 @@ def _fit_tested(result: Any, problem: str | None) -> Any:
         return result
     try:
         p = load_problem(problem)
-    except (ValueError, OSError):
+        return _weighted_fit(p.robot, p.measurements, result,
+                             identifiability(p.robot, p.measurements))
+    except (ValueError, OSError, RuntimeError, np.linalg.LinAlgError) as exc:
+        # Never lose a long run's result to its test: written untested, and why.
+        print(f"{PROG}: the fit was not tested ({type(exc).__name__}: {exc}); iwr report "
+              "tests it", file=sys.stderr)
         return result
-    return _weighted_fit(p.robot, p.measurements, result, identifiability(p.robot, p.measurements))
 
 
 #: A run whose population's mean or best cost fell by at least this much (%) over its last
