@@ -648,8 +648,9 @@ def effects_in_range(robot: Any, data: Any, result: IdentificationResult
     verdict = f"THE MODEL DOES NOT FIT THE DATA: {RANGE_FAILED}"
     fit = fit or FitTest(math.nan, 0, math.nan, 1e-3, True, "", [], [])
     out = IdentificationResult(**dict(result))
+    # a passing fit's causes are notes (FitTest.causes): not among a failure's causes
     out["fit"] = replace(fit, fit_ok=False, verdict=verdict if fit.fit_ok else fit.verdict,
-                         causes=list(fit.causes) + [cause],
+                         causes=([] if fit.fit_ok else list(fit.causes)) + [cause],
                          implausible=list(fit.implausible) + [t[:3] for t in bad])
     if out.success or out.status == "converged":
         out.update(success=False, status="failed", message=f"{verdict}: {cause}")

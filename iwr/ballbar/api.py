@@ -257,7 +257,8 @@ def _chi2(result: Any, problem: BallbarProblem, mask: np.ndarray,
     stat = float(result["fun"])
     p_value = float(special.chdtrc(dof, stat)) if dof > 0 else math.nan
     ok = bool(dof > 0 and p_value >= alpha)
-    causes = list(fit.causes)
+    # a passing fit's causes are notes (FitTest.causes): kept only while it passes
+    causes = list(fit.causes) if (fit.fit_ok is False or ok) else []
     without_dof = (f"no redundancy: {problem.n_residuals} readings for {rank} identifiable "
                    "parameters")
     if not ok:
