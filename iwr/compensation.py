@@ -21,7 +21,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from . import kinds
-from .measurements import MAX_LENGTH_MM, as_matrix
+from .measurements import MAX_LENGTH_MM, as_matrix, as_vector
 from .problem import predict_legs
 from .robot import Robot
 from .transforms import pose_from_matrix, pose_matrix
@@ -376,8 +376,7 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
     if user_frame is not None:
         target = rigid_transform(user_frame, "user_frame") @ target
     if tool is not None:
-        tool_m = pose_matrix(as_matrix(np.reshape(tool, (1, -1)) if np.ndim(tool) == 1
-                                       else tool, 6, "tool", rows=1)[0])
+        tool_m = pose_matrix(as_vector(tool, 6, "tool"))
         target = target @ np.linalg.inv(tool_m)
     if frame == "T":  # the frame the robot's instrument gives its data in (_check_frame)
         target = np.linalg.solve(kinds.for_robot(robot).registration(robot), target)

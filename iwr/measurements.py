@@ -145,13 +145,17 @@ def as_matrix(value: Any, cols: int, name: str, rows: int | None = None) -> np.n
     return np.ascontiguousarray(arr)
 
 
+def as_vector(value: Any, size: int, name: str) -> np.ndarray:
+    """``value`` as ``size`` finite numbers, else ValueError naming ``name`` (as
+    :func:`as_matrix` names a row of one)."""
+    return as_matrix(np.reshape(value, (1, -1)) if np.ndim(value) == 1 else value, size, name,
+                     rows=1)[0]
+
+
 def tool_point(tool: Any, name: str = "tool") -> np.ndarray:
     """``tool`` (None: the origin of {5}) as a point of three finite numbers (mm), else a
     ValueError naming ``name``."""
-    if tool is None:
-        return np.zeros(3)
-    return as_matrix(np.reshape(tool, (1, -1)) if np.ndim(tool) == 1 else tool, 3, name,
-                     rows=1)[0]
+    return np.zeros(3) if tool is None else as_vector(tool, 3, name)
 
 
 def joint_readings(q: Any, joint_types: str | None, n: int) -> np.ndarray:
