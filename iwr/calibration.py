@@ -897,10 +897,13 @@ def _weighted_fit(robot: Any, data: Any, result: IdentificationResult, report: A
     # The readings the weighted objective has: a probe's whitening has six rows a pose that
     # carry data, not its four points' twelve coordinates (the unweighted problem's).
     kind = kinds.of(data)
-    problem, _ = kind.problem(robot, data, noise=_recorded_noise(kind, result))
+    noise = _recorded_noise(kind, result)
+    problem, _ = kind.problem(robot, data, noise=noise)
     active = result.active
     mask = np.ones(x.size, dtype=bool) if active is None else np.asarray(active, dtype=bool)
-    fit = fit_check(robot, data, x, active=mask,
+    # The recorded noise model gives the size test the estimate's spread, as the job's fit
+    # check has it: a poorly determined parameter beyond its size is a note, not a misfit.
+    fit = fit_check(robot, data, x, active=mask, noise=noise,
                     weighted=(float(result.fun), problem.n_observations, int(report.rank)))
     out = IdentificationResult(**dict(result))
     out["fit"] = fit

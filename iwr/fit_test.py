@@ -343,7 +343,9 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     sigma), only the size of the errors; ``statistic``, ``dof`` and ``p_value`` are then nan, 0,
     nan. ``weighted``, instead of ``noise``: a noise-weighted cost minimised elsewhere (a result
     of ``iwr-engine`` on a weighted problem file), ``(its value, the readings, the identifiable
-    rank)``, tested as that statistic.
+    rank)``, tested as that statistic; ``noise`` beside it, the noise model that cost was
+    weighted by, gives the size test the estimate's spread (as the job's, without it the size
+    alone; ignored for kinds without :attr:`~iwr.kinds.MeasurementKind.chi2_fit_test`).
 
     Laser-tracker data (``robot.tracker`` and :class:`iwr.tracker.TrackerMeasurements`, ``x`` the
     robot's then the setup's parameters): the same size test, modulo the null directions of the
@@ -363,23 +365,28 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
     # objective, so modulo the registration's and the platform frame's gauge; the setup's
     # parameters judged from the centre of their bounds, the robot's from zero).
     kind = kinds.of(measurements)
-    if noise is not None and not kind.chi2_fit_test:
+    if noise is not None and not kind.chi2_fit_test and weighted is None:
         raise ValueError(f"noise: the chi-square test of {kind.name} data is not implemented "
                          "here (the efficient estimator tests their fit); only the size of the "
                          "identified errors is tested")
     names, limit, centre, readings = kind.plausibility(robot, measurements, bounds, plausible)
-    if noise is not None and weighted is not None:
-        raise ValueError("fit_check: give noise or weighted, not both")
-    statistic, covariance = math.nan, None
-    if noise is not None:
+    statistic, covariance, jw = math.nan, None, None
+    if noise is not None and kind.chi2_fit_test:
         # The kind's whitened residuals and Jacobian at x (iwr.kinds.MeasurementKind.whitened).
-        rw, jw, n_readings = kind.whitened(robot, measurements, x, noise)
+        try:
+            rw, jw, n_readings = kind.whitened(robot, measurements, x, noise)
+        except (ValueError, np.linalg.LinAlgError):
+            if weighted is None:
+                raise
+            rw = jw = None  # the weighted cost's spread unknown: the size alone
+    if noise is not None and kind.chi2_fit_test and jw is not None:
         jw = jw[:, mask]
         scale = np.linalg.norm(jw, axis=0)
         scale = np.where(scale > 0, scale, 1.0)
         with single_thread():
-            step, _, rank, _ = np.linalg.lstsq(jw / scale, rw, rcond=None)
-        statistic = float(np.sum((rw - (jw / scale) @ step) ** 2))
+            step, _, jrank, _ = np.linalg.lstsq(jw / scale, rw, rcond=None)
+        if weighted is None:
+            statistic, rank = float(np.sum((rw - (jw / scale) @ step) ** 2)), jrank
 
         def covariance() -> np.ndarray:
             """The covariance of the weighted (efficient) estimate to first order, for the size
@@ -387,7 +394,7 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
             "implausible" for it."""
             with single_thread():
                 _, sv, vt = np.linalg.svd(jw / scale, full_matrices=False)
-            v = vt[:rank].T / sv[:rank]
+            v = vt[:jrank].T / sv[:jrank]
             cov = np.zeros((x.size, x.size))
             cov[np.ix_(mask, mask)] = (v @ v.T) / np.outer(scale, scale)
             return cov
@@ -399,8 +406,7 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
         from .effects.problem import parameter_sd
 
         try:
-            return parameter_sd(robot, measurements, x, mask,
-                                noise if weighted is None else None, readings=readings)
+            return parameter_sd(robot, measurements, x, mask, noise, readings=readings)
         except (ValueError, np.linalg.LinAlgError):  # no such Jacobian
             return None  # then the range itself
 

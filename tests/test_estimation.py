@@ -239,6 +239,31 @@ def test_a_poorly_determined_parameter_beyond_its_size_is_no_misfit(base_mask: n
     assert {"joint1.dd", "joint2.da"} <= {name for name, _, _ in res.fit.implausible}
 
 
+def test_a_weighted_result_read_back_weighs_the_size_by_its_spread(base_mask: np.ndarray
+                                                                   ) -> None:
+    """The same data as above, identified by weighted LM: the job passes its fit with a note on
+    leg 1's offset. The same result read back as one identified elsewhere (``iwr-calibrate
+    --noise``: its ``weighting`` setting, no fit test; ``iwr report`` and the launcher test it)
+    was tested without the estimate's spread and failed as a misfit; the recorded noise model
+    now gives it the spread, and it passes with the same note and the same statistic."""
+    from iwr.calibration import from_result
+
+    noise = _scaled_noise(10.0)
+    m, _ = iwr.simulate(ROBOT, 60, seed=0, noise=noise)
+    job = iwr.identify(ROBOT, m, "lm", noise=noise, weighted=True, active=base_mask)
+    assert job.success and job.fit.fit_ok, job.fit.verdict
+    note = [c for c in job.fit.causes if "within what the noise explains" in c]
+    assert len(note) == 1 and "leg1.dl0 = 7.0" in note[0], job.fit.causes
+    elsewhere = iwr.IdentificationResult(**dict(job))
+    elsewhere.update(fit=None, settings={**job.settings, "weighting": "the noise model"})
+    read = from_result(ROBOT, m, elsewhere).result
+    assert read.success and read.fit.fit_ok, read.fit.verdict
+    assert read.fit.statistic == pytest.approx(job.fun, rel=1e-12)
+    assert [c for c in read.fit.causes if "within what the noise explains" in c] == note
+    elsewhere.update(fun=1.3 * job.fun)  # the chi-square test still fails a cost too large
+    assert not from_result(ROBOT, m, elsewhere).result.fit.fit_ok
+
+
 def test_the_smallest_equivalent_s_spread_is_the_pseudo_inverse_of_the_information(
         base_mask: np.ndarray) -> None:
     """The standard deviations the size test weighs a departure by, from the covariance of the
