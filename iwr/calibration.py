@@ -27,6 +27,7 @@ from .analysis.accuracy import Accuracy, accuracy
 from .analysis.identifiability import degenerate, identifiability
 from .analysis.uncertainty import Uncertainty, uncertainty
 from .effects import parameter_names as effect_parameter_names
+from .fit_test import CANNOT_IDENTIFY
 from .gross_errors import LeftOutError, cut_to_used, fitted_poses, without_left_out
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
@@ -800,7 +801,10 @@ def _stopped_first(result: IdentificationResult) -> IdentificationResult:
     from dataclasses import replace
 
     fit = result.fit
-    if result.status != "stopped" or fit is None or fit.fit_ok or STOPPED_CAUSE in fit.causes:
+    # Data that cannot identify the robot: no run, however long, would (the verdict's reason
+    # stays the first cause).
+    if (result.status != "stopped" or fit is None or fit.fit_ok or STOPPED_CAUSE in fit.causes
+            or fit.verdict == CANNOT_IDENTIFY):
         return result
     out = IdentificationResult(**dict(result))
     out["fit"] = replace(fit, causes=[STOPPED_CAUSE, *fit.causes])
@@ -835,11 +839,14 @@ def check_result(robot: Any, kind: Any, result: Any) -> np.ndarray:
                          + _extras(robot, kind) + f"has {len(names)}")
     saved = list(result.parameter_names)
     if saved and saved != names:
-        first = next(a for a, b in zip(saved, names, strict=True) if a != b)
-        k = saved.index(first)
-        raise ValueError(f"its parameters are not those of robot {robot.name!r}"
-                         + f" {_extras(robot, kind)}".rstrip() + f": first difference "
-                         f"parameter_names[{k}] {first!r}, the robot's {names[k]!r}")
+        head = (f"its parameters are not those of robot {robot.name!r}"
+                + f" {_extras(robot, kind)}".rstrip())
+        if len(saved) != len(names):
+            raise ValueError(f"{head}: parameter_names has {len(saved)} names for the "
+                             f"{len(names)} values of x")
+        k = next(i for i, (a, b) in enumerate(zip(saved, names, strict=True)) if a != b)
+        raise ValueError(f"{head}: first difference parameter_names[{k}] {saved[k]!r}, the "
+                         f"robot's {names[k]!r}")
     bad = np.flatnonzero(~np.isfinite(x))
     if bad.size:
         k = int(bad[0])

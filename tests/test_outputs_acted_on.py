@@ -292,3 +292,36 @@ def test_the_before_panels_share_the_after_panels_units_for_a_calibrated_robot()
                                                                  ("arcsec", 3600.0))
     assert before_units([0.03], None)[1] == ("deg", 1.0)
     assert before_units([np.nan])[0] == ("mm", 1.0)  # nothing to judge by: as before
+
+
+def test_a_stopped_run_on_data_that_cannot_identify_the_robot_says_why_first():
+    """A run stopped by its limit on eight poses: running longer would not help, and the
+    first cause (the verdict's reason) is the data's, not "run it to convergence"."""
+    from iwr.fit_test import CANNOT_IDENTIFY
+
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 8, seed=3, noise=NOISE)
+    job = iwr.identify(robot, data, "lm", noise=NOISE)
+    assert not job.success and job.fit.verdict == CANNOT_IDENTIFY
+    stopped = iwr.IdentificationResult(**dict(job))  # as a weighted iwr-calibrate run's
+    stopped.update(fit=None, status="stopped",
+                   message="the maximum number of generations (30) was reached",
+                   settings={**job.settings, "weighting": "the noise model"})
+    fit = from_result(robot, data, stopped).result.fit
+    assert fit.verdict == CANNOT_IDENTIFY and STOPPED_CAUSE not in fit.causes, fit.causes
+    assert fit.causes[0].startswith("degenerate data: the 8 distinct identification poses "
+                                    "identify 48 of the 52 parameters"), fit.causes
+
+
+def test_a_result_with_another_number_of_parameter_names_is_refused_with_the_counts():
+    """``parameter_names`` one short of ``x`` (a hand-edited file): the error said "zip()
+    argument 2 is longer than argument 1"."""
+    from iwr import kinds
+    from iwr.calibration import check_result
+
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 20, seed=3, noise=NOISE)
+    res = iwr.identify(robot, data, "lm")
+    res.update(parameter_names=list(res.parameter_names)[:-1])
+    with pytest.raises(ValueError, match=r"parameter_names has 57 names for the 58 values of x"):
+        check_result(robot, kinds.of(data), res)
