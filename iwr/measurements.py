@@ -117,10 +117,53 @@ def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray
 
 
 
-def _row_index(rows: Any) -> np.ndarray:
-    """Row indices or a boolean mask as an index array (an empty list is no rows)."""
-    idx = np.asarray(rows)
-    return idx if idx.dtype == bool else idx.astype(np.intp, copy=False)
+_ROWS = "expected row indices (integers), a boolean mask of the rows or a slice"
+
+
+def _row_index(rows: Any, n: int) -> np.ndarray:
+    """``rows`` of data of ``n`` rows as an index array: integer indices (negative ones from the
+    end, as in NumPy), a boolean mask of exactly ``n`` values, or a slice; an empty list is no
+    rows. Anything else is refused naming ``rows``: a fractional or float index (NumPy refuses
+    them as indices; truncating 1.7 to 1 would pick another row), a string, booleans mixed with
+    integers, a mask of another length, an index out of range, more than one dimension."""
+    if isinstance(rows, slice):
+        return np.arange(n)[rows]
+    if isinstance(rows, (str, bytes)):
+        raise ValueError(f"rows: {rows!r}; {_ROWS}")
+    try:
+        idx = np.asarray(rows)
+    except (TypeError, ValueError):  # ragged nesting
+        raise ValueError(f"rows: {rows!r:.80}; {_ROWS}") from None
+    if idx.ndim != 1:
+        one = f" (one row: [{rows!r}])" if idx.ndim == 0 and idx.dtype.kind in "iu" else ""
+        raise ValueError(f"rows: {'shape ' + str(idx.shape) if idx.ndim else repr(rows)}; "
+                         f"{_ROWS}{one}")
+    if idx.dtype == bool:
+        if idx.size != n:
+            raise ValueError(f"rows: a boolean mask of {idx.size} values for {n} rows; a mask has "
+                             "one value per row")
+        return idx
+    if idx.size == 0:
+        return np.zeros(0, dtype=np.intp)
+    if idx.dtype.kind not in "iu":  # floats, strings, objects: integers only, as NumPy indexes
+        items = list(rows) if isinstance(rows, (list, tuple)) else idx.tolist()
+        for k, v in enumerate(items):
+            if isinstance(v, (bool, np.bool_)) or not isinstance(v, (int, np.integer)):
+                why = " (a float index is not rounded)" if isinstance(v, float) else ""
+                raise ValueError(f"rows: entry {k} is {v!r}, not an integer index{why}; {_ROWS}")
+        # Python integers: any size compares exactly.
+        idx = np.array([int(v) for v in items], dtype=object)
+    elif isinstance(rows, (list, tuple)):  # [True, 2] is an integer array to NumPy
+        for k, v in enumerate(rows):
+            if isinstance(v, (bool, np.bool_)):
+                raise ValueError(f"rows: entry {k} is {v!r} among integers; {_ROWS} (a mask is "
+                                 "all booleans)")
+    out = np.flatnonzero((idx < -n) | (idx >= n))
+    if out.size:
+        k = int(out[0])
+        raise IndexError(f"rows: entry {k} is {idx[k]}, beyond the {n} rows (0 to {n - 1}, or "
+                         "negative from the end)")
+    return idx.astype(np.intp)
 
 
 class MeasurementFileError(ValueError):
@@ -226,7 +269,7 @@ class RobotReadings:
     def _rows(self, rows: Any) -> np.ndarray:
         """The indices of ``rows`` (indices or a boolean mask), in that order; ValueError when
         none is selected."""
-        out = np.arange(len(self))[_row_index(rows)]
+        out = np.arange(len(self))[_row_index(rows, len(self))]
         if out.size == 0:
             raise ValueError("rows: no measurements selected")
         return out
@@ -382,8 +425,10 @@ class Measurements(RobotReadings):
         self.payload, self.temperatures = _effect_inputs(payload, temperatures, n)
 
     def subset(self, rows: Any) -> Measurements:
-        """The measurements at the given row indices (or boolean mask)."""
-        idx = _row_index(rows)
+        """The measurements at the given rows: integer indices (in that order; negative ones
+        from the end), a boolean mask of one value per row, or a slice. A fractional index, a
+        mask of another length or an index beyond the rows is refused, naming it."""
+        idx = _row_index(rows, len(self))
         return Measurements(
             self.q[idx],
             self.poses[idx],

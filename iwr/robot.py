@@ -20,8 +20,10 @@ from .robot_file import (
     _DH_ANGLE,
     _DH_COLUMNS,
     _POSE_UNITS,
+    MAX_DH_ANGLE_RAD,
     RobotFileError,
     _provenance,
+    dh_degrees_problem,
     read_toml,
     robot_arguments,
     write_toml,
@@ -112,7 +114,8 @@ class Robot:
     use them when ``--noise`` is not given; the Python API never does on its own: pass
     ``noise=robot.noise_model`` (docs/estimation.md).
 
-    Lengths beyond 1e5 mm (100 m) or angles beyond 1e3 rad are refused: no robot has them.
+    Lengths beyond 1e5 mm (100 m) or angles beyond 1e3 rad are refused: no robot has them. A DH
+    angle (``alpha``, ``theta``) beyond 2 pi is refused too: it was written in degrees.
     """
 
     def __init__(
@@ -142,6 +145,11 @@ class Robot:
         self.name = str(name)
         self.joint_types = joint_types
         self.dh = _as_array(dh, (n, 4), "dh", ["rad", "mm", "mm", "rad"]) if n else np.zeros((0, 4))
+        for i, row in enumerate(self.dh):
+            for c, col in enumerate(_DH_COLUMNS):
+                why = dh_degrees_problem(float(row[c])) if _DH_ANGLE[col] else None
+                if why:
+                    raise ValueError(f"dh: joint {i + 1} (row {i}) {col}: {why}")
         joint_units = np.array([["mm"] if c == "P" else ["rad"] for c in joint_types]).reshape(n, 1)
         self.joint_limits = (
             _as_array(joint_limits, (n, 2), "joint_limits", joint_units) if n
@@ -242,6 +250,11 @@ class Robot:
         x = _as_array(x, (self.n_params,), "x")
         n = self.n_joints
         dh = self.dh + x[: 4 * n].reshape(n, 4)
+        # A nominal angle near +-2 pi plus its error may pass 2 pi, which the constructor refuses
+        # as degrees: there, the same rotation within +-pi (any other angle is kept as it is).
+        angles = dh[:, [0, 3]]
+        dh[:, [0, 3]] = np.where(np.abs(angles) > MAX_DH_ANGLE_RAD,
+                                 np.remainder(angles + math.pi, 2 * math.pi) - math.pi, angles)
         return Robot(
             self.joint_types,
             dh,

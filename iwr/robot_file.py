@@ -19,7 +19,7 @@ import numpy as np
 
 from . import kinds
 from ._io import NotRegularFileError, atomic_write_text, open_regular
-from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM, METRE_SUSPICION
+from .measurements import MAX_ANGLE_RAD, MAX_LENGTH_MM, MAX_POSE_ANGLE_RAD, METRE_SUSPICION
 from .noise import MIN_SIGMA, Noise, TrackerNoise
 
 if sys.version_info >= (3, 11):
@@ -35,6 +35,21 @@ _DH_COLUMNS = ("alpha", "a", "d", "theta")
 
 
 _DH_ANGLE = {"alpha": True, "a": False, "d": False, "theta": True}
+
+
+#: The largest magnitude of a nominal DH angle (alpha, theta; rad): a larger one was written in
+#: degrees (alpha = 90), as the tracker's setup and the pose data refuse (any angle is within
+#: +-2 pi of the same rotation).
+MAX_DH_ANGLE_RAD = MAX_POSE_ANGLE_RAD
+
+
+def dh_degrees_problem(value: float) -> str | None:
+    """Why a DH angle ``value`` (rad) looks like degrees (beyond 2 pi), or None."""
+    if abs(value) <= MAX_DH_ANGLE_RAD:
+        return None
+    return (f"{value:g} is beyond +-2 pi: DH angles are in radians, and this looks like degrees "
+            f"({value:g} deg = {math.radians(value):.4f} rad); convert the carriage's alpha and "
+            "theta")
 
 
 class RobotFileError(ValueError):
@@ -322,6 +337,10 @@ def robot_arguments(data: Mapping[str, Any]) -> tuple[tuple[Any, ...], dict[str,
         types += "P" if kind == "prismatic" else "R"
         dh.append([_number(joint[c], f"{where}.{c}", "rad" if _DH_ANGLE[c] else "mm")
                    for c in _DH_COLUMNS])
+        for c, v in zip(_DH_COLUMNS, dh[-1], strict=True):
+            why = dh_degrees_problem(v) if _DH_ANGLE[c] else None
+            if why:
+                raise ValueError(f"{where}.{c} (joint {i + 1}): {why}")
         limits.append(_numbers(joint["limits"], 2, f"{where}.limits",
                                ["mm" if kind == "prismatic" else "rad"] * 2))
     hexa = data["hexapod"]

@@ -338,3 +338,37 @@ def test_revolute_joint_readings_in_degrees_are_named_by_column(tmp_path, data, 
     with pytest.raises(iwr.MeasurementFileError,
                        match=r"data.csv: column q3_rad: joint 3's readings look like degrees"):
         iwr.Measurements.from_csv(path, robot=robot)
+
+
+@pytest.mark.parametrize(
+    "rows, error, match",
+    [
+        ([0.5, 1.7], ValueError, r"rows: entry 0 is 0\.5, not an integer index \(a float index is "
+                                 r"not rounded\)"),
+        (np.array([1.0, 2.0]), ValueError, r"rows: entry 0 is 1\.0, not an integer index"),
+        ([1, 2.5], ValueError, r"rows: entry 1 is 2\.5, not an integer index"),
+        ([1, "x"], ValueError, r"rows: entry 1 is 'x', not an integer index"),
+        ([True, 1], ValueError, r"rows: entry 0 is True among integers"),
+        ([True, False], ValueError, r"rows: a boolean mask of 2 values for 30 rows"),
+        (np.ones(31, dtype=bool), ValueError, r"rows: a boolean mask of 31 values for 30 rows"),
+        ([[0, 1]], ValueError, r"rows: shape \(1, 2\)"),
+        (3, ValueError, r"rows: 3; expected row indices .* \(one row: \[3\]\)"),
+        ([30], IndexError, r"rows: entry 0 is 30, beyond the 30 rows \(0 to 29"),
+        ([0, -31], IndexError, r"rows: entry 1 is -31, beyond the 30 rows"),
+        ([2**70], IndexError, rf"rows: entry 0 is {2**70}, beyond the 30 rows"),
+    ],
+)
+def test_subset_refuses_what_is_not_rows(data, rows, error, match):
+    """Fractional indices were truncated (``[0.5, 1.7]`` picked rows 0 and 1, silently); a mask of
+    another length, an index beyond the rows or booleans mixed with integers are named too."""
+    with pytest.raises(error, match=match):
+        data.subset(rows)
+
+
+def test_subset_takes_integers_masks_and_slices(data):
+    mask = np.arange(len(data)) % 3 == 0
+    for rows, expected in [([4, 7, -1], [4, 7, 29]), (np.array([2, 2], dtype=np.uint8), [2, 2]),
+                           (range(3), [0, 1, 2]), ((5,), [5]), ([np.int64(6)], [6]),
+                           (mask, np.flatnonzero(mask)), (mask.tolist(), np.flatnonzero(mask)),
+                           (slice(10, 4, -2), [10, 8, 6]), (slice(None), np.arange(30))]:
+        np.testing.assert_array_equal(data.subset(rows).legs, data.legs[expected])

@@ -180,3 +180,67 @@ def test_real_hexapods_pass_the_physical_checks(tmp_path, robot):
     d = robot.to_dict()
     d["hexapod"]["base_joints"][1] = list(d["hexapod"]["base_joints"][0])
     iwr.Robot.from_dict(d)
+
+
+@pytest.mark.parametrize("old, new, key, value", [
+    ("alpha = 1.5707963267948966", "alpha = 90.0", r"carriage.joints\[0\].alpha \(joint 1\)", "90"),
+    ("theta = 1.5707963267948966", "theta = -90", r"carriage.joints\[1\].theta \(joint 2\)",
+     "-90"),
+])
+def test_dh_angles_in_degrees_are_refused_naming_file_row_and_value(tmp_path, old, new, key,
+                                                                    value):
+    """As the tracker's setup refuses an angle beyond 2 pi, written in degrees (alpha = 90 was read
+    as 90 rad, a robot that no data fit)."""
+    iwr.Robot.default().to_toml(tmp_path / "r.toml")
+    text = (tmp_path / "r.toml").read_text()
+    assert old in text
+    (tmp_path / "r.toml").write_text(text.replace(old, new, 1))
+    with pytest.raises(iwr.RobotFileError,
+                       match=rf"r.toml: {key}: {value} is beyond \+-2 pi: DH angles are in "
+                             rf"radians, and this looks like degrees \({value} deg = "):
+        iwr.Robot.from_toml(tmp_path / "r.toml")
+
+
+def test_dh_angles_in_degrees_are_refused_in_python():
+    r = iwr.Robot.default()
+    for col, name in ((0, "alpha"), (3, "theta")):
+        dh = r.dh.copy()
+        dh[2, col] = 180.0
+        with pytest.raises(ValueError, match=rf"dh: joint 3 \(row 2\) {name}: 180 is beyond "
+                                             r"\+-2 pi.*\(180 deg = 3\.1416 rad\)"):
+            iwr.Robot(r.joint_types, dh, r.joint_limits, r.base_joints, r.platform_joints,
+                      r.leg_offsets, r.leg_stroke)
+    dh = r.dh.copy()
+    dh[:, [0, 3]] = [[2 * np.pi, -2 * np.pi]] * 4  # 2 pi itself is an angle in radians
+    iwr.Robot(r.joint_types, dh, r.joint_limits, r.base_joints, r.platform_joints,
+              r.leg_offsets, r.leg_stroke)
+
+
+def test_built_in_robots_and_examples_have_dh_angles_in_radians():
+    from pathlib import Path
+
+    examples = Path(__file__).resolve().parents[1] / "examples"
+    robots = [iwr.Robot.default(), iwr.Robot.hexapod()]
+    robots += [iwr.Robot.from_toml(p) for p in sorted(examples.glob("*.toml"))]
+    assert len(robots) >= 4
+    for robot in robots:
+        assert np.all(np.abs(robot.dh[:, [0, 3]]) <= 2 * np.pi), robot.name
+
+
+def test_a_calibrated_angle_past_2_pi_is_the_same_rotation_within_it(tmp_path):
+    """A nominal theta near 2 pi plus its identified error passes 2 pi: ``with_errors`` keeps the
+    rotation, 2 pi nearer zero, so that the calibrated robot is written and read back."""
+    r = iwr.Robot.default()
+    dh = r.dh.copy()
+    dh[2, 3] = 6.2
+    near = iwr.Robot(r.joint_types, dh, r.joint_limits, r.base_joints, r.platform_joints,
+                     r.leg_offsets, r.leg_stroke)
+    x = np.zeros(r.n_params)
+    x[11] = 0.2  # joint 3's dtheta
+    calibrated = near.with_errors(x)
+    assert calibrated.dh[2, 3] == pytest.approx(6.4 - 2 * np.pi)
+    q = [100.0, 200.0, 0.3, -0.2]
+    np.testing.assert_allclose(calibrated.carriage_transform(q), near.carriage_transform(q, x),
+                               atol=1e-12)
+    calibrated.to_toml(tmp_path / "c.toml")
+    assert iwr.Robot.from_toml(tmp_path / "c.toml") == calibrated

@@ -165,7 +165,14 @@ py::dict run_de(de::BatchFunction& f, Session& session, const de::Settings& sett
                 double interval, const py::object& resume, bool return_state) {
     if (!(interval > 0 && interval <= 1))
         throw std::invalid_argument("interval: " + std::to_string(interval) + "; expected (0, 1] s");
-    ThreadPool pool(threads);
+    // Too many threads for this machine: the pool's refusal, named by the Python argument.
+    std::unique_ptr<ThreadPool> owned;
+    try {
+        owned = std::make_unique<ThreadPool>(threads);
+    } catch (const std::invalid_argument& e) {
+        throw std::invalid_argument("workers: " + std::to_string(threads) + "; " + e.what());
+    }
+    ThreadPool& pool = *owned;
     de::State st;
     if (!resume.is_none()) {
         std::istringstream in(std::string(resume.cast<py::bytes>()));

@@ -368,9 +368,27 @@ double seconds_since(Clock::time_point t0) {
     return std::chrono::duration<double>(Clock::now() - t0).count();
 }
 
-void sanitize(double* c, std::size_t n) {
-    for (std::size_t i = 0; i < n; ++i)
-        if (std::isnan(c[i])) c[i] = std::numeric_limits<double>::infinity();
+// The costs c of the n rows of x (d values each) as the engine ranks them: NaN counts as +inf
+// (the worst: a point the objective cannot evaluate is never selected). A cost of -inf is no
+// point's cost (iwr's are sums of squares; a minimum is finite): std::invalid_argument naming the
+// row, its cost and its vector, where it would otherwise be a best cost no trial can improve on,
+// "reaching" any target (the default one, -inf, too). `what` names the rows: "population" or
+// "trial". Reads the costs only (and writes +inf over NaN): the run's bits are unchanged.
+void sanitize(const double* x, int d, double* c, std::size_t n, const char* what) {
+    for (std::size_t i = 0; i < n; ++i) {
+        if (std::isnan(c[i])) {
+            c[i] = std::numeric_limits<double>::infinity();
+        } else if (c[i] == -std::numeric_limits<double>::infinity()) {
+            constexpr int kShown = 12;
+            const double* xi = x + i * static_cast<std::size_t>(d);
+            std::string v;
+            for (int j = 0; j < std::min(d, kShown); ++j) v += (j ? ", " : "") + str(xi[j]);
+            if (d > kShown) v += ", ... (" + str(d) + " values)";
+            bad("objective: cost -inf at x = [" + v + "] (" + what + " row " + str(i) +
+                "); a cost must be a number or +inf (NaN counts as +inf): -inf is no minimum, "
+                "check the objective");
+        }
+    }
 }
 
 int initial_np(const State& st) { return static_cast<int>(st.streams.size()) - 1; }
@@ -1070,7 +1088,7 @@ State init(const Settings& settings, BatchFunction& f, ThreadPool& pool) {
     });
     st.costs.resize(np);
     f.evaluate(st.population.data(), static_cast<std::size_t>(np), st.costs.data(), pool);
-    sanitize(st.costs.data(), static_cast<std::size_t>(np));
+    sanitize(st.population.data(), d, st.costs.data(), static_cast<std::size_t>(np), "population");
     st.nfev = np;
     st.generation = 0;
     if (s.strategy == Strategy::jde) {
@@ -1149,11 +1167,11 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
                               [&](std::size_t b, std::size_t e, int) { make_trials_of(b, e); });
             f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
         }
+        sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
     } catch (...) {
         st.streams = std::move(saved);  // the state is left as it was before this step
         throw;
     }
-    sanitize(tcost.data(), static_cast<std::size_t>(ne));
     st.nfev += ne;
 
     // Selection, eq. (14), serially in slot order (the archive and the memories depend on order).
@@ -1201,7 +1219,11 @@ void require_budget_for_init(const Settings& resolved, const Stop& stop) {
 
 StopReason check_stop(const State& st, const Stop& stop, double seconds) {
     const double best = st.best_cost();
-    if (best <= stop.target_cost) return StopReason::target;
+    // A target is reached by a finite best only, and only when one is set (the default -inf is
+    // none): +inf (every cost NaN or +inf) reaches no target.
+    if (stop.target_cost > -std::numeric_limits<double>::infinity() && std::isfinite(best) &&
+        best <= stop.target_cost)
+        return StopReason::target;
     if (stop.tol > 0 || stop.atol > 0) {
         const double mean = st.costs.mean();
         if (std::isfinite(mean)) {
@@ -1274,6 +1296,9 @@ RunResult run(State& st, BatchFunction& f, ThreadPool& pool, const Stop& stop,
     r.success = reason == StopReason::target || reason == StopReason::converged ||
                 reason == StopReason::stagnation;
     r.message = stop_message(reason, st, stop);
+    if (!std::isfinite(st.best_cost()))
+        r.message += "; no finite cost was found (the objective returned NaN or +inf for every "
+                     "point evaluated)";
     return r;
 }
 
@@ -1418,8 +1443,10 @@ State State::from_bytes(const std::string& bytes) {
         }
     const std::vector<double> c = r.doubles("costs");
     if (c.size() != np) corrupt("costs have the wrong size");
-    for (double v : c)
+    for (double v : c) {
         if (std::isnan(v)) corrupt("NaN cost");
+        if (v == -std::numeric_limits<double>::infinity()) corrupt("-inf cost");  // never kept
+    }
     st.costs = Eigen::Map<const VectorXd>(c.data(), st.np);
     const std::uint64_t ns = r.u64("stream count");
     if (ns != static_cast<std::uint64_t>(s.population_size) + 1) corrupt("wrong number of random streams");

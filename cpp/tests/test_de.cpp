@@ -221,6 +221,64 @@ IWR_TEST(validation) {
     CHECK(throws_naming([&] { iwr::de::run(st, g, pool, iwr::de::Stop()); }, "stopping"));
 }
 
+// A TestFunction whose cost is `value` in the rows where x[0] > `above` (all rows by default).
+class WithCost : public iwr::de::BatchFunction {
+public:
+    WithCost(int d, double value, double above = -1e300) : f_(d), value_(value), above_(above) {}
+    int dim() const override { return f_.dim(); }
+    void evaluate(const double* X, std::size_t m, double* out, iwr::ThreadPool& pool) override {
+        f_.evaluate(X, m, out, pool);
+        for (std::size_t i = 0; i < m; ++i)
+            if (X[i * static_cast<std::size_t>(f_.dim())] > above_) out[i] = value_;
+    }
+
+private:
+    TestFunction f_;
+    double value_, above_;
+};
+
+IWR_TEST(minus_infinite_cost_is_an_error_not_a_target) {
+    // A cost of -inf is no point's cost: an error naming the cost and the vector, never "the
+    // target -inf reached" (the default target, no target at all), at init or in a step.
+    iwr::ThreadPool pool(2);
+    const auto set = settings_for(Strategy::rand1bin, 3, 4);
+    WithCost all(3, -INFINITY);
+    CHECK(throws_naming([&] { iwr::de::init(set, all, pool); }, "cost -inf"));
+    CHECK(throws_naming([&] { iwr::de::init(set, all, pool); }, "x = ["));
+    TestFunction g(3);
+    auto st = iwr::de::init(set, g, pool);
+    const auto streams = st.streams;
+    WithCost some(3, -INFINITY, 1.0);
+    CHECK(throws_naming([&] { iwr::de::step(st, some, pool); }, "cost -inf"));
+    CHECK(st.generation == 0 && st.streams[1].s[0] == streams[1].s[0]);  // the step undone
+    iwr::de::Stop stop;
+    stop.max_generations = 5;
+    CHECK(throws_naming([&] { iwr::de::run(st, some, pool, stop); }, "cost -inf"));
+}
+
+IWR_TEST(no_finite_cost_is_no_success) {
+    // NaN and +inf count as the worst cost: a run where every cost is NaN ends at its budget, no
+    // success, saying that no cost was finite; a target of +inf is not reached by +inf.
+    iwr::ThreadPool pool(1);
+    const auto set = settings_for(Strategy::rand1bin, 3, 5);
+    for (double bad : {NAN, INFINITY}) {
+        WithCost f(3, bad);
+        auto st = iwr::de::init(set, f, pool);
+        iwr::de::Stop stop;
+        stop.max_generations = 3;
+        stop.target_cost = INFINITY;
+        const auto r = iwr::de::run(st, f, pool, stop);
+        CHECK(!r.success && r.reason == iwr::de::StopReason::generations);
+        CHECK(r.message.find("no finite cost") != std::string::npos);
+    }
+    // No target given: a finite best never stops the run as "target".
+    TestFunction g(3);
+    auto st = iwr::de::init(set, g, pool);
+    iwr::de::Stop stop;
+    stop.max_generations = 2;
+    CHECK(iwr::de::run(st, g, pool, stop).reason == iwr::de::StopReason::generations);
+}
+
 }  // namespace
 
 IWR_TEST_MAIN

@@ -13,7 +13,8 @@ from scipy.optimize import OptimizeResult
 
 from .reduced import ReducedProblem
 
-__all__ = ["Monitor", "Stop", "check_budget", "int_arg", "show_progress", "call_back"]
+__all__ = ["INT32_MAX", "INT64_MAX", "Monitor", "Stop", "call_back", "check_budget", "int_arg",
+           "show_progress"]
 
 #: Evaluations between two progress-bar updates (tqdm's own throttling costs a clock read).
 _BAR_EVERY = 64
@@ -23,18 +24,30 @@ class Stop(Exception):
     """Raised inside a method's objective wrapper to end the run; the monitor knows why."""
 
 
-def int_arg(name: str, value: Any, minimum: int) -> int:
-    """``value`` as an integer >= ``minimum`` (not a bool), else a ValueError naming it."""
+#: The largest values of the C++ integer types the methods' arguments are passed as (``int``, the
+#: threads and sizes; ``int64``, the generation and evaluation counts): a larger Python integer
+#: would fail pybind11's (or NLopt's) conversion with a dump of the signature, not naming it.
+INT32_MAX = 2**31 - 1
+INT64_MAX = 2**63 - 1
+
+
+def int_arg(name: str, value: Any, minimum: int, maximum: int | None = None) -> int:
+    """``value`` as an integer >= ``minimum`` (and <= ``maximum``, when given): a Python or NumPy
+    integer, not a bool nor a float (2.5 or 3.0), else a ValueError naming ``name`` and the
+    value."""
+    expected = (f"an integer >= {minimum}" if maximum is None
+                else f"an integer from {minimum} to {maximum}")
     if isinstance(value, (bool, np.bool_)) or not isinstance(value, (int, np.integer)):
-        raise ValueError(f"{name}: {value!r}; expected an integer >= {minimum}")
-    if value < minimum:
-        raise ValueError(f"{name}: {value}; expected an integer >= {minimum}")
+        raise ValueError(f"{name}: {value!r}; expected {expected}")
+    if value < minimum or (maximum is not None and value > maximum):
+        raise ValueError(f"{name}: {value}; expected {expected}")
     return int(value)
 
 
-def check_budget(value: Any, minimum: int = 1) -> int:
-    """``max_evaluations``, the budget every method takes, as an integer >= ``minimum``."""
-    return int_arg("max_evaluations", value, minimum)
+def check_budget(value: Any, minimum: int = 1, maximum: int | None = None) -> int:
+    """``max_evaluations``, the budget every method takes, as an integer >= ``minimum`` (and
+    <= ``maximum``: the range of the integer type a method passes it as)."""
+    return int_arg("max_evaluations", value, minimum, maximum)
 
 
 def show_progress(progress: bool | None) -> bool:

@@ -48,7 +48,7 @@ from scipy.optimize import Bounds, OptimizeResult
 
 from .. import _core
 from ..result import IdentificationResult
-from ._run import call_back, check_budget, int_arg
+from ._run import INT32_MAX, INT64_MAX, call_back, check_budget, int_arg
 from .lm import levenberg_marquardt
 from .reduced import ReducedProblem
 
@@ -133,7 +133,8 @@ class _Run:
             raise ValueError(f"strategy: {strategy!r}; expected one of {', '.join(STRATEGIES)}")
         self.strategy = strategy
         self.population_size = (
-            0 if population_size is None else int_arg("population_size", population_size, 1)
+            0 if population_size is None
+            else int_arg("population_size", population_size, 1, INT32_MAX)
         )
         self.F = math.nan if F is None else _float_arg("F", F)
         if F is not None and not self.F > 0:
@@ -145,7 +146,7 @@ class _Run:
         if workers is None:
             self.threads = 0
         else:
-            self.threads = int_arg("workers", workers, 1)
+            self.threads = int_arg("workers", workers, 1, INT32_MAX)
         options = dict(options)
         self.bound_rule = options.pop("bound_rule", "midpoint")
         if self.bound_rule not in ("midpoint", "reinit", "reflect", "clip"):
@@ -159,15 +160,15 @@ class _Run:
                 value = options.pop(key)
                 if value is not None:
                     if key in ("memory_size", "min_population_size"):
-                        value = int_arg(key, value, 1)
+                        value = int_arg(key, value, 1, INT32_MAX)
                     else:
                         value = _float_arg(key, value)
                     self.extra[key] = value
         max_evaluations = options.pop("max_evaluations", None)
         if max_evaluations is not None:
-            max_evaluations = int_arg("max_evaluations", max_evaluations, 1)
+            max_evaluations = int_arg("max_evaluations", max_evaluations, 1, INT64_MAX)
         if generations is not None:
-            generations = int_arg("generations", generations, 0)
+            generations = int_arg("generations", generations, 0, INT64_MAX)
         # lshade and jso plan their schedules over an evaluation budget (default 10000 D, the CEC
         # budget); the other strategies run DEFAULT_GENERATIONS unless told otherwise.
         if strategy in _BUDGETED:
@@ -184,7 +185,7 @@ class _Run:
         self.atol = _float_arg("atol", options.pop("atol", 0.0))
         stag = options.pop("stagnation_generations", None)
         self.stagnation_generations = 0 if stag is None else int_arg(
-            "stagnation_generations", stag, 1
+            "stagnation_generations", stag, 1, INT64_MAX
         )
         self.stagnation_tol = _float_arg("stagnation_tol", options.pop("stagnation_tol", 0.0))
         max_seconds = options.pop("max_seconds", None)
@@ -310,7 +311,8 @@ def differential_evolution(
         ``func(X)`` with ``X`` an (M, D) float array, one candidate per row, returns M costs. It is
         called once per generation with the whole population (M = NP; the initial population is
         the first call), except that the last generation of an evaluation budget
-        (``max_evaluations``) may pass fewer rows. NaN costs count as +infinity.
+        (``max_evaluations``) may pass fewer rows. NaN costs count as +infinity (the worst); a
+        cost of -infinity is a ValueError naming the vector (it is no minimum).
     bounds : sequence of (min, max) pairs, or scipy.optimize.Bounds
         The search box; finite, ``min < max``.
     strategy : str
@@ -340,7 +342,8 @@ def differential_evolution(
     progress : bool, optional
         A tqdm progress bar on standard error (default off here; ``None``: when it is a terminal).
     **options
-        ``max_evaluations``; ``target_cost`` (stop when the best cost is <= it); ``tol``, ``atol``
+        ``max_evaluations``; ``target_cost`` (stop when the best cost, finite, is <= it; no target
+        by default); ``tol``, ``atol``
         (SciPy's test ``std(costs) <= atol + tol |mean(costs)|``, off by default);
         ``stagnation_generations`` and ``stagnation_tol`` (stop when the best improved by no more
         than ``stagnation_tol |best|`` over that many generations); ``max_seconds``;
@@ -353,7 +356,8 @@ def differential_evolution(
     -------
     OptimizeResult
         ``x``, ``fun``, ``nfev``, ``nit`` (generations), ``success`` (True when a target, ``tol``
-        or stagnation test stopped the run; a spent budget is not success, as in SciPy),
+        or stagnation test stopped the run; a spent budget is not success, as in SciPy, nor a run
+        that found no finite cost, which its message says),
         ``message``, ``population``, ``population_energies``, ``history`` (per generation:
         ``generation``, ``nfev``, ``best``, ``mean``, ``spread``, ``elapsed``), ``settings`` and
         ``wall_time``. Ctrl-C stops the run within a fraction of a second and returns the best so
@@ -363,7 +367,9 @@ def differential_evolution(
     ------
     ValueError
         A bad argument, named with its value (NP below what the strategy needs, F <= 0, CR outside
-        [0, 1], bad bounds, an unknown strategy, a wrong shape returned by ``func``).
+        [0, 1], an integer argument that is not one or is beyond the engine's integer types or
+        the machine's threads, bad bounds, an unknown strategy, a wrong shape returned by
+        ``func``, a cost of -inf).
     """
     lower, upper = _bounds_arg(bounds)
     if not callable(func):
@@ -485,7 +491,7 @@ def de_method(
         if generations is None:
             generations = PAPER_PRESET["generations"]
     if max_evaluations is not None:
-        options["max_evaluations"] = check_budget(max_evaluations)
+        options["max_evaluations"] = check_budget(max_evaluations, 1, INT64_MAX)
     reduced = problem
     run = _Run(
         reduced.n, strategy=strategy, population_size=population_size, F=F, CR=CR,

@@ -7,6 +7,7 @@ from collections.abc import Callable
 from typing import Any
 
 from ..result import IdentificationResult
+from ._run import INT32_MAX, check_budget
 from .reduced import ReducedProblem
 
 
@@ -35,8 +36,8 @@ def efficient_method(
             "(e.g. iwr.Noise.realistic()) or noise='estimate'; without a noise model use eq. "
             "(10), method='lm'"
         )
-    if max_evaluations is not None:
-        options.setdefault("max_iterations", int(max_evaluations))
+    if max_evaluations is not None:  # the C++ loop's max_iterations: an int
+        options.setdefault("max_iterations", check_budget(max_evaluations, 1, INT32_MAX))
     p = problem.problem
     # The problem's bounds are the parameters' expected range: the plausibility test's yardstick.
     options.setdefault("bounds", (p.lower, p.upper))
@@ -61,8 +62,8 @@ def efficient_on(robot: Any, measurements: Any, noise: Any, problem_of: Callable
                          f"noise={noise_hint} or noise='estimate'")
     if weighted is False:
         raise ValueError("weighted=False: the efficient estimator always weighs by the noise")
-    if max_evaluations is not None:
-        options.setdefault("max_iterations", int(max_evaluations))
+    if max_evaluations is not None:  # the C++ loop's max_iterations: an int
+        options.setdefault("max_iterations", check_budget(max_evaluations, 1, INT32_MAX))
     if isinstance(active, str) and active == "base":
         active = None
     if active is not None:

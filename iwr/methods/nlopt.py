@@ -19,7 +19,7 @@ import numpy as np
 from scipy.optimize import OptimizeResult
 
 from ..result import IdentificationResult
-from ._run import Monitor, Stop, check_budget, int_arg
+from ._run import INT32_MAX, Monitor, Stop, check_budget, int_arg
 from .reduced import ReducedProblem
 
 __all__ = ["crs2", "bobyqa", "DEFAULT_MAX_EVALUATIONS"]
@@ -82,7 +82,7 @@ def _run_nlopt(
 ) -> IdentificationResult:
     import nlopt
 
-    max_evaluations = check_budget(max_evaluations, 1)
+    max_evaluations = check_budget(max_evaluations, 1, INT32_MAX)  # NLopt's maxeval: a C int
     xtol = _float_option("xtol", xtol, 0.0)
     ftol = _float_option("ftol", ftol, 0.0)
     if stopval is not None:
@@ -257,7 +257,7 @@ def crs2(
 
     def configure(opt: Any, reduced: ReducedProblem, z0: np.ndarray) -> dict[str, Any]:
         if population is not None:
-            pop = int_arg("population", population, reduced.n + 1)
+            pop = int_arg("population", population, reduced.n + 1, INT32_MAX)
             opt.set_population(pop)
         return {"population": population if population is not None else 10 * (reduced.n + 1)}
 

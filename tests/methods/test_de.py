@@ -667,6 +667,101 @@ def test_nan_costs_are_never_selected():
     assert np.isfinite(res.fun) and res.x[0] <= 0 and res.fun < 1e-6
 
 
+@pytest.mark.parametrize("where", ["initial population", "a later generation"])
+def test_minus_infinite_cost_is_an_error_naming_the_vector(where):
+    """A cost of -inf is no minimum (the engine took it as the best, and with the default target,
+    -inf, no target at all, reported "the best cost -inf reached the target -inf", success): a
+    ValueError naming the cost and the vector, as SciPy never calls an infinite population
+    converged. NaN and +inf stay the worst cost."""
+    calls = []
+
+    def func(X):
+        calls.append(len(X))
+        c = sphere(X)
+        if where == "initial population" or len(calls) > 3:
+            c[1] = -np.inf
+        return c
+
+    row = "population" if where == "initial population" else "trial"
+    with pytest.raises(ValueError, match=rf"objective: cost -inf at x = \[-?\d.*\] \({row} "
+                                         r"row 1\).*-inf is no minimum"):
+        iwr.differential_evolution(func, [(-5, 5)] * 3, generations=10, seed=0)
+
+
+def test_minus_infinite_cost_through_identify_is_an_error():
+    """The same through iwr.identify's DE on a problem whose cost is the user's (a Python
+    ``cost_batch``, no C++ objective)."""
+    from iwr.methods import run_method
+
+    robot = iwr.Robot.default()
+    m, _ = iwr.simulate(robot, n_poses=20, seed=3)
+    problem = iwr.Problem(robot, m)
+    batch = problem.cost_batch
+
+    def cost_batch(X, workers=None):
+        c = batch(X, workers)
+        c[-1] = -np.inf
+        return c
+
+    problem.engine_objective = lambda: None
+    problem.cost_batch = cost_batch
+    active = np.ones(problem.n_params, dtype=bool)
+    with pytest.raises(ValueError,
+                       match=r"objective: cost -inf at x = \[.*, \.\.\. \(58 values\)\]"):
+        run_method(problem, "de", active, np.zeros(problem.n_params), generations=3, seed=1,
+                   population_size=20, polish=False, progress=False)
+
+
+@pytest.mark.parametrize("bad", [np.nan, np.inf])
+def test_no_finite_cost_is_no_success(bad):
+    """Every cost NaN or +inf: the run ends at its budget, no success, saying so; a target of
+    +inf is not reached by +inf."""
+    for options in ({}, {"target_cost": np.inf}):
+        res = iwr.differential_evolution(lambda X: np.full(len(X), bad), [(-1, 1)] * 2,
+                                         generations=4, seed=0, **options)
+        assert not res.success and res.reason == "generations", res.message
+        assert "no finite cost was found" in res.message and res.fun == np.inf
+
+
+@pytest.mark.parametrize(
+    "kwargs, name, shown",
+    [
+        ({"workers": 2**40}, "workers", "1099511627776"),
+        ({"workers": np.int64(2**40)}, "workers", "1099511627776"),
+        ({"workers": 2.5}, "workers", "2.5"),
+        ({"workers": True}, "workers", "True"),
+        ({"workers": -1}, "workers", "-1"),
+        ({"workers": 100_000}, "workers", "100000"),  # beyond the machine: the pool's refusal
+        ({"generations": 2**70}, "generations", str(2**70)),
+        ({"generations": 3.0}, "generations", "3.0"),
+        ({"population_size": 2**40}, "population_size", "1099511627776"),
+        ({"max_evaluations": 2**70}, "max_evaluations", str(2**70)),
+        ({"stagnation_generations": 2**63}, "stagnation_generations", str(2**63)),
+        ({"memory_size": 2**40, "strategy": "shade"}, "memory_size", "1099511627776"),
+        ({"min_population_size": 2**31, "strategy": "lshade"}, "min_population_size",
+         "2147483648"),
+    ],
+)
+def test_integer_arguments_out_of_range_are_named(kwargs, name, shown):
+    """An integer argument beyond its C++ type (or not an integer) is a one-line ValueError naming
+    it and its value, not pybind11's dump of the binding's signature."""
+    with pytest.raises(ValueError) as info:
+        iwr.differential_evolution(sphere, [(-1, 1)] * 3, **{"generations": 2, **kwargs})
+    msg = str(info.value)
+    assert msg.startswith(f"{name}: {shown}; ") and "\n" not in msg, msg
+
+
+@pytest.mark.parametrize("kwargs, name", [({"workers": 2**40}, "workers"),
+                                          ({"generations": 2**64}, "generations"),
+                                          ({"max_evaluations": 2**63}, "max_evaluations"),
+                                          ({"population_size": 2**32}, "population_size")])
+def test_integer_arguments_out_of_range_are_named_by_identify(iwr_data, kwargs, name):
+    robot, measurements, _ = iwr_data
+    with pytest.raises(ValueError, match=rf"^{name}: {list(kwargs.values())[0]}; expected an "
+                                         r"integer from \d+ to \d+$"):
+        iwr.identify(robot, measurements, "de", progress=False, **{"generations": 2, **kwargs})
+
+
 # --- bad arguments --------------------------------------------------------------------------------
 
 

@@ -286,3 +286,15 @@ def test_a_subset_of_the_parameters_is_judged_on_its_own() -> None:
         res = iwr.identify(robot, data, method, active=active, progress=False, **options)
         assert res.fit.verdict != "THE DATA CANNOT IDENTIFY THE ROBOT", (method, res.message)
         assert not any(c.startswith("degenerate data") for c in res.fit.causes), method
+
+
+@pytest.mark.parametrize("budget, shown", [(2.5, "2.5"), (True, "True"), (2**40, "1099511627776")])
+def test_efficient_budget_is_an_integer_within_its_cpp_type(robot, data, budget, shown):
+    """The efficient estimator's ``max_evaluations`` (its C++ loop's ``max_iterations``, an int):
+    2.5 was truncated to 2 and True taken as 1, silently; 2**40 gave pybind11's dump of the
+    binding's signature. Each is a ValueError naming it."""
+    m, _ = data
+    with pytest.raises(ValueError, match=rf"^max_evaluations: {shown}; expected an integer from 1 "
+                                         r"to 2147483647$"):
+        iwr.identify(robot, m, "efficient", noise=iwr.Noise.realistic(), max_evaluations=budget,
+                     progress=False)

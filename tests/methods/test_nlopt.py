@@ -124,6 +124,24 @@ def test_bad_arguments_name_the_argument(robot, data, method, options, name):
         iwr.identify(robot, m, method, progress=False, **options)
 
 
+@pytest.mark.parametrize(
+    "method, options, shown",
+    [
+        ("crs2", {"max_evaluations": 2**40}, "max_evaluations: 1099511627776; "),
+        ("bobyqa", {"max_evaluations": 2**31}, "max_evaluations: 2147483648; "),
+        ("crs2", {"max_evaluations": 50, "population": 2**40}, "population: 1099511627776; "),
+    ],
+)
+def test_integers_beyond_nlopts_int_are_named(robot, data, method, options, shown):
+    """NLopt takes the budget as a C int: a larger one was an OverflowError from its wrapper
+    ("in method 'opt_set_maxeval', argument 2 of type 'int'"), not naming the argument."""
+    m, _ = data
+    with pytest.raises(ValueError) as info:
+        iwr.identify(robot, m, method, progress=False, **options)
+    msg = str(info.value)
+    assert msg.startswith(shown) and msg.endswith(" to 2147483647") and "\n" not in msg, msg
+
+
 def test_progress_bar_counts_evaluations_against_the_budget(robot, data, capsys):
     m, _ = data
     res = iwr.identify(robot, m, "crs2", max_evaluations=1200, seed=0, progress=True)

@@ -45,7 +45,8 @@
 //   * selection by `<=` (eq. 14): a trial equal to its target replaces it; the success memories and
 //     the archive of the adaptive strategies record only strict improvements (as in Tanabe &
 //     Fukunaga's reference code of SHADE/L-SHADE);
-//   * a NaN cost is treated as +infinity (never selected over a finite one);
+//   * a NaN cost is treated as +infinity (never selected over a finite one); a cost of -infinity is
+//     an error (std::invalid_argument from init/step/run naming the vector), never a best cost;
 //   * binomial crossover with a forced index j_r (eq. 13), `rand < CR`;
 //   * out-of-bounds trial components: BoundRule (default `midpoint`, below).
 //
@@ -370,7 +371,8 @@ void step(State& state, BatchFunction& f, ThreadPool& pool, std::int64_t max_tri
 struct Stop {
     std::int64_t max_generations = -1;  ///< stop when generation >= this; < 0: no limit
     std::int64_t max_evaluations = -1;  ///< stop when nfev >= this; < 0: no limit
-    double target_cost = -std::numeric_limits<double>::infinity();  ///< stop when best <= this
+    /// stop when a finite best <= this; the default -inf: no target
+    double target_cost = -std::numeric_limits<double>::infinity();
     /// Population convergence, as scipy: std(costs) <= atol + tol |mean(costs)|; off when both 0.
     double tol = 0, atol = 0;
     /// Stagnation: the best cost improved by no more than stagnation_tol |best| over the last
