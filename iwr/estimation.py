@@ -262,8 +262,10 @@ def efficient(
         raise ValueError(f"plausible: {plausible!r}; expected a number > 0")
     for name, v in (("max_iterations", max_iterations),
                     ("max_variance_iterations", max_variance_iterations)):
-        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or v < 1:
-            raise ValueError(f"{name}: {v!r}; expected a positive integer")
+        # At most the C++ int they are passed as (pybind11 refuses a larger one with a dump
+        # of the signature, not naming it).
+        if isinstance(v, bool) or not isinstance(v, (int, np.integer)) or not 1 <= v < 2**31:
+            raise ValueError(f"{name}: {v!r}; expected an integer from 1 to {2**31 - 1}")
     if tool is not None:  # checked before the solve, which a bad one would only end
         tool = tool_point(tool)
     # The kind's model of its readings, their noise and the nuisance unknowns per pose.

@@ -490,3 +490,14 @@ def test_ctrl_c_returns_the_last_completed_solve_marked_interrupted(base_mask: n
 
     with pytest.raises(KeyboardInterrupt):
         est.efficient(ROBOT, m, NOISE, active=base_mask, callback=early)
+
+
+@pytest.mark.parametrize("name", ["max_iterations", "max_variance_iterations"])
+@pytest.mark.parametrize("value", [0, 2**40, 2.5, True])
+def test_the_efficient_estimator_s_iteration_limits_are_checked(name: str, value: object) -> None:
+    """An iteration limit beyond the C++ int it is passed as gave pybind11's dump of the
+    signature (2**40), after the data's analysis; every bad value is now refused before it,
+    naming the argument."""
+    m, _ = iwr.simulate(ROBOT, 12, seed=1, noise=NOISE)
+    with pytest.raises(ValueError, match=rf"^{name}: {value!r}; expected an integer from 1 to "):
+        est.efficient(ROBOT, m, NOISE, **{name: value})
