@@ -290,9 +290,11 @@ def test_plan(sim, tmp_path):
     assert len(chosen_q) == 12
     rows = {tuple(r) for r in np.hstack([cand.q, cand.poses])}
     assert all(tuple(r) in rows for r in np.hstack([chosen_q, chosen_poses]))
+    # Too few poses to determine the base parameters: a bad option's value, exit 2 (was 1).
     proc = run("plan", str(sim / "robot.toml"), "--n-candidates", "100", "--poses", "2",
                "--out", str(out))
-    assert_fails(proc, 1, r"--poses: 2; expected an integer from \d+")
+    assert_fails(proc, 2, r"--poses: 2; expected an integer from \d+ .* to 100 \(the number "
+                 r"of candidates, of --n-candidates 100\)")
 
 
 def test_source_folder_without_compiled_module_says_so(tmp_path):

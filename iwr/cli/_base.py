@@ -12,7 +12,8 @@ from pathlib import Path
 from typing import Any
 
 __all__ = ["UsageError", "CommandError", "option_error", "Parser", "EXIT_OK", "EXIT_ERROR",
-           "EXIT_USAGE", "EXIT_INTERRUPTED", "one_line"]
+           "EXIT_USAGE", "EXIT_INTERRUPTED", "one_line", "available_memory", "check_memory",
+           "Footprint"]
 
 EXIT_OK, EXIT_ERROR, EXIT_USAGE, EXIT_INTERRUPTED = 0, 1, 2, 130
 
@@ -278,6 +279,9 @@ def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[
     folder = Path(os.path.abspath(folder))
     while not folder.exists() and folder != folder.parent:
         folder = folder.parent
+    if folder.exists() and not folder.is_dir():  # a path under a file
+        raise UsageError(f"{option} {path}: cannot write there: {folder} is a file, not a "
+                         "folder", prog)
     if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
         raise UsageError(f"{option} {path}: cannot write there: {folder} is not a writable "
                          "folder", prog)
@@ -332,3 +336,254 @@ def check_validation_split(data: Any, fraction: float, seed: int) -> None:
         raise CommandError(f"--validation-{one_line(exc)}" + (
             f" (the poses with a weight > 0; {left} more have weight 0 for every reading and "
             "count in no set)" if left else "")) from None
+
+
+# -- sizes: a value whose memory would not fit, refused before any work ---------------------------
+#
+# Every size option of every command (poses, candidates, validation poses, grid, budgets, a study's
+# lists, workers) is checked before the work against the memory it makes the command allocate
+# (check_memory): a value the machine cannot hold is refused with exit 2 and a message naming it,
+# instead of a process killed for memory (exit 137) or failing with MemoryError after minutes. The
+# estimates are per unit of the option, from what the commands allocate (Footprint's comments say
+# what dominates; the constants are measured peaks of the default IWR, rounded up), so that they
+# err on the side of a refusal only for values within a factor of about 1.5 of the limit.
+
+#: Bytes of one logged entry of a method's history (its evaluation count and best cost, as
+#: Python numbers, their arrays and their JSON text in result.json): LM logs one per evaluation,
+#: the NLopt methods one per improvement, DE one per generation, so ``entries`` is at most the
+#: budget in evaluations or generations.
+HISTORY_ENTRY_BYTES = 256
+#: Bytes of one cell of ``iwr study`` / one run of ``iwr compare`` kept for the table and the
+#: report (its settings, figures and JSON record), besides its parameter vectors and history.
+CELL_BYTES = 16 * 1024
+#: Resident memory of one worker process of a local Dask cluster (Python, NumPy, SciPy, iwr and
+#: distributed imported), before its cell's arrays.
+WORKER_PROCESS_BYTES = 256 * 1024**2
+_F8 = 8  # bytes of a double
+
+
+def _meminfo_available() -> int | None:
+    """MemAvailable of /proc/meminfo (free memory and the page cache the kernel can drop: what
+    can be allocated without swapping), else the free pages of ``os.sysconf``."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        pages, size = os.sysconf("SC_AVPHYS_PAGES"), os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+    return pages * size if pages > 0 and size > 0 else None
+
+
+def _read_int(path: Path) -> int | None:
+    try:
+        text = path.read_text(encoding="ascii").strip()
+        return int(text) if text.isdigit() else None
+    except (OSError, ValueError):
+        return None
+
+
+def _stat_value(path: Path, key: str) -> int:
+    try:
+        for line in path.read_text(encoding="ascii").splitlines():
+            name, _, value = line.partition(" ")
+            if name == key and value.strip().isdigit():
+                return int(value)
+    except OSError:
+        pass
+    return 0
+
+
+def _cgroup_available() -> int | None:
+    """What the memory limit of this process's control group (a container's) leaves: limit -
+    usage + the page cache it can drop (cgroup v2 and v1; the group's own folder, else the
+    mount's root, as a container sees its own group). None without a limit."""
+    root = Path("/sys/fs/cgroup")
+    try:
+        lines = Path("/proc/self/cgroup").read_text(encoding="ascii").splitlines()
+    except OSError:
+        return None
+    best: int | None = None
+    for line in lines:
+        if line.count(":") < 2:
+            continue
+        _, controllers, group = line.split(":", 2)
+        if controllers == "":  # v2: memory.max, memory.current
+            files = ("memory.max", "memory.current", "inactive_file")
+            bases = [root / group.lstrip("/"), root]
+        elif "memory" in controllers.split(","):  # v1
+            files = ("memory.limit_in_bytes", "memory.usage_in_bytes", "total_inactive_file")
+            bases = [root / "memory" / group.lstrip("/"), root / "memory"]
+        else:
+            continue
+        for base in bases:
+            limit, usage = _read_int(base / files[0]), _read_int(base / files[1])
+            if limit is None or usage is None or limit >= 1 << 60:  # no limit ("max", 2^63)
+                continue
+            left = max(0, limit - usage + _stat_value(base / "memory.stat", files[2]))
+            best = left if best is None else min(best, left)
+            break
+    return best
+
+
+def _rlimit_available() -> int | None:
+    """What ``ulimit -v`` (RLIMIT_AS) leaves of this process's address space, if set."""
+    try:
+        import resource
+
+        soft, _ = resource.getrlimit(resource.RLIMIT_AS)
+        if soft == resource.RLIM_INFINITY or soft < 0:
+            return None
+        with open("/proc/self/status", encoding="ascii") as f:
+            used = next((int(line.split()[1]) * 1024 for line in f
+                         if line.startswith("VmSize:")), 0)
+    except (ImportError, OSError, ValueError):
+        return None
+    return max(0, soft - used)
+
+
+def available_memory() -> int | None:
+    """Bytes this process can still allocate without being killed or refused: the machine's
+    available memory (:func:`_meminfo_available`), and less when the memory limit of its control
+    group (a container's) or ``ulimit -v`` leave less. None when it cannot be told (no check)."""
+    found = [v for v in (_meminfo_available(), _cgroup_available(), _rlimit_available())
+             if v is not None]
+    return min(found) if found else None
+
+
+def format_bytes(n: float) -> str:
+    """``n`` bytes in decimal units: "3.8 TB", "512 MB"."""
+    for unit in ("bytes", "kB", "MB", "GB", "TB", "PB", "EB", "ZB", "YB"):
+        if abs(n) < 1000 or unit == "YB":
+            return f"{n:.0f} bytes" if unit == "bytes" else f"{n:.3g} {unit}"
+        n /= 1000
+    raise AssertionError  # not reached
+
+
+def check_memory(option: str, value: Any, need: float, what: str, prog: str) -> None:
+    """Refuse, before any work, ``option``'s ``value`` when the ``need`` bytes it makes the command
+    allocate (``what``: which arrays, for the message) exceed :func:`available_memory`: a usage
+    error (exit 2), one line naming the option and the value."""
+    available = available_memory()
+    if available is None or need <= available:
+        return
+    raise UsageError(f"{option} {value}: {what} would need about {format_bytes(need)} of "
+                     f"memory, more than the {format_bytes(available)} available; give a "
+                     f"smaller {option}", prog)
+
+
+def largest(terms: dict[str, tuple[Any, float]]) -> tuple[str, Any]:
+    """The option (and its value) of ``terms`` (option -> (value, bytes)) that needs the most: the
+    one a refusal of their sum names."""
+    option = max(terms, key=lambda k: terms[k][1])
+    return option, terms[option][0]
+
+
+def history_bytes(entries: float) -> float:
+    """Bytes of a method's history of ``entries`` entries (:data:`HISTORY_ENTRY_BYTES`)."""
+    return max(float(entries), 0.0) * HISTORY_ENTRY_BYTES
+
+
+def max_threads() -> int:
+    """The most threads the engine's pool takes (cpp/src/parallel.cpp, ``ThreadPool::
+    max_threads``: 4 per CPU this process may use, at least 16); more is refused by the engine
+    once the method starts, so ``--workers`` is checked against it first."""
+    try:
+        cpus = len(os.sched_getaffinity(0))
+    except (AttributeError, OSError):
+        cpus = os.cpu_count() or 1
+    return max(16, 4 * max(cpus, 1))
+
+
+def check_workers(workers: int | None, prog: str) -> None:
+    """``--workers`` (threads of a parallel method): a fixed cap, the engine's
+    (:func:`max_threads`), whose threads cost little memory but which refuses more."""
+    cap = max_threads()
+    if workers is not None and workers > cap:
+        raise UsageError(f"--workers {workers}: at most {cap} threads (4 per CPU this process "
+                         "may use, at least 16); more only slow the run down", prog)
+
+
+@dataclasses.dataclass(frozen=True)
+class Footprint:
+    """What a pose of a robot's data costs in memory, for :func:`check_memory`'s estimates:
+    ``params``, the parameters of a problem of its data (the robot's, its effects', its
+    instrument's set-up's); ``rows``, residuals per pose and set-up (6 for a pose in {0}, 3 per
+    tracker point, 1 for a ballbar's distance); ``setups``, the set-ups a pose is measured in
+    (a ballbar's); ``effects``, whether the robot has effects on."""
+
+    params: int
+    rows: int
+    setups: int = 1
+    effects: bool = False
+
+    #: A pose's readings, its line of text in a file and the Python objects of its sampling
+    #: (``iwr simulate``: 1.9 kB a pose measured in {0} or by a tracker, 3.6 kB by a ballbar).
+    POSE = 4096
+    #: Jacobian-sized arrays (``rows x params`` doubles a pose) that a calibration holds at once
+    #: (Jacobians, their scaled and whitened copies, the SVD's factor; the efficient estimator's
+    #: per-pose blocks): ``iwr calibrate``'s example measured 25-32 kB a pose, 16 x 2.8 kB + 4 kB
+    #: = 48 kB estimated.
+    JOB = 16
+    #: The same for the readings of a robot with effects, whose model computes their Jacobian
+    #: with them (``iwr simulate`` of the realistic effects: 56 kB a pose).
+    EFFECTS = 24
+    #: The same for a validation pose (forward kinematics of the nominal and the calibrated robot:
+    #: ``iwr compare --validation-poses``, 17 kB a pose measured).
+    VALIDATION = 8
+    #: Jacobian-sized arrays of ``iwr plan``'s candidates besides their information matrices
+    #: (``params x params`` doubles each: 35 kB a candidate measured, 42 kB estimated).
+    PLAN = 4
+
+    @classmethod
+    def of(cls, robot: Any) -> Footprint:
+        from ..effects import parameter_names as effect_parameter_names
+        from ..kinds import for_robot
+
+        kind = for_robot(robot)
+        params = (int(robot.n_params) + len(effect_parameter_names(robot.effects))
+                  + len(kind.setup_parameter_names(robot)))
+        tracker = getattr(robot, "tracker", None)
+        rows, setups = (3 * int(tracker.n_points) if tracker is not None else 6), 1
+        if kind.setups_per_pose:  # a ballbar's: one distance a pose in each set-up
+            from ..ballbar.api import ballbar_setup
+
+            rows, setups = 1, int(ballbar_setup(robot).n_setups)
+        return cls(params, max(rows, 1), max(setups, 1), bool(robot.effects))
+
+    @property
+    def jacobian(self) -> int:
+        """Bytes of one pose's rows of a Jacobian."""
+        return _F8 * self.rows * self.params
+
+    def _copies(self, n: int) -> int:
+        return (n + (self.EFFECTS if self.effects else 0)) * self.jacobian
+
+    def simulate(self, poses: int) -> float:
+        """``poses`` simulated and written (``iwr simulate``)."""
+        return max(float(poses), 0.0) * self.setups * (self.POSE + self._copies(0))
+
+    def job(self, poses: int) -> float:
+        """A calibration on ``poses`` poses (``iwr calibrate``'s example, simulated first)."""
+        return max(float(poses), 0.0) * self.setups * (self.POSE + self._copies(self.JOB))
+
+    def validation(self, poses: int) -> float:
+        """``poses`` validation poses simulated and solved by forward kinematics."""
+        return (max(float(poses), 0.0) * self.setups
+                * (self.POSE + self._copies(self.VALIDATION)))
+
+    def experiment(self, poses: int) -> float:
+        """One run of ``iwr compare`` / ``iwr study`` on ``poses`` poses, its validation aside:
+        :meth:`job` (the harness's SVD of the Jacobian for the parameters it cannot judge is the
+        thin one, a Jacobian's size)."""
+        return self.job(poses)
+
+    def candidates(self, count: int) -> float:
+        """``iwr plan``'s ``count`` candidates (pose and payload pairs, each once per set-up):
+        their Jacobians and per-candidate information matrices."""
+        per = self.POSE + _F8 * self.params * self.params + self._copies(self.PLAN)
+        return max(float(count), 0.0) * self.setups * per

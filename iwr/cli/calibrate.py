@@ -21,17 +21,22 @@ from ._base import (
     METHOD_ENV,
     QUICK_ENV,
     CommandError,
+    Footprint,
     UsageError,
     add_common,
+    check_memory,
     check_output,
     check_validation_file,
     check_validation_split,
+    check_workers,
     default_method,
     fraction,
+    history_bytes,
     load_robot,
     noise_spec,
     nonneg_int,
     not_held_out,
+    one_line,
     overwritten_input,
     positive_int,
     progress_enabled,
@@ -206,6 +211,33 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
     return kwargs
 
 
+def _check_sizes(args: argparse.Namespace, method: str) -> None:
+    """Refuse, before any work, a budget or generations whose method's history would not fit in
+    memory (:func:`iwr.cli._base.check_memory`: at most an entry an evaluation, DE's a generation
+    of 3 evaluations or more), and more ``--workers`` than the engine takes (a fixed cap); the
+    example's ``--poses`` is checked by :func:`_run_example`."""
+    prog = "iwr calibrate"
+    if args.budget is not None:
+        per = 3 if method == "de" else 1
+        check_memory("--budget", args.budget, history_bytes(args.budget / per),
+                     f"method {method}'s history (an entry "
+                     f"{'a generation' if method == 'de' else 'an evaluation'} at most)", prog)
+    if args.generations is not None:
+        check_memory("--generations", args.generations, history_bytes(args.generations),
+                     f"method {method}'s history (an entry a generation)", prog)
+    check_workers(args.workers, prog)
+
+
+def _budget_error(exc: ValueError, args: argparse.Namespace, method: str) -> UsageError | None:
+    """The method's refusal of ``--budget`` (too small for it: LM's 2 evaluations, DE's initial
+    population), which it makes as it starts, before any evaluation: a usage error (exit 2)
+    naming the option, not a failed computation (exit 1). None for another error."""
+    msg = one_line(exc)
+    if args.budget is None or not msg.startswith("max_evaluations:"):
+        return None
+    return UsageError(f"--budget{msg[len('max_evaluations'):]} (method {method})")
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.robot is not None and args.data is None:
         raise UsageError("give both ROBOT.toml and DATA.csv, or neither (the built-in example)")
@@ -224,6 +256,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     method = args.method or (default_method() if (os.environ.get(METHOD_ENV, "").strip()
                                                    or noise is None) else "efficient")
     kwargs = _method_kwargs(method, args)
+    _check_sizes(args, method)
     if noise is not None:
         kwargs["noise"] = noise
     elif method == "efficient":
@@ -363,12 +396,15 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
         raise UsageError("--validation needs ROBOT.toml and DATA.csv")
     quick = os.environ.get(QUICK_ENV, "").strip() not in ("", "0")
     n = args.poses or (EXAMPLE_POSES_QUICK if quick else EXAMPLE_POSES)
+    robot = Robot.default()
+    if args.poses is not None:
+        check_memory("--poses", args.poses, Footprint.of(robot).job(args.poses),
+                     "the example's simulated poses and their calibration", "iwr calibrate")
     if quick and method == "de" and args.generations is None and args.budget is None:
         kwargs = {**kwargs, "generations": EXAMPLE_GENERATIONS_QUICK}
     out = Path(args.out or EXAMPLE_DIR)
     check_output(out, "--out", files=OUTPUT_FILES)
     out.mkdir(parents=True, exist_ok=True)
-    robot = Robot.default()
     noise = Noise.realistic()
     data, truth = simulate(robot, n_poses=n, seed=EXAMPLE_SEED, noise=noise)
     robot_path, data_path = out / "robot.toml", out / "measurements.csv"
@@ -433,6 +469,11 @@ def _calibrate(robot: Any, data: Any, validation: Any, args: argparse.Namespace,
     except NotHeldOutError as exc:  # before any work
         raise not_held_out(args.validation, args.data, "iwr calibrate", _HOLD_OUT_INSTEAD,
                            exc.shared) from None
+    except ValueError as exc:
+        usage = _budget_error(exc, args, method)
+        if usage is None:
+            raise
+        raise usage from None
     report = render(cal)
     print(report.text())
     written = report.write(out, plots=not args.no_plots)

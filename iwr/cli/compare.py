@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 from typing import Any
 
@@ -16,7 +17,19 @@ from ..experiments.compare import (
 )
 from ..experiments.harness import ArgumentError, check_n_poses, check_robot
 from ..robot import Robot
-from ._base import LazyHelp, UsageError, noise_spec, option_error
+from ._base import (
+    CELL_BYTES,
+    WORKER_PROCESS_BYTES,
+    Footprint,
+    LazyHelp,
+    UsageError,
+    check_memory,
+    check_output,
+    history_bytes,
+    largest,
+    noise_spec,
+    option_error,
+)
 from .robot_noise import OPTION_HELP, describe, simulation_noise
 
 __all__ = ["add_compare_parser", "run_compare"]
@@ -41,6 +54,53 @@ def _parse_ints(text: str, name: str) -> list[int]:
     except ValueError:
         raise UsageError(f"{name}: {text!r}; expected integers like '0,1,2' or '0..4'",
                          "iwr compare") from None
+
+
+def _count_ints(text: str, name: str) -> int:
+    """How many integers :func:`_parse_ints` would make of ``text``, without making them (a
+    range '0..1000000000000' is refused for its memory before its list is built)."""
+    try:
+        if ".." in text:
+            a, b = text.split("..")
+            return max(int(b) - int(a) + 1, 0)
+        return len([int(s) for s in text.split(",") if s.strip()])
+    except ValueError:
+        raise UsageError(f"{name}: {text!r}; expected integers like '0,1,2' or '0..4'",
+                         "iwr compare") from None
+
+
+def _check_sizes(args: argparse.Namespace, robot: Robot) -> None:
+    """Refuse, before any work, sizes whose memory would not fit
+    (:func:`iwr.cli._base.check_memory`): every run's row, parameter vectors and history, kept
+    for the report (``--seeds`` x methods x starts, ``--budget``), then one run (``--poses``, its
+    ``--validation-poses``, its history) on each process that runs one at a time (this one, or
+    each worker of ``--scheduler local``; an existing cluster's machines are not this one's)."""
+    prog = "iwr compare"
+    footprint = Footprint.of(robot)
+    n_methods = (len(default_methods()) if args.methods is None else
+                 len({m.strip() for m in args.methods.split(",") if m.strip()}))
+    runs = _count_ints(args.seeds, "--seeds") * n_methods * (2 if args.start == "both" else 1)
+    budget = history_bytes(args.budget)  # at most an entry an evaluation
+    row = CELL_BYTES + 4 * 32 * footprint.params  # x, truth, x0, unidentifiable: Python lists
+    check_memory("--seeds", args.seeds, runs * row,
+                 f"the {runs} runs' rows (seeds x methods x starts)", prog)
+    check_memory("--budget", args.budget, runs * (row + budget),
+                 f"the {runs} runs' rows and histories (seeds x methods x starts)", prog)
+    if args.scheduler not in ("synchronous", "local"):
+        return
+    terms = {"--poses": (args.poses, footprint.experiment(args.poses)),
+             "--validation-poses": (args.validation_poses,
+                                    footprint.validation(args.validation_poses)),
+             "--budget": (args.budget, budget)}
+    option, value = largest(terms)
+    run = sum(need for _, need in terms.values())
+    check_memory(option, value, run, "one run (its poses' Jacobians, validation poses and "
+                 "method history)", prog)
+    if args.scheduler == "local":
+        workers = os.cpu_count() or 1
+        check_memory(option, value, workers * (run + WORKER_PROCESS_BYTES),
+                     f"a run on each of the {workers} worker processes of --scheduler local "
+                     "(one per core)", prog)
 
 
 def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
@@ -95,8 +155,11 @@ def run_compare(args: argparse.Namespace) -> int:
     (0 ok, 1 an input file or run error, 130 interrupted; a bad option's value raises
     :class:`UsageError`, exit 2)."""
     try:
+        if args.out:  # the output folder, made if needed: one that cannot be is refused, exit 2
+            check_output(args.out, "--out", files=(), prog="iwr compare")
         robot = Robot.from_toml(args.robot) if args.robot else Robot.default()
         check_robot(robot)
+        _check_sizes(args, robot)
         check_n_poses(robot, args.poses, "--poses")  # named as the command line spells it
         methods = None if args.methods is None else [
             m.strip() for m in args.methods.split(",") if m.strip()]

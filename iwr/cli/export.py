@@ -8,13 +8,28 @@ import argparse
 from pathlib import Path
 from typing import Any
 
-from ._base import EXIT_OK, CommandError, UsageError, add_common, load_robot, positive_int
+from ._base import (
+    EXIT_OK,
+    CommandError,
+    UsageError,
+    add_common,
+    check_memory,
+    check_output,
+    load_robot,
+    positive_int,
+)
 
 DEFAULT_OUT = "iwr-export"
 #: Poses per coordinate of the leg-correction grid by default (3^6 = 729 poses).
 DEFAULT_GRID = 3
 #: The largest grid accepted per coordinate (12^6 = 3 million poses, about 1 GB of CSV).
 MAX_GRID = 12
+#: Memory of one pose of the leg-correction grid while its table is made (the pose as a Python
+#: tuple and an array, both models' readings, its CSV line as text and bytes): 0.9-1.1 kB
+#: measured, so 12^6 poses take about 3.3 GB, refused where less is available.
+GRID_POSE_BYTES = 1536
+#: The files ``iwr export`` writes into ``--out``.
+FILES = ("genhexkins.hal", "hexapod.json", "carriage.urdf", "leg_corrections.csv")
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -59,6 +74,13 @@ def cmd_export(args: argparse.Namespace) -> int:
     if args.grid > MAX_GRID:
         raise UsageError(f"--grid {args.grid}: at most {MAX_GRID} poses per coordinate "
                          f"({args.grid}^6 poses is too large a table)", "iwr export")
+    if args.nominal is not None:  # the grid is made only for the leg corrections
+        check_memory("--grid", args.grid, GRID_POSE_BYTES * args.grid**6,
+                     f"the leg-correction table's {args.grid**6} poses", "iwr export")
+    # A folder, made if needed: not an existing file, nor under one, nor where nothing can be
+    # written, nor writing over an input (refused, exit 2, before anything is read).
+    check_output(args.out, "--out", inputs=[args.robot, args.nominal], files=FILES,
+                 prog="iwr export")
     from ..compensation import (
         CalibrationStatusError,
         NominalMismatchError,

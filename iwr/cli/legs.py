@@ -262,14 +262,22 @@ def cmd_legs(args: argparse.Namespace) -> int:
     tool = "" if args.tool is None else (
         "; targets are the poses of the tool frame at "
         + ",".join(repr(float(v)) for v in args.tool) + " in {5}")
+    # The targets' load and temperature columns (a robot with effects) are kept, after the legs
+    # as in a measurement file: the commands hold for them, and the file is read back as the
+    # targets were (iwr legs of it gives the same commands).
+    kept = list(extra)
+    under = f" under each target's {', '.join(kept)} (kept)" if kept else ""
     buf.write(f"{LEGS_MARKER} leg sensor readings s1..s6 (mm; leg length = reading + l0) that put "
-              f"the platform at each target pose, by the inverse kinematics of {name}; targets "
-              f"in {frame_text}{tool}; flags 1 where a leg is outside its stroke or the "
+              f"the platform at each target pose{under}, by the inverse kinematics of {name}; "
+              f"targets in {frame_text}{tool}; flags 1 where a leg is outside its stroke or the "
               "target outside the workspace (joint limits, home_pose +- workspace)\n")
     w = csv.writer(buf, lineterminator="\n")
-    w.writerow([*q_cols, *_POSE_COLUMNS, *_LEG_COLUMNS, *_FLAG_COLUMNS])
-    for qi, pi, li, fs, fw in zip(q, poses, cmd.legs, stroke, workspace, strict=True):
-        w.writerow([repr(float(v)) for v in (*qi, *pi, *li)] + [int(fs), int(fw)])
+    conditions = (np.column_stack([extra[c] for c in kept]) if kept
+                  else np.zeros((len(q), 0)))
+    w.writerow([*q_cols, *_POSE_COLUMNS, *_LEG_COLUMNS, *kept, *_FLAG_COLUMNS])
+    for qi, pi, li, ci, fs, fw in zip(q, poses, cmd.legs, conditions, stroke, workspace,
+                                      strict=True):
+        w.writerow([repr(float(v)) for v in (*qi, *pi, *li, *ci)] + [int(fs), int(fw)])
     atomic_write_text(args.out, buf.getvalue())
     print(f"wrote {args.out}: leg commands for {len(cmd.legs)} targets in {frame_text}")
     flagged = False

@@ -12,7 +12,10 @@ from ..measurements import PLAN_MARKER
 from ._base import (
     EXIT_OK,
     CommandError,
+    Footprint,
+    UsageError,
     add_common,
+    check_memory,
     check_output,
     load_robot,
     nonneg_int,
@@ -65,6 +68,7 @@ def _payload(text: str) -> list[float]:
 
 
 def cmd_plan(args: argparse.Namespace) -> int:
+    from ..kinds import for_robot
     from ..measurements import Measurements
     from ..planning import plan_poses
     from ..simulation import sample_poses
@@ -72,10 +76,23 @@ def cmd_plan(args: argparse.Namespace) -> int:
     check_output(args.out, "--out", inputs=[args.robot, args.candidates], prog="iwr plan",
                  own=PLAN_MARKER)
     robot = load_robot(args.robot)
+    kind = for_robot(robot)
+    footprint = Footprint.of(robot)
+    # Each candidate pose once per payload: the rows plan_poses chooses from (a ballbar's once
+    # per set-up too, which Footprint counts).
+    per_pose = len(args.payload) if args.payload else 1
+    if not args.candidates:
+        check_memory("--n-candidates", args.n_candidates,
+                     footprint.candidates(args.n_candidates * per_pose),
+                     "the candidates' Jacobians and information matrices", "iwr plan")
+        if not kind.setups_per_pose and args.poses > args.n_candidates * per_pose:
+            # Known before the candidates are drawn (a ballbar's (pose, set-up) pairs are not).
+            raise UsageError(f"--poses {args.poses}: more than the {args.n_candidates * per_pose} "
+                             f"candidates to choose from (--n-candidates {args.n_candidates}"
+                             f"{f', each with {per_pose} payloads' if per_pose > 1 else ''}); "
+                             "give more candidates or fewer poses", "iwr plan")
     if args.candidates:
-        from ..kinds import for_robot
-
-        if for_robot(robot).recognises(args.candidates):
+        if kind.recognises(args.candidates):
             # plan_poses takes the robot's own data as candidates (tracker data: their poses by
             # forward kinematics); the pose reader would stop at their columns.
             from ._base import read_data
@@ -84,6 +101,10 @@ def cmd_plan(args: argparse.Namespace) -> int:
         else:
             cand = Measurements.from_csv(args.candidates, robot=robot)
         source = str(args.candidates)
+        # The file's size is its own; what planning on all of it needs is checked before it runs.
+        check_memory("--candidates", args.candidates, footprint.candidates(len(cand) * per_pose),
+                     f"its {len(cand)} candidate poses' Jacobians and information matrices",
+                     "iwr plan")
     else:
         rng = np.random.default_rng(args.seed)
         q, poses, legs = sample_poses(robot.with_effects() if robot.effects else robot,
@@ -112,14 +133,21 @@ def cmd_plan(args: argparse.Namespace) -> int:
 
         check_effect_inputs(robot, cand, args.candidates)
     # plan_poses refuses a --poses above the candidates' number (each pose once per payload;
-    # a ballbar's (pose, set-up) pairs within the bar's range), naming it.
+    # a ballbar's (pose, set-up) pairs within the bar's range), or below what determines the base
+    # parameters, before it plans: a bad option's value (exit 2), named with the candidates'.
     try:
         plan = plan_poses(robot, cand, args.poses, criterion=args.criterion, seed=args.seed,
                           **({"payloads": payloads, "temperatures": temperatures}
                              if robot.effects else {}))
     except ValueError as exc:
         msg = str(exc)
-        raise CommandError("--poses" + msg[7:] if msg.startswith("n_poses:") else msg) from None
+        if not msg.startswith("n_poses:"):
+            raise CommandError(msg) from None
+        given = (f"--candidates {args.candidates}" if args.candidates
+                 else f"--n-candidates {args.n_candidates}")
+        raise UsageError("--poses" + msg[7:].replace(
+            "(the number of candidates)", f"(the number of candidates, of {given})"),
+            "iwr plan") from None
     plan.to_csv(args.out, source)
     print(f"candidates: {source}")
     print(plan)

@@ -14,8 +14,10 @@ from ..effects import parameter_names as effect_parameter_names
 from ..kinds import for_robot
 from ._base import (
     EXIT_OK,
+    Footprint,
     UsageError,
     add_common,
+    check_memory,
     check_output,
     load_robot,
     noise_spec,
@@ -143,6 +145,8 @@ def cmd_simulate(args: argparse.Namespace) -> int:
     check_output(out / args.truth_file, "--truth-file", inputs=[args.robot], prog="iwr simulate",
                  own=TRUTH_START, own_what="a true-error file of iwr simulate")
     robot = load_robot(args.robot) if args.robot else Robot.default()
+    check_memory("--poses", args.poses, Footprint.of(robot).simulate(args.poses),
+                 "the simulated poses and their files", "iwr simulate")
     # What --noise means for the robot's instrument (a tracker's: its readings' noise and the
     # tracker's own): robot_noise.option_noise, as iwr calibrate and iwr compare read it.
     noise, args.noise_from = simulation_noise(args.noise, robot, args.robot)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 from collections.abc import Callable
 from pathlib import Path
@@ -12,7 +13,19 @@ from typing import Any
 from ..experiments.harness import ArgumentError, check_n_poses, check_robot
 from ..experiments.monte_carlo import study
 from ..robot import Robot
-from ._base import LazyHelp, UsageError, option_error
+from ._base import (
+    CELL_BYTES,
+    WORKER_PROCESS_BYTES,
+    Footprint,
+    LazyHelp,
+    UsageError,
+    check_memory,
+    check_output,
+    format_bytes,
+    history_bytes,
+    largest,
+    option_error,
+)
 
 __all__ = ["add_study_parser", "run_study"]
 
@@ -184,21 +197,90 @@ def run_study(args: argparse.Namespace) -> int:
         return 1
 
 
+def _count(value: Any) -> int:
+    """The entries of ``--draws`` / ``--seeds``: a count, or a list of indices (duplicates once)."""
+    return max(int(value), 0) if isinstance(value, int) else len(set(value))
+
+
+def _check_sizes(args: argparse.Namespace, robot: Robot, budgets: Any) -> None:
+    """Refuse, before any work, list and size options whose memory would not fit
+    (:func:`iwr.cli._base.check_memory`): the cells' rows (their number is the product of the
+    lists' lengths; counts of draws and seeds are checked before the library makes their lists),
+    then one cell's run (its poses, validation poses and budget) on each process that runs one at
+    a time: this one with ``--scheduler synchronous``, each of the local cluster's workers by
+    default (an existing cluster's machines are not this one's: not checked)."""
+    prog = "iwr study"
+    methods = list(dict.fromkeys(m.strip() for m in args.methods.split(",") if m.strip()))
+    if isinstance(budgets, dict):
+        per_method = {k.partition(".")[0]: len(set(v)) for k, v in budgets.items()}
+    else:
+        per_method = {m: len(set(budgets)) for m in methods} if budgets else {}
+    values = [v for vs in (budgets.values() if isinstance(budgets, dict) else [budgets or []])
+              for v in vs]
+    counts = {
+        "--poses": (",".join(map(str, args.poses)), len(set(args.poses))),
+        "--noise": (",".join(map(str, args.noise)), len(set(args.noise))),
+        "--draws": (args.draws if isinstance(args.draws, int) else ",".join(map(str, args.draws)),
+                    _count(args.draws)),
+        "--seeds": (args.seeds if isinstance(args.seeds, int) else ",".join(map(str, args.seeds)),
+                    _count(args.seeds)),
+        "--budget": (" ".join(args.budget), max(per_method.values(), default=1)),
+        "--methods": (args.methods, len(methods)),
+    }
+    cells = (counts["--poses"][1] * counts["--noise"][1] * counts["--draws"][1]
+             * counts["--seeds"][1] * sum(per_method.get(m, 1) for m in methods))
+    option, value = largest({k: (v, float(c)) for k, (v, c) in counts.items()})
+    check_memory(option, value, cells * CELL_BYTES,
+                 f"the {cells} cells' rows (methods x budgets x poses x noise x draws x seeds)",
+                 prog)
+    if args.scheduler not in (None, "synchronous"):
+        return
+    footprint = Footprint.of(robot)
+    top = max(args.poses)
+    terms = {"--poses": (top, footprint.experiment(top)),
+             "--validation-poses": (args.validation_poses,
+                                    footprint.validation(args.validation_poses)),
+             "--budget": (max(values, default=0), history_bytes(max(values, default=0)))}
+    run = sum(need for _, need in terms.values())
+    option, value = largest(terms)
+    check_memory(option, value, run, "one cell's run (its poses' Jacobians, validation poses "
+                 "and method history)", prog)
+    if args.scheduler == "synchronous":
+        return
+    workers = args.workers or os.cpu_count() or 1
+    each = run + WORKER_PROCESS_BYTES
+    if args.workers is not None:
+        check_memory("--workers", args.workers, workers * each,
+                     f"{workers} worker processes of about {format_bytes(each)} each "
+                     "(a cell's run each)", prog)
+    else:
+        check_memory(option, value, workers * each,
+                     f"a cell's run on each of the {workers} worker processes (one per core; "
+                     "--workers sets fewer)", prog)
+
+
 def _run_study(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if args.report_only:
         from ..reporting.study import report as make_report
 
+        if out.exists() and not out.is_dir():
+            raise UsageError(f"--out {out}: is a file, not a study folder", "iwr study")
         files = make_report(out)
         print(f"wrote {', '.join(str(f) for f in files)}")
         return 0
+    # The study folder, made if needed: not an existing file, nor under one, nor where nothing
+    # can be written (exit 2 before any work, not "[Errno 20] Not a directory" once it starts).
+    check_output(out, "--out", files=(), prog="iwr study")
     robot = Robot.from_toml(args.robot) if args.robot else Robot.default()
     check_robot(robot)
+    budgets = _parse_budgets(args.budget)
+    _check_sizes(args, robot, budgets)
     for n in args.poses:  # named as the command line spells it
         check_n_poses(robot, n, "--poses")
     result = study(
         methods=args.methods, poses=args.poses, noise=args.noise, draws=args.draws,
-        seeds=args.seeds, budgets=_parse_budgets(args.budget), out=out, robot=robot,
+        seeds=args.seeds, budgets=budgets, out=out, robot=robot,
         options=_parse_options(args.option), validation_poses=args.validation_poses,
         base_seed=args.base_seed, scheduler=args.scheduler, workers=args.workers,
         retries=args.retries, report=not args.no_report, progress=args.progress,

@@ -210,7 +210,9 @@ def _scaled_null_basis(problem: Any, x: np.ndarray, kind: Any) -> tuple[int, np.
     jac = problem.jacobian(x)
     d = np.linalg.norm(jac, axis=0)
     d = np.where(d > 0, d, 1.0)
-    _, s, vt = np.linalg.svd(jac / d, full_matrices=True)
+    # The whole of V (the null space), not of U: a square U of the readings, (6 N)^2 doubles,
+    # took 2.4 GB at 2000 poses (full V needed only with fewer readings than parameters).
+    _, s, vt = np.linalg.svd(jac / d, full_matrices=jac.shape[0] < jac.shape[1])
     rtol = max(max(jac.shape) * np.finfo(float).eps, kind.null_rtol or 0.0)
     rank = int(np.sum(s > rtol * s[0]))
     return rank, vt[rank:].T
