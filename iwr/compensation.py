@@ -125,12 +125,15 @@ NOMINAL_PLAUSIBLE = 10.0
 
 def implied_errors(nominal: Robot, calibrated: Robot) -> np.ndarray:
     """The error vector ``x`` with ``nominal.with_errors(x)`` of ``calibrated``'s geometry (the
-    same joint types)."""
+    same joint types); the DH angles' differences within +-pi (:meth:`iwr.Robot.with_errors`
+    keeps an angle that passes 2 pi as the same rotation within +-pi)."""
     if nominal.joint_types != calibrated.joint_types:
         raise NominalMismatchError(f"joints {nominal.joint_types!r} and "
                                    f"{calibrated.joint_types!r}: not the same robot")
+    ddh = calibrated.dh - nominal.dh
+    ddh[:, [0, 3]] = np.remainder(ddh[:, [0, 3]] + np.pi, 2 * np.pi) - np.pi
     return np.concatenate([
-        (calibrated.dh - nominal.dh).ravel(),
+        ddh.ravel(),
         (calibrated.base_joints - nominal.base_joints).ravel(),
         (calibrated.platform_joints - nominal.platform_joints).ravel(),
         calibrated.leg_offsets - nominal.leg_offsets])

@@ -47,9 +47,12 @@ def dh_degrees_problem(value: float) -> str | None:
     """Why a DH angle ``value`` (rad) looks like degrees (beyond 2 pi), or None."""
     if abs(value) <= MAX_DH_ANGLE_RAD:
         return None
+    wrapped = math.remainder(value, 2 * math.pi)
+    radians = (f"; or, if it is in radians, write the same rotation within +-pi: {wrapped:.10g}"
+               if abs(value) < 4 * math.pi else "")
     return (f"{value:g} is beyond +-2 pi: DH angles are in radians, and this looks like degrees "
             f"({value:g} deg = {math.radians(value):.4f} rad); convert the carriage's alpha and "
-            "theta")
+            f"theta{radians}")
 
 
 class RobotFileError(ValueError):

@@ -244,3 +244,26 @@ def test_a_calibrated_angle_past_2_pi_is_the_same_rotation_within_it(tmp_path):
                                atol=1e-12)
     calibrated.to_toml(tmp_path / "c.toml")
     assert iwr.Robot.from_toml(tmp_path / "c.toml") == calibrated
+
+
+def test_a_calibrated_angle_past_two_pi_is_the_same_robot_to_its_nominal():
+    """A nominal theta near 2 pi (6.26) plus its error (0.05) passes 2 pi: with_errors keeps
+    the same rotation within +-pi, and the errors implied against the nominal are the error
+    again (they were -6.23 rad, which check_nominal refused as a geometry no calibration
+    moves); a file with such an angle says both readings of it."""
+    from iwr.compensation import check_nominal, implied_errors
+    from iwr.robot_file import dh_degrees_problem
+
+    base = iwr.Robot.default()
+    x = np.zeros(base.n_params)
+    x[4 * 2 + 3] = 6.26 - base.dh[2, 3]
+    nominal = base.with_errors(x)
+    assert nominal.dh[2, 3] == pytest.approx(6.26)
+    x = np.zeros(nominal.n_params)
+    x[4 * 2 + 3] = 0.05
+    calibrated = nominal.with_errors(x)
+    assert abs(calibrated.dh[2, 3]) <= np.pi
+    np.testing.assert_allclose(implied_errors(nominal, calibrated), x, atol=1e-12)
+    check_nominal(calibrated, nominal)
+    assert "within +-pi: 0.1168146928" in dh_degrees_problem(6.4)
+    assert "within +-pi" not in dh_degrees_problem(90.0)

@@ -31,7 +31,6 @@ from ._base import (
     check_workers,
     default_method,
     fraction,
-    history_bytes,
     load_robot,
     noise_spec,
     nonneg_int,
@@ -211,21 +210,11 @@ def _method_kwargs(method: str, args: argparse.Namespace) -> dict[str, Any]:
     return kwargs
 
 
-def _check_sizes(args: argparse.Namespace, method: str) -> None:
-    """Refuse, before any work, a budget or generations whose method's history would not fit in
-    memory (:func:`iwr.cli._base.check_memory`: at most an entry an evaluation, DE's a generation
-    of 3 evaluations or more), and more ``--workers`` than the engine takes (a fixed cap); the
-    example's ``--poses`` is checked by :func:`_run_example`."""
-    prog = "iwr calibrate"
-    if args.budget is not None:
-        per = 3 if method == "de" else 1
-        check_memory("--budget", args.budget, history_bytes(args.budget / per),
-                     f"method {method}'s history (an entry "
-                     f"{'a generation' if method == 'de' else 'an evaluation'} at most)", prog)
-    if args.generations is not None:
-        check_memory("--generations", args.generations, history_bytes(args.generations),
-                     f"method {method}'s history (an entry a generation)", prog)
-    check_workers(args.workers, prog)
+def _check_sizes(args: argparse.Namespace) -> None:
+    """More ``--workers`` than the engine takes (a fixed cap), refused before any work; the
+    example's ``--poses`` is checked by :func:`_run_example` (a budget is a cap, not an
+    allocation: not checked, :mod:`iwr.cli._base`)."""
+    check_workers(args.workers, "iwr calibrate")
 
 
 def _budget_error(exc: ValueError, args: argparse.Namespace, method: str) -> UsageError | None:
@@ -256,7 +245,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
     method = args.method or (default_method() if (os.environ.get(METHOD_ENV, "").strip()
                                                    or noise is None) else "efficient")
     kwargs = _method_kwargs(method, args)
-    _check_sizes(args, method)
+    _check_sizes(args)
     if noise is not None:
         kwargs["noise"] = noise
     elif method == "efficient":

@@ -25,7 +25,6 @@ from ._base import (
     UsageError,
     check_memory,
     check_output,
-    history_bytes,
     largest,
     noise_spec,
     option_error,
@@ -80,27 +79,25 @@ def _check_sizes(args: argparse.Namespace, robot: Robot) -> None:
     n_methods = (len(default_methods()) if args.methods is None else
                  len({m.strip() for m in args.methods.split(",") if m.strip()}))
     runs = _count_ints(args.seeds, "--seeds") * n_methods * (2 if args.start == "both" else 1)
-    budget = history_bytes(args.budget)  # at most an entry an evaluation
     row = CELL_BYTES + 4 * 32 * footprint.params  # x, truth, x0, unidentifiable: Python lists
     check_memory("--seeds", args.seeds, runs * row,
                  f"the {runs} runs' rows (seeds x methods x starts)", prog)
-    check_memory("--budget", args.budget, runs * (row + budget),
-                 f"the {runs} runs' rows and histories (seeds x methods x starts)", prog)
     if args.scheduler not in ("synchronous", "local"):
         return
     terms = {"--poses": (args.poses, footprint.experiment(args.poses)),
              "--validation-poses": (args.validation_poses,
-                                    footprint.validation(args.validation_poses)),
-             "--budget": (args.budget, budget)}
+                                    footprint.validation(args.validation_poses))}
     option, value = largest(terms)
     run = sum(need for _, need in terms.values())
-    check_memory(option, value, run, "one run (its poses' Jacobians, validation poses and "
-                 "method history)", prog)
+    check_memory(option, value, run, "one run (its poses' Jacobians and validation poses)", prog)
     if args.scheduler == "local":
+        # One run a process fits (above): too many processes for the memory is the scheduler's
+        # doing, not a size's.
         workers = os.cpu_count() or 1
-        check_memory(option, value, workers * (run + WORKER_PROCESS_BYTES),
-                     f"a run on each of the {workers} worker processes of --scheduler local "
-                     "(one per core)", prog)
+        check_memory("--scheduler", "local", workers * (run + WORKER_PROCESS_BYTES),
+                     f"a run on each of its {workers} worker processes (one per core)", prog,
+                     advice="run them one after the other (--scheduler synchronous) or on a "
+                     "cluster's address")
 
 
 def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:

@@ -13,6 +13,7 @@ from typing import Any
 from ..experiments.harness import ArgumentError, check_n_poses, check_robot
 from ..experiments.monte_carlo import study
 from ..robot import Robot
+from . import _base
 from ._base import (
     CELL_BYTES,
     WORKER_PROCESS_BYTES,
@@ -22,7 +23,6 @@ from ._base import (
     check_memory,
     check_output,
     format_bytes,
-    history_bytes,
     largest,
     option_error,
 )
@@ -215,8 +215,6 @@ def _check_sizes(args: argparse.Namespace, robot: Robot, budgets: Any) -> None:
         per_method = {k.partition(".")[0]: len(set(v)) for k, v in budgets.items()}
     else:
         per_method = {m: len(set(budgets)) for m in methods} if budgets else {}
-    values = [v for vs in (budgets.values() if isinstance(budgets, dict) else [budgets or []])
-              for v in vs]
     counts = {
         "--poses": (",".join(map(str, args.poses)), len(set(args.poses))),
         "--noise": (",".join(map(str, args.noise)), len(set(args.noise))),
@@ -239,24 +237,22 @@ def _check_sizes(args: argparse.Namespace, robot: Robot, budgets: Any) -> None:
     top = max(args.poses)
     terms = {"--poses": (top, footprint.experiment(top)),
              "--validation-poses": (args.validation_poses,
-                                    footprint.validation(args.validation_poses)),
-             "--budget": (max(values, default=0), history_bytes(max(values, default=0)))}
+                                    footprint.validation(args.validation_poses))}
     run = sum(need for _, need in terms.values())
     option, value = largest(terms)
-    check_memory(option, value, run, "one cell's run (its poses' Jacobians, validation poses "
-                 "and method history)", prog)
+    check_memory(option, value, run, "one cell's run (its poses' Jacobians and validation "
+                 "poses)", prog)
     if args.scheduler == "synchronous":
         return
+    # One cell's run a process fits (above): too many processes for the memory is the worker
+    # count's doing, given or not.
     workers = args.workers or os.cpu_count() or 1
     each = run + WORKER_PROCESS_BYTES
-    if args.workers is not None:
-        check_memory("--workers", args.workers, workers * each,
-                     f"{workers} worker processes of about {format_bytes(each)} each "
-                     "(a cell's run each)", prog)
-    else:
-        check_memory(option, value, workers * each,
-                     f"a cell's run on each of the {workers} worker processes (one per core; "
-                     "--workers sets fewer)", prog)
+    check_memory("--workers", workers if args.workers is not None else
+                 f"{workers} (one per core, the default)", workers * each,
+                 f"{workers} worker processes of about {format_bytes(each)} each "
+                 "(a cell's run each)", prog, advice=f"give fewer --workers (at most "
+                 f"{max(1, int((_base.available_memory() or each) // each))})")
 
 
 def _run_study(args: argparse.Namespace) -> int:
