@@ -70,10 +70,11 @@ def _count_ints(text: str, name: str) -> int:
 
 def _check_sizes(args: argparse.Namespace, robot: Robot) -> None:
     """Refuse, before any work, sizes whose memory would not fit
-    (:func:`iwr.cli._base.check_memory`): every run's row, parameter vectors and history, kept
-    for the report (``--seeds`` x methods x starts, ``--budget``), then one run (``--poses``, its
-    ``--validation-poses``, its history) on each process that runs one at a time (this one, or
-    each worker of ``--scheduler local``; an existing cluster's machines are not this one's)."""
+    (:func:`iwr.cli._base.check_memory`): every run's row and parameter vectors, kept for the
+    report (``--seeds`` x methods x starts), then one run (``--poses``, its
+    ``--validation-poses``) on each process that runs one at a time (this one, or each worker of
+    ``--scheduler local``; an existing cluster's machines are not this one's). The budget is a
+    cap, not an allocation: not checked."""
     prog = "iwr compare"
     footprint = Footprint.of(robot)
     n_methods = (len(default_methods()) if args.methods is None else

@@ -206,9 +206,10 @@ def _check_sizes(args: argparse.Namespace, robot: Robot, budgets: Any) -> None:
     """Refuse, before any work, list and size options whose memory would not fit
     (:func:`iwr.cli._base.check_memory`): the cells' rows (their number is the product of the
     lists' lengths; counts of draws and seeds are checked before the library makes their lists),
-    then one cell's run (its poses, validation poses and budget) on each process that runs one at
-    a time: this one with ``--scheduler synchronous``, each of the local cluster's workers by
-    default (an existing cluster's machines are not this one's: not checked)."""
+    then one cell's run (its poses and validation poses; a budget is a cap, not an allocation) on
+    each process that runs one at a time: this one with ``--scheduler synchronous``, each of the
+    local cluster's workers by default (an existing cluster's machines are not this one's: not
+    checked)."""
     prog = "iwr study"
     methods = list(dict.fromkeys(m.strip() for m in args.methods.split(",") if m.strip()))
     if isinstance(budgets, dict):
