@@ -6,6 +6,7 @@ from __future__ import annotations
 import argparse
 import os
 import sys
+from collections.abc import Sequence
 from typing import Any
 
 from ..experiments.compare import (
@@ -44,25 +45,14 @@ def _methods() -> Any:
 _OPTIONS = {"n_poses": "--poses", "n_validation": "--validation-poses", "out": "--out"}
 
 
-def _parse_ints(text: str, name: str) -> list[int]:
+def _parse_ints(text: str, name: str) -> Sequence[int]:
+    """'0,1,2' -> [0, 1, 2]; '0..4' -> range(0, 5), not made into a list here: a range
+    '0..1000000000000' is counted (len) and refused for its memory before a list is built."""
     try:
         if ".." in text:
             a, b = text.split("..")
-            return list(range(int(a), int(b) + 1))
+            return range(int(a), int(b) + 1)
         return [int(s) for s in text.split(",") if s.strip()]
-    except ValueError:
-        raise UsageError(f"{name}: {text!r}; expected integers like '0,1,2' or '0..4'",
-                         "iwr compare") from None
-
-
-def _count_ints(text: str, name: str) -> int:
-    """How many integers :func:`_parse_ints` would make of ``text``, without making them (a
-    range '0..1000000000000' is refused for its memory before its list is built)."""
-    try:
-        if ".." in text:
-            a, b = text.split("..")
-            return max(int(b) - int(a) + 1, 0)
-        return len([int(s) for s in text.split(",") if s.strip()])
     except ValueError:
         raise UsageError(f"{name}: {text!r}; expected integers like '0,1,2' or '0..4'",
                          "iwr compare") from None
@@ -79,7 +69,7 @@ def _check_sizes(args: argparse.Namespace, robot: Robot) -> None:
     footprint = Footprint.of(robot)
     n_methods = (len(default_methods()) if args.methods is None else
                  len({m.strip() for m in args.methods.split(",") if m.strip()}))
-    runs = _count_ints(args.seeds, "--seeds") * n_methods * (2 if args.start == "both" else 1)
+    runs = len(_parse_ints(args.seeds, "--seeds")) * n_methods * (2 if args.start == "both" else 1)
     row = CELL_BYTES + 4 * 32 * footprint.params  # x, truth, x0, unidentifiable: Python lists
     check_memory("--seeds", args.seeds, runs * row,
                  f"the {runs} runs' rows (seeds x methods x starts)", prog)
@@ -170,7 +160,7 @@ def run_compare(args: argparse.Namespace) -> int:
             robot=robot,
             n_poses=args.poses,
             noise=noise,
-            seeds=_parse_ints(args.seeds, "--seeds"),
+            seeds=list(_parse_ints(args.seeds, "--seeds")),
             methods=methods,
             budget=args.budget,
             start=args.start,
