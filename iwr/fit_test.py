@@ -379,7 +379,7 @@ def fit_check(robot: Robot, measurements: Measurements, x: Any, *, active: Any,
             if weighted is None:
                 raise
             rw = jw = None  # the weighted cost's spread unknown: the size alone
-    if noise is not None and kind.chi2_fit_test and jw is not None:
+    if jw is not None:  # whitened above
         jw = jw[:, mask]
         scale = np.linalg.norm(jw, axis=0)
         scale = np.where(scale > 0, scale, 1.0)
