@@ -316,6 +316,10 @@ de::Stop make_stop(std::int64_t max_generations, std::int64_t max_evaluations, d
 }  // namespace
 
 void bind_de(py::module_& m) {
+    m.def("max_threads", &ThreadPool::max_threads,
+          "The most threads a pool takes (``workers``): 4 per CPU this process may use, at least "
+          "16; more are refused.");
+
     m.def(
         "de_resolve",
         [](const std::string& strategy, const VectorXd& lower, const VectorXd& upper,

@@ -484,14 +484,12 @@ def largest(terms: dict[str, tuple[Any, float]]) -> tuple[str, Any]:
 
 
 def max_threads() -> int:
-    """The most threads the engine's pool takes (cpp/src/parallel.cpp, ``ThreadPool::
-    max_threads``: 4 per CPU this process may use, at least 16); more is refused by the engine
-    once the method starts, so ``--workers`` is checked against it first."""
-    try:
-        cpus = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cpus = os.cpu_count() or 1
-    return max(16, 4 * max(cpus, 1))
+    """The most threads the engine's pool takes (``iwr._core.max_threads``: 4 per CPU this
+    process may use, at least 16); more is refused by the engine once the method starts, so
+    ``--workers`` is checked against it first."""
+    from .. import _core  # the engine's own rule, not a copy of it
+
+    return int(_core.max_threads())
 
 
 def check_workers(workers: int | None, prog: str) -> None:
