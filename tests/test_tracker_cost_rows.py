@@ -1,7 +1,9 @@
 """The tracker objective's costs of several parameter vectors at once (issue 24:
-``TrackerObjective::cost_rows``): ``cost_batch`` and DE solve the last, partly filled block of
-poses of up to four vectors together (two vectors' lanes in one block when it is at most half
-full, two such blocks as a pair on AVX-512), each lane with its own vector's hexapod. Pinned
+``TrackerObjective::cost_rows``): ``cost_batch`` and DE take the vectors in groups (up to eight
+on AVX2 and the baseline, whose other blocks run block after block for the whole group; up to
+four on AVX-512) and solve a group's last, partly filled blocks of poses together (two vectors'
+lanes in one block when it is at most half full, two blocks a call), each lane with its own
+vector's hexapod. Pinned
 here: every row's cost is ``cost`` of that row alone, bit for bit, for every number of poses in
 the last block (1-8, an odd and an even number of blocks), every variant, weighted or not,
 hidden points, vectors whose forward kinematics fails or falls back to damped Newton inside a
@@ -62,8 +64,8 @@ def test_every_row_costs_what_it_costs_alone_bit_for_bit(n, restore_kernel):
     # The C++ objective's own cost of one vector (a weighted problem's Python cost is NumPy's).
     problem = _problem(n, weighted=n % 2 == 1)
     obj = problem.engine_objective()
-    # 37 rows: more than the 16 that batch_costs hands over at a time on one thread, groups of 2
-    # and of 4, and leftovers.
+    # 37 rows: more than the 16 that batch_costs hands over at a time on one thread, groups of 2,
+    # 4 and 8, and leftovers.
     X = _rows(problem, 37, seed=n)
     assert len(obj.failures(X[5])) == n  # every pose of that vector fails
     for v in _core._supported_kernels():
@@ -73,8 +75,8 @@ def test_every_row_costs_what_it_costs_alone_bit_for_bit(n, restore_kernel):
         for threads in (1, 2):
             got = obj.cost_batch(X, threads)
             assert got.view(np.uint64).tolist() == alone.view(np.uint64).tolist(), (v, threads)
-        # Every count of rows: the groups filled and not.
-        for m in range(1, 8):
+        # Every count of rows up to a group of 8 and one more: the groups filled and not.
+        for m in range(1, 10):
             got = obj.cost_batch(X[:m], 1)
             assert got.view(np.uint64).tolist() == alone[:m].view(np.uint64).tolist(), (v, m)
 

@@ -409,8 +409,7 @@ double TrackerObjective::evaluate(const double* x, Workspace& ws, double* res,
                                   RowMatrixXd* predicted) const {
     detail::TrackerConsts tc;
     prepare(x, ws, tc);
-    return evaluate(x, tc, detail::active_tracker_kernels(), ws, res, failed, poses, predicted,
-                    nullptr);
+    return evaluate(x, tc, detail::active_tracker_kernels(), ws, res, failed, poses, predicted);
 }
 
 void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
@@ -421,10 +420,12 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
     // The last block is solved alone unless it is the second of a pair (evaluate). Such blocks of
     // several vectors are solved together: two vectors in a block when it is at most half full
     // (its lanes W / 2.. repeat its first half: the constructor's padding), and two blocks in a
-    // call where the variant solves pairs.
+    // call where the variant solves pairs. The variants that solve one block a call (AVX2, the
+    // baseline) take groups of kMaxGroup vectors, whose other blocks are run block after block,
+    // each for every vector of the group (below); the AVX-512 variant groups what one call solves.
     const bool alone = !kernel.chord2 || nb % 2 == 1;
     const int share = last_block_half_full() ? 2 : 1, part = W / share;
-    const int most = alone ? share * (kernel.chord2 ? 2 : 1) : 1;  // vectors a call solves
+    const int most = !alone ? 1 : kernel.chord2 ? share * 2 : kMaxGroup;  // vectors a group
     static_assert(kMaxGroup >= 4, "two vectors to a block, two blocks to a call");
     const double* data = block_data(nb - 1);
     const double* const blk[2] = {data, data};
@@ -437,39 +438,56 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
             continue;
         }
         detail::TrackerConsts tc[kMaxGroup];
-        detail::LaneConsts lc[2];
-        for (int g = 0; g < group; ++g) {
-            prepare(xs[i + g], ws, tc[g], g);
-            lc[g / share].set(tc[g], (g % share) * part, (g % share + 1) * part);
-        }
+        for (int g = 0; g < group; ++g) prepare(xs[i + g], ws, tc[g], g);
         alignas(64) double pp[2 * 3 * W], ff[2 * 9 * W];
         int st[2 * W];
-        kernel.chord_lanes(blk, lc, group / share, tc[0], pp, ff, st);
-        // Each vector's last block: lanes of block g / share, from lane (g % share) part, copied
-        // (the other blocks' chords below reuse pp, ff and st; block_points may write a padding
-        // lane's pose). With two vectors to a block they move to lanes 0..part, and its lanes
-        // part.. (padding: they see no point, so their pose does not matter) take the block's
-        // reference P and R for P and F.
         alignas(64) double lp[kMaxGroup][3 * W], lf[kMaxGroup][9 * W];
         int ls[kMaxGroup][W];
-        for (int g = 0; g < group; ++g) {
-            const int b = g / share, o = (g % share) * part;
-            for (int q = 0; q < 12; ++q) {
-                double* to = q < 3 ? lp[g] + q * W : lf[g] + (q - 3) * W;
-                const double* from = q < 3 ? pp + 3 * W * b + q * W : ff + 9 * W * b + (q - 3) * W;
-                for (int l = 0; l < W; ++l)
-                    to[l] = l < part ? from[o + l] : data[(36 + q) * W + l];
+        // The group's last blocks, two (of `share` vectors each) a call. Each vector's: lanes of
+        // the call's block (g - g0) / share, from lane (g % share) part, copied (the other
+        // blocks' chords below reuse pp, ff and st; block_points may write a padding lane's
+        // pose). With two vectors to a block they move to lanes 0..part, and its lanes part..
+        // (padding: they see no point, so their pose does not matter) take the block's reference
+        // P and R for P and F.
+        for (int g0 = 0; g0 < group; g0 += 2 * share) {
+            const int calls = std::min(2 * share, group - g0) / share;
+            detail::LaneConsts lc[2];
+            for (int g = g0; g < g0 + calls * share; ++g)
+                lc[(g - g0) / share].set(tc[g], (g % share) * part, (g % share + 1) * part);
+            kernel.chord_lanes(blk, lc, calls, tc[g0], pp, ff, st);
+            for (int g = g0; g < g0 + calls * share; ++g) {
+                const int b = (g - g0) / share, o = (g % share) * part;
+                for (int q = 0; q < 12; ++q) {
+                    double* to = q < 3 ? lp[g] + q * W : lf[g] + (q - 3) * W;
+                    const double* from = q < 3 ? pp + 3 * W * b + q * W : ff + 9 * W * b + (q - 3) * W;
+                    for (int l = 0; l < W; ++l)
+                        to[l] = l < part ? from[o + l] : data[(36 + q) * W + l];
+                }
+                for (int l = 0; l < W; ++l) ls[g][l] = l < part ? st[W * b + o + l] : 0;
             }
-            for (int l = 0; l < W; ++l) ls[g][l] = l < part ? st[W * b + o + l] : 0;
         }
+        Hexapod h[kMaxGroup];
+        bool have_h[kMaxGroup] = {};
+        alignas(64) double acc[kMaxGroup][W] = {}, bad[W];
         if (!kernel.chord2) {
-            // Block by block (AVX2, the baseline): vector after vector, as interleaved (below)
-            // they ran slower: AVX2 0.5-0.8 %, the baseline 2-3 % (BENCHMARKS.md, twentieth
-            // round).
+            // The other blocks one at a time, vector after vector: a block's data (its poses,
+            // the measurements, the whitening: 8.3 KB with 3 reflectors) read by the whole group
+            // while it is in L1, instead of each vector streaming every block's (108 KB at
+            // N = 100, beyond a Zen 3's 32 KB L1). On a Zen 3 (BENCHMARKS.md, twenty-seventh
+            // round), medians over 12 arrangements of the code: AVX2 tracker -2.8 %, weighted
+            // -5.2 % (groups of 4: -2.5 % and -4.0 %); the baseline -0.8 % and -1.2 %. (Groups
+            // of 2 ran AVX2 0.5-0.8 % slower on a Zen 5, twentieth round.) Each vector's blocks
+            // in evaluate's order: the same sums.
+            for (int b = 0; b + 1 < nb; ++b)
+                for (int g = 0; g < group; ++g) {
+                    kernel.chord(block_data(b), tc[g], pp, ff, st);
+                    block_points(xs[i + g], tc[g], kernel, ws, b, pp, ff, st, h[g], have_h[g],
+                                 bad, nullptr, nullptr, acc[g]);
+                }
             for (int g = 0; g < group; ++g) {
-                const Solved last{lp[g], lf[g], ls[g]};
-                out[i + g] = evaluate(xs[i + g], tc[g], kernel, ws, nullptr, nullptr, nullptr,
-                                      nullptr, &last);
+                block_points(xs[i + g], tc[g], kernel, ws, nb - 1, lp[g], lf[g], ls[g], h[g],
+                             have_h[g], bad, nullptr, nullptr, acc[g]);
+                out[i + g] = lane_sum(acc[g]);
             }
             i += group;
             continue;
@@ -478,9 +496,6 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
         // the whitening) read by every vector of the group while it is in the cache (AVX-512
         // 2-3 % faster, weighted or not). Each vector's blocks in the same order as evaluate's,
         // so the same sums.
-        Hexapod h[kMaxGroup];
-        bool have_h[kMaxGroup] = {};
-        alignas(64) double acc[kMaxGroup][W] = {}, bad[W];
         for (int b = 0; b + 1 < nb; b += 2) {
             for (int g = 0; g < group; ++g) {
                 kernel.chord2(block_data(b), block_data(b + 1), tc[g], pp, ff, st);
@@ -545,7 +560,7 @@ IWR_FORCE_INLINE void TrackerObjective::block_points(const double* x, const deta
 double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& tc,
                                   const detail::TrackerKernels& kernel, Workspace& ws, double* res,
                                   std::vector<int>* failed, RowMatrixXd* poses,
-                                  RowMatrixXd* predicted, const Solved* last) const {
+                                  RowMatrixXd* predicted) const {
     constexpr int W = kLanes;
     const int kp = setup_.n_points();
     const Eigen::Map<const Eigen::Matrix<double, 3, 3, Eigen::RowMajor>> rt(tc.rt);
@@ -561,18 +576,15 @@ double TrackerObjective::evaluate(const double* x, const detail::TrackerConsts& 
     for (int blk = 0; blk * W < n_; ++blk) {
         const double* data = block_data(blk);
         const int half = kernel.chord2 ? blk % 2 : 0;
-        const bool given = last && (blk + 1) * W >= n_;  // the last block, solved by the caller
-        if (!given) {
-            if (!kernel.chord2)
-                kernel.chord(data, tc, pp2, ff2, status2);
-            else if (half == 0 && (blk + 1) * W < n_)
-                kernel.chord2(data, block_data(blk + 1), tc, pp2, ff2, status2);
-            else if (half == 0)
-                kernel.chord(data, tc, pp2, ff2, status2);
-        }
-        double* pp = given ? last->p : pp2 + half * 3 * W;
-        double* ff = given ? last->f : ff2 + half * 9 * W;
-        const int* status = given ? last->status : status2 + half * W;
+        if (!kernel.chord2)
+            kernel.chord(data, tc, pp2, ff2, status2);
+        else if (half == 0 && (blk + 1) * W < n_)
+            kernel.chord2(data, block_data(blk + 1), tc, pp2, ff2, status2);
+        else if (half == 0)
+            kernel.chord(data, tc, pp2, ff2, status2);
+        double* pp = pp2 + half * 3 * W;
+        double* ff = ff2 + half * 9 * W;
+        const int* status = status2 + half * W;
         block_points(x, tc, kernel, ws, blk, pp, ff, status, h, have_h, bad, scalar ? t : nullptr,
                      scalar ? y : nullptr, acc);
         if (!scalar) continue;

@@ -129,8 +129,8 @@ public:
     /// Whether the residuals are whitened.
     bool whitened() const { return whitening_.size() != 0; }
 
-    /// The most parameter vectors cost_rows solves together.
-    static constexpr int kMaxGroup = 4;
+    /// The most parameter vectors cost_rows solves together (a group's blocks share the cache).
+    static constexpr int kMaxGroup = 8;
 
     class Workspace {
         friend class TrackerObjective;
@@ -156,11 +156,13 @@ public:
     void cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const;
     /// Costs of the m parameter vectors xs[0..m) (n_params entries each, unchecked) into out[0..m):
     /// cost() of each, bit for bit. Where the last block of poses is solved alone (it is not the
-    /// second of a pair), the last blocks of up to kMaxGroup vectors are solved together: each
-    /// lane computes what it would in its own vector's block, and half-filled blocks (N mod 8 in
-    /// 1..4) share a block two vectors at once (batch_costs and the DE engine call it). Where the
-    /// variant solves blocks in pairs (AVX-512), such a group's other blocks are then run a pair
-    /// at a time, vector after vector (each pair's data read by the group while it is cached).
+    /// second of a pair), the vectors are taken in groups (of up to kMaxGroup where the variant
+    /// solves a block a call, AVX2 and the baseline; of what one call solves where it solves
+    /// blocks in pairs, AVX-512) whose last blocks are solved together: each lane computes what it
+    /// would in its own vector's block, and half-filled blocks (N mod 8 in 1..4) share a block two
+    /// vectors at once (batch_costs and the DE engine call it). A group's other blocks are then
+    /// run a block (AVX-512: a pair) at a time, vector after vector: each block's data read by the
+    /// group while it is cached.
     void cost_rows(const double* const* xs, int m, double* out, Workspace& ws) const;
 
     /// Poses whose forward kinematics fails at x, with the solver's message.
@@ -208,13 +210,6 @@ private:
     // whitened()); failed poses into failed.
     double evaluate(const double* x, Workspace& ws, double* res, std::vector<int>* failed,
                     RowMatrixXd* poses, RowMatrixXd* predicted) const;
-    // The forward kinematics of one block's lanes, solved by the caller (cost_rows): P (3 x 8),
-    // F (9 x 8), status (8) as the chord's.
-    struct Solved {
-        double* p;
-        double* f;  // F = R B (detail::TrackerKernels)
-        const int* status;
-    };
     // Block blk of the vector x (constants tc) after its chord (pp, ff, status: a lane that
     // fell back is finished here, its pose written into pp and ff; h, have_h: the hexapod at x,
     // made at the first such lane; a padding lane that did not finish gets the block's reference
@@ -225,13 +220,10 @@ private:
                       const detail::TrackerKernels& kernel, Workspace& ws, int blk, double* pp,
                       double* ff, const int* status, Hexapod& h, bool& have_h, double* bad,
                       double* t, double* y, double* acc) const;
-    // evaluate() at x with its constants tc (prepare) and the kernels of one variant; the last
-    // block's chord from last when not null (cost_rows, on the variants that solve one block at
-    // a time: where that block is solved with the other vectors' last blocks).
+    // evaluate() at x with its constants tc (prepare) and the kernels of one variant.
     double evaluate(const double* x, const detail::TrackerConsts& tc,
                     const detail::TrackerKernels& kernel, Workspace& ws, double* res,
-                    std::vector<int>* failed, RowMatrixXd* poses, RowMatrixXd* predicted,
-                    const Solved* last) const;
+                    std::vector<int>* failed, RowMatrixXd* poses, RowMatrixXd* predicted) const;
 
     Geometry geometry_;
     TrackerSetup setup_;
