@@ -15,6 +15,6 @@ cd "$(dirname "$0")/.."
 N="${1:-200000}"
 cmake -S . -B build/fuzz -G Ninja -DCMAKE_BUILD_TYPE=Debug -DIWR_SANITIZE=ON -DIWR_BUILD_TESTS=ON \
   -DIWR_BUILD_PYTHON=OFF -DIWR_BUILD_APPS=OFF -DPython_EXECUTABLE="$(command -v python3)" >/dev/null
-cmake --build build/fuzz --target iwr_io_tests
-IWR_FUZZ_ITERATIONS="$N" build/fuzz/iwr_io_tests problem_fuzz
-IWR_FUZZ_ITERATIONS="$N" build/fuzz/iwr_io_tests checkpoint_fuzz
+cmake --build build/fuzz --target iwr_cpp_tests
+IWR_FUZZ_ITERATIONS="$N" build/fuzz/iwr_cpp_tests problem_fuzz
+IWR_FUZZ_ITERATIONS="$N" build/fuzz/iwr_cpp_tests checkpoint_fuzz

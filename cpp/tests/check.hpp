@@ -1,7 +1,10 @@
 // The C++ tests' harness. CHECK(cond) reports a failed condition with its file and line and counts
-// it, without stopping the case. IWR_TEST(name) defines a case; a test program run with a case's
-// name runs that case alone (CMake registers one ctest test per case, from the IWR_TEST lines of
-// the source), with --list prints the names, and with no argument runs every case.
+// it, without stopping the case. IWR_TEST(name) defines a case; the test program (iwr_cpp_tests,
+// every test_*.cpp but test_de_isa.cpp) run with a case's name runs that case alone (CMake
+// registers one ctest test per case, from the IWR_TEST lines of the sources), with --list prints
+// the names, and with no argument runs every case. The files are compiled as one translation unit
+// (CMakeLists.txt): each file's code is in a namespace of its own (test_de, ...), a case's name is
+// unique across the files, and IWR_TEST_MAIN is in test_main.cpp alone.
 #pragma once
 
 #include <cstdio>

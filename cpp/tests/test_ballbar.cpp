@@ -16,6 +16,8 @@
 #include "iwr/measurement_kind.hpp"
 #include "iwr/problem_file.hpp"
 
+namespace test_ballbar {
+
 namespace {
 
 using iwr_test::Data;
@@ -173,4 +175,4 @@ IWR_TEST(ballbar_problem_file_round_trip) {
     CHECK(refused(q5, "whitening"));
 }
 
-IWR_TEST_MAIN
+}  // namespace test_ballbar

@@ -30,6 +30,8 @@
 #include "iwr/problem_file.hpp"
 #include "iwr/tracker.hpp"
 
+namespace test_binary_io {
+
 namespace {
 
 namespace io = iwr::io;
@@ -715,4 +717,4 @@ IWR_TEST(memory_estimate_refuses_huge_populations) {
 
 }  // namespace
 
-IWR_TEST_MAIN
+}  // namespace test_binary_io

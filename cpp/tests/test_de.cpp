@@ -11,6 +11,8 @@
 #include "de_fixtures.hpp"
 #include "iwr/de.hpp"
 
+namespace test_de {
+
 namespace {
 
 using iwr::de::Strategy;
@@ -192,7 +194,7 @@ bool throws_naming(Fn fn, const std::string& needle) {
     return false;
 }
 
-IWR_TEST(validation) {
+IWR_TEST(de_validation) {
     auto base = settings_for(Strategy::rand1bin, 3, 0);
     auto with = [&](auto edit) {
         auto s = base;
@@ -281,4 +283,4 @@ IWR_TEST(no_finite_cost_is_no_success) {
 
 }  // namespace
 
-IWR_TEST_MAIN
+}  // namespace test_de

@@ -21,6 +21,8 @@
 #include "iwr/parallel.hpp"
 #include "iwr/problem_file.hpp"
 
+namespace test_effects {
+
 namespace {
 
 using iwr::EffectTable;
@@ -469,4 +471,4 @@ IWR_TEST(carriage_thermal_is_the_scales_growth) {
                    "effects.carriage_thermal.alpha_ppm_per_K: 3 number(s); expected 2 numbers"));
 }
 
-IWR_TEST_MAIN
+}  // namespace test_effects

@@ -20,6 +20,8 @@
 #include "iwr/measurement_kind.hpp"
 #include "iwr/problem_file.hpp"
 
+namespace test_effects_ballbar {
+
 namespace {
 
 using iwr::EffectTable;
@@ -246,4 +248,4 @@ IWR_TEST(ballbar_effects_problem_file) {
     CHECK(refused > 0);
 }
 
-IWR_TEST_MAIN
+}  // namespace test_effects_ballbar

@@ -11,6 +11,8 @@
 #include "iwr/implicit_loop.hpp"
 #include "iwr/model.hpp"
 
+namespace test_implicit_loop {
+
 namespace {
 
 // World poses: 0T4(x, q) times a local pose around 750 mm above the base plate.
@@ -262,4 +264,4 @@ IWR_TEST(argument_checks) {
 
 }  // namespace
 
-IWR_TEST_MAIN
+}  // namespace test_implicit_loop

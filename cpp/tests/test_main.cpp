@@ -20,6 +20,8 @@
 #include "iwr/objective.hpp"
 #include "iwr/parallel.hpp"
 
+namespace test_main {
+
 namespace {
 
 iwr::Geometry iwr_geometry(bool with_carriage) {
@@ -415,8 +417,6 @@ IWR_TEST(forward_kinematics) {
 
 }  // namespace
 
-IWR_TEST_MAIN
-
 // One pose conversion in both languages: Z-Y-X angles back from the matrix, exact also at and
 // near the gimbal lock (iwr.transforms.euler_from_matrix has the same formula and test).
 IWR_TEST(euler_from_matrix_at_the_gimbal_lock) {
@@ -437,3 +437,8 @@ IWR_TEST(euler_from_matrix_at_the_gimbal_lock) {
     CHECK(e(0) == 0.0);
     CHECK((iwr::euler_zyx(e(0), e(1), e(2)) - locked).cwiseAbs().maxCoeff() < 1e-14);
 }
+
+}  // namespace test_main
+
+// The one main of the test program, whose other files are the other test_*.cpp (check.hpp).
+IWR_TEST_MAIN

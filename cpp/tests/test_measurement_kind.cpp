@@ -13,6 +13,8 @@
 #include "iwr/de.hpp"
 #include "iwr/measurement_kind.hpp"
 
+namespace test_measurement_kind {
+
 namespace {
 
 struct LineData {
@@ -133,4 +135,4 @@ IWR_TEST(new_residual_model_runs_through_the_implicit_loop) {
     CHECK(r.dof == 2 * n - n - 2);
 }
 
-IWR_TEST_MAIN
+}  // namespace test_measurement_kind

@@ -12,6 +12,8 @@
 #include "fixtures.hpp"
 #include "iwr/tracker.hpp"
 
+namespace test_tracker {
+
 namespace {
 
 struct Data {
@@ -222,7 +224,7 @@ IWR_TEST(batch_and_failures) {
     CHECK(jac.middleRows(3 * 2 * f[0].first, 6).isZero(0));
 }
 
-IWR_TEST(validation) {
+IWR_TEST(tracker_validation) {
     const iwr::Geometry g = iwr_test::default_iwr();
     iwr::Vector6d reg = iwr::Vector6d::Zero(), home;
     home << 0, 0, 750, 0, 0, 0;
@@ -261,4 +263,4 @@ IWR_TEST(validation) {
 
 }  // namespace
 
-IWR_TEST_MAIN
+}  // namespace test_tracker
