@@ -474,10 +474,10 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
             // the measurements, the whitening: 8.3 KB with 3 reflectors) read by the whole group
             // while it is in L1, instead of each vector streaming every block's (108 KB at
             // N = 100, beyond a Zen 3's 32 KB L1). On a Zen 3 (BENCHMARKS.md, twenty-seventh
-            // round), medians over 12 arrangements of the code: AVX2 tracker -2.8 %, weighted
-            // -5.2 % (groups of 4: -2.5 % and -4.0 %); the baseline -0.8 % and -1.2 %. (Groups
-            // of 2 ran AVX2 0.5-0.8 % slower on a Zen 5, twentieth round.) Each vector's blocks
-            // in evaluate's order: the same sums.
+            // round), medians over 12 arrangements of the code, two runs: AVX2 tracker 2-3 %
+            // faster, weighted 5-6 % (groups of 4: 2.5 % and 4 %); the baseline about 1 %.
+            // (Groups of 2 ran AVX2 0.5-0.8 % slower on a Zen 5, twentieth round.) Each vector's
+            // blocks in evaluate's order: the same sums.
             for (int b = 0; b + 1 < nb; ++b)
                 for (int g = 0; g < group; ++g) {
                     kernel.chord(block_data(b), tc[g], pp, ff, st);
