@@ -484,28 +484,22 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
                     block_points(xs[i + g], tc[g], kernel, ws, b, pp, ff, st, h[g], have_h[g],
                                  bad, nullptr, nullptr, acc[g]);
                 }
-            for (int g = 0; g < group; ++g) {
-                block_points(xs[i + g], tc[g], kernel, ws, nb - 1, lp[g], lf[g], ls[g], h[g],
-                             have_h[g], bad, nullptr, nullptr, acc[g]);
-                out[i + g] = lane_sum(acc[g]);
-            }
-            i += group;
-            continue;
-        }
-        // The other blocks a pair at a time, vector after vector: each pair's data (its poses,
-        // the whitening) read by every vector of the group while it is in the cache (AVX-512
-        // 2-3 % faster, weighted or not). Each vector's blocks in the same order as evaluate's,
-        // so the same sums.
-        for (int b = 0; b + 1 < nb; b += 2) {
-            for (int g = 0; g < group; ++g) {
-                kernel.chord2(block_data(b), block_data(b + 1), tc[g], pp, ff, st);
-                for (int k = 0; k < 2; ++k)
-                    block_points(xs[i + g], tc[g], kernel, ws, b + k, pp + 3 * W * k,
-                                 ff + 9 * W * k, st + W * k, h[g], have_h[g], bad, nullptr,
-                                 nullptr, acc[g]);
+        } else {
+            // The other blocks a pair at a time, vector after vector: each pair's data (its
+            // poses, the whitening) read by every vector of the group while it is in the cache
+            // (AVX-512 2-3 % faster, weighted or not). Each vector's blocks in the same order as
+            // evaluate's, so the same sums.
+            for (int b = 0; b + 1 < nb; b += 2) {
+                for (int g = 0; g < group; ++g) {
+                    kernel.chord2(block_data(b), block_data(b + 1), tc[g], pp, ff, st);
+                    for (int k = 0; k < 2; ++k)
+                        block_points(xs[i + g], tc[g], kernel, ws, b + k, pp + 3 * W * k,
+                                     ff + 9 * W * k, st + W * k, h[g], have_h[g], bad, nullptr,
+                                     nullptr, acc[g]);
+                }
             }
         }
-        for (int g = 0; g < group; ++g) {
+        for (int g = 0; g < group; ++g) {  // each vector's last block, then its sum
             block_points(xs[i + g], tc[g], kernel, ws, nb - 1, lp[g], lf[g], ls[g], h[g],
                          have_h[g], bad, nullptr, nullptr, acc[g]);
             out[i + g] = lane_sum(acc[g]);
