@@ -575,6 +575,18 @@ class Footprint:
         thin one, a Jacobian's size)."""
         return self.job(poses)
 
+    def check_run(self, poses: int, validation_poses: int, what: str, prog: str) -> float:
+        """Refuse (:func:`check_memory`, naming the larger of the two) one experiment's run on
+        ``poses`` poses and its ``validation_poses`` (``iwr compare``'s run, ``iwr study``'s
+        cell) when it does not fit; returns its bytes, for the checks of processes running one
+        each."""
+        terms = {"--poses": (poses, self.experiment(poses)),
+                 "--validation-poses": (validation_poses, self.validation(validation_poses))}
+        option, value = largest(terms)
+        run = sum(need for _, need in terms.values())
+        check_memory(option, value, run, what, prog)
+        return run
+
     def candidates(self, count: int) -> float:
         """``iwr plan``'s ``count`` candidates (pose and payload pairs, each once per set-up):
         their Jacobians and per-candidate information matrices."""

@@ -26,7 +26,6 @@ from ._base import (
     UsageError,
     check_memory,
     check_output,
-    largest,
     noise_spec,
     option_error,
 )
@@ -75,12 +74,8 @@ def _check_sizes(args: argparse.Namespace, robot: Robot) -> None:
                  f"the {runs} runs' rows (seeds x methods x starts)", prog)
     if args.scheduler not in ("synchronous", "local"):
         return
-    terms = {"--poses": (args.poses, footprint.experiment(args.poses)),
-             "--validation-poses": (args.validation_poses,
-                                    footprint.validation(args.validation_poses))}
-    option, value = largest(terms)
-    run = sum(need for _, need in terms.values())
-    check_memory(option, value, run, "one run (its poses' Jacobians and validation poses)", prog)
+    run = footprint.check_run(args.poses, args.validation_poses,
+                              "one run (its poses' Jacobians and validation poses)", prog)
     if args.scheduler == "local":
         # One run a process fits (above): too many processes for the memory is the scheduler's
         # doing, not a size's.

@@ -235,14 +235,8 @@ def _check_sizes(args: argparse.Namespace, robot: Robot, budgets: Any) -> None:
     if args.scheduler not in (None, "synchronous"):
         return
     footprint = Footprint.of(robot)
-    top = max(args.poses)
-    terms = {"--poses": (top, footprint.experiment(top)),
-             "--validation-poses": (args.validation_poses,
-                                    footprint.validation(args.validation_poses))}
-    run = sum(need for _, need in terms.values())
-    option, value = largest(terms)
-    check_memory(option, value, run, "one cell's run (its poses' Jacobians and validation "
-                 "poses)", prog)
+    run = footprint.check_run(max(args.poses), args.validation_poses,
+                              "one cell's run (its poses' Jacobians and validation poses)", prog)
     if args.scheduler == "synchronous":
         return
     # One cell's run a process fits (above): too many processes for the memory is the worker
