@@ -58,22 +58,26 @@ def ordered_base(js: np.ndarray, s: np.ndarray, thr: float, rank: int,
     if not 0 < rank < n:
         return None
     cut = np.sqrt(max(thr, 1e-300) * s[rank - 1])
-    basis: list[np.ndarray] = []
+    # The columns' inner products are those of R in js = QR: the same distances with vectors of
+    # n entries instead of one per residual (6 N), and each projection onto the kept ones as two
+    # products with their basis (classical Gram-Schmidt, twice), not one per kept vector.
+    cols = np.linalg.qr(js, mode="r")
+    basis = np.zeros((n, cols.shape[0]))
     kept: list[int] = []
     for limit in (0.1, cut):
         for j in order:
             if j in kept:
                 continue
-            size = np.linalg.norm(js[:, j])
+            size = np.linalg.norm(cols[:, j])
             if size == 0:  # a parameter the data do not see at all: never a base one
                 continue
-            v = js[:, j] / size
+            v = cols[:, j] / size
+            b = basis[: len(kept)]
             for _ in range(2):
-                for b in basis:
-                    v = v - (b @ v) * b
+                v = v - b.T @ (b @ v)
             dist = np.linalg.norm(v)
             if dist > limit:
-                basis.append(v / dist)
+                basis[len(kept)] = v / dist
                 kept.append(int(j))
     if len(kept) != rank:
         return None

@@ -53,9 +53,12 @@ def solve_loop(model: LoopModel, x0: np.ndarray, active: list[int], corrections0
         a = jx[:, rows][:, :, act]          # (N, nrow, p)
         b = jy[:, rows][:, :, free]         # (N, nrow, m)
         rl = r[:, rows]
-        state.update(a=a, b=b, r=rl, u=np.einsum("kip,kiq->pq", a, a),
-                     gx=np.einsum("kip,ki->p", a, rl), w=np.einsum("kip,kim->kpm", a, b),
-                     v=np.einsum("kim,kil->kml", b, b), gy=np.einsum("kim,ki->km", b, rl))
+        # Products as matmul (BLAS), not einsum: at N = 300 poses, 13 rows and 60 parameters
+        # einsum's loops took most of an estimate's time.
+        a2 = a.reshape(-1, p)
+        at, bt = np.swapaxes(a, 1, 2), np.swapaxes(b, 1, 2)
+        state.update(a=a, b=b, r=rl, u=a2.T @ a2, gx=a2.T @ rl.reshape(-1), w=at @ b,
+                     v=bt @ b, gy=(bt @ rl[..., None])[..., 0])
         return float(np.sum(rl * rl))
 
     def schur() -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -64,8 +67,9 @@ def solve_loop(model: LoopModel, x0: np.ndarray, active: list[int], corrections0
             return (state["u"].copy(), -state["gx"], np.zeros((n, 0, p)), np.zeros((n, 0)))
         vwt = np.linalg.solve(state["v"], np.swapaxes(state["w"], 1, 2))   # (N, m, p)
         vg = np.linalg.solve(state["v"], state["gy"][..., None])[..., 0]    # (N, m)
-        s = state["u"] - np.einsum("kpm,kmq->pq", state["w"], vwt)
-        rhs = -state["gx"] + np.einsum("kpm,km->p", state["w"], vg)
+        w2 = np.swapaxes(state["w"], 0, 1).reshape(p, n * m)  # W stacked over the poses
+        s = state["u"] - w2 @ vwt.reshape(n * m, p)
+        rhs = -state["gx"] + w2 @ vg.reshape(-1)
         return s, rhs, vwt, vg
 
     nfev, it = 0, 0
@@ -100,7 +104,7 @@ def solve_loop(model: LoopModel, x0: np.ndarray, active: list[int], corrections0
         s = s0 + lam * np.diag(du)
         d = 1.0 / np.sqrt(np.maximum(np.diag(s), _TINY))
         dx = d * np.linalg.solve(d[:, None] * s * d[None, :], d * rhs0)
-        dy = -vg - np.einsum("kmp,p->km", vwt, dx)
+        dy = -vg - vwt @ dx
         vd = np.diagonal(state["v"], axis1=1, axis2=2)
         gd = float(state["gx"] @ dx + np.sum(state["gy"] * dy))
         ddd = float(np.sum(dx * dx * du))
@@ -171,16 +175,16 @@ def _statistics(model: LoopModel, x: np.ndarray, corr: np.ndarray, rows: np.ndar
     a, b = state["a"], state["b"]
     nrow = rows.size
     if b.shape[2]:
-        e = a - np.einsum("kim,kmp->kip", b, vwt)
-        h = np.einsum("kim,kml,kjl->kij", b, np.linalg.inv(state["v"]), b)
+        e = a - b @ vwt
+        h = b @ np.linalg.inv(state["v"]) @ np.swapaxes(b, 1, 2)
     else:
         e, h = a, np.zeros((n, nrow, nrow))
-    h = h + np.einsum("kip,pq,kjq->kij", e, cov, e)
+    h = h + (e @ cov) @ np.swapaxes(e, 1, 2)
     q = np.eye(nrow) - h
     redundancy = np.zeros_like(r_all)
     redundancy[:, rows] = np.diagonal(q, axis1=1, axis2=2)
     ev, vec = np.linalg.eigh(q)
-    proj = np.einsum("kij,ki->kj", vec, state["r"])
+    proj = (np.swapaxes(vec, 1, 2) @ state["r"][..., None])[..., 0]
     keep = ev > 1e-8
     stat = np.sum(np.where(keep, proj**2 / np.where(keep, ev, 1.0), 0.0), axis=1)
     n_free = b.shape[2]
