@@ -80,17 +80,22 @@ def test_jacobian_matches_central_differences(case):
         assert worst[1e-4] < 1e-5, worst
 
 
-def test_the_cheaper_cost_solves_the_same_forward_kinematics():
-    """Without the carriage's compliance the residuals (what DE, CRS2, BOBYQA and LM's trial
-    steps evaluate) solve the forward kinematics with the geometry's pose Jacobian: the same
-    poses as the exact Newton's method of the Jacobian's evaluation, to its tolerance."""
-    robot = _robot()
+@pytest.mark.parametrize("carriage", [False, True])
+def test_the_cheaper_cost_solves_the_same_forward_kinematics(carriage):
+    """The residuals (what DE, CRS2, BOBYQA and LM's trial steps evaluate) solve the forward
+    kinematics with the geometry's pose Jacobian, at the joints the carriage's compliance
+    changed when it is on: the same poses as the exact Newton's method of the Jacobian's
+    evaluation, to its tolerance, at the truth, at a random point within the bounds and at the
+    upper bounds (where the effects change the pose Jacobian most)."""
+    robot = _robot(carriage=carriage)
     data, truth = be.simulate(robot, 12, seed=8, payloads=PAYLOADS)
     problem, _ = be.effect_problem(robot, data)
     rng = np.random.default_rng(2)
-    for x in (truth, problem.lower + (problem.upper - problem.lower) * rng.random(truth.size)):
+    for x in (truth, problem.lower + (problem.upper - problem.lower) * rng.random(truth.size),
+              problem.upper):
         cheap = problem.residuals(x)
         exact = problem.residuals_and_jacobian(x)[0]
+        assert np.all(np.isfinite(cheap)) and np.all(np.isfinite(exact))
         assert np.abs(cheap - exact).max() < 1e-9
         assert problem.cost_batch(x[None])[0] == pytest.approx(float(exact @ exact), rel=1e-9)
 

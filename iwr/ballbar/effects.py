@@ -38,7 +38,7 @@ from .. import _core
 from ..effects import bounds as effect_bounds
 from ..effects import parameter_names as effect_names
 from ..effects.loop import _skew, loop_jacobians
-from ..effects.model import check_inputs, joint_effects, predicted_readings, without_singular
+from ..effects.model import check_inputs, predicted_readings, without_singular
 from ..problem_base import FAILED_RESIDUAL, ProblemBase, reference_error
 from ..robot import Robot
 from ..transforms import pose_from_matrix, pose_matrix, rotvec_matrix
@@ -213,16 +213,17 @@ class BallbarEffectProblem(ProblemBase):
         solved pose's correction ``(dp, w)`` (``p + dp``, ``R exp([w]x)``) in the robot's
         geometric and effect parameters (N, 6, n_geometric + n_effects; zero where not
         solved). Newton's method with the exact pose Jacobian of the loop closure with the
-        effects, from the geometric forward kinematics; without ``jacobians``, for a robot whose
-        effects change the legs only, the cheaper readings without their parameter derivatives
-        and the geometry's pose Jacobian (:func:`iwr.effects.tracker._readings`: the effects
-        change it by a part in 1e5, so the convergence is linear at that rate), to the same
+        effects, from the geometric forward kinematics; without ``jacobians``, the cheaper
+        readings without their parameter derivatives and the geometry's pose Jacobian at the
+        joints the carriage's compliance changed (:func:`iwr.effects.tracker._readings`, as
+        tracker data solve it: the effects change it by a part in 1e5 at realistic values,
+        about 1e-3 at the bounds, so the convergence is linear at that rate), to the same
         tolerance."""
         from ..effects.tracker import _readings
 
         xr, _ = self.split(x)
         robot, data = self.robot, self.measurements
-        fast = not jacobians and not joint_effects(robot)
+        fast = not jacobians
         ng, nj, n = robot.n_params, robot.n_joints, len(data)
         frames = self.geometric.platform_frames(
             np.concatenate([xr[:ng], np.zeros(self.setup.n_params)]))
