@@ -221,16 +221,24 @@ def leg_vectors(robot: Any, xg: np.ndarray, q: np.ndarray, poses: np.ndarray
     return leg_vectors_at(robot, xg, q, pose_matrix(poses))
 
 
-def leg_vectors_at(robot: Any, xg: np.ndarray, q: np.ndarray, t5: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """:func:`leg_vectors` at platform transforms ``t5`` (N, 4, 4) in {0}."""
+def leg_vectors_at(robot: Any, xg: np.ndarray, q: np.ndarray, t5: np.ndarray, *,
+                   derivatives: bool = True) -> tuple[np.ndarray, Any, np.ndarray]:
+    """:func:`leg_vectors` at platform transforms ``t5`` (N, 4, 4) in {0}; without
+    ``derivatives``, ``dv`` is None (and the carriage's derivatives are not computed)."""
     n, nc = len(t5), 4 * robot.n_joints
-    t4, dt4 = carriage_and_derivatives(robot, xg, q)
+    if derivatives:
+        t4, dt4 = carriage_and_derivatives(robot, xg, q)
+    else:
+        t4 = np.broadcast_to(np.eye(4), (n, 4, 4))
+        for t in _links(robot, xg, q)[0]:
+            t4 = t4 @ t
     base = robot.base_joints + xg[nc: nc + 18].reshape(6, 3)
     plat = robot.platform_joints + xg[nc + 18: nc + 36].reshape(6, 3)
     r = np.einsum("kab,jb->kja", t5[:, :3, :3], plat)
     a0 = t4[:, None, :3, 3] + np.einsum("kab,jb->kja", t4[:, :3, :3], base)
     v = t5[:, None, :3, 3] + r - a0
+    if not derivatives:
+        return v, None, r
     dv = np.zeros((n, 6, 3, robot.n_params))
     if nc:
         dcar = dt4[:, :, None, :3, 3] + np.einsum("pkab,jb->pkja", dt4[:, :, :3, :3], base)

@@ -117,7 +117,7 @@ def gravity_jacobian(robot: Any, x: np.ndarray, q: np.ndarray, poses: np.ndarray
         q_c = q_c + joint_changes(robot, xg, xe, q_c, t5, data)[0]
     if "forces" not in _needs(robot):
         return out
-    v, _, r = leg_vectors_at(robot, xg, q_c, t5)
+    v, _, r = leg_vectors_at(robot, xg, q_c, t5, derivatives=False)
     comp = _compliance(robot)
     masses, centres = loads(comp, data, n)
     rot = t5[:, :3, :3]
@@ -169,7 +169,7 @@ def _readings(robot: Any, xr: np.ndarray, q: np.ndarray, poses: np.ndarray, data
     forces = temps = None
     if "forces" in needs:
         t5 = pose_matrix(poses)
-        v, _, r = leg_vectors_at(robot, xg, q, t5)
+        v, _, r = leg_vectors_at(robot, xg, q, t5, derivatives=False)
         comp = _compliance(robot)
         masses, centres = loads(comp, data, n)
         forces = leg_forces(v, None, r, None, t5[:, :3, :3], masses, centres, comp.gravity)[0]
