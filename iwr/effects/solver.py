@@ -55,7 +55,7 @@ def solve_loop(model: LoopModel, x0: np.ndarray, active: list[int], corrections0
         rl = r[:, rows]
         # Products as matmul (BLAS), not einsum: at N = 300 poses, 13 rows and 60 parameters
         # einsum's loops took most of an estimate's time.
-        a2 = a.reshape(-1, p)
+        a2 = a.reshape(n * a.shape[1], p)
         at, bt = np.swapaxes(a, 1, 2), np.swapaxes(b, 1, 2)
         state.update(a=a, b=b, r=rl, u=a2.T @ a2, gx=a2.T @ rl.reshape(-1), w=at @ b,
                      v=bt @ b, gy=(bt @ rl[..., None])[..., 0])
