@@ -20,10 +20,10 @@ __all__ = ["SingularPoseError", "carriage_and_derivatives", "joint_changes", "jo
            "split", "without_singular"]
 
 
-def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray
-        ) -> tuple[np.ndarray, np.ndarray]:
+def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray,
+        derivatives: bool = True) -> tuple[np.ndarray, Any]:
     """Standard DH transforms ``Rz(theta) Tz(d) Tx(a) Rx(alpha)`` (N, 4, 4) and their derivatives
-    in (alpha, a, d, theta), shape (4, N, 4, 4)."""
+    in (alpha, a, d, theta), shape (4, N, 4, 4) (None without ``derivatives``)."""
     ca, sa, ct, st = np.cos(alpha), np.sin(alpha), np.cos(theta), np.sin(theta)
     n = alpha.shape[0]
     t = np.zeros((n, 4, 4))
@@ -31,6 +31,8 @@ def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray
     t[:, 1] = np.stack([st, ct * ca, -ct * sa, a * st], axis=1)
     t[:, 2] = np.stack([np.zeros(n), sa, ca, d], axis=1)
     t[:, 3, 3] = 1.0
+    if not derivatives:
+        return t, None
     dt = np.zeros((4, n, 4, 4))
     z = np.zeros(n)
     dt[0, :, 0] = np.stack([z, st * sa, st * ca, z], axis=1)       # alpha
@@ -43,16 +45,18 @@ def _dh(alpha: np.ndarray, a: np.ndarray, d: np.ndarray, theta: np.ndarray
     return t, dt
 
 
-def _links(robot: Any, x: np.ndarray, q: np.ndarray) -> tuple[list[Any], list[Any]]:
+def _links(robot: Any, x: np.ndarray, q: np.ndarray, derivatives: bool = True
+           ) -> tuple[list[Any], list[Any]]:
     """Each carriage joint's DH transform (N, 4, 4) and its derivatives in its (alpha, a, d,
-    theta) (4, N, 4, 4), errors ``x`` added and the readings ``q`` to d or theta."""
+    theta) (4, N, 4, 4; None without ``derivatives``), errors ``x`` added and the readings ``q``
+    to d or theta."""
     n_poses, nj = q.shape[0], robot.n_joints
     dh = robot.dh + x[: 4 * nj].reshape(nj, 4)
     mats, ders = [], []
     for i, kind in enumerate(robot.joint_types):
         col = np.broadcast_to(dh[i], (n_poses, 4)).copy()
         col[:, 2 if kind == "P" else 3] += q[:, i]
-        t, dt = _dh(col[:, 0], col[:, 1], col[:, 2], col[:, 3])
+        t, dt = _dh(col[:, 0], col[:, 1], col[:, 2], col[:, 3], derivatives)
         mats.append(t)
         ders.append(dt)
     return mats, ders
@@ -230,7 +234,7 @@ def leg_vectors_at(robot: Any, xg: np.ndarray, q: np.ndarray, t5: np.ndarray, *,
         t4, dt4 = carriage_and_derivatives(robot, xg, q)
     else:
         t4 = np.broadcast_to(np.eye(4), (n, 4, 4))
-        for t in _links(robot, xg, q)[0]:
+        for t in _links(robot, xg, q, derivatives=False)[0]:
             t4 = t4 @ t
     base = robot.base_joints + xg[nc: nc + 18].reshape(6, 3)
     plat = robot.platform_joints + xg[nc + 18: nc + 36].reshape(6, 3)
