@@ -1,9 +1,9 @@
 """The tracker objective's costs of several parameter vectors at once (issue 24:
-``TrackerObjective::cost_rows``): ``cost_batch`` and DE take the vectors in groups (up to eight
-on AVX2 and the baseline, whose other blocks run block after block for the whole group; up to
-four on AVX-512) and solve a group's last, partly filled blocks of poses together (two vectors'
-lanes in one block when it is at most half full, two blocks a call), each lane with its own
-vector's hexapod. Pinned
+``TrackerObjective::cost_rows``): ``cost_batch`` and DE take the vectors in groups of up to
+eight, whose blocks run block after block (AVX-512: pair after pair) for the whole group, and
+solve a group's last, partly filled blocks of poses together where the last block is alone (two
+vectors' lanes in one block when it is at most half full, two blocks a call), each lane with its
+own vector's hexapod. Pinned
 here: every row's cost is ``cost`` of that row alone, bit for bit, for every number of poses in
 the last block (1-8, an odd and an even number of blocks), every variant, weighted or not,
 hidden points, vectors whose forward kinematics fails or falls back to damped Newton inside a

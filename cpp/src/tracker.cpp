@@ -417,15 +417,15 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
     constexpr int W = kLanes;
     const detail::TrackerKernels kernel = detail::active_tracker_kernels();
     const int nb = (n_ + W - 1) / W;
-    // The last block is solved alone unless it is the second of a pair (evaluate). Such blocks of
-    // several vectors are solved together: two vectors in a block when it is at most half full
-    // (its lanes W / 2.. repeat its first half: the constructor's padding), and two blocks in a
-    // call where the variant solves pairs. The variants that solve one block a call (AVX2, the
-    // baseline) take groups of kMaxGroup vectors, whose other blocks are run block after block,
-    // each for every vector of the group (below); the AVX-512 variant groups what one call solves.
+    // The vectors go in groups of up to kMaxGroup; every block (or pair of blocks, where the
+    // variant solves pairs) is run for the whole group, vector after vector (below). The last
+    // block is solved alone unless it is the second of a pair (evaluate). The group's such blocks
+    // are solved together: two vectors in a block when it is at most half full (its lanes W / 2..
+    // repeat its first half: the constructor's padding), and two blocks in a call where the
+    // variant solves pairs.
     const bool alone = !kernel.chord2 || nb % 2 == 1;
-    const int share = last_block_half_full() ? 2 : 1, part = W / share;
-    const int most = !alone ? 1 : kernel.chord2 ? share * 2 : kMaxGroup;  // vectors a group
+    const int share = alone && last_block_half_full() ? 2 : 1, part = W / share;
+    const int most = kMaxGroup;  // vectors a group
     static_assert(kMaxGroup >= 4, "two vectors to a block, two blocks to a call");
     const double* data = block_data(nb - 1);
     const double* const blk[2] = {data, data};
@@ -449,7 +449,7 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
         // pose). With two vectors to a block they move to lanes 0..part, and its lanes part..
         // (padding: they see no point, so their pose does not matter) take the block's reference
         // P and R for P and F.
-        for (int g0 = 0; g0 < group; g0 += 2 * share) {
+        for (int g0 = 0; alone && g0 < group; g0 += 2 * share) {
             const int calls = std::min(2 * share, group - g0) / share;
             detail::LaneConsts lc[2];
             for (int g = g0; g < g0 + calls * share; ++g)
@@ -485,10 +485,12 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
                                  bad, nullptr, nullptr, acc[g]);
                 }
         } else {
-            // The other blocks a pair at a time, vector after vector: each pair's data (its
-            // poses, the whitening) read by every vector of the group while it is in the cache
-            // (AVX-512 2-3 % faster, weighted or not). Each vector's blocks in the same order as
-            // evaluate's, so the same sums.
+            // The other blocks a pair at a time (all of them when there is no last block alone),
+            // vector after vector: each pair's data (its poses, the whitening) read by every
+            // vector of the group while it is in the cache (groups of 4 against none: AVX-512
+            // 2-3 % faster, weighted or not; of 8 against 4 on a Zen 5, 1 %: BENCHMARKS.md,
+            // twenty-ninth round). Each vector's blocks in the same order as evaluate's, so the
+            // same sums.
             for (int b = 0; b + 1 < nb; b += 2) {
                 for (int g = 0; g < group; ++g) {
                     kernel.chord2(block_data(b), block_data(b + 1), tc[g], pp, ff, st);
@@ -500,8 +502,9 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
             }
         }
         for (int g = 0; g < group; ++g) {  // each vector's last block, then its sum
-            block_points(xs[i + g], tc[g], kernel, ws, nb - 1, lp[g], lf[g], ls[g], h[g],
-                         have_h[g], bad, nullptr, nullptr, acc[g]);
+            if (alone)
+                block_points(xs[i + g], tc[g], kernel, ws, nb - 1, lp[g], lf[g], ls[g], h[g],
+                             have_h[g], bad, nullptr, nullptr, acc[g]);
             out[i + g] = lane_sum(acc[g]);
         }
         i += group;

@@ -155,14 +155,12 @@ public:
     /// Costs of the rows of X (M, n_params) across the pool's threads; thread-count independent.
     void cost_batch(const double* X, Eigen::Index m, double* out, ThreadPool& pool) const;
     /// Costs of the m parameter vectors xs[0..m) (n_params entries each, unchecked) into out[0..m):
-    /// cost() of each, bit for bit. Where the last block of poses is solved alone (it is not the
-    /// second of a pair), the vectors are taken in groups (of up to kMaxGroup where the variant
-    /// solves a block a call, AVX2 and the baseline; of what one call solves where it solves
-    /// blocks in pairs, AVX-512) whose last blocks are solved together: each lane computes what it
-    /// would in its own vector's block, and half-filled blocks (N mod 8 in 1..4) share a block two
-    /// vectors at once (batch_costs and the DE engine call it). A group's other blocks are then
-    /// run a block (AVX-512: a pair) at a time, vector after vector: each block's data read by the
-    /// group while it is cached.
+    /// cost() of each, bit for bit. The vectors are taken in groups of up to kMaxGroup. Where the
+    /// last block of poses is solved alone (it is not the second of a pair), the group's last
+    /// blocks are solved together: each lane computes what it would in its own vector's block, and
+    /// half-filled blocks (N mod 8 in 1..4) share a block two vectors at once (batch_costs and the
+    /// DE engine call it). A group's other blocks are run a block (AVX-512: a pair) at a time,
+    /// vector after vector: each block's data read by the group while it is cached.
     void cost_rows(const double* const* xs, int m, double* out, Workspace& ws) const;
 
     /// Poses whose forward kinematics fails at x, with the solver's message.
