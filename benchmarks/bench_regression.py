@@ -6,7 +6,10 @@ Each build runs in its own Python process (``--python NAME=PATH``, e.g. the inte
 virtualenv with that build installed), started once and kept; the parent sends each process one
 measurement at a time and alternates the builds (old, new, new, old, ...), so that a neighbour's
 load or a clock change hits both alike. The machine may be shared: every table is printed with the
-load average and the CPU other processes used meanwhile (from /proc/stat).
+load average and the CPU other processes used meanwhile (from /proc/stat), and the core-to-core
+round trip at its start and end (``_bench.measure_core_round_trip_ns``, in the first build that
+has it): on a virtual machine the host may move the two vCPUs between dies from one minute to the
+next, and DE's own work on two threads moves with it (BENCHMARKS.md, twenty-ninth round).
 
 What is timed (per build, per kernel variant forced with ``iwr._core._select_kernel``):
 
@@ -250,6 +253,12 @@ class Worker:
                 "kernels": self.core._supported_kernels(), "default_kernel": self.default_kernel,
                 "peak_mul_add_gflops": peaks}
 
+    def round_trip(self) -> float | None:
+        """The core-to-core round trip (ns, ``_bench.measure_core_round_trip_ns``); None for a
+        build without the probe (before the twenty-ninth round)."""
+        probe = getattr(self.core._bench, "measure_core_round_trip_ns", None)
+        return None if probe is None else probe(0.05)
+
     def objective(self, kernel: str, which: str = "leg") -> float | None:
         """One repetition: thread CPU time per evaluation (us), one thread; None when this build
         has no such objective."""
@@ -429,10 +438,22 @@ def near_min(times: dict) -> str:
 
 
 class Load:
-    """Load average and the CPU other processes used (cores), over a block of measurements."""
+    """Load average and the CPU other processes used (cores), over a block of measurements; and
+    the core-to-core round trip at its start and end (the first build with the probe), which on a
+    virtual machine moves with where the host runs the two vCPUs: 86-410 ns within minutes on
+    the Zen 5, a DE generation's own work on two threads 1.13x-1.41x one ``cost_batch`` with it
+    (BENCHMARKS.md, twenty-ninth round)."""
 
     def __init__(self, children: list[Build]) -> None:
         self.children = children
+        self.trips: list[float] = []
+
+    def _trip(self) -> None:
+        for b in self.children:
+            ns = b.ask("round_trip")
+            if ns is not None:
+                self.trips.append(ns)
+                return
 
     @staticmethod
     def _busy() -> float | None:
@@ -450,6 +471,7 @@ class Load:
         return total
 
     def __enter__(self) -> Load:
+        self._trip()
         self.t0, self.b0, self.o0 = time.perf_counter(), self._busy(), self._ours()
         return self
 
@@ -458,11 +480,15 @@ class Load:
         b1 = self._busy()
         self.cores = (None if b1 is None or self.b0 is None else
                       max(0.0, (b1 - self.b0 - (self._ours() - self.o0)) / wall))
+        if exc[0] is None:
+            self._trip()
 
     def __str__(self) -> str:
         la = os.getloadavg()[0]
         other = "unknown" if self.cores is None else f"{self.cores:.2f} cores"
-        return f"load average {la:.2f}, other processes meanwhile {other}"
+        trip = ("" if not self.trips else
+                ", core-to-core round trip " + " -> ".join(f"{t:.0f}" for t in self.trips) + " ns")
+        return f"load average {la:.2f}, other processes meanwhile {other}{trip}"
 
 
 def main() -> None:

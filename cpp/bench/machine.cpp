@@ -1,9 +1,14 @@
 #include "machine.hpp"
 
+#include <algorithm>
+#include <atomic>
 #include <chrono>
+#include <cmath>
 #include <cstdint>
 #include <ctime>
+#include <limits>
 #include <stdexcept>
+#include <thread>
 
 #if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
 #define IWR_BENCH_X86 1
@@ -137,6 +142,59 @@ double measure_peak_gflops(const std::string& isa, bool fma, double seconds) {
     (void)isa, (void)fma, (void)seconds;
     throw std::invalid_argument("isa: peak probes exist only for x86-64");
 #endif
+}
+
+double measure_core_round_trip_ns(double seconds) {
+    constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+    if (std::thread::hardware_concurrency() < 2) return kNaN;
+    using Clock = std::chrono::steady_clock;
+    constexpr long kBatch = 256;
+    // The counter alone on its cache line: odd values the caller's, even ones the answers, -1
+    // the end.
+    struct alignas(64) Line {
+        std::atomic<long> v{0};
+    } line;
+    std::thread partner([&line] {
+        long seen = 0;
+        for (;;) {
+            const long v = line.v.load(std::memory_order_acquire);
+            if (v == -1) return;
+            if (v != seen && v % 2 == 1) {
+                line.v.store(v + 1, std::memory_order_release);
+                seen = v + 1;
+            }
+        }
+    });
+    double best = kNaN;
+    long v = 0;
+    bool answered = true;
+    bool warm = false;  // the first batch (the partner starting) is not timed
+    const auto t_end = Clock::now() + std::chrono::duration<double>(seconds);
+    while (answered) {
+        const auto t0 = Clock::now();
+        for (long i = 0; i < kBatch && answered; ++i) {
+            line.v.store(++v, std::memory_order_release);
+            ++v;
+            long polls = 0;
+            while (line.v.load(std::memory_order_acquire) != v) {
+                // a second without an answer: the partner has no core (checked every 2^20 polls)
+                if ((++polls & ((1L << 20) - 1)) == 0 &&
+                    Clock::now() - t0 > std::chrono::seconds(1)) {
+                    answered = false;
+                    break;
+                }
+            }
+        }
+        if (!answered) break;
+        const auto t1 = Clock::now();
+        const double ns = std::chrono::duration<double, std::nano>(t1 - t0).count() / kBatch;
+        if (warm) best = std::isnan(best) ? ns : std::min(best, ns);
+        if (warm && t1 >= t_end) break;
+        warm = true;
+    }
+    line.v.store(-1, std::memory_order_release);
+    partner.join();
+    return answered ? best : kNaN;
 }
 
 }  // namespace iwr::bench

@@ -18,4 +18,13 @@ double measure_clock_ghz(double seconds);
 /// CPU lacks the instruction set. Timed for about `seconds`.
 double measure_peak_gflops(const std::string& isa, bool fma, double seconds);
 
+/// Round trip of a cache line between two threads on two cores, in ns: one thread writes a
+/// counter, the other answers on the same line, for about `seconds` of wall time; the least mean
+/// over batches of 256 round trips (a batch the scheduler interrupted reads long). What each
+/// hand-over and each row one core wrote and the other reads costs: on a virtual machine it
+/// depends on where the host placed the vCPUs (the same die or not), and moves a DE generation's
+/// own work on two threads (BENCHMARKS.md, twenty-ninth round). NaN with fewer than two hardware
+/// threads, or when the second thread does not answer within a second (no core free for it).
+double measure_core_round_trip_ns(double seconds);
+
 }  // namespace iwr::bench

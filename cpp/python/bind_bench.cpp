@@ -40,6 +40,13 @@ void bind_bench(py::module_& m) {
             return bench::measure_peak_gflops(isa, fma, seconds);
         },
         py::arg("isa"), py::arg("fma") = false, py::arg("seconds") = 0.2);
+    b.def(
+        "measure_core_round_trip_ns",
+        [](double seconds) {
+            py::gil_scoped_release release;
+            return bench::measure_core_round_trip_ns(seconds);
+        },
+        py::arg("seconds") = 0.05);
 }
 
 }  // namespace iwr::python

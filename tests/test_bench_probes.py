@@ -1,0 +1,30 @@
+"""The machine probes of the benchmarks (``iwr._core._bench``): each answers with a plausible
+figure in about the time it is given, and never hangs (the benchmarks print them beside every
+table: BENCHMARKS.md)."""
+
+from __future__ import annotations
+
+import math
+import os
+import time
+
+from iwr import _core
+
+
+def test_the_core_round_trip_is_a_plausible_time_or_nan_without_a_second_core():
+    probe = _core._bench.measure_core_round_trip_ns
+    t0 = time.perf_counter()
+    ns = probe(0.02)
+    elapsed = time.perf_counter() - t0
+    if (os.cpu_count() or 1) >= 2:
+        # A cache line between two cores: tens to hundreds of ns on real hardware; 1 ms would be
+        # a thread that waited for a core (the probe takes the least batch, so not that either).
+        assert math.isfinite(ns) and 1.0 < ns < 1e6, ns
+    else:
+        assert math.isnan(ns)
+    assert elapsed < 5.0, elapsed  # the budget, not a speed: a partner without a core gives up
+
+
+def test_the_peak_and_clock_probes_answer():
+    assert _core._bench.measure_clock_ghz(0.01) > 0.1
+    assert _core._bench.measure_peak_gflops("sse2", False, 0.01) > 0.1
