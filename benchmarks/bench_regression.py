@@ -440,9 +440,9 @@ def near_min(times: dict) -> str:
 class Load:
     """Load average and the CPU other processes used (cores), over a block of measurements; and
     the core-to-core round trip at its start and end (the first build with the probe), which on a
-    virtual machine moves with where the host runs the two vCPUs: 86-410 ns within minutes on
-    the Zen 5, a DE generation's own work on two threads 1.13x-1.41x one ``cost_batch`` with it
-    (BENCHMARKS.md, twenty-ninth round)."""
+    virtual machine moves with where the host runs the two vCPUs: about 85 or about 350 ns on the
+    Zen 5, switching within minutes, and a DE generation on two threads about 1.16x or 1.33x one
+    ``cost_batch`` with it (BENCHMARKS.md, twenty-ninth round)."""
 
     def __init__(self, children: list[Build]) -> None:
         self.children = children

@@ -24,6 +24,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import re
 import shlex
 import statistics
@@ -68,6 +69,8 @@ def main() -> None:
     ap.add_argument("--json", type=Path, default=None,
                     help="the samples as JSON: {columns, rows}")
     args = ap.parse_args()
+    if not args.seconds > 0:
+        fail(f"--seconds: {args.seconds}; expected a positive number")
     if not args.problem.is_file():
         fail(f"--problem: {str(args.problem)!r} is not a file")
     drivers = []
@@ -95,9 +98,9 @@ def main() -> None:
         print(f"\rsamples: {k}", end="", file=sys.stderr, flush=True)
     print(file=sys.stderr)
 
+    trips = [s["trip_before_ns"] for s in samples if math.isfinite(s["trip_before_ns"])]
     print(f"{len(samples)} samples over {args.seconds:g} s; round trip "
-          f"{min(s['trip_before_ns'] for s in samples):.0f}-"
-          f"{max(s['trip_before_ns'] for s in samples):.0f} ns")
+          + (f"{min(trips):.0f}-{max(trips):.0f} ns" if trips else "not measured (one core)"))
     print("| driver | state (round trip) | samples | generation / batch, median (range) "
           "| trivial generation, median (us) |")
     print("|---|---|---|---|---|")
@@ -117,7 +120,8 @@ def main() -> None:
     if args.json:  # by columns: a thousand samples in a few tens of kB
         cols = list(samples[0])
         args.json.write_text(json.dumps(
-            {"columns": cols, "rows": [[round(s[c], 4) for c in cols] for s in samples]},
+            {"columns": cols, "rows": [[round(s[c], 4) if math.isfinite(s[c]) else None
+                                        for c in cols] for s in samples]},
             separators=(",", ":")))
     if args.plot:
         import matplotlib

@@ -8,6 +8,7 @@
 #include <ctime>
 #include <limits>
 #include <stdexcept>
+#include <string>
 #include <thread>
 
 #if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
@@ -146,19 +147,27 @@ double measure_peak_gflops(const std::string& isa, bool fma, double seconds) {
 
 double measure_core_round_trip_ns(double seconds) {
     constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
+    if (!(seconds >= 0 && seconds <= 3600))
+        throw std::invalid_argument("seconds: " + std::to_string(seconds) +
+                                    "; expected 0 to 3600");
     if (std::thread::hardware_concurrency() < 2) return kNaN;
     using Clock = std::chrono::steady_clock;
     constexpr long kBatch = 256;
-    // The counter alone on its cache line: odd values the caller's, even ones the answers, -1
-    // the end.
+    // The counter alone on its cache line: odd values the caller's, even ones the answers
+    // (a plain load and store each way, as the pool's hand-overs and DE's rows). The end is a
+    // flag on a line of its own (read from L1 until it is set): a partner paused between its
+    // load and its store past the caller's give-up then stores an answer nobody reads, and
+    // still stops.
     struct alignas(64) Line {
         std::atomic<long> v{0};
     } line;
-    std::thread partner([&line] {
+    struct alignas(64) Flag {
+        std::atomic<bool> on{false};
+    } stop;
+    std::thread partner([&line, &stop] {
         long seen = 0;
-        for (;;) {
+        while (!stop.on.load(std::memory_order_relaxed)) {
             const long v = line.v.load(std::memory_order_acquire);
-            if (v == -1) return;
             if (v != seen && v % 2 == 1) {
                 line.v.store(v + 1, std::memory_order_release);
                 seen = v + 1;
@@ -192,7 +201,7 @@ double measure_core_round_trip_ns(double seconds) {
         if (warm && t1 >= t_end) break;
         warm = true;
     }
-    line.v.store(-1, std::memory_order_release);
+    stop.on.store(true, std::memory_order_relaxed);
     partner.join();
     return answered ? best : kNaN;
 }

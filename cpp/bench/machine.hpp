@@ -25,6 +25,7 @@ double measure_peak_gflops(const std::string& isa, bool fma, double seconds);
 /// depends on where the host placed the vCPUs (the same die or not), and moves a DE generation's
 /// own work on two threads (BENCHMARKS.md, twenty-ninth round). NaN with fewer than two hardware
 /// threads, or when the second thread does not answer within a second (no core free for it).
+/// Throws std::invalid_argument unless 0 <= seconds <= 3600.
 double measure_core_round_trip_ns(double seconds);
 
 }  // namespace iwr::bench
