@@ -33,7 +33,9 @@ def test_the_core_round_trip_is_a_plausible_time_or_nan_without_a_second_core():
         assert math.isfinite(ns) and 1.0 < ns < 1e6, ns
     else:  # the partner gets no core of its own: the probe gives up after a second
         assert math.isnan(ns)
-    assert elapsed < 5.0, elapsed  # the budget, not a speed
+    # A hang guard, not a speed: a batch gives up a second after it starts, so the probe returns
+    # within about two seconds whatever the machine's load.
+    assert elapsed < 60.0, elapsed
 
 
 @pytest.mark.parametrize("seconds", [-1.0, math.nan, math.inf, 1e9])
