@@ -104,12 +104,14 @@ def main() -> None:
     print("| driver | state (round trip) | samples | generation / batch, median (range) "
           "| trivial generation, median (us) |")
     print("|---|---|---|---|---|")
+    # Each sample's state: both round trips below the split, both at or above it, or neither
+    # (a switch during the sample, or no second core: NaN compares false), left out.
+    state = ["fast" if max(s["trip_before_ns"], s["trip_after_ns"]) < args.split else
+             "slow" if min(s["trip_before_ns"], s["trip_after_ns"]) >= args.split else None
+             for s in samples]
     for name, _ in drivers:
-        for label, keep in ((f"< {args.split:g} ns", lambda s: max(
-                s["trip_before_ns"], s["trip_after_ns"]) < args.split),
-                            (f">= {args.split:g} ns", lambda s: min(
-                s["trip_before_ns"], s["trip_after_ns"]) >= args.split)):
-            sel = [s for s in samples if keep(s)]
+        for label, which in ((f"< {args.split:g} ns", "fast"), (f">= {args.split:g} ns", "slow")):
+            sel = [s for s, st in zip(samples, state, strict=True) if st == which]
             if not sel:
                 print(f"| {name} | {label} | 0 | | |")
                 continue
@@ -130,8 +132,8 @@ def main() -> None:
         import matplotlib.pyplot as plt
 
         fig, axes = plt.subplots(1, 2, figsize=(11, 4), layout="constrained")
+        x = [0.5 * (s["trip_before_ns"] + s["trip_after_ns"]) for s in samples]
         for name, _ in drivers:
-            x = [0.5 * (s["trip_before_ns"] + s["trip_after_ns"]) for s in samples]
             axes[0].scatter(x, [s[f"{name}:ratio"] for s in samples], s=8, label=name)
             axes[1].scatter(x, [1e3 * s[f"{name}:trivial_ms"] for s in samples], s=8, label=name)
         axes[0].axhline(1.1, color="k", lw=0.8, ls="--")

@@ -425,13 +425,12 @@ void TrackerObjective::cost_rows(const double* const* xs, int m, double* out,
     // variant solves pairs.
     const bool alone = !kernel.chord2 || nb % 2 == 1;
     const int share = alone && last_block_half_full() ? 2 : 1, part = W / share;
-    const int most = kMaxGroup;  // vectors a group
     static_assert(kMaxGroup >= 4, "two vectors to a block, two blocks to a call");
     const double* data = block_data(nb - 1);
     const double* const blk[2] = {data, data};
     int i = 0;
     while (i < m) {
-        const int group = std::min(most, m - i) / share * share;  // whole blocks only
+        const int group = std::min(kMaxGroup, m - i) / share * share;  // whole blocks only
         if (group <= 1) {
             out[i] = evaluate(xs[i], ws, nullptr, nullptr, nullptr, nullptr);
             ++i;
