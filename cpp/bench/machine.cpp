@@ -11,6 +11,10 @@
 #include <string>
 #include <thread>
 
+#if defined(__linux__)
+#include <sched.h>
+#endif
+
 #if (defined(__GNUC__) || defined(__clang__)) && defined(__x86_64__)
 #define IWR_BENCH_X86 1
 #include <immintrin.h>
@@ -145,12 +149,75 @@ double measure_peak_gflops(const std::string& isa, bool fma, double seconds) {
 #endif
 }
 
+namespace {
+
+// The CPUs this thread may run on (its affinity: taskset, a container's cpuset), which
+// hardware_concurrency does not see.
+int usable_cpus() {
+#if defined(__linux__)
+    cpu_set_t set;
+    CPU_ZERO(&set);
+    if (sched_getaffinity(0, sizeof set, &set) == 0) return CPU_COUNT(&set);
+#endif
+    return static_cast<int>(std::thread::hardware_concurrency());
+}
+
+// The probe's two threads on two distinct CPUs of the caller's set, the caller's own set put back
+// when it ends: unpinned, a loaded scheduler may run both on one CPU, in turns, and the probe then
+// times its time slices (10-12 ms a round trip with four busy processes on two vCPUs), not the
+// cache line. Best effort: where affinity cannot be set, the threads stay where they are.
+class Pinning {
+public:
+    Pinning() {
+#if defined(__linux__)
+        CPU_ZERO(&saved_);
+        if (sched_getaffinity(0, sizeof saved_, &saved_) != 0) return;
+        // The caller stays on the CPU it is on (if it may), the partner takes the lowest other.
+        const int here = sched_getcpu();
+        for (int c = 0; c < CPU_SETSIZE && first_ < 0; ++c)
+            if (CPU_ISSET(c, &saved_) && (c == here || here < 0 || !CPU_ISSET(here, &saved_)))
+                first_ = c;
+        for (int c = 0; c < CPU_SETSIZE && second_ < 0; ++c)
+            if (CPU_ISSET(c, &saved_) && c != first_) second_ = c;
+        if (first_ >= 0 && second_ >= 0) pinned_ = pin(first_);
+#endif
+    }
+    ~Pinning() {
+#if defined(__linux__)
+        if (pinned_) sched_setaffinity(0, sizeof saved_, &saved_);
+#endif
+    }
+    Pinning(const Pinning&) = delete;
+    Pinning& operator=(const Pinning&) = delete;
+    /// For the partner thread, on its own start.
+    void pin_partner() const {
+#if defined(__linux__)
+        if (pinned_) pin(second_);
+#endif
+    }
+
+private:
+#if defined(__linux__)
+    static bool pin(int cpu) {
+        cpu_set_t one;
+        CPU_ZERO(&one);
+        CPU_SET(cpu, &one);
+        return sched_setaffinity(0, sizeof one, &one) == 0;
+    }
+    cpu_set_t saved_;
+    int first_ = -1, second_ = -1;
+#endif
+    bool pinned_ = false;
+};
+
+}  // namespace
+
 double measure_core_round_trip_ns(double seconds) {
     constexpr double kNaN = std::numeric_limits<double>::quiet_NaN();
     if (!(seconds >= 0 && seconds <= 3600))
         throw std::invalid_argument("seconds: " + std::to_string(seconds) +
                                     "; expected 0 to 3600");
-    if (std::thread::hardware_concurrency() < 2) return kNaN;
+    if (usable_cpus() < 2) return kNaN;
     using Clock = std::chrono::steady_clock;
     constexpr long kBatch = 256;
     // The counter alone on its cache line: odd values the caller's, even ones the answers
@@ -164,7 +231,9 @@ double measure_core_round_trip_ns(double seconds) {
     struct alignas(64) Flag {
         std::atomic<bool> on{false};
     } stop;
-    std::thread partner([&line, &stop] {
+    const Pinning pinning;
+    std::thread partner([&line, &stop, &pinning] {
+        pinning.pin_partner();
         long seen = 0;
         while (!stop.on.load(std::memory_order_relaxed)) {
             const long v = line.v.load(std::memory_order_acquire);
@@ -184,11 +253,17 @@ double measure_core_round_trip_ns(double seconds) {
         for (long i = 0; i < kBatch && answered; ++i) {
             line.v.store(++v, std::memory_order_release);
             ++v;
+            // A second without an answer to this round trip: the partner has no core. The clock
+            // is read only after 2^20 polls (a millisecond or more), not on the timed path; a
+            // loaded machine that answers late, but answers, is waited for.
             long polls = 0;
+            Clock::time_point waiting{};
             while (line.v.load(std::memory_order_acquire) != v) {
-                // a second without an answer: the partner has no core (checked every 2^20 polls)
-                if ((++polls & ((1L << 20) - 1)) == 0 &&
-                    Clock::now() - t0 > std::chrono::seconds(1)) {
+                if ((++polls & ((1L << 20) - 1)) != 0) continue;
+                const auto now = Clock::now();
+                if (polls == (1L << 20)) {
+                    waiting = now;
+                } else if (now - waiting > std::chrono::seconds(1)) {
                     answered = false;
                     break;
                 }

@@ -23,8 +23,9 @@ double measure_peak_gflops(const std::string& isa, bool fma, double seconds);
 /// over batches of 256 round trips (a batch the scheduler interrupted reads long). What each
 /// hand-over and each row one core wrote and the other reads costs: on a virtual machine it
 /// depends on where the host placed the vCPUs (the same die or not), and moves a DE generation's
-/// own work on two threads (BENCHMARKS.md, twenty-ninth round). NaN with fewer than two hardware
-/// threads, or when the second thread does not answer within a second (no core free for it).
+/// own work on two threads (BENCHMARKS.md, twenty-ninth round). NaN when this thread may run on
+/// fewer than two CPUs (its affinity), or when the second thread leaves a round trip unanswered
+/// for a second (no core free for it).
 /// Throws std::invalid_argument unless 0 <= seconds <= 3600.
 double measure_core_round_trip_ns(double seconds);
 
