@@ -286,11 +286,19 @@ class Worker:
     def batch(self, kernel: str, threads: int, data: str = "leg") -> float:
         """One repetition: wall time of cost_batch of the population on `threads` (ms), on the
         problem of `data` (:meth:`kind`)."""
+        return self.batches(kernel, threads, data, 1)[0]
+
+    def batches(self, kernel: str, threads: int, data: str, count: int) -> list:
+        """`count` repetitions of :meth:`batch` one after another (the pool's threads still
+        awake, as between DE's generations)."""
         _, _, problem, X = self.kind(data)
         self.core._select_kernel(kernel)
-        t0 = time.perf_counter()
-        problem.cost_batch(X, workers=threads)
-        return (time.perf_counter() - t0) * 1e3
+        out = []
+        for _ in range(count):
+            t0 = time.perf_counter()
+            problem.cost_batch(X, workers=threads)
+            out.append((time.perf_counter() - t0) * 1e3)
+        return out
 
     def de(self, kernel: str, threads: int, generations: int) -> dict:
         """One DE run: wall and process CPU time (s), and its result's bits (for determinism)."""
@@ -521,6 +529,8 @@ def main() -> None:
                     help="first copy each build's extension module to new pages (the same bytes; "
                          "see fresh_copy): repeat the run to see the spread that placement adds")
     args = ap.parse_args()
+    if args.runs < 1:
+        ap.error(f"--runs: {args.runs}; at least 1")
     if args.worker:
         Worker().serve()
         return
@@ -710,16 +720,22 @@ def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], r
     same seed (the same work generation by generation) the minimum of each generation is the
     generation undisturbed, and the median of these minima over generations 50.. is the
     figure (the first generations, with most mutants out of bounds, are slower). cost_batch of the
-    600 vectors: the minimum over rounds spread over `seconds`, as the objective tables. `data`:
-    the kind of data (:meth:`Worker.kind`)."""
+    600 vectors, `runs` calls one after another a round (the pool's threads awake, as between
+    generations), rounds spread over `seconds`: the minimum over all, as the objective tables,
+    and the generation's own statistic (:func:`like_for_like`), the median over rounds of each
+    round's minimum: the ratio of a generation to it compares like with like (the minimum of
+    hundreds of calls is lower: 1-3 % for the leg objective on the Zen 5, BENCHMARKS.md,
+    thirtieth round). `data`: the kind of data (:meth:`Worker.kind`)."""
     names = [b.name for b in builds]
     print(f"\n{data} data: DE/rand/1/bin, NP {NP}, N {N}, iwr.identify(method='de', polish=False), "
           f"{generations} generations x {runs} runs: per generation the minimum over the runs, "
           "then the median over generations 50..; cost_batch(X, workers=T) of the 600 vectors, "
-          f"wall time, the minimum over rounds spread over {seconds:g} s:")
+          f"wall time, {runs} calls one after another a round, rounds spread over {seconds:g} s: "
+          "the minimum, and (like for like) the median over rounds of each round's minimum:")
     print("| variant | threads | " + " | ".join(
-        f"{n}: ms/gen | {n}: cost_batch (ms) | {n}: gen / batch" for n in names) + " |")
-    print("|---|---|" + "---|" * (3 * len(names)))
+        f"{n}: ms/gen | {n}: cost_batch min (ms) | {n}: gen / min | {n}: cost_batch like for like "
+        f"(ms) | {n}: gen / like for like" for n in names) + " |")
+    print("|---|---|" + "---|" * (5 * len(names)))
     cells = [(k, t) for k in kernels for t in threads]
     gen: dict = {c: {n: [] for n in names} for c in cells}
     bits: dict = {n: {} for n in names}
@@ -736,7 +752,7 @@ def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], r
         while r < reps or time.perf_counter() - t0 < seconds:
             for c in cells[r % len(cells):] + cells[:r % len(cells)]:
                 for b in (builds if r % 2 == 0 else builds[::-1]):
-                    batch[c][b.name].append(b.ask("batch", c[0], c[1], data))
+                    batch[c][b.name].append(b.ask("batches", c[0], c[1], data, runs))
             r += 1
         per: dict = {}
         for c in cells:
@@ -744,9 +760,10 @@ def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], r
             for n in names:
                 m = [min(g) for g in zip(*gen[c][n], strict=True)][50:]
                 ms = sorted(m)[len(m) // 2]
-                bt = min(batch[c][n])
+                bt = min(min(g) for g in batch[c][n])
+                bl = like_for_like(batch[c][n])
                 per[(c, n)] = ms
-                cellout.append(f"{ms:.3f} | {bt:.3f} | {ms / bt:.2f}x")
+                cellout.append(f"{ms:.3f} | {bt:.3f} | {ms / bt:.2f}x | {bl:.3f} | {ms / bl:.2f}x")
             print(f"| {c[0]} | {c[1]} | " + " | ".join(cellout) + " |", flush=True)
     print(str(load))
     for n in names:
@@ -754,6 +771,13 @@ def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], r
             print(f"{n}: generations/s on 2 threads / on 1: " + ", ".join(
                 f"{k} {per[((k, 1), n)] / per[((k, 2), n)]:.2f}x" for k in kernels))
         print(f"{n}: " + bits_verdict(bits[n]))
+
+
+def like_for_like(groups: list[list[float]]) -> float:
+    """The statistic of a generation's time in :func:`scaling_table` applied to groups of
+    cost_batch times (each `runs` calls one after another): the median of the groups' minima."""
+    minima = sorted(min(g) for g in groups)
+    return minima[len(minima) // 2]
 
 
 def cpu_name() -> str:
