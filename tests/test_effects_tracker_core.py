@@ -213,3 +213,30 @@ def test_launcher_on_tracker_data_with_effects_equals_identify(tmp_path, measure
     assert exe.parameter_names == problem.parameter_names == py.parameter_names
     assert exe.parameter_names[58:65] == [f"leg{j}.compliance" for j in range(1, 7)] + [
         "legs.alpha"]
+
+
+@pytest.mark.parametrize("kind", ["points", "probe"])
+@pytest.mark.parametrize("name", ["realistic", "thermal alone, given"])
+def test_chord_steps_solve_the_box_and_newton_takes_over_outside(monkeypatch, measured_with_effects,
+                                                                 kind, name):
+    """The forward kinematics with the effects by chord steps (the statics' inverse at the
+    reference geometry and pose, refined with the current statics: cpp/src/effects_tracker.cpp)
+    solve every pose at random points within the bounds; ten times as far from the bounds'
+    centre they do not converge with the compliance, and Newton's method from the reference
+    solves the poses. Either way the residuals are the numpy model's (solved to 1e-13 mm) within
+    1e-11 mm."""
+    robot = _variant(measured_with_effects(kind).with_effects(), name)
+    compliance = robot.effects[0].name == "compliance"
+    data, _ = et.simulate(robot, 12, seed=8, payloads=PAYLOADS if compliance else None)
+    problem, _ = et.effect_tracker_problem(robot, data)
+    monkeypatch.setattr(et, "FK_TOLERANCE_MM", 1e-13)
+    cpp = problem._objective()
+    lo, hi = problem.lower, problem.upper
+    X = lo + (hi - lo) * np.random.default_rng(11).random((20, problem.n_params))
+    for x in X:
+        np.testing.assert_array_equal(cpp.solve_paths(x), 0)
+    far = (lo + hi) / 2 + 10 * (X[0] - (lo + hi) / 2)
+    paths = cpp.solve_paths(far)
+    assert set(paths) == ({1} if compliance else {0}), paths
+    for x in (X[1], far):
+        assert np.abs(cpp.residuals(x) - problem.residuals(x)).max() < 1e-11

@@ -142,6 +142,10 @@ void bind_effects(py::module_& m) {
              py::arg("x"))
         .def("predicted_points", [](const T& o, const VecRef& x) { return o.obj_->predicted_points(x); },
              py::arg("x"))
+        .def("solve_paths", [](const T& o, const VecRef& x) { return o.obj_->solve_paths(x); },
+             py::arg("x"),
+             "Per pose how its forward kinematics with the effects was solved at x: 0 chord steps, 1 "
+             "Newton from the reference, 2 Newton from the geometry's forward kinematics, 3 failed.")
         .def("cost_batch", &T::cost_batch, py::arg("X"), py::arg("threads") = 0);
 }
 

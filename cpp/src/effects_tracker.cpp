@@ -19,6 +19,10 @@ namespace {
 // hexapod_forward) and, after it, before the pose is declared failed (the geometry converges
 // quadratically, the compliance linearly at a part in 1e5: a few iterations from the reference).
 constexpr int kMaxNewton = 25;
+// Chord steps (PoseSolver::chord) before Newton's method takes over, and the forces' refinement
+// steps in each (they contract some 100-fold a step within DE's search box).
+constexpr int kMaxChord = 12;
+constexpr int kMaxForceSteps = 8;
 // A leg residual beyond this (mm) is divergence, not a step on the way.
 constexpr double kDiverged = 1e3;
 
@@ -49,6 +53,20 @@ Hexapod hexapod_at(const Geometry& g, const double* x) {
     return h;
 }
 
+// The chord's solves: G_ref^-1 (row-major) times x, and its transpose times x.
+inline void times(const double* gi, const double (&x)[6], double (&y)[6]) {
+    for (int a = 0; a < 6; ++a) {
+        double s = 0;
+        for (int b = 0; b < 6; ++b) s += gi[6 * a + b] * x[b];
+        y[a] = s;
+    }
+}
+inline void times_transposed(const double* gi, const double (&x)[6], double (&y)[6]) {
+    for (int a = 0; a < 6; ++a) y[a] = 0;
+    for (int b = 0; b < 6; ++b)
+        for (int a = 0; a < 6; ++a) y[a] += gi[6 * b + a] * x[b];
+}
+
 // One pose's forward kinematics with the effects: Newton's method on the predicted readings from
 // (p, r) (the platform's pose in the solver's frame; r row-major), in place. Before each iteration
 // frame(p, r, a, g) gives the base joints a and gravity g in that frame: {4} at the readings without
@@ -65,6 +83,91 @@ struct PoseSolver {
     const detail::LegEffects& le;
     bool compliance;
     double tol;
+
+    // The same equations in a frame whose base joints a and gravity g4 are fixed ({4}), by chord
+    // steps: G_ref^-1 (gi: the statics matrix's inverse at the reference geometry and pose, which
+    // the pose and the parameters move by a part in a thousand within DE's search box) in place of
+    // a factorisation of G at every iteration (the statics were 60 % of the objective's time,
+    // BENCHMARKS.md, thirtieth round). Each step is refined once towards Newton's: s = s0 + G_ref^-T
+    // (b - G^T s0), s0 = G_ref^-T b, with the current G; the legs' forces (with the compliance) are
+    // refined from the last iteration's, f += G_ref^-1 (w - G f), until a refinement moves no
+    // reading by more than tol / 1000. Converged as solve() (the largest residual at most tol, the
+    // step computed then taken too), so the pose is solve()'s to within tol. False when a leg has
+    // no length, the residual diverges, the forces do not settle or kMaxChord steps do not
+    // converge: the caller then runs solve() from the start.
+    bool chord(const double* d, const double* gi, const double (*base)[3], const double* g4, double (&p)[3],
+               double (&r)[9]) const {
+        const double mass = d[kOffLoad];
+        const double* c5 = d + kOffLoad + 1;  // first moment in {5}
+        double f[6] = {0, 0, 0, 0, 0, 0};     // the legs' forces (N), refined from step to step
+        for (int it = 0; it < kMaxChord; ++it) {
+            double u[kLegs][3], m[kLegs][3], len[kLegs];
+            for (int j = 0; j < kLegs; ++j) {
+                double v[3], rj[3];
+                for (int e = 0; e < 3; ++e) {
+                    rj[e] = r[3 * e] * ec.b[j][0] + r[3 * e + 1] * ec.b[j][1] + r[3 * e + 2] * ec.b[j][2];
+                    v[e] = (p[e] + rj[e]) - base[j][e];
+                }
+                len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+                if (!(len[j] > 0)) return false;
+                const double inv = 1.0 / len[j];
+                for (int e = 0; e < 3; ++e) u[j][e] = v[e] * inv;
+                m[j][0] = rj[1] * u[j][2] - rj[2] * u[j][1];
+                m[j][1] = rj[2] * u[j][0] - rj[0] * u[j][2];
+                m[j][2] = rj[0] * u[j][1] - rj[1] * u[j][0];
+            }
+            if (compliance) {
+                double w[6];
+                double rc[3];
+                for (int e = 0; e < 3; ++e) rc[e] = r[3 * e] * c5[0] + r[3 * e + 1] * c5[1] + r[3 * e + 2] * c5[2];
+                for (int e = 0; e < 3; ++e) w[e] = mass * g4[e];
+                w[3] = rc[1] * g4[2] - rc[2] * g4[1];
+                w[4] = rc[2] * g4[0] - rc[0] * g4[2];
+                w[5] = rc[0] * g4[1] - rc[1] * g4[0];
+                bool settled = false;
+                for (int k = 0; k < kMaxForceSteps && !settled; ++k) {
+                    double res[6], df[6];
+                    for (int e = 0; e < 3; ++e) {
+                        double sf = w[e], sm = w[3 + e];
+                        for (int j = 0; j < kLegs; ++j) sf -= u[j][e] * f[j], sm -= m[j][e] * f[j];
+                        res[e] = sf, res[3 + e] = sm;
+                    }
+                    times(gi, res, df);
+                    double moved = 0;
+                    for (int j = 0; j < kLegs; ++j) {
+                        f[j] += df[j];
+                        moved = std::max(moved, std::fabs(le.c[j] * df[j]));
+                    }
+                    settled = moved <= 1e-3 * tol;  // false for NaN
+                }
+                if (!settled) return false;
+            }
+            double b[6], worst = 0;
+            for (int j = 0; j < kLegs; ++j) {
+                const double dt = d[kOffDt + j];
+                const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
+                worst = std::max(worst, std::fabs(h));
+                b[j] = -h / (1.0 - le.alpha[j] * dt);
+            }
+            if (!(worst <= kDiverged)) return false;  // NaN too
+            double s0[6], t[6], step[6];
+            times_transposed(gi, b, s0);
+            for (int j = 0; j < kLegs; ++j)
+                t[j] = b[j] - (u[j][0] * s0[0] + u[j][1] * s0[1] + u[j][2] * s0[2] + m[j][0] * s0[3] +
+                               m[j][1] * s0[4] + m[j][2] * s0[5]);
+            times_transposed(gi, t, step);
+            for (int e = 0; e < 6; ++e) step[e] += s0[e];
+            for (int e = 0; e < 3; ++e) p[e] += step[e];
+            const Mat3 turn = rotvec_matrix(Vec3(step[3], step[4], step[5]));
+            double nr[9];
+            for (int a = 0; a < 3; ++a)
+                for (int c = 0; c < 3; ++c)
+                    nr[3 * a + c] = turn(a, 0) * r[c] + turn(a, 1) * r[3 + c] + turn(a, 2) * r[6 + c];
+            for (int e = 0; e < 9; ++e) r[e] = nr[e];
+            if (worst <= tol) return true;
+        }
+        return false;
+    }
 
     template <class Frame>
     bool solve(const double* d, Frame&& frame, double (&p)[3], double (&r)[9]) const {
@@ -182,6 +285,8 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
         prismatic_.push_back(geometry_.is_prismatic(i) ? 1 : 0);
         nq += geometry_.is_prismatic(i) ? 1 : 2;
     }
+    off_chord_ = nq;
+    nq += 36;
     stride_ = nq;
     off_pts_ = kOffPoints;
     carriage_ = detail::CarriageNominal(geometry_);
@@ -221,6 +326,18 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
         const Mat3 rr = euler_zyx(ref(3), ref(4), ref(5));
         for (int e = 0; e < 3; ++e) d[kOffRefP + e] = ref(e);
         for (int e = 0; e < 9; ++e) d[kOffRefR + e] = rr(e / 3, e % 3);
+        {  // G_ref^-1 for the chord steps: G's column j is (u_j, w_j x u_j), w_j = R b_j
+            Eigen::Matrix<double, 6, 6> gm;
+            for (int j = 0; j < kLegs; ++j) {
+                const Vec3 w = rr * h.b.row(j).transpose();
+                const Vec3 u = (ref.head<3>() + w - h.a.row(j).transpose()).normalized();
+                gm.col(j) << u, w.cross(u);
+            }
+            const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(gm);
+            Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> gi(d + off_chord_);
+            if (lu.isInvertible()) gi = lu.inverse();
+            if (!lu.isInvertible() || !gi.allFinite()) gi(0, 0) = std::numeric_limits<double>::quiet_NaN();
+        }
         for (int i = 0; i < kp; ++i) {
             const bool seen = !std::isnan(points(k, 3 * i));
             for (int c = 0; c < 3; ++c) d[kOffPoints + 3 * i + c] = seen ? points(k, 3 * i + c) : 0.0;
@@ -258,7 +375,7 @@ TrackerEffectObjective::Workspace TrackerEffectObjective::make_workspace() const
 
 double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* res, RowMatrixXd* poses,
                                         RowMatrixXd* predicted,
-                                        std::vector<std::pair<int, std::string>>* failed) const {
+                                        std::vector<std::pair<int, std::string>>* failed, int* paths) const {
     const Geometry& g = geometry_;
     const int nj = g.n_joints(), kp = setup_.n_points(), m = 3 * kp;
     detail::EvalConsts ec;
@@ -327,9 +444,21 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
             return solver.solve(d, moving, pp, rr);
         };
         double p[3], r[9];
-        for (int e = 0; e < 3; ++e) p[e] = d[kOffRefP + e];
-        for (int e = 0; e < 9; ++e) r[e] = d[kOffRefR + e];
-        bool ok = solve(p, r);
+        const auto start = [&] {
+            for (int e = 0; e < 3; ++e) p[e] = d[kOffRefP + e];
+            for (int e = 0; e < 9; ++e) r[e] = d[kOffRefR + e];
+        };
+        start();
+        // Chord steps in {4} where the carriage is rigid, else (or where they do not converge)
+        // Newton's method from the reference.
+        const double* gi = d + off_chord_;
+        bool ok = !cc && !std::isnan(gi[0]) && solver.chord(d, gi, ec.a, g4, p, r);
+        int path = 0;
+        if (!ok) {
+            start();
+            ok = solve(p, r);
+            path = 1;
+        }
         if (!ok) {
             // From the geometry's own forward kinematics at x (damped Newton-Raphson from the
             // reference pose), then Newton with the effects again.
@@ -347,14 +476,17 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
                 for (int e = 0; e < 3; ++e) p[e] = sol(e);
                 for (int e = 0; e < 9; ++e) r[e] = rs(e / 3, e % 3);
                 ok = solve(p, r);
+                path = 2;
             } catch (const ForwardKinematicsError&) {
                 ok = false;
             }
+            if (!ok) path = 3;
             if (!ok && failed)
                 failed->emplace_back(k, "forward kinematics with the effects: pose " + std::to_string(k) +
                                             ": the legs do not close at these readings under the pose's load "
                                             "and temperature (no Newton convergence)");
         }
+        if (paths) paths[k] = path;
         // The point y = T_T0 0T4 (P + R r_i) (with the carriage's compliance (P, R) is 0T5
         // already), and its residual.
         double w0[12];  // 0T5
@@ -441,6 +573,14 @@ std::vector<std::pair<int, std::string>> TrackerEffectObjective::failures(const 
     std::vector<std::pair<int, std::string>> out;
     Workspace ws = make_workspace();
     evaluate(x.data(), ws, nullptr, nullptr, nullptr, &out);
+    return out;
+}
+
+Eigen::VectorXi TrackerEffectObjective::solve_paths(const Eigen::Ref<const VectorXd>& x) const {
+    check_x(x);
+    Eigen::VectorXi out(n_);
+    Workspace ws = make_workspace();
+    evaluate(x.data(), ws, nullptr, nullptr, nullptr, nullptr, out.data());
     return out;
 }
 

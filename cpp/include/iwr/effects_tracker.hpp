@@ -98,6 +98,12 @@ public:
     /// poses are NaN.
     RowMatrixXd platform_poses(const Eigen::Ref<const VectorXd>& x) const;
     RowMatrixXd predicted_points(const Eigen::Ref<const VectorXd>& x) const;
+    /// How each pose's forward kinematics with the effects was solved at x: 0 by chord steps (the
+    /// statics' inverse at the reference; the carriage rigid), 1 by Newton's method from the
+    /// reference, 2 by Newton's method from the geometry's forward kinematics at x, 3 not at all
+    /// (a failure). A diagnostic: the same poses whichever path solved them, to within the
+    /// tolerance.
+    Eigen::VectorXi solve_paths(const Eigen::Ref<const VectorXd>& x) const;
     /// The same into out (n_poses() x 3 n_points(), sized by the caller) at x (unchecked, as
     /// cost(x, ws)): the hot path of the objectives built on these kinematics
     /// (BallbarEffectObjective, iwr/effects_ballbar.hpp).
@@ -107,9 +113,10 @@ private:
     void check_x(const Eigen::Ref<const VectorXd>& x) const;
     // The cost; per pose its residuals into res (n_residuals, unwhitened; may be null), its world
     // pose and predicted points into poses/predicted (may be null), a failure message into
-    // failed (may be null).
+    // failed (may be null), the path that solved it into paths (solve_paths; may be null).
     double evaluate(const double* x, Workspace& ws, double* res, RowMatrixXd* poses,
-                    RowMatrixXd* predicted, std::vector<std::pair<int, std::string>>* failed) const;
+                    RowMatrixXd* predicted, std::vector<std::pair<int, std::string>>* failed,
+                    int* paths = nullptr) const;
 
     Geometry geometry_;
     EffectModel effects_;
@@ -120,9 +127,11 @@ private:
     // Per pose, stride_ doubles: the readings (6), T - T_ref per leg (6), the mass (kg) and first
     // moment in {5} (kg mm) of the platform and payload (4; with the leg or the carriage compliance), the reference's local pose P (3) and
     // R (9, row-major), the measured points (3 K; 0 where not seen) and a flag per point (1 seen),
-    // then per joint q (prismatic) or cos q, sin q (revolute).
+    // then per joint q (prismatic) or cos q, sin q (revolute), then (at off_chord_) G_ref^-1, the
+    // inverse of the hexapod's statics matrix at the reference geometry and pose (36, row-major;
+    // NaN first where it has none: the chord steps are skipped).
     std::vector<double> data_;
-    int stride_ = 0, off_pts_ = 0;
+    int stride_ = 0, off_pts_ = 0, off_chord_ = 0;
     std::vector<int> q_off_;
     std::vector<char> prismatic_;
     std::vector<Vector6d> ref_euler_;  // the reference local poses (the fallback's start)
