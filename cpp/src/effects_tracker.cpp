@@ -84,10 +84,11 @@ struct PoseSolver {
     bool compliance;
     double tol;
 
-    // The same equations in a frame whose base joints a and gravity g4 are fixed ({4}), by chord
-    // steps: G_ref^-1 (gi: the statics matrix's inverse at the reference geometry and pose, which
-    // the pose and the parameters move by a part in a thousand within DE's search box) in place of
-    // a factorisation of G at every iteration (the statics were 60 % of the objective's time,
+    // The same equations by chord steps: G_ref^-1 (gi: the statics matrix's inverse at the
+    // reference geometry and pose in {4}, which the pose and the parameters move by a part in a
+    // thousand within DE's search box; rot: 0R4 row-major where the solver's frame is {0}, its
+    // G then B G_ref with B = diag(0R4, 0R4), else null) in place of a factorisation of G at
+    // every iteration (the statics were 60 % of the objective's time,
     // BENCHMARKS.md, thirtieth round). Each step is refined once towards Newton's: s = s0 + G_ref^-T
     // (b - G^T s0), s0 = G_ref^-T b, with the current G; the legs' forces (with the compliance) are
     // refined from the last iteration's, f += G_ref^-1 (w - G f), until a refinement moves no
@@ -95,12 +96,31 @@ struct PoseSolver {
     // step computed then taken too), so the pose is solve()'s to within tol. False when a leg has
     // no length, the residual diverges, the forces do not settle or kMaxChord steps do not
     // converge: the caller then runs solve() from the start.
-    bool chord(const double* d, const double* gi, const double (*base)[3], const double* g4, double (&p)[3],
+    template <class Frame>
+    bool chord(const double* d, const double* gi, const double* rot, Frame&& frame, double (&p)[3],
                double (&r)[9]) const {
         const double mass = d[kOffLoad];
         const double* c5 = d + kOffLoad + 1;  // first moment in {5}
         double f[6] = {0, 0, 0, 0, 0, 0};     // the legs' forces (N), refined from step to step
+        // y = B^T x (into {4}) and x = B y (out of it), B = diag(0R4, 0R4); none without rot.
+        const auto into = [rot](double (&x)[6]) {
+            if (!rot) return;
+            for (int h = 0; h < 6; h += 3) {
+                const double a = x[h], b = x[h + 1], c = x[h + 2];
+                for (int e = 0; e < 3; ++e) x[h + e] = rot[e] * a + rot[3 + e] * b + rot[6 + e] * c;
+            }
+        };
+        const auto out = [rot](double (&x)[6]) {
+            if (!rot) return;
+            for (int h = 0; h < 6; h += 3) {
+                const double a = x[h], b = x[h + 1], c = x[h + 2];
+                for (int e = 0; e < 3; ++e) x[h + e] = rot[3 * e] * a + rot[3 * e + 1] * b + rot[3 * e + 2] * c;
+            }
+        };
         for (int it = 0; it < kMaxChord; ++it) {
+            const double(*base)[3] = nullptr;
+            const double* g4 = nullptr;
+            frame(p, r, base, g4);
             double u[kLegs][3], m[kLegs][3], len[kLegs];
             for (int j = 0; j < kLegs; ++j) {
                 double v[3], rj[3];
@@ -132,6 +152,7 @@ struct PoseSolver {
                         for (int j = 0; j < kLegs; ++j) sf -= u[j][e] * f[j], sm -= m[j][e] * f[j];
                         res[e] = sf, res[3 + e] = sm;
                     }
+                    into(res);
                     times(gi, res, df);
                     double moved = 0;
                     for (int j = 0; j < kLegs; ++j) {
@@ -152,10 +173,12 @@ struct PoseSolver {
             if (!(worst <= kDiverged)) return false;  // NaN too
             double s0[6], t[6], step[6];
             times_transposed(gi, b, s0);
+            out(s0);
             for (int j = 0; j < kLegs; ++j)
                 t[j] = b[j] - (u[j][0] * s0[0] + u[j][1] * s0[1] + u[j][2] * s0[2] + m[j][0] * s0[3] +
                                m[j][1] * s0[4] + m[j][2] * s0[5]);
             times_transposed(gi, t, step);
+            out(step);
             for (int e = 0; e < 6; ++e) step[e] += s0[e];
             for (int e = 0; e < 3; ++e) p[e] += step[e];
             const Mat3 turn = rotvec_matrix(Vec3(step[3], step[4], step[5]));
@@ -449,10 +472,18 @@ double TrackerEffectObjective::evaluate(const double* x, Workspace& ws, double* 
             for (int e = 0; e < 9; ++e) r[e] = d[kOffRefR + e];
         };
         start();
-        // Chord steps in {4} where the carriage is rigid, else (or where they do not converge)
-        // Newton's method from the reference.
+        // Chord steps (in {0} with the carriage's compliance: its G_ref carried by 0R4 at the
+        // readings), else (where they do not converge) Newton's method from the reference.
         const double* gi = d + off_chord_;
-        bool ok = !cc && !std::isnan(gi[0]) && solver.chord(d, gi, ec.a, g4, p, r);
+        bool ok = false;
+        if (!std::isnan(gi[0])) {
+            if (!cc) {
+                ok = solver.chord(d, gi, nullptr, fixed, p, r);
+            } else {
+                to_world(t, p, r);
+                ok = solver.chord(d, gi, t, moving, p, r);
+            }
+        }
         int path = 0;
         if (!ok) {
             start();

@@ -99,7 +99,7 @@ public:
     RowMatrixXd platform_poses(const Eigen::Ref<const VectorXd>& x) const;
     RowMatrixXd predicted_points(const Eigen::Ref<const VectorXd>& x) const;
     /// How each pose's forward kinematics with the effects was solved at x: 0 by chord steps (the
-    /// statics' inverse at the reference; the carriage rigid), 1 by Newton's method from the
+    /// statics' inverse at the reference geometry and pose), 1 by Newton's method from the
     /// reference, 2 by Newton's method from the geometry's forward kinematics at x, 3 not at all
     /// (a failure). A diagnostic: the same poses whichever path solved them, to within the
     /// tolerance.
