@@ -200,8 +200,8 @@ def test_cpp_objective_with_the_carriage_agrees_with_the_numpy_model(monkeypatch
     """The C++ residuals against the numpy model's (its forward kinematics solved to 1e-13 mm)
     at the truth, the start and random points within the bounds (the carriage's compliances up
     to their bound, 0.5 urad/(N m)): within 1e-11 mm; the costs the residuals' squares, the
-    batch the same bits on 1 and 2 threads; the platform poses numpy's, every pose solved by
-    chord steps."""
+    batch the same bits on 1 and 2 threads; the platform poses numpy's; every pose solved by
+    chord steps, and far outside the bounds by Newton's method."""
     plain = measured_with_effects(kind)
     robot = carriage_robot(plain, legs=name == "with the legs' effects",
                            thermal=name != "the carriage alone",
@@ -228,9 +228,14 @@ def test_cpp_objective_with_the_carriage_agrees_with_the_numpy_model(monkeypatch
     np.testing.assert_array_equal(costs, [problem.cost(x) for x in X])
     np.testing.assert_allclose(cpp.platform_poses(X[2]), problem.platform_poses(X[2]),
                                rtol=0, atol=1e-11)
-    # By chord steps in {0} (the reference's statics carried by the carriage's rotation).
+    # By chord steps in {0} (the reference's statics carried by the carriage's rotation); three
+    # hundred times as far from the bounds' centre they do not converge, and Newton's method from
+    # the reference (in {0}) solves the poses, to numpy's residuals too.
     for x in X:
         np.testing.assert_array_equal(cpp.solve_paths(x), 0)
+    far = (lo + hi) / 2 + 300 * (X[2] - (lo + hi) / 2)
+    np.testing.assert_array_equal(cpp.solve_paths(far), 1)
+    assert np.abs(cpp.residuals(far) - problem.residuals(far)).max() < 1e-11
 
 
 def test_weighted_cpp_objective_with_the_carriage(measured_with_effects):

@@ -1,5 +1,5 @@
 // Tracker data for a robot with the legs' effects (see iwr/effects_tracker.hpp): forward kinematics
-// with the effects pose by pose (Newton's method, the statics shared with the leg objective with
+// with the effects pose by pose (chord steps, else Newton's method; the statics shared with the leg objective with
 // effects through effects_kernel.hpp), then the points in {T}.
 #include "iwr/effects_tracker.hpp"
 
@@ -91,17 +91,21 @@ struct PoseSolver {
     // every iteration (the statics were 60 % of the objective's time,
     // BENCHMARKS.md, thirtieth round). Each step is refined once towards Newton's: s = s0 + G_ref^-T
     // (b - G^T s0), s0 = G_ref^-T b, with the current G; the legs' forces (with the compliance) are
-    // refined from the last iteration's, f += G_ref^-1 (w - G f), until a refinement moves no
-    // reading by more than tol / 1000. Converged as solve() (the largest residual at most tol, the
+    // refined from the last iteration's, f += G_ref^-1 (w - G f), to a ten-thousandth of the last
+    // step's residual, and to tol / 1000 (no refinement moving a reading more) before the
+    // residuals are judged converged. Converged as solve() (the largest residual at most tol, the
     // step computed then taken too), so the pose is solve()'s to within tol. False when a leg has
-    // no length, the residual diverges, the forces do not settle or kMaxChord steps do not
-    // converge: the caller then runs solve() from the start.
+    // no length, the residual diverges or is NaN, the forces do not settle or kMaxChord steps do
+    // not converge: the caller then runs solve() from the start. The current G is not checked for
+    // a singularity (solve()'s factorisation refuses one): near one the forces do not settle.
     template <class Frame>
     bool chord(const double* d, const double* gi, const double* rot, Frame&& frame, double (&p)[3],
                double (&r)[9]) const {
         const double mass = d[kOffLoad];
         const double* c5 = d + kOffLoad + 1;  // first moment in {5}
         double f[6] = {0, 0, 0, 0, 0, 0};     // the legs' forces (N), refined from step to step
+        const double fine = 1e-3 * tol;       // the forces' last refinement moves no reading more
+        double last = 1.0;                    // the last step's largest residual (mm), at most 1
         // y = B^T x (into {4}) and x = B y (out of it), B = diag(0R4, 0R4); none without rot.
         const auto into = [rot](double (&x)[6]) {
             if (!rot) return;
@@ -136,16 +140,19 @@ struct PoseSolver {
                 m[j][1] = rj[2] * u[j][0] - rj[0] * u[j][2];
                 m[j][2] = rj[0] * u[j][1] - rj[1] * u[j][0];
             }
+            double w[6] = {0, 0, 0, 0, 0, 0};
             if (compliance) {
-                double w[6];
                 double rc[3];
                 for (int e = 0; e < 3; ++e) rc[e] = r[3 * e] * c5[0] + r[3 * e + 1] * c5[1] + r[3 * e + 2] * c5[2];
                 for (int e = 0; e < 3; ++e) w[e] = mass * g4[e];
                 w[3] = rc[1] * g4[2] - rc[2] * g4[1];
                 w[4] = rc[2] * g4[0] - rc[0] * g4[2];
                 w[5] = rc[0] * g4[1] - rc[1] * g4[0];
-                bool settled = false;
-                for (int k = 0; k < kMaxForceSteps && !settled; ++k) {
+            }
+            // The forces refined until a refinement moves no reading by more than `want`; false
+            // when kMaxForceSteps do not get there (or a NaN).
+            const auto settle = [&](double want) {
+                for (int k = 0; k < kMaxForceSteps; ++k) {
                     double res[6], df[6];
                     for (int e = 0; e < 3; ++e) {
                         double sf = w[e], sm = w[3 + e];
@@ -154,23 +161,37 @@ struct PoseSolver {
                     }
                     into(res);
                     times(gi, res, df);
-                    double moved = 0;
+                    double moved = 0, sum = 0;  // (sum: NaN where a change is, which max drops)
                     for (int j = 0; j < kLegs; ++j) {
                         f[j] += df[j];
                         moved = std::max(moved, std::fabs(le.c[j] * df[j]));
+                        sum += df[j];
                     }
-                    settled = moved <= 1e-3 * tol;  // false for NaN
+                    if (std::isnan(sum)) return false;
+                    if (moved <= want) return true;
                 }
-                if (!settled) return false;
+                return false;
+            };
+            // The forces to a ten-thousandth of the last step's largest residual (they follow the
+            // pose: a step takes them on from where they were); once the residuals are within tol,
+            // to tol / 1000 and the residuals again (what the convergence is judged on).
+            double b[6], worst = 0, want = std::max(fine, 1e-4 * last);
+            for (;;) {
+                if (compliance && !settle(want)) return false;
+                worst = 0;
+                double sum = 0;  // NaN where a residual is (std::max drops a NaN)
+                for (int j = 0; j < kLegs; ++j) {
+                    const double dt = d[kOffDt + j];
+                    const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
+                    worst = std::max(worst, std::fabs(h));
+                    sum += h;
+                    b[j] = -h / (1.0 - le.alpha[j] * dt);
+                }
+                if (!(worst <= kDiverged) || std::isnan(sum)) return false;
+                if (!(compliance && worst <= tol && want > fine)) break;
+                want = fine;
             }
-            double b[6], worst = 0;
-            for (int j = 0; j < kLegs; ++j) {
-                const double dt = d[kOffDt + j];
-                const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
-                worst = std::max(worst, std::fabs(h));
-                b[j] = -h / (1.0 - le.alpha[j] * dt);
-            }
-            if (!(worst <= kDiverged)) return false;  // NaN too
+            last = std::min(worst, 1.0);
             double s0[6], t[6], step[6];
             times_transposed(gi, b, s0);
             out(s0);
@@ -226,14 +247,15 @@ struct PoseSolver {
                 f[5] = rc[0] * g4[1] - rc[1] * g4[0];
                 detail::statics_forces(st, f);
             }
-            double step[6], worst = 0;
+            double step[6], worst = 0, sum = 0;  // (sum: NaN where a residual is, which max drops)
             for (int j = 0; j < kLegs; ++j) {
                 const double dt = d[kOffDt + j];
                 const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
                 worst = std::max(worst, std::fabs(h));
+                sum += h;
                 step[j] = -h / (1.0 - le.alpha[j] * dt);
             }
-            if (!(worst <= kDiverged)) return false;  // NaN too
+            if (!(worst <= kDiverged) || std::isnan(sum)) return false;
             detail::statics_transposed(st, step);
             for (int e = 0; e < 3; ++e) p[e] += step[e];
             const Mat3 turn = rotvec_matrix(Vec3(step[3], step[4], step[5]));
@@ -349,17 +371,21 @@ TrackerEffectObjective::TrackerEffectObjective(Geometry geometry, EffectModel ef
         const Mat3 rr = euler_zyx(ref(3), ref(4), ref(5));
         for (int e = 0; e < 3; ++e) d[kOffRefP + e] = ref(e);
         for (int e = 0; e < 9; ++e) d[kOffRefR + e] = rr(e / 3, e % 3);
-        {  // G_ref^-1 for the chord steps: G's column j is (u_j, w_j x u_j), w_j = R b_j
+        {  // G_ref^-1 for the chord steps: G's column j is (u_j, w_j x u_j), w_j = R b_j; none
+           // (NaN) where the statics refuse G_ref as solve() would (a pivot below 1e-12)
             Eigen::Matrix<double, 6, 6> gm;
+            double uj[kLegs][3], wj[kLegs][3];
             for (int j = 0; j < kLegs; ++j) {
                 const Vec3 w = rr * h.b.row(j).transpose();
                 const Vec3 u = (ref.head<3>() + w - h.a.row(j).transpose()).normalized();
                 gm.col(j) << u, w.cross(u);
+                for (int e = 0; e < 3; ++e) uj[j][e] = u(e), wj[j][e] = w(e);
             }
-            const Eigen::FullPivLU<Eigen::Matrix<double, 6, 6>> lu(gm);
+            detail::Statics st;
+            const bool regular = detail::statics_factor(uj, wj, st);
             Eigen::Map<Eigen::Matrix<double, 6, 6, Eigen::RowMajor>> gi(d + off_chord_);
-            if (lu.isInvertible()) gi = lu.inverse();
-            if (!lu.isInvertible() || !gi.allFinite()) gi(0, 0) = std::numeric_limits<double>::quiet_NaN();
+            if (regular) gi = gm.fullPivLu().inverse();
+            if (!regular || !gi.allFinite()) gi(0, 0) = std::numeric_limits<double>::quiet_NaN();
         }
         for (int i = 0; i < kp; ++i) {
             const bool seen = !std::isnan(points(k, 3 * i));

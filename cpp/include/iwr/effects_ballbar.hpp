@@ -6,8 +6,8 @@
 //     r_k = w_k ( |T_05,k(x) P_s - F_s| + o_s - d_k )                                    (mm)
 //
 // with T_05,k the platform pose by forward kinematics *with the effects* under pose k's load and
-// temperature: TrackerEffectObjective's kinematics (iwr/effects_tracker.hpp: Newton's method on the
-// legs with their compliance and thermal growth, the carriage's joints changed by their compliance
+// temperature: TrackerEffectObjective's kinematics (iwr/effects_tracker.hpp: chord or Newton steps on
+// the legs with their compliance and thermal growth, the carriage's joints changed by their compliance
 // under the load) on a probe at the origin of {5} in a tracker frame equal to {0} (registration
 // zero: gravity in {T} is gravity in {0}, the effects' own gravity_m_s2, as Python's
 // iwr.ballbar.effects.BallbarEffectProblem takes it), whose four virtual points give the origin and

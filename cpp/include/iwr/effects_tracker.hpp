@@ -9,26 +9,26 @@
 //     s_kj = D_j(P, R) - l0_j - 1e-3 c_j f_j(P, R) - 1e-6 alpha_j D_j(P, R) (T_kj - T_ref)
 //
 // (D_j the distance between the joint centres, f_j the leg's axial force from the hexapod's
-// statics under the platform's and the pose's payload's weight), solved by Newton's method with
-// the geometry's leg Jacobian scaled by the thermal growth (the compliance changes it by a part in
-// 1e5: the convergence is quadratic in the geometry, linear at that rate in the compliance) from
-// the pose solved once at the reference; the points are then T_T0 0T4 (P + R r_i), as
+// statics under the platform's and the pose's payload's weight), solved from the pose solved once
+// at the reference by chord steps with the statics' inverse there, each refined towards the
+// Newton step of the geometry's leg Jacobian scaled by the thermal growth (the compliance changes
+// it by a part in 1e5: the convergence is linear at that rate in the compliance), and by Newton's
+// method where the steps do not converge; the points are then T_T0 0T4 (P + R r_i), as
 // TrackerObjective's. Gravity is given in {T} and carried into {0} by the identified
 // registration, g_0 = R_T0(x)^T g_T: the registration's gauge then moves {0} and gravity together
 // (the compliance table's own gravity, in {0}, is for pose data and is not used here).
 //
 // With the carriage's compliance the carriage's joints change by c_i L_i under their gravity load
 // L_i (iwr/effects.hpp) of the hexapod and of the platform's bodies where the solved pose puts them,
-// gravity through the registration too: the pose is then solved in {0}, each Newton iteration with
+// gravity through the registration too: the pose is then solved in {0}, each iteration with
 // the joints' change at the current pose and the base joints of the changed carriage (the change's
 // own derivative in the pose, a part in 1e5 to 1e3 of the legs', left out as the compliance's).
 //
 // Parameters: the robot's 4 n + 42, the effects' (their tables' order), then the tracker setup's
 // (registration 6, then 3 K reflector offsets or 6 of the probe).
 //
-// Portable scalar code, one pose after another (no SIMD lanes: every pose runs its own Newton
-// iterations, each with the statics' 6 x 6 factorisation); a robot without effects runs
-// TrackerObjective's SIMD kernels, untouched.
+// Portable scalar code, one pose after another (no SIMD lanes: every pose runs its own
+// iterations); a robot without effects runs TrackerObjective's SIMD kernels, untouched.
 #pragma once
 
 #include <string>
@@ -55,9 +55,9 @@ public:
     /// of mass in {5} mm) or empty; temperatures (N, 1 or N, 6; degrees C) or empty (refused with
     /// the thermal effect on). reference: the robot's geometric errors (4 n + 42) at which each
     /// pose's geometric forward kinematics is solved once from `home` (a local pose of {5} in {4}):
-    /// each evaluation's Newton iterations start there. tolerance (mm): a pose is solved when its
-    /// largest leg residual is at most this (then one more step is taken, which costs no
-    /// evaluation: the residual falls to round-off).
+    /// each evaluation's iterations start there (the statics' inverse there is kept for the chord
+    /// steps). tolerance (mm): a pose is solved when its largest leg residual is at most this (then
+    /// one more step is taken, which costs no evaluation and shrinks the residual further).
     TrackerEffectObjective(Geometry geometry, EffectModel effects, TrackerSetup setup, const Vec3& gravity,
                            const RowMatrixXd& q, const RowMatrixXd& legs, const RowMatrixXd& points,
                            const RowMatrixXd& payload, const RowMatrixXd& temperatures,
