@@ -67,8 +67,9 @@ inline void times_transposed(const double* gi, const double (&x)[6], double (&y)
         for (int a = 0; a < 6; ++a) y[a] += gi[6 * b + a] * x[b];
 }
 
-// One pose's forward kinematics with the effects: Newton's method on the predicted readings from
-// (p, r) (the platform's pose in the solver's frame; r row-major), in place. Before each iteration
+// One pose's forward kinematics with the effects (solve: Newton's method; chord: chord steps,
+// below) on the predicted readings from (p, r) (the platform's pose in the solver's frame; r
+// row-major), in place. Before each iteration
 // frame(p, r, a, g) gives the base joints a and gravity g in that frame: {4} at the readings without
 // the carriage's compliance (a and g fixed), {0} with it (the carriage's joints change with the
 // platform's load, so {4} moves with the pose solved). The Jacobian is the geometry's, G^T (the
@@ -83,6 +84,59 @@ struct PoseSolver {
     const detail::LegEffects& le;
     bool compliance;
     double tol;
+
+    // The legs at (p, r) with the base joints `base`: each one's platform joint relative to the
+    // platform origin rj, unit vector u and length len; false where a leg has no length.
+    bool legs(const double (&p)[3], const double (&r)[9], const double (*base)[3], double (&rj)[kLegs][3],
+              double (&u)[kLegs][3], double (&len)[kLegs]) const {
+        for (int j = 0; j < kLegs; ++j) {
+            double v[3];
+            for (int e = 0; e < 3; ++e) {
+                rj[j][e] = r[3 * e] * ec.b[j][0] + r[3 * e + 1] * ec.b[j][1] + r[3 * e + 2] * ec.b[j][2];
+                v[e] = (p[e] + rj[j][e]) - base[j][e];
+            }
+            len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
+            if (!(len[j] > 0)) return false;
+            const double inv = 1.0 / len[j];
+            for (int e = 0; e < 3; ++e) u[j][e] = v[e] * inv;
+        }
+        return true;
+    }
+    // The weight of the platform and payload at rotation r: force M g, moment (R c) x g with c
+    // their first moment in {5} (kg mm: N mm), about the platform origin, in the frame of g.
+    static void wrench(const double* d, const double (&r)[9], const double* g, double (&w)[6]) {
+        const double mass = d[kOffLoad];
+        const double* c5 = d + kOffLoad + 1;
+        double rc[3];
+        for (int e = 0; e < 3; ++e) rc[e] = r[3 * e] * c5[0] + r[3 * e + 1] * c5[1] + r[3 * e + 2] * c5[2];
+        for (int e = 0; e < 3; ++e) w[e] = mass * g[e];
+        w[3] = rc[1] * g[2] - rc[2] * g[1];
+        w[4] = rc[2] * g[0] - rc[0] * g[2];
+        w[5] = rc[0] * g[1] - rc[1] * g[0];
+    }
+    // The legs' residuals at lengths len and forces f: the right-hand side b of the step (-h_j
+    // over the thermal growth), and the largest |h_j| (NaN where one is: std::max drops it).
+    double residuals(const double* d, const double (&len)[kLegs], const double (&f)[6], double (&b)[6]) const {
+        double worst = 0, sum = 0;
+        for (int j = 0; j < kLegs; ++j) {
+            const double dt = d[kOffDt + j];
+            const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
+            worst = std::max(worst, std::fabs(h));
+            sum += h;
+            b[j] = -h / (1.0 - le.alpha[j] * dt);
+        }
+        return std::isnan(sum) ? sum : worst;
+    }
+    // (p, r) moved by the step (dP, omega): p + dP, Exp(omega) r.
+    static void move(const double (&step)[6], double (&p)[3], double (&r)[9]) {
+        for (int e = 0; e < 3; ++e) p[e] += step[e];
+        const Mat3 turn = rotvec_matrix(Vec3(step[3], step[4], step[5]));
+        double nr[9];
+        for (int a = 0; a < 3; ++a)
+            for (int c = 0; c < 3; ++c)
+                nr[3 * a + c] = turn(a, 0) * r[c] + turn(a, 1) * r[3 + c] + turn(a, 2) * r[6 + c];
+        for (int e = 0; e < 9; ++e) r[e] = nr[e];
+    }
 
     // The same equations by chord steps: G_ref^-1 (gi: the statics matrix's inverse at the
     // reference geometry and pose in {4}, which the pose and the parameters move by a part in a
@@ -101,11 +155,9 @@ struct PoseSolver {
     template <class Frame>
     bool chord(const double* d, const double* gi, const double* rot, Frame&& frame, double (&p)[3],
                double (&r)[9]) const {
-        const double mass = d[kOffLoad];
-        const double* c5 = d + kOffLoad + 1;  // first moment in {5}
-        double f[6] = {0, 0, 0, 0, 0, 0};     // the legs' forces (N), refined from step to step
-        const double fine = 1e-3 * tol;       // the forces' last refinement moves no reading more
-        double last = 1.0;                    // the last step's largest residual (mm), at most 1
+        double f[6] = {0, 0, 0, 0, 0, 0};  // the legs' forces (N), refined from step to step
+        const double fine = 1e-3 * tol;    // the forces' last refinement moves no reading more
+        double last = 1.0;                 // the last step's largest residual (mm), at most 1
         // y = B^T x (into {4}) and x = B y (out of it), B = diag(0R4, 0R4); none without rot.
         const auto into = [rot](double (&x)[6]) {
             if (!rot) return;
@@ -125,30 +177,15 @@ struct PoseSolver {
             const double(*base)[3] = nullptr;
             const double* g4 = nullptr;
             frame(p, r, base, g4);
-            double u[kLegs][3], m[kLegs][3], len[kLegs];
+            double u[kLegs][3], rj[kLegs][3], m[kLegs][3], len[kLegs];
+            if (!legs(p, r, base, rj, u, len)) return false;
             for (int j = 0; j < kLegs; ++j) {
-                double v[3], rj[3];
-                for (int e = 0; e < 3; ++e) {
-                    rj[e] = r[3 * e] * ec.b[j][0] + r[3 * e + 1] * ec.b[j][1] + r[3 * e + 2] * ec.b[j][2];
-                    v[e] = (p[e] + rj[e]) - base[j][e];
-                }
-                len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-                if (!(len[j] > 0)) return false;
-                const double inv = 1.0 / len[j];
-                for (int e = 0; e < 3; ++e) u[j][e] = v[e] * inv;
-                m[j][0] = rj[1] * u[j][2] - rj[2] * u[j][1];
-                m[j][1] = rj[2] * u[j][0] - rj[0] * u[j][2];
-                m[j][2] = rj[0] * u[j][1] - rj[1] * u[j][0];
+                m[j][0] = rj[j][1] * u[j][2] - rj[j][2] * u[j][1];
+                m[j][1] = rj[j][2] * u[j][0] - rj[j][0] * u[j][2];
+                m[j][2] = rj[j][0] * u[j][1] - rj[j][1] * u[j][0];
             }
             double w[6] = {0, 0, 0, 0, 0, 0};
-            if (compliance) {
-                double rc[3];
-                for (int e = 0; e < 3; ++e) rc[e] = r[3 * e] * c5[0] + r[3 * e + 1] * c5[1] + r[3 * e + 2] * c5[2];
-                for (int e = 0; e < 3; ++e) w[e] = mass * g4[e];
-                w[3] = rc[1] * g4[2] - rc[2] * g4[1];
-                w[4] = rc[2] * g4[0] - rc[0] * g4[2];
-                w[5] = rc[0] * g4[1] - rc[1] * g4[0];
-            }
+            if (compliance) wrench(d, r, g4, w);
             // The forces refined until a refinement moves no reading by more than `want`; false
             // when kMaxForceSteps do not get there (or a NaN).
             const auto settle = [&](double want) {
@@ -178,16 +215,8 @@ struct PoseSolver {
             double b[6], worst = 0, want = std::max(fine, 1e-4 * last);
             for (;;) {
                 if (compliance && !settle(want)) return false;
-                worst = 0;
-                double sum = 0;  // NaN where a residual is (std::max drops a NaN)
-                for (int j = 0; j < kLegs; ++j) {
-                    const double dt = d[kOffDt + j];
-                    const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
-                    worst = std::max(worst, std::fabs(h));
-                    sum += h;
-                    b[j] = -h / (1.0 - le.alpha[j] * dt);
-                }
-                if (!(worst <= kDiverged) || std::isnan(sum)) return false;
+                worst = residuals(d, len, f, b);
+                if (!(worst <= kDiverged)) return false;  // NaN too
                 if (!(compliance && worst <= tol && want > fine)) break;
                 want = fine;
             }
@@ -201,13 +230,7 @@ struct PoseSolver {
             times_transposed(gi, t, step);
             out(step);
             for (int e = 0; e < 6; ++e) step[e] += s0[e];
-            for (int e = 0; e < 3; ++e) p[e] += step[e];
-            const Mat3 turn = rotvec_matrix(Vec3(step[3], step[4], step[5]));
-            double nr[9];
-            for (int a = 0; a < 3; ++a)
-                for (int c = 0; c < 3; ++c)
-                    nr[3 * a + c] = turn(a, 0) * r[c] + turn(a, 1) * r[3 + c] + turn(a, 2) * r[6 + c];
-            for (int e = 0; e < 9; ++e) r[e] = nr[e];
+            move(step, p, r);
             if (worst <= tol) return true;
         }
         return false;
@@ -215,55 +238,24 @@ struct PoseSolver {
 
     template <class Frame>
     bool solve(const double* d, Frame&& frame, double (&p)[3], double (&r)[9]) const {
-        const double mass = d[kOffLoad];
-        const double* c5 = d + kOffLoad + 1;  // first moment in {5}
         for (int it = 0; it < kMaxNewton; ++it) {
             const double(*base)[3] = nullptr;
             const double* g4 = nullptr;
             frame(p, r, base, g4);
             double u[kLegs][3], rj[kLegs][3], len[kLegs];
-            for (int j = 0; j < kLegs; ++j) {
-                double v[3];
-                for (int e = 0; e < 3; ++e) {
-                    rj[j][e] = r[3 * e] * ec.b[j][0] + r[3 * e + 1] * ec.b[j][1] + r[3 * e + 2] * ec.b[j][2];
-                    v[e] = (p[e] + rj[j][e]) - base[j][e];
-                }
-                len[j] = std::sqrt(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]);
-                if (!(len[j] > 0)) return false;
-                const double inv = 1.0 / len[j];
-                for (int e = 0; e < 3; ++e) u[j][e] = v[e] * inv;
-            }
+            if (!legs(p, r, base, rj, u, len)) return false;
             detail::Statics st;
             if (!detail::statics_factor(u, rj, st)) return false;
             double f[6] = {0, 0, 0, 0, 0, 0};
             if (compliance) {
-                // The weight of the platform and payload: force M g, moment (R c) x g with c their
-                // first moment in {5} (kg mm: N mm), about the platform origin, in the frame.
-                double rc[3];
-                for (int e = 0; e < 3; ++e) rc[e] = r[3 * e] * c5[0] + r[3 * e + 1] * c5[1] + r[3 * e + 2] * c5[2];
-                for (int e = 0; e < 3; ++e) f[e] = mass * g4[e];
-                f[3] = rc[1] * g4[2] - rc[2] * g4[1];
-                f[4] = rc[2] * g4[0] - rc[0] * g4[2];
-                f[5] = rc[0] * g4[1] - rc[1] * g4[0];
+                wrench(d, r, g4, f);
                 detail::statics_forces(st, f);
             }
-            double step[6], worst = 0, sum = 0;  // (sum: NaN where a residual is, which max drops)
-            for (int j = 0; j < kLegs; ++j) {
-                const double dt = d[kOffDt + j];
-                const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
-                worst = std::max(worst, std::fabs(h));
-                sum += h;
-                step[j] = -h / (1.0 - le.alpha[j] * dt);
-            }
-            if (!(worst <= kDiverged) || std::isnan(sum)) return false;
+            double step[6];
+            const double worst = residuals(d, len, f, step);
+            if (!(worst <= kDiverged)) return false;  // NaN too
             detail::statics_transposed(st, step);
-            for (int e = 0; e < 3; ++e) p[e] += step[e];
-            const Mat3 turn = rotvec_matrix(Vec3(step[3], step[4], step[5]));
-            double nr[9];
-            for (int a = 0; a < 3; ++a)
-                for (int b = 0; b < 3; ++b)
-                    nr[3 * a + b] = turn(a, 0) * r[b] + turn(a, 1) * r[3 + b] + turn(a, 2) * r[6 + b];
-            for (int e = 0; e < 9; ++e) r[e] = nr[e];
+            move(step, p, r);
             if (worst <= tol) return true;
         }
         return false;
