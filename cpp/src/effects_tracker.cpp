@@ -1,6 +1,6 @@
 // Tracker data for a robot with the legs' effects (see iwr/effects_tracker.hpp): forward kinematics
-// with the effects pose by pose (chord steps, else Newton's method; the statics shared with the leg objective with
-// effects through effects_kernel.hpp), then the points in {T}.
+// with the effects pose by pose (chord steps, else Newton's method; the statics shared with the
+// leg objective with effects through effects_kernel.hpp), then the points in {T}.
 #include "iwr/effects_tracker.hpp"
 
 #include <algorithm>
@@ -20,7 +20,8 @@ namespace {
 // quadratically, the compliance linearly at a part in 1e5: a few iterations from the reference).
 constexpr int kMaxNewton = 25;
 // Chord steps (PoseSolver::chord) before Newton's method takes over, and the forces' refinement
-// steps in each (they contract some 100-fold a step within DE's search box).
+// steps in each (each shrinks the forces' error by |I - G_ref^-1 G|, a part in a hundred to a
+// thousand within DE's search box).
 constexpr int kMaxChord = 12;
 constexpr int kMaxForceSteps = 8;
 // A leg residual beyond this (mm) is divergence, not a step on the way.
@@ -142,9 +143,9 @@ struct PoseSolver {
     // reference geometry and pose in {4}, which the pose and the parameters move by a part in a
     // thousand within DE's search box; rot: 0R4 row-major where the solver's frame is {0}, its
     // G then B G_ref with B = diag(0R4, 0R4), else null) in place of a factorisation of G at
-    // every iteration (the statics were 60 % of the objective's time,
-    // BENCHMARKS.md, thirtieth round). Each step is refined once towards Newton's: s = s0 + G_ref^-T
-    // (b - G^T s0), s0 = G_ref^-T b, with the current G; the legs' forces (with the compliance) are
+    // every iteration (the statics were 60 % of the objective's time, BENCHMARKS.md, thirtieth
+    // round). Each step is refined once towards Newton's: s = s0 + G_ref^-T (b - G^T s0), s0 =
+    // G_ref^-T b, with the current G; the legs' forces (with the compliance) are
     // refined from the last iteration's, f += G_ref^-1 (w - G f), to a ten-thousandth of the last
     // step's residual, and to tol / 1000 (no refinement moving a reading more) before the
     // residuals are judged converged. Converged as solve() (the largest residual at most tol, the
