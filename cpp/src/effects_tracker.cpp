@@ -213,15 +213,21 @@ struct PoseSolver {
             // The forces to a ten-thousandth of the last step's largest residual (they follow the
             // pose: a step takes them on from where they were); once the residuals are within tol,
             // to tol / 1000 and the residuals again (what the convergence is judged on).
-            double b[6], worst = 0, want = std::max(fine, 1e-4 * last);
-            for (;;) {
-                if (compliance && !settle(want)) return false;
+            double b[6], worst = 0;
+            if (!compliance) {
                 worst = residuals(d, len, f, b);
                 if (!(worst <= kDiverged)) return false;  // NaN too
-                if (!(compliance && worst <= tol && want > fine)) break;
-                want = fine;
+            } else {
+                double want = std::max(fine, 1e-4 * last);
+                for (;;) {
+                    if (!settle(want)) return false;
+                    worst = residuals(d, len, f, b);
+                    if (!(worst <= kDiverged)) return false;  // NaN too
+                    if (!(worst <= tol && want > fine)) break;
+                    want = fine;
+                }
+                last = std::min(worst, 1.0);
             }
-            last = std::min(worst, 1.0);
             double s0[6], t[6], step[6];
             times_transposed(gi, b, s0);
             out(s0);
