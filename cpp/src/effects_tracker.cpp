@@ -116,15 +116,16 @@ struct PoseSolver {
         w[5] = rc[0] * g[1] - rc[1] * g[0];
     }
     // The legs' residuals at lengths len and forces f: the right-hand side b of the step (-h_j
-    // over the thermal growth), and the largest |h_j| (NaN where one is: std::max drops it).
+    // over the thermal growth), and the largest |h_j|; NaN where an h_j is NaN (std::max drops
+    // it) or a b_j is not finite (a thermal growth of 0: 0 b_j is then NaN).
     double residuals(const double* d, const double (&len)[kLegs], const double (&f)[6], double (&b)[6]) const {
         double worst = 0, sum = 0;
         for (int j = 0; j < kLegs; ++j) {
             const double dt = d[kOffDt + j];
             const double h = detail::predicted_reading(len[j], ec.l0[j], le.c[j], f[j], le.alpha[j], dt) - d[j];
             worst = std::max(worst, std::fabs(h));
-            sum += h;
             b[j] = -h / (1.0 - le.alpha[j] * dt);
+            sum += h + 0.0 * b[j];
         }
         return std::isnan(sum) ? sum : worst;
     }
