@@ -26,27 +26,13 @@ void bind_bench(py::module_& m) {
                 return out;
             },
             py::arg("X"), "Costs of the rows of X, one after the other on the calling thread.");
-    b.def(
-        "measure_clock_ghz",
-        [](double seconds) {
-            py::gil_scoped_release release;
-            return bench::measure_clock_ghz(seconds);
-        },
-        py::arg("seconds") = 0.2);
-    b.def(
-        "measure_peak_gflops",
-        [](const std::string& isa, bool fma, double seconds) {
-            py::gil_scoped_release release;
-            return bench::measure_peak_gflops(isa, fma, seconds);
-        },
-        py::arg("isa"), py::arg("fma") = false, py::arg("seconds") = 0.2);
-    b.def(
-        "measure_core_round_trip_ns",
-        [](double seconds) {
-            py::gil_scoped_release release;
-            return bench::measure_core_round_trip_ns(seconds);
-        },
-        py::arg("seconds") = 0.05);
+    // The probes run without the GIL (pybind11's call guard releases it around the call).
+    using NoGil = py::call_guard<py::gil_scoped_release>;
+    b.def("measure_clock_ghz", &bench::measure_clock_ghz, py::arg("seconds") = 0.2, NoGil());
+    b.def("measure_peak_gflops", &bench::measure_peak_gflops, py::arg("isa"), py::arg("fma") = false,
+          py::arg("seconds") = 0.2, NoGil());
+    b.def("measure_core_round_trip_ns", &bench::measure_core_round_trip_ns, py::arg("seconds") = 0.05,
+          NoGil());
 }
 
 }  // namespace iwr::python
