@@ -58,6 +58,7 @@ from .simulation import Noise, UnreachableError, simulate
 _LAZY = {
     "Calibration": ".calibration",
     "calibrate": ".calibration",
+    "calibrated_robot": ".calibration",
     "Comparison": ".experiments.compare",
     "compare_methods": ".experiments.compare",
     "StudyError": ".experiments.monte_carlo",
@@ -75,7 +76,7 @@ _LAZY = {
 }
 
 if TYPE_CHECKING:  # the same names for type checkers (and for tools/layers.py's import graph)
-    from .calibration import Calibration, calibrate
+    from .calibration import Calibration, calibrate, calibrated_robot
     from .experiments.compare import Comparison, compare_methods
     from .experiments.monte_carlo import StudyError, StudyResult, study
     from .methods import (
@@ -137,6 +138,7 @@ __all__ = [
     "__version__",
     "accuracy",
     "calibrate",
+    "calibrated_robot",
     "compare_methods",
     "differential_evolution",
     "forward_kinematics",

@@ -33,6 +33,8 @@ HOOKS: dict[str, str] = {
     "markdown_table": "iwr.reporting.tables:markdown_table",
     # iwr.fit_test's check of data that cannot identify the robot (iwr.calibrate's rule)
     "degenerate_data": "iwr.analysis.identifiability:degenerate_data",
+    # iwr.kinds.MeasurementKind.calibrated_robot: a robot with effects, their values written in
+    "apply_effects": "iwr.effects.api:apply",
     # iwr.study(report=True)
     "study_report": "iwr.reporting.study:report",
 }

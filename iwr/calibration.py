@@ -18,6 +18,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -284,6 +285,13 @@ class Calibration:
     def fit_ok(self) -> bool | None:
         """The fit test's answer, or None when there was none (no noise model)."""
         return self.result.fit_ok
+
+    def calibrated_robot(self) -> Any:
+        """The calibrated robot, as the job's ``calibrated.toml`` holds it
+        (:meth:`iwr.kinds.MeasurementKind.calibrated_robot`: with the kind's calibrated set-up,
+        and for tracker data {5} moved to the frame the measured points fix). Check
+        :attr:`success` before acting on it."""
+        return self.kind.calibrated_robot(self.robot, self.result.x)[0]
 
     def improvement(self) -> tuple[float, float, str, str]:
         """``(before, after, sentence, what)``: the error the job is judged by
@@ -818,6 +826,27 @@ def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
     if isinstance(objective, dict) and objective.get("weighted"):
         return kind.noise_from_record(objective)
     return None
+
+
+def calibrated_robot(robot: Any, result: Any, data: Any = None) -> Any:
+    """The calibrated robot of an identification: ``robot`` (the nominal one it started from)
+    corrected by ``result`` (an :class:`iwr.IdentificationResult`, or its ``x``), as a
+    calibration job's ``calibrated.toml`` holds it. For every kind of data: its effects'
+    identified values written in; a tracker's registration and reflectors (or probe) and a
+    ballbar's set-ups at their calibrated values; and for tracker data {5} moved to the frame
+    the measured points fix (the data do not fix {5}), so that a target pose in {T} means
+    what a user measures (:func:`iwr.compensation.leg_commands`).
+
+    ``data``: the data identified (their kind decides what ``result.x`` holds); default the
+    kind ``robot``'s description measures (its ``[tracker]`` or ``[ballbar]`` table, else poses
+    in {0}). ValueError naming the entry at fault when ``result.x`` is not a result of
+    ``robot`` on that kind (:func:`check_result`). ``Robot.with_errors`` takes the geometric
+    errors alone, and a tracker result's first ones with it keep the nominal registration and
+    {5}: commands from that robot are off by the registration's error."""
+    kind = kinds.of(data) if data is not None else kinds.for_robot(robot)
+    if not hasattr(result, "x"):
+        result = SimpleNamespace(x=result, parameter_names=[])
+    return kind.calibrated_robot(robot, check_result(robot, kind, result))[0]
 
 
 def check_result(robot: Any, kind: Any, result: Any) -> np.ndarray:

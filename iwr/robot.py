@@ -246,7 +246,15 @@ class Robot:
 
     def with_errors(self, x: Any) -> Robot:
         """The robot whose nominal geometry is this one's plus the error vector ``x`` (a
-        calibrated robot)."""
+        calibrated robot): geometric errors alone (:func:`iwr.calibrated_robot` makes the
+        robot of any result)."""
+        if np.ndim(x) == 1 and np.size(x) > self.n_params:
+            raise ValueError(
+                f"x: {np.size(x)} values; expected {self.n_params}, the robot's geometric errors "
+                "alone. A result with more parameters (its effects', a tracker's or a ballbar's "
+                "set-up) becomes a robot by iwr.calibrated_robot(robot, result): with its first "
+                f"{self.n_params} values alone the nominal set-up would stay (and for tracker "
+                "data a platform frame {5} the data do not fix)")
         x = _as_array(x, (self.n_params,), "x")
         n = self.n_joints
         dh = self.dh + x[: 4 * n].reshape(n, 4)

@@ -123,6 +123,14 @@ class BallbarKind(MeasurementKind):
     def setup_parameter_names(self, robot: Any) -> list[str]:
         return ballbar_setup(robot).parameter_names
 
+    def calibrated_robot(self, robot: Any, x: Any) -> tuple[Any, dict[str, Any]]:
+        """With its ``[ballbar]`` set-ups at their calibrated values."""
+        out, extra = super().calibrated_robot(robot, x)
+        setup = ballbar_setup(robot)
+        x = np.asarray(x, dtype=float)
+        calibrated = setup.with_parameters(x[x.size - setup.n_params:])
+        return out.with_instrument("ballbar", calibrated), extra
+
     def fingerprint(self, robot: Any, data: Any) -> str:
         """The problem file's data fingerprint (C++ ``ProblemData::data_fingerprint``: the joint
         and leg readings, each pose's set-up by name and the bar's readings), so that ``iwr

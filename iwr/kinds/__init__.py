@@ -309,6 +309,22 @@ class MeasurementKind(abc.ABC):
         ``message``), or None when the kind has no such check."""
         return None
 
+    def calibrated_robot(self, robot: Any, x: Any) -> tuple[Any, dict[str, Any]]:
+        """The calibrated robot of ``x``, a result on this kind's data (``robot``'s errors, its
+        effects' parameters, then the kind's set-up's), as ``calibrated.toml`` holds it, and
+        what that file's ``[provenance]`` says of it beyond the job (the tracker's platform
+        frame): the one way a result becomes a robot (:func:`iwr.calibrated_robot`, the
+        calibration job's files). Here the robot's own part, its effects' values included; a
+        kind with a set-up writes the set-up's calibrated values too."""
+        from .._hooks import hook
+        from ..effects import parameter_names as effect_names
+
+        n = robot.n_params + len(effect_names(robot.effects))
+        x = np.asarray(x, dtype=float)
+        if robot.effects:
+            return hook("apply_effects")(robot, x[:n]), {}
+        return robot.with_errors(x[:n]), {}
+
     def registration(self, robot: Any, x_setup: Any = None) -> np.ndarray:
         """The frame the data are given in, in {0} (a 4x4 transform): the identity for data in
         {0}; the tracker's registration (at its setup parameters ``x_setup``, default the

@@ -394,16 +394,9 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         """``calibrated.toml`` (the calibrated robot with its calibrated ``[ballbar]``
         set-ups), ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the
         report into ``out``; returns the paths written."""
-        x = self._x()
-        if self.robot.effects:  # issue 23: written with the identified effect values
-            from ..effects.api import apply
-
-            robot = apply(self.robot, x[:self.n_robot])
-        else:
-            robot = self.robot.with_errors(x[:self.n_robot])
-        calibrated = robot.with_instrument("ballbar", self.setup.with_parameters(x[self.n_robot:]))
+        calibrated, extra = self.kind.calibrated_robot(self.robot, self._x())
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
-        calibrated.to_toml(written[0], provenance=self.file_provenance())
+        calibrated.to_toml(written[0], provenance=self.file_provenance(**extra))
         self.result.save(written[1])
         atomic_write_text(written[2], json.dumps(jsonable(self.accuracy.to_dict(),
                                                           finite_only=True), indent=1) + "\n")

@@ -540,13 +540,8 @@ class CalibrationReport(Calibration):
     def _write_files(self, out: Path, plots: bool) -> list[Path]:
         written = []
         calibrated = out / "calibrated.toml"
-        if self.robot.effects:  # issue 23: the identified effects' values written too
-            from ..effects.api import apply
-
-            robot = apply(self.robot, self.result.x)
-        else:
-            robot = self.robot.with_errors(self.result.x)
-        robot.to_toml(calibrated, provenance=self.file_provenance())
+        robot, extra = self.kind.calibrated_robot(self.robot, self.result.x)
+        robot.to_toml(calibrated, provenance=self.file_provenance(**extra))
         written.append(calibrated)
         result = out / "result.json"
         self.result.save(result)

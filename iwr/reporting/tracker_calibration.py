@@ -510,14 +510,12 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         """``calibrated.toml`` (the calibrated robot with its calibrated ``[tracker]`` table),
         ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the report
         (``report.html``, ``report.md``) into ``out``; returns the paths written."""
-        from ..tracker.analysis import calibrated_robot
-
         # The same model with {5} moved to the frame the measured points fix (the data do not
         # fix {5}): a pose of {5} in {T} then means what a user measures (iwr legs); with
         # effects, their identified values and the platform's centre of mass moved with {5}.
-        calibrated, frame = calibrated_robot(self.robot, self.result.x)
+        calibrated, extra = self.kind.calibrated_robot(self.robot, self.result.x)
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
-        calibrated.to_toml(written[0], provenance=self.file_provenance(platform_frame=frame))
+        calibrated.to_toml(written[0], provenance=self.file_provenance(**extra))
         self.result.save(written[1])
         atomic_write_text(written[2], json.dumps(jsonable(self.accuracy.to_dict(),
                                                           finite_only=True), indent=1) + "\n")

@@ -163,6 +163,15 @@ class _TrackerKind(MeasurementKind):
     def registration(self, robot: Any, x_setup: Any = None) -> np.ndarray:
         return robot.tracker.registration_matrix(x_setup)
 
+    def calibrated_robot(self, robot: Any, x: Any) -> tuple[Any, dict[str, Any]]:
+        """With the calibrated ``[tracker]`` table, and {5} moved to the frame the measured
+        points fix (:func:`iwr.tracker.calibrated_robot`: the data do not fix {5}), named as
+        the file's ``platform_frame``."""
+        from .analysis import calibrated_robot
+
+        out, frame = calibrated_robot(robot, x)
+        return out, {"platform_frame": frame}
+
     def world_gravity(self, robot: Any) -> np.ndarray:
         """The tracker's gravity (``[tracker] gravity``, in {T}) carried into {0} by the robot
         file's registration (the effects' own ``gravity_m_s2`` in {0} is not used on tracker
