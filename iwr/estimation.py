@@ -597,6 +597,9 @@ def _estimate(spec: Any, start_time: float, *, callback: Any, outliers: str,
     elif not converged:
         status = "stopped" if solver_status == 0 else "failed"
         message = str(out["message"])
+        if status == "stopped":  # the iteration limit: the test is of the point it stopped at
+            fit = fit.stopped()
+            verdict = fit.verdict
         if not fit_ok:
             message += "; the model does not fit the data" + (
                 f": chi2 = {statistic:.4g} for {dof} degrees of freedom (p = {p_value:.2g})"

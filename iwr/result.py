@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import math
 import os
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -31,6 +31,11 @@ STATUSES = {
     "not calibrated": "the method converged, but the data cannot identify the errors or the "
                       "result is worse than the nominal robot (iwr.reporting.calibration)",
 }
+
+
+#: How the verdict of a fit test at a point where the method was stopped begins
+#: (:meth:`FitTest.stopped`).
+STOPPED_FIT = "NOT CONVERGED (tested at the point the method stopped, to first order): "
 
 
 @dataclass(frozen=True)
@@ -67,6 +72,14 @@ class FitTest:
     verdict: str
     causes: list[str] = field(default_factory=list)
     implausible: list[tuple[str, float, float]] = field(default_factory=list)
+
+    def stopped(self) -> FitTest:
+        """This test of a point where a limit stopped the method before it converged: the same
+        test, a passing verdict saying so (the chi-square test minimises to first order around
+        that point, so it may pass where the point is still far from the solution: "the model
+        fits the data" of a DE run stopped after two generations). A failing one is left as it
+        is: the job leads its causes with :data:`iwr.calibration.STOPPED_CAUSE`."""
+        return replace(self, verdict=f"{STOPPED_FIT}{self.verdict}") if self.fit_ok else self
 
     @property
     def variance_factor(self) -> float:

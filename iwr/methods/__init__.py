@@ -310,6 +310,8 @@ def _check_fit(result: IdentificationResult, problem: Any, noise: Any,
         fit = fit_check(problem.robot, problem.measurements, result.x, active=active, noise=None,
                         bounds=(problem.lower, problem.upper))
         result["message"] = f"{result.message} (no chi-square test: {exc})"
+    if result.status == "stopped":  # a budget ended the method: the test is of that point
+        fit = fit.stopped()
     result["fit"] = fit
     if result.success and not fit.fit_ok:
         # The method's own message (e.g. "converged") is kept, but no longer as the outcome.
