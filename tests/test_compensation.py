@@ -270,6 +270,12 @@ def test_out_of_stroke_and_workspace_flagged_counted_and_exit_5(tmp_path):
     assert work[4] == 1 and work[1] == 1 and work[0] == 0  # 400 mm up is out of the workspace
     assert "2 of 6 targets need a leg outside its stroke" in proc.stdout
     assert "lines 3, 5" in proc.stdout  # file lines (header is line 1)
+    # The exit line tells the two apart: target 5 (the rail beyond its limit) is within every
+    # leg's stroke, and the robot can reach it (it said "cannot reach" of every flagged target).
+    last = proc.stdout.strip().splitlines()[-1]
+    assert last.startswith("iwr legs: 3 targets flagged (exit 6); the robot cannot reach those "
+                           "out of stroke as commanded; those only outside the workspace are "
+                           "within every leg's stroke, but the commands extrapolate"), last
 
 
 def test_an_angle_beyond_two_pi_is_refused_by_line_and_column(tmp_path):
