@@ -289,9 +289,19 @@ class Calibration:
     def calibrated_robot(self) -> Any:
         """The calibrated robot, as the job's ``calibrated.toml`` holds it
         (:meth:`iwr.kinds.MeasurementKind.calibrated_robot`: with the kind's calibrated set-up,
-        and for tracker data {5} moved to the frame the measured points fix). Check
-        :attr:`success` before acting on it."""
-        return self.kind.calibrated_robot(self.robot, self.result.x)[0]
+        and for tracker data {5} moved to the frame the measured points fix; its workspace
+        widened to hold the poses measured, :func:`iwr.compensation.with_measured_workspace`).
+        Check :attr:`success` before acting on it."""
+        return self.calibrated_file()[0]
+
+    def calibrated_file(self) -> tuple[Any, dict[str, Any]]:
+        """:meth:`calibrated_robot`, and what ``calibrated.toml``'s ``[provenance]`` says of it
+        beyond the job (the kind's: the tracker's platform frame)."""
+        from .compensation import with_measured_workspace
+
+        robot, extra = self.kind.calibrated_robot(self.robot, self.result.x)
+        sets = [self.identification] + ([self.validation] if self.held_out else [])
+        return with_measured_workspace(robot, *sets), extra
 
     def improvement(self) -> tuple[float, float, str, str]:
         """``(before, after, sentence, what)``: the error the job is judged by
@@ -837,16 +847,23 @@ def calibrated_robot(robot: Any, result: Any, data: Any = None) -> Any:
     the measured points fix (the data do not fix {5}), so that a target pose in {T} means
     what a user measures (:func:`iwr.compensation.leg_commands`).
 
-    ``data``: the data identified (their kind decides what ``result.x`` holds); default the
-    kind ``robot``'s description measures (its ``[tracker]`` or ``[ballbar]`` table, else poses
-    in {0}). ValueError naming the entry at fault when ``result.x`` is not a result of
-    ``robot`` on that kind (:func:`check_result`). ``Robot.with_errors`` takes the geometric
+    ``data``: the data identified (their kind decides what ``result.x`` holds; the robot's
+    workspace is widened to hold their poses, as the job's is:
+    :func:`iwr.compensation.with_measured_workspace`); default the kind ``robot``'s description
+    measures (its ``[tracker]`` or ``[ballbar]`` table, else poses in {0}), and the workspace as
+    it is. ValueError naming the entry at fault when ``result.x`` is not a result of ``robot``
+    on that kind (:func:`check_result`). ``Robot.with_errors`` takes the geometric
     errors alone, and a tracker result's first ones with it keep the nominal registration and
     {5}: commands from that robot are off by the registration's error."""
     kind = kinds.of(data) if data is not None else kinds.for_robot(robot)
     if not hasattr(result, "x"):
         result = SimpleNamespace(x=result, parameter_names=[])
-    return kind.calibrated_robot(robot, check_result(robot, kind, result))[0]
+    calibrated = kind.calibrated_robot(robot, check_result(robot, kind, result))[0]
+    if data is None:
+        return calibrated
+    from .compensation import with_measured_workspace
+
+    return with_measured_workspace(calibrated, data)
 
 
 def check_result(robot: Any, kind: Any, result: Any) -> np.ndarray:

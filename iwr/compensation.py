@@ -32,7 +32,7 @@ if TYPE_CHECKING:  # scipy.optimize's OptimizeResult: not for `import iwr`
 __all__ = ["CALIBRATION_STATUSES", "FRAMES", "CalibrationStatusError", "FrameError",
            "LegCommands", "NominalMismatchError", "TargetError", "calibration_status",
            "check_calibration", "check_nominal", "determined_frame", "implied_errors",
-           "leg_commands"]
+           "leg_commands", "with_measured_workspace"]
 
 #: What ``[provenance] status`` of a calibration file can say; only ``success`` is used without
 #: being told to (``allow_unverified``).
@@ -330,6 +330,44 @@ def rigid_transform(value: Any, name: str) -> np.ndarray:
     return m
 
 
+def _from_home(robot: Robot, q: np.ndarray, target: np.ndarray) -> np.ndarray:
+    """(N, 6): the platform's pose in {4} at each of ``target`` (4x4 poses of {5} in {0}) at
+    joint readings ``q``, minus ``robot.home_pose`` (angles within +-pi): what the workspace
+    bounds."""
+    local = np.array([pose_from_matrix(np.linalg.solve(robot.carriage_transform(qk), t))
+                      for qk, t in zip(q, target, strict=True)]).reshape(-1, 6)
+    dev = local - robot.home_pose
+    dev[:, 3:] = (dev[:, 3:] + math.pi) % (2 * math.pi) - math.pi
+    return dev
+
+
+def with_measured_workspace(robot: Robot, *data: Any) -> Robot:
+    """``robot`` (a calibrated one) with its workspace, ``home_pose +- workspace`` in {4}, widened
+    where it does not hold the poses of ``data`` (each at the platform pose its joint and leg
+    readings give by ``robot``'s forward kinematics; a pose whose forward kinematics fails is
+    left out): what the calibration job writes in ``calibrated.toml``, so that
+    :func:`leg_commands` flags no pose the robot was measured at.
+
+    The box is the robot file's, about the nominal {4}; the calibrated {4} is placed by the data
+    only up to the directions they cannot identify (parameters held at nominal; {0}, {5} of
+    tracker data), and the measured poses may sit beyond the box in it: 4 of the 60 poses of a
+    simulated calibration were flagged (at 1.025-1.045 of the box there, 0.98-0.997 in the true
+    {4}). A box no wider than the data needs is left as it is."""
+    from .forward import ForwardKinematicsError, forward_kinematics
+
+    geometric = robot.with_effects()
+    width = np.array(robot.workspace, dtype=float)
+    for d in data:
+        for k in range(len(d)):
+            try:
+                world = forward_kinematics(geometric, None, d.q[k:k + 1], d.legs[k:k + 1])
+            except ForwardKinematicsError:
+                continue
+            dev = _from_home(robot, d.q[k:k + 1], pose_matrix(world))[0]
+            width = np.maximum(width, np.abs(dev))
+    return robot if np.array_equal(width, robot.workspace) else robot.with_workspace(width)
+
+
 def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
                  tool: Any = None, user_frame: Any = None, joint_columns: list[str] | None = None,
                  where: str = "robot") -> LegCommands:
@@ -387,10 +425,7 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
     legs = predict_legs(robot, None, q, world)
     lo, hi = robot.leg_stroke[:, 0], robot.leg_stroke[:, 1]
     stroke = (legs < lo) | (legs > hi)
-    local = np.array([pose_from_matrix(np.linalg.solve(robot.carriage_transform(qk), t))
-                      for qk, t in zip(q, target, strict=True)])
-    dev = local - robot.home_pose
-    dev[:, 3:] = (dev[:, 3:] + math.pi) % (2 * math.pi) - math.pi
+    dev = _from_home(robot, q, target)
     # Widened by 1 % of each range, as measurement files are checked (Measurements.check): a
     # target the data could have held is not flagged.
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]

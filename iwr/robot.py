@@ -281,6 +281,15 @@ class Robot:
             effects=self.effects,
         )
 
+    def with_workspace(self, workspace: Any) -> Robot:
+        """This robot with the half-widths ``workspace`` of its sampled workspace around
+        ``home_pose`` (mm, rad) in place of its own."""
+        out = copy.copy(self)
+        out.workspace = _as_array(workspace, (6,), "workspace", _POSE_UNITS)
+        if np.any(out.workspace < 0):
+            raise ValueError(f"workspace: half-widths must be >= 0, got {out.workspace}")
+        return out
+
     def with_effects(self, *effects: Any) -> Robot:
         """This robot with the non-geometric effects ``effects`` (:class:`iwr.effects.Effect`
         objects, or one mapping: the ``[effects]`` table) switched on, in place of its own;

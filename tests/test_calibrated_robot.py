@@ -12,7 +12,7 @@ import pytest
 from _ballbar import BARS, ballbar_robot
 
 import iwr
-from iwr.compensation import leg_commands
+from iwr.compensation import leg_commands, with_measured_workspace
 from iwr.reporting.calibration import render
 
 REFLECTORS = [(120.0, 0.0, 40.0), (-60.0, 104.0, 40.0), (-60.0, -104.0, 40.0)]
@@ -125,3 +125,35 @@ def test_the_same_robot_as_the_jobs_file(name, tmp_path):
     assert written == cal.calibrated_robot()
     assert written == iwr.calibrated_robot(robot, cal.result, data)
     assert written != robot
+
+
+def test_the_measured_poses_are_within_the_calibrated_workspace():
+    """The workspace box is the robot file's, about the nominal {4}; the calibrated {4} is
+    placed by the data only up to the parameters held at nominal, and 4 of these 60 measured
+    poses lay beyond the box there (iwr legs flagged them). The job's robot has its box widened
+    to hold every measured pose, and no wider: it flags none of them."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 60, seed=3, noise=iwr.Noise.realistic())
+    cal = iwr.calibrate(robot, data, noise=iwr.Noise.realistic(), seed=1)
+    assert cal.success
+    plain = iwr.calibrated_robot(robot, cal.result)  # no data: the file's box as it is
+    assert np.array_equal(plain.workspace, robot.workspace)
+    assert leg_commands(plain, data.q, data.poses).out_of_workspace.sum() == 4
+    job = cal.calibrated_robot()
+    assert job == iwr.calibrated_robot(robot, cal.result, data)
+    assert not leg_commands(job, data.q, data.poses).out_of_workspace.any()
+    widened = job.workspace > robot.workspace
+    assert widened.any() and np.all(job.workspace >= robot.workspace)
+    # No wider than the poses need: each widened half-width is a pose's deviation.
+    local = [np.linalg.solve(job.carriage_transform(qk), t)
+             for qk, t in zip(data.q, _world(job, data), strict=True)]
+    dev = np.abs(np.array([_pose(m) for m in local]) - robot.home_pose)
+    np.testing.assert_allclose(job.workspace[widened], dev.max(axis=0)[widened], rtol=1e-12)
+    assert with_measured_workspace(plain) is plain
+
+
+def _world(robot: iwr.Robot, data: Any) -> np.ndarray:
+    """The platform's 4x4 poses in {0} by the robot's forward kinematics of the readings."""
+    from iwr.transforms import pose_matrix
+
+    return pose_matrix(iwr.forward_kinematics(robot, None, data.q, data.legs))

@@ -145,7 +145,11 @@ def test_calibrate_files(sim, tmp_path):
     assert after < before / 20
     result = iwr.load_result(out / "result.json")
     robot = iwr.Robot.from_toml(sim / "robot.toml")
-    assert iwr.Robot.from_toml(out / "calibrated.toml") == robot.with_errors(result.x)
+    data = iwr.Measurements.from_csv(sim / "measurements.csv", robot=robot)
+    # The robot's errors, its workspace widened to hold the measured poses (when they need it).
+    written = iwr.Robot.from_toml(out / "calibrated.toml")
+    assert written == iwr.calibrated_robot(robot, result, data)
+    assert written.with_workspace(robot.workspace) == robot.with_errors(result.x)
     assert "## Accuracy" in (out / "report.md").read_text()
     assert not (out / "accuracy.png").exists()
 
@@ -326,7 +330,7 @@ def test_report_turns_a_result_into_robot_and_report(sim, tmp_path):
     proc = run("report", str(tmp_path / "run.json"), str(sim / "robot.toml"),
                str(sim / "measurements.csv"), "--out", str(out))
     assert proc.returncode == 0, proc.stderr
-    assert iwr.Robot.from_toml(out / "calibrated.toml") == robot.with_errors(result.x)
+    assert iwr.Robot.from_toml(out / "calibrated.toml") == iwr.calibrated_robot(robot, result, data)
     page = (out / "report.html").read_text(encoding="utf-8")
     assert "Calibration report" in page and "data:image/png;base64," in page
     for f in ("run.json", "robot.toml", "measurements.csv"):

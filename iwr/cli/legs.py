@@ -292,16 +292,13 @@ def cmd_legs(args: argparse.Namespace) -> int:
                   flush=True)
     if flagged:
         # Out of stroke: the robot cannot reach the target. Out of the workspace alone: it can
-        # (every leg within its stroke), but the commands extrapolate the calibration there.
-        # The box is taken in the calibrated model's {4}, which the data place only up to the
-        # directions they cannot identify (held at nominal): a target at the edge of where the
-        # robot was measured may be flagged.
+        # (every leg within its stroke), but the commands extrapolate the calibration there
+        # (the job's calibrated.toml holds every measured pose within its workspace:
+        # iwr.compensation.with_measured_workspace).
         why = "; ".join(w for w, n in (
             ("the robot cannot reach those out of stroke as commanded", int(stroke.sum())),
             ("those only outside the workspace are within every leg's stroke, but the commands "
-             "extrapolate the calibration there (the box is taken in the calibrated model's {4}, "
-             "which the data place only up to what they cannot identify: a target at the edge "
-             "of the measured poses may be flagged)", int((workspace & ~stroke).sum())))
+             "extrapolate the calibration there", int((workspace & ~stroke).sum())))
             if n)
         print(f"iwr legs: {cmd.n_flagged} targets flagged (exit {EXIT_FLAGGED}); {why}",
               flush=True)

@@ -394,7 +394,7 @@ class BallbarCalibrationReport(SetupParameters, CalibrationReport):
         """``calibrated.toml`` (the calibrated robot with its calibrated ``[ballbar]``
         set-ups), ``result.json``, ``accuracy.json``, ``summary.json``, the figures and the
         report into ``out``; returns the paths written."""
-        calibrated, extra = self.kind.calibrated_robot(self.robot, self._x())
+        calibrated, extra = self.calibrated_file()
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
         calibrated.to_toml(written[0], provenance=self.file_provenance(**extra))
         self.result.save(written[1])

@@ -540,7 +540,7 @@ class CalibrationReport(Calibration):
     def _write_files(self, out: Path, plots: bool) -> list[Path]:
         written = []
         calibrated = out / "calibrated.toml"
-        robot, extra = self.kind.calibrated_robot(self.robot, self.result.x)
+        robot, extra = self.calibrated_file()
         robot.to_toml(calibrated, provenance=self.file_provenance(**extra))
         written.append(calibrated)
         result = out / "result.json"

@@ -513,7 +513,7 @@ class TrackerCalibrationReport(SetupParameters, CalibrationReport):
         # The same model with {5} moved to the frame the measured points fix (the data do not
         # fix {5}): a pose of {5} in {T} then means what a user measures (iwr legs); with
         # effects, their identified values and the platform's centre of mass moved with {5}.
-        calibrated, extra = self.kind.calibrated_robot(self.robot, self.result.x)
+        calibrated, extra = self.calibrated_file()
         written = [out / "calibrated.toml", out / "result.json", out / "accuracy.json"]
         calibrated.to_toml(written[0], provenance=self.file_provenance(**extra))
         self.result.save(written[1])
