@@ -50,6 +50,25 @@ def test_noise_model_too_small_is_rejected(method, probe):
     assert not plain.success and plain.fit.p_value < 1e-3
 
 
+@pytest.mark.parametrize("noise", [None, NOISE], ids=["unweighted", "weighted"])
+def test_a_tracker_far_from_its_nominal_registration_is_judged_from_the_guess(noise):
+    """The registration's plausible size is measured from the data's registration guess, also
+    when the identification starts from an x0 (the job's outlier screen refits so): centred on
+    the nominal registration, a tracker standing 900 mm and 30 degrees from it failed the fit
+    test of data that fit to the noise ("tracker.x = 900 (limit 100)"; found from outside, on
+    the shipped example with its points moved)."""
+    truth_robot = _robot()
+    m, _ = iwr.simulate(truth_robot, 40, seed=2, noise=NOISE)
+    pose = np.array(REGISTRATION)
+    pose[0] += 900.0
+    pose[5] += np.radians(30.0)  # the file's registration: 900 mm and 30 degrees off
+    robot = iwr.Robot.default().with_tracker(registration=tuple(pose), reflectors=REFLECTORS)
+    first = iwr.identify(robot, m, "lm", noise=noise)
+    assert first.success, first.fit.verdict
+    again = iwr.identify(robot, m, "lm", noise=noise, x0=first.x)
+    assert again.success and again.fit.fit_ok and not again.fit.implausible, again.fit.verdict
+
+
 def test_unweighted_lm_on_probe_data_is_tested_by_the_noise_model():
     """A probe's unweighted minimum with a noise model gets the chi-square test of its fit: six
     readings a pose (one rigid pose), not its four points' twelve coordinates."""
