@@ -501,8 +501,15 @@ def screen(robot: Any, identification: Any, validation: Any, result: Any, noise:
         n_rm = int(np.sum(~keep))
         what = (f"without the {n_rm} outlier pose(s)" if n_rm else "with every pose (those that "
                 "failed at the method's own point pass at the solution)")
-        current["message"] = (f"{str(result.message).strip().rstrip('.')}; then "
-                              f"Levenberg-Marquardt from its result {what}: "
+        first = str(result.message).strip().rstrip('.')
+        if (result.fit is not None and not result.fit.fit_ok and current.fit is not None
+                and current.fit.fit_ok):
+            # The method's point failed its fit test because of the poses now removed: its
+            # verdict ("THE MODEL DOES NOT FIT THE DATA: ...") is not the result's, which fits
+            # (a calibration file said "success" beside it).
+            first = (f"{result.method}: its point, fitted to every pose, failed the fit test "
+                     f"({str(result.fit.verdict).split(':')[0].lower()})")
+        current["message"] = (f"{first}; then Levenberg-Marquardt from its result {what}: "
                               f"{str(current.message).strip()}")
         current["settings"] = {**dict(result.settings),
                                "outlier_refit": "lm"}

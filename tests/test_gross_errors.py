@@ -581,3 +581,24 @@ def test_a_clean_probe_pose_is_tested_in_six_directions():
     chi2 = [o.statistic for o in found.outliers]
     assert len(chi2) == len(val) and {o.dof for o in found.outliers} == {6}
     assert stats.kstest(chi2, stats.chi2(6).cdf).pvalue > 1e-3
+
+
+def test_a_removed_outlier_leaves_no_stale_misfit_verdict_in_the_message(tmp_path):
+    """One leg reading 10 mm off, no noise model: the method's point fitted to it fails the
+    plausibility test (leg4.dl0 beyond its limit), the screen removes the pose and the refit
+    fits. The result's message (a calibration file's status_detail) read "THE MODEL DOES NOT FIT
+    THE DATA: ..." beside status "success"; it now says the method's point failed with the pose
+    in, and what the refit gave (found by an outside audit, on the shipped example)."""
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 125, seed=1, noise=iwr.Noise.realistic())
+    legs = data.legs.copy()
+    legs[30, 3] += 10.0
+    bad = iwr.Measurements(data.q, data.poses, legs, joint_types=data.joint_types)
+    cal = iwr.calibrate(robot, bad, "lm", seed=1)
+    assert cal.success and any(o.removed for o in cal.result.outliers)
+    message = str(cal.result.message)
+    assert "DOES NOT FIT" not in message, message
+    assert message.startswith("lm: its point, fitted to every pose, failed the fit test"), message
+    render(cal).write(tmp_path, plots=False)
+    provenance = iwr.Robot.from_toml(tmp_path / "calibrated.toml").provenance
+    assert provenance["status"] == "success" and "DOES NOT FIT" not in provenance["status_detail"]
