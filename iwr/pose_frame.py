@@ -78,6 +78,12 @@ class PoseFrameCheck:
     def ok(self) -> bool:
         return self.diagnosis == "ok"
 
+    @property
+    def refused(self) -> bool:
+        """Whether a command refuses the data: a frame, a reflection or two columns swapped
+        explain how far they are from the robot (what no identification should absorb)."""
+        return self.diagnosis in ("frame", "mirrored", "columns")
+
 
 def _rms(v: np.ndarray) -> float:
     return float(math.sqrt(np.mean(v**2))) if v.size else 0.0

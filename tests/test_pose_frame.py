@@ -101,3 +101,35 @@ def test_calibrate_refuses_a_frame_before_identifying(case, tmp_path):
     assert "data.csv: the measured poses are" in proc.stderr
     assert "another frame than the robot's world frame {0}" in proc.stderr
     assert "Traceback" not in proc.stderr
+
+
+def test_iwr_calibrate_exe_and_report_refuse_it_too(case, tmp_path):
+    """iwr-calibrate ("the same checks" as iwr calibrate) ran the engine on data in another
+    frame, and iwr report made a calibration of its result: status "success", legs 1.5 m off
+    (the engine's DE stays in its box, so no fit test without a noise model can fail it; found
+    by an outside audit, with columns x_mm and y_mm swapped). Both refuse them now, by the same
+    check, before any work."""
+    robot, data = case
+    robot.to_toml(tmp_path / "robot.toml")
+    with_poses(data, moved(data, 2600, 126)).to_csv(tmp_path / "data.csv")
+    environ = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+
+    def run(*argv: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, *argv], capture_output=True, text=True,
+                              cwd=tempfile.gettempdir(), env=environ, timeout=600)
+
+    proc = run("-m", "iwr.cli.calibrate_exe", str(tmp_path / "robot.toml"),
+               str(tmp_path / "data.csv"), "--output", str(tmp_path / "run.json"),
+               "--generations", "5")
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "iwr-calibrate: error: " in proc.stderr and "data.csv: the measured poses are" in (
+        proc.stderr)
+    assert not (tmp_path / "run.json").exists() and "Traceback" not in proc.stderr
+    # A result of these data made elsewhere (here by iwr.identify): iwr report refuses it.
+    frame_data = with_poses(data, moved(data, 2600, 126))
+    iwr.identify(robot, frame_data, "lm").save(tmp_path / "lm.json")
+    proc = run("-m", "iwr", "report", str(tmp_path / "lm.json"), str(tmp_path / "robot.toml"),
+               str(tmp_path / "data.csv"), "--out", str(tmp_path / "rep"))
+    assert proc.returncode == 1, proc.stdout + proc.stderr
+    assert "data.csv: the measured poses are" in proc.stderr and "Traceback" not in proc.stderr
+    assert not (tmp_path / "rep" / "calibrated.toml").exists()

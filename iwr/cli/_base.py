@@ -198,6 +198,22 @@ def read_data(path: str, robot: Any, readings: str | None = None, *, targets: An
     return data
 
 
+def check_frame(kind: Any, robot: Any, data: Any, path: str | os.PathLike[str]) -> None:
+    """Refuse data that a frame or column mistake puts far from the robot
+    (:meth:`iwr.kinds.MeasurementKind.frame_check`: ``refused``), before anything is identified
+    or reported; warn when they are far and nothing explains it. ``iwr calibrate``, ``iwr
+    report`` and ``iwr-calibrate`` alike: a result identified elsewhere on such data (the
+    engine's DE stays in its box, so no fit test without a noise model can fail it) was
+    reported as a calibration, ``status = "success"``, legs 1.5 m off."""
+    check = kind.frame_check(robot, data)
+    if check is None:
+        return
+    if check.refused:
+        raise CommandError(f"{path}: {check.message}")
+    if not check.ok:
+        print(f"warning: {path}: {check.message}", flush=True)
+
+
 def check_effect_inputs(robot: Any, data: Any, path: str | os.PathLike[str]) -> None:
     """CommandError naming ``path`` unless ``data`` hold what ``robot``'s effects need
     (:func:`iwr.effects.model.check_inputs`: the legs' expansion needs temperatures, the

@@ -20,10 +20,10 @@ from ._base import (
     EXIT_OK,
     METHOD_ENV,
     QUICK_ENV,
-    CommandError,
     Footprint,
     UsageError,
     add_common,
+    check_frame,
     check_memory,
     check_output,
     check_validation_file,
@@ -337,19 +337,6 @@ def _out_folder(args: argparse.Namespace) -> Path:
               "this run, kept; --out DIR chooses the folder)")
     check_output(out, "--out", inputs=inputs, files=OUTPUT_FILES)
     return out
-
-
-def check_frame(kind: Any, robot: Any, data: Any, path: str) -> None:
-    """Refuse data that a frame or column mistake puts far from the robot
-    (:meth:`iwr.kinds.MeasurementKind.frame_check`), before anything is identified; warn when
-    they are far and nothing explains it."""
-    check = kind.frame_check(robot, data)
-    if check is None:
-        return
-    if check.diagnosis in ("frame", "mirrored", "columns"):
-        raise CommandError(f"{path}: {check.message}")
-    if not check.ok:
-        print(f"warning: {path}: {check.message}", flush=True)
 
 
 def _exit_code(cal: Any, prog: str = "iwr calibrate", *, converged: bool = True) -> int:

@@ -463,6 +463,15 @@ def _read_problem_files(robot_path: str, data_path: str, readings: str | None,
         raise _Usage(str(exc)) from None
     if readings is not None:
         sources["readings"] = readings
+    # As iwr calibrate and iwr report: data a frame or column mistake puts far from the robot
+    # are refused before the engine runs (the engine's DE stays in its box, where no fit test
+    # without a noise model can fail what it finds).
+    from ._base import CommandError, check_frame
+
+    try:
+        check_frame(kind, robot, data, data_path)
+    except CommandError as exc:
+        raise ValueError(str(exc)) from None
     # As iwr.identify: the nominal robot and the kind's start (the tracker's closed-form
     # registration guess), the setup's bounds about it.
     problem, x0 = kind.problem(robot, data, bounds, noise=noise)

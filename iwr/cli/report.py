@@ -16,6 +16,7 @@ from ._base import (
     UsageError,
     add_common,
     check_effect_inputs,
+    check_frame,
     check_output,
     check_validation_file,
     load_robot,
@@ -178,10 +179,13 @@ def cmd_report(args: argparse.Namespace) -> int:
     check_result_file(args.run, result, args.robot, robot, kind)  # as iwr analyze --result
     check_effect_inputs(robot, data, args.data)
     note = _check_data(args, result, robot, data)
+    check_frame(kind, robot, data, args.data)
     instead = ("give the run's validation file, or leave --validation out: the run's own split "
                "is made again")
     check_validation_file(args.validation, args.data, "iwr report", instead)
     validation = read_data(args.validation, robot, prog="iwr report") if args.validation else None
+    if validation is not None:
+        check_frame(kind, robot, validation, args.validation)
     inputs = {"result": str(args.run), "robot": str(args.robot), "data": str(args.data)}
     for key in ("readings", "validation"):
         if getattr(args, key):
