@@ -58,6 +58,19 @@ def _as_array(value: Any, shape: tuple[int, ...], name: str, units: Any = None) 
     return arr
 
 
+def _check_pose_angles(home_pose: np.ndarray, workspace: np.ndarray) -> None:
+    """ValueError for an angle of ``home_pose`` beyond +-2 pi or a workspace half-width of an
+    angle beyond pi: radians are expected, and these look like degrees (``gamma = 90.0`` in a
+    robot file made forward kinematics stall later, blamed on the data)."""
+    for k, name in ((3, "alpha"), (4, "beta"), (5, "gamma")):
+        for what, v, limit, bound in (("home_pose", home_pose[k], MAX_DH_ANGLE_RAD, "+-2 pi"),
+                                      ("workspace", workspace[k], math.pi, "pi")):
+            if abs(v) > limit:
+                raise ValueError(
+                    f"{what}: {name} {v:g} is beyond {bound}: angles are in radians, and this "
+                    f"looks like degrees ({v:g} deg = {math.radians(v):.4f} rad)")
+
+
 class Robot:
     """A hybrid robot: a serial carriage (DH chain) carrying a Stewart hexapod.
 
@@ -158,6 +171,12 @@ class Robot:
         for i, (lo, hi) in enumerate(self.joint_limits):
             if not lo < hi:
                 raise ValueError(f"joint_limits: joint {i + 1} has lower {lo} >= upper {hi}")
+            if joint_types[i] == "R" and max(abs(lo), abs(hi)) > MAX_DH_ANGLE_RAD:
+                v = lo if abs(lo) > abs(hi) else hi
+                raise ValueError(
+                    f"joint_limits: joint {i + 1} (revolute) limit {v:g} is beyond +-2 pi: a "
+                    f"revolute joint's limits are in radians, and this looks like degrees "
+                    f"({v:g} deg = {math.radians(v):.4f} rad)")
         self.base_joints = _as_array(base_joints, (6, 3), "base_joints", "mm")
         self.platform_joints = _as_array(platform_joints, (6, 3), "platform_joints", "mm")
         self.leg_offsets = _as_array(leg_offsets, (6,), "leg_offsets", "mm")
@@ -170,6 +189,7 @@ class Robot:
                 raise ValueError(f"leg_stroke: leg {i + 1} has lower {lo} >= upper {hi}")
         self.home_pose = _as_array(home_pose, (6,), "home_pose", _POSE_UNITS)
         self.workspace = _as_array(workspace, (6,), "workspace", _POSE_UNITS)
+        _check_pose_angles(self.home_pose, self.workspace)
         self.provenance = _provenance(provenance or {}, "provenance")
         if tracker is not None:
             # Here, not at the top: iwr.tracker.setup imports SciPy, which ``import iwr`` must not.

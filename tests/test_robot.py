@@ -201,6 +201,29 @@ def test_dh_angles_in_degrees_are_refused_naming_file_row_and_value(tmp_path, ol
         iwr.Robot.from_toml(tmp_path / "r.toml")
 
 
+@pytest.mark.parametrize("old, new, message", [
+    ("home_pose = [0.0, 0.0, 750.0, 0.0, 0.0, 0.0]",
+     "home_pose = [0.0, 0.0, 750.0, 0.0, 0.0, 90.0]",
+     r"home_pose: gamma 90 is beyond \+-2 pi: angles are in radians, and this looks like "
+     r"degrees \(90 deg = 1\.5708 rad\)"),
+    ("workspace = [120.0, 120.0, 80.0, 0.17453292519943295",
+     "workspace = [120.0, 120.0, 80.0, 10.0", r"workspace: alpha 10 is beyond pi"),
+    ("limits = [-1.5707963267948966, 1.5707963267948966]", "limits = [-90.0, 90.0]",
+     r"joint_limits: joint 3 \(revolute\) limit 90 is beyond \+-2 pi: a revolute joint's "
+     r"limits are in radians, and this looks like degrees"),
+])
+def test_pose_and_limit_angles_in_degrees_are_refused(tmp_path, old, new, message):
+    """Only the DH angles were checked for degrees: home_pose's gamma = 90 made forward
+    kinematics stall later, blamed on the data, and a revolute limit of 90 let iwr simulate
+    write readings of 71 rad (an outside audit)."""
+    iwr.Robot.default().to_toml(tmp_path / "r.toml")
+    text = (tmp_path / "r.toml").read_text()
+    assert old in text
+    (tmp_path / "r.toml").write_text(text.replace(old, new, 1))
+    with pytest.raises(iwr.RobotFileError, match=rf"r.toml: {message}"):
+        iwr.Robot.from_toml(tmp_path / "r.toml")
+
+
 def test_dh_angles_in_degrees_are_refused_in_python():
     r = iwr.Robot.default()
     for col, name in ((0, "alpha"), (3, "theta")):

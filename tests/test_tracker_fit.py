@@ -48,20 +48,25 @@ def test_a_clean_calibration_passes_the_fit_check(kind, noise, active):
 
 
 @pytest.mark.parametrize("kind", ["points", "probe"])
-def test_an_unregistered_frame_without_the_guess_is_not_converged(kind):
-    """The data 2 m away and turned 90 degrees, the nominal registration the identity, started
-    from zeros (no registration guess): LM reaches a zero cost by a 2 m registration correction,
-    which is far beyond its plausible size (and reported as such, not as converged)."""
+def test_the_registration_is_judged_from_the_guess_whatever_the_start(kind):
+    """The data 2 m away and turned 90 degrees, the file's nominal registration the identity,
+    started from zeros: LM reaches a zero cost by a 2 m registration correction, which is
+    plausible, measured from the data's registration guess (docs/tracker.md), as it is without
+    an x0. (It was measured from the nominal registration when an x0 was given, and failed:
+    the job's outlier refit gives one, so the verdict of one data set depended on the seed.)
+    From zeros, half of the 2 m lands in the rail's joint1.dd: {0} is a null direction of point
+    data (a gauge choice), which the size test does not count; from the guess it stays in the
+    registration."""
     data, _ = iwr.simulate(robot_for(kind), 40, seed=5)
     wrong = robot_for(kind, registration=(0, 0, 0, 0, 0, 0))
-    res = iwr.identify(wrong, data, x0=np.zeros(wrong.n_params + wrong.tracker.n_params))
-    assert not res.success and res.status == "failed"
-    assert "THE MODEL DOES NOT FIT THE DATA" in res.message
-    names = {name for name, _, _ in res.fit.implausible}
-    assert "tracker.x" in names and "tracker.rz" in names
-    assert "tracker.x = 199" in res.message  # the value, named, in the message
-    value = dict((n, v) for n, v, _ in res.fit.implausible)["tracker.x"]
-    assert 1900 < value < 2100
+    n = wrong.n_params
+    res = iwr.identify(wrong, data, x0=np.zeros(n + wrong.tracker.n_params))
+    free = iwr.identify(wrong, data)
+    assert res.success and free.success, (res.message, free.message)
+    assert res.fit.fit_ok and not res.fit.implausible and res.fun < 1e-12
+    found = [wrong.tracker.registration_matrix(r.x[n:])[:3, 3] for r in (res, free)]
+    assert np.linalg.norm(found[1] - [2000.0, 0.0, 0.0]) < 10.0  # the guess's start: the 2 m
+    assert 500.0 < np.linalg.norm(found[1] - found[0]) < 1500.0  # zeros': half in {0}'s gauge
 
 
 @pytest.mark.parametrize("kind", ["points", "probe"])
