@@ -829,6 +829,42 @@ def _stopped_first(result: IdentificationResult) -> IdentificationResult:
     return out
 
 
+def polish(robot: Any, data: Any, result: IdentificationResult) -> IdentificationResult:
+    """``result``, a global method's identified elsewhere and not polished (``iwr-calibrate``'s
+    DE run, which stops at its generation limit: status "stopped", which ``iwr legs`` and ``iwr
+    export`` refuse), refined by Levenberg-Marquardt from its ``x`` as
+    ``iwr.identify(method="de")`` polishes: on the same objective (weighted by the noise model
+    the run recorded, else eq. (10)), bounds and active parameters, then tested as every
+    method's result. A copy: the run's record kept (its history, settings, checkpoint), its
+    cost before in ``settings["polish_result"]``, the polish's status, fit and message; its
+    point kept where Levenberg-Marquardt does not lower the cost. ``iwr report --polish``."""
+    kind = kinds.of(data)
+    x = check_result(robot, kind, result)
+    if dict(result.settings).get("polish"):
+        raise ValueError(f"the result of {result.method} is polished already")
+    settings = dict(result.settings)
+    bounds = settings.get("bounds")
+    options: dict[str, Any] = {}
+    if isinstance(bounds, str) and bounds in ("default", "paper"):
+        options["bounds"] = bounds
+    lm = identify(robot, data, "lm", x0=x, active=result.get("active"),
+                  noise=_recorded_noise(kind, result), progress=False, **options)
+    out = IdentificationResult(**dict(result))
+    out.update(nfev=int(result.nfev) + int(lm.nfev), settings={
+        **settings, "polish": True, "polish_result": {
+            "fun_before": float(result.fun), "fun": float(lm.fun), "nfev": int(lm.nfev),
+            "nit": int(lm.nit), "success": bool(lm.success), "message": str(lm.message)}})
+    head = str(result.message).strip().rstrip(".")
+    if not lm.fun <= result.fun:  # never from its own start, but then the run's point stays
+        out["message"] = f"{head}; Levenberg-Marquardt did not lower its cost: {lm.message}"
+        return out
+    out.update(x=lm.x, fun=float(lm.fun), success=bool(lm.success), status=str(lm.status),
+               fit=lm.fit, message=f"{head}; polished by Levenberg-Marquardt: {lm.message}")
+    if lm.get("cost_eq10") is not None:
+        out["cost_eq10"] = lm["cost_eq10"]
+    return out
+
+
 def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
     """The noise model a weighted result recorded (its settings' ``objective``, written by
     :func:`iwr.identify` and ``iwr-calibrate --noise``), in the kind's form; None without one."""

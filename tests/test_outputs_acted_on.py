@@ -3,6 +3,11 @@
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
+import tempfile
+
 import numpy as np
 import pytest
 
@@ -345,3 +350,53 @@ def test_a_result_with_another_number_of_parameter_names_is_refused_with_the_cou
     res.update(parameter_names=list(res.parameter_names)[:-1])
     with pytest.raises(ValueError, match=r"parameter_names has 57 names for the 58 values of x"):
         check_result(robot, kinds.of(data), res)
+
+
+@pytest.mark.parametrize("weighted", [False, True], ids=["eq10", "weighted"])
+def test_polish_of_an_unpolished_de_run_is_identifys_polish(weighted):
+    """iwr-calibrate's DE run is not polished and stops at its generation limit ("not
+    converged": iwr legs refuses its calibration file, and the README's long run ended there).
+    iwr.calibration.polish refines it as iwr.identify(method="de") does: the same point, cost and
+    status as the DE run polished in one call (same seed, generations and objective)."""
+    from iwr.calibration import polish
+
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 40, seed=6, noise=NOISE)
+    noise = {"noise": NOISE} if weighted else {}
+    run = iwr.identify(robot, data, "de", generations=40, seed=3, polish=False, **noise)
+    assert run.status == "stopped" and not run.success
+    once = iwr.identify(robot, data, "de", generations=40, seed=3, **noise)
+    polished = polish(robot, data, run)
+    assert polished.status == once.status == "converged" and polished.success
+    np.testing.assert_allclose(polished.x, once.x, rtol=0, atol=1e-12)
+    assert polished.fun == pytest.approx(once.fun, rel=1e-12)
+    assert polished.settings["polish_result"]["fun_before"] == run.fun > polished.fun
+    assert polished.nfev == once.nfev
+    with pytest.raises(ValueError, match="polished already"):
+        polish(robot, data, polished)
+
+
+def test_iwr_report_polish_turns_a_de_run_into_a_usable_calibration(tmp_path):
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 40, seed=6, noise=NOISE)
+    robot.to_toml(tmp_path / "robot.toml")
+    data.to_csv(tmp_path / "data.csv")
+    iwr.identify(robot, data, "de", generations=40, seed=3, polish=False).save(
+        tmp_path / "run.json")
+    env = {k: v for k, v in os.environ.items() if not k.startswith("IWR_")}
+
+    def report(out: str, *more: str) -> subprocess.CompletedProcess[str]:
+        return subprocess.run([sys.executable, "-m", "iwr", "report", str(tmp_path / "run.json"),
+                               str(tmp_path / "robot.toml"), str(tmp_path / "data.csv"), "--out",
+                               str(tmp_path / out), "--no-plots", *more], capture_output=True,
+                              text=True, cwd=tempfile.gettempdir(), env=env, timeout=600)
+
+    plain = report("plain")
+    assert plain.returncode == 0, plain.stderr
+    status = iwr.Robot.from_toml(tmp_path / "plain" / "calibrated.toml").provenance["status"]
+    assert status == "not converged"
+    done = report("done", "--polish")
+    assert done.returncode == 0, done.stderr
+    assert "polished by Levenberg-Marquardt: converged" in done.stdout
+    assert iwr.Robot.from_toml(tmp_path / "done" / "calibrated.toml").provenance[
+        "status"] == "success"

@@ -50,6 +50,10 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
     add_tracker_arguments(p)  # --readings: tracker data as a long table (docs/tracker.md)
     p.add_argument("--out", default=DEFAULT_OUT, metavar="DIR",
                    help="output folder (created if needed; default: %(default)s)")
+    p.add_argument("--polish", action="store_true",
+                   help="refine the result by Levenberg-Marquardt from its point first, as "
+                        "iwr.identify(method='de') polishes (iwr-calibrate's DE run stops at "
+                        "its generation limit, 'not converged', which iwr legs refuses)")
     p.add_argument("--no-plots", action="store_true", help="write the report without figures")
     add_common(p)
     p.set_defaults(func=cmd_report)
@@ -190,6 +194,16 @@ def cmd_report(args: argparse.Namespace) -> int:
     for key in ("readings", "validation"):
         if getattr(args, key):
             inputs[key] = str(getattr(args, key))
+    if args.polish:
+        from ..calibration import polish
+
+        try:
+            result = polish(robot, data, result)
+        except ValueError as exc:
+            raise CommandError(f"{args.run}: --polish: {one_line(exc)}") from None
+        print(f"polished by Levenberg-Marquardt: {result.status} (cost "
+              f"{result.settings['polish_result']['fun_before']:.7g} -> {result.fun:.7g})",
+              flush=True)
     try:
         cal = from_result(
             robot, data, result, validation=validation, data_name=str(args.data),
