@@ -530,6 +530,11 @@ def test_a_run_at_its_limit_says_how_to_go_on_and_that_works(files: dict[str, Pa
     assert whole.returncode == 0 and whole.stderr == "", whole.stderr  # --quiet: no hint
     _same_run(iwr.load_result(tmp_path / "short.json"), iwr.load_result(tmp_path / "whole.json"))
     assert "--generations 3000" in iwr.load_result(tmp_path / "whole.json").message
+    # A run of --generations 0 was told to go on with --generations 0 (ten times none): now
+    # with ten times a hundred (an outside audit).
+    none = run_cal(*args, "--generations", 0, "--output", tmp_path / "none.json")
+    assert none.returncode == 0, none.stderr
+    assert none.stderr.count("--generations 1000\n") == 1, none.stderr
     # A run that converged (its target reached) is told nothing.
     done = run_cal(*args, "--generations", 300, "--target-cost", 1e9, "--output",
                    tmp_path / "done.json")

@@ -358,11 +358,13 @@ def longer_run(result: Any, resume: str) -> str:
         return (f"{trend}{settings['strategy']} plans its schedules over its budget: run it "
                 f"again with a larger one (e.g. --max-evaluations {factor * int(budget)})")
     by_evaluations = "evaluations" in str(result.message)
+    # A run of --generations 0 made none: ten times none is none (the advice repeated itself).
+    generations = factor * (int(result.nit) or 100)
     more = (f"--max-evaluations {factor * int(result.nfev)}" if by_evaluations
-            else f"--generations {factor * int(result.nit)}")
+            else f"--generations {generations}")
     # A resumed run keeps the checkpoint's other limit: raise it too, or the run stops at once.
     if by_evaluations and settings.get("generations"):
-        more += f" --generations {factor * int(result.nit)}"
+        more += f" --generations {generations}"
     elif not by_evaluations and settings.get("max_evaluations"):
         more += f" --max-evaluations {factor * int(result.nfev)}"
     return (f"{trend}run it longer, from where it stopped: {resume} {more}" if resume
