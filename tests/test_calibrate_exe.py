@@ -368,6 +368,11 @@ def test_checkpoint_for_other_data_or_settings_is_refused(files: dict[str, Path]
     assert "other settings" in msg and "population_size" in msg
     proc = _resume_with(files, checkpoint, "--seed", 6)
     assert proc.returncode == 1 and "seed" in one_line_error(proc)
+    for strategy in ("jade", "shade"):  # was "p_best: 0; strategy 'jade' needs 0 < p_best"
+        proc = _resume_with(files, checkpoint, "--strategy", strategy)
+        assert proc.returncode == 1
+        assert one_line_error(proc).endswith(f"made with other settings (strategy {strategy} "
+                                             "here, rand1bin in the checkpoint)"), proc.stderr
     proc = _resume_with(files, None, "--seed", 5)  # the same settings again: accepted
     assert proc.returncode == 0, proc.stderr
     proc = run_engine(files["problem"], "--resume", files["dir"] / "missing.ckpt")

@@ -866,6 +866,15 @@ int search(const Options& o, const iwr::ProblemData& problem, const Obj& objecti
         wanted.upper = upper;
         try {
             apply_settings(o, wanted);
+        } catch (const std::invalid_argument& e) {
+            throw UsageError(as_option_message(e.what()));
+        }
+        // Another strategy than the checkpoint's: said as such (resolved with the checkpoint's
+        // own settings, jade's p_best of 0 from rand1bin was refused as an option never given).
+        if (wanted.strategy != state->settings.strategy)
+            throw InputError(path + ": made with other settings (strategy " + de::to_string(wanted.strategy) +
+                             " here, " + de::to_string(state->settings.strategy) + " in the checkpoint)");
+        try {
             wanted = de::resolve(wanted);
         } catch (const std::invalid_argument& e) {
             throw UsageError(as_option_message(e.what()));
