@@ -701,6 +701,24 @@ def data_file_limit() -> tuple[int, str]:
     return MAX_CSV_BYTES, "is this the right file? (docs/data.md)"
 
 
+def decode_text(raw: bytes, path: Any) -> str:
+    """``raw``, a file people wrote, as UTF-8 text (a byte order mark accepted: spreadsheets write
+    one for "CSV UTF-8"); :class:`MeasurementFileError` naming the line and the byte where it is
+    not, and what to do (a UTF-16 file, Excel's "Unicode text", named as such)."""
+    try:
+        return raw.decode("utf-8-sig")
+    except UnicodeDecodeError as exc:
+        if raw[:2] in (b"\xff\xfe", b"\xfe\xff"):
+            raise MeasurementFileError(
+                f"{path}: a UTF-16 file (a spreadsheet's \"Unicode text\"); iwr reads UTF-8: "
+                "save it as \"CSV UTF-8 (comma delimited)\"") from None
+        line = raw.count(b"\n", 0, exc.start) + 1
+        raise MeasurementFileError(
+            f"{path}, line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 text (a file saved "
+            "in a Windows or Latin-1 encoding?); iwr reads UTF-8: save it as \"CSV UTF-8\", or "
+            "re-encode it (iconv -f latin1 -t utf-8)") from None
+
+
 def read_csv_text(path: Path, *, plans: bool = False) -> str:
     """The text of a CSV file people wrote: a bounded read (a device or a dump is refused), a byte
     order mark accepted (spreadsheets write one for "CSV UTF-8"), a plan file of ``iwr plan``
@@ -717,14 +735,14 @@ def read_csv_text(path: Path, *, plans: bool = False) -> str:
             raw = fh.read(limit + 1)
         if len(raw) > limit:
             raise MeasurementFileError(f"{path}: larger than {_mb(limit)}; {why}")
-        text = raw.decode("utf-8-sig")
+        text = decode_text(raw, path)
     except FileNotFoundError:
         raise MeasurementFileError(f"{path}: no such file") from None
     except IsADirectoryError:
         raise MeasurementFileError(f"{path}: is a folder, not a CSV file") from None
     except NotRegularFileError as exc:
         raise MeasurementFileError(str(exc)) from None
-    except (OSError, UnicodeDecodeError) as exc:
+    except OSError as exc:
         raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
     if not plans and text.lstrip().startswith(PLAN_MARKER):
         raise MeasurementFileError(

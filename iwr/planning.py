@@ -29,7 +29,13 @@ import numpy as np
 from . import kinds
 from ._io import atomic_write_text
 from .analysis.identifiability import IdentifiabilityReport, column_scale, identifiability
-from .measurements import _PAYLOAD_COLUMNS, PLAN_MARKER, MeasurementFileError, Measurements
+from .measurements import (
+    _PAYLOAD_COLUMNS,
+    PLAN_MARKER,
+    MeasurementFileError,
+    Measurements,
+    decode_text,
+)
 from .problem import Problem, predict_legs
 from .robot import Robot
 from .simulation import Noise, add_noise
@@ -159,8 +165,8 @@ def read_plan(path: str | os.PathLike[str], *, payload: bool = False,
     """
     path = Path(path)
     try:
-        text = path.read_text(encoding="utf-8-sig")
-    except (OSError, UnicodeDecodeError) as exc:
+        text = decode_text(path.read_bytes(), path)
+    except OSError as exc:
         raise MeasurementFileError(f"{path}: cannot be read ({exc})") from None
     if not text.lstrip().startswith(PLAN_MARKER):
         raise MeasurementFileError(f"{path}: not a pose plan (no first line '{PLAN_MARKER} ...')")

@@ -227,6 +227,23 @@ def test_byte_order_mark_is_accepted(tmp_path, data, robot):
     assert len(iwr.Measurements.from_csv(path, robot=robot)) == len(data)
 
 
+def test_files_not_in_utf8_are_named_by_line_and_what_to_do(tmp_path, data, robot):
+    """A comment line in Latin-1 (a German spreadsheet's default), or Excel's "Unicode text"
+    (UTF-16): the message was Python's codec error, naming no line (an outside audit)."""
+    path, lines, _ = write(tmp_path, data)
+    lines.insert(1, "# Messung von J\u00fcrgen")
+    path.write_bytes(("\n".join(lines) + "\n").encode("latin-1"))
+    with pytest.raises(iwr.MeasurementFileError,
+                       match=r"data.csv, line 2: byte 0xfc is not UTF-8 text .*save it as "
+                             r"\"CSV UTF-8\""):
+        iwr.Measurements.from_csv(path, robot=robot)
+    path.write_bytes(("\n".join(lines) + "\n").encode("utf-16"))
+    with pytest.raises(iwr.MeasurementFileError, match=r"data.csv: a UTF-16 file"):
+        iwr.Measurements.from_csv(path, robot=robot)
+    path.write_bytes(("\n".join(lines) + "\n").encode("utf-8"))  # the same text in UTF-8
+    assert len(iwr.Measurements.from_csv(path, robot=robot)) == len(data)
+
+
 @pytest.mark.parametrize("sep, name", [(";", "';'"), ("\t", "tab")])
 def test_semicolon_and_tab_separated_files_are_read(tmp_path, data, robot, sep, name):
     path, lines, h = write(tmp_path, data)
