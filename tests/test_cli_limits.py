@@ -318,3 +318,22 @@ def test_legs_keeps_the_targets_load_and_temperature_and_reads_back(tmp_path, wi
     assert again.returncode == proc.returncode, again.stderr
     head2, rows2 = read(tmp_path / "again.csv")
     assert head2 == head and rows2 == rows
+
+
+# -- outputs and counts refused before the work, not after (an outside audit) -------------------
+
+
+def test_an_output_folder_no_file_can_be_made_in_is_refused_before_the_work(sim):
+    """/proc takes no files, whatever the permissions say (root may write anywhere): the job ran
+    the whole identification, then failed to make its folder (exit 1)."""
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "-o",
+               "/proc/iwr-no-such-folder")
+    refused(proc, r"--out /proc/iwr-no-such-folder: cannot write there: /proc")
+    assert "identifying" not in proc.stdout
+
+
+def test_a_count_beyond_int64_is_refused_by_the_parser(sim):
+    proc = run("calibrate", str(sim / "robot.toml"), str(sim / "measurements.csv"), "--method",
+               "de", "--generations", "99999999999999999999", "-o", "/tmp/iwr-unused")
+    refused(proc, r"argument --generations: 99999999999999999999 is beyond 9223372036854775807")
+    assert "identifying" not in proc.stdout

@@ -7,6 +7,7 @@ import argparse
 import dataclasses
 import os
 import sys
+import tempfile
 from collections.abc import Callable, Iterable
 from pathlib import Path
 from typing import Any
@@ -83,13 +84,18 @@ def default_method() -> str:
 # -- argument types ------------------------------------------------------------------------------
 
 
-def _integer(text: str, minimum: int, what: str) -> int:
+_INT64_MAX = 2**63 - 1
+
+
+def _integer(text: str, minimum: int, what: str, maximum: int = _INT64_MAX) -> int:
     try:
         v = int(text)
     except ValueError:
         raise argparse.ArgumentTypeError(f"{text!r} is not an integer") from None
     if v < minimum:
         raise argparse.ArgumentTypeError(f"{v} must be {what}")
+    if v > maximum:  # what the C++ core counts in: refused here, not after the work starts
+        raise argparse.ArgumentTypeError(f"{v} is beyond {maximum}")
     return v
 
 
@@ -98,7 +104,8 @@ def positive_int(text: str) -> int:
 
 
 def nonneg_int(text: str) -> int:
-    return _integer(text, 0, ">= 0")
+    """A seed: [0, 2**64), the range of the engine's and NumPy's seeds."""
+    return _integer(text, 0, ">= 0", 2**64 - 1)
 
 
 def fraction(text: str) -> float:
@@ -301,6 +308,15 @@ def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[
     if not folder.is_dir() or not os.access(folder, os.W_OK | os.X_OK):
         raise UsageError(f"{option} {path}: cannot write there: {folder} is not a writable "
                          "folder", prog)
+    # Permissions do not say everything (a pseudo file system as /proc, a full disk, quotas,
+    # root's access on a folder that takes no files): a file made and removed there does.
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".iwr-probe-", dir=folder)
+    except OSError as exc:
+        raise UsageError(f"{option} {path}: cannot write there: {folder}: "
+                         f"{exc.strerror or exc}", prog) from None
+    os.close(fd)
+    os.unlink(probe)
 
 
 def not_held_out(validation: Any, data: Any, prog: str, instead: str,
