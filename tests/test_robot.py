@@ -62,6 +62,14 @@ def test_provenance_is_written_and_kept(tmp_path):
         robot.to_toml(tmp_path / "bad.toml", provenance={"result": [1, 2]})
 
 
+def _default_edited(tmp_path, old: str, new: str) -> None:
+    """The default robot's file as r.toml, its first ``old`` replaced by ``new``."""
+    iwr.Robot.default().to_toml(tmp_path / "r.toml")
+    text = (tmp_path / "r.toml").read_text()
+    assert old in text
+    (tmp_path / "r.toml").write_text(text.replace(old, new, 1))
+
+
 @pytest.mark.parametrize("old, new, key", [
     ("leg_offsets = [600.0,", "leg_offsets = [1e26,", r"hexapod.leg_offsets\[0\]: 1e\+26 mm"),
     ("d = 500.0", "d = 2e5", r"carriage.joints\[0\].d: 200000.0 mm"),
@@ -69,10 +77,7 @@ def test_provenance_is_written_and_kept(tmp_path):
     ("limits = [0.0, 2000.0]", "limits = [0.0, 1e300]", r"carriage.joints\[0\].limits\[1\]"),
 ])
 def test_values_beyond_any_robot_are_refused_with_the_key(tmp_path, old, new, key):
-    iwr.Robot.default().to_toml(tmp_path / "r.toml")
-    text = (tmp_path / "r.toml").read_text()
-    assert old in text
-    (tmp_path / "r.toml").write_text(text.replace(old, new, 1))
+    _default_edited(tmp_path, old, new)
     with pytest.raises(iwr.RobotFileError, match=rf"r.toml: {key}.*beyond any robot"):
         iwr.Robot.from_toml(tmp_path / "r.toml")
 
@@ -191,10 +196,7 @@ def test_dh_angles_in_degrees_are_refused_naming_file_row_and_value(tmp_path, ol
                                                                     value):
     """As the tracker's setup refuses an angle beyond 2 pi, written in degrees (alpha = 90 was read
     as 90 rad, a robot that no data fit)."""
-    iwr.Robot.default().to_toml(tmp_path / "r.toml")
-    text = (tmp_path / "r.toml").read_text()
-    assert old in text
-    (tmp_path / "r.toml").write_text(text.replace(old, new, 1))
+    _default_edited(tmp_path, old, new)
     with pytest.raises(iwr.RobotFileError,
                        match=rf"r.toml: {key}: {value} is beyond \+-2 pi: DH angles are in "
                              rf"radians, and this looks like degrees \({value} deg = "):
@@ -216,10 +218,7 @@ def test_pose_and_limit_angles_in_degrees_are_refused(tmp_path, old, new, messag
     """Only the DH angles were checked for degrees: home_pose's gamma = 90 made forward
     kinematics stall later, blamed on the data, and a revolute limit of 90 let iwr simulate
     write readings of 71 rad (an outside audit)."""
-    iwr.Robot.default().to_toml(tmp_path / "r.toml")
-    text = (tmp_path / "r.toml").read_text()
-    assert old in text
-    (tmp_path / "r.toml").write_text(text.replace(old, new, 1))
+    _default_edited(tmp_path, old, new)
     with pytest.raises(iwr.RobotFileError, match=rf"r.toml: {message}"):
         iwr.Robot.from_toml(tmp_path / "r.toml")
 
