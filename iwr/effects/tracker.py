@@ -561,7 +561,7 @@ def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0
     Inside :func:`iwr.kinds.reuse` (one calibration job) the guess and the unweighted problem
     are made once per data set, as :func:`iwr.tracker.start.tracker_problem` makes them."""
     from ..kinds import memo
-    from ..tracker.start import _bounds, _setup, objective_noise, registration_guess
+    from ..tracker.start import _bounds, _setup, guess_centre, objective_noise, registration_guess
 
     setup = _setup(robot)
     n_eff = len(effect_names(robot.effects))
@@ -569,7 +569,7 @@ def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0
     if isinstance(bounds, str) and bounds == "default":
         bounds = None
     weights = objective_noise(noise, measurements)
-    center = None
+    center, guessed = None, True
     if x0 is None:
         # The geometry's guess (the effects move the points by micrometres), made once per data
         # set with the kind's start (iwr.kinds.MeasurementKind.start).
@@ -582,6 +582,9 @@ def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0
             raise ValueError(f"x0: expected {n} finite values (the robot's {robot.n_params}, "
                              f"{n_eff} effect parameters, then the tracker setup's "
                              f"{setup.n_params}), got shape {start.shape}")
+        # The bounds about the data's guess, as without x0 (about the nominal setup, a tracker
+        # far from it failed the fit test of the job's outlier refit: tracker_problem's fix).
+        center, guessed = guess_centre(robot, measurements, start[n - setup.n_params:])
     problem_bounds = bounds
     if isinstance(bounds, str) and bounds == "paper":
         lo, hi = _bounds(robot, setup, bounds, np.zeros(setup.n_params) if center is None
@@ -601,11 +604,9 @@ def effect_tracker_problem(robot: Any, measurements: Any, bounds: Any = None, x0
     given = not (bounds is None or isinstance(bounds, str))
     held = (robot, measurements, bounds) if given else (robot, measurements)
     key = ("effects tracker problem", "given" if given else bounds)
-    if x0 is None:
+    if guessed:  # the problem made once for the data, its bounds about their guess
         return memo((*key, "guess"), held, build), start
-    # With x0: the problem already made for the data (its bounds about the guess), else one
-    # about the nominal setup.
-    return memo((*key, "guess"), held, None) or memo((*key, "nominal"), held, build), start
+    return build(), start  # about x0's setup: the nominal model too poor for the guess
 
 
 def simulate(robot: Any, n_poses: int, *, seed: int | None, x: Any = None, noise: Any = None,

@@ -140,14 +140,24 @@ def tracker_problem(robot: Robot, measurements: TrackerMeasurements, bounds: Any
     made = None if weights is not None else memo((*key, "guess"), held, None)
     if made is not None:
         return made, start
-    try:
-        centre = registration_guess(robot, measurements).x_setup
-    except registration.RegistrationError:  # the nominal model too poor for the guess
-        centre = start[robot.n_params:]
-        return build(centre, None if weights is None else centre), start
+    centre, guessed = guess_centre(robot, measurements, start[robot.n_params:])
     if weights is not None:
         return build(centre, start[robot.n_params:]), start
+    if not guessed:
+        return build(centre, None), start
     return memo((*key, "guess"), held, lambda: build(centre, None)), start
+
+
+def guess_centre(robot: Robot, measurements: TrackerMeasurements, x_setup: Any
+                 ) -> tuple[np.ndarray, bool]:
+    """Where a problem started from ``x0`` centres the set-up's bounds (and the fit test the
+    registration's plausible size): the data's registration guess, as a problem without
+    ``x0``; ``x_setup`` (``x0``'s set-up part) where the nominal model is too poor for the
+    guess. And whether it is the guess."""
+    try:
+        return registration_guess(robot, measurements).x_setup, True
+    except registration.RegistrationError:
+        return np.asarray(x_setup, dtype=float), False
 
 
 def registration_guess(robot: Robot, measurements: TrackerMeasurements) -> Any:
