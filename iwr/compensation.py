@@ -274,6 +274,9 @@ class LegCommands:
         ``robot.joint_limits``, or the platform's pose in {4} outside ``home_pose +-
         workspace`` (where the robot was sampled and calibrated: beyond, the model is an
         extrapolation), each widened by :data:`WORKSPACE_TOLERANCE` of its range.
+    beyond_joint_limits : ndarray (N,) of bool
+        Of those, the targets with a carriage joint reading outside its limits: the robot
+        cannot reach them (the others only outside the box, it can: the commands extrapolate).
     """
 
     legs: np.ndarray
@@ -281,6 +284,7 @@ class LegCommands:
     platform_poses: np.ndarray
     out_of_stroke: np.ndarray
     out_of_workspace: np.ndarray
+    beyond_joint_limits: np.ndarray | None = None
 
     @property
     def unreachable(self) -> np.ndarray:
@@ -430,7 +434,8 @@ def leg_commands(robot: Robot, q: Any, poses: Any, *, frame: str | None = None,
     # target the data could have held is not flagged.
     lo, hi = robot.joint_limits[:, 0], robot.joint_limits[:, 1]
     slack = WORKSPACE_TOLERANCE * (hi - lo)
+    limits = np.any((q < lo - slack) | (q > hi + slack), axis=1)
     workspace = (np.any(np.abs(dev) > robot.workspace * (1 + 2 * WORKSPACE_TOLERANCE), axis=1)
-                 | np.any((q < lo - slack) | (q > hi + slack), axis=1))
+                 | limits)
     return LegCommands(legs=legs, frame=frame, platform_poses=world, out_of_stroke=stroke,
-                       out_of_workspace=workspace)
+                       out_of_workspace=workspace, beyond_joint_limits=limits)

@@ -712,9 +712,10 @@ def decode_text(raw: bytes, path: Any) -> str:
             raise MeasurementFileError(
                 f"{path}: a UTF-16 file (a spreadsheet's \"Unicode text\"); iwr reads UTF-8: "
                 "save it as \"CSV UTF-8 (comma delimited)\"") from None
-        line = raw.count(b"\n", 0, exc.start) + 1
+        at = exc.start + (3 if raw.startswith(b"\xef\xbb\xbf") else 0)  # after the mark
+        line = raw.count(b"\n", 0, at) + 1
         raise MeasurementFileError(
-            f"{path}, line {line}: byte 0x{raw[exc.start]:02x} is not UTF-8 text (a file saved "
+            f"{path}, line {line}: byte 0x{raw[at]:02x} is not UTF-8 text (a file saved "
             "in a Windows or Latin-1 encoding?); iwr reads UTF-8: save it as \"CSV UTF-8\", or "
             "re-encode it (iconv -f latin1 -t utf-8)") from None
 

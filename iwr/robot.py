@@ -308,6 +308,7 @@ class Robot:
         out.workspace = _as_array(workspace, (6,), "workspace", _POSE_UNITS)
         if np.any(out.workspace < 0):
             raise ValueError(f"workspace: half-widths must be >= 0, got {out.workspace}")
+        _check_pose_angles(out.home_pose, out.workspace)
         return out
 
     def with_effects(self, *effects: Any) -> Robot:

@@ -270,12 +270,28 @@ def test_out_of_stroke_and_workspace_flagged_counted_and_exit_5(tmp_path):
     assert work[4] == 1 and work[1] == 1 and work[0] == 0  # 400 mm up is out of the workspace
     assert "2 of 6 targets need a leg outside its stroke" in proc.stdout
     assert "lines 3, 5" in proc.stdout  # file lines (header is line 1)
-    # The exit line tells the two apart: target 5 (the rail beyond its limit) is within every
-    # leg's stroke, and the robot can reach it (it said "cannot reach" of every flagged target).
+    # The exit line tells the two apart: targets 2 and 4 out of stroke and 5 (the rail beyond
+    # its limit) cannot be reached; one only outside the workspace box can (it said "cannot
+    # reach" of every flagged target).
     last = proc.stdout.strip().splitlines()[-1]
-    assert last.startswith("iwr legs: 3 targets flagged (exit 6); the robot cannot reach those "
-                           "out of stroke as commanded; those only outside the workspace are "
-                           "within every leg's stroke, but the commands extrapolate"), last
+    assert last == ("iwr legs: 3 targets flagged (exit 6); the robot cannot reach those out of "
+                    "stroke or beyond a joint's limit as commanded"), last
+    cmd = leg_commands(cal, q, poses)
+    np.testing.assert_array_equal(cmd.beyond_joint_limits, [0, 0, 0, 0, 1, 0])
+    # A target only outside the box (the platform 10 % beyond its x range, legs in stroke):
+    # reachable, extrapolated.
+    box = local[0].copy()
+    box[0] += 1.1 * cal.workspace[0]
+    target = as_pose(cal.carriage_transform(q[0]) @ euler(box))
+    (tmp_path / "b.csv").write_text(head + "\n" + ",".join(
+        repr(float(v)) for v in (*q[0], *target)) + "\n")
+    proc = run("legs", str(tmp_path / "cal.toml"), str(tmp_path / "b.csv"), "-o",
+               str(tmp_path / "legs_b.csv"))
+    assert proc.returncode == 6, proc.stdout + proc.stderr
+    assert proc.stdout.strip().splitlines()[-1] == (
+        "iwr legs: 1 targets flagged (exit 6); those only outside the workspace box are within "
+        "every leg's stroke and joint's limit, but the commands extrapolate the calibration "
+        "there")
 
 
 def test_an_angle_beyond_two_pi_is_refused_by_line_and_column(tmp_path):

@@ -237,6 +237,10 @@ def test_files_not_in_utf8_are_named_by_line_and_what_to_do(tmp_path, data, robo
                        match=r"data.csv, line 2: byte 0xfc is not UTF-8 text .*save it as "
                              r"\"CSV UTF-8\""):
         iwr.Measurements.from_csv(path, robot=robot)
+    # The same with the byte order mark of "CSV UTF-8" before it (the offsets count after it).
+    path.write_bytes(b"\xef\xbb\xbf" + path.read_bytes())
+    with pytest.raises(iwr.MeasurementFileError, match=r"data.csv, line 2: byte 0xfc "):
+        iwr.Measurements.from_csv(path, robot=robot)
     path.write_bytes(("\n".join(lines) + "\n").encode("utf-16"))
     with pytest.raises(iwr.MeasurementFileError, match=r"data.csv: a UTF-16 file"):
         iwr.Measurements.from_csv(path, robot=robot)

@@ -36,6 +36,15 @@ def test_a_stopped_run_whose_fit_test_passes_says_it_did_not_converge():
     assert eff.verdict == eff.fit.verdict and eff.verdict.startswith(STOPPED_FIT)
     done = iwr.identify(robot, data, noise=NOISE)
     assert done.success and done.fit.verdict.startswith("the model fits the data")
+    # A weighted engine run (iwr-calibrate --noise) is tested by iwr report (_weighted_fit):
+    # stopped at its generation limit near the minimum, its passing verdict says so too.
+    weighted = iwr.identify(robot, data, "lm", noise=NOISE)
+    engine = iwr.IdentificationResult(**dict(weighted))
+    engine.update(fit=None, success=False, status="stopped",
+                  message="the maximum number of generations (30) was reached",
+                  settings={**weighted.settings, "weighting": "the noise model"})
+    fit = from_result(robot, data, engine).result.fit
+    assert fit.fit_ok and fit.verdict.startswith(STOPPED_FIT + "the model fits"), fit.verdict
 
 
 def test_a_stopped_run_that_does_not_fit_says_to_run_it_longer_first(capsys):

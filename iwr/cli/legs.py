@@ -291,14 +291,19 @@ def cmd_legs(args: argparse.Namespace) -> int:
                   f"lines {shown}; column {column})",
                   flush=True)
     if flagged:
-        # Out of stroke: the robot cannot reach the target. Out of the workspace alone: it can
-        # (every leg within its stroke), but the commands extrapolate the calibration there
-        # (the job's calibrated.toml holds every measured pose within its workspace:
+        # Out of stroke or beyond a joint's limit: the robot cannot reach the target. Only
+        # outside the workspace box: it can, but the commands extrapolate the calibration there
+        # (the job's calibrated.toml holds every measured pose within its box:
         # iwr.compensation.with_measured_workspace).
+        limits = np.zeros(len(stroke), dtype=bool) if cmd.beyond_joint_limits is None else (
+            cmd.beyond_joint_limits)
+        cannot = stroke | limits
         why = "; ".join(w for w, n in (
-            ("the robot cannot reach those out of stroke as commanded", int(stroke.sum())),
-            ("those only outside the workspace are within every leg's stroke, but the commands "
-             "extrapolate the calibration there", int((workspace & ~stroke).sum())))
+            ("the robot cannot reach those out of stroke or beyond a joint's limit as commanded",
+             int(cannot.sum())),
+            ("those only outside the workspace box are within every leg's stroke and joint's "
+             "limit, but the commands extrapolate the calibration there",
+             int((workspace & ~cannot).sum())))
             if n)
         print(f"iwr legs: {cmd.n_flagged} targets flagged (exit {EXIT_FLAGGED}); {why}",
               flush=True)
