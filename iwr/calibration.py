@@ -707,13 +707,16 @@ def from_result(
     sources: dict[str, str] | None = None,
     settings: dict[str, Any] | None = None,
     provenance: dict[str, Any] | None = None,
+    polish: bool = False,
 ) -> Calibration:
     """The :class:`Calibration` of a result identified elsewhere (``iwr-calibrate``'s run, a
     saved result) from ``data``: everything :func:`calibrate` computes after the
     identification, on ``validation`` (default: the split the job recorded
     (``settings["validation_split"]``) made again, so the job's sets and figures; a result that
     records none, the data themselves: an optimistic accuracy).
-    ValueError when the result's parameters are not those of ``robot`` and the data's kind."""
+    ValueError when the result's parameters are not those of ``robot`` and the data's kind.
+    ``polish``: the result refined first by :func:`polish` on the identification poses
+    (``iwr report --polish``)."""
     kind = kinds.of(data)
     kind.check(robot, data)
     if robot.effects:
@@ -764,6 +767,9 @@ def from_result(
         notes.append(f"note: {len(gone)} pose(s) the run left out as gross errors are left out "
                      f"here too ({'; '.join(gone)})")
     val = data if validation is None else validation
+    if polish:  # on the poses the run identified from: none held out, none its screen left out
+        result = _polish(robot, data, result)
+        x = np.asarray(result.x, dtype=float)
     problems: dict[Any, Any] = {}
     with kinds.reuse(problems):
         try:  # as the job: from the identification poses before its screen
@@ -829,40 +835,58 @@ def _stopped_first(result: IdentificationResult) -> IdentificationResult:
     return out
 
 
+#: The methods whose result :func:`polish` refines: the global searches, which end at a limit
+#: (``iwr.identify`` polishes them by default; ``iwr-calibrate``'s engine never does).
+GLOBAL_METHODS = ("de", "crs2")
+
+
 def polish(robot: Any, data: Any, result: IdentificationResult) -> IdentificationResult:
-    """``result``, a global method's identified elsewhere and not polished (``iwr-calibrate``'s
+    """``result``, a global search's identified elsewhere and not polished (``iwr-calibrate``'s
     DE run, which stops at its generation limit: status "stopped", which ``iwr legs`` and ``iwr
     export`` refuse), refined by Levenberg-Marquardt from its ``x`` as
     ``iwr.identify(method="de")`` polishes: on the same objective (weighted by the noise model
-    the run recorded, else eq. (10)), bounds and active parameters, then tested as every
-    method's result. A copy: the run's record kept (its history, settings, checkpoint), its
-    cost before in ``settings["polish_result"]``, the polish's status, fit and message; its
-    point kept where Levenberg-Marquardt does not lower the cost. ``iwr report --polish``."""
+    the run recorded, else eq. (10)), bounds and active parameters, on ``data`` (the poses the
+    run identified from: :func:`from_result` with ``polish=True`` gives it those, without the
+    held-out ones and those its screen left out), then tested as every method's result. The
+    polish's result, with the run's record (its method, history, settings, stop reason and
+    checkpoint; its cost before in ``settings["polish_result"]``). ValueError for a result that
+    is not a global search's (:data:`GLOBAL_METHODS`) or is polished already."""
     kind = kinds.of(data)
     x = check_result(robot, kind, result)
-    if dict(result.settings).get("polish"):
-        raise ValueError(f"the result of {result.method} is polished already")
     settings = dict(result.settings)
-    bounds = settings.get("bounds")
+    if result.method not in GLOBAL_METHODS:
+        raise ValueError(f"a result of {result.method!r}: only a global search's ("
+                         f"{', '.join(GLOBAL_METHODS)}) is polished, which ends at its limit")
+    if settings.get("polish"):
+        raise ValueError(f"the result of {result.method} is polished already")
     options: dict[str, Any] = {}
+    bounds, lower, upper = settings.get("bounds"), settings.get("lower"), settings.get("upper")
     if isinstance(bounds, str) and bounds in ("default", "paper"):
         options["bounds"] = bounds
+    elif lower is not None and upper is not None and np.size(lower) == x.size:
+        options["bounds"] = (np.asarray(lower, dtype=float), np.asarray(upper, dtype=float))
     lm = identify(robot, data, "lm", x0=x, active=result.get("active"),
                   noise=_recorded_noise(kind, result), progress=False, **options)
-    out = IdentificationResult(**dict(result))
-    out.update(nfev=int(result.nfev) + int(lm.nfev), settings={
-        **settings, "polish": True, "polish_result": {
-            "fun_before": float(result.fun), "fun": float(lm.fun), "nfev": int(lm.nfev),
-            "nit": int(lm.nit), "success": bool(lm.success), "message": str(lm.message)}})
+    record = {"fun_before": float(result.fun), "fun": float(lm.fun), "nfev": int(lm.nfev),
+              "nit": int(lm.nit), "success": bool(lm.success), "message": str(lm.message)}
     head = str(result.message).strip().rstrip(".")
     if not lm.fun <= result.fun:  # never from its own start, but then the run's point stays
-        out["message"] = f"{head}; Levenberg-Marquardt did not lower its cost: {lm.message}"
+        out = IdentificationResult(**dict(result))
+        out.update(settings={**settings, "polish": True, "polish_result": record},
+                   message=f"{head}; Levenberg-Marquardt did not lower its cost: {lm.message}")
         return out
-    out.update(x=lm.x, fun=float(lm.fun), success=bool(lm.success), status=str(lm.status),
-               fit=lm.fit, message=f"{head}; polished by Levenberg-Marquardt: {lm.message}")
-    if lm.get("cost_eq10") is not None:
-        out["cost_eq10"] = lm["cost_eq10"]
+    out = IdentificationResult(**{**dict(result), **dict(lm)})
+    objective = dict(lm.settings).get("objective")
+    out.update(method=result.method, nit=int(result.nit), history=result.history,
+               nfev=int(result.nfev) + int(lm.nfev),
+               wall_time=float(result.wall_time) + float(lm.wall_time),
+               message=f"{head}; polished by Levenberg-Marquardt: {lm.message}",
+               settings={**settings, **({"objective": objective} if objective else {}),
+                         "polish": True, "polish_result": record})
     return out
+
+
+_polish = polish  # for from_result, whose argument of that name shadows it
 
 
 def _recorded_noise(kind: Any, result: IdentificationResult) -> Any:
@@ -883,8 +907,9 @@ def calibrated_robot(robot: Any, result: Any, data: Any = None) -> Any:
     the measured points fix (the data do not fix {5}), so that a target pose in {T} means
     what a user measures (:func:`iwr.compensation.leg_commands`).
 
-    ``data``: the data identified (their kind decides what ``result.x`` holds; the robot's
-    workspace is widened to hold their poses, as the job's is:
+    ``data``: the data identified, all of them (their kind decides what ``result.x`` holds; the
+    robot's workspace is widened to hold their poses but those of weight 0 and those the run's
+    gross-error screen left out, as the job's is:
     :func:`iwr.compensation.with_measured_workspace`); default the kind ``robot``'s description
     measures (its ``[tracker]`` or ``[ballbar]`` table, else poses in {0}), and the workspace as
     it is. ValueError naming the entry at fault when ``result.x`` is not a result of ``robot``
@@ -899,6 +924,10 @@ def calibrated_robot(robot: Any, result: Any, data: Any = None) -> Any:
         return calibrated
     from .compensation import with_measured_workspace
 
+    # The poses the job's sets hold: none of weight 0, none its gross-error screen left out.
+    data, _ = kinds.without_weightless(data)
+    if getattr(result, "left_out", None):
+        data, _ = without_left_out(data, result, required=False)
     return with_measured_workspace(calibrated, data)
 
 

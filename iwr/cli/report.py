@@ -195,18 +195,17 @@ def cmd_report(args: argparse.Namespace) -> int:
         if getattr(args, key):
             inputs[key] = str(getattr(args, key))
     if args.polish:
-        from ..calibration import polish
+        from ..calibration import GLOBAL_METHODS
 
-        try:
-            result = polish(robot, data, result)
-        except ValueError as exc:
-            raise CommandError(f"{args.run}: --polish: {one_line(exc)}") from None
-        print(f"polished by Levenberg-Marquardt: {result.status} (cost "
-              f"{result.settings['polish_result']['fun_before']:.7g} -> {result.fun:.7g})",
-              flush=True)
+        if result.method not in GLOBAL_METHODS or dict(result.settings).get("polish"):
+            what = ("is polished already" if result.method in GLOBAL_METHODS else
+                    f"is of {result.method!r}, not of a global search "
+                    f"({', '.join(GLOBAL_METHODS)})")
+            raise CommandError(f"{args.run}: --polish: the result {what}")
     try:
         cal = from_result(
             robot, data, result, validation=validation, data_name=str(args.data),
+            polish=args.polish,
             robot_name=str(args.robot),
             sources={"readings": str(args.readings)} if args.readings else None,
             settings=_shown_settings(result),
@@ -218,6 +217,10 @@ def cmd_report(args: argparse.Namespace) -> int:
         raise UsageError(f"{args.data}: {one_line(exc)} ({args.run})", "iwr report") from None
     except ValueError as exc:  # the result's parameters are not this robot's
         raise CommandError(f"{args.run}: {one_line(exc)} ({args.robot})") from None
+    if args.polish:
+        done = cal.result.settings["polish_result"]
+        print(f"polished by Levenberg-Marquardt: {cal.result.status} (cost "
+              f"{done['fun_before']:.7g} -> {cal.result.fun:.7g})", flush=True)
     if warning:  # said once the report is made (a refusal above says what it is about)
         print(f"iwr report: {warning}", file=sys.stderr)
     for line in (note, warning):
