@@ -370,6 +370,8 @@ class TrackerEffectProblem:
         self.robot, self.setup, self.measurements = robot, setup, measurements
         self.model = TrackerEffectModel(robot, setup, measurements)
         n_all = self.model.n_params
+        #: The set-up's bounds' centre (the registration guess), None with bounds given.
+        self.setup_center: np.ndarray | None = None
         if bounds is None or isinstance(bounds, str):
             lo_r, hi_r = robot.default_bounds(bounds or "default")
             lo_e, hi_e = effect_bounds(robot.effects)
@@ -377,6 +379,7 @@ class TrackerEffectProblem:
             c = np.zeros(setup.n_params) if center is None else np.asarray(center, dtype=float)
             if c.shape != (setup.n_params,) or not np.all(np.isfinite(c)):
                 raise ValueError(f"center: expected {setup.n_params} finite values")
+            self.setup_center = c
             self.lower = np.concatenate([lo_r, lo_e, lo_s + c])
             self.upper = np.concatenate([hi_r, hi_e, hi_s + c])
         else:
@@ -1052,7 +1055,10 @@ class EffectTrackerSpec(_spec_base()):  # type: ignore[misc]
         self.reference = np.ascontiguousarray(ref)
         self.parameter_names = problem.parameter_names
         ng, ne = robot.n_params, problem.model.n_effects
-        self.center = np.concatenate([np.zeros(ng + ne), start[ng + ne:]])
+        # About the nominal robot and the set-up's centre: the data's registration guess (also
+        # from an x0: tracker_problem), x0's set-up only where there is none (bounds given).
+        self.center = np.concatenate([np.zeros(ng + ne), start[ng + ne:]
+                                      if problem.setup_center is None else problem.setup_center])
         lo, hi = problem.lower, problem.upper
         self.limit = plausible * np.maximum(np.abs(lo - self.center), np.abs(hi - self.center))
         if measurements.points is not None and not measurements.seen.all():

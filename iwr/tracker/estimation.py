@@ -104,8 +104,12 @@ class TrackerSpec(EstimatorSpec):
                 f"at the starting point ({bad.size} poses)")
         self.reference = np.ascontiguousarray(ref)
         self.parameter_names = problem.parameter_names
-        # Plausible size: about the nominal robot and the setup's start (the registration guess).
-        self.center = np.concatenate([np.zeros(nr), start[nr:]])
+        # Plausible size: about the nominal robot and the set-up's centre, the data's
+        # registration guess (also from an x0: tracker_problem; it was x0's set-up, so a start
+        # from the file's registration 2 m off failed what LM's test passes), x0's set-up only
+        # where there is none (bounds given).
+        self.center = np.concatenate([np.zeros(nr), start[nr:] if problem.setup_center is None
+                                      else problem.setup_center])
         if bounds is None or isinstance(bounds, str):
             half = np.concatenate([robot.default_bounds("default")[1], setup.default_bounds()[1]])
         else:

@@ -82,12 +82,15 @@ class TrackerProblem(ProblemBase):
         self._accept(robot, measurements, setup)
         measurements.check_setup(setup)
         setup_bounds = None
+        #: The set-up's bounds' centre (the registration guess), None with bounds given.
+        self.setup_center: np.ndarray | None = None
         if bounds is None or isinstance(bounds, str):
             lo_s, hi_s = setup.default_bounds()
             c = np.zeros(setup.n_params) if center is None else np.asarray(center, dtype=float)
             if c.shape != (setup.n_params,) or not np.all(np.isfinite(c)):
                 raise ValueError(f"center: expected {setup.n_params} finite values")
             setup_bounds = (lo_s + c, hi_s + c)
+            self.setup_center = c
         self._set_bounds(bounds, setup_bounds)
         ref = self._set_reference(reference)
         try:
