@@ -836,8 +836,22 @@ def _stopped_first(result: IdentificationResult) -> IdentificationResult:
 
 
 #: The methods whose result :func:`polish` refines: the global searches, which end at a limit
-#: (``iwr.identify`` polishes them by default; ``iwr-calibrate``'s engine never does).
+#: (``iwr.identify`` polishes DE by default; ``iwr-calibrate``'s engine never does).
 GLOBAL_METHODS = ("de", "crs2")
+
+
+def polish_refusal(result: IdentificationResult) -> str | None:
+    """Why :func:`polish` refuses ``result``, or None: not a global search's, polished already,
+    or ended by Ctrl-C or a callback (whose job skipped its gross-error screen: resume it)."""
+    if result.method not in GLOBAL_METHODS:
+        return (f"a result of {result.method!r}: only a global search's ("
+                f"{', '.join(GLOBAL_METHODS)}) is polished, which ends at its limit")
+    if dict(result.settings).get("polish"):
+        return f"the result of {result.method} is polished already"
+    if result.interrupted or result.status == "callback":
+        return (f"the run was {'interrupted' if result.interrupted else 'stopped by its callback'}"
+                " (its gross-error screen did not run): resume it, then polish")
+    return None
 
 
 def polish(robot: Any, data: Any, result: IdentificationResult) -> IdentificationResult:
@@ -849,16 +863,14 @@ def polish(robot: Any, data: Any, result: IdentificationResult) -> Identificatio
     run identified from: :func:`from_result` with ``polish=True`` gives it those, without the
     held-out ones and those its screen left out), then tested as every method's result. The
     polish's result, with the run's record (its method, history, settings, stop reason and
-    checkpoint; its cost before in ``settings["polish_result"]``). ValueError for a result that
-    is not a global search's (:data:`GLOBAL_METHODS`) or is polished already."""
+    checkpoint; its cost before in ``settings["polish_result"]``). ValueError for a result
+    :func:`polish_refusal` names."""
     kind = kinds.of(data)
     x = check_result(robot, kind, result)
     settings = dict(result.settings)
-    if result.method not in GLOBAL_METHODS:
-        raise ValueError(f"a result of {result.method!r}: only a global search's ("
-                         f"{', '.join(GLOBAL_METHODS)}) is polished, which ends at its limit")
-    if settings.get("polish"):
-        raise ValueError(f"the result of {result.method} is polished already")
+    refusal = polish_refusal(result)
+    if refusal:
+        raise ValueError(refusal)
     options: dict[str, Any] = {}
     bounds, lower, upper = settings.get("bounds"), settings.get("lower"), settings.get("upper")
     if isinstance(bounds, str) and bounds in ("default", "paper"):
@@ -873,6 +885,7 @@ def polish(robot: Any, data: Any, result: IdentificationResult) -> Identificatio
     if not lm.fun <= result.fun:  # never from its own start, but then the run's point stays
         out = IdentificationResult(**dict(result))
         out.update(settings={**settings, "polish": True, "polish_result": record},
+                   nfev=int(result.nfev) + int(lm.nfev),
                    message=f"{head}; Levenberg-Marquardt did not lower its cost: {lm.message}")
         return out
     out = IdentificationResult(**{**dict(result), **dict(lm)})

@@ -288,7 +288,8 @@ class LegCommands:
 
     @property
     def unreachable(self) -> np.ndarray:
-        """(N,) targets needing any leg outside its stroke."""
+        """(N,) targets needing any leg outside its stroke (a carriage joint beyond its limit:
+        :attr:`beyond_joint_limits`; neither can be reached)."""
         return self.out_of_stroke.any(axis=1)
 
     @property

@@ -385,6 +385,11 @@ def test_polish_of_an_unpolished_de_run_is_identifys_polish(weighted):
         polish(robot, data, polished)
     with pytest.raises(ValueError, match=r"a result of 'lm': only a global search's"):
         polish(robot, data, iwr.identify(robot, data, "lm"))
+    # Ctrl-C skipped the job's gross-error screen: resume first (a second review).
+    interrupted = iwr.IdentificationResult(**dict(run))
+    interrupted.update(status="interrupted")
+    with pytest.raises(ValueError, match=r"the run was interrupted .*resume it, then polish"):
+        polish(robot, data, interrupted)
 
 
 def test_the_polish_of_a_job_fits_its_identification_poses_only():

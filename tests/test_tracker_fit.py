@@ -69,16 +69,17 @@ def test_the_registration_is_judged_from_the_guess_whatever_the_start(kind):
     assert 500.0 < np.linalg.norm(found[1] - found[0]) < 1500.0  # zeros': half in {0}'s gauge
 
 
+@pytest.mark.parametrize("bounds", [None, "paper"])
 @pytest.mark.parametrize("kind", ["points", "probe"])
-def test_the_efficient_estimator_judges_the_registration_from_the_guess_too(kind):
+def test_the_efficient_estimator_judges_the_registration_from_the_guess_too(kind, bounds):
     """Its own size test was centred on x0's set-up (the file's registration 2 m off: "tracker.x
     = 2004 (limit 100)", failed) while LM's is on the data's guess: now both, from any start
     (18 of 20 seeds converged from zeros; 2 refuse the start itself, their forward kinematics
     failing there)."""
     data, _ = iwr.simulate(robot_for(kind), 60, seed=0, noise=NOISE)
     wrong = robot_for(kind, registration=(0, 0, 0, 0, 0, 0))
-    res = iwr.identify(wrong, data, noise=NOISE, x0=np.zeros(wrong.n_params
-                                                              + wrong.tracker.n_params))
+    res = iwr.identify(wrong, data, noise=NOISE, bounds=bounds,
+                       x0=np.zeros(wrong.n_params + wrong.tracker.n_params))
     assert res.success and res.fit.fit_ok and not res.fit.implausible, res.message
 
 

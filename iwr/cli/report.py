@@ -195,13 +195,11 @@ def cmd_report(args: argparse.Namespace) -> int:
         if getattr(args, key):
             inputs[key] = str(getattr(args, key))
     if args.polish:
-        from ..calibration import GLOBAL_METHODS
+        from ..calibration import polish_refusal
 
-        if result.method not in GLOBAL_METHODS or dict(result.settings).get("polish"):
-            what = ("is polished already" if result.method in GLOBAL_METHODS else
-                    f"is of {result.method!r}, not of a global search "
-                    f"({', '.join(GLOBAL_METHODS)})")
-            raise CommandError(f"{args.run}: --polish: the result {what}")
+        refusal = polish_refusal(result)
+        if refusal:
+            raise CommandError(f"{args.run}: --polish: {refusal}")
     try:
         cal = from_result(
             robot, data, result, validation=validation, data_name=str(args.data),
@@ -218,6 +216,7 @@ def cmd_report(args: argparse.Namespace) -> int:
     except ValueError as exc:  # the result's parameters are not this robot's
         raise CommandError(f"{args.run}: {one_line(exc)} ({args.robot})") from None
     if args.polish:
+        cal.settings = _shown_settings(cal.result)  # the polished result's (polish: True)
         done = cal.result.settings["polish_result"]
         print(f"polished by Levenberg-Marquardt: {cal.result.status} (cost "
               f"{done['fun_before']:.7g} -> {cal.result.fun:.7g})", flush=True)

@@ -370,8 +370,9 @@ class TrackerEffectProblem:
         self.robot, self.setup, self.measurements = robot, setup, measurements
         self.model = TrackerEffectModel(robot, setup, measurements)
         n_all = self.model.n_params
-        #: The set-up's bounds' centre (the registration guess), None with bounds given.
-        self.setup_center: np.ndarray | None = None
+        #: The set-up's centre (the registration guess): the plausible size is measured from it.
+        self.setup_center: np.ndarray | None = (None if center is None
+                                                else np.asarray(center, dtype=float))
         if bounds is None or isinstance(bounds, str):
             lo_r, hi_r = robot.default_bounds(bounds or "default")
             lo_e, hi_e = effect_bounds(robot.effects)

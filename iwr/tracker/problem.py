@@ -82,8 +82,9 @@ class TrackerProblem(ProblemBase):
         self._accept(robot, measurements, setup)
         measurements.check_setup(setup)
         setup_bounds = None
-        #: The set-up's bounds' centre (the registration guess), None with bounds given.
-        self.setup_center: np.ndarray | None = None
+        #: The set-up's centre (the registration guess): the plausible size is measured from it.
+        self.setup_center: np.ndarray | None = (None if center is None
+                                                else np.asarray(center, dtype=float))
         if bounds is None or isinstance(bounds, str):
             lo_s, hi_s = setup.default_bounds()
             c = np.zeros(setup.n_params) if center is None else np.asarray(center, dtype=float)
