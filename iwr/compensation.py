@@ -284,7 +284,7 @@ class LegCommands:
     platform_poses: np.ndarray
     out_of_stroke: np.ndarray
     out_of_workspace: np.ndarray
-    beyond_joint_limits: np.ndarray | None = None
+    beyond_joint_limits: np.ndarray
 
     @property
     def unreachable(self) -> np.ndarray:

@@ -295,9 +295,7 @@ def cmd_legs(args: argparse.Namespace) -> int:
         # outside the workspace box: it can, but the commands extrapolate the calibration there
         # (the job's calibrated.toml holds every measured pose within its box:
         # iwr.compensation.with_measured_workspace).
-        limits = np.zeros(len(stroke), dtype=bool) if cmd.beyond_joint_limits is None else (
-            cmd.beyond_joint_limits)
-        cannot = stroke | limits
+        cannot = stroke | cmd.beyond_joint_limits
         why = "; ".join(w for w, n in (
             ("the robot cannot reach those out of stroke or beyond a joint's limit as commanded",
              int(cannot.sum())),
