@@ -123,6 +123,44 @@ def reference_error(exc: Exception, measurements: Any) -> Exception:
     return err
 
 
+def bounds_kind(problem: Any) -> str:
+    """"default" or "paper" when ``problem``'s bounds (any kind's problem: ``robot``, ``lower``,
+    ``upper``, an optional ``setup``) are the robot's (with its effects' own and, for a set-up,
+    the set-up's widths about any centre: a tracker's are centred on a registration guess), else
+    "custom"."""
+    robot, lower, upper = problem.robot, np.asarray(problem.lower), np.asarray(problem.upper)
+    nr = robot.n_params
+    setup = getattr(problem, "setup", None)
+    if setup is not None:
+        lo_s, hi_s = setup.default_bounds()
+        ns = setup.n_params
+        if not np.allclose(upper[-ns:] - lower[-ns:], hi_s - lo_s, rtol=1e-12, atol=0):
+            return "custom"
+    if robot.effects:  # the effects' own bounds between the robot's and the setup's (if any)
+        from .effects import bounds as effect_bounds
+
+        lo_e, hi_e = effect_bounds(robot.effects)
+        if not (np.array_equal(lo_e, lower[nr: nr + lo_e.size])
+                and np.array_equal(hi_e, upper[nr: nr + hi_e.size])):
+            return "custom"
+    for kind in ("default", "paper"):
+        lo, hi = robot.default_bounds(kind)
+        if np.array_equal(lo, lower[:nr]) and np.array_equal(hi, upper[:nr]):
+            return kind
+    return "custom"
+
+
+def bounds_record(problem: Any) -> dict[str, Any]:
+    """What a result's settings say of the bounds it was identified within, so that a polish
+    or a re-run uses them (:func:`iwr.calibration.polish`): ``bounds`` ("default", "paper" or
+    "custom") and, for custom ones, ``lower`` and ``upper`` (every parameter's)."""
+    kind = bounds_kind(problem)
+    if kind != "custom":
+        return {"bounds": kind}
+    return {"bounds": kind, "lower": [float(v) for v in problem.lower],
+            "upper": [float(v) for v in problem.upper]}
+
+
 class ProblemBase(abc.ABC):
     """The plumbing of a kind's least-squares problem (:class:`LeastSquaresProblem`).
 

@@ -30,6 +30,7 @@ from . import _core
 from ._hooks import hook
 from ._io import atomic_write
 from .measurements import Measurements
+from .problem_base import bounds_kind
 from .result import IdentificationResult, status_from_message
 from .robot import Robot
 from .robot_fingerprint import record as robot_model_record
@@ -47,32 +48,6 @@ def sha256_of(path: str | os.PathLike[str]) -> str:
         for block in iter(lambda: fh.read(1 << 20), b""):
             h.update(block)
     return h.hexdigest()
-
-
-def _bounds_kind(problem: Any) -> str:
-    """"default" or "paper" when the bounds are the robot's (and, for tracker data, the setup's
-    widths about any centre), else "custom"."""
-    robot, lower, upper = problem.robot, np.asarray(problem.lower), np.asarray(problem.upper)
-    nr = robot.n_params
-    setup = getattr(problem, "setup", None)
-    if setup is not None:
-        lo_s, hi_s = setup.default_bounds()
-        ns = setup.n_params
-        # The setup's bounds are centred on a registration guess: their widths are the test.
-        if not np.allclose(upper[-ns:] - lower[-ns:], hi_s - lo_s, rtol=1e-12, atol=0):
-            return "custom"
-    if robot.effects:  # the effects' own bounds between the robot's and the setup's (if any)
-        from .effects import bounds as effect_bounds
-
-        lo_e, hi_e = effect_bounds(robot.effects)
-        if not (np.array_equal(lo_e, lower[nr: nr + lo_e.size])
-                and np.array_equal(hi_e, upper[nr: nr + hi_e.size])):
-            return "custom"
-    for kind in ("default", "paper"):
-        lo, hi = robot.default_bounds(kind)
-        if np.array_equal(lo, lower[:nr]) and np.array_equal(hi, upper[:nr]):
-            return kind
-    return "custom"
 
 
 def _search_start(problem: Any, x0: Any, active: Any) -> tuple[list[float], list[bool]]:
@@ -134,7 +109,7 @@ def encode_problem(problem: Any, sources: dict[str, str | os.PathLike[str]] | No
         legs=np.ascontiguousarray(m.legs, dtype=float),
         lower=[float(v) for v in problem.lower],
         upper=[float(v) for v in problem.upper],
-        bounds_kind=_bounds_kind(problem),
+        bounds_kind=bounds_kind(problem),
         x0=start,
         active=mask,
         parameter_names=list(problem.parameter_names),

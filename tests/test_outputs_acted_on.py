@@ -392,6 +392,33 @@ def test_polish_of_an_unpolished_de_run_is_identifys_polish(weighted):
         polish(robot, data, interrupted)
 
 
+def test_a_polish_keeps_the_bounds_the_run_searched_within():
+    """A result of iwr.identify recorded no bounds (iwr-calibrate's did), so the polish of a DE
+    run within the paper's bounds tested its fit against the default ones: an error of 8 degrees
+    (within ten times the paper's 0.5 rad, beyond ten times the default 0.5 degree) made the
+    polish "THE MODEL DOES NOT FIT THE DATA". Every method's result now records its bounds."""
+    from iwr.calibration import polish
+
+    robot = iwr.Robot.default()
+    x = np.zeros(robot.n_params)
+    x[robot.parameter_names.index("joint2.dalpha")] = np.radians(8.0)
+    data, _ = iwr.simulate(robot, 40, seed=6, x=x, noise=NOISE)
+    run = iwr.identify(robot, data, "de", bounds="paper", generations=20, seed=3, polish=False)
+    assert run.settings["bounds"] == "paper"
+    polished = polish(robot, data, run)
+    assert polished.status == "converged" and polished.fit.fit_ok
+    assert polished.settings["bounds"] == "paper"
+    # A result file of before (no record) is polished within the default bounds: that fit fails.
+    old = iwr.IdentificationResult(**dict(run))
+    old.update(settings={k: v for k, v in dict(run.settings).items() if k != "bounds"})
+    assert not polish(robot, data, old).fit.fit_ok
+    # Custom bounds are recorded whole.
+    lo, hi = robot.default_bounds("default")
+    lm = iwr.identify(robot, data, "lm", bounds=(20 * lo, 20 * hi))
+    assert lm.settings["bounds"] == "custom" and lm.fit.fit_ok
+    np.testing.assert_array_equal(lm.settings["upper"], 20 * hi)
+
+
 def test_the_polish_of_a_job_fits_its_identification_poses_only():
     """A job's DE run without polish (iwr calibrate --method de --no-polish) held poses out: the
     polish of iwr report refits on the identification poses alone, so that the held-out

@@ -50,6 +50,7 @@ import numpy as np
 from .. import kinds
 from ..measurements import Measurements
 from ..problem import Problem
+from ..problem_base import bounds_record
 from ..result import STATUSES, IdentificationResult, ResultFileError, load_result
 from ..robot import Robot
 from .de import de_method
@@ -260,6 +261,9 @@ def run_method(problem: Any, method: str, active: np.ndarray, x0: np.ndarray, *,
     result["method"] = method
     result["parameter_names"] = problem.parameter_names
     result["active"] = active
+    # The bounds it searched within, recorded as iwr-calibrate's runs record theirs: a polish
+    # of the result (iwr.calibration.polish, iwr report --polish) keeps them.
+    result["settings"] = {**dict(result.settings), **bounds_record(problem)}
     return result
 
 
