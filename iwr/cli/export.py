@@ -5,6 +5,7 @@ poses (with ``--nominal``); the carriage as URDF (:mod:`iwr.export`)."""
 from __future__ import annotations
 
 import argparse
+import os
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,32 @@ MAX_GRID = 12
 GRID_POSE_BYTES = 1536
 #: The files ``iwr export`` writes into ``--out``.
 FILES = ("genhexkins.hal", "hexapod.json", "carriage.urdf", "leg_corrections.csv")
+#: How a file of FILES that ``iwr export`` wrote begins (its first characters, and words within
+#: its first 4 kB): it writes over those alone, not a hand-made file of the same name.
+_OWN = {"genhexkins.hal": ("# LinuxCNC genhexkins parameters", "written by iwr export"),
+        "hexapod.json": ('{\n "format": "iwr-hexapod"', ""),
+        "carriage.urdf": ("<?xml", "written by iwr export"),
+        "leg_corrections.csv": ("# iwr leg corrections:", "")}
+
+
+def _not_ours(out: Path) -> list[str]:
+    """The files of FILES in folder ``out`` that ``iwr export`` did not write (or that are not
+    regular files): what it must not write over, nor remove as an earlier export's."""
+    from .._io import open_regular
+
+    found = []
+    for name, (start, words) in _OWN.items():
+        path = out / name
+        if not os.path.lexists(path):
+            continue
+        try:
+            with open_regular(path) as f:
+                head = f.read(4096).decode("utf-8", "replace")
+        except OSError:
+            head = ""
+        if not (head.startswith(start) and words in head):
+            found.append(name)
+    return found
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:
@@ -64,7 +91,10 @@ def add_parser(sub: Any) -> argparse.ArgumentParser:
 
 
 def cmd_export(args: argparse.Namespace) -> int:
+    from .._io import write_folder
     from ..export import (
+        data_frame,
+        link_names,
         write_carriage_urdf,
         write_genhexkins_hal,
         write_hexapod_json,
@@ -81,6 +111,14 @@ def cmd_export(args: argparse.Namespace) -> int:
     # written, nor writing over an input (refused, exit 2, before anything is read).
     check_output(args.out, "--out", inputs=[args.robot, args.nominal], files=FILES,
                  prog="iwr export")
+    foreign = _not_ours(Path(args.out))
+    if foreign:  # the folder may be a machine's configuration: its own files stay
+        raise UsageError(f"--out {args.out}: {', '.join(foreign)} "
+                         f"{'is' if len(foreign) == 1 else 'are'} not written by iwr export (a "
+                         "hand-made file, or not a regular file); it writes the set "
+                         f"{', '.join(FILES)} as a whole, over an earlier export's only: move "
+                         f"{'it' if len(foreign) == 1 else 'them'} away, or give another --out",
+                         "iwr export")
     from ..compensation import (
         CalibrationStatusError,
         NominalMismatchError,
@@ -109,25 +147,42 @@ def cmd_export(args: argparse.Namespace) -> int:
         except NominalMismatchError as exc:
             raise UsageError(str(exc), "iwr export") from None
     out = Path(args.out)
-    out.mkdir(parents=True, exist_ok=True)
+    frame = data_frame(robot)
     written = []
-    write_genhexkins_hal(out / "genhexkins.hal", robot, args.robot)
-    written.append("genhexkins.hal (LinuxCNC genhexkins: base joints in {4}, platform joints "
-                   "in {5})")
-    write_hexapod_json(out / "hexapod.json", robot, args.robot)
-    written.append("hexapod.json (the same numbers and the leg offsets)")
-    if robot.n_joints:
-        write_carriage_urdf(out / "carriage.urdf", robot, args.robot)
-        written.append(f"carriage.urdf ({robot.n_joints} joints, hexapod_base = {{4}})")
-    else:
-        written.append("no carriage.urdf: the robot has no carriage joints")
-    if nominal is not None:
-        n = write_leg_corrections(out / "leg_corrections.csv", robot, nominal, args.grid,
-                                  args.robot, args.nominal, check=False)  # checked above
-        written.append(f"leg_corrections.csv ({n} poses of {{5}} in {{4}})")
-    else:
-        written.append("no leg_corrections.csv: give --nominal NOMINAL.toml (the model the "
-                       "controller uses) for it")
+
+    def write(tmp: Path) -> list[Path]:
+        # Into a temporary folder first, moved in as a whole (write_folder): a failure leaves
+        # the folder as it was, and an earlier export's file this one does not write goes.
+        files = [tmp / "genhexkins.hal", tmp / "hexapod.json"]
+        write_genhexkins_hal(files[0], robot, args.robot)
+        written.append("genhexkins.hal (LinuxCNC genhexkins: base joints in {4}, platform "
+                       "joints in {5})")
+        write_hexapod_json(files[1], robot, args.robot)
+        written.append("hexapod.json (the same numbers and the leg offsets"
+                       + (", the effects" if robot.effects else "")
+                       + (f", the registration of {{{frame[0]}}}" if frame else "") + ")")
+        if robot.n_joints:
+            files.append(tmp / "carriage.urdf")
+            write_carriage_urdf(files[-1], robot, args.robot)
+            written.append(f"carriage.urdf ({robot.n_joints} joints, hexapod_base = {{4}}"
+                           + (f", {link_names(robot)[-1]} = {{{frame[0]}}}" if frame else "")
+                           + ")")
+        else:
+            written.append("no carriage.urdf: the robot has no carriage joints")
+        if nominal is not None:
+            files.append(tmp / "leg_corrections.csv")
+            n = write_leg_corrections(files[-1], robot, nominal, args.grid, args.robot,
+                                      args.nominal, check=False)  # checked above
+            written.append(f"leg_corrections.csv ({n} poses of {{5}} in {{4}})")
+        else:
+            written.append("no leg_corrections.csv: give --nominal NOMINAL.toml (the model the "
+                           "controller uses) for it")
+        return files
+
+    try:
+        write_folder(out, write, FILES)
+    except OSError as exc:
+        raise CommandError(f"--out {out}: {exc.strerror or exc}") from None
     print(f"wrote {out}/:")
     for line in written:
         print(f"  {line}")
@@ -136,6 +191,12 @@ def cmd_export(args: argparse.Namespace) -> int:
             print(line)
     if determined_frame(robot) is None:  # a ballbar's calibration: {0} and {5} nominal
         print(f"note: {gauge_note(robot, str(args.robot))}")
+    if frame is not None:
+        print(f"note: {args.robot} was calibrated from data measured in {{{frame[0]}}}, which do "
+              "not fix the world frame {0}: the exported {0} is the calibration's gauge choice "
+              "(docs/tracker.md). A target measured there is carried into {0} by the "
+              f"registration in hexapod.json (and carriage.urdf's {link_names(robot)[-1]} link), "
+              f"as `iwr legs --frame {frame[0]}` does")
     if robot.effects:
         names = ", ".join(e.name for e in robot.effects)
         print(f"note: {args.robot} has non-geometric effects ({names}): genhexkins.hal, "

@@ -26,12 +26,14 @@ from typing import Any
 
 import numpy as np
 
+from .. import kinds
 from .._io import atomic_write_text
 from ..problem import predict_legs
 from ..robot import Robot
+from ..transforms import pose_from_matrix
 
-__all__ = ["FRAMES", "genhexkins_hal", "hexapod_dict", "hexapod_readings", "leg_correction_table",
-           "leg_corrections_csv", "pose_grid",
+__all__ = ["FRAMES", "data_frame", "effects_note", "genhexkins_hal", "hexapod_dict",
+           "hexapod_readings", "leg_correction_table", "leg_corrections_csv", "pose_grid",
            "write_genhexkins_hal", "write_hexapod_json", "write_leg_corrections"]
 
 #: The frame convention every hexapod export states.
@@ -50,6 +52,29 @@ def _origin(robot: Robot, source: str | None) -> str:
     prov = ", ".join(f"{k} {v}" for k, v in robot.provenance.items())
     where = f" ({source})" if source else ""
     return " ".join(f"robot {robot.name!r}{where}{'; ' + prov if prov else ''}".split())
+
+
+def effects_note(robot: Robot) -> str | None:
+    """What a file that holds the geometry alone says of a robot with non-geometric effects
+    (issue 23): its leg lengths are not those under load and temperature. None without effects."""
+    if not robot.effects:
+        return None
+    names = ", ".join(e.name for e in robot.effects)
+    return (f"GEOMETRY ONLY: robot {robot.name!r} has non-geometric effects ({names}) that "
+            "change its leg lengths under load and temperature; this file does not hold them "
+            "(hexapod.json records them, and `iwr legs` gives leg commands that include them: "
+            "docs/effects.md)")
+
+
+def data_frame(robot: Robot) -> tuple[str, np.ndarray] | None:
+    """For a robot calibrated from data measured in another frame than {0} (a laser tracker's
+    {T}): that frame's name and the calibrated registration ``T_D0`` (4x4, mm: the world frame
+    {0} in it, ``p_D = T_D0 p_0``), which places {0}, a gauge choice of such a calibration
+    (docs/tracker.md); None for data in {0}."""
+    kind = kinds.for_robot(robot)
+    if kind.frame == "{0}":
+        return None
+    return kind.frame.strip("{}"), np.asarray(kind.registration(robot), dtype=float)
 
 
 def genhexkins_hal(robot: Robot, source: str | None = None) -> str:
@@ -84,6 +109,9 @@ def genhexkins_hal(robot: Robot, source: str | None = None) -> str:
               f"{float(robot.leg_stroke[j, 1])!r} mm" for j in range(6)]
     lines += ["# genhexkins.spindle-offset and genhexkins.tool-offset must stay 0 for these "
               "numbers (both move the", "# z of every joint).", ""]
+    note = effects_note(robot)
+    if note:
+        lines[-1:-1] = ["#", "# " + note + "."]
     for j in range(6):
         for c, k in zip("xyz", range(3), strict=True):
             lines.append(f"setp genhexkins.base.{j}.{c} {float(robot.base_joints[j, k])!r}")
@@ -94,7 +122,35 @@ def genhexkins_hal(robot: Robot, source: str | None = None) -> str:
 
 
 def hexapod_dict(robot: Robot, source: str | None = None) -> dict[str, Any]:
-    """The hexapod's calibrated numbers as a plain dictionary (the JSON export)."""
+    """The hexapod's calibrated numbers as a plain dictionary (the JSON export); with the
+    effects (their gravity in {0} as the calibration used it) and, for a robot calibrated from
+    data in another frame, that frame's registration (:func:`data_frame`)."""
+    from ..effects.gravity import in_world_gravity
+
+    extra: dict[str, Any] = {}
+    if robot.effects:
+        # The effects as they load the robot: on tracker data the tracker's gravity (in {T})
+        # carried into {0} by the calibrated registration, not the file's own gravity_m_s2.
+        extra["effects"] = {e.name: e.to_dict() for e in in_world_gravity(robot).effects}
+        extra["effects_note"] = (
+            "with these effects a leg's reading at a given pose also depends on the load and "
+            "the temperature (docs/effects.md gives their model): the relation of 'frames' is "
+            "the geometry's alone; gravity_m_s2 is in {0}"
+            + (", carried from the tracker's gravity in {T} by the calibrated registration"
+               if kinds.for_robot(robot).world_gravity(robot) is not None else ""))
+    frame = data_frame(robot)
+    if frame is not None:
+        name, t = frame
+        extra["registration"] = {
+            "frame": f"{{{name}}}",
+            f"T_{name}0": [[float(v) for v in row] for row in t],
+            "pose": [float(v) for v in pose_from_matrix(t)],
+            "meaning": f"the world frame {{0}} in the frame {{{name}}} the calibration data were "
+                       f"measured in, as calibrated: p_{name} = T_{name}0 p_0 (mm), pose (x, y, "
+                       "z, alpha, beta, gamma) with R = Rz(alpha) Ry(beta) Rx(gamma); such data "
+                       "do not fix {0} (a gauge choice, docs/tracker.md): a target measured in "
+                       f"{{{name}}} is carried into {{0}} by the inverse",
+        }
     return {
         "format": "iwr-hexapod",
         "version": 1,
@@ -115,7 +171,7 @@ def hexapod_dict(robot: Robot, source: str | None = None) -> dict[str, Any]:
         "home_pose": [float(v) for v in robot.home_pose],
         # The non-geometric effects (issue 23, docs/effects.md): what a controller must add to
         # the geometry's leg lengths under each move's load and temperature.
-        **({"effects": {e.name: e.to_dict() for e in robot.effects}} if robot.effects else {}),
+        **extra,
     }
 
 
@@ -186,6 +242,7 @@ def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
         "Frame {4} is the calibrated carriage's: what the data cannot tell apart between the "
         "carriage's last joint and the base joints sits in one or the other, so use this table "
         "with the calibrated carriage (carriage.urdf of the same export), not the nominal one.",
+        *([effects_note(calibrated) + "."] if calibrated.effects else []),
     ):
         buf.write(f"# {line}\n")
     w = csv.writer(buf, lineterminator="\n")

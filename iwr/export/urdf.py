@@ -19,8 +19,12 @@ import numpy as np
 from .._io import atomic_write_text
 from ..robot import Robot
 from ..transforms import pose_from_matrix
+from .hexapod import data_frame, effects_note
 
 __all__ = ["BASE_LINK", "HEXAPOD_LINK", "carriage_urdf", "link_names", "write_carriage_urdf"]
+
+#: The fixed link at the frame the calibration data were measured in, for a robot calibrated
+#: from data in another frame than {0} (a laser tracker's {T}): ``tracker``.
 
 #: The URDF's root link: the world frame {0} of the carriage.
 BASE_LINK = "base_link"
@@ -28,11 +32,25 @@ BASE_LINK = "base_link"
 HEXAPOD_LINK = "hexapod_base"
 
 
+def _frame_link(robot: Robot) -> tuple[str, np.ndarray] | None:
+    """The link of the frame the data were measured in (``tracker`` for {T}) and its pose in
+    {0}, ``T_0D``; None for data in {0}."""
+    frame = data_frame(robot)
+    if frame is None:
+        return None
+    name, t = frame
+    return ("tracker" if name == "T" else f"frame_{name}"), np.linalg.inv(t)
+
+
 def link_names(robot: Robot) -> list[str]:
     """The names of the URDF's links, root first: ``base_link``, ``carriage_link1`` ..,
-    ``hexapod_base``, then ``leg1_base_joint`` .. ``leg6_base_joint`` (the U-joint centres)."""
+    ``hexapod_base``, then ``leg1_base_joint`` .. ``leg6_base_joint`` (the U-joint centres), and
+    for a robot calibrated from laser-tracker data ``tracker`` (the tracker frame {T}, fixed in
+    ``base_link`` by the calibrated registration)."""
+    extra = _frame_link(robot)
     return ([BASE_LINK] + [f"carriage_link{i + 1}" for i in range(robot.n_joints)]
-            + [HEXAPOD_LINK] + [f"leg{j + 1}_base_joint" for j in range(6)])
+            + [HEXAPOD_LINK] + [f"leg{j + 1}_base_joint" for j in range(6)]
+            + ([extra[0]] if extra else []))
 
 
 def _rz(t: float) -> np.ndarray:
@@ -66,16 +84,23 @@ def carriage_urdf(robot: Robot, source: str | None = None) -> str:
     """The URDF text of ``robot``'s carriage (its DH parameters as they are: pass the calibrated
     robot, e.g. ``calibrated.toml`` or ``robot.with_errors(x)``)."""
     names = link_names(robot)
+    extra = _frame_link(robot)
     root = ET.Element("robot", name=robot.name)
     where = f" ({source})" if source else ""
-    root.append(ET.Comment(
+    text = (
         f" The carriage of robot {robot.name!r}{where}, written by iwr export. Link "
         f"{BASE_LINK} is the world frame {{0}}; {HEXAPOD_LINK} is the hexapod's base frame {{4}} "
         "(the base joints a_i are in it, as legN_base_joint). Joint positions are iwr's carriage "
         "readings q1.. in m (prismatic) and rad (revolute). The link frames between are not the "
         "DH frames: joint i has the origin G_(i-1) Rz(theta_i), with G_i = Tz(d_i) Tx(a_i) "
         "Rx(alpha_i) (docs/cli.md). Limits: iwr's joint limits; effort and velocity are not "
-        "known to iwr (0). ".replace("--", "- -")))
+        "known to iwr (0). "
+        + (f"Link {extra[0]} is the frame the calibration data were measured in, fixed in "
+           f"{BASE_LINK} by the calibrated registration: such data do not fix {{0}}, whose "
+           "placement is a gauge choice of the calibration (docs/tracker.md). "
+           if extra else "")
+        + (effects_note(robot) + ". " if robot.effects else ""))
+    root.append(ET.Comment(text.replace("--", "- -")))  # "--" may not appear in an XML comment
     for name in names:
         ET.SubElement(root, "link", name=name)
     prev = np.eye(4)
@@ -104,6 +129,12 @@ def carriage_urdf(robot: Robot, source: str | None = None) -> str:
         t = np.eye(4)
         t[:3, 3] = robot.base_joints[k]
         _origin(leg, t)
+    if extra is not None:
+        link, t = extra
+        fixed = ET.SubElement(root, "joint", name=f"{link}_joint", type="fixed")
+        ET.SubElement(fixed, "parent", link=BASE_LINK)
+        ET.SubElement(fixed, "child", link=link)
+        _origin(fixed, t)
     ET.indent(root)
     return '<?xml version="1.0"?>\n' + ET.tostring(root, encoding="unicode") + "\n"
 
