@@ -4,11 +4,13 @@ corrections over a grid of poses; the carriage as URDF."""
 
 from .hexapod import (
     FRAMES,
+    TableWritten,
     data_frame,
     effects_note,
     genhexkins_hal,
     hexapod_dict,
     hexapod_readings,
+    interpolation_error,
     leg_correction_table,
     pose_grid,
     write_genhexkins_hal,
@@ -17,8 +19,8 @@ from .hexapod import (
 )
 from .urdf import BASE_LINK, HEXAPOD_LINK, carriage_urdf, link_names, write_carriage_urdf
 
-__all__ = ["BASE_LINK", "FRAMES", "HEXAPOD_LINK", "carriage_urdf", "data_frame", "effects_note",
-           "genhexkins_hal",
-           "hexapod_dict", "hexapod_readings", "leg_correction_table", "link_names", "pose_grid",
+__all__ = ["BASE_LINK", "FRAMES", "HEXAPOD_LINK", "TableWritten", "carriage_urdf", "data_frame",
+           "effects_note", "genhexkins_hal", "hexapod_dict", "hexapod_readings",
+           "interpolation_error", "leg_correction_table", "link_names", "pose_grid",
            "write_carriage_urdf", "write_genhexkins_hal", "write_hexapod_json",
            "write_leg_corrections"]

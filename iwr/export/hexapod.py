@@ -22,7 +22,7 @@ import io
 import itertools
 import json
 import os
-from typing import Any
+from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -32,9 +32,10 @@ from ..problem import predict_legs
 from ..robot import Robot
 from ..transforms import pose_from_matrix
 
-__all__ = ["FRAMES", "data_frame", "effects_note", "genhexkins_hal", "hexapod_dict",
-           "hexapod_readings", "leg_correction_table", "leg_corrections_csv", "pose_grid",
-           "write_genhexkins_hal", "write_hexapod_json", "write_leg_corrections"]
+__all__ = ["FRAMES", "TableWritten", "data_frame", "effects_note", "genhexkins_hal",
+           "hexapod_dict", "hexapod_readings", "interpolation_error", "leg_correction_table",
+           "leg_corrections_csv", "pose_grid", "write_genhexkins_hal", "write_hexapod_json",
+           "write_leg_corrections"]
 
 #: The frame convention every hexapod export states.
 FRAMES = (
@@ -196,9 +197,7 @@ def pose_grid(robot: Robot, n_per_axis: int) -> np.ndarray:
     robot's sampled workspace (``home_pose`` +- ``workspace``), all combinations (``n^6``)."""
     if isinstance(n_per_axis, bool) or not isinstance(n_per_axis, int) or n_per_axis < 1:
         raise ValueError(f"n_per_axis: {n_per_axis!r}; expected an integer >= 1")
-    axes = [np.array([c]) if n_per_axis == 1 or w == 0 else np.linspace(c - w, c + w, n_per_axis)
-            for c, w in zip(robot.home_pose, robot.workspace, strict=True)]
-    return np.array(list(itertools.product(*axes)), dtype=float)
+    return np.array(list(itertools.product(*_axes(robot, n_per_axis))), dtype=float)
 
 
 def leg_correction_table(calibrated: Robot, nominal: Robot, n_per_axis: int = 3
@@ -210,19 +209,74 @@ def leg_correction_table(calibrated: Robot, nominal: Robot, n_per_axis: int = 3
     return poses, hexapod_readings(nominal, poses), hexapod_readings(calibrated, poses)
 
 
+def _axes(robot: Robot, n_per_axis: int) -> list[np.ndarray]:
+    """The values of each pose coordinate in :func:`pose_grid`: one (``home_pose``) where the
+    workspace has no width or ``n_per_axis`` is 1, else ``n_per_axis`` evenly over +-
+    ``workspace``."""
+    return [np.array([c]) if n_per_axis == 1 or w == 0 else np.linspace(c - w, c + w, n_per_axis)
+            for c, w in zip(robot.home_pose, robot.workspace, strict=True)]
+
+
+def interpolation_error(calibrated: Robot, nominal: Robot, n_per_axis: int, samples: int = 2000,
+                        seed: int = 0) -> tuple[float, float]:
+    """How far the corrections ``dsN`` read from :func:`leg_correction_table` by multilinear
+    interpolation between its poses (SciPy's ``RegularGridInterpolator``) are from the models'
+    own, at ``samples`` poses drawn uniformly over ``home_pose`` +- ``workspace`` (seeded): the
+    largest and the RMS difference over every leg (mm). A table is only as good as that between
+    its poses; a finer grid is closer."""
+    poses, s_nom, s_cal = leg_correction_table(calibrated, nominal, n_per_axis)
+    return _interpolation_error(calibrated, nominal, n_per_axis, poses, s_cal - s_nom, samples,
+                                seed)
+
+
+def _interpolation_error(calibrated: Robot, nominal: Robot, n_per_axis: int, poses: np.ndarray,
+                         ds: np.ndarray, samples: int = 2000, seed: int = 0
+                         ) -> tuple[float, float]:
+    from scipy.interpolate import RegularGridInterpolator
+
+    axes = _axes(calibrated, n_per_axis)
+    moving = [k for k, a in enumerate(axes) if a.size > 1]
+    if not moving:
+        return 0.0, 0.0
+    table = ds.reshape(*[axes[k].size for k in moving], 6)  # itertools.product's order
+    rng = np.random.default_rng(seed)
+    at = np.tile(poses[0], (samples, 1))
+    for k in moving:
+        at[:, k] = rng.uniform(axes[k][0], axes[k][-1], size=samples)
+    got = RegularGridInterpolator([axes[k] for k in moving], table)(at[:, moving])
+    err = np.abs(got - (hexapod_readings(calibrated, at) - hexapod_readings(nominal, at)))
+    return float(err.max()), float(np.sqrt(np.mean(err**2)))
+
+
+class TableWritten(NamedTuple):
+    """What :func:`write_leg_corrections` wrote: the table's poses and how far its corrections
+    interpolated between them are from the models' own (:func:`interpolation_error`, mm)."""
+
+    poses: int
+    interpolation_max_mm: float
+    interpolation_rms_mm: float
+
+
 def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
                         source: str | None = None, nominal_source: str | None = None, *,
                         check: bool = True) -> str:
-    """The text of the leg-correction table (CSV with ``#`` comments stating the frame).
-    Raises :class:`iwr.compensation.NominalMismatchError` for a ``nominal`` that is not a model
-    the calibration can be relative to (:func:`iwr.compensation.check_nominal`; ``check``
-    False: the caller has checked it)."""
+    """The text of the leg-correction table (CSV with ``#`` comments stating the frame and the
+    table's interpolation error, :func:`interpolation_error`). Raises
+    :class:`iwr.compensation.NominalMismatchError` for a ``nominal`` that is not a model the
+    calibration can be relative to (:func:`iwr.compensation.check_nominal`; ``check`` False: the
+    caller has checked it)."""
+    return _corrections(calibrated, nominal, n_per_axis, source, nominal_source, check)[0]
+
+
+def _corrections(calibrated: Robot, nominal: Robot, n_per_axis: int, source: str | None,
+                 nominal_source: str | None, check: bool) -> tuple[str, TableWritten]:
     if check:
         from ..compensation import check_nominal
 
         check_nominal(calibrated, nominal, where=source or "calibrated",
                       nominal_where=nominal_source or "nominal")
     poses, s_nom, s_cal = leg_correction_table(calibrated, nominal, n_per_axis)
+    worst, rms = _interpolation_error(calibrated, nominal, n_per_axis, poses, s_cal - s_nom)
     lo, hi = calibrated.leg_stroke[:, 0], calibrated.leg_stroke[:, 1]
     inside = np.all((s_cal >= lo) & (s_cal <= hi), axis=1)
     buf = io.StringIO()
@@ -242,6 +296,9 @@ def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
         "Frame {4} is the calibrated carriage's: what the data cannot tell apart between the "
         "carriage's last joint and the base joints sits in one or the other, so use this table "
         "with the calibrated carriage (carriage.urdf of the same export), not the nominal one.",
+        f"Between its poses, dsN_mm interpolated multilinearly is off the models' own by up to "
+        f"{worst * 1000:.3g} um ({rms * 1000:.3g} um RMS; 2000 random poses of the workspace): "
+        "a finer grid (iwr export --grid) is closer.",
         *([effects_note(calibrated) + "."] if calibrated.effects else []),
     ):
         buf.write(f"# {line}\n")
@@ -251,7 +308,7 @@ def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
                 *[f"ds{j}_mm" for j in range(1, 7)], "within_stroke"])
     for p, a, b, ok in zip(poses, s_nom, s_cal, inside, strict=True):
         w.writerow([*(repr(float(v)) for v in (*p, *a, *b, *(b - a))), int(ok)])
-    return buf.getvalue()
+    return buf.getvalue(), TableWritten(len(poses), worst, rms)
 
 
 def write_genhexkins_hal(path: str | os.PathLike[str], robot: Robot,
@@ -268,9 +325,10 @@ def write_hexapod_json(path: str | os.PathLike[str], robot: Robot,
 
 def write_leg_corrections(path: str | os.PathLike[str], calibrated: Robot, nominal: Robot,
                           n_per_axis: int = 3, source: str | None = None,
-                          nominal_source: str | None = None, *, check: bool = True) -> int:
-    """Write :func:`leg_corrections_csv` atomically; returns the number of poses."""
-    text = leg_corrections_csv(calibrated, nominal, n_per_axis, source, nominal_source,
-                               check=check)
+                          nominal_source: str | None = None, *, check: bool = True
+                          ) -> TableWritten:
+    """Write :func:`leg_corrections_csv` atomically; returns its poses and interpolation
+    error."""
+    text, written = _corrections(calibrated, nominal, n_per_axis, source, nominal_source, check)
     atomic_write_text(path, text)
-    return len(pose_grid(calibrated, n_per_axis))
+    return written
