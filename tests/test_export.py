@@ -389,13 +389,13 @@ def test_the_tables_interpolation_error_is_what_it_says(calibrated, tmp_path, ca
     rng = np.random.default_rng(5)
     errors = []
     for p in _random_poses(cal, rng, 300):
-        cell = [min(int(np.searchsorted(a, v) - 1), a.size - 2) for a, v in zip(axes, p)]
-        cell = [max(c, 0) for c in cell]
-        t = [(v - a[c]) / (a[c + 1] - a[c]) for a, v, c in zip(axes, p, cell)]
+        cell = [max(min(int(np.searchsorted(a, v)) - 1, a.size - 2), 0)
+                for a, v in zip(axes, p, strict=True)]
+        t = [(v - a[c]) / (a[c + 1] - a[c]) for a, v, c in zip(axes, p, cell, strict=True)]
         got = np.zeros(6)
         for corner in np.ndindex(*[2] * 6):
-            w = np.prod([tk if bit else 1 - tk for tk, bit in zip(t, corner)])
-            got += w * ds[tuple(c + b for c, b in zip(cell, corner))]
+            w = np.prod([tk if bit else 1 - tk for tk, bit in zip(t, corner, strict=True)])
+            got += w * ds[tuple(c + b for c, b in zip(cell, corner, strict=True))]
         words = np.array([*p[:3], *np.degrees([p[5], p[4], p[3]])])
         exact = ((_genhex_inverse(base_c, plat_c, words) - cal.leg_offsets)
                  - (_genhex_inverse(base_n, plat_n, words) - nominal.leg_offsets))
