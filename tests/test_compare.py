@@ -499,3 +499,34 @@ def test_metrics_figure_of_a_scenario_where_every_run_failed(monkeypatch) -> Non
     assert axes["bad: final cost (mm$^2$)"].get_yscale() == "log"
     near = axes["near: validation RMS (mm)"]
     assert near.get_yscale() == "log" and not near.texts
+
+
+def test_a_row_s_medians_are_over_the_same_runs():
+    """A run whose model has no forward kinematics at its result has no tool position (nan):
+    its median was taken over the other runs alone, so one row showed one good run's 0.0245 mm
+    beside a validation RMS of 47 mm over both (an outside check). A run without a figure now
+    counts as the worst (inf) in every median of a cost or an error; wall time and evaluations
+    stay medians of the runs that have them."""
+    from iwr.experiments.compare import _summarise
+    from iwr.reporting.study import _stats
+
+    def run(cost, val, tool, wall):
+        r = {"scenario": "bad", "method": "lm", "cost": cost, "success": False,
+             "at_floor": False, "noise_floor": 0.06, "val_rms": val, "val_rms_nominal": 90.0,
+             "param_error_length": 1.0, "param_error_angle": 1e-3, "raw_error_length": 2.0,
+             "raw_error_angle": 2e-3, "tool_position_rms": tool,
+             "tool_position_rms_nominal": 80.0, "nfev": 10, "within_budget": True,
+             "status": "ok", "wall_time": wall}
+        return r
+
+    runs = [run(0.03, 0.05, 0.0245, 1.0), run(1.4e5, 94.7, math.nan, math.nan),
+            run(7e4, 47.4, 30.0, 3.0)]
+    row = _summarise(runs, ["bad"], ["lm"])[0]
+    assert row["median_tool_position_rms"] == 30.0  # of (0.0245, 30, inf), not (0.0245, 30)
+    assert row["median_val_rms"] == 47.4 and row["median_cost"] == 7e4
+    assert row["median_wall_time"] == 2.0  # of the runs that have one
+    two = _summarise(runs[:2], ["bad"], ["lm"])[0]
+    assert two["median_tool_position_rms"] == math.inf
+    # The study's cells alike: median and quartiles over every run.
+    assert _stats([0.0245, math.nan, 30.0]) == (30.0, pytest.approx(15.01225), math.inf, 3)
+    assert _stats([math.nan, math.nan]) == (math.inf, math.inf, math.inf, 2)

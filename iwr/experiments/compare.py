@@ -40,6 +40,7 @@ from .harness import (
     check_n_poses,
     check_robot,
     leg_sigma,
+    percentiles_worst,
     registered_methods,
     robot_hash,
     split_method,
@@ -452,6 +453,12 @@ def _median(values: list[float]) -> float:
     return float(np.median(arr)) if arr.size else math.nan
 
 
+def _median_worst(values: list[float]) -> float:
+    """The median of a cost or an error over every run, a run without it counted as the worst
+    (:func:`iwr.experiments.harness.percentiles_worst`)."""
+    return float(percentiles_worst(values, 50)[0])
+
+
 def _extreme(f: Any, values: list[float]) -> float:
     """``f`` (nanmin, nanmax) of the values that are numbers; nan when none is."""
     arr = np.asarray(values, dtype=float)
@@ -475,18 +482,18 @@ def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) 
                 "success_rate": sum(bool(r["success"]) for r in rs) / len(rs),
                 "at_floor": sum(bool(r["at_floor"]) for r in rs),
                 "at_floor_rate": sum(bool(r["at_floor"]) for r in rs) / len(rs),
-                "median_cost": _median(costs),
+                "median_cost": _median_worst(costs),
                 "min_cost": _extreme(np.nanmin, costs),
                 "max_cost": _extreme(np.nanmax, costs),
                 "median_noise_floor": _median([r["noise_floor"] for r in rs]),
-                "median_val_rms": _median([r["val_rms"] for r in rs]),
-                "median_val_rms_nominal": _median([r["val_rms_nominal"] for r in rs]),
-                "median_param_error_length": _median([r["param_error_length"] for r in rs]),
-                "median_param_error_angle": _median([r["param_error_angle"] for r in rs]),
-                "median_raw_error_length": _median([r["raw_error_length"] for r in rs]),
-                "median_raw_error_angle": _median([r["raw_error_angle"] for r in rs]),
-                "median_tool_position_rms": _median([r["tool_position_rms"] for r in rs]),
-                "median_tool_position_rms_nominal": _median([r["tool_position_rms_nominal"]
+                "median_val_rms": _median_worst([r["val_rms"] for r in rs]),
+                "median_val_rms_nominal": _median_worst([r["val_rms_nominal"] for r in rs]),
+                "median_param_error_length": _median_worst([r["param_error_length"] for r in rs]),
+                "median_param_error_angle": _median_worst([r["param_error_angle"] for r in rs]),
+                "median_raw_error_length": _median_worst([r["raw_error_length"] for r in rs]),
+                "median_raw_error_angle": _median_worst([r["raw_error_angle"] for r in rs]),
+                "median_tool_position_rms": _median_worst([r["tool_position_rms"] for r in rs]),
+                "median_tool_position_rms_nominal": _median_worst([r["tool_position_rms_nominal"]
                                                              for r in rs]),
                 "median_nfev": _median([float(r["nfev"]) for r in rs]),
                 "max_nfev": int(max(r["nfev"] for r in rs)),

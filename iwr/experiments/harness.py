@@ -132,6 +132,27 @@ def rms(v: Any) -> float:
     return float(np.sqrt(np.mean(np.square(a)))) if a.size else math.nan
 
 
+def percentiles_worst(values: Any, qs: Any) -> np.ndarray:
+    """Percentiles ``qs`` (0-100, NumPy's linear interpolation) of an error or a cost over a set
+    of runs, a run without the figure (nan: it failed, or the model has no forward kinematics
+    at its result) counted as the worst, inf: so that every figure of a row or a cell is over
+    the same runs (the median of the others alone is of better runs). A percentile that
+    interpolates towards such a run is inf; none of nothing is nan."""
+    v = np.array([math.inf if math.isnan(x) else x for x in values], dtype=float)
+    qs = np.atleast_1d(np.asarray(qs, dtype=float))
+    finite = v[np.isfinite(v)]
+    if v.size == 0:
+        return np.full(qs.shape, math.nan)
+    if finite.size == v.size:
+        return np.asarray(np.percentile(v, qs), dtype=float)
+    if finite.size == 0:
+        return np.full(qs.shape, math.inf)
+    # inf as a finite stand-in above them all (NumPy's interpolation makes 0 * inf nan).
+    big = np.where(np.isfinite(v), v, np.finfo(float).max / 4)
+    q = np.asarray(np.percentile(big, qs), dtype=float)
+    return np.where(q > finite.max(), math.inf, q)
+
+
 def noise_at(level: float) -> Noise:
     """The measurement noise of a noise level: ``level`` is the laser tracker's position standard
     deviation (mm); the other channels keep the proportions of :meth:`Noise.realistic`.

@@ -266,8 +266,9 @@ def _definitions(settings: dict[str, Any]) -> list[str]:
         *([kind["gauge"]] if kind.get("gauge") else []),
         *_de_text(settings),
         _parameter_error_text(kind.get("parameters")),
-        "Medians over seeds. Wall times depend on the machine and its load; everything else is "
-        "the same for the same seeds.",
+        "Medians over seeds; a run without a figure (failed, or no forward kinematics at its "
+        "result) counts as the worst, inf, in the medians of the costs and errors. Wall times "
+        "depend on the machine and its load; everything else is the same for the same seeds.",
     ]
 
 

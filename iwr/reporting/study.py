@@ -20,6 +20,7 @@ from typing import Any
 import numpy as np
 
 from .._io import atomic_write_text
+from ..experiments.harness import percentiles_worst
 from .figures import PALETTE, new_figure, save_png
 from .html import Page, provenance, write_page
 
@@ -58,11 +59,12 @@ def _labels(meta: dict[str, Any]) -> dict[str, str]:
 
 
 def _stats(values: Sequence[float]) -> tuple[float, float, float, int]:
-    v = np.asarray([x for x in values if np.isfinite(x)], dtype=float)
-    if v.size == 0:
+    """Median, quartiles and count of an error over a cell's runs, a run without the figure
+    counted as the worst (:func:`iwr.experiments.harness.percentiles_worst`)."""
+    if not len(values):
         return math.nan, math.nan, math.nan, 0
-    q25, med, q75 = np.percentile(v, [25, 50, 75])
-    return float(med), float(q25), float(q75), int(v.size)
+    q25, med, q75 = percentiles_worst(values, [25, 50, 75])
+    return float(med), float(q25), float(q75), len(values)
 
 
 def _budget_label(method: str, budget: int | None, names: dict[str, str]) -> str:
@@ -99,7 +101,8 @@ def _group(rows: list[dict[str, Any]], by: Sequence[str], value: str) -> dict[tu
 
 
 def _positive(y: np.ndarray) -> np.ndarray:
-    return np.maximum(y, 1e-16)  # exact zeros drawn at the bottom of a log axis
+    # Exact zeros drawn at the bottom of a log axis; inf (at least half the runs failed) not.
+    return np.where(np.isfinite(y), np.maximum(y, 1e-16), np.nan)
 
 
 def _band_plot(ax: Any, x: Sequence[float], stats: Sequence[tuple], label: str, color: Any) -> None:
@@ -144,8 +147,7 @@ def _plot_vs(
     xs_all = _sorted_unique(r[xcol] for r in rows)
     fig, axes = _figure(len(values), len(panels))
     for i, value in enumerate(values):
-        stats = _group([r for r in rows if np.isfinite(r[value])],
-                       (*line_cols, panel_col, xcol), value)
+        stats = _group(rows, (*line_cols, panel_col, xcol), value)
         for j, p in enumerate(panels):
             ax = axes[i, j]
             for ln in lines:
@@ -202,7 +204,7 @@ def _line_label(cols: Sequence[str], values: tuple, names: dict[str, str]) -> st
 
 
 def _fmt(x: float) -> str:
-    return "n/a" if not np.isfinite(x) else f"{x:.2e}"
+    return "inf" if x == math.inf else "n/a" if not np.isfinite(x) else f"{x:.2e}"
 
 
 def _cell(s: tuple) -> str:
@@ -343,7 +345,8 @@ def _summary(
         "",
         f"Validation error: RMS over {n_val} fresh, noise-free poses of the actual robot of the "
         f"{short} readings' error, {text['readings']}; median [25 %, 75 %] over error draws x "
-        f"seeds. Noise level: {text['noise_level']}.",
+        "seeds, a run without the figure (no forward kinematics at its result) counted as the "
+        f"worst (inf). Noise level: {text['noise_level']}.",
         "",
     ]
     if text.get("gauge"):
