@@ -299,6 +299,15 @@ def test_plan(sim, tmp_path):
                "--out", str(out))
     assert_fails(proc, 2, r"--poses: 2; expected an integer from \d+ .* to 100 \(the number "
                  r"of candidates, of --n-candidates 100\)")
+    # Candidates that determine fewer combinations than the robot has: their own rank made the
+    # minimum (8 poses: "48 base parameters", a plan written, exit 0: an outside check).
+    few = tmp_path / "eight.csv"
+    cand.subset(np.arange(8)).to_csv(few)
+    proc = run("plan", str(sim / "robot.toml"), "--candidates", str(few), "--poses", "8",
+               "--out", str(tmp_path / "eight_plan.csv"))
+    assert_fails(proc, 2, r"--candidates .*eight.csv: its 8 poses determine 48 combinations of "
+                 r"the parameters, of the 52 that robot 'IWR' has")
+    assert not (tmp_path / "eight_plan.csv").exists()
 
 
 def test_source_folder_without_compiled_module_says_so(tmp_path):

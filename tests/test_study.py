@@ -238,17 +238,26 @@ def test_lost_result_file_is_recomputed_and_figures_make_sense(tmp_path: Path) -
     assert "lm, noise 0 mm: at the floor" in text
 
 
-def test_deterministic_failure_is_recorded_not_retried(tmp_path: Path) -> None:
-    # A budget below DE's initial population (580): every DE cell fails the same way, LM's cells
-    # do not. (A bad option's value, population_size 3, is refused before any cell runs.)
-    grid = dict(methods=["lm", "de"], poses=[12], noise=0.0, draws=1, seeds=[0, 1],
-                budgets={"de.max_evaluations": [100]}, out=tmp_path, scheduler="synchronous",
-                report=False, validation_poses=10)
+def test_deterministic_failure_is_recorded_not_retried(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    # A method registered from outside iwr (not dry-run before the study: a call may have side
+    # effects) that fails the same way on every cell; LM's cells do not. (A budget below DE's
+    # initial population, which did this before, and a bad option's value, population_size 3,
+    # are refused before any cell runs.)
+    from iwr.methods import METHODS
+
+    def boom(problem, **_):
+        raise ValueError("boom: no answer")
+
+    monkeypatch.setitem(METHODS, "boom", boom)
+    grid = dict(methods=["lm", "boom"], poses=[12], noise=0.0, draws=1, seeds=[0, 1],
+                out=tmp_path, scheduler="synchronous", report=False, validation_poses=10)
     res = iwr.study(**grid)
     status = {(r["method"], r["seed"]): r for r in res.rows}
     for seed in (0, 1):
-        assert status[("de", seed)]["status"] == "failed"
-        assert "ValueError: max_evaluations: 100" in status[("de", seed)]["message"]
+        assert status[("boom", seed)]["status"] == "failed"
+        assert "ValueError: boom: no answer" in status[("boom", seed)]["message"]
         assert status[("lm", seed)]["status"] == "ok"
     assert res.failed == 2
     again = iwr.study(**grid)
@@ -256,7 +265,7 @@ def test_deterministic_failure_is_recorded_not_retried(tmp_path: Path) -> None:
     with pytest.raises(ValueError, match="options.lm.nope: not an option of method 'lm'"):
         iwr.study(**{**grid, "options": {"lm": {"nope": 1}}})
     with pytest.raises(ValueError, match="options.de.population_size: 3"):
-        iwr.study(**{**grid, "options": {"de": {"population_size": 3}}})
+        iwr.study(**{**grid, "methods": ["lm", "de"], "options": {"de": {"population_size": 3}}})
 
 
 def test_rows_of_an_older_computation_are_computed_again(
@@ -347,6 +356,14 @@ def test_bad_arguments() -> None:
         iwr.study(workers=2, scheduler="tcp://127.0.0.1:1")
     with pytest.raises(StudyError, match="no such file"):
         read_table("/nonexistent/results.csv")
+    # Refused before any cell runs (an outside check found both running every cell into a
+    # failure, exit 0): a negative base seed, and a budget below DE's initial population.
+    with pytest.raises(ValueError, match=r"base_seed: -1; expected an integer in \[0, 2\^64\)"):
+        iwr.study(base_seed=-1, scheduler="synchronous")
+    with pytest.raises(ValueError, match="budgets: de.max_evaluations = 100: max_evaluations: "
+                                         "100; the initial population alone"):
+        iwr.study(methods="de", budgets={"de.max_evaluations": [100, 5000]},
+                  scheduler="synchronous")
 
 
 def test_bad_table(tmp_path: Path) -> None:

@@ -148,6 +148,20 @@ def cmd_plan(args: argparse.Namespace) -> int:
         raise UsageError("--poses" + msg[7:].replace(
             "(the number of candidates)", f"(the number of candidates, of {given})"),
             "iwr plan") from None
+    if args.candidates:
+        # The candidates' own rank sets the base parameters plan_poses keeps: candidates that
+        # see fewer combinations than the robot has (8 poses, 48 readings, for the IWR's 52)
+        # would give a plan no calibration can determine the robot from.
+        from ..experiments.harness import identifiable
+
+        need = identifiable(robot)
+        if plan.base_indices.size < need:
+            raise UsageError(
+                f"--candidates {args.candidates}: its {len(cand)} poses determine "
+                f"{plan.base_indices.size} combinations of the parameters, of the "
+                f"{need} that robot {robot.name!r} has on {kind.description} data: no plan from "
+                "them can calibrate it; give more (and more varied) candidate poses, or none "
+                "(--n-candidates samples them)", "iwr plan")
     plan.to_csv(args.out, source)
     print(f"candidates: {source}")
     print(plan)

@@ -24,6 +24,7 @@ from ._base import (
     check_output,
     format_bytes,
     largest,
+    nonneg_int,
     option_error,
 )
 
@@ -152,7 +153,7 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--robot", default=None, help="robot TOML file (default: the built-in IWR)")
     parser.add_argument("--validation-poses", type=int, default=50,
                         help="fresh poses on which each calibration is validated (default: 50)")
-    parser.add_argument("--base-seed", type=int, default=0,
+    parser.add_argument("--base-seed", type=nonneg_int, default=0,
                         help="root of every random stream (default: 0)")
     parser.add_argument("--out", default="study", help="study folder (default: study)")
     parser.add_argument("--scheduler", default=None,

@@ -43,6 +43,7 @@ __all__ = [
     "Scenario",
     "check_n_poses",
     "check_robot",
+    "identifiable",
     "min_poses",
     "ScenarioData",
     "SETTING_COLUMNS",
@@ -239,7 +240,7 @@ def _scaled_null_basis(problem: Any, x: np.ndarray, kind: Any) -> tuple[int, np.
     return rank, vt[rank:].T
 
 
-def _identifiable(robot: Robot) -> int:
+def identifiable(robot: Robot) -> int:
     """The number of identifiable parameters of ``robot`` on its kind of data (the rank of the
     column-scaled Jacobian on generic poses: 52 of 58 for the IWR's poses in {0}), computed once
     per robot."""
@@ -258,7 +259,7 @@ def min_poses(robot: Robot) -> int:
     ``robot``: 9 for the IWR measured in {0} (six leg readings a pose: 54 readings for 52
     identifiable parameters). Below it the identification is underdetermined whatever the
     method, and its figures mean nothing."""
-    need = _identifiable(robot)
+    need = identifiable(robot)
     return max(1, math.ceil(need / _READINGS[robot_hash(robot)] - 1e-9))
 
 
@@ -278,7 +279,7 @@ def check_n_poses(robot: Robot, n_poses: Any, name: str = "n_poses") -> int:
     need = min_poses(robot)
     if n_poses < need:
         raise ArgumentError(
-            f"{name}: {int(n_poses)} poses are too few: the {_identifiable(robot)} identifiable "
+            f"{name}: {int(n_poses)} poses are too few: the {identifiable(robot)} identifiable "
             f"parameters of robot {robot.name!r} need at least {need} poses "
             f"({_READINGS[robot_hash(robot)]:g} independent readings each, "
             f"{kinds.for_robot(robot).description}); give at least that"

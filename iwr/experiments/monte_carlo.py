@@ -426,6 +426,10 @@ def study(
         raise ArgumentError(f"validation_poses: {validation_poses!r}; expected an integer >= 1")
     if isinstance(retries, bool) or not isinstance(retries, int) or retries < 0:
         raise ArgumentError(f"retries: {retries!r}; expected an integer >= 0")
+    if (isinstance(base_seed, bool) or not isinstance(base_seed, (int, np.integer))
+            or not 0 <= base_seed < 2**64):
+        # NumPy's seeds; a negative one failed every cell with NumPy's message, and exit 0.
+        raise ArgumentError(f"base_seed: {base_seed!r}; expected an integer in [0, 2^64)")
     if workers is not None and (isinstance(workers, bool) or not isinstance(workers, int)
                                 or workers < 1):
         raise ArgumentError(f"workers: {workers!r}; expected an integer >= 1")
@@ -443,6 +447,17 @@ def study(
             dry_run(robot, m, opts)
         except (ValueError, TypeError) as exc:
             raise ArgumentError(f"options.{m}.{exc}") from None
+    for m, (option, values) in budgets_d.items():
+        # The smallest budget too (DE's engine refuses one below its initial population): a
+        # study whose every cell of it fails, exit 0, was the alternative.
+        given = [v for v in values if v is not None]
+        if not given:
+            continue
+        name = option or budget_option(m)
+        try:
+            dry_run(robot, m, {**options_d.get(m, {}), name: min(given)})
+        except (ValueError, TypeError) as exc:
+            raise ArgumentError(f"budgets: {m}.{name} = {min(given)}: {exc}") from None
 
     out = Path(out)
     runs = out / RUNS_FOLDER
