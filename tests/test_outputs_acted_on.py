@@ -461,3 +461,19 @@ def test_iwr_report_polish_turns_a_de_run_into_a_usable_calibration(tmp_path):
     assert "polished by Levenberg-Marquardt: converged" in done.stdout
     assert iwr.Robot.from_toml(tmp_path / "done" / "calibrated.toml").provenance[
         "status"] == "success"
+
+
+def test_a_stopped_run_s_calibration_file_says_where_its_fit_was_tested(tmp_path):
+    """calibrated.toml of a run stopped after 2 evaluations (cost 6089 mm^2) recorded
+    fit_test = "passed" (an outside check); it now says the test was of the point where the
+    method stopped. A converged run's says "passed"."""
+    import tomllib
+
+    robot = iwr.Robot.default()
+    data, _ = iwr.simulate(robot, 40, seed=6, noise=NOISE)
+    for budget, want in ((2, "passed at the point the method stopped (not converged)"),
+                         (None, "passed")):
+        cal = iwr.calibrate(robot, data, "lm", max_evaluations=budget)
+        render(cal).write(tmp_path / str(budget))
+        prov = tomllib.loads((tmp_path / str(budget) / "calibrated.toml").read_text())
+        assert prov["provenance"]["fit_test"] == want
