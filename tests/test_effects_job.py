@@ -438,6 +438,28 @@ def test_cli_calibrate_report_and_plan_with_effects(with_effects, job, tmp_path)
     assert proc.returncode == 0, proc.stdout + proc.stderr
     assert "payloads:" in proc.stdout and "temperatures:" in proc.stdout
     assert "payload_kg" in (tmp_path / "plan.csv").read_text()
+    # iwr legs of the calibration: a load or a temperature out of range is named by the
+    # targets file's line and column (it named an array's row 0, column 0); targets without
+    # payload columns are said to be for no payload; a missing output folder is a usage error.
+    head = "q1_mm,q2_mm,q3_rad,q4_rad,x_mm,y_mm,z_mm,alpha_rad,beta_rad,gamma_rad"
+    rows = [",".join(repr(float(v)) for v in (*q, *p)) for q, p in zip(m.q[:3], m.poses[:3],
+                                                                        strict=True)]
+    kelvin = tmp_path / "kelvin.csv"
+    kelvin.write_text(f"{head},payload_kg,payload_x_mm,payload_y_mm,payload_z_mm,T_C\n"
+                      + "".join(f"{r},0,0,0,0,{t}\n" for r, t in zip(rows, (20, 293.15, 21),
+                                                                       strict=True)))
+    legs = str(tmp_path / "legs.csv")
+    proc = _run_iwr("legs", str(out / "calibrated.toml"), str(kelvin), "-o", legs)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert f"{kelvin}, line 3, column 'T_C' is 293.15 degrees C" in proc.stderr
+    unloaded = tmp_path / "unloaded.csv"
+    unloaded.write_text(f"{head},T_C\n" + "".join(f"{r},20\n" for r in rows))
+    proc = _run_iwr("legs", str(out / "calibrated.toml"), str(unloaded), "-o", legs)
+    assert proc.returncode == 0, proc.stdout + proc.stderr
+    assert "has no payload columns" in proc.stdout and "for no payload" in proc.stdout
+    proc = _run_iwr("legs", str(out / "calibrated.toml"), str(unloaded), "-o",
+                    str(tmp_path / "nodir" / "legs.csv"))
+    assert proc.returncode == 2 and "folder" in proc.stderr and "does not exist" in proc.stderr
 
 
 def test_an_effect_outside_its_plausible_range_fails_the_fit(with_effects):

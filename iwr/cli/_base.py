@@ -297,6 +297,10 @@ def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[
     if clash is not None:
         raise UsageError(f"{option} {path}: would overwrite {clash[1]}, an input of this run "
                          f"({clash[0]}); give another {option}", prog)
+    if files is None and not os.path.isdir(os.path.abspath(path.parent)):
+        # A file is written into its folder, which is not made (a folder of files is).
+        raise UsageError(f"{option} {path}: folder {path.parent} does not exist; make it first, "
+                         f"or give another {option}", prog)
     # The nearest folder that exists must be writable: the files or folders are made there.
     folder = path if files is not None else path.parent
     folder = Path(os.path.abspath(folder))

@@ -13,7 +13,7 @@ from typing import Any
 
 import numpy as np
 
-from ..measurements import effect_columns, effect_inputs
+from ..measurements import CellError, effect_columns, effect_inputs
 from ._base import EXIT_OK, CommandError, UsageError, add_common, load_robot
 
 DEFAULT_OUT = "legs.csv"
@@ -242,6 +242,12 @@ def cmd_legs(args: argparse.Namespace) -> int:
                 check_inputs(robot, types.SimpleNamespace(**inputs), where=str(args.targets))
             except ValueError as exc:
                 raise CommandError(str(exc)) from None
+            if inputs["payload"] is None and any("forces" in e.needs for e in robot.effects):
+                loads = ", ".join(e.name for e in robot.effects if "forces" in e.needs)
+                cols = ", ".join(effect_columns()[:4])
+                unloaded = (f"note: {args.targets} has no payload columns ({cols}): the commands "
+                            f"are for no payload, the platform's own weight alone ({loads})")
+                note = f"{note}\n{unloaded}" if note else unloaded
             cmd = effect_commands(robot, q, poses, **inputs, **options)
         else:
             cmd = leg_commands(robot, q, poses, **options)
@@ -250,6 +256,14 @@ def cmd_legs(args: argparse.Namespace) -> int:
     except TargetError as exc:
         raise CommandError(f"{args.targets}, line {lines[exc.index]}, column {exc.column!r}: "
                            f"{exc.detail}") from None
+    except CellError as exc:  # a load or a temperature out of its range: the file's place
+        payload = effect_columns()[:4]
+        columns = {"payload": payload, "payload centre": payload[1:],
+                   "temperatures": [c for c in effect_columns()[4:] if c in extra]}.get(exc.name)
+        if columns is None or not (0 <= exc.row < len(lines) and 0 <= exc.column < len(columns)):
+            raise
+        raise CommandError(f"{args.targets}, line {lines[exc.row]}, column "
+                           f"{columns[exc.column]!r}{exc.detail}") from None
     if note:
         print(note)
     if determined_frame(robot) is None:
