@@ -272,12 +272,15 @@ def written_by(path: str | os.PathLike[str], own: str) -> bool:
 
 def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[Any] = (),
                  files: Iterable[str] | None = None, prog: str = "iwr calibrate",
-                 own: str | None = None, own_what: str | None = None) -> None:
+                 own: str | None = None, own_what: str | None = None,
+                 in_existing_folder: bool = False) -> None:
     """Refuse, before any work, an output that cannot be written or would overwrite an input:
     ``path`` is a file, or with ``files`` (the names written in it) a folder. ``own``: the
     first characters of the files this command writes (``"# iwr plan:"``); an existing file
     that does not start so is not overwritten (a measurement file named by mistake).
-    ``own_what``: what such a file is, for the message (default: its first characters)."""
+    ``own_what``: what such a file is, for the message (default: its first characters).
+    ``in_existing_folder``: the file is written into its folder as it is (not one the command
+    makes): a missing folder is refused too."""
     path = Path(path)
     if files is None:
         clash = overwritten_input([path], inputs)
@@ -297,7 +300,7 @@ def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[
     if clash is not None:
         raise UsageError(f"{option} {path}: would overwrite {clash[1]}, an input of this run "
                          f"({clash[0]}); give another {option}", prog)
-    if files is None and not os.path.isdir(os.path.abspath(path.parent)):
+    if in_existing_folder and not os.path.isdir(os.path.abspath(path.parent)):
         # A file is written into its folder, which is not made (a folder of files is).
         raise UsageError(f"{option} {path}: folder {path.parent} does not exist; make it first, "
                          f"or give another {option}", prog)

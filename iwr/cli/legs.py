@@ -218,7 +218,7 @@ def cmd_legs(args: argparse.Namespace) -> int:
     from ._base import check_output
 
     check_output(args.out, "-o", inputs=[args.robot, args.targets, args.user_frame],
-                 prog="iwr legs", own=LEGS_MARKER)
+                 prog="iwr legs", own=LEGS_MARKER, in_existing_folder=True)
     robot = load_robot(args.robot)
     try:
         note = check_calibration(robot, allow_unverified=args.allow_unverified,

@@ -74,7 +74,7 @@ def cmd_plan(args: argparse.Namespace) -> int:
     from ..simulation import sample_poses
 
     check_output(args.out, "--out", inputs=[args.robot, args.candidates], prog="iwr plan",
-                 own=PLAN_MARKER)
+                 own=PLAN_MARKER, in_existing_folder=True)
     robot = load_robot(args.robot)
     kind = for_robot(robot)
     footprint = Footprint.of(robot)
