@@ -672,3 +672,12 @@ def test_report_md_carries_no_raw_html_from_names(sim, tmp_path):
     outside = re.sub(r"(?ms)^```.*?^```", "", md)
     assert "<img" not in outside and "<b>" not in outside
     assert "&lt;img src=x onerror=alert(1)&gt;" in md and "r&lt;b&gt;.toml" in md
+
+
+def test_a_usage_error_points_to_the_help_of_the_command_that_ran(sim):
+    """A usage error raised without naming its command ended "(see 'iwr calibrate --help')"
+    whatever the command (iwr analyze --target-units furlong: an outside check)."""
+    proc = run("analyze", str(sim / "robot.toml"), str(sim / "measurements.csv"),
+               "--target-units", "furlong")
+    assert proc.returncode == 2
+    assert proc.stderr.strip().endswith("(see 'iwr analyze --help')"), proc.stderr

@@ -101,9 +101,11 @@ def main(argv: Sequence[str] | None = None) -> int:
         (UsageError, EXIT_USAGE, ""),
         ((CommandError, ValueError, RuntimeError, OSError, ArithmeticError), EXIT_ERROR, ""),
     ]
+    command = None
     try:
         _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
         args = build_parser().parse_args(argv)  # --help whatever IWR_KERNEL holds
+        command = f"iwr {args.command}"
         _command_kernel()
         func: Callable[[argparse.Namespace], int | None] = args.func
         code = func(args)
@@ -120,6 +122,8 @@ def main(argv: Sequence[str] | None = None) -> int:
             if isinstance(exc, types):
                 code, prefix = c, p
                 break
+        if isinstance(exc, UsageError) and exc.prog is None:
+            exc.prog = command  # the help of the command that ran
         msg = one_line(exc)
         if isinstance(exc, UsageError):
             print(f"iwr: error: {msg}", file=sys.stderr)

@@ -25,10 +25,15 @@ QUICK_ENV = "IWR_EXAMPLE_QUICK"
 
 
 class UsageError(Exception):
-    """Bad command-line usage: exit code 2. The message ends with where to find help."""
+    """Bad command-line usage: exit code 2. The message ends with where to find help: ``prog``'s,
+    by default the command that ran (``iwr`` sets it; it said "iwr calibrate" of any)."""
 
-    def __init__(self, message: str, prog: str = "iwr calibrate") -> None:
-        super().__init__(f"{message} (see '{prog} --help')")
+    def __init__(self, message: str, prog: str | None = None) -> None:
+        super().__init__(message)
+        self.message, self.prog = message, prog
+
+    def __str__(self) -> str:
+        return f"{self.message} (see '{self.prog or 'iwr'} --help')"
 
 
 def option_error(exc: Any, options: dict[str, str], prog: str) -> UsageError:
