@@ -164,6 +164,10 @@ def test_compare_writes_the_report_for_every_kind(kind, tmp_path):
     assert f"measured in {k.frame} ({name} data)" in md
     assert k.experiment_text["readings"] in md
     assert "tool position RMS (mm)" in md
+    # The noise in words, each instrument's once (a tracker's said {'legs': ..., 'readings':
+    # {'legs': ...}, ...}: an outside check).
+    said = md.split("poses per identification, noise ", 1)[1].split(" (mm, rad)", 1)[0]
+    assert "{" not in said and said.count("legs ") == 1, said
     data = json.loads((tmp_path / "results.json").read_text())
     assert len(data["parameter_names"]) == k.n_params(robot)
     assert all((tmp_path / f).is_file() for f in ("report.html", "runs.csv", "summary.csv"))

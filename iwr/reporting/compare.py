@@ -234,13 +234,25 @@ def _kind(settings: dict[str, Any]) -> dict[str, Any]:
     return dict(settings["kind"])
 
 
+def _noise_text(noise: dict[str, Any]) -> str:
+    """The settings' noise model in words: ``legs 0.002, joint_lengths 0.005, ...`` and, for an
+    instrument's pair, ``readings: ...; tracker: distance 0.005, ...`` (the top ``legs`` is the
+    readings' own, not said twice)."""
+    def fields(d: dict[str, Any]) -> str:
+        return ", ".join(f"{k} {float(v):g}" for k, v in d.items())
+
+    if "readings" in noise:
+        return "; ".join(f"{k}: {fields(v)}" for k, v in noise.items() if isinstance(v, dict))
+    return fields(noise)
+
+
 def _definitions(settings: dict[str, Any]) -> list[str]:
     n = settings["n_poses"]
     kind = _kind(settings)
     tested = settings["noise"]["legs"] > 0 and kind["chi2_fit_test"]
     return [
         f"Robot {settings['robot']} ({settings['n_params']} error parameters), {n} measurement "
-        f"poses per identification, noise {settings['noise']} (mm, rad), seeds "
+        f"poses per identification, noise {_noise_text(settings['noise'])} (mm, rad), seeds "
         f"{settings['seeds']}, evaluation budget {settings['budget']} per run (a Jacobian counts "
         "as one evaluation).",
         f"Data: {kind['description']} measured in {kind['frame']} ({kind['name']} data).",
