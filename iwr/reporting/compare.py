@@ -254,7 +254,8 @@ def _definitions(settings: dict[str, Any]) -> list[str]:
         f"Robot {settings['robot']} ({settings['n_params']} error parameters), {n} measurement "
         f"poses per identification, noise {_noise_text(settings['noise'])} (mm, rad), seeds "
         f"{settings['seeds']}, evaluation budget {settings['budget']} per run (a Jacobian counts "
-        "as one evaluation).",
+        "as one evaluation). Seed k is iwr study's cell of error draw k and seed 0 (the "
+        "harness's streams, docs/compare.md): runs.csv's seed column is that draw.",
         f"Data: {kind['description']} measured in {kind['frame']} ({kind['name']} data).",
         *(f"Scenario '{k}': {v}." for k, v in settings["scenarios"].items()),
         f"Cost: {kind['cost']}, re-evaluated at the returned point. Noise floor: the cost of the "
