@@ -17,8 +17,8 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["candidate_order", "left_out_directions", "ordered_base", "pivoted_columns",
-           "preference"]
+__all__ = ["candidate_order", "left_out_directions", "observability_indices", "ordered_base",
+           "pivoted_columns", "preference"]
 
 # The geometric parameters' names (an effect's, such as leg1.compliance, is neither).
 _HEXAPOD = re.compile(r"leg\d+\.(d[ab]_[xyz]|dl0)$")
@@ -141,3 +141,23 @@ def left_out_directions(scaled: np.ndarray, physical: np.ndarray, names: Sequenc
     basis = physical @ np.linalg.solve(physical[left], np.eye(k))
     basis[left] = np.eye(k)
     return left, basis
+
+
+def observability_indices(s: np.ndarray, n_poses: int) -> dict[str, float]:
+    """O1..O4 from the nonzero singular values ``s`` (descending) of a scaled Jacobian.
+
+    - O1 (Borm & Menq 1991): geometric mean of the singular values over sqrt(number of poses),
+      ``(s_1 ... s_r)^(1/r) / sqrt(N)``: the volume of the error ellipsoid, as a root so it stays
+      finite;
+    - O2 (Driels & Pathre 1990): inverse condition number ``s_r / s_1``;
+    - O3 (Nahvi, Hollerbach & Hayward 1994): minimum singular value ``s_r``;
+    - O4 (Nahvi & Hollerbach 1996), noise amplification index: ``s_r^2 / s_1``.
+    """
+    if s.size == 0 or s[-1] <= 0:
+        return {"O1": 0.0, "O2": 0.0, "O3": 0.0, "O4": 0.0}
+    return {
+        "O1": float(np.exp(np.mean(np.log(s))) / np.sqrt(max(n_poses, 1))),
+        "O2": float(s[-1] / s[0]),
+        "O3": float(s[-1]),
+        "O4": float(s[-1] ** 2 / s[0]),
+    }

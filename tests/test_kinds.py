@@ -304,6 +304,22 @@ def test_analyze_reads_the_data_of_the_robots_kind(tmp_path):
         assert proc.returncode == 0, proc.stderr
         outs.append(proc.stdout)
     assert outs[0] == outs[1] and "of 73" in outs[0] and "tracker.x" in outs[0]
+    # The report pose data get (it gave the rank and the directions alone: an outside check),
+    # its figures those of numpy's SVD of the column-scaled Jacobian.
+    for line in ("Jacobian columns scaled to unit norm", "condition number (identifiable part)",
+                 "observability: O1", "base parameters: 57; left out (hold fixed): "):
+        assert line in outs[0], outs[0]
+    tracker = iwr.Robot.from_toml(robot)
+    data = kinds.for_robot(tracker).read(wide, tracker)
+    ns = iwr.identifiability(tracker, data)
+    from iwr.tracker.api import tracker_problem
+
+    problem, start = tracker_problem(tracker, data)  # at the registration guess, as it is
+    jac = problem.jacobian(start)
+    s = np.linalg.svd(jac / np.linalg.norm(jac, axis=0), compute_uv=False)
+    assert ns.rank == 57 and ns.condition_number == pytest.approx(s[0] / s[56], rel=1e-9)
+    assert ns.observability["O3"] == pytest.approx(s[56], rel=1e-9)
+    assert f"condition number (identifiable part) {ns.condition_number:.4g}" in outs[0]
     proc = _run("analyze", str(REPO / "examples" / "iwr.toml"),
                 str(REPO / "examples" / "iwr_example.csv"), "--readings", str(wide))
     assert proc.returncode == 2 and "--readings: only for a robot with a [tracker]" in proc.stderr

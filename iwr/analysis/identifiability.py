@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from .. import kinds
-from ..base_parameters import ordered_base, preference
+from ..base_parameters import observability_indices, ordered_base, preference
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
@@ -72,26 +72,6 @@ def _rank_threshold(
         raise ValueError(f"rtol: {rtol!r}; expected a number in (0, 1)")
     smax = float(s[0]) if s.size else 0.0
     return rtol * smax, float(rtol)
-
-
-def observability_indices(s: np.ndarray, n_poses: int) -> dict[str, float]:
-    """O1..O4 from the nonzero singular values ``s`` (descending) of a scaled Jacobian.
-
-    - O1 (Borm & Menq 1991): geometric mean of the singular values over sqrt(number of poses),
-      ``(s_1 ... s_r)^(1/r) / sqrt(N)``: the volume of the error ellipsoid, as a root so it stays
-      finite;
-    - O2 (Driels & Pathre 1990): inverse condition number ``s_r / s_1``;
-    - O3 (Nahvi, Hollerbach & Hayward 1994): minimum singular value ``s_r``;
-    - O4 (Nahvi & Hollerbach 1996), noise amplification index: ``s_r^2 / s_1``.
-    """
-    if s.size == 0 or s[-1] <= 0:
-        return {"O1": 0.0, "O2": 0.0, "O3": 0.0, "O4": 0.0}
-    return {
-        "O1": float(np.exp(np.mean(np.log(s))) / np.sqrt(max(n_poses, 1))),
-        "O2": float(s[-1] / s[0]),
-        "O3": float(s[-1]),
-        "O4": float(s[-1] ** 2 / s[0]),
-    }
 
 
 @dataclass

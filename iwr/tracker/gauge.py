@@ -4,13 +4,14 @@ sets of frames modulo that gauge (:func:`_align`); with the forward kinematics t
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from typing import Any
 
 import numpy as np
 
 from .. import _core
-from ..base_parameters import left_out_directions
+from ..base_parameters import left_out_directions, observability_indices
 from ..robot import Robot
 from .problem import TrackerProblem
 
@@ -55,6 +56,9 @@ class NullSpace:
     left_out: list[str]
     vectors: np.ndarray
     scale: np.ndarray = field(repr=False)
+    #: The poses and readings of the Jacobian (the report's first line, and O1's N).
+    n_poses: int = 0
+    n_readings: int = 0
 
     @property
     def active(self) -> np.ndarray:
@@ -71,10 +75,41 @@ class NullSpace:
         order = [int(i) for i in np.argsort(-scaled) if scaled[i] > tol * scaled.max()]
         return " ".join(f"{v[i]:+.4g} {self.parameter_names[i]}" for i in order)
 
+    @property
+    def condition_number(self) -> float:
+        """``s_1 / s_r`` over the identifiable part, as :class:`iwr.IdentifiabilityReport`."""
+        s = self.singular_values
+        return float(s[0] / s[self.rank - 1]) if self.rank else math.inf
+
+    @property
+    def observability(self) -> dict[str, float]:
+        """O1..O4 of the identifiable part (:func:`iwr.base_parameters.observability_indices`)."""
+        return observability_indices(self.singular_values[: self.rank], self.n_poses)
+
     def __str__(self) -> str:
-        lines = [f"rank {self.rank} of {len(self.parameter_names)} "
-                 f"({len(self.left_out)} null directions, threshold {self.threshold:.3g})"]
-        lines += [f"  {name}: {self.describe(k)}" for k, name in enumerate(self.left_out)]
+        """The report of pose data's :class:`iwr.IdentifiabilityReport`, line for line (it gave
+        the rank and the directions alone: an outside check)."""
+        s, n, r = self.singular_values, len(self.parameter_names), self.rank
+        o = self.observability
+        lines = [
+            f"Identifiability from {self.n_poses} poses ({self.n_readings} readings), {n} "
+            "parameters (the robot's errors and the set-up's)",
+            "  Jacobian columns scaled to unit norm (unit-free; see docs/identifiability.md)",
+            f"  rank {r} of {n}: {n - r} unidentifiable direction(s); threshold "
+            f"{self.threshold:.3g}",
+            f"  singular values: max {s[0]:.4g}, smallest identifiable {s[r - 1]:.4g}"
+            + (f", largest unidentifiable {s[r]:.3g}" if r < s.size else ""),
+            f"  condition number (identifiable part) {self.condition_number:.4g}",
+            "  observability: " + "  ".join(f"{k} {v:.4g}" for k, v in o.items()),
+        ]
+        if not self.left_out:
+            return "\n".join([*lines, "  every parameter is identifiable"])
+        lines.append(f"  base parameters: {int(self.active.sum())}; left out (hold fixed): "
+                     + ", ".join(name for name, a in zip(self.parameter_names, self.active,
+                                                         strict=True) if not a))
+        lines.append("  unidentifiable directions (coefficients in mm and rad):")
+        lines += [f"    {k + 1}. [{name}] {self.describe(k)}"
+                  for k, name in enumerate(self.left_out)]
         return "\n".join(lines)
 
 
@@ -93,11 +128,14 @@ def null_space(problem: TrackerProblem, x: Any = None, rtol: float | None = None
     rank = int(np.sum(s > thr))
     ns = vt[rank:].T / d[:, None]  # physical units
     names = problem.parameter_names
+    size = {"n_poses": int(problem.measurements.n_poses) if hasattr(problem.measurements,
+                                                                      "n_poses")
+            else len(problem.measurements), "n_readings": int(jac.shape[0])}
     if ns.shape[1] == 0:
-        return NullSpace(s, rank, thr, names, [], ns, d)
+        return NullSpace(s, rank, thr, names, [], ns, d, **size)
     # One direction per left-out parameter: the best-conditioned rows of the scaled null basis
     # (QR with column pivoting), ties between exactly dependent parameters broken by a fixed
     # preference (the carriage's left out before the set-up's, the hexapod's last), not by
     # round-off: the same gauge whatever the instruction set or the objective's last bits.
     out, basis = left_out_directions(vt[rank:], ns, names)
-    return NullSpace(s, rank, thr, names, [names[i] for i in out], basis, d)
+    return NullSpace(s, rank, thr, names, [names[i] for i in out], basis, d, **size)
