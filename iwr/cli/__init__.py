@@ -105,7 +105,7 @@ def main(argv: Sequence[str] | None = None) -> int:
     try:
         _startup.release()  # Ctrl-C is KeyboardInterrupt again, handled below
         args = build_parser().parse_args(argv)  # --help whatever IWR_KERNEL holds
-        command = f"iwr {args.command}"
+        command = f"iwr {args.command}" if getattr(args, "command", None) else None
         _command_kernel()
         func: Callable[[argparse.Namespace], int | None] = args.func
         code = func(args)

@@ -148,10 +148,12 @@ def cmd_plan(args: argparse.Namespace) -> int:
         raise UsageError("--poses" + msg[7:].replace(
             "(the number of candidates)", f"(the number of candidates, of {given})"),
             "iwr plan") from None
-    if args.candidates:
+    if args.candidates and not robot.effects:
         # The candidates' own rank sets the base parameters plan_poses keeps: candidates that
         # see fewer combinations than the robot has (8 poses, 48 readings, for the IWR's 52)
-        # would give a plan no calibration can determine the robot from.
+        # would give a plan no calibration can determine the robot from. (With effects the
+        # base parameters leave out what only the loads fix, and --payload adds loads the
+        # candidates do not have: the geometry's count is not theirs.)
         from ..experiments.harness import identifiable
 
         need = identifiable(robot)

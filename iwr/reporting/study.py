@@ -176,7 +176,13 @@ def _plot_vs(
             if i == len(values) - 1:
                 ax.set_xlabel(xlabel)
         axes[i, 0].set_ylabel((ylabels or {}).get(value, value), fontsize=8)
-    axes[0, 0].legend(fontsize=7)
+    # One legend of every panel's lines (the first panel's alone left a method drawn only in
+    # the others unlabelled, e.g. the efficient estimator beside noise 0).
+    seen: dict[str, Any] = {}
+    for ax in axes.flat:
+        for handle, label in zip(*ax.get_legend_handles_labels(), strict=True):
+            seen.setdefault(label, handle)
+    axes[0, 0].legend(list(seen.values()), list(seen), fontsize=7)
     return _save(fig, path)
 
 
