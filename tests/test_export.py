@@ -139,13 +139,21 @@ def test_urdf_joint_limits_in_urdf_units(calibrated, tmp_path):
         assert joint.limit.upper == pytest.approx(cal.joint_limits[i, 1] / scale, abs=1e-15)
 
 
-def test_cli_export_writes_every_file_and_the_table(calibrated, tmp_path, capsys):
+def _export_with_nominal(calibrated, tmp_path, grid: int):
+    """``iwr export calibrated.toml --nominal robot.toml --grid GRID`` of the fixture's robots
+    into tmp_path/exp; the folder."""
     nominal, _, cal = calibrated
     nominal.to_toml(tmp_path / "robot.toml")
     cal.to_toml(tmp_path / "calibrated.toml")
     out = tmp_path / "exp"
     assert main(["export", str(tmp_path / "calibrated.toml"), "-o", str(out), "--nominal",
-                 str(tmp_path / "robot.toml"), "--grid", "2"]) == 0
+                 str(tmp_path / "robot.toml"), "--grid", str(grid)]) == 0
+    return out
+
+
+def test_cli_export_writes_every_file_and_the_table(calibrated, tmp_path, capsys):
+    nominal, _, cal = calibrated
+    out = _export_with_nominal(calibrated, tmp_path, 2)
     assert {p.name for p in out.iterdir()} == {"genhexkins.hal", "hexapod.json",
                                                "carriage.urdf", "leg_corrections.csv"}
     assert "64 poses" in capsys.readouterr().out
@@ -370,11 +378,7 @@ def test_the_tables_interpolation_error_is_what_it_says(calibrated, tmp_path, ca
     multilinear interpolation (the 2^6 corners' weights) of the file read back, at 300 random
     poses, against genhexkins's inverse kinematics of the exported numbers."""
     nominal, _, cal = calibrated
-    nominal.to_toml(tmp_path / "robot.toml")
-    cal.to_toml(tmp_path / "calibrated.toml")
-    out = tmp_path / "exp"
-    assert main(["export", str(tmp_path / "calibrated.toml"), "-o", str(out), "--nominal",
-                 str(tmp_path / "robot.toml"), "--grid", "3"]) == 0
+    out = _export_with_nominal(calibrated, tmp_path, 3)
     said = re.search(r"off the models by up to (\S+) um, (\S+) um RMS", capsys.readouterr().out)
     worst_said, rms_said = float(said.group(1)), float(said.group(2))
     text = (out / "leg_corrections.csv").read_text()
