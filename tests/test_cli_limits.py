@@ -226,6 +226,11 @@ def test_a_budget_too_small_for_the_method_is_a_usage_error(sim, tmp_path, metho
                method, "--budget", "1", "--out", str(tmp_path / "out"))
     refused(proc, pattern)
     assert not (tmp_path / "out").exists()
+    assert "identifying" not in proc.stdout  # before the work (it said so, then refused)
+    # The example too: refused before its files are written.
+    proc = run("calibrate", "--method", method, "--budget", "1", "--out", str(tmp_path / "ex"))
+    refused(proc, pattern)
+    assert not (tmp_path / "ex").exists()
 
 
 def test_more_poses_than_candidates_are_refused_before_they_are_drawn(sim, tmp_path):

@@ -227,6 +227,24 @@ def _budget_error(exc: ValueError, args: argparse.Namespace, method: str) -> Usa
     return UsageError(f"--budget{msg[len('max_evaluations'):]} (method {method})")
 
 
+def _check_budget(robot: Any, method: str, kwargs: dict[str, Any],
+                  args: argparse.Namespace) -> None:
+    """A ``--budget`` too small for the method refused before any work (the example's files,
+    "identifying ..."): the method's own check, in a run stopped before it searches
+    (:func:`iwr.experiments.executors.dry_run`); any other error is left to the run, which
+    names it in its context."""
+    if args.budget is None:
+        return
+    from ..experiments.executors import dry_run
+
+    try:
+        dry_run(robot, method, {k: v for k, v in kwargs.items() if k != "noise"})
+    except ValueError as exc:
+        usage = _budget_error(exc, args, method)
+        if usage is not None:
+            raise usage from None
+
+
 def cmd_calibrate(args: argparse.Namespace) -> int:
     if args.robot is not None and args.data is None:
         raise UsageError("give both ROBOT.toml and DATA.csv, or neither (the built-in example)")
@@ -257,6 +275,7 @@ def cmd_calibrate(args: argparse.Namespace) -> int:
         raise UsageError("--poses applies to the built-in example only, not to ROBOT.toml DATA.csv")
     args.out = str(_out_folder(args))
     robot = load_robot(args.robot)
+    _check_budget(robot, method, kwargs, args)
     kind = for_robot(robot)
     if not kind.report:
         raise UsageError(f"{args.robot}: {kind.name} data ({kind.description}): iwr calibrate "
@@ -380,6 +399,7 @@ def _run_example(args: argparse.Namespace, method: str, kwargs: dict[str, Any]) 
         kwargs = {**kwargs, "generations": EXAMPLE_GENERATIONS_QUICK}
     out = Path(args.out or EXAMPLE_DIR)
     check_output(out, "--out", files=OUTPUT_FILES)
+    _check_budget(robot, method, kwargs, args)
     out.mkdir(parents=True, exist_ok=True)
     noise = Noise.realistic()
     data, truth = simulate(robot, n_poses=n, seed=EXAMPLE_SEED, noise=noise)
