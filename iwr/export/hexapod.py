@@ -109,7 +109,8 @@ def genhexkins_hal(robot: Robot, source: str | None = None) -> str:
               f"the reading {float(robot.leg_stroke[j, 0])!r} .. "
               f"{float(robot.leg_stroke[j, 1])!r} mm" for j in range(6)]
     lines += ["# genhexkins.spindle-offset and genhexkins.tool-offset must stay 0 for these "
-              "numbers (both move the", "# z of every joint).", ""]
+              "numbers (both move the", "# z of every joint), and genhexkins.screw-lead 0 (its "
+              "default: iwr's legs have no screw-lead", "# correction).", ""]
     note = effects_note(robot)
     if note:
         lines[-1:-1] = ["#", "# " + note + "."]
