@@ -527,6 +527,16 @@ def test_a_row_s_medians_are_over_the_same_runs():
     assert row["median_wall_time"] == 2.0  # of the runs that have one
     two = _summarise(runs[:2], ["bad"], ["lm"])[0]
     assert two["median_tool_position_rms"] == math.inf
+    # The nominal model's figures are no run's: a start without them is no worse run.
+    runs[1]["tool_position_rms_nominal"] = math.nan
+    assert _summarise(runs, ["bad"], ["lm"])[0]["median_tool_position_rms_nominal"] == 80.0
+    # No stand-in for inf: a huge finite value stays itself.
+    from iwr.experiments.harness import percentiles_worst
+
+    np.testing.assert_array_equal(percentiles_worst([1e308, math.nan], [0, 50, 100]),
+                                  [1e308, math.inf, math.inf])
+    np.testing.assert_array_equal(percentiles_worst([1.0, 2.0, math.nan], [0, 25, 50, 75]),
+                                  [1.0, 1.5, 2.0, math.inf])
     # The study's cells alike: median and quartiles over every run.
     assert _stats([0.0245, math.nan, 30.0]) == (30.0, pytest.approx(15.01225), math.inf, 3)
     assert _stats([math.nan, math.nan]) == (math.inf, math.inf, math.inf, 2)

@@ -101,6 +101,14 @@ def test_the_registration_gauge_is_exact_only_with_gravity_through_it(monkeypatc
     # none of the platform frame's (the loads' centres in {5} fix it, weakly).
     assert len(ns.left_out) == 10
     assert not [n for n in ns.left_out if n.startswith(("leg", "reflector", "legs"))]
+    # Its report says the held ones apart from the left-out ones (a review: "base parameters:
+    # 64; left out" listed 16 beside 11 directions, the 5 held unexplained).
+    text = str(ns)
+    assert f"rank {ns.rank} of {len(ns.parameter_names)}" in text
+    assert f"base parameters: {int(ns.active.sum())}; left out (hold fixed): " \
+        + ", ".join(ns.left_out) in text
+    assert ns.held and f"held too ({len(ns.held)}" in text
+    assert int(ns.active.sum()) + len(ns.left_out) + len(ns.held) == len(ns.parameter_names)
     # Without effects the platform frame's 6 directions are null too (16, docs/tracker.md).
     geometric = robot.with_effects()
     plain, x_plain = iwr.simulate(geometric, 30, seed=5)

@@ -341,6 +341,14 @@ def test_a_tracker_calibration_exports_its_registration_and_the_gravity_it_used(
     # Pose data fix {0}: no registration, no tracker link.
     assert "registration" not in hexapod_dict(cal)
     assert "tracker" not in link_names(cal)
+    # A hexapod alone measured by a tracker: the registration in hexapod.json, no URDF to name.
+    hexapod = iwr.Robot.hexapod().with_tracker(registration=reg,
+                                               reflectors=[(120.0, 0.0, 40.0)])
+    hexapod.to_toml(tmp_path / "h.toml")
+    assert main(["export", str(tmp_path / "h.toml"), "--out", str(tmp_path / "h")]) == 0
+    out = capsys.readouterr().out
+    assert "registration in hexapod.json, as `iwr legs --frame T` does" in out
+    assert "registration" in json.loads((tmp_path / "h" / "hexapod.json").read_text())
 
 
 def test_the_export_folder_is_written_as_a_whole_and_over_its_own_files_only(calibrated,
@@ -408,3 +416,22 @@ def test_the_tables_interpolation_error_is_what_it_says(calibrated, tmp_path, ca
     assert errors.max() <= 1.05 * worst_said  # 300 poses against the export's 2000
     assert np.sqrt(np.mean(errors**2)) == pytest.approx(rms_said, rel=0.25)
     assert errors.max() > 0.5 * worst_said
+
+
+def test_a_one_pose_table_states_its_error_over_the_workspace(calibrated):
+    """--grid 1: one correction for every pose; it said "off by 0 um" (a review), as nothing is
+    interpolated. Its error is the models' own corrections' spread over the workspace."""
+    from iwr.export import interpolation_error
+
+    nominal, _, cal = calibrated
+    worst, rms = interpolation_error(cal, nominal, 1)
+    rng = np.random.default_rng(3)
+    at = _random_poses(cal, rng, 500)
+    exact = (iwr.export.hexapod_readings(cal, at) - iwr.export.hexapod_readings(nominal, at))
+    home = (iwr.export.hexapod_readings(cal, cal.home_pose)
+            - iwr.export.hexapod_readings(nominal, cal.home_pose))
+    own = np.abs(exact - home)
+    assert worst > 0 and own.max() <= 1.05 * worst
+    assert np.sqrt(np.mean(own**2)) == pytest.approx(rms, rel=0.15)
+    assert interpolation_error(cal, nominal, 5)[0] < worst
+

@@ -557,7 +557,8 @@ def identifiability(robot: Robot, measurements: BallbarMeasurements, x: Any = No
         # QR's pivoting, its ties broken by the fixed preference (iwr.base_parameters).
         left, basis = left_out_directions(null, basis, names, cand)
     ng, ne = robot.n_params, problem.n_effects
-    ns = _null_space_type()(s, rank, thr, names, [names[i] for i in left], basis, d)
+    ns = _null_space_type()(s, rank, thr, names, [names[i] for i in left], basis, d,
+                            n_poses=len(measurements), n_readings=int(jac.shape[0]))
     return BallbarEffectNullSpace(
         **asdict(ns), held=[names[i] for i in cand if i not in set(left.tolist())],
         inseparable=[(names[i], float(np.linalg.norm(null[:, i])))

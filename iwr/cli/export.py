@@ -176,11 +176,12 @@ def cmd_export(args: argparse.Namespace) -> int:
             files.append(tmp / "leg_corrections.csv")
             t = write_leg_corrections(files[-1], robot, nominal, args.grid, args.robot,
                                       args.nominal, check=False)  # checked above
+            read = ("between them, interpolated multilinearly" if t.poses > 1
+                    else "the one correction used everywhere")
             written.append(
-                f"leg_corrections.csv ({t.poses} poses of {{5}} in {{4}}; between them, "
-                f"interpolated multilinearly, off the models by up to "
-                f"{t.interpolation_max_mm * 1000:.3g} um, {t.interpolation_rms_mm * 1000:.3g} um "
-                "RMS: a finer --grid is closer)")
+                f"leg_corrections.csv ({t.poses} poses of {{5}} in {{4}}; {read}, off the models "
+                f"by up to {t.interpolation_max_mm * 1000:.3g} um, "
+                f"{t.interpolation_rms_mm * 1000:.3g} um RMS: a finer --grid is closer)")
         else:
             written.append("no leg_corrections.csv: give --nominal NOMINAL.toml (the model the "
                            "controller uses) for it")
@@ -189,7 +190,7 @@ def cmd_export(args: argparse.Namespace) -> int:
     try:
         write_folder(out, write, FILES)
     except OSError as exc:
-        raise CommandError(f"--out {out}: {exc.strerror or exc}") from None
+        raise CommandError(f"--out {exc.strerror or exc}") from None  # it names the folder
     print(f"wrote {out}/:")
     for line in written:
         print(f"  {line}")
@@ -202,8 +203,9 @@ def cmd_export(args: argparse.Namespace) -> int:
         print(f"note: {args.robot} was calibrated from data measured in {{{frame[0]}}}, which do "
               "not fix the world frame {0}: the exported {0} is the calibration's gauge choice "
               "(docs/tracker.md). A target measured there is carried into {0} by the "
-              f"registration in hexapod.json (and carriage.urdf's {link_names(robot)[-1]} link), "
-              f"as `iwr legs --frame {frame[0]}` does")
+              "registration in hexapod.json"
+              + (f" (and carriage.urdf's {link_names(robot)[-1]} link)" if robot.n_joints else "")
+              + f", as `iwr legs --frame {frame[0]}` does")
     if robot.effects:
         names = ", ".join(e.name for e in robot.effects)
         print(f"note: {args.robot} has non-geometric effects ({names}): genhexkins.hal, "

@@ -487,13 +487,13 @@ def _summarise(runs: list[dict[str, Any]], starts: list[str], names: list[str]) 
                 "max_cost": _extreme(np.nanmax, costs),
                 "median_noise_floor": _median([r["noise_floor"] for r in rs]),
                 "median_val_rms": _median_worst([r["val_rms"] for r in rs]),
-                "median_val_rms_nominal": _median_worst([r["val_rms_nominal"] for r in rs]),
+                "median_val_rms_nominal": _median([r["val_rms_nominal"] for r in rs]),
                 "median_param_error_length": _median_worst([r["param_error_length"] for r in rs]),
                 "median_param_error_angle": _median_worst([r["param_error_angle"] for r in rs]),
                 "median_raw_error_length": _median_worst([r["raw_error_length"] for r in rs]),
                 "median_raw_error_angle": _median_worst([r["raw_error_angle"] for r in rs]),
                 "median_tool_position_rms": _median_worst([r["tool_position_rms"] for r in rs]),
-                "median_tool_position_rms_nominal": _median_worst([r["tool_position_rms_nominal"]
+                "median_tool_position_rms_nominal": _median([r["tool_position_rms_nominal"]
                                                              for r in rs]),
                 "median_nfev": _median([float(r["nfev"]) for r in rs]),
                 "max_nfev": int(max(r["nfev"] for r in rs)),

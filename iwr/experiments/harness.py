@@ -139,19 +139,21 @@ def percentiles_worst(values: Any, qs: Any) -> np.ndarray:
     at its result) counted as the worst, inf: so that every figure of a row or a cell is over
     the same runs (the median of the others alone is of better runs). A percentile that
     interpolates towards such a run is inf; none of nothing is nan."""
-    v = np.array([math.inf if math.isnan(x) else x for x in values], dtype=float)
+    v = np.sort(np.array([math.inf if math.isnan(x) else x for x in values], dtype=float))
     qs = np.atleast_1d(np.asarray(qs, dtype=float))
-    finite = v[np.isfinite(v)]
     if v.size == 0:
         return np.full(qs.shape, math.nan)
-    if finite.size == v.size:
+    if np.all(np.isfinite(v)):
         return np.asarray(np.percentile(v, qs), dtype=float)
-    if finite.size == 0:
-        return np.full(qs.shape, math.inf)
-    # inf as a finite stand-in above them all (NumPy's interpolation makes 0 * inf nan).
-    big = np.where(np.isfinite(v), v, np.finfo(float).max / 4)
-    q = np.asarray(np.percentile(big, qs), dtype=float)
-    return np.where(q > finite.max(), math.inf, q)
+    # NumPy's linear interpolation between the order statistics around (n - 1) q / 100, by
+    # hand: its 0 * inf is nan.
+    h = (v.size - 1) * qs / 100.0
+    lo = np.floor(h).astype(int)
+    hi = np.minimum(lo + 1, v.size - 1)
+    w = h - lo
+    with np.errstate(invalid="ignore"):
+        inner = v[lo] + w * (v[hi] - v[lo])
+    return np.where(w == 0, v[lo], np.where(np.isinf(v[hi]), math.inf, inner))
 
 
 def noise_at(level: float) -> Noise:

@@ -201,7 +201,7 @@ def pose_grid(robot: Robot, n_per_axis: int) -> np.ndarray:
     return np.array(list(itertools.product(*_axes(robot, n_per_axis))), dtype=float)
 
 
-def leg_correction_table(calibrated: Robot, nominal: Robot, n_per_axis: int = 3
+def leg_correction_table(calibrated: Robot, nominal: Robot, n_per_axis: int = 5
                          ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Over :func:`pose_grid` of the calibrated robot: the poses (M, 6), the nominal robot's leg
     readings (M, 6) and the calibrated robot's (M, 6) at each. A controller that commands the
@@ -236,15 +236,18 @@ def _interpolation_error(calibrated: Robot, nominal: Robot, n_per_axis: int, pos
     from scipy.interpolate import RegularGridInterpolator
 
     axes = _axes(calibrated, n_per_axis)
-    moving = [k for k, a in enumerate(axes) if a.size > 1]
-    if not moving:
-        return 0.0, 0.0
-    table = ds.reshape(*[axes[k].size for k in moving], 6)  # itertools.product's order
+    centre, half = calibrated.home_pose, calibrated.workspace
     rng = np.random.default_rng(seed)
-    at = np.tile(poses[0], (samples, 1))
-    for k in moving:
-        at[:, k] = rng.uniform(axes[k][0], axes[k][-1], size=samples)
-    got = RegularGridInterpolator([axes[k] for k in moving], table)(at[:, moving])
+    at = np.tile(np.asarray(centre, dtype=float), (samples, 1))
+    for k in range(6):  # every coordinate the workspace spans, a table's single value or not
+        if half[k] != 0:
+            at[:, k] = rng.uniform(centre[k] - half[k], centre[k] + half[k], size=samples)
+    moving = [k for k, a in enumerate(axes) if a.size > 1]
+    if moving:
+        table = ds.reshape(*[axes[k].size for k in moving], 6)  # itertools.product's order
+        got = RegularGridInterpolator([axes[k] for k in moving], table)(at[:, moving])
+    else:  # one pose (--grid 1): the table says the same everywhere
+        got = np.broadcast_to(ds[0], (samples, 6))
     err = np.abs(got - (hexapod_readings(calibrated, at) - hexapod_readings(nominal, at)))
     return float(err.max()), float(np.sqrt(np.mean(err**2)))
 
@@ -258,7 +261,7 @@ class TableWritten(NamedTuple):
     interpolation_rms_mm: float
 
 
-def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 3,
+def leg_corrections_csv(calibrated: Robot, nominal: Robot, n_per_axis: int = 5,
                         source: str | None = None, nominal_source: str | None = None, *,
                         check: bool = True) -> str:
     """The text of the leg-correction table (CSV with ``#`` comments stating the frame and the
@@ -297,9 +300,10 @@ def _corrections(calibrated: Robot, nominal: Robot, n_per_axis: int, source: str
         "Frame {4} is the calibrated carriage's: what the data cannot tell apart between the "
         "carriage's last joint and the base joints sits in one or the other, so use this table "
         "with the calibrated carriage (carriage.urdf of the same export), not the nominal one.",
-        f"Between its poses, dsN_mm interpolated multilinearly is off the models' own by up to "
-        f"{worst * 1000:.3g} um ({rms * 1000:.3g} um RMS; 2000 random poses of the workspace): "
-        "a finer grid (iwr export --grid) is closer.",
+        ("Between its poses, dsN_mm interpolated multilinearly" if len(poses) > 1 else
+         "Its one dsN_mm used over the workspace")
+        + f" is off the models' own by up to {worst * 1000:.3g} um ({rms * 1000:.3g} um RMS; "
+        "2000 random poses of the workspace): a finer grid (iwr export --grid) is closer.",
         *([effects_note(calibrated) + "."] if calibrated.effects else []),
     ):
         buf.write(f"# {line}\n")
@@ -325,7 +329,7 @@ def write_hexapod_json(path: str | os.PathLike[str], robot: Robot,
 
 
 def write_leg_corrections(path: str | os.PathLike[str], calibrated: Robot, nominal: Robot,
-                          n_per_axis: int = 3, source: str | None = None,
+                          n_per_axis: int = 5, source: str | None = None,
                           nominal_source: str | None = None, *, check: bool = True
                           ) -> TableWritten:
     """Write :func:`leg_corrections_csv` atomically; returns its poses and interpolation

@@ -58,9 +58,12 @@ def _labels(meta: dict[str, Any]) -> dict[str, str]:
     return {k: v.format(**text) for k, v in _FIGURES.items()}
 
 
-def _stats(values: Sequence[float]) -> tuple[float, float, float, int]:
+def _stats(values: Sequence[float], worst: bool = True) -> tuple[float, float, float, int]:
     """Median, quartiles and count of an error over a cell's runs, a run without the figure
-    counted as the worst (:func:`iwr.experiments.harness.percentiles_worst`)."""
+    counted as the worst (:func:`iwr.experiments.harness.percentiles_worst`); ``worst`` False:
+    over the runs that have it (the nominal model's figures: no figure is no worse run)."""
+    if not worst:
+        values = [v for v in values if not math.isnan(v)]
     if not len(values):
         return math.nan, math.nan, math.nan, 0
     q25, med, q75 = percentiles_worst(values, [25, 50, 75])
@@ -357,7 +360,7 @@ def _summary(
     ]
     if text.get("gauge"):
         lines += [text["gauge"], ""]
-    nominal = _stats([r["val_rms_nominal"] for r in ok])
+    nominal = _stats([r["val_rms_nominal"] for r in ok], worst=False)
     if nominal[3]:
         lines += [f"Before calibration (nominal model): {_cell(nominal)} mm.", ""]
     for value, title in _labels(meta).items():

@@ -102,11 +102,14 @@ class NullSpace:
             f"  condition number (identifiable part) {self.condition_number:.4g}",
             "  observability: " + "  ".join(f"{k} {v:.4g}" for k, v in o.items()),
         ]
-        if not self.left_out:
+        held = list(getattr(self, "held", []))  # with effects: what only the loads fix
+        if not self.left_out and not held:
             return "\n".join([*lines, "  every parameter is identifiable"])
         lines.append(f"  base parameters: {int(self.active.sum())}; left out (hold fixed): "
-                     + ", ".join(name for name, a in zip(self.parameter_names, self.active,
-                                                         strict=True) if not a))
+                     + ", ".join(self.left_out))
+        if held:
+            lines.append(f"  held too ({len(held)}, counted in the rank: directions only the "
+                         "loads fix, too weakly to identify with noise): " + ", ".join(held))
         lines.append("  unidentifiable directions (coefficients in mm and rad):")
         lines += [f"    {k + 1}. [{name}] {self.describe(k)}"
                   for k, name in enumerate(self.left_out)]
