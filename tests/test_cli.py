@@ -681,3 +681,26 @@ def test_a_usage_error_points_to_the_help_of_the_command_that_ran(sim):
                "--target-units", "furlong")
     assert proc.returncode == 2
     assert proc.stderr.strip().endswith("(see 'iwr analyze --help')"), proc.stderr
+
+
+def test_one_reader_of_whole_numbers_for_every_command():
+    """``iwr compare --budget 1e4`` was refused where ``iwr study --budget 1e5`` was taken (an
+    outside check): every count, budget and seed is read by iwr.cli._base.whole_number, exactly
+    (no float in between), and its range checked where it is used."""
+    from iwr.cli._base import whole_number
+    from iwr.cli.compare import add_compare_parser
+    from iwr.cli.study import _parse_budgets
+
+    for text, want in (("10000", 10000), ("1e4", 10000), ("1.5e3", 1500), ("1_000", 1000),
+                       (" 7 ", 7), ("9007199254740993", 9007199254740993),
+                       ("9.007199254740993e15", 9007199254740993)):
+        assert whole_number(text) == want
+    for text in ("1e4.5", "abc", "1.5", "nan", "inf", ""):
+        with pytest.raises(ValueError, match="not an integer|not a whole number"):
+            whole_number(text)
+    import argparse
+
+    parser = argparse.ArgumentParser()
+    add_compare_parser(parser.add_subparsers(dest="command"))
+    assert parser.parse_args(["compare", "--budget", "1e4"]).budget == 10000
+    assert _parse_budgets(["de=1e2,3e2", "lm=1e4"]) == {"de": [100, 300], "lm": [10000]}

@@ -26,6 +26,7 @@ from ._base import (
     UsageError,
     check_memory,
     check_output,
+    integer,
     noise_spec,
     option_error,
 )
@@ -106,7 +107,7 @@ def add_compare_parser(subparsers: Any) -> argparse.ArgumentParser:
 
 def _add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--robot", metavar="TOML", help="robot description (default: the built-in IWR)")
-    p.add_argument("--poses", type=int, default=100, metavar="N",
+    p.add_argument("--poses", type=integer, default=100, metavar="N",
                    help="measurement poses per identification (default: %(default)s)")
     p.add_argument("--noise", type=noise_spec, default=None, metavar="SPEC",
                    help="measurement noise of the simulated problems: " + OPTION_HELP
@@ -118,11 +119,11 @@ def _add_arguments(p: argparse.ArgumentParser) -> None:
         "comma-separated methods: registered names (" + ", ".join(sorted(_methods()))
         + "; de is the paper's DE/rand/1/bin) or de:STRATEGY (e.g. de:jso, de:lshade); default: "
         + ",".join(default_methods()) + " (without efficient for --noise none)")))
-    p.add_argument("--budget", type=int, default=DEFAULT_BUDGET, metavar="EVALS",
+    p.add_argument("--budget", type=integer, default=DEFAULT_BUDGET, metavar="EVALS",
                    help="evaluation budget per run (default: %(default)s)")
     p.add_argument("--start", choices=["near", "bad", "both"], default="both",
                    help="scenario(s) (default: %(default)s)")
-    p.add_argument("--validation-poses", type=int, default=200, metavar="N",
+    p.add_argument("--validation-poses", type=integer, default=200, metavar="N",
                    help="fresh poses for the validation RMS (default: %(default)s)")
     p.add_argument("--scheduler", default="synchronous",
                    help="where the runs execute: 'synchronous' (default: this process), 'local' "

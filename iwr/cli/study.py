@@ -23,9 +23,11 @@ from ._base import (
     check_memory,
     check_output,
     format_bytes,
+    integer,
     largest,
     nonneg_int,
     option_error,
+    whole_number,
 )
 
 __all__ = ["add_study_parser", "run_study"]
@@ -50,7 +52,7 @@ def _csv_items(text: str, kind: Callable[[str], Any], what: str) -> list[Any]:
 
 
 def _ints(text: str) -> list[int]:
-    return _csv_items(text, int, "integers")
+    return _csv_items(text, whole_number, "integers")
 
 
 def _floats(text: str) -> list[float]:
@@ -93,10 +95,8 @@ def _parse_budgets(items: list[str]) -> Any:
     for item in items:
         method, sep, values = item.rpartition("=")
         try:
-            parsed = [int(v) for v in _floats(values)]
-            if any(v != f for v, f in zip(parsed, _floats(values), strict=True)):
-                raise argparse.ArgumentTypeError(f"{values!r}: expected whole numbers")
-        except (argparse.ArgumentTypeError, OverflowError, ValueError) as exc:
+            parsed = _csv_items(values, whole_number, "whole numbers")
+        except argparse.ArgumentTypeError as exc:
             raise UsageError(f"--budget: {exc}", "iwr study") from None
         if sep:
             per_method[method] = parsed
@@ -151,7 +151,7 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--option", action="append", default=[], metavar="METHOD.NAME=VALUE",
                         help="a method option, e.g. --option de.strategy=lshade (repeatable)")
     parser.add_argument("--robot", default=None, help="robot TOML file (default: the built-in IWR)")
-    parser.add_argument("--validation-poses", type=int, default=50,
+    parser.add_argument("--validation-poses", type=integer, default=50,
                         help="fresh poses on which each calibration is validated (default: 50)")
     parser.add_argument("--base-seed", type=nonneg_int, default=0,
                         help="root of every random stream (default: 0)")
@@ -160,9 +160,9 @@ def _add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="address of an existing Dask scheduler (tcp://host:8786), or "
                              "'synchronous' for this process without Dask (default: a local "
                              "cluster)")
-    parser.add_argument("--workers", type=int, default=None,
+    parser.add_argument("--workers", type=integer, default=None,
                         help="worker processes of the local cluster (default: one per core)")
-    parser.add_argument("--retries", type=int, default=2,
+    parser.add_argument("--retries", type=integer, default=2,
                         help="extra attempts of a cell whose worker died (default: 2)")
     parser.add_argument("--report-only", action="store_true",
                         help="only redraw the figures and summary from OUT/results.csv")
