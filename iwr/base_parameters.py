@@ -12,13 +12,14 @@ problems keep QR's pivoting but break its ties by the same preference (:func:`pi
 
 from __future__ import annotations
 
+import math
 import re
 from collections.abc import Sequence
 
 import numpy as np
 
 __all__ = ["candidate_order", "left_out_directions", "observability_indices", "ordered_base",
-           "pivoted_columns", "preference"]
+           "pivoted_columns", "preference", "report_lines"]
 
 # The geometric parameters' names (an effect's, such as leg1.compliance, is neither).
 _HEXAPOD = re.compile(r"leg\d+\.(d[ab]_[xyz]|dl0)$")
@@ -161,3 +162,23 @@ def observability_indices(s: np.ndarray, n_poses: int) -> dict[str, float]:
         "O3": float(s[-1]),
         "O4": float(s[-1] ** 2 / s[0]),
     }
+
+
+def report_lines(s: np.ndarray, rank: int, threshold: float, n_poses: int,
+                 rtol: float | None = None) -> list[str]:
+    """The lines every identifiability report prints of a column-scaled Jacobian's singular
+    values ``s`` (descending, all of them): the scaling, the rank, the singular values around
+    it, the condition number and the observability indices (:func:`observability_indices`) of
+    its identifiable part; for pose, tracker and ballbar data, with effects or not."""
+    n = len(s)
+    o = observability_indices(np.asarray(s[:rank]), n_poses)
+    cond = float(s[0] / s[rank - 1]) if rank else math.inf
+    return [
+        "  Jacobian columns scaled to unit norm (unit-free; see docs/identifiability.md)",
+        f"  rank {rank} of {n}: {n - rank} unidentifiable direction(s); threshold {threshold:.3g}"
+        + (f" (= {rtol:.3g} x s_max)" if rtol is not None else ""),
+        f"  singular values: max {s[0]:.4g}, smallest identifiable {s[rank - 1]:.4g}"
+        + (f", largest unidentifiable {s[rank]:.3g}" if rank < n else ""),
+        f"  condition number (identifiable part) {cond:.4g}",
+        "  observability: " + "  ".join(f"{k} {v:.4g}" for k, v in o.items()),
+    ]

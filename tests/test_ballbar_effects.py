@@ -201,8 +201,10 @@ def test_one_payload_leaves_the_slides_in_the_geometry(payloads, inseparable):
     assert report.effects_identifiable == (not inseparable)
     assert ("NOT separable" in str(report)) == bool(inseparable)
     assert report.rank == 56 + 4 - len(inseparable)  # the geometry's 42 + 7 S, S = 2
-    # Its size, for the observability's O1 (it was 0: the report built positionally).
+    # Its size, for the observability's O1 (it was 0: the report built positionally), and the
+    # report every kind prints (it printed the rank alone).
     assert (report.n_poses, report.n_readings) == (60, 60)
+    assert f"condition number (identifiable part) {report.condition_number:.4g}" in str(report)
     problem, x = be.effect_problem(robot, data)
     steps = np.full(x.size, 1e-5)
     steps[robot.n_params: robot.n_params + 4] = 1e-3  # the compliances

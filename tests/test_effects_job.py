@@ -462,6 +462,20 @@ def test_cli_calibrate_report_and_plan_with_effects(with_effects, job, tmp_path)
     assert proc.returncode == 2 and "folder" in proc.stderr and "does not exist" in proc.stderr
 
 
+def test_the_report_with_effects_is_every_kind_s(with_effects, job):
+    """iwr.identifiability with effects prints the lines of every kind's report (rank,
+    singular values, condition number, O1-O4, base parameters; iwr.base_parameters.
+    report_lines), then the effects' separability: it printed the rank alone."""
+    m = job[0]
+    report = iwr.identifiability(with_effects, m)
+    text = str(report)
+    for line in ("Jacobian columns scaled to unit norm", f"rank {report.rank} of ",
+                 f"condition number (identifiable part) {report.condition_number:.4g}",
+                 "observability: O1", f"base parameters: {len(report.base_parameters)}"):
+        assert line in text, text
+    assert "separable from the geometry" in text
+
+
 def test_an_effect_outside_its_plausible_range_fails_the_fit(with_effects):
     """The review's case: LM (unbounded) left a compliance at -0.048 and +0.123 um/N (plausible
     0 .. 0.05) and the job said "converged", exit 0. Such a result now fails its fit, naming the

@@ -29,7 +29,7 @@ from typing import Any
 import numpy as np
 
 from .. import kinds
-from ..base_parameters import observability_indices, ordered_base, preference
+from ..base_parameters import observability_indices, ordered_base, preference, report_lines
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
@@ -199,18 +199,11 @@ class IdentifiabilityReport:
         return self.n_params - self.rank
 
     def __str__(self) -> str:
-        s = self.singular_values
         lines = [
             f"Identifiability of {self.robot_name or 'the robot'} from {self.n_poses} poses "
             f"({6 * self.n_poses} leg readings), {self.n_params} error parameters",
-            "  Jacobian columns scaled to unit norm (unit-free; see docs/identifiability.md)",
-            f"  rank {self.rank} of {self.n_params}: {self.n_unidentifiable} unidentifiable "
-            f"direction(s); threshold {self.threshold:.3g} (= {self.rtol:.3g} x s_max)",
-            f"  singular values: max {s[0]:.4g}, smallest identifiable {s[self.rank - 1]:.4g}"
-            + (f", largest unidentifiable {s[self.rank]:.3g}" if self.rank < s.size else ""),
-            f"  condition number (identifiable part) {self.condition_number:.4g}",
-            f"  observability: O1 {self.O1:.4g}  O2 {self.O2:.4g}  O3 {self.O3:.4g}  "
-            f"O4 {self.O4:.4g}",
+            *report_lines(self.singular_values, self.rank, self.threshold, self.n_poses,
+                          self.rtol),
         ]
         if self.left_out:
             lines.append(

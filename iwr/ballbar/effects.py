@@ -516,9 +516,9 @@ class BallbarEffectNullSpace(_report_type()):  # type: ignore[misc]
         return not self.inseparable
 
     def __str__(self) -> str:
-        text = (f"Identifiability of ballbar data with effects: rank {self.rank} of "
-                f"{len(self.parameter_names)} parameters, {len(self.left_out)} null directions, "
-                f"{len(self.held)} held (fixed by the loads alone)")
+        """The report of every kind (:class:`iwr.tracker.NullSpace`'s, the held parameters
+        apart), then whether the effects are separable from the geometry."""
+        text = super().__str__()
         if self.inseparable:
             return (text + "\nEffect parameters NOT separable from the geometry at these poses "
                     "and loads: " + ", ".join(n for n, _ in self.inseparable) + "; measure with "

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 
+from ..base_parameters import report_lines
 from ..transforms import pose_matrix as pose_matrix_of
 from . import bounds as effect_bounds
 from . import parameter_names as effect_names
@@ -263,10 +264,15 @@ class EffectIdentifiability:
             if self.rank else float("inf")
 
     def __str__(self) -> str:
+        """The report of every kind (:func:`iwr.base_parameters.report_lines`, the base
+        parameters), then whether the effects are separable from the geometry."""
         n_eff = len(self.parameter_names) - self.n_geometric
-        lines = [f"Identifiability with effects: {self.n_poses} poses, rank {self.rank} of "
-                 f"{len(self.parameter_names)} parameters ({self.geometric_rank} of the "
-                 f"geometry alone, {n_eff} effect parameters)"]
+        lines = [f"Identifiability with effects from {self.n_poses} poses: "
+                 f"{len(self.parameter_names)} parameters ({self.n_geometric} of the geometry, "
+                 f"rank {self.geometric_rank} alone; {n_eff} effect parameters)",
+                 *report_lines(self.singular_values, self.rank, self.threshold, self.n_poses),
+                 f"  base parameters: {len(self.base_parameters)}; left out (hold fixed): "
+                 + (", ".join(self.left_out) or "none")]
         if self.inseparable:
             lines.append("Effect parameters NOT separable from the geometry (or each other) at "
                          "these poses and loads: " + ", ".join(

@@ -258,12 +258,17 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
     labels = _labels(meta)
     head = _headline(ok)
     names = _budget_names(rows_all)
-    noise_title = lambda v: f"noise {v:g} mm"  # noqa: E731
+    if meta.get("kind", {}).get("name", "pose") == "pose":  # the level is the tracker's sd
+        noise_title = lambda v: f"noise {v:g} mm"  # noqa: E731
+        noise_axis = "noise level: tracker sd (mm)"
+    else:  # a scale of every instrument's noise (experiment_text["noise_level"]), not an sd
+        noise_title = lambda v: f"noise level {v:g} ({v / 0.02:g} x realistic)"  # noqa: E731
+        noise_axis = "noise level (0.02: the realistic noise of every instrument)"
     poses_title = lambda v: f"N = {v} poses"  # noqa: E731
     figures = ("val_rms", "tool_position_rms", "tool_orientation_rms", "param_error_length")
     for xcol, pcol, title, xlabel, name in (
         ("n_poses", "noise", noise_title, "number of poses N", "accuracy_vs_poses.png"),
-        ("noise", "n_poses", poses_title, "noise level: tracker sd (mm)", "accuracy_vs_noise.png"),
+        ("noise", "n_poses", poses_title, noise_axis, "accuracy_vs_noise.png"),
     ):
         f = _plot_vs(head, figures, xcol, pcol, out / name, title, xlabel, names=names,
                      ylabels=labels)
@@ -340,7 +345,8 @@ def _summary(
     lines.append(
         f"{len(rows_all)} cells: methods {sorted({r['method'] for r in rows_all})}, "
         f"poses {_sorted_unique(r['n_poses'] for r in rows_all)}, "
-        f"noise levels {_sorted_unique(r['noise'] for r in rows_all)} mm, "
+        f"noise levels {_sorted_unique(r['noise'] for r in rows_all)}"
+        f"{' mm' if meta.get('kind', {}).get('name', 'pose') == 'pose' else ''}, "
         f"{len({r['draw'] for r in rows_all})} error draws x {len({r['seed'] for r in rows_all})} "
         f"seeds; {len(rows_all) - len(ok)} failed."
     )

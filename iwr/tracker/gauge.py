@@ -11,7 +11,7 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from ..base_parameters import left_out_directions, observability_indices
+from ..base_parameters import left_out_directions, observability_indices, report_lines
 from ..robot import Robot
 from .problem import TrackerProblem
 
@@ -89,18 +89,10 @@ class NullSpace:
     def __str__(self) -> str:
         """The report of pose data's :class:`iwr.IdentifiabilityReport`, line for line (it gave
         the rank and the directions alone: an outside check)."""
-        s, n, r = self.singular_values, len(self.parameter_names), self.rank
-        o = self.observability
         lines = [
-            f"Identifiability from {self.n_poses} poses ({self.n_readings} readings), {n} "
-            "parameters (the robot's errors and the set-up's)",
-            "  Jacobian columns scaled to unit norm (unit-free; see docs/identifiability.md)",
-            f"  rank {r} of {n}: {n - r} unidentifiable direction(s); threshold "
-            f"{self.threshold:.3g}",
-            f"  singular values: max {s[0]:.4g}, smallest identifiable {s[r - 1]:.4g}"
-            + (f", largest unidentifiable {s[r]:.3g}" if r < s.size else ""),
-            f"  condition number (identifiable part) {self.condition_number:.4g}",
-            "  observability: " + "  ".join(f"{k} {v:.4g}" for k, v in o.items()),
+            f"Identifiability from {self.n_poses} poses ({self.n_readings} readings), "
+            f"{len(self.parameter_names)} parameters (the robot's errors and the set-up's)",
+            *report_lines(self.singular_values, self.rank, self.threshold, self.n_poses),
         ]
         held = list(getattr(self, "held", []))  # with effects: what only the loads fix
         if not self.left_out and not held:
