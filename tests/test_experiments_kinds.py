@@ -222,6 +222,8 @@ def test_study_on_tracker_data_says_what_it_measures(tmp_path):
     assert "Validation point ({T}) RMS error (mm)" in summary
     assert "Tool position RMS error modulo the gauge (mm)" in summary
     assert "TrackerNoise.leica()" in summary
+    # A level scales every instrument's noise: no millimetres (they read as the tracker's sd).
+    assert "noise levels [0.0, 0.02]," in summary and "0.02] mm" not in summary
 
 
 def test_a_noise_level_scales_the_instruments_noise(robots):

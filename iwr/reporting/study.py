@@ -12,6 +12,7 @@ import itertools
 import json
 import math
 import os
+import textwrap
 from collections import defaultdict
 from collections.abc import Sequence
 from pathlib import Path
@@ -178,7 +179,8 @@ def _plot_vs(
                 ax.set_title(panel_title(p), fontsize=10)
             if i == len(values) - 1:
                 ax.set_xlabel(xlabel)
-        axes[i, 0].set_ylabel((ylabels or {}).get(value, value), fontsize=8)
+        # Wrapped: a long label (the gauge's words) ran into the panel above and below.
+        axes[i, 0].set_ylabel(textwrap.fill((ylabels or {}).get(value, value), 38), fontsize=8)
     # One legend of every panel's lines (the first panel's alone left a method drawn only in
     # the others unlabelled, e.g. the efficient estimator beside noise 0).
     seen: dict[str, Any] = {}
@@ -263,7 +265,7 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
         noise_axis = "noise level: tracker sd (mm)"
     else:  # a scale of every instrument's noise (experiment_text["noise_level"]), not an sd
         noise_title = lambda v: f"noise level {v:g} ({v / 0.02:g} x realistic)"  # noqa: E731
-        noise_axis = "noise level (0.02: the realistic noise of every instrument)"
+        noise_axis = "noise level (0.02: realistic)"
     poses_title = lambda v: f"N = {v} poses"  # noqa: E731
     figures = ("val_rms", "tool_position_rms", "tool_orientation_rms", "param_error_length")
     for xcol, pcol, title, xlabel, name in (
