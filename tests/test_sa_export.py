@@ -262,3 +262,15 @@ def test_point_sigma_is_checked_and_kept_by_subset(data):
     bad = np.full_like(sig, 0.01)
     with pytest.raises(ValueError, match="pose 3, reflector 2 was not seen"):
         TrackerMeasurements(data.q, data.legs, points=data.points, point_sigma=bad)
+
+
+def test_a_method_that_does_not_weigh_the_points_says_their_uncertainties_are_unused(robot):
+    """docs/data.md says iwr calibrate tells that a method other than the efficient estimator
+    ignores the points' own uncertainties; it said so of the efficient estimator alone."""
+    data, _ = iwr.simulate(robot, 40, seed=6)
+    with_sigma = TrackerMeasurements(data.q, data.legs, points=data.points,
+                                     joint_types=data.joint_types,
+                                     point_sigma=np.full(data.points.shape, 0.01))
+    notes = " ".join(iwr.calibrate(robot, with_sigma, "lm").notes)
+    assert "uncertainties" in notes and "not used by method lm" in notes
+    assert "not used by method" not in " ".join(iwr.calibrate(robot, data, "lm").notes)

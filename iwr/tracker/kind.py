@@ -367,8 +367,12 @@ class _TrackerKind(MeasurementKind):
                 "from the nominal robot and the closed-form registration guess"]
 
     def weighting_note(self, data: Any, method: str, data_name: str) -> str:
-        if data.point_sigma is None or method != "efficient":
+        if data.point_sigma is None:
             return ""
+        if method != "efficient":  # docs/data.md: "iwr calibrate says so" (it did not)
+            return (f"note: the points' own uncertainties in {data_name} are not used by method "
+                    f"{method}: only the efficient estimator weighs the points by them (--method "
+                    "efficient, with a noise model; docs/data.md)")
         return (f"note: the points are weighted by their own uncertainties from {data_name}, "
                 "not by the tracker noise model named above (docs/data.md)")
 
