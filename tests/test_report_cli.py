@@ -260,4 +260,4 @@ def test_analyze_takes_the_result_of_a_robot_with_effects(tmp_path):
     assert proc.returncode == 0, proc.stderr
     proc = run("analyze", *files, "--result", str(tmp_path / "o" / "result.json"))
     assert proc.returncode == 0, proc.stderr
-    assert "rank 54 of 60 parameters" in proc.stdout
+    assert "rank 54 of 60: 6 unidentifiable direction(s)" in proc.stdout
