@@ -33,6 +33,7 @@ from .gross_errors import LeftOutError, cut_to_used, fitted_poses, without_left_
 from .gross_errors import check_result as check_gross_errors
 from .gross_errors import screen as screen_gross_errors
 from .methods import IdentificationResult, identify
+from .problem_base import recorded_bounds
 from .robot_fingerprint import record as robot_model_record
 
 __all__ = ["LEVEL", "NOT_CALIBRATED", "WORSE", "Calibration", "Judgement", "LeftOutError",
@@ -871,14 +872,9 @@ def polish(robot: Any, data: Any, result: IdentificationResult) -> Identificatio
     refusal = polish_refusal(result)
     if refusal:
         raise ValueError(refusal)
-    options: dict[str, Any] = {}
-    bounds, lower, upper = settings.get("bounds"), settings.get("lower"), settings.get("upper")
-    if isinstance(bounds, str) and bounds in ("default", "paper"):
-        options["bounds"] = bounds
-    elif lower is not None and upper is not None and np.size(lower) == x.size:
-        options["bounds"] = (np.asarray(lower, dtype=float), np.asarray(upper, dtype=float))
     lm = identify(robot, data, "lm", x0=x, active=result.get("active"),
-                  noise=_recorded_noise(kind, result), progress=False, **options)
+                  noise=_recorded_noise(kind, result), progress=False,
+                  **recorded_bounds(settings, x.size))
     record = {"fun_before": float(result.fun), "fun": float(lm.fun), "nfev": int(lm.nfev),
               "nit": int(lm.nit), "success": bool(lm.success), "message": str(lm.message)}
     head = str(result.message).strip().rstrip(".")

@@ -22,8 +22,8 @@ from ._hooks import hook
 from .effects import refuse as refuse_effects
 from .robot import Robot
 
-__all__ = ["FAILED_RESIDUAL", "LeastSquaresProblem", "ProblemBase", "check_joint_types",
-           "reference_error"]
+__all__ = ["FAILED_RESIDUAL", "LeastSquaresProblem", "ProblemBase", "bounds_kind", "bounds_record",
+           "check_joint_types", "recorded_bounds", "reference_error"]
 
 #: The residual (mm, times its weight) of each reading of a pose whose forward kinematics fails
 #: at the parameters evaluated: huge but finite, so that every method sees a bad cost.
@@ -159,6 +159,19 @@ def bounds_record(problem: Any) -> dict[str, Any]:
         return {"bounds": kind}
     return {"bounds": kind, "lower": [float(v) for v in problem.lower],
             "upper": [float(v) for v in problem.upper]}
+
+
+def recorded_bounds(settings: Any, n_params: int) -> dict[str, Any]:
+    """The ``bounds`` option of :func:`iwr.identify` that a result's settings record
+    (:func:`bounds_record`, and an ``iwr-calibrate`` run's): ``{"bounds": "default" or
+    "paper"}``, the pair ``(lower, upper)`` of ``n_params`` values, or ``{}`` (none recorded:
+    the default)."""
+    bounds, lower, upper = settings.get("bounds"), settings.get("lower"), settings.get("upper")
+    if isinstance(bounds, str) and bounds in ("default", "paper"):
+        return {"bounds": bounds}
+    if lower is not None and upper is not None and np.size(lower) == n_params:
+        return {"bounds": (np.asarray(lower, dtype=float), np.asarray(upper, dtype=float))}
+    return {}
 
 
 class ProblemBase(abc.ABC):

@@ -217,7 +217,7 @@ def load_data(path: str, robot: Any) -> Any:
 
 
 def read_data(path: str, robot: Any, readings: str | None = None, *, targets: Any = None,
-              prog: str = "iwr calibrate", effects: bool = True) -> Any:
+              prog: str | None = None, effects: bool = True) -> Any:
     """The data of the kind ``robot`` measures (:func:`iwr.kinds.for_robot`: poses in {0}, or
     the tracker data of its ``[tracker]`` table), read with every check of that kind's reader;
     ``readings`` (``--readings``) for tracker data given as a long table of points, ``targets``
@@ -287,23 +287,26 @@ def overwritten_input(outputs: Iterable[str | os.PathLike[str]],
     return None
 
 
-def written_by(path: str | os.PathLike[str], own: str) -> bool:
+def written_by(path: str | os.PathLike[str], own: str, words: str = "") -> bool:
     """Whether the regular file ``path`` starts with ``own``, the first characters of every file
-    a command writes (``"# iwr plan:"``, a checkpoint's magic): how a file it wrote, which it
-    may write over, is told from one it did not (a measurement file named by mistake). False
-    for a file that cannot be read or is not a regular file (a named pipe is not waited on)."""
+    a command writes (``"# iwr plan:"``, a checkpoint's magic), and holds ``words`` within its
+    first 4 kB (a format whose first characters are anyone's, as a URDF's): how a file it wrote,
+    which it may write over, is told from one it did not (a measurement file named by mistake).
+    False for a file that cannot be read or is not a regular file (a named pipe is not waited
+    on)."""
     from .._io import open_regular
 
+    start, mark = own.encode(), words.encode()
     try:
         with open_regular(path) as f:
-            head = f.read(len(own.encode()))
+            head = f.read(max(len(start), 4096 if mark else 0))
     except OSError:
         return False
-    return head == own.encode()
+    return head.startswith(start) and mark in head
 
 
 def check_output(path: str | os.PathLike[str], option: str, *, inputs: Iterable[Any] = (),
-                 files: Iterable[str] | None = None, prog: str = "iwr calibrate",
+                 files: Iterable[str] | None = None, prog: str | None = None,
                  own: str | None = None, own_what: str | None = None,
                  in_existing_folder: bool = False) -> None:
     """Refuse, before any work, an output that cannot be written or would overwrite an input:

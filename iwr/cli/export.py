@@ -18,6 +18,7 @@ from ._base import (
     check_output,
     load_robot,
     positive_int,
+    written_by,
 )
 
 DEFAULT_OUT = "iwr-export"
@@ -45,21 +46,8 @@ _OWN = {"genhexkins.hal": ("# LinuxCNC genhexkins parameters", "written by iwr e
 def _not_ours(out: Path) -> list[str]:
     """The files of FILES in folder ``out`` that ``iwr export`` did not write (or that are not
     regular files): what it must not write over, nor remove as an earlier export's."""
-    from .._io import open_regular
-
-    found = []
-    for name, (start, words) in _OWN.items():
-        path = out / name
-        if not os.path.lexists(path):
-            continue
-        try:
-            with open_regular(path) as f:
-                head = f.read(4096).decode("utf-8", "replace")
-        except OSError:
-            head = ""
-        if not (head.startswith(start) and words in head):
-            found.append(name)
-    return found
+    return [name for name, (start, words) in _OWN.items()
+            if os.path.lexists(out / name) and not written_by(out / name, start, words)]
 
 
 def add_parser(sub: Any) -> argparse.ArgumentParser:

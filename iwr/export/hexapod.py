@@ -133,13 +133,14 @@ def hexapod_dict(robot: Robot, source: str | None = None) -> dict[str, Any]:
     if robot.effects:
         # The effects as they load the robot: on tracker data the tracker's gravity (in {T})
         # carried into {0} by the calibrated registration, not the file's own gravity_m_s2.
-        extra["effects"] = {e.name: e.to_dict() for e in in_world_gravity(robot).effects}
+        loaded = in_world_gravity(robot)  # robot itself where its own gravity stands
+        extra["effects"] = {e.name: e.to_dict() for e in loaded.effects}
         extra["effects_note"] = (
             "with these effects a leg's reading at a given pose also depends on the load and "
             "the temperature (docs/effects.md gives their model): the relation of 'frames' is "
             "the geometry's alone; gravity_m_s2 is in {0}"
             + (", carried from the tracker's gravity in {T} by the calibrated registration"
-               if kinds.for_robot(robot).world_gravity(robot) is not None else ""))
+               if loaded is not robot else ""))
     frame = data_frame(robot)
     if frame is not None:
         name, t = frame

@@ -123,9 +123,7 @@ def null_space(problem: TrackerProblem, x: Any = None, rtol: float | None = None
     rank = int(np.sum(s > thr))
     ns = vt[rank:].T / d[:, None]  # physical units
     names = problem.parameter_names
-    size = {"n_poses": int(problem.measurements.n_poses) if hasattr(problem.measurements,
-                                                                      "n_poses")
-            else len(problem.measurements), "n_readings": int(jac.shape[0])}
+    size = {"n_poses": len(problem.measurements), "n_readings": int(jac.shape[0])}
     if ns.shape[1] == 0:
         return NullSpace(s, rank, thr, names, [], ns, d, **size)
     # One direction per left-out parameter: the best-conditioned rows of the scaled null basis
