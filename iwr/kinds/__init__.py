@@ -415,7 +415,9 @@ class MeasurementKind(abc.ABC):
     #: ``cost`` (the unweighted objective, mm^2) and ``cost_label`` (its short name),
     #: ``readings`` (the validation residuals), ``tool`` (the tool pose error against the
     #: truth), ``parameters`` (the parameter error modulo the null directions),
-    #: ``noise_level`` (what an experiment's noise level sets), ``gauge`` (what the data leave
+    #: ``noise_level`` (what an experiment's noise level sets; ``noise_panel``, a format of
+    #: ``level`` and ``ratio`` to the realistic 0.02, ``noise_axis``, its words in a study's
+    #: figures, and ``noise_unit``, after a list of levels), ``gauge`` (what the data leave
     #: free and how the figures treat it; empty when nothing), ``readings_short`` and
     #: ``tool_short`` (a word for the readings, and what qualifies the tool pose error, in the
     #: figures' labels).
@@ -431,6 +433,10 @@ class MeasurementKind(abc.ABC):
                       "truth's readings at the validation poses, projected onto the identifiable "
                       "directions",
         "noise_level": "the measurement noise scaled from iwr.Noise.realistic() (level 0.02)",
+        # A study figure's panel title and axis: a level scales every instrument's noise.
+        "noise_panel": "noise level {level:g} ({ratio:g} x realistic)",
+        "noise_axis": "noise level (0.02: realistic)",
+        "noise_unit": "",
         "gauge": "",
     }
 

@@ -53,6 +53,9 @@ class PoseKind(MeasurementKind):
         "parameters": "x minus the parameter vector nearest to x that predicts exactly the truth's "
                       "readings at the validation poses (the yardstick of what is identifiable), "
                       "projected onto the identifiable directions (iwr.parameter_error)",
+        "noise_panel": "noise {level:g} mm",  # the level is the tracker's position sd
+        "noise_axis": "noise level: tracker sd (mm)",
+        "noise_unit": " mm",
         "noise_level": "the tracker's position sd (mm), the other channels in the proportions of "
                        "iwr.Noise.realistic() (level 0.02)",
         "gauge": "",

@@ -47,10 +47,16 @@ _FIGURES = {
 def _kind_text(meta: dict[str, Any]) -> dict[str, str]:
     """What the study's kind of data measures (study.json's ``kind``: the kind's
     :attr:`iwr.kinds.MeasurementKind.experiment_text`); the pose kind's for a study written
-    before kinds were recorded (only poses in {0} could be studied then)."""
+    before kinds were recorded (only poses in {0} could be studied then). The kind's words of
+    today fill what an older study.json lacks (its noise level's words)."""
     from .. import kinds
 
-    return {**kinds.named("pose").experiment_text, **meta.get("kind", {})}
+    recorded = meta.get("kind", {})
+    try:
+        current = kinds.named(str(recorded.get("name", "pose"))).experiment_text
+    except ValueError:  # a kind not registered here
+        current = kinds.named("pose").experiment_text
+    return {**current, **recorded}
 
 
 def _labels(meta: dict[str, Any]) -> dict[str, str]:
@@ -260,12 +266,9 @@ def report(out: str | os.PathLike[str]) -> list[Path]:
     labels = _labels(meta)
     head = _headline(ok)
     names = _budget_names(rows_all)
-    if meta.get("kind", {}).get("name", "pose") == "pose":  # the level is the tracker's sd
-        noise_title = lambda v: f"noise {v:g} mm"  # noqa: E731
-        noise_axis = "noise level: tracker sd (mm)"
-    else:  # a scale of every instrument's noise (experiment_text["noise_level"]), not an sd
-        noise_title = lambda v: f"noise level {v:g} ({v / 0.02:g} x realistic)"  # noqa: E731
-        noise_axis = "noise level (0.02: realistic)"
+    text = _kind_text(meta)  # the kind's words for its noise level (an sd, or a scale)
+    noise_title = lambda v: text["noise_panel"].format(level=v, ratio=v / 0.02)  # noqa: E731
+    noise_axis = text["noise_axis"]
     poses_title = lambda v: f"N = {v} poses"  # noqa: E731
     figures = ("val_rms", "tool_position_rms", "tool_orientation_rms", "param_error_length")
     for xcol, pcol, title, xlabel, name in (
@@ -348,7 +351,7 @@ def _summary(
         f"{len(rows_all)} cells: methods {sorted({r['method'] for r in rows_all})}, "
         f"poses {_sorted_unique(r['n_poses'] for r in rows_all)}, "
         f"noise levels {_sorted_unique(r['noise'] for r in rows_all)}"
-        f"{' mm' if meta.get('kind', {}).get('name', 'pose') == 'pose' else ''}, "
+        f"{text['noise_unit']}, "
         f"{len({r['draw'] for r in rows_all})} error draws x {len({r['seed'] for r in rows_all})} "
         f"seeds; {len(rows_all) - len(ok)} failed."
     )

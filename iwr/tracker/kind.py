@@ -69,6 +69,9 @@ class _TrackerKind(MeasurementKind):
                       "points at the validation poses, projected onto the directions the points "
                       "see (the registration and the offsets included; the gauge and the robot's "
                       "unidentifiable combinations removed)",
+        "noise_panel": "noise level {level:g} ({ratio:g} x realistic)",
+        "noise_axis": "noise level (0.02: realistic)",
+        "noise_unit": "",
         "noise_level": "the leg and joint readings' noise scaled from iwr.Noise.realistic() and "
                        "the tracker's from TrackerNoise.leica(), both by level / 0.02 (level 0.02 "
                        "is the realistic model)",
