@@ -77,6 +77,14 @@ except (ImportError, AttributeError):  # no RUSAGE_THREAD
     def _switches() -> int:
         return 0
 
+# Untimed calls of cost_batch on more than one thread before a group of timed ones. After a pause
+# (the other builds' and cells' turns) Linux may wake the pool's worker on the CPU of the thread
+# that woke it (wake_affine), where it shares that CPU with the caller until the load balancer
+# moves it: on the Zen 5 the first 1-48 calls (up to 10 ms) then took a single thread's time, in
+# some rounds all five timed calls, so that the "like for like" figure read 0.53x (2026-11-29,
+# thirty-third round). A DE run's generations follow each other with the threads running.
+WARM_S = 0.03
+
 # A timed call during which the thread was switched out runs slower by the refill of the caches
 # and predictors (on the development machine 0.2 us an evaluation per switch at N = 100, about
 # 20 %): such a call is taken again, up to this many times.
@@ -289,10 +297,14 @@ class Worker:
         return self.batches(kernel, threads, data, 1)[0]
 
     def batches(self, kernel: str, threads: int, data: str, count: int) -> list:
-        """`count` repetitions of :meth:`batch` one after another (the pool's threads still
-        awake, as between DE's generations)."""
+        """`count` repetitions of :meth:`batch` one after another, after WARM_S of untimed ones
+        (the pool's threads running on their own CPUs, as between DE's generations)."""
         _, _, problem, X = self.kind(data)
         self.core._select_kernel(kernel)
+        if threads > 1:
+            t0 = time.perf_counter()
+            while time.perf_counter() - t0 < WARM_S:
+                problem.cost_batch(X, workers=threads)
         out = []
         for _ in range(count):
             t0 = time.perf_counter()
@@ -763,7 +775,7 @@ def scaling_table(builds: list[Build], kernels: list[str], threads: list[int], r
                 bt = min(min(g) for g in batch[c][n])
                 bl = like_for_like(batch[c][n])
                 per[(c, n)] = ms
-                cellout.append(f"{ms:.3f} | {bt:.3f} | {ms / bt:.2f}x | {bl:.3f} | {ms / bl:.2f}x")
+                cellout.append(f"{ms:.3f} | {bt:.3f} | {ms / bt:.3f}x | {bl:.3f} | {ms / bl:.3f}x")
             print(f"| {c[0]} | {c[1]} | " + " | ".join(cellout) + " |", flush=True)
     print(str(load))
     for n in names:

@@ -9,6 +9,7 @@
 #include <cstring>
 #include <istream>
 #include <iterator>
+#include <memory>
 #include <numeric>
 #include <ostream>
 #include <sstream>
@@ -430,25 +431,26 @@ void archive_trim(State& st) {
     }
 }
 
-// Sums of squared deviations from the mean of columns [j0, j0 + nc) of the np x sd population
-// (row i at rows[i]) into v, each column summed row by row in slot order, in one pass over the
-// rows: with y = x - c, c the column's value in the row `shift` (the best individual's), sum (x -
-// mean)^2 = sum y^2 - (sum y) (sum y / np) (the shifted-data formula; two passes, the mean first,
-// read the population twice from L2: BENCHMARKS.md, fifteenth round). The cancellation loses a
-// factor (1 + k^2) of the sums' precision, k the shift's distance from the mean in standard
-// deviations: the best individual is within the converged cluster, where the rounded mean of two
-// passes lost everything (a spread of 1e-16 for identical rows); a shift that is itself an
-// outlier (k up to sqrt(np)) loses a factor np (3e-12 relative at np = 600, emulated). A negative
-// difference (rounding) is 0; NaN stays NaN. The columns as NV vectors of L doubles and a last
-// vector of T < L columns, all in the one pass, the counts constants: a pass is as long as one
-// column's chain of np dependent adds, whatever the count. Written with vectors because the
-// compiler, left to group a count such as 10 or 26 itself, turned the last columns into scalar adds
-// fed by loads gathered across rows. L is the width of the registers of the clone the CPU runs
-// (clone_lanes: 8 AVX-512, 4 AVX2, 2 SSE2) and a pass takes 4 L columns (log_window), so that
-// the shift and the two sums of a pass (12 registers) stay in the registers: one width for every
-// clone (8, and 32 columns a pass) spilled them to the stack row by row in AVX2's and SSE2's 16
-// registers and moved lanes through general registers; the log was 45 % of DE's own work on a
-// Zen 3 (BENCHMARKS.md, twenty-third round). The grouping does not change a column's sums.
+// The log's spread: sums of squared deviations from the mean of each column of the population,
+// in one pass over the rows: with y = x - c, c the column's value in the row `shift` (the best
+// individual's), sum (x - mean)^2 = sum y^2 - (sum y) (sum y / np) (the shifted-data formula; two
+// passes, the mean first, read the population twice from L2: BENCHMARKS.md, fifteenth round). The
+// cancellation loses a factor (1 + k^2) of the sums' precision, k the shift's distance from the
+// mean in standard deviations: the best individual is within the converged cluster, where the
+// rounded mean of two passes lost everything (a spread of 1e-16 for identical rows); a shift that
+// is itself an outlier (k up to sqrt(np)) loses a factor np (3e-12 relative at np = 600,
+// emulated). A negative difference (rounding) is 0; NaN stays NaN. The sums are taken over blocks
+// of rows (append_log) and added block by block. Within a block the columns are NV vectors of L
+// doubles and a last vector of T < L columns, all in the one pass, the counts constants: a pass is
+// as long as one column's chain of dependent adds, whatever the count. Written with vectors
+// because the compiler, left to group a count such as 10 or 26 itself, turned the last columns
+// into scalar adds fed by loads gathered across rows. L is the width of the registers of the
+// clone the CPU runs (clone_lanes: 8 AVX-512, 4 AVX2, 2 SSE2) and a pass takes 4 L columns
+// (log_window), so that the shift and the two sums of a pass (12 registers) stay in the
+// registers: one width for every clone (8, and 32 columns a pass) spilled them to the stack row by
+// row in AVX2's and SSE2's 16 registers and moved lanes through general registers; the log was
+// 45 % of DE's own work on a Zen 3 (BENCHMARKS.md, twenty-third round). The grouping does not
+// change a column's sums: every clone and every number of threads gives the same bits.
 inline int log_window() { return 4 * clone_lanes(); }
 #if defined(__GNUC__)
 template <int L>
@@ -490,9 +492,11 @@ IWR_FORCE_INLINE void load_lanes(const double* x, Lanes<L>& r) {
         for (int k = 0; k < n; ++k) r[k] = x[k];
     }
 }
+// Sums over rows [0, nr) of x (row k at x + k * stride) of y and y^2, y = x - shift, for columns
+// [j0, j0 + NV L + T), written from column j0 + skip on into s1 and s2 (indexed by column).
 template <int L, int NV, int T>
-IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, const double* shift,
-                                        int j0, int skip, double* v) {
+IWR_FORCE_INLINE void column_sums(const double* x0, int stride, int nr, const double* shift,
+                                  int j0, int skip, double* s1o, double* s2o) {
     constexpr int nv = NV + (T > 0 ? 1 : 0);
     Lanes<L> c[nv], s1[nv] = {}, s2[nv] = {}, t = {};
     for (int g = 0; g < NV; ++g) {
@@ -504,8 +508,8 @@ IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, const
         load_lanes<L, T>(shift + j0 + NV * L, t);
         c[nv - 1] = t;
     }
-    for (int i = 0; i < np; ++i) {
-        const double* x = rows[i] + j0;
+    for (int i = 0; i < nr; ++i) {
+        const double* x = x0 + static_cast<std::ptrdiff_t>(i) * stride + j0;
         for (int g = 0; g < NV; ++g) {
             load_lanes<L, L>(x + g * L, t);
             t = t - c[g];
@@ -519,46 +523,63 @@ IWR_FORCE_INLINE void column_deviations(const double* const* rows, int np, const
             s2[nv - 1] += t * t;
         }
     }
-    for (int k = skip; k < NV * L + T; ++k) {
-        const double sum = s1[k / L][k % L];
-        const double d = s2[k / L][k % L] - sum * (sum / np);
-        v[j0 + k] = d < 0 ? 0.0 : d;
+    // Whole vectors stored (a block's sums are stored 2 x 16 x 2 times a generation); the columns
+    // before j0 + skip, which the pass before wrote, are written again with the same bits (each
+    // column's arithmetic is the same in any lane).
+    (void)skip;
+    for (int g = 0; g < NV; ++g) {
+        std::memcpy(s1o + j0 + g * L, &s1[g], sizeof s1[g]);
+        std::memcpy(s2o + j0 + g * L, &s2[g], sizeof s2[g]);
+    }
+    for (int k = 0; k < T; ++k) {
+        s1o[j0 + NV * L + k] = s1[nv - 1][k];
+        s2o[j0 + NV * L + k] = s2[nv - 1][k];
     }
 }
 
-// Columns [j0, j0 + nc) of the log, 1 <= nc <= 4 L, written from column j0 + skip on: the counts
-// constants in each case, so that the sums of a pass narrower than 4 L stay in vector registers
-// too.
+// Columns [j0, j0 + nc) of the sums, 1 <= nc <= 4 L, written from column j0 + skip on: the
+// counts constants in each case, so that the sums of a pass narrower than 4 L stay in vector
+// registers too.
 template <int L, int... N>
-IWR_FORCE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* const* rows,
-                                   int np, const double* shift, int j0, int nc, int skip,
-                                   double* v) {
+IWR_FORCE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* x0, int stride,
+                                   int nr, const double* shift, int j0, int nc, int skip,
+                                   double* s1, double* s2) {
     ((nc == N + 1
-          ? column_deviations<L, (N + 1) / L, (N + 1) % L>(rows, np, shift, j0, skip, v)
+          ? column_sums<L, (N + 1) / L, (N + 1) % L>(x0, stride, nr, shift, j0, skip, s1, s2)
           : void()),
      ...);
 }
-IWR_CLONES void column_block(const double* const* rows, int np, const double* shift, int j0,
-                             int nc, int skip, double* v) {
+IWR_CLONES void column_block(const double* x0, int stride, int nr, const double* shift, int j0,
+                             int nc, int skip, double* s1, double* s2) {
     switch (clone_lanes()) {
         case 8:
-            column_cases<8>(std::make_integer_sequence<int, 32>(), rows, np, shift, j0, nc, skip, v);
+            column_cases<8>(std::make_integer_sequence<int, 32>(), x0, stride, nr, shift, j0, nc,
+                            skip, s1, s2);
             break;
         case 4:
-            column_cases<4>(std::make_integer_sequence<int, 16>(), rows, np, shift, j0, nc, skip, v);
+            column_cases<4>(std::make_integer_sequence<int, 16>(), x0, stride, nr, shift, j0, nc,
+                            skip, s1, s2);
             break;
         default:
-            column_cases<2>(std::make_integer_sequence<int, 8>(), rows, np, shift, j0, nc, skip, v);
+            column_cases<2>(std::make_integer_sequence<int, 8>(), x0, stride, nr, shift, j0, nc,
+                            skip, s1, s2);
     }
 }
 
+// The log's row blocks: a number fixed whatever the threads (so the sums, added block by block in
+// order, are the same bits with any number of threads), and enough of them for the pool's
+// threads to take each the blocks of the slots it built the trials of (block k is rows
+// [np k / nb, np (k + 1) / nb); parallel_for_dynamic gives thread t about the slots from np t / T
+// on, and parallel_for here the blocks of those rows).
+constexpr int kLogBlocks = 16;
+
 // The log row of the current population, and st.elapsed (+= the time since t0, the log
-// included). The column sums run on the pool's threads, each column on one thread (the same bits
-// with any number of threads). trials, taken (or null): the selection's accepted trials, row i of
-// trials where taken[i], not yet copied into the population: this pass reads them where they are
-// and copies them, each thread the rows of its share of the columns' blocks (a copied row is read
-// from trials only, a row read from the population is not written: no two threads meet), so that
-// the copies are not serial.
+// included). trials, taken (or null): the selection's accepted trials, row i of trials where
+// taken[i], not yet copied into the population. One pass of the pool over the rows in kLogBlocks
+// blocks: the thread that takes a block copies its accepted trials into the population, then sums
+// the block's rows column by column (each column in slot order within the block); the blocks'
+// sums are then added in block order. A thread so reads and writes the rows of the slots whose
+// trials it built, where they are (its cache), not the other threads'.
 void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
                 const RowMatrixXd* trials = nullptr, const std::vector<char>* taken = nullptr) {
     LogEntry e;
@@ -571,37 +592,45 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
     double sum = 0;
     for (int i = 0; i < np; ++i) sum += st.costs(i);
     e.mean = sum / np;
-    std::vector<double> v(static_cast<std::size_t>(d));
-    std::vector<const double*> rows(static_cast<std::size_t>(np));
-    for (int i = 0; i < np; ++i)
-        rows[static_cast<std::size_t>(i)] = trials && (*taken)[static_cast<std::size_t>(i)]
-                                                ? trials->row(i).data()
-                                                : st.population.row(i).data();
+    // The shift where it lies during the pass (a row that is copied is read from trials alone).
+    const double* shift = trials && (*taken)[static_cast<std::size_t>(best)]
+                              ? trials->row(best).data()
+                              : st.population.row(best).data();
+    const int nb = std::min(np, kLogBlocks);
+    const auto nd = static_cast<std::size_t>(d);
+    const std::unique_ptr<double[]> part(new double[2 * nd * static_cast<std::size_t>(nb)]);
     // Passes of `window` columns; where d is not a multiple, the last pass is moved back to end at
     // column d (its first columns, computed again with the same arithmetic, are not written), so
     // that every pass but one of a narrower problem is full width: no lanes loaded one by one.
     const int window = std::min(log_window(), d);
-    const int blocks = (d + window - 1) / window;
-    pool.parallel_for(static_cast<std::size_t>(blocks), [&](std::size_t b, std::size_t end, int) {
+    const int passes = (d + window - 1) / window;
+    pool.parallel_for(static_cast<std::size_t>(nb), [&](std::size_t b, std::size_t end, int) {
         for (std::size_t k = b; k < end; ++k) {
-            const int first = static_cast<int>(k) * window;
-            const int j0 = std::min(first, d - window);
-            column_block(rows.data(), np, rows[static_cast<std::size_t>(best)], j0, window,
-                         first - j0, v.data());
+            const auto r0 = static_cast<Eigen::Index>(static_cast<std::size_t>(np) * k / static_cast<std::size_t>(nb));
+            const auto r1 = static_cast<Eigen::Index>(static_cast<std::size_t>(np) * (k + 1) / static_cast<std::size_t>(nb));
+            if (trials)
+                for (Eigen::Index i = r0; i < r1; ++i)
+                    if ((*taken)[static_cast<std::size_t>(i)]) st.population.row(i) = trials->row(i);
+            double* s1 = part.get() + 2 * nd * k;
+            for (int p = 0; p < passes; ++p) {
+                const int first = p * window;
+                const int j0 = std::min(first, d - window);
+                column_block(st.population.row(r0).data(), d, static_cast<int>(r1 - r0), shift, j0,
+                             window, first - j0, s1, s1 + nd);
+            }
         }
-        if (!trials) return;
-        const auto first = static_cast<std::size_t>(np) * b / static_cast<std::size_t>(blocks);
-        const auto last = static_cast<std::size_t>(np) * end / static_cast<std::size_t>(blocks);
-        for (std::size_t i = first; i < last; ++i)
-            if ((*taken)[i])
-                st.population.row(static_cast<Eigen::Index>(i)) =
-                    trials->row(static_cast<Eigen::Index>(i));
     });
+    std::vector<double> s1(part.get(), part.get() + nd), s2(part.get() + nd, part.get() + 2 * nd);
+    for (int k = 1; k < nb; ++k) {
+        const double* p = part.get() + 2 * nd * static_cast<std::size_t>(k);
+        for (std::size_t j = 0; j < nd; ++j) s1[j] += p[j], s2[j] += p[nd + j];
+    }
     double acc = 0;
-    for (int j = 0; j < d; ++j) {
-        const double w = st.settings.upper[static_cast<std::size_t>(j)] -
-                         st.settings.lower[static_cast<std::size_t>(j)];
-        acc += v[static_cast<std::size_t>(j)] / np / (w * w);
+    for (std::size_t j = 0; j < nd; ++j) {
+        double v = s2[j] - s1[j] * (s1[j] / np);
+        v = v < 0 ? 0.0 : v;
+        const double w = st.settings.upper[j] - st.settings.lower[j];
+        acc += v / np / (w * w);
     }
     e.spread = std::sqrt(acc / d);
     st.elapsed += seconds_since(t0);
@@ -639,7 +668,8 @@ struct Below {
 
 // Everything a slot's trial needs that is computed once per generation.
 struct Generation {
-    State* st;  // read-only but for streams[1 + i], which only slot i touches
+    const State* st;
+    Rng* drawn;  // st->drawn: slot i's stream copied to drawn[1 + i], its draws taken there
     std::vector<int> order;  // population indices by cost, ties by index
     int pnum = 2;            // size of the p-best set (fixed-p strategies)
     double progress = 0;     // NFE / NFE_max (lshade, jso)
@@ -700,7 +730,8 @@ struct Plan {
 IWR_FORCE_INLINE void plan_trial(const Generation& gen, int i, Plan& plan) {
     const State& st = *gen.st;
     const Settings& s = st.settings;
-    Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];
+    Rng& g = gen.drawn[static_cast<std::size_t>(i) + 1];
+    g = st.streams[static_cast<std::size_t>(i) + 1];  // the slot's first draws
     const int np = st.np;
     const int d = st.dim();
     const auto NP = static_cast<std::uint64_t>(np);
@@ -825,7 +856,7 @@ IWR_FORCE_INLINE void prefetch_plan(const Plan& plan, int d) {
 IWR_FORCE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan, double* u) {
     const State& st = *gen.st;
     const Settings& s = st.settings;
-    Rng& g = gen.st->streams[static_cast<std::size_t>(i) + 1];
+    Rng& g = gen.drawn[static_cast<std::size_t>(i) + 1];  // after plan_trial's draws
     const int d = st.dim();
     const double* xi = st.population.row(i).data();
     const double* base = plan.base;
@@ -1119,8 +1150,16 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
                                   : static_cast<int>(std::clamp<std::int64_t>(max_trials, 1, np));
     const int d = st.dim();
 
+    // Every slot's trial draws from its stream into st.drawn; st.streams take them once the
+    // trials are evaluated (an evaluation that throws, such as a Python objective interrupted by
+    // Ctrl-C, leaves the state as it was). The scratch stays with the state, so that each slot's
+    // stream is written by the thread that builds its trial in every generation (the pool gives
+    // a thread the same slots from one pass to the next): a serial copy of the streams before
+    // the pass moved half of them between the threads' caches, twice a generation.
+    if (st.drawn.size() != st.streams.size()) st.drawn.resize(st.streams.size());
     Generation gen;
     gen.st = &st;
+    gen.drawn = st.drawn.data();
     gen.below_np = Below(static_cast<std::uint64_t>(np));
     gen.below_d = Below(static_cast<std::uint64_t>(d));
     if (reduces_population(s.strategy))
@@ -1141,16 +1180,16 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     }
 
     // Trials: slot i uses stream 1 + i only, so any partition of the slots gives the same trials.
-    // The streams are the only part of the state touched before the evaluation, which may throw
-    // (a Python objective interrupted by Ctrl-C): they are restored then.
-    std::vector<Rng> saved = st.streams;
     RowMatrixXd trials(np, d);
-    std::vector<double> tF(static_cast<std::size_t>(np)), tCR(static_cast<std::size_t>(np));
+    // (Not value-initialized: zeros written by this thread would move the lines the other
+    // threads then write between the caches.)
+    const std::unique_ptr<double[]> tF(new double[static_cast<std::size_t>(np)]);
+    const std::unique_ptr<double[]> tCR(new double[static_cast<std::size_t>(np)]);
     VectorXd tcost(np);
     const auto make_trials_of = [&](std::size_t b, std::size_t e) {
-        make_trials(gen, static_cast<int>(b), static_cast<int>(e), trials.data(), tF.data(), tCR.data());
+        make_trials(gen, static_cast<int>(b), static_cast<int>(e), trials.data(), tF.get(), tCR.get());
     };
-    try {
+    {  // (what throws here leaves the state as it was: st.streams untouched)
         if (f.prepare(pool.size())) {
             // One pass of the pool: each thread builds its slots' trials and evaluates them
             // (while they are in its cache); one hand-over per generation instead of two.
@@ -1168,10 +1207,13 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
             f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
         }
         sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
-    } catch (...) {
-        st.streams = std::move(saved);  // the state is left as it was before this step
-        throw;
     }
+    // The streams the pass did not draw from (the serial one, and those of slots a reduced
+    // population no longer has) carried over, and the drawn ones taken.
+    st.drawn[0] = st.streams[0];
+    for (std::size_t k = static_cast<std::size_t>(np) + 1; k < st.streams.size(); ++k)
+        st.drawn[k] = st.streams[k];
+    st.streams.swap(st.drawn);
     st.nfev += ne;
 
     // Selection, eq. (14), serially in slot order (the archive and the memories depend on order).

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <chrono>
+#include <memory>
 #include <stdexcept>
 #include <string>
 #include <system_error>
@@ -188,21 +189,31 @@ void ThreadPool::parallel_for(std::size_t n,
 
 void ThreadPool::parallel_for_dynamic(
     std::size_t n, std::size_t grain, const std::function<void(std::size_t, std::size_t, int)>& fn) {
-    const std::size_t t = static_cast<std::size_t>(size());
+    const int t = size();
     if (t == 1 || n < 2 || !usable_here()) return parallel_for(n, fn);  // serial, or its error
     grain = std::max<std::size_t>(grain, 1);
-    // The next unclaimed item, alone on its cache line (the threads' claims write it).
-    struct alignas(64) Next {
-        std::atomic<std::size_t> i{0};
-    } next;
-    parallel_for(t, [&](std::size_t, std::size_t, int id) {  // one call per thread
-        for (;;) {
-            const std::size_t seen = next.i.load(std::memory_order_relaxed);
-            if (seen >= n) return;
-            const std::size_t want = std::max(grain, (n - seen) / (2 * t));
-            const std::size_t b = next.i.fetch_add(want, std::memory_order_relaxed);
-            if (b >= n) return;
-            fn(b, std::min(n, b + want), id);
+    struct alignas(64) Range {
+        std::atomic<std::size_t> next{0};
+        std::size_t end = 0;
+    };
+    std::unique_ptr<Range[]> ranges(new Range[static_cast<std::size_t>(t)]);
+    for (int k = 0; k < t; ++k) {
+        std::size_t b, e;
+        chunk(n, t, k, b, e);
+        ranges[static_cast<std::size_t>(k)].next.store(b, std::memory_order_relaxed);
+        ranges[static_cast<std::size_t>(k)].end = e;
+    }
+    parallel_for(static_cast<std::size_t>(t), [&](std::size_t, std::size_t, int id) {
+        for (int k = 0; k < t; ++k) {
+            Range& r = ranges[static_cast<std::size_t>((id + k) % t)];
+            for (;;) {
+                const std::size_t seen = r.next.load(std::memory_order_relaxed);
+                if (seen >= r.end) break;
+                const std::size_t want = std::max(grain, (r.end - seen) / 2);
+                const std::size_t b = r.next.fetch_add(want, std::memory_order_relaxed);
+                if (b >= r.end) break;
+                fn(b, std::min(r.end, b + want), id);
+            }
         }
     });
 }

@@ -253,6 +253,15 @@ IWR_TEST(minus_infinite_cost_is_an_error_not_a_target) {
     WithCost some(3, -INFINITY, 1.0);
     CHECK(throws_naming([&] { iwr::de::step(st, some, pool); }, "cost -inf"));
     CHECK(st.generation == 0 && st.streams[1].s[0] == streams[1].s[0]);  // the step undone
+    // ... every stream as it was, and what the failed step drew (st.drawn) leaves no trace: the
+    // next steps are those of a state that never met it.
+    auto fresh = iwr::de::init(set, g, pool);
+    CHECK(same_state(st, fresh));
+    for (int k = 0; k < 3; ++k) {
+        iwr::de::step(st, g, pool);
+        iwr::de::step(fresh, g, pool);
+    }
+    CHECK(same_state(st, fresh) && st.generation == 3);
     iwr::de::Stop stop;
     stop.max_generations = 5;
     CHECK(throws_naming([&] { iwr::de::run(st, some, pool, stop); }, "cost -inf"));

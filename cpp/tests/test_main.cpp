@@ -2,12 +2,14 @@
 // Deliberately framework-free: the core has no dependency beyond Eigen and the standard library.
 #include <algorithm>
 #include <atomic>
+#include <chrono>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
 #include <stdexcept>
 #include <string>
+#include <thread>
 #include <vector>
 
 #include <sys/resource.h>
@@ -271,6 +273,38 @@ IWR_TEST(pool_dynamic_chunks_cover_every_item_once) {
             thrown = true;
         }
         CHECK(thrown);
+    }
+}
+
+IWR_TEST(pool_dynamic_steals_from_a_held_up_thread) {
+    // A thread first takes its own share (parallel_for's chunk), then the others': a worker held
+    // up in its first chunk (another process on its core) leaves the rest of its share to the
+    // calling thread, which so takes more than its half (a static partition gives it 300).
+    iwr::ThreadPool pool(2);
+    for (int rep = 0; rep < 3; ++rep) {
+        std::vector<int> by(600, -1);
+        std::atomic<bool> slept{false};
+        pool.parallel_for_dynamic(600, 8, [&](std::size_t b, std::size_t e, int id) {
+            if (id == 1 && !slept.exchange(true))
+                std::this_thread::sleep_for(std::chrono::milliseconds(200));
+            for (std::size_t i = b; i < e; ++i) by[i] = id;
+        });
+        CHECK(std::count(by.begin(), by.end(), -1) == 0);
+        CHECK(std::count(by.begin(), by.end(), 0) > 300);
+    }
+    // Not held up: the worker's first items are from its own share, [300, 600), if any are left
+    // when it comes (the calling thread may have taken them all).
+    for (int rep = 0; rep < 20; ++rep) {
+        std::atomic<long> first{-1};
+        pool.parallel_for_dynamic(600, 8, [&](std::size_t b, std::size_t e, int id) {
+            long none = -1;
+            if (id == 1) first.compare_exchange_strong(none, static_cast<long>(b));
+            // About 2 us an item, so that the worker comes before the items are gone.
+            const auto until = std::chrono::steady_clock::now() + std::chrono::microseconds(2 * (e - b));
+            while (std::chrono::steady_clock::now() < until) {
+            }
+        });
+        CHECK(first == -1 || first >= 300);
     }
 }
 

@@ -313,6 +313,10 @@ struct State {
     RowMatrixXd population;  ///< np x D
     VectorXd costs;          ///< np
     std::vector<Rng> streams;  ///< [0] serial, [1 + i] slot i; size 1 + initial NP
+    /// step's scratch, not part of the state (not serialized): the slots' streams after their
+    /// trials' draws, which replace `streams` once the trials are evaluated (so that an
+    /// evaluation that throws leaves `streams` as they were, without a copy of them made first).
+    std::vector<Rng> drawn;
     // Strategy memories.
     std::vector<double> ind_F, ind_CR;  ///< jde: per individual (np)
     double mu_F = 0, mu_CR = 0;         ///< jade

@@ -44,11 +44,17 @@ public:
     /// thread takes chunk 0. Rethrows the first exception thrown by any chunk.
     void parallel_for(std::size_t n, const std::function<void(std::size_t, std::size_t, int)>& fn);
 
-    /// Like parallel_for, but the threads claim chunks of [0, n) as they go (guided: a chunk is the
-    /// rest divided by twice the threads, at least `grain` items), so a thread that another
-    /// process slows down takes fewer items instead of holding up the others. fn may be called
-    /// several times on one thread (disjoint ranges, each in ascending order) and the partition
-    /// differs from run to run: use it only where item i's result depends on i alone.
+    /// Like parallel_for, but the threads claim chunks of [0, n) as they go, so a thread that
+    /// another process slows down takes fewer items instead of holding up the others. Thread t
+    /// first claims from its own share, parallel_for's chunk t (each claim half of what is left
+    /// of it, at least `grain` items), then from the others' shares (the same claims). A thread
+    /// so takes the same items from one call to the next unless another is held up: where a
+    /// call writes what the next one reads (DE's trials, its slots' random streams), the data
+    /// stays in that thread's cache instead of moving between cores (on two dies, or two CCDs of
+    /// one chip, a line costs a round trip of hundreds of ns: BENCHMARKS.md, thirty-third round).
+    /// fn may be called several times on one thread (disjoint ranges, each in ascending order)
+    /// and the partition differs from run to run: use it only where item i's result depends on i
+    /// alone.
     void parallel_for_dynamic(std::size_t n, std::size_t grain,
                               const std::function<void(std::size_t, std::size_t, int)>& fn);
 
