@@ -493,10 +493,10 @@ IWR_FORCE_INLINE void load_lanes(const double* x, Lanes<L>& r) {
     }
 }
 // Sums over rows [0, nr) of x (row k at x + k * stride) of y and y^2, y = x - shift, for columns
-// [j0, j0 + NV L + T), written from column j0 + skip on into s1 and s2 (indexed by column).
+// [j0, j0 + NV L + T), into s1 and s2 (indexed by column).
 template <int L, int NV, int T>
 IWR_FORCE_INLINE void column_sums(const double* x0, int stride, int nr, const double* shift,
-                                  int j0, int skip, double* s1o, double* s2o) {
+                                  int j0, double* s1o, double* s2o) {
     constexpr int nv = NV + (T > 0 ? 1 : 0);
     Lanes<L> c[nv], s1[nv] = {}, s2[nv] = {}, t = {};
     for (int g = 0; g < NV; ++g) {
@@ -523,10 +523,9 @@ IWR_FORCE_INLINE void column_sums(const double* x0, int stride, int nr, const do
             s2[nv - 1] += t * t;
         }
     }
-    // Whole vectors stored (a block's sums are stored 2 x 16 x 2 times a generation); the columns
-    // before j0 + skip, which the pass before wrote, are written again with the same bits (each
-    // column's arithmetic is the same in any lane).
-    (void)skip;
+    // Whole vectors stored (2 passes x 16 blocks a generation). Where the last pass was moved
+    // back (append_log), its first columns, which the pass before wrote, are written again with
+    // the same bits: each column's arithmetic is the same in any lane.
     for (int g = 0; g < NV; ++g) {
         std::memcpy(s1o + j0 + g * L, &s1[g], sizeof s1[g]);
         std::memcpy(s2o + j0 + g * L, &s2[g], sizeof s2[g]);
@@ -537,32 +536,31 @@ IWR_FORCE_INLINE void column_sums(const double* x0, int stride, int nr, const do
     }
 }
 
-// Columns [j0, j0 + nc) of the sums, 1 <= nc <= 4 L, written from column j0 + skip on: the
-// counts constants in each case, so that the sums of a pass narrower than 4 L stay in vector
-// registers too.
+// Columns [j0, j0 + nc) of the sums, 1 <= nc <= 4 L: the counts constants in each case, so
+// that the sums of a pass narrower than 4 L stay in vector registers too.
 template <int L, int... N>
 IWR_FORCE_INLINE void column_cases(std::integer_sequence<int, N...>, const double* x0, int stride,
-                                   int nr, const double* shift, int j0, int nc, int skip,
+                                   int nr, const double* shift, int j0, int nc,
                                    double* s1, double* s2) {
     ((nc == N + 1
-          ? column_sums<L, (N + 1) / L, (N + 1) % L>(x0, stride, nr, shift, j0, skip, s1, s2)
+          ? column_sums<L, (N + 1) / L, (N + 1) % L>(x0, stride, nr, shift, j0, s1, s2)
           : void()),
      ...);
 }
 IWR_CLONES void column_block(const double* x0, int stride, int nr, const double* shift, int j0,
-                             int nc, int skip, double* s1, double* s2) {
+                             int nc, double* s1, double* s2) {
     switch (clone_lanes()) {
         case 8:
             column_cases<8>(std::make_integer_sequence<int, 32>(), x0, stride, nr, shift, j0, nc,
-                            skip, s1, s2);
+                            s1, s2);
             break;
         case 4:
             column_cases<4>(std::make_integer_sequence<int, 16>(), x0, stride, nr, shift, j0, nc,
-                            skip, s1, s2);
+                            s1, s2);
             break;
         default:
             column_cases<2>(std::make_integer_sequence<int, 8>(), x0, stride, nr, shift, j0, nc,
-                            skip, s1, s2);
+                            s1, s2);
     }
 }
 
@@ -600,14 +598,15 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
     const auto nd = static_cast<std::size_t>(d);
     const std::unique_ptr<double[]> part(new double[2 * nd * static_cast<std::size_t>(nb)]);
     // Passes of `window` columns; where d is not a multiple, the last pass is moved back to end at
-    // column d (its first columns, computed again with the same arithmetic, are not written), so
-    // that every pass but one of a narrower problem is full width: no lanes loaded one by one.
+    // column d (its first columns computed again with the same arithmetic, the same bits), so that
+    // every pass but one of a narrower problem is full width: no lanes loaded one by one.
     const int window = std::min(log_window(), d);
     const int passes = (d + window - 1) / window;
     pool.parallel_for(static_cast<std::size_t>(nb), [&](std::size_t b, std::size_t end, int) {
         for (std::size_t k = b; k < end; ++k) {
-            const auto r0 = static_cast<Eigen::Index>(static_cast<std::size_t>(np) * k / static_cast<std::size_t>(nb));
-            const auto r1 = static_cast<Eigen::Index>(static_cast<std::size_t>(np) * (k + 1) / static_cast<std::size_t>(nb));
+            const auto unp = static_cast<std::size_t>(np), unb = static_cast<std::size_t>(nb);
+            const auto r0 = static_cast<Eigen::Index>(unp * k / unb);
+            const auto r1 = static_cast<Eigen::Index>(unp * (k + 1) / unb);
             if (trials)
                 for (Eigen::Index i = r0; i < r1; ++i)
                     if ((*taken)[static_cast<std::size_t>(i)]) st.population.row(i) = trials->row(i);
@@ -616,7 +615,7 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
                 const int first = p * window;
                 const int j0 = std::min(first, d - window);
                 column_block(st.population.row(r0).data(), d, static_cast<int>(r1 - r0), shift, j0,
-                             window, first - j0, s1, s1 + nd);
+                             window, s1, s1 + nd);
             }
         }
     });
