@@ -80,23 +80,37 @@ def _limit_problem(value: float, unit: str) -> str | None:
 class CellError(ValueError):
     """A value of an array at fault: the array's ``name``, its ``row`` and ``column`` (0-based)
     and ``detail``, what is wrong (the message after the place). The message names the array's
-    row and column; a file reader names the file's line and column instead."""
+    row and column; a file reader names the file's line and column instead
+    (:meth:`in_file`)."""
 
     def __init__(self, name: str, row: int, column: int, detail: str,
                  message: str | None = None) -> None:
         self.name, self.row, self.column, self.detail = name, row, column, detail
         super().__init__(message or f"{name}: row {row}, column {column}{detail}")
 
+    def in_file(self, path: Any, lines: list[int], columns: dict[str, list[str]],
+                quoted: bool = False) -> str | None:
+        """The message with the file's place: ``path``, the line of the row (``lines``, a line
+        per row) and the header name of the column (``columns``: per array name, its columns'
+        names in the file; ``quoted`` as a Python string, as ``iwr legs`` names a targets
+        file's columns); None where the array or the place is not in the file."""
+        names = columns.get(self.name)
+        if names is None or not (0 <= self.row < len(lines) and 0 <= self.column < len(names)):
+            return None
+        name = repr(names[self.column]) if quoted else names[self.column]
+        return f"{path}, line {lines[self.row]}, column {name}{self.detail}"
 
-def _check_limits(arr: np.ndarray, units: list[str], name: str) -> None:
+
+def _check_limits(arr: np.ndarray, units: list[str], name: str, first: int = 0) -> None:
     """Every column of ``arr`` within the physical limit of its unit, else a ValueError naming the
-    first row and column beyond it."""
+    first row and column beyond it (``arr``'s column c is column ``first`` + c of the array
+    ``name``)."""
     limits = np.array([MAX_LENGTH_MM if u == "mm" else MAX_ANGLE_RAD for u in units])
     bad = np.argwhere(np.abs(arr) > limits)
     if bad.size:
         r, c = (int(i) for i in bad[0])
         why = _limit_problem(float(arr[r, c]), units[c])
-        raise CellError(name, r, c, f": {why}")
+        raise CellError(name, r, first + c, f": {why}")
 
 
 def normalised_weights(weights: np.ndarray, name: str = "weights") -> np.ndarray:
@@ -564,12 +578,11 @@ class Measurements(RobotReadings):
             )
         except CellError as exc:
             # The file's line and column, not the array's row and column.
-            first = {"weights": nj + 12, "payload": end, "payload centre": end + 1,
-                     "temperatures": end + n_payload}.get(exc.name)
-            if first is None or not 0 <= exc.row < len(lines):
-                raise MeasurementFileError(f"{path}: {exc}") from None
-            raise MeasurementFileError(f"{path}, line {lines[exc.row]}, column "
-                                       f"{header[first + exc.column]}{exc.detail}") from None
+            place = exc.in_file(path, lines, {
+                "weights": header[nj + 12 : nj + 18] if weights else [],
+                "payload": header[end : end + n_payload],
+                "temperatures": header[end + n_payload : end + n_extra]})
+            raise MeasurementFileError(place or f"{path}: {exc}") from None
         except ValueError as exc:
             raise MeasurementFileError(f"{path}: {exc}") from None
         out._check_alone()
@@ -807,7 +820,7 @@ def _effect_inputs(payload: Any, temperatures: Any, n: int) -> tuple[Any, Any]:
             expected = f"expected 0 <= mass <= {MAX_PAYLOAD_KG:g} kg"
             raise CellError("payload", int(bad[0]), 0, f" is {mass!r} kg; {expected}",
                             f"payload: row {int(bad[0])}, mass {mass!r} kg; {expected}")
-        _check_limits(payload[:, 1:], ["mm"] * 3, "payload centre")
+        _check_limits(payload[:, 1:], ["mm"] * 3, "payload", first=1)  # its centre
     if temperatures is not None:
         t = np.array(temperatures, dtype=float)
         t = t.reshape(n, 1) if t.ndim == 1 else t

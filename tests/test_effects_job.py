@@ -452,6 +452,12 @@ def test_cli_calibrate_report_and_plan_with_effects(with_effects, job, tmp_path)
     proc = _run_iwr("legs", str(out / "calibrated.toml"), str(kelvin), "-o", legs)
     assert proc.returncode == 1 and "Traceback" not in proc.stderr
     assert f"{kelvin}, line 3, column 'T_C' is 293.15 degrees C" in proc.stderr
+    far = tmp_path / "far.csv"  # a payload's centre 1000 km away: its own column named
+    far.write_text(f"{head},payload_kg,payload_x_mm,payload_y_mm,payload_z_mm,T_C\n"
+                   + "".join(f"{r},5,0,{y},0,20\n" for r, y in zip(rows, (0, 0, 1e9), strict=True)))
+    proc = _run_iwr("legs", str(out / "calibrated.toml"), str(far), "-o", legs)
+    assert proc.returncode == 1 and "Traceback" not in proc.stderr
+    assert f"{far}, line 4, column 'payload_y_mm': 1000000000.0 mm is beyond" in proc.stderr
     unloaded = tmp_path / "unloaded.csv"
     unloaded.write_text(f"{head},T_C\n" + "".join(f"{r},20\n" for r in rows))
     proc = _run_iwr("legs", str(out / "calibrated.toml"), str(unloaded), "-o", legs)

@@ -338,7 +338,8 @@ def test_a_bad_value_in_a_checked_column_is_named_by_line_and_column(tmp_path, d
                               payload=np.ones((len(data), 4)))
     for column, value, said in (("w6", "-1", r"is negative \(-1.0\); weights must be >= 0"),
                                 ("T_C", "295.9", "is 295.9 degrees C; expected -60 .. 200"),
-                                ("payload_kg", "-5", "is -5.0 kg; expected 0 <= mass")):
+                                ("payload_kg", "-5", "is -5.0 kg; expected 0 <= mass"),
+                                ("payload_y_mm", "1e9", "1000000000.0 mm is beyond any robot")):
         path, lines, header = write(tmp_path, loaded)
         names = lines[header].split(",")
         row = lines[header + 5].split(",")  # data row 4: line header + 6
@@ -346,7 +347,7 @@ def test_a_bad_value_in_a_checked_column_is_named_by_line_and_column(tmp_path, d
         lines[header + 5] = ",".join(row)
         path.write_text("\n".join(lines) + "\n")
         with pytest.raises(iwr.MeasurementFileError,
-                           match=rf"data.csv, line {header + 6}, column {column} {said}"):
+                           match=rf"data.csv, line {header + 6}, column {column}:? {said}"):
             iwr.Measurements.from_csv(path, robot=robot)
 
 

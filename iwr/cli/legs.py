@@ -257,13 +257,12 @@ def cmd_legs(args: argparse.Namespace) -> int:
         raise CommandError(f"{args.targets}, line {lines[exc.index]}, column {exc.column!r}: "
                            f"{exc.detail}") from None
     except CellError as exc:  # a load or a temperature out of its range: the file's place
-        payload = effect_columns()[:4]
-        columns = {"payload": payload, "payload centre": payload[1:],
-                   "temperatures": [c for c in effect_columns()[4:] if c in extra]}.get(exc.name)
-        if columns is None or not (0 <= exc.row < len(lines) and 0 <= exc.column < len(columns)):
+        place = exc.in_file(args.targets, lines, {
+            "payload": effect_columns()[:4],
+            "temperatures": [c for c in effect_columns()[4:] if c in extra]}, quoted=True)
+        if place is None:
             raise
-        raise CommandError(f"{args.targets}, line {lines[exc.row]}, column "
-                           f"{columns[exc.column]!r}{exc.detail}") from None
+        raise CommandError(place) from None
     if note:
         print(note)
     if determined_frame(robot) is None:
