@@ -507,3 +507,24 @@ def test_a_server_that_is_not_a_scheduler_fails_within_60_s(tmp_path: Path) -> N
         for srv in servers:
             srv.shutdown()
             srv.server_close()
+
+
+def test_an_exact_zero_is_drawn_below_every_positive_value(tmp_path: Path, monkeypatch) -> None:
+    """A noise-free run's exact 0 on a log axis: drawn at a tenth of the row's smallest positive
+    value, and said in the panel; a fixed 1e-16 put it above the others' round-off (1e-24)."""
+    from iwr.reporting import study
+
+    figures = []
+    monkeypatch.setattr(study, "_save", lambda fig, path: figures.append(fig) or path)
+    rows = [{"method": "lm", "budget": None, "noise": 0.0, "n_poses": n, "cost": c}
+            for n, c in ((12, 0.0), (12, 0.0), (24, 1e-24), (24, 1e-24), (48, 3e-3), (48, 3e-3))]
+    study._plot_vs(rows, ["cost"], "n_poses", "noise", tmp_path / "f.png", str, "N")
+    (fig,) = figures
+    ax = fig.axes[0]
+    (line,) = ax.get_lines()
+    np.testing.assert_allclose(line.get_ydata(), [1e-25, 1e-24, 3e-3])
+    assert ax.get_ylabel() == "cost (0 drawn at 1e-25)"
+    figures.clear()
+    rows = [dict(r, cost=r["cost"] + 1.0) for r in rows]  # no zero: no note
+    study._plot_vs(rows, ["cost"], "n_poses", "noise", tmp_path / "g.png", str, "N")
+    assert figures[0].axes[0].get_ylabel() == "cost"

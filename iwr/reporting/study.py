@@ -110,15 +110,25 @@ def _group(rows: list[dict[str, Any]], by: Sequence[str], value: str) -> dict[tu
     return {k: _stats(v) for k, v in groups.items()}
 
 
-def _positive(y: np.ndarray) -> np.ndarray:
-    # Exact zeros drawn at the bottom of a log axis; inf (at least half the runs failed) not.
-    return np.where(np.isfinite(y), np.maximum(y, 1e-16), np.nan)
+def _zero_level(values: Any) -> float:
+    """Where an exact zero is drawn on a log axis: a tenth of the smallest positive finite value
+    of the figure's row (1e-16 without one). A fixed 1e-16 drew a noise-free run's 0 above the
+    round-off figures (1e-24 mm^2) of the others."""
+    v = np.asarray([x for x in values if np.isfinite(x) and x > 0], dtype=float)
+    return float(v.min()) / 10.0 if v.size else 1e-16
 
 
-def _band_plot(ax: Any, x: Sequence[float], stats: Sequence[tuple], label: str, color: Any) -> None:
-    med = _positive(np.array([s[0] for s in stats]))
-    lo = _positive(np.array([s[1] for s in stats]))
-    hi = _positive(np.array([s[2] for s in stats]))
+def _positive(y: np.ndarray, zero: float) -> np.ndarray:
+    # Exact zeros drawn at `zero`, the bottom of the log axis; inf (at least half the runs
+    # failed) not drawn.
+    return np.where(np.isfinite(y), np.where(y > 0, y, zero), np.nan)
+
+
+def _band_plot(ax: Any, x: Sequence[float], stats: Sequence[tuple], label: str, color: Any,
+               zero: float) -> None:
+    med = _positive(np.array([s[0] for s in stats]), zero)
+    lo = _positive(np.array([s[1] for s in stats]), zero)
+    hi = _positive(np.array([s[2] for s in stats]), zero)
     ax.plot(x, med, "o-", color=color, label=label, lw=1.5, ms=4)
     ax.fill_between(x, lo, hi, color=color, alpha=0.2, lw=0)
 
@@ -158,20 +168,23 @@ def _plot_vs(
     fig, axes = _figure(len(values), len(panels))
     for i, value in enumerate(values):
         stats = _group(rows, (*line_cols, panel_col, xcol), value)
+        zero = _zero_level([r[value] for r in [*rows, *(refs or [])]])
+        drawn = [s for st in stats.values() for s in st[:3]]
         for j, p in enumerate(panels):
             ax = axes[i, j]
             for ln in lines:
                 xs = [x for x in xs_all if (*ln, p, x) in stats]
                 if xs:
                     _band_plot(ax, xs, [stats[(*ln, p, x)] for x in xs], labels[ln],
-                               colors[labels[ln]])
+                               colors[labels[ln]], zero)
                 for method in sorted({r["method"] for r in refs or []}):
                     med = _stats([r[value] for r in refs or [] if r["method"] == method
                                   and r[panel_col] == p
                                   and tuple(r[c] for c in line_cols) == ln])[0]
                     if np.isfinite(med):
-                        ax.axhline(max(med, 1e-16), color=colors[labels[ln]], ls="--", lw=1,
-                                   label=f"{method}, {labels[ln]}")
+                        drawn.append(med)
+                        ax.axhline(med if med > 0 else zero, color=colors[labels[ln]], ls="--",
+                                   lw=1, label=f"{method}, {labels[ln]}")
             if xcol == "noise" and any(x == 0 for x in xs_all):
                 ax.set_xscale("symlog", linthresh=min(x for x in xs_all if x > 0))
             else:
@@ -186,7 +199,10 @@ def _plot_vs(
             if i == len(values) - 1:
                 ax.set_xlabel(xlabel)
         # Wrapped: a long label (the gauge's words) ran into the panel above and below.
-        axes[i, 0].set_ylabel(textwrap.fill((ylabels or {}).get(value, value), 38), fontsize=8)
+        ylabel = (ylabels or {}).get(value, value)
+        if any(d == 0 for d in drawn):  # in the label: a note in the panel covered the points
+            ylabel += f" (0 drawn at {zero:.0e})"
+        axes[i, 0].set_ylabel(textwrap.fill(ylabel, 38), fontsize=8)
     # One legend of every panel's lines (the first panel's alone left a method drawn only in
     # the others unlabelled, e.g. the efficient estimator beside noise 0).
     seen: dict[str, Any] = {}
