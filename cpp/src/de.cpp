@@ -523,9 +523,9 @@ IWR_FORCE_INLINE void column_sums(const double* x0, int stride, int nr, const do
             s2[nv - 1] += t * t;
         }
     }
-    // Whole vectors stored (2 passes x 16 blocks a generation). Where the last pass was moved
-    // back (append_log), its first columns, which the pass before wrote, are written again with
-    // the same bits: each column's arithmetic is the same in any lane.
+    // Whole vectors stored (each pass of each of the 16 blocks, every generation). Where the last
+    // pass was moved back (append_log), its first columns, which the pass before wrote, are
+    // written again with the same bits: each column's arithmetic is the same in any lane.
     for (int g = 0; g < NV; ++g) {
         std::memcpy(s1o + j0 + g * L, &s1[g], sizeof s1[g]);
         std::memcpy(s2o + j0 + g * L, &s2[g], sizeof s2[g]);
@@ -566,9 +566,10 @@ IWR_CLONES void column_block(const double* x0, int stride, int nr, const double*
 
 // The log's row blocks: a number fixed whatever the threads (so the sums, added block by block in
 // order, are the same bits with any number of threads), and enough of them for the pool's
-// threads to take each the blocks of the slots it built the trials of (block k is rows
-// [np k / nb, np (k + 1) / nb); parallel_for_dynamic gives thread t about the slots from np t / T
-// on, and parallel_for here the blocks of those rows).
+// threads to take each about the blocks of the slots it built the trials of (block k is rows
+// [np k / nb, np (k + 1) / nb); parallel_for_dynamic gives thread t first the slots from about
+// np t / T on, and parallel_for here the blocks of about those rows: exactly where T divides 16;
+// not after L-SHADE's and jSO's reduction, which moves the rows).
 constexpr int kLogBlocks = 16;
 
 // The log row of the current population, and st.elapsed (+= the time since t0, the log

@@ -191,12 +191,20 @@ void ThreadPool::parallel_for_dynamic(
     std::size_t n, std::size_t grain, const std::function<void(std::size_t, std::size_t, int)>& fn) {
     const int t = size();
     if (t == 1 || n < 2 || !usable_here()) return parallel_for(n, fn);  // serial, or its error
-    grain = std::max<std::size_t>(grain, 1);
+    // At most n: a claim adds it to a share's counter, which a grain near SIZE_MAX wrapped (a
+    // range claimed twice).
+    grain = std::clamp<std::size_t>(grain, 1, n);
+    // Each share's counter alone on its cache line (its thread's claims write it); on the stack
+    // for the pools people make (a generation calls this once, a cost_batch once).
     struct alignas(64) Range {
         std::atomic<std::size_t> next{0};
         std::size_t end = 0;
     };
-    std::unique_ptr<Range[]> ranges(new Range[static_cast<std::size_t>(t)]);
+    constexpr int kOnStack = 16;
+    Range local[kOnStack];
+    std::unique_ptr<Range[]> heap;
+    if (t > kOnStack) heap.reset(new Range[static_cast<std::size_t>(t)]);
+    Range* const ranges = heap ? heap.get() : local;
     for (int k = 0; k < t; ++k) {
         std::size_t b, e;
         chunk(n, t, k, b, e);

@@ -4,6 +4,7 @@
 #include <atomic>
 #include <chrono>
 #include <cmath>
+#include <cstdint>
 #include <cstdio>
 #include <cstdlib>
 #include <random>
@@ -247,12 +248,15 @@ IWR_TEST(pool_sizes_and_lifetimes) {
 
 IWR_TEST(pool_dynamic_chunks_cover_every_item_once) {
     // parallel_for_dynamic: every item exactly once, in ranges within [0, n) that the threads
-    // claim; any grain (0 counts as 1), n below the grain, pools larger than the machine.
+    // claim; any grain (0 counts as 1, the largest too), n below the grain, pools larger than the
+    // machine.
     const int hw = iwr::ThreadPool::resolve(0);
     for (int threads : {1, 2, hw + 3}) {
         iwr::ThreadPool pool(threads);
         for (std::size_t n : {0, 1, 2, 7, 600, 1001}) {
-            for (std::size_t grain : {0, 1, 8, 5000}) {
+            // (a grain near SIZE_MAX wrapped a share's counter: items claimed twice; a review)
+            for (std::size_t grain : {std::size_t{0}, std::size_t{1}, std::size_t{8}, std::size_t{5000},
+                                      SIZE_MAX / 2 + 7, SIZE_MAX}) {
                 std::vector<std::atomic<int>> seen(n);
                 std::atomic<bool> sane{true};
                 pool.parallel_for_dynamic(n, grain, [&](std::size_t b, std::size_t e, int id) {
