@@ -72,25 +72,41 @@ class Engine:
         return ([1e3 * (b - a) for a, b in zip(elapsed, elapsed[1:], strict=False)],
                 [r[2] + "," + r[3] for r in rows])
 
-    def batch(self, threads: list[int], seconds: float) -> dict[int, float]:
-        """cost_batch of 600 random vectors on each thread count (ms, wall): the minimum over
-        rounds spread over `seconds`, the thread counts alternated."""
+    def batch(self, threads: list[int], seconds: float) -> dict[int, tuple[float, float]]:
+        """cost_batch of 600 random vectors on each thread count (ms, wall), in rounds spread over
+        `seconds`, the thread counts alternated: a round is 30 ms of untimed calls (a pool of
+        another size is made anew, and its woken worker may share the caller's CPU for a while:
+        ``bench_regression.WARM_S``), then 5 calls one after another. The minimum over all, and
+        like for like with a generation's figure, the median over rounds of each round's
+        minimum."""
         code = (
             "import sys, time, numpy as np, iwr\n"
             "p = iwr.Problem.load(sys.argv[1])\n"
             "X = p.lower + (p.upper - p.lower) * "
             "np.random.default_rng(1).random((600, p.n_params))\n"
-            "ts = [int(t) for t in sys.argv[2].split(',')]; best = {t: 1e9 for t in ts}\n"
+            "ts = [int(t) for t in sys.argv[2].split(',')]; groups = {t: [] for t in ts}\n"
             "t0 = time.perf_counter()\n"
             "while time.perf_counter() - t0 < float(sys.argv[3]):\n"
             "    for t in ts:\n"
-            "        a = time.perf_counter(); p.cost_batch(X, workers=t)\n"
-            "        best[t] = min(best[t], 1e3 * (time.perf_counter() - a))\n"
-            "print(' '.join(f'{t}={best[t]!r}' for t in ts))\n")
+            "        w = time.perf_counter()\n"
+            "        while time.perf_counter() - w < 0.03:\n"
+            "            p.cost_batch(X, workers=t)\n"
+            "        g = []\n"
+            "        for _ in range(5):\n"
+            "            a = time.perf_counter(); p.cost_batch(X, workers=t)\n"
+            "            g.append(1e3 * (time.perf_counter() - a))\n"
+            "        groups[t].append(min(g))\n"
+            "for t in ts:\n"
+            "    m = sorted(groups[t]); print(f'{t}={m[0]!r},{m[len(m) // 2]!r}')\n")
         out = subprocess.run([str(self.bin / "python"), "-c", code, str(self.tmp / "leg.iwrp"),
                               ",".join(map(str, threads)), str(seconds)], check=True, cwd=self.tmp,
                              capture_output=True, text=True).stdout.split()
-        return {int(k): float(v) for k, v in (w.split("=") for w in out)}
+        res = {}
+        for w in out:
+            k, v = w.split("=")
+            lo, med = (float(x) for x in v.split(","))
+            res[int(k)] = (lo, med)
+        return res
 
     def wall(self, generations: int, threads: int) -> float:
         out = self.tmp / "r.json"
@@ -149,8 +165,9 @@ def scaling(args: argparse.Namespace) -> None:
     print(f"{os.cpu_count()} cores, load average {os.getloadavg()[0]:.2f} at start; iwr-engine, "
           f"NP 600, {gens} generations x {args.runs} runs: per generation the minimum over the "
           "runs, then the "
-          "median over generations 50..; cost_batch of 600 vectors, wall time, the minimum over "
-          f"rounds spread over {args.seconds:g} s")
+          "median over generations 50..; cost_batch of 600 vectors, wall time, rounds of 5 calls "
+          f"after 30 ms of untimed ones spread over {args.seconds:g} s: the minimum, and like "
+          "for like the median of the rounds' minima")
     with tempfile.TemporaryDirectory() as tmp:
         engines = [Engine(*s.split("=", 1), Path(tmp)) for s in specs]
         if any(e.output for e in engines):
@@ -164,9 +181,10 @@ def scaling(args: argparse.Namespace) -> None:
                     times.setdefault((e.name, t), []).append(ms)
                     bits[e.name].add(tuple(log))
         batch = {e.name: e.batch(threads, args.seconds) for e in engines}
-        print("| build | threads | ms/generation | cost_batch (ms) | generation / batch | "
+        print("| build | threads | ms/generation | cost_batch min (ms) | generation / min | "
+              "cost_batch like for like (ms) | generation / like for like | "
               "runs' mean ms/generation: median, worst |")
-        print("|---|---|---|---|---|---|")
+        print("|---|---|---|---|---|---|---|---|")
         per, whole = {}, {}
         for e in engines:
             for t in threads:
@@ -175,9 +193,10 @@ def scaling(args: argparse.Namespace) -> None:
                 # What a run took as a whole (generations 50..): the neighbours included.
                 w = sorted(sum(run[50:]) / len(run[50:]) for run in times[(e.name, t)])
                 whole[(e.name, t)] = w[len(w) // 2]
-                b = batch[e.name][t]
-                print(f"| {e.name} | {t} | {per[(e.name, t)]:.3f} | {b:.3f} | "
-                      f"{per[(e.name, t)] / b:.2f}x | {whole[(e.name, t)]:.3f}, {w[-1]:.3f} |")
+                b, bl = batch[e.name][t]
+                g = per[(e.name, t)]
+                print(f"| {e.name} | {t} | {g:.3f} | {b:.3f} | {g / b:.3f}x | {bl:.3f} | "
+                      f"{g / bl:.3f}x | {whole[(e.name, t)]:.3f}, {w[-1]:.3f} |")
         for e in engines:
             if 1 in threads and 2 in threads:
                 print(f"{e.name}: generations/s on 2 threads / on 1: "
