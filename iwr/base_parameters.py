@@ -18,8 +18,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["candidate_order", "left_out_directions", "observability_indices", "ordered_base",
-           "pivoted_columns", "preference", "report_lines"]
+__all__ = ["candidate_order", "direction_text", "directions_of", "left_out_directions",
+           "observability_indices", "ordered_base", "pivoted_columns", "preference",
+           "report_lines"]
 
 # The geometric parameters' names (an effect's, such as leg1.compliance, is neither).
 _HEXAPOD = re.compile(r"leg\d+\.(d[ab]_[xyz]|dl0)$")
@@ -133,15 +134,33 @@ def left_out_directions(scaled: np.ndarray, physical: np.ndarray, names: Sequenc
     left-out parameters are QR's pivots among the candidates ``cand`` (sorted indices, default
     every parameter: :func:`pivoted_columns`), their ties broken by :func:`preference`. The
     tracker's gauge, the effects' and the ballbar's null spaces use it alike."""
-    k = scaled.shape[0]
     if cand is None:  # ``scaled`` itself (a column selection would copy it in another layout)
         left = pivoted_columns(scaled, preference(names))
     else:
         cand = np.asarray(cand, dtype=int)
         left = cand[pivoted_columns(scaled[:, cand], candidate_order(names, cand))]
+    return left, directions_of(physical, left)
+
+
+def directions_of(physical: np.ndarray, left: np.ndarray) -> np.ndarray:
+    """The null space ``physical`` (n x k) re-expressed with one direction per left-out parameter
+    ``left`` (k indices whose rows of ``physical`` are independent, as where the other
+    parameters are a basis): direction i moves ``left[i]`` by 1 and the other left-out ones not
+    at all (n x k)."""
+    k = len(left)
     basis = physical @ np.linalg.solve(physical[left], np.eye(k))
     basis[left] = np.eye(k)
-    return left, basis
+    return basis
+
+
+def direction_text(v: np.ndarray, scale: np.ndarray, names: Sequence[str],
+                   tol: float = 1e-6) -> str:
+    """``"+1 joint1.dtheta -1 tracker.rz"``: the components of direction ``v`` (physical units)
+    whose size in the column-scaled metric (``v * scale``) is above ``tol`` times the largest,
+    largest first."""
+    scaled = np.abs(v * scale)
+    order = [int(i) for i in np.argsort(-scaled) if scaled[i] > tol * scaled.max()]
+    return " ".join(f"{v[i]:+.4g} {names[i]}" for i in order)
 
 
 def observability_indices(s: np.ndarray, n_poses: int) -> dict[str, float]:

@@ -194,6 +194,26 @@ def test_realistic_poses_separate_compliances_with_one_payload(robot, with_effec
     assert report.effects_identifiable and report.rank == report.geometric_rank + 7
 
 
+def test_the_report_with_effects_lists_the_unidentifiable_directions(with_effects, data):
+    """``iwr analyze`` of pose data with effects printed the rank and the left-out parameters but
+    not the directions (pose data without effects, tracker and ballbar data print them): one
+    per left-out parameter, which moves it by 1, the other left-out ones by 0, and the predicted
+    readings not at all (the Jacobian times it, against the readings' scale)."""
+    m, _ = data
+    report = iwr.identifiability(with_effects, m)
+    directions = report.null_directions
+    assert [name for name, _ in directions] == report.left_out and directions
+    jac = EffectProblem(with_effects, m).jacobian(np.zeros(len(report.parameter_names)))
+    left = [report.parameter_names.index(n) for n in report.left_out]
+    basis = iwr.base_parameters.directions_of(report.null_space, np.array(left))
+    np.testing.assert_allclose(basis[left], np.eye(len(left)), atol=1e-12)
+    assert np.abs(jac @ basis).max() < 1e-9 * np.abs(jac).max()
+    text = str(report)
+    assert "unidentifiable directions (coefficients in mm and rad):" in text
+    for k, (name, words) in enumerate(directions, 1):
+        assert f"    {k}. [{name}] {words}" in text and f"+1 {name}" in words
+
+
 def test_what_does_not_model_the_effects_refuses(with_effects, data):
     m, x = data
     # iwr.Problem(noise=), the global methods with a noise model and predict_legs(data=) model

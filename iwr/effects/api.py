@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base_parameters import report_lines
+from ..base_parameters import direction_text, directions_of, report_lines
 from ..transforms import pose_matrix as pose_matrix_of
 from . import bounds as effect_bounds
 from . import parameter_names as effect_names
@@ -242,6 +242,7 @@ class EffectIdentifiability:
     n_poses: int
     x: np.ndarray
     n_geometric: int
+    scale: np.ndarray | None = None  # the Jacobian's column norms (None: the directions unsaid)
 
     @property
     def effects_identifiable(self) -> bool:
@@ -256,6 +257,20 @@ class EffectIdentifiability:
     def left_out(self) -> list[str]:
         """The parameters not among the base ones (held at their value by :func:`iwr.identify`)."""
         return [n for n, a in zip(self.parameter_names, self.active, strict=True) if not a]
+
+    @property
+    def null_directions(self) -> list[tuple[str, str]]:
+        """One unidentifiable direction per left-out parameter, ``(name, text)``: it moves that
+        parameter by 1 and the other left-out ones not at all (the form of the tracker's and
+        the ballbar's reports: :func:`iwr.base_parameters.directions_of`), ``text`` its
+        components, largest (column-scaled) first."""
+        left = np.flatnonzero(~self.active)
+        if left.size == 0 or self.scale is None or self.null_space.shape[1] != left.size:
+            return []
+        basis = directions_of(self.null_space, left)
+        return [(self.parameter_names[j], direction_text(basis[:, i], self.scale,
+                                                         self.parameter_names))
+                for i, j in enumerate(left)]
 
     @property
     def condition_number(self) -> float:
@@ -273,6 +288,10 @@ class EffectIdentifiability:
                  *report_lines(self.singular_values, self.rank, self.threshold, self.n_poses),
                  f"  base parameters: {len(self.base_parameters)}; left out (hold fixed): "
                  + (", ".join(self.left_out) or "none")]
+        if self.null_directions:
+            lines.append("  unidentifiable directions (coefficients in mm and rad):")
+            lines += [f"    {k}. [{name}] {text}"
+                      for k, (name, text) in enumerate(self.null_directions, 1)]
         if self.inseparable:
             lines.append("Effect parameters NOT separable from the geometry (or each other) at "
                          "these poses and loads: " + ", ".join(
@@ -321,7 +340,7 @@ def identifiability(robot: Any, measurements: Any, x: Any = None, *, rtol: float
     active = np.zeros(len(names), dtype=bool)
     active[base] = True
     return EffectIdentifiability(names, s, rank, int(np.sum(sg > thr_g)), thr, null / d[:, None],
-                                 inseparable, active, len(measurements), x, ng)
+                                 inseparable, active, len(measurements), x, ng, d)
 
 
 def forward_kinematics(robot: Any, x: Any, q: Any, legs: Any, data: Any, guess: Any, *,

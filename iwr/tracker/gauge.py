@@ -11,7 +11,12 @@ from typing import Any
 import numpy as np
 
 from .. import _core
-from ..base_parameters import left_out_directions, observability_indices, report_lines
+from ..base_parameters import (
+    direction_text,
+    left_out_directions,
+    observability_indices,
+    report_lines,
+)
 from ..robot import Robot
 from .problem import TrackerProblem
 
@@ -70,10 +75,7 @@ class NullSpace:
         """``"+1 joint1.dtheta -1 tracker.rz"``-style text of null direction k (as the pose
         data's :class:`iwr.analysis.identifiability.NullDirection`): its nonzero components,
         largest scaled first."""
-        v = self.vectors[:, k]
-        scaled = np.abs(v * self.scale)
-        order = [int(i) for i in np.argsort(-scaled) if scaled[i] > tol * scaled.max()]
-        return " ".join(f"{v[i]:+.4g} {self.parameter_names[i]}" for i in order)
+        return direction_text(self.vectors[:, k], self.scale, self.parameter_names, tol)
 
     @property
     def condition_number(self) -> float:
