@@ -267,7 +267,10 @@ class EffectIdentifiability:
         left = np.flatnonzero(~self.active)
         if left.size == 0 or self.scale is None or self.null_space.shape[1] != left.size:
             return []
-        basis = directions_of(self.null_space, left)
+        try:
+            basis = directions_of(self.null_space, left)
+        except np.linalg.LinAlgError:  # the left-out rows dependent (a rank at the threshold)
+            return []
         return [(self.parameter_names[j], direction_text(basis[:, i], self.scale,
                                                          self.parameter_names))
                 for i, j in enumerate(left)]
