@@ -18,9 +18,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-__all__ = ["candidate_order", "direction_text", "directions_of", "left_out_directions",
-           "observability_indices", "ordered_base", "pivoted_columns", "preference",
-           "report_lines"]
+__all__ = ["candidate_order", "condition_number", "direction_text", "directions_of",
+           "left_out_directions", "observability_indices", "ordered_base", "pivoted_columns",
+           "preference", "report_lines"]
 
 # The geometric parameters' names (an effect's, such as leg1.compliance, is neither).
 _HEXAPOD = re.compile(r"leg\d+\.(d[ab]_[xyz]|dl0)$")
@@ -183,6 +183,12 @@ def observability_indices(s: np.ndarray, n_poses: int) -> dict[str, float]:
     }
 
 
+def condition_number(s: np.ndarray, rank: int) -> float:
+    """``s_1 / s_r`` of the column-scaled Jacobian's identifiable part (its ``rank`` largest
+    singular values ``s``, descending); inf at rank 0."""
+    return float(s[0] / s[rank - 1]) if rank else math.inf
+
+
 def report_lines(s: np.ndarray, rank: int, threshold: float, n_poses: int,
                  rtol: float | None = None) -> list[str]:
     """The lines every identifiability report prints of a column-scaled Jacobian's singular
@@ -191,7 +197,7 @@ def report_lines(s: np.ndarray, rank: int, threshold: float, n_poses: int,
     its identifiable part; for pose, tracker and ballbar data, with effects or not."""
     n = len(s)
     o = observability_indices(np.asarray(s[:rank]), n_poses)
-    cond = float(s[0] / s[rank - 1]) if rank else math.inf
+    cond = condition_number(s, rank)
     return [
         "  Jacobian columns scaled to unit norm (unit-free; see docs/identifiability.md)",
         f"  rank {rank} of {n}: {n - rank} unidentifiable direction(s); threshold {threshold:.3g}"

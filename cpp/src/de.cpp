@@ -1191,25 +1191,25 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     const auto make_trials_of = [&](std::size_t b, std::size_t e) {
         make_trials(gen, static_cast<int>(b), static_cast<int>(e), trials.data(), tF.get(), tCR.get());
     };
-    {  // (what throws here leaves the state as it was: st.streams untouched)
-        if (f.prepare(pool.size())) {
-            // One pass of the pool: each thread builds its slots' trials and evaluates them
-            // (while they are in its cache); one hand-over per generation instead of two.
-            const auto nev = static_cast<std::size_t>(ne);
-            // The chunks claimed as the threads go (a slot's trial and cost depend on the slot
-            // alone): a thread that shares its core with another process takes fewer slots.
-            pool.parallel_for_dynamic(static_cast<std::size_t>(np), ThreadPool::kGrain,
-                                      [&](std::size_t b, std::size_t e, int id) {
-                make_trials_of(b, e);
-                if (b < std::min(e, nev)) f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
-            });
-        } else {
-            pool.parallel_for(static_cast<std::size_t>(np),
-                              [&](std::size_t b, std::size_t e, int) { make_trials_of(b, e); });
-            f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
-        }
-        sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
+    // What throws here (the objective, sanitize) leaves the state as it was: st.streams are
+    // untouched until the swap below.
+    if (f.prepare(pool.size())) {
+        // One pass of the pool: each thread builds its slots' trials and evaluates them
+        // (while they are in its cache); one hand-over per generation instead of two.
+        const auto nev = static_cast<std::size_t>(ne);
+        // The chunks claimed as the threads go (a slot's trial and cost depend on the slot
+        // alone): a thread that shares its core with another process takes fewer slots.
+        pool.parallel_for_dynamic(static_cast<std::size_t>(np), ThreadPool::kGrain,
+                                  [&](std::size_t b, std::size_t e, int id) {
+            make_trials_of(b, e);
+            if (b < std::min(e, nev)) f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
+        });
+    } else {
+        pool.parallel_for(static_cast<std::size_t>(np),
+                          [&](std::size_t b, std::size_t e, int) { make_trials_of(b, e); });
+        f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
     }
+    sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
     // The streams the pass did not draw from (the serial one, and those of slots a reduced
     // population no longer has) carried over, and the drawn ones taken.
     st.drawn[0] = st.streams[0];

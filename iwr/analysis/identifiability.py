@@ -29,7 +29,13 @@ from typing import Any
 import numpy as np
 
 from .. import kinds
-from ..base_parameters import observability_indices, ordered_base, preference, report_lines
+from ..base_parameters import (
+    condition_number,
+    observability_indices,
+    ordered_base,
+    preference,
+    report_lines,
+)
 from ..measurements import Measurements
 from ..problem import Problem, predict_legs
 from ..robot import Robot
@@ -328,7 +334,7 @@ def pose_identifiability(robot: Robot, measurements: Measurements, x: Any = None
         rank=rank,
         threshold=thr,
         rtol=rtol,
-        condition_number=float(s[0] / s[rank - 1]) if rank else np.inf,
+        condition_number=condition_number(s, rank),
         null_space=ns,
         null_directions=nulls,
         base_parameters=[names[i] for i in base],

@@ -242,8 +242,8 @@ def cmd_legs(args: argparse.Namespace) -> int:
                 check_inputs(robot, types.SimpleNamespace(**inputs), where=str(args.targets))
             except ValueError as exc:
                 raise CommandError(str(exc)) from None
-            if inputs["payload"] is None and any("forces" in e.needs for e in robot.effects):
-                loads = ", ".join(e.name for e in robot.effects if "forces" in e.needs)
+            loads = ", ".join(e.name for e in robot.effects if "forces" in e.needs)
+            if inputs["payload"] is None and loads:
                 cols = ", ".join(effect_columns()[:4])
                 unloaded = (f"note: {args.targets} has no payload columns ({cols}): the commands "
                             f"are for no payload, the platform's own weight alone ({loads})")

@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from ..base_parameters import direction_text, directions_of, report_lines
+from ..base_parameters import condition_number, direction_text, directions_of, report_lines
 from ..transforms import pose_matrix as pose_matrix_of
 from . import bounds as effect_bounds
 from . import parameter_names as effect_names
@@ -278,8 +278,7 @@ class EffectIdentifiability:
     @property
     def condition_number(self) -> float:
         """Of the column-scaled Jacobian's identifiable part (as :func:`iwr.identifiability`)."""
-        return float(self.singular_values[0] / self.singular_values[self.rank - 1]) \
-            if self.rank else float("inf")
+        return condition_number(self.singular_values, self.rank)
 
     def __str__(self) -> str:
         """The report of every kind (:func:`iwr.base_parameters.report_lines`, the base

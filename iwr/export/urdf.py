@@ -23,9 +23,6 @@ from .hexapod import data_frame, effects_note
 
 __all__ = ["BASE_LINK", "HEXAPOD_LINK", "carriage_urdf", "link_names", "write_carriage_urdf"]
 
-#: The fixed link at the frame the calibration data were measured in, for a robot calibrated
-#: from data in another frame than {0} (a laser tracker's {T}): ``tracker``.
-
 #: The URDF's root link: the world frame {0} of the carriage.
 BASE_LINK = "base_link"
 #: The fixed link at the hexapod's base frame {4}.

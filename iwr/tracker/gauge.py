@@ -4,7 +4,6 @@ sets of frames modulo that gauge (:func:`_align`); with the forward kinematics t
 
 from __future__ import annotations
 
-import math
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -12,6 +11,7 @@ import numpy as np
 
 from .. import _core
 from ..base_parameters import (
+    condition_number,
     direction_text,
     left_out_directions,
     observability_indices,
@@ -80,8 +80,7 @@ class NullSpace:
     @property
     def condition_number(self) -> float:
         """``s_1 / s_r`` over the identifiable part, as :class:`iwr.IdentifiabilityReport`."""
-        s = self.singular_values
-        return float(s[0] / s[self.rank - 1]) if self.rank else math.inf
+        return condition_number(self.singular_values, self.rank)
 
     @property
     def observability(self) -> dict[str, float]:

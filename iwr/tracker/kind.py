@@ -51,6 +51,7 @@ class _TrackerKind(MeasurementKind):
     setup_words = "its tracker setup"
     #: The figures of iwr compare and iwr study on tracker data (MeasurementKind.experiment_text).
     experiment_text = {
+        **MeasurementKind.experiment_text,  # the noise level's words (noise_panel, ...)
         "cost": "the sum of squared point residuals in {T}, predicted minus measured (mm^2)",
         "cost_label": "point residuals in {T}",
         "readings_short": "point ({T})",
@@ -69,9 +70,6 @@ class _TrackerKind(MeasurementKind):
                       "points at the validation poses, projected onto the directions the points "
                       "see (the registration and the offsets included; the gauge and the robot's "
                       "unidentifiable combinations removed)",
-        "noise_panel": "noise level {level:g} ({ratio:g} x realistic)",
-        "noise_axis": "noise level (0.02: realistic)",
-        "noise_unit": "",
         "noise_level": "the leg and joint readings' noise scaled from iwr.Noise.realistic() and "
                        "the tracker's from TrackerNoise.leica(), both by level / 0.02 (level 0.02 "
                        "is the realistic model)",
