@@ -4,6 +4,7 @@
 #include "iwr/binary_io.hpp"
 
 #include <algorithm>
+#include <atomic>
 #include <chrono>
 #include <cmath>
 #include <cstring>
@@ -432,13 +433,14 @@ void archive_trim(State& st) {
 }
 
 // The log's spread: sums of squared deviations from the mean of each column of the population,
-// in one pass over the rows: with y = x - c, c the column's value in the row `shift` (the best
-// individual's), sum (x - mean)^2 = sum y^2 - (sum y) (sum y / np) (the shifted-data formula; two
-// passes, the mean first, read the population twice from L2: BENCHMARKS.md, fifteenth round). The
-// cancellation loses a factor (1 + k^2) of the sums' precision, k the shift's distance from the
-// mean in standard deviations: the best individual is within the converged cluster, where the
-// rounded mean of two passes lost everything (a spread of 1e-16 for identical rows); a shift that
-// is itself an outlier (k up to sqrt(np)) loses a factor np (3e-12 relative at np = 600,
+// in one pass over the rows: with y = x - c, c the column's value in the row `shift` (a member of
+// the population: row 0 as it was before the generation's selection), sum (x - mean)^2 = sum y^2
+// - (sum y) (sum y / np) (the shifted-data formula; two passes, the mean first, read the
+// population twice from L2: BENCHMARKS.md, fifteenth round). The cancellation loses a factor
+// (1 + k^2) of the sums' precision, k the shift's distance from the mean in standard deviations:
+// about 1 for a member of the population, and 0 for a converged cluster, where the rounded mean of
+// two passes lost everything (a spread of 1e-16 for identical rows); a member that is an outlier
+// (k up to sqrt(np)) loses a factor np (3e-12 relative at np = 600,
 // emulated). A negative difference (rounding) is 0; NaN stays NaN. The sums are taken over blocks
 // of rows (append_log) and added block by block. Within a block the columns are NV vectors of L
 // doubles and a last vector of T < L columns, all in the one pass, the counts constants: a pass is
@@ -574,46 +576,78 @@ IWR_CLONES void column_block(const double* x0, int stride, int nr, const double*
 // not after L-SHADE's and jSO's reduction, which moves the rows).
 constexpr int kLogBlocks = 16;
 
+// A generation's trials not yet in the population, for append_log: either selected already
+// (taken[i]: row i of trials replaces the population's, its cost set) or selected in the log's
+// pass (taken null; the strategies without an archive: trial i, i < ne, replaces its parent where
+// tcost[i] <= costs(i), and jDE's slot takes its F and CR).
+struct Pending {
+    const RowMatrixXd* trials = nullptr;
+    const std::vector<char>* taken = nullptr;
+    const double *tcost = nullptr, *tF = nullptr, *tCR = nullptr;
+    int ne = 0;
+};
+
 // The log row of the current population, and st.elapsed (+= the time since t0, the log
-// included). trials, taken (or null): the selection's accepted trials, row i of trials where
-// taken[i], not yet copied into the population. One pass of the pool over the rows in kLogBlocks
-// blocks: the thread that takes a block copies its accepted trials into the population, then sums
-// the block's rows column by column (each column in slot order within the block); the blocks'
-// sums are then added in block order. A thread so reads and writes the rows of the slots whose
-// trials it built, where they are (its cache), not the other threads'.
-void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
-                const RowMatrixXd* trials = nullptr, const std::vector<char>* taken = nullptr) {
+// included), with the generation's pending trials (or none) put into the population. One pass of
+// the pool over the rows in kLogBlocks blocks: the thread that takes a block selects or copies its
+// trials, then takes the block's smallest cost (the first of the best), the sum of its costs and
+// its rows' sums column by column (each in slot order within the block); the blocks' figures are
+// then combined in block order. A thread so reads and writes the rows and costs of the slots whose
+// trials it built, where they are (its cache), not the other threads'. The deviations are taken
+// from row 0 as it was before the pass (a member of the population: the shift keeps the sums of
+// squares from cancelling).
+void append_log(State& st, ThreadPool& pool, Clock::time_point t0, const Pending* pending = nullptr) {
     LogEntry e;
     e.generation = st.generation;
     e.nfev = st.nfev;
     const int np = st.np;
     const int d = st.dim();
-    Eigen::Index best = 0;  // the first of the best: the deviations' shift
-    e.best = st.costs.minCoeff(&best);
-    double sum = 0;
-    for (int i = 0; i < np; ++i) sum += st.costs(i);
-    e.mean = sum / np;
-    // The shift where it lies during the pass (a row that is copied is read from trials alone).
-    const double* shift = trials && (*taken)[static_cast<std::size_t>(best)]
-                              ? trials->row(best).data()
-                              : st.population.row(best).data();
     const int nb = std::min(np, kLogBlocks);
     const auto nd = static_cast<std::size_t>(d);
-    const std::unique_ptr<double[]> part(new double[2 * nd * static_cast<std::size_t>(nb)]);
+    // Per block: s1 and s2 (d each), then the smallest cost, its row and the costs' sum.
+    const std::size_t per = 2 * nd + 3;
+    const std::unique_ptr<double[]> part(new double[(per + 0) * static_cast<std::size_t>(nb) + nd]);
+    double* shift = part.get() + per * static_cast<std::size_t>(nb);
+    std::memcpy(shift, st.population.row(0).data(), nd * sizeof(double));
     // Passes of `window` columns; where d is not a multiple, the last pass is moved back to end at
     // column d (its first columns computed again with the same arithmetic, the same bits), so that
     // every pass but one of a narrower problem is full width: no lanes loaded one by one.
     const int window = std::min(log_window(), d);
     const int passes = (d + window - 1) / window;
+    const bool jde = st.settings.strategy == Strategy::jde;
     pool.parallel_for(static_cast<std::size_t>(nb), [&](std::size_t b, std::size_t end, int) {
         for (std::size_t k = b; k < end; ++k) {
             const auto unp = static_cast<std::size_t>(np), unb = static_cast<std::size_t>(nb);
             const auto r0 = static_cast<Eigen::Index>(unp * k / unb);
             const auto r1 = static_cast<Eigen::Index>(unp * (k + 1) / unb);
-            if (trials)
+            if (pending && pending->taken) {
                 for (Eigen::Index i = r0; i < r1; ++i)
-                    if ((*taken)[static_cast<std::size_t>(i)]) st.population.row(i) = trials->row(i);
-            double* s1 = part.get() + 2 * nd * k;
+                    if ((*pending->taken)[static_cast<std::size_t>(i)])
+                        st.population.row(i) = pending->trials->row(i);
+            } else if (pending) {
+                const auto e1 = std::min<Eigen::Index>(r1, pending->ne);
+                for (Eigen::Index i = r0; i < e1; ++i) {
+                    // Eq. (14).
+                    if (!(pending->tcost[i] <= st.costs(i))) continue;
+                    st.population.row(i) = pending->trials->row(i);
+                    st.costs(i) = pending->tcost[i];
+                    if (jde) {
+                        st.ind_F[static_cast<std::size_t>(i)] = pending->tF[i];
+                        st.ind_CR[static_cast<std::size_t>(i)] = pending->tCR[i];
+                    }
+                }
+            }
+            double* s1 = part.get() + per * k;
+            double best = st.costs(r0), sum = 0;
+            Eigen::Index at = r0;
+            for (Eigen::Index i = r0; i < r1; ++i) {
+                const double c = st.costs(i);
+                sum += c;
+                if (c < best) best = c, at = i;
+            }
+            s1[2 * nd] = best;
+            s1[2 * nd + 1] = static_cast<double>(at);
+            s1[2 * nd + 2] = sum;
             for (int p = 0; p < passes; ++p) {
                 const int first = p * window;
                 const int j0 = std::min(first, d - window);
@@ -623,10 +657,15 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0,
         }
     });
     std::vector<double> s1(part.get(), part.get() + nd), s2(part.get() + nd, part.get() + 2 * nd);
+    e.best = part[2 * nd];
+    double sum = part[2 * nd + 2];
     for (int k = 1; k < nb; ++k) {
-        const double* p = part.get() + 2 * nd * static_cast<std::size_t>(k);
+        const double* p = part.get() + per * static_cast<std::size_t>(k);
         for (std::size_t j = 0; j < nd; ++j) s1[j] += p[j], s2[j] += p[nd + j];
+        if (p[2 * nd] < e.best) e.best = p[2 * nd];
+        sum += p[2 * nd + 2];
     }
+    e.mean = sum / np;
     double acc = 0;
     for (std::size_t j = 0; j < nd; ++j) {
         double v = s2[j] - s1[j] * (s1[j] / np);
@@ -1193,6 +1232,7 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     };
     // What throws here (the objective, sanitize) leaves the state as it was: st.streams are
     // untouched until the swap below.
+    std::atomic<bool> unsanitized{false};
     if (f.prepare(pool.size())) {
         // One pass of the pool: each thread builds its slots' trials and evaluates them
         // (while they are in its cache); one hand-over per generation instead of two.
@@ -1202,14 +1242,24 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
         pool.parallel_for_dynamic(static_cast<std::size_t>(np), ThreadPool::kGrain,
                                   [&](std::size_t b, std::size_t e, int id) {
             make_trials_of(b, e);
-            if (b < std::min(e, nev)) f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
+            if (b < std::min(e, nev)) {
+                f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
+                bool minus_inf = false;
+                for (std::size_t i = b; i < std::min(e, nev); ++i) {  // as sanitize
+                    double& c = tcost.data()[i];
+                    if (std::isnan(c)) c = std::numeric_limits<double>::infinity();
+                    minus_inf |= c == -std::numeric_limits<double>::infinity();
+                }
+                if (minus_inf) unsanitized.store(true, std::memory_order_relaxed);
+            }
         });
+        if (unsanitized.load()) sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
     } else {
         pool.parallel_for(static_cast<std::size_t>(np),
                           [&](std::size_t b, std::size_t e, int) { make_trials_of(b, e); });
         f.evaluate(trials.data(), static_cast<std::size_t>(ne), tcost.data(), pool);
+        sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
     }
-    sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
     // The streams the pass did not draw from (the serial one, and those of slots a reduced
     // population no longer has) carried over, and the drawn ones taken.
     st.drawn[0] = st.streams[0];
@@ -1218,11 +1268,23 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     st.streams.swap(st.drawn);
     st.nfev += ne;
 
-    // Selection, eq. (14), serially in slot order (the archive and the memories depend on order).
-    // The accepted trials' rows are copied into the population by the log's pass of the pool
-    // (append_log), but where the population is reduced (which reads the rows) first.
+    // Selection, eq. (14). Without an archive or memories (rand1bin, best1bin, jde) each slot's
+    // selection depends on the slot alone: the log's pass makes it, each block by the thread that
+    // built its trials (append_log). Otherwise serially in slot order (the archive and the
+    // memories depend on order), the accepted trials' rows copied into the population by the
+    // log's pass, but where the population is reduced (which reads the rows) first.
+    Pending pending;
+    pending.trials = &trials;
+    pending.tcost = tcost.data();
+    pending.tF = tF.get();
+    pending.tCR = tCR.get();
+    pending.ne = ne;
+    if (!uses_archive(s.strategy)) {
+        ++st.generation;
+        append_log(st, pool, t0, &pending);
+        return;
+    }
     Success succ;
-    const bool archive = uses_archive(s.strategy);
     const bool defer = !reduces_population(s.strategy);
     std::vector<char> taken(static_cast<std::size_t>(np), 0);
     for (int i = 0; i < ne; ++i) {
@@ -1231,7 +1293,7 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
             succ.F.push_back(tF[static_cast<std::size_t>(i)]);
             succ.CR.push_back(tCR[static_cast<std::size_t>(i)]);
             succ.w.push_back(st.costs(i) - tcost(i));
-            if (archive) archive_push(st, st.population.row(i).data());
+            archive_push(st, st.population.row(i).data());
         }
         if (defer) {
             taken[static_cast<std::size_t>(i)] = 1;
@@ -1239,16 +1301,13 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
             st.population.row(i) = trials.row(i);
         }
         st.costs(i) = tcost(i);
-        if (s.strategy == Strategy::jde) {
-            st.ind_F[static_cast<std::size_t>(i)] = tF[static_cast<std::size_t>(i)];
-            st.ind_CR[static_cast<std::size_t>(i)] = tCR[static_cast<std::size_t>(i)];
-        }
     }
     update_memories(st, succ);
     if (reduces_population(s.strategy)) reduce_population(st);
     ++st.generation;
     if (defer) {
-        append_log(st, pool, t0, &trials, &taken);
+        pending.taken = &taken;
+        append_log(st, pool, t0, &pending);
     } else {
         append_log(st, pool, t0);
     }

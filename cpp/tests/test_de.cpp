@@ -323,6 +323,81 @@ IWR_TEST(minus_infinite_cost_is_an_error_not_a_target) {
     CHECK(throws_naming([&] { iwr::de::run(st, some, pool, stop); }, "cost -inf"));
 }
 
+IWR_TEST(nan_and_minus_infinite_costs_on_either_path) {
+    // The generation's one pass (prepare true) turns a NaN cost into +inf and finds a -inf on the
+    // threads; the two-pass path does it after the evaluation. Either way, on any number of
+    // threads: a NaN is +inf (the same run as an objective that returns +inf there), and a -inf
+    // is an error naming the first trial row with it, the state left as it was.
+    iwr::ThreadPool p1(1), p2(2), p3(3);
+    iwr::ThreadPool* pools[] = {&p1, &p2, &p3};
+    const auto set = settings_for(Strategy::jde, 5, 11);
+    std::string ref, message;
+    for (double special : {NAN, INFINITY}) {
+        for (auto* pool : pools) {
+            for (bool rows : {false, true}) {
+                iwr_test::RowFunction f(5, rows);
+                f.special = special;
+                f.special_above = 0.4;  // some rows, not all (parents too: +inf against NaN)
+                auto st = iwr::de::init(set, f, *pool);
+                for (int g = 0; g < 6; ++g) iwr::de::step(st, f, *pool);
+                std::ostringstream o;
+                st.elapsed = 0;
+                for (auto& e : st.log) e.elapsed = 0;
+                st.serialize(o);
+                if (ref.empty()) ref = o.str();
+                CHECK(o.str() == ref);
+                f.special = -INFINITY;
+                const auto before = st.streams;
+                std::string what;
+                try {
+                    iwr::de::step(st, f, *pool);
+                } catch (const std::invalid_argument& e) {
+                    what = e.what();
+                }
+                CHECK(what.find("cost -inf") != std::string::npos && what.find("trial row") != std::string::npos);
+                if (message.empty()) message = what;
+                CHECK(what == message);
+                CHECK(st.generation == 6 && st.streams[1].s[0] == before[1].s[0]);
+            }
+        }
+    }
+}
+
+IWR_TEST(log_row_against_the_population) {
+    // Each log row against the population it describes, computed here directly: the best cost,
+    // the mean cost and the spread (two passes, the mean first), for strategies whose selection
+    // the log's pass makes (rand1bin, jde) and those selected serially (shade, lshade), with a
+    // budget's partial last step, on 1 and 3 threads.
+    iwr::ThreadPool p1(1), p3(3);
+    for (Strategy s : {Strategy::rand1bin, Strategy::jde, Strategy::shade, Strategy::lshade}) {
+        for (auto* pool : {&p1, &p3}) {
+            auto set = settings_for(s, 6, 3);
+            set.population_size = 37;
+            set.max_evaluations = 37 * 9 + 5;
+            iwr_test::RowFunction f(6, true);
+            auto st = iwr::de::init(set, f, *pool);
+            for (int g = 0; g < 9; ++g) {
+                if (g == 8) iwr::de::step(st, f, *pool, 5);
+                else iwr::de::step(st, f, *pool);
+                const auto& e = st.log.back();
+                const int np = st.np;
+                CHECK(e.generation == st.generation && e.nfev == st.nfev);
+                CHECK(e.best == st.costs.minCoeff());
+                CHECK(std::abs(e.mean - st.costs.mean()) <= 1e-13 * std::abs(st.costs.mean()));
+                double acc = 0;
+                for (int j = 0; j < 6; ++j) {
+                    const double m = st.population.col(j).mean();
+                    const double v = (st.population.col(j).array() - m).square().sum() / np;
+                    const double w = set.upper[static_cast<std::size_t>(j)] - set.lower[static_cast<std::size_t>(j)];
+                    acc += v / (w * w);
+                }
+                const double spread = std::sqrt(acc / 6);
+                CHECK(std::abs(e.spread - spread) <= 1e-12 * spread);
+            }
+        }
+    }
+}
+
 IWR_TEST(no_finite_cost_is_no_success) {
     // NaN and +inf count as the worst cost: a run where every cost is NaN ends at its budget, no
     // success, saying that no cost was finite; a target of +inf is not reached by +inf.
