@@ -35,6 +35,8 @@ import tempfile
 import time
 from pathlib import Path
 
+from bench_regression import WARM_S
+
 REPO = Path(__file__).resolve().parents[1]
 ROBOT, DATA = REPO / "examples" / "iwr.toml", REPO / "examples" / "iwr_example.csv"
 SETTINGS = ["--population-size", "600", "--F", "0.9", "--CR", "1", "--seed", "1",
@@ -74,9 +76,9 @@ class Engine:
 
     def batch(self, threads: list[int], seconds: float) -> dict[int, tuple[float, float]]:
         """cost_batch of 600 random vectors on each thread count (ms, wall), in rounds spread over
-        `seconds`, the thread counts alternated: a round is 30 ms of untimed calls (a pool of
-        another size is made anew, and its woken worker may share the caller's CPU for a while:
-        ``bench_regression.WARM_S``), then 5 calls one after another. The minimum over all, and
+        `seconds`, the thread counts alternated: a round is ``bench_regression.WARM_S`` of untimed
+        calls (a pool of another size is made anew, and its woken worker may share the caller's
+        CPU for a while), then 5 calls one after another. The minimum over all, and
         like for like with a generation's figure, the median over rounds of each round's
         minimum."""
         code = (
@@ -89,7 +91,7 @@ class Engine:
             "while time.perf_counter() - t0 < float(sys.argv[3]):\n"
             "    for t in ts:\n"
             "        w = time.perf_counter()\n"
-            "        while time.perf_counter() - w < 0.03:\n"
+            "        while time.perf_counter() - w < float(sys.argv[4]):\n"
             "            p.cost_batch(X, workers=t)\n"
             "        g = []\n"
             "        for _ in range(5):\n"
@@ -99,7 +101,8 @@ class Engine:
             "for t in ts:\n"
             "    m = sorted(groups[t]); print(f'{t}={m[0]!r},{m[len(m) // 2]!r}')\n")
         out = subprocess.run([str(self.bin / "python"), "-c", code, str(self.tmp / "leg.iwrp"),
-                              ",".join(map(str, threads)), str(seconds)], check=True, cwd=self.tmp,
+                              ",".join(map(str, threads)), str(seconds), repr(WARM_S)],
+                             check=True, cwd=self.tmp,
                              capture_output=True, text=True).stdout.split()
         res = {}
         for w in out:

@@ -16,6 +16,7 @@ import xml.etree.ElementTree as ET
 
 import numpy as np
 
+from .. import kinds
 from .._io import atomic_write_text
 from ..robot import Robot
 from ..transforms import pose_from_matrix
@@ -30,13 +31,13 @@ HEXAPOD_LINK = "hexapod_base"
 
 
 def _frame_link(robot: Robot) -> tuple[str, np.ndarray] | None:
-    """The link of the frame the data were measured in (``tracker`` for {T}) and its pose in
-    {0}, ``T_0D``; None for data in {0}."""
+    """The link of the frame the data were measured in (the kind's ``frame_link``: ``tracker``
+    for {T}) and its pose in {0}, ``T_0D``; None for data in {0}."""
     frame = data_frame(robot)
     if frame is None:
         return None
     name, t = frame
-    return ("tracker" if name == "T" else f"frame_{name}"), np.linalg.inv(t)
+    return kinds.for_robot(robot).frame_link or f"frame_{name}", np.linalg.inv(t)
 
 
 def link_names(robot: Robot) -> list[str]:

@@ -61,6 +61,10 @@ class MeasurementKind(abc.ABC):
     #: The frame the data are given in: ``"{0}"`` (the robot's world frame), ``"{T}"`` (the
     #: tracker's).
     frame: ClassVar[str]
+    #: The name of that frame's link in an exported URDF where it is not {0} (``"tracker"``
+    #: for {T}), fixed in the world frame's link by the calibrated registration; None:
+    #: ``frame_`` and the frame's name.
+    frame_link: ClassVar[str | None] = None
     #: Whether the data fix the robot's world frame {0}. Point data do not (the registration and
     #: a rigid motion of {5} are in the null space), so what is said in {0} after such a
     #: calibration is a gauge choice (docs/tracker.md).

@@ -43,6 +43,7 @@ _GAUGE = ("Tracker data do not fix {0} nor {5} (docs/tracker.md): every figure h
 
 class _TrackerKind(MeasurementKind):
     frame = "{T}"
+    frame_link = "tracker"
     determines_world_frame = False
     models_effects = True  # issue 23: the point (probe) objective with the effects (numpy)
     weighted_objective = True  # the points' covariance (a probe's: rank 6), noise_whitening
