@@ -14,7 +14,9 @@
 //       benchmarks/de_overhead.cpp build/rel/libiwr_core.a -pthread -o /tmp/de_overhead
 //   python -c "import iwr; r = iwr.Robot.default(); d, _ = iwr.simulate(r, n_poses=100, seed=1);
 //       iwr.Problem(r, d).save('/tmp/leg.iwrp')"     (one line)
-//   /tmp/de_overhead /tmp/leg.iwrp THREADS GENERATIONS [both|real|trivial] [RUNS]
+//   /tmp/de_overhead /tmp/leg.iwrp THREADS GENERATIONS [both|real|trivial] [RUNS] [STRATEGY]
+// (STRATEGY: another strategy than rand1bin, with its defaults but NP 600 and, for rand1bin, jde
+// and best1bin, F 0.9 and CR 1.)
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>
@@ -74,7 +76,7 @@ double median_gen_ms(F& f, const de::Settings& s, iwr::ThreadPool& pool, int gen
 
 int main(int argc, char** argv) {
     if (argc < 2) {
-        std::fprintf(stderr, "usage: %s PROBLEM.iwrp [THREADS [GENERATIONS > 50 [MODE [RUNS]]]]\n", argv[0]);
+        std::fprintf(stderr, "usage: %s PROBLEM.iwrp [THREADS [GENERATIONS > 50 [MODE [RUNS [STRATEGY]]]]]\n", argv[0]);
         return 2;
     }
     const std::string path = argv[1];
@@ -94,13 +96,21 @@ int main(int argc, char** argv) {
     iwr::AnyObjective any = iwr::make_objective(p);
     const auto& obj = std::get<iwr::Objective>(any);
     de::Settings s;
-    s.strategy = de::Strategy::rand1bin;
+    try {
+        s.strategy = de::parse_strategy(argc > 6 ? argv[6] : "rand1bin", "STRATEGY");
+    } catch (const std::exception& e) {
+        std::fprintf(stderr, "%s\n", e.what());
+        return 2;
+    }
     s.lower = p.lower;
     s.upper = p.upper;
     s.seed = 1;
     s.population_size = 600;
-    s.F = 0.9;
-    s.CR = 1.0;
+    if (s.strategy == de::Strategy::rand1bin || s.strategy == de::Strategy::jde ||
+        s.strategy == de::Strategy::best1bin) {
+        s.F = 0.9;
+        s.CR = 1.0;
+    }
     iwr::ThreadPool pool(threads);
     const int d = obj.n_params();
     std::printf("kernel %s threads %d D %d\n", iwr::active_kernel().c_str(), threads, d);

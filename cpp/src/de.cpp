@@ -711,7 +711,7 @@ struct Below {
 struct Generation {
     const State* st;
     Rng* drawn;  // st->drawn: slot i's stream copied to drawn[1 + i], its draws taken there
-    std::vector<int> order;  // population indices by cost, ties by index
+    std::vector<int> order;  // the best population indices by cost, ties by index
     int pnum = 2;            // size of the p-best set (fixed-p strategies)
     double progress = 0;     // NFE / NFE_max (lshade, jso)
     Below below_np, below_d;  // draws in [0, np) and [0, D)
@@ -925,10 +925,22 @@ IWR_FORCE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan
     }
     // Binomial crossover, eq. (13). With CR = 1 every component comes from the mutant whatever the
     // draws, so none are made (the paper's setting).
+    // The draws first, then the choice in a branch-free loop, kCrossChunk components at a time: a
+    // draw is below CR at random, so a branch on it was mispredicted most of the time (the
+    // adaptive strategies' trials spent 200 ns of their 300 in this loop: BENCHMARKS.md,
+    // thirty-fourth round).
     if (CRi < 1) {
-        for (int j = 0; j < d; ++j) {
-            const bool take = uniform_of(g) < CRi || j == jr;
-            u[j] = take ? u[j] : xi[j];
+        constexpr int kCrossChunk = 64;
+        double r[kCrossChunk];
+        for (int j0 = 0; j0 < d; j0 += kCrossChunk) {
+            const int n = std::min(kCrossChunk, d - j0);
+            for (int k = 0; k < n; ++k) r[k] = uniform_of(g);
+            double* __restrict uj = u + j0;
+            const double* __restrict xj = xi + j0;
+            for (int k = 0; k < n; ++k) {
+                const bool take = (r[k] < CRi) | (j0 + k == jr);
+                uj[k] = take ? uj[k] : xj[k];
+            }
         }
     }
     // Out-of-bounds components (only mutated ones can be) are repaired by the bound rule, in
@@ -1181,6 +1193,30 @@ State init(const Settings& settings, BatchFunction& f, ThreadPool& pool) {
     return st;
 }
 
+namespace {
+
+// The indices of the `top` lowest costs in order, ties by index, into order. (cost, index) pairs
+// ordered as pairs (no cost is NaN): the top selected, then sorted; a partial sort of the indices
+// compared through the costs took 10 % of SHADE's own work (BENCHMARKS.md, thirty-fourth round).
+void best_order(const State& st, int top, std::vector<int>& order) {
+    const int np = st.np;
+    if (top == 1) {  // the first of the best
+        int b = 0;
+        for (int i = 1; i < np; ++i) b = st.costs(i) < st.costs(b) ? i : b;
+        order.assign(1, b);
+        return;
+    }
+    std::vector<std::pair<double, int>> keyed(static_cast<std::size_t>(np));
+    for (int i = 0; i < np; ++i) keyed[static_cast<std::size_t>(i)] = {st.costs(i), i};
+    if (top < np) std::nth_element(keyed.begin(), keyed.begin() + top, keyed.end());
+    std::sort(keyed.begin(), keyed.begin() + top);
+    order.resize(static_cast<std::size_t>(top));
+    for (int k = 0; k < top; ++k)
+        order[static_cast<std::size_t>(k)] = keyed[static_cast<std::size_t>(k)].second;
+}
+
+}  // namespace
+
 void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials) {
     const auto t0 = Clock::now();
     check_dim(st, f);
@@ -1210,14 +1246,7 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
     gen.pnum = std::min(np, std::max(2, static_cast<int>(std::lround(p * np))));
     if (s.strategy != Strategy::rand1bin && s.strategy != Strategy::jde) {
         // The best `top` individuals in order (all the p-best sets and best1bin's base need).
-        const int top = s.strategy == Strategy::best1bin ? 1 : gen.pnum;
-        gen.order.resize(static_cast<std::size_t>(np));
-        std::iota(gen.order.begin(), gen.order.end(), 0);
-        std::partial_sort(gen.order.begin(), gen.order.begin() + top, gen.order.end(),
-                          [&](int a, int b) {
-                              return st.costs(a) < st.costs(b) ||
-                                     (st.costs(a) == st.costs(b) && a < b);
-                          });
+        best_order(st, s.strategy == Strategy::best1bin ? 1 : gen.pnum, gen.order);
     }
 
     // Trials: slot i uses stream 1 + i only, so any partition of the slots gives the same trials.

@@ -1,11 +1,13 @@
 // C++ tests of the differential evolution engine: determinism across thread counts, bit-identical
 // resume through serialize/deserialize, rejection of damaged states, argument validation.
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <random>
 #include <sstream>
 #include <stdexcept>
 #include <string>
+#include <vector>
 
 #include "check.hpp"
 #include "de_fixtures.hpp"
@@ -94,6 +96,72 @@ IWR_TEST(selection_is_less_or_equal) {
     const iwr::RowMatrixXd before = st.population;
     iwr::de::step(st, f, pool);
     for (int i = 0; i < st.np; ++i) CHECK(st.population.row(i) != before.row(i));
+}
+
+// Records the rows it is given (the trials) beside TestFunction's costs.
+class Recording : public iwr::de::BatchFunction {
+public:
+    explicit Recording(int d) : f_(d) {}
+    int dim() const override { return f_.dim(); }
+    void evaluate(const double* X, std::size_t m, double* out, iwr::ThreadPool& pool) override {
+        rows.assign(X, X + m * static_cast<std::size_t>(f_.dim()));
+        f_.evaluate(X, m, out, pool);
+    }
+    std::vector<double> rows;
+
+private:
+    TestFunction f_;
+};
+
+IWR_TEST(rand1bin_trials_from_the_streams) {
+    // Each trial of DE/rand/1/bin rebuilt here from the documented draws of its slot's stream
+    // (de.hpp: r1, r2, r3 distinct from i and each other, j_r, then one uniform a component where
+    // CR < 1), eq. (12) and (13), and the midpoint repair: the same bits, for CR 0, 0.3, 0.999 and
+    // 1 and D across the crossover's chunks of 64 components.
+    for (int d : {5, 64, 70, 130}) {
+        for (double CR : {0.0, 0.3, 0.999, 1.0}) {
+            auto set = settings_for(Strategy::rand1bin, d, 17);
+            set.CR = CR;
+            set.F = 0.7;
+            set.bound_rule = iwr::de::BoundRule::midpoint;
+            Recording f(d);
+            iwr::ThreadPool pool(2);
+            auto st = iwr::de::init(set, f, pool);
+            for (int g = 0; g < 3; ++g) iwr::de::step(st, f, pool);
+            const iwr::de::State before = st;
+            iwr::de::step(st, f, pool);
+            const int np = before.np;
+            int mismatches = 0, from_mutant = 0;
+            for (int i = 0; i < np; ++i) {
+                iwr::de::Rng g = before.streams[static_cast<std::size_t>(i) + 1];
+                const auto other = [&](int a, int b, int c) {
+                    int r;
+                    do {
+                        r = static_cast<int>(g.below(static_cast<std::uint64_t>(np)));
+                    } while (r == a || r == b || r == c);
+                    return r;
+                };
+                const int r1 = other(i, i, i), r2 = other(i, r1, r1), r3 = other(i, r1, r2);
+                const int jr = static_cast<int>(g.below(static_cast<std::uint64_t>(d)));
+                for (int j = 0; j < d; ++j) {
+                    const double xi = before.population(i, j);
+                    double v = before.population(r1, j) +
+                               set.F * (before.population(r2, j) - before.population(r3, j));
+                    const bool take = CR >= 1 || g.uniform() < CR || j == jr;
+                    if (!take) v = xi;
+                    from_mutant += take;
+                    if (v < -2.0) v = std::clamp(0.5 * (xi - 2.0), -2.0, 3.0);
+                    if (v > 3.0) v = std::clamp(0.5 * (xi + 3.0), -2.0, 3.0);
+                    mismatches += v != f.rows[static_cast<std::size_t>(i * d + j)];
+                }
+            }
+            CHECK(mismatches == 0);
+            // CR 0: j_r alone; otherwise about CR D a trial.
+            if (CR == 0) CHECK(from_mutant == np);
+            if (CR == 1) CHECK(from_mutant == np * d);
+            if (CR == 0.3) CHECK(std::abs(from_mutant - 0.3 * np * d) < 0.1 * np * d + np);
+        }
+    }
 }
 
 IWR_TEST(solves_sphere) {
