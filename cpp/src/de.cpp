@@ -893,6 +893,30 @@ IWR_FORCE_INLINE void prefetch_plan(const Plan& plan, int d) {
 #endif
 }
 
+// Binomial crossover, eq. (13): component j of u (the mutant) is kept where the stream's next
+// uniform draw is below CR, or j == jr, and is xi's otherwise. The draws first, then the choice
+// in a branch-free loop, kCrossChunk components at a time: a draw is below CR at random, so a
+// branch on it was mispredicted most of the time (the adaptive strategies' trials spent 200 ns of
+// their 300 in this loop: BENCHMARKS.md, thirty-fourth round). Not inlined: its buffer in
+// make_trials' frame slowed the trials without crossover (CR = 1, the paper's) by 1 us a
+// generation.
+IWR_CLONES __attribute__((noinline)) void crossover(Rng& g, double CRi, int jr,
+                                                   const double* __restrict xi,
+                                                   double* __restrict u, int d) {
+    constexpr int kCrossChunk = 64;
+    double r[kCrossChunk];
+    for (int j0 = 0; j0 < d; j0 += kCrossChunk) {
+        const int n = std::min(kCrossChunk, d - j0);
+        for (int k = 0; k < n; ++k) r[k] = uniform_of(g);
+        double* __restrict uj = u + j0;
+        const double* __restrict xj = xi + j0;
+        for (int k = 0; k < n; ++k) {
+            const bool take = (r[k] < CRi) | (j0 + k == jr);
+            uj[k] = take ? uj[k] : xj[k];
+        }
+    }
+}
+
 // Builds the trial of slot i into u from its plan (the rest of its draws from its stream).
 IWR_FORCE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan, double* u) {
     const State& st = *gen.st;
@@ -925,24 +949,7 @@ IWR_FORCE_INLINE void build_trial(const Generation& gen, int i, const Plan& plan
     }
     // Binomial crossover, eq. (13). With CR = 1 every component comes from the mutant whatever the
     // draws, so none are made (the paper's setting).
-    // The draws first, then the choice in a branch-free loop, kCrossChunk components at a time: a
-    // draw is below CR at random, so a branch on it was mispredicted most of the time (the
-    // adaptive strategies' trials spent 200 ns of their 300 in this loop: BENCHMARKS.md,
-    // thirty-fourth round).
-    if (CRi < 1) {
-        constexpr int kCrossChunk = 64;
-        double r[kCrossChunk];
-        for (int j0 = 0; j0 < d; j0 += kCrossChunk) {
-            const int n = std::min(kCrossChunk, d - j0);
-            for (int k = 0; k < n; ++k) r[k] = uniform_of(g);
-            double* __restrict uj = u + j0;
-            const double* __restrict xj = xi + j0;
-            for (int k = 0; k < n; ++k) {
-                const bool take = (r[k] < CRi) | (j0 + k == jr);
-                uj[k] = take ? uj[k] : xj[k];
-            }
-        }
-    }
+    if (CRi < 1) crossover(g, CRi, jr, xi, u, d);
     // Out-of-bounds components (only mutated ones can be) are repaired by the bound rule, in
     // index order. midpoint and clip draw nothing: a branch-free loop (a mutant component leaves
     // the bounds at random, so a branch would be mispredicted often), with the same values as the
