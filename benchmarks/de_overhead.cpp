@@ -16,7 +16,8 @@
 //       iwr.Problem(r, d).save('/tmp/leg.iwrp')"     (one line)
 //   /tmp/de_overhead /tmp/leg.iwrp THREADS GENERATIONS [both|real|trivial] [RUNS] [STRATEGY]
 // (STRATEGY: another strategy than rand1bin, with its defaults but NP 600 and, for rand1bin, jde
-// and best1bin, F 0.9 and CR 1.)
+// and best1bin, F 0.9 and CR 1. lshade and jso shrink the population during the timed generations,
+// so their median mixes population sizes.)
 #include <chrono>
 #include <cstdio>
 #include <cstdlib>

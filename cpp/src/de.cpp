@@ -434,7 +434,7 @@ void archive_trim(State& st) {
 
 // The log's spread: sums of squared deviations from the mean of each column of the population,
 // in one pass over the rows: with y = x - c, c the column's value in the row `shift` (a member of
-// the population: row 0 as it was before the generation's selection), sum (x - mean)^2 = sum y^2
+// the population: its row 0 after the generation's selection), sum (x - mean)^2 = sum y^2
 // - (sum y) (sum y / np) (the shifted-data formula; two passes, the mean first, read the
 // population twice from L2: BENCHMARKS.md, fifteenth round). The cancellation loses a factor
 // (1 + k^2) of the sums' precision, k the shift's distance from the mean in standard deviations:
@@ -590,12 +590,12 @@ struct Pending {
 // The log row of the current population, and st.elapsed (+= the time since t0, the log
 // included), with the generation's pending trials (or none) put into the population. One pass of
 // the pool over the rows in kLogBlocks blocks: the thread that takes a block selects or copies its
-// trials, then takes the block's smallest cost (the first of the best), the sum of its costs and
-// its rows' sums column by column (each in slot order within the block); the blocks' figures are
+// trials, then takes the block's smallest cost, the sum of its costs and its rows' sums column by
+// column (each in slot order within the block); the blocks' figures are
 // then combined in block order. A thread so reads and writes the rows and costs of the slots whose
 // trials it built, where they are (its cache), not the other threads'. The deviations are taken
-// from row 0 as it was before the pass (a member of the population: the shift keeps the sums of
-// squares from cancelling).
+// from row 0 of the population the log describes (a member of it: the shift keeps the sums of
+// squares from cancelling), copied before the pass.
 void append_log(State& st, ThreadPool& pool, Clock::time_point t0, const Pending* pending = nullptr) {
     LogEntry e;
     e.generation = st.generation;
@@ -604,11 +604,17 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0, const Pending
     const int d = st.dim();
     const int nb = std::min(np, kLogBlocks);
     const auto nd = static_cast<std::size_t>(d);
-    // Per block: s1 and s2 (d each), then the smallest cost, its row and the costs' sum.
-    const std::size_t per = 2 * nd + 3;
-    const std::unique_ptr<double[]> part(new double[(per + 0) * static_cast<std::size_t>(nb) + nd]);
+    // Per block: s1 and s2 (d each), then the smallest cost and the costs' sum; then the shift.
+    const std::size_t per = 2 * nd + 2;
+    const std::unique_ptr<double[]> part(new double[per * static_cast<std::size_t>(nb) + nd]);
     double* shift = part.get() + per * static_cast<std::size_t>(nb);
-    std::memcpy(shift, st.population.row(0).data(), nd * sizeof(double));
+    // Row 0 as it is after the pass (a member of the population the log describes: the old row 0,
+    // where its trial replaces it, may be far from the rest and ruined the sums' precision).
+    bool taken0 = false;
+    if (pending && pending->taken) taken0 = (*pending->taken)[0] != 0;
+    else if (pending) taken0 = pending->ne > 0 && pending->tcost[0] <= st.costs(0);
+    std::memcpy(shift, taken0 ? pending->trials->row(0).data() : st.population.row(0).data(),
+                nd * sizeof(double));
     // Passes of `window` columns; where d is not a multiple, the last pass is moved back to end at
     // column d (its first columns computed again with the same arithmetic, the same bits), so that
     // every pass but one of a narrower problem is full width: no lanes loaded one by one.
@@ -639,15 +645,13 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0, const Pending
             }
             double* s1 = part.get() + per * k;
             double best = st.costs(r0), sum = 0;
-            Eigen::Index at = r0;
             for (Eigen::Index i = r0; i < r1; ++i) {
                 const double c = st.costs(i);
                 sum += c;
-                if (c < best) best = c, at = i;
+                best = c < best ? c : best;
             }
             s1[2 * nd] = best;
-            s1[2 * nd + 1] = static_cast<double>(at);
-            s1[2 * nd + 2] = sum;
+            s1[2 * nd + 1] = sum;
             for (int p = 0; p < passes; ++p) {
                 const int first = p * window;
                 const int j0 = std::min(first, d - window);
@@ -658,12 +662,12 @@ void append_log(State& st, ThreadPool& pool, Clock::time_point t0, const Pending
     });
     std::vector<double> s1(part.get(), part.get() + nd), s2(part.get() + nd, part.get() + 2 * nd);
     e.best = part[2 * nd];
-    double sum = part[2 * nd + 2];
+    double sum = part[2 * nd + 1];
     for (int k = 1; k < nb; ++k) {
         const double* p = part.get() + per * static_cast<std::size_t>(k);
         for (std::size_t j = 0; j < nd; ++j) s1[j] += p[j], s2[j] += p[nd + j];
         if (p[2 * nd] < e.best) e.best = p[2 * nd];
-        sum += p[2 * nd + 2];
+        sum += p[2 * nd + 1];
     }
     e.mean = sum / np;
     double acc = 0;
@@ -900,9 +904,8 @@ IWR_FORCE_INLINE void prefetch_plan(const Plan& plan, int d) {
 // their 300 in this loop: BENCHMARKS.md, thirty-fourth round). Not inlined: its buffer in
 // make_trials' frame slowed the trials without crossover (CR = 1, the paper's) by 1 us a
 // generation.
-IWR_CLONES __attribute__((noinline)) void crossover(Rng& g, double CRi, int jr,
-                                                   const double* __restrict xi,
-                                                   double* __restrict u, int d) {
+IWR_CLONES IWR_NOINLINE void crossover(Rng& g, double CRi, int jr, const double* __restrict xi,
+                                       double* __restrict u, int d) {
     constexpr int kCrossChunk = 64;
     double r[kCrossChunk];
     for (int j0 = 0; j0 < d; j0 += kCrossChunk) {

@@ -466,6 +466,35 @@ IWR_TEST(log_row_against_the_population) {
     }
 }
 
+IWR_TEST(log_spread_of_a_converged_cluster_after_an_outlier_leaves) {
+    // A cluster within 1e-9 of 0.3 and one far member, row 0, whose trial (built from the cluster)
+    // replaces it: the log's spread is that of the population after the step (a reviewer's case:
+    // with the old row 0 as the shift the spread was 40 times too large). For the selection in
+    // the log's pass (rand1bin, jde) and the serial one (jade).
+    for (Strategy s : {Strategy::rand1bin, Strategy::jde, Strategy::jade}) {
+        auto set = settings_for(s, 3, 5);
+        set.CR = 1.0;
+        set.F = 0.9;
+        TestFunction f(3);
+        iwr::ThreadPool pool(2);
+        auto st = iwr::de::init(set, f, pool);
+        for (int i = 0; i < st.np; ++i)
+            for (int j = 0; j < 3; ++j)
+                st.population(i, j) = i == 0 ? 2.7 : 0.3 + 1e-9 * ((i * (j + 2)) % 7 - 3);
+        f.evaluate(st.population.data(), static_cast<std::size_t>(st.np), st.costs.data(), pool);
+        const double before = st.population(0, 0);
+        iwr::de::step(st, f, pool);
+        if (s == Strategy::rand1bin) CHECK(st.population(0, 0) != before);  // the case's premise
+        double acc = 0;
+        for (int j = 0; j < 3; ++j) {
+            const double m = st.population.col(j).mean();
+            acc += (st.population.col(j).array() - m).square().sum() / st.np / 25.0;
+        }
+        const double spread = std::sqrt(acc / 3);
+        CHECK(std::abs(st.log.back().spread - spread) <= 1e-12 * spread);
+    }
+}
+
 IWR_TEST(no_finite_cost_is_no_success) {
     // NaN and +inf count as the worst cost: a run where every cost is NaN ends at its budget, no
     // success, saying that no cost was finite; a target of +inf is not reached by +inf.
