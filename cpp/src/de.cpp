@@ -1292,7 +1292,8 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
                 if (minus_inf) unsanitized.store(true, std::memory_order_relaxed);
             }
         });
-        if (unsanitized.load()) sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
+        if (unsanitized.load())  // to name the first row with a -inf
+            sanitize(trials.data(), d, tcost.data(), static_cast<std::size_t>(ne), "trial");
     } else {
         pool.parallel_for(static_cast<std::size_t>(np),
                           [&](std::size_t b, std::size_t e, int) { make_trials_of(b, e); });
