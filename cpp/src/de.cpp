@@ -376,11 +376,20 @@ double seconds_since(Clock::time_point t0) {
 // row, its cost and its vector, where it would otherwise be a best cost no trial can improve on,
 // "reaching" any target (the default one, -inf, too). `what` names the rows: "population" or
 // "trial". Reads the costs only (and writes +inf over NaN): the run's bits are unchanged.
+// nan_to_inf: the first half, for rows [b, e) (the generation's pass, each thread its rows);
+// whether one of them is -inf.
+bool nan_to_inf(double* c, std::size_t b, std::size_t e) {
+    bool minus_inf = false;
+    for (std::size_t i = b; i < e; ++i) {
+        if (std::isnan(c[i])) c[i] = std::numeric_limits<double>::infinity();
+        minus_inf |= c[i] == -std::numeric_limits<double>::infinity();
+    }
+    return minus_inf;
+}
 void sanitize(const double* x, int d, double* c, std::size_t n, const char* what) {
+    if (!nan_to_inf(c, 0, n)) return;
     for (std::size_t i = 0; i < n; ++i) {
-        if (std::isnan(c[i])) {
-            c[i] = std::numeric_limits<double>::infinity();
-        } else if (c[i] == -std::numeric_limits<double>::infinity()) {
+        if (c[i] == -std::numeric_limits<double>::infinity()) {
             constexpr int kShown = 12;
             const double* xi = x + i * static_cast<std::size_t>(d);
             std::string v;
@@ -1290,13 +1299,8 @@ void step(State& st, BatchFunction& f, ThreadPool& pool, std::int64_t max_trials
             make_trials_of(b, e);
             if (b < std::min(e, nev)) {
                 f.evaluate_rows(trials.data(), b, std::min(e, nev), tcost.data(), id);
-                bool minus_inf = false;
-                for (std::size_t i = b; i < std::min(e, nev); ++i) {  // as sanitize
-                    double& c = tcost.data()[i];
-                    if (std::isnan(c)) c = std::numeric_limits<double>::infinity();
-                    minus_inf |= c == -std::numeric_limits<double>::infinity();
-                }
-                if (minus_inf) unsanitized.store(true, std::memory_order_relaxed);
+                if (nan_to_inf(tcost.data(), b, std::min(e, nev)))
+                    unsanitized.store(true, std::memory_order_relaxed);
             }
         });
         if (unsanitized.load())  // to name the first row with a -inf
